@@ -1,0 +1,80 @@
+// LayerExtractor: marching cubes one layer at a time (SPEC §2, the paper's EXTRACT(k)).
+//
+// AddSlice(k) consumes slice k and emits layer k into a MeshStore: the vertices on slice k's
+// x- and y-edges, the vertices on the z-edges between slices k-1 and k, and the triangles of
+// the cubes between them. Vertices on shared grid edges are created exactly once: the ids of
+// the top plane's edges are kept (plane caches) and become the next layer's bottom, so the
+// mesh is welded with no lookups. Memory is O(nx*ny) plus the mesh.
+//
+// Cases come from mc_tables.h: ambiguous faces are resolved by the asymptotic decider, which
+// both cubes sharing the face evaluate identically, so the union of all layers is an
+// orientable 2-manifold, closed away from the grid's box. Triangles are counter-clockwise
+// seen from where F < C0 (normals point from high to low values).
+#ifndef TANDEM_LAYER_EXTRACTOR_H_
+#define TANDEM_LAYER_EXTRACTOR_H_
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "tandem/mesh_store.h"
+#include "tandem/types.h"
+
+namespace tandem {
+
+struct ExtractorConfig {
+  int64_t nx = 0, ny = 0;
+  int64_t nz = 0;  // 0 when unknown (streaming): Finish() then marks the top of the box
+  std::array<double, 3> spacing{1, 1, 1};
+  std::array<double, 3> origin{0, 0, 0};
+  double iso = 0;
+};
+
+class LayerExtractor {
+ public:
+  // `store` must outlive the extractor.
+  LayerExtractor(const ExtractorConfig& config, MeshStore* store);
+
+  // Consumes the next slice (nx*ny values, x fastest). Appends the ids of the triangles and
+  // vertices it created to *new_tris / *new_verts when given. Rejects non-finite values and
+  // slices past nz (when nz is known) with InvalidArgument; the store is left unchanged.
+  absl::Status AddSlice(const float* values, std::vector<TriId>* new_tris = nullptr,
+                        std::vector<VertexId>* new_verts = nullptr);
+
+  // Declares the last slice added to be the top of the box: its plane vertices get the
+  // kBoxZMax bit. Called by the owner when the stream ends (a no-op beyond that).
+  void Finish();
+
+  int64_t slices_done() const { return slices_done_; }
+  int64_t crossed_cubes() const { return crossed_cubes_; }
+  const ExtractorConfig& config() const { return config_; }
+
+ private:
+  // Vertex on the grid edge from index point p (value fp) to q (value fq), fp, fq relative
+  // to the iso-value, exactly one of them >= 0.
+  VertexId MakeEdgeVertex(double pi, double pj, double pk, int axis, double fp, double fq,
+                          int32_t layer, std::vector<VertexId>* new_verts);
+  uint8_t BoxMask(double i, double j, double k) const;
+  Vec3 Physical(double i, double j, double k) const {
+    return {config_.origin[0] + i * config_.spacing[0], config_.origin[1] + j * config_.spacing[1],
+            config_.origin[2] + k * config_.spacing[2]};
+  }
+
+  ExtractorConfig config_;
+  MeshStore* store_;
+  int64_t slices_done_ = 0;
+  int64_t crossed_cubes_ = 0;
+  bool finished_ = false;
+
+  // Values relative to the iso-value, bottom (k-1) and top (k) slices.
+  std::vector<double> f_bottom_, f_top_;
+  // Plane caches: vertex ids of x-edges ((nx-1)*ny) and y-edges (nx*(ny-1)) of the bottom
+  // and top slices, z-edges (nx*ny) of the current layer. kInvalid = no crossing.
+  std::vector<VertexId> xe_bottom_, xe_top_, ye_bottom_, ye_top_, ze_;
+  std::vector<VertexId> top_plane_vertices_;  // for Finish()
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_LAYER_EXTRACTOR_H_

@@ -1,0 +1,110 @@
+// MeshStore: the mutable triangle mesh shared by the layer extractor and the simplifier.
+//
+// Data-oriented on purpose (see ../shared/STYLE.md): struct-of-arrays with 32-bit ids, no
+// pointers. Deletion is a flag plus a free list, so ids stay stable while the simplifier
+// works; compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
+// triangle ids (its incident triangles); slots come in power-of-two size classes with a free
+// list per class, so adding a triangle never allocates per element.
+#ifndef TANDEM_MESH_STORE_H_
+#define TANDEM_MESH_STORE_H_
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "tandem/mesh.h"
+#include "tandem/types.h"
+
+namespace tandem {
+
+// Bits of MeshStore::box_mask: which faces of the grid's box a vertex lies on.
+enum BoxFace : uint8_t {
+  kBoxXMin = 1, kBoxXMax = 2, kBoxYMin = 4, kBoxYMax = 8, kBoxZMin = 16, kBoxZMax = 32,
+};
+
+class MeshStore {
+ public:
+  // Adds a vertex at physical position `pos`. `height` is its z in slice units (index
+  // space), `layer` the extraction layer that created it, `box_mask` the BoxFace bits.
+  VertexId AddVertex(Vec3 pos, double height, int32_t layer, uint8_t box_mask);
+  // Adds triangle (a, b, c), counter-clockwise seen from outside. Vertices must be alive.
+  TriId AddTriangle(VertexId a, VertexId b, VertexId c);
+  // Removes a triangle and unlinks it from its vertices' lists.
+  void RemoveTriangle(TriId t);
+  // Removes a vertex; it must have no incident triangles left.
+  void RemoveVertex(VertexId v);
+  // In triangle t, replaces corner `from` by `to` and moves t from from's list to to's.
+  void ReplaceCorner(TriId t, VertexId from, VertexId to);
+
+  bool vertex_alive(VertexId v) const { return v < vtx_alive_.size() && vtx_alive_[v]; }
+  bool triangle_alive(TriId t) const { return t < tri_alive_.size() && tri_alive_[t]; }
+  const std::array<VertexId, 3>& triangle(TriId t) const { return tris_[t]; }
+  std::span<const TriId> vertex_triangles(VertexId v) const {
+    return {pool_.data() + adj_[v].offset, adj_[v].count};
+  }
+
+  Vec3 position(VertexId v) const { return pos_[v]; }
+  void set_position(VertexId v, Vec3 p) { pos_[v] = p; }
+  double height(VertexId v) const { return height_[v]; }
+  void set_height(VertexId v, double h) { height_[v] = h; }
+  int32_t layer(VertexId v) const { return layer_[v]; }
+  void set_layer(VertexId v, int32_t l) { layer_[v] = l; }
+  uint8_t box_mask(VertexId v) const { return box_[v]; }
+  void set_box_mask(VertexId v, uint8_t m) { box_[v] = m; }
+
+  // One past the largest id ever handed out (ids below may be dead).
+  uint32_t vertex_capacity() const { return static_cast<uint32_t>(pos_.size()); }
+  uint32_t triangle_capacity() const { return static_cast<uint32_t>(tris_.size()); }
+  size_t num_vertices() const { return live_vertices_; }
+  size_t num_triangles() const { return live_triangles_; }
+
+  // Unit-free helpers on current positions.
+  Vec3 TriangleNormalTimesTwoArea(TriId t) const;  // cross product, length = 2 * area
+
+  // Compacted copy of the live mesh. If vertex_map is given, it receives for every live
+  // store vertex its index in the snapshot (kInvalid for dead ones). Vertices without
+  // triangles are dropped.
+  IndexedMesh Snapshot(std::vector<uint32_t>* vertex_map = nullptr) const;
+
+  // Bytes held by the store's arrays (capacity, not size): for memory figures.
+  size_t MemoryBytes() const;
+
+ private:
+  struct AdjSlot {
+    uint32_t offset = 0;
+    uint32_t count = 0;
+    uint8_t size_class = 0;  // capacity = kMinSlot << size_class
+  };
+  static constexpr uint32_t kMinSlot = 8;
+  static constexpr int kNumClasses = 24;
+
+  uint32_t AllocSlot(uint8_t size_class);
+  void FreeSlot(uint32_t offset, uint8_t size_class);
+  void LinkTriangle(VertexId v, TriId t);
+  void UnlinkTriangle(VertexId v, TriId t);
+
+  // Vertices (SoA).
+  std::vector<Vec3> pos_;
+  std::vector<double> height_;
+  std::vector<int32_t> layer_;
+  std::vector<uint8_t> box_;
+  std::vector<uint8_t> vtx_alive_;
+  std::vector<AdjSlot> adj_;
+  std::vector<VertexId> free_vertices_;
+  size_t live_vertices_ = 0;
+
+  // Triangles.
+  std::vector<std::array<VertexId, 3>> tris_;
+  std::vector<uint8_t> tri_alive_;
+  std::vector<TriId> free_triangles_;
+  size_t live_triangles_ = 0;
+
+  // Incidence pool and its per-size-class free lists.
+  std::vector<TriId> pool_;
+  std::array<std::vector<uint32_t>, kNumClasses> free_slots_;
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_MESH_STORE_H_

@@ -1,0 +1,62 @@
+// Volume input: a slice source yields one z-slice at a time, so no reader ever needs the
+// whole volume in memory. Geometry: voxel (i, j, k) sits at origin + (i*sx, j*sy, k*sz).
+#ifndef TANDEM_VOLUME_H_
+#define TANDEM_VOLUME_H_
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+
+namespace tandem {
+
+enum class DType : uint8_t { kUInt8, kUInt16, kInt16, kFloat32 };
+
+// "uint8", "uint16", "int16", "float32".
+std::string_view DTypeName(DType t);
+absl::StatusOr<DType> ParseDType(std::string_view name);
+size_t DTypeSize(DType t);
+
+struct VolumeInfo {
+  int64_t nx = 0, ny = 0, nz = 0;  // grid vertices per axis; nz = 0 means "not known yet"
+  DType dtype = DType::kUInt8;
+  std::array<double, 3> spacing{1.0, 1.0, 1.0};  // physical units per voxel step
+  std::array<double, 3> origin{0.0, 0.0, 0.0};   // physical position of voxel (0,0,0)
+  std::vector<double> suggested_isovalues;       // optional, from sidecars
+  std::string description;                       // optional
+
+  int64_t slice_voxels() const { return nx * ny; }
+  size_t slice_bytes() const { return static_cast<size_t>(nx * ny) * DTypeSize(dtype); }
+};
+
+// Checks dims (>= 2 on x and y, nz >= 2 when known), finite positive spacing, finite origin.
+absl::Status ValidateVolumeInfo(const VolumeInfo& info);
+
+// A sequential reader of z-slices 0, 1, ..., nz-1.
+class SliceSource {
+ public:
+  virtual ~SliceSource() = default;
+  virtual const VolumeInfo& info() const = 0;
+  // Reads the next slice as raw voxels in host byte order (info().slice_bytes() bytes) into
+  // *bytes (resized). Returns OutOfRange once all nz slices were read; any other error names
+  // the file and the problem (truncated data, I/O failure).
+  virtual absl::Status ReadSlice(std::vector<uint8_t>* bytes) = 0;
+  // Index of the slice the next ReadSlice returns.
+  virtual int64_t next_slice() const = 0;
+};
+
+// Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.
+void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
+
+// Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
+// *.nii.gz, *.tif / *.tiff (multi-page stack). Errors name the file and the problem.
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path);
+
+}  // namespace tandem
+
+#endif  // TANDEM_VOLUME_H_
