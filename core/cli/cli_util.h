@@ -1,0 +1,52 @@
+// Minimal command-line helpers for the tandem executables: "--name value" and "--flag"
+// options, positional arguments, and a terminal progress line.
+#ifndef TANDEM_CLI_UTIL_H_
+#define TANDEM_CLI_UTIL_H_
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+
+namespace tandem::cli {
+
+class Args {
+ public:
+  // Parses argv[first..]; `valued` names take a value ("--iso 120" or "--iso=120"), `flags`
+  // take none. Unknown options are an error naming them.
+  static absl::StatusOr<Args> Parse(int argc, char** argv, int first,
+                                    const std::set<std::string>& valued,
+                                    const std::set<std::string>& flags);
+
+  bool Has(const std::string& name) const { return values_.count(name) || flags_.count(name); }
+  std::optional<std::string> Get(const std::string& name) const;
+  absl::StatusOr<double> GetDouble(const std::string& name, std::optional<double> def) const;
+  absl::StatusOr<int64_t> GetInt(const std::string& name, std::optional<int64_t> def) const;
+  const std::vector<std::string>& positional() const { return positional_; }
+
+ private:
+  std::map<std::string, std::string> values_;
+  std::set<std::string> flags_;
+  std::vector<std::string> positional_;
+};
+
+// "slices 12/128" on stderr, rewritten in place; only when stderr is a terminal.
+class Progress {
+ public:
+  explicit Progress(std::string label);
+  void Update(int64_t done, int64_t total);
+  void Done();
+
+ private:
+  std::string label_;
+  bool tty_;
+  int64_t last_percent_ = -1;
+};
+
+}  // namespace tandem::cli
+
+#endif  // TANDEM_CLI_UTIL_H_

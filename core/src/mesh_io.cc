@@ -1,0 +1,655 @@
+// PLY and OBJ mesh I/O. See tandem/mesh_io.h for the contracts.
+//
+// Reading loads the whole file (meshes of millions of triangles are tens of MB) and parses
+// it in place with std::from_chars (locale-independent, no allocation per number); writing
+// streams through one fixed buffer.
+#include "tandem/mesh_io.h"
+
+#include <algorithm>
+#include <bit>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <optional>
+#include <vector>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/string_view.h"
+
+namespace tandem {
+namespace {
+
+absl::Status Error(absl::StatusCode code, const std::string& path, absl::string_view what) {
+  return absl::Status(code, absl::StrCat(path, ": ", what));
+}
+
+enum class Format { kPly, kObj };
+
+absl::StatusOr<Format> FormatOf(const std::string& path) {
+  const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
+  if (ext == ".ply") return Format::kPly;
+  if (ext == ".obj") return Format::kObj;
+  return Error(absl::StatusCode::kInvalidArgument, path,
+               absl::StrCat("unsupported mesh extension '", ext, "' (expected .ply or .obj)"));
+}
+
+// ---------------------------------------------------------------------------------------
+// Writing
+
+// Appends to a 1 MiB buffer and hands full buffers to stdio; remembers the first error.
+class BufferedWriter {
+ public:
+  explicit BufferedWriter(std::FILE* file) : file_(file), buffer_(1 << 20) {}
+
+  void Append(const char* data, size_t n) {
+    while (n > 0) {
+      if (used_ == buffer_.size()) Flush();
+      const size_t take = std::min(n, buffer_.size() - used_);
+      std::memcpy(buffer_.data() + used_, data, take);
+      used_ += take;
+      data += take;
+      n -= take;
+    }
+  }
+  void Append(absl::string_view s) { Append(s.data(), s.size()); }
+  void AppendLe32(uint32_t v) {
+    const char bytes[4] = {static_cast<char>(v & 0xff), static_cast<char>((v >> 8) & 0xff),
+                           static_cast<char>((v >> 16) & 0xff),
+                           static_cast<char>((v >> 24) & 0xff)};
+    Append(bytes, 4);
+  }
+  // The shortest decimal that reads back as the same float32 (at most 9 significant
+  // digits, like %.9g, but "0.1" rather than "0.100000001").
+  void AppendFloat(float v) {
+    char text[32];
+    const auto res = std::to_chars(text, text + sizeof text, v);
+    Append(text, static_cast<size_t>(res.ptr - text));
+  }
+  void AppendUint(uint64_t v) {
+    char text[24];
+    const auto res = std::to_chars(text, text + sizeof text, v);
+    Append(text, static_cast<size_t>(res.ptr - text));
+  }
+
+  void Flush() {
+    if (used_ > 0 && error_ == 0 && std::fwrite(buffer_.data(), 1, used_, file_) != used_) {
+      error_ = errno != 0 ? errno : EIO;
+    }
+    used_ = 0;
+  }
+  // Flushes and closes; returns 0 or the first errno seen.
+  int Close() {
+    Flush();
+    if (std::fclose(file_) != 0 && error_ == 0) error_ = errno != 0 ? errno : EIO;
+    file_ = nullptr;
+    return error_;
+  }
+  ~BufferedWriter() {
+    if (file_ != nullptr) std::fclose(file_);
+  }
+
+ private:
+  std::FILE* file_;
+  std::vector<char> buffer_;
+  size_t used_ = 0;
+  int error_ = 0;
+};
+
+void WritePly(const IndexedMesh& mesh, BufferedWriter& out) {
+  out.Append(absl::StrCat("ply\nformat binary_little_endian 1.0\ncomment written by tandem\n",
+                          "element vertex ", mesh.num_vertices(),
+                          "\nproperty float x\nproperty float y\nproperty float z\n",
+                          "element face ", mesh.num_triangles(),
+                          "\nproperty list uchar int vertex_indices\nend_header\n"));
+  for (const Vec3& p : mesh.positions) {
+    for (int k = 0; k < 3; ++k) out.AppendLe32(std::bit_cast<uint32_t>(static_cast<float>(p[k])));
+  }
+  for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+    const char count = 3;
+    out.Append(&count, 1);
+    for (int k = 0; k < 3; ++k) out.AppendLe32(mesh.indices[3 * t + k]);
+  }
+}
+
+void WriteObj(const IndexedMesh& mesh, BufferedWriter& out) {
+  out.Append(absl::StrCat("# written by tandem: ", mesh.num_vertices(), " vertices, ",
+                          mesh.num_triangles(), " triangles\n"));
+  for (const Vec3& p : mesh.positions) {
+    // Rounded to float32 first, like the PLY output: both formats store the same values.
+    out.Append("v ");
+    out.AppendFloat(static_cast<float>(p.x));
+    out.Append(" ");
+    out.AppendFloat(static_cast<float>(p.y));
+    out.Append(" ");
+    out.AppendFloat(static_cast<float>(p.z));
+    out.Append("\n");
+  }
+  for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+    out.Append("f");
+    for (int k = 0; k < 3; ++k) {
+      out.Append(" ");
+      out.AppendUint(uint64_t{mesh.indices[3 * t + k]} + 1);
+    }
+    out.Append("\n");
+  }
+}
+
+// ---------------------------------------------------------------------------------------
+// Reading: common helpers
+
+absl::StatusOr<std::string> ReadWholeFile(const std::string& path) {
+  std::FILE* file = std::fopen(path.c_str(), "rb");
+  if (file == nullptr) {
+    return Error(absl::StatusCode::kNotFound, path,
+                 absl::StrCat("cannot open for reading: ", std::strerror(errno)));
+  }
+  std::string data;
+  char chunk[1 << 16];
+  size_t n;
+  while ((n = std::fread(chunk, 1, sizeof chunk, file)) > 0) data.append(chunk, n);
+  const bool failed = std::ferror(file) != 0;
+  std::fclose(file);
+  if (failed) return Error(absl::StatusCode::kDataLoss, path, "read error");
+  return data;
+}
+
+// Parses a number in full; accepts a leading '+', which from_chars does not.
+template <typename T>
+bool ParseNumber(absl::string_view s, T& value) {
+  if (!s.empty() && s.front() == '+') s.remove_prefix(1);
+  const auto res = std::from_chars(s.data(), s.data() + s.size(), value);
+  return res.ec == std::errc() && res.ptr == s.data() + s.size();
+}
+
+bool IsSpace(char c) {
+  return c == ' ' || c == '\t' || c == '\r' || c == '\n' || c == '\f' || c == '\v';
+}
+
+// ---------------------------------------------------------------------------------------
+// PLY
+
+enum class PlyType { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
+
+std::optional<PlyType> ParsePlyType(absl::string_view name) {
+  if (name == "char" || name == "int8") return PlyType::kInt8;
+  if (name == "uchar" || name == "uint8") return PlyType::kUint8;
+  if (name == "short" || name == "int16") return PlyType::kInt16;
+  if (name == "ushort" || name == "uint16") return PlyType::kUint16;
+  if (name == "int" || name == "int32") return PlyType::kInt32;
+  if (name == "uint" || name == "uint32") return PlyType::kUint32;
+  if (name == "float" || name == "float32") return PlyType::kFloat32;
+  if (name == "double" || name == "float64") return PlyType::kFloat64;
+  return std::nullopt;
+}
+
+size_t PlyTypeSize(PlyType t) {
+  switch (t) {
+    case PlyType::kInt8:
+    case PlyType::kUint8:
+      return 1;
+    case PlyType::kInt16:
+    case PlyType::kUint16:
+      return 2;
+    case PlyType::kInt32:
+    case PlyType::kUint32:
+    case PlyType::kFloat32:
+      return 4;
+    case PlyType::kFloat64:
+      return 8;
+  }
+  return 0;
+}
+
+struct PlyProperty {
+  std::string name;
+  bool is_list = false;
+  PlyType count_type = PlyType::kUint8;  // lists only
+  PlyType type = PlyType::kFloat32;      // the value (or list item) type
+};
+
+struct PlyElement {
+  std::string name;
+  uint64_t count = 0;
+  std::vector<PlyProperty> properties;
+};
+
+enum class PlyEncoding { kAscii, kBinaryLittle, kBinaryBig };
+
+struct PlyHeader {
+  PlyEncoding encoding = PlyEncoding::kAscii;
+  std::vector<PlyElement> elements;
+  size_t body_offset = 0;  // first byte after the "end_header" line
+};
+
+absl::StatusOr<PlyHeader> ParsePlyHeader(const std::string& path, absl::string_view data) {
+  auto bad = [&](size_t line_no, absl::string_view why) {
+    return Error(absl::StatusCode::kInvalidArgument, path,
+                 absl::StrCat("bad PLY header, line ", line_no, ": ", why));
+  };
+  PlyHeader header;
+  bool have_format = false;
+  size_t pos = 0;
+  for (size_t line_no = 1;; ++line_no) {
+    const size_t eol = data.find('\n', pos);
+    if (eol == absl::string_view::npos) {
+      if (line_no == 1) break;  // reported below as a missing magic line
+      return Error(absl::StatusCode::kInvalidArgument, path,
+                   "bad PLY header: no 'end_header' line");
+    }
+    absl::string_view line = data.substr(pos, eol - pos);
+    pos = eol + 1;
+    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    if (line_no == 1) {
+      if (line != "ply") break;
+      continue;
+    }
+    const std::vector<absl::string_view> tok =
+        absl::StrSplit(line, absl::ByAnyChar(" \t"), absl::SkipEmpty());
+    if (tok.empty()) continue;
+    const absl::string_view key = tok[0];
+    if (key == "comment" || key == "obj_info") continue;
+    if (key == "end_header") {
+      if (!have_format) return bad(line_no, "no 'format' line");
+      header.body_offset = pos;
+      return header;
+    }
+    if (key == "format") {
+      if (tok.size() != 3 || tok[2] != "1.0")
+        return bad(line_no, "expected 'format <encoding> 1.0'");
+      if (tok[1] == "ascii") {
+        header.encoding = PlyEncoding::kAscii;
+      } else if (tok[1] == "binary_little_endian") {
+        header.encoding = PlyEncoding::kBinaryLittle;
+      } else if (tok[1] == "binary_big_endian") {
+        header.encoding = PlyEncoding::kBinaryBig;
+      } else {
+        return bad(line_no, absl::StrCat("unknown format '", tok[1], "'"));
+      }
+      have_format = true;
+    } else if (key == "element") {
+      PlyElement element;
+      if (tok.size() != 3 || !ParseNumber(tok[2], element.count)) {
+        return bad(line_no, "expected 'element <name> <count>'");
+      }
+      element.name = std::string(tok[1]);
+      header.elements.push_back(std::move(element));
+    } else if (key == "property") {
+      if (header.elements.empty()) return bad(line_no, "property before any element");
+      PlyProperty prop;
+      std::optional<PlyType> type, count_type;
+      if (tok.size() == 5 && tok[1] == "list") {
+        count_type = ParsePlyType(tok[2]);
+        type = ParsePlyType(tok[3]);
+        if (!count_type || !type) return bad(line_no, "unknown list type");
+        if (*count_type == PlyType::kFloat32 || *count_type == PlyType::kFloat64) {
+          return bad(line_no, "list count must have an integer type");
+        }
+        prop.is_list = true;
+        prop.count_type = *count_type;
+        prop.type = *type;
+        prop.name = std::string(tok[4]);
+      } else if (tok.size() == 3) {
+        type = ParsePlyType(tok[1]);
+        if (!type) return bad(line_no, absl::StrCat("unknown property type '", tok[1], "'"));
+        prop.type = *type;
+        prop.name = std::string(tok[2]);
+      } else {
+        return bad(line_no, "expected 'property <type> <name>' or 'property list ...'");
+      }
+      header.elements.back().properties.push_back(std::move(prop));
+    } else {
+      return bad(line_no, absl::StrCat("unknown keyword '", key, "'"));
+    }
+  }
+  return Error(absl::StatusCode::kInvalidArgument, path,
+               "not a PLY file (the first line is not 'ply')");
+}
+
+// Reads scalars from a binary body, in either byte order.
+class PlyBinaryCursor {
+ public:
+  PlyBinaryCursor(absl::string_view data, bool big_endian) : data_(data), big_(big_endian) {}
+
+  // False when fewer than the value's bytes are left.
+  bool Read(PlyType type, double& value) {
+    const size_t n = PlyTypeSize(type);
+    if (data_.size() - pos_ < n) return false;
+    const auto* p = reinterpret_cast<const unsigned char*>(data_.data() + pos_);
+    pos_ += n;
+    uint64_t bits = 0;
+    for (size_t i = 0; i < n; ++i) bits |= uint64_t{p[big_ ? n - 1 - i : i]} << (8 * i);
+    switch (type) {
+      case PlyType::kInt8:
+        value = static_cast<int8_t>(bits);
+        break;
+      case PlyType::kUint8:
+        value = static_cast<uint8_t>(bits);
+        break;
+      case PlyType::kInt16:
+        value = static_cast<int16_t>(bits);
+        break;
+      case PlyType::kUint16:
+        value = static_cast<uint16_t>(bits);
+        break;
+      case PlyType::kInt32:
+        value = static_cast<int32_t>(bits);
+        break;
+      case PlyType::kUint32:
+        value = static_cast<uint32_t>(bits);
+        break;
+      case PlyType::kFloat32:
+        value = std::bit_cast<float>(static_cast<uint32_t>(bits));
+        break;
+      case PlyType::kFloat64:
+        value = std::bit_cast<double>(bits);
+        break;
+    }
+    return true;
+  }
+  std::string Where() const { return absl::StrCat("byte ", pos_); }
+  bool bad_number() const { return false; }  // every bit pattern is a number
+  absl::string_view token() const { return {}; }
+
+ private:
+  absl::string_view data_;
+  bool big_;
+  size_t pos_ = 0;
+};
+
+// Reads whitespace-separated numbers from an ASCII body, tracking the line for messages.
+class PlyAsciiCursor {
+ public:
+  PlyAsciiCursor(absl::string_view data, size_t first_line) : data_(data), line_(first_line) {}
+
+  // False at the end of the data, or (with bad_number() set) on a malformed number.
+  bool Read(PlyType, double& value) {
+    while (pos_ < data_.size() && IsSpace(data_[pos_])) {
+      if (data_[pos_] == '\n') ++line_;
+      ++pos_;
+    }
+    if (pos_ == data_.size()) return false;
+    const size_t start = pos_;
+    while (pos_ < data_.size() && !IsSpace(data_[pos_])) ++pos_;
+    token_ = data_.substr(start, pos_ - start);
+    if (!ParseNumber(token_, value)) {
+      bad_number_ = true;
+      return false;
+    }
+    return true;
+  }
+  std::string Where() const { return absl::StrCat("line ", line_); }
+  bool bad_number() const { return bad_number_; }
+  absl::string_view token() const { return token_; }
+
+ private:
+  absl::string_view data_;
+  size_t line_;
+  size_t pos_ = 0;
+  absl::string_view token_;
+  bool bad_number_ = false;
+};
+
+// Upper bound of a polygon's corner count: guards against a garbage count reserving memory.
+constexpr double kMaxPolygonCorners = 1 << 16;
+
+template <typename Cursor>
+absl::StatusOr<IndexedMesh> ReadPlyBody(const std::string& path, const PlyHeader& header,
+                                        Cursor& in) {
+  IndexedMesh mesh;
+  // Corners as read. Indices that no mesh could hold fail at once; the check against the
+  // vertex count waits until every element is read (a face element may come first).
+  std::vector<uint32_t> face_indices;
+  std::vector<uint32_t> face_sizes;
+  bool have_vertices = false;
+  for (const PlyElement& element : header.elements) {
+    auto fail = [&](uint64_t instance) -> absl::Status {
+      if (in.bad_number()) {
+        return Error(absl::StatusCode::kInvalidArgument, path,
+                     absl::StrCat("bad number '", in.token(), "' in element '", element.name, "' ",
+                                  instance, " (", in.Where(), ")"));
+      }
+      return Error(absl::StatusCode::kDataLoss, path,
+                   absl::StrCat("truncated: the data ends in element '", element.name, "' ",
+                                instance, " of ", element.count));
+    };
+    const bool is_vertex = element.name == "vertex";
+    const bool is_face = element.name == "face";
+    std::vector<int> axis_of(element.properties.size(), -1);  // 0..2 for x, y, z
+    int index_list = -1;
+    int axes_found = 0;  // bit k set when axis k has a property
+    for (size_t p = 0; p < element.properties.size(); ++p) {
+      const PlyProperty& prop = element.properties[p];
+      if (is_vertex && !prop.is_list) {
+        if (prop.name == "x") axis_of[p] = 0;
+        if (prop.name == "y") axis_of[p] = 1;
+        if (prop.name == "z") axis_of[p] = 2;
+        if (axis_of[p] >= 0) axes_found |= 1 << axis_of[p];
+      }
+      if (is_face && prop.is_list && index_list < 0 &&
+          (prop.name == "vertex_indices" || prop.name == "vertex_index")) {
+        index_list = static_cast<int>(p);
+      }
+    }
+    if (is_vertex) {
+      if (have_vertices) {
+        return Error(absl::StatusCode::kInvalidArgument, path, "two 'vertex' elements");
+      }
+      if (axes_found != 7) {
+        return Error(absl::StatusCode::kInvalidArgument, path,
+                     "bad PLY header: the vertex element lacks scalar x, y and z properties");
+      }
+      have_vertices = true;
+      // Bounded reserve: a garbage count must fail as truncated, not exhaust memory.
+      mesh.positions.reserve(std::min<uint64_t>(element.count, 1u << 24));
+    }
+    if (is_face && index_list < 0) {
+      return Error(absl::StatusCode::kInvalidArgument, path,
+                   "bad PLY header: the face element has no 'vertex_indices' list");
+    }
+    if (is_face) {
+      face_sizes.reserve(std::min<uint64_t>(element.count, 1u << 24));
+      face_indices.reserve(3 * face_sizes.capacity());
+    }
+
+    for (uint64_t i = 0; i < element.count; ++i) {
+      Vec3 position;
+      for (size_t p = 0; p < element.properties.size(); ++p) {
+        const PlyProperty& prop = element.properties[p];
+        double value = 0;
+        if (!prop.is_list) {
+          if (!in.Read(prop.type, value)) return fail(i);
+          if (axis_of[p] >= 0) position[axis_of[p]] = value;
+          continue;
+        }
+        double count = 0;
+        if (!in.Read(prop.count_type, count)) return fail(i);
+        if (!(count >= 0 && count <= kMaxPolygonCorners) || count != std::floor(count)) {
+          return Error(
+              absl::StatusCode::kInvalidArgument, path,
+              absl::StrCat("bad list length ", count, " in element '", element.name, "' ", i));
+        }
+        const bool keep = static_cast<int>(p) == index_list;
+        for (uint32_t k = 0; k < static_cast<uint32_t>(count); ++k) {
+          if (!in.Read(prop.type, value)) return fail(i);
+          if (!keep) continue;
+          if (!(value >= 0 && value < double{kInvalid}) || value != std::floor(value)) {
+            return Error(absl::StatusCode::kInvalidArgument, path,
+                         absl::StrCat("face ", i, ": invalid vertex index ", value));
+          }
+          face_indices.push_back(static_cast<uint32_t>(value));
+        }
+        if (keep) face_sizes.push_back(static_cast<uint32_t>(count));
+      }
+      if (is_vertex) mesh.positions.push_back(position);
+    }
+  }
+  if (!have_vertices) {
+    return Error(absl::StatusCode::kInvalidArgument, path, "bad PLY header: no 'vertex' element");
+  }
+  // Bytes after the declared elements are ignored (some writers pad): the mesh is complete.
+
+  // Fan-triangulate and validate indices.
+  size_t next = 0;
+  for (size_t f = 0; f < face_sizes.size(); ++f) {
+    const uint32_t n = face_sizes[f];
+    for (uint32_t k = 0; k < n; ++k) {
+      const uint32_t v = face_indices[next + k];
+      if (v >= mesh.positions.size()) {
+        return Error(absl::StatusCode::kInvalidArgument, path,
+                     absl::StrCat("face ", f, ": vertex index ", v, " out of range (",
+                                  mesh.positions.size(), " vertices)"));
+      }
+    }
+    for (uint32_t k = 1; k + 1 < n; ++k) {
+      mesh.indices.push_back(face_indices[next]);
+      mesh.indices.push_back(face_indices[next + k]);
+      mesh.indices.push_back(face_indices[next + k + 1]);
+    }
+    next += n;
+  }
+  return mesh;
+}
+
+absl::StatusOr<IndexedMesh> ReadPly(const std::string& path, absl::string_view data) {
+  absl::StatusOr<PlyHeader> header = ParsePlyHeader(path, data);
+  if (!header.ok()) return header.status();
+  const absl::string_view body = data.substr(header->body_offset);
+  if (header->encoding == PlyEncoding::kAscii) {
+    const size_t header_lines =
+        static_cast<size_t>(std::count(data.begin(), data.begin() + header->body_offset, '\n'));
+    PlyAsciiCursor in(body, header_lines + 1);
+    return ReadPlyBody(path, *header, in);
+  }
+  PlyBinaryCursor in(body, header->encoding == PlyEncoding::kBinaryBig);
+  return ReadPlyBody(path, *header, in);
+}
+
+// ---------------------------------------------------------------------------------------
+// OBJ
+
+absl::StatusOr<IndexedMesh> ReadObj(const std::string& path, absl::string_view data) {
+  IndexedMesh mesh;
+  // Positive (absolute) indices may refer to vertices defined later, so they are checked at
+  // the end; negative ones are resolved against the vertices read so far.
+  std::vector<int64_t> corners;
+  size_t max_line_of_face = 0;
+  int64_t max_index = -1;
+  size_t pos = 0;
+  for (size_t line_no = 1; pos < data.size(); ++line_no) {
+    size_t eol = data.find('\n', pos);
+    if (eol == absl::string_view::npos) eol = data.size();
+    absl::string_view line = data.substr(pos, eol - pos);
+    pos = eol + 1;
+    auto bad = [&](absl::string_view why) {
+      return Error(absl::StatusCode::kInvalidArgument, path,
+                   absl::StrCat("line ", line_no, ": ", why));
+    };
+    for (char ch : line) {
+      const auto u = static_cast<unsigned char>(ch);
+      if (u < 0x20 && !IsSpace(ch)) {
+        return bad(absl::StrCat("not a text OBJ file (control byte 0x",
+                                absl::Hex(u, absl::kZeroPad2), ")"));
+      }
+    }
+    const size_t hash = line.find('#');
+    if (hash != absl::string_view::npos) line = line.substr(0, hash);
+    const std::vector<absl::string_view> tok =
+        absl::StrSplit(line, absl::ByAnyChar(" \t\r\f\v"), absl::SkipEmpty());
+    if (tok.empty()) continue;
+    if (tok[0] == "v") {
+      Vec3 p;
+      if (tok.size() < 4 || !ParseNumber(tok[1], p.x) || !ParseNumber(tok[2], p.y) ||
+          !ParseNumber(tok[3], p.z)) {
+        return bad("expected 'v x y z'");
+      }
+      mesh.positions.push_back(p);
+    } else if (tok[0] == "f") {
+      corners.clear();
+      for (size_t k = 1; k < tok.size(); ++k) {
+        const absl::string_view corner = tok[k].substr(0, tok[k].find('/'));
+        int64_t index;
+        if (!ParseNumber(corner, index) || index == 0) {
+          return bad(absl::StrCat("bad face corner '", tok[k], "'"));
+        }
+        if (index < 0) {
+          index += static_cast<int64_t>(mesh.positions.size());
+          if (index < 0) {
+            return bad(absl::StrCat("relative index ", corner, " out of range (",
+                                    mesh.positions.size(), " vertices so far)"));
+          }
+        } else {
+          index -= 1;
+        }
+        if (index > max_index) {
+          max_index = index;
+          max_line_of_face = line_no;
+        }
+        corners.push_back(index);
+      }
+      for (size_t k = 1; k + 1 < corners.size(); ++k) {
+        mesh.indices.push_back(static_cast<uint32_t>(corners[0]));
+        mesh.indices.push_back(static_cast<uint32_t>(corners[k]));
+        mesh.indices.push_back(static_cast<uint32_t>(corners[k + 1]));
+      }
+    }
+  }
+  if (max_index >= static_cast<int64_t>(mesh.positions.size())) {
+    return Error(absl::StatusCode::kInvalidArgument, path,
+                 absl::StrCat("line ", max_line_of_face, ": vertex index ", max_index + 1,
+                              " out of range (", mesh.positions.size(), " vertices)"));
+  }
+  return mesh;
+}
+
+}  // namespace
+
+absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh) {
+  const absl::StatusOr<Format> format = FormatOf(path);
+  if (!format.ok()) return format.status();
+  if (mesh.indices.size() % 3 != 0) {
+    return Error(absl::StatusCode::kInvalidArgument, path,
+                 absl::StrCat("mesh has ", mesh.indices.size(), " indices, not a multiple of 3"));
+  }
+  if (mesh.positions.size() >= (size_t{1} << 31)) {
+    return Error(absl::StatusCode::kInvalidArgument, path, "mesh has 2^31 or more vertices");
+  }
+  for (size_t i = 0; i < mesh.indices.size(); ++i) {
+    if (mesh.indices[i] >= mesh.positions.size()) {
+      return Error(absl::StatusCode::kInvalidArgument, path,
+                   absl::StrCat("triangle ", i / 3, ": vertex index ", mesh.indices[i],
+                                " out of range (", mesh.positions.size(), " vertices)"));
+    }
+  }
+  std::FILE* file = std::fopen(path.c_str(), "wb");
+  if (file == nullptr) {
+    return Error(absl::StatusCode::kUnavailable, path,
+                 absl::StrCat("cannot open for writing: ", std::strerror(errno)));
+  }
+  BufferedWriter out(file);
+  if (*format == Format::kPly) {
+    WritePly(mesh, out);
+  } else {
+    WriteObj(mesh, out);
+  }
+  if (const int err = out.Close(); err != 0) {
+    return Error(absl::StatusCode::kUnavailable, path,
+                 absl::StrCat("write failed: ", std::strerror(err)));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<IndexedMesh> ReadMesh(const std::string& path) {
+  const absl::StatusOr<Format> format = FormatOf(path);
+  if (!format.ok()) return format.status();
+  const absl::StatusOr<std::string> data = ReadWholeFile(path);
+  if (!data.ok()) return data.status();
+  if (*format == Format::kPly) return ReadPly(path, *data);
+  return ReadObj(path, *data);
+}
+
+}  // namespace tandem

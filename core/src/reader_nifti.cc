@@ -1,0 +1,216 @@
+// NIfTI-1 single-file reader (.nii, and .nii.gz streamed through zlib). The 348-byte header
+// is read in either byte order (sizeof_hdr tells which). Geometry: spacing = |pixdim[1..3]|
+// in storage axis order; origin = qoffset_x/y/z when qform_code > 0, else srow_x/y/z[3]
+// when sform_code > 0, else 0. Rotations in qform/sform are not applied (axes stay the
+// storage axes, as for the shared raw volumes). Intensity scaling follows the standard:
+// scl_slope == 0 means "none"; otherwise, unless it is the identity (slope 1, inter 0),
+// slices are delivered as float32 value * scl_slope + scl_inter.
+#include <cmath>
+#include <cstdio>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "readers_internal.h"
+
+namespace tandem::internal {
+namespace {
+
+namespace nh = nifti;
+
+absl::Status NiftiError(const std::string& path, absl::string_view what) {
+  return absl::InvalidArgumentError(absl::StrCat(path, ": ", what));
+}
+
+absl::string_view NiftiTypeName(int code) {
+  switch (code) {
+    case 1:
+      return "binary";
+    case 2:
+      return "uint8";
+    case 4:
+      return "int16";
+    case 8:
+      return "int32";
+    case 16:
+      return "float32";
+    case 32:
+      return "complex64";
+    case 64:
+      return "float64";
+    case 128:
+      return "rgb24";
+    case 256:
+      return "int8";
+    case 512:
+      return "uint16";
+    case 768:
+      return "uint32";
+    case 1024:
+      return "int64";
+    case 1280:
+      return "uint64";
+    case 1536:
+      return "float128";
+    case 1792:
+      return "complex128";
+    case 2048:
+      return "complex256";
+    case 2304:
+      return "rgba32";
+    default:
+      return "unknown";
+  }
+}
+
+// gzip is detected from the content, not the name, so a mis-named file still opens.
+absl::StatusOr<bool> IsGzip(const std::string& path) {
+  FILE* f = std::fopen(path.c_str(), "rb");
+  if (f == nullptr) return ErrnoError(path, "cannot open");
+  unsigned char magic[2] = {0, 0};
+  const size_t got = std::fread(magic, 1, 2, f);
+  std::fclose(f);
+  return got == 2 && magic[0] == 0x1f && magic[1] == 0x8b;
+}
+
+absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const uint8_t* hdr,
+                                             bool gzip) {
+  StreamVolumeSpec spec;
+  spec.path = path;
+  spec.data_path = path;
+  spec.gzip = gzip;
+  VolumeInfo& info = spec.info;
+
+  // sizeof_hdr is 348 in the file's byte order, which tells whether to swap.
+  const int32_t sizeof_hdr = LoadScalar<int32_t>(hdr + nh::kSizeofHdr, false);
+  const int32_t sizeof_swapped = LoadScalar<int32_t>(hdr + nh::kSizeofHdr, true);
+  bool swap;
+  if (sizeof_hdr == nh::kHeaderSize) {
+    swap = false;
+  } else if (sizeof_swapped == nh::kHeaderSize) {
+    swap = true;
+  } else if (sizeof_hdr == 540 || sizeof_swapped == 540) {
+    return NiftiError(path, "NIfTI-2 files are not supported (only NIfTI-1)");
+  } else {
+    return NiftiError(
+        path, absl::StrCat("not a NIfTI-1 file (sizeof_hdr is ", sizeof_hdr, ", expected 348)"));
+  }
+  spec.big_endian = swap == kHostIsLittleEndian;
+
+  const absl::string_view magic(reinterpret_cast<const char*>(hdr + nh::kMagic), 4);
+  if (magic == absl::string_view("ni1\0", 4)) {
+    return NiftiError(path,
+                      "this is the header of a NIfTI-1 .hdr/.img pair; only single-file "
+                      ".nii / .nii.gz is supported");
+  }
+  if (magic != absl::string_view("n+1\0", 4)) {
+    return NiftiError(path, "bad NIfTI-1 magic (expected \"n+1\")");
+  }
+
+  int16_t dim[8];
+  for (int i = 0; i < 8; ++i) dim[i] = LoadScalar<int16_t>(hdr + nh::kDim + 2 * i, swap);
+  if (dim[0] < 3 || dim[0] > 7) {
+    return NiftiError(path, absl::StrCat("dim[0] is ", dim[0], "; only 3-D volumes are supported"));
+  }
+  for (int i = 4; i <= dim[0]; ++i) {
+    if (dim[i] != 1) {
+      return NiftiError(path, absl::StrCat("dim[", i, "] is ", dim[i],
+                                           "; only 3-D volumes are supported (no time series)"));
+    }
+  }
+  info.nx = dim[1];
+  info.ny = dim[2];
+  info.nz = dim[3];
+
+  const int16_t datatype = LoadScalar<int16_t>(hdr + nh::kDatatype, swap);
+  switch (datatype) {
+    case nh::kTypeUInt8:
+      info.dtype = DType::kUInt8;
+      break;
+    case nh::kTypeInt16:
+      info.dtype = DType::kInt16;
+      break;
+    case nh::kTypeUInt16:
+      info.dtype = DType::kUInt16;
+      break;
+    case nh::kTypeFloat32:
+      info.dtype = DType::kFloat32;
+      break;
+    default:
+      return NiftiError(
+          path, absl::StrCat("unsupported NIfTI datatype ", datatype, " (", NiftiTypeName(datatype),
+                             "); supported: 2 (uint8), 4 (int16), 512 (uint16), "
+                             "16 (float32)"));
+  }
+  const int16_t bitpix = LoadScalar<int16_t>(hdr + nh::kBitpix, swap);
+  if (bitpix != static_cast<int16_t>(8 * DTypeSize(info.dtype))) {
+    return NiftiError(path, absl::StrCat("bitpix ", bitpix, " does not match datatype ", datatype,
+                                         " (", NiftiTypeName(datatype), ")"));
+  }
+
+  for (int a = 0; a < 3; ++a) {
+    info.spacing[a] = std::abs(LoadScalar<float>(hdr + nh::kPixdim + 4 * (a + 1), swap));
+  }
+  const int16_t qform_code = LoadScalar<int16_t>(hdr + nh::kQformCode, swap);
+  const int16_t sform_code = LoadScalar<int16_t>(hdr + nh::kSformCode, swap);
+  for (int a = 0; a < 3; ++a) {
+    if (qform_code > 0) {
+      info.origin[a] = LoadScalar<float>(hdr + nh::kQoffsetX + 4 * a, swap);
+    } else if (sform_code > 0) {
+      info.origin[a] = LoadScalar<float>(hdr + nh::kSrowX + 16 * a + 12, swap);
+    }
+  }
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return NiftiError(path, st.message());
+
+  const float vox_offset = LoadScalar<float>(hdr + nh::kVoxOffset, swap);
+  if (!(vox_offset >= nh::kHeaderSize) || vox_offset != std::floor(vox_offset) ||
+      vox_offset > 1e12f) {
+    return NiftiError(
+        path, absl::StrCat("bad vox_offset ", vox_offset, " (must be a whole number >= 348)"));
+  }
+  // In a .nii.gz the offset counts decompressed bytes, so it is skipped after inflating.
+  if (gzip) {
+    spec.skip_bytes = static_cast<uint64_t>(vox_offset);
+  } else {
+    spec.data_offset = static_cast<uint64_t>(vox_offset);
+  }
+
+  const float slope = LoadScalar<float>(hdr + nh::kSclSlope, swap);
+  const float inter = LoadScalar<float>(hdr + nh::kSclInter, swap);
+  if (std::isfinite(slope) && std::isfinite(inter) && slope != 0.0f &&
+      (slope != 1.0f || inter != 0.0f)) {
+    spec.scale = true;
+    spec.scl_slope = slope;
+    spec.scl_inter = inter;
+  }
+
+  const char* descrip = reinterpret_cast<const char*>(hdr + nh::kDescrip);
+  info.description.assign(descrip, strnlen(descrip, 80));
+  return spec;
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenNiftiVolume(const std::string& path) {
+  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
+  if (!size.ok()) return size.status();
+  absl::StatusOr<bool> gzip = IsGzip(path);
+  if (!gzip.ok()) return gzip.status();
+
+  uint8_t hdr[nh::kHeaderSize];
+  {
+    absl::StatusOr<std::unique_ptr<ByteReader>> reader = ByteReader::Open(path, 0, *gzip);
+    if (!reader.ok()) return reader.status();
+    absl::StatusOr<size_t> got = (*reader)->Read(hdr, sizeof(hdr));
+    if (!got.ok()) return got.status();
+    if (*got < sizeof(hdr)) {
+      return absl::DataLossError(
+          absl::StrCat(path, ": truncated: a NIfTI-1 header needs 348 bytes, ",
+                       *gzip ? "decompressed data has " : "file has ", *got));
+    }
+  }
+  absl::StatusOr<StreamVolumeSpec> spec = ParseHeader(path, hdr, *gzip);
+  if (!spec.ok()) return spec.status();
+  return OpenStreamVolume(*std::move(spec));
+}
+
+}  // namespace tandem::internal

@@ -1,0 +1,322 @@
+// NRRD reader: attached (.nrrd, header then a blank line then data) and detached (.nhdr
+// with "data file:"). Supported: dimension 3; types uchar/ushort/short/float and their
+// aliases; encodings raw and gzip; endian little/big; "spacings" or axis-aligned
+// "space directions" (absolute values: axes are taken in storage order, flips are not
+// applied); "space origin"; "byte skip" >= 0 (and -1 for raw data); "content" becomes the
+// description and a "suggested_isovalues:=v1 v2" key/value pair is read back.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/strip.h"
+#include "readers_internal.h"
+
+namespace tandem::internal {
+namespace {
+
+absl::Status NrrdError(const std::string& path, absl::string_view what) {
+  return absl::InvalidArgumentError(absl::StrCat(path, ": ", what));
+}
+
+struct NrrdHeader {
+  std::vector<std::pair<std::string, std::string>> fields;  // lower-cased name, value
+  std::vector<std::pair<std::string, std::string>> key_values;
+  uint64_t data_offset = 0;  // first byte after the blank line (attached data)
+  bool has_blank_line = false;
+
+  const std::string* Find(absl::string_view name) const {
+    for (const auto& [k, v] : fields) {
+      if (k == name) return &v;
+    }
+    return nullptr;
+  }
+  // NRRD allows some fields with or without the inner space ("data file" / "datafile").
+  const std::string* Find(absl::string_view a, absl::string_view b) const {
+    const std::string* v = Find(a);
+    return v != nullptr ? v : Find(b);
+  }
+};
+
+absl::StatusOr<NrrdHeader> ReadHeader(const std::string& path, uint64_t file_size) {
+  // Headers are small text; 1 MiB is far more than any real one and bounds the read.
+  constexpr uint64_t kMaxHeader = 1 << 20;
+  std::string text(static_cast<size_t>(std::min(file_size, kMaxHeader)), '\0');
+  FILE* f = std::fopen(path.c_str(), "rb");
+  if (f == nullptr) return ErrnoError(path, "cannot open");
+  const size_t got = std::fread(text.data(), 1, text.size(), f);
+  std::fclose(f);
+  if (got != text.size()) return ErrnoError(path, "read error");
+
+  if (!text.starts_with("NRRD000") || text.size() < 8 || text[7] < '1' || text[7] > '5') {
+    return NrrdError(path, "not a NRRD file (it must start with \"NRRD000X\")");
+  }
+  NrrdHeader h;
+  size_t pos = 0;
+  bool first = true;
+  while (pos < text.size()) {
+    size_t eol = text.find('\n', pos);
+    if (eol == std::string::npos) {
+      if (text.size() == kMaxHeader && file_size > kMaxHeader) {
+        return NrrdError(path, "header longer than 1 MiB or not terminated by a blank line");
+      }
+      eol = text.size();
+    }
+    absl::string_view line(text.data() + pos, eol - pos);
+    pos = eol + 1;
+    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    if (first) {  // the magic line
+      first = false;
+      continue;
+    }
+    if (line.empty()) {
+      h.has_blank_line = true;
+      h.data_offset = std::min<uint64_t>(pos, text.size());
+      break;
+    }
+    if (line.front() == '#') continue;
+    const size_t kv = line.find(":=");
+    const size_t field = line.find(": ");
+    if (kv != absl::string_view::npos && (field == absl::string_view::npos || kv < field)) {
+      h.key_values.emplace_back(std::string(line.substr(0, kv)), std::string(line.substr(kv + 2)));
+    } else if (field != absl::string_view::npos) {
+      h.fields.emplace_back(
+          absl::AsciiStrToLower(absl::StripAsciiWhitespace(line.substr(0, field))),
+          std::string(absl::StripAsciiWhitespace(line.substr(field + 2))));
+    } else {
+      return NrrdError(path, absl::StrCat("malformed header line \"", line, "\""));
+    }
+  }
+  return h;
+}
+
+absl::StatusOr<DType> ParseNrrdType(const std::string& path, const std::string& name) {
+  const std::string t = absl::AsciiStrToLower(name);
+  if (t == "uchar" || t == "unsigned char" || t == "uint8" || t == "uint8_t") {
+    return DType::kUInt8;
+  }
+  if (t == "ushort" || t == "unsigned short" || t == "unsigned short int" || t == "uint16" ||
+      t == "uint16_t") {
+    return DType::kUInt16;
+  }
+  if (t == "short" || t == "short int" || t == "signed short" || t == "signed short int" ||
+      t == "int16" || t == "int16_t") {
+    return DType::kInt16;
+  }
+  if (t == "float") return DType::kFloat32;
+  return NrrdError(
+      path, absl::StrCat("unsupported type '", name, "' (supported: uint8, uint16, int16, float)"));
+}
+
+// Parses whitespace-separated numbers; exactly `n` of them.
+template <typename T>
+absl::Status ParseNumbers(const std::string& path, absl::string_view field, absl::string_view text,
+                          size_t n, T* out) {
+  std::vector<absl::string_view> parts =
+      absl::StrSplit(text, absl::ByAnyChar(" \t"), absl::SkipEmpty());
+  if (parts.size() != n) {
+    return NrrdError(path,
+                     absl::StrCat("\"", field, "\" needs ", n, " values, got \"", text, "\""));
+  }
+  for (size_t i = 0; i < n; ++i) {
+    bool ok;
+    if constexpr (std::is_integral_v<T>) {
+      ok = absl::SimpleAtoi(parts[i], &out[i]);
+    } else {
+      ok = absl::SimpleAtod(parts[i], &out[i]);
+    }
+    if (!ok) {
+      return NrrdError(path, absl::StrCat("\"", field, "\": bad number \"", parts[i], "\""));
+    }
+  }
+  return absl::OkStatus();
+}
+
+// Parses "(a,b,c) (d,e,f) ..." into vectors of 3.
+absl::StatusOr<std::vector<std::array<double, 3>>> ParseVectors(const std::string& path,
+                                                                absl::string_view field,
+                                                                absl::string_view text) {
+  std::vector<std::array<double, 3>> vecs;
+  size_t pos = 0;
+  while (true) {
+    const size_t open = text.find_first_not_of(" \t", pos);
+    if (open == absl::string_view::npos) break;
+    if (text[open] != '(') {
+      return NrrdError(path, absl::StrCat("\"", field, "\": expected \"(x,y,z)\" vectors, got \"",
+                                          text, "\" (non-spatial axes are not supported)"));
+    }
+    const size_t close = text.find(')', open);
+    if (close == absl::string_view::npos) {
+      return NrrdError(path, absl::StrCat("\"", field, "\": missing ')' in \"", text, "\""));
+    }
+    std::vector<absl::string_view> parts =
+        absl::StrSplit(text.substr(open + 1, close - open - 1), ',');
+    std::array<double, 3> v{};
+    if (parts.size() != 3) {
+      return NrrdError(
+          path, absl::StrCat("\"", field, "\": vectors must have 3 components (\"", text, "\")"));
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (!absl::SimpleAtod(absl::StripAsciiWhitespace(parts[a]), &v[a])) {
+        return NrrdError(path, absl::StrCat("\"", field, "\": bad number \"", parts[a], "\""));
+      }
+    }
+    vecs.push_back(v);
+    pos = close + 1;
+  }
+  return vecs;
+}
+
+absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHeader& h) {
+  StreamVolumeSpec spec;
+  spec.path = path;
+  spec.data_path = path;
+  VolumeInfo& info = spec.info;
+
+  const std::string* type = h.Find("type");
+  if (type == nullptr) return NrrdError(path, "missing \"type\" field");
+  absl::StatusOr<DType> dtype = ParseNrrdType(path, *type);
+  if (!dtype.ok()) return dtype.status();
+  info.dtype = *dtype;
+
+  const std::string* dimension = h.Find("dimension");
+  int dim = 0;
+  if (dimension == nullptr || !absl::SimpleAtoi(*dimension, &dim)) {
+    return NrrdError(path, "missing or bad \"dimension\" field");
+  }
+  if (dim != 3) {
+    return NrrdError(path, absl::StrCat("dimension is ", dim, "; only 3-D volumes are supported"));
+  }
+  const std::string* sizes = h.Find("sizes");
+  if (sizes == nullptr) return NrrdError(path, "missing \"sizes\" field");
+  int64_t n[3];
+  if (absl::Status st = ParseNumbers(path, "sizes", *sizes, 3, n); !st.ok()) return st;
+  info.nx = n[0];
+  info.ny = n[1];
+  info.nz = n[2];
+
+  if (const std::string* dirs = h.Find("space directions"); dirs != nullptr) {
+    absl::StatusOr<std::vector<std::array<double, 3>>> v =
+        ParseVectors(path, "space directions", *dirs);
+    if (!v.ok()) return v.status();
+    if (v->size() != 3) return NrrdError(path, "\"space directions\" needs 3 vectors");
+    for (int a = 0; a < 3; ++a) {
+      const auto& d = (*v)[a];
+      const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      for (int b = 0; b < 3; ++b) {
+        if (b != a && std::abs(d[b]) > 1e-6 * len) {
+          return NrrdError(path, absl::StrCat("\"space directions\" \"", *dirs,
+                                              "\" are not axis-aligned (rotated or sheared "
+                                              "grids are not supported)"));
+        }
+      }
+      info.spacing[a] = std::abs(d[a]);
+    }
+  } else if (const std::string* sp = h.Find("spacings"); sp != nullptr) {
+    if (absl::Status st = ParseNumbers(path, "spacings", *sp, 3, info.spacing.data()); !st.ok()) {
+      return st;
+    }
+    for (double& s : info.spacing) s = std::abs(s);
+  }
+  if (const std::string* org = h.Find("space origin"); org != nullptr) {
+    absl::StatusOr<std::vector<std::array<double, 3>>> v = ParseVectors(path, "space origin", *org);
+    if (!v.ok()) return v.status();
+    if (v->size() != 1) return NrrdError(path, "\"space origin\" must be one (x,y,z) vector");
+    info.origin = (*v)[0];
+  }
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return NrrdError(path, st.message());
+
+  const std::string* encoding = h.Find("encoding");
+  if (encoding == nullptr) return NrrdError(path, "missing \"encoding\" field");
+  const std::string enc = absl::AsciiStrToLower(*encoding);
+  if (enc == "gzip" || enc == "gz") {
+    spec.gzip = true;
+  } else if (enc != "raw") {
+    return NrrdError(path,
+                     absl::StrCat("unsupported encoding '", *encoding, "' (supported: raw, gzip)"));
+  }
+  if (const std::string* endian = h.Find("endian"); endian != nullptr) {
+    const std::string e = absl::AsciiStrToLower(*endian);
+    if (e != "little" && e != "big") {
+      return NrrdError(path, absl::StrCat("bad endian '", *endian, "' (little or big)"));
+    }
+    spec.big_endian = e == "big";
+  }
+  if (const std::string* ls = h.Find("line skip", "lineskip"); ls != nullptr && *ls != "0") {
+    return NrrdError(path, "\"line skip\" is not supported (only 0)");
+  }
+  int64_t byte_skip = 0;
+  if (const std::string* bs = h.Find("byte skip", "byteskip"); bs != nullptr) {
+    if (!absl::SimpleAtoi(*bs, &byte_skip) || byte_skip < -1 || (byte_skip == -1 && spec.gzip)) {
+      return NrrdError(path, absl::StrCat("unsupported \"byte skip: ", *bs,
+                                          "\" (>= 0, or -1 with raw encoding)"));
+    }
+  }
+
+  if (const std::string* df = h.Find("data file", "datafile"); df != nullptr) {
+    if (*df == "LIST" || df->find(' ') != std::string::npos || df->find('%') != std::string::npos) {
+      return NrrdError(
+          path, absl::StrCat("\"data file: ", *df, "\": only a single data file is supported"));
+    }
+    const std::filesystem::path p(*df);
+    spec.data_path =
+        p.is_absolute() ? p.string() : (std::filesystem::path(path).parent_path() / p).string();
+    spec.data_offset = 0;
+  } else {
+    if (VolumeExtension(path) == ".nhdr") {
+      return NrrdError(path, "detached header has no \"data file\" field");
+    }
+    if (!h.has_blank_line) return NrrdError(path, "no data after the header (missing blank line)");
+    spec.data_offset = h.data_offset;
+  }
+  if (byte_skip == -1) {
+    // Data is the last bytes of the file.
+    absl::StatusOr<uint64_t> size = FileSize(spec.data_path);
+    if (!size.ok()) return size.status();
+    const uint64_t need = VolumeBytes(info);
+    if (*size < spec.data_offset + need) {
+      return absl::DataLossError(absl::StrCat(
+          path, ": truncated: expected ", need, " bytes of voxel data (", DescribeGrid(info),
+          "), file has ", *size - std::min(*size, spec.data_offset)));
+    }
+    spec.data_offset = *size - need;
+  } else if (spec.gzip) {
+    spec.skip_bytes = static_cast<uint64_t>(byte_skip);  // counts decompressed bytes
+  } else {
+    spec.data_offset += static_cast<uint64_t>(byte_skip);
+  }
+
+  if (const std::string* content = h.Find("content"); content != nullptr) {
+    info.description = *content;
+  }
+  for (const auto& [k, v] : h.key_values) {
+    if (k != "suggested_isovalues") continue;
+    for (absl::string_view part : absl::StrSplit(v, absl::ByAnyChar(" \t,"), absl::SkipEmpty())) {
+      double iso;
+      if (absl::SimpleAtod(part, &iso)) info.suggested_isovalues.push_back(iso);
+    }
+  }
+  return spec;
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenNrrdVolume(const std::string& path) {
+  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
+  if (!size.ok()) return size.status();
+  absl::StatusOr<NrrdHeader> header = ReadHeader(path, *size);
+  if (!header.ok()) return header.status();
+  absl::StatusOr<StreamVolumeSpec> spec = ParseNrrd(path, *header);
+  if (!spec.ok()) return spec.status();
+  return OpenStreamVolume(*std::move(spec));
+}
+
+}  // namespace tandem::internal

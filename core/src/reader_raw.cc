@@ -1,0 +1,156 @@
+// Headerless raw voxels described by a JSON sidecar (the format of ../shared/data):
+//   {"dims": [nx, ny, nz], "dtype": "int16", "spacing": [sx, sy, sz], "origin": [..],
+//    "byte_order": "little", "raw_file": "NAME.raw", "raw_bytes": N,
+//    "suggested_isovalues": [..], "description": ".."}
+// Only dims and dtype are required. raw_file is relative to the sidecar's folder and
+// defaults to the sidecar's stem + ".raw". Voxels are x fastest, then y, then z.
+#include <cstdio>
+#include <filesystem>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "nlohmann/json.hpp"
+#include "readers_internal.h"
+
+namespace tandem::internal {
+namespace {
+
+using nlohmann::json;
+
+absl::Status SidecarError(const std::string& path, absl::string_view what) {
+  return absl::InvalidArgumentError(absl::StrCat(path, ": ", what));
+}
+
+// Reads a small text file whole (sidecars are a few hundred bytes; the cap keeps a raw
+// volume mistakenly named .json from being slurped).
+absl::StatusOr<std::string> ReadSmallFile(const std::string& path) {
+  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
+  if (!size.ok()) return size.status();
+  constexpr uint64_t kMaxSidecar = 1 << 20;
+  if (*size > kMaxSidecar) {
+    return SidecarError(
+        path, absl::StrCat("not a JSON sidecar (", *size, " bytes; sidecars are under 1 MiB)"));
+  }
+  std::string text(*size, '\0');
+  FILE* f = std::fopen(path.c_str(), "rb");
+  if (f == nullptr) return ErrnoError(path, "cannot open");
+  const size_t got = std::fread(text.data(), 1, text.size(), f);
+  std::fclose(f);
+  if (got != text.size()) return ErrnoError(path, "read error");
+  return text;
+}
+
+// Reads a 3-vector of numbers at key into *out; absent keys keep the default.
+absl::Status ReadVec3(const std::string& path, const json& j, const char* key,
+                      std::array<double, 3>* out) {
+  if (!j.contains(key)) return absl::OkStatus();
+  const json& v = j[key];
+  if (!v.is_array() || v.size() != 3) {
+    return SidecarError(path, absl::StrCat("\"", key, "\" must be an array of 3 numbers"));
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (!v[a].is_number()) {
+      return SidecarError(path, absl::StrCat("\"", key, "\"[", a, "] is not a number"));
+    }
+    (*out)[a] = v[a].get<double>();
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const json& j) {
+  StreamVolumeSpec spec;
+  spec.path = path;
+  VolumeInfo& info = spec.info;
+  if (!j.is_object()) return SidecarError(path, "JSON sidecar must be an object");
+
+  if (!j.contains("dims")) return SidecarError(path, "missing \"dims\": [nx, ny, nz]");
+  const json& dims = j["dims"];
+  if (!dims.is_array() || dims.size() != 3) {
+    return SidecarError(path, "\"dims\" must be an array of 3 integers [nx, ny, nz]");
+  }
+  int64_t* axes[3] = {&info.nx, &info.ny, &info.nz};
+  for (int a = 0; a < 3; ++a) {
+    if (!dims[a].is_number_integer()) {
+      return SidecarError(path, absl::StrCat("\"dims\"[", a, "] is not an integer"));
+    }
+    *axes[a] = dims[a].get<int64_t>();
+  }
+
+  if (!j.contains("dtype") || !j["dtype"].is_string()) {
+    return SidecarError(path, "missing \"dtype\" (uint8, uint16, int16 or float32)");
+  }
+  absl::StatusOr<DType> dtype = ParseDType(j["dtype"].get<std::string>());
+  if (!dtype.ok()) return SidecarError(path, dtype.status().message());
+  info.dtype = *dtype;
+
+  if (absl::Status st = ReadVec3(path, j, "spacing", &info.spacing); !st.ok()) return st;
+  if (absl::Status st = ReadVec3(path, j, "origin", &info.origin); !st.ok()) return st;
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
+    return SidecarError(path, st.message());
+  }
+  if (info.nz == 0) return SidecarError(path, "\"dims\"[2] (nz) must be at least 2");
+
+  if (j.contains("byte_order")) {
+    const json& bo = j["byte_order"];
+    if (!bo.is_string() || (bo != "little" && bo != "big")) {
+      return SidecarError(path, "\"byte_order\" must be \"little\" or \"big\"");
+    }
+    spec.big_endian = bo == "big";
+  }
+
+  const std::filesystem::path json_path(path);
+  std::filesystem::path raw = json_path.stem().string() + ".raw";
+  if (j.contains("raw_file")) {
+    if (!j["raw_file"].is_string() || j["raw_file"].get<std::string>().empty()) {
+      return SidecarError(path, "\"raw_file\" must be a non-empty file name");
+    }
+    raw = j["raw_file"].get<std::string>();
+  }
+  spec.data_path = raw.is_absolute() ? raw.string() : (json_path.parent_path() / raw).string();
+
+  const uint64_t need = VolumeBytes(info);
+  if (j.contains("raw_bytes")) {
+    const json& rb = j["raw_bytes"];
+    if (!rb.is_number_integer() || rb.get<int64_t>() < 0) {
+      return SidecarError(path, "\"raw_bytes\" must be a non-negative integer");
+    }
+    if (rb.get<uint64_t>() != need) {
+      return SidecarError(path, absl::StrCat("size mismatch: \"raw_bytes\" is ", rb.get<uint64_t>(),
+                                             " but dims ", DescribeGrid(info), " need ", need));
+    }
+  }
+
+  if (j.contains("suggested_isovalues")) {
+    const json& iso = j["suggested_isovalues"];
+    if (!iso.is_array()) return SidecarError(path, "\"suggested_isovalues\" must be an array");
+    for (const json& v : iso) {
+      if (!v.is_number()) {
+        return SidecarError(path, "\"suggested_isovalues\" must hold only numbers");
+      }
+      info.suggested_isovalues.push_back(v.get<double>());
+    }
+  }
+  if (j.contains("description") && j["description"].is_string()) {
+    info.description = j["description"].get<std::string>();
+  }
+  return spec;
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& json_path) {
+  absl::StatusOr<std::string> text = ReadSmallFile(json_path);
+  if (!text.ok()) return text.status();
+  const json j = json::parse(*text, nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded()) return SidecarError(json_path, "invalid JSON in sidecar");
+  absl::StatusOr<StreamVolumeSpec> spec;
+  try {  // the checks above should make get<> safe; never let a json exception escape
+    spec = ParseSidecar(json_path, j);
+  } catch (const json::exception& e) {
+    return SidecarError(json_path, absl::StrCat("bad sidecar: ", e.what()));
+  }
+  if (!spec.ok()) return spec.status();
+  return OpenStreamVolume(*std::move(spec));
+}
+
+}  // namespace tandem::internal

@@ -1,0 +1,165 @@
+// Helpers shared by the volume readers and writers (not part of the public API): byte
+// order, plain/gzip byte streams, and one SliceSource for every format whose voxels are a
+// contiguous (possibly gzip-compressed) run of bytes: raw + sidecar, NRRD and NIfTI.
+#ifndef TANDEM_SRC_READERS_INTERNAL_H_
+#define TANDEM_SRC_READERS_INTERNAL_H_
+
+#include <bit>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
+#include "tandem/volume.h"
+#include "tandem/volume_writers.h"
+
+namespace tandem::internal {
+
+inline constexpr bool kHostIsLittleEndian = std::endian::native == std::endian::little;
+
+// This Abseil build's absl::string_view is not std::string_view; bridges the public API's
+// std::string_view (DTypeName) into absl::StrCat.
+inline absl::string_view Sv(std::string_view s) { return absl::string_view(s.data(), s.size()); }
+
+// Reverses the bytes of each of the n elements of elem_size bytes in data.
+void SwapBytesInPlace(uint8_t* data, size_t n, size_t elem_size);
+
+// Unaligned scalar load/store with optional byte swap (binary headers: NIfTI).
+template <typename T>
+T LoadScalar(const uint8_t* p, bool swap) {
+  T v;
+  std::memcpy(&v, p, sizeof(T));
+  if (swap) SwapBytesInPlace(reinterpret_cast<uint8_t*>(&v), 1, sizeof(T));
+  return v;
+}
+template <typename T>
+void StoreScalar(uint8_t* p, T v, bool swap) {
+  std::memcpy(p, &v, sizeof(T));
+  if (swap) SwapBytesInPlace(p, 1, sizeof(T));
+}
+
+// Size of a regular file; NotFound / Internal errors name the path.
+absl::StatusOr<uint64_t> FileSize(const std::string& path);
+
+// FileSize, but an empty file is an error ("<path>: empty file").
+absl::StatusOr<uint64_t> NonEmptyFileSize(const std::string& path);
+
+// "<path>: <what>: <strerror(errno)>" with a code chosen from errno.
+absl::Status ErrnoError(const std::string& path, absl::string_view what);
+
+// Shortest decimal text that reads back as the same double ("0.5", "3.2", "1e-07").
+std::string FormatDouble(double v);
+
+// "64x64x93 int16" (for messages).
+std::string DescribeGrid(const VolumeInfo& info);
+
+// Total voxel bytes nx*ny*nz*DTypeSize (the caller has validated the info).
+uint64_t VolumeBytes(const VolumeInfo& info);
+
+// Writers: asks slice_fn for slice z and checks that it produced info.slice_bytes() bytes.
+absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                        int64_t z, std::vector<uint8_t>* bytes);
+
+// Lower-cased file name extension handling ".nii.gz"-style double extensions:
+// "a/b.NII.gz" -> ".nii.gz", "x.nrrd" -> ".nrrd", "noext" -> "".
+std::string VolumeExtension(const std::string& path);
+
+// Sequential reader of a file's bytes from a start offset, plain or gzip (zlib's gzread
+// decompresses incrementally, so neither form ever holds the whole file).
+class ByteReader {
+ public:
+  // Opens path and positions it at byte `offset` of the file (the compressed stream, if
+  // gzip, starts there).
+  static absl::StatusOr<std::unique_ptr<ByteReader>> Open(const std::string& path, uint64_t offset,
+                                                          bool gzip);
+  virtual ~ByteReader() = default;
+  // Reads up to n bytes; fewer only at the end of the data. Errors name the path.
+  virtual absl::StatusOr<size_t> Read(void* dst, size_t n) = 0;
+  // Discards n bytes; OutOfRange if the data ends first.
+  absl::Status Skip(uint64_t n);
+  // After a short Read: why the data ended, if known ("unexpected end of file"), else "".
+  virtual std::string EndReason() { return ""; }
+  bool gzip() const { return gzip_; }
+  const std::string& path() const { return path_; }
+
+ protected:
+  ByteReader(std::string path, bool gzip) : path_(std::move(path)), gzip_(gzip) {}
+  std::string path_;
+  bool gzip_;
+};
+
+// Sequential writer, plain or gzip. Close() must be called to see write errors.
+class ByteWriter {
+ public:
+  // append: keep the existing content (a gzip member is appended after it).
+  static absl::StatusOr<std::unique_ptr<ByteWriter>> Open(const std::string& path, bool gzip,
+                                                          bool append = false);
+  virtual ~ByteWriter() = default;
+  virtual absl::Status Write(const void* src, size_t n) = 0;
+  virtual absl::Status Close() = 0;
+
+ protected:
+  explicit ByteWriter(std::string path) : path_(std::move(path)) {}
+  std::string path_;
+};
+
+// Where and how the voxels of a contiguous-data volume are stored.
+struct StreamVolumeSpec {
+  std::string path;          // the file the user opened (named in every message)
+  std::string data_path;     // the file holding the voxels (== path unless detached)
+  VolumeInfo info;           // geometry; info.dtype is the stored type
+  uint64_t data_offset = 0;  // byte offset of the (compressed) data in data_path
+  uint64_t skip_bytes = 0;   // decompressed bytes to discard before the voxels (gzip only)
+  bool gzip = false;
+  bool big_endian = false;  // byte order of the stored voxels
+  // NIfTI scl_slope / scl_inter: when set, slices are delivered as float32 = v*slope+inter.
+  bool scale = false;
+  double scl_slope = 1.0, scl_inter = 0.0;
+};
+
+// Validates the geometry, checks the data size (exactly for plain files at open time; for
+// gzip, truncation and trailing data are reported by ReadSlice), and returns the source.
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenStreamVolume(StreamVolumeSpec spec);
+
+// Per-format entry points used by OpenVolume.
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& json_path);
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenNrrdVolume(const std::string& path);
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenNiftiVolume(const std::string& path);
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& path);
+
+// The TIFF writer lives next to the TIFF reader so that libtiff's error plumbing is in one
+// file. info is validated by the caller.
+absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
+                             const SliceFn& slice_fn, const VolumeWriteOptions& opts);
+
+// NIfTI-1 header layout (byte offsets into the 348-byte header), shared by reader and writer.
+namespace nifti {
+inline constexpr int kHeaderSize = 348;
+inline constexpr int kSizeofHdr = 0;
+inline constexpr int kDim = 40;         // int16[8]
+inline constexpr int kDatatype = 70;    // int16
+inline constexpr int kBitpix = 72;      // int16
+inline constexpr int kPixdim = 76;      // float[8]
+inline constexpr int kVoxOffset = 108;  // float
+inline constexpr int kSclSlope = 112;   // float
+inline constexpr int kSclInter = 116;   // float
+inline constexpr int kXyztUnits = 123;  // char
+inline constexpr int kDescrip = 148;    // char[80]
+inline constexpr int kQformCode = 252;  // int16
+inline constexpr int kSformCode = 254;  // int16
+inline constexpr int kQoffsetX = 268;   // float x3
+inline constexpr int kSrowX = 280;      // float[4] x3 (srow_x, srow_y, srow_z)
+inline constexpr int kMagic = 344;      // char[4]
+inline constexpr int16_t kTypeUInt8 = 2, kTypeInt16 = 4, kTypeFloat32 = 16, kTypeUInt16 = 512;
+}  // namespace nifti
+
+}  // namespace tandem::internal
+
+#endif  // TANDEM_SRC_READERS_INTERNAL_H_

@@ -1,0 +1,387 @@
+#include "tandem/simplifier.h"
+
+#include <algorithm>
+#include <cassert>
+#include <cmath>
+
+namespace tandem {
+namespace {
+
+// Bits of BoxFace per axis, and the axes they fix.
+uint8_t FixedAxes(uint8_t box_mask) {
+  uint8_t axes = 0;
+  if (box_mask & (kBoxXMin | kBoxXMax)) axes |= 1;
+  if (box_mask & (kBoxYMin | kBoxYMax)) axes |= 2;
+  if (box_mask & (kBoxZMin | kBoxZMax)) axes |= 4;
+  return axes;
+}
+
+}  // namespace
+
+Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
+    : store_(store), opt_(options) {}
+
+void Simplifier::EnsureVertexCapacity() {
+  const size_t n = store_->vertex_capacity();
+  if (quadric_.size() >= n) return;
+  quadric_.resize(n);
+  rad_.resize(n, 1.0);
+  version_.resize(n, 0);
+  mark_.resize(n, 0);
+  mark_count_.resize(n, 0);
+}
+
+void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
+  EnsureVertexCapacity();
+  for (VertexId v : new_verts) {
+    // Ids may be recycled from contracted vertices: start clean.
+    quadric_[v] = Quadric{};
+    rad_[v] = 1.0;
+    ++version_[v];
+  }
+  for (TriId t : tris) {
+    const auto& tri = store_->triangle(t);
+    const Quadric h = PlaneQuadric(store_->position(tri[0]), store_->position(tri[1]),
+                                   store_->position(tri[2]));
+    for (VertexId v : tri) quadric_[v] += h;
+  }
+}
+
+double Simplifier::ReleaseKey(VertexId a, VertexId b, const Candidate& c) const {
+  switch (opt_.release) {
+    case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
+    case ReleaseRule::kLayer: return static_cast<double>(std::max(store_->layer(a), store_->layer(b)) + 1);
+    case ReleaseRule::kReach: return c.height + c.rad;
+  }
+  return 0;
+}
+
+bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
+  const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
+  const uint8_t common = ma & mb;
+  if (common != ma && common != mb) return false;  // on different box faces: refuse
+  const VertexId big = (common == ma) ? b : a;       // the vertex on more box faces
+  const Vec3 pa = store_->position(a), pb = store_->position(b);
+  Quadric h = quadric_[a];
+  h += quadric_[b];
+  const uint8_t fixed = FixedAxes(ma | mb);
+  // Reference point: the midpoint, with box-fixed coordinates taken from the box vertex.
+  Vec3 ref = (pa + pb) * 0.5;
+  const Vec3 pbig = store_->position(big);
+  for (int i = 0; i < 3; ++i) {
+    if ((fixed >> i) & 1) ref[i] = pbig[i];
+  }
+
+  if (opt_.alpha > 0.0) {
+    // Memoryless isotropy term over T_ab, the triangles around a or b (each once).
+    Quadric g;
+    double area = 0.0;
+    auto add = [&](TriId t, bool skip_shared) {
+      const auto& tri = store_->triangle(t);
+      if (skip_shared && (tri[0] == a || tri[1] == a || tri[2] == a)) return;
+      const Quadric gt = IsotropyQuadric(store_->position(tri[0]), store_->position(tri[1]),
+                                         store_->position(tri[2]));
+      g += gt;
+      area += gt.a00;  // G_t's diagonal is w_t
+    };
+    for (TriId t : store_->vertex_triangles(a)) add(t, false);
+    for (TriId t : store_->vertex_triangles(b)) add(t, true);
+    Quadric combined;
+    if (h.w > 0.0) {
+      combined = h;
+      combined *= (1.0 - opt_.alpha) / h.w;
+    }
+    if (area > 0.0 && h.w > 0.0) {
+      const double big_w = 3.0 * area * std::sqrt(h.w) / opt_.error;
+      g *= opt_.alpha / big_w;
+      combined += g;
+    }
+    combined.w = 0.0;
+    c->pos = MinimizeQuadric(combined, ref, fixed);
+    c->cost = std::sqrt(std::max(0.0, combined.Evaluate(c->pos)));
+    c->eps0 = ShapeError(h, c->pos);
+  } else {
+    c->pos = MinimizeQuadric(h, ref, fixed);
+    c->eps0 = ShapeError(h, c->pos);
+    c->cost = c->eps0;
+  }
+  c->height = 0.5 * (store_->height(a) + store_->height(b));
+  c->rad = 0.5 * (Norm(pa - pb) / opt_.slice_spacing + rad_[a] + rad_[b]);
+  c->layer = std::max(store_->layer(a), store_->layer(b));
+  c->box_mask = ma | mb;
+  c->key = ReleaseKey(a, b, *c);
+  return true;
+}
+
+void Simplifier::HeapPush(std::vector<Entry>& h, const Entry& e) {
+  h.push_back(e);
+  std::push_heap(h.begin(), h.end(), EntryGreater{});
+}
+
+Simplifier::Entry Simplifier::HeapPop(std::vector<Entry>& h) {
+  std::pop_heap(h.begin(), h.end(), EntryGreater{});
+  Entry e = h.back();
+  h.pop_back();
+  return e;
+}
+
+bool Simplifier::Stale(const Entry& e) const {
+  return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
+         version_[e.b] != e.vb;
+}
+
+void Simplifier::PushEdge(VertexId a, VertexId b) {
+  if (a > b) std::swap(a, b);
+  Candidate c;
+  if (!Evaluate(a, b, &c)) {
+    ++refusals_.box;
+    return;
+  }
+  const Entry w_entry{c.key, a, b, version_[a], version_[b]};
+  if (c.key <= front_) {
+    HeapPush(q_, Entry{c.cost, a, b, version_[a], version_[b]});
+  } else {
+    HeapPush(w_, w_entry);
+  }
+}
+
+void Simplifier::Delay(std::span<const TriId> tris) {
+  EnsureVertexCapacity();
+  // Each interior edge is in two new triangles (or one new and one older): push it from the
+  // triangle that traverses it upwards in id order, and boundary-like edges from both
+  // directions only once by checking whether the reverse half-edge's triangle is present.
+  for (TriId t : tris) {
+    if (!store_->triangle_alive(t)) continue;
+    const auto& tri = store_->triangle(t);
+    for (int k = 0; k < 3; ++k) {
+      const VertexId a = tri[k], b = tri[(k + 1) % 3];
+      if (a < b) {
+        PushEdge(a, b);
+        continue;
+      }
+      // a > b: skip when another live triangle holds the edge as b -> a (it pushes it).
+      bool twin = false;
+      for (TriId u : store_->vertex_triangles(a)) {
+        if (u == t) continue;
+        const auto& o = store_->triangle(u);
+        for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
+      }
+      if (!twin) PushEdge(a, b);
+    }
+  }
+}
+
+void Simplifier::Activate(double front) {
+  front_ = front;
+  while (!w_.empty() && w_.front().key <= front_) {
+    const Entry e = HeapPop(w_);
+    if (Stale(e)) continue;
+    PushEdge(e.a, e.b);  // re-evaluated: quadrics may have grown since DELAY
+  }
+}
+
+bool Simplifier::LinkCondition(VertexId a, VertexId b) {
+  // Lk(a) ∩ Lk(b) = Lk(ab), on the complex completed by a dummy vertex ω joined to every
+  // boundary edge (Dey, Edelsbrunner, Guha, Nekhayev 1999). With manifold input it reduces
+  // to: (1) the common neighbours of a and b are exactly the apexes of ab's triangles;
+  // (2) ω: if a and b are both on the boundary, ab is a boundary edge; (3) no edge of both
+  // links: for an interior edge with apexes c, d, not both acd and bcd are triangles; for a
+  // boundary edge with apex c, not both ac and bc are boundary edges.
+  if (++mark_epoch_ == 0) {
+    std::fill(mark_.begin(), mark_.end(), 0);
+    mark_epoch_ = 1;
+  }
+  const uint32_t ea = mark_epoch_;
+  // Neighbours of a, with the number of triangles on edge (a, x).
+  bool a_boundary = false;
+  for (TriId t : store_->vertex_triangles(a)) {
+    for (VertexId x : store_->triangle(t)) {
+      if (x == a) continue;
+      if (mark_[x] != ea) {
+        mark_[x] = ea;
+        mark_count_[x] = 0;
+      }
+      ++mark_count_[x];
+    }
+  }
+  VertexId apex[2];
+  int napex = 0;
+  for (TriId t : store_->vertex_triangles(a)) {
+    const auto& tri = store_->triangle(t);
+    if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
+    if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
+    for (VertexId x : tri) {
+      if (x != a && x != b) apex[napex++] = x;
+    }
+  }
+  if (napex == 0) return false;  // a and b are not adjacent (any more)
+  for (TriId t : store_->vertex_triangles(a)) {
+    for (VertexId x : store_->triangle(t)) a_boundary |= (x != a && mark_count_[x] == 1);
+  }
+  // Count b's neighbours in a separate pass with its own tally kept in scratch_.
+  scratch_.clear();
+  bool b_boundary = false;
+  int common = 0;
+  for (TriId t : store_->vertex_triangles(b)) {
+    for (VertexId x : store_->triangle(t)) {
+      if (x == b) continue;
+      scratch_.push_back(x);
+    }
+  }
+  std::sort(scratch_.begin(), scratch_.end());
+  for (size_t i = 0; i < scratch_.size();) {
+    size_t j = i;
+    while (j < scratch_.size() && scratch_[j] == scratch_[i]) ++j;
+    const VertexId x = scratch_[i];
+    if (j - i == 1) b_boundary = true;  // edge (b, x) in one triangle
+    if (x != a && mark_[x] == ea) {
+      ++common;
+      bool is_apex = false;
+      for (int k = 0; k < napex; ++k) is_apex |= apex[k] == x;
+      if (!is_apex) return false;  // (1) a common neighbour that is not an apex
+      if (napex == 1 && mark_count_[x] == 1 && j - i == 1) return false;  // (3) boundary
+    }
+    i = j;
+  }
+  if (common != napex) return false;
+  if (napex == 2) {
+    if (a_boundary && b_boundary) return false;  // (2) interior edge between boundaries
+    // (3) interior: triangles a-c-d and b-c-d both present?
+    const VertexId c = apex[0], d = apex[1];
+    auto has_triangle = [&](VertexId v) {
+      for (TriId t : store_->vertex_triangles(v)) {
+        const auto& tri = store_->triangle(t);
+        bool hc = false, hd = false;
+        for (VertexId x : tri) {
+          hc |= x == c;
+          hd |= x == d;
+        }
+        if (hc && hd) return true;
+      }
+      return false;
+    };
+    if (has_triangle(a) && has_triangle(b)) return false;
+  }
+  return true;
+}
+
+bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos) {
+  // Triangles that survive the contraction move one corner (a or b) to pos.
+  for (VertexId v : {a, b}) {
+    const VertexId other = (v == a) ? b : a;
+    for (TriId t : store_->vertex_triangles(v)) {
+      const auto& tri = store_->triangle(t);
+      if (tri[0] == other || tri[1] == other || tri[2] == other) continue;  // removed
+      Vec3 p[3];
+      for (int k = 0; k < 3; ++k) p[k] = (tri[k] == v) ? pos : store_->position(tri[k]);
+      const Vec3 n_old = store_->TriangleNormalTimesTwoArea(t);
+      const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
+      const double old2 = Dot(n_old, n_old);
+      if (old2 == 0.0) continue;  // already degenerate (exact iso hits): no constraint
+      const double new2 = Dot(n_new, n_new);
+      const double scale = Dot(p[1] - p[0], p[1] - p[0]) + Dot(p[2] - p[1], p[2] - p[1]) +
+                           Dot(p[0] - p[2], p[0] - p[2]);
+      if (new2 <= 1e-20 * scale * scale) {
+        ++refusals_.degenerate;
+        return false;
+      }
+      if (Dot(n_old, n_new) <= 0.0) {
+        ++refusals_.flip;
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
+void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
+  // a survives as c; b's triangles move to a; the triangles on ab disappear.
+  scratch_.clear();
+  for (TriId t : store_->vertex_triangles(a)) {
+    const auto& tri = store_->triangle(t);
+    if (tri[0] == b || tri[1] == b || tri[2] == b) scratch_.push_back(t);
+  }
+  for (TriId t : scratch_) store_->RemoveTriangle(t);
+  scratch_.assign(store_->vertex_triangles(b).begin(), store_->vertex_triangles(b).end());
+  for (TriId t : scratch_) store_->ReplaceCorner(t, b, a);
+  store_->RemoveVertex(b);
+  ++version_[b];
+  quadric_[a] += quadric_[b];
+  store_->set_position(a, c.pos);
+  store_->set_height(a, c.height);
+  store_->set_layer(a, c.layer);
+  store_->set_box_mask(a, c.box_mask);
+  rad_[a] = c.rad;
+  ++version_[a];
+  ++contractions_;
+  // Recorded from the geometry, not from the release key, so a broken key shows up here.
+  max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
+  max_layer_over_front_ = std::max(max_layer_over_front_, static_cast<double>(c.layer) - front_);
+  // Re-evaluate the edges around c.
+  scratch_.clear();
+  for (TriId t : store_->vertex_triangles(a)) {
+    for (VertexId x : store_->triangle(t)) {
+      if (x != a) scratch_.push_back(x);
+    }
+  }
+  std::sort(scratch_.begin(), scratch_.end());
+  scratch_.erase(std::unique(scratch_.begin(), scratch_.end()), scratch_.end());
+  std::vector<VertexId> nbrs;
+  nbrs.swap(scratch_);
+  for (VertexId x : nbrs) PushEdge(a, x);
+  nbrs.swap(scratch_);
+}
+
+void Simplifier::Simplify(int64_t target_triangles) {
+  const bool to_target = target_triangles > 0;
+  while (!q_.empty()) {
+    if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
+    if (!to_target && q_.front().key > opt_.error) break;
+    const Entry e = HeapPop(q_);
+    if (Stale(e)) continue;
+    Candidate c;
+    if (!Evaluate(e.a, e.b, &c)) {
+      ++refusals_.box;
+      continue;
+    }
+    if (c.key > front_) {  // cannot happen unless the front moved back; keep it safe
+      HeapPush(w_, Entry{c.key, e.a, e.b, e.va, e.vb});
+      continue;
+    }
+    if (c.cost > e.key * (1.0 + 1e-12) + 1e-300) {  // cost grew since it was queued
+      HeapPush(q_, Entry{c.cost, e.a, e.b, e.va, e.vb});
+      continue;
+    }
+    if (!to_target && c.eps0 > opt_.error) {
+      // Conservative rule. Keep it queued above E0 so a target count can still use it.
+      ++refusals_.error;
+      HeapPush(q_, Entry{std::max(c.eps0, std::nextafter(opt_.error, 1e300)), e.a, e.b,
+                         e.va, e.vb});
+      continue;
+    }
+    if (!LinkCondition(e.a, e.b)) {
+      ++refusals_.link;
+      continue;
+    }
+    if (!GeometryOk(e.a, e.b, c.pos)) continue;
+    Contract(e.a, e.b, c);
+  }
+}
+
+double Simplifier::MaxShapeError() const {
+  double worst = 0.0;
+  for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
+    if (!store_->vertex_alive(v) || v >= quadric_.size()) continue;
+    worst = std::max(worst, ShapeError(quadric_[v], store_->position(v)));
+  }
+  return worst;
+}
+
+size_t Simplifier::MemoryBytes() const {
+  return quadric_.capacity() * sizeof(Quadric) + rad_.capacity() * sizeof(double) +
+         version_.capacity() * sizeof(uint32_t) + mark_.capacity() * sizeof(uint32_t) +
+         mark_count_.capacity() + (q_.capacity() + w_.capacity()) * sizeof(Entry) +
+         scratch_.capacity() * sizeof(VertexId);
+}
+
+}  // namespace tandem

@@ -1,0 +1,189 @@
+#include "tandem/tandem.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "absl/strings/str_cat.h"
+
+namespace tandem {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double>(b - a).count();
+}
+
+ReleaseRule RuleFor(Schedule s) {
+  switch (s) {
+    case Schedule::kTandem: return ReleaseRule::kLayer;
+    case Schedule::kTandemLag: return ReleaseRule::kReach;
+    default: return ReleaseRule::kImmediate;
+  }
+}
+
+}  // namespace
+
+std::string_view ScheduleName(Schedule s) {
+  switch (s) {
+    case Schedule::kNone: return "none";
+    case Schedule::kClassical: return "classical";
+    case Schedule::kTandem: return "tandem";
+    case Schedule::kTandemLag: return "tandem-lag";
+  }
+  return "?";
+}
+
+absl::StatusOr<Schedule> ParseSchedule(std::string_view name) {
+  for (Schedule s : {Schedule::kNone, Schedule::kClassical, Schedule::kTandem,
+                     Schedule::kTandemLag}) {
+    if (name == ScheduleName(s)) return s;
+  }
+  return absl::InvalidArgumentError(absl::StrCat(
+      "unknown schedule '", std::string(name), "'; expected classical, tandem or tandem-lag"));
+}
+
+absl::Status SessionOptions::Validate() const {
+  if (!std::isfinite(iso)) return absl::InvalidArgumentError("iso-value must be a finite number");
+  if (schedule == Schedule::kNone) return absl::OkStatus();
+  if (!(error > 0) || !std::isfinite(error)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "error threshold E0 must be a finite number > 0 (physical units), got ", error));
+  }
+  if (!(alpha >= 0 && alpha <= 1)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("isotropy alpha must lie in [0, 1], got ", alpha));
+  }
+  if (target_triangles < 0) {
+    return absl::InvalidArgumentError("target triangle count must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
+TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& options)
+    : grid_(grid),
+      options_(options),
+      extractor_(ExtractorConfig{grid.nx, grid.ny, grid.nz, grid.spacing, grid.origin, options.iso},
+                 &store_),
+      simplifier_(&store_, SimplifierOptions{options.error, options.alpha,
+                                             RuleFor(options.schedule), grid.spacing[2]}) {
+  convert_.resize(static_cast<size_t>(grid.nx * grid.ny));
+}
+
+absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
+    const VolumeInfo& grid, const SessionOptions& options) {
+  VolumeInfo g = grid;
+  if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
+  if (absl::Status st = options.Validate(); !st.ok()) return st;
+  return std::unique_ptr<TandemSession>(new TandemSession(g, options));
+}
+
+void TandemSession::Record() {
+  const int64_t n = static_cast<int64_t>(store_.num_triangles());
+  stats_.trace.push_back(n);
+  stats_.peak_triangles = std::max(stats_.peak_triangles, n);
+}
+
+absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
+  ConvertToFloat(dtype, bytes, convert_.size(), convert_.data());
+  return AddSlice(convert_.data());
+}
+
+absl::Status TandemSession::AddSlice(const float* values) {
+  if (finished_) return absl::FailedPreconditionError("session already finished");
+  const auto t0 = Clock::now();
+  new_tris_.clear();
+  new_verts_.clear();
+  if (absl::Status st = extractor_.AddSlice(values, &new_tris_, &new_verts_); !st.ok()) return st;
+  stats_.triangles_extracted += static_cast<int64_t>(new_tris_.size());
+  const int64_t k = extractor_.slices_done() - 1;  // the front
+  const bool tandem = options_.schedule == Schedule::kTandem ||
+                      options_.schedule == Schedule::kTandemLag;
+  if (options_.schedule != Schedule::kNone) simplifier_.AddTriangles(new_tris_, new_verts_);
+  const auto t1 = Clock::now();
+  stats_.time.extract_s += Seconds(t0, t1);
+  Record();
+  if (tandem) {
+    simplifier_.Delay(new_tris_);
+    simplifier_.Activate(static_cast<double>(k));
+    simplifier_.Simplify();
+    stats_.time.simplify_s += Seconds(t1, Clock::now());
+    Record();
+  }
+  return absl::OkStatus();
+}
+
+absl::Status TandemSession::Finish() {
+  if (finished_) return absl::FailedPreconditionError("session already finished");
+  const int64_t done = extractor_.slices_done();
+  if (done < 2) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("the stream ended after ", done, " slice(s); at least 2 are needed"));
+  }
+  if (grid_.nz > 0 && done != grid_.nz) {
+    return absl::FailedPreconditionError(absl::StrCat(
+        "the stream ended after ", done, " slices but the volume declared nz = ", grid_.nz));
+  }
+  finished_ = true;
+  extractor_.Finish();
+  if (options_.schedule == Schedule::kNone) return absl::OkStatus();
+  const auto t0 = Clock::now();
+  if (options_.schedule == Schedule::kClassical) {
+    // INSERT every edge of the full-resolution surface, then one SIMPLIFY.
+    std::vector<TriId> all;
+    all.reserve(store_.num_triangles());
+    for (TriId t = 0; t < store_.triangle_capacity(); ++t) {
+      if (store_.triangle_alive(t)) all.push_back(t);
+    }
+    simplifier_.Delay(all);
+  }
+  simplifier_.Activate(std::numeric_limits<double>::infinity());
+  simplifier_.Simplify();
+  if (options_.target_triangles > 0 && num_triangles() > options_.target_triangles) {
+    simplifier_.Simplify(options_.target_triangles);
+  }
+  stats_.time.simplify_s += Seconds(t0, Clock::now());
+  Record();
+  return absl::OkStatus();
+}
+
+const SessionStats& TandemSession::stats() const {
+  stats_.slices = extractor_.slices_done();
+  stats_.crossed_cubes = extractor_.crossed_cubes();
+  stats_.refusals = simplifier_.refusals();
+  stats_.contractions = simplifier_.contractions();
+  stats_.max_reach_over_front = simplifier_.max_reach_over_front();
+  stats_.max_layer_over_front = simplifier_.max_layer_over_front();
+  return stats_;
+}
+
+double TandemSession::MaxShapeError() const {
+  return options_.schedule == Schedule::kNone ? 0.0 : simplifier_.MaxShapeError();
+}
+
+size_t TandemSession::MemoryBytes() const {
+  return store_.MemoryBytes() + simplifier_.MemoryBytes() +
+         convert_.capacity() * sizeof(float) +
+         static_cast<size_t>(grid_.nx * grid_.ny) * (2 * sizeof(double) + 5 * sizeof(VertexId));
+}
+
+absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
+    SliceSource& source, const SessionOptions& options,
+    const std::function<void(int64_t, int64_t)>& progress) {
+  const VolumeInfo& info = source.info();
+  auto session = TandemSession::Create(info, options);
+  if (!session.ok()) return session.status();
+  std::vector<uint8_t> bytes;
+  for (int64_t k = 0; k < info.nz; ++k) {
+    if (absl::Status st = source.ReadSlice(&bytes); !st.ok()) return st;
+    if (absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes.data()); !st.ok()) {
+      return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
+    }
+    if (progress) progress(k + 1, info.nz);
+  }
+  if (absl::Status st = (*session)->Finish(); !st.ok()) return st;
+  return session;
+}
+
+}  // namespace tandem

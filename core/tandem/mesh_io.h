@@ -1,0 +1,48 @@
+// Reading and writing triangle meshes as PLY and Wavefront OBJ files.
+//
+// The format is chosen by the file's extension, case-insensitively: ".ply" or ".obj".
+// Positions keep the mesh's units (tandem writes physical units); no transform is applied.
+// Errors are absl::Status values whose message starts with the path and names the problem:
+//   NotFound          the file cannot be opened for reading
+//   InvalidArgument   unknown extension, bad header, malformed number or face, index out of
+//                     range (also for WriteMesh given an invalid mesh)
+//   DataLoss          the file ends before the data its header announces (truncated)
+//   Unavailable       an operating-system write error (disk full, permission)
+#ifndef TANDEM_MESH_IO_H_
+#define TANDEM_MESH_IO_H_
+
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "tandem/mesh.h"
+
+namespace tandem {
+
+// Writes `mesh` to `path` (overwriting it), streamed through a fixed buffer, so memory does
+// not grow with the mesh.
+//   .ply  binary_little_endian 1.0: "element vertex" with float32 x y z (positions are
+//         rounded to float), "element face" with "property list uchar int vertex_indices".
+//   .obj  text: "v x y z" with each coordinate rounded to float32 and printed as the
+//         shortest decimal that reads back as that float (≤ 9 significant digits, the
+//         precision of %.9g), then "f i j k" with 1-based indices. Reading it back and
+//         rounding to float gives the written float32 values exactly.
+// Fails with InvalidArgument, before creating the file, if indices.size() is not a multiple
+// of 3 or an index is ≥ num_vertices(), or if the mesh has ≥ 2^31 vertices (PLY int).
+absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh);
+
+// Reads a mesh. Polygons with more than 3 corners are fan-triangulated (v0 vi vi+1); faces
+// with fewer than 3 corners are dropped. Vertex order and count are kept as in the file.
+//   .ply  ascii, binary_little_endian or binary_big_endian 1.0. The vertex element must have
+//         x, y, z (any scalar type, usually float or double); other vertex properties and
+//         other elements are skipped. Faces: a list property named "vertex_indices" (or
+//         "vertex_index") with any integer count and index types; other face properties are
+//         skipped. A file without a face element reads as a point set (no indices).
+//   .obj  "v x y z [w]" and "f" lines; face corners may be "i", "i/t", "i//n" or "i/t/n",
+//         1-based, or negative (relative to the vertices read so far). Other lines (vn, vt,
+//         g, o, s, usemtl, comments, ...) are ignored.
+absl::StatusOr<IndexedMesh> ReadMesh(const std::string& path);
+
+}  // namespace tandem
+
+#endif  // TANDEM_MESH_IO_H_

@@ -1,0 +1,133 @@
+// Simplifier: the edge-contraction engine shared by the three schedules (SPEC §3–§6).
+//
+// Two lazy-deletion min-heaps of candidate edges: Q ordered by cost ε_α, and the waiting
+// queue W ordered by a release key (the candidate's reach for tandem-lag, its layer + 1 for
+// tandem without lag). An entry carries the version stamps of its two vertices; a vertex's
+// stamp changes when it is contracted, so stale entries are recognised by integers, never
+// by comparing costs. Costs are recomputed when an entry is popped (a vertex's quadric keeps
+// growing until the layer above it is extracted, and the memoryless isotropy term depends on
+// the current neighbourhood), and an entry whose cost went up is pushed back.
+//
+// The schedule (tandem.h) calls: AddTriangles (after EXTRACT), Delay (new edges into W),
+// Activate(front) (W -> Q for keys <= front), Simplify() (contract while MinCost <= E0).
+#ifndef TANDEM_SIMPLIFIER_H_
+#define TANDEM_SIMPLIFIER_H_
+
+#include <cstdint>
+#include <limits>
+#include <span>
+#include <vector>
+
+#include "tandem/mesh_store.h"
+#include "tandem/quadric.h"
+#include "tandem/types.h"
+
+namespace tandem {
+
+// Why contractions were refused (or deferred), counted per reason.
+struct RefusalCounts {
+  int64_t link = 0;        // link condition (topology would change)
+  int64_t flip = 0;        // a triangle's normal would turn by more than 90 degrees
+  int64_t degenerate = 0;  // a non-degenerate triangle would collapse to zero area
+  int64_t box = 0;         // the vertices lie on different faces of the grid's box
+  int64_t error = 0;       // conservative rule: ε0(c) > E0 although ε_α(c) <= E0
+  int64_t total() const { return link + flip + degenerate + box + error; }
+};
+
+enum class ReleaseRule : uint8_t {
+  kImmediate,  // classical: every edge goes straight to Q
+  kLayer,      // tandem without lag: key = max(layer(a), layer(b)) + 1
+  kReach,      // tandem with time-lag: key = reach(c) = height(c) + rad(c)
+};
+
+struct SimplifierOptions {
+  double error = 0;           // E0, physical units
+  double alpha = 0;           // isotropy parameter in [0, 1]
+  ReleaseRule release = ReleaseRule::kReach;
+  double slice_spacing = 1;   // sz: converts lengths to slice units for rad()
+};
+
+class Simplifier {
+ public:
+  Simplifier(MeshStore* store, const SimplifierOptions& options);
+
+  // Accumulates the plane quadrics of new triangles into their vertices (a vertex on slice
+  // k is complete once layer k+1 is in) and registers new vertices (rad = 1).
+  void AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts);
+  // DELAY: puts the edges of these triangles into W (or Q for kImmediate).
+  void Delay(std::span<const TriId> tris);
+  // ACTIVATE: moves entries of W whose key <= front into Q. front = +inf for ACTIVATE(∞).
+  void Activate(double front);
+  // SIMPLIFY(E0): contracts while Q's minimum cost <= E0 (beyond E0 down to a triangle
+  // count when target_triangles > 0 is given: see tandem.h).
+  void Simplify(int64_t target_triangles = 0);
+
+  // Error(K) = max ε0 over live vertices.
+  double MaxShapeError() const;
+  const RefusalCounts& refusals() const { return refusals_; }
+  int64_t contractions() const { return contractions_; }
+  // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the
+  // front, the time-lag rule) and the largest layer(c) - front (<= -1: the newest layer was
+  // never touched). -inf when none was applied.
+  double max_reach_over_front() const { return max_reach_over_front_; }
+  double max_layer_over_front() const { return max_layer_over_front_; }
+  size_t queue_sizes() const { return q_.size() + w_.size(); }
+  size_t MemoryBytes() const;
+
+ private:
+  struct Entry {
+    double key;  // cost for Q, release key for W
+    VertexId a, b;
+    uint32_t va, vb;  // version stamps
+  };
+  struct EntryGreater {
+    bool operator()(const Entry& x, const Entry& y) const {
+      if (x.key != y.key) return x.key > y.key;
+      if (x.a != y.a) return x.a > y.a;
+      return x.b > y.b;
+    }
+  };
+  struct Candidate {
+    Vec3 pos;
+    double cost = 0;   // ε_α(c)
+    double eps0 = 0;   // ε0(c)
+    double height = 0, rad = 0;
+    double key = 0;    // release key
+    int32_t layer = 0;
+    uint8_t box_mask = 0;
+  };
+
+  void EnsureVertexCapacity();
+  bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
+  double ReleaseKey(VertexId a, VertexId b, const Candidate& c) const;
+  void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
+  bool Stale(const Entry& e) const;
+  bool LinkCondition(VertexId a, VertexId b);
+  bool GeometryOk(VertexId a, VertexId b, Vec3 pos);  // flips and degenerate triangles
+  void Contract(VertexId a, VertexId b, const Candidate& c);
+  void HeapPush(std::vector<Entry>& h, const Entry& e);
+  Entry HeapPop(std::vector<Entry>& h);
+
+  MeshStore* store_;
+  SimplifierOptions opt_;
+  double front_ = -std::numeric_limits<double>::infinity();
+
+  // Per vertex, indexed by VertexId.
+  std::vector<Quadric> quadric_;
+  std::vector<double> rad_;
+  std::vector<uint32_t> version_;
+  std::vector<uint32_t> mark_;      // scratch: link condition
+  std::vector<uint8_t> mark_count_; // scratch: triangles on edge (v, x)
+  uint32_t mark_epoch_ = 0;
+
+  std::vector<Entry> q_, w_;  // binary heaps (std::push_heap with EntryGreater)
+  std::vector<VertexId> scratch_;
+  RefusalCounts refusals_;
+  int64_t contractions_ = 0;
+  double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
+  double max_layer_over_front_ = -std::numeric_limits<double>::infinity();
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_SIMPLIFIER_H_

@@ -1,0 +1,175 @@
+// The `tandem` executable, run as a user would: exit codes, files written, messages.
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "tandem/mesh_io.h"
+#include "tandem/topology.h"
+#include "testutil/testutil.h"
+
+namespace tandem {
+namespace {
+
+struct Output {
+  int code = -1;
+  std::string text;  // stdout and stderr together
+};
+
+Output RunTandem(const std::string& args) {
+  const std::string cmd = testing::BinPath("tandem") + " " + args + " 2>&1";
+  Output out;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.text.append(buf, n);
+  const int status = pclose(p);
+  out.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return out;
+}
+
+nlohmann::json ReadJson(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return nlohmann::json::parse(ss.str());
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  void SetUp() override { dir_ = testing::MakeTempDir(); }
+  std::string Path(const std::string& name) const { return dir_ + "/" + name; }
+  std::string dir_;
+};
+
+TEST_F(Cli, HelpTellsTheSubcommandsAndOptions) {
+  Output o = RunTandem("--help");
+  EXPECT_EQ(o.code, 0);
+  for (const char* word : {"extract", "generate", "measure"}) {
+    EXPECT_NE(o.text.find(word), std::string::npos) << word;
+  }
+  o = RunTandem("extract --help");
+  EXPECT_EQ(o.code, 0);
+  for (const char* opt : {"--input", "--iso", "--error", "--alpha", "--schedule",
+                          "--target-triangles", "--no-simplify", "--metrics", "--reference"}) {
+    EXPECT_NE(o.text.find(opt), std::string::npos) << opt;
+  }
+  EXPECT_EQ(RunTandem("generate --help").code, 0);
+  EXPECT_EQ(RunTandem("measure --help").code, 0);
+  EXPECT_NE(RunTandem("").code, 0);
+  EXPECT_NE(RunTandem("frobnicate").code, 0);
+}
+
+TEST_F(Cli, GenerateThenExtractFullResolution) {
+  Output g = RunTandem("generate sphere --size 32 --out " + Path("s.json"));
+  ASSERT_EQ(g.code, 0) << g.text;
+  ASSERT_TRUE(std::filesystem::exists(Path("s.raw")));
+  EXPECT_EQ(std::filesystem::file_size(Path("s.raw")), 32u * 32 * 32 * 4);
+  nlohmann::json side = ReadJson(Path("s.json"));
+  ASSERT_TRUE(side.contains("suggested_isovalues"));
+  EXPECT_EQ(side["suggested_isovalues"][0].get<double>(), 0.0);
+  Output e = RunTandem("extract --input " + Path("s.json") + " --iso 0 --no-simplify --out " +
+                       Path("s.ply") + " --quiet");
+  ASSERT_EQ(e.code, 0) << e.text;
+  auto mesh = ReadMesh(Path("s.ply"));
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  TopologyReport r = AnalyzeTopology(*mesh);
+  EXPECT_TRUE(r.IsClosedManifold());
+  EXPECT_EQ(r.euler, 2);
+  EXPECT_GT(r.triangles, 2000u);
+}
+
+TEST_F(Cli, ExtractWritesMeshAndMetricsWithEveryKey) {
+  ASSERT_EQ(RunTandem("generate link --size 48 --out " + Path("l.json")).code, 0);
+  Output e = RunTandem("extract --input " + Path("l.json") + " --error 0.2 --alpha 0.2 --out " +
+                       Path("l.obj") + " --metrics " + Path("m.json") + " --reference");
+  ASSERT_EQ(e.code, 0) << e.text;
+  nlohmann::json m = ReadJson(Path("m.json"));
+  for (const char* key : {"triangles_extracted", "triangles_final", "vertices_final", "error_max",
+                          "anisotropy", "directional_bias", "peak_triangles", "time_s",
+                          "peak_rss_bytes", "trace", "refusals", "distance"}) {
+    EXPECT_TRUE(m.contains(key)) << key;
+  }
+  for (const char* key : {"extract", "simplify", "total"}) EXPECT_TRUE(m["time_s"].contains(key));
+  for (const char* d : {"L1", "L2", "Linf"}) {
+    for (const char* k : {"forward", "backward", "max"}) EXPECT_TRUE(m["distance"][d].contains(k));
+  }
+  EXPECT_EQ(m["schedule"], "tandem-lag");  // the default
+  EXPECT_LE(m["error_max"].get<double>(), 0.2);
+  EXPECT_LT(m["distance"]["L2"]["max"].get<double>(), 0.2);
+  auto mesh = ReadMesh(Path("l.obj"));
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles());
+  EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices());
+  EXPECT_LT(mesh->num_triangles(), m["triangles_extracted"].get<size_t>() / 4);
+  EXPECT_EQ(m["trace"].size(), 2u * 48 + 1);
+  TopologyReport r = AnalyzeTopology(*mesh);
+  EXPECT_EQ(r.components, 2u);
+  EXPECT_TRUE(r.IsClosedManifold());
+  // Without --metrics a summary goes to stderr.
+  Output s = RunTandem("extract --input " + Path("l.json") + " --error 0.2 --out " + Path("l.ply"));
+  ASSERT_EQ(s.code, 0);
+  EXPECT_NE(s.text.find("triangles final"), std::string::npos) << s.text;
+}
+
+TEST_F(Cli, MeasurePrintsDistancesBothWays) {
+  ASSERT_EQ(RunTandem("generate sphere --size 32 --out " + Path("s.json")).code, 0);
+  ASSERT_EQ(RunTandem("extract --input " + Path("s.json") + " --no-simplify --quiet --out " + Path("a.ply")).code, 0);
+  ASSERT_EQ(RunTandem("extract --input " + Path("s.json") + " --error 0.3 --quiet --out " + Path("b.ply")).code, 0);
+  Output o = RunTandem("measure " + Path("a.ply") + " " + Path("b.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  for (const char* w : {"L1", "L2", "Linf", "forward", "backward"}) {
+    EXPECT_NE(o.text.find(w), std::string::npos) << w;
+  }
+}
+
+TEST_F(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
+  Output o = RunTandem("extract --input " + Path("missing.json") + " --iso 1 --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("missing.json"), std::string::npos) << o.text;
+  ASSERT_EQ(RunTandem("generate sphere --size 16 --out " + Path("s.json")).code, 0);
+  o = RunTandem("extract --input " + Path("s.json") + " --out " + Path("x.stl"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find(".ply or .obj"), std::string::npos) << o.text;
+  o = RunTandem("extract --input " + Path("s.json") + " --alpha 2 --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("alpha"), std::string::npos) << o.text;
+  o = RunTandem("extract --input " + Path("s.json") + " --error -1 --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("E0"), std::string::npos) << o.text;
+  o = RunTandem("extract --input " + Path("s.json") + " --schedule fast --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("fast"), std::string::npos) << o.text;
+  o = RunTandem("extract --input " + Path("s.json") + " --bogus 1 --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("--bogus"), std::string::npos) << o.text;
+  // A truncated raw file: the reader names the file and the problem.
+  std::filesystem::resize_file(Path("s.raw"), 1000);
+  o = RunTandem("extract --input " + Path("s.json") + " --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("s."), std::string::npos) << o.text;
+  EXPECT_FALSE(std::filesystem::exists(Path("x.ply")));
+}
+
+TEST_F(Cli, ExtractsTheSharedEngineCtToAPly) {
+  TANDEM_SHARED_OR_SKIP(path, "ct_engine_256x256x128_uint8.json");
+  Output o = RunTandem("extract --input " + path + " --iso 120 --no-simplify --quiet --out " + Path("engine.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  std::ifstream in(Path("engine.ply"), std::ios::binary);
+  std::string header(200, '\0');
+  in.read(header.data(), 200);
+  EXPECT_EQ(header.rfind("ply\nformat binary_little_endian 1.0\n", 0), 0u);
+  auto mesh = ReadMesh(Path("engine.ply"));
+  ASSERT_TRUE(mesh.ok());
+  EXPECT_GT(mesh->num_triangles(), 500000u);
+  EXPECT_TRUE(AnalyzeTopology(*mesh).IsManifold());
+}
+
+}  // namespace
+}  // namespace tandem

@@ -1,0 +1,336 @@
+// The tandem simplifier: quadrics, error bound, topology, schedules, the paper's findings.
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <tuple>
+
+#include <gtest/gtest.h>
+
+#include "tandem/distance.h"
+#include "tandem/metrics.h"
+#include "tandem/quadric.h"
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+#include "tandem/topology.h"
+#include "tandem/volume.h"
+#include "testutil/testutil.h"
+
+namespace tandem {
+namespace {
+
+// ---------------------------------------------------------------- quadrics (SPEC §3, §4)
+
+TEST(Quadric, PlaneHandValues) {
+  // Triangle of area 2 in the plane z = 1: H = 2 * (0,0,1,-1)(0,0,1,-1)ᵀ.
+  Quadric h = PlaneQuadric({0, 0, 1}, {2, 0, 1}, {0, 2, 1});
+  EXPECT_DOUBLE_EQ(h.w, 2.0);
+  EXPECT_DOUBLE_EQ(h.a22, 2.0);
+  EXPECT_DOUBLE_EQ(h.a00, 0.0);
+  EXPECT_DOUBLE_EQ(h.b2, -2.0);
+  EXPECT_DOUBLE_EQ(h.c, 2.0);
+  EXPECT_DOUBLE_EQ(h.Evaluate({5, -3, 4}), 2.0 * 9.0);  // area * distance²
+  EXPECT_DOUBLE_EQ(ShapeError(h, {5, -3, 4}), 3.0);    // RMS distance to the plane
+  // Orientation does not matter; a zero-area triangle adds nothing.
+  Quadric flipped = PlaneQuadric({0, 0, 1}, {0, 2, 1}, {2, 0, 1});
+  EXPECT_DOUBLE_EQ(flipped.Evaluate({1, 1, 0}), h.Evaluate({1, 1, 0}));
+  Quadric zero = PlaneQuadric({0, 0, 0}, {1, 1, 1}, {2, 2, 2});
+  EXPECT_EQ(zero.w, 0.0);
+  EXPECT_EQ(ShapeError(zero, {1, 2, 3}), 0.0);
+}
+
+TEST(Quadric, CornerOfThreePlanesIsTheMinimiser) {
+  // Planes x = 1, y = 2, z = 3 (areas 0.5, 2, 4.5): the unique minimiser is their corner.
+  Quadric h = PlaneQuadric({1, 0, 0}, {1, 1, 0}, {1, 0, 1});
+  h += PlaneQuadric({0, 2, 0}, {0, 2, 2}, {2, 2, 0});
+  h += PlaneQuadric({0, 0, 3}, {3, 0, 3}, {0, 3, 3});
+  EXPECT_DOUBLE_EQ(h.w, 0.5 + 2.0 + 4.5);
+  const Vec3 c = MinimizeQuadric(h, {10, 10, 10});
+  EXPECT_NEAR(c.x, 1, 1e-12);
+  EXPECT_NEAR(c.y, 2, 1e-12);
+  EXPECT_NEAR(c.z, 3, 1e-12);
+  EXPECT_NEAR(ShapeError(h, c), 0.0, 1e-9);
+  // Average of squared distances at the origin: (0.5*1 + 2*4 + 4.5*9) / 7.
+  EXPECT_NEAR(ShapeError(h, {0, 0, 0}), std::sqrt((0.5 + 8 + 40.5) / 7.0), 1e-12);
+}
+
+TEST(Quadric, SingularSystemsFallBackToTheNearestMinimiserOfTheReference) {
+  // One plane z = 0: rank 1. The reference point is projected onto the plane.
+  Quadric plane = PlaneQuadric({0, 0, 0}, {1, 0, 0}, {0, 1, 0});
+  Vec3 c = MinimizeQuadric(plane, {0.3, 0.7, 5.0});
+  EXPECT_NEAR(c.x, 0.3, 1e-12);
+  EXPECT_NEAR(c.y, 0.7, 1e-12);
+  EXPECT_NEAR(c.z, 0.0, 1e-12);
+  // Two planes x = 0 and y = 0 (a crease along z): projection onto the crease line.
+  Quadric crease = plane;
+  crease = PlaneQuadric({0, 0, 0}, {0, 1, 0}, {0, 0, 1});
+  crease += PlaneQuadric({0, 0, 0}, {0, 0, 1}, {1, 0, 0});
+  c = MinimizeQuadric(crease, {2, 3, 4});
+  EXPECT_NEAR(c.x, 0, 1e-12);
+  EXPECT_NEAR(c.y, 0, 1e-12);
+  EXPECT_NEAR(c.z, 4, 1e-12);
+  // Empty quadric: the reference itself.
+  c = MinimizeQuadric(Quadric{}, {1, 2, 3});
+  EXPECT_EQ(c, (Vec3{1, 2, 3}));
+  // Fixed axes (box faces): z held at the reference's value while x is optimised.
+  Quadric px = PlaneQuadric({1, 0, 0}, {1, 1, 0}, {1, 0, 1});  // plane x = 1
+  px += PlaneQuadric({0, 0, 2}, {1, 0, 2}, {0, 1, 2});          // plane z = 2
+  c = MinimizeQuadric(px, {0, 0, 7}, /*fixed_axes=*/4);
+  EXPECT_NEAR(c.x, 1, 1e-12);
+  EXPECT_EQ(c.z, 7);
+}
+
+TEST(Quadric, IsotropyQuadricIsAreaTimesSquaredDistancePlusSpread) {
+  const Vec3 p{0, 0, 0}, q{3, 0, 0}, r{0, 3, 0};
+  Quadric g = IsotropyQuadric(p, q, r);
+  const double area = 4.5;
+  const Vec3 t{1, 1, 0};
+  // avg(t) = (|p-t|² + |q-t|² + |r-t|²) / 12 = (2 + 5 + 5) / 12 = 1.
+  const Vec3 x{2, -1, 3};
+  const Vec3 d = x - t;
+  EXPECT_NEAR(g.Evaluate(x), area * (Dot(d, d) + 1.0), 1e-12);
+  EXPECT_EQ(g.w, 0.0);
+  const Vec3 c = MinimizeQuadric(g, {9, 9, 9});
+  EXPECT_NEAR(Norm(c - t), 0.0, 1e-12);  // the centroid
+}
+
+// ---------------------------------------------------------------- sessions
+
+struct Result {
+  IndexedMesh mesh;
+  SessionStats stats;
+  double error_max = 0;
+};
+
+Result RunShape(Shape shape, int n, Schedule schedule, double e0, double alpha = 0,
+             int64_t target = 0) {
+  auto src = MakeSyntheticSource(shape, n, n, n);
+  SessionOptions o;
+  o.schedule = schedule;
+  o.error = e0;
+  o.alpha = alpha;
+  o.target_triangles = target;
+  auto s = RunSession(*src, o);
+  EXPECT_TRUE(s.ok()) << s.status();
+  Result r;
+  if (!s.ok()) return r;
+  r.mesh = (*s)->Snapshot();
+  r.stats = (*s)->stats();
+  r.error_max = (*s)->MaxShapeError();
+  return r;
+}
+
+Result RunFile(const std::string& path, double iso, Schedule schedule, double e0, double alpha = 0) {
+  auto src = OpenVolume(path);
+  EXPECT_TRUE(src.ok()) << src.status();
+  SessionOptions o;
+  o.iso = iso;
+  o.schedule = schedule;
+  o.error = e0;
+  o.alpha = alpha;
+  auto s = RunSession(**src, o);
+  EXPECT_TRUE(s.ok()) << s.status();
+  Result r;
+  if (!s.ok()) return r;
+  r.mesh = (*s)->Snapshot();
+  r.stats = (*s)->stats();
+  r.error_max = (*s)->MaxShapeError();
+  return r;
+}
+
+constexpr Schedule kSchedules[] = {Schedule::kClassical, Schedule::kTandem,
+                                   Schedule::kTandemLag};
+
+TEST(Simplifier, ErrorBoundAndTopologyOnSyntheticFields) {
+  struct Case { Shape shape; int n; };
+  for (Case c : {Case{Shape::kSphere, 48}, Case{Shape::kPillowBox, 64}, Case{Shape::kLink, 64},
+                 Case{Shape::kGyroid, 64}}) {
+    const Result full = RunShape(c.shape, c.n, Schedule::kNone, 0);
+    const TopologyReport before = AnalyzeTopology(full.mesh);
+    for (Schedule s : kSchedules) {
+      for (double alpha : {0.0, 0.2, 0.6}) {
+        const double e0 = 0.2;
+        const Result run = RunShape(c.shape, c.n, s, e0, alpha);
+        const std::string what = std::string(ShapeName(c.shape)) + " " +
+                                 std::string(ScheduleName(s)) + " alpha=" + std::to_string(alpha);
+        EXPECT_LE(run.error_max, e0) << what;
+        EXPECT_LT(run.mesh.num_triangles(), full.mesh.num_triangles() / 4) << what;
+        const TopologyReport after = AnalyzeTopology(run.mesh);
+        EXPECT_TRUE(after.IsClosedManifold()) << what;
+        EXPECT_EQ(after.euler, before.euler) << what;
+        EXPECT_EQ(after.components, before.components) << what;
+        EXPECT_EQ(after.component_euler, before.component_euler) << what;
+      }
+    }
+  }
+}
+
+TEST(Simplifier, SphereAndLinkKeepTheirTopology) {
+  for (Schedule s : kSchedules) {
+    const Result sphere = RunShape(Shape::kSphere, 64, s, 0.3);
+    EXPECT_EQ(AnalyzeTopology(sphere.mesh).euler, 2);
+    const Result link = RunShape(Shape::kLink, 64, s, 0.3);
+    const TopologyReport r = AnalyzeTopology(link.mesh);
+    ASSERT_EQ(r.components, 2u);
+    EXPECT_EQ(r.component_euler, (std::vector<int64_t>{0, 0}));
+    EXPECT_TRUE(r.IsClosedManifold());
+  }
+}
+
+TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
+  struct Case { const char* file; double iso; };
+  for (Case c : {Case{"ct_head_headsq_64x64x93_int16.json", 500},
+                 Case{"mr_head_48x62x42_uint8.json", 64},
+                 Case{"mri_avg152T1_91x109x91_uint8.json", 150}}) {
+    TANDEM_SHARED_OR_SKIP(path, c.file);
+    auto info_src = OpenVolume(path);
+    ASSERT_TRUE(info_src.ok());
+    const VolumeInfo info = (*info_src)->info();
+    const double e0 = 0.5 * std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+    const Result full = RunFile(path, c.iso, Schedule::kNone, 0);
+    const TopologyReport before = AnalyzeTopology(full.mesh);
+    for (Schedule s : kSchedules) {
+      const Result run = RunFile(path, c.iso, s, e0, 0.2);
+      const std::string what = std::string(c.file) + " " + std::string(ScheduleName(s));
+      EXPECT_LE(run.error_max, e0) << what;
+      EXPECT_LT(run.mesh.num_triangles(), full.mesh.num_triangles() / 2) << what;
+      const TopologyReport after = AnalyzeTopology(run.mesh);
+      EXPECT_TRUE(after.IsManifold()) << what;
+      EXPECT_EQ(after.euler, before.euler) << what;
+      EXPECT_EQ(after.components, before.components) << what;
+      EXPECT_EQ(after.boundary_loops, before.boundary_loops) << what;
+    }
+  }
+}
+
+// The waiting queue: a contraction is applied only once the front has passed its reach
+// (tandem-lag) or its layer (tandem). The stats record reach(c) - front and layer(c) - front
+// over the contractions actually applied, from the geometry: bypassing W makes them grow.
+TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
+  const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
+  EXPECT_GT(lag.stats.contractions, 1000);
+  EXPECT_LE(lag.stats.max_reach_over_front, 0.0);
+  EXPECT_LE(lag.stats.max_layer_over_front, -1.0);
+  const Result tandem = RunShape(Shape::kPillowBox, 64, Schedule::kTandem, 0.2);
+  EXPECT_GT(tandem.stats.contractions, 1000);
+  EXPECT_LE(tandem.stats.max_layer_over_front, -1.0);
+  // Without the lag, contractions do run ahead of the reach rule: the two schedules differ.
+  EXPECT_GT(tandem.stats.max_reach_over_front, 0.0);
+}
+
+// After EXTRACT(k) and the simplification that follows it, every vertex of layer k (above
+// slice k-1) is still exactly where marching cubes put it.
+TEST(Simplifier, TandemNeverTouchesTheNewestLayer) {
+  const int n = 48;
+  for (Schedule sched : {Schedule::kTandem, Schedule::kTandemLag}) {
+    auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
+    SessionOptions o;
+    o.schedule = sched;
+    o.error = 0.5;
+    auto session = TandemSession::Create(src->info(), o);
+    ASSERT_TRUE(session.ok());
+    SessionOptions full_opt;
+    full_opt.schedule = Schedule::kNone;
+    auto full = TandemSession::Create(src->info(), full_opt);
+    ASSERT_TRUE(full.ok());
+    std::vector<uint8_t> bytes;
+    int64_t checked = 0;
+    for (int k = 0; k < n; ++k) {
+      ASSERT_TRUE(src->ReadSlice(&bytes).ok());
+      ASSERT_TRUE((*session)->AddSliceBytes(DType::kFloat32, bytes.data()).ok());
+      ASSERT_TRUE((*full)->AddSliceBytes(DType::kFloat32, bytes.data()).ok());
+      if (k < 2) continue;
+      const IndexedMesh a = (*session)->Snapshot(), b = (*full)->Snapshot();
+      auto newest = [k](const IndexedMesh& m) {
+        std::vector<std::tuple<double, double, double>> v;
+        for (const Vec3& p : m.positions) {
+          if (p.z > k - 1) v.emplace_back(p.x, p.y, p.z);
+        }
+        std::sort(v.begin(), v.end());
+        return v;
+      };
+      // Every newest-layer vertex of the full-resolution surface is still there, unmoved.
+      // (A contracted vertex from below may be placed above slice k-1: not a layer-k vertex.)
+      const auto va = newest(a), vb = newest(b);
+      ASSERT_TRUE(std::includes(va.begin(), va.end(), vb.begin(), vb.end()))
+          << ScheduleName(sched) << " slice " << k;
+      checked += static_cast<int64_t>(vb.size());
+    }
+    EXPECT_GT(checked, 1000);
+    EXPECT_GT((*session)->stats().contractions, 100);
+  }
+}
+
+TEST(Simplifier, AnisotropyFallsAsAlphaRises) {
+  for (Schedule s : {Schedule::kClassical, Schedule::kTandemLag}) {
+    const double a0 = Anisotropy(RunShape(Shape::kPillowBox, 96, s, 0.2, 0.0).mesh);
+    const double a2 = Anisotropy(RunShape(Shape::kPillowBox, 96, s, 0.2, 0.2).mesh);
+    const double a6 = Anisotropy(RunShape(Shape::kPillowBox, 96, s, 0.2, 0.6).mesh);
+    EXPECT_LT(a2, a0) << ScheduleName(s);
+    EXPECT_LT(a6, a0) << ScheduleName(s);
+  }
+}
+
+TEST(Simplifier, TimeLagRemovesDirectionalBiasAndMatchesClassicalCount) {
+  const double e0 = 0.1;
+  const Result classical = RunShape(Shape::kPillowBox, 128, Schedule::kClassical, e0);
+  const Result tandem = RunShape(Shape::kPillowBox, 128, Schedule::kTandem, e0);
+  const Result lag = RunShape(Shape::kPillowBox, 128, Schedule::kTandemLag, e0);
+  const double bias_tandem = DirectionalBias(tandem.mesh);
+  const double bias_lag = DirectionalBias(lag.mesh);
+  EXPECT_LT(bias_lag, bias_tandem);
+  const double nc = double(classical.mesh.num_triangles());
+  EXPECT_NEAR(double(lag.mesh.num_triangles()), nc, 0.10 * nc);
+}
+
+TEST(Simplifier, MeanAndRmsDistanceStayBelowE0) {
+  const double e0 = 0.2;
+  const Result full = RunShape(Shape::kPillowBox, 96, Schedule::kNone, 0);
+  for (Schedule s : kSchedules) {
+    const Result run = RunShape(Shape::kPillowBox, 96, s, e0);
+    const Distances d = MeasureDistances(full.mesh, run.mesh);
+    EXPECT_LT(d.l1_max, e0) << ScheduleName(s);
+    EXPECT_LT(d.l2_max, e0) << ScheduleName(s);
+    EXPECT_LE(d.l1_max, d.l2_max);
+    EXPECT_LE(d.l2_max, d.linf_max);
+  }
+  TANDEM_SHARED_OR_SKIP(path, "ct_head_headsq_64x64x93_int16.json");
+  const double e0_ct = 0.75;  // mm; voxels are 3.2 x 3.2 x 1.5 mm
+  const Result ct_full = RunFile(path, 1150, Schedule::kNone, 0);
+  const Result ct = RunFile(path, 1150, Schedule::kTandemLag, e0_ct);
+  const Distances d = MeasureDistances(ct_full.mesh, ct.mesh);
+  EXPECT_LT(d.l1_max, e0_ct);
+  EXPECT_LT(d.l2_max, e0_ct);
+}
+
+TEST(Simplifier, TandemLagHoldsAQuarterOfClassicalsPeak) {
+  const Result classical = RunShape(Shape::kPillowBox, 256, Schedule::kClassical, 0.1);
+  const Result lag = RunShape(Shape::kPillowBox, 256, Schedule::kTandemLag, 0.1);
+  EXPECT_EQ(classical.stats.peak_triangles, classical.stats.triangles_extracted);
+  EXPECT_LE(lag.stats.peak_triangles * 4, classical.stats.peak_triangles);
+  // The saw-tooth: one entry after every EXTRACT and every SIMPLIFY, plus the final one.
+  EXPECT_EQ(lag.stats.trace.size(), 2u * 256 + 1);
+  EXPECT_EQ(classical.stats.trace.size(), 256u + 1);
+}
+
+TEST(Simplifier, TargetTriangleCountIsReached) {
+  const Result run = RunShape(Shape::kSphere, 48, Schedule::kTandemLag, 0.05, 0.0, 500);
+  EXPECT_LE(run.mesh.num_triangles(), 500u);
+  EXPECT_GT(run.mesh.num_triangles(), 400u);
+  EXPECT_EQ(AnalyzeTopology(run.mesh).euler, 2);
+}
+
+TEST(Simplifier, OptionsAreValidated) {
+  SessionOptions o;
+  o.error = 0;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.error = 0.1;
+  o.alpha = 1.5;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.alpha = 0.5;
+  EXPECT_TRUE(o.Validate().ok());
+  EXPECT_FALSE(ParseSchedule("lagged").ok());
+  EXPECT_EQ(*ParseSchedule("tandem-lag"), Schedule::kTandemLag);
+}
+
+}  // namespace
+}  // namespace tandem

@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# The test command (README's second line, and what CI runs): installs the dependencies,
+# builds everything and runs every test suite through ctest. Tests that need
+# ../shared/data skip with a message when it is absent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash deploy/install-deps.sh
+werror=OFF
+if [ "${CI:-}" = "true" ]; then werror=ON; fi  # warnings are errors in CI
+cmake -S . -B build -DTANDEM_WERROR="$werror"
+cmake --build build -j2
+ctest --test-dir build --output-on-failure -j2 --timeout 900
