@@ -456,6 +456,9 @@ absl::StatusOr<IndexedMesh> ReadPlyBody(const std::string& path, const PlyHeader
       face_indices.reserve(3 * face_sizes.capacity());
     }
 
+    // An element without properties has no bytes; skipping it also stops a garbage count
+    // from spinning through an empty loop.
+    if (element.properties.empty()) continue;
     for (uint64_t i = 0; i < element.count; ++i) {
       Vec3 position;
       for (size_t p = 0; p < element.properties.size(); ++p) {

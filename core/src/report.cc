@@ -156,7 +156,9 @@ std::string ReportSummary(const MetricsReport& r) {
   line("triangles extracted", absl::StrCat(r.triangles_extracted));
   line("triangles final", absl::StrCat(r.triangles_final, " (", r.vertices_final, " vertices)"));
   line("peak triangles held", absl::StrCat(r.peak_triangles));
-  line("Error(K)", absl::StrFormat("%.6g (E0 = %.6g)", r.error_max, r.error_threshold));
+  if (r.schedule != "none") {
+    line("Error(K)", absl::StrFormat("%.6g (E0 = %.6g)", r.error_max, r.error_threshold));
+  }
   line("anisotropy", absl::StrFormat("%.4f", r.anisotropy));
   line("directional bias", absl::StrFormat("%.5f", r.directional_bias));
   line("time extract/simplify", absl::StrFormat("%.3f s / %.3f s (total %.3f s)", r.time_extract_s,

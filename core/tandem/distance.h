@@ -46,6 +46,7 @@ class TriangleBvh {
   // the nearest triangles. `hint` (a source-mesh triangle index, or kInvalid) seeds the
   // search bound: a nearby triangle, e.g. the previous answer for a coherent sequence of
   // queries, makes pruning start tight. It never changes the distance returned.
+  // A query with a NaN coordinate returns distance = NaN and triangle = kInvalid.
   Hit Closest(Vec3 p, uint32_t hint = kInvalid) const;
   double Distance(Vec3 p) const { return Closest(p).distance; }
 
@@ -63,7 +64,9 @@ class TriangleBvh {
 
 // Mean (L1), root mean square (L2) and maximum (L∞) of the distances from the samples of one
 // mesh to the other mesh. L1 and L2 average over area-uniform samples only; L∞ also includes
-// every vertex of the sampled mesh (the maximum often sits at a vertex).
+// every vertex in the sampled mesh's positions (the maximum often sits at a vertex).
+// Cost: one exact closest-point query per sample and per vertex, about 1 µs each on one core
+// against a 100k-triangle mesh, spread over DistanceOptions::threads.
 struct DirectedDistance {
   double l1 = 0, l2 = 0, linf = 0;
   size_t samples = 0;  // area-uniform samples used for l1 and l2

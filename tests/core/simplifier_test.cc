@@ -282,7 +282,7 @@ TEST(Simplifier, TimeLagRemovesDirectionalBiasAndMatchesClassicalCount) {
   EXPECT_NEAR(double(lag.mesh.num_triangles()), nc, 0.10 * nc);
 }
 
-TEST(Simplifier, MeanAndRmsDistanceStayBelowE0) {
+TEST(Simplifier, MeanAndRmsDistanceStayBelowE0OnThePillowBox) {
   const double e0 = 0.2;
   const Result full = RunShape(Shape::kPillowBox, 96, Schedule::kNone, 0);
   for (Schedule s : kSchedules) {
@@ -293,6 +293,9 @@ TEST(Simplifier, MeanAndRmsDistanceStayBelowE0) {
     EXPECT_LE(d.l1_max, d.l2_max);
     EXPECT_LE(d.l2_max, d.linf_max);
   }
+}
+
+TEST(Simplifier, MeanAndRmsDistanceStayBelowE0OnARealCt) {
   TANDEM_SHARED_OR_SKIP(path, "ct_head_headsq_64x64x93_int16.json");
   const double e0_ct = 0.75;  // mm; voxels are 3.2 x 3.2 x 1.5 mm
   const Result ct_full = RunFile(path, 1150, Schedule::kNone, 0);
