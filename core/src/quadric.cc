@@ -64,6 +64,26 @@ double ShapeError(const Quadric& h, Vec3 x) {
 }
 
 Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
+  if (fixed_axes == 0) {
+    // Fast path: λmin >= det / λmax² >= det / trace², and the truncation threshold is
+    // 1e-3 λmax <= 1e-3 trace; so det >= 1e-3 trace³ proves no eigenvalue would be
+    // dropped, and the direct solve equals the eigen-solution below (up to rounding).
+    const double c00 = q.a11 * q.a22 - q.a12 * q.a12;
+    const double c01 = q.a02 * q.a12 - q.a01 * q.a22;
+    const double c02 = q.a01 * q.a12 - q.a02 * q.a11;
+    const double det = q.a00 * c00 + q.a01 * c01 + q.a02 * c02;
+    const double tr = q.a00 + q.a11 + q.a22;
+    if (tr > 0.0 && det >= 1e-3 * tr * tr * tr) {
+      const double c11 = q.a00 * q.a22 - q.a02 * q.a02;
+      const double c12 = q.a01 * q.a02 - q.a00 * q.a12;
+      const double c22 = q.a00 * q.a11 - q.a01 * q.a01;
+      const double inv = 1.0 / det;
+      // x = -A⁻¹ b with A⁻¹ = adj(A) / det (A symmetric, so adj is too).
+      return {-(c00 * q.b0 + c01 * q.b1 + c02 * q.b2) * inv,
+              -(c01 * q.b0 + c11 * q.b1 + c12 * q.b2) * inv,
+              -(c02 * q.b0 + c12 * q.b1 + c22 * q.b2) * inv};
+    }
+  }
   Eigen::Matrix3d a;
   a << q.a00, q.a01, q.a02, q.a01, q.a11, q.a12, q.a02, q.a12, q.a22;
   const Eigen::Vector3d r(ref.x, ref.y, ref.z);

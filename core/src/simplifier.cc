@@ -47,11 +47,17 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
   }
 }
 
-double Simplifier::ReleaseKey(VertexId a, VertexId b, const Candidate& c) const {
+double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
+  // The paper's time-lag bookkeeping: height(c) = (height(a) + height(b)) / 2 and
+  // rad(c) = (|a - b| + rad(a) + rad(b)) / 2, lengths in slice units.
+  c->height = 0.5 * (store_->height(a) + store_->height(b));
+  c->rad = 0.5 * (Norm(store_->position(a) - store_->position(b)) / opt_.slice_spacing +
+                  rad_[a] + rad_[b]);
+  c->layer = std::max(store_->layer(a), store_->layer(b));
   switch (opt_.release) {
     case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
-    case ReleaseRule::kLayer: return static_cast<double>(std::max(store_->layer(a), store_->layer(b)) + 1);
-    case ReleaseRule::kReach: return c.height + c.rad;
+    case ReleaseRule::kLayer: return static_cast<double>(c->layer + 1);
+    case ReleaseRule::kReach: return c->height + c->rad;
   }
   return 0;
 }
@@ -105,44 +111,46 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     c->eps0 = ShapeError(h, c->pos);
     c->cost = c->eps0;
   }
-  c->height = 0.5 * (store_->height(a) + store_->height(b));
-  c->rad = 0.5 * (Norm(pa - pb) / opt_.slice_spacing + rad_[a] + rad_[b]);
-  c->layer = std::max(store_->layer(a), store_->layer(b));
   c->box_mask = ma | mb;
-  c->key = ReleaseKey(a, b, *c);
+  c->key = ReleaseKey(a, b, c);
   return true;
 }
 
-void Simplifier::HeapPush(std::vector<Entry>& h, const Entry& e) {
+template <typename E>
+void Simplifier::HeapPush(std::vector<E>& h, const E& e) {
   h.push_back(e);
-  std::push_heap(h.begin(), h.end(), EntryGreater{});
+  std::push_heap(h.begin(), h.end(), Greater<E>{});
 }
 
-Simplifier::Entry Simplifier::HeapPop(std::vector<Entry>& h) {
-  std::pop_heap(h.begin(), h.end(), EntryGreater{});
-  Entry e = h.back();
+template <typename E>
+E Simplifier::HeapPop(std::vector<E>& h) {
+  std::pop_heap(h.begin(), h.end(), Greater<E>{});
+  E e = h.back();
   h.pop_back();
   return e;
 }
 
-bool Simplifier::Stale(const Entry& e) const {
-  return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
-         version_[e.b] != e.vb;
+void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
+  HeapPush(q_, QEntry{c.cost, a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
   if (a > b) std::swap(a, b);
   Candidate c;
+  if (opt_.release != ReleaseRule::kImmediate) {
+    // Waiting edges need only their release key; the quadric solve happens at ACTIVATE,
+    // when the endpoints' quadrics are complete.
+    const double key = ReleaseKey(a, b, &c);
+    if (key > front_) {
+      HeapPush(w_, Entry{key, a, b, version_[a], version_[b]});
+      return;
+    }
+  }
   if (!Evaluate(a, b, &c)) {
     ++refusals_.box;
     return;
   }
-  const Entry w_entry{c.key, a, b, version_[a], version_[b]};
-  if (c.key <= front_) {
-    HeapPush(q_, Entry{c.cost, a, b, version_[a], version_[b]});
-  } else {
-    HeapPush(w_, w_entry);
-  }
+  PushQ(a, b, c);
 }
 
 void Simplifier::Delay(std::span<const TriId> tris) {
@@ -337,26 +345,28 @@ void Simplifier::Simplify(int64_t target_triangles) {
   while (!q_.empty()) {
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     if (!to_target && q_.front().key > opt_.error) break;
-    const Entry e = HeapPop(q_);
+    const QEntry e = HeapPop(q_);
     if (Stale(e)) continue;
     Candidate c;
-    if (!Evaluate(e.a, e.b, &c)) {
-      ++refusals_.box;
-      continue;
-    }
-    if (c.key > front_) {  // cannot happen unless the front moved back; keep it safe
-      HeapPush(w_, Entry{c.key, e.a, e.b, e.va, e.vb});
-      continue;
-    }
-    if (c.cost > e.key * (1.0 + 1e-12) + 1e-300) {  // cost grew since it was queued
-      HeapPush(q_, Entry{c.cost, e.a, e.b, e.va, e.vb});
-      continue;
+    c.pos = e.pos;
+    c.cost = e.key;
+    c.eps0 = e.eps0;
+    if (opt_.alpha > 0.0) {
+      // The memoryless isotropy term depends on the current neighbourhood: recompute.
+      if (!Evaluate(e.a, e.b, &c)) {
+        ++refusals_.box;
+        continue;
+      }
+      if (c.cost > e.key * (1.0 + 1e-12) + 1e-300) {  // cost grew since it was queued
+        PushQ(e.a, e.b, c);
+        continue;
+      }
     }
     if (!to_target && c.eps0 > opt_.error) {
       // Conservative rule. Keep it queued above E0 so a target count can still use it.
       ++refusals_.error;
-      HeapPush(q_, Entry{std::max(c.eps0, std::nextafter(opt_.error, 1e300)), e.a, e.b,
-                         e.va, e.vb});
+      c.cost = std::max(c.eps0, std::nextafter(opt_.error, 1e300));
+      PushQ(e.a, e.b, c);
       continue;
     }
     if (!LinkCondition(e.a, e.b)) {
@@ -364,6 +374,9 @@ void Simplifier::Simplify(int64_t target_triangles) {
       continue;
     }
     if (!GeometryOk(e.a, e.b, c.pos)) continue;
+    const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
+    c.box_mask = ma | mb;
+    ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
   }
 }

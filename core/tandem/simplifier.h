@@ -75,17 +75,11 @@ class Simplifier {
   size_t MemoryBytes() const;
 
  private:
+  // W entry: an edge waiting for the front (key = release key).
   struct Entry {
-    double key;  // cost for Q, release key for W
+    double key;
     VertexId a, b;
     uint32_t va, vb;  // version stamps
-  };
-  struct EntryGreater {
-    bool operator()(const Entry& x, const Entry& y) const {
-      if (x.key != y.key) return x.key > y.key;
-      if (x.a != y.a) return x.a > y.a;
-      return x.b > y.b;
-    }
   };
   struct Candidate {
     Vec3 pos;
@@ -96,17 +90,43 @@ class Simplifier {
     int32_t layer = 0;
     uint8_t box_mask = 0;
   };
+  // Q entry: key = cost, plus the placement computed with it. With α = 0 the cost depends
+  // only on the two quadrics, which cannot change while the stamps match (vertices in Q
+  // are complete), so a popped entry is used as it is; with α > 0 it is recomputed.
+  struct QEntry {
+    double key;
+    VertexId a, b;
+    uint32_t va, vb;
+    Vec3 pos;
+    double eps0;
+  };
+  template <typename E>
+  struct Greater {
+    bool operator()(const E& x, const E& y) const {
+      if (x.key != y.key) return x.key > y.key;
+      if (x.a != y.a) return x.a > y.a;
+      return x.b > y.b;
+    }
+  };
 
   void EnsureVertexCapacity();
   bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
-  double ReleaseKey(VertexId a, VertexId b, const Candidate& c) const;
+  // Release key from the cheap bookkeeping only (no quadric solve); fills height/rad/layer.
+  double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
-  bool Stale(const Entry& e) const;
+  void PushQ(VertexId a, VertexId b, const Candidate& c);
+  template <typename E>
+  bool Stale(const E& e) const {
+    return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
+           version_[e.b] != e.vb;
+  }
   bool LinkCondition(VertexId a, VertexId b);
   bool GeometryOk(VertexId a, VertexId b, Vec3 pos);  // flips and degenerate triangles
   void Contract(VertexId a, VertexId b, const Candidate& c);
-  void HeapPush(std::vector<Entry>& h, const Entry& e);
-  Entry HeapPop(std::vector<Entry>& h);
+  template <typename E>
+  static void HeapPush(std::vector<E>& h, const E& e);
+  template <typename E>
+  static E HeapPop(std::vector<E>& h);
 
   MeshStore* store_;
   SimplifierOptions opt_;
@@ -120,7 +140,8 @@ class Simplifier {
   std::vector<uint8_t> mark_count_; // scratch: triangles on edge (v, x)
   uint32_t mark_epoch_ = 0;
 
-  std::vector<Entry> q_, w_;  // binary heaps (std::push_heap with EntryGreater)
+  std::vector<QEntry> q_;  // binary heaps (std::push_heap with Greater)
+  std::vector<Entry> w_;
   std::vector<VertexId> scratch_;
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
