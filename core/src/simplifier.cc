@@ -142,7 +142,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     // when the endpoints' quadrics are complete.
     const double key = ReleaseKey(a, b, &c);
     if (key > front_) {
-      HeapPush(w_, Entry{key, a, b, version_[a], version_[b]});
+      PushW(Entry{key, a, b, version_[a], version_[b]});
       return;
     }
   }
@@ -179,13 +179,45 @@ void Simplifier::Delay(std::span<const TriId> tris) {
   }
 }
 
+void Simplifier::PushW(const Entry& e) {
+  // Bucket = the first integer front >= key. Fronts only grow, so buckets below the
+  // current one are always empty and get recycled by advancing w_base_.
+  const int64_t release = static_cast<int64_t>(std::ceil(e.key));
+  if (w_.empty()) w_base_ = release;
+  if (release < w_base_) {  // cannot happen for keys > front; keep it correct anyway
+    w_.insert(w_.begin(), static_cast<size_t>(w_base_ - release), {});
+    w_base_ = release;
+  }
+  const size_t b = static_cast<size_t>(release - w_base_);
+  if (b >= w_.size()) w_.resize(b + 1);
+  w_[b].push_back(e);
+  ++w_size_;
+}
+
 void Simplifier::Activate(double front) {
   front_ = front;
-  while (!w_.empty() && w_.front().key <= front_) {
-    const Entry e = HeapPop(w_);
-    if (Stale(e)) continue;
-    PushEdge(e.a, e.b);  // re-evaluated: quadrics may have grown since DELAY
+  // Edges activated at the same front go into the heap Q, whose order does not depend on
+  // insertion order (ties broken by vertex ids), so bucket order is irrelevant.
+  size_t b = 0;
+  for (; b < w_.size() && static_cast<double>(w_base_) + static_cast<double>(b) <= front_; ++b) {
+    std::vector<Entry> bucket;
+    bucket.swap(w_[b]);
+    w_size_ -= bucket.size();
+    for (const Entry& e : bucket) {
+      if (Stale(e)) continue;
+      PushEdge(e.a, e.b);  // evaluated now: the endpoints' quadrics are complete
+    }
   }
+  if (b > 0) {
+    w_.erase(w_.begin(), w_.begin() + static_cast<std::ptrdiff_t>(b));
+    w_base_ += static_cast<int64_t>(b);
+  }
+}
+
+size_t Simplifier::WaitingBytes() const {
+  size_t bytes = w_.capacity() * sizeof(std::vector<Entry>);
+  for (const auto& bucket : w_) bytes += bucket.capacity() * sizeof(Entry);
+  return bytes;
 }
 
 bool Simplifier::LinkCondition(VertexId a, VertexId b) {

@@ -1,8 +1,10 @@
 // Simplifier: the edge-contraction engine shared by the three schedules (SPEC §3–§6).
 //
-// Two lazy-deletion min-heaps of candidate edges: Q ordered by cost ε_α, and the waiting
-// queue W ordered by a release key (the candidate's reach for tandem-lag, its layer + 1 for
-// tandem without lag). An entry carries the version stamps of its two vertices; a vertex's
+// Q is a lazy-deletion min-heap of candidate edges ordered by cost ε_α. The waiting queue W
+// is ordered by a release key (the candidate's reach for tandem-lag, its layer + 1 for
+// tandem without lag); since the front only advances by whole slices, W is a bucket queue
+// indexed by ceil(key), the first front at which the edge may be activated: ACTIVATE(k)
+// takes buckets <= k in O(1) per edge, with the same result as a heap ordered by reach. An entry carries the version stamps of its two vertices; a vertex's
 // stamp changes when it is contracted, so stale entries are recognised by integers, never
 // by comparing costs. Costs are recomputed when an entry is popped (a vertex's quadric keeps
 // growing until the layer above it is extracted, and the memoryless isotropy term depends on
@@ -71,8 +73,9 @@ class Simplifier {
   // never touched). -inf when none was applied.
   double max_reach_over_front() const { return max_reach_over_front_; }
   double max_layer_over_front() const { return max_layer_over_front_; }
-  size_t queue_sizes() const { return q_.size() + w_.size(); }
+  size_t queue_sizes() const { return q_.size() + w_size_; }
   size_t MemoryBytes() const;
+  size_t WaitingBytes() const;
 
  private:
   // W entry: an edge waiting for the front (key = release key).
@@ -140,8 +143,12 @@ class Simplifier {
   std::vector<uint8_t> mark_count_; // scratch: triangles on edge (v, x)
   uint32_t mark_epoch_ = 0;
 
-  std::vector<QEntry> q_;  // binary heaps (std::push_heap with Greater)
-  std::vector<Entry> w_;
+  std::vector<QEntry> q_;  // binary heap (std::push_heap with Greater)
+  // W: bucket b holds entries released at front w_base_ + b; w_size_ counts all entries.
+  std::vector<std::vector<Entry>> w_;
+  int64_t w_base_ = 0;
+  size_t w_size_ = 0;
+  void PushW(const Entry& e);
   std::vector<VertexId> scratch_;
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
