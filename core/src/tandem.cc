@@ -6,6 +6,7 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
+#include "tandem/prefetch.h"
 
 namespace tandem {
 namespace {
@@ -174,10 +175,12 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
   const VolumeInfo& info = source.info();
   auto session = TandemSession::Create(info, options);
   if (!session.ok()) return session.status();
-  std::vector<uint8_t> bytes;
+  // Reading and conversion run one slice ahead on a second thread.
+  SlicePrefetcher prefetch(&source);
+  std::vector<float> values;
   for (int64_t k = 0; k < info.nz; ++k) {
-    if (absl::Status st = source.ReadSlice(&bytes); !st.ok()) return st;
-    if (absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes.data()); !st.ok()) {
+    if (absl::Status st = prefetch.Next(&values); !st.ok()) return st;
+    if (absl::Status st = (*session)->AddSlice(values.data()); !st.ok()) {
       return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
     }
     if (progress) progress(k + 1, info.nz);

@@ -8,6 +8,8 @@
 
 #include "tandem/layer_extractor.h"
 #include "tandem/mc_tables.h"
+#include "tandem/prefetch.h"
+#include "tandem/tandem.h"
 #include "tandem/mesh_store.h"
 #include "tandem/synthetic.h"
 #include "tandem/topology.h"
@@ -324,6 +326,80 @@ TEST(Extraction, SharedRealVolumesAreManifoldsWithBoundaryOnTheBox) {
           << c.file << " at " << c.iso;
     }
   }
+}
+
+}  // namespace
+}  // namespace tandem
+
+namespace tandem {
+namespace {
+
+TEST(Prefetch, YieldsTheSourceSlicesInOrderThenOutOfRange) {
+  auto direct = MakeSyntheticSource(Shape::kGyroid, 20, 17, 9);
+  auto ahead = MakeSyntheticSource(Shape::kGyroid, 20, 17, 9);
+  SlicePrefetcher prefetch(ahead.get(), 3);
+  std::vector<uint8_t> bytes;
+  std::vector<float> expect(20 * 17), got;
+  for (int k = 0; k < 9; ++k) {
+    ASSERT_TRUE(direct->ReadSlice(&bytes).ok());
+    ConvertToFloat(DType::kFloat32, bytes.data(), expect.size(), expect.data());
+    ASSERT_TRUE(prefetch.Next(&got).ok()) << k;
+    EXPECT_EQ(got, expect) << "slice " << k;
+  }
+  EXPECT_TRUE(absl::IsOutOfRange(prefetch.Next(&got)));
+  EXPECT_TRUE(absl::IsOutOfRange(prefetch.Next(&got)));  // stays at the end
+}
+
+// A source whose sixth read fails, as a disk or network error would.
+class FailingSource final : public SliceSource {
+ public:
+  FailingSource() {
+    info_.nx = 4;
+    info_.ny = 4;
+    info_.nz = 10;
+    info_.dtype = DType::kUInt8;
+  }
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return next_; }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (next_ == 5) return absl::DataLossError("disk went away at slice 5");
+    bytes->assign(16, static_cast<uint8_t>(next_++));
+    return absl::OkStatus();
+  }
+
+ private:
+  VolumeInfo info_;
+  int64_t next_ = 0;
+};
+
+TEST(Prefetch, ReadErrorsArriveInOrderAndStopTheStream) {
+  FailingSource src;
+  SlicePrefetcher prefetch(&src);
+  std::vector<float> v;
+  for (int k = 0; k < 5; ++k) {
+    ASSERT_TRUE(prefetch.Next(&v).ok()) << k;
+    EXPECT_EQ(v[0], static_cast<float>(k));
+  }
+  const absl::Status st = prefetch.Next(&v);
+  EXPECT_EQ(st.code(), absl::StatusCode::kDataLoss);
+  EXPECT_EQ(prefetch.Next(&v), st);  // the same error again, never a later slice
+  // RunSession reports it too.
+  FailingSource src2;
+  SessionOptions o;
+  o.schedule = Schedule::kNone;
+  auto run = RunSession(src2, o);
+  EXPECT_EQ(run.status().code(), absl::StatusCode::kDataLoss);
+}
+
+// Destroying a prefetcher early (a cancelled run) stops its thread cleanly.
+TEST(Prefetch, StopsWhenDestroyedEarly) {
+  auto src = MakeSyntheticSource(Shape::kSphere, 64, 64, 64);
+  {
+    SlicePrefetcher prefetch(src.get(), 2);
+    std::vector<float> v;
+    ASSERT_TRUE(prefetch.Next(&v).ok());
+  }
+  EXPECT_LE(src->next_slice(), 4);  // read at most depth + 1 ahead, then stopped
 }
 
 }  // namespace

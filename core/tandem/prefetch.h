@@ -1,0 +1,52 @@
+// SlicePrefetcher: reads (and converts to float) the next slices of a SliceSource on a
+// background thread while the caller works on the current one, so disk reads, gzip
+// inflation and conversion overlap extraction and simplification on a second core.
+// At most `depth` slices are held ahead; the data and its order are exactly the source's,
+// so results are identical to a single-threaded run.
+#ifndef TANDEM_PREFETCH_H_
+#define TANDEM_PREFETCH_H_
+
+#include <condition_variable>
+#include <deque>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "tandem/volume.h"
+
+namespace tandem {
+
+class SlicePrefetcher {
+ public:
+  // `source` must outlive the prefetcher; reading starts at once.
+  explicit SlicePrefetcher(SliceSource* source, size_t depth = 2);
+  ~SlicePrefetcher();  // stops the thread (a read in progress finishes first)
+  SlicePrefetcher(const SlicePrefetcher&) = delete;
+  SlicePrefetcher& operator=(const SlicePrefetcher&) = delete;
+
+  // The next slice as nx*ny floats (swapped into *values). OutOfRange after the last
+  // slice; any read error is returned once, in order, and ends the stream.
+  absl::Status Next(std::vector<float>* values);
+
+ private:
+  struct Item {
+    absl::Status status;
+    std::vector<float> values;
+  };
+  void Run();
+
+  SliceSource* source_;
+  size_t depth_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<Item> ready_;         // guarded by mu_
+  std::vector<std::vector<float>> spare_;  // recycled buffers, guarded by mu_
+  bool stop_ = false;              // guarded by mu_
+  bool done_ = false;              // guarded by mu_: the thread has pushed its last item
+  std::thread thread_;
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_PREFETCH_H_
