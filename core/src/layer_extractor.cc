@@ -1,5 +1,6 @@
 #include "tandem/layer_extractor.h"
 
+#include <cassert>
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
@@ -30,24 +31,60 @@ uint8_t LayerExtractor::BoxMask(double i, double j, double k) const {
   return m;
 }
 
-VertexId LayerExtractor::MakeEdgeVertex(double pi, double pj, double pk, int axis, double fp,
-                                        double fq, int32_t layer,
-                                        std::vector<VertexId>* new_verts) {
+void LayerExtractor::EdgePoint(double pi, double pj, double pk, int axis, double fp, double fq,
+                               double idx[3]) {
   // fp and fq have different signs (one >= 0, one < 0), so the denominator is never 0 and
-  // t lies in [0, 1]; t = 0 or 1 exactly when a grid value equals the iso-value.
+  // t lies in [0, 1]; t = 0 or 1 exactly when a grid value equals the iso-value. The cube
+  // loop recomputes points with this same function, so they match bit for bit.
   const double t = fp / (fp - fq);
-  double idx[3] = {pi, pj, pk};
+  idx[0] = pi;
+  idx[1] = pj;
+  idx[2] = pk;
   idx[axis] += t;
-  const VertexId v = store_->AddVertex(Physical(idx[0], idx[1], idx[2]), idx[2], layer,
-                                       BoxMask(idx[0], idx[1], idx[2]));
-  if (new_verts) new_verts->push_back(v);
-  return v;
+}
+
+VertexId LayerExtractor::StageVertex(const double idx[3]) {
+  const VertexId id = kPending | static_cast<VertexId>(staged_vertices_.size());
+  staged_vertices_.push_back(
+      {Physical(idx[0], idx[1], idx[2]), idx[2], BoxMask(idx[0], idx[1], idx[2])});
+  return id;
 }
 
 absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* new_tris,
                                       std::vector<VertexId>* new_verts) {
+  if (absl::Status st = ComputeLayer(values); !st.ok()) return st;
+  CommitLayer(new_tris, new_verts);
+  return absl::OkStatus();
+}
+
+void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<VertexId>* new_verts) {
+  if (!staged_) return;
+  staged_ = false;
+  staged_to_store_.resize(staged_vertices_.size());
+  for (size_t i = 0; i < staged_vertices_.size(); ++i) {
+    const StagedVertex& sv = staged_vertices_[i];
+    const VertexId v = store_->AddVertex(sv.pos, sv.height, staged_layer_, sv.box_mask);
+    assert(v < kPending);
+    staged_to_store_[i] = v;
+    if (new_verts) new_verts->push_back(v);
+  }
+  auto resolve = [this](VertexId v) { return IsPending(v) ? staged_to_store_[v & ~kPending] : v; };
+  for (const auto& tri : staged_triangles_) {
+    const TriId t = store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2]));
+    if (new_tris) new_tris->push_back(t);
+  }
+  // The top plane's cached ids become the next layer's bottom: store ids from now on.
+  for (VertexId& v : xe_top_) v = resolve(v);
+  for (VertexId& v : ye_top_) v = resolve(v);
+  for (VertexId& v : top_plane_vertices_) v = resolve(v);
+  staged_vertices_.clear();
+  staged_triangles_.clear();
+}
+
+absl::Status LayerExtractor::ComputeLayer(const float* values) {
   const int64_t nx = config_.nx, ny = config_.ny;
   const int64_t k = slices_done_;
+  if (staged_) return absl::FailedPreconditionError("CommitLayer the previous layer first");
   if (finished_ || (config_.nz > 0 && k >= config_.nz)) {
     return absl::InvalidArgumentError(
         absl::StrCat("slice ", k, " is past the end of the volume (nz = ", config_.nz, ")"));
@@ -66,16 +103,21 @@ absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* n
   std::swap(ye_bottom_, ye_top_);
   for (size_t idx = 0; idx < n; ++idx) f_top_[idx] = static_cast<double>(values[idx]) - config_.iso;
 
-  const int32_t layer = static_cast<int32_t>(k);
+  staged_ = true;
+  staged_layer_ = static_cast<int32_t>(k);
   const double kz = static_cast<double>(k);
+  double idx3[3];
   top_plane_vertices_.clear();
   // Plane vertices of slice k: x-edges then y-edges.
   for (int64_t j = 0; j < ny; ++j) {
     for (int64_t i = 0; i + 1 < nx; ++i) {
       const double a = f_top_[j * nx + i], b = f_top_[j * nx + i + 1];
       VertexId& v = xe_top_[j * (nx - 1) + i];
-      v = ((a >= 0) != (b >= 0)) ? MakeEdgeVertex(double(i), double(j), kz, 0, a, b, layer, new_verts)
-                                 : kInvalid;
+      v = kInvalid;
+      if ((a >= 0) != (b >= 0)) {
+        EdgePoint(double(i), double(j), kz, 0, a, b, idx3);
+        v = StageVertex(idx3);
+      }
       if (v != kInvalid) top_plane_vertices_.push_back(v);
     }
   }
@@ -83,8 +125,11 @@ absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* n
     for (int64_t i = 0; i < nx; ++i) {
       const double a = f_top_[j * nx + i], b = f_top_[(j + 1) * nx + i];
       VertexId& v = ye_top_[j * nx + i];
-      v = ((a >= 0) != (b >= 0)) ? MakeEdgeVertex(double(i), double(j), kz, 1, a, b, layer, new_verts)
-                                 : kInvalid;
+      v = kInvalid;
+      if ((a >= 0) != (b >= 0)) {
+        EdgePoint(double(i), double(j), kz, 1, a, b, idx3);
+        v = StageVertex(idx3);
+      }
       if (v != kInvalid) top_plane_vertices_.push_back(v);
     }
   }
@@ -94,9 +139,11 @@ absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* n
   // z-edges between slices k-1 and k.
   for (int64_t idx = 0; idx < nx * ny; ++idx) {
     const double a = f_bottom_[idx], b = f_top_[idx];
-    ze_[idx] = ((a >= 0) != (b >= 0))
-                   ? MakeEdgeVertex(double(idx % nx), double(idx / nx), kz - 1, 2, a, b, layer, new_verts)
-                   : kInvalid;
+    ze_[idx] = kInvalid;
+    if ((a >= 0) != (b >= 0)) {
+      EdgePoint(double(idx % nx), double(idx / nx), kz - 1, 2, a, b, idx3);
+      ze_[idx] = StageVertex(idx3);
+    }
     if (ze_[idx] != kInvalid && b == 0) top_plane_vertices_.push_back(ze_[idx]);
   }
 
@@ -134,22 +181,32 @@ absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* n
         const uint8_t* e = cc.edges + base;
         base += len;
         if ((cc.center_mask >> l) & 1) {
-          Vec3 c{0, 0, 0};
-          for (int s = 0; s < len; ++s) c = c + store_->position(ev[e[s]]);
-          c = c * (1.0 / len);
-          const double ci = (c.x - config_.origin[0]) / config_.spacing[0];
-          const double cj = (c.y - config_.origin[1]) / config_.spacing[1];
-          const double ck = (c.z - config_.origin[2]) / config_.spacing[2];
-          const VertexId cv = store_->AddVertex(c, ck, layer, BoxMask(ci, cj, ck));
-          if (new_verts) new_verts->push_back(cv);
+          // Centroid of the loop's points, recomputed from the field (bit-identical to the
+          // vertices' own positions) so this step never reads the store.
+          double c[3] = {0, 0, 0};
           for (int s = 0; s < len; ++s) {
-            const TriId t = store_->AddTriangle(cv, ev[e[s]], ev[e[(s + 1) % len]]);
-            if (new_tris) new_tris->push_back(t);
+            const int c0 = mc::kEdgeCorners[e[s]][0], c1 = mc::kEdgeCorners[e[s]][1];
+            const int axis = (c1 - c0) == 1 ? 0 : ((c1 - c0) == 2 ? 1 : 2);
+            double p[3];
+            EdgePoint(double(i + (c0 & 1)), double(j + ((c0 >> 1) & 1)), kz - 1 + ((c0 >> 2) & 1),
+                      axis, f[c0], f[c1], p);
+            const Vec3 q = Physical(p[0], p[1], p[2]);
+            c[0] += q.x;
+            c[1] += q.y;
+            c[2] += q.z;
+          }
+          for (double& x : c) x *= 1.0 / len;
+          const double ci[3] = {(c[0] - config_.origin[0]) / config_.spacing[0],
+                                (c[1] - config_.origin[1]) / config_.spacing[1],
+                                (c[2] - config_.origin[2]) / config_.spacing[2]};
+          const VertexId cv = kPending | static_cast<VertexId>(staged_vertices_.size());
+          staged_vertices_.push_back({Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2])});
+          for (int s = 0; s < len; ++s) {
+            staged_triangles_.push_back({cv, ev[e[s]], ev[e[(s + 1) % len]]});
           }
         } else {
           for (int s = 1; s + 1 < len; ++s) {
-            const TriId t = store_->AddTriangle(ev[e[0]], ev[e[s]], ev[e[s + 1]]);
-            if (new_tris) new_tris->push_back(t);
+            staged_triangles_.push_back({ev[e[0]], ev[e[s]], ev[e[s + 1]]});
           }
         }
       }

@@ -35,7 +35,7 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) 
   r.directional_bias = DirectionalBias(mesh);
   r.time_extract_s = st.time.extract_s;
   r.time_simplify_s = st.time.simplify_s;
-  r.time_total_s = st.time.extract_s + st.time.simplify_s;
+  r.time_total_s = st.time.total_s;
   r.trace = st.trace;
   r.refusals = st.refusals;
   r.contractions = st.contractions;

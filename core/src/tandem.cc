@@ -91,27 +91,56 @@ absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
   return AddSlice(convert_.data());
 }
 
+void TandemSession::SimplifyStep() {
+  const auto t0 = Clock::now();
+  simplifier_.Delay(new_tris_);
+  simplifier_.Activate(static_cast<double>(pending_front_));
+  simplifier_.Simplify();
+  stats_.time.simplify_s += Seconds(t0, Clock::now());
+  simplify_pending_ = false;
+  Record();
+}
+
 absl::Status TandemSession::AddSlice(const float* values) {
   if (finished_) return absl::FailedPreconditionError("session already finished");
-  const auto t0 = Clock::now();
+  const auto start = Clock::now();
+  absl::Status st;
+  double extract_s = 0;
+  auto compute = [this, values, &extract_s] {
+    const auto t0 = Clock::now();
+    absl::Status s = extractor_.ComputeLayer(values);
+    extract_s = Seconds(t0, Clock::now());
+    return s;
+  };
+  if (simplify_pending_ && options_.pipeline) {
+    // EXTRACT(k) on a worker while SIMPLIFY of layer k-1 runs here. ComputeLayer touches
+    // only the extractor's own buffers, and the simplifier never touches the front (the top
+    // plane of layer k-1, which layer k reads), so the two do not share mutable data; the
+    // store sees the same mutations in the same order as a sequential run.
+    std::future<absl::Status> extracted = std::async(std::launch::async, compute);
+    SimplifyStep();
+    st = extracted.get();
+  } else {
+    if (simplify_pending_) SimplifyStep();
+    st = compute();
+  }
+  if (!st.ok()) {
+    stats_.time.total_s += Seconds(start, Clock::now());
+    return st;
+  }
+  const auto t1 = Clock::now();
   new_tris_.clear();
   new_verts_.clear();
-  if (absl::Status st = extractor_.AddSlice(values, &new_tris_, &new_verts_); !st.ok()) return st;
+  extractor_.CommitLayer(&new_tris_, &new_verts_);
   stats_.triangles_extracted += static_cast<int64_t>(new_tris_.size());
-  const int64_t k = extractor_.slices_done() - 1;  // the front
-  const bool tandem = options_.schedule == Schedule::kTandem ||
-                      options_.schedule == Schedule::kTandemLag;
   if (options_.schedule != Schedule::kNone) simplifier_.AddTriangles(new_tris_, new_verts_);
-  const auto t1 = Clock::now();
-  stats_.time.extract_s += Seconds(t0, t1);
+  stats_.time.extract_s += extract_s + Seconds(t1, Clock::now());
   Record();
-  if (tandem) {
-    simplifier_.Delay(new_tris_);
-    simplifier_.Activate(static_cast<double>(k));
-    simplifier_.Simplify();
-    stats_.time.simplify_s += Seconds(t1, Clock::now());
-    Record();
+  if (tandem_schedule()) {
+    simplify_pending_ = true;
+    pending_front_ = extractor_.slices_done() - 1;
   }
+  stats_.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
 }
 
@@ -126,6 +155,8 @@ absl::Status TandemSession::Finish() {
     return absl::FailedPreconditionError(absl::StrCat(
         "the stream ended after ", done, " slices but the volume declared nz = ", grid_.nz));
   }
+  const auto start = Clock::now();
+  if (simplify_pending_) SimplifyStep();
   finished_ = true;
   extractor_.Finish();
   if (options_.schedule == Schedule::kNone) return absl::OkStatus();
@@ -146,6 +177,7 @@ absl::Status TandemSession::Finish() {
   }
   stats_.time.simplify_s += Seconds(t0, Clock::now());
   Record();
+  stats_.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
 }
 

@@ -36,11 +36,21 @@ class LayerExtractor {
   // `store` must outlive the extractor.
   LayerExtractor(const ExtractorConfig& config, MeshStore* store);
 
-  // Consumes the next slice (nx*ny values, x fastest). Appends the ids of the triangles and
-  // vertices it created to *new_tris / *new_verts when given. Rejects non-finite values and
-  // slices past nz (when nz is known) with InvalidArgument; the store is left unchanged.
+  // Consumes the next slice (nx*ny values, x fastest): ComputeLayer then CommitLayer.
+  // Appends the ids of the triangles and vertices it created to *new_tris / *new_verts when
+  // given. Rejects non-finite values and slices past nz (when nz is known) with
+  // InvalidArgument; the store and the extractor are then left unchanged.
   absl::Status AddSlice(const float* values, std::vector<TriId>* new_tris = nullptr,
                         std::vector<VertexId>* new_verts = nullptr);
+
+  // The two halves of AddSlice, so extraction of layer k can run on another thread while
+  // the owner simplifies layer k-1. ComputeLayer reads only the extractor's own state (it
+  // never touches the store): the new layer is staged in pending buffers. CommitLayer adds
+  // it to the store. Between the two, the store may be changed by anyone except in the
+  // vertices of the previous top plane (the front, which the schedules never touch).
+  absl::Status ComputeLayer(const float* values);
+  void CommitLayer(std::vector<TriId>* new_tris = nullptr,
+                   std::vector<VertexId>* new_verts = nullptr);
 
   // Declares the last slice added to be the top of the box: its plane vertices get the
   // kBoxZMax bit. Called by the owner when the stream ends (a no-op beyond that).
@@ -51,10 +61,16 @@ class LayerExtractor {
   const ExtractorConfig& config() const { return config_; }
 
  private:
-  // Vertex on the grid edge from index point p (value fp) to q (value fq), fp, fq relative
-  // to the iso-value, exactly one of them >= 0.
-  VertexId MakeEdgeVertex(double pi, double pj, double pk, int axis, double fp, double fq,
-                          int32_t layer, std::vector<VertexId>* new_verts);
+  // Pending vertex ids carry this tag until CommitLayer maps them to store ids.
+  static constexpr VertexId kPending = 0x80000000u;
+  static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
+
+  // Index-space point on the grid edge from index point p (value fp) along `axis` to the
+  // next grid point (value fq); fp, fq relative to the iso-value, exactly one >= 0.
+  static void EdgePoint(double pi, double pj, double pk, int axis, double fp, double fq,
+                        double idx[3]);
+  // Stages a vertex at an index-space point; returns its pending id.
+  VertexId StageVertex(const double idx[3]);
   uint8_t BoxMask(double i, double j, double k) const;
   Vec3 Physical(double i, double j, double k) const {
     return {config_.origin[0] + i * config_.spacing[0], config_.origin[1] + j * config_.spacing[1],
@@ -73,6 +89,18 @@ class LayerExtractor {
   // and top slices, z-edges (nx*ny) of the current layer. kInvalid = no crossing.
   std::vector<VertexId> xe_bottom_, xe_top_, ye_bottom_, ye_top_, ze_;
   std::vector<VertexId> top_plane_vertices_;  // for Finish()
+
+  // Staged layer (ComputeLayer -> CommitLayer).
+  struct StagedVertex {
+    Vec3 pos;
+    double height;
+    uint8_t box_mask;
+  };
+  std::vector<StagedVertex> staged_vertices_;
+  std::vector<std::array<VertexId, 3>> staged_triangles_;
+  std::vector<VertexId> staged_to_store_;
+  int32_t staged_layer_ = 0;
+  bool staged_ = false;
 };
 
 }  // namespace tandem

@@ -14,6 +14,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <future>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -40,11 +41,14 @@ struct SessionOptions {
   double alpha = 0;             // isotropy parameter in [0, 1]
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
+  bool pipeline = true;         // tandem schedules: EXTRACT(k) on a second thread while
+                                // layer k-1 is simplified (identical results either way)
   absl::Status Validate() const;
 };
 
 struct PhaseTimes {
-  double extract_s = 0, simplify_s = 0;
+  double extract_s = 0, simplify_s = 0;  // CPU-side time of each phase
+  double total_s = 0;  // wall time spent inside AddSlice/Finish (< the sum when pipelined)
 };
 
 struct SessionStats {
@@ -66,7 +70,10 @@ class TandemSession {
   static absl::StatusOr<std::unique_ptr<TandemSession>> Create(const VolumeInfo& grid,
                                                                 const SessionOptions& options);
 
-  // Consumes the next slice (nx*ny floats). Errors leave the session unchanged.
+  // Consumes the next slice (nx*ny floats): EXTRACT(k), and for the tandem schedules the
+  // SIMPLIFY step of layer k-1, which is deferred to here so that it overlaps EXTRACT(k)
+  // (SessionOptions::pipeline). A rejected slice leaves the mesh as it was, apart from
+  // that deferred step, which the sequential order would have run already.
   absl::Status AddSlice(const float* values);
   // Same, from raw voxels of the given type in host byte order.
   absl::Status AddSliceBytes(DType dtype, const uint8_t* bytes);
@@ -86,6 +93,11 @@ class TandemSession {
  private:
   TandemSession(const VolumeInfo& grid, const SessionOptions& options);
   void Record();
+  bool tandem_schedule() const {
+    return options_.schedule == Schedule::kTandem || options_.schedule == Schedule::kTandemLag;
+  }
+  // DELAY(k); ACTIVATE(k); SIMPLIFY(E0) for the last committed layer k.
+  void SimplifyStep();
 
   VolumeInfo grid_;
   SessionOptions options_;
@@ -97,6 +109,8 @@ class TandemSession {
   std::vector<float> convert_;
   mutable SessionStats stats_;
   bool finished_ = false;
+  bool simplify_pending_ = false;  // the last committed layer awaits its SIMPLIFY step
+  int64_t pending_front_ = 0;
 };
 
 // Convenience: runs a whole slice source through a session (progress callback optional,

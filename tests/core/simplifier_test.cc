@@ -322,6 +322,39 @@ TEST(Simplifier, TargetTriangleCountIsReached) {
   EXPECT_EQ(AnalyzeTopology(run.mesh).euler, 2);
 }
 
+// Extracting layer k on a second thread while layer k-1 is simplified must not change
+// anything: same mesh (positions and indices), same trace, same refusals.
+TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
+  for (Shape shape : {Shape::kGyroid, Shape::kLink}) {
+    for (Schedule s : {Schedule::kTandem, Schedule::kTandemLag}) {
+      IndexedMesh meshes[2];
+      SessionStats stats[2];
+      for (int pipelined = 0; pipelined < 2; ++pipelined) {
+        auto src = MakeSyntheticSource(shape, 56, 56, 56);
+        SessionOptions o;
+        o.schedule = s;
+        o.error = 0.3;
+        o.alpha = 0.2;
+        o.pipeline = pipelined == 1;
+        auto session = RunSession(*src, o);
+        ASSERT_TRUE(session.ok()) << session.status();
+        meshes[pipelined] = (*session)->Snapshot();
+        stats[pipelined] = (*session)->stats();
+      }
+      const std::string what = std::string(ShapeName(shape)) + " " + std::string(ScheduleName(s));
+      EXPECT_EQ(meshes[0].indices, meshes[1].indices) << what;
+      ASSERT_EQ(meshes[0].positions.size(), meshes[1].positions.size()) << what;
+      for (size_t i = 0; i < meshes[0].positions.size(); ++i) {
+        ASSERT_EQ(meshes[0].positions[i], meshes[1].positions[i]) << what << " vertex " << i;
+      }
+      EXPECT_EQ(stats[0].trace, stats[1].trace) << what;
+      EXPECT_EQ(stats[0].contractions, stats[1].contractions) << what;
+      EXPECT_EQ(stats[0].refusals.link, stats[1].refusals.link) << what;
+      EXPECT_GT(stats[1].contractions, 1000) << what;
+    }
+  }
+}
+
 TEST(Simplifier, OptionsAreValidated) {
   SessionOptions o;
   o.error = 0;
