@@ -57,7 +57,13 @@ double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
   switch (opt_.release) {
     case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
     case ReleaseRule::kLayer: return static_cast<double>(c->layer + 1);
-    case ReleaseRule::kReach: return c->height + c->rad;
+    case ReleaseRule::kReach:
+      // The paper argues reach > k for any edge touching the front (slice k), so the top of
+      // layer k stays untouched until layer k+1 is in. That holds for original vertices, but
+      // a contracted vertex keeps an averaged height that can lie well below its position:
+      // an edge from it to a front vertex can then reach <= k. Requiring layer + 1 <= front
+      // as well keeps the paper's guarantee (and every quadric in Q complete).
+      return std::max(c->height + c->rad, static_cast<double>(c->layer + 1));
   }
   return 0;
 }
@@ -131,7 +137,34 @@ E Simplifier::HeapPop(std::vector<E>& h) {
 }
 
 void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
+  // An edge costing more than E0 can never be popped by SIMPLIFY(E0): keeping it would only
+  // grow the heap (on a CT, most of Q). A later neighbour contraction re-pushes it with its
+  // new cost; a target triangle count re-queues every edge first (RequeueAll).
+  if (!keep_expensive_ && c.cost > opt_.error) return;
   HeapPush(q_, QEntry{c.cost, a, b, version_[a], version_[b], c.pos, c.eps0});
+}
+
+void Simplifier::RequeueAll() {
+  keep_expensive_ = true;
+  q_.clear();
+  for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
+    if (!store_->triangle_alive(t)) continue;
+    const auto& tri = store_->triangle(t);
+    for (int k = 0; k < 3; ++k) {
+      const VertexId a = tri[k], b = tri[(k + 1) % 3];
+      if (a < b) {
+        PushEdge(a, b);
+      } else {
+        // Push a boundary edge from its only triangle; interior ones from the a < b side.
+        bool twin = false;
+        for (TriId u : store_->vertex_triangles(a)) {
+          const auto& o = store_->triangle(u);
+          for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
+        }
+        if (!twin) PushEdge(a, b);
+      }
+    }
+  }
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
@@ -395,10 +428,7 @@ void Simplifier::Simplify(int64_t target_triangles) {
       }
     }
     if (!to_target && c.eps0 > opt_.error) {
-      // Conservative rule. Keep it queued above E0 so a target count can still use it.
-      ++refusals_.error;
-      c.cost = std::max(c.eps0, std::nextafter(opt_.error, 1e300));
-      PushQ(e.a, e.b, c);
+      ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
       continue;
     }
     if (!LinkCondition(e.a, e.b)) {

@@ -173,6 +173,7 @@ absl::Status TandemSession::Finish() {
   simplifier_.Activate(std::numeric_limits<double>::infinity());
   simplifier_.Simplify();
   if (options_.target_triangles > 0 && num_triangles() > options_.target_triangles) {
+    simplifier_.RequeueAll();
     simplifier_.Simplify(options_.target_triangles);
   }
   stats_.time.simplify_s += Seconds(t0, Clock::now());

@@ -61,8 +61,11 @@ class Simplifier {
   // ACTIVATE: moves entries of W whose key <= front into Q. front = +inf for ACTIVATE(∞).
   void Activate(double front);
   // SIMPLIFY(E0): contracts while Q's minimum cost <= E0 (beyond E0 down to a triangle
-  // count when target_triangles > 0 is given: see tandem.h).
+  // count when target_triangles > 0 is given: call RequeueAll first; see tandem.h).
   void Simplify(int64_t target_triangles = 0);
+  // Puts every edge of the current mesh into Q, including those costing more than E0
+  // (which Q otherwise drops), for a final pass down to a target triangle count.
+  void RequeueAll();
 
   // Error(K) = max ε0 over live vertices.
   double MaxShapeError() const;
@@ -144,6 +147,7 @@ class Simplifier {
   uint32_t mark_epoch_ = 0;
 
   std::vector<QEntry> q_;  // binary heap (std::push_heap with Greater)
+  bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
   // W: bucket b holds entries released at front w_base_ + b; w_size_ counts all entries.
   std::vector<std::vector<Entry>> w_;
   int64_t w_base_ = 0;

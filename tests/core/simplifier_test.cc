@@ -217,6 +217,18 @@ TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
   EXPECT_GT(tandem.stats.max_reach_over_front, 0.0);
 }
 
+// On real data a contracted vertex can carry an averaged height far below its position, so
+// the paper's reach rule alone lets an edge to a front vertex through; the schedule must
+// still never touch the front (layer(c) <= front - 1) nor run ahead of reach.
+TEST(Simplifier, TimeLagNeverTouchesTheFrontOnARealCt) {
+  TANDEM_SHARED_OR_SKIP(path, "ct_engine_256x256x128_uint8.json");
+  const Result lag = RunFile(path, 120, Schedule::kTandemLag, 0.5);
+  EXPECT_GT(lag.stats.contractions, 100000);
+  EXPECT_LE(lag.stats.max_layer_over_front, -1.0);
+  EXPECT_LE(lag.stats.max_reach_over_front, 0.0);
+  EXPECT_LE(lag.error_max, 0.5);
+}
+
 // After EXTRACT(k) and the simplification that follows it, every vertex of layer k (above
 // slice k-1) is still exactly where marching cubes put it.
 TEST(Simplifier, TandemNeverTouchesTheNewestLayer) {
