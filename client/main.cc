@@ -1,0 +1,327 @@
+// tandem-client: command-line client of tandem-server.
+//   tandem-client stream --server HOST:PORT --input VOLUME --iso C0 --error E0 --out MESH ...
+//   tandem-client info   --server HOST:PORT
+//   tandem-client health --server HOST:PORT
+// Exit status: 0 success, 1 failure (the message on stderr names the problem and, for a
+// server error, its gRPC code), 2 bad command line.
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/status/status.h"
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "client/stream_client.h"
+#include "codec/draco_codec.h"
+#include "common/cli_flags.h"
+#include "common/wire.h"
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "tandem/mesh_io.h"
+#include "tandem/report.h"
+#include "tandem/tandem.h"
+#include "tandem/v1/tandem.grpc.pb.h"
+#include "tandem/volume.h"
+
+namespace {
+
+using tandem::cli::FlagSet;
+
+constexpr char kMainUsage[] =
+    "usage: tandem-client <command> [flags]   (tandem-client <command> --help for its flags)\n"
+    "commands:\n"
+    "  stream   stream a volume to tandem-server and save the simplified iso-surface\n"
+    "  info     print the server's version, limits and live counters\n"
+    "  health   query the standard gRPC health service (exit 0 when SERVING)";
+
+int Fail(const absl::Status& st) {
+  if (absl::IsUnavailable(st) || absl::IsDeadlineExceeded(st)) {
+    absl::FPrintF(stderr, "tandem-client: error: %s: %s (is tandem-server running there?)\n",
+                  absl::StatusCodeToString(st.code()), std::string(st.message()));
+  } else {
+    absl::FPrintF(stderr, "tandem-client: error: %s: %s\n", absl::StatusCodeToString(st.code()),
+                  std::string(st.message()));
+  }
+  return 1;
+}
+
+// Parses flags; returns -1 to go on, else the exit status (help printed or usage error).
+int ParseOrExit(FlagSet& flags, int argc, char** argv) {
+  flags.UseEnvironment("TANDEM_", {"server"});  // TANDEM_SERVER, as in deploy/README.md
+  if (absl::Status st = flags.Parse(argc, argv, 2); !st.ok()) {
+    absl::FPrintF(stderr, "tandem-client: %s\n", std::string(st.message()));
+    return 2;
+  }
+  if (flags.help_requested()) {
+    absl::PrintF("%s", flags.Help());
+    return 0;
+  }
+  if (!flags.positional().empty()) {
+    absl::FPrintF(stderr, "tandem-client: unexpected argument '%s' (see --help)\n",
+                  flags.positional().front());
+    return 2;
+  }
+  return -1;
+}
+
+std::string Lower(std::string s) { return absl::AsciiStrToLower(s); }
+
+absl::Status WriteFile(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  out.close();
+  if (!out) return absl::UnavailableError(absl::StrCat(path, ": cannot write"));
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------
+int StreamCommand(int argc, char** argv) {
+  std::string server = tandem::wire::kDefaultServerAddress, input, out, partials, metrics_path;
+  std::string schedule_name = "tandem-lag";
+  double iso = 0, error = 0, alpha = 0, rate = 0, timeout_s = 0;
+  int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
+  int64_t preview_every = 0, preview_ms = 0;
+  bool reference = false, verbose = false;
+  FlagSet flags(
+      "usage: tandem-client stream --input VOLUME --iso C0 --error E0 --out MESH [flags]\n"
+      "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff) slice by slice to\n"
+      "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
+      "simplified iso-surface: .drc (the server's Draco bytes), .ply or .obj (decoded).");
+  flags.AddString("server", &server, "HOST:PORT", "tandem-server address");
+  flags.AddString("input", &input, "FILE", "volume to stream", /*required=*/true);
+  flags.AddDouble("iso", &iso, "iso-value C0 (voxel units)", /*required=*/true);
+  flags.AddDouble("error", &error, "error threshold E0 (physical units)", /*required=*/true);
+  flags.AddDouble("alpha", &alpha, "isotropy parameter in [0, 1]");
+  flags.AddString("schedule", &schedule_name, "S", "none, classical, tandem or tandem-lag");
+  flags.AddInt("target-triangles", &target, "> 0: simplify further down to this many triangles");
+  flags.AddDouble("rate", &rate, "send at most this many slices per second (0 = no pacing)");
+  flags.AddInt("chunk-bytes", &chunk_bytes, "bytes of voxel data per message");
+  flags.AddInt("quantization-bits", &bits, "Draco position quantization, 1..30");
+  flags.AddInt("compression-level", &level,
+               "Draco level 0..10 (0 keeps vertex order; higher = smaller, slower)");
+  flags.AddInt("preview-every", &preview_every,
+               "ask for a preview mesh every N slices (0 = none; 1 if --partials is given)");
+  flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
+  flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply or .obj", /*required=*/true);
+  flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice>.drc");
+  flags.AddString("metrics", &metrics_path, "FILE.json",
+                  "write the metrics as JSON (same keys as `tandem extract --metrics`)");
+  flags.AddBool("reference", &reference,
+                "also measure L1/L2/Linf distances to the unsimplified surface (server side)");
+  flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
+  flags.AddBool("verbose", &verbose, "print one line per progress and preview message on stderr");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+
+  const std::string ext = Lower(std::filesystem::path(out).extension().string());
+  if (ext != ".drc" && ext != ".ply" && ext != ".obj") {
+    absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, .ply or .obj\n", out);
+    return 2;
+  }
+  // Fail before streaming, not after: the output's folder must exist.
+  if (const std::filesystem::path parent = std::filesystem::path(out).parent_path();
+      !parent.empty() && !std::filesystem::is_directory(parent)) {
+    absl::FPrintF(stderr, "tandem-client: --out %s: folder %s does not exist\n", out,
+                  parent.string());
+    return 2;
+  }
+  if (chunk_bytes < 1 || rate < 0 || timeout_s < 0 || preview_every < 0 || preview_ms < 0 ||
+      target < 0) {
+    absl::FPrintF(stderr,
+                  "tandem-client: --chunk-bytes must be >= 1; --rate, --timeout, --preview-every, "
+                  "--preview-ms and --target-triangles must be >= 0\n");
+    return 2;
+  }
+  if (bits < 1 || bits > 30 || level < 0 || level > 10) {
+    absl::FPrintF(stderr, "tandem-client: need 1 <= --quantization-bits <= 30 and "
+                          "0 <= --compression-level <= 10\n");
+    return 2;
+  }
+  absl::StatusOr<tandem::Schedule> schedule = tandem::ParseSchedule(schedule_name);
+  if (!schedule.ok()) {
+    absl::FPrintF(stderr, "tandem-client: --schedule: %s\n", std::string(schedule.status().message()));
+    return 2;
+  }
+  if (!partials.empty()) {
+    if (!flags.IsSet("preview-every")) preview_every = 1;
+    std::error_code ec;
+    std::filesystem::create_directories(partials, ec);
+    if (ec) {
+      return Fail(absl::UnavailableError(absl::StrCat("--partials ", partials, ": ", ec.message())));
+    }
+  }
+
+  auto source = tandem::OpenVolume(input);
+  if (!source.ok()) return Fail(source.status());
+
+  tandem::client::StreamOptions options;
+  options.server = server;
+  options.rate = rate;
+  options.chunk_bytes = static_cast<size_t>(chunk_bytes);
+  options.timeout_s = timeout_s;
+  tandem::v1::SessionConfig& c = options.config;
+  c.set_iso(iso);
+  c.set_error(error);
+  c.set_alpha(alpha);
+  c.set_schedule(tandem::wire::ScheduleToProto(*schedule));
+  c.set_target_triangles(target);
+  c.mutable_preview()->set_every_slices(static_cast<uint32_t>(preview_every));
+  c.mutable_preview()->set_min_interval_ms(static_cast<uint32_t>(preview_ms));
+  c.mutable_draco()->set_quantization_bits(static_cast<uint32_t>(bits));
+  c.mutable_draco()->set_compression_level(static_cast<int32_t>(level));
+  c.set_compute_distances(reference);
+  c.set_description(std::filesystem::path(input).filename().string());
+
+  const int64_t nz = (*source)->info().nz;
+  const bool bar = isatty(STDERR_FILENO) != 0 && !verbose;
+  absl::Status partial_error;
+  tandem::client::StreamCallbacks callbacks;
+  callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
+    if (verbose) {
+      absl::FPrintF(stderr, "progress slices=%d triangles=%d peak=%d sent=%d\n",
+                    p.slices_consumed(), p.triangles(), p.peak_triangles(), sent);
+    } else if (bar && nz > 0) {
+      const int width = 30;
+      const int filled = static_cast<int>(width * p.slices_consumed() / nz);
+      absl::FPrintF(stderr, "\r[%s%s] %d/%d slices, %d triangles", std::string(filled, '#'),
+                    std::string(width - filled, ' '), p.slices_consumed(), nz, p.triangles());
+    }
+  };
+  callbacks.on_preview = [&](const tandem::v1::Preview& p, int64_t sent) {
+    if (verbose) {
+      absl::FPrintF(stderr, "preview slice=%d triangles=%d vertices=%d bytes=%d sent=%d\n",
+                    p.slice(), p.triangles(), p.vertices(), p.draco().size(), sent);
+    }
+    if (!partials.empty() && partial_error.ok()) {
+      partial_error = WriteFile(
+          (std::filesystem::path(partials) / absl::StrCat("preview_", p.slice(), ".drc")).string(),
+          p.draco());
+    }
+  };
+  absl::StatusOr<tandem::client::StreamResult> result =
+      tandem::client::StreamVolume(**source, options, callbacks);
+  if (bar) absl::FPrintF(stderr, "\n");
+  if (!result.ok()) return Fail(result.status());
+  if (!partial_error.ok()) return Fail(partial_error);
+
+  // Decode even for .drc: it checks the bytes and the counts the server announced.
+  absl::StatusOr<tandem::IndexedMesh> mesh = tandem::codec::DecodeDraco(result->draco);
+  if (!mesh.ok()) return Fail(mesh.status());
+  if (static_cast<int64_t>(mesh->num_triangles()) != result->triangles ||
+      static_cast<int64_t>(mesh->num_vertices()) != result->vertices) {
+    return Fail(absl::DataLossError(absl::StrCat(
+        "the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
+        mesh->num_vertices(), " vertices; the server announced ", result->triangles, " and ",
+        result->vertices)));
+  }
+  absl::Status saved = ext == ".drc" ? WriteFile(out, result->draco) : tandem::WriteMesh(out, *mesh);
+  if (!saved.ok()) return Fail(saved);
+
+  tandem::MetricsReport report = tandem::wire::ReportFromProto(result->metrics);
+  report.input = input;
+  absl::PrintF("%s", tandem::ReportSummary(report));
+  absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", "stream wall time",
+               result->seconds, result->slices_sent,
+               result->seconds > 0 ? result->slices_sent / result->seconds : 0.0,
+               result->metrics.previews_sent());
+  if (!metrics_path.empty()) {
+    if (absl::Status st = WriteFile(metrics_path, tandem::ReportToJson(report)); !st.ok()) {
+      return Fail(st);
+    }
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------------------------------
+std::shared_ptr<grpc::Channel> Connect(const std::string& server) {
+  return grpc::CreateChannel(server, grpc::InsecureChannelCredentials());
+}
+
+void SetDeadline(grpc::ClientContext* context, double seconds) {
+  context->set_deadline(std::chrono::system_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000)));
+}
+
+int InfoCommand(int argc, char** argv) {
+  std::string server = tandem::wire::kDefaultServerAddress;
+  double timeout_s = 10;
+  FlagSet flags("usage: tandem-client info [--server HOST:PORT]\n"
+                "Prints the server's version, limits, supported dtypes and live counters.");
+  flags.AddString("server", &server, "HOST:PORT", "tandem-server address");
+  flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  auto stub = tandem::v1::Tandem::NewStub(Connect(server));
+  grpc::ClientContext context;
+  SetDeadline(&context, timeout_s);
+  tandem::v1::InfoResponse info;
+  grpc::Status st = stub->GetInfo(&context, tandem::v1::InfoRequest(), &info);
+  if (!st.ok()) return Fail(tandem::wire::FromGrpcStatus(st));
+  std::string dtypes, schedules;
+  for (int d : info.dtypes()) {
+    absl::StrAppend(&dtypes, dtypes.empty() ? "" : ", ",
+                    absl::AsciiStrToLower(tandem::v1::DType_Name(d).substr(6)));
+  }
+  for (int s : info.schedules()) {
+    absl::StatusOr<tandem::Schedule> schedule = tandem::wire::ScheduleFromProto(s);
+    if (schedule.ok()) {
+      absl::StrAppend(&schedules, schedules.empty() ? "" : ", ",
+                      std::string(tandem::ScheduleName(*schedule)));
+    }
+  }
+  const auto& l = info.limits();
+  const auto& c = info.counters();
+  absl::PrintF("server                 %s (%s)\n", server, info.version());
+  absl::PrintF("dtypes                 %s\n", dtypes);
+  absl::PrintF("schedules              %s\n", schedules);
+  absl::PrintF("max voxels per slice   %d\n", l.max_voxels_per_slice());
+  absl::PrintF("max slices             %d\n", l.max_slices());
+  absl::PrintF("max sessions           %d\n", l.max_sessions());
+  absl::PrintF("max message bytes      %d\n", l.max_message_bytes());
+  absl::PrintF("idle timeout           %g s\n", l.idle_timeout_seconds());
+  absl::PrintF("active sessions        %d\n", c.active_sessions());
+  absl::PrintF("sessions started       %d (finished %d, rejected %d)\n", c.sessions_started(),
+               c.sessions_finished(), c.sessions_rejected());
+  absl::PrintF("worker threads         %d\n", c.worker_threads());
+  absl::PrintF("session bytes          %d\n", c.session_bytes());
+  return 0;
+}
+
+int HealthCommand(int argc, char** argv) {
+  std::string server = tandem::wire::kDefaultServerAddress, service;
+  double timeout_s = 5;
+  FlagSet flags("usage: tandem-client health [--server HOST:PORT]\n"
+                "Asks grpc.health.v1.Health/Check; prints the status, exits 0 only if SERVING.");
+  flags.AddString("server", &server, "HOST:PORT", "tandem-server address");
+  flags.AddString("service", &service, "NAME", "service name to ask about (empty = the server)");
+  flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  auto stub = grpc::health::v1::Health::NewStub(Connect(server));
+  grpc::ClientContext context;
+  SetDeadline(&context, timeout_s);
+  grpc::health::v1::HealthCheckRequest request;
+  request.set_service(service);
+  grpc::health::v1::HealthCheckResponse response;
+  grpc::Status st = stub->Check(&context, request, &response);
+  if (!st.ok()) return Fail(tandem::wire::FromGrpcStatus(st));
+  absl::PrintF("%s\n", grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status()));
+  return response.status() == grpc::health::v1::HealthCheckResponse::SERVING ? 0 : 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const std::string command = argc > 1 ? argv[1] : "";
+  if (command == "stream") return StreamCommand(argc, argv);
+  if (command == "info") return InfoCommand(argc, argv);
+  if (command == "health") return HealthCommand(argc, argv);
+  if (command == "--help" || command == "-h" || command == "help") {
+    absl::PrintF("%s\n", kMainUsage);
+    return 0;
+  }
+  absl::FPrintF(stderr, "%s\n", kMainUsage);
+  return 2;
+}

@@ -1,0 +1,191 @@
+#include "client/stream_client.h"
+
+#include <algorithm>
+#include <chrono>
+#include <memory>
+#include <thread>
+#include <vector>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/strings/str_cat.h"
+#include "absl/synchronization/mutex.h"
+#include "absl/time/time.h"
+#include "common/wire.h"
+#include "tandem/v1/tandem.grpc.pb.h"
+
+namespace tandem::client {
+namespace {
+
+using Stream = grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>;
+
+// The sending half, on its own thread: config, chunks of every slice (paced by `rate`),
+// End. Write() blocks while the server is not reading (its flow control), which is what
+// keeps both sides' memory bounded. Returns a local error (reading the volume); a failed
+// Write just stops, since the server's status explains why.
+class Sender {
+ public:
+  Sender(SliceSource& source, const StreamOptions& options, Stream* stream)
+      : source_(source), options_(options), stream_(stream) {}
+
+  absl::Status Run();
+  // Wakes a paced sender and makes it stop (the response stream ended).
+  void Stop() {
+    absl::MutexLock lock(&mu_);
+    stop_ = true;
+  }
+  int64_t slices_sent() const {
+    absl::MutexLock lock(&mu_);
+    return slices_sent_;
+  }
+
+ private:
+  SliceSource& source_;
+  const StreamOptions& options_;
+  Stream* stream_;
+  mutable absl::Mutex mu_;
+  bool stop_ ABSL_GUARDED_BY(mu_) = false;
+  int64_t slices_sent_ ABSL_GUARDED_BY(mu_) = 0;
+};
+
+absl::Status Sender::Run() {
+  const VolumeInfo& info = source_.info();
+  v1::ExtractRequest request;
+  *request.mutable_config() = options_.config;
+  if (!stream_->Write(request)) return absl::OkStatus();
+  std::vector<uint8_t> bytes;
+  const absl::Time start = absl::Now();
+  int64_t z = 0;
+  for (; info.nz == 0 || z < info.nz; ++z) {
+    if (absl::Status st = source_.ReadSlice(&bytes); !st.ok()) {
+      if (absl::IsOutOfRange(st)) break;
+      return st;
+    }
+    if (options_.rate > 0) {
+      // Pace like a scanner: slice z leaves at start + z / rate.
+      const absl::Time due = start + absl::Seconds(static_cast<double>(z) / options_.rate);
+      absl::MutexLock lock(&mu_);
+      mu_.AwaitWithDeadline(absl::Condition(&stop_), due);
+    }
+    {
+      absl::MutexLock lock(&mu_);
+      if (stop_) return absl::OkStatus();
+    }
+    for (size_t offset = 0; offset < bytes.size(); offset += options_.chunk_bytes) {
+      request.Clear();
+      v1::SliceChunk* chunk = request.mutable_chunk();
+      chunk->set_slice(z);
+      chunk->set_offset(offset);
+      chunk->set_data(bytes.data() + offset, std::min(options_.chunk_bytes, bytes.size() - offset));
+      if (offset == 0) {
+        chunk->set_slice_size(bytes.size());
+        chunk->set_dtype(wire::DTypeToProto(info.dtype));
+      }
+      if (!stream_->Write(request)) return absl::OkStatus();
+    }
+    absl::MutexLock lock(&mu_);
+    slices_sent_ = z + 1;
+  }
+  request.Clear();
+  request.mutable_end()->set_slices(z);
+  if (stream_->Write(request)) stream_->WritesDone();
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
+                                          const StreamCallbacks& callbacks) {
+  if (options.chunk_bytes == 0) return absl::InvalidArgumentError("chunk size must be > 0");
+  StreamOptions opts = options;
+  const VolumeInfo& info = source.info();
+  v1::SessionConfig& c = opts.config;
+  c.set_nx(info.nx);
+  c.set_ny(info.ny);
+  c.set_nz(info.nz);
+  c.set_dtype(wire::DTypeToProto(info.dtype));
+  c.clear_spacing();
+  c.clear_origin();
+  for (int a = 0; a < 3; ++a) {
+    c.add_spacing(info.spacing[a]);
+    c.add_origin(info.origin[a]);
+  }
+
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(wire::kClientMaxReceiveBytes);
+  std::shared_ptr<grpc::Channel> channel =
+      grpc::CreateCustomChannel(opts.server, grpc::InsecureChannelCredentials(), args);
+  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(channel);
+  grpc::ClientContext context;
+  if (opts.timeout_s > 0) {
+    context.set_deadline(std::chrono::system_clock::now() +
+                         std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000)));
+  }
+  const absl::Time start = absl::Now();
+  std::unique_ptr<Stream> stream = stub->Extract(&context);
+
+  Sender sender(source, opts, stream.get());
+  absl::Status send_status;
+  std::thread send_thread([&] {
+    send_status = sender.Run();
+    if (!send_status.ok()) context.TryCancel();  // the server's stream is of no use now
+  });
+
+  StreamResult result;
+  std::string malformed;
+  uint32_t next_chunk = 0, chunk_count = 0;
+  bool have_metrics = false;
+  v1::ExtractResponse response;
+  while (stream->Read(&response)) {
+    switch (response.kind_case()) {
+      case v1::ExtractResponse::kProgress:
+        if (callbacks.on_progress) callbacks.on_progress(response.progress(), sender.slices_sent());
+        break;
+      case v1::ExtractResponse::kPreview:
+        if (callbacks.on_preview) callbacks.on_preview(response.preview(), sender.slices_sent());
+        break;
+      case v1::ExtractResponse::kFinalMesh: {
+        const v1::FinalMesh& m = response.final_mesh();
+        if (m.chunk_index() != next_chunk || (next_chunk > 0 && m.chunk_count() != chunk_count) ||
+            m.chunk_count() == 0) {
+          malformed = absl::StrCat("final mesh chunk ", m.chunk_index(), " of ", m.chunk_count(),
+                                   " arrived, expected chunk ", next_chunk);
+        }
+        chunk_count = m.chunk_count();
+        ++next_chunk;
+        result.draco += m.draco();
+        result.triangles = m.triangles();
+        result.vertices = m.vertices();
+        if (m.chunk_index() + 1 == m.chunk_count() && result.draco.size() != m.total_bytes()) {
+          malformed = absl::StrCat("final mesh has ", result.draco.size(), " bytes, the server said ",
+                                   m.total_bytes());
+        }
+        break;
+      }
+      case v1::ExtractResponse::kFinalMetrics:
+        result.metrics = response.final_metrics();
+        have_metrics = true;
+        break;
+      default:
+        break;  // a newer server's message: ignore
+    }
+  }
+  sender.Stop();
+  send_thread.join();
+  const grpc::Status status = stream->Finish();
+  result.slices_sent = sender.slices_sent();
+  result.seconds = absl::ToDoubleSeconds(absl::Now() - start);
+  if (!send_status.ok()) return send_status;
+  if (!status.ok()) return wire::FromGrpcStatus(status);
+  if (malformed.empty() && (chunk_count == 0 || next_chunk != chunk_count)) {
+    malformed = absl::StrCat("the stream ended after ", next_chunk, " of ", chunk_count,
+                             " final mesh chunks");
+  }
+  if (malformed.empty() && !have_metrics) malformed = "the stream ended without final metrics";
+  if (!malformed.empty()) {
+    return absl::DataLossError(absl::StrCat("malformed reply from ", opts.server, ": ", malformed));
+  }
+  return result;
+}
+
+}  // namespace tandem::client

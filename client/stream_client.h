@@ -1,0 +1,47 @@
+// The client side of tandem.v1.Tandem/Extract: streams a volume read through core's
+// OpenVolume slice by slice (never the whole volume in memory) and collects previews, the
+// final mesh and the final metrics.
+#ifndef TANDEM_CLIENT_STREAM_CLIENT_H_
+#define TANDEM_CLIENT_STREAM_CLIENT_H_
+
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "tandem/v1/tandem.pb.h"
+#include "tandem/volume.h"
+
+namespace tandem::client {
+
+struct StreamOptions {
+  std::string server;
+  v1::SessionConfig config;  // grid fields are filled from the volume
+  double rate = 0;           // slices per second, 0 = as fast as the server takes them
+  size_t chunk_bytes = 0;    // SliceChunk payload, > 0
+  double timeout_s = 0;      // gRPC deadline for the whole stream, 0 = none
+};
+
+// What the stream delivered. Callbacks run on the calling thread, in message order.
+struct StreamCallbacks {
+  std::function<void(const v1::Progress&, int64_t slices_sent)> on_progress;
+  std::function<void(const v1::Preview&, int64_t slices_sent)> on_preview;
+};
+
+struct StreamResult {
+  std::string draco;  // the final mesh, chunks concatenated and checked
+  int64_t triangles = 0, vertices = 0;
+  v1::FinalMetrics metrics;
+  int64_t slices_sent = 0;
+  double seconds = 0;  // wall time of the whole stream
+};
+
+// Runs one Extract stream. The error is the server's status (code and message kept), or a
+// local one (reading the volume, a malformed reply) with the file or message named.
+absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
+                                          const StreamCallbacks& callbacks);
+
+}  // namespace tandem::client
+
+#endif  // TANDEM_CLIENT_STREAM_CLIENT_H_

@@ -1,0 +1,55 @@
+// IndexedMesh <-> Draco bytes, for every mesh the service sends (previews, final mesh).
+// Lives outside core so that core stays free of Draco.
+//
+// Contract of a round trip DecodeDraco(EncodeDraco(m, o)):
+//   * exactly m.num_triangles() triangles and m.num_vertices() vertices, at every level
+//     (degenerate triangles, unreferenced vertices and non-manifold vertices included);
+//   * every coordinate within PositionTolerance(m, o.quantization_bits) of the original:
+//     the quantization step plus float32 rounding;
+//   * compression_level 0 also keeps vertex and triangle order (and corner order), so
+//     decoded vertex i is original vertex i; levels >= 1 may reorder both.
+// Encoding is deterministic: the same mesh and options give byte-identical output.
+#ifndef TANDEM_PROTO_CODEC_DRACO_CODEC_H_
+#define TANDEM_PROTO_CODEC_DRACO_CODEC_H_
+
+#include <string>
+#include <string_view>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "tandem/mesh.h"
+
+namespace tandem::codec {
+
+struct DracoOptions {
+  int quantization_bits = 16;  // position quantization, 1..30
+  // 0..10. 0 = sequential coding (fast, order kept, larger); 1..10 = Edgebreaker, where a
+  // higher level means smaller output for more encoding time (Draco speed = 10 - level).
+  int compression_level = 7;
+};
+
+// Checks the ranges above; InvalidArgument names the field.
+absl::Status ValidateDracoOptions(const DracoOptions& options);
+
+// Encodes positions (as float32) and triangles. InvalidArgument for invalid options, an
+// index out of range, more than 2^31 vertices or non-finite positions; Internal if Draco
+// fails. A mesh without triangles (empty included) is sent as a Draco point cloud, since
+// Draco's mesh decoders refuse zero faces; DecodeDraco reads it back as such a mesh.
+// Edgebreaker cannot carry some connectivity (non-manifold vertices get split, degenerate
+// faces and isolated vertices dropped); when the counts would change, the mesh is encoded
+// sequentially instead, so the contract above always holds.
+absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options = {});
+
+// Decodes a Draco mesh or point-cloud buffer (positions as 3 floats per point; a point
+// cloud gives a mesh without triangles). InvalidArgument for what is not Draco, DataLoss
+// for a buffer Draco cannot decode (e.g. truncated).
+absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes);
+
+// How far a decoded coordinate may lie from the original: Draco quantizes all three axes
+// on the largest extent of the bounding box, step = extent / (2^bits - 1), and works in
+// float32, which adds a few roundings of the largest |coordinate|. 0 for no vertices.
+double PositionTolerance(const IndexedMesh& mesh, int bits);
+
+}  // namespace tandem::codec
+
+#endif  // TANDEM_PROTO_CODEC_DRACO_CODEC_H_

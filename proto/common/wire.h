@@ -1,0 +1,48 @@
+// Conversions between core types and the tandem.v1 wire messages, shared by the server,
+// the client and the tests (one copy of each mapping).
+#ifndef TANDEM_PROTO_COMMON_WIRE_H_
+#define TANDEM_PROTO_COMMON_WIRE_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include <grpcpp/support/status.h>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "tandem/report.h"
+#include "tandem/tandem.h"
+#include "tandem/v1/tandem.pb.h"
+#include "tandem/volume.h"
+
+namespace tandem::wire {
+
+inline constexpr char kDefaultServerAddress[] = "127.0.0.1:50051";
+// Largest FinalMesh chunk the server sends (well below gRPC's 4 MiB default).
+inline constexpr size_t kFinalMeshChunkBytes = size_t{1} << 20;
+// Default SliceChunk payload of the client (an 8 MiB slice goes in 8 messages).
+inline constexpr size_t kDefaultSliceChunkBytes = size_t{1} << 20;
+// The client's limit for one response message (previews are not chunked).
+inline constexpr int kClientMaxReceiveBytes = 256 << 20;
+
+std::string ServiceVersion();  // "tandem <project version>"
+
+// DTYPE_UNSPECIFIED (and unknown values) → InvalidArgument naming `field`.
+absl::StatusOr<DType> DTypeFromProto(int value, const std::string& field);
+v1::DType DTypeToProto(DType dtype);
+// SCHEDULE_UNSPECIFIED → kTandemLag; unknown values → InvalidArgument.
+absl::StatusOr<Schedule> ScheduleFromProto(int value);
+v1::Schedule ScheduleToProto(Schedule schedule);
+
+// Every MetricsReport field (input excepted: the server does not know the file name).
+void ReportToProto(const MetricsReport& report, v1::FinalMetrics* out);
+MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
+
+// Canonical codes are numbered the same in Abseil and gRPC.
+grpc::Status ToGrpcStatus(const absl::Status& status);
+absl::Status FromGrpcStatus(const grpc::Status& status);
+
+}  // namespace tandem::wire
+
+#endif  // TANDEM_PROTO_COMMON_WIRE_H_

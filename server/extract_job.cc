@@ -1,0 +1,207 @@
+#include "server/extract_job.h"
+
+#include <algorithm>
+#include <bit>
+#include <cstring>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "codec/draco_codec.h"
+#include "common/wire.h"
+#include "tandem/distance.h"
+#include "tandem/report.h"
+
+namespace tandem::server {
+namespace {
+
+// The wire carries little-endian voxels and core reads host order: a big-endian port
+// would need a byte swap in ConsumeSlice.
+static_assert(std::endian::native == std::endian::little, "voxel bytes are little-endian");
+
+using Clock = std::chrono::steady_clock;
+double SecondsSince(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+const char* KindName(const v1::ExtractRequest& r) {
+  switch (r.kind_case()) {
+    case v1::ExtractRequest::kConfig: return "a SessionConfig";
+    case v1::ExtractRequest::kChunk: return "a SliceChunk";
+    case v1::ExtractRequest::kEnd: return "an End";
+    default: return "an empty ExtractRequest";
+  }
+}
+
+}  // namespace
+
+absl::Status ExtractJob::Handle(v1::ExtractRequest& request) {
+  switch (state_) {
+    case State::kWaitConfig:
+      if (!request.has_config()) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "the first message must be a SessionConfig, got ", KindName(request)));
+      }
+      return HandleConfig(request.config());
+    case State::kStreaming:
+      if (request.has_chunk()) return HandleChunk(*request.mutable_chunk());
+      if (request.has_end()) return HandleEnd(request.end());
+      return absl::InvalidArgumentError(absl::StrCat(
+          "expected a SliceChunk or End after the config, got ", KindName(request)));
+    case State::kDone:
+      return absl::InvalidArgumentError(absl::StrCat("got ", KindName(request), " after End"));
+  }
+  return absl::InternalError("unreachable");
+}
+
+absl::Status ExtractJob::HandleEndOfInput() const {
+  if (done()) return absl::OkStatus();
+  if (state_ == State::kWaitConfig) {
+    return absl::InvalidArgumentError("the stream ended before a SessionConfig");
+  }
+  return absl::InvalidArgumentError(absl::StrCat(
+      "the stream ended without an End marker after ", cursor_.slice,
+      " complete slices; send End after the last slice"));
+}
+
+absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
+  absl::StatusOr<JobConfig> cfg = ValidateConfig(config, limits_);
+  if (!cfg.ok()) return cfg.status();
+  config_ = *std::move(cfg);
+  auto session = TandemSession::Create(config_.grid, config_.options);
+  if (!session.ok()) return session.status();
+  session_ = *std::move(session);
+  if (config_.compute_distances) {
+    SessionOptions full = config_.options;
+    full.schedule = Schedule::kNone;
+    auto reference = TandemSession::Create(config_.grid, full);
+    if (!reference.ok()) return reference.status();
+    reference_ = *std::move(reference);
+  }
+  start_ = Clock::now();
+  state_ = State::kStreaming;
+  return absl::OkStatus();
+}
+
+absl::Status ExtractJob::HandleChunk(v1::SliceChunk& chunk) {
+  if (absl::Status st = ValidateChunk(chunk, config_, cursor_, limits_); !st.ok()) return st;
+  const size_t slice_bytes = config_.grid.slice_bytes();
+  const std::string& data = chunk.data();
+  if (cursor_.bytes_so_far == 0 && data.size() == slice_bytes) {
+    // A whole slice in one message: no copy.
+    return ConsumeSlice(reinterpret_cast<const uint8_t*>(data.data()));
+  }
+  if (slice_.size() != slice_bytes) slice_.resize(slice_bytes);
+  std::memcpy(slice_.data() + cursor_.bytes_so_far, data.data(), data.size());
+  cursor_.bytes_so_far += data.size();
+  if (cursor_.bytes_so_far < slice_bytes) return absl::OkStatus();
+  return ConsumeSlice(slice_.data());
+}
+
+absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
+  const size_t size = config_.grid.slice_bytes();
+  if (absl::Status st = ValidateSliceValues(config_, cursor_.slice, bytes, size); !st.ok()) {
+    return st;
+  }
+  for (TandemSession* s : {session_.get(), reference_.get()}) {
+    if (s == nullptr) continue;
+    if (absl::Status st = s->AddSliceBytes(config_.grid.dtype, bytes); !st.ok()) {
+      return absl::Status(st.code(), absl::StrCat("slice ", cursor_.slice, ": ",
+                                                  std::string(st.message())));
+    }
+  }
+  ++cursor_.slice;
+  cursor_.bytes_so_far = 0;
+  sink_->PostProgress(MakeProgress());
+  MaybePreview();
+  return absl::OkStatus();
+}
+
+void ExtractJob::MaybePreview() {
+  const int64_t every = config_.preview_every_slices;
+  if (every <= 0 || cursor_.slice % every != 0) return;
+  const auto now = Clock::now();
+  if (last_preview_ && now - *last_preview_ <
+                           std::chrono::milliseconds(config_.preview_min_interval_ms)) {
+    return;
+  }
+  last_preview_ = now;
+  const IndexedMesh mesh = session_->Snapshot();
+  absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, config_.draco);
+  encode_s_ += SecondsSince(now);
+  if (!bytes.ok()) return;  // a preview is best effort; the final mesh reports errors
+  v1::Preview preview;
+  preview.set_slice(cursor_.slice - 1);
+  preview.set_draco(*std::move(bytes));
+  preview.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
+  preview.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+  sink_->PostPreview(std::move(preview));
+}
+
+v1::Progress ExtractJob::MakeProgress() const {
+  v1::Progress p;
+  p.set_slices_consumed(cursor_.slice);
+  p.set_triangles(session_->num_triangles());
+  p.set_peak_triangles(std::max(session_->stats().peak_triangles, session_->num_triangles()));
+  return p;
+}
+
+absl::Status ExtractJob::HandleEnd(const v1::End& end) {
+  if (absl::Status st = ValidateEnd(end, config_, cursor_); !st.ok()) return st;
+  for (TandemSession* s : {session_.get(), reference_.get()}) {
+    if (s == nullptr) continue;
+    if (absl::Status st = s->Finish(); !st.ok()) return st;
+  }
+  const IndexedMesh mesh = session_->Snapshot();
+  MetricsReport report = MakeReport(*session_, mesh);
+  if (reference_) {
+    DistanceOptions dopt;
+    dopt.threads = 1;  // one core per session: other sessions share the machine
+    report.distance = MeasureDistances(mesh, reference_->Snapshot(), dopt);
+    reference_.reset();
+  }
+  report.peak_rss_bytes = PeakRssBytes();
+  sink_->PostProgress(MakeProgress());
+
+  const auto t0 = Clock::now();
+  absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, config_.draco);
+  encode_s_ += SecondsSince(t0);
+  if (!bytes.ok()) {
+    return absl::InternalError(absl::StrCat("encoding the final mesh: ",
+                                            std::string(bytes.status().message())));
+  }
+  const std::string& all = *bytes;
+  const size_t chunk = wire::kFinalMeshChunkBytes;
+  const size_t count = std::max<size_t>(1, (all.size() + chunk - 1) / chunk);
+  std::vector<v1::ExtractResponse> out;
+  out.reserve(count + 1);
+  for (size_t i = 0; i < count; ++i) {
+    v1::FinalMesh* m = out.emplace_back().mutable_final_mesh();
+    m->set_chunk_index(static_cast<uint32_t>(i));
+    m->set_chunk_count(static_cast<uint32_t>(count));
+    m->set_draco(all.substr(i * chunk, chunk));  // i * chunk <= size: no throw
+    m->set_total_bytes(all.size());
+    m->set_triangles(static_cast<int64_t>(mesh.num_triangles()));
+    m->set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+  }
+  v1::FinalMetrics* metrics = out.emplace_back().mutable_final_metrics();
+  wire::ReportToProto(report, metrics);
+  metrics->set_time_encode_s(encode_s_);
+  metrics->set_time_wall_s(SecondsSince(start_));
+  // bytes_received, bytes_sent and previews_sent are filled in by the transport, which
+  // alone knows what went over the wire.
+  session_.reset();  // the mesh now lives in `out`; free the session before it is sent
+  slice_ = {};
+  state_ = State::kDone;
+  final_triangles_ = static_cast<int64_t>(mesh.num_triangles());
+  sink_->PostFinal(std::move(out));
+  return absl::OkStatus();
+}
+
+size_t ExtractJob::MemoryBytes() const {
+  size_t bytes = slice_.capacity();
+  if (session_) bytes += session_->MemoryBytes();
+  if (reference_) bytes += reference_->MemoryBytes();
+  return bytes;
+}
+
+}  // namespace tandem::server

@@ -1,0 +1,79 @@
+// ExtractJob: one Extract stream's work, as a synchronous state machine driven message by
+// message on the session's worker thread (never on a gRPC thread). It owns the
+// TandemSession, assembles slices from chunks, validates everything, and hands its
+// output (progress, previews, the final mesh and metrics) to a JobSink. No gRPC here, so
+// tests can drive it directly.
+//
+// Memory: one slice buffer (nx*ny*sizeof(dtype)), the session (and, with
+// compute_distances, a second full-resolution session kept as the reference surface),
+// plus the encoded output. Never the whole volume.
+#ifndef TANDEM_SERVER_EXTRACT_JOB_H_
+#define TANDEM_SERVER_EXTRACT_JOB_H_
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "server/request_validation.h"
+#include "tandem/tandem.h"
+#include "tandem/v1/tandem.pb.h"
+
+namespace tandem::server {
+
+// Receives a job's output, on the job's thread. Progress and Preview are "latest wins":
+// the sink may drop an unsent one when a newer one arrives. Final messages must all be
+// delivered, in order (FinalMesh chunks 0..n-1, then FinalMetrics).
+class JobSink {
+ public:
+  virtual ~JobSink() = default;
+  virtual void PostProgress(v1::Progress progress) = 0;
+  virtual void PostPreview(v1::Preview preview) = 0;
+  virtual void PostFinal(std::vector<v1::ExtractResponse> messages) = 0;
+};
+
+class ExtractJob {
+ public:
+  ExtractJob(const ServerLimits& limits, JobSink* sink) : limits_(limits), sink_(sink) {}
+
+  // Handles the next message of the stream (chunk data may be moved out of `request`).
+  // A non-OK status ends the stream with that status; the job must not be used again.
+  // After End, done() is true and the final messages have been posted.
+  absl::Status Handle(v1::ExtractRequest& request);
+  // The client closed its side. Always an error unless done(): the stream needs End.
+  absl::Status HandleEndOfInput() const;
+
+  bool done() const { return state_ == State::kDone; }
+  int64_t slices() const { return cursor_.slice; }
+  int64_t triangles() const { return session_ ? session_->num_triangles() : final_triangles_; }
+  // Memory held now (sessions, slice buffer, encoded output not yet handed over).
+  size_t MemoryBytes() const;
+
+ private:
+  enum class State { kWaitConfig, kStreaming, kDone };
+  absl::Status HandleConfig(const v1::SessionConfig& config);
+  absl::Status HandleChunk(v1::SliceChunk& chunk);
+  absl::Status ConsumeSlice(const uint8_t* bytes);
+  absl::Status HandleEnd(const v1::End& end);
+  void MaybePreview();
+  v1::Progress MakeProgress() const;
+
+  ServerLimits limits_;
+  JobSink* sink_;
+  State state_ = State::kWaitConfig;
+  JobConfig config_;
+  std::unique_ptr<TandemSession> session_;
+  std::unique_ptr<TandemSession> reference_;  // full resolution, for compute_distances
+  SliceCursor cursor_;
+  std::vector<uint8_t> slice_;  // assembly buffer, used when a slice comes in pieces
+  std::chrono::steady_clock::time_point start_;
+  std::optional<std::chrono::steady_clock::time_point> last_preview_;
+  double encode_s_ = 0;
+  int64_t final_triangles_ = 0;
+};
+
+}  // namespace tandem::server
+
+#endif  // TANDEM_SERVER_EXTRACT_JOB_H_

@@ -1,0 +1,210 @@
+#include "server/request_validation.h"
+
+#include <cmath>
+#include <cstring>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "common/wire.h"
+
+namespace tandem::server {
+namespace {
+
+std::string SliceShape(const VolumeInfo& g) {
+  return absl::StrCat(g.nx, " x ", g.ny, " x ", std::string(DTypeName(g.dtype)), " = ",
+                      g.slice_bytes(), " bytes");
+}
+
+absl::Status Prefixed(const std::string& prefix, const absl::Status& st) {
+  if (st.ok()) return st;
+  return absl::Status(st.code(), absl::StrCat(prefix, std::string(st.message())));
+}
+
+}  // namespace
+
+absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const ServerLimits& limits) {
+  JobConfig out;
+  VolumeInfo& g = out.grid;
+  if (c.nx() < 2 || c.ny() < 2) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.nx = ", c.nx(), ", config.ny = ", c.ny(), ": a slice needs at least 2 x 2 voxels"));
+  }
+  if (c.nz() < 0 || c.nz() == 1) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.nz = ", c.nz(), ": give the number of slices (>= 2), or 0 if it is unknown"));
+  }
+  // Compare factor by factor first so that nx * ny cannot overflow.
+  if (c.nx() > limits.max_voxels_per_slice || c.ny() > limits.max_voxels_per_slice ||
+      c.nx() * c.ny() > limits.max_voxels_per_slice) {
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "config.nx x config.ny = ", c.nx(), " x ", c.ny(), " voxels per slice exceeds this server's limit of ",
+        limits.max_voxels_per_slice, " (tandem-server --max-voxels-per-slice)"));
+  }
+  if (c.nz() > limits.max_slices) {
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "config.nz = ", c.nz(), " exceeds this server's limit of ", limits.max_slices,
+        " slices (tandem-server --max-slices)"));
+  }
+  g.nx = c.nx();
+  g.ny = c.ny();
+  g.nz = c.nz();
+  absl::StatusOr<DType> dtype = wire::DTypeFromProto(c.dtype(), "config.dtype");
+  if (!dtype.ok()) return dtype.status();
+  g.dtype = *dtype;
+  for (auto [field, values, target] :
+       {std::tuple{"config.spacing", &c.spacing(), &g.spacing},
+        std::tuple{"config.origin", &c.origin(), &g.origin}}) {
+    if (values->empty()) continue;
+    if (values->size() != 3) {
+      return absl::InvalidArgumentError(absl::StrCat(field, " has ", values->size(),
+                                                     " values; give 3 (x, y, z) or none"));
+    }
+    for (int a = 0; a < 3; ++a) (*target)[a] = values->Get(a);
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (!std::isfinite(g.spacing[a]) || g.spacing[a] <= 0) {
+      return absl::InvalidArgumentError(absl::StrCat("config.spacing[", a, "] = ", g.spacing[a],
+                                                     ": must be finite and > 0"));
+    }
+    if (!std::isfinite(g.origin[a])) {
+      return absl::InvalidArgumentError(absl::StrCat("config.origin[", a, "] is not finite"));
+    }
+  }
+  g.description = c.description();
+  if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return Prefixed("config: ", st);
+
+  SessionOptions& o = out.options;
+  absl::StatusOr<Schedule> schedule = wire::ScheduleFromProto(c.schedule());
+  if (!schedule.ok()) return schedule.status();
+  o.schedule = *schedule;
+  o.iso = c.iso();
+  o.error = c.error();
+  o.alpha = c.alpha();
+  o.target_triangles = c.target_triangles();
+  if (!std::isfinite(o.iso)) {
+    return absl::InvalidArgumentError("config.iso is not a finite number");
+  }
+  if (o.schedule != Schedule::kNone && !(o.error > 0 && std::isfinite(o.error))) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.error (E0) = ", o.error,
+        ": must be a finite number > 0 in physical units (e.g. 0.5 x the voxel spacing)"));
+  }
+  if (!(o.alpha >= 0 && o.alpha <= 1)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("config.alpha = ", o.alpha, ": the isotropy parameter must lie in [0, 1]"));
+  }
+  if (o.target_triangles < 0) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.target_triangles = ", o.target_triangles, ": must be >= 0 (0 = no target)"));
+  }
+  if (absl::Status st = o.Validate(); !st.ok()) return Prefixed("config: ", st);
+
+  out.preview_every_slices = c.preview().every_slices();
+  out.preview_min_interval_ms = c.preview().min_interval_ms();
+  out.draco.quantization_bits =
+      c.draco().quantization_bits() == 0 ? 16 : static_cast<int>(c.draco().quantization_bits());
+  if (c.draco().has_compression_level()) out.draco.compression_level = c.draco().compression_level();
+  if (absl::Status st = codec::ValidateDracoOptions(out.draco); !st.ok()) {
+    return Prefixed("config.draco.", st);
+  }
+  out.compute_distances = c.compute_distances();
+  out.description = c.description();
+  return out;
+}
+
+absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
+                           const SliceCursor& cursor, const ServerLimits& limits) {
+  const VolumeInfo& g = config.grid;
+  const uint64_t slice_bytes = g.slice_bytes();
+  const int64_t z = chunk.slice();
+  if (chunk.dtype() != v1::DTYPE_UNSPECIFIED && chunk.dtype() != wire::DTypeToProto(g.dtype)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", z, ": chunk.dtype ", v1::DType_Name(chunk.dtype()), " does not match config.dtype ",
+        v1::DType_Name(wire::DTypeToProto(g.dtype))));
+  }
+  if (chunk.slice_size() != 0 && chunk.slice_size() != slice_bytes) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", z, ": wrong slice size: chunk.slice_size = ", chunk.slice_size(),
+        " bytes, but the config's grid needs ", SliceShape(g)));
+  }
+  if (z < cursor.slice) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", z, " repeated: slices 0..", cursor.slice - 1, " are complete; expected slice ",
+        cursor.slice));
+  }
+  if (z > cursor.slice) {
+    if (cursor.bytes_so_far > 0) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "slice ", z, " started before slice ", cursor.slice, " was complete (got ",
+          cursor.bytes_so_far, " of ", SliceShape(g), "): wrong slice size?"));
+    }
+    return absl::InvalidArgumentError(
+        absl::StrCat("slice ", z, " out of order: expected slice ", cursor.slice));
+  }
+  if (g.nz > 0 && z >= g.nz) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("slice ", z, " is past the declared config.nz = ", g.nz));
+  }
+  if (z >= limits.max_slices) {
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "slice ", z, " exceeds this server's limit of ", limits.max_slices,
+        " slices (tandem-server --max-slices)"));
+  }
+  if (chunk.offset() >= slice_bytes) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", z, ": chunk.offset = ", chunk.offset(), " is past the end of the slice (",
+        SliceShape(g), ")"));
+  }
+  if (chunk.offset() != cursor.bytes_so_far) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", z, ": chunk.offset = ", chunk.offset(), ", expected ", cursor.bytes_so_far,
+        " (chunks of a slice must be sent in order, without gaps or overlaps)"));
+  }
+  if (chunk.offset() + chunk.data().size() > slice_bytes) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", z, ": wrong slice size: a chunk of ", chunk.data().size(), " bytes at offset ",
+        chunk.offset(), " runs past the end of the slice (", SliceShape(g), ")"));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ValidateSliceValues(const JobConfig& config, int64_t slice, const uint8_t* bytes,
+                                 size_t size) {
+  if (config.grid.dtype != DType::kFloat32) return absl::OkStatus();
+  const size_t n = size / sizeof(float);
+  for (size_t i = 0; i < n; ++i) {
+    float v;
+    std::memcpy(&v, bytes + i * sizeof(float), sizeof v);  // the buffer may be unaligned
+    if (!std::isfinite(v)) {
+      const int64_t nx = config.grid.nx;
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "slice %d: voxel (i=%d, j=%d) is %s; float32 volumes must hold finite values", slice,
+          static_cast<int64_t>(i) % nx, static_cast<int64_t>(i) / nx,
+          std::isnan(v) ? "NaN" : "infinite"));
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ValidateEnd(const v1::End& end, const JobConfig& config, const SliceCursor& cursor) {
+  if (cursor.bytes_so_far > 0) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "End arrived inside slice ", cursor.slice, " (got ", cursor.bytes_so_far, " of ",
+        SliceShape(config.grid), ")"));
+  }
+  if (end.slices() > 0 && end.slices() != cursor.slice) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "End.slices = ", end.slices(), " but the server received ", cursor.slice, " slices"));
+  }
+  if (config.grid.nz > 0 && cursor.slice != config.grid.nz) {
+    return absl::InvalidArgumentError(absl::StrCat("End after ", cursor.slice,
+                                                   " slices but config.nz = ", config.grid.nz));
+  }
+  if (cursor.slice < 2) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("End after ", cursor.slice, " slice(s): at least 2 are needed"));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace tandem::server

@@ -1,0 +1,69 @@
+// Turns untrusted tandem.v1 requests into core options, or into a Status a person can act
+// on. Pure functions of the messages and the server's limits: no gRPC, no threads.
+//
+// Codes: INVALID_ARGUMENT for malformed or inconsistent input, RESOURCE_EXHAUSTED when a
+// well-formed request exceeds this server's limits (the message names the flag to raise).
+// Field names in messages are the proto's ("config.error", "chunk.offset").
+#ifndef TANDEM_SERVER_REQUEST_VALIDATION_H_
+#define TANDEM_SERVER_REQUEST_VALIDATION_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "codec/draco_codec.h"
+#include "tandem/tandem.h"
+#include "tandem/v1/tandem.pb.h"
+#include "tandem/volume.h"
+
+namespace tandem::server {
+
+// Operator-set limits (tandem-server flags of the same names).
+struct ServerLimits {
+  int64_t max_voxels_per_slice = int64_t{4096} * 4096;  // --max-voxels-per-slice
+  int64_t max_slices = 16384;                           // --max-slices
+  int max_sessions = 8;                                 // --max-sessions
+  int64_t max_message_bytes = int64_t{16} << 20;        // --max-message-bytes
+  double idle_timeout_s = 300;                          // --idle-timeout-seconds
+};
+
+// Everything a job needs, checked.
+struct JobConfig {
+  VolumeInfo grid;  // nz = 0 when unknown
+  SessionOptions options;
+  codec::DracoOptions draco;
+  int64_t preview_every_slices = 0;  // 0 = no previews
+  int64_t preview_min_interval_ms = 0;
+  bool compute_distances = false;
+  std::string description;
+};
+
+// Checks every field of the first message (see tandem.proto for the rules and defaults).
+absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& config,
+                                         const ServerLimits& limits);
+
+// Where the assembly of the current slice stands.
+struct SliceCursor {
+  int64_t slice = 0;          // index of the slice being assembled (= complete slices)
+  uint64_t bytes_so_far = 0;  // bytes of it received
+};
+
+// Checks one chunk against the cursor: dtype and slice_size when given, slice index (no
+// repeat, no gap, not past nz or --max-slices), offset contiguous, end within the slice.
+absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
+                           const SliceCursor& cursor, const ServerLimits& limits);
+
+// For float32 slices: every voxel finite (the message gives the first bad voxel's i, j).
+// Other dtypes always pass. `bytes` holds one complete slice.
+absl::Status ValidateSliceValues(const JobConfig& config, int64_t slice, const uint8_t* bytes,
+                                 size_t size);
+
+// Checks the End marker: no partial slice, End.slices (when > 0) and the declared nz
+// match the slices received, at least 2 slices.
+absl::Status ValidateEnd(const v1::End& end, const JobConfig& config, const SliceCursor& cursor);
+
+}  // namespace tandem::server
+
+#endif  // TANDEM_SERVER_REQUEST_VALIDATION_H_

@@ -1,0 +1,111 @@
+// FlagSet, the parser both binaries use: forms, defaults in --help, environment fallback.
+#include "common/cli_flags.h"
+
+#include <cstdlib>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+namespace tandem::cli {
+namespace {
+
+struct Args {
+  explicit Args(std::vector<std::string> a) : strings(std::move(a)) {
+    for (std::string& s : strings) ptrs.push_back(s.data());
+  }
+  int argc() const { return static_cast<int>(ptrs.size()); }
+  char** argv() { return ptrs.data(); }
+  std::vector<std::string> strings;
+  std::vector<char*> ptrs;
+};
+
+TEST(FlagSet, ParsesEveryFormAndKeepsDefaults) {
+  std::string s = "a";
+  int64_t n = 3;
+  double x = 0.5;
+  bool b = false, c = false;
+  FlagSet flags("usage");
+  flags.AddString("name", &s, "S", "a string");
+  flags.AddInt("count", &n, "an int");
+  flags.AddDouble("ratio", &x, "a double");
+  flags.AddBool("on", &b, "a bool");
+  flags.AddBool("off", &c, "another bool");
+  Args args({"prog", "--name", "zz", "--count=7", "--on", "--off=false", "pos"});
+  ASSERT_TRUE(flags.Parse(args.argc(), args.argv()).ok());
+  EXPECT_EQ(s, "zz");
+  EXPECT_EQ(n, 7);
+  EXPECT_EQ(x, 0.5);
+  EXPECT_TRUE(b);
+  EXPECT_FALSE(c);
+  EXPECT_TRUE(flags.IsSet("count"));
+  EXPECT_FALSE(flags.IsSet("ratio"));
+  EXPECT_EQ(flags.positional(), std::vector<std::string>{"pos"});
+}
+
+TEST(FlagSet, HelpListsEveryFlagWithItsDefault) {
+  std::string s = "127.0.0.1:50051";
+  int64_t n = 8;
+  double x = 0;
+  FlagSet flags("usage: prog");
+  flags.AddString("listen", &s, "HOST:PORT", "where");
+  flags.AddInt("max-sessions", &n, "how many");
+  flags.AddDouble("iso", &x, "iso-value", /*required=*/true);
+  flags.UseEnvironment("TANDEM_", {"max-sessions"});
+  const std::string help = flags.Help();
+  EXPECT_NE(help.find("--listen HOST:PORT"), std::string::npos) << help;
+  EXPECT_NE(help.find("(default: 127.0.0.1:50051)"), std::string::npos) << help;
+  EXPECT_NE(help.find("(default: 8) [$TANDEM_MAX_SESSIONS]"), std::string::npos) << help;
+  EXPECT_NE(help.find("--iso X"), std::string::npos) << help;
+  EXPECT_NE(help.find("(required)"), std::string::npos) << help;
+}
+
+TEST(FlagSet, ErrorsNameTheFlag) {
+  int64_t n = 0;
+  double x = 0;
+  FlagSet flags("usage");
+  flags.AddInt("count", &n, "an int");
+  flags.AddDouble("iso", &x, "required", /*required=*/true);
+  Args unknown({"prog", "--nope", "1"});
+  EXPECT_EQ(flags.Parse(unknown.argc(), unknown.argv()).message(), "unknown flag --nope (see --help)");
+  FlagSet f2("usage");
+  f2.AddInt("count", &n, "an int");
+  Args bad({"prog", "--count", "seven"});
+  EXPECT_EQ(f2.Parse(bad.argc(), bad.argv()).message(),
+            "--count: cannot read 'seven' as an integer");
+  FlagSet f3("usage");
+  f3.AddDouble("iso", &x, "required", /*required=*/true);
+  Args none({"prog"});
+  EXPECT_EQ(f3.Parse(none.argc(), none.argv()).message(), "missing --iso (see --help)");
+  FlagSet f4("usage");
+  f4.AddDouble("iso", &x, "required", /*required=*/true);
+  Args help({"prog", "--help"});
+  EXPECT_TRUE(f4.Parse(help.argc(), help.argv()).ok());
+  EXPECT_TRUE(f4.help_requested());
+}
+
+TEST(FlagSet, CommandLineBeatsEnvironmentWhichBeatsDefault) {
+  setenv("TANDEMTEST_MAX_SESSIONS", "4", 1);
+  setenv("TANDEMTEST_GRACE_SECONDS", "2.5", 1);
+  int64_t sessions = 8;
+  double grace = 10;
+  FlagSet flags("usage");
+  flags.AddInt("max-sessions", &sessions, "n");
+  flags.AddDouble("grace-seconds", &grace, "s");
+  flags.UseEnvironment("TANDEMTEST_");
+  Args args({"prog", "--grace-seconds", "1"});
+  ASSERT_TRUE(flags.Parse(args.argc(), args.argv()).ok());
+  EXPECT_EQ(sessions, 4);
+  EXPECT_EQ(grace, 1);
+  setenv("TANDEMTEST_MAX_SESSIONS", "many", 1);
+  FlagSet again("usage");
+  again.AddInt("max-sessions", &sessions, "n");
+  again.UseEnvironment("TANDEMTEST_");
+  Args plain({"prog"});
+  EXPECT_EQ(again.Parse(plain.argc(), plain.argv()).message(),
+            "TANDEMTEST_MAX_SESSIONS: cannot read 'many' as an integer");
+  unsetenv("TANDEMTEST_MAX_SESSIONS");
+  unsetenv("TANDEMTEST_GRACE_SECONDS");
+}
+
+}  // namespace
+}  // namespace tandem::cli

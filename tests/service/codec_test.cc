@@ -1,0 +1,188 @@
+// The Draco codec: counts kept exactly at every level, positions within the quantization
+// step, order kept at level 0, deterministic output, clear errors on bad input.
+#include "codec/draco_codec.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <gtest/gtest.h>
+
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+
+namespace tandem::codec {
+namespace {
+
+IndexedMesh SphereMesh(Schedule schedule, int64_t n = 32) {
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  SessionOptions options;
+  options.schedule = schedule;
+  options.error = 0.3;
+  auto session = RunSession(*source, options);
+  EXPECT_TRUE(session.ok()) << session.status();
+  return (*session)->Snapshot();
+}
+
+// Largest per-coordinate difference between vertex i of a and vertex i of b.
+double MaxIndexwiseError(const IndexedMesh& a, const IndexedMesh& b) {
+  double worst = 0;
+  for (size_t i = 0; i < a.num_vertices(); ++i) {
+    for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(a.positions[i][c] - b.positions[i][c]));
+  }
+  return worst;
+}
+
+// Sorted positions, so reordered meshes can be compared coordinate-set-wise.
+double MaxSortedError(const IndexedMesh& a, const IndexedMesh& b) {
+  auto sorted = [](std::vector<Vec3> v) {
+    std::sort(v.begin(), v.end(), [](const Vec3& p, const Vec3& q) {
+      return std::tie(p.x, p.y, p.z) < std::tie(q.x, q.y, q.z);
+    });
+    return v;
+  };
+  double worst = 0;
+  std::vector<Vec3> sa = sorted(a.positions), sb = sorted(b.positions);
+  for (int c = 0; c < 3; ++c) {
+    std::vector<double> ca, cb;
+    for (const Vec3& p : sa) ca.push_back(p[c]);
+    for (const Vec3& p : sb) cb.push_back(p[c]);
+    std::sort(ca.begin(), ca.end());
+    std::sort(cb.begin(), cb.end());
+    for (size_t i = 0; i < ca.size(); ++i) worst = std::max(worst, std::abs(ca[i] - cb[i]));
+  }
+  return worst;
+}
+
+TEST(DracoCodec, SequentialLevelKeepsOrderAndPositions) {
+  for (Schedule schedule : {Schedule::kNone, Schedule::kTandemLag}) {
+    const IndexedMesh mesh = SphereMesh(schedule);
+    ASSERT_GT(mesh.num_triangles(), 100u);
+    for (int bits : {11, 16, 24}) {
+      auto bytes = EncodeDraco(mesh, {bits, 0});
+      ASSERT_TRUE(bytes.ok()) << bytes.status();
+      auto decoded = DecodeDraco(*bytes);
+      ASSERT_TRUE(decoded.ok()) << decoded.status();
+      EXPECT_EQ(decoded->num_triangles(), mesh.num_triangles());
+      EXPECT_EQ(decoded->num_vertices(), mesh.num_vertices());
+      EXPECT_EQ(decoded->indices, mesh.indices) << "level 0 keeps the triangle list as is";
+      EXPECT_LE(MaxIndexwiseError(mesh, *decoded), PositionTolerance(mesh, bits)) << bits;
+    }
+  }
+}
+
+TEST(DracoCodec, EdgebreakerKeepsCountsAndPositionsWithinStep) {
+  for (Schedule schedule : {Schedule::kNone, Schedule::kTandemLag}) {
+    const IndexedMesh mesh = SphereMesh(schedule);
+    for (int level : {1, 7, 10}) {
+      auto bytes = EncodeDraco(mesh, {16, level});
+      ASSERT_TRUE(bytes.ok()) << bytes.status();
+      auto decoded = DecodeDraco(*bytes);
+      ASSERT_TRUE(decoded.ok()) << decoded.status();
+      EXPECT_EQ(decoded->num_triangles(), mesh.num_triangles()) << level;
+      EXPECT_EQ(decoded->num_vertices(), mesh.num_vertices()) << level;
+      // Sorting each coordinate separately pairs values up in the only order-free way.
+      EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, 16)) << level;
+    }
+  }
+}
+
+TEST(DracoCodec, EdgebreakerIsSmallerThanSequential) {
+  const IndexedMesh mesh = SphereMesh(Schedule::kNone);
+  auto seq = EncodeDraco(mesh, {16, 0});
+  auto eb = EncodeDraco(mesh, {16, 7});
+  ASSERT_TRUE(seq.ok() && eb.ok());
+  EXPECT_LT(eb->size(), seq->size());
+}
+
+TEST(DracoCodec, SameInputGivesIdenticalBytes) {
+  const IndexedMesh mesh = SphereMesh(Schedule::kTandemLag);
+  const IndexedMesh copy = mesh;
+  for (int level : {0, 7}) {
+    auto a = EncodeDraco(mesh, {16, level});
+    auto b = EncodeDraco(copy, {16, level});
+    ASSERT_TRUE(a.ok() && b.ok());
+    EXPECT_EQ(*a, *b) << level;
+  }
+}
+
+// Connectivity Edgebreaker cannot carry as is: the encoder must keep the counts anyway.
+TEST(DracoCodec, AwkwardConnectivityKeepsCounts) {
+  IndexedMesh bowtie;  // two triangles sharing one vertex only: a non-manifold vertex
+  bowtie.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}, {0, -1, 0}};
+  bowtie.indices = {0, 1, 2, 0, 3, 4};
+  IndexedMesh isolated = bowtie;  // plus a vertex no triangle uses
+  isolated.positions.push_back({5, 5, 5});
+  IndexedMesh degenerate = bowtie;  // plus a triangle with a repeated corner
+  degenerate.indices.insert(degenerate.indices.end(), {1, 1, 2});
+  IndexedMesh duplicate;  // two vertices at the same place, not merged
+  duplicate.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 0}, {1, 0, 1}};
+  duplicate.indices = {0, 1, 2, 3, 2, 4};
+  IndexedMesh fan;  // three triangles on one edge: a non-manifold edge
+  fan.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}};
+  fan.indices = {0, 1, 2, 1, 0, 3, 0, 1, 4};
+  IndexedMesh single;
+  single.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  single.indices = {0, 1, 2};
+  IndexedMesh points;  // vertices, no triangles
+  points.positions = {{0, 0, 0}, {1, 2, 3}};
+  const IndexedMesh empty;
+  for (const auto& [name, mesh] :
+       {std::pair{"bowtie", bowtie}, std::pair{"isolated", isolated},
+        std::pair{"degenerate", degenerate}, std::pair{"duplicate", duplicate},
+        std::pair{"fan", fan}, std::pair{"single", single}, std::pair{"points", points},
+        std::pair{"empty", empty}}) {
+    for (int level : {0, 7}) {
+      auto bytes = EncodeDraco(mesh, {16, level});
+      ASSERT_TRUE(bytes.ok()) << name << ": " << bytes.status();
+      auto decoded = DecodeDraco(*bytes);
+      ASSERT_TRUE(decoded.ok()) << name << ": " << decoded.status();
+      EXPECT_EQ(decoded->num_triangles(), mesh.num_triangles()) << name << " level " << level;
+      EXPECT_EQ(decoded->num_vertices(), mesh.num_vertices()) << name << " level " << level;
+      if (decoded->num_vertices() == mesh.num_vertices()) {
+        EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, 16)) << name << " level " << level;
+      }
+    }
+  }
+}
+
+TEST(DracoCodec, RejectsBadMeshesAndOptions) {
+  IndexedMesh bad;
+  bad.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  bad.indices = {0, 1, 3};
+  EXPECT_EQ(EncodeDraco(bad).status().code(), absl::StatusCode::kInvalidArgument);
+  bad.indices = {0, 1};
+  EXPECT_EQ(EncodeDraco(bad).status().code(), absl::StatusCode::kInvalidArgument);
+  bad.indices = {0, 1, 2};
+  bad.positions[1].x = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(EncodeDraco(bad).status().code(), absl::StatusCode::kInvalidArgument);
+  const IndexedMesh ok = SphereMesh(Schedule::kTandemLag, 12);
+  EXPECT_EQ(EncodeDraco(ok, {0, 7}).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(EncodeDraco(ok, {31, 7}).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(EncodeDraco(ok, {16, 11}).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(EncodeDraco(ok, {16, -1}).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST(DracoCodec, RejectsGarbageAndTruncatedBuffers) {
+  EXPECT_FALSE(DecodeDraco("").ok());
+  EXPECT_FALSE(DecodeDraco("definitely not draco").ok());
+  const IndexedMesh mesh = SphereMesh(Schedule::kTandemLag, 16);
+  auto bytes = EncodeDraco(mesh);
+  ASSERT_TRUE(bytes.ok());
+  for (size_t keep : {size_t{10}, bytes->size() / 2, bytes->size() - 1}) {
+    auto decoded = DecodeDraco(std::string_view(*bytes).substr(0, keep));
+    EXPECT_FALSE(decoded.ok() && decoded->num_triangles() == mesh.num_triangles())
+        << "a buffer cut to " << keep << " bytes must not decode to the whole mesh";
+  }
+}
+
+TEST(DracoCodec, PositionToleranceIsTheStepOfTheLargestExtentPlusRounding) {
+  IndexedMesh m;
+  m.positions = {{0, 0, 0}, {2, 1, 0.5}};
+  const double rounding = 4 * 2 * static_cast<double>(std::numeric_limits<float>::epsilon());
+  EXPECT_DOUBLE_EQ(PositionTolerance(m, 16), 2.0 / 65535 + rounding);
+  EXPECT_EQ(PositionTolerance(IndexedMesh{}, 16), 0);
+}
+
+}  // namespace
+}  // namespace tandem::codec

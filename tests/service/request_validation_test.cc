@@ -1,0 +1,371 @@
+// request_validation (proto → core options or a Status) and ExtractJob driven directly,
+// without gRPC: codes, messages a person can act on, cadence, and the final mesh being
+// exactly the local session's.
+#include "server/request_validation.h"
+
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "codec/draco_codec.h"
+#include "common/wire.h"
+#include "server/extract_job.h"
+#include "tandem/distance.h"
+#include "tandem/report.h"
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+
+namespace tandem::server {
+namespace {
+
+using ::testing::HasSubstr;
+
+v1::SessionConfig GoodConfig() {
+  v1::SessionConfig c;
+  c.set_nx(16);
+  c.set_ny(12);
+  c.set_nz(10);
+  c.set_dtype(v1::DTYPE_INT16);
+  c.set_iso(100);
+  c.set_error(0.5);
+  c.set_alpha(0.25);
+  return c;
+}
+
+void ExpectError(const absl::Status& st, absl::StatusCode code, const std::string& text) {
+  EXPECT_EQ(st.code(), code) << st;
+  EXPECT_THAT(std::string(st.message()), HasSubstr(text));
+}
+
+TEST(ValidateConfig, AcceptsAGoodConfigAndAppliesDefaults) {
+  auto cfg = ValidateConfig(GoodConfig(), ServerLimits{});
+  ASSERT_TRUE(cfg.ok()) << cfg.status();
+  EXPECT_EQ(cfg->grid.nx, 16);
+  EXPECT_EQ(cfg->grid.dtype, DType::kInt16);
+  EXPECT_EQ(cfg->grid.spacing[2], 1.0);
+  EXPECT_EQ(cfg->options.schedule, Schedule::kTandemLag);
+  EXPECT_EQ(cfg->options.alpha, 0.25);
+  EXPECT_EQ(cfg->draco.quantization_bits, 16);
+  EXPECT_EQ(cfg->draco.compression_level, 7);
+  EXPECT_EQ(cfg->preview_every_slices, 0);
+}
+
+TEST(ValidateConfig, ReadsSpacingOriginAndDraco) {
+  v1::SessionConfig c = GoodConfig();
+  for (double s : {3.2, 3.2, 1.5}) c.add_spacing(s);
+  for (double o : {-1.0, 2.0, 3.0}) c.add_origin(o);
+  c.mutable_draco()->set_quantization_bits(12);
+  c.mutable_draco()->set_compression_level(0);
+  c.mutable_preview()->set_every_slices(4);
+  c.mutable_preview()->set_min_interval_ms(250);
+  auto cfg = ValidateConfig(c, ServerLimits{});
+  ASSERT_TRUE(cfg.ok()) << cfg.status();
+  EXPECT_EQ(cfg->grid.spacing[2], 1.5);
+  EXPECT_EQ(cfg->grid.origin[0], -1.0);
+  EXPECT_EQ(cfg->draco.quantization_bits, 12);
+  EXPECT_EQ(cfg->draco.compression_level, 0);
+  EXPECT_EQ(cfg->preview_every_slices, 4);
+  EXPECT_EQ(cfg->preview_min_interval_ms, 250);
+}
+
+TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
+  const ServerLimits limits;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  struct Case {
+    std::function<void(v1::SessionConfig*)> edit;
+    absl::StatusCode code;
+    std::string text;
+  };
+  const std::vector<Case> cases = {
+      {[](auto* c) { c->set_nx(1); }, absl::StatusCode::kInvalidArgument, "at least 2 x 2"},
+      {[](auto* c) { c->set_ny(-5); }, absl::StatusCode::kInvalidArgument, "config.ny = -5"},
+      {[](auto* c) { c->set_nz(1); }, absl::StatusCode::kInvalidArgument, "config.nz = 1"},
+      {[](auto* c) { c->set_dtype(v1::DTYPE_UNSPECIFIED); }, absl::StatusCode::kInvalidArgument,
+       "config.dtype is unset"},
+      {[](auto* c) { c->set_dtype(static_cast<v1::DType>(42)); },
+       absl::StatusCode::kInvalidArgument, "unknown value 42"},
+      {[](auto* c) { c->add_spacing(1); }, absl::StatusCode::kInvalidArgument, "give 3"},
+      {[](auto* c) {
+         for (double s : {1.0, 0.0, 1.0}) c->add_spacing(s);
+       },
+       absl::StatusCode::kInvalidArgument, "config.spacing[1]"},
+      {[nan](auto* c) {
+         for (double o : {0.0, 0.0, nan}) c->add_origin(o);
+       },
+       absl::StatusCode::kInvalidArgument, "config.origin[2]"},
+      {[nan](auto* c) { c->set_iso(nan); }, absl::StatusCode::kInvalidArgument, "config.iso"},
+      {[](auto* c) { c->set_error(0); }, absl::StatusCode::kInvalidArgument, "config.error (E0)"},
+      {[](auto* c) { c->set_error(-1); }, absl::StatusCode::kInvalidArgument, "config.error (E0)"},
+      {[](auto* c) { c->set_alpha(1.5); }, absl::StatusCode::kInvalidArgument, "config.alpha"},
+      {[](auto* c) { c->set_alpha(-0.1); }, absl::StatusCode::kInvalidArgument, "[0, 1]"},
+      {[](auto* c) { c->set_target_triangles(-3); }, absl::StatusCode::kInvalidArgument,
+       "config.target_triangles"},
+      {[](auto* c) { c->set_schedule(static_cast<v1::Schedule>(9)); },
+       absl::StatusCode::kInvalidArgument, "config.schedule"},
+      {[](auto* c) { c->mutable_draco()->set_quantization_bits(31); },
+       absl::StatusCode::kInvalidArgument, "config.draco.quantization_bits"},
+      {[](auto* c) { c->mutable_draco()->set_compression_level(11); },
+       absl::StatusCode::kInvalidArgument, "config.draco.compression_level"},
+      {[](auto* c) {
+         c->set_nx(5000);
+         c->set_ny(5000);
+       },
+       absl::StatusCode::kResourceExhausted, "--max-voxels-per-slice"},
+      {[](auto* c) {
+         c->set_nx(int64_t{1} << 40);
+         c->set_ny(int64_t{1} << 40);
+       },
+       absl::StatusCode::kResourceExhausted, "--max-voxels-per-slice"},
+      {[](auto* c) { c->set_nz(100000); }, absl::StatusCode::kResourceExhausted, "--max-slices"},
+  };
+  for (size_t i = 0; i < cases.size(); ++i) {
+    v1::SessionConfig c = GoodConfig();
+    cases[i].edit(&c);
+    SCOPED_TRACE(::testing::Message() << "case " << i << ": " << c.ShortDebugString());
+    ExpectError(ValidateConfig(c, limits).status(), cases[i].code, cases[i].text);
+  }
+}
+
+TEST(ValidateConfig, ScheduleNoneNeedsNoErrorThreshold) {
+  v1::SessionConfig c = GoodConfig();
+  c.set_schedule(v1::SCHEDULE_NONE);
+  c.set_error(0);
+  EXPECT_TRUE(ValidateConfig(c, ServerLimits{}).ok());
+}
+
+TEST(ValidateChunk, ChecksIndexOffsetSizeAndDtype) {
+  auto cfg = ValidateConfig(GoodConfig(), ServerLimits{});  // 16 x 12 int16: 384 bytes
+  ASSERT_TRUE(cfg.ok());
+  const ServerLimits limits;
+  auto chunk = [](int64_t z, uint64_t offset, size_t size) {
+    v1::SliceChunk c;
+    c.set_slice(z);
+    c.set_offset(offset);
+    c.set_data(std::string(size, '\0'));
+    return c;
+  };
+  EXPECT_TRUE(ValidateChunk(chunk(0, 0, 384), *cfg, {0, 0}, limits).ok());
+  EXPECT_TRUE(ValidateChunk(chunk(3, 100, 284), *cfg, {3, 100}, limits).ok());
+  ExpectError(ValidateChunk(chunk(2, 0, 384), *cfg, {3, 0}, limits),
+              absl::StatusCode::kInvalidArgument, "slice 2 repeated");
+  ExpectError(ValidateChunk(chunk(5, 0, 384), *cfg, {3, 0}, limits),
+              absl::StatusCode::kInvalidArgument, "out of order: expected slice 3");
+  ExpectError(ValidateChunk(chunk(4, 0, 384), *cfg, {3, 100}, limits),
+              absl::StatusCode::kInvalidArgument, "before slice 3 was complete");
+  ExpectError(ValidateChunk(chunk(3, 500, 10), *cfg, {3, 100}, limits),
+              absl::StatusCode::kInvalidArgument, "past the end of the slice");
+  ExpectError(ValidateChunk(chunk(3, 50, 10), *cfg, {3, 100}, limits),
+              absl::StatusCode::kInvalidArgument, "expected 100");
+  ExpectError(ValidateChunk(chunk(3, 100, 300), *cfg, {3, 100}, limits),
+              absl::StatusCode::kInvalidArgument, "wrong slice size");
+  ExpectError(ValidateChunk(chunk(10, 0, 384), *cfg, {10, 0}, limits),
+              absl::StatusCode::kInvalidArgument, "past the declared config.nz = 10");
+  v1::SliceChunk typed = chunk(0, 0, 384);
+  typed.set_dtype(v1::DTYPE_FLOAT32);
+  ExpectError(ValidateChunk(typed, *cfg, {0, 0}, limits), absl::StatusCode::kInvalidArgument,
+              "does not match config.dtype DTYPE_INT16");
+  v1::SliceChunk sized = chunk(0, 0, 384);
+  sized.set_slice_size(768);
+  ExpectError(ValidateChunk(sized, *cfg, {0, 0}, limits), absl::StatusCode::kInvalidArgument,
+              "16 x 12 x int16 = 384 bytes");
+  ServerLimits few;
+  few.max_slices = 3;
+  cfg->grid.nz = 0;
+  ExpectError(ValidateChunk(chunk(3, 0, 384), *cfg, {3, 0}, few),
+              absl::StatusCode::kResourceExhausted, "--max-slices");
+}
+
+TEST(ValidateSliceValues, FindsTheFirstNonFiniteVoxel) {
+  v1::SessionConfig c = GoodConfig();
+  c.set_dtype(v1::DTYPE_FLOAT32);
+  auto cfg = ValidateConfig(c, ServerLimits{});
+  ASSERT_TRUE(cfg.ok());
+  std::vector<float> v(16 * 12, 1.0f);
+  auto bytes = [&v] { return reinterpret_cast<const uint8_t*>(v.data()); };
+  EXPECT_TRUE(ValidateSliceValues(*cfg, 0, bytes(), v.size() * 4).ok());
+  v[2 * 16 + 5] = std::numeric_limits<float>::quiet_NaN();
+  ExpectError(ValidateSliceValues(*cfg, 7, bytes(), v.size() * 4),
+              absl::StatusCode::kInvalidArgument, "slice 7: voxel (i=5, j=2) is NaN");
+  v[2 * 16 + 5] = 1;
+  v[0] = -std::numeric_limits<float>::infinity();
+  ExpectError(ValidateSliceValues(*cfg, 0, bytes(), v.size() * 4),
+              absl::StatusCode::kInvalidArgument, "infinite");
+}
+
+TEST(ValidateEnd, NeedsCompleteSlicesMatchingCounts) {
+  auto cfg = ValidateConfig(GoodConfig(), ServerLimits{});
+  ASSERT_TRUE(cfg.ok());
+  v1::End end;
+  EXPECT_TRUE(ValidateEnd(end, *cfg, {10, 0}).ok());
+  ExpectError(ValidateEnd(end, *cfg, {9, 20}), absl::StatusCode::kInvalidArgument,
+              "inside slice 9");
+  ExpectError(ValidateEnd(end, *cfg, {9, 0}), absl::StatusCode::kInvalidArgument,
+              "config.nz = 10");
+  end.set_slices(11);
+  ExpectError(ValidateEnd(end, *cfg, {10, 0}), absl::StatusCode::kInvalidArgument,
+              "End.slices = 11");
+  cfg->grid.nz = 0;
+  end.set_slices(0);
+  ExpectError(ValidateEnd(end, *cfg, {1, 0}), absl::StatusCode::kInvalidArgument,
+              "at least 2");
+}
+
+// ---------------------------------------------------------------------------------------
+// ExtractJob without gRPC.
+
+struct RecordingSink : JobSink {
+  std::vector<v1::Progress> progress;
+  std::vector<v1::Preview> previews;
+  std::vector<v1::ExtractResponse> final;
+  void PostProgress(v1::Progress p) override { progress.push_back(std::move(p)); }
+  void PostPreview(v1::Preview p) override { previews.push_back(std::move(p)); }
+  void PostFinal(std::vector<v1::ExtractResponse> m) override { final = std::move(m); }
+};
+
+// The messages of a synthetic float32 volume, each slice split in `pieces` chunks.
+std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options, int64_t n,
+                                               int pieces) {
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  std::vector<v1::ExtractRequest> out;
+  v1::SessionConfig* c = out.emplace_back().mutable_config();
+  *c = options;
+  c->set_nx(n);
+  c->set_ny(n);
+  c->set_nz(n);
+  c->set_dtype(v1::DTYPE_FLOAT32);
+  std::vector<uint8_t> bytes;
+  for (int64_t z = 0; z < n; ++z) {
+    EXPECT_TRUE(source->ReadSlice(&bytes).ok());
+    const size_t piece = (bytes.size() + pieces - 1) / pieces;
+    for (size_t off = 0; off < bytes.size(); off += piece) {
+      v1::SliceChunk* chunk = out.emplace_back().mutable_chunk();
+      chunk->set_slice(z);
+      chunk->set_offset(off);
+      chunk->set_data(bytes.data() + off, std::min(piece, bytes.size() - off));
+    }
+  }
+  out.emplace_back().mutable_end();
+  return out;
+}
+
+TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
+  v1::SessionConfig options;
+  options.set_error(0.4);
+  options.set_alpha(0.1);
+  options.mutable_draco()->set_compression_level(0);  // keeps order: compare index by index
+  options.mutable_preview()->set_every_slices(5);
+  RecordingSink sink;
+  ExtractJob job(ServerLimits{}, &sink);
+  const int64_t n = 24;
+  for (v1::ExtractRequest& r : SphereRequests(options, n, 3)) {
+    ASSERT_FALSE(job.done());
+    ASSERT_TRUE(job.Handle(r).ok());
+  }
+  ASSERT_TRUE(job.done());
+  EXPECT_EQ(job.slices(), n);
+
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  SessionOptions local_options;
+  local_options.error = 0.4;
+  local_options.alpha = 0.1;
+  auto local = RunSession(*source, local_options);
+  ASSERT_TRUE(local.ok());
+  const IndexedMesh expected = (*local)->Snapshot();
+  const SessionStats& stats = (*local)->stats();
+
+  ASSERT_EQ(sink.final.size(), 2u);  // one mesh chunk + metrics
+  const v1::FinalMesh& fm = sink.final[0].final_mesh();
+  EXPECT_EQ(fm.chunk_count(), 1u);
+  auto mesh = codec::DecodeDraco(fm.draco());
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  EXPECT_EQ(mesh->indices, expected.indices);
+  ASSERT_EQ(mesh->num_vertices(), expected.num_vertices());
+  const double tol = codec::PositionTolerance(expected, 16);
+  for (size_t i = 0; i < expected.num_vertices(); ++i) {
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_NEAR(mesh->positions[i][c], expected.positions[i][c], tol) << i;
+    }
+  }
+  const v1::FinalMetrics& m = sink.final[1].final_metrics();
+  EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles()));
+  EXPECT_EQ(m.triangles_extracted(), stats.triangles_extracted);
+  EXPECT_EQ(std::vector<int64_t>(m.trace().begin(), m.trace().end()), stats.trace);
+  EXPECT_DOUBLE_EQ(m.error_max(), (*local)->MaxShapeError());
+
+  // Progress after every slice; a preview every 5 slices showing the mesh as the session
+  // holds it after slice k: one of slice k's two trace entries (after its EXTRACT or its
+  // SIMPLIFY, depending on whether core defers that SIMPLIFY to the next slice).
+  ASSERT_EQ(sink.progress.size(), static_cast<size_t>(n) + 1);
+  ASSERT_EQ(sink.previews.size(), static_cast<size_t>(n / 5));
+  for (size_t i = 0; i < sink.previews.size(); ++i) {
+    const v1::Preview& p = sink.previews[i];
+    EXPECT_EQ(p.slice(), static_cast<int64_t>(5 * i + 4));
+    EXPECT_TRUE(p.triangles() == stats.trace[2 * p.slice()] ||
+                p.triangles() == stats.trace[2 * p.slice() + 1])
+        << "preview after slice " << p.slice() << ": " << p.triangles();
+    auto decoded = codec::DecodeDraco(p.draco());
+    ASSERT_TRUE(decoded.ok());
+    EXPECT_EQ(static_cast<int64_t>(decoded->num_triangles()), p.triangles());
+  }
+}
+
+// Every MetricsReport field survives the wire (a field added to core but not to the proto
+// shows up here as a JSON difference).
+TEST(Wire, MetricsReportRoundTrip) {
+  auto source = MakeSyntheticSource(Shape::kSphere, 16, 16, 16);
+  SessionOptions options;
+  options.error = 0.5;
+  options.alpha = 0.2;
+  options.target_triangles = 100;
+  auto session = RunSession(*source, options);
+  ASSERT_TRUE(session.ok());
+  const IndexedMesh mesh = (*session)->Snapshot();
+  MetricsReport report = MakeReport(**session, mesh);
+  report.distance = MeasureDistances(mesh, mesh, DistanceOptions{1000, 1, 1});
+  report.peak_rss_bytes = 12345;
+  report.bytes_received = 678;
+  report.bytes_sent = 910;
+  v1::FinalMetrics proto;
+  wire::ReportToProto(report, &proto);
+  MetricsReport back = wire::ReportFromProto(proto);
+  back.input = report.input;  // not on the wire: the client knows its file name
+  EXPECT_EQ(ReportToJson(back), ReportToJson(report));
+}
+
+TEST(ExtractJob, OrderOfMessagesIsEnforced) {
+  RecordingSink sink;
+  ExtractJob job(ServerLimits{}, &sink);
+  v1::ExtractRequest end;
+  end.mutable_end();
+  ExpectError(job.Handle(end), absl::StatusCode::kInvalidArgument,
+              "the first message must be a SessionConfig, got an End");
+  ExtractJob job2(ServerLimits{}, &sink);
+  ExpectError(job2.HandleEndOfInput(), absl::StatusCode::kInvalidArgument, "before a SessionConfig");
+  auto requests = SphereRequests(v1::SessionConfig(), 8, 1);
+  requests[0].mutable_config()->set_error(1);
+  ASSERT_TRUE(job2.Handle(requests[0]).ok());
+  ExpectError(job2.Handle(requests[0]), absl::StatusCode::kInvalidArgument, "got a SessionConfig");
+  ASSERT_TRUE(job2.Handle(requests[1]).ok());
+  ExpectError(job2.HandleEndOfInput(), absl::StatusCode::kInvalidArgument, "without an End marker");
+}
+
+TEST(ExtractJob, ComputesDistancesWhenAsked) {
+  v1::SessionConfig options;
+  options.set_error(0.5);
+  options.set_compute_distances(true);
+  RecordingSink sink;
+  ExtractJob job(ServerLimits{}, &sink);
+  for (v1::ExtractRequest& r : SphereRequests(options, 16, 1)) ASSERT_TRUE(job.Handle(r).ok());
+  ASSERT_FALSE(sink.final.empty());
+  const v1::FinalMetrics& m = sink.final.back().final_metrics();
+  ASSERT_TRUE(m.has_distance());
+  EXPECT_GT(m.distance().forward().samples(), 0u);
+  EXPECT_GT(m.distance().linf_max(), 0);
+  EXPECT_LE(m.distance().linf_max(), 2 * 0.5 + 1e-9) << "Hausdorff distance near E0";
+}
+
+}  // namespace
+}  // namespace tandem::server

@@ -1,0 +1,425 @@
+// End to end: the real tandem-server (child process, 127.0.0.1, ephemeral port) and the
+// real tandem-client binary. Every wait is bounded.
+#include <signal.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_split.h"
+#include "codec/draco_codec.h"
+#include "service/service_testutil.h"
+#include "tandem/mesh_io.h"
+#include "tandem/report.h"
+#include "tandem/synthetic.h"
+#include "testutil/testutil.h"
+
+namespace tandem::testing {
+namespace {
+
+constexpr char kHead[] = "ct_head_headsq_64x64x93_int16.json";
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+RunResult Client(std::vector<std::string> args, double timeout_s = 120) {
+  args.insert(args.begin(), BinPath("tandem-client"));
+  return RunProcess(args, timeout_s);
+}
+
+std::vector<std::string> HeadArgs(const std::string& server, const std::string& input) {
+  return {"stream", "--server", server, "--input", input, "--iso", "500", "--error", "0.75"};
+}
+
+SessionOptions HeadOptions() {
+  SessionOptions o;
+  o.iso = 500;
+  o.error = 0.75;
+  return o;
+}
+
+std::vector<std::string> Concat(std::vector<std::string> a, const std::vector<std::string>& b) {
+  a.insert(a.end(), b.begin(), b.end());
+  return a;
+}
+
+// "preview slice=S triangles=T ... sent=N" lines of --verbose, in arrival order.
+struct PreviewLine {
+  int64_t slice = 0, triangles = 0, sent = 0;
+};
+std::vector<PreviewLine> PreviewLines(const std::string& err) {
+  std::vector<PreviewLine> out;
+  for (absl::string_view line : absl::StrSplit(err, '\n')) {
+    if (!absl::StartsWith(line, "preview ")) continue;
+    PreviewLine p;
+    for (absl::string_view field : absl::StrSplit(line, ' ')) {
+      std::pair<std::string, std::string> kv = absl::StrSplit(field, absl::MaxSplits('=', 1));
+      int64_t v = 0;
+      if (!absl::SimpleAtoi(kv.second, &v)) continue;
+      if (kv.first == "slice") p.slice = v;
+      if (kv.first == "triangles") p.triangles = v;
+      if (kv.first == "sent") p.sent = v;
+    }
+    out.push_back(p);
+  }
+  return out;
+}
+
+std::set<std::string> Keys(const std::string& json) {
+  std::set<std::string> keys;
+  const nlohmann::json parsed = nlohmann::json::parse(json);
+  for (const auto& [k, v] : parsed.items()) keys.insert(k);
+  return keys;
+}
+
+class ServiceE2eTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto server = TestServer::Start();
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+    dir_ = MakeTempDir();
+  }
+  std::unique_ptr<TestServer> server_;
+  std::string dir_;
+};
+
+TEST_F(ServiceE2eTest, HealthAndInfo) {
+  EXPECT_EQ(server_->Health(), "SERVING");
+  RunResult health = Client({"health", "--server", server_->address()});
+  EXPECT_EQ(health.exit_code, 0) << health.err;
+  EXPECT_EQ(health.out, "SERVING\n");
+  RunResult info = Client({"info", "--server", server_->address()});
+  EXPECT_EQ(info.exit_code, 0) << info.err;
+  EXPECT_NE(info.out.find("dtypes                 uint8, uint16, int16, float32"), std::string::npos)
+      << info.out;
+  EXPECT_NE(info.out.find("max sessions           8"), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("active sessions        0"), std::string::npos) << info.out;
+}
+
+// The service's final mesh and metrics are exactly a local TandemSession's.
+TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  const std::string drc = dir_ + "/head.drc", metrics = dir_ + "/head.json";
+  RunResult r = Client(Concat(HeadArgs(server_->address(), input),
+                              {"--compression-level", "0", "--out", drc, "--metrics", metrics}));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("triangles final"), std::string::npos) << "summary table on stdout";
+
+  auto local = RunLocal(input, HeadOptions());
+  ASSERT_TRUE(local.ok()) << local.status();
+  const IndexedMesh expected = (*local)->Snapshot();
+  const MetricsReport want = MakeReport(**local, expected);
+
+  auto mesh = codec::DecodeDraco(ReadFile(drc));
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  ASSERT_EQ(mesh->num_triangles(), expected.num_triangles());
+  ASSERT_EQ(mesh->num_vertices(), expected.num_vertices());
+  EXPECT_EQ(mesh->indices, expected.indices) << "level 0 keeps the snapshot's order";
+  const double tol = codec::PositionTolerance(expected, 16);
+  double worst = 0;
+  for (size_t i = 0; i < expected.num_vertices(); ++i) {
+    for (int c = 0; c < 3; ++c) {
+      worst = std::max(worst, std::abs(mesh->positions[i][c] - expected.positions[i][c]));
+    }
+  }
+  EXPECT_LE(worst, tol);
+
+  const std::string json = ReadFile(metrics);
+  auto got = ReportFromJson(json);
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_EQ(got->input, input);
+  EXPECT_EQ(got->triangles_extracted, want.triangles_extracted);
+  EXPECT_EQ(got->triangles_final, want.triangles_final);
+  EXPECT_EQ(got->vertices_final, want.vertices_final);
+  EXPECT_EQ(got->peak_triangles, want.peak_triangles);
+  EXPECT_DOUBLE_EQ(got->error_max, want.error_max);
+  EXPECT_EQ(got->trace, want.trace);
+  EXPECT_EQ(got->contractions, want.contractions);
+  EXPECT_EQ(got->refusals.link, want.refusals.link);
+  EXPECT_EQ(got->refusals.flip, want.refusals.flip);
+  EXPECT_DOUBLE_EQ(got->anisotropy, want.anisotropy);
+  EXPECT_EQ(got->nx, 64);
+  EXPECT_EQ(got->nz, 93);
+  EXPECT_GT(got->bytes_received, 64 * 64 * 93 * 2);
+  EXPECT_GT(got->bytes_sent, 0);
+  // The keys of `tandem extract --metrics` (ReportToJson of a local run), plus the two
+  // service-only byte counts ReportToJson adds when they are set.
+  std::set<std::string> want_keys = Keys(ReportToJson(want));
+  want_keys.insert({"bytes_received", "bytes_sent"});
+  EXPECT_EQ(Keys(json), want_keys);
+}
+
+// Default level (Edgebreaker, vertices reordered) into a PLY: same mesh up to renaming.
+TEST_F(ServiceE2eTest, DefaultLevelSavesTheSameMeshAsPly) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  const std::string ply = dir_ + "/head.ply";
+  RunResult r = Client(Concat(HeadArgs(server_->address(), input), {"--out", ply}));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto local = RunLocal(input, HeadOptions());
+  ASSERT_TRUE(local.ok());
+  const IndexedMesh expected = (*local)->Snapshot();
+  auto mesh = ReadMesh(ply);
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  ASSERT_EQ(mesh->num_triangles(), expected.num_triangles());
+  ASSERT_EQ(mesh->num_vertices(), expected.num_vertices());
+  auto map = MatchVertices(expected, *mesh, codec::PositionTolerance(expected, 16));
+  ASSERT_TRUE(map.ok()) << map.status();
+  EXPECT_TRUE(SameTriangles(expected, *mesh, *map));
+}
+
+TEST_F(ServiceE2eTest, PreviewsArriveInOrderDecodeAndFollowTheTrace) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  const std::string partials = dir_ + "/partials";
+  RunResult r = Client(Concat(HeadArgs(server_->address(), input),
+                              {"--preview-every", "10", "--partials", partials, "--verbose",
+                               "--out", dir_ + "/head.drc"}));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto local = RunLocal(input, HeadOptions());
+  ASSERT_TRUE(local.ok());
+  const std::vector<int64_t>& trace = (*local)->stats().trace;
+
+  const std::vector<PreviewLine> lines = PreviewLines(r.err);
+  ASSERT_FALSE(lines.empty()) << r.err;
+  for (size_t i = 1; i < lines.size(); ++i) EXPECT_GT(lines[i].slice, lines[i - 1].slice);
+  size_t files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(partials)) {
+    const std::string name = entry.path().filename().string();
+    int64_t slice = -1;
+    ASSERT_TRUE(absl::StartsWith(name, "preview_") && absl::EndsWith(name, ".drc")) << name;
+    ASSERT_TRUE(absl::SimpleAtoi(name.substr(8, name.size() - 12), &slice)) << name;
+    EXPECT_EQ((slice + 1) % 10, 0) << "every 10 slices: " << name;
+    auto mesh = codec::DecodeDraco(ReadFile(entry.path().string()));
+    ASSERT_TRUE(mesh.ok()) << name << ": " << mesh.status();
+    // tandem-lag records two trace entries per slice (after EXTRACT and after SIMPLIFY);
+    // the preview after slice k shows one of slice k's (core may defer that SIMPLIFY).
+    ASSERT_LT(static_cast<size_t>(2 * slice + 1), trace.size());
+    const int64_t got = static_cast<int64_t>(mesh->num_triangles());
+    EXPECT_TRUE(got == trace[2 * slice] || got == trace[2 * slice + 1])
+        << name << ": " << got << " triangles; trace has " << trace[2 * slice] << ", "
+        << trace[2 * slice + 1];
+    ++files;
+  }
+  EXPECT_EQ(files, lines.size());
+}
+
+TEST_F(ServiceE2eTest, PacedStreamGetsAPreviewBeforeTheLastSlice) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  RunResult r = Client(Concat(HeadArgs(server_->address(), input),
+                              {"--rate", "80", "--preview-every", "5", "--verbose", "--out",
+                               dir_ + "/head.drc"}));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::vector<PreviewLine> lines = PreviewLines(r.err);
+  ASSERT_GE(lines.size(), 5u) << r.err;
+  EXPECT_LT(lines.front().sent, 93) << "the first preview came before the scan ended";
+  EXPECT_LT(lines.front().slice, 20);
+}
+
+// A 1100 x 1100 float32 slice is 4.84 MB, over gRPC's 4 MiB default message size. (Six
+// slices: the sphere is a small blob in the middle, so the time goes to moving slices.)
+TEST_F(ServiceE2eTest, SlicesLargerThanFourMiBInChunksAndWhole) {
+  auto path = WriteSyntheticVolume(dir_, "big_sphere",
+                                   MakeSyntheticSource(Shape::kSphere, 1100, 1100, 6));
+  ASSERT_TRUE(path.ok()) << path.status();
+  SessionOptions options;
+  options.error = 0.1;
+  auto local = RunLocal(*path, options);
+  ASSERT_TRUE(local.ok()) << local.status();
+  const IndexedMesh expected = (*local)->Snapshot();
+  ASSERT_GT(expected.num_triangles(), 20u);
+  for (const char* chunk : {"1048576", "8000000"}) {
+    const std::string out = dir_ + "/big_" + chunk + ".drc";
+    RunResult r = Client({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                          "0", "--error", "0.1", "--chunk-bytes", chunk, "--out", out});
+    ASSERT_EQ(r.exit_code, 0) << chunk << ": " << r.err;
+    auto mesh = codec::DecodeDraco(ReadFile(out));
+    ASSERT_TRUE(mesh.ok());
+    EXPECT_EQ(mesh->num_triangles(), expected.num_triangles()) << chunk;
+    EXPECT_EQ(mesh->num_vertices(), expected.num_vertices()) << chunk;
+  }
+}
+
+TEST_F(ServiceE2eTest, EightConcurrentStreamsMatchOneAtATime) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  RunResult single = Client(Concat(HeadArgs(server_->address(), input),
+                                   {"--out", dir_ + "/single.drc", "--metrics",
+                                    dir_ + "/single.json"}));
+  ASSERT_EQ(single.exit_code, 0) << single.err;
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int i = 0; i < 8; ++i) {
+    std::vector<std::string> argv = Concat(
+        HeadArgs(server_->address(), input),
+        {"--out", dir_ + "/c" + std::to_string(i) + ".drc", "--metrics",
+         dir_ + "/c" + std::to_string(i) + ".json"});
+    argv.insert(argv.begin(), BinPath("tandem-client"));
+    auto child = ChildProcess::Spawn(argv, dir_);
+    ASSERT_TRUE(child.ok());
+    clients.push_back(*std::move(child));
+  }
+  auto want = ReportFromJson(ReadFile(dir_ + "/single.json"));
+  ASSERT_TRUE(want.ok());
+  const std::string want_mesh = ReadFile(dir_ + "/single.drc");
+  for (int i = 0; i < 8; ++i) {
+    std::optional<int> code = clients[i]->Wait(120);
+    ASSERT_TRUE(code.has_value()) << "client " << i << " still running";
+    ASSERT_EQ(*code, 0) << clients[i]->Stderr();
+    auto got = ReportFromJson(ReadFile(dir_ + "/c" + std::to_string(i) + ".json"));
+    ASSERT_TRUE(got.ok());
+    EXPECT_EQ(got->trace, want->trace) << i;
+    EXPECT_EQ(got->triangles_final, want->triangles_final) << i;
+    EXPECT_DOUBLE_EQ(got->error_max, want->error_max) << i;
+    EXPECT_EQ(ReadFile(dir_ + "/c" + std::to_string(i) + ".drc"), want_mesh)
+        << "client " << i << ": the Draco bytes are deterministic";
+  }
+  v1::Counters counters;
+  EXPECT_TRUE(server_->WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_EQ(counters.sessions_started(), 9);
+}
+
+// A client killed mid-stream leaves no session, thread or session memory behind.
+TEST_F(ServiceE2eTest, KilledClientLeavesNothingBehind) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  std::vector<std::string> argv = Concat(HeadArgs(server_->address(), input),
+                                         {"--rate", "25", "--out", dir_ + "/never.drc"});
+  argv.insert(argv.begin(), BinPath("tandem-client"));
+  auto client = ChildProcess::Spawn(argv, dir_);
+  ASSERT_TRUE(client.ok());
+  bool active = false;
+  for (int i = 0; i < 200 && !active; ++i) {  // up to 10 s
+    auto info = server_->Info();
+    active = info.ok() && info->counters().active_sessions() == 1 &&
+             info->counters().worker_threads() == 1 && info->counters().session_bytes() > 0;
+    if (!active) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_TRUE(active) << "the stream never showed up in the server's counters";
+  (*client)->Signal(SIGKILL);
+  EXPECT_EQ((*client)->Wait(10), 128 + SIGKILL);
+  v1::Counters counters;
+  EXPECT_TRUE(server_->WaitIdle(15, &counters)) << counters.ShortDebugString();
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/never.drc"));
+  EXPECT_EQ(server_->Health(), "SERVING");
+  RunResult after = Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/ok.drc"}));
+  EXPECT_EQ(after.exit_code, 0) << after.err;
+}
+
+TEST_F(ServiceE2eTest, ClientReportsErrorsClearly) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  RunResult bad_ext = Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/m.stl"}));
+  EXPECT_EQ(bad_ext.exit_code, 2);
+  EXPECT_NE(bad_ext.err.find(".drc, .ply or .obj"), std::string::npos) << bad_ext.err;
+  RunResult no_folder =
+      Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/absent/m.drc"}));
+  EXPECT_EQ(no_folder.exit_code, 2);
+  EXPECT_NE(no_folder.err.find("does not exist"), std::string::npos) << no_folder.err;
+  RunResult missing = Client(Concat(HeadArgs(server_->address(), dir_ + "/absent.json"),
+                                    {"--out", dir_ + "/m.drc"}));
+  EXPECT_EQ(missing.exit_code, 1);
+  EXPECT_NE(missing.err.find("absent.json"), std::string::npos) << missing.err;
+  RunResult rejected = Client({"stream", "--server", server_->address(), "--input", input,
+                               "--iso", "500", "--error", "0", "--out", dir_ + "/m.drc"});
+  EXPECT_EQ(rejected.exit_code, 1);
+  EXPECT_NE(rejected.err.find("INVALID_ARGUMENT"), std::string::npos) << rejected.err;
+  EXPECT_NE(rejected.err.find("config.error (E0)"), std::string::npos) << rejected.err;
+  RunResult no_server = Client(Concat(HeadArgs("127.0.0.1:1", input),
+                                      {"--out", dir_ + "/m.drc", "--timeout", "10"}));
+  EXPECT_EQ(no_server.exit_code, 1);
+  EXPECT_NE(no_server.err.find("UNAVAILABLE"), std::string::npos) << no_server.err;
+  RunResult missing_flag = Client({"stream", "--input", input});
+  EXPECT_EQ(missing_flag.exit_code, 2);
+  EXPECT_NE(missing_flag.err.find("missing --iso"), std::string::npos) << missing_flag.err;
+  RunResult help = Client({"stream", "--help"});
+  EXPECT_EQ(help.exit_code, 0);
+  for (const char* flag : {"--server", "--input", "--iso", "--error", "--alpha", "--schedule",
+                           "--target-triangles", "--rate", "--chunk-bytes", "--quantization-bits",
+                           "--preview-every", "--out", "--partials", "--metrics", "--reference"}) {
+    EXPECT_NE(help.out.find(flag), std::string::npos) << flag;
+  }
+}
+
+TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
+  TANDEM_SHARED_OR_SKIP(input, kHead);
+  const std::string metrics = dir_ + "/m.json";
+  RunResult r = Client(Concat(HeadArgs(server_->address(), input),
+                              {"--reference", "--out", dir_ + "/m.drc", "--metrics", metrics}));
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto got = ReportFromJson(ReadFile(metrics));
+  ASSERT_TRUE(got.ok());
+  ASSERT_TRUE(got->distance.has_value());
+  EXPECT_GT(got->distance->linf_max, 0);
+  EXPECT_LT(got->distance->l1_max, 0.75) << "mean distance below E0";
+}
+
+// ---------------------------------------------------------------------------------------
+// Shutdown: one server per test, started here.
+
+TEST(ServiceShutdown, SigtermLetsARunningStreamFinishThenExitsZero) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--grace-seconds", "30"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 40, 40, 60));
+  ASSERT_TRUE(path.ok());
+  std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
+                                   (*server)->address(), "--input", *path, "--iso", "0",
+                                   "--error", "0.5", "--rate", "40", "--out", dir + "/s.drc"};
+  auto client = ChildProcess::Spawn(argv, dir);
+  ASSERT_TRUE(client.ok());
+  bool active = false;
+  for (int i = 0; i < 200 && !active; ++i) {
+    auto info = (*server)->Info();
+    active = info.ok() && info->counters().active_sessions() == 1;
+    if (!active) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ASSERT_TRUE(active);
+  (*server)->process().Signal(SIGTERM);
+  EXPECT_EQ((*client)->Wait(30), 0) << (*client)->Stderr();
+  EXPECT_TRUE(std::filesystem::exists(dir + "/s.drc"));
+  EXPECT_EQ((*server)->process().Wait(30), 0) << (*server)->process().Stderr();
+  const std::string log = (*server)->process().Stderr();
+  EXPECT_NE(log.find("SIGTERM: draining"), std::string::npos) << log;
+  EXPECT_NE(log.find("status=OK"), std::string::npos) << log;
+  EXPECT_NE(log.find("stopped"), std::string::npos) << log;
+}
+
+TEST(ServiceShutdown, StreamsPastTheGracePeriodAreCancelled) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--grace-seconds", "0.3"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 100));
+  ASSERT_TRUE(path.ok());
+  std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
+                                   (*server)->address(), "--input", *path, "--iso", "0",
+                                   "--error", "0.5", "--rate", "10", "--out", dir + "/s.drc"};
+  auto client = ChildProcess::Spawn(argv, dir);
+  ASSERT_TRUE(client.ok());
+  bool active = false;
+  for (int i = 0; i < 200 && !active; ++i) {
+    auto info = (*server)->Info();
+    active = info.ok() && info->counters().active_sessions() == 1;
+    if (!active) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ASSERT_TRUE(active);
+  (*server)->process().Signal(SIGTERM);
+  EXPECT_EQ((*server)->process().Wait(20), 0) << (*server)->process().Stderr();
+  EXPECT_EQ((*client)->Wait(20), 1) << (*client)->Stderr();
+  const std::string err = (*client)->Stderr();
+  EXPECT_TRUE(err.find("CANCELLED") != std::string::npos ||
+              err.find("UNAVAILABLE") != std::string::npos)
+      << err;
+  EXPECT_NE((*server)->process().Stderr().find("status=CANCELLED"), std::string::npos)
+      << (*server)->process().Stderr();
+}
+
+}  // namespace
+}  // namespace tandem::testing

@@ -1,0 +1,320 @@
+// Bad and hostile streams against the real tandem-server, through raw gRPC stubs (so the
+// requests can be malformed on purpose): each gets the right code and a message that
+// names the problem, and the server keeps serving. Also: session limit, message size
+// limit, cancellation, and the latest-wins previews of a slow reader.
+#include <cmath>
+#include <cstring>
+#include <functional>
+#include <limits>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "codec/draco_codec.h"
+#include "service/service_testutil.h"
+#include "tandem/synthetic.h"
+#include "testutil/testutil.h"
+
+namespace tandem::testing {
+namespace {
+
+// 12 x 12 float32 slices = 576 bytes, sent in chunks of 200 (three per slice).
+constexpr int64_t kN = 12;
+constexpr size_t kChunk = 200;
+
+std::vector<v1::ExtractRequest> Good(int64_t n = kN, size_t chunk = kChunk) {
+  v1::SessionConfig config;
+  config.set_error(0.5);
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  return VolumeRequests(*source, config, chunk);
+}
+
+// Index of the first chunk of slice z in Good().
+size_t FirstChunk(const std::vector<v1::ExtractRequest>& r, int64_t z) {
+  for (size_t i = 0; i < r.size(); ++i) {
+    if (r[i].has_chunk() && r[i].chunk().slice() == z) return i;
+  }
+  return r.size();
+}
+
+void SetFloat(v1::ExtractRequest* r, size_t index, float value) {
+  std::string* data = r->mutable_chunk()->mutable_data();
+  std::memcpy(data->data() + index * sizeof(float), &value, sizeof value);
+}
+
+bool FinishedOk(const StreamOutcome& o) {
+  return o.status.ok() && !o.responses.empty() && o.responses.back().has_final_metrics();
+}
+
+class ServiceRobustnessTest : public ::testing::Test {
+ protected:
+  void Start(const std::vector<std::string>& args) {
+    auto server = TestServer::Start(args);
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+    stub_ = server_->NewStub();
+  }
+  std::unique_ptr<TestServer> server_;
+  std::unique_ptr<v1::Tandem::Stub> stub_;
+};
+
+TEST_F(ServiceRobustnessTest, BadInputGetsTheRightCodeAndTheServerKeepsServing) {
+  ASSERT_NO_FATAL_FAILURE(Start({"--max-voxels-per-slice", "10000", "--max-slices", "64"}));
+  ASSERT_TRUE(FinishedOk(RunStream(*stub_, Good()))) << "the unmodified stream works";
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float inf = std::numeric_limits<float>::infinity();
+  using Edit = std::function<void(std::vector<v1::ExtractRequest>*)>;
+  struct Case {
+    const char* name;
+    Edit edit;
+    grpc::StatusCode code;
+    const char* text;
+  };
+  const std::vector<Case> cases = {
+      {"no config first", [](auto* r) { r->erase(r->begin()); },
+       grpc::StatusCode::INVALID_ARGUMENT, "the first message must be a SessionConfig"},
+      {"empty first message", [](auto* r) { (*r)[0].Clear(); },
+       grpc::StatusCode::INVALID_ARGUMENT, "got an empty ExtractRequest"},
+      {"wrong slice size (declared)",
+       [](auto* r) { (*r)[1].mutable_chunk()->set_slice_size(1000); },
+       grpc::StatusCode::INVALID_ARGUMENT, "wrong slice size: chunk.slice_size = 1000"},
+      {"wrong slice size (grid says more)",
+       [](auto* r) { (*r)[0].mutable_config()->set_nx(kN + 1); },
+       grpc::StatusCode::INVALID_ARGUMENT, "wrong slice size"},
+      {"wrong slice size (too many bytes)",
+       [](auto* r) { (*r)[3].mutable_chunk()->mutable_data()->append(40, '\0'); },
+       grpc::StatusCode::INVALID_ARGUMENT, "runs past the end of the slice"},
+      {"dtype mismatch", [](auto* r) { (*r)[1].mutable_chunk()->set_dtype(v1::DTYPE_UINT8); },
+       grpc::StatusCode::INVALID_ARGUMENT, "chunk.dtype DTYPE_UINT8 does not match"},
+      {"out-of-order slice",
+       [](auto* r) { r->erase(r->begin() + FirstChunk(*r, 2), r->begin() + FirstChunk(*r, 3)); },
+       grpc::StatusCode::INVALID_ARGUMENT, "slice 3 out of order: expected slice 2"},
+      {"repeated slice",
+       [](auto* r) {
+         std::vector<v1::ExtractRequest> again(r->begin() + FirstChunk(*r, 1),
+                                               r->begin() + FirstChunk(*r, 2));
+         r->insert(r->begin() + FirstChunk(*r, 2), again.begin(), again.end());
+       },
+       grpc::StatusCode::INVALID_ARGUMENT, "slice 1 repeated"},
+      {"chunk offset past the slice", [](auto* r) { (*r)[2].mutable_chunk()->set_offset(5000); },
+       grpc::StatusCode::INVALID_ARGUMENT, "chunk.offset = 5000 is past the end of the slice"},
+      {"chunk offset with a gap", [](auto* r) { (*r)[2].mutable_chunk()->set_offset(300); },
+       grpc::StatusCode::INVALID_ARGUMENT, "chunk.offset = 300, expected 200"},
+      {"NaN voxel", [nan](auto* r) { SetFloat(&(*r)[FirstChunk(*r, 4)], 13, nan); },
+       grpc::StatusCode::INVALID_ARGUMENT, "slice 4: voxel (i=1, j=1) is NaN"},
+      {"infinite voxel", [inf](auto* r) { SetFloat(&(*r)[FirstChunk(*r, 0)], 0, -inf); },
+       grpc::StatusCode::INVALID_ARGUMENT, "slice 0: voxel (i=0, j=0) is infinite"},
+      {"E0 = 0", [](auto* r) { (*r)[0].mutable_config()->set_error(0); },
+       grpc::StatusCode::INVALID_ARGUMENT, "config.error (E0) = 0"},
+      {"E0 < 0", [](auto* r) { (*r)[0].mutable_config()->set_error(-2); },
+       grpc::StatusCode::INVALID_ARGUMENT, "config.error (E0) = -2"},
+      {"alpha > 1", [](auto* r) { (*r)[0].mutable_config()->set_alpha(1.5); },
+       grpc::StatusCode::INVALID_ARGUMENT, "config.alpha = 1.5"},
+      {"alpha < 0", [](auto* r) { (*r)[0].mutable_config()->set_alpha(-0.5); },
+       grpc::StatusCode::INVALID_ARGUMENT, "config.alpha = -0.5"},
+      {"dims over the limit",
+       [](auto* r) {
+         (*r)[0].mutable_config()->set_nx(200);
+         (*r)[0].mutable_config()->set_ny(200);
+       },
+       grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-voxels-per-slice"},
+      {"nz over the limit", [](auto* r) { (*r)[0].mutable_config()->set_nz(65); },
+       grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-slices"},
+      {"unknown nz, too many slices",
+       [](auto* r) {
+         (*r)[0].mutable_config()->set_nz(0);
+         r->pop_back();  // End
+         std::vector<v1::ExtractRequest> more;
+         for (int64_t z = kN; z < 70; ++z) {
+           for (size_t i = FirstChunk(*r, 0); i < FirstChunk(*r, 1); ++i) {
+             more.push_back((*r)[i]);
+             more.back().mutable_chunk()->set_slice(z);
+           }
+         }
+         r->insert(r->end(), more.begin(), more.end());
+       },
+       grpc::StatusCode::RESOURCE_EXHAUSTED, "slice 64 exceeds this server's limit of 64"},
+      {"stream ends without End", [](auto* r) { r->pop_back(); },
+       grpc::StatusCode::INVALID_ARGUMENT, "without an End marker after 12 complete slices"},
+      {"End with the wrong count", [](auto* r) { r->back().mutable_end()->set_slices(5); },
+       grpc::StatusCode::INVALID_ARGUMENT, "End.slices = 5 but the server received 12"},
+      {"missing slice before End",
+       [](auto* r) { r->erase(r->begin() + FirstChunk(*r, kN - 1), r->end() - 1); },
+       grpc::StatusCode::INVALID_ARGUMENT, "End.slices = 12 but the server received 11"},
+      {"second config", [](auto* r) { r->insert(r->begin() + 2, (*r)[0]); },
+       grpc::StatusCode::INVALID_ARGUMENT, "got a SessionConfig"},
+  };
+  for (const Case& c : cases) {
+    std::vector<v1::ExtractRequest> requests = Good();
+    c.edit(&requests);
+    const StreamOutcome o = RunStream(*stub_, requests);
+    EXPECT_EQ(o.status.error_code(), c.code) << c.name << ": " << o.status.error_message();
+    EXPECT_NE(o.status.error_message().find(c.text), std::string::npos)
+        << c.name << ": got \"" << o.status.error_message() << "\", want \"" << c.text << "\"";
+    for (const v1::ExtractResponse& r : o.responses) {
+      EXPECT_FALSE(r.has_final_mesh() || r.has_final_metrics()) << c.name;
+    }
+  }
+  EXPECT_EQ(server_->Health(), "SERVING");
+  EXPECT_TRUE(FinishedOk(RunStream(*stub_, Good()))) << "a good stream still works";
+  v1::Counters counters;
+  EXPECT_TRUE(server_->WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_EQ(counters.sessions_started(), static_cast<int64_t>(cases.size()) + 2);
+}
+
+TEST_F(ServiceRobustnessTest, SessionsBeyondTheLimitAreRejected) {
+  ASSERT_NO_FATAL_FAILURE(Start({"--max-sessions", "1"}));
+  // Hold one session open: config sent, nothing else.
+  grpc::ClientContext holder;
+  auto held = stub_->Extract(&holder);
+  ASSERT_TRUE(held->Write(Good()[0]));
+  bool active = false;
+  for (int i = 0; i < 200 && !active; ++i) {
+    auto info = server_->Info();
+    active = info.ok() && info->counters().active_sessions() == 1;
+    if (!active) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ASSERT_TRUE(active);
+  const StreamOutcome rejected = RunStream(*stub_, Good());
+  EXPECT_EQ(rejected.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(rejected.status.error_message().find("--max-sessions"), std::string::npos)
+      << rejected.status.error_message();
+  holder.TryCancel();
+  v1::ExtractResponse ignored;
+  while (held->Read(&ignored)) {
+  }
+  EXPECT_EQ(held->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  v1::Counters counters;
+  EXPECT_TRUE(server_->WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_EQ(counters.sessions_rejected(), 1);
+  EXPECT_TRUE(FinishedOk(RunStream(*stub_, Good()))) << "the slot is free again";
+}
+
+TEST_F(ServiceRobustnessTest, SilentClientTimesOutAndFreesItsSlot) {
+  ASSERT_NO_FATAL_FAILURE(Start({"--max-sessions", "1", "--idle-timeout-seconds", "0.5"}));
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  auto stream = stub_->Extract(&context);
+  const std::vector<v1::ExtractRequest> requests = Good();
+  ASSERT_TRUE(stream->Write(requests[0]));
+  ASSERT_TRUE(stream->Write(requests[1]));  // then silence, stream left open
+  v1::ExtractResponse response;
+  while (stream->Read(&response)) {
+  }
+  const grpc::Status status = stream->Finish();
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << status.error_message();
+  EXPECT_NE(status.error_message().find("--idle-timeout-seconds"), std::string::npos)
+      << status.error_message();
+  v1::Counters counters;
+  EXPECT_TRUE(server_->WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_TRUE(FinishedOk(RunStream(*stub_, Good()))) << "the only slot is free again";
+}
+
+TEST_F(ServiceRobustnessTest, OversizedMessagesAreRefused) {
+  ASSERT_NO_FATAL_FAILURE(Start({"--max-message-bytes", "65536"}));
+  // 120 x 120 float32 = 57,600 bytes per slice: whole-slice chunks fit, 3-slice ones not.
+  EXPECT_TRUE(FinishedOk(RunStream(*stub_, Good(120, 57600))));
+  std::vector<v1::ExtractRequest> big = Good(120, 57600);
+  big[1].mutable_chunk()->mutable_data()->append(57600 * 2, '\0');
+  const StreamOutcome o = RunStream(*stub_, big);
+  EXPECT_EQ(o.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED)
+      << o.status.error_message();
+  EXPECT_EQ(server_->Health(), "SERVING");
+  v1::Counters counters;
+  EXPECT_TRUE(server_->WaitIdle(10, &counters)) << counters.ShortDebugString();
+}
+
+// Cancelling at different points (before the config is handled, mid-slice, with a write
+// in flight, after the last slice) always ends with no session, thread or memory left.
+TEST_F(ServiceRobustnessTest, CancelledStreamLeavesNothingBehind) {
+  ASSERT_NO_FATAL_FAILURE(Start({}));
+  v1::SessionConfig config;
+  config.set_error(0.5);
+  config.mutable_preview()->set_every_slices(1);  // keep writes in flight
+  auto source = MakeSyntheticSource(Shape::kSphere, 48, 48, 48);
+  const std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, config, 4096);
+  int streams = 0;
+  for (size_t sent : {size_t{1}, size_t{3}, requests.size() / 2, requests.size() - 1}) {
+    for (bool read_first : {false, true}) {
+      SCOPED_TRACE(::testing::Message() << sent << " requests, read first: " << read_first);
+      grpc::ClientContext context;
+      auto stream = stub_->Extract(&context);
+      ++streams;
+      for (size_t i = 0; i < sent; ++i) ASSERT_TRUE(stream->Write(requests[i]));
+      v1::ExtractResponse response;
+      if (read_first && sent > 3) {
+        ASSERT_TRUE(stream->Read(&response));  // the server is working on it
+      }
+      context.TryCancel();
+      while (stream->Read(&response)) {
+      }
+      EXPECT_EQ(stream->Finish().error_code(), grpc::StatusCode::CANCELLED);
+      // WaitIdle also checks sessions_finished == sessions_started. (A stream cancelled
+      // right after its first write may never reach the server at all.)
+      v1::Counters counters;
+      EXPECT_TRUE(server_->WaitIdle(10, &counters)) << counters.ShortDebugString();
+    }
+  }
+  auto info = server_->Info();
+  ASSERT_TRUE(info.ok());
+  EXPECT_GE(info->counters().sessions_started(), streams / 2);
+  EXPECT_TRUE(FinishedOk(RunStream(*stub_, Good())));
+}
+
+// A reader that does not read while slices stream in gets a few recent previews, not one
+// per slice; they come in increasing slice order and each decodes.
+TEST_F(ServiceRobustnessTest, SlowReaderGetsFewerNewerPreviews) {
+  ASSERT_NO_FATAL_FAILURE(Start({}));
+  const int64_t n = 48;
+  v1::SessionConfig config;
+  config.set_schedule(v1::SCHEDULE_NONE);  // full resolution: previews of tens of KB
+  config.mutable_preview()->set_every_slices(1);
+  config.mutable_draco()->set_compression_level(0);
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  const std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, config, 1 << 20);
+  // A fixed 64 KiB receive window (no BDP growth): what HTTP/2 lets the server buffer
+  // ahead of the reader stays small and known.
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 64 * 1024);
+  args.SetMaxReceiveMessageSize(64 << 20);
+  auto stub = v1::Tandem::NewStub(
+      grpc::CreateCustomChannel(server_->address(), grpc::InsecureChannelCredentials(), args));
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto stream = stub->Extract(&context);
+  for (const v1::ExtractRequest& r : requests) ASSERT_TRUE(stream->Write(r));
+  ASSERT_TRUE(stream->WritesDone());
+  // Let the server consume everything while nobody reads.
+  bool consumed = false;
+  for (int i = 0; i < 400 && !consumed; ++i) {
+    auto info = server_->Info();
+    consumed = info.ok() && info->counters().worker_threads() == 0;
+    if (!consumed) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ASSERT_TRUE(consumed);
+  std::vector<int64_t> slices;
+  size_t preview_bytes = 0;
+  bool final_metrics = false;
+  v1::ExtractResponse response;
+  while (stream->Read(&response)) {
+    if (response.has_preview()) {
+      slices.push_back(response.preview().slice());
+      preview_bytes += response.preview().draco().size();
+      auto mesh = codec::DecodeDraco(response.preview().draco());
+      ASSERT_TRUE(mesh.ok()) << mesh.status();
+      EXPECT_EQ(static_cast<int64_t>(mesh->num_triangles()), response.preview().triangles());
+    }
+    final_metrics |= response.has_final_metrics();
+  }
+  ASSERT_TRUE(stream->Finish().ok());
+  EXPECT_TRUE(final_metrics);
+  RecordProperty("previews_received", static_cast<int>(slices.size()));
+  ASSERT_FALSE(slices.empty());
+  EXPECT_LT(slices.size(), static_cast<size_t>(n / 2))
+      << "previews were dropped, not queued (" << preview_bytes << " bytes received)";
+  for (size_t i = 1; i < slices.size(); ++i) EXPECT_GT(slices[i], slices[i - 1]);
+}
+
+}  // namespace
+}  // namespace tandem::testing

@@ -1,0 +1,315 @@
+#include "service/service_testutil.h"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <thread>
+#include <unordered_map>
+
+#include "absl/strings/str_cat.h"
+#include "common/wire.h"
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "tandem/volume_writers.h"
+#include "testutil/testutil.h"
+
+extern char** environ;
+
+namespace tandem::testing {
+namespace {
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::chrono::system_clock::time_point In(double seconds) {
+  return std::chrono::system_clock::now() +
+         std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000));
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<ChildProcess>> ChildProcess::Spawn(
+    const std::vector<std::string>& argv, const std::string& dir) {
+  static std::atomic<int> counter{0};
+  auto child = std::unique_ptr<ChildProcess>(new ChildProcess());
+  const int n = counter++;
+  child->out_path_ = absl::StrCat(dir, "/proc_", n, ".out");
+  child->err_path_ = absl::StrCat(dir, "/proc_", n, ".err");
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, 1, child->out_path_.c_str(),
+                                   O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  posix_spawn_file_actions_addopen(&actions, 2, child->err_path_.c_str(),
+                                   O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  std::vector<char*> args;
+  for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  const int rc = posix_spawn(&child->pid_, args[0], &actions, nullptr, args.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (rc != 0) {
+    return absl::InternalError(absl::StrCat("posix_spawn ", argv[0], ": ", strerror(rc)));
+  }
+  return child;
+}
+
+ChildProcess::~ChildProcess() {
+  if (pid_ > 0 && !exit_code_) {
+    kill(pid_, SIGKILL);
+    Wait(10);
+  }
+}
+
+void ChildProcess::Signal(int sig) const {
+  if (pid_ > 0 && !exit_code_) kill(pid_, sig);
+}
+
+std::optional<int> ChildProcess::Wait(double timeout_s) {
+  if (exit_code_) return exit_code_;
+  const auto deadline = std::chrono::steady_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000));
+  while (true) {
+    int status = 0;
+    const pid_t r = waitpid(pid_, &status, WNOHANG);
+    if (r == pid_) {
+      exit_code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      return exit_code_;
+    }
+    if (r < 0 || std::chrono::steady_clock::now() >= deadline) return std::nullopt;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
+std::string ChildProcess::Stdout() const { return ReadAll(out_path_); }
+std::string ChildProcess::Stderr() const { return ReadAll(err_path_); }
+
+RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s) {
+  RunResult result;
+  auto child = ChildProcess::Spawn(argv, MakeTempDir());
+  if (!child.ok()) {
+    result.err = std::string(child.status().message());
+    return result;
+  }
+  std::optional<int> code = (*child)->Wait(timeout_s);
+  result.exit_code = code.value_or(-1);
+  if (!code) (*child)->Signal(SIGKILL);
+  result.out = (*child)->Stdout();
+  result.err = (*child)->Stderr();
+  return result;
+}
+
+absl::StatusOr<std::unique_ptr<TestServer>> TestServer::Start(
+    const std::vector<std::string>& extra_args) {
+  std::vector<std::string> argv = {BinPath("tandem-server"), "--listen", "127.0.0.1:0"};
+  argv.insert(argv.end(), extra_args.begin(), extra_args.end());
+  auto process = ChildProcess::Spawn(argv, MakeTempDir());
+  if (!process.ok()) return process.status();
+  auto server = std::unique_ptr<TestServer>(new TestServer());
+  server->process_ = *std::move(process);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (std::chrono::steady_clock::now() < deadline) {
+    const std::string out = server->process_->Stdout();
+    const size_t at = out.find("listening on ");
+    const size_t eol = out.find('\n', at);
+    if (at != std::string::npos && eol != std::string::npos) {
+      server->address_ = out.substr(at + 13, eol - at - 13);
+      return server;
+    }
+    if (server->process_->Wait(0)) {
+      return absl::InternalError(
+          absl::StrCat("tandem-server exited early: ", server->process_->Stderr()));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return absl::DeadlineExceededError("tandem-server did not print its address within 20 s");
+}
+
+std::unique_ptr<v1::Tandem::Stub> TestServer::NewStub() const {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(wire::kClientMaxReceiveBytes);
+  return v1::Tandem::NewStub(
+      grpc::CreateCustomChannel(address_, grpc::InsecureChannelCredentials(), args));
+}
+
+absl::StatusOr<v1::InfoResponse> TestServer::Info() const {
+  auto stub = NewStub();
+  grpc::ClientContext context;
+  context.set_deadline(In(5));
+  v1::InfoResponse info;
+  grpc::Status st = stub->GetInfo(&context, v1::InfoRequest(), &info);
+  if (!st.ok()) return wire::FromGrpcStatus(st);
+  return info;
+}
+
+std::string TestServer::Health() const {
+  auto stub = grpc::health::v1::Health::NewStub(
+      grpc::CreateChannel(address_, grpc::InsecureChannelCredentials()));
+  grpc::ClientContext context;
+  context.set_deadline(In(5));
+  grpc::health::v1::HealthCheckResponse response;
+  grpc::Status st = stub->Check(&context, grpc::health::v1::HealthCheckRequest(), &response);
+  if (!st.ok()) {
+    return absl::StatusCodeToString(static_cast<absl::StatusCode>(st.error_code()));
+  }
+  return grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status());
+}
+
+bool TestServer::WaitIdle(double timeout_s, v1::Counters* last) const {
+  const auto deadline = std::chrono::steady_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000));
+  while (true) {
+    absl::StatusOr<v1::InfoResponse> info = Info();
+    if (info.ok()) {
+      const v1::Counters& c = info->counters();
+      if (last) *last = c;
+      if (c.active_sessions() == 0 && c.worker_threads() == 0 && c.session_bytes() == 0 &&
+          c.sessions_started() == c.sessions_finished()) {
+        return true;
+      }
+    }
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+}
+
+absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const std::string& name,
+                                                 std::unique_ptr<SliceSource> source) {
+  const std::string path = absl::StrCat(dir, "/", name, ".json");
+  SliceSource* src = source.get();
+  absl::Status st = WriteVolume(path, src->info(), [src](int64_t, std::vector<uint8_t>* bytes) {
+    return src->ReadSlice(bytes);
+  });
+  if (!st.ok()) return st;
+  return path;
+}
+
+absl::StatusOr<std::unique_ptr<TandemSession>> RunLocal(const std::string& path,
+                                                        const SessionOptions& options) {
+  auto source = OpenVolume(path);
+  if (!source.ok()) return source.status();
+  return RunSession(**source, options);
+}
+
+absl::StatusOr<std::vector<uint32_t>> MatchVertices(const IndexedMesh& a, const IndexedMesh& b,
+                                                    double tol) {
+  if (a.num_vertices() != b.num_vertices()) {
+    return absl::FailedPreconditionError(
+        absl::StrCat(a.num_vertices(), " vs ", b.num_vertices(), " vertices"));
+  }
+  const double cell = std::max(tol, 1e-12);
+  auto key = [cell](const Vec3& p, int dx, int dy, int dz) {
+    const int64_t x = static_cast<int64_t>(std::floor(p.x / cell)) + dx;
+    const int64_t y = static_cast<int64_t>(std::floor(p.y / cell)) + dy;
+    const int64_t z = static_cast<int64_t>(std::floor(p.z / cell)) + dz;
+    return (x * 73856093) ^ (y * 19349663) ^ (z * 83492791);
+  };
+  std::unordered_multimap<int64_t, uint32_t> grid;
+  for (uint32_t i = 0; i < a.num_vertices(); ++i) grid.emplace(key(a.positions[i], 0, 0, 0), i);
+  std::vector<bool> used(a.num_vertices(), false);
+  std::vector<uint32_t> map(b.num_vertices());
+  for (uint32_t i = 0; i < b.num_vertices(); ++i) {
+    const Vec3& p = b.positions[i];
+    uint32_t best = kInvalid;
+    double best_d = tol;
+    for (int dx = -1; dx <= 1; ++dx) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dz = -1; dz <= 1; ++dz) {
+          auto [lo, hi] = grid.equal_range(key(p, dx, dy, dz));
+          for (auto it = lo; it != hi; ++it) {
+            const Vec3& q = a.positions[it->second];
+            const double d = std::max({std::abs(p.x - q.x), std::abs(p.y - q.y), std::abs(p.z - q.z)});
+            if (!used[it->second] && d <= best_d) {
+              best_d = d;
+              best = it->second;
+            }
+          }
+        }
+      }
+    }
+    if (best == kInvalid) {
+      return absl::NotFoundError(absl::StrCat("vertex ", i, " (", p.x, ", ", p.y, ", ", p.z,
+                                              ") has no unmatched original within ", tol));
+    }
+    used[best] = true;
+    map[i] = best;
+  }
+  return map;
+}
+
+bool SameTriangles(const IndexedMesh& a, const IndexedMesh& b, const std::vector<uint32_t>& map) {
+  if (a.num_triangles() != b.num_triangles()) return false;
+  auto canonical = [](std::array<uint32_t, 3> t) {
+    while (t[0] > t[1] || t[0] > t[2]) std::rotate(t.begin(), t.begin() + 1, t.end());
+    return t;
+  };
+  std::vector<std::array<uint32_t, 3>> ta, tb;
+  for (size_t t = 0; t < a.num_triangles(); ++t) {
+    ta.push_back(canonical({a.indices[3 * t], a.indices[3 * t + 1], a.indices[3 * t + 2]}));
+    tb.push_back(canonical(
+        {map[b.indices[3 * t]], map[b.indices[3 * t + 1]], map[b.indices[3 * t + 2]]}));
+  }
+  std::sort(ta.begin(), ta.end());
+  std::sort(tb.begin(), tb.end());
+  return ta == tb;
+}
+
+std::vector<v1::ExtractRequest> VolumeRequests(SliceSource& source,
+                                               const v1::SessionConfig& config,
+                                               size_t chunk_bytes) {
+  const VolumeInfo& info = source.info();
+  std::vector<v1::ExtractRequest> out;
+  v1::SessionConfig* c = out.emplace_back().mutable_config();
+  *c = config;
+  c->set_nx(info.nx);
+  c->set_ny(info.ny);
+  c->set_nz(info.nz);
+  c->set_dtype(wire::DTypeToProto(info.dtype));
+  c->clear_spacing();
+  for (double s : info.spacing) c->add_spacing(s);
+  std::vector<uint8_t> bytes;
+  for (int64_t z = 0; z < info.nz; ++z) {
+    if (!source.ReadSlice(&bytes).ok()) break;
+    for (size_t off = 0; off < bytes.size(); off += chunk_bytes) {
+      v1::SliceChunk* chunk = out.emplace_back().mutable_chunk();
+      chunk->set_slice(z);
+      chunk->set_offset(off);
+      chunk->set_data(bytes.data() + off, std::min(chunk_bytes, bytes.size() - off));
+    }
+  }
+  out.emplace_back().mutable_end()->set_slices(info.nz);
+  return out;
+}
+
+StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests) {
+  StreamOutcome outcome;
+  grpc::ClientContext context;
+  context.set_deadline(In(60));
+  auto stream = stub.Extract(&context);
+  // Writes on a second thread: a server that stops reading must not block the reads.
+  std::thread writer([&] {
+    for (const v1::ExtractRequest& r : requests) {
+      if (!stream->Write(r)) return;
+    }
+    stream->WritesDone();
+  });
+  v1::ExtractResponse response;
+  while (stream->Read(&response)) outcome.responses.push_back(response);
+  writer.join();
+  outcome.status = stream->Finish();
+  return outcome;
+}
+
+}  // namespace tandem::testing

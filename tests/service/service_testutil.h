@@ -1,0 +1,102 @@
+// Helpers of the service tests: child processes with bounded waits, a tandem-server child
+// on 127.0.0.1 with an ephemeral port, request builders, and mesh comparisons that allow
+// for Draco's quantization and reordering.
+#ifndef TANDEM_TESTS_SERVICE_SERVICE_TESTUTIL_H_
+#define TANDEM_TESTS_SERVICE_SERVICE_TESTUTIL_H_
+
+#include <sys/types.h>
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/status/statusor.h"
+#include "tandem/mesh.h"
+#include "tandem/tandem.h"
+#include "tandem/v1/tandem.grpc.pb.h"
+#include "tandem/volume.h"
+
+namespace tandem::testing {
+
+// A child process whose stdout and stderr go to files in `dir`. The destructor kills
+// (SIGKILL) and reaps it if it is still running.
+class ChildProcess {
+ public:
+  static absl::StatusOr<std::unique_ptr<ChildProcess>> Spawn(const std::vector<std::string>& argv,
+                                                             const std::string& dir);
+  ~ChildProcess();
+  pid_t pid() const { return pid_; }
+  void Signal(int sig) const;
+  // Exit code (128 + signal number if killed), or nullopt if still running at the timeout.
+  std::optional<int> Wait(double timeout_s);
+  std::string Stdout() const;
+  std::string Stderr() const;
+
+ private:
+  pid_t pid_ = -1;
+  std::optional<int> exit_code_;
+  std::string out_path_, err_path_;
+};
+
+struct RunResult {
+  int exit_code = -1;  // -1: killed at the timeout
+  std::string out, err;
+};
+// Runs a program to completion (killed after timeout_s).
+RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s = 60);
+
+// build/bin/tandem-server --listen 127.0.0.1:0 [extra...], port read from its stdout.
+class TestServer {
+ public:
+  static absl::StatusOr<std::unique_ptr<TestServer>> Start(
+      const std::vector<std::string>& extra_args = {});
+  const std::string& address() const { return address_; }
+  ChildProcess& process() { return *process_; }
+  std::unique_ptr<v1::Tandem::Stub> NewStub() const;
+  absl::StatusOr<v1::InfoResponse> Info() const;
+  // "SERVING", "NOT_SERVING", ... or the RPC error's code name.
+  std::string Health() const;
+  // Polls GetInfo until no session, worker thread or session memory is left.
+  bool WaitIdle(double timeout_s, v1::Counters* last = nullptr) const;
+
+ private:
+  std::unique_ptr<ChildProcess> process_;
+  std::string address_;
+};
+
+// Writes the first `nz` slices of a synthetic float32 field as DIR/NAME.json + .raw.
+absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const std::string& name,
+                                                 std::unique_ptr<SliceSource> source);
+
+// Runs a volume file through a local TandemSession (the reference the service must match).
+absl::StatusOr<std::unique_ptr<TandemSession>> RunLocal(const std::string& path,
+                                                        const SessionOptions& options);
+
+// Maps every vertex of `b` to a vertex of `a` within `tol` (per coordinate), one to one.
+// Returns the map (b index → a index) or an error naming the first vertex that failed.
+absl::StatusOr<std::vector<uint32_t>> MatchVertices(const IndexedMesh& a, const IndexedMesh& b,
+                                                    double tol);
+// Same triangles (as vertex triples up to rotation, orientation kept) once b's vertices
+// are renamed through `map`.
+bool SameTriangles(const IndexedMesh& a, const IndexedMesh& b, const std::vector<uint32_t>& map);
+
+// The request stream of a whole volume: config (with `config` as the template for
+// options), chunks of `chunk_bytes`, End.
+std::vector<v1::ExtractRequest> VolumeRequests(SliceSource& source,
+                                               const v1::SessionConfig& config,
+                                               size_t chunk_bytes);
+
+struct StreamOutcome {
+  grpc::Status status;
+  std::vector<v1::ExtractResponse> responses;
+};
+// Sends `requests` on one Extract stream (stopping at the first failed write), then
+// WritesDone, then reads everything (deadline 60 s).
+StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests);
+
+}  // namespace tandem::testing
+
+#endif  // TANDEM_TESTS_SERVICE_SERVICE_TESTUTIL_H_
