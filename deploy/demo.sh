@@ -1,13 +1,34 @@
 #!/usr/bin/env bash
 # The main job (README's first line), runnable without ../shared: generates a sample
-# volume (the paper's Pillow Box, 128^3 float32) and extracts + simplifies it in tandem
-# with the local CLI. Leaves out/pillowbox.ply and out/pillowbox.metrics.json.
+# volume (the paper's Pillow Box, 128^3 float32), starts tandem-server on 127.0.0.1 (a port
+# the OS picks), streams the volume to it slice by slice with tandem-client like a scanner
+# (200 slices/s), and stops the server with SIGTERM (it drains and exits 0).
+# Leaves in out/: pillowbox.ply (final mesh), pillowbox.metrics.json, previews/*.drc
+# (the growing partial meshes) and server.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=build/bin
 mkdir -p out
+rm -rf out/previews
 "$bin/tandem" generate pillowbox --size 128 --out out/pillowbox.json
-"$bin/tandem" extract --input out/pillowbox.json --error 0.1 --schedule tandem-lag \
-  --out out/pillowbox.ply --metrics out/pillowbox.metrics.json --reference
-echo "wrote out/pillowbox.ply and out/pillowbox.metrics.json:"
+
+"$bin/tandem-server" --listen 127.0.0.1:0 >out/server.stdout 2>out/server.log &
+server=$!
+trap 'kill -TERM "$server" 2>/dev/null || true' EXIT
+addr=""
+for _ in $(seq 100); do
+  addr=$(sed -n 's/^listening on //p' out/server.stdout)
+  [ -n "$addr" ] && break
+  sleep 0.1
+done
+[ -n "$addr" ] || { echo "demo: tandem-server did not start; see out/server.log" >&2; exit 1; }
+
+"$bin/tandem-client" stream --server "$addr" --input out/pillowbox.json --iso 0 --error 0.1 \
+  --rate 200 --preview-every 16 --partials out/previews --reference \
+  --out out/pillowbox.ply --metrics out/pillowbox.metrics.json
+
+kill -TERM "$server"
+wait "$server"
+trap - EXIT
+echo "demo: wrote out/pillowbox.ply, out/pillowbox.metrics.json and $(ls out/previews | wc -l) previews in out/previews"
 grep -E '"(triangles_extracted|triangles_final|peak_triangles|error_max)"' out/pillowbox.metrics.json
