@@ -148,22 +148,25 @@ void Simplifier::RequeueAll() {
   keep_expensive_ = true;
   q_.clear();
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
-    if (!store_->triangle_alive(t)) continue;
-    const auto& tri = store_->triangle(t);
-    for (int k = 0; k < 3; ++k) {
-      const VertexId a = tri[k], b = tri[(k + 1) % 3];
-      if (a < b) {
-        PushEdge(a, b);
-      } else {
-        // Push a boundary edge from its only triangle; interior ones from the a < b side.
-        bool twin = false;
-        for (TriId u : store_->vertex_triangles(a)) {
-          const auto& o = store_->triangle(u);
-          for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
-        }
-        if (!twin) PushEdge(a, b);
+    if (store_->triangle_alive(t)) PushTriangleEdges(t);
+  }
+}
+
+void Simplifier::PushTriangleEdges(TriId t) {
+  // Each edge once: an interior edge is traversed a -> b by one triangle and b -> a by the
+  // other, so it is pushed from the a < b side; an edge with no reverse half-edge (box
+  // boundary, or the front before the next layer) is pushed from its only triangle.
+  const auto& tri = store_->triangle(t);
+  for (int k = 0; k < 3; ++k) {
+    const VertexId a = tri[k], b = tri[(k + 1) % 3];
+    bool twin = false;
+    if (a > b) {
+      for (TriId u : store_->vertex_triangles(a)) {
+        const auto& o = store_->triangle(u);
+        for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
       }
     }
+    if (!twin) PushEdge(a, b);
   }
 }
 
@@ -188,27 +191,8 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
 
 void Simplifier::Delay(std::span<const TriId> tris) {
   EnsureVertexCapacity();
-  // Each interior edge is in two new triangles (or one new and one older): push it from the
-  // triangle that traverses it upwards in id order, and boundary-like edges from both
-  // directions only once by checking whether the reverse half-edge's triangle is present.
   for (TriId t : tris) {
-    if (!store_->triangle_alive(t)) continue;
-    const auto& tri = store_->triangle(t);
-    for (int k = 0; k < 3; ++k) {
-      const VertexId a = tri[k], b = tri[(k + 1) % 3];
-      if (a < b) {
-        PushEdge(a, b);
-        continue;
-      }
-      // a > b: skip when another live triangle holds the edge as b -> a (it pushes it).
-      bool twin = false;
-      for (TriId u : store_->vertex_triangles(a)) {
-        if (u == t) continue;
-        const auto& o = store_->triangle(u);
-        for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
-      }
-      if (!twin) PushEdge(a, b);
-    }
+    if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
 }
 

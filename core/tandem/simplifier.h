@@ -121,6 +121,7 @@ class Simplifier {
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
+  void PushTriangleEdges(TriId t);  // each edge of t once (see Delay)
   template <typename E>
   bool Stale(const E& e) const {
     return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
