@@ -3,22 +3,43 @@
 # tests). Non-interactive: safe for CI and container builds. Run as root (or via sudo).
 #   deploy/install-deps.sh            build + test dependencies
 #   deploy/install-deps.sh --runtime  only the shared libraries the binaries need
+#   deploy/install-deps.sh --fuzz     build + test dependencies, plus clang and the
+#                                     libFuzzer/sanitizer runtimes (tests/fuzz/run.sh)
 set -euo pipefail
 
 BUILD_PKGS=(
   build-essential cmake pkg-config git ca-certificates
   libabsl-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev libdraco-dev
   libgtest-dev libgmock-dev nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev
-  python3
+  python3 python3-yaml openssl
 )
-RUNTIME_PKGS=(libgrpc++1.51 libprotobuf32 libtiff6 zlib1g libdraco7)
+# What tandem-server and tandem-client link (their DT_NEEDED entries, checked with
+# `objdump -p` / `ldd` on the Release binaries): gRPC++ (libgrpc++, libgrpc++_reflection),
+# gRPC core (libgrpc, libgpr, libupb, libaddress_sorting), Abseil, Protobuf, Draco,
+# libtiff, zlib, and the C++ runtime. The rest (c-ares, re2, OpenSSL, libtiff's codecs)
+# comes in through these packages' own dependencies.
+RUNTIME_PKGS=(
+  libgrpc++1.51 libgrpc29 libabsl20220623 libprotobuf32 libdraco7 libtiff6 zlib1g
+  libstdc++6 libgcc-s1
+)
+# Fuzzing and sanitizer builds: clang, its runtimes (libFuzzer, ASan, UBSan: a
+# Recommends of clang that --no-install-recommends would skip), llvm-symbolizer for stacks.
+FUZZ_PKGS=(clang libclang-rt-14-dev llvm)
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 export DEBIAN_FRONTEND=noninteractive
 
 pkgs=("${BUILD_PKGS[@]}")
-if [ "${1:-}" = "--runtime" ]; then pkgs=("${RUNTIME_PKGS[@]}"); fi
+case "${1:-}" in
+  "") ;;
+  --runtime) pkgs=("${RUNTIME_PKGS[@]}") ;;
+  --fuzz) pkgs+=("${FUZZ_PKGS[@]}") ;;
+  *)
+    echo "install-deps: unknown option '$1' (use --runtime or --fuzz, or nothing)" >&2
+    exit 2
+    ;;
+esac
 
 # Skip the network when everything is already there (fast re-runs, offline machines).
 missing=()

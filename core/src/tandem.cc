@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <new>
 
 #include "absl/strings/str_cat.h"
 #include "tandem/prefetch.h"
@@ -77,7 +78,14 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
   VolumeInfo g = grid;
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
   if (absl::Status st = options.Validate(); !st.ok()) return st;
-  return std::unique_ptr<TandemSession>(new TandemSession(g, options));
+  try {
+    return std::unique_ptr<TandemSession>(new TandemSession(g, options));
+  } catch (const std::bad_alloc&) {
+    // The extractor's plane caches are O(nx*ny); the only allocation that can be large here.
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "not enough memory for a ", g.nx, "x", g.ny, " grid (about ",
+        (g.nx * g.ny * 40) >> 20, " MiB of plane caches); use smaller slices"));
+  }
 }
 
 void TandemSession::Record() {

@@ -75,9 +75,12 @@ absl::Status ValidateVolumeInfo(const VolumeInfo& info) {
           "invalid dimensions: ", names[a], " = ", dims[a], " (at most ", kMaxAxis, " per axis)"));
     }
   }
-  if (info.slice_voxels() > (int64_t{1} << 31)) {
+  // 2^28 = 16384^2 voxels per slice, beyond any scanner's slice; extraction needs about
+  // 40 bytes per slice voxel, so a file declaring more (often a corrupt header) is refused
+  // before anything that size is allocated.
+  if (info.slice_voxels() > (int64_t{1} << 28)) {
     return absl::InvalidArgumentError(absl::StrCat("slice too large: ", info.nx, "x", info.ny,
-                                                   " voxels (at most 2^31 per slice)"));
+                                                   " voxels (at most 2^28 = 16384x16384 per slice)"));
   }
   for (int a = 0; a < 3; ++a) {
     if (!std::isfinite(info.spacing[a]) || info.spacing[a] <= 0.0) {

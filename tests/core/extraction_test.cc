@@ -12,6 +12,7 @@
 #include "tandem/tandem.h"
 #include "tandem/mesh_store.h"
 #include "tandem/synthetic.h"
+#include "tandem/tandem.h"
 #include "tandem/topology.h"
 #include "tandem/volume.h"
 #include "testutil/testutil.h"
@@ -276,6 +277,24 @@ TEST(Extraction, UnknownDepthGivesTheSameMeshAsKnownDepth) {
   Extracted eb = ExtractSource(*b, 0.0, /*pass_nz=*/false);
   EXPECT_EQ(ea.mesh.indices, eb.mesh.indices);
   ASSERT_EQ(ea.mesh.positions.size(), eb.mesh.positions.size());
+}
+
+// A tiny corrupt header can declare huge slices (found by fuzzing: a 62-byte .nii.gz with
+// 32767x32767 float32 slices aborted with bad_alloc). It must be an error, not a crash.
+TEST(Extraction, HugeDeclaredSlicesAreRefusedBeforeAllocation) {
+  VolumeInfo info;
+  info.nx = 32767;
+  info.ny = 32767;
+  info.nz = 2;
+  info.dtype = DType::kFloat32;
+  const absl::Status st = ValidateVolumeInfo(info);
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(st.message().find("slice too large"), std::string::npos) << st;
+  SessionOptions o;
+  o.schedule = Schedule::kNone;
+  EXPECT_FALSE(TandemSession::Create(info, o).ok());
+  info.nx = info.ny = 16384;  // the largest accepted slice
+  EXPECT_TRUE(ValidateVolumeInfo(info).ok());
 }
 
 TEST(Extraction, NonFiniteValuesAreRejectedAndLeaveTheMeshUnchanged) {

@@ -1,0 +1,146 @@
+// Writes the seed corpora of the reader fuzz targets (tests/fuzz/corpus/<target>/) with
+// the project's own writers: tiny volumes (a few hundred bytes to a few KB) in every
+// variant the readers support. Run by tests/fuzz/run.sh --seeds; the output is checked in.
+//   fuzz_make_seeds OUT_DIR
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <vector>
+
+#include "tandem/volume.h"
+#include "tandem/volume_writers.h"
+
+namespace fs = std::filesystem;
+using tandem::DType;
+using tandem::VolumeInfo;
+using tandem::VolumeWriteOptions;
+
+namespace {
+
+std::string Slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+void Put(const fs::path& p, const std::string& bytes) {
+  fs::create_directories(p.parent_path());
+  std::ofstream(p, std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+VolumeInfo Info(int64_t nx, int64_t ny, int64_t nz, DType t) {
+  VolumeInfo info;
+  info.nx = nx;
+  info.ny = ny;
+  info.nz = nz;
+  info.dtype = t;
+  return info;
+}
+
+// A ball-like field in the stored type, so the volumes hold a surface.
+void Write(const fs::path& path, const VolumeInfo& info, const VolumeWriteOptions& opts = {}) {
+  auto fn = [&](int64_t z, std::vector<uint8_t>* bytes) {
+    bytes->assign(info.slice_bytes(), 0);
+    const size_t es = tandem::DTypeSize(info.dtype);
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        const double dx = i - info.nx / 2.0, dy = j - info.ny / 2.0, dz = z - info.nz / 2.0;
+        const double v = 100.0 - 10.0 * (dx * dx + dy * dy + dz * dz);
+        uint8_t* p = bytes->data() + (j * info.nx + i) * es;
+        switch (info.dtype) {
+          case DType::kUInt8: *p = static_cast<uint8_t>(v < 0 ? 0 : v); break;
+          case DType::kUInt16: { uint16_t x = static_cast<uint16_t>(v < 0 ? 0 : v * 100); std::memcpy(p, &x, 2); break; }
+          case DType::kInt16: { int16_t x = static_cast<int16_t>(v); std::memcpy(p, &x, 2); break; }
+          case DType::kFloat32: { float x = static_cast<float>(v); std::memcpy(p, &x, 4); break; }
+        }
+      }
+    }
+    return absl::OkStatus();
+  };
+  absl::Status st = tandem::WriteVolume(path.string(), info, fn, opts);
+  if (!st.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
+    std::exit(1);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::fprintf(stderr, "usage: fuzz_make_seeds OUT_DIR\n");
+    return 2;
+  }
+  const fs::path out(argv[1]);
+  const fs::path tmp = fs::temp_directory_path() / ("tandem-seeds-" + std::to_string(getpid()));
+  fs::create_directories(tmp);
+  for (const char* t : {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff"}) {
+    fs::create_directories(out / t);
+  }
+
+  // raw + JSON: [u16 LE raw size][sidecar], the sidecar written as fz.json -> fz.raw.
+  int n = 0;
+  auto raw_seed = [&](VolumeInfo info, VolumeWriteOptions opts) {
+    info.suggested_isovalues = {50.0};
+    info.description = "fuzz seed";
+    Write(tmp / "fz.json", info, opts);
+    const uint64_t size = fs::file_size(tmp / "fz.raw");
+    std::string seed;
+    seed.push_back(static_cast<char>(size & 0xff));
+    seed.push_back(static_cast<char>((size >> 8) & 0xff));
+    seed += Slurp(tmp / "fz.json");
+    Put(out / "fuzz_raw_json" / ("seed_" + std::to_string(++n)), seed);
+  };
+  VolumeWriteOptions big;
+  big.big_endian = true;
+  raw_seed(Info(5, 4, 3, DType::kUInt8), {});
+  VolumeInfo spaced = Info(4, 4, 3, DType::kInt16);
+  spaced.spacing = {0.5, 1.0, 2.0};
+  spaced.origin = {-1.0, 0.0, 3.0};
+  raw_seed(spaced, big);
+  raw_seed(Info(3, 3, 2, DType::kFloat32), {});
+  raw_seed(Info(6, 2, 2, DType::kUInt16), {});
+
+  // NRRD: attached raw / gzip / big-endian, and detached headers matching the target's
+  // 4096-byte companions fz.raw and fz.raw.gz.
+  VolumeWriteOptions gz;
+  gz.gzip = true;
+  Write(out / "fuzz_nrrd" / "seed_attached_uint8.nrrd", Info(5, 4, 3, DType::kUInt8));
+  Write(out / "fuzz_nrrd" / "seed_attached_gzip_int16.nrrd", spaced, gz);
+  Write(out / "fuzz_nrrd" / "seed_attached_big_float32.nrrd", Info(3, 3, 2, DType::kFloat32), big);
+  Write(tmp / "fz.nhdr", Info(16, 16, 16, DType::kUInt8));
+  Put(out / "fuzz_nrrd" / "seed_detached_raw", Slurp(tmp / "fz.nhdr"));
+  Write(tmp / "fz.nhdr", Info(8, 8, 32, DType::kUInt16), gz);
+  Put(out / "fuzz_nrrd" / "seed_detached_gzip", Slurp(tmp / "fz.nhdr"));
+  Put(out / "fuzz_nrrd" / "seed_handwritten_byteskip",
+      "NRRD0004\n# hand-written: spacings, byte skip -1, key/value pairs\ntype: unsigned char\n"
+      "dimension: 3\nsizes: 2 2 2\nspacings: 1.5 1 0.5\nspace origin: (1,2,3)\nendian: little\n"
+      "encoding: raw\nbyte skip: -1\ncontent: handwritten\nsuggested_isovalues:=1 2\n\n"
+      "PADDING\x01\x02\x03\x04\x05\x06\x07\x08");
+
+  // NIfTI-1: plain, big-endian, scaled uint16, gzip.
+  Write(out / "fuzz_nifti" / "seed_uint8.nii", Info(5, 4, 3, DType::kUInt8));
+  Write(out / "fuzz_nifti" / "seed_big_int16.nii", spaced, big);
+  VolumeWriteOptions scaled;
+  scaled.nifti_scl_slope = 2.0f;
+  scaled.nifti_scl_inter = 1.0f;
+  Write(out / "fuzz_nifti" / "seed_scaled_uint16.nii", Info(4, 3, 2, DType::kUInt16), scaled);
+  Write(out / "fuzz_nifti" / "seed_gzip_float32.nii.gz", Info(3, 3, 2, DType::kFloat32));
+
+  // TIFF: strips, big-endian, tiles, deflate.
+  Write(out / "fuzz_tiff" / "seed_strips_uint8.tif", Info(5, 4, 3, DType::kUInt8));
+  Write(out / "fuzz_tiff" / "seed_big_uint16.tif", Info(4, 3, 2, DType::kUInt16), big);
+  VolumeWriteOptions tiles;
+  tiles.tiff_tile_size = 16;
+  Write(out / "fuzz_tiff" / "seed_tiles_uint8.tif", Info(17, 16, 2, DType::kUInt8), tiles);
+  VolumeWriteOptions deflate;
+  deflate.gzip = true;
+  Write(out / "fuzz_tiff" / "seed_deflate_int16.tif", spaced, deflate);
+
+  fs::remove_all(tmp);
+  std::printf("seeds written under %s\n", out.string().c_str());
+  return 0;
+}
