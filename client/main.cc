@@ -9,6 +9,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <memory>
 #include <string>
 
 #include <grpcpp/grpcpp.h>
@@ -17,6 +19,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "client/connection.h"
 #include "client/stream_client.h"
 #include "codec/draco_codec.h"
 #include "common/cli_flags.h"
@@ -36,23 +39,59 @@ constexpr char kMainUsage[] =
     "usage: tandem-client <command> [flags]   (tandem-client <command> --help for its flags)\n"
     "commands:\n"
     "  stream   stream a volume to tandem-server and save the simplified iso-surface\n"
-    "  info     print the server's version, limits and live counters\n"
-    "  health   query the standard gRPC health service (exit 0 when SERVING)";
+    "  info     print the server's version, security, limits and live counters\n"
+    "  health   query the standard gRPC health service (exit 0 when SERVING)\n"
+    "environment: TANDEM_SERVER, TANDEM_TLS_CA, TANDEM_TLS_SERVER_NAME, TANDEM_TOKEN_FILE (as\n"
+    "the flags), TANDEM_TOKEN (the bearer token itself; --token-file wins; never a flag,\n"
+    "since command lines are visible to every user of the machine)";
 
-int Fail(const absl::Status& st) {
-  if (absl::IsUnavailable(st) || absl::IsDeadlineExceeded(st)) {
-    absl::FPrintF(stderr, "tandem-client: error: %s: %s (is tandem-server running there?)\n",
-                  absl::StatusCodeToString(st.code()), std::string(st.message()));
-  } else {
-    absl::FPrintF(stderr, "tandem-client: error: %s: %s\n", absl::StatusCodeToString(st.code()),
-                  std::string(st.message()));
-  }
+int Fail(const absl::Status& st, const std::string& hint = "") {
+  absl::FPrintF(stderr, "tandem-client: error: %s: %s%s\n", absl::StatusCodeToString(st.code()),
+                std::string(st.message()), hint.empty() ? "" : absl::StrCat(" (", hint, ")"));
   return 1;
 }
 
+// --server and the TLS / token flags every command has (health: no token).
+struct ConnectionFlags {
+  tandem::client::ConnectionOptions options;
+  std::string token_file;
+  bool with_token = true;
+
+  ConnectionFlags() { options.server = tandem::wire::kDefaultServerAddress; }
+  void Add(FlagSet& flags, bool token) {
+    with_token = token;
+    flags.AddString("server", &options.server, "HOST:PORT", "tandem-server address");
+    flags.AddString("tls-ca", &options.tls_ca_file, "FILE",
+                    "connect with TLS and verify the server against these PEM roots");
+    flags.AddBool("tls", &options.tls, "connect with TLS, verified against the system's roots");
+    flags.AddString("tls-server-name", &options.tls_server_name, "NAME",
+                    "name the server's certificate must carry, when not the host of --server");
+    if (token) {
+      flags.AddString("token-file", &token_file, "FILE",
+                      "send the first token of FILE as `authorization: Bearer`; without it, "
+                      "the token in $TANDEM_TOKEN (if set) is sent");
+    }
+  }
+  // After parsing: loads the token. -1 to go on, else the exit status.
+  int Finish() {
+    if (!with_token) return -1;
+    absl::StatusOr<std::string> token = tandem::client::LoadToken(token_file);
+    if (!token.ok()) {
+      absl::FPrintF(stderr, "tandem-client: %s\n", std::string(token.status().message()));
+      return 2;
+    }
+    options.token = *std::move(token);
+    return -1;
+  }
+  int Fail(const absl::Status& st) const {
+    return ::Fail(st, tandem::client::ConnectionHint(options, st));
+  }
+};
+
 // Parses flags; returns -1 to go on, else the exit status (help printed or usage error).
-int ParseOrExit(FlagSet& flags, int argc, char** argv) {
-  flags.UseEnvironment("TANDEM_", {"server"});  // TANDEM_SERVER, as in deploy/README.md
+int ParseOrExit(FlagSet& flags, int argc, char** argv, ConnectionFlags* connection) {
+  // TANDEM_SERVER etc., as in deploy/README.md (the token itself: TANDEM_TOKEN, no flag).
+  flags.UseEnvironment("TANDEM_", {"server", "tls-ca", "tls-server-name", "token-file"});
   if (absl::Status st = flags.Parse(argc, argv, 2); !st.ok()) {
     absl::FPrintF(stderr, "tandem-client: %s\n", std::string(st.message()));
     return 2;
@@ -66,7 +105,7 @@ int ParseOrExit(FlagSet& flags, int argc, char** argv) {
                   flags.positional().front());
     return 2;
   }
-  return -1;
+  return connection->Finish();
 }
 
 std::string Lower(std::string s) { return absl::AsciiStrToLower(s); }
@@ -81,7 +120,9 @@ absl::Status WriteFile(const std::string& path, const std::string& bytes) {
 
 // ---------------------------------------------------------------------------------------
 int StreamCommand(int argc, char** argv) {
-  std::string server = tandem::wire::kDefaultServerAddress, input, out, partials, metrics_path;
+  ConnectionFlags connection;
+  int64_t keepalive_ms = 30000;
+  std::string input, out, partials, metrics_path;
   std::string schedule_name = "tandem-lag";
   double iso = 0, error = 0, alpha = 0, rate = 0, timeout_s = 0;
   int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
@@ -92,7 +133,11 @@ int StreamCommand(int argc, char** argv) {
       "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
       "simplified iso-surface: .drc (the server's Draco bytes), .ply or .obj (decoded).");
-  flags.AddString("server", &server, "HOST:PORT", "tandem-server address");
+  connection.Add(flags, /*token=*/true);
+  flags.AddInt("keepalive-time-ms", &keepalive_ms,
+               "while streaming, ping the server when the connection has been quiet this "
+               "long, so that proxies and NATs keep it (0 = never; keep it at or above the "
+               "server's minimum ping interval, see `tandem-client info`)");
   flags.AddString("input", &input, "FILE", "volume to stream", /*required=*/true);
   flags.AddDouble("iso", &iso, "iso-value C0 (voxel units)", /*required=*/true);
   flags.AddDouble("error", &error, "error threshold E0 (physical units)", /*required=*/true);
@@ -115,7 +160,7 @@ int StreamCommand(int argc, char** argv) {
                 "also measure L1/L2/Linf distances to the unsimplified surface (server side)");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per progress and preview message on stderr");
-  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   if (ext != ".drc" && ext != ".ply" && ext != ".obj") {
@@ -130,10 +175,10 @@ int StreamCommand(int argc, char** argv) {
     return 2;
   }
   if (chunk_bytes < 1 || rate < 0 || timeout_s < 0 || preview_every < 0 || preview_ms < 0 ||
-      target < 0) {
+      target < 0 || keepalive_ms < 0 || keepalive_ms > std::numeric_limits<int>::max()) {
     absl::FPrintF(stderr,
                   "tandem-client: --chunk-bytes must be >= 1; --rate, --timeout, --preview-every, "
-                  "--preview-ms and --target-triangles must be >= 0\n");
+                  "--preview-ms, --target-triangles and --keepalive-time-ms must be >= 0\n");
     return 2;
   }
   if (bits < 1 || bits > 30 || level < 0 || level > 10) {
@@ -159,7 +204,8 @@ int StreamCommand(int argc, char** argv) {
   if (!source.ok()) return Fail(source.status());
 
   tandem::client::StreamOptions options;
-  options.server = server;
+  options.connection = connection.options;
+  options.connection.keepalive_time_ms = keepalive_ms;
   options.rate = rate;
   options.chunk_bytes = static_cast<size_t>(chunk_bytes);
   options.timeout_s = timeout_s;
@@ -205,7 +251,7 @@ int StreamCommand(int argc, char** argv) {
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::StreamVolume(**source, options, callbacks);
   if (bar) absl::FPrintF(stderr, "\n");
-  if (!result.ok()) return Fail(result.status());
+  if (!result.ok()) return connection.Fail(result.status());
   if (!partial_error.ok()) return Fail(partial_error);
 
   // Decode even for .drc: it checks the bytes and the counts the server announced.
@@ -237,29 +283,30 @@ int StreamCommand(int argc, char** argv) {
 }
 
 // ---------------------------------------------------------------------------------------
-std::shared_ptr<grpc::Channel> Connect(const std::string& server) {
-  return grpc::CreateChannel(server, grpc::InsecureChannelCredentials());
-}
-
 void SetDeadline(grpc::ClientContext* context, double seconds) {
   context->set_deadline(std::chrono::system_clock::now() +
                         std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000)));
 }
 
 int InfoCommand(int argc, char** argv) {
-  std::string server = tandem::wire::kDefaultServerAddress;
+  ConnectionFlags connection;
   double timeout_s = 10;
-  FlagSet flags("usage: tandem-client info [--server HOST:PORT]\n"
-                "Prints the server's version, limits, supported dtypes and live counters.");
-  flags.AddString("server", &server, "HOST:PORT", "tandem-server address");
+  FlagSet flags("usage: tandem-client info [--server HOST:PORT] [flags]\n"
+                "Prints the server's version, security, limits, supported dtypes and live "
+                "counters.");
+  connection.Add(flags, /*token=*/true);
   flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
-  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
-  auto stub = tandem::v1::Tandem::NewStub(Connect(server));
+  if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
+  absl::StatusOr<std::shared_ptr<grpc::Channel>> channel =
+      tandem::client::MakeChannel(connection.options);
+  if (!channel.ok()) return Fail(channel.status());
+  auto stub = tandem::v1::Tandem::NewStub(*channel);
   grpc::ClientContext context;
   SetDeadline(&context, timeout_s);
+  tandem::client::AddToken(connection.options, &context);
   tandem::v1::InfoResponse info;
   grpc::Status st = stub->GetInfo(&context, tandem::v1::InfoRequest(), &info);
-  if (!st.ok()) return Fail(tandem::wire::FromGrpcStatus(st));
+  if (!st.ok()) return connection.Fail(tandem::wire::FromGrpcStatus(st));
   std::string dtypes, schedules;
   for (int d : info.dtypes()) {
     absl::StrAppend(&dtypes, dtypes.empty() ? "" : ", ",
@@ -274,7 +321,9 @@ int InfoCommand(int argc, char** argv) {
   }
   const auto& l = info.limits();
   const auto& c = info.counters();
-  absl::PrintF("server                 %s (%s)\n", server, info.version());
+  absl::PrintF("server                 %s (%s)\n", connection.options.server, info.version());
+  absl::PrintF("security               %s, %s\n", info.tls() ? "TLS" : "plaintext",
+               info.token_required() ? "bearer token required" : "no authentication");
   absl::PrintF("dtypes                 %s\n", dtypes);
   absl::PrintF("schedules              %s\n", schedules);
   absl::PrintF("max voxels per slice   %d\n", l.max_voxels_per_slice());
@@ -282,31 +331,45 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("max sessions           %d\n", l.max_sessions());
   absl::PrintF("max message bytes      %d\n", l.max_message_bytes());
   absl::PrintF("idle timeout           %g s\n", l.idle_timeout_seconds());
+  absl::PrintF("session memory         %d MiB\n", l.session_memory_bytes() >> 20);
+  absl::PrintF("max inflight bytes     %d\n", l.max_inflight_bytes());
+  absl::PrintF("keepalive              time %d ms, timeout %d ms, min client ping interval %d ms, "
+               "pings without calls %s\n",
+               l.keepalive_time_ms(), l.keepalive_timeout_ms(), l.min_ping_interval_ms(),
+               l.permit_keepalive_without_calls() ? "allowed" : "refused");
   absl::PrintF("active sessions        %d\n", c.active_sessions());
   absl::PrintF("sessions started       %d (finished %d, rejected %d)\n", c.sessions_started(),
                c.sessions_finished(), c.sessions_rejected());
   absl::PrintF("worker threads         %d\n", c.worker_threads());
   absl::PrintF("session bytes          %d\n", c.session_bytes());
+  absl::PrintF("buffered bytes         %d\n", c.buffered_bytes());
+  absl::PrintF("draining sessions      %d\n", c.sessions_draining());
+  absl::PrintF("unauthenticated calls  %d\n", c.unauthenticated_calls());
   return 0;
 }
 
 int HealthCommand(int argc, char** argv) {
-  std::string server = tandem::wire::kDefaultServerAddress, service;
+  ConnectionFlags connection;
+  std::string service;
   double timeout_s = 5;
-  FlagSet flags("usage: tandem-client health [--server HOST:PORT]\n"
-                "Asks grpc.health.v1.Health/Check; prints the status, exits 0 only if SERVING.");
-  flags.AddString("server", &server, "HOST:PORT", "tandem-server address");
+  FlagSet flags("usage: tandem-client health [--server HOST:PORT] [flags]\n"
+                "Asks grpc.health.v1.Health/Check; prints the status, exits 0 only if SERVING.\n"
+                "The health service needs no token, even when the server requires one.");
+  connection.Add(flags, /*token=*/false);
   flags.AddString("service", &service, "NAME", "service name to ask about (empty = the server)");
   flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
-  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
-  auto stub = grpc::health::v1::Health::NewStub(Connect(server));
+  if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
+  absl::StatusOr<std::shared_ptr<grpc::Channel>> channel =
+      tandem::client::MakeChannel(connection.options);
+  if (!channel.ok()) return Fail(channel.status());
+  auto stub = grpc::health::v1::Health::NewStub(*channel);
   grpc::ClientContext context;
   SetDeadline(&context, timeout_s);
   grpc::health::v1::HealthCheckRequest request;
   request.set_service(service);
   grpc::health::v1::HealthCheckResponse response;
   grpc::Status st = stub->Check(&context, request, &response);
-  if (!st.ok()) return Fail(tandem::wire::FromGrpcStatus(st));
+  if (!st.ok()) return connection.Fail(tandem::wire::FromGrpcStatus(st));
   absl::PrintF("%s\n", grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status()));
   return response.status() == grpc::health::v1::HealthCheckResponse::SERVING ? 0 : 1;
 }

@@ -111,12 +111,14 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
     c.add_origin(info.origin[a]);
   }
 
-  grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(wire::kClientMaxReceiveBytes);
-  std::shared_ptr<grpc::Channel> channel =
-      grpc::CreateCustomChannel(opts.server, grpc::InsecureChannelCredentials(), args);
-  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(channel);
+  if (opts.connection.max_receive_bytes == 0) {
+    opts.connection.max_receive_bytes = wire::kClientMaxReceiveBytes;
+  }
+  absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(opts.connection);
+  if (!channel.ok()) return channel.status();
+  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(*channel);
   grpc::ClientContext context;
+  AddToken(opts.connection, &context);
   if (opts.timeout_s > 0) {
     context.set_deadline(std::chrono::system_clock::now() +
                          std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000)));
@@ -183,7 +185,7 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   }
   if (malformed.empty() && !have_metrics) malformed = "the stream ended without final metrics";
   if (!malformed.empty()) {
-    return absl::DataLossError(absl::StrCat("malformed reply from ", opts.server, ": ", malformed));
+    return absl::DataLossError(absl::StrCat("malformed reply from ", opts.connection.server, ": ", malformed));
   }
   return result;
 }

@@ -10,13 +10,14 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "client/connection.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"
 
 namespace tandem::client {
 
 struct StreamOptions {
-  std::string server;
+  ConnectionOptions connection;
   v1::SessionConfig config;  // grid fields are filled from the volume
   double rate = 0;           // slices per second, 0 = as fast as the server takes them
   size_t chunk_bytes = 0;    // SliceChunk payload, > 0

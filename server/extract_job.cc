@@ -6,6 +6,7 @@
 #include <string>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "tandem/distance.h"
@@ -77,6 +78,10 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
     if (!reference.ok()) return reference.status();
     reference_ = *std::move(reference);
   }
+  // A slice sent in pieces is assembled in a buffer of its own: count it now.
+  if (absl::Status st = CheckMemory(config_.grid.slice_bytes(), "for this grid"); !st.ok()) {
+    return st;
+  }
   start_ = Clock::now();
   state_ = State::kStreaming;
   return absl::OkStatus();
@@ -111,6 +116,9 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
   }
   ++cursor_.slice;
   cursor_.bytes_so_far = 0;
+  if (absl::Status st = CheckMemory(0, absl::StrCat("after slice ", cursor_.slice - 1)); !st.ok()) {
+    return st;
+  }
   sink_->PostProgress(MakeProgress());
   MaybePreview();
   return absl::OkStatus();
@@ -151,6 +159,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
     if (s == nullptr) continue;
     if (absl::Status st = s->Finish(); !st.ok()) return st;
   }
+  if (absl::Status st = CheckMemory(0, "after the last slice"); !st.ok()) return st;
   const IndexedMesh mesh = session_->Snapshot();
   MetricsReport report = MakeReport(*session_, mesh);
   if (reference_) {
@@ -195,6 +204,21 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   final_triangles_ = static_cast<int64_t>(mesh.num_triangles());
   sink_->PostFinal(std::move(out));
   return absl::OkStatus();
+}
+
+absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) const {
+  const int64_t budget = limits_.session_memory_bytes;
+  const size_t bytes = MemoryBytes() + extra;
+  if (budget <= 0 || bytes <= static_cast<uint64_t>(budget)) return absl::OkStatus();
+  constexpr double kMiB = 1 << 20;
+  return absl::ResourceExhaustedError(absl::StrFormat(
+      "session memory budget exceeded: this stream needs %.1f MiB %s (mesh, simplification "
+      "queues, slice buffers%s), over this server's per-session budget of %.1f MiB "
+      "(tandem-server --session-memory-mb). Use a larger E0, a target triangle count or a "
+      "smaller grid%s, or ask the operator to raise --session-memory-mb",
+      static_cast<double>(bytes) / kMiB, when,
+      reference_ ? ", and the full-resolution reference of compute_distances" : "",
+      static_cast<double>(budget) / kMiB, reference_ ? ", drop compute_distances" : ""));
 }
 
 size_t ExtractJob::MemoryBytes() const {

@@ -6,7 +6,10 @@
 //
 // Memory: one slice buffer (nx*ny*sizeof(dtype)), the session (and, with
 // compute_distances, a second full-resolution session kept as the reference surface),
-// plus the encoded output. Never the whole volume.
+// plus the encoded output. Never the whole volume. The per-session budget
+// (ServerLimits::session_memory_bytes) is checked against MemoryBytes() after the config
+// (counting the slice buffer a chunked slice will need), after every slice and after the
+// final simplification; past it the job fails with RESOURCE_EXHAUSTED.
 #ifndef TANDEM_SERVER_EXTRACT_JOB_H_
 #define TANDEM_SERVER_EXTRACT_JOB_H_
 
@@ -14,6 +17,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -58,6 +62,8 @@ class ExtractJob {
   absl::Status ConsumeSlice(const uint8_t* bytes);
   absl::Status HandleEnd(const v1::End& end);
   void MaybePreview();
+  // RESOURCE_EXHAUSTED when MemoryBytes() + `extra` exceeds the budget; `when` says where.
+  absl::Status CheckMemory(size_t extra, const std::string& when) const;
   v1::Progress MakeProgress() const;
 
   ServerLimits limits_;

@@ -2,13 +2,20 @@
 // This file only parses flags, builds the server and handles SIGTERM/SIGINT: it marks the
 // server NOT_SERVING, lets running streams finish for --grace-seconds, cancels the rest,
 // waits for their worker threads, and exits 0.
+#include <malloc.h>  // mallopt (glibc)
 #include <pthread.h>
 #include <signal.h>
 
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <limits>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
@@ -18,6 +25,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
 #include "common/cli_flags.h"
+#include "common/tokens.h"
 #include "common/wire.h"
 #include "server/request_validation.h"
 #include "server/tandem_service.h"
@@ -29,17 +37,44 @@ constexpr char kUsage[] =
     "Serves tandem.v1.Tandem: streams of volume slices in, simplified iso-surface meshes\n"
     "(Draco) out, plus the standard gRPC health service and server reflection.\n"
     "Prints \"listening on HOST:PORT\" on stdout once ready (--listen with port 0 picks a\n"
-    "free port), one line per session on stderr, and exits 0 after SIGTERM or SIGINT.";
+    "free port), one line per session on stderr, and exits 0 after SIGTERM or SIGINT.\n"
+    "Security: --tls-cert/--tls-key for TLS, --auth-tokens-file for bearer tokens (refused\n"
+    "calls get UNAUTHENTICATED and a stderr line with the peer and the reason, never the\n"
+    "token). Every flag can also be set by the TANDEM_* variable shown; the flag wins.";
+
+absl::StatusOr<std::string> ReadFile(const std::string& flag, const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return absl::NotFoundError(
+        absl::StrCat("--", flag, " ", path, ": cannot open (", std::strerror(errno), ")"));
+  }
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (ss.str().find("-----BEGIN ") == std::string::npos) {
+    return absl::InvalidArgumentError(absl::StrCat("--", flag, " ", path, ": not a PEM file"));
+  }
+  return ss.str();
+}
 
 }  // namespace
 
 int main(int argc, char** argv) {
   std::string listen = tandem::wire::kDefaultServerAddress;
+  std::string tls_cert, tls_key, tokens_file;
   tandem::server::ServerLimits limits;
   int64_t max_sessions = limits.max_sessions;
+  int64_t session_memory_mb = limits.session_memory_bytes >> 20;
   double grace_seconds = 10;
+  int64_t malloc_arenas = 2;
   tandem::cli::FlagSet flags(kUsage);
   flags.AddString("listen", &listen, "HOST:PORT", "address to listen on (port 0 = any free port)");
+  flags.AddString("tls-cert", &tls_cert, "FILE",
+                  "PEM certificate chain: serve TLS instead of plaintext (needs --tls-key)");
+  flags.AddString("tls-key", &tls_key, "FILE", "PEM private key of --tls-cert");
+  flags.AddString("auth-tokens-file", &tokens_file, "FILE",
+                  "require `authorization: Bearer <token>` on Tandem calls (Extract, GetInfo); "
+                  "FILE: one token a line, blank lines and #comments ignored, read at start-up; "
+                  "the health service stays open");
   flags.AddInt("max-sessions", &max_sessions,
                "concurrent Extract streams; more get RESOURCE_EXHAUSTED (one worker thread each)");
   flags.AddInt("max-voxels-per-slice", &limits.max_voxels_per_slice,
@@ -47,8 +82,27 @@ int main(int argc, char** argv) {
   flags.AddInt("max-slices", &limits.max_slices, "largest number of slices accepted per stream");
   flags.AddInt("max-message-bytes", &limits.max_message_bytes,
                "largest request message accepted (bounds SliceChunk size)");
+  flags.AddInt("session-memory-mb", &session_memory_mb,
+               "memory budget of one session in MiB (mesh, simplification queues, slice "
+               "buffers); a stream that needs more ends with RESOURCE_EXHAUSTED");
+  flags.AddInt("max-inflight-bytes", &limits.max_inflight_bytes,
+               "per stream: received-but-unprocessed plus unsent response bytes; at this level "
+               "the server stops reading the stream until it drains");
   flags.AddDouble("idle-timeout-seconds", &limits.idle_timeout_s,
-                  "end a stream that sends nothing for this long (frees its session slot)");
+                  "end a stream on which nothing moves for this long: the client sends nothing "
+                  "(DEADLINE_EXCEEDED) or reads nothing (cancelled); frees its session slot");
+  flags.AddInt("keepalive-time-ms", &limits.keepalive_time_ms,
+               "ping a connection idle this long, to find vanished clients (0 = never)");
+  flags.AddInt("keepalive-timeout-ms", &limits.keepalive_timeout_ms,
+               "close the connection when a ping is not answered within this");
+  flags.AddInt("keepalive-min-ping-interval-ms", &limits.min_ping_interval_ms,
+               "client pings closer together than this (without data) are abuse; after 2 the "
+               "connection is closed (GOAWAY too_many_pings)");
+  flags.AddBool("keepalive-permit-without-calls", &limits.permit_keepalive_without_calls,
+                "accept client keepalive pings on connections with no call open");
+  flags.AddInt("malloc-arenas", &malloc_arenas,
+               "glibc malloc arenas (0 = glibc's default, 8 per core): few arenas keep the "
+               "resident size near the idle level after bursts of sessions");
   flags.AddDouble("grace-seconds", &grace_seconds,
                   "on SIGTERM/SIGINT, time running streams get to finish before cancellation");
   flags.UseEnvironment("TANDEM_");  // containers configure through TANDEM_* variables
@@ -65,46 +119,120 @@ int main(int argc, char** argv) {
                   flags.positional().front());
     return 2;
   }
+  constexpr int64_t kIntMax = std::numeric_limits<int>::max();
+  auto ms_ok = [](int64_t v, int64_t lo) { return v >= lo && v <= kIntMax; };
   if (max_sessions < 1 || max_sessions > 4096 || limits.max_voxels_per_slice < 4 ||
       limits.max_slices < 2 || limits.max_message_bytes < 1024 ||
       limits.max_message_bytes > (int64_t{1} << 30) || grace_seconds < 0 ||
-      !(limits.idle_timeout_s > 0)) {
+      !(limits.idle_timeout_s > 0) || session_memory_mb < 1 || session_memory_mb > (1 << 20) ||
+      limits.max_inflight_bytes < 1 || limits.max_inflight_bytes > (int64_t{1} << 40) ||
+      !ms_ok(limits.keepalive_time_ms, 0) || !ms_ok(limits.keepalive_timeout_ms, 1) ||
+      !ms_ok(limits.min_ping_interval_ms, 0) || malloc_arenas < 0 || malloc_arenas > 1024) {
     absl::FPrintF(stderr,
                   "tandem-server: out of range: need 1 <= --max-sessions <= 4096, "
                   "--max-voxels-per-slice >= 4, --max-slices >= 2, 1024 <= "
                   "--max-message-bytes <= 2^30, --grace-seconds >= 0, "
-                  "--idle-timeout-seconds > 0\n");
+                  "--idle-timeout-seconds > 0, 1 <= --session-memory-mb <= 2^20, "
+                  "1 <= --max-inflight-bytes <= 2^40, 0 <= --keepalive-time-ms and "
+                  "--keepalive-min-ping-interval-ms <= 2^31-1, "
+                  "1 <= --keepalive-timeout-ms <= 2^31-1, 0 <= --malloc-arenas <= 1024\n");
     return 2;
   }
   limits.max_sessions = static_cast<int>(max_sessions);
+  limits.session_memory_bytes = session_memory_mb << 20;
+#if defined(__GLIBC__)
+  // Every session runs on a new thread, and glibc gives new threads new arenas (up to 8
+  // per core); each keeps a few hundred KiB after malloc_trim, so a burst of sessions
+  // would leave the server a few MiB larger for good. Set before any thread exists.
+  if (malloc_arenas > 0) mallopt(M_ARENA_MAX, static_cast<int>(malloc_arenas));
+#endif
 
   // Block the shutdown signals in every thread (gRPC's included, so set before any is
-  // created); one thread takes them with sigwait.
+  // created: before the first gRPC object, credentials included); one thread takes them
+  // with sigwait.
   sigset_t signals;
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
+  // Credentials: TLS when a certificate is given; tokens when a file is.
+  if (tls_cert.empty() != tls_key.empty()) {
+    absl::FPrintF(stderr, "tandem-server: --tls-cert and --tls-key go together\n");
+    return 2;
+  }
+  std::shared_ptr<grpc::ServerCredentials> credentials = grpc::InsecureServerCredentials();
+  const bool tls = !tls_cert.empty();
+  if (tls) {
+    absl::StatusOr<std::string> cert = ReadFile("tls-cert", tls_cert);
+    absl::StatusOr<std::string> key = ReadFile("tls-key", tls_key);
+    for (const auto* pem : {&cert, &key}) {
+      if (!pem->ok()) {
+        absl::FPrintF(stderr, "tandem-server: %s\n", std::string(pem->status().message()));
+        return 2;
+      }
+    }
+    grpc::SslServerCredentialsOptions ssl;
+    ssl.pem_key_cert_pairs.push_back({*key, *cert});
+    credentials = grpc::SslServerCredentials(ssl);
+  }
+  std::vector<std::string> tokens;
+  if (!tokens_file.empty()) {
+    absl::StatusOr<std::vector<std::string>> read = tandem::auth::ReadTokensFile(tokens_file);
+    if (read.ok() && read->empty()) {
+      read = absl::InvalidArgumentError(absl::StrCat(
+          tokens_file, ": no token in the file (one per line; blank lines and #comments are "
+                       "ignored)"));
+    }
+    if (!read.ok()) {
+      absl::FPrintF(stderr, "tandem-server: --auth-tokens-file: %s\n",
+                    std::string(read.status().message()));
+      return 2;
+    }
+    tokens = *std::move(read);
+  }
+
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
-  tandem::server::TandemService service(limits);
+  const size_t token_count = tokens.size();
+  tandem::server::TandemService service(limits, std::move(tokens), tls);
   grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort(listen, grpc::InsecureServerCredentials(), &port);
+  builder.AddListeningPort(listen, credentials, &port);
   builder.SetMaxReceiveMessageSize(static_cast<int>(limits.max_message_bytes));
+  // Keepalive: find connections whose peer vanished without a FIN or RST (a powered-off
+  // scanner PC, a NAT that dropped the flow) long before the idle timeout would.
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS,
+                             limits.keepalive_time_ms > 0
+                                 ? static_cast<int>(limits.keepalive_time_ms)
+                                 : std::numeric_limits<int>::max());
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIMEOUT_MS,
+                             static_cast<int>(limits.keepalive_timeout_ms));
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MIN_RECV_PING_INTERVAL_WITHOUT_DATA_MS,
+                             static_cast<int>(limits.min_ping_interval_ms));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS,
+                             limits.permit_keepalive_without_calls ? 1 : 0);
   builder.RegisterService(&service);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (server == nullptr || port == 0) {
-    absl::FPrintF(stderr, "tandem-server: cannot listen on %s (address in use or invalid?)\n",
-                  listen);
+    absl::FPrintF(stderr, "tandem-server: cannot listen on %s (address in use or invalid%s?)\n",
+                  listen, tls ? ", or --tls-cert and --tls-key do not match" : "");
     return 1;
   }
   const std::string host = listen.substr(0, listen.rfind(':'));
   absl::PrintF("listening on %s:%d\n", host, port);
   std::fflush(stdout);
-  absl::FPrintF(stderr, "tandem-server: %s listening on %s:%d (max %d sessions)\n",
-                tandem::wire::ServiceVersion(), host, port, limits.max_sessions);
+  absl::FPrintF(stderr,
+                "tandem-server: %s listening on %s:%d (max %d sessions, %d MiB each; %s; %s)\n",
+                tandem::wire::ServiceVersion(), host, port, limits.max_sessions,
+                session_memory_mb, tls ? "TLS" : "plaintext",
+                token_count > 0 ? absl::StrCat("bearer tokens: ", token_count)
+                                : std::string("no authentication"));
+  if (token_count > 0 && !tls && host != "127.0.0.1" && host != "localhost" && host != "[::1]") {
+    absl::FPrintF(stderr,
+                  "tandem-server: warning: bearer tokens without TLS travel in clear text; use "
+                  "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network\n");
+  }
 
   std::thread signal_thread([&] {
     int sig = 0;

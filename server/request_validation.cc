@@ -127,6 +127,10 @@ absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
         "slice ", z, ": wrong slice size: chunk.slice_size = ", chunk.slice_size(),
         " bytes, but the config's grid needs ", SliceShape(g)));
   }
+  if (z < 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("chunk.slice = ", z, ": slice indices start at 0"));
+  }
   if (z < cursor.slice) {
     return absl::InvalidArgumentError(absl::StrCat(
         "slice ", z, " repeated: slices 0..", cursor.slice - 1, " are complete; expected slice ",

@@ -20,13 +20,20 @@
 
 namespace tandem::server {
 
-// Operator-set limits (tandem-server flags of the same names).
+// Operator-set limits (tandem-server flags of the same names; GetInfo reports them all).
 struct ServerLimits {
   int64_t max_voxels_per_slice = int64_t{4096} * 4096;  // --max-voxels-per-slice
   int64_t max_slices = 16384;                           // --max-slices
   int max_sessions = 8;                                 // --max-sessions
   int64_t max_message_bytes = int64_t{16} << 20;        // --max-message-bytes
   double idle_timeout_s = 300;                          // --idle-timeout-seconds
+  int64_t session_memory_bytes = int64_t{1024} << 20;   // --session-memory-mb (in MiB)
+  int64_t max_inflight_bytes = int64_t{16} << 20;       // --max-inflight-bytes
+  // HTTP/2 transport (grpc::ServerBuilder channel arguments).
+  int64_t keepalive_time_ms = 60000;         // --keepalive-time-ms (0 = no pings)
+  int64_t keepalive_timeout_ms = 20000;      // --keepalive-timeout-ms
+  int64_t min_ping_interval_ms = 10000;      // --keepalive-min-ping-interval-ms
+  bool permit_keepalive_without_calls = false;  // --keepalive-permit-without-calls
 };
 
 // Everything a job needs, checked.

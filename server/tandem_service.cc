@@ -1,5 +1,8 @@
 #include "server/tandem_service.h"
 
+#include <malloc.h>  // malloc_trim (glibc)
+
+#include <algorithm>
 #include <deque>
 #include <optional>
 #include <string>
@@ -20,14 +23,25 @@ namespace {
 using Request = v1::ExtractRequest;
 using Response = v1::ExtractResponse;
 
+// A call refused before it started (authentication): finishes at once.
+class RefusedCall final : public grpc::ServerBidiReactor<Request, Response> {
+ public:
+  explicit RefusedCall(const grpc::Status& status) { Finish(status); }
+  void OnDone() override { delete this; }
+};
+
 // One Extract stream: the reactor (gRPC side) and the JobSink (worker side) in one object,
 // kept alive by shared_ptr: the reactor's own reference is dropped in OnDone, the
-// worker's when its loop ends. Every gRPC operation is started under mu_ and only while
-// Finish has not been called, so neither side can touch a finished stream.
+// worker's when it has seen the stream finish. Every gRPC operation is started under mu_
+// and only while Finish has not been called, so neither side can touch a finished stream.
 class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, public JobSink {
  public:
   ExtractCall(std::shared_ptr<ServiceState> state, grpc::CallbackServerContext* context)
-      : state_(std::move(state)), peer_(context->peer()), start_(absl::Now()) {}
+      : state_(std::move(state)),
+        peer_(context->peer()),
+        start_(absl::Now()),
+        context_(context),
+        last_activity_(start_) {}
   ~ExtractCall() override;
 
   // Accepts the stream (first read + worker thread) or finishes it at once when every
@@ -46,15 +60,37 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, pub
 
  private:
   void RunWorker();
+  // After the job: waits until Finish has been called (every response written, or
+  // dropped after an error) or the call is cancelled; cancels a call whose client stopped
+  // reading for limits.idle_timeout_s.
+  void WaitForFinish();
+  // Waits for `cond`; false when the stream made no progress (nothing read, nothing
+  // written) for limits.idle_timeout_s. Counts the wait from now at the latest.
+  bool AwaitProgressLocked(const absl::Condition& cond) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Ends a stream that made no progress for the idle timeout. True when the call must
+  // also be cancelled (a write is stuck: Finish would wait for it forever).
+  bool EndIdleStreamLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // grpc::ServerContext::TryCancel, unless OnDone came first. Call without mu_.
+  void CancelCall();
   // Ends the stream: an error drops pending output; OK sends it all first.
   void EndStream(grpc::Status status);
   void EndStreamLocked(grpc::Status status) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  void StartReadLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Starts the next read if none is in flight, the input is open and the bytes in
+  // flight are below limits.max_inflight_bytes.
+  void MaybeStartReadLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   // Starts the next write, or Finish once nothing is left to write.
   void PumpLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   bool StoppingLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
     return cancelled_ || finish_wanted_.has_value();
   }
+  int64_t OutputBytesLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+    return progress_bytes_ + preview_bytes_ + final_bytes_ + write_bytes_;
+  }
+  int64_t InflightLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+    return inbox_bytes_ + OutputBytesLocked();
+  }
+  // Brings ServiceState::buffered_bytes up to date with this stream's bytes in flight.
+  void SyncBufferedLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
 
   const std::shared_ptr<ServiceState> state_;
   const std::string peer_;
@@ -62,11 +98,23 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, pub
   bool accepted_ = false;
   std::shared_ptr<ExtractCall> self_;  // the reactor's reference, dropped in OnDone
 
+  absl::Mutex ctx_mu_;  // never held together with mu_
+  grpc::CallbackServerContext* context_ ABSL_GUARDED_BY(ctx_mu_);  // null after OnDone
+
   absl::Mutex mu_;
   Request read_buf_;  // owned by gRPC between StartRead and OnReadDone
-  std::optional<Request> inbox_ ABSL_GUARDED_BY(mu_);  // read, not yet taken by the worker
+  bool read_in_flight_ ABSL_GUARDED_BY(mu_) = false;
+  struct Received {
+    Request request;
+    int64_t bytes;
+  };
+  std::deque<Received> inbox_ ABSL_GUARDED_BY(mu_);  // read, not yet taken by the worker
+  int64_t inbox_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  bool end_received_ ABSL_GUARDED_BY(mu_) = false;  // no read after End
   bool input_closed_ ABSL_GUARDED_BY(mu_) = false;
   bool cancelled_ ABSL_GUARDED_BY(mu_) = false;
+  bool stalled_ ABSL_GUARDED_BY(mu_) = false;  // ended by the idle timeout
+  absl::Time last_activity_ ABSL_GUARDED_BY(mu_);  // last read or write completed
   bool write_in_flight_ ABSL_GUARDED_BY(mu_) = false;
   bool finish_called_ ABSL_GUARDED_BY(mu_) = false;
   std::optional<grpc::Status> finish_wanted_ ABSL_GUARDED_BY(mu_);
@@ -74,6 +122,11 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, pub
   std::optional<v1::Progress> progress_ ABSL_GUARDED_BY(mu_);  // latest wins
   std::optional<v1::Preview> preview_ ABSL_GUARDED_BY(mu_);    // latest wins
   std::deque<Response> final_ ABSL_GUARDED_BY(mu_);            // all, in order
+  int64_t progress_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t preview_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t final_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t write_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t accounted_buffered_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t bytes_received_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t bytes_sent_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t previews_sent_ ABSL_GUARDED_BY(mu_) = 0;
@@ -100,7 +153,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
   state->sessions_started.fetch_add(1);
   {
     absl::MutexLock lock(&call->mu_);
-    call->StartReadLocked();
+    call->MaybeStartReadLocked();
   }
   state->WorkerStarted();
   try {
@@ -108,6 +161,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
       call->RunWorker();
       call.reset();  // may destroy the stream (logs its line) if OnDone came first
       state->WorkerExited();
+      state->TrimIfIdle();
     }).detach();
   } catch (const std::system_error& e) {
     state->WorkerExited();
@@ -119,13 +173,12 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
 
 ExtractCall::~ExtractCall() {
   if (!accepted_) return;  // rejected streams are counted in sessions_rejected only
-  state_->active_sessions.fetch_sub(1);
-  state_->sessions_finished.fetch_add(1);
   // One line per session for operators. (The lock is uncontended: last reference.)
   absl::MutexLock lock(&mu_);
+  state_->buffered_bytes.fetch_sub(accounted_buffered_);
   grpc::Status status = finish_wanted_.value_or(
       grpc::Status(grpc::StatusCode::UNKNOWN, "the stream ended without a status"));
-  if (cancelled_ && status.error_code() != grpc::StatusCode::CANCELLED) {
+  if (cancelled_ && !stalled_ && status.error_code() != grpc::StatusCode::CANCELLED) {
     // The client never saw `status`; a cancelled stream's reads also end early, so the
     // worker may have reported a missing End first.
     status = grpc::Status(grpc::StatusCode::CANCELLED,
@@ -140,35 +193,62 @@ ExtractCall::~ExtractCall() {
                 bytes_received_, bytes_sent_, previews_sent_,
                 absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code())),
                 status.ok() ? "" : absl::StrCat(" message=\"", status.error_message(), "\""));
+  state_->sessions_finished.fetch_add(1);
+  state_->active_sessions.fetch_sub(1);  // last: tests wait for it to read the log
 }
 
-void ExtractCall::StartReadLocked() {
-  if (finish_called_ || StoppingLocked() || input_closed_) return;
+void ExtractCall::MaybeStartReadLocked() {
+  if (read_in_flight_ || finish_called_ || StoppingLocked() || input_closed_ || end_received_) {
+    return;
+  }
+  if (InflightLocked() >= state_->limits.max_inflight_bytes) return;  // resumed as it drains
+  read_in_flight_ = true;
   StartRead(&read_buf_);
+}
+
+void ExtractCall::SyncBufferedLocked() {
+  const int64_t bytes = InflightLocked();
+  state_->buffered_bytes.fetch_add(bytes - accounted_buffered_);
+  accounted_buffered_ = bytes;
 }
 
 void ExtractCall::OnReadDone(bool ok) {
   absl::MutexLock lock(&mu_);
+  read_in_flight_ = false;
   if (!ok) {
     input_closed_ = true;  // half-close by the client, or the call is ending
     return;
   }
-  bytes_received_ += static_cast<int64_t>(read_buf_.ByteSizeLong());
-  inbox_.emplace(std::move(read_buf_));
+  last_activity_ = absl::Now();
+  const int64_t bytes = static_cast<int64_t>(read_buf_.ByteSizeLong());
+  bytes_received_ += bytes;
+  if (StoppingLocked()) {  // the stream is ending: nobody will take it
+    read_buf_.Clear();
+    return;
+  }
+  end_received_ = read_buf_.has_end();
+  inbox_.push_back(Received{std::move(read_buf_), bytes});
+  inbox_bytes_ += bytes;
   read_buf_.Clear();
-  // No new read here: the worker starts it when it takes this message (flow control).
+  MaybeStartReadLocked();
+  SyncBufferedLocked();
 }
 
 void ExtractCall::OnWriteDone(bool ok) {
   absl::MutexLock lock(&mu_);
   write_in_flight_ = false;
+  write_bytes_ = 0;
   if (!ok) {
     // The client is gone (disconnect or cancel): nothing more can be written.
     cancelled_ = true;
     EndStreamLocked(grpc::Status(grpc::StatusCode::CANCELLED, "the client stopped reading"));
+    SyncBufferedLocked();
     return;
   }
+  last_activity_ = absl::Now();
   PumpLocked();
+  MaybeStartReadLocked();  // the output drained: reading may resume
+  SyncBufferedLocked();
 }
 
 void ExtractCall::OnCancel() {
@@ -177,17 +257,30 @@ void ExtractCall::OnCancel() {
   EndStreamLocked(grpc::Status(
       grpc::StatusCode::CANCELLED,
       "the stream was cancelled (client cancel, deadline, or server shutdown)"));
+  SyncBufferedLocked();
 }
 
 void ExtractCall::OnDone() {
   // Every operation has completed. Drop the reactor's reference; the worker (if still
-  // running) sees cancelled_ or finish_wanted_ and lets go of its own.
-  std::shared_ptr<ExtractCall> self = std::move(self_);
+  // running) sees cancelled_ or finish_called_ and lets go of its own.
+  {
+    absl::MutexLock lock(&ctx_mu_);
+    context_ = nullptr;
+  }
+  std::shared_ptr<ServiceState> state = state_;
+  { std::shared_ptr<ExtractCall> self = std::move(self_); }  // may destroy *this
+  state->TrimIfIdle();
+}
+
+void ExtractCall::CancelCall() {
+  absl::MutexLock lock(&ctx_mu_);
+  if (context_ != nullptr) context_->TryCancel();
 }
 
 void ExtractCall::EndStream(grpc::Status status) {
   absl::MutexLock lock(&mu_);
   EndStreamLocked(std::move(status));
+  SyncBufferedLocked();
 }
 
 void ExtractCall::EndStreamLocked(grpc::Status status) {
@@ -201,6 +294,9 @@ void ExtractCall::EndStreamLocked(grpc::Status status) {
     progress_.reset();
     preview_.reset();
     final_.clear();
+    progress_bytes_ = preview_bytes_ = final_bytes_ = 0;
+    inbox_.clear();
+    inbox_bytes_ = 0;
   }
   finish_wanted_ = std::move(status);
   PumpLocked();
@@ -214,12 +310,15 @@ void ExtractCall::PumpLocked() {
     if (progress_) {
       *(next.emplace().mutable_progress()) = std::move(*progress_);
       progress_.reset();
+      progress_bytes_ = 0;
     } else if (preview_) {
       *(next.emplace().mutable_preview()) = std::move(*preview_);
       preview_.reset();
+      preview_bytes_ = 0;
     } else if (!final_.empty()) {
       next = std::move(final_.front());
       final_.pop_front();
+      final_bytes_ -= static_cast<int64_t>(next->ByteSizeLong());
     }
   }
   if (next) {
@@ -232,7 +331,8 @@ void ExtractCall::PumpLocked() {
       m->set_bytes_sent(bytes_sent_);
       m->set_previews_sent(previews_sent_);
     }
-    bytes_sent_ += static_cast<int64_t>(next->ByteSizeLong());
+    write_bytes_ = static_cast<int64_t>(next->ByteSizeLong());
+    bytes_sent_ += write_bytes_;
     write_buf_ = std::move(*next);
     write_in_flight_ = true;
     StartWrite(&write_buf_);
@@ -247,79 +347,148 @@ void ExtractCall::PumpLocked() {
 void ExtractCall::PostProgress(v1::Progress progress) {
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
+  progress_bytes_ = static_cast<int64_t>(progress.ByteSizeLong());
   progress_ = std::move(progress);
   PumpLocked();
+  SyncBufferedLocked();
 }
 
 void ExtractCall::PostPreview(v1::Preview preview) {
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
+  preview_bytes_ = static_cast<int64_t>(preview.ByteSizeLong());
   preview_ = std::move(preview);  // an unsent older preview is dropped: latest wins
   PumpLocked();
+  SyncBufferedLocked();
 }
 
 void ExtractCall::PostFinal(std::vector<Response> messages) {
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
   preview_.reset();  // a preview older than the final mesh is of no use any more
-  for (Response& m : messages) final_.push_back(std::move(m));
+  preview_bytes_ = 0;
+  for (Response& m : messages) {
+    final_bytes_ += static_cast<int64_t>(m.ByteSizeLong());
+    final_.push_back(std::move(m));
+  }
   PumpLocked();
+  SyncBufferedLocked();
+}
+
+bool ExtractCall::AwaitProgressLocked(const absl::Condition& cond) {
+  const absl::Duration idle = absl::Seconds(state_->limits.idle_timeout_s);
+  last_activity_ = std::max(last_activity_, absl::Now());
+  while (!mu_.AwaitWithDeadline(cond, last_activity_ + idle)) {
+    // Reads and writes that completed meanwhile moved last_activity_: wait on.
+    if (absl::Now() >= last_activity_ + idle) return false;
+  }
+  return true;
+}
+
+bool ExtractCall::EndIdleStreamLocked() {
+  const double idle_s = state_->limits.idle_timeout_s;
+  const bool reading_paused = !read_in_flight_ && !input_closed_ && !end_received_ &&
+                              inbox_.empty() && !finish_wanted_.has_value();
+  std::string message;
+  if (write_in_flight_ && (reading_paused || finish_wanted_.has_value())) {
+    message = absl::StrFormat(
+        "the client read none of the server's messages for %g s (%d response bytes waiting; "
+        "the server stops reading a stream at tandem-server --max-inflight-bytes = %d and "
+        "ends it after --idle-timeout-seconds)",
+        idle_s, OutputBytesLocked(), state_->limits.max_inflight_bytes);
+  } else {
+    message = absl::StrFormat("no message for %g s (tandem-server --idle-timeout-seconds)%s",
+                              idle_s, write_in_flight_ ? ", and the client is not reading" : "");
+  }
+  stalled_ = true;
+  // Replaces an OK still waiting for its final messages to be read.
+  if (finish_wanted_.has_value() && finish_wanted_->ok()) finish_wanted_.reset();
+  EndStreamLocked(grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, message));
+  SyncBufferedLocked();
+  return write_in_flight_;
 }
 
 void ExtractCall::RunWorker() {
-  ExtractJob job(state_->limits, this);
-  int64_t accounted_bytes = 0;
-  while (true) {
-    std::optional<Request> request;
-    {
-      absl::MutexLock lock(&mu_);
-      const bool woken = mu_.AwaitWithTimeout(
-          absl::Condition(
-              +[](ExtractCall* c) ABSL_EXCLUSIVE_LOCKS_REQUIRED(c->mu_) {
-                return c->inbox_.has_value() || c->input_closed_ || c->StoppingLocked();
-              },
-              this),
-          absl::Seconds(state_->limits.idle_timeout_s));
-      if (!woken) {
-        // A silent client would hold its session slot forever.
-        EndStreamLocked(grpc::Status(
-            grpc::StatusCode::DEADLINE_EXCEEDED,
-            absl::StrFormat("no message for %g s (tandem-server --idle-timeout-seconds)",
-                            state_->limits.idle_timeout_s)));
+  bool cancel = false;
+  {
+    ExtractJob job(state_->limits, this);
+    int64_t accounted_bytes = 0;
+    while (true) {
+      std::optional<Request> request;
+      {
+        absl::MutexLock lock(&mu_);
+        const bool woken = AwaitProgressLocked(absl::Condition(
+            +[](ExtractCall* c) ABSL_EXCLUSIVE_LOCKS_REQUIRED(c->mu_) {
+              return !c->inbox_.empty() || c->input_closed_ || c->StoppingLocked();
+            },
+            this));
+        if (!woken) {
+          // A silent client would hold its session slot forever.
+          cancel = EndIdleStreamLocked();
+          break;
+        }
+        if (StoppingLocked()) break;
+        if (!inbox_.empty()) {
+          request = std::move(inbox_.front().request);
+          inbox_bytes_ -= inbox_.front().bytes;
+          inbox_.pop_front();
+          if (request->has_config()) description_ = request->config().description();
+          MaybeStartReadLocked();  // room in the inbox again
+          SyncBufferedLocked();
+        }
+      }
+      const absl::Status status = request ? job.Handle(*request) : job.HandleEndOfInput();
+      request.reset();
+      const int64_t bytes = static_cast<int64_t>(job.MemoryBytes());
+      state_->session_bytes.fetch_add(bytes - accounted_bytes);
+      accounted_bytes = bytes;
+      {
+        absl::MutexLock lock(&mu_);
+        slices_ = job.slices();
+        triangles_ = job.triangles();
+      }
+      if (!status.ok()) {
+        EndStream(wire::ToGrpcStatus(status));
         break;
       }
-      if (StoppingLocked()) break;
-      if (inbox_.has_value()) {
-        request = std::move(inbox_);
-        inbox_.reset();
-        if (request->has_config()) description_ = request->config().description();
-        // The slot is free again: read the next message while this one is processed.
-        if (!request->has_end()) StartReadLocked();
+      if (job.done()) {
+        EndStream(grpc::Status::OK);  // after the final messages already queued
+        break;
       }
     }
-    const absl::Status status = request ? job.Handle(*request) : job.HandleEndOfInput();
-    request.reset();
-    const int64_t bytes = static_cast<int64_t>(job.MemoryBytes());
-    state_->session_bytes.fetch_add(bytes - accounted_bytes);
-    accounted_bytes = bytes;
-    {
-      absl::MutexLock lock(&mu_);
-      slices_ = job.slices();
-      triangles_ = job.triangles();
+    state_->session_bytes.fetch_sub(accounted_bytes);
+  }  // the session's memory goes here, before the output is delivered
+  if (cancel) CancelCall();
+  WaitForFinish();
+}
+
+void ExtractCall::WaitForFinish() {
+  bool cancel = false;
+  {
+    absl::MutexLock lock(&mu_);
+    auto finished = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+      return finish_called_ || cancelled_;
+    };
+    if (finished()) return;
+    state_->sessions_draining.fetch_add(1);
+    while (!finished() && !cancel) {
+      if (!AwaitProgressLocked(absl::Condition(&finished))) cancel = EndIdleStreamLocked();
     }
-    if (!status.ok()) {
-      EndStream(wire::ToGrpcStatus(status));
-      break;
-    }
-    if (job.done()) {
-      EndStream(grpc::Status::OK);  // after the final messages already queued
-      break;
-    }
+    state_->sessions_draining.fetch_sub(1);
   }
-  state_->session_bytes.fetch_sub(accounted_bytes);
+  if (cancel) CancelCall();
 }
 
 }  // namespace
+
+void ServiceState::TrimIfIdle() const {
+#if defined(__GLIBC__)
+  // Sessions allocate and free tens of MiB on worker threads, whose glibc arenas keep
+  // freed pages mapped; hand them back once nothing is running, so the server's resident
+  // size returns to its idle level.
+  if (active_sessions.load() == 0) malloc_trim(0);
+#endif
+}
 
 void ServiceState::WorkerStarted() {
   absl::MutexLock lock(&mu_);
@@ -342,13 +511,17 @@ bool ServiceState::WaitForWorkers(absl::Time deadline) {
   return mu_.AwaitWithDeadline(absl::Condition(&none), deadline);
 }
 
-TandemService::TandemService(const ServerLimits& limits)
-    : state_(std::make_shared<ServiceState>(limits)) {}
+TandemService::TandemService(const ServerLimits& limits, std::vector<std::string> tokens,
+                             bool tls)
+    : state_(std::make_shared<ServiceState>(limits, std::move(tokens), tls)) {}
 
 TandemService::~TandemService() { state_->WaitForWorkers(absl::Now() + absl::Seconds(5)); }
 
 grpc::ServerBidiReactor<Request, Response>* TandemService::Extract(
     grpc::CallbackServerContext* context) {
+  if (grpc::Status st = state_->auth.Check(*context, "Extract"); !st.ok()) {
+    return new RefusedCall(st);
+  }
   return ExtractCall::Start(state_, context);
 }
 
@@ -360,12 +533,20 @@ v1::Counters TandemService::CountersSnapshot() const {
   c.set_sessions_rejected(state_->sessions_rejected.load());
   c.set_worker_threads(state_->worker_threads());
   c.set_session_bytes(state_->session_bytes.load());
+  c.set_unauthenticated_calls(state_->auth.refused());
+  c.set_buffered_bytes(state_->buffered_bytes.load());
+  c.set_sessions_draining(state_->sessions_draining.load());
   return c;
 }
 
 grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* context,
                                                  const v1::InfoRequest* /*request*/,
                                                  v1::InfoResponse* response) {
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  if (grpc::Status st = state_->auth.Check(*context, "GetInfo"); !st.ok()) {
+    reactor->Finish(st);
+    return reactor;
+  }
   response->set_version(wire::ServiceVersion());
   v1::Limits* l = response->mutable_limits();
   l->set_max_voxels_per_slice(state_->limits.max_voxels_per_slice);
@@ -373,6 +554,12 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   l->set_max_sessions(state_->limits.max_sessions);
   l->set_max_message_bytes(state_->limits.max_message_bytes);
   l->set_idle_timeout_seconds(state_->limits.idle_timeout_s);
+  l->set_session_memory_bytes(state_->limits.session_memory_bytes);
+  l->set_max_inflight_bytes(state_->limits.max_inflight_bytes);
+  l->set_keepalive_time_ms(state_->limits.keepalive_time_ms);
+  l->set_keepalive_timeout_ms(state_->limits.keepalive_timeout_ms);
+  l->set_min_ping_interval_ms(state_->limits.min_ping_interval_ms);
+  l->set_permit_keepalive_without_calls(state_->limits.permit_keepalive_without_calls);
   for (v1::DType d : {v1::DTYPE_UINT8, v1::DTYPE_UINT16, v1::DTYPE_INT16, v1::DTYPE_FLOAT32}) {
     response->add_dtypes(d);
   }
@@ -381,7 +568,8 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
     response->add_schedules(s);
   }
   *response->mutable_counters() = CountersSnapshot();
-  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  response->set_tls(state_->tls);
+  response->set_token_required(state_->auth.enabled());
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }

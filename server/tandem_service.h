@@ -5,28 +5,41 @@
 // TandemSession (core may briefly add a helper thread per slice: SessionOptions::pipeline).
 // Reactions never block and never compute: they move messages between gRPC and the worker
 // under a mutex.
-//   * Flow control: the next read is started only when the worker has taken the previous
-//     message, so at most one request waits per stream however fast the client sends.
+//   * Authentication: with tokens configured, Extract and GetInfo check the bearer token
+//     before anything else (server/auth.h explains why there and not in gRPC hooks).
+//   * Flow control: one read in flight; the next starts as soon as the previous message
+//     is queued, while the stream's bytes in flight (received, not yet taken by the
+//     worker, plus responses not yet sent) stay below limits.max_inflight_bytes. At that
+//     level the server stops reading; HTTP/2 flow control then blocks the client's
+//     writes until the worker has caught up or the client has read its responses.
 //   * Output: one write in flight; Progress and Preview are latest-wins slots (a slow
 //     reader gets fewer, newer previews), the final messages an ordered queue.
 //   * Cleanup: client cancel, disconnect, deadline or server shutdown set the stream's
 //     cancel flag; the worker checks it between messages, and the stream's resources go
-//     when both the reactor (OnDone) and the worker have let go. A stream silent for
-//     limits.idle_timeout_s ends with DEADLINE_EXCEEDED.
-//   * Memory per stream: the session, one slice buffer, at most two request messages
-//     (one being read, one being handled), the newest Progress and Preview, and the
-//     encoded final mesh while it is sent.
+//     when both the reactor (OnDone) and the worker have let go. When the last session
+//     goes, freed heap is handed back to the OS (malloc_trim).
+//   * Idle streams: a stream on which nothing moves (no message read, no response
+//     written, the worker waiting) for limits.idle_timeout_s ends with DEADLINE_EXCEEDED;
+//     if a response is stuck because the client does not read, the call is also
+//     cancelled (a blocked write would otherwise hold it open). The worker stays until the
+//     final messages are written, so this holds after the last slice too.
+//   * Memory per stream: the session (budget limits.session_memory_bytes, enforced by
+//     ExtractJob), one slice buffer, the bytes in flight above, one message being read,
+//     and the encoded final mesh while it is sent.
 #ifndef TANDEM_SERVER_TANDEM_SERVICE_H_
 #define TANDEM_SERVER_TANDEM_SERVICE_H_
 
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include <grpcpp/grpcpp.h>
 
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
+#include "server/auth.h"
 #include "server/request_validation.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
@@ -35,14 +48,21 @@ namespace tandem::server {
 // Shared by the service, its streams and their worker threads (which may outlive a
 // stream's reactor), hence reference-counted.
 struct ServiceState {
-  explicit ServiceState(const ServerLimits& l) : limits(l) {}
+  ServiceState(const ServerLimits& l, std::vector<std::string> tokens, bool tls_on)
+      : limits(l), tls(tls_on), auth(std::move(tokens)) {}
   const ServerLimits limits;
+  const bool tls;
+  TokenAuthenticator auth;
   std::atomic<int64_t> active_sessions{0};
   std::atomic<int64_t> sessions_started{0};
   std::atomic<int64_t> sessions_finished{0};
   std::atomic<int64_t> sessions_rejected{0};
   std::atomic<int64_t> session_bytes{0};
+  std::atomic<int64_t> buffered_bytes{0};
+  std::atomic<int64_t> sessions_draining{0};
 
+  // Returns freed heap to the OS (malloc_trim) when no session is active.
+  void TrimIfIdle() const;
   void WorkerStarted();
   void WorkerExited();
   int64_t worker_threads() const;
@@ -56,7 +76,9 @@ struct ServiceState {
 
 class TandemService final : public v1::Tandem::CallbackService {
  public:
-  explicit TandemService(const ServerLimits& limits);
+  // `tokens`: accepted bearer tokens (empty = no authentication). `tls`: only reported.
+  explicit TandemService(const ServerLimits& limits, std::vector<std::string> tokens = {},
+                         bool tls = false);
   // Waits (up to 5 s) for worker threads still finishing a message after Shutdown.
   ~TandemService() override;
 

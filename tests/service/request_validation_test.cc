@@ -151,6 +151,10 @@ TEST(ValidateChunk, ChecksIndexOffsetSizeAndDtype) {
   EXPECT_TRUE(ValidateChunk(chunk(3, 100, 284), *cfg, {3, 100}, limits).ok());
   ExpectError(ValidateChunk(chunk(2, 0, 384), *cfg, {3, 0}, limits),
               absl::StatusCode::kInvalidArgument, "slice 2 repeated");
+  ExpectError(ValidateChunk(chunk(-1, 0, 384), *cfg, {0, 0}, limits),
+              absl::StatusCode::kInvalidArgument, "chunk.slice = -1: slice indices start at 0");
+  ExpectError(ValidateChunk(chunk(0, ~uint64_t{0}, 10), *cfg, {0, 0}, limits),
+              absl::StatusCode::kInvalidArgument, "past the end of the slice");
   ExpectError(ValidateChunk(chunk(5, 0, 384), *cfg, {3, 0}, limits),
               absl::StatusCode::kInvalidArgument, "out of order: expected slice 3");
   ExpectError(ValidateChunk(chunk(4, 0, 384), *cfg, {3, 100}, limits),

@@ -11,36 +11,13 @@
 #include <gtest/gtest.h>
 
 #include "codec/draco_codec.h"
+#include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/synthetic.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {
 namespace {
-
-// 12 x 12 float32 slices = 576 bytes, sent in chunks of 200 (three per slice).
-constexpr int64_t kN = 12;
-constexpr size_t kChunk = 200;
-
-std::vector<v1::ExtractRequest> Good(int64_t n = kN, size_t chunk = kChunk) {
-  v1::SessionConfig config;
-  config.set_error(0.5);
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
-  return VolumeRequests(*source, config, chunk);
-}
-
-// Index of the first chunk of slice z in Good().
-size_t FirstChunk(const std::vector<v1::ExtractRequest>& r, int64_t z) {
-  for (size_t i = 0; i < r.size(); ++i) {
-    if (r[i].has_chunk() && r[i].chunk().slice() == z) return i;
-  }
-  return r.size();
-}
-
-void SetFloat(v1::ExtractRequest* r, size_t index, float value) {
-  std::string* data = r->mutable_chunk()->mutable_data();
-  std::memcpy(data->data() + index * sizeof(float), &value, sizeof value);
-}
 
 bool FinishedOk(const StreamOutcome& o) {
   return o.status.ok() && !o.responses.empty() && o.responses.back().has_final_metrics();
@@ -59,92 +36,10 @@ class ServiceRobustnessTest : public ::testing::Test {
 };
 
 TEST_F(ServiceRobustnessTest, BadInputGetsTheRightCodeAndTheServerKeepsServing) {
-  ASSERT_NO_FATAL_FAILURE(Start({"--max-voxels-per-slice", "10000", "--max-slices", "64"}));
+  ASSERT_NO_FATAL_FAILURE(Start(kBadInputServerArgs));
   ASSERT_TRUE(FinishedOk(RunStream(*stub_, Good()))) << "the unmodified stream works";
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  const float inf = std::numeric_limits<float>::infinity();
-  using Edit = std::function<void(std::vector<v1::ExtractRequest>*)>;
-  struct Case {
-    const char* name;
-    Edit edit;
-    grpc::StatusCode code;
-    const char* text;
-  };
-  const std::vector<Case> cases = {
-      {"no config first", [](auto* r) { r->erase(r->begin()); },
-       grpc::StatusCode::INVALID_ARGUMENT, "the first message must be a SessionConfig"},
-      {"empty first message", [](auto* r) { (*r)[0].Clear(); },
-       grpc::StatusCode::INVALID_ARGUMENT, "got an empty ExtractRequest"},
-      {"wrong slice size (declared)",
-       [](auto* r) { (*r)[1].mutable_chunk()->set_slice_size(1000); },
-       grpc::StatusCode::INVALID_ARGUMENT, "wrong slice size: chunk.slice_size = 1000"},
-      {"wrong slice size (grid says more)",
-       [](auto* r) { (*r)[0].mutable_config()->set_nx(kN + 1); },
-       grpc::StatusCode::INVALID_ARGUMENT, "wrong slice size"},
-      {"wrong slice size (too many bytes)",
-       [](auto* r) { (*r)[3].mutable_chunk()->mutable_data()->append(40, '\0'); },
-       grpc::StatusCode::INVALID_ARGUMENT, "runs past the end of the slice"},
-      {"dtype mismatch", [](auto* r) { (*r)[1].mutable_chunk()->set_dtype(v1::DTYPE_UINT8); },
-       grpc::StatusCode::INVALID_ARGUMENT, "chunk.dtype DTYPE_UINT8 does not match"},
-      {"out-of-order slice",
-       [](auto* r) { r->erase(r->begin() + FirstChunk(*r, 2), r->begin() + FirstChunk(*r, 3)); },
-       grpc::StatusCode::INVALID_ARGUMENT, "slice 3 out of order: expected slice 2"},
-      {"repeated slice",
-       [](auto* r) {
-         std::vector<v1::ExtractRequest> again(r->begin() + FirstChunk(*r, 1),
-                                               r->begin() + FirstChunk(*r, 2));
-         r->insert(r->begin() + FirstChunk(*r, 2), again.begin(), again.end());
-       },
-       grpc::StatusCode::INVALID_ARGUMENT, "slice 1 repeated"},
-      {"chunk offset past the slice", [](auto* r) { (*r)[2].mutable_chunk()->set_offset(5000); },
-       grpc::StatusCode::INVALID_ARGUMENT, "chunk.offset = 5000 is past the end of the slice"},
-      {"chunk offset with a gap", [](auto* r) { (*r)[2].mutable_chunk()->set_offset(300); },
-       grpc::StatusCode::INVALID_ARGUMENT, "chunk.offset = 300, expected 200"},
-      {"NaN voxel", [nan](auto* r) { SetFloat(&(*r)[FirstChunk(*r, 4)], 13, nan); },
-       grpc::StatusCode::INVALID_ARGUMENT, "slice 4: voxel (i=1, j=1) is NaN"},
-      {"infinite voxel", [inf](auto* r) { SetFloat(&(*r)[FirstChunk(*r, 0)], 0, -inf); },
-       grpc::StatusCode::INVALID_ARGUMENT, "slice 0: voxel (i=0, j=0) is infinite"},
-      {"E0 = 0", [](auto* r) { (*r)[0].mutable_config()->set_error(0); },
-       grpc::StatusCode::INVALID_ARGUMENT, "config.error (E0) = 0"},
-      {"E0 < 0", [](auto* r) { (*r)[0].mutable_config()->set_error(-2); },
-       grpc::StatusCode::INVALID_ARGUMENT, "config.error (E0) = -2"},
-      {"alpha > 1", [](auto* r) { (*r)[0].mutable_config()->set_alpha(1.5); },
-       grpc::StatusCode::INVALID_ARGUMENT, "config.alpha = 1.5"},
-      {"alpha < 0", [](auto* r) { (*r)[0].mutable_config()->set_alpha(-0.5); },
-       grpc::StatusCode::INVALID_ARGUMENT, "config.alpha = -0.5"},
-      {"dims over the limit",
-       [](auto* r) {
-         (*r)[0].mutable_config()->set_nx(200);
-         (*r)[0].mutable_config()->set_ny(200);
-       },
-       grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-voxels-per-slice"},
-      {"nz over the limit", [](auto* r) { (*r)[0].mutable_config()->set_nz(65); },
-       grpc::StatusCode::RESOURCE_EXHAUSTED, "--max-slices"},
-      {"unknown nz, too many slices",
-       [](auto* r) {
-         (*r)[0].mutable_config()->set_nz(0);
-         r->pop_back();  // End
-         std::vector<v1::ExtractRequest> more;
-         for (int64_t z = kN; z < 70; ++z) {
-           for (size_t i = FirstChunk(*r, 0); i < FirstChunk(*r, 1); ++i) {
-             more.push_back((*r)[i]);
-             more.back().mutable_chunk()->set_slice(z);
-           }
-         }
-         r->insert(r->end(), more.begin(), more.end());
-       },
-       grpc::StatusCode::RESOURCE_EXHAUSTED, "slice 64 exceeds this server's limit of 64"},
-      {"stream ends without End", [](auto* r) { r->pop_back(); },
-       grpc::StatusCode::INVALID_ARGUMENT, "without an End marker after 12 complete slices"},
-      {"End with the wrong count", [](auto* r) { r->back().mutable_end()->set_slices(5); },
-       grpc::StatusCode::INVALID_ARGUMENT, "End.slices = 5 but the server received 12"},
-      {"missing slice before End",
-       [](auto* r) { r->erase(r->begin() + FirstChunk(*r, kN - 1), r->end() - 1); },
-       grpc::StatusCode::INVALID_ARGUMENT, "End.slices = 12 but the server received 11"},
-      {"second config", [](auto* r) { r->insert(r->begin() + 2, (*r)[0]); },
-       grpc::StatusCode::INVALID_ARGUMENT, "got a SessionConfig"},
-  };
-  for (const Case& c : cases) {
+  const std::vector<BadInputCase> cases = BadInputCases();
+  for (const BadInputCase& c : cases) {
     std::vector<v1::ExtractRequest> requests = Good();
     c.edit(&requests);
     const StreamOutcome o = RunStream(*stub_, requests);
@@ -285,11 +180,13 @@ TEST_F(ServiceRobustnessTest, SlowReaderGetsFewerNewerPreviews) {
   auto stream = stub->Extract(&context);
   for (const v1::ExtractRequest& r : requests) ASSERT_TRUE(stream->Write(r));
   ASSERT_TRUE(stream->WritesDone());
-  // Let the server consume everything while nobody reads.
+  // Let the server consume everything while nobody reads. (Its worker then waits for
+  // the final messages to be read: a draining session.)
   bool consumed = false;
   for (int i = 0; i < 400 && !consumed; ++i) {
     auto info = server_->Info();
-    consumed = info.ok() && info->counters().worker_threads() == 0;
+    consumed = info.ok() && (info->counters().worker_threads() == 0 ||
+                             info->counters().sessions_draining() == 1);
     if (!consumed) std::this_thread::sleep_for(std::chrono::milliseconds(25));
   }
   ASSERT_TRUE(consumed);

@@ -43,7 +43,8 @@ std::chrono::system_clock::time_point In(double seconds) {
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<ChildProcess>> ChildProcess::Spawn(
-    const std::vector<std::string>& argv, const std::string& dir) {
+    const std::vector<std::string>& argv, const std::string& dir,
+    const std::vector<std::string>& env) {
   static std::atomic<int> counter{0};
   auto child = std::unique_ptr<ChildProcess>(new ChildProcess());
   const int n = counter++;
@@ -58,7 +59,19 @@ absl::StatusOr<std::unique_ptr<ChildProcess>> ChildProcess::Spawn(
   std::vector<char*> args;
   for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
-  const int rc = posix_spawn(&child->pid_, args[0], &actions, nullptr, args.data(), environ);
+  std::vector<std::string> env_strings;
+  for (char** e = environ; *e != nullptr; ++e) {
+    const std::string entry = *e;
+    const std::string name = entry.substr(0, entry.find('='));
+    bool replaced = false;
+    for (const std::string& add : env) replaced |= add.substr(0, add.find('=')) == name;
+    if (!replaced) env_strings.push_back(entry);
+  }
+  env_strings.insert(env_strings.end(), env.begin(), env.end());
+  std::vector<char*> envp;
+  for (std::string& e : env_strings) envp.push_back(e.data());
+  envp.push_back(nullptr);
+  const int rc = posix_spawn(&child->pid_, args[0], &actions, nullptr, args.data(), envp.data());
   posix_spawn_file_actions_destroy(&actions);
   if (rc != 0) {
     return absl::InternalError(absl::StrCat("posix_spawn ", argv[0], ": ", strerror(rc)));
@@ -96,9 +109,10 @@ std::optional<int> ChildProcess::Wait(double timeout_s) {
 std::string ChildProcess::Stdout() const { return ReadAll(out_path_); }
 std::string ChildProcess::Stderr() const { return ReadAll(err_path_); }
 
-RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s) {
+RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s,
+                     const std::vector<std::string>& env) {
   RunResult result;
-  auto child = ChildProcess::Spawn(argv, MakeTempDir());
+  auto child = ChildProcess::Spawn(argv, MakeTempDir(), env);
   if (!child.ok()) {
     result.err = std::string(child.status().message());
     return result;
@@ -112,13 +126,15 @@ RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s) {
 }
 
 absl::StatusOr<std::unique_ptr<TestServer>> TestServer::Start(
-    const std::vector<std::string>& extra_args) {
+    const std::vector<std::string>& extra_args, const ClientAuth& auth,
+    const std::vector<std::string>& env) {
   std::vector<std::string> argv = {BinPath("tandem-server"), "--listen", "127.0.0.1:0"};
   argv.insert(argv.end(), extra_args.begin(), extra_args.end());
-  auto process = ChildProcess::Spawn(argv, MakeTempDir());
+  auto process = ChildProcess::Spawn(argv, MakeTempDir(), env);
   if (!process.ok()) return process.status();
   auto server = std::unique_ptr<TestServer>(new TestServer());
   server->process_ = *std::move(process);
+  server->auth_ = auth;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
   while (std::chrono::steady_clock::now() < deadline) {
     const std::string out = server->process_->Stdout();
@@ -137,17 +153,28 @@ absl::StatusOr<std::unique_ptr<TestServer>> TestServer::Start(
   return absl::DeadlineExceededError("tandem-server did not print its address within 20 s");
 }
 
+std::shared_ptr<grpc::ChannelCredentials> TestServer::Credentials() const {
+  if (auth_.ca_pem.empty()) return grpc::InsecureChannelCredentials();
+  grpc::SslCredentialsOptions ssl;
+  ssl.pem_root_certs = auth_.ca_pem;
+  return grpc::SslCredentials(ssl);
+}
+
 std::unique_ptr<v1::Tandem::Stub> TestServer::NewStub() const {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(wire::kClientMaxReceiveBytes);
-  return v1::Tandem::NewStub(
-      grpc::CreateCustomChannel(address_, grpc::InsecureChannelCredentials(), args));
+  return v1::Tandem::NewStub(grpc::CreateCustomChannel(address_, Credentials(), args));
+}
+
+void TestServer::AddToken(grpc::ClientContext* context) const {
+  if (!auth_.token.empty()) context->AddMetadata("authorization", "Bearer " + auth_.token);
 }
 
 absl::StatusOr<v1::InfoResponse> TestServer::Info() const {
   auto stub = NewStub();
   grpc::ClientContext context;
   context.set_deadline(In(5));
+  AddToken(&context);
   v1::InfoResponse info;
   grpc::Status st = stub->GetInfo(&context, v1::InfoRequest(), &info);
   if (!st.ok()) return wire::FromGrpcStatus(st);
@@ -155,8 +182,8 @@ absl::StatusOr<v1::InfoResponse> TestServer::Info() const {
 }
 
 std::string TestServer::Health() const {
-  auto stub = grpc::health::v1::Health::NewStub(
-      grpc::CreateChannel(address_, grpc::InsecureChannelCredentials()));
+  // No token: the health service is open.
+  auto stub = grpc::health::v1::Health::NewStub(grpc::CreateChannel(address_, Credentials()));
   grpc::ClientContext context;
   context.set_deadline(In(5));
   grpc::health::v1::HealthCheckResponse response;
@@ -293,10 +320,12 @@ std::vector<v1::ExtractRequest> VolumeRequests(SliceSource& source,
   return out;
 }
 
-StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests) {
+StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests,
+                        const TestServer* server) {
   StreamOutcome outcome;
   grpc::ClientContext context;
   context.set_deadline(In(60));
+  if (server != nullptr) server->AddToken(&context);
   auto stream = stub.Extract(&context);
   // Writes on a second thread: a server that stops reading must not block the reads.
   std::thread writer([&] {
@@ -310,6 +339,53 @@ StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractReq
   writer.join();
   outcome.status = stream->Finish();
   return outcome;
+}
+
+int64_t ResidentBytes(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) {
+      std::istringstream fields(line.substr(6));
+      int64_t kib = -1;
+      fields >> kib;
+      return kib < 0 ? -1 : kib * 1024;
+    }
+  }
+  return -1;
+}
+
+std::string ReadFileOrEmpty(const std::string& path) { return ReadAll(path); }
+
+absl::StatusOr<TestPki> MakeTestPki(const std::string& dir) {
+  TestPki pki{dir + "/ca.crt", dir + "/server.crt", dir + "/server.key", dir + "/other_ca.crt"};
+  std::ofstream(dir + "/san.ext") << "subjectAltName=IP:127.0.0.1,DNS:localhost\n"
+                                  << "basicConstraints=CA:FALSE\n"
+                                  << "keyUsage=digitalSignature,keyEncipherment\n"
+                                  << "extendedKeyUsage=serverAuth\n";
+  // EC P-256 keys: fast to generate, and what a modern deployment would use.
+  const std::string ec = "ec:" + dir + "/ecparam.pem";
+  const std::vector<std::vector<std::string>> steps = {
+      {"openssl", "ecparam", "-name", "prime256v1", "-out", dir + "/ecparam.pem"},
+      {"openssl", "req", "-x509", "-newkey", ec, "-nodes", "-keyout", dir + "/ca.key", "-out",
+       pki.ca_crt, "-days", "2", "-subj", "/CN=tandem test CA"},
+      {"openssl", "req", "-newkey", ec, "-nodes", "-keyout", pki.server_key, "-out",
+       dir + "/server.csr", "-subj", "/CN=localhost"},
+      {"openssl", "x509", "-req", "-in", dir + "/server.csr", "-CA", pki.ca_crt, "-CAkey",
+       dir + "/ca.key", "-CAcreateserial", "-out", pki.server_crt, "-days", "2", "-extfile",
+       dir + "/san.ext"},
+      {"openssl", "req", "-x509", "-newkey", ec, "-nodes", "-keyout", dir + "/other_ca.key",
+       "-out", pki.other_ca_crt, "-days", "2", "-subj", "/CN=tandem test CA"},
+  };
+  for (std::vector<std::string> step : steps) {
+    step[0] = "/usr/bin/openssl";
+    const RunResult r = RunProcess(step, 30);
+    if (r.exit_code != 0) {
+      return absl::InternalError(absl::StrCat("openssl ", step[1], " failed (", r.exit_code,
+                                              "): ", r.err, " (install it: deploy/install-deps.sh)"));
+    }
+  }
+  return pki;
 }
 
 }  // namespace tandem::testing

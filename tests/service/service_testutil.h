@@ -25,8 +25,10 @@ namespace tandem::testing {
 // (SIGKILL) and reaps it if it is still running.
 class ChildProcess {
  public:
+  // `env`: NAME=VALUE entries added to (or replacing in) this process's environment.
   static absl::StatusOr<std::unique_ptr<ChildProcess>> Spawn(const std::vector<std::string>& argv,
-                                                             const std::string& dir);
+                                                             const std::string& dir,
+                                                             const std::vector<std::string>& env = {});
   ~ChildProcess();
   pid_t pid() const { return pid_; }
   void Signal(int sig) const;
@@ -46,16 +48,28 @@ struct RunResult {
   std::string out, err;
 };
 // Runs a program to completion (killed after timeout_s).
-RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s = 60);
+RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s = 60,
+                     const std::vector<std::string>& env = {});
+
+// How the tests' own gRPC clients reach a TestServer.
+struct ClientAuth {
+  std::string ca_pem;  // "" = plaintext
+  std::string token;   // "" = none
+};
 
 // build/bin/tandem-server --listen 127.0.0.1:0 [extra...], port read from its stdout.
 class TestServer {
  public:
   static absl::StatusOr<std::unique_ptr<TestServer>> Start(
-      const std::vector<std::string>& extra_args = {});
+      const std::vector<std::string>& extra_args = {}, const ClientAuth& auth = {},
+      const std::vector<std::string>& env = {});
   const std::string& address() const { return address_; }
   ChildProcess& process() { return *process_; }
+  const ClientAuth& auth() const { return auth_; }
+  std::shared_ptr<grpc::ChannelCredentials> Credentials() const;
+  // A stub with this server's credentials; add the token with AddToken.
   std::unique_ptr<v1::Tandem::Stub> NewStub() const;
+  void AddToken(grpc::ClientContext* context) const;
   absl::StatusOr<v1::InfoResponse> Info() const;
   // "SERVING", "NOT_SERVING", ... or the RPC error's code name.
   std::string Health() const;
@@ -65,7 +79,19 @@ class TestServer {
  private:
   std::unique_ptr<ChildProcess> process_;
   std::string address_;
+  ClientAuth auth_;
 };
+
+// VmRSS of a process in bytes (/proc/PID/status), or -1.
+int64_t ResidentBytes(pid_t pid);
+
+// A throwaway PKI made with the openssl CLI in `dir`: a CA, a server certificate signed by
+// it for IP:127.0.0.1 and DNS:localhost, and a second, unrelated CA.
+struct TestPki {
+  std::string ca_crt, server_crt, server_key, other_ca_crt;
+};
+absl::StatusOr<TestPki> MakeTestPki(const std::string& dir);
+std::string ReadFileOrEmpty(const std::string& path);
 
 // Writes the first `nz` slices of a synthetic float32 field as DIR/NAME.json + .raw.
 absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const std::string& name,
@@ -95,7 +121,8 @@ struct StreamOutcome {
 };
 // Sends `requests` on one Extract stream (stopping at the first failed write), then
 // WritesDone, then reads everything (deadline 60 s).
-StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests);
+StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests,
+                        const TestServer* server = nullptr);
 
 }  // namespace tandem::testing
 

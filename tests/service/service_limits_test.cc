@@ -1,0 +1,495 @@
+// Server limits: every limit is a flag with a default, shown by --help and reported by
+// GetInfo; the per-session memory budget fails only the stream that exceeds it; the bytes
+// in flight per stream are bounded (the server stops reading a stream whose client does
+// not read); a stream stalled on either side ends after the idle timeout; keepalive finds
+// a frozen client; the server's ping policy is enforced.
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <atomic>
+#include <thread>
+
+#include "server/extract_job.h"
+#include "service/bad_input_cases.h"
+#include "service/service_testutil.h"
+#include "tandem/synthetic.h"
+#include "testutil/testutil.h"
+
+namespace tandem::testing {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double SecondsSince(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+bool FinishedOk(const StreamOutcome& o) {
+  return o.status.ok() && !o.responses.empty() && o.responses.back().has_final_metrics();
+}
+
+std::chrono::system_clock::time_point In(double seconds) {
+  return std::chrono::system_clock::now() +
+         std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000));
+}
+
+// Polls GetInfo until `pred` holds (true) or `timeout_s` passes (false).
+bool WaitFor(const TestServer& server, double timeout_s,
+             const std::function<bool(const v1::Counters&)>& pred, v1::Counters* last = nullptr) {
+  const auto deadline =
+      Clock::now() + std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000));
+  while (Clock::now() < deadline) {
+    auto info = server.Info();
+    if (info.ok()) {
+      if (last) *last = info->counters();
+      if (pred(info->counters())) return true;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return false;
+}
+
+// A channel whose receive window stays at 64 KiB (no BDP growth): what the server can push
+// ahead of a client that does not read is small and known.
+std::unique_ptr<v1::Tandem::Stub> SmallWindowStub(const TestServer& server) {
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 64 * 1024);
+  args.SetMaxReceiveMessageSize(64 << 20);
+  return v1::Tandem::NewStub(
+      grpc::CreateCustomChannel(server.address(), grpc::InsecureChannelCredentials(), args));
+}
+
+// Full-resolution previews after every slice: tens of KB of output per slice.
+std::vector<v1::ExtractRequest> PreviewHeavy(int64_t n, int64_t nz) {
+  v1::SessionConfig config;
+  config.set_schedule(v1::SCHEDULE_NONE);
+  config.mutable_preview()->set_every_slices(1);
+  config.mutable_draco()->set_compression_level(0);
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, nz);
+  return VolumeRequests(*source, config, 1 << 20);
+}
+
+class NullSink : public server::JobSink {
+ public:
+  void PostProgress(v1::Progress) override {}
+  void PostPreview(v1::Preview) override {}
+  void PostFinal(std::vector<v1::ExtractResponse>) override { ++finals; }
+  int finals = 0;
+};
+
+TEST(LimitsTest, DefaultsAreShownByHelpAndReportedByInfo) {
+  RunResult help = RunProcess({BinPath("tandem-server"), "--help"});
+  ASSERT_EQ(help.exit_code, 0);
+  for (const char* want : {"--max-sessions N",
+                           "(default: 8) [$TANDEM_MAX_SESSIONS]",
+                           "--max-voxels-per-slice N",
+                           "(default: 16777216)",
+                           "--max-slices N",
+                           "(default: 16384)",
+                           "--max-message-bytes N",
+                           "(default: 16777216)",
+                           "--session-memory-mb N",
+                           "(default: 1024) [$TANDEM_SESSION_MEMORY_MB]",
+                           "--max-inflight-bytes N",
+                           "[$TANDEM_MAX_INFLIGHT_BYTES]",
+                           "--idle-timeout-seconds X",
+                           "(default: 300)",
+                           "--keepalive-time-ms N",
+                           "(default: 60000) [$TANDEM_KEEPALIVE_TIME_MS]",
+                           "--keepalive-timeout-ms N",
+                           "(default: 20000)",
+                           "--keepalive-min-ping-interval-ms N",
+                           "(default: 10000)",
+                           "--keepalive-permit-without-calls",
+                           "(default: false)",
+                           "--tls-cert FILE",
+                           "[$TANDEM_TLS_CERT]",
+                           "--tls-key FILE",
+                           "[$TANDEM_TLS_KEY]",
+                           "--auth-tokens-file FILE",
+                           "[$TANDEM_AUTH_TOKENS_FILE]"}) {
+    EXPECT_NE(help.out.find(want), std::string::npos) << want << "\n" << help.out;
+  }
+  auto server = TestServer::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto info = (*server)->Info();
+  ASSERT_TRUE(info.ok()) << info.status();
+  const v1::Limits& l = info->limits();
+  const server::ServerLimits defaults;
+  EXPECT_EQ(l.max_voxels_per_slice(), defaults.max_voxels_per_slice);
+  EXPECT_EQ(l.max_slices(), defaults.max_slices);
+  EXPECT_EQ(l.max_sessions(), defaults.max_sessions);
+  EXPECT_EQ(l.max_message_bytes(), defaults.max_message_bytes);
+  EXPECT_EQ(l.idle_timeout_seconds(), defaults.idle_timeout_s);
+  EXPECT_EQ(l.session_memory_bytes(), int64_t{1024} << 20);
+  EXPECT_EQ(l.max_inflight_bytes(), int64_t{16} << 20);
+  EXPECT_EQ(l.keepalive_time_ms(), 60000);
+  EXPECT_EQ(l.keepalive_timeout_ms(), 20000);
+  EXPECT_EQ(l.min_ping_interval_ms(), 10000);
+  EXPECT_FALSE(l.permit_keepalive_without_calls());
+  EXPECT_FALSE(info->tls());
+  EXPECT_FALSE(info->token_required());
+}
+
+TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
+  auto server = TestServer::Start(
+      {"--max-sessions", "3", "--max-voxels-per-slice", "90000", "--max-slices", "500",
+       "--max-message-bytes", "2097152", "--idle-timeout-seconds", "42.5", "--keepalive-time-ms",
+       "15000", "--keepalive-permit-without-calls"},
+      {},
+      {"TANDEM_SESSION_MEMORY_MB=64", "TANDEM_MAX_INFLIGHT_BYTES=1000000",
+       "TANDEM_KEEPALIVE_TIMEOUT_MS=7000", "TANDEM_KEEPALIVE_MIN_PING_INTERVAL_MS=5000",
+       "TANDEM_MAX_SESSIONS=7"});  // the flag wins over the variable
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto info = (*server)->Info();
+  ASSERT_TRUE(info.ok()) << info.status();
+  const v1::Limits& l = info->limits();
+  EXPECT_EQ(l.max_sessions(), 3);
+  EXPECT_EQ(l.max_voxels_per_slice(), 90000);
+  EXPECT_EQ(l.max_slices(), 500);
+  EXPECT_EQ(l.max_message_bytes(), 2097152);
+  EXPECT_EQ(l.idle_timeout_seconds(), 42.5);
+  EXPECT_EQ(l.session_memory_bytes(), int64_t{64} << 20);
+  EXPECT_EQ(l.max_inflight_bytes(), 1000000);
+  EXPECT_EQ(l.keepalive_time_ms(), 15000);
+  EXPECT_EQ(l.keepalive_timeout_ms(), 7000);
+  EXPECT_EQ(l.min_ping_interval_ms(), 5000);
+  EXPECT_TRUE(l.permit_keepalive_without_calls());
+  RunResult client =
+      RunProcess({BinPath("tandem-client"), "info", "--server", (*server)->address()});
+  ASSERT_EQ(client.exit_code, 0) << client.err;
+  for (const char* want : {"max sessions           3", "session memory         64 MiB",
+                           "max inflight bytes     1000000", "idle timeout           42.5 s",
+                           "keepalive              time 15000 ms, timeout 7000 ms, min client "
+                           "ping interval 5000 ms, pings without calls allowed"}) {
+    EXPECT_NE(client.out.find(want), std::string::npos) << want << "\n" << client.out;
+  }
+  RunResult bad = RunProcess({BinPath("tandem-server"), "--session-memory-mb", "0"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("--session-memory-mb"), std::string::npos) << bad.err;
+}
+
+// ExtractJob alone: the budget is checked at the config (grid-sized buffers) and after
+// every slice (the mesh grows), with a message that names the flag.
+TEST(LimitsTest, JobEnforcesTheMemoryBudget) {
+  server::ServerLimits limits;
+  limits.session_memory_bytes = 1 << 20;
+  {
+    NullSink sink;
+    server::ExtractJob job(limits, &sink);
+    v1::ExtractRequest config;
+    config.mutable_config()->set_nx(1024);
+    config.mutable_config()->set_ny(1024);
+    config.mutable_config()->set_dtype(v1::DTYPE_FLOAT32);
+    config.mutable_config()->set_error(1);
+    const absl::Status st = job.Handle(config);
+    EXPECT_TRUE(absl::IsResourceExhausted(st)) << st;
+    EXPECT_NE(st.message().find("for this grid"), std::string::npos) << st;
+    EXPECT_NE(st.message().find("budget of 1.0 MiB (tandem-server --session-memory-mb)"),
+              std::string::npos)
+        << st;
+  }
+  {
+    NullSink sink;
+    server::ExtractJob job(limits, &sink);
+    v1::SessionConfig c;
+    c.set_schedule(v1::SCHEDULE_NONE);  // nothing simplified: the mesh only grows
+    auto source = MakeSyntheticSource(Shape::kGyroid, 48, 48, 200);
+    std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, c, 1 << 20);
+    absl::Status st;
+    size_t handled = 0;
+    for (; handled < requests.size() && st.ok(); ++handled) st = job.Handle(requests[handled]);
+    EXPECT_TRUE(absl::IsResourceExhausted(st)) << st;
+    EXPECT_NE(st.message().find("after slice"), std::string::npos) << st;
+    EXPECT_GT(handled, 3u) << "the grid fits; the mesh outgrew the budget later";
+    EXPECT_EQ(sink.finals, 0);
+  }
+  {
+    NullSink sink;
+    server::ExtractJob job(server::ServerLimits{}, &sink);  // default budget: 1 GiB
+    for (v1::ExtractRequest& r : Good()) ASSERT_TRUE(job.Handle(r).ok());
+    EXPECT_TRUE(job.done());
+  }
+}
+
+// A tiny budget: the big stream fails with RESOURCE_EXHAUSTED mid-stream while a small one
+// running at the same time completes.
+TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
+  auto server = TestServer::Start({"--session-memory-mb", "2"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  v1::SessionConfig c;
+  c.set_schedule(v1::SCHEDULE_NONE);
+  c.set_description("big gyroid");
+  auto source = MakeSyntheticSource(Shape::kGyroid, 64, 64, 400);
+  const std::vector<v1::ExtractRequest> big = VolumeRequests(*source, c, 1 << 20);
+
+  StreamOutcome big_outcome;
+  std::thread big_thread([&] {
+    auto stub = s.NewStub();
+    grpc::ClientContext context;
+    context.set_deadline(In(60));
+    auto stream = stub->Extract(&context);
+    std::thread writer([&] {
+      for (const v1::ExtractRequest& r : big) {
+        if (!stream->Write(r)) return;
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));  // a scanner's pace
+      }
+      stream->WritesDone();
+    });
+    v1::ExtractResponse response;
+    while (stream->Read(&response)) big_outcome.responses.push_back(response);
+    writer.join();
+    big_outcome.status = stream->Finish();
+  });
+  v1::Counters counters;
+  const bool big_running = WaitFor(
+      s, 20,
+      [](const v1::Counters& k) { return k.active_sessions() == 1 && k.session_bytes() > 0; },
+      &counters);
+  const StreamOutcome small = RunStream(*s.NewStub(), Good());
+  big_thread.join();
+  ASSERT_TRUE(big_running) << counters.ShortDebugString();
+  EXPECT_TRUE(FinishedOk(small)) << small.status.error_message();
+  EXPECT_EQ(big_outcome.status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED)
+      << big_outcome.status.error_message();
+  EXPECT_NE(big_outcome.status.error_message().find(
+                "over this server's per-session budget of 2.0 MiB (tandem-server "
+                "--session-memory-mb)"),
+            std::string::npos)
+      << big_outcome.status.error_message();
+  EXPECT_NE(big_outcome.status.error_message().find("after slice"), std::string::npos);
+  EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_EQ(counters.sessions_finished(), 2);
+  EXPECT_EQ(s.Health(), "SERVING");
+  EXPECT_TRUE(FinishedOk(RunStream(*s.NewStub(), Good()))) << "other sessions carry on";
+}
+
+// A client that stops reading: once the stream's unsent responses reach
+// --max-inflight-bytes the server stops reading it (no slice consumed, memory constant);
+// when the client reads again, the stream resumes and completes.
+TEST(LimitsTest, ServerStopsReadingAStreamWhoseClientDoesNotRead) {
+  constexpr int64_t kLimit = 16384;
+  auto server = TestServer::Start({"--max-inflight-bytes", std::to_string(kLimit)});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  const std::vector<v1::ExtractRequest> requests = PreviewHeavy(40, 120);
+  auto stub = SmallWindowStub(s);
+  grpc::ClientContext context;
+  context.set_deadline(In(60));
+  auto stream = stub->Extract(&context);
+  std::atomic<int> written{0};
+  std::thread writer([&] {
+    for (const v1::ExtractRequest& r : requests) {
+      if (!stream->Write(r)) return;
+      ++written;
+    }
+    stream->WritesDone();
+  });
+  // Nobody reads: the session must settle with slices left unconsumed.
+  v1::Counters before, after;
+  ASSERT_TRUE(WaitFor(
+      s, 10, [](const v1::Counters& k) { return k.buffered_bytes() >= kLimit; }, &before))
+      << before.ShortDebugString();
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  auto i1 = s.Info();
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  auto i2 = s.Info();
+  ASSERT_TRUE(i1.ok() && i2.ok());
+  before = i1->counters();
+  after = i2->counters();
+  EXPECT_EQ(before.session_bytes(), after.session_bytes()) << "no slice consumed meanwhile";
+  EXPECT_EQ(after.sessions_draining(), 0) << "the input was not all consumed";
+  EXPECT_EQ(after.worker_threads(), 1);
+  EXPECT_GE(after.buffered_bytes(), kLimit);
+  EXPECT_LT(after.buffered_bytes(), kLimit + 256 * 1024) << "one preview over the limit at most";
+  RecordProperty("buffered_bytes_while_paused", static_cast<int>(after.buffered_bytes()));
+  RecordProperty("requests_written_while_paused", written.load());
+  // Read again: the stream completes.
+  v1::ExtractResponse response;
+  bool final_metrics = false;
+  while (stream->Read(&response)) final_metrics |= response.has_final_metrics();
+  writer.join();
+  const grpc::Status st = stream->Finish();
+  EXPECT_TRUE(st.ok()) << st.error_message();
+  EXPECT_TRUE(final_metrics);
+  v1::Counters counters;
+  EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_EQ(counters.buffered_bytes(), 0);
+}
+
+// A client that never reads is cancelled after the idle timeout, mid-stream and after the
+// last slice (the final mesh unread), and its slot is free again.
+TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
+  auto server = TestServer::Start(
+      {"--max-inflight-bytes", "16384", "--idle-timeout-seconds", "1", "--max-sessions", "1"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  auto stub = SmallWindowStub(s);
+  for (bool whole_volume_first : {false, true}) {
+    SCOPED_TRACE(whole_volume_first ? "final mesh unread" : "previews unread");
+    std::vector<v1::ExtractRequest> requests;
+    if (whole_volume_first) {
+      v1::SessionConfig c;
+      c.set_schedule(v1::SCHEDULE_NONE);
+      c.mutable_draco()->set_compression_level(0);  // a final mesh of a few hundred KB
+      auto source = MakeSyntheticSource(Shape::kSphere, 64, 64, 64);
+      requests = VolumeRequests(*source, c, 1 << 20);
+    } else {
+      requests = PreviewHeavy(40, 120);
+    }
+    grpc::ClientContext context;
+    context.set_deadline(In(60));
+    auto stream = stub->Extract(&context);
+    const auto t0 = Clock::now();
+    std::thread writer([&] {
+      for (const v1::ExtractRequest& r : requests) {
+        if (!stream->Write(r)) return;
+      }
+      stream->WritesDone();
+    });
+    if (whole_volume_first) {
+      v1::Counters k;
+      EXPECT_TRUE(WaitFor(
+          s, 10, [](const v1::Counters& c) { return c.sessions_draining() == 1; }, &k))
+          << k.ShortDebugString();
+    }
+    // Still not reading; the server gives up after about a second.
+    v1::Counters counters;
+    EXPECT_TRUE(WaitFor(
+        s, 15, [](const v1::Counters& c) { return c.active_sessions() == 0; }, &counters))
+        << counters.ShortDebugString();
+    const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    EXPECT_LT(seconds, 10);
+    v1::ExtractResponse response;
+    while (stream->Read(&response)) {
+    }
+    writer.join();
+    const grpc::Status st = stream->Finish();
+    EXPECT_FALSE(st.ok());
+    EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
+  }
+  const std::string log = s.process().Stderr();
+  size_t at = 0;
+  int stalled = 0;
+  while ((at = log.find("status=DEADLINE_EXCEEDED message=\"the client read none of the "
+                        "server's messages for 1 s",
+                        at)) != std::string::npos) {
+    ++stalled;
+    ++at;
+  }
+  EXPECT_EQ(stalled, 2) << log;
+  EXPECT_TRUE(FinishedOk(RunStream(*s.NewStub(), Good()))) << "the only slot is free again";
+}
+
+// Keepalive: a client frozen mid-stream (SIGSTOP: its TCP connection stays open, nothing
+// answers the pings) is found by the server's pings long before the idle timeout.
+TEST(LimitsTest, KeepaliveFreesTheSessionOfAFrozenClient) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--keepalive-time-ms", "300", "--keepalive-timeout-ms", "500",
+                                   "--idle-timeout-seconds", "120"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 40));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto stream_args = [&](const std::string& rate, const std::string& out) {
+    return std::vector<std::string>{BinPath("tandem-client"),
+                                    "stream",
+                                    "--server",
+                                    s.address(),
+                                    "--input",
+                                    *path,
+                                    "--iso",
+                                    "0",
+                                    "--error",
+                                    "0.5",
+                                    "--rate",
+                                    rate,
+                                    "--out",
+                                    dir + "/" + out};
+  };
+  // A healthy client answers the pings and completes (40 slices at 20/s: 2 s of pings).
+  RunResult healthy = RunProcess(stream_args("20", "healthy.drc"), 60);
+  EXPECT_EQ(healthy.exit_code, 0) << healthy.err;
+  auto frozen = ChildProcess::Spawn(stream_args("5", "frozen.drc"), dir);
+  ASSERT_TRUE(frozen.ok());
+  v1::Counters counters;
+  ASSERT_TRUE(WaitFor(
+      s, 10, [](const v1::Counters& k) { return k.active_sessions() == 1; }, &counters));
+  (*frozen)->Signal(SIGSTOP);
+  const auto t0 = Clock::now();
+  EXPECT_TRUE(WaitFor(
+      s, 20, [](const v1::Counters& k) { return k.active_sessions() == 0; }, &counters))
+      << counters.ShortDebugString();
+  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  RecordProperty("frozen_client_freed_after_s", std::to_string(seconds));
+  EXPECT_LT(seconds, 10) << "keepalive, not the 120 s idle timeout";
+  (*frozen)->Signal(SIGKILL);
+  (*frozen)->Signal(SIGCONT);
+  EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_NE(s.process().Stderr().find("status=CANCELLED"), std::string::npos)
+      << s.process().Stderr();
+}
+
+// The server's ping policy: a client pinging as often as gRPC lets it (once a second) with
+// no data flowing is told off under the default 10 s minimum interval (after two strikes:
+// GOAWAY too_many_pings and the connection closes, ending its call), and left alone on a server
+// whose operator allows 50 ms. Both run at once; the allowed one must outlive the other.
+TEST(LimitsTest, ServerEnforcesItsMinimumPingInterval) {
+  struct Side {
+    std::unique_ptr<TestServer> server;
+    std::unique_ptr<v1::Tandem::Stub> stub;
+    grpc::ClientContext context;
+    std::unique_ptr<grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>> stream;
+    std::atomic<bool> ended{false};
+    std::thread reader;
+  };
+  Side strict, lenient;
+  for (Side* side : {&strict, &lenient}) {
+    std::vector<std::string> args = {"--keepalive-time-ms", "0"};  // only the client pings
+    if (side == &lenient) args.insert(args.end(), {"--keepalive-min-ping-interval-ms", "50"});
+    auto server = TestServer::Start(args);
+    ASSERT_TRUE(server.ok()) << server.status();
+    side->server = *std::move(server);
+    grpc::ChannelArguments channel_args;
+    channel_args.SetInt(GRPC_ARG_KEEPALIVE_TIME_MS, 100);
+    channel_args.SetInt(GRPC_ARG_KEEPALIVE_TIMEOUT_MS, 5000);
+    channel_args.SetInt(GRPC_ARG_HTTP2_MAX_PINGS_WITHOUT_DATA, 0);
+    side->stub = v1::Tandem::NewStub(grpc::CreateCustomChannel(
+        side->server->address(), grpc::InsecureChannelCredentials(), channel_args));
+    side->context.set_deadline(In(30));
+    side->stream = side->stub->Extract(&side->context);
+    ASSERT_TRUE(side->stream->Write(Good()[0]));  // a config, then silence: only pings flow
+    side->reader = std::thread([side] {
+      v1::ExtractResponse response;
+      while (side->stream->Read(&response)) {
+      }
+      side->ended = true;
+    });
+  }
+  const auto t0 = Clock::now();
+  while (!strict.ended && SecondsSince(t0) < 10) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  const bool strict_ended = strict.ended;
+  const double strict_s = SecondsSince(t0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(1200));  // one more ping
+  const bool lenient_ended = lenient.ended;
+  for (Side* side : {&strict, &lenient}) {
+    side->context.TryCancel();
+    side->reader.join();
+  }
+  const grpc::Status strict_status = strict.stream->Finish();
+  const grpc::Status lenient_status = lenient.stream->Finish();
+  // The server closes the connection: the call ends (UNAVAILABLE or CANCELLED, depending
+  // on which side notices first) before the test cancels it.
+  EXPECT_TRUE(strict_ended) << "still open after " << strict_s << " s";
+  EXPECT_FALSE(strict_status.ok());
+  RecordProperty("too_many_pings_after_s", std::to_string(strict_s));
+  EXPECT_FALSE(lenient_ended) << lenient_status.error_message();
+  EXPECT_EQ(lenient_status.error_code(), grpc::StatusCode::CANCELLED) << "cancelled by the test";
+}
+
+}  // namespace
+}  // namespace tandem::testing
