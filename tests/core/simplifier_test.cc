@@ -101,15 +101,15 @@ struct Result {
   double error_max = 0;
 };
 
-Result RunShape(Shape shape, int n, Schedule schedule, double e0, double alpha = 0,
-             int64_t target = 0) {
-  auto src = MakeSyntheticSource(shape, n, n, n);
+Result RunSource(SliceSource& src, double iso, Schedule schedule, double e0, double alpha,
+                 int64_t target) {
   SessionOptions o;
+  o.iso = iso;
   o.schedule = schedule;
   o.error = e0;
   o.alpha = alpha;
   o.target_triangles = target;
-  auto s = RunSession(*src, o);
+  auto s = RunSession(src, o);
   EXPECT_TRUE(s.ok()) << s.status();
   Result r;
   if (!s.ok()) return r;
@@ -119,22 +119,17 @@ Result RunShape(Shape shape, int n, Schedule schedule, double e0, double alpha =
   return r;
 }
 
+Result RunShape(Shape shape, int n, Schedule schedule, double e0, double alpha = 0,
+                int64_t target = 0) {
+  auto src = MakeSyntheticSource(shape, n, n, n);
+  return RunSource(*src, 0.0, schedule, e0, alpha, target);
+}
+
 Result RunFile(const std::string& path, double iso, Schedule schedule, double e0, double alpha = 0) {
   auto src = OpenVolume(path);
   EXPECT_TRUE(src.ok()) << src.status();
-  SessionOptions o;
-  o.iso = iso;
-  o.schedule = schedule;
-  o.error = e0;
-  o.alpha = alpha;
-  auto s = RunSession(**src, o);
-  EXPECT_TRUE(s.ok()) << s.status();
-  Result r;
-  if (!s.ok()) return r;
-  r.mesh = (*s)->Snapshot();
-  r.stats = (*s)->stats();
-  r.error_max = (*s)->MaxShapeError();
-  return r;
+  if (!src.ok()) return Result{};
+  return RunSource(**src, iso, schedule, e0, alpha, 0);
 }
 
 constexpr Schedule kSchedules[] = {Schedule::kClassical, Schedule::kTandem,
