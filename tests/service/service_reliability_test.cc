@@ -29,6 +29,20 @@ namespace tandem::testing {
 namespace {
 
 constexpr char kHead[] = "ct_head_headsq_64x64x93_int16.json";
+
+// Under ASan the server's resident size says nothing about leaks (freed memory sits in
+// the quarantine, shadow memory grows): the RSS bound is checked in normal builds only.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+constexpr bool kSanitized = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+constexpr bool kSanitized = true;
+#else
+constexpr bool kSanitized = false;
+#endif
+#else
+constexpr bool kSanitized = false;
+#endif
 using Clock = std::chrono::steady_clock;
 
 double SecondsSince(Clock::time_point t) {
@@ -182,7 +196,7 @@ TEST(ReliabilityTest, FiftyKilledClientsLeaveNothingBehind) {
   // Resident memory: allow the settle loop a few seconds (freed memory is trimmed when
   // the last session goes; transports close a little later).
   int64_t after = ResidentBytes(pid);
-  for (int i = 0; i < 50 && after > baseline * 11 / 10; ++i) {
+  for (int i = 0; i < (kSanitized ? 0 : 50) && after > baseline * 11 / 10; ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     after = ResidentBytes(pid);
   }
@@ -201,8 +215,10 @@ TEST(ReliabilityTest, FiftyKilledClientsLeaveNothingBehind) {
   RecordProperty("rss_baseline_bytes", std::to_string(baseline));
   RecordProperty("rss_after_bytes", std::to_string(after));
   EXPECT_GT(cancelled, 10) << "most kills must land mid-stream";
-  EXPECT_LE(after, baseline + baseline / 10)
-      << "VmRSS " << after << " bytes vs " << baseline << " after the warm-up";
+  if (!kSanitized) {
+    EXPECT_LE(after, baseline + baseline / 10)
+        << "VmRSS " << after << " bytes vs " << baseline << " after the warm-up";
+  }
   EXPECT_EQ(s.Health(), "SERVING");
   RunResult again = RunProcess(client_args(99), 60);
   EXPECT_EQ(again.exit_code, 0) << again.err;

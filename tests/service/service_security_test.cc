@@ -52,6 +52,14 @@ class SecurityTest : public ::testing::Test {
     std::ofstream(*tokens_file_) << "# tandem tokens\n\n"
                                  << kToken1 << "\n  " << kToken2 << "  \r\n# end\n";
   }
+  static void TearDownTestSuite() {
+    delete dir_;
+    delete pki_;
+    delete volume_;
+    delete tokens_file_;
+    dir_ = volume_ = tokens_file_ = nullptr;
+    pki_ = nullptr;
+  }
   void SetUp() override {
     ASSERT_NE(pki_, nullptr);
     ASSERT_NE(volume_, nullptr);
