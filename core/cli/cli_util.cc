@@ -50,34 +50,41 @@ std::optional<std::string> Args::Get(const std::string& name) const {
   return it->second;
 }
 
-absl::StatusOr<double> Args::GetDouble(const std::string& name, std::optional<double> def) const {
-  auto v = Get(name);
+namespace {
+
+// Parses the value of --name with `parse` (a strtod/strtoll-style function that sets `end`),
+// or returns `def` when the option is absent; `what` names the expected kind in errors.
+template <typename T, typename Parse>
+absl::StatusOr<T> GetNumber(const std::optional<std::string>& v, const std::string& name,
+                            std::optional<T> def, const char* what, Parse parse) {
   if (!v) {
     if (def) return *def;
     return absl::InvalidArgumentError(absl::StrCat("--", name, " is required"));
   }
   char* end = nullptr;
   errno = 0;
-  const double d = std::strtod(v->c_str(), &end);
-  if (v->empty() || *end != '\0' || errno != 0 || !std::isfinite(d)) {
-    return absl::InvalidArgumentError(absl::StrCat("--", name, ": '", *v, "' is not a number"));
+  const T x = parse(v->c_str(), &end);
+  if (v->empty() || *end != '\0' || errno != 0) {
+    return absl::InvalidArgumentError(absl::StrCat("--", name, ": '", *v, "' is not ", what));
+  }
+  return x;
+}
+
+}  // namespace
+
+absl::StatusOr<double> Args::GetDouble(const std::string& name, std::optional<double> def) const {
+  absl::StatusOr<double> d = GetNumber<double>(
+      Get(name), name, def, "a number", [](const char* s, char** e) { return std::strtod(s, e); });
+  if (d.ok() && !std::isfinite(*d)) {
+    return absl::InvalidArgumentError(absl::StrCat("--", name, ": '", *Get(name), "' is not a number"));
   }
   return d;
 }
 
 absl::StatusOr<int64_t> Args::GetInt(const std::string& name, std::optional<int64_t> def) const {
-  auto v = Get(name);
-  if (!v) {
-    if (def) return *def;
-    return absl::InvalidArgumentError(absl::StrCat("--", name, " is required"));
-  }
-  char* end = nullptr;
-  errno = 0;
-  const long long d = std::strtoll(v->c_str(), &end, 10);
-  if (v->empty() || *end != '\0' || errno != 0) {
-    return absl::InvalidArgumentError(absl::StrCat("--", name, ": '", *v, "' is not an integer"));
-  }
-  return static_cast<int64_t>(d);
+  return GetNumber<int64_t>(Get(name), name, def, "an integer", [](const char* s, char** e) {
+    return static_cast<int64_t>(std::strtoll(s, e, 10));
+  });
 }
 
 Progress::Progress(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO)) {}
