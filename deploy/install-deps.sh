@@ -4,7 +4,8 @@
 #   deploy/install-deps.sh            build + test dependencies
 #   deploy/install-deps.sh --runtime  only the shared libraries the binaries need
 #   deploy/install-deps.sh --fuzz     build + test dependencies, plus clang and the
-#                                     libFuzzer/sanitizer runtimes (tests/fuzz/run.sh)
+#                                     libFuzzer/sanitizer runtimes (tests/sanitize.sh,
+#                                     tests/fuzz/run.sh)
 set -euo pipefail
 
 BUILD_PKGS=(

@@ -1,7 +1,6 @@
 # fuzz_request: libFuzzer target for the server's request handling (request_validation +
-# ExtractJob, no gRPC). Include from tests/fuzz/CMakeLists.txt, after TANDEM_SANITIZE is
-# set, in a build configured with clang, -DTANDEM_FUZZ=ON and -DTANDEM_BUILD_SERVICE=ON:
-#   include(${CMAKE_CURRENT_LIST_DIR}/request.cmake)
+# ExtractJob, no gRPC). Included by tests/fuzz/CMakeLists.txt; needs the service
+# (-DTANDEM_BUILD_SERVICE=ON, tests/sanitize.sh's default).
 # The service libraries the target exercises are instrumented like tandem_core (coverage +
 # ASan + UBSan); gRPC, protobuf and Draco themselves are system libraries, not instrumented.
 if(NOT TARGET tandem_server_lib)

@@ -1,22 +1,23 @@
 #!/usr/bin/env bash
-# Builds the volume-reader fuzz targets with clang + libFuzzer + ASan + UBSan in build-fuzz/
-# and runs each for a bounded time. Fails if any target finds a crash, a leak, undefined
-# behaviour, a SliceSource contract violation or a timeout; the input is kept in
-# tests/fuzz/crashes/<target>/ (for the report) and replayed first on every later run, so
-# a fixed reader shows as fixed and a regression fails at once.
+# Runs the libFuzzer targets (clang + libFuzzer + ASan + UBSan) for a bounded time each:
+# every volume reader, and the server's request handling (fuzz_request: request_validation
+# + ExtractJob, no gRPC; needs the service). They are built in tests/sanitize.sh's build
+# folder (build-san) with its configuration, so after `bash tests/sanitize.sh` nothing is
+# compiled again. Fails if any target finds a crash, a leak, undefined behaviour, a
+# contract violation or a timeout; the input is kept in tests/fuzz/crashes/<target>/ (for
+# the report) and replayed first on every later run, so a fixed bug shows as fixed and a
+# regression fails at once.
 #   bash tests/fuzz/run.sh                 all targets, 20 s each
 #   bash tests/fuzz/run.sh --time 300      longer runs
 #   bash tests/fuzz/run.sh fuzz_tiff       one target
-#   bash tests/fuzz/run.sh --seeds         regenerate tests/fuzz/corpus/ with fuzz_make_seeds
-# Environment: FUZZ_BUILD_DIR (default build-fuzz), FUZZ_JOBS (build parallelism, 2).
+#   bash tests/fuzz/run.sh --seeds         regenerate tests/fuzz/corpus/ (fuzz_make_seeds for
+#                                          the readers, TANDEM_FUZZ_WRITE_SEEDS for requests)
+# Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build parallelism, 2),
+# TANDEM_BUILD_SERVICE=OFF (readers only).
 #
 # Targets: fuzz_raw_json (raw + JSON sidecar; input = 2-byte raw size + sidecar text),
-# fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff.
-# TODO(request validation): add fuzz_request (tests/fuzz/fuzz_request.cc + request.cmake,
-# being written: server/request_validation.h + ExtractJob fed with parsed requests) to
-# `all` below, include request.cmake at the end of tests/fuzz/CMakeLists.txt, and configure
-# with -DTANDEM_BUILD_SERVICE=ON when it is selected (the service libraries are then
-# instrumented like tandem_core; the build takes longer).
+# fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff, fuzz_request (one option byte, then
+# length-delimited ExtractRequest messages; see fuzz_request.cc).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -28,25 +29,26 @@ while [ $# -gt 0 ]; do
     --time) seconds="$2"; shift 2 ;;
     --time=*) seconds="${1#--time=}"; shift ;;
     --seeds) seeds=1; shift ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     fuzz_*) targets+=("$1"); shift ;;
     *) echo "fuzz/run.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
 all=(fuzz_raw_json fuzz_nrrd fuzz_nifti fuzz_tiff)
+if [ "${TANDEM_BUILD_SERVICE:-ON}" != OFF ]; then all+=(fuzz_request); fi
 if [ ${#targets[@]} -eq 0 ]; then targets=("${all[@]}"); fi
 
-build="${FUZZ_BUILD_DIR:-build-fuzz}"
-bash deploy/install-deps.sh --fuzz
+build="${SAN_BUILD_DIR:-build-san}"
 start=$(date +%s)
-CXX=clang++ cmake -S . -B "$build" -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DTANDEM_FUZZ=ON -DTANDEM_BUILD_SERVICE=OFF -DTANDEM_BUILD_TESTS=OFF >/dev/null
-cmake --build "$build" -j"${FUZZ_JOBS:-2}" --target "${targets[@]}" fuzz_make_seeds
-echo "fuzz/run.sh: built in $(( $(date +%s) - start )) s"
+bash tests/sanitize.sh --build-only "${targets[@]}" fuzz_make_seeds
 
 if [ "$seeds" = 1 ]; then
   rm -rf tests/fuzz/corpus
   "$build/bin/fuzz_make_seeds" tests/fuzz/corpus
+  if [ -x "$build/bin/fuzz_request" ]; then
+    mkdir -p tests/fuzz/corpus/fuzz_request
+    TANDEM_FUZZ_WRITE_SEEDS=tests/fuzz/corpus/fuzz_request "$build/bin/fuzz_request"
+  fi
   exit 0
 fi
 
@@ -79,9 +81,11 @@ for t in "${targets[@]}"; do
 
   # 2. Fuzz for a bounded time, from the checked-in seeds plus what earlier runs found.
   # stdin is /dev/null: a header naming /dev/stdin as its data file must not block.
+  max_len=8192
+  if [ "$t" = fuzz_request ]; then max_len=20000; fi  # whole request streams: seeds to 17 KB
   set +e
-  timeout $((seconds + 120)) "$bin" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
-    -max_len=8192 -print_final_stats=1 -artifact_prefix="$artifacts" \
+  timeout $((seconds + 120)) "$bin" -max_total_time="$seconds" -timeout=20 -rss_limit_mb=2048 \
+    -max_len="$max_len" -print_final_stats=1 -artifact_prefix="$artifacts" \
     "$work" "tests/fuzz/corpus/$t" </dev/null >"$log" 2>&1
   rc=$?
   set -e
