@@ -1,18 +1,72 @@
 #include "tandem/layer_extractor.h"
 
+#include <bit>
 #include <cassert>
+#include <cfloat>
 #include <cmath>
+#include <limits>
+#include <utility>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "absl/strings/str_cat.h"
 #include "tandem/mc_tables.h"
 
 namespace tandem {
+namespace {
+
+constexpr int64_t kWordBits = 64;
+
+// The n lowest bits (n clamped to [0, 64]).
+uint64_t LowBits(int64_t n) {
+  if (n <= 0) return 0;
+  if (n >= kWordBits) return ~uint64_t{0};
+  return (uint64_t{1} << n) - 1;
+}
+
+// Word w of a bit row shifted down by one bit across word boundaries: bit b = bit b+1 of
+// the row, i.e. the neighbour at i+1 of voxel i (0 past the row's end).
+uint64_t NextBits(const uint64_t* row, int64_t w, int64_t words) {
+  return (row[w] >> 1) | (w + 1 < words ? row[w + 1] << (kWordBits - 1) : 0);
+}
+
+// Calls f(base + b) for each set bit b of `bits`, ascending.
+template <typename F>
+void ForEachBit(uint64_t bits, int64_t base, F&& f) {
+  while (bits) {
+    f(base + std::countr_zero(bits));
+    bits &= bits - 1;
+  }
+}
+
+// The least float t (possibly infinite) with double(t) >= iso, or NaN for a NaN iso. For a
+// finite float v, Rel(v) = double(v) - iso >= 0 iff double(v) >= iso (an IEEE difference
+// rounds to a number of the exact difference's sign, and is 0 only for equal operands), iff
+// v >= t (t is the least such float); a NaN iso makes both false.
+float InsideFrom(double iso) {
+  if (std::isnan(iso)) return std::numeric_limits<float>::quiet_NaN();
+  if (iso > FLT_MAX) return std::numeric_limits<float>::infinity();
+  if (iso < -FLT_MAX) return -FLT_MAX;
+  float t = static_cast<float>(iso);  // nearest, in range
+  if (static_cast<double>(t) < iso) t = std::nextafter(t, std::numeric_limits<float>::infinity());
+  return t;
+}
+
+}  // namespace
 
 LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
     : config_(config), store_(store) {
   const size_t n = static_cast<size_t>(config.nx * config.ny);
-  f_bottom_.resize(n);
-  f_top_.resize(n);
+  words_ = (config.nx + kWordBits - 1) / kWordBits;
+  inside_from_ = InsideFrom(config.iso);
+  v_bottom_.resize(n);
+  v_top_.resize(n);
+  s_bottom_.assign(static_cast<size_t>(words_ * config.ny), 0);
+  s_top_ = s_bottom_;
+  any_in_.resize(static_cast<size_t>(words_));
+  all_in_.resize(static_cast<size_t>(words_));
   xe_bottom_.assign(static_cast<size_t>((config.nx - 1) * config.ny), kInvalid);
   xe_top_ = xe_bottom_;
   ye_bottom_.assign(static_cast<size_t>(config.nx * (config.ny - 1)), kInvalid);
@@ -74,145 +128,228 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     if (new_tris) new_tris->push_back(t);
   }
   // The top plane's cached ids become the next layer's bottom: store ids from now on.
-  for (VertexId& v : xe_top_) v = resolve(v);
-  for (VertexId& v : ye_top_) v = resolve(v);
+  for (int64_t e : xe_top_set_) xe_top_[e] = resolve(xe_top_[e]);
+  for (int64_t e : ye_top_set_) ye_top_[e] = resolve(ye_top_[e]);
   for (VertexId& v : top_plane_vertices_) v = resolve(v);
   staged_vertices_.clear();
   staged_triangles_.clear();
 }
 
+bool LayerExtractor::ScanRow(const float* src, int64_t n, float* dst, uint64_t* signs) const {
+  // Inside iff Rel(v) >= 0 iff v >= inside_from_ (see InsideFrom): one float compare per
+  // value, 4 per SSE2 instruction, with no conversion to double.
+  const float t = inside_from_;
+  bool finite = true;
+  int64_t i = 0;
+#if defined(__SSE2__)
+  const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+  const __m128 max_finite = _mm_set1_ps(FLT_MAX), threshold = _mm_set1_ps(t);
+  __m128 all_finite = _mm_castsi128_ps(_mm_set1_epi32(-1));
+  for (; i + kWordBits <= n; i += kWordBits) {
+    uint64_t word = 0;
+    for (int b = 0; b < kWordBits; b += 4) {
+      const __m128 x = _mm_loadu_ps(src + i + b);
+      _mm_storeu_ps(dst + i + b, x);
+      // |x| <= FLT_MAX is false for infinities and NaNs.
+      all_finite = _mm_and_ps(all_finite, _mm_cmple_ps(_mm_and_ps(x, abs_mask), max_finite));
+      word |= static_cast<uint64_t>(_mm_movemask_ps(_mm_cmpge_ps(x, threshold))) << b;
+    }
+    signs[i / kWordBits] = word;
+  }
+  finite = _mm_movemask_ps(all_finite) == 0xf;
+#endif
+  for (; i < n; i += kWordBits) {
+    uint64_t word = 0;
+    for (int64_t b = 0; b < kWordBits && i + b < n; ++b) {
+      const float x = src[i + b];
+      dst[i + b] = x;
+      finite &= std::isfinite(x);
+      word |= static_cast<uint64_t>(x >= t) << b;
+    }
+    signs[i / kWordBits] = word;
+  }
+  return finite;
+}
+
 absl::Status LayerExtractor::ComputeLayer(const float* values) {
-  const int64_t nx = config_.nx, ny = config_.ny;
+  const int64_t nx = config_.nx, ny = config_.ny, words = words_;
   const int64_t k = slices_done_;
   if (staged_) return absl::FailedPreconditionError("CommitLayer the previous layer first");
   if (finished_ || (config_.nz > 0 && k >= config_.nz)) {
     return absl::InvalidArgumentError(
         absl::StrCat("slice ", k, " is past the end of the volume (nz = ", config_.nz, ")"));
   }
-  // Validate before touching the store, so a bad slice leaves the mesh as it was.
-  const size_t n = static_cast<size_t>(nx * ny);
-  for (size_t idx = 0; idx < n; ++idx) {
-    if (!std::isfinite(values[idx])) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "slice ", k, ": value at (x=", idx % nx, ", y=", idx / nx, ") is ", values[idx],
-          "; every voxel must be a finite number"));
+  // Copy the slice and its signs into the bottom buffers (slice k-2's, no longer needed),
+  // validating as we go; they become the top only if the whole slice is finite, so a bad
+  // slice leaves the extractor (and the store) as it was.
+  bool finite = true;
+  for (int64_t j = 0; j < ny; ++j) {
+    finite &= ScanRow(values + j * nx, nx, v_bottom_.data() + j * nx, s_bottom_.data() + j * words);
+  }
+  if (!finite) {
+    const size_t n = static_cast<size_t>(nx * ny);
+    for (size_t idx = 0; idx < n; ++idx) {
+      if (!std::isfinite(values[idx])) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "slice ", k, ": value at (x=", idx % nx, ", y=", idx / nx, ") is ", values[idx],
+            "; every voxel must be a finite number"));
+      }
     }
   }
-  std::swap(f_bottom_, f_top_);
+  std::swap(v_bottom_, v_top_);
+  std::swap(s_bottom_, s_top_);
   std::swap(xe_bottom_, xe_top_);
+  std::swap(xe_bottom_set_, xe_top_set_);
   std::swap(ye_bottom_, ye_top_);
-  for (size_t idx = 0; idx < n; ++idx) f_top_[idx] = static_cast<double>(values[idx]) - config_.iso;
+  std::swap(ye_bottom_set_, ye_top_set_);
+  // The top caches still hold slice k-2's ids: clear those entries for slice k.
+  for (int64_t e : xe_top_set_) xe_top_[e] = kInvalid;
+  for (int64_t e : ye_top_set_) ye_top_[e] = kInvalid;
+  for (int64_t e : ze_set_) ze_[e] = kInvalid;
+  xe_top_set_.clear();
+  ye_top_set_.clear();
+  ze_set_.clear();
 
   staged_ = true;
   staged_layer_ = static_cast<int32_t>(k);
   const double kz = static_cast<double>(k);
+  const float* vb = v_bottom_.data();
+  const float* vt = v_top_.data();
+  const uint64_t* sb = s_bottom_.data();
+  const uint64_t* st = s_top_.data();
   double idx3[3];
   top_plane_vertices_.clear();
-  // Plane vertices of slice k: x-edges then y-edges.
+  // Crossed edges are those whose two ends' sign bits differ; all loops visit them in
+  // ascending (j, i) order, the order the vertices are staged in.
+  // Plane vertices of slice k: x-edges (bit i vs bit i+1 of a row) then y-edges (row j vs
+  // row j+1).
   for (int64_t j = 0; j < ny; ++j) {
-    for (int64_t i = 0; i + 1 < nx; ++i) {
-      const double a = f_top_[j * nx + i], b = f_top_[j * nx + i + 1];
-      VertexId& v = xe_top_[j * (nx - 1) + i];
-      v = kInvalid;
-      if ((a >= 0) != (b >= 0)) {
-        EdgePoint(double(i), double(j), kz, 0, a, b, idx3);
-        v = StageVertex(idx3);
-      }
-      if (v != kInvalid) top_plane_vertices_.push_back(v);
+    const uint64_t* row = st + j * words;
+    for (int64_t w = 0; w < words; ++w) {
+      const uint64_t crossed = (row[w] ^ NextBits(row, w, words)) & LowBits(nx - 1 - w * kWordBits);
+      ForEachBit(crossed, w * kWordBits, [&](int64_t i) {
+        EdgePoint(double(i), double(j), kz, 0, Rel(vt[j * nx + i]), Rel(vt[j * nx + i + 1]), idx3);
+        const VertexId v = StageVertex(idx3);
+        xe_top_[j * (nx - 1) + i] = v;
+        xe_top_set_.push_back(j * (nx - 1) + i);
+        top_plane_vertices_.push_back(v);
+      });
     }
   }
   for (int64_t j = 0; j + 1 < ny; ++j) {
-    for (int64_t i = 0; i < nx; ++i) {
-      const double a = f_top_[j * nx + i], b = f_top_[(j + 1) * nx + i];
-      VertexId& v = ye_top_[j * nx + i];
-      v = kInvalid;
-      if ((a >= 0) != (b >= 0)) {
-        EdgePoint(double(i), double(j), kz, 1, a, b, idx3);
-        v = StageVertex(idx3);
-      }
-      if (v != kInvalid) top_plane_vertices_.push_back(v);
+    const uint64_t* row = st + j * words;
+    for (int64_t w = 0; w < words; ++w) {
+      ForEachBit(row[w] ^ row[w + words], w * kWordBits, [&](int64_t i) {
+        EdgePoint(double(i), double(j), kz, 1, Rel(vt[j * nx + i]), Rel(vt[(j + 1) * nx + i]),
+                  idx3);
+        const VertexId v = StageVertex(idx3);
+        ye_top_[j * nx + i] = v;
+        ye_top_set_.push_back(j * nx + i);
+        top_plane_vertices_.push_back(v);
+      });
     }
   }
   ++slices_done_;
   if (k == 0) return absl::OkStatus();  // slice 0 has no layer below it
 
-  // z-edges between slices k-1 and k.
-  for (int64_t idx = 0; idx < nx * ny; ++idx) {
-    const double a = f_bottom_[idx], b = f_top_[idx];
-    ze_[idx] = kInvalid;
-    if ((a >= 0) != (b >= 0)) {
-      EdgePoint(double(idx % nx), double(idx / nx), kz - 1, 2, a, b, idx3);
-      ze_[idx] = StageVertex(idx3);
+  // z-edges between slices k-1 and k: bottom row vs top row.
+  for (int64_t j = 0; j < ny; ++j) {
+    for (int64_t w = 0; w < words; ++w) {
+      ForEachBit(sb[j * words + w] ^ st[j * words + w], w * kWordBits, [&](int64_t i) {
+        const int64_t idx = j * nx + i;
+        const double a = Rel(vb[idx]), b = Rel(vt[idx]);
+        EdgePoint(double(i), double(j), kz - 1, 2, a, b, idx3);
+        const VertexId v = StageVertex(idx3);
+        ze_[idx] = v;
+        ze_set_.push_back(idx);
+        if (b == 0) top_plane_vertices_.push_back(v);
+      });
     }
-    if (ze_[idx] != kInvalid && b == 0) top_plane_vertices_.push_back(ze_[idx]);
   }
 
-  // Cubes of layer k.
-  VertexId ev[12];
-  double f[8];
+  // Cubes of layer k. Cube (i, j) is crossed unless its 8 corners are all out or all in:
+  // with `any` the OR and `all` the AND of the 4 rows j, j+1 of both slices, that is bits
+  // i and i+1 of `any` both 0, or of `all` both 1.
   for (int64_t j = 0; j + 1 < ny; ++j) {
-    for (int64_t i = 0; i + 1 < nx; ++i) {
-      const int64_t p00 = j * nx + i, p10 = p00 + 1, p01 = p00 + nx, p11 = p01 + 1;
-      f[0] = f_bottom_[p00]; f[1] = f_bottom_[p10]; f[2] = f_bottom_[p01]; f[3] = f_bottom_[p11];
-      f[4] = f_top_[p00];    f[5] = f_top_[p10];    f[6] = f_top_[p01];    f[7] = f_top_[p11];
-      uint8_t config = 0;
-      for (int c = 0; c < 8; ++c) config |= static_cast<uint8_t>((f[c] >= 0) << c);
-      if (config == 0 || config == 255) continue;
-      ++crossed_cubes_;
-      uint8_t connected = 0;
-      const uint8_t amb = mc::AmbiguousFaces(config);
-      for (int face = 0; amb && face < 6; ++face) {
-        if (!((amb >> face) & 1)) continue;
-        const uint8_t* fc = mc::FaceCorners(face);
-        if (mc::InCornersConnected(f[fc[0]], f[fc[1]], f[fc[2]], f[fc[3]])) {
-          connected |= static_cast<uint8_t>(1u << face);
-        }
-      }
-      const mc::CubeCase& cc = mc::Lookup(config, connected);
-      const int64_t xb = j * (nx - 1) + i, yb = j * nx + i;
-      ev[0] = xe_bottom_[xb];  ev[1] = xe_bottom_[xb + nx - 1];
-      ev[2] = xe_top_[xb];     ev[3] = xe_top_[xb + nx - 1];
-      ev[4] = ye_bottom_[yb];  ev[5] = ye_bottom_[yb + 1];
-      ev[6] = ye_top_[yb];     ev[7] = ye_top_[yb + 1];
-      ev[8] = ze_[p00]; ev[9] = ze_[p10]; ev[10] = ze_[p01]; ev[11] = ze_[p11];
-      int base = 0;
-      for (int l = 0; l < cc.num_loops; ++l) {
-        const int len = cc.loop_len[l];
-        const uint8_t* e = cc.edges + base;
-        base += len;
-        if ((cc.center_mask >> l) & 1) {
-          // Centroid of the loop's points, recomputed from the field (bit-identical to the
-          // vertices' own positions) so this step never reads the store.
-          double c[3] = {0, 0, 0};
-          for (int s = 0; s < len; ++s) {
-            const int c0 = mc::kEdgeCorners[e[s]][0], c1 = mc::kEdgeCorners[e[s]][1];
-            const int axis = (c1 - c0) == 1 ? 0 : ((c1 - c0) == 2 ? 1 : 2);
-            double p[3];
-            EdgePoint(double(i + (c0 & 1)), double(j + ((c0 >> 1) & 1)), kz - 1 + ((c0 >> 2) & 1),
-                      axis, f[c0], f[c1], p);
-            const Vec3 q = Physical(p[0], p[1], p[2]);
-            c[0] += q.x;
-            c[1] += q.y;
-            c[2] += q.z;
-          }
-          for (double& x : c) x *= 1.0 / len;
-          const double ci[3] = {(c[0] - config_.origin[0]) / config_.spacing[0],
-                                (c[1] - config_.origin[1]) / config_.spacing[1],
-                                (c[2] - config_.origin[2]) / config_.spacing[2]};
-          const VertexId cv = kPending | static_cast<VertexId>(staged_vertices_.size());
-          staged_vertices_.push_back({Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2])});
-          for (int s = 0; s < len; ++s) {
-            staged_triangles_.push_back({cv, ev[e[s]], ev[e[(s + 1) % len]]});
-          }
-        } else {
-          for (int s = 1; s + 1 < len; ++s) {
-            staged_triangles_.push_back({ev[e[0]], ev[e[s]], ev[e[s + 1]]});
-          }
-        }
-      }
+    const uint64_t *b0 = sb + j * words, *b1 = b0 + words, *t0 = st + j * words, *t1 = t0 + words;
+    for (int64_t w = 0; w < words; ++w) {
+      any_in_[w] = b0[w] | b1[w] | t0[w] | t1[w];
+      all_in_[w] = b0[w] & b1[w] & t0[w] & t1[w];
+    }
+    for (int64_t w = 0; w < words; ++w) {
+      const uint64_t crossed = (any_in_[w] | NextBits(any_in_.data(), w, words)) &
+                               ~(all_in_[w] & NextBits(all_in_.data(), w, words)) &
+                               LowBits(nx - 1 - w * kWordBits);
+      ForEachBit(crossed, w * kWordBits, [&](int64_t i) { EmitCube(i, j, kz); });
     }
   }
   return absl::OkStatus();
+}
+
+void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
+  const int64_t nx = config_.nx;
+  const float* vb = v_bottom_.data();
+  const float* vt = v_top_.data();
+  const int64_t p00 = j * nx + i, p10 = p00 + 1, p01 = p00 + nx, p11 = p01 + 1;
+  double f[8];
+  f[0] = Rel(vb[p00]); f[1] = Rel(vb[p10]); f[2] = Rel(vb[p01]); f[3] = Rel(vb[p11]);
+  f[4] = Rel(vt[p00]); f[5] = Rel(vt[p10]); f[6] = Rel(vt[p01]); f[7] = Rel(vt[p11]);
+  uint8_t config = 0;
+  for (int c = 0; c < 8; ++c) config |= static_cast<uint8_t>((f[c] >= 0) << c);
+  assert(config != 0 && config != 255);
+  ++crossed_cubes_;
+  uint8_t connected = 0;
+  const uint8_t amb = mc::AmbiguousFaces(config);
+  for (int face = 0; amb && face < 6; ++face) {
+    if (!((amb >> face) & 1)) continue;
+    const uint8_t* fc = mc::FaceCorners(face);
+    if (mc::InCornersConnected(f[fc[0]], f[fc[1]], f[fc[2]], f[fc[3]])) {
+      connected |= static_cast<uint8_t>(1u << face);
+    }
+  }
+  const mc::CubeCase& cc = mc::Lookup(config, connected);
+  const int64_t xb = j * (nx - 1) + i, yb = j * nx + i;
+  VertexId ev[12];
+  ev[0] = xe_bottom_[xb];  ev[1] = xe_bottom_[xb + nx - 1];
+  ev[2] = xe_top_[xb];     ev[3] = xe_top_[xb + nx - 1];
+  ev[4] = ye_bottom_[yb];  ev[5] = ye_bottom_[yb + 1];
+  ev[6] = ye_top_[yb];     ev[7] = ye_top_[yb + 1];
+  ev[8] = ze_[p00]; ev[9] = ze_[p10]; ev[10] = ze_[p01]; ev[11] = ze_[p11];
+  int base = 0;
+  for (int l = 0; l < cc.num_loops; ++l) {
+    const int len = cc.loop_len[l];
+    const uint8_t* e = cc.edges + base;
+    base += len;
+    if ((cc.center_mask >> l) & 1) {
+      // Centroid of the loop's points, recomputed from the field (bit-identical to the
+      // vertices' own positions) so this step never reads the store.
+      double c[3] = {0, 0, 0};
+      for (int s = 0; s < len; ++s) {
+        const int c0 = mc::kEdgeCorners[e[s]][0], c1 = mc::kEdgeCorners[e[s]][1];
+        const int axis = (c1 - c0) == 1 ? 0 : ((c1 - c0) == 2 ? 1 : 2);
+        double p[3];
+        EdgePoint(double(i + (c0 & 1)), double(j + ((c0 >> 1) & 1)), kz - 1 + ((c0 >> 2) & 1),
+                  axis, f[c0], f[c1], p);
+        const Vec3 q = Physical(p[0], p[1], p[2]);
+        c[0] += q.x;
+        c[1] += q.y;
+        c[2] += q.z;
+      }
+      for (double& x : c) x *= 1.0 / len;
+      const double ci[3] = {(c[0] - config_.origin[0]) / config_.spacing[0],
+                            (c[1] - config_.origin[1]) / config_.spacing[1],
+                            (c[2] - config_.origin[2]) / config_.spacing[2]};
+      const VertexId cv = kPending | static_cast<VertexId>(staged_vertices_.size());
+      staged_vertices_.push_back({Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2])});
+      for (int s = 0; s < len; ++s) {
+        staged_triangles_.push_back({cv, ev[e[s]], ev[e[(s + 1) % len]]});
+      }
+    } else {
+      for (int s = 1; s + 1 < len; ++s) {
+        staged_triangles_.push_back({ev[e[0]], ev[e[s]], ev[e[s + 1]]});
+      }
+    }
+  }
 }
 
 void LayerExtractor::Finish() {

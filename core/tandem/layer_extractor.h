@@ -72,6 +72,15 @@ class LayerExtractor {
   // Stages a vertex at an index-space point; returns its pending id.
   VertexId StageVertex(const double idx[3]);
   uint8_t BoxMask(double i, double j, double k) const;
+  // Value relative to the iso-value: every edge point and face decision uses this one
+  // expression, so the cubes sharing an edge or a face agree bit for bit.
+  double Rel(float v) const { return static_cast<double>(v) - config_.iso; }
+  // Copies the n values of a row to dst and their inside bits to signs (bits past n
+  // cleared); false if a value is not finite.
+  bool ScanRow(const float* src, int64_t n, float* dst, uint64_t* signs) const;
+  // Stages the triangles (and loop centroids) of crossed cube (i, j) of the current layer,
+  // whose bottom slice is at height kz - 1.
+  void EmitCube(int64_t i, int64_t j, double kz);
   Vec3 Physical(double i, double j, double k) const {
     return {config_.origin[0] + i * config_.spacing[0], config_.origin[1] + j * config_.spacing[1],
             config_.origin[2] + k * config_.spacing[2]};
@@ -83,11 +92,21 @@ class LayerExtractor {
   int64_t crossed_cubes_ = 0;
   bool finished_ = false;
 
-  // Values relative to the iso-value, bottom (k-1) and top (k) slices.
-  std::vector<double> f_bottom_, f_top_;
+  // Bottom (k-1) and top (k) slices: their values as given, and their signs bit-packed per
+  // row (words_ words of 64 voxels; bit i of row j is set iff voxel (i, j) is inside,
+  // Rel(value) >= 0). Whole words of these masks find the crossed edges and cubes, so the
+  // per-voxel work is one float compare and the rest is spent where the surface passes.
+  int64_t words_ = 0;
+  float inside_from_ = 0;  // for finite v: Rel(v) >= 0 iff v >= inside_from_
+  std::vector<float> v_bottom_, v_top_;
+  std::vector<uint64_t> s_bottom_, s_top_;
+  std::vector<uint64_t> any_in_, all_in_;  // scratch: OR and AND of a row pair's 4 rows
   // Plane caches: vertex ids of x-edges ((nx-1)*ny) and y-edges (nx*(ny-1)) of the bottom
   // and top slices, z-edges (nx*ny) of the current layer. kInvalid = no crossing.
   std::vector<VertexId> xe_bottom_, xe_top_, ye_bottom_, ye_top_, ze_;
+  // The indices of the caches' valid entries (ascending), so that resetting a cache for
+  // reuse and resolving pending ids cost O(crossings), not O(nx*ny).
+  std::vector<int64_t> xe_bottom_set_, xe_top_set_, ye_bottom_set_, ye_top_set_, ze_set_;
   std::vector<VertexId> top_plane_vertices_;  // for Finish()
 
   // Staged layer (ComputeLayer -> CommitLayer).

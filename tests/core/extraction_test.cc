@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -313,6 +314,78 @@ TEST(Extraction, NonFiniteValuesAreRejectedAndLeaveTheMeshUnchanged) {
   ASSERT_TRUE(ex.AddSlice(s.data()).ok());
   ASSERT_TRUE(ex.AddSlice(s.data()).ok());
   EXPECT_EQ(ex.AddSlice(s.data()).code(), absl::StatusCode::kInvalidArgument);  // past nz
+}
+
+TEST(Extraction, ARejectedWideSliceLeavesTheExtractorAsItWas) {
+  // Rows of 150 voxels: two whole 64-bit sign words (the vectorised path) and a tail. A
+  // slice with +inf in the word path is refused with its coordinates, and the mesh
+  // extracted afterwards equals the mesh of the same volume without that slice.
+  const int64_t nx = 150, ny = 70, nz = 40;
+  auto field = [&](int64_t i, int64_t j, int64_t k) {
+    const double x = i - 74.3, y = j - 34.6, z = k - 19.2;
+    return static_cast<float>(std::sqrt(x * x + y * y + z * z) - 17.0);
+  };
+  auto run = [&](bool inject) {
+    ExtractorConfig cfg{nx, ny, nz, {1, 1, 1}, {0, 0, 0}, 0.0};
+    MeshStore store;
+    LayerExtractor ex(cfg, &store);
+    std::vector<float> slice(static_cast<size_t>(nx * ny));
+    for (int64_t k = 0; k < nz; ++k) {
+      for (int64_t j = 0; j < ny; ++j) {
+        for (int64_t i = 0; i < nx; ++i) slice[static_cast<size_t>(j * nx + i)] = field(i, j, k);
+      }
+      if (inject && k == 20) {
+        std::vector<float> bad = slice;
+        bad[static_cast<size_t>(33 * nx + 100)] = std::numeric_limits<float>::infinity();
+        const absl::Status st = ex.AddSlice(bad.data());
+        EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+        EXPECT_NE(st.message().find("x=100, y=33"), std::string::npos) << st;
+      }
+      EXPECT_TRUE(ex.AddSlice(slice.data()).ok());
+    }
+    return store.Snapshot();
+  };
+  const IndexedMesh clean = run(false), after_bad = run(true);
+  ASSERT_GT(clean.indices.size(), 1000u);
+  EXPECT_EQ(clean.indices, after_bad.indices);
+  ASSERT_EQ(clean.positions.size(), after_bad.positions.size());
+  for (size_t v = 0; v < clean.positions.size(); ++v) {
+    EXPECT_EQ(clean.positions[v].x, after_bad.positions[v].x);
+    EXPECT_EQ(clean.positions[v].z, after_bad.positions[v].z);
+  }
+  const TopologyReport r = AnalyzeTopology(clean);
+  EXPECT_TRUE(r.IsClosedManifold());
+  EXPECT_EQ(r.euler, 2);
+}
+
+TEST(Extraction, InsideMeansValueMinusIsoAtLeastZeroInDoubles) {
+  // The iso-value is a double and the voxels are floats: a voxel is inside iff
+  // double(v) - iso >= 0, also when iso lies between two floats. One voxel per 64-bit word
+  // path (x = 10) and row tail (x = 66) differs from the 0.1f background.
+  const int64_t nx = 70, ny = 3, nz = 3;
+  std::vector<float> vol(static_cast<size_t>(nx * ny * nz), 0.1f);
+  vol[static_cast<size_t>((1 * ny + 1) * nx + 10)] = 0.0f;
+  vol[static_cast<size_t>((1 * ny + 1) * nx + 66)] = 0.2f;
+  auto extract = [&](double iso, int64_t* crossed) {
+    ExtractorConfig cfg{nx, ny, nz, {1, 1, 1}, {0, 0, 0}, iso};
+    MeshStore store;
+    LayerExtractor ex(cfg, &store);
+    for (int64_t k = 0; k < nz; ++k) EXPECT_TRUE(ex.AddSlice(vol.data() + k * nx * ny).ok());
+    *crossed = ex.crossed_cubes();
+    return store.Snapshot();
+  };
+  int64_t crossed = 0;
+  // iso = 0.1f exactly: the background is inside, only the 0.0f voxel is out (around x=10).
+  IndexedMesh m = extract(static_cast<double>(0.1f), &crossed);
+  EXPECT_EQ(crossed, 8);
+  ASSERT_FALSE(m.positions.empty());
+  for (const Vec3& p : m.positions) EXPECT_NEAR(p.x, 10.0, 1.0);
+  // One double ulp above 0.1f (no float lies there): the background is out, only the 0.2f
+  // voxel is in (around x=66).
+  m = extract(std::nextafter(static_cast<double>(0.1f), 1.0), &crossed);
+  EXPECT_EQ(crossed, 8);
+  ASSERT_FALSE(m.positions.empty());
+  for (const Vec3& p : m.positions) EXPECT_NEAR(p.x, 66.0, 1.0);
 }
 
 // Real volumes: open surfaces whose boundary lies on the box only.
