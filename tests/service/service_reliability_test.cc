@@ -153,18 +153,22 @@ TEST(ReliabilityTest, FiftyKilledClientsLeaveNothingBehind) {
                                     dir + "/c" + std::to_string(i) + ".drc"};
   };
   // Warm-up: one complete stream, then the baseline once the server is idle again.
+  const auto warm_start = Clock::now();
   RunResult warm = RunProcess(client_args(-1), 60);
   ASSERT_EQ(warm.exit_code, 0) << warm.err;
+  // A whole client run (process start to exit): ~0.6 s, several times that under the
+  // sanitizers, where the kill points below must stretch with it to land mid-stream.
+  const int run_ms = static_cast<int>(1000.0 * SecondsSince(warm_start));
   v1::Counters counters;
   ASSERT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   const int64_t baseline = ResidentBytes(pid);
   ASSERT_GT(baseline, 0);
 
-  // 50 clients, 10 at a time, each killed at a random point of its ~0.6 s stream (some
-  // before they connect, a few after they finish: the seed fixes which).
+  // 50 clients, 10 at a time, each killed at a random point of its run (some before they
+  // connect, a few after they finish: the seed fixes which, given the run's length).
   std::mt19937 rng(20240505);
-  std::uniform_int_distribution<int> delay_ms(0, 700);
+  std::uniform_int_distribution<int> delay_ms(0, std::max(700, run_ms * 115 / 100));
   int killed = 0, finished = 0;
   const auto t0 = Clock::now();
   for (int batch = 0; batch < 5; ++batch) {
