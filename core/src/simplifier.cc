@@ -118,7 +118,6 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     c->cost = c->eps0;
   }
   c->box_mask = ma | mb;
-  c->key = ReleaseKey(a, b, c);
   return true;
 }
 

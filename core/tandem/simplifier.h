@@ -91,8 +91,7 @@ class Simplifier {
     Vec3 pos;
     double cost = 0;   // ε_α(c)
     double eps0 = 0;   // ε0(c)
-    double height = 0, rad = 0;
-    double key = 0;    // release key
+    double height = 0, rad = 0;  // of the new vertex (ReleaseKey fills them)
     int32_t layer = 0;
     uint8_t box_mask = 0;
   };
