@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <future>
+#include <system_error>
 
 namespace tandem {
 namespace {
@@ -149,6 +151,7 @@ void Simplifier::RequeueAll() {
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
+  FlushBatch();
 }
 
 void Simplifier::PushTriangleEdges(TriId t) {
@@ -165,8 +168,58 @@ void Simplifier::PushTriangleEdges(TriId t) {
         for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
       }
     }
-    if (!twin) PushEdge(a, b);
+    if (!twin) batch_.push_back(a < b ? BatchEdge{a, b} : BatchEdge{b, a});
   }
+}
+
+void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
+  // PushEdge's decisions without its pushes; reads the store and the quadrics only.
+  for (size_t i = begin; i < end; ++i) {
+    const BatchEdge e = batch_[i];
+    BatchResult& r = batch_results_[i];
+    r.c = Candidate{};
+    r.key = -std::numeric_limits<double>::infinity();
+    if (opt_.release != ReleaseRule::kImmediate) {
+      r.key = ReleaseKey(e.a, e.b, &r.c);
+      if (r.key > front_) {
+        r.to = 0;
+        continue;
+      }
+    }
+    r.to = Evaluate(e.a, e.b, &r.c) ? 1 : 2;
+  }
+}
+
+void Simplifier::FlushBatch() {
+  const size_t n = batch_.size();
+  if (n == 0) return;
+  batch_results_.resize(n);
+  // Below this size a thread costs more than it saves (a solve is ~1 µs).
+  constexpr size_t kParallelMin = 1024;
+  bool done = false;
+  if (opt_.parallel && n >= kParallelMin) {
+    try {
+      auto first_half = std::async(std::launch::async, [this, n] { EvaluateBatchRange(0, n / 2); });
+      EvaluateBatchRange(n / 2, n);
+      first_half.get();
+      done = true;
+    } catch (const std::system_error&) {
+      // No thread to be had: the sequential loop below gives the same result.
+    }
+  }
+  if (!done) EvaluateBatchRange(0, n);
+  for (size_t i = 0; i < n; ++i) {
+    const BatchEdge e = batch_[i];
+    const BatchResult& r = batch_results_[i];
+    if (r.to == 0) {
+      PushW(Entry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
+    } else if (r.to == 1) {
+      PushQ(e.a, e.b, r.c);
+    } else {
+      ++refusals_.box;
+    }
+  }
+  batch_.clear();
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
@@ -193,6 +246,7 @@ void Simplifier::Delay(std::span<const TriId> tris) {
   for (TriId t : tris) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
+  FlushBatch();
 }
 
 void Simplifier::PushW(const Entry& e) {
@@ -221,9 +275,10 @@ void Simplifier::Activate(double front) {
     w_size_ -= bucket.size();
     for (const Entry& e : bucket) {
       if (Stale(e)) continue;
-      PushEdge(e.a, e.b);  // evaluated now: the endpoints' quadrics are complete
+      batch_.push_back({e.a, e.b});  // evaluated now: the endpoints' quadrics are complete
     }
   }
+  FlushBatch();
   if (b > 0) {
     w_.erase(w_.begin(), w_.begin() + static_cast<std::ptrdiff_t>(b));
     w_base_ += static_cast<int64_t>(b);
