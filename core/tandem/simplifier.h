@@ -149,7 +149,9 @@ class Simplifier {
   std::vector<double> rad_;
   std::vector<uint32_t> version_;
   std::vector<uint32_t> mark_;      // scratch: link condition
-  std::vector<uint8_t> mark_count_; // scratch: triangles on edge (v, x)
+  std::vector<uint8_t> mark_count_; // scratch: triangles on edge (a, x)
+  std::vector<uint32_t> mark_b_;     // the same for b
+  std::vector<uint8_t> mark_count_b_;
   uint32_t mark_epoch_ = 0;
 
   std::vector<QEntry> q_;  // binary heap (std::push_heap with Greater)
