@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <future>
+#include <system_error>
 
 namespace tandem {
 namespace {
@@ -29,6 +31,8 @@ void Simplifier::EnsureVertexCapacity() {
   version_.resize(n, 0);
   mark_.resize(n, 0);
   mark_count_.resize(n, 0);
+  mark_b_.resize(n, 0);
+  mark_count_b_.resize(n, 0);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
@@ -118,7 +122,6 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     c->cost = c->eps0;
   }
   c->box_mask = ma | mb;
-  c->key = ReleaseKey(a, b, c);
   return true;
 }
 
@@ -150,6 +153,7 @@ void Simplifier::RequeueAll() {
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
+  FlushBatch();
 }
 
 void Simplifier::PushTriangleEdges(TriId t) {
@@ -166,8 +170,58 @@ void Simplifier::PushTriangleEdges(TriId t) {
         for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
       }
     }
-    if (!twin) PushEdge(a, b);
+    if (!twin) batch_.push_back(a < b ? BatchEdge{a, b} : BatchEdge{b, a});
   }
+}
+
+void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
+  // PushEdge's decisions without its pushes; reads the store and the quadrics only.
+  for (size_t i = begin; i < end; ++i) {
+    const BatchEdge e = batch_[i];
+    BatchResult& r = batch_results_[i];
+    r.c = Candidate{};
+    r.key = -std::numeric_limits<double>::infinity();
+    if (opt_.release != ReleaseRule::kImmediate) {
+      r.key = ReleaseKey(e.a, e.b, &r.c);
+      if (r.key > front_) {
+        r.to = 0;
+        continue;
+      }
+    }
+    r.to = Evaluate(e.a, e.b, &r.c) ? 1 : 2;
+  }
+}
+
+void Simplifier::FlushBatch() {
+  const size_t n = batch_.size();
+  if (n == 0) return;
+  batch_results_.resize(n);
+  // Below this size a thread costs more than it saves (a solve is ~1 µs).
+  constexpr size_t kParallelMin = 1024;
+  bool done = false;
+  if (opt_.parallel && n >= kParallelMin) {
+    try {
+      auto first_half = std::async(std::launch::async, [this, n] { EvaluateBatchRange(0, n / 2); });
+      EvaluateBatchRange(n / 2, n);
+      first_half.get();
+      done = true;
+    } catch (const std::system_error&) {
+      // No thread to be had: the sequential loop below gives the same result.
+    }
+  }
+  if (!done) EvaluateBatchRange(0, n);
+  for (size_t i = 0; i < n; ++i) {
+    const BatchEdge e = batch_[i];
+    const BatchResult& r = batch_results_[i];
+    if (r.to == 0) {
+      PushW(Entry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
+    } else if (r.to == 1) {
+      PushQ(e.a, e.b, r.c);
+    } else {
+      ++refusals_.box;
+    }
+  }
+  batch_.clear();
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
@@ -194,6 +248,7 @@ void Simplifier::Delay(std::span<const TriId> tris) {
   for (TriId t : tris) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
+  FlushBatch();
 }
 
 void Simplifier::PushW(const Entry& e) {
@@ -222,9 +277,10 @@ void Simplifier::Activate(double front) {
     w_size_ -= bucket.size();
     for (const Entry& e : bucket) {
       if (Stale(e)) continue;
-      PushEdge(e.a, e.b);  // evaluated now: the endpoints' quadrics are complete
+      batch_.push_back({e.a, e.b});  // evaluated now: the endpoints' quadrics are complete
     }
   }
+  FlushBatch();
   if (b > 0) {
     w_.erase(w_.begin(), w_.begin() + static_cast<std::ptrdiff_t>(b));
     w_base_ += static_cast<int64_t>(b);
@@ -246,25 +302,32 @@ bool Simplifier::LinkCondition(VertexId a, VertexId b) {
   // boundary edge with apex c, not both ac and bc are boundary edges.
   if (++mark_epoch_ == 0) {
     std::fill(mark_.begin(), mark_.end(), 0);
+    std::fill(mark_b_.begin(), mark_b_.end(), 0);
     mark_epoch_ = 1;
   }
-  const uint32_t ea = mark_epoch_;
-  // Neighbours of a, with the number of triangles on edge (a, x).
-  bool a_boundary = false;
-  for (TriId t : store_->vertex_triangles(a)) {
-    for (VertexId x : store_->triangle(t)) {
-      if (x == a) continue;
-      if (mark_[x] != ea) {
-        mark_[x] = ea;
-        mark_count_[x] = 0;
+  const uint32_t ep = mark_epoch_;
+  // Neighbours of v, each with the number of triangles on edge (v, x) (saturating at 127:
+  // bit 7 is the "seen" flag of the pass over b below).
+  auto tally = [&](VertexId v, std::vector<uint32_t>& mark, std::vector<uint8_t>& count) {
+    for (TriId t : store_->vertex_triangles(v)) {
+      for (VertexId x : store_->triangle(t)) {
+        if (x == v) continue;
+        if (mark[x] != ep) {
+          mark[x] = ep;
+          count[x] = 0;
+        }
+        if (count[x] < 127) ++count[x];
       }
-      ++mark_count_[x];
     }
-  }
+  };
+  tally(a, mark_, mark_count_);
+  tally(b, mark_b_, mark_count_b_);
   VertexId apex[2];
   int napex = 0;
+  bool a_boundary = false;
   for (TriId t : store_->vertex_triangles(a)) {
     const auto& tri = store_->triangle(t);
+    for (VertexId x : tri) a_boundary |= (x != a && mark_count_[x] == 1);
     if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
     if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
     for (VertexId x : tri) {
@@ -272,33 +335,25 @@ bool Simplifier::LinkCondition(VertexId a, VertexId b) {
     }
   }
   if (napex == 0) return false;  // a and b are not adjacent (any more)
-  for (TriId t : store_->vertex_triangles(a)) {
-    for (VertexId x : store_->triangle(t)) a_boundary |= (x != a && mark_count_[x] == 1);
-  }
-  // Count b's neighbours in a separate pass with its own tally kept in scratch_.
-  scratch_.clear();
+  // Each neighbour x of b once: (b, x) in one triangle makes b a boundary vertex; a common
+  // neighbour must be an apex.
   bool b_boundary = false;
   int common = 0;
   for (TriId t : store_->vertex_triangles(b)) {
     for (VertexId x : store_->triangle(t)) {
       if (x == b) continue;
-      scratch_.push_back(x);
+      const uint8_t cb = mark_count_b_[x];
+      if (cb & 0x80) continue;  // seen
+      mark_count_b_[x] = static_cast<uint8_t>(cb | 0x80);
+      if (cb == 1) b_boundary = true;
+      if (x != a && mark_[x] == ep) {
+        ++common;
+        bool is_apex = false;
+        for (int k = 0; k < napex; ++k) is_apex |= apex[k] == x;
+        if (!is_apex) return false;  // (1) a common neighbour that is not an apex
+        if (napex == 1 && mark_count_[x] == 1 && cb == 1) return false;  // (3) boundary
+      }
     }
-  }
-  std::sort(scratch_.begin(), scratch_.end());
-  for (size_t i = 0; i < scratch_.size();) {
-    size_t j = i;
-    while (j < scratch_.size() && scratch_[j] == scratch_[i]) ++j;
-    const VertexId x = scratch_[i];
-    if (j - i == 1) b_boundary = true;  // edge (b, x) in one triangle
-    if (x != a && mark_[x] == ea) {
-      ++common;
-      bool is_apex = false;
-      for (int k = 0; k < napex; ++k) is_apex |= apex[k] == x;
-      if (!is_apex) return false;  // (1) a common neighbour that is not an apex
-      if (napex == 1 && mark_count_[x] == 1 && j - i == 1) return false;  // (3) boundary
-    }
-    i = j;
   }
   if (common != napex) return false;
   if (napex == 2) {
@@ -330,8 +385,11 @@ bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos) {
       const auto& tri = store_->triangle(t);
       if (tri[0] == other || tri[1] == other || tri[2] == other) continue;  // removed
       Vec3 p[3];
-      for (int k = 0; k < 3; ++k) p[k] = (tri[k] == v) ? pos : store_->position(tri[k]);
-      const Vec3 n_old = store_->TriangleNormalTimesTwoArea(t);
+      for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
+      const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);  // = TriangleNormalTimesTwoArea
+      for (int k = 0; k < 3; ++k) {
+        if (tri[k] == v) p[k] = pos;
+      }
       const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
       const double old2 = Dot(n_old, n_old);
       if (old2 == 0.0) continue;  // already degenerate (exact iso hits): no constraint
@@ -438,8 +496,9 @@ double Simplifier::MaxShapeError() const {
 
 size_t Simplifier::MemoryBytes() const {
   return quadric_.capacity() * sizeof(Quadric) + rad_.capacity() * sizeof(double) +
-         version_.capacity() * sizeof(uint32_t) + mark_.capacity() * sizeof(uint32_t) +
-         mark_count_.capacity() + (q_.capacity() + w_.capacity()) * sizeof(Entry) +
+         version_.capacity() * sizeof(uint32_t) +
+         (mark_.capacity() + mark_b_.capacity()) * sizeof(uint32_t) + mark_count_.capacity() +
+         mark_count_b_.capacity() + (q_.capacity() + w_.capacity()) * sizeof(Entry) +
          scratch_.capacity() * sizeof(VertexId);
 }
 

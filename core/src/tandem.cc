@@ -69,7 +69,8 @@ TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& optio
       extractor_(ExtractorConfig{grid.nx, grid.ny, grid.nz, grid.spacing, grid.origin, options.iso},
                  &store_),
       simplifier_(&store_, SimplifierOptions{options.error, options.alpha,
-                                             RuleFor(options.schedule), grid.spacing[2]}) {
+                                             RuleFor(options.schedule), grid.spacing[2],
+                                             options.pipeline}) {
   convert_.resize(static_cast<size_t>(grid.nx * grid.ny));
 }
 

@@ -42,6 +42,10 @@ double ShapeError(const Quadric& h, Vec3 x);
 // crease, ref's projection onto the crease line; for a flat-zero quadric, ref itself. This
 // is the stable fallback of SPEC §3 (cf. Lindstrom & Turk 1998).
 Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes = 0);
+// The same with Eigen's closed-form eigen-decomposition: the definition MinimizeQuadric's
+// cheaper rank cases (Newton on the characteristic polynomial, cross-product eigenvectors)
+// are tested against, and their fallback where those are ill-conditioned.
+Vec3 MinimizeQuadricReference(const Quadric& q, Vec3 ref, uint8_t fixed_axes = 0);
 
 }  // namespace tandem
 

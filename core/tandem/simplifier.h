@@ -47,6 +47,8 @@ struct SimplifierOptions {
   double alpha = 0;           // isotropy parameter in [0, 1]
   ReleaseRule release = ReleaseRule::kReach;
   double slice_spacing = 1;   // sz: converts lengths to slice units for rad()
+  bool parallel = false;      // evaluate the edges of DELAY / ACTIVATE batches on two
+                              // threads (pure work; pushed in the same order: identical)
 };
 
 class Simplifier {
@@ -91,8 +93,7 @@ class Simplifier {
     Vec3 pos;
     double cost = 0;   // ε_α(c)
     double eps0 = 0;   // ε0(c)
-    double height = 0, rad = 0;
-    double key = 0;    // release key
+    double height = 0, rad = 0;  // of the new vertex (ReleaseKey fills them)
     int32_t layer = 0;
     uint8_t box_mask = 0;
   };
@@ -121,7 +122,11 @@ class Simplifier {
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
-  void PushTriangleEdges(TriId t);  // each edge of t once (see Delay)
+  void PushTriangleEdges(TriId t);  // each edge of t once (see Delay), into batch_
+  // Batches: PushEdge's work for many edges, the pure part (release key, quadric solve)
+  // possibly on two threads, then the pushes in batch order.
+  void EvaluateBatchRange(size_t begin, size_t end);
+  void FlushBatch();
   template <typename E>
   bool Stale(const E& e) const {
     return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
@@ -144,7 +149,9 @@ class Simplifier {
   std::vector<double> rad_;
   std::vector<uint32_t> version_;
   std::vector<uint32_t> mark_;      // scratch: link condition
-  std::vector<uint8_t> mark_count_; // scratch: triangles on edge (v, x)
+  std::vector<uint8_t> mark_count_; // scratch: triangles on edge (a, x)
+  std::vector<uint32_t> mark_b_;     // the same for b
+  std::vector<uint8_t> mark_count_b_;
   uint32_t mark_epoch_ = 0;
 
   std::vector<QEntry> q_;  // binary heap (std::push_heap with Greater)
@@ -155,6 +162,16 @@ class Simplifier {
   size_t w_size_ = 0;
   void PushW(const Entry& e);
   std::vector<VertexId> scratch_;
+  struct BatchEdge {
+    VertexId a, b;  // a < b
+  };
+  struct BatchResult {
+    Candidate c;
+    double key;
+    uint8_t to;  // 0: W (key > front), 1: Q, 2: refused (box)
+  };
+  std::vector<BatchEdge> batch_;
+  std::vector<BatchResult> batch_results_;
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();

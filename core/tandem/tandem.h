@@ -41,8 +41,10 @@ struct SessionOptions {
   double alpha = 0;             // isotropy parameter in [0, 1]
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
-  bool pipeline = true;         // tandem schedules: EXTRACT(k) on a second thread while
-                                // layer k-1 is simplified (identical results either way)
+  bool pipeline = true;         // use a second thread (identical results either way):
+                                // EXTRACT(k) while layer k-1 is simplified (tandem
+                                // schedules), and half of every large batch of edge
+                                // evaluations (DELAY, ACTIVATE)
   absl::Status Validate() const;
 };
 
