@@ -57,7 +57,7 @@ double MaxSortedError(const IndexedMesh& a, const IndexedMesh& b) {
 TEST(DracoCodec, SequentialLevelKeepsOrderAndPositions) {
   for (Schedule schedule : {Schedule::kNone, Schedule::kTandemLag}) {
     const IndexedMesh mesh = SphereMesh(schedule);
-    ASSERT_GT(mesh.num_triangles(), 100u);
+    ASSERT_GT(mesh.num_triangles(), 50u);  // simplified at E0 = 0.3: ~100 triangles
     for (int bits : {11, 16, 24}) {
       auto bytes = EncodeDraco(mesh, {bits, 0});
       ASSERT_TRUE(bytes.ok()) << bytes.status();
