@@ -29,10 +29,7 @@ void Simplifier::EnsureVertexCapacity() {
   quadric_.resize(n);
   rad_.resize(n, 1.0);
   version_.resize(n, 0);
-  mark_.resize(n, 0);
-  mark_count_.resize(n, 0);
-  mark_b_.resize(n, 0);
-  mark_count_b_.resize(n, 0);
+  mark_.resize(n);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
@@ -170,8 +167,15 @@ void Simplifier::PushTriangleEdges(TriId t) {
         for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
       }
     }
-    if (!twin) batch_.push_back(a < b ? BatchEdge{a, b} : BatchEdge{b, a});
+    if (!twin) AddToBatch(a, b);
   }
+}
+
+void Simplifier::AddToBatch(VertexId a, VertexId b) {
+  batch_.push_back(a < b ? BatchEdge{a, b} : BatchEdge{b, a});
+  // Flushing early changes nothing (evaluations only read; pushes keep batch order) and
+  // bounds the batch's memory when DELAY gets the whole mesh (classical, RequeueAll).
+  if (batch_.size() >= kMaxBatch) FlushBatch();
 }
 
 void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
@@ -277,7 +281,7 @@ void Simplifier::Activate(double front) {
     w_size_ -= bucket.size();
     for (const Entry& e : bucket) {
       if (Stale(e)) continue;
-      batch_.push_back({e.a, e.b});  // evaluated now: the endpoints' quadrics are complete
+      AddToBatch(e.a, e.b);  // evaluated now: the endpoints' quadrics are complete
     }
   }
   FlushBatch();
@@ -301,33 +305,41 @@ bool Simplifier::LinkCondition(VertexId a, VertexId b) {
   // links: for an interior edge with apexes c, d, not both acd and bcd are triangles; for a
   // boundary edge with apex c, not both ac and bc are boundary edges.
   if (++mark_epoch_ == 0) {
-    std::fill(mark_.begin(), mark_.end(), 0);
-    std::fill(mark_b_.begin(), mark_b_.end(), 0);
+    std::fill(mark_.begin(), mark_.end(), Mark{});
     mark_epoch_ = 1;
   }
   const uint32_t ep = mark_epoch_;
-  // Neighbours of v, each with the number of triangles on edge (v, x) (saturating at 127:
-  // bit 7 is the "seen" flag of the pass over b below).
-  auto tally = [&](VertexId v, std::vector<uint32_t>& mark, std::vector<uint8_t>& count) {
-    for (TriId t : store_->vertex_triangles(v)) {
-      for (VertexId x : store_->triangle(t)) {
-        if (x == v) continue;
-        if (mark[x] != ep) {
-          mark[x] = ep;
-          count[x] = 0;
-        }
-        if (count[x] < 127) ++count[x];
+  // Neighbours of a and of b, each with the number of triangles on edge (a, x) or (b, x)
+  // (saturating at 127: bit 7 of count_b is the "seen" flag of the pass over b below). One
+  // Mark per vertex keeps both tallies in one cache line.
+  for (TriId t : store_->vertex_triangles(a)) {
+    for (VertexId x : store_->triangle(t)) {
+      if (x == a) continue;
+      Mark& m = mark_[x];
+      if (m.epoch_a != ep) {
+        m.epoch_a = ep;
+        m.count_a = 0;
       }
+      if (m.count_a < 127) ++m.count_a;
     }
-  };
-  tally(a, mark_, mark_count_);
-  tally(b, mark_b_, mark_count_b_);
+  }
+  for (TriId t : store_->vertex_triangles(b)) {
+    for (VertexId x : store_->triangle(t)) {
+      if (x == b) continue;
+      Mark& m = mark_[x];
+      if (m.epoch_b != ep) {
+        m.epoch_b = ep;
+        m.count_b = 0;
+      }
+      if (m.count_b < 127) ++m.count_b;
+    }
+  }
   VertexId apex[2];
   int napex = 0;
   bool a_boundary = false;
   for (TriId t : store_->vertex_triangles(a)) {
     const auto& tri = store_->triangle(t);
-    for (VertexId x : tri) a_boundary |= (x != a && mark_count_[x] == 1);
+    for (VertexId x : tri) a_boundary |= (x != a && mark_[x].count_a == 1);
     if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
     if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
     for (VertexId x : tri) {
@@ -342,16 +354,17 @@ bool Simplifier::LinkCondition(VertexId a, VertexId b) {
   for (TriId t : store_->vertex_triangles(b)) {
     for (VertexId x : store_->triangle(t)) {
       if (x == b) continue;
-      const uint8_t cb = mark_count_b_[x];
+      Mark& m = mark_[x];
+      const uint8_t cb = m.count_b;
       if (cb & 0x80) continue;  // seen
-      mark_count_b_[x] = static_cast<uint8_t>(cb | 0x80);
+      m.count_b = static_cast<uint8_t>(cb | 0x80);
       if (cb == 1) b_boundary = true;
-      if (x != a && mark_[x] == ep) {
+      if (x != a && m.epoch_a == ep) {
         ++common;
         bool is_apex = false;
         for (int k = 0; k < napex; ++k) is_apex |= apex[k] == x;
         if (!is_apex) return false;  // (1) a common neighbour that is not an apex
-        if (napex == 1 && mark_count_[x] == 1 && cb == 1) return false;  // (3) boundary
+        if (napex == 1 && m.count_a == 1 && cb == 1) return false;  // (3) boundary
       }
     }
   }
@@ -497,9 +510,9 @@ double Simplifier::MaxShapeError() const {
 size_t Simplifier::MemoryBytes() const {
   return quadric_.capacity() * sizeof(Quadric) + rad_.capacity() * sizeof(double) +
          version_.capacity() * sizeof(uint32_t) +
-         (mark_.capacity() + mark_b_.capacity()) * sizeof(uint32_t) + mark_count_.capacity() +
-         mark_count_b_.capacity() + (q_.capacity() + w_.capacity()) * sizeof(Entry) +
-         scratch_.capacity() * sizeof(VertexId);
+         mark_.capacity() * sizeof(Mark) + q_.capacity() * sizeof(QEntry) + WaitingBytes() +
+         scratch_.capacity() * sizeof(VertexId) + batch_.capacity() * sizeof(BatchEdge) +
+         batch_results_.capacity() * sizeof(BatchResult);
 }
 
 }  // namespace tandem

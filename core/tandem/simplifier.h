@@ -125,8 +125,10 @@ class Simplifier {
   void PushTriangleEdges(TriId t);  // each edge of t once (see Delay), into batch_
   // Batches: PushEdge's work for many edges, the pure part (release key, quadric solve)
   // possibly on two threads, then the pushes in batch order.
+  void AddToBatch(VertexId a, VertexId b);  // FlushBatch at kMaxBatch edges
   void EvaluateBatchRange(size_t begin, size_t end);
   void FlushBatch();
+  static constexpr size_t kMaxBatch = 16384;
   template <typename E>
   bool Stale(const E& e) const {
     return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
@@ -148,10 +150,11 @@ class Simplifier {
   std::vector<Quadric> quadric_;
   std::vector<double> rad_;
   std::vector<uint32_t> version_;
-  std::vector<uint32_t> mark_;      // scratch: link condition
-  std::vector<uint8_t> mark_count_; // scratch: triangles on edge (a, x)
-  std::vector<uint32_t> mark_b_;     // the same for b
-  std::vector<uint8_t> mark_count_b_;
+  struct Mark {  // scratch of the link condition, per vertex x: tallies of edges (a|b, x)
+    uint32_t epoch_a = 0, epoch_b = 0;
+    uint8_t count_a = 0, count_b = 0;
+  };
+  std::vector<Mark> mark_;
   uint32_t mark_epoch_ = 0;
 
   std::vector<QEntry> q_;  // binary heap (std::push_heap with Greater)
