@@ -364,26 +364,38 @@ TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
 // ---------------------------------------------------------------------------------------
 // Shutdown: one server per test, started here.
 
+// Streams a sphere of nz slices at `rate` slices/s to the server with the real client,
+// and returns once the server reports the session active (nullptr on failure).
+std::unique_ptr<ChildProcess> StartPacedStream(TestServer& server, const std::string& dir,
+                                               int64_t nxy, int64_t nz, int rate) {
+  auto path =
+      WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, nxy, nxy, nz));
+  EXPECT_TRUE(path.ok());
+  if (!path.ok()) return nullptr;
+  std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
+                                   server.address(), "--input", *path, "--iso", "0",
+                                   "--error", "0.5", "--rate", std::to_string(rate),
+                                   "--out", dir + "/s.drc"};
+  auto client = ChildProcess::Spawn(argv, dir);
+  EXPECT_TRUE(client.ok());
+  if (!client.ok()) return nullptr;
+  for (int i = 0; i < 200; ++i) {
+    auto info = server.Info();
+    if (info.ok() && info->counters().active_sessions() == 1) return *std::move(client);
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ADD_FAILURE() << "the stream never became active";
+  return nullptr;
+}
+
 TEST(ServiceShutdown, SigtermLetsARunningStreamFinishThenExitsZero) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--grace-seconds", "30"});
   ASSERT_TRUE(server.ok()) << server.status();
-  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 40, 40, 60));
-  ASSERT_TRUE(path.ok());
-  std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
-                                   (*server)->address(), "--input", *path, "--iso", "0",
-                                   "--error", "0.5", "--rate", "40", "--out", dir + "/s.drc"};
-  auto client = ChildProcess::Spawn(argv, dir);
-  ASSERT_TRUE(client.ok());
-  bool active = false;
-  for (int i = 0; i < 200 && !active; ++i) {
-    auto info = (*server)->Info();
-    active = info.ok() && info->counters().active_sessions() == 1;
-    if (!active) std::this_thread::sleep_for(std::chrono::milliseconds(25));
-  }
-  ASSERT_TRUE(active);
+  auto client = StartPacedStream(**server, dir, 40, 60, 40);
+  ASSERT_TRUE(client);
   (*server)->process().Signal(SIGTERM);
-  EXPECT_EQ((*client)->Wait(30), 0) << (*client)->Stderr();
+  EXPECT_EQ(client->Wait(30), 0) << client->Stderr();
   EXPECT_TRUE(std::filesystem::exists(dir + "/s.drc"));
   EXPECT_EQ((*server)->process().Wait(30), 0) << (*server)->process().Stderr();
   const std::string log = (*server)->process().Stderr();
@@ -396,24 +408,12 @@ TEST(ServiceShutdown, StreamsPastTheGracePeriodAreCancelled) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--grace-seconds", "0.3"});
   ASSERT_TRUE(server.ok()) << server.status();
-  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 100));
-  ASSERT_TRUE(path.ok());
-  std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
-                                   (*server)->address(), "--input", *path, "--iso", "0",
-                                   "--error", "0.5", "--rate", "10", "--out", dir + "/s.drc"};
-  auto client = ChildProcess::Spawn(argv, dir);
-  ASSERT_TRUE(client.ok());
-  bool active = false;
-  for (int i = 0; i < 200 && !active; ++i) {
-    auto info = (*server)->Info();
-    active = info.ok() && info->counters().active_sessions() == 1;
-    if (!active) std::this_thread::sleep_for(std::chrono::milliseconds(25));
-  }
-  ASSERT_TRUE(active);
+  auto client = StartPacedStream(**server, dir, 24, 100, 10);
+  ASSERT_TRUE(client);
   (*server)->process().Signal(SIGTERM);
   EXPECT_EQ((*server)->process().Wait(20), 0) << (*server)->process().Stderr();
-  EXPECT_EQ((*client)->Wait(20), 1) << (*client)->Stderr();
-  const std::string err = (*client)->Stderr();
+  EXPECT_EQ(client->Wait(20), 1) << client->Stderr();
+  const std::string err = client->Stderr();
   EXPECT_TRUE(err.find("CANCELLED") != std::string::npos ||
               err.find("UNAVAILABLE") != std::string::npos)
       << err;
