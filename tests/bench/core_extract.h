@@ -33,6 +33,31 @@ inline void ExtractWithCore(const std::string& input, double iso, std::vector<fl
   *indices = std::move(mesh.indices);
 }
 
+// The start shared by the "our extraction + another simplifier" programs: their flags
+// (--input, --iso, --target-triangles, --out) and the full-resolution surface, with the
+// extraction's time (reading included, interleaved) and triangle count recorded in *r.
+// *clock is lapped after the extraction, so the caller's next Lap() times its simplifier.
+struct PeerInput {
+  std::string out;
+  long long target = 0;
+  std::vector<float> xyz;
+  std::vector<uint32_t> indices;
+};
+
+inline PeerInput ExtractPeerInput(int argc, char** argv, Result* r, Clock* clock) {
+  auto flags = ParseFlags(argc, argv);
+  const std::string input = Require(flags, "input");
+  const double iso = std::stod(Require(flags, "iso"));
+  PeerInput in;
+  in.target = std::stoll(Require(flags, "target-triangles"));
+  in.out = Require(flags, "out");
+  clock->Lap();
+  ExtractWithCore(input, iso, &in.xyz, &in.indices);
+  r->extract_s = clock->Lap();
+  r->triangles_extracted = static_cast<int64_t>(in.indices.size() / 3);
+  return in;
+}
+
 }  // namespace bench
 
 #endif  // TANDEM_BENCH_CORE_EXTRACT_H_

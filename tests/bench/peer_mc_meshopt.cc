@@ -10,20 +10,14 @@
 #include "core_extract.h"
 
 int main(int argc, char** argv) {
-  auto flags = bench::ParseFlags(argc, argv);
-  const std::string input = bench::Require(flags, "input");
-  const double iso = std::stod(bench::Require(flags, "iso"));
-  const long long target = std::stoll(bench::Require(flags, "target-triangles"));
-  const std::string out = bench::Require(flags, "out");
-
   bench::Result r;
   r.pipeline = "mc+meshopt";
   bench::Clock clock;
-  std::vector<float> xyz;
-  std::vector<uint32_t> indices;
-  bench::ExtractWithCore(input, iso, &xyz, &indices);
-  r.extract_s = clock.Lap();  // includes reading the slices (interleaved)
-  r.triangles_extracted = static_cast<int64_t>(indices.size() / 3);
+  bench::PeerInput in = bench::ExtractPeerInput(argc, argv, &r, &clock);
+  const long long target = in.target;
+  const std::string& out = in.out;
+  std::vector<float>& xyz = in.xyz;
+  std::vector<uint32_t>& indices = in.indices;
 
   std::vector<uint32_t> simplified(indices.size());
   float result_error = 0;
