@@ -59,6 +59,10 @@ Options:
                             then simplify (holds the full-resolution mesh)
   --target-triangles N      after the E0 pass, keep contracting (past E0 if need be)
                             until at most N triangles remain. Default: off
+  --parts N                 split the grid along x into N slabs, simplified side by
+                            side on their own threads and merged at the end (their
+                            seams simplified last); 1 = the paper's algorithm
+                            unchanged. Default 0: 2 on grids at least 256 wide, else 1
   --no-simplify             write the full-resolution marching-cubes surface
   --metrics FILE.json       write the run's figures as JSON (without it, a summary
                             goes to stderr)
@@ -133,7 +137,7 @@ std::string DistanceTable(const Distances& d) {
 int Extract(int argc, char** argv) {
   auto args = cli::Args::Parse(argc, argv, 2,
                                {"input", "out", "iso", "error", "alpha", "schedule",
-                                "target-triangles", "metrics", "samples"},
+                                "target-triangles", "metrics", "samples", "parts"},
                                {"no-simplify", "reference", "quiet", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
@@ -168,9 +172,16 @@ int Extract(int argc, char** argv) {
   auto alpha = args->GetDouble("alpha", 0.0);
   auto target = args->GetInt("target-triangles", 0);
   auto samples = args->GetInt("samples", 0);
-  for (const absl::Status& st : {e0.status(), alpha.status(), target.status(), samples.status()}) {
+  auto parts = args->GetInt("parts", 0);
+  for (const absl::Status& st :
+       {e0.status(), alpha.status(), target.status(), samples.status(), parts.status()}) {
     if (!st.ok()) return Fail(st);
   }
+  if (*parts < 0 || *parts > SessionOptions::kMaxParts) {
+    return Fail(absl::InvalidArgumentError(absl::StrCat(
+        "--parts ", *parts, ": expected 0 (automatic) to ", SessionOptions::kMaxParts)));
+  }
+  opt.parts = static_cast<int>(*parts);
   opt.error = *e0;
   opt.alpha = *alpha;
   opt.target_triangles = *target;

@@ -75,9 +75,11 @@ LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
 }
 
 uint8_t LayerExtractor::BoxMask(double i, double j, double k) const {
+  // i is a column of the whole grid; this part's faces are x_offset and x_offset + nx - 1.
   uint8_t m = 0;
-  if (i == 0) m |= kBoxXMin;
-  if (i == static_cast<double>(config_.nx - 1)) m |= kBoxXMax;
+  if (i == static_cast<double>(config_.x_offset)) m |= kBoxXMin;
+  if (i == static_cast<double>(config_.x_offset + config_.nx - 1)) m |= kBoxXMax;
+  m &= static_cast<uint8_t>(~config_.seam_faces);  // a seam is not the box
   if (j == 0) m |= kBoxYMin;
   if (j == static_cast<double>(config_.ny - 1)) m |= kBoxYMax;
   if (k == 0) m |= kBoxZMin;
@@ -97,11 +99,24 @@ void LayerExtractor::EdgePoint(double pi, double pj, double pk, int axis, double
   idx[axis] += t;
 }
 
-VertexId LayerExtractor::StageVertex(const double idx[3]) {
+int LayerExtractor::SeamFace(int64_t i) const {
+  if (i == 0 && (config_.seam_faces & kBoxXMin)) return 0;
+  if (i == config_.nx - 1 && (config_.seam_faces & kBoxXMax)) return 1;
+  return -1;
+}
+
+VertexId LayerExtractor::StageVertex(const double idx[3], int seam_face) {
   const VertexId id = kPending | static_cast<VertexId>(staged_vertices_.size());
+  uint8_t mask = BoxMask(idx[0], idx[1], idx[2]);
+  if (seam_face >= 0) mask |= kSeam;
   staged_vertices_.push_back(
-      {Physical(idx[0], idx[1], idx[2]), idx[2], BoxMask(idx[0], idx[1], idx[2])});
+      {Physical(idx[0], idx[1], idx[2]), idx[2], mask, static_cast<int8_t>(seam_face)});
   return id;
+}
+
+absl::Status LayerExtractor::NonFiniteError(int64_t k, int64_t x, int64_t y, float v) {
+  return absl::InvalidArgumentError(absl::StrCat("slice ", k, ": value at (x=", x, ", y=", y,
+                                                 ") is ", v, "; every voxel must be a finite number"));
 }
 
 absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* new_tris,
@@ -111,7 +126,8 @@ absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* n
   return absl::OkStatus();
 }
 
-void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<VertexId>* new_verts) {
+void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<VertexId>* new_verts,
+                                 std::array<std::vector<VertexId>, 2>* new_seam) {
   if (!staged_) return;
   staged_ = false;
   staged_to_store_.resize(staged_vertices_.size());
@@ -121,6 +137,8 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     assert(v < kPending);
     staged_to_store_[i] = v;
     if (new_verts) new_verts->push_back(v);
+    // Staging order is the canonical order: y-edges, then z-edges, by ascending y.
+    if (new_seam && (sv.box_mask & kSeam)) (*new_seam)[sv.seam_face].push_back(v);
   }
   auto resolve = [this](VertexId v) { return IsPending(v) ? staged_to_store_[v & ~kPending] : v; };
   for (const auto& tri : staged_triangles_) {
@@ -172,7 +190,7 @@ bool LayerExtractor::ScanRow(const float* src, int64_t n, float* dst, uint64_t* 
 }
 
 absl::Status LayerExtractor::ComputeLayer(const float* values) {
-  const int64_t nx = config_.nx, ny = config_.ny, words = words_;
+  const int64_t nx = config_.nx, ny = config_.ny, words = words_, xo = config_.x_offset;
   const int64_t k = slices_done_;
   if (staged_) return absl::FailedPreconditionError("CommitLayer the previous layer first");
   if (finished_ || (config_.nz > 0 && k >= config_.nz)) {
@@ -183,16 +201,15 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
   // validating as we go; they become the top only if the whole slice is finite, so a bad
   // slice leaves the extractor (and the store) as it was.
   bool finite = true;
+  const int64_t stride = config_.row_stride > 0 ? config_.row_stride : nx;
   for (int64_t j = 0; j < ny; ++j) {
-    finite &= ScanRow(values + j * nx, nx, v_bottom_.data() + j * nx, s_bottom_.data() + j * words);
+    finite &= ScanRow(values + j * stride, nx, v_bottom_.data() + j * nx, s_bottom_.data() + j * words);
   }
   if (!finite) {
-    const size_t n = static_cast<size_t>(nx * ny);
-    for (size_t idx = 0; idx < n; ++idx) {
-      if (!std::isfinite(values[idx])) {
-        return absl::InvalidArgumentError(absl::StrCat(
-            "slice ", k, ": value at (x=", idx % nx, ", y=", idx / nx, ") is ", values[idx],
-            "; every voxel must be a finite number"));
+    for (int64_t j = 0; j < ny; ++j) {
+      for (int64_t i = 0; i < nx; ++i) {
+        const float v = values[j * stride + i];
+        if (!std::isfinite(v)) return NonFiniteError(k, i + config_.x_offset, j, v);
       }
     }
   }
@@ -228,7 +245,7 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
     for (int64_t w = 0; w < words; ++w) {
       const uint64_t crossed = (row[w] ^ NextBits(row, w, words)) & LowBits(nx - 1 - w * kWordBits);
       ForEachBit(crossed, w * kWordBits, [&](int64_t i) {
-        EdgePoint(double(i), double(j), kz, 0, Rel(vt[j * nx + i]), Rel(vt[j * nx + i + 1]), idx3);
+        EdgePoint(double(i + xo), double(j), kz, 0, Rel(vt[j * nx + i]), Rel(vt[j * nx + i + 1]), idx3);
         const VertexId v = StageVertex(idx3);
         xe_top_[j * (nx - 1) + i] = v;
         xe_top_set_.push_back(j * (nx - 1) + i);
@@ -240,9 +257,9 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
     const uint64_t* row = st + j * words;
     for (int64_t w = 0; w < words; ++w) {
       ForEachBit(row[w] ^ row[w + words], w * kWordBits, [&](int64_t i) {
-        EdgePoint(double(i), double(j), kz, 1, Rel(vt[j * nx + i]), Rel(vt[(j + 1) * nx + i]),
+        EdgePoint(double(i + xo), double(j), kz, 1, Rel(vt[j * nx + i]), Rel(vt[(j + 1) * nx + i]),
                   idx3);
-        const VertexId v = StageVertex(idx3);
+        const VertexId v = StageVertex(idx3, SeamFace(i));
         ye_top_[j * nx + i] = v;
         ye_top_set_.push_back(j * nx + i);
         top_plane_vertices_.push_back(v);
@@ -258,8 +275,8 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
       ForEachBit(sb[j * words + w] ^ st[j * words + w], w * kWordBits, [&](int64_t i) {
         const int64_t idx = j * nx + i;
         const double a = Rel(vb[idx]), b = Rel(vt[idx]);
-        EdgePoint(double(i), double(j), kz - 1, 2, a, b, idx3);
-        const VertexId v = StageVertex(idx3);
+        EdgePoint(double(i + xo), double(j), kz - 1, 2, a, b, idx3);
+        const VertexId v = StageVertex(idx3, SeamFace(i));
         ze_[idx] = v;
         ze_set_.push_back(idx);
         if (b == 0) top_plane_vertices_.push_back(v);
@@ -328,7 +345,7 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
         const int c0 = mc::kEdgeCorners[e[s]][0], c1 = mc::kEdgeCorners[e[s]][1];
         const int axis = (c1 - c0) == 1 ? 0 : ((c1 - c0) == 2 ? 1 : 2);
         double p[3];
-        EdgePoint(double(i + (c0 & 1)), double(j + ((c0 >> 1) & 1)), kz - 1 + ((c0 >> 2) & 1),
+        EdgePoint(double(i + config_.x_offset + (c0 & 1)), double(j + ((c0 >> 1) & 1)), kz - 1 + ((c0 >> 2) & 1),
                   axis, f[c0], f[c1], p);
         const Vec3 q = Physical(p[0], p[1], p[2]);
         c[0] += q.x;
@@ -340,7 +357,8 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
                             (c[1] - config_.origin[1]) / config_.spacing[1],
                             (c[2] - config_.origin[2]) / config_.spacing[2]};
       const VertexId cv = kPending | static_cast<VertexId>(staged_vertices_.size());
-      staged_vertices_.push_back({Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2])});
+      staged_vertices_.push_back(
+          {Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2]), int8_t{-1}});
       for (int s = 0; s < len; ++s) {
         staged_triangles_.push_back({cv, ev[e[s]], ev[e[(s + 1) % len]]});
       }

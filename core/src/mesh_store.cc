@@ -133,21 +133,27 @@ IndexedMesh MeshStore::Snapshot(std::vector<uint32_t>* vertex_map) const {
   std::vector<uint32_t> local_map;
   std::vector<uint32_t>& map = vertex_map ? *vertex_map : local_map;
   map.assign(pos_.size(), kInvalid);
-  out.indices.reserve(live_triangles_ * 3);
-  out.positions.reserve(live_vertices_);
+  AppendSnapshot(&out, &map);
+  return out;
+}
+
+void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_map) const {
+  std::vector<uint32_t>& map = *vertex_map;
+  assert(map.size() >= pos_.size());
+  out->indices.reserve(out->indices.size() + live_triangles_ * 3);
+  out->positions.reserve(out->positions.size() + live_vertices_);
   // Vertices in order of first use by a live triangle, triangles in id order: the result
   // depends only on the store's content, so equal runs give byte-identical snapshots.
   for (TriId t = 0; t < tris_.size(); ++t) {
     if (!tri_alive_[t]) continue;
     for (VertexId v : tris_[t]) {
       if (map[v] == kInvalid) {
-        map[v] = static_cast<uint32_t>(out.positions.size());
-        out.positions.push_back(pos_[v]);
+        map[v] = static_cast<uint32_t>(out->positions.size());
+        out->positions.push_back(pos_[v]);
       }
-      out.indices.push_back(map[v]);
+      out->indices.push_back(map[v]);
     }
   }
-  return out;
 }
 
 size_t MeshStore::MemoryBytes() const {

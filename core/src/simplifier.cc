@@ -122,18 +122,26 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   return true;
 }
 
-template <typename E>
-void Simplifier::HeapPush(std::vector<E>& h, const E& e) {
-  h.push_back(e);
-  std::push_heap(h.begin(), h.end(), Greater<E>{});
+void Simplifier::HeapPush(double key, const QEntry& e) {
+  uint32_t slot;
+  if (!q_free_.empty()) {
+    slot = q_free_.back();
+    q_free_.pop_back();
+    q_slots_[slot] = e;
+  } else {
+    slot = static_cast<uint32_t>(q_slots_.size());
+    q_slots_.push_back(e);
+  }
+  q_.push_back(QNode{key, slot, q_seq_++});
+  std::push_heap(q_.begin(), q_.end(), QNodeGreater{});
 }
 
-template <typename E>
-E Simplifier::HeapPop(std::vector<E>& h) {
-  std::pop_heap(h.begin(), h.end(), Greater<E>{});
-  E e = h.back();
-  h.pop_back();
-  return e;
+Simplifier::QEntry Simplifier::HeapPop() {
+  std::pop_heap(q_.begin(), q_.end(), QNodeGreater{});
+  const uint32_t slot = q_.back().slot;
+  q_.pop_back();
+  q_free_.push_back(slot);
+  return q_slots_[slot];
 }
 
 void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
@@ -141,12 +149,14 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // grow the heap (on a CT, most of Q). A later neighbour contraction re-pushes it with its
   // new cost; a target triangle count re-queues every edge first (RequeueAll).
   if (!keep_expensive_ && c.cost > opt_.error) return;
-  HeapPush(q_, QEntry{c.cost, a, b, version_[a], version_[b], c.pos, c.eps0});
+  HeapPush(c.cost, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
 void Simplifier::RequeueAll() {
   keep_expensive_ = true;
   q_.clear();
+  q_slots_.clear();
+  q_free_.clear();
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
@@ -172,6 +182,7 @@ void Simplifier::PushTriangleEdges(TriId t) {
 }
 
 void Simplifier::AddToBatch(VertexId a, VertexId b) {
+  if (OnSeam(a, b)) return;
   batch_.push_back(a < b ? BatchEdge{a, b} : BatchEdge{b, a});
   // Flushing early changes nothing (evaluations only read; pushes keep batch order) and
   // bounds the batch's memory when DELAY gets the whole mesh (classical, RequeueAll).
@@ -229,6 +240,7 @@ void Simplifier::FlushBatch() {
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
+  if (OnSeam(a, b)) return;
   if (a > b) std::swap(a, b);
   Candidate c;
   if (opt_.release != ReleaseRule::kImmediate) {
@@ -465,11 +477,12 @@ void Simplifier::Simplify(int64_t target_triangles) {
   while (!q_.empty()) {
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     if (!to_target && q_.front().key > opt_.error) break;
-    const QEntry e = HeapPop(q_);
+    const double key = q_.front().key;
+    const QEntry e = HeapPop();
     if (Stale(e)) continue;
     Candidate c;
     c.pos = e.pos;
-    c.cost = e.key;
+    c.cost = key;
     c.eps0 = e.eps0;
     if (opt_.alpha > 0.0) {
       // The memoryless isotropy term depends on the current neighbourhood: recompute.
@@ -477,7 +490,7 @@ void Simplifier::Simplify(int64_t target_triangles) {
         ++refusals_.box;
         continue;
       }
-      if (c.cost > e.key * (1.0 + 1e-12) + 1e-300) {  // cost grew since it was queued
+      if (c.cost > key * (1.0 + 1e-12) + 1e-300) {  // cost grew since it was queued
         PushQ(e.a, e.b, c);
         continue;
       }
@@ -498,6 +511,50 @@ void Simplifier::Simplify(int64_t target_triangles) {
   }
 }
 
+void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
+  EnsureVertexCapacity();
+  if (shared) {
+    quadric_[dst] += from.quadric_[src];  // a seam vertex: each part saw its own triangles
+  } else {
+    quadric_[dst] = from.quadric_[src];
+    rad_[dst] = from.rad_[src];
+  }
+  ++version_[dst];
+}
+
+void Simplifier::AdoptCounters(const Simplifier& from) {
+  refusals_.link += from.refusals_.link;
+  refusals_.flip += from.refusals_.flip;
+  refusals_.degenerate += from.refusals_.degenerate;
+  refusals_.box += from.refusals_.box;
+  refusals_.error += from.refusals_.error;
+  contractions_ += from.contractions_;
+  max_reach_over_front_ = std::max(max_reach_over_front_, from.max_reach_over_front_);
+  max_layer_over_front_ = std::max(max_layer_over_front_, from.max_layer_over_front_);
+}
+
+void Simplifier::PushEdgesAround(std::span<const VertexId> verts) {
+  EnsureVertexCapacity();
+  std::vector<BatchEdge> edges;
+  for (VertexId v : verts) {
+    for (TriId t : store_->vertex_triangles(v)) {
+      for (VertexId x : store_->triangle(t)) {
+        if (x != v) edges.push_back(v < x ? BatchEdge{v, x} : BatchEdge{x, v});
+      }
+    }
+  }
+  std::sort(edges.begin(), edges.end(), [](const BatchEdge& p, const BatchEdge& q) {
+    return p.a != q.a ? p.a < q.a : p.b < q.b;
+  });
+  edges.erase(std::unique(edges.begin(), edges.end(),
+                          [](const BatchEdge& p, const BatchEdge& q) {
+                            return p.a == q.a && p.b == q.b;
+                          }),
+              edges.end());
+  for (const BatchEdge& e : edges) AddToBatch(e.a, e.b);
+  FlushBatch();
+}
+
 double Simplifier::MaxShapeError() const {
   double worst = 0.0;
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
@@ -510,7 +567,8 @@ double Simplifier::MaxShapeError() const {
 size_t Simplifier::MemoryBytes() const {
   return quadric_.capacity() * sizeof(Quadric) + rad_.capacity() * sizeof(double) +
          version_.capacity() * sizeof(uint32_t) +
-         mark_.capacity() * sizeof(Mark) + q_.capacity() * sizeof(QEntry) + WaitingBytes() +
+         mark_.capacity() * sizeof(Mark) + q_.capacity() * sizeof(QNode) +
+         q_slots_.capacity() * sizeof(QEntry) + q_free_.capacity() * sizeof(uint32_t) + WaitingBytes() +
          scratch_.capacity() * sizeof(VertexId) + batch_.capacity() * sizeof(BatchEdge) +
          batch_results_.capacity() * sizeof(BatchResult);
 }

@@ -1,6 +1,7 @@
 #include "tandem/tandem.h"
 
 #include <algorithm>
+#include <cassert>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -60,17 +61,42 @@ absl::Status SessionOptions::Validate() const {
   if (target_triangles < 0) {
     return absl::InvalidArgumentError("target triangle count must be >= 0");
   }
+  if (parts < 0 || parts > kMaxParts) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("parts must lie in [0, ", kMaxParts, "] (0 = automatic), got ", parts));
+  }
   return absl::OkStatus();
 }
 
-TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& options)
-    : grid_(grid),
-      options_(options),
-      extractor_(ExtractorConfig{grid.nx, grid.ny, grid.nz, grid.spacing, grid.origin, options.iso},
-                 &store_),
-      simplifier_(&store_, SimplifierOptions{options.error, options.alpha,
-                                             RuleFor(options.schedule), grid.spacing[2],
-                                             options.pipeline}) {
+namespace {
+
+// The number of parts a session over `grid` uses (SessionOptions::parts).
+int PartsFor(const VolumeInfo& grid, int requested) {
+  constexpr int64_t kMinColumns = 16;  // cube columns per part, at least
+  const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 2 : 1);
+  return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinColumns)));
+}
+
+}  // namespace
+
+TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& options, int parts)
+    : grid_(grid), options_(options) {
+  // Part p owns cube columns [c_p, c_{p+1}) and grid columns c_p .. c_{p+1}.
+  for (int p = 0; p < parts; ++p) {
+    const int64_t c0 = p * (grid.nx - 1) / parts, c1 = (p + 1) * (grid.nx - 1) / parts;
+    ExtractorConfig ec{c1 - c0 + 1, grid.ny, grid.nz, grid.spacing, grid.origin, options.iso};
+    ec.x_offset = c0;
+    ec.row_stride = grid.nx;
+    if (p > 0) ec.seam_faces |= kBoxXMin;
+    if (p + 1 < parts) ec.seam_faces |= kBoxXMax;
+    // With several parts the threads go to the parts, not to the batches inside one.
+    const SimplifierOptions so{options.error, options.alpha, RuleFor(options.schedule),
+                               grid.spacing[2], options.pipeline && parts == 1};
+    parts_.push_back(std::make_unique<Part>(ec, so));
+    parts_.back()->x0 = c0;
+    parts_.back()->index = static_cast<size_t>(p);
+  }
+  seams_.resize(static_cast<size_t>(parts - 1));
   convert_.resize(static_cast<size_t>(grid.nx * grid.ny));
 }
 
@@ -80,7 +106,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
   if (absl::Status st = options.Validate(); !st.ok()) return st;
   try {
-    return std::unique_ptr<TandemSession>(new TandemSession(g, options));
+    return std::unique_ptr<TandemSession>(new TandemSession(g, options, PartsFor(g, options.parts)));
   } catch (const std::bad_alloc&) {
     // The extractor's plane caches are O(nx*ny); the only allocation that can be large here.
     return absl::ResourceExhaustedError(absl::StrCat(
@@ -90,9 +116,41 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
 }
 
 void TandemSession::Record() {
-  const int64_t n = static_cast<int64_t>(store_.num_triangles());
+  const int64_t n = num_triangles();
   stats_.trace.push_back(n);
   stats_.peak_triangles = std::max(stats_.peak_triangles, n);
+}
+
+void TandemSession::FoldTraces() {
+  const size_t n = parts_[0]->trace.size();
+  for (; folded_ < n; ++folded_) {
+    int64_t sum = 0;
+    for (const auto& p : parts_) sum += p->trace[folded_];
+    stats_.trace.push_back(sum);
+    stats_.peak_triangles = std::max(stats_.peak_triangles, sum);
+  }
+}
+
+int64_t TandemSession::num_triangles() const {
+  int64_t n = 0;
+  for (const auto& p : parts_) n += static_cast<int64_t>(p->store.num_triangles());
+  return n;
+}
+
+IndexedMesh TandemSession::Snapshot() const {
+  if (parts_.size() == 1) return parts_[0]->store.Snapshot();
+  // Part by part; a seam vertex takes the index its copy got in the part before.
+  IndexedMesh out;
+  std::vector<uint32_t> map, prev;
+  for (size_t p = 0; p < parts_.size(); ++p) {
+    map.assign(parts_[p]->store.vertex_capacity(), kInvalid);
+    if (p > 0) {
+      for (const auto& [left, right] : seams_[p - 1]) map[right] = prev[left];
+    }
+    parts_[p]->store.AppendSnapshot(&out, &map);
+    prev.swap(map);
+  }
+  return out;
 }
 
 absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
@@ -100,62 +158,179 @@ absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
   return AddSlice(convert_.data());
 }
 
-void TandemSession::SimplifyStep() {
-  const auto t0 = Clock::now();
-  simplifier_.Delay(new_tris_);
-  simplifier_.Activate(static_cast<double>(pending_front_));
-  simplifier_.Simplify();
-  stats_.time.simplify_s += Seconds(t0, Clock::now());
-  simplify_pending_ = false;
-  Record();
+void TandemSession::ForEachPart(const std::function<void(Part&)>& f) {
+  if (options_.pipeline && parts_.size() > 1) {
+    std::vector<std::future<void>> running;
+    try {
+      for (size_t p = 0; p + 1 < parts_.size(); ++p) {
+        running.push_back(std::async(std::launch::async, f, std::ref(*parts_[p])));
+      }
+    } catch (const std::system_error&) {
+      // No thread to be had: the parts not started run here, in order (same result).
+      for (size_t p = running.size(); p + 1 < parts_.size(); ++p) f(*parts_[p]);
+    }
+    f(*parts_.back());
+    for (auto& r : running) r.get();
+    return;
+  }
+  for (auto& p : parts_) f(*p);
 }
 
-absl::Status TandemSession::AddSlice(const float* values) {
-  if (finished_) return absl::FailedPreconditionError("session already finished");
-  const auto start = Clock::now();
+void TandemSession::SimplifyStep(Part& p) {
+  const auto t0 = Clock::now();
+  p.simplifier.Delay(p.new_tris);
+  p.simplifier.Activate(static_cast<double>(pending_front_));
+  p.simplifier.Simplify();
+  p.time.simplify_s += Seconds(t0, Clock::now());
+  p.trace.push_back(static_cast<int64_t>(p.store.num_triangles()));
+}
+
+absl::Status TandemSession::PartStep(Part& p, const float* values) {
   absl::Status st;
   double extract_s = 0;
-  auto compute = [this, values, &extract_s] {
+  auto compute = [&p, values, &extract_s] {
     const auto t0 = Clock::now();
-    absl::Status s = extractor_.ComputeLayer(values);
+    absl::Status s = p.extractor.ComputeLayer(values);
     extract_s = Seconds(t0, Clock::now());
     return s;
   };
-  if (simplify_pending_ && options_.pipeline) {
+  if (simplify_pending_ && options_.pipeline && parts_.size() == 1) {
     // EXTRACT(k) on a worker while SIMPLIFY of layer k-1 runs here. ComputeLayer touches
     // only the extractor's own buffers, and the simplifier never touches the front (the top
     // plane of layer k-1, which layer k reads), so the two do not share mutable data; the
     // store sees the same mutations in the same order as a sequential run.
     std::future<absl::Status> extracted = std::async(std::launch::async, compute);
-    SimplifyStep();
+    SimplifyStep(p);
     st = extracted.get();
   } else {
-    if (simplify_pending_) SimplifyStep();
+    if (simplify_pending_) SimplifyStep(p);
     st = compute();
   }
-  if (!st.ok()) {
-    stats_.time.total_s += Seconds(start, Clock::now());
-    return st;
-  }
+  if (!st.ok()) return st;
   const auto t1 = Clock::now();
-  new_tris_.clear();
-  new_verts_.clear();
-  extractor_.CommitLayer(&new_tris_, &new_verts_);
-  stats_.triangles_extracted += static_cast<int64_t>(new_tris_.size());
-  if (options_.schedule != Schedule::kNone) simplifier_.AddTriangles(new_tris_, new_verts_);
-  stats_.time.extract_s += extract_s + Seconds(t1, Clock::now());
-  Record();
+  p.new_tris.clear();
+  p.new_verts.clear();
+  for (auto& s : p.new_seam) s.clear();
+  p.extractor.CommitLayer(&p.new_tris, &p.new_verts, &p.new_seam);
+  p.triangles_extracted += static_cast<int64_t>(p.new_tris.size());
+  if (options_.schedule != Schedule::kNone) p.simplifier.AddTriangles(p.new_tris, p.new_verts);
+  p.time.extract_s += extract_s + Seconds(t1, Clock::now());
+  p.trace.push_back(static_cast<int64_t>(p.store.num_triangles()));
+  return absl::OkStatus();
+}
+
+absl::Status TandemSession::AddSlice(const float* values) {
+  if (finished_) return absl::FailedPreconditionError("session already finished");
+  const auto start = Clock::now();
+  const int64_t k = parts_[0]->extractor.slices_done();
+  if (parts_.size() > 1) {
+    // Each part checks its own columns; a bad value must leave all of them as they were.
+    const int64_t n = grid_.nx * grid_.ny;
+    for (int64_t idx = 0; idx < n; ++idx) {
+      if (!std::isfinite(values[idx])) {
+        stats_.time.total_s += Seconds(start, Clock::now());
+        return LayerExtractor::NonFiniteError(k, idx % grid_.nx, idx / grid_.nx, values[idx]);
+      }
+    }
+  }
+  std::vector<absl::Status> status(parts_.size());
+  ForEachPart([&](Part& p) {
+    status[p.index] = PartStep(p, values + p.x0);
+  });
+  simplify_pending_ = false;
+  FoldTraces();
+  for (const absl::Status& st : status) {
+    if (!st.ok()) {
+      stats_.time.total_s += Seconds(start, Clock::now());
+      return st;
+    }
+  }
+  for (size_t s = 0; s < seams_.size(); ++s) {
+    const auto& left = parts_[s]->new_seam[1];
+    const auto& right = parts_[s + 1]->new_seam[0];
+    // Both parts see the same values on the shared plane, so they cross the same edges.
+    if (left.size() != right.size()) {
+      return absl::InternalError(absl::StrCat("slice ", k, ": the parts disagree on the seam (",
+                                              left.size(), " vs ", right.size(), " vertices)"));
+    }
+    for (size_t i = 0; i < left.size(); ++i) seams_[s].emplace_back(left[i], right[i]);
+  }
   if (tandem_schedule()) {
     simplify_pending_ = true;
-    pending_front_ = extractor_.slices_done() - 1;
+    pending_front_ = parts_[0]->extractor.slices_done() - 1;
   }
   stats_.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
 }
 
+void TandemSession::FinishPart(Part& p) {
+  if (simplify_pending_) SimplifyStep(p);
+  p.extractor.Finish();
+  if (options_.schedule == Schedule::kNone) return;
+  const auto t0 = Clock::now();
+  if (options_.schedule == Schedule::kClassical) {
+    // INSERT every edge of the full-resolution surface, then one SIMPLIFY.
+    std::vector<TriId> all;
+    all.reserve(p.store.num_triangles());
+    for (TriId t = 0; t < p.store.triangle_capacity(); ++t) {
+      if (p.store.triangle_alive(t)) all.push_back(t);
+    }
+    p.simplifier.Delay(all);
+  }
+  p.simplifier.Activate(std::numeric_limits<double>::infinity());
+  p.simplifier.Simplify();
+  p.time.simplify_s += Seconds(t0, Clock::now());
+}
+
+void TandemSession::MergeParts() {
+  Part& dst = *parts_[0];
+  const bool simplify = options_.schedule != Schedule::kNone;
+  std::vector<VertexId> seam_vertices;  // in dst
+  std::vector<VertexId> map, prev;      // a part's ids -> dst's (prev: the part before)
+  for (size_t p = 1; p < parts_.size(); ++p) {
+    Part& src = *parts_[p];
+    map.assign(src.store.vertex_capacity(), kInvalid);
+    for (const auto& [left, right] : seams_[p - 1]) {
+      const VertexId v = p == 1 ? left : prev[left];
+      assert(dst.store.vertex_alive(v) && src.store.vertex_alive(right));
+      map[right] = v;
+      dst.store.set_box_mask(v, (dst.store.box_mask(v) | src.store.box_mask(right)) &
+                                    static_cast<uint8_t>(~kSeam));
+      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, right, v, /*shared=*/true);
+      seam_vertices.push_back(v);
+    }
+    for (VertexId v = 0; v < src.store.vertex_capacity(); ++v) {
+      if (!src.store.vertex_alive(v) || map[v] != kInvalid) continue;
+      map[v] = dst.store.AddVertex(src.store.position(v), src.store.height(v), src.store.layer(v),
+                                   src.store.box_mask(v));
+      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, v, map[v], /*shared=*/false);
+    }
+    for (TriId t = 0; t < src.store.triangle_capacity(); ++t) {
+      if (!src.store.triangle_alive(t)) continue;
+      const auto& tri = src.store.triangle(t);
+      dst.store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
+    }
+    if (simplify) dst.simplifier.AdoptCounters(src.simplifier);
+    merged_crossed_cubes_ += src.extractor.crossed_cubes();
+    merged_triangles_extracted_ += src.triangles_extracted;
+    merged_time_.extract_s += src.time.extract_s;
+    merged_time_.simplify_s += src.time.simplify_s;
+    prev.swap(map);
+  }
+  parts_.resize(1);
+  seams_.clear();
+  if (!simplify) return;
+  // SIMPLIFY(E0) from the seam: every other edge was settled inside its part and keeps its
+  // cost; contractions here re-queue their neighbours as usual.
+  const auto t0 = Clock::now();
+  dst.simplifier.PushEdgesAround(seam_vertices);
+  dst.simplifier.Simplify();
+  dst.time.simplify_s += Seconds(t0, Clock::now());
+}
+
 absl::Status TandemSession::Finish() {
   if (finished_) return absl::FailedPreconditionError("session already finished");
-  const int64_t done = extractor_.slices_done();
+  const int64_t done = parts_[0]->extractor.slices_done();
   if (done < 2) {
     return absl::FailedPreconditionError(
         absl::StrCat("the stream ended after ", done, " slice(s); at least 2 are needed"));
@@ -165,50 +340,71 @@ absl::Status TandemSession::Finish() {
         "the stream ended after ", done, " slices but the volume declared nz = ", grid_.nz));
   }
   const auto start = Clock::now();
-  if (simplify_pending_) SimplifyStep();
+  ForEachPart([this](Part& p) { FinishPart(p); });
+  simplify_pending_ = false;
   finished_ = true;
-  extractor_.Finish();
-  if (options_.schedule == Schedule::kNone) return absl::OkStatus();
-  const auto t0 = Clock::now();
-  if (options_.schedule == Schedule::kClassical) {
-    // INSERT every edge of the full-resolution surface, then one SIMPLIFY.
-    std::vector<TriId> all;
-    all.reserve(store_.num_triangles());
-    for (TriId t = 0; t < store_.triangle_capacity(); ++t) {
-      if (store_.triangle_alive(t)) all.push_back(t);
-    }
-    simplifier_.Delay(all);
+  FoldTraces();
+  if (parts_.size() > 1) MergeParts();
+  Part& whole = *parts_[0];
+  if (options_.schedule != Schedule::kNone && options_.target_triangles > 0 &&
+      num_triangles() > options_.target_triangles) {
+    const auto t0 = Clock::now();
+    whole.simplifier.RequeueAll();
+    whole.simplifier.Simplify(options_.target_triangles);
+    whole.time.simplify_s += Seconds(t0, Clock::now());
   }
-  simplifier_.Activate(std::numeric_limits<double>::infinity());
-  simplifier_.Simplify();
-  if (options_.target_triangles > 0 && num_triangles() > options_.target_triangles) {
-    simplifier_.RequeueAll();
-    simplifier_.Simplify(options_.target_triangles);
-  }
-  stats_.time.simplify_s += Seconds(t0, Clock::now());
   Record();
   stats_.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
 }
 
 const SessionStats& TandemSession::stats() const {
-  stats_.slices = extractor_.slices_done();
-  stats_.crossed_cubes = extractor_.crossed_cubes();
-  stats_.refusals = simplifier_.refusals();
-  stats_.contractions = simplifier_.contractions();
-  stats_.max_reach_over_front = simplifier_.max_reach_over_front();
-  stats_.max_layer_over_front = simplifier_.max_layer_over_front();
+  const Part& first = *parts_[0];
+  stats_.slices = first.extractor.slices_done();
+  stats_.crossed_cubes = merged_crossed_cubes_;
+  stats_.triangles_extracted = merged_triangles_extracted_;
+  stats_.time.extract_s = merged_time_.extract_s;
+  stats_.time.simplify_s = merged_time_.simplify_s;
+  stats_.refusals = RefusalCounts{};
+  stats_.contractions = 0;
+  stats_.max_reach_over_front = -std::numeric_limits<double>::infinity();
+  stats_.max_layer_over_front = -std::numeric_limits<double>::infinity();
+  for (const auto& p : parts_) {
+    stats_.crossed_cubes += p->extractor.crossed_cubes();
+    stats_.triangles_extracted += p->triangles_extracted;
+    stats_.time.extract_s += p->time.extract_s;
+    stats_.time.simplify_s += p->time.simplify_s;
+    const RefusalCounts& r = p->simplifier.refusals();
+    stats_.refusals.link += r.link;
+    stats_.refusals.flip += r.flip;
+    stats_.refusals.degenerate += r.degenerate;
+    stats_.refusals.box += r.box;
+    stats_.refusals.error += r.error;
+    stats_.contractions += p->simplifier.contractions();
+    stats_.max_reach_over_front =
+        std::max(stats_.max_reach_over_front, p->simplifier.max_reach_over_front());
+    stats_.max_layer_over_front =
+        std::max(stats_.max_layer_over_front, p->simplifier.max_layer_over_front());
+  }
   return stats_;
 }
 
 double TandemSession::MaxShapeError() const {
-  return options_.schedule == Schedule::kNone ? 0.0 : simplifier_.MaxShapeError();
+  if (options_.schedule == Schedule::kNone) return 0.0;
+  double worst = 0.0;
+  for (const auto& p : parts_) worst = std::max(worst, p->simplifier.MaxShapeError());
+  return worst;
 }
 
 size_t TandemSession::MemoryBytes() const {
-  return store_.MemoryBytes() + simplifier_.MemoryBytes() +
-         convert_.capacity() * sizeof(float) +
-         static_cast<size_t>(grid_.nx * grid_.ny) * (2 * sizeof(double) + 5 * sizeof(VertexId));
+  size_t bytes = convert_.capacity() * sizeof(float);
+  for (const auto& p : parts_) {
+    const ExtractorConfig& ec = p->extractor.config();
+    bytes += p->store.MemoryBytes() + p->simplifier.MemoryBytes() +
+             static_cast<size_t>(ec.nx * ec.ny) * (2 * sizeof(double) + 5 * sizeof(VertexId));
+  }
+  for (const auto& s : seams_) bytes += s.capacity() * sizeof(s[0]);
+  return bytes;
 }
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(

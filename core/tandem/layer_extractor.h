@@ -29,6 +29,14 @@ struct ExtractorConfig {
   std::array<double, 3> spacing{1, 1, 1};
   std::array<double, 3> origin{0, 0, 0};
   double iso = 0;
+  // A part of a wider grid (split sessions, tandem.h): this extractor's column i is column
+  // i + x_offset of the whole grid, rows of the slices given to it are row_stride values
+  // apart (0: nx), and the faces in seam_faces (kBoxXMin, kBoxXMax) are planes shared with
+  // the neighbouring parts, not the box: the vertices on their y- and z-edges get kSeam
+  // (listed by CommitLayer) instead of a box bit.
+  int64_t x_offset = 0;
+  int64_t row_stride = 0;
+  uint8_t seam_faces = 0;
 };
 
 class LayerExtractor {
@@ -49,12 +57,19 @@ class LayerExtractor {
   // it to the store. Between the two, the store may be changed by anyone except in the
   // vertices of the previous top plane (the front, which the schedules never touch).
   absl::Status ComputeLayer(const float* values);
+  // `new_seam` receives the new kSeam vertices of each seam face (index 0: x = 0, 1: x = nx-1)
+  // in a canonical order (y-edges, then z-edges, each by ascending y): the neighbouring part
+  // lists the same grid edges in the same order, which pairs the copies.
   void CommitLayer(std::vector<TriId>* new_tris = nullptr,
-                   std::vector<VertexId>* new_verts = nullptr);
+                   std::vector<VertexId>* new_verts = nullptr,
+                   std::array<std::vector<VertexId>, 2>* new_seam = nullptr);
 
   // Declares the last slice added to be the top of the box: its plane vertices get the
   // kBoxZMax bit. Called by the owner when the stream ends (a no-op beyond that).
   void Finish();
+
+  // The error ComputeLayer gives for a non-finite value v at (x, y) of slice k.
+  static absl::Status NonFiniteError(int64_t k, int64_t x, int64_t y, float v);
 
   int64_t slices_done() const { return slices_done_; }
   int64_t crossed_cubes() const { return crossed_cubes_; }
@@ -66,12 +81,16 @@ class LayerExtractor {
   static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
 
   // Index-space point on the grid edge from index point p (value fp) along `axis` to the
-  // next grid point (value fq); fp, fq relative to the iso-value, exactly one >= 0.
+  // next grid point (value fq); fp, fq relative to the iso-value, exactly one >= 0. Index
+  // space is the whole grid's (x from x_offset on), so that a part computes the very
+  // positions an unsplit extraction would.
   static void EdgePoint(double pi, double pj, double pk, int axis, double fp, double fq,
                         double idx[3]);
-  // Stages a vertex at an index-space point; returns its pending id.
-  VertexId StageVertex(const double idx[3]);
+  // Stages a vertex at an index-space point; returns its pending id. seam_face: 0 or 1 for a
+  // y- or z-edge on the seam face x = 0 or x = nx-1, else -1.
+  VertexId StageVertex(const double idx[3], int seam_face = -1);
   uint8_t BoxMask(double i, double j, double k) const;
+  int SeamFace(int64_t i) const;  // of a y- or z-edge in column i (see StageVertex)
   // Value relative to the iso-value: every edge point and face decision uses this one
   // expression, so the cubes sharing an edge or a face agree bit for bit.
   double Rel(float v) const { return static_cast<double>(v) - config_.iso; }
@@ -114,6 +133,7 @@ class LayerExtractor {
     Vec3 pos;
     double height;
     uint8_t box_mask;
+    int8_t seam_face;  // see StageVertex
   };
   std::vector<StagedVertex> staged_vertices_;
   std::vector<std::array<VertexId, 3>> staged_triangles_;

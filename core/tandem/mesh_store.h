@@ -21,6 +21,10 @@ namespace tandem {
 // Bits of MeshStore::box_mask: which faces of the grid's box a vertex lies on.
 enum BoxFace : uint8_t {
   kBoxXMin = 1, kBoxXMax = 2, kBoxYMin = 4, kBoxYMax = 8, kBoxZMin = 16, kBoxZMax = 32,
+  // Not a box face: the vertex lies on a grid edge of the plane between two parts of a split
+  // session (tandem.h), shared with the neighbouring part. The simplifier never moves it
+  // until the parts are merged.
+  kSeam = 64,
 };
 
 class MeshStore {
@@ -66,6 +70,10 @@ class MeshStore {
   // store vertex its index in the snapshot (kInvalid for dead ones). Vertices without
   // triangles are dropped.
   IndexedMesh Snapshot(std::vector<uint32_t>* vertex_map = nullptr) const;
+  // Appends the live triangles to *out as Snapshot orders them. (*vertex_map)[v] (sized to
+  // vertex_capacity()) is the output index of vertex v: entries other than kInvalid are
+  // used as given (a vertex already in *out, e.g. welded), the others are filled in.
+  void AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_map) const;
 
   // Bytes held by the store's arrays (capacity, not size): for memory figures.
   size_t MemoryBytes() const;

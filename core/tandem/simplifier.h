@@ -70,6 +70,15 @@ class Simplifier {
   void RequeueAll();
 
   // Error(K) = max ε0 over live vertices.
+  // Split sessions (tandem.h) merge their parts into one: after the session has copied a
+  // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
+  // quadric and radius (`shared`: dst is the seam vertex both parts held; the quadrics add).
+  // AdoptCounters adds the other part's contraction and refusal counts. PushEdgesAround
+  // queues every edge at the given vertices (once each), as DELAY does.
+  void AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared);
+  void AdoptCounters(const Simplifier& from);
+  void PushEdgesAround(std::span<const VertexId> verts);
+
   double MaxShapeError() const;
   const RefusalCounts& refusals() const { return refusals_; }
   int64_t contractions() const { return contractions_; }
@@ -100,19 +109,24 @@ class Simplifier {
   // Q entry: key = cost, plus the placement computed with it. With α = 0 the cost depends
   // only on the two quadrics, which cannot change while the stamps match (vertices in Q
   // are complete), so a popped entry is used as it is; with α > 0 it is recomputed.
-  struct QEntry {
-    double key;
+  struct QEntry {  // a queued edge's evaluation, kept in q_slots_ while it is in the heap
     VertexId a, b;
-    uint32_t va, vb;
+    uint32_t va, vb;  // version stamps
     Vec3 pos;
     double eps0;
   };
-  template <typename E>
-  struct Greater {
-    bool operator()(const E& x, const E& y) const {
+  // Heap node: 16 bytes, so that sifting moves little and the heap stays in cache (the
+  // entries themselves are 48). Equal keys (zero-cost edges on flat patches are common)
+  // pop newest first: that keeps consecutive contractions in the same, cached, region.
+  struct QNode {
+    double key;
+    uint32_t slot;  // index into q_slots_
+    uint32_t seq;   // push counter (wraps; only orders ties)
+  };
+  struct QNodeGreater {
+    bool operator()(const QNode& x, const QNode& y) const {
       if (x.key != y.key) return x.key > y.key;
-      if (x.a != y.a) return x.a > y.a;
-      return x.b > y.b;
+      return x.seq < y.seq;
     }
   };
 
@@ -134,13 +148,15 @@ class Simplifier {
     return !store_->vertex_alive(e.a) || !store_->vertex_alive(e.b) || version_[e.a] != e.va ||
            version_[e.b] != e.vb;
   }
+  // Edges at a seam vertex wait for the merge (kSeam, mesh_store.h): never queued.
+  bool OnSeam(VertexId a, VertexId b) const {
+    return ((store_->box_mask(a) | store_->box_mask(b)) & kSeam) != 0;
+  }
   bool LinkCondition(VertexId a, VertexId b);
   bool GeometryOk(VertexId a, VertexId b, Vec3 pos);  // flips and degenerate triangles
   void Contract(VertexId a, VertexId b, const Candidate& c);
-  template <typename E>
-  static void HeapPush(std::vector<E>& h, const E& e);
-  template <typename E>
-  static E HeapPop(std::vector<E>& h);
+  void HeapPush(double key, const QEntry& e);
+  QEntry HeapPop();  // the entry of the smallest key; its slot is recycled
 
   MeshStore* store_;
   SimplifierOptions opt_;
@@ -157,7 +173,10 @@ class Simplifier {
   std::vector<Mark> mark_;
   uint32_t mark_epoch_ = 0;
 
-  std::vector<QEntry> q_;  // binary heap (std::push_heap with Greater)
+  std::vector<QNode> q_;  // binary heap (std::push_heap with QNodeGreater)
+  std::vector<QEntry> q_slots_;
+  std::vector<uint32_t> q_free_;  // free slots of q_slots_
+  uint32_t q_seq_ = 0;
   bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
   // W: bucket b holds entries released at front w_base_ + b; w_size_ counts all entries.
   std::vector<std::vector<Entry>> w_;

@@ -9,9 +9,20 @@
 //                                                  ... Finish: ACTIVATE(∞); SIMPLIFY(E0)
 // `tandem` is the waiting queue keyed by layer + 1, `tandem-lag` keyed by the reach of the
 // contracted vertex (simplifier.h). E0 is in the volume's physical units.
+//
+// Parts: the grid can be split along x into slabs ("parts", SessionOptions::parts), each with
+// its own extractor, mesh store and queues, run side by side (one thread each when
+// pipelined). The vertices on the grid edges of a plane between two parts belong to both
+// (kSeam) and are never contracted while the stream lasts, so every contraction inside a
+// part is exactly a contraction of the whole mesh (same stars, same link condition). Finish
+// merges the parts, welds the seam copies (their quadrics add up to the whole one) and runs
+// SIMPLIFY(E0) once more from the edges at the seam. The split is part of the result (a run
+// with parts = 1 is the paper's algorithm, nothing deferred); threads are not: a pipelined
+// and a sequential run give identical meshes.
 #ifndef TANDEM_TANDEM_H_
 #define TANDEM_TANDEM_H_
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <future>
@@ -41,10 +52,14 @@ struct SessionOptions {
   double alpha = 0;             // isotropy parameter in [0, 1]
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
-  bool pipeline = true;         // use a second thread (identical results either way):
-                                // EXTRACT(k) while layer k-1 is simplified (tandem
-                                // schedules), and half of every large batch of edge
-                                // evaluations (DELAY, ACTIVATE)
+  bool pipeline = true;         // use more threads (identical results either way): one
+                                // per part; with one part, EXTRACT(k) while layer k-1 is
+                                // simplified (tandem schedules) and half of every large
+                                // batch of edge evaluations (DELAY, ACTIVATE)
+  int parts = 0;                // slabs along x (see above); 0 = automatic: 2 when the grid
+                                // is at least 256 wide, else 1. At most one part per 16
+                                // columns (fewer are used on narrow grids).
+  static constexpr int kMaxParts = 64;
   absl::Status Validate() const;
 };
 
@@ -83,8 +98,9 @@ class TandemSession {
   absl::Status Finish();
 
   // Compacted copy of the current (partial or final) mesh.
-  IndexedMesh Snapshot() const { return store_.Snapshot(); }
-  int64_t num_triangles() const { return static_cast<int64_t>(store_.num_triangles()); }
+  IndexedMesh Snapshot() const;  // the parts' meshes welded at their seams
+  int64_t num_triangles() const;
+  int num_parts() const { return static_cast<int>(parts_.size()); }  // after Finish: 1
   const SessionStats& stats() const;
   double MaxShapeError() const;  // Error(K)
   size_t MemoryBytes() const;    // mesh store + queues + extractor caches
@@ -93,21 +109,46 @@ class TandemSession {
   bool finished() const { return finished_; }
 
  private:
-  TandemSession(const VolumeInfo& grid, const SessionOptions& options);
+  // One slab of the grid: columns x0 .. x0 + nx - 1 of the whole grid (neighbours share the
+  // boundary column).
+  struct Part {
+    Part(const ExtractorConfig& ec, const SimplifierOptions& so)
+        : extractor(ec, &store), simplifier(&store, so) {}
+    MeshStore store;
+    LayerExtractor extractor;
+    Simplifier simplifier;
+    int64_t x0 = 0;
+    size_t index = 0;  // in parts_
+    std::vector<TriId> new_tris;
+    std::vector<VertexId> new_verts;
+    std::array<std::vector<VertexId>, 2> new_seam;  // of the last layer, per seam face
+    std::vector<int64_t> trace;                     // this part's triangles, per step
+    PhaseTimes time;
+    int64_t triangles_extracted = 0;
+  };
+
+  TandemSession(const VolumeInfo& grid, const SessionOptions& options, int parts);
   void Record();
   bool tandem_schedule() const {
     return options_.schedule == Schedule::kTandem || options_.schedule == Schedule::kTandemLag;
   }
-  // DELAY(k); ACTIVATE(k); SIMPLIFY(E0) for the last committed layer k.
-  void SimplifyStep();
+  // Runs f(part) for every part: on one thread each when pipelined, else in order.
+  void ForEachPart(const std::function<void(Part&)>& f);
+  void SimplifyStep(Part& p);
+  absl::Status PartStep(Part& p, const float* values);  // SIMPLIFY(k-1), EXTRACT(k)
+  void FinishPart(Part& p);
+  void FoldTraces();  // appends the parts' new trace entries, summed, to stats_.trace
+  void MergeParts();  // into parts_[0], then SIMPLIFY(E0) from the seam edges
 
   VolumeInfo grid_;
   SessionOptions options_;
-  MeshStore store_;
-  LayerExtractor extractor_;
-  Simplifier simplifier_;
-  std::vector<TriId> new_tris_;
-  std::vector<VertexId> new_verts_;
+  std::vector<std::unique_ptr<Part>> parts_;
+  // seams_[s]: (vertex in part s, its copy in part s+1), per shared grid edge.
+  std::vector<std::vector<std::pair<VertexId, VertexId>>> seams_;
+  size_t folded_ = 0;  // entries of the parts' traces already in stats_.trace
+  // Of the parts merged away by Finish.
+  int64_t merged_crossed_cubes_ = 0, merged_triangles_extracted_ = 0;
+  PhaseTimes merged_time_;
   std::vector<float> convert_;
   mutable SessionStats stats_;
   bool finished_ = false;
@@ -115,8 +156,6 @@ class TandemSession {
   int64_t pending_front_ = 0;
 };
 
-// Convenience: runs a whole slice source through a session (progress callback optional,
-// called after every slice with (done, total)).
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
     const std::function<void(int64_t, int64_t)>& progress = nullptr);

@@ -1,6 +1,7 @@
 // The tandem simplifier: quadrics, error bound, topology, schedules, the paper's findings.
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <map>
 #include <tuple>
 
@@ -413,7 +414,9 @@ TEST(Simplifier, TargetTriangleCountIsReached) {
 // edge batches on two threads (classical's DELAY of the whole mesh: ~58k edges, flushed in
 // 16384-edge batches), must not change anything: same mesh (positions and indices), same
 // trace, same refusals.
+// With parts (tandem.h), the pipelined run puts each part on its own thread instead.
 TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
+  for (int parts : {1, 3})
   for (Shape shape : {Shape::kGyroid, Shape::kLink}) {
     for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
       IndexedMesh meshes[2];
@@ -424,13 +427,15 @@ TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
         o.schedule = s;
         o.error = 0.3;
         o.alpha = 0.2;
+        o.parts = parts;
         o.pipeline = pipelined == 1;
         auto session = RunSession(*src, o);
         ASSERT_TRUE(session.ok()) << session.status();
         meshes[pipelined] = (*session)->Snapshot();
         stats[pipelined] = (*session)->stats();
       }
-      const std::string what = std::string(ShapeName(shape)) + " " + std::string(ScheduleName(s));
+      const std::string what = std::string(ShapeName(shape)) + " " +
+                               std::string(ScheduleName(s)) + " parts " + std::to_string(parts);
       EXPECT_EQ(meshes[0].indices, meshes[1].indices) << what;
       ASSERT_EQ(meshes[0].positions.size(), meshes[1].positions.size()) << what;
       for (size_t i = 0; i < meshes[0].positions.size(); ++i) {
@@ -444,6 +449,162 @@ TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
   }
 }
 
+// ---------------------------------------------------------------- parts (tandem.h)
+
+struct PartsRun {
+  IndexedMesh mesh, mid_mesh;  // at the end, and after slice `mid`
+  SessionStats stats;
+  double error_max = 0;
+  int parts_during = 0, parts_after = 0;
+};
+
+PartsRun RunParts(Shape shape, int n, Schedule schedule, double e0, int parts, int mid = -1) {
+  auto src = MakeSyntheticSource(shape, n, n, n);
+  SessionOptions o;
+  o.schedule = schedule;
+  o.error = e0;
+  o.parts = parts;
+  auto session = TandemSession::Create(src->info(), o);
+  EXPECT_TRUE(session.ok()) << session.status();
+  PartsRun r;
+  if (!session.ok()) return r;
+  std::vector<uint8_t> bytes;
+  for (int k = 0; k < n; ++k) {
+    EXPECT_TRUE(src->ReadSlice(&bytes).ok());
+    EXPECT_TRUE((*session)->AddSliceBytes(src->info().dtype, bytes.data()).ok());
+    if (k == mid) r.mid_mesh = (*session)->Snapshot();
+  }
+  r.parts_during = (*session)->num_parts();
+  EXPECT_TRUE((*session)->Finish().ok());
+  r.parts_after = (*session)->num_parts();
+  r.mesh = (*session)->Snapshot();
+  r.stats = (*session)->stats();
+  r.error_max = (*session)->MaxShapeError();
+  return r;
+}
+
+// A mesh's triangles as position triples, each rotated to start at its least corner (the
+// orientation is kept), sorted: equal for meshes that differ only in vertex and triangle order.
+std::vector<std::array<Vec3, 3>> CanonicalTriangles(const IndexedMesh& m) {
+  auto less = [](const Vec3& a, const Vec3& b) {
+    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+  };
+  std::vector<std::array<Vec3, 3>> out;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    std::array<Vec3, 3> p;
+    for (int c = 0; c < 3; ++c) p[c] = m.positions[m.indices[3 * t + c]];
+    const int first = less(p[1], p[0]) ? (less(p[2], p[1]) ? 2 : 1) : (less(p[2], p[0]) ? 2 : 0);
+    std::rotate(p.begin(), p.begin() + first, p.end());
+    out.push_back(p);
+  }
+  std::sort(out.begin(), out.end(), [&](const auto& a, const auto& b) {
+    return std::lexicographical_compare(a.begin(), a.end(), b.begin(), b.end(), less);
+  });
+  return out;
+}
+
+// The parts' extractions, welded at the seams (mid-stream snapshots) and merged (Finish),
+// are exactly the whole grid's surface: same triangles, no seam vertex twice.
+TEST(Parts, FullResolutionSurfaceIsTheWholeGridsSurface) {
+  for (Shape shape : {Shape::kLink, Shape::kGyroid}) {
+    const PartsRun whole = RunParts(shape, 64, Schedule::kNone, 0, 1, 40);
+    const PartsRun split = RunParts(shape, 64, Schedule::kNone, 0, 3, 40);
+    const std::string what(ShapeName(shape));
+    EXPECT_EQ(split.parts_during, 3) << what;
+    EXPECT_EQ(split.parts_after, 1) << what;
+    for (auto [a, b] : {std::pair{&whole.mesh, &split.mesh}, {&whole.mid_mesh, &split.mid_mesh}}) {
+      EXPECT_EQ(a->num_vertices(), b->num_vertices()) << what;
+      EXPECT_TRUE(CanonicalTriangles(*a) == CanonicalTriangles(*b)) << what;
+      const TopologyReport ta = AnalyzeTopology(*a), tb = AnalyzeTopology(*b);
+      EXPECT_EQ(ta.boundary_edges, tb.boundary_edges) << what;  // no crack at a seam
+      EXPECT_EQ(ta.euler, tb.euler) << what;
+      EXPECT_TRUE(tb.IsManifold()) << what;
+    }
+    EXPECT_EQ(whole.stats.triangles_extracted, split.stats.triangles_extracted) << what;
+    EXPECT_EQ(whole.stats.crossed_cubes, split.stats.crossed_cubes) << what;
+    EXPECT_EQ(whole.stats.trace, split.stats.trace) << what;
+  }
+}
+
+// Seam vertices wait for the merge, so every contraction inside a part is one of the whole
+// mesh: the result is a manifold of the input's type within E0, about as small as unsplit.
+TEST(Parts, SplitRunKeepsTopologyErrorBoundAndCount) {
+  for (Shape shape : {Shape::kSphere, Shape::kLink, Shape::kGyroid}) {
+    const PartsRun full = RunParts(shape, 64, Schedule::kNone, 0, 1);
+    const int64_t euler = AnalyzeTopology(full.mesh).euler;
+    for (Schedule s : kSchedules) {
+      const double e0 = 0.3;
+      const PartsRun whole = RunParts(shape, 64, s, e0, 1);
+      const PartsRun split = RunParts(shape, 64, s, e0, 3);
+      const std::string what = std::string(ShapeName(shape)) + " " + std::string(ScheduleName(s));
+      const TopologyReport t = AnalyzeTopology(split.mesh);
+      EXPECT_TRUE(t.IsManifold()) << what;
+      EXPECT_EQ(t.euler, euler) << what;
+      EXPECT_EQ(t.boundary_edges == 0, AnalyzeTopology(whole.mesh).boundary_edges == 0) << what;
+      EXPECT_EQ(CountDuplicatePositions(split.mesh), 0u) << what;
+      EXPECT_LE(split.error_max, e0 * (1 + 1e-9)) << what;
+      const double nw = double(whole.mesh.num_triangles());
+      // Within 15%: the coarsest of these meshes has ~200 triangles across two seams.
+      EXPECT_NEAR(double(split.mesh.num_triangles()), nw, 0.15 * nw) << what;
+      EXPECT_LT(split.mesh.num_triangles() * 4, full.mesh.num_triangles()) << what;
+      EXPECT_EQ(split.stats.trace.back(), int64_t(split.mesh.num_triangles())) << what;
+    }
+  }
+}
+
+// Each part checks its own columns, but a bad value anywhere must leave all of them as they
+// were: the run then goes on as if the bad slice had never come.
+TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
+  const int n = 64;
+  SessionOptions o;
+  o.error = 0.3;
+  o.parts = 2;
+  IndexedMesh meshes[2];
+  for (int bad = 0; bad < 2; ++bad) {
+    auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
+    auto session = TandemSession::Create(src->info(), o);
+    ASSERT_TRUE(session.ok()) << session.status();
+    std::vector<uint8_t> bytes;
+    for (int k = 0; k < n; ++k) {
+      ASSERT_TRUE(src->ReadSlice(&bytes).ok());
+      if (bad && k == 30) {
+        std::vector<float> values(size_t(n) * n);
+        std::memcpy(values.data(), bytes.data(), values.size() * sizeof(float));
+        values[5 * n + 50] = std::nanf("");  // (x = 50, y = 5): in the second part
+        const absl::Status st = (*session)->AddSlice(values.data());
+        EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+        EXPECT_NE(st.message().find("x=50, y=5"), std::string_view::npos) << st;
+      }
+      ASSERT_TRUE((*session)->AddSliceBytes(src->info().dtype, bytes.data()).ok());
+    }
+    ASSERT_TRUE((*session)->Finish().ok());
+    meshes[bad] = (*session)->Snapshot();
+  }
+  EXPECT_EQ(meshes[0].indices, meshes[1].indices);
+  EXPECT_EQ(meshes[0].positions.size(), meshes[1].positions.size());
+}
+
+TEST(Parts, AutomaticAndClampedCounts) {
+  auto parts_of = [](int64_t nx, int requested) {
+    VolumeInfo g;
+    g.nx = nx;
+    g.ny = 4;
+    g.nz = 4;
+    g.dtype = DType::kFloat32;
+    SessionOptions o;
+    o.error = 0.1;
+    o.parts = requested;
+    auto s = TandemSession::Create(g, o);
+    EXPECT_TRUE(s.ok()) << s.status();
+    return s.ok() ? (*s)->num_parts() : -1;
+  };
+  EXPECT_EQ(parts_of(255, 0), 1);
+  EXPECT_EQ(parts_of(256, 0), 2);
+  EXPECT_EQ(parts_of(64, 8), 3);  // at least 16 cube columns each
+  EXPECT_EQ(parts_of(16, 2), 1);
+  EXPECT_EQ(parts_of(512, 1), 1);
+}
+
 TEST(Simplifier, OptionsAreValidated) {
   SessionOptions o;
   o.error = 0;
@@ -452,6 +613,12 @@ TEST(Simplifier, OptionsAreValidated) {
   o.alpha = 1.5;
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
   o.alpha = 0.5;
+  EXPECT_TRUE(o.Validate().ok());
+  o.parts = -1;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.parts = SessionOptions::kMaxParts + 1;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.parts = SessionOptions::kMaxParts;
   EXPECT_TRUE(o.Validate().ok());
   EXPECT_FALSE(ParseSchedule("lagged").ok());
   EXPECT_EQ(*ParseSchedule("tandem-lag"), Schedule::kTandemLag);
