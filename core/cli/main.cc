@@ -62,7 +62,7 @@ Options:
   --parts N                 split the grid along x into N slabs, simplified side by
                             side on their own threads and merged at the end (their
                             seams simplified last); 1 = the paper's algorithm
-                            unchanged. Default 0: 2 on grids at least 256 wide, else 1
+                            unchanged. Default 0: 4 on grids at least 256 wide, else 1
   --no-simplify             write the full-resolution marching-cubes surface
   --metrics FILE.json       write the run's figures as JSON (without it, a summary
                             goes to stderr)

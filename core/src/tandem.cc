@@ -73,7 +73,7 @@ namespace {
 // The number of parts a session over `grid` uses (SessionOptions::parts).
 int PartsFor(const VolumeInfo& grid, int requested) {
   constexpr int64_t kMinColumns = 16;  // cube columns per part, at least
-  const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 2 : 1);
+  const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 4 : 1);
   return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinColumns)));
 }
 
@@ -98,6 +98,110 @@ TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& optio
   }
   seams_.resize(static_cast<size_t>(parts - 1));
   convert_.resize(static_cast<size_t>(grid.nx * grid.ny));
+  if (options.pipeline && parts > 1) StartWorkers();
+}
+
+TandemSession::~TandemSession() { StopWorkers(); }
+
+void TandemSession::StartWorkers() {
+  for (RingSlot& slot : ring_) slot.values.resize(static_cast<size_t>(grid_.nx * grid_.ny));
+  workers_ = true;
+  const size_t cores = std::max(1u, std::thread::hardware_concurrency());
+  workers_planned_ = std::min(cores, parts_.size());  // read by the workers: set first
+  try {
+    for (size_t i = 0; i < workers_planned_; ++i) {
+      threads_.emplace_back([this, i] { Work(i); });
+    }
+  } catch (const std::system_error&) {
+    if (threads_.empty()) StopWorkers();  // no thread to be had: the parts run in turn
+  }
+}
+
+void TandemSession::StopWorkers() {
+  if (!workers_) return;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    stop_ = true;  // slices still queued are dropped: only an abandoned session has any
+  }
+  cv_.notify_all();
+  for (std::thread& t : threads_) t.join();
+  threads_.clear();
+  workers_ = false;
+}
+
+TandemSession::Part* TandemSession::NextPart(size_t worker) const {
+  Part* next = nullptr;
+  bool next_home = false;
+  for (const auto& p : parts_) {
+    if (p->busy || p->queue.empty()) continue;
+    const bool home = p->index % workers_planned_ == worker;  // others steal a missing one's
+    // Home parts first, then the part furthest behind.
+    if (next == nullptr || (home && !next_home) ||
+        (home == next_home && p->steps < next->steps)) {
+      next = p.get();
+      next_home = home;
+    }
+  }
+  return next;
+}
+
+void TandemSession::Work(size_t worker) {
+  for (;;) {
+    Part* p = nullptr;
+    int slot;
+    {
+      std::unique_lock<std::mutex> lock(mu_);
+      cv_.wait(lock, [&] { return stop_ || (p = NextPart(worker)) != nullptr; });
+      if (stop_) return;
+      slot = p->queue.front();
+      p->queue.pop_front();
+      p->busy = true;
+    }
+    // ring_[slot] is not written while a part still needs it (pending > 0).
+    absl::Status st = PartStep(*p, ring_[static_cast<size_t>(slot)].values.data() + p->x0);
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      p->busy = false;
+      ++p->steps;
+      --ring_[static_cast<size_t>(slot)].pending;
+      if (!st.ok() && p->error.ok()) p->error = std::move(st);
+    }
+    cv_.notify_all();
+  }
+}
+
+absl::Status TandemSession::Sync() const {
+  if (workers_) {
+    std::unique_lock<std::mutex> lock(mu_);
+    cv_.wait(lock, [&] {
+      for (const auto& p : parts_) {
+        if (p->busy || !p->queue.empty()) return false;
+      }
+      return true;
+    });
+    for (const auto& p : parts_) {
+      if (!p->error.ok()) return p->error;
+    }
+  }
+  absl::Status st = PairSeams();
+  FoldTraces();
+  return st;
+}
+
+absl::Status TandemSession::PairSeams() const {
+  for (size_t s = 0; s < seams_.size(); ++s) {
+    auto& left = parts_[s]->seam_log[1];
+    auto& right = parts_[s + 1]->seam_log[0];
+    // Both parts see the same values on the shared plane, so they cross the same edges.
+    if (left.size() != right.size()) {
+      return absl::InternalError(absl::StrCat("the parts disagree on seam ", s, " (",
+                                              left.size(), " vs ", right.size(), " vertices)"));
+    }
+    for (size_t i = 0; i < left.size(); ++i) seams_[s].emplace_back(left[i], right[i]);
+    left.clear();
+    right.clear();
+  }
+  return absl::OkStatus();
 }
 
 absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
@@ -121,7 +225,7 @@ void TandemSession::Record() {
   stats_.peak_triangles = std::max(stats_.peak_triangles, n);
 }
 
-void TandemSession::FoldTraces() {
+void TandemSession::FoldTraces() const {
   const size_t n = parts_[0]->trace.size();
   for (; folded_ < n; ++folded_) {
     int64_t sum = 0;
@@ -132,12 +236,14 @@ void TandemSession::FoldTraces() {
 }
 
 int64_t TandemSession::num_triangles() const {
+  (void)Sync();  // a failure is reported by AddSlice or Finish
   int64_t n = 0;
   for (const auto& p : parts_) n += static_cast<int64_t>(p->store.num_triangles());
   return n;
 }
 
 IndexedMesh TandemSession::Snapshot() const {
+  (void)Sync();
   if (parts_.size() == 1) return parts_[0]->store.Snapshot();
   // Part by part; a seam vertex takes the index its copy got in the part before.
   IndexedMesh out;
@@ -179,7 +285,7 @@ void TandemSession::ForEachPart(const std::function<void(Part&)>& f) {
 void TandemSession::SimplifyStep(Part& p) {
   const auto t0 = Clock::now();
   p.simplifier.Delay(p.new_tris);
-  p.simplifier.Activate(static_cast<double>(pending_front_));
+  p.simplifier.Activate(static_cast<double>(p.pending_front));
   p.simplifier.Simplify();
   p.time.simplify_s += Seconds(t0, Clock::now());
   p.trace.push_back(static_cast<int64_t>(p.store.num_triangles()));
@@ -194,7 +300,7 @@ absl::Status TandemSession::PartStep(Part& p, const float* values) {
     extract_s = Seconds(t0, Clock::now());
     return s;
   };
-  if (simplify_pending_ && options_.pipeline && parts_.size() == 1) {
+  if (p.simplify_pending && options_.pipeline && parts_.size() == 1) {
     // EXTRACT(k) on a worker while SIMPLIFY of layer k-1 runs here. ComputeLayer touches
     // only the extractor's own buffers, and the simplifier never touches the front (the top
     // plane of layer k-1, which layer k reads), so the two do not share mutable data; the
@@ -203,68 +309,90 @@ absl::Status TandemSession::PartStep(Part& p, const float* values) {
     SimplifyStep(p);
     st = extracted.get();
   } else {
-    if (simplify_pending_) SimplifyStep(p);
+    if (p.simplify_pending) SimplifyStep(p);
     st = compute();
   }
+  p.simplify_pending = false;
   if (!st.ok()) return st;
   const auto t1 = Clock::now();
   p.new_tris.clear();
   p.new_verts.clear();
   for (auto& s : p.new_seam) s.clear();
   p.extractor.CommitLayer(&p.new_tris, &p.new_verts, &p.new_seam);
+  for (int f = 0; f < 2; ++f) {
+    p.seam_log[f].insert(p.seam_log[f].end(), p.new_seam[f].begin(), p.new_seam[f].end());
+  }
   p.triangles_extracted += static_cast<int64_t>(p.new_tris.size());
   if (options_.schedule != Schedule::kNone) p.simplifier.AddTriangles(p.new_tris, p.new_verts);
   p.time.extract_s += extract_s + Seconds(t1, Clock::now());
   p.trace.push_back(static_cast<int64_t>(p.store.num_triangles()));
+  if (tandem_schedule()) {
+    p.simplify_pending = true;
+    p.pending_front = p.extractor.slices_done() - 1;
+  }
   return absl::OkStatus();
 }
 
 absl::Status TandemSession::AddSlice(const float* values) {
   if (finished_) return absl::FailedPreconditionError("session already finished");
   const auto start = Clock::now();
-  const int64_t k = parts_[0]->extractor.slices_done();
+  auto fail = [&](absl::Status st) {
+    stats_.time.total_s += Seconds(start, Clock::now());
+    return st;
+  };
+  const int64_t k = slices_added_;
   if (parts_.size() > 1) {
-    // Each part checks its own columns; a bad value must leave all of them as they were.
+    // Each part checks its own columns (and the extractor the end of the volume); with
+    // several, a bad slice must be refused before any of them moves.
+    if (grid_.nz > 0 && k >= grid_.nz) {
+      return fail(absl::InvalidArgumentError(
+          absl::StrCat("slice ", k, " is past the end of the volume (nz = ", grid_.nz, ")")));
+    }
     const int64_t n = grid_.nx * grid_.ny;
     for (int64_t idx = 0; idx < n; ++idx) {
       if (!std::isfinite(values[idx])) {
-        stats_.time.total_s += Seconds(start, Clock::now());
-        return LayerExtractor::NonFiniteError(k, idx % grid_.nx, idx / grid_.nx, values[idx]);
+        return fail(LayerExtractor::NonFiniteError(k, idx % grid_.nx, idx / grid_.nx, values[idx]));
       }
     }
   }
+  if (workers_) {
+    RingSlot& slot = ring_[static_cast<size_t>(ring_next_)];
+    {
+      std::unique_lock<std::mutex> lock(mu_);
+      for (const auto& p : parts_) {
+        if (!p->error.ok()) return fail(p->error);
+      }
+      cv_.wait(lock, [&] { return slot.pending == 0; });
+    }
+    std::copy_n(values, slot.values.size(), slot.values.begin());
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      slot.pending = static_cast<int>(parts_.size());
+      for (auto& p : parts_) p->queue.push_back(ring_next_);
+    }
+    cv_.notify_all();
+    ring_next_ = (ring_next_ + 1) % kRingSlots;
+    ++slices_added_;
+    stats_.time.total_s += Seconds(start, Clock::now());
+    return absl::OkStatus();
+  }
   std::vector<absl::Status> status(parts_.size());
-  ForEachPart([&](Part& p) {
-    status[p.index] = PartStep(p, values + p.x0);
-  });
-  simplify_pending_ = false;
-  FoldTraces();
+  ForEachPart([&](Part& p) { status[p.index] = PartStep(p, values + p.x0); });
   for (const absl::Status& st : status) {
     if (!st.ok()) {
-      stats_.time.total_s += Seconds(start, Clock::now());
-      return st;
+      FoldTraces();  // the SIMPLIFY step before the failed EXTRACT happened
+      return fail(st);
     }
   }
-  for (size_t s = 0; s < seams_.size(); ++s) {
-    const auto& left = parts_[s]->new_seam[1];
-    const auto& right = parts_[s + 1]->new_seam[0];
-    // Both parts see the same values on the shared plane, so they cross the same edges.
-    if (left.size() != right.size()) {
-      return absl::InternalError(absl::StrCat("slice ", k, ": the parts disagree on the seam (",
-                                              left.size(), " vs ", right.size(), " vertices)"));
-    }
-    for (size_t i = 0; i < left.size(); ++i) seams_[s].emplace_back(left[i], right[i]);
-  }
-  if (tandem_schedule()) {
-    simplify_pending_ = true;
-    pending_front_ = parts_[0]->extractor.slices_done() - 1;
-  }
+  if (absl::Status st = Sync(); !st.ok()) return fail(st);
+  ++slices_added_;
   stats_.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
 }
 
 void TandemSession::FinishPart(Part& p) {
-  if (simplify_pending_) SimplifyStep(p);
+  if (p.simplify_pending) SimplifyStep(p);
+  p.simplify_pending = false;
   p.extractor.Finish();
   if (options_.schedule == Schedule::kNone) return;
   const auto t0 = Clock::now();
@@ -330,6 +458,8 @@ void TandemSession::MergeParts() {
 
 absl::Status TandemSession::Finish() {
   if (finished_) return absl::FailedPreconditionError("session already finished");
+  const auto start = Clock::now();  // the parts' workers may still be busy: their time counts
+  if (absl::Status st = Sync(); !st.ok()) return st;
   const int64_t done = parts_[0]->extractor.slices_done();
   if (done < 2) {
     return absl::FailedPreconditionError(
@@ -339,9 +469,8 @@ absl::Status TandemSession::Finish() {
     return absl::FailedPreconditionError(absl::StrCat(
         "the stream ended after ", done, " slices but the volume declared nz = ", grid_.nz));
   }
-  const auto start = Clock::now();
+  StopWorkers();
   ForEachPart([this](Part& p) { FinishPart(p); });
-  simplify_pending_ = false;
   finished_ = true;
   FoldTraces();
   if (parts_.size() > 1) MergeParts();
@@ -359,6 +488,7 @@ absl::Status TandemSession::Finish() {
 }
 
 const SessionStats& TandemSession::stats() const {
+  (void)Sync();
   const Part& first = *parts_[0];
   stats_.slices = first.extractor.slices_done();
   stats_.crossed_cubes = merged_crossed_cubes_;
@@ -391,13 +521,16 @@ const SessionStats& TandemSession::stats() const {
 
 double TandemSession::MaxShapeError() const {
   if (options_.schedule == Schedule::kNone) return 0.0;
+  (void)Sync();
   double worst = 0.0;
   for (const auto& p : parts_) worst = std::max(worst, p->simplifier.MaxShapeError());
   return worst;
 }
 
 size_t TandemSession::MemoryBytes() const {
+  (void)Sync();
   size_t bytes = convert_.capacity() * sizeof(float);
+  for (const RingSlot& slot : ring_) bytes += slot.values.capacity() * sizeof(float);
   for (const auto& p : parts_) {
     const ExtractorConfig& ec = p->extractor.config();
     bytes += p->store.MemoryBytes() + p->simplifier.MemoryBytes() +

@@ -2,7 +2,7 @@
 // Edelsbrunner, "Extraction and Simplification of Iso-surfaces in Tandem", SGP 2005).
 //
 // Push model: the caller feeds slices 0, 1, ... with AddSlice and calls Finish once; the
-// session does no I/O and owns no threads. Per slice k, with the paper's names:
+// session does no I/O. Per slice k, with the paper's names:
 //   classical:   EXTRACT(k)                       ... Finish: INSERT(all); SIMPLIFY(E0)
 //   tandem:      EXTRACT(k); INSERT(k-1); SIMPLIFY(E0)   (the newest layer is never touched)
 //   tandem-lag:  EXTRACT(k); DELAY(k); ACTIVATE(k); SIMPLIFY(E0)
@@ -11,9 +11,10 @@
 // contracted vertex (simplifier.h). E0 is in the volume's physical units.
 //
 // Parts: the grid can be split along x into slabs ("parts", SessionOptions::parts), each with
-// its own extractor, mesh store and queues, run side by side (one thread each when
-// pipelined). The vertices on the grid edges of a plane between two parts belong to both
-// (kSeam) and are never contracted while the stream lasts, so every contraction inside a
+// its own extractor, mesh store and queues, run side by side (by a pool of worker threads
+// when pipelined: AddSlice then queues the slice and returns). The vertices on the grid
+// edges of a plane between two parts belong to both (kSeam) and are never contracted while
+// the stream lasts, so every contraction inside a
 // part is exactly a contraction of the whole mesh (same stars, same link condition). Finish
 // merges the parts, welds the seam copies (their quadrics add up to the whole one) and runs
 // SIMPLIFY(E0) once more from the edges at the seam. The split is part of the result (a run
@@ -23,12 +24,16 @@
 #define TANDEM_TANDEM_H_
 
 #include <array>
+#include <condition_variable>
 #include <cstdint>
+#include <deque>
 #include <functional>
 #include <future>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -52,11 +57,12 @@ struct SessionOptions {
   double alpha = 0;             // isotropy parameter in [0, 1]
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
-  bool pipeline = true;         // use more threads (identical results either way): one
-                                // per part; with one part, EXTRACT(k) while layer k-1 is
-                                // simplified (tandem schedules) and half of every large
-                                // batch of edge evaluations (DELAY, ACTIVATE)
-  int parts = 0;                // slabs along x (see above); 0 = automatic: 2 when the grid
+  bool pipeline = true;         // use more threads (identical results either way): the
+                                // parts on a pool of workers (one per core); with one
+                                // part, EXTRACT(k) while layer k-1 is simplified (tandem
+                                // schedules) and half of every large batch of edge
+                                // evaluations (DELAY, ACTIVATE)
+  int parts = 0;                // slabs along x (see above); 0 = automatic: 4 when the grid
                                 // is at least 256 wide, else 1. At most one part per 16
                                 // columns (fewer are used on narrow grids).
   static constexpr int kMaxParts = 64;
@@ -122,38 +128,82 @@ class TandemSession {
     std::vector<TriId> new_tris;
     std::vector<VertexId> new_verts;
     std::array<std::vector<VertexId>, 2> new_seam;  // of the last layer, per seam face
+    std::array<std::vector<VertexId>, 2> seam_log;  // all so far, in order, per seam face
     std::vector<int64_t> trace;                     // this part's triangles, per step
     PhaseTimes time;
     int64_t triangles_extracted = 0;
+    bool simplify_pending = false;  // the last committed layer awaits its SIMPLIFY step
+    int64_t pending_front = 0;
+    // Pipelined split sessions, guarded by mu_: slices (indices into ring_) waiting for
+    // this part, whether a worker is on it, and how many it has done.
+    std::deque<int> queue;
+    bool busy = false;
+    int64_t steps = 0;
+    absl::Status error;  // the first failure of a queued step (none expected)
   };
+  // A slice shared by the parts' queues, free again when no part still needs it.
+  struct RingSlot {
+    std::vector<float> values;
+    int pending = 0;  // parts that have not finished with it
+  };
+  static constexpr int kRingSlots = 4;  // slices in flight, at most
 
   TandemSession(const VolumeInfo& grid, const SessionOptions& options, int parts);
+ public:
+  ~TandemSession();
+  TandemSession(const TandemSession&) = delete;
+  TandemSession& operator=(const TandemSession&) = delete;
+
+ private:
   void Record();
   bool tandem_schedule() const {
     return options_.schedule == Schedule::kTandem || options_.schedule == Schedule::kTandemLag;
   }
   // Runs f(part) for every part: on one thread each when pipelined, else in order.
   void ForEachPart(const std::function<void(Part&)>& f);
+  // Pipelined split sessions: slices go through ring_ to the parts' queues; a pool of
+  // workers (one per core, at most one per part) takes the next step of whichever idle part
+  // is furthest behind, so a part whose slab holds most of the surface for a while gets the
+  // cores while the others wait. A part's steps run in order, one at a time, so the result
+  // does not depend on the number of workers. Sync waits until every queued slice is done,
+  // then pairs the new seam vertices and folds the traces (it only fills caches: const
+  // callers may use it).
+  void StartWorkers();
+  void Work(size_t worker);
+  // mu_ held; nullptr when no part can step now. Each worker has home parts (index %
+  // workers == worker), whose data stay in its core's caches; it takes another's only
+  // when none of its own can step.
+  Part* NextPart(size_t worker) const;
+  void StopWorkers();
+  absl::Status Sync() const;
   void SimplifyStep(Part& p);
   absl::Status PartStep(Part& p, const float* values);  // SIMPLIFY(k-1), EXTRACT(k)
   void FinishPart(Part& p);
-  void FoldTraces();  // appends the parts' new trace entries, summed, to stats_.trace
+  void FoldTraces() const;  // appends the parts' new trace entries, summed, to stats_.trace
+  absl::Status PairSeams() const;  // moves the parts' seam logs into seams_
   void MergeParts();  // into parts_[0], then SIMPLIFY(E0) from the seam edges
 
   VolumeInfo grid_;
   SessionOptions options_;
   std::vector<std::unique_ptr<Part>> parts_;
   // seams_[s]: (vertex in part s, its copy in part s+1), per shared grid edge.
-  std::vector<std::vector<std::pair<VertexId, VertexId>>> seams_;
-  size_t folded_ = 0;  // entries of the parts' traces already in stats_.trace
+  mutable std::vector<std::vector<std::pair<VertexId, VertexId>>> seams_;
+  mutable size_t folded_ = 0;  // entries of the parts' traces already in stats_.trace
+  int64_t slices_added_ = 0;
+  bool workers_ = false;
+  bool stop_ = false;
+  std::vector<std::thread> threads_;
+  size_t workers_planned_ = 1;
+  mutable std::mutex mu_;
+  mutable std::condition_variable cv_;
+  std::array<RingSlot, kRingSlots> ring_;
+  int ring_next_ = 0;
   // Of the parts merged away by Finish.
   int64_t merged_crossed_cubes_ = 0, merged_triangles_extracted_ = 0;
   PhaseTimes merged_time_;
   std::vector<float> convert_;
   mutable SessionStats stats_;
   bool finished_ = false;
-  bool simplify_pending_ = false;  // the last committed layer awaits its SIMPLIFY step
-  int64_t pending_front_ = 0;
 };
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(

@@ -557,7 +557,7 @@ def write_report(path, args, res, fig_paths, elapsed, failures):
              "SPEC §8. E0 and all distances are in units of the smallest voxel side (the paper's "
              "\"side-length of an integer cube\"). The paper's bone volumes are not available; "
              "the shared volumes stand in for them. Every run uses `--parts 1`: the paper's "
-             "algorithm on the whole grid (the default splits grids 256 or more wide into two "
+             "algorithm on the whole grid (the default splits grids 256 or more wide into four "
              "slabs simplified side by side, see tandem.h; `tests/bench/` measures that).")
     L.append("")
     L.append("## Findings")
