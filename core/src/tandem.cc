@@ -4,6 +4,7 @@
 #include <cassert>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <new>
 
@@ -69,6 +70,19 @@ absl::Status SessionOptions::Validate() const {
 }
 
 namespace {
+
+// Whether all n values are finite; copies them to dst as well unless it is null. One pass
+// of integer tests on the exponent bits, which the compiler vectorises.
+bool CopyFinite(const float* src, size_t n, float* dst) {
+  uint32_t bad = 0;
+  for (size_t i = 0; i < n; ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, src + i, sizeof bits);
+    bad |= static_cast<uint32_t>((bits & 0x7f800000u) == 0x7f800000u);
+    if (dst != nullptr) std::memcpy(dst + i, &bits, sizeof bits);
+  }
+  return bad == 0;
+}
 
 // The number of parts a session over `grid` uses (SessionOptions::parts).
 int PartsFor(const VolumeInfo& grid, int requested) {
@@ -260,8 +274,13 @@ IndexedMesh TandemSession::Snapshot() const {
 }
 
 absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
+  if (workers_) return AddSliceImpl(nullptr, dtype, bytes);  // converted into the ring
   ConvertToFloat(dtype, bytes, convert_.size(), convert_.data());
-  return AddSlice(convert_.data());
+  return AddSliceImpl(convert_.data(), dtype, nullptr);
+}
+
+absl::Status TandemSession::AddSlice(const float* values) {
+  return AddSliceImpl(values, DType::kFloat32, nullptr);
 }
 
 void TandemSession::ForEachPart(const std::function<void(Part&)>& f) {
@@ -333,7 +352,8 @@ absl::Status TandemSession::PartStep(Part& p, const float* values) {
   return absl::OkStatus();
 }
 
-absl::Status TandemSession::AddSlice(const float* values) {
+absl::Status TandemSession::AddSliceImpl(const float* values, DType dtype,
+                                         const uint8_t* bytes) {
   if (finished_) return absl::FailedPreconditionError("session already finished");
   const auto start = Clock::now();
   auto fail = [&](absl::Status st) {
@@ -343,18 +363,20 @@ absl::Status TandemSession::AddSlice(const float* values) {
   const int64_t k = slices_added_;
   if (parts_.size() > 1) {
     // Each part checks its own columns (and the extractor the end of the volume); with
-    // several, a bad slice must be refused before any of them moves.
+    // several, a bad slice must be refused before any of them moves (non-finite values:
+    // below, while the slice is copied for the workers).
     if (grid_.nz > 0 && k >= grid_.nz) {
       return fail(absl::InvalidArgumentError(
           absl::StrCat("slice ", k, " is past the end of the volume (nz = ", grid_.nz, ")")));
     }
-    const int64_t n = grid_.nx * grid_.ny;
-    for (int64_t idx = 0; idx < n; ++idx) {
-      if (!std::isfinite(values[idx])) {
-        return fail(LayerExtractor::NonFiniteError(k, idx % grid_.nx, idx / grid_.nx, values[idx]));
-      }
-    }
   }
+  const size_t n = static_cast<size_t>(grid_.nx * grid_.ny);
+  auto non_finite = [&](const float* v) {
+    size_t idx = 0;
+    while (std::isfinite(v[idx])) ++idx;
+    const int64_t i = static_cast<int64_t>(idx);
+    return fail(LayerExtractor::NonFiniteError(k, i % grid_.nx, i / grid_.nx, v[idx]));
+  };
   if (workers_) {
     RingSlot& slot = ring_[static_cast<size_t>(ring_next_)];
     {
@@ -364,7 +386,14 @@ absl::Status TandemSession::AddSlice(const float* values) {
       }
       cv_.wait(lock, [&] { return slot.pending == 0; });
     }
-    std::copy_n(values, slot.values.size(), slot.values.begin());
+    // The slot is free (pending == 0) until it is queued: a refused slice leaves it so.
+    float* dst = slot.values.data();
+    if (values != nullptr) {
+      if (!CopyFinite(values, n, dst)) return non_finite(values);
+    } else {
+      ConvertToFloat(dtype, bytes, n, dst);  // integer types are always finite
+      if (dtype == DType::kFloat32 && !CopyFinite(dst, n, nullptr)) return non_finite(dst);
+    }
     {
       std::lock_guard<std::mutex> lock(mu_);
       slot.pending = static_cast<int>(parts_.size());
@@ -376,6 +405,7 @@ absl::Status TandemSession::AddSlice(const float* values) {
     stats_.time.total_s += Seconds(start, Clock::now());
     return absl::OkStatus();
   }
+  if (parts_.size() > 1 && !CopyFinite(values, n, nullptr)) return non_finite(values);
   std::vector<absl::Status> status(parts_.size());
   ForEachPart([&](Part& p) { status[p.index] = PartStep(p, values + p.x0); });
   for (const absl::Status& st : status) {

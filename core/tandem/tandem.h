@@ -156,6 +156,8 @@ class TandemSession {
 
  private:
   void Record();
+  // AddSlice (values) and AddSliceBytes (dtype, bytes: converted straight into the ring).
+  absl::Status AddSliceImpl(const float* values, DType dtype, const uint8_t* bytes);
   bool tandem_schedule() const {
     return options_.schedule == Schedule::kTandem || options_.schedule == Schedule::kTandemLag;
   }

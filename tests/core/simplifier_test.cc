@@ -559,8 +559,8 @@ TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
   SessionOptions o;
   o.error = 0.3;
   o.parts = 2;
-  IndexedMesh meshes[2];
-  for (int bad = 0; bad < 2; ++bad) {
+  IndexedMesh meshes[3];
+  for (int bad = 0; bad < 3; ++bad) {  // none, through AddSlice, through AddSliceBytes
     auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
     auto session = TandemSession::Create(src->info(), o);
     ASSERT_TRUE(session.ok()) << session.status();
@@ -571,7 +571,10 @@ TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
         std::vector<float> values(size_t(n) * n);
         std::memcpy(values.data(), bytes.data(), values.size() * sizeof(float));
         values[5 * n + 50] = std::nanf("");  // (x = 50, y = 5): in the second part
-        const absl::Status st = (*session)->AddSlice(values.data());
+        std::vector<uint8_t> bad_bytes(bytes.size());
+        std::memcpy(bad_bytes.data(), values.data(), bad_bytes.size());
+        const absl::Status st = bad == 1 ? (*session)->AddSlice(values.data())
+                                         : (*session)->AddSliceBytes(DType::kFloat32, bad_bytes.data());
         EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
         EXPECT_NE(st.message().find("x=50, y=5"), std::string_view::npos) << st;
       }
@@ -580,8 +583,10 @@ TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
     ASSERT_TRUE((*session)->Finish().ok());
     meshes[bad] = (*session)->Snapshot();
   }
-  EXPECT_EQ(meshes[0].indices, meshes[1].indices);
-  EXPECT_EQ(meshes[0].positions.size(), meshes[1].positions.size());
+  for (int bad = 1; bad < 3; ++bad) {
+    EXPECT_EQ(meshes[0].indices, meshes[bad].indices);
+    EXPECT_EQ(meshes[0].positions.size(), meshes[bad].positions.size());
+  }
 }
 
 // A client that vanishes mid-stream: the session is destroyed with slices still queued for
