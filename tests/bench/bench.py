@@ -601,12 +601,17 @@ def write_report(path, results, meta, args):
              "count tandem-lag reached (VTK: TargetReduction = 1 − ours/extracted; meshopt: "
              "target index count with the error bound left open; CGAL: stop at that face count).")
     L.append("- **total s** = wall time of the process, from fork to exit (reading, extraction, "
-             "simplification, writing a binary PLY). CPU s = user + system time (wait4); VTK's "
-             "FlyingEdges3D uses all cores (TBB), everything else is single-threaded. Peak RSS "
+             "simplification, writing a binary PLY). CPU s = user + system time (wait4). "
+             "Threads: VTK's FlyingEdges3D uses all cores (TBB); ours use all cores too (grids "
+             "256 or more wide are split along x into 4 parts extracted and simplified by a "
+             "pool of workers, one per core, and merged at the end, see core/tandem/tandem.h; "
+             "smaller grids extract layer k+1 while layer k is simplified); meshopt, VTK's "
+             "decimation and CGAL run on one core. Peak RSS "
              "= ru_maxrss of the process, forked by a small launcher (`bench_run`) so that the "
              "driver's own footprint does not leak into it. extract/simplify s = the program's own phase times "
              "(for VTK, extract includes reading the raw file; for ours, reading is interleaved "
-             "with extraction; VTK QD's simplify includes vtkCleanPolyData).")
+             "with extraction, and the phases of the parts are added up, so they can exceed "
+             "the wall time; VTK QD's simplify includes vtkCleanPolyData).")
     L.append("- RMS (L2) and Hausdorff (L∞) distances: `tandem measure full.ply out.ply --json` "
              "against our full-resolution marching-cubes surface (`mc-only`), undirected (the "
              "larger of the two directions), area-uniform samples. Physical units.")
