@@ -74,12 +74,16 @@ namespace {
 // Whether all n values are finite; copies them to dst as well unless it is null. One pass
 // of integer tests on the exponent bits, which the compiler vectorises.
 bool CopyFinite(const float* src, size_t n, float* dst) {
+  const uint32_t* in = reinterpret_cast<const uint32_t*>(src);  // float's bits (may alias)
   uint32_t bad = 0;
-  for (size_t i = 0; i < n; ++i) {
-    uint32_t bits;
-    std::memcpy(&bits, src + i, sizeof bits);
-    bad |= static_cast<uint32_t>((bits & 0x7f800000u) == 0x7f800000u);
-    if (dst != nullptr) std::memcpy(dst + i, &bits, sizeof bits);
+  if (dst == nullptr) {
+    for (size_t i = 0; i < n; ++i) bad |= (in[i] & 0x7f800000u) == 0x7f800000u;
+  } else {
+    uint32_t* out = reinterpret_cast<uint32_t*>(dst);
+    for (size_t i = 0; i < n; ++i) {
+      out[i] = in[i];
+      bad |= (in[i] & 0x7f800000u) == 0x7f800000u;
+    }
   }
   return bad == 0;
 }
