@@ -181,9 +181,9 @@ void Simplifier::PushTriangleEdges(TriId t) {
   }
 }
 
-void Simplifier::AddToBatch(VertexId a, VertexId b) {
+void Simplifier::AddToBatch(VertexId a, VertexId b, bool released) {
   if (OnSeam(a, b)) return;
-  batch_.push_back(a < b ? BatchEdge{a, b} : BatchEdge{b, a});
+  batch_.push_back(a < b ? BatchEdge{a, b, released} : BatchEdge{b, a, released});
   // Flushing early changes nothing (evaluations only read; pushes keep batch order) and
   // bounds the batch's memory when DELAY gets the whole mesh (classical, RequeueAll).
   if (batch_.size() >= kMaxBatch) FlushBatch();
@@ -196,7 +196,9 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
     BatchResult& r = batch_results_[i];
     r.c = Candidate{};
     r.key = -std::numeric_limits<double>::infinity();
-    if (opt_.release != ReleaseRule::kImmediate) {
+    // An edge ACTIVATE released has not changed since its key was found <= the front, and
+    // Q keeps no release data: the key need not be recomputed.
+    if (opt_.release != ReleaseRule::kImmediate && !e.released) {
       r.key = ReleaseKey(e.a, e.b, &r.c);
       if (r.key > front_) {
         r.to = 0;
@@ -293,7 +295,7 @@ void Simplifier::Activate(double front) {
     w_size_ -= bucket.size();
     for (const Entry& e : bucket) {
       if (Stale(e)) continue;
-      AddToBatch(e.a, e.b);  // evaluated now: the endpoints' quadrics are complete
+      AddToBatch(e.a, e.b, /*released=*/true);  // evaluated now: the quadrics are complete
     }
   }
   FlushBatch();
@@ -539,7 +541,7 @@ void Simplifier::PushEdgesAround(std::span<const VertexId> verts) {
   for (VertexId v : verts) {
     for (TriId t : store_->vertex_triangles(v)) {
       for (VertexId x : store_->triangle(t)) {
-        if (x != v) edges.push_back(v < x ? BatchEdge{v, x} : BatchEdge{x, v});
+        if (x != v) edges.push_back(v < x ? BatchEdge{v, x, false} : BatchEdge{x, v, false});
       }
     }
   }

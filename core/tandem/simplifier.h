@@ -139,7 +139,7 @@ class Simplifier {
   void PushTriangleEdges(TriId t);  // each edge of t once (see Delay), into batch_
   // Batches: PushEdge's work for many edges, the pure part (release key, quadric solve)
   // possibly on two threads, then the pushes in batch order.
-  void AddToBatch(VertexId a, VertexId b);  // FlushBatch at kMaxBatch edges
+  void AddToBatch(VertexId a, VertexId b, bool released = false);  // FlushBatch at kMaxBatch
   void EvaluateBatchRange(size_t begin, size_t end);
   void FlushBatch();
   static constexpr size_t kMaxBatch = 16384;
@@ -186,6 +186,7 @@ class Simplifier {
   std::vector<VertexId> scratch_;
   struct BatchEdge {
     VertexId a, b;  // a < b
+    bool released;  // from W by ACTIVATE: its release key is known to be <= the front
   };
   struct BatchResult {
     Candidate c;
