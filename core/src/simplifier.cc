@@ -326,28 +326,21 @@ bool Simplifier::LinkCondition(VertexId a, VertexId b) {
   // Neighbours of a and of b, each with the number of triangles on edge (a, x) or (b, x)
   // (saturating at 127: bit 7 of count_b is the "seen" flag of the pass over b below). One
   // Mark per vertex keeps both tallies in one cache line.
-  for (TriId t : store_->vertex_triangles(a)) {
-    for (VertexId x : store_->triangle(t)) {
-      if (x == a) continue;
-      Mark& m = mark_[x];
-      if (m.epoch_a != ep) {
-        m.epoch_a = ep;
-        m.count_a = 0;
+  auto tally = [&](VertexId v, uint32_t Mark::*epoch, uint8_t Mark::*count) {
+    for (TriId t : store_->vertex_triangles(v)) {
+      for (VertexId x : store_->triangle(t)) {
+        if (x == v) continue;
+        Mark& m = mark_[x];
+        if (m.*epoch != ep) {
+          m.*epoch = ep;
+          m.*count = 0;
+        }
+        if (m.*count < 127) ++(m.*count);
       }
-      if (m.count_a < 127) ++m.count_a;
     }
-  }
-  for (TriId t : store_->vertex_triangles(b)) {
-    for (VertexId x : store_->triangle(t)) {
-      if (x == b) continue;
-      Mark& m = mark_[x];
-      if (m.epoch_b != ep) {
-        m.epoch_b = ep;
-        m.count_b = 0;
-      }
-      if (m.count_b < 127) ++m.count_b;
-    }
-  }
+  };
+  tally(a, &Mark::epoch_a, &Mark::count_a);  // inlined: same instructions as two loops
+  tally(b, &Mark::epoch_b, &Mark::count_b);
   VertexId apex[2];
   int napex = 0;
   bool a_boundary = false;

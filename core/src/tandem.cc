@@ -340,11 +340,7 @@ absl::Status TandemSession::PartStep(Part& p, const float* values) {
   const auto t1 = Clock::now();
   p.new_tris.clear();
   p.new_verts.clear();
-  for (auto& s : p.new_seam) s.clear();
-  p.extractor.CommitLayer(&p.new_tris, &p.new_verts, &p.new_seam);
-  for (int f = 0; f < 2; ++f) {
-    p.seam_log[f].insert(p.seam_log[f].end(), p.new_seam[f].begin(), p.new_seam[f].end());
-  }
+  p.extractor.CommitLayer(&p.new_tris, &p.new_verts, &p.seam_log);
   p.triangles_extracted += static_cast<int64_t>(p.new_tris.size());
   if (options_.schedule != Schedule::kNone) p.simplifier.AddTriangles(p.new_tris, p.new_verts);
   p.time.extract_s += extract_s + Seconds(t1, Clock::now());

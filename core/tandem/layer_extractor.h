@@ -57,7 +57,7 @@ class LayerExtractor {
   // it to the store. Between the two, the store may be changed by anyone except in the
   // vertices of the previous top plane (the front, which the schedules never touch).
   absl::Status ComputeLayer(const float* values);
-  // `new_seam` receives the new kSeam vertices of each seam face (index 0: x = 0, 1: x = nx-1)
+  // `new_seam` gets the new kSeam vertices appended of each seam face (index 0: x = 0, 1: x = nx-1)
   // in a canonical order (y-edges, then z-edges, each by ascending y): the neighbouring part
   // lists the same grid edges in the same order, which pairs the copies.
   void CommitLayer(std::vector<TriId>* new_tris = nullptr,

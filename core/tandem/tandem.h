@@ -127,8 +127,7 @@ class TandemSession {
     size_t index = 0;  // in parts_
     std::vector<TriId> new_tris;
     std::vector<VertexId> new_verts;
-    std::array<std::vector<VertexId>, 2> new_seam;  // of the last layer, per seam face
-    std::array<std::vector<VertexId>, 2> seam_log;  // all so far, in order, per seam face
+    std::array<std::vector<VertexId>, 2> seam_log;  // not yet paired, in order, per seam face
     std::vector<int64_t> trace;                     // this part's triangles, per step
     PhaseTimes time;
     int64_t triangles_extracted = 0;
