@@ -132,14 +132,55 @@ void Simplifier::HeapPush(double key, const QEntry& e) {
     slot = static_cast<uint32_t>(q_slots_.size());
     q_slots_.push_back(e);
   }
-  q_.push_back(QNode{key, slot, q_seq_++});
-  std::push_heap(q_.begin(), q_.end(), QNodeGreater{});
+  // Sift up in the 4-ary heap: parent of i is (i - 1) / 4.
+  const QNode node{key, slot, q_seq_++};
+  size_t i = q_.size();
+  q_.push_back(node);
+  while (i > 0) {
+    const size_t parent = (i - 1) / 4;
+    if (!QNodeBefore(node, q_[parent])) break;
+    q_[i] = q_[parent];
+    i = parent;
+  }
+  q_[i] = node;
 }
 
 Simplifier::QEntry Simplifier::HeapPop() {
-  std::pop_heap(q_.begin(), q_.end(), QNodeGreater{});
-  const uint32_t slot = q_.back().slot;
+  const uint32_t slot = q_[0].slot;
+  const QNode last = q_.back();
   q_.pop_back();
+  // Floyd's pop on the 4-ary heap (children of i: 4i + 1 .. 4i + 4): move the hole from the
+  // root down to a leaf along the smallest children, then sift `last` up from there (it
+  // rarely rises far). The choice among four children is branch-free: the comparisons are
+  // unpredictable, and mispredicted branches, not cache misses, made the binary heap's pop
+  // a tenth of the run time.
+  const size_t n = q_.size();
+  if (n > 0) {
+    size_t hole = 0;
+    for (;;) {
+      const size_t first = 4 * hole + 1;
+      size_t best;
+      if (first + 3 < n) {
+        const size_t m01 = first + QNodeBefore(q_[first + 1], q_[first]);
+        const size_t m23 = first + 2 + QNodeBefore(q_[first + 3], q_[first + 2]);
+        best = QNodeBefore(q_[m23], q_[m01]) ? m23 : m01;
+      } else if (first < n) {
+        best = first;
+        for (size_t c = first + 1; c < n; ++c) best = QNodeBefore(q_[c], q_[best]) ? c : best;
+      } else {
+        break;
+      }
+      q_[hole] = q_[best];
+      hole = best;
+    }
+    while (hole > 0) {
+      const size_t parent = (hole - 1) / 4;
+      if (!QNodeBefore(last, q_[parent])) break;
+      q_[hole] = q_[parent];
+      hole = parent;
+    }
+    q_[hole] = last;
+  }
   q_free_.push_back(slot);
   return q_slots_[slot];
 }

@@ -123,12 +123,10 @@ class Simplifier {
     uint32_t slot;  // index into q_slots_
     uint32_t seq;   // push counter (wraps; only orders ties)
   };
-  struct QNodeGreater {
-    bool operator()(const QNode& x, const QNode& y) const {
-      if (x.key != y.key) return x.key > y.key;
-      return x.seq < y.seq;
-    }
-  };
+  // x pops before y: smaller key, or equal key and pushed later.
+  static bool QNodeBefore(const QNode& x, const QNode& y) {
+    return (x.key < y.key) | ((x.key == y.key) & (x.seq > y.seq));  // no branches
+  }
 
   void EnsureVertexCapacity();
   bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
@@ -173,7 +171,7 @@ class Simplifier {
   std::vector<Mark> mark_;
   uint32_t mark_epoch_ = 0;
 
-  std::vector<QNode> q_;  // binary heap (std::push_heap with QNodeGreater)
+  std::vector<QNode> q_;  // 4-ary min-heap in QNodeBefore order
   std::vector<QEntry> q_slots_;
   std::vector<uint32_t> q_free_;  // free slots of q_slots_
   uint32_t q_seq_ = 0;
