@@ -17,29 +17,22 @@ SlicePrefetcher::~SlicePrefetcher() {
 }
 
 void SlicePrefetcher::Run() {
-  const VolumeInfo& info = source_->info();
-  const size_t n = static_cast<size_t>(info.nx * info.ny);
-  std::vector<uint8_t> bytes;
   while (true) {
-    std::vector<float> values;
+    std::vector<uint8_t> bytes;
     {
       std::unique_lock<std::mutex> lock(mu_);
       cv_.wait(lock, [this] { return stop_ || ready_.size() < depth_; });
       if (stop_) break;
       if (!spare_.empty()) {
-        values = std::move(spare_.back());
+        bytes = std::move(spare_.back());
         spare_.pop_back();
       }
     }
     absl::Status st = source_->ReadSlice(&bytes);  // outside the lock: this is the slow part
-    if (st.ok()) {
-      values.resize(n);
-      ConvertToFloat(info.dtype, bytes.data(), n, values.data());
-    }
     const bool last = !st.ok();
     {
       std::lock_guard<std::mutex> lock(mu_);
-      ready_.push_back(Item{std::move(st), std::move(values)});
+      ready_.push_back(Item{std::move(st), std::move(bytes)});
       if (last) done_ = true;
     }
     cv_.notify_all();
@@ -47,7 +40,7 @@ void SlicePrefetcher::Run() {
   }
 }
 
-absl::Status SlicePrefetcher::Next(std::vector<float>* values) {
+absl::Status SlicePrefetcher::Next(std::vector<uint8_t>* bytes) {
   std::unique_lock<std::mutex> lock(mu_);
   cv_.wait(lock, [this] { return !ready_.empty() || done_; });
   if (ready_.empty()) return absl::OutOfRangeError("no more slices");
@@ -57,8 +50,8 @@ absl::Status SlicePrefetcher::Next(std::vector<float>* values) {
     ready_.push_front(Item{item.status, {}});  // keep answering with the same error
     return item.status;
   }
-  if (!values->empty()) spare_.push_back(std::move(*values));
-  *values = std::move(item.values);
+  if (!bytes->empty()) spare_.push_back(std::move(*bytes));
+  *bytes = std::move(item.bytes);
   lock.unlock();
   cv_.notify_all();
   return absl::OkStatus();

@@ -4,6 +4,7 @@
 #include <cassert>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <new>
@@ -278,6 +279,9 @@ IndexedMesh TandemSession::Snapshot() const {
 }
 
 absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
+  if (dtype == DType::kFloat32 && reinterpret_cast<uintptr_t>(bytes) % alignof(float) == 0) {
+    return AddSlice(reinterpret_cast<const float*>(bytes));  // host-order floats as they are
+  }
   if (workers_) return AddSliceImpl(nullptr, dtype, bytes);  // converted into the ring
   ConvertToFloat(dtype, bytes, convert_.size(), convert_.data());
   return AddSliceImpl(convert_.data(), dtype, nullptr);
@@ -576,12 +580,12 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
   const VolumeInfo& info = source.info();
   auto session = TandemSession::Create(info, options);
   if (!session.ok()) return session.status();
-  // Reading and conversion run one slice ahead on a second thread.
+  // Reading runs ahead on another thread; conversion happens on the way into the session.
   SlicePrefetcher prefetch(&source);
-  std::vector<float> values;
+  std::vector<uint8_t> bytes;
   for (int64_t k = 0; k < info.nz; ++k) {
-    if (absl::Status st = prefetch.Next(&values); !st.ok()) return st;
-    if (absl::Status st = (*session)->AddSlice(values.data()); !st.ok()) {
+    if (absl::Status st = prefetch.Next(&bytes); !st.ok()) return st;
+    if (absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes.data()); !st.ok()) {
       return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
     }
     if (progress) progress(k + 1, info.nz);

@@ -1,6 +1,8 @@
-// SlicePrefetcher: reads (and converts to float) the next slices of a SliceSource on a
-// background thread while the caller works on the current one, so disk reads, gzip
-// inflation and conversion overlap extraction and simplification on a second core.
+// SlicePrefetcher: reads the next slices of a SliceSource on a background thread while the
+// caller works on the current one, so disk reads and gzip inflation overlap extraction and
+// simplification on another core. Slices stay raw voxels (the source's dtype, host byte
+// order): TandemSession::AddSliceBytes converts them straight into its own slice ring, so a
+// float slice is copied once between the page cache and the extractor, not three times.
 // At most `depth` slices are held ahead; the data and its order are exactly the source's,
 // so results are identical to a single-threaded run.
 #ifndef TANDEM_PREFETCH_H_
@@ -25,14 +27,15 @@ class SlicePrefetcher {
   SlicePrefetcher(const SlicePrefetcher&) = delete;
   SlicePrefetcher& operator=(const SlicePrefetcher&) = delete;
 
-  // The next slice as nx*ny floats (swapped into *values). OutOfRange after the last
-  // slice; any read error is returned once, in order, and ends the stream.
-  absl::Status Next(std::vector<float>* values);
+  // The next slice as the source's raw voxels (swapped into *bytes, as ReadSlice gives
+  // them). OutOfRange after the last slice; a read error is returned, in order, and then
+  // again on every later call: it ends the stream.
+  absl::Status Next(std::vector<uint8_t>* bytes);
 
  private:
   struct Item {
     absl::Status status;
-    std::vector<float> values;
+    std::vector<uint8_t> bytes;
   };
   void Run();
 
@@ -41,7 +44,7 @@ class SlicePrefetcher {
   std::mutex mu_;
   std::condition_variable cv_;
   std::deque<Item> ready_;         // guarded by mu_
-  std::vector<std::vector<float>> spare_;  // recycled buffers, guarded by mu_
+  std::vector<std::vector<uint8_t>> spare_;  // recycled buffers, guarded by mu_
   bool stop_ = false;              // guarded by mu_
   bool done_ = false;              // guarded by mu_: the thread has pushed its last item
   std::thread thread_;
