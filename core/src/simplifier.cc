@@ -122,6 +122,72 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   return true;
 }
 
+namespace {
+
+// 4-ary min-heap on a vector of Simplifier::QNode-like nodes (children of i: 4i + 1 .. 4i + 4).
+template <typename Node, typename Before>
+void HeapSiftUp(std::vector<Node>& h, size_t i, Before before) {
+  const Node node = h[i];
+  while (i > 0) {
+    const size_t parent = (i - 1) / 4;
+    if (!before(node, h[parent])) break;
+    h[i] = h[parent];
+    i = parent;
+  }
+  h[i] = node;
+}
+
+// Removes h[0]. Floyd's pop: the hole goes from the root down to a leaf along the smallest
+// children, then the last node sifts up from there (it rarely rises far). The choice among
+// four children is branch-free: the comparisons are unpredictable, and mispredictions, not
+// cache misses, made the binary heap's pop a tenth of the run time.
+template <typename Node, typename Before>
+void HeapPopFront(std::vector<Node>& h, Before before) {
+  const Node last = h.back();
+  h.pop_back();
+  const size_t n = h.size();
+  if (n == 0) return;
+  size_t hole = 0;
+  for (;;) {
+    const size_t first = 4 * hole + 1;
+    size_t best;
+    if (first + 3 < n) {
+      const size_t m01 = first + before(h[first + 1], h[first]);
+      const size_t m23 = first + 2 + before(h[first + 3], h[first + 2]);
+      best = before(h[m23], h[m01]) ? m23 : m01;
+    } else if (first < n) {
+      best = first;
+      for (size_t c = first + 1; c < n; ++c) best = before(h[c], h[best]) ? c : best;
+    } else {
+      break;
+    }
+    h[hole] = h[best];
+    hole = best;
+  }
+  h[hole] = last;
+  HeapSiftUp(h, hole, before);
+}
+
+}  // namespace
+
+size_t Simplifier::QBucket(double key) const {
+  // Monotone in the key, so bucket order then heap order is exactly (key, seq) order.
+  const double b = key * q_scale_;
+  return b < static_cast<double>(kQBuckets - 1) ? static_cast<size_t>(b) : kQBuckets - 1;
+}
+
+void Simplifier::QEnter() {
+  // Makes q_cur_ the lowest non-empty bucket and restores its heap order (nodes appended
+  // while it was not current are sifted in). Buckets below q_cur_ are always empty.
+  while (q_buckets_[q_cur_].empty()) {
+    ++q_cur_;
+    assert(q_cur_ < kQBuckets);
+  }
+  std::vector<QNode>& h = q_buckets_[q_cur_];
+  for (size_t i = q_heaped_[q_cur_]; i < h.size(); ++i) HeapSiftUp(h, i, QNodeBeforeFn{});
+  q_heaped_[q_cur_] = h.size();
+}
+
 void Simplifier::HeapPush(double key, const QEntry& e) {
   uint32_t slot;
   if (!q_free_.empty()) {
@@ -132,57 +198,48 @@ void Simplifier::HeapPush(double key, const QEntry& e) {
     slot = static_cast<uint32_t>(q_slots_.size());
     q_slots_.push_back(e);
   }
-  // Sift up in the 4-ary heap: parent of i is (i - 1) / 4.
-  const QNode node{key, slot, q_seq_++};
-  size_t i = q_.size();
-  q_.push_back(node);
-  while (i > 0) {
-    const size_t parent = (i - 1) / 4;
-    if (!QNodeBefore(node, q_[parent])) break;
-    q_[i] = q_[parent];
-    i = parent;
+  if (q_buckets_.empty()) {
+    q_buckets_.resize(kQBuckets);
+    q_heaped_.assign(kQBuckets, 0);
+    q_scale_ = static_cast<double>(kQBuckets - 1) / opt_.error;
+    q_cur_ = kQBuckets - 1;
   }
-  q_[i] = node;
+  const size_t b = QBucket(key);
+  q_buckets_[b].push_back(QNode{key, slot, q_seq_++});
+  ++q_size_;
+  if (b < q_cur_) {
+    q_cur_ = b;  // was empty: a heap of one
+    q_heaped_[b] = 1;
+  } else if (b == q_cur_) {
+    HeapSiftUp(q_buckets_[b], q_buckets_[b].size() - 1, QNodeBeforeFn{});
+    q_heaped_[b] = q_buckets_[b].size();
+  }
+  // Otherwise appended: QEnter sifts it in when its bucket becomes the lowest.
+}
+
+const Simplifier::QNode& Simplifier::QTop() {
+  QEnter();
+  return q_buckets_[q_cur_][0];
 }
 
 Simplifier::QEntry Simplifier::HeapPop() {
-  const uint32_t slot = q_[0].slot;
-  const QNode last = q_.back();
-  q_.pop_back();
-  // Floyd's pop on the 4-ary heap (children of i: 4i + 1 .. 4i + 4): move the hole from the
-  // root down to a leaf along the smallest children, then sift `last` up from there (it
-  // rarely rises far). The choice among four children is branch-free: the comparisons are
-  // unpredictable, and mispredicted branches, not cache misses, made the binary heap's pop
-  // a tenth of the run time.
-  const size_t n = q_.size();
-  if (n > 0) {
-    size_t hole = 0;
-    for (;;) {
-      const size_t first = 4 * hole + 1;
-      size_t best;
-      if (first + 3 < n) {
-        const size_t m01 = first + QNodeBefore(q_[first + 1], q_[first]);
-        const size_t m23 = first + 2 + QNodeBefore(q_[first + 3], q_[first + 2]);
-        best = QNodeBefore(q_[m23], q_[m01]) ? m23 : m01;
-      } else if (first < n) {
-        best = first;
-        for (size_t c = first + 1; c < n; ++c) best = QNodeBefore(q_[c], q_[best]) ? c : best;
-      } else {
-        break;
-      }
-      q_[hole] = q_[best];
-      hole = best;
-    }
-    while (hole > 0) {
-      const size_t parent = (hole - 1) / 4;
-      if (!QNodeBefore(last, q_[parent])) break;
-      q_[hole] = q_[parent];
-      hole = parent;
-    }
-    q_[hole] = last;
-  }
+  QEnter();
+  std::vector<QNode>& h = q_buckets_[q_cur_];
+  const uint32_t slot = h[0].slot;
+  HeapPopFront(h, QNodeBeforeFn{});
+  q_heaped_[q_cur_] = h.size();
+  --q_size_;
   q_free_.push_back(slot);
   return q_slots_[slot];
+}
+
+void Simplifier::QClear() {
+  for (auto& bucket : q_buckets_) bucket.clear();
+  std::fill(q_heaped_.begin(), q_heaped_.end(), 0);
+  q_cur_ = q_buckets_.empty() ? 0 : kQBuckets - 1;
+  q_size_ = 0;
+  q_slots_.clear();
+  q_free_.clear();
 }
 
 void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
@@ -195,9 +252,7 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
 
 void Simplifier::RequeueAll() {
   keep_expensive_ = true;
-  q_.clear();
-  q_slots_.clear();
-  q_free_.clear();
+  QClear();
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t);
   }
@@ -344,6 +399,12 @@ void Simplifier::Activate(double front) {
     w_.erase(w_.begin(), w_.begin() + static_cast<std::ptrdiff_t>(b));
     w_base_ += static_cast<int64_t>(b);
   }
+}
+
+size_t Simplifier::QBytes() const {
+  size_t bytes = q_buckets_.capacity() * sizeof(std::vector<QNode>) + q_heaped_.capacity() * sizeof(size_t);
+  for (const auto& bucket : q_buckets_) bytes += bucket.capacity() * sizeof(QNode);
+  return bytes;
 }
 
 size_t Simplifier::WaitingBytes() const {
@@ -510,10 +571,10 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
 
 void Simplifier::Simplify(int64_t target_triangles) {
   const bool to_target = target_triangles > 0;
-  while (!q_.empty()) {
+  while (q_size_ > 0) {
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
-    if (!to_target && q_.front().key > opt_.error) break;
-    const double key = q_.front().key;
+    const double key = QTop().key;
+    if (!to_target && key > opt_.error) break;
     const QEntry e = HeapPop();
     if (Stale(e)) continue;
     Candidate c;
@@ -603,7 +664,7 @@ double Simplifier::MaxShapeError() const {
 size_t Simplifier::MemoryBytes() const {
   return quadric_.capacity() * sizeof(Quadric) + rad_.capacity() * sizeof(double) +
          version_.capacity() * sizeof(uint32_t) +
-         mark_.capacity() * sizeof(Mark) + q_.capacity() * sizeof(QNode) +
+         mark_.capacity() * sizeof(Mark) + QBytes() +
          q_slots_.capacity() * sizeof(QEntry) + q_free_.capacity() * sizeof(uint32_t) + WaitingBytes() +
          scratch_.capacity() * sizeof(VertexId) + batch_.capacity() * sizeof(BatchEdge) +
          batch_results_.capacity() * sizeof(BatchResult);
