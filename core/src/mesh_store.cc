@@ -109,17 +109,20 @@ void MeshStore::RemoveVertex(VertexId v) {
   --live_vertices_;
 }
 
-void MeshStore::ReplaceCorner(TriId t, VertexId from, VertexId to) {
-  auto& tri = tris_[t];
-  for (VertexId& v : tri) {
-    if (v == from) {
-      v = to;
-      UnlinkTriangle(from, t);
-      LinkTriangle(to, t);
-      return;
+void MeshStore::MoveTriangles(VertexId from, VertexId to) {
+  // Unlinking each triangle from `from` one by one (a search in its list each) is wasted
+  // work when the whole list goes: re-point the corners, append to `to`, empty the list.
+  for (uint32_t i = 0; i < adj_[from].count; ++i) {
+    const TriId t = pool_[adj_[from].offset + i];  // LinkTriangle may move pool_: index it
+    for (VertexId& v : tris_[t]) {
+      if (v == from) {
+        v = to;
+        break;
+      }
     }
+    LinkTriangle(to, t);
   }
-  assert(false && "corner not in triangle");
+  adj_[from].count = 0;
 }
 
 Vec3 MeshStore::TriangleNormalTimesTwoArea(TriId t) const {

@@ -539,8 +539,7 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
     if (tri[0] == b || tri[1] == b || tri[2] == b) scratch_.push_back(t);
   }
   for (TriId t : scratch_) store_->RemoveTriangle(t);
-  scratch_.assign(store_->vertex_triangles(b).begin(), store_->vertex_triangles(b).end());
-  for (TriId t : scratch_) store_->ReplaceCorner(t, b, a);
+  store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);
   ++version_[b];
   quadric_[a] += quadric_[b];

@@ -38,8 +38,9 @@ class MeshStore {
   void RemoveTriangle(TriId t);
   // Removes a vertex; it must have no incident triangles left.
   void RemoveVertex(VertexId v);
-  // In triangle t, replaces corner `from` by `to` and moves t from from's list to to's.
-  void ReplaceCorner(TriId t, VertexId from, VertexId to);
+  // Every triangle of `from` replaces its corner `from` by `to` and joins to's list (in
+  // from's list order); from's list is left empty. The contraction's last step.
+  void MoveTriangles(VertexId from, VertexId to);
 
   bool vertex_alive(VertexId v) const { return v < vtx_alive_.size() && vtx_alive_[v]; }
   bool triangle_alive(TriId t) const { return t < tri_alive_.size() && tri_alive_[t]; }

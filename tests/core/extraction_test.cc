@@ -120,14 +120,43 @@ TEST(MeshStore, AddRemoveReuseAndSnapshot) {
   s.RemoveVertex(v[4]);
   EXPECT_FALSE(s.vertex_alive(v[4]));
   EXPECT_EQ(s.AddVertex({9, 9, 9}, 0, 0, 0), v[4]);  // id reused from the free list
-  s.ReplaceCorner(t1, v[3], v[4]);
+  s.MoveTriangles(v[3], v[4]);
   EXPECT_EQ(s.triangle(t1)[2], v[4]);
   EXPECT_EQ(s.vertex_triangles(v[3]).size(), 0u);
+  ASSERT_EQ(s.vertex_triangles(v[4]).size(), 1u);
+  EXPECT_EQ(s.vertex_triangles(v[4])[0], t1);
+
   EXPECT_EQ(s.num_triangles(), 2u);
   IndexedMesh m = s.Snapshot();
   EXPECT_EQ(m.num_triangles(), 2u);
   EXPECT_EQ(m.num_vertices(), 4u);  // v[3] has no triangle left and is dropped
   (void)t0;
+}
+
+// A contraction hands all of b's triangles to a at once; a's list may have to grow into a
+// larger slot while that happens.
+TEST(MeshStore, MoveTrianglesKeepsEveryTriangleInOrder) {
+  MeshStore s;
+  VertexId v[5];
+  for (int i = 0; i < 5; ++i) v[i] = s.AddVertex({double(i), 0, 0}, 0, 0, 0);
+  std::vector<TriId> at_a, at_b;
+  for (int i = 0; i < 6; ++i) at_a.push_back(s.AddTriangle(v[0], v[2], v[3]));
+  for (int i = 0; i < 12; ++i) at_b.push_back(s.AddTriangle(v[2], v[1], v[4]));
+  s.MoveTriangles(v[1], v[0]);
+  EXPECT_EQ(s.vertex_triangles(v[1]).size(), 0u);
+  auto list = s.vertex_triangles(v[0]);
+  ASSERT_EQ(list.size(), 18u);
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(list[i], at_a[i]);
+  for (int i = 0; i < 12; ++i) {
+    EXPECT_EQ(list[6 + i], at_b[i]);
+    EXPECT_EQ(s.triangle(at_b[i])[1], v[0]);  // the corner that was v[1], in place
+  }
+  EXPECT_EQ(s.vertex_triangles(v[2]).size(), 18u);  // other corners untouched
+  s.RemoveVertex(v[1]);
+  EXPECT_EQ(s.num_triangles(), 18u);
+  for (TriId t : at_b) s.RemoveTriangle(t);
+  EXPECT_EQ(s.vertex_triangles(v[0]).size(), 6u);
+  EXPECT_EQ(s.vertex_triangles(v[4]).size(), 0u);
 }
 
 TEST(Extraction, SphereIsClosedManifoldWithEulerTwo) {
