@@ -7,26 +7,11 @@
 
 namespace tandem {
 
-Quadric& Quadric::operator+=(const Quadric& o) {
-  a00 += o.a00; a01 += o.a01; a02 += o.a02; a11 += o.a11; a12 += o.a12; a22 += o.a22;
-  b0 += o.b0; b1 += o.b1; b2 += o.b2;
-  c += o.c;
-  w += o.w;
-  return *this;
-}
-
 Quadric& Quadric::operator*=(double s) {
   a00 *= s; a01 *= s; a02 *= s; a11 *= s; a12 *= s; a22 *= s;
   b0 *= s; b1 *= s; b2 *= s;
   c *= s;
   return *this;
-}
-
-double Quadric::Evaluate(Vec3 x) const {
-  const double ax = a00 * x.x + a01 * x.y + a02 * x.z;
-  const double ay = a01 * x.x + a11 * x.y + a12 * x.z;
-  const double az = a02 * x.x + a12 * x.y + a22 * x.z;
-  return x.x * ax + x.y * ay + x.z * az + 2.0 * (b0 * x.x + b1 * x.y + b2 * x.z) + c;
 }
 
 Quadric PlaneQuadric(Vec3 p, Vec3 q, Vec3 r) {
@@ -56,11 +41,6 @@ Quadric IsotropyQuadric(Vec3 p, Vec3 q, Vec3 r) {
   g.b0 = -area * t.x; g.b1 = -area * t.y; g.b2 = -area * t.z;
   g.c = area * (Dot(t, t) + avg);
   return g;
-}
-
-double ShapeError(const Quadric& h, Vec3 x) {
-  if (h.w <= 0.0) return 0.0;
-  return std::sqrt(std::max(0.0, h.Evaluate(x) / h.w));
 }
 
 namespace {

@@ -6,6 +6,8 @@
 #ifndef TANDEM_QUADRIC_H_
 #define TANDEM_QUADRIC_H_
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 
 #include "tandem/types.h"
@@ -18,9 +20,21 @@ struct Quadric {
   double c = 0;
   double w = 0;  // W: total area behind the quadric (0 for the isotropy quadric G)
 
-  Quadric& operator+=(const Quadric& o);
+  // The two below are on every edge evaluation and contraction: defined here, inline.
+  Quadric& operator+=(const Quadric& o) {
+    a00 += o.a00; a01 += o.a01; a02 += o.a02; a11 += o.a11; a12 += o.a12; a22 += o.a22;
+    b0 += o.b0; b1 += o.b1; b2 += o.b2;
+    c += o.c;
+    w += o.w;
+    return *this;
+  }
   Quadric& operator*=(double s);  // scales the matrix, not w
-  double Evaluate(Vec3 x) const;  // x̄ᵀ H x̄ (not divided by w)
+  double Evaluate(Vec3 x) const {  // x̄ᵀ H x̄ (not divided by w)
+    const double ax = a00 * x.x + a01 * x.y + a02 * x.z;
+    const double ay = a01 * x.x + a11 * x.y + a12 * x.z;
+    const double az = a02 * x.x + a12 * x.y + a22 * x.z;
+    return x.x * ax + x.y * ay + x.z * az + 2.0 * (b0 * x.x + b1 * x.y + b2 * x.z) + c;
+  }
 };
 
 // Area-weighted plane quadric of triangle (p, q, r): H_t = w_t p_t p_tᵀ with p_t = (n, -n·p)
@@ -33,7 +47,10 @@ Quadric PlaneQuadric(Vec3 p, Vec3 q, Vec3 r);
 Quadric IsotropyQuadric(Vec3 p, Vec3 q, Vec3 r);
 
 // Root mean square plane distance ε0 = sqrt(x̄ᵀ H x̄ / W); 0 when W = 0 (no planes).
-double ShapeError(const Quadric& h, Vec3 x);
+inline double ShapeError(const Quadric& h, Vec3 x) {
+  if (h.w <= 0.0) return 0.0;
+  return std::sqrt(std::max(0.0, h.Evaluate(x) / h.w));
+}
 
 // Minimises f over x = ref + δ with δ zero on the axes whose bit (1 = x, 2 = y, 4 = z) is in
 // `fixed_axes`. Singular or ill-conditioned directions (eigenvalues below 1e-3 of the
