@@ -125,6 +125,7 @@ int StreamCommand(int argc, char** argv) {
   std::string input, out, partials, metrics_path;
   std::string schedule_name = "tandem-lag";
   double iso = 0, error = 0, alpha = 0, rate = 0, timeout_s = 0;
+  double distance_guard = tandem::SessionOptions{}.distance_guard;
   int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
   int64_t preview_every = 0, preview_ms = 0;
   bool reference = false, verbose = false;
@@ -142,6 +143,9 @@ int StreamCommand(int argc, char** argv) {
   flags.AddDouble("iso", &iso, "iso-value C0 (voxel units)", /*required=*/true);
   flags.AddDouble("error", &error, "error threshold E0 (physical units)", /*required=*/true);
   flags.AddDouble("alpha", &alpha, "isotropy parameter in [0, 1]");
+  flags.AddDouble("distance-guard", &distance_guard,
+                  "refuse contractions that move a vertex farther than this many E0 from "
+                  "the plane of a triangle it reshapes (0 = off: the paper's rules only)");
   flags.AddString("schedule", &schedule_name, "S", "none, classical, tandem or tandem-lag");
   flags.AddInt("target-triangles", &target, "> 0: simplify further down to this many triangles");
   flags.AddDouble("rate", &rate, "send at most this many slices per second (0 = no pacing)");
@@ -213,6 +217,7 @@ int StreamCommand(int argc, char** argv) {
   c.set_iso(iso);
   c.set_error(error);
   c.set_alpha(alpha);
+  c.set_distance_guard(distance_guard);
   c.set_schedule(tandem::wire::ScheduleToProto(*schedule));
   c.set_target_triangles(target);
   c.mutable_preview()->set_every_slices(static_cast<uint32_t>(preview_every));

@@ -81,6 +81,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   o.error = c.error();
   o.alpha = c.alpha();
   o.target_triangles = c.target_triangles();
+  if (c.has_distance_guard()) o.distance_guard = c.distance_guard();
   if (!std::isfinite(o.iso)) {
     return absl::InvalidArgumentError("config.iso is not a finite number");
   }
@@ -92,6 +93,11 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   if (!(o.alpha >= 0 && o.alpha <= 1)) {
     return absl::InvalidArgumentError(
         absl::StrCat("config.alpha = ", o.alpha, ": the isotropy parameter must lie in [0, 1]"));
+  }
+  if (!(o.distance_guard >= 0) || !std::isfinite(o.distance_guard)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.distance_guard = ", o.distance_guard,
+        ": must be a finite number >= 0 (a multiple of E0; 0 = off; unset = 2)"));
   }
   if (o.target_triangles < 0) {
     return absl::InvalidArgumentError(absl::StrCat(

@@ -58,6 +58,10 @@ Options:
   --schedule S              tandem-lag (default): simplify behind the sweep with the
                             paper's time-lag; tandem: no lag; classical: extract all,
                             then simplify (holds the full-resolution mesh)
+  --distance-guard K        refuse contractions that would put a vertex farther than
+                            K x E0 from the plane of a triangle it reshapes: keeps thin
+                            features close (lower Hausdorff distance) for a few more
+                            triangles. 0 = off (the paper's rules only). Default 2
   --target-triangles N      after the E0 pass, keep contracting (past E0 if need be)
                             until at most N triangles remain. Default: off
   --parts N                 split the grid along x into N slabs, simplified side by
@@ -137,8 +141,8 @@ std::string DistanceTable(const Distances& d) {
 
 int Extract(int argc, char** argv) {
   auto args = cli::Args::Parse(argc, argv, 2,
-                               {"input", "out", "iso", "error", "alpha", "schedule",
-                                "target-triangles", "metrics", "samples", "parts"},
+                               {"input", "out", "iso", "error", "alpha", "distance-guard",
+                                "schedule", "target-triangles", "metrics", "samples", "parts"},
                                {"no-simplify", "reference", "quiet", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
@@ -171,11 +175,13 @@ int Extract(int argc, char** argv) {
   const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
   auto e0 = args->GetDouble("error", 0.2 * min_spacing);
   auto alpha = args->GetDouble("alpha", 0.0);
+  auto guard = args->GetDouble("distance-guard", SessionOptions{}.distance_guard);
   auto target = args->GetInt("target-triangles", 0);
   auto samples = args->GetInt("samples", 0);
   auto parts = args->GetInt("parts", 0);
   for (const absl::Status& st :
-       {e0.status(), alpha.status(), target.status(), samples.status(), parts.status()}) {
+       {e0.status(), alpha.status(), guard.status(), target.status(), samples.status(),
+        parts.status()}) {
     if (!st.ok()) return Fail(st);
   }
   if (*parts < 0 || *parts > SessionOptions::kMaxParts) {
@@ -185,6 +191,7 @@ int Extract(int argc, char** argv) {
   opt.parts = static_cast<int>(*parts);
   opt.error = *e0;
   opt.alpha = *alpha;
+  opt.distance_guard = *guard;
   opt.target_triangles = *target;
   if (args->Has("no-simplify")) {
     opt.schedule = Schedule::kNone;

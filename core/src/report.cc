@@ -20,6 +20,7 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) 
   r.iso = o.iso;
   r.error_threshold = o.error;
   r.alpha = o.alpha;
+  r.distance_guard = o.distance_guard;
   r.target_triangles = o.target_triangles;
   r.nx = session.grid().nx;
   r.ny = session.grid().ny;
@@ -49,6 +50,7 @@ std::string ReportToJson(const MetricsReport& r) {
   j["iso"] = r.iso;
   j["error_threshold"] = r.error_threshold;
   j["alpha"] = r.alpha;
+  j["distance_guard"] = r.distance_guard;
   j["target_triangles"] = r.target_triangles;
   j["grid"] = {r.nx, r.ny, r.nz};
   j["slices"] = r.slices;
@@ -67,7 +69,7 @@ std::string ReportToJson(const MetricsReport& r) {
   j["contractions"] = r.contractions;
   j["refusals"] = {{"link", r.refusals.link},         {"flip", r.refusals.flip},
                    {"degenerate", r.refusals.degenerate}, {"box", r.refusals.box},
-                   {"error", r.refusals.error}};
+                   {"error", r.refusals.error},           {"distance", r.refusals.distance}};
   if (r.distance) {
     const Distances& d = *r.distance;
     nlohmann::json dist;
@@ -97,6 +99,7 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
     r.iso = j.value("iso", 0.0);
     r.error_threshold = j.value("error_threshold", 0.0);
     r.alpha = j.value("alpha", 0.0);
+    r.distance_guard = j.value("distance_guard", 0.0);
     r.target_triangles = j.value("target_triangles", int64_t{0});
     if (j.contains("grid") && j["grid"].size() == 3) {
       r.nx = j["grid"][0];
@@ -127,6 +130,7 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
       r.refusals.degenerate = f.value("degenerate", int64_t{0});
       r.refusals.box = f.value("box", int64_t{0});
       r.refusals.error = f.value("error", int64_t{0});
+      r.refusals.distance = f.value("distance", int64_t{0});
     }
     if (j.contains("distance")) {
       const auto& d = j["distance"];
@@ -166,7 +170,8 @@ std::string ReportSummary(const MetricsReport& r) {
   if (r.peak_rss_bytes) line("peak RSS", absl::StrFormat("%.1f MiB", r.peak_rss_bytes / 1048576.0));
   line("contractions", absl::StrCat(r.contractions, " (refused: link ", r.refusals.link, ", flip ",
                                     r.refusals.flip, ", degenerate ", r.refusals.degenerate,
-                                    ", box ", r.refusals.box, ", error ", r.refusals.error, ")"));
+                                    ", box ", r.refusals.box, ", error ", r.refusals.error,
+                                    ", distance ", r.refusals.distance, ")"));
   if (r.distance) {
     const Distances& d = *r.distance;
     line("distance L1/L2/Linf", absl::StrFormat("%.4g / %.4g / %.4g", d.l1_max, d.l2_max, d.linf_max));

@@ -499,8 +499,10 @@ bool Simplifier::LinkCondition(VertexId a, VertexId b) {
   return true;
 }
 
-bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos) {
-  // Triangles that survive the contraction move one corner (a or b) to pos.
+bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard) {
+  // Triangles that survive the contraction move one corner (a or b) to pos. The distance
+  // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|.
+  const double bound = guard ? opt_.distance_guard * opt_.error : 0.0;
   for (VertexId v : {a, b}) {
     const VertexId other = (v == a) ? b : a;
     for (TriId t : store_->vertex_triangles(v)) {
@@ -509,12 +511,19 @@ bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos) {
       Vec3 p[3];
       for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
       const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);  // = TriangleNormalTimesTwoArea
+      const double old2 = Dot(n_old, n_old);
+      if (old2 == 0.0) continue;  // already degenerate (exact iso hits): no constraint
+      if (bound > 0.0) {
+        const double off = Dot(n_old, pos - p[0]);
+        if (off * off > bound * bound * old2) {
+          ++refusals_.distance;
+          return false;
+        }
+      }
       for (int k = 0; k < 3; ++k) {
         if (tri[k] == v) p[k] = pos;
       }
       const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
-      const double old2 = Dot(n_old, n_old);
-      if (old2 == 0.0) continue;  // already degenerate (exact iso hits): no constraint
       const double new2 = Dot(n_new, n_new);
       const double scale = Dot(p[1] - p[0], p[1] - p[0]) + Dot(p[2] - p[1], p[2] - p[1]) +
                            Dot(p[0] - p[2], p[0] - p[2]);
@@ -599,7 +608,8 @@ void Simplifier::Simplify(int64_t target_triangles) {
       ++refusals_.link;
       continue;
     }
-    if (!GeometryOk(e.a, e.b, c.pos)) continue;
+    // Past E0, toward a target triangle count, the guard (a multiple of E0) would stall.
+    if (!GeometryOk(e.a, e.b, c.pos, /*guard=*/!to_target)) continue;
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
     c.box_mask = ma | mb;
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
@@ -619,11 +629,7 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
 }
 
 void Simplifier::AdoptCounters(const Simplifier& from) {
-  refusals_.link += from.refusals_.link;
-  refusals_.flip += from.refusals_.flip;
-  refusals_.degenerate += from.refusals_.degenerate;
-  refusals_.box += from.refusals_.box;
-  refusals_.error += from.refusals_.error;
+  refusals_ += from.refusals_;
   contractions_ += from.contractions_;
   max_reach_over_front_ = std::max(max_reach_over_front_, from.max_reach_over_front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, from.max_layer_over_front_);

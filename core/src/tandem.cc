@@ -60,6 +60,11 @@ absl::Status SessionOptions::Validate() const {
     return absl::InvalidArgumentError(
         absl::StrCat("isotropy alpha must lie in [0, 1], got ", alpha));
   }
+  if (!(distance_guard >= 0) || !std::isfinite(distance_guard)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "distance guard must be a finite number >= 0 (a multiple of E0; 0 = off), got ",
+        distance_guard));
+  }
   if (target_triangles < 0) {
     return absl::InvalidArgumentError("target triangle count must be >= 0");
   }
@@ -110,7 +115,8 @@ TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& optio
     if (p + 1 < parts) ec.seam_faces |= kBoxXMax;
     // With several parts the threads go to the parts, not to the batches inside one.
     const SimplifierOptions so{options.error, options.alpha, RuleFor(options.schedule),
-                               grid.spacing[2], options.pipeline && parts == 1};
+                               grid.spacing[2], options.pipeline && parts == 1,
+                               options.distance_guard};
     parts_.push_back(std::make_unique<Part>(ec, so));
     parts_.back()->x0 = c0;
     parts_.back()->index = static_cast<size_t>(p);
@@ -538,12 +544,7 @@ const SessionStats& TandemSession::stats() const {
     stats_.triangles_extracted += p->triangles_extracted;
     stats_.time.extract_s += p->time.extract_s;
     stats_.time.simplify_s += p->time.simplify_s;
-    const RefusalCounts& r = p->simplifier.refusals();
-    stats_.refusals.link += r.link;
-    stats_.refusals.flip += r.flip;
-    stats_.refusals.degenerate += r.degenerate;
-    stats_.refusals.box += r.box;
-    stats_.refusals.error += r.error;
+    stats_.refusals += p->simplifier.refusals();
     stats_.contractions += p->simplifier.contractions();
     stats_.max_reach_over_front =
         std::max(stats_.max_reach_over_front, p->simplifier.max_reach_over_front());

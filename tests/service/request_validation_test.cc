@@ -48,6 +48,7 @@ TEST(ValidateConfig, AcceptsAGoodConfigAndAppliesDefaults) {
   EXPECT_EQ(cfg->grid.spacing[2], 1.0);
   EXPECT_EQ(cfg->options.schedule, Schedule::kTandemLag);
   EXPECT_EQ(cfg->options.alpha, 0.25);
+  EXPECT_EQ(cfg->options.distance_guard, 2.0);  // unset: the core default
   EXPECT_EQ(cfg->draco.quantization_bits, 16);
   EXPECT_EQ(cfg->draco.compression_level, 7);
   EXPECT_EQ(cfg->preview_every_slices, 0);
@@ -101,6 +102,10 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
       {[](auto* c) { c->set_error(-1); }, absl::StatusCode::kInvalidArgument, "config.error (E0)"},
       {[](auto* c) { c->set_alpha(1.5); }, absl::StatusCode::kInvalidArgument, "config.alpha"},
       {[](auto* c) { c->set_alpha(-0.1); }, absl::StatusCode::kInvalidArgument, "[0, 1]"},
+      {[](auto* c) { c->set_distance_guard(-1); }, absl::StatusCode::kInvalidArgument,
+       "config.distance_guard"},
+      {[](auto* c) { c->set_distance_guard(std::numeric_limits<double>::quiet_NaN()); },
+       absl::StatusCode::kInvalidArgument, "config.distance_guard"},
       {[](auto* c) { c->set_target_triangles(-3); }, absl::StatusCode::kInvalidArgument,
        "config.target_triangles"},
       {[](auto* c) { c->set_schedule(static_cast<v1::Schedule>(9)); },
@@ -323,6 +328,7 @@ TEST(Wire, MetricsReportRoundTrip) {
   SessionOptions options;
   options.error = 0.5;
   options.alpha = 0.2;
+  options.distance_guard = 1.5;
   options.target_triangles = 100;
   auto session = RunSession(*source, options);
   ASSERT_TRUE(session.ok());
