@@ -484,6 +484,7 @@ void TandemSession::MergeParts() {
     merged_time_.extract_s += src.time.extract_s;
     merged_time_.simplify_s += src.time.simplify_s;
     prev.swap(map);
+    parts_[p].reset();  // copied: give its memory back before the next part grows dst
   }
   parts_.resize(1);
   seams_.clear();
