@@ -97,6 +97,7 @@ struct PageFormat {
   uint32_t width = 0, height = 0;
   uint16_t bits = 0, sample_format = SAMPLEFORMAT_UINT, samples = 1;
   bool tiled = false;
+  uint32_t tile_width = 0, tile_length = 0;  // tiled pages only
 };
 
 absl::StatusOr<PageFormat> ReadPageFormat(TiffFile& f, int64_t page) {
@@ -112,7 +113,30 @@ absl::StatusOr<PageFormat> ReadPageFormat(TiffFile& f, int64_t page) {
   TIFFGetFieldDefaulted(tif, TIFFTAG_SAMPLEFORMAT, &p.sample_format);
   if (p.sample_format == SAMPLEFORMAT_VOID) p.sample_format = SAMPLEFORMAT_UINT;
   p.tiled = TIFFIsTiled(tif) != 0;
+  if (p.tiled) {
+    TIFFGetField(tif, TIFFTAG_TILEWIDTH, &p.tile_width);
+    TIFFGetField(tif, TIFFTAG_TILELENGTH, &p.tile_length);
+  }
   return p;
+}
+
+// A tile is read whole into one buffer, so its declared size must be plausible for the page:
+// at most the page itself or 64 MiB, whichever is larger (a 16-pixel page declaring 65520^2
+// tiles would otherwise allocate 17 GB before libtiff notices the data is missing).
+absl::Status CheckTileSize(const std::string& path, int64_t page, const PageFormat& p,
+                           DType dtype) {
+  if (!p.tiled) return absl::OkStatus();
+  const uint64_t px = DTypeSize(dtype);
+  const uint64_t tile_bytes = uint64_t{p.tile_width} * p.tile_length * px;
+  const uint64_t page_bytes = uint64_t{p.width} * p.height * px;
+  constexpr uint64_t kTileFloor = uint64_t{64} << 20;
+  if (p.tile_width == 0 || p.tile_length == 0 || tile_bytes > std::max(page_bytes, kTileFloor)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": page ", page, " declares tiles of ", p.tile_width, " x ", p.tile_length,
+        " pixels (", tile_bytes, " bytes) for a ", p.width, " x ", p.height,
+        " page (corrupt file?)"));
+  }
+  return absl::OkStatus();
 }
 
 absl::StatusOr<DType> PageDType(const std::string& path, int64_t page, const PageFormat& p) {
@@ -299,6 +323,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& p
                        p->bits, "-bit but page 0 is ", first.width, "x", first.height, " ",
                        first.bits, "-bit (all pages of a stack must match)"));
     }
+    if (absl::Status st = CheckTileSize(path, pages, *p, *dtype); !st.ok()) return st;
     if (absl::Status st = CheckStrilesInFile(f, pages, *size); !st.ok()) return st;
     ++pages;
   } while (TIFFReadDirectory(tif));

@@ -956,6 +956,41 @@ TEST(TiffTest, Truncated) {
   }
 }
 
+// Sets every entry of `tag` in every directory of a little-endian classic TIFF to value.
+void PatchTiffTag(const std::string& path, uint16_t tag, uint32_t value) {
+  std::vector<uint8_t> b = ReadBytes(path);
+  ASSERT_EQ(b[0], 'I');
+  uint32_t ifd = Load<uint32_t>(&b[4]);
+  int patched = 0;
+  while (ifd != 0 && ifd + 2 <= b.size()) {
+    const uint16_t n = Load<uint16_t>(&b[ifd]);
+    for (uint16_t e = 0; e < n; ++e) {
+      uint8_t* q = &b[ifd + 2 + 12 * e];
+      if (Load<uint16_t>(q) != tag) continue;
+      if (Load<uint16_t>(q + 2) == 3) {
+        Store<uint16_t>(q + 8, static_cast<uint16_t>(value));
+      } else {
+        Store<uint32_t>(q + 8, value);
+      }
+      ++patched;
+    }
+    ifd = Load<uint32_t>(&b[ifd + 2 + 12 * n]);
+  }
+  ASSERT_GT(patched, 0) << "no tag " << tag;
+  WriteBytes(path, b);
+}
+
+// A tiny tiled page that declares tiles of 65520 x 65520 pixels (17 GB each as float32;
+// found by fuzz_tiff): refused before anything that size is allocated.
+TEST(TiffTest, HugeTilesAreRefused) {
+  const std::string path = tandem::testing::MakeTempDir() + "/tiles.tif";
+  const VolumeInfo info = MakeInfo(DType::kFloat32, 32, 32, 3);
+  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), Opts(false, false, 16)).ok());
+  PatchTiffTag(path, 322, 65520);  // TileWidth
+  PatchTiffTag(path, 323, 65520);  // TileLength
+  ExpectFails(path, {"tile", "65520"});
+}
+
 TEST(TiffTest, UnsupportedPixelTypes) {
   const std::string dir = tandem::testing::MakeTempDir();
   const std::string path = dir + "/t.tif";
