@@ -582,15 +582,33 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
   const VolumeInfo& info = source.info();
   auto session = TandemSession::Create(info, options);
   if (!session.ok()) return session.status();
-  // Reading runs ahead on another thread; conversion happens on the way into the session.
-  SlicePrefetcher prefetch(&source);
-  std::vector<uint8_t> bytes;
-  for (int64_t k = 0; k < info.nz; ++k) {
-    if (absl::Status st = prefetch.Next(&bytes); !st.ok()) return st;
-    if (absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes.data()); !st.ok()) {
+  auto add = [&](int64_t k, const uint8_t* bytes) {
+    absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes);
+    if (!st.ok()) {
       return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
     }
     if (progress) progress(k + 1, info.nz);
+    return absl::OkStatus();
+  };
+  // A mapped file hands its slices over in place: the session's copy into its ring is the
+  // only one (a read() would copy every byte out of the page cache first).
+  const uint8_t* view = nullptr;
+  if (absl::Status st = source.ViewSlice(&view); !st.ok()) return st;
+  if (view != nullptr) {
+    for (int64_t k = 0; k < info.nz; ++k) {
+      if (k > 0) {
+        if (absl::Status st = source.ViewSlice(&view); !st.ok()) return st;
+      }
+      if (absl::Status st = add(k, view); !st.ok()) return st;
+    }
+  } else {
+    // Reading runs ahead on another thread; conversion happens on the way into the session.
+    SlicePrefetcher prefetch(&source);
+    std::vector<uint8_t> bytes;
+    for (int64_t k = 0; k < info.nz; ++k) {
+      if (absl::Status st = prefetch.Next(&bytes); !st.ok()) return st;
+      if (absl::Status st = add(k, bytes.data()); !st.ok()) return st;
+    }
   }
   if (absl::Status st = (*session)->Finish(); !st.ok()) return st;
   return session;

@@ -3,6 +3,7 @@
 #include "tandem/volume.h"
 
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
@@ -401,6 +402,71 @@ absl::StatusOr<std::unique_ptr<ByteWriter>> ByteWriter::Open(const std::string& 
 
 namespace {
 
+// The voxel bytes of an uncompressed file, mapped read-only: slices are handed out in place
+// (the page cache's pages, no copy), the pages behind the current slice are unmapped as it
+// advances (peak RSS stays a few slices) and the next ones are read ahead. A file truncated
+// while mapped would raise SIGBUS on access, so every slice first checks the file's size.
+class MappedVoxels {
+ public:
+  // nullptr where mapping is not possible (the caller reads instead).
+  static std::unique_ptr<MappedVoxels> Open(const std::string& path, uint64_t offset,
+                                            uint64_t length) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) return nullptr;
+    const uint64_t page = static_cast<uint64_t>(::sysconf(_SC_PAGESIZE));
+    const uint64_t start = offset / page * page;
+    const size_t span = static_cast<size_t>(offset - start + length);
+    void* base = span == 0 ? MAP_FAILED
+                           : ::mmap(nullptr, span, PROT_READ, MAP_SHARED, fd,
+                                    static_cast<off_t>(start));
+    if (base == MAP_FAILED) {
+      ::close(fd);
+      return nullptr;
+    }
+    ::madvise(base, span, MADV_SEQUENTIAL);
+    return std::unique_ptr<MappedVoxels>(
+        new MappedVoxels(fd, static_cast<uint8_t*>(base), span, start, offset - start, page));
+  }
+  ~MappedVoxels() {
+    ::munmap(base_, span_);
+    ::close(fd_);
+  }
+  MappedVoxels(const MappedVoxels&) = delete;
+  MappedVoxels& operator=(const MappedVoxels&) = delete;
+
+  // Bytes [begin, end) of the voxel data, once the file is known to still hold them; the
+  // pages before `begin` are released and [end, ahead) is read ahead.
+  absl::StatusOr<const uint8_t*> Range(uint64_t begin, uint64_t end, uint64_t ahead) {
+    struct stat st;
+    if (::fstat(fd_, &st) != 0) return absl::DataLossError("cannot stat the file");
+    if (static_cast<uint64_t>(st.st_size) < file_start_ + skew_ + end) {
+      return absl::DataLossError(
+          absl::StrCat("truncated while being read: the file shrank to ", st.st_size, " bytes"));
+    }
+    const uint64_t keep = (skew_ + begin) / page_ * page_;
+    if (keep > released_) {
+      ::madvise(base_ + released_, keep - released_, MADV_DONTNEED);
+      released_ = keep;
+    }
+    const uint64_t lo = (skew_ + end) / page_ * page_, hi = std::min<uint64_t>(skew_ + ahead, span_);
+    if (hi > lo) ::madvise(base_ + lo, hi - lo, MADV_WILLNEED);
+    return base_ + skew_ + begin;
+  }
+
+ private:
+  MappedVoxels(int fd, uint8_t* base, size_t span, uint64_t file_start, uint64_t skew,
+               uint64_t page)
+      : fd_(fd), base_(base), span_(span), file_start_(file_start), skew_(skew), page_(page) {}
+
+  int fd_;
+  uint8_t* base_;
+  size_t span_;
+  uint64_t file_start_;  // file offset of the first mapped page
+  uint64_t skew_;        // offset of the voxel data within that page
+  uint64_t page_;
+  uint64_t released_ = 0;  // mapping bytes [0, released_) are given back
+};
+
 class StreamSliceSource final : public SliceSource {
  public:
   StreamSliceSource(StreamVolumeSpec spec, std::unique_ptr<ByteReader> reader)
@@ -424,6 +490,12 @@ class StreamSliceSource final : public SliceSource {
     }
     const VolumeInfo& stored = spec_.info;
     const size_t stored_bytes = stored.slice_bytes();
+    if (map_ != nullptr) {  // mapped by an earlier ViewSlice: stay at the same position
+      const uint8_t* view = nullptr;
+      if (absl::Status st = ViewSlice(&view); !st.ok()) return st;
+      bytes->assign(view, view + stored_bytes);
+      return absl::OkStatus();
+    }
     std::vector<uint8_t>* target = spec_.scale ? &stored_slice_ : bytes;
     target->resize(stored_bytes);
     absl::StatusOr<size_t> got = reader_->Read(target->data(), stored_bytes);
@@ -461,8 +533,39 @@ class StreamSliceSource final : public SliceSource {
     return absl::OkStatus();
   }
 
+  absl::Status ViewSlice(const uint8_t** data) override {
+    *data = nullptr;
+    if (!sticky_.ok()) return sticky_;
+    // Only voxels usable as stored, from the start (ReadSlice has not moved the reader).
+    if (spec_.gzip || swap_ || spec_.scale || (map_ == nullptr && (no_map_ || next_ > 0))) {
+      return absl::OkStatus();
+    }
+    if (next_ >= info_.nz) {
+      return absl::OutOfRangeError(
+          absl::StrCat(spec_.path, ": no more slices (all ", info_.nz, " were read)"));
+    }
+    const uint64_t slice = info_.slice_bytes();
+    if (map_ == nullptr) {
+      map_ = MappedVoxels::Open(spec_.data_path, spec_.data_offset, VolumeBytes(info_));
+      if (map_ == nullptr) {
+        no_map_ = true;  // e.g. a file system without mmap: ReadSlice it is
+        return absl::OkStatus();
+      }
+    }
+    const uint64_t begin = static_cast<uint64_t>(next_) * slice;
+    absl::StatusOr<const uint8_t*> view =
+        map_->Range(begin, begin + slice, begin + (1 + kReadAhead) * slice);
+    if (!view.ok()) return sticky_ = absl::DataLossError(absl::StrCat(where_, ": ", view.status().message()));
+    *data = *view;
+    ++next_;
+    return absl::OkStatus();
+  }
+
  private:
+  static constexpr uint64_t kReadAhead = 4;  // slices asked of the disk ahead of the view
   StreamVolumeSpec spec_;
+  std::unique_ptr<MappedVoxels> map_;  // set by the first ViewSlice where mapping works
+  bool no_map_ = false;
   std::unique_ptr<ByteReader> reader_;
   VolumeInfo info_;  // as delivered (float32 when scaled)
   std::string where_;

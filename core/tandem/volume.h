@@ -48,6 +48,16 @@ class SliceSource {
   virtual absl::Status ReadSlice(std::vector<uint8_t>* bytes) = 0;
   // Index of the slice the next ReadSlice returns.
   virtual int64_t next_slice() const = 0;
+  // Zero-copy reading, where a source offers it (an uncompressed file stored in host byte
+  // order, mapped into memory): sets *data to the next slice's raw voxels in place
+  // (info().slice_bytes() bytes, host order, not necessarily aligned), valid until the next
+  // ViewSlice or ReadSlice call. Sources that cannot set *data = nullptr and read nothing:
+  // the caller then uses ReadSlice. Errors as ReadSlice (a file truncated since it was
+  // opened is reported before its pages are touched).
+  virtual absl::Status ViewSlice(const uint8_t** data) {
+    *data = nullptr;
+    return absl::OkStatus();
+  }
 };
 
 // Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.

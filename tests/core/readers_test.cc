@@ -13,6 +13,7 @@
 #include <tuple>
 #include <vector>
 
+#include "absl/strings/match.h"
 #include "nlohmann/json.hpp"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
@@ -411,6 +412,72 @@ TEST_P(RoundTripTest, SameInfoAndVoxels) {
     EXPECT_EQ(got.suggested_isovalues, info.suggested_isovalues);
     EXPECT_EQ(got.description, info.description);
   }
+}
+
+// The zero-copy path (SliceSource::ViewSlice): plain files in host byte order are mapped and
+// give the same voxels in place; compressed or byte-swapped data is not offered (nullptr,
+// nothing consumed) and ReadSlice carries on from the first slice. Alternating ViewSlice and
+// ReadSlice keeps one position.
+TEST_P(RoundTripTest, ViewSliceGivesTheSameVoxelsWhereOffered) {
+  const Format& f = kFormats[std::get<0>(GetParam())];
+  const VolumeInfo info = MakeInfo(std::get<1>(GetParam()));
+  const std::string path = tandem::testing::MakeTempDir() + "/" + f.file;
+  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), f.opts).ok());
+  const bool tiff = absl::EndsWith(f.file, ".tif") || absl::EndsWith(f.file, ".tiff");
+  const bool swapped = f.opts.big_endian && DTypeSize(info.dtype) > 1;
+  const bool gzip = f.opts.gzip || absl::EndsWith(f.file, ".gz");
+  const bool offered = !tiff && !gzip && !swapped;
+
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  ASSERT_TRUE(src.ok()) << src.status();
+  const std::vector<uint8_t> want = PatternVolume(info);
+  const size_t sb = info.slice_bytes();
+  std::vector<uint8_t> slice;
+  for (int64_t k = 0; k < info.nz; ++k) {
+    const uint8_t* view = reinterpret_cast<const uint8_t*>(&slice);  // must be overwritten
+    if (k % 3 != 2) {
+      ASSERT_TRUE((*src)->ViewSlice(&view).ok());
+      if (!offered) {
+        EXPECT_EQ(view, nullptr) << "slice " << k;
+        EXPECT_EQ((*src)->next_slice(), k) << "nothing may be consumed";
+      } else {
+        ASSERT_NE(view, nullptr) << "slice " << k;
+        EXPECT_EQ(std::memcmp(view, want.data() + k * sb, sb), 0) << "slice " << k;
+        EXPECT_EQ((*src)->next_slice(), k + 1);
+        continue;
+      }
+    }
+    ASSERT_TRUE((*src)->ReadSlice(&slice).ok()) << "slice " << k;
+    EXPECT_TRUE(std::equal(slice.begin(), slice.end(), want.begin() + k * sb)) << "slice " << k;
+  }
+  const uint8_t* view = nullptr;
+  const absl::Status end = (*src)->ViewSlice(&view);
+  if (offered) {
+    EXPECT_TRUE(absl::IsOutOfRange(end)) << end;
+  }
+  EXPECT_TRUE(absl::IsOutOfRange((*src)->ReadSlice(&slice)));
+}
+
+// A mapped file that shrinks while it is read must give an error, not SIGBUS.
+TEST(ViewSliceTest, FileTruncatedWhileMappedIsAnError) {
+  const std::string dir = tandem::testing::MakeTempDir();
+  const VolumeInfo info = MakeInfo(DType::kFloat32, 40, 30, 8);
+  const std::string path = dir + "/v.json";
+  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info)).ok());
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  ASSERT_TRUE(src.ok()) << src.status();
+  const uint8_t* view = nullptr;
+  ASSERT_TRUE((*src)->ViewSlice(&view).ok());
+  ASSERT_NE(view, nullptr);
+  std::filesystem::resize_file(dir + "/v.raw", 3 * info.slice_bytes() + 10);
+  ASSERT_TRUE((*src)->ViewSlice(&view).ok());  // slices 1 and 2 are still whole
+  ASSERT_TRUE((*src)->ViewSlice(&view).ok());
+  absl::Status st = (*src)->ViewSlice(&view);
+  EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+  EXPECT_NE(st.message().find("truncated"), absl::string_view::npos) << st;
+  EXPECT_NE(st.message().find(path), absl::string_view::npos) << st;
+  std::vector<uint8_t> slice;
+  EXPECT_TRUE(absl::IsDataLoss((*src)->ReadSlice(&slice)));  // and it stays failed
 }
 
 std::string RoundTripName(const ::testing::TestParamInfo<std::tuple<int, DType>>& p) {

@@ -17,6 +17,7 @@
 #include "tandem/tandem.h"
 #include "tandem/topology.h"
 #include "tandem/volume.h"
+#include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
 
 namespace tandem {
@@ -409,6 +410,46 @@ TEST(Simplifier, TargetTriangleCountIsReached) {
   EXPECT_LE(run.mesh.num_triangles(), 500u);
   EXPECT_GT(run.mesh.num_triangles(), 400u);
   EXPECT_EQ(AnalyzeTopology(run.mesh).euler, 2);
+}
+
+// RunSession takes slices in place from a mapped file (SliceSource::ViewSlice) and reads
+// through the prefetch thread otherwise; a gzip copy of the same volume takes the second
+// path. Both must give the same session, with one part or several.
+TEST(Simplifier, MappedAndStreamedFilesGiveTheSameSession) {
+  const std::string dir = tandem::testing::MakeTempDir();
+  auto src = MakeSyntheticSource(Shape::kLink, 48, 44, 40);
+  const VolumeInfo info = src->info();
+  std::vector<std::vector<uint8_t>> slices(static_cast<size_t>(info.nz));
+  for (auto& s : slices) ASSERT_TRUE(src->ReadSlice(&s).ok());
+  const SliceFn fn = [&](int64_t z, std::vector<uint8_t>* bytes) {
+    *bytes = slices[static_cast<size_t>(z)];
+    return absl::OkStatus();
+  };
+  VolumeWriteOptions gz;
+  gz.gzip = true;
+  ASSERT_TRUE(WriteVolume(dir + "/plain.nrrd", info, fn).ok());
+  ASSERT_TRUE(WriteVolume(dir + "/packed.nrrd", info, fn, gz).ok());
+  for (int parts : {1, 3}) {
+    IndexedMesh meshes[2];
+    int k = 0;
+    for (const char* name : {"/plain.nrrd", "/packed.nrrd"}) {
+      auto file = OpenVolume(dir + name);
+      ASSERT_TRUE(file.ok()) << file.status();
+      const uint8_t* view = nullptr;
+      SessionOptions o;
+      o.error = 0.2;
+      o.parts = parts;
+      auto session = RunSession(**file, o);
+      ASSERT_TRUE(session.ok()) << session.status();
+      meshes[k++] = (*session)->Snapshot();
+      auto again = OpenVolume(dir + name);  // which path RunSession took
+      ASSERT_TRUE((*again)->ViewSlice(&view).ok());
+      EXPECT_EQ(view != nullptr, k == 1) << name;
+    }
+    EXPECT_GT(meshes[0].indices.size(), 300u);
+    EXPECT_EQ(meshes[0].indices, meshes[1].indices) << "parts " << parts;
+    EXPECT_EQ(meshes[0].positions, meshes[1].positions) << "parts " << parts;
+  }
 }
 
 // Extracting layer k on a second thread while layer k-1 is simplified, and evaluating
