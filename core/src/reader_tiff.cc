@@ -121,7 +121,7 @@ absl::StatusOr<PageFormat> ReadPageFormat(TiffFile& f, int64_t page) {
 }
 
 // A tile is read whole into one buffer, so its declared size must be plausible for the page:
-// at most the page itself or 64 MiB, whichever is larger (a 16-pixel page declaring 65520^2
+// at most the page itself or 64 MiB, whichever is larger (a 32x32 page declaring 65520^2
 // tiles would otherwise allocate 17 GB before libtiff notices the data is missing).
 absl::Status CheckTileSize(const std::string& path, int64_t page, const PageFormat& p,
                            DType dtype) {

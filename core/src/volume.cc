@@ -448,7 +448,8 @@ class MappedVoxels {
       ::madvise(base_ + released_, keep - released_, MADV_DONTNEED);
       released_ = keep;
     }
-    const uint64_t lo = (skew_ + end) / page_ * page_, hi = std::min<uint64_t>(skew_ + ahead, span_);
+    const uint64_t lo = (skew_ + end) / page_ * page_;
+    const uint64_t hi = std::min<uint64_t>(skew_ + ahead, span_);
     if (hi > lo) ::madvise(base_ + lo, hi - lo, MADV_WILLNEED);
     return base_ + skew_ + begin;
   }
@@ -555,7 +556,9 @@ class StreamSliceSource final : public SliceSource {
     const uint64_t begin = static_cast<uint64_t>(next_) * slice;
     absl::StatusOr<const uint8_t*> view =
         map_->Range(begin, begin + slice, begin + (1 + kReadAhead) * slice);
-    if (!view.ok()) return sticky_ = absl::DataLossError(absl::StrCat(where_, ": ", view.status().message()));
+    if (!view.ok()) {
+      return sticky_ = absl::DataLossError(absl::StrCat(where_, ": ", view.status().message()));
+    }
     *data = *view;
     ++next_;
     return absl::OkStatus();
