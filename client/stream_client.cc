@@ -54,13 +54,25 @@ absl::Status Sender::Run() {
   *request.mutable_config() = options_.config;
   if (!stream_->Write(request)) return absl::OkStatus();
   std::vector<uint8_t> bytes;
+  // A mapped file offers its slices in place (SliceSource::ViewSlice): sent from there, they
+  // are not first copied out of the page cache into `bytes`.
+  const uint8_t* view = nullptr;
+  if (absl::Status st = source_.ViewSlice(&view); !st.ok()) return st;
+  const bool mapped = view != nullptr;
+  const size_t slice_bytes = info.slice_bytes();
   const absl::Time start = absl::Now();
   int64_t z = 0;
   for (; info.nz == 0 || z < info.nz; ++z) {
-    if (absl::Status st = source_.ReadSlice(&bytes); !st.ok()) {
+    if (mapped) {
+      if (z > 0) {
+        if (absl::Status st = source_.ViewSlice(&view); !st.ok()) return st;
+      }
+    } else if (absl::Status st = source_.ReadSlice(&bytes); !st.ok()) {
       if (absl::IsOutOfRange(st)) break;
       return st;
     }
+    const uint8_t* data = mapped ? view : bytes.data();
+    const size_t size = mapped ? slice_bytes : bytes.size();
     if (options_.rate > 0) {
       // Pace like a scanner: slice z leaves at start + z / rate.
       const absl::Time due = start + absl::Seconds(static_cast<double>(z) / options_.rate);
@@ -71,14 +83,14 @@ absl::Status Sender::Run() {
       absl::MutexLock lock(&mu_);
       if (stop_) return absl::OkStatus();
     }
-    for (size_t offset = 0; offset < bytes.size(); offset += options_.chunk_bytes) {
+    for (size_t offset = 0; offset < size; offset += options_.chunk_bytes) {
       request.Clear();
       v1::SliceChunk* chunk = request.mutable_chunk();
       chunk->set_slice(z);
       chunk->set_offset(offset);
-      chunk->set_data(bytes.data() + offset, std::min(options_.chunk_bytes, bytes.size() - offset));
+      chunk->set_data(data + offset, std::min(options_.chunk_bytes, size - offset));
       if (offset == 0) {
-        chunk->set_slice_size(bytes.size());
+        chunk->set_slice_size(size);
         chunk->set_dtype(wire::DTypeToProto(info.dtype));
       }
       if (!stream_->Write(request)) return absl::OkStatus();

@@ -30,19 +30,6 @@ namespace {
 
 constexpr char kHead[] = "ct_head_headsq_64x64x93_int16.json";
 
-// Under ASan the server's resident size says nothing about leaks (freed memory sits in
-// the quarantine, shadow memory grows): the RSS bound is checked in normal builds only.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
 using Clock = std::chrono::steady_clock;
 
 double SecondsSince(Clock::time_point t) {

@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -96,9 +97,11 @@ std::optional<int> ChildProcess::Wait(double timeout_s) {
                         std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000));
   while (true) {
     int status = 0;
-    const pid_t r = waitpid(pid_, &status, WNOHANG);
+    struct rusage usage {};
+    const pid_t r = wait4(pid_, &status, WNOHANG, &usage);
     if (r == pid_) {
       exit_code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      minor_faults_ = usage.ru_minflt;
       return exit_code_;
     }
     if (r < 0 || std::chrono::steady_clock::now() >= deadline) return std::nullopt;
@@ -122,6 +125,7 @@ RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s,
   if (!code) (*child)->Signal(SIGKILL);
   result.out = (*child)->Stdout();
   result.err = (*child)->Stderr();
+  result.minor_faults = (*child)->minor_faults();
   return result;
 }
 

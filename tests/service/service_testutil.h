@@ -23,6 +23,21 @@ namespace tandem::testing {
 
 // A child process whose stdout and stderr go to files in `dir`. The destructor kills
 // (SIGKILL) and reaps it if it is still running.
+// Built with ASan or TSan: resident sizes and page-fault counts say nothing there (freed
+// memory sits in the quarantine, shadow memory grows), so bounds on them are checked in
+// normal builds only.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+inline constexpr bool kSanitized = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+inline constexpr bool kSanitized = true;
+#else
+inline constexpr bool kSanitized = false;
+#endif
+#else
+inline constexpr bool kSanitized = false;
+#endif
+
 class ChildProcess {
  public:
   // `env`: NAME=VALUE entries added to (or replacing in) this process's environment.
@@ -36,16 +51,20 @@ class ChildProcess {
   std::optional<int> Wait(double timeout_s);
   std::string Stdout() const;
   std::string Stderr() const;
+  // Minor page faults of the process (getrusage's ru_minflt), once Wait has seen it exit.
+  int64_t minor_faults() const { return minor_faults_; }
 
  private:
   pid_t pid_ = -1;
   std::optional<int> exit_code_;
+  int64_t minor_faults_ = -1;
   std::string out_path_, err_path_;
 };
 
 struct RunResult {
   int exit_code = -1;  // -1: killed at the timeout
   std::string out, err;
+  int64_t minor_faults = -1;  // of the process, when it exited
 };
 // Runs a program to completion (killed after timeout_s).
 RunResult RunProcess(const std::vector<std::string>& argv, double timeout_s = 60,
