@@ -254,26 +254,41 @@ void Simplifier::RequeueAll() {
   keep_expensive_ = true;
   QClear();
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
-    if (store_->triangle_alive(t)) PushTriangleEdges(t);
+    if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
   }
   FlushBatch();
 }
 
-void Simplifier::PushTriangleEdges(TriId t) {
+bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
+  bool found = false;
+  for (TriId u : store_->vertex_triangles(a)) {
+    const auto& o = store_->triangle(u);
+    for (int j = 0; j < 3; ++j) found |= (o[j] == a && o[(j + 1) % 3] == b);
+  }
+  return found;
+}
+
+void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
   // Each edge once: an interior edge is traversed a -> b by one triangle and b -> a by the
   // other, so it is pushed from the a < b side; an edge with no reverse half-edge (box
   // boundary, or the front before the next layer) is pushed from its only triangle.
   const auto& tri = store_->triangle(t);
+  // A new layer's triangle t: an edge whose two ends were both made by earlier layers lies
+  // on the plane below, in a face of t's cube that the cube underneath shares (marching
+  // cubes cuts shared faces alike), and that cube's triangle, the reverse half-edge, queued
+  // it as a front edge when its layer was delayed. The schedules never touch the front, so
+  // that entry is still valid: queueing the edge again only made a duplicate that was
+  // evaluated, queued and popped for nothing (a tenth of the released edges on the Link,
+  // and a refused edge was counted twice). Without the reverse half-edge (the first layer's
+  // bottom, on the box) it is queued here.
+  const int32_t layer = std::max({store_->layer(tri[0]), store_->layer(tri[1]),
+                                  store_->layer(tri[2])});
   for (int k = 0; k < 3; ++k) {
     const VertexId a = tri[k], b = tri[(k + 1) % 3];
-    bool twin = false;
-    if (a > b) {
-      for (TriId u : store_->vertex_triangles(a)) {
-        const auto& o = store_->triangle(u);
-        for (int j = 0; j < 3; ++j) twin |= (o[j] == b && o[(j + 1) % 3] == a);
-      }
-    }
-    if (!twin) AddToBatch(a, b);
+    const bool queued_below =
+        new_layer && store_->layer(a) < layer && store_->layer(b) < layer;
+    if ((a > b || queued_below) && HasHalfEdge(b, a)) continue;
+    AddToBatch(a, b);
   }
 }
 
@@ -359,8 +374,10 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
 
 void Simplifier::Delay(std::span<const TriId> tris) {
   EnsureVertexCapacity();
+  // The tandem schedules delay one new layer at a time; classical delays the whole mesh.
+  const bool new_layer = opt_.release != ReleaseRule::kImmediate;
   for (TriId t : tris) {
-    if (store_->triangle_alive(t)) PushTriangleEdges(t);
+    if (store_->triangle_alive(t)) PushTriangleEdges(t, new_layer);
   }
   FlushBatch();
 }

@@ -69,7 +69,9 @@ class Simplifier {
   // Accumulates the plane quadrics of new triangles into their vertices (a vertex on slice
   // k is complete once layer k+1 is in) and registers new vertices (rad = 1).
   void AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts);
-  // DELAY: puts the edges of these triangles into W (or Q for kImmediate).
+  // DELAY: puts the edges of these triangles into W (or Q for kImmediate), each edge once.
+  // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
+  // its edges on the plane below were queued with the layer underneath and are not again.
   void Delay(std::span<const TriId> tris);
   // ACTIVATE: moves entries of W whose key <= front into Q. front = +inf for ACTIVATE(∞).
   void Activate(double front);
@@ -148,7 +150,10 @@ class Simplifier {
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
-  void PushTriangleEdges(TriId t);  // each edge of t once (see Delay), into batch_
+  // Each edge of t once (see Delay), into batch_. new_layer: t belongs to the layer being
+  // delayed, whose edges on the plane below were queued with the layer underneath.
+  void PushTriangleEdges(TriId t, bool new_layer);
+  bool HasHalfEdge(VertexId a, VertexId b) const;  // some triangle traverses a -> b
   // Batches: PushEdge's work for many edges, the pure part (release key, quadric solve)
   // possibly on two threads, then the pushes in batch order.
   void AddToBatch(VertexId a, VertexId b, bool released = false);  // FlushBatch at kMaxBatch

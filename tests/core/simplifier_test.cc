@@ -4,6 +4,7 @@
 #include <cstring>
 #include <limits>
 #include <map>
+#include <set>
 #include <tuple>
 
 #include <random>
@@ -11,8 +12,11 @@
 #include <gtest/gtest.h>
 
 #include "tandem/distance.h"
+#include "tandem/layer_extractor.h"
+#include "tandem/mesh_store.h"
 #include "tandem/metrics.h"
 #include "tandem/quadric.h"
+#include "tandem/simplifier.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"
@@ -283,6 +287,49 @@ TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
 // The waiting queue: a contraction is applied only once the front has passed its reach
 // (tandem-lag) or its layer (tandem). The stats record reach(c) - front and layer(c) - front
 // over the contractions actually applied, from the geometry: bypassing W makes them grow.
+// DELAY queues each edge of the surface once: the edges on the plane between two layers
+// belong to a triangle of each, and the upper one must not queue them a second time. Fed
+// layer by layer with no ACTIVATE, every queued edge waits in W, so W's size is the number
+// of queue entries DELAY made. Closed (sphere) and box-cut (gyroid: boundary edges on all
+// six faces, the first layer's bottom included) surfaces, both release rules.
+TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
+  for (Shape shape : {Shape::kSphere, Shape::kGyroid}) {
+    for (ReleaseRule rule : {ReleaseRule::kReach, ReleaseRule::kLayer}) {
+      auto src = MakeSyntheticSource(shape, 29, 26, 23);
+      const VolumeInfo& info = src->info();
+      MeshStore store;
+      LayerExtractor ex(ExtractorConfig{info.nx, info.ny, info.nz, info.spacing, info.origin, 0},
+                        &store);
+      SimplifierOptions so;
+      so.error = 0.1;
+      so.release = rule;
+      Simplifier simplifier(&store, so);
+      std::vector<uint8_t> bytes;
+      std::vector<TriId> tris;
+      std::vector<VertexId> verts;
+      for (int64_t k = 0; k < info.nz; ++k) {
+        ASSERT_TRUE(src->ReadSlice(&bytes).ok());
+        tris.clear();
+        verts.clear();
+        ASSERT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
+        simplifier.AddTriangles(tris, verts);
+        simplifier.Delay(tris);
+      }
+      std::set<std::pair<VertexId, VertexId>> edges;
+      for (TriId t = 0; t < store.triangle_capacity(); ++t) {
+        if (!store.triangle_alive(t)) continue;
+        const auto& tri = store.triangle(t);
+        for (int i = 0; i < 3; ++i) {
+          edges.insert(std::minmax(tri[i], tri[(i + 1) % 3]));
+        }
+      }
+      ASSERT_GT(edges.size(), 1000u);
+      EXPECT_EQ(simplifier.queue_sizes(), edges.size())
+          << ShapeName(shape) << (rule == ReleaseRule::kReach ? " reach" : " layer");
+    }
+  }
+}
+
 TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
   const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
   EXPECT_GT(lag.stats.contractions, 1000);
