@@ -281,8 +281,9 @@ void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
   // evaluated, queued and popped for nothing (a tenth of the released edges on the Link,
   // and a refused edge was counted twice). Without the reverse half-edge (the first layer's
   // bottom, on the box) it is queued here.
-  const int32_t layer = std::max({store_->layer(tri[0]), store_->layer(tri[1]),
-                                  store_->layer(tri[2])});
+  const int32_t layer = new_layer ? std::max({store_->layer(tri[0]), store_->layer(tri[1]),
+                                              store_->layer(tri[2])})
+                                  : 0;
   for (int k = 0; k < 3; ++k) {
     const VertexId a = tri[k], b = tri[(k + 1) % 3];
     const bool queued_below =
