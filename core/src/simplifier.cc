@@ -431,7 +431,83 @@ size_t Simplifier::WaitingBytes() const {
   return bytes;
 }
 
+namespace {
+
+int CountOf(const VertexId* v, int n, VertexId x) {
+  int c = 0;
+  for (int i = 0; i < n; ++i) c += v[i] == x;
+  return c;
+}
+
+}  // namespace
+
+bool Simplifier::LinkConditionFans(VertexId a, VertexId b) {
+  // The fans of a and b as flat arrays, two corners per triangle (the ones other than the
+  // centre, in the triangle's order); the caller checked they fit.
+  VertexId na[2 * kFanMax], nb[2 * kFanMax];
+  int n_a = 0, n_b = 0;
+  VertexId apex[2] = {kInvalid, kInvalid};
+  int napex = 0;
+  for (TriId t : store_->vertex_triangles(a)) {
+    const auto& tri = store_->triangle(t);
+    const int i = tri[0] == a ? 0 : (tri[1] == a ? 1 : 2);
+    const VertexId x = tri[(i + 1) % 3], y = tri[(i + 2) % 3];
+    na[n_a++] = x;
+    na[n_a++] = y;
+    if (x == b || y == b) {
+      if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
+      apex[napex++] = (x == b) ? y : x;
+    }
+  }
+  if (napex == 0) return false;  // a and b are not adjacent (any more)
+  // An apex is a common neighbour; two equal apexes are one common neighbour for two
+  // triangles on ab (the marks' version: common != napex).
+  if (napex == 2 && apex[0] == apex[1]) return false;
+  for (TriId t : store_->vertex_triangles(b)) {
+    const auto& tri = store_->triangle(t);
+    const int i = tri[0] == b ? 0 : (tri[1] == b ? 1 : 2);
+    nb[n_b++] = tri[(i + 1) % 3];
+    nb[n_b++] = tri[(i + 2) % 3];
+  }
+  // (1) a common neighbour that is not an apex.
+  for (int i = 0; i < n_b; ++i) {
+    const VertexId x = nb[i];
+    if (x == a || x == apex[0] || x == apex[1]) continue;
+    if (CountOf(na, n_a, x) != 0) return false;
+  }
+  if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
+    const VertexId c = apex[0];
+    return !(CountOf(na, n_a, c) == 1 && CountOf(nb, n_b, c) == 1);
+  }
+  // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
+  // of its edges lies in a single triangle.
+  auto on_boundary = [](const VertexId* v, int n) {
+    for (int i = 0; i < n; ++i) {
+      if (CountOf(v, n, v[i]) == 1) return true;
+    }
+    return false;
+  };
+  if (on_boundary(na, n_a) && on_boundary(nb, n_b)) return false;
+  // (3) interior: triangles a-c-d and b-c-d both present?
+  const VertexId c = apex[0], d = apex[1];
+  auto has_cd = [c, d](const VertexId* v, int n) {
+    for (int i = 0; i < n; i += 2) {
+      if ((v[i] == c && v[i + 1] == d) || (v[i] == d && v[i + 1] == c)) return true;
+    }
+    return false;
+  };
+  return !(has_cd(na, n_a) && has_cd(nb, n_b));
+}
+
 bool Simplifier::LinkCondition(VertexId a, VertexId b) {
+  if (store_->vertex_triangles(a).size() <= kFanMax &&
+      store_->vertex_triangles(b).size() <= kFanMax) {
+    return LinkConditionFans(a, b);
+  }
+  return LinkConditionMarks(a, b);
+}
+
+bool Simplifier::LinkConditionMarks(VertexId a, VertexId b) {
   // Lk(a) ∩ Lk(b) = Lk(ab), on the complex completed by a dummy vertex ω joined to every
   // boundary edge (Dey, Edelsbrunner, Guha, Nekhayev 1999). With manifold input it reduces
   // to: (1) the common neighbours of a and b are exactly the apexes of ab's triangles;

@@ -169,7 +169,15 @@ class Simplifier {
   bool OnSeam(VertexId a, VertexId b) const {
     return ((store_->box_mask(a) | store_->box_mask(b)) & kSeam) != 0;
   }
+  // LAMBDA(ab). Two implementations of one test, checked against each other and against
+  // the definition in simplifier_test.cc: small fans (at most kFanMax triangles at a and at
+  // b, nearly every call) gather the neighbours into two stack arrays; larger ones tally
+  // them in per-vertex marks (mark_), which cost a cache miss per neighbour.
   bool LinkCondition(VertexId a, VertexId b);
+  static constexpr size_t kFanMax = 16;
+  bool LinkConditionFans(VertexId a, VertexId b);
+  bool LinkConditionMarks(VertexId a, VertexId b);
+  friend struct SimplifierTestPeer;  // the test calls both implementations
   // Flips, degenerate triangles and (guard = true) the distance guard.
   bool GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard);
   void Contract(VertexId a, VertexId b, const Candidate& c);

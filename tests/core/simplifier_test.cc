@@ -1,5 +1,6 @@
 // The tandem simplifier: quadrics, error bound, topology, schedules, the paper's findings.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -25,6 +26,15 @@
 #include "testutil/testutil.h"
 
 namespace tandem {
+
+// Calls the two implementations of the link condition (private to Simplifier) directly.
+struct SimplifierTestPeer {
+  static bool Fans(Simplifier& s, VertexId a, VertexId b) { return s.LinkConditionFans(a, b); }
+  static bool Marks(Simplifier& s, VertexId a, VertexId b) { return s.LinkConditionMarks(a, b); }
+  static bool Dispatch(Simplifier& s, VertexId a, VertexId b) { return s.LinkCondition(a, b); }
+  static constexpr size_t kFanMax = Simplifier::kFanMax;
+};
+
 namespace {
 
 // ---------------------------------------------------------------- quadrics (SPEC §3, §4)
@@ -284,6 +294,28 @@ TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
   }
 }
 
+// Extracts the whole volume into `store` layer by layer, adding each layer's triangles to the
+// simplifier (and delaying them, as the tandem schedules do, if asked); returns them all.
+std::vector<TriId> ExtractLayers(SliceSource* src, MeshStore* store, Simplifier* simplifier,
+                                 bool delay_each_layer) {
+  const VolumeInfo& info = src->info();
+  LayerExtractor ex(ExtractorConfig{info.nx, info.ny, info.nz, info.spacing, info.origin, 0},
+                    store);
+  std::vector<uint8_t> bytes;
+  std::vector<TriId> tris, all;
+  std::vector<VertexId> verts;
+  for (int64_t k = 0; k < info.nz; ++k) {
+    EXPECT_TRUE(src->ReadSlice(&bytes).ok());
+    tris.clear();
+    verts.clear();
+    EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
+    simplifier->AddTriangles(tris, verts);
+    if (delay_each_layer) simplifier->Delay(tris);
+    all.insert(all.end(), tris.begin(), tris.end());
+  }
+  return all;
+}
+
 // The waiting queue: a contraction is applied only once the front has passed its reach
 // (tandem-lag) or its layer (tandem). The stats record reach(c) - front and layer(c) - front
 // over the contractions actually applied, from the geometry: bypassing W makes them grow.
@@ -296,25 +328,12 @@ TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
   for (Shape shape : {Shape::kSphere, Shape::kGyroid}) {
     for (ReleaseRule rule : {ReleaseRule::kReach, ReleaseRule::kLayer}) {
       auto src = MakeSyntheticSource(shape, 29, 26, 23);
-      const VolumeInfo& info = src->info();
       MeshStore store;
-      LayerExtractor ex(ExtractorConfig{info.nx, info.ny, info.nz, info.spacing, info.origin, 0},
-                        &store);
       SimplifierOptions so;
       so.error = 0.1;
       so.release = rule;
       Simplifier simplifier(&store, so);
-      std::vector<uint8_t> bytes;
-      std::vector<TriId> tris;
-      std::vector<VertexId> verts;
-      for (int64_t k = 0; k < info.nz; ++k) {
-        ASSERT_TRUE(src->ReadSlice(&bytes).ok());
-        tris.clear();
-        verts.clear();
-        ASSERT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
-        simplifier.AddTriangles(tris, verts);
-        simplifier.Delay(tris);
-      }
+      ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/true);
       std::set<std::pair<VertexId, VertexId>> edges;
       for (TriId t = 0; t < store.triangle_capacity(); ++t) {
         if (!store.triangle_alive(t)) continue;
@@ -328,6 +347,159 @@ TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
           << ShapeName(shape) << (rule == ReleaseRule::kReach ? " reach" : " layer");
     }
   }
+}
+
+// LAMBDA(ab) from its definition (SPEC §5): Lk(a) ∩ Lk(b) = Lk(ab) in the complex completed
+// by a dummy vertex ω joined to every boundary edge (an edge in one triangle). Links hold
+// vertices and edges; ω is kInvalid.
+using EdgeTriangles = std::map<std::pair<VertexId, VertexId>, int>;  // edge -> its triangles
+EdgeTriangles CountEdgeTriangles(const MeshStore& store) {
+  EdgeTriangles edge_triangles;
+  for (TriId t = 0; t < store.triangle_capacity(); ++t) {
+    if (!store.triangle_alive(t)) continue;
+    const auto& tri = store.triangle(t);
+    for (int i = 0; i < 3; ++i) ++edge_triangles[std::minmax(tri[i], tri[(i + 1) % 3])];
+  }
+  return edge_triangles;
+}
+
+bool LinkConditionByDefinition(const MeshStore& store, const EdgeTriangles& edge_triangles,
+                               VertexId a, VertexId b) {
+  const VertexId omega = kInvalid;
+  auto boundary_edge = [&](VertexId x, VertexId y) {
+    auto it = edge_triangles.find(std::minmax(x, y));
+    return it != edge_triangles.end() && it->second == 1;
+  };
+  using Simplex = std::pair<VertexId, VertexId>;  // a vertex is (x, x), an edge (min, max)
+  auto link = [&](VertexId v) {
+    std::set<Simplex> lk;
+    for (TriId t : store.vertex_triangles(v)) {
+      const auto& tri = store.triangle(t);
+      VertexId o[2];
+      int n = 0;
+      for (VertexId x : tri) {
+        if (x != v) o[n++] = x;
+      }
+      lk.insert({o[0], o[0]});
+      lk.insert({o[1], o[1]});
+      lk.insert(std::minmax(o[0], o[1]));
+      for (VertexId x : o) {
+        if (boundary_edge(v, x)) {
+          lk.insert({omega, omega});
+          lk.insert(std::minmax(omega, x));
+        }
+      }
+    }
+    return lk;
+  };
+  const std::set<Simplex> la = link(a), lb = link(b);
+  std::set<Simplex> common;
+  std::set_intersection(la.begin(), la.end(), lb.begin(), lb.end(),
+                        std::inserter(common, common.begin()));
+  std::set<Simplex> lab;
+  for (TriId t : store.vertex_triangles(a)) {
+    const auto& tri = store.triangle(t);
+    if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
+    for (VertexId x : tri) {
+      if (x != a && x != b) lab.insert({x, x});
+    }
+  }
+  if (boundary_edge(a, b)) lab.insert({omega, omega});
+  return common == lab;
+}
+
+// Small complexes where the answer hinges on one clause of the test: a common neighbour
+// reached through a boundary edge (the three triangles around c with boundary a-b-x), a
+// tetrahedron (closed: every contraction pinches), the same without a face (a fan whose
+// boundary is a triangle), a single triangle and two triangles on an edge.
+TEST(Simplifier, LinkConditionOnSmallComplexes) {
+  using Tri = std::array<int, 3>;
+  const std::vector<std::vector<Tri>> complexes = {
+      {{0, 1, 2}, {1, 3, 2}, {0, 2, 3}},
+      {{0, 1, 2}, {0, 3, 1}, {0, 2, 3}, {1, 3, 2}},
+      {{0, 1, 3}, {1, 2, 3}, {2, 0, 3}},
+      {{0, 1, 2}},
+      {{0, 1, 2}, {1, 0, 3}},
+  };
+  int64_t allowed = 0, refused = 0;
+  for (size_t i = 0; i < complexes.size(); ++i) {
+    MeshStore store;
+    std::vector<VertexId> v;
+    for (int k = 0; k < 4; ++k) {
+      v.push_back(store.AddVertex({static_cast<double>(k & 1), static_cast<double>(k >> 1), k * 0.1},
+                                  0, 0, 0));
+    }
+    for (const Tri& t : complexes[i]) store.AddTriangle(v[t[0]], v[t[1]], v[t[2]]);
+    SimplifierOptions so;
+    so.error = 1;
+    so.release = ReleaseRule::kImmediate;
+    Simplifier simplifier(&store, so);
+    simplifier.AddTriangles({}, v);
+    const EdgeTriangles edge_triangles = CountEdgeTriangles(store);
+    for (const auto& [edge, count] : edge_triangles) {
+      for (auto [a, b] : {edge, std::pair{edge.second, edge.first}}) {
+        const bool expected = LinkConditionByDefinition(store, edge_triangles, a, b);
+        (expected ? allowed : refused) += 1;
+        EXPECT_EQ(SimplifierTestPeer::Fans(simplifier, a, b), expected) << i << ": " << a << "-" << b;
+        EXPECT_EQ(SimplifierTestPeer::Marks(simplifier, a, b), expected) << i << ": " << a << "-" << b;
+      }
+    }
+  }
+  EXPECT_GT(allowed, 0);
+  EXPECT_GT(refused, 0);
+}
+
+// The link condition's two implementations (small fans in stack arrays, larger ones with
+// per-vertex marks) agree with the definition on every edge, both ways round: on a closed
+// and a box-cut surface as extracted (valence about 6, every contraction allowed but a few)
+// and after simplifying them hard (high valences past kFanMax, tetrahedral corners, thin
+// handles: many refusals). Wrong answers here change topology or stall the simplifier.
+TEST(Simplifier, LinkConditionMatchesItsDefinition) {
+  int64_t large = 0;  // calls on fans too big for the stack arrays
+  for (Shape shape : {Shape::kSphere, Shape::kGyroid, Shape::kLink}) {
+    for (double e0 : {0.0, 0.4, 3.0}) {
+      auto src = MakeSyntheticSource(shape, 22, 20, 18);
+      MeshStore store;
+      SimplifierOptions so;
+      so.error = e0 > 0 ? e0 : 1e-9;
+      so.release = ReleaseRule::kImmediate;
+      Simplifier simplifier(&store, so);
+      const std::vector<TriId> all = ExtractLayers(src.get(), &store, &simplifier, false);
+      if (e0 > 0) {
+        simplifier.Delay(all);
+        simplifier.Activate(std::numeric_limits<double>::infinity());
+        simplifier.Simplify();
+      }
+      const std::string what = std::string(ShapeName(shape)) + " E0 " + std::to_string(e0);
+      const EdgeTriangles edge_triangles = CountEdgeTriangles(store);
+      int64_t allowed = 0, refused = 0, fans = 0;
+      for (TriId t = 0; t < store.triangle_capacity(); ++t) {
+        if (!store.triangle_alive(t)) continue;
+        const auto& tri = store.triangle(t);
+        for (int i = 0; i < 3; ++i) {
+          for (auto [a, b] : {std::pair{tri[i], tri[(i + 1) % 3]}, std::pair{tri[(i + 1) % 3], tri[i]}}) {
+            const bool expected = LinkConditionByDefinition(store, edge_triangles, a, b);
+            (expected ? allowed : refused) += 1;
+            ASSERT_EQ(SimplifierTestPeer::Marks(simplifier, a, b), expected) << what << " " << a << "-" << b;
+            ASSERT_EQ(SimplifierTestPeer::Dispatch(simplifier, a, b), expected) << what << " " << a << "-" << b;
+            if (store.vertex_triangles(a).size() <= SimplifierTestPeer::kFanMax &&
+                store.vertex_triangles(b).size() <= SimplifierTestPeer::kFanMax) {
+              ++fans;
+              ASSERT_EQ(SimplifierTestPeer::Fans(simplifier, a, b), expected) << what << " " << a << "-" << b;
+            } else {
+              ++large;
+            }
+          }
+        }
+      }
+      EXPECT_GT(allowed, 0) << what;
+      EXPECT_GT(fans, 0) << what;
+      if (e0 > 1) {
+        EXPECT_GT(refused, 0) << what;
+      }
+    }
+  }
+  EXPECT_GT(large, 0);
 }
 
 TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
