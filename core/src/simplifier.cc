@@ -284,10 +284,19 @@ void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
   const int32_t layer = new_layer ? std::max({store_->layer(tri[0]), store_->layer(tri[1]),
                                               store_->layer(tri[2])})
                                   : 0;
+  // A new layer is as marching cubes made it, so an edge off the slab's two planes (its ends
+  // at different heights) and off the box (no box face in common) is inside the slab, where
+  // two of the layer's triangles share it: its reverse half-edge exists without looking
+  // (the search below touches b's list and triangles, a cache miss or two per edge).
+  constexpr uint8_t kBoxFaces = kBoxXMin | kBoxXMax | kBoxYMin | kBoxYMax | kBoxZMin | kBoxZMax;
   for (int k = 0; k < 3; ++k) {
     const VertexId a = tri[k], b = tri[(k + 1) % 3];
     const bool queued_below =
         new_layer && store_->layer(a) < layer && store_->layer(b) < layer;
+    if (a > b && new_layer && store_->height(a) != store_->height(b) &&
+        (store_->box_mask(a) & store_->box_mask(b) & kBoxFaces) == 0) {
+      continue;
+    }
     if ((a > b || queued_below) && HasHalfEdge(b, a)) continue;
     AddToBatch(a, b);
   }
