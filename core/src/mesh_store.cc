@@ -27,27 +27,23 @@ VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t bo
   if (!free_vertices_.empty()) {
     v = free_vertices_.back();
     free_vertices_.pop_back();
-    pos_[v] = pos;
-    height_[v] = height;
-    layer_[v] = layer;
-    box_[v] = box_mask;
-    vtx_alive_[v] = 1;
   } else {
-    v = static_cast<VertexId>(pos_.size());
-    pos_.push_back(pos);
-    height_.push_back(height);
-    layer_.push_back(layer);
-    box_.push_back(box_mask);
-    vtx_alive_.push_back(1);
-    adj_.emplace_back();
+    v = static_cast<VertexId>(vtx_.size());
+    vtx_.emplace_back();
   }
-  adj_[v] = AdjSlot{AllocSlot(0), 0, 0};
+  VertexRecord& r = vtx_[v];
+  r.pos = pos;
+  r.height = height;
+  r.layer = layer;
+  r.box = box_mask;
+  r.alive = 1;
+  r.adj = AdjSlot{AllocSlot(0), 0, 0};
   ++live_vertices_;
   return v;
 }
 
 void MeshStore::LinkTriangle(VertexId v, TriId t) {
-  AdjSlot& s = adj_[v];
+  AdjSlot& s = vtx_[v].adj;
   const uint32_t cap = kMinSlot << s.size_class;
   if (s.count == cap) {
     // Grow into the next size class; the old slot goes back to its free list.
@@ -63,7 +59,7 @@ void MeshStore::LinkTriangle(VertexId v, TriId t) {
 }
 
 void MeshStore::UnlinkTriangle(VertexId v, TriId t) {
-  AdjSlot& s = adj_[v];
+  AdjSlot& s = vtx_[v].adj;
   TriId* begin = pool_.data() + s.offset;
   TriId* end = begin + s.count;
   TriId* it = std::find(begin, end, t);
@@ -101,10 +97,10 @@ void MeshStore::RemoveTriangle(TriId t) {
 }
 
 void MeshStore::RemoveVertex(VertexId v) {
-  assert(vertex_alive(v) && adj_[v].count == 0);
-  FreeSlot(adj_[v].offset, adj_[v].size_class);
-  adj_[v] = AdjSlot{};
-  vtx_alive_[v] = 0;
+  assert(vertex_alive(v) && vtx_[v].adj.count == 0);
+  FreeSlot(vtx_[v].adj.offset, vtx_[v].adj.size_class);
+  vtx_[v].adj = AdjSlot{};
+  vtx_[v].alive = 0;
   free_vertices_.push_back(v);
   --live_vertices_;
 }
@@ -112,8 +108,8 @@ void MeshStore::RemoveVertex(VertexId v) {
 void MeshStore::MoveTriangles(VertexId from, VertexId to) {
   // Unlinking each triangle from `from` one by one (a search in its list each) is wasted
   // work when the whole list goes: re-point the corners, append to `to`, empty the list.
-  for (uint32_t i = 0; i < adj_[from].count; ++i) {
-    const TriId t = pool_[adj_[from].offset + i];  // LinkTriangle may move pool_: index it
+  for (uint32_t i = 0; i < vtx_[from].adj.count; ++i) {
+    const TriId t = pool_[vtx_[from].adj.offset + i];  // LinkTriangle may move pool_: index it
     for (VertexId& v : tris_[t]) {
       if (v == from) {
         v = to;
@@ -122,27 +118,27 @@ void MeshStore::MoveTriangles(VertexId from, VertexId to) {
     }
     LinkTriangle(to, t);
   }
-  adj_[from].count = 0;
+  vtx_[from].adj.count = 0;
 }
 
 Vec3 MeshStore::TriangleNormalTimesTwoArea(TriId t) const {
   const auto& tri = tris_[t];
-  const Vec3 a = pos_[tri[0]];
-  return Cross(pos_[tri[1]] - a, pos_[tri[2]] - a);
+  const Vec3 a = vtx_[tri[0]].pos;
+  return Cross(vtx_[tri[1]].pos - a, vtx_[tri[2]].pos - a);
 }
 
 IndexedMesh MeshStore::Snapshot(std::vector<uint32_t>* vertex_map) const {
   IndexedMesh out;
   std::vector<uint32_t> local_map;
   std::vector<uint32_t>& map = vertex_map ? *vertex_map : local_map;
-  map.assign(pos_.size(), kInvalid);
+  map.assign(vtx_.size(), kInvalid);
   AppendSnapshot(&out, &map);
   return out;
 }
 
 void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_map) const {
   std::vector<uint32_t>& map = *vertex_map;
-  assert(map.size() >= pos_.size());
+  assert(map.size() >= vtx_.size());
   out->indices.reserve(out->indices.size() + live_triangles_ * 3);
   out->positions.reserve(out->positions.size() + live_vertices_);
   // Vertices in order of first use by a live triangle, triangles in id order: the result
@@ -152,7 +148,7 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
     for (VertexId v : tris_[t]) {
       if (map[v] == kInvalid) {
         map[v] = static_cast<uint32_t>(out->positions.size());
-        out->positions.push_back(pos_[v]);
+        out->positions.push_back(vtx_[v].pos);
       }
       out->indices.push_back(map[v]);
     }
@@ -160,9 +156,7 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
 }
 
 size_t MeshStore::MemoryBytes() const {
-  size_t b = pos_.capacity() * sizeof(Vec3) + height_.capacity() * sizeof(double) +
-             layer_.capacity() * sizeof(int32_t) + box_.capacity() + vtx_alive_.capacity() +
-             adj_.capacity() * sizeof(AdjSlot) + free_vertices_.capacity() * sizeof(VertexId) +
+  size_t b = vtx_.capacity() * sizeof(VertexRecord) + free_vertices_.capacity() * sizeof(VertexId) +
              tris_.capacity() * sizeof(tris_[0]) + tri_alive_.capacity() +
              free_triangles_.capacity() * sizeof(TriId) + pool_.capacity() * sizeof(TriId);
   for (const auto& f : free_slots_) b += f.capacity() * sizeof(uint32_t);
