@@ -25,10 +25,8 @@ Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
-  if (quadric_.size() >= n) return;
-  quadric_.resize(n);
-  rad_.resize(n, 1.0);
-  version_.resize(n, 0);
+  if (vs_.size() >= n) return;
+  vs_.resize(n);
   mark_.resize(n);
 }
 
@@ -36,15 +34,15 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
   EnsureVertexCapacity();
   for (VertexId v : new_verts) {
     // Ids may be recycled from contracted vertices: start clean.
-    quadric_[v] = Quadric{};
-    rad_[v] = 1.0;
-    ++version_[v];
+    vs_[v].q = Quadric{};
+    vs_[v].rad = 1.0;
+    ++vs_[v].version;
   }
   for (TriId t : tris) {
     const auto& tri = store_->triangle(t);
     const Quadric h = PlaneQuadric(store_->position(tri[0]), store_->position(tri[1]),
                                    store_->position(tri[2]));
-    for (VertexId v : tri) quadric_[v] += h;
+    for (VertexId v : tri) vs_[v].q += h;
   }
 }
 
@@ -53,7 +51,7 @@ double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
   // rad(c) = (|a - b| + rad(a) + rad(b)) / 2, lengths in slice units.
   c->height = 0.5 * (store_->height(a) + store_->height(b));
   c->rad = 0.5 * (Norm(store_->position(a) - store_->position(b)) / opt_.slice_spacing +
-                  rad_[a] + rad_[b]);
+                  vs_[a].rad + vs_[b].rad);
   c->layer = std::max(store_->layer(a), store_->layer(b));
   switch (opt_.release) {
     case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
@@ -75,8 +73,8 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   if (common != ma && common != mb) return false;  // on different box faces: refuse
   const VertexId big = (common == ma) ? b : a;       // the vertex on more box faces
   const Vec3 pa = store_->position(a), pb = store_->position(b);
-  Quadric h = quadric_[a];
-  h += quadric_[b];
+  Quadric h = vs_[a].q;
+  h += vs_[b].q;
   const uint8_t fixed = FixedAxes(ma | mb);
   // Reference point: the midpoint, with box-fixed coordinates taken from the box vertex.
   Vec3 ref = (pa + pb) * 0.5;
@@ -247,7 +245,7 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // grow the heap (on a CT, most of Q). A later neighbour contraction re-pushes it with its
   // new cost; a target triangle count re-queues every edge first (RequeueAll).
   if (!keep_expensive_ && c.cost > opt_.error) return;
-  HeapPush(c.cost, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
+  HeapPush(c.cost, QEntry{a, b, vs_[a].version, vs_[b].version, c.pos, c.eps0});
 }
 
 void Simplifier::RequeueAll() {
@@ -352,7 +350,7 @@ void Simplifier::FlushBatch() {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];
     if (r.to == 0) {
-      PushW(Entry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
+      PushW(Entry{r.key, e.a, e.b, vs_[e.a].version, vs_[e.b].version});
     } else if (r.to == 1) {
       PushQ(e.a, e.b, r.c);
     } else {
@@ -371,7 +369,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     // when the endpoints' quadrics are complete.
     const double key = ReleaseKey(a, b, &c);
     if (key > front_) {
-      PushW(Entry{key, a, b, version_[a], version_[b]});
+      PushW(Entry{key, a, b, vs_[a].version, vs_[b].version});
       return;
     }
   }
@@ -653,14 +651,14 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   for (TriId t : scratch_) store_->RemoveTriangle(t);
   store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);
-  ++version_[b];
-  quadric_[a] += quadric_[b];
+  ++vs_[b].version;
+  vs_[a].q += vs_[b].q;
   store_->set_position(a, c.pos);
   store_->set_height(a, c.height);
   store_->set_layer(a, c.layer);
   store_->set_box_mask(a, c.box_mask);
-  rad_[a] = c.rad;
-  ++version_[a];
+  vs_[a].rad = c.rad;
+  ++vs_[a].version;
   ++contractions_;
   // Recorded from the geometry, not from the release key, so a broken key shows up here.
   max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
@@ -723,12 +721,12 @@ void Simplifier::Simplify(int64_t target_triangles) {
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
   EnsureVertexCapacity();
   if (shared) {
-    quadric_[dst] += from.quadric_[src];  // a seam vertex: each part saw its own triangles
+    vs_[dst].q += from.vs_[src].q;  // a seam vertex: each part saw its own triangles
   } else {
-    quadric_[dst] = from.quadric_[src];
-    rad_[dst] = from.rad_[src];
+    vs_[dst].q = from.vs_[src].q;
+    vs_[dst].rad = from.vs_[src].rad;
   }
-  ++version_[dst];
+  ++vs_[dst].version;
 }
 
 void Simplifier::AdoptCounters(const Simplifier& from) {
@@ -763,15 +761,14 @@ void Simplifier::PushEdgesAround(std::span<const VertexId> verts) {
 double Simplifier::MaxShapeError() const {
   double worst = 0.0;
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
-    if (!store_->vertex_alive(v) || v >= quadric_.size()) continue;
-    worst = std::max(worst, ShapeError(quadric_[v], store_->position(v)));
+    if (!store_->vertex_alive(v) || v >= vs_.size()) continue;
+    worst = std::max(worst, ShapeError(vs_[v].q, store_->position(v)));
   }
   return worst;
 }
 
 size_t Simplifier::MemoryBytes() const {
-  return quadric_.capacity() * sizeof(Quadric) + rad_.capacity() * sizeof(double) +
-         version_.capacity() * sizeof(uint32_t) +
+  return vs_.capacity() * sizeof(VertexState) +
          mark_.capacity() * sizeof(Mark) + QBytes() +
          q_slots_.capacity() * sizeof(QEntry) + q_free_.capacity() * sizeof(uint32_t) + WaitingBytes() +
          scratch_.capacity() * sizeof(VertexId) + batch_.capacity() * sizeof(BatchEdge) +
