@@ -110,12 +110,8 @@ void MeshStore::MoveTriangles(VertexId from, VertexId to) {
   // work when the whole list goes: re-point the corners, append to `to`, empty the list.
   for (uint32_t i = 0; i < vtx_[from].adj.count; ++i) {
     const TriId t = pool_[vtx_[from].adj.offset + i];  // LinkTriangle may move pool_: index it
-    for (VertexId& v : tris_[t]) {
-      if (v == from) {
-        v = to;
-        break;
-      }
-    }
+    auto& tri = tris_[t];
+    tri[(tri[1] == from) | ((tri[2] == from) << 1)] = to;  // no branch on which corner
     LinkTriangle(to, t);
   }
   vtx_[from].adj.count = 0;

@@ -440,9 +440,20 @@ size_t Simplifier::WaitingBytes() const {
 
 namespace {
 
-int CountOf(const VertexId* v, int n, VertexId x) {
+// Which corner of `tri` is v (a corner of it), without branches: which one it is does not
+// follow a pattern the predictor could learn.
+int CornerOf(const std::array<VertexId, 3>& tri, VertexId v) {
+  return static_cast<int>(tri[1] == v) | (static_cast<int>(tri[2] == v) << 1);
+}
+constexpr int kNextCorner[3] = {1, 2, 0};
+constexpr int kPrevCorner[3] = {2, 0, 1};
+
+// Occurrences of x in a fan array of Simplifier::kFanMax * 2 entries (unused ones kInvalid).
+// A fixed length: the compiler unrolls and vectorises it, and no loop exit is mispredicted.
+template <size_t N>
+int CountOf(const VertexId (&v)[N], VertexId x) {
   int c = 0;
-  for (int i = 0; i < n; ++i) c += v[i] == x;
+  for (size_t i = 0; i < N; ++i) c += v[i] == x;
   return c;
 }
 
@@ -450,58 +461,64 @@ int CountOf(const VertexId* v, int n, VertexId x) {
 
 bool Simplifier::LinkConditionFans(VertexId a, VertexId b) {
   // The fans of a and b as flat arrays, two corners per triangle (the ones other than the
-  // centre, in the triangle's order); the caller checked they fit.
+  // centre, in the triangle's order); the caller checked they fit. Written without early
+  // exits where the outcome varies from call to call: the link condition was the largest
+  // source of mispredicted branches in the simplifier.
   VertexId na[2 * kFanMax], nb[2 * kFanMax];
+  std::fill(std::begin(na), std::end(na), kInvalid);
+  std::fill(std::begin(nb), std::end(nb), kInvalid);
   int n_a = 0, n_b = 0;
-  VertexId apex[2] = {kInvalid, kInvalid};
+  VertexId apex[4];
   int napex = 0;
   for (TriId t : store_->vertex_triangles(a)) {
     const auto& tri = store_->triangle(t);
-    const int i = tri[0] == a ? 0 : (tri[1] == a ? 1 : 2);
-    const VertexId x = tri[(i + 1) % 3], y = tri[(i + 2) % 3];
+    const int i = CornerOf(tri, a);
+    const VertexId x = tri[kNextCorner[i]], y = tri[kPrevCorner[i]];
     na[n_a++] = x;
     na[n_a++] = y;
-    if (x == b || y == b) {
-      if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
-      apex[napex++] = (x == b) ? y : x;
-    }
+    // The triangle's third corner is an apex if the triangle holds b (kept only then).
+    apex[std::min(napex, 3)] = (x == b) ? y : x;
+    napex += (x == b) | (y == b);
   }
   if (napex == 0) return false;  // a and b are not adjacent (any more)
+  if (napex > 2) return false;   // edge in three triangles: not a manifold, refuse
+  if (napex == 1) apex[1] = kInvalid;
   // An apex is a common neighbour; two equal apexes are one common neighbour for two
   // triangles on ab (the marks' version: common != napex).
   if (napex == 2 && apex[0] == apex[1]) return false;
   for (TriId t : store_->vertex_triangles(b)) {
     const auto& tri = store_->triangle(t);
-    const int i = tri[0] == b ? 0 : (tri[1] == b ? 1 : 2);
-    nb[n_b++] = tri[(i + 1) % 3];
-    nb[n_b++] = tri[(i + 2) % 3];
+    const int i = CornerOf(tri, b);
+    nb[n_b++] = tri[kNextCorner[i]];
+    nb[n_b++] = tri[kPrevCorner[i]];
   }
   // (1) a common neighbour that is not an apex.
+  bool stray = false;
   for (int i = 0; i < n_b; ++i) {
     const VertexId x = nb[i];
-    if (x == a || x == apex[0] || x == apex[1]) continue;
-    if (CountOf(na, n_a, x) != 0) return false;
+    stray |= (x != a) & (x != apex[0]) & (x != apex[1]) & (CountOf(na, x) != 0);
   }
+  if (stray) return false;
   if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
     const VertexId c = apex[0];
-    return !(CountOf(na, n_a, c) == 1 && CountOf(nb, n_b, c) == 1);
+    return !(CountOf(na, c) == 1 && CountOf(nb, c) == 1);
   }
   // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
   // of its edges lies in a single triangle.
-  auto on_boundary = [](const VertexId* v, int n) {
-    for (int i = 0; i < n; ++i) {
-      if (CountOf(v, n, v[i]) == 1) return true;
-    }
-    return false;
+  auto on_boundary = [](const VertexId(&v)[2 * kFanMax], int n) {
+    bool any = false;
+    for (int i = 0; i < n; ++i) any |= CountOf(v, v[i]) == 1;
+    return any;
   };
   if (on_boundary(na, n_a) && on_boundary(nb, n_b)) return false;
   // (3) interior: triangles a-c-d and b-c-d both present?
   const VertexId c = apex[0], d = apex[1];
-  auto has_cd = [c, d](const VertexId* v, int n) {
+  auto has_cd = [c, d](const VertexId(&v)[2 * kFanMax], int n) {
+    bool any = false;
     for (int i = 0; i < n; i += 2) {
-      if ((v[i] == c && v[i + 1] == d) || (v[i] == d && v[i + 1] == c)) return true;
+      any |= ((v[i] == c) & (v[i + 1] == d)) | ((v[i] == d) & (v[i + 1] == c));
     }
-    return false;
+    return any;
   };
   return !(has_cd(na, n_a) && has_cd(nb, n_b));
 }
@@ -603,39 +620,48 @@ bool Simplifier::LinkConditionMarks(VertexId a, VertexId b) {
 bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
   // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|.
-  const double bound = guard ? opt_.distance_guard * opt_.error : 0.0;
+  // Which triangles are on ab (removed) and which are already degenerate (exact iso hits: no
+  // constraint) varies from call to call: branching on it was mispredicted. The survivors
+  // are gathered first (written always, kept by a count), the degenerate ones masked out;
+  // a refusal is rare and may branch.
+  const auto ta = store_->vertex_triangles(a), tb = store_->vertex_triangles(b);
+  if (survivors_.size() < ta.size() + tb.size()) survivors_.resize(ta.size() + tb.size());
+  size_t n = 0;
   for (VertexId v : {a, b}) {
     const VertexId other = (v == a) ? b : a;
-    for (TriId t : store_->vertex_triangles(v)) {
+    for (TriId t : (v == a) ? ta : tb) {
       const auto& tri = store_->triangle(t);
-      if (tri[0] == other || tri[1] == other || tri[2] == other) continue;  // removed
-      Vec3 p[3];
-      for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
-      const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);  // = TriangleNormalTimesTwoArea
-      const double old2 = Dot(n_old, n_old);
-      if (old2 == 0.0) continue;  // already degenerate (exact iso hits): no constraint
-      if (bound > 0.0) {
-        const double off = Dot(n_old, pos - p[0]);
-        if (off * off > bound * bound * old2) {
-          ++refusals_.distance;
-          return false;
-        }
-      }
-      for (int k = 0; k < 3; ++k) {
-        if (tri[k] == v) p[k] = pos;
-      }
-      const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
-      const double new2 = Dot(n_new, n_new);
-      const double scale = Dot(p[1] - p[0], p[1] - p[0]) + Dot(p[2] - p[1], p[2] - p[1]) +
-                           Dot(p[0] - p[2], p[0] - p[2]);
-      if (new2 <= 1e-20 * scale * scale) {
+      survivors_[n] = {t, v};
+      n += (tri[0] != other) & (tri[1] != other) & (tri[2] != other);
+    }
+  }
+  const double bound = guard ? opt_.distance_guard * opt_.error : 0.0;
+  const bool guarded = bound > 0.0;
+  for (size_t i = 0; i < n; ++i) {
+    const auto [t, v] = survivors_[i];
+    const auto& tri = store_->triangle(t);
+    Vec3 p[3];
+    for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
+    const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);  // = TriangleNormalTimesTwoArea
+    const double old2 = Dot(n_old, n_old);
+    const double off = Dot(n_old, pos - p[0]);
+    const bool far = guarded & (off * off > bound * bound * old2);
+    p[CornerOf(tri, v)] = pos;
+    const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
+    const double new2 = Dot(n_new, n_new);
+    const double scale = Dot(p[1] - p[0], p[1] - p[0]) + Dot(p[2] - p[1], p[2] - p[1]) +
+                         Dot(p[0] - p[2], p[0] - p[2]);
+    const bool degenerate = new2 <= 1e-20 * scale * scale;
+    const bool flip = Dot(n_old, n_new) <= 0.0;
+    if ((old2 != 0.0) & (far | degenerate | flip)) {
+      if (far) {
+        ++refusals_.distance;
+      } else if (degenerate) {
         ++refusals_.degenerate;
-        return false;
-      }
-      if (Dot(n_old, n_new) <= 0.0) {
+      } else {
         ++refusals_.flip;
-        return false;
       }
+      return false;
     }
   }
   return true;
@@ -643,12 +669,15 @@ bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard) {
 
 void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // a survives as c; b's triangles move to a; the triangles on ab disappear.
-  scratch_.clear();
+  TriId on_ab[3];  // the link condition passed: ab is in one or two triangles
+  int n_ab = 0;
   for (TriId t : store_->vertex_triangles(a)) {
     const auto& tri = store_->triangle(t);
-    if (tri[0] == b || tri[1] == b || tri[2] == b) scratch_.push_back(t);
+    on_ab[std::min(n_ab, 2)] = t;  // branch-free: which ones they are is unpredictable
+    n_ab += (tri[0] == b) | (tri[1] == b) | (tri[2] == b);
   }
-  for (TriId t : scratch_) store_->RemoveTriangle(t);
+  assert(n_ab == 1 || n_ab == 2);
+  for (int i = 0; i < n_ab; ++i) store_->RemoveTriangle(on_ab[i]);
   store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);
   ++vs_[b].version;
@@ -663,12 +692,23 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // Recorded from the geometry, not from the release key, so a broken key shows up here.
   max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, static_cast<double>(c.layer) - front_);
-  // Re-evaluate the edges around c.
+  // Re-evaluate the edges around c, in increasing neighbour id. Each neighbour once before
+  // sorting (the sort of all corners, every neighbour twice, was a third of this function,
+  // mispredicted branches mostly): the corner after c in each triangle covers a closed fan;
+  // on the boundary one neighbour is only ever the corner before c.
   scratch_.clear();
-  for (TriId t : store_->vertex_triangles(a)) {
-    for (VertexId x : store_->triangle(t)) {
-      if (x != a) scratch_.push_back(x);
-    }
+  const auto fan = store_->vertex_triangles(a);
+  for (TriId t : fan) {
+    const auto& tri = store_->triangle(t);
+    scratch_.push_back(tri[kNextCorner[CornerOf(tri, a)]]);
+  }
+  const size_t nexts = scratch_.size();
+  for (TriId t : fan) {
+    const auto& tri = store_->triangle(t);
+    const VertexId prev = tri[kPrevCorner[CornerOf(tri, a)]];
+    bool found = false;  // no early exit: where it would leave is unpredictable
+    for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
+    if (!found) scratch_.push_back(prev);
   }
   std::sort(scratch_.begin(), scratch_.end());
   scratch_.erase(std::unique(scratch_.begin(), scratch_.end()), scratch_.end());
@@ -771,7 +811,8 @@ size_t Simplifier::MemoryBytes() const {
   return vs_.capacity() * sizeof(VertexState) +
          mark_.capacity() * sizeof(Mark) + QBytes() +
          q_slots_.capacity() * sizeof(QEntry) + q_free_.capacity() * sizeof(uint32_t) + WaitingBytes() +
-         scratch_.capacity() * sizeof(VertexId) + batch_.capacity() * sizeof(BatchEdge) +
+         scratch_.capacity() * sizeof(VertexId) + survivors_.capacity() * sizeof(Survivor) +
+         batch_.capacity() * sizeof(BatchEdge) +
          batch_results_.capacity() * sizeof(BatchResult);
 }
 

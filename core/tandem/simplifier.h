@@ -236,6 +236,11 @@ class Simplifier {
   size_t w_size_ = 0;
   void PushW(const Entry& e);
   std::vector<VertexId> scratch_;
+  struct Survivor {  // GeometryOk: a triangle that survives the contraction, and its corner
+    TriId t;         // that moves (a or b)
+    VertexId v;
+  };
+  std::vector<Survivor> survivors_;
   struct BatchEdge {
     VertexId a, b;  // a < b
     bool released;  // from W by ACTIVATE: its release key is known to be <= the front
