@@ -632,7 +632,7 @@ bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard) {
     for (TriId t : (v == a) ? ta : tb) {
       const auto& tri = store_->triangle(t);
       survivors_[n] = {t, v};
-      n += (tri[0] != other) & (tri[1] != other) & (tri[2] != other);
+      n += static_cast<size_t>((tri[0] != other) + (tri[1] != other) + (tri[2] != other) == 3);
     }
   }
   const double bound = guard ? opt_.distance_guard * opt_.error : 0.0;
@@ -645,7 +645,7 @@ bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard) {
     const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);  // = TriangleNormalTimesTwoArea
     const double old2 = Dot(n_old, n_old);
     const double off = Dot(n_old, pos - p[0]);
-    const bool far = guarded & (off * off > bound * bound * old2);
+    const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
     p[CornerOf(tri, v)] = pos;
     const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
     const double new2 = Dot(n_new, n_new);
@@ -674,7 +674,8 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   for (TriId t : store_->vertex_triangles(a)) {
     const auto& tri = store_->triangle(t);
     on_ab[std::min(n_ab, 2)] = t;  // branch-free: which ones they are is unpredictable
-    n_ab += (tri[0] == b) | (tri[1] == b) | (tri[2] == b);
+    n_ab += static_cast<int>(tri[0] == b) + static_cast<int>(tri[1] == b) +
+            static_cast<int>(tri[2] == b);
   }
   assert(n_ab == 1 || n_ab == 2);
   for (int i = 0; i < n_ab; ++i) store_->RemoveTriangle(on_ab[i]);

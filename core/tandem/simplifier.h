@@ -166,7 +166,7 @@ class Simplifier {
   // matching stamps mean both ends are alive: the store's flags need not be read.
   template <typename E>
   bool Stale(const E& e) const {
-    const bool stale = (vs_[e.a].version != e.va) | (vs_[e.b].version != e.vb);
+    const bool stale = ((vs_[e.a].version ^ e.va) | (vs_[e.b].version ^ e.vb)) != 0;
     assert(stale || (store_->vertex_alive(e.a) && store_->vertex_alive(e.b)));
     return stale;
   }
