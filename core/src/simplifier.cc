@@ -27,7 +27,6 @@ void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
   if (vs_.size() >= n) return;
   vs_.resize(n);
-  mark_.resize(n);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
@@ -538,6 +537,8 @@ bool Simplifier::LinkConditionMarks(VertexId a, VertexId b) {
   // (2) ω: if a and b are both on the boundary, ab is a boundary edge; (3) no edge of both
   // links: for an interior edge with apexes c, d, not both acd and bcd are triangles; for a
   // boundary edge with apex c, not both ac and bc are boundary edges.
+  // Allocated on first use: most meshes never have a fan this large.
+  if (mark_.size() < store_->vertex_capacity()) mark_.resize(store_->vertex_capacity());
   if (++mark_epoch_ == 0) {
     std::fill(mark_.begin(), mark_.end(), Mark{});
     mark_epoch_ = 1;

@@ -198,15 +198,15 @@ class Simplifier {
   SimplifierOptions opt_;
   double front_ = -std::numeric_limits<double>::infinity();
 
-  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end, in two
-  // aligned cache lines (as three arrays, the first layout, a quadric alone straddled two or
-  // three lines and rad and version were misses of their own).
-  struct alignas(64) VertexState {
+  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end, together (as
+  // three arrays, the first layout, rad and version were cache misses of their own). Not
+  // aligned to lines: padding to 128 bytes saved little and cost a tenth more peak memory.
+  struct VertexState {
     Quadric q;
     double rad = 1.0;
     uint32_t version = 0;
   };
-  static_assert(sizeof(VertexState) == 128);
+  static_assert(sizeof(VertexState) == 104);
   std::vector<VertexState> vs_;
   struct Mark {  // scratch of the link condition, per vertex x: tallies of edges (a|b, x)
     uint32_t epoch_a = 0, epoch_b = 0;
