@@ -1,7 +1,8 @@
 // MeshStore: the mutable triangle mesh shared by the layer extractor and the simplifier.
 //
-// Data-oriented on purpose (see ../shared/STYLE.md): struct-of-arrays with 32-bit ids, no
-// pointers. Deletion is a flag plus a free list, so ids stay stable while the simplifier
+// Data-oriented on purpose (see ../shared/STYLE.md): flat arrays with 32-bit ids, no
+// pointers; a vertex's fields sit in one 64-byte record (the simplifier reads them together
+// at random ids, see VertexRecord), triangles are an array of index triples. Deletion is a flag plus a free list, so ids stay stable while the simplifier
 // works; compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
 // triangle ids (its incident triangles); slots come in power-of-two size classes with a free
 // list per class, so adding a triangle never allocates per element.
