@@ -111,7 +111,7 @@ void MeshStore::MoveTriangles(VertexId from, VertexId to) {
   for (uint32_t i = 0; i < vtx_[from].adj.count; ++i) {
     const TriId t = pool_[vtx_[from].adj.offset + i];  // LinkTriangle may move pool_: index it
     auto& tri = tris_[t];
-    tri[(tri[1] == from) | ((tri[2] == from) << 1)] = to;  // no branch on which corner
+    tri[CornerOf(tri, from)] = to;
     LinkTriangle(to, t);
   }
   vtx_[from].adj.count = 0;

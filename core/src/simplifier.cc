@@ -439,12 +439,7 @@ size_t Simplifier::WaitingBytes() const {
 
 namespace {
 
-// Which corner of `tri` is v (a corner of it), without branches: which one it is does not
-// follow a pattern the predictor could learn.
-int CornerOf(const std::array<VertexId, 3>& tri, VertexId v) {
-  return static_cast<int>(tri[1] == v) | (static_cast<int>(tri[2] == v) << 1);
-}
-constexpr int kNextCorner[3] = {1, 2, 0};
+constexpr int kNextCorner[3] = {1, 2, 0};  // indexed by CornerOf (mesh_store.h)
 constexpr int kPrevCorner[3] = {2, 0, 1};
 
 // Occurrences of x in a fan array of Simplifier::kFanMax * 2 entries (unused ones kInvalid).

@@ -28,6 +28,12 @@ enum BoxFace : uint8_t {
   kSeam = 64,
 };
 
+// Which corner (0, 1, 2) of triangle `tri` is v, v being one of them. Without branches: which
+// corner it is follows no pattern a branch predictor could learn.
+inline int CornerOf(const std::array<VertexId, 3>& tri, VertexId v) {
+  return static_cast<int>(tri[1] == v) | (static_cast<int>(tri[2] == v) << 1);
+}
+
 class MeshStore {
  public:
   // Adds a vertex at physical position `pos`. `height` is its z in slice units (index
