@@ -59,7 +59,7 @@ Sym3 FreeMatrix(const Quadric& q, uint8_t fixed_axes) {
 }
 
 // x = M⁻¹ g through the adjugate; false when det is not positive (callers only use it for
-// matrices whose eigenvalues they know to be >= 1e-3 of the largest).
+// matrices whose eigenvalues they know to be >= kIllConditioned of the largest).
 bool SolveAdjugate(const Sym3& m, const double g[3], double x[3]) {
   const double c00 = m.a11 * m.a22 - m.a12 * m.a12;
   const double c01 = m.a02 * m.a12 - m.a01 * m.a22;
@@ -98,6 +98,46 @@ bool EigenVector(const Sym3& m, double lambda, double scale, Vec3* v) {
   return true;
 }
 
+// The step along the two eigen-directions orthogonal to the unit eigenvector v1 whose
+// eigenvalues exceed tau: m restricted to the plane orthogonal to v1 (a 2x2 problem in a basis
+// p, q of that plane). Every eigenvalue found this way is within a few ε λ1 of the truth
+// (Weyl), where the invariants (λ2 λ3 = c1 - λ1 (λ2 + λ3)) cancel to an absolute error of
+// about ε λ1², so λ3 = that / λ2 was noise whenever λ2 was small: a (near-)planar quadric
+// could pass for full rank and be "solved" hundreds of units away (1 in 1000 rounded
+// coplanar quadrics did, before 2026-11).
+Vec3 MinorStep(const Sym3& m, Vec3 v1, Vec3 gv, double tau) {
+  const double ax = std::abs(v1.x), ay = std::abs(v1.y), az = std::abs(v1.z);
+  const Vec3 least = (ax <= ay && ax <= az) ? Vec3{1, 0, 0}
+                     : (ay <= az)           ? Vec3{0, 1, 0}
+                                            : Vec3{0, 0, 1};
+  Vec3 pv = Cross(v1, least);
+  pv = pv * (1.0 / Norm(pv));
+  const Vec3 qv = Cross(v1, pv);
+  auto apply = [&m](Vec3 x) {
+    return Vec3{m.a00 * x.x + m.a01 * x.y + m.a02 * x.z, m.a01 * x.x + m.a11 * x.y + m.a12 * x.z,
+                m.a02 * x.x + m.a12 * x.y + m.a22 * x.z};
+  };
+  const Vec3 mp = apply(pv), mq = apply(qv);
+  const double b00 = Dot(pv, mp), b01 = Dot(pv, mq), b11 = Dot(qv, mq);
+  const double mean = 0.5 * (b00 + b11), half = 0.5 * (b00 - b11);
+  const double r = std::sqrt(half * half + b01 * b01);
+  const double l2 = mean + r, l3 = mean - r;
+  // Unit eigenvector of the 2x2 for l2: the longer of (b01, l2 - b00) and (l2 - b11, b01);
+  // when both vanish (b01 = 0 and equal diagonal: any direction), take p.
+  double e0 = b01, e1 = l2 - b00;
+  if (std::abs(l2 - b11) + std::abs(b01) > std::abs(e0) + std::abs(e1)) {
+    e0 = l2 - b11;
+    e1 = b01;
+  }
+  const double en = std::sqrt(e0 * e0 + e1 * e1);
+  const Vec3 v2 = en > 0.0 ? (pv * e0 + qv * e1) * (1.0 / en) : pv;
+  const Vec3 v3 = Cross(v1, v2);
+  Vec3 step{0, 0, 0};
+  if (l2 > tau) step = step + v2 * (Dot(v2, gv) / l2);
+  if (l3 > tau) step = step + v3 * (Dot(v3, gv) / l3);
+  return step;
+}
+
 }  // namespace
 
 Vec3 MinimizeQuadricReference(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
@@ -114,11 +154,12 @@ Vec3 MinimizeQuadricReference(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
     }
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-  es.computeDirect(a);
+  es.compute(a);  // iterative (QR): eigenvalues within a few ε λmax; computeDirect's
+                  // closed form was off by ~1e-9 λmax, too close to kIllConditioned
   const Eigen::Vector3d& lambda = es.eigenvalues();  // ascending
   const double lmax = std::max({std::abs(lambda(0)), std::abs(lambda(1)), std::abs(lambda(2))});
   if (!(lmax > 0.0)) return ref;
-  const double tau = 1e-3 * lmax;
+  const double tau = kIllConditioned * lmax;
   Eigen::Vector3d delta = Eigen::Vector3d::Zero();
   for (int k = 0; k < 3; ++k) {
     if (lambda(k) > tau) {
@@ -145,16 +186,17 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   }
   // Characteristic polynomial p(x) = x³ - c2 x² + c1 x - c0 (invariants of m).
   const double c2 = m.a00 + m.a11 + m.a22;
-  const double c1 = m.a00 * m.a11 - m.a01 * m.a01 + m.a00 * m.a22 - m.a02 * m.a02 +
-                    m.a11 * m.a22 - m.a12 * m.a12;
+  const double c1 =
+      m.a00 * m.a11 - m.a01 * m.a01 + m.a00 * m.a22 - m.a02 * m.a02 + m.a11 * m.a22 - m.a12 * m.a12;
   const double c0 = m.a00 * (m.a11 * m.a22 - m.a12 * m.a12) +
                     m.a01 * (m.a02 * m.a12 - m.a01 * m.a22) +
                     m.a02 * (m.a01 * m.a12 - m.a02 * m.a11);
   if (!(c2 > 0.0)) return MinimizeQuadricReference(q, ref, fixed_axes);  // not PSD / zero
   double delta[3] = {0.0, 0.0, 0.0};
   // Fast path: λmin >= det / λmax² >= det / trace², and the truncation threshold is
-  // 1e-3 λmax <= 1e-3 trace; so det >= 1e-3 trace³ proves no eigenvalue is dropped.
-  if (c0 >= 1e-3 * c2 * c2 * c2) {
+  // τ λmax <= τ trace (τ = kIllConditioned); so det >= τ trace³ proves no eigenvalue is
+  // dropped.
+  if (c0 >= kIllConditioned * c2 * c2 * c2) {
     if (!SolveAdjugate(m, g, delta)) return MinimizeQuadricReference(q, ref, fixed_axes);
   } else {
     // λmax by Newton from above: c2 - c1/c2 >= λ1 for a positive semi-definite matrix
@@ -177,34 +219,18 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
       }
     }
     if (!converged || !(l1 > 0.0)) return MinimizeQuadricReference(q, ref, fixed_axes);
-    // The other two: λ2 + λ3 = c2 - λ1, λ2 λ3 = c1 - λ1 (λ2 + λ3).
-    const double s = c2 - l1, prod = c1 - l1 * s;
-    const double root = std::sqrt(std::max(0.0, s * s - 4.0 * prod));
-    const double l2 = 0.5 * (s + root);
-    const double l3 = l2 > 0.0 ? prod / l2 : 0.5 * (s - root);
-    const double tau = 1e-3 * l1;
-    if (l3 > tau) {
-      if (!SolveAdjugate(m, g, delta)) return MinimizeQuadricReference(q, ref, fixed_axes);
-    } else if (l2 > tau) {
-      // Rank 2: drop the eigen-direction v3 of λ3. B = m + (λ1 - λ3) v3 v3ᵀ has the same
-      // eigenpairs except (λ1, v3), so B⁻¹ of g without its v3 part is the truncated step.
-      Vec3 v3;
-      if (!EigenVector(m, l3, c2, &v3)) return MinimizeQuadricReference(q, ref, fixed_axes);
-      const double k = l1 - l3;
-      const Sym3 b{m.a00 + k * v3.x * v3.x, m.a01 + k * v3.x * v3.y, m.a02 + k * v3.x * v3.z,
-                   m.a11 + k * v3.y * v3.y, m.a12 + k * v3.y * v3.z, m.a22 + k * v3.z * v3.z};
-      const double gv = g[0] * v3.x + g[1] * v3.y + g[2] * v3.z;
-      const double gp[3] = {g[0] - gv * v3.x, g[1] - gv * v3.y, g[2] - gv * v3.z};
-      if (!SolveAdjugate(b, gp, delta)) return MinimizeQuadricReference(q, ref, fixed_axes);
-    } else {
-      // Rank 1: move along the top eigen-direction only.
-      Vec3 v1;
-      if (!EigenVector(m, l1, c2, &v1)) return MinimizeQuadricReference(q, ref, fixed_axes);
-      const double t = (g[0] * v1.x + g[1] * v1.y + g[2] * v1.z) / l1;
-      delta[0] = t * v1.x;
-      delta[1] = t * v1.y;
-      delta[2] = t * v1.z;
-    }
+    // The other eigenpairs: MinorStep (not from the invariants, see there).
+    Vec3 v1;
+    if (!EigenVector(m, l1, c2, &v1)) return MinimizeQuadricReference(q, ref, fixed_axes);
+    const double tau = kIllConditioned * l1;
+    const Vec3 gv{g[0], g[1], g[2]};
+    Vec3 step = v1 * (Dot(v1, gv) / l1);
+    // λ2 + λ3 = trace - λ1 is exact to a few ε λ1: when it is below τ, the quadric is rank 1
+    // (flat faces: the common case on CT parts and the Pillow Box) and v1 is the whole step.
+    if (c2 - l1 > tau) step = step + MinorStep(m, v1, gv, tau);
+    delta[0] = step.x;
+    delta[1] = step.y;
+    delta[2] = step.z;
   }
   for (int i = 0; i < 3; ++i) {
     if ((fixed_axes >> i) & 1) delta[i] = 0.0;  // exact, whatever the rounding above
