@@ -155,7 +155,7 @@ Vec3 MinimizeQuadricReference(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
   es.compute(a);  // iterative (QR): eigenvalues within a few ε λmax; computeDirect's
-                  // closed form was off by ~1e-9 λmax, too close to kIllConditioned
+                  // closed form was off by ~3e-9 λmax, too close to kIllConditioned
   const Eigen::Vector3d& lambda = es.eigenvalues();  // ascending
   const double lmax = std::max({std::abs(lambda(0)), std::abs(lambda(1)), std::abs(lambda(2))});
   if (!(lmax > 0.0)) return ref;
