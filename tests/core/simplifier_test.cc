@@ -124,12 +124,14 @@ TEST(Quadric, CheapRankCasesAgreeWithTheEigenDecomposition) {
       if (n > 0.1 && n <= 1.0) return v * (1.0 / n);
     }
   };
-  int counted[4] = {0, 0, 0, 0};
-  for (int trial = 0; trial < 4000; ++trial) {
-    const int rank = trial % 4;  // 0: rank 1, 1: rank 2, 2: rank 3, 3: axis frame + fixed axes
+  int counted[5] = {0, 0, 0, 0, 0};
+  for (int trial = 0; trial < 5000; ++trial) {
+    // 0: rank 1, 1: rank 2, 2: rank 3, 3: axis frame + fixed axes, 4: a curved patch (full
+    // rank, two eigenvalues 1e-7..1e-3 of the largest: the determinant test's fast path)
+    const int rank = trial % 5;
     Vec3 e1, e2, e3;
     uint8_t fixed = 0;
-    if (rank < 3) {
+    if (rank != 3) {
       e1 = unit();
       e2 = Cross(e1, unit());
       e2 = e2 * (1.0 / Norm(e2));
@@ -150,6 +152,10 @@ TEST(Quadric, CheapRankCasesAgreeWithTheEigenDecomposition) {
       case 0: w2 = small(); w3 = small(); break;
       case 1: w2 = large(); w3 = small(); break;
       case 2: w2 = large(); w3 = large(); break;
+      case 4:
+        w2 = scale * std::pow(10.0, -5.0 + 2.0 * u(rng));
+        w3 = scale * std::pow(10.0, -5.0 + 2.0 * u(rng));
+        break;
       default: w2 = (rng() & 1) ? large() : small(); w3 = (rng() & 1) ? large() : small();
     }
     Quadric h = WeightedPlane(e1, 30.0 * u(rng), w1);
@@ -168,7 +174,7 @@ TEST(Quadric, CheapRankCasesAgreeWithTheEigenDecomposition) {
     }
     ++counted[rank];
   }
-  EXPECT_EQ(counted[0] + counted[1] + counted[2] + counted[3], 4000);
+  for (const int n : counted) EXPECT_EQ(n, 1000);
 }
 
 TEST(Quadric, CurvedPatchesAreSolvedNotTruncated) {
