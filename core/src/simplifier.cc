@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <cstring>
 #include <future>
 #include <system_error>
 
@@ -442,25 +443,33 @@ namespace {
 constexpr int kNextCorner[3] = {1, 2, 0};  // indexed by CornerOf (mesh_store.h)
 constexpr int kPrevCorner[3] = {2, 0, 1};
 
-// Occurrences of x in a fan array of Simplifier::kFanMax * 2 entries (unused ones kInvalid).
-// A fixed length: the compiler unrolls and vectorises it, and no loop exit is mispredicted.
+// Occurrences of x in a fan array of Simplifier::kFanMax entries (unused ones kInvalid).
+// A fixed length and no loop exit: no branch to mispredict. Written with vector extensions
+// (GCC, Clang: four lanes at a time, on any target): at 16 entries GCC unrolled the plain
+// loop into scalar compares, twice the instructions of the vector loop.
 template <size_t N>
 int CountOf(const VertexId (&v)[N], VertexId x) {
-  int c = 0;
-  for (size_t i = 0; i < N; ++i) c += v[i] == x;
-  return c;
+  static_assert(N % 4 == 0);
+  using V4 = uint32_t __attribute__((vector_size(16)));
+  const V4 xs = {x, x, x, x};
+  V4 acc = {0, 0, 0, 0};
+  for (size_t i = 0; i < N; i += 4) {
+    V4 chunk;
+    std::memcpy(&chunk, v + i, sizeof(chunk));
+    acc -= reinterpret_cast<V4>(chunk == xs);  // a match is all ones: -1
+  }
+  return static_cast<int>(acc[0] + acc[1] + acc[2] + acc[3]);
 }
 
 }  // namespace
 
 bool Simplifier::LinkConditionFans(VertexId a, VertexId b) {
-  // The fans of a and b as flat arrays, two corners per triangle (the ones other than the
-  // centre, in the triangle's order); the caller checked they fit. Written without early
-  // exits where the outcome varies from call to call: the link condition was the largest
-  // source of mispredicted branches in the simplifier.
-  VertexId na[2 * kFanMax], nb[2 * kFanMax];
-  std::fill(std::begin(na), std::end(na), kInvalid);
-  std::fill(std::begin(nb), std::end(nb), kInvalid);
+  // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
+  // its corner before v (y), in the triangle's order; the caller checked they fit. Written
+  // without early exits where the outcome varies from call to call: the link condition was
+  // the largest source of mispredicted branches in the simplifier.
+  VertexId xa[kFanMax], ya[kFanMax], xb[kFanMax], yb[kFanMax];
+  for (VertexId* v : {xa, ya, xb, yb}) std::fill(v, v + kFanMax, kInvalid);
   int n_a = 0, n_b = 0;
   VertexId apex[4];
   int napex = 0;
@@ -468,8 +477,8 @@ bool Simplifier::LinkConditionFans(VertexId a, VertexId b) {
     const auto& tri = store_->triangle(t);
     const int i = CornerOf(tri, a);
     const VertexId x = tri[kNextCorner[i]], y = tri[kPrevCorner[i]];
-    na[n_a++] = x;
-    na[n_a++] = y;
+    xa[n_a] = x;
+    ya[n_a++] = y;
     // The triangle's third corner is an apex if the triangle holds b (kept only then).
     apex[std::min(napex, 3)] = (x == b) ? y : x;
     napex += (x == b) | (y == b);
@@ -483,38 +492,59 @@ bool Simplifier::LinkConditionFans(VertexId a, VertexId b) {
   for (TriId t : store_->vertex_triangles(b)) {
     const auto& tri = store_->triangle(t);
     const int i = CornerOf(tri, b);
-    nb[n_b++] = tri[kNextCorner[i]];
-    nb[n_b++] = tri[kPrevCorner[i]];
+    xb[n_b] = tri[kNextCorner[i]];
+    yb[n_b++] = tri[kPrevCorner[i]];
   }
-  // (1) a common neighbour that is not an apex.
+  // Whether the x and y corners of a fan are different sets of vertices. They are whenever
+  // the vertex is on the boundary (an edge (v, w) in one triangle puts w in one set only),
+  // and on a consistently oriented manifold only then (an interior edge is one triangle's x
+  // and the other's y). Otherwise every neighbour is an x corner. Half the comparisons of
+  // counting each neighbour among all 2n corners.
+  auto sets_differ = [](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+    bool any = false;
+    for (int i = 0; i < n; ++i) any |= (CountOf(y, x[i]) == 0) | (CountOf(x, y[i]) == 0);
+    return any;
+  };
+  auto in_fan_a = [&](VertexId v) { return CountOf(xa, v) + CountOf(ya, v); };
+  // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
+  // y corners too where the two differ.
+  const bool b_open = sets_differ(xb, yb, n_b);
   bool stray = false;
   for (int i = 0; i < n_b; ++i) {
-    const VertexId x = nb[i];
-    stray |= (x != a) & (x != apex[0]) & (x != apex[1]) & (CountOf(na, x) != 0);
+    const VertexId x = xb[i];
+    stray |= (x != a) & (x != apex[0]) & (x != apex[1]) & (in_fan_a(x) != 0);
+  }
+  if (b_open) {
+    for (int i = 0; i < n_b; ++i) {
+      const VertexId y = yb[i];
+      stray |= (y != a) & (y != apex[0]) & (y != apex[1]) & (in_fan_a(y) != 0);
+    }
   }
   if (stray) return false;
   if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
     const VertexId c = apex[0];
-    return !(CountOf(na, c) == 1 && CountOf(nb, c) == 1);
+    return !(in_fan_a(c) == 1 && CountOf(xb, c) + CountOf(yb, c) == 1);
   }
   // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
   // of its edges lies in a single triangle.
-  auto on_boundary = [](const VertexId(&v)[2 * kFanMax], int n) {
+  auto on_boundary = [](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
     bool any = false;
-    for (int i = 0; i < n; ++i) any |= CountOf(v, v[i]) == 1;
-    return any;
-  };
-  if (on_boundary(na, n_a) && on_boundary(nb, n_b)) return false;
-  // (3) interior: triangles a-c-d and b-c-d both present?
-  const VertexId c = apex[0], d = apex[1];
-  auto has_cd = [c, d](const VertexId(&v)[2 * kFanMax], int n) {
-    bool any = false;
-    for (int i = 0; i < n; i += 2) {
-      any |= ((v[i] == c) & (v[i + 1] == d)) | ((v[i] == d) & (v[i + 1] == c));
+    for (int i = 0; i < n; ++i) {
+      any |=
+          (CountOf(x, x[i]) + CountOf(y, x[i]) == 1) | (CountOf(x, y[i]) + CountOf(y, y[i]) == 1);
     }
     return any;
   };
-  return !(has_cd(na, n_a) && has_cd(nb, n_b));
+  // Sets that do not differ mean no boundary; the exact count only where they do (rare).
+  if (b_open && on_boundary(xb, yb, n_b) && on_boundary(xa, ya, n_a)) return false;
+  // (3) interior: triangles a-c-d and b-c-d both present?
+  const VertexId c = apex[0], d = apex[1];
+  auto has_cd = [c, d](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+    bool any = false;
+    for (int i = 0; i < n; ++i) any |= ((x[i] == c) & (y[i] == d)) | ((x[i] == d) & (y[i] == c));
+    return any;
+  };
+  return !(has_cd(xa, ya, n_a) && has_cd(xb, yb, n_b));
 }
 
 bool Simplifier::LinkCondition(VertexId a, VertexId b) {

@@ -176,7 +176,7 @@ class Simplifier {
   }
   // LAMBDA(ab). Two implementations of one test, checked against each other and against
   // the definition in simplifier_test.cc: small fans (at most kFanMax triangles at a and at
-  // b, nearly every call) gather the neighbours into two stack arrays; larger ones tally
+  // b, nearly every call) gather the neighbours into stack arrays; larger ones tally
   // them in per-vertex marks (mark_), which cost a cache miss per neighbour.
   bool LinkCondition(VertexId a, VertexId b);
   static constexpr size_t kFanMax = 16;
