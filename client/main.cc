@@ -129,6 +129,7 @@ int StreamCommand(int argc, char** argv) {
   std::string schedule_name = "tandem-lag";
   double iso = 0, error = 0, alpha = 0, rate = 0, timeout_s = 0;
   double distance_guard = tandem::SessionOptions{}.distance_guard;
+  double sag_correction = tandem::SessionOptions{}.sag_correction;
   int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
   int64_t preview_every = 0, preview_ms = 0;
   bool reference = false, verbose = false;
@@ -149,6 +150,10 @@ int StreamCommand(int argc, char** argv) {
   flags.AddDouble("distance-guard", &distance_guard,
                   "refuse contractions that move a vertex farther than this many E0 from "
                   "the plane of a triangle it reshapes (0 = off: the paper's rules only)");
+  flags.AddDouble("sag-correction", &sag_correction,
+                  "in [0, 1]: at the end, move each vertex along its normal by this times the "
+                  "mean chordal sag of its triangles (never past E0; 0 = off: the paper's "
+                  "placement)");
   flags.AddString("schedule", &schedule_name, "S", "none, classical, tandem or tandem-lag");
   flags.AddInt("target-triangles", &target, "> 0: simplify further down to this many triangles");
   flags.AddDouble("rate", &rate, "send at most this many slices per second (0 = no pacing)");
@@ -221,6 +226,7 @@ int StreamCommand(int argc, char** argv) {
   c.set_error(error);
   c.set_alpha(alpha);
   c.set_distance_guard(distance_guard);
+  c.set_sag_correction(sag_correction);
   c.set_schedule(tandem::wire::ScheduleToProto(*schedule));
   c.set_target_triangles(target);
   c.mutable_preview()->set_every_slices(static_cast<uint32_t>(preview_every));

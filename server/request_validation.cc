@@ -83,6 +83,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   o.alpha = c.alpha();
   o.target_triangles = c.target_triangles();
   if (c.has_distance_guard()) o.distance_guard = c.distance_guard();
+  if (c.has_sag_correction()) o.sag_correction = c.sag_correction();
   if (!std::isfinite(o.iso)) {
     return absl::InvalidArgumentError("config.iso is not a finite number");
   }
@@ -99,6 +100,10 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     return absl::InvalidArgumentError(absl::StrCat(
         "config.distance_guard = ", o.distance_guard,
         ": must be a finite number >= 0 (a multiple of E0; 0 = off; unset = 2)"));
+  }
+  if (!(o.sag_correction >= 0 && o.sag_correction <= 1)) {
+    return absl::InvalidArgumentError(absl::StrCat("config.sag_correction = ", o.sag_correction,
+                                                   ": must lie in [0, 1] (0 = off; unset = 0.3)"));
   }
   if (o.target_triangles < 0) {
     return absl::InvalidArgumentError(absl::StrCat(

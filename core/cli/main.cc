@@ -62,6 +62,11 @@ Options:
                             K x E0 from the plane of a triangle it reshapes: keeps thin
                             features close (lower Hausdorff distance) for a few more
                             triangles. 0 = off (the paper's rules only). Default 2
+  --sag-correction F        at the end, move each vertex along its normal by F x the
+                            mean chordal sag of its triangles (not at creases, never
+                            past E0): removes the coarse mesh's bias toward the
+                            concave side (RMS distance 3-23% lower). 0 = off (the
+                            paper's placement), at most 1. Default 0.3
   --target-triangles N      after the E0 pass, keep contracting (past E0 if need be)
                             until at most N triangles remain. Default: off
   --parts N                 split the grid along x into N slabs, simplified side by
@@ -140,10 +145,11 @@ std::string DistanceTable(const Distances& d) {
 }
 
 int Extract(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2,
-                               {"input", "out", "iso", "error", "alpha", "distance-guard",
-                                "schedule", "target-triangles", "metrics", "samples", "parts"},
-                               {"no-simplify", "reference", "quiet", "help"});
+  auto args =
+      cli::Args::Parse(argc, argv, 2,
+                       {"input", "out", "iso", "error", "alpha", "distance-guard", "sag-correction",
+                        "schedule", "target-triangles", "metrics", "samples", "parts"},
+                       {"no-simplify", "reference", "quiet", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kExtractHelp, stdout);
@@ -176,12 +182,12 @@ int Extract(int argc, char** argv) {
   auto e0 = args->GetDouble("error", 0.2 * min_spacing);
   auto alpha = args->GetDouble("alpha", 0.0);
   auto guard = args->GetDouble("distance-guard", SessionOptions{}.distance_guard);
+  auto sag = args->GetDouble("sag-correction", SessionOptions{}.sag_correction);
   auto target = args->GetInt("target-triangles", 0);
   auto samples = args->GetInt("samples", 0);
   auto parts = args->GetInt("parts", 0);
-  for (const absl::Status& st :
-       {e0.status(), alpha.status(), guard.status(), target.status(), samples.status(),
-        parts.status()}) {
+  for (const absl::Status& st : {e0.status(), alpha.status(), guard.status(), sag.status(),
+                                 target.status(), samples.status(), parts.status()}) {
     if (!st.ok()) return Fail(st);
   }
   if (*parts < 0 || *parts > SessionOptions::kMaxParts) {
@@ -192,6 +198,7 @@ int Extract(int argc, char** argv) {
   opt.error = *e0;
   opt.alpha = *alpha;
   opt.distance_guard = *guard;
+  opt.sag_correction = *sag;
   opt.target_triangles = *target;
   if (args->Has("no-simplify")) {
     opt.schedule = Schedule::kNone;

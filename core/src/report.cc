@@ -21,6 +21,8 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) 
   r.error_threshold = o.error;
   r.alpha = o.alpha;
   r.distance_guard = o.distance_guard;
+  r.sag_correction = o.sag_correction;
+  r.sag_corrected = st.sag_corrected;
   r.target_triangles = o.target_triangles;
   r.nx = session.grid().nx;
   r.ny = session.grid().ny;
@@ -51,6 +53,8 @@ std::string ReportToJson(const MetricsReport& r) {
   j["error_threshold"] = r.error_threshold;
   j["alpha"] = r.alpha;
   j["distance_guard"] = r.distance_guard;
+  j["sag_correction"] = r.sag_correction;
+  j["sag_corrected"] = r.sag_corrected;
   j["target_triangles"] = r.target_triangles;
   j["grid"] = {r.nx, r.ny, r.nz};
   j["slices"] = r.slices;
@@ -100,6 +104,8 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
     r.error_threshold = j.value("error_threshold", 0.0);
     r.alpha = j.value("alpha", 0.0);
     r.distance_guard = j.value("distance_guard", 0.0);
+    r.sag_correction = j.value("sag_correction", 0.0);
+    r.sag_corrected = j.value("sag_corrected", int64_t{0});
     r.target_triangles = j.value("target_triangles", int64_t{0});
     if (j.contains("grid") && j["grid"].size() == 3) {
       r.nx = j["grid"][0];
@@ -172,6 +178,10 @@ std::string ReportSummary(const MetricsReport& r) {
                                     r.refusals.flip, ", degenerate ", r.refusals.degenerate,
                                     ", box ", r.refusals.box, ", error ", r.refusals.error,
                                     ", distance ", r.refusals.distance, ")"));
+  if (r.sag_correction > 0) {
+    line("sag correction",
+         absl::StrFormat("%g: %d vertices moved", r.sag_correction, r.sag_corrected));
+  }
   if (r.distance) {
     const Distances& d = *r.distance;
     line("distance L1/L2/Linf", absl::StrFormat("%.4g / %.4g / %.4g", d.l1_max, d.l2_max, d.linf_max));

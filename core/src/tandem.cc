@@ -65,6 +65,10 @@ absl::Status SessionOptions::Validate() const {
         "distance guard must be a finite number >= 0 (a multiple of E0; 0 = off), got ",
         distance_guard));
   }
+  if (!(sag_correction >= 0 && sag_correction <= 1)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("sag correction must lie in [0, 1] (0 = off), got ", sag_correction));
+  }
   if (target_triangles < 0) {
     return absl::InvalidArgumentError("target triangle count must be >= 0");
   }
@@ -521,6 +525,11 @@ absl::Status TandemSession::Finish() {
     const auto t0 = Clock::now();
     whole.simplifier.RequeueAll();
     whole.simplifier.Simplify(options_.target_triangles);
+    whole.time.simplify_s += Seconds(t0, Clock::now());
+  }
+  if (options_.schedule != Schedule::kNone && options_.sag_correction > 0.0) {
+    const auto t0 = Clock::now();
+    stats_.sag_corrected = whole.simplifier.CorrectSag(options_.sag_correction);
     whole.time.simplify_s += Seconds(t0, Clock::now());
   }
   Record();

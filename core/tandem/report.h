@@ -20,6 +20,8 @@ struct MetricsReport {
   std::string schedule;  // "none", "classical", "tandem", "tandem-lag"
   double iso = 0, error_threshold = 0, alpha = 0;
   double distance_guard = 0;  // K of SessionOptions::distance_guard (0 = off)
+  double sag_correction = 0;  // F of SessionOptions::sag_correction (0 = off)
+  int64_t sag_corrected = 0;  // vertices it moved
   int64_t target_triangles = 0;
   int64_t nx = 0, ny = 0, nz = 0;
   int64_t slices = 0, crossed_cubes = 0;

@@ -94,6 +94,11 @@ class Simplifier {
   void PushEdgesAround(std::span<const VertexId> verts);
 
   double MaxShapeError() const;
+  // Sag correction (not in the paper; SessionOptions::sag_correction): moves every vertex
+  // not on the grid's box along its normal by `fraction` times the mean sag of its
+  // triangles, as far as ε0 <= max(E0, ε0 now) and the triangles' orientations allow.
+  // Returns the number of vertices moved. Run it once, on the final mesh.
+  int64_t CorrectSag(double fraction);
   const RefusalCounts& refusals() const { return refusals_; }
   int64_t contractions() const { return contractions_; }
   // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the

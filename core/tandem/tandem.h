@@ -64,6 +64,12 @@ struct SessionOptions {
   // CT's by a third at the same triangle count; a given E0 keeps 3-12% more triangles.
   // Not applied past E0, toward target_triangles.
   double distance_guard = 2;
+  // Sag correction F (not in the paper; 0 turns it off): after the last SIMPLIFY, every
+  // vertex not on the grid's box moves along its normal by F times the mean chordal sag of
+  // its triangles (Simplifier::CorrectSag), never so far that its ε0 exceeds E0 or a
+  // triangle turns over. The quadric minimiser leaves a coarse mesh biased toward the
+  // concave side of the surface; F = 0.3 removes most of that bias.
+  double sag_correction = 0.3;
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
   bool pipeline = true;         // use more threads (identical results either way): the
@@ -92,6 +98,7 @@ struct SessionStats {
   PhaseTimes time;
   RefusalCounts refusals;
   int64_t contractions = 0;
+  int64_t sag_corrected = 0;        // vertices moved by the sag correction (Finish)
   double max_reach_over_front = 0;  // <= 0: no contraction's reach exceeded the front
   double max_layer_over_front = 0;  // <= -1: no contraction touched the newest layer
 };

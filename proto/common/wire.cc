@@ -75,6 +75,8 @@ void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
   out->set_error_threshold(r.error_threshold);
   out->set_alpha(r.alpha);
   out->set_distance_guard(r.distance_guard);
+  out->set_sag_correction(r.sag_correction);
+  out->set_sag_corrected(r.sag_corrected);
   out->set_target_triangles(r.target_triangles);
   out->set_nx(r.nx);
   out->set_ny(r.ny);
@@ -122,6 +124,8 @@ MetricsReport ReportFromProto(const v1::FinalMetrics& m) {
   r.error_threshold = m.error_threshold();
   r.alpha = m.alpha();
   r.distance_guard = m.distance_guard();
+  r.sag_correction = m.sag_correction();
+  r.sag_corrected = m.sag_corrected();
   r.target_triangles = m.target_triangles();
   r.nx = m.nx();
   r.ny = m.ny();

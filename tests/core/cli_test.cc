@@ -146,8 +146,10 @@ TEST_F(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
            {"--error -1", "E0"},
            {"--schedule fast", "fast"},
            {"--distance-guard -2", "distance guard"},
+           {"--sag-correction 1.5", "sag correction"},
            {"--parts 99", "--parts 99"},
-           {"--bogus 1", "--bogus"}}) {
+           {"--bogus 1", "--bogus"},
+       }) {
     o = RunTandem("extract --input " + Path("s.json") + " " + flags + " --out " + Path("x.ply"));
     EXPECT_NE(o.code, 0) << flags;
     EXPECT_NE(o.text.find(names), std::string::npos) << flags << ": " << o.text;

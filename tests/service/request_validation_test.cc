@@ -49,6 +49,7 @@ TEST(ValidateConfig, AcceptsAGoodConfigAndAppliesDefaults) {
   EXPECT_EQ(cfg->options.schedule, Schedule::kTandemLag);
   EXPECT_EQ(cfg->options.alpha, 0.25);
   EXPECT_EQ(cfg->options.distance_guard, 2.0);  // unset: the core default
+  EXPECT_EQ(cfg->options.sag_correction, 0.3);
   EXPECT_EQ(cfg->draco.quantization_bits, 16);
   EXPECT_EQ(cfg->draco.compression_level, 7);
   EXPECT_EQ(cfg->preview_every_slices, 0);
@@ -106,6 +107,10 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        "config.distance_guard"},
       {[](auto* c) { c->set_distance_guard(std::numeric_limits<double>::quiet_NaN()); },
        absl::StatusCode::kInvalidArgument, "config.distance_guard"},
+      {[](auto* c) { c->set_sag_correction(-0.5); }, absl::StatusCode::kInvalidArgument,
+       "config.sag_correction"},
+      {[](auto* c) { c->set_sag_correction(std::numeric_limits<double>::quiet_NaN()); },
+       absl::StatusCode::kInvalidArgument, "config.sag_correction"},
       {[](auto* c) { c->set_target_triangles(-3); }, absl::StatusCode::kInvalidArgument,
        "config.target_triangles"},
       {[](auto* c) { c->set_schedule(static_cast<v1::Schedule>(9)); },
@@ -343,11 +348,13 @@ TEST(Wire, MetricsReportRoundTrip) {
   options.error = 0.5;
   options.alpha = 0.2;
   options.distance_guard = 1.5;
+  options.sag_correction = 0.25;
   options.target_triangles = 100;
   auto session = RunSession(*source, options);
   ASSERT_TRUE(session.ok());
   const IndexedMesh mesh = (*session)->Snapshot();
   MetricsReport report = MakeReport(**session, mesh);
+  report.sag_corrected = 37;  // here 0: past E0, toward the target, no vertex may move
   report.distance = MeasureDistances(mesh, mesh, DistanceOptions{1000, 1, 1});
   report.peak_rss_bytes = 12345;
   report.bytes_received = 678;

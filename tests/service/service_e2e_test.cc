@@ -149,6 +149,7 @@ TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
   EXPECT_DOUBLE_EQ(got->error_max, want.error_max);
   EXPECT_EQ(got->trace, want.trace);
   EXPECT_EQ(got->contractions, want.contractions);
+  EXPECT_EQ(got->sag_corrected, want.sag_corrected);  // the final mesh is corrected as locally
   EXPECT_EQ(got->refusals.link, want.refusals.link);
   EXPECT_EQ(got->refusals.flip, want.refusals.flip);
   EXPECT_DOUBLE_EQ(got->anisotropy, want.anisotropy);
