@@ -251,4 +251,22 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   return {ref.x + delta[0], ref.y + delta[1], ref.z + delta[2]};
 }
 
+double StepWithinError(const Quadric& q, Vec3 x, Vec3 d, double t, double limit) {
+  const double f0 = q.Evaluate(x);
+  const double bound = std::max(q.w * limit * limit, f0);
+  if (q.Evaluate(x + d * t) > bound) {
+    const Vec3 ad{q.a00 * d.x + q.a01 * d.y + q.a02 * d.z, q.a01 * d.x + q.a11 * d.y + q.a12 * d.z,
+                  q.a02 * d.x + q.a12 * d.y + q.a22 * d.z};
+    const double g = Dot(ad, x) + q.b0 * d.x + q.b1 * d.y + q.b2 * d.z;  // ½ d/ds at s = 0
+    const double k = Dot(ad, d);
+    // The positive root of k s² + 2 g s = bound - f0, in the form that stays exact as k -> 0.
+    const double den = g + std::sqrt(std::max(0.0, g * g + k * (bound - f0)));
+    t = den > 0.0 ? std::min(t, (bound - f0) / den * (1.0 - 1e-9)) : 0.0;
+  }
+  for (int tries = 0; t > 0.0 && ShapeError(q, x + d * t) > limit; ++tries) {
+    t = tries < 40 ? 0.9 * t : 0.0;
+  }
+  return t;
+}
+
 }  // namespace tandem

@@ -898,8 +898,7 @@ int64_t Simplifier::CorrectSag(double fraction) {
       area[v] += w;
     }
   }
-  // The step, limited so that ε0 <= max(E0, ε0 now): along n, x̄ᵀHx̄ = f0 + 2tg + t²k.
-  const double e2 = opt_.error * opt_.error;
+  // The step, limited so that ε0 <= max(E0, ε0 now).
   std::vector<uint8_t> moving(nv, 0);
   for (VertexId v = 0; v < nv; ++v) {
     moved[v] = store_->vertex_alive(v) ? store_->position(v) : Vec3{};
@@ -911,23 +910,8 @@ int64_t Simplifier::CorrectSag(double fraction) {
     double step = fraction * sag[v] / area[v];
     const Vec3 d = step < 0.0 ? n * -1.0 : n;  // t >= 0 along d
     const Vec3 x = moved[v];
-    const double f0 = q.Evaluate(x);
-    double t = std::abs(step);
-    const double bound = std::max(q.w * e2, f0);
-    if (q.Evaluate(x + d * t) > bound) {
-      const Vec3 ad{q.a00 * d.x + q.a01 * d.y + q.a02 * d.z,
-                    q.a01 * d.x + q.a11 * d.y + q.a12 * d.z,
-                    q.a02 * d.x + q.a12 * d.y + q.a22 * d.z};
-      const double g = Dot(ad, x) + q.b0 * d.x + q.b1 * d.y + q.b2 * d.z;  // ½ d/dt
-      const double k = Dot(ad, d);
-      const double den = g + std::sqrt(std::max(0.0, g * g + k * (bound - f0)));
-      t = den > 0.0 ? std::min(t, (bound - f0) / den * (1.0 - 1e-9)) : 0.0;
-    }
-    // Checked as MaxShapeError will measure it (the closed form rounds either way).
-    const double limit = std::max(opt_.error, ShapeError(q, x));
-    for (int halvings = 0; t > 0.0 && ShapeError(q, x + d * t) > limit; ++halvings) {
-      t = halvings < 8 ? 0.5 * t : 0.0;
-    }
+    const double t =
+        StepWithinError(q, x, d, std::abs(step), std::max(opt_.error, ShapeError(q, x)));
     if (!(t > 0.0)) continue;
     moved[v] = x + d * t;
     moving[v] = 1;

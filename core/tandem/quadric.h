@@ -52,6 +52,13 @@ inline double ShapeError(const Quadric& h, Vec3 x) {
   return std::sqrt(std::max(0.0, h.Evaluate(x) / h.w));
 }
 
+// The largest s in [0, t] with ShapeError(q, x + s·d) <= limit, for a q with planes (w > 0)
+// and an x that meets the limit: along the line, x̄ᵀHx̄ = f0 + 2sg + s²k, solved in closed
+// form, then checked as ShapeError computes it (x̄ᵀHx̄ is a difference of terms of order
+// |x|², so at 512³ the check can disagree in the 8th digit: s shrinks by a tenth until it
+// agrees, or becomes 0 after 40 tries).
+double StepWithinError(const Quadric& q, Vec3 x, Vec3 d, double t, double limit);
+
 // What "ill-conditioned" means for MinimizeQuadric: an eigen-direction of A whose eigenvalue
 // is below kIllConditioned times the largest. Solving along it would lose more than half of
 // double precision's 16 digits (condition number above 1e8); VTK's quadric decimation draws

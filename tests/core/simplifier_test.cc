@@ -238,6 +238,16 @@ TEST(Quadric, RoundedCoplanarQuadricsProjectOntoTheirPlane) {
   EXPECT_EQ(wrong, 0) << "worst placement error " << worst;
 }
 
+TEST(Quadric, StepWithinErrorStopsAtTheLimit) {
+  // Plane z = 0 (area 2): ε0 at height z is |z|. From z = 0.1 upward, ε0 <= 0.3 allows 0.2.
+  const Quadric h = PlaneQuadric({0, 0, 0}, {2, 0, 0}, {0, 2, 0});
+  EXPECT_NEAR(StepWithinError(h, {1, 1, 0.1}, {0, 0, 1}, 1.0, 0.3), 0.2, 1e-9);
+  EXPECT_LE(ShapeError(h, {1, 1, 0.1 + StepWithinError(h, {1, 1, 0.1}, {0, 0, 1}, 1.0, 0.3)}), 0.3);
+  EXPECT_EQ(StepWithinError(h, {1, 1, 0.1}, {0, 0, 1}, 0.15, 0.3), 0.15);  // within: all of t
+  EXPECT_NEAR(StepWithinError(h, {1, 1, 0.1}, {0, 0, -1}, 1.0, 0.3), 0.4, 1e-9);
+  EXPECT_EQ(StepWithinError(h, {1, 1, 0.1}, {1, 0, 0}, 5.0, 0.1), 5.0);  // along the plane
+}
+
 TEST(Quadric, IsotropyQuadricIsAreaTimesSquaredDistancePlusSpread) {
   const Vec3 p{0, 0, 0}, q{3, 0, 0}, r{0, 3, 0};
   Quadric g = IsotropyQuadric(p, q, r);
