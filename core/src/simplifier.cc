@@ -846,7 +846,7 @@ int64_t Simplifier::CorrectSag(double fraction) {
   // outward shift of E0/6 alone lowers it by 6%). Each vertex moves along its normal by
   // `fraction` times the area-weighted mean s of its triangles. For Voronoi-sized patches
   // the model gives 0.45; the patches of a simplified mesh are larger and lift more, and
-  // 0.3 measured best (0.25-0.4 within 1% on the synthetic inputs, the engine CT best at
+  // 0.3 measured best (0.25-0.4 within 2% on the synthetic inputs, the engine CT best at
   // 0.25-0.3; issue 6 notes). eᵀKe is taken from the mesh itself, (n_j - n_i)·(x_j - x_i)
   // with area-weighted vertex normals: nothing more is stored while simplifying.
   if (!(fraction > 0.0)) return 0;
