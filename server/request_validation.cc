@@ -109,7 +109,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     return absl::InvalidArgumentError(absl::StrCat(
         "config.target_triangles = ", o.target_triangles, ": must be >= 0 (0 = no target)"));
   }
-  if (absl::Status st = o.Validate(); !st.ok()) return Prefixed("config: ", st);
+  if (absl::Status st = o.ValidateFor(g); !st.ok()) return Prefixed("config: ", st);
 
   out.preview_every_slices = c.preview().every_slices();
   out.preview_min_interval_ms = c.preview().min_interval_ms();

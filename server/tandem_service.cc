@@ -437,7 +437,12 @@ void ExtractCall::RunWorker() {
           SyncBufferedLocked();
         }
       }
-      const absl::Status status = request ? job.Handle(*request) : job.HandleEndOfInput();
+      absl::Status status;
+      try {  // the barrier: nothing a client sends may end the process
+        status = request ? job.Handle(*request) : job.HandleEndOfInput();
+      } catch (...) {
+        status = StatusOfException(std::current_exception());
+      }
       request.reset();
       const int64_t bytes = static_cast<int64_t>(job.MemoryBytes());
       state_->session_bytes.fetch_add(bytes - accounted_bytes);

@@ -363,10 +363,16 @@ int main(int argc, char** argv) {
     return argc < 2 ? 2 : 0;
   }
   const std::string cmd = argv[1];
-  if (cmd == "extract") return tandem::Extract(argc, argv);
-  if (cmd == "generate") return tandem::Generate(argc, argv);
-  if (cmd == "measure") return tandem::Measure(argc, argv);
-  if (cmd == "info") return tandem::Info(argc, argv);
+  try {  // no input may abort the process: report and exit 1
+    if (cmd == "extract") return tandem::Extract(argc, argv);
+    if (cmd == "generate") return tandem::Generate(argc, argv);
+    if (cmd == "measure") return tandem::Measure(argc, argv);
+    if (cmd == "info") return tandem::Info(argc, argv);
+  } catch (...) {
+    const absl::Status st = tandem::StatusOfException(std::current_exception());
+    std::fprintf(stderr, "tandem %s: %s\n", cmd.c_str(), std::string(st.message()).c_str());
+    return 1;
+  }
   std::fprintf(stderr, "tandem: unknown command '%s'\n\n%s", cmd.c_str(), tandem::kUsage);
   return 2;
 }

@@ -393,14 +393,32 @@ void Simplifier::Delay(std::span<const TriId> tris) {
 
 void Simplifier::PushW(const Entry& e) {
   // Bucket = the first integer front >= key. Fronts only grow, so buckets below the
-  // current one are always empty and get recycled by advancing w_base_.
+  // current one are always empty and get recycled by advancing w_base_. A key outside a
+  // window of kWBuckets fronts (a vertex whose rad is huge in slice units, on a grid far
+  // finer across than between its slices, or an infinite key) waits in w_far_ instead, so
+  // no input can make the bucket vector large.
+  if (!(e.key < kFarKey)) {  // also NaN
+    w_far_.push_back(e);
+    ++w_size_;
+    return;
+  }
   const int64_t release = static_cast<int64_t>(std::ceil(e.key));
   if (w_.empty()) w_base_ = release;
   if (release < w_base_) {  // cannot happen for keys > front; keep it correct anyway
+    if (w_base_ - release + static_cast<int64_t>(w_.size()) > kWBuckets) {
+      w_far_.push_back(e);
+      ++w_size_;
+      return;
+    }
     w_.insert(w_.begin(), static_cast<size_t>(w_base_ - release), {});
     w_base_ = release;
   }
   const size_t b = static_cast<size_t>(release - w_base_);
+  if (b >= static_cast<size_t>(kWBuckets)) {
+    w_far_.push_back(e);
+    ++w_size_;
+    return;
+  }
   if (b >= w_.size()) w_.resize(b + 1);
   w_[b].push_back(e);
   ++w_size_;
@@ -420,6 +438,19 @@ void Simplifier::Activate(double front) {
       AddToBatch(e.a, e.b, /*released=*/true);  // evaluated now: the quadrics are complete
     }
   }
+  if (!w_far_.empty()) {
+    // Released ones go with the rest; the others stay (empty on ordinary grids).
+    size_t kept = 0;
+    for (const Entry& e : w_far_) {
+      if (!(e.key > front_)) {
+        --w_size_;
+        if (!Stale(e)) AddToBatch(e.a, e.b, /*released=*/true);
+      } else {
+        w_far_[kept++] = e;
+      }
+    }
+    w_far_.resize(kept);
+  }
   FlushBatch();
   if (b > 0) {
     w_.erase(w_.begin(), w_.begin() + static_cast<std::ptrdiff_t>(b));
@@ -436,6 +467,7 @@ size_t Simplifier::QBytes() const {
 size_t Simplifier::WaitingBytes() const {
   size_t bytes = w_.capacity() * sizeof(std::vector<Entry>);
   for (const auto& bucket : w_) bytes += bucket.capacity() * sizeof(Entry);
+  bytes += w_far_.capacity() * sizeof(Entry);
   return bytes;
 }
 

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <limits>
 #include <new>
+#include <stdexcept>
 
 #include "absl/strings/str_cat.h"
 #include "tandem/prefetch.h"
@@ -79,7 +80,54 @@ absl::Status SessionOptions::Validate() const {
   return absl::OkStatus();
 }
 
+absl::Status SessionOptions::ValidateFor(const VolumeInfo& grid) const {
+  if (absl::Status st = Validate(); !st.ok()) return st;
+  if (schedule == Schedule::kNone) return absl::OkStatus();
+  const double smallest = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
+  const double largest = std::max({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
+  if (error < kMinErrorVoxels * smallest) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "error threshold E0 = ", error, " is below ", kMinErrorVoxels,
+        " x the smallest voxel spacing (", smallest,
+        "): nothing could be simplified; use --no-simplify (schedule none) for the "
+        "full-resolution surface, or give E0 in the volume's physical units"));
+  }
+  if (error > kMaxErrorVoxels * largest) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "error threshold E0 = ", error, " is above ", kMaxErrorVoxels,
+        " x the largest voxel spacing (", largest,
+        "); give E0 in the volume's physical units (e.g. 0.5 x the spacing)"));
+  }
+  return absl::OkStatus();
+}
+
 namespace {
+
+}  // namespace
+
+absl::Status StatusOfException(std::exception_ptr e) {
+  try {
+    std::rethrow_exception(e);
+  } catch (const std::bad_alloc&) {
+    return absl::ResourceExhaustedError("out of memory while processing this volume");
+  } catch (const std::length_error& ex) {
+    return absl::ResourceExhaustedError(
+        absl::StrCat("a buffer of this session would exceed its maximum size (", ex.what(), ")"));
+  } catch (const std::exception& ex) {
+    return absl::InternalError(absl::StrCat("internal error in the session: ", ex.what()));
+  } catch (...) {
+    return absl::InternalError("internal error in the session (unknown exception)");
+  }
+}
+
+namespace {
+
+// The engine frame's unit (TandemSession): the power of two at or below the smallest
+// spacing, so that scaling by it is exact.
+double EngineScale(const VolumeInfo& g) {
+  const double smallest = std::min({g.spacing[0], g.spacing[1], g.spacing[2]});
+  return std::ldexp(1.0, std::ilogb(smallest));
+}
 
 // Whether all n values are finite; copies them to dst as well unless it is null. One pass
 // of integer tests on the exponent bits, which the compiler vectorises.
@@ -108,18 +156,20 @@ int PartsFor(const VolumeInfo& grid, int requested) {
 }  // namespace
 
 TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& options, int parts)
-    : grid_(grid), options_(options) {
+    : grid_(grid), options_(options), scale_(EngineScale(grid)) {
+  const std::array<double, 3> spacing{grid.spacing[0] / scale_, grid.spacing[1] / scale_,
+                                      grid.spacing[2] / scale_};
   // Part p owns cube columns [c_p, c_{p+1}) and grid columns c_p .. c_{p+1}.
   for (int p = 0; p < parts; ++p) {
     const int64_t c0 = p * (grid.nx - 1) / parts, c1 = (p + 1) * (grid.nx - 1) / parts;
-    ExtractorConfig ec{c1 - c0 + 1, grid.ny, grid.nz, grid.spacing, grid.origin, options.iso};
+    ExtractorConfig ec{c1 - c0 + 1, grid.ny, grid.nz, spacing, {0, 0, 0}, options.iso};
     ec.x_offset = c0;
     ec.row_stride = grid.nx;
     if (p > 0) ec.seam_faces |= kBoxXMin;
     if (p + 1 < parts) ec.seam_faces |= kBoxXMax;
     // With several parts the threads go to the parts, not to the batches inside one.
-    const SimplifierOptions so{options.error, options.alpha, RuleFor(options.schedule),
-                               grid.spacing[2], options.pipeline && parts == 1,
+    const SimplifierOptions so{options.error / scale_, options.alpha, RuleFor(options.schedule),
+                               spacing[2], options.pipeline && parts == 1,
                                options.distance_guard};
     parts_.push_back(std::make_unique<Part>(ec, so));
     parts_.back()->x0 = c0;
@@ -187,7 +237,12 @@ void TandemSession::Work(size_t worker) {
       p->busy = true;
     }
     // ring_[slot] is not written while a part still needs it (pending > 0).
-    absl::Status st = PartStep(*p, ring_[static_cast<size_t>(slot)].values.data() + p->x0);
+    absl::Status st;
+    try {
+      st = PartStep(*p, ring_[static_cast<size_t>(slot)].values.data() + p->x0);
+    } catch (...) {  // this part is done for; Sync and AddSlice report it
+      st = StatusOfException(std::current_exception());
+    }
     {
       std::lock_guard<std::mutex> lock(mu_);
       p->busy = false;
@@ -237,7 +292,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
     const VolumeInfo& grid, const SessionOptions& options) {
   VolumeInfo g = grid;
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
-  if (absl::Status st = options.Validate(); !st.ok()) return st;
+  if (absl::Status st = options.ValidateFor(g); !st.ok()) return st;
   try {
     return std::unique_ptr<TandemSession>(new TandemSession(g, options, PartsFor(g, options.parts)));
   } catch (const std::bad_alloc&) {
@@ -273,32 +328,66 @@ int64_t TandemSession::num_triangles() const {
 
 IndexedMesh TandemSession::Snapshot() const {
   (void)Sync();
-  if (parts_.size() == 1) return parts_[0]->store.Snapshot();
-  // Part by part; a seam vertex takes the index its copy got in the part before.
   IndexedMesh out;
+  if (parts_.size() == 1) {
+    out = parts_[0]->store.Snapshot();
+  } else {
+    AppendPartSnapshots(&out);
+  }
+  const bool identity = scale_ == 1.0 && grid_.origin == std::array<double, 3>{0, 0, 0};
+  if (!identity) {
+    const Vec3 origin{grid_.origin[0], grid_.origin[1], grid_.origin[2]};
+    for (Vec3& p : out.positions) p = p * scale_ + origin;
+  }
+  return out;
+}
+
+void TandemSession::AppendPartSnapshots(IndexedMesh* out) const {
+  // Part by part; a seam vertex takes the index its copy got in the part before.
   std::vector<uint32_t> map, prev;
   for (size_t p = 0; p < parts_.size(); ++p) {
     map.assign(parts_[p]->store.vertex_capacity(), kInvalid);
     if (p > 0) {
       for (const auto& [left, right] : seams_[p - 1]) map[right] = prev[left];
     }
-    parts_[p]->store.AppendSnapshot(&out, &map);
+    parts_[p]->store.AppendSnapshot(out, &map);
     prev.swap(map);
   }
-  return out;
+}
+
+template <typename F>
+absl::Status TandemSession::Guarded(F&& f) {
+  if (!failed_.ok()) return failed_;
+  try {
+    absl::Status st = f();
+    if (!st.ok() && workers_) {
+      // A worker's failure (Work) leaves its part mid-step: the session is done for.
+      std::lock_guard<std::mutex> lock(mu_);
+      for (const auto& p : parts_) {
+        if (!p->error.ok()) failed_ = st;
+      }
+    }
+    return st;
+  } catch (...) {
+    failed_ = StatusOfException(std::current_exception());
+    return failed_;
+  }
 }
 
 absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
-  if (dtype == DType::kFloat32 && reinterpret_cast<uintptr_t>(bytes) % alignof(float) == 0) {
-    return AddSlice(reinterpret_cast<const float*>(bytes));  // host-order floats as they are
-  }
-  if (workers_) return AddSliceImpl(nullptr, dtype, bytes);  // converted into the ring
-  ConvertToFloat(dtype, bytes, convert_.size(), convert_.data());
-  return AddSliceImpl(convert_.data(), dtype, nullptr);
+  return Guarded([&] {
+    if (dtype == DType::kFloat32 && reinterpret_cast<uintptr_t>(bytes) % alignof(float) == 0) {
+      // host-order floats as they are
+      return AddSliceImpl(reinterpret_cast<const float*>(bytes), DType::kFloat32, nullptr);
+    }
+    if (workers_) return AddSliceImpl(nullptr, dtype, bytes);  // converted into the ring
+    ConvertToFloat(dtype, bytes, convert_.size(), convert_.data());
+    return AddSliceImpl(convert_.data(), dtype, nullptr);
+  });
 }
 
 absl::Status TandemSession::AddSlice(const float* values) {
-  return AddSliceImpl(values, DType::kFloat32, nullptr);
+  return Guarded([&] { return AddSliceImpl(values, DType::kFloat32, nullptr); });
 }
 
 void TandemSession::ForEachPart(const std::function<void(Part&)>& f) {
@@ -502,6 +591,10 @@ void TandemSession::MergeParts() {
 }
 
 absl::Status TandemSession::Finish() {
+  return Guarded([&] { return FinishImpl(); });
+}
+
+absl::Status TandemSession::FinishImpl() {
   if (finished_) return absl::FailedPreconditionError("session already finished");
   const auto start = Clock::now();  // the parts' workers may still be busy: their time counts
   if (absl::Status st = Sync(); !st.ok()) return st;
@@ -569,7 +662,7 @@ double TandemSession::MaxShapeError() const {
   (void)Sync();
   double worst = 0.0;
   for (const auto& p : parts_) worst = std::max(worst, p->simplifier.MaxShapeError());
-  return worst;
+  return worst * scale_;
 }
 
 size_t TandemSession::MemoryBytes() const {

@@ -93,6 +93,32 @@ absl::Status ValidateVolumeInfo(const VolumeInfo& info) {
           absl::StrCat("invalid origin ", info.origin[a], " on axis ", a, " (must be finite)"));
     }
   }
+  // Ranges past which the numbers are certainly a unit or header error, and the float32
+  // vertex positions of every output format could not hold the mesh.
+  for (int a = 0; a < 3; ++a) {
+    if (info.spacing[a] < kMinSpacing || info.spacing[a] > kMaxSpacing) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "invalid spacing ", info.spacing[a], " on axis ", a, " (must lie in [", kMinSpacing,
+          ", ", kMaxSpacing, "] physical units per voxel)"));
+    }
+  }
+  const double smallest = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+  const double largest = std::max({info.spacing[0], info.spacing[1], info.spacing[2]});
+  if (largest > kMaxAnisotropy * smallest) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "invalid spacing ", info.spacing[0], ", ", info.spacing[1], ", ", info.spacing[2],
+        ": a voxel more than ", kMaxAnisotropy,
+        " times longer on one axis than on another (check the units of each axis)"));
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(info.origin[a]) > kMaxOriginVoxels * info.spacing[a]) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "invalid origin ", info.origin[a], " on axis ", a, ": more than ", kMaxOriginVoxels,
+          " voxels (of ", info.spacing[a],
+          ") from 0, where float32 vertex positions could not resolve a voxel; shift the "
+          "origin nearer to the volume"));
+    }
+  }
   return absl::OkStatus();
 }
 

@@ -239,6 +239,10 @@ class Simplifier {
   std::vector<std::vector<Entry>> w_;
   int64_t w_base_ = 0;
   size_t w_size_ = 0;
+  // Entries whose release lies beyond the window (PushW), scanned by every Activate.
+  std::vector<Entry> w_far_;
+  static constexpr int64_t kWBuckets = int64_t{1} << 16;
+  static constexpr double kFarKey = 0x1p52;  // keys at or above this are never bucketed
   void PushW(const Entry& e);
   std::vector<VertexId> scratch_;
   struct Survivor {  // GeometryOk: a triangle that survives the contraction, and its corner

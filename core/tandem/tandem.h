@@ -27,6 +27,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <exception>
 #include <functional>
 #include <future>
 #include <memory>
@@ -82,6 +83,12 @@ struct SessionOptions {
                                 // columns (fewer are used on narrow grids).
   static constexpr int kMaxParts = 64;
   absl::Status Validate() const;
+  // Validate() plus the rules that need the grid: E0 within [kMinErrorVoxels,
+  // kMaxErrorVoxels] times the grid's smallest / largest spacing (far below, nothing could
+  // ever be contracted; far above, E0 is certainly a unit error). TandemSession::Create
+  // applies it; callers that want a field name in front of the message call it first.
+  absl::Status ValidateFor(const VolumeInfo& grid) const;
+  static constexpr double kMinErrorVoxels = 1e-6, kMaxErrorVoxels = 1e6;
 };
 
 struct PhaseTimes {
@@ -103,6 +110,18 @@ struct SessionStats {
   double max_layer_over_front = 0;  // <= -1: no contraction touched the newest layer
 };
 
+// Coordinates: the engine (extractor, mesh store, quadrics, queues) works in a frame of its
+// own, relative to the grid: voxel (i, j, k) at (i*sx, j*sy, k*sz) / s, with s the power of
+// two nearest below the smallest spacing. The origin drops out (a scan placed at 1e9 mm
+// simplifies exactly as one at 0) and so does the unit (spacing 1e-300 or 1e12 behaves as
+// spacing 1), while the scaling by a power of two is exact, so a grid with origin 0 gives
+// bit for bit the mesh it gave in world coordinates. Snapshot() and MaxShapeError() answer
+// in world coordinates.
+//
+// Failures: no input ends the process. Every exception thrown inside a session (an
+// allocation that fails, on any of its threads) becomes the status of the call that ran
+// into it (RESOURCE_EXHAUSTED for memory, INTERNAL otherwise), and every later AddSlice or
+// Finish returns the same status: the session is then unusable, the process is fine.
 class TandemSession {
  public:
   // `grid`: nx, ny (>= 2), nz (0 if unknown), spacing, origin. Check Create's status.
@@ -119,12 +138,12 @@ class TandemSession {
   // Ends the stream: at least 2 slices (and nz if it was declared) must have been added.
   absl::Status Finish();
 
-  // Compacted copy of the current (partial or final) mesh.
+  // Compacted copy of the current (partial or final) mesh, in world coordinates.
   IndexedMesh Snapshot() const;  // the parts' meshes welded at their seams
   int64_t num_triangles() const;
   int num_parts() const { return static_cast<int>(parts_.size()); }  // after Finish: 1
   const SessionStats& stats() const;
-  double MaxShapeError() const;  // Error(K)
+  double MaxShapeError() const;  // Error(K), in world units
   size_t MemoryBytes() const;    // mesh store + queues + extractor caches
   const VolumeInfo& grid() const { return grid_; }
   const SessionOptions& options() const { return options_; }
@@ -171,8 +190,14 @@ class TandemSession {
 
  private:
   void Record();
+  // Runs f (AddSlice's or Finish's body) behind the session's barrier: an exception becomes
+  // failed_, returned now and by every later call.
+  template <typename F>
+  absl::Status Guarded(F&& f);
   // AddSlice (values) and AddSliceBytes (dtype, bytes: converted straight into the ring).
   absl::Status AddSliceImpl(const float* values, DType dtype, const uint8_t* bytes);
+  absl::Status FinishImpl();
+  void AppendPartSnapshots(IndexedMesh* out) const;  // Snapshot of a split session
   bool tandem_schedule() const {
     return options_.schedule == Schedule::kTandem || options_.schedule == Schedule::kTandemLag;
   }
@@ -202,6 +227,8 @@ class TandemSession {
 
   VolumeInfo grid_;
   SessionOptions options_;
+  double scale_ = 1;   // engine frame -> world: world = engine * scale_ + grid_.origin
+  absl::Status failed_;  // set by an exception: the session is unusable
   std::vector<std::unique_ptr<Part>> parts_;
   // seams_[s]: (vertex in part s, its copy in part s+1), per shared grid edge.
   mutable std::vector<std::vector<std::pair<VertexId, VertexId>>> seams_;
@@ -222,6 +249,11 @@ class TandemSession {
   mutable SessionStats stats_;
   bool finished_ = false;
 };
+
+// The status an exception caught by a barrier becomes: RESOURCE_EXHAUSTED for a failed
+// allocation (bad_alloc, length_error), INTERNAL with what() otherwise. The session's
+// barrier uses it, and so do the server's worker and the CLI around everything else.
+absl::Status StatusOfException(std::exception_ptr e);
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,

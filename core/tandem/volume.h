@@ -34,8 +34,14 @@ struct VolumeInfo {
   size_t slice_bytes() const { return static_cast<size_t>(nx * ny) * DTypeSize(dtype); }
 };
 
-// Checks dims (>= 2 on x and y, nz >= 2 when known), finite positive spacing, finite origin.
+// Checks dims (>= 2 on x and y, nz >= 2 when known, at most 2^20 per axis and 2^28 per
+// slice), spacing in [kMinSpacing, kMaxSpacing] with at most kMaxAnisotropy between axes,
+// and an origin at most kMaxOriginVoxels voxels from 0 on each axis. The error names the
+// field and the rule.
 absl::Status ValidateVolumeInfo(const VolumeInfo& info);
+inline constexpr double kMinSpacing = 1e-12, kMaxSpacing = 1e12;
+inline constexpr double kMaxAnisotropy = 1e4;
+inline constexpr double kMaxOriginVoxels = 1e6;
 
 // A sequential reader of z-slices 0, 1, ..., nz-1.
 class SliceSource {

@@ -176,5 +176,28 @@ TEST_F(Cli, ExtractsTheSharedEngineCtToAPly) {
   EXPECT_TRUE(AnalyzeTopology(*mesh).IsManifold());
 }
 
+// Geometry that once aborted the CLI (exit 134: std::length_error from a queue sized by
+// the reach in slice units) or gave a wrong mesh is refused with the field named.
+TEST_F(Cli, ExtremeSidecarGeometryIsRefusedNotAborted) {
+  ASSERT_EQ(RunTandem("generate sphere --size 12 --out " + Path("s.json")).code, 0);
+  const nlohmann::json sidecar = ReadJson(Path("s.json"));
+  struct Case {
+    nlohmann::json spacing, origin;
+    const char* text;
+  };
+  for (const Case& c : {Case{{1e160, 1e160, 1.0}, {0, 0, 0}, "invalid spacing 1e+160 on axis 0"},
+                        Case{{1.0, 1.0, 1.0}, {1e30, 0, 0}, "invalid origin 1e+30 on axis 0"},
+                        Case{{1e-300, 1e-300, 1e-300}, {0, 0, 0}, "invalid spacing 1e-300"}}) {
+    nlohmann::json edited = sidecar;
+    edited["spacing"] = c.spacing;
+    edited["origin"] = c.origin;
+    edited["raw_file"] = Path("s.raw");
+    std::ofstream(Path("e.json")) << edited.dump();
+    const Output o = RunTandem("extract --input " + Path("e.json") + " --out " + Path("e.ply"));
+    EXPECT_EQ(o.code, 2) << o.text;
+    EXPECT_NE(o.text.find(c.text), std::string::npos) << o.text;
+  }
+}
+
 }  // namespace
 }  // namespace tandem

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <cstring>
 #include <functional>
+#include <initializer_list>
 #include <limits>
 #include <random>
 #include <string>
@@ -43,6 +44,11 @@ inline size_t FirstChunk(const std::vector<v1::ExtractRequest>& r, int64_t z) {
 inline void SetFloat(v1::ExtractRequest* r, size_t index, float value) {
   std::string* data = r->mutable_chunk()->mutable_data();
   std::memcpy(data->data() + index * sizeof(float), &value, sizeof value);
+}
+
+inline void SetSpacing(v1::ExtractRequest* config, std::initializer_list<double> spacing) {
+  config->mutable_config()->clear_spacing();
+  for (double s : spacing) config->mutable_config()->add_spacing(s);
 }
 
 inline constexpr int64_t kMaxMessageBytes = 1 << 20;
@@ -98,6 +104,24 @@ inline std::vector<BadInputCase> BadInputCases() {
        grpc::StatusCode::INVALID_ARGUMENT, "config.error (E0) = 0"},
       {"E0 < 0", [](auto* r) { (*r)[0].mutable_config()->set_error(-2); },
        grpc::StatusCode::INVALID_ARGUMENT, "config.error (E0) = -2"},
+      // Each of these aborted the whole server once (std::length_error from a queue sized
+      // by the reach in slice units), or gave a wrong mesh slowly.
+      {"spacing 1e160",
+       [](auto* r) { SetSpacing(&(*r)[0], {1e160, 1e160, 1}); },
+       grpc::StatusCode::INVALID_ARGUMENT, "invalid spacing 1e+160 on axis 0"},
+      {"spacing 1e-300", [](auto* r) { SetSpacing(&(*r)[0], {1e-300, 1e-300, 1e-300}); },
+       grpc::StatusCode::INVALID_ARGUMENT, "invalid spacing 1e-300 on axis 0"},
+      {"spacing 1e5 times longer on z", [](auto* r) { SetSpacing(&(*r)[0], {1, 1, 1e5}); },
+       grpc::StatusCode::INVALID_ARGUMENT, "times longer on one axis"},
+      {"origin 1e30",
+       [](auto* r) {
+         for (double o : {1e30, 0.0, 0.0}) (*r)[0].mutable_config()->add_origin(o);
+       },
+       grpc::StatusCode::INVALID_ARGUMENT, "invalid origin 1e+30 on axis 0"},
+      {"E0 far below the spacing", [](auto* r) { (*r)[0].mutable_config()->set_error(1e-12); },
+       grpc::StatusCode::INVALID_ARGUMENT, "x the smallest voxel spacing"},
+      {"E0 far above the spacing", [](auto* r) { (*r)[0].mutable_config()->set_error(1e300); },
+       grpc::StatusCode::INVALID_ARGUMENT, "x the largest voxel spacing"},
       {"alpha > 1", [](auto* r) { (*r)[0].mutable_config()->set_alpha(1.5); },
        grpc::StatusCode::INVALID_ARGUMENT, "config.alpha = 1.5"},
       {"alpha < 0", [](auto* r) { (*r)[0].mutable_config()->set_alpha(-0.5); },

@@ -1,0 +1,171 @@
+// libFuzzer target: whole TandemSessions with arbitrary geometry and options, extreme
+// doubles included (the readers' and the server's targets only reach the values their
+// formats let through). The input picks, byte by byte:
+//   dims (nx, ny in 2..33, nz in 2..12), schedule, pipelining, parts, a target count,
+//   spacing x3, origin x3, E0, alpha, distance guard, sag correction (each either one of
+//   the extreme values in kSpecial or the next 8 raw bytes as a double), a shape, and then
+//   voxel edits (index, raw float) applied to the shape's slices.
+// Checked (a violation aborts, so libFuzzer records it):
+//   * Create fails only with INVALID_ARGUMENT or RESOURCE_EXHAUSTED, and with a message;
+//   * AddSlice / Finish fail only with INVALID_ARGUMENT (a non-finite voxel) or
+//     RESOURCE_EXHAUSTED, and after a RESOURCE_EXHAUSTED every later call fails the same;
+//   * a finished session's mesh has finite positions inside the grid's box (grown by E0),
+//     valid indices, and Error(K) <= E0 unless a target count took it past E0.
+// Nothing may throw out of the session, abort, hang or touch memory it does not own.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+#include "tandem/volume.h"
+
+namespace {
+
+[[noreturn]] void Violation(const std::string& what) {
+  std::fprintf(stderr, "fuzz_session: %s\n", what.c_str());
+  std::fflush(stderr);
+  std::abort();
+}
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kSpecial[] = {0.0,   -0.0,   1.0,    0.5,     3.2,      0.2,     1e-300,
+                               1e-12, 1e-9,   1e-6,   1e6,     1e9,      1e12,    1e30,
+                               1e160, 1e308,  -1.0,   -1e30,   kInf,     -kInf,
+                               std::numeric_limits<double>::quiet_NaN(),
+                               std::numeric_limits<double>::denorm_min(),
+                               std::numeric_limits<double>::max(), 0x1p-40, 0x1p40, 2.0};
+constexpr size_t kNumSpecial = sizeof(kSpecial) / sizeof(kSpecial[0]);
+
+class Input {
+ public:
+  Input(const uint8_t* data, size_t size) : p_(data), end_(data + size) {}
+  uint8_t Byte() { return p_ < end_ ? *p_++ : 0; }
+  double Double() {
+    const uint8_t sel = Byte();
+    if (sel < 2 * kNumSpecial) return kSpecial[sel % kNumSpecial];
+    double v = 0;
+    if (end_ - p_ >= 8) {
+      std::memcpy(&v, p_, 8);
+      p_ += 8;
+    }
+    return v;
+  }
+  float Float() {
+    float v = 0;
+    if (end_ - p_ >= 4) {
+      std::memcpy(&v, p_, 4);
+      p_ += 4;
+    }
+    return v;
+  }
+  bool empty() const { return p_ >= end_; }
+
+ private:
+  const uint8_t* p_;
+  const uint8_t* end_;
+};
+
+bool Allowed(const absl::Status& st) {
+  return st.code() == absl::StatusCode::kInvalidArgument ||
+         st.code() == absl::StatusCode::kResourceExhausted;
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  using namespace tandem;
+  Input in(data, size);
+  VolumeInfo g;
+  g.nx = 2 + in.Byte() % 32;
+  g.ny = 2 + in.Byte() % 32;
+  g.nz = 2 + in.Byte() % 11;
+  g.dtype = DType::kFloat32;
+  SessionOptions o;
+  const uint8_t flags = in.Byte();
+  constexpr Schedule kSchedules[] = {Schedule::kTandemLag, Schedule::kTandem,
+                                     Schedule::kClassical, Schedule::kNone};
+  o.schedule = kSchedules[flags & 3];
+  o.pipeline = (flags & 4) != 0;
+  o.parts = (flags >> 3) & 7;  // 0 = automatic
+  o.target_triangles = (flags & 0x40) ? in.Byte() : 0;
+  for (double& s : g.spacing) s = in.Double();
+  for (double& x : g.origin) x = in.Double();
+  o.error = in.Double();
+  o.alpha = in.Double();
+  o.distance_guard = in.Double();
+  o.sag_correction = in.Double();
+  o.iso = 0;
+  const Shape shape = static_cast<Shape>(in.Byte() % 4);
+
+  auto session = TandemSession::Create(g, o);
+  if (!session.ok()) {
+    if (!Allowed(session.status()) || session.status().message().empty()) {
+      Violation("Create: " + session.status().ToString());
+    }
+    return 0;
+  }
+  // The shape's values at unit spacing (the field does not care about the grid's units),
+  // then the input's edits.
+  auto src = MakeSyntheticSource(shape, g.nx, g.ny, g.nz);
+  std::vector<std::vector<float>> slices;
+  std::vector<uint8_t> bytes;
+  while (src->ReadSlice(&bytes).ok()) {
+    slices.emplace_back(static_cast<size_t>(g.nx * g.ny));
+    ConvertToFloat(src->info().dtype, bytes.data(), slices.back().size(), slices.back().data());
+  }
+  const size_t per_slice = static_cast<size_t>(g.nx * g.ny);
+  while (!in.empty()) {
+    const size_t at = (size_t{in.Byte()} << 8 | in.Byte()) % (per_slice * slices.size());
+    slices[at / per_slice][at % per_slice] = in.Float();
+  }
+  absl::Status failure;
+  for (const auto& s : slices) {
+    absl::Status st = (*session)->AddSlice(s.data());
+    if (!st.ok() && !Allowed(st)) Violation("AddSlice: " + st.ToString());
+    if (!failure.ok() && failure.code() == absl::StatusCode::kResourceExhausted && st != failure) {
+      Violation("AddSlice after " + failure.ToString() + ": " + st.ToString());
+    }
+    if (!st.ok()) failure = st;
+    if (!st.ok() && st.code() == absl::StatusCode::kInvalidArgument) return 0;  // a bad voxel
+  }
+  absl::Status st = (*session)->Finish();
+  if (!failure.ok()) {
+    if (st != failure) Violation("Finish after " + failure.ToString() + ": " + st.ToString());
+    return 0;
+  }
+  if (!st.ok()) {
+    if (!Allowed(st)) Violation("Finish: " + st.ToString());
+    return 0;
+  }
+  const IndexedMesh mesh = (*session)->Snapshot();
+  // Inside the grid's box grown by its own size: a vertex put in the wrong frame (origin or
+  // unit missed) lands orders of magnitude away.
+  const int64_t dims[3] = {g.nx, g.ny, g.nz};
+  for (const Vec3& p : mesh.positions) {
+    const double c[3] = {p.x, p.y, p.z};
+    for (int a = 0; a < 3; ++a) {
+      if (!std::isfinite(c[a])) Violation("non-finite vertex position");
+      const double extent = g.spacing[a] * static_cast<double>(dims[a] - 1);
+      if (c[a] < g.origin[a] - extent || c[a] > g.origin[a] + 2 * extent) {
+        Violation("vertex outside the grid's box on axis " + std::to_string(a));
+      }
+    }
+  }
+  for (uint32_t i : mesh.indices) {
+    if (i >= mesh.positions.size()) Violation("index out of range");
+  }
+  if (o.schedule != Schedule::kNone && o.target_triangles == 0 &&
+      !((*session)->MaxShapeError() <= o.error * (1 + 1e-9))) {
+    Violation("Error(K) " + std::to_string((*session)->MaxShapeError()) + " > E0 " +
+              std::to_string(o.error));
+  }
+  return 0;
+}
