@@ -6,10 +6,12 @@
 //
 // Memory: one slice buffer (nx*ny*sizeof(dtype)), the session (and, with
 // compute_distances, a second full-resolution session kept as the reference surface),
-// plus the encoded output. Never the whole volume. The per-session budget
-// (ServerLimits::session_memory_bytes) is checked against MemoryBytes() after the config
-// (counting the slice buffer a chunked slice will need), after every slice and after the
-// final simplification; past it the job fails with RESOURCE_EXHAUSTED.
+// plus, at the end, the copy of the mesh and its Draco encoding. Never the whole volume.
+// The per-session budget (ServerLimits::session_memory_bytes) is checked against
+// MemoryBytes() after the config (which counts the slice buffers and plane caches the
+// session will allocate on its first slice), after every slice, and before each copy or
+// encoding of the mesh, by an estimate of what it will take (extract_job.cc: EncodeBytes);
+// past it the job fails with RESOURCE_EXHAUSTED, and a preview is skipped.
 #ifndef TANDEM_SERVER_EXTRACT_JOB_H_
 #define TANDEM_SERVER_EXTRACT_JOB_H_
 

@@ -58,9 +58,15 @@ float InsideFrom(double iso) {
 
 LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
     : config_(config), store_(store) {
-  const size_t n = static_cast<size_t>(config.nx * config.ny);
   words_ = (config.nx + kWordBits - 1) / kWordBits;
   inside_from_ = InsideFrom(config.iso);
+}
+
+void LayerExtractor::AllocatePlanes() {
+  // On the first slice, not at construction: a session that never gets a voxel (a bare
+  // config, a client that leaves) commits no memory for a grid it never sees.
+  const ExtractorConfig& config = config_;
+  const size_t n = static_cast<size_t>(config.nx * config.ny);
   v_bottom_.resize(n);
   v_top_.resize(n);
   s_bottom_.assign(static_cast<size_t>(words_ * config.ny), 0);
@@ -197,6 +203,7 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
     return absl::InvalidArgumentError(
         absl::StrCat("slice ", k, " is past the end of the volume (nz = ", config_.nz, ")"));
   }
+  if (ze_.empty()) AllocatePlanes();  // ze_ last: all or nothing
   // Copy the slice and its signs into the bottom buffers (slice k-2's, no longer needed),
   // validating as we go; they become the top only if the whole slice is finite, so a bad
   // slice leaves the extractor (and the store) as it was.

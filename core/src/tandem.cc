@@ -176,14 +176,14 @@ TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& optio
     parts_.back()->index = static_cast<size_t>(p);
   }
   seams_.resize(static_cast<size_t>(parts - 1));
-  convert_.resize(static_cast<size_t>(grid.nx * grid.ny));
+  // convert_ and the ring's slots are allocated on first use (AddSliceBytes, AddSliceImpl),
+  // like the extractors' planes: a session that gets no voxel commits no slice memory.
   if (options.pipeline && parts > 1) StartWorkers();
 }
 
 TandemSession::~TandemSession() { StopWorkers(); }
 
 void TandemSession::StartWorkers() {
-  for (RingSlot& slot : ring_) slot.values.resize(static_cast<size_t>(grid_.nx * grid_.ny));
   workers_ = true;
   const size_t cores = std::max(1u, std::thread::hardware_concurrency());
   workers_planned_ = std::min(cores, parts_.size());  // read by the workers: set first
@@ -238,8 +238,14 @@ void TandemSession::Work(size_t worker) {
     }
     // ring_[slot] is not written while a part still needs it (pending > 0).
     absl::Status st;
+    bool failed;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      failed = !p->error.ok();
+    }
     try {
-      st = PartStep(*p, ring_[static_cast<size_t>(slot)].values.data() + p->x0);
+      // A part that failed is left as it is (mid-step): its queued slices are dropped.
+      if (!failed) st = PartStep(*p, ring_[static_cast<size_t>(slot)].values.data() + p->x0);
     } catch (...) {  // this part is done for; Sync and AddSlice report it
       st = StatusOfException(std::current_exception());
     }
@@ -381,6 +387,7 @@ absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
       return AddSliceImpl(reinterpret_cast<const float*>(bytes), DType::kFloat32, nullptr);
     }
     if (workers_) return AddSliceImpl(nullptr, dtype, bytes);  // converted into the ring
+    convert_.resize(static_cast<size_t>(grid_.nx * grid_.ny));
     ConvertToFloat(dtype, bytes, convert_.size(), convert_.data());
     return AddSliceImpl(convert_.data(), dtype, nullptr);
   });
@@ -490,6 +497,7 @@ absl::Status TandemSession::AddSliceImpl(const float* values, DType dtype,
       cv_.wait(lock, [&] { return slot.pending == 0; });
     }
     // The slot is free (pending == 0) until it is queued: a refused slice leaves it so.
+    slot.values.resize(n);
     float* dst = slot.values.data();
     if (values != nullptr) {
       if (!CopyFinite(values, n, dst)) return non_finite(values);
@@ -667,8 +675,10 @@ double TandemSession::MaxShapeError() const {
 
 size_t TandemSession::MemoryBytes() const {
   (void)Sync();
-  size_t bytes = convert_.capacity() * sizeof(float);
-  for (const RingSlot& slot : ring_) bytes += slot.values.capacity() * sizeof(float);
+  // Slice buffers and plane caches as planned (allocated on the first slice), so that a
+  // budget checked before any voxel counts them.
+  const size_t slice = static_cast<size_t>(grid_.nx * grid_.ny) * sizeof(float);
+  size_t bytes = workers_ ? kRingSlots * slice : slice;
   for (const auto& p : parts_) {
     const ExtractorConfig& ec = p->extractor.config();
     bytes += p->store.MemoryBytes() + p->simplifier.MemoryBytes() +

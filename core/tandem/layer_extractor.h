@@ -76,6 +76,7 @@ class LayerExtractor {
   const ExtractorConfig& config() const { return config_; }
 
  private:
+  void AllocatePlanes();  // the plane caches, on the first ComputeLayer
   // Pending vertex ids carry this tag until CommitLayer maps them to store ids.
   static constexpr VertexId kPending = 0x80000000u;
   static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
