@@ -137,7 +137,8 @@ int StreamCommand(int argc, char** argv) {
       "usage: tandem-client stream --input VOLUME --iso C0 --error E0 --out MESH [flags]\n"
       "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
-      "simplified iso-surface: .drc (the server's Draco bytes), .ply or .obj (decoded).");
+      "simplified iso-surface: .drc (the server's Draco bytes), or decoded: .ply or .obj (with "
+      "vertex normals), .stl, .glb.");
   connection.Add(flags, /*token=*/true);
   flags.AddInt("keepalive-time-ms", &keepalive_ms,
                "while streaming, ping the server when the connection has been quiet this "
@@ -164,7 +165,7 @@ int StreamCommand(int argc, char** argv) {
   flags.AddInt("preview-every", &preview_every,
                "ask for a preview mesh every N slices (0 = none; 1 if --partials is given)");
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
-  flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply or .obj", /*required=*/true);
+  flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply, .obj, .stl or .glb", /*required=*/true);
   flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice>.drc");
   flags.AddString("metrics", &metrics_path, "FILE.json",
                   "write the metrics as JSON (same keys as `tandem extract --metrics`)");
@@ -175,8 +176,9 @@ int StreamCommand(int argc, char** argv) {
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
-  if (ext != ".drc" && ext != ".ply" && ext != ".obj") {
-    absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, .ply or .obj\n", out);
+  if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
+    absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
+                  tandem::kMeshExtensions);
     return 2;
   }
   // Fail before streaming, not after: the output's folder must exist.

@@ -12,7 +12,7 @@ BUILD_PKGS=(
   build-essential cmake pkg-config git ca-certificates
   libabsl-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev libdraco-dev
   libgtest-dev libgmock-dev nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev
-  python3 python3-yaml openssl
+  python3 python3-yaml openssl assimp-utils
 )
 # What tandem-server and tandem-client link (their DT_NEEDED entries, checked with
 # `objdump -p` / `ldd` on the Release binaries): gRPC++ (libgrpc++, libgrpc++_reflection),

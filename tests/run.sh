@@ -5,6 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash deploy/install-deps.sh
+bash deploy/install-web.sh
 werror=OFF
 if [ "${CI:-}" = "true" ]; then werror=ON; fi  # warnings are errors in CI
 cmake -S . -B build -DTANDEM_WERROR="$werror"

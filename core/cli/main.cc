@@ -47,7 +47,8 @@ Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by l
 
 Options:
   --input FILE              volume (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff)
-  --out MESH                output mesh, binary PLY (.ply) or OBJ (.obj)
+  --out MESH                output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex
+                            normals, binary STL (.stl), or glTF binary (.glb)
   --iso C0                  iso-value; default: the file's first suggested iso-value
                             (JSON sidecars carry them), required otherwise
   --error E0                error threshold in the volume's physical units (spacing
@@ -162,8 +163,9 @@ int Extract(int argc, char** argv) {
   auto out = args->Get("out");
   if (!input) return Fail(absl::InvalidArgumentError("--input FILE is required (see tandem extract --help)"));
   if (!out) return Fail(absl::InvalidArgumentError("--out MESH.{ply,obj} is required"));
-  if (!(out->ends_with(".ply") || out->ends_with(".obj"))) {
-    return Fail(absl::InvalidArgumentError(absl::StrCat("--out ", *out, ": the extension must be .ply or .obj")));
+  if (!IsMeshOutputPath(*out)) {
+    return Fail(absl::InvalidArgumentError(
+        absl::StrCat("--out ", *out, ": the extension must be ", kMeshExtensions)));
   }
   auto source = OpenVolume(*input);
   if (!source.ok()) return Fail(source.status());

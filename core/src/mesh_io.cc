@@ -6,6 +6,7 @@
 #include "tandem/mesh_io.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cerrno>
 #include <charconv>
@@ -16,10 +17,13 @@
 #include <optional>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
+#include "nlohmann/json.hpp"
+#include "tandem/metrics.h"
 
 namespace tandem {
 namespace {
@@ -28,14 +32,17 @@ absl::Status Error(absl::StatusCode code, const std::string& path, absl::string_
   return absl::Status(code, absl::StrCat(path, ": ", what));
 }
 
-enum class Format { kPly, kObj };
+enum class Format { kPly, kObj, kStl, kGlb };
 
 absl::StatusOr<Format> FormatOf(const std::string& path) {
   const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
   if (ext == ".ply") return Format::kPly;
   if (ext == ".obj") return Format::kObj;
+  if (ext == ".stl") return Format::kStl;
+  if (ext == ".glb") return Format::kGlb;
   return Error(absl::StatusCode::kInvalidArgument, path,
-               absl::StrCat("unsupported mesh extension '", ext, "' (expected .ply or .obj)"));
+               absl::StrCat("unsupported mesh extension '", ext, "' (expected ",
+                            kMeshExtensions, ")"));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -100,14 +107,21 @@ class BufferedWriter {
   int error_ = 0;
 };
 
-void WritePly(const IndexedMesh& mesh, BufferedWriter& out) {
+void AppendVec3(BufferedWriter& out, const Vec3& v) {
+  for (int k = 0; k < 3; ++k) out.AppendLe32(std::bit_cast<uint32_t>(static_cast<float>(v[k])));
+}
+
+void WritePly(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
   out.Append(absl::StrCat("ply\nformat binary_little_endian 1.0\ncomment written by tandem\n",
                           "element vertex ", mesh.num_vertices(),
                           "\nproperty float x\nproperty float y\nproperty float z\n",
+                          normals.empty() ? ""
+                                          : "property float nx\nproperty float ny\nproperty float nz\n",
                           "element face ", mesh.num_triangles(),
                           "\nproperty list uchar int vertex_indices\nend_header\n"));
-  for (const Vec3& p : mesh.positions) {
-    for (int k = 0; k < 3; ++k) out.AppendLe32(std::bit_cast<uint32_t>(static_cast<float>(p[k])));
+  for (size_t v = 0; v < mesh.positions.size(); ++v) {
+    AppendVec3(out, mesh.positions[v]);
+    if (!normals.empty()) AppendVec3(out, normals[v]);
   }
   for (size_t t = 0; t < mesh.num_triangles(); ++t) {
     const char count = 3;
@@ -116,27 +130,119 @@ void WritePly(const IndexedMesh& mesh, BufferedWriter& out) {
   }
 }
 
-void WriteObj(const IndexedMesh& mesh, BufferedWriter& out) {
+// "tag x y z\n", each coordinate rounded to float32 first, like the PLY output: both formats
+// store the same values.
+void AppendObjVec3(BufferedWriter& out, absl::string_view tag, const Vec3& v) {
+  out.Append(tag);
+  for (int k = 0; k < 3; ++k) {
+    out.Append(" ");
+    out.AppendFloat(static_cast<float>(v[k]));
+  }
+  out.Append("\n");
+}
+
+void WriteObj(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
   out.Append(absl::StrCat("# written by tandem: ", mesh.num_vertices(), " vertices, ",
                           mesh.num_triangles(), " triangles\n"));
-  for (const Vec3& p : mesh.positions) {
-    // Rounded to float32 first, like the PLY output: both formats store the same values.
-    out.Append("v ");
-    out.AppendFloat(static_cast<float>(p.x));
-    out.Append(" ");
-    out.AppendFloat(static_cast<float>(p.y));
-    out.Append(" ");
-    out.AppendFloat(static_cast<float>(p.z));
-    out.Append("\n");
-  }
+  for (const Vec3& p : mesh.positions) AppendObjVec3(out, "v", p);
+  for (const Vec3& n : normals) AppendObjVec3(out, "vn", n);
   for (size_t t = 0; t < mesh.num_triangles(); ++t) {
     out.Append("f");
     for (int k = 0; k < 3; ++k) {
+      const uint64_t i = uint64_t{mesh.indices[3 * t + k]} + 1;
       out.Append(" ");
-      out.AppendUint(uint64_t{mesh.indices[3 * t + k]} + 1);
+      out.AppendUint(i);
+      if (!normals.empty()) {  // "i//i": vertex i with normal i
+        out.Append("//");
+        out.AppendUint(i);
+      }
     }
     out.Append("\n");
   }
+}
+
+// Binary STL: an 80-byte header, the triangle count, then per triangle its unit normal, its
+// three corners (float32) and a zero attribute word. STL has no shared vertices.
+void WriteStl(const IndexedMesh& mesh, BufferedWriter& out) {
+  char header[80] = {};
+  const absl::string_view text = "binary STL written by tandem";  // never "solid": not ASCII
+  std::memcpy(header, text.data(), text.size());
+  out.Append(header, sizeof header);
+  out.AppendLe32(static_cast<uint32_t>(mesh.num_triangles()));
+  for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+    const Vec3 a = mesh.positions[mesh.indices[3 * t]], b = mesh.positions[mesh.indices[3 * t + 1]],
+               c = mesh.positions[mesh.indices[3 * t + 2]];
+    const Vec3 n = TriangleAreaVector(a, b, c);
+    const double len = Norm(n);
+    AppendVec3(out, len > 0 ? n * (1.0 / len) : Vec3{0, 0, 0});
+    for (const Vec3& p : {a, b, c}) AppendVec3(out, p);
+    const char attribute[2] = {0, 0};
+    out.Append(attribute, 2);
+  }
+}
+
+// GLB (binary glTF 2.0): one mesh, one triangle primitive with POSITION, NORMAL (unit
+// length, as glTF requires: a vertex whose triangles have no area gets +z) and 32-bit
+// indices, in one buffer. glTF's unit is the metre; positions keep the mesh's units.
+void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
+  const size_t nv = mesh.num_vertices(), ni = mesh.indices.size();
+  std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  for (size_t v = 0; v < nv; ++v) {
+    for (int k = 0; k < 3; ++k) {
+      const double x = static_cast<float>(mesh.positions[v][k]);  // the stored value
+      lo[k] = v == 0 ? x : std::min(lo[k], x);
+      hi[k] = v == 0 ? x : std::max(hi[k], x);
+    }
+  }
+  const size_t pos_bytes = 12 * nv, nrm_bytes = 12 * nv, idx_bytes = 4 * ni;
+  const size_t bin_bytes = pos_bytes + nrm_bytes + idx_bytes;  // multiples of 4 already
+  nlohmann::json j;
+  j["asset"] = {{"version", "2.0"}, {"generator", "tandem"}};
+  j["scene"] = 0;
+  j["scenes"] = nlohmann::json::array({{{"nodes", {0}}}});
+  j["nodes"] = nlohmann::json::array({{{"mesh", 0}}});
+  nlohmann::json primitive = {{"attributes", {{"POSITION", 0}, {"NORMAL", 1}}}, {"mode", 4}};
+  if (ni > 0) primitive["indices"] = 2;
+  j["meshes"] = nlohmann::json::array({{{"primitives", {primitive}}}});
+  j["buffers"] = nlohmann::json::array({{{"byteLength", bin_bytes}}});
+  j["bufferViews"] = nlohmann::json::array(
+      {{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", pos_bytes}, {"target", 34962}},
+       {{"buffer", 0}, {"byteOffset", pos_bytes}, {"byteLength", nrm_bytes}, {"target", 34962}},
+       {{"buffer", 0},
+        {"byteOffset", pos_bytes + nrm_bytes},
+        {"byteLength", idx_bytes},
+        {"target", 34963}}});
+  nlohmann::json accessors = nlohmann::json::array(
+      {{{"bufferView", 0}, {"componentType", 5126}, {"count", nv}, {"type", "VEC3"},
+        {"min", lo}, {"max", hi}},
+       {{"bufferView", 1}, {"componentType", 5126}, {"count", nv}, {"type", "VEC3"}}});
+  if (ni > 0) {
+    accessors.push_back({{"bufferView", 2}, {"componentType", 5125}, {"count", ni},
+                         {"type", "SCALAR"}});
+  }
+  j["accessors"] = accessors;
+  if (nv == 0) {  // glTF forbids empty buffers and accessors: an empty scene instead
+    j.erase("meshes");
+    j.erase("buffers");
+    j.erase("bufferViews");
+    j.erase("accessors");
+    j["nodes"] = nlohmann::json::array({nlohmann::json::object()});
+  }
+  std::string text = j.dump();
+  text.append((4 - text.size() % 4) % 4, ' ');
+  const size_t bin_chunk = nv == 0 ? 0 : 8 + bin_bytes;
+  out.AppendLe32(0x46546C67u);  // "glTF"
+  out.AppendLe32(2);
+  out.AppendLe32(static_cast<uint32_t>(12 + 8 + text.size() + bin_chunk));
+  out.AppendLe32(static_cast<uint32_t>(text.size()));
+  out.AppendLe32(0x4E4F534Au);  // "JSON"
+  out.Append(text);
+  if (nv == 0) return;
+  out.AppendLe32(static_cast<uint32_t>(bin_bytes));
+  out.AppendLe32(0x004E4942u);  // "BIN\0"
+  for (const Vec3& p : mesh.positions) AppendVec3(out, p);
+  for (const Vec3& n : normals) AppendVec3(out, Dot(n, n) > 0 ? n : Vec3{0, 0, 1});
+  for (uint32_t i : mesh.indices) out.AppendLe32(i);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -611,7 +717,25 @@ absl::StatusOr<IndexedMesh> ReadObj(const std::string& path, absl::string_view d
 
 }  // namespace
 
-absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh) {
+bool IsMeshOutputPath(const std::string& path) { return FormatOf(path).ok(); }
+
+std::vector<Vec3> VertexNormals(const IndexedMesh& mesh) {
+  std::vector<Vec3> n(mesh.num_vertices(), Vec3{0, 0, 0});
+  for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+    const uint32_t* tri = &mesh.indices[3 * t];
+    const Vec3 w = TriangleAreaVector(mesh.positions[tri[0]], mesh.positions[tri[1]],
+                                      mesh.positions[tri[2]]);
+    for (int k = 0; k < 3; ++k) n[tri[k]] = n[tri[k]] + w;
+  }
+  for (Vec3& v : n) {
+    const double len = Norm(v);
+    v = len > 0 ? v * (1.0 / len) : Vec3{0, 0, 0};
+  }
+  return n;
+}
+
+absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
+                       const MeshWriteOptions& options) {
   const absl::StatusOr<Format> format = FormatOf(path);
   if (!format.ok()) return format.status();
   if (mesh.indices.size() % 3 != 0) {
@@ -634,10 +758,13 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh) {
                  absl::StrCat("cannot open for writing: ", std::strerror(errno)));
   }
   BufferedWriter out(file);
-  if (*format == Format::kPly) {
-    WritePly(mesh, out);
-  } else {
-    WriteObj(mesh, out);
+  const bool with_normals = *format == Format::kGlb || (options.normals && *format != Format::kStl);
+  const std::vector<Vec3> normals = with_normals ? VertexNormals(mesh) : std::vector<Vec3>{};
+  switch (*format) {
+    case Format::kPly: WritePly(mesh, normals, out); break;
+    case Format::kObj: WriteObj(mesh, normals, out); break;
+    case Format::kStl: WriteStl(mesh, out); break;
+    case Format::kGlb: WriteGlb(mesh, normals, out); break;
   }
   if (const int err = out.Close(); err != 0) {
     return Error(absl::StatusCode::kUnavailable, path,
@@ -646,13 +773,57 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh) {
   return absl::OkStatus();
 }
 
+// Binary STL; corners with the same float32 position become one vertex, in order of first
+// appearance, so a mesh written by WriteStl reads back with its vertex count.
+absl::StatusOr<IndexedMesh> ReadStl(const std::string& path, const std::string& data) {
+  uint32_t count = 0;
+  if (data.size() >= 84) std::memcpy(&count, data.data() + 80, 4);
+  if (data.size() < 84 || data.size() != 84 + uint64_t{50} * count) {
+    if (data.compare(0, 5, "solid") == 0) {  // and not a binary file of the right size
+      return Error(absl::StatusCode::kInvalidArgument, path,
+                   "ASCII STL is not supported (binary STL only)");
+    }
+    if (data.size() < 84) {
+      return Error(absl::StatusCode::kDataLoss, path,
+                   "shorter than a binary STL header (84 bytes)");
+    }
+    return Error(absl::StatusCode::kDataLoss, path,
+                 absl::StrCat("binary STL of ", count, " triangles needs ", 84 + uint64_t{50} * count,
+                              " bytes, the file has ", data.size()));
+  }
+  IndexedMesh mesh;
+  absl::flat_hash_map<std::array<uint32_t, 3>, uint32_t> ids;
+  mesh.indices.reserve(3 * size_t{count});
+  for (uint32_t t = 0; t < count; ++t) {
+    const char* rec = data.data() + 84 + size_t{50} * t + 12;  // past the facet normal
+    for (int c = 0; c < 3; ++c) {
+      std::array<uint32_t, 3> bits;
+      std::memcpy(bits.data(), rec + 12 * c, 12);
+      auto [it, added] = ids.try_emplace(bits, static_cast<uint32_t>(mesh.positions.size()));
+      if (added) {
+        mesh.positions.push_back(Vec3{std::bit_cast<float>(bits[0]), std::bit_cast<float>(bits[1]),
+                                      std::bit_cast<float>(bits[2])});
+      }
+      mesh.indices.push_back(it->second);
+    }
+  }
+  return mesh;
+}
+
 absl::StatusOr<IndexedMesh> ReadMesh(const std::string& path) {
   const absl::StatusOr<Format> format = FormatOf(path);
   if (!format.ok()) return format.status();
   const absl::StatusOr<std::string> data = ReadWholeFile(path);
   if (!data.ok()) return data.status();
-  if (*format == Format::kPly) return ReadPly(path, *data);
-  return ReadObj(path, *data);
+  switch (*format) {
+    case Format::kPly: return ReadPly(path, *data);
+    case Format::kObj: return ReadObj(path, *data);
+    case Format::kStl: return ReadStl(path, *data);
+    case Format::kGlb: break;
+  }
+  return Error(absl::StatusCode::kInvalidArgument, path,
+               "reading .glb is not supported (tandem writes it for viewers; read .ply, .obj "
+               "or .stl)");
 }
 
 }  // namespace tandem

@@ -1,6 +1,7 @@
-// Reading and writing triangle meshes as PLY and Wavefront OBJ files.
+// Reading and writing triangle meshes as PLY, Wavefront OBJ, binary STL and GLB files.
 //
-// The format is chosen by the file's extension, case-insensitively: ".ply" or ".obj".
+// The format is chosen by the file's extension, case-insensitively: ".ply", ".obj", ".stl"
+// or ".glb" (GLB is written, not read).
 // Positions keep the mesh's units (tandem writes physical units); no transform is applied.
 // Errors are absl::Status values whose message starts with the path and names the problem:
 //   NotFound          the file cannot be opened for reading
@@ -12,6 +13,7 @@
 #define TANDEM_MESH_IO_H_
 
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -29,7 +31,25 @@ namespace tandem {
 //         rounding to float gives the written float32 values exactly.
 // Fails with InvalidArgument, before creating the file, if indices.size() is not a multiple
 // of 3 or an index is ≥ num_vertices(), or if the mesh has ≥ 2^31 vertices (PLY int).
-absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh);
+//   .stl  binary: per triangle its unit normal and three float32 corners (no shared
+//         vertices; 50 bytes a triangle).
+//   .glb  binary glTF 2.0: POSITION, NORMAL and uint32 indices in one buffer (glTF's unit is
+//         the metre: positions keep the mesh's units, usually millimetres for CT).
+// Normals (MeshWriteOptions::normals, default on) are the area-weighted vertex normals of
+// VertexNormals: PLY gets float nx ny nz vertex properties, OBJ "vn" lines and "f i//i"
+// corners; GLB always has them; STL has its facet normals.
+struct MeshWriteOptions {
+  bool normals = true;
+};
+absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
+                       const MeshWriteOptions& options = {});
+inline constexpr const char* kMeshExtensions = ".ply, .obj, .stl or .glb";
+// Whether WriteMesh writes files with this path's extension.
+bool IsMeshOutputPath(const std::string& path);
+
+// Unit area-weighted vertex normals (the sum of the incident triangles' area vectors,
+// normalised); (0, 0, 0) for a vertex whose triangles have no area or that has none.
+std::vector<Vec3> VertexNormals(const IndexedMesh& mesh);
 
 // Reads a mesh. Polygons with more than 3 corners are fan-triangulated (v0 vi vi+1); faces
 // with fewer than 3 corners are dropped. Vertex order and count are kept as in the file.

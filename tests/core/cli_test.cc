@@ -137,9 +137,9 @@ TEST_F(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
   EXPECT_NE(o.code, 0);
   EXPECT_NE(o.text.find("missing.json"), std::string::npos) << o.text;
   ASSERT_EQ(RunTandem("generate sphere --size 16 --out " + Path("s.json")).code, 0);
-  o = RunTandem("extract --input " + Path("s.json") + " --out " + Path("x.stl"));
+  o = RunTandem("extract --input " + Path("s.json") + " --out " + Path("x.off"));
   EXPECT_NE(o.code, 0);
-  EXPECT_NE(o.text.find(".ply or .obj"), std::string::npos) << o.text;
+  EXPECT_NE(o.text.find(".ply, .obj, .stl or .glb"), std::string::npos) << o.text;
   // Each bad flag: a non-zero exit and a message that names the problem.
   for (const auto& [flags, names] : std::vector<std::pair<std::string, std::string>>{
            {"--alpha 2", "alpha"},

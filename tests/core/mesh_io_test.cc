@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <cstring>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -88,9 +89,13 @@ TEST_F(MeshIoTest, BinaryPlyRoundTripIsExact) {
   EXPECT_EQ(bytes.rfind("ply\nformat binary_little_endian 1.0\n", 0), 0u);
   EXPECT_TRUE(Contains(bytes, "element vertex 1271\n"));
   EXPECT_TRUE(Contains(bytes, "property float x\n"));
+  EXPECT_TRUE(Contains(bytes, "property float nz\n"));  // area-weighted vertex normals
   EXPECT_TRUE(Contains(bytes, "element face 2400\nproperty list uchar int vertex_indices\n"));
   const size_t header = bytes.find("end_header\n") + 11;
-  EXPECT_EQ(bytes.size(), header + 1271 * 12 + 2400 * 13);
+  EXPECT_EQ(bytes.size(), header + 1271 * 24 + 2400 * 13);
+  ASSERT_TRUE(WriteMesh(Path("bare.ply"), mesh, {.normals = false}).ok());
+  EXPECT_EQ(ReadFile(Path("bare.ply")).size(), header + 1271 * 12 + 2400 * 13 -
+                                                    std::string("property float nx\n").size() * 3);
 
   const absl::StatusOr<IndexedMesh> back = ReadMesh(path);
   ASSERT_TRUE(back.ok()) << back.status();
@@ -132,7 +137,8 @@ TEST_F(MeshIoTest, ObjRoundTripIsExactAtFloatPrecision) {
     }
   }
   const std::string text = ReadFile(path);
-  EXPECT_TRUE(Contains(text, "\nf 1 2 23\n"));    // 1-based corners of the first triangle
+  EXPECT_TRUE(Contains(text, "\nf 1//1 2//2 23//23\n"));  // 1-based corners, normal i of vertex i
+  EXPECT_TRUE(Contains(text, "\nvn "));
   EXPECT_TRUE(Contains(text, "\nv -7.3 1000 "));  // shortest float32 decimals
 }
 
@@ -292,10 +298,100 @@ TEST_F(MeshIoTest, ObjFaceFormsAndNegativeIndices) {
 TEST_F(MeshIoTest, MissingFileAndUnknownExtension) {
   const std::string missing = Path("nope.ply");
   ExpectError(ReadMesh(missing), missing, absl::StatusCode::kNotFound, "cannot open");
-  const std::string stl = Path("mesh.stl");
-  WriteFile(stl, "solid x\n");
-  ExpectError(ReadMesh(stl), stl, absl::StatusCode::kInvalidArgument, "'.stl'");
-  EXPECT_EQ(WriteMesh(stl, IndexedMesh{}).code(), absl::StatusCode::kInvalidArgument);
+  const std::string off = Path("mesh.off");
+  WriteFile(off, "OFF\n");
+  ExpectError(ReadMesh(off), off, absl::StatusCode::kInvalidArgument, "'.off'");
+  EXPECT_EQ(WriteMesh(off, IndexedMesh{}).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_FALSE(IsMeshOutputPath(off));
+  EXPECT_TRUE(IsMeshOutputPath(Path("MESH.GLB")));
+  const std::string glb = Path("mesh.glb");
+  ASSERT_TRUE(WriteMesh(glb, BumpyGrid(2, 2, true)).ok());
+  ExpectError(ReadMesh(glb), glb, absl::StatusCode::kInvalidArgument, "reading .glb");
+}
+
+TEST_F(MeshIoTest, VertexNormalsAreAreaWeighted) {
+  // A unit square's corner shared by a big and a small triangle in perpendicular planes.
+  IndexedMesh m;
+  m.positions = {{0, 0, 0}, {2, 0, 0}, {0, 2, 0}, {0, 0, 1}, {0, 0, 0}};
+  m.indices = {0, 1, 2,   // area 2 in z = 0, normal +z
+               0, 3, 1};  // area 1 in y = 0, normal +y... (0,0,1)x(2,0,0) = (0,2,0)
+  const std::vector<Vec3> n = VertexNormals(m);
+  ASSERT_EQ(n.size(), 5u);
+  // Vertex 0: 2 (0,0,1) + 1 (0,1,0), normalised.
+  EXPECT_NEAR(n[0].x, 0, 1e-15);
+  EXPECT_NEAR(n[0].y, 1 / std::sqrt(5.0), 1e-15);
+  EXPECT_NEAR(n[0].z, 2 / std::sqrt(5.0), 1e-15);
+  EXPECT_NEAR(n[2].z, 1, 1e-15);
+  EXPECT_EQ(n[4].x, 0);  // unused vertex
+  EXPECT_EQ(n[4].z, 0);
+}
+
+TEST_F(MeshIoTest, BinaryStlRoundTripWeldsTheCorners) {
+  const IndexedMesh mesh = BumpyGrid(30, 20, /*float_exact=*/true);
+  const std::string path = Path("grid.stl");
+  ASSERT_TRUE(WriteMesh(path, mesh).ok());
+  const std::string bytes = ReadFile(path);
+  ASSERT_EQ(bytes.size(), 84u + 50u * 1200);
+  EXPECT_NE(bytes.rfind("solid", 0), 0u);  // an ASCII reader must not take it for ASCII STL
+  uint32_t count;
+  std::memcpy(&count, bytes.data() + 80, 4);
+  EXPECT_EQ(count, 1200u);
+  float normal[3];  // the first facet's: unit, and along the triangle's area vector
+  std::memcpy(normal, bytes.data() + 84, 12);
+  EXPECT_NEAR(std::hypot(normal[0], normal[1], normal[2]), 1.0, 1e-6);
+  const absl::StatusOr<IndexedMesh> back = ReadMesh(path);
+  ASSERT_TRUE(back.ok()) << back.status();
+  // Welded: the grid's vertex count, each triangle with its corners (ids in order of first
+  // appearance).
+  EXPECT_EQ(back->positions.size(), mesh.positions.size());
+  ASSERT_EQ(back->indices.size(), mesh.indices.size());
+  for (size_t i = 0; i < mesh.indices.size(); ++i) {
+    EXPECT_EQ(back->positions[back->indices[i]], mesh.positions[mesh.indices[i]]) << i;
+  }
+
+  WriteFile(Path("cut.stl"), bytes.substr(0, bytes.size() - 7));
+  ExpectError(ReadMesh(Path("cut.stl")), Path("cut.stl"), absl::StatusCode::kDataLoss,
+              "binary STL of 1200 triangles needs 60084 bytes");
+  WriteFile(Path("ascii.stl"), "solid x\nfacet normal 0 0 1\nendsolid x\n");
+  ExpectError(ReadMesh(Path("ascii.stl")), Path("ascii.stl"), absl::StatusCode::kInvalidArgument,
+              "ASCII STL is not supported");
+}
+
+// The GLB container and its accessors as glTF 2.0 lays them out (the Khronos validator
+// checks the rest in tests/formats).
+TEST_F(MeshIoTest, GlbHoldsPositionsNormalsAndIndices) {
+  const IndexedMesh mesh = BumpyGrid(4, 3, /*float_exact=*/true);
+  const std::string path = Path("grid.glb");
+  ASSERT_TRUE(WriteMesh(path, mesh).ok());
+  const std::string bytes = ReadFile(path);
+  auto u32 = [&](size_t at) {
+    uint32_t v;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  ASSERT_GE(bytes.size(), 20u);
+  EXPECT_EQ(u32(0), 0x46546C67u);
+  EXPECT_EQ(u32(4), 2u);
+  EXPECT_EQ(u32(8), bytes.size());
+  const uint32_t json_len = u32(12);
+  EXPECT_EQ(u32(16), 0x4E4F534Au);
+  EXPECT_EQ(json_len % 4, 0u);
+  const std::string json = bytes.substr(20, json_len);
+  EXPECT_TRUE(Contains(json, "\"POSITION\":0"));
+  EXPECT_TRUE(Contains(json, "\"NORMAL\":1"));
+  EXPECT_TRUE(Contains(json, "\"count\":72"));  // 24 triangles x 3 indices
+  const size_t bin = 20 + json_len;
+  const size_t nv = mesh.num_vertices();
+  ASSERT_EQ(u32(bin), nv * 24 + mesh.indices.size() * 4);
+  EXPECT_EQ(u32(bin + 4), 0x004E4942u);
+  for (size_t v = 0; v < nv; ++v) {
+    float p[3];
+    std::memcpy(p, bytes.data() + bin + 8 + 12 * v, 12);
+    EXPECT_EQ(p[0], static_cast<float>(mesh.positions[v].x)) << v;
+    EXPECT_EQ(p[2], static_cast<float>(mesh.positions[v].z)) << v;
+  }
+  EXPECT_EQ(u32(bin + 8 + nv * 24), mesh.indices[0]);
+  EXPECT_EQ(u32(bytes.size() - 4), mesh.indices.back());
 }
 
 TEST_F(MeshIoTest, TruncatedBinaryPly) {
@@ -307,7 +403,7 @@ TEST_F(MeshIoTest, TruncatedBinaryPly) {
   WriteFile(path, bytes.substr(0, bytes.size() - 5));
   ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "truncated");
   ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "'face' 31 of 32");
-  WriteFile(path, bytes.substr(0, bytes.find("end_header\n") + 11 + 30));
+  WriteFile(path, bytes.substr(0, bytes.find("end_header\n") + 11 + 60));  // 24 B a vertex
   ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "'vertex' 2 of 25");
   // Cut inside the header.
   WriteFile(path, bytes.substr(0, 60));

@@ -367,9 +367,9 @@ TEST_F(ServiceE2eTest, KilledClientLeavesNothingBehind) {
 
 TEST_F(ServiceE2eTest, ClientReportsErrorsClearly) {
   TANDEM_SHARED_OR_SKIP(input, kHead);
-  RunResult bad_ext = Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/m.stl"}));
+  RunResult bad_ext = Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/m.off"}));
   EXPECT_EQ(bad_ext.exit_code, 2);
-  EXPECT_NE(bad_ext.err.find(".drc, .ply or .obj"), std::string::npos) << bad_ext.err;
+  EXPECT_NE(bad_ext.err.find(".drc, .ply, .obj, .stl or .glb"), std::string::npos) << bad_ext.err;
   RunResult no_folder =
       Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/absent/m.drc"}));
   EXPECT_EQ(no_folder.exit_code, 2);
@@ -473,4 +473,24 @@ TEST(ServiceShutdown, StreamsPastTheGracePeriodAreCancelled) {
 }
 
 }  // namespace
+// The client writes the server's mesh in every format the CLI writes: STL read back with
+// the PLY's counts (the GLB is validated by tests/formats on the CLI's writer, shared).
+TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 40, 40, 40));
+  ASSERT_TRUE(path.ok()) << path.status();
+  std::vector<std::string> base = {"stream", "--server", server_->address(), "--input", *path,
+                                   "--iso", "0", "--error", "0.3", "--compression-level", "0"};
+  for (const char* ext : {"ply", "stl", "glb"}) {
+    RunResult r = Client(Concat(base, {"--out", dir_ + "/m." + ext}));
+    ASSERT_EQ(r.exit_code, 0) << ext << ": " << r.err;
+  }
+  auto ply = ReadMesh(dir_ + "/m.ply");
+  auto stl = ReadMesh(dir_ + "/m.stl");
+  ASSERT_TRUE(ply.ok() && stl.ok()) << ply.status() << stl.status();
+  EXPECT_GT(ply->num_triangles(), 100u);
+  EXPECT_EQ(stl->num_triangles(), ply->num_triangles());
+  EXPECT_EQ(stl->num_vertices(), ply->num_vertices());
+  EXPECT_GT(std::filesystem::file_size(dir_ + "/m.glb"), 24 * ply->num_vertices());
+}
+
 }  // namespace tandem::testing

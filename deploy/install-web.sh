@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Installs the npm side of tandem from package-lock.json (npm ci): the Khronos glTF
+# validator its format tests run. Installs Debian's nodejs and npm first when node or npm
+# is missing. Non-interactive; run from anywhere (as root or with sudo for the packages).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
+  echo "install-web: installing Debian's nodejs and npm"
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
+fi
+npm ci --no-audit --no-fund --loglevel=error
+echo "install-web: done"
