@@ -163,10 +163,10 @@ int StreamCommand(int argc, char** argv) {
   flags.AddInt("compression-level", &level,
                "Draco level 0..10 (0 keeps vertex order; higher = smaller, slower)");
   flags.AddInt("preview-every", &preview_every,
-               "ask for a preview mesh every N slices (0 = none; 1 if --partials is given)");
+               "ask for a preview mesh every N slices (0 = none; with --partials: about 20 over the volume)");
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
   flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply, .obj, .stl or .glb", /*required=*/true);
-  flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice>.drc");
+  flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice, 6 digits>.drc");
   flags.AddString("metrics", &metrics_path, "FILE.json",
                   "write the metrics as JSON (same keys as `tandem extract --metrics`)");
   flags.AddBool("reference", &reference,
@@ -206,7 +206,7 @@ int StreamCommand(int argc, char** argv) {
     return 2;
   }
   if (!partials.empty()) {
-    if (!flags.IsSet("preview-every")) preview_every = 1;
+    if (!flags.IsSet("preview-every")) preview_every = -1;  // set from the depth below
     std::error_code ec;
     std::filesystem::create_directories(partials, ec);
     if (ec) {
@@ -216,6 +216,12 @@ int StreamCommand(int argc, char** argv) {
 
   auto source = tandem::OpenVolume(input);
   if (!source.ok()) return Fail(source.status());
+  if (preview_every < 0) {
+    // --partials alone: about 20 previews over a known depth (each is the whole partial
+    // mesh, encoded again), one every 16 slices when the depth is unknown.
+    const int64_t depth = (*source)->info().nz;
+    preview_every = depth > 0 ? std::max<int64_t>(1, depth / 20) : 16;
+  }
 
   tandem::client::StreamOptions options;
   options.connection = connection.options;
@@ -260,7 +266,7 @@ int StreamCommand(int argc, char** argv) {
     }
     if (!partials.empty() && partial_error.ok()) {
       partial_error = WriteFile(
-          (std::filesystem::path(partials) / absl::StrCat("preview_", p.slice(), ".drc")).string(),
+          (std::filesystem::path(partials) / absl::StrFormat("preview_%06d.drc", p.slice())).string(),
           p.draco());
     }
   };

@@ -45,6 +45,24 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) 
   return r;
 }
 
+namespace {
+nlohmann::json DistanceJson(const Distances& d) {
+  nlohmann::json dist;
+  for (auto [name, f, b, m] : {std::tuple{"L1", d.forward.l1, d.backward.l1, d.l1_max},
+                               std::tuple{"L2", d.forward.l2, d.backward.l2, d.l2_max},
+                               std::tuple{"Linf", d.forward.linf, d.backward.linf, d.linf_max}}) {
+    dist[name] = {{"forward", f}, {"backward", b}, {"max", m}};
+  }
+  return dist;
+}
+}  // namespace
+
+std::string DistancesToJson(const Distances& d) {
+  nlohmann::json j;
+  j["distance"] = DistanceJson(d);
+  return j.dump(1) + "\n";
+}
+
 std::string ReportToJson(const MetricsReport& r) {
   nlohmann::json j;
   j["input"] = r.input;
@@ -74,16 +92,7 @@ std::string ReportToJson(const MetricsReport& r) {
   j["refusals"] = {{"link", r.refusals.link},         {"flip", r.refusals.flip},
                    {"degenerate", r.refusals.degenerate}, {"box", r.refusals.box},
                    {"error", r.refusals.error},           {"distance", r.refusals.distance}};
-  if (r.distance) {
-    const Distances& d = *r.distance;
-    nlohmann::json dist;
-    for (auto [name, f, b, m] : {std::tuple{"L1", d.forward.l1, d.backward.l1, d.l1_max},
-                                 std::tuple{"L2", d.forward.l2, d.backward.l2, d.l2_max},
-                                 std::tuple{"Linf", d.forward.linf, d.backward.linf, d.linf_max}}) {
-      dist[name] = {{"forward", f}, {"backward", b}, {"max", m}};
-    }
-    j["distance"] = dist;
-  }
+  if (r.distance) j["distance"] = DistanceJson(*r.distance);
   if (r.bytes_received || r.bytes_sent) {
     j["bytes_received"] = r.bytes_received;
     j["bytes_sent"] = r.bytes_sent;
@@ -171,8 +180,11 @@ std::string ReportSummary(const MetricsReport& r) {
   }
   line("anisotropy", absl::StrFormat("%.4f", r.anisotropy));
   line("directional bias", absl::StrFormat("%.5f", r.directional_bias));
-  line("time extract/simplify", absl::StrFormat("%.3f s / %.3f s (total %.3f s)", r.time_extract_s,
-                                                r.time_simplify_s, r.time_total_s));
+  // The phases' figures add up the time of every thread that ran them (CPU seconds); the
+  // total is wall-clock time in the session, which the threads overlap.
+  line("wall time in session", absl::StrFormat("%.3f s", r.time_total_s));
+  line("CPU extract/simplify", absl::StrFormat("%.3f s / %.3f s (all threads)", r.time_extract_s,
+                                               r.time_simplify_s));
   if (r.peak_rss_bytes) line("peak RSS", absl::StrFormat("%.1f MiB", r.peak_rss_bytes / 1048576.0));
   line("contractions", absl::StrCat(r.contractions, " (refused: link ", r.refusals.link, ", flip ",
                                     r.refusals.flip, ", degenerate ", r.refusals.degenerate,

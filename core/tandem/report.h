@@ -44,6 +44,9 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh);
 
 // JSON text (keys: see tests/core/cli_test.cc and README.md).
 std::string ReportToJson(const MetricsReport& r);
+// {"distance": {"L1": {"forward", "backward", "max"}, "L2": ..., "Linf": ...}}: the block
+// ReportToJson writes, alone (tandem measure --json).
+std::string DistancesToJson(const Distances& d);
 absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json);
 // A short human-readable summary, one figure per line.
 std::string ReportSummary(const MetricsReport& r);

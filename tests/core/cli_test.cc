@@ -130,6 +130,30 @@ TEST_F(Cli, MeasurePrintsDistancesBothWays) {
   for (const char* w : {"L1", "L2", "Linf", "forward", "backward"}) {
     EXPECT_NE(o.text.find(w), std::string::npos) << w;
   }
+  // --json: the distances alone, not the extract report's schema filled with zeros.
+  o = RunTandem("measure --json " + Path("a.ply") + " " + Path("b.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  const nlohmann::json j = nlohmann::json::parse(o.text);
+  EXPECT_EQ(j.size(), 1u) << o.text;
+  EXPECT_GT(j["distance"]["L2"]["max"].get<double>(), 0.0);
+  EXPECT_LT(j["distance"]["L2"]["max"].get<double>(), 0.3);
+}
+
+// The summary labels CPU and wall-clock figures as such, and the peak RSS is the process's
+// (with --reference, the full-resolution run is part of it, as /usr/bin/time would say).
+TEST_F(Cli, SummaryFiguresSayWhatTheyMeasure) {
+  ASSERT_EQ(RunTandem("generate gyroid --size 64 --out " + Path("g.json")).code, 0);
+  Output o = RunTandem("extract --input " + Path("g.json") + " --out " + Path("g.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("wall time in session"), std::string::npos) << o.text;
+  EXPECT_NE(o.text.find("CPU extract/simplify"), std::string::npos) << o.text;
+  ASSERT_EQ(RunTandem("extract --input " + Path("g.json") + " --metrics " + Path("plain.json") +
+                      " --out " + Path("g.ply")).code, 0);
+  ASSERT_EQ(RunTandem("extract --input " + Path("g.json") + " --reference --metrics " +
+                      Path("ref.json") + " --out " + Path("g.ply")).code, 0);
+  // The reference surface and its BVH hold about 13 MiB more here (23 vs 10 MiB measured).
+  EXPECT_GT(ReadJson(Path("ref.json"))["peak_rss_bytes"].get<int64_t>(),
+            ReadJson(Path("plain.json"))["peak_rss_bytes"].get<int64_t>() + (4 << 20));
 }
 
 TEST_F(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
