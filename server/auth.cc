@@ -6,6 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "common/tokens.h"
+#include "server/log.h"
 
 namespace tandem::server {
 namespace {
@@ -68,9 +69,9 @@ void TokenAuthenticator::LogRefusal(const std::string& peer, const char* method,
   std::string more;
   if (unlogged_ > 0) more = absl::StrCat(" (", unlogged_, " earlier refusals not logged)");
   unlogged_ = 0;
-  absl::FPrintF(stderr,
-                "tandem-server: refused peer=%s method=%s status=UNAUTHENTICATED reason=\"%s\"%s\n",
-                peer, method, reason, more);
+  LogLine(
+      absl::StrFormat("refused peer=\"%s\" method=%s status=UNAUTHENTICATED reason=\"%s\"%s",
+                      LogQuoted(peer), method, LogQuoted(reason), more));
 }
 
 }  // namespace tandem::server

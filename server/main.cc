@@ -27,6 +27,7 @@
 #include "common/cli_flags.h"
 #include "common/tokens.h"
 #include "common/wire.h"
+#include "server/log.h"
 #include "server/request_validation.h"
 #include "server/tandem_service.h"
 
@@ -215,30 +216,31 @@ int main(int argc, char** argv) {
   builder.RegisterService(&service);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (server == nullptr || port == 0) {
-    absl::FPrintF(stderr, "tandem-server: cannot listen on %s (address in use or invalid%s?)\n",
-                  listen, tls ? ", or --tls-cert and --tls-key do not match" : "");
+    tandem::server::LogLine(
+        absl::StrFormat("cannot listen on %s (address in use or invalid%s?)", listen,
+                        tls ? ", or --tls-cert and --tls-key do not match" : ""));
     return 1;
   }
   const std::string host = listen.substr(0, listen.rfind(':'));
   absl::PrintF("listening on %s:%d\n", host, port);
   std::fflush(stdout);
-  absl::FPrintF(stderr,
-                "tandem-server: %s listening on %s:%d (max %d sessions, %d MiB each; %s; %s)\n",
-                tandem::wire::ServiceVersion(), host, port, limits.max_sessions,
-                session_memory_mb, tls ? "TLS" : "plaintext",
-                token_count > 0 ? absl::StrCat("bearer tokens: ", token_count)
-                                : std::string("no authentication"));
+  tandem::server::LogLine(
+      absl::StrFormat("%s listening on %s:%d (max %d sessions, %d MiB each; %s; %s)",
+                      tandem::wire::ServiceVersion(), host, port, limits.max_sessions,
+                      session_memory_mb, tls ? "TLS" : "plaintext",
+                      token_count > 0 ? absl::StrCat("bearer tokens: ", token_count)
+                                      : std::string("no authentication")));
   if (token_count > 0 && !tls && host != "127.0.0.1" && host != "localhost" && host != "[::1]") {
-    absl::FPrintF(stderr,
-                  "tandem-server: warning: bearer tokens without TLS travel in clear text; use "
-                  "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network\n");
+    tandem::server::LogLine(
+        absl::StrFormat("warning: bearer tokens without TLS travel in clear text; use "
+                        "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network"));
   }
 
   std::thread signal_thread([&] {
     int sig = 0;
     sigwait(&signals, &sig);
-    absl::FPrintF(stderr, "tandem-server: %s: draining (grace %.1f s)\n",
-                  sig == SIGTERM ? "SIGTERM" : "SIGINT", grace_seconds);
+    tandem::server::LogLine(absl::StrFormat("%s: draining (grace %.1f s)",
+                                            sig == SIGTERM ? "SIGTERM" : "SIGINT", grace_seconds));
     server->GetHealthCheckService()->SetServingStatus(false);
     // Stops accepting streams, waits for running ones until the deadline, then cancels
     // them (their reactors finish with CANCELLED).
@@ -249,9 +251,9 @@ int main(int argc, char** argv) {
   signal_thread.join();
   // Workers notice the cancellation between slices; a slice takes well under a second.
   if (!service.WaitForWorkers(absl::Now() + absl::Seconds(30))) {
-    absl::FPrintF(stderr, "tandem-server: worker threads still busy after 30 s; exiting\n");
+    tandem::server::LogLine(absl::StrFormat("worker threads still busy after 30 s; exiting"));
     return 1;
   }
-  absl::FPrintF(stderr, "tandem-server: stopped\n");
+  tandem::server::LogLine(absl::StrFormat("stopped"));
   return 0;
 }

@@ -16,6 +16,7 @@
 #include "absl/strings/str_format.h"
 #include "common/wire.h"
 #include "server/extract_job.h"
+#include "server/log.h"
 
 namespace tandem::server {
 namespace {
@@ -182,17 +183,18 @@ ExtractCall::~ExtractCall() {
     // The client never saw `status`; a cancelled stream's reads also end early, so the
     // worker may have reported a missing End first.
     status = grpc::Status(grpc::StatusCode::CANCELLED,
-                          status.ok() ? "the client left before the end"
-                                      : absl::StrCat("cancelled; before that: ",
-                                                     status.error_message()));
+                          status.ok()
+                              ? "the client left before the end"
+                              : absl::StrCat("cancelled; before that: ", status.error_message()));
   }
-  absl::FPrintF(stderr,
-                "tandem-server: session peer=%s input=\"%s\" slices=%d triangles=%d seconds=%.3f "
-                "bytes_received=%d bytes_sent=%d previews=%d status=%s%s\n",
-                peer_, description_, slices_, triangles_, absl::ToDoubleSeconds(absl::Now() - start_),
-                bytes_received_, bytes_sent_, previews_sent_,
-                absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code())),
-                status.ok() ? "" : absl::StrCat(" message=\"", status.error_message(), "\""));
+  LogLine(absl::StrFormat(
+      "session peer=\"%s\" input=\"%s\" slices=%d triangles=%d seconds=%.3f bytes_received=%d "
+      "bytes_sent=%d previews=%d status=%s%s",
+      LogQuoted(peer_), LogQuoted(description_), slices_, triangles_,
+      absl::ToDoubleSeconds(absl::Now() - start_), bytes_received_, bytes_sent_, previews_sent_,
+      absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code())),
+      status.ok() ? ""
+                  : absl::StrCat(" message=\"", LogQuoted(status.error_message(), 1000), "\"")));
   state_->sessions_finished.fetch_add(1);
   state_->active_sessions.fetch_sub(1);  // last: tests wait for it to read the log
 }

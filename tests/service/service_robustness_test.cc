@@ -2,6 +2,8 @@
 // requests can be malformed on purpose): each gets the right code and a message that
 // names the problem, and the server keeps serving. Also: session limit, message size
 // limit, cancellation, and the latest-wins previews of a slow reader.
+#include <signal.h>
+
 #include <cmath>
 #include <cstring>
 #include <functional>
@@ -9,6 +11,8 @@
 #include <thread>
 
 #include <gtest/gtest.h>
+
+#include "absl/strings/str_split.h"
 
 #include "codec/draco_codec.h"
 #include "service/bad_input_cases.h"
@@ -211,6 +215,40 @@ TEST_F(ServiceRobustnessTest, SlowReaderGetsFewerNewerPreviews) {
   EXPECT_LT(slices.size(), static_cast<size_t>(n / 2))
       << "previews were dropped, not queued (" << preview_bytes << " bytes received)";
   for (size_t i = 1; i < slices.size(); ++i) EXPECT_GT(slices[i], slices[i - 1]);
+}
+
+// A description is the client's text: in the log it is escaped (no line can be forged,
+// no escape code reaches an operator's terminal) and truncated (an 8 MiB description makes
+// a line of a few hundred bytes), and every line starts with an RFC 3339 UTC timestamp.
+TEST_F(ServiceRobustnessTest, ClientTextInTheLogIsEscapedAndBounded) {
+  ASSERT_NO_FATAL_FAILURE(Start({}));
+  std::vector<v1::ExtractRequest> forged = Good();
+  forged[0].mutable_config()->set_description(
+      "scan\ntandem-server: session peer=evil status=OK\x1b[31m red");
+  ASSERT_TRUE(FinishedOk(RunStream(*stub_, forged)));
+  std::vector<v1::ExtractRequest> huge = Good();
+  huge[0].mutable_config()->set_description(std::string(8 << 20, 'A'));
+  ASSERT_TRUE(FinishedOk(RunStream(*stub_, huge)));
+  ASSERT_TRUE(server_->WaitIdle(30));
+  server_->process().Signal(SIGTERM);
+  ASSERT_TRUE(server_->process().Wait(60).has_value());
+  const std::string log = server_->process().Stderr();
+  EXPECT_EQ(log.find('\x1b'), std::string::npos) << "an escape code reached the log";
+  EXPECT_NE(log.find("input=\"scan\\ntandem-server: session peer=evil status=OK\\x1b[31m red\""),
+            std::string::npos)
+      << log;
+  EXPECT_NE(log.find("...(8388608 bytes in all)"), std::string::npos);
+  size_t sessions = 0;
+  for (const absl::string_view line : absl::StrSplit(log, '\n')) {
+    if (line.empty()) continue;
+    EXPECT_LT(line.size(), 2000u) << line.substr(0, 200);
+    // 2026-11-24T23:15:24.123Z tandem-server: ...
+    EXPECT_TRUE(line.size() > 25 && line[4] == '-' && line[10] == 'T' && line[23] == 'Z' &&
+                line.substr(24, 15) == " tandem-server:")
+        << line.substr(0, 200);
+    if (line.find(" session peer=") != absl::string_view::npos) ++sessions;
+  }
+  EXPECT_EQ(sessions, 2u) << "one line per session, no forged one";
 }
 
 }  // namespace

@@ -298,7 +298,7 @@ TEST_F(AuthTest, ClientSendsItsTokenAndTheLogNeverShowsOne) {
   s.process().Signal(SIGTERM);
   ASSERT_EQ(s.process().Wait(30), 0);
   const std::string log = s.process().Stderr();
-  EXPECT_NE(log.find("refused peer=ipv4:127.0.0.1:"), std::string::npos) << log;
+  EXPECT_NE(log.find("refused peer=\"ipv4:127.0.0.1:"), std::string::npos) << log;
   EXPECT_NE(log.find("method=Extract status=UNAUTHENTICATED reason=\"no authorization metadata\""),
             std::string::npos)
       << log;
