@@ -88,10 +88,11 @@ Progress (slices done / total) is shown on stderr when it is a terminal.
 )";
 
 constexpr char kGenerateHelp[] =
-    R"(Usage: tandem generate SHAPE --size N --out FILE.json [--dims NX,NY,NZ] [--spacing SX,SY,SZ]
+    R"(Usage: tandem generate SHAPE --size N --out FILE [--dims NX,NY,NZ] [--spacing SX,SY,SZ]
 
-Writes a synthetic float32 volume as FILE.raw plus the JSON sidecar FILE.json, whose
-"suggested_isovalues" holds the shape's iso-value (0).
+Writes a synthetic float32 volume in the format of FILE's extension, every one the readers
+read: .json (FILE.raw beside it plus the JSON sidecar, whose "suggested_isovalues" holds
+the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff.
 SHAPE: sphere, pillowbox (the paper's Pillow Box), link (two interlocked tori),
 gyroid (a solid gyroid clipped to a ball: closed, high genus).
   --size N          N x N x N grid vertices (or --dims NX,NY,NZ)
@@ -99,7 +100,7 @@ gyroid (a solid gyroid clipped to a ball: closed, high genus).
 )";
 
 constexpr char kMeasureHelp[] =
-    R"(Usage: tandem measure A.{ply,obj} B.{ply,obj} [--samples N] [--json]
+    R"(Usage: tandem measure A.{ply,obj,stl} B.{ply,obj,stl} [--samples N] [--json]
 
 Metro-style distances between two meshes by area-uniform sampling and exact
 point-to-triangle distance: L1 (mean), L2 (RMS) and Linf (Hausdorff), A->B (forward),
@@ -265,8 +266,9 @@ int Generate(int argc, char** argv) {
   auto shape = ParseShape(args->positional()[0]);
   if (!shape.ok()) return Fail(shape.status());
   auto out = args->Get("out");
-  if (!out || !out->ends_with(".json")) {
-    return Fail(absl::InvalidArgumentError("--out FILE.json is required (the raw file goes beside it)"));
+  if (!out) {
+    return Fail(absl::InvalidArgumentError(
+        "--out FILE is required: .json (+ .raw beside it), .nrrd, .nhdr, .nii, .nii.gz, .tif"));
   }
   std::array<double, 3> dims{};
   if (auto d = args->Get("dims")) {

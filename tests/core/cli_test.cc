@@ -223,5 +223,26 @@ TEST_F(Cli, ExtremeSidecarGeometryIsRefusedNotAborted) {
   }
 }
 
+// tandem generate writes every format the readers read, and each gives the same surface.
+TEST_F(Cli, GenerateWritesEveryReadableFormat) {
+  ASSERT_EQ(RunTandem("generate link --size 24 --out " + Path("l.json")).code, 0);
+  ASSERT_EQ(RunTandem("extract --input " + Path("l.json") + " --metrics " + Path("l.m.json") +
+                      " --out " + Path("l.ply")).code, 0);
+  const int64_t want = ReadJson(Path("l.m.json"))["triangles_final"].get<int64_t>();
+  ASSERT_GT(want, 50);
+  for (const char* ext : {"nrrd", "nhdr", "nii", "nii.gz", "tif"}) {
+    const std::string vol = Path(std::string("v.") + ext);
+    Output o = RunTandem("generate link --size 24 --out " + vol);
+    ASSERT_EQ(o.code, 0) << ext << ": " << o.text;
+    o = RunTandem("extract --input " + vol + " --iso 0 --metrics " + Path("m.json") + " --out " +
+                  Path("v.ply"));
+    ASSERT_EQ(o.code, 0) << ext << ": " << o.text;
+    EXPECT_EQ(ReadJson(Path("m.json"))["triangles_final"].get<int64_t>(), want) << ext;
+  }
+  Output bad = RunTandem("generate link --size 24 --out " + Path("v.xyz"));
+  EXPECT_EQ(bad.code, 2) << bad.text;
+  EXPECT_NE(bad.text.find("v.xyz"), std::string::npos) << bad.text;
+}
+
 }  // namespace
 }  // namespace tandem
