@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -32,8 +33,8 @@ using zarr::Compression;
 
 constexpr uint64_t kMaxMetadataBytes = 16 << 20;
 // One decoded chunk, and one chunk-z layer, must fit in memory comfortably.
-constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 30;
-constexpr uint64_t kMaxLayerBytes = uint64_t{2} << 30;
+constexpr uint64_t kMaxChunkBytes = uint64_t{512} << 20;
+constexpr uint64_t kMaxLayerBytes = uint64_t{1} << 30;
 
 absl::Status MetaError(const std::string& file, absl::string_view what) {
   return absl::InvalidArgumentError(absl::StrCat(file, ": ", what));
@@ -703,14 +704,17 @@ class ZarrSliceSource final : public SliceSource {
           continue;
         }
         if (!st.ok()) return st;
-        const std::string where =
-            absl::StrCat(file, ": chunk (", absl::StrJoin(idx, ", "), ") of ", path_);
+        const std::string where = absl::StrCat(file, ": chunk (", absl::StrJoin(idx, ", "), ")");
         if (a.has_compression) {
-          decoded_.resize(chunk_bytes);
+          // Uninitialised: a damaged chunk fails before its declared size is touched.
+          if (decoded_size_ < chunk_bytes) {
+            decoded_.reset(new uint8_t[chunk_bytes]);
+            decoded_size_ = chunk_bytes;
+          }
           st = zarr::Decode(a.compression, reinterpret_cast<const uint8_t*>(raw_.data()),
-                            raw_.size(), decoded_.data(), chunk_bytes);
+                            raw_.size(), decoded_.get(), chunk_bytes);
           if (!st.ok()) return absl::DataLossError(absl::StrCat(where, ": ", st.message()));
-          chunk = decoded_.data();
+          chunk = decoded_.get();
         } else {
           if (raw_.size() != chunk_bytes) {
             return absl::DataLossError(absl::StrCat(
@@ -735,12 +739,17 @@ class ZarrSliceSource final : public SliceSource {
     return absl::OkStatus();
   }
 
+  // A missing chunk: its part of the layer holds fill_value (one row built, then copied).
   void FillBlock(int64_t depth, int64_t y0, int64_t x0, int64_t rows, int64_t cols) {
+    fill_row_.resize(static_cast<size_t>(cols) * es_);
+    for (int64_t x = 0; x < cols; ++x) {
+      std::memcpy(fill_row_.data() + x * es_, r_.array.fill.data(), es_);
+    }
     for (int64_t z = 0; z < depth; ++z) {
       for (int64_t y = 0; y < rows; ++y) {
         uint8_t* dst =
             layer_.data() + static_cast<size_t>((z * info_.ny + y0 + y) * info_.nx + x0) * es_;
-        for (int64_t x = 0; x < cols; ++x) std::memcpy(dst + x * es_, r_.array.fill.data(), es_);
+        std::memcpy(dst, fill_row_.data(), fill_row_.size());
       }
     }
   }
@@ -757,7 +766,9 @@ class ZarrSliceSource final : public SliceSource {
   int64_t layer_cz_ = -1;
   std::vector<uint8_t> layer_;  // one chunk-z layer: depth x ny x nx
   std::string raw_;             // one chunk file
-  std::vector<uint8_t> decoded_;
+  std::vector<uint8_t> fill_row_;
+  std::unique_ptr<uint8_t[]> decoded_;  // one decoded chunk
+  size_t decoded_size_ = 0;
   absl::Status sticky_;
 };
 
@@ -784,7 +795,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenResolved(const std::string& pat
     chunk_elems *= static_cast<uint64_t>(a.chunks[d]);
     if (chunk_elems * DTypeSize(a.dtype) > kMaxChunkBytes) {
       return MetaError(file, absl::StrCat("chunks of ", absl::StrJoin(a.chunks, "x"),
-                                          " elements are too large (at most 1 GiB a chunk)"));
+                                          " elements are too large (at most 512 MiB a chunk)"));
     }
   }
   // Axis roles: the last three must be z, y, x (when named).
@@ -829,7 +840,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenResolved(const std::string& pat
   if (static_cast<uint64_t>(std::min(a.chunks[nd - 3], info.nz)) * info.slice_bytes() >
       kMaxLayerBytes) {
     return MetaError(file, absl::StrCat("a layer of chunks ", a.chunks[nd - 3],
-                                        " planes deep is too large to hold (at most 2 GiB)"));
+                                        " planes deep is too large to hold (at most 1 GiB)"));
   }
   info.suggested_isovalues = a.isovalues;
   info.description = r.what;

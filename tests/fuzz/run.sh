@@ -16,8 +16,9 @@
 # TANDEM_BUILD_SERVICE=OFF (readers only).
 #
 # Targets: fuzz_raw_json (raw + JSON sidecar; input = 2-byte raw size + sidecar text),
-# fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff, fuzz_request (one option byte, then
-# length-delimited ExtractRequest messages; see fuzz_request.cc).
+# fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff, fuzz_zarr (a version byte, a 2-byte
+# metadata length, the array metadata, one chunk; see fuzz_zarr.cc), fuzz_request (one
+# option byte, then length-delimited ExtractRequest messages; see fuzz_request.cc).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -34,7 +35,7 @@ while [ $# -gt 0 ]; do
     *) echo "fuzz/run.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
-all=(fuzz_raw_json fuzz_nrrd fuzz_nifti fuzz_tiff)
+all=(fuzz_raw_json fuzz_nrrd fuzz_nifti fuzz_tiff fuzz_zarr)
 if [ "${TANDEM_BUILD_SERVICE:-ON}" != OFF ]; then all+=(fuzz_request); fi
 if [ ${#targets[@]} -eq 0 ]; then targets=("${all[@]}"); fi
 
