@@ -634,8 +634,13 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
 
 class ZarrSliceSource final : public SliceSource {
  public:
-  ZarrSliceSource(std::string path, Resolved r, VolumeInfo info, std::vector<int64_t> lead)
-      : path_(std::move(path)), r_(std::move(r)), info_(std::move(info)), lead_(std::move(lead)) {
+  ZarrSliceSource(std::string path, Resolved r, VolumeInfo info, std::vector<int64_t> lead,
+                  int64_t first_plane)
+      : path_(std::move(path)),
+        r_(std::move(r)),
+        info_(std::move(info)),
+        lead_(std::move(lead)),
+        next_(first_plane) {
     const ArrayMeta& a = r_.array;
     es_ = DTypeSize(a.dtype);
     const size_t nd = a.shape.size();
@@ -666,7 +671,45 @@ class ZarrSliceSource final : public SliceSource {
     return absl::OkStatus();
   }
 
+  // Planes 0..n-1 whose chunk rows have every chunk file on disk, capped at the shape; rows
+  // below `known` planes are taken as complete without looking.
+  int64_t CompletePlanes(int64_t known) const {
+    const size_t nd = r_.array.shape.size();
+    const int64_t cdz = r_.array.chunks[nd - 3], cdy = r_.array.chunks[nd - 2],
+                  cdx = r_.array.chunks[nd - 1];
+    int64_t cz = std::clamp<int64_t>(known, 0, info_.nz) / cdz;
+    for (; cz * cdz < info_.nz; ++cz) {
+      std::vector<int64_t> idx = ChunkIndex(cz, nullptr);
+      bool all = true;
+      for (int64_t cy = 0; all && cy * cdy < info_.ny; ++cy) {
+        for (int64_t cx = 0; all && cx * cdx < info_.nx; ++cx) {
+          idx[nd - 2] = cy;
+          idx[nd - 1] = cx;
+          all = FileExists(ChunkPath(idx));
+        }
+      }
+      if (!all) break;
+    }
+    return std::max(std::min(cz * cdz, info_.nz), std::clamp<int64_t>(known, 0, info_.nz));
+  }
+
  private:
+  // The index of chunk (lead..., cz, 0, 0); *lead_offset (if set) gets the element offset of
+  // the chosen t/c inside such a chunk.
+  std::vector<int64_t> ChunkIndex(int64_t cz, size_t* lead_offset) const {
+    const ArrayMeta& a = r_.array;
+    const size_t nd = a.shape.size();
+    std::vector<int64_t> idx(nd, 0);
+    size_t offset = 0;
+    for (size_t d = 0; d + 3 < nd; ++d) {
+      idx[d] = lead_[d] / a.chunks[d];
+      offset += static_cast<size_t>((lead_[d] % a.chunks[d]) * stride_[d]);
+    }
+    idx[nd - 3] = cz;
+    if (lead_offset != nullptr) *lead_offset = offset;
+    return idx;
+  }
+
   std::string ChunkPath(const std::vector<int64_t>& idx) const {
     const std::string sep(1, r_.array.separator);
     std::string key = absl::StrJoin(idx, sep);
@@ -682,13 +725,8 @@ class ZarrSliceSource final : public SliceSource {
     const int64_t nx = info_.nx, ny = info_.ny;
     const int64_t depth = std::min(cdz, info_.nz - cz * cdz);
     layer_.resize(static_cast<size_t>(depth) * info_.slice_bytes());
-    std::vector<int64_t> idx(nd);
     size_t lead_offset = 0;  // element offset of the chosen t/c inside a chunk
-    for (size_t d = 0; d + 3 < nd; ++d) {
-      idx[d] = lead_[d] / a.chunks[d];
-      lead_offset += static_cast<size_t>((lead_[d] % a.chunks[d]) * stride_[d]);
-    }
-    idx[nd - 3] = cz;
+    std::vector<int64_t> idx = ChunkIndex(cz, &lead_offset);
     const size_t chunk_bytes = chunk_elems_ * es_;
     for (int64_t cy = 0; cy * cdy < ny; ++cy) {
       for (int64_t cx = 0; cx * cdx < nx; ++cx) {
@@ -772,8 +810,11 @@ class ZarrSliceSource final : public SliceSource {
   absl::Status sticky_;
 };
 
-absl::StatusOr<std::unique_ptr<SliceSource>> OpenResolved(const std::string& path, Resolved r,
-                                                          const ZarrReadOptions& opts) {
+// growing: an array with fewer than 2 planes (so far) is not an error (follow mode counts
+// its planes).
+absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string& path, Resolved r,
+                                                              const ZarrReadOptions& opts,
+                                                              bool growing) {
   const ArrayMeta& a = r.array;
   const std::string& file = a.meta_file;
   const size_t nd = a.shape.size();
@@ -833,8 +874,12 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenResolved(const std::string& pat
       info.origin[k] = r.translation[nd - 1 - k];
     }
   }
-  if (info.nz == 0) return MetaError(file, "the array has no planes yet (shape 0 along z)");
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
+  if (info.nz == 0 && !growing) {
+    return MetaError(file, "the array has no planes yet (shape 0 along z)");
+  }
+  VolumeInfo checked = info;
+  if (growing && checked.nz < 2) checked.nz = 0;
+  if (absl::Status st = ValidateVolumeInfo(checked); !st.ok()) {
     return absl::Status(st.code(), absl::StrCat(file, ": ", st.message()));
   }
   if (static_cast<uint64_t>(std::min(a.chunks[nd - 3], info.nz)) * info.slice_bytes() >
@@ -849,8 +894,26 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenResolved(const std::string& pat
     absl::StrAppend(&info.description, "; units z ", r.axis_units[nd - 3], ", y ",
                     r.axis_units[nd - 2], ", x ", r.axis_units[nd - 1]);
   }
-  return std::unique_ptr<SliceSource>(
-      new ZarrSliceSource(path, std::move(r), std::move(info), std::move(lead)));
+  if (opts.first_plane < 0 || opts.first_plane > info.nz) {
+    return absl::InvalidArgumentError(absl::StrCat(path, ": first plane ", opts.first_plane,
+                                                   " is outside the array's ", info.nz, " planes"));
+  }
+  return std::make_unique<ZarrSliceSource>(path, std::move(r), std::move(info), std::move(lead),
+                                           opts.first_plane);
+}
+
+absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenZarrSource(const std::string& path,
+                                                                const ZarrReadOptions& opts,
+                                                                bool growing) {
+  std::string root = path;
+  while (root.size() > 1 && root.back() == '/') root.pop_back();
+  try {  // the checks should make json access safe; never let an exception escape
+    absl::StatusOr<Resolved> r = Resolve(root, opts.array);
+    if (!r.ok()) return r.status();
+    return OpenResolved(path, *std::move(r), opts, growing);
+  } catch (const json::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat(path, ": bad Zarr metadata: ", e.what()));
+  }
 }
 
 }  // namespace
@@ -878,15 +941,20 @@ std::pair<std::string, std::string> SplitZarrSelector(const std::string& path) {
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenZarrVolume(const std::string& path,
                                                             const ZarrReadOptions& opts) {
-  std::string root = path;
-  while (root.size() > 1 && root.back() == '/') root.pop_back();
-  try {  // the checks should make json access safe; never let an exception escape
-    absl::StatusOr<internal::Resolved> r = internal::Resolve(root, opts.array);
-    if (!r.ok()) return r.status();
-    return internal::OpenResolved(path, *std::move(r), opts);
-  } catch (const nlohmann::json::exception& e) {
-    return absl::InvalidArgumentError(absl::StrCat(path, ": bad Zarr metadata: ", e.what()));
-  }
+  absl::StatusOr<std::unique_ptr<internal::ZarrSliceSource>> src =
+      internal::OpenZarrSource(path, opts, /*growing=*/false);
+  if (!src.ok()) return src.status();
+  return std::unique_ptr<SliceSource>(std::move(*src));
+}
+
+absl::StatusOr<int64_t> CountCompleteZarrPlanes(const std::string& path,
+                                                const ZarrReadOptions& opts, int64_t known) {
+  ZarrReadOptions o = opts;
+  o.first_plane = 0;
+  absl::StatusOr<std::unique_ptr<internal::ZarrSliceSource>> src =
+      internal::OpenZarrSource(path, o, /*growing=*/true);
+  if (!src.ok()) return src.status();
+  return (*src)->CompletePlanes(known);
 }
 
 }  // namespace tandem

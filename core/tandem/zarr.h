@@ -37,11 +37,23 @@ struct ZarrReadOptions {
   std::string array;
   int64_t t = 0;  // index on an OME "time" axis
   int64_t c = 0;  // index on an OME "channel" axis
+  // The first plane ReadSlice returns (next_slice() starts there): a follower that reopens
+  // a grown array resumes where it stopped (only that chunk row is decoded again).
+  int64_t first_plane = 0;
 };
 
 // Opens a Zarr / OME-Zarr volume. Errors name the file (metadata or chunk) and the problem.
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenZarrVolume(const std::string& path,
                                                             const ZarrReadOptions& opts = {});
+
+// For following an acquisition: how many leading planes of the selected array are complete
+// now, reading the metadata afresh: the planes of the first chunk rows whose every chunk file
+// exists, capped at the metadata's shape (0 while the array is empty). Rows below `known`
+// planes are not looked at again. Writers that skip chunks holding only fill_value
+// (zarr-python's write_empty_chunks=False) leave rows that never count as complete.
+absl::StatusOr<int64_t> CountCompleteZarrPlanes(const std::string& path,
+                                                const ZarrReadOptions& opts = {},
+                                                int64_t known = 0);
 
 // Splits "image.zarr#labels/0" into the store path and the selector, unless the whole
 // string names an existing file or directory. Returns {path, ""} when there is no '#'.

@@ -248,6 +248,9 @@ TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
   auto app = ZarrAppender::Create(path, info, o);
   ASSERT_TRUE(app.ok()) << app.status();
   EXPECT_EQ((*app)->array_path(), path + "/0");
+  auto none = CountCompleteZarrPlanes(path);
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_EQ(*none, 0);
   info.nz = 10;
   const SliceFn slices = PatternSlices(info);
   std::vector<uint8_t> plane;
@@ -257,6 +260,9 @@ TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
     const int64_t shape0 = ReadJson(path + "/0/.zarray")["shape"][0].get<int64_t>();
     EXPECT_EQ(shape0, (k + 1) / 4 * 4) << "after plane " << k;
     EXPECT_EQ((*app)->planes_visible(), shape0);
+    auto complete = CountCompleteZarrPlanes(path);
+    ASSERT_TRUE(complete.ok()) << complete.status();
+    EXPECT_EQ(*complete, shape0);
     if (shape0 >= 4) {  // the visible part is readable while the array grows
       auto src = OpenVolume(path);
       ASSERT_TRUE(src.ok()) << src.status();
@@ -273,6 +279,45 @@ TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
   ExpectPatternValue(**src);
   // A second store over the first is refused.
   EXPECT_TRUE(absl::IsAlreadyExists(ZarrAppender::Create(path, info, o).status()));
+}
+
+TEST(Zarr, FollowerCountsCompleteRowsAndResumesAtAPlane) {
+  // A writer that declares the final shape first and fills chunks as planes arrive: only
+  // rows with every chunk on disk count.
+  const std::string path = testing::MakeTempDir() + "/prealloc.zarr";
+  const VolumeInfo info = Grid(DType::kFloat32, 20, 12, 11);
+  ZarrWriteOptions o;
+  o.ome = false;
+  o.version = 3;
+  o.chunks = {3, 8, 8};  // rows of 3 planes, 2 x 3 chunks each
+  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+  ASSERT_TRUE(fs::remove(path + "/c/2/1/2"));
+  ASSERT_TRUE(fs::remove(path + "/c/3/0/0"));
+  auto n = CountCompleteZarrPlanes(path);
+  ASSERT_TRUE(n.ok()) << n.status();
+  EXPECT_EQ(*n, 6);
+  n = CountCompleteZarrPlanes(path, {}, 9);  // rows below 9 planes are not looked at
+  ASSERT_TRUE(n.ok());
+  EXPECT_EQ(*n, 9);
+  n = CountCompleteZarrPlanes(testing::MakeTempDir() + "/nothing.zarr");
+  EXPECT_FALSE(n.ok());
+  // Resuming at plane 4 (inside the second row) reads 4..10 as they are.
+  ZarrReadOptions from4;
+  from4.first_plane = 4;
+  fs::remove_all(path);
+  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+  auto src = OpenZarrVolume(path, from4);
+  ASSERT_TRUE(src.ok()) << src.status();
+  EXPECT_EQ((*src)->next_slice(), 4);
+  std::vector<uint8_t> slice;
+  for (int64_t k = 4; k < 11; ++k) {
+    ASSERT_TRUE((*src)->ReadSlice(&slice).ok());
+    EXPECT_EQ(Load(DType::kFloat32, slice.data() + (5 * 20 + 7) * 4),
+              static_cast<float>(PatternValue(DType::kFloat32, 7, 5, k)));
+  }
+  EXPECT_TRUE(absl::IsOutOfRange((*src)->ReadSlice(&slice)));
+  from4.first_plane = 12;
+  EXPECT_FALSE(OpenZarrVolume(path, from4).ok());
 }
 
 // ---------------------------------------------------------------------------------------
