@@ -63,6 +63,13 @@ struct ArrayMeta {
   bool v3_default_key = false;    // "c/0/1/2" (v3 default) vs "0.1.2" (v2)
   char separator = '.';
   std::vector<double> isovalues;  // the array's "suggested_isovalues" attribute (tandem's)
+  // v3 sharding_indexed: `chunks` is then the inner chunk (the unit decoded), each shard
+  // file holds shard[d] / chunks[d] of them along every axis and an index of
+  // (offset, nbytes) pairs, little-endian uint64, at its start or end.
+  bool sharded = false;
+  std::vector<int64_t> shard;
+  bool index_at_start = false;
+  uint64_t index_tail = 0;  // bytes after the index entries (4 with a crc32c codec)
 };
 
 struct Node {
@@ -281,6 +288,44 @@ absl::StatusOr<ArrayMeta> ParseV2Array(const std::string& dir, const std::string
   return m;
 }
 
+absl::Status ParseV3Codecs(const std::string& file, const json& codecs, ArrayMeta* m);
+
+// The sharding codec (the array's only array-to-bytes codec): its inner chunk shape and
+// codecs describe each inner chunk; the index must be little-endian uint64 pairs, with an
+// optional crc32c (skipped, not verified).
+absl::Status ParseSharding(const std::string& file, const json& cfg, ArrayMeta* m) {
+  if (!cfg.contains("chunk_shape") || !cfg.contains("codecs")) {
+    return MetaError(file, "sharding_indexed needs chunk_shape and codecs");
+  }
+  absl::StatusOr<std::vector<int64_t>> inner = IntList(file, cfg["chunk_shape"], "chunk_shape");
+  if (!inner.ok()) return inner.status();
+  m->sharded = true;
+  m->shard = std::move(m->chunks);
+  m->chunks = *std::move(inner);
+  if (absl::Status st = ParseV3Codecs(file, cfg["codecs"], m); !st.ok()) return st;
+  const json loc = cfg.value("index_location", json("end"));
+  if (loc != "end" && loc != "start") {
+    return MetaError(file, absl::StrCat("sharding: unsupported index_location ", loc.dump()));
+  }
+  m->index_at_start = loc == "start";
+  const json index = cfg.value("index_codecs", json::array());
+  bool little = false;
+  for (const json& c : index) {
+    const json name = c.is_object() ? c.value("name", json()) : json();
+    const json ccfg = c.is_object() ? c.value("configuration", json::object()) : json();
+    if (name == "bytes" && ccfg.is_object() && ccfg.value("endian", json("little")) == "little") {
+      little = true;
+    } else if (name == "crc32c" && little) {
+      m->index_tail = 4;
+    } else {
+      return MetaError(file, absl::StrCat("sharding: unsupported index_codecs ", index.dump(),
+                                          " (little-endian bytes, then optionally crc32c)"));
+    }
+  }
+  if (!little) return MetaError(file, "sharding: index_codecs must start with bytes (little)");
+  return absl::OkStatus();
+}
+
 absl::Status ParseV3Codecs(const std::string& file, const json& codecs, ArrayMeta* m) {
   if (!codecs.is_array()) return MetaError(file, "'codecs' must be a list");
   bool have_bytes = false;
@@ -292,6 +337,14 @@ absl::Status ParseV3Codecs(const std::string& file, const json& codecs, ArrayMet
     const json cfg = c.value("configuration", json::object());
     if (!cfg.is_object())
       return MetaError(file, absl::StrCat("codec '", name, "': bad configuration"));
+    if (name == "sharding_indexed" && !have_bytes && codecs.size() == 1 && !m->sharded) {
+      return ParseSharding(file, cfg, m);
+    }
+    if (name == "sharding_indexed") {
+      return MetaError(file,
+                       "codec 'sharding_indexed' must be the only codec (nested or "
+                       "combined sharding is not supported)");
+    }
     if (name == "bytes") {
       have_bytes = true;
       const json endian = cfg.value("endian", json("little"));
@@ -710,11 +763,62 @@ class ZarrSliceSource final : public SliceSource {
     return idx;
   }
 
+  // The file holding chunk idx (its shard's, for sharded arrays).
   std::string ChunkPath(const std::vector<int64_t>& idx) const {
     const std::string sep(1, r_.array.separator);
-    std::string key = absl::StrJoin(idx, sep);
+    std::vector<int64_t> key_idx = idx;
+    if (r_.array.sharded) {
+      for (size_t d = 0; d < idx.size(); ++d) {
+        key_idx[d] = idx[d] / (r_.array.shard[d] / r_.array.chunks[d]);
+      }
+    }
+    std::string key = absl::StrJoin(key_idx, sep);
     if (r_.array.v3_default_key) key = absl::StrCat("c", sep, key);
     return (fs::path(r_.array.dir) / key).string();
+  }
+
+  // The stored bytes of chunk idx into raw_: the whole chunk file, or the inner chunk's
+  // range of its shard. NotFound when the chunk (or its shard) does not exist.
+  absl::Status ReadChunk(const std::vector<int64_t>& idx, const std::string& file,
+                         uint64_t max_bytes) {
+    const ArrayMeta& a = r_.array;
+    if (!a.sharded) return zarr::ReadWholeFile(file, max_bytes, &raw_);
+    if (file != shard_file_) {  // read the shard's index once for all its inner chunks
+      shard_file_.clear();
+      size_t n = 1;
+      for (size_t d = 0; d < idx.size(); ++d) n *= static_cast<size_t>(a.shard[d] / a.chunks[d]);
+      const uint64_t index_bytes = 16 * uint64_t{n} + a.index_tail;
+      absl::StatusOr<uint64_t> size = FileSize(file);
+      if (!size.ok()) return size.status();  // NotFound: the whole shard holds fill_value
+      if (*size < index_bytes) {
+        return absl::DataLossError(absl::StrCat(file, ": truncated shard: ", *size,
+                                                " bytes, its index alone needs ", index_bytes));
+      }
+      shard_size_ = *size;
+      const uint64_t at = a.index_at_start ? 0 : *size - index_bytes;
+      if (absl::Status st = zarr::ReadRange(file, at, 16 * n, &raw_); !st.ok()) return st;
+      shard_index_.resize(2 * n);
+      for (size_t i = 0; i < 2 * n; ++i) {
+        shard_index_[i] = LoadScalar<uint64_t>(
+            reinterpret_cast<const uint8_t*>(raw_.data()) + 8 * i, !kHostIsLittleEndian);
+      }
+      shard_file_ = file;
+    }
+    uint64_t inner = 0;  // C-order position of the inner chunk within its shard
+    for (size_t d = 0; d < idx.size(); ++d) {
+      const int64_t per = a.shard[d] / a.chunks[d];
+      inner = inner * static_cast<uint64_t>(per) + static_cast<uint64_t>(idx[d] % per);
+    }
+    const uint64_t offset = shard_index_[2 * inner], nbytes = shard_index_[2 * inner + 1];
+    if (offset == ~uint64_t{0} && nbytes == ~uint64_t{0}) {
+      return absl::NotFoundError(absl::StrCat(file, ": inner chunk ", inner, " is empty"));
+    }
+    if (nbytes > max_bytes || offset > shard_size_ || nbytes > shard_size_ - offset) {
+      return absl::DataLossError(
+          absl::StrCat(file, ": shard index entry ", inner, " (offset ", offset, ", ", nbytes,
+                       " bytes) lies outside the shard's ", shard_size_, " bytes"));
+    }
+    return zarr::ReadRange(file, offset, nbytes, &raw_);
   }
 
   // Decodes every chunk of chunk row cz into layer_ (host byte order).
@@ -735,8 +839,8 @@ class ZarrSliceSource final : public SliceSource {
         const std::string file = ChunkPath(idx);
         const int64_t rows = std::min(cdy, ny - cy * cdy), cols = std::min(cdx, nx - cx * cdx);
         const uint8_t* chunk = nullptr;
-        absl::Status st = zarr::ReadWholeFile(
-            file, a.has_compression ? 2 * chunk_bytes + (1 << 20) : chunk_bytes, &raw_);
+        absl::Status st =
+            ReadChunk(idx, file, a.has_compression ? 2 * chunk_bytes + (1 << 20) : chunk_bytes);
         if (absl::IsNotFound(st)) {
           FillBlock(depth, cy * cdy, cx * cdx, rows, cols);
           continue;
@@ -804,6 +908,9 @@ class ZarrSliceSource final : public SliceSource {
   int64_t layer_cz_ = -1;
   std::vector<uint8_t> layer_;  // one chunk-z layer: depth x ny x nx
   std::string raw_;             // one chunk file
+  std::string shard_file_;      // the shard whose index is in shard_index_
+  uint64_t shard_size_ = 0;
+  std::vector<uint64_t> shard_index_;
   std::vector<uint8_t> fill_row_;
   std::unique_ptr<uint8_t[]> decoded_;  // one decoded chunk
   size_t decoded_size_ = 0;
@@ -837,6 +944,21 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
     if (chunk_elems * DTypeSize(a.dtype) > kMaxChunkBytes) {
       return MetaError(file, absl::StrCat("chunks of ", absl::StrJoin(a.chunks, "x"),
                                           " elements are too large (at most 512 MiB a chunk)"));
+    }
+  }
+  uint64_t inner_per_shard = 1;
+  if (a.sharded) {
+    for (size_t d = 0; d < nd; ++d) {
+      if (a.shard.size() != nd || a.shard[d] < 1 || a.shard[d] % a.chunks[d] != 0) {
+        return MetaError(
+            file, absl::StrCat("inconsistent metadata: shard shape ", absl::StrJoin(a.shard, "x"),
+                               " is not a multiple of the inner chunk shape ",
+                               absl::StrJoin(a.chunks, "x")));
+      }
+      inner_per_shard *= static_cast<uint64_t>(a.shard[d] / a.chunks[d]);
+      if (inner_per_shard > (uint64_t{1} << 24)) {
+        return MetaError(file, "sharding: more than 2^24 inner chunks per shard");
+      }
     }
   }
   // Axis roles: the last three must be z, y, x (when named).

@@ -196,6 +196,31 @@ absl::Status ReadWholeFile(const std::string& path, uint64_t max_bytes, std::str
   return absl::OkStatus();
 }
 
+absl::Status ReadRange(const std::string& path, uint64_t offset, uint64_t n, std::string* out) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return ErrnoError(path, "cannot open");
+  out->resize(static_cast<size_t>(n));
+  size_t done = 0;
+  while (done < n) {
+    const ssize_t got = ::pread(fd, out->data() + done, static_cast<size_t>(n) - done,
+                                static_cast<off_t>(offset + done));
+    if (got < 0 && errno == EINTR) continue;
+    if (got < 0) {
+      absl::Status s = ErrnoError(path, "read error");
+      ::close(fd);
+      return s;
+    }
+    if (got == 0) break;
+    done += static_cast<size_t>(got);
+  }
+  ::close(fd);
+  if (done < n) {
+    return absl::DataLossError(absl::StrCat(path, ": truncated: bytes ", offset, "..", offset + n,
+                                            " expected, the file ends at ", offset + done));
+  }
+  return absl::OkStatus();
+}
+
 absl::Status WriteFileAtomic(const std::string& path, const void* data, size_t n) {
   const std::string tmp = path + ".tmp";
   FILE* f = std::fopen(tmp.c_str(), "wb");

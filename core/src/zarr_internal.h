@@ -33,6 +33,9 @@ absl::Status Encode(const Compression& c, const uint8_t* src, size_t n, size_t t
 // error (a corrupt store must not make us allocate its claimed size). Errors name the path.
 absl::Status ReadWholeFile(const std::string& path, uint64_t max_bytes, std::string* out);
 
+// Bytes [offset, offset + n) of a file into *out; a file that ends first is DataLoss.
+absl::Status ReadRange(const std::string& path, uint64_t offset, uint64_t n, std::string* out);
+
 // Writes path.tmp and renames it onto path: readers see the old content or the new, never
 // a part (a chunk file that exists is complete).
 absl::Status WriteFileAtomic(const std::string& path, const void* data, size_t n);

@@ -13,7 +13,9 @@
 // z, y, x (times the multiscale-wide ones, if any); plain arrays have spacing 1, origin 0.
 // Units (OME `axes[].unit`) are reported in the description, not converted.
 // Codecs: v2 compressor blosc (any cname libblosc decodes, any shuffle), zstd, gzip, zlib or
-// null, no filters; v3 bytes (little/big endian) + blosc / zstd / gzip. Types uint8, uint16,
+// null, no filters; v3 bytes (little/big endian) + blosc / zstd / gzip, optionally inside
+// sharding_indexed (index at start or end; a crc32c on the index is skipped, not checked;
+// the inner chunk is the unit decoded, read from its shard by range). Types uint8, uint16,
 // int16, float32 in either byte order. A chunk file that does not exist holds fill_value.
 #ifndef TANDEM_ZARR_H_
 #define TANDEM_ZARR_H_

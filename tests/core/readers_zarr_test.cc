@@ -449,6 +449,110 @@ TEST(OmeZarr, LevelAndArraySelection) {
   EXPECT_TRUE(OpenVolume(bare + "#a").ok());
 }
 
+absl::Status ReadAll(const std::string& path);
+
+// A v3 array in shards of 4 x 8 x 16 made of 2 x 4 x 8 inner chunks (uint16, raw), the
+// index (with a crc32c slot) at the end or the start; inner chunk `skip` (z, y, x inner
+// indices) is left out of the index (fill value 7). value = z * 1000 + y * 37 + x.
+uint16_t Value3(int64_t z, int64_t y, int64_t x) {
+  return static_cast<uint16_t>(z * 1000 + y * 37 + x);
+}
+
+void WriteShardedArray(const std::string& root, bool index_at_start, std::array<int64_t, 3> skip) {
+  const json bytes = {{"name", "bytes"}, {"configuration", {{"endian", "little"}}}};
+  json meta = {
+      {"zarr_format", 3},
+      {"node_type", "array"},
+      {"shape", {11, 10, 20}},
+      {"data_type", "uint16"},
+      {"chunk_grid", {{"name", "regular"}, {"configuration", {{"chunk_shape", {4, 8, 16}}}}}},
+      {"chunk_key_encoding", {{"name", "default"}}},
+      {"fill_value", 7},
+      {"codecs",
+       {{{"name", "sharding_indexed"},
+         {"configuration",
+          {{"chunk_shape", {2, 4, 8}},
+           {"codecs", {bytes}},
+           {"index_codecs", {bytes, {{"name", "crc32c"}}}},
+           {"index_location", index_at_start ? "start" : "end"}}}}}}};
+  WriteText(root + "/zarr.json", meta.dump());
+  constexpr uint64_t kIndexBytes = 8 * 16 + 4;
+  for (int64_t sz = 0; sz < 3; ++sz) {
+    for (int64_t sy = 0; sy < 2; ++sy) {
+      for (int64_t sx = 0; sx < 2; ++sx) {
+        std::string body;
+        std::vector<uint64_t> index;
+        for (int64_t iz = 0; iz < 2; ++iz) {
+          for (int64_t iy = 0; iy < 2; ++iy) {
+            for (int64_t ix = 0; ix < 2; ++ix) {
+              const int64_t gz = sz * 2 + iz, gy = sy * 2 + iy, gx = sx * 2 + ix;
+              if (std::array<int64_t, 3>{gz, gy, gx} == skip) {
+                index.insert(index.end(), {~uint64_t{0}, ~uint64_t{0}});
+                continue;
+              }
+              index.insert(index.end(), {(index_at_start ? kIndexBytes : 0) + body.size(), 128});
+              for (int64_t z = 0; z < 2; ++z) {
+                for (int64_t y = 0; y < 4; ++y) {
+                  for (int64_t x = 0; x < 8; ++x) {
+                    const uint16_t v = Value3(gz * 2 + z, gy * 4 + y, gx * 8 + x);
+                    body.append(reinterpret_cast<const char*>(&v), 2);
+                  }
+                }
+              }
+            }
+          }
+        }
+        std::string idx(reinterpret_cast<const char*>(index.data()), index.size() * 8);
+        idx.append(4, '\0');  // crc32c slot (not verified)
+        WriteText(absl::StrCat(root, "/c/", sz, "/", sy, "/", sx),
+                  index_at_start ? idx + body : body + idx);
+      }
+    }
+  }
+}
+
+TEST(Zarr, ShardedV3ArraysReadInnerChunksFromTheirShards) {
+  for (bool at_start : {false, true}) {
+    SCOPED_TRACE(at_start ? "index at start" : "index at end");
+    const std::string root = testing::MakeTempDir() + "/sharded.zarr";
+    WriteShardedArray(root, at_start, {2, 1, 2});  // planes 4-5, rows 4-7, columns 16-19
+    auto src = OpenVolume(root);
+    ASSERT_TRUE(src.ok()) << src.status();
+    ASSERT_EQ((*src)->info().nz, 11);
+    std::vector<uint8_t> slice;
+    for (int64_t z = 0; z < 11; ++z) {
+      ASSERT_TRUE((*src)->ReadSlice(&slice).ok()) << z;
+      for (int64_t y = 0; y < 10; ++y) {
+        for (int64_t x = 0; x < 20; ++x) {
+          uint16_t v;
+          std::memcpy(&v, slice.data() + (y * 20 + x) * 2, 2);
+          const bool skipped = z >= 4 && z < 6 && y >= 4 && y < 8 && x >= 16;
+          ASSERT_EQ(v, skipped ? 7 : Value3(z, y, x)) << z << "," << y << "," << x;
+        }
+      }
+    }
+    auto planes = CountCompleteZarrPlanes(root);
+    ASSERT_TRUE(planes.ok()) << planes.status();
+    EXPECT_EQ(*planes, 11);
+    // A truncated shard and an index entry past the shard's end name the shard file.
+    const std::string shard = root + "/c/1/0/1";
+    fs::resize_file(shard, 100);
+    absl::Status st = ReadAll(root);
+    EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+    EXPECT_TRUE(absl::StrContains(st.message(), shard)) << st;
+    WriteShardedArray(root, at_start, {-1, -1, -1});
+    std::string bytes(fs::file_size(shard), '\0');
+    std::fstream f(shard, std::ios::in | std::ios::out | std::ios::binary);
+    const uint64_t far = 1 << 30;
+    f.seekp(at_start ? 0 : static_cast<std::streamoff>(bytes.size() - (8 * 16 + 4)));
+    f.write(reinterpret_cast<const char*>(&far), 8);
+    f.close();
+    st = ReadAll(root);
+    EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+    EXPECT_TRUE(absl::StrContains(st.message(), "outside the shard")) << st;
+  }
+}
+
 // ---------------------------------------------------------------------------------------
 // Bad input: clear errors naming the file, never a crash.
 
@@ -576,7 +680,16 @@ TEST(ZarrBadInput, MetadataProblemsAreNamed) {
       [](json& j) {
         j["codecs"] = {{{"name", "sharding_indexed"}, {"configuration", json::object()}}};
       },
-      "unsupported codec 'sharding_indexed'");
+      "sharding_indexed needs chunk_shape and codecs");
+  ExpectMetadataError(
+      v3, m3,
+      [](json& j) {
+        j["codecs"].push_back({{"name", "transpose"}});
+      },
+      "more than one compression codec");
+  ExpectMetadataError(
+      v3, m3, [](json& j) { j["codecs"][1]["name"] = "transpose"; },
+      "unsupported codec 'transpose'");
   ExpectMetadataError(
       v3, m3, [](json& j) { j["codecs"][1]["name"] = "lz4hc"; }, "unsupported codec 'lz4hc'");
   ExpectMetadataError(

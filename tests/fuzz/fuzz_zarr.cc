@@ -1,7 +1,8 @@
 // libFuzzer target: a Zarr array (OpenVolume on a store directory). Input: one byte
 // (bit 0: v3 `zarr.json`, else v2 `.zarray`), a 2-byte little-endian length L, L bytes of
 // array metadata, then the bytes of chunk (0, 0, 0), stored under every key spelling the
-// metadata might ask for ("0.0.0", "0/0/0", "c/0/0/0"); other chunks are missing (fill).
+// metadata might ask for ("0.0.0", "0/0/0", "c/0/0/0"; for a sharded array, shard
+// (0, 0, 0)); other chunks are missing (fill).
 #include <unistd.h>
 
 #include <algorithm>

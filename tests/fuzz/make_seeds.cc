@@ -179,6 +179,28 @@ int main(int argc, char** argv) {
     }
   }
 
+  // A sharded v3 array: one shard of two 1 x 3 x 3 inner chunks, index (and crc32c slot)
+  // at the end.
+  {
+    const std::string meta =
+        R"({"zarr_format": 3, "node_type": "array", "shape": [2, 3, 3], "data_type": "uint8",)"
+        R"( "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": [2, 3, 3]}},)"
+        R"( "chunk_key_encoding": {"name": "default"}, "fill_value": 0, "codecs": [{"name":)"
+        R"( "sharding_indexed", "configuration": {"chunk_shape": [1, 3, 3], "codecs": [{"name":)"
+        R"( "bytes"}], "index_codecs": [{"name": "bytes", "configuration": {"endian":)"
+        R"( "little"}}, {"name": "crc32c"}], "index_location": "end"}}]})";
+    std::string shard;
+    for (int v = 0; v < 18; ++v) shard.push_back(static_cast<char>(v * 14));
+    for (uint64_t e : {uint64_t{0}, uint64_t{9}, uint64_t{9}, uint64_t{9}}) {
+      for (int b = 0; b < 8; ++b) shard.push_back(static_cast<char>(e >> (8 * b)));
+    }
+    shard.append(4, '\0');
+    std::string seed(1, '\1');
+    seed.push_back(static_cast<char>(meta.size() & 0xff));
+    seed.push_back(static_cast<char>(meta.size() >> 8));
+    Put(out / "fuzz_zarr" / "seed_v3_sharded.bin", seed + meta + shard);
+  }
+
   fs::remove_all(tmp);
   std::printf("seeds written under %s\n", out.string().c_str());
   return 0;
