@@ -241,44 +241,49 @@ TEST(Zarr, DecodesOneChunkLayerAtATime) {
 }
 
 TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
-  const std::string path = testing::MakeTempDir() + "/grow.zarr";
-  VolumeInfo info = Grid(DType::kUInt16, 20, 12, 0);
-  ZarrWriteOptions o;
-  o.chunks = {4, 8, 8};
-  auto app = ZarrAppender::Create(path, info, o);
-  ASSERT_TRUE(app.ok()) << app.status();
-  EXPECT_EQ((*app)->array_path(), path + "/0");
-  auto none = CountCompleteZarrPlanes(path);
-  ASSERT_TRUE(none.ok()) << none.status();
-  EXPECT_EQ(*none, 0);
-  info.nz = 10;
-  const SliceFn slices = PatternSlices(info);
-  std::vector<uint8_t> plane;
-  for (int64_t k = 0; k < 10; ++k) {
-    ASSERT_TRUE(slices(k, &plane).ok());
-    ASSERT_TRUE((*app)->Append(plane.data()).ok());
-    const int64_t shape0 = ReadJson(path + "/0/.zarray")["shape"][0].get<int64_t>();
-    EXPECT_EQ(shape0, (k + 1) / 4 * 4) << "after plane " << k;
-    EXPECT_EQ((*app)->planes_visible(), shape0);
-    auto complete = CountCompleteZarrPlanes(path);
-    ASSERT_TRUE(complete.ok()) << complete.status();
-    EXPECT_EQ(*complete, shape0);
-    if (shape0 >= 4) {  // the visible part is readable while the array grows
-      auto src = OpenVolume(path);
-      ASSERT_TRUE(src.ok()) << src.status();
-      EXPECT_EQ((*src)->info().nz, shape0);
+  for (int version : {2, 3}) {
+    SCOPED_TRACE(absl::StrCat("v", version));
+    const std::string path = testing::MakeTempDir() + "/grow.zarr";
+    VolumeInfo info = Grid(DType::kUInt16, 20, 12, 0);
+    ZarrWriteOptions o;
+    o.version = version;
+    o.chunks = {4, 8, 8};
+    const std::string meta = path + (version == 2 ? "/0/.zarray" : "/0/zarr.json");
+    auto app = ZarrAppender::Create(path, info, o);
+    ASSERT_TRUE(app.ok()) << app.status();
+    EXPECT_EQ((*app)->array_path(), path + "/0");
+    auto none = CountCompleteZarrPlanes(path);
+    ASSERT_TRUE(none.ok()) << none.status();
+    EXPECT_EQ(*none, 0);
+    info.nz = 10;
+    const SliceFn slices = PatternSlices(info);
+    std::vector<uint8_t> plane;
+    for (int64_t k = 0; k < 10; ++k) {
+      ASSERT_TRUE(slices(k, &plane).ok());
+      ASSERT_TRUE((*app)->Append(plane.data()).ok());
+      const int64_t shape0 = ReadJson(meta)["shape"][0].get<int64_t>();
+      EXPECT_EQ(shape0, (k + 1) / 4 * 4) << "after plane " << k;
+      EXPECT_EQ((*app)->planes_visible(), shape0);
+      auto complete = CountCompleteZarrPlanes(path);
+      ASSERT_TRUE(complete.ok()) << complete.status();
+      EXPECT_EQ(*complete, shape0);
+      if (shape0 >= 4) {  // the visible part is readable while the array grows
+        auto src = OpenVolume(path);
+        ASSERT_TRUE(src.ok()) << src.status();
+        EXPECT_EQ((*src)->info().nz, shape0);
+      }
     }
+    ASSERT_TRUE((*app)->Finish().ok());
+    EXPECT_EQ(ReadJson(meta)["shape"][0].get<int64_t>(), 10);
+    for (const auto& e : fs::recursive_directory_iterator(path)) {
+      EXPECT_FALSE(e.path().string().ends_with(".tmp")) << e.path();
+    }
+    auto src = OpenVolume(path);
+    ASSERT_TRUE(src.ok()) << src.status();
+    ExpectPatternValue(**src);
+    // A second store over the first is refused.
+    EXPECT_TRUE(absl::IsAlreadyExists(ZarrAppender::Create(path, info, o).status()));
   }
-  ASSERT_TRUE((*app)->Finish().ok());
-  EXPECT_EQ(ReadJson(path + "/0/.zarray")["shape"][0].get<int64_t>(), 10);
-  for (const auto& e : fs::recursive_directory_iterator(path)) {
-    EXPECT_FALSE(e.path().string().ends_with(".tmp")) << e.path();
-  }
-  auto src = OpenVolume(path);
-  ASSERT_TRUE(src.ok()) << src.status();
-  ExpectPatternValue(**src);
-  // A second store over the first is refused.
-  EXPECT_TRUE(absl::IsAlreadyExists(ZarrAppender::Create(path, info, o).status()));
 }
 
 TEST(Zarr, FollowerCountsCompleteRowsAndResumesAtAPlane) {
