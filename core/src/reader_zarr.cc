@@ -571,7 +571,8 @@ absl::StatusOr<Resolved> Resolve(const std::string& root, const std::string& sel
     return r;
   }
   const json* ms = Multiscales(node->attrs);
-  if (selector.empty() || AllDigits(selector)) {
+  // A number is a level of the multiscale image (in a plain group, an array's name).
+  if (selector.empty() || (AllDigits(selector) && ms != nullptr)) {
     if (ms == nullptr) {
       return absl::InvalidArgumentError(
           absl::StrCat(root,

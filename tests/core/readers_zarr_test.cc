@@ -452,6 +452,10 @@ TEST(OmeZarr, LevelAndArraySelection) {
   absl::Status group = OpenVolume(bare).status();
   EXPECT_TRUE(absl::StrContains(group.message(), "#PATH")) << group;
   EXPECT_TRUE(OpenVolume(bare + "#a").ok());
+  ASSERT_TRUE(WriteZarr(bare + "/1", l0, PatternSlices(l0), o).ok());  // a number, not a level
+  auto one = OpenVolume(bare + "#1");
+  ASSERT_TRUE(one.ok()) << one.status();
+  EXPECT_EQ((*one)->info().nx, 40);
 }
 
 absl::Status ReadAll(const std::string& path);
