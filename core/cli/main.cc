@@ -1,6 +1,6 @@
 // tandem: the local command-line interface of the core library.
 //   tandem extract   volume -> (simplified) iso-surface mesh, with metrics
-//   tandem generate  synthetic volume (raw + JSON sidecar)
+//   tandem generate  synthetic volume (raw + JSON sidecar, or OME-Zarr)
 //   tandem measure   Metro-style distances between two meshes
 //   tandem info      what a volume file holds
 #include <algorithm>
@@ -20,6 +20,7 @@
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
+#include "tandem/zarr.h"
 
 namespace tandem {
 namespace {
@@ -31,12 +32,14 @@ Tandem", SGP 2005).
 
 Usage:
   tandem extract  --input FILE --out MESH.{ply,obj} [options]   (tandem extract --help)
-  tandem generate {sphere,pillowbox,link,gyroid} --size N --out FILE.json
+  tandem generate {sphere,pillowbox,link,gyroid} --size N --out FILE.{json,zarr}
   tandem measure  A.{ply,obj} B.{ply,obj} [--samples N] [--json]
   tandem info     --input FILE
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
-.tif/.tiff (multi-page stack). Voxel types uint8, uint16, int16, float32.
+.tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
+multiscale level N, X.zarr#PATH the array PATH inside the group). Voxel types uint8,
+uint16, int16, float32.
 )";
 
 constexpr char kExtractHelp[] =
@@ -46,7 +49,10 @@ Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by l
 (marching cubes) and simplifies it in tandem by quadric-error edge contraction.
 
 Options:
-  --input FILE              volume (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff)
+  --input FILE              volume (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff,
+                            or a Zarr / OME-Zarr store)
+  --zarr-array SEL          Zarr group: the multiscale level (a number) or the array
+                            path to read (same as --input X.zarr#SEL). Default: level 0
   --out MESH                output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex
                             normals, binary STL (.stl), or glTF binary (.glb)
   --iso C0                  iso-value; default: the file's first suggested iso-value
@@ -92,11 +98,15 @@ constexpr char kGenerateHelp[] =
 
 Writes a synthetic float32 volume in the format of FILE's extension, every one the readers
 read: .json (FILE.raw beside it plus the JSON sidecar, whose "suggested_isovalues" holds
-the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff.
+the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, or .zarr (an
+OME-Zarr image: one level, array "0", axes z/y/x with the spacing as scale).
 SHAPE: sphere, pillowbox (the paper's Pillow Box), link (two interlocked tori),
 gyroid (a solid gyroid clipped to a ball: closed, high genus).
   --size N          N x N x N grid vertices (or --dims NX,NY,NZ)
   --spacing S,S,S   physical voxel size per axis (default 1,1,1)
+  --zarr-version V  .zarr: 2 (default) or 3
+  --zarr-codec C    .zarr: none, gzip, zstd, blosc-lz4 (default), blosc-zstd
+  --zarr-chunks Z,Y,X  .zarr: chunk shape (default 1,256,256; 0 = the whole axis)
 )";
 
 constexpr char kMeasureHelp[] =
@@ -107,7 +117,17 @@ point-to-triangle distance: L1 (mean), L2 (RMS) and Linf (Hausdorff), A->B (forw
 B->A (backward) and the larger of the two (max). Units are the meshes' own.
 )";
 
-constexpr char kInfoHelp[] = "Usage: tandem info --input FILE\n\nPrints the grid, voxel type, spacing, origin and suggested iso-values.\n";
+constexpr char kInfoHelp[] =
+    "Usage: tandem info --input FILE [--zarr-array SEL]\n\nPrints the grid, voxel type, spacing, "
+    "origin and suggested iso-values.\n";
+
+// --input, with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
+std::optional<std::string> InputPath(const cli::Args& args) {
+  auto input = args.Get("input");
+  if (!input) return std::nullopt;
+  if (auto sel = args.Get("zarr-array")) return absl::StrCat(*input, "#", *sel);
+  return input;
+}
 
 int Fail(const absl::Status& st) {
   std::fprintf(stderr, "tandem: %s\n", std::string(st.message()).c_str());
@@ -150,7 +170,7 @@ int Extract(int argc, char** argv) {
   auto args =
       cli::Args::Parse(argc, argv, 2,
                        {"input", "out", "iso", "error", "alpha", "distance-guard", "sag-correction",
-                        "schedule", "target-triangles", "metrics", "samples", "parts"},
+                        "schedule", "target-triangles", "metrics", "samples", "parts", "zarr-array"},
                        {"no-simplify", "reference", "quiet", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
@@ -160,7 +180,7 @@ int Extract(int argc, char** argv) {
   if (!args->positional().empty()) {
     return Fail(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", args->positional()[0], "'")));
   }
-  auto input = args->Get("input");
+  auto input = InputPath(*args);
   auto out = args->Get("out");
   if (!input) return Fail(absl::InvalidArgumentError("--input FILE is required (see tandem extract --help)"));
   if (!out) return Fail(absl::InvalidArgumentError("--out MESH.{ply,obj} is required"));
@@ -254,7 +274,10 @@ int Extract(int argc, char** argv) {
 }
 
 int Generate(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2, {"size", "dims", "spacing", "out"}, {"help"});
+  auto args = cli::Args::Parse(argc, argv, 2,
+                               {"size", "dims", "spacing", "out", "zarr-version", "zarr-codec",
+                                "zarr-chunks"},
+                               {"help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kGenerateHelp, stdout);
@@ -268,7 +291,22 @@ int Generate(int argc, char** argv) {
   auto out = args->Get("out");
   if (!out) {
     return Fail(absl::InvalidArgumentError(
-        "--out FILE is required: .json (+ .raw beside it), .nrrd, .nhdr, .nii, .nii.gz, .tif"));
+        "--out FILE is required: .json (+ .raw beside it), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
+        ".zarr"));
+  }
+  ZarrWriteOptions zarr;
+  auto zarr_version = args->GetInt("zarr-version", 2);
+  if (!zarr_version.ok()) return Fail(zarr_version.status());
+  zarr.version = static_cast<int>(*zarr_version);
+  if (auto c = args->Get("zarr-codec")) {
+    auto codec = ParseZarrCompressor(*c);
+    if (!codec.ok()) return Fail(codec.status());
+    zarr.compressor = *codec;
+  }
+  if (auto c = args->Get("zarr-chunks")) {
+    auto t = ParseTriple(*c, "--zarr-chunks");
+    if (!t.ok()) return Fail(t.status());
+    zarr.chunks = {int64_t((*t)[0]), int64_t((*t)[1]), int64_t((*t)[2])};
   }
   std::array<double, 3> dims{};
   if (auto d = args->Get("dims")) {
@@ -290,10 +328,12 @@ int Generate(int argc, char** argv) {
   if (absl::Status st = ValidateVolumeInfo(src->info()); !st.ok()) return Fail(st);
   cli::Progress progress("slices");
   const int64_t nz = src->info().nz;
-  absl::Status st = WriteVolume(*out, src->info(), [&](int64_t z, std::vector<uint8_t>* bytes) {
+  const SliceFn next = [&](int64_t z, std::vector<uint8_t>* bytes) {
     progress.Update(z + 1, nz);
     return src->ReadSlice(bytes);
-  });
+  };
+  absl::Status st = out->ends_with(".zarr") ? WriteZarr(*out, src->info(), next, zarr)
+                                            : WriteVolume(*out, src->info(), next);
   progress.Done();
   if (!st.ok()) return Fail(st);
   std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out->c_str(),
@@ -331,13 +371,13 @@ int Measure(int argc, char** argv) {
 }
 
 int Info(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2, {"input"}, {"help"});
+  auto args = cli::Args::Parse(argc, argv, 2, {"input", "zarr-array"}, {"help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kInfoHelp, stdout);
     return 0;
   }
-  auto input = args->Get("input");
+  auto input = InputPath(*args);
   if (!input) return Fail(absl::InvalidArgumentError("--input FILE is required"));
   auto src = OpenVolume(*input);
   if (!src.ok()) return Fail(src.status());
@@ -350,6 +390,7 @@ int Info(int argc, char** argv) {
   std::string isos;
   for (double v : i.suggested_isovalues) absl::StrAppend(&isos, isos.empty() ? "" : " ", v);
   std::printf("isovalues %s\n", isos.empty() ? "(none suggested)" : isos.c_str());
+  if (!i.description.empty()) std::printf("about    %s\n", i.description.c_str());
   return 0;
 }
 

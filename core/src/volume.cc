@@ -20,6 +20,8 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "readers_internal.h"
+#include "tandem/zarr.h"
+#include "zarr_internal.h"
 
 namespace tandem {
 
@@ -152,6 +154,10 @@ void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst) {
 }
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path) {
+  // Zarr stores are directories; "image.zarr#1" picks level 1 (see tandem/zarr.h).
+  if (auto [store, selector] = SplitZarrSelector(path); internal::LooksLikeZarr(store)) {
+    return OpenZarrVolume(store, ZarrReadOptions{.array = selector});
+  }
   const std::string ext = internal::VolumeExtension(path);
   if (ext == ".json") return internal::OpenRawVolume(path);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::OpenNrrdVolume(path);

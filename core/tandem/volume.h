@@ -70,7 +70,9 @@ class SliceSource {
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
 
 // Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
-// *.nii.gz, *.tif / *.tiff (multi-page stack). Errors name the file and the problem.
+// *.nii.gz, *.tif / *.tiff (multi-page stack), a Zarr / OME-Zarr store (*.zarr, or a
+// directory holding Zarr metadata; "X.zarr#SELECTOR" picks a level or an array, see
+// tandem/zarr.h). Errors name the file and the problem.
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path);
 
 }  // namespace tandem

@@ -45,6 +45,8 @@ using SliceFn = std::function<absl::Status(int64_t z, std::vector<uint8_t>* byte
 //   .nhdr         detached NRRD header + STEM.raw (or STEM.raw.gz with opts.gzip)
 //   .nii/.nii.gz  NIfTI-1 single file (qform and sform both carry spacing and origin)
 //   .tif/.tiff    multi-page TIFF, one page per z-slice, ImageJ description for spacing/origin
+//   .zarr         OME-Zarr v2 image, blosc-lz4, chunks 1x256x256 (WriteZarr in tandem/zarr.h
+//                 for other versions, codecs and chunks)
 // info.nz must be known. Errors name the file and the problem.
 absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                          const VolumeWriteOptions& opts = {});

@@ -40,44 +40,8 @@ VolumeInfo MakeInfo(DType t, int64_t nx = 37, int64_t ny = 21, int64_t nz = 5) {
   return info;
 }
 
-// A deterministic pattern that uses both bytes of 16-bit types, negatives for int16 and
-// fractions for float32, so byte-order and sign mistakes show.
-double PatternValue(DType t, int64_t i, int64_t j, int64_t k) {
-  switch (t) {
-    case DType::kUInt8:
-      return static_cast<double>((i * 7 + j * 13 + k * 29) % 256);
-    case DType::kUInt16:
-      return static_cast<double>((40000 + i * 301 + j * 17 + k * 1009) % 65536);
-    case DType::kInt16:
-      return static_cast<double>(-20000 + i * 311 + j * 977 + k * 3001);
-    case DType::kFloat32:
-      return -3.25 + i * 0.5 + j * 1.125 + k * 100.0625;
-  }
-  return 0;
-}
-
-void StoreValue(DType t, double v, uint8_t* dst) {
-  switch (t) {
-    case DType::kUInt8:
-      *dst = static_cast<uint8_t>(v);
-      break;
-    case DType::kUInt16: {
-      const uint16_t x = static_cast<uint16_t>(v);
-      std::memcpy(dst, &x, 2);
-      break;
-    }
-    case DType::kInt16: {
-      const int16_t x = static_cast<int16_t>(v);
-      std::memcpy(dst, &x, 2);
-      break;
-    }
-    case DType::kFloat32: {
-      const float x = static_cast<float>(v);
-      std::memcpy(dst, &x, 4);
-      break;
-    }
-  }
-}
+using testing::PatternValue;
+using testing::StoreValue;
 
 std::vector<uint8_t> PatternSlice(const VolumeInfo& info, int64_t k) {
   const size_t px = DTypeSize(info.dtype);

@@ -13,6 +13,7 @@
 
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
+#include "tandem/zarr.h"
 
 namespace fs = std::filesystem;
 using tandem::DType;
@@ -77,7 +78,7 @@ int main(int argc, char** argv) {
   const fs::path out(argv[1]);
   const fs::path tmp = fs::temp_directory_path() / ("tandem-seeds-" + std::to_string(getpid()));
   fs::create_directories(tmp);
-  for (const char* t : {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff"}) {
+  for (const char* t : {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_zarr"}) {
     fs::create_directories(out / t);
   }
 
@@ -139,6 +140,66 @@ int main(int argc, char** argv) {
   VolumeWriteOptions deflate;
   deflate.gzip = true;
   Write(out / "fuzz_tiff" / "seed_deflate_int16.tif", spaced, deflate);
+
+  // fuzz_zarr: one-chunk arrays (chunk = the whole volume) packed as version byte, metadata
+  // length, metadata, chunk.
+  int zn = 0;
+  for (int version : {2, 3}) {
+    for (auto [codec, t] : {std::pair{tandem::ZarrCompressor::kNone, DType::kUInt8},
+                            {tandem::ZarrCompressor::kBloscLz4, DType::kUInt16},
+                            {tandem::ZarrCompressor::kZstd, DType::kInt16},
+                            {tandem::ZarrCompressor::kGzip, DType::kFloat32}}) {
+      const fs::path store = tmp / ("z" + std::to_string(zn) + ".zarr");
+      const VolumeInfo info = Info(6, 5, 3, t);
+      tandem::ZarrWriteOptions zo;
+      zo.version = version;
+      zo.compressor = codec;
+      zo.ome = false;
+      zo.big_endian = zn % 3 == 1;
+      zo.chunks = {3, 5, 6};
+      const fs::path staged = tmp / "staged.json";
+      Write(staged, info);  // the same field, then copied into the store
+      auto src = tandem::OpenVolume(staged.string());
+      absl::Status st = tandem::WriteZarr(
+          store.string(), info, [&](int64_t, std::vector<uint8_t>* b) { return (*src)->ReadSlice(b); },
+          zo);
+      if (!st.ok()) {
+        std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
+        return 1;
+      }
+      const std::string meta = Slurp(store / (version == 3 ? "zarr.json" : ".zarray"));
+      const std::string chunk = Slurp(store / (version == 3 ? "c/0/0/0" : "0.0.0"));
+      std::string seed(1, static_cast<char>(version == 3 ? 1 : 0));
+      seed.push_back(static_cast<char>(meta.size() & 0xff));
+      seed.push_back(static_cast<char>(meta.size() >> 8));
+      seed += meta + chunk;
+      Put(out / "fuzz_zarr" / ("seed_v" + std::to_string(version) + "_" + std::to_string(zn) + ".bin"),
+          seed);
+      ++zn;
+    }
+  }
+
+  // A sharded v3 array: one shard of two 1 x 3 x 3 inner chunks, index (and crc32c slot)
+  // at the end.
+  {
+    const std::string meta =
+        R"({"zarr_format": 3, "node_type": "array", "shape": [2, 3, 3], "data_type": "uint8",)"
+        R"( "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": [2, 3, 3]}},)"
+        R"( "chunk_key_encoding": {"name": "default"}, "fill_value": 0, "codecs": [{"name":)"
+        R"( "sharding_indexed", "configuration": {"chunk_shape": [1, 3, 3], "codecs": [{"name":)"
+        R"( "bytes"}], "index_codecs": [{"name": "bytes", "configuration": {"endian":)"
+        R"( "little"}}, {"name": "crc32c"}], "index_location": "end"}}]})";
+    std::string shard;
+    for (int v = 0; v < 18; ++v) shard.push_back(static_cast<char>(v * 14));
+    for (uint64_t e : {uint64_t{0}, uint64_t{9}, uint64_t{9}, uint64_t{9}}) {
+      for (int b = 0; b < 8; ++b) shard.push_back(static_cast<char>(e >> (8 * b)));
+    }
+    shard.append(4, '\0');
+    std::string seed(1, '\1');
+    seed.push_back(static_cast<char>(meta.size() & 0xff));
+    seed.push_back(static_cast<char>(meta.size() >> 8));
+    Put(out / "fuzz_zarr" / "seed_v3_sharded.bin", seed + meta + shard);
+  }
 
   fs::remove_all(tmp);
   std::printf("seeds written under %s\n", out.string().c_str());

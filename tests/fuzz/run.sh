@@ -16,9 +16,10 @@
 # TANDEM_BUILD_SERVICE=OFF (readers only).
 #
 # Targets: fuzz_raw_json (raw + JSON sidecar; input = 2-byte raw size + sidecar text),
-# fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff, fuzz_session (whole sessions with
-# extreme geometry and options; see fuzz_session.cc), fuzz_request (one option byte, then
-# length-delimited ExtractRequest messages; see fuzz_request.cc).
+# fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff, fuzz_zarr (a version byte, a 2-byte
+# metadata length, the array metadata, one chunk; see fuzz_zarr.cc), fuzz_session (whole
+# sessions with extreme geometry and options; see fuzz_session.cc), fuzz_request (one
+# option byte, then length-delimited ExtractRequest messages; see fuzz_request.cc).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -30,12 +31,12 @@ while [ $# -gt 0 ]; do
     --time) seconds="$2"; shift 2 ;;
     --time=*) seconds="${1#--time=}"; shift ;;
     --seeds) seeds=1; shift ;;
-    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     fuzz_*) targets+=("$1"); shift ;;
     *) echo "fuzz/run.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
-all=(fuzz_raw_json fuzz_nrrd fuzz_nifti fuzz_tiff fuzz_session)
+all=(fuzz_raw_json fuzz_nrrd fuzz_nifti fuzz_tiff fuzz_zarr fuzz_session)
 if [ "${TANDEM_BUILD_SERVICE:-ON}" != OFF ]; then all+=(fuzz_request); fi
 if [ ${#targets[@]} -eq 0 ]; then targets=("${all[@]}"); fi
 

@@ -2,6 +2,7 @@
 
 #include <atomic>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <mutex>
 #include <vector>
@@ -50,6 +51,43 @@ std::string MakeTempDir() {
 
 std::string BinPath(const std::string& name) {
   return (std::filesystem::path(TANDEM_BIN_DIR_PATH) / name).string();
+}
+
+double PatternValue(DType t, int64_t i, int64_t j, int64_t k) {
+  switch (t) {
+    case DType::kUInt8:
+      return static_cast<double>((i * 7 + j * 13 + k * 29) % 256);
+    case DType::kUInt16:
+      return static_cast<double>((40000 + i * 301 + j * 17 + k * 1009) % 65536);
+    case DType::kInt16:
+      return static_cast<double>(-20000 + i * 311 + j * 977 + k * 1001);
+    case DType::kFloat32:
+      return -3.25 + i * 0.5 + j * 1.125 + k * 100.0625;
+  }
+  return 0;
+}
+
+void StoreValue(DType t, double v, uint8_t* dst) {
+  switch (t) {
+    case DType::kUInt8:
+      *dst = static_cast<uint8_t>(v);
+      break;
+    case DType::kUInt16: {
+      const uint16_t x = static_cast<uint16_t>(v);
+      std::memcpy(dst, &x, 2);
+      break;
+    }
+    case DType::kInt16: {
+      const int16_t x = static_cast<int16_t>(v);
+      std::memcpy(dst, &x, 2);
+      break;
+    }
+    case DType::kFloat32: {
+      const float x = static_cast<float>(v);
+      std::memcpy(dst, &x, 4);
+      break;
+    }
+  }
 }
 
 }  // namespace tandem::testing

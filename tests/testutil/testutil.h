@@ -2,9 +2,12 @@
 #ifndef TANDEM_TESTS_TESTUTIL_H_
 #define TANDEM_TESTS_TESTUTIL_H_
 
+#include <cstdint>
 #include <string>
 
 #include <gtest/gtest.h>
+
+#include "tandem/volume.h"
 
 namespace tandem::testing {
 
@@ -16,6 +19,14 @@ std::string MakeTempDir();
 
 // Path of a built executable (build/bin/NAME).
 std::string BinPath(const std::string& name);
+
+// Voxel (i, j, k) of the readers' test pattern: uses both bytes of 16-bit types, negatives
+// for int16 and fractions for float32, so byte-order, sign and placement mistakes show
+// (int16 stays in range up to 37 x 21 x 25 voxels).
+double PatternValue(DType t, int64_t i, int64_t j, int64_t k);
+
+// Stores v as one voxel of type t (host byte order) at dst.
+void StoreValue(DType t, double v, uint8_t* dst);
 
 }  // namespace tandem::testing
 
