@@ -122,6 +122,12 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
     c.add_spacing(info.spacing[a]);
     c.add_origin(info.origin[a]);
   }
+  c.clear_directions();
+  if (!info.axis_aligned()) {
+    for (const auto& d : info.directions) {
+      for (double v : d) c.add_directions(v);
+    }
+  }
 
   if (opts.connection.max_receive_bytes == 0) {
     opts.connection.max_receive_bytes = wire::kClientMaxReceiveBytes;

@@ -71,6 +71,16 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
       return absl::InvalidArgumentError(absl::StrCat("config.origin[", a, "] is not finite"));
     }
   }
+  if (!c.directions().empty()) {
+    if (c.directions_size() != 9) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("config.directions has ", c.directions_size(),
+                       " values; give 9 (unit vectors of the x, y and z axes) or none"));
+    }
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) g.directions[a][b] = c.directions(3 * a + b);
+    }
+  }
   g.description = c.description();
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return Prefixed("config: ", st);
 

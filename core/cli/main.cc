@@ -4,6 +4,8 @@
 //   tandem measure   Metro-style distances between two meshes
 //   tandem info      what a volume file holds
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <cstdio>
 #include <fstream>
 #include <future>
@@ -11,11 +13,13 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "cli/cli_util.h"
 #include "tandem/distance.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
+#include "tandem/series.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -32,7 +36,7 @@ Tandem", SGP 2005).
 
 Usage:
   tandem extract  --input FILE --out MESH.{ply,obj} [options]   (tandem extract --help)
-  tandem generate {sphere,pillowbox,link,gyroid} --size N --out FILE.{json,zarr}
+  tandem generate {sphere,pillowbox,link,gyroid} --size N --out FILE [--series dicom|tiff]
   tandem measure  A.{ply,obj} B.{ply,obj} [--samples N] [--json]
   tandem info     --input FILE
 
@@ -107,6 +111,14 @@ gyroid (a solid gyroid clipped to a ball: closed, high genus).
   --zarr-version V  .zarr: 2 (default) or 3
   --zarr-codec C    .zarr: none, gzip, zstd, blosc-lz4 (default), blosc-zstd
   --zarr-chunks Z,Y,X  .zarr: chunk shape (default 1,256,256; 0 = the whole axis)
+  --series dicom|tiff  write FILE as a folder of one file per slice instead: a DICOM CT
+                    series (IM00001.dcm, ...; values quantized to int16 with a rescale
+                    slope and intercept) or numbered single-page TIFFs (slice_00000.tif, ...)
+  --dicom-syntax S  --series dicom: explicit (default), implicit, jpeg-lossless, jpeg-ls,
+                    jpeg2000 or rle
+  --origin X,Y,Z    world position of voxel (0,0,0) (default 0,0,0)
+  --directions 9 numbers  world unit vectors of the x, y and z axes (default identity; a
+                    DICOM series and the formats of tandem info's "frame" line store them)
 )";
 
 constexpr char kMeasureHelp[] =
@@ -118,8 +130,13 @@ B->A (backward) and the larger of the two (max). Units are the meshes' own.
 )";
 
 constexpr char kInfoHelp[] =
-    "Usage: tandem info --input FILE [--zarr-array SEL]\n\nPrints the grid, voxel type, spacing, "
-    "origin and suggested iso-values.\n";
+    R"(Usage: tandem info --input FILE|DIR [--zarr-array SEL] [--no-values]
+
+Prints the grid, voxel type, spacing, origin, axis directions (when not the identity),
+suggested iso-values, then reads every voxel once for the value range, the mean and a
+10-bin histogram (an iso-value between two populated ranges separates them).
+  --no-values   skip the value scan (header only)
+)";
 
 // --input, with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
 std::optional<std::string> InputPath(const cli::Args& args) {
@@ -275,8 +292,9 @@ int Extract(int argc, char** argv) {
 
 int Generate(int argc, char** argv) {
   auto args = cli::Args::Parse(argc, argv, 2,
-                               {"size", "dims", "spacing", "out", "zarr-version", "zarr-codec",
-                                "zarr-chunks"},
+                               {"size", "dims", "spacing", "origin", "directions", "out",
+                                "zarr-version", "zarr-codec", "zarr-chunks", "series",
+                                "dicom-syntax"},
                                {"help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
@@ -324,16 +342,56 @@ int Generate(int argc, char** argv) {
     if (!t.ok()) return Fail(t.status());
     spacing = *t;
   }
-  auto src = MakeSyntheticSource(*shape, int64_t(dims[0]), int64_t(dims[1]), int64_t(dims[2]), spacing);
-  if (absl::Status st = ValidateVolumeInfo(src->info()); !st.ok()) return Fail(st);
+  const std::string series = args->Get("series").value_or("");
+  if (!series.empty() && series != "dicom" && series != "tiff") {
+    return Fail(absl::InvalidArgumentError(
+        absl::StrCat("--series must be dicom or tiff, not '", series, "'")));
+  }
+  DicomWriteOptions dicom;
+  if (auto s = args->Get("dicom-syntax")) {
+    auto syntax = ParseDicomSyntax(*s);
+    if (!syntax.ok()) return Fail(syntax.status());
+    dicom.syntax = *syntax;
+  }
+  auto make = [&] {
+    return MakeSyntheticSource(*shape, int64_t(dims[0]), int64_t(dims[1]), int64_t(dims[2]),
+                               spacing);
+  };
+  auto src = make();
+  // The shape is drawn on the grid; --origin and --directions only place the grid in the
+  // world (what a scanner's header says), so every format holds the same voxels.
+  VolumeInfo info = src->info();
+  if (auto o = args->Get("origin")) {
+    auto t = ParseTriple(*o, "--origin");
+    if (!t.ok()) return Fail(t.status());
+    info.origin = *t;
+  }
+  if (auto d = args->Get("directions")) {
+    std::vector<double> v;
+    bool numbers = true;
+    for (absl::string_view part : absl::StrSplit(*d, ',')) {
+      double x = 0;
+      numbers = numbers && absl::SimpleAtod(part, &x);
+      v.push_back(x);
+    }
+    if (!numbers || v.size() != 9) {
+      return Fail(absl::InvalidArgumentError(
+          "--directions needs 9 numbers: the world directions of the x, y and z axes"));
+    }
+    for (int a = 0; a < 3; ++a) info.directions[a] = {v[3 * a], v[3 * a + 1], v[3 * a + 2]};
+  }
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return Fail(st);
   cli::Progress progress("slices");
-  const int64_t nz = src->info().nz;
+  const int64_t nz = info.nz;
   const SliceFn next = [&](int64_t z, std::vector<uint8_t>* bytes) {
     progress.Update(z + 1, nz);
+    if (z < src->next_slice()) src = make();  // a second pass (the DICOM writer's range scan)
     return src->ReadSlice(bytes);
   };
-  absl::Status st = out->ends_with(".zarr") ? WriteZarr(*out, src->info(), next, zarr)
-                                            : WriteVolume(*out, src->info(), next);
+  absl::Status st = series == "dicom"         ? WriteDicomSeries(*out, info, next, dicom)
+                    : series == "tiff"        ? WriteTiffSequence(*out, info, next)
+                    : out->ends_with(".zarr") ? WriteZarr(*out, info, next, zarr)
+                                              : WriteVolume(*out, info, next);
   progress.Done();
   if (!st.ok()) return Fail(st);
   std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out->c_str(),
@@ -370,8 +428,59 @@ int Measure(int argc, char** argv) {
   return 0;
 }
 
+// Value range, mean and a 10-bin histogram of every voxel (two passes, one slice in memory):
+// what a user looks at to pick an iso-value.
+struct ValueStats {
+  double lo = 0, hi = 0, mean = 0;
+  int64_t count = 0, nonfinite = 0;
+  std::array<int64_t, 10> bins{};
+};
+
+absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path) {
+  const VolumeInfo& info = src.info();
+  std::vector<uint8_t> bytes;
+  std::vector<float> values(static_cast<size_t>(info.slice_voxels()));
+  ValueStats s;
+  s.lo = std::numeric_limits<double>::infinity();
+  s.hi = -s.lo;
+  double sum = 0;
+  cli::Progress progress("scanning values");
+  // Pass 1: range and mean; pass 2 (the volume reopened): the histogram over that range.
+  for (int64_t z = 0; z < info.nz; ++z) {
+    if (absl::Status st = src.ReadSlice(&bytes); !st.ok()) return st;
+    ConvertToFloat(info.dtype, bytes.data(), values.size(), values.data());
+    for (float v : values) {
+      if (!std::isfinite(v)) {
+        ++s.nonfinite;
+        continue;
+      }
+      s.lo = std::min(s.lo, double{v});
+      s.hi = std::max(s.hi, double{v});
+      sum += v;
+      ++s.count;
+    }
+    progress.Update(z + 1, info.nz);
+  }
+  if (s.count == 0) return s;
+  s.mean = sum / static_cast<double>(s.count);
+  auto again = OpenVolume(path);
+  if (!again.ok()) return again.status();
+  const double width = (s.hi - s.lo) / 10.0;
+  for (int64_t z = 0; z < info.nz; ++z) {
+    if (absl::Status st = (*again)->ReadSlice(&bytes); !st.ok()) return st;
+    ConvertToFloat(info.dtype, bytes.data(), values.size(), values.data());
+    for (float v : values) {
+      if (!std::isfinite(v)) continue;
+      const int b = width > 0 ? std::min(9, static_cast<int>((v - s.lo) / width)) : 0;
+      ++s.bins[b];
+    }
+  }
+  progress.Done();
+  return s;
+}
+
 int Info(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2, {"input", "zarr-array"}, {"help"});
+  auto args = cli::Args::Parse(argc, argv, 2, {"input", "zarr-array"}, {"no-values", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kInfoHelp, stdout);
@@ -387,10 +496,32 @@ int Info(int argc, char** argv) {
   std::printf("dtype    %s\n", std::string(DTypeName(i.dtype)).c_str());
   std::printf("spacing  %g %g %g\n", i.spacing[0], i.spacing[1], i.spacing[2]);
   std::printf("origin   %g %g %g\n", i.origin[0], i.origin[1], i.origin[2]);
+  if (!i.axis_aligned()) {
+    const auto& d = i.directions;
+    std::printf("axes     x (%g %g %g)  y (%g %g %g)  z (%g %g %g)\n", d[0][0], d[0][1], d[0][2],
+                d[1][0], d[1][1], d[1][2], d[2][0], d[2][1], d[2][2]);
+  }
   std::string isos;
   for (double v : i.suggested_isovalues) absl::StrAppend(&isos, isos.empty() ? "" : " ", v);
   std::printf("isovalues %s\n", isos.empty() ? "(none suggested)" : isos.c_str());
   if (!i.description.empty()) std::printf("about    %s\n", i.description.c_str());
+  if (args->Has("no-values") || i.nz == 0) return 0;
+  auto stats = ScanValues(**src, *input);
+  if (!stats.ok()) return Fail(stats.status());
+  if (stats->count == 0) {
+    std::printf("values   none finite\n");
+    return 0;
+  }
+  std::printf("values   %g .. %g, mean %g%s\n", stats->lo, stats->hi, stats->mean,
+              stats->nonfinite ? absl::StrCat(" (", stats->nonfinite, " NaN/inf)").c_str() : "");
+  const int64_t peak = *std::max_element(stats->bins.begin(), stats->bins.end());
+  const double width = (stats->hi - stats->lo) / 10.0;
+  for (int b = 0; b < 10; ++b) {
+    const int bar = peak > 0 ? static_cast<int>(std::lround(40.0 * stats->bins[b] / peak)) : 0;
+    std::printf("  %12.6g .. %-12.6g %12lld %s\n", stats->lo + b * width,
+                stats->lo + (b + 1) * width, static_cast<long long>(stats->bins[b]),
+                std::string(static_cast<size_t>(bar), '#').c_str());
+  }
   return 0;
 }
 

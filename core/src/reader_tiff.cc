@@ -29,7 +29,10 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
+#include <filesystem>
+
 #include "readers_internal.h"
+#include "tandem/series.h"
 
 namespace tandem::internal {
 namespace {
@@ -293,9 +296,16 @@ class TiffSliceSource final : public SliceSource {
   std::vector<uint8_t> tile_;  // reused tile buffer
 };
 
-}  // namespace
 
-absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& path) {
+// A TIFF file opened, its pages walked once (so inconsistent stacks fail at open time), the
+// directory reset to page 0. info.nz = the page count; spacing and origin as the header says.
+struct OpenedTiff {
+  std::unique_ptr<TiffFile> file;
+  VolumeInfo info;
+  bool imagej = false;  // spacing came from an ImageJ description
+};
+
+absl::StatusOr<OpenedTiff> OpenTiffPages(const std::string& path) {
   absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
   if (!size.ok()) return size.status();
   // "m": no memory mapping (a file truncated while mapped would crash with SIGBUS).
@@ -304,7 +314,6 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& p
   TiffFile& f = **file;
   TIFF* tif = f.get();
 
-  // Walk every page once up front so that inconsistent stacks fail at open time.
   VolumeInfo info;
   PageFormat first;
   int64_t pages = 0;
@@ -361,11 +370,74 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& p
   } else {
     info.description = description;
   }
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        path, ": ", st.message(), pages < 2 ? " (a stack needs at least 2 pages)" : ""));
+  return OpenedTiff{*std::move(file), std::move(info), ij.present};
+}
+
+// Pixel size in mm from XResolution / YResolution with a centimetre or inch unit (what
+// reconstruction tools that do not write ImageJ descriptions use); 0 if there is none.
+std::array<double, 2> ResolutionMm(TIFF* tif) {
+  uint16_t unit = RESUNIT_NONE;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_RESOLUTIONUNIT, &unit);
+  const double mm = unit == RESUNIT_CENTIMETER ? 10.0 : unit == RESUNIT_INCH ? 25.4 : 0.0;
+  std::array<double, 2> out{0, 0};
+  float res = 0.0f;
+  if (mm > 0 && TIFFGetField(tif, TIFFTAG_XRESOLUTION, &res) && std::isfinite(res) && res > 0) {
+    out[0] = mm / res;
   }
-  return std::unique_ptr<SliceSource>(new TiffSliceSource(*std::move(file), std::move(info)));
+  if (mm > 0 && TIFFGetField(tif, TIFFTAG_YRESOLUTION, &res) && std::isfinite(res) && res > 0) {
+    out[1] = mm / res;
+  }
+  return out;
+}
+
+// One single-page TIFF per slice, opened as it is reached.
+class TiffSequenceSource final : public SliceSource {
+ public:
+  TiffSequenceSource(std::vector<std::string> files, VolumeInfo info)
+      : files_(std::move(files)), info_(std::move(info)) {}
+
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return next_; }
+
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (next_ >= info_.nz) {
+      return absl::OutOfRangeError(
+          absl::StrCat("TIFF sequence: no more slices (all ", info_.nz, " were read)"));
+    }
+    const std::string& path = files_[next_];
+    absl::StatusOr<OpenedTiff> t = OpenTiffPages(path);
+    if (!t.ok()) return t.status();
+    if (t->info.nz != 1 || t->info.nx != info_.nx || t->info.ny != info_.ny ||
+        t->info.dtype != info_.dtype) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          path, ": ", t->info.nz, " page(s) of ", t->info.nx, "x", t->info.ny, " ",
+          Sv(DTypeName(t->info.dtype)), " where the sequence (from ", files_.front(),
+          ") has one page of ", info_.nx, "x", info_.ny, " ", Sv(DTypeName(info_.dtype)),
+          " per file (every slice of a TIFF sequence must match)"));
+    }
+    TiffSliceSource page(std::move(t->file), std::move(t->info));
+    if (absl::Status st = page.ReadSlice(bytes); !st.ok()) return st;
+    ++next_;
+    return absl::OkStatus();
+  }
+
+ private:
+  std::vector<std::string> files_;
+  VolumeInfo info_;
+  int64_t next_ = 0;
+};
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& path) {
+  absl::StatusOr<OpenedTiff> t = OpenTiffPages(path);
+  if (!t.ok()) return t.status();
+  if (absl::Status st = ValidateVolumeInfo(t->info); !st.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": ", st.message(), t->info.nz < 2 ? " (a stack needs at least 2 pages)" : ""));
+  }
+  return std::unique_ptr<SliceSource>(
+      new TiffSliceSource(std::move(t->file), std::move(t->info)));
 }
 
 absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
@@ -466,3 +538,67 @@ absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
 }
 
 }  // namespace tandem::internal
+
+namespace tandem {
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffSequence(
+    const std::string& dir, const std::vector<std::string>& files) {
+  if (files.size() < 2) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        dir, ": a TIFF sequence needs at least 2 slice files, found ", files.size()));
+  }
+  absl::StatusOr<internal::OpenedTiff> t = internal::OpenTiffPages(files.front());
+  if (!t.ok()) return t.status();
+  if (t->info.nz != 1) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(files.front(), ": ", t->info.nz,
+                     " pages; a TIFF sequence folder holds one single-page TIFF per slice"));
+  }
+  VolumeInfo info = t->info;
+  info.nz = static_cast<int64_t>(files.size());
+  if (!t->imagej) {
+    // Reconstructions are isotropic: z takes the x pixel size.
+    const std::array<double, 2> mm = internal::ResolutionMm(t->file->get());
+    if (mm[0] > 0 && mm[1] > 0) info.spacing = {mm[0], mm[1], mm[0]};
+  }
+  info.description = absl::StrCat("TIFF sequence, ", files.size(), " files",
+                                  info.description.empty() ? "" : ": ", info.description);
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("TIFF sequence in ", dir, ": ", st.message()));
+  }
+  return std::unique_ptr<SliceSource>(new internal::TiffSequenceSource(files, std::move(info)));
+}
+
+absl::Status WriteTiffSlice(const std::string& path, const VolumeInfo& info, int64_t z,
+                            const std::vector<uint8_t>& bytes) {
+  VolumeInfo one = info;
+  one.nz = 1;
+  one.origin[2] = info.origin[2] + static_cast<double>(z) * info.spacing[2];
+  auto slice = [&bytes](int64_t, std::vector<uint8_t>* out) {
+    *out = bytes;
+    return absl::OkStatus();
+  };
+  return internal::WriteTiffVolume(path, one, slice, VolumeWriteOptions{});
+}
+
+absl::Status WriteTiffSequence(const std::string& dir, const VolumeInfo& info,
+                               const SliceFn& slice_fn) {
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
+  if (info.nz < 2) return absl::InvalidArgumentError("WriteTiffSequence: nz must be known");
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return absl::InternalError(absl::StrCat(dir, ": cannot create: ", ec.message()));
+  std::vector<uint8_t> bytes;
+  for (int64_t z = 0; z < info.nz; ++z) {
+    if (absl::Status st = internal::FetchSlice(dir, info, slice_fn, z, &bytes); !st.ok()) return st;
+    char name[32];
+    std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
+    if (absl::Status st = WriteTiffSlice((std::filesystem::path(dir) / name).string(), info, z, bytes);
+        !st.ok()) {
+      return st;
+    }
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace tandem

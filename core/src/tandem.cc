@@ -341,8 +341,20 @@ IndexedMesh TandemSession::Snapshot() const {
     AppendPartSnapshots(&out);
   }
   const bool identity = scale_ == 1.0 && grid_.origin == std::array<double, 3>{0, 0, 0};
-  if (!identity) {
-    const Vec3 origin{grid_.origin[0], grid_.origin[1], grid_.origin[2]};
+  const Vec3 origin{grid_.origin[0], grid_.origin[1], grid_.origin[2]};
+  if (!grid_.axis_aligned()) {
+    // world = origin + scale * (x d0 + y d1 + z d2); a mirrored frame reverses the winding so
+    // that normals keep pointing out of the surface.
+    const auto& d = grid_.directions;
+    const Vec3 d0{d[0][0], d[0][1], d[0][2]}, d1{d[1][0], d[1][1], d[1][2]},
+        d2{d[2][0], d[2][1], d[2][2]};
+    for (Vec3& p : out.positions) p = origin + (d0 * p.x + d1 * p.y + d2 * p.z) * scale_;
+    if (Dot(Cross(d0, d1), d2) < 0) {
+      for (size_t t = 0; t + 2 < out.indices.size(); t += 3) {
+        std::swap(out.indices[t + 1], out.indices[t + 2]);
+      }
+    }
+  } else if (!identity) {
     for (Vec3& p : out.positions) p = p * scale_ + origin;
   }
   return out;

@@ -20,6 +20,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "readers_internal.h"
+#include "tandem/series.h"
 #include "tandem/zarr.h"
 #include "zarr_internal.h"
 
@@ -121,6 +122,17 @@ absl::Status ValidateVolumeInfo(const VolumeInfo& info) {
           "origin nearer to the volume"));
     }
   }
+  const auto& d = info.directions;
+  for (int a = 0; a < 3; ++a) {
+    for (int b = a; b < 3; ++b) {
+      const double dot = d[a][0] * d[b][0] + d[a][1] * d[b][1] + d[a][2] * d[b][2];
+      if (!(std::abs(dot - (a == b ? 1.0 : 0.0)) <= 1e-3)) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "invalid directions: the grid axes must be orthonormal unit vectors (axis ", a,
+            a == b ? " has length^2 " : absl::StrCat(" . axis ", b, " = "), dot, ")"));
+      }
+    }
+  }
   return absl::OkStatus();
 }
 
@@ -158,6 +170,13 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path)
   if (auto [store, selector] = SplitZarrSelector(path); internal::LooksLikeZarr(store)) {
     return OpenZarrVolume(store, ZarrReadOptions{.array = selector});
   }
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(path);
+    if (!files.ok()) return files.status();
+    if (AllTiffNames(*files)) return OpenTiffSequence(path, *files);
+    return OpenDicomSeries(path, *files);
+  }
   const std::string ext = internal::VolumeExtension(path);
   if (ext == ".json") return internal::OpenRawVolume(path);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::OpenNrrdVolume(path);
@@ -171,7 +190,68 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path)
   }
   return absl::InvalidArgumentError(absl::StrCat(
       path, ": unsupported volume format '", ext.empty() ? "(no extension)" : ext,
-      "'; supported: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff"));
+      "'; supported: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff, a "
+      "Zarr store, or a folder holding a DICOM series or numbered TIFF slices"));
+}
+
+namespace {
+// Natural order: runs of digits compare by value ("s2" < "s10"), the rest byte by byte.
+bool NaturalLess(const std::string& a, const std::string& b) {
+  size_t i = 0, j = 0;
+  while (i < a.size() && j < b.size()) {
+    const bool da = absl::ascii_isdigit(static_cast<unsigned char>(a[i]));
+    const bool db = absl::ascii_isdigit(static_cast<unsigned char>(b[j]));
+    if (da && db) {
+      size_t ie = i, je = j;
+      while (ie < a.size() && absl::ascii_isdigit(static_cast<unsigned char>(a[ie]))) ++ie;
+      while (je < b.size() && absl::ascii_isdigit(static_cast<unsigned char>(b[je]))) ++je;
+      size_t is = i, js = j;  // skip leading zeros, then longer = larger
+      while (is + 1 < ie && a[is] == '0') ++is;
+      while (js + 1 < je && b[js] == '0') ++js;
+      if (ie - is != je - js) return ie - is < je - js;
+      if (int c = a.compare(is, ie - is, b, js, je - js); c != 0) return c < 0;
+      if (ie - i != je - j) return ie - i < je - j;  // "01" before "1" only as a tie-break
+      i = ie;
+      j = je;
+    } else {
+      if (a[i] != b[j]) return static_cast<unsigned char>(a[i]) < static_cast<unsigned char>(b[j]);
+      ++i;
+      ++j;
+    }
+  }
+  return a.size() - i < b.size() - j;
+}
+}  // namespace
+
+absl::StatusOr<std::vector<std::string>> ListSliceFiles(const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::directory_iterator it(dir, ec);
+  if (ec) {
+    const std::string msg = absl::StrCat(dir, ": cannot list the folder: ", ec.message());
+    return ec == std::errc::no_such_file_or_directory ? absl::NotFoundError(msg)
+                                                      : absl::InvalidArgumentError(msg);
+  }
+  std::vector<std::string> names;
+  for (; it != std::filesystem::directory_iterator(); it.increment(ec)) {
+    if (ec) return absl::InternalError(absl::StrCat(dir, ": listing failed: ", ec.message()));
+    const std::string name = it->path().filename().string();
+    if (name.empty() || name[0] == '.') continue;
+    std::error_code fec;
+    if (!it->is_regular_file(fec)) continue;
+    names.push_back(name);
+  }
+  std::sort(names.begin(), names.end(), NaturalLess);
+  for (std::string& n : names) n = (std::filesystem::path(dir) / n).string();
+  return names;
+}
+
+bool AllTiffNames(const std::vector<std::string>& files) {
+  if (files.empty()) return false;
+  for (const std::string& f : files) {
+    const std::string ext = internal::VolumeExtension(f);
+    if (ext != ".tif" && ext != ".tiff") return false;
+  }
+  return true;
 }
 
 namespace internal {

@@ -637,6 +637,11 @@ absl::StatusOr<std::unique_ptr<ZarrAppender>> ZarrAppender::Create(const std::st
   if (opts.dimension_separator != '.' && opts.dimension_separator != '/') {
     return absl::InvalidArgumentError(absl::StrCat(path, ": dimension separator must be . or /"));
   }
+  if (!info.axis_aligned()) {
+    return absl::UnimplementedError(
+        absl::StrCat(path, ": OME-Zarr stores scale and translation only, not rotated or "
+                           "flipped grid directions"));
+  }
   auto appender = std::make_unique<internal::ZarrAppenderImpl>(path, info, opts);
   if (absl::Status st = appender->Start(); !st.ok()) return st;
   return std::unique_ptr<ZarrAppender>(std::move(appender));
@@ -668,6 +673,11 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
   }
   if (info.nz == 0) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": nz must be known to write a volume"));
+  }
+  if (!info.axis_aligned()) {
+    return absl::UnimplementedError(absl::StrCat(
+        path, ": this writer stores spacing and origin only, not rotated or flipped grid "
+              "directions (a DICOM series stores them)"));
   }
   const std::string ext = internal::VolumeExtension(path);
   if (ext == ".json") return internal::WriteRawJson(path, info, slice_fn, opts);

@@ -1,5 +1,7 @@
 // Volume input: a slice source yields one z-slice at a time, so no reader ever needs the
-// whole volume in memory. Geometry: voxel (i, j, k) sits at origin + (i*sx, j*sy, k*sz).
+// whole volume in memory. Geometry: voxel (i, j, k) sits at
+//   origin + i*sx*directions[0] + j*sy*directions[1] + k*sz*directions[2]
+// (with the default identity directions: origin + (i*sx, j*sy, k*sz)).
 #ifndef TANDEM_VOLUME_H_
 #define TANDEM_VOLUME_H_
 
@@ -27,17 +29,23 @@ struct VolumeInfo {
   DType dtype = DType::kUInt8;
   std::array<double, 3> spacing{1.0, 1.0, 1.0};  // physical units per voxel step
   std::array<double, 3> origin{0.0, 0.0, 0.0};   // physical position of voxel (0,0,0)
+  // World unit vectors of the grid's x, y and z axes (orthonormal; a flip or a rotation, as
+  // DICOM ImageOrientationPatient or a NIfTI / NRRD orientation gives).
+  std::array<std::array<double, 3>, 3> directions{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
   std::vector<double> suggested_isovalues;       // optional, from sidecars
   std::string description;                       // optional
 
+  bool axis_aligned() const {
+    return directions == std::array<std::array<double, 3>, 3>{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+  }
   int64_t slice_voxels() const { return nx * ny; }
   size_t slice_bytes() const { return static_cast<size_t>(nx * ny) * DTypeSize(dtype); }
 };
 
 // Checks dims (>= 2 on x and y, nz >= 2 when known, at most 2^20 per axis and 2^28 per
 // slice), spacing in [kMinSpacing, kMaxSpacing] with at most kMaxAnisotropy between axes,
-// and an origin at most kMaxOriginVoxels voxels from 0 on each axis. The error names the
-// field and the rule.
+// an origin at most kMaxOriginVoxels voxels from 0 on each axis, and directions that are
+// orthonormal within 1e-3. The error names the field and the rule.
 absl::Status ValidateVolumeInfo(const VolumeInfo& info);
 inline constexpr double kMinSpacing = 1e-12, kMaxSpacing = 1e12;
 inline constexpr double kMaxAnisotropy = 1e4;
@@ -72,7 +80,8 @@ void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
 // Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
 // *.nii.gz, *.tif / *.tiff (multi-page stack), a Zarr / OME-Zarr store (*.zarr, or a
 // directory holding Zarr metadata; "X.zarr#SELECTOR" picks a level or an array, see
-// tandem/zarr.h). Errors name the file and the problem.
+// tandem/zarr.h), or a folder of one file per slice: a DICOM series or numbered TIFFs (see
+// tandem/series.h). Errors name the file and the problem.
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path);
 
 }  // namespace tandem

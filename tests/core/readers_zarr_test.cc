@@ -28,12 +28,8 @@ using nlohmann::json;
 
 using testing::PatternValue;
 using testing::StoreValue;
-
-double Load(DType t, const uint8_t* p) {
-  float f[1];
-  ConvertToFloat(t, p, 1, f);
-  return f[0];
-}
+using testing::PatternSlices;
+constexpr auto Load = testing::LoadValue;
 
 VolumeInfo Grid(DType t, int64_t nx = 37, int64_t ny = 21, int64_t nz = 16) {
   VolumeInfo info;
@@ -45,20 +41,6 @@ VolumeInfo Grid(DType t, int64_t nx = 37, int64_t ny = 21, int64_t nz = 16) {
   info.origin = {-10.5, 3.25, 100.0};
   info.suggested_isovalues = {12.5};
   return info;
-}
-
-SliceFn PatternSlices(const VolumeInfo& info) {
-  return [info](int64_t k, std::vector<uint8_t>* bytes) {
-    const size_t es = DTypeSize(info.dtype);
-    bytes->resize(info.slice_bytes());
-    for (int64_t j = 0; j < info.ny; ++j) {
-      for (int64_t i = 0; i < info.nx; ++i) {
-        StoreValue(info.dtype, PatternValue(info.dtype, i, j, k),
-                   bytes->data() + (j * info.nx + i) * es);
-      }
-    }
-    return absl::OkStatus();
-  };
 }
 
 // Reads every slice and compares with the pattern; `fill` (if set) replaces the pattern for

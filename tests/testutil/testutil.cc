@@ -90,4 +90,24 @@ void StoreValue(DType t, double v, uint8_t* dst) {
   }
 }
 
+double LoadValue(DType t, const uint8_t* p) {
+  float f[1];
+  ConvertToFloat(t, p, 1, f);
+  return f[0];
+}
+
+SliceFn PatternSlices(const VolumeInfo& info) {
+  return [info](int64_t k, std::vector<uint8_t>* bytes) {
+    const size_t es = DTypeSize(info.dtype);
+    bytes->resize(info.slice_bytes());
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        StoreValue(info.dtype, PatternValue(info.dtype, i, j, k),
+                   bytes->data() + (j * info.nx + i) * es);
+      }
+    }
+    return absl::OkStatus();
+  };
+}
+
 }  // namespace tandem::testing

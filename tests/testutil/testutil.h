@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "tandem/volume.h"
+#include "tandem/volume_writers.h"
 
 namespace tandem::testing {
 
@@ -27,6 +28,12 @@ double PatternValue(DType t, int64_t i, int64_t j, int64_t k);
 
 // Stores v as one voxel of type t (host byte order) at dst.
 void StoreValue(DType t, double v, uint8_t* dst);
+
+// The voxel of type t (host byte order) at p, as float.
+double LoadValue(DType t, const uint8_t* p);
+
+// Slices of PatternValue for a writer.
+SliceFn PatternSlices(const VolumeInfo& info);
 
 }  // namespace tandem::testing
 

@@ -1,0 +1,677 @@
+// DICOM series (one instance per z-slice) through GDCM: reader and writer. The rules are in
+// tandem/series.h. Headers are read up to the pixel data for every file at open time (to
+// order and check the series); pixel data is decoded one file per ReadSlice.
+#include <gdcmAttribute.h>
+#include <gdcmDataSet.h>
+#include <gdcmImageChangeTransferSyntax.h>
+#include <gdcmImageReader.h>
+#include <gdcmImageWriter.h>
+#include <gdcmMediaStorage.h>
+#include <gdcmReader.h>
+#include <gdcmTrace.h>
+#include <gdcmUIDGenerator.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <map>
+#include <mutex>
+#include <optional>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "readers_internal.h"
+#include "tandem/series.h"
+
+namespace tandem {
+namespace {
+
+using internal::FormatDouble;
+using Vec = std::array<double, 3>;
+
+Vec Cross(const Vec& a, const Vec& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+double Dot(const Vec& a, const Vec& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+double Norm(const Vec& a) { return std::sqrt(Dot(a, a)); }
+
+// GDCM reports problems through gdcm::Trace on stderr; our errors carry the file names.
+void SilenceGdcm() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    gdcm::Trace::SetDebug(false);
+    gdcm::Trace::SetWarning(false);
+    gdcm::Trace::SetError(false);
+  });
+}
+
+std::string Base(const std::string& path) { return std::filesystem::path(path).filename(); }
+
+// What the header of one file says (only what ordering and checking need).
+struct SliceHeader {
+  std::string path;
+  std::string series_uid;
+  Vec position{0, 0, 0};
+  std::array<double, 6> orientation{1, 0, 0, 0, 1, 0};
+  int64_t rows = 0, cols = 0;
+  double row_spacing = 1, col_spacing = 1;  // PixelSpacing[0], [1]
+  bool has_spacing = false;
+  int bits_allocated = 0, bits_stored = 0, pixel_representation = 0, samples = 1;
+  int64_t frames = 1;
+  double slope = 1, intercept = 0;
+  std::string modality, description;
+  double along = 0;  // position projected on the normal
+};
+
+template <uint16_t G, uint16_t E>
+bool Has(const gdcm::DataSet& ds) {
+  return ds.FindDataElement(gdcm::Tag(G, E)) && !ds.GetDataElement(gdcm::Tag(G, E)).IsEmpty();
+}
+
+std::string Trimmed(std::string s) {
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\0')) s.pop_back();
+  return std::string(absl::StripAsciiWhitespace(s));
+}
+
+// Outcome of reading one header: a slice, a file to skip (DICOMDIR), or an error.
+absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
+  gdcm::Reader reader;
+  reader.SetFileName(path.c_str());
+  // Up to and including the pixel data element, whose value is skipped (not loaded).
+  if (!reader.ReadUpToTag(gdcm::Tag(0x7fe0, 0x0010), {gdcm::Tag(0x7fe0, 0x0010)})) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": not a readable DICOM file (not DICOM, truncated or corrupt); a "
+                           "series folder must hold only the series' files"));
+  }
+  const gdcm::File& file = reader.GetFile();
+  const gdcm::DataSet& ds = file.GetDataSet();
+  gdcm::MediaStorage ms;
+  ms.SetFromFile(file);
+  if (ms == gdcm::MediaStorage::MediaStorageDirectoryStorage) return std::nullopt;  // DICOMDIR
+
+  SliceHeader h;
+  h.path = path;
+  {
+    gdcm::Attribute<0x0020, 0x000e> a;
+    a.SetFromDataSet(ds);
+    h.series_uid = Trimmed(std::string(a.GetValue()));
+  }
+  if (!Has<0x0028, 0x0010>(ds) || !Has<0x0028, 0x0011>(ds)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": DICOM file without an image (no Rows/Columns)"));
+  }
+  {
+    gdcm::Attribute<0x0028, 0x0010> rows;
+    gdcm::Attribute<0x0028, 0x0011> cols;
+    rows.SetFromDataSet(ds);
+    cols.SetFromDataSet(ds);
+    h.rows = rows.GetValue();
+    h.cols = cols.GetValue();
+  }
+  if (!Has<0x0020, 0x0032>(ds) || !Has<0x0020, 0x0037>(ds)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": no ImagePositionPatient / ImageOrientationPatient: the slices of this series "
+              "cannot be placed in space (secondary capture or a localizer?)"));
+  }
+  {
+    gdcm::Attribute<0x0020, 0x0032> ipp;
+    gdcm::Attribute<0x0020, 0x0037> iop;
+    ipp.SetFromDataSet(ds);
+    iop.SetFromDataSet(ds);
+    for (int i = 0; i < 3; ++i) h.position[i] = ipp.GetValue(i);
+    for (int i = 0; i < 6; ++i) h.orientation[i] = iop.GetValue(i);
+  }
+  if (Has<0x0028, 0x0030>(ds)) {
+    gdcm::Attribute<0x0028, 0x0030> ps;
+    ps.SetFromDataSet(ds);
+    h.row_spacing = ps.GetValue(0);
+    h.col_spacing = ps.GetValue(1);
+    h.has_spacing = true;
+  }
+  {
+    gdcm::Attribute<0x0028, 0x0100> ba;
+    gdcm::Attribute<0x0028, 0x0101> bs;
+    gdcm::Attribute<0x0028, 0x0103> pr;
+    ba.SetFromDataSet(ds);
+    bs.SetFromDataSet(ds);
+    pr.SetFromDataSet(ds);
+    h.bits_allocated = ba.GetValue();
+    h.bits_stored = Has<0x0028, 0x0101>(ds) ? bs.GetValue() : h.bits_allocated;
+    h.pixel_representation = pr.GetValue();
+  }
+  if (Has<0x0028, 0x0002>(ds)) {
+    gdcm::Attribute<0x0028, 0x0002> spp;
+    spp.SetFromDataSet(ds);
+    h.samples = spp.GetValue();
+  }
+  if (Has<0x0028, 0x0008>(ds)) {
+    gdcm::Attribute<0x0028, 0x0008> nf;
+    nf.SetFromDataSet(ds);
+    h.frames = nf.GetValue();
+  }
+  if (Has<0x0028, 0x1053>(ds)) {
+    gdcm::Attribute<0x0028, 0x1053> s;
+    s.SetFromDataSet(ds);
+    h.slope = s.GetValue();
+  }
+  if (Has<0x0028, 0x1052>(ds)) {
+    gdcm::Attribute<0x0028, 0x1052> i;
+    i.SetFromDataSet(ds);
+    h.intercept = i.GetValue();
+  }
+  if (Has<0x0008, 0x0060>(ds)) {
+    gdcm::Attribute<0x0008, 0x0060> m;
+    m.SetFromDataSet(ds);
+    h.modality = Trimmed(std::string(m.GetValue()));
+  }
+  if (Has<0x0008, 0x103e>(ds)) {
+    gdcm::Attribute<0x0008, 0x103e> d;
+    d.SetFromDataSet(ds);
+    h.description = Trimmed(std::string(d.GetValue()));
+  }
+  // The pixel data must fit in the file: GDCM pads a cut-off element silently, and a slice
+  // still being written (or cut short) must not pass for a whole one. It starts after the
+  // preamble, the meta header and the data set read so far (lengths as declared); its
+  // element header is 12 bytes (explicit VR) or 8 (implicit). Compressed data is checked
+  // by its codec when the slice is read.
+  {
+    std::error_code ec;
+    const uint64_t size = std::filesystem::file_size(path, ec);
+    const gdcm::TransferSyntax ts = file.GetHeader().GetDataSetTransferSyntax();
+    const bool explicit_vr = ts.GetNegociatedType() != gdcm::TransferSyntax::Implicit;
+    const gdcm::VL set = explicit_vr ? ds.GetLength<gdcm::ExplicitDataElement>()
+                                     : ds.GetLength<gdcm::ImplicitDataElement>();
+    const uint64_t pixel_bytes = ts.IsEncapsulated() ? 0
+                                 : uint64_t(h.rows) * uint64_t(h.cols) *
+                                       uint64_t(std::max(h.bits_allocated, 8) / 8);
+    const uint64_t need = uint64_t{file.GetHeader().GetFullLength()} + uint64_t{set} +
+                          (explicit_vr ? 12 : 8) + pixel_bytes;
+    if (!ec && !set.IsUndefined() && need > size) {
+      return absl::DataLossError(absl::StrCat(path, ": truncated: ", need,
+                                              " bytes needed up to the end of the pixel data, "
+                                              "the file has ", size,
+                                              " (still being written, or cut short?)"));
+    }
+  }
+  if (h.samples != 1) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": ", h.samples, " samples per pixel (colour); only greyscale series are supported"));
+  }
+  if (h.frames != 1) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": multi-frame image (", h.frames,
+                     " frames); only series with one slice per file are supported"));
+  }
+  if (!(h.bits_allocated == 8 || h.bits_allocated == 16) ||
+      (h.bits_allocated == 8 && h.pixel_representation != 0) || h.bits_stored < 1 ||
+      h.bits_stored > h.bits_allocated) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": unsupported pixels: ", h.bits_allocated, " bits allocated, ", h.bits_stored,
+        " stored, ", h.pixel_representation ? "signed" : "unsigned",
+        " (supported: 8-bit unsigned, 16-bit signed or unsigned)"));
+  }
+  if (!std::isfinite(h.slope) || !std::isfinite(h.intercept) || h.slope == 0.0) {
+    return absl::InvalidArgumentError(absl::StrCat(path, ": invalid RescaleSlope ", h.slope,
+                                                   " / RescaleIntercept ", h.intercept));
+  }
+  return h;
+}
+
+DType StoredType(const SliceHeader& h) {
+  if (h.bits_allocated == 8) return DType::kUInt8;
+  return h.pixel_representation ? DType::kInt16 : DType::kUInt16;
+}
+
+bool Near(double a, double b, double tol) { return std::abs(a - b) <= tol; }
+
+class DicomSliceSource final : public SliceSource {
+ public:
+  DicomSliceSource(std::vector<SliceHeader> slices, VolumeInfo info, DType stored, bool rescale)
+      : slices_(std::move(slices)), info_(std::move(info)), stored_(stored), rescale_(rescale) {}
+
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return next_; }
+
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (next_ >= static_cast<int64_t>(slices_.size())) {
+      return absl::OutOfRangeError(absl::StrCat("DICOM series: no more slices (all ",
+                                                slices_.size(), " were read)"));
+    }
+    const SliceHeader& h = slices_[next_];
+    gdcm::ImageReader reader;
+    reader.SetFileName(h.path.c_str());
+    if (!reader.Read()) {
+      return absl::DataLossError(
+          absl::StrCat(h.path, ": cannot read the DICOM image (truncated or corrupt file?)"));
+    }
+    const gdcm::Image& image = reader.GetImage();
+    const size_t n = static_cast<size_t>(info_.slice_voxels());
+    const size_t stored_bytes = n * DTypeSize(stored_);
+    if (image.GetBufferLength() != stored_bytes) {
+      return absl::DataLossError(absl::StrCat(h.path, ": pixel data holds ",
+                                              image.GetBufferLength(), " bytes, expected ",
+                                              stored_bytes, " (truncated or corrupt file?)"));
+    }
+    const gdcm::ByteValue* raw = image.GetDataElement().GetByteValue();
+    if (!image.GetTransferSyntax().IsEncapsulated() &&
+        (raw == nullptr || raw->GetLength() < stored_bytes)) {
+      return absl::DataLossError(absl::StrCat(h.path, ": pixel data is truncated (",
+                                              raw ? static_cast<uint32_t>(raw->GetLength()) : 0u, " of ", stored_bytes,
+                                              " bytes)"));
+    }
+    buffer_.resize(stored_bytes);
+    if (!image.GetBuffer(reinterpret_cast<char*>(buffer_.data()))) {
+      return absl::DataLossError(absl::StrCat(
+          h.path, ": cannot decode the pixel data (transfer syntax ",
+          gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax()),
+          "; truncated or corrupt, or a codec this GDCM build lacks)"));
+    }
+    bytes->resize(info_.slice_bytes());
+    if (!rescale_) {
+      std::memcpy(bytes->data(), buffer_.data(), stored_bytes);
+    } else if (info_.dtype == DType::kInt16) {
+      // Slope 1, integer intercept, range known to fit (checked at open time).
+      const int32_t shift = static_cast<int32_t>(h.intercept);
+      Rescale<int16_t>(bytes->data(), n, [shift](double v) { return v + shift; });
+    } else {
+      const double s = h.slope, b = h.intercept;
+      Rescale<float>(bytes->data(), n, [s, b](double v) { return v * s + b; });
+    }
+    ++next_;
+    return absl::OkStatus();
+  }
+
+ private:
+  template <typename Out, typename F>
+  void Rescale(uint8_t* dst, size_t n, F f) const {
+    auto run = [&](auto tag) {
+      using In = decltype(tag);
+      for (size_t i = 0; i < n; ++i) {
+        In v;
+        std::memcpy(&v, buffer_.data() + i * sizeof(In), sizeof(In));
+        const Out o = static_cast<Out>(f(static_cast<double>(v)));
+        std::memcpy(dst + i * sizeof(Out), &o, sizeof(Out));
+      }
+    };
+    switch (stored_) {
+      case DType::kUInt8:
+        run(uint8_t{});
+        break;
+      case DType::kUInt16:
+        run(uint16_t{});
+        break;
+      case DType::kInt16:
+        run(int16_t{});
+        break;
+      case DType::kFloat32:
+        break;  // never stored in DICOM images
+    }
+  }
+
+  std::vector<SliceHeader> slices_;
+  VolumeInfo info_;
+  DType stored_;
+  bool rescale_;
+  int64_t next_ = 0;
+  std::vector<uint8_t> buffer_;
+};
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
+    const std::string& dir, const std::vector<std::string>& files) {
+  SilenceGdcm();
+  std::vector<SliceHeader> slices;
+  slices.reserve(files.size());
+  for (const std::string& f : files) {
+    absl::StatusOr<std::optional<SliceHeader>> h = ReadHeader(f);
+    if (!h.ok()) return h.status();
+    if (h->has_value()) slices.push_back(std::move(**h));
+  }
+  if (slices.size() < 2) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(dir, ": a DICOM series needs at least 2 slices, found ", slices.size(),
+                     files.empty() ? " (empty folder)" : ""));
+  }
+  // One series.
+  std::map<std::string, std::vector<const SliceHeader*>> by_series;
+  for (const SliceHeader& h : slices) by_series[h.series_uid].push_back(&h);
+  if (by_series.size() > 1) {
+    std::vector<std::string> parts;
+    for (const auto& [uid, members] : by_series) {
+      parts.push_back(absl::StrCat("'", uid, "' (", members.size(), " files, e.g. ",
+                                   Base(members.front()->path), ")"));
+    }
+    return absl::InvalidArgumentError(
+        absl::StrCat(dir, ": the folder holds ", by_series.size(), " DICOM series: ",
+                     absl::StrJoin(parts, ", "), "; put each series in its own folder"));
+  }
+  // One geometry and one pixel type.
+  const SliceHeader& first = slices.front();
+  Vec row{first.orientation[0], first.orientation[1], first.orientation[2]};
+  Vec col{first.orientation[3], first.orientation[4], first.orientation[5]};
+  if (!(Near(Norm(row), 1, 1e-2) && Near(Norm(col), 1, 1e-2) && std::abs(Dot(row, col)) < 1e-2)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(first.path, ": ImageOrientationPatient is not two orthogonal unit vectors"));
+  }
+  for (Vec* v : {&row, &col}) {
+    const double len = Norm(*v);
+    for (double& c : *v) c /= len;
+  }
+  Vec normal = Cross(row, col);
+  {
+    const double len = Norm(normal);
+    for (double& c : normal) c /= len;
+  }
+  for (SliceHeader& h : slices) {
+    auto mismatch = [&](const std::string& what) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("DICOM series in ", dir, ": ", Base(h.path), " and ", Base(first.path),
+                       " differ in ", what, " (every slice of a series must match)"));
+    };
+    if (h.rows != first.rows || h.cols != first.cols) {
+      return mismatch(absl::StrCat("size (", h.cols, "x", h.rows, " vs ", first.cols, "x",
+                                   first.rows, ")"));
+    }
+    for (int i = 0; i < 6; ++i) {
+      if (!Near(h.orientation[i], first.orientation[i], 1e-4)) {
+        return mismatch("ImageOrientationPatient");
+      }
+    }
+    if (h.has_spacing != first.has_spacing ||
+        !Near(h.row_spacing, first.row_spacing, 1e-4 * first.row_spacing) ||
+        !Near(h.col_spacing, first.col_spacing, 1e-4 * first.col_spacing)) {
+      return mismatch("PixelSpacing");
+    }
+    if (StoredType(h) != StoredType(first) || h.bits_stored != first.bits_stored) {
+      return mismatch("pixel type (BitsAllocated / BitsStored / PixelRepresentation)");
+    }
+    h.along = Dot(h.position, normal);
+  }
+  std::sort(slices.begin(), slices.end(),
+            [](const SliceHeader& a, const SliceHeader& b) { return a.along < b.along; });
+  const int64_t nz = static_cast<int64_t>(slices.size());
+  std::vector<double> steps;
+  for (int64_t k = 0; k + 1 < nz; ++k) steps.push_back(slices[k + 1].along - slices[k].along);
+  std::vector<double> sorted = steps;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  const double in_plane = std::min(first.row_spacing, first.col_spacing);
+  for (int64_t k = 0; k + 1 < nz; ++k) {
+    const SliceHeader& a = slices[k];
+    const SliceHeader& b = slices[k + 1];
+    if (steps[k] <= 1e-3 * in_plane) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("DICOM series in ", dir, ": ", Base(a.path), " and ", Base(b.path),
+                       " are at the same position (", FormatDouble(a.along),
+                       " mm along the normal); duplicate slice?"));
+    }
+  }
+  for (int64_t k = 0; k + 1 < nz; ++k) {
+    if (std::abs(steps[k] - median) > 0.1 * median) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "DICOM series in ", dir, ": gap between ", Base(slices[k].path), " and ",
+          Base(slices[k + 1].path), ": ", FormatDouble(steps[k]),
+          " mm apart where the series' usual step is ", FormatDouble(median),
+          " mm (a missing slice, or an irregular series)"));
+    }
+  }
+  const double step = (slices.back().along - slices.front().along) / static_cast<double>(nz - 1);
+  for (const SliceHeader& h : slices) {
+    Vec off{h.position[0] - first.position[0], h.position[1] - first.position[1],
+            h.position[2] - first.position[2]};
+    const double along = Dot(off, normal);
+    const Vec side{off[0] - along * normal[0], off[1] - along * normal[1],
+                   off[2] - along * normal[2]};
+    if (Norm(side) > 0.1 * in_plane) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "DICOM series in ", dir, ": ", Base(h.path), " is shifted ", FormatDouble(Norm(side)),
+          " mm sideways from the slice normal (gantry tilt?); tilted series are not supported"));
+    }
+  }
+  // Values: stored type, int16 (CT's slope 1, integer intercept), or float32.
+  const DType stored = StoredType(first);
+  bool rescale = false, integer_shift = true;
+  for (const SliceHeader& h : slices) {
+    if (h.slope != 1.0 || h.intercept != 0.0) rescale = true;
+    if (h.slope != 1.0 || h.intercept != std::round(h.intercept) ||
+        h.intercept != slices.front().intercept) {
+      integer_shift = false;
+    }
+  }
+  VolumeInfo info;
+  info.nx = first.cols;
+  info.ny = first.rows;
+  info.nz = nz;
+  info.dtype = stored;
+  if (rescale) {
+    info.dtype = DType::kFloat32;
+    if (integer_shift && stored != DType::kUInt8) {
+      const double lo = first.pixel_representation ? -std::ldexp(1.0, first.bits_stored - 1) : 0.0;
+      const double hi = first.pixel_representation ? std::ldexp(1.0, first.bits_stored - 1) - 1
+                                                   : std::ldexp(1.0, first.bits_stored) - 1;
+      const double b = first.intercept;
+      if (lo + b >= std::numeric_limits<int16_t>::min() &&
+          hi + b <= std::numeric_limits<int16_t>::max()) {
+        info.dtype = DType::kInt16;
+      }
+    }
+  }
+  info.spacing = {first.col_spacing, first.row_spacing, step};
+  info.origin = slices.front().position;
+  for (double& c : normal) c += 0.0;  // no "-0" in messages
+  info.directions = {row, col, normal};
+  info.description =
+      absl::StrCat("DICOM ", first.modality.empty() ? "" : first.modality + " ", "series",
+                   first.description.empty() ? "" : " '" + first.description + "'", ", ", nz,
+                   " files", rescale ? ", rescaled values" : "",
+                   first.has_spacing ? "" : " (no PixelSpacing: 1 mm assumed)");
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("DICOM series in ", dir, ": ", st.message()));
+  }
+  return std::unique_ptr<SliceSource>(
+      new DicomSliceSource(std::move(slices), std::move(info), stored, rescale));
+}
+
+absl::StatusOr<DicomSyntax> ParseDicomSyntax(const std::string& name) {
+  static const std::pair<const char*, DicomSyntax> kNames[] = {
+      {"explicit", DicomSyntax::kExplicitLittle}, {"implicit", DicomSyntax::kImplicitLittle},
+      {"jpeg-lossless", DicomSyntax::kJpegLossless}, {"jpeg-ls", DicomSyntax::kJpegLs},
+      {"jpeg2000", DicomSyntax::kJpeg2000},          {"rle", DicomSyntax::kRle}};
+  for (const auto& [n, s] : kNames) {
+    if (name == n) return s;
+  }
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown DICOM transfer syntax '", name,
+                   "' (use explicit, implicit, jpeg-lossless, jpeg-ls, jpeg2000 or rle)"));
+}
+
+absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info,
+                                                          const DicomWriteOptions& opts) {
+  SilenceGdcm();
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
+  if (info.nx > 0xffff || info.ny > 0xffff) {
+    return absl::InvalidArgumentError("DICOM slices are at most 65535 x 65535 pixels");
+  }
+  DicomSliceWriter w;
+  w.info_ = info;
+  w.opts_ = opts;
+  gdcm::UIDGenerator uid;
+  if (w.opts_.series_uid.empty()) w.opts_.series_uid = uid.Generate();
+  if (w.opts_.study_uid.empty()) w.opts_.study_uid = uid.Generate();
+  if (info.dtype == DType::kFloat32) {
+    if (!(std::isfinite(opts.float_min) && std::isfinite(opts.float_max) &&
+          opts.float_max >= opts.float_min)) {
+      return absl::InvalidArgumentError("DICOM writer: float32 volume needs a finite value range");
+    }
+    // int16 codes -32767..32767 span [float_min, float_max].
+    const double span = std::max(double{opts.float_max} - opts.float_min, 1e-30);
+    w.opts_.rescale_slope = span / 65534.0;
+    w.opts_.rescale_intercept = opts.float_min + 32767.0 * w.opts_.rescale_slope;
+  }
+  return w;
+}
+
+absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
+                                     const std::vector<uint8_t>& bytes) const {
+  if (bytes.size() != info_.slice_bytes()) {
+    return absl::InvalidArgumentError(absl::StrCat(path, ": slice ", z, " has ", bytes.size(),
+                                                   " bytes, expected ", info_.slice_bytes()));
+  }
+  const size_t n = static_cast<size_t>(info_.slice_voxels());
+  std::vector<uint8_t> stored;
+  const uint8_t* pixels = bytes.data();
+  gdcm::PixelFormat pf = gdcm::PixelFormat::UINT8;
+  switch (info_.dtype) {
+    case DType::kUInt8:
+      break;
+    case DType::kUInt16:
+      pf = gdcm::PixelFormat::UINT16;
+      break;
+    case DType::kInt16:
+      pf = gdcm::PixelFormat::INT16;
+      break;
+    case DType::kFloat32: {
+      pf = gdcm::PixelFormat::INT16;
+      stored.resize(n * 2);
+      for (size_t i = 0; i < n; ++i) {
+        float v;
+        std::memcpy(&v, bytes.data() + 4 * i, 4);
+        const double code = std::clamp(
+            std::round((double{v} - opts_.rescale_intercept) / opts_.rescale_slope), -32767.0,
+            32767.0);
+        const int16_t c = static_cast<int16_t>(std::isfinite(code) ? code : 0.0);
+        std::memcpy(stored.data() + 2 * i, &c, 2);
+      }
+      pixels = stored.data();
+      break;
+    }
+  }
+  const bool ct = opts_.modality == "CT";
+  gdcm::ImageWriter writer;
+  gdcm::Image& image = writer.GetImage();
+  image.SetNumberOfDimensions(2);
+  image.SetDimension(0, static_cast<unsigned int>(info_.nx));
+  image.SetDimension(1, static_cast<unsigned int>(info_.ny));
+  if (opts_.bits_stored > 0 && opts_.bits_stored < pf.GetBitsAllocated()) {
+    pf.SetBitsStored(static_cast<unsigned short>(opts_.bits_stored));
+    pf.SetHighBit(static_cast<unsigned short>(opts_.bits_stored - 1));
+  }
+  image.SetPixelFormat(pf);
+  image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+  image.SetSpacing(0, info_.spacing[0]);
+  image.SetSpacing(1, info_.spacing[1]);
+  image.SetSpacing(2, info_.spacing[2]);
+  const auto& d = info_.directions;
+  const double kz = static_cast<double>(z) * info_.spacing[2];
+  for (unsigned int i = 0; i < 3; ++i) image.SetOrigin(i, info_.origin[i] + kz * d[2][i]);
+  const double cosines[6] = {d[0][0], d[0][1], d[0][2], d[1][0], d[1][1], d[1][2]};
+  image.SetDirectionCosines(cosines);
+  image.SetSlope(opts_.rescale_slope);
+  image.SetIntercept(opts_.rescale_intercept);
+  gdcm::DataElement pixel_data(gdcm::Tag(0x7fe0, 0x0010));
+  pixel_data.SetByteValue(reinterpret_cast<const char*>(pixels),
+                          static_cast<uint32_t>(n * pf.GetPixelSize()));
+  image.SetDataElement(pixel_data);
+  image.SetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
+
+  gdcm::TransferSyntax::TSType ts = gdcm::TransferSyntax::ExplicitVRLittleEndian;
+  switch (opts_.syntax) {
+    case DicomSyntax::kExplicitLittle:
+      break;
+    case DicomSyntax::kImplicitLittle:
+      ts = gdcm::TransferSyntax::ImplicitVRLittleEndian;
+      break;
+    case DicomSyntax::kJpegLossless:
+      ts = gdcm::TransferSyntax::JPEGLosslessProcess14_1;
+      break;
+    case DicomSyntax::kJpegLs:
+      ts = gdcm::TransferSyntax::JPEGLSLossless;
+      break;
+    case DicomSyntax::kJpeg2000:
+      ts = gdcm::TransferSyntax::JPEG2000Lossless;
+      break;
+    case DicomSyntax::kRle:
+      ts = gdcm::TransferSyntax::RLELossless;
+      break;
+  }
+  if (ts != gdcm::TransferSyntax::ExplicitVRLittleEndian) {
+    gdcm::ImageChangeTransferSyntax change;
+    change.SetTransferSyntax(ts);
+    change.SetInput(image);
+    if (!change.Change()) {
+      return absl::InternalError(absl::StrCat(path, ": GDCM cannot encode transfer syntax ",
+                                              gdcm::TransferSyntax::GetTSString(ts)));
+    }
+    writer.SetImage(change.GetOutput());
+  }
+
+  gdcm::DataSet& ds = writer.GetFile().GetDataSet();
+  auto put = [&ds](uint16_t g, uint16_t e, const std::string& v, gdcm::VR vr) {
+    gdcm::DataElement de(gdcm::Tag(g, e));
+    std::string s = v;
+    if (s.size() % 2 == 1) s.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
+    de.SetVR(vr);
+    de.SetByteValue(s.data(), static_cast<uint32_t>(s.size()));
+    ds.Replace(de);
+  };
+  const gdcm::MediaStorage ms =
+      ct ? gdcm::MediaStorage::CTImageStorage : gdcm::MediaStorage::MRImageStorage;
+  put(0x0008, 0x0016, gdcm::MediaStorage::GetMSString(ms), gdcm::VR::UI);
+  gdcm::UIDGenerator uid;
+  put(0x0008, 0x0018, uid.Generate(), gdcm::VR::UI);
+  put(0x0008, 0x0060, ct ? "CT" : opts_.modality, gdcm::VR::CS);
+  put(0x0008, 0x103e, opts_.series_description, gdcm::VR::LO);
+  put(0x0010, 0x0010, "TANDEM^PHANTOM", gdcm::VR::PN);
+  put(0x0010, 0x0020, "TANDEM0001", gdcm::VR::LO);
+  put(0x0020, 0x000d, opts_.study_uid, gdcm::VR::UI);
+  put(0x0020, 0x000e, opts_.series_uid, gdcm::VR::UI);
+  put(0x0020, 0x0013, std::to_string(z + 1), gdcm::VR::IS);
+  put(0x0018, 0x0050, FormatDouble(info_.spacing[2]), gdcm::VR::DS);
+  writer.SetFileName(path.c_str());
+  if (!writer.Write()) return absl::InternalError(absl::StrCat(path, ": GDCM could not write it"));
+  return absl::OkStatus();
+}
+
+absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
+                              const SliceFn& slice_fn, const DicomWriteOptions& opts) {
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
+  if (info.nz < 2) return absl::InvalidArgumentError("WriteDicomSeries: nz must be known");
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return absl::InternalError(absl::StrCat(dir, ": cannot create: ", ec.message()));
+  DicomWriteOptions o = opts;
+  std::vector<uint8_t> bytes;
+  if (info.dtype == DType::kFloat32) {  // a first pass finds the range to quantize
+    float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+    for (int64_t z = 0; z < info.nz; ++z) {
+      if (absl::Status st = internal::FetchSlice(dir, info, slice_fn, z, &bytes); !st.ok()) {
+        return st;
+      }
+      for (size_t i = 0; i < bytes.size() / 4; ++i) {
+        float v;
+        std::memcpy(&v, bytes.data() + 4 * i, 4);
+        if (std::isfinite(v)) lo = std::min(lo, v), hi = std::max(hi, v);
+      }
+    }
+    o.float_min = std::isfinite(lo) ? lo : 0.0f;
+    o.float_max = std::isfinite(hi) ? hi : 0.0f;
+  }
+  absl::StatusOr<DicomSliceWriter> writer = DicomSliceWriter::Create(info, o);
+  if (!writer.ok()) return writer.status();
+  for (int64_t z = 0; z < info.nz; ++z) {
+    if (absl::Status st = internal::FetchSlice(dir, info, slice_fn, z, &bytes); !st.ok()) return st;
+    char name[32];
+    std::snprintf(name, sizeof(name), "IM%05lld.dcm", static_cast<long long>(z + 1));
+    if (absl::Status st = writer->Write((std::filesystem::path(dir) / name).string(), z, bytes);
+        !st.ok()) {
+      return st;
+    }
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace tandem

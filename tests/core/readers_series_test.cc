@@ -1,0 +1,438 @@
+// Folders of one file per slice: DICOM series written by GDCM (every transfer syntax the
+// writer offers, shuffled file names, rescale to int16 and float32, rotated and flipped
+// orientations) and numbered TIFF sequences written by libtiff; and the bad folders an
+// instrument or a user produces (a second series, a duplicate or missing slice, a truncated
+// or foreign file, mixed slice sizes), each refused with a message naming the files.
+#include <gtest/gtest.h>
+#include <tiffio.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
+#include "tandem/distance.h"
+#include "tandem/series.h"
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+#include "tandem/volume.h"
+#include "testutil/testutil.h"
+
+namespace tandem {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::PatternValue;
+using testing::StoreValue;
+using testing::PatternSlices;
+constexpr auto Load = testing::LoadValue;
+
+VolumeInfo Grid(DType t, int64_t nx = 37, int64_t ny = 21, int64_t nz = 9) {
+  VolumeInfo info;
+  info.nx = nx;
+  info.ny = ny;
+  info.nz = nz;
+  info.dtype = t;
+  info.spacing = {0.5, 0.75, 2.5};
+  info.origin = {-10.5, 3.25, 100.0};
+  return info;
+}
+
+// Reads every slice and checks value(i, j, k) = expect(i, j, k) exactly.
+template <typename F>
+void ExpectVoxels(SliceSource& src, F expect) {
+  const VolumeInfo& info = src.info();
+  std::vector<uint8_t> bytes;
+  const size_t es = DTypeSize(info.dtype);
+  for (int64_t k = 0; k < info.nz; ++k) {
+    ASSERT_TRUE(src.ReadSlice(&bytes).ok()) << "slice " << k;
+    ASSERT_EQ(bytes.size(), info.slice_bytes());
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        ASSERT_EQ(Load(info.dtype, bytes.data() + (j * info.nx + i) * es), expect(i, j, k))
+            << i << "," << j << "," << k;
+      }
+    }
+  }
+  EXPECT_TRUE(absl::IsOutOfRange(src.ReadSlice(&bytes)));
+}
+
+// Renames the files of dir to random names, so neither names nor listing order give the
+// slice order (as files a PACS or a C-STORE receiver writes).
+void ShuffleNames(const std::string& dir, uint32_t seed) {
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(dir)) files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  std::vector<int> order(files.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  std::shuffle(order.begin(), order.end(), std::mt19937(seed));
+  for (size_t i = 0; i < files.size(); ++i) {
+    fs::rename(files[i], fs::path(dir) / absl::StrCat("tmp", i));
+  }
+  for (size_t i = 0; i < files.size(); ++i) {
+    fs::rename(fs::path(dir) / absl::StrCat("tmp", i),
+               fs::path(dir) / absl::StrCat("1.3.6.1.4.", order[i] * 7919 % 1000, ".", i));
+  }
+}
+
+class DicomSyntaxTest : public ::testing::TestWithParam<DicomSyntax> {};
+
+// 12-bit CT values: 0..4095.
+double Ct12(int64_t i, int64_t j, int64_t k) { return static_cast<double>((i * 37 + j * 411 + k * 1009) % 4096); }
+
+TEST_P(DicomSyntaxTest, RoundTripsTwelveBitCtAsInt16HounsfieldUnits) {
+  // CT: uint16 with 12 bits stored, slope 1, intercept -1024 -> int16 Hounsfield units.
+  const std::string dir = testing::MakeTempDir() + "/ct";
+  VolumeInfo info = Grid(DType::kUInt16);
+  DicomWriteOptions opts;
+  opts.syntax = GetParam();
+  opts.rescale_intercept = -1024;
+  opts.bits_stored = 12;
+  const SliceFn ct = [&](int64_t k, std::vector<uint8_t>* bytes) {
+    bytes->resize(info.slice_bytes());
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        StoreValue(info.dtype, Ct12(i, j, k), bytes->data() + 2 * (j * info.nx + i));
+      }
+    }
+    return absl::OkStatus();
+  };
+  ASSERT_TRUE(WriteDicomSeries(dir, info, ct, opts).ok());
+  ShuffleNames(dir, 7);
+  auto src = OpenVolume(dir);
+  ASSERT_TRUE(src.ok()) << src.status();
+  const VolumeInfo& got = (*src)->info();
+  EXPECT_EQ(got.nx, info.nx);
+  EXPECT_EQ(got.ny, info.ny);
+  EXPECT_EQ(got.nz, info.nz);
+  EXPECT_EQ(got.dtype, DType::kInt16);
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_NEAR(got.spacing[a], info.spacing[a], 1e-9) << a;
+    EXPECT_NEAR(got.origin[a], info.origin[a], 1e-9) << a;
+  }
+  EXPECT_TRUE(got.axis_aligned());
+  EXPECT_TRUE(absl::StrContains(got.description, "DICOM CT series")) << got.description;
+  ExpectVoxels(**src, [&](int64_t i, int64_t j, int64_t k) { return Ct12(i, j, k) - 1024; });
+}
+
+INSTANTIATE_TEST_SUITE_P(AllSyntaxes, DicomSyntaxTest,
+                         ::testing::Values(DicomSyntax::kExplicitLittle,
+                                           DicomSyntax::kImplicitLittle,
+                                           DicomSyntax::kJpegLossless, DicomSyntax::kJpegLs,
+                                           DicomSyntax::kJpeg2000, DicomSyntax::kRle));
+
+TEST(DicomSeries, SlopeOrAWideRangeGivesFloat32AndUInt8StaysUInt8) {
+  const std::string root = testing::MakeTempDir();
+  // 16 stored bits shifted by -1024 do not fit int16: float32, exact.
+  VolumeInfo s16 = Grid(DType::kInt16);
+  DicomWriteOptions shift;
+  shift.rescale_intercept = -1024;
+  ASSERT_TRUE(WriteDicomSeries(root + "/s16", s16, PatternSlices(s16), shift).ok());
+  auto src16 = OpenVolume(root + "/s16");
+  ASSERT_TRUE(src16.ok()) << src16.status();
+  EXPECT_EQ((*src16)->info().dtype, DType::kFloat32);
+  ExpectVoxels(**src16, [&](int64_t i, int64_t j, int64_t k) {
+    return PatternValue(DType::kInt16, i, j, k) - 1024;
+  });
+
+  VolumeInfo info = Grid(DType::kUInt16);
+  DicomWriteOptions opts;
+  opts.rescale_slope = 0.5;
+  opts.rescale_intercept = 3;
+  ASSERT_TRUE(WriteDicomSeries(root + "/mr", info, PatternSlices(info), opts).ok());
+  auto src = OpenVolume(root + "/mr");
+  ASSERT_TRUE(src.ok()) << src.status();
+  EXPECT_EQ((*src)->info().dtype, DType::kFloat32);
+  ExpectVoxels(**src, [&](int64_t i, int64_t j, int64_t k) {
+    return static_cast<float>(PatternValue(DType::kUInt16, i, j, k) * 0.5 + 3);
+  });
+
+  VolumeInfo u8 = Grid(DType::kUInt8);
+  ASSERT_TRUE(WriteDicomSeries(root + "/u8", u8, PatternSlices(u8)).ok());
+  auto src8 = OpenVolume(root + "/u8");
+  ASSERT_TRUE(src8.ok()) << src8.status();
+  EXPECT_EQ((*src8)->info().dtype, DType::kUInt8);
+  ExpectVoxels(**src8, [&](int64_t i, int64_t j, int64_t k) {
+    return PatternValue(DType::kUInt8, i, j, k);
+  });
+}
+
+TEST(DicomSeries, FloatVolumeIsQuantizedWithinOneStep) {
+  const std::string dir = testing::MakeTempDir() + "/f";
+  VolumeInfo info = Grid(DType::kFloat32);
+  ASSERT_TRUE(WriteDicomSeries(dir, info, PatternSlices(info)).ok());
+  auto src = OpenVolume(dir);
+  ASSERT_TRUE(src.ok()) << src.status();
+  ASSERT_EQ((*src)->info().dtype, DType::kFloat32);
+  double lo = 1e300, hi = -1e300;
+  for (int64_t k = 0; k < info.nz; ++k) {
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        lo = std::min(lo, PatternValue(DType::kFloat32, i, j, k));
+        hi = std::max(hi, PatternValue(DType::kFloat32, i, j, k));
+      }
+    }
+  }
+  const double step = (hi - lo) / 65534;
+  std::vector<uint8_t> bytes;
+  for (int64_t k = 0; k < info.nz; ++k) {
+    ASSERT_TRUE((*src)->ReadSlice(&bytes).ok());
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        ASSERT_NEAR(Load(DType::kFloat32, bytes.data() + 4 * (j * info.nx + i)),
+                    PatternValue(DType::kFloat32, i, j, k), step * 0.51 + 1e-6 * hi);
+      }
+    }
+  }
+}
+
+// The mesh of a rotated or mirrored series is the mesh of the same voxels on an axis-aligned
+// grid, moved by the series' frame: checked against the transformed axis-aligned mesh.
+TEST(DicomSeries, RotatedAndMirroredFramesPlaceTheMeshInTheWorld) {
+  const std::string root = testing::MakeTempDir();
+  auto sphere = MakeSyntheticSource(Shape::kLink, 36, 30, 28, {0.8, 0.8, 1.5});
+  VolumeInfo info = sphere->info();
+  std::vector<std::vector<uint8_t>> slices(info.nz);
+  for (auto& s : slices) ASSERT_TRUE(sphere->ReadSlice(&s).ok());
+  const SliceFn fn = [&](int64_t z, std::vector<uint8_t>* b) {
+    *b = slices[z];
+    return absl::OkStatus();
+  };
+  SessionOptions o;
+  o.iso = 0;
+  o.error = 0.05;
+  auto mesh_of = [&](const std::string& dir) -> IndexedMesh {
+    auto src = OpenVolume(dir);
+    EXPECT_TRUE(src.ok()) << src.status();
+    if (!src.ok()) return {};
+    auto run = RunSession(**src, o);
+    EXPECT_TRUE(run.ok()) << run.status();
+    return run.ok() ? (*run)->Snapshot() : IndexedMesh{};
+  };
+  ASSERT_TRUE(WriteDicomSeries(root + "/plain", info, fn).ok());
+  const IndexedMesh plain = mesh_of(root + "/plain");
+  ASSERT_GT(plain.num_triangles(), 100u);
+
+  struct Frame {
+    std::array<double, 3> origin;
+    std::array<std::array<double, 3>, 3> d;
+  };
+  const double c = std::sqrt(0.5);
+  const Frame frames[] = {
+      // 90 degrees about z (x -> world y), shifted.
+      {{10, -20, 30}, {{{0, 1, 0}, {-1, 0, 0}, {0, 0, 1}}}},
+      // Oblique: 45 degrees about x.
+      {{-5, 7, 11}, {{{1, 0, 0}, {0, c, c}, {0, -c, c}}}},
+      // Slices written along -normal (feet first): the reader reverses them.
+      {{0, 0, 50}, {{{1, 0, 0}, {0, 1, 0}, {0, 0, -1}}}},
+  };
+  int n = 0;
+  for (const Frame& f : frames) {
+    SCOPED_TRACE(n);
+    VolumeInfo moved = info;
+    moved.origin = f.origin;
+    moved.directions = f.d;
+    const std::string dir = absl::StrCat(root, "/frame", n++);
+    ASSERT_TRUE(WriteDicomSeries(dir, moved, fn).ok());
+    const IndexedMesh world = mesh_of(dir);
+    // The axis-aligned mesh (origin 0) moved into the frame by hand.
+    IndexedMesh expected = plain;
+    for (Vec3& p : expected.positions) {
+      Vec3 q{f.origin[0], f.origin[1], f.origin[2]};
+      for (int a = 0; a < 3; ++a) q = q + Vec3{f.d[a][0], f.d[a][1], f.d[a][2]} * p[a];
+      p = q;
+    }
+    const Distances d = MeasureDistances(expected, world, DistanceOptions{});
+    // Reversed slices are simplified in the other sweep direction, so the two meshes are
+    // different simplifications of one surface; a wrong frame would be voxels away.
+    EXPECT_LT(d.linf_max, 0.3) << "Hausdorff between the moved and the read mesh";
+    // Same orientation: the signed volume keeps its sign (a mirror must flip the winding).
+    auto volume = [](const IndexedMesh& m) {
+      double v = 0;
+      for (size_t t = 0; t < m.indices.size(); t += 3) {
+        v += Dot(m.positions[m.indices[t]],
+                 Cross(m.positions[m.indices[t + 1]], m.positions[m.indices[t + 2]]));
+      }
+      return v / 6;
+    };
+    EXPECT_NEAR(volume(world) / volume(plain), 1.0, 0.02);
+  }
+}
+
+std::string WriteSeries(const std::string& dir, const VolumeInfo& info,
+                        const DicomWriteOptions& opts = {}) {
+  EXPECT_TRUE(WriteDicomSeries(dir, info, PatternSlices(info), opts).ok());
+  return dir;
+}
+
+TEST(DicomSeries, SecondSeriesIsRefusedNamingBoth) {
+  const std::string root = testing::MakeTempDir();
+  VolumeInfo info = Grid(DType::kInt16);
+  DicomWriteOptions a, b;
+  a.series_uid = "1.2.826.0.1.3680043.2.1125.1";
+  b.series_uid = "1.2.826.0.1.3680043.2.1125.2";
+  WriteSeries(root + "/s", info, a);
+  VolumeInfo other = info;
+  other.nz = 3;
+  WriteSeries(root + "/b", other, b);
+  fs::copy_file(root + "/b/IM00002.dcm", root + "/s/zz_other.dcm");
+  auto src = OpenVolume(root + "/s");
+  ASSERT_FALSE(src.ok());
+  const std::string msg(src.status().message());
+  EXPECT_TRUE(absl::StrContains(msg, "2 DICOM series")) << msg;
+  EXPECT_TRUE(absl::StrContains(msg, a.series_uid)) << msg;
+  EXPECT_TRUE(absl::StrContains(msg, "zz_other.dcm")) << msg;
+}
+
+TEST(DicomSeries, DuplicateAndMissingSlicesAreRefusedNamingTheFiles) {
+  const std::string root = testing::MakeTempDir();
+  VolumeInfo info = Grid(DType::kInt16);
+  WriteSeries(root + "/dup", info);
+  fs::copy_file(root + "/dup/IM00004.dcm", root + "/dup/copy_of_4.dcm");
+  auto dup = OpenVolume(root + "/dup");
+  ASSERT_FALSE(dup.ok());
+  EXPECT_TRUE(absl::StrContains(dup.status().message(), "same position")) << dup.status();
+  EXPECT_TRUE(absl::StrContains(dup.status().message(), "copy_of_4.dcm")) << dup.status();
+
+  WriteSeries(root + "/gap", info);
+  fs::remove(root + "/gap/IM00005.dcm");
+  auto gap = OpenVolume(root + "/gap");
+  ASSERT_FALSE(gap.ok());
+  const std::string msg(gap.status().message());
+  EXPECT_TRUE(absl::StrContains(msg, "gap between IM00004.dcm and IM00006.dcm")) << msg;
+}
+
+TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
+  const std::string root = testing::MakeTempDir();
+  VolumeInfo info = Grid(DType::kInt16);
+  // A slice cut short while being written: refused at open or when read, never a crash.
+  WriteSeries(root + "/cut", info);
+  const std::string victim = root + "/cut/IM00003.dcm";
+  fs::resize_file(victim, fs::file_size(victim) - 200);
+  auto cut = OpenVolume(root + "/cut");
+  absl::Status st = cut.status();
+  if (cut.ok()) {
+    std::vector<uint8_t> bytes;
+    while ((st = (*cut)->ReadSlice(&bytes)).ok()) {
+    }
+  }
+  EXPECT_FALSE(absl::IsOutOfRange(st)) << "truncation went unnoticed";
+  EXPECT_TRUE(absl::StrContains(st.message(), "IM00003.dcm")) << st;
+
+  WriteSeries(root + "/txt", info);
+  std::ofstream(root + "/txt/notes.txt") << "scanned on Tuesday\n";
+  auto txt = OpenVolume(root + "/txt");
+  ASSERT_FALSE(txt.ok());
+  EXPECT_TRUE(absl::StrContains(txt.status().message(), "notes.txt")) << txt.status();
+  // Hidden files are not the series' business.
+  fs::remove(root + "/txt/notes.txt");
+  std::ofstream(root + "/txt/.DS_Store") << "x";
+  EXPECT_TRUE(OpenVolume(root + "/txt").ok());
+
+  WriteSeries(root + "/size", info);
+  VolumeInfo small = info;
+  small.nx = 20;
+  WriteSeries(root + "/small", small);
+  fs::remove(root + "/size/IM00009.dcm");
+  fs::copy_file(root + "/small/IM00009.dcm", root + "/size/IM00009.dcm");
+  auto size = OpenVolume(root + "/size");
+  ASSERT_FALSE(size.ok());
+  EXPECT_TRUE(absl::StrContains(size.status().message(), "IM00009.dcm")) << size.status();
+  EXPECT_TRUE(absl::StrContains(size.status().message(), "size")) << size.status();
+
+  auto empty = OpenVolume(testing::MakeTempDir());
+  ASSERT_FALSE(empty.ok());
+  EXPECT_TRUE(absl::StrContains(empty.status().message(), "empty folder")) << empty.status();
+}
+
+TEST(Directions, MustBeOrthonormal) {
+  VolumeInfo info = Grid(DType::kUInt8);
+  info.directions = {{{1, 0, 0}, {0.5, 1, 0}, {0, 0, 1}}};
+  absl::Status st = ValidateVolumeInfo(info);
+  EXPECT_FALSE(st.ok());
+  EXPECT_TRUE(absl::StrContains(st.message(), "orthonormal")) << st;
+  info.directions[1] = {0, std::nan(""), 0};
+  EXPECT_FALSE(ValidateVolumeInfo(info).ok());
+  info.directions = {{{0, 0, 1}, {1, 0, 0}, {0, 1, 0}}};
+  EXPECT_TRUE(ValidateVolumeInfo(info).ok());
+}
+
+TEST(TiffSequence, RoundTripsEveryTypeInNaturalOrder) {
+  for (DType t : {DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32}) {
+    SCOPED_TRACE(DTypeName(t));
+    const std::string dir = testing::MakeTempDir() + "/seq";
+    VolumeInfo info = Grid(t, 37, 21, 12);
+    ASSERT_TRUE(WriteTiffSequence(dir, info, PatternSlices(info)).ok());
+    // Unpadded numbers, as some reconstruction tools write: s2 must come before s10.
+    for (int64_t z = 0; z < info.nz; ++z) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
+      fs::rename(fs::path(dir) / name, fs::path(dir) / absl::StrCat("recon_", z, ".tif"));
+    }
+    auto src = OpenVolume(dir);
+    ASSERT_TRUE(src.ok()) << src.status();
+    const VolumeInfo& got = (*src)->info();
+    EXPECT_EQ(got.nz, info.nz);
+    EXPECT_EQ(got.dtype, t);
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_NEAR(got.spacing[a], info.spacing[a], 1e-6) << a;
+      EXPECT_NEAR(got.origin[a], info.origin[a], 1e-6) << a;
+    }
+    ExpectVoxels(**src, [&](int64_t i, int64_t j, int64_t k) {
+      return static_cast<float>(PatternValue(t, i, j, k));
+    });
+  }
+}
+
+TEST(TiffSequence, ResolutionInCentimetresGivesMillimetres) {
+  // A plain TIFF (no ImageJ description) with XResolution 200 per cm = 0.05 mm pixels.
+  const std::string dir = testing::MakeTempDir();
+  for (int z = 0; z < 3; ++z) {
+    TIFF* tif = TIFFOpen((dir + "/img" + std::to_string(z) + ".tiff").c_str(), "w");
+    ASSERT_NE(tif, nullptr);
+    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, 8u);
+    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, 4u);
+    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, uint16_t{16});
+    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, uint16_t{1});
+    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+    TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, 4u);
+    TIFFSetField(tif, TIFFTAG_RESOLUTIONUNIT, RESUNIT_CENTIMETER);
+    TIFFSetField(tif, TIFFTAG_XRESOLUTION, 200.0f);
+    TIFFSetField(tif, TIFFTAG_YRESOLUTION, 200.0f);
+    std::vector<uint16_t> px(32, static_cast<uint16_t>(1000 * z));
+    ASSERT_EQ(TIFFWriteEncodedStrip(tif, 0, px.data(), 64), 64);
+    TIFFClose(tif);
+  }
+  auto src = OpenVolume(dir);
+  ASSERT_TRUE(src.ok()) << src.status();
+  const VolumeInfo& got = (*src)->info();
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR(got.spacing[a], 0.05, 1e-6) << a;
+  ExpectVoxels(**src, [](int64_t, int64_t, int64_t k) { return 1000.0 * k; });
+}
+
+TEST(TiffSequence, MixedSizesAndStacksAreRefusedNamingTheFile) {
+  const std::string dir = testing::MakeTempDir();
+  VolumeInfo info = Grid(DType::kUInt16, 16, 8, 4);
+  ASSERT_TRUE(WriteTiffSequence(dir, info, PatternSlices(info)).ok());
+  VolumeInfo other = Grid(DType::kUInt16, 15, 8, 1);
+  std::vector<uint8_t> bytes(other.slice_bytes(), 0);
+  ASSERT_TRUE(WriteTiffSlice(dir + "/slice_00004.tif", other, 0, bytes).ok());
+  auto src = OpenVolume(dir);
+  ASSERT_TRUE(src.ok()) << src.status();  // the header of the first file sets the geometry
+  std::vector<uint8_t> out;
+  absl::Status st;
+  while ((st = (*src)->ReadSlice(&out)).ok()) {
+  }
+  EXPECT_TRUE(absl::StrContains(st.message(), "slice_00004.tif")) << st;
+  EXPECT_TRUE(absl::StrContains(st.message(), "15x8")) << st;
+  EXPECT_EQ((*src)->next_slice(), 4);
+}
+
+}  // namespace
+}  // namespace tandem
