@@ -136,7 +136,8 @@ int StreamCommand(int argc, char** argv) {
   FlagSet flags(
       "usage: tandem-client stream --input VOLUME --iso C0 --error E0 --out MESH [flags]\n"
       "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, a Zarr/OME-Zarr\n"
-      "store X.zarr, X.zarr#LEVEL or X.zarr#ARRAY_PATH) slice by slice to\n"
+      "store X.zarr, X.zarr#LEVEL or X.zarr#ARRAY_PATH, or a folder holding a DICOM series\n"
+      "or numbered single-slice TIFFs) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
       "simplified iso-surface: .drc (the server's Draco bytes), or decoded: .ply or .obj (with "
       "vertex normals), .stl, .glb.");

@@ -42,8 +42,9 @@ Usage:
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
 .tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
-multiscale level N, X.zarr#PATH the array PATH inside the group). Voxel types uint8,
-uint16, int16, float32.
+multiscale level N, X.zarr#PATH the array PATH inside the group), or a folder of one
+file per slice: a DICOM series (any names and order; vertices in the patient frame) or
+numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
 )";
 
 constexpr char kExtractHelp[] =

@@ -281,5 +281,36 @@ TEST_F(Cli, GenerateWritesEveryReadableFormat) {
   EXPECT_NE(bad.text.find("v.xyz"), std::string::npos) << bad.text;
 }
 
+TEST_F(Cli, FoldersOfSlicesAreVolumesAndInfoShowsTheValues) {
+  // A TIFF sequence holds the float voxels exactly: the same mesh as the raw volume.
+  ASSERT_EQ(RunTandem("generate link --size 24 --out " + Path("l.json")).code, 0);
+  ASSERT_EQ(RunTandem("extract --input " + Path("l.json") + " --metrics " + Path("l.m.json") +
+                      " --out " + Path("l.ply")).code, 0);
+  Output o = RunTandem("generate link --size 24 --series tiff --out " + Path("tiffs"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("extract --input " + Path("tiffs") + " --iso 0 --metrics " + Path("t.json") +
+                " --out " + Path("t.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(ReadJson(Path("t.json"))["triangles_final"], ReadJson(Path("l.m.json"))["triangles_final"]);
+  // A JPEG 2000 DICOM series in a rotated frame: info names the axes and the value range.
+  o = RunTandem("generate link --size 24 --series dicom --dicom-syntax jpeg2000 --origin 5,6,7 "
+                "--directions 0,1,0,-1,0,0,0,0,1 --out " + Path("dcm"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  Output info = RunTandem("info --input " + Path("dcm"));
+  ASSERT_EQ(info.code, 0) << info.text;
+  EXPECT_NE(info.text.find("24 x 24 x 24"), std::string::npos) << info.text;
+  EXPECT_NE(info.text.find("axes     x (0 1 0)  y (-1 0 0)  z (0 0 1)"), std::string::npos)
+      << info.text;
+  EXPECT_NE(info.text.find("DICOM CT series"), std::string::npos) << info.text;
+  EXPECT_NE(info.text.find("values   "), std::string::npos) << info.text;
+  EXPECT_NE(info.text.find(" .. "), std::string::npos) << "histogram rows: " << info.text;
+  o = RunTandem("extract --input " + Path("dcm") + " --iso 0 --out " + Path("d.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  // A format that cannot store the rotation refuses it rather than dropping it.
+  o = RunTandem("generate link --size 24 --directions 0,1,0,-1,0,0,0,0,1 --out " + Path("r.nrrd"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("directions"), std::string::npos) << o.text;
+}
+
 }  // namespace
 }  // namespace tandem

@@ -8,6 +8,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <functional>
@@ -118,6 +119,25 @@ inline std::vector<BadInputCase> BadInputCases() {
          for (double o : {1e30, 0.0, 0.0}) (*r)[0].mutable_config()->add_origin(o);
        },
        grpc::StatusCode::INVALID_ARGUMENT, "invalid origin 1e+30 on axis 0"},
+      {"directions with 8 values",
+       [](auto* r) {
+         for (int i = 0; i < 8; ++i) (*r)[0].mutable_config()->add_directions(i % 4 == 0);
+       },
+       grpc::StatusCode::INVALID_ARGUMENT, "config.directions has 8 values"},
+      {"sheared directions",
+       [](auto* r) {
+         for (double d : {1.0, 0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 1.0}) {
+           (*r)[0].mutable_config()->add_directions(d);
+         }
+       },
+       grpc::StatusCode::INVALID_ARGUMENT, "orthonormal"},
+      {"NaN in directions",
+       [](auto* r) {
+         for (double d : {1.0, 0.0, 0.0, 0.0, std::nan(""), 0.0, 0.0, 0.0, 1.0}) {
+           (*r)[0].mutable_config()->add_directions(d);
+         }
+       },
+       grpc::StatusCode::INVALID_ARGUMENT, "orthonormal"},
       {"E0 far below the spacing", [](auto* r) { (*r)[0].mutable_config()->set_error(1e-12); },
        grpc::StatusCode::INVALID_ARGUMENT, "x the smallest voxel spacing"},
       {"E0 far above the spacing", [](auto* r) { (*r)[0].mutable_config()->set_error(1e300); },

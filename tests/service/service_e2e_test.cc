@@ -19,6 +19,7 @@
 #include "service/service_testutil.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
+#include "tandem/series.h"
 #include "tandem/synthetic.h"
 #include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
@@ -491,6 +492,65 @@ TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
   EXPECT_EQ(stl->num_triangles(), ply->num_triangles());
   EXPECT_EQ(stl->num_vertices(), ply->num_vertices());
   EXPECT_GT(std::filesystem::file_size(dir_ + "/m.glb"), 24 * ply->num_vertices());
+}
+
+// A rotated DICOM series (written by GDCM, file names shuffled) streamed from its folder: the
+// server gets the grid directions and sends back the local session's mesh, in the patient
+// frame.
+TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
+  auto src = MakeSyntheticSource(Shape::kLink, 40, 36, 30, {0.7, 0.7, 1.2});
+  VolumeInfo info = src->info();
+  info.origin = {-120, 35, 410};
+  const double c = std::sqrt(0.5);
+  info.directions = {{{c, c, 0}, {-c, c, 0}, {0, 0, 1}}};
+  const std::string dir = dir_ + "/series";
+  std::vector<std::vector<uint8_t>> slices(info.nz);
+  for (auto& b : slices) ASSERT_TRUE(src->ReadSlice(&b).ok());
+  ASSERT_TRUE(WriteDicomSeries(dir, info, [&](int64_t z, std::vector<uint8_t>* b) {
+                *b = slices[z];
+                return absl::OkStatus();
+              }).ok());
+  // Reverse the names: file order says nothing about slice order.
+  const int64_t nz = info.nz;
+  for (int64_t z = 1; z <= nz; ++z) {
+    char from[32], to[32];
+    std::snprintf(from, sizeof(from), "IM%05lld.dcm", static_cast<long long>(z));
+    std::snprintf(to, sizeof(to), "x%05lld", static_cast<long long>(nz + 1 - z));
+    std::filesystem::rename(dir + "/" + from, dir + "/" + to);
+  }
+  const std::string drc = dir_ + "/series.drc";
+  RunResult r = Client({"stream", "--server", server_->address(), "--input", dir, "--iso", "0",
+                        "--error", "0.2", "--compression-level", "0", "--out", drc});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  SessionOptions o;
+  o.iso = 0;
+  o.error = 0.2;
+  auto local = RunLocal(dir, o);
+  ASSERT_TRUE(local.ok()) << local.status();
+  const IndexedMesh expected = (*local)->Snapshot();
+  auto mesh = codec::DecodeDraco(ReadFile(drc));
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  ASSERT_GT(expected.num_triangles(), 100u);
+  ASSERT_EQ(mesh->num_triangles(), expected.num_triangles());
+  ASSERT_EQ(mesh->indices, expected.indices);
+  const double tol = codec::PositionTolerance(expected, 16);
+  for (size_t i = 0; i < expected.num_vertices(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      ASSERT_NEAR(mesh->positions[i][a], expected.positions[i][a], tol) << i;
+    }
+  }
+  // In the patient frame: the mesh's centre lies near the rotated grid's centre.
+  Vec3 lo{1e30, 1e30, 1e30}, hi{-1e30, -1e30, -1e30};
+  for (const Vec3& p : mesh->positions) {
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], p[a]), hi[a] = std::max(hi[a], p[a]);
+  }
+  const Vec3 grid_centre{19.5 * 0.7, 17.5 * 0.7, 14.5 * 1.2};
+  Vec3 world{info.origin[0], info.origin[1], info.origin[2]};
+  for (int a = 0; a < 3; ++a) {
+    world = world + Vec3{info.directions[a][0], info.directions[a][1], info.directions[a][2]} *
+                        grid_centre[a];
+  }
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR((lo[a] + hi[a]) / 2, world[a], 2.0) << a;
 }
 
 }  // namespace tandem::testing
