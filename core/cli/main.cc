@@ -3,7 +3,10 @@
 //   tandem generate  synthetic volume (raw + JSON sidecar, or OME-Zarr)
 //   tandem measure   Metro-style distances between two meshes
 //   tandem info      what a volume file holds
+#include <unistd.h>
+
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <cstdio>
@@ -17,6 +20,7 @@
 #include "absl/strings/str_split.h"
 #include "cli/cli_util.h"
 #include "tandem/distance.h"
+#include "tandem/follow.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
 #include "tandem/series.h"
@@ -55,9 +59,15 @@ Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by l
 
 Options:
   --input FILE              volume (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff,
-                            or a Zarr / OME-Zarr store)
+                            a Zarr / OME-Zarr store, or a folder holding a DICOM series
+                            or numbered single-page TIFFs)
   --zarr-array SEL          Zarr group: the multiscale level (a number) or the array
                             path to read (same as --input X.zarr#SEL). Default: level 0
+  --follow                  the input is still being written (a folder of numbered TIFF
+                            slices, or a Zarr array growing along z): mesh each slice as
+                            soon as it is complete and in order, until --expect-slices N
+                            slices, the --done-file NAME marker, or --settle S seconds
+                            (default 10) without anything new
   --out MESH                output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex
                             normals, binary STL (.stl), or glTF binary (.glb)
   --iso C0                  iso-value; default: the file's first suggested iso-value
@@ -188,8 +198,9 @@ int Extract(int argc, char** argv) {
   auto args =
       cli::Args::Parse(argc, argv, 2,
                        {"input", "out", "iso", "error", "alpha", "distance-guard", "sag-correction",
-                        "schedule", "target-triangles", "metrics", "samples", "parts", "zarr-array"},
-                       {"no-simplify", "reference", "quiet", "help"});
+                        "schedule", "target-triangles", "metrics", "samples", "parts", "zarr-array",
+                        "expect-slices", "settle", "done-file"},
+                       {"no-simplify", "reference", "quiet", "follow", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kExtractHelp, stdout);
@@ -206,7 +217,40 @@ int Extract(int argc, char** argv) {
     return Fail(absl::InvalidArgumentError(
         absl::StrCat("--out ", *out, ": the extension must be ", kMeshExtensions)));
   }
-  auto source = OpenVolume(*input);
+  // --follow: an acquisition still being written (tandem/follow.h). One status line on a
+  // terminal: slices complete on disk, read, meshed.
+  const bool follow = args->Has("follow");
+  if (!follow && (args->Has("expect-slices") || args->Has("settle") || args->Has("done-file"))) {
+    return Fail(absl::InvalidArgumentError(
+        "--expect-slices, --settle and --done-file go with --follow"));
+  }
+  std::atomic<int64_t> seen{0}, read{0};
+  const bool tty = isatty(2) && !args->Has("quiet");
+  auto status_line = [&](int64_t meshed) {
+    if (tty) {
+      std::fprintf(stderr, "\rfollowing: %lld on disk, %lld read, %lld meshed   ",
+                   static_cast<long long>(seen.load()), static_cast<long long>(read.load()),
+                   static_cast<long long>(meshed));
+    }
+  };
+  absl::StatusOr<std::unique_ptr<SliceSource>> source;
+  if (follow) {
+    FollowOptions fo;
+    auto expect = args->GetInt("expect-slices", 0);
+    auto settle = args->GetDouble("settle", 10.0);
+    if (!expect.ok()) return Fail(expect.status());
+    if (!settle.ok()) return Fail(settle.status());
+    fo.expect_slices = *expect;
+    fo.settle_s = *settle;
+    fo.done_file = args->Get("done-file").value_or("");
+    fo.progress = [&](int64_t s, int64_t r) {
+      seen = s;
+      read = r;
+    };
+    source = FollowVolume(*input, fo);
+  } else {
+    source = OpenVolume(*input);
+  }
   if (!source.ok()) return Fail(source.status());
   const VolumeInfo info = (*source)->info();
 
@@ -254,7 +298,14 @@ int Extract(int argc, char** argv) {
   if (absl::Status st = opt.Validate(); !st.ok()) return Fail(st);
 
   cli::Progress progress("slices");
-  auto session = RunSession(**source, opt, [&](int64_t d, int64_t t) { progress.Update(d, t); });
+  auto session = RunSession(**source, opt, [&](int64_t d, int64_t t) {
+    if (follow) {
+      status_line(d);
+    } else {
+      progress.Update(d, t);
+    }
+  });
+  if (follow && tty) std::fprintf(stderr, "\n");
   progress.Done();
   if (!session.ok()) return Fail(absl::Status(session.status().code(),
                                               absl::StrCat(*input, ": ", std::string(session.status().message()))));

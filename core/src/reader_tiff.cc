@@ -390,6 +390,43 @@ std::array<double, 2> ResolutionMm(TIFF* tif) {
   return out;
 }
 
+}  // namespace
+
+absl::Status ReadTiffSequenceSlice(const std::string& path, const std::string& first,
+                                   const VolumeInfo& info, std::vector<uint8_t>* bytes) {
+  absl::StatusOr<OpenedTiff> t = OpenTiffPages(path);
+  if (!t.ok()) return t.status();
+  if (t->info.nz != 1 || t->info.nx != info.nx || t->info.ny != info.ny ||
+      t->info.dtype != info.dtype) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": ", t->info.nz, " page(s) of ", t->info.nx, "x", t->info.ny, " ",
+        Sv(DTypeName(t->info.dtype)), " where the sequence (from ", first, ") has one page of ",
+        info.nx, "x", info.ny, " ", Sv(DTypeName(info.dtype)),
+        " per file (every slice of a TIFF sequence must match)"));
+  }
+  TiffSliceSource page(std::move(t->file), std::move(t->info));
+  return page.ReadSlice(bytes);
+}
+
+absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file) {
+  absl::StatusOr<OpenedTiff> t = OpenTiffPages(first_file);
+  if (!t.ok()) return t.status();
+  if (t->info.nz != 1) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(first_file, ": ", t->info.nz,
+                     " pages; a TIFF sequence folder holds one single-page TIFF per slice"));
+  }
+  VolumeInfo info = t->info;
+  if (!t->imagej) {
+    // Reconstructions are isotropic: z takes the x pixel size.
+    const std::array<double, 2> mm = ResolutionMm(t->file->get());
+    if (mm[0] > 0 && mm[1] > 0) info.spacing = {mm[0], mm[1], mm[0]};
+  }
+  return info;
+}
+
+namespace {
+
 // One single-page TIFF per slice, opened as it is reached.
 class TiffSequenceSource final : public SliceSource {
  public:
@@ -404,19 +441,10 @@ class TiffSequenceSource final : public SliceSource {
       return absl::OutOfRangeError(
           absl::StrCat("TIFF sequence: no more slices (all ", info_.nz, " were read)"));
     }
-    const std::string& path = files_[next_];
-    absl::StatusOr<OpenedTiff> t = OpenTiffPages(path);
-    if (!t.ok()) return t.status();
-    if (t->info.nz != 1 || t->info.nx != info_.nx || t->info.ny != info_.ny ||
-        t->info.dtype != info_.dtype) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          path, ": ", t->info.nz, " page(s) of ", t->info.nx, "x", t->info.ny, " ",
-          Sv(DTypeName(t->info.dtype)), " where the sequence (from ", files_.front(),
-          ") has one page of ", info_.nx, "x", info_.ny, " ", Sv(DTypeName(info_.dtype)),
-          " per file (every slice of a TIFF sequence must match)"));
+    if (absl::Status st = ReadTiffSequenceSlice(files_[next_], files_.front(), info_, bytes);
+        !st.ok()) {
+      return st;
     }
-    TiffSliceSource page(std::move(t->file), std::move(t->info));
-    if (absl::Status st = page.ReadSlice(bytes); !st.ok()) return st;
     ++next_;
     return absl::OkStatus();
   }
@@ -547,20 +575,10 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffSequence(
     return absl::InvalidArgumentError(absl::StrCat(
         dir, ": a TIFF sequence needs at least 2 slice files, found ", files.size()));
   }
-  absl::StatusOr<internal::OpenedTiff> t = internal::OpenTiffPages(files.front());
-  if (!t.ok()) return t.status();
-  if (t->info.nz != 1) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(files.front(), ": ", t->info.nz,
-                     " pages; a TIFF sequence folder holds one single-page TIFF per slice"));
-  }
-  VolumeInfo info = t->info;
+  absl::StatusOr<VolumeInfo> first = internal::TiffSequenceInfo(files.front());
+  if (!first.ok()) return first.status();
+  VolumeInfo info = *std::move(first);
   info.nz = static_cast<int64_t>(files.size());
-  if (!t->imagej) {
-    // Reconstructions are isotropic: z takes the x pixel size.
-    const std::array<double, 2> mm = internal::ResolutionMm(t->file->get());
-    if (mm[0] > 0 && mm[1] > 0) info.spacing = {mm[0], mm[1], mm[0]};
-  }
   info.description = absl::StrCat("TIFF sequence, ", files.size(), " files",
                                   info.description.empty() ? "" : ": ", info.description);
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {

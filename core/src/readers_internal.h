@@ -134,6 +134,13 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenNrrdVolume(const std::string& p
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenNiftiVolume(const std::string& path);
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& path);
 
+// TIFF sequences (a folder of single-page files): the geometry the first file gives (nz = 1;
+// ImageJ spacing, else resolution in cm/inch as mm with z = x, else 1), and one slice read
+// and checked against info (errors name path, and `first` for the expected geometry).
+absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file);
+absl::Status ReadTiffSequenceSlice(const std::string& path, const std::string& first,
+                                   const VolumeInfo& info, std::vector<uint8_t>* bytes);
+
 // The TIFF writer lives next to the TIFF reader so that libtiff's error plumbing is in one
 // file. info is validated by the caller.
 absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,

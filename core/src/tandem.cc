@@ -727,10 +727,13 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     }
   } else {
     // Reading runs ahead on another thread; conversion happens on the way into the session.
+    // nz = 0 (a followed acquisition): until the source says OutOfRange.
     SlicePrefetcher prefetch(&source);
     std::vector<uint8_t> bytes;
-    for (int64_t k = 0; k < info.nz; ++k) {
-      if (absl::Status st = prefetch.Next(&bytes); !st.ok()) return st;
+    for (int64_t k = 0; info.nz == 0 || k < info.nz; ++k) {
+      absl::Status st = prefetch.Next(&bytes);
+      if (info.nz == 0 && absl::IsOutOfRange(st)) break;
+      if (!st.ok()) return st;
       if (absl::Status st = add(k, bytes.data()); !st.ok()) return st;
     }
   }

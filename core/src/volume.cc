@@ -174,7 +174,9 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path)
   if (std::filesystem::is_directory(path, ec)) {
     absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(path);
     if (!files.ok()) return files.status();
-    if (AllTiffNames(*files)) return OpenTiffSequence(path, *files);
+    if (std::vector<std::string> tiffs = TiffNames(*files); !tiffs.empty()) {
+      return OpenTiffSequence(path, tiffs);
+    }
     return OpenDicomSeries(path, *files);
   }
   const std::string ext = internal::VolumeExtension(path);
@@ -245,13 +247,13 @@ absl::StatusOr<std::vector<std::string>> ListSliceFiles(const std::string& dir) 
   return names;
 }
 
-bool AllTiffNames(const std::vector<std::string>& files) {
-  if (files.empty()) return false;
+std::vector<std::string> TiffNames(const std::vector<std::string>& files) {
+  std::vector<std::string> out;
   for (const std::string& f : files) {
     const std::string ext = internal::VolumeExtension(f);
-    if (ext != ".tif" && ext != ".tiff") return false;
+    if (ext == ".tif" || ext == ".tiff") out.push_back(f);
   }
-  return true;
+  return out;
 }
 
 namespace internal {

@@ -2,9 +2,10 @@
 //   - a DICOM series (clinical CT / MR: one instance per slice, any file names, any order);
 //   - numbered single-slice TIFFs (micro-CT / synchrotron reconstructions: slice_00000.tif,
 //     slice_00001.tif, ...).
-// OpenVolume(dir) reads both (a directory that is not a Zarr store): a folder whose files all
-// end in .tif/.tiff is a TIFF sequence, anything else is read as a DICOM series. Both stream:
-// one file is decoded per ReadSlice.
+// OpenVolume(dir) reads both (a directory that is not a Zarr store): a folder holding files
+// that end in .tif/.tiff is a TIFF sequence of those files (other files, such as logs or a
+// done-marker, are ignored); otherwise it is read as a DICOM series. Both stream: one file
+// is decoded per ReadSlice.
 //
 // DICOM (through GDCM, which decodes the transfer syntaxes its codecs support: implicit and
 // explicit VR little endian, deflate, RLE, JPEG lossless and lossy, JPEG-LS, JPEG 2000):
@@ -46,8 +47,8 @@ namespace tandem {
 // numbers: "s2" < "s10"). NotFound / InvalidArgument errors name dir.
 absl::StatusOr<std::vector<std::string>> ListSliceFiles(const std::string& dir);
 
-// True if every name ends in .tif or .tiff (case-insensitive) and there is at least one.
-bool AllTiffNames(const std::vector<std::string>& files);
+// The names that end in .tif or .tiff (case-insensitive), in the given order.
+std::vector<std::string> TiffNames(const std::vector<std::string>& files);
 
 // Readers over an explicit list of files (full paths), e.g. what a follower has seen so far.
 // The DICOM list is sorted by position; the TIFF list is read in the given order.

@@ -1,0 +1,315 @@
+// Following an acquisition in progress (tandem/follow.h): one polling loop, with the notion
+// of "the next slice is complete" supplied per kind of input.
+#include "tandem/follow.h"
+
+#include <chrono>
+#include <filesystem>
+#include <map>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "readers_internal.h"
+#include "tandem/series.h"
+#include "tandem/zarr.h"
+#include "zarr_internal.h"
+
+namespace tandem {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+// What a kind of input must answer.
+class Growing {
+ public:
+  virtual ~Growing() = default;
+  // Looks at the disk again; returns how many leading slices are complete now (never fewer
+  // than before) and sets *changed if anything new was seen (a file or a size change).
+  virtual absl::StatusOr<int64_t> Complete(bool* changed) = 0;
+  // Geometry, once Complete() has returned >= 1.
+  virtual absl::StatusOr<VolumeInfo> Info() = 0;
+  // Reads complete slice k (k = 0, 1, ... in order).
+  virtual absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) = 0;
+  // Where a done-file is looked for.
+  virtual std::string Dir() const = 0;
+  // Why nothing is complete yet, if known ("" otherwise).
+  virtual std::string Problem() const { return ""; }
+};
+
+// Numbered single-page TIFFs: slice k is the k-th name in natural order, complete once its
+// size has held for stable_s.
+class GrowingTiffs final : public Growing {
+ public:
+  GrowingTiffs(std::string dir, double stable_s) : dir_(std::move(dir)), stable_s_(stable_s) {}
+
+  absl::StatusOr<int64_t> Complete(bool* changed) override {
+    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(dir_);
+    if (absl::IsNotFound(files.status()) && taken_.empty()) return 0;  // not created yet
+    if (!files.ok()) return files.status();
+    const std::vector<std::string> tiffs = TiffNames(*files);
+    // Names already taken must stay a prefix: a slice cannot arrive before one sent.
+    for (size_t i = 0; i < taken_.size(); ++i) {
+      if (i >= tiffs.size() || tiffs[i] != taken_[i]) {
+        return absl::FailedPreconditionError(absl::StrCat(
+            i < tiffs.size() ? tiffs[i] : taken_[i],
+            i < tiffs.size() ? ": appeared after later slices were already read (slice files "
+                               "must arrive in name order)"
+                             : ": disappeared while the acquisition was followed"));
+      }
+    }
+    // Sizes of every file not taken yet (so each one's clock starts when it is first seen),
+    // then the run of stable ones after the taken prefix.
+    const auto now = Clock::now();
+    int64_t complete = static_cast<int64_t>(taken_.size());
+    bool run = true;
+    for (size_t i = taken_.size(); i < tiffs.size(); ++i) {
+      std::error_code ec;
+      const uint64_t size = std::filesystem::file_size(tiffs[i], ec);
+      if (ec) {
+        run = false;
+        continue;
+      }
+      auto [it, inserted] = sizes_.try_emplace(tiffs[i], Seen{size, now});
+      if (inserted || it->second.size != size) {
+        it->second = Seen{size, now};
+        *changed = true;
+      }
+      run = run && size > 0 && Seconds(now - it->second.since) >= stable_s_;
+      if (run) ++complete;
+    }
+    // Remember the complete names (they must not change order from now on).
+    for (int64_t i = static_cast<int64_t>(taken_.size()); i < complete; ++i) {
+      taken_.push_back(tiffs[i]);
+    }
+    return complete;
+  }
+
+  absl::StatusOr<VolumeInfo> Info() override {
+    absl::StatusOr<VolumeInfo> info = internal::TiffSequenceInfo(taken_.front());
+    if (!info.ok()) return info.status();
+    info->description = absl::StrCat("TIFF sequence followed in ", dir_);
+    return info;
+  }
+
+  absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) override {
+    return internal::ReadTiffSequenceSlice(taken_[k], taken_.front(), info, bytes);
+  }
+
+  std::string Dir() const override { return dir_; }
+
+ private:
+  struct Seen {
+    uint64_t size;
+    Clock::time_point since;
+  };
+  std::string dir_;
+  double stable_s_;
+  std::vector<std::string> taken_;  // complete files, in order
+  std::map<std::string, Seen> sizes_;
+};
+
+// A Zarr array growing along z: the planes of complete chunk rows.
+class GrowingZarr final : public Growing {
+ public:
+  GrowingZarr(std::string store, std::string selector)
+      : store_(std::move(store)), selector_(std::move(selector)) {}
+
+  absl::StatusOr<int64_t> Complete(bool* changed) override {
+    ZarrReadOptions o{.array = selector_};
+    absl::StatusOr<int64_t> n = CountCompleteZarrPlanes(store_, o, known_);
+    if (!n.ok()) {
+      // Before the first plane a store may not exist or be half set up: keep waiting (the
+      // problem is reported if nothing ever comes).
+      if (known_ == 0) {
+        problem_ = std::string(n.status().message());
+        return 0;
+      }
+      return n.status();
+    }
+    if (*n > known_) *changed = true;
+    known_ = std::max(known_, *n);
+    return known_;
+  }
+
+  absl::StatusOr<VolumeInfo> Info() override {
+    absl::StatusOr<std::unique_ptr<SliceSource>> src = Open(0);
+    if (!src.ok()) return src.status();
+    VolumeInfo info = (*src)->info();
+    info.nz = 0;
+    return info;
+  }
+
+  absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) override {
+    // The reader is reopened (from plane k) when the array has grown past what it saw.
+    if (reader_ == nullptr || reader_->next_slice() != k || k >= reader_->info().nz) {
+      absl::StatusOr<std::unique_ptr<SliceSource>> src = Open(k);
+      if (!src.ok()) return src.status();
+      reader_ = *std::move(src);
+    }
+    if (reader_->info().nx != info.nx || reader_->info().ny != info.ny ||
+        reader_->info().dtype != info.dtype) {
+      return absl::FailedPreconditionError(
+          absl::StrCat(store_, ": the array's plane size or type changed while it was followed"));
+    }
+    return reader_->ReadSlice(bytes);
+  }
+
+  std::string Dir() const override { return store_; }
+
+ private:
+  absl::StatusOr<std::unique_ptr<SliceSource>> Open(int64_t first) {
+    return OpenZarrVolume(store_, ZarrReadOptions{.array = selector_, .first_plane = first});
+  }
+  std::string store_, selector_;
+  int64_t known_ = 0;
+ public:
+  std::string Problem() const override { return problem_; }
+ private:
+  std::string problem_;
+  std::unique_ptr<SliceSource> reader_;
+};
+
+class FollowSource final : public SliceSource {
+ public:
+  FollowSource(std::unique_ptr<Growing> growing, FollowOptions opts)
+      : growing_(std::move(growing)), opts_(std::move(opts)), last_new_(Clock::now()) {}
+
+  // Waits for the first slice; then the geometry is known.
+  absl::Status Start() {
+    absl::StatusOr<bool> ready = WaitFor(0);
+    if (!ready.ok()) return ready.status();
+    if (!*ready) {
+      return absl::DeadlineExceededError(absl::StrCat(
+          growing_->Dir(), ": no complete slice appeared within ", opts_.settle_s,
+          " s (--settle); is the acquisition writing there (TIFF slices or a Zarr array)?",
+          growing_->Problem().empty() ? "" : " Last problem: ", growing_->Problem()));
+    }
+    absl::StatusOr<VolumeInfo> info = growing_->Info();
+    if (!info.ok()) return info.status();
+    info_ = *std::move(info);
+    info_.nz = opts_.expect_slices;
+    VolumeInfo check = info_;
+    if (check.nz == 0) check.nz = 2;
+    if (absl::Status st = ValidateVolumeInfo(check); !st.ok()) {
+      return absl::InvalidArgumentError(absl::StrCat(growing_->Dir(), ": ", st.message()));
+    }
+    return absl::OkStatus();
+  }
+
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return next_; }
+
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (!sticky_.ok()) return sticky_;
+    if (opts_.expect_slices > 0 && next_ >= opts_.expect_slices) {
+      return absl::OutOfRangeError(
+          absl::StrCat(growing_->Dir(), ": all ", opts_.expect_slices, " expected slices read"));
+    }
+    absl::StatusOr<bool> ready = WaitFor(next_);
+    if (!ready.ok()) return sticky_ = ready.status();
+    if (!*ready) {
+      if (opts_.expect_slices > 0) {
+        return sticky_ = absl::DeadlineExceededError(absl::StrCat(
+                   growing_->Dir(), ": the acquisition stopped after ", next_, " of ",
+                   opts_.expect_slices, " expected slices (", end_reason_, ")"));
+      }
+      if (next_ < 2) {
+        return sticky_ = absl::DeadlineExceededError(absl::StrCat(
+                   growing_->Dir(), ": the acquisition ended with ", next_,
+                   " slice(s); a volume needs at least 2 (", end_reason_, ")"));
+      }
+      return absl::OutOfRangeError(absl::StrCat(growing_->Dir(), ": acquisition over after ",
+                                                next_, " slices (", end_reason_, ")"));
+    }
+    if (absl::Status st = growing_->Read(next_, info_, bytes); !st.ok()) return sticky_ = st;
+    ++next_;
+    if (opts_.progress) opts_.progress(complete_, next_);
+    return absl::OkStatus();
+  }
+
+ private:
+  // Polls until slice k is complete (true) or the acquisition is over (false).
+  absl::StatusOr<bool> WaitFor(int64_t k) {
+    while (true) {
+      bool changed = false;
+      absl::StatusOr<int64_t> n = growing_->Complete(&changed);
+      if (!n.ok()) return n.status();
+      const auto now = Clock::now();
+      if (changed) last_new_ = now;
+      if (*n != complete_ && opts_.progress) opts_.progress(*n, next_);
+      complete_ = *n;
+      if (complete_ > k) return true;
+      if (!opts_.done_file.empty()) {
+        std::error_code ec;
+        if (std::filesystem::exists(std::filesystem::path(growing_->Dir()) / opts_.done_file,
+                                    ec)) {
+          // One more look once files written just before the marker are stable.
+          std::this_thread::sleep_for(std::chrono::duration<double>(opts_.stable_s + opts_.poll_s));
+          absl::StatusOr<int64_t> last = growing_->Complete(&changed);
+          if (!last.ok()) return last.status();
+          complete_ = *last;
+          if (complete_ > k) return true;
+          end_reason_ = absl::StrCat("marker ", opts_.done_file, " appeared");
+          return false;
+        }
+      }
+      if (Seconds(now - last_new_) >= opts_.settle_s) {
+        end_reason_ = absl::StrCat("nothing new for ", opts_.settle_s, " s");
+        return false;
+      }
+      std::this_thread::sleep_for(std::chrono::duration<double>(opts_.poll_s));
+    }
+  }
+
+  std::unique_ptr<Growing> growing_;
+  FollowOptions opts_;
+  VolumeInfo info_;
+  int64_t next_ = 0, complete_ = 0;
+  Clock::time_point last_new_;
+  std::string end_reason_;
+  absl::Status sticky_;
+};
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<SliceSource>> FollowVolume(const std::string& path,
+                                                          const FollowOptions& opts) {
+  if (!(opts.settle_s > 0) || !(opts.stable_s >= 0) || !(opts.poll_s > 0) ||
+      opts.expect_slices < 0) {
+    return absl::InvalidArgumentError(
+        "follow: --settle and the poll interval must be > 0, --expect-slices >= 0");
+  }
+  std::unique_ptr<Growing> growing;
+  auto [store, selector] = SplitZarrSelector(path);
+  std::error_code ec;
+  if (internal::LooksLikeZarr(store) || store.ends_with(".zarr")) {
+    growing = std::make_unique<GrowingZarr>(store, selector);
+  } else if (std::filesystem::is_directory(path, ec) || !std::filesystem::exists(path, ec)) {
+    // A folder, or one the instrument has not created yet.
+    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(path);
+    if (!files.ok() && !absl::IsNotFound(files.status())) return files.status();
+    if (!files.ok()) files = std::vector<std::string>{};
+    // Slices so far but none a TIFF: a DICOM series (a marker file alone decides nothing).
+    bool other = false;
+    for (const std::string& f : *files) {
+      other = other || std::filesystem::path(f).filename() != opts.done_file;
+    }
+    const bool tiff = !TiffNames(*files).empty();
+    if (other && !tiff) {
+      return absl::UnimplementedError(absl::StrCat(
+          path, ": following a DICOM series is not supported yet (only numbered TIFF folders "
+                "and Zarr arrays); read the finished series without --follow"));
+    }
+    growing = std::make_unique<GrowingTiffs>(path, opts.stable_s);
+  } else {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": --follow needs a folder (numbered TIFF slices) or a Zarr store (X.zarr), "
+              "not a file"));
+  }
+  auto source = std::make_unique<FollowSource>(std::move(growing), opts);
+  if (absl::Status st = source->Start(); !st.ok()) return st;
+  return std::unique_ptr<SliceSource>(std::move(source));
+}
+
+}  // namespace tandem
