@@ -3,12 +3,14 @@
 //   tandem-client info   --server HOST:PORT
 //   tandem-client health --server HOST:PORT
 // Exit status: 0 success, 1 failure (the message on stderr names the problem and, for a
-// server error, its gRPC code), 2 bad command line.
+// server error, its gRPC code), 2 bad command line, 3 stream --strict: the iso-value lies
+// outside the data sent (a warning otherwise).
 #include <unistd.h>
 #if defined(__GLIBC__)
 #include <malloc.h>  // mallopt
 #endif
 
+#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -28,6 +30,7 @@
 #include "common/cli_flags.h"
 #include "common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "tandem/follow.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
 #include "tandem/tandem.h"
@@ -132,7 +135,10 @@ int StreamCommand(int argc, char** argv) {
   double sag_correction = tandem::SessionOptions{}.sag_correction;
   int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
   int64_t preview_every = 0, preview_ms = 0;
-  bool reference = false, verbose = false;
+  bool reference = false, verbose = false, follow = false, strict = false;
+  int64_t expect_slices = 0;
+  double settle_s = 10;
+  std::string done_file;
   FlagSet flags(
       "usage: tandem-client stream --input VOLUME --iso C0 --error E0 --out MESH [flags]\n"
       "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, a Zarr/OME-Zarr\n"
@@ -175,7 +181,23 @@ int StreamCommand(int argc, char** argv) {
                 "also measure L1/L2/Linf distances to the unsimplified surface (server side)");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per progress and preview message on stderr");
+  flags.AddBool("strict", &strict,
+                "exit 3 (after saving the mesh) when the iso-value lies outside the data's value "
+                "range, so the surface is empty (a warning otherwise)");
+  flags.AddBool("follow", &follow,
+                "VOLUME is still being written (a folder of numbered TIFF slices or of a DICOM "
+                "series, or a Zarr array growing along z): send each slice as soon as it is "
+                "complete and in order");
+  flags.AddInt("expect-slices", &expect_slices, "--follow: the scan has this many slices");
+  flags.AddDouble("settle", &settle_s,
+                  "--follow: the scan is over after this many seconds without a new slice");
+  flags.AddString("done-file", &done_file, "NAME",
+                  "--follow: the scan is over when a file NAME appears in the folder");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
+  if (!follow && (flags.IsSet("expect-slices") || flags.IsSet("settle") || flags.IsSet("done-file"))) {
+    absl::FPrintF(stderr, "tandem-client: --expect-slices, --settle and --done-file go with --follow\n");
+    return 2;
+  }
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
@@ -216,7 +238,19 @@ int StreamCommand(int argc, char** argv) {
     }
   }
 
-  auto source = tandem::OpenVolume(input);
+  // One status line while following: slices complete on disk and sent.
+  std::atomic<int64_t> on_disk{0};
+  absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source;
+  if (follow) {
+    tandem::FollowOptions fo;
+    fo.expect_slices = expect_slices;
+    fo.settle_s = settle_s;
+    fo.done_file = done_file;
+    fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
+    source = tandem::FollowVolume(input, fo);
+  } else {
+    source = tandem::OpenVolume(input);
+  }
   if (!source.ok()) return Fail(source.status());
   if (preview_every < 0) {
     // --partials alone: about 20 previews over a known depth (each is the whole partial
@@ -225,6 +259,7 @@ int StreamCommand(int argc, char** argv) {
     preview_every = depth > 0 ? std::max<int64_t>(1, depth / 20) : 16;
   }
 
+  tandem::ValueRangeSource range(source->get());  // for the iso-outside-the-data warning
   tandem::client::StreamOptions options;
   options.connection = connection.options;
   options.connection.keepalive_time_ms = keepalive_ms;
@@ -254,6 +289,9 @@ int StreamCommand(int argc, char** argv) {
     if (verbose) {
       absl::FPrintF(stderr, "progress slices=%d triangles=%d peak=%d sent=%d\n",
                     p.slices_consumed(), p.triangles(), p.peak_triangles(), sent);
+    } else if (bar && nz == 0) {
+      absl::FPrintF(stderr, "\rfollowing: %d slices on disk, %d sent, %d meshed, %d triangles   ",
+                    on_disk.load(), sent, p.slices_consumed(), p.triangles());
     } else if (bar && nz > 0) {
       const int width = 30;
       const int filled = static_cast<int>(width * p.slices_consumed() / nz);
@@ -273,7 +311,7 @@ int StreamCommand(int argc, char** argv) {
     }
   };
   absl::StatusOr<tandem::client::StreamResult> result =
-      tandem::client::StreamVolume(**source, options, callbacks);
+      tandem::client::StreamVolume(range, options, callbacks);
   if (bar) absl::FPrintF(stderr, "\n");
   if (!result.ok()) return connection.Fail(result.status());
   if (!partial_error.ok()) return Fail(partial_error);
@@ -302,6 +340,13 @@ int StreamCommand(int argc, char** argv) {
     if (absl::Status st = WriteFile(metrics_path, tandem::ReportToJson(report)); !st.ok()) {
       return Fail(st);
     }
+  }
+  if (range.Outside(iso)) {
+    absl::FPrintF(stderr,
+                  "tandem-client: warning: iso %g is outside the data's value range [%g, %g]: "
+                  "the surface is empty (see tandem info)\n",
+                  iso, range.lo(), range.hi());
+    if (strict) return 3;
   }
   return 0;
 }

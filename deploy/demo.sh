@@ -1,15 +1,17 @@
 #!/usr/bin/env bash
 # The main job (README's first line), runnable without ../shared: generates a sample
-# volume (the paper's Pillow Box, 128^3 float32), starts tandem-server on 127.0.0.1 (a port
-# the OS picks), streams the volume to it slice by slice with tandem-client like a scanner
-# (200 slices/s), and stops the server with SIGTERM (it drains and exits 0).
+# volume (the paper's Pillow Box, 128^3), starts tandem-server on 127.0.0.1 (a port the OS
+# picks), lets `tandem simulate` play a CT scanner writing it as a DICOM series into
+# out/acquisition (100 slices/s, in shuffled bursts, then a DONE marker) while
+# `tandem-client stream --follow` sends each slice to the server as soon as it is complete,
+# and stops the server with SIGTERM (it drains and exits 0).
 # Leaves in out/: pillowbox.ply (final mesh), pillowbox.metrics.json, previews/*.drc
-# (the growing partial meshes) and server.log.
+# (the growing partial meshes), acquisition/ (the series) and server.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=build/bin
 mkdir -p out
-rm -rf out/previews
+rm -rf out/previews out/acquisition
 "$bin/tandem" generate pillowbox --size 128 --out out/pillowbox.json
 
 "$bin/tandem-server" --listen 127.0.0.1:0 >out/server.stdout 2>out/server.log &
@@ -23,9 +25,13 @@ for _ in $(seq 100); do
 done
 [ -n "$addr" ] || { echo "demo: tandem-server did not start; see out/server.log" >&2; exit 1; }
 
-"$bin/tandem-client" stream --server "$addr" --input out/pillowbox.json --iso 0 --error 0.1 \
-  --rate 200 --preview-every 16 --partials out/previews --reference \
+"$bin/tandem" simulate --input out/pillowbox.json --out out/acquisition --as dicom --rate 100 \
+  --done-file DONE &
+scanner=$!
+"$bin/tandem-client" stream --server "$addr" --input out/acquisition --follow --done-file DONE \
+  --iso 0 --error 0.1 --preview-every 16 --partials out/previews --reference \
   --out out/pillowbox.ply --metrics out/pillowbox.metrics.json
+wait "$scanner"
 
 kill -TERM "$server"
 wait "$server"

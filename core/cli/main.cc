@@ -6,6 +6,12 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <thread>
+#include <random>
+#include <optional>
+#include <filesystem>
+#include <cstring>
+#include <chrono>
 #include <atomic>
 #include <cmath>
 #include <limits>
@@ -43,6 +49,7 @@ Usage:
   tandem generate {sphere,pillowbox,link,gyroid} --size N --out FILE [--series dicom|tiff]
   tandem measure  A.{ply,obj} B.{ply,obj} [--samples N] [--json]
   tandem info     --input FILE
+  tandem simulate --input FILE --out DIR --as dicom|tiff|zarr --rate R   (an instrument)
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
 .tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
@@ -64,7 +71,8 @@ Options:
   --zarr-array SEL          Zarr group: the multiscale level (a number) or the array
                             path to read (same as --input X.zarr#SEL). Default: level 0
   --follow                  the input is still being written (a folder of numbered TIFF
-                            slices, or a Zarr array growing along z): mesh each slice as
+                            slices or of a DICOM series, or a Zarr array growing along
+                            z): mesh each slice as
                             soon as it is complete and in order, until --expect-slices N
                             slices, the --done-file NAME marker, or --settle S seconds
                             (default 10) without anything new
@@ -103,9 +111,13 @@ Options:
   --samples N               surface samples per direction for --reference
                             (default: automatic)
   --quiet                   no summary on stderr
+  --strict                  exit 3 (after writing the mesh) when the iso-value lies
+                            outside the data's value range, so the surface is empty
   --help                    this text
 
-Progress (slices done / total) is shown on stderr when it is a terminal.
+Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0
+done, 1 failure while running, 2 bad arguments or input, 3 with --strict: the iso-value
+is outside the data (a warning on stderr otherwise).
 )";
 
 constexpr char kGenerateHelp[] =
@@ -128,8 +140,8 @@ gyroid (a solid gyroid clipped to a ball: closed, high genus).
   --dicom-syntax S  --series dicom: explicit (default), implicit, jpeg-lossless, jpeg-ls,
                     jpeg2000 or rle
   --origin X,Y,Z    world position of voxel (0,0,0) (default 0,0,0)
-  --directions 9 numbers  world unit vectors of the x, y and z axes (default identity; a
-                    DICOM series and the formats of tandem info's "frame" line store them)
+  --directions 9 numbers  world unit vectors of the x, y and z axes (default identity;
+                    stored by --series dicom and .json sidecars, refused by the others)
 )";
 
 constexpr char kMeasureHelp[] =
@@ -200,7 +212,7 @@ int Extract(int argc, char** argv) {
                        {"input", "out", "iso", "error", "alpha", "distance-guard", "sag-correction",
                         "schedule", "target-triangles", "metrics", "samples", "parts", "zarr-array",
                         "expect-slices", "settle", "done-file"},
-                       {"no-simplify", "reference", "quiet", "follow", "help"});
+                       {"no-simplify", "reference", "quiet", "follow", "strict", "help"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kExtractHelp, stdout);
@@ -298,7 +310,8 @@ int Extract(int argc, char** argv) {
   if (absl::Status st = opt.Validate(); !st.ok()) return Fail(st);
 
   cli::Progress progress("slices");
-  auto session = RunSession(**source, opt, [&](int64_t d, int64_t t) {
+  ValueRangeSource range(source->get());
+  auto session = RunSession(range, opt, [&](int64_t d, int64_t t) {
     if (follow) {
       status_line(d);
     } else {
@@ -334,10 +347,23 @@ int Extract(int argc, char** argv) {
     report.distance = MeasureDistances((*ref)->Snapshot(), mesh, dopt);
   }
   report.peak_rss_bytes = PeakRssBytes();  // the process's, as /usr/bin/time reports it
+  // An iso-value the data never crosses gives an empty mesh: say so, never silently.
+  std::string iso_warning;
+  if (range.Outside(opt.iso)) {
+    iso_warning = range.lo() > range.hi()
+                      ? absl::StrCat("the volume holds no finite value: no surface at iso ", opt.iso)
+                      : absl::StrCat("iso ", opt.iso, " is outside the data's value range [",
+                                     range.lo(), ", ", range.hi(),
+                                     "]: the surface is empty (see tandem info)");
+  }
   if (auto metrics = args->Get("metrics")) {
     if (absl::Status st = WriteText(*metrics, ReportToJson(report)); !st.ok()) return Fail(st);
   } else if (!args->Has("quiet")) {
     std::fprintf(stderr, "%s -> %s\n%s", input->c_str(), out->c_str(), ReportSummary(report).c_str());
+  }
+  if (!iso_warning.empty()) {
+    std::fprintf(stderr, "tandem extract: warning: %s\n", iso_warning.c_str());
+    if (args->Has("strict")) return 3;
   }
   return 0;
 }
@@ -577,6 +603,150 @@ int Info(int argc, char** argv) {
   return 0;
 }
 
+constexpr char kSimulateHelp[] =
+    R"(Usage: tandem simulate --input FILE --out DIR --as dicom|tiff|zarr [--rate R]
+                       [--burst N] [--done-file NAME] [--seed S]
+
+Plays an instrument for demos and tests: writes the volume FILE (any format tandem reads)
+into DIR slice by slice at R slices per second, as a scanner or microscope would while
+`tandem extract --follow` or `tandem-client stream --follow` meshes it:
+  dicom   a CT series (GDCM; float volumes quantized to int16 with a rescale), written in
+          bursts of N slices (default 8) whose files appear in shuffled order under names
+          that say nothing about position, as a C-STORE receiver stores them
+  tiff    numbered single-page TIFFs slice_00000.tif, ... in order (a reconstruction)
+  zarr    an OME-Zarr v2 image whose array grows along z (chunks 4 x 256 x 256,
+          blosc-lz4), each chunk row appearing whole (a light-sheet microscope)
+  --rate R          slices per second (default 20; 0 = as fast as possible)
+  --done-file NAME  create DIR/NAME (an empty file) after the last slice
+  --seed S          shuffle seed for dicom bursts (default 1)
+)";
+
+int Simulate(int argc, char** argv) {
+  auto args = cli::Args::Parse(argc, argv, 2,
+                               {"input", "out", "as", "rate", "burst", "done-file", "seed"},
+                               {"help"});
+  if (!args.ok()) return Fail(args.status());
+  if (args->Has("help")) {
+    std::fputs(kSimulateHelp, stdout);
+    return 0;
+  }
+  auto input = args->Get("input");
+  auto out = args->Get("out");
+  const std::string as = args->Get("as").value_or("");
+  if (!input || !out || (as != "dicom" && as != "tiff" && as != "zarr")) {
+    return Fail(absl::InvalidArgumentError(
+        "--input FILE, --out DIR and --as dicom|tiff|zarr are required (tandem simulate --help)"));
+  }
+  auto rate = args->GetDouble("rate", 20.0);
+  auto burst = args->GetInt("burst", 8);
+  auto seed = args->GetInt("seed", 1);
+  if (!rate.ok()) return Fail(rate.status());
+  if (!burst.ok()) return Fail(burst.status());
+  if (!seed.ok()) return Fail(seed.status());
+  if (*rate < 0 || *burst < 1) {
+    return Fail(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
+  }
+  auto src = OpenVolume(*input);
+  if (!src.ok()) return Fail(src.status());
+  const VolumeInfo info = (*src)->info();
+  std::error_code ec;
+  if (std::filesystem::exists(*out, ec)) {
+    return Fail(absl::AlreadyExistsError(absl::StrCat(*out, ": already exists (the simulator "
+                                                      "writes a fresh acquisition)")));
+  }
+  // Slices are read as they are written (one burst in memory for DICOM).
+  DicomWriteOptions dopt;
+  std::unique_ptr<ZarrAppender> zarr;
+  std::optional<DicomSliceWriter> dicom;
+  if (as == "dicom") {
+    if (info.dtype == DType::kFloat32) {  // the quantization needs the range: one pass first
+      auto scan = OpenVolume(*input);
+      if (!scan.ok()) return Fail(scan.status());
+      std::vector<uint8_t> b;
+      float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+      for (int64_t z = 0; z < info.nz; ++z) {
+        if (absl::Status st = (*scan)->ReadSlice(&b); !st.ok()) return Fail(st);
+        for (size_t i = 0; i + 4 <= b.size(); i += 4) {
+          float v;
+          std::memcpy(&v, b.data() + i, 4);
+          if (std::isfinite(v)) lo = std::min(lo, v), hi = std::max(hi, v);
+        }
+      }
+      dopt.float_min = std::isfinite(lo) ? lo : 0.0f;
+      dopt.float_max = std::isfinite(hi) ? hi : 0.0f;
+    }
+    auto w = DicomSliceWriter::Create(info, dopt);
+    if (!w.ok()) return Fail(w.status());
+    dicom.emplace(*std::move(w));
+  } else if (as == "zarr") {
+    ZarrWriteOptions zo;
+    zo.chunks = {4, 256, 256};
+    auto w = ZarrAppender::Create(*out, info, zo);
+    if (!w.ok()) return Fail(w.status());
+    zarr = *std::move(w);
+  }
+  if (as != "zarr") std::filesystem::create_directories(*out, ec);
+  if (ec) return Fail(absl::InternalError(absl::StrCat(*out, ": ", ec.message())));
+
+  const auto start = std::chrono::steady_clock::now();
+  auto pace = [&](int64_t written) {  // slice `written` may not go before written / rate s
+    if (*rate <= 0) return;
+    std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                              std::chrono::duration<double>(written / *rate)));
+  };
+  std::mt19937 rng(static_cast<uint32_t>(*seed));
+  cli::Progress progress("slices written");
+  std::vector<std::vector<uint8_t>> held;
+  int64_t written = 0;
+  for (int64_t z = 0; z < info.nz; ++z) {
+    std::vector<uint8_t> bytes;
+    if (absl::Status st = (*src)->ReadSlice(&bytes); !st.ok()) return Fail(st);
+    absl::Status st;
+    if (as == "tiff") {
+      char name[32];
+      std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
+      pace(written);
+      st = WriteTiffSlice((std::filesystem::path(*out) / name).string(), info, z, bytes);
+      ++written;
+    } else if (as == "zarr") {
+      pace(written);
+      st = zarr->Append(bytes.data());
+      ++written;
+    } else {
+      held.push_back(std::move(bytes));
+      if (static_cast<int64_t>(held.size()) == *burst || z + 1 == info.nz) {
+        const int64_t first = z + 1 - static_cast<int64_t>(held.size());
+        std::vector<int64_t> order(held.size());
+        for (size_t i = 0; i < order.size(); ++i) order[i] = first + static_cast<int64_t>(i);
+        std::shuffle(order.begin(), order.end(), rng);
+        for (int64_t k : order) {
+          pace(written);
+          // Names carry no position: a hash of the slice index.
+          const std::string name =
+              absl::StrCat("1.2.826.0.1.3680043.2.1125.", (k * 2654435761u) % 1000003u, ".dcm");
+          st = dicom->Write((std::filesystem::path(*out) / name).string(), k,
+                            held[static_cast<size_t>(k - first)]);
+          if (!st.ok()) break;
+          ++written;
+        }
+        held.clear();
+      }
+    }
+    if (!st.ok()) return Fail(st);
+    progress.Update(written, info.nz);
+  }
+  if (zarr) {
+    if (absl::Status st = zarr->Finish(); !st.ok()) return Fail(st);
+  }
+  progress.Done();
+  if (auto done = args->Get("done-file")) {
+    std::ofstream((std::filesystem::path(*out) / *done).string());
+  }
+  std::fprintf(stderr, "simulated %lld slices into %s (%s)\n", static_cast<long long>(written),
+               out->c_str(), as.c_str());
+  return 0;
+}
+
 }  // namespace
 }  // namespace tandem
 
@@ -592,6 +762,7 @@ int main(int argc, char** argv) {
     if (cmd == "generate") return tandem::Generate(argc, argv);
     if (cmd == "measure") return tandem::Measure(argc, argv);
     if (cmd == "info") return tandem::Info(argc, argv);
+    if (cmd == "simulate") return tandem::Simulate(argc, argv);
   } catch (...) {
     const absl::Status st = tandem::StatusOfException(std::current_exception());
     std::fprintf(stderr, "tandem %s: %s\n", cmd.c_str(), std::string(st.message()).c_str());

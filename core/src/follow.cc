@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
+#include "follow_internal.h"
 #include "readers_internal.h"
 #include "tandem/series.h"
 #include "tandem/zarr.h"
@@ -20,22 +21,7 @@ using Clock = std::chrono::steady_clock;
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
 
-// What a kind of input must answer.
-class Growing {
- public:
-  virtual ~Growing() = default;
-  // Looks at the disk again; returns how many leading slices are complete now (never fewer
-  // than before) and sets *changed if anything new was seen (a file or a size change).
-  virtual absl::StatusOr<int64_t> Complete(bool* changed) = 0;
-  // Geometry, once Complete() has returned >= 1.
-  virtual absl::StatusOr<VolumeInfo> Info() = 0;
-  // Reads complete slice k (k = 0, 1, ... in order).
-  virtual absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) = 0;
-  // Where a done-file is looked for.
-  virtual std::string Dir() const = 0;
-  // Why nothing is complete yet, if known ("" otherwise).
-  virtual std::string Problem() const { return ""; }
-};
+using internal::Growing;
 
 // Numbered single-page TIFFs: slice k is the k-th name in natural order, complete once its
 // size has held for stable_s.
@@ -170,6 +156,51 @@ class GrowingZarr final : public Growing {
   std::unique_ptr<SliceSource> reader_;
 };
 
+// A folder whose kind is decided by its first files: numbered TIFFs if any file is a TIFF,
+// else a DICOM series.
+class GrowingFolder final : public Growing {
+ public:
+  GrowingFolder(std::string dir, double stable_s, std::string done_file)
+      : dir_(std::move(dir)), stable_s_(stable_s), done_file_(std::move(done_file)) {}
+
+  absl::StatusOr<int64_t> Complete(bool* changed) override {
+    if (absl::Status st = Decide(); !st.ok()) return st;
+    return inner_ ? inner_->Complete(changed) : 0;
+  }
+  absl::StatusOr<int64_t> Final() override {
+    if (absl::Status st = Decide(); !st.ok()) return st;
+    return inner_ ? inner_->Final() : 0;
+  }
+  absl::StatusOr<VolumeInfo> Info() override { return inner_->Info(); }
+  absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) override {
+    return inner_->Read(k, info, bytes);
+  }
+  std::string Dir() const override { return dir_; }
+  std::string Problem() const override { return inner_ ? inner_->Problem() : ""; }
+
+ private:
+  absl::Status Decide() {
+    if (inner_) return absl::OkStatus();
+    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(dir_);
+    if (absl::IsNotFound(files.status())) return absl::OkStatus();
+    if (!files.ok()) return files.status();
+    bool other = false;
+    for (const std::string& f : *files) {
+      other = other || std::filesystem::path(f).filename() != done_file_;
+    }
+    if (!TiffNames(*files).empty()) {
+      inner_ = std::make_unique<GrowingTiffs>(dir_, stable_s_);
+    } else if (other) {
+      inner_ = internal::MakeGrowingDicom(dir_, stable_s_, done_file_);
+    }
+    return absl::OkStatus();
+  }
+  std::string dir_;
+  double stable_s_;
+  std::string done_file_;
+  std::unique_ptr<Growing> inner_;
+};
+
 class FollowSource final : public SliceSource {
  public:
   FollowSource(std::unique_ptr<Growing> growing, FollowOptions opts)
@@ -238,28 +269,31 @@ class FollowSource final : public SliceSource {
       const auto now = Clock::now();
       if (changed) last_new_ = now;
       if (*n != complete_ && opts_.progress) opts_.progress(*n, next_);
-      complete_ = *n;
+      complete_ = std::max(complete_, *n);
       if (complete_ > k) return true;
       if (!opts_.done_file.empty()) {
         std::error_code ec;
         if (std::filesystem::exists(std::filesystem::path(growing_->Dir()) / opts_.done_file,
                                     ec)) {
-          // One more look once files written just before the marker are stable.
+          // Files written just before the marker count once they are stable.
           std::this_thread::sleep_for(std::chrono::duration<double>(opts_.stable_s + opts_.poll_s));
-          absl::StatusOr<int64_t> last = growing_->Complete(&changed);
-          if (!last.ok()) return last.status();
-          complete_ = *last;
-          if (complete_ > k) return true;
-          end_reason_ = absl::StrCat("marker ", opts_.done_file, " appeared");
-          return false;
+          return End(k, absl::StrCat("marker ", opts_.done_file, " appeared"));
         }
       }
       if (Seconds(now - last_new_) >= opts_.settle_s) {
-        end_reason_ = absl::StrCat("nothing new for ", opts_.settle_s, " s");
-        return false;
+        return End(k, absl::StrCat("nothing new for ", opts_.settle_s, " s"));
       }
       std::this_thread::sleep_for(std::chrono::duration<double>(opts_.poll_s));
     }
+  }
+
+  // The acquisition is over: slices held back may go now; true if slice k exists.
+  absl::StatusOr<bool> End(int64_t k, std::string reason) {
+    end_reason_ = std::move(reason);
+    absl::StatusOr<int64_t> n = growing_->Final();
+    if (!n.ok()) return n.status();
+    complete_ = std::max(complete_, *n);
+    return complete_ > k;
   }
 
   std::unique_ptr<Growing> growing_;
@@ -286,22 +320,9 @@ absl::StatusOr<std::unique_ptr<SliceSource>> FollowVolume(const std::string& pat
   if (internal::LooksLikeZarr(store) || store.ends_with(".zarr")) {
     growing = std::make_unique<GrowingZarr>(store, selector);
   } else if (std::filesystem::is_directory(path, ec) || !std::filesystem::exists(path, ec)) {
-    // A folder, or one the instrument has not created yet.
-    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(path);
-    if (!files.ok() && !absl::IsNotFound(files.status())) return files.status();
-    if (!files.ok()) files = std::vector<std::string>{};
-    // Slices so far but none a TIFF: a DICOM series (a marker file alone decides nothing).
-    bool other = false;
-    for (const std::string& f : *files) {
-      other = other || std::filesystem::path(f).filename() != opts.done_file;
-    }
-    const bool tiff = !TiffNames(*files).empty();
-    if (other && !tiff) {
-      return absl::UnimplementedError(absl::StrCat(
-          path, ": following a DICOM series is not supported yet (only numbered TIFF folders "
-                "and Zarr arrays); read the finished series without --follow"));
-    }
-    growing = std::make_unique<GrowingTiffs>(path, opts.stable_s);
+    // A folder, or one the instrument has not created yet: its first files tell TIFF
+    // slices from a DICOM series.
+    growing = std::make_unique<GrowingFolder>(path, opts.stable_s, opts.done_file);
   } else {
     return absl::InvalidArgumentError(absl::StrCat(
         path, ": --follow needs a folder (numbered TIFF slices) or a Zarr store (X.zarr), "

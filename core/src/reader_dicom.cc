@@ -12,6 +12,7 @@
 #include <gdcmUIDGenerator.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -23,6 +24,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "follow_internal.h"
 #include "readers_internal.h"
 #include "tandem/series.h"
 
@@ -227,76 +229,204 @@ DType StoredType(const SliceHeader& h) {
 
 bool Near(double a, double b, double tol) { return std::abs(a - b) <= tol; }
 
-class DicomSliceSource final : public SliceSource {
- public:
-  DicomSliceSource(std::vector<SliceHeader> slices, VolumeInfo info, DType stored, bool rescale)
-      : slices_(std::move(slices)), info_(std::move(info)), stored_(stored), rescale_(rescale) {}
+// The series' frame from its first slice: unit row and column directions and the normal.
+struct Frame {
+  Vec row, col, normal;
+};
 
-  const VolumeInfo& info() const override { return info_; }
-  int64_t next_slice() const override { return next_; }
+absl::StatusOr<Frame> FrameOf(const SliceHeader& first) {
+  Frame f;
+  f.row = {first.orientation[0], first.orientation[1], first.orientation[2]};
+  f.col = {first.orientation[3], first.orientation[4], first.orientation[5]};
+  if (!(Near(Norm(f.row), 1, 1e-2) && Near(Norm(f.col), 1, 1e-2) &&
+        std::abs(Dot(f.row, f.col)) < 1e-2)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(first.path, ": ImageOrientationPatient is not two orthogonal unit vectors"));
+  }
+  for (Vec* v : {&f.row, &f.col}) {
+    const double len = Norm(*v);
+    for (double& c : *v) c /= len;
+  }
+  f.normal = Cross(f.row, f.col);
+  const double len = Norm(f.normal);
+  for (double& c : f.normal) c = c / len + 0.0;  // + 0.0: no "-0" in messages
+  return f;
+}
 
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
-    if (next_ >= static_cast<int64_t>(slices_.size())) {
-      return absl::OutOfRangeError(absl::StrCat("DICOM series: no more slices (all ",
-                                                slices_.size(), " were read)"));
+// Every slice of a series has the first one's size, orientation, pixel spacing and type.
+absl::Status CheckMatches(const std::string& dir, const SliceHeader& first, const SliceHeader& h) {
+  auto mismatch = [&](const std::string& what) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("DICOM series in ", dir, ": ", Base(h.path), " and ", Base(first.path),
+                     " differ in ", what, " (every slice of a series must match)"));
+  };
+  if (h.series_uid != first.series_uid) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "DICOM series in ", dir, ": ", Base(h.path), " belongs to series '", h.series_uid,
+        "', not '", first.series_uid, "' of ", Base(first.path),
+        "; put each series in its own folder"));
+  }
+  if (h.rows != first.rows || h.cols != first.cols) {
+    return mismatch(
+        absl::StrCat("size (", h.cols, "x", h.rows, " vs ", first.cols, "x", first.rows, ")"));
+  }
+  for (int i = 0; i < 6; ++i) {
+    if (!Near(h.orientation[i], first.orientation[i], 1e-4)) {
+      return mismatch("ImageOrientationPatient");
     }
-    const SliceHeader& h = slices_[next_];
-    gdcm::ImageReader reader;
-    reader.SetFileName(h.path.c_str());
-    if (!reader.Read()) {
-      return absl::DataLossError(
-          absl::StrCat(h.path, ": cannot read the DICOM image (truncated or corrupt file?)"));
+  }
+  if (h.has_spacing != first.has_spacing ||
+      !Near(h.row_spacing, first.row_spacing, 1e-4 * first.row_spacing) ||
+      !Near(h.col_spacing, first.col_spacing, 1e-4 * first.col_spacing)) {
+    return mismatch("PixelSpacing");
+  }
+  if (StoredType(h) != StoredType(first) || h.bits_stored != first.bits_stored) {
+    return mismatch("pixel type (BitsAllocated / BitsStored / PixelRepresentation)");
+  }
+  return absl::OkStatus();
+}
+
+// Neighbours (sorted by `along`) a..b: not at one position, not a step 10% off `step`, not
+// shifted sideways from the first slice.
+absl::Status CheckStep(const std::string& dir, const SliceHeader& a, const SliceHeader& b,
+                       double step, double in_plane) {
+  const double d = b.along - a.along;
+  if (d <= 1e-3 * in_plane) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("DICOM series in ", dir, ": ", Base(a.path), " and ", Base(b.path),
+                     " are at the same position (", FormatDouble(a.along),
+                     " mm along the normal); duplicate slice?"));
+  }
+  if (std::abs(d - step) > 0.1 * step) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "DICOM series in ", dir, ": gap between ", Base(a.path), " and ", Base(b.path), ": ",
+        FormatDouble(d), " mm apart where the series' usual step is ", FormatDouble(step),
+        " mm (a missing slice, or an irregular series)"));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status CheckInLine(const std::string& dir, const SliceHeader& first, const SliceHeader& h,
+                         const Vec& normal, double in_plane) {
+  const Vec off{h.position[0] - first.position[0], h.position[1] - first.position[1],
+                h.position[2] - first.position[2]};
+  const double along = Dot(off, normal);
+  const Vec side{off[0] - along * normal[0], off[1] - along * normal[1],
+                 off[2] - along * normal[2]};
+  if (Norm(side) > 0.1 * in_plane) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "DICOM series in ", dir, ": ", Base(h.path), " is shifted ", FormatDouble(Norm(side)),
+        " mm sideways from the slice normal (gantry tilt?); tilted series are not supported"));
+  }
+  return absl::OkStatus();
+}
+
+// The z step, rounded to 1e-6 mm so that a series read finished and one followed while it
+// was written (whose step is known from fewer slices) get the same grid.
+double RoundStep(double step) { return std::round(step * 1e6) / 1e6; }
+
+// How values are delivered: the stored type, int16 (slope 1, one integer intercept whose
+// shift keeps BitsStored's range inside int16: the usual CT), or float32.
+struct ValuePlan {
+  DType stored = DType::kUInt8;
+  DType out = DType::kUInt8;
+  bool rescale = false;
+};
+
+ValuePlan PlanValues(const SliceHeader* begin, const SliceHeader* end) {
+  const SliceHeader& first = *begin;
+  ValuePlan plan;
+  plan.stored = plan.out = StoredType(first);
+  bool integer_shift = true;
+  for (const SliceHeader* h = begin; h != end; ++h) {
+    if (h->slope != 1.0 || h->intercept != 0.0) plan.rescale = true;
+    if (h->slope != 1.0 || h->intercept != std::round(h->intercept) ||
+        h->intercept != first.intercept) {
+      integer_shift = false;
     }
-    const gdcm::Image& image = reader.GetImage();
-    const size_t n = static_cast<size_t>(info_.slice_voxels());
-    const size_t stored_bytes = n * DTypeSize(stored_);
-    if (image.GetBufferLength() != stored_bytes) {
-      return absl::DataLossError(absl::StrCat(h.path, ": pixel data holds ",
-                                              image.GetBufferLength(), " bytes, expected ",
-                                              stored_bytes, " (truncated or corrupt file?)"));
+  }
+  if (!plan.rescale) return plan;
+  plan.out = DType::kFloat32;
+  if (integer_shift && plan.stored != DType::kUInt8) {
+    const double lo = first.pixel_representation ? -std::ldexp(1.0, first.bits_stored - 1) : 0.0;
+    const double hi = first.pixel_representation ? std::ldexp(1.0, first.bits_stored - 1) - 1
+                                                 : std::ldexp(1.0, first.bits_stored) - 1;
+    const double b = first.intercept;
+    if (lo + b >= std::numeric_limits<int16_t>::min() &&
+        hi + b <= std::numeric_limits<int16_t>::max()) {
+      plan.out = DType::kInt16;
     }
-    const gdcm::ByteValue* raw = image.GetDataElement().GetByteValue();
-    if (!image.GetTransferSyntax().IsEncapsulated() &&
-        (raw == nullptr || raw->GetLength() < stored_bytes)) {
-      return absl::DataLossError(absl::StrCat(h.path, ": pixel data is truncated (",
-                                              raw ? static_cast<uint32_t>(raw->GetLength()) : 0u, " of ", stored_bytes,
-                                              " bytes)"));
-    }
-    buffer_.resize(stored_bytes);
-    if (!image.GetBuffer(reinterpret_cast<char*>(buffer_.data()))) {
-      return absl::DataLossError(absl::StrCat(
-          h.path, ": cannot decode the pixel data (transfer syntax ",
-          gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax()),
-          "; truncated or corrupt, or a codec this GDCM build lacks)"));
-    }
-    bytes->resize(info_.slice_bytes());
-    if (!rescale_) {
-      std::memcpy(bytes->data(), buffer_.data(), stored_bytes);
-    } else if (info_.dtype == DType::kInt16) {
-      // Slope 1, integer intercept, range known to fit (checked at open time).
-      const int32_t shift = static_cast<int32_t>(h.intercept);
-      Rescale<int16_t>(bytes->data(), n, [shift](double v) { return v + shift; });
-    } else {
-      const double s = h.slope, b = h.intercept;
-      Rescale<float>(bytes->data(), n, [s, b](double v) { return v * s + b; });
-    }
-    ++next_;
+  }
+  return plan;
+}
+
+VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, double step,
+                    const ValuePlan& plan) {
+  VolumeInfo info;
+  info.nx = first.cols;
+  info.ny = first.rows;
+  info.nz = nz;
+  info.dtype = plan.out;
+  info.spacing = {first.col_spacing, first.row_spacing, step};
+  info.origin = first.position;
+  info.directions = {frame.row, frame.col, frame.normal};
+  info.description =
+      absl::StrCat("DICOM ", first.modality.empty() ? "" : first.modality + " ", "series",
+                   first.description.empty() ? "" : " '" + first.description + "'",
+                   plan.rescale ? ", rescaled values" : "",
+                   first.has_spacing ? "" : " (no PixelSpacing: 1 mm assumed)");
+  return info;
+}
+
+// Decodes one slice's pixels (through `buffer`) into `bytes` as info.dtype.
+absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
+                        std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
+  gdcm::ImageReader reader;
+  reader.SetFileName(h.path.c_str());
+  if (!reader.Read()) {
+    return absl::DataLossError(
+        absl::StrCat(h.path, ": cannot read the DICOM image (truncated or corrupt file?)"));
+  }
+  const gdcm::Image& image = reader.GetImage();
+  const size_t n = static_cast<size_t>(info.slice_voxels());
+  const size_t stored_bytes = n * DTypeSize(plan.stored);
+  if (image.GetBufferLength() != stored_bytes) {
+    return absl::DataLossError(absl::StrCat(h.path, ": pixel data holds ",
+                                            image.GetBufferLength(), " bytes, expected ",
+                                            stored_bytes, " (truncated or corrupt file?)"));
+  }
+  const gdcm::ByteValue* raw = image.GetDataElement().GetByteValue();
+  if (!image.GetTransferSyntax().IsEncapsulated() &&
+      (raw == nullptr || raw->GetLength() < stored_bytes)) {
+    return absl::DataLossError(absl::StrCat(
+        h.path, ": pixel data is truncated (", raw ? static_cast<uint32_t>(raw->GetLength()) : 0u,
+        " of ", stored_bytes, " bytes)"));
+  }
+  buffer->resize(stored_bytes);
+  if (!image.GetBuffer(reinterpret_cast<char*>(buffer->data()))) {
+    return absl::DataLossError(absl::StrCat(
+        h.path, ": cannot decode the pixel data (transfer syntax ",
+        gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax()),
+        "; truncated or corrupt, or a codec this GDCM build lacks)"));
+  }
+  bytes->resize(info.slice_bytes());
+  if (!plan.rescale) {
+    std::memcpy(bytes->data(), buffer->data(), stored_bytes);
     return absl::OkStatus();
   }
-
- private:
-  template <typename Out, typename F>
-  void Rescale(uint8_t* dst, size_t n, F f) const {
-    auto run = [&](auto tag) {
-      using In = decltype(tag);
+  const double s = h.slope, b = h.intercept;
+  auto convert = [&](auto out_tag) {
+    using Out = decltype(out_tag);
+    auto run = [&](auto in_tag) {
+      using In = decltype(in_tag);
       for (size_t i = 0; i < n; ++i) {
         In v;
-        std::memcpy(&v, buffer_.data() + i * sizeof(In), sizeof(In));
-        const Out o = static_cast<Out>(f(static_cast<double>(v)));
-        std::memcpy(dst + i * sizeof(Out), &o, sizeof(Out));
+        std::memcpy(&v, buffer->data() + i * sizeof(In), sizeof(In));
+        const Out o = static_cast<Out>(static_cast<double>(v) * s + b);
+        std::memcpy(bytes->data() + i * sizeof(Out), &o, sizeof(Out));
       }
     };
-    switch (stored_) {
+    switch (plan.stored) {
       case DType::kUInt8:
         run(uint8_t{});
         break;
@@ -309,17 +439,222 @@ class DicomSliceSource final : public SliceSource {
       case DType::kFloat32:
         break;  // never stored in DICOM images
     }
+  };
+  // int16 only when the slope is 1 and the shifted range fits (PlanValues): exact.
+  if (info.dtype == DType::kInt16) {
+    convert(int16_t{});
+  } else {
+    convert(float{});
+  }
+  return absl::OkStatus();
+}
+
+class DicomSliceSource final : public SliceSource {
+ public:
+  DicomSliceSource(std::vector<SliceHeader> slices, VolumeInfo info, ValuePlan plan)
+      : slices_(std::move(slices)), info_(std::move(info)), plan_(plan) {}
+
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return next_; }
+
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (next_ >= static_cast<int64_t>(slices_.size())) {
+      return absl::OutOfRangeError(absl::StrCat("DICOM series: no more slices (all ",
+                                                slices_.size(), " were read)"));
+    }
+    if (absl::Status st = ReadPixels(slices_[next_], info_, plan_, &buffer_, bytes); !st.ok()) {
+      return st;
+    }
+    ++next_;
+    return absl::OkStatus();
   }
 
+ private:
   std::vector<SliceHeader> slices_;
   VolumeInfo info_;
-  DType stored_;
-  bool rescale_;
+  ValuePlan plan_;
   int64_t next_ = 0;
   std::vector<uint8_t> buffer_;
 };
 
+double MedianStep(const std::vector<SliceHeader>& sorted) {
+  std::vector<double> steps;
+  for (size_t k = 0; k + 1 < sorted.size(); ++k) steps.push_back(sorted[k + 1].along - sorted[k].along);
+  std::nth_element(steps.begin(), steps.begin() + steps.size() / 2, steps.end());
+  return steps[steps.size() / 2];
+}
+
+// A series still arriving (follow mode): complete files are ordered by position and handed
+// out from the lowest, each once the slice one step below it has gone.
+class GrowingDicom final : public internal::Growing {
+ public:
+  GrowingDicom(std::string dir, double stable_s, std::string done_file)
+      : dir_(std::move(dir)), stable_s_(stable_s), done_file_(std::move(done_file)) {}
+
+  absl::StatusOr<int64_t> Complete(bool* changed) override {
+    if (absl::Status st = Scan(changed); !st.ok()) return st;
+    return Release(/*final=*/false);
+  }
+
+  absl::StatusOr<int64_t> Final() override {
+    bool changed = false;
+    if (absl::Status st = Scan(&changed); !st.ok()) return st;
+    for (const auto& [path, seen] : seen_) {
+      if (!seen.whole && !seen.problem.empty()) {
+        return absl::DataLossError(absl::StrCat(
+            seen.problem, " (the acquisition ended with this file still not whole)"));
+      }
+    }
+    return Release(/*final=*/true);
+  }
+
+  absl::StatusOr<VolumeInfo> Info() override {
+    const SliceHeader& first = sent_.front();
+    return MakeInfo(first, frame_, 0, step_, plan_);
+  }
+
+  absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) override {
+    const SliceHeader& h = sent_[k];
+    if (h.slope != sent_.front().slope || h.intercept != sent_.front().intercept) {
+      if (info.dtype != DType::kFloat32 || !plan_.rescale) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            h.path, ": RescaleSlope/Intercept differ from the first slice's; a followed series "
+                    "needs one rescale unless its first slice already rescales to float"));
+      }
+    }
+    return ReadPixels(h, info, plan_, &buffer_, bytes);
+  }
+
+  std::string Dir() const override { return dir_; }
+  std::string Problem() const override { return problem_; }
+
+ private:
+  struct Seen {
+    uint64_t size = 0;
+    std::chrono::steady_clock::time_point since;
+    bool whole = false;    // header read and pixel data complete
+    std::string problem;  // why not (yet)
+  };
+
+  // Reads the headers of files whose size has held for stable_s; a file that does not read
+  // whole yet (still being written) is tried again when its size changes.
+  absl::Status Scan(bool* changed) {
+    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(dir_);
+    if (absl::IsNotFound(files.status())) return absl::OkStatus();  // not created yet
+    if (!files.ok()) return files.status();
+    const auto now = std::chrono::steady_clock::now();
+    for (const std::string& f : *files) {
+      if (!done_file_.empty() && Base(f) == done_file_) continue;
+      std::error_code ec;
+      const uint64_t size = std::filesystem::file_size(f, ec);
+      if (ec) continue;
+      auto [it, inserted] = seen_.try_emplace(f);
+      Seen& s = it->second;
+      if (inserted || s.size != size) {
+        s.size = size;
+        s.since = now;
+        s.whole = false;
+        s.problem.clear();
+        *changed = true;
+      }
+      if (s.whole || !s.problem.empty() || size == 0 ||
+          std::chrono::duration<double>(now - s.since).count() < stable_s_) {
+        continue;
+      }
+      absl::StatusOr<std::optional<SliceHeader>> h = ReadHeader(f);
+      if (!h.ok()) {
+        // Not whole (yet): a DataLoss is a file still being written; anything else is kept
+        // as the problem to report if it never becomes a readable slice.
+        s.problem = problem_ = std::string(h.status().message());
+        continue;
+      }
+      s.whole = true;
+      if (!h->has_value()) continue;  // DICOMDIR
+      if (absl::Status st = Add(**h); !st.ok()) return st;
+    }
+    return absl::OkStatus();
+  }
+
+  absl::Status Add(SliceHeader h) {
+    if (!have_first_) {
+      absl::StatusOr<Frame> frame = FrameOf(h);
+      if (!frame.ok()) return frame.status();
+      frame_ = *frame;
+      first_ = h;
+      have_first_ = true;
+    } else if (absl::Status st = CheckMatches(dir_, first_, h); !st.ok()) {
+      return st;
+    }
+    h.along = Dot(h.position, frame_.normal);
+    const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
+    if (absl::Status st = CheckInLine(dir_, first_, h, frame_.normal, in_plane); !st.ok()) {
+      return st;
+    }
+    if (!sent_.empty() && h.along <= sent_.back().along + 1e-3 * in_plane) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "DICOM series in ", dir_, ": ", Base(h.path), " arrived at or below slices already "
+          "meshed (", FormatDouble(h.along), " mm along the normal, the last sent is at ",
+          FormatDouble(sent_.back().along),
+          " mm); following needs a series that grows along its normal (read a series "
+          "acquired the other way once it is finished, without --follow)"));
+    }
+    auto pos = std::lower_bound(held_.begin(), held_.end(), h.along,
+                                [](const SliceHeader& s, double a) { return s.along < a; });
+    held_.insert(pos, std::move(h));
+    return absl::OkStatus();
+  }
+
+  // Moves held slices to sent_ while each is one step above the last sent. The step is the
+  // smallest gap seen; nothing goes before three slices confirm it, unless final.
+  absl::StatusOr<int64_t> Release(bool final) {
+    const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
+    if (sent_.empty()) {
+      if (held_.size() < (final ? 2u : 3u)) return 0;
+      for (size_t k = 0; k + 1 < held_.size(); ++k) {  // duplicates would look like steps
+        const double d = held_[k + 1].along - held_[k].along;
+        if (d <= 1e-3 * in_plane) return CheckStep(dir_, held_[k], held_[k + 1], d, in_plane);
+      }
+      step_ = RoundStep(MedianStep(held_));
+      plan_ = PlanValues(&held_.front(), &held_.front() + 1);
+    }
+    while (!held_.empty()) {
+      const SliceHeader& next = held_.front();
+      if (!sent_.empty()) {
+        absl::Status st = CheckStep(dir_, sent_.back(), next, step_, in_plane);
+        if (!st.ok()) {
+          if (final) return st;  // the gap never closed
+          break;                 // wait for the slice in between
+        }
+      }
+      sent_.push_back(next);
+      held_.erase(held_.begin());
+    }
+    return static_cast<int64_t>(sent_.size());
+  }
+
+  std::string dir_;
+  double stable_s_;
+  std::string done_file_;
+  std::map<std::string, Seen> seen_;
+  bool have_first_ = false;
+  SliceHeader first_;  // the first file read: the series' identity and geometry
+  Frame frame_;
+  double step_ = 0;
+  ValuePlan plan_;
+  std::vector<SliceHeader> held_;  // complete, not yet handed out, by position
+  std::vector<SliceHeader> sent_;  // handed out, in order
+  std::string problem_;
+  std::vector<uint8_t> buffer_;
+};
+
 }  // namespace
+
+std::unique_ptr<internal::Growing> internal::MakeGrowingDicom(const std::string& dir,
+                                                              double stable_s,
+                                                              const std::string& done_file) {
+  SilenceGdcm();
+  return std::make_unique<GrowingDicom>(dir, stable_s, done_file);
+}
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
     const std::string& dir, const std::vector<std::string>& files) {
@@ -327,6 +662,8 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
   std::vector<SliceHeader> slices;
   slices.reserve(files.size());
   for (const std::string& f : files) {
+    std::error_code ec;
+    if (std::filesystem::file_size(f, ec) == 0 && !ec) continue;  // a marker, not a slice
     absl::StatusOr<std::optional<SliceHeader>> h = ReadHeader(f);
     if (!h.ok()) return h.status();
     if (h->has_value()) slices.push_back(std::move(**h));
@@ -349,131 +686,43 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
         absl::StrCat(dir, ": the folder holds ", by_series.size(), " DICOM series: ",
                      absl::StrJoin(parts, ", "), "; put each series in its own folder"));
   }
-  // One geometry and one pixel type.
-  const SliceHeader& first = slices.front();
-  Vec row{first.orientation[0], first.orientation[1], first.orientation[2]};
-  Vec col{first.orientation[3], first.orientation[4], first.orientation[5]};
-  if (!(Near(Norm(row), 1, 1e-2) && Near(Norm(col), 1, 1e-2) && std::abs(Dot(row, col)) < 1e-2)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(first.path, ": ImageOrientationPatient is not two orthogonal unit vectors"));
-  }
-  for (Vec* v : {&row, &col}) {
-    const double len = Norm(*v);
-    for (double& c : *v) c /= len;
-  }
-  Vec normal = Cross(row, col);
-  {
-    const double len = Norm(normal);
-    for (double& c : normal) c /= len;
-  }
+  // One geometry and one pixel type; ordered along the normal, evenly spaced, in line.
+  const SliceHeader first = slices.front();
+  absl::StatusOr<Frame> frame = FrameOf(first);
+  if (!frame.ok()) return frame.status();
   for (SliceHeader& h : slices) {
-    auto mismatch = [&](const std::string& what) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("DICOM series in ", dir, ": ", Base(h.path), " and ", Base(first.path),
-                       " differ in ", what, " (every slice of a series must match)"));
-    };
-    if (h.rows != first.rows || h.cols != first.cols) {
-      return mismatch(absl::StrCat("size (", h.cols, "x", h.rows, " vs ", first.cols, "x",
-                                   first.rows, ")"));
-    }
-    for (int i = 0; i < 6; ++i) {
-      if (!Near(h.orientation[i], first.orientation[i], 1e-4)) {
-        return mismatch("ImageOrientationPatient");
-      }
-    }
-    if (h.has_spacing != first.has_spacing ||
-        !Near(h.row_spacing, first.row_spacing, 1e-4 * first.row_spacing) ||
-        !Near(h.col_spacing, first.col_spacing, 1e-4 * first.col_spacing)) {
-      return mismatch("PixelSpacing");
-    }
-    if (StoredType(h) != StoredType(first) || h.bits_stored != first.bits_stored) {
-      return mismatch("pixel type (BitsAllocated / BitsStored / PixelRepresentation)");
-    }
-    h.along = Dot(h.position, normal);
+    if (absl::Status st = CheckMatches(dir, first, h); !st.ok()) return st;
+    h.along = Dot(h.position, frame->normal);
   }
   std::sort(slices.begin(), slices.end(),
             [](const SliceHeader& a, const SliceHeader& b) { return a.along < b.along; });
   const int64_t nz = static_cast<int64_t>(slices.size());
-  std::vector<double> steps;
-  for (int64_t k = 0; k + 1 < nz; ++k) steps.push_back(slices[k + 1].along - slices[k].along);
-  std::vector<double> sorted = steps;
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-  const double median = sorted[sorted.size() / 2];
   const double in_plane = std::min(first.row_spacing, first.col_spacing);
+  for (int64_t k = 0; k + 1 < nz; ++k) {  // duplicates first: they would look like gaps
+    const double d = slices[k + 1].along - slices[k].along;
+    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], d, in_plane); !st.ok()) {
+      return st;
+    }
+  }
+  const double median = MedianStep(slices);
   for (int64_t k = 0; k + 1 < nz; ++k) {
-    const SliceHeader& a = slices[k];
-    const SliceHeader& b = slices[k + 1];
-    if (steps[k] <= 1e-3 * in_plane) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("DICOM series in ", dir, ": ", Base(a.path), " and ", Base(b.path),
-                       " are at the same position (", FormatDouble(a.along),
-                       " mm along the normal); duplicate slice?"));
+    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], median, in_plane); !st.ok()) {
+      return st;
     }
   }
-  for (int64_t k = 0; k + 1 < nz; ++k) {
-    if (std::abs(steps[k] - median) > 0.1 * median) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "DICOM series in ", dir, ": gap between ", Base(slices[k].path), " and ",
-          Base(slices[k + 1].path), ": ", FormatDouble(steps[k]),
-          " mm apart where the series' usual step is ", FormatDouble(median),
-          " mm (a missing slice, or an irregular series)"));
-    }
-  }
-  const double step = (slices.back().along - slices.front().along) / static_cast<double>(nz - 1);
   for (const SliceHeader& h : slices) {
-    Vec off{h.position[0] - first.position[0], h.position[1] - first.position[1],
-            h.position[2] - first.position[2]};
-    const double along = Dot(off, normal);
-    const Vec side{off[0] - along * normal[0], off[1] - along * normal[1],
-                   off[2] - along * normal[2]};
-    if (Norm(side) > 0.1 * in_plane) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "DICOM series in ", dir, ": ", Base(h.path), " is shifted ", FormatDouble(Norm(side)),
-          " mm sideways from the slice normal (gantry tilt?); tilted series are not supported"));
+    if (absl::Status st = CheckInLine(dir, slices.front(), h, frame->normal, in_plane); !st.ok()) {
+      return st;
     }
   }
-  // Values: stored type, int16 (CT's slope 1, integer intercept), or float32.
-  const DType stored = StoredType(first);
-  bool rescale = false, integer_shift = true;
-  for (const SliceHeader& h : slices) {
-    if (h.slope != 1.0 || h.intercept != 0.0) rescale = true;
-    if (h.slope != 1.0 || h.intercept != std::round(h.intercept) ||
-        h.intercept != slices.front().intercept) {
-      integer_shift = false;
-    }
-  }
-  VolumeInfo info;
-  info.nx = first.cols;
-  info.ny = first.rows;
-  info.nz = nz;
-  info.dtype = stored;
-  if (rescale) {
-    info.dtype = DType::kFloat32;
-    if (integer_shift && stored != DType::kUInt8) {
-      const double lo = first.pixel_representation ? -std::ldexp(1.0, first.bits_stored - 1) : 0.0;
-      const double hi = first.pixel_representation ? std::ldexp(1.0, first.bits_stored - 1) - 1
-                                                   : std::ldexp(1.0, first.bits_stored) - 1;
-      const double b = first.intercept;
-      if (lo + b >= std::numeric_limits<int16_t>::min() &&
-          hi + b <= std::numeric_limits<int16_t>::max()) {
-        info.dtype = DType::kInt16;
-      }
-    }
-  }
-  info.spacing = {first.col_spacing, first.row_spacing, step};
-  info.origin = slices.front().position;
-  for (double& c : normal) c += 0.0;  // no "-0" in messages
-  info.directions = {row, col, normal};
-  info.description =
-      absl::StrCat("DICOM ", first.modality.empty() ? "" : first.modality + " ", "series",
-                   first.description.empty() ? "" : " '" + first.description + "'", ", ", nz,
-                   " files", rescale ? ", rescaled values" : "",
-                   first.has_spacing ? "" : " (no PixelSpacing: 1 mm assumed)");
+  const ValuePlan plan = PlanValues(slices.data(), slices.data() + slices.size());
+  const double step = RoundStep((slices.back().along - slices.front().along) / static_cast<double>(nz - 1));
+  VolumeInfo info = MakeInfo(slices.front(), *frame, nz, step, plan);
+  absl::StrAppend(&info.description, ", ", nz, " files");
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
     return absl::InvalidArgumentError(absl::StrCat("DICOM series in ", dir, ": ", st.message()));
   }
-  return std::unique_ptr<SliceSource>(
-      new DicomSliceSource(std::move(slices), std::move(info), stored, rescale));
+  return std::unique_ptr<SliceSource>(new DicomSliceSource(std::move(slices), std::move(info), plan));
 }
 
 absl::StatusOr<DicomSyntax> ParseDicomSyntax(const std::string& name) {

@@ -1,5 +1,6 @@
 // Headerless raw voxels described by a JSON sidecar (the format of ../shared/data):
 //   {"dims": [nx, ny, nz], "dtype": "int16", "spacing": [sx, sy, sz], "origin": [..],
+//    "directions": [[x axis], [y axis], [z axis]] (optional, orthonormal; default identity),
 //    "byte_order": "little", "raw_file": "NAME.raw", "raw_bytes": N,
 //    "suggested_isovalues": [..], "description": ".."}
 // Only dims and dtype are required. raw_file is relative to the sidecar's folder and
@@ -85,6 +86,20 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
 
   if (absl::Status st = ReadVec3(path, j, "spacing", &info.spacing); !st.ok()) return st;
   if (absl::Status st = ReadVec3(path, j, "origin", &info.origin); !st.ok()) return st;
+  if (j.contains("directions")) {  // optional: [[x axis], [y axis], [z axis]] in the world
+    const json& d = j["directions"];
+    if (!d.is_array() || d.size() != 3) {
+      return SidecarError(path, "\"directions\" must be 3 arrays of 3 numbers (the world "
+                                "unit vectors of the x, y and z axes)");
+    }
+    for (int a = 0; a < 3; ++a) {
+      json axis = json::object({{"v", d[a]}});
+      if (absl::Status st = ReadVec3(path, axis, "v", &info.directions[a]); !st.ok()) {
+        return SidecarError(path, absl::StrCat("\"directions\"[", a,
+                                               "] must be an array of 3 numbers"));
+      }
+    }
+  }
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
     return SidecarError(path, st.message());
   }

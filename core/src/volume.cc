@@ -165,6 +165,40 @@ void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst) {
   }
 }
 
+absl::Status ValueRangeSource::ReadSlice(std::vector<uint8_t>* bytes) {
+  absl::Status st = inner_->ReadSlice(bytes);
+  if (st.ok()) Scan(bytes->data());
+  return st;
+}
+
+absl::Status ValueRangeSource::ViewSlice(const uint8_t** data) {
+  absl::Status st = inner_->ViewSlice(data);
+  if (st.ok() && *data != nullptr) Scan(*data);
+  return st;
+}
+
+void ValueRangeSource::Scan(const uint8_t* data) {
+  const VolumeInfo& info = inner_->info();
+  values_.resize(static_cast<size_t>(info.slice_voxels()));
+  ConvertToFloat(info.dtype, data, values_.size(), values_.data());
+  float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+  for (float v : values_) {
+    if (v == v) {  // NaN never; infinities are values too (they stay on one side)
+      lo = std::min(lo, v);
+      hi = std::max(hi, v);
+    }
+  }
+  if (lo <= hi) {
+    if (lo_ > hi_) {
+      lo_ = lo;
+      hi_ = hi;
+    } else {
+      lo_ = std::min<double>(lo_, lo);
+      hi_ = std::max<double>(hi_, hi);
+    }
+  }
+}
+
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path) {
   // Zarr stores are directories; "image.zarr#1" picks level 1 (see tandem/zarr.h).
   if (auto [store, selector] = SplitZarrSelector(path); internal::LooksLikeZarr(store)) {

@@ -211,6 +211,11 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
   j["dtype"] = std::string(DTypeName(info.dtype));
   j["spacing"] = {info.spacing[0], info.spacing[1], info.spacing[2]};
   j["origin"] = {info.origin[0], info.origin[1], info.origin[2]};
+  if (!info.axis_aligned()) {
+    const auto& d = info.directions;
+    j["directions"] = {{d[0][0], d[0][1], d[0][2]}, {d[1][0], d[1][1], d[1][2]},
+                       {d[2][0], d[2][1], d[2][2]}};
+  }
   j["byte_order"] = opts.big_endian ? "big" : "little";
   j["layout"] = "x fastest, then y, then z: offset=((k*ny+j)*nx+i)*sizeof(dtype)";
   j["source"] = opts.source;
@@ -674,12 +679,12 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
   if (info.nz == 0) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": nz must be known to write a volume"));
   }
-  if (!info.axis_aligned()) {
+  const std::string ext = internal::VolumeExtension(path);
+  if (!info.axis_aligned() && ext != ".json") {
     return absl::UnimplementedError(absl::StrCat(
         path, ": this writer stores spacing and origin only, not rotated or flipped grid "
-              "directions (a DICOM series stores them)"));
+              "directions (a .json sidecar and a DICOM series store them)"));
   }
-  const std::string ext = internal::VolumeExtension(path);
   if (ext == ".json") return internal::WriteRawJson(path, info, slice_fn, opts);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::WriteNrrd(path, info, slice_fn, opts);
   if (ext == ".nii" || ext == ".nii.gz") return internal::WriteNifti(path, info, slice_fn, opts);

@@ -1,5 +1,6 @@
 // Following an acquisition in progress: a SliceSource over a folder (DICOM series or numbered
-// TIFFs) or a Zarr array that is still being written. ReadSlice hands out each slice as soon
+// TIFFs, told apart by the first files to appear) or a Zarr array that is still being
+// written. The folder or store need not exist yet. ReadSlice hands out each slice as soon
 // as it is complete and every slice before it has been handed out, waiting (polling) for it
 // otherwise; it returns OutOfRange when the acquisition is over:
 //   - after `expect_slices` slices, when given;
@@ -13,8 +14,9 @@
 //   - DICOM: a file whose size is stable and whose header and pixel data length are whole;
 //     slices are handed out in order of position along the normal, and one is held back
 //     until the slice one step below it has been handed out (the series grows along the
-//     normal, in bursts, in any order within a burst). A file that arrives below a slice
-//     already handed out, or at its position, is an error naming it;
+//     normal, in bursts, in any order within a burst; the step is the median gap once three
+//     slices have arrived). A file that arrives below a slice already handed out, or at its
+//     position, is an error naming it, and so is a gap still open when the scan ends;
 //   - Zarr: the planes of chunk rows whose every chunk file exists (CountCompleteZarrPlanes).
 #ifndef TANDEM_FOLLOW_H_
 #define TANDEM_FOLLOW_H_

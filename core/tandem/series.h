@@ -9,8 +9,8 @@
 //
 // DICOM (through GDCM, which decodes the transfer syntaxes its codecs support: implicit and
 // explicit VR little endian, deflate, RLE, JPEG lossless and lossy, JPEG-LS, JPEG 2000):
-//   - every regular, non-hidden file must be a DICOM image of one series (DICOMDIR files are
-//     skipped); a second SeriesInstanceUID, a file that is not DICOM, multi-frame or colour
+//   - every regular, non-hidden, non-empty file must be a DICOM image of one series (DICOMDIR
+//     files and empty marker files are skipped); a second SeriesInstanceUID, a file that is not DICOM, multi-frame or colour
 //     images are errors that name the files;
 //   - slices are ordered by ImagePositionPatient projected on the slice normal (the cross
 //     product of the ImageOrientationPatient row and column directions), not by file name or

@@ -74,6 +74,29 @@ class SliceSource {
   }
 };
 
+// Wraps a source and records the range of the finite values it hands out (read or viewed),
+// so that a caller can tell a user that the iso-value lies outside the data. One extra pass
+// over each slice's values, converted as the session converts them.
+class ValueRangeSource final : public SliceSource {
+ public:
+  explicit ValueRangeSource(SliceSource* inner) : inner_(inner) {}
+  const VolumeInfo& info() const override { return inner_->info(); }
+  int64_t next_slice() const override { return inner_->next_slice(); }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override;
+  absl::Status ViewSlice(const uint8_t** data) override;
+  // Range of the finite values seen so far; lo > hi while there are none.
+  double lo() const { return lo_; }
+  double hi() const { return hi_; }
+  // True when iso cannot cross the data seen: every value on one side of it (or none).
+  bool Outside(double iso) const { return !(lo_ < iso && iso < hi_); }
+
+ private:
+  void Scan(const uint8_t* data);
+  SliceSource* inner_;
+  double lo_ = 1.0, hi_ = -1.0;
+  std::vector<float> values_;
+};
+
 // Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
 

@@ -312,5 +312,22 @@ TEST_F(Cli, FoldersOfSlicesAreVolumesAndInfoShowsTheValues) {
   EXPECT_NE(o.text.find("directions"), std::string::npos) << o.text;
 }
 
+TEST_F(Cli, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
+  ASSERT_EQ(RunTandem("generate sphere --size 20 --out " + Path("s.json")).code, 0);
+  Output o = RunTandem("extract --input " + Path("s.json") + " --iso 1000 --quiet --out " +
+                       Path("e.ply"));
+  EXPECT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("iso 1000 is outside the data's value range ["), std::string::npos)
+      << o.text;
+  o = RunTandem("extract --input " + Path("s.json") + " --iso 1000 --quiet --strict --out " +
+                Path("e2.ply"));
+  EXPECT_EQ(o.code, 3) << o.text;
+  EXPECT_TRUE(std::filesystem::exists(Path("e2.ply"))) << "the (empty) mesh is still written";
+  o = RunTandem("extract --input " + Path("s.json") + " --iso 0 --quiet --strict --out " +
+                Path("e3.ply"));
+  EXPECT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
+}
+
 }  // namespace
 }  // namespace tandem

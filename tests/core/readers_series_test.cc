@@ -22,6 +22,7 @@
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
+#include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
 
 namespace tandem {
@@ -349,6 +350,49 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
   auto empty = OpenVolume(testing::MakeTempDir());
   ASSERT_FALSE(empty.ok());
   EXPECT_TRUE(absl::StrContains(empty.status().message(), "empty folder")) << empty.status();
+}
+
+TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
+  const std::string root = testing::MakeTempDir();
+  auto link = MakeSyntheticSource(Shape::kLink, 30, 28, 26, {0.5, 0.5, 0.5});
+  VolumeInfo info = link->info();
+  std::vector<std::vector<uint8_t>> slices(info.nz);
+  for (auto& b : slices) ASSERT_TRUE(link->ReadSlice(&b).ok());
+  const SliceFn fn = [&](int64_t z, std::vector<uint8_t>* b) {
+    *b = slices[z];
+    return absl::OkStatus();
+  };
+  ASSERT_TRUE(WriteVolume(root + "/plain.json", info, fn).ok());
+  VolumeInfo turned = info;
+  turned.directions = {{{0, 0, 1}, {1, 0, 0}, {0, 1, 0}}};  // a cyclic permutation: exact
+  ASSERT_TRUE(WriteVolume(root + "/turned.json", turned, fn).ok());
+  auto plain = OpenVolume(root + "/plain.json");
+  auto moved = OpenVolume(root + "/turned.json");
+  ASSERT_TRUE(plain.ok() && moved.ok());
+  EXPECT_EQ((*moved)->info().directions, turned.directions);
+  SessionOptions o;
+  o.iso = 0;
+  o.error = 0.05;
+  auto a = RunSession(**plain, o);
+  auto b = RunSession(**moved, o);
+  ASSERT_TRUE(a.ok() && b.ok());
+  const IndexedMesh ma = (*a)->Snapshot(), mb = (*b)->Snapshot();
+  ASSERT_EQ(ma.indices, mb.indices);
+  for (size_t i = 0; i < ma.positions.size(); ++i) {
+    const Vec3 p = ma.positions[i];
+    ASSERT_EQ(mb.positions[i], (Vec3{p.y, p.z, p.x})) << i;
+  }
+  // A sidecar with sheared or malformed directions is refused, naming the key.
+  std::ofstream(root + "/bad.json") << R"({"dims": [30, 28, 26], "dtype": "float32",
+      "raw_file": "plain.raw", "directions": [[1, 0, 0], [1, 1, 0], [0, 0, 1]]})";
+  auto bad = OpenVolume(root + "/bad.json");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_TRUE(absl::StrContains(bad.status().message(), "orthonormal")) << bad.status();
+  std::ofstream(root + "/bad2.json") << R"({"dims": [30, 28, 26], "dtype": "float32",
+      "raw_file": "plain.raw", "directions": [1, 0, 0]})";
+  auto bad2 = OpenVolume(root + "/bad2.json");
+  ASSERT_FALSE(bad2.ok());
+  EXPECT_TRUE(absl::StrContains(bad2.status().message(), "directions")) << bad2.status();
 }
 
 TEST(Directions, MustBeOrthonormal) {

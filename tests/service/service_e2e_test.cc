@@ -553,4 +553,68 @@ TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
   for (int a = 0; a < 3; ++a) EXPECT_NEAR((lo[a] + hi[a]) / 2, world[a], 2.0) << a;
 }
 
+// The README's live demo: `tandem simulate` plays a CT writing a series in shuffled bursts
+// (and a microscope growing an OME-Zarr array) while `tandem-client stream --follow` sends
+// each slice to the real server as it becomes complete. The followed stream gives exactly
+// the mesh of the finished acquisition, and its first preview is saved before the
+// simulator has written the last slice.
+TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
+  auto path = WriteSyntheticVolume(dir_, "pb", MakeSyntheticSource(Shape::kPillowBox, 48, 48, 48));
+  ASSERT_TRUE(path.ok()) << path.status();
+  for (const std::string as : {"dicom", "zarr"}) {
+    SCOPED_TRACE(as);
+    const std::string acq = dir_ + "/acq_" + as + (as == "zarr" ? ".zarr" : "");
+    const std::string previews = dir_ + "/previews_" + as;
+    RunResult sim;
+    std::thread instrument([&] {
+      sim = RunProcess({BinPath("tandem"), "simulate", "--input", *path, "--out", acq, "--as", as,
+                        "--rate", "40", "--burst", "6", "--done-file", "DONE"});
+    });
+    std::vector<std::string> follow = {"stream", "--server", server_->address(), "--input", acq,
+                                       "--follow", "--settle", "20", "--iso", "0", "--error",
+                                       "0.2", "--compression-level", "0", "--preview-every",
+                                       "6", "--partials", previews, "--out",
+                                       dir_ + "/followed.drc"};
+    if (as == "dicom") {
+      follow.insert(follow.end(), {"--done-file", "DONE"});
+    } else {
+      follow.insert(follow.end(), {"--expect-slices", "48"});
+    }
+    RunResult r = Client(follow);
+    instrument.join();
+    ASSERT_EQ(sim.exit_code, 0) << sim.err;
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    RunResult whole = Client({"stream", "--server", server_->address(), "--input", acq, "--iso",
+                              "0", "--error", "0.2", "--compression-level", "0", "--out",
+                              dir_ + "/whole.drc"});
+    ASSERT_EQ(whole.exit_code, 0) << whole.err;
+    auto followed = codec::DecodeDraco(ReadFile(dir_ + "/followed.drc"));
+    auto finished = codec::DecodeDraco(ReadFile(dir_ + "/whole.drc"));
+    ASSERT_TRUE(followed.ok() && finished.ok());
+    ASSERT_GT(finished->num_triangles(), 100u);
+    EXPECT_EQ(followed->indices, finished->indices);
+    EXPECT_EQ(followed->positions, finished->positions);
+    // The first preview was on disk before the last slice was.
+    std::filesystem::path first;
+    for (const auto& e : std::filesystem::directory_iterator(previews)) {
+      if (first.empty() || e.path() < first) first = e.path();
+    }
+    ASSERT_FALSE(first.empty()) << "no preview saved";
+    EXPECT_LT(std::filesystem::last_write_time(first),
+              std::filesystem::last_write_time(acq + "/DONE"));
+  }
+}
+
+TEST_F(ServiceE2eTest, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
+  auto path = WriteSyntheticVolume(dir_, "s", MakeSyntheticSource(Shape::kSphere, 20, 20, 20));
+  ASSERT_TRUE(path.ok()) << path.status();
+  std::vector<std::string> args = {"stream", "--server", server_->address(), "--input", *path,
+                                   "--iso", "1000", "--error", "0.3", "--out", dir_ + "/e.ply"};
+  RunResult r = Client(args);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("iso 1000 is outside the data's value range"), std::string::npos) << r.err;
+  r = Client(Concat(args, {"--strict"}));
+  EXPECT_EQ(r.exit_code, 3) << r.err;
+}
+
 }  // namespace tandem::testing
