@@ -331,6 +331,7 @@ int StreamCommand(int argc, char** argv) {
 
   tandem::MetricsReport report = tandem::wire::ReportFromProto(result->metrics);
   report.input = input;
+  report.frame = (*source)->info().frame;
   absl::PrintF("%s", tandem::ReportSummary(report));
   absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", "stream wall time",
                result->seconds, result->slices_sent,

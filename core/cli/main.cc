@@ -333,6 +333,7 @@ int Extract(int argc, char** argv) {
 
   MetricsReport report = measured.get();
   report.input = *input;
+  report.frame = info.frame;
   if (args->Has("reference")) {
     auto ref_source = OpenVolume(*input);
     if (!ref_source.ok()) return Fail(ref_source.status());
@@ -574,6 +575,7 @@ int Info(int argc, char** argv) {
   std::printf("dtype    %s\n", std::string(DTypeName(i.dtype)).c_str());
   std::printf("spacing  %g %g %g\n", i.spacing[0], i.spacing[1], i.spacing[2]);
   std::printf("origin   %g %g %g\n", i.origin[0], i.origin[1], i.origin[2]);
+  std::printf("frame    %s\n", i.frame.c_str());
   if (!i.axis_aligned()) {
     const auto& d = i.directions;
     std::printf("axes     x (%g %g %g)  y (%g %g %g)  z (%g %g %g)\n", d[0][0], d[0][1], d[0][2],

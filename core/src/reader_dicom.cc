@@ -370,6 +370,7 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
   info.spacing = {first.col_spacing, first.row_spacing, step};
   info.origin = first.position;
   info.directions = {frame.row, frame.col, frame.normal};
+  info.frame = "DICOM patient LPS (mm)";
   info.description =
       absl::StrCat("DICOM ", first.modality.empty() ? "" : first.modality + " ", "series",
                    first.description.empty() ? "" : " '" + first.description + "'",

@@ -1,13 +1,17 @@
 // NIfTI-1 single-file reader (.nii, and .nii.gz streamed through zlib). The 348-byte header
-// is read in either byte order (sizeof_hdr tells which). Geometry: spacing = |pixdim[1..3]|
-// in storage axis order; origin = qoffset_x/y/z when qform_code > 0, else srow_x/y/z[3]
-// when sform_code > 0, else 0. Rotations in qform/sform are not applied (axes stay the
-// storage axes, as for the shared raw volumes). Intensity scaling follows the standard:
+// is read in either byte order (sizeof_hdr tells which). World frame (RAS, the file's
+// units), as the standard orders the methods: the sform when sform_code > 0 (and its axes
+// are orthogonal), else the qform when qform_code > 0 (the quaternion turned into a matrix
+// by nifticlib), else pixdim spacing on the storage axes at origin 0. The matrix's columns
+// give each axis's spacing (length) and direction (rotations and flips applied), its last
+// column the origin. Intensity scaling follows the standard:
 // scl_slope == 0 means "none"; otherwise, unless it is the identity (slope 1, inter 0),
 // slices are delivered as float32 value * scl_slope + scl_inter.
 #include <cmath>
 #include <cstdio>
 #include <string>
+
+#include <nifti1_io.h>
 
 #include "absl/strings/str_cat.h"
 #include "readers_internal.h"
@@ -16,6 +20,23 @@ namespace tandem::internal {
 namespace {
 
 namespace nh = nifti;
+
+// The sform may hold any affine; a sheared one cannot be a grid frame (the qform then).
+bool OrthogonalColumns(const mat44& m) {
+  double col[3][3];
+  for (int a = 0; a < 3; ++a) {
+    for (int b = 0; b < 3; ++b) col[a][b] = m.m[b][a];
+  }
+  for (int a = 0; a < 3; ++a) {
+    for (int b = a + 1; b < 3; ++b) {
+      const double dot = col[a][0] * col[b][0] + col[a][1] * col[b][1] + col[a][2] * col[b][2];
+      const double la = std::sqrt(col[a][0] * col[a][0] + col[a][1] * col[a][1] + col[a][2] * col[a][2]);
+      const double lb = std::sqrt(col[b][0] * col[b][0] + col[b][1] * col[b][1] + col[b][2] * col[b][2]);
+      if (!(std::abs(dot) <= 1e-4 * la * lb)) return false;
+    }
+  }
+  return true;
+}
 
 absl::Status NiftiError(const std::string& path, absl::string_view what) {
   return absl::InvalidArgumentError(absl::StrCat(path, ": ", what));
@@ -147,16 +168,46 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const uint
                                          " (", NiftiTypeName(datatype), ")"));
   }
 
-  for (int a = 0; a < 3; ++a) {
-    info.spacing[a] = std::abs(LoadScalar<float>(hdr + nh::kPixdim + 4 * (a + 1), swap));
-  }
+  float pixdim[4];
+  for (int i = 0; i < 4; ++i) pixdim[i] = LoadScalar<float>(hdr + nh::kPixdim + 4 * i, swap);
+  for (int a = 0; a < 3; ++a) info.spacing[a] = std::abs(pixdim[a + 1]);
   const int16_t qform_code = LoadScalar<int16_t>(hdr + nh::kQformCode, swap);
   const int16_t sform_code = LoadScalar<int16_t>(hdr + nh::kSformCode, swap);
-  for (int a = 0; a < 3; ++a) {
-    if (qform_code > 0) {
-      info.origin[a] = LoadScalar<float>(hdr + nh::kQoffsetX + 4 * a, swap);
-    } else if (sform_code > 0) {
-      info.origin[a] = LoadScalar<float>(hdr + nh::kSrowX + 16 * a + 12, swap);
+  mat44 m{};
+  bool have = false;
+  const char* method = "sform";
+  if (sform_code > 0) {
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 4; ++c) m.m[r][c] = LoadScalar<float>(hdr + nh::kSrowX + 16 * r + 4 * c, swap);
+    }
+    have = OrthogonalColumns(m);
+  }
+  if (!have && qform_code > 0) {
+    float q[3], o[3];
+    for (int i = 0; i < 3; ++i) {
+      q[i] = LoadScalar<float>(hdr + nh::kQuaternB + 4 * i, swap);
+      o[i] = LoadScalar<float>(hdr + nh::kQoffsetX + 4 * i, swap);
+    }
+    method = "qform";
+    m = nifti_quatern_to_mat44(q[0], q[1], q[2], o[0], o[1], o[2], pixdim[1], pixdim[2],
+                               pixdim[3], pixdim[0] < 0 ? -1.0f : 1.0f);
+    have = true;
+  }
+  if (have) {
+    info.frame = absl::StrCat("NIfTI ", method, " RAS");
+    for (int a = 0; a < 3; ++a) {
+      const double col[3] = {m.m[0][a], m.m[1][a], m.m[2][a]};
+      const double len = std::sqrt(col[0] * col[0] + col[1] * col[1] + col[2] * col[2]);
+      if (!(len > 0) || !std::isfinite(len)) {
+        return NiftiError(path, absl::StrCat(method, " axis ", a,
+                                             " has length ", len));
+      }
+      // The float matrix holds pixdim only to float precision: where they agree, pixdim is
+      // the spacing (so a rotated grid is simplified exactly as the unrotated one).
+      const double pd = std::abs(pixdim[a + 1]);
+      info.spacing[a] = std::abs(len - pd) <= 1e-5 * len ? pd : len;
+      for (int b = 0; b < 3; ++b) info.directions[a][b] = col[b] / len + 0.0;
+      info.origin[a] = m.m[a][3];
     }
   }
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return NiftiError(path, st.message());

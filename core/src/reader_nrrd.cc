@@ -1,8 +1,8 @@
 // NRRD reader: attached (.nrrd, header then a blank line then data) and detached (.nhdr
 // with "data file:"). Supported: dimension 3; types uchar/ushort/short/float and their
-// aliases; encodings raw and gzip; endian little/big; "spacings" or axis-aligned
-// "space directions" (absolute values: axes are taken in storage order, flips are not
-// applied); "space origin"; "byte skip" >= 0 (and -1 for raw data); "content" becomes the
+// aliases; encodings raw and gzip; endian little/big; "spacings" or "space directions"
+// (lengths = spacing, unit vectors = the grid axes in the file's space: rotations and flips
+// are applied, sheared grids refused); "space origin"; "byte skip" >= 0 (and -1 for raw data); "content" becomes the
 // description and a "suggested_isovalues:=v1 v2" key/value pair is read back.
 #include <algorithm>
 #include <cmath>
@@ -208,23 +208,28 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
         ParseVectors(path, "space directions", *dirs);
     if (!v.ok()) return v.status();
     if (v->size() != 3) return NrrdError(path, "\"space directions\" needs 3 vectors");
+    // Each vector is one voxel step in the world: its length is the spacing, its direction
+    // the axis (rotations and flips applied; ValidateVolumeInfo refuses shear).
     for (int a = 0; a < 3; ++a) {
       const auto& d = (*v)[a];
       const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-      for (int b = 0; b < 3; ++b) {
-        if (b != a && std::abs(d[b]) > 1e-6 * len) {
-          return NrrdError(path, absl::StrCat("\"space directions\" \"", *dirs,
-                                              "\" are not axis-aligned (rotated or sheared "
-                                              "grids are not supported)"));
-        }
+      if (!(len > 0) || !std::isfinite(len)) {
+        return NrrdError(path, absl::StrCat("\"space directions\" vector ", a, " has length ",
+                                            len));
       }
-      info.spacing[a] = std::abs(d[a]);
+      info.spacing[a] = len;
+      for (int b = 0; b < 3; ++b) info.directions[a][b] = d[b] / len + 0.0;
     }
   } else if (const std::string* sp = h.Find("spacings"); sp != nullptr) {
     if (absl::Status st = ParseNumbers(path, "spacings", *sp, 3, info.spacing.data()); !st.ok()) {
       return st;
     }
     for (double& s : info.spacing) s = std::abs(s);
+  }
+  if (const std::string* space = h.Find("space"); space != nullptr) {
+    info.frame = absl::StrCat("NRRD space ", *space);
+  } else if (h.Find("space directions") != nullptr) {
+    info.frame = "NRRD space directions";
   }
   if (const std::string* org = h.Find("space origin"); org != nullptr) {
     absl::StatusOr<std::vector<std::array<double, 3>>> v = ParseVectors(path, "space origin", *org);

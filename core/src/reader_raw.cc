@@ -87,6 +87,7 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
   if (absl::Status st = ReadVec3(path, j, "spacing", &info.spacing); !st.ok()) return st;
   if (absl::Status st = ReadVec3(path, j, "origin", &info.origin); !st.ok()) return st;
   if (j.contains("directions")) {  // optional: [[x axis], [y axis], [z axis]] in the world
+    info.frame = "sidecar origin, spacing and directions";
     const json& d = j["directions"];
     if (!d.is_array() || d.size() != 3) {
       return SidecarError(path, "\"directions\" must be 3 arrays of 3 numbers (the world "

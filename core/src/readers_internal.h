@@ -161,6 +161,7 @@ inline constexpr int kXyztUnits = 123;  // char
 inline constexpr int kDescrip = 148;    // char[80]
 inline constexpr int kQformCode = 252;  // int16
 inline constexpr int kSformCode = 254;  // int16
+inline constexpr int kQuaternB = 256;   // float x3 (b, c, d)
 inline constexpr int kQoffsetX = 268;   // float x3
 inline constexpr int kSrowX = 280;      // float[4] x3 (srow_x, srow_y, srow_z)
 inline constexpr int kMagic = 344;      // char[4]

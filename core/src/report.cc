@@ -66,6 +66,7 @@ std::string DistancesToJson(const Distances& d) {
 std::string ReportToJson(const MetricsReport& r) {
   nlohmann::json j;
   j["input"] = r.input;
+  j["frame"] = r.frame;
   j["schedule"] = r.schedule;
   j["iso"] = r.iso;
   j["error_threshold"] = r.error_threshold;
@@ -108,6 +109,7 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
   MetricsReport r;
   try {
     r.input = j.value("input", "");
+    r.frame = j.value("frame", "");
     r.schedule = j.value("schedule", "");
     r.iso = j.value("iso", 0.0);
     r.error_threshold = j.value("error_threshold", 0.0);

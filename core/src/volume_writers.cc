@@ -13,6 +13,8 @@
 #include <string>
 #include <utility>
 
+#include <nifti1_io.h>
+
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_replace.h"
 #include "nlohmann/json.hpp"
@@ -253,10 +255,16 @@ absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const Sl
                                                     : "float";
   const auto& s = info.spacing;
   const auto& o = info.origin;
+  std::string dirs;  // one voxel step per axis, in the world
+  for (int a = 0; a < 3; ++a) {
+    const auto& d = info.directions[a];
+    absl::StrAppend(&dirs, a ? " (" : "(", FormatDouble(d[0] * s[a] + 0.0), ",",
+                    FormatDouble(d[1] * s[a] + 0.0), ",", FormatDouble(d[2] * s[a] + 0.0), ")");
+  }
   std::string header = absl::StrCat(
       "NRRD0004\n# written by tandem\ntype: ", type, "\ndimension: 3\nsizes: ", info.nx, " ",
-      info.ny, " ", info.nz, "\nspace dimension: 3\nspace directions: (", FormatDouble(s[0]),
-      ",0,0) (0,", FormatDouble(s[1]), ",0) (0,0,", FormatDouble(s[2]), ")\nspace origin: (",
+      info.ny, " ", info.nz, "\nspace dimension: 3\nspace directions: ", dirs,
+      "\nspace origin: (",
       FormatDouble(o[0]), ",", FormatDouble(o[1]), ",", FormatDouble(o[2]),
       ")\nkinds: domain domain domain\nendian: ", opts.big_endian ? "big" : "little",
       "\nencoding: ", opts.gzip ? "gzip" : "raw", "\n");
@@ -333,14 +341,28 @@ absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const S
   hdr[nh::kXyztUnits] = 2;  // NIFTI_UNITS_MM
   std::memcpy(hdr.data() + nh::kDescrip, info.description.data(),
               std::min<size_t>(info.description.size(), 79));
-  // Scanner-independent identity orientation: qform and sform both hold spacing and origin.
+  // The grid's frame in both forms: the sform holds the matrix (axis a's column = spacing x
+  // direction, the origin last), the qform the same as a quaternion (nifticlib converts).
   StoreScalar<int16_t>(hdr.data() + nh::kQformCode, 1, swap);
   StoreScalar<int16_t>(hdr.data() + nh::kSformCode, 1, swap);
+  mat44 m{};
+  for (int r = 0; r < 3; ++r) {
+    for (int a = 0; a < 3; ++a) {
+      m.m[r][a] = static_cast<float>(info.directions[a][r] * info.spacing[a]);
+    }
+    m.m[r][3] = static_cast<float>(info.origin[r]);
+  }
+  m.m[3][3] = 1.0f;
+  float qb, qc, qd, qx, qy, qz, dx, dy, dz, qfac;
+  nifti_mat44_to_quatern(m, &qb, &qc, &qd, &qx, &qy, &qz, &dx, &dy, &dz, &qfac);
+  StoreScalar<float>(hdr.data() + nh::kPixdim, qfac, swap);
+  const float quatern[3] = {qb, qc, qd};
+  for (int i = 0; i < 3; ++i) StoreScalar<float>(hdr.data() + nh::kQuaternB + 4 * i, quatern[i], swap);
   for (int a = 0; a < 3; ++a) {
     const float origin = static_cast<float>(info.origin[a]);
     StoreScalar<float>(hdr.data() + nh::kQoffsetX + 4 * a, origin, swap);
     uint8_t* row = hdr.data() + nh::kSrowX + 16 * a;
-    StoreScalar<float>(row + 4 * a, static_cast<float>(info.spacing[a]), swap);
+    for (int c = 0; c < 3; ++c) StoreScalar<float>(row + 4 * c, m.m[a][c], swap);
     StoreScalar<float>(row + 12, origin, swap);
   }
   std::memcpy(hdr.data() + nh::kMagic, "n+1\0", 4);
@@ -680,10 +702,10 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
     return absl::InvalidArgumentError(absl::StrCat(path, ": nz must be known to write a volume"));
   }
   const std::string ext = internal::VolumeExtension(path);
-  if (!info.axis_aligned() && ext != ".json") {
+  if (!info.axis_aligned() && (ext == ".tif" || ext == ".tiff" || ext == ".zarr")) {
     return absl::UnimplementedError(absl::StrCat(
         path, ": this writer stores spacing and origin only, not rotated or flipped grid "
-              "directions (a .json sidecar and a DICOM series store them)"));
+              "directions (.json, .nrrd, .nhdr, .nii, .nii.gz and a DICOM series store them)"));
   }
   if (ext == ".json") return internal::WriteRawJson(path, info, slice_fn, opts);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::WriteNrrd(path, info, slice_fn, opts);

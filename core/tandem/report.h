@@ -17,6 +17,7 @@ namespace tandem {
 
 struct MetricsReport {
   std::string input;     // file name or description
+  std::string frame;     // the world frame of the vertices (VolumeInfo::frame)
   std::string schedule;  // "none", "classical", "tandem", "tandem-lag"
   double iso = 0, error_threshold = 0, alpha = 0;
   double distance_guard = 0;  // K of SessionOptions::distance_guard (0 = off)

@@ -33,6 +33,9 @@ struct VolumeInfo {
   // DICOM ImageOrientationPatient or a NIfTI / NRRD orientation gives).
   std::array<std::array<double, 3>, 3> directions{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
   std::vector<double> suggested_isovalues;       // optional, from sidecars
+  // What world the vertices land in (origin, spacing and directions above), for people:
+  // "DICOM patient LPS (mm)", "NIfTI sform RAS", "grid (spacing and origin)", ...
+  std::string frame = "grid (spacing and origin)";
   std::string description;                       // optional
 
   bool axis_aligned() const {

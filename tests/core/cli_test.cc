@@ -307,7 +307,7 @@ TEST_F(Cli, FoldersOfSlicesAreVolumesAndInfoShowsTheValues) {
   o = RunTandem("extract --input " + Path("dcm") + " --iso 0 --out " + Path("d.ply"));
   ASSERT_EQ(o.code, 0) << o.text;
   // A format that cannot store the rotation refuses it rather than dropping it.
-  o = RunTandem("generate link --size 24 --directions 0,1,0,-1,0,0,0,0,1 --out " + Path("r.nrrd"));
+  o = RunTandem("generate link --size 24 --directions 0,1,0,-1,0,0,0,0,1 --out " + Path("r.tif"));
   EXPECT_NE(o.code, 0);
   EXPECT_NE(o.text.find("directions"), std::string::npos) << o.text;
 }

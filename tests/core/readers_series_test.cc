@@ -193,18 +193,34 @@ TEST(DicomSeries, FloatVolumeIsQuantizedWithinOneStep) {
   }
 }
 
+// A synthetic link held in memory, and a SliceFn that serves it (any slice, any number of
+// passes: the DICOM writer reads a float volume twice).
+struct HeldVolume {
+  VolumeInfo info;
+  std::vector<std::vector<uint8_t>> slices;
+  SliceFn fn() const {
+    return [this](int64_t z, std::vector<uint8_t>* b) {
+      *b = slices[z];
+      return absl::OkStatus();
+    };
+  }
+};
+
+HeldVolume HeldLink(int64_t nx, int64_t ny, int64_t nz, std::array<double, 3> spacing) {
+  auto src = MakeSyntheticSource(Shape::kLink, nx, ny, nz, spacing);
+  HeldVolume v{src->info(), {}};
+  v.slices.resize(v.info.nz);
+  for (auto& s : v.slices) EXPECT_TRUE(src->ReadSlice(&s).ok());
+  return v;
+}
+
 // The mesh of a rotated or mirrored series is the mesh of the same voxels on an axis-aligned
 // grid, moved by the series' frame: checked against the transformed axis-aligned mesh.
 TEST(DicomSeries, RotatedAndMirroredFramesPlaceTheMeshInTheWorld) {
   const std::string root = testing::MakeTempDir();
-  auto sphere = MakeSyntheticSource(Shape::kLink, 36, 30, 28, {0.8, 0.8, 1.5});
-  VolumeInfo info = sphere->info();
-  std::vector<std::vector<uint8_t>> slices(info.nz);
-  for (auto& s : slices) ASSERT_TRUE(sphere->ReadSlice(&s).ok());
-  const SliceFn fn = [&](int64_t z, std::vector<uint8_t>* b) {
-    *b = slices[z];
-    return absl::OkStatus();
-  };
+  const HeldVolume held = HeldLink(36, 30, 28, {0.8, 0.8, 1.5});
+  const VolumeInfo info = held.info;
+  const SliceFn fn = held.fn();
   SessionOptions o;
   o.iso = 0;
   o.error = 0.05;
@@ -354,14 +370,9 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
 
 TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
   const std::string root = testing::MakeTempDir();
-  auto link = MakeSyntheticSource(Shape::kLink, 30, 28, 26, {0.5, 0.5, 0.5});
-  VolumeInfo info = link->info();
-  std::vector<std::vector<uint8_t>> slices(info.nz);
-  for (auto& b : slices) ASSERT_TRUE(link->ReadSlice(&b).ok());
-  const SliceFn fn = [&](int64_t z, std::vector<uint8_t>* b) {
-    *b = slices[z];
-    return absl::OkStatus();
-  };
+  const HeldVolume held = HeldLink(30, 28, 26, {0.5, 0.5, 0.5});
+  const VolumeInfo info = held.info;
+  const SliceFn fn = held.fn();
   ASSERT_TRUE(WriteVolume(root + "/plain.json", info, fn).ok());
   VolumeInfo turned = info;
   turned.directions = {{{0, 0, 1}, {1, 0, 0}, {0, 1, 0}}};  // a cyclic permutation: exact
@@ -382,6 +393,19 @@ TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
     const Vec3 p = ma.positions[i];
     ASSERT_EQ(mb.positions[i], (Vec3{p.y, p.z, p.x})) << i;
   }
+  // NRRD "space directions" carry the same frame (and a mirrored one flips the winding).
+  for (const char* ext : {".nrrd", ".nhdr"}) {
+    SCOPED_TRACE(ext);
+    ASSERT_TRUE(WriteVolume(root + "/turned" + ext, turned, fn).ok());
+    auto nrrd = OpenVolume(root + "/turned" + ext);
+    ASSERT_TRUE(nrrd.ok()) << nrrd.status();
+    EXPECT_EQ((*nrrd)->info().directions, turned.directions);
+    auto c = RunSession(**nrrd, o);
+    ASSERT_TRUE(c.ok());
+    const IndexedMesh mc = (*c)->Snapshot();
+    EXPECT_EQ(mc.indices, mb.indices);
+    EXPECT_EQ(mc.positions, mb.positions);
+  }
   // A sidecar with sheared or malformed directions is refused, naming the key.
   std::ofstream(root + "/bad.json") << R"({"dims": [30, 28, 26], "dtype": "float32",
       "raw_file": "plain.raw", "directions": [[1, 0, 0], [1, 1, 0], [0, 0, 1]]})";
@@ -393,6 +417,88 @@ TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
   auto bad2 = OpenVolume(root + "/bad2.json");
   ASSERT_FALSE(bad2.ok());
   EXPECT_TRUE(absl::StrContains(bad2.status().message(), "directions")) << bad2.status();
+}
+
+// NIfTI: the sform (else the qform, through nifticlib's quaternion) places the grid; a flip
+// puts the mesh where the image is (a negative x step from x = 90 covers 90 down to 90 -
+// (nx-1) sx, not 90 up), a rotation turns it.
+TEST(Directions, NiftiSformAndQformPlaceTheMesh) {
+  const std::string root = testing::MakeTempDir();
+  const HeldVolume held = HeldLink(30, 28, 26, {0.5, 0.5, 0.5});
+  const VolumeInfo info = held.info;
+  const SliceFn fn = held.fn();
+  SessionOptions o;
+  o.iso = 0;
+  o.error = 0.05;
+  auto mesh_of = [&](const std::string& path) {
+    auto src = OpenVolume(path);
+    EXPECT_TRUE(src.ok()) << src.status();
+    auto run = RunSession(**src, o);
+    EXPECT_TRUE(run.ok());
+    return (*run)->Snapshot();
+  };
+  ASSERT_TRUE(WriteVolume(root + "/plain.json", info, fn).ok());
+  const IndexedMesh plain = mesh_of(root + "/plain.json");
+  struct Case {
+    std::array<double, 3> origin;
+    std::array<std::array<double, 3>, 3> d;
+  };
+  const double c = std::sqrt(0.5);
+  const Case cases[] = {{{90, -126, -72}, {{{-1, 0, 0}, {0, 1, 0}, {0, 0, 1}}}},  // LAS storage
+                        {{10, 20, 30}, {{{c, c, 0}, {-c, c, 0}, {0, 0, 1}}}}};
+  for (const Case& k : cases) {
+    VolumeInfo moved = info;
+    moved.origin = k.origin;
+    moved.directions = k.d;
+    const std::string nii = root + "/m.nii";
+    ASSERT_TRUE(WriteVolume(nii, moved, fn).ok());
+    auto src = OpenVolume(nii);
+    ASSERT_TRUE(src.ok()) << src.status();
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) EXPECT_NEAR((*src)->info().directions[a][b], k.d[a][b], 1e-6);
+      EXPECT_NEAR((*src)->info().spacing[a], 0.5, 1e-6);
+    }
+    // Expected: the plain mesh moved into the frame.
+    IndexedMesh want = plain;
+    for (Vec3& p : want.positions) {
+      Vec3 q{k.origin[0], k.origin[1], k.origin[2]};
+      for (int a = 0; a < 3; ++a) q = q + Vec3{k.d[a][0], k.d[a][1], k.d[a][2]} * p[a];
+      p = q;
+    }
+    const Vec3 d0{k.d[0][0], k.d[0][1], k.d[0][2]}, d1{k.d[1][0], k.d[1][1], k.d[1][2]},
+        d2{k.d[2][0], k.d[2][1], k.d[2][2]};
+    if (Dot(Cross(d0, d1), d2) < 0) {  // a mirror keeps normals outward by a reversed winding
+      for (size_t t = 0; t < want.indices.size(); t += 3) {
+        std::swap(want.indices[t + 1], want.indices[t + 2]);
+      }
+    }
+    for (bool qform_only : {false, true}) {
+      SCOPED_TRACE(qform_only ? "qform" : "sform");
+      if (qform_only) {  // sform_code (byte 254) = 0: the quaternion alone
+        std::fstream f(nii, std::ios::in | std::ios::out | std::ios::binary);
+        f.seekp(254);
+        const char zero[2] = {0, 0};
+        f.write(zero, 2);
+      }
+      const IndexedMesh got = mesh_of(nii);
+      ASSERT_EQ(got.indices, want.indices);
+      for (size_t i = 0; i < got.positions.size(); ++i) {
+        for (int a = 0; a < 3; ++a) ASSERT_NEAR(got.positions[i][a], want.positions[i][a], 2e-5);
+      }
+    }
+  }
+  // The flipped case lands at x in [90 - 29 * 0.5, 90].
+  const IndexedMesh flipped = [&] {
+    VolumeInfo moved = info;
+    moved.origin = cases[0].origin;
+    moved.directions = cases[0].d;
+    EXPECT_TRUE(WriteVolume(root + "/f.nii.gz", moved, fn).ok());
+    return mesh_of(root + "/f.nii.gz");
+  }();
+  for (const Vec3& p : flipped.positions) {
+    ASSERT_LE(p.x, 90.0 + 1e-4);
+    ASSERT_GE(p.x, 90.0 - 29 * 0.5 - 1e-4);
+  }
 }
 
 TEST(Directions, MustBeOrthonormal) {

@@ -745,7 +745,7 @@ TEST_P(NrrdErrorTest, HeaderProblems) {
       {"endian: little", "endian: middle"},
   };
   const char* needles[] = {"dimension is 4", "unsupported encoding 'bzip2'",
-                           "axis-aligned",   "not a NRRD file",
+                           "orthonormal",    "not a NRRD file",
                            "sizes",          "endian"};
   for (size_t i = 0; i < std::size(edits); ++i) {
     WriteText(path_, original);
