@@ -561,7 +561,7 @@ TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
 TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
   auto path = WriteSyntheticVolume(dir_, "pb", MakeSyntheticSource(Shape::kPillowBox, 48, 48, 48));
   ASSERT_TRUE(path.ok()) << path.status();
-  for (const std::string as : {"dicom", "zarr"}) {
+  for (const std::string as : {"dicom", "tiff", "zarr"}) {
     SCOPED_TRACE(as);
     const std::string acq = dir_ + "/acq_" + as + (as == "zarr" ? ".zarr" : "");
     const std::string previews = dir_ + "/previews_" + as;
@@ -575,19 +575,30 @@ TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
                                        "0.2", "--compression-level", "0", "--preview-every",
                                        "6", "--partials", previews, "--out",
                                        dir_ + "/followed.drc"};
-    if (as == "dicom") {
-      follow.insert(follow.end(), {"--done-file", "DONE"});
-    } else {
+    if (as == "zarr") {
       follow.insert(follow.end(), {"--expect-slices", "48"});
+    } else {
+      follow.insert(follow.end(), {"--done-file", "DONE"});
     }
+    follow.insert(follow.end(), {"--metrics", dir_ + "/followed.json"});
     RunResult r = Client(follow);
     instrument.join();
     ASSERT_EQ(sim.exit_code, 0) << sim.err;
     ASSERT_EQ(r.exit_code, 0) << r.err;
     RunResult whole = Client({"stream", "--server", server_->address(), "--input", acq, "--iso",
                               "0", "--error", "0.2", "--compression-level", "0", "--out",
-                              dir_ + "/whole.drc"});
+                              dir_ + "/whole.drc", "--metrics", dir_ + "/whole.json"});
     ASSERT_EQ(whole.exit_code, 0) << whole.err;
+    // Same metrics, but for timing, memory, byte counts (a followed stream's depth is not
+    // known up front) and the preview count.
+    nlohmann::json mf = nlohmann::json::parse(ReadFile(dir_ + "/followed.json"));
+    nlohmann::json mw = nlohmann::json::parse(ReadFile(dir_ + "/whole.json"));
+    for (const char* k : {"time_s", "peak_rss_bytes", "bytes_received", "bytes_sent",
+                          "previews_sent", "nz"}) {
+      mf.erase(k);
+      mw.erase(k);
+    }
+    EXPECT_EQ(mf, mw);
     auto followed = codec::DecodeDraco(ReadFile(dir_ + "/followed.drc"));
     auto finished = codec::DecodeDraco(ReadFile(dir_ + "/whole.drc"));
     ASSERT_TRUE(followed.ok() && finished.ok());
