@@ -29,7 +29,15 @@ class GrowingTiffs final : public Growing {
  public:
   GrowingTiffs(std::string dir, double stable_s) : dir_(std::move(dir)), stable_s_(stable_s) {}
 
-  absl::StatusOr<int64_t> Complete(bool* changed) override {
+  absl::StatusOr<int64_t> Complete(bool* changed) override { return Scan(changed, false); }
+
+  // The acquisition is over: files need not hold their size any longer.
+  absl::StatusOr<int64_t> Final() override {
+    bool changed = false;
+    return Scan(&changed, true);
+  }
+
+  absl::StatusOr<int64_t> Scan(bool* changed, bool final) {
     absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(dir_);
     if (absl::IsNotFound(files.status()) && taken_.empty()) return 0;  // not created yet
     if (!files.ok()) return files.status();
@@ -61,7 +69,7 @@ class GrowingTiffs final : public Growing {
         it->second = Seen{size, now};
         *changed = true;
       }
-      run = run && size > 0 && Seconds(now - it->second.since) >= stable_s_;
+      run = run && size > 0 && (final || Seconds(now - it->second.since) >= stable_s_);
       if (run) ++complete;
     }
     // Remember the complete names (they must not change order from now on).

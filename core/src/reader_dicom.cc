@@ -11,7 +11,11 @@
 #include <gdcmTrace.h>
 #include <gdcmUIDGenerator.h>
 
+#include <setjmp.h>
+
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -50,6 +54,41 @@ void SilenceGdcm() {
   });
 }
 
+// Debian 12 builds GDCM with assertions on, and a corrupt file can trip one (fuzz_dicom found
+// gdcm::ReadExplicitDataElement's assert(0 && "Should not happen") within seconds), which
+// would abort the whole process: a client or CLI reading a damaged series, or a slice read
+// while the scanner is still writing it. An exception cannot help (glibc declares
+// __assert_fail noexcept, so unwinding from it terminates). So the executable's
+// __assert_fail (below; it takes precedence over glibc's for every shared library) jumps
+// back to the GDCM call in progress on this thread, which reports the file as corrupt.
+// What the jump skips (GDCM's objects of that call, and ours inside the guarded lambda) is
+// leaked, never used again: a few KB and a file descriptor per corrupt file. An assertion
+// outside a guarded call prints glibc's message and aborts, as before.
+thread_local sigjmp_buf* t_gdcm_jump = nullptr;
+thread_local const char* t_gdcm_assertion = nullptr;
+
+// Runs f (which must keep what it needs after a jump outside its own frame) and turns a
+// failed GDCM assertion or a GDCM exception into DataLoss naming the file.
+template <typename F>
+absl::Status GdcmGuarded(const std::string& path, F&& f) {
+  absl::Status st;
+  sigjmp_buf here;
+  sigjmp_buf* const outer = t_gdcm_jump;
+  if (sigsetjmp(here, 0) != 0) {
+    t_gdcm_jump = outer;
+    return absl::DataLossError(absl::StrCat(
+        path, ": corrupt DICOM file (GDCM's internal check '", t_gdcm_assertion, "' failed)"));
+  }
+  t_gdcm_jump = &here;
+  try {
+    st = f();
+  } catch (const std::exception& e) {
+    st = absl::DataLossError(absl::StrCat(path, ": corrupt DICOM file (GDCM: ", e.what(), ")"));
+  }
+  t_gdcm_jump = outer;
+  return st;
+}
+
 std::string Base(const std::string& path) { return std::filesystem::path(path).filename(); }
 
 // What the header of one file says (only what ordering and checking need).
@@ -79,8 +118,8 @@ std::string Trimmed(std::string s) {
 }
 
 // Outcome of reading one header: a slice, a file to skip (DICOMDIR), or an error.
-absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
-  gdcm::Reader reader;
+absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string& path,
+                                                               gdcm::Reader& reader) {
   reader.SetFileName(path.c_str());
   // Up to and including the pixel data element, whose value is skipped (not loaded).
   if (!reader.ReadUpToTag(gdcm::Tag(0x7fe0, 0x0010), {gdcm::Tag(0x7fe0, 0x0010)})) {
@@ -220,6 +259,20 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
                                                    " / RescaleIntercept ", h.intercept));
   }
   return h;
+}
+
+absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
+  std::optional<SliceHeader> header;
+  absl::Status st = GdcmGuarded(path, [&]() -> absl::Status {
+    auto* reader = new gdcm::Reader;  // leaked, not freed, if an assertion jumps out
+    absl::StatusOr<std::optional<SliceHeader>> h = ReadHeaderUnguarded(path, *reader);
+    delete reader;
+    if (!h.ok()) return h.status();
+    header = *std::move(h);
+    return absl::OkStatus();
+  });
+  if (!st.ok()) return st;
+  return header;
 }
 
 DType StoredType(const SliceHeader& h) {
@@ -380,9 +433,9 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
 }
 
 // Decodes one slice's pixels (through `buffer`) into `bytes` as info.dtype.
-absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
-                        std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
-  gdcm::ImageReader reader;
+absl::Status ReadPixelsUnguarded(const SliceHeader& h, const VolumeInfo& info,
+                                 const ValuePlan& plan, gdcm::ImageReader& reader,
+                                 std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
   reader.SetFileName(h.path.c_str());
   if (!reader.Read()) {
     return absl::DataLossError(
@@ -450,6 +503,16 @@ absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const Valu
   return absl::OkStatus();
 }
 
+absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
+                        std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
+  return GdcmGuarded(h.path, [&]() -> absl::Status {
+    auto* reader = new gdcm::ImageReader;  // leaked, not freed, if an assertion jumps out
+    absl::Status st = ReadPixelsUnguarded(h, info, plan, *reader, buffer, bytes);
+    delete reader;
+    return st;
+  });
+}
+
 class DicomSliceSource final : public SliceSource {
  public:
   DicomSliceSource(std::vector<SliceHeader> slices, VolumeInfo info, ValuePlan plan)
@@ -499,7 +562,7 @@ class GrowingDicom final : public internal::Growing {
 
   absl::StatusOr<int64_t> Final() override {
     bool changed = false;
-    if (absl::Status st = Scan(&changed); !st.ok()) return st;
+    if (absl::Status st = Scan(&changed, /*final=*/true); !st.ok()) return st;
     for (const auto& [path, seen] : seen_) {
       if (!seen.whole && !seen.problem.empty()) {
         return absl::DataLossError(absl::StrCat(
@@ -539,7 +602,9 @@ class GrowingDicom final : public internal::Growing {
 
   // Reads the headers of files whose size has held for stable_s; a file that does not read
   // whole yet (still being written) is tried again when its size changes.
-  absl::Status Scan(bool* changed) {
+  // final: the acquisition is over, so every file is as whole as it will get (no waiting for
+  // sizes to hold).
+  absl::Status Scan(bool* changed, bool final = false) {
     absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(dir_);
     if (absl::IsNotFound(files.status())) return absl::OkStatus();  // not created yet
     if (!files.ok()) return files.status();
@@ -559,7 +624,7 @@ class GrowingDicom final : public internal::Growing {
         *changed = true;
       }
       if (s.whole || !s.problem.empty() || size == 0 ||
-          std::chrono::duration<double>(now - s.since).count() < stable_s_) {
+          (!final && std::chrono::duration<double>(now - s.since).count() < stable_s_)) {
         continue;
       }
       absl::StatusOr<std::optional<SliceHeader>> h = ReadHeader(f);
@@ -925,3 +990,17 @@ absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
 }
 
 }  // namespace tandem
+
+// See GdcmGuarded: a failed assertion inside a guarded GDCM call jumps back to it; any other
+// prints glibc's message and aborts, as glibc's own __assert_fail does.
+extern "C" void __assert_fail(const char* assertion, const char* file,
+                                           unsigned int line, const char* function) noexcept {
+  if (tandem::t_gdcm_jump != nullptr) {
+    tandem::t_gdcm_assertion = assertion;
+    siglongjmp(*tandem::t_gdcm_jump, 1);
+  }
+  std::fprintf(stderr, "%s:%u: %s%sAssertion `%s' failed.\n", file, line,
+               function ? function : "", function ? ": " : "", assertion);
+  std::fflush(stderr);
+  std::abort();
+}

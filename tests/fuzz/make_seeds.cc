@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "tandem/series.h"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
 #include "tandem/zarr.h"
@@ -78,7 +79,8 @@ int main(int argc, char** argv) {
   const fs::path out(argv[1]);
   const fs::path tmp = fs::temp_directory_path() / ("tandem-seeds-" + std::to_string(getpid()));
   fs::create_directories(tmp);
-  for (const char* t : {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_zarr"}) {
+  for (const char* t :
+       {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_zarr", "fuzz_dicom"}) {
     fs::create_directories(out / t);
   }
 
@@ -199,6 +201,34 @@ int main(int argc, char** argv) {
     seed.push_back(static_cast<char>(meta.size() & 0xff));
     seed.push_back(static_cast<char>(meta.size() >> 8));
     Put(out / "fuzz_zarr" / "seed_v3_sharded.bin", seed + meta + shard);
+  }
+
+  // fuzz_dicom: two slices of a series (GDCM-written) packed as [u32 LE size of a][a][b],
+  // in three transfer syntaxes and with a CT rescale.
+  int dn = 0;
+  for (auto [syntax, t] : {std::pair{tandem::DicomSyntax::kExplicitLittle, DType::kInt16},
+                           {tandem::DicomSyntax::kImplicitLittle, DType::kUInt8},
+                           {tandem::DicomSyntax::kJpegLossless, DType::kUInt16}}) {
+    const fs::path dir = tmp / ("dcm" + std::to_string(dn));
+    tandem::DicomWriteOptions opts;
+    opts.syntax = syntax;
+    opts.rescale_intercept = dn == 0 ? -1024 : 0;
+    VolumeInfo info = Info(6, 5, 2, t);
+    absl::Status st = tandem::WriteDicomSeries(
+        dir.string(), info,
+        [&](int64_t z, std::vector<uint8_t>* b) {
+          b->assign(info.slice_bytes(), static_cast<uint8_t>(7 * z + 1));
+          return absl::OkStatus();
+        },
+        opts);
+    if (!st.ok()) {
+      std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
+      return 1;
+    }
+    const std::string a = Slurp(dir / "IM00001.dcm"), b = Slurp(dir / "IM00002.dcm");
+    std::string seed;
+    for (int i = 0; i < 4; ++i) seed.push_back(static_cast<char>((a.size() >> (8 * i)) & 0xff));
+    Put(out / "fuzz_dicom" / ("seed_" + std::to_string(dn++) + ".bin"), seed + a + b);
   }
 
   fs::remove_all(tmp);
