@@ -628,4 +628,40 @@ TEST_F(ServiceE2eTest, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
   EXPECT_EQ(r.exit_code, 3) << r.err;
 }
 
+// A followed acquisition that goes wrong (a slice missing for good, the scan shorter than
+// --expect-slices) fails the stream with a message naming the files; the server keeps
+// serving and has no session left behind.
+TEST_F(ServiceE2eTest, AFollowedScanThatGoesWrongFailsCleanly) {
+  auto src = MakeSyntheticSource(Shape::kSphere, 24, 24, 24);
+  VolumeInfo info = src->info();
+  std::vector<std::vector<uint8_t>> slices(info.nz);
+  for (auto& b : slices) ASSERT_TRUE(src->ReadSlice(&b).ok());
+  const std::string dir = dir_ + "/broken";
+  DicomWriteOptions o;
+  o.float_min = -20;
+  o.float_max = 20;
+  auto writer = DicomSliceWriter::Create(info, o);
+  ASSERT_TRUE(writer.ok()) << writer.status();
+  std::filesystem::create_directories(dir);
+  for (int64_t z = 0; z < info.nz; ++z) {
+    if (z == 12) continue;  // lost on the way from the scanner
+    ASSERT_TRUE(writer->Write(dir + "/f" + std::to_string(z * 37 % 101), z, slices[z]).ok());
+  }
+  RunResult r = Client({"stream", "--server", server_->address(), "--input", dir, "--follow",
+                        "--settle", "1", "--expect-slices", "24", "--iso", "0", "--error",
+                        "0.3", "--out", dir_ + "/broken.ply"});
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_NE(r.err.find("gap between f"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/broken.ply"));
+  EXPECT_EQ(server_->Health(), "SERVING");
+  // The server notices the cancelled stream on its own schedule: a bounded wait.
+  RunResult info_out;
+  for (int i = 0; i < 50; ++i) {
+    info_out = Client({"info", "--server", server_->address()});
+    if (info_out.out.find("active sessions        0") != std::string::npos) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  EXPECT_NE(info_out.out.find("active sessions        0"), std::string::npos) << info_out.out;
+}
+
 }  // namespace tandem::testing
