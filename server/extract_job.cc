@@ -141,10 +141,12 @@ void ExtractJob::MaybePreview() {
   const int64_t every = config_.preview_every_slices;
   if (every <= 0 || cursor_.slice % every != 0) return;
   const auto now = Clock::now();
-  if (last_preview_ && now - *last_preview_ <
-                           std::chrono::milliseconds(config_.preview_min_interval_ms)) {
-    return;
-  }
+  // The server's floor bounds the cost whatever the client asks; a preview the client has
+  // not taken yet means it reads slower than they come: encoding another would be wasted.
+  const int64_t interval_ms =
+      std::max(config_.preview_min_interval_ms, limits_.min_preview_interval_ms);
+  if (last_preview_ && now - *last_preview_ < std::chrono::milliseconds(interval_ms)) return;
+  if (sink_->PreviewPending()) return;
   // A preview is best effort: one that would take the session over its budget is skipped.
   if (!CheckMemory(EncodeBytes(session_->num_triangles()), "").ok()) return;
   last_preview_ = now;

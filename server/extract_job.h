@@ -37,6 +37,9 @@ class JobSink {
   virtual ~JobSink() = default;
   virtual void PostProgress(v1::Progress progress) = 0;
   virtual void PostPreview(v1::Preview preview) = 0;
+  // True while a posted preview has not been handed to the transport yet (the client reads
+  // slower than previews come): the job then skips encoding another one.
+  virtual bool PreviewPending() const { return false; }
   virtual void PostFinal(std::vector<v1::ExtractResponse> messages) = 0;
 };
 

@@ -99,6 +99,10 @@ int main(int argc, char** argv) {
   flags.AddInt("keepalive-min-ping-interval-ms", &limits.min_ping_interval_ms,
                "client pings closer together than this (without data) are abuse; after 2 the "
                "connection is closed (GOAWAY too_many_pings)");
+  flags.AddInt("min-preview-interval-ms", &limits.min_preview_interval_ms,
+               "previews of a stream are at least this far apart, whatever the client asks "
+               "(each snapshots and encodes the whole partial mesh); none is encoded while the "
+               "previous one is still unsent (0 = only the client's interval)");
   flags.AddBool("keepalive-permit-without-calls", &limits.permit_keepalive_without_calls,
                 "accept client keepalive pings on connections with no call open");
   flags.AddInt("malloc-arenas", &malloc_arenas,
@@ -128,14 +132,15 @@ int main(int argc, char** argv) {
       !(limits.idle_timeout_s > 0) || session_memory_mb < 1 || session_memory_mb > (1 << 20) ||
       limits.max_inflight_bytes < 1 || limits.max_inflight_bytes > (int64_t{1} << 40) ||
       !ms_ok(limits.keepalive_time_ms, 0) || !ms_ok(limits.keepalive_timeout_ms, 1) ||
-      !ms_ok(limits.min_ping_interval_ms, 0) || malloc_arenas < 0 || malloc_arenas > 1024) {
+      !ms_ok(limits.min_ping_interval_ms, 0) || !ms_ok(limits.min_preview_interval_ms, 0) ||
+      malloc_arenas < 0 || malloc_arenas > 1024) {
     absl::FPrintF(stderr,
                   "tandem-server: out of range: need 1 <= --max-sessions <= 4096, "
                   "--max-voxels-per-slice >= 4, --max-slices >= 2, 1024 <= "
                   "--max-message-bytes <= 2^30, --grace-seconds >= 0, "
                   "--idle-timeout-seconds > 0, 1 <= --session-memory-mb <= 2^20, "
                   "1 <= --max-inflight-bytes <= 2^40, 0 <= --keepalive-time-ms and "
-                  "--keepalive-min-ping-interval-ms <= 2^31-1, "
+                  "--keepalive-min-ping-interval-ms, --min-preview-interval-ms <= 2^31-1, "
                   "1 <= --keepalive-timeout-ms <= 2^31-1, 0 <= --malloc-arenas <= 1024\n");
     return 2;
   }

@@ -29,6 +29,9 @@ struct ServerLimits {
   double idle_timeout_s = 300;                          // --idle-timeout-seconds
   int64_t session_memory_bytes = int64_t{1024} << 20;   // --session-memory-mb (in MiB)
   int64_t max_inflight_bytes = int64_t{16} << 20;       // --max-inflight-bytes
+  // Previews are never closer than this, whatever the client asks (each one snapshots and
+  // encodes the whole partial mesh): --min-preview-interval-ms.
+  int64_t min_preview_interval_ms = 250;
   // HTTP/2 transport (grpc::ServerBuilder channel arguments).
   int64_t keepalive_time_ms = 60000;         // --keepalive-time-ms (0 = no pings)
   int64_t keepalive_timeout_ms = 20000;      // --keepalive-timeout-ms

@@ -57,6 +57,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, pub
 
   void PostProgress(v1::Progress progress) override;
   void PostPreview(v1::Preview preview) override;
+  bool PreviewPending() const override;
   void PostFinal(std::vector<Response> messages) override;
 
  private:
@@ -102,7 +103,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, pub
   absl::Mutex ctx_mu_;  // never held together with mu_
   grpc::CallbackServerContext* context_ ABSL_GUARDED_BY(ctx_mu_);  // null after OnDone
 
-  absl::Mutex mu_;
+  mutable absl::Mutex mu_;
   Request read_buf_;  // owned by gRPC between StartRead and OnReadDone
   bool read_in_flight_ ABSL_GUARDED_BY(mu_) = false;
   struct Received {
@@ -364,6 +365,11 @@ void ExtractCall::PostPreview(v1::Preview preview) {
   SyncBufferedLocked();
 }
 
+bool ExtractCall::PreviewPending() const {
+  absl::MutexLock lock(&mu_);
+  return preview_.has_value();
+}
+
 void ExtractCall::PostFinal(std::vector<Response> messages) {
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
@@ -567,6 +573,7 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   l->set_keepalive_timeout_ms(state_->limits.keepalive_timeout_ms);
   l->set_min_ping_interval_ms(state_->limits.min_ping_interval_ms);
   l->set_permit_keepalive_without_calls(state_->limits.permit_keepalive_without_calls);
+  l->set_min_preview_interval_ms(state_->limits.min_preview_interval_ms);
   for (v1::DType d : {v1::DTYPE_UINT8, v1::DTYPE_UINT16, v1::DTYPE_INT16, v1::DTYPE_FLOAT32}) {
     response->add_dtypes(d);
   }

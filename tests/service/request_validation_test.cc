@@ -286,7 +286,9 @@ TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
   options.mutable_draco()->set_compression_level(0);  // keeps order: compare index by index
   options.mutable_preview()->set_every_slices(5);
   RecordingSink sink;
-  ExtractJob job(ServerLimits{}, &sink);
+  ServerLimits limits;
+  limits.min_preview_interval_ms = 0;  // every preview asked for (the sink sends at once)
+  ExtractJob job(limits, &sink);
   const int64_t n = 24;
   for (v1::ExtractRequest& r : SphereRequests(options, n, 3)) {
     ASSERT_FALSE(job.done());

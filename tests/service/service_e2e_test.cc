@@ -221,7 +221,7 @@ TEST_F(ServiceE2eTest, PreviewsArriveInOrderDecodeAndFollowTheTrace) {
 TEST_F(ServiceE2eTest, PacedStreamGetsAPreviewBeforeTheLastSlice) {
   TANDEM_SHARED_OR_SKIP(input, kHead);
   RunResult r = Client(Concat(HeadArgs(server_->address(), input),
-                              {"--rate", "80", "--preview-every", "5", "--verbose", "--out",
+                              {"--rate", "40", "--preview-every", "5", "--verbose", "--out",
                                dir_ + "/head.drc"}));
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::vector<PreviewLine> lines = PreviewLines(r.err);

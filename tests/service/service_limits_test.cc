@@ -9,6 +9,8 @@
 #include <atomic>
 #include <thread>
 
+#include "absl/strings/match.h"
+#include "absl/strings/str_split.h"
 #include "server/extract_job.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
@@ -103,6 +105,8 @@ TEST(LimitsTest, DefaultsAreShownByHelpAndReportedByInfo) {
                            "(default: 10000)",
                            "--keepalive-permit-without-calls",
                            "(default: false)",
+                           "--min-preview-interval-ms N",
+                           "(default: 250)",
                            "--tls-cert FILE",
                            "[$TANDEM_TLS_CERT]",
                            "--tls-key FILE",
@@ -128,6 +132,7 @@ TEST(LimitsTest, DefaultsAreShownByHelpAndReportedByInfo) {
   EXPECT_EQ(l.keepalive_timeout_ms(), 20000);
   EXPECT_EQ(l.min_ping_interval_ms(), 10000);
   EXPECT_FALSE(l.permit_keepalive_without_calls());
+  EXPECT_EQ(l.min_preview_interval_ms(), 250);
   EXPECT_FALSE(info->tls());
   EXPECT_FALSE(info->token_required());
 }
@@ -136,7 +141,7 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
   auto server = TestServer::Start(
       {"--max-sessions", "3", "--max-voxels-per-slice", "90000", "--max-slices", "500",
        "--max-message-bytes", "2097152", "--idle-timeout-seconds", "42.5", "--keepalive-time-ms",
-       "15000", "--keepalive-permit-without-calls"},
+       "15000", "--keepalive-permit-without-calls", "--min-preview-interval-ms", "40"},
       {},
       {"TANDEM_SESSION_MEMORY_MB=64", "TANDEM_MAX_INFLIGHT_BYTES=1000000",
        "TANDEM_KEEPALIVE_TIMEOUT_MS=7000", "TANDEM_KEEPALIVE_MIN_PING_INTERVAL_MS=5000",
@@ -156,18 +161,56 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
   EXPECT_EQ(l.keepalive_timeout_ms(), 7000);
   EXPECT_EQ(l.min_ping_interval_ms(), 5000);
   EXPECT_TRUE(l.permit_keepalive_without_calls());
+  EXPECT_EQ(l.min_preview_interval_ms(), 40);
   RunResult client =
       RunProcess({BinPath("tandem-client"), "info", "--server", (*server)->address()});
   ASSERT_EQ(client.exit_code, 0) << client.err;
   for (const char* want : {"max sessions           3", "session memory         64 MiB",
                            "max inflight bytes     1000000", "idle timeout           42.5 s",
                            "keepalive              time 15000 ms, timeout 7000 ms, min client "
-                           "ping interval 5000 ms, pings without calls allowed"}) {
+                           "ping interval 5000 ms, pings without calls allowed",
+                           "min preview interval   40 ms"}) {
     EXPECT_NE(client.out.find(want), std::string::npos) << want << "\n" << client.out;
   }
   RunResult bad = RunProcess({BinPath("tandem-server"), "--session-memory-mb", "0"});
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("--session-memory-mb"), std::string::npos) << bad.err;
+}
+
+// A client that asks for a preview after every slice gets them at most every
+// --min-preview-interval-ms: each one snapshots and encodes the whole partial mesh, so the
+// server, not the client, bounds what previews cost it. With the floor at 0 the same stream
+// gets a preview for most slices.
+TEST(LimitsTest, ServerSpacesPreviewsWhateverTheClientAsks) {
+  const std::string dir = MakeTempDir();
+  auto volume =
+      WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 32, 32, 60));
+  ASSERT_TRUE(volume.ok()) << volume.status();
+  auto previews = [&](int64_t floor_ms, double* wall_s) {
+    auto server = TestServer::Start({"--min-preview-interval-ms", std::to_string(floor_ms)});
+    EXPECT_TRUE(server.ok()) << server.status();
+    if (!server.ok()) return int64_t{-1};
+    const auto start = Clock::now();
+    RunResult r = RunProcess({BinPath("tandem-client"), "stream", "--server",
+                              (*server)->address(), "--input", *volume, "--iso", "0",
+                              "--error", "0.2",
+                              "--rate", "100", "--preview-every", "1", "--verbose", "--out",
+                              dir + "/out.drc"});
+    *wall_s = SecondsSince(start);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    int64_t n = 0;
+    for (absl::string_view line : absl::StrSplit(r.err, '\n')) {
+      n += absl::StartsWith(line, "preview ") ? 1 : 0;
+    }
+    return n;
+  };
+  double wall_free = 0, wall_floor = 0;
+  const int64_t free_count = previews(0, &wall_free);
+  const int64_t floor_count = previews(200, &wall_floor);
+  EXPECT_GE(free_count, 20) << "60 slices, a preview asked after each, no floor";
+  EXPECT_GE(floor_count, 1);
+  EXPECT_LE(floor_count, static_cast<int64_t>(wall_floor / 0.2) + 1)
+      << "previews 200 ms apart at most in " << wall_floor << " s";
 }
 
 // ExtractJob alone: the budget is checked at the config (grid-sized buffers) and after
@@ -268,10 +311,12 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
 
 // A client that stops reading: once the stream's unsent responses reach
 // --max-inflight-bytes the server stops reading it (no slice consumed, memory constant);
-// when the client reads again, the stream resumes and completes.
+// when the client reads again, the stream resumes and completes. (Previews are not encoded
+// while one is unsent, so the progress messages are what piles up: a small limit.)
 TEST(LimitsTest, ServerStopsReadingAStreamWhoseClientDoesNotRead) {
-  constexpr int64_t kLimit = 16384;
-  auto server = TestServer::Start({"--max-inflight-bytes", std::to_string(kLimit)});
+  constexpr int64_t kLimit = 2048;
+  auto server = TestServer::Start(
+      {"--max-inflight-bytes", std::to_string(kLimit), "--min-preview-interval-ms", "0"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   const std::vector<v1::ExtractRequest> requests = PreviewHeavy(40, 120);
