@@ -1,7 +1,10 @@
 // tandem-server: serves tandem.v1.Tandem (see proto/tandem/v1/tandem.proto) over gRPC.
 // This file only parses flags, builds the server and handles SIGTERM/SIGINT: it marks the
-// server NOT_SERVING, lets running streams finish for --grace-seconds, cancels the rest,
-// waits for their worker threads, and exits 0.
+// server NOT_SERVING (health service "" and tandem.v1.Tandem; "liveness" stays SERVING),
+// keeps accepting streams for --drain-delay-seconds (load balancers notice meanwhile; a
+// second signal cuts the delay short), then stops accepting, lets running streams finish
+// for --grace-seconds, ends the rest with UNAVAILABLE, waits for their worker threads, and
+// exits 0.
 #include <malloc.h>  // mallopt (glibc)
 #include <pthread.h>
 #include <signal.h>
@@ -66,6 +69,7 @@ int main(int argc, char** argv) {
   int64_t max_sessions = limits.max_sessions;
   int64_t session_memory_mb = limits.session_memory_bytes >> 20;
   double grace_seconds = 10;
+  double drain_delay_seconds = 0;
   int64_t malloc_arenas = 2;
   tandem::cli::FlagSet flags(kUsage);
   flags.AddString("listen", &listen, "HOST:PORT", "address to listen on (port 0 = any free port)");
@@ -108,8 +112,12 @@ int main(int argc, char** argv) {
   flags.AddInt("malloc-arenas", &malloc_arenas,
                "glibc malloc arenas (0 = glibc's default, 8 per core): few arenas keep the "
                "resident size near the idle level after bursts of sessions");
+  flags.AddDouble("drain-delay-seconds", &drain_delay_seconds,
+                  "on SIGTERM/SIGINT, time the server still accepts new streams while its "
+                  "health is NOT_SERVING, so that load balancers stop routing to it first (a "
+                  "second signal ends the delay)");
   flags.AddDouble("grace-seconds", &grace_seconds,
-                  "on SIGTERM/SIGINT, time running streams get to finish before cancellation");
+                  "then, time running streams get to finish; the rest end with UNAVAILABLE");
   flags.UseEnvironment("TANDEM_");  // containers configure through TANDEM_* variables
   if (absl::Status st = flags.Parse(argc, argv); !st.ok()) {
     absl::FPrintF(stderr, "tandem-server: %s\n", std::string(st.message()));
@@ -128,7 +136,8 @@ int main(int argc, char** argv) {
   auto ms_ok = [](int64_t v, int64_t lo) { return v >= lo && v <= kIntMax; };
   if (max_sessions < 1 || max_sessions > 4096 || limits.max_voxels_per_slice < 4 ||
       limits.max_slices < 2 || limits.max_message_bytes < 1024 ||
-      limits.max_message_bytes > (int64_t{1} << 30) || grace_seconds < 0 ||
+      limits.max_message_bytes > (int64_t{1} << 30) || !(grace_seconds >= 0) ||
+      !(grace_seconds <= 86400) || !(drain_delay_seconds >= 0) || !(drain_delay_seconds <= 3600) ||
       !(limits.idle_timeout_s > 0) || session_memory_mb < 1 || session_memory_mb > (1 << 20) ||
       limits.max_inflight_bytes < 1 || limits.max_inflight_bytes > (int64_t{1} << 40) ||
       !ms_ok(limits.keepalive_time_ms, 0) || !ms_ok(limits.keepalive_timeout_ms, 1) ||
@@ -137,7 +146,8 @@ int main(int argc, char** argv) {
     absl::FPrintF(stderr,
                   "tandem-server: out of range: need 1 <= --max-sessions <= 4096, "
                   "--max-voxels-per-slice >= 4, --max-slices >= 2, 1024 <= "
-                  "--max-message-bytes <= 2^30, --grace-seconds >= 0, "
+                  "--max-message-bytes <= 2^30, 0 <= --grace-seconds <= 86400, "
+                  "0 <= --drain-delay-seconds <= 3600, "
                   "--idle-timeout-seconds > 0, 1 <= --session-memory-mb <= 2^20, "
                   "1 <= --max-inflight-bytes <= 2^40, 0 <= --keepalive-time-ms and "
                   "--keepalive-min-ping-interval-ms, --min-preview-interval-ms <= 2^31-1, "
@@ -226,6 +236,11 @@ int main(int argc, char** argv) {
                         tls ? ", or --tls-cert and --tls-key do not match" : ""));
     return 1;
   }
+  // Kubernetes probes: readiness checks "" (NOT_SERVING from the first signal on),
+  // liveness checks "liveness" (SERVING until the process exits).
+  server->GetHealthCheckService()->SetServingStatus("liveness", true);
+  server->GetHealthCheckService()->SetServingStatus(tandem::v1::Tandem::service_full_name(),
+                                                    true);
   const std::string host = listen.substr(0, listen.rfind(':'));
   absl::PrintF("listening on %s:%d\n", host, port);
   std::fflush(stdout);
@@ -244,13 +259,55 @@ int main(int argc, char** argv) {
   std::thread signal_thread([&] {
     int sig = 0;
     sigwait(&signals, &sig);
-    tandem::server::LogLine(absl::StrFormat("%s: draining (grace %.1f s)",
-                                            sig == SIGTERM ? "SIGTERM" : "SIGINT", grace_seconds));
-    server->GetHealthCheckService()->SetServingStatus(false);
-    // Stops accepting streams, waits for running ones until the deadline, then cancels
-    // them (their reactors finish with CANCELLED).
-    server->Shutdown(std::chrono::system_clock::now() +
-                     std::chrono::milliseconds(static_cast<int64_t>(grace_seconds * 1000)));
+    const char* name = sig == SIGTERM ? "SIGTERM" : "SIGINT";
+    // Readiness fails from now on; liveness (its own service name) does not.
+    grpc::HealthCheckServiceInterface* health = server->GetHealthCheckService();
+    health->SetServingStatus("", false);
+    health->SetServingStatus(tandem::v1::Tandem::service_full_name(), false);
+    auto seconds = [](double s) {
+      return std::chrono::milliseconds(static_cast<int64_t>(s * 1000));
+    };
+    // Waits up to `s` seconds for another signal; true if one came.
+    auto another_signal = [&](double s) {
+      const int64_t ms = static_cast<int64_t>(s * 1000);
+      timespec ts{static_cast<time_t>(ms / 1000), static_cast<long>(ms % 1000) * 1000000};
+      while (true) {
+        const int got = sigtimedwait(&signals, nullptr, &ts);
+        if (got > 0) return true;
+        if (errno != EINTR) return false;  // EAGAIN: the time is up
+      }
+    };
+    if (drain_delay_seconds > 0) {
+      tandem::server::LogLine(absl::StrFormat(
+          "%s: NOT_SERVING; still accepting streams for %.1f s (--drain-delay-seconds)", name,
+          drain_delay_seconds));
+      if (another_signal(drain_delay_seconds)) {
+        tandem::server::LogLine("second signal: the drain delay is cut short");
+      }
+    }
+    tandem::server::LogLine(absl::StrFormat(
+        "%s: draining: new streams are refused; running ones (%d) have %.1f s to finish", name,
+        service.CountersSnapshot().active_sessions(), grace_seconds));
+    const auto deadline = std::chrono::steady_clock::now() + seconds(grace_seconds);
+    // Shutdown returns as soon as every call is done; its own deadline (a little after
+    // ours) only cancels what did not even take UNAVAILABLE (a client that does not read).
+    std::thread stopper([&] {
+      server->Shutdown(std::chrono::system_clock::now() + seconds(grace_seconds + 5));
+    });
+    while (service.CountersSnapshot().active_sessions() > 0 &&
+           std::chrono::steady_clock::now() < deadline) {
+      if (another_signal(0.05)) break;  // yet another signal: end the streams now
+    }
+    const int64_t ended = service.EndAllStreams(grpc::Status(
+        grpc::StatusCode::UNAVAILABLE,
+        absl::StrFormat("tandem-server is shutting down and the stream did not finish within "
+                        "its --grace-seconds (%g s); send the scan again (to another replica)",
+                        grace_seconds)));
+    if (ended > 0) {
+      tandem::server::LogLine(
+          absl::StrFormat("grace period over: %d streams ended with UNAVAILABLE", ended));
+    }
+    stopper.join();
   });
   server->Wait();
   signal_thread.join();

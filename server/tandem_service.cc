@@ -35,7 +35,9 @@ class RefusedCall final : public grpc::ServerBidiReactor<Request, Response> {
 // kept alive by shared_ptr: the reactor's own reference is dropped in OnDone, the
 // worker's when it has seen the stream finish. Every gRPC operation is started under mu_
 // and only while Finish has not been called, so neither side can touch a finished stream.
-class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, public JobSink {
+class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
+                          public JobSink,
+                          public LiveStream {
  public:
   ExtractCall(std::shared_ptr<ServiceState> state, grpc::CallbackServerContext* context)
       : state_(std::move(state)),
@@ -59,6 +61,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>, pub
   void PostPreview(v1::Preview preview) override;
   bool PreviewPending() const override;
   void PostFinal(std::vector<Response> messages) override;
+  void Abort(grpc::Status status) override { EndStream(std::move(status)); }
 
  private:
   void RunWorker();
@@ -152,6 +155,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
     return call.get();
   }
   call->accepted_ = true;
+  state->AddStream(call.get(), call);
   state->sessions_started.fetch_add(1);
   {
     absl::MutexLock lock(&call->mu_);
@@ -175,6 +179,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
 
 ExtractCall::~ExtractCall() {
   if (!accepted_) return;  // rejected streams are counted in sessions_rejected only
+  state_->RemoveStream(this);
   // One line per session for operators. (The lock is uncontended: last reference.)
   absl::MutexLock lock(&mu_);
   state_->buffered_bytes.fetch_sub(accounted_buffered_);
@@ -522,6 +527,28 @@ bool ServiceState::WaitForWorkers(absl::Time deadline) {
   absl::MutexLock lock(&mu_);
   auto none = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return workers_ == 0; };
   return mu_.AwaitWithDeadline(absl::Condition(&none), deadline);
+}
+
+void ServiceState::AddStream(const LiveStream* key, std::weak_ptr<LiveStream> stream) {
+  absl::MutexLock lock(&mu_);
+  streams_[key] = std::move(stream);
+}
+
+void ServiceState::RemoveStream(const LiveStream* key) {
+  absl::MutexLock lock(&mu_);
+  streams_.erase(key);
+}
+
+int64_t ServiceState::AbortStreams(const grpc::Status& status) {
+  std::vector<std::shared_ptr<LiveStream>> alive;
+  {
+    absl::MutexLock lock(&mu_);
+    for (const auto& [key, weak] : streams_) {
+      if (auto s = weak.lock()) alive.push_back(std::move(s));
+    }
+  }
+  for (const auto& s : alive) s->Abort(status);  // without mu_: Abort takes the stream's lock
+  return static_cast<int64_t>(alive.size());
 }
 
 TandemService::TandemService(const ServerLimits& limits, std::vector<std::string> tokens,

@@ -23,6 +23,9 @@
 //     if a response is stuck because the client does not read, the call is also
 //     cancelled (a blocked write would otherwise hold it open). The worker stays until the
 //     final messages are written, so this holds after the last slice too.
+//   * Shutdown: EndAllStreams ends every accepted stream still running with the given
+//     status (tandem-server calls it when --grace-seconds are over: UNAVAILABLE), so a
+//     client learns why its stream ended instead of a bare CANCELLED.
 //   * Memory per stream: the session (budget limits.session_memory_bytes, enforced by
 //     ExtractJob), one slice buffer, the bytes in flight above, one message being read,
 //     and the encoded final mesh while it is sent.
@@ -31,6 +34,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -44,6 +48,14 @@
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {
+
+// An accepted stream, as the service sees it when it ends them all.
+class LiveStream {
+ public:
+  virtual ~LiveStream() = default;
+  // Ends the stream with `status` (an error: pending output is dropped).
+  virtual void Abort(grpc::Status status) = 0;
+};
 
 // Shared by the service, its streams and their worker threads (which may outlive a
 // stream's reactor), hence reference-counted.
@@ -68,10 +80,16 @@ struct ServiceState {
   int64_t worker_threads() const;
   // True when no worker thread is left, false at the deadline.
   bool WaitForWorkers(absl::Time deadline);
+  // Accepted streams, registered until they are destroyed.
+  void AddStream(const LiveStream* key, std::weak_ptr<LiveStream> stream);
+  void RemoveStream(const LiveStream* key);
+  // Aborts every registered stream; returns how many were still alive.
+  int64_t AbortStreams(const grpc::Status& status);
 
  private:
   mutable absl::Mutex mu_;
   int64_t workers_ ABSL_GUARDED_BY(mu_) = 0;
+  std::map<const LiveStream*, std::weak_ptr<LiveStream>> streams_ ABSL_GUARDED_BY(mu_);
 };
 
 class TandemService final : public v1::Tandem::CallbackService {
@@ -88,6 +106,8 @@ class TandemService final : public v1::Tandem::CallbackService {
                                     const v1::InfoRequest* request,
                                     v1::InfoResponse* response) override;
 
+  // Ends every running stream with `status` (see Shutdown above); returns how many.
+  int64_t EndAllStreams(const grpc::Status& status) { return state_->AbortStreams(status); }
   // Call after grpc::Server::Shutdown: true once every worker thread has exited.
   bool WaitForWorkers(absl::Time deadline) { return state_->WaitForWorkers(deadline); }
   v1::Counters CountersSnapshot() const;

@@ -175,6 +175,7 @@ class Checker:
                     self.err(cw, f"{probe} is neither a grpc probe nor an exec health check")
                 if grpc_port is not None and grpc_port not in ports | names:
                     self.err(cw, f"{probe} probes port {grpc_port}, not a declared containerPort")
+            self.check_termination(cw, c, spec)
             sc = c.get("securityContext", {}) or {}
 
             def eff(*path):
@@ -195,6 +196,25 @@ class Checker:
             user = eff("runAsUser")
             if user is not None and image_user is not None and str(user) != image_user:
                 self.err(cw, f"runAsUser {user} differs from the Dockerfile's USER {image_user}")
+
+    def check_termination(self, cw, c, spec):
+        """The pod's grace period covers the server's drain: delay + grace + 30 s for the
+        workers; a drain delay needs a liveness probe that stays SERVING meanwhile."""
+        def arg(name, default):
+            for a in (c.get("args") or []) + (c.get("command") or []):
+                if isinstance(a, str) and a.startswith(f"--{name}="):
+                    return float(a.split("=", 1)[1])
+            return default
+        delay, grace = arg("drain-delay-seconds", 0.0), arg("grace-seconds", 10.0)
+        need = delay + grace + 30
+        have = spec.get("terminationGracePeriodSeconds", 30)
+        if have < need:
+            self.err(cw, f"terminationGracePeriodSeconds {have} < --drain-delay-seconds {delay:g}"
+                         f" + --grace-seconds {grace:g} + 30 s for the workers")
+        live = c.get("livenessProbe") or {}
+        if delay > 0 and "grpc" in live and not get(live, "grpc", "service"):
+            self.err(cw, "livenessProbe asks the empty service, NOT_SERVING during the drain "
+                         "delay: use service: liveness")
 
     # --- Compose ----------------------------------------------------------------------
     def check_compose(self, where, doc):
@@ -352,6 +372,10 @@ def self_test(docs, text):
         ("capabilities.drop", lambda ds: container(ds)["securityContext"].pop("capabilities")),
         ("resources.limits.memory", lambda ds: container(ds)["resources"]["limits"].pop("memory")),
         ("readinessProbe", lambda ds: container(ds).pop("readinessProbe")),
+        ("terminationGracePeriodSeconds", lambda ds: next(d for _, d in ds if d.get("kind") ==
+                                                          "Deployment")["spec"]["template"]
+         ["spec"].update(terminationGracePeriodSeconds=130)),
+        ("service: liveness", lambda ds: container(ds)["livenessProbe"]["grpc"].pop("service")),
         ("no image", lambda ds: container(ds).pop("image")),
         ("scaleTargetRef", lambda ds: next(d for _, d in ds if d.get("kind") ==
                                            "HorizontalPodAutoscaler")["spec"]["scaleTargetRef"]

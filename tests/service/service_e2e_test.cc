@@ -456,7 +456,7 @@ TEST(ServiceShutdown, SigtermLetsARunningStreamFinishThenExitsZero) {
   EXPECT_NE(log.find("stopped"), std::string::npos) << log;
 }
 
-TEST(ServiceShutdown, StreamsPastTheGracePeriodAreCancelled) {
+TEST(ServiceShutdown, StreamsPastTheGracePeriodEndWithUnavailable) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--grace-seconds", "0.3"});
   ASSERT_TRUE(server.ok()) << server.status();
@@ -466,10 +466,73 @@ TEST(ServiceShutdown, StreamsPastTheGracePeriodAreCancelled) {
   EXPECT_EQ((*server)->process().Wait(20), 0) << (*server)->process().Stderr();
   EXPECT_EQ(client->Wait(20), 1) << client->Stderr();
   const std::string err = client->Stderr();
-  EXPECT_TRUE(err.find("CANCELLED") != std::string::npos ||
-              err.find("UNAVAILABLE") != std::string::npos)
+  EXPECT_NE(err.find("UNAVAILABLE"), std::string::npos) << err;
+  EXPECT_NE(err.find("did not finish within its --grace-seconds (0.3 s)"), std::string::npos)
       << err;
-  EXPECT_NE((*server)->process().Stderr().find("status=CANCELLED"), std::string::npos)
+  const std::string log = (*server)->process().Stderr();
+  EXPECT_NE(log.find("status=UNAVAILABLE"), std::string::npos) << log;
+  EXPECT_NE(log.find("grace period over: 1 streams ended with UNAVAILABLE"), std::string::npos)
+      << log;
+}
+
+// What a load balancer sees: from SIGTERM on, readiness ("") is NOT_SERVING while liveness
+// stays SERVING and new streams are still accepted for --drain-delay-seconds; then the
+// server exits, an idle client connection holding nothing up.
+TEST(ServiceShutdown, DrainDelayKeepsServingWhileNotReady) {
+  const std::string dir = MakeTempDir();
+  auto volume = WriteSyntheticVolume(dir, "s", MakeSyntheticSource(Shape::kSphere, 20, 20, 20));
+  ASSERT_TRUE(volume.ok()) << volume.status();
+  auto server = TestServer::Start({"--drain-delay-seconds", "3", "--grace-seconds", "5"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  EXPECT_EQ(s.Health(), "SERVING");
+  EXPECT_EQ(s.Health("liveness"), "SERVING");
+  EXPECT_EQ(s.Health("tandem.v1.Tandem"), "SERVING");
+  // An idle connection: connected, one call done, kept open until the end of the test.
+  auto idle = s.NewStub();
+  {
+    grpc::ClientContext context;
+    v1::InfoResponse info;
+    ASSERT_TRUE(idle->GetInfo(&context, v1::InfoRequest(), &info).ok());
+  }
+  const auto signalled = std::chrono::steady_clock::now();
+  s.process().Signal(SIGTERM);
+  std::string health;
+  for (int i = 0; i < 100 && health != "NOT_SERVING"; ++i) {
+    health = s.Health();
+    if (health != "NOT_SERVING") std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(health, "NOT_SERVING");
+  EXPECT_EQ(s.Health("tandem.v1.Tandem"), "NOT_SERVING");
+  EXPECT_EQ(s.Health("liveness"), "SERVING");
+  RunResult r = RunProcess({BinPath("tandem-client"), "stream", "--server", s.address(),
+                            "--input", *volume, "--iso", "0", "--error", "0.2", "--out",
+                            dir + "/during_delay.ply"});
+  EXPECT_EQ(r.exit_code, 0) << "a stream started during the delay is served\n" << r.err;
+  EXPECT_LT(std::chrono::steady_clock::now() - signalled, std::chrono::milliseconds(2500))
+      << "the stream must start within the delay for this test to mean anything";
+  EXPECT_EQ(s.process().Wait(15), 0) << s.process().Stderr();
+  const double exit_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - signalled).count();
+  const std::string log = s.process().Stderr();
+  EXPECT_GE(exit_s, 3.0) << "exited before the drain delay was over\n" << log;
+  EXPECT_LT(exit_s, 6.0) << "nothing was running: the grace period must not be waited out\n"
+                         << log;
+  EXPECT_NE(log.find("SIGTERM: NOT_SERVING; still accepting streams for 3.0 s"),
+            std::string::npos)
+      << log;
+  EXPECT_NE(log.find("stopped"), std::string::npos) << log;
+}
+
+// A second signal cuts the drain delay short.
+TEST(ServiceShutdown, SecondSignalEndsTheDrainDelay) {
+  auto server = TestServer::Start({"--drain-delay-seconds", "60"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  (*server)->process().Signal(SIGTERM);
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  (*server)->process().Signal(SIGINT);
+  EXPECT_EQ((*server)->process().Wait(10), 0) << (*server)->process().Stderr();
+  EXPECT_NE((*server)->process().Stderr().find("second signal"), std::string::npos)
       << (*server)->process().Stderr();
 }
 

@@ -185,13 +185,15 @@ absl::StatusOr<v1::InfoResponse> TestServer::Info() const {
   return info;
 }
 
-std::string TestServer::Health() const {
+std::string TestServer::Health(const std::string& service) const {
   // No token: the health service is open.
   auto stub = grpc::health::v1::Health::NewStub(grpc::CreateChannel(address_, Credentials()));
   grpc::ClientContext context;
   context.set_deadline(In(5));
   grpc::health::v1::HealthCheckResponse response;
-  grpc::Status st = stub->Check(&context, grpc::health::v1::HealthCheckRequest(), &response);
+  grpc::health::v1::HealthCheckRequest request;
+  request.set_service(service);
+  grpc::Status st = stub->Check(&context, request, &response);
   if (!st.ok()) {
     return absl::StatusCodeToString(static_cast<absl::StatusCode>(st.error_code()));
   }

@@ -90,8 +90,9 @@ class TestServer {
   std::unique_ptr<v1::Tandem::Stub> NewStub() const;
   void AddToken(grpc::ClientContext* context) const;
   absl::StatusOr<v1::InfoResponse> Info() const;
-  // "SERVING", "NOT_SERVING", ... or the RPC error's code name.
-  std::string Health() const;
+  // "SERVING", "NOT_SERVING", ... or the RPC error's code name, for health service
+  // `service` ("" = the server as a whole).
+  std::string Health(const std::string& service = "") const;
   // Polls GetInfo until no session, worker thread or session memory is left.
   bool WaitIdle(double timeout_s, v1::Counters* last = nullptr) const;
 
