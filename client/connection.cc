@@ -12,9 +12,34 @@
 
 namespace tandem::client {
 
+absl::StatusOr<std::string> ServiceConfigJson(const ConnectionOptions& options) {
+  if (options.lb_policy != "pick_first" && options.lb_policy != "round_robin") {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "--lb: expected pick_first or round_robin, got \"", options.lb_policy, "\""));
+  }
+  if (options.retries < 0 || options.retries > 4) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--retries: expected 0 to 4 (gRPC allows 5 attempts), got ",
+                     options.retries));
+  }
+  std::string json =
+      absl::StrCat(R"({"loadBalancingConfig":[{")", options.lb_policy, R"(":{}}])");
+  if (options.retries > 0) {
+    absl::StrAppend(&json, R"(,"methodConfig":[{"name":[{"service":"tandem.v1.Tandem"}],)",
+                    R"("retryPolicy":{"maxAttempts":)", options.retries + 1,
+                    R"(,"initialBackoff":"0.5s","maxBackoff":"5s","backoffMultiplier":2,)",
+                    R"("retryableStatusCodes":["UNAVAILABLE","RESOURCE_EXHAUSTED"]}}])");
+  }
+  absl::StrAppend(&json, "}");
+  return json;
+}
+
 absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const ConnectionOptions& options) {
   std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
   grpc::ChannelArguments args;
+  absl::StatusOr<std::string> service_config = ServiceConfigJson(options);
+  if (!service_config.ok()) return service_config.status();
+  args.SetServiceConfigJSON(*service_config);
   if (options.uses_tls()) {
     grpc::SslCredentialsOptions
         ssl;  // empty roots = the system's (or GRPC_DEFAULT_SSL_ROOTS_FILE_PATH)

@@ -23,9 +23,23 @@ struct ConnectionOptions {
   std::string token;              // bearer token, "" = none
   int64_t keepalive_time_ms = 0;  // ping an idle connection this often while a call is open
   int max_receive_bytes = 0;      // 0 = gRPC's default
+  // How calls are spread over the addresses the target resolves to: "pick_first" (one
+  // connection, gRPC's default) or "round_robin" (every ready address in turn: with a
+  // headless Service's DNS name, streams spread over the replicas).
+  std::string lb_policy = "pick_first";
+  // Tandem calls refused with UNAVAILABLE (no server, or one shutting down) or
+  // RESOURCE_EXHAUSTED (all sessions busy) before anything came back are tried again up
+  // to this many times (0..4), with exponential backoff from 0.5 s to 5 s. gRPC's retry
+  // policy does it: a stream is retried only while what it sent fits its retry buffer
+  // (256 KiB), i.e. before the slices flow; errors the server marks final (a request over
+  // its limits) are never retried.
+  int retries = 4;
 
   bool uses_tls() const { return tls || !tls_ca_file.empty(); }
 };
+
+// The gRPC service config for lb_policy and retries (JSON), or an error naming the flag.
+absl::StatusOr<std::string> ServiceConfigJson(const ConnectionOptions& options);
 
 // The channel for `options` (reads tls_ca_file: an error names it).
 absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const ConnectionOptions& options);

@@ -10,6 +10,7 @@
 #include <malloc.h>  // mallopt
 #endif
 
+#include <algorithm>
 #include <atomic>
 #include <cstdio>
 #include <filesystem>
@@ -62,6 +63,7 @@ struct ConnectionFlags {
   tandem::client::ConnectionOptions options;
   std::string token_file;
   bool with_token = true;
+  int64_t retries_flag = 4;
 
   ConnectionFlags() { options.server = tandem::wire::kDefaultServerAddress; }
   void Add(FlagSet& flags, bool token) {
@@ -72,6 +74,14 @@ struct ConnectionFlags {
     flags.AddBool("tls", &options.tls, "connect with TLS, verified against the system's roots");
     flags.AddString("tls-server-name", &options.tls_server_name, "NAME",
                     "name the server's certificate must carry, when not the host of --server");
+    flags.AddString("lb", &options.lb_policy, "pick_first|round_robin",
+                    "how calls spread over the addresses --server resolves to (round_robin "
+                    "with a DNS name of several replicas, or ipv4:HOST:PORT,HOST:PORT)");
+    int64_t* retries = &retries_flag;
+    flags.AddInt("retries", retries,
+                 "retry a call refused with UNAVAILABLE or RESOURCE_EXHAUSTED (server busy or "
+                 "going away) before its slices flow, up to N times (0..4), backoff 0.5 s "
+                 "doubling to 5 s");
     if (token) {
       flags.AddString("token-file", &token_file, "FILE",
                       "send the first token of FILE as `authorization: Bearer`; without it, "
@@ -80,6 +90,12 @@ struct ConnectionFlags {
   }
   // After parsing: loads the token. -1 to go on, else the exit status.
   int Finish() {
+    options.retries = static_cast<int>(std::clamp<int64_t>(retries_flag, -1, 5));
+    if (absl::StatusOr<std::string> config = tandem::client::ServiceConfigJson(options);
+        !config.ok()) {
+      absl::FPrintF(stderr, "tandem-client: %s\n", std::string(config.status().message()));
+      return 2;
+    }
     if (!with_token) return -1;
     absl::StatusOr<std::string> token = tandem::client::LoadToken(token_file);
     if (!token.ok()) {
@@ -97,7 +113,8 @@ struct ConnectionFlags {
 // Parses flags; returns -1 to go on, else the exit status (help printed or usage error).
 int ParseOrExit(FlagSet& flags, int argc, char** argv, ConnectionFlags* connection) {
   // TANDEM_SERVER etc., as in deploy/README.md (the token itself: TANDEM_TOKEN, no flag).
-  flags.UseEnvironment("TANDEM_", {"server", "tls-ca", "tls-server-name", "token-file"});
+  flags.UseEnvironment("TANDEM_",
+                       {"server", "tls-ca", "tls-server-name", "token-file", "lb", "retries"});
   if (absl::Status st = flags.Parse(argc, argv, 2); !st.ok()) {
     absl::FPrintF(stderr, "tandem-client: %s\n", std::string(st.message()));
     return 2;

@@ -14,7 +14,7 @@ BUILD_PKGS=(
   libgtest-dev libgmock-dev nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev
   python3 python3-yaml openssl assimp-utils
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
-  libgdcm-dev libniftiio-dev
+  libgdcm-dev libniftiio-dev libcpp-httplib-dev
 )
 # (python3-zarr / python3-numcodecs: the independent Zarr writer and reader the Zarr tests
 # cross-check against.)
@@ -22,12 +22,13 @@ BUILD_PKGS=(
 # `objdump -p` / `ldd` on the Release binaries): gRPC++ (libgrpc++, libgrpc++_reflection),
 # gRPC core (libgrpc, libgpr, libupb, libaddress_sorting), Abseil, Protobuf, Draco,
 # libtiff, zlib, libblosc and libzstd (Zarr codecs), GDCM (DICOM, with its JPEG / JPEG-LS /
-# JPEG 2000 codecs), nifticlib's niftiio (NIfTI orientation), and the C++ runtime. The rest (c-ares,
+# JPEG 2000 codecs), nifticlib's niftiio (NIfTI orientation), cpp-httplib (the server's
+# metrics endpoint), and the C++ runtime. The rest (c-ares,
 # re2, OpenSSL, libtiff's codecs) comes in through these packages' own dependencies.
 RUNTIME_PKGS=(
   libgrpc++1.51 libgrpc29 libabsl20220623 libprotobuf32 libdraco7 libtiff6 zlib1g
   libstdc++6 libgcc-s1
-  libblosc1 libzstd1 libgdcm3.0 libniftiio2 libznz3
+  libblosc1 libzstd1 libgdcm3.0 libniftiio2 libznz3 libcpp-httplib0.11
 )
 # Fuzzing and sanitizer builds: clang, its runtimes (libFuzzer, ASan, UBSan: a
 # Recommends of clang that --no-install-recommends would skip), llvm-symbolizer for stacks.

@@ -66,12 +66,13 @@ void TokenAuthenticator::LogRefusal(const std::string& peer, const char* method,
     return;
   }
   ++window_lines_;
-  std::string more;
-  if (unlogged_ > 0) more = absl::StrCat(" (", unlogged_, " earlier refusals not logged)");
+  const int64_t unlogged = unlogged_;
   unlogged_ = 0;
-  LogLine(
-      absl::StrFormat("refused peer=\"%s\" method=%s status=UNAUTHENTICATED reason=\"%s\"%s",
-                      LogQuoted(peer), method, LogQuoted(reason), more));
+  LogEvent("refused", {{"peer", LogField::Str{peer}},
+                       {"method", LogField::Word{method}},
+                       {"status", LogField::Word{"UNAUTHENTICATED"}},
+                       {"reason", LogField::Str{reason}},
+                       {"earlier_refusals_not_logged", unlogged}});
 }
 
 }  // namespace tandem::server

@@ -137,6 +137,11 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
   return absl::OkStatus();
 }
 
+ExtractJob::Phases ExtractJob::PhaseSeconds() const {
+  const PhaseTimes& t = session_ ? session_->stats().time : session_time_;
+  return {t.extract_s, t.simplify_s, encode_s_};
+}
+
 void ExtractJob::MaybePreview() {
   const int64_t every = config_.preview_every_slices;
   if (every <= 0 || cursor_.slice % every != 0) return;
@@ -187,6 +192,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   const IndexedMesh mesh = session_->Snapshot();
   MetricsReport report = MakeReport(*session_, mesh);
   sink_->PostProgress(MakeProgress());
+  session_time_ = session_->stats().time;
   session_.reset();
   final_triangles_ = triangles;
   if (reference_) {

@@ -59,6 +59,11 @@ class ExtractJob {
   int64_t triangles() const { return session_ ? session_->num_triangles() : final_triangles_; }
   // Memory held now (sessions, slice buffer, encoded output not yet handed over).
   size_t MemoryBytes() const;
+  // Seconds spent so far in each phase (for the server's metrics).
+  struct Phases {
+    double extract_s = 0, simplify_s = 0, encode_s = 0;
+  };
+  Phases PhaseSeconds() const;
 
  private:
   enum class State { kWaitConfig, kStreaming, kDone };
@@ -82,6 +87,7 @@ class ExtractJob {
   std::chrono::steady_clock::time_point start_;
   std::optional<std::chrono::steady_clock::time_point> last_preview_;
   double encode_s_ = 0;
+  PhaseTimes session_time_;  // of the session, kept when it is freed
   int64_t final_triangles_ = 0;
 };
 

@@ -1,15 +1,20 @@
-// The server's log: one line per event on stderr, each starting with an RFC 3339 UTC
-// timestamp (millisecond precision) and "tandem-server: ", written with one fwrite so that
-// lines from different threads never interleave. Every string a client supplies (the
-// session description, its peer address, messages that quote its input) goes through
-// LogQuoted: escaped, so that newlines and terminal escape codes cannot forge lines, and
-// truncated, so that an 8 MiB description cannot make an 8 MiB line.
+// The server's log: one line per event on stderr, written with one fwrite so that lines
+// from different threads never interleave.
+//   text (default):  <RFC 3339 UTC time, ms> tandem-server: <event> key=value ...
+//   json (--log-format json): {"time":"...","event":"...","key":value,...}
+// Every string a client supplies (the session description, its peer address, messages
+// that quote its input) is a Str field: escaped (text: LogQuoted; JSON: JSON escapes,
+// invalid UTF-8 replaced), so that newlines and terminal escape codes cannot forge lines,
+// and truncated, so that an 8 MiB description cannot make an 8 MiB line.
 #ifndef TANDEM_SERVER_LOG_H_
 #define TANDEM_SERVER_LOG_H_
 
 #include <cstddef>
+#include <cstdint>
+#include <initializer_list>
 #include <string>
 #include <string_view>
+#include <variant>
 
 namespace tandem::server {
 
@@ -17,7 +22,29 @@ namespace tandem::server {
 // \t, \r or \xHH; at most `max_bytes` input bytes, then "...(N bytes in all)".
 std::string LogQuoted(std::string_view text, size_t max_bytes = 200);
 
-// Writes "<RFC 3339 time> tandem-server: <text>\n" to stderr.
+enum class LogFormat { kText, kJson };
+// Set once at start-up, before any thread logs.
+void SetLogFormat(LogFormat format);
+
+// One field of an event. Str: quoted in text, truncated to `max_bytes`; Word: a value the
+// server chose (a status name), written bare in text.
+struct LogField {
+  struct Str {
+    std::string_view text;
+    size_t max_bytes = 200;
+  };
+  struct Word {
+    std::string_view text;
+  };
+  std::string_view key;
+  std::variant<int64_t, double, Str, Word> value;
+};
+
+// Writes one event line: `event` is a fixed word ("session", "refused", ...).
+void LogEvent(std::string_view event, std::initializer_list<LogField> fields);
+
+// A free-form line from the server itself (start-up, shutdown): text as it is; in JSON
+// {"time":...,"event":"server","message":text}.
 void LogLine(std::string_view text);
 
 }  // namespace tandem::server

@@ -23,7 +23,9 @@
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <httplib.h>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
@@ -64,7 +66,8 @@ absl::StatusOr<std::string> ReadFile(const std::string& flag, const std::string&
 
 int main(int argc, char** argv) {
   std::string listen = tandem::wire::kDefaultServerAddress;
-  std::string tls_cert, tls_key, tokens_file;
+  std::string tls_cert, tls_key, tokens_file, metrics_listen;
+  std::string log_format = "text";
   tandem::server::ServerLimits limits;
   int64_t max_sessions = limits.max_sessions;
   int64_t session_memory_mb = limits.session_memory_bytes >> 20;
@@ -73,6 +76,12 @@ int main(int argc, char** argv) {
   int64_t malloc_arenas = 2;
   tandem::cli::FlagSet flags(kUsage);
   flags.AddString("listen", &listen, "HOST:PORT", "address to listen on (port 0 = any free port)");
+  flags.AddString("log-format", &log_format, "text|json",
+                  "stderr log: one line per event, \"<RFC 3339 time> tandem-server: event "
+                  "key=value ...\" (text) or one JSON object (json)");
+  flags.AddString("metrics-listen", &metrics_listen, "HOST:PORT",
+                  "serve Prometheus metrics (text format) at http://HOST:PORT/metrics, no "
+                  "authentication (port 0 = any free port; empty = off)");
   flags.AddString("tls-cert", &tls_cert, "FILE",
                   "PEM certificate chain: serve TLS instead of plaintext (needs --tls-key)");
   flags.AddString("tls-key", &tls_key, "FILE", "PEM private key of --tls-cert");
@@ -126,7 +135,14 @@ int main(int argc, char** argv) {
   if (flags.help_requested()) {
     absl::PrintF("%s", flags.Help());
     return 0;
+  }  if (log_format == "json") {
+    tandem::server::SetLogFormat(tandem::server::LogFormat::kJson);
+  } else if (log_format != "text") {
+    absl::FPrintF(stderr, "tandem-server: --log-format: expected text or json, got \"%s\"\n",
+                  tandem::server::LogQuoted(log_format));
+    return 2;
   }
+
   if (!flags.positional().empty()) {
     absl::FPrintF(stderr, "tandem-server: unexpected argument '%s' (see --help)\n",
                   flags.positional().front());
@@ -256,6 +272,45 @@ int main(int argc, char** argv) {
                         "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network"));
   }
 
+  // The metrics endpoint: its own small HTTP server (cpp-httplib), two threads.
+  std::unique_ptr<httplib::Server> http;
+  std::thread http_thread;
+  if (!metrics_listen.empty()) {
+    const size_t colon = metrics_listen.rfind(':');
+    int mport = -1;
+    std::string mhost = metrics_listen.substr(0, colon == std::string::npos ? 0 : colon);
+    if (mhost.size() >= 2 && mhost.front() == '[' && mhost.back() == ']') {
+      mhost = mhost.substr(1, mhost.size() - 2);
+    }
+    if (colon == std::string::npos || mhost.empty() ||
+        !absl::SimpleAtoi(metrics_listen.substr(colon + 1), &mport) || mport < 0 ||
+        mport > 65535) {
+      tandem::server::LogLine(absl::StrFormat(
+          "--metrics-listen \"%s\": expected HOST:PORT", tandem::server::LogQuoted(metrics_listen)));
+      server->Shutdown();
+      return 2;
+    }
+    http = std::make_unique<httplib::Server>();
+    http->new_task_queue = [] { return new httplib::ThreadPool(2); };
+    http->Get("/metrics", [&service](const httplib::Request&, httplib::Response& res) {
+      res.set_content(service.MetricsText(), "text/plain; version=0.0.4; charset=utf-8");
+    });
+    mport = mport == 0 ? http->bind_to_any_port(mhost)
+                       : (http->bind_to_port(mhost, mport) ? mport : -1);
+    if (mport <= 0) {
+      tandem::server::LogLine(absl::StrFormat("cannot listen on --metrics-listen %s",
+                                              tandem::server::LogQuoted(metrics_listen)));
+      server->Shutdown();
+      return 1;
+    }
+    http_thread = std::thread([&http] { http->listen_after_bind(); });
+    tandem::server::LogLine(absl::StrFormat("metrics on http://%s:%d/metrics",
+                                            colon > 0 && metrics_listen[0] == '['
+                                                ? absl::StrCat("[", mhost, "]")
+                                                : mhost,
+                                            mport));
+  }
+
   std::thread signal_thread([&] {
     int sig = 0;
     sigwait(&signals, &sig);
@@ -311,6 +366,10 @@ int main(int argc, char** argv) {
   });
   server->Wait();
   signal_thread.join();
+  if (http) {
+    http->stop();
+    http_thread.join();
+  }
   // Workers notice the cancellation between slices; a slice takes well under a second.
   if (!service.WaitForWorkers(absl::Now() + absl::Seconds(30))) {
     tandem::server::LogLine(absl::StrFormat("worker threads still busy after 30 s; exiting"));

@@ -17,6 +17,7 @@
 #include "common/wire.h"
 #include "server/extract_job.h"
 #include "server/log.h"
+#include "server/metrics.h"
 
 namespace tandem::server {
 namespace {
@@ -44,6 +45,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
         peer_(context->peer()),
         start_(absl::Now()),
         context_(context),
+        call_context_(context),
         last_activity_(start_) {}
   ~ExtractCall() override;
 
@@ -105,6 +107,9 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
 
   absl::Mutex ctx_mu_;  // never held together with mu_
   grpc::CallbackServerContext* context_ ABSL_GUARDED_BY(ctx_mu_);  // null after OnDone
+  // The same, for use under mu_ before Finish only (OnDone, hence the end of the
+  // context, comes after Finish).
+  grpc::CallbackServerContext* const call_context_;
 
   mutable absl::Mutex mu_;
   Request read_buf_;  // owned by gRPC between StartRead and OnReadDone
@@ -193,14 +198,33 @@ ExtractCall::~ExtractCall() {
                               ? "the client left before the end"
                               : absl::StrCat("cancelled; before that: ", status.error_message()));
   }
-  LogLine(absl::StrFormat(
-      "session peer=\"%s\" input=\"%s\" slices=%d triangles=%d seconds=%.3f bytes_received=%d "
-      "bytes_sent=%d previews=%d status=%s%s",
-      LogQuoted(peer_), LogQuoted(description_), slices_, triangles_,
-      absl::ToDoubleSeconds(absl::Now() - start_), bytes_received_, bytes_sent_, previews_sent_,
-      absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code())),
-      status.ok() ? ""
-                  : absl::StrCat(" message=\"", LogQuoted(status.error_message(), 1000), "\"")));
+  const std::string status_name =
+      absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code()));
+  const double seconds = absl::ToDoubleSeconds(absl::Now() - start_);
+  if (status.ok()) {
+    LogEvent("session", {{"peer", LogField::Str{peer_}},
+                         {"input", LogField::Str{description_}},
+                         {"slices", slices_},
+                         {"triangles", triangles_},
+                         {"seconds", seconds},
+                         {"bytes_received", bytes_received_},
+                         {"bytes_sent", bytes_sent_},
+                         {"previews", previews_sent_},
+                         {"status", LogField::Word{status_name}}});
+  } else {
+    LogEvent("session", {{"peer", LogField::Str{peer_}},
+                         {"input", LogField::Str{description_}},
+                         {"slices", slices_},
+                         {"triangles", triangles_},
+                         {"seconds", seconds},
+                         {"bytes_received", bytes_received_},
+                         {"bytes_sent", bytes_sent_},
+                         {"previews", previews_sent_},
+                         {"status", LogField::Word{status_name}},
+                         {"message", LogField::Str{status.error_message(), 1000}}});
+  }
+  const auto code = static_cast<size_t>(status.error_code());
+  if (code < state_->finished_by_code.size()) state_->finished_by_code[code].fetch_add(1);
   state_->sessions_finished.fetch_add(1);
   state_->active_sessions.fetch_sub(1);  // last: tests wait for it to read the log
 }
@@ -230,6 +254,7 @@ void ExtractCall::OnReadDone(bool ok) {
   last_activity_ = absl::Now();
   const int64_t bytes = static_cast<int64_t>(read_buf_.ByteSizeLong());
   bytes_received_ += bytes;
+  state_->bytes_received_total.fetch_add(bytes);
   if (StoppingLocked()) {  // the stream is ending: nobody will take it
     read_buf_.Clear();
     return;
@@ -298,6 +323,11 @@ void ExtractCall::EndStreamLocked(grpc::Status status) {
     PumpLocked();
     return;
   }
+  if (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED && accepted_) {
+    // A limit of this server (grid, slices, memory budget), not a busy moment: tell gRPC
+    // clients with a retry policy not to retry. (Before Finish, the context is alive.)
+    call_context_->AddTrailingMetadata("grpc-retry-pushback-ms", "-1");
+  }
   if (!status.ok()) {
     progress_.reset();
     preview_.reset();
@@ -332,7 +362,10 @@ void ExtractCall::PumpLocked() {
   if (next) {
     // Wire figures are filled in here, where they are known exactly.
     if (next->has_progress()) next->mutable_progress()->set_bytes_received(bytes_received_);
-    if (next->has_preview()) ++previews_sent_;
+    if (next->has_preview()) {
+      ++previews_sent_;
+      state_->previews_sent_total.fetch_add(1);
+    }
     if (next->has_final_metrics()) {
       v1::FinalMetrics* m = next->mutable_final_metrics();
       m->set_bytes_received(bytes_received_);
@@ -341,6 +374,7 @@ void ExtractCall::PumpLocked() {
     }
     write_bytes_ = static_cast<int64_t>(next->ByteSizeLong());
     bytes_sent_ += write_bytes_;
+    state_->bytes_sent_total.fetch_add(write_bytes_);
     write_buf_ = std::move(*next);
     write_in_flight_ = true;
     StartWrite(&write_buf_);
@@ -462,6 +496,7 @@ void ExtractCall::RunWorker() {
       accounted_bytes = bytes;
       {
         absl::MutexLock lock(&mu_);
+        state_->slices_total.fetch_add(job.slices() - slices_);
         slices_ = job.slices();
         triangles_ = job.triangles();
       }
@@ -475,6 +510,11 @@ void ExtractCall::RunWorker() {
       }
     }
     state_->session_bytes.fetch_sub(accounted_bytes);
+    const ExtractJob::Phases phases = job.PhaseSeconds();
+    auto micros = [](double s) { return static_cast<int64_t>(s * 1e6); };
+    state_->extract_us_total.fetch_add(micros(phases.extract_s));
+    state_->simplify_us_total.fetch_add(micros(phases.simplify_s));
+    state_->encode_us_total.fetch_add(micros(phases.encode_s));
   }  // the session's memory goes here, before the output is delivered
   if (cancel) CancelCall();
   WaitForFinish();
@@ -578,6 +618,8 @@ v1::Counters TandemService::CountersSnapshot() const {
   c.set_sessions_draining(state_->sessions_draining.load());
   return c;
 }
+
+std::string TandemService::MetricsText() const { return PrometheusText(*state_); }
 
 grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* context,
                                                  const v1::InfoRequest* /*request*/,

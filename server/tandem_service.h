@@ -32,6 +32,7 @@
 #ifndef TANDEM_SERVER_TANDEM_SERVICE_H_
 #define TANDEM_SERVER_TANDEM_SERVICE_H_
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <map>
@@ -72,6 +73,14 @@ struct ServiceState {
   std::atomic<int64_t> session_bytes{0};
   std::atomic<int64_t> buffered_bytes{0};
   std::atomic<int64_t> sessions_draining{0};
+  // Totals since start, for the Prometheus endpoint (server/metrics.h).
+  std::atomic<int64_t> slices_total{0};
+  std::atomic<int64_t> bytes_received_total{0};
+  std::atomic<int64_t> bytes_sent_total{0};
+  std::atomic<int64_t> previews_sent_total{0};
+  std::atomic<int64_t> extract_us_total{0}, simplify_us_total{0}, encode_us_total{0};
+  // Finished accepted sessions by final gRPC status code (0..16).
+  std::array<std::atomic<int64_t>, 17> finished_by_code{};
 
   // Returns freed heap to the OS (malloc_trim) when no session is active.
   void TrimIfIdle() const;
@@ -111,6 +120,8 @@ class TandemService final : public v1::Tandem::CallbackService {
   // Call after grpc::Server::Shutdown: true once every worker thread has exited.
   bool WaitForWorkers(absl::Time deadline) { return state_->WaitForWorkers(deadline); }
   v1::Counters CountersSnapshot() const;
+  // The Prometheus text exposition of the counters above and more (server/metrics.h).
+  std::string MetricsText() const;
 
  private:
   std::shared_ptr<ServiceState> state_;

@@ -159,8 +159,9 @@ class Checker:
                 req, lim = get(res, "requests", r), get(res, "limits", r)
                 try:
                     if req is not None and lim is not None and \
-                            parse_quantity(req) > parse_quantity(lim):
-                        self.err(cw, f"resources.requests.{r} {req} > limits.{r} {lim}")
+                            parse_quantity(req) != parse_quantity(lim):
+                        self.err(cw, f"resources.requests.{r} {req} != limits.{r} {lim}: "
+                                     "the pod must be Guaranteed QoS")
                 except ValueError as e:
                     self.err(cw, str(e))
             ports = {p.get("containerPort") for p in c.get("ports", []) or []}
@@ -176,6 +177,12 @@ class Checker:
                 if grpc_port is not None and grpc_port not in ports | names:
                     self.err(cw, f"{probe} probes port {grpc_port}, not a declared containerPort")
             self.check_termination(cw, c, spec)
+            for a in (c.get("args") or []):
+                if isinstance(a, str) and a.startswith("--metrics-listen="):
+                    mport = int(a.rsplit(":", 1)[1])
+                    if mport not in ports:
+                        self.err(cw, f"--metrics-listen port {mport} is not a declared "
+                                     "containerPort")
             sc = c.get("securityContext", {}) or {}
 
             def eff(*path):
@@ -375,6 +382,8 @@ def self_test(docs, text):
         ("terminationGracePeriodSeconds", lambda ds: next(d for _, d in ds if d.get("kind") ==
                                                           "Deployment")["spec"]["template"]
          ["spec"].update(terminationGracePeriodSeconds=130)),
+        ("Guaranteed QoS", lambda ds: container(ds)["resources"]["limits"].update(cpu="4")),
+        ("--metrics-listen port", lambda ds: container(ds)["ports"].pop()),
         ("service: liveness", lambda ds: container(ds)["livenessProbe"]["grpc"].pop("service")),
         ("no image", lambda ds: container(ds).pop("image")),
         ("scaleTargetRef", lambda ds: next(d for _, d in ds if d.get("kind") ==

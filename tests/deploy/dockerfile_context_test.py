@@ -10,6 +10,7 @@ deploy/install-deps.sh is what the host ran already (the same script the stage r
 """
 
 import argparse
+import fnmatch
 import os
 import re
 import shlex
@@ -27,17 +28,46 @@ class Failure(Exception):
     pass
 
 
-def docker_copy(context, sources, dest, root):
-    """Docker COPY of context-relative sources to dest (relative to root = WORKDIR)."""
+def dockerignore(context):
+    """The patterns of CONTEXT/.dockerignore (comments and blank lines dropped)."""
+    path = os.path.join(context, ".dockerignore")
+    if not os.path.exists(path):
+        raise Failure("no .dockerignore: the build context would include build trees and .git")
+    with open(path) as f:
+        return [ln.strip().rstrip("/") for ln in f if ln.strip() and not ln.startswith("#")]
+
+
+def ignored(rel, patterns):
+    """Docker's rule, as far as these patterns go: a path is excluded when it or one of its
+    parent folders matches a pattern (`**/` matches any depth, including none)."""
+    parts = rel.split("/")
+    for i in range(1, len(parts) + 1):
+        prefix = "/".join(parts[:i])
+        for p in patterns:
+            if fnmatch.fnmatchcase(prefix, p) or (
+                    p.startswith("**/") and fnmatch.fnmatchcase(parts[i - 1], p[3:])):
+                return True
+    return False
+
+
+def docker_copy(context, sources, dest, root, patterns):
+    """Docker COPY of context-relative sources to dest (relative to root = WORKDIR),
+    without what .dockerignore excludes."""
     target = os.path.join(root, dest)
     into_dir = dest.endswith("/") or dest in (".", "./") or len(sources) > 1
     for src in sources:
         path = os.path.join(context, src)
         if not os.path.exists(path):
             raise Failure(f"COPY {src}: not in the build context {context}")
+        if ignored(os.path.normpath(src), patterns):
+            raise Failure(f"COPY {src}: excluded from the build context by .dockerignore")
+
+        def skip(folder, names):
+            rel = os.path.relpath(folder, context)
+            return [n for n in names
+                    if ignored(os.path.normpath(os.path.join(rel, n)), patterns)]
         if os.path.isdir(path):  # a folder's contents go to dest
-            shutil.copytree(path, target, dirs_exist_ok=True,
-                            ignore=shutil.ignore_patterns("build*", "__pycache__"))
+            shutil.copytree(path, target, dirs_exist_ok=True, ignore=skip)
         elif into_dir:
             os.makedirs(target, exist_ok=True)
             shutil.copy2(path, os.path.join(target, os.path.basename(src)))
@@ -77,12 +107,16 @@ def main():
     source_dir, build_dir, options = configure.group(1), configure.group(2), \
         shlex.split(configure.group(3))
 
+    patterns = dockerignore(args.context)
+    for must in (".git", "build*", "node_modules"):
+        if must not in patterns:
+            raise Failure(f".dockerignore does not exclude {must}")
     with tempfile.TemporaryDirectory(prefix="tandem-docker-context-") as tmp:
         root = os.path.join(tmp, workdir.lstrip("/"))
         os.makedirs(root, exist_ok=True)
         for sources, dest, src_from in dockerfile.copy_sources(build):
             if src_from is None:
-                docker_copy(args.context, sources, dest, root)
+                docker_copy(args.context, sources, dest, root, patterns)
         src = os.path.normpath(os.path.join(root, source_dir))
         out = os.path.join(tmp, build_dir.lstrip("/"))
         cmd = ["cmake", "-S", src, "-B", out] + options
