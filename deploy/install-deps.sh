@@ -6,6 +6,7 @@
 #   deploy/install-deps.sh --fuzz     build + test dependencies, plus clang and the
 #                                     libFuzzer/sanitizer runtimes (tests/sanitize.sh,
 #                                     tests/fuzz/run.sh)
+#   deploy/install-deps.sh --image    only what deploy/image-test.sh needs (podman, ...)
 set -euo pipefail
 
 BUILD_PKGS=(
@@ -14,8 +15,11 @@ BUILD_PKGS=(
   libgtest-dev libgmock-dev nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev
   python3 python3-yaml openssl assimp-utils
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
-  libgdcm-dev libniftiio-dev libcpp-httplib-dev
+  libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev
 )
+# (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
+# libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built
+# the image on a bare Debian 12.)
 # (python3-zarr / python3-numcodecs: the independent Zarr writer and reader the Zarr tests
 # cross-check against.)
 # What tandem-server and tandem-client link (their DT_NEEDED entries, checked with
@@ -33,6 +37,10 @@ RUNTIME_PKGS=(
 # Fuzzing and sanitizer builds: clang, its runtimes (libFuzzer, ASan, UBSan: a
 # Recommends of clang that --no-install-recommends would skip), llvm-symbolizer for stacks.
 FUZZ_PKGS=(clang libclang-rt-14-dev llvm)
+# Building and running the container image here (deploy/image-test.sh): podman, runc (crun,
+# podman's default, refuses the hybrid cgroup hierarchies of nested CI machines), and
+# mmdebstrap to make the debian:12 base without a registry.
+IMAGE_PKGS=(podman runc uidmap mmdebstrap)
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
@@ -43,8 +51,9 @@ case "${1:-}" in
   "") ;;
   --runtime) pkgs=("${RUNTIME_PKGS[@]}") ;;
   --fuzz) pkgs+=("${FUZZ_PKGS[@]}") ;;
+  --image) pkgs=("${IMAGE_PKGS[@]}") ;;
   *)
-    echo "install-deps: unknown option '$1' (use --runtime or --fuzz, or nothing)" >&2
+    echo "install-deps: unknown option '$1' (use --runtime, --fuzz or --image, or nothing)" >&2
     exit 2
     ;;
 esac

@@ -120,7 +120,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   };
   std::deque<Received> inbox_ ABSL_GUARDED_BY(mu_);  // read, not yet taken by the worker
   int64_t inbox_bytes_ ABSL_GUARDED_BY(mu_) = 0;
-  bool end_received_ ABSL_GUARDED_BY(mu_) = false;  // no read after End
+  bool end_received_ ABSL_GUARDED_BY(mu_) = false;  // a message after it is an error
   bool input_closed_ ABSL_GUARDED_BY(mu_) = false;
   bool cancelled_ ABSL_GUARDED_BY(mu_) = false;
   bool stalled_ ABSL_GUARDED_BY(mu_) = false;  // ended by the idle timeout
@@ -230,9 +230,8 @@ ExtractCall::~ExtractCall() {
 }
 
 void ExtractCall::MaybeStartReadLocked() {
-  if (read_in_flight_ || finish_called_ || StoppingLocked() || input_closed_ || end_received_) {
-    return;
-  }
+  // Reading goes on after End (until the final status): a message after End is an error.
+  if (read_in_flight_ || finish_called_ || StoppingLocked() || input_closed_) return;
   if (InflightLocked() >= state_->limits.max_inflight_bytes) return;  // resumed as it drains
   read_in_flight_ = true;
   StartRead(&read_buf_);
@@ -255,6 +254,19 @@ void ExtractCall::OnReadDone(bool ok) {
   const int64_t bytes = static_cast<int64_t>(read_buf_.ByteSizeLong());
   bytes_received_ += bytes;
   state_->bytes_received_total.fetch_add(bytes);
+  if (end_received_) {  // End must be the last message; replaces an OK not yet sent
+    const std::string kind = read_buf_.has_chunk()    ? "a SliceChunk"
+                             : read_buf_.has_config() ? "a SessionConfig"
+                             : read_buf_.has_end()    ? "a second End"
+                                                      : "an empty message";
+    read_buf_.Clear();
+    EndStreamLocked(grpc::Status(
+        grpc::StatusCode::INVALID_ARGUMENT,
+        absl::StrCat("got ", kind, " after End: End must be the stream's last message "
+                     "(half-close the stream after it)")));
+    SyncBufferedLocked();
+    return;
+  }
   if (StoppingLocked()) {  // the stream is ending: nobody will take it
     read_buf_.Clear();
     return;
