@@ -79,6 +79,80 @@ TEST(Sizing, SessionsStayWithinTheirBudgetsAtThePeak) {
                          << " MiB, bound " << (bound >> 20) << " MiB";
 }
 
+// The pod as deploy/k8s/deployment.yaml runs it: its server flags (sessions, budgets, slice
+// and message limits, grace), read from the manifest, and as many full-resolution streams
+// as it takes sessions, each large enough to fill its budget (a 256x256x600 gyroid: 833,418
+// triangles, whose encoding alone is over half the 256 MiB budget). The server's peak must
+// stay under the container's memory limit (requests = limits, so this is also what the
+// scheduler reserves): above it the kernel would OOM-kill the pod and every session on it.
+TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
+  if (kSanitized) GTEST_SKIP() << "resident sizes are the sanitizer's own under ASan and TSan";
+  std::ifstream yaml(TANDEM_DEPLOYMENT_YAML);
+  ASSERT_TRUE(yaml) << TANDEM_DEPLOYMENT_YAML;
+  std::vector<std::string> flags;
+  int64_t limit_mib = 0, sessions = 0;
+  bool in_args = false, in_limits = false;
+  for (std::string line; std::getline(yaml, line);) {
+    const size_t text = line.find_first_not_of(' ');
+    if (text == std::string::npos) continue;
+    const std::string item = line.substr(text);
+    if (item == "args:") { in_args = true; continue; }
+    if (item == "limits:") { in_limits = true; continue; }
+    if (in_args && item.rfind("- --", 0) == 0) {
+      const std::string flag = item.substr(2);
+      // Off here: the metrics port, JSON logs and the drain delay (they do not change
+      // memory; the delay would only slow the test's shutdown).
+      if (flag.rfind("--metrics-listen", 0) == 0 || flag.rfind("--log-format", 0) == 0 ||
+          flag.rfind("--drain-delay-seconds", 0) == 0) {
+        continue;
+      }
+      if (flag.rfind("--max-sessions=", 0) == 0) sessions = std::stoll(flag.substr(15));
+      flags.push_back(flag);
+      continue;
+    }
+    in_args = false;
+    if (in_limits && item.rfind("memory:", 0) == 0) {
+      const std::string value = item.substr(item.find_first_not_of(' ', 7));
+      ASSERT_EQ(value.substr(value.size() - 2), "Mi") << line;
+      limit_mib = std::stoll(value.substr(0, value.size() - 2));
+      in_limits = false;
+    }
+  }
+  ASSERT_GT(sessions, 0) << "no --max-sessions in the manifest's args";
+  ASSERT_GT(limit_mib, 0) << "no memory limit in the manifest";
+  const std::string dir = MakeTempDir();
+  auto volume = WriteSyntheticVolume(dir, "gyroid",
+                                     MakeSyntheticSource(Shape::kGyroid, 256, 256, 600));
+  ASSERT_TRUE(volume.ok()) << volume.status();
+  auto server = TestServer::Start(flags);
+  ASSERT_TRUE(server.ok()) << server.status();
+  const pid_t pid = (*server)->process().pid();
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int i = 0; i < sessions; ++i) {
+    auto c = ChildProcess::Spawn(
+        {BinPath("tandem-client"), "stream", "--server", (*server)->address(), "--input",
+         *volume, "--iso", "0", "--error", "0.2", "--schedule", "none", "--timeout", "300",
+         "--out", dir + "/out" + std::to_string(i) + ".drc"},
+        dir);
+    ASSERT_TRUE(c.ok()) << c.status();
+    clients.push_back(*std::move(c));
+  }
+  int ok = 0;
+  for (auto& c : clients) {
+    const std::optional<int> code = c->Wait(400);
+    ASSERT_TRUE(code.has_value()) << "a client did not finish";
+    if (*code == 0) ++ok;
+    else EXPECT_NE(c->Stderr().find("RESOURCE_EXHAUSTED"), std::string::npos) << c->Stderr();
+  }
+  EXPECT_GT(ok, 0) << "every stream was refused: the test no longer measures the encoding";
+  const int64_t peak = PeakResidentBytes(pid);
+  std::printf("pod flags (%zu from the manifest): server peak %lld MiB, limit %lld Mi, "
+              "%d of %lld streams OK\n",
+              flags.size(), static_cast<long long>(peak >> 20),
+              static_cast<long long>(limit_mib), ok, static_cast<long long>(sessions));
+  EXPECT_LE(peak, limit_mib << 20) << "the pod would be OOM-killed";
+}
+
 // A config alone commits no slice-sized memory: the plane caches and slice buffers of a
 // 4096^2 grid (about 780 MiB) are allocated when the first voxel arrives, not before, so
 // idle or abandoned configs cannot fill a pod. The budget still counts them from the config
