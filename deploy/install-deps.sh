@@ -16,6 +16,7 @@ BUILD_PKGS=(
   python3 python3-yaml openssl assimp-utils
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
   libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev
+  libssl-dev
 )
 # (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
 # libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built
@@ -27,12 +28,12 @@ BUILD_PKGS=(
 # gRPC core (libgrpc, libgpr, libupb, libaddress_sorting), Abseil, Protobuf, Draco,
 # libtiff, zlib, libblosc and libzstd (Zarr codecs), GDCM (DICOM, with its JPEG / JPEG-LS /
 # JPEG 2000 codecs), nifticlib's niftiio (NIfTI orientation), cpp-httplib (the server's
-# metrics endpoint), and the C++ runtime. The rest (c-ares,
+# metrics endpoint), OpenSSL's libcrypto (the server's TLS key check), and the C++ runtime. The rest (c-ares,
 # re2, OpenSSL, libtiff's codecs) comes in through these packages' own dependencies.
 RUNTIME_PKGS=(
   libgrpc++1.51 libgrpc29 libabsl20220623 libprotobuf32 libdraco7 libtiff6 zlib1g
   libstdc++6 libgcc-s1
-  libblosc1 libzstd1 libgdcm3.0 libniftiio2 libznz3 libcpp-httplib0.11
+  libblosc1 libzstd1 libgdcm3.0 libniftiio2 libznz3 libcpp-httplib0.11 libssl3
 )
 # Fuzzing and sanitizer builds: clang, its runtimes (libFuzzer, ASan, UBSan: a
 # Recommends of clang that --no-install-recommends would skip), llvm-symbolizer for stacks.

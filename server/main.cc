@@ -35,6 +35,7 @@
 #include "server/log.h"
 #include "server/request_validation.h"
 #include "server/tandem_service.h"
+#include "server/tls_check.h"
 
 namespace {
 
@@ -204,6 +205,11 @@ int main(int argc, char** argv) {
         return 2;
       }
     }
+    if (absl::Status pair = tandem::server::CheckCertificateAndKey(*cert, *key, tls_cert, tls_key);
+        !pair.ok()) {
+      absl::FPrintF(stderr, "tandem-server: %s\n", std::string(pair.message()));
+      return 2;
+    }
     grpc::SslServerCredentialsOptions ssl;
     ssl.pem_key_cert_pairs.push_back({*key, *cert});
     credentials = grpc::SslServerCredentials(ssl);
@@ -248,8 +254,7 @@ int main(int argc, char** argv) {
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (server == nullptr || port == 0) {
     tandem::server::LogLine(
-        absl::StrFormat("cannot listen on %s (address in use or invalid%s?)", listen,
-                        tls ? ", or --tls-cert and --tls-key do not match" : ""));
+        absl::StrFormat("cannot listen on %s (address in use or invalid?)", listen));
     return 1;
   }
   // Kubernetes probes: readiness checks "" (NOT_SERVING from the first signal on),

@@ -187,6 +187,27 @@ TEST_F(TlsTest, BadTlsConfigurationStopsTheServerWithAMessage) {
                                   *tokens_file_, "--tls-key", pki_->server_key});
   EXPECT_EQ(not_pem.exit_code, 2);
   EXPECT_NE(not_pem.err.find("not a PEM file"), std::string::npos) << not_pem.err;
+  // The CA's key with the server's certificate: before the check, gRPC logged "Invalid
+  // private key" and the server only guessed at the cause.
+  RunResult wrong_key = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
+                                    "--tls-cert", pki_->server_crt, "--tls-key",
+                                    *dir_ + "/ca.key"});
+  EXPECT_EQ(wrong_key.exit_code, 2);
+  EXPECT_NE(wrong_key.err.find("--tls-key " + *dir_ + "/ca.key is not the private key of the "
+                               "certificate in --tls-cert " + pki_->server_crt),
+            std::string::npos)
+      << wrong_key.err;
+  RunResult cert_as_key = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
+                                      "--tls-cert", pki_->server_crt, "--tls-key",
+                                      pki_->server_crt});
+  EXPECT_EQ(cert_as_key.exit_code, 2);
+  EXPECT_NE(cert_as_key.err.find("no unencrypted PEM private key"), std::string::npos)
+      << cert_as_key.err;
+  RunResult key_as_cert = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
+                                      "--tls-cert", pki_->server_key, "--tls-key",
+                                      pki_->server_key});
+  EXPECT_EQ(key_as_cert.exit_code, 2);
+  EXPECT_NE(key_as_cert.err.find("no PEM certificate"), std::string::npos) << key_as_cert.err;
   RunResult bad_ca = Client({"info", "--server", "127.0.0.1:1", "--tls-ca", *tokens_file_});
   EXPECT_EQ(bad_ca.exit_code, 1);
   EXPECT_NE(bad_ca.err.find("no PEM certificate"), std::string::npos) << bad_ca.err;
