@@ -9,7 +9,9 @@
 #include <pthread.h>
 #include <signal.h>
 
+#include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -20,6 +22,7 @@
 #include <thread>
 #include <vector>
 
+#include <grpc/grpc.h>  // grpc_server_cancel_all_calls
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
@@ -351,8 +354,11 @@ int main(int argc, char** argv) {
     const auto deadline = std::chrono::steady_clock::now() + seconds(grace_seconds);
     // Shutdown returns as soon as every call is done; its own deadline (a little after
     // ours) only cancels what did not even take UNAVAILABLE (a client that does not read).
+    std::atomic<bool> shutdown_started{false}, shutdown_done{false};
     std::thread stopper([&] {
+      shutdown_started = true;
       server->Shutdown(std::chrono::system_clock::now() + seconds(grace_seconds + 5));
+      shutdown_done = true;
     });
     while (service.CountersSnapshot().active_sessions() > 0 &&
            std::chrono::steady_clock::now() < deadline) {
@@ -366,6 +372,27 @@ int main(int argc, char** argv) {
     if (ended > 0) {
       tandem::server::LogLine(
           absl::StrFormat("grace period over: %d streams ended with UNAVAILABLE", ended));
+    }
+    // Once every stream has delivered its status (a client that does not read keeps its
+    // own until Shutdown's deadline), nothing is left but connections, and gRPC's graceful
+    // GOAWAY waits for each client to answer a ping: an idle C++ client channel answers
+    // only at its 5 s backup poll, one that never answers after 20 s. Cut them.
+    // (grpc::Server::c_server is marked experimental; grpc_server_cancel_all_calls is
+    // the C API's documented way to end a shutdown early, and it closes the connections.)
+    const auto slack = std::chrono::steady_clock::now() + seconds(5);
+    while (!shutdown_done &&
+           (!shutdown_started || service.CountersSnapshot().active_sessions() > 0) &&
+           std::chrono::steady_clock::now() < slack) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    // One more second for connections that close by themselves (a client reading its
+    // last status answers the GOAWAY at once), so that none is cut with bytes in flight.
+    const auto settle = std::chrono::steady_clock::now() + seconds(1);
+    while (!shutdown_done && std::chrono::steady_clock::now() < settle) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    if (!shutdown_done && shutdown_started && service.CountersSnapshot().active_sessions() == 0) {
+      grpc_server_cancel_all_calls(server->c_server());
     }
     stopper.join();
   });

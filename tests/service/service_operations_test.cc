@@ -277,5 +277,29 @@ TEST(Client, DoesNotRetryARequestOverTheServersLimits) {
   EXPECT_EQ((*server)->Info()->counters().sessions_started(), 1) << "one attempt only";
 }
 
+// A client process that keeps its channel open after a stream (an idle connection that
+// has carried a call) does not hold the exit: gRPC's graceful GOAWAY would wait for the
+// client to answer a ping, which an idle C++ channel does only at its 5 s backup poll.
+TEST(Shutdown, AnIdleChannelThatRanAStreamDoesNotHoldTheExit) {
+  auto server = TestServer::Start({"--grace-seconds", "20"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  auto stub = s.NewStub();  // kept open until the end of the test
+  const StreamOutcome outcome = RunStream(*stub, Sphere(16));
+  ASSERT_TRUE(outcome.status.ok()) << outcome.status.error_message();
+  ASSERT_TRUE(s.WaitIdle(10));
+  const absl::Time signalled = absl::Now();
+  s.process().Signal(SIGTERM);
+  ASSERT_EQ(s.process().Wait(30), 0) << s.process().Stderr();
+  const double exit_s = absl::ToDoubleSeconds(absl::Now() - signalled);
+  EXPECT_LT(exit_s, 2.5) << "measured 5.0 s before the server cut idle connections\n"
+                         << s.process().Stderr();
+  // The channel still works for what comes next: it reconnects (and finds no server).
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  v1::InfoResponse info;
+  EXPECT_FALSE(stub->GetInfo(&context, v1::InfoRequest(), &info).ok());
+}
+
 }  // namespace
 }  // namespace tandem::testing
