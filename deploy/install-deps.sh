@@ -16,13 +16,14 @@ BUILD_PKGS=(
   python3 python3-yaml openssl assimp-utils
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
   libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev
-  libssl-dev
+  libssl-dev python3-grpcio python3-protobuf python3-numpy draco
 )
 # (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
 # libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built
 # the image on a bare Debian 12.)
 # (python3-zarr / python3-numcodecs: the independent Zarr writer and reader the Zarr tests
-# cross-check against.)
+# cross-check against. python3-grpcio, python3-protobuf, python3-numpy: the Python client
+# in client/python and its test; draco: draco_decoder, which it decodes meshes with.)
 # What tandem-server and tandem-client link (their DT_NEEDED entries, checked with
 # `objdump -p` / `ldd` on the Release binaries): gRPC++ (libgrpc++, libgrpc++_reflection),
 # gRPC core (libgrpc, libgpr, libupb, libaddress_sorting), Abseil, Protobuf, Draco,
