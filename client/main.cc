@@ -25,6 +25,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "cli/version.h"
 #include "client/connection.h"
 #include "client/stream_client.h"
 #include "codec/draco_codec.h"
@@ -48,6 +49,7 @@ constexpr char kMainUsage[] =
     "  stream   stream a volume to tandem-server and save the simplified iso-surface\n"
     "  info     print the server's version, security, limits and live counters\n"
     "  health   query the standard gRPC health service (exit 0 when SERVING)\n"
+    "  --version  print the version and git revision\n"
     "environment: TANDEM_SERVER, TANDEM_TLS_CA, TANDEM_TLS_SERVER_NAME, TANDEM_TOKEN_FILE (as\n"
     "the flags), TANDEM_TOKEN (the bearer token itself; --token-file wins; never a flag,\n"
     "since command lines are visible to every user of the machine)";
@@ -480,6 +482,10 @@ int main(int argc, char** argv) {
   if (command == "health") return HealthCommand(argc, argv);
   if (command == "--help" || command == "-h" || command == "help") {
     absl::PrintF("%s\n", kMainUsage);
+    return 0;
+  }
+  if (command == "--version" || command == "version") {
+    absl::PrintF("%s", TANDEM_VERSION_LINE("tandem-client"));
     return 0;
   }
   absl::FPrintF(stderr, "%s\n", kMainUsage);

@@ -17,6 +17,7 @@ BUILD_PKGS=(
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
   libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev
   libssl-dev python3-grpcio python3-protobuf python3-numpy draco
+  help2man
 )
 # (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
 # libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built

@@ -32,6 +32,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
+#include "cli/version.h"
 #include "common/cli_flags.h"
 #include "common/tokens.h"
 #include "common/wire.h"
@@ -132,6 +133,10 @@ int main(int argc, char** argv) {
   flags.AddDouble("grace-seconds", &grace_seconds,
                   "then, time running streams get to finish; the rest end with UNAVAILABLE");
   flags.UseEnvironment("TANDEM_");  // containers configure through TANDEM_* variables
+  if (argc == 2 && std::string_view(argv[1]) == "--version") {
+    absl::PrintF("%s", TANDEM_VERSION_LINE("tandem-server"));
+    return 0;
+  }
   if (absl::Status st = flags.Parse(argc, argv); !st.ok()) {
     absl::FPrintF(stderr, "tandem-server: %s\n", std::string(st.message()));
     return 2;

@@ -25,6 +25,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "cli/cli_util.h"
+#include "cli/version.h"
 #include "tandem/distance.h"
 #include "tandem/follow.h"
 #include "tandem/mesh_io.h"
@@ -50,6 +51,7 @@ Usage:
   tandem measure  A.{ply,obj} B.{ply,obj} [--samples N] [--json]
   tandem info     --input FILE
   tandem simulate --input FILE --out DIR --as dicom|tiff|zarr --rate R   (an instrument)
+  tandem --version
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
 .tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
@@ -759,6 +761,10 @@ int main(int argc, char** argv) {
     return argc < 2 ? 2 : 0;
   }
   const std::string cmd = argv[1];
+  if (cmd == "--version" || cmd == "version") {
+    std::fputs(TANDEM_VERSION_LINE("tandem"), stdout);
+    return 0;
+  }
   try {  // no input may abort the process: report and exit 1
     if (cmd == "extract") return tandem::Extract(argc, argv);
     if (cmd == "generate") return tandem::Generate(argc, argv);
