@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -36,9 +37,16 @@ absl::StatusOr<Args> Args::Parse(int argc, char** argv, int first,
         if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat("--", name, " needs a value"));
         value = argv[++i];
       }
+      if (auto it = a.values_.find(name); it != a.values_.end()) {
+        return absl::InvalidArgumentError(absl::StrCat("--", name, " given twice ('", it->second,
+                                                       "' and '", value, "'): give it once"));
+      }
       a.values_[name] = value;
     } else {
-      return absl::InvalidArgumentError(absl::StrCat("unknown option --", name, " (see --help)"));
+      std::vector<std::string> known(valued.begin(), valued.end());
+      known.insert(known.end(), flags.begin(), flags.end());
+      return absl::InvalidArgumentError(
+          absl::StrCat("unknown option --", name, DidYouMean(name, known), " (see --help)"));
     }
   }
   return a;
@@ -85,6 +93,57 @@ absl::StatusOr<int64_t> Args::GetInt(const std::string& name, std::optional<int6
   return GetNumber<int64_t>(Get(name), name, def, "an integer", [](const char* s, char** e) {
     return static_cast<int64_t>(std::strtoll(s, e, 10));
   });
+}
+
+namespace {
+
+// Optimal string alignment distance (Damerau-Levenshtein without repeated edits).
+size_t EditDistance(const std::string& a, const std::string& b) {
+  std::vector<std::vector<size_t>> d(a.size() + 1, std::vector<size_t>(b.size() + 1));
+  for (size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+  for (size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    for (size_t j = 1; j <= b.size(); ++j) {
+      const size_t cost = a[i - 1] == b[j - 1] ? 0 : 1;
+      d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + cost});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) {
+        d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      }
+    }
+  }
+  return d[a.size()][b.size()];
+}
+
+}  // namespace
+
+std::string ClosestName(const std::string& name, const std::vector<std::string>& known) {
+  size_t best = 3;
+  std::string closest;
+  bool tie = false;
+  for (const std::string& k : known) {
+    const size_t dist = EditDistance(name, k);
+    if (dist < best) {
+      best = dist;
+      closest = k;
+      tie = false;
+    } else if (dist == best) {
+      tie = true;
+    }
+  }
+  if (!closest.empty() && !tie) return closest;
+  std::string prefixed;
+  for (const std::string& k : known) {
+    if (!name.empty() && k.rfind(name, 0) == 0) {
+      if (!prefixed.empty()) return "";
+      prefixed = k;
+    }
+  }
+  return prefixed;
+}
+
+std::string DidYouMean(const std::string& name, const std::vector<std::string>& known) {
+  const std::string closest = ClosestName(name, known);
+  return closest.empty() ? "" : absl::StrCat(" (did you mean --", closest, "?)");
 }
 
 Progress::Progress(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO)) {}

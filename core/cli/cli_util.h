@@ -17,7 +17,8 @@ namespace tandem::cli {
 class Args {
  public:
   // Parses argv[first..]; `valued` names take a value ("--iso 120" or "--iso=120"), `flags`
-  // take none. Unknown options are an error naming them.
+  // take none. Unknown options are an error naming them (with the closest known name), and
+  // so is a valued option given twice.
   static absl::StatusOr<Args> Parse(int argc, char** argv, int first,
                                     const std::set<std::string>& valued,
                                     const std::set<std::string>& flags);
@@ -33,6 +34,14 @@ class Args {
   std::set<std::string> flags_;
   std::vector<std::string> positional_;
 };
+
+// The known name closest to `name` for a "did you mean" hint: the nearest by edit
+// distance (insertions, deletions, substitutions, transpositions) if at most 2 and
+// unambiguous, else the only name that starts with `name`, else "".
+std::string ClosestName(const std::string& name, const std::vector<std::string>& known);
+
+// " (did you mean --NAME?)" for an unknown option, or "" when nothing is close.
+std::string DidYouMean(const std::string& name, const std::vector<std::string>& known);
 
 // "slices 12/128" on stderr, rewritten in place; only when stderr is a terminal.
 class Progress {

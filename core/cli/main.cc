@@ -272,6 +272,15 @@ int Extract(int argc, char** argv) {
   std::optional<double> iso_default;
   if (!info.suggested_isovalues.empty()) iso_default = info.suggested_isovalues[0];
   auto iso = args->GetDouble("iso", iso_default);
+  if (!iso.ok() && args->Has("iso")) {
+    const std::string text = *args->Get("iso");
+    if (text.find(',') != std::string::npos) {
+      return Fail(absl::InvalidArgumentError(absl::StrCat(
+          "--iso '", text, "': one iso-value per run (several surfaces in one pass are not "
+          "supported yet: run once per value)")));
+    }
+    return Fail(iso.status());
+  }
   if (!iso.ok()) {
     return Fail(absl::InvalidArgumentError(absl::StrCat(
         "--iso C0 is required: ", *input, " suggests no iso-value")));

@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <set>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "cli/cli_util.h"
 
 namespace tandem::cli {
 
@@ -90,6 +92,7 @@ absl::Status FlagSet::Parse(int argc, char** argv, int first) {
       if (absl::Status st = Set(f, value, f.env); !st.ok()) return st;
     }
   }
+  std::set<std::string> on_command_line;  // valued flags seen, to refuse a repeat
   for (int i = first; i < argc; ++i) {
     std::string arg = argv[i];
     if (arg == "--help" || arg == "-h") {
@@ -109,7 +112,14 @@ absl::Status FlagSet::Parse(int argc, char** argv, int first) {
     }
     Flag* f = Find(name);
     if (f == nullptr) {
-      return absl::InvalidArgumentError(absl::StrCat("unknown flag --", name, " (see --help)"));
+      std::vector<std::string> known;
+      for (const Flag& k : flags_) known.push_back(k.name);
+      return absl::InvalidArgumentError(absl::StrCat("unknown flag --", name,
+                                                     cli::DidYouMean(name, known), " (see --help)"));
+    }
+    if (f->kind != Kind::kBool && !on_command_line.insert(f->name).second) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--", name, " given twice: give it once"));
     }
     if (f->kind == Kind::kBool && !has_value) {
       *static_cast<bool*>(f->var) = true;

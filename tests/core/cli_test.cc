@@ -69,6 +69,33 @@ TEST_F(Cli, HelpTellsTheSubcommandsAndOptions) {
   EXPECT_NE(RunTandem("frobnicate").code, 0);
 }
 
+// Mistakes on the command line get a message that says what was wrong: a repeated
+// option (it used to keep the last value silently), a malformed number or a list given
+// to --iso (both used to be reported as "no iso-value suggested"), a misspelt option
+// (with the closest real one), and --version answers.
+TEST_F(Cli, CommandLineMistakesAreNamed) {
+  ASSERT_EQ(RunTandem("generate sphere --size 16 --out " + Path("s.json")).code, 0);
+  const std::string extract = "extract --input " + Path("s.json") + " --out " + Path("m.ply");
+  Output o = RunTandem(extract + " --iso 1 --iso 2");
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--iso given twice ('1' and '2'): give it once"), std::string::npos)
+      << o.text;
+  o = RunTandem(extract + " --iso 1x");
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--iso: '1x' is not a number"), std::string::npos) << o.text;
+  o = RunTandem(extract + " --iso 60,120");
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("one iso-value per run"), std::string::npos) << o.text;
+  o = RunTandem(extract + " --erorr 0.5");
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("unknown option --erorr (did you mean --error?)"), std::string::npos)
+      << o.text;
+  o = RunTandem("--version");
+  EXPECT_EQ(o.code, 0);
+  EXPECT_EQ(o.text.rfind("tandem 0.", 0), 0u) << o.text;
+  EXPECT_NE(o.text.find("(git "), std::string::npos) << o.text;
+}
+
 TEST_F(Cli, GenerateThenExtractFullResolution) {
   Output g = RunTandem("generate sphere --size 32 --out " + Path("s.json"));
   ASSERT_EQ(g.code, 0) << g.text;

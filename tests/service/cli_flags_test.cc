@@ -1,6 +1,8 @@
 // FlagSet, the parser both binaries use: forms, defaults in --help, environment fallback.
 #include "common/cli_flags.h"
 
+#include "cli/cli_util.h"
+
 #include <cstdlib>
 #include <vector>
 
@@ -81,6 +83,49 @@ TEST(FlagSet, ErrorsNameTheFlag) {
   Args help({"prog", "--help"});
   EXPECT_TRUE(f4.Parse(help.argc(), help.argv()).ok());
   EXPECT_TRUE(f4.help_requested());
+}
+
+TEST(FlagSet, MisspeltFlagsGetTheClosestNameAndRepeatsAreErrors) {
+  int64_t n = 0;
+  double grace = 0;
+  bool quiet = false;
+  auto make = [&](FlagSet* f) {
+    f->AddInt("count", &n, "an int");
+    f->AddDouble("grace-seconds", &grace, "a double");
+    f->AddBool("quiet", &quiet, "a bool");
+  };
+  FlagSet f1("usage");
+  make(&f1);
+  Args typo({"prog", "--cuont", "1"});
+  EXPECT_EQ(f1.Parse(typo.argc(), typo.argv()).message(),
+            "unknown flag --cuont (did you mean --count?) (see --help)");
+  FlagSet f2("usage");
+  make(&f2);
+  Args prefix({"prog", "--grace", "1"});
+  EXPECT_EQ(f2.Parse(prefix.argc(), prefix.argv()).message(),
+            "unknown flag --grace (did you mean --grace-seconds?) (see --help)");
+  FlagSet f3("usage");
+  make(&f3);
+  Args twice({"prog", "--count", "1", "--count=2"});
+  EXPECT_EQ(f3.Parse(twice.argc(), twice.argv()).message(), "--count given twice: give it once");
+  FlagSet f4("usage");
+  make(&f4);
+  Args bools({"prog", "--quiet", "--quiet", "--count", "3"});
+  EXPECT_TRUE(f4.Parse(bools.argc(), bools.argv()).ok()) << "a repeated switch is harmless";
+  EXPECT_EQ(n, 3);
+}
+
+TEST(ClosestName, NearestUnambiguousOrTheOnlyPrefix) {
+  const std::vector<std::string> known = {"iso", "input", "error", "alpha", "max-sessions",
+                                          "max-slices"};
+  EXPECT_EQ(ClosestName("isoo", known), "iso");
+  EXPECT_EQ(ClosestName("erorr", known), "error");     // a transposition
+  EXPECT_EQ(ClosestName("max-sesions", known), "max-sessions");
+  EXPECT_EQ(ClosestName("inp", known), "input");       // the only name it starts
+  EXPECT_EQ(ClosestName("max", known), "");            // two names start with it
+  EXPECT_EQ(ClosestName("frobnicate", known), "");
+  EXPECT_EQ(DidYouMean("alpah", known), " (did you mean --alpha?)");
+  EXPECT_EQ(DidYouMean("zzz", known), "");
 }
 
 TEST(FlagSet, CommandLineBeatsEnvironmentWhichBeatsDefault) {
