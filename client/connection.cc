@@ -22,16 +22,10 @@ absl::StatusOr<std::string> ServiceConfigJson(const ConnectionOptions& options) 
         absl::StrCat("--retries: expected 0 to 4 (gRPC allows 5 attempts), got ",
                      options.retries));
   }
-  std::string json =
-      absl::StrCat(R"({"loadBalancingConfig":[{")", options.lb_policy, R"(":{}}])");
-  if (options.retries > 0) {
-    absl::StrAppend(&json, R"(,"methodConfig":[{"name":[{"service":"tandem.v1.Tandem"}],)",
-                    R"("retryPolicy":{"maxAttempts":)", options.retries + 1,
-                    R"(,"initialBackoff":"0.5s","maxBackoff":"5s","backoffMultiplier":2,)",
-                    R"("retryableStatusCodes":["UNAVAILABLE","RESOURCE_EXHAUSTED"]}}])");
-  }
-  absl::StrAppend(&json, "}");
-  return json;
+  // Retries are the stream client's own (StreamVolume): gRPC's retry policy replays only
+  // what fits its 256 KiB buffer (one large slice commits the call), and in gRPC 1.51 a
+  // retried stream was seen to hang under load.
+  return absl::StrCat(R"({"loadBalancingConfig":[{")", options.lb_policy, R"(":{}}]})");
 }
 
 absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const ConnectionOptions& options) {

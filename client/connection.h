@@ -27,18 +27,18 @@ struct ConnectionOptions {
   // connection, gRPC's default) or "round_robin" (every ready address in turn: with a
   // headless Service's DNS name, streams spread over the replicas).
   std::string lb_policy = "pick_first";
-  // Tandem calls refused with UNAVAILABLE (no server, or one shutting down) or
-  // RESOURCE_EXHAUSTED (all sessions busy) before anything came back are tried again up
-  // to this many times (0..4), with exponential backoff from 0.5 s to 5 s. gRPC's retry
-  // policy does it: a stream is retried only while what it sent fits its retry buffer
-  // (256 KiB), i.e. before the slices flow; errors the server marks final (a request over
-  // its limits) are never retried.
+  // Extract streams refused with UNAVAILABLE (no server, or one shutting down) or
+  // RESOURCE_EXHAUSTED (all sessions busy) before anything came back are sent again up to
+  // this many times (0..4), with exponential backoff from 0.5 s to 5 s (StreamVolume does
+  // it; no slice is sent before the server's first message); errors the server marks final
+  // (a request over its limits) are never retried.
   int retries = 4;
 
   bool uses_tls() const { return tls || !tls_ca_file.empty(); }
 };
 
-// The gRPC service config for lb_policy and retries (JSON), or an error naming the flag.
+// The gRPC service config for lb_policy (JSON; retries checked too), or an error naming
+// the flag.
 absl::StatusOr<std::string> ServiceConfigJson(const ConnectionOptions& options);
 
 // The channel for `options` (reads tls_ca_file: an error names it).

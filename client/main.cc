@@ -81,9 +81,10 @@ struct ConnectionFlags {
                     "with a DNS name of several replicas, or ipv4:HOST:PORT,HOST:PORT)");
     int64_t* retries = &retries_flag;
     flags.AddInt("retries", retries,
-                 "retry a call refused with UNAVAILABLE or RESOURCE_EXHAUSTED (server busy or "
-                 "going away) before its slices flow, up to N times (0..4), backoff 0.5 s "
-                 "doubling to 5 s");
+                 "send a stream again when the server refuses it at the door (RESOURCE_EXHAUSTED: "
+                 "all session slots taken; UNAVAILABLE: going away or not there), up to N times "
+                 "(0..4), backoff 0.5 s doubling to 5 s; no slice is read before the server "
+                 "takes the stream, and limits it marks final are not retried");
     if (token) {
       flags.AddString("token-file", &token_file, "FILE",
                       "send the first token of FILE as `authorization: Bearer`; without it, "
@@ -317,6 +318,11 @@ int StreamCommand(int argc, char** argv) {
       absl::FPrintF(stderr, "\r[%s%s] %d/%d slices, %d triangles", std::string(filled, '#'),
                     std::string(width - filled, ' '), p.slices_consumed(), nz, p.triangles());
     }
+  };
+  callbacks.on_retry = [&](const absl::Status& refusal, int retry, double seconds) {
+    absl::FPrintF(stderr, "tandem-client: refused (%s: %s); retry %d of %d in %.1f s\n",
+                  absl::StatusCodeToString(refusal.code()), std::string(refusal.message()),
+                  retry, connection.options.retries, seconds);
   };
   callbacks.on_preview = [&](const tandem::v1::Preview& p, int64_t sent) {
     if (verbose) {

@@ -2,12 +2,15 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <memory>
 #include <thread>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
 
+#include "absl/random/distributions.h"
+#include "absl/random/random.h"
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
@@ -34,6 +37,12 @@ class Sender {
     absl::MutexLock lock(&mu_);
     stop_ = true;
   }
+  // The server answered (its first message says it took the session): slices may flow.
+  // Until then nothing is read from the volume, so a refused stream can be sent again.
+  void Accept() {
+    absl::MutexLock lock(&mu_);
+    accepted_ = true;
+  }
   int64_t slices_sent() const {
     absl::MutexLock lock(&mu_);
     return slices_sent_;
@@ -45,6 +54,7 @@ class Sender {
   Stream* stream_;
   mutable absl::Mutex mu_;
   bool stop_ ABSL_GUARDED_BY(mu_) = false;
+  bool accepted_ ABSL_GUARDED_BY(mu_) = false;
   int64_t slices_sent_ ABSL_GUARDED_BY(mu_) = 0;
 };
 
@@ -53,6 +63,13 @@ absl::Status Sender::Run() {
   v1::ExtractRequest request;
   *request.mutable_config() = options_.config;
   if (!stream_->Write(request)) return absl::OkStatus();
+  {
+    absl::MutexLock lock(&mu_);
+    mu_.Await(absl::Condition(
+        +[](Sender* s) ABSL_EXCLUSIVE_LOCKS_REQUIRED(s->mu_) { return s->accepted_ || s->stop_; },
+        this));
+    if (stop_) return absl::OkStatus();
+  }
   std::vector<uint8_t> bytes;
   // A mapped file offers its slices in place (SliceSource::ViewSlice): sent from there, they
   // are not first copied out of the page cache into `bytes`.
@@ -106,6 +123,12 @@ absl::Status Sender::Run() {
 
 }  // namespace
 
+// One attempt: `refused` says whether the server refused it before taking any slice.
+absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions& opts,
+                                        const StreamCallbacks& callbacks, v1::Tandem::Stub& stub,
+                                        const std::chrono::system_clock::time_point* deadline,
+                                        absl::Time start, bool* refused);
+
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks) {
   if (options.chunk_bytes == 0) return absl::InvalidArgumentError("chunk size must be > 0");
@@ -135,14 +158,33 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(opts.connection);
   if (!channel.ok()) return channel.status();
   std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(*channel);
+  const absl::Time start = absl::Now();
+  const auto deadline = std::chrono::system_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000));
+  absl::BitGen jitter;
+  for (int attempt = 0;; ++attempt) {
+    bool refused = false;
+    absl::StatusOr<StreamResult> result =
+        StreamOnce(source, opts, callbacks, *stub, opts.timeout_s > 0 ? &deadline : nullptr,
+                   start, &refused);
+    if (!refused || attempt >= opts.connection.retries) return result;
+    // Refused at the door (all session slots taken, or the server going away), before a
+    // single slice was read: send it again after a backoff, 0.5 s doubling to 5 s, +-20 %.
+    const double backoff = std::min(5.0, 0.5 * std::pow(2.0, attempt)) *
+                           absl::Uniform(jitter, 0.8, 1.2);
+    if (callbacks.on_retry) callbacks.on_retry(result.status(), attempt + 1, backoff);
+    absl::SleepFor(absl::Seconds(backoff));
+  }
+}
+
+absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions& opts,
+                                        const StreamCallbacks& callbacks, v1::Tandem::Stub& stub,
+                                        const std::chrono::system_clock::time_point* deadline,
+                                        absl::Time start, bool* refused) {
   grpc::ClientContext context;
   AddToken(opts.connection, &context);
-  if (opts.timeout_s > 0) {
-    context.set_deadline(std::chrono::system_clock::now() +
-                         std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000)));
-  }
-  const absl::Time start = absl::Now();
-  std::unique_ptr<Stream> stream = stub->Extract(&context);
+  if (deadline != nullptr) context.set_deadline(*deadline);
+  std::unique_ptr<Stream> stream = stub.Extract(&context);
 
   Sender sender(source, opts, stream.get());
   absl::Status send_status;
@@ -156,7 +198,12 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   uint32_t next_chunk = 0, chunk_count = 0;
   bool have_metrics = false;
   v1::ExtractResponse response;
+  bool answered = false;
   while (stream->Read(&response)) {
+    if (!answered) {
+      answered = true;
+      sender.Accept();
+    }
     switch (response.kind_case()) {
       case v1::ExtractResponse::kProgress:
         if (callbacks.on_progress) callbacks.on_progress(response.progress(), sender.slices_sent());
@@ -196,7 +243,18 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   result.slices_sent = sender.slices_sent();
   result.seconds = absl::ToDoubleSeconds(absl::Now() - start);
   if (!send_status.ok()) return send_status;
-  if (!status.ok()) return wire::FromGrpcStatus(status);
+  if (!status.ok()) {
+    // Retryable: nothing came back, and the server did not mark the refusal as final
+    // (it does, with grpc-retry-pushback-ms: -1, for its limits: the same scan would fail
+    // again).
+    const auto& trailers = context.GetServerTrailingMetadata();
+    const auto pushback = trailers.find("grpc-retry-pushback-ms");
+    *refused = !answered &&
+               (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED ||
+                status.error_code() == grpc::StatusCode::UNAVAILABLE) &&
+               (pushback == trailers.end() || pushback->second != "-1");
+    return wire::FromGrpcStatus(status);
+  }
   if (malformed.empty() && (chunk_count == 0 || next_chunk != chunk_count)) {
     malformed = absl::StrCat("the stream ended after ", next_chunk, " of ", chunk_count,
                              " final mesh chunks");

@@ -28,6 +28,8 @@ struct StreamOptions {
 struct StreamCallbacks {
   std::function<void(const v1::Progress&, int64_t slices_sent)> on_progress;
   std::function<void(const v1::Preview&, int64_t slices_sent)> on_preview;
+  // A refused attempt about to be sent again (retry 1.., after `seconds`).
+  std::function<void(const absl::Status& refusal, int retry, double seconds)> on_retry;
 };
 
 struct StreamResult {
@@ -38,8 +40,13 @@ struct StreamResult {
   double seconds = 0;  // wall time of the whole stream
 };
 
-// Runs one Extract stream. The error is the server's status (code and message kept), or a
-// local one (reading the volume, a malformed reply) with the file or message named.
+// Runs one Extract stream. The client sends the config, then waits for the server's first
+// message (a Progress as soon as it took the session) before it reads and sends slices: a
+// stream refused at the door (RESOURCE_EXHAUSTED: every session slot taken; UNAVAILABLE:
+// the server is going away) has used nothing of the volume and is sent again, up to
+// `connection.retries` times with backoff. The error is the server's status (code and
+// message kept), or a local one (reading the volume, a malformed reply) with the file or
+// message named.
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks);
 

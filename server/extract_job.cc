@@ -97,6 +97,9 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
   }
   start_ = Clock::now();
   state_ = State::kStreaming;
+  // At once, before any slice: tells the client the session is taken (it sends no slice
+  // before it hears from the server, so a refused stream can be sent again untouched).
+  sink_->PostProgress(MakeProgress());
   return absl::OkStatus();
 }
 
