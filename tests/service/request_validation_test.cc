@@ -325,10 +325,12 @@ TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
   EXPECT_EQ(std::vector<int64_t>(m.trace().begin(), m.trace().end()), stats.trace);
   EXPECT_DOUBLE_EQ(m.error_max(), (*local)->MaxShapeError());
 
-  // Progress after every slice; a preview every 5 slices showing the mesh as the session
-  // holds it after slice k: one of slice k's two trace entries (after its EXTRACT or its
-  // SIMPLIFY, depending on whether core defers that SIMPLIFY to the next slice).
-  ASSERT_EQ(sink.progress.size(), static_cast<size_t>(n) + 1);
+  // Progress when the config is taken (0 slices: the client's go-ahead), after every slice
+  // and at the end; a preview every 5 slices showing the mesh as the session holds it after
+  // slice k: one of slice k's two trace entries (after its EXTRACT or its SIMPLIFY,
+  // depending on whether core defers that SIMPLIFY to the next slice).
+  ASSERT_EQ(sink.progress.size(), static_cast<size_t>(n) + 2);
+  EXPECT_EQ(sink.progress.front().slices_consumed(), 0);
   ASSERT_EQ(sink.previews.size(), static_cast<size_t>(n / 5));
   for (size_t i = 0; i < sink.previews.size(); ++i) {
     const v1::Preview& p = sink.previews[i];
