@@ -250,6 +250,8 @@ TEST(Client, RetriesAStreamRefusedBecauseTheServerIsBusy) {
     } else {
       EXPECT_EQ(r.exit_code, 0) << r.err;
       EXPECT_GE(s.Info()->counters().sessions_rejected() - rejected0, 1) << "it was refused";
+      EXPECT_NE(r.err.find("refused (RESOURCE_EXHAUSTED: "), std::string::npos) << r.err;
+      EXPECT_NE(r.err.find("; retry 1 of 4 in "), std::string::npos) << r.err;
     }
     EXPECT_EQ((*busy)->Wait(30), 0) << (*busy)->Stderr();
     ASSERT_TRUE(s.WaitIdle(10));
@@ -264,15 +266,12 @@ TEST(Client, DoesNotRetryARequestOverTheServersLimits) {
   ASSERT_TRUE(server.ok()) << server.status();
   auto volume = WriteSyntheticVolume(dir, "v", MakeSyntheticSource(Shape::kSphere, 16, 16, 8));
   ASSERT_TRUE(volume.ok());
-  const auto start = std::chrono::steady_clock::now();
   RunResult r = RunProcess({BinPath("tandem-client"), "stream", "--server",
                             (*server)->address(), "--input", *volume, "--iso", "0",
                             "--error", "0.3", "--out", dir + "/out.ply"});
-  const double seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_NE(r.err.find("RESOURCE_EXHAUSTED"), std::string::npos) << r.err;
-  EXPECT_LT(seconds, 0.45) << "retried (the first backoff is 0.5 s)";
+  EXPECT_EQ(r.err.find("retry"), std::string::npos) << "retried:\n" << r.err;
   ASSERT_TRUE((*server)->WaitIdle(10));
   EXPECT_EQ((*server)->Info()->counters().sessions_started(), 1) << "one attempt only";
 }
