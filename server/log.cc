@@ -76,7 +76,7 @@ std::string JsonString(std::string_view text, size_t max_bytes) {
 
 void SetLogFormat(LogFormat format) { g_format = format; }
 
-void LogEvent(std::string_view event, std::initializer_list<LogField> fields) {
+void LogEvent(std::string_view event, absl::Span<const LogField> fields) {
   std::string line;
   const bool json = g_format == LogFormat::kJson;
   if (json) {

@@ -11,10 +11,11 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <initializer_list>
 #include <string>
 #include <string_view>
 #include <variant>
+
+#include "absl/types/span.h"
 
 namespace tandem::server {
 
@@ -41,7 +42,7 @@ struct LogField {
 };
 
 // Writes one event line: `event` is a fixed word ("session", "refused", ...).
-void LogEvent(std::string_view event, std::initializer_list<LogField> fields);
+void LogEvent(std::string_view event, absl::Span<const LogField> fields);
 
 // A free-form line from the server itself (start-up, shutdown): text as it is; in JSON
 // {"time":...,"event":"server","message":text}.

@@ -201,28 +201,17 @@ ExtractCall::~ExtractCall() {
   const std::string status_name =
       absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code()));
   const double seconds = absl::ToDoubleSeconds(absl::Now() - start_);
-  if (status.ok()) {
-    LogEvent("session", {{"peer", LogField::Str{peer_}},
-                         {"input", LogField::Str{description_}},
-                         {"slices", slices_},
-                         {"triangles", triangles_},
-                         {"seconds", seconds},
-                         {"bytes_received", bytes_received_},
-                         {"bytes_sent", bytes_sent_},
-                         {"previews", previews_sent_},
-                         {"status", LogField::Word{status_name}}});
-  } else {
-    LogEvent("session", {{"peer", LogField::Str{peer_}},
-                         {"input", LogField::Str{description_}},
-                         {"slices", slices_},
-                         {"triangles", triangles_},
-                         {"seconds", seconds},
-                         {"bytes_received", bytes_received_},
-                         {"bytes_sent", bytes_sent_},
-                         {"previews", previews_sent_},
-                         {"status", LogField::Word{status_name}},
-                         {"message", LogField::Str{status.error_message(), 1000}}});
-  }
+  std::vector<LogField> fields = {{"peer", LogField::Str{peer_}},
+                                  {"input", LogField::Str{description_}},
+                                  {"slices", slices_},
+                                  {"triangles", triangles_},
+                                  {"seconds", seconds},
+                                  {"bytes_received", bytes_received_},
+                                  {"bytes_sent", bytes_sent_},
+                                  {"previews", previews_sent_},
+                                  {"status", LogField::Word{status_name}}};
+  if (!status.ok()) fields.push_back({"message", LogField::Str{status.error_message(), 1000}});
+  LogEvent("session", fields);
   const auto code = static_cast<size_t>(status.error_code());
   if (code < state_->finished_by_code.size()) state_->finished_by_code[code].fetch_add(1);
   state_->sessions_finished.fetch_add(1);

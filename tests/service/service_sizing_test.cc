@@ -33,6 +33,31 @@ int64_t PeakResidentBytes(pid_t pid) {
   return -1;
 }
 
+// `n` concurrent full-resolution streams of `volume` (client --timeout `timeout_s`, each
+// waited for up to `wait_s`); `ok` counts those that succeeded. The others must have been
+// refused for memory (RESOURCE_EXHAUSTED), and at least one must succeed.
+void RunFullResolutionStreams(const TestServer& server, const std::string& volume,
+                              const std::string& dir, int n, int timeout_s, int wait_s,
+                              int* ok) {
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int i = 0; i < n; ++i) {
+    auto c = ChildProcess::Spawn(
+        {BinPath("tandem-client"), "stream", "--server", server.address(), "--input", volume,
+         "--iso", "0", "--error", "0.2", "--schedule", "none", "--timeout",
+         std::to_string(timeout_s), "--out", dir + "/out" + std::to_string(i) + ".drc"},
+        dir);
+    ASSERT_TRUE(c.ok()) << c.status();
+    clients.push_back(*std::move(c));
+  }
+  for (auto& c : clients) {
+    const std::optional<int> code = c->Wait(wait_s);
+    ASSERT_TRUE(code.has_value()) << "a client did not finish";
+    if (*code == 0) ++*ok;
+    else EXPECT_NE(c->Stderr().find("RESOURCE_EXHAUSTED"), std::string::npos) << c->Stderr();
+  }
+  EXPECT_GT(*ok, 0) << "every stream was refused: the test no longer measures the encoding";
+}
+
 TEST(Sizing, SessionsStayWithinTheirBudgetsAtThePeak) {
   if (kSanitized) GTEST_SKIP() << "resident sizes are the sanitizer's own under ASan and TSan";
   const std::string dir = MakeTempDir();
@@ -52,24 +77,9 @@ TEST(Sizing, SessionsStayWithinTheirBudgetsAtThePeak) {
   const int64_t idle = ResidentBytes(pid);
   ASSERT_GT(idle, 0);
 
-  std::vector<std::unique_ptr<ChildProcess>> clients;
-  for (int i = 0; i < kSessions; ++i) {
-    auto c = ChildProcess::Spawn(
-        {BinPath("tandem-client"), "stream", "--server", (*server)->address(), "--input",
-         *volume, "--iso", "0", "--error", "0.2", "--schedule", "none", "--timeout", "120",
-         "--out", dir + "/out" + std::to_string(i) + ".drc"},
-        dir);
-    ASSERT_TRUE(c.ok()) << c.status();
-    clients.push_back(*std::move(c));
-  }
   int ok = 0;
-  for (auto& c : clients) {
-    const std::optional<int> code = c->Wait(180);
-    ASSERT_TRUE(code.has_value()) << "a client did not finish";
-    if (*code == 0) ++ok;
-    else EXPECT_NE(c->Stderr().find("RESOURCE_EXHAUSTED"), std::string::npos) << c->Stderr();
-  }
-  EXPECT_GT(ok, 0) << "every stream was refused: the test no longer measures the encoding";
+  ASSERT_NO_FATAL_FAILURE(
+      RunFullResolutionStreams(**server, *volume, dir, kSessions, 120, 180, &ok));
   const int64_t peak = PeakResidentBytes(pid);
   const int64_t bound = idle + kSessions * ((kBudgetMiB << 20) + kInflight);
   std::printf("server peak %lld MiB (idle %lld MiB, bound %lld MiB), %d of %d streams OK\n",
@@ -127,24 +137,9 @@ TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
   auto server = TestServer::Start(flags);
   ASSERT_TRUE(server.ok()) << server.status();
   const pid_t pid = (*server)->process().pid();
-  std::vector<std::unique_ptr<ChildProcess>> clients;
-  for (int i = 0; i < sessions; ++i) {
-    auto c = ChildProcess::Spawn(
-        {BinPath("tandem-client"), "stream", "--server", (*server)->address(), "--input",
-         *volume, "--iso", "0", "--error", "0.2", "--schedule", "none", "--timeout", "300",
-         "--out", dir + "/out" + std::to_string(i) + ".drc"},
-        dir);
-    ASSERT_TRUE(c.ok()) << c.status();
-    clients.push_back(*std::move(c));
-  }
   int ok = 0;
-  for (auto& c : clients) {
-    const std::optional<int> code = c->Wait(400);
-    ASSERT_TRUE(code.has_value()) << "a client did not finish";
-    if (*code == 0) ++ok;
-    else EXPECT_NE(c->Stderr().find("RESOURCE_EXHAUSTED"), std::string::npos) << c->Stderr();
-  }
-  EXPECT_GT(ok, 0) << "every stream was refused: the test no longer measures the encoding";
+  ASSERT_NO_FATAL_FAILURE(RunFullResolutionStreams(**server, *volume, dir,
+                                                   static_cast<int>(sessions), 300, 400, &ok));
   const int64_t peak = PeakResidentBytes(pid);
   std::printf("pod flags (%zu from the manifest): server peak %lld MiB, limit %lld Mi, "
               "%d of %lld streams OK\n",
