@@ -210,7 +210,8 @@ ExtractCall::~ExtractCall() {
                                   {"bytes_sent", bytes_sent_},
                                   {"previews", previews_sent_},
                                   {"status", LogField::Word{status_name}}};
-  if (!status.ok()) fields.push_back({"message", LogField::Str{status.error_message(), 1000}});
+  const std::string message = status.error_message();  // by value: keep it for the view
+  if (!status.ok()) fields.push_back({"message", LogField::Str{message, 1000}});
   LogEvent("session", fields);
   const auto code = static_cast<size_t>(status.error_code());
   if (code < state_->finished_by_code.size()) state_->finished_by_code[code].fetch_add(1);
