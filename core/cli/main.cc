@@ -106,6 +106,11 @@ Options:
                             seams simplified last); 1 = the paper's algorithm
                             unchanged. Default 0: 4 on grids at least 256 wide, else 1
   --no-simplify             write the full-resolution marching-cubes surface
+  --seal                    seal the mesh behind the sweep: vertices whose reach lies
+                            --seal-margin slices below the front never change again and
+                            their triangles leave the session, so its memory follows the
+                            front, not the depth (one part; no --target-triangles)
+  --seal-margin N           slices between the front and the sealed mesh (default 2)
   --metrics FILE.json       write the run's figures as JSON (without it, a summary
                             goes to stderr)
   --reference               also extract the unsimplified surface (kept only for
@@ -213,8 +218,8 @@ int Extract(int argc, char** argv) {
       cli::Args::Parse(argc, argv, 2,
                        {"input", "out", "iso", "error", "alpha", "distance-guard", "sag-correction",
                         "schedule", "target-triangles", "metrics", "samples", "parts", "zarr-array",
-                        "expect-slices", "settle", "done-file"},
-                       {"no-simplify", "reference", "quiet", "follow", "strict", "help"});
+                        "expect-slices", "settle", "done-file", "seal-margin"},
+                       {"no-simplify", "reference", "quiet", "follow", "strict", "help", "seal"});
   if (!args.ok()) return Fail(args.status());
   if (args->Has("help")) {
     std::fputs(kExtractHelp, stdout);
@@ -294,8 +299,10 @@ int Extract(int argc, char** argv) {
   auto target = args->GetInt("target-triangles", 0);
   auto samples = args->GetInt("samples", 0);
   auto parts = args->GetInt("parts", 0);
+  auto seal_margin = args->GetDouble("seal-margin", SessionOptions{}.seal_margin);
   for (const absl::Status& st : {e0.status(), alpha.status(), guard.status(), sag.status(),
-                                 target.status(), samples.status(), parts.status()}) {
+                                 target.status(), samples.status(), parts.status(),
+                                 seal_margin.status()}) {
     if (!st.ok()) return Fail(st);
   }
   if (*parts < 0 || *parts > SessionOptions::kMaxParts) {
@@ -308,6 +315,8 @@ int Extract(int argc, char** argv) {
   opt.distance_guard = *guard;
   opt.sag_correction = *sag;
   opt.target_triangles = *target;
+  opt.seal = args->Has("seal");
+  opt.seal_margin = *seal_margin;
   if (args->Has("no-simplify")) {
     opt.schedule = Schedule::kNone;
   } else if (auto s = args->Get("schedule")) {
@@ -322,18 +331,20 @@ int Extract(int argc, char** argv) {
 
   cli::Progress progress("slices");
   ValueRangeSource range(source->get());
+  std::vector<SealedChunk> chunks;
   auto session = RunSession(range, opt, [&](int64_t d, int64_t t) {
     if (follow) {
       status_line(d);
     } else {
       progress.Update(d, t);
     }
-  });
+  }, &chunks);
   if (follow && tty) std::fprintf(stderr, "\n");
   progress.Done();
   if (!session.ok()) return Fail(absl::Status(session.status().code(),
                                               absl::StrCat(*input, ": ", std::string(session.status().message()))));
-  const IndexedMesh mesh = (*session)->Snapshot();
+  const IndexedMesh mesh = opt.seal ? WeldChunks(chunks) : (*session)->Snapshot();
+  chunks = {};
   // The report's measures (Error(K), anisotropy, bias) only read the mesh and the finished
   // session: work them out on another core while the mesh is written.
   // (async | deferred: runs here, later, when no thread can be had.)
@@ -350,6 +361,7 @@ int Extract(int argc, char** argv) {
     if (!ref_source.ok()) return Fail(ref_source.status());
     SessionOptions ref_opt = opt;
     ref_opt.schedule = Schedule::kNone;
+    ref_opt.seal = false;
     cli::Progress ref_progress("reference slices");
     auto ref = RunSession(**ref_source, ref_opt, [&](int64_t d, int64_t t) { ref_progress.Update(d, t); });
     ref_progress.Done();

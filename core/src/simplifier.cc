@@ -302,7 +302,7 @@ void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
 }
 
 void Simplifier::AddToBatch(VertexId a, VertexId b, bool released) {
-  if (OnSeam(a, b)) return;
+  if (Pinned(a, b)) return;
   batch_.push_back(a < b ? BatchEdge{a, b, released} : BatchEdge{b, a, released});
   // Flushing early changes nothing (evaluations only read; pushes keep batch order) and
   // bounds the batch's memory when DELAY gets the whole mesh (classical, RequeueAll).
@@ -362,7 +362,7 @@ void Simplifier::FlushBatch() {
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
-  if (OnSeam(a, b)) return;
+  if (Pinned(a, b)) return;
   if (a > b) std::swap(a, b);
   Candidate c;
   if (opt_.release != ReleaseRule::kImmediate) {
@@ -882,25 +882,63 @@ int64_t Simplifier::CorrectSag(double fraction) {
   // 0.25-0.3; issue 6 notes). eᵀKe is taken from the mesh itself, (n_j - n_i)·(x_j - x_i)
   // with area-weighted vertex normals: nothing more is stored while simplifying.
   if (!(fraction > 0.0)) return 0;
-  const VertexId nv = store_->vertex_capacity();
-  const TriId nt = store_->triangle_capacity();
-  std::vector<Vec3> normal(nv), moved(nv);
-  std::vector<double> sag(nv, 0.0), area(nv, 0.0);
-  auto corners = [&](TriId t, Vec3 p[3]) {
-    const auto& tri = store_->triangle(t);
-    for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
-  };
-  for (TriId t = 0; t < nt; ++t) {
-    if (!store_->triangle_alive(t)) continue;
-    Vec3 p[3];
-    corners(t, p);
-    const Vec3 n = Cross(p[1] - p[0], p[2] - p[0]);  // 2·area·unit normal
-    for (VertexId v : store_->triangle(t)) normal[v] = normal[v] + n;
+  std::vector<VertexId> verts;
+  for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
+    if (store_->vertex_alive(v)) verts.push_back(v);
   }
-  for (VertexId v = 0; v < nv; ++v) {
-    const double len = Norm(normal[v]);
-    normal[v] = len > 0.0 ? normal[v] * (1.0 / len) : Vec3{};
+  std::vector<Vec3> normal(store_->vertex_capacity());
+  VertexNormals(verts, normal);
+  return CorrectSagAt(verts, normal, fraction);
+}
+
+namespace {
+
+// The triangles of a fan in increasing id: every sum over them is then taken in the order of
+// a pass over all triangles, whichever vertex asks.
+void SortedFan(const MeshStore& store, VertexId v, std::vector<TriId>* fan) {
+  const auto tris = store.vertex_triangles(v);
+  fan->assign(tris.begin(), tris.end());
+  std::sort(fan->begin(), fan->end());
+}
+
+}  // namespace
+
+void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal) {
+  std::vector<TriId> fan;
+  for (VertexId v : verts) {
+    SortedFan(*store_, v, &fan);
+    Vec3 n{};
+    for (TriId t : fan) n = n + store_->TriangleNormalTimesTwoArea(t);
+    const double len = Norm(n);
+    normal[v] = len > 0.0 ? n * (1.0 / len) : Vec3{};
   }
+}
+
+double Simplifier::MaxEdgeReach(VertexId v) const {
+  double reach = store_->height(v) + vs_[v].rad;
+  for (TriId t : store_->vertex_triangles(v)) {
+    for (VertexId x : store_->triangle(t)) {
+      if (x == v) continue;
+      Candidate c;
+      ReleaseKey(v, x, &c);
+      reach = std::max(reach, c.height + c.rad);
+    }
+  }
+  return reach;
+}
+
+double Simplifier::ShapeErrorAt(VertexId v) const {
+  return ShapeError(vs_[v].q, store_->position(v));
+}
+
+void Simplifier::Freeze(VertexId v) {
+  store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
+  ++vs_[v].version;
+}
+
+int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
+                                 double fraction) {
+  if (!(fraction > 0.0) || verts.empty()) return 0;
   // Near a crease (a sharp edge of a machined part) the vertex normal is an average of
   // faces that meet at an angle: the sag estimate there measures the crease, not a
   // curvature, and moving the vertex cuts the edge (the engine CT's Hausdorff distance grew
@@ -909,74 +947,86 @@ int64_t Simplifier::CorrectSag(double fraction) {
   // smooth input keeps its gain; at 40 the engine loses it again.
   constexpr double kSagCreaseDegrees = 25.0;
   const double cos_crease = std::cos(kSagCreaseDegrees * std::numbers::pi / 180.0);
-  std::vector<uint8_t> crease(nv, 0);
-  for (TriId t = 0; t < nt; ++t) {
-    if (!store_->triangle_alive(t)) continue;
+  if (sag_slot_.size() < store_->vertex_capacity()) sag_slot_.resize(store_->vertex_capacity(), kInvalid);
+  std::vector<Vec3> moved(verts.size());
+  std::vector<uint8_t> moving(verts.size(), 0);
+  std::vector<TriId> fan, checks;
+  auto corners = [&](TriId t, Vec3 p[3]) {
     const auto& tri = store_->triangle(t);
-    Vec3 p[3];
-    corners(t, p);
-    const Vec3 fn = Cross(p[1] - p[0], p[2] - p[0]);
-    const double w = 0.5 * Norm(fn);
-    if (w > 0.0) {
-      for (VertexId v : tri) crease[v] |= Dot(fn, normal[v]) < cos_crease * 2.0 * w;
+    for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
+  };
+  // The step of each vertex, limited so that ε0 <= max(E0, ε0 now): its triangles' mean sag
+  // (Σ w·s/24 over area) along its normal, unless it is on the box or at a crease.
+  for (size_t i = 0; i < verts.size(); ++i) {
+    const VertexId v = verts[i];
+    sag_slot_[v] = static_cast<uint32_t>(i);
+    moved[i] = store_->position(v);
+    if ((store_->box_mask(v) & ~kFrozen) != 0) continue;
+    SortedFan(*store_, v, &fan);
+    double sag = 0.0, area = 0.0;
+    bool crease = false;
+    for (TriId t : fan) {
+      const auto& tri = store_->triangle(t);
+      Vec3 p[3];
+      corners(t, p);
+      const Vec3 fn = Cross(p[1] - p[0], p[2] - p[0]);  // 2·area·unit normal
+      const double w = 0.5 * Norm(fn);
+      if (w > 0.0) crease |= Dot(fn, normal[v]) < cos_crease * 2.0 * w;
+      double s = 0.0;
+      for (int k = 0; k < 3; ++k) {
+        const int j = (k + 1) % 3;
+        s += Dot(normal[tri[j]] - normal[tri[k]], p[j] - p[k]);
+      }
+      sag += w * s / 24.0;
+      area += w;
     }
-    double s = 0.0;
-    for (int i = 0; i < 3; ++i) {
-      const int j = (i + 1) % 3;
-      s += Dot(normal[tri[j]] - normal[tri[i]], p[j] - p[i]);
-    }
-    for (VertexId v : tri) {
-      sag[v] += w * s / 24.0;
-      area[v] += w;
-    }
-  }
-  // The step, limited so that ε0 <= max(E0, ε0 now).
-  std::vector<uint8_t> moving(nv, 0);
-  for (VertexId v = 0; v < nv; ++v) {
-    moved[v] = store_->vertex_alive(v) ? store_->position(v) : Vec3{};
-    if (!store_->vertex_alive(v) || store_->box_mask(v) != 0 || area[v] <= 0.0 || crease[v])
-      continue;
     const Quadric& q = vs_[v].q;
     const Vec3 n = normal[v];
-    if (q.w <= 0.0 || Dot(n, n) == 0.0) continue;
-    double step = fraction * sag[v] / area[v];
+    if (area <= 0.0 || crease || q.w <= 0.0 || Dot(n, n) == 0.0) continue;
+    const double step = fraction * sag / area;
     const Vec3 d = step < 0.0 ? n * -1.0 : n;  // t >= 0 along d
-    const Vec3 x = moved[v];
+    const Vec3 x = moved[i];
     const double t =
         StepWithinError(q, x, d, std::abs(step), std::max(opt_.error, ShapeError(q, x)));
     if (!(t > 0.0)) continue;
-    moved[v] = x + d * t;
-    moving[v] = 1;
+    moved[i] = x + d * t;
+    moving[i] = 1;
+    checks.insert(checks.end(), fan.begin(), fan.end());
   }
   // No triangle may turn over or collapse: put the corners of any that would back, until
   // none does (each round puts at least one vertex back, and the mesh as it was is valid).
+  std::sort(checks.begin(), checks.end());
+  checks.erase(std::unique(checks.begin(), checks.end()), checks.end());
+  auto slot = [&](VertexId v) { return sag_slot_[v]; };
+  auto is_moving = [&](VertexId v) { return slot(v) != kInvalid && moving[slot(v)]; };
+  auto now = [&](VertexId v) { return is_moving(v) ? moved[slot(v)] : store_->position(v); };
   for (bool again = true; again;) {
     again = false;
-    for (TriId t = 0; t < nt; ++t) {
-      if (!store_->triangle_alive(t)) continue;
+    for (TriId t : checks) {
       const auto& tri = store_->triangle(t);
-      if (!(moving[tri[0]] | moving[tri[1]] | moving[tri[2]])) continue;
+      if (!(is_moving(tri[0]) | is_moving(tri[1]) | is_moving(tri[2]))) continue;
       Vec3 p[3];
       corners(t, p);
       const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);
       if (Dot(n_old, n_old) == 0.0) continue;  // already degenerate: no orientation to keep
-      const Vec3 q0 = moved[tri[0]], q1 = moved[tri[1]], q2 = moved[tri[2]];
+      const Vec3 q0 = now(tri[0]), q1 = now(tri[1]), q2 = now(tri[2]);
       const Vec3 n_new = Cross(q1 - q0, q2 - q0);
       const double scale = Dot(q1 - q0, q1 - q0) + Dot(q2 - q1, q2 - q1) + Dot(q0 - q2, q0 - q2);
       if (Dot(n_old, n_new) > 0.0 && Dot(n_new, n_new) > 1e-20 * scale * scale) continue;
       for (VertexId v : tri) {
-        if (moving[v]) {
-          moving[v] = 0;
-          moved[v] = store_->position(v);
+        if (is_moving(v)) {
+          moving[slot(v)] = 0;
           again = true;
         }
       }
     }
   }
   int64_t count = 0;
-  for (VertexId v = 0; v < nv; ++v) {
-    if (!moving[v]) continue;
-    store_->set_position(v, moved[v]);
+  for (size_t i = 0; i < verts.size(); ++i) {
+    const VertexId v = verts[i];
+    sag_slot_[v] = kInvalid;
+    if (!moving[i]) continue;
+    store_->set_position(v, moved[i]);
     ++vs_[v].version;
     ++count;
   }
@@ -988,6 +1038,7 @@ size_t Simplifier::MemoryBytes() const {
          mark_.capacity() * sizeof(Mark) + QBytes() +
          q_slots_.capacity() * sizeof(QEntry) + q_free_.capacity() * sizeof(uint32_t) + WaitingBytes() +
          scratch_.capacity() * sizeof(VertexId) + survivors_.capacity() * sizeof(Survivor) +
+         sag_slot_.capacity() * sizeof(uint32_t) +
          batch_.capacity() * sizeof(BatchEdge) +
          batch_results_.capacity() * sizeof(BatchResult);
 }

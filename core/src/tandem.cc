@@ -73,6 +73,15 @@ absl::Status SessionOptions::Validate() const {
   if (target_triangles < 0) {
     return absl::InvalidArgumentError("target triangle count must be >= 0");
   }
+  if (seal && target_triangles > 0) {
+    return absl::InvalidArgumentError(
+        "a target triangle count needs the whole mesh at the end; it cannot be combined with "
+        "sealed chunks");
+  }
+  if (!(seal_margin >= 0) || !std::isfinite(seal_margin)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "seal margin must be a finite number of slices >= 0, got ", seal_margin));
+  }
   if (parts < 0 || parts > kMaxParts) {
     return absl::InvalidArgumentError(
         absl::StrCat("parts must lie in [0, ", kMaxParts, "] (0 = automatic), got ", parts));
@@ -147,7 +156,8 @@ bool CopyFinite(const float* src, size_t n, float* dst) {
 }
 
 // The number of parts a session over `grid` uses (SessionOptions::parts).
-int PartsFor(const VolumeInfo& grid, int requested) {
+int PartsFor(const VolumeInfo& grid, int requested, bool seal) {
+  if (seal) return 1;  // the seams would stay at full resolution, unsealed
   constexpr int64_t kMinColumns = 16;  // cube columns per part, at least
   const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 4 : 1);
   return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinColumns)));
@@ -172,6 +182,13 @@ TandemSession::TandemSession(const VolumeInfo& grid, const SessionOptions& optio
                                spacing[2], options.pipeline && parts == 1,
                                options.distance_guard};
     parts_.push_back(std::make_unique<Part>(ec, so));
+    if (options.seal) {
+      Part& part = *parts_.back();
+      const bool simplify = options.schedule != Schedule::kNone;
+      part.sealer = std::make_unique<Sealer>(&part.store, simplify ? &part.simplifier : nullptr,
+                                             options.seal_margin,
+                                             simplify ? options.sag_correction : 0.0);
+    }
     parts_.back()->x0 = c0;
     parts_.back()->index = static_cast<size_t>(p);
   }
@@ -300,7 +317,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
   if (absl::Status st = options.ValidateFor(g); !st.ok()) return st;
   try {
-    return std::unique_ptr<TandemSession>(new TandemSession(g, options, PartsFor(g, options.parts)));
+    return std::unique_ptr<TandemSession>(new TandemSession(g, options, PartsFor(g, options.parts, options.seal)));
   } catch (const std::bad_alloc&) {
     // The extractor's plane caches are O(nx*ny); the only allocation that can be large here.
     return absl::ResourceExhaustedError(absl::StrCat(
@@ -340,6 +357,11 @@ IndexedMesh TandemSession::Snapshot() const {
   } else {
     AppendPartSnapshots(&out);
   }
+  ToWorld(&out.positions, &out.indices);
+  return out;
+}
+
+void TandemSession::ToWorld(std::vector<Vec3>* positions, std::vector<uint32_t>* indices) const {
   const bool identity = scale_ == 1.0 && grid_.origin == std::array<double, 3>{0, 0, 0};
   const Vec3 origin{grid_.origin[0], grid_.origin[1], grid_.origin[2]};
   if (!grid_.axis_aligned()) {
@@ -348,16 +370,23 @@ IndexedMesh TandemSession::Snapshot() const {
     const auto& d = grid_.directions;
     const Vec3 d0{d[0][0], d[0][1], d[0][2]}, d1{d[1][0], d[1][1], d[1][2]},
         d2{d[2][0], d[2][1], d[2][2]};
-    for (Vec3& p : out.positions) p = origin + (d0 * p.x + d1 * p.y + d2 * p.z) * scale_;
+    for (Vec3& p : *positions) p = origin + (d0 * p.x + d1 * p.y + d2 * p.z) * scale_;
     if (Dot(Cross(d0, d1), d2) < 0) {
-      for (size_t t = 0; t + 2 < out.indices.size(); t += 3) {
-        std::swap(out.indices[t + 1], out.indices[t + 2]);
+      for (size_t t = 0; t + 2 < indices->size(); t += 3) {
+        std::swap((*indices)[t + 1], (*indices)[t + 2]);
       }
     }
   } else if (!identity) {
-    for (Vec3& p : out.positions) p = p * scale_ + origin;
+    for (Vec3& p : *positions) p = p * scale_ + origin;
   }
-  return out;
+}
+
+bool TandemSession::TakeSealed(SealedChunk* out) {
+  (void)Sync();
+  Sealer* sealer = parts_[0]->sealer.get();
+  if (sealer == nullptr || !sealer->TakeChunk(out)) return false;
+  ToWorld(&out->positions, &out->indices);
+  return true;
 }
 
 void TandemSession::AppendPartSnapshots(IndexedMesh* out) const {
@@ -432,6 +461,7 @@ void TandemSession::SimplifyStep(Part& p) {
   p.simplifier.Delay(p.new_tris);
   p.simplifier.Activate(static_cast<double>(p.pending_front));
   p.simplifier.Simplify();
+  if (p.sealer) p.sealer->Seal(static_cast<double>(p.pending_front));
   p.time.simplify_s += Seconds(t0, Clock::now());
   p.trace.push_back(static_cast<int64_t>(p.store.num_triangles()));
 }
@@ -465,6 +495,13 @@ absl::Status TandemSession::PartStep(Part& p, const float* values) {
   p.extractor.CommitLayer(&p.new_tris, &p.new_verts, &p.seam_log);
   p.triangles_extracted += static_cast<int64_t>(p.new_tris.size());
   if (options_.schedule != Schedule::kNone) p.simplifier.AddTriangles(p.new_tris, p.new_verts);
+  if (p.sealer) {
+    p.sealer->AddVertices(p.new_verts);
+    // Full resolution: nothing will change below the front plane.
+    if (options_.schedule == Schedule::kNone) {
+      p.sealer->Seal(static_cast<double>(p.extractor.slices_done() - 1));
+    }
+  }
   p.time.extract_s += extract_s + Seconds(t1, Clock::now());
   p.trace.push_back(static_cast<int64_t>(p.store.num_triangles()));
   if (tandem_schedule()) {
@@ -640,7 +677,12 @@ absl::Status TandemSession::FinishImpl() {
     whole.simplifier.Simplify(options_.target_triangles);
     whole.time.simplify_s += Seconds(t0, Clock::now());
   }
-  if (options_.schedule != Schedule::kNone && options_.sag_correction > 0.0) {
+  if (whole.sealer) {
+    const auto t0 = Clock::now();
+    whole.sealer->Seal(std::numeric_limits<double>::infinity());  // the rest, sag included
+    stats_.sag_corrected = whole.sealer->sag_corrected();
+    whole.time.simplify_s += Seconds(t0, Clock::now());
+  } else if (options_.schedule != Schedule::kNone && options_.sag_correction > 0.0) {
     const auto t0 = Clock::now();
     stats_.sag_corrected = whole.simplifier.CorrectSag(options_.sag_correction);
     whole.time.simplify_s += Seconds(t0, Clock::now());
@@ -673,6 +715,11 @@ const SessionStats& TandemSession::stats() const {
         std::max(stats_.max_reach_over_front, p->simplifier.max_reach_over_front());
     stats_.max_layer_over_front =
         std::max(stats_.max_layer_over_front, p->simplifier.max_layer_over_front());
+    if (p->sealer) {
+      stats_.sealed_triangles = p->sealer->sealed_triangles();
+      stats_.sealed_vertices = p->sealer->sealed_vertices();
+      stats_.sag_corrected = p->sealer->sag_corrected();
+    }
   }
   return stats_;
 }
@@ -681,7 +728,10 @@ double TandemSession::MaxShapeError() const {
   if (options_.schedule == Schedule::kNone) return 0.0;
   (void)Sync();
   double worst = 0.0;
-  for (const auto& p : parts_) worst = std::max(worst, p->simplifier.MaxShapeError());
+  for (const auto& p : parts_) {
+    worst = std::max(worst, p->simplifier.MaxShapeError());
+    if (p->sealer) worst = std::max(worst, p->sealer->max_shape_error());
+  }
   return worst * scale_;
 }
 
@@ -693,6 +743,7 @@ size_t TandemSession::MemoryBytes() const {
   size_t bytes = workers_ ? kRingSlots * slice : slice;
   for (const auto& p : parts_) {
     const ExtractorConfig& ec = p->extractor.config();
+    if (p->sealer) bytes += p->sealer->MemoryBytes();
     bytes += p->store.MemoryBytes() + p->simplifier.MemoryBytes() +
              static_cast<size_t>(ec.nx * ec.ny) * (2 * sizeof(double) + 5 * sizeof(VertexId));
   }
@@ -702,15 +753,24 @@ size_t TandemSession::MemoryBytes() const {
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
-    const std::function<void(int64_t, int64_t)>& progress) {
+    const std::function<void(int64_t, int64_t)>& progress, std::vector<SealedChunk>* chunks) {
   const VolumeInfo& info = source.info();
+  if (options.seal && chunks == nullptr) {
+    return absl::InvalidArgumentError("RunSession: sealing needs somewhere to put the chunks");
+  }
   auto session = TandemSession::Create(info, options);
   if (!session.ok()) return session.status();
+  auto take = [&] {
+    if (!options.seal) return;
+    SealedChunk c;
+    while ((*session)->TakeSealed(&c)) chunks->push_back(std::move(c));
+  };
   auto add = [&](int64_t k, const uint8_t* bytes) {
     absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes);
     if (!st.ok()) {
       return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
     }
+    take();
     if (progress) progress(k + 1, info.nz);
     return absl::OkStatus();
   };
@@ -738,6 +798,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     }
   }
   if (absl::Status st = (*session)->Finish(); !st.ok()) return st;
+  take();
   return session;
 }
 

@@ -26,6 +26,9 @@ enum BoxFace : uint8_t {
   // session (tandem.h), shared with the neighbouring part. The simplifier never moves it
   // until the parts are merged.
   kSeam = 64,
+  // Not a box face either: the vertex is sealed (sealer.h). It never moves again and no
+  // contraction touches it; its triangles leave the store once all their corners are sealed.
+  kFrozen = 128,
 };
 
 // Which corner (0, 1, 2) of triangle `tri` is v, v being one of them. Without branches: which

@@ -99,6 +99,22 @@ class Simplifier {
   // triangles, as far as ε0 <= max(E0, ε0 now) and the triangles' orientations allow.
   // Returns the number of vertices moved. Run it once, on the final mesh.
   int64_t CorrectSag(double fraction);
+  // The same for the vertices `verts` only (sealing moves each vertex once, as it freezes):
+  // normal[v] must hold the unit normal of every vertex of their triangles (VertexNormals).
+  // Triangles are checked as CorrectSag checks them, around the moving vertices.
+  int64_t CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
+                       double fraction);
+  // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
+  void VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal);
+
+  // Sealing (sealer.h): a frozen vertex (kFrozen) is never contracted, moved or queued again;
+  // entries already queued at it go stale.
+  void Freeze(VertexId v);
+  double rad(VertexId v) const { return vs_[v].rad; }
+  // The largest reach, height(c) + rad(c), of a contraction of v with a neighbour: once the
+  // front has passed it, every edge at v has been offered to Q.
+  double MaxEdgeReach(VertexId v) const;
+  double ShapeErrorAt(VertexId v) const;  // ε0 of v at its current position
   const RefusalCounts& refusals() const { return refusals_; }
   int64_t contractions() const { return contractions_; }
   // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the
@@ -175,9 +191,10 @@ class Simplifier {
     assert(stale || (store_->vertex_alive(e.a) && store_->vertex_alive(e.b)));
     return stale;
   }
-  // Edges at a seam vertex wait for the merge (kSeam, mesh_store.h): never queued.
-  bool OnSeam(VertexId a, VertexId b) const {
-    return ((store_->box_mask(a) | store_->box_mask(b)) & kSeam) != 0;
+  // Edges at a seam vertex wait for the merge (kSeam, mesh_store.h), edges at a frozen
+  // vertex wait for nothing: neither is ever queued.
+  bool Pinned(VertexId a, VertexId b) const {
+    return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
   // LAMBDA(ab). Two implementations of one test, checked against each other and against
   // the definition in simplifier_test.cc: small fans (at most kFanMax triangles at a and at
@@ -250,6 +267,7 @@ class Simplifier {
     VertexId v;
   };
   std::vector<Survivor> survivors_;
+  std::vector<uint32_t> sag_slot_;  // CorrectSagAt: per vertex, its index in verts or kInvalid
   struct BatchEdge {
     VertexId a, b;  // a < b
     bool released;  // from W by ACTIVATE: its release key is known to be <= the front

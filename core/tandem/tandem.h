@@ -42,6 +42,7 @@
 #include "tandem/layer_extractor.h"
 #include "tandem/mesh.h"
 #include "tandem/mesh_store.h"
+#include "tandem/sealer.h"
 #include "tandem/simplifier.h"
 #include "tandem/volume.h"
 
@@ -82,6 +83,13 @@ struct SessionOptions {
                                 // is at least 256 wide, else 1. At most one part per 16
                                 // columns (fewer are used on narrow grids).
   static constexpr int kMaxParts = 64;
+  // Sealing (sealer.h): behind the sweep, vertices whose reach lies seal_margin slices below
+  // the front freeze, and the triangles they complete leave the session as sealed chunks
+  // (TakeSealed): the session then holds the front, not the mesh, and the chunks together
+  // are the result (WeldChunks; Snapshot() is only what is not sealed yet). Uses one part;
+  // no target triangle count (that needs the whole mesh at the end).
+  bool seal = false;
+  double seal_margin = 2;
   absl::Status Validate() const;
   // Validate() plus the rules that need the grid: E0 within [kMinErrorVoxels,
   // kMaxErrorVoxels] times the grid's smallest / largest spacing (far below, nothing could
@@ -108,6 +116,8 @@ struct SessionStats {
   int64_t sag_corrected = 0;        // vertices moved by the sag correction (Finish)
   double max_reach_over_front = 0;  // <= 0: no contraction's reach exceeded the front
   double max_layer_over_front = 0;  // <= -1: no contraction touched the newest layer
+  int64_t sealed_triangles = 0;     // sealing: triangles handed out so far
+  int64_t sealed_vertices = 0;      // sealing: global vertex ids handed out so far
 };
 
 // Coordinates: the engine (extractor, mesh store, quadrics, queues) works in a frame of its
@@ -138,9 +148,13 @@ class TandemSession {
   // Ends the stream: at least 2 slices (and nz if it was declared) must have been added.
   absl::Status Finish();
 
-  // Compacted copy of the current (partial or final) mesh, in world coordinates.
+  // Compacted copy of the current (partial or final) mesh, in world coordinates; with
+  // sealing, of the part not sealed yet (empty after Finish).
   IndexedMesh Snapshot() const;  // the parts' meshes welded at their seams
-  int64_t num_triangles() const;
+  // Sealing: moves everything sealed since the last call into one chunk, in world
+  // coordinates (false: nothing new). Finish seals the rest.
+  bool TakeSealed(SealedChunk* out);
+  int64_t num_triangles() const;  // held by the session (with sealing: not sealed yet)
   int num_parts() const { return static_cast<int>(parts_.size()); }  // after Finish: 1
   const SessionStats& stats() const;
   double MaxShapeError() const;  // Error(K), in world units
@@ -158,6 +172,7 @@ class TandemSession {
     MeshStore store;
     LayerExtractor extractor;
     Simplifier simplifier;
+    std::unique_ptr<Sealer> sealer;  // SessionOptions::seal
     int64_t x0 = 0;
     size_t index = 0;  // in parts_
     std::vector<TriId> new_tris;
@@ -198,6 +213,8 @@ class TandemSession {
   absl::Status AddSliceImpl(const float* values, DType dtype, const uint8_t* bytes);
   absl::Status FinishImpl();
   void AppendPartSnapshots(IndexedMesh* out) const;  // Snapshot of a split session
+  // Engine frame -> world, in place (a mirrored frame also reverses the triangles' winding).
+  void ToWorld(std::vector<Vec3>* positions, std::vector<uint32_t>* indices) const;
   bool tandem_schedule() const {
     return options_.schedule == Schedule::kTandem || options_.schedule == Schedule::kTandemLag;
   }
@@ -255,9 +272,12 @@ class TandemSession {
 // barrier uses it, and so do the server's worker and the CLI around everything else.
 absl::Status StatusOfException(std::exception_ptr e);
 
+// Runs a session over every slice of `source`. With sealing (SessionOptions::seal), the
+// sealed chunks are taken after every slice and appended to *chunks (required then).
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
-    const std::function<void(int64_t, int64_t)>& progress = nullptr);
+    const std::function<void(int64_t, int64_t)>& progress = nullptr,
+    std::vector<SealedChunk>* chunks = nullptr);
 
 }  // namespace tandem
 

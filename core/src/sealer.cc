@@ -1,0 +1,190 @@
+#include "tandem/sealer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace tandem {
+
+IndexedMesh WeldChunks(std::span<const SealedChunk> chunks) {
+  uint32_t max_id = 0;
+  bool any = false;
+  for (const SealedChunk& c : chunks) {
+    for (uint32_t id : c.ids) {
+      max_id = std::max(max_id, id);
+      any = true;
+    }
+  }
+  IndexedMesh out;
+  if (!any) return out;
+  std::vector<uint32_t> index(static_cast<size_t>(max_id) + 1, kInvalid);
+  std::vector<Vec3> at(index.size());
+  for (const SealedChunk& c : chunks) {
+    for (size_t i = 0; i < c.ids.size(); ++i) {
+      index[c.ids[i]] = 0;
+      at[c.ids[i]] = c.positions[i];
+    }
+  }
+  for (size_t id = 0; id < index.size(); ++id) {  // in increasing id
+    if (index[id] == kInvalid) continue;
+    index[id] = static_cast<uint32_t>(out.positions.size());
+    out.positions.push_back(at[id]);
+  }
+  for (const SealedChunk& c : chunks) {
+    for (uint32_t i : c.indices) out.indices.push_back(index[c.ids[i]]);
+  }
+  return out;
+}
+
+Sealer::Sealer(MeshStore* store, Simplifier* simplifier, double margin, double sag_fraction)
+    : store_(store), simplifier_(simplifier), margin_(margin), sag_fraction_(sag_fraction) {}
+
+void Sealer::EnsureCapacity() {
+  const size_t n = store_->vertex_capacity();
+  if (id_.size() >= n) return;
+  id_.resize(n, kInvalid);
+  stamp_.resize(n, 0);
+  normal_.resize(n);
+}
+
+void Sealer::AddVertices(std::span<const VertexId> verts) {
+  EnsureCapacity();
+  for (VertexId v : verts) id_[v] = kInvalid;  // ids of sealed vertices are recycled
+  active_.insert(active_.end(), verts.begin(), verts.end());
+}
+
+uint32_t Sealer::IdOf(VertexId v) {
+  if (id_[v] == kInvalid) {
+    id_[v] = next_id_++;
+    stamp_[v] = 0;
+  }
+  return id_[v];
+}
+
+void Sealer::Seal(double front) {
+  EnsureCapacity();
+  const bool all = front == std::numeric_limits<double>::infinity();
+  // 1. Freeze. Contractions keep one end's id, so every live unfrozen vertex is in active_;
+  // dead ids are dropped here, before the next EXTRACT can hand them out again.
+  freeze_.clear();
+  size_t keep = 0;
+  for (VertexId v : active_) {
+    if (!store_->vertex_alive(v)) continue;
+    const double limit = front - margin_;
+    // Its own reach first (cheap), then that of every contraction it could still take part in.
+    const bool frozen =
+        all || (simplifier_ == nullptr
+                    ? store_->height(v) + 1.0 <= limit
+                    : store_->height(v) + simplifier_->rad(v) <= limit &&
+                          simplifier_->MaxEdgeReach(v) <= limit);
+    if (frozen) {
+      freeze_.push_back(v);
+    } else {
+      active_[keep++] = v;
+    }
+  }
+  active_.resize(keep);
+  if (freeze_.empty()) return;
+  for (VertexId v : freeze_) {
+    if (simplifier_ != nullptr) {
+      simplifier_->Freeze(v);
+    } else {
+      store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
+    }
+  }
+  // 2. Sag, before anything is sealed. The freezing vertices' normals from their whole fans,
+  // and their unfrozen neighbours' for now; frozen neighbours keep theirs.
+  if (simplifier_ != nullptr) {
+    if (sag_fraction_ > 0.0) {
+      need_.assign(freeze_.begin(), freeze_.end());
+      for (VertexId v : freeze_) {
+        for (TriId t : store_->vertex_triangles(v)) {
+          for (VertexId x : store_->triangle(t)) {
+            if (!(store_->box_mask(x) & kFrozen)) need_.push_back(x);
+          }
+        }
+      }
+      std::sort(need_.begin(), need_.end());
+      need_.erase(std::unique(need_.begin(), need_.end()), need_.end());
+      simplifier_->VertexNormals(need_, normal_);
+      sag_corrected_ += simplifier_->CorrectSagAt(freeze_, normal_, sag_fraction_);
+    }
+    for (VertexId v : freeze_) {
+      max_shape_error_ = std::max(max_shape_error_, simplifier_->ShapeErrorAt(v));
+    }
+  }
+  // 3. Seal the triangles whose last corner froze now, in increasing id.
+  tris_.clear();
+  for (VertexId v : freeze_) {
+    for (TriId t : store_->vertex_triangles(v)) {
+      const auto& tri = store_->triangle(t);
+      if (store_->box_mask(tri[0]) & store_->box_mask(tri[1]) & store_->box_mask(tri[2]) &
+          kFrozen) {
+        tris_.push_back(t);
+      }
+    }
+  }
+  std::sort(tris_.begin(), tris_.end());
+  tris_.erase(std::unique(tris_.begin(), tris_.end()), tris_.end());
+  drop_.assign(freeze_.begin(), freeze_.end());
+  for (TriId t : tris_) {
+    for (VertexId v : store_->triangle(t)) {
+      const uint32_t id = IdOf(v);
+      if (stamp_[v] != chunk_stamp_) {
+        stamp_[v] = chunk_stamp_;
+        pend_verts_.push_back({id, store_->height(v), store_->position(v)});
+      }
+      pend_tris_.push_back(id);
+      drop_.push_back(v);
+    }
+  }
+  for (TriId t : tris_) store_->RemoveTriangle(t);
+  sealed_triangles_ += static_cast<int64_t>(tris_.size());
+  // 4. Frozen vertices left without triangles leave the store.
+  std::sort(drop_.begin(), drop_.end());
+  drop_.erase(std::unique(drop_.begin(), drop_.end()), drop_.end());
+  for (VertexId v : drop_) {
+    if (store_->vertex_alive(v) && store_->vertex_triangles(v).empty()) {
+      store_->RemoveVertex(v);
+      id_[v] = kInvalid;
+    }
+  }
+}
+
+bool Sealer::TakeChunk(SealedChunk* out) {
+  if (pend_tris_.empty()) return false;
+  std::sort(pend_verts_.begin(), pend_verts_.end(),
+            [](const PendingVertex& a, const PendingVertex& b) { return a.id < b.id; });
+  *out = SealedChunk{};
+  out->index = chunks_++;
+  out->positions.reserve(pend_verts_.size());
+  out->ids.reserve(pend_verts_.size());
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (const PendingVertex& p : pend_verts_) {
+    out->positions.push_back(p.pos);
+    out->ids.push_back(p.id);
+    lo = std::min(lo, p.height);
+    hi = std::max(hi, p.height);
+  }
+  out->first_slice = static_cast<int64_t>(std::floor(lo));
+  out->last_slice = static_cast<int64_t>(std::ceil(hi));
+  out->indices.reserve(pend_tris_.size());
+  for (uint32_t id : pend_tris_) {
+    const auto it = std::lower_bound(out->ids.begin(), out->ids.end(), id);
+    out->indices.push_back(static_cast<uint32_t>(it - out->ids.begin()));
+  }
+  pend_verts_.clear();
+  pend_tris_.clear();
+  ++chunk_stamp_;
+  return true;
+}
+
+size_t Sealer::MemoryBytes() const {
+  return active_.capacity() * sizeof(VertexId) + id_.capacity() * sizeof(uint32_t) +
+         stamp_.capacity() * sizeof(uint32_t) + normal_.capacity() * sizeof(Vec3) +
+         (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
+         tris_.capacity() * sizeof(TriId) + pend_verts_.capacity() * sizeof(PendingVertex) +
+         pend_tris_.capacity() * sizeof(uint32_t);
+}
+
+}  // namespace tandem

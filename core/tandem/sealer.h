@@ -1,0 +1,95 @@
+// Sealer: hands out, once, the part of the mesh behind the sweep that can never change again,
+// and drops it from the mesh store, so that a session holds the front, not the whole mesh.
+//
+// A vertex freezes when its reach, height + rad (slice units, the time-lag bookkeeping of
+// simplifier.h), lies at least `margin` slices below the front: from then on no contraction
+// touches it (Simplifier::Freeze), and a triangle whose three corners are frozen can never
+// change. Such a triangle is sealed: appended to the pending chunk, then removed from the
+// store, and so is every frozen vertex left without triangles. A vertex is sag-corrected
+// (Simplifier::CorrectSag's rule) when it freezes, never after: normals are those of its own
+// triangles, of unfrozen neighbours' current fans, and of frozen neighbours as they were when
+// they froze.
+//
+// Chunks name their vertices by global ids, handed out in sealing order; a vertex shared by two
+// chunks appears in both with the same id and the same coordinates, so the union of all chunks,
+// welded by id (WeldChunks), is the mesh.
+#ifndef TANDEM_SEALER_H_
+#define TANDEM_SEALER_H_
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "tandem/mesh.h"
+#include "tandem/mesh_store.h"
+#include "tandem/simplifier.h"
+#include "tandem/types.h"
+
+namespace tandem {
+
+struct SealedChunk {
+  int64_t index = 0;                // 0, 1, ... in the order the chunks were taken
+  int64_t first_slice = 0, last_slice = 0;  // slices its vertices span (floor/ceil of heights)
+  std::vector<Vec3> positions;      // one per vertex
+  std::vector<uint32_t> ids;        // global id of each vertex
+  std::vector<uint32_t> indices;    // 3 per triangle, into positions
+  size_t num_triangles() const { return indices.size() / 3; }
+};
+
+// The mesh the chunks make together: one vertex per global id (in increasing id), the
+// triangles in chunk order.
+IndexedMesh WeldChunks(std::span<const SealedChunk> chunks);
+
+class Sealer {
+ public:
+  // simplifier == nullptr: a full-resolution session (nothing is contracted; no sag).
+  Sealer(MeshStore* store, Simplifier* simplifier, double margin, double sag_fraction);
+
+  // Vertices made by the last EXTRACT (unfrozen).
+  void AddVertices(std::span<const VertexId> verts);
+  // Freezes the vertices whose reach is at least `margin` below the front (every vertex when
+  // front = +inf, the end of the stream) and seals what that completes.
+  void Seal(double front);
+  // Moves the triangles sealed since the last call into *out (false: none).
+  bool TakeChunk(SealedChunk* out);
+
+  int64_t sealed_triangles() const { return sealed_triangles_; }
+  int64_t sealed_vertices() const { return next_id_; }
+  int64_t sag_corrected() const { return sag_corrected_; }
+  double max_shape_error() const { return max_shape_error_; }  // over frozen vertices
+  size_t MemoryBytes() const;
+
+ private:
+  void EnsureCapacity();
+  uint32_t IdOf(VertexId v);  // its global id, handed out on first use
+
+  struct PendingVertex {
+    uint32_t id;
+    double height;
+    Vec3 pos;
+  };
+  MeshStore* store_;
+  Simplifier* simplifier_;
+  double margin_, sag_fraction_;
+  std::vector<VertexId> active_;  // unfrozen vertices (dead ones are dropped by Seal)
+  // Per store vertex.
+  std::vector<uint32_t> id_;      // global id, kInvalid before its first sealed triangle
+  std::vector<uint32_t> stamp_;   // the pending chunk it was last added to
+  std::vector<Vec3> normal_;      // frozen: its normal when it froze; else scratch
+  // Scratch.
+  std::vector<VertexId> freeze_, need_, drop_;
+  std::vector<TriId> tris_;
+  // The pending chunk.
+  std::vector<PendingVertex> pend_verts_;
+  std::vector<uint32_t> pend_tris_;  // global ids, 3 per triangle
+  uint32_t chunk_stamp_ = 1;
+  uint32_t next_id_ = 0;
+  int64_t chunks_ = 0;
+  int64_t sealed_triangles_ = 0;
+  int64_t sag_corrected_ = 0;
+  double max_shape_error_ = 0;
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_SEALER_H_

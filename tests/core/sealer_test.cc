@@ -1,0 +1,223 @@
+// Sealing (sealer.h): chunks that never change, together the mesh; memory that follows the
+// front, not the depth.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <tuple>
+#include <numbers>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "tandem/sealer.h"
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+#include "tandem/topology.h"
+#include "tandem/volume.h"
+
+namespace tandem {
+namespace {
+
+struct SealRun {
+  IndexedMesh mesh;  // Snapshot, or the welded chunks
+  std::vector<SealedChunk> chunks;
+  SessionStats stats;
+  double error_max = 0;
+  size_t peak_memory = 0;        // MemoryBytes, after every slice
+  int64_t peak_held = 0;         // triangles held, after every slice
+};
+
+SealRun RunSealed(SliceSource& src, SessionOptions o) {
+  SealRun r;
+  auto s = TandemSession::Create(src.info(), o);
+  EXPECT_TRUE(s.ok()) << s.status();
+  if (!s.ok()) return r;
+  std::vector<uint8_t> bytes;
+  auto take = [&] {
+    SealedChunk c;
+    while ((*s)->TakeSealed(&c)) r.chunks.push_back(std::move(c));
+  };
+  while (src.ReadSlice(&bytes).ok()) {
+    EXPECT_TRUE((*s)->AddSliceBytes(src.info().dtype, bytes.data()).ok());
+    take();
+    r.peak_memory = std::max(r.peak_memory, (*s)->MemoryBytes());
+    r.peak_held = std::max(r.peak_held, (*s)->num_triangles());
+  }
+  EXPECT_TRUE((*s)->Finish().ok());
+  take();
+  r.stats = (*s)->stats();
+  r.error_max = (*s)->MaxShapeError();
+  r.mesh = o.seal ? WeldChunks(r.chunks) : (*s)->Snapshot();
+  if (o.seal) {
+    EXPECT_EQ((*s)->num_triangles(), 0);  // everything was handed out
+  }
+  return r;
+}
+
+SessionOptions Options(Schedule schedule, double e0, bool seal) {
+  SessionOptions o;
+  o.schedule = schedule;
+  o.error = e0;
+  o.seal = seal;
+  o.parts = 1;
+  return o;
+}
+
+std::vector<int64_t> Sorted(std::vector<int64_t> v) {
+  std::sort(v.begin(), v.end());
+  return v;
+}
+
+TEST(Sealing, ChunksWeldIntoAClosedManifoldWithTheSameTopologyAndCount) {
+  for (Shape shape : {Shape::kSphere, Shape::kLink, Shape::kGyroid, Shape::kPillowBox}) {
+    for (double e0 : {0.05, 0.3}) {
+      auto a = MakeSyntheticSource(shape, 64, 64, 64);
+      auto b = MakeSyntheticSource(shape, 64, 64, 64);
+      const SealRun plain = RunSealed(*a, Options(Schedule::kTandemLag, e0, false));
+      const SealRun sealed = RunSealed(*b, Options(Schedule::kTandemLag, e0, true));
+      const std::string what = std::string(ShapeName(shape)) + " E0=" + std::to_string(e0);
+      const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+      EXPECT_TRUE(s.IsClosedManifold()) << what;
+      EXPECT_EQ(s.euler, p.euler) << what;
+      EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;
+      // Where a voxel value equals the iso-value exactly, marching cubes puts several vertices
+      // at that grid point; a contraction may not have merged them yet when they freeze
+      // (the gyroid at E0 = 0.05: one pair, twice). Anything more would be a vertex handed
+      // out under two ids.
+      EXPECT_LE(CountDuplicatePositions(sealed.mesh), CountDuplicatePositions(plain.mesh) + 2)
+          << what;
+      EXPECT_LE(sealed.error_max, e0 * (1 + 1e-9)) << what;
+      // Sealing freezes nothing a contraction could still want: the counts stay close.
+      EXPECT_NEAR(static_cast<double>(s.triangles), static_cast<double>(p.triangles),
+                  0.05 * static_cast<double>(p.triangles)) << what;
+      EXPECT_GT(sealed.chunks.size(), 8u) << what;  // handed out along the way, not at the end
+      EXPECT_EQ(sealed.stats.sealed_triangles, static_cast<int64_t>(s.triangles)) << what;
+    }
+  }
+}
+
+TEST(Sealing, AVertexSharedByChunksHasOneIdAndBitIdenticalCoordinates) {
+  auto src = MakeSyntheticSource(Shape::kLink, 64, 64, 64, {0.7, 0.7, 1.3});
+  const SealRun r = RunSealed(*src, Options(Schedule::kTandemLag, 0.1, true));
+  std::map<uint32_t, Vec3> seen;
+  size_t shared = 0;
+  int64_t index = 0;
+  for (const SealedChunk& c : r.chunks) {
+    EXPECT_EQ(c.index, index++);
+    ASSERT_EQ(c.ids.size(), c.positions.size());
+    EXPECT_TRUE(std::is_sorted(c.ids.begin(), c.ids.end()));
+    EXPECT_LE(c.first_slice, c.last_slice);
+    for (uint32_t i : c.indices) ASSERT_LT(i, c.ids.size());
+    for (size_t i = 0; i < c.ids.size(); ++i) {
+      auto [it, fresh] = seen.emplace(c.ids[i], c.positions[i]);
+      if (!fresh) {
+        ++shared;
+        EXPECT_EQ(std::memcmp(&it->second, &c.positions[i], sizeof(Vec3)), 0);
+      }
+    }
+  }
+  EXPECT_GT(shared, 100u);  // chunks do meet
+  EXPECT_EQ(seen.size(), r.mesh.num_vertices());
+  EXPECT_EQ(static_cast<int64_t>(seen.size()), r.stats.sealed_vertices);
+}
+
+TEST(Sealing, FullResolutionChunksAreExactlyTheSurface) {
+  auto a = MakeSyntheticSource(Shape::kGyroid, 48, 40, 56);
+  auto b = MakeSyntheticSource(Shape::kGyroid, 48, 40, 56);
+  const SealRun plain = RunSealed(*a, Options(Schedule::kNone, 0, false));
+  const SealRun sealed = RunSealed(*b, Options(Schedule::kNone, 0, true));
+  // The same triangles, as sets of corner coordinates.
+  auto key = [](const IndexedMesh& m) {
+    std::vector<std::array<double, 9>> tris;
+    for (size_t t = 0; t < m.num_triangles(); ++t) {
+      std::array<Vec3, 3> c;
+      for (int k = 0; k < 3; ++k) c[k] = m.positions[m.indices[3 * t + k]];
+      std::rotate(c.begin(), std::min_element(c.begin(), c.end(), [](Vec3 x, Vec3 y) {
+        return std::tie(x.x, x.y, x.z) < std::tie(y.x, y.y, y.z);
+      }), c.end());
+      tris.push_back({c[0].x, c[0].y, c[0].z, c[1].x, c[1].y, c[1].z, c[2].x, c[2].y, c[2].z});
+    }
+    std::sort(tris.begin(), tris.end());
+    return tris;
+  };
+  EXPECT_EQ(key(sealed.mesh), key(plain.mesh));
+  EXPECT_EQ(sealed.mesh.num_vertices(), plain.mesh.num_vertices());
+  // Full resolution holds about two layers: far below the whole surface.
+  EXPECT_LT(sealed.peak_held, static_cast<int64_t>(plain.mesh.num_triangles()) / 8);
+}
+
+// A periodic field in z: the same slices over and over, so a deeper volume only adds
+// repetitions of the same surface.
+class PeriodicSource final : public SliceSource {
+ public:
+  PeriodicSource(int64_t n, int64_t nz) {
+    info_.nx = info_.ny = n;
+    info_.nz = nz;
+    info_.dtype = DType::kFloat32;
+  }
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return k_; }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (k_ >= info_.nz) return absl::OutOfRangeError("end");
+    bytes->resize(static_cast<size_t>(info_.nx * info_.ny) * sizeof(float));
+    float* v = reinterpret_cast<float*>(bytes->data());
+    const double w = 2 * std::numbers::pi / 24.0;  // period: 24 voxels
+    for (int64_t j = 0; j < info_.ny; ++j) {
+      for (int64_t i = 0; i < info_.nx; ++i) {
+        // A gyroid, closed off at the x/y borders so the surface does not depend on them.
+        const double g = std::sin(w * i) * std::cos(w * j) + std::sin(w * j) * std::cos(w * k_) +
+                         std::sin(w * k_) * std::cos(w * i);
+        const double edge = std::min({i, j, info_.nx - 1 - i, info_.ny - 1 - j}) < 2 ? 1.0 : 0.0;
+        v[j * info_.nx + i] = static_cast<float>(edge > 0 ? edge : g);
+      }
+    }
+    ++k_;
+    return absl::OkStatus();
+  }
+
+ private:
+  VolumeInfo info_;
+  int64_t k_ = 0;
+};
+
+TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
+  for (bool seal : {true, false}) {
+    PeriodicSource shallow(72, 48), deep(72, 8 * 48);
+    const SealRun a = RunSealed(shallow, Options(Schedule::kTandemLag, 0.05, seal));
+    const SealRun b = RunSealed(deep, Options(Schedule::kTandemLag, 0.05, seal));
+    const double memory = static_cast<double>(b.peak_memory) / static_cast<double>(a.peak_memory);
+    const double held = static_cast<double>(b.peak_held) / static_cast<double>(a.peak_held);
+    if (seal) {
+      EXPECT_LE(memory, 1.2) << a.peak_memory << " -> " << b.peak_memory;
+      EXPECT_LE(held, 1.2) << a.peak_held << " -> " << b.peak_held;
+      EXPECT_TRUE(AnalyzeTopology(b.mesh).IsManifold());  // open at z = 0 and the last slice
+    } else {
+      EXPECT_GT(held, 3.0);  // what sealing removes: the mesh grows with the depth
+    }
+  }
+}
+
+TEST(Sealing, OptionsAreChecked) {
+  SessionOptions o = Options(Schedule::kTandemLag, 0.1, true);
+  o.target_triangles = 100;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.target_triangles = 0;
+  o.seal_margin = -1;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.seal_margin = std::nan("");
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  // A wide grid still runs as one part when sealing.
+  o.seal_margin = 2;
+  o.parts = 4;
+  VolumeInfo g;
+  g.nx = 300;
+  g.ny = 8;
+  g.nz = 4;
+  auto s = TandemSession::Create(g, o);
+  ASSERT_TRUE(s.ok());
+  EXPECT_EQ((*s)->num_parts(), 1);
+}
+
+}  // namespace
+}  // namespace tandem
