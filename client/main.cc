@@ -148,8 +148,10 @@ absl::Status WriteFile(const std::string& path, const std::string& bytes) {
 int StreamCommand(int argc, char** argv) {
   ConnectionFlags connection;
   int64_t keepalive_ms = 30000;
-  std::string input, out, partials, metrics_path;
+  std::string input, out, partials, metrics_path, chunks_dir;
   std::string schedule_name = "tandem-lag";
+  bool seal = false;
+  double seal_margin = tandem::SessionOptions{}.seal_margin;
   double iso = 0, error = 0, alpha = 0, rate = 0, timeout_s = 0;
   double distance_guard = tandem::SessionOptions{}.distance_guard;
   double sag_correction = tandem::SessionOptions{}.sag_correction;
@@ -195,6 +197,15 @@ int StreamCommand(int argc, char** argv) {
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
   flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply, .obj, .stl or .glb", /*required=*/true);
   flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice, 6 digits>.drc");
+  flags.AddBool("seal", &seal,
+                "ask for sealed chunks: the server sends each part of the mesh that can no longer "
+                "change once, as it is settled, and holds only the front (its memory no longer "
+                "grows with the depth); --out is their union");
+  flags.AddDouble("seal-margin", &seal_margin,
+                  "--seal: slices between the front and the sealed mesh (default 2)");
+  flags.AddString("chunks", &chunks_dir, "DIR",
+                  "--seal (implied): also save every sealed chunk as it arrives, "
+                  "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute)");
   flags.AddString("metrics", &metrics_path, "FILE.json",
                   "write the metrics as JSON (same keys as `tandem extract --metrics`)");
   flags.AddBool("reference", &reference,
@@ -249,6 +260,19 @@ int StreamCommand(int argc, char** argv) {
     absl::FPrintF(stderr, "tandem-client: --schedule: %s\n", std::string(schedule.status().message()));
     return 2;
   }
+  if (!chunks_dir.empty()) {
+    seal = true;
+    std::error_code ec;
+    std::filesystem::create_directories(chunks_dir, ec);
+    if (ec) {
+      return Fail(absl::UnavailableError(absl::StrCat("--chunks ", chunks_dir, ": ", ec.message())));
+    }
+  }
+  if (seal && target > 0) {
+    absl::FPrintF(stderr, "tandem-client: --target-triangles needs the whole mesh at the end: "
+                          "it cannot be combined with --seal or --chunks\n");
+    return 2;
+  }
   if (!partials.empty()) {
     if (!flags.IsSet("preview-every")) preview_every = -1;  // set from the depth below
     std::error_code ec;
@@ -299,6 +323,8 @@ int StreamCommand(int argc, char** argv) {
   c.mutable_draco()->set_quantization_bits(static_cast<uint32_t>(bits));
   c.mutable_draco()->set_compression_level(static_cast<int32_t>(level));
   c.set_compute_distances(reference);
+  c.set_sealed_chunks(seal);
+  if (seal) c.set_seal_margin(seal_margin);
   c.set_description(std::filesystem::path(input).filename().string());
 
   const int64_t nz = (*source)->info().nz;
@@ -335,15 +361,37 @@ int StreamCommand(int argc, char** argv) {
           p.draco());
     }
   };
+  callbacks.on_chunk = [&](const tandem::v1::SealedChunk& c) {
+    if (verbose) {
+      absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
+                    c.index(), c.first_slice(), c.last_slice(), c.triangles(), c.vertices(),
+                    c.draco().size());
+    }
+    if (!chunks_dir.empty() && partial_error.ok()) {
+      partial_error = WriteFile(
+          (std::filesystem::path(chunks_dir) / absl::StrFormat("chunk_%06d.drc", c.index())).string(),
+          c.draco());
+    }
+  };
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::StreamVolume(range, options, callbacks);
   if (bar) absl::FPrintF(stderr, "\n");
   if (!result.ok()) return connection.Fail(result.status());
   if (!partial_error.ok()) return Fail(partial_error);
 
-  // Decode even for .drc: it checks the bytes and the counts the server announced.
-  absl::StatusOr<tandem::IndexedMesh> mesh = tandem::codec::DecodeDraco(result->draco);
+  // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
+  // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
+  absl::StatusOr<tandem::IndexedMesh> mesh =
+      seal ? tandem::WeldChunks(result->sealed) : tandem::codec::DecodeDraco(result->draco);
   if (!mesh.ok()) return Fail(mesh.status());
+  if (seal && ext == ".drc") {
+    tandem::codec::DracoOptions d;
+    d.quantization_bits = static_cast<int>(bits);
+    d.compression_level = static_cast<int>(level);
+    absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, d);
+    if (!bytes.ok()) return Fail(bytes.status());
+    result->draco = *std::move(bytes);
+  }
   if (static_cast<int64_t>(mesh->num_triangles()) != result->triangles ||
       static_cast<int64_t>(mesh->num_vertices()) != result->vertices) {
     return Fail(absl::DataLossError(absl::StrCat(
@@ -362,6 +410,10 @@ int StreamCommand(int argc, char** argv) {
                result->seconds, result->slices_sent,
                result->seconds > 0 ? result->slices_sent / result->seconds : 0.0,
                result->metrics.previews_sent());
+  if (seal) {
+    absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", result->sealed.size(),
+                 result->metrics.bytes_sent());
+  }
   if (!metrics_path.empty()) {
     if (absl::Status st = WriteFile(metrics_path, tandem::ReportToJson(report)); !st.ok()) {
       return Fail(st);

@@ -14,6 +14,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
+#include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
@@ -229,6 +230,31 @@ absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions
         }
         break;
       }
+      case v1::ExtractResponse::kSealedChunk: {
+        const v1::SealedChunk& c = response.sealed_chunk();
+        if (callbacks.on_chunk) callbacks.on_chunk(c);
+        if (!malformed.empty()) break;
+        SealedChunk chunk;
+        absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
+        if (static_cast<size_t>(c.index()) != result.sealed.size()) {
+          malformed = absl::StrCat("sealed chunk ", c.index(), " arrived, expected chunk ",
+                                   result.sealed.size());
+        } else if (!mesh.ok()) {
+          malformed = absl::StrCat("sealed chunk ", c.index(), ": ", mesh.status().ToString());
+        } else if (static_cast<int64_t>(mesh->num_triangles()) != c.triangles() ||
+                   static_cast<int64_t>(mesh->num_vertices()) < c.vertices()) {  // splits
+          malformed = absl::StrCat("sealed chunk ", c.index(), " decodes to ",
+                                   mesh->num_triangles(), " triangles, announced ", c.triangles());
+        } else {
+          chunk.index = c.index();
+          chunk.first_slice = c.first_slice();
+          chunk.last_slice = c.last_slice();
+          chunk.positions = std::move(mesh->positions);
+          chunk.indices = std::move(mesh->indices);
+          result.sealed.push_back(std::move(chunk));
+        }
+        break;
+      }
       case v1::ExtractResponse::kFinalMetrics:
         result.metrics = response.final_metrics();
         have_metrics = true;
@@ -255,7 +281,21 @@ absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions
                (pushback == trailers.end() || pushback->second != "-1");
     return wire::FromGrpcStatus(status);
   }
-  if (malformed.empty() && (chunk_count == 0 || next_chunk != chunk_count)) {
+  if (opts.config.sealed_chunks()) {
+    if (malformed.empty() && have_metrics) {
+      // The union of the chunks is the final mesh: it must have the final counts.
+      const IndexedMesh mesh = WeldChunks(result.sealed);
+      result.triangles = static_cast<int64_t>(mesh.num_triangles());
+      result.vertices = static_cast<int64_t>(mesh.num_vertices());
+      if (result.triangles != result.metrics.triangles_final() ||
+          result.vertices != result.metrics.vertices_final()) {
+        malformed = absl::StrCat("the sealed chunks weld into ", result.triangles,
+                                 " triangles and ", result.vertices, " vertices; the metrics say ",
+                                 result.metrics.triangles_final(), " and ",
+                                 result.metrics.vertices_final());
+      }
+    }
+  } else if (malformed.empty() && (chunk_count == 0 || next_chunk != chunk_count)) {
     malformed = absl::StrCat("the stream ended after ", next_chunk, " of ", chunk_count,
                              " final mesh chunks");
   }

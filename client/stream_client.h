@@ -7,10 +7,12 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "client/connection.h"
+#include "tandem/sealer.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"
 
@@ -28,12 +30,17 @@ struct StreamOptions {
 struct StreamCallbacks {
   std::function<void(const v1::Progress&, int64_t slices_sent)> on_progress;
   std::function<void(const v1::Preview&, int64_t slices_sent)> on_preview;
+  // A sealed chunk (config.sealed_chunks), as received; StreamResult::sealed gets it decoded.
+  std::function<void(const v1::SealedChunk&)> on_chunk;
   // A refused attempt about to be sent again (retry 1.., after `seconds`).
   std::function<void(const absl::Status& refusal, int retry, double seconds)> on_retry;
 };
 
 struct StreamResult {
-  std::string draco;  // the final mesh, chunks concatenated and checked
+  std::string draco;  // the final mesh, chunks concatenated and checked (empty when sealed)
+  // config.sealed_chunks: every chunk decoded, in order; WeldChunks gives the final mesh,
+  // whose counts were checked against the final metrics.
+  std::vector<SealedChunk> sealed;
   int64_t triangles = 0, vertices = 0;
   v1::FinalMetrics metrics;
   int64_t slices_sent = 0;

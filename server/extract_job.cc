@@ -37,6 +37,48 @@ size_t DistanceBytes(int64_t reference_triangles) {
   return static_cast<size_t>(reference_triangles) * 128;
 }
 
+// Sealed chunks: at least this many triangles each, unless kChunkSeconds went by (so that a
+// viewer sees a sparse surface grow) or the stream ended. Fewer, larger chunks compress
+// better and repeat fewer border vertices.
+constexpr int64_t kChunkTriangles = 4096;
+constexpr double kChunkSeconds = 1.0;
+
+// One quantization grid for every chunk of a session: the volume's box in world
+// coordinates, padded by a quarter of its largest extent on each side (simplified vertices
+// may sit a little outside the box). A volume of unknown depth takes --max-slices as its
+// depth, with more bits so that the step stays as fine as the slices' own extent gives.
+codec::DracoOptions ChunkGrid(const VolumeInfo& g, codec::DracoOptions o, int64_t max_slices) {
+  const int64_t nz = g.nz > 0 ? g.nz : max_slices;
+  Vec3 lo{0, 0, 0}, hi{0, 0, 0};
+  bool first = true;
+  for (int corner = 0; corner < 8; ++corner) {
+    const double u[3] = {(corner & 1) ? static_cast<double>(g.nx - 1) * g.spacing[0] : 0.0,
+                         (corner & 2) ? static_cast<double>(g.ny - 1) * g.spacing[1] : 0.0,
+                         (corner & 4) ? static_cast<double>(nz - 1) * g.spacing[2] : 0.0};
+    Vec3 p{g.origin[0], g.origin[1], g.origin[2]};
+    for (int axis = 0; axis < 3; ++axis) {
+      for (int c = 0; c < 3; ++c) p[c] += u[axis] * g.directions[axis][c];
+    }
+    for (int c = 0; c < 3; ++c) {
+      lo[c] = first ? p[c] : std::min(lo[c], p[c]);
+      hi[c] = first ? p[c] : std::max(hi[c], p[c]);
+    }
+    first = false;
+  }
+  const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
+  if (g.nz == 0) {
+    const double slice_extent = std::max(static_cast<double>(g.nx - 1) * g.spacing[0],
+                                         static_cast<double>(g.ny - 1) * g.spacing[1]);
+    if (slice_extent > 0 && extent > slice_extent) {
+      o.quantization_bits = std::min(
+          30, o.quantization_bits + static_cast<int>(std::ceil(std::log2(extent / slice_extent))));
+    }
+  }
+  for (int c = 0; c < 3; ++c) o.grid_origin[c] = static_cast<float>(lo[c] - 0.25 * extent);
+  o.grid_range = static_cast<float>(1.5 * extent);
+  return o;
+}
+
 const char* KindName(const v1::ExtractRequest& r) {
   switch (r.kind_case()) {
     case v1::ExtractRequest::kConfig: return "a SessionConfig";
@@ -84,6 +126,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
   auto session = TandemSession::Create(config_.grid, config_.options);
   if (!session.ok()) return session.status();
   session_ = *std::move(session);
+  if (config_.options.seal) chunk_draco_ = ChunkGrid(config_.grid, config_.draco, limits_.max_slices);
   if (config_.compute_distances) {
     SessionOptions full = config_.options;
     full.schedule = Schedule::kNone;
@@ -135,8 +178,52 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
   if (absl::Status st = CheckMemory(0, absl::StrCat("after slice ", cursor_.slice - 1)); !st.ok()) {
     return st;
   }
+  if (absl::Status st = MaybeChunk(false); !st.ok()) return st;
   sink_->PostProgress(MakeProgress());
   MaybePreview();
+  return absl::OkStatus();
+}
+
+absl::Status ExtractJob::MaybeChunk(bool now) {
+  if (!config_.options.seal) return absl::OkStatus();
+  const int64_t pending = session_->sealed_pending();
+  if (pending == 0) return absl::OkStatus();
+  const auto t0 = Clock::now();
+  if (!now && pending < kChunkTriangles &&
+      std::chrono::duration<double>(t0 - last_chunk_.value_or(start_)).count() < kChunkSeconds) {
+    return absl::OkStatus();
+  }
+  // Unlike a preview, a chunk cannot be skipped: over the budget, the stream fails.
+  if (absl::Status st = CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"); !st.ok()) {
+    return st;
+  }
+  SealedChunk c;
+  if (!session_->TakeSealed(&c)) return absl::OkStatus();
+  IndexedMesh mesh;
+  mesh.positions = std::move(c.positions);
+  mesh.indices = std::move(c.indices);
+  shape_.Add(mesh);
+  absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, chunk_draco_, c.ids);
+  encode_s_ += SecondsSince(t0);
+  if (!bytes.ok()) {
+    return absl::InternalError(absl::StrCat("encoding sealed chunk ", c.index, ": ",
+                                            std::string(bytes.status().message())));
+  }
+  v1::SealedChunk out;
+  out.set_index(c.index);
+  out.set_first_slice(c.first_slice);
+  out.set_last_slice(c.last_slice);
+  out.set_draco(*std::move(bytes));
+  out.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
+  out.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+  if (config_.compute_distances) {
+    c.positions = std::move(mesh.positions);
+    c.indices = std::move(mesh.indices);
+    kept_.push_back(std::move(c));
+  }
+  last_chunk_ = t0;
+  ++chunks_sent_;
+  sink_->PostChunk(std::move(out));
   return absl::OkStatus();
 }
 
@@ -157,6 +244,8 @@ void ExtractJob::MaybePreview() {
   if (sink_->PreviewPending()) return;
   // A preview is best effort: one that would take the session over its budget is skipped.
   if (!CheckMemory(EncodeBytes(session_->num_triangles()), "").ok()) return;
+  // Sealed: everything sealed so far goes out first, so that chunks and band cover the mesh.
+  if (!MaybeChunk(true).ok()) return;  // the stream fails at the next check anyway
   last_preview_ = now;
   const IndexedMesh mesh = session_->Snapshot();
   absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, config_.draco);
@@ -167,6 +256,7 @@ void ExtractJob::MaybePreview() {
   preview.set_draco(*std::move(bytes));
   preview.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
   preview.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+  preview.set_band_only(config_.options.seal);
   sink_->PostPreview(std::move(preview));
 }
 
@@ -175,6 +265,10 @@ v1::Progress ExtractJob::MakeProgress() const {
   p.set_slices_consumed(cursor_.slice);
   p.set_triangles(session_->num_triangles());
   p.set_peak_triangles(std::max(session_->stats().peak_triangles, session_->num_triangles()));
+  if (config_.options.seal) {
+    p.set_sealed_triangles(session_->stats().sealed_triangles - session_->sealed_pending());
+    p.set_sealed_chunks(chunks_sent_);
+  }
   return p;
 }
 
@@ -185,6 +279,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
     if (absl::Status st = s->Finish(); !st.ok()) return st;
   }
   if (absl::Status st = CheckMemory(0, "after the last slice"); !st.ok()) return st;
+  if (config_.options.seal) return FinishSealed();
   // Every step below is counted before it allocates; the session is freed as soon as its
   // mesh and report are out, so the encoder never runs beside it.
   const int64_t triangles = session_->num_triangles();
@@ -198,19 +293,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   session_time_ = session_->stats().time;
   session_.reset();
   final_triangles_ = triangles;
-  if (reference_) {
-    if (absl::Status st = CheckMemory(EncodeBytes(triangles) +
-                                          DistanceBytes(reference_->num_triangles()),
-                                      "to measure the distances");
-        !st.ok()) {
-      return st;
-    }
-    DistanceOptions dopt;
-    dopt.threads = 1;  // one core per session: other sessions share the machine
-    report.distance = MeasureDistances(mesh, reference_->Snapshot(), dopt);
-    reference_.reset();
-  }
-  report.peak_rss_bytes = PeakRssBytes();
+  if (absl::Status st = MeasureDistancesTo(mesh, &report); !st.ok()) return st;
   if (absl::Status st = CheckMemory(EncodeBytes(triangles), "to encode the final mesh");
       !st.ok()) {
     return st;
@@ -237,17 +320,57 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
     m->set_triangles(static_cast<int64_t>(mesh.num_triangles()));
     m->set_vertices(static_cast<int64_t>(mesh.num_vertices()));
   }
+  final_triangles_ = static_cast<int64_t>(mesh.num_triangles());
+  PostMetrics(report, std::move(out));
+  return absl::OkStatus();
+}
+
+absl::Status ExtractJob::FinishSealed() {
+  if (absl::Status st = MaybeChunk(true); !st.ok()) return st;  // the rest, sealed by Finish
+  const SessionStats& stats = session_->stats();
+  final_triangles_ = stats.sealed_triangles;
+  MetricsReport report =
+      MakeReport(*session_, stats.sealed_triangles, stats.sealed_vertices, shape_);
+  sink_->PostProgress(MakeProgress());
+  session_time_ = stats.time;
+  session_.reset();
+  if (reference_) {
+    const IndexedMesh mesh = WeldChunks(kept_);
+    kept_ = {};
+    if (absl::Status st = MeasureDistancesTo(mesh, &report); !st.ok()) return st;
+  }
+  PostMetrics(report, {});
+  return absl::OkStatus();
+}
+
+absl::Status ExtractJob::MeasureDistancesTo(const IndexedMesh& mesh, MetricsReport* report) {
+  if (reference_) {
+    if (absl::Status st = CheckMemory(EncodeBytes(static_cast<int64_t>(mesh.num_triangles())) +
+                                          DistanceBytes(reference_->num_triangles()),
+                                      "to measure the distances");
+        !st.ok()) {
+      return st;
+    }
+    DistanceOptions dopt;
+    dopt.threads = 1;  // one core per session: other sessions share the machine
+    report->distance = MeasureDistances(mesh, reference_->Snapshot(), dopt);
+    reference_.reset();
+  }
+  report->peak_rss_bytes = PeakRssBytes();
+  return absl::OkStatus();
+}
+
+void ExtractJob::PostMetrics(const MetricsReport& report, std::vector<v1::ExtractResponse> out) {
   v1::FinalMetrics* metrics = out.emplace_back().mutable_final_metrics();
   wire::ReportToProto(report, metrics);
   metrics->set_time_encode_s(encode_s_);
   metrics->set_time_wall_s(SecondsSince(start_));
+  metrics->set_sealed_chunks(chunks_sent_);
   // bytes_received, bytes_sent and previews_sent are filled in by the transport, which
   // alone knows what went over the wire.
   slice_ = {};
   state_ = State::kDone;
-  final_triangles_ = static_cast<int64_t>(mesh.num_triangles());
   sink_->PostFinal(std::move(out));
-  return absl::OkStatus();
 }
 
 absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) const {

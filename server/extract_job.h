@@ -24,6 +24,8 @@
 
 #include "absl/status/status.h"
 #include "server/request_validation.h"
+#include "tandem/metrics.h"
+#include "tandem/report.h"
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.pb.h"
 
@@ -41,6 +43,8 @@ class JobSink {
   // slower than previews come): the job then skips encoding another one.
   virtual bool PreviewPending() const { return false; }
   virtual void PostFinal(std::vector<v1::ExtractResponse> messages) = 0;
+  // A sealed chunk: every one delivered, in order, before the final messages.
+  virtual void PostChunk(v1::SealedChunk chunk) = 0;
 };
 
 class ExtractJob {
@@ -71,7 +75,16 @@ class ExtractJob {
   absl::Status HandleChunk(v1::SliceChunk& chunk);
   absl::Status ConsumeSlice(const uint8_t* bytes);
   absl::Status HandleEnd(const v1::End& end);
+  absl::Status FinishSealed();  // HandleEnd's tail when the mesh left in sealed chunks
+  // compute_distances: the L1/L2/Linf distances of `mesh` to the reference (freed after);
+  // and the process's peak RSS, in any case.
+  absl::Status MeasureDistancesTo(const IndexedMesh& mesh, MetricsReport* report);
+  // Appends FinalMetrics to `out` and posts it all: the job is done.
+  void PostMetrics(const MetricsReport& report, std::vector<v1::ExtractResponse> out);
   void MaybePreview();
+  // Sealed chunks: posts what the session sealed since the last one, when there is enough
+  // of it or enough time went by (always with `now`).
+  absl::Status MaybeChunk(bool now);
   // RESOURCE_EXHAUSTED when MemoryBytes() + `extra` exceeds the budget; `when` says where.
   absl::Status CheckMemory(size_t extra, const std::string& when) const;
   v1::Progress MakeProgress() const;
@@ -89,6 +102,12 @@ class ExtractJob {
   double encode_s_ = 0;
   PhaseTimes session_time_;  // of the session, kept when it is freed
   int64_t final_triangles_ = 0;
+  // Sealed chunks.
+  int64_t chunks_sent_ = 0;
+  codec::DracoOptions chunk_draco_;  // the config's, on the session's quantization grid
+  std::optional<std::chrono::steady_clock::time_point> last_chunk_;
+  ShapeSums shape_;                 // of everything sealed, for the final metrics
+  std::vector<SealedChunk> kept_;   // compute_distances only: the chunks, to weld at the end
 };
 
 }  // namespace tandem::server

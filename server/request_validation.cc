@@ -94,6 +94,8 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   o.target_triangles = c.target_triangles();
   if (c.has_distance_guard()) o.distance_guard = c.distance_guard();
   if (c.has_sag_correction()) o.sag_correction = c.sag_correction();
+  o.seal = c.sealed_chunks();
+  if (c.has_seal_margin()) o.seal_margin = c.seal_margin();
   if (!std::isfinite(o.iso)) {
     return absl::InvalidArgumentError("config.iso is not a finite number");
   }
@@ -118,6 +120,15 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   if (o.target_triangles < 0) {
     return absl::InvalidArgumentError(absl::StrCat(
         "config.target_triangles = ", o.target_triangles, ": must be >= 0 (0 = no target)"));
+  }
+  if (o.seal && o.target_triangles > 0) {
+    return absl::InvalidArgumentError(
+        "config.target_triangles needs the whole mesh at the end: it cannot be combined with "
+        "config.sealed_chunks");
+  }
+  if (!(o.seal_margin >= 0) || !std::isfinite(o.seal_margin)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.seal_margin = ", o.seal_margin, ": must be a finite number of slices >= 0 (unset = 2)"));
   }
   if (absl::Status st = o.ValidateFor(g); !st.ok()) return Prefixed("config: ", st);
 

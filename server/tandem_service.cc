@@ -63,6 +63,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   void PostPreview(v1::Preview preview) override;
   bool PreviewPending() const override;
   void PostFinal(std::vector<Response> messages) override;
+  void PostChunk(v1::SealedChunk chunk) override;
   void Abort(grpc::Status status) override { EndStream(std::move(status)); }
 
  private:
@@ -347,18 +348,19 @@ void ExtractCall::PumpLocked() {
   const bool failing = finish_wanted_.has_value() && !finish_wanted_->ok();
   std::optional<Response> next;
   if (!failing) {
+    // Sealed chunks before a preview: a band preview is drawn with the chunks sent before it.
     if (progress_) {
       *(next.emplace().mutable_progress()) = std::move(*progress_);
       progress_.reset();
       progress_bytes_ = 0;
+    } else if (!final_.empty() && (final_.front().has_sealed_chunk() || !preview_)) {
+      next = std::move(final_.front());
+      final_.pop_front();
+      final_bytes_ -= static_cast<int64_t>(next->ByteSizeLong());
     } else if (preview_) {
       *(next.emplace().mutable_preview()) = std::move(*preview_);
       preview_.reset();
       preview_bytes_ = 0;
-    } else if (!final_.empty()) {
-      next = std::move(final_.front());
-      final_.pop_front();
-      final_bytes_ -= static_cast<int64_t>(next->ByteSizeLong());
     }
   }
   if (next) {
@@ -420,6 +422,17 @@ void ExtractCall::PostFinal(std::vector<Response> messages) {
     final_bytes_ += static_cast<int64_t>(m.ByteSizeLong());
     final_.push_back(std::move(m));
   }
+  PumpLocked();
+  SyncBufferedLocked();
+}
+
+void ExtractCall::PostChunk(v1::SealedChunk chunk) {
+  absl::MutexLock lock(&mu_);
+  if (StoppingLocked()) return;
+  Response r;
+  *r.mutable_sealed_chunk() = std::move(chunk);
+  final_bytes_ += static_cast<int64_t>(r.ByteSizeLong());
+  final_.push_back(std::move(r));  // never dropped: the mesh is the union of the chunks
   PumpLocked();
   SyncBufferedLocked();
 }

@@ -1,6 +1,8 @@
 // Mesh quality measures (paper §4, SPEC §7). See tandem/metrics.h for the contracts.
 #include "tandem/metrics.h"
 
+#include <cstring>
+
 #include <algorithm>
 #include <array>
 #include <cassert>
@@ -108,24 +110,27 @@ double SurfaceArea(const IndexedMesh& mesh) {
 }
 
 double Anisotropy(const IndexedMesh& mesh) {
-  double sum_rho = 0.0;
-  size_t counted = 0;
-  ForEachTriangle(mesh, [&](Vec3 a, Vec3 b, Vec3 c) {
-    if (IsDegenerateTriangle(a, b, c)) return;
-    sum_rho += TriangleAspectRatio(a, b, c);
-    ++counted;
-  });
-  if (counted == 0) return kNaN;
-  return 1.0 - sum_rho / static_cast<double>(counted);
+  ShapeSums sums;
+  sums.Add(mesh);
+  return sums.anisotropy();
 }
 
 double DirectionalBias(const IndexedMesh& mesh) {
-  // Both sums carry the same 1/area(K) factor and Bias is invariant under scaling of M, so
-  // the division by area(K) only matters for readability of the intermediate M.
+  ShapeSums sums;
+  sums.Add(mesh);
+  return sums.directional_bias();
+}
+
+void ShapeSums::Add(const IndexedMesh& mesh) {
+  // Both bias sums carry the same 1/area(K) factor and Bias is invariant under scaling of M,
+  // so the division by area(K) only matters for readability of the intermediate M.
   Sym3 m_n, m_s;
-  double area_total = 0.0;
+  std::memcpy(m_n.m, m_n_, sizeof(m_n_));
+  std::memcpy(m_s.m, m_s_, sizeof(m_s_));
   ForEachTriangle(mesh, [&](Vec3 a, Vec3 b, Vec3 c) {
     if (IsDegenerateTriangle(a, b, c)) return;
+    sum_rho_ += TriangleAspectRatio(a, b, c);
+    ++counted_;
     const Vec3 area_vector = TriangleAreaVector(a, b, c);
     const double w = Norm(area_vector);
     // w n nᵀ = (w n)(w n)ᵀ / w.
@@ -134,12 +139,22 @@ double DirectionalBias(const IndexedMesh& mesh) {
     const CenteredTriangle t = Center(a, b, c);
     const double s = w / (3.0 * t.trace);
     for (const Vec3& v : t.p) m_s.AddOuter(v, s);
-    area_total += w;
+    area_ += w;
   });
-  if (!(area_total > 0.0)) return kNaN;
+  std::memcpy(m_n_, m_n.m, sizeof(m_n_));
+  std::memcpy(m_s_, m_s.m, sizeof(m_s_));
+}
+
+double ShapeSums::anisotropy() const {
+  if (counted_ == 0) return kNaN;
+  return 1.0 - sum_rho_ / static_cast<double>(counted_);
+}
+
+double ShapeSums::directional_bias() const {
+  if (!(area_ > 0.0)) return kNaN;
   Sym3 m;
   for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) m.m[i][j] = (m_n.m[i][j] + 2.0 * m_s.m[i][j]) / area_total;
+    for (int j = 0; j < 3; ++j) m.m[i][j] = (m_n_[i][j] + 2.0 * m_s_[i][j]) / area_;
   const double trace = m.Trace();
   const double bias = 1.0 - 27.0 * m.Det() / (trace * trace * trace);
   // AM–GM makes bias ≥ 0 for a positive semi-definite M; clamp the round-off.

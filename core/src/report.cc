@@ -13,6 +13,14 @@
 
 namespace tandem {
 MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) {
+  ShapeSums shape;
+  shape.Add(mesh);
+  return MakeReport(session, static_cast<int64_t>(mesh.num_triangles()),
+                    static_cast<int64_t>(mesh.num_vertices()), shape);
+}
+
+MetricsReport MakeReport(const TandemSession& session, int64_t triangles, int64_t vertices,
+                         const ShapeSums& shape) {
   MetricsReport r;
   const SessionStats& st = session.stats();
   const SessionOptions& o = session.options();
@@ -30,12 +38,12 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) 
   r.slices = st.slices;
   r.crossed_cubes = st.crossed_cubes;
   r.triangles_extracted = st.triangles_extracted;
-  r.triangles_final = static_cast<int64_t>(mesh.num_triangles());
-  r.vertices_final = static_cast<int64_t>(mesh.num_vertices());
+  r.triangles_final = triangles;
+  r.vertices_final = vertices;
   r.peak_triangles = st.peak_triangles;
   r.error_max = session.MaxShapeError();
-  r.anisotropy = Anisotropy(mesh);
-  r.directional_bias = DirectionalBias(mesh);
+  r.anisotropy = shape.anisotropy();
+  r.directional_bias = shape.directional_bias();
   r.time_extract_s = st.time.extract_s;
   r.time_simplify_s = st.time.simplify_s;
   r.time_total_s = st.time.total_s;

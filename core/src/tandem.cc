@@ -381,6 +381,12 @@ void TandemSession::ToWorld(std::vector<Vec3>* positions, std::vector<uint32_t>*
   }
 }
 
+int64_t TandemSession::sealed_pending() const {
+  (void)Sync();
+  const Sealer* sealer = parts_[0]->sealer.get();
+  return sealer != nullptr ? sealer->pending_triangles() : 0;
+}
+
 bool TandemSession::TakeSealed(SealedChunk* out) {
   (void)Sync();
   Sealer* sealer = parts_[0]->sealer.get();

@@ -50,6 +50,22 @@ double Anisotropy(const IndexedMesh& mesh);
 // area, so degenerate triangles contribute nothing. Returns NaN when the total area is 0.
 double DirectionalBias(const IndexedMesh& mesh);
 
+// Anisotropy and DirectionalBias as running sums, for a mesh that is never whole in one
+// place (sealed chunks): Add each piece, each triangle once; the results equal the functions
+// above on the union (up to the order of the sums).
+class ShapeSums {
+ public:
+  void Add(const IndexedMesh& mesh);
+  double anisotropy() const;
+  double directional_bias() const;
+
+ private:
+  double sum_rho_ = 0.0;
+  size_t counted_ = 0;
+  double m_n_[3][3] = {}, m_s_[3][3] = {};  // Σ w n nᵀ and Σ w M_abc / trace (DirectionalBias)
+  double area_ = 0.0;
+};
+
 }  // namespace tandem
 
 #endif  // TANDEM_METRICS_H_

@@ -10,6 +10,7 @@
 
 #include "absl/status/statusor.h"
 #include "tandem/distance.h"
+#include "tandem/metrics.h"
 #include "tandem/simplifier.h"
 #include "tandem/tandem.h"
 
@@ -42,6 +43,9 @@ struct MetricsReport {
 
 // Fills every field a finished session knows (mesh measures are computed on `mesh`).
 MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh);
+// The same for a mesh that left the session in sealed chunks: its counts and shape sums.
+MetricsReport MakeReport(const TandemSession& session, int64_t triangles, int64_t vertices,
+                         const ShapeSums& shape);
 
 // JSON text (keys: see tests/core/cli_test.cc and README.md).
 std::string ReportToJson(const MetricsReport& r);

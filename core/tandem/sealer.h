@@ -54,6 +54,7 @@ class Sealer {
   bool TakeChunk(SealedChunk* out);
 
   int64_t sealed_triangles() const { return sealed_triangles_; }
+  int64_t pending_triangles() const { return static_cast<int64_t>(pend_tris_.size() / 3); }
   int64_t sealed_vertices() const { return next_id_; }
   int64_t sag_corrected() const { return sag_corrected_; }
   double max_shape_error() const { return max_shape_error_; }  // over frozen vertices

@@ -154,6 +154,7 @@ class TandemSession {
   // Sealing: moves everything sealed since the last call into one chunk, in world
   // coordinates (false: nothing new). Finish seals the rest.
   bool TakeSealed(SealedChunk* out);
+  int64_t sealed_pending() const;  // triangles TakeSealed would hand out now
   int64_t num_triangles() const;  // held by the session (with sealing: not sealed yet)
   int num_parts() const { return static_cast<int>(parts_.size()); }  // after Finish: 1
   const SessionStats& stats() const;

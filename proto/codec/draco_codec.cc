@@ -22,8 +22,14 @@ constexpr int kSequentialLevel = 0;
 
 // Builds a draco::Mesh with one point per vertex (identity mapping, no value
 // deduplication), so point ids equal vertex ids.
-absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh) {
+absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh,
+                                                          const DracoOptions& options,
+                                                          std::span<const uint32_t> ids) {
   const size_t nv = mesh.num_vertices();
+  if (!ids.empty() && ids.size() != nv) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(ids.size(), " vertex ids for ", nv, " vertices"));
+  }
   if (mesh.indices.size() % 3 != 0) {
     return absl::InvalidArgumentError(
         absl::StrCat("mesh has ", mesh.indices.size(), " indices, not a multiple of 3"));
@@ -44,7 +50,25 @@ absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh
     if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2])) {
       return absl::InvalidArgumentError(absl::StrCat("vertex ", i, " is not finite"));
     }
-    att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), v);
+    if (options.grid_range > 0) {
+      float c[3];
+      for (int a = 0; a < 3; ++a) {
+        c[a] = std::clamp(v[a], options.grid_origin[a], options.grid_origin[a] + options.grid_range);
+      }
+      att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), c);
+    } else {
+      att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), v);
+    }
+  }
+  if (!ids.empty()) {
+    draco::GeometryAttribute id;
+    id.Init(draco::GeometryAttribute::GENERIC, nullptr, 1, draco::DT_UINT32, false,
+            sizeof(uint32_t), 0);
+    const int id_att = out->AddAttribute(id, /*identity_mapping=*/true, static_cast<uint32_t>(nv));
+    draco::PointAttribute* ida = out->attribute(id_att);
+    for (size_t i = 0; i < nv; ++i) {
+      ida->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), &ids[i]);
+    }
   }
   const size_t nt = mesh.num_triangles();
   out->SetNumFaces(nt);
@@ -73,9 +97,22 @@ bool HasUnusedVertexOrRepeatedCorner(const IndexedMesh& mesh) {
   return std::find(used.begin(), used.end(), false) != used.end();
 }
 
-absl::StatusOr<std::string> EncodeWith(const draco::Mesh& mesh, int bits, int level) {
+// Position quantization: on the mesh's box, or on the explicit grid of the options.
+void SetQuantization(draco::Encoder* encoder, const DracoOptions& options) {
+  if (options.grid_range > 0) {
+    encoder->SetAttributeExplicitQuantization(draco::GeometryAttribute::POSITION,
+                                              options.quantization_bits, 3,
+                                              options.grid_origin.data(), options.grid_range);
+  } else {
+    encoder->SetAttributeQuantization(draco::GeometryAttribute::POSITION,
+                                      options.quantization_bits);
+  }
+}
+
+absl::StatusOr<std::string> EncodeWith(const draco::Mesh& mesh, const DracoOptions& options,
+                                       int level) {
   draco::Encoder encoder;
-  encoder.SetAttributeQuantization(draco::GeometryAttribute::POSITION, bits);
+  SetQuantization(&encoder, options);
   const int speed = 10 - level;
   encoder.SetSpeedOptions(speed, speed);
   encoder.SetEncodingMethod(level == kSequentialLevel ? draco::MESH_SEQUENTIAL_ENCODING
@@ -136,22 +173,25 @@ absl::Status ValidateDracoOptions(const DracoOptions& options) {
     return absl::InvalidArgumentError(absl::StrCat(
         "compression_level must be in [0, 10], got ", options.compression_level));
   }
+  if (!(options.grid_range >= 0) || !std::isfinite(options.grid_range) ||
+      !std::isfinite(options.grid_origin[0]) || !std::isfinite(options.grid_origin[1]) ||
+      !std::isfinite(options.grid_origin[2])) {
+    return absl::InvalidArgumentError("the quantization grid must be finite, its range >= 0");
+  }
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options) {
+absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options,
+                                        std::span<const uint32_t> ids) {
   if (absl::Status st = ValidateDracoOptions(options); !st.ok()) return st;
-  auto dmesh = ToDracoMesh(mesh);
+  auto dmesh = ToDracoMesh(mesh, options, ids);
   if (!dmesh.ok()) return dmesh.status();
   if (mesh.num_triangles() == 0) {
     // Draco's mesh decoders refuse zero faces: a mesh without triangles travels as a
     // point cloud (sequential, so point order is kept).
     draco::Encoder encoder;
     // Draco's quantizer dereferences the first value: an empty cloud goes unquantized.
-    if (mesh.num_vertices() > 0) {
-      encoder.SetAttributeQuantization(draco::GeometryAttribute::POSITION,
-                                       options.quantization_bits);
-    }
+    if (mesh.num_vertices() > 0) SetQuantization(&encoder, options);
     encoder.SetSpeedOptions(10, 10);
     encoder.SetEncodingMethod(draco::POINT_CLOUD_SEQUENTIAL_ENCODING);
     draco::EncoderBuffer buffer;
@@ -162,31 +202,47 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
     return std::string(buffer.data(), buffer.size());
   }
   if (options.compression_level == kSequentialLevel) {
-    return EncodeWith(**dmesh, options.quantization_bits, kSequentialLevel);
+    return EncodeWith(**dmesh, options, kSequentialLevel);
   }
   // Edgebreaker rebuilds connectivity from a corner table: it drops isolated vertices and
   // faces with a repeated corner, and splits non-manifold vertices. The drops are found
   // here; a split only adds vertices, so once nothing can be dropped, equal decoded counts
   // prove nothing was split either (a drop and a split could otherwise cancel out).
   if (HasUnusedVertexOrRepeatedCorner(mesh)) {
-    return EncodeWith(**dmesh, options.quantization_bits, kSequentialLevel);
+    return EncodeWith(**dmesh, options, kSequentialLevel);
   }
-  auto bytes = EncodeWith(**dmesh, options.quantization_bits, options.compression_level);
+  auto bytes = EncodeWith(**dmesh, options, options.compression_level);
   if (!bytes.ok()) return bytes.status();
   auto check = DecodeToDraco(*bytes);
-  if (check.ok() && check->mesh != nullptr && check->mesh->num_points() == mesh.num_vertices() &&
+  // With ids, a vertex Edgebreaker splits comes back as copies with one id and one position
+  // (a sealed chunk is a piece of a surface: where two of its fans meet at one vertex, the
+  // sequential fallback cost four times the bytes), so only the triangles must be kept.
+  if (check.ok() && check->mesh != nullptr &&
+      (check->mesh->num_points() == mesh.num_vertices() || !ids.empty()) &&
       check->mesh->num_faces() == mesh.num_triangles()) {
     return bytes;
   }
-  return EncodeWith(**dmesh, options.quantization_bits, kSequentialLevel);
+  return EncodeWith(**dmesh, options, kSequentialLevel);
 }
 
-absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes) {
+absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint32_t>* ids) {
   auto decoded = DecodeToDraco(bytes);
   if (!decoded.ok()) return decoded.status();
   const draco::PointCloud& pc = *decoded->points;
   IndexedMesh out;
   const uint32_t nv = pc.num_points();
+  if (ids != nullptr) {
+    const draco::PointAttribute* id = pc.GetNamedAttribute(draco::GeometryAttribute::GENERIC);
+    if (nv > 0 && (id == nullptr || id->num_components() != 1)) {
+      return absl::InvalidArgumentError("Draco geometry has no vertex id attribute");
+    }
+    ids->resize(nv);
+    for (uint32_t i = 0; i < nv; ++i) {
+      if (!id->ConvertValue<uint32_t, 1>(id->mapped_index(draco::PointIndex(i)), &(*ids)[i])) {
+        return absl::InvalidArgumentError(absl::StrCat("Draco vertex id ", i, " is unreadable"));
+      }
+    }
+  }
   if (nv > 0) {
     const draco::PointAttribute* pos = pc.GetNamedAttribute(draco::GeometryAttribute::POSITION);
     if (pos == nullptr || pos->num_components() != 3) {

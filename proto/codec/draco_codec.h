@@ -12,8 +12,12 @@
 #ifndef TANDEM_PROTO_CODEC_DRACO_CODEC_H_
 #define TANDEM_PROTO_CODEC_DRACO_CODEC_H_
 
+#include <array>
+#include <cstdint>
+#include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -26,6 +30,12 @@ struct DracoOptions {
   // 0..10. 0 = sequential coding (fast, order kept, larger); 1..10 = Edgebreaker, where a
   // higher level means smaller output for more encoding time (Draco speed = 10 - level).
   int compression_level = 7;
+  // Explicit quantization grid (grid_range > 0): every axis is quantized on
+  // [grid_origin, grid_origin + grid_range] instead of the mesh's own bounding box, so that
+  // meshes encoded on one grid decode a vertex they share to bit-identical coordinates
+  // (sealed chunks). Positions outside are clamped onto the grid's faces.
+  std::array<float, 3> grid_origin{0, 0, 0};
+  float grid_range = 0;
 };
 
 // Checks the ranges above; InvalidArgument names the field.
@@ -38,12 +48,19 @@ absl::Status ValidateDracoOptions(const DracoOptions& options);
 // Edgebreaker cannot carry some connectivity (non-manifold vertices get split, degenerate
 // faces and isolated vertices dropped); when the counts would change, the mesh is encoded
 // sequentially instead, so the contract above always holds.
-absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options = {});
+// `ids` (empty, or one per vertex) travel as a GENERIC uint32 attribute, losslessly. With
+// ids, Edgebreaker may split a non-manifold vertex into copies that carry its id and its
+// position: the decoded vertex count may then exceed the original (triangles are kept).
+absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options = {},
+                                        std::span<const uint32_t> ids = {});
 
 // Decodes a Draco mesh or point-cloud buffer (positions as 3 floats per point; a point
 // cloud gives a mesh without triangles). InvalidArgument for what is not Draco, DataLoss
 // for a buffer Draco cannot decode (e.g. truncated).
-absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes);
+// With `ids`: the GENERIC uint32 attribute EncodeDraco wrote, one per vertex
+// (InvalidArgument when the buffer has none).
+absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes,
+                                        std::vector<uint32_t>* ids = nullptr);
 
 // How far a decoded coordinate may lie from the original: Draco quantizes all three axes
 // on the largest extent of the bounding box, step = extent / (2^bits - 1), and works in

@@ -57,8 +57,17 @@ class CheckingSink : public tandem::server::JobSink {
   void PostPreview(tandem::v1::Preview p) override {
     if (p.draco().empty()) Violation("empty preview");
   }
+  void PostChunk(tandem::v1::SealedChunk c) override {
+    if (finals_ > 0) Violation("a sealed chunk after the final messages");
+    if (c.index() != chunks_++) Violation("sealed chunks out of order");
+    if (c.draco().empty() || c.triangles() <= 0) Violation("empty sealed chunk");
+  }
   void PostFinal(std::vector<ExtractResponse> messages) override {
     if (finals_++ > 0) Violation("final messages posted twice");
+    if (messages.size() == 1 && messages[0].has_final_metrics() &&
+        messages[0].final_metrics().sealed_chunks() == chunks_) {
+      return;  // sealed chunks: the mesh went out in them
+    }
     if (messages.size() < 2 || !messages.back().has_final_metrics()) {
       Violation("the final messages do not end with FinalMetrics");
     }
@@ -86,6 +95,7 @@ class CheckingSink : public tandem::server::JobSink {
  private:
   int64_t last_slices_ = 0;
   int finals_ = 0;
+  int64_t chunks_ = 0;
 };
 
 void CheckError(const absl::Status& st) {

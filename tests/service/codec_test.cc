@@ -4,7 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <map>
 
 #include <gtest/gtest.h>
 
@@ -144,6 +146,69 @@ TEST(DracoCodec, AwkwardConnectivityKeepsCounts) {
       }
     }
   }
+}
+
+// Sealed chunks: two pieces of one mesh, encoded on one explicit grid with their vertex ids,
+// decode a vertex they share to bit-identical coordinates, and every id comes back with
+// its vertex (Edgebreaker may reorder vertices and split a non-manifold one into copies).
+TEST(DracoCodec, ExplicitGridAndIdsMakeSharedVerticesBitIdentical) {
+  const IndexedMesh sphere = SphereMesh(Schedule::kTandemLag, 40);
+  // Split the triangles by the height of their first corner; ids = the sphere's indices.
+  IndexedMesh part[2];
+  std::vector<uint32_t> ids[2];
+  for (int k = 0; k < 2; ++k) {
+    std::vector<uint32_t> local(sphere.num_vertices(), kInvalid);
+    for (size_t t = 0; t < sphere.num_triangles(); ++t) {
+      if ((sphere.positions[sphere.indices[3 * t]].z < 20) != (k == 0)) continue;
+      for (int c = 0; c < 3; ++c) {
+        const uint32_t v = sphere.indices[3 * t + c];
+        if (local[v] == kInvalid) {
+          local[v] = static_cast<uint32_t>(part[k].positions.size());
+          part[k].positions.push_back(sphere.positions[v]);
+          ids[k].push_back(v);
+        }
+        part[k].indices.push_back(local[v]);
+      }
+    }
+  }
+  for (int level : {0, 7}) {
+    DracoOptions o{14, level};
+    o.grid_origin = {-10, -10, -10};
+    o.grid_range = 60;
+    std::map<uint32_t, Vec3> seen;
+    size_t shared = 0;
+    for (int k = 0; k < 2; ++k) {
+      auto bytes = EncodeDraco(part[k], o, ids[k]);
+      ASSERT_TRUE(bytes.ok()) << bytes.status();
+      std::vector<uint32_t> got_ids;
+      auto decoded = DecodeDraco(*bytes, &got_ids);
+      ASSERT_TRUE(decoded.ok()) << decoded.status();
+      ASSERT_EQ(got_ids.size(), decoded->num_vertices());
+      EXPECT_EQ(decoded->num_triangles(), part[k].num_triangles());
+      EXPECT_GE(decoded->num_vertices(), part[k].num_vertices());
+      const double step = 60.0 / ((1 << 14) - 1);
+      for (size_t v = 0; v < got_ids.size(); ++v) {
+        ASSERT_LT(got_ids[v], sphere.num_vertices());
+        const Vec3 want = sphere.positions[got_ids[v]];
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(decoded->positions[v][c], want[c], step);
+        auto [it, fresh] = seen.emplace(got_ids[v], decoded->positions[v]);
+        if (!fresh && k == 1 && part[0].num_vertices() > 0) {
+          ++shared;
+          EXPECT_EQ(std::memcmp(&it->second, &decoded->positions[v], sizeof(Vec3)), 0);
+        }
+      }
+    }
+    EXPECT_GT(shared, 10u);
+    // Without ids a decoder asking for them is told so.
+    auto plain = EncodeDraco(part[0], o);
+    ASSERT_TRUE(plain.ok());
+    std::vector<uint32_t> none;
+    EXPECT_EQ(DecodeDraco(*plain, &none).status().code(), absl::StatusCode::kInvalidArgument);
+  }
+  // One id per vertex, or none.
+  std::vector<uint32_t> short_ids(2, 0);
+  EXPECT_EQ(EncodeDraco(part[0], {}, short_ids).status().code(),
+            absl::StatusCode::kInvalidArgument);
 }
 
 TEST(DracoCodec, RejectsBadMeshesAndOptions) {

@@ -14,6 +14,8 @@
 #include "common/wire.h"
 #include "server/extract_job.h"
 #include "tandem/distance.h"
+#include "tandem/metrics.h"
+#include "tandem/sealer.h"
 #include "tandem/report.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
@@ -109,6 +111,15 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        absl::StatusCode::kInvalidArgument, "config.distance_guard"},
       {[](auto* c) { c->set_sag_correction(-0.5); }, absl::StatusCode::kInvalidArgument,
        "config.sag_correction"},
+      {[](auto* c) {
+         c->set_sealed_chunks(true);
+         c->set_target_triangles(100);
+       },
+       absl::StatusCode::kInvalidArgument, "config.target_triangles"},
+      {[](auto* c) { c->set_seal_margin(-1); }, absl::StatusCode::kInvalidArgument,
+       "config.seal_margin"},
+      {[](auto* c) { c->set_seal_margin(std::numeric_limits<double>::infinity()); },
+       absl::StatusCode::kInvalidArgument, "config.seal_margin"},
       {[](auto* c) { c->set_sag_correction(std::numeric_limits<double>::quiet_NaN()); },
        absl::StatusCode::kInvalidArgument, "config.sag_correction"},
       {[](auto* c) { c->set_target_triangles(-3); }, absl::StatusCode::kInvalidArgument,
@@ -251,6 +262,8 @@ struct RecordingSink : JobSink {
   void PostProgress(v1::Progress p) override { progress.push_back(std::move(p)); }
   void PostPreview(v1::Preview p) override { previews.push_back(std::move(p)); }
   void PostFinal(std::vector<v1::ExtractResponse> m) override { final = std::move(m); }
+  std::vector<v1::SealedChunk> chunks;
+  void PostChunk(v1::SealedChunk c) override { chunks.push_back(std::move(c)); }
 };
 
 // The messages of a synthetic float32 volume, each slice split in `pieces` chunks.
@@ -277,6 +290,63 @@ std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options,
   }
   out.emplace_back().mutable_end();
   return out;
+}
+
+// Sealed: the job's chunks are the local sealed session's (same ids, coordinates within the
+// grid's step), no FinalMesh comes, and the metrics measure their union.
+TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
+  v1::SessionConfig options;
+  options.set_error(0.1);
+  options.set_sealed_chunks(true);
+  options.mutable_preview()->set_every_slices(4);
+  RecordingSink sink;
+  ServerLimits limits;
+  limits.min_preview_interval_ms = 0;
+  ExtractJob job(limits, &sink);
+  const int64_t n = 40;
+  for (v1::ExtractRequest& r : SphereRequests(options, n, 1)) ASSERT_TRUE(job.Handle(r).ok());
+  ASSERT_TRUE(job.done());
+
+  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  SessionOptions local_options;
+  local_options.error = 0.1;
+  local_options.seal = true;
+  std::vector<SealedChunk> local_chunks;
+  auto local = RunSession(*source, local_options, nullptr, &local_chunks);
+  ASSERT_TRUE(local.ok());
+  const IndexedMesh expected = WeldChunks(local_chunks);
+
+  ASSERT_EQ(sink.final.size(), 1u);  // FinalMetrics only
+  ASSERT_GE(sink.chunks.size(), 2u);  // the previews take what is sealed before each
+  std::vector<SealedChunk> got;
+  for (size_t i = 0; i < sink.chunks.size(); ++i) {
+    EXPECT_EQ(sink.chunks[i].index(), static_cast<int64_t>(i));
+    SealedChunk c;
+    auto mesh = codec::DecodeDraco(sink.chunks[i].draco(), &c.ids);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    EXPECT_EQ(static_cast<int64_t>(mesh->num_triangles()), sink.chunks[i].triangles());
+    c.positions = mesh->positions;
+    c.indices = mesh->indices;
+    got.push_back(std::move(c));
+  }
+  const IndexedMesh welded = WeldChunks(got);
+  ASSERT_EQ(welded.num_vertices(), expected.num_vertices());
+  ASSERT_EQ(welded.num_triangles(), expected.num_triangles());
+  const double step = 1.5 * (n - 1) / ((1 << 16) - 1);  // the session's grid at 16 bits
+  for (size_t i = 0; i < expected.num_vertices(); ++i) {
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_NEAR(welded.positions[i][c], expected.positions[i][c], step) << i;
+    }
+  }
+  const v1::FinalMetrics& m = sink.final[0].final_metrics();
+  EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles()));
+  EXPECT_EQ(m.vertices_final(), static_cast<int64_t>(expected.num_vertices()));
+  EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size()));
+  EXPECT_NEAR(m.anisotropy(), Anisotropy(expected), 1e-9);
+  EXPECT_NEAR(m.directional_bias(), DirectionalBias(expected), 1e-9);
+  ASSERT_FALSE(sink.previews.empty());
+  for (const v1::Preview& p : sink.previews) EXPECT_TRUE(p.band_only());
+  EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
 }
 
 TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {

@@ -3,6 +3,7 @@
 #include <signal.h>
 
 #include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -19,8 +20,10 @@
 #include "service/service_testutil.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
+#include "tandem/sealer.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
+#include "tandem/topology.h"
 #include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
 
@@ -411,6 +414,92 @@ TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
   ASSERT_TRUE(got->distance.has_value());
   EXPECT_GT(got->distance->linf_max, 0);
   EXPECT_LT(got->distance->l1_max, 0.75) << "mean distance below E0";
+}
+
+// Sealed chunks: every chunk saved, decoded with its vertex ids; the chunks weld into the
+// final mesh (closed, manifold, the plain stream's topology), a vertex two chunks share
+// decodes to bit-identical coordinates in both, and the bytes stay close to the plain
+// stream's.
+TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 96, 96, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto stream = [&](const std::string& name, std::vector<std::string> extra) {
+    return Client(Concat({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                          "0", "--error", "0.05", "--out", dir_ + "/" + name + ".ply",
+                          "--metrics", dir_ + "/" + name + ".json", "--verbose"},
+                         extra));
+  };
+  RunResult plain = stream("plain", {});
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  RunResult sealed = stream("sealed", {"--chunks", dir_ + "/chunks"});
+  ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
+  auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
+  auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
+  ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
+
+  // The chunk files, zero-padded and in order, decoded with their ids.
+  std::vector<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/chunks")) {
+    files.push_back(e.path().filename().string());
+  }
+  std::sort(files.begin(), files.end());
+  ASSERT_GE(files.size(), 2u) << "a 96-slice link makes more than one chunk";
+  std::vector<SealedChunk> chunks;
+  std::map<uint32_t, Vec3> at;
+  size_t shared = 0;
+  for (size_t i = 0; i < files.size(); ++i) {
+    char expected[32];
+    std::snprintf(expected, sizeof(expected), "chunk_%06zu.drc", i);
+    EXPECT_EQ(files[i], expected);
+    SealedChunk c;
+    auto mesh = codec::DecodeDraco(ReadFile(dir_ + "/chunks/" + files[i]), &c.ids);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    c.positions = mesh->positions;
+    c.indices = mesh->indices;
+    for (size_t v = 0; v < c.ids.size(); ++v) {
+      auto [it, fresh] = at.emplace(c.ids[v], c.positions[v]);
+      if (!fresh) {
+        ++shared;
+        EXPECT_EQ(std::memcmp(&it->second, &c.positions[v], sizeof(Vec3)), 0) << "id " << c.ids[v];
+      }
+    }
+    chunks.push_back(std::move(c));
+  }
+  EXPECT_GT(shared, 0u);
+  const IndexedMesh welded = WeldChunks(chunks);
+  EXPECT_EQ(static_cast<int64_t>(welded.num_triangles()), sealed_report->triangles_final);
+  EXPECT_EQ(static_cast<int64_t>(welded.num_vertices()), sealed_report->vertices_final);
+  const TopologyReport t = AnalyzeTopology(welded);
+  EXPECT_TRUE(t.IsClosedManifold());
+  auto plain_mesh = ReadMesh(dir_ + "/plain.ply");
+  ASSERT_TRUE(plain_mesh.ok()) << plain_mesh.status();
+  EXPECT_EQ(t.euler, AnalyzeTopology(*plain_mesh).euler);
+  // --out holds the same welded mesh.
+  auto out_mesh = ReadMesh(dir_ + "/sealed.ply");
+  ASSERT_TRUE(out_mesh.ok()) << out_mesh.status();
+  EXPECT_EQ(out_mesh->num_triangles(), welded.num_triangles());
+  // Within 5% of the plain stream's count, at the same error bound.
+  EXPECT_NEAR(static_cast<double>(sealed_report->triangles_final),
+              static_cast<double>(plain_report->triangles_final),
+              0.05 * static_cast<double>(plain_report->triangles_final));
+  EXPECT_LE(sealed_report->error_max, 0.05 * (1 + 1e-9));
+  // Every chunk once: the verbose lines count them.
+  size_t lines = 0;
+  for (absl::string_view line : absl::StrSplit(sealed.err, '\n')) lines += absl::StartsWith(line, "chunk ");
+  EXPECT_EQ(lines, files.size());
+  // The stream, then, sent the chunks and no final mesh: under 2x the plain stream's bytes.
+  EXPECT_GT(sealed_report->bytes_sent, 0);
+  EXPECT_LT(sealed_report->bytes_sent, 2 * plain_report->bytes_sent);
+}
+
+TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {
+  auto path = WriteSyntheticVolume(dir_, "s", MakeSyntheticSource(Shape::kSphere, 16, 16, 16));
+  ASSERT_TRUE(path.ok());
+  RunResult r = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
+                        "--error", "0.1", "--out", dir_ + "/x.ply", "--seal",
+                        "--target-triangles", "100"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--target-triangles"), std::string::npos) << r.err;
 }
 
 // ---------------------------------------------------------------------------------------

@@ -77,6 +77,8 @@ class NullSink : public server::JobSink {
   void PostProgress(v1::Progress) override {}
   void PostPreview(v1::Preview) override {}
   void PostFinal(std::vector<v1::ExtractResponse>) override { ++finals; }
+  void PostChunk(v1::SealedChunk) override { ++chunks; }
+  int chunks = 0;
   int finals = 0;
 };
 
