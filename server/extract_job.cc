@@ -40,7 +40,7 @@ size_t DistanceBytes(int64_t reference_triangles) {
 // Sealed chunks: at least this many triangles each, unless kChunkSeconds went by (so that a
 // viewer sees a sparse surface grow) or the stream ended. Fewer, larger chunks compress
 // better and repeat fewer border vertices.
-constexpr int64_t kChunkTriangles = 4096;
+constexpr int64_t kChunkTriangles = 32768;
 constexpr double kChunkSeconds = 1.0;
 
 // One quantization grid for every chunk of a session: the volume's box in world

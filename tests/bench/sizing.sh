@@ -11,43 +11,9 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 bin=build/bin
 [ "${1:-}" = --bin ] && bin="$2"
-for b in tandem tandem-server tandem-client; do
-  [ -x "$bin/$b" ] || { echo "sizing: $bin/$b not found (build first)" >&2; exit 2; }
-done
-work=$(mktemp -d /dev/shm/tandem-sizing.XXXXXX)
-server_pid=""
-cleanup() {
-  [ -n "$server_pid" ] && kill "$server_pid" 2>/dev/null || true
-  rm -rf "$work"
-}
-trap cleanup EXIT
+source tests/bench/bench_lib.sh  # mib, timed, status_kib, start_server, stop_server
+bench_start sizing
 
-mib() { awk -v k="$1" 'BEGIN { printf "%.1f MiB", k / 1024 }'; }
-# Runs a command under /usr/bin/time -v; prints "peak_kib wall_s".
-timed() {
-  /usr/bin/time -v "$@" > /dev/null 2> "$work/time.txt" || { cat "$work/time.txt" >&2; exit 1; }
-  awk -F': ' '/Maximum resident set size/ { k = $2 }
-              /Elapsed \(wall clock\)/ { n = split($2, p, ":"); s = p[n] + 60 * p[n-1]; if (n == 3) s += 3600 * p[1] }
-              END { printf "%d %.2f\n", k, s }' "$work/time.txt"
-}
-status_kib() { awk -v f="$2:" '$1 == f { print $2 }' "/proc/$1/status"; }
-start_server() {
-  "$bin/tandem-server" --listen 127.0.0.1:0 "$@" > "$work/server.out" 2> "$work/server.err" &
-  server_pid=$!
-  for _ in $(seq 1 100); do
-    grep -q "listening on" "$work/server.out" 2>/dev/null && break
-    sleep 0.05
-  done
-  address=$(sed -n 's/^listening on //p' "$work/server.out")
-  [ -n "$address" ] || { cat "$work/server.err" >&2; exit 1; }
-  sleep 0.3
-  idle_kib=$(status_kib "$server_pid" VmRSS)
-}
-stop_server() {
-  kill -TERM "$server_pid"
-  wait "$server_pid" 2>/dev/null || true
-  server_pid=""
-}
 # stream N VOLUME ISO E0 [client flags...]: N concurrent clients into the running server;
 # prints "wall_s client_peak_kib".
 stream() {
