@@ -29,6 +29,7 @@
 #include "tandem/distance.h"
 #include "tandem/follow.h"
 #include "tandem/mesh_io.h"
+#include "tandem/metrics.h"
 #include "tandem/report.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
@@ -110,7 +111,9 @@ Options:
                             --seal-margin slices below the front never change again and
                             their triangles leave the session, so its memory follows the
                             front, not the depth (one part; no --target-triangles)
-  --seal-margin N           slices between the front and the sealed mesh (default 2)
+  --seal-margin N           slices between the front and the sealed mesh (default 2).
+                            A .ply or .obj output is written as the chunks come (unless
+                            --reference, which needs the whole mesh)
   --metrics FILE.json       write the run's figures as JSON (without it, a summary
                             goes to stderr)
   --reference               also extract the unsimplified surface (kept only for
@@ -331,29 +334,56 @@ int Extract(int argc, char** argv) {
 
   cli::Progress progress("slices");
   ValueRangeSource range(source->get());
+  // Sealed, to .ply or .obj and without --reference: the chunks go to the file as they come
+  // (memory follows the front, not the mesh); otherwise they are kept and welded at the end.
   std::vector<SealedChunk> chunks;
+  std::unique_ptr<ChunkedMeshWriter> writer;
+  ShapeSums shape;
+  if (opt.seal && ChunkedMeshWriter::Supports(*out) && !args->Has("reference")) {
+    auto w = ChunkedMeshWriter::Open(*out);
+    if (!w.ok()) return Fail(w.status());
+    writer = *std::move(w);
+  }
+  auto on_chunk = [&](SealedChunk c) -> absl::Status {
+    if (!writer) {
+      chunks.push_back(std::move(c));
+      return absl::OkStatus();
+    }
+    absl::Status st = writer->Add(c);
+    IndexedMesh piece;
+    piece.positions = std::move(c.positions);
+    piece.indices = std::move(c.indices);
+    shape.Add(piece);
+    return st;
+  };
   auto session = RunSession(range, opt, [&](int64_t d, int64_t t) {
     if (follow) {
       status_line(d);
     } else {
       progress.Update(d, t);
     }
-  }, &chunks);
+  }, on_chunk);
   if (follow && tty) std::fprintf(stderr, "\n");
   progress.Done();
   if (!session.ok()) return Fail(absl::Status(session.status().code(),
                                               absl::StrCat(*input, ": ", std::string(session.status().message()))));
-  const IndexedMesh mesh = opt.seal ? WeldChunks(chunks) : (*session)->Snapshot();
-  chunks = {};
-  // The report's measures (Error(K), anisotropy, bias) only read the mesh and the finished
-  // session: work them out on another core while the mesh is written.
-  // (async | deferred: runs here, later, when no thread can be had.)
-  std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred, [&] {
-    return MakeReport(**session, mesh);
-  });
-  if (absl::Status st = WriteMesh(*out, mesh); !st.ok()) return Fail(st);
-
-  MetricsReport report = measured.get();
+  IndexedMesh mesh;
+  MetricsReport report;
+  if (writer) {
+    if (absl::Status st = writer->Finish(); !st.ok()) return Fail(st);
+    report = MakeReport(**session, writer->triangles(), writer->vertices(), shape);
+  } else {
+    mesh = opt.seal ? WeldChunks(chunks) : (*session)->Snapshot();
+    chunks = {};
+    // The report's measures (Error(K), anisotropy, bias) only read the mesh and the finished
+    // session: work them out on another core while the mesh is written.
+    // (async | deferred: runs here, later, when no thread can be had.)
+    std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred, [&] {
+      return MakeReport(**session, mesh);
+    });
+    if (absl::Status st = WriteMesh(*out, mesh); !st.ok()) return Fail(st);
+    report = measured.get();
+  }
   report.input = *input;
   report.frame = info.frame;
   if (args->Has("reference")) {

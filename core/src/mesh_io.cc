@@ -111,23 +111,28 @@ void AppendVec3(BufferedWriter& out, const Vec3& v) {
   for (int k = 0; k < 3; ++k) out.AppendLe32(std::bit_cast<uint32_t>(static_cast<float>(v[k])));
 }
 
-void WritePly(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
+void AppendPlyHeader(BufferedWriter& out, size_t vertices, size_t triangles, bool normals) {
   out.Append(absl::StrCat("ply\nformat binary_little_endian 1.0\ncomment written by tandem\n",
-                          "element vertex ", mesh.num_vertices(),
+                          "element vertex ", vertices,
                           "\nproperty float x\nproperty float y\nproperty float z\n",
-                          normals.empty() ? ""
-                                          : "property float nx\nproperty float ny\nproperty float nz\n",
-                          "element face ", mesh.num_triangles(),
+                          normals ? "property float nx\nproperty float ny\nproperty float nz\n" : "",
+                          "element face ", triangles,
                           "\nproperty list uchar int vertex_indices\nend_header\n"));
+}
+
+void AppendPlyFace(BufferedWriter& out, const uint32_t* tri) {
+  const char count = 3;
+  out.Append(&count, 1);
+  for (int k = 0; k < 3; ++k) out.AppendLe32(tri[k]);
+}
+
+void WritePly(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
+  AppendPlyHeader(out, mesh.num_vertices(), mesh.num_triangles(), !normals.empty());
   for (size_t v = 0; v < mesh.positions.size(); ++v) {
     AppendVec3(out, mesh.positions[v]);
     if (!normals.empty()) AppendVec3(out, normals[v]);
   }
-  for (size_t t = 0; t < mesh.num_triangles(); ++t) {
-    const char count = 3;
-    out.Append(&count, 1);
-    for (int k = 0; k < 3; ++k) out.AppendLe32(mesh.indices[3 * t + k]);
-  }
+  for (size_t t = 0; t < mesh.num_triangles(); ++t) AppendPlyFace(out, &mesh.indices[3 * t]);
 }
 
 // "tag x y z\n", each coordinate rounded to float32 first, like the PLY output: both formats
@@ -141,23 +146,31 @@ void AppendObjVec3(BufferedWriter& out, absl::string_view tag, const Vec3& v) {
   out.Append("\n");
 }
 
+void AppendObjHeader(BufferedWriter& out, size_t vertices, size_t triangles) {
+  out.Append(absl::StrCat("# written by tandem: ", vertices, " vertices, ", triangles,
+                          " triangles\n"));
+}
+
+void AppendObjFace(BufferedWriter& out, const uint32_t* tri, bool normals) {
+  out.Append("f");
+  for (int k = 0; k < 3; ++k) {
+    const uint64_t i = uint64_t{tri[k]} + 1;
+    out.Append(" ");
+    out.AppendUint(i);
+    if (normals) {  // "i//i": vertex i with normal i
+      out.Append("//");
+      out.AppendUint(i);
+    }
+  }
+  out.Append("\n");
+}
+
 void WriteObj(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
-  out.Append(absl::StrCat("# written by tandem: ", mesh.num_vertices(), " vertices, ",
-                          mesh.num_triangles(), " triangles\n"));
+  AppendObjHeader(out, mesh.num_vertices(), mesh.num_triangles());
   for (const Vec3& p : mesh.positions) AppendObjVec3(out, "v", p);
   for (const Vec3& n : normals) AppendObjVec3(out, "vn", n);
   for (size_t t = 0; t < mesh.num_triangles(); ++t) {
-    out.Append("f");
-    for (int k = 0; k < 3; ++k) {
-      const uint64_t i = uint64_t{mesh.indices[3 * t + k]} + 1;
-      out.Append(" ");
-      out.AppendUint(i);
-      if (!normals.empty()) {  // "i//i": vertex i with normal i
-        out.Append("//");
-        out.AppendUint(i);
-      }
-    }
-    out.Append("\n");
+    AppendObjFace(out, &mesh.indices[3 * t], !normals.empty());
   }
 }
 
@@ -768,6 +781,140 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
   }
   if (const int err = out.Close(); err != 0) {
     return Error(absl::StatusCode::kUnavailable, path,
+                 absl::StrCat("write failed: ", std::strerror(err)));
+  }
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------
+// ChunkedMeshWriter
+
+bool ChunkedMeshWriter::Supports(const std::string& path) {
+  const absl::StatusOr<Format> f = FormatOf(path);
+  return f.ok() && (*f == Format::kPly || *f == Format::kObj);
+}
+
+absl::StatusOr<std::unique_ptr<ChunkedMeshWriter>> ChunkedMeshWriter::Open(
+    const std::string& path, const MeshWriteOptions& options) {
+  if (!Supports(path)) {
+    return Error(absl::StatusCode::kInvalidArgument, path,
+                 "sealed chunks are written as they come to .ply or .obj only");
+  }
+  std::FILE* verts = std::tmpfile();
+  std::FILE* tris = std::tmpfile();
+  if (verts == nullptr || tris == nullptr) {
+    const int err = errno;
+    if (verts != nullptr) std::fclose(verts);
+    if (tris != nullptr) std::fclose(tris);
+    return Error(absl::StatusCode::kUnavailable, path,
+                 absl::StrCat("cannot create a scratch file: ", std::strerror(err)));
+  }
+  return std::unique_ptr<ChunkedMeshWriter>(new ChunkedMeshWriter(path, options, verts, tris));
+}
+
+ChunkedMeshWriter::~ChunkedMeshWriter() {
+  std::fclose(verts_);
+  std::fclose(tris_);
+}
+
+absl::Status ChunkedMeshWriter::Failed(const char* what) const {
+  return Error(absl::StatusCode::kUnavailable, path_,
+               absl::StrCat(what, ": ", std::strerror(errno != 0 ? errno : EIO)));
+}
+
+absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
+  const size_t nt = chunk.num_triangles();
+  std::vector<uint32_t> ids(3 * nt);
+  for (size_t t = 0; t < nt; ++t) {
+    const uint32_t* tri = &chunk.indices[3 * t];
+    const Vec3 w = TriangleAreaVector(chunk.positions[tri[0]], chunk.positions[tri[1]],
+                                      chunk.positions[tri[2]]);
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t id = chunk.ids[tri[k]];
+      auto [it, fresh] = open_.try_emplace(id, OpenVertex{chunk.positions[tri[k]], Vec3{0, 0, 0}});
+      it->second.normal = it->second.normal + w;
+      ids[3 * t + k] = id;
+    }
+  }
+  if (nt > 0 && std::fwrite(ids.data(), sizeof(uint32_t), ids.size(), tris_) != ids.size()) {
+    return Failed("writing the scratch file of triangles");
+  }
+  triangles_ += static_cast<int64_t>(nt);
+  for (uint32_t id : chunk.retired) {
+    auto it = open_.find(id);
+    if (it == open_.end()) continue;  // retired before any of its triangles: none it had
+    const double len = Norm(it->second.normal);
+    const Vec3 n = len > 0 ? it->second.normal * (1.0 / len) : Vec3{0, 0, 0};
+    const float record[6] = {static_cast<float>(it->second.pos.x), static_cast<float>(it->second.pos.y),
+                             static_cast<float>(it->second.pos.z), static_cast<float>(n.x),
+                             static_cast<float>(n.y), static_cast<float>(n.z)};
+    if (std::fwrite(record, sizeof record, 1, verts_) != 1) {
+      return Failed("writing the scratch file of vertices");
+    }
+    if (id >= index_.size()) index_.resize(std::max<size_t>(id + 1, 2 * index_.size()), kInvalid);
+    index_[id] = static_cast<uint32_t>(vertices_++);
+    open_.erase(it);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ChunkedMeshWriter::Finish() {
+  if (!open_.empty()) {
+    return Error(absl::StatusCode::kInternal, path_,
+                 absl::StrCat(open_.size(), " vertices were never retired: chunks are missing"));
+  }
+  const bool ply = *FormatOf(path_) == Format::kPly;
+  std::FILE* file = std::fopen(path_.c_str(), "wb");
+  if (file == nullptr) return Failed("cannot open for writing");
+  BufferedWriter out(file);
+  const size_t nv = static_cast<size_t>(vertices_), nt = static_cast<size_t>(triangles_);
+  const bool normals = options_.normals;
+  if (ply) {
+    AppendPlyHeader(out, nv, nt, normals);
+  } else {
+    AppendObjHeader(out, nv, nt);
+  }
+  // Vertices: PLY one record each; OBJ the "v" lines, then the "vn" lines.
+  std::vector<float> block(6 * 4096);
+  for (int pass = 0; pass < (ply || !normals ? 1 : 2); ++pass) {
+    std::rewind(verts_);
+    for (size_t done = 0; done < nv;) {
+      const size_t n = std::min<size_t>(4096, nv - done);
+      if (std::fread(block.data(), 6 * sizeof(float), n, verts_) != n) {
+        return Failed("reading back the scratch file of vertices");
+      }
+      for (size_t i = 0; i < n; ++i) {
+        const float* r = &block[6 * i];
+        const Vec3 p{r[0], r[1], r[2]}, q{r[3], r[4], r[5]};
+        if (ply) {
+          AppendVec3(out, p);
+          if (normals) AppendVec3(out, q);
+        } else {
+          AppendObjVec3(out, pass == 0 ? "v" : "vn", pass == 0 ? p : q);
+        }
+      }
+      done += n;
+    }
+  }
+  std::rewind(tris_);
+  std::vector<uint32_t> tris(3 * 4096);
+  for (size_t done = 0; done < nt;) {
+    const size_t n = std::min<size_t>(4096, nt - done);
+    if (std::fread(tris.data(), 3 * sizeof(uint32_t), n, tris_) != n) {
+      return Failed("reading back the scratch file of triangles");
+    }
+    for (size_t i = 0; i < 3 * n; ++i) tris[i] = index_[tris[i]];
+    for (size_t i = 0; i < n; ++i) {
+      if (ply) {
+        AppendPlyFace(out, &tris[3 * i]);
+      } else {
+        AppendObjFace(out, &tris[3 * i], normals);
+      }
+    }
+    done += n;
+  }
+  if (const int err = out.Close(); err != 0) {
+    return Error(absl::StatusCode::kUnavailable, path_,
                  absl::StrCat("write failed: ", std::strerror(err)));
   }
   return absl::OkStatus();

@@ -140,19 +140,25 @@ void Sealer::Seal(double front) {
   }
   for (TriId t : tris_) store_->RemoveTriangle(t);
   sealed_triangles_ += static_cast<int64_t>(tris_.size());
-  // 4. Frozen vertices left without triangles leave the store.
+  // 4. Frozen vertices left without triangles leave the store. A contraction next to a frozen
+  // vertex can remove one of its triangles too (the triangle on the contracted edge): such a
+  // vertex may lose its last triangle unseen here, so the end of the stream looks at all.
+  if (all) {
+    for (VertexId v = 0; v < store_->vertex_capacity(); ++v) drop_.push_back(v);
+  }
   std::sort(drop_.begin(), drop_.end());
   drop_.erase(std::unique(drop_.begin(), drop_.end()), drop_.end());
   for (VertexId v : drop_) {
     if (store_->vertex_alive(v) && store_->vertex_triangles(v).empty()) {
       store_->RemoveVertex(v);
+      if (id_[v] != kInvalid) pend_retired_.push_back(id_[v]);
       id_[v] = kInvalid;
     }
   }
 }
 
 bool Sealer::TakeChunk(SealedChunk* out) {
-  if (pend_tris_.empty()) return false;
+  if (pend_tris_.empty() && pend_retired_.empty()) return false;
   std::sort(pend_verts_.begin(), pend_verts_.end(),
             [](const PendingVertex& a, const PendingVertex& b) { return a.id < b.id; });
   *out = SealedChunk{};
@@ -166,15 +172,19 @@ bool Sealer::TakeChunk(SealedChunk* out) {
     lo = std::min(lo, p.height);
     hi = std::max(hi, p.height);
   }
-  out->first_slice = static_cast<int64_t>(std::floor(lo));
-  out->last_slice = static_cast<int64_t>(std::ceil(hi));
+  if (lo <= hi) {  // a chunk may only retire vertices
+    out->first_slice = static_cast<int64_t>(std::floor(lo));
+    out->last_slice = static_cast<int64_t>(std::ceil(hi));
+  }
   out->indices.reserve(pend_tris_.size());
   for (uint32_t id : pend_tris_) {
     const auto it = std::lower_bound(out->ids.begin(), out->ids.end(), id);
     out->indices.push_back(static_cast<uint32_t>(it - out->ids.begin()));
   }
+  out->retired.swap(pend_retired_);
   pend_verts_.clear();
   pend_tris_.clear();
+  pend_retired_.clear();
   ++chunk_stamp_;
   return true;
 }
@@ -184,7 +194,7 @@ size_t Sealer::MemoryBytes() const {
          stamp_.capacity() * sizeof(uint32_t) + normal_.capacity() * sizeof(Vec3) +
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          tris_.capacity() * sizeof(TriId) + pend_verts_.capacity() * sizeof(PendingVertex) +
-         pend_tris_.capacity() * sizeof(uint32_t);
+         (pend_tris_.capacity() + pend_retired_.capacity()) * sizeof(uint32_t);
 }
 
 }  // namespace tandem

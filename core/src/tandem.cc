@@ -759,24 +759,28 @@ size_t TandemSession::MemoryBytes() const {
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
-    const std::function<void(int64_t, int64_t)>& progress, std::vector<SealedChunk>* chunks) {
+    const std::function<void(int64_t, int64_t)>& progress,
+    const std::function<absl::Status(SealedChunk)>& on_chunk) {
   const VolumeInfo& info = source.info();
-  if (options.seal && chunks == nullptr) {
+  if (options.seal && on_chunk == nullptr) {
     return absl::InvalidArgumentError("RunSession: sealing needs somewhere to put the chunks");
   }
   auto session = TandemSession::Create(info, options);
   if (!session.ok()) return session.status();
-  auto take = [&] {
-    if (!options.seal) return;
+  auto take = [&]() -> absl::Status {
+    if (!options.seal) return absl::OkStatus();
     SealedChunk c;
-    while ((*session)->TakeSealed(&c)) chunks->push_back(std::move(c));
+    while ((*session)->TakeSealed(&c)) {
+      if (absl::Status st = on_chunk(std::move(c)); !st.ok()) return st;
+    }
+    return absl::OkStatus();
   };
   auto add = [&](int64_t k, const uint8_t* bytes) {
     absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes);
     if (!st.ok()) {
       return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
     }
-    take();
+    if (absl::Status st = take(); !st.ok()) return st;
     if (progress) progress(k + 1, info.nz);
     return absl::OkStatus();
   };
@@ -804,7 +808,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     }
   }
   if (absl::Status st = (*session)->Finish(); !st.ok()) return st;
-  take();
+  if (absl::Status st = take(); !st.ok()) return st;
   return session;
 }
 

@@ -12,12 +12,16 @@
 #ifndef TANDEM_MESH_IO_H_
 #define TANDEM_MESH_IO_H_
 
+#include <cstdio>
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/mesh.h"
+#include "tandem/sealer.h"
 
 namespace tandem {
 
@@ -46,6 +50,41 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
 inline constexpr const char* kMeshExtensions = ".ply, .obj, .stl or .glb";
 // Whether WriteMesh writes files with this path's extension.
 bool IsMeshOutputPath(const std::string& path);
+
+// Writes a mesh that arrives in sealed chunks (sealer.h) to a .ply or .obj file (as WriteMesh
+// writes them) while it comes, so that memory holds only the vertices still open plus 4
+// bytes per vertex: a vertex is written once a chunk retires its id, with the area-weighted
+// normal of all its triangles; triangles wait in a scratch file by global id, and Finish
+// writes the header, the vertices and the triangles renumbered. The mesh is WeldChunks's,
+// its vertices in the order they were retired. Errors as WriteMesh's; Finish fails with
+// Internal when a vertex was never retired (chunks missing).
+class ChunkedMeshWriter {
+ public:
+  static bool Supports(const std::string& path);  // .ply and .obj
+  static absl::StatusOr<std::unique_ptr<ChunkedMeshWriter>> Open(
+      const std::string& path, const MeshWriteOptions& options = {});
+  ~ChunkedMeshWriter();
+  absl::Status Add(const SealedChunk& chunk);
+  absl::Status Finish();
+  int64_t vertices() const { return vertices_; }
+  int64_t triangles() const { return triangles_; }
+
+ private:
+  struct OpenVertex {
+    Vec3 pos;
+    Vec3 normal;  // sum of the area vectors of its triangles so far
+  };
+  ChunkedMeshWriter(std::string path, MeshWriteOptions options, std::FILE* verts, std::FILE* tris)
+      : path_(std::move(path)), options_(options), verts_(verts), tris_(tris) {}
+  absl::Status Failed(const char* what) const;
+  std::string path_;
+  MeshWriteOptions options_;
+  std::FILE* verts_;  // scratch: float32 x y z nx ny nz per written vertex
+  std::FILE* tris_;   // scratch: 3 global ids per triangle
+  absl::flat_hash_map<uint32_t, OpenVertex> open_;
+  std::vector<uint32_t> index_;  // global id -> output index
+  int64_t vertices_ = 0, triangles_ = 0;
+};
 
 // Unit area-weighted vertex normals (the sum of the incident triangles' area vectors,
 // normalised); (0, 0, 0) for a vertex whose triangles have no area or that has none.

@@ -33,6 +33,9 @@ struct SealedChunk {
   std::vector<Vec3> positions;      // one per vertex
   std::vector<uint32_t> ids;        // global id of each vertex
   std::vector<uint32_t> indices;    // 3 per triangle, into positions
+  // Ids no later chunk has: every triangle of these vertices is in this chunk or an earlier
+  // one (a writer can put them out now, normals complete). Not sent on the wire.
+  std::vector<uint32_t> retired;
   size_t num_triangles() const { return indices.size() / 3; }
 };
 
@@ -83,6 +86,7 @@ class Sealer {
   // The pending chunk.
   std::vector<PendingVertex> pend_verts_;
   std::vector<uint32_t> pend_tris_;  // global ids, 3 per triangle
+  std::vector<uint32_t> pend_retired_;
   uint32_t chunk_stamp_ = 1;
   uint32_t next_id_ = 0;
   int64_t chunks_ = 0;

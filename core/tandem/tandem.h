@@ -274,11 +274,12 @@ class TandemSession {
 absl::Status StatusOfException(std::exception_ptr e);
 
 // Runs a session over every slice of `source`. With sealing (SessionOptions::seal), the
-// sealed chunks are taken after every slice and appended to *chunks (required then).
+// sealed chunks are taken after every slice and handed to on_chunk (required then); a
+// non-OK status from it ends the run.
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
     const std::function<void(int64_t, int64_t)>& progress = nullptr,
-    std::vector<SealedChunk>* chunks = nullptr);
+    const std::function<absl::Status(SealedChunk)>& on_chunk = nullptr);
 
 }  // namespace tandem
 

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "tandem/mesh_io.h"
+#include "tandem/metrics.h"
 #include "tandem/topology.h"
 #include "testutil/testutil.h"
 
@@ -146,6 +147,36 @@ TEST_F(Cli, ExtractWritesMeshAndMetricsWithEveryKey) {
   Output s = RunTandem("extract --input " + Path("l.json") + " --error 0.2 --out " + Path("l.ply"));
   ASSERT_EQ(s.code, 0);
   EXPECT_NE(s.text.find("triangles final"), std::string::npos) << s.text;
+}
+
+// --seal: written as the chunks come (.ply, .obj) or welded at the end (--reference, .stl);
+// either way the metrics count the file's mesh, and the anisotropy is that of the mesh.
+TEST_F(Cli, SealedExtractWritesTheWholeMeshAndCountsIt) {
+  ASSERT_EQ(RunTandem("generate link --size 48 --out " + Path("l.json")).code, 0);
+  double anisotropy[2] = {0, 0};
+  int run = 0;
+  for (const char* extra : {" --out " , " --reference --out "}) {
+    const std::string out = Path(run == 0 ? "s.ply" : "r.obj");
+    Output e = RunTandem("extract --input " + Path("l.json") + " --error 0.2 --seal --metrics " +
+                         Path("m.json") + extra + out);
+    ASSERT_EQ(e.code, 0) << e.text;
+    nlohmann::json m = ReadJson(Path("m.json"));
+    auto mesh = ReadMesh(out);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles()) << out;
+    EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices()) << out;
+    EXPECT_LE(m["error_max"].get<double>(), 0.2);
+    EXPECT_NEAR(m["anisotropy"].get<double>(), Anisotropy(*mesh), 1e-4) << out;  // float32 file
+    anisotropy[run++] = m["anisotropy"].get<double>();
+    const TopologyReport r = AnalyzeTopology(*mesh);
+    EXPECT_EQ(r.components, 2u);
+    EXPECT_TRUE(r.IsClosedManifold());
+  }
+  EXPECT_NEAR(anisotropy[0], anisotropy[1], 1e-9);  // the same sealed mesh both ways
+  Output bad = RunTandem("extract --input " + Path("l.json") + " --seal --target-triangles 100 --out " +
+                         Path("t.ply"));
+  EXPECT_EQ(bad.code, 2) << bad.text;
+  EXPECT_NE(bad.text.find("target triangle count"), std::string::npos) << bad.text;
 }
 
 TEST_F(Cli, MeasurePrintsDistancesBothWays) {

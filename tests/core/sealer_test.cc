@@ -1,6 +1,8 @@
 // Sealing (sealer.h): chunks that never change, together the mesh; memory that follows the
 // front, not the depth.
 #include <algorithm>
+#include <array>
+#include <string>
 #include <cmath>
 #include <cstring>
 #include <map>
@@ -10,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include "tandem/mesh_io.h"
 #include "tandem/sealer.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
@@ -145,6 +148,74 @@ TEST(Sealing, FullResolutionChunksAreExactlyTheSurface) {
   EXPECT_EQ(sealed.mesh.num_vertices(), plain.mesh.num_vertices());
   // Full resolution holds about two layers: far below the whole surface.
   EXPECT_LT(sealed.peak_held, static_cast<int64_t>(plain.mesh.num_triangles()) / 8);
+}
+
+// The same triangles, as sorted triples of float32-rounded corners (what PLY and OBJ keep).
+std::vector<std::array<float, 9>> TriangleSet(const IndexedMesh& m) {
+  std::vector<std::array<float, 9>> tris;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    std::array<std::array<float, 3>, 3> c;
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 p = m.positions[m.indices[3 * t + k]];
+      c[k] = {static_cast<float>(p.x), static_cast<float>(p.y), static_cast<float>(p.z)};
+    }
+    std::rotate(c.begin(), std::min_element(c.begin(), c.end()), c.end());  // keeps winding
+    tris.push_back({c[0][0], c[0][1], c[0][2], c[1][0], c[1][1], c[1][2], c[2][0], c[2][1], c[2][2]});
+  }
+  std::sort(tris.begin(), tris.end());
+  return tris;
+}
+
+TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
+  const std::string dir = ::testing::TempDir();
+  for (const char* ext : {".ply", ".obj"}) {
+    auto src = MakeSyntheticSource(Shape::kLink, 64, 64, 64, {0.8, 0.8, 1.1});
+    SessionOptions o = Options(Schedule::kTandemLag, 0.05, true);
+    auto s = TandemSession::Create(src->info(), o);
+    ASSERT_TRUE(s.ok());
+    const std::string path = dir + "/chunked" + ext;
+    auto writer = ChunkedMeshWriter::Open(path);
+    ASSERT_TRUE(writer.ok()) << writer.status();
+    std::vector<SealedChunk> chunks;
+    int64_t retired_before_end = 0;
+    auto take = [&] {
+      SealedChunk c;
+      while ((*s)->TakeSealed(&c)) {
+        ASSERT_TRUE((*writer)->Add(c).ok());
+        chunks.push_back(std::move(c));
+      }
+    };
+    std::vector<uint8_t> bytes;
+    while (src->ReadSlice(&bytes).ok()) {
+      ASSERT_TRUE((*s)->AddSliceBytes(src->info().dtype, bytes.data()).ok());
+      take();
+    }
+    retired_before_end = (*writer)->vertices();
+    ASSERT_TRUE((*s)->Finish().ok());
+    take();
+    ASSERT_TRUE((*writer)->Finish().ok());
+    const IndexedMesh welded = WeldChunks(chunks);
+    // Most vertices went out before the stream ended (the writer holds the front).
+    EXPECT_GT(retired_before_end, static_cast<int64_t>(welded.num_vertices()) / 2) << ext;
+    auto read = ReadMesh(path);
+    ASSERT_TRUE(read.ok()) << read.status();
+    EXPECT_EQ(read->num_vertices(), welded.num_vertices()) << ext;
+    EXPECT_EQ(TriangleSet(*read), TriangleSet(welded)) << ext;
+    EXPECT_TRUE(AnalyzeTopology(*read).IsClosedManifold()) << ext;
+  }
+  // A missing chunk: a vertex is never retired.
+  auto writer = ChunkedMeshWriter::Open(dir + "/missing.ply");
+  ASSERT_TRUE(writer.ok());
+  SealedChunk c;
+  c.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  c.ids = {0, 1, 2};
+  c.indices = {0, 1, 2};
+  c.retired = {0, 1};
+  ASSERT_TRUE((*writer)->Add(c).ok());
+  EXPECT_EQ((*writer)->Finish().code(), absl::StatusCode::kInternal);
+  EXPECT_FALSE(ChunkedMeshWriter::Supports("x.stl"));
+  EXPECT_EQ(ChunkedMeshWriter::Open(dir + "/x.glb").status().code(),
+            absl::StatusCode::kInvalidArgument);
 }
 
 // A periodic field in z: the same slices over and over, so a deeper volume only adds

@@ -312,7 +312,10 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   local_options.error = 0.1;
   local_options.seal = true;
   std::vector<SealedChunk> local_chunks;
-  auto local = RunSession(*source, local_options, nullptr, &local_chunks);
+  auto local = RunSession(*source, local_options, nullptr, [&](SealedChunk c) {
+    local_chunks.push_back(std::move(c));
+    return absl::OkStatus();
+  });
   ASSERT_TRUE(local.ok());
   const IndexedMesh expected = WeldChunks(local_chunks);
 
