@@ -14,6 +14,7 @@
 #include <atomic>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <fstream>
 #include <limits>
 #include <memory>
@@ -47,7 +48,8 @@ constexpr char kMainUsage[] =
     "usage: tandem-client <command> [flags]   (tandem-client <command> --help for its flags)\n"
     "commands:\n"
     "  stream   stream a volume to tandem-server and save the simplified iso-surface\n"
-    "  info     print the server's version, security, limits and live counters\n"
+    "  watch    follow another stream's sealed-chunk session by its id and save its mesh\n"
+    "  info     print the server's version, security, limits, live counters and sessions\n"
     "  health   query the standard gRPC health service (exit 0 when SERVING)\n"
     "  --version  print the version and git revision\n"
     "environment: TANDEM_SERVER, TANDEM_TLS_CA, TANDEM_TLS_SERVER_NAME, TANDEM_TOKEN_FILE (as\n"
@@ -145,6 +147,91 @@ absl::Status WriteFile(const std::string& path, const std::string& bytes) {
 }
 
 // ---------------------------------------------------------------------------------------
+// Creates an output directory a flag names (--chunks, --partials).
+absl::Status MakeOutputDir(const char* flag, const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return absl::UnavailableError(absl::StrCat(flag, " ", dir, ": ", ec.message()));
+  return absl::OkStatus();
+}
+
+// The chunk callback of stream and watch: a line with --verbose, DIR/chunk_<index>.drc with
+// --chunks (the first write error kept in *error).
+std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(const std::string& dir,
+                                                               const bool& verbose,
+                                                               absl::Status* error) {
+  return [&dir, &verbose, error](const tandem::v1::SealedChunk& c) {
+    if (verbose) {
+      absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
+                    c.index(), c.first_slice(), c.last_slice(), c.triangles(), c.vertices(),
+                    c.draco().size());
+    }
+    if (!dir.empty() && error->ok()) {
+      *error = WriteFile(
+          (std::filesystem::path(dir) / absl::StrFormat("chunk_%06d.drc", c.index())).string(),
+          c.draco());
+    }
+  };
+}
+
+// Draco flags of stream and watch: false (after a message) when out of range.
+bool DracoFlagsOk(int64_t bits, int64_t level) {
+  if (bits >= 1 && bits <= 30 && level >= 0 && level <= 10) return true;
+  absl::FPrintF(stderr, "tandem-client: need 1 <= --quantization-bits <= 30 and "
+                        "0 <= --compression-level <= 10\n");
+  return false;
+}
+
+// Saves the final mesh of a stream or a watch to `out` (.drc: Draco bytes; sealed: the chunks
+// welded), prints the summary on stdout and writes the metrics JSON when asked. 0 or the
+// exit status of the failure.
+int SaveResult(tandem::client::StreamResult& result, bool seal, const std::string& out, int bits,
+               int level, const std::string& input, const std::string& frame,
+               const std::string& metrics_path, const char* wall_label = "stream wall time") {
+  const std::string ext = Lower(std::filesystem::path(out).extension().string());
+  // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
+  // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
+  absl::StatusOr<tandem::IndexedMesh> mesh =
+      seal ? tandem::WeldChunks(result.sealed) : tandem::codec::DecodeDraco(result.draco);
+  if (!mesh.ok()) return Fail(mesh.status());
+  if (seal && ext == ".drc") {
+    tandem::codec::DracoOptions d;
+    d.quantization_bits = bits;
+    d.compression_level = level;
+    absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, d);
+    if (!bytes.ok()) return Fail(bytes.status());
+    result.draco = *std::move(bytes);
+  }
+  if (static_cast<int64_t>(mesh->num_triangles()) != result.triangles ||
+      static_cast<int64_t>(mesh->num_vertices()) != result.vertices) {
+    return Fail(absl::DataLossError(absl::StrCat(
+        "the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
+        mesh->num_vertices(), " vertices; the server announced ", result.triangles, " and ",
+        result.vertices)));
+  }
+  absl::Status saved = ext == ".drc" ? WriteFile(out, result.draco) : tandem::WriteMesh(out, *mesh);
+  if (!saved.ok()) return Fail(saved);
+
+  tandem::MetricsReport report = tandem::wire::ReportFromProto(result.metrics);
+  report.input = input;
+  report.frame = frame;
+  absl::PrintF("%s", tandem::ReportSummary(report));
+  absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", wall_label,
+               result.seconds, result.slices_sent,
+               result.seconds > 0 ? result.slices_sent / result.seconds : 0.0,
+               result.metrics.previews_sent());
+  if (seal) {
+    absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", result.sealed.size(),
+                 result.metrics.bytes_sent());
+  }
+  if (!metrics_path.empty()) {
+    if (absl::Status st = WriteFile(metrics_path, tandem::ReportToJson(report)); !st.ok()) {
+      return Fail(st);
+    }
+  }
+  return 0;
+}
+
 int StreamCommand(int argc, char** argv) {
   ConnectionFlags connection;
   int64_t keepalive_ms = 30000;
@@ -250,11 +337,7 @@ int StreamCommand(int argc, char** argv) {
                   "--preview-ms, --target-triangles and --keepalive-time-ms must be >= 0\n");
     return 2;
   }
-  if (bits < 1 || bits > 30 || level < 0 || level > 10) {
-    absl::FPrintF(stderr, "tandem-client: need 1 <= --quantization-bits <= 30 and "
-                          "0 <= --compression-level <= 10\n");
-    return 2;
-  }
+  if (!DracoFlagsOk(bits, level)) return 2;
   absl::StatusOr<tandem::Schedule> schedule = tandem::ParseSchedule(schedule_name);
   if (!schedule.ok()) {
     absl::FPrintF(stderr, "tandem-client: --schedule: %s\n", std::string(schedule.status().message()));
@@ -262,11 +345,7 @@ int StreamCommand(int argc, char** argv) {
   }
   if (!chunks_dir.empty()) {
     seal = true;
-    std::error_code ec;
-    std::filesystem::create_directories(chunks_dir, ec);
-    if (ec) {
-      return Fail(absl::UnavailableError(absl::StrCat("--chunks ", chunks_dir, ": ", ec.message())));
-    }
+    if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
   }
   if (seal && target > 0) {
     absl::FPrintF(stderr, "tandem-client: --target-triangles needs the whole mesh at the end: "
@@ -275,11 +354,7 @@ int StreamCommand(int argc, char** argv) {
   }
   if (!partials.empty()) {
     if (!flags.IsSet("preview-every")) preview_every = -1;  // set from the depth below
-    std::error_code ec;
-    std::filesystem::create_directories(partials, ec);
-    if (ec) {
-      return Fail(absl::UnavailableError(absl::StrCat("--partials ", partials, ": ", ec.message())));
-    }
+    if (absl::Status st = MakeOutputDir("--partials", partials); !st.ok()) return Fail(st);
   }
 
   // One status line while following: slices complete on disk and sent.
@@ -332,6 +407,11 @@ int StreamCommand(int argc, char** argv) {
   absl::Status partial_error;
   tandem::client::StreamCallbacks callbacks;
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
+    if (!p.session_id().empty()) {
+      absl::FPrintF(stderr, "tandem-client: session %s%s\n", p.session_id(),
+                    seal ? absl::StrCat(" (tandem-client watch --session ", p.session_id(), ")")
+                         : "");
+    }
     if (verbose) {
       absl::FPrintF(stderr, "progress slices=%d triangles=%d peak=%d sent=%d\n",
                     p.slices_consumed(), p.triangles(), p.peak_triangles(), sent);
@@ -361,63 +441,17 @@ int StreamCommand(int argc, char** argv) {
           p.draco());
     }
   };
-  callbacks.on_chunk = [&](const tandem::v1::SealedChunk& c) {
-    if (verbose) {
-      absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
-                    c.index(), c.first_slice(), c.last_slice(), c.triangles(), c.vertices(),
-                    c.draco().size());
-    }
-    if (!chunks_dir.empty() && partial_error.ok()) {
-      partial_error = WriteFile(
-          (std::filesystem::path(chunks_dir) / absl::StrFormat("chunk_%06d.drc", c.index())).string(),
-          c.draco());
-    }
-  };
+  callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &partial_error);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::StreamVolume(range, options, callbacks);
   if (bar) absl::FPrintF(stderr, "\n");
   if (!result.ok()) return connection.Fail(result.status());
   if (!partial_error.ok()) return Fail(partial_error);
 
-  // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
-  // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
-  absl::StatusOr<tandem::IndexedMesh> mesh =
-      seal ? tandem::WeldChunks(result->sealed) : tandem::codec::DecodeDraco(result->draco);
-  if (!mesh.ok()) return Fail(mesh.status());
-  if (seal && ext == ".drc") {
-    tandem::codec::DracoOptions d;
-    d.quantization_bits = static_cast<int>(bits);
-    d.compression_level = static_cast<int>(level);
-    absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, d);
-    if (!bytes.ok()) return Fail(bytes.status());
-    result->draco = *std::move(bytes);
-  }
-  if (static_cast<int64_t>(mesh->num_triangles()) != result->triangles ||
-      static_cast<int64_t>(mesh->num_vertices()) != result->vertices) {
-    return Fail(absl::DataLossError(absl::StrCat(
-        "the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
-        mesh->num_vertices(), " vertices; the server announced ", result->triangles, " and ",
-        result->vertices)));
-  }
-  absl::Status saved = ext == ".drc" ? WriteFile(out, result->draco) : tandem::WriteMesh(out, *mesh);
-  if (!saved.ok()) return Fail(saved);
-
-  tandem::MetricsReport report = tandem::wire::ReportFromProto(result->metrics);
-  report.input = input;
-  report.frame = (*source)->info().frame;
-  absl::PrintF("%s", tandem::ReportSummary(report));
-  absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", "stream wall time",
-               result->seconds, result->slices_sent,
-               result->seconds > 0 ? result->slices_sent / result->seconds : 0.0,
-               result->metrics.previews_sent());
-  if (seal) {
-    absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", result->sealed.size(),
-                 result->metrics.bytes_sent());
-  }
-  if (!metrics_path.empty()) {
-    if (absl::Status st = WriteFile(metrics_path, tandem::ReportToJson(report)); !st.ok()) {
-      return Fail(st);
-    }
+  if (int rc = SaveResult(*result, seal, out, static_cast<int>(bits), static_cast<int>(level), input,
+                          (*source)->info().frame, metrics_path);
+      rc != 0) {
+    return rc;
   }
   if (range.Outside(iso)) {
     absl::FPrintF(stderr,
@@ -493,7 +527,70 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("buffered bytes         %d\n", c.buffered_bytes());
   absl::PrintF("draining sessions      %d\n", c.sessions_draining());
   absl::PrintF("unauthenticated calls  %d\n", c.unauthenticated_calls());
+  for (const tandem::v1::SessionSummary& session : info.sessions()) {
+    absl::PrintF("session                %s  %s, %d slices, %s%s, %.0f s\n", session.id(),
+                 session.finished() ? "finished" : "running", session.slices_consumed(),
+                 session.sealed_chunks() ? "sealed chunks (watchable)" : "no sealed chunks",
+                 session.description().empty() ? "" : absl::StrCat(", ", session.description()),
+                 session.age_seconds());
+  }
   return 0;
+}
+
+int WatchCommand(int argc, char** argv) {
+  ConnectionFlags connection;
+  std::string session, out, metrics_path, chunks_dir;
+  double timeout_s = 0;
+  int64_t bits = 16, level = 7;
+  bool verbose = false;
+  FlagSet flags(
+      "usage: tandem-client watch --session ID --out MESH [flags]\n"
+      "Follows a session another client is streaming with sealed chunks (tandem-client stream\n"
+      "--seal prints its id; tandem-client info lists them): every chunk so far, then the\n"
+      "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, .stl,\n"
+      ".glb, or .drc re-encoded) and prints the metrics. A finished session stays watchable\n"
+      "for tandem-server --watch-linger-seconds.");
+  connection.Add(flags, /*token=*/true);
+  flags.AddString("session", &session, "ID", "the session to watch", /*required=*/true);
+  flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply, .obj, .stl or .glb", /*required=*/true);
+  flags.AddString("chunks", &chunks_dir, "DIR",
+                  "also save every sealed chunk as it arrives, DIR/chunk_<index, 6 digits>.drc");
+  flags.AddString("metrics", &metrics_path, "FILE.json", "write the final metrics as JSON");
+  flags.AddInt("quantization-bits", &bits, ".drc output: Draco position quantization, 1..30");
+  flags.AddInt("compression-level", &level, ".drc output: 0..10");
+  flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
+  flags.AddBool("verbose", &verbose, "print one line per chunk, progress and preview message on stderr");
+  if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
+  if (!tandem::IsMeshOutputPath(out) && Lower(std::filesystem::path(out).extension().string()) != ".drc") {
+    absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
+                  tandem::kMeshExtensions);
+    return 2;
+  }
+  if (!DracoFlagsOk(bits, level)) return 2;
+  if (!chunks_dir.empty()) {
+    if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
+  }
+  absl::Status chunk_error;
+  tandem::client::StreamCallbacks callbacks;
+  callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &chunk_error);
+  callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t) {
+    if (verbose) {
+      absl::FPrintF(stderr, "progress slices=%d triangles=%d sealed=%d\n", p.slices_consumed(),
+                    p.triangles(), p.sealed_triangles());
+    }
+  };
+  callbacks.on_preview = [&](const tandem::v1::Preview& p, int64_t) {
+    if (verbose) {
+      absl::FPrintF(stderr, "preview slice=%d triangles=%d band_only=%d\n", p.slice(),
+                    p.triangles(), p.band_only() ? 1 : 0);
+    }
+  };
+  absl::StatusOr<tandem::client::StreamResult> result =
+      tandem::client::WatchSession(connection.options, session, timeout_s, callbacks);
+  if (!result.ok()) return connection.Fail(result.status());
+  if (!chunk_error.ok()) return Fail(chunk_error);
+  return SaveResult(*result, /*seal=*/true, out, static_cast<int>(bits), static_cast<int>(level),
+                    absl::StrCat("session ", session), "", metrics_path, "watch wall time");
 }
 
 int HealthCommand(int argc, char** argv) {
@@ -537,6 +634,7 @@ int main(int argc, char** argv) {
   const std::string command = argc > 1 ? argv[1] : "";
   if (command == "stream") return StreamCommand(argc, argv);
   if (command == "info") return InfoCommand(argc, argv);
+  if (command == "watch") return WatchCommand(argc, argv);
   if (command == "health") return HealthCommand(argc, argv);
   if (command == "--help" || command == "-h" || command == "help") {
     absl::PrintF("%s\n", kMainUsage);

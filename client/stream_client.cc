@@ -23,6 +23,108 @@ namespace {
 
 using Stream = grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>;
 
+// What the server's messages say, in order: callbacks, the final mesh's chunks and their
+// checks (an Extract stream's or a watcher's).
+class Collector {
+ public:
+  Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed)
+      : callbacks_(callbacks), result_(*result), sealed_(sealed) {}
+
+  void Handle(const v1::ExtractResponse& response, int64_t slices_sent) {
+    StreamResult& result = result_;
+    switch (response.kind_case()) {
+      case v1::ExtractResponse::kProgress:
+        if (callbacks_.on_progress) callbacks_.on_progress(response.progress(), slices_sent);
+        break;
+      case v1::ExtractResponse::kPreview:
+        if (callbacks_.on_preview) callbacks_.on_preview(response.preview(), slices_sent);
+        break;
+      case v1::ExtractResponse::kFinalMesh: {
+        const v1::FinalMesh& m = response.final_mesh();
+        if (m.chunk_index() != next_chunk_ ||
+            (next_chunk_ > 0 && m.chunk_count() != chunk_count_) || m.chunk_count() == 0) {
+          malformed_ = absl::StrCat("final mesh chunk ", m.chunk_index(), " of ", m.chunk_count(),
+                                    " arrived, expected chunk ", next_chunk_);
+        }
+        chunk_count_ = m.chunk_count();
+        ++next_chunk_;
+        result.draco += m.draco();
+        result.triangles = m.triangles();
+        result.vertices = m.vertices();
+        if (m.chunk_index() + 1 == m.chunk_count() && result.draco.size() != m.total_bytes()) {
+          malformed_ = absl::StrCat("final mesh has ", result.draco.size(),
+                                    " bytes, the server said ", m.total_bytes());
+        }
+        break;
+      }
+      case v1::ExtractResponse::kSealedChunk: {
+        const v1::SealedChunk& c = response.sealed_chunk();
+        if (callbacks_.on_chunk) callbacks_.on_chunk(c);
+        if (!malformed_.empty()) break;
+        SealedChunk chunk;
+        absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
+        if (static_cast<size_t>(c.index()) != result.sealed.size()) {
+          malformed_ = absl::StrCat("sealed chunk ", c.index(), " arrived, expected chunk ",
+                                    result.sealed.size());
+        } else if (!mesh.ok()) {
+          malformed_ = absl::StrCat("sealed chunk ", c.index(), ": ", mesh.status().ToString());
+        } else if (static_cast<int64_t>(mesh->num_triangles()) != c.triangles() ||
+                   static_cast<int64_t>(mesh->num_vertices()) < c.vertices()) {  // splits
+          malformed_ = absl::StrCat("sealed chunk ", c.index(), " decodes to ",
+                                    mesh->num_triangles(), " triangles, announced ", c.triangles());
+        } else {
+          chunk.index = c.index();
+          chunk.first_slice = c.first_slice();
+          chunk.last_slice = c.last_slice();
+          chunk.positions = std::move(mesh->positions);
+          chunk.indices = std::move(mesh->indices);
+          result.sealed.push_back(std::move(chunk));
+        }
+        break;
+      }
+      case v1::ExtractResponse::kFinalMetrics:
+        result.metrics = response.final_metrics();
+        have_metrics_ = true;
+        break;
+      default:
+        break;  // a newer server's message: ignore
+    }
+  }
+
+  // After an OK status: what is missing or inconsistent ("" when the reply is whole).
+  std::string Check() {
+    StreamResult& result = result_;
+    if (sealed_) {
+      if (malformed_.empty() && have_metrics_) {
+        // The union of the chunks is the final mesh: it must have the final counts.
+        const IndexedMesh mesh = WeldChunks(result.sealed);
+        result.triangles = static_cast<int64_t>(mesh.num_triangles());
+        result.vertices = static_cast<int64_t>(mesh.num_vertices());
+        if (result.triangles != result.metrics.triangles_final() ||
+            result.vertices != result.metrics.vertices_final()) {
+          malformed_ = absl::StrCat("the sealed chunks weld into ", result.triangles,
+                                    " triangles and ", result.vertices, " vertices; the metrics say ",
+                                    result.metrics.triangles_final(), " and ",
+                                    result.metrics.vertices_final());
+        }
+      }
+    } else if (malformed_.empty() && (chunk_count_ == 0 || next_chunk_ != chunk_count_)) {
+      malformed_ = absl::StrCat("the stream ended after ", next_chunk_, " of ", chunk_count_,
+                                " final mesh chunks");
+    }
+    if (malformed_.empty() && !have_metrics_) malformed_ = "the stream ended without final metrics";
+    return malformed_;
+  }
+
+ private:
+  const StreamCallbacks& callbacks_;
+  StreamResult& result_;
+  const bool sealed_;
+  std::string malformed_;
+  uint32_t next_chunk_ = 0, chunk_count_ = 0;
+  bool have_metrics_ = false;
+};
+
 // The sending half, on its own thread: config, chunks of every slice (paced by `rate`),
 // End. Write() blocks while the server is not reading (its flow control), which is what
 // keeps both sides' memory bounded. Returns a local error (reading the volume); a failed
@@ -195,9 +297,7 @@ absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions
   });
 
   StreamResult result;
-  std::string malformed;
-  uint32_t next_chunk = 0, chunk_count = 0;
-  bool have_metrics = false;
+  Collector collector(callbacks, &result, opts.config.sealed_chunks());
   v1::ExtractResponse response;
   bool answered = false;
   while (stream->Read(&response)) {
@@ -205,63 +305,7 @@ absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions
       answered = true;
       sender.Accept();
     }
-    switch (response.kind_case()) {
-      case v1::ExtractResponse::kProgress:
-        if (callbacks.on_progress) callbacks.on_progress(response.progress(), sender.slices_sent());
-        break;
-      case v1::ExtractResponse::kPreview:
-        if (callbacks.on_preview) callbacks.on_preview(response.preview(), sender.slices_sent());
-        break;
-      case v1::ExtractResponse::kFinalMesh: {
-        const v1::FinalMesh& m = response.final_mesh();
-        if (m.chunk_index() != next_chunk || (next_chunk > 0 && m.chunk_count() != chunk_count) ||
-            m.chunk_count() == 0) {
-          malformed = absl::StrCat("final mesh chunk ", m.chunk_index(), " of ", m.chunk_count(),
-                                   " arrived, expected chunk ", next_chunk);
-        }
-        chunk_count = m.chunk_count();
-        ++next_chunk;
-        result.draco += m.draco();
-        result.triangles = m.triangles();
-        result.vertices = m.vertices();
-        if (m.chunk_index() + 1 == m.chunk_count() && result.draco.size() != m.total_bytes()) {
-          malformed = absl::StrCat("final mesh has ", result.draco.size(), " bytes, the server said ",
-                                   m.total_bytes());
-        }
-        break;
-      }
-      case v1::ExtractResponse::kSealedChunk: {
-        const v1::SealedChunk& c = response.sealed_chunk();
-        if (callbacks.on_chunk) callbacks.on_chunk(c);
-        if (!malformed.empty()) break;
-        SealedChunk chunk;
-        absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
-        if (static_cast<size_t>(c.index()) != result.sealed.size()) {
-          malformed = absl::StrCat("sealed chunk ", c.index(), " arrived, expected chunk ",
-                                   result.sealed.size());
-        } else if (!mesh.ok()) {
-          malformed = absl::StrCat("sealed chunk ", c.index(), ": ", mesh.status().ToString());
-        } else if (static_cast<int64_t>(mesh->num_triangles()) != c.triangles() ||
-                   static_cast<int64_t>(mesh->num_vertices()) < c.vertices()) {  // splits
-          malformed = absl::StrCat("sealed chunk ", c.index(), " decodes to ",
-                                   mesh->num_triangles(), " triangles, announced ", c.triangles());
-        } else {
-          chunk.index = c.index();
-          chunk.first_slice = c.first_slice();
-          chunk.last_slice = c.last_slice();
-          chunk.positions = std::move(mesh->positions);
-          chunk.indices = std::move(mesh->indices);
-          result.sealed.push_back(std::move(chunk));
-        }
-        break;
-      }
-      case v1::ExtractResponse::kFinalMetrics:
-        result.metrics = response.final_metrics();
-        have_metrics = true;
-        break;
-      default:
-        break;  // a newer server's message: ignore
-    }
+    collector.Handle(response, sender.slices_sent());
   }
   sender.Stop();
   send_thread.join();
@@ -281,28 +325,44 @@ absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions
                (pushback == trailers.end() || pushback->second != "-1");
     return wire::FromGrpcStatus(status);
   }
-  if (opts.config.sealed_chunks()) {
-    if (malformed.empty() && have_metrics) {
-      // The union of the chunks is the final mesh: it must have the final counts.
-      const IndexedMesh mesh = WeldChunks(result.sealed);
-      result.triangles = static_cast<int64_t>(mesh.num_triangles());
-      result.vertices = static_cast<int64_t>(mesh.num_vertices());
-      if (result.triangles != result.metrics.triangles_final() ||
-          result.vertices != result.metrics.vertices_final()) {
-        malformed = absl::StrCat("the sealed chunks weld into ", result.triangles,
-                                 " triangles and ", result.vertices, " vertices; the metrics say ",
-                                 result.metrics.triangles_final(), " and ",
-                                 result.metrics.vertices_final());
-      }
-    }
-  } else if (malformed.empty() && (chunk_count == 0 || next_chunk != chunk_count)) {
-    malformed = absl::StrCat("the stream ended after ", next_chunk, " of ", chunk_count,
-                             " final mesh chunks");
-  }
-  if (malformed.empty() && !have_metrics) malformed = "the stream ended without final metrics";
+  const std::string malformed = collector.Check();
   if (!malformed.empty()) {
     return absl::DataLossError(absl::StrCat("malformed reply from ", opts.connection.server, ": ", malformed));
   }
+  return result;
+}
+
+absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
+                                          const std::string& session_id, double timeout_s,
+                                          const StreamCallbacks& callbacks) {
+  ConnectionOptions options = connection;
+  if (options.max_receive_bytes == 0) options.max_receive_bytes = wire::kClientMaxReceiveBytes;
+  absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(options);
+  if (!channel.ok()) return channel.status();
+  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(*channel);
+  grpc::ClientContext context;
+  AddToken(options, &context);
+  if (timeout_s > 0) {
+    context.set_deadline(std::chrono::system_clock::now() +
+                         std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000)));
+  }
+  const absl::Time start = absl::Now();
+  v1::WatchRequest request;
+  request.set_session_id(session_id);
+  std::unique_ptr<grpc::ClientReader<v1::ExtractResponse>> reader = stub->Watch(&context, request);
+  StreamResult result;
+  Collector collector(callbacks, &result, /*sealed=*/true);
+  v1::ExtractResponse response;
+  while (reader->Read(&response)) collector.Handle(response, 0);
+  const grpc::Status status = reader->Finish();
+  result.seconds = absl::ToDoubleSeconds(absl::Now() - start);
+  if (!status.ok()) return wire::FromGrpcStatus(status);
+  const std::string malformed = collector.Check();
+  if (!malformed.empty()) {
+    return absl::DataLossError(
+        absl::StrCat("malformed reply from ", options.server, ": ", malformed));
+  }
+  result.slices_sent = result.metrics.slices();
   return result;
 }
 

@@ -57,6 +57,13 @@ struct StreamResult {
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks);
 
+// Watches another stream's session (tandem.proto: Watch) by its id: its sealed chunks, from
+// the first, then its progress, previews and final metrics, as StreamVolume collects them
+// (slices_sent = the session's slices).
+absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
+                                          const std::string& session_id, double timeout_s,
+                                          const StreamCallbacks& callbacks);
+
 }  // namespace tandem::client
 
 #endif  // TANDEM_CLIENT_STREAM_CLIENT_H_

@@ -76,6 +76,7 @@ int main(int argc, char** argv) {
   tandem::server::ServerLimits limits;
   int64_t max_sessions = limits.max_sessions;
   int64_t session_memory_mb = limits.session_memory_bytes >> 20;
+  int64_t watch_retain_mb = limits.watch_retain_bytes >> 20;
   double grace_seconds = 10;
   double drain_delay_seconds = 0;
   int64_t malloc_arenas = 2;
@@ -107,6 +108,11 @@ int main(int argc, char** argv) {
   flags.AddInt("max-inflight-bytes", &limits.max_inflight_bytes,
                "per stream: received-but-unprocessed plus unsent response bytes; at this level "
                "the server stops reading the stream until it drains");
+  flags.AddInt("watch-retain-mb", &watch_retain_mb,
+               "per session: sealed chunks kept (compressed) for watchers that come late; a "
+               "session past it takes no new watcher");
+  flags.AddDouble("watch-linger-seconds", &limits.watch_linger_s,
+                  "how long a finished session stays watchable (tandem-client watch)");
   flags.AddDouble("idle-timeout-seconds", &limits.idle_timeout_s,
                   "end a stream on which nothing moves for this long: the client sends nothing "
                   "(DEADLINE_EXCEEDED) or reads nothing (cancelled); frees its session slot");
@@ -167,7 +173,9 @@ int main(int argc, char** argv) {
       limits.max_inflight_bytes < 1 || limits.max_inflight_bytes > (int64_t{1} << 40) ||
       !ms_ok(limits.keepalive_time_ms, 0) || !ms_ok(limits.keepalive_timeout_ms, 1) ||
       !ms_ok(limits.min_ping_interval_ms, 0) || !ms_ok(limits.min_preview_interval_ms, 0) ||
-      malloc_arenas < 0 || malloc_arenas > 1024) {
+      malloc_arenas < 0 || malloc_arenas > 1024 || watch_retain_mb < 0 ||
+      watch_retain_mb > (1 << 20) || !(limits.watch_linger_s >= 0) ||
+      !(limits.watch_linger_s <= 86400)) {
     absl::FPrintF(stderr,
                   "tandem-server: out of range: need 1 <= --max-sessions <= 4096, "
                   "--max-voxels-per-slice >= 4, --max-slices >= 2, 1024 <= "
@@ -176,11 +184,13 @@ int main(int argc, char** argv) {
                   "--idle-timeout-seconds > 0, 1 <= --session-memory-mb <= 2^20, "
                   "1 <= --max-inflight-bytes <= 2^40, 0 <= --keepalive-time-ms and "
                   "--keepalive-min-ping-interval-ms, --min-preview-interval-ms <= 2^31-1, "
-                  "1 <= --keepalive-timeout-ms <= 2^31-1, 0 <= --malloc-arenas <= 1024\n");
+                  "1 <= --keepalive-timeout-ms <= 2^31-1, 0 <= --malloc-arenas <= 1024, "
+                  "0 <= --watch-retain-mb <= 2^20, 0 <= --watch-linger-seconds <= 86400\n");
     return 2;
   }
   limits.max_sessions = static_cast<int>(max_sessions);
   limits.session_memory_bytes = session_memory_mb << 20;
+  limits.watch_retain_bytes = watch_retain_mb << 20;
 #if defined(__GLIBC__)
   // Every session runs on a new thread, and glibc gives new threads new arenas (up to 8
   // per core); each keeps a few hundred KiB after malloc_trim, so a burst of sessions

@@ -29,6 +29,10 @@ struct ServerLimits {
   double idle_timeout_s = 300;                          // --idle-timeout-seconds
   int64_t session_memory_bytes = int64_t{1024} << 20;   // --session-memory-mb (in MiB)
   int64_t max_inflight_bytes = int64_t{16} << 20;       // --max-inflight-bytes
+  // Watch: sealed chunks kept per session for late watchers, and how long a finished
+  // session stays watchable.
+  int64_t watch_retain_bytes = int64_t{64} << 20;       // --watch-retain-mb
+  double watch_linger_s = 60;                           // --watch-linger-seconds
   // Previews are never closer than this, whatever the client asks (each one snapshots and
   // encodes the whole partial mesh): --min-preview-interval-ms.
   int64_t min_preview_interval_ms = 250;

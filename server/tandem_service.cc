@@ -144,6 +144,8 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   int64_t slices_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t triangles_ ABSL_GUARDED_BY(mu_) = 0;
   std::string description_ ABSL_GUARDED_BY(mu_);
+  std::shared_ptr<SessionFeed> feed_;  // set by Start before any other thread sees the call
+  bool id_sent_ ABSL_GUARDED_BY(mu_) = false;
 };
 
 ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
@@ -161,6 +163,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
     return call.get();
   }
   call->accepted_ = true;
+  call->feed_ = state->feeds.Create();
   state->AddStream(call.get(), call);
   state->sessions_started.fetch_add(1);
   {
@@ -199,6 +202,7 @@ ExtractCall::~ExtractCall() {
                               ? "the client left before the end"
                               : absl::StrCat("cancelled; before that: ", status.error_message()));
   }
+  feed_->Finish(nullptr, status);  // (no effect after the final metrics)
   const std::string status_name =
       absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code()));
   const double seconds = absl::ToDoubleSeconds(absl::Now() - start_);
@@ -391,8 +395,13 @@ void ExtractCall::PumpLocked() {
 }
 
 void ExtractCall::PostProgress(v1::Progress progress) {
+  feed_->Progress(progress);
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
+  if (!id_sent_) {  // the first Progress names the session
+    progress.set_session_id(feed_->id());
+    id_sent_ = true;
+  }
   progress_bytes_ = static_cast<int64_t>(progress.ByteSizeLong());
   progress_ = std::move(progress);
   PumpLocked();
@@ -400,6 +409,7 @@ void ExtractCall::PostProgress(v1::Progress progress) {
 }
 
 void ExtractCall::PostPreview(v1::Preview preview) {
+  feed_->Preview(preview);
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
   preview_bytes_ = static_cast<int64_t>(preview.ByteSizeLong());
@@ -414,6 +424,10 @@ bool ExtractCall::PreviewPending() const {
 }
 
 void ExtractCall::PostFinal(std::vector<Response> messages) {
+  // Watchers get the metrics (the transport's byte counts are this stream's, not theirs).
+  if (!messages.empty() && messages.back().has_final_metrics()) {
+    feed_->Finish(&messages.back().final_metrics(), grpc::Status::OK);
+  }
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
   preview_.reset();  // a preview older than the final mesh is of no use any more
@@ -427,6 +441,7 @@ void ExtractCall::PostFinal(std::vector<Response> messages) {
 }
 
 void ExtractCall::PostChunk(v1::SealedChunk chunk) {
+  feed_->Chunk(chunk);
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
   Response r;
@@ -494,7 +509,10 @@ void ExtractCall::RunWorker() {
           request = std::move(inbox_.front().request);
           inbox_bytes_ -= inbox_.front().bytes;
           inbox_.pop_front();
-          if (request->has_config()) description_ = request->config().description();
+          if (request->has_config()) {
+            description_ = request->config().description();
+            feed_->SetSealed(request->config().sealed_chunks(), description_);
+          }
           MaybeStartReadLocked();  // room in the inbox again
           SyncBufferedLocked();
         }
@@ -636,6 +654,14 @@ v1::Counters TandemService::CountersSnapshot() const {
 
 std::string TandemService::MetricsText() const { return PrometheusText(*state_); }
 
+grpc::ServerWriteReactor<v1::ExtractResponse>* TandemService::Watch(
+    grpc::CallbackServerContext* context, const v1::WatchRequest* request) {
+  if (grpc::Status st = state_->auth.Check(*context, "Watch"); !st.ok()) {
+    return StartWatch(nullptr, "", st);
+  }
+  return StartWatch(state_->feeds.Find(request->session_id()), request->session_id());
+}
+
 grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* context,
                                                  const v1::InfoRequest* /*request*/,
                                                  v1::InfoResponse* response) {
@@ -668,6 +694,9 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   *response->mutable_counters() = CountersSnapshot();
   response->set_tls(state_->tls);
   response->set_token_required(state_->auth.enabled());
+  for (v1::SessionSummary& summary : state_->feeds.Summaries()) {
+    *response->add_sessions() = std::move(summary);
+  }
   reactor->Finish(grpc::Status::OK);
   return reactor;
 }

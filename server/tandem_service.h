@@ -5,7 +5,9 @@
 // TandemSession (core may briefly add a helper thread per slice: SessionOptions::pipeline).
 // Reactions never block and never compute: they move messages between gRPC and the worker
 // under a mutex.
-//   * Authentication: with tokens configured, Extract and GetInfo check the bearer token
+//   * Watch: every accepted stream publishes into a SessionFeed (server/watch.h) under a
+//     random id it sends in its first Progress; Watch calls read the feed.
+//   * Authentication: with tokens configured, Extract, GetInfo and Watch check the bearer token
 //     before anything else (server/auth.h explains why there and not in gRPC hooks).
 //   * Flow control: one read in flight; the next starts as soon as the previous message
 //     is queued, while the stream's bytes in flight (received, not yet taken by the
@@ -46,6 +48,7 @@
 #include "absl/time/time.h"
 #include "server/auth.h"
 #include "server/request_validation.h"
+#include "server/watch.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {
@@ -62,10 +65,12 @@ class LiveStream {
 // stream's reactor), hence reference-counted.
 struct ServiceState {
   ServiceState(const ServerLimits& l, std::vector<std::string> tokens, bool tls_on)
-      : limits(l), tls(tls_on), auth(std::move(tokens)) {}
+      : limits(l), tls(tls_on), auth(std::move(tokens)),
+        feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes) {}
   const ServerLimits limits;
   const bool tls;
   TokenAuthenticator auth;
+  FeedRegistry feeds;  // what every stream sends, for Watch
   std::atomic<int64_t> active_sessions{0};
   std::atomic<int64_t> sessions_started{0};
   std::atomic<int64_t> sessions_finished{0};
@@ -114,6 +119,8 @@ class TandemService final : public v1::Tandem::CallbackService {
   grpc::ServerUnaryReactor* GetInfo(grpc::CallbackServerContext* context,
                                     const v1::InfoRequest* request,
                                     v1::InfoResponse* response) override;
+  grpc::ServerWriteReactor<v1::ExtractResponse>* Watch(grpc::CallbackServerContext* context,
+                                                       const v1::WatchRequest* request) override;
 
   // Ends every running stream with `status` (see Shutdown above); returns how many.
   int64_t EndAllStreams(const grpc::Status& status) { return state_->AbortStreams(status); }

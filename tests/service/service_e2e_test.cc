@@ -431,7 +431,9 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   };
   RunResult plain = stream("plain", {});
   ASSERT_EQ(plain.exit_code, 0) << plain.err;
-  RunResult sealed = stream("sealed", {"--chunks", dir_ + "/chunks"});
+  // Paced, with previews: a chunk goes out before each preview (else 32768 triangles make one).
+  RunResult sealed = stream("sealed", {"--chunks", dir_ + "/chunks", "--rate", "100",
+                                       "--preview-every", "8"});
   ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
   auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
   auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
@@ -443,7 +445,7 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
     files.push_back(e.path().filename().string());
   }
   std::sort(files.begin(), files.end());
-  ASSERT_GE(files.size(), 2u) << "a 96-slice link makes more than one chunk";
+  ASSERT_GE(files.size(), 3u) << "a chunk before every preview";
   std::vector<SealedChunk> chunks;
   std::map<uint32_t, Vec3> at;
   size_t shared = 0;
@@ -487,9 +489,73 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   size_t lines = 0;
   for (absl::string_view line : absl::StrSplit(sealed.err, '\n')) lines += absl::StartsWith(line, "chunk ");
   EXPECT_EQ(lines, files.size());
-  // The stream, then, sent the chunks and no final mesh: under 2x the plain stream's bytes.
-  EXPECT_GT(sealed_report->bytes_sent, 0);
-  EXPECT_LT(sealed_report->bytes_sent, 2 * plain_report->bytes_sent);
+  // The chunks, however many, weigh under 2x the plain stream's final mesh (its bytes_sent).
+  int64_t chunk_bytes = 0;
+  for (const std::string& f : files) {
+    chunk_bytes += static_cast<int64_t>(std::filesystem::file_size(dir_ + "/chunks/" + f));
+  }
+  EXPECT_LT(chunk_bytes, 2 * plain_report->bytes_sent);
+}
+
+// Watch: a second client attached by id while a sealed stream runs, and another after it
+// ended, save byte-identical meshes to the streaming client's; unknown ids and sessions
+// without sealed chunks are refused clearly.
+TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto streamer = ChildProcess::Spawn(
+      {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
+       "--iso", "0", "--error", "0.05", "--seal", "--rate", "40", "--preview-every", "8",
+       "--out", dir_ + "/s.ply"},
+      dir_);
+  ASSERT_TRUE(streamer.ok()) << streamer.status();
+  // The id, as the streaming client prints it (bounded wait).
+  std::string id;
+  for (int i = 0; i < 200 && id.empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    const std::string err = (*streamer)->Stderr();
+    const size_t at = err.find("tandem-client: session ");
+    if (at != std::string::npos && err.find('\n', at) != std::string::npos) {
+      id = err.substr(at + 23, 32);
+    }
+  }
+  ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
+  // Listed by info while it runs.
+  RunResult info = Client({"info", "--server", server_->address()});
+  EXPECT_NE(info.out.find(id), std::string::npos) << info.out;
+  RunResult live = Client({"watch", "--server", server_->address(), "--session", id, "--out",
+                           dir_ + "/live.ply", "--chunks", dir_ + "/live", "--metrics",
+                           dir_ + "/live.json", "--verbose"});
+  ASSERT_EQ(live.exit_code, 0) << live.err;
+  ASSERT_EQ((*streamer)->Wait(60), std::optional<int>(0)) << (*streamer)->Stderr();
+  EXPECT_NE(live.err.find("progress "), std::string::npos) << "it saw the session run";
+  RunResult late = Client({"watch", "--server", server_->address(), "--session", id, "--out",
+                           dir_ + "/late.ply"});
+  ASSERT_EQ(late.exit_code, 0) << late.err;
+  const std::string mesh = ReadFile(dir_ + "/s.ply");
+  ASSERT_FALSE(mesh.empty());
+  EXPECT_EQ(ReadFile(dir_ + "/live.ply"), mesh);
+  EXPECT_EQ(ReadFile(dir_ + "/late.ply"), mesh);
+  EXPECT_TRUE(std::filesystem::exists(dir_ + "/live/chunk_000000.drc"));
+  auto report = ReportFromJson(ReadFile(dir_ + "/live.json"));
+  ASSERT_TRUE(report.ok());
+  EXPECT_EQ(report->slices, 96);
+
+  RunResult unknown = Client({"watch", "--server", server_->address(), "--session",
+                              "0123456789abcdef0123456789abcdef", "--out", dir_ + "/u.ply"});
+  EXPECT_EQ(unknown.exit_code, 1);
+  EXPECT_NE(unknown.err.find("NOT_FOUND"), std::string::npos) << unknown.err;
+  EXPECT_NE(unknown.err.find("0123456789abcdef0123456789abcdef"), std::string::npos) << unknown.err;
+  // A plain (unsealed) stream has an id too, but cannot be watched.
+  RunResult plain = Client({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                            "0", "--error", "0.5", "--out", dir_ + "/p.ply"});
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  const size_t at = plain.err.find("tandem-client: session ");
+  ASSERT_NE(at, std::string::npos) << plain.err;
+  RunResult refused = Client({"watch", "--server", server_->address(), "--session",
+                              plain.err.substr(at + 23, 32), "--out", dir_ + "/r.ply"});
+  EXPECT_EQ(refused.exit_code, 1);
+  EXPECT_NE(refused.err.find("FAILED_PRECONDITION"), std::string::npos) << refused.err;
 }
 
 TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {

@@ -266,6 +266,17 @@ TEST_F(AuthTest, TokenRequiredForTandemCallsButNotForHealth) {
     const grpc::Status extract = stream->Finish();
     EXPECT_EQ(extract.error_code(), grpc::StatusCode::UNAUTHENTICATED) << a.name;
     EXPECT_NE(extract.error_message().find(a.reason), std::string::npos) << a.name;
+
+    // Watch too (before the id is even looked up: an unknown id says nothing).
+    grpc::ClientContext watch_context;
+    for (const auto& [k, v] : a.metadata) watch_context.AddMetadata(k, v);
+    v1::WatchRequest watch;
+    watch.set_session_id("0123456789abcdef0123456789abcdef");
+    auto watcher = stub->Watch(&watch_context, watch);
+    EXPECT_FALSE(watcher->Read(&response)) << a.name;
+    const grpc::Status watched = watcher->Finish();
+    EXPECT_EQ(watched.error_code(), grpc::StatusCode::UNAUTHENTICATED) << a.name;
+    EXPECT_NE(watched.error_message().find(a.reason), std::string::npos) << a.name;
   }
 
   // The right tokens (either; the scheme in any case) work.

@@ -1,0 +1,273 @@
+#include "server/watch.h"
+
+#include <random>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+
+namespace tandem::server {
+
+using Response = v1::ExtractResponse;
+
+void SessionFeed::SetSealed(bool sealed, const std::string& description) {
+  absl::MutexLock lock(&mu_);
+  sealed_ = sealed;
+  description_ = description;
+}
+
+void SessionFeed::Progress(const v1::Progress& p) {
+  {
+    absl::MutexLock lock(&mu_);
+    progress_ = p;
+    ++progress_version_;
+  }
+  WakeAll();
+}
+
+void SessionFeed::Preview(const v1::Preview& p) {
+  {
+    absl::MutexLock lock(&mu_);
+    if (!sealed_) return;  // only sealed sessions are watched
+    preview_ = p;
+    ++preview_version_;
+  }
+  WakeAll();
+}
+
+void SessionFeed::Chunk(const v1::SealedChunk& c) {
+  {
+    absl::MutexLock lock(&mu_);
+    chunk_bytes_ += static_cast<int64_t>(c.ByteSizeLong());
+    if (chunk_bytes_ > retain_bytes_) overflowed_ = true;
+    bool watched = false;
+    for (const auto& w : watchers_) watched |= !w.expired();
+    if (overflowed_ && !watched) {
+      // Nobody can attach any more and nobody is attached: nothing to keep them for.
+      dropped_ += chunks_.size() + 1;
+      chunks_.clear();
+      return;
+    }
+    chunks_.push_back(c);
+  }
+  WakeAll();
+}
+
+void SessionFeed::Finish(const v1::FinalMetrics* metrics, const grpc::Status& status) {
+  {
+    absl::MutexLock lock(&mu_);
+    if (status_) return;  // the first end counts
+    if (metrics != nullptr) metrics_ = *metrics;
+    status_ = status;
+    preview_.reset();  // everything is in the chunks now
+    finished_at_ = absl::Now();
+  }
+  WakeAll();
+}
+
+void SessionFeed::WakeAll() {
+  std::vector<std::shared_ptr<FeedWatcher>> live;
+  {
+    absl::MutexLock lock(&mu_);
+    size_t kept = 0;
+    for (size_t i = 0; i < watchers_.size(); ++i) {
+      if (auto w = watchers_[i].lock()) {
+        live.push_back(std::move(w));
+        if (kept != i) watchers_[kept] = std::move(watchers_[i]);  // (a self-move empties it)
+        ++kept;
+      }
+    }
+    watchers_.resize(kept);
+  }
+  for (auto& w : live) w->Wake();
+}
+
+grpc::Status SessionFeed::Attach(std::weak_ptr<FeedWatcher> watcher) {
+  absl::MutexLock lock(&mu_);
+  if (!sealed_) {
+    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                        absl::StrCat("session ", id_, " does not send sealed chunks "
+                                     "(SessionConfig.sealed_chunks): it cannot be watched"));
+  }
+  if (overflowed_) {
+    return grpc::Status(
+        grpc::StatusCode::RESOURCE_EXHAUSTED,
+        absl::StrCat("session ", id_, "'s chunks outgrew what this server keeps for late "
+                     "watchers (tandem-server --watch-retain-mb); watch it from its start"));
+  }
+  watchers_.push_back(std::move(watcher));
+  return grpc::Status::OK;
+}
+
+std::optional<Response> SessionFeed::Next(Cursor* cursor, std::optional<grpc::Status>* done) {
+  absl::MutexLock lock(&mu_);
+  Response r;
+  if (cursor->next_chunk < chunks_.size()) {
+    *r.mutable_sealed_chunk() = chunks_[cursor->next_chunk++];
+    return r;
+  }
+  if (progress_ && cursor->progress_seen != progress_version_) {
+    cursor->progress_seen = progress_version_;
+    *r.mutable_progress() = *progress_;
+    r.mutable_progress()->set_session_id(id_);
+    return r;
+  }
+  if (preview_ && cursor->preview_seen != preview_version_) {
+    cursor->preview_seen = preview_version_;
+    *r.mutable_preview() = *preview_;
+    return r;
+  }
+  if (status_) {
+    if (metrics_ && !cursor->metrics_sent) {
+      cursor->metrics_sent = true;
+      *r.mutable_final_metrics() = *metrics_;
+      return r;
+    }
+    *done = *status_;
+  }
+  return std::nullopt;
+}
+
+v1::SessionSummary SessionFeed::Summary() const {
+  absl::MutexLock lock(&mu_);
+  v1::SessionSummary s;
+  s.set_id(id_);
+  s.set_description(description_);
+  s.set_slices_consumed(progress_ ? progress_->slices_consumed() : 0);
+  s.set_sealed_chunks(sealed_);
+  s.set_finished(status_.has_value());
+  s.set_age_seconds(absl::ToDoubleSeconds(absl::Now() - start_));
+  return s;
+}
+
+bool SessionFeed::finished_before(absl::Time t) const {
+  absl::MutexLock lock(&mu_);
+  return status_.has_value() && finished_at_ < t;
+}
+
+std::shared_ptr<SessionFeed> FeedRegistry::Create() {
+  static thread_local std::mt19937_64 random{std::random_device{}()};
+  absl::MutexLock lock(&mu_);
+  ExpireLocked();
+  std::string id;
+  do {
+    id = absl::StrFormat("%016x%016x", random(), random());
+  } while (feeds_.count(id) > 0);
+  auto feed = std::make_shared<SessionFeed>(id, retain_bytes_);
+  feeds_[id] = feed;
+  return feed;
+}
+
+std::shared_ptr<SessionFeed> FeedRegistry::Find(const std::string& id) {
+  absl::MutexLock lock(&mu_);
+  ExpireLocked();
+  auto it = feeds_.find(id);
+  return it == feeds_.end() ? nullptr : it->second;
+}
+
+std::vector<v1::SessionSummary> FeedRegistry::Summaries() {
+  absl::MutexLock lock(&mu_);
+  ExpireLocked();
+  std::vector<v1::SessionSummary> out;
+  for (const auto& [id, feed] : feeds_) out.push_back(feed->Summary());
+  return out;
+}
+
+void FeedRegistry::ExpireLocked() {
+  const absl::Time before = absl::Now() - linger_;
+  for (auto it = feeds_.begin(); it != feeds_.end();) {
+    it = it->second->finished_before(before) ? feeds_.erase(it) : std::next(it);
+  }
+}
+
+namespace {
+
+// One watcher: one write in flight, the next message taken from the feed when it is done
+// or when the feed wakes it.
+class WatchCall final : public grpc::ServerWriteReactor<Response>,
+                        public FeedWatcher,
+                        public std::enable_shared_from_this<WatchCall> {
+ public:
+  explicit WatchCall(std::shared_ptr<SessionFeed> feed) : feed_(std::move(feed)) {}
+
+  void Begin(const std::string& id, const grpc::Status& refused) {
+    self_ = shared_from_this();
+    absl::MutexLock lock(&mu_);
+    if (!refused.ok()) {
+      FinishLocked(refused);
+      return;
+    }
+    if (feed_ == nullptr) {
+      FinishLocked(grpc::Status(
+          grpc::StatusCode::NOT_FOUND,
+          absl::StrCat("no session '", absl::string_view(id).substr(0, 64), "' on this server (unknown, or finished longer ago "
+                       "than tandem-server --watch-linger-seconds); tandem-client info lists them")));
+      return;
+    }
+    if (grpc::Status st = feed_->Attach(weak_from_this()); !st.ok()) {
+      FinishLocked(st);
+      return;
+    }
+    PumpLocked();
+  }
+  void Wake() override {
+    absl::MutexLock lock(&mu_);
+    PumpLocked();
+  }
+  void OnWriteDone(bool ok) override {
+    absl::MutexLock lock(&mu_);
+    write_in_flight_ = false;
+    if (!ok) {
+      FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "the watcher went away"));
+      return;
+    }
+    PumpLocked();
+  }
+  void OnCancel() override {
+    absl::MutexLock lock(&mu_);
+    cancelled_ = true;
+    if (!write_in_flight_) FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "cancelled"));
+  }
+  void OnDone() override {
+    std::shared_ptr<WatchCall> last = std::move(self_);  // goes at the end of this call
+  }
+
+ private:
+  void PumpLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+    if (write_in_flight_ || finished_ || cancelled_) return;
+    std::optional<grpc::Status> done;
+    std::optional<Response> next = feed_->Next(&cursor_, &done);
+    if (next) {
+      buf_ = *std::move(next);
+      write_in_flight_ = true;
+      StartWrite(&buf_);
+    } else if (done) {
+      FinishLocked(*done);
+    }
+  }
+  void FinishLocked(const grpc::Status& status) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+    if (finished_) return;
+    finished_ = true;
+    Finish(status);
+  }
+
+  const std::shared_ptr<SessionFeed> feed_;
+  std::shared_ptr<WatchCall> self_;  // until OnDone
+  absl::Mutex mu_;
+  SessionFeed::Cursor cursor_ ABSL_GUARDED_BY(mu_);
+  Response buf_ ABSL_GUARDED_BY(mu_);
+  bool write_in_flight_ ABSL_GUARDED_BY(mu_) = false;
+  bool finished_ ABSL_GUARDED_BY(mu_) = false;
+  bool cancelled_ ABSL_GUARDED_BY(mu_) = false;
+};
+
+}  // namespace
+
+grpc::ServerWriteReactor<Response>* StartWatch(std::shared_ptr<SessionFeed> feed,
+                                               const std::string& id,
+                                               const grpc::Status& refused) {
+  auto call = std::make_shared<WatchCall>(std::move(feed));
+  call->Begin(id, refused);
+  return call.get();
+}
+
+}  // namespace tandem::server

@@ -1,0 +1,113 @@
+// Watching a session from another call (tandem.proto: Watch).
+//
+// Every Extract stream publishes what it sends into a SessionFeed, registered under the
+// stream's id in a FeedRegistry: the latest Progress and band Preview, every SealedChunk (the
+// encoded bytes, kept for watchers that come late, up to a byte bound), and at the end
+// FinalMetrics and the stream's status. A watcher (WatchCall, a write reactor) keeps a
+// cursor into the chunks and sends, one write at a time: the next chunk, else a newer
+// Progress, else a newer Preview, else, once the feed is finished and every chunk is out,
+// FinalMetrics and the feed's status. The producer only appends under the feed's mutex and
+// then wakes the watchers (outside it): a slow watcher holds nothing back. Lock order:
+// a watcher's mutex, then its feed's; a feed's mutex is never held while a watcher's is
+// taken.
+#ifndef TANDEM_SERVER_WATCH_H_
+#define TANDEM_SERVER_WATCH_H_
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/synchronization/mutex.h"
+#include "absl/time/time.h"
+#include "tandem/v1/tandem.grpc.pb.h"
+
+namespace tandem::server {
+
+class FeedWatcher {
+ public:
+  virtual ~FeedWatcher() = default;
+  virtual void Wake() = 0;  // the feed has something new; called without the feed's mutex
+};
+
+class SessionFeed {
+ public:
+  SessionFeed(std::string id, int64_t retain_bytes)
+      : id_(std::move(id)), retain_bytes_(retain_bytes), start_(absl::Now()) {}
+  const std::string& id() const { return id_; }
+
+  // Producer side (the Extract stream's threads). SetSealed: from its config.
+  void SetSealed(bool sealed, const std::string& description);
+  void Progress(const v1::Progress& p);
+  void Preview(const v1::Preview& p);
+  void Chunk(const v1::SealedChunk& c);
+  void Finish(const v1::FinalMetrics* metrics, const grpc::Status& status);
+
+  // Watcher side. Attach fails (with the status to send) for a session that cannot be
+  // watched now.
+  grpc::Status Attach(std::weak_ptr<FeedWatcher> watcher);
+  // The next message for a watcher at `cursor` (updated), or nothing for now; *done is set
+  // with the status once everything was taken.
+  struct Cursor {
+    size_t next_chunk = 0;
+    int64_t progress_seen = -1, preview_seen = -1;
+    bool metrics_sent = false;
+  };
+  std::optional<v1::ExtractResponse> Next(Cursor* cursor, std::optional<grpc::Status>* done);
+
+  v1::SessionSummary Summary() const;
+  bool finished_before(absl::Time t) const;  // finished, and before t
+
+ private:
+  void WakeAll();
+  const std::string id_;
+  const int64_t retain_bytes_;
+  const absl::Time start_;
+  mutable absl::Mutex mu_;
+  std::string description_ ABSL_GUARDED_BY(mu_);
+  bool sealed_ ABSL_GUARDED_BY(mu_) = false;
+  std::vector<v1::SealedChunk> chunks_ ABSL_GUARDED_BY(mu_);
+  int64_t chunk_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  // The chunks outgrew retain_bytes_: no new watcher; once none is attached, none is kept.
+  bool overflowed_ ABSL_GUARDED_BY(mu_) = false;
+  size_t dropped_ ABSL_GUARDED_BY(mu_) = 0;
+  std::optional<v1::Progress> progress_ ABSL_GUARDED_BY(mu_);
+  int64_t progress_version_ ABSL_GUARDED_BY(mu_) = 0;
+  std::optional<v1::Preview> preview_ ABSL_GUARDED_BY(mu_);
+  int64_t preview_version_ ABSL_GUARDED_BY(mu_) = 0;
+  std::optional<v1::FinalMetrics> metrics_ ABSL_GUARDED_BY(mu_);
+  std::optional<grpc::Status> status_ ABSL_GUARDED_BY(mu_);
+  absl::Time finished_at_ ABSL_GUARDED_BY(mu_);
+  std::vector<std::weak_ptr<FeedWatcher>> watchers_ ABSL_GUARDED_BY(mu_);
+};
+
+// The feeds of live sessions, and of finished ones for `linger` (then they expire).
+class FeedRegistry {
+ public:
+  FeedRegistry(absl::Duration linger, int64_t retain_bytes)
+      : linger_(linger), retain_bytes_(retain_bytes) {}
+  std::shared_ptr<SessionFeed> Create();  // with a fresh random id
+  std::shared_ptr<SessionFeed> Find(const std::string& id);
+  std::vector<v1::SessionSummary> Summaries();
+
+ private:
+  void ExpireLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  const absl::Duration linger_;
+  const int64_t retain_bytes_;
+  absl::Mutex mu_;
+  std::map<std::string, std::shared_ptr<SessionFeed>> feeds_ ABSL_GUARDED_BY(mu_);
+};
+
+// Starts a Watch call on `feed` (null: unknown id `id`), or one that ends at once with
+// `refused` when that is not OK (authentication). The reactor owns itself.
+grpc::ServerWriteReactor<v1::ExtractResponse>* StartWatch(
+    std::shared_ptr<SessionFeed> feed, const std::string& id,
+    const grpc::Status& refused = grpc::Status::OK);
+
+}  // namespace tandem::server
+
+#endif  // TANDEM_SERVER_WATCH_H_
