@@ -518,7 +518,8 @@ int InfoCommand(int argc, char** argv) {
                "pings without calls %s\n",
                l.keepalive_time_ms(), l.keepalive_timeout_ms(), l.min_ping_interval_ms(),
                l.permit_keepalive_without_calls() ? "allowed" : "refused");
-  absl::PrintF("min preview interval   %d ms\n", l.min_preview_interval_ms());
+  absl::PrintF("min preview interval   %d ms (and at most %.0f%% of a stream's time)\n",
+               l.min_preview_interval_ms(), 100 * l.max_preview_share());
   absl::PrintF("active sessions        %d\n", c.active_sessions());
   absl::PrintF("sessions started       %d (finished %d, rejected %d)\n", c.sessions_started(),
                c.sessions_finished(), c.sessions_rejected());

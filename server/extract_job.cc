@@ -223,6 +223,7 @@ absl::Status ExtractJob::MaybeChunk(bool now) {
   }
   last_chunk_ = t0;
   ++chunks_sent_;
+  chunk_bytes_ += static_cast<int64_t>(out.draco().size());
   sink_->PostChunk(std::move(out));
   return absl::OkStatus();
 }
@@ -242,14 +243,31 @@ void ExtractJob::MaybePreview() {
       std::max(config_.preview_min_interval_ms, limits_.min_preview_interval_ms);
   if (last_preview_ && now - *last_preview_ < std::chrono::milliseconds(interval_ms)) return;
   if (sink_->PreviewPending()) return;
+  // Previews are extra work on the session's thread: past their share of the wall time,
+  // the next one waits (the first one always goes).
+  const double share = limits_.max_preview_share;
+  if (share > 0 && last_preview_ &&
+      preview_s_ > share * std::chrono::duration<double>(now - start_).count()) {
+    return;
+  }
+  // Sealed, a preview resends the whole band: their bytes stay under a share of the chunks'
+  // (a quarter: a stream then sends under 2x its final mesh plus the last band, the chunks
+  // being about 1.5x it).
+  const double band_share = limits_.max_band_bytes_share;
+  if (config_.options.seal && band_share > 0 && last_preview_ &&
+      static_cast<double>(preview_bytes_) > band_share * static_cast<double>(chunk_bytes_)) {
+    return;
+  }
   // A preview is best effort: one that would take the session over its budget is skipped.
   if (!CheckMemory(EncodeBytes(session_->num_triangles()), "").ok()) return;
   // Sealed: everything sealed so far goes out first, so that chunks and band cover the mesh.
   if (!MaybeChunk(true).ok()) return;  // the stream fails at the next check anyway
   last_preview_ = now;
+  const auto t0 = Clock::now();  // (MaybeChunk counted its own encoding)
   const IndexedMesh mesh = session_->Snapshot();
   absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, config_.draco);
-  encode_s_ += SecondsSince(now);
+  encode_s_ += SecondsSince(t0);
+  preview_s_ += SecondsSince(now);
   if (!bytes.ok()) return;  // a preview is best effort; the final mesh reports errors
   v1::Preview preview;
   preview.set_slice(cursor_.slice - 1);
@@ -257,6 +275,7 @@ void ExtractJob::MaybePreview() {
   preview.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
   preview.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
   preview.set_band_only(config_.options.seal);
+  preview_bytes_ += static_cast<int64_t>(preview.draco().size());
   sink_->PostPreview(std::move(preview));
 }
 

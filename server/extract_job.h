@@ -100,6 +100,8 @@ class ExtractJob {
   std::chrono::steady_clock::time_point start_;
   std::optional<std::chrono::steady_clock::time_point> last_preview_;
   double encode_s_ = 0;
+  double preview_s_ = 0;  // of encode_s_, the previews' (and the chunks they flushed)
+  int64_t preview_bytes_ = 0, chunk_bytes_ = 0;  // Draco bytes posted
   PhaseTimes session_time_;  // of the session, kept when it is freed
   int64_t final_triangles_ = 0;
   // Sealed chunks.

@@ -36,6 +36,13 @@ struct ServerLimits {
   // Previews are never closer than this, whatever the client asks (each one snapshots and
   // encodes the whole partial mesh): --min-preview-interval-ms.
   int64_t min_preview_interval_ms = 250;
+  // And previews take at most this share of the stream's wall time: one is skipped while
+  // the time spent encoding previews exceeds it (a stream with a preview every slice then
+  // costs at most about 1 / (1 - share) of one without). <= 0: no bound.
+  double max_preview_share = 0.2;
+  // Sealed streams: band previews resend the unsealed band each time; their bytes stay under
+  // this share of the chunks' bytes (the first one always goes). <= 0: no bound.
+  double max_band_bytes_share = 0.25;
   // HTTP/2 transport (grpc::ServerBuilder channel arguments).
   int64_t keepalive_time_ms = 60000;         // --keepalive-time-ms (0 = no pings)
   int64_t keepalive_timeout_ms = 20000;      // --keepalive-timeout-ms

@@ -684,6 +684,8 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   l->set_min_ping_interval_ms(state_->limits.min_ping_interval_ms);
   l->set_permit_keepalive_without_calls(state_->limits.permit_keepalive_without_calls);
   l->set_min_preview_interval_ms(state_->limits.min_preview_interval_ms);
+  l->set_max_preview_share(state_->limits.max_preview_share);
+  l->set_max_band_bytes_share(state_->limits.max_band_bytes_share);
   for (v1::DType d : {v1::DTYPE_UINT8, v1::DTYPE_UINT16, v1::DTYPE_INT16, v1::DTYPE_FLOAT32}) {
     response->add_dtypes(d);
   }

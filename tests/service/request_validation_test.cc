@@ -302,6 +302,8 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   RecordingSink sink;
   ServerLimits limits;
   limits.min_preview_interval_ms = 0;
+  limits.max_preview_share = 0;  // every preview asked for
+  limits.max_band_bytes_share = 0;
   ExtractJob job(limits, &sink);
   const int64_t n = 40;
   for (v1::ExtractRequest& r : SphereRequests(options, n, 1)) ASSERT_TRUE(job.Handle(r).ok());
@@ -352,6 +354,51 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
 }
 
+// A preview every slice of a small volume, whose encoding outweighs the session's work: the
+// share bound skips most of them, and without it every one goes.
+TEST(ExtractJob, PreviewsTakeAtMostTheirShareOfTheTime) {
+  v1::SessionConfig options;
+  options.set_error(0.4);
+  options.mutable_preview()->set_every_slices(1);
+  size_t counts[2] = {0, 0};
+  for (int bounded = 0; bounded < 2; ++bounded) {
+    RecordingSink sink;
+    ServerLimits limits;
+    limits.min_preview_interval_ms = 0;
+    limits.max_preview_share = bounded ? 0.2 : 0;
+    ExtractJob job(limits, &sink);
+    for (v1::ExtractRequest& r : SphereRequests(options, 48, 1)) ASSERT_TRUE(job.Handle(r).ok());
+    counts[bounded] = sink.previews.size();
+  }
+  EXPECT_EQ(counts[0], 48u);
+  EXPECT_GE(counts[1], 1u);
+  EXPECT_LT(counts[1], counts[0] * 3 / 4) << "encoding previews costs more than the session here";
+}
+
+// Sealed, with a preview asked for every slice: the band previews' bytes stay within their
+// share of the chunks' bytes (plus the one that crossed it).
+TEST(ExtractJob, BandPreviewBytesStayUnderTheirShareOfTheChunks) {
+  v1::SessionConfig options;
+  options.set_error(0.1);
+  options.set_sealed_chunks(true);
+  options.mutable_preview()->set_every_slices(1);
+  RecordingSink sink;
+  ServerLimits limits;
+  limits.min_preview_interval_ms = 0;
+  limits.max_preview_share = 0;
+  ExtractJob job(limits, &sink);
+  for (v1::ExtractRequest& r : SphereRequests(options, 64, 1)) ASSERT_TRUE(job.Handle(r).ok());
+  int64_t chunks = 0, previews = 0, largest = 0;
+  for (const v1::SealedChunk& c : sink.chunks) chunks += static_cast<int64_t>(c.draco().size());
+  for (const v1::Preview& p : sink.previews) {
+    previews += static_cast<int64_t>(p.draco().size());
+    largest = std::max(largest, static_cast<int64_t>(p.draco().size()));
+  }
+  ASSERT_GE(sink.previews.size(), 1u);  // the first always goes
+  EXPECT_LT(sink.previews.size(), 64u / 2) << "most were skipped (a preview a slice otherwise)";
+  EXPECT_LE(previews, limits.max_band_bytes_share * static_cast<double>(chunks) + largest);
+}
+
 TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
   v1::SessionConfig options;
   options.set_error(0.4);
@@ -361,6 +408,7 @@ TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
   RecordingSink sink;
   ServerLimits limits;
   limits.min_preview_interval_ms = 0;  // every preview asked for (the sink sends at once)
+  limits.max_preview_share = 0;
   ExtractJob job(limits, &sink);
   const int64_t n = 24;
   for (v1::ExtractRequest& r : SphereRequests(options, n, 3)) {
