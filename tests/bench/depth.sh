@@ -7,7 +7,7 @@
 # queued ahead of the session (a shallow one is smaller than that) weigh more than the mesh.
 #   tests/bench/depth.sh [--bin DIR] [--size N] [--depth Z]   (defaults build/bin, 192, 48)
 # Nothing is asserted (tests/core/sealer_test.cc checks the bound on MemoryBytes); this
-# script gives the figures of tests/bench/REPORT.md's depth section.
+# script gives the figures of tests/bench/SEALING.md.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 bin=build/bin
