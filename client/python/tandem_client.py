@@ -56,11 +56,18 @@ CHUNK_BYTES = 1 << 20  # the C++ client's chunk size: under every server's messa
 
 @dataclass
 class Result:
-    """The final mesh (Draco bytes, chunks joined) and the server's FinalMetrics."""
+    """The final mesh (Draco bytes, chunks joined) and the server's FinalMetrics.
+
+    With sealed_chunks, `draco` is empty and `sealed` holds the SealedChunk messages in
+    order: each a Draco mesh whose GENERIC uint32 attribute is the vertices' global ids
+    (weld them by id for the whole mesh). `session_id` is the stream's id (for Watch).
+    """
 
     draco: bytes
     metrics: "pb.FinalMetrics"
     previews: List["pb.Preview"] = field(default_factory=list)
+    sealed: List["pb.SealedChunk"] = field(default_factory=list)
+    session_id: str = ""
 
     def save(self, path: str) -> None:
         with open(path, "wb") as f:
@@ -81,7 +88,8 @@ def _requests(volume: np.ndarray, config: "pb.SessionConfig") -> Iterator["pb.Ex
 def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0.1:50051",
             spacing: Sequence[float] = (1.0, 1.0, 1.0), origin: Sequence[float] = (0, 0, 0),
             schedule: str = "tandem-lag", target_triangles: int = 0, preview_every: int = 0,
-            description: str = "python", token: Optional[str] = None,
+            description: str = "python", sealed_chunks: bool = False,
+            token: Optional[str] = None,
             tls_ca: Optional[str] = None, timeout: Optional[float] = None,
             on_progress: Optional[Callable[["pb.Progress"], None]] = None) -> Result:
     """Streams `volume` ([z, y, x]: slice k is volume[k]) and returns the mesh.
@@ -104,7 +112,8 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
     config = pb.SessionConfig(
         nx=nx, ny=ny, nz=nz, dtype=_DTYPES[native], spacing=list(spacing), origin=list(origin),
         iso=iso, error=error, schedule=_SCHEDULES[schedule], target_triangles=target_triangles,
-        preview=pb.PreviewCadence(every_slices=preview_every), description=description)
+        preview=pb.PreviewCadence(every_slices=preview_every), description=description,
+        sealed_chunks=sealed_chunks)
     if tls_ca is not None:
         with open(tls_ca, "rb") as f:
             channel = grpc.secure_channel(server, grpc.ssl_channel_credentials(f.read()))
@@ -113,14 +122,22 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
     metadata = [("authorization", f"Bearer {token}")] if token else None
     chunks: List[bytes] = []
     previews: List[pb.Preview] = []
+    sealed: List[pb.SealedChunk] = []
+    session_id = ""
     metrics = None
     with channel:
         stub = pb_grpc.TandemStub(channel)
         for response in stub.Extract(_requests(volume, config), metadata=metadata,
                                      timeout=timeout):
             kind = response.WhichOneof("kind")
-            if kind == "progress" and on_progress is not None:
-                on_progress(response.progress)
+            if kind == "progress":
+                session_id = session_id or response.progress.session_id
+                if on_progress is not None:
+                    on_progress(response.progress)
+            elif kind == "sealed_chunk":
+                if response.sealed_chunk.index != len(sealed):
+                    raise RuntimeError("sealed chunks out of order")
+                sealed.append(response.sealed_chunk)
             elif kind == "preview":
                 previews.append(response.preview)
             elif kind == "final_mesh":
@@ -131,7 +148,8 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
                 metrics = response.final_metrics
     if metrics is None:
         raise RuntimeError("the stream ended without final metrics")
-    return Result(draco=b"".join(chunks), metrics=metrics, previews=previews)
+    return Result(draco=b"".join(chunks), metrics=metrics, previews=previews, sealed=sealed,
+                  session_id=session_id)
 
 
 def draco_to_ply(draco_path: str, ply_path: str) -> None:

@@ -99,6 +99,18 @@ def main():
         check(ply_counts(ply) == (m.vertices_final, m.triangles_final),
               f"the Draco bytes decode to the reported counts {ply_counts(ply)}")
 
+        check(len(result.session_id) == 32, f"the stream's id ({result.session_id!r})")
+
+        # Sealed chunks: in order, together the final mesh's triangles, and no FinalMesh.
+        sealed = tandem_client.extract(vol, iso=0.5, error=0.01, server=address,
+                                       spacing=spacing, sealed_chunks=True)
+        check(len(sealed.sealed) >= 1 and sealed.draco == b"" and
+              sum(c.triangles for c in sealed.sealed) == sealed.metrics.triangles_final and
+              sealed.metrics.sealed_chunks == len(sealed.sealed),
+              f"sealed chunks ({len(sealed.sealed)}, "
+              f"{sum(c.triangles for c in sealed.sealed)} triangles of "
+              f"{sealed.metrics.triangles_final})")
+
         # Integer types, and a big-endian array (converted, not misread as noise).
         for dtype, scale in ((np.uint16, 1000), (np.int16, 1000), (np.uint8, 100)):
             r = tandem_client.extract((vol * scale).astype(dtype), iso=0.5 * scale,
