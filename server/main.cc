@@ -108,6 +108,12 @@ int main(int argc, char** argv) {
   flags.AddInt("max-inflight-bytes", &limits.max_inflight_bytes,
                "per stream: received-but-unprocessed plus unsent response bytes; at this level "
                "the server stops reading the stream until it drains");
+  flags.AddDouble("max-preview-share", &limits.max_preview_share,
+                  "previews (and the sealed chunks they flush) take at most this share of a "
+                  "stream's wall time; the next one waits while they took more (0 = no bound)");
+  flags.AddDouble("max-band-bytes-share", &limits.max_band_bytes_share,
+                  "sealed streams: band previews' bytes stay under this share of the chunks' "
+                  "bytes (0 = no bound)");
   flags.AddInt("watch-retain-mb", &watch_retain_mb,
                "per session: sealed chunks kept (compressed) for watchers that come late; a "
                "session past it takes no new watcher");
@@ -175,7 +181,9 @@ int main(int argc, char** argv) {
       !ms_ok(limits.min_ping_interval_ms, 0) || !ms_ok(limits.min_preview_interval_ms, 0) ||
       malloc_arenas < 0 || malloc_arenas > 1024 || watch_retain_mb < 0 ||
       watch_retain_mb > (1 << 20) || !(limits.watch_linger_s >= 0) ||
-      !(limits.watch_linger_s <= 86400)) {
+      !(limits.watch_linger_s <= 86400) || !(limits.max_preview_share >= 0) ||
+      !(limits.max_preview_share <= 1) || !(limits.max_band_bytes_share >= 0) ||
+      !(limits.max_band_bytes_share <= 1e6)) {
     absl::FPrintF(stderr,
                   "tandem-server: out of range: need 1 <= --max-sessions <= 4096, "
                   "--max-voxels-per-slice >= 4, --max-slices >= 2, 1024 <= "
@@ -185,7 +193,8 @@ int main(int argc, char** argv) {
                   "1 <= --max-inflight-bytes <= 2^40, 0 <= --keepalive-time-ms and "
                   "--keepalive-min-ping-interval-ms, --min-preview-interval-ms <= 2^31-1, "
                   "1 <= --keepalive-timeout-ms <= 2^31-1, 0 <= --malloc-arenas <= 1024, "
-                  "0 <= --watch-retain-mb <= 2^20, 0 <= --watch-linger-seconds <= 86400\n");
+                  "0 <= --watch-retain-mb <= 2^20, 0 <= --watch-linger-seconds <= 86400, "
+                  "0 <= --max-preview-share <= 1, 0 <= --max-band-bytes-share\n");
     return 2;
   }
   limits.max_sessions = static_cast<int>(max_sessions);

@@ -322,7 +322,8 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
 TEST(LimitsTest, ServerStopsReadingAStreamWhoseClientDoesNotRead) {
   constexpr int64_t kLimit = 2048;
   auto server = TestServer::Start(
-      {"--max-inflight-bytes", std::to_string(kLimit), "--min-preview-interval-ms", "0"});
+      {"--max-inflight-bytes", std::to_string(kLimit), "--min-preview-interval-ms", "0",
+       "--max-preview-share", "0"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   const std::vector<v1::ExtractRequest> requests = PreviewHeavy(40, 120);

@@ -124,6 +124,20 @@ TEST(Metrics, BadListenAddressIsAStartupError) {
   EXPECT_NE(f.err.find("--log-format"), std::string::npos) << f.err;
 }
 
+TEST(Watch, OutOfRangeWatchAndPreviewFlagsAreStartupErrors) {
+  for (std::vector<std::string> args :
+       {std::vector<std::string>{"--max-preview-share", "1.5"},
+        {"--max-band-bytes-share", "-1"},
+        {"--watch-retain-mb", "-3"},
+        {"--watch-linger-seconds", "nan"}}) {
+    const std::string flag = args[0];
+    args.insert(args.begin(), {BinPath("tandem-server"), "--listen", "127.0.0.1:0"});
+    RunResult r = RunProcess(args);
+    EXPECT_EQ(r.exit_code, 2) << flag << ": " << r.err;
+    EXPECT_NE(r.err.find(flag), std::string::npos) << r.err;
+  }
+}
+
 // Every stderr line is one JSON object with a time and an event; the session line carries
 // its figures as fields, and a hostile description (newlines, quotes, control bytes,
 // invalid UTF-8, 5000 bytes) stays inside its field, truncated.
