@@ -203,6 +203,19 @@ TEST(Client, RoundRobinSpreadsStreamsOverReplicas) {
     auto channel = client::MakeChannel(options);
     ASSERT_TRUE(channel.ok()) << channel.status();
     auto stub = v1::Tandem::NewStub(*channel);
+    if (std::string(policy) == "round_robin") {
+      // Round robin takes the addresses whose connection is ready: under load the second
+      // may connect a few streams later. Wait until both have had one (bounded).
+      const int64_t a_start = (*a)->Info()->counters().sessions_started();
+      const int64_t b_start = (*b)->Info()->counters().sessions_started();
+      for (int i = 0; i < 20; ++i) {
+        ASSERT_TRUE(RunStream(*stub, Sphere(12)).status.ok());
+        if ((*a)->Info()->counters().sessions_started() > a_start &&
+            (*b)->Info()->counters().sessions_started() > b_start) {
+          break;
+        }
+      }
+    }
     const int64_t a0 = (*a)->Info()->counters().sessions_started();
     const int64_t b0 = (*b)->Info()->counters().sessions_started();
     for (int i = 0; i < 4; ++i) {
