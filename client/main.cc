@@ -235,7 +235,7 @@ int SaveResult(tandem::client::StreamResult& result, bool seal, const std::strin
 int StreamCommand(int argc, char** argv) {
   ConnectionFlags connection;
   int64_t keepalive_ms = 30000;
-  std::string input, out, partials, metrics_path, chunks_dir;
+  std::string input, out, partials, metrics_path, chunks_dir, resume;
   std::string schedule_name = "tandem-lag";
   bool seal = false;
   double seal_margin = tandem::SessionOptions{}.seal_margin;
@@ -295,6 +295,11 @@ int StreamCommand(int argc, char** argv) {
                   "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute)");
   flags.AddString("metrics", &metrics_path, "FILE.json",
                   "write the metrics as JSON (same keys as `tandem extract --metrics`)");
+  flags.AddString("resume", &resume, "ID:TOKEN",
+                  "continue the session ID, whose client was stopped or lost its connection "
+                  "(the server keeps it for --resume-window-seconds): the same VOLUME is read "
+                  "from its start and the slices the session has are skipped; ID:TOKEN is what "
+                  "the first client printed (a client resumes by itself while it runs)");
   flags.AddBool("reference", &reference,
                 "also measure L1/L2/Linf distances to the unsimplified surface (server side)");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
@@ -347,6 +352,17 @@ int StreamCommand(int argc, char** argv) {
     seal = true;
     if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
   }
+  std::string resume_id, resume_token;
+  if (!resume.empty()) {
+    const size_t colon = resume.find(':');
+    resume_id = resume.substr(0, colon);
+    if (colon != std::string::npos) resume_token = resume.substr(colon + 1);
+    if (resume_id.empty() || resume_token.empty()) {
+      absl::FPrintF(stderr, "tandem-client: --resume: expected ID:TOKEN (as the first client "
+                            "printed it), got '%s'\n", resume);
+      return 2;
+    }
+  }
   if (seal && target > 0) {
     absl::FPrintF(stderr, "tandem-client: --target-triangles needs the whole mesh at the end: "
                           "it cannot be combined with --seal or --chunks\n");
@@ -359,17 +375,16 @@ int StreamCommand(int argc, char** argv) {
 
   // One status line while following: slices complete on disk and sent.
   std::atomic<int64_t> on_disk{0};
-  absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source;
-  if (follow) {
+  auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
+    if (!follow) return tandem::OpenVolume(input);
     tandem::FollowOptions fo;
     fo.expect_slices = expect_slices;
     fo.settle_s = settle_s;
     fo.done_file = done_file;
     fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
-    source = tandem::FollowVolume(input, fo);
-  } else {
-    source = tandem::OpenVolume(input);
-  }
+    return tandem::FollowVolume(input, fo);
+  };
+  absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source = open();
   if (!source.ok()) return Fail(source.status());
   if (preview_every < 0) {
     // --partials alone: about 20 previews over a known depth (each is the whole partial
@@ -385,6 +400,14 @@ int StreamCommand(int argc, char** argv) {
   options.rate = rate;
   options.chunk_bytes = static_cast<size_t>(chunk_bytes);
   options.timeout_s = timeout_s;
+  options.rewind = [&]() -> absl::Status {  // a resume needs slices sent before a drop
+    absl::StatusOr<std::unique_ptr<tandem::SliceSource>> again = open();
+    if (!again.ok()) return again.status();
+    range.Replace(*std::move(again));
+    return absl::OkStatus();
+  };
+  options.resume_session_id = resume_id;
+  options.resume_token = resume_token;
   tandem::v1::SessionConfig& c = options.config;
   c.set_iso(iso);
   c.set_error(error);
@@ -407,10 +430,15 @@ int StreamCommand(int argc, char** argv) {
   absl::Status partial_error;
   tandem::client::StreamCallbacks callbacks;
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
-    if (!p.session_id().empty()) {
-      absl::FPrintF(stderr, "tandem-client: session %s%s\n", p.session_id(),
+    if (!p.session_id().empty() && !p.resume_token().empty()) {  // the session's first
+      absl::FPrintF(stderr, "tandem-client: session %s%s; resume it after a crash with --resume %s:%s\n",
+                    p.session_id(),
                     seal ? absl::StrCat(" (tandem-client watch --session ", p.session_id(), ")")
-                         : "");
+                         : "",
+                    p.session_id(), p.resume_token());
+    } else if (!p.session_id().empty()) {
+      absl::FPrintF(stderr, "tandem-client: session %s resumed at slice %d\n", p.session_id(),
+                    p.slices_consumed());
     }
     if (verbose) {
       absl::FPrintF(stderr, "progress slices=%d triangles=%d peak=%d sent=%d\n",
@@ -430,6 +458,14 @@ int StreamCommand(int argc, char** argv) {
                   absl::StatusCodeToString(refusal.code()), std::string(refusal.message()),
                   retry, connection.options.retries, seconds);
   };
+  callbacks.on_resume = [&](const absl::Status& cause, int64_t slice, int attempt,
+                            double seconds) {
+    absl::FPrintF(stderr, "%standem-client: the stream broke (%s: %s); resuming at slice %d, "
+                  "attempt %d of %d in %.1f s\n",
+                  bar ? "\n" : "", absl::StatusCodeToString(cause.code()),
+                  std::string(cause.message()), slice, attempt, connection.options.retries,
+                  seconds);
+  };
   callbacks.on_preview = [&](const tandem::v1::Preview& p, int64_t sent) {
     if (verbose) {
       absl::FPrintF(stderr, "preview slice=%d triangles=%d vertices=%d bytes=%d sent=%d\n",
@@ -448,7 +484,7 @@ int StreamCommand(int argc, char** argv) {
   if (!result.ok()) return connection.Fail(result.status());
   if (!partial_error.ok()) return Fail(partial_error);
 
-  if (int rc = SaveResult(*result, seal, out, static_cast<int>(bits), static_cast<int>(level), input,
+  if (int rc = SaveResult(*result, result->sealed_session, out, static_cast<int>(bits), static_cast<int>(level), input,
                           (*source)->info().frame, metrics_path);
       rc != 0) {
     return rc;
@@ -520,6 +556,7 @@ int InfoCommand(int argc, char** argv) {
                l.permit_keepalive_without_calls() ? "allowed" : "refused");
   absl::PrintF("min preview interval   %d ms (and at most %.0f%% of a stream's time)\n",
                l.min_preview_interval_ms(), 100 * l.max_preview_share());
+  absl::PrintF("resume window          %g s\n", l.resume_window_seconds());
   absl::PrintF("active sessions        %d\n", c.active_sessions());
   absl::PrintF("sessions started       %d (finished %d, rejected %d)\n", c.sessions_started(),
                c.sessions_finished(), c.sessions_rejected());
@@ -530,7 +567,10 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("unauthenticated calls  %d\n", c.unauthenticated_calls());
   for (const tandem::v1::SessionSummary& session : info.sessions()) {
     absl::PrintF("session                %s  %s, %d slices, %s%s, %.0f s\n", session.id(),
-                 session.finished() ? "finished" : "running", session.slices_consumed(),
+                 session.finished()             ? "finished"
+                 : session.waiting_for_resume() ? "waiting for its client to resume"
+                                                : "running",
+                 session.slices_consumed(),
                  session.sealed_chunks() ? "sealed chunks (watchable)" : "no sealed chunks",
                  session.description().empty() ? "" : absl::StrCat(", ", session.description()),
                  session.age_seconds());

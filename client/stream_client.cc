@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <memory>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -11,6 +12,7 @@
 
 #include "absl/random/distributions.h"
 #include "absl/random/random.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
@@ -27,8 +29,11 @@ using Stream = grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>
 // checks (an Extract stream's or a watcher's).
 class Collector {
  public:
+  // `sealed`: the mesh is expected as sealed chunks (the messages decide in the end).
   Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed)
-      : callbacks_(callbacks), result_(*result), sealed_(sealed) {}
+      : callbacks_(callbacks), result_(*result) {
+    result_.sealed_session = sealed;
+  }
 
   void Handle(const v1::ExtractResponse& response, int64_t slices_sent) {
     StreamResult& result = result_;
@@ -40,6 +45,7 @@ class Collector {
         if (callbacks_.on_preview) callbacks_.on_preview(response.preview(), slices_sent);
         break;
       case v1::ExtractResponse::kFinalMesh: {
+        result.sealed_session = false;
         const v1::FinalMesh& m = response.final_mesh();
         if (m.chunk_index() != next_chunk_ ||
             (next_chunk_ > 0 && m.chunk_count() != chunk_count_) || m.chunk_count() == 0) {
@@ -59,6 +65,7 @@ class Collector {
       }
       case v1::ExtractResponse::kSealedChunk: {
         const v1::SealedChunk& c = response.sealed_chunk();
+        result.sealed_session = true;
         if (callbacks_.on_chunk) callbacks_.on_chunk(c);
         if (!malformed_.empty()) break;
         SealedChunk chunk;
@@ -94,7 +101,7 @@ class Collector {
   // After an OK status: what is missing or inconsistent ("" when the reply is whole).
   std::string Check() {
     StreamResult& result = result_;
-    if (sealed_) {
+    if (result.sealed_session) {
       if (malformed_.empty() && have_metrics_) {
         // The union of the chunks is the final mesh: it must have the final counts.
         const IndexedMesh mesh = WeldChunks(result.sealed);
@@ -119,7 +126,6 @@ class Collector {
  private:
   const StreamCallbacks& callbacks_;
   StreamResult& result_;
-  const bool sealed_;
   std::string malformed_;
   uint32_t next_chunk_ = 0, chunk_count_ = 0;
   bool have_metrics_ = false;
@@ -131,8 +137,16 @@ class Collector {
 // Write just stops, since the server's status explains why.
 class Sender {
  public:
-  Sender(SliceSource& source, const StreamOptions& options, Stream* stream)
-      : source_(source), options_(options), stream_(stream) {}
+  // Sends `config`, then the slices from `first_slice` on, read from the source (which
+  // must not be past it; slices before it are skipped).
+  Sender(SliceSource& source, const StreamOptions& options, const v1::SessionConfig& config,
+         int64_t first_slice, Stream* stream)
+      : source_(source),
+        options_(options),
+        config_(config),
+        first_slice_(first_slice),
+        stream_(stream),
+        slices_sent_(first_slice) {}
 
   absl::Status Run();
   // Wakes a paced sender and makes it stop (the response stream ended).
@@ -152,8 +166,14 @@ class Sender {
   }
 
  private:
+  // The next slice from the source: *data points into `bytes` or into a mapped file;
+  // OutOfRange at the end of the volume.
+  absl::Status FromSource(std::vector<uint8_t>* bytes, const uint8_t** data, size_t* size);
+
   SliceSource& source_;
   const StreamOptions& options_;
+  const v1::SessionConfig& config_;
+  const int64_t first_slice_;
   Stream* stream_;
   mutable absl::Mutex mu_;
   bool stop_ ABSL_GUARDED_BY(mu_) = false;
@@ -161,10 +181,27 @@ class Sender {
   int64_t slices_sent_ ABSL_GUARDED_BY(mu_) = 0;
 };
 
+absl::Status Sender::FromSource(std::vector<uint8_t>* bytes, const uint8_t** data,
+                                size_t* size) {
+  // A mapped file offers its slices in place (SliceSource::ViewSlice): sent from there, they
+  // are not first copied out of the page cache into `bytes`.
+  const uint8_t* view = nullptr;
+  if (absl::Status st = source_.ViewSlice(&view); !st.ok()) return st;
+  if (view != nullptr) {
+    *data = view;
+    *size = source_.info().slice_bytes();
+    return absl::OkStatus();
+  }
+  if (absl::Status st = source_.ReadSlice(bytes); !st.ok()) return st;
+  *data = bytes->data();
+  *size = bytes->size();
+  return absl::OkStatus();
+}
+
 absl::Status Sender::Run() {
   const VolumeInfo& info = source_.info();
   v1::ExtractRequest request;
-  *request.mutable_config() = options_.config;
+  *request.mutable_config() = config_;
   if (!stream_->Write(request)) return absl::OkStatus();
   {
     absl::MutexLock lock(&mu_);
@@ -174,28 +211,24 @@ absl::Status Sender::Run() {
     if (stop_) return absl::OkStatus();
   }
   std::vector<uint8_t> bytes;
-  // A mapped file offers its slices in place (SliceSource::ViewSlice): sent from there, they
-  // are not first copied out of the page cache into `bytes`.
-  const uint8_t* view = nullptr;
-  if (absl::Status st = source_.ViewSlice(&view); !st.ok()) return st;
-  const bool mapped = view != nullptr;
-  const size_t slice_bytes = info.slice_bytes();
   const absl::Time start = absl::Now();
-  int64_t z = 0;
+  int64_t z = first_slice_;
   for (; info.nz == 0 || z < info.nz; ++z) {
-    if (mapped) {
-      if (z > 0) {
-        if (absl::Status st = source_.ViewSlice(&view); !st.ok()) return st;
-      }
-    } else if (absl::Status st = source_.ReadSlice(&bytes); !st.ok()) {
-      if (absl::IsOutOfRange(st)) break;
-      return st;
+    const uint8_t* data = nullptr;
+    size_t size = 0;
+    if (z < source_.next_slice()) {
+      return absl::InternalError(absl::StrCat("slice ", z, " was already read from the volume"));
     }
-    const uint8_t* data = mapped ? view : bytes.data();
-    const size_t size = mapped ? slice_bytes : bytes.size();
+    absl::Status st;
+    do {  // a resumed stream skips what the session already has
+      st = FromSource(&bytes, &data, &size);
+    } while (st.ok() && source_.next_slice() <= z);
+    if (absl::IsOutOfRange(st)) break;
+    if (!st.ok()) return st;
     if (options_.rate > 0) {
-      // Pace like a scanner: slice z leaves at start + z / rate.
-      const absl::Time due = start + absl::Seconds(static_cast<double>(z) / options_.rate);
+      // Pace like a scanner: slice z leaves at start + (z - first) / rate.
+      const absl::Time due =
+          start + absl::Seconds(static_cast<double>(z - first_slice_) / options_.rate);
       absl::MutexLock lock(&mu_);
       mu_.AwaitWithDeadline(absl::Condition(&stop_), due);
     }
@@ -224,13 +257,99 @@ absl::Status Sender::Run() {
   return absl::OkStatus();
 }
 
-}  // namespace
+// What StreamVolume carries from one attempt to the next.
+struct Resumption {
+  std::string id, token;  // of the session, once its first Progress came
+  int64_t consumed = 0;   // slices the server said it consumed
+};
 
-// One attempt: `refused` says whether the server refused it before taking any slice.
-absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions& opts,
-                                        const StreamCallbacks& callbacks, v1::Tandem::Stub& stub,
-                                        const std::chrono::system_clock::time_point* deadline,
-                                        absl::Time start, bool* refused);
+// How an attempt ended, besides its status.
+struct Attempt {
+  bool answered = false;       // the server took the stream (its first message came)
+  bool refused = false;        // refused at the door: the same attempt may be sent again
+  int64_t expected_slice = -1;  // a resume's FAILED_PRECONDITION: the slice it needs
+};
+
+
+// One attempt: the config (with Resume once the session has an id), then slices from
+// `first_slice`. Messages go to `collector`; `resumption` learns the id and the slices
+// consumed.
+absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t first_slice,
+                        Collector& collector, StreamResult& result,
+                        Resumption& resumption, v1::Tandem::Stub& stub,
+                        const std::chrono::system_clock::time_point* deadline, Attempt* attempt) {
+  grpc::ClientContext context;
+  AddToken(opts.connection, &context);
+  if (deadline != nullptr) context.set_deadline(*deadline);
+  std::unique_ptr<Stream> stream = stub.Extract(&context);
+
+  v1::SessionConfig config = opts.config;
+  if (!resumption.id.empty()) {
+    v1::Resume* r = config.mutable_resume();
+    r->set_session_id(resumption.id);
+    r->set_token(resumption.token);
+    r->set_next_slice(first_slice);
+    r->set_chunks_received(static_cast<int64_t>(result.sealed.size()));
+  }
+  Sender sender(source, opts, config, first_slice, stream.get());
+  absl::Status send_status;
+  std::thread send_thread([&] {
+    send_status = sender.Run();
+    if (!send_status.ok()) context.TryCancel();  // the server's stream is of no use now
+  });
+
+  v1::ExtractResponse response;
+  while (stream->Read(&response)) {
+    if (!attempt->answered) {
+      attempt->answered = true;
+      sender.Accept();
+    }
+    if (response.has_progress()) {
+      const v1::Progress& p = response.progress();
+      if (!p.session_id().empty()) {
+        resumption.id = result.session_id = p.session_id();
+        if (!p.resume_token().empty()) resumption.token = p.resume_token();
+      }
+      resumption.consumed = std::max(resumption.consumed, p.slices_consumed());
+    }
+    collector.Handle(response, sender.slices_sent());
+  }
+  sender.Stop();
+  send_thread.join();
+  const grpc::Status status = stream->Finish();
+  result.slices_sent = std::max(result.slices_sent, sender.slices_sent());
+  if (!send_status.ok()) return send_status;
+  if (!status.ok()) {
+    // Retryable: nothing came back, and the server did not mark the refusal as final
+    // (it does, with grpc-retry-pushback-ms: -1, for its limits: the same scan would fail
+    // again).
+    const auto& trailers = context.GetServerTrailingMetadata();
+    const auto pushback = trailers.find("grpc-retry-pushback-ms");
+    attempt->refused = !attempt->answered &&
+                       (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED ||
+                        status.error_code() == grpc::StatusCode::UNAVAILABLE) &&
+                       (pushback == trailers.end() || pushback->second != "-1");
+    const auto expected = trailers.find("tandem-expected-slice");
+    int64_t slice = -1;
+    if (status.error_code() == grpc::StatusCode::FAILED_PRECONDITION &&
+        expected != trailers.end() &&
+        absl::SimpleAtoi(absl::string_view(expected->second.data(), expected->second.size()),
+                         &slice)) {
+      attempt->expected_slice = slice;
+    }
+    return wire::FromGrpcStatus(status);
+  }
+  return absl::OkStatus();
+}
+
+// The error of a stream that broke (`broke`, OK if it did not) and ended with `last`.
+absl::Status Unresumed(const absl::Status& broke, const absl::Status& last) {
+  if (broke.ok() || broke == last) return last;
+  return absl::Status(last.code(), absl::StrCat("the stream broke (", broke.ToString(),
+                                                ") and could not be resumed: ", last.message()));
+}
+
+}  // namespace
 
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks) {
@@ -264,72 +383,65 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   const absl::Time start = absl::Now();
   const auto deadline = std::chrono::system_clock::now() +
                         std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000));
-  absl::BitGen jitter;
-  for (int attempt = 0;; ++attempt) {
-    bool refused = false;
-    absl::StatusOr<StreamResult> result =
-        StreamOnce(source, opts, callbacks, *stub, opts.timeout_s > 0 ? &deadline : nullptr,
-                   start, &refused);
-    if (!refused || attempt >= opts.connection.retries) return result;
-    // Refused at the door (all session slots taken, or the server going away), before a
-    // single slice was read: send it again after a backoff, 0.5 s doubling to 5 s, +-20 %.
-    const double backoff = std::min(5.0, 0.5 * std::pow(2.0, attempt)) *
-                           absl::Uniform(jitter, 0.8, 1.2);
-    if (callbacks.on_retry) callbacks.on_retry(result.status(), attempt + 1, backoff);
-    absl::SleepFor(absl::Seconds(backoff));
-  }
-}
-
-absl::StatusOr<StreamResult> StreamOnce(SliceSource& source, const StreamOptions& opts,
-                                        const StreamCallbacks& callbacks, v1::Tandem::Stub& stub,
-                                        const std::chrono::system_clock::time_point* deadline,
-                                        absl::Time start, bool* refused) {
-  grpc::ClientContext context;
-  AddToken(opts.connection, &context);
-  if (deadline != nullptr) context.set_deadline(*deadline);
-  std::unique_ptr<Stream> stream = stub.Extract(&context);
-
-  Sender sender(source, opts, stream.get());
-  absl::Status send_status;
-  std::thread send_thread([&] {
-    send_status = sender.Run();
-    if (!send_status.ok()) context.TryCancel();  // the server's stream is of no use now
-  });
-
   StreamResult result;
   Collector collector(callbacks, &result, opts.config.sealed_chunks());
-  v1::ExtractResponse response;
-  bool answered = false;
-  while (stream->Read(&response)) {
-    if (!answered) {
-      answered = true;
-      sender.Accept();
+  Resumption resumption{opts.resume_session_id, opts.resume_token, 0};
+  absl::Status broke;  // the drop being resumed, if any
+  int64_t first_slice = 0;
+  absl::BitGen jitter;
+  for (int attempt = 0;;) {
+    Attempt a;
+    absl::Status st;
+    if (first_slice < source.next_slice()) {
+      // Slices sent before the connection broke, not consumed: read the volume again.
+      absl::Status again = opts.rewind ? opts.rewind()
+                                       : absl::FailedPreconditionError("the volume cannot be read again");
+      if (!again.ok()) {
+        return Unresumed(broke, absl::Status(again.code(), absl::StrCat("resuming at slice ",
+                                                                        first_slice, ": ",
+                                                                        again.message())));
+      }
     }
-    collector.Handle(response, sender.slices_sent());
+    st = StreamOnce(source, opts, first_slice, collector, result, resumption, *stub,
+                    opts.timeout_s > 0 ? &deadline : nullptr, &a);
+    result.seconds = absl::ToDoubleSeconds(absl::Now() - start);
+    if (st.ok()) {
+      const std::string malformed = collector.Check();
+      if (!malformed.empty()) {
+        return absl::DataLossError(
+            absl::StrCat("malformed reply from ", opts.connection.server, ": ", malformed));
+      }
+      return result;
+    }
+    if (a.answered) attempt = 0;  // it got through: the budget is for this drop
+    const bool resuming = !resumption.token.empty();
+    if (!broke.ok() && !resuming) return st;
+    // What to do next, and after how long.
+    double backoff = std::min(5.0, 0.5 * std::pow(2.0, attempt)) * absl::Uniform(jitter, 0.8, 1.2);
+    if (resuming && a.expected_slice >= 0 && a.expected_slice != first_slice) {
+      first_slice = a.expected_slice;  // the server consumed more (or less) than it said
+      backoff = 0;
+    } else if (resuming && a.answered && absl::IsUnavailable(st)) {
+      broke = st;  // the connection broke mid-stream: resume where the server is
+      first_slice = resumption.consumed;
+    } else if (resuming && !a.answered && absl::IsNotFound(st) &&
+               opts.connection.lb_policy == "round_robin") {
+      backoff = 0;  // another replica took the resume: the next stream goes to the next one
+    } else if (!a.refused) {
+      return Unresumed(broke, st);
+    }
+    if (attempt >= opts.connection.retries) return Unresumed(broke, st);
+    ++attempt;
+    if (resuming) {
+      ++result.resumes;
+      if (callbacks.on_resume) callbacks.on_resume(broke.ok() ? st : broke, first_slice, attempt, backoff);
+    } else if (callbacks.on_retry) {
+      // Refused at the door (all session slots taken, or the server going away), before a
+      // single slice was read: send it again after a backoff, 0.5 s doubling to 5 s, +-20 %.
+      callbacks.on_retry(st, attempt, backoff);
+    }
+    absl::SleepFor(absl::Seconds(backoff));
   }
-  sender.Stop();
-  send_thread.join();
-  const grpc::Status status = stream->Finish();
-  result.slices_sent = sender.slices_sent();
-  result.seconds = absl::ToDoubleSeconds(absl::Now() - start);
-  if (!send_status.ok()) return send_status;
-  if (!status.ok()) {
-    // Retryable: nothing came back, and the server did not mark the refusal as final
-    // (it does, with grpc-retry-pushback-ms: -1, for its limits: the same scan would fail
-    // again).
-    const auto& trailers = context.GetServerTrailingMetadata();
-    const auto pushback = trailers.find("grpc-retry-pushback-ms");
-    *refused = !answered &&
-               (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED ||
-                status.error_code() == grpc::StatusCode::UNAVAILABLE) &&
-               (pushback == trailers.end() || pushback->second != "-1");
-    return wire::FromGrpcStatus(status);
-  }
-  const std::string malformed = collector.Check();
-  if (!malformed.empty()) {
-    return absl::DataLossError(absl::StrCat("malformed reply from ", opts.connection.server, ": ", malformed));
-  }
-  return result;
 }
 
 absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,

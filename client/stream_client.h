@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -24,6 +25,14 @@ struct StreamOptions {
   double rate = 0;           // slices per second, 0 = as fast as the server takes them
   size_t chunk_bytes = 0;    // SliceChunk payload, > 0
   double timeout_s = 0;      // gRPC deadline for the whole stream, 0 = none
+  // Resume a session whose client vanished (tandem.proto: Resume) instead of starting one:
+  // its id and token (the first Progress of the stream that started it). The source is
+  // read from its start; the slices the session already consumed are skipped.
+  std::string resume_session_id, resume_token;
+  // Puts the source back at its first slice (opens the volume again), for a resume that
+  // needs slices the source has passed (sent before the connection broke, not consumed).
+  // Unset: such a resume fails.
+  std::function<absl::Status()> rewind;
 };
 
 // What the stream delivered. Callbacks run on the calling thread, in message order.
@@ -34,6 +43,10 @@ struct StreamCallbacks {
   std::function<void(const v1::SealedChunk&)> on_chunk;
   // A refused attempt about to be sent again (retry 1.., after `seconds`).
   std::function<void(const absl::Status& refusal, int retry, double seconds)> on_retry;
+  // The stream broke after the session started (`cause`): resuming it at `slice` after
+  // `seconds` (attempt 1.. since the last one that got through).
+  std::function<void(const absl::Status& cause, int64_t slice, int attempt, double seconds)>
+      on_resume;
 };
 
 struct StreamResult {
@@ -41,6 +54,9 @@ struct StreamResult {
   // config.sealed_chunks: every chunk decoded, in order; WeldChunks gives the final mesh,
   // whose counts were checked against the final metrics.
   std::vector<SealedChunk> sealed;
+  bool sealed_session = false;  // the mesh came as sealed chunks
+  std::string session_id;       // the session's id (first Progress)
+  int resumes = 0;              // times the stream was resumed after a drop
   int64_t triangles = 0, vertices = 0;
   v1::FinalMetrics metrics;
   int64_t slices_sent = 0;
@@ -54,6 +70,10 @@ struct StreamResult {
 // `connection.retries` times with backoff. The error is the server's status (code and
 // message kept), or a local one (reading the volume, a malformed reply) with the file or
 // message named.
+// Once the session has started, a stream that breaks (UNAVAILABLE: connection lost, server
+// restarting) is resumed (tandem.proto: Resume) with the same backoff and budget, from the
+// first slice the server has not consumed, read again through options.rewind (the client
+// holds no copy of what it sent).
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks);
 

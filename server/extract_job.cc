@@ -279,6 +279,16 @@ void ExtractJob::MaybePreview() {
   sink_->PostPreview(std::move(preview));
 }
 
+void ExtractJob::Detach() {
+  cursor_.bytes_so_far = 0;  // the slice comes again, whole
+  sink_ = nullptr;
+}
+
+void ExtractJob::Attach(JobSink* sink) {
+  sink_ = sink;
+  sink_->PostProgress(MakeProgress());
+}
+
 v1::Progress ExtractJob::MakeProgress() const {
   v1::Progress p;
   p.set_slices_consumed(cursor_.slice);

@@ -59,6 +59,14 @@ class ExtractJob {
   absl::Status HandleEndOfInput() const;
 
   bool done() const { return state_ == State::kDone; }
+  // Resume (server/resume.h). A job past its config and before End can wait for a new
+  // stream: Detach drops a partly received slice and the sink (nothing is posted while
+  // detached); Attach gives it the new stream's sink and posts a Progress.
+  bool resumable() const { return state_ == State::kStreaming; }
+  void Detach();
+  void Attach(JobSink* sink);
+  int64_t chunks_posted() const { return chunks_sent_; }
+  const std::string& description() const { return config_.description; }
   int64_t slices() const { return cursor_.slice; }
   int64_t triangles() const { return session_ ? session_->num_triangles() : final_triangles_; }
   // Memory held now (sessions, slice buffer, encoded output not yet handed over).

@@ -119,6 +119,10 @@ int main(int argc, char** argv) {
                "session past it takes no new watcher");
   flags.AddDouble("watch-linger-seconds", &limits.watch_linger_s,
                   "how long a finished session stays watchable (tandem-client watch)");
+  flags.AddDouble("resume-window-seconds", &limits.resume_window_s,
+                  "a stream whose client vanishes mid-scan (connection lost, killed, cancelled) "
+                  "keeps its session this long, for the client to resume it (tandem-client "
+                  "does so by itself; 0 = the session ends at once)");
   flags.AddDouble("idle-timeout-seconds", &limits.idle_timeout_s,
                   "end a stream on which nothing moves for this long: the client sends nothing "
                   "(DEADLINE_EXCEEDED) or reads nothing (cancelled); frees its session slot");
@@ -181,7 +185,8 @@ int main(int argc, char** argv) {
       !ms_ok(limits.min_ping_interval_ms, 0) || !ms_ok(limits.min_preview_interval_ms, 0) ||
       malloc_arenas < 0 || malloc_arenas > 1024 || watch_retain_mb < 0 ||
       watch_retain_mb > (1 << 20) || !(limits.watch_linger_s >= 0) ||
-      !(limits.watch_linger_s <= 86400) || !(limits.max_preview_share >= 0) ||
+      !(limits.watch_linger_s <= 86400) || !(limits.resume_window_s >= 0) ||
+      !(limits.resume_window_s <= 86400) || !(limits.max_preview_share >= 0) ||
       !(limits.max_preview_share <= 1) || !(limits.max_band_bytes_share >= 0) ||
       !(limits.max_band_bytes_share <= 1e6)) {
     absl::FPrintF(stderr,
@@ -194,6 +199,7 @@ int main(int argc, char** argv) {
                   "--keepalive-min-ping-interval-ms, --min-preview-interval-ms <= 2^31-1, "
                   "1 <= --keepalive-timeout-ms <= 2^31-1, 0 <= --malloc-arenas <= 1024, "
                   "0 <= --watch-retain-mb <= 2^20, 0 <= --watch-linger-seconds <= 86400, "
+                  "0 <= --resume-window-seconds <= 86400, "
                   "0 <= --max-preview-share <= 1, 0 <= --max-band-bytes-share\n");
     return 2;
   }

@@ -33,6 +33,8 @@ struct ServerLimits {
   // session stays watchable.
   int64_t watch_retain_bytes = int64_t{64} << 20;       // --watch-retain-mb
   double watch_linger_s = 60;                           // --watch-linger-seconds
+  // A stream whose client vanished before End keeps its session this long for a resume.
+  double resume_window_s = 60;                          // --resume-window-seconds
   // Previews are never closer than this, whatever the client asks (each one snapshots and
   // encodes the whole partial mesh): --min-preview-interval-ms.
   int64_t min_preview_interval_ms = 250;

@@ -67,7 +67,13 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   void Abort(grpc::Status status) override { EndStream(std::move(status)); }
 
  private:
-  void RunWorker();
+  // The worker: takes messages to the job until the stream ends. Returns the job when the
+  // client vanished mid-scan and the session may be resumed (server/resume.h).
+  std::optional<ParkedSession> RunWorker();
+  // The first message carried SessionConfig.resume: adopts the parked session into *job.
+  absl::Status Resume(const v1::Resume& resume, std::unique_ptr<ExtractJob>* job);
+  // Queues a sealed chunk for this stream only (PostChunk also publishes it to the feed).
+  void QueueChunk(v1::SealedChunk chunk);
   // After the job: waits until Finish has been called (every response written, or
   // dropped after an error) or the call is cancelled; cancels a call whose client stopped
   // reading for limits.idle_timeout_s.
@@ -144,16 +150,41 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   int64_t slices_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t triangles_ ABSL_GUARDED_BY(mu_) = 0;
   std::string description_ ABSL_GUARDED_BY(mu_);
-  std::shared_ptr<SessionFeed> feed_;  // set by Start before any other thread sees the call
+  // Set by Start before any other thread sees the call; replaced by the worker when it
+  // resumes a session (only the worker and the destructor use it).
+  std::shared_ptr<SessionFeed> feed_;
+  std::string resume_token_;  // the session's (same ownership as feed_)
+  bool resumed_ = false;      // the worker adopted a parked session
   bool id_sent_ ABSL_GUARDED_BY(mu_) = false;
+  bool parked_ ABSL_GUARDED_BY(mu_) = false;  // the session outlives this stream
 };
+
+// A parked session's wait (on its old worker thread), and its end when nobody resumed it.
+void HoldParked(ServiceState& state, ParkedSession parked) {
+  const std::string id = parked.feed->id();
+  const int64_t bytes = parked.memory_bytes;
+  const int64_t slices = parked.job->slices();
+  state.session_bytes.fetch_add(bytes);
+  std::optional<ParkedSession> left = state.resumable.ParkAndWait(std::move(parked));
+  state.session_bytes.fetch_sub(bytes);
+  if (!left) return;  // another stream took it over
+  const double window = absl::ToDoubleSeconds(state.resumable.window());
+  left->feed->Finish(nullptr, grpc::Status(grpc::StatusCode::CANCELLED,
+                                           absl::StrFormat("the client left after %d slices and "
+                                                           "did not resume within %g s",
+                                                           slices, window)));
+  LogEvent("session_expired", {{"id", LogField::Word{id}}, {"slices", slices}});
+}
 
 ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
                                 grpc::CallbackServerContext* context) {
   auto call = std::make_shared<ExtractCall>(state, context);
   call->self_ = call;
   const int64_t max = state->limits.max_sessions;
-  if (state->active_sessions.fetch_add(1) >= max) {
+  // Sessions waiting for a resume hold a slot too (their memory), but give it up, oldest
+  // first, to a stream that would be refused without it.
+  const int64_t used = state->active_sessions.fetch_add(1) + state->resumable.parked();
+  if (used >= max && !(state->active_sessions.load() <= max && state->resumable.EvictOldest())) {
     state->active_sessions.fetch_sub(1);
     state->sessions_rejected.fetch_add(1);
     call->EndStream(grpc::Status(
@@ -164,6 +195,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
   }
   call->accepted_ = true;
   call->feed_ = state->feeds.Create();
+  call->resume_token_ = NewResumeToken();
   state->AddStream(call.get(), call);
   state->sessions_started.fetch_add(1);
   {
@@ -173,8 +205,9 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
   state->WorkerStarted();
   try {
     std::thread([call, state]() mutable {
-      call->RunWorker();
+      std::optional<ParkedSession> parked = call->RunWorker();
       call.reset();  // may destroy the stream (logs its line) if OnDone came first
+      if (parked) HoldParked(*state, *std::move(parked));
       state->WorkerExited();
       state->TrimIfIdle();
     }).detach();
@@ -202,11 +235,12 @@ ExtractCall::~ExtractCall() {
                               ? "the client left before the end"
                               : absl::StrCat("cancelled; before that: ", status.error_message()));
   }
-  feed_->Finish(nullptr, status);  // (no effect after the final metrics)
+  if (!parked_) feed_->Finish(nullptr, status);  // (no effect after the final metrics)
   const std::string status_name =
       absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code()));
   const double seconds = absl::ToDoubleSeconds(absl::Now() - start_);
   std::vector<LogField> fields = {{"peer", LogField::Str{peer_}},
+                                  {"id", LogField::Word{feed_->id()}},
                                   {"input", LogField::Str{description_}},
                                   {"slices", slices_},
                                   {"triangles", triangles_},
@@ -215,6 +249,8 @@ ExtractCall::~ExtractCall() {
                                   {"bytes_sent", bytes_sent_},
                                   {"previews", previews_sent_},
                                   {"status", LogField::Word{status_name}}};
+  if (resumed_) fields.push_back({"resumed", LogField::Word{"yes"}});
+  if (parked_) fields.push_back({"waiting_for_resume", LogField::Word{"yes"}});
   const std::string message = status.error_message();  // by value: keep it for the view
   if (!status.ok()) fields.push_back({"message", LogField::Str{message, 1000}});
   LogEvent("session", fields);
@@ -398,8 +434,9 @@ void ExtractCall::PostProgress(v1::Progress progress) {
   feed_->Progress(progress);
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
-  if (!id_sent_) {  // the first Progress names the session
+  if (!id_sent_) {  // the first Progress names the session (and gives its creator the token)
     progress.set_session_id(feed_->id());
+    if (!resumed_) progress.set_resume_token(resume_token_);
     id_sent_ = true;
   }
   progress_bytes_ = static_cast<int64_t>(progress.ByteSizeLong());
@@ -442,6 +479,10 @@ void ExtractCall::PostFinal(std::vector<Response> messages) {
 
 void ExtractCall::PostChunk(v1::SealedChunk chunk) {
   feed_->Chunk(chunk);
+  QueueChunk(std::move(chunk));
+}
+
+void ExtractCall::QueueChunk(v1::SealedChunk chunk) {
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
   Response r;
@@ -485,11 +526,13 @@ bool ExtractCall::EndIdleStreamLocked() {
   return write_in_flight_;
 }
 
-void ExtractCall::RunWorker() {
+std::optional<ParkedSession> ExtractCall::RunWorker() {
   bool cancel = false;
+  std::optional<ParkedSession> parked;
   {
-    ExtractJob job(state_->limits, this);
+    auto job = std::make_unique<ExtractJob>(state_->limits, this);
     int64_t accounted_bytes = 0;
+    bool first = true, failed = false;
     while (true) {
       std::optional<Request> request;
       {
@@ -505,11 +548,18 @@ void ExtractCall::RunWorker() {
           break;
         }
         if (StoppingLocked()) break;
+        if (inbox_.empty() && job->resumable()) {
+          // The input closed mid-scan. A client that vanished (its connection lost) also
+          // has its call cancelled, an instant later: wait for that before taking the
+          // close as a missing End, so that the session can wait for a resume.
+          mu_.AwaitWithTimeout(absl::Condition(&cancelled_), absl::Seconds(1));
+          if (StoppingLocked()) break;
+        }
         if (!inbox_.empty()) {
           request = std::move(inbox_.front().request);
           inbox_bytes_ -= inbox_.front().bytes;
           inbox_.pop_front();
-          if (request->has_config()) {
+          if (request->has_config() && !request->config().has_resume()) {
             description_ = request->config().description();
             feed_->SetSealed(request->config().sealed_chunks(), description_);
           }
@@ -519,38 +569,97 @@ void ExtractCall::RunWorker() {
       }
       absl::Status status;
       try {  // the barrier: nothing a client sends may end the process
-        status = request ? job.Handle(*request) : job.HandleEndOfInput();
+        if (first && request && request->has_config() && request->config().has_resume()) {
+          status = Resume(request->config().resume(), &job);
+        } else {
+          status = request ? job->Handle(*request) : job->HandleEndOfInput();
+        }
       } catch (...) {
         status = StatusOfException(std::current_exception());
       }
+      first = false;
       request.reset();
-      const int64_t bytes = static_cast<int64_t>(job.MemoryBytes());
+      const int64_t bytes = static_cast<int64_t>(job->MemoryBytes());
       state_->session_bytes.fetch_add(bytes - accounted_bytes);
       accounted_bytes = bytes;
       {
         absl::MutexLock lock(&mu_);
-        state_->slices_total.fetch_add(job.slices() - slices_);
-        slices_ = job.slices();
-        triangles_ = job.triangles();
+        state_->slices_total.fetch_add(job->slices() - slices_);
+        slices_ = job->slices();
+        triangles_ = job->triangles();
       }
       if (!status.ok()) {
+        failed = true;
         EndStream(wire::ToGrpcStatus(status));
         break;
       }
-      if (job.done()) {
+      if (job->done()) {
         EndStream(grpc::Status::OK);  // after the final messages already queued
         break;
       }
     }
     state_->session_bytes.fetch_sub(accounted_bytes);
-    const ExtractJob::Phases phases = job.PhaseSeconds();
+    const ExtractJob::Phases phases = job->PhaseSeconds();
     auto micros = [](double s) { return static_cast<int64_t>(s * 1e6); };
     state_->extract_us_total.fetch_add(micros(phases.extract_s));
     state_->simplify_us_total.fetch_add(micros(phases.simplify_s));
     state_->encode_us_total.fetch_add(micros(phases.encode_s));
-  }  // the session's memory goes here, before the output is delivered
+    // The client vanished between slices (not an error of the job, not the idle timeout,
+    // not the server ending the stream): the session may wait for it to come back.
+    {
+      absl::MutexLock lock(&mu_);
+      parked_ = cancelled_ && !stalled_ && !failed && job->resumable() &&
+                state_->limits.resume_window_s > 0;
+      if (parked_) {
+        job->Detach();
+        parked.emplace();
+        parked->memory_bytes = static_cast<int64_t>(job->MemoryBytes());
+        parked->job = std::move(job);
+        parked->feed = feed_;
+        parked->token = resume_token_;
+      }
+    }
+  }  // the session's memory goes here (unless parked), before the output is delivered
   if (cancel) CancelCall();
   WaitForFinish();
+  return parked;
+}
+
+absl::Status ExtractCall::Resume(const v1::Resume& resume, std::unique_ptr<ExtractJob>* job) {
+  int64_t expected = -1;
+  std::vector<v1::SealedChunk> replay;
+  absl::StatusOr<ParkedSession> p =
+      state_->resumable.Adopt(resume.session_id(), resume.token(), resume.next_slice(),
+                              resume.chunks_received(), &expected, &replay);
+  if (!p.ok()) {
+    if (absl::IsNotFound(p.status())) {
+      std::shared_ptr<SessionFeed> feed = state_->feeds.Find(resume.session_id());
+      if (feed != nullptr && feed != feed_ && !feed->finished()) {
+        return absl::UnavailableError(absl::StrCat(
+            "session ", resume.session_id(), " is still attached to its previous stream (the "
+            "server has not seen that stream end yet); resume again in a moment"));
+      }
+    }
+    if (expected >= 0 && absl::IsFailedPrecondition(p.status())) {
+      absl::MutexLock lock(&mu_);  // (call_context_ is alive before Finish)
+      if (!finish_called_) {
+        call_context_->AddTrailingMetadata("tandem-expected-slice", absl::StrCat(expected));
+      }
+    }
+    return p.status();
+  }
+  state_->feeds.Remove(feed_->id());  // this stream's own, unused: it is the session's now
+  feed_ = std::move(p->feed);
+  resume_token_ = std::move(p->token);
+  resumed_ = true;
+  {
+    absl::MutexLock lock(&mu_);
+    description_ = p->job->description();
+  }
+  *job = std::move(p->job);
+  (*job)->Attach(this);  // its Progress goes first, naming the session
+  for (v1::SealedChunk& c : replay) QueueChunk(std::move(c));
+  return absl::OkStatus();
 }
 
 void ExtractCall::WaitForFinish() {
@@ -620,6 +729,7 @@ int64_t ServiceState::AbortStreams(const grpc::Status& status) {
       if (auto s = weak.lock()) alive.push_back(std::move(s));
     }
   }
+  resumable.Close();
   for (const auto& s : alive) s->Abort(status);  // without mu_: Abort takes the stream's lock
   return static_cast<int64_t>(alive.size());
 }
@@ -628,7 +738,10 @@ TandemService::TandemService(const ServerLimits& limits, std::vector<std::string
                              bool tls)
     : state_(std::make_shared<ServiceState>(limits, std::move(tokens), tls)) {}
 
-TandemService::~TandemService() { state_->WaitForWorkers(absl::Now() + absl::Seconds(5)); }
+TandemService::~TandemService() {
+  state_->resumable.Close();
+  state_->WaitForWorkers(absl::Now() + absl::Seconds(5));
+}
 
 grpc::ServerBidiReactor<Request, Response>* TandemService::Extract(
     grpc::CallbackServerContext* context) {
@@ -686,6 +799,7 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   l->set_min_preview_interval_ms(state_->limits.min_preview_interval_ms);
   l->set_max_preview_share(state_->limits.max_preview_share);
   l->set_max_band_bytes_share(state_->limits.max_band_bytes_share);
+  l->set_resume_window_seconds(state_->limits.resume_window_s);
   for (v1::DType d : {v1::DTYPE_UINT8, v1::DTYPE_UINT16, v1::DTYPE_INT16, v1::DTYPE_FLOAT32}) {
     response->add_dtypes(d);
   }

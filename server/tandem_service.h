@@ -7,6 +7,10 @@
 // under a mutex.
 //   * Watch: every accepted stream publishes into a SessionFeed (server/watch.h) under a
 //     random id it sends in its first Progress; Watch calls read the feed.
+//   * Resume: a stream cancelled between its config and End (its client vanished) parks
+//     its job in ServiceState::resumable (server/resume.h) and its worker thread waits
+//     there, up to limits.resume_window_s, for a stream whose config carries Resume; that
+//     stream's worker adopts the job and its feed, and goes on with it.
 //   * Authentication: with tokens configured, Extract, GetInfo and Watch check the bearer token
 //     before anything else (server/auth.h explains why there and not in gRPC hooks).
 //   * Flow control: one read in flight; the next starts as soon as the previous message
@@ -48,6 +52,7 @@
 #include "absl/time/time.h"
 #include "server/auth.h"
 #include "server/request_validation.h"
+#include "server/resume.h"
 #include "server/watch.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
@@ -66,11 +71,13 @@ class LiveStream {
 struct ServiceState {
   ServiceState(const ServerLimits& l, std::vector<std::string> tokens, bool tls_on)
       : limits(l), tls(tls_on), auth(std::move(tokens)),
-        feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes) {}
+        feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes),
+        resumable(absl::Seconds(l.resume_window_s)) {}
   const ServerLimits limits;
   const bool tls;
   TokenAuthenticator auth;
   FeedRegistry feeds;  // what every stream sends, for Watch
+  ResumeTable resumable;  // sessions whose client vanished, for Resume
   std::atomic<int64_t> active_sessions{0};
   std::atomic<int64_t> sessions_started{0};
   std::atomic<int64_t> sessions_finished{0};
@@ -97,7 +104,8 @@ struct ServiceState {
   // Accepted streams, registered until they are destroyed.
   void AddStream(const LiveStream* key, std::weak_ptr<LiveStream> stream);
   void RemoveStream(const LiveStream* key);
-  // Aborts every registered stream; returns how many were still alive.
+  // Aborts every registered stream and ends every session waiting for a resume; returns
+  // how many streams were still alive.
   int64_t AbortStreams(const grpc::Status& status);
 
  private:

@@ -37,19 +37,46 @@ void SessionFeed::Preview(const v1::Preview& p) {
 void SessionFeed::Chunk(const v1::SealedChunk& c) {
   {
     absl::MutexLock lock(&mu_);
-    chunk_bytes_ += static_cast<int64_t>(c.ByteSizeLong());
+    const int64_t bytes = static_cast<int64_t>(c.ByteSizeLong());
+    chunk_bytes_ += bytes;
     if (chunk_bytes_ > retain_bytes_) overflowed_ = true;
+    chunks_.push_back(c);
+    kept_bytes_ += bytes;
     bool watched = false;
     for (const auto& w : watchers_) watched |= !w.expired();
-    if (overflowed_ && !watched) {
-      // Nobody can attach any more and nobody is attached: nothing to keep them for.
-      dropped_ += chunks_.size() + 1;
-      chunks_.clear();
-      return;
+    // Nobody can attach any more and nobody is attached: keep only the newest (a resumed
+    // stream replays those its client missed; watchers' cursors index chunks_, and there
+    // are none).
+    while (overflowed_ && !watched && kept_bytes_ > retain_bytes_ && chunks_.size() > 1) {
+      kept_bytes_ -= static_cast<int64_t>(chunks_.front().ByteSizeLong());
+      chunks_.pop_front();
+      ++dropped_;
     }
-    chunks_.push_back(c);
   }
   WakeAll();
+}
+
+void SessionFeed::SetWaiting(bool waiting) {
+  absl::MutexLock lock(&mu_);
+  waiting_ = waiting;
+}
+
+bool SessionFeed::finished() const {
+  absl::MutexLock lock(&mu_);
+  return status_.has_value();
+}
+
+absl::Status SessionFeed::ChunksFrom(size_t first, std::vector<v1::SealedChunk>* out) const {
+  absl::MutexLock lock(&mu_);
+  const size_t end = dropped_ + chunks_.size();
+  if (first < dropped_ || first > end) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "session %s cannot resend its sealed chunks from index %d: it keeps %d..%d "
+        "(tandem-server --watch-retain-mb)",
+        id_, first, dropped_, static_cast<int64_t>(end) - 1));
+  }
+  out->assign(chunks_.begin() + static_cast<std::ptrdiff_t>(first - dropped_), chunks_.end());
+  return absl::OkStatus();
 }
 
 void SessionFeed::Finish(const v1::FinalMetrics* metrics, const grpc::Status& status) {
@@ -136,6 +163,7 @@ v1::SessionSummary SessionFeed::Summary() const {
   s.set_sealed_chunks(sealed_);
   s.set_finished(status_.has_value());
   s.set_age_seconds(absl::ToDoubleSeconds(absl::Now() - start_));
+  s.set_waiting_for_resume(waiting_ && !status_.has_value());
   return s;
 }
 
@@ -162,6 +190,11 @@ std::shared_ptr<SessionFeed> FeedRegistry::Find(const std::string& id) {
   ExpireLocked();
   auto it = feeds_.find(id);
   return it == feeds_.end() ? nullptr : it->second;
+}
+
+void FeedRegistry::Remove(const std::string& id) {
+  absl::MutexLock lock(&mu_);
+  feeds_.erase(id);
 }
 
 std::vector<v1::SessionSummary> FeedRegistry::Summaries() {

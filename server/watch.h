@@ -14,6 +14,7 @@
 #define TANDEM_SERVER_WATCH_H_
 
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <optional>
@@ -22,6 +23,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
 #include "tandem/v1/tandem.grpc.pb.h"
@@ -46,6 +48,12 @@ class SessionFeed {
   void Preview(const v1::Preview& p);
   void Chunk(const v1::SealedChunk& c);
   void Finish(const v1::FinalMetrics* metrics, const grpc::Status& status);
+  // Resume (server/resume.h): the session waits for its client to come back.
+  void SetWaiting(bool waiting);
+  bool finished() const;
+  // The chunks from index `first` on, for a resumed stream; FAILED_PRECONDITION when some
+  // of them are no longer kept (see Chunk).
+  absl::Status ChunksFrom(size_t first, std::vector<v1::SealedChunk>* out) const;
 
   // Watcher side. Attach fails (with the status to send) for a session that cannot be
   // watched now.
@@ -70,9 +78,14 @@ class SessionFeed {
   mutable absl::Mutex mu_;
   std::string description_ ABSL_GUARDED_BY(mu_);
   bool sealed_ ABSL_GUARDED_BY(mu_) = false;
-  std::vector<v1::SealedChunk> chunks_ ABSL_GUARDED_BY(mu_);
-  int64_t chunk_bytes_ ABSL_GUARDED_BY(mu_) = 0;
-  // The chunks outgrew retain_bytes_: no new watcher; once none is attached, none is kept.
+  bool waiting_ ABSL_GUARDED_BY(mu_) = false;
+  // chunks_[i] is chunk dropped_ + i.
+  std::deque<v1::SealedChunk> chunks_ ABSL_GUARDED_BY(mu_);
+  int64_t chunk_bytes_ ABSL_GUARDED_BY(mu_) = 0;  // of every chunk ever added
+  int64_t kept_bytes_ ABSL_GUARDED_BY(mu_) = 0;   // of chunks_
+  // The chunks outgrew retain_bytes_: no new watcher; once none is attached, only the
+  // newest retain_bytes_ of them are kept (for a resumed stream of the session's own
+  // client, which may have missed the last few).
   bool overflowed_ ABSL_GUARDED_BY(mu_) = false;
   size_t dropped_ ABSL_GUARDED_BY(mu_) = 0;
   std::optional<v1::Progress> progress_ ABSL_GUARDED_BY(mu_);
@@ -92,6 +105,7 @@ class FeedRegistry {
       : linger_(linger), retain_bytes_(retain_bytes) {}
   std::shared_ptr<SessionFeed> Create();  // with a fresh random id
   std::shared_ptr<SessionFeed> Find(const std::string& id);
+  void Remove(const std::string& id);  // a feed never used (its stream resumed another)
   std::vector<v1::SessionSummary> Summaries();
 
  private:

@@ -83,6 +83,12 @@ class SliceSource {
 class ValueRangeSource final : public SliceSource {
  public:
   explicit ValueRangeSource(SliceSource* inner) : inner_(inner) {}
+  // Reads from `inner` from now on (the same volume opened again, from its first slice),
+  // keeping the range seen so far.
+  void Replace(std::unique_ptr<SliceSource> inner) {
+    owned_ = std::move(inner);
+    inner_ = owned_.get();
+  }
   const VolumeInfo& info() const override { return inner_->info(); }
   int64_t next_slice() const override { return inner_->next_slice(); }
   absl::Status ReadSlice(std::vector<uint8_t>* bytes) override;
@@ -96,6 +102,7 @@ class ValueRangeSource final : public SliceSource {
  private:
   void Scan(const uint8_t* data);
   SliceSource* inner_;
+  std::unique_ptr<SliceSource> owned_;  // set by Replace
   double lo_ = 1.0, hi_ = -1.0;
   std::vector<float> values_;
 };

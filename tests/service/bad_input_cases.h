@@ -55,7 +55,9 @@ inline void SetSpacing(v1::ExtractRequest* config, std::initializer_list<double>
 inline constexpr int64_t kMaxMessageBytes = 1 << 20;
 inline const std::vector<std::string> kBadInputServerArgs = {
     "--max-voxels-per-slice",        "10000", "--max-slices", "64", "--max-message-bytes",
-    std::to_string(kMaxMessageBytes)};
+    std::to_string(kMaxMessageBytes),
+    // Cancelled streams wait 1 s for a resume, not 60, before "nothing left behind".
+    "--resume-window-seconds", "1"};
 
 struct BadInputCase {
   const char* name;

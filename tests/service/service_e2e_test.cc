@@ -6,6 +6,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <set>
 #include <sstream>
@@ -15,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "codec/draco_codec.h"
 #include "service/service_testutil.h"
@@ -344,8 +346,13 @@ TEST_F(ServiceE2eTest, EightConcurrentStreamsMatchOneAtATime) {
 }
 
 // A client killed mid-stream leaves no session, thread or session memory behind.
+// With --resume-window-seconds 0 a killed client's session ends at once (with the default
+// window it waits for a resume: AKilledClientRestartedWithResume..., ServiceResume).
 TEST_F(ServiceE2eTest, KilledClientLeavesNothingBehind) {
   TANDEM_SHARED_OR_SKIP(input, kHead);
+  auto no_resume = TestServer::Start({"--resume-window-seconds", "0"});
+  ASSERT_TRUE(no_resume.ok()) << no_resume.status();
+  server_ = *std::move(no_resume);
   std::vector<std::string> argv = Concat(HeadArgs(server_->address(), input),
                                          {"--rate", "25", "--out", dir_ + "/never.drc"});
   argv.insert(argv.begin(), BinPath("tandem-client"));
@@ -555,6 +562,347 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
                               plain.err.substr(at + 23, 32), "--out", dir_ + "/r.ply"});
   EXPECT_EQ(refused.exit_code, 1);
   EXPECT_NE(refused.err.find("FAILED_PRECONDITION"), std::string::npos) << refused.err;
+}
+
+// Resume. The ID:TOKEN a streaming client prints for --resume ("" until it has).
+std::string ResumeKey(const std::string& err) {
+  const size_t at = err.find("--resume ");
+  if (at == std::string::npos) return "";
+  const size_t end = err.find('\n', at);
+  if (end == std::string::npos) return "";
+  return err.substr(at + 9, end - at - 9);
+}
+
+// Starts `tandem-client ARGS` in `dir` and waits (bounded) for the ID:TOKEN it prints.
+std::unique_ptr<ChildProcess> StartStreamer(std::vector<std::string> args, const std::string& dir,
+                                            std::string* key) {
+  args.insert(args.begin(), BinPath("tandem-client"));
+  auto child = ChildProcess::Spawn(args, dir);
+  if (!child.ok()) {
+    ADD_FAILURE() << child.status();
+    return nullptr;
+  }
+  for (int i = 0; i < 400 && key->empty(); ++i) {  // up to 10 s
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    *key = ResumeKey((*child)->Stderr());
+  }
+  if (key->size() != 65) ADD_FAILURE() << "no ID:TOKEN printed: " << (*child)->Stderr();
+  return *std::move(child);
+}
+
+// The session `id` as GetInfo lists it (nullopt while it is not listed).
+std::optional<v1::SessionSummary> Summary(const TestServer& server, const std::string& id) {
+  auto info = server.Info();
+  if (!info.ok()) return std::nullopt;
+  for (const v1::SessionSummary& s : info->sessions()) {
+    if (s.id() == id) return s;
+  }
+  return std::nullopt;
+}
+
+// Waits (bounded) until `pred` holds for session `id`'s summary.
+bool WaitForSession(const TestServer& server, const std::string& id,
+                    const std::function<bool(const v1::SessionSummary&)>& pred,
+                    double timeout_s = 20) {
+  for (int i = 0; i < timeout_s * 20; ++i) {
+    if (auto s = Summary(server, id); s && pred(*s)) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  return false;
+}
+
+// Two mesh files hold the same mesh: the same vertices, bit for bit, and the same
+// triangles (vertex order may differ: sealed chunks go out on a clock).
+void ExpectSameMesh(const std::string& a_path, const std::string& b_path) {
+  auto a = ReadMesh(a_path);
+  auto b = ReadMesh(b_path);
+  ASSERT_TRUE(a.ok() && b.ok()) << a.status() << " " << b.status();
+  ASSERT_EQ(a->num_vertices(), b->num_vertices());
+  ASSERT_EQ(a->num_triangles(), b->num_triangles());
+  auto map = MatchVertices(*a, *b, 0.0);
+  ASSERT_TRUE(map.ok()) << map.status();
+  EXPECT_TRUE(SameTriangles(*a, *b, *map));
+}
+
+// A client killed mid-scan and started again with --resume ID:TOKEN: the server kept the
+// session (listed as waiting), the new client skips what it has, and the mesh is the one
+// an uninterrupted stream gives; plain and sealed.
+TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  for (const bool seal : {false, true}) {
+    SCOPED_TRACE(seal ? "sealed" : "plain");
+    const std::string tag = seal ? "sealed" : "plain";
+    std::vector<std::string> base = {"stream", "--server", server_->address(), "--input", *path,
+                                     "--iso", "0", "--error", "0.05"};
+    if (seal) base.push_back("--seal");
+    RunResult whole = Client(Concat(base, {"--out", dir_ + "/whole_" + tag + ".ply"}));
+    ASSERT_EQ(whole.exit_code, 0) << whole.err;
+
+    std::string key;
+    auto first =
+        StartStreamer(Concat(base, {"--rate", "40", "--out", dir_ + "/never_" + tag + ".ply"}),
+                      dir_, &key);
+    ASSERT_TRUE(first != nullptr && key.size() == 65u);
+    const std::string id = key.substr(0, 32);
+    ASSERT_TRUE(WaitForSession(*server_, id,
+                               [](const v1::SessionSummary& s) { return s.slices_consumed() >= 20; }));
+    first->Signal(SIGKILL);
+    EXPECT_EQ(first->Wait(10), 128 + SIGKILL);
+    EXPECT_TRUE(WaitForSession(*server_, id,
+                               [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
+    RunResult info = Client({"info", "--server", server_->address()});
+    EXPECT_NE(info.out.find(id + "  waiting for its client to resume"), std::string::npos)
+        << info.out;
+
+    RunResult resumed = Client(Concat(base, {"--resume", key, "--out", dir_ + "/resumed_" + tag + ".ply",
+                                             "--metrics", dir_ + "/resumed_" + tag + ".json"}));
+    ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    EXPECT_NE(resumed.err.find("tandem-client: session " + id + " resumed at slice"),
+              std::string::npos)
+        << resumed.err;
+    ExpectSameMesh(dir_ + "/whole_" + tag + ".ply", dir_ + "/resumed_" + tag + ".ply");
+    auto report = ReportFromJson(ReadFile(dir_ + "/resumed_" + tag + ".json"));
+    ASSERT_TRUE(report.ok()) << report.status();
+    EXPECT_EQ(report->slices, 96);
+    EXPECT_FALSE(std::filesystem::exists(dir_ + "/never_" + tag + ".ply"));
+  }
+  RunResult bad = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
+                          "--error", "0.05", "--resume", "nocolon", "--out", dir_ + "/x.ply"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("ID:TOKEN"), std::string::npos) << bad.err;
+}
+
+// The network path fails mid-scan (every connection through a proxy reset): the running
+// client resumes by itself, its chunk files have no gap and no repeat, a watcher attached
+// before the cut gets the whole mesh too, and it is the uninterrupted stream's mesh.
+TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  const std::string& address = server_->address();
+  int port = 0;
+  ASSERT_TRUE(absl::SimpleAtoi(address.substr(address.rfind(':') + 1), &port));
+  auto proxy = TcpProxy::Start(port);
+  ASSERT_TRUE(proxy.ok()) << proxy.status();
+  auto args = [&](const std::string& server) {
+    return std::vector<std::string>{"stream", "--server", server, "--input", *path, "--iso", "0",
+                                    "--error", "0.05", "--seal"};
+  };
+  RunResult whole = Client(Concat(args(address), {"--out", dir_ + "/whole.ply"}));
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+
+  std::string key;
+  auto client = StartStreamer(
+      Concat(args((*proxy)->address()), {"--rate", "40", "--chunks", dir_ + "/chunks", "--out",
+                                         dir_ + "/cut.ply", "--metrics", dir_ + "/cut.json"}),
+      dir_, &key);
+  ASSERT_TRUE(client != nullptr && key.size() == 65u);
+  const std::string id = key.substr(0, 32);
+  auto watcher = ChildProcess::Spawn({BinPath("tandem-client"), "watch", "--server", address,
+                                      "--session", id, "--out", dir_ + "/watched.ply"},
+                                     dir_);
+  ASSERT_TRUE(watcher.ok()) << watcher.status();
+  ASSERT_TRUE(WaitForSession(*server_, id,
+                             [](const v1::SessionSummary& s) { return s.slices_consumed() >= 40; }));
+  EXPECT_GE((*proxy)->CutAll(), 1);
+  ASSERT_EQ(client->Wait(90), std::optional<int>(0)) << client->Stderr();
+  const std::string err = client->Stderr();
+  EXPECT_NE(err.find("the stream broke"), std::string::npos) << err;
+  EXPECT_NE(err.find("resumed at slice"), std::string::npos) << err;
+  ExpectSameMesh(dir_ + "/whole.ply", dir_ + "/cut.ply");
+  auto report = ReportFromJson(ReadFile(dir_ + "/cut.json"));
+  ASSERT_TRUE(report.ok()) << report.status();
+  // Every chunk once, named without a gap.
+  std::vector<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/chunks")) {
+    files.push_back(e.path().filename().string());
+  }
+  std::sort(files.begin(), files.end());
+  ASSERT_FALSE(files.empty());
+  char last[32];
+  std::snprintf(last, sizeof(last), "chunk_%06zu.drc", files.size() - 1);
+  EXPECT_EQ(files.back(), last);
+  ASSERT_EQ((*watcher)->Wait(60), std::optional<int>(0)) << (*watcher)->Stderr();
+  EXPECT_EQ(ReadFile(dir_ + "/watched.ply"), ReadFile(dir_ + "/cut.ply"));
+}
+
+// The request stream of a synthetic n x n x nz shape, iso 0, E0 0.05, 1 MiB chunks.
+std::vector<v1::ExtractRequest> ShapeRequests(Shape shape, int64_t n, int64_t nz) {
+  v1::SessionConfig config;
+  config.set_iso(0);
+  config.set_error(0.05);
+  auto source = MakeSyntheticSource(shape, n, n, nz);
+  return VolumeRequests(*source, config, 1 << 20);
+}
+
+// Starts a stream, sends the config and slices 0..slices-1, waits until they are consumed,
+// then vanishes (cancels). Sets the session's id and resume token.
+void VanishMidScan(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests,
+                   int64_t slices, std::string* id, std::string* token) {
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  auto stream = stub.Extract(&context);
+  for (const v1::ExtractRequest& r : requests) {
+    if (r.has_end() || (r.has_chunk() && r.chunk().slice() >= slices)) break;
+    if (!stream->Write(r)) break;
+  }
+  v1::ExtractResponse response;
+  while (stream->Read(&response)) {
+    if (response.has_progress() && !response.progress().session_id().empty()) {
+      *id = response.progress().session_id();
+      *token = response.progress().resume_token();
+    }
+    if (response.has_progress() && response.progress().slices_consumed() == slices) break;
+  }
+  context.TryCancel();
+  stream->Finish();
+}
+
+// Resume by the protocol itself: wrong id, token or slice are refused clearly and leave
+// the session waiting; the right resume gives the uninterrupted stream's final mesh, byte
+// for byte; a session nobody resumes ends after the window and leaves nothing behind.
+TEST(ServiceResume, BadResumesAreRefusedAndAnUnclaimedSessionEnds) {
+  auto server = TestServer::Start({"--resume-window-seconds", "3"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto stub = (*server)->NewStub();
+  const std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kLink, 48, 40);
+  StreamOutcome whole = RunStream(*stub, requests);
+  ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
+
+  auto start_and_vanish = [&](std::string* id, std::string* token) {
+    VanishMidScan(*stub, requests, 10, id, token);
+  };
+  std::string id, token;
+  start_and_vanish(&id, &token);
+  ASSERT_EQ(id.size(), 32u);
+  ASSERT_EQ(token.size(), 32u);
+  ASSERT_TRUE(WaitForSession(**server, id, [](const v1::SessionSummary& s) {
+    return s.waiting_for_resume() && s.slices_consumed() == 10;
+  }));
+
+  // The rest of the stream, as a resume from `next`.
+  auto resume = [&](const std::string& rid, const std::string& rtoken, int64_t next) {
+    std::vector<v1::ExtractRequest> rest;
+    v1::ExtractRequest head;
+    head.mutable_config()->mutable_resume()->set_session_id(rid);
+    head.mutable_config()->mutable_resume()->set_token(rtoken);
+    head.mutable_config()->mutable_resume()->set_next_slice(next);
+    rest.push_back(head);
+    for (const v1::ExtractRequest& r : requests) {
+      if (r.has_end() || (r.has_chunk() && r.chunk().slice() >= next)) rest.push_back(r);
+    }
+    return RunStream(*stub, rest);
+  };
+  StreamOutcome unknown = resume("0123456789abcdef0123456789abcdef", token, 10);
+  EXPECT_EQ(unknown.status.error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_NE(unknown.status.error_message().find("0123456789abcdef0123456789abcdef"),
+            std::string::npos);
+  StreamOutcome stolen = resume(id, std::string(32, '0'), 10);
+  EXPECT_EQ(stolen.status.error_code(), grpc::StatusCode::PERMISSION_DENIED)
+      << stolen.status.error_message();
+  EXPECT_NE(stolen.status.error_message().find("token"), std::string::npos);
+  StreamOutcome early = resume(id, token, 3);
+  EXPECT_EQ(early.status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_NE(early.status.error_message().find("expects slice 10"), std::string::npos)
+      << early.status.error_message();
+  EXPECT_EQ(early.trailers["tandem-expected-slice"], "10");
+  StreamOutcome late = resume(id, token, 12);
+  EXPECT_EQ(late.status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+
+  StreamOutcome good = resume(id, token, 10);
+  ASSERT_TRUE(good.status.ok()) << good.status.error_message();
+  ASSERT_FALSE(good.responses.empty());
+  EXPECT_EQ(good.responses.front().progress().session_id(), id);
+  EXPECT_TRUE(good.responses.front().progress().resume_token().empty()) << "creator only";
+  EXPECT_EQ(good.responses.front().progress().slices_consumed(), 10);
+  auto final_mesh = [](const StreamOutcome& o) {
+    std::string draco;
+    for (const v1::ExtractResponse& r : o.responses) {
+      if (r.has_final_mesh()) draco += r.final_mesh().draco();
+    }
+    return draco;
+  };
+  EXPECT_FALSE(final_mesh(good).empty());
+  EXPECT_EQ(final_mesh(good), final_mesh(whole));
+  EXPECT_EQ(good.responses.back().final_metrics().slices(), 40);
+  // Resumed once, it is gone: a second resume finds nothing.
+  EXPECT_EQ(resume(id, token, 10).status.error_code(), grpc::StatusCode::NOT_FOUND);
+
+  // Nobody resumes the next one: after the 3 s window it ends, and nothing is left.
+  std::string id2, token2;
+  start_and_vanish(&id2, &token2);
+  ASSERT_TRUE(WaitForSession(**server, id2,
+                             [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
+  v1::Counters counters;
+  EXPECT_TRUE((*server)->WaitIdle(20, &counters)) << counters.ShortDebugString();
+  EXPECT_TRUE(WaitForSession(**server, id2, [](const v1::SessionSummary& s) {
+    return s.finished() && !s.waiting_for_resume();
+  }));
+  EXPECT_EQ(resume(id2, token2, 10).status.error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ((*server)->Health(), "SERVING");
+}
+
+// Two replicas behind client-side round robin: the resume of a killed client reaches
+// the replica that holds the session by trying the next one after a NOT_FOUND.
+TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
+  const std::string dir = MakeTempDir();
+  auto a = TestServer::Start();
+  auto b = TestServer::Start();
+  ASSERT_TRUE(a.ok() && b.ok());
+  const std::string target = absl::StrCat("ipv4:", (*a)->address(), ",", (*b)->address());
+  auto path = WriteSyntheticVolume(dir, "link", MakeSyntheticSource(Shape::kLink, 48, 48, 80));
+  ASSERT_TRUE(path.ok()) << path.status();
+  const std::vector<std::string> base = {"stream", "--server", target, "--lb", "round_robin",
+                                         "--input", *path, "--iso", "0", "--error", "0.05"};
+  RunResult whole = Client(Concat(base, {"--out", dir + "/whole.ply"}));
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+  for (int round = 0; round < 2; ++round) {  // the session on either replica
+    SCOPED_TRACE(round);
+    std::string key;
+    auto first = StartStreamer(Concat(base, {"--rate", "40", "--out", dir + "/never.ply"}), dir, &key);
+    ASSERT_TRUE(first != nullptr && key.size() == 65u);
+    const std::string id = key.substr(0, 32);
+    TestServer& holder = Summary(**a, id) ? **a : **b;
+    ASSERT_TRUE(WaitForSession(holder, id,
+                               [](const v1::SessionSummary& s) { return s.slices_consumed() >= 10; }));
+    first->Signal(SIGKILL);
+    first->Wait(10);
+    ASSERT_TRUE(WaitForSession(holder, id,
+                               [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
+    const std::string out = dir + "/resumed" + std::to_string(round) + ".ply";
+    RunResult resumed = Client(Concat(base, {"--resume", key, "--out", out}));
+    ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    ExpectSameMesh(dir + "/whole.ply", out);
+  }
+}
+
+// A session waiting for a resume holds a session slot, but gives it up to a new stream
+// that would otherwise be refused as busy.
+TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
+  auto server = TestServer::Start({"--max-sessions", "1"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto stub = (*server)->NewStub();
+  const std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kSphere, 32, 24);
+  std::string id, token;
+  VanishMidScan(*stub, requests, 8, &id, &token);
+  ASSERT_TRUE(WaitForSession(**server, id,
+                             [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
+  StreamOutcome next = RunStream(*stub, requests);
+  EXPECT_TRUE(next.status.ok()) << next.status.error_message();
+  // (The slot is free again a moment after the client has its status.)
+  for (int i = 0; i < 200; ++i) {
+    auto info = (*server)->Info();
+    if (info.ok() && info->counters().active_sessions() == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  v1::ExtractRequest head;
+  head.mutable_config()->mutable_resume()->set_session_id(id);
+  head.mutable_config()->mutable_resume()->set_token(token);
+  head.mutable_config()->mutable_resume()->set_next_slice(8);
+  StreamOutcome resumed = RunStream(*stub, {head});
+  EXPECT_EQ(resumed.status.error_code(), grpc::StatusCode::NOT_FOUND);
+  v1::Counters counters;
+  EXPECT_TRUE((*server)->WaitIdle(20, &counters)) << counters.ShortDebugString();
 }
 
 TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {

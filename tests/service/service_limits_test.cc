@@ -440,7 +440,8 @@ TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
 TEST(LimitsTest, KeepaliveFreesTheSessionOfAFrozenClient) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--keepalive-time-ms", "300", "--keepalive-timeout-ms", "500",
-                                   "--idle-timeout-seconds", "120"});
+                                   "--idle-timeout-seconds", "120",
+                                   "--resume-window-seconds", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 40));

@@ -4,6 +4,7 @@
 // limit, cancellation, and the latest-wins previews of a slow reader.
 #include <signal.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <functional>
@@ -29,7 +30,12 @@ bool FinishedOk(const StreamOutcome& o) {
 
 class ServiceRobustnessTest : public ::testing::Test {
  protected:
-  void Start(const std::vector<std::string>& args) {
+  // Streams cancelled mid-scan wait 1 s for a resume (not the default 60) before the
+  // checks that nothing is left behind.
+  void Start(std::vector<std::string> args) {
+    if (std::find(args.begin(), args.end(), "--resume-window-seconds") == args.end()) {
+      args.insert(args.end(), {"--resume-window-seconds", "1"});
+    }
     auto server = TestServer::Start(args);
     ASSERT_TRUE(server.ok()) << server.status();
     server_ = *std::move(server);

@@ -1,6 +1,10 @@
 #include "service/service_testutil.h"
 
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/resource.h>
@@ -344,6 +348,9 @@ StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractReq
   while (stream->Read(&response)) outcome.responses.push_back(response);
   writer.join();
   outcome.status = stream->Finish();
+  for (const auto& [key, value] : context.GetServerTrailingMetadata()) {
+    outcome.trailers[std::string(key.data(), key.size())] = std::string(value.data(), value.size());
+  }
   return outcome;
 }
 
@@ -392,6 +399,98 @@ absl::StatusOr<TestPki> MakeTestPki(const std::string& dir) {
     }
   }
   return pki;
+}
+
+absl::StatusOr<std::unique_ptr<TcpProxy>> TcpProxy::Start(int target_port) {
+  std::unique_ptr<TcpProxy> proxy(new TcpProxy());
+  proxy->target_port_ = target_port;
+  proxy->listen_fd_ = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (proxy->listen_fd_ < 0) return absl::InternalError("socket() failed");
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  socklen_t len = sizeof(addr);
+  if (bind(proxy->listen_fd_, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0 ||
+      listen(proxy->listen_fd_, 16) != 0 ||
+      getsockname(proxy->listen_fd_, reinterpret_cast<sockaddr*>(&addr), &len) != 0) {
+    return absl::InternalError(absl::StrCat("cannot listen on 127.0.0.1: ", std::strerror(errno)));
+  }
+  proxy->port_ = ntohs(addr.sin_port);
+  proxy->acceptor_ = std::thread([p = proxy.get()] { p->AcceptLoop(); });
+  return proxy;
+}
+
+std::string TcpProxy::address() const { return absl::StrCat("127.0.0.1:", port_); }
+
+void TcpProxy::AcceptLoop() {
+  while (!stop_) {
+    pollfd pfd{listen_fd_, POLLIN, 0};
+    if (poll(&pfd, 1, 50) <= 0) continue;  // re-checks stop_ every 50 ms
+    const int client = accept4(listen_fd_, nullptr, nullptr, SOCK_CLOEXEC);
+    if (client < 0) continue;
+    const int server = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    addr.sin_port = htons(static_cast<uint16_t>(target_port_));
+    if (server < 0 || connect(server, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0) {
+      close(client);
+      if (server >= 0) close(server);
+      continue;
+    }
+    std::lock_guard<std::mutex> lock(mu_);
+    fds_.push_back(client);
+    fds_.push_back(server);
+    forwarders_.emplace_back([this, client, server] { Forward(client, server); });
+    forwarders_.emplace_back([this, client, server] { Forward(server, client); });
+  }
+}
+
+void TcpProxy::Forward(int from, int to) {
+  std::vector<char> buf(1 << 16);
+  while (!stop_) {
+    pollfd pfd{from, POLLIN, 0};
+    const int ready = poll(&pfd, 1, 50);
+    if (ready == 0) continue;
+    if (ready < 0) break;
+    const ssize_t got = read(from, buf.data(), buf.size());
+    if (got <= 0) break;
+    ssize_t off = 0;
+    while (off < got) {
+      const ssize_t put = write(to, buf.data() + off, static_cast<size_t>(got - off));
+      if (put <= 0) break;
+      off += put;
+    }
+    if (off < got) break;
+    bytes_ += got;
+  }
+  shutdown(to, SHUT_RDWR);  // one side ended: end the other
+  shutdown(from, SHUT_RDWR);
+}
+
+int TcpProxy::CutAll() {
+  std::lock_guard<std::mutex> lock(mu_);
+  for (int fd : fds_) {
+    linger l{1, 0};  // a reset, as a failed network path looks to the peers
+    setsockopt(fd, SOL_SOCKET, SO_LINGER, &l, sizeof(l));
+    shutdown(fd, SHUT_RDWR);
+  }
+  return static_cast<int>(fds_.size() / 2);
+}
+
+TcpProxy::~TcpProxy() {
+  stop_ = true;
+  if (acceptor_.joinable()) acceptor_.join();
+  std::vector<std::thread> threads;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    for (int fd : fds_) shutdown(fd, SHUT_RDWR);
+    threads = std::move(forwarders_);
+  }
+  for (std::thread& t : threads) t.join();
+  for (int fd : fds_) close(fd);
+  if (listen_fd_ >= 0) close(listen_fd_);
 }
 
 }  // namespace tandem::testing

@@ -6,7 +6,11 @@
 
 #include <sys/types.h>
 
+#include <atomic>
+#include <map>
 #include <memory>
+#include <mutex>
+#include <thread>
 #include <optional>
 #include <string>
 #include <vector>
@@ -102,6 +106,32 @@ class TestServer {
   ClientAuth auth_;
 };
 
+// A TCP forwarder on 127.0.0.1 (ephemeral port) to 127.0.0.1:`target_port`, one thread
+// per connection, so that a test can cut every connection under a running stream (the
+// way a network failure or a restarting proxy would) while new ones keep working.
+class TcpProxy {
+ public:
+  static absl::StatusOr<std::unique_ptr<TcpProxy>> Start(int target_port);
+  ~TcpProxy();
+  std::string address() const;
+  // Shuts down both sockets of every open connection (the peers see them reset/closed).
+  // Returns how many were open.
+  int CutAll();
+  int64_t bytes_forwarded() const { return bytes_.load(); }
+
+ private:
+  TcpProxy() = default;
+  void AcceptLoop();
+  void Forward(int from, int to);
+  int listen_fd_ = -1, port_ = 0, target_port_ = 0;
+  std::atomic<bool> stop_{false};
+  std::atomic<int64_t> bytes_{0};
+  std::thread acceptor_;
+  std::mutex mu_;
+  std::vector<int> fds_;  // every open socket, both sides
+  std::vector<std::thread> forwarders_;
+};
+
 // VmRSS of a process in bytes (/proc/PID/status), or -1.
 int64_t ResidentBytes(pid_t pid);
 
@@ -138,6 +168,7 @@ std::vector<v1::ExtractRequest> VolumeRequests(SliceSource& source,
 struct StreamOutcome {
   grpc::Status status;
   std::vector<v1::ExtractResponse> responses;
+  std::map<std::string, std::string> trailers;  // the server's trailing metadata
 };
 // Sends `requests` on one Extract stream (stopping at the first failed write), then
 // WritesDone, then reads everything (deadline 60 s).
