@@ -130,6 +130,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
   if (config_.compute_distances) {
     SessionOptions full = config_.options;
     full.schedule = Schedule::kNone;
+    full.seal = false;  // the whole surface stays, to measure against
     auto reference = TandemSession::Create(config_.grid, full);
     if (!reference.ok()) return reference.status();
     reference_ = *std::move(reference);

@@ -251,7 +251,10 @@ absl::StatusOr<std::vector<uint32_t>> MatchVertices(const IndexedMesh& a, const 
     const int64_t x = static_cast<int64_t>(std::floor(p.x / cell)) + dx;
     const int64_t y = static_cast<int64_t>(std::floor(p.y / cell)) + dy;
     const int64_t z = static_cast<int64_t>(std::floor(p.z / cell)) + dz;
-    return (x * 73856093) ^ (y * 19349663) ^ (z * 83492791);
+    // (Unsigned: a tiny cell makes large coordinates, and signed overflow is undefined.)
+    return static_cast<int64_t>((static_cast<uint64_t>(x) * 73856093u) ^
+                                (static_cast<uint64_t>(y) * 19349663u) ^
+                                (static_cast<uint64_t>(z) * 83492791u));
   };
   std::unordered_multimap<int64_t, uint32_t> grid;
   for (uint32_t i = 0; i < a.num_vertices(); ++i) grid.emplace(key(a.positions[i], 0, 0, 0), i);
