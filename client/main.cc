@@ -28,6 +28,7 @@
 #include "absl/strings/str_format.h"
 #include "cli/version.h"
 #include "client/connection.h"
+#include "client/live_view.h"
 #include "client/stream_client.h"
 #include "codec/draco_codec.h"
 #include "common/cli_flags.h"
@@ -49,6 +50,7 @@ constexpr char kMainUsage[] =
     "commands:\n"
     "  stream   stream a volume to tandem-server and save the simplified iso-surface\n"
     "  watch    follow another stream's sealed-chunk session by its id and save its mesh\n"
+    "  view     show a sealed-chunk session live in a browser (watch --view)\n"
     "  info     print the server's version, security, limits, live counters and sessions\n"
     "  health   query the standard gRPC health service (exit 0 when SERVING)\n"
     "  --version  print the version and git revision\n"
@@ -302,6 +304,8 @@ int StreamCommand(int argc, char** argv) {
                   "the first client printed (a client resumes by itself while it runs)");
   flags.AddBool("reference", &reference,
                 "also measure L1/L2/Linf distances to the unsimplified surface (server side)");
+  tandem::client::LiveView view;
+  view.AddFlags(flags);
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per progress and preview message on stderr");
   flags.AddBool("strict", &strict,
@@ -478,10 +482,16 @@ int StreamCommand(int argc, char** argv) {
     }
   };
   callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &partial_error);
+  if (absl::Status st = view.Start(c.description(), nz); !st.ok()) return Fail(st);
+  view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::StreamVolume(range, options, callbacks);
   if (bar) absl::FPrintF(stderr, "\n");
-  if (!result.ok()) return connection.Fail(result.status());
+  if (!result.ok()) {
+    const int rc = connection.Fail(result.status());
+    view.Finish(result);
+    return rc;
+  }
   if (!partial_error.ok()) return Fail(partial_error);
 
   if (int rc = SaveResult(*result, result->sealed_session, out, static_cast<int>(bits), static_cast<int>(level), input,
@@ -494,8 +504,12 @@ int StreamCommand(int argc, char** argv) {
                   "tandem-client: warning: iso %g is outside the data's value range [%g, %g]: "
                   "the surface is empty (see tandem info)\n",
                   iso, range.lo(), range.hi());
-    if (strict) return 3;
+    if (strict) {
+      view.Finish(result);
+      return 3;
+    }
   }
+  view.Finish(result);
   return 0;
 }
 
@@ -578,22 +592,34 @@ int InfoCommand(int argc, char** argv) {
   return 0;
 }
 
-int WatchCommand(int argc, char** argv) {
+// `watch`, and `view` (the same with the browser viewer on 127.0.0.1:8080 by default and
+// --out optional).
+int WatchCommand(int argc, char** argv, bool view_command) {
   ConnectionFlags connection;
   std::string session, out, metrics_path, chunks_dir;
   double timeout_s = 0;
   int64_t bits = 16, level = 7;
   bool verbose = false;
   FlagSet flags(
-      "usage: tandem-client watch --session ID --out MESH [flags]\n"
-      "Follows a session another client is streaming with sealed chunks (tandem-client stream\n"
-      "--seal prints its id; tandem-client info lists them): every chunk so far, then the\n"
-      "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, .stl,\n"
-      ".glb, or .drc re-encoded) and prints the metrics. A finished session stays watchable\n"
-      "for tandem-server --watch-linger-seconds.");
+      view_command
+          ? "usage: tandem-client view --session ID [--view HOST:PORT] [--out MESH] [flags]\n"
+            "Shows a session another client is streaming with sealed chunks live in a browser\n"
+            "(tandem-client stream --seal prints its id; tandem-client info lists them): serves\n"
+            "the viewer page on --view (default 127.0.0.1:8080) and prints its address; the\n"
+            "page draws every chunk so far, then the live ones and the band not sealed yet,\n"
+            "then the final metrics. The same as tandem-client watch --view."
+          : "usage: tandem-client watch --session ID --out MESH [flags]\n"
+            "Follows a session another client is streaming with sealed chunks (tandem-client stream\n"
+            "--seal prints its id; tandem-client info lists them): every chunk so far, then the\n"
+            "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, .stl,\n"
+            ".glb, or .drc re-encoded) and prints the metrics. A finished session stays watchable\n"
+            "for tandem-server --watch-linger-seconds.");
   connection.Add(flags, /*token=*/true);
   flags.AddString("session", &session, "ID", "the session to watch", /*required=*/true);
-  flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply, .obj, .stl or .glb", /*required=*/true);
+  flags.AddString("out", &out, "MESH",
+                  view_command ? "also save the final mesh: .drc, .ply, .obj, .stl or .glb"
+                               : "final mesh: .drc, .ply, .obj, .stl or .glb",
+                  /*required=*/!view_command);
   flags.AddString("chunks", &chunks_dir, "DIR",
                   "also save every sealed chunk as it arrives, DIR/chunk_<index, 6 digits>.drc");
   flags.AddString("metrics", &metrics_path, "FILE.json", "write the final metrics as JSON");
@@ -601,8 +627,11 @@ int WatchCommand(int argc, char** argv) {
   flags.AddInt("compression-level", &level, ".drc output: 0..10");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per chunk, progress and preview message on stderr");
+  tandem::client::LiveView view;
+  view.AddFlags(flags, view_command ? "127.0.0.1:8080" : "");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
-  if (!tandem::IsMeshOutputPath(out) && Lower(std::filesystem::path(out).extension().string()) != ".drc") {
+  if (!out.empty() && !tandem::IsMeshOutputPath(out) &&
+      Lower(std::filesystem::path(out).extension().string()) != ".drc") {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
                   tandem::kMeshExtensions);
     return 2;
@@ -626,12 +655,26 @@ int WatchCommand(int argc, char** argv) {
                     p.triangles(), p.band_only() ? 1 : 0);
     }
   };
+  if (absl::Status st = view.Start(absl::StrCat("session ", session), 0); !st.ok()) return Fail(st);
+  view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::WatchSession(connection.options, session, timeout_s, callbacks);
-  if (!result.ok()) return connection.Fail(result.status());
+  if (!result.ok()) {
+    const int rc = connection.Fail(result.status());
+    view.Finish(result);
+    return rc;
+  }
   if (!chunk_error.ok()) return Fail(chunk_error);
-  return SaveResult(*result, /*seal=*/true, out, static_cast<int>(bits), static_cast<int>(level),
-                    absl::StrCat("session ", session), "", metrics_path, "watch wall time");
+  if (!out.empty()) {
+    if (int rc = SaveResult(*result, /*seal=*/true, out, static_cast<int>(bits),
+                            static_cast<int>(level), absl::StrCat("session ", session), "",
+                            metrics_path, "watch wall time");
+        rc != 0) {
+      return rc;
+    }
+  }
+  view.Finish(result);
+  return 0;
 }
 
 int HealthCommand(int argc, char** argv) {
@@ -675,7 +718,8 @@ int main(int argc, char** argv) {
   const std::string command = argc > 1 ? argv[1] : "";
   if (command == "stream") return StreamCommand(argc, argv);
   if (command == "info") return InfoCommand(argc, argv);
-  if (command == "watch") return WatchCommand(argc, argv);
+  if (command == "watch") return WatchCommand(argc, argv, /*view_command=*/false);
+  if (command == "view") return WatchCommand(argc, argv, /*view_command=*/true);
   if (command == "health") return HealthCommand(argc, argv);
   if (command == "--help" || command == "-h" || command == "help") {
     absl::PrintF("%s\n", kMainUsage);

@@ -7,11 +7,22 @@
 # and stops the server with SIGTERM (it drains and exits 0).
 # Leaves in out/: pillowbox.ply (final mesh), pillowbox.metrics.json, previews/*.drc
 # (the growing partial meshes), acquisition/ (the series) and server.log.
+#   bash deploy/demo.sh --view [HOST:PORT]   the same, watched in a browser: a slower scan
+#       (10 slices/s) with sealed chunks, the viewer page on HOST:PORT (127.0.0.1:8080 by
+#       default) printed as it starts; it stays up after the end until Ctrl-C.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=build/bin
+view=()
+rate=100
+stream_extra=(--preview-every 16 --partials out/previews)
+if [ "${1:-}" = "--view" ]; then
+  view=(--view "${2:-127.0.0.1:8080}")
+  rate=10
+  stream_extra=(--seal --preview-every 2)
+fi
 mkdir -p out
-rm -rf out/previews out/acquisition
+rm -rf out/previews out/acquisition out/pillowbox.ply
 "$bin/tandem" generate pillowbox --size 128 --out out/pillowbox.json
 
 "$bin/tandem-server" --listen 127.0.0.1:0 >out/server.stdout 2>out/server.log &
@@ -25,16 +36,16 @@ for _ in $(seq 100); do
 done
 [ -n "$addr" ] || { echo "demo: tandem-server did not start; see out/server.log" >&2; exit 1; }
 
-"$bin/tandem" simulate --input out/pillowbox.json --out out/acquisition --as dicom --rate 100 \
+"$bin/tandem" simulate --input out/pillowbox.json --out out/acquisition --as dicom --rate "$rate" \
   --done-file DONE &
 scanner=$!
 "$bin/tandem-client" stream --server "$addr" --input out/acquisition --follow --done-file DONE \
-  --iso 0 --error 0.1 --preview-every 16 --partials out/previews --reference \
-  --out out/pillowbox.ply --metrics out/pillowbox.metrics.json
+  --iso 0 --error 0.1 "${stream_extra[@]}" --reference \
+  --out out/pillowbox.ply --metrics out/pillowbox.metrics.json ${view[@]+"${view[@]}"}
 wait "$scanner"
 
-kill -TERM "$server"
-wait "$server"
+kill -TERM "$server" 2>/dev/null || true  # (Ctrl-C on --view stopped it already)
+wait "$server" || true
 trap - EXIT
-echo "demo: wrote out/pillowbox.ply, out/pillowbox.metrics.json and $(ls out/previews | wc -l) previews in out/previews"
+echo "demo: wrote out/pillowbox.ply, out/pillowbox.metrics.json and $(ls out/previews 2>/dev/null | wc -l) previews in out/previews"
 grep -E '"(triangles_extracted|triangles_final|peak_triangles|error_max)"' out/pillowbox.metrics.json

@@ -17,11 +17,12 @@ BUILD_PKGS=(
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
   libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev
   libssl-dev python3-grpcio python3-protobuf python3-numpy draco
-  help2man
+  help2man chromium
 )
 # (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
 # libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built
 # the image on a bare Debian 12.)
+# (chromium: the headless browser the viewer's test loads the page in, tests/viewer.)
 # (python3-zarr / python3-numcodecs: the independent Zarr writer and reader the Zarr tests
 # cross-check against. python3-grpcio, python3-protobuf, python3-numpy: the Python client
 # in client/python and its test; draco: draco_decoder, which it decodes meshes with.)

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Installs the npm side of tandem from package-lock.json (npm ci): the Khronos glTF
-# validator its format tests run. Installs Debian's nodejs and npm first when node or npm
-# is missing. Non-interactive; run from anywhere (as root or with sudo for the packages).
+# Installs the npm side of tandem from package-lock.json (npm ci): three.js and its Draco
+# decoder (the browser viewer's page loads them), and for the tests the Khronos glTF
+# validator, playwright-core (drives Debian's Chromium) and pngjs (reads its screenshots).
+# Installs Debian's nodejs and npm first when node or npm is missing. Non-interactive; run
+# from anywhere (as root or with sudo for the packages).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SUDO=""
@@ -12,5 +14,6 @@ if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
   $SUDO apt-get update -qq
   $SUDO apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
 fi
-npm ci --no-audit --no-fund --loglevel=error
+# Extra arguments go to npm ci (the container build passes --omit=dev: three.js only).
+npm ci --no-audit --no-fund --loglevel=error "$@"
 echo "install-web: done"

@@ -18,8 +18,12 @@
 #include <cstdio>
 #include <fstream>
 #include <future>
+#include <csignal>
+#include <sstream>
 #include <string>
 
+#include "absl/strings/ascii.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/numbers.h"
@@ -37,6 +41,7 @@
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
 #include "tandem/zarr.h"
+#include "viewer/view_server.h"
 
 namespace tandem {
 namespace {
@@ -52,6 +57,7 @@ Usage:
   tandem measure  A.{ply,obj} B.{ply,obj} [--samples N] [--json]
   tandem info     --input FILE
   tandem simulate --input FILE --out DIR --as dicom|tiff|zarr --rate R   (an instrument)
+  tandem view     MESH.{ply,obj,stl,glb,drc} | DIR_OF_CHUNKS [--view HOST:PORT]   (browser)
   tandem --version
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
@@ -803,6 +809,97 @@ int Simulate(int argc, char** argv) {
 }
 
 }  // namespace
+constexpr char kViewHelp[] =
+    R"(Usage: tandem view MESH | DIR [--view HOST:PORT] [--view-token TOKEN] [--linger S]
+
+Shows a finished result in a browser: serves the viewer page (the one tandem-client
+stream/watch --view shows live) on HOST:PORT (default 127.0.0.1:8080; port 0 = any free
+one) and prints its address. MESH is a .ply, .obj, .stl, .glb or .drc file; DIR a folder of
+sealed chunks (chunk_000000.drc, ... as tandem-client --chunks saves them), drawn chunk by
+chunk. Runs until Ctrl-C, or for --linger S seconds.
+  --view-token TOKEN  the page and its data need ?token=TOKEN (for an address other than
+                      loopback, which has no other protection)
+)";
+
+std::atomic<bool> g_view_quit{false};
+
+int View(int argc, char** argv) {
+  auto args = cli::Args::Parse(argc, argv, 2, {"view", "view-token", "linger"}, {"help"});
+  if (!args.ok()) return Fail(args.status());
+  if (args->Has("help")) {
+    std::fputs(kViewHelp, stdout);
+    return 0;
+  }
+  if (args->positional().size() != 1) {
+    return Fail(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
+  }
+  const std::string path = args->positional()[0];
+  auto linger = args->GetDouble("linger", -1.0);
+  if (!linger.ok()) return Fail(linger.status());
+  std::vector<std::string> chunks;
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    for (const auto& e : std::filesystem::directory_iterator(path, ec)) {
+      const std::string name = e.path().filename().string();
+      if (absl::StartsWith(name, "chunk_") && absl::EndsWith(name, ".drc")) {
+        chunks.push_back(e.path().string());
+      }
+    }
+    std::sort(chunks.begin(), chunks.end());
+    if (chunks.empty()) {
+      return Fail(absl::NotFoundError(absl::StrCat(path, ": no chunk_*.drc files in this folder")));
+    }
+  } else {
+    const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
+    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb" && ext != ".drc") {
+      return Fail(absl::InvalidArgumentError(
+          absl::StrCat(path, ": expected a .ply, .obj, .stl, .glb or .drc file, or a folder of chunks")));
+    }
+  }
+  auto read = [](const std::string& file) -> absl::StatusOr<std::string> {
+    std::ifstream in(file, std::ios::binary);
+    if (!in) return absl::NotFoundError(absl::StrCat(file, ": cannot open"));
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  };
+  viewer::ViewOptions options;
+  options.listen = args->Get("view").value_or("127.0.0.1:8080");
+  options.token = args->Get("view-token").value_or("");
+  auto server = viewer::ViewServer::Start(options);
+  if (!server.ok()) return Fail(server.status());
+  (*server)->SetSession("", std::filesystem::path(path).filename().string(), 0);
+  if (chunks.empty()) {
+    auto bytes = read(path);
+    if (!bytes.ok()) return Fail(bytes.status());
+    (*server)->AddFile(std::filesystem::path(path).filename().string(), *std::move(bytes));
+  } else {
+    for (const std::string& c : chunks) {
+      auto bytes = read(c);
+      if (!bytes.ok()) return Fail(bytes.status());
+      (*server)->AddChunk(*std::move(bytes), -1);
+    }
+  }
+  (*server)->Finish("", "");
+  std::string host;
+  int port = 0;
+  if (viewer::ParseListen(options.listen, &host, &port).ok() && !viewer::IsLoopback(host) &&
+      options.token.empty()) {
+    std::fprintf(stderr, "tandem view: warning: %s has no authentication: anyone who can reach "
+                         "it sees the mesh (add --view-token TOKEN)\n", options.listen.c_str());
+  }
+  std::fprintf(stderr, "tandem view: %s at %s%s\n", path.c_str(), (*server)->url().c_str(),
+               *linger < 0 ? " (Ctrl-C to quit)" : "");
+  std::signal(SIGINT, [](int) { g_view_quit = true; });
+  std::signal(SIGTERM, [](int) { g_view_quit = true; });
+  const auto until = std::chrono::steady_clock::now() +
+                     std::chrono::milliseconds(static_cast<int64_t>(std::max(0.0, *linger) * 1000));
+  while (!g_view_quit && (*linger < 0 || std::chrono::steady_clock::now() < until)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  return 0;
+}
+
 }  // namespace tandem
 
 int main(int argc, char** argv) {
@@ -822,6 +919,7 @@ int main(int argc, char** argv) {
     if (cmd == "measure") return tandem::Measure(argc, argv);
     if (cmd == "info") return tandem::Info(argc, argv);
     if (cmd == "simulate") return tandem::Simulate(argc, argv);
+    if (cmd == "view") return tandem::View(argc, argv);
   } catch (...) {
     const absl::Status st = tandem::StatusOfException(std::current_exception());
     std::fprintf(stderr, "tandem %s: %s\n", cmd.c_str(), std::string(st.message()).c_str());

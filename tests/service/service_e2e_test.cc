@@ -3,6 +3,7 @@
 #include <signal.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -439,7 +440,8 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   RunResult plain = stream("plain", {});
   ASSERT_EQ(plain.exit_code, 0) << plain.err;
   // Paced: a chunk goes out every second (else 32768 triangles would make one).
-  RunResult sealed = stream("sealed", {"--chunks", dir_ + "/chunks", "--rate", "40"});
+  RunResult sealed =
+      stream("sealed", {"--chunks", dir_ + "/chunks", "--rate", "40", "--reference"});
   ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
   auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
   auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
@@ -491,6 +493,12 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
               static_cast<double>(plain_report->triangles_final),
               0.05 * static_cast<double>(plain_report->triangles_final));
   EXPECT_LE(sealed_report->error_max, 0.05 * (1 + 1e-9));
+  // --reference measures the welded chunks against the whole full-resolution surface (the
+  // reference session must not seal: it measured an empty mesh, NaN, before).
+  ASSERT_TRUE(sealed_report->distance.has_value()) << sealed.out;
+  EXPECT_TRUE(std::isfinite(sealed_report->distance->l2_max)) << sealed.out;
+  EXPECT_GT(sealed_report->distance->linf_max, 0);
+  EXPECT_LT(sealed_report->distance->linf_max, 0.5);
   // Every chunk once: the verbose lines count them.
   size_t lines = 0;
   for (absl::string_view line : absl::StrSplit(sealed.err, '\n')) lines += absl::StartsWith(line, "chunk ");

@@ -1,0 +1,181 @@
+// The live viewer in a real browser: headless Debian Chromium (driven by playwright-core)
+// loads the page of `tandem-client stream --view` while a paced, sealed stream runs
+// against the real tandem-server on 127.0.0.1, and checks that the mesh is drawn (a
+// screenshot whose non-background pixels cover a share of the view), that it grows, that
+// the final counts shown equal the final metrics, that a reload catches up, and that
+// `tandem view` shows a finished mesh file and a folder of chunks (behind a token), and
+// refuses a busy port by name. Every wait is bounded; children are killed at the end.
+//   node tests/viewer/viewer_browser_test.mjs BUILD_DIR
+// Exit 0: passed; 1: failed; 77: skipped (no Chromium or node_modules, outside CI).
+import { spawn, spawnSync } from 'node:child_process';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+
+const build = path.resolve(process.argv[2] || 'build');
+const bin = (name) => path.join(build, 'bin', name);
+const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
+const shots = path.join(build, 'viewer-test');
+const work = fs.mkdtempSync(path.join(os.tmpdir(), 'tandem-viewer-'));
+fs.mkdirSync(shots, { recursive: true });
+
+function skipOrFail(why) {
+  if (process.env.CI === 'true') {
+    console.error(`FAIL: ${why}`);
+    process.exit(1);
+  }
+  console.log(`SKIP: ${why}`);
+  process.exit(77);
+}
+if (!fs.existsSync(chromiumPath)) skipOrFail(`${chromiumPath} is missing (apt-get install chromium)`);
+let chromium, PNG;
+try {
+  ({ chromium } = await import('playwright-core'));
+  ({ PNG } = await import('pngjs'));
+} catch (e) {
+  skipOrFail(`node_modules is missing (bash deploy/install-web.sh): ${e.message}`);
+}
+
+const children = [];
+let failures = 0;
+function check(ok, what, detail = '') {
+  console.log(`${ok ? 'ok  ' : 'FAIL'} ${what}${detail ? `: ${detail}` : ''}`);
+  if (!ok) failures++;
+  return ok;
+}
+function start(name, args) {
+  const child = spawn(bin(name), args, { cwd: work, stdio: ['ignore', 'pipe', 'pipe'] });
+  child.out = '';
+  child.err = '';
+  child.stdout.on('data', (d) => { child.out += d; });
+  child.stderr.on('data', (d) => { child.err += d; });
+  child.exited = new Promise((resolve) => child.on('exit', (code) => { child.code = code; resolve(code); }));
+  children.push(child);
+  return child;
+}
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+async function waitFor(what, fn, seconds) {
+  const until = Date.now() + seconds * 1000;
+  while (Date.now() < until) {
+    const v = await fn();
+    if (v) return v;
+    await sleep(100);
+  }
+  throw new Error(`timed out after ${seconds} s waiting for ${what}`);
+}
+const urlIn = (child) => (child.err.match(/(http:\/\/127\.0\.0\.1:\d+\/\S*)/) || [])[1];
+
+// Share of the view right of the panel whose pixels differ from the page background.
+function coverage(file) {
+  const png = PNG.sync.read(fs.readFileSync(file));
+  const bg = [0x16, 0x18, 0x1d];
+  let lit = 0, all = 0;
+  for (let y = 0; y < png.height; y++) {
+    for (let x = 330; x < png.width; x++) {
+      const i = (y * png.width + x) * 4;
+      const d = Math.abs(png.data[i] - bg[0]) + Math.abs(png.data[i + 1] - bg[1]) + Math.abs(png.data[i + 2] - bg[2]);
+      if (d > 30) lit++;
+      all++;
+    }
+  }
+  return lit / all;
+}
+
+let browser;
+try {
+  const volume = path.join(work, 'gyroid.json');
+  const gen = spawnSync(bin('tandem'), ['generate', 'gyroid', '--size', '96', '--out', volume]);
+  if (gen.status !== 0) throw new Error(`tandem generate: ${gen.stderr}`);
+  const server = start('tandem-server', ['--listen', '127.0.0.1:0']);
+  const address = (await waitFor('the server address', () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 20))[1];
+
+  const client = start('tandem-client', [
+    'stream', '--server', address, '--input', volume, '--iso', '0', '--error', '0.05',
+    '--seal', '--rate', '12', '--preview-every', '4', '--out', path.join(work, 'gyroid.ply'),
+    '--chunks', path.join(work, 'chunks'), '--metrics', path.join(work, 'gyroid.json.metrics'),
+    '--view', '127.0.0.1:0', '--view-linger', '60']);
+  const url = await waitFor('the viewer address', () => urlIn(client), 20);
+  browser = await chromium.launch({
+    executablePath: chromiumPath,
+    args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'],
+  });
+  const page = await browser.newPage({ viewport: { width: 960, height: 640 } });
+  const pageErrors = [];
+  page.on('pageerror', (e) => pageErrors.push(e.message));
+  await page.goto(url);
+  const view = () => page.evaluate(() => {
+    const v = window.tandemView;
+    return v && { drawn: v.trianglesDrawn, chunks: v.chunksDrawn, finished: v.finished, errors: v.errors,
+                  shown: document.getElementById('drawn').textContent };
+  });
+
+  // Live: drawn before the end, and growing.
+  const early = await waitFor('a part of the mesh drawn while the scan runs', async () => {
+    const v = await view();
+    return v && (v.finished || (v.chunks >= 1 && v.drawn >= 2000)) ? v : null;
+  }, 40);
+  check(!early.finished, 'chunks are drawn while the scan still runs', JSON.stringify(early));
+  await page.screenshot({ path: path.join(shots, 'live.png') });
+  const liveCoverage = coverage(path.join(shots, 'live.png'));
+  check(liveCoverage > 0.01, 'the live screenshot shows the mesh', `${(100 * liveCoverage).toFixed(1)} % of the view`);
+
+  const done = await waitFor('the end of the stream', async () => {
+    const v = await view();
+    return v && v.finished ? v : null;
+  }, 60);
+  check(done.drawn > early.drawn, 'the mesh grows', `${early.drawn} then ${done.drawn} triangles`);
+  await waitFor('the client to write its metrics', () => fs.existsSync(path.join(work, 'gyroid.json.metrics')), 20);
+  const metrics = JSON.parse(fs.readFileSync(path.join(work, 'gyroid.json.metrics'), 'utf8'));
+  check(done.drawn === metrics.triangles_final, 'triangles drawn = the final metrics', `${done.drawn} vs ${metrics.triangles_final}`);
+  check(done.shown === metrics.triangles_final.toLocaleString('en-US'), 'the panel shows that count', done.shown);
+  const shownFinal = await page.evaluate(() => document.getElementById('metric-triangles_final')?.textContent);
+  check(shownFinal === String(metrics.triangles_final), 'the final metrics table shows triangles_final', shownFinal);
+  await page.screenshot({ path: path.join(shots, 'final.png') });
+  const finalCoverage = coverage(path.join(shots, 'final.png'));
+  check(finalCoverage > 0.05, 'the final screenshot shows the mesh', `${(100 * finalCoverage).toFixed(1)} % of the view`);
+
+  // A reload (or a late browser) catches up from the immutable chunks.
+  await page.reload();
+  const again = await waitFor('the reloaded page to catch up', async () => {
+    const v = await view();
+    return v && v.finished && v.drawn === metrics.triangles_final ? v : null;
+  }, 30);
+  check(again.chunks === done.chunks, 'the reloaded page draws every chunk again', `${again.chunks} chunks`);
+  check(pageErrors.length === 0 && again.errors.length === 0, 'no page errors', [...pageErrors, ...again.errors].join('; '));
+
+  // tandem view: a finished file, and a folder of chunks behind a token.
+  const plyView = start('tandem', ['view', path.join(work, 'gyroid.ply'), '--view', '127.0.0.1:0', '--linger', '60']);
+  const plyUrl = await waitFor('tandem view MESH', () => urlIn(plyView), 20);
+  await page.goto(plyUrl);
+  const ply = await waitFor('the PLY file drawn', async () => {
+    const v = await view();
+    return v && v.drawn > 0 ? v : null;
+  }, 30);
+  check(ply.drawn === metrics.triangles_final, 'tandem view MESH.ply draws the final mesh', `${ply.drawn} triangles`);
+  const port = plyUrl.match(/:(\d+)\//)[1];
+  const busy = start('tandem', ['view', path.join(work, 'gyroid.ply'), '--view', `127.0.0.1:${port}`, '--linger', '1']);
+  await busy.exited;
+  check(busy.code !== 0 && busy.err.includes(port), 'a second viewer on a busy port fails naming the port', busy.err.trim());
+
+  const dirView = start('tandem', ['view', path.join(work, 'chunks'), '--view', '127.0.0.1:0', '--view-token', 's3cret', '--linger', '60']);
+  const dirUrl = await waitFor('tandem view DIR', () => urlIn(dirView), 20);
+  check(dirUrl.includes('?token=s3cret'), 'the printed address carries the token', dirUrl);
+  const refused = await fetch(dirUrl.replace(/\?token=.*/, 'state.json'));
+  check(refused.status === 401, 'data without the token is refused', `HTTP ${refused.status}`);
+  await page.goto(dirUrl);
+  const dir = await waitFor('the chunks drawn', async () => {
+    const v = await view();
+    return v && v.finished && v.chunks > 0 && v.chunks === (await page.evaluate(() => window.tandemView.state.chunks)) ? v : null;
+  }, 30);
+  check(dir.drawn === metrics.triangles_final, 'tandem view DIR draws every chunk', `${dir.chunks} chunks, ${dir.drawn} triangles`);
+  await page.screenshot({ path: path.join(shots, 'chunks.png') });
+} catch (e) {
+  check(false, 'the test ran to its end', e.stack || String(e));
+} finally {
+  if (browser) await browser.close().catch(() => {});
+  for (const c of children) {
+    if (c.exitCode === null) c.kill('SIGKILL');
+  }
+}
+console.log(failures === 0 ? 'PASS' : `${failures} check(s) failed`);
+process.exit(failures === 0 ? 0 : 1);

@@ -1,0 +1,78 @@
+// The live browser viewer's HTTP side: a small cpp-httplib server that serves the page
+// (viewer/web), three.js and its Draco decoder (from the npm install, node_modules/three),
+// and what a session has produced so far, as immutable resources plus one event stream:
+//   GET /                  the page (index.html, viewer.js, viewer.css)
+//   GET /three/...         three.js (build/ and examples/jsm/ only)
+//   GET /state.json        the state below, now
+//   GET /events            server-sent events: the state again each time it changes
+//   GET /chunk/N.drc       sealed chunk N (Draco; never changes: cached for good)
+//   GET /band/V.drc        the unsealed band (or the whole partial mesh), version V
+//   GET /file/NAME         a finished mesh file (tandem view FILE)
+// State (JSON): {version, session, description, nz, slices_sent, slices_meshed,
+// triangles_held, triangles_sealed, chunks, chunk_triangles, band {version, triangles,
+// slice, band_only}, files [{name, format}], finished, error, metrics {...}}.
+// A page that reloads, or a browser that connects late, reads the state and fetches every
+// chunk by index: nothing is pushed but the small state. No gRPC, Protobuf or Draco here:
+// the bytes are served as they came, the browser decodes them.
+// With a token (--view-token), every request needs `Authorization: Bearer TOKEN` or
+// `?token=TOKEN` (EventSource cannot set headers; the page forwards its own URL's token).
+#ifndef TANDEM_VIEWER_VIEW_SERVER_H_
+#define TANDEM_VIEWER_VIEW_SERVER_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "absl/status/statusor.h"
+
+namespace tandem::viewer {
+
+struct ViewOptions {
+  std::string listen = "127.0.0.1:8080";  // HOST:PORT (port 0: any free port)
+  std::string token;                       // "" = no check
+  // Where the page and three.js are (empty: next to the binary, then the source tree).
+  std::string assets_dir, three_dir;
+};
+
+// Where the page's files are found: `dir`, else share/tandem/viewer next to the running
+// binary (installed), else the source tree. Same for three.js (node_modules/three).
+std::string FindAssets(const std::string& dir);
+std::string FindThree(const std::string& dir);
+
+// "127.0.0.1:8080" → host and port; an error names the text.
+absl::Status ParseListen(const std::string& listen, std::string* host, int* port);
+// True for 127.0.0.0/8, ::1 and "localhost".
+bool IsLoopback(const std::string& host);
+
+class ViewServer {
+ public:
+  // Binds (an error names the address: "127.0.0.1:8080 is in use ...") and serves on a
+  // thread of its own until destroyed.
+  static absl::StatusOr<std::unique_ptr<ViewServer>> Start(const ViewOptions& options);
+  ~ViewServer();
+  std::string url() const;  // http://HOST:PORT/ (with ?token= when one is set)
+
+  // What the page shows; any thread.
+  void SetSession(const std::string& id, const std::string& description, int64_t nz);
+  void SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
+                   int64_t triangles_sealed);
+  void AddChunk(std::string draco, int64_t triangles);
+  // The unsealed band (band_only) or the whole partial (or final) mesh.
+  void SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only);
+  void ClearBand();
+  // A finished mesh file, served as /file/NAME (its format from the extension).
+  void AddFile(const std::string& name, std::string bytes);
+  // The end: metrics as a JSON object text ("" = none), or an error message.
+  void Finish(const std::string& metrics_json, const std::string& error);
+
+  int64_t connections() const;  // event streams opened so far (for tests and logs)
+
+ private:
+  struct Impl;
+  explicit ViewServer(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tandem::viewer
+
+#endif  // TANDEM_VIEWER_VIEW_SERVER_H_
