@@ -14,10 +14,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=build/bin
 view=()
+server_extra=()
 rate=100
 stream_extra=(--preview-every 16 --partials out/previews)
 if [ "${1:-}" = "--view" ]; then
   view=(--view "${2:-127.0.0.1:8080}")
+  server_extra=(--max-band-bytes-share 4)  # a fresh band to watch (README: Watching ...)
   rate=10
   stream_extra=(--seal --preview-every 2)
 fi
@@ -25,7 +27,8 @@ mkdir -p out
 rm -rf out/previews out/acquisition out/pillowbox.ply
 "$bin/tandem" generate pillowbox --size 128 --out out/pillowbox.json
 
-"$bin/tandem-server" --listen 127.0.0.1:0 >out/server.stdout 2>out/server.log &
+"$bin/tandem-server" --listen 127.0.0.1:0 ${server_extra[@]+"${server_extra[@]}"} \
+  >out/server.stdout 2>out/server.log &
 server=$!
 trap 'kill -TERM "$server" 2>/dev/null || true' EXIT
 addr=""

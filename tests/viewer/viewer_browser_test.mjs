@@ -86,7 +86,9 @@ try {
   const volume = path.join(work, 'gyroid.json');
   const gen = spawnSync(bin('tandem'), ['generate', 'gyroid', '--size', '96', '--out', volume]);
   if (gen.status !== 0) throw new Error(`tandem generate: ${gen.stderr}`);
-  const server = start('tandem-server', ['--listen', '127.0.0.1:0']);
+  // Band previews up to 4x the chunks' bytes (default: a quarter, which allows only a few
+  // over a short scan), so that the live view has a fresh band to show.
+  const server = start('tandem-server', ['--listen', '127.0.0.1:0', '--max-band-bytes-share', '4']);
   const address = (await waitFor('the server address', () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 20))[1];
 
   const client = start('tandem-client', [
@@ -105,16 +107,17 @@ try {
   await page.goto(url);
   const view = () => page.evaluate(() => {
     const v = window.tandemView;
-    return v && { drawn: v.trianglesDrawn, chunks: v.chunksDrawn, finished: v.finished, errors: v.errors,
+    return v && { drawn: v.trianglesDrawn, chunks: v.chunksDrawn, band: v.bandTriangles,
+                  finished: v.finished, errors: v.errors,
                   shown: document.getElementById('drawn').textContent };
   });
 
   // Live: drawn before the end, and growing.
   const early = await waitFor('a part of the mesh drawn while the scan runs', async () => {
     const v = await view();
-    return v && (v.finished || (v.chunks >= 1 && v.drawn >= 2000)) ? v : null;
+    return v && (v.finished || (v.chunks >= 1 && v.drawn >= 2000 && v.band > 0)) ? v : null;
   }, 40);
-  check(!early.finished, 'chunks are drawn while the scan still runs', JSON.stringify(early));
+  check(!early.finished, 'chunks and the band are drawn while the scan still runs', JSON.stringify(early));
   await page.screenshot({ path: path.join(shots, 'live.png') });
   const liveCoverage = coverage(path.join(shots, 'live.png'));
   check(liveCoverage > 0.01, 'the live screenshot shows the mesh', `${(100 * liveCoverage).toFixed(1)} % of the view`);
@@ -133,6 +136,38 @@ try {
   await page.screenshot({ path: path.join(shots, 'final.png') });
   const finalCoverage = coverage(path.join(shots, 'final.png'));
   check(finalCoverage > 0.05, 'the final screenshot shows the mesh', `${(100 * finalCoverage).toFixed(1)} % of the view`);
+
+  // The clipping plane cuts the mesh (half of it gone), reset view brings back the framing.
+  await page.check('#clip');
+  await page.waitForTimeout(300);
+  await page.screenshot({ path: path.join(shots, 'clipped.png') });
+  const clipped = coverage(path.join(shots, 'clipped.png'));
+  check(clipped > 0.01 && clipped < 0.85 * finalCoverage, 'the clipping plane cuts the mesh',
+        `${(100 * clipped).toFixed(1)} % of the view against ${(100 * finalCoverage).toFixed(1)} %`);
+  await page.uncheck('#clip');
+  await page.mouse.move(700, 300);
+  await page.mouse.wheel(0, 2000);  // zoom out
+  await page.waitForTimeout(300);
+  await page.click('#reset');
+  await page.waitForTimeout(300);
+  await page.screenshot({ path: path.join(shots, 'reset.png') });
+  const reset = coverage(path.join(shots, 'reset.png'));
+  check(Math.abs(reset - finalCoverage) < 0.2 * finalCoverage, 'reset view frames the mesh again',
+        `${(100 * reset).toFixed(1)} % of the view`);
+
+  // A late viewer of the finished session (tandem-client view: the watch RPC) draws it all.
+  const session = (client.err.match(/session ([0-9a-f]{32})/) || [])[1];
+  const watcher = start('tandem-client', ['view', '--server', address, '--session', session,
+                                          '--view', '127.0.0.1:0', '--view-linger', '60']);
+  const watchUrl = await waitFor('tandem-client view', () => urlIn(watcher), 20);
+  const watchPage = await browser.newPage({ viewport: { width: 960, height: 640 } });
+  await watchPage.goto(watchUrl);
+  const watched = await waitFor('the watched session drawn', () => watchPage.evaluate(() => {
+    const v = window.tandemView;
+    return v && v.finished && v.chunksDrawn === v.state.chunks ? v.trianglesDrawn : null;
+  }), 30);
+  check(watched === metrics.triangles_final, 'tandem-client view draws the watched session', `${watched} triangles`);
+  await watchPage.close();
 
   // A reload (or a late browser) catches up from the immutable chunks.
   await page.reload();

@@ -110,6 +110,11 @@ const view = window.tandemView = {
   chunksDrawn: 0, sealedTriangles: 0, bandTriangles: 0, fileTriangles: 0,
   get trianglesDrawn() { return this.sealedTriangles + this.bandTriangles + this.fileTriangles; },
   state: null, finished: false, errors: [],
+  // World boxes of what is drawn ([min, max] corners), for tests and debugging.
+  boxes() {
+    const box = (o) => { const b = new THREE.Box3().expandByObject(o); return b.isEmpty() ? null : [b.min.toArray(), b.max.toArray()]; };
+    return { sealed: box(sealedGroup), band: bandMesh ? box(bandMesh) : null };
+  },
 };
 
 async function bytes(url) {
