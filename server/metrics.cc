@@ -38,6 +38,9 @@ std::string PrometheusText(const ServiceState& s) {
   w.One("tandem_active_sessions", "gauge", "Extract streams accepted and not yet cleaned up.",
         s.active_sessions.load());
   w.One("tandem_max_sessions", "gauge", "tandem-server --max-sessions.", s.limits.max_sessions);
+  w.One("tandem_sessions_waiting_for_resume", "gauge",
+        "Sessions whose client vanished mid-scan, kept for a resume (--resume-window-seconds).",
+        s.resumable.parked());
   w.One("tandem_sessions_started_total", "counter", "Extract streams accepted.",
         s.sessions_started.load());
   w.One("tandem_sessions_rejected_total", "counter",

@@ -81,6 +81,38 @@ std::vector<v1::ExtractRequest> Sphere(int64_t n) {
   return VolumeRequests(*source, config, 1 << 20);
 }
 
+// A stream whose client vanishes mid-scan shows as a session waiting for a resume until
+// its window is over.
+TEST(Metrics, CountSessionsWaitingForAResume) {
+  auto server = TestServer::Start({"--metrics-listen", "127.0.0.1:0", "--resume-window-seconds", "2"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  const std::string url = MetricsUrl(s);
+  ASSERT_FALSE(url.empty()) << s.process().Stderr();
+  EXPECT_EQ(Scrape(url)["tandem_sessions_waiting_for_resume"], 0);
+  auto stub = s.NewStub();
+  {
+    grpc::ClientContext context;
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+    auto stream = stub->Extract(&context);
+    const std::vector<v1::ExtractRequest> requests = Sphere(24);
+    for (size_t i = 0; i + 1 < requests.size() && i < 6; ++i) ASSERT_TRUE(stream->Write(requests[i]));
+    v1::ExtractResponse response;
+    while (stream->Read(&response) && response.progress().slices_consumed() < 5) {
+    }
+    context.TryCancel();
+    stream->Finish();
+  }
+  bool waiting = false;
+  for (int i = 0; i < 100 && !waiting; ++i) {
+    waiting = Scrape(url)["tandem_sessions_waiting_for_resume"] == 1;
+    if (!waiting) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  EXPECT_TRUE(waiting);
+  ASSERT_TRUE(s.WaitIdle(15));
+  EXPECT_EQ(Scrape(url)["tandem_sessions_waiting_for_resume"], 0);
+}
+
 TEST(Metrics, CountSessionsByStatusSlicesBytesAndPhases) {
   auto server = TestServer::Start({"--metrics-listen", "127.0.0.1:0"});
   ASSERT_TRUE(server.ok()) << server.status();
