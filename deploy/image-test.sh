@@ -95,7 +95,14 @@ say "containers run with: podman ${runtime[*]:-(default runtime)} ${limits[*]:-(
 say "building $image from deploy/Dockerfile"
 # --format docker keeps HEALTHCHECK (the OCI format has no such field); --network host so
 # that apt inside the build reaches the mirror without a CNI setup.
-podman "${runtime[@]}" build --format docker --network host "${limits[@]}" \
+# A host that trusts an extra CA for npm (NODE_EXTRA_CA_CERTS: a network that intercepts
+# TLS) lends it to the build's npm ci, read-only.
+ca=()
+if [ -n "${NODE_EXTRA_CA_CERTS:-}" ] && [ -f "$NODE_EXTRA_CA_CERTS" ]; then
+  ca=(--volume "$(dirname "$NODE_EXTRA_CA_CERTS"):/tandem-host-ca:ro"
+      --build-arg "NODE_EXTRA_CA_CERTS=/tandem-host-ca/$(basename "$NODE_EXTRA_CA_CERTS")")
+fi
+podman "${runtime[@]}" build --format docker --network host "${limits[@]}" ${ca[@]+"${ca[@]}"} \
   --build-arg "DEBIAN_IMAGE=$base" -f deploy/Dockerfile -t "$image" . \
   > "$work/build.log" 2>&1 || { tail -40 "$work/build.log" >&2; fail "podman build"; }
 say "built: $(podman image inspect --format '{{.Size}}' "$image" | awk '{printf "%.0f MiB", $1/1048576}')"
@@ -124,6 +131,12 @@ done
 say "serving on $server"
 uid=$(podman exec "$container" id -u)
 [ "$uid" = 10001 ] || fail "the server runs as uid $uid, not 10001"
+# The browser viewer's page and three.js, where tandem-client --view looks for them.
+for f in viewer/index.html viewer/viewer.js three/build/three.module.js \
+         three/examples/jsm/libs/draco/draco_decoder.wasm; do
+  podman exec "$container" test -s "/usr/local/share/tandem/$f" \
+    || fail "the image lacks /usr/local/share/tandem/$f (the viewer's assets)"
+done
 podman healthcheck run "$container" > /dev/null 2>&1 \
   || fail "the image's HEALTHCHECK failed: $(podman inspect --format '{{.Config.Healthcheck}}' "$container")"
 podman exec "$container" tandem-client info --server "$server" > "$work/info.txt" 2>&1 \

@@ -82,9 +82,9 @@ std::vector<v1::ExtractRequest> Sphere(int64_t n) {
 }
 
 // A stream whose client vanishes mid-scan shows as a session waiting for a resume until
-// its window is over.
+// its window (5 s here) is over.
 TEST(Metrics, CountSessionsWaitingForAResume) {
-  auto server = TestServer::Start({"--metrics-listen", "127.0.0.1:0", "--resume-window-seconds", "2"});
+  auto server = TestServer::Start({"--metrics-listen", "127.0.0.1:0", "--resume-window-seconds", "5"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   const std::string url = MetricsUrl(s);
@@ -108,8 +108,8 @@ TEST(Metrics, CountSessionsWaitingForAResume) {
     waiting = Scrape(url)["tandem_sessions_waiting_for_resume"] == 1;
     if (!waiting) std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
-  EXPECT_TRUE(waiting);
-  ASSERT_TRUE(s.WaitIdle(15));
+  EXPECT_TRUE(waiting) << s.process().Stderr();
+  ASSERT_TRUE(s.WaitIdle(30));
   EXPECT_EQ(Scrape(url)["tandem_sessions_waiting_for_resume"], 0);
 }
 
