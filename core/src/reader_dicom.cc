@@ -105,6 +105,7 @@ struct SliceHeader {
   double slope = 1, intercept = 0;
   std::string modality, description;
   double along = 0;  // position projected on the normal
+  int64_t instance = -1;  // InstanceNumber (0020,0013), -1 when absent
 };
 
 template <uint16_t G, uint16_t E>
@@ -151,6 +152,11 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
     cols.SetFromDataSet(ds);
     h.rows = rows.GetValue();
     h.cols = cols.GetValue();
+  }
+  if (Has<0x0020, 0x0013>(ds)) {
+    gdcm::Attribute<0x0020, 0x0013> instance;
+    instance.SetFromDataSet(ds);
+    h.instance = instance.GetValue();
   }
   if (!Has<0x0020, 0x0032>(ds) || !Has<0x0020, 0x0037>(ds)) {
     return absl::InvalidArgumentError(absl::StrCat(
@@ -670,23 +676,57 @@ class GrowingDicom final : public internal::Growing {
     return absl::OkStatus();
   }
 
-  // Moves held slices to sent_ while each is one step above the last sent. The step is the
-  // smallest gap seen; nothing goes before three slices confirm it, unless final.
+  // Whether a and b are neighbours by InstanceNumber (one apart, the way the series counts:
+  // `direction` +1 or -1 along the normal; 0 = not known yet, either).
+  static bool Adjacent(const SliceHeader& a, const SliceHeader& b, int direction) {
+    const int64_t d = b.instance - a.instance;
+    return direction == 0 ? (d == 1 || d == -1) : d == direction;
+  }
+
+  // Moves held slices to sent_ while each is one step above the last sent. A receiver
+  // stores a burst of files in any order, so the first slices seen can be every other one
+  // of the burst (positions 0, 2, 4: a "step" twice the real one). When every slice has an
+  // InstanceNumber, those say which are neighbours: the first slices go only as a run of
+  // three neighbours from the lowest held (and, unless the lowest is instance 1, once it
+  // has been on disk for 2 s, in case the series' first is still being written), the step
+  // is taken from that run, and each next slice must also be the last one's neighbour.
+  // Without instance numbers: the median gap of the first three. Final: positions decide.
   absl::StatusOr<int64_t> Release(bool final) {
     const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
+    const bool numbered = std::all_of(held_.begin(), held_.end(),
+                                      [](const SliceHeader& h) { return h.instance >= 0; }) &&
+                          std::all_of(sent_.begin(), sent_.end(),
+                                      [](const SliceHeader& h) { return h.instance >= 0; });
     if (sent_.empty()) {
       if (held_.size() < (final ? 2u : 3u)) return 0;
       for (size_t k = 0; k + 1 < held_.size(); ++k) {  // duplicates would look like steps
         const double d = held_[k + 1].along - held_[k].along;
         if (d <= 1e-3 * in_plane) return CheckStep(dir_, held_[k], held_[k + 1], d, in_plane);
       }
-      step_ = RoundStep(MedianStep(held_));
+      if (numbered && !final) {
+        const int direction = held_[1].instance > held_[0].instance ? 1 : -1;
+        if (!Adjacent(held_[0], held_[1], 0) || !Adjacent(held_[1], held_[2], direction)) {
+          return 0;  // the slices in between are still to come
+        }
+        const auto since = seen_[held_[0].path].since;
+        if (held_[0].instance != 1 &&
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count() < 2) {
+          return 0;
+        }
+        direction_ = direction;
+        step_ = RoundStep((held_[2].along - held_[0].along) / 2);
+      } else {
+        step_ = RoundStep(MedianStep(held_));
+      }
       plan_ = PlanValues(&held_.front(), &held_.front() + 1);
     }
     while (!held_.empty()) {
       const SliceHeader& next = held_.front();
       if (!sent_.empty()) {
         absl::Status st = CheckStep(dir_, sent_.back(), next, step_, in_plane);
+        if (st.ok() && numbered && !final && !Adjacent(sent_.back(), next, direction_)) {
+          break;  // a neighbour by position, not by number: wait for the one in between
+        }
         if (!st.ok()) {
           if (final) return st;  // the gap never closed
           break;                 // wait for the slice in between
@@ -706,6 +746,7 @@ class GrowingDicom final : public internal::Growing {
   SliceHeader first_;  // the first file read: the series' identity and geometry
   Frame frame_;
   double step_ = 0;
+  int direction_ = 0;  // how InstanceNumber runs along the normal (+1, -1; 0 = unknown)
   ValuePlan plan_;
   std::vector<SliceHeader> held_;  // complete, not yet handed out, by position
   std::vector<SliceHeader> sent_;  // handed out, in order
