@@ -22,6 +22,9 @@ void LiveView::AddFlags(cli::FlagSet& flags, const std::string& listen) {
   flags.AddString("view", &listen_, "HOST:PORT",
                   "show the session live in a browser: serve the viewer page on this address "
                   "(e.g. 127.0.0.1:8080; port 0 = any free one)");
+  if (!listen.empty()) {  // tandem-client view: the address is what it is for
+    flags.AddString("listen", &listen_, "HOST:PORT", "the same as --view");
+  }
   flags.AddString("view-token", &token_, "TOKEN",
                   "--view: the page and its data need ?token=TOKEN (for an address other "
                   "than loopback, which has no other protection)");

@@ -602,12 +602,12 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   bool verbose = false;
   FlagSet flags(
       view_command
-          ? "usage: tandem-client view --session ID [--view HOST:PORT] [--out MESH] [flags]\n"
+          ? "usage: tandem-client view --session ID [--listen HOST:PORT] [--out MESH] [flags]\n"
             "Shows a session another client is streaming with sealed chunks live in a browser\n"
             "(tandem-client stream --seal prints its id; tandem-client info lists them): serves\n"
-            "the viewer page on --view (default 127.0.0.1:8080) and prints its address; the\n"
-            "page draws every chunk so far, then the live ones and the band not sealed yet,\n"
-            "then the final metrics. The same as tandem-client watch --view."
+            "the viewer page on --listen (or --view; default 127.0.0.1:8080) and prints its\n"
+            "address; the page draws every chunk so far, then the live ones and the band not\n"
+            "sealed yet, then the final metrics. The same as tandem-client watch --view."
           : "usage: tandem-client watch --session ID --out MESH [flags]\n"
             "Follows a session another client is streaming with sealed chunks (tandem-client stream\n"
             "--seal prints its id; tandem-client info lists them): every chunk so far, then the\n"

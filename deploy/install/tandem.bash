@@ -6,8 +6,8 @@ _tandem_complete() {
   cur=${COMP_WORDS[COMP_CWORD]}
   prog=${COMP_WORDS[0]}
   case "${prog##*/}" in
-    tandem) subs="extract generate measure info simulate" ;;
-    tandem-client) subs="stream info health" ;;
+    tandem) subs="extract generate measure info simulate view" ;;
+    tandem-client) subs="stream watch view info health" ;;
     *) subs="" ;;
   esac
   if [ -n "$subs" ] && [ "$COMP_CWORD" -eq 1 ]; then

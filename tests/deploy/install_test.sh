@@ -21,7 +21,8 @@ if grep -q '^TANDEM_HELP2MAN:FILEPATH=.*help2man$' "$build/CMakeCache.txt"; then
   # subcommand's --help as it prints.
   for want in "tandem.1:  --iso C0" "tandem.1:  --follow" 'tandem.1:.SH "TANDEM SIMULATE"' \
               "tandem-server.1:\\-\\-max\\-sessions" "tandem-server.1:\\-\\-metrics\\-listen" \
-              "tandem-client.1:  --retries N" 'tandem-client.1:.SH "TANDEM-CLIENT HEALTH"'; do
+              "tandem-client.1:  --retries N" 'tandem-client.1:.SH "TANDEM-CLIENT HEALTH"' \
+              'tandem-client.1:.SH "TANDEM-CLIENT VIEW"' 'tandem.1:.SH "TANDEM VIEW"'; do
     page=${want%%:*} text=${want#*:}
     [ -f "$man1/$page" ] || fail "man page $page missing"
     grep -qF -- "$text" "$man1/$page" || fail "$page does not mention $text"
@@ -49,4 +50,18 @@ complete_words tandem-client stream --retr | grep -qx -- --retries \
   || fail "tandem-client stream --retr<TAB>"
 complete_words tandem-server --grace | grep -qx -- --grace-seconds \
   || fail "tandem-server --grace<TAB>"
+complete_words tandem-client vi | grep -qx view || fail "tandem-client vi<TAB> is not view"
+# The browser viewer's page and the parts of three.js it loads, next to bin/ (when the npm
+# install was there at configure time), and the installed tandem view serving them.
+if [ -f "$(dirname "$0")/../../node_modules/three/build/three.module.js" ]; then
+  for f in viewer/index.html viewer/viewer.js three/build/three.module.js \
+           three/examples/jsm/loaders/DRACOLoader.js three/examples/jsm/libs/draco/draco_decoder.wasm; do
+    [ -s "$prefix/share/tandem/$f" ] || fail "share/tandem/$f not installed"
+  done
+  "$prefix/bin/tandem" generate sphere --size 12 --out "$prefix/s.json" > /dev/null 2>&1
+  "$prefix/bin/tandem" extract --input "$prefix/s.json" --iso 0 --error 0.1 --out "$prefix/s.ply" > /dev/null 2>&1
+  out=$("$prefix/bin/tandem" view "$prefix/s.ply" --view 127.0.0.1:0 --linger 0.5 2>&1) \
+    || fail "tandem view from the install: $out"
+  echo "$out" | grep -q "at http://127.0.0.1:" || fail "tandem view printed no address: $out"
+fi
 echo "install: ok ($(find "$prefix" -type f | wc -l) files)"
