@@ -354,8 +354,10 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
 }
 
-// A preview every slice of a small volume, whose encoding outweighs the session's work: the
-// share bound skips most of them, and without it every one goes.
+// A preview every slice of a small volume: a share bound of 5% skips most of them, and
+// without it every one goes. (At the default 20% the skipped share depends on how costly
+// encoding is next to the session: under ASan the session is instrumented and Debian's
+// Draco is not, and 41 of 48 previews went.)
 TEST(ExtractJob, PreviewsTakeAtMostTheirShareOfTheTime) {
   v1::SessionConfig options;
   options.set_error(0.4);
@@ -365,7 +367,7 @@ TEST(ExtractJob, PreviewsTakeAtMostTheirShareOfTheTime) {
     RecordingSink sink;
     ServerLimits limits;
     limits.min_preview_interval_ms = 0;
-    limits.max_preview_share = bounded ? 0.2 : 0;
+    limits.max_preview_share = bounded ? 0.05 : 0;
     ExtractJob job(limits, &sink);
     for (v1::ExtractRequest& r : SphereRequests(options, 48, 1)) ASSERT_TRUE(job.Handle(r).ok());
     counts[bounded] = sink.previews.size();
