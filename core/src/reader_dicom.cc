@@ -657,6 +657,7 @@ class GrowingDicom final : public internal::Growing {
     } else if (absl::Status st = CheckMatches(dir_, first_, h); !st.ok()) {
       return st;
     }
+    numbered_ = numbered_ && h.instance >= 0;  // every slice so far has an InstanceNumber
     h.along = Dot(h.position, frame_.normal);
     const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
     if (absl::Status st = CheckInLine(dir_, first_, h, frame_.normal, in_plane); !st.ok()) {
@@ -693,10 +694,7 @@ class GrowingDicom final : public internal::Growing {
   // Without instance numbers: the median gap of the first three. Final: positions decide.
   absl::StatusOr<int64_t> Release(bool final) {
     const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
-    const bool numbered = std::all_of(held_.begin(), held_.end(),
-                                      [](const SliceHeader& h) { return h.instance >= 0; }) &&
-                          std::all_of(sent_.begin(), sent_.end(),
-                                      [](const SliceHeader& h) { return h.instance >= 0; });
+    const bool numbered = numbered_;
     if (sent_.empty()) {
       if (held_.size() < (final ? 2u : 3u)) return 0;
       for (size_t k = 0; k + 1 < held_.size(); ++k) {  // duplicates would look like steps
@@ -747,6 +745,7 @@ class GrowingDicom final : public internal::Growing {
   Frame frame_;
   double step_ = 0;
   int direction_ = 0;  // how InstanceNumber runs along the normal (+1, -1; 0 = unknown)
+  bool numbered_ = true;  // every slice added had an InstanceNumber
   ValuePlan plan_;
   std::vector<SliceHeader> held_;  // complete, not yet handed out, by position
   std::vector<SliceHeader> sent_;  // handed out, in order
