@@ -35,6 +35,21 @@ class Args {
   std::vector<std::string> positional_;
 };
 
+// Several surfaces in one pass: "--iso 60,120" as its values and the text of each (for
+// output names). At most kMaxIsoValues, finite, no value twice; errors name the flag.
+inline constexpr int kMaxIsoValues = 8;
+struct IsoValue {
+  double value;
+  std::string text;  // as the user wrote it, e.g. "120" or "0.5"
+};
+absl::StatusOr<std::vector<IsoValue>> ParseIsoList(const std::string& text);
+
+// An output name for one surface of several: `pattern` with "{iso}" replaced by the
+// value's text. Without "{iso}" it is returned as is when `count` is 1, and is an error
+// naming `flag` otherwise (two surfaces would overwrite one file).
+absl::StatusOr<std::string> NameForIso(const std::string& flag, const std::string& pattern,
+                                       const IsoValue& iso, size_t count);
+
 // The known name closest to `name` for a "did you mean" hint: the nearest by edit
 // distance (insertions, deletions, substitutions, transpositions) if at most 2 and
 // unambiguous, else the only name that starts with `name`, else "".

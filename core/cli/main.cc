@@ -27,6 +27,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/numbers.h"
+#include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "cli/cli_util.h"
 #include "cli/version.h"
@@ -87,8 +88,13 @@ Options:
                             (default 10) without anything new
   --out MESH                output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex
                             normals, binary STL (.stl), or glTF binary (.glb)
-  --iso C0                  iso-value; default: the file's first suggested iso-value
-                            (JSON sidecars carry them), required otherwise
+  --iso C0[,C1,...]         iso-value; default: the file's first suggested iso-value
+                            (JSON sidecars carry them), required otherwise. Several
+                            (up to 8, e.g. skin and bone: --iso 60,120) give one surface
+                            each from one read of the slices, run side by side: name
+                            the outputs with {iso} (--out head_{iso}.ply); one summary
+                            per surface, and --metrics writes a JSON array (or one file
+                            per surface with {iso} in its name)
   --error E0                error threshold in the volume's physical units (spacing
                             units): every vertex stays within RMS distance E0 of the
                             planes it replaces. Default: 0.2 x the smallest spacing
@@ -283,23 +289,25 @@ int Extract(int argc, char** argv) {
   const VolumeInfo info = (*source)->info();
 
   SessionOptions opt;
-  std::optional<double> iso_default;
-  if (!info.suggested_isovalues.empty()) iso_default = info.suggested_isovalues[0];
-  auto iso = args->GetDouble("iso", iso_default);
-  if (!iso.ok() && args->Has("iso")) {
-    const std::string text = *args->Get("iso");
-    if (text.find(',') != std::string::npos) {
-      return Fail(absl::InvalidArgumentError(absl::StrCat(
-          "--iso '", text, "': one iso-value per run (several surfaces in one pass are not "
-          "supported yet: run once per value)")));
-    }
-    return Fail(iso.status());
-  }
-  if (!iso.ok()) {
+  // --iso A,B,...: one surface per value, from one read of the slices.
+  std::vector<cli::IsoValue> isos;
+  if (auto text = args->Get("iso")) {
+    auto parsed = cli::ParseIsoList(*text);
+    if (!parsed.ok()) return Fail(parsed.status());
+    isos = *std::move(parsed);
+  } else if (!info.suggested_isovalues.empty()) {
+    isos.push_back({info.suggested_isovalues[0], absl::StrCat(info.suggested_isovalues[0])});
+  } else {
     return Fail(absl::InvalidArgumentError(absl::StrCat(
         "--iso C0 is required: ", *input, " suggests no iso-value")));
   }
-  opt.iso = *iso;
+  std::vector<std::string> outs;
+  for (const cli::IsoValue& iso : isos) {
+    auto name = cli::NameForIso("out", *out, iso, isos.size());
+    if (!name.ok()) return Fail(name.status());
+    outs.push_back(*std::move(name));
+  }
+  opt.iso = isos[0].value;
   const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
   auto e0 = args->GetDouble("error", 0.2 * min_spacing);
   auto alpha = args->GetDouble("alpha", 0.0);
@@ -340,29 +348,46 @@ int Extract(int argc, char** argv) {
 
   cli::Progress progress("slices");
   ValueRangeSource range(source->get());
-  // Sealed, to .ply or .obj and without --reference: the chunks go to the file as they come
-  // (memory follows the front, not the mesh); otherwise they are kept and welded at the end.
-  std::vector<SealedChunk> chunks;
-  std::unique_ptr<ChunkedMeshWriter> writer;
-  ShapeSums shape;
-  if (opt.seal && ChunkedMeshWriter::Supports(*out) && !args->Has("reference")) {
-    auto w = ChunkedMeshWriter::Open(*out);
-    if (!w.ok()) return Fail(w.status());
-    writer = *std::move(w);
+  // One surface per iso-value. Sealed, to .ply or .obj and without --reference: the chunks
+  // go to the file as they come (memory follows the front, not the mesh); otherwise they are
+  // kept and welded at the end.
+  struct Surface {
+    SessionOptions opt;
+    std::string out;
+    std::vector<SealedChunk> chunks;
+    std::unique_ptr<ChunkedMeshWriter> writer;
+    ShapeSums shape;
+    IndexedMesh mesh;
+    MetricsReport report;
+  };
+  std::vector<Surface> surfaces(isos.size());
+  std::vector<SessionOptions> options;
+  for (size_t i = 0; i < isos.size(); ++i) {
+    Surface& s = surfaces[i];
+    s.opt = opt;
+    s.opt.iso = isos[i].value;
+    s.out = outs[i];
+    options.push_back(s.opt);
+    if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !args->Has("reference")) {
+      auto w = ChunkedMeshWriter::Open(s.out);
+      if (!w.ok()) return Fail(w.status());
+      s.writer = *std::move(w);
+    }
   }
-  auto on_chunk = [&](SealedChunk c) -> absl::Status {
-    if (!writer) {
-      chunks.push_back(std::move(c));
+  auto on_chunk = [&](size_t i, SealedChunk c) -> absl::Status {
+    Surface& s = surfaces[i];
+    if (!s.writer) {
+      s.chunks.push_back(std::move(c));
       return absl::OkStatus();
     }
-    absl::Status st = writer->Add(c);
+    absl::Status st = s.writer->Add(c);
     IndexedMesh piece;
     piece.positions = std::move(c.positions);
     piece.indices = std::move(c.indices);
-    shape.Add(piece);
+    s.shape.Add(piece);
     return st;
   };
-  auto session = RunSession(range, opt, [&](int64_t d, int64_t t) {
+  auto sessions = RunSessions(range, options, [&](int64_t d, int64_t t) {
     if (follow) {
       status_line(d);
     } else {
@@ -371,60 +396,83 @@ int Extract(int argc, char** argv) {
   }, on_chunk);
   if (follow && tty) std::fprintf(stderr, "\n");
   progress.Done();
-  if (!session.ok()) return Fail(absl::Status(session.status().code(),
-                                              absl::StrCat(*input, ": ", std::string(session.status().message()))));
-  IndexedMesh mesh;
-  MetricsReport report;
-  if (writer) {
-    if (absl::Status st = writer->Finish(); !st.ok()) return Fail(st);
-    report = MakeReport(**session, writer->triangles(), writer->vertices(), shape);
-  } else {
-    mesh = opt.seal ? WeldChunks(chunks) : (*session)->Snapshot();
-    chunks = {};
-    // The report's measures (Error(K), anisotropy, bias) only read the mesh and the finished
-    // session: work them out on another core while the mesh is written.
-    // (async | deferred: runs here, later, when no thread can be had.)
-    std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred, [&] {
-      return MakeReport(**session, mesh);
-    });
-    if (absl::Status st = WriteMesh(*out, mesh); !st.ok()) return Fail(st);
-    report = measured.get();
+  if (!sessions.ok()) return Fail(absl::Status(sessions.status().code(),
+                                               absl::StrCat(*input, ": ", std::string(sessions.status().message()))));
+  for (size_t i = 0; i < surfaces.size(); ++i) {
+    Surface& s = surfaces[i];
+    const TandemSession& session = *(*sessions)[i];
+    if (s.writer) {
+      if (absl::Status st = s.writer->Finish(); !st.ok()) return Fail(st);
+      s.report = MakeReport(session, s.writer->triangles(), s.writer->vertices(), s.shape);
+    } else {
+      s.mesh = s.opt.seal ? WeldChunks(s.chunks) : session.Snapshot();
+      s.chunks = {};
+      // The report's measures (Error(K), anisotropy, bias) only read the mesh and the
+      // finished session: work them out on another core while the mesh is written.
+      // (async | deferred: runs here, later, when no thread can be had.)
+      std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred, [&] {
+        return MakeReport(session, s.mesh);
+      });
+      if (absl::Status st = WriteMesh(s.out, s.mesh); !st.ok()) return Fail(st);
+      s.report = measured.get();
+    }
+    s.report.input = *input;
+    s.report.frame = info.frame;
   }
-  report.input = *input;
-  report.frame = info.frame;
   if (args->Has("reference")) {
     auto ref_source = OpenVolume(*input);
     if (!ref_source.ok()) return Fail(ref_source.status());
-    SessionOptions ref_opt = opt;
-    ref_opt.schedule = Schedule::kNone;
-    ref_opt.seal = false;
+    std::vector<SessionOptions> ref_options = options;
+    for (SessionOptions& o : ref_options) {
+      o.schedule = Schedule::kNone;
+      o.seal = false;
+    }
     cli::Progress ref_progress("reference slices");
-    auto ref = RunSession(**ref_source, ref_opt, [&](int64_t d, int64_t t) { ref_progress.Update(d, t); });
+    auto refs = RunSessions(**ref_source, ref_options,
+                            [&](int64_t d, int64_t t) { ref_progress.Update(d, t); });
     ref_progress.Done();
-    if (!ref.ok()) return Fail(ref.status());
+    if (!refs.ok()) return Fail(refs.status());
     DistanceOptions dopt;
     dopt.samples = static_cast<size_t>(*samples);
-    report.distance = MeasureDistances((*ref)->Snapshot(), mesh, dopt);
+    for (size_t i = 0; i < surfaces.size(); ++i) {
+      surfaces[i].report.distance = MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
+    }
   }
-  report.peak_rss_bytes = PeakRssBytes();  // the process's, as /usr/bin/time reports it
-  // An iso-value the data never crosses gives an empty mesh: say so, never silently.
-  std::string iso_warning;
-  if (range.Outside(opt.iso)) {
-    iso_warning = range.lo() > range.hi()
-                      ? absl::StrCat("the volume holds no finite value: no surface at iso ", opt.iso)
-                      : absl::StrCat("iso ", opt.iso, " is outside the data's value range [",
-                                     range.lo(), ", ", range.hi(),
-                                     "]: the surface is empty (see tandem info)");
+  bool outside = false;
+  std::vector<std::string> json;
+  for (size_t i = 0; i < surfaces.size(); ++i) {
+    Surface& s = surfaces[i];
+    s.report.peak_rss_bytes = PeakRssBytes();  // the process's, as /usr/bin/time reports it
+    if (auto metrics = args->Get("metrics")) {
+      if (metrics->find("{iso}") != std::string::npos) {
+        auto name = cli::NameForIso("metrics", *metrics, isos[i], isos.size());
+        if (!name.ok()) return Fail(name.status());
+        if (absl::Status st = WriteText(*name, ReportToJson(s.report)); !st.ok()) return Fail(st);
+      } else {
+        json.push_back(ReportToJson(s.report));
+      }
+    } else if (!args->Has("quiet")) {
+      const std::string which = isos.size() > 1 ? absl::StrCat(" (iso ", isos[i].text, ")") : "";
+      std::fprintf(stderr, "%s -> %s%s\n%s", input->c_str(), s.out.c_str(), which.c_str(),
+                   ReportSummary(s.report).c_str());
+    }
+    // An iso-value the data never crosses gives an empty mesh: say so, never silently.
+    if (range.Outside(s.opt.iso)) {
+      outside = true;
+      std::fprintf(stderr, "tandem extract: warning: %s\n",
+                   range.lo() > range.hi()
+                       ? absl::StrCat("the volume holds no finite value: no surface at iso ", s.opt.iso).c_str()
+                       : absl::StrCat("iso ", s.opt.iso, " is outside the data's value range [",
+                                      range.lo(), ", ", range.hi(),
+                                      "]: the surface is empty (see tandem info)").c_str());
+    }
   }
-  if (auto metrics = args->Get("metrics")) {
-    if (absl::Status st = WriteText(*metrics, ReportToJson(report)); !st.ok()) return Fail(st);
-  } else if (!args->Has("quiet")) {
-    std::fprintf(stderr, "%s -> %s\n%s", input->c_str(), out->c_str(), ReportSummary(report).c_str());
+  if (!json.empty()) {
+    // One surface: its report; several into one file: a JSON array of them, in --iso order.
+    std::string text = json.size() == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
+    if (absl::Status st = WriteText(*args->Get("metrics"), text); !st.ok()) return Fail(st);
   }
-  if (!iso_warning.empty()) {
-    std::fprintf(stderr, "tandem extract: warning: %s\n", iso_warning.c_str());
-    if (args->Has("strict")) return 3;
-  }
+  if (outside && args->Has("strict")) return 3;
   return 0;
 }
 

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <future>
 #include <limits>
 #include <new>
 #include <stdexcept>
@@ -761,24 +762,46 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
     const std::function<void(int64_t, int64_t)>& progress,
     const std::function<absl::Status(SealedChunk)>& on_chunk) {
+  std::function<absl::Status(size_t, SealedChunk)> each;
+  if (on_chunk) each = [&](size_t, SealedChunk c) { return on_chunk(std::move(c)); };
+  auto sessions = RunSessions(source, {options}, progress, each);
+  if (!sessions.ok()) return sessions.status();
+  return std::move(sessions->front());
+}
+
+absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
+    SliceSource& source, const std::vector<SessionOptions>& options,
+    const std::function<void(int64_t, int64_t)>& progress,
+    const std::function<absl::Status(size_t, SealedChunk)>& on_chunk) {
   const VolumeInfo& info = source.info();
-  if (options.seal && on_chunk == nullptr) {
-    return absl::InvalidArgumentError("RunSession: sealing needs somewhere to put the chunks");
+  if (options.empty()) return absl::InvalidArgumentError("RunSessions: no session options");
+  std::vector<std::unique_ptr<TandemSession>> sessions;
+  for (const SessionOptions& o : options) {
+    if (o.seal && on_chunk == nullptr) {
+      return absl::InvalidArgumentError("RunSession: sealing needs somewhere to put the chunks");
+    }
+    auto session = TandemSession::Create(info, o);
+    if (!session.ok()) return session.status();
+    sessions.push_back(*std::move(session));
   }
-  auto session = TandemSession::Create(info, options);
-  if (!session.ok()) return session.status();
   auto take = [&]() -> absl::Status {
-    if (!options.seal) return absl::OkStatus();
-    SealedChunk c;
-    while ((*session)->TakeSealed(&c)) {
-      if (absl::Status st = on_chunk(std::move(c)); !st.ok()) return st;
+    for (size_t i = 0; i < sessions.size(); ++i) {
+      if (!options[i].seal) continue;
+      SealedChunk c;
+      while (sessions[i]->TakeSealed(&c)) {
+        if (absl::Status st = on_chunk(i, std::move(c)); !st.ok()) return st;
+      }
     }
     return absl::OkStatus();
   };
+  // Each session copies the slice into its own ring and, when pipelined, returns while its
+  // workers go on: the sessions run side by side from one read of the slice.
   auto add = [&](int64_t k, const uint8_t* bytes) {
-    absl::Status st = (*session)->AddSliceBytes(info.dtype, bytes);
-    if (!st.ok()) {
-      return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
+    for (auto& session : sessions) {
+      absl::Status st = session->AddSliceBytes(info.dtype, bytes);
+      if (!st.ok()) {
+        return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
+      }
     }
     if (absl::Status st = take(); !st.ok()) return st;
     if (progress) progress(k + 1, info.nz);
@@ -807,9 +830,21 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
       if (absl::Status st = add(k, bytes.data()); !st.ok()) return st;
     }
   }
-  if (absl::Status st = (*session)->Finish(); !st.ok()) return st;
+  // The final SIMPLIFY of each surface, side by side as well (async | deferred: here, in
+  // turn, when no thread can be had).
+  std::vector<std::future<absl::Status>> finishing;
+  for (size_t i = 1; i < sessions.size(); ++i) {
+    finishing.push_back(std::async(std::launch::async | std::launch::deferred,
+                                   [s = sessions[i].get()] { return s->Finish(); }));
+  }
+  absl::Status finished = sessions[0]->Finish();
+  for (auto& f : finishing) {
+    absl::Status st = f.get();
+    if (finished.ok()) finished = st;
+  }
+  if (!finished.ok()) return finished;
   if (absl::Status st = take(); !st.ok()) return st;
-  return session;
+  return sessions;
 }
 
 }  // namespace tandem

@@ -281,6 +281,15 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     const std::function<void(int64_t, int64_t)>& progress = nullptr,
     const std::function<absl::Status(SealedChunk)>& on_chunk = nullptr);
 
+// Several surfaces in one pass (e.g. skin and bone, one iso-value each): one session per
+// options entry, all fed from a single read of each slice and run side by side. Each
+// session's mesh is the one RunSession would give with its options alone. on_chunk gets the
+// index of the options entry the chunk belongs to.
+absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
+    SliceSource& source, const std::vector<SessionOptions>& options,
+    const std::function<void(int64_t, int64_t)>& progress = nullptr,
+    const std::function<absl::Status(size_t, SealedChunk)>& on_chunk = nullptr);
+
 }  // namespace tandem
 
 #endif  // TANDEM_TANDEM_H_

@@ -84,9 +84,17 @@ TEST_F(Cli, CommandLineMistakesAreNamed) {
   o = RunTandem(extract + " --iso 1x");
   EXPECT_EQ(o.code, 2) << o.text;
   EXPECT_NE(o.text.find("--iso: '1x' is not a number"), std::string::npos) << o.text;
+  // Several iso-values need an output pattern: two surfaces must not write one file.
   o = RunTandem(extract + " --iso 60,120");
   EXPECT_EQ(o.code, 2) << o.text;
-  EXPECT_NE(o.text.find("one iso-value per run"), std::string::npos) << o.text;
+  EXPECT_NE(o.text.find("with 2 iso-values, name the outputs with a pattern holding {iso}"),
+            std::string::npos) << o.text;
+  o = RunTandem(extract + " --iso 60,60");
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("60 is given twice"), std::string::npos) << o.text;
+  o = RunTandem(extract + " --iso 60,,120");
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--iso: '' is not a number"), std::string::npos) << o.text;
   o = RunTandem(extract + " --erorr 0.5");
   EXPECT_EQ(o.code, 2) << o.text;
   EXPECT_NE(o.text.find("unknown option --erorr (did you mean --error?)"), std::string::npos)
@@ -95,6 +103,45 @@ TEST_F(Cli, CommandLineMistakesAreNamed) {
   EXPECT_EQ(o.code, 0);
   EXPECT_EQ(o.text.rfind("tandem 0.", 0), 0u) << o.text;
   EXPECT_NE(o.text.find("(git "), std::string::npos) << o.text;
+}
+
+// Skin and bone in one pass: --iso A,B gives one surface per value from one read of the
+// slices, each identical to its own single-iso run (plain and sealed), with one summary
+// per surface and the --metrics as a JSON array in --iso order.
+TEST_F(Cli, SeveralIsoValuesInOnePassEqualTheirSingleRuns) {
+  ASSERT_EQ(RunTandem("generate link --size 40 --out " + Path("l.json")).code, 0);
+  const std::string in = "extract --input " + Path("l.json") + " --error 0.01";
+  for (const std::string extra : {"", " --seal"}) {
+    SCOPED_TRACE(extra);
+    Output o = RunTandem(in + extra + " --iso 0,0.05 --out " + Path("both_{iso}.ply") +
+                         " --metrics " + Path("both.json"));
+    ASSERT_EQ(o.code, 0) << o.text;
+    nlohmann::json reports = ReadJson(Path("both.json"));
+    ASSERT_TRUE(reports.is_array());
+    ASSERT_EQ(reports.size(), 2u);
+    for (const std::string iso : {"0", "0.05"}) {
+      SCOPED_TRACE(iso);
+      Output one = RunTandem(in + extra + " --iso " + iso + " --out " + Path("one.ply") +
+                             " --quiet");
+      ASSERT_EQ(one.code, 0) << one.text;
+      auto a = ReadMesh(Path("both_" + iso + ".ply"));
+      auto b = ReadMesh(Path("one.ply"));
+      ASSERT_TRUE(a.ok()) << a.status();
+      ASSERT_TRUE(b.ok()) << b.status();
+      EXPECT_GT(a->indices.size(), 300u);
+      EXPECT_EQ(a->positions, b->positions);
+      EXPECT_EQ(a->indices, b->indices);
+      const nlohmann::json& r = reports[iso == "0" ? 0 : 1];
+      EXPECT_EQ(r["iso"].get<double>(), std::stod(iso));
+      EXPECT_EQ(r["triangles_final"].get<int64_t>(), static_cast<int64_t>(a->indices.size() / 3));
+    }
+  }
+  // The two surfaces differ, and without --metrics each gets its own summary.
+  EXPECT_NE(ReadMesh(Path("both_0.ply"))->positions, ReadMesh(Path("both_0.05.ply"))->positions);
+  Output o = RunTandem(in + " --iso 0,0.05 --out " + Path("s_{iso}.obj"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("-> " + Path("s_0.obj")), std::string::npos) << o.text;
+  EXPECT_NE(o.text.find("-> " + Path("s_0.05.obj")), std::string::npos) << o.text;
 }
 
 TEST_F(Cli, GenerateThenExtractFullResolution) {
