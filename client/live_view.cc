@@ -68,7 +68,8 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
   };
   auto preview = callbacks->on_preview;
   callbacks->on_preview = [view, preview](const v1::Preview& p, int64_t sent) {
-    view->SetBand(p.draco(), p.triangles(), p.slice(), p.band_only());
+    // Several surfaces: the page draws every surface's chunks, and the first one's band.
+    if (p.surface() == 0) view->SetBand(p.draco(), p.triangles(), p.slice(), p.band_only());
     if (preview) preview(p, sent);
   };
   auto chunk = callbacks->on_chunk;

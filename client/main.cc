@@ -26,6 +26,8 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "cli/cli_util.h"
 #include "cli/version.h"
 #include "client/connection.h"
 #include "client/live_view.h"
@@ -184,17 +186,18 @@ bool DracoFlagsOk(int64_t bits, int64_t level) {
   return false;
 }
 
-// Saves the final mesh of a stream or a watch to `out` (.drc: Draco bytes; sealed: the chunks
-// welded), prints the summary on stdout and writes the metrics JSON when asked. 0 or the
-// exit status of the failure.
-int SaveResult(tandem::client::StreamResult& result, bool seal, const std::string& out, int bits,
-               int level, const std::string& input, const std::string& frame,
-               const std::string& metrics_path, const char* wall_label = "stream wall time") {
+// Saves one surface's final mesh of a stream or a watch to `out` (.drc: Draco bytes; sealed:
+// the chunks welded), prints its summary on stdout and appends its metrics JSON to *json.
+// 0 or the exit status of the failure.
+int SaveSurface(const tandem::client::StreamResult& result, tandem::client::SurfaceResult& s,
+                bool seal, const std::string& out, int bits, int level, const std::string& input,
+                const std::string& frame, std::vector<std::string>* json,
+                const char* wall_label) {
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
   // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
   absl::StatusOr<tandem::IndexedMesh> mesh =
-      seal ? tandem::WeldChunks(result.sealed) : tandem::codec::DecodeDraco(result.draco);
+      seal ? tandem::WeldChunks(s.sealed) : tandem::codec::DecodeDraco(s.draco);
   if (!mesh.ok()) return Fail(mesh.status());
   if (seal && ext == ".drc") {
     tandem::codec::DracoOptions d;
@@ -202,34 +205,62 @@ int SaveResult(tandem::client::StreamResult& result, bool seal, const std::strin
     d.compression_level = level;
     absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, d);
     if (!bytes.ok()) return Fail(bytes.status());
-    result.draco = *std::move(bytes);
+    s.draco = *std::move(bytes);
   }
-  if (static_cast<int64_t>(mesh->num_triangles()) != result.triangles ||
-      static_cast<int64_t>(mesh->num_vertices()) != result.vertices) {
+  if (static_cast<int64_t>(mesh->num_triangles()) != s.triangles ||
+      static_cast<int64_t>(mesh->num_vertices()) != s.vertices) {
     return Fail(absl::DataLossError(absl::StrCat(
         "the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
-        mesh->num_vertices(), " vertices; the server announced ", result.triangles, " and ",
-        result.vertices)));
+        mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
+        s.vertices)));
   }
-  absl::Status saved = ext == ".drc" ? WriteFile(out, result.draco) : tandem::WriteMesh(out, *mesh);
+  absl::Status saved = ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh);
   if (!saved.ok()) return Fail(saved);
 
-  tandem::MetricsReport report = tandem::wire::ReportFromProto(result.metrics);
+  tandem::MetricsReport report = tandem::wire::ReportFromProto(s.metrics);
   report.input = input;
   report.frame = frame;
+  if (result.num_surfaces() > 1) absl::PrintF("%s (iso %g)\n", out, s.metrics.iso());
   absl::PrintF("%s", tandem::ReportSummary(report));
   absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", wall_label,
                result.seconds, result.slices_sent,
                result.seconds > 0 ? result.slices_sent / result.seconds : 0.0,
-               result.metrics.previews_sent());
+               s.metrics.previews_sent());
   if (seal) {
-    absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", result.sealed.size(),
-                 result.metrics.bytes_sent());
+    absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", s.sealed.size(),
+                 s.metrics.bytes_sent());
   }
-  if (!metrics_path.empty()) {
-    if (absl::Status st = WriteFile(metrics_path, tandem::ReportToJson(report)); !st.ok()) {
-      return Fail(st);
+  json->push_back(tandem::ReportToJson(report));
+  return 0;
+}
+
+// Every surface of a stream or a watch: to the names `out_pattern` gives (with {iso} when
+// there are several), the metrics to `metrics_path` (one file per surface with {iso}, else
+// one report, or a JSON array of them in surface order). 0 or the exit status of the failure.
+int SaveResult(tandem::client::StreamResult& result, bool seal, const std::string& out_pattern,
+               int bits, int level, const std::string& input, const std::string& frame,
+               const std::string& metrics_path, const char* wall_label = "stream wall time") {
+  const size_t n = result.num_surfaces();
+  std::vector<std::string> json;
+  for (size_t i = 0; i < n; ++i) {
+    tandem::client::SurfaceResult& s = result.surface(i);
+    const tandem::cli::IsoValue iso{s.metrics.iso(), absl::StrCat(s.metrics.iso())};
+    absl::StatusOr<std::string> out = tandem::cli::NameForIso("out", out_pattern, iso, n);
+    if (!out.ok()) return Fail(out.status());
+    if (int rc = SaveSurface(result, s, seal, *out, bits, level, input, frame, &json, wall_label);
+        rc != 0) {
+      return rc;
     }
+    if (!metrics_path.empty() && metrics_path.find("{iso}") != std::string::npos) {
+      absl::StatusOr<std::string> name = tandem::cli::NameForIso("metrics", metrics_path, iso, n);
+      if (!name.ok()) return Fail(name.status());
+      if (absl::Status st = WriteFile(*name, json.back()); !st.ok()) return Fail(st);
+    }
+  }
+  if (!metrics_path.empty() && metrics_path.find("{iso}") == std::string::npos) {
+    const std::string text =
+        n == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
+    if (absl::Status st = WriteFile(metrics_path, text); !st.ok()) return Fail(st);
   }
   return 0;
 }
@@ -241,7 +272,8 @@ int StreamCommand(int argc, char** argv) {
   std::string schedule_name = "tandem-lag";
   bool seal = false;
   double seal_margin = tandem::SessionOptions{}.seal_margin;
-  double iso = 0, error = 0, alpha = 0, rate = 0, timeout_s = 0;
+  std::string iso_text;
+  double error = 0, alpha = 0, rate = 0, timeout_s = 0;
   double distance_guard = tandem::SessionOptions{}.distance_guard;
   double sag_correction = tandem::SessionOptions{}.sag_correction;
   int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
@@ -264,7 +296,11 @@ int StreamCommand(int argc, char** argv) {
                "long, so that proxies and NATs keep it (0 = never; keep it at or above the "
                "server's minimum ping interval, see `tandem-client info`)");
   flags.AddString("input", &input, "FILE", "volume to stream", /*required=*/true);
-  flags.AddDouble("iso", &iso, "iso-value C0 (voxel units)", /*required=*/true);
+  flags.AddString("iso", &iso_text, "C0[,C1,...]",
+                  "iso-value C0 (voxel units); several (up to 8, e.g. skin and bone: 60,120) "
+                  "give one surface each from one stream, run side by side on the server: "
+                  "name --out (and --metrics) with {iso}, e.g. --out head_{iso}.ply",
+                  /*required=*/true);
   flags.AddDouble("error", &error, "error threshold E0 (physical units)", /*required=*/true);
   flags.AddDouble("alpha", &alpha, "isotropy parameter in [0, 1]");
   flags.AddDouble("distance-guard", &distance_guard,
@@ -326,6 +362,18 @@ int StreamCommand(int argc, char** argv) {
     return 2;
   }
 
+  absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos = tandem::cli::ParseIsoList(iso_text);
+  if (!isos.ok()) {
+    absl::FPrintF(stderr, "tandem-client: %s\n", isos.status().message());
+    return 2;
+  }
+  for (const tandem::cli::IsoValue& v : *isos) {
+    absl::StatusOr<std::string> name = tandem::cli::NameForIso("out", out, v, isos->size());
+    if (!name.ok()) {
+      absl::FPrintF(stderr, "tandem-client: %s\n", name.status().message());
+      return 2;
+    }
+  }
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
@@ -413,7 +461,8 @@ int StreamCommand(int argc, char** argv) {
   options.resume_session_id = resume_id;
   options.resume_token = resume_token;
   tandem::v1::SessionConfig& c = options.config;
-  c.set_iso(iso);
+  c.set_iso(isos->front().value);
+  for (size_t i = 1; i < isos->size(); ++i) c.add_extra_isos((*isos)[i].value);
   c.set_error(error);
   c.set_alpha(alpha);
   c.set_distance_guard(distance_guard);
@@ -476,9 +525,15 @@ int StreamCommand(int argc, char** argv) {
                     p.slice(), p.triangles(), p.vertices(), p.draco().size(), sent);
     }
     if (!partials.empty() && partial_error.ok()) {
-      partial_error = WriteFile(
-          (std::filesystem::path(partials) / absl::StrFormat("preview_%06d.drc", p.slice())).string(),
-          p.draco());
+      // Several surfaces: preview_<slice>_iso<C>.drc.
+      const std::string iso_tag =
+          isos->size() > 1 && p.surface() >= 0 && static_cast<size_t>(p.surface()) < isos->size()
+              ? absl::StrCat("_iso", (*isos)[p.surface()].text)
+              : "";
+      partial_error = WriteFile((std::filesystem::path(partials) /
+                                 absl::StrFormat("preview_%06d%s.drc", p.slice(), iso_tag))
+                                    .string(),
+                                p.draco());
     }
   };
   callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &partial_error);
@@ -499,15 +554,18 @@ int StreamCommand(int argc, char** argv) {
       rc != 0) {
     return rc;
   }
-  if (range.Outside(iso)) {
+  bool outside = false;
+  for (const tandem::cli::IsoValue& v : *isos) {
+    if (!range.Outside(v.value)) continue;
+    outside = true;
     absl::FPrintF(stderr,
                   "tandem-client: warning: iso %g is outside the data's value range [%g, %g]: "
                   "the surface is empty (see tandem info)\n",
-                  iso, range.lo(), range.hi());
-    if (strict) {
-      view.Finish(result);
-      return 3;
-    }
+                  v.value, range.lo(), range.hi());
+  }
+  if (outside && strict) {
+    view.Finish(result);
+    return 3;
   }
   view.Finish(result);
   return 0;

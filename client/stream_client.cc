@@ -29,10 +29,13 @@ using Stream = grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>
 // checks (an Extract stream's or a watcher's).
 class Collector {
  public:
-  // `sealed`: the mesh is expected as sealed chunks (the messages decide in the end).
-  Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed)
-      : callbacks_(callbacks), result_(*result) {
+  // `sealed`: the mesh is expected as sealed chunks (the messages decide in the end);
+  // `surfaces`: 1 + config.extra_isos, or 0 to learn them from the messages (a watcher).
+  Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed, size_t surfaces)
+      : callbacks_(callbacks), result_(*result), state_(std::max<size_t>(surfaces, 1)),
+        learn_surfaces_(surfaces == 0) {
     result_.sealed_session = sealed;
+    result_.extra_surfaces.resize(state_.size() - 1);
   }
 
   void Handle(const v1::ExtractResponse& response, int64_t slices_sent) {
@@ -47,18 +50,21 @@ class Collector {
       case v1::ExtractResponse::kFinalMesh: {
         result.sealed_session = false;
         const v1::FinalMesh& m = response.final_mesh();
-        if (m.chunk_index() != next_chunk_ ||
-            (next_chunk_ > 0 && m.chunk_count() != chunk_count_) || m.chunk_count() == 0) {
+        SurfaceResult* out = Surface(m.surface(), "final mesh");
+        if (out == nullptr) break;
+        State& st = state_[m.surface()];
+        if (m.chunk_index() != st.next_chunk ||
+            (st.next_chunk > 0 && m.chunk_count() != st.chunk_count) || m.chunk_count() == 0) {
           malformed_ = absl::StrCat("final mesh chunk ", m.chunk_index(), " of ", m.chunk_count(),
-                                    " arrived, expected chunk ", next_chunk_);
+                                    " arrived, expected chunk ", st.next_chunk);
         }
-        chunk_count_ = m.chunk_count();
-        ++next_chunk_;
-        result.draco += m.draco();
-        result.triangles = m.triangles();
-        result.vertices = m.vertices();
-        if (m.chunk_index() + 1 == m.chunk_count() && result.draco.size() != m.total_bytes()) {
-          malformed_ = absl::StrCat("final mesh has ", result.draco.size(),
+        st.chunk_count = m.chunk_count();
+        ++st.next_chunk;
+        out->draco += m.draco();
+        out->triangles = m.triangles();
+        out->vertices = m.vertices();
+        if (m.chunk_index() + 1 == m.chunk_count() && out->draco.size() != m.total_bytes()) {
+          malformed_ = absl::StrCat("final mesh has ", out->draco.size(),
                                     " bytes, the server said ", m.total_bytes());
         }
         break;
@@ -68,11 +74,13 @@ class Collector {
         result.sealed_session = true;
         if (callbacks_.on_chunk) callbacks_.on_chunk(c);
         if (!malformed_.empty()) break;
+        SurfaceResult* out = Surface(c.surface(), "sealed chunk");
+        if (out == nullptr) break;
         SealedChunk chunk;
         absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
-        if (static_cast<size_t>(c.index()) != result.sealed.size()) {
+        if (c.index() != chunks_) {
           malformed_ = absl::StrCat("sealed chunk ", c.index(), " arrived, expected chunk ",
-                                    result.sealed.size());
+                                    chunks_);
         } else if (!mesh.ok()) {
           malformed_ = absl::StrCat("sealed chunk ", c.index(), ": ", mesh.status().ToString());
         } else if (static_cast<int64_t>(mesh->num_triangles()) != c.triangles() ||
@@ -80,19 +88,24 @@ class Collector {
           malformed_ = absl::StrCat("sealed chunk ", c.index(), " decodes to ",
                                     mesh->num_triangles(), " triangles, announced ", c.triangles());
         } else {
+          ++chunks_;
           chunk.index = c.index();
           chunk.first_slice = c.first_slice();
           chunk.last_slice = c.last_slice();
           chunk.positions = std::move(mesh->positions);
           chunk.indices = std::move(mesh->indices);
-          result.sealed.push_back(std::move(chunk));
+          out->sealed.push_back(std::move(chunk));
         }
         break;
       }
-      case v1::ExtractResponse::kFinalMetrics:
-        result.metrics = response.final_metrics();
-        have_metrics_ = true;
+      case v1::ExtractResponse::kFinalMetrics: {
+        const v1::FinalMetrics& m = response.final_metrics();
+        SurfaceResult* out = Surface(m.surface(), "final metrics");
+        if (out == nullptr) break;
+        out->metrics = m;
+        state_[m.surface()].have_metrics = true;
         break;
+      }
       default:
         break;  // a newer server's message: ignore
     }
@@ -101,34 +114,64 @@ class Collector {
   // After an OK status: what is missing or inconsistent ("" when the reply is whole).
   std::string Check() {
     StreamResult& result = result_;
-    if (result.sealed_session) {
-      if (malformed_.empty() && have_metrics_) {
-        // The union of the chunks is the final mesh: it must have the final counts.
-        const IndexedMesh mesh = WeldChunks(result.sealed);
-        result.triangles = static_cast<int64_t>(mesh.num_triangles());
-        result.vertices = static_cast<int64_t>(mesh.num_vertices());
-        if (result.triangles != result.metrics.triangles_final() ||
-            result.vertices != result.metrics.vertices_final()) {
-          malformed_ = absl::StrCat("the sealed chunks weld into ", result.triangles,
-                                    " triangles and ", result.vertices, " vertices; the metrics say ",
-                                    result.metrics.triangles_final(), " and ",
-                                    result.metrics.vertices_final());
+    for (size_t i = 0; i < state_.size() && malformed_.empty(); ++i) {
+      SurfaceResult& out = result.surface(i);
+      const State& st = state_[i];
+      const std::string which = state_.size() > 1 ? absl::StrCat(" of surface ", i) : "";
+      if (result.sealed_session) {
+        if (st.have_metrics) {
+          // The union of the chunks is the final mesh: it must have the final counts.
+          const IndexedMesh mesh = WeldChunks(out.sealed);
+          out.triangles = static_cast<int64_t>(mesh.num_triangles());
+          out.vertices = static_cast<int64_t>(mesh.num_vertices());
+          if (out.triangles != out.metrics.triangles_final() ||
+              out.vertices != out.metrics.vertices_final()) {
+            malformed_ = absl::StrCat("the sealed chunks", which, " weld into ", out.triangles,
+                                      " triangles and ", out.vertices, " vertices; the metrics say ",
+                                      out.metrics.triangles_final(), " and ",
+                                      out.metrics.vertices_final());
+          }
         }
+      } else if (st.chunk_count == 0 || st.next_chunk != st.chunk_count) {
+        malformed_ = absl::StrCat("the stream ended after ", st.next_chunk, " of ", st.chunk_count,
+                                  " final mesh chunks", which);
       }
-    } else if (malformed_.empty() && (chunk_count_ == 0 || next_chunk_ != chunk_count_)) {
-      malformed_ = absl::StrCat("the stream ended after ", next_chunk_, " of ", chunk_count_,
-                                " final mesh chunks");
+      if (malformed_.empty() && !st.have_metrics) {
+        malformed_ = absl::StrCat("the stream ended without final metrics", which);
+      }
     }
-    if (malformed_.empty() && !have_metrics_) malformed_ = "the stream ended without final metrics";
     return malformed_;
   }
 
  private:
+  struct State {
+    uint32_t next_chunk = 0, chunk_count = 0;
+    bool have_metrics = false;
+  };
+  // The result for a message's surface, or nullptr (and malformed) for one not asked for.
+  SurfaceResult* Surface(int32_t surface, const char* what) {
+    if (learn_surfaces_ && surface > 0 && surface < kMaxSurfaces &&
+        static_cast<size_t>(surface) >= state_.size()) {
+      state_.resize(static_cast<size_t>(surface) + 1);
+      result_.extra_surfaces.resize(state_.size() - 1);
+    }
+    if (surface < 0 || static_cast<size_t>(surface) >= state_.size()) {
+      if (malformed_.empty()) {
+        malformed_ = absl::StrCat(what, " for surface ", surface, " arrived; the stream has ",
+                                  state_.size());
+      }
+      return nullptr;
+    }
+    return &result_.surface(static_cast<size_t>(surface));
+  }
+
   const StreamCallbacks& callbacks_;
   StreamResult& result_;
   std::string malformed_;
-  uint32_t next_chunk_ = 0, chunk_count_ = 0;
-  bool have_metrics_ = false;
+  static constexpr int32_t kMaxSurfaces = 8;  // tandem.proto: SessionConfig.extra_isos
+  std::vector<State> state_;  // per surface
+  const bool learn_surfaces_;
+  int64_t& chunks_ = result_.chunks_received;  // all surfaces together
 };
 
 // The sending half, on its own thread: config, chunks of every slice (paced by `rate`),
@@ -289,7 +332,7 @@ absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t 
     r->set_session_id(resumption.id);
     r->set_token(resumption.token);
     r->set_next_slice(first_slice);
-    r->set_chunks_received(static_cast<int64_t>(result.sealed.size()));
+    r->set_chunks_received(result.chunks_received);
   }
   Sender sender(source, opts, config, first_slice, stream.get());
   absl::Status send_status;
@@ -384,7 +427,8 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   const auto deadline = std::chrono::system_clock::now() +
                         std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000));
   StreamResult result;
-  Collector collector(callbacks, &result, opts.config.sealed_chunks());
+  Collector collector(callbacks, &result, opts.config.sealed_chunks(),
+                      1 + static_cast<size_t>(opts.config.extra_isos_size()));
   Resumption resumption{opts.resume_session_id, opts.resume_token, 0};
   absl::Status broke;  // the drop being resumed, if any
   int64_t first_slice = 0;
@@ -463,7 +507,7 @@ absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
   request.set_session_id(session_id);
   std::unique_ptr<grpc::ClientReader<v1::ExtractResponse>> reader = stub->Watch(&context, request);
   StreamResult result;
-  Collector collector(callbacks, &result, /*sealed=*/true);
+  Collector collector(callbacks, &result, /*sealed=*/true, /*surfaces=*/0);
   v1::ExtractResponse response;
   while (reader->Read(&response)) collector.Handle(response, 0);
   const grpc::Status status = reader->Finish();

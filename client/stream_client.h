@@ -49,18 +49,32 @@ struct StreamCallbacks {
       on_resume;
 };
 
-struct StreamResult {
+// One surface's final mesh and metrics.
+struct SurfaceResult {
   std::string draco;  // the final mesh, chunks concatenated and checked (empty when sealed)
   // config.sealed_chunks: every chunk decoded, in order; WeldChunks gives the final mesh,
   // whose counts were checked against the final metrics.
   std::vector<SealedChunk> sealed;
+  int64_t triangles = 0, vertices = 0;
+  v1::FinalMetrics metrics;
+};
+
+// What the stream delivered: its own fields are surface 0's (config.iso); with
+// config.extra_isos, extra_surfaces holds the others, in order.
+struct StreamResult : SurfaceResult {
+  std::vector<SurfaceResult> extra_surfaces;
   bool sealed_session = false;  // the mesh came as sealed chunks
   std::string session_id;       // the session's id (first Progress)
   int resumes = 0;              // times the stream was resumed after a drop
-  int64_t triangles = 0, vertices = 0;
-  v1::FinalMetrics metrics;
+  int64_t chunks_received = 0;  // sealed chunks, all surfaces together
   int64_t slices_sent = 0;
   double seconds = 0;  // wall time of the whole stream
+
+  size_t num_surfaces() const { return 1 + extra_surfaces.size(); }
+  SurfaceResult& surface(size_t i) { return i == 0 ? *this : extra_surfaces[i - 1]; }
+  const SurfaceResult& surface(size_t i) const {
+    return i == 0 ? *this : extra_surfaces[i - 1];
+  }
 };
 
 // Runs one Extract stream. The client sends the config, then waits for the server's first

@@ -90,7 +90,122 @@ const char* KindName(const v1::ExtractRequest& r) {
 
 }  // namespace
 
+// What a child job posts, tagged with its surface and passed on through the parent's
+// sink (none while the parent is detached: nothing is handled then, so nothing is lost).
+class ExtractJob::SurfaceSink final : public JobSink {
+ public:
+  SurfaceSink(ExtractJob* parent, int surface) : parent_(parent), surface_(surface) {}
+  void PostProgress(v1::Progress progress) override {
+    parent_->surface_progress_[surface_] = std::move(progress);
+    if (parent_->sink_) parent_->sink_->PostProgress(parent_->SumProgress());
+  }
+  void PostPreview(v1::Preview preview) override {
+    preview.set_surface(surface_);
+    if (parent_->sink_) parent_->sink_->PostPreview(std::move(preview));
+  }
+  bool PreviewPending() const override {
+    return parent_->sink_ != nullptr && parent_->sink_->PreviewPending();
+  }
+  void PostFinal(std::vector<v1::ExtractResponse> messages) override {
+    for (v1::ExtractResponse& m : messages) {
+      if (m.has_final_mesh()) m.mutable_final_mesh()->set_surface(surface_);
+      if (m.has_final_metrics()) m.mutable_final_metrics()->set_surface(surface_);
+      parent_->surface_final_.push_back(std::move(m));
+    }
+  }
+  void PostChunk(v1::SealedChunk chunk) override {
+    chunk.set_surface(surface_);
+    chunk.set_index(parent_->chunks_sent_++);
+    if (parent_->sink_) parent_->sink_->PostChunk(std::move(chunk));
+  }
+
+ private:
+  ExtractJob* parent_;
+  int surface_;
+};
+
+ExtractJob::ExtractJob(const ServerLimits& limits, JobSink* sink) : limits_(limits), sink_(sink) {}
+ExtractJob::~ExtractJob() = default;
+
+absl::Status ExtractJob::StartSurfaces(const v1::SessionConfig& config) {
+  const size_t n = config_.isos.size();
+  ServerLimits child_limits = limits_;
+  child_limits.session_memory_bytes = limits_.session_memory_bytes / static_cast<int64_t>(n);
+  surface_progress_.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    surface_sinks_.push_back(std::make_unique<SurfaceSink>(this, static_cast<int>(i)));
+    surfaces_.push_back(std::make_unique<ExtractJob>(child_limits, surface_sinks_.back().get()));
+  }
+  for (size_t i = 0; i < n; ++i) {
+    v1::ExtractRequest request;
+    v1::SessionConfig& c = *request.mutable_config();
+    c = config;
+    c.set_iso(config_.isos[i]);
+    c.clear_extra_isos();
+    if (absl::Status st = surfaces_[i]->Handle(request); !st.ok()) {
+      return absl::Status(st.code(), absl::StrCat("surface ", i, " (iso ", config_.isos[i], "): ",
+                                                  std::string(st.message())));
+    }
+  }
+  start_ = Clock::now();
+  state_ = State::kStreaming;
+  return absl::OkStatus();
+}
+
+absl::Status ExtractJob::HandleSurfaces(v1::ExtractRequest& request) {
+  if (state_ == State::kDone) {
+    return absl::InvalidArgumentError(absl::StrCat("got ", KindName(request), " after End"));
+  }
+  for (size_t i = 0; i < surfaces_.size(); ++i) {
+    absl::Status st;
+    if (i + 1 < surfaces_.size()) {
+      v1::ExtractRequest copy = request;
+      st = surfaces_[i]->Handle(copy);
+    } else {
+      st = surfaces_[i]->Handle(request);  // the last one may take the data
+    }
+    // A problem of the request is found by the first child; one of a surface (its memory,
+    // say) names it.
+    if (!st.ok()) {
+      if (i == 0) return st;
+      return absl::Status(st.code(), absl::StrCat("surface ", i, " (iso ", config_.isos[i], "): ",
+                                                  std::string(st.message())));
+    }
+  }
+  if (surfaces_.back()->done()) {
+    state_ = State::kDone;
+    if (sink_) sink_->PostFinal(std::move(surface_final_));
+    surface_final_.clear();
+  }
+  return absl::OkStatus();
+}
+
+v1::Progress ExtractJob::SumProgress() const {
+  v1::Progress sum;
+  for (size_t i = 0; i < surface_progress_.size(); ++i) {
+    const v1::Progress& p = surface_progress_[i];
+    if (i == 0 || p.slices_consumed() < sum.slices_consumed()) {
+      sum.set_slices_consumed(p.slices_consumed());
+    }
+    sum.set_triangles(sum.triangles() + p.triangles());
+    sum.set_peak_triangles(sum.peak_triangles() + p.peak_triangles());
+    sum.set_sealed_triangles(sum.sealed_triangles() + p.sealed_triangles());
+  }
+  if (config_.options.seal) sum.set_sealed_chunks(chunks_sent_);
+  return sum;
+}
+
+int64_t ExtractJob::triangles() const {
+  if (!surfaces_.empty()) {
+    int64_t sum = 0;
+    for (const auto& s : surfaces_) sum += s->triangles();
+    return sum;
+  }
+  return session_ ? session_->num_triangles() : final_triangles_;
+}
+
 absl::Status ExtractJob::Handle(v1::ExtractRequest& request) {
+  if (!surfaces_.empty()) return HandleSurfaces(request);
   switch (state_) {
     case State::kWaitConfig:
       if (!request.has_config()) {
@@ -115,7 +230,7 @@ absl::Status ExtractJob::HandleEndOfInput() const {
     return absl::InvalidArgumentError("the stream ended before a SessionConfig");
   }
   return absl::InvalidArgumentError(absl::StrCat(
-      "the stream ended without an End marker after ", cursor_.slice,
+      "the stream ended without an End marker after ", slices(),
       " complete slices; send End after the last slice"));
 }
 
@@ -123,6 +238,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
   absl::StatusOr<JobConfig> cfg = ValidateConfig(config, limits_);
   if (!cfg.ok()) return cfg.status();
   config_ = *std::move(cfg);
+  if (config_.isos.size() > 1) return StartSurfaces(config);
   auto session = TandemSession::Create(config_.grid, config_.options);
   if (!session.ok()) return session.status();
   session_ = *std::move(session);
@@ -230,6 +346,16 @@ absl::Status ExtractJob::MaybeChunk(bool now) {
 }
 
 ExtractJob::Phases ExtractJob::PhaseSeconds() const {
+  if (!surfaces_.empty()) {
+    Phases sum;
+    for (const auto& child : surfaces_) {
+      const Phases p = child->PhaseSeconds();
+      sum.extract_s += p.extract_s;
+      sum.simplify_s += p.simplify_s;
+      sum.encode_s += p.encode_s;
+    }
+    return sum;
+  }
   const PhaseTimes& t = session_ ? session_->stats().time : session_time_;
   return {t.extract_s, t.simplify_s, encode_s_};
 }
@@ -283,11 +409,12 @@ void ExtractJob::MaybePreview() {
 void ExtractJob::Detach() {
   cursor_.bytes_so_far = 0;  // the slice comes again, whole
   sink_ = nullptr;
+  for (auto& s : surfaces_) s->cursor_.bytes_so_far = 0;
 }
 
 void ExtractJob::Attach(JobSink* sink) {
   sink_ = sink;
-  sink_->PostProgress(MakeProgress());
+  sink_->PostProgress(surfaces_.empty() ? MakeProgress() : SumProgress());
 }
 
 v1::Progress ExtractJob::MakeProgress() const {
@@ -420,6 +547,7 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) cons
 
 size_t ExtractJob::MemoryBytes() const {
   size_t bytes = slice_.capacity();
+  for (const auto& child : surfaces_) bytes += child->MemoryBytes();
   if (session_) bytes += session_->MemoryBytes();
   if (reference_) bytes += reference_->MemoryBytes();
   return bytes;

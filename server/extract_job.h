@@ -47,9 +47,16 @@ class JobSink {
   virtual void PostChunk(v1::SealedChunk chunk) = 0;
 };
 
+// Several surfaces in one pass (SessionConfig.extra_isos): the job runs one child job per
+// iso-value, each with its own session and a SurfaceSink that tags what it posts with the
+// surface, and hands every message to each child in turn (each copies the slice into its
+// session's ring, whose pipeline then runs on: the surfaces run side by side). Progress is
+// summed over the children, chunk indices count all surfaces together, and the children's
+// final messages are posted at once, surface after surface, when the last one is done.
 class ExtractJob {
  public:
-  ExtractJob(const ServerLimits& limits, JobSink* sink) : limits_(limits), sink_(sink) {}
+  ExtractJob(const ServerLimits& limits, JobSink* sink);
+  ~ExtractJob();
 
   // Handles the next message of the stream (chunk data may be moved out of `request`).
   // A non-OK status ends the stream with that status; the job must not be used again.
@@ -67,8 +74,8 @@ class ExtractJob {
   void Attach(JobSink* sink);
   int64_t chunks_posted() const { return chunks_sent_; }
   const std::string& description() const { return config_.description; }
-  int64_t slices() const { return cursor_.slice; }
-  int64_t triangles() const { return session_ ? session_->num_triangles() : final_triangles_; }
+  int64_t slices() const { return surfaces_.empty() ? cursor_.slice : surfaces_[0]->slices(); }
+  int64_t triangles() const;
   // Memory held now (sessions, slice buffer, encoded output not yet handed over).
   size_t MemoryBytes() const;
   // Seconds spent so far in each phase (for the server's metrics).
@@ -79,6 +86,11 @@ class ExtractJob {
 
  private:
   enum class State { kWaitConfig, kStreaming, kDone };
+  class SurfaceSink;
+  // Several surfaces: creates the children and hands them the config.
+  absl::Status StartSurfaces(const v1::SessionConfig& config);
+  absl::Status HandleSurfaces(v1::ExtractRequest& request);
+  v1::Progress SumProgress() const;
   absl::Status HandleConfig(const v1::SessionConfig& config);
   absl::Status HandleChunk(v1::SliceChunk& chunk);
   absl::Status ConsumeSlice(const uint8_t* bytes);
@@ -118,6 +130,12 @@ class ExtractJob {
   std::optional<std::chrono::steady_clock::time_point> last_chunk_;
   ShapeSums shape_;                 // of everything sealed, for the final metrics
   std::vector<SealedChunk> kept_;   // compute_distances only: the chunks, to weld at the end
+  // Several surfaces (see above): the children, their sinks, the latest Progress of each and
+  // their final messages, held until the last child is done.
+  std::vector<std::unique_ptr<ExtractJob>> surfaces_;
+  std::vector<std::unique_ptr<SurfaceSink>> surface_sinks_;
+  std::vector<v1::Progress> surface_progress_;
+  std::vector<v1::ExtractResponse> surface_final_;
 };
 
 }  // namespace tandem::server

@@ -1,5 +1,6 @@
 #include "server/request_validation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -98,6 +99,24 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   if (c.has_seal_margin()) o.seal_margin = c.seal_margin();
   if (!std::isfinite(o.iso)) {
     return absl::InvalidArgumentError("config.iso is not a finite number");
+  }
+  out.isos = {o.iso};
+  if (c.extra_isos_size() > kMaxExtraIsos) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "config.extra_isos has ", c.extra_isos_size(), " values: at most ", kMaxExtraIsos,
+        " (", kMaxExtraIsos + 1, " surfaces in one pass)"));
+  }
+  for (int i = 0; i < c.extra_isos_size(); ++i) {
+    const double v = c.extra_isos(i);
+    if (!std::isfinite(v)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("config.extra_isos[", i, "] is not a finite number"));
+    }
+    if (std::find(out.isos.begin(), out.isos.end(), v) != out.isos.end()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "config.extra_isos[", i, "] = ", v, " repeats an iso-value already asked for"));
+    }
+    out.isos.push_back(v);
   }
   if (o.schedule != Schedule::kNone && !(o.error > 0 && std::isfinite(o.error))) {
     return absl::InvalidArgumentError(absl::StrCat(

@@ -10,6 +10,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -61,7 +62,10 @@ struct JobConfig {
   int64_t preview_min_interval_ms = 0;
   bool compute_distances = false;
   std::string description;
+  std::vector<double> isos;  // the surfaces: options.iso, then SessionConfig.extra_isos
 };
+
+inline constexpr int kMaxExtraIsos = 7;  // 8 surfaces in one pass at most
 
 // Checks every field of the first message (see tandem.proto for the rules and defaults).
 absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& config,

@@ -169,7 +169,7 @@ void HoldParked(ServiceState& state, ParkedSession parked) {
   state.session_bytes.fetch_sub(bytes);
   if (!left) return;  // another stream took it over
   const double window = absl::ToDoubleSeconds(state.resumable.window());
-  left->feed->Finish(nullptr, grpc::Status(grpc::StatusCode::CANCELLED,
+  left->feed->Finish({}, grpc::Status(grpc::StatusCode::CANCELLED,
                                            absl::StrFormat("the client left after %d slices and "
                                                            "did not resume within %g s",
                                                            slices, window)));
@@ -235,7 +235,7 @@ ExtractCall::~ExtractCall() {
                               ? "the client left before the end"
                               : absl::StrCat("cancelled; before that: ", status.error_message()));
   }
-  if (!parked_) feed_->Finish(nullptr, status);  // (no effect after the final metrics)
+  if (!parked_) feed_->Finish({}, status);  // (no effect after the final metrics)
   const std::string status_name =
       absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code()));
   const double seconds = absl::ToDoubleSeconds(absl::Now() - start_);
@@ -462,9 +462,11 @@ bool ExtractCall::PreviewPending() const {
 
 void ExtractCall::PostFinal(std::vector<Response> messages) {
   // Watchers get the metrics (the transport's byte counts are this stream's, not theirs).
-  if (!messages.empty() && messages.back().has_final_metrics()) {
-    feed_->Finish(&messages.back().final_metrics(), grpc::Status::OK);
+  std::vector<v1::FinalMetrics> metrics;  // one per surface
+  for (const Response& m : messages) {
+    if (m.has_final_metrics()) metrics.push_back(m.final_metrics());
   }
+  if (!metrics.empty()) feed_->Finish(std::move(metrics), grpc::Status::OK);
   absl::MutexLock lock(&mu_);
   if (StoppingLocked()) return;
   preview_.reset();  // a preview older than the final mesh is of no use any more

@@ -79,11 +79,11 @@ absl::Status SessionFeed::ChunksFrom(size_t first, std::vector<v1::SealedChunk>*
   return absl::OkStatus();
 }
 
-void SessionFeed::Finish(const v1::FinalMetrics* metrics, const grpc::Status& status) {
+void SessionFeed::Finish(std::vector<v1::FinalMetrics> metrics, const grpc::Status& status) {
   {
     absl::MutexLock lock(&mu_);
     if (status_) return;  // the first end counts
-    if (metrics != nullptr) metrics_ = *metrics;
+    metrics_ = std::move(metrics);
     status_ = status;
     preview_.reset();  // everything is in the chunks now
     finished_at_ = absl::Now();
@@ -144,9 +144,8 @@ std::optional<Response> SessionFeed::Next(Cursor* cursor, std::optional<grpc::St
     return r;
   }
   if (status_) {
-    if (metrics_ && !cursor->metrics_sent) {
-      cursor->metrics_sent = true;
-      *r.mutable_final_metrics() = *metrics_;
+    if (cursor->metrics_sent < metrics_.size()) {
+      *r.mutable_final_metrics() = metrics_[cursor->metrics_sent++];
       return r;
     }
     *done = *status_;

@@ -47,7 +47,8 @@ class SessionFeed {
   void Progress(const v1::Progress& p);
   void Preview(const v1::Preview& p);
   void Chunk(const v1::SealedChunk& c);
-  void Finish(const v1::FinalMetrics* metrics, const grpc::Status& status);
+  // `metrics`: one FinalMetrics per surface (none when the stream failed).
+  void Finish(std::vector<v1::FinalMetrics> metrics, const grpc::Status& status);
   // Resume (server/resume.h): the session waits for its client to come back.
   void SetWaiting(bool waiting);
   bool finished() const;
@@ -63,7 +64,7 @@ class SessionFeed {
   struct Cursor {
     size_t next_chunk = 0;
     int64_t progress_seen = -1, preview_seen = -1;
-    bool metrics_sent = false;
+    size_t metrics_sent = 0;
   };
   std::optional<v1::ExtractResponse> Next(Cursor* cursor, std::optional<grpc::Status>* done);
 
@@ -92,7 +93,7 @@ class SessionFeed {
   int64_t progress_version_ ABSL_GUARDED_BY(mu_) = 0;
   std::optional<v1::Preview> preview_ ABSL_GUARDED_BY(mu_);
   int64_t preview_version_ ABSL_GUARDED_BY(mu_) = 0;
-  std::optional<v1::FinalMetrics> metrics_ ABSL_GUARDED_BY(mu_);
+  std::vector<v1::FinalMetrics> metrics_ ABSL_GUARDED_BY(mu_);
   std::optional<grpc::Status> status_ ABSL_GUARDED_BY(mu_);
   absl::Time finished_at_ ABSL_GUARDED_BY(mu_);
   std::vector<std::weak_ptr<FeedWatcher>> watchers_ ABSL_GUARDED_BY(mu_);

@@ -141,6 +141,19 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        },
        absl::StatusCode::kResourceExhausted, "--max-voxels-per-slice"},
       {[](auto* c) { c->set_nz(100000); }, absl::StatusCode::kResourceExhausted, "--max-slices"},
+      {[nan](auto* c) { c->add_extra_isos(nan); }, absl::StatusCode::kInvalidArgument,
+       "config.extra_isos[0] is not a finite number"},
+      {[](auto* c) { c->add_extra_isos(c->iso()); }, absl::StatusCode::kInvalidArgument,
+       "config.extra_isos[0]"},
+      {[](auto* c) {
+         c->add_extra_isos(7);
+         c->add_extra_isos(7);
+       },
+       absl::StatusCode::kInvalidArgument, "config.extra_isos[1] = 7 repeats"},
+      {[](auto* c) {
+         for (int i = 1; i <= 8; ++i) c->add_extra_isos(c->iso() + i);
+       },
+       absl::StatusCode::kInvalidArgument, "at most 7"},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     v1::SessionConfig c = GoodConfig();

@@ -511,6 +511,19 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   EXPECT_LT(chunk_bytes, 2 * plain_report->bytes_sent);
 }
 
+// The session id a streaming client prints (bounded wait; "" if it never does).
+std::string SessionIdOf(ChildProcess& streamer) {
+  for (int i = 0; i < 200; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    const std::string err = streamer.Stderr();
+    const size_t at = err.find("tandem-client: session ");
+    if (at != std::string::npos && err.find('\n', at) != std::string::npos) {
+      return err.substr(at + 23, 32);
+    }
+  }
+  return "";
+}
+
 // Watch: a second client attached by id while a sealed stream runs, and another after it
 // ended, save byte-identical meshes to the streaming client's; unknown ids and sessions
 // without sealed chunks are refused clearly.
@@ -523,16 +536,7 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
        "--out", dir_ + "/s.ply"},
       dir_);
   ASSERT_TRUE(streamer.ok()) << streamer.status();
-  // The id, as the streaming client prints it (bounded wait).
-  std::string id;
-  for (int i = 0; i < 200 && id.empty(); ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(25));
-    const std::string err = (*streamer)->Stderr();
-    const size_t at = err.find("tandem-client: session ");
-    if (at != std::string::npos && err.find('\n', at) != std::string::npos) {
-      id = err.substr(at + 23, 32);
-    }
-  }
+  const std::string id = SessionIdOf(**streamer);
   ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
   // Listed by info while it runs.
   RunResult info = Client({"info", "--server", server_->address()});
@@ -630,6 +634,63 @@ void ExpectSameMesh(const std::string& a_path, const std::string& b_path) {
   auto map = MatchVertices(*a, *b, 0.0);
   ASSERT_TRUE(map.ok()) << map.status();
   EXPECT_TRUE(SameTriangles(*a, *b, *map));
+}
+
+// Several surfaces in one stream (--iso A,B: SessionConfig.extra_isos): each saved surface
+// is the one its own single-iso stream gives (the same bytes), plain; and sealed, live
+// through a watcher too, each the same mesh as its single sealed stream.
+TEST_F(ServiceE2eTest, SeveralIsoValuesInOneStreamEqualTheirSingleStreams) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 64));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto stream = [&](const std::string& iso, const std::string& out,
+                    std::vector<std::string> extra) {
+    return Client(Concat({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                          iso, "--error", "0.02", "--out", dir_ + "/" + out},
+                         extra));
+  };
+  RunResult both = stream("0,0.05", "both_{iso}.ply", {"--metrics", dir_ + "/both.json"});
+  ASSERT_EQ(both.exit_code, 0) << both.err;
+  const nlohmann::json reports = nlohmann::json::parse(ReadFile(dir_ + "/both.json"));
+  ASSERT_TRUE(reports.is_array());
+  ASSERT_EQ(reports.size(), 2u);
+  EXPECT_EQ(reports[0]["iso"].get<double>(), 0.0);
+  EXPECT_EQ(reports[1]["iso"].get<double>(), 0.05);
+  for (const std::string iso : {"0", "0.05"}) {
+    SCOPED_TRACE(iso);
+    RunResult one = stream(iso, "one_" + iso + ".ply", {});
+    ASSERT_EQ(one.exit_code, 0) << one.err;
+    const std::string mesh = ReadFile(dir_ + "/one_" + iso + ".ply");
+    EXPECT_GT(mesh.size(), 10000u);
+    EXPECT_EQ(ReadFile(dir_ + "/both_" + iso + ".ply"), mesh);
+    // Sealed, one surface alone, for the comparison below.
+    RunResult sealed = stream(iso, "sealed_one_" + iso + ".ply", {"--seal"});
+    ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
+  }
+  EXPECT_NE(ReadFile(dir_ + "/both_0.ply"), ReadFile(dir_ + "/both_0.05.ply"));
+
+  // Sealed, watched while it runs: the watcher saves both surfaces too.
+  auto streamer = ChildProcess::Spawn(
+      {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
+       "--iso", "0,0.05", "--error", "0.02", "--seal", "--rate", "40", "--chunks",
+       dir_ + "/chunks", "--out", dir_ + "/sealed_{iso}.ply"},
+      dir_);
+  ASSERT_TRUE(streamer.ok()) << streamer.status();
+  const std::string id = SessionIdOf(**streamer);
+  ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
+  RunResult live = Client({"watch", "--server", server_->address(), "--session", id, "--out",
+                           dir_ + "/watched_{iso}.ply"});
+  ASSERT_EQ(live.exit_code, 0) << live.err;
+  ASSERT_EQ((*streamer)->Wait(60), std::optional<int>(0)) << (*streamer)->Stderr();
+  for (const std::string iso : {"0", "0.05"}) {
+    SCOPED_TRACE(iso);
+    ExpectSameMesh(dir_ + "/sealed_" + iso + ".ply", dir_ + "/sealed_one_" + iso + ".ply");
+    EXPECT_EQ(ReadFile(dir_ + "/watched_" + iso + ".ply"), ReadFile(dir_ + "/sealed_" + iso + ".ply"));
+  }
+  EXPECT_TRUE(std::filesystem::exists(dir_ + "/chunks/chunk_000001.drc"));
+  // Without {iso}, two surfaces would write one file: refused before anything is sent.
+  RunResult clash = stream("0,0.05", "clash.ply", {});
+  EXPECT_EQ(clash.exit_code, 2);
+  EXPECT_NE(clash.err.find("pattern holding {iso}"), std::string::npos) << clash.err;
 }
 
 // A client killed mid-scan and started again with --resume ID:TOKEN: the server kept the
