@@ -523,6 +523,7 @@ void ExtractJob::PostMetrics(const MetricsReport& report, std::vector<v1::Extrac
   metrics->set_time_encode_s(encode_s_);
   metrics->set_time_wall_s(SecondsSince(start_));
   metrics->set_sealed_chunks(chunks_sent_);
+  metrics->set_peak_session_bytes(static_cast<int64_t>(std::max(peak_memory_, MemoryBytes())));
   // bytes_received, bytes_sent and previews_sent are filled in by the transport, which
   // alone knows what went over the wire.
   slice_ = {};
@@ -530,10 +531,13 @@ void ExtractJob::PostMetrics(const MetricsReport& report, std::vector<v1::Extrac
   sink_->PostFinal(std::move(out));
 }
 
-absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) const {
+absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
   const int64_t budget = limits_.session_memory_bytes;
   const size_t bytes = MemoryBytes() + extra;
-  if (budget <= 0 || bytes <= static_cast<uint64_t>(budget)) return absl::OkStatus();
+  if (budget <= 0 || bytes <= static_cast<uint64_t>(budget)) {
+    peak_memory_ = std::max(peak_memory_, bytes);  // what is then allocated
+    return absl::OkStatus();
+  }
   constexpr double kMiB = 1 << 20;
   return absl::ResourceExhaustedError(absl::StrFormat(
       "session memory budget exceeded: this stream needs %.1f MiB %s (mesh, simplification "

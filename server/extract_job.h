@@ -106,7 +106,9 @@ class ExtractJob {
   // of it or enough time went by (always with `now`).
   absl::Status MaybeChunk(bool now);
   // RESOURCE_EXHAUSTED when MemoryBytes() + `extra` exceeds the budget; `when` says where.
-  absl::Status CheckMemory(size_t extra, const std::string& when) const;
+  // Also records the peak (peak_memory_): every allocation the session makes outside its
+  // engine is checked here first.
+  absl::Status CheckMemory(size_t extra, const std::string& when);
   v1::Progress MakeProgress() const;
 
   ServerLimits limits_;
@@ -124,6 +126,7 @@ class ExtractJob {
   int64_t preview_bytes_ = 0, chunk_bytes_ = 0;  // Draco bytes posted
   PhaseTimes session_time_;  // of the session, kept when it is freed
   int64_t final_triangles_ = 0;
+  size_t peak_memory_ = 0;  // the most MemoryBytes() + extra a passed CheckMemory saw
   // Sealed chunks.
   int64_t chunks_sent_ = 0;
   codec::DracoOptions chunk_draco_;  // the config's, on the session's quantization grid

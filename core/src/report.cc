@@ -106,6 +106,7 @@ std::string ReportToJson(const MetricsReport& r) {
     j["bytes_received"] = r.bytes_received;
     j["bytes_sent"] = r.bytes_sent;
   }
+  if (r.peak_session_bytes) j["peak_session_bytes"] = r.peak_session_bytes;
   return j.dump(1) + "\n";
 }
 
@@ -169,6 +170,7 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
     }
     r.bytes_received = j.value("bytes_received", int64_t{0});
     r.bytes_sent = j.value("bytes_sent", int64_t{0});
+    r.peak_session_bytes = j.value("peak_session_bytes", int64_t{0});
   } catch (const nlohmann::json::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("metrics: ", e.what()));
   }
@@ -195,7 +197,16 @@ std::string ReportSummary(const MetricsReport& r) {
   line("wall time in session", absl::StrFormat("%.3f s", r.time_total_s));
   line("CPU extract/simplify", absl::StrFormat("%.3f s / %.3f s (all threads)", r.time_extract_s,
                                                r.time_simplify_s));
-  if (r.peak_rss_bytes) line("peak RSS", absl::StrFormat("%.1f MiB", r.peak_rss_bytes / 1048576.0));
+  if (r.peak_session_bytes) {
+    // Through a server: the session's own peak, and the process's, which all sessions share.
+    line("peak session memory", absl::StrFormat("%.1f MiB", r.peak_session_bytes / 1048576.0));
+    if (r.peak_rss_bytes) {
+      line("server peak RSS", absl::StrFormat("%.1f MiB (the whole process, all sessions)",
+                                              r.peak_rss_bytes / 1048576.0));
+    }
+  } else if (r.peak_rss_bytes) {
+    line("peak RSS", absl::StrFormat("%.1f MiB", r.peak_rss_bytes / 1048576.0));
+  }
   line("contractions", absl::StrCat(r.contractions, " (refused: link ", r.refusals.link, ", flip ",
                                     r.refusals.flip, ", degenerate ", r.refusals.degenerate,
                                     ", box ", r.refusals.box, ", error ", r.refusals.error,

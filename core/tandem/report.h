@@ -39,6 +39,10 @@ struct MetricsReport {
   std::optional<Distances> distance;  // with --reference: to the unsimplified surface
   // Service only (0 for local runs).
   int64_t bytes_received = 0, bytes_sent = 0;
+  // The most memory this one session held at once (mesh, queues, buffers, and the encoding
+  // or distance measure it was about to run), as the server's per-session budget counts it;
+  // peak_rss_bytes is then the whole server process's, shared by every session it served.
+  int64_t peak_session_bytes = 0;
 };
 
 // Fills every field a finished session knows (mesh measures are computed on `mesh`).

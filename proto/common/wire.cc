@@ -115,6 +115,7 @@ void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
   }
   out->set_bytes_received(r.bytes_received);
   out->set_bytes_sent(r.bytes_sent);
+  out->set_peak_session_bytes(r.peak_session_bytes);
 }
 
 MetricsReport ReportFromProto(const v1::FinalMetrics& m) {
@@ -162,6 +163,7 @@ MetricsReport ReportFromProto(const v1::FinalMetrics& m) {
   }
   r.bytes_received = m.bytes_received();
   r.bytes_sent = m.bytes_sent();
+  r.peak_session_bytes = m.peak_session_bytes();
   return r;
 }
 

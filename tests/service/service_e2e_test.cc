@@ -411,6 +411,31 @@ TEST_F(ServiceE2eTest, ClientReportsErrorsClearly) {
   }
 }
 
+// The final metrics carry the session's own memory peak (as its budget counts it), next to
+// the server process's peak RSS, which every session shares: --reference (a second,
+// full-resolution session) raises the first, and both are labelled in the summary.
+TEST_F(ServiceE2eTest, MetricsCarryTheSessionsOwnPeakMemory) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 64));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto stream = [&](const std::string& name, std::vector<std::string> extra) {
+    RunResult r = Client(Concat({"stream", "--server", server_->address(), "--input", *path,
+                                 "--iso", "0", "--error", "0.05", "--out", dir_ + "/m.ply",
+                                 "--metrics", dir_ + "/" + name},
+                                extra));
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    return std::make_pair(r, nlohmann::json::parse(ReadFile(dir_ + "/" + name)));
+  };
+  auto [plain_run, plain] = stream("plain.json", {});
+  auto [ref_run, ref] = stream("ref.json", {"--reference"});
+  const int64_t session = plain["peak_session_bytes"].get<int64_t>();
+  // At least the slice buffer and a mesh of this many triangles (12 bytes a triangle).
+  EXPECT_GT(session, 64 * 64 * 4 + 12 * plain["triangles_final"].get<int64_t>());
+  EXPECT_LT(session, plain["peak_rss_bytes"].get<int64_t>());
+  EXPECT_GT(ref["peak_session_bytes"].get<int64_t>(), session + 12 * plain["triangles_extracted"].get<int64_t>());
+  EXPECT_NE(plain_run.out.find("peak session memory"), std::string::npos) << plain_run.out;
+  EXPECT_NE(plain_run.out.find("server peak RSS"), std::string::npos) << plain_run.out;
+}
+
 TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
   TANDEM_SHARED_OR_SKIP(input, kHead);
   const std::string metrics = dir_ + "/m.json";
@@ -1227,8 +1252,8 @@ TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
     // known up front) and the preview count.
     nlohmann::json mf = nlohmann::json::parse(ReadFile(dir_ + "/followed.json"));
     nlohmann::json mw = nlohmann::json::parse(ReadFile(dir_ + "/whole.json"));
-    for (const char* k : {"time_s", "peak_rss_bytes", "bytes_received", "bytes_sent",
-                          "previews_sent", "nz"}) {
+    for (const char* k : {"time_s", "peak_rss_bytes", "peak_session_bytes", "bytes_received",
+                          "bytes_sent", "previews_sent", "nz"}) {
       mf.erase(k);
       mw.erase(k);
     }
