@@ -9,7 +9,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "client/stream_client.h"
-#include "common/cli_flags.h"
+#include "cli/flags.h"
 #include "viewer/view_server.h"
 
 namespace tandem::client {

@@ -28,12 +28,13 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "cli/cli_util.h"
+#include "cli/extract_flags.h"
 #include "cli/version.h"
 #include "client/connection.h"
 #include "client/live_view.h"
 #include "client/stream_client.h"
 #include "codec/draco_codec.h"
-#include "common/cli_flags.h"
+#include "cli/flags.h"
 #include "common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/follow.h"
@@ -64,6 +65,12 @@ int Fail(const absl::Status& st, const std::string& hint = "") {
   absl::FPrintF(stderr, "tandem-client: error: %s: %s%s\n", absl::StatusCodeToString(st.code()),
                 std::string(st.message()), hint.empty() ? "" : absl::StrCat(" (", hint, ")"));
   return 1;
+}
+
+// A mistake in the flags, found before anything was sent: exit status 2, no gRPC code.
+int UsageError(const absl::Status& st) {
+  absl::FPrintF(stderr, "tandem-client: %s\n", st.message());
+  return 2;
 }
 
 // --server and the TLS / token flags every command has (health: no token).
@@ -192,7 +199,7 @@ bool DracoFlagsOk(int64_t bits, int64_t level) {
 int SaveSurface(const tandem::client::StreamResult& result, tandem::client::SurfaceResult& s,
                 bool seal, const std::string& out, int bits, int level, const std::string& input,
                 const std::string& frame, std::vector<std::string>* json,
-                const char* wall_label) {
+                const char* wall_label, bool quiet) {
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
   // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
@@ -220,6 +227,8 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
   tandem::MetricsReport report = tandem::wire::ReportFromProto(s.metrics);
   report.input = input;
   report.frame = frame;
+  json->push_back(tandem::ReportToJson(report));
+  if (quiet) return 0;
   if (result.num_surfaces() > 1) absl::PrintF("%s (iso %g)\n", out, s.metrics.iso());
   absl::PrintF("%s", tandem::ReportSummary(report));
   absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", wall_label,
@@ -230,7 +239,6 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
     absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", s.sealed.size(),
                  s.metrics.bytes_sent());
   }
-  json->push_back(tandem::ReportToJson(report));
   return 0;
 }
 
@@ -239,7 +247,7 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
 // one report, or a JSON array of them in surface order). 0 or the exit status of the failure.
 int SaveResult(tandem::client::StreamResult& result, bool seal, const std::string& out_pattern,
                int bits, int level, const std::string& input, const std::string& frame,
-               const std::string& metrics_path, const char* wall_label = "stream wall time") {
+               const std::string& metrics_path, const char* wall_label, bool quiet) {
   const size_t n = result.num_surfaces();
   std::vector<std::string> json;
   for (size_t i = 0; i < n; ++i) {
@@ -247,7 +255,8 @@ int SaveResult(tandem::client::StreamResult& result, bool seal, const std::strin
     const tandem::cli::IsoValue iso{s.metrics.iso(), absl::StrCat(s.metrics.iso())};
     absl::StatusOr<std::string> out = tandem::cli::NameForIso("out", out_pattern, iso, n);
     if (!out.ok()) return Fail(out.status());
-    if (int rc = SaveSurface(result, s, seal, *out, bits, level, input, frame, &json, wall_label);
+    if (int rc = SaveSurface(result, s, seal, *out, bits, level, input, frame, &json, wall_label,
+                             quiet);
         rc != 0) {
       return rc;
     }
@@ -267,23 +276,15 @@ int SaveResult(tandem::client::StreamResult& result, bool seal, const std::strin
 
 int StreamCommand(int argc, char** argv) {
   ConnectionFlags connection;
+  tandem::cli::ExtractFlags f;  // the flags `tandem extract` has too
   int64_t keepalive_ms = 30000;
-  std::string input, out, partials, metrics_path, chunks_dir, resume;
-  std::string schedule_name = "tandem-lag";
-  bool seal = false;
-  double seal_margin = tandem::SessionOptions{}.seal_margin;
-  std::string iso_text;
-  double error = 0, alpha = 0, rate = 0, timeout_s = 0;
-  double distance_guard = tandem::SessionOptions{}.distance_guard;
-  double sag_correction = tandem::SessionOptions{}.sag_correction;
-  int64_t target = 0, chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
+  std::string partials, chunks_dir, resume;
+  double rate = 0, timeout_s = 0;
+  int64_t chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
   int64_t preview_every = 0, preview_ms = 0;
-  bool reference = false, verbose = false, follow = false, strict = false;
-  int64_t expect_slices = 0;
-  double settle_s = 10;
-  std::string done_file;
+  bool verbose = false;
   FlagSet flags(
-      "usage: tandem-client stream --input VOLUME --iso C0 --error E0 --out MESH [flags]\n"
+      "usage: tandem-client stream --input VOLUME --out MESH [flags]\n"
       "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, a Zarr/OME-Zarr\n"
       "store X.zarr, X.zarr#LEVEL or X.zarr#ARRAY_PATH, or a folder holding a DICOM series\n"
       "or numbered single-slice TIFFs) slice by slice to\n"
@@ -291,27 +292,12 @@ int StreamCommand(int argc, char** argv) {
       "simplified iso-surface: .drc (the server's Draco bytes), or decoded: .ply or .obj (with "
       "vertex normals), .stl, .glb.");
   connection.Add(flags, /*token=*/true);
+  f.Add(&flags, "final mesh: .drc (the server's Draco bytes), .ply or .obj (with vertex "
+                "normals), .stl or .glb");
   flags.AddInt("keepalive-time-ms", &keepalive_ms,
                "while streaming, ping the server when the connection has been quiet this "
                "long, so that proxies and NATs keep it (0 = never; keep it at or above the "
                "server's minimum ping interval, see `tandem-client info`)");
-  flags.AddString("input", &input, "FILE", "volume to stream", /*required=*/true);
-  flags.AddString("iso", &iso_text, "C0[,C1,...]",
-                  "iso-value C0 (voxel units); several (up to 8, e.g. skin and bone: 60,120) "
-                  "give one surface each from one stream, run side by side on the server: "
-                  "name --out (and --metrics) with {iso}, e.g. --out head_{iso}.ply",
-                  /*required=*/true);
-  flags.AddDouble("error", &error, "error threshold E0 (physical units)", /*required=*/true);
-  flags.AddDouble("alpha", &alpha, "isotropy parameter in [0, 1]");
-  flags.AddDouble("distance-guard", &distance_guard,
-                  "refuse contractions that move a vertex farther than this many E0 from "
-                  "the plane of a triangle it reshapes (0 = off: the paper's rules only)");
-  flags.AddDouble("sag-correction", &sag_correction,
-                  "in [0, 1]: at the end, move each vertex along its normal by this times the "
-                  "mean chordal sag of its triangles (never past E0; 0 = off: the paper's "
-                  "placement)");
-  flags.AddString("schedule", &schedule_name, "S", "none, classical, tandem or tandem-lag");
-  flags.AddInt("target-triangles", &target, "> 0: simplify further down to this many triangles");
   flags.AddDouble("rate", &rate, "send at most this many slices per second (0 = no pacing)");
   flags.AddInt("chunk-bytes", &chunk_bytes, "bytes of voxel data per message");
   flags.AddInt("quantization-bits", &bits, "Draco position quantization, 1..30");
@@ -320,60 +306,27 @@ int StreamCommand(int argc, char** argv) {
   flags.AddInt("preview-every", &preview_every,
                "ask for a preview mesh every N slices (0 = none; with --partials: about 20 over the volume)");
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
-  flags.AddString("out", &out, "MESH", "final mesh: .drc, .ply, .obj, .stl or .glb", /*required=*/true);
   flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice, 6 digits>.drc");
-  flags.AddBool("seal", &seal,
-                "ask for sealed chunks: the server sends each part of the mesh that can no longer "
-                "change once, as it is settled, and holds only the front (its memory no longer "
-                "grows with the depth); --out is their union");
-  flags.AddDouble("seal-margin", &seal_margin,
-                  "--seal: slices between the front and the sealed mesh (default 2)");
   flags.AddString("chunks", &chunks_dir, "DIR",
                   "--seal (implied): also save every sealed chunk as it arrives, "
                   "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute)");
-  flags.AddString("metrics", &metrics_path, "FILE.json",
-                  "write the metrics as JSON (same keys as `tandem extract --metrics`)");
   flags.AddString("resume", &resume, "ID:TOKEN",
                   "continue the session ID, whose client was stopped or lost its connection "
                   "(the server keeps it for --resume-window-seconds): the same VOLUME is read "
                   "from its start and the slices the session has are skipped; ID:TOKEN is what "
                   "the first client printed (a client resumes by itself while it runs)");
-  flags.AddBool("reference", &reference,
-                "also measure L1/L2/Linf distances to the unsimplified surface (server side)");
   tandem::client::LiveView view;
   view.AddFlags(flags);
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per progress and preview message on stderr");
-  flags.AddBool("strict", &strict,
-                "exit 3 (after saving the mesh) when the iso-value lies outside the data's value "
-                "range, so the surface is empty (a warning otherwise)");
-  flags.AddBool("follow", &follow,
-                "VOLUME is still being written (a folder of numbered TIFF slices or of a DICOM "
-                "series, or a Zarr array growing along z): send each slice as soon as it is "
-                "complete and in order");
-  flags.AddInt("expect-slices", &expect_slices, "--follow: the scan has this many slices");
-  flags.AddDouble("settle", &settle_s,
-                  "--follow: the scan is over after this many seconds without a new slice");
-  flags.AddString("done-file", &done_file, "NAME",
-                  "--follow: the scan is over when a file NAME appears in the folder");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
-  if (!follow && (flags.IsSet("expect-slices") || flags.IsSet("settle") || flags.IsSet("done-file"))) {
-    absl::FPrintF(stderr, "tandem-client: --expect-slices, --settle and --done-file go with --follow\n");
-    return 2;
-  }
+  if (absl::Status st = f.Check(flags); !st.ok()) return UsageError(st);
+  const std::string input = f.InputPath();
+  const std::string& out = f.out;
+  const std::string& metrics_path = f.metrics;
+  const bool follow = f.follow, strict = f.strict;
+  bool seal = f.seal;
 
-  absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos = tandem::cli::ParseIsoList(iso_text);
-  if (!isos.ok()) {
-    absl::FPrintF(stderr, "tandem-client: %s\n", isos.status().message());
-    return 2;
-  }
-  for (const tandem::cli::IsoValue& v : *isos) {
-    absl::StatusOr<std::string> name = tandem::cli::NameForIso("out", out, v, isos->size());
-    if (!name.ok()) {
-      absl::FPrintF(stderr, "tandem-client: %s\n", name.status().message());
-      return 2;
-    }
-  }
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
@@ -388,18 +341,13 @@ int StreamCommand(int argc, char** argv) {
     return 2;
   }
   if (chunk_bytes < 1 || rate < 0 || timeout_s < 0 || preview_every < 0 || preview_ms < 0 ||
-      target < 0 || keepalive_ms < 0 || keepalive_ms > std::numeric_limits<int>::max()) {
+      f.target_triangles < 0 || keepalive_ms < 0 || keepalive_ms > std::numeric_limits<int>::max()) {
     absl::FPrintF(stderr,
                   "tandem-client: --chunk-bytes must be >= 1; --rate, --timeout, --preview-every, "
                   "--preview-ms, --target-triangles and --keepalive-time-ms must be >= 0\n");
     return 2;
   }
   if (!DracoFlagsOk(bits, level)) return 2;
-  absl::StatusOr<tandem::Schedule> schedule = tandem::ParseSchedule(schedule_name);
-  if (!schedule.ok()) {
-    absl::FPrintF(stderr, "tandem-client: --schedule: %s\n", std::string(schedule.status().message()));
-    return 2;
-  }
   if (!chunks_dir.empty()) {
     seal = true;
     if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
@@ -415,7 +363,7 @@ int StreamCommand(int argc, char** argv) {
       return 2;
     }
   }
-  if (seal && target > 0) {
+  if (seal && f.target_triangles > 0) {
     absl::FPrintF(stderr, "tandem-client: --target-triangles needs the whole mesh at the end: "
                           "it cannot be combined with --seal or --chunks\n");
     return 2;
@@ -430,14 +378,23 @@ int StreamCommand(int argc, char** argv) {
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
     if (!follow) return tandem::OpenVolume(input);
     tandem::FollowOptions fo;
-    fo.expect_slices = expect_slices;
-    fo.settle_s = settle_s;
-    fo.done_file = done_file;
+    fo.expect_slices = f.expect_slices;
+    fo.settle_s = f.settle;
+    fo.done_file = f.done_file;
     fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
     return tandem::FollowVolume(input, fo);
   };
   absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source = open();
   if (!source.ok()) return Fail(source.status());
+  // --iso and --error default as in `tandem extract`: the file's first suggested iso-value,
+  // 0.2 x the smallest spacing.
+  const tandem::VolumeInfo& info = (*source)->info();
+  absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos = f.Isos(flags, info);
+  if (!isos.ok()) return UsageError(isos.status());
+  tandem::cli::ExtractFlags with_seal = f;
+  with_seal.seal = seal;  // --chunks implies it
+  absl::StatusOr<tandem::SessionOptions> session = with_seal.Options(flags, info);
+  if (!session.ok()) return UsageError(session.status());
   if (preview_every < 0) {
     // --partials alone: about 20 previews over a known depth (each is the whole partial
     // mesh, encoded again), one every 16 slices when the depth is unknown.
@@ -463,27 +420,29 @@ int StreamCommand(int argc, char** argv) {
   tandem::v1::SessionConfig& c = options.config;
   c.set_iso(isos->front().value);
   for (size_t i = 1; i < isos->size(); ++i) c.add_extra_isos((*isos)[i].value);
-  c.set_error(error);
-  c.set_alpha(alpha);
-  c.set_distance_guard(distance_guard);
-  c.set_sag_correction(sag_correction);
-  c.set_schedule(tandem::wire::ScheduleToProto(*schedule));
-  c.set_target_triangles(target);
+  c.set_error(session->error);
+  c.set_alpha(session->alpha);
+  c.set_distance_guard(session->distance_guard);
+  c.set_sag_correction(session->sag_correction);
+  c.set_schedule(tandem::wire::ScheduleToProto(session->schedule));
+  c.set_target_triangles(session->target_triangles);
   c.mutable_preview()->set_every_slices(static_cast<uint32_t>(preview_every));
   c.mutable_preview()->set_min_interval_ms(static_cast<uint32_t>(preview_ms));
   c.mutable_draco()->set_quantization_bits(static_cast<uint32_t>(bits));
   c.mutable_draco()->set_compression_level(static_cast<int32_t>(level));
-  c.set_compute_distances(reference);
+  c.set_compute_distances(f.reference);
   c.set_sealed_chunks(seal);
-  if (seal) c.set_seal_margin(seal_margin);
+  if (seal) c.set_seal_margin(session->seal_margin);
   c.set_description(std::filesystem::path(input).filename().string());
 
   const int64_t nz = (*source)->info().nz;
-  const bool bar = isatty(STDERR_FILENO) != 0 && !verbose;
+  const bool bar = isatty(STDERR_FILENO) != 0 && !verbose && !f.quiet;
   absl::Status partial_error;
   tandem::client::StreamCallbacks callbacks;
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
-    if (!p.session_id().empty() && !p.resume_token().empty()) {  // the session's first
+    if (f.quiet) {
+      // no notes
+    } else if (!p.session_id().empty() && !p.resume_token().empty()) {  // the session's first
       absl::FPrintF(stderr, "tandem-client: session %s%s; resume it after a crash with --resume %s:%s\n",
                     p.session_id(),
                     seal ? absl::StrCat(" (tandem-client watch --session ", p.session_id(), ")")
@@ -549,8 +508,9 @@ int StreamCommand(int argc, char** argv) {
   }
   if (!partial_error.ok()) return Fail(partial_error);
 
-  if (int rc = SaveResult(*result, result->sealed_session, out, static_cast<int>(bits), static_cast<int>(level), input,
-                          (*source)->info().frame, metrics_path);
+  if (int rc = SaveResult(*result, result->sealed_session, out, static_cast<int>(bits),
+                          static_cast<int>(level), input, (*source)->info().frame, metrics_path,
+                          "stream wall time", f.quiet);
       rc != 0) {
     return rc;
   }
@@ -657,7 +617,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   std::string session, out, metrics_path, chunks_dir;
   double timeout_s = 0;
   int64_t bits = 16, level = 7;
-  bool verbose = false;
+  bool verbose = false, quiet = false;
   FlagSet flags(
       view_command
           ? "usage: tandem-client view --session ID [--listen HOST:PORT] [--out MESH] [flags]\n"
@@ -685,6 +645,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   flags.AddInt("compression-level", &level, ".drc output: 0..10");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per chunk, progress and preview message on stderr");
+  flags.AddBool("quiet", &quiet, "no summary on stdout");
   tandem::client::LiveView view;
   view.AddFlags(flags, view_command ? "127.0.0.1:8080" : "");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
@@ -726,7 +687,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   if (!out.empty()) {
     if (int rc = SaveResult(*result, /*seal=*/true, out, static_cast<int>(bits),
                             static_cast<int>(level), absl::StrCat("session ", session), "",
-                            metrics_path, "watch wall time");
+                            metrics_path, "watch wall time", quiet);
         rc != 0) {
       return rc;
     }

@@ -15,7 +15,7 @@ BUILD_PKGS=(
   libgtest-dev libgmock-dev nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev
   python3 python3-yaml openssl assimp-utils
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
-  libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev
+  libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev libcli11-dev
   libssl-dev python3-grpcio python3-protobuf python3-numpy draco
   help2man chromium
 )

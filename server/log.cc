@@ -76,6 +76,13 @@ std::string JsonString(std::string_view text, size_t max_bytes) {
 
 void SetLogFormat(LogFormat format) { g_format = format; }
 
+namespace {
+bool g_quiet = false;
+}  // namespace
+
+void SetLogQuiet(bool quiet) { g_quiet = quiet; }
+bool LogQuiet() { return g_quiet; }
+
 void LogEvent(std::string_view event, absl::Span<const LogField> fields) {
   std::string line;
   const bool json = g_format == LogFormat::kJson;

@@ -26,6 +26,10 @@ std::string LogQuoted(std::string_view text, size_t max_bytes = 200);
 enum class LogFormat { kText, kJson };
 // Set once at start-up, before any thread logs.
 void SetLogFormat(LogFormat format);
+// --quiet: no "session" line for a stream that ended OK (failures, refusals and the
+// server's own lines still go out). Set once at start-up, like the format.
+void SetLogQuiet(bool quiet);
+bool LogQuiet();
 
 // One field of an event. Str: quoted in text, truncated to `max_bytes`; Word: a value the
 // server chose (a status name), written bare in text.

@@ -33,7 +33,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
 #include "cli/version.h"
-#include "common/cli_flags.h"
+#include "cli/flags.h"
 #include "common/tokens.h"
 #include "common/wire.h"
 #include "server/log.h"
@@ -80,11 +80,15 @@ int main(int argc, char** argv) {
   double grace_seconds = 10;
   double drain_delay_seconds = 0;
   int64_t malloc_arenas = 2;
+  bool quiet = false;
   tandem::cli::FlagSet flags(kUsage);
   flags.AddString("listen", &listen, "HOST:PORT", "address to listen on (port 0 = any free port)");
   flags.AddString("log-format", &log_format, "text|json",
                   "stderr log: one line per event, \"<RFC 3339 time> tandem-server: event "
                   "key=value ...\" (text) or one JSON object (json)");
+  flags.AddBool("quiet", &quiet,
+                "no log line for a session that ended OK (failures, refusals and the server's "
+                "own start and stop lines still go out)");
   flags.AddString("metrics-listen", &metrics_listen, "HOST:PORT",
                   "serve Prometheus metrics (text format) at http://HOST:PORT/metrics, no "
                   "authentication (port 0 = any free port; empty = off)");
@@ -160,7 +164,8 @@ int main(int argc, char** argv) {
   if (flags.help_requested()) {
     absl::PrintF("%s", flags.Help());
     return 0;
-  }  if (log_format == "json") {
+  }  tandem::server::SetLogQuiet(quiet);
+  if (log_format == "json") {
     tandem::server::SetLogFormat(tandem::server::LogFormat::kJson);
   } else if (log_format != "text") {
     absl::FPrintF(stderr, "tandem-server: --log-format: expected text or json, got \"%s\"\n",

@@ -253,7 +253,7 @@ ExtractCall::~ExtractCall() {
   if (parked_) fields.push_back({"waiting_for_resume", LogField::Word{"yes"}});
   const std::string message = status.error_message();  // by value: keep it for the view
   if (!status.ok()) fields.push_back({"message", LogField::Str{message, 1000}});
-  LogEvent("session", fields);
+  if (!(status.ok() && LogQuiet())) LogEvent("session", fields);
   const auto code = static_cast<size_t>(status.error_code());
   if (code < state_->finished_by_code.size()) state_->finished_by_code[code].fetch_add(1);
   state_->sessions_finished.fetch_add(1);

@@ -30,6 +30,8 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "cli/cli_util.h"
+#include "cli/extract_flags.h"
+#include "cli/flags.h"
 #include "cli/version.h"
 #include "tandem/distance.h"
 #include "tandem/follow.h"
@@ -68,132 +70,21 @@ file per slice: a DICOM series (any names and order; vertices in the patient fra
 numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
 )";
 
-constexpr char kExtractHelp[] =
-    R"(Usage: tandem extract --input FILE --out MESH.{ply,obj} [options]
-
-Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by layer
-(marching cubes) and simplifies it in tandem by quadric-error edge contraction.
-
-Options:
-  --input FILE              volume (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff,
-                            a Zarr / OME-Zarr store, or a folder holding a DICOM series
-                            or numbered single-page TIFFs)
-  --zarr-array SEL          Zarr group: the multiscale level (a number) or the array
-                            path to read (same as --input X.zarr#SEL). Default: level 0
-  --follow                  the input is still being written (a folder of numbered TIFF
-                            slices or of a DICOM series, or a Zarr array growing along
-                            z): mesh each slice as
-                            soon as it is complete and in order, until --expect-slices N
-                            slices, the --done-file NAME marker, or --settle S seconds
-                            (default 10) without anything new
-  --out MESH                output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex
-                            normals, binary STL (.stl), or glTF binary (.glb)
-  --iso C0[,C1,...]         iso-value; default: the file's first suggested iso-value
-                            (JSON sidecars carry them), required otherwise. Several
-                            (up to 8, e.g. skin and bone: --iso 60,120) give one surface
-                            each from one read of the slices, run side by side: name
-                            the outputs with {iso} (--out head_{iso}.ply); one summary
-                            per surface, and --metrics writes a JSON array (or one file
-                            per surface with {iso} in its name)
-  --error E0                error threshold in the volume's physical units (spacing
-                            units): every vertex stays within RMS distance E0 of the
-                            planes it replaces. Default: 0.2 x the smallest spacing
-  --alpha A                 isotropy in [0, 1]: trades accuracy for better-shaped
-                            triangles (never beyond E0). Default 0
-  --schedule S              tandem-lag (default): simplify behind the sweep with the
-                            paper's time-lag; tandem: no lag; classical: extract all,
-                            then simplify (holds the full-resolution mesh)
-  --distance-guard K        refuse contractions that would put a vertex farther than
-                            K x E0 from the plane of a triangle it reshapes: keeps thin
-                            features close (lower Hausdorff distance) for a few more
-                            triangles. 0 = off (the paper's rules only). Default 2
-  --sag-correction F        at the end, move each vertex along its normal by F x the
-                            mean chordal sag of its triangles (not at creases, never
-                            past E0): removes the coarse mesh's bias toward the
-                            concave side (RMS distance 3-23% lower). 0 = off (the
-                            paper's placement), at most 1. Default 0.3
-  --target-triangles N      after the E0 pass, keep contracting (past E0 if need be)
-                            until at most N triangles remain. Default: off
-  --parts N                 split the grid along x into N slabs, simplified side by
-                            side on their own threads and merged at the end (their
-                            seams simplified last); 1 = the paper's algorithm
-                            unchanged. Default 0: 4 on grids at least 256 wide, else 1
-  --no-simplify             write the full-resolution marching-cubes surface
-  --seal                    seal the mesh behind the sweep: vertices whose reach lies
-                            --seal-margin slices below the front never change again and
-                            their triangles leave the session, so its memory follows the
-                            front, not the depth (one part; no --target-triangles)
-  --seal-margin N           slices between the front and the sealed mesh (default 2).
-                            A .ply or .obj output is written as the chunks come (unless
-                            --reference, which needs the whole mesh)
-  --metrics FILE.json       write the run's figures as JSON (without it, a summary
-                            goes to stderr)
-  --reference               also extract the unsimplified surface (kept only for
-                            this) and report L1/L2/Linf distances to it
-  --samples N               surface samples per direction for --reference
-                            (default: automatic)
-  --quiet                   no summary on stderr
-  --strict                  exit 3 (after writing the mesh) when the iso-value lies
-                            outside the data's value range, so the surface is empty
-  --help                    this text
-
-Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0
-done, 1 failure while running, 2 bad arguments or input, 3 with --strict: the iso-value
-is outside the data (a warning on stderr otherwise).
-)";
-
-constexpr char kGenerateHelp[] =
-    R"(Usage: tandem generate SHAPE --size N --out FILE [--dims NX,NY,NZ] [--spacing SX,SY,SZ]
-
-Writes a synthetic float32 volume in the format of FILE's extension, every one the readers
-read: .json (FILE.raw beside it plus the JSON sidecar, whose "suggested_isovalues" holds
-the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, or .zarr (an
-OME-Zarr image: one level, array "0", axes z/y/x with the spacing as scale).
-SHAPE: sphere, pillowbox (the paper's Pillow Box), link (two interlocked tori),
-gyroid (a solid gyroid clipped to a ball: closed, high genus).
-  --size N          N x N x N grid vertices (or --dims NX,NY,NZ)
-  --spacing S,S,S   physical voxel size per axis (default 1,1,1)
-  --zarr-version V  .zarr: 2 (default) or 3
-  --zarr-codec C    .zarr: none, gzip, zstd, blosc-lz4 (default), blosc-zstd
-  --zarr-chunks Z,Y,X  .zarr: chunk shape (default 1,256,256; 0 = the whole axis)
-  --series dicom|tiff  write FILE as a folder of one file per slice instead: a DICOM CT
-                    series (IM00001.dcm, ...; values quantized to int16 with a rescale
-                    slope and intercept) or numbered single-page TIFFs (slice_00000.tif, ...)
-  --dicom-syntax S  --series dicom: explicit (default), implicit, jpeg-lossless, jpeg-ls,
-                    jpeg2000 or rle
-  --origin X,Y,Z    world position of voxel (0,0,0) (default 0,0,0)
-  --directions 9 numbers  world unit vectors of the x, y and z axes (default identity;
-                    stored by --series dicom and .json sidecars, refused by the others)
-)";
-
-constexpr char kMeasureHelp[] =
-    R"(Usage: tandem measure A.{ply,obj,stl} B.{ply,obj,stl} [--samples N] [--json]
-
-Metro-style distances between two meshes by area-uniform sampling and exact
-point-to-triangle distance: L1 (mean), L2 (RMS) and Linf (Hausdorff), A->B (forward),
-B->A (backward) and the larger of the two (max). Units are the meshes' own.
-)";
-
-constexpr char kInfoHelp[] =
-    R"(Usage: tandem info --input FILE|DIR [--zarr-array SEL] [--no-values]
-
-Prints the grid, voxel type, spacing, origin, axis directions (when not the identity),
-suggested iso-values, then reads every voxel once for the value range, the mean and a
-10-bin histogram (an iso-value between two populated ranges separates them).
-  --no-values   skip the value scan (header only)
-)";
-
-// --input, with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
-std::optional<std::string> InputPath(const cli::Args& args) {
-  auto input = args.Get("input");
-  if (!input) return std::nullopt;
-  if (auto sel = args.Get("zarr-array")) return absl::StrCat(*input, "#", *sel);
-  return input;
-}
-
 int Fail(const absl::Status& st) {
   std::fprintf(stderr, "tandem: %s\n", std::string(st.message()).c_str());
   return st.code() == absl::StatusCode::kInvalidArgument ? 2 : 1;
+}
+
+// Parses a subcommand's flags (argv[2..]): -1 to go on, else the exit status (0 after
+// printing --help).
+int ParseOrExit(cli::FlagSet& flags, int argc, char** argv) {
+  absl::Status st = flags.Parse(argc, argv, 2);
+  if (flags.help_requested()) {
+    std::fputs(flags.Help().c_str(), stdout);
+    return 0;
+  }
+  if (!st.ok()) return Fail(st);
+  return -1;
 }
 
 absl::Status WriteText(const std::string& path, const std::string& text) {
@@ -229,37 +120,41 @@ std::string DistanceTable(const Distances& d) {
 }
 
 int Extract(int argc, char** argv) {
-  auto args =
-      cli::Args::Parse(argc, argv, 2,
-                       {"input", "out", "iso", "error", "alpha", "distance-guard", "sag-correction",
-                        "schedule", "target-triangles", "metrics", "samples", "parts", "zarr-array",
-                        "expect-slices", "settle", "done-file", "seal-margin"},
-                       {"no-simplify", "reference", "quiet", "follow", "strict", "help", "seal"});
-  if (!args.ok()) return Fail(args.status());
-  if (args->Has("help")) {
-    std::fputs(kExtractHelp, stdout);
-    return 0;
+  cli::ExtractFlags f;
+  int64_t samples = 0, parts = 0;
+  cli::FlagSet flags(
+      "usage: tandem extract --input FILE --out MESH [flags]\n"
+      "Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by layer\n"
+      "(marching cubes) and simplifies it in tandem by quadric-error edge contraction.");
+  f.Add(&flags, "output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex normals, "
+                "binary STL (.stl), or glTF binary (.glb)");
+  flags.AddInt("parts", &parts,
+               "split the grid along x into N slabs, simplified side by side on their own "
+               "threads and merged at the end (their seams simplified last); 1 = the paper's "
+               "algorithm unchanged; 0 = automatic: 4 on grids at least 256 wide, else 1");
+  flags.AddInt("samples", &samples,
+               "surface samples per direction for --reference (0 = automatic)");
+  flags.SetEpilog(
+      "Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0\n"
+      "done, 1 failure while running, 2 bad arguments or input, 3 with --strict: the iso-value\n"
+      "is outside the data (a warning on stderr otherwise).\n");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  if (!flags.positional().empty()) {
+    return Fail(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
   }
-  if (!args->positional().empty()) {
-    return Fail(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", args->positional()[0], "'")));
-  }
-  auto input = InputPath(*args);
-  auto out = args->Get("out");
-  if (!input) return Fail(absl::InvalidArgumentError("--input FILE is required (see tandem extract --help)"));
-  if (!out) return Fail(absl::InvalidArgumentError("--out MESH.{ply,obj} is required"));
-  if (!IsMeshOutputPath(*out)) {
+  if (absl::Status st = f.Check(flags); !st.ok()) return Fail(st);
+  const std::string& out = f.out;
+  if (!IsMeshOutputPath(out)) {
     return Fail(absl::InvalidArgumentError(
-        absl::StrCat("--out ", *out, ": the extension must be ", kMeshExtensions)));
+        absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
   }
+  const std::string input_path = f.InputPath();
+  const bool follow = f.follow, quiet = f.quiet, reference = f.reference;
+  const std::string& metrics = f.metrics;
   // --follow: an acquisition still being written (tandem/follow.h). One status line on a
   // terminal: slices complete on disk, read, meshed.
-  const bool follow = args->Has("follow");
-  if (!follow && (args->Has("expect-slices") || args->Has("settle") || args->Has("done-file"))) {
-    return Fail(absl::InvalidArgumentError(
-        "--expect-slices, --settle and --done-file go with --follow"));
-  }
   std::atomic<int64_t> seen{0}, read{0};
-  const bool tty = isatty(2) && !args->Has("quiet");
+  const bool tty = isatty(2) && !quiet;
   auto status_line = [&](int64_t meshed) {
     if (tty) {
       std::fprintf(stderr, "\rfollowing: %lld on disk, %lld read, %lld meshed   ",
@@ -270,80 +165,39 @@ int Extract(int argc, char** argv) {
   absl::StatusOr<std::unique_ptr<SliceSource>> source;
   if (follow) {
     FollowOptions fo;
-    auto expect = args->GetInt("expect-slices", 0);
-    auto settle = args->GetDouble("settle", 10.0);
-    if (!expect.ok()) return Fail(expect.status());
-    if (!settle.ok()) return Fail(settle.status());
-    fo.expect_slices = *expect;
-    fo.settle_s = *settle;
-    fo.done_file = args->Get("done-file").value_or("");
+    fo.expect_slices = f.expect_slices;
+    fo.settle_s = f.settle;
+    fo.done_file = f.done_file;
     fo.progress = [&](int64_t s, int64_t r) {
       seen = s;
       read = r;
     };
-    source = FollowVolume(*input, fo);
+    source = FollowVolume(input_path, fo);
   } else {
-    source = OpenVolume(*input);
+    source = OpenVolume(input_path);
   }
   if (!source.ok()) return Fail(source.status());
   const VolumeInfo info = (*source)->info();
 
-  SessionOptions opt;
+  auto parsed_opt = f.Options(flags, info);
+  if (!parsed_opt.ok()) return Fail(parsed_opt.status());
+  SessionOptions opt = *parsed_opt;
   // --iso A,B,...: one surface per value, from one read of the slices.
-  std::vector<cli::IsoValue> isos;
-  if (auto text = args->Get("iso")) {
-    auto parsed = cli::ParseIsoList(*text);
-    if (!parsed.ok()) return Fail(parsed.status());
-    isos = *std::move(parsed);
-  } else if (!info.suggested_isovalues.empty()) {
-    isos.push_back({info.suggested_isovalues[0], absl::StrCat(info.suggested_isovalues[0])});
-  } else {
-    return Fail(absl::InvalidArgumentError(absl::StrCat(
-        "--iso C0 is required: ", *input, " suggests no iso-value")));
-  }
+  auto parsed_isos = f.Isos(flags, info);
+  if (!parsed_isos.ok()) return Fail(parsed_isos.status());
+  const std::vector<cli::IsoValue> isos = *std::move(parsed_isos);
   std::vector<std::string> outs;
   for (const cli::IsoValue& iso : isos) {
-    auto name = cli::NameForIso("out", *out, iso, isos.size());
+    auto name = cli::NameForIso("out", out, iso, isos.size());
     if (!name.ok()) return Fail(name.status());
     outs.push_back(*std::move(name));
   }
   opt.iso = isos[0].value;
-  const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
-  auto e0 = args->GetDouble("error", 0.2 * min_spacing);
-  auto alpha = args->GetDouble("alpha", 0.0);
-  auto guard = args->GetDouble("distance-guard", SessionOptions{}.distance_guard);
-  auto sag = args->GetDouble("sag-correction", SessionOptions{}.sag_correction);
-  auto target = args->GetInt("target-triangles", 0);
-  auto samples = args->GetInt("samples", 0);
-  auto parts = args->GetInt("parts", 0);
-  auto seal_margin = args->GetDouble("seal-margin", SessionOptions{}.seal_margin);
-  for (const absl::Status& st : {e0.status(), alpha.status(), guard.status(), sag.status(),
-                                 target.status(), samples.status(), parts.status(),
-                                 seal_margin.status()}) {
-    if (!st.ok()) return Fail(st);
-  }
-  if (*parts < 0 || *parts > SessionOptions::kMaxParts) {
+  if (parts < 0 || parts > SessionOptions::kMaxParts) {
     return Fail(absl::InvalidArgumentError(absl::StrCat(
-        "--parts ", *parts, ": expected 0 (automatic) to ", SessionOptions::kMaxParts)));
+        "--parts ", parts, ": expected 0 (automatic) to ", SessionOptions::kMaxParts)));
   }
-  opt.parts = static_cast<int>(*parts);
-  opt.error = *e0;
-  opt.alpha = *alpha;
-  opt.distance_guard = *guard;
-  opt.sag_correction = *sag;
-  opt.target_triangles = *target;
-  opt.seal = args->Has("seal");
-  opt.seal_margin = *seal_margin;
-  if (args->Has("no-simplify")) {
-    opt.schedule = Schedule::kNone;
-  } else if (auto s = args->Get("schedule")) {
-    auto sched = ParseSchedule(*s);
-    if (!sched.ok() || *sched == Schedule::kNone) {
-      return Fail(absl::InvalidArgumentError(absl::StrCat(
-          "--schedule '", *s, "': expected classical, tandem or tandem-lag (or --no-simplify)")));
-    }
-    opt.schedule = *sched;
-  }
+  opt.parts = static_cast<int>(parts);
   if (absl::Status st = opt.Validate(); !st.ok()) return Fail(st);
 
   cli::Progress progress("slices");
@@ -368,7 +222,7 @@ int Extract(int argc, char** argv) {
     s.opt.iso = isos[i].value;
     s.out = outs[i];
     options.push_back(s.opt);
-    if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !args->Has("reference")) {
+    if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !reference) {
       auto w = ChunkedMeshWriter::Open(s.out);
       if (!w.ok()) return Fail(w.status());
       s.writer = *std::move(w);
@@ -391,13 +245,13 @@ int Extract(int argc, char** argv) {
     if (follow) {
       status_line(d);
     } else {
-      progress.Update(d, t);
+      if (!quiet) progress.Update(d, t);
     }
   }, on_chunk);
   if (follow && tty) std::fprintf(stderr, "\n");
   progress.Done();
   if (!sessions.ok()) return Fail(absl::Status(sessions.status().code(),
-                                               absl::StrCat(*input, ": ", std::string(sessions.status().message()))));
+                                               absl::StrCat(input_path, ": ", std::string(sessions.status().message()))));
   for (size_t i = 0; i < surfaces.size(); ++i) {
     Surface& s = surfaces[i];
     const TandemSession& session = *(*sessions)[i];
@@ -416,11 +270,11 @@ int Extract(int argc, char** argv) {
       if (absl::Status st = WriteMesh(s.out, s.mesh); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
-    s.report.input = *input;
+    s.report.input = input_path;
     s.report.frame = info.frame;
   }
-  if (args->Has("reference")) {
-    auto ref_source = OpenVolume(*input);
+  if (reference) {
+    auto ref_source = OpenVolume(input_path);
     if (!ref_source.ok()) return Fail(ref_source.status());
     std::vector<SessionOptions> ref_options = options;
     for (SessionOptions& o : ref_options) {
@@ -429,11 +283,13 @@ int Extract(int argc, char** argv) {
     }
     cli::Progress ref_progress("reference slices");
     auto refs = RunSessions(**ref_source, ref_options,
-                            [&](int64_t d, int64_t t) { ref_progress.Update(d, t); });
+                            [&](int64_t d, int64_t t) {
+                              if (!quiet) ref_progress.Update(d, t);
+                            });
     ref_progress.Done();
     if (!refs.ok()) return Fail(refs.status());
     DistanceOptions dopt;
-    dopt.samples = static_cast<size_t>(*samples);
+    dopt.samples = static_cast<size_t>(samples);
     for (size_t i = 0; i < surfaces.size(); ++i) {
       surfaces[i].report.distance = MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
     }
@@ -443,17 +299,17 @@ int Extract(int argc, char** argv) {
   for (size_t i = 0; i < surfaces.size(); ++i) {
     Surface& s = surfaces[i];
     s.report.peak_rss_bytes = PeakRssBytes();  // the process's, as /usr/bin/time reports it
-    if (auto metrics = args->Get("metrics")) {
-      if (metrics->find("{iso}") != std::string::npos) {
-        auto name = cli::NameForIso("metrics", *metrics, isos[i], isos.size());
+    if (!metrics.empty()) {
+      if (metrics.find("{iso}") != std::string::npos) {
+        auto name = cli::NameForIso("metrics", metrics, isos[i], isos.size());
         if (!name.ok()) return Fail(name.status());
         if (absl::Status st = WriteText(*name, ReportToJson(s.report)); !st.ok()) return Fail(st);
       } else {
         json.push_back(ReportToJson(s.report));
       }
-    } else if (!args->Has("quiet")) {
+    } else if (!quiet) {
       const std::string which = isos.size() > 1 ? absl::StrCat(" (iso ", isos[i].text, ")") : "";
-      std::fprintf(stderr, "%s -> %s%s\n%s", input->c_str(), s.out.c_str(), which.c_str(),
+      std::fprintf(stderr, "%s -> %s%s\n%s", input_path.c_str(), s.out.c_str(), which.c_str(),
                    ReportSummary(s.report).c_str());
     }
     // An iso-value the data never crosses gives an empty mesh: say so, never silently.
@@ -470,72 +326,90 @@ int Extract(int argc, char** argv) {
   if (!json.empty()) {
     // One surface: its report; several into one file: a JSON array of them, in --iso order.
     std::string text = json.size() == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
-    if (absl::Status st = WriteText(*args->Get("metrics"), text); !st.ok()) return Fail(st);
+    if (absl::Status st = WriteText(metrics, text); !st.ok()) return Fail(st);
   }
-  if (outside && args->Has("strict")) return 3;
+  if (outside && f.strict) return 3;
   return 0;
 }
 
 int Generate(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2,
-                               {"size", "dims", "spacing", "origin", "directions", "out",
-                                "zarr-version", "zarr-codec", "zarr-chunks", "series",
-                                "dicom-syntax"},
-                               {"help"});
-  if (!args.ok()) return Fail(args.status());
-  if (args->Has("help")) {
-    std::fputs(kGenerateHelp, stdout);
-    return 0;
-  }
-  if (args->positional().size() != 1) {
+  std::string out, dims_text, spacing_text, origin_text, directions_text, zarr_codec, zarr_chunks;
+  std::string series, dicom_syntax;
+  int64_t size = 0, zarr_version = 2;
+  cli::FlagSet flags(
+      "usage: tandem generate SHAPE --size N --out FILE [flags]\n"
+      "Writes a synthetic float32 volume in the format of FILE's extension, every one the readers\n"
+      "read: .json (FILE.raw beside it plus the JSON sidecar, whose \"suggested_isovalues\" holds\n"
+      "the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, or .zarr (an\n"
+      "OME-Zarr image: one level, array \"0\", axes z/y/x with the spacing as scale).\n"
+      "SHAPE: sphere, pillowbox (the paper's Pillow Box), link (two interlocked tori),\n"
+      "gyroid (a solid gyroid clipped to a ball: closed, high genus).");
+  flags.AddString("out", &out, "FILE", "the volume to write (its extension says the format)",
+                  /*required=*/true);
+  flags.AddInt("size", &size, "N x N x N grid vertices (or --dims)");
+  flags.AddString("dims", &dims_text, "NX,NY,NZ", "grid vertices per axis");
+  flags.AddString("spacing", &spacing_text, "SX,SY,SZ", "physical voxel size per axis");
+  flags.SetDefaultText("spacing", "1,1,1");
+  flags.AddString("origin", &origin_text, "X,Y,Z", "world position of voxel (0,0,0)");
+  flags.SetDefaultText("origin", "0,0,0");
+  flags.AddString("directions", &directions_text, "9 NUMBERS",
+                  "world unit vectors of the x, y and z axes (stored by --series dicom and "
+                  ".json sidecars, refused by the others)");
+  flags.SetDefaultText("directions", "identity");
+  flags.AddInt("zarr-version", &zarr_version, ".zarr: 2 or 3", "V");
+  flags.AddString("zarr-codec", &zarr_codec, "C", ".zarr: none, gzip, zstd, blosc-lz4, blosc-zstd");
+  flags.SetDefaultText("zarr-codec", "blosc-lz4");
+  flags.AddString("zarr-chunks", &zarr_chunks, "Z,Y,X", ".zarr: chunk shape (0 = the whole axis)");
+  flags.SetDefaultText("zarr-chunks", "1,256,256");
+  flags.AddString("series", &series, "dicom|tiff",
+                  "write FILE as a folder of one file per slice instead: a DICOM CT series "
+                  "(IM00001.dcm, ...; values quantized to int16 with a rescale slope and "
+                  "intercept) or numbered single-page TIFFs (slice_00000.tif, ...)");
+  flags.AddString("dicom-syntax", &dicom_syntax, "S",
+                  "--series dicom: explicit, implicit, jpeg-lossless, jpeg-ls, jpeg2000 or rle");
+  flags.SetDefaultText("dicom-syntax", "explicit");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  if (flags.positional().size() != 1) {
     return Fail(absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
   }
-  auto shape = ParseShape(args->positional()[0]);
+  auto shape = ParseShape(flags.positional()[0]);
   if (!shape.ok()) return Fail(shape.status());
-  auto out = args->Get("out");
-  if (!out) {
-    return Fail(absl::InvalidArgumentError(
-        "--out FILE is required: .json (+ .raw beside it), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-        ".zarr"));
-  }
   ZarrWriteOptions zarr;
-  auto zarr_version = args->GetInt("zarr-version", 2);
-  if (!zarr_version.ok()) return Fail(zarr_version.status());
-  zarr.version = static_cast<int>(*zarr_version);
-  if (auto c = args->Get("zarr-codec")) {
-    auto codec = ParseZarrCompressor(*c);
+  zarr.version = static_cast<int>(zarr_version);
+  if (!zarr_codec.empty()) {
+    auto codec = ParseZarrCompressor(zarr_codec);
     if (!codec.ok()) return Fail(codec.status());
     zarr.compressor = *codec;
   }
-  if (auto c = args->Get("zarr-chunks")) {
-    auto t = ParseTriple(*c, "--zarr-chunks");
+  if (!zarr_chunks.empty()) {
+    auto t = ParseTriple(zarr_chunks, "--zarr-chunks");
     if (!t.ok()) return Fail(t.status());
     zarr.chunks = {int64_t((*t)[0]), int64_t((*t)[1]), int64_t((*t)[2])};
   }
   std::array<double, 3> dims{};
-  if (auto d = args->Get("dims")) {
-    auto t = ParseTriple(*d, "--dims");
+  if (!dims_text.empty()) {
+    auto t = ParseTriple(dims_text, "--dims");
     if (!t.ok()) return Fail(t.status());
     dims = *t;
   } else {
-    auto n = args->GetInt("size", std::nullopt);
-    if (!n.ok()) return Fail(absl::InvalidArgumentError("--size N (or --dims NX,NY,NZ) is required"));
-    dims = {double(*n), double(*n), double(*n)};
+    if (!flags.IsSet("size")) {
+      return Fail(absl::InvalidArgumentError("--size N (or --dims NX,NY,NZ) is required"));
+    }
+    dims = {double(size), double(size), double(size)};
   }
   std::array<double, 3> spacing{1, 1, 1};
-  if (auto s = args->Get("spacing")) {
-    auto t = ParseTriple(*s, "--spacing");
+  if (!spacing_text.empty()) {
+    auto t = ParseTriple(spacing_text, "--spacing");
     if (!t.ok()) return Fail(t.status());
     spacing = *t;
   }
-  const std::string series = args->Get("series").value_or("");
   if (!series.empty() && series != "dicom" && series != "tiff") {
     return Fail(absl::InvalidArgumentError(
         absl::StrCat("--series must be dicom or tiff, not '", series, "'")));
   }
   DicomWriteOptions dicom;
-  if (auto s = args->Get("dicom-syntax")) {
-    auto syntax = ParseDicomSyntax(*s);
+  if (!dicom_syntax.empty()) {
+    auto syntax = ParseDicomSyntax(dicom_syntax);
     if (!syntax.ok()) return Fail(syntax.status());
     dicom.syntax = *syntax;
   }
@@ -547,15 +421,15 @@ int Generate(int argc, char** argv) {
   // The shape is drawn on the grid; --origin and --directions only place the grid in the
   // world (what a scanner's header says), so every format holds the same voxels.
   VolumeInfo info = src->info();
-  if (auto o = args->Get("origin")) {
-    auto t = ParseTriple(*o, "--origin");
+  if (!origin_text.empty()) {
+    auto t = ParseTriple(origin_text, "--origin");
     if (!t.ok()) return Fail(t.status());
     info.origin = *t;
   }
-  if (auto d = args->Get("directions")) {
+  if (!directions_text.empty()) {
     std::vector<double> v;
     bool numbers = true;
-    for (absl::string_view part : absl::StrSplit(*d, ',')) {
+    for (absl::string_view part : absl::StrSplit(directions_text, ',')) {
       double x = 0;
       numbers = numbers && absl::SimpleAtod(part, &x);
       v.push_back(x);
@@ -574,39 +448,41 @@ int Generate(int argc, char** argv) {
     if (z < src->next_slice()) src = make();  // a second pass (the DICOM writer's range scan)
     return src->ReadSlice(bytes);
   };
-  absl::Status st = series == "dicom"         ? WriteDicomSeries(*out, info, next, dicom)
-                    : series == "tiff"        ? WriteTiffSequence(*out, info, next)
-                    : out->ends_with(".zarr") ? WriteZarr(*out, info, next, zarr)
-                                              : WriteVolume(*out, info, next);
+  absl::Status st = series == "dicom"         ? WriteDicomSeries(out, info, next, dicom)
+                    : series == "tiff"        ? WriteTiffSequence(out, info, next)
+                    : out.ends_with(".zarr") ? WriteZarr(out, info, next, zarr)
+                                              : WriteVolume(out, info, next);
   progress.Done();
   if (!st.ok()) return Fail(st);
-  std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out->c_str(),
+  std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out.c_str(),
                static_cast<long long>(dims[0]), static_cast<long long>(dims[1]),
                static_cast<long long>(dims[2]));
   return 0;
 }
 
 int Measure(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2, {"samples"}, {"json", "help"});
-  if (!args.ok()) return Fail(args.status());
-  if (args->Has("help")) {
-    std::fputs(kMeasureHelp, stdout);
-    return 0;
-  }
-  if (args->positional().size() != 2) return Fail(absl::InvalidArgumentError("expected two meshes: A B"));
-  auto a = ReadMesh(args->positional()[0]);
+  int64_t samples = 0;
+  bool json = false;
+  cli::FlagSet flags(
+      "usage: tandem measure A.{ply,obj,stl} B.{ply,obj,stl} [flags]\n"
+      "Metro-style distances between two meshes by area-uniform sampling and exact\n"
+      "point-to-triangle distance: L1 (mean), L2 (RMS) and Linf (Hausdorff), A->B (forward),\n"
+      "B->A (backward) and the larger of the two (max). Units are the meshes' own.");
+  flags.AddInt("samples", &samples, "surface samples per direction (0 = automatic)");
+  flags.AddBool("json", &json, "print the distances as JSON instead of a table");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  if (flags.positional().size() != 2) return Fail(absl::InvalidArgumentError("expected two meshes: A B"));
+  auto a = ReadMesh(flags.positional()[0]);
   if (!a.ok()) return Fail(a.status());
-  auto b = ReadMesh(args->positional()[1]);
+  auto b = ReadMesh(flags.positional()[1]);
   if (!b.ok()) return Fail(b.status());
   if (a->num_triangles() == 0 || b->num_triangles() == 0) {
     return Fail(absl::InvalidArgumentError("both meshes need at least one triangle"));
   }
-  auto samples = args->GetInt("samples", 0);
-  if (!samples.ok()) return Fail(samples.status());
   DistanceOptions dopt;
-  dopt.samples = static_cast<size_t>(*samples);
+  dopt.samples = static_cast<size_t>(samples);
   const Distances d = MeasureDistances(*a, *b, dopt);
-  if (args->Has("json")) {
+  if (json) {
     std::fputs(DistancesToJson(d).c_str(), stdout);
   } else {
     std::fputs(DistanceTable(d).c_str(), stdout);
@@ -666,15 +542,22 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path)
 }
 
 int Info(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2, {"input", "zarr-array"}, {"no-values", "help"});
-  if (!args.ok()) return Fail(args.status());
-  if (args->Has("help")) {
-    std::fputs(kInfoHelp, stdout);
-    return 0;
-  }
-  auto input = InputPath(*args);
-  if (!input) return Fail(absl::InvalidArgumentError("--input FILE is required"));
-  auto src = OpenVolume(*input);
+  std::string input_flag, zarr_array;
+  bool no_values = false;
+  cli::FlagSet flags(
+      "usage: tandem info --input FILE|DIR [flags]\n"
+      "Prints the grid, voxel type, spacing, origin, axis directions (when not the identity),\n"
+      "suggested iso-values, then reads every voxel once for the value range, the mean and a\n"
+      "10-bin histogram (an iso-value between two populated ranges separates them).");
+  flags.AddString("input", &input_flag, "FILE", "the volume (any format tandem reads)",
+                  /*required=*/true);
+  flags.AddString("zarr-array", &zarr_array, "SEL",
+                  "Zarr group: the multiscale level (a number) or the array path to read");
+  flags.AddBool("no-values", &no_values, "skip the value scan (header only)");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  const std::string input =
+      zarr_array.empty() ? input_flag : absl::StrCat(input_flag, "#", zarr_array);
+  auto src = OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo& i = (*src)->info();
   std::printf("grid     %lld x %lld x %lld\n", static_cast<long long>(i.nx), static_cast<long long>(i.ny),
@@ -692,8 +575,8 @@ int Info(int argc, char** argv) {
   for (double v : i.suggested_isovalues) absl::StrAppend(&isos, isos.empty() ? "" : " ", v);
   std::printf("isovalues %s\n", isos.empty() ? "(none suggested)" : isos.c_str());
   if (!i.description.empty()) std::printf("about    %s\n", i.description.c_str());
-  if (args->Has("no-values") || i.nz == 0) return 0;
-  auto stats = ScanValues(**src, *input);
+  if (no_values || i.nz == 0) return 0;
+  auto stats = ScanValues(**src, input);
   if (!stats.ok()) return Fail(stats.status());
   if (stats->count == 0) {
     std::printf("values   none finite\n");
@@ -712,10 +595,8 @@ int Info(int argc, char** argv) {
   return 0;
 }
 
-constexpr char kSimulateHelp[] =
-    R"(Usage: tandem simulate --input FILE --out DIR --as dicom|tiff|zarr [--rate R]
-                       [--burst N] [--done-file NAME] [--seed S]
-
+constexpr char kSimulateUsage[] =
+    R"(usage: tandem simulate --input FILE --out DIR --as dicom|tiff|zarr [flags]
 Plays an instrument for demos and tests: writes the volume FILE (any format tandem reads)
 into DIR slice by slice at R slices per second, as a scanner or microscope would while
 `tandem extract --follow` or `tandem-client stream --follow` meshes it:
@@ -724,38 +605,36 @@ into DIR slice by slice at R slices per second, as a scanner or microscope would
           that say nothing about position, as a C-STORE receiver stores them
   tiff    numbered single-page TIFFs slice_00000.tif, ... in order (a reconstruction)
   zarr    an OME-Zarr v2 image whose array grows along z (chunks 4 x 256 x 256,
-          blosc-lz4), each chunk row appearing whole (a light-sheet microscope)
-  --rate R          slices per second (default 20; 0 = as fast as possible)
-  --done-file NAME  create DIR/NAME (an empty file) after the last slice
-  --seed S          shuffle seed for dicom bursts (default 1)
-)";
+          blosc-lz4), each chunk row appearing whole (a light-sheet microscope))";
 
 int Simulate(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2,
-                               {"input", "out", "as", "rate", "burst", "done-file", "seed"},
-                               {"help"});
-  if (!args.ok()) return Fail(args.status());
-  if (args->Has("help")) {
-    std::fputs(kSimulateHelp, stdout);
-    return 0;
-  }
-  auto input = args->Get("input");
-  auto out = args->Get("out");
-  const std::string as = args->Get("as").value_or("");
-  if (!input || !out || (as != "dicom" && as != "tiff" && as != "zarr")) {
+  std::string input, out_flag, as, done_file;
+  double rate_flag = 20;
+  int64_t burst_flag = 8, seed_flag = 1;
+  cli::FlagSet flags(kSimulateUsage);
+  flags.AddString("input", &input, "FILE", "the volume to play (any format tandem reads)",
+                  /*required=*/true);
+  flags.AddString("out", &out_flag, "DIR", "the folder (or .zarr store) to write into",
+                  /*required=*/true);
+  flags.AddString("as", &as, "dicom|tiff|zarr", "what the instrument writes (see above)",
+                  /*required=*/true);
+  flags.AddDouble("rate", &rate_flag, "slices per second (0 = as fast as possible)", false, "R");
+  flags.AddInt("burst", &burst_flag, "dicom: slices per burst");
+  flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
+  flags.AddInt("seed", &seed_flag, "shuffle seed for dicom bursts", "S");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  if (as != "dicom" && as != "tiff" && as != "zarr") {
     return Fail(absl::InvalidArgumentError(
-        "--input FILE, --out DIR and --as dicom|tiff|zarr are required (tandem simulate --help)"));
+        absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
   }
-  auto rate = args->GetDouble("rate", 20.0);
-  auto burst = args->GetInt("burst", 8);
-  auto seed = args->GetInt("seed", 1);
-  if (!rate.ok()) return Fail(rate.status());
-  if (!burst.ok()) return Fail(burst.status());
-  if (!seed.ok()) return Fail(seed.status());
+  const std::string* const out = &out_flag;
+  const double* const rate = &rate_flag;
+  const int64_t* const burst = &burst_flag;
+  const int64_t* const seed = &seed_flag;
   if (*rate < 0 || *burst < 1) {
     return Fail(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
   }
-  auto src = OpenVolume(*input);
+  auto src = OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo info = (*src)->info();
   std::error_code ec;
@@ -769,7 +648,7 @@ int Simulate(int argc, char** argv) {
   std::optional<DicomSliceWriter> dicom;
   if (as == "dicom") {
     if (info.dtype == DType::kFloat32) {  // the quantization needs the range: one pass first
-      auto scan = OpenVolume(*input);
+      auto scan = OpenVolume(input);
       if (!scan.ok()) return Fail(scan.status());
       std::vector<uint8_t> b;
       float lo = std::numeric_limits<float>::infinity(), hi = -lo;
@@ -848,8 +727,8 @@ int Simulate(int argc, char** argv) {
     if (absl::Status st = zarr->Finish(); !st.ok()) return Fail(st);
   }
   progress.Done();
-  if (auto done = args->Get("done-file")) {
-    std::ofstream((std::filesystem::path(*out) / *done).string());
+  if (!done_file.empty()) {
+    std::ofstream((std::filesystem::path(*out) / done_file).string());
   }
   std::fprintf(stderr, "simulated %lld slices into %s (%s)\n", static_cast<long long>(written),
                out->c_str(), as.c_str());
@@ -857,33 +736,32 @@ int Simulate(int argc, char** argv) {
 }
 
 }  // namespace
-constexpr char kViewHelp[] =
-    R"(Usage: tandem view MESH | DIR [--view HOST:PORT] [--view-token TOKEN] [--linger S]
-
+constexpr char kViewUsage[] =
+    R"(usage: tandem view MESH | DIR [flags]
 Shows a finished result in a browser: serves the viewer page (the one tandem-client
 stream/watch --view shows live) on HOST:PORT (default 127.0.0.1:8080; port 0 = any free
 one) and prints its address. MESH is a .ply, .obj, .stl, .glb or .drc file; DIR a folder of
 sealed chunks (chunk_000000.drc, ... as tandem-client --chunks saves them), drawn chunk by
-chunk. Runs until Ctrl-C, or for --linger S seconds.
-  --view-token TOKEN  the page and its data need ?token=TOKEN (for an address other than
-                      loopback, which has no other protection)
-)";
+chunk. Runs until Ctrl-C, or for --linger S seconds.)";
 
 std::atomic<bool> g_view_quit{false};
 
 int View(int argc, char** argv) {
-  auto args = cli::Args::Parse(argc, argv, 2, {"view", "view-token", "linger"}, {"help"});
-  if (!args.ok()) return Fail(args.status());
-  if (args->Has("help")) {
-    std::fputs(kViewHelp, stdout);
-    return 0;
-  }
-  if (args->positional().size() != 1) {
+  std::string listen = "127.0.0.1:8080", token;
+  double linger_s = -1;
+  cli::FlagSet flags(kViewUsage);
+  flags.AddString("view", &listen, "HOST:PORT", "where the page is served (port 0 = any free one)");
+  flags.AddString("view-token", &token, "TOKEN",
+                  "the page and its data need ?token=TOKEN (for an address other than "
+                  "loopback, which has no other protection)");
+  flags.AddDouble("linger", &linger_s, "serve for this many seconds, then exit (< 0 = until Ctrl-C)",
+                  false, "S");
+  if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
+  if (flags.positional().size() != 1) {
     return Fail(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
   }
-  const std::string path = args->positional()[0];
-  auto linger = args->GetDouble("linger", -1.0);
-  if (!linger.ok()) return Fail(linger.status());
+  const std::string path = flags.positional()[0];
+  const double* const linger = &linger_s;
   std::vector<std::string> chunks;
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec)) {
@@ -912,8 +790,8 @@ int View(int argc, char** argv) {
     return ss.str();
   };
   viewer::ViewOptions options;
-  options.listen = args->Get("view").value_or("127.0.0.1:8080");
-  options.token = args->Get("view-token").value_or("");
+  options.listen = listen;
+  options.token = token;
   auto server = viewer::ViewServer::Start(options);
   if (!server.ok()) return Fail(server.status());
   (*server)->SetSession("", std::filesystem::path(path).filename().string(), 0);

@@ -62,6 +62,7 @@ v1::FinalMetrics Deterministic(v1::FinalMetrics m) {
   m.clear_time_encode_s();
   m.clear_time_wall_s();
   m.clear_peak_rss_bytes();
+  m.clear_peak_session_bytes();  // the pipeline's ring holds more or fewer slices at once
   m.clear_bytes_sent();  // progress messages are latest-wins: their number varies
   return m;
 }

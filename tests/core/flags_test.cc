@@ -1,7 +1,7 @@
-// FlagSet, the parser both binaries use: forms, defaults in --help, environment fallback.
-#include "common/cli_flags.h"
+// FlagSet, the parser of all three programs (on CLI11): forms, defaults in --help,
+// environment fallback, and mistakes worded the same way everywhere.
+#include "cli/flags.h"
 
-#include "cli/cli_util.h"
 
 #include <cstdlib>
 #include <vector>
@@ -68,12 +68,12 @@ TEST(FlagSet, ErrorsNameTheFlag) {
   flags.AddInt("count", &n, "an int");
   flags.AddDouble("iso", &x, "required", /*required=*/true);
   Args unknown({"prog", "--nope", "1"});
-  EXPECT_EQ(flags.Parse(unknown.argc(), unknown.argv()).message(), "unknown flag --nope (see --help)");
+  EXPECT_EQ(flags.Parse(unknown.argc(), unknown.argv()).message(), "unknown option --nope (see --help)");
   FlagSet f2("usage");
   f2.AddInt("count", &n, "an int");
   Args bad({"prog", "--count", "seven"});
   EXPECT_EQ(f2.Parse(bad.argc(), bad.argv()).message(),
-            "--count: cannot read 'seven' as an integer");
+            "--count: 'seven' is not an integer");
   FlagSet f3("usage");
   f3.AddDouble("iso", &x, "required", /*required=*/true);
   Args none({"prog"});
@@ -98,16 +98,16 @@ TEST(FlagSet, MisspeltFlagsGetTheClosestNameAndRepeatsAreErrors) {
   make(&f1);
   Args typo({"prog", "--cuont", "1"});
   EXPECT_EQ(f1.Parse(typo.argc(), typo.argv()).message(),
-            "unknown flag --cuont (did you mean --count?) (see --help)");
+            "unknown option --cuont (did you mean --count?) (see --help)");
   FlagSet f2("usage");
   make(&f2);
   Args prefix({"prog", "--grace", "1"});
   EXPECT_EQ(f2.Parse(prefix.argc(), prefix.argv()).message(),
-            "unknown flag --grace (did you mean --grace-seconds?) (see --help)");
+            "unknown option --grace (did you mean --grace-seconds?) (see --help)");
   FlagSet f3("usage");
   make(&f3);
   Args twice({"prog", "--count", "1", "--count=2"});
-  EXPECT_EQ(f3.Parse(twice.argc(), twice.argv()).message(), "--count given twice: give it once");
+  EXPECT_EQ(f3.Parse(twice.argc(), twice.argv()).message(), "--count given twice ('1' and '2'): give it once");
   FlagSet f4("usage");
   make(&f4);
   Args bools({"prog", "--quiet", "--quiet", "--count", "3"});
@@ -147,7 +147,7 @@ TEST(FlagSet, CommandLineBeatsEnvironmentWhichBeatsDefault) {
   again.UseEnvironment("TANDEMTEST_");
   Args plain({"prog"});
   EXPECT_EQ(again.Parse(plain.argc(), plain.argv()).message(),
-            "TANDEMTEST_MAX_SESSIONS: cannot read 'many' as an integer");
+            "TANDEMTEST_MAX_SESSIONS: 'many' is not an integer");
   unsetenv("TANDEMTEST_MAX_SESSIONS");
   unsetenv("TANDEMTEST_GRACE_SECONDS");
 }

@@ -1,0 +1,140 @@
+#include "cli/extract_flags.h"
+
+#include <algorithm>
+
+#include "absl/strings/str_cat.h"
+
+namespace tandem::cli {
+
+void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
+  flags->AddString("input", &input, "FILE",
+                   "volume: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
+                   ".tiff, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
+                   "numbered single-page TIFFs",
+                   /*required=*/true);
+  flags->AddString("zarr-array", &zarr_array, "SEL",
+                   "Zarr group: the multiscale level (a number) or the array path to read "
+                   "(same as --input X.zarr#SEL); none = level 0");
+  flags->AddBool("follow", &follow,
+                 "the input is still being written (a folder of numbered TIFF slices or of a "
+                 "DICOM series, or a Zarr array growing along z): take each slice as soon as "
+                 "it is complete and in order, until --expect-slices, --done-file or --settle "
+                 "says the scan is over");
+  flags->AddInt("expect-slices", &expect_slices, "--follow: the scan has this many slices");
+  flags->AddDouble("settle", &settle,
+                   "--follow: the scan is over after this many seconds without a new slice",
+                   false, "S");
+  flags->AddString("done-file", &done_file, "NAME",
+                   "--follow: the scan is over when a file NAME appears in the folder");
+  flags->AddString("out", &out, "MESH",
+                   absl::StrCat(out_help, "; with several iso-values, a pattern holding {iso} "
+                                          "(head_{iso}.ply)"),
+                   /*required=*/true);
+  flags->AddString("iso", &iso, "C0[,C1,...]",
+                   "iso-value, required when the file suggests none. Several (up to 8, e.g. "
+                   "skin and bone: --iso 60,120) give one surface each from one read of the "
+                   "slices, run side by side: name the outputs with {iso}; one summary per "
+                   "surface, and --metrics writes a JSON array (or one file per surface with "
+                   "{iso} in its name)");
+  flags->SetDefaultText("iso", "the file's first suggested iso-value");
+  flags->AddDouble("error", &error,
+                   "E0 in the volume's physical units: every vertex stays within RMS distance "
+                   "E0 of the planes it replaces",
+                   false, "E0");
+  flags->SetDefaultText("error", "0.2 x the smallest spacing");
+  flags->AddDouble("alpha", &alpha,
+                   "isotropy in [0, 1]: trades accuracy for better-shaped triangles (never "
+                   "beyond E0)",
+                   false, "A");
+  flags->AddString("schedule", &schedule, "S",
+                   "tandem-lag: simplify behind the sweep with the paper's time-lag; tandem: "
+                   "no lag; classical: extract all, then simplify (holds the full-resolution "
+                   "mesh); none: no simplification (= --no-simplify)");
+  flags->AddBool("no-simplify", &no_simplify, "the full-resolution marching-cubes surface");
+  flags->AddDouble("distance-guard", &distance_guard,
+                   "refuse contractions that would put a vertex farther than K x E0 from the "
+                   "plane of a triangle it reshapes: keeps thin features close (lower "
+                   "Hausdorff distance) for a few more triangles; 0 = off (the paper's rules "
+                   "only)",
+                   false, "K");
+  flags->AddDouble("sag-correction", &sag_correction,
+                   "at the end, move each vertex along its normal by F x the mean chordal sag "
+                   "of its triangles (not at creases, never past E0): removes the coarse "
+                   "mesh's bias toward the concave side; 0 = off (the paper's placement), at "
+                   "most 1",
+                   false, "F");
+  flags->AddInt("target-triangles", &target_triangles,
+                "after the E0 pass, keep contracting (past E0 if need be) until at most N "
+                "triangles remain; 0 = off");
+  flags->AddBool("seal", &seal,
+                 "seal the mesh behind the sweep: vertices whose reach lies --seal-margin "
+                 "slices below the front never change again and their triangles leave the "
+                 "session, so its memory follows the front, not the depth (one part; not with "
+                 "--target-triangles)");
+  flags->AddDouble("seal-margin", &seal_margin,
+                   "--seal: slices between the front and the sealed mesh", false, "N");
+  flags->AddString("metrics", &metrics, "FILE.json",
+                   "write the run's figures as JSON (one report; several iso-values: a JSON "
+                   "array, or one file each with {iso} in the name)");
+  flags->AddBool("reference", &reference,
+                 "also extract the unsimplified surface (kept only for this) and report "
+                 "L1/L2/Linf distances to it");
+  flags->AddBool("strict", &strict,
+                 "exit 3 (after writing the mesh) when an iso-value lies outside the data's "
+                 "value range, so the surface is empty (a warning otherwise)");
+  flags->AddBool("quiet", &quiet, "no summary, no progress and no notes on stderr");
+}
+
+std::string ExtractFlags::InputPath() const {
+  return zarr_array.empty() ? input : absl::StrCat(input, "#", zarr_array);
+}
+
+absl::Status ExtractFlags::Check(const FlagSet& flags) const {
+  if (!follow && (flags.IsSet("expect-slices") || flags.IsSet("settle") || flags.IsSet("done-file"))) {
+    return absl::InvalidArgumentError("--expect-slices, --settle and --done-file go with --follow");
+  }
+  auto sched = ParseSchedule(schedule);
+  if (!sched.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "--schedule '", schedule, "': expected none, classical, tandem or tandem-lag"));
+  }
+  if (flags.IsSet("iso")) {
+    auto isos = ParseIsoList(iso);
+    if (!isos.ok()) return isos.status();
+    for (const IsoValue& v : *isos) {
+      if (auto name = NameForIso("out", out, v, isos->size()); !name.ok()) return name.status();
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<IsoValue>> ExtractFlags::Isos(const FlagSet& flags,
+                                                         const VolumeInfo& info) const {
+  if (flags.IsSet("iso")) return ParseIsoList(iso);
+  if (info.suggested_isovalues.empty()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--iso C0 is required: ", InputPath(), " suggests no iso-value"));
+  }
+  const double v = info.suggested_isovalues[0];
+  return std::vector<IsoValue>{{v, absl::StrCat(v)}};
+}
+
+absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
+                                                     const VolumeInfo& info) const {
+  SessionOptions o;
+  const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+  o.error = flags.IsSet("error") ? error : 0.2 * min_spacing;
+  o.alpha = alpha;
+  o.distance_guard = distance_guard;
+  o.sag_correction = sag_correction;
+  o.target_triangles = target_triangles;
+  o.seal = seal;
+  o.seal_margin = seal_margin;
+  auto sched = ParseSchedule(schedule);
+  if (!sched.ok()) return sched.status();
+  o.schedule = no_simplify ? Schedule::kNone : *sched;
+  if (absl::Status st = o.Validate(); !st.ok()) return st;
+  return o;
+}
+
+}  // namespace tandem::cli

@@ -1,0 +1,44 @@
+// The flags `tandem extract` and `tandem-client stream` share: registered by one function,
+// so that both programs have the same names, defaults and help for the same meaning (the
+// input, following a growing acquisition, the session's options, the outputs). Each
+// program adds its own flags after these (the client: the server, pacing, previews).
+#ifndef TANDEM_CLI_EXTRACT_FLAGS_H_
+#define TANDEM_CLI_EXTRACT_FLAGS_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "cli/cli_util.h"
+#include "cli/flags.h"
+#include "tandem/tandem.h"
+#include "tandem/volume.h"
+
+namespace tandem::cli {
+
+struct ExtractFlags {
+  std::string input, zarr_array, out, iso, schedule = "tandem-lag", metrics, done_file;
+  double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
+  double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
+  double settle = 10;
+  int64_t target_triangles = 0, expect_slices = 0;
+  bool follow = false, seal = false, no_simplify = false, reference = false, strict = false;
+  bool quiet = false;
+
+  // Registers the shared flags; `out_help` says which mesh formats --out takes.
+  void Add(FlagSet* flags, const std::string& out_help);
+  // --input with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
+  std::string InputPath() const;
+  // After parsing: the checks that need no volume (follow-only flags, the iso list, the
+  // output names, the schedule).
+  absl::Status Check(const FlagSet& flags) const;
+  // With the volume's header: the iso-values (--iso, else the file's first suggested one)
+  // and the session options (E0 defaults to 0.2 x the smallest spacing).
+  absl::StatusOr<std::vector<IsoValue>> Isos(const FlagSet& flags, const VolumeInfo& info) const;
+  absl::StatusOr<SessionOptions> Options(const FlagSet& flags, const VolumeInfo& info) const;
+};
+
+}  // namespace tandem::cli
+
+#endif  // TANDEM_CLI_EXTRACT_FLAGS_H_
