@@ -193,13 +193,24 @@ bool DracoFlagsOk(int64_t bits, int64_t level) {
   return false;
 }
 
+// How stream and watch save what they received.
+struct SaveOptions {
+  bool seal = false;  // the mesh came as sealed chunks
+  std::string out_pattern, metrics_path;
+  tandem::codec::DracoOptions draco;  // .drc re-encoding of sealed chunks; --glb-draco
+  bool glb_draco = false;
+  std::string input, frame;  // for the report
+  std::vector<tandem::cli::IsoValue> isos;  // as the user wrote them ({iso} names), or none
+  const char* wall_label = "stream wall time";
+  bool quiet = false;
+};
+
 // Saves one surface's final mesh of a stream or a watch to `out` (.drc: Draco bytes; sealed:
 // the chunks welded), prints its summary on stdout and appends its metrics JSON to *json.
 // 0 or the exit status of the failure.
 int SaveSurface(const tandem::client::StreamResult& result, tandem::client::SurfaceResult& s,
-                bool seal, const std::string& out, int bits, int level, const std::string& input,
-                const std::string& frame, std::vector<std::string>* json,
-                const char* wall_label, bool quiet) {
+                const SaveOptions& o, const std::string& out, std::vector<std::string>* json) {
+  const bool seal = o.seal;
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
   // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
@@ -207,10 +218,7 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
       seal ? tandem::WeldChunks(s.sealed) : tandem::codec::DecodeDraco(s.draco);
   if (!mesh.ok()) return Fail(mesh.status());
   if (seal && ext == ".drc") {
-    tandem::codec::DracoOptions d;
-    d.quantization_bits = bits;
-    d.compression_level = level;
-    absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, d);
+    absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, o.draco);
     if (!bytes.ok()) return Fail(bytes.status());
     s.draco = *std::move(bytes);
   }
@@ -221,17 +229,20 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
         mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
         s.vertices)));
   }
-  absl::Status saved = ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh);
+  tandem::MeshWriteOptions write;
+  if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
+  absl::Status saved =
+      ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh, write);
   if (!saved.ok()) return Fail(saved);
 
   tandem::MetricsReport report = tandem::wire::ReportFromProto(s.metrics);
-  report.input = input;
-  report.frame = frame;
+  report.input = o.input;
+  report.frame = o.frame;
   json->push_back(tandem::ReportToJson(report));
-  if (quiet) return 0;
+  if (o.quiet) return 0;
   if (result.num_surfaces() > 1) absl::PrintF("%s (iso %g)\n", out, s.metrics.iso());
   absl::PrintF("%s", tandem::ReportSummary(report));
-  absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", wall_label,
+  absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", o.wall_label,
                result.seconds, result.slices_sent,
                result.seconds > 0 ? result.slices_sent / result.seconds : 0.0,
                s.metrics.previews_sent());
@@ -245,19 +256,19 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
 // Every surface of a stream or a watch: to the names `out_pattern` gives (with {iso} when
 // there are several), the metrics to `metrics_path` (one file per surface with {iso}, else
 // one report, or a JSON array of them in surface order). 0 or the exit status of the failure.
-int SaveResult(tandem::client::StreamResult& result, bool seal, const std::string& out_pattern,
-               int bits, int level, const std::string& input, const std::string& frame,
-               const std::string& metrics_path, const char* wall_label, bool quiet) {
+int SaveResult(tandem::client::StreamResult& result, const SaveOptions& o) {
   const size_t n = result.num_surfaces();
+  const std::string& metrics_path = o.metrics_path;
   std::vector<std::string> json;
   for (size_t i = 0; i < n; ++i) {
     tandem::client::SurfaceResult& s = result.surface(i);
-    const tandem::cli::IsoValue iso{s.metrics.iso(), absl::StrCat(s.metrics.iso())};
-    absl::StatusOr<std::string> out = tandem::cli::NameForIso("out", out_pattern, iso, n);
+    const tandem::cli::IsoValue iso = i < o.isos.size()
+                                          ? o.isos[i]
+                                          : tandem::cli::IsoValue{s.metrics.iso(),
+                                                                  absl::StrCat(s.metrics.iso())};
+    absl::StatusOr<std::string> out = tandem::cli::NameForIso("out", o.out_pattern, iso, n);
     if (!out.ok()) return Fail(out.status());
-    if (int rc = SaveSurface(result, s, seal, *out, bits, level, input, frame, &json, wall_label,
-                             quiet);
-        rc != 0) {
+    if (int rc = SaveSurface(result, s, o, *out, &json); rc != 0) {
       return rc;
     }
     if (!metrics_path.empty() && metrics_path.find("{iso}") != std::string::npos) {
@@ -280,7 +291,7 @@ int StreamCommand(int argc, char** argv) {
   int64_t keepalive_ms = 30000;
   std::string partials, chunks_dir, resume;
   double rate = 0, timeout_s = 0;
-  int64_t chunk_bytes = tandem::wire::kDefaultSliceChunkBytes, bits = 16, level = 7;
+  int64_t chunk_bytes = tandem::wire::kDefaultSliceChunkBytes;
   int64_t preview_every = 0, preview_ms = 0;
   bool verbose = false;
   FlagSet flags(
@@ -300,9 +311,6 @@ int StreamCommand(int argc, char** argv) {
                "server's minimum ping interval, see `tandem-client info`)");
   flags.AddDouble("rate", &rate, "send at most this many slices per second (0 = no pacing)");
   flags.AddInt("chunk-bytes", &chunk_bytes, "bytes of voxel data per message");
-  flags.AddInt("quantization-bits", &bits, "Draco position quantization, 1..30");
-  flags.AddInt("compression-level", &level,
-               "Draco level 0..10 (0 keeps vertex order; higher = smaller, slower)");
   flags.AddInt("preview-every", &preview_every,
                "ask for a preview mesh every N slices (0 = none; with --partials: about 20 over the volume)");
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
@@ -347,7 +355,7 @@ int StreamCommand(int argc, char** argv) {
                   "--preview-ms, --target-triangles and --keepalive-time-ms must be >= 0\n");
     return 2;
   }
-  if (!DracoFlagsOk(bits, level)) return 2;
+  const int64_t bits = f.quantization_bits, level = f.compression_level;
   if (!chunks_dir.empty()) {
     seal = true;
     if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
@@ -508,9 +516,18 @@ int StreamCommand(int argc, char** argv) {
   }
   if (!partial_error.ok()) return Fail(partial_error);
 
-  if (int rc = SaveResult(*result, result->sealed_session, out, static_cast<int>(bits),
-                          static_cast<int>(level), input, (*source)->info().frame, metrics_path,
-                          "stream wall time", f.quiet);
+  SaveOptions save;
+  save.seal = result->sealed_session;
+  save.out_pattern = out;
+  save.metrics_path = metrics_path;
+  save.draco.quantization_bits = static_cast<int>(bits);
+  save.draco.compression_level = static_cast<int>(level);
+  save.glb_draco = f.glb_draco;
+  save.input = input;
+  save.frame = (*source)->info().frame;
+  save.isos = *isos;
+  save.quiet = f.quiet;
+  if (int rc = SaveResult(*result, save);
       rc != 0) {
     return rc;
   }
@@ -617,7 +634,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   std::string session, out, metrics_path, chunks_dir;
   double timeout_s = 0;
   int64_t bits = 16, level = 7;
-  bool verbose = false, quiet = false;
+  bool verbose = false, quiet = false, glb_draco = false;
   FlagSet flags(
       view_command
           ? "usage: tandem-client view --session ID [--listen HOST:PORT] [--out MESH] [flags]\n"
@@ -643,6 +660,8 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   flags.AddString("metrics", &metrics_path, "FILE.json", "write the final metrics as JSON");
   flags.AddInt("quantization-bits", &bits, ".drc output: Draco position quantization, 1..30");
   flags.AddInt("compression-level", &level, ".drc output: 0..10");
+  flags.AddBool("glb-draco", &glb_draco,
+                ".glb output: compress the mesh with Draco (glTF's KHR_draco_mesh_compression)");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
   flags.AddBool("verbose", &verbose, "print one line per chunk, progress and preview message on stderr");
   flags.AddBool("quiet", &quiet, "no summary on stdout");
@@ -656,6 +675,10 @@ int WatchCommand(int argc, char** argv, bool view_command) {
     return 2;
   }
   if (!DracoFlagsOk(bits, level)) return 2;
+  if (glb_draco && Lower(std::filesystem::path(out).extension().string()) != ".glb") {
+    absl::FPrintF(stderr, "tandem-client: --glb-draco compresses a .glb output; --out is %s\n", out);
+    return 2;
+  }
   if (!chunks_dir.empty()) {
     if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
   }
@@ -685,9 +708,17 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   }
   if (!chunk_error.ok()) return Fail(chunk_error);
   if (!out.empty()) {
-    if (int rc = SaveResult(*result, /*seal=*/true, out, static_cast<int>(bits),
-                            static_cast<int>(level), absl::StrCat("session ", session), "",
-                            metrics_path, "watch wall time", quiet);
+    SaveOptions save;
+    save.seal = true;
+    save.out_pattern = out;
+    save.metrics_path = metrics_path;
+    save.draco.quantization_bits = static_cast<int>(bits);
+    save.draco.compression_level = static_cast<int>(level);
+    save.glb_draco = glb_draco;
+    save.input = absl::StrCat("session ", session);
+    save.wall_label = "watch wall time";
+    save.quiet = quiet;
+    if (int rc = SaveResult(*result, save);
         rc != 0) {
       return rc;
     }

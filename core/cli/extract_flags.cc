@@ -2,6 +2,7 @@
 
 #include <algorithm>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 
 namespace tandem::cli {
@@ -30,6 +31,13 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    absl::StrCat(out_help, "; with several iso-values, a pattern holding {iso} "
                                           "(head_{iso}.ply)"),
                    /*required=*/true);
+  flags->AddBool("glb-draco", &glb_draco,
+                 ".glb output: compress the mesh with Draco (glTF's KHR_draco_mesh_compression, "
+                 "which three.js, Blender and most glTF viewers read)");
+  flags->AddInt("quantization-bits", &quantization_bits,
+                "Draco position quantization, 1..30 (meshes the server sends; --glb-draco)");
+  flags->AddInt("compression-level", &compression_level,
+                "Draco level 0..10 (0 keeps vertex order; higher = smaller, slower)");
   flags->AddString("iso", &iso, "C0[,C1,...]",
                    "iso-value, required when the file suggests none. Several (up to 8, e.g. "
                    "skin and bone: --iso 60,120) give one surface each from one read of the "
@@ -92,6 +100,15 @@ std::string ExtractFlags::InputPath() const {
 absl::Status ExtractFlags::Check(const FlagSet& flags) const {
   if (!follow && (flags.IsSet("expect-slices") || flags.IsSet("settle") || flags.IsSet("done-file"))) {
     return absl::InvalidArgumentError("--expect-slices, --settle and --done-file go with --follow");
+  }
+  if (quantization_bits < 1 || quantization_bits > 30 || compression_level < 0 ||
+      compression_level > 10) {
+    return absl::InvalidArgumentError(
+        "need 1 <= --quantization-bits <= 30 and 0 <= --compression-level <= 10");
+  }
+  if (glb_draco && !absl::EndsWith(out, ".glb")) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--glb-draco compresses a .glb output; --out is ", out));
   }
   auto sched = ParseSchedule(schedule);
   if (!sched.ok()) {

@@ -23,8 +23,9 @@ struct ExtractFlags {
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
   double settle = 10;
   int64_t target_triangles = 0, expect_slices = 0;
+  int64_t quantization_bits = 16, compression_level = 7;  // Draco
   bool follow = false, seal = false, no_simplify = false, reference = false, strict = false;
-  bool quiet = false;
+  bool quiet = false, glb_draco = false;
 
   // Registers the shared flags; `out_help` says which mesh formats --out takes.
   void Add(FlagSet* flags, const std::string& out_help);

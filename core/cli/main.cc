@@ -33,6 +33,9 @@
 #include "cli/extract_flags.h"
 #include "cli/flags.h"
 #include "cli/version.h"
+#ifdef TANDEM_HAVE_DRACO
+#include "codec/draco_codec.h"
+#endif
 #include "tandem/distance.h"
 #include "tandem/follow.h"
 #include "tandem/mesh_io.h"
@@ -179,6 +182,18 @@ int Extract(int argc, char** argv) {
   if (!source.ok()) return Fail(source.status());
   const VolumeInfo info = (*source)->info();
 
+  MeshWriteOptions write;
+  if (f.glb_draco) {
+#ifdef TANDEM_HAVE_DRACO
+    codec::DracoOptions draco;
+    draco.quantization_bits = static_cast<int>(f.quantization_bits);
+    draco.compression_level = static_cast<int>(f.compression_level);
+    write.glb_draco = codec::GlbCompressor(draco);
+#else
+    return Fail(absl::InvalidArgumentError(
+        "--glb-draco: this tandem was built without Draco (-DTANDEM_BUILD_SERVICE=OFF)"));
+#endif
+  }
   auto parsed_opt = f.Options(flags, info);
   if (!parsed_opt.ok()) return Fail(parsed_opt.status());
   SessionOptions opt = *parsed_opt;
@@ -267,7 +282,7 @@ int Extract(int argc, char** argv) {
       std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred, [&] {
         return MakeReport(session, s.mesh);
       });
-      if (absl::Status st = WriteMesh(s.out, s.mesh); !st.ok()) return Fail(st);
+      if (absl::Status st = WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
     s.report.input = input_path;

@@ -197,8 +197,12 @@ void WriteStl(const IndexedMesh& mesh, BufferedWriter& out) {
 // GLB (binary glTF 2.0): one mesh, one triangle primitive with POSITION, NORMAL (unit
 // length, as glTF requires: a vertex whose triangles have no area gets +z) and 32-bit
 // indices, in one buffer. glTF's unit is the metre; positions keep the mesh's units.
-void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
-  const size_t nv = mesh.num_vertices(), ni = mesh.indices.size();
+// With `draco`, the primitive is that Draco buffer (KHR_draco_mesh_compression): the
+// accessors say what it decodes to and have no buffer view of their own.
+void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
+              const GlbDracoPrimitive* draco, BufferedWriter& out) {
+  const size_t nv = draco ? draco->vertices : mesh.num_vertices();
+  const size_t ni = draco ? draco->indices : mesh.indices.size();
   std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
   for (size_t v = 0; v < nv; ++v) {
     for (int k = 0; k < 3; ++k) {
@@ -234,6 +238,23 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals, Buffere
                          {"type", "SCALAR"}});
   }
   j["accessors"] = accessors;
+  size_t draco_bytes = 0;
+  if (draco != nullptr && nv > 0) {
+    draco_bytes = draco->bytes.size();
+    const size_t padded = (draco_bytes + 3) / 4 * 4;
+    j["extensionsUsed"] = {"KHR_draco_mesh_compression"};
+    j["extensionsRequired"] = {"KHR_draco_mesh_compression"};
+    j["buffers"] = nlohmann::json::array({{{"byteLength", padded}}});
+    j["bufferViews"] =
+        nlohmann::json::array({{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", draco_bytes}}});
+    for (auto& a : j["accessors"]) a.erase("bufferView");
+    j["accessors"][0]["min"] = draco->lo;
+    j["accessors"][0]["max"] = draco->hi;
+    j["meshes"][0]["primitives"][0]["extensions"] = {
+        {"KHR_draco_mesh_compression",
+         {{"bufferView", 0},
+          {"attributes", {{"POSITION", draco->position_id}, {"NORMAL", draco->normal_id}}}}}};
+  }
   if (nv == 0) {  // glTF forbids empty buffers and accessors: an empty scene instead
     j.erase("meshes");
     j.erase("buffers");
@@ -243,7 +264,8 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals, Buffere
   }
   std::string text = j.dump();
   text.append((4 - text.size() % 4) % 4, ' ');
-  const size_t bin_chunk = nv == 0 ? 0 : 8 + bin_bytes;
+  const size_t bin_payload = draco_bytes > 0 ? (draco_bytes + 3) / 4 * 4 : bin_bytes;
+  const size_t bin_chunk = nv == 0 ? 0 : 8 + bin_payload;
   out.AppendLe32(0x46546C67u);  // "glTF"
   out.AppendLe32(2);
   out.AppendLe32(static_cast<uint32_t>(12 + 8 + text.size() + bin_chunk));
@@ -251,8 +273,13 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals, Buffere
   out.AppendLe32(0x4E4F534Au);  // "JSON"
   out.Append(text);
   if (nv == 0) return;
-  out.AppendLe32(static_cast<uint32_t>(bin_bytes));
+  out.AppendLe32(static_cast<uint32_t>(bin_payload));
   out.AppendLe32(0x004E4942u);  // "BIN\0"
+  if (draco_bytes > 0) {
+    out.Append(draco->bytes);
+    out.Append(std::string(bin_payload - draco_bytes, '\0'));
+    return;
+  }
   for (const Vec3& p : mesh.positions) AppendVec3(out, p);
   for (const Vec3& n : normals) AppendVec3(out, Dot(n, n) > 0 ? n : Vec3{0, 0, 1});
   for (uint32_t i : mesh.indices) out.AppendLe32(i);
@@ -765,19 +792,28 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
                                 " out of range (", mesh.positions.size(), " vertices)"));
     }
   }
+  const bool with_normals = *format == Format::kGlb || (options.normals && *format != Format::kStl);
+  const std::vector<Vec3> normals = with_normals ? VertexNormals(mesh) : std::vector<Vec3>{};
+  // The Draco primitive before the file is created: a failure leaves nothing behind.
+  std::optional<GlbDracoPrimitive> draco;
+  if (*format == Format::kGlb && options.glb_draco) {
+    auto primitive = options.glb_draco(mesh, normals);
+    if (!primitive.ok()) {
+      return Error(primitive.status().code(), path, std::string(primitive.status().message()));
+    }
+    draco = *std::move(primitive);
+  }
   std::FILE* file = std::fopen(path.c_str(), "wb");
   if (file == nullptr) {
     return Error(absl::StatusCode::kUnavailable, path,
                  absl::StrCat("cannot open for writing: ", std::strerror(errno)));
   }
   BufferedWriter out(file);
-  const bool with_normals = *format == Format::kGlb || (options.normals && *format != Format::kStl);
-  const std::vector<Vec3> normals = with_normals ? VertexNormals(mesh) : std::vector<Vec3>{};
   switch (*format) {
     case Format::kPly: WritePly(mesh, normals, out); break;
     case Format::kObj: WriteObj(mesh, normals, out); break;
     case Format::kStl: WriteStl(mesh, out); break;
-    case Format::kGlb: WriteGlb(mesh, normals, out); break;
+    case Format::kGlb: WriteGlb(mesh, normals, draco ? &*draco : nullptr, out); break;
   }
   if (const int err = out.Close(); err != 0) {
     return Error(absl::StatusCode::kUnavailable, path,

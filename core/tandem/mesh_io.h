@@ -12,7 +12,9 @@
 #ifndef TANDEM_MESH_IO_H_
 #define TANDEM_MESH_IO_H_
 
+#include <array>
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -38,12 +40,29 @@ namespace tandem {
 //   .stl  binary: per triangle its unit normal and three float32 corners (no shared
 //         vertices; 50 bytes a triangle).
 //   .glb  binary glTF 2.0: POSITION, NORMAL and uint32 indices in one buffer (glTF's unit is
-//         the metre: positions keep the mesh's units, usually millimetres for CT).
+//         the metre: positions keep the mesh's units, usually millimetres for CT); with
+//         MeshWriteOptions::glb_draco, the primitive is one Draco buffer instead
+//         (KHR_draco_mesh_compression).
 // Normals (MeshWriteOptions::normals, default on) are the area-weighted vertex normals of
 // VertexNormals: PLY gets float nx ny nz vertex properties, OBJ "vn" lines and "f i//i"
 // corners; GLB always has them; STL has its facet normals.
+// GLB with KHR_draco_mesh_compression: the primitive (positions, normals, triangles) as one
+// Draco buffer, which core cannot make (it holds no Draco): the caller's compressor makes
+// it (proto/codec: GlbDracoCompressor) from the mesh and its normals, and tells what the
+// buffer decodes to, for the glTF accessors: the counts (Draco may split a vertex), the
+// positions' bounds, and the Draco attribute ids of POSITION and NORMAL.
+struct GlbDracoPrimitive {
+  std::string bytes;
+  size_t vertices = 0, indices = 0;
+  std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  int position_id = 0, normal_id = 1;
+};
+using GlbDracoCompressor = std::function<absl::StatusOr<GlbDracoPrimitive>(
+    const IndexedMesh& mesh, const std::vector<Vec3>& normals)>;
+
 struct MeshWriteOptions {
   bool normals = true;
+  GlbDracoCompressor glb_draco;  // .glb: set = Draco-compressed primitive
 };
 absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
                        const MeshWriteOptions& options = {});

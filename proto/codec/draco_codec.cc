@@ -19,6 +19,8 @@ namespace tandem::codec {
 namespace {
 
 constexpr int kSequentialLevel = 0;
+// Unit normals in a GLB: 10 bits (Draco's octahedral coding), under a quarter of a degree.
+constexpr int kNormalBits = 10;
 
 // Builds a draco::Mesh with one point per vertex (identity mapping, no value
 // deduplication), so point ids equal vertex ids.
@@ -113,6 +115,9 @@ absl::StatusOr<std::string> EncodeWith(const draco::Mesh& mesh, const DracoOptio
                                        int level) {
   draco::Encoder encoder;
   SetQuantization(&encoder, options);
+  if (mesh.GetNamedAttributeId(draco::GeometryAttribute::NORMAL) >= 0) {
+    encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, kNormalBits);
+  }
   const int speed = 10 - level;
   encoder.SetSpeedOptions(speed, speed);
   encoder.SetEncodingMethod(level == kSequentialLevel ? draco::MESH_SEQUENTIAL_ENCODING
@@ -272,6 +277,69 @@ absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint
     }
   }
   return out;
+}
+
+absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
+                                                     const std::vector<Vec3>& normals,
+                                                     const DracoOptions& options) {
+  if (absl::Status st = ValidateDracoOptions(options); !st.ok()) return st;
+  GlbDracoPrimitive out;
+  if (mesh.num_vertices() == 0) return out;  // an empty scene: nothing to compress
+  if (mesh.num_triangles() == 0) {
+    return absl::InvalidArgumentError(
+        "a mesh without triangles cannot be a Draco-compressed glTF primitive");
+  }
+  if (normals.size() != mesh.num_vertices()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(normals.size(), " normals for ", mesh.num_vertices(), " vertices"));
+  }
+  auto dmesh = ToDracoMesh(mesh, options, {});
+  if (!dmesh.ok()) return dmesh.status();
+  draco::GeometryAttribute normal;
+  normal.Init(draco::GeometryAttribute::NORMAL, nullptr, 3, draco::DT_FLOAT32, false,
+              sizeof(float) * 3, 0);
+  const uint32_t nv = static_cast<uint32_t>(mesh.num_vertices());
+  draco::PointAttribute* na = (*dmesh)->attribute((*dmesh)->AddAttribute(normal, true, nv));
+  for (uint32_t i = 0; i < nv; ++i) {
+    const Vec3& n = normals[i];
+    const bool unit = Dot(n, n) > 0;  // glTF wants unit normals: +z where there is none
+    const float v[3] = {unit ? static_cast<float>(n.x) : 0.f, unit ? static_cast<float>(n.y) : 0.f,
+                        unit ? static_cast<float>(n.z) : 1.f};
+    na->SetAttributeValue(draco::AttributeValueIndex(i), v);
+  }
+  const int level = HasUnusedVertexOrRepeatedCorner(mesh) ? kSequentialLevel
+                                                          : options.compression_level;
+  auto bytes = EncodeWith(**dmesh, options, level);
+  if (!bytes.ok()) return bytes.status();
+  // What a glTF reader will decode: the accessors must say so exactly.
+  auto decoded = DecodeToDraco(*bytes);
+  if (!decoded.ok()) return decoded.status();
+  if (decoded->mesh == nullptr) return absl::InternalError("Draco gave no mesh back");
+  const draco::PointAttribute* pos =
+      decoded->points->GetNamedAttribute(draco::GeometryAttribute::POSITION);
+  const draco::PointAttribute* nrm =
+      decoded->points->GetNamedAttribute(draco::GeometryAttribute::NORMAL);
+  if (pos == nullptr || nrm == nullptr) return absl::InternalError("Draco lost an attribute");
+  out.vertices = decoded->points->num_points();
+  out.indices = static_cast<size_t>(decoded->mesh->num_faces()) * 3;
+  out.position_id = static_cast<int>(pos->unique_id());
+  out.normal_id = static_cast<int>(nrm->unique_id());
+  for (uint32_t i = 0; i < out.vertices; ++i) {
+    float v[3];
+    pos->ConvertValue<float, 3>(pos->mapped_index(draco::PointIndex(i)), v);
+    for (int a = 0; a < 3; ++a) {
+      out.lo[a] = i == 0 ? v[a] : std::min<double>(out.lo[a], v[a]);
+      out.hi[a] = i == 0 ? v[a] : std::max<double>(out.hi[a], v[a]);
+    }
+  }
+  out.bytes = *std::move(bytes);
+  return out;
+}
+
+GlbDracoCompressor GlbCompressor(const DracoOptions& options) {
+  return [options](const IndexedMesh& mesh, const std::vector<Vec3>& normals) {
+    return EncodeGlbPrimitive(mesh, normals, options);
+  };
 }
 
 double PositionTolerance(const IndexedMesh& mesh, int bits) {

@@ -22,6 +22,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/mesh.h"
+#include "tandem/mesh_io.h"
 
 namespace tandem::codec {
 
@@ -61,6 +62,16 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
 // (InvalidArgument when the buffer has none).
 absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes,
                                         std::vector<uint32_t>* ids = nullptr);
+
+// glTF's KHR_draco_mesh_compression: the mesh with its unit normals (one per vertex; a zero
+// one becomes +z) as one Draco buffer, positions quantized as `options` say and normals on
+// 10 bits, with what it decodes to (tandem/mesh_io.h: GlbDracoPrimitive). InvalidArgument
+// for a mesh with vertices but no triangle (Draco has no such mesh).
+absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
+                                                     const std::vector<Vec3>& normals,
+                                                     const DracoOptions& options = {});
+// The compressor WriteMesh takes (MeshWriteOptions::glb_draco) for these options.
+GlbDracoCompressor GlbCompressor(const DracoOptions& options = {});
 
 // How far a decoded coordinate may lie from the original: Draco quantizes all three axes
 // on the largest extent of the bounding box, step = extent / (2^bits - 1), and works in

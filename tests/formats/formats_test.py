@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Mesh files that other programs open: `tandem extract --out` as .ply, .obj, .stl and .glb,
+"""Mesh files that other programs open: `tandem extract --out` as .ply, .obj, .stl and .glb
+(plain, and Draco-compressed with --glb-draco: decoded by three.js's Draco decoder),
 each read back by an independent reader (assimp, Debian's assimp-utils) with the counts the
 CLI reported, and the .glb checked by the Khronos glTF validator (npm gltf-validator, from
 package-lock.json via deploy/install-web.sh) with no error and no warning.
@@ -36,14 +37,22 @@ def main():
         if r.returncode != 0:
             print(r.stdout, r.stderr)
             return 1
-        for ext in ["ply", "obj", "stl", "glb"]:
+        for ext in ["ply", "obj", "stl", "glb", "draco.glb"]:
             out = os.path.join(d, "link." + ext)
-            r = run([tandem, "extract", "--input", vol, "--error", "0.3", "--out", out])
+            extra = ["--glb-draco"] if ext == "draco.glb" else []
+            r = run([tandem, "extract", "--input", vol, "--error", "0.3", "--out", out] + extra)
             m = re.search(r"triangles final\s+(\d+) \((\d+) vertices\)", r.stdout + r.stderr)
             if r.returncode != 0 or not m:
                 failures.append(f"{ext}: tandem extract failed: {r.stdout}{r.stderr}")
                 continue
             triangles, vertices = int(m.group(1)), int(m.group(2))
+            if ext == "draco.glb":  # assimp reads no Draco: the validator and Draco's decoder
+                v = run(["node", os.path.join(a.source_dir, "tests", "formats", "validate_gltf.mjs"),
+                         out, str(vertices), str(triangles)])
+                print(v.stdout.strip())
+                if v.returncode != 0:
+                    failures.append(f"draco.glb: {v.stdout}{v.stderr}")
+                continue
             info = run(["assimp", "info", out])
             faces = re.search(r"Faces:\s+(\d+)", info.stdout)
             verts = re.search(r"Vertices:\s+(\d+)", info.stdout)

@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include "tandem/mesh_io.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 
@@ -87,6 +88,38 @@ TEST(DracoCodec, EdgebreakerKeepsCountsAndPositionsWithinStep) {
       EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, 16)) << level;
     }
   }
+}
+
+// The GLB primitive (KHR_draco_mesh_compression): it decodes to the mesh, with the counts,
+// bounds and attribute ids it reports for the glTF accessors; what Draco cannot carry is
+// refused.
+TEST(DracoCodec, GlbPrimitiveReportsWhatItDecodesTo) {
+  const IndexedMesh mesh = SphereMesh(Schedule::kTandemLag);
+  const std::vector<Vec3> normals = VertexNormals(mesh);
+  auto p = codec::EncodeGlbPrimitive(mesh, normals);
+  ASSERT_TRUE(p.ok()) << p.status();
+  auto decoded = codec::DecodeDraco(p->bytes);
+  ASSERT_TRUE(decoded.ok()) << decoded.status();
+  EXPECT_EQ(p->vertices, mesh.num_vertices());
+  EXPECT_EQ(p->indices, mesh.indices.size());
+  EXPECT_EQ(decoded->num_triangles(), mesh.num_triangles());
+  EXPECT_NE(p->position_id, p->normal_id);
+  for (int a = 0; a < 3; ++a) {
+    double lo = decoded->positions[0][a], hi = lo;
+    for (const Vec3& v : decoded->positions) {
+      lo = std::min(lo, v[a]);
+      hi = std::max(hi, v[a]);
+    }
+    EXPECT_EQ(p->lo[a], lo);
+    EXPECT_EQ(p->hi[a], hi);
+  }
+  EXPECT_EQ(codec::EncodeGlbPrimitive(IndexedMesh{}, {})->vertices, 0u);
+  IndexedMesh points;
+  points.positions = {{0, 0, 0}, {1, 0, 0}};
+  EXPECT_EQ(codec::EncodeGlbPrimitive(points, {{0, 0, 1}, {0, 0, 1}}).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(codec::EncodeGlbPrimitive(mesh, {}).status().code(),
+            absl::StatusCode::kInvalidArgument);
 }
 
 TEST(DracoCodec, EdgebreakerIsSmallerThanSequential) {

@@ -1152,6 +1152,30 @@ TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
   EXPECT_EQ(stl->num_triangles(), ply->num_triangles());
   EXPECT_EQ(stl->num_vertices(), ply->num_vertices());
   EXPECT_GT(std::filesystem::file_size(dir_ + "/m.glb"), 24 * ply->num_vertices());
+  // --glb-draco: the primitive is one Draco buffer (KHR_draco_mesh_compression) that decodes
+  // to the same mesh, with the counts its accessors announce.
+  RunResult draco = Client(Concat(base, {"--out", dir_ + "/d.glb", "--glb-draco"}));
+  ASSERT_EQ(draco.exit_code, 0) << draco.err;
+  const std::string glb = ReadFile(dir_ + "/d.glb");
+  ASSERT_GT(glb.size(), 28u);
+  uint32_t json_bytes = 0;
+  std::memcpy(&json_bytes, glb.data() + 12, 4);
+  const nlohmann::json gltf = nlohmann::json::parse(glb.substr(20, json_bytes));
+  EXPECT_EQ(gltf["extensionsRequired"][0], "KHR_draco_mesh_compression");
+  const nlohmann::json& ext = gltf["meshes"][0]["primitives"][0]["extensions"]["KHR_draco_mesh_compression"];
+  const size_t bin = 20 + json_bytes + 8;
+  const std::string buffer =
+      glb.substr(bin, gltf["bufferViews"][ext["bufferView"].get<int>()]["byteLength"].get<size_t>());
+  auto decoded = codec::DecodeDraco(buffer);
+  ASSERT_TRUE(decoded.ok()) << decoded.status();
+  EXPECT_EQ(decoded->num_triangles(), ply->num_triangles());
+  EXPECT_EQ(decoded->num_vertices(), ply->num_vertices());
+  EXPECT_EQ(gltf["accessors"][0]["count"].get<size_t>(), decoded->num_vertices());
+  EXPECT_LT(glb.size(), std::filesystem::file_size(dir_ + "/m.glb") / 2);
+  RunResult not_glb = Client(Concat(base, {"--out", dir_ + "/d.ply", "--glb-draco"}));
+  EXPECT_EQ(not_glb.exit_code, 2);
+  EXPECT_NE(not_glb.err.find("--glb-draco compresses a .glb output"), std::string::npos)
+      << not_glb.err;
 }
 
 // A rotated DICOM series (written by GDCM, file names shuffled) streamed from its folder: the
