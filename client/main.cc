@@ -61,7 +61,16 @@ constexpr char kMainUsage[] =
     "the flags), TANDEM_TOKEN (the bearer token itself; --token-file wins; never a flag,\n"
     "since command lines are visible to every user of the machine)";
 
-int Fail(const absl::Status& st, const std::string& hint = "") {
+// A failure here, with no server involved (a file that cannot be read or written): its
+// message, without a gRPC code.
+int Fail(const absl::Status& st) {
+  absl::FPrintF(stderr, "tandem-client: error: %s\n", std::string(st.message()));
+  return 1;
+}
+
+// A call's failure: the server's (or the transport's) status code, its message, and a hint.
+int RpcFail(const absl::Status& st, const std::string& hint = "") {
+  if (tandem::client::IsLocalError(st)) return Fail(st);  // reading the volume mid-stream
   absl::FPrintF(stderr, "tandem-client: error: %s: %s%s\n", absl::StatusCodeToString(st.code()),
                 std::string(st.message()), hint.empty() ? "" : absl::StrCat(" (", hint, ")"));
   return 1;
@@ -122,7 +131,7 @@ struct ConnectionFlags {
     return -1;
   }
   int Fail(const absl::Status& st) const {
-    return ::Fail(st, tandem::client::ConnectionHint(options, st));
+    return RpcFail(st, tandem::client::ConnectionHint(options, st));
   }
 };
 

@@ -12,6 +12,7 @@
 
 #include "absl/random/distributions.h"
 #include "absl/random/random.h"
+#include "absl/strings/cord.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
@@ -22,6 +23,8 @@
 
 namespace tandem::client {
 namespace {
+
+constexpr char kLocalPayload[] = "type.googleapis.com/tandem.client.LocalError";
 
 using Stream = grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>;
 
@@ -361,7 +364,11 @@ absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t 
   send_thread.join();
   const grpc::Status status = stream->Finish();
   result.slices_sent = std::max(result.slices_sent, sender.slices_sent());
-  if (!send_status.ok()) return send_status;
+  if (!send_status.ok()) {
+    absl::Status local = send_status;
+    local.SetPayload(kLocalPayload, absl::Cord("reading the volume"));
+    return local;
+  }
   if (!status.ok()) {
     // Retryable: nothing came back, and the server did not mark the refusal as final
     // (it does, with grpc-retry-pushback-ms: -1, for its limits: the same scan would fail
@@ -393,6 +400,10 @@ absl::Status Unresumed(const absl::Status& broke, const absl::Status& last) {
 }
 
 }  // namespace
+
+bool IsLocalError(const absl::Status& status) {
+  return status.GetPayload(kLocalPayload).has_value();
+}
 
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks) {

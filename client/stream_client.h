@@ -77,6 +77,10 @@ struct StreamResult : SurfaceResult {
   }
 };
 
+// Whether a failed StreamVolume's status is a local one (reading the volume), not the
+// server's: it carries a payload that says so.
+bool IsLocalError(const absl::Status& status);
+
 // Runs one Extract stream. The client sends the config, then waits for the server's first
 // message (a Progress as soon as it took the session) before it reads and sends slices: a
 // stream refused at the door (RESOURCE_EXHAUSTED: every session slot taken; UNAVAILABLE:

@@ -390,6 +390,8 @@ TEST_F(ServiceE2eTest, ClientReportsErrorsClearly) {
                                     {"--out", dir_ + "/m.drc"}));
   EXPECT_EQ(missing.exit_code, 1);
   EXPECT_NE(missing.err.find("absent.json"), std::string::npos) << missing.err;
+  // No server was involved: no gRPC code in the message.
+  EXPECT_EQ(missing.err.find("NOT_FOUND"), std::string::npos) << missing.err;
   // Options are checked as `tandem extract` checks them, before anything is sent.
   RunResult rejected = Client({"stream", "--server", server_->address(), "--input", input,
                                "--iso", "500", "--error", "0", "--out", dir_ + "/m.drc"});
