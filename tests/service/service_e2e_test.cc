@@ -51,6 +51,11 @@ std::vector<std::string> HeadArgs(const std::string& server, const std::string& 
   return {"stream", "--server", server, "--input", input, "--iso", "500", "--error", "0.75"};
 }
 
+// The generated volume of the load, kill and concurrency tests (service_testutil.h).
+std::vector<std::string> LoadArgs(const std::string& server, const std::string& input) {
+  return {"stream", "--server", server, "--input", input, "--iso", kLoadIso, "--error", kLoadError};
+}
+
 SessionOptions HeadOptions() {
   SessionOptions o;
   o.iso = 500;
@@ -310,15 +315,17 @@ TEST_F(ServiceE2eTest, StreamingDoesNotPageFaultEveryMessageAnew) {
 }
 
 TEST_F(ServiceE2eTest, EightConcurrentStreamsMatchOneAtATime) {
-  TANDEM_SHARED_OR_SKIP(input, kHead);
-  RunResult single = Client(Concat(HeadArgs(server_->address(), input),
+  auto load = WriteLoadVolume(dir_);
+  ASSERT_TRUE(load.ok()) << load.status();
+  const std::string& input = *load;
+  RunResult single = Client(Concat(LoadArgs(server_->address(), input),
                                    {"--out", dir_ + "/single.drc", "--metrics",
                                     dir_ + "/single.json"}));
   ASSERT_EQ(single.exit_code, 0) << single.err;
   std::vector<std::unique_ptr<ChildProcess>> clients;
   for (int i = 0; i < 8; ++i) {
     std::vector<std::string> argv = Concat(
-        HeadArgs(server_->address(), input),
+        LoadArgs(server_->address(), input),
         {"--out", dir_ + "/c" + std::to_string(i) + ".drc", "--metrics",
          dir_ + "/c" + std::to_string(i) + ".json"});
     argv.insert(argv.begin(), BinPath("tandem-client"));
@@ -350,11 +357,13 @@ TEST_F(ServiceE2eTest, EightConcurrentStreamsMatchOneAtATime) {
 // With --resume-window-seconds 0 a killed client's session ends at once (with the default
 // window it waits for a resume: AKilledClientRestartedWithResume..., ServiceResume).
 TEST_F(ServiceE2eTest, KilledClientLeavesNothingBehind) {
-  TANDEM_SHARED_OR_SKIP(input, kHead);
+  auto load = WriteLoadVolume(dir_);
+  ASSERT_TRUE(load.ok()) << load.status();
+  const std::string& input = *load;
   auto no_resume = TestServer::Start({"--resume-window-seconds", "0"});
   ASSERT_TRUE(no_resume.ok()) << no_resume.status();
   server_ = *std::move(no_resume);
-  std::vector<std::string> argv = Concat(HeadArgs(server_->address(), input),
+  std::vector<std::string> argv = Concat(LoadArgs(server_->address(), input),
                                          {"--rate", "25", "--out", dir_ + "/never.drc"});
   argv.insert(argv.begin(), BinPath("tandem-client"));
   auto client = ChildProcess::Spawn(argv, dir_);
@@ -373,7 +382,7 @@ TEST_F(ServiceE2eTest, KilledClientLeavesNothingBehind) {
   EXPECT_TRUE(server_->WaitIdle(15, &counters)) << counters.ShortDebugString();
   EXPECT_FALSE(std::filesystem::exists(dir_ + "/never.drc"));
   EXPECT_EQ(server_->Health(), "SERVING");
-  RunResult after = Client(Concat(HeadArgs(server_->address(), input), {"--out", dir_ + "/ok.drc"}));
+  RunResult after = Client(Concat(LoadArgs(server_->address(), input), {"--out", dir_ + "/ok.drc"}));
   EXPECT_EQ(after.exit_code, 0) << after.err;
 }
 

@@ -28,21 +28,20 @@
 namespace tandem::testing {
 namespace {
 
-constexpr char kHead[] = "ct_head_headsq_64x64x93_int16.json";
-
 using Clock = std::chrono::steady_clock;
 
 double SecondsSince(Clock::time_point t) {
   return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
-client::StreamOptions HeadOptions(const TestServer& server) {
+// Streams of the generated load volume (service_testutil.h: WriteLoadVolume).
+client::StreamOptions LoadOptions(const TestServer& server) {
   client::StreamOptions o;
   o.connection.server = server.address();
   o.chunk_bytes = wire::kDefaultSliceChunkBytes;
   o.timeout_s = 120;
-  o.config.set_iso(500);
-  o.config.set_error(0.75);
+  o.config.set_iso(std::stod(kLoadIso));
+  o.config.set_error(std::stod(kLoadError));
   o.config.mutable_draco()->set_compression_level(0);
   return o;
 }
@@ -68,11 +67,13 @@ v1::FinalMetrics Deterministic(v1::FinalMetrics m) {
 }
 
 TEST(ReliabilityTest, LoadThirtyTwoConcurrentStreams) {
-  TANDEM_SHARED_OR_SKIP(input, kHead);
+  auto load = WriteLoadVolume(MakeTempDir());
+  ASSERT_TRUE(load.ok()) << load.status();
+  const std::string& input = *load;
   constexpr int kStreams = 32;
   auto server = TestServer::Start({"--max-sessions", std::to_string(kStreams)});
   ASSERT_TRUE(server.ok()) << server.status();
-  const client::StreamOptions options = HeadOptions(**server);
+  const client::StreamOptions options = LoadOptions(**server);
   const auto t1 = Clock::now();
   auto single = StreamFile(input, options);
   const double single_s = SecondsSince(t1);
@@ -105,7 +106,7 @@ TEST(ReliabilityTest, LoadThirtyTwoConcurrentStreams) {
   std::printf(
       "load: %d concurrent streams of %s in %.2f s: %.1f sessions/s, %.0f slices/s "
       "(one stream alone: %.3f s)\n",
-      kStreams, kHead, seconds, sessions_per_s, slices_per_s, single_s);
+      kStreams, input.c_str(), seconds, sessions_per_s, slices_per_s, single_s);
   RecordProperty("streams", kStreams);
   RecordProperty("seconds", std::to_string(seconds));
   RecordProperty("sessions_per_s", std::to_string(sessions_per_s));
@@ -118,8 +119,10 @@ TEST(ReliabilityTest, LoadThirtyTwoConcurrentStreams) {
 }
 
 TEST(ReliabilityTest, FiftyKilledClientsLeaveNothingBehind) {
-  TANDEM_SHARED_OR_SKIP(input, kHead);
   const std::string dir = MakeTempDir();
+  auto load = WriteLoadVolume(dir);
+  ASSERT_TRUE(load.ok()) << load.status();
+  const std::string& input = *load;
   // Killed clients' sessions wait 1 s for a resume (not the default 60), then go.
   auto server = TestServer::Start({"--max-sessions", "16", "--resume-window-seconds", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
@@ -133,9 +136,9 @@ TEST(ReliabilityTest, FiftyKilledClientsLeaveNothingBehind) {
                                     "--input",
                                     input,
                                     "--iso",
-                                    "500",
+                                    kLoadIso,
                                     "--error",
-                                    "0.75",
+                                    kLoadError,
                                     "--rate",
                                     "150",
                                     "--out",

@@ -25,6 +25,7 @@
 #include "absl/strings/str_cat.h"
 #include "common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "tandem/synthetic.h"
 #include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
 
@@ -231,6 +232,10 @@ absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const s
   });
   if (!st.ok()) return st;
   return path;
+}
+
+absl::StatusOr<std::string> WriteLoadVolume(const std::string& dir) {
+  return WriteSyntheticVolume(dir, "load", MakeSyntheticSource(Shape::kLink, 64, 64, 93));
 }
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunLocal(const std::string& path,

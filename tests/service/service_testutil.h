@@ -147,6 +147,13 @@ std::string ReadFileOrEmpty(const std::string& path);
 absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const std::string& name,
                                                  std::unique_ptr<SliceSource> source);
 
+// The volume the load, kill and concurrency tests stream, generated so that a clone without
+// ../shared runs them: the Link (two interlocked tori) on the shared head CT's grid,
+// 64 x 64 x 93, float32, as DIR/load.json. Stream it with --iso kLoadIso --error kLoadError.
+absl::StatusOr<std::string> WriteLoadVolume(const std::string& dir);
+inline constexpr char kLoadIso[] = "0";
+inline constexpr char kLoadError[] = "0.05";
+
 // Runs a volume file through a local TandemSession (the reference the service must match).
 absl::StatusOr<std::unique_ptr<TandemSession>> RunLocal(const std::string& path,
                                                         const SessionOptions& options);
