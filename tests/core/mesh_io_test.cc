@@ -93,7 +93,9 @@ TEST_F(MeshIoTest, BinaryPlyRoundTripIsExact) {
   EXPECT_TRUE(Contains(bytes, "element face 2400\nproperty list uchar int vertex_indices\n"));
   const size_t header = bytes.find("end_header\n") + 11;
   EXPECT_EQ(bytes.size(), header + 1271 * 24 + 2400 * 13);
-  ASSERT_TRUE(WriteMesh(Path("bare.ply"), mesh, {.normals = false}).ok());
+  MeshWriteOptions bare;
+  bare.normals = false;
+  ASSERT_TRUE(WriteMesh(Path("bare.ply"), mesh, bare).ok());
   EXPECT_EQ(ReadFile(Path("bare.ply")).size(), header + 1271 * 12 + 2400 * 13 -
                                                     std::string("property float nx\n").size() * 3);
 
