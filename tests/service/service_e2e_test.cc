@@ -779,6 +779,16 @@ TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh)
   EXPECT_NE(bad.err.find("ID:TOKEN"), std::string::npos) << bad.err;
 }
 
+// A TCP proxy in front of `server`, whose connections a test can cut.
+absl::StatusOr<std::unique_ptr<TcpProxy>> ProxyTo(const TestServer& server) {
+  const std::string& address = server.address();
+  int port = 0;
+  if (!absl::SimpleAtoi(address.substr(address.rfind(':') + 1), &port)) {
+    return absl::InternalError(absl::StrCat("no port in ", address));
+  }
+  return TcpProxy::Start(port);
+}
+
 // The network path fails mid-scan (every connection through a proxy reset): the running
 // client resumes by itself, its chunk files have no gap and no repeat, a watcher attached
 // before the cut gets the whole mesh too, and it is the uninterrupted stream's mesh.
@@ -786,9 +796,7 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
   auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::string& address = server_->address();
-  int port = 0;
-  ASSERT_TRUE(absl::SimpleAtoi(address.substr(address.rfind(':') + 1), &port));
-  auto proxy = TcpProxy::Start(port);
+  auto proxy = ProxyTo(*server_);
   ASSERT_TRUE(proxy.ok()) << proxy.status();
   auto args = [&](const std::string& server) {
     return std::vector<std::string>{"stream", "--server", server, "--input", *path, "--iso", "0",
@@ -867,6 +875,37 @@ void VanishMidScan(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>
 // Resume by the protocol itself: wrong id, token or slice are refused clearly and leave
 // the session waiting; the right resume gives the uninterrupted stream's final mesh, byte
 // for byte; a session nobody resumes ends after the window and leaves nothing behind.
+// Several surfaces in one stream survive a cut too: the client resumes the one session
+// (its chunk indices count all surfaces) and each surface is the uninterrupted stream's.
+TEST_F(ServiceE2eTest, ACutStreamOfSeveralSurfacesResumesEachOfThem) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  const std::string& address = server_->address();
+  auto proxy = ProxyTo(*server_);
+  ASSERT_TRUE(proxy.ok()) << proxy.status();
+  auto args = [&](const std::string& server) {
+    return std::vector<std::string>{"stream", "--server", server, "--input", *path, "--iso",
+                                    "0,0.05", "--error", "0.05", "--seal"};
+  };
+  RunResult whole = Client(Concat(args(address), {"--out", dir_ + "/whole_{iso}.ply"}));
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+  std::string key;
+  auto client = StartStreamer(
+      Concat(args((*proxy)->address()), {"--rate", "40", "--out", dir_ + "/cut_{iso}.ply"}), dir_,
+      &key);
+  ASSERT_TRUE(client != nullptr && key.size() == 65u);
+  ASSERT_TRUE(WaitForSession(*server_, key.substr(0, 32), [](const v1::SessionSummary& s) {
+    return s.slices_consumed() >= 40;
+  }));
+  EXPECT_GE((*proxy)->CutAll(), 1);
+  ASSERT_EQ(client->Wait(90), std::optional<int>(0)) << client->Stderr();
+  EXPECT_NE(client->Stderr().find("resumed at slice"), std::string::npos) << client->Stderr();
+  for (const std::string iso : {"0", "0.05"}) {
+    SCOPED_TRACE(iso);
+    ExpectSameMesh(dir_ + "/whole_" + iso + ".ply", dir_ + "/cut_" + iso + ".ply");
+  }
+}
+
 TEST(ServiceResume, BadResumesAreRefusedAndAnUnclaimedSessionEnds) {
   auto server = TestServer::Start({"--resume-window-seconds", "3"});
   ASSERT_TRUE(server.ok()) << server.status();
