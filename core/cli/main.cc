@@ -58,13 +58,14 @@ constexpr char kUsage[] =
 Tandem", SGP 2005).
 
 Usage:
-  tandem extract  --input FILE --out MESH.{ply,obj} [options]   (tandem extract --help)
+  tandem extract  --input FILE --out MESH.{ply,obj,stl,glb} [--iso C0[,C1,...]] [flags]
   tandem generate {sphere,pillowbox,link,gyroid} --size N --out FILE [--series dicom|tiff]
-  tandem measure  A.{ply,obj} B.{ply,obj} [--samples N] [--json]
+  tandem measure  A.{ply,obj,stl} B.{ply,obj,stl} [--samples N] [--json]
   tandem info     --input FILE
   tandem simulate --input FILE --out DIR --as dicom|tiff|zarr --rate R   (an instrument)
   tandem view     MESH.{ply,obj,stl,glb,drc} | DIR_OF_CHUNKS [--view HOST:PORT]   (browser)
   tandem --version
+Every subcommand's --help lists its flags with their defaults.
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
 .tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
