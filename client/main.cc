@@ -342,7 +342,7 @@ int StreamCommand(int argc, char** argv) {
   const std::string& out = f.out;
   const std::string& metrics_path = f.metrics;
   const bool follow = f.follow, strict = f.strict;
-  bool seal = f.seal;
+  bool& seal = f.seal;  // --chunks implies it, below
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
@@ -408,9 +408,7 @@ int StreamCommand(int argc, char** argv) {
   const tandem::VolumeInfo& info = (*source)->info();
   absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos = f.Isos(flags, info);
   if (!isos.ok()) return UsageError(isos.status());
-  tandem::cli::ExtractFlags with_seal = f;
-  with_seal.seal = seal;  // --chunks implies it
-  absl::StatusOr<tandem::SessionOptions> session = with_seal.Options(flags, info);
+  absl::StatusOr<tandem::SessionOptions> session = f.Options(flags, info);
   if (!session.ok()) return UsageError(session.status());
   if (preview_every < 0) {
     // --partials alone: about 20 previews over a known depth (each is the whole partial

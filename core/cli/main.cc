@@ -624,38 +624,34 @@ into DIR slice by slice at R slices per second, as a scanner or microscope would
           blosc-lz4), each chunk row appearing whole (a light-sheet microscope))";
 
 int Simulate(int argc, char** argv) {
-  std::string input, out_flag, as, done_file;
-  double rate_flag = 20;
-  int64_t burst_flag = 8, seed_flag = 1;
+  std::string input, out, as, done_file;
+  double rate = 20;
+  int64_t burst = 8, seed = 1;
   cli::FlagSet flags(kSimulateUsage);
   flags.AddString("input", &input, "FILE", "the volume to play (any format tandem reads)",
                   /*required=*/true);
-  flags.AddString("out", &out_flag, "DIR", "the folder (or .zarr store) to write into",
+  flags.AddString("out", &out, "DIR", "the folder (or .zarr store) to write into",
                   /*required=*/true);
   flags.AddString("as", &as, "dicom|tiff|zarr", "what the instrument writes (see above)",
                   /*required=*/true);
-  flags.AddDouble("rate", &rate_flag, "slices per second (0 = as fast as possible)", false, "R");
-  flags.AddInt("burst", &burst_flag, "dicom: slices per burst");
+  flags.AddDouble("rate", &rate, "slices per second (0 = as fast as possible)", false, "R");
+  flags.AddInt("burst", &burst, "dicom: slices per burst");
   flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
-  flags.AddInt("seed", &seed_flag, "shuffle seed for dicom bursts", "S");
+  flags.AddInt("seed", &seed, "shuffle seed for dicom bursts", "S");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (as != "dicom" && as != "tiff" && as != "zarr") {
     return Fail(absl::InvalidArgumentError(
         absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
   }
-  const std::string* const out = &out_flag;
-  const double* const rate = &rate_flag;
-  const int64_t* const burst = &burst_flag;
-  const int64_t* const seed = &seed_flag;
-  if (*rate < 0 || *burst < 1) {
+  if (rate < 0 || burst < 1) {
     return Fail(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
   }
   auto src = OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo info = (*src)->info();
   std::error_code ec;
-  if (std::filesystem::exists(*out, ec)) {
-    return Fail(absl::AlreadyExistsError(absl::StrCat(*out, ": already exists (the simulator "
+  if (std::filesystem::exists(out, ec)) {
+    return Fail(absl::AlreadyExistsError(absl::StrCat(out, ": already exists (the simulator "
                                                       "writes a fresh acquisition)")));
   }
   // Slices are read as they are written (one burst in memory for DICOM).
@@ -685,20 +681,20 @@ int Simulate(int argc, char** argv) {
   } else if (as == "zarr") {
     ZarrWriteOptions zo;
     zo.chunks = {4, 256, 256};
-    auto w = ZarrAppender::Create(*out, info, zo);
+    auto w = ZarrAppender::Create(out, info, zo);
     if (!w.ok()) return Fail(w.status());
     zarr = *std::move(w);
   }
-  if (as != "zarr") std::filesystem::create_directories(*out, ec);
-  if (ec) return Fail(absl::InternalError(absl::StrCat(*out, ": ", ec.message())));
+  if (as != "zarr") std::filesystem::create_directories(out, ec);
+  if (ec) return Fail(absl::InternalError(absl::StrCat(out, ": ", ec.message())));
 
   const auto start = std::chrono::steady_clock::now();
   auto pace = [&](int64_t written) {  // slice `written` may not go before written / rate s
-    if (*rate <= 0) return;
+    if (rate <= 0) return;
     std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                              std::chrono::duration<double>(written / *rate)));
+                                              std::chrono::duration<double>(written / rate)));
   };
-  std::mt19937 rng(static_cast<uint32_t>(*seed));
+  std::mt19937 rng(static_cast<uint32_t>(seed));
   cli::Progress progress("slices written");
   std::vector<std::vector<uint8_t>> held;
   int64_t written = 0;
@@ -710,7 +706,7 @@ int Simulate(int argc, char** argv) {
       char name[32];
       std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
       pace(written);
-      st = WriteTiffSlice((std::filesystem::path(*out) / name).string(), info, z, bytes);
+      st = WriteTiffSlice((std::filesystem::path(out) / name).string(), info, z, bytes);
       ++written;
     } else if (as == "zarr") {
       pace(written);
@@ -718,7 +714,7 @@ int Simulate(int argc, char** argv) {
       ++written;
     } else {
       held.push_back(std::move(bytes));
-      if (static_cast<int64_t>(held.size()) == *burst || z + 1 == info.nz) {
+      if (static_cast<int64_t>(held.size()) == burst || z + 1 == info.nz) {
         const int64_t first = z + 1 - static_cast<int64_t>(held.size());
         std::vector<int64_t> order(held.size());
         for (size_t i = 0; i < order.size(); ++i) order[i] = first + static_cast<int64_t>(i);
@@ -728,7 +724,7 @@ int Simulate(int argc, char** argv) {
           // Names carry no position: a hash of the slice index.
           const std::string name =
               absl::StrCat("1.2.826.0.1.3680043.2.1125.", (k * 2654435761u) % 1000003u, ".dcm");
-          st = dicom->Write((std::filesystem::path(*out) / name).string(), k,
+          st = dicom->Write((std::filesystem::path(out) / name).string(), k,
                             held[static_cast<size_t>(k - first)]);
           if (!st.ok()) break;
           ++written;
@@ -744,10 +740,10 @@ int Simulate(int argc, char** argv) {
   }
   progress.Done();
   if (!done_file.empty()) {
-    std::ofstream((std::filesystem::path(*out) / done_file).string());
+    std::ofstream((std::filesystem::path(out) / done_file).string());
   }
   std::fprintf(stderr, "simulated %lld slices into %s (%s)\n", static_cast<long long>(written),
-               out->c_str(), as.c_str());
+               out.c_str(), as.c_str());
   return 0;
 }
 
@@ -777,7 +773,6 @@ int View(int argc, char** argv) {
     return Fail(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
   }
   const std::string path = flags.positional()[0];
-  const double* const linger = &linger_s;
   std::vector<std::string> chunks;
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec)) {
@@ -831,12 +826,12 @@ int View(int argc, char** argv) {
                          "it sees the mesh (add --view-token TOKEN)\n", options.listen.c_str());
   }
   std::fprintf(stderr, "tandem view: %s at %s%s\n", path.c_str(), (*server)->url().c_str(),
-               *linger < 0 ? " (Ctrl-C to quit)" : "");
+               linger_s < 0 ? " (Ctrl-C to quit)" : "");
   std::signal(SIGINT, [](int) { g_view_quit = true; });
   std::signal(SIGTERM, [](int) { g_view_quit = true; });
   const auto until = std::chrono::steady_clock::now() +
-                     std::chrono::milliseconds(static_cast<int64_t>(std::max(0.0, *linger) * 1000));
-  while (!g_view_quit && (*linger < 0 || std::chrono::steady_clock::now() < until)) {
+                     std::chrono::milliseconds(static_cast<int64_t>(std::max(0.0, linger_s) * 1000));
+  while (!g_view_quit && (linger_s < 0 || std::chrono::steady_clock::now() < until)) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
   return 0;
