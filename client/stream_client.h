@@ -13,7 +13,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "client/connection.h"
-#include "tandem/sealer.h"
+#include "tandem/mesh.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"
 

@@ -1,4 +1,4 @@
-#include "tandem/layer_extractor.h"
+#include "layer_extractor.h"
 
 #include <bit>
 #include <cassert>
@@ -12,7 +12,7 @@
 #endif
 
 #include "absl/strings/str_cat.h"
-#include "tandem/mc_tables.h"
+#include "mc_tables.h"
 
 namespace tandem {
 namespace {

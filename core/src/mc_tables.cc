@@ -1,4 +1,4 @@
-#include "tandem/mc_tables.h"
+#include "mc_tables.h"
 
 #include <array>
 #include <cassert>

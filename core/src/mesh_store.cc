@@ -1,4 +1,4 @@
-#include "tandem/mesh_store.h"
+#include "mesh_store.h"
 
 #include <algorithm>
 #include <cassert>

@@ -1,4 +1,4 @@
-#include "tandem/prefetch.h"
+#include "prefetch.h"
 
 #include <utility>
 

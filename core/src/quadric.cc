@@ -1,4 +1,4 @@
-#include "tandem/quadric.h"
+#include "quadric.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "tandem/sealer.h"
+#include "sealer.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "tandem/simplifier.h"
+#include "simplifier.h"
 
 #include <algorithm>
 #include <cassert>

@@ -12,7 +12,7 @@
 #include <stdexcept>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/prefetch.h"
+#include "prefetch.h"
 
 namespace tandem {
 namespace {

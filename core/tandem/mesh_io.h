@@ -23,7 +23,6 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/mesh.h"
-#include "tandem/sealer.h"
 
 namespace tandem {
 

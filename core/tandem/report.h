@@ -11,7 +11,7 @@
 #include "absl/status/statusor.h"
 #include "tandem/distance.h"
 #include "tandem/metrics.h"
-#include "tandem/simplifier.h"
+#include "tandem/stats.h"
 #include "tandem/tandem.h"
 
 namespace tandem {

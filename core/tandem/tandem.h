@@ -39,11 +39,12 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "tandem/layer_extractor.h"
+#include "layer_extractor.h"
 #include "tandem/mesh.h"
-#include "tandem/mesh_store.h"
-#include "tandem/sealer.h"
-#include "tandem/simplifier.h"
+#include "tandem/stats.h"
+#include "mesh_store.h"
+#include "sealer.h"
+#include "simplifier.h"
 #include "tandem/volume.h"
 
 namespace tandem {
@@ -97,27 +98,6 @@ struct SessionOptions {
   // applies it; callers that want a field name in front of the message call it first.
   absl::Status ValidateFor(const VolumeInfo& grid) const;
   static constexpr double kMinErrorVoxels = 1e-6, kMaxErrorVoxels = 1e6;
-};
-
-struct PhaseTimes {
-  double extract_s = 0, simplify_s = 0;  // CPU-side time of each phase
-  double total_s = 0;  // wall time spent inside AddSlice/Finish (< the sum when pipelined)
-};
-
-struct SessionStats {
-  int64_t slices = 0;
-  int64_t crossed_cubes = 0;
-  int64_t triangles_extracted = 0;  // full-resolution triangle count
-  int64_t peak_triangles = 0;       // most triangles held at once
-  std::vector<int64_t> trace;       // triangles after every EXTRACT and every SIMPLIFY
-  PhaseTimes time;
-  RefusalCounts refusals;
-  int64_t contractions = 0;
-  int64_t sag_corrected = 0;        // vertices moved by the sag correction (Finish)
-  double max_reach_over_front = 0;  // <= 0: no contraction's reach exceeded the front
-  double max_layer_over_front = 0;  // <= -1: no contraction touched the newest layer
-  int64_t sealed_triangles = 0;     // sealing: triangles handed out so far
-  int64_t sealed_vertices = 0;      // sealing: global vertex ids handed out so far
 };
 
 // Coordinates: the engine (extractor, mesh store, quadrics, queues) works in a frame of its

@@ -7,11 +7,11 @@
 
 #include <gtest/gtest.h>
 
-#include "tandem/layer_extractor.h"
-#include "tandem/mc_tables.h"
-#include "tandem/prefetch.h"
+#include "layer_extractor.h"
+#include "mc_tables.h"
+#include "prefetch.h"
 #include "tandem/tandem.h"
-#include "tandem/mesh_store.h"
+#include "mesh_store.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"

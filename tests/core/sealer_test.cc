@@ -13,7 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "tandem/mesh_io.h"
-#include "tandem/sealer.h"
+#include "sealer.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"

@@ -14,11 +14,11 @@
 #include <gtest/gtest.h>
 
 #include "tandem/distance.h"
-#include "tandem/layer_extractor.h"
-#include "tandem/mesh_store.h"
+#include "layer_extractor.h"
+#include "mesh_store.h"
 #include "tandem/metrics.h"
-#include "tandem/quadric.h"
-#include "tandem/simplifier.h"
+#include "quadric.h"
+#include "simplifier.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"

@@ -15,7 +15,7 @@
 #include "server/extract_job.h"
 #include "tandem/distance.h"
 #include "tandem/metrics.h"
-#include "tandem/sealer.h"
+#include "tandem/mesh.h"
 #include "tandem/report.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"

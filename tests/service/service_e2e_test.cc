@@ -23,7 +23,7 @@
 #include "service/service_testutil.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
-#include "tandem/sealer.h"
+#include "tandem/mesh.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
 #include "tandem/topology.h"

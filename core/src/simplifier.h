@@ -21,32 +21,14 @@
 #include <span>
 #include <vector>
 
-#include "tandem/mesh_store.h"
-#include "tandem/quadric.h"
+#include "mesh_store.h"
+#include "quadric.h"
+#include "tandem/stats.h"
 #include "tandem/types.h"
 
 namespace tandem {
 
-// Why contractions were refused (or deferred), counted per reason.
-struct RefusalCounts {
-  int64_t link = 0;        // link condition (topology would change)
-  int64_t flip = 0;        // a triangle's normal would turn by more than 90 degrees
-  int64_t degenerate = 0;  // a non-degenerate triangle would collapse to zero area
-  int64_t box = 0;         // the vertices lie on different faces of the grid's box
-  int64_t error = 0;       // conservative rule: ε0(c) > E0 although ε_α(c) <= E0
-  int64_t distance = 0;    // distance guard: c too far from a reshaped triangle's plane
-  int64_t total() const { return link + flip + degenerate + box + error + distance; }
-  RefusalCounts& operator+=(const RefusalCounts& o) {
-    link += o.link;
-    flip += o.flip;
-    degenerate += o.degenerate;
-    box += o.box;
-    error += o.error;
-    distance += o.distance;
-    return *this;
-  }
-};
-
+// When an edge leaves the waiting queue W for Q (SessionOptions::schedule picks one).
 enum class ReleaseRule : uint8_t {
   kImmediate,  // classical: every edge goes straight to Q
   kLayer,      // tandem without lag: key = max(layer(a), layer(b)) + 1

@@ -18,7 +18,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
-#include "tandem/mesh_store.h"
+#include "mesh_store.h"
 #include "tandem/types.h"
 
 namespace tandem {

@@ -17,31 +17,14 @@
 #define TANDEM_SEALER_H_
 
 #include <cstdint>
-#include <span>
 #include <vector>
 
 #include "tandem/mesh.h"
-#include "tandem/mesh_store.h"
-#include "tandem/simplifier.h"
+#include "mesh_store.h"
+#include "simplifier.h"
 #include "tandem/types.h"
 
 namespace tandem {
-
-struct SealedChunk {
-  int64_t index = 0;                // 0, 1, ... in the order the chunks were taken
-  int64_t first_slice = 0, last_slice = 0;  // slices its vertices span (floor/ceil of heights)
-  std::vector<Vec3> positions;      // one per vertex
-  std::vector<uint32_t> ids;        // global id of each vertex
-  std::vector<uint32_t> indices;    // 3 per triangle, into positions
-  // Ids no later chunk has: every triangle of these vertices is in this chunk or an earlier
-  // one (a writer can put them out now, normals complete). Not sent on the wire.
-  std::vector<uint32_t> retired;
-  size_t num_triangles() const { return indices.size() / 3; }
-};
-
-// The mesh the chunks make together: one vertex per global id (in increasing id), the
-// triangles in chunk order.
-IndexedMesh WeldChunks(std::span<const SealedChunk> chunks);
 
 class Sealer {
  public:
