@@ -476,12 +476,15 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
     if (resuming && a.expected_slice >= 0 && a.expected_slice != first_slice) {
       first_slice = a.expected_slice;  // the server consumed more (or less) than it said
       backoff = 0;
+      attempt = 0;  // the replica holding the session answered: the budget starts again
     } else if (resuming && a.answered && absl::IsUnavailable(st)) {
       broke = st;  // the connection broke mid-stream: resume where the server is
       first_slice = resumption.consumed;
     } else if (resuming && !a.answered && absl::IsNotFound(st) &&
                opts.connection.lb_policy == "round_robin") {
-      backoff = 0;  // another replica took the resume: the next stream goes to the next one
+      // Another replica took the resume: the next stream goes to the next one. A short pause,
+      // so that a replica still connecting is among those the balancer picks from.
+      backoff = 0.1;
     } else if (!a.refused) {
       return Unresumed(broke, st);
     }

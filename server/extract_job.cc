@@ -124,7 +124,8 @@ class ExtractJob::SurfaceSink final : public JobSink {
   int surface_;
 };
 
-ExtractJob::ExtractJob(const ServerLimits& limits, JobSink* sink) : limits_(limits), sink_(sink) {}
+ExtractJob::ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute)
+    : limits_(limits), compute_(compute), sink_(sink) {}
 ExtractJob::~ExtractJob() = default;
 
 absl::Status ExtractJob::StartSurfaces(const v1::SessionConfig& config) {
@@ -134,7 +135,8 @@ absl::Status ExtractJob::StartSurfaces(const v1::SessionConfig& config) {
   surface_progress_.resize(n);
   for (size_t i = 0; i < n; ++i) {
     surface_sinks_.push_back(std::make_unique<SurfaceSink>(this, static_cast<int>(i)));
-    surfaces_.push_back(std::make_unique<ExtractJob>(child_limits, surface_sinks_.back().get()));
+    surfaces_.push_back(
+        std::make_unique<ExtractJob>(child_limits, surface_sinks_.back().get(), compute_));
   }
   for (size_t i = 0; i < n; ++i) {
     v1::ExtractRequest request;
@@ -239,7 +241,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
   if (!cfg.ok()) return cfg.status();
   config_ = *std::move(cfg);
   if (config_.isos.size() > 1) return StartSurfaces(config);
-  auto session = TandemSession::Create(config_.grid, config_.options);
+  auto session = TandemSession::Create(config_.grid, config_.options, compute_);
   if (!session.ok()) return session.status();
   session_ = *std::move(session);
   if (config_.options.seal) chunk_draco_ = ChunkGrid(config_.grid, config_.draco, limits_.max_slices);
@@ -247,7 +249,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
     SessionOptions full = config_.options;
     full.schedule = Schedule::kNone;
     full.seal = false;  // the whole surface stays, to measure against
-    auto reference = TandemSession::Create(config_.grid, full);
+    auto reference = TandemSession::Create(config_.grid, full, compute_);
     if (!reference.ok()) return reference.status();
     reference_ = *std::move(reference);
   }

@@ -55,7 +55,8 @@ class JobSink {
 // final messages are posted at once, surface after surface, when the last one is done.
 class ExtractJob {
  public:
-  ExtractJob(const ServerLimits& limits, JobSink* sink);
+  // `compute`: the executor the job's sessions run on (null: Executor::Shared()).
+  ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute = nullptr);
   ~ExtractJob();
 
   // Handles the next message of the stream (chunk data may be moved out of `request`).
@@ -112,6 +113,7 @@ class ExtractJob {
   v1::Progress MakeProgress() const;
 
   ServerLimits limits_;
+  Executor* compute_;
   JobSink* sink_;
   State state_ = State::kWaitConfig;
   JobConfig config_;

@@ -75,6 +75,7 @@ int main(int argc, char** argv) {
   std::string log_format = "text";
   tandem::server::ServerLimits limits;
   int64_t max_sessions = limits.max_sessions;
+  int64_t compute_threads = limits.compute_threads;
   int64_t session_memory_mb = limits.session_memory_bytes >> 20;
   int64_t watch_retain_mb = limits.watch_retain_bytes >> 20;
   double grace_seconds = 10;
@@ -101,6 +102,9 @@ int main(int argc, char** argv) {
                   "the health service stays open");
   flags.AddInt("max-sessions", &max_sessions,
                "concurrent Extract streams; more get RESOURCE_EXHAUSTED (one worker thread each)");
+  flags.AddInt("compute-threads", &compute_threads,
+               "threads all sessions share for extraction and simplification (each stream's "
+               "worker thread helps too); 0 = one per core");
   flags.AddInt("max-voxels-per-slice", &limits.max_voxels_per_slice,
                "largest nx*ny accepted (RESOURCE_EXHAUSTED above)");
   flags.AddInt("max-slices", &limits.max_slices, "largest number of slices accepted per stream");
@@ -180,7 +184,8 @@ int main(int argc, char** argv) {
   }
   constexpr int64_t kIntMax = std::numeric_limits<int>::max();
   auto ms_ok = [](int64_t v, int64_t lo) { return v >= lo && v <= kIntMax; };
-  if (max_sessions < 1 || max_sessions > 4096 || limits.max_voxels_per_slice < 4 ||
+  if (max_sessions < 1 || max_sessions > 4096 || compute_threads < 0 || compute_threads > 1024 ||
+      limits.max_voxels_per_slice < 4 ||
       limits.max_slices < 2 || limits.max_message_bytes < 1024 ||
       limits.max_message_bytes > (int64_t{1} << 30) || !(grace_seconds >= 0) ||
       !(grace_seconds <= 86400) || !(drain_delay_seconds >= 0) || !(drain_delay_seconds <= 3600) ||
@@ -196,6 +201,7 @@ int main(int argc, char** argv) {
       !(limits.max_band_bytes_share <= 1e6)) {
     absl::FPrintF(stderr,
                   "tandem-server: out of range: need 1 <= --max-sessions <= 4096, "
+                  "0 <= --compute-threads <= 1024, "
                   "--max-voxels-per-slice >= 4, --max-slices >= 2, 1024 <= "
                   "--max-message-bytes <= 2^30, 0 <= --grace-seconds <= 86400, "
                   "0 <= --drain-delay-seconds <= 3600, "
@@ -209,6 +215,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   limits.max_sessions = static_cast<int>(max_sessions);
+  limits.compute_threads = static_cast<int>(compute_threads);
   limits.session_memory_bytes = session_memory_mb << 20;
   limits.watch_retain_bytes = watch_retain_mb << 20;
 #if defined(__GLIBC__)

@@ -51,6 +51,9 @@ struct ServerLimits {
   int64_t keepalive_timeout_ms = 20000;      // --keepalive-timeout-ms
   int64_t min_ping_interval_ms = 10000;      // --keepalive-min-ping-interval-ms
   bool permit_keepalive_without_calls = false;  // --keepalive-permit-without-calls
+  // Threads that all sessions share for their computing (each session's own worker thread
+  // feeds it and runs its steps too): --compute-threads; 0 = one per core.
+  int compute_threads = 0;
 };
 
 // Everything a job needs, checked.

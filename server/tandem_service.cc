@@ -532,7 +532,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
   bool cancel = false;
   std::optional<ParkedSession> parked;
   {
-    auto job = std::make_unique<ExtractJob>(state_->limits, this);
+    auto job = std::make_unique<ExtractJob>(state_->limits, this, state_->compute.get());
     int64_t accounted_bytes = 0;
     bool first = true, failed = false;
     while (true) {

@@ -2,7 +2,9 @@
 //
 // Threading: each accepted Extract stream gets one worker thread (at most
 // limits.max_sessions at once; more streams get RESOURCE_EXHAUSTED), which owns the
-// TandemSession (core may briefly add a helper thread per slice: SessionOptions::pipeline).
+// TandemSession and feeds it. The sessions compute on one Executor that all of them share
+// (limits.compute_threads threads), so the server's threads are bounded by max_sessions +
+// compute_threads + gRPC's own, whatever the streams ask for.
 // Reactions never block and never compute: they move messages between gRPC and the worker
 // under a mutex.
 //   * Watch: every accepted stream publishes into a SessionFeed (server/watch.h) under a
@@ -38,12 +40,14 @@
 #ifndef TANDEM_SERVER_TANDEM_SERVICE_H_
 #define TANDEM_SERVER_TANDEM_SERVICE_H_
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
@@ -54,6 +58,7 @@
 #include "server/request_validation.h"
 #include "server/resume.h"
 #include "server/watch.h"
+#include "tandem/executor.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {
@@ -70,10 +75,16 @@ class LiveStream {
 // stream's reactor), hence reference-counted.
 struct ServiceState {
   ServiceState(const ServerLimits& l, std::vector<std::string> tokens, bool tls_on)
-      : limits(l), tls(tls_on), auth(std::move(tokens)),
+      : limits(l),
+        compute(std::make_unique<Executor>(
+            l.compute_threads > 0 ? l.compute_threads
+                                  : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())))),
+        tls(tls_on), auth(std::move(tokens)),
         feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes),
         resumable(absl::Seconds(l.resume_window_s)) {}
   const ServerLimits limits;
+  // The threads every session computes on: however many streams arrive, they share these.
+  const std::unique_ptr<Executor> compute;
   const bool tls;
   TokenAuthenticator auth;
   FeedRegistry feeds;  // what every stream sends, for Watch

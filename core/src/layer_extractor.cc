@@ -62,6 +62,12 @@ LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
   inside_from_ = InsideFrom(config.iso);
 }
 
+size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny) {
+  const size_t n = static_cast<size_t>(nx * ny);
+  const size_t words = static_cast<size_t>((nx + 63) / 64 * ny);
+  return n * (2 * sizeof(float) + 5 * sizeof(VertexId)) + 2 * words * sizeof(uint64_t);
+}
+
 void LayerExtractor::AllocatePlanes() {
   // On the first slice, not at construction: a session that never gets a voxel (a bare
   // config, a client that leaves) commits no memory for a grid it never sees.

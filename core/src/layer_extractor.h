@@ -71,6 +71,10 @@ class LayerExtractor {
   // The error ComputeLayer gives for a non-finite value v at (x, y) of slice k.
   static absl::Status NonFiniteError(int64_t k, int64_t x, int64_t y, float v);
 
+  // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
+  // two value planes, their sign bits and the five vertex-id caches.
+  static size_t PlaneCacheBytes(int64_t nx, int64_t ny);
+
   int64_t slices_done() const { return slices_done_; }
   int64_t crossed_cubes() const { return crossed_cubes_; }
   const ExtractorConfig& config() const { return config_; }

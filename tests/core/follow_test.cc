@@ -19,6 +19,7 @@
 #include "tandem/follow.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/zarr.h"
 #include "testutil/testutil.h"

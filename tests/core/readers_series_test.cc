@@ -21,6 +21,7 @@
 #include "tandem/distance.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"

@@ -20,6 +20,7 @@
 #include "quadric.h"
 #include "simplifier.h"
 #include "tandem/synthetic.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"
 #include "tandem/volume.h"

@@ -12,6 +12,7 @@
 
 #include "tandem/mesh_io.h"
 #include "tandem/synthetic.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 
 namespace tandem::codec {

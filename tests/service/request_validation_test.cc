@@ -18,6 +18,7 @@
 #include "tandem/mesh.h"
 #include "tandem/report.h"
 #include "tandem/synthetic.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 
 namespace tandem::server {

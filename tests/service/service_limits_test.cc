@@ -5,6 +5,7 @@
 // a frozen client; the server's ping policy is enforced.
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <dirent.h>
 
 #include <atomic>
 #include <thread>
@@ -542,6 +543,56 @@ TEST(LimitsTest, ServerEnforcesItsMinimumPingInterval) {
   RecordProperty("too_many_pings_after_s", std::to_string(strict_s));
   EXPECT_FALSE(lenient_ended) << lenient_status.error_message();
   EXPECT_EQ(lenient_status.error_code(), grpc::StatusCode::CANCELLED) << "cancelled by the test";
+}
+
+}  // namespace
+}  // namespace tandem::testing
+
+namespace tandem::testing {
+namespace {
+
+int ThreadsOf(pid_t pid) {
+  int n = 0;
+  if (DIR* d = opendir(absl::StrCat("/proc/", pid, "/task").c_str())) {
+    while (dirent* e = readdir(d)) n += e->d_name[0] != '.';
+    closedir(d);
+  }
+  return n;
+}
+
+// However many streams arrive, their sessions compute on the --compute-threads threads the
+// server shares between them: each stream adds its own worker thread, never a pool of its own
+// (a 4-slab session used to start one thread per core for itself).
+TEST(LimitsTest, StreamsShareTheServersComputeThreads) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--compute-threads", "1"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto path = WriteSyntheticVolume(dir, "wide", MakeSyntheticSource(Shape::kLink, 320, 48, 60));
+  ASSERT_TRUE(path.ok()) << path.status();
+  const pid_t pid = (*server)->process().pid();
+  const int idle = ThreadsOf(pid);
+  constexpr int kStreams = 4;
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int i = 0; i < kStreams; ++i) {
+    auto c = ChildProcess::Spawn({BinPath("tandem-client"), "stream", "--server",
+                                  (*server)->address(), "--input", *path, "--iso", "0", "--error",
+                                  "0.05", "--rate", "30", "--out",
+                                  absl::StrCat(dir, "/out", i, ".ply")},
+                                 dir);
+    ASSERT_TRUE(c.ok()) << c.status();
+    clients.push_back(*std::move(c));
+  }
+  int most = idle;
+  for (int i = 0; i < 100; ++i) {  // the streams take about 2 s at 30 slices/s
+    most = std::max(most, ThreadsOf(pid));
+    std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  }
+  for (auto& c : clients) EXPECT_EQ(c->Wait(60), 0) << c->Stderr();
+  // Each stream's worker, and a few of gRPC's own under load; with a pool per session (2 or
+  // more threads each) this was at least 3 per stream.
+  EXPECT_LE(most - idle, kStreams + 4) << "idle " << idle << ", most " << most;
+  std::cerr << "server threads: idle " << idle << ", at most " << most << " with " << kStreams
+            << " streams\n";
 }
 
 }  // namespace

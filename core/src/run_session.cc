@@ -1,0 +1,101 @@
+#include "tandem/run_session.h"
+
+#include <string>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "prefetch.h"
+#include "tandem/executor.h"
+
+namespace tandem {
+
+absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
+    SliceSource& source, const SessionOptions& options,
+    const std::function<void(int64_t, int64_t)>& progress,
+    const std::function<absl::Status(SealedChunk)>& on_chunk, Executor* executor) {
+  std::function<absl::Status(size_t, SealedChunk)> each;
+  if (on_chunk) each = [&](size_t, SealedChunk c) { return on_chunk(std::move(c)); };
+  auto sessions = RunSessions(source, {options}, progress, each, executor);
+  if (!sessions.ok()) return sessions.status();
+  return std::move(sessions->front());
+}
+
+absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
+    SliceSource& source, const std::vector<SessionOptions>& options,
+    const std::function<void(int64_t, int64_t)>& progress,
+    const std::function<absl::Status(size_t, SealedChunk)>& on_chunk, Executor* executor) {
+  const VolumeInfo& info = source.info();
+  if (options.empty()) return absl::InvalidArgumentError("RunSessions: no session options");
+  std::vector<std::unique_ptr<TandemSession>> sessions;
+  for (const SessionOptions& o : options) {
+    if (o.seal && on_chunk == nullptr) {
+      return absl::InvalidArgumentError("RunSession: sealing needs somewhere to put the chunks");
+    }
+    auto session = TandemSession::Create(info, o, executor);
+    if (!session.ok()) return session.status();
+    sessions.push_back(*std::move(session));
+  }
+  auto take = [&]() -> absl::Status {
+    for (size_t i = 0; i < sessions.size(); ++i) {
+      if (!options[i].seal) continue;
+      SealedChunk c;
+      while (sessions[i]->TakeSealed(&c)) {
+        if (absl::Status st = on_chunk(i, std::move(c)); !st.ok()) return st;
+      }
+    }
+    return absl::OkStatus();
+  };
+  // Each session copies the slice into its own ring and, when pipelined, returns while its
+  // workers go on: the sessions run side by side from one read of the slice.
+  auto add = [&](int64_t k, const uint8_t* bytes) {
+    for (auto& session : sessions) {
+      absl::Status st = session->AddSliceBytes(info.dtype, bytes);
+      if (!st.ok()) {
+        return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
+      }
+    }
+    if (absl::Status st = take(); !st.ok()) return st;
+    if (progress) progress(k + 1, info.nz);
+    return absl::OkStatus();
+  };
+  // A mapped file hands its slices over in place: the session's copy into its ring is the
+  // only one (a read() would copy every byte out of the page cache first).
+  const uint8_t* view = nullptr;
+  if (absl::Status st = source.ViewSlice(&view); !st.ok()) return st;
+  if (view != nullptr) {
+    for (int64_t k = 0; k < info.nz; ++k) {
+      if (k > 0) {
+        if (absl::Status st = source.ViewSlice(&view); !st.ok()) return st;
+      }
+      if (absl::Status st = add(k, view); !st.ok()) return st;
+    }
+  } else {
+    // Reading runs ahead on another thread; conversion happens on the way into the session.
+    // nz = 0 (a followed acquisition): until the source says OutOfRange.
+    SlicePrefetcher prefetch(&source);
+    std::vector<uint8_t> bytes;
+    for (int64_t k = 0; info.nz == 0 || k < info.nz; ++k) {
+      absl::Status st = prefetch.Next(&bytes);
+      if (info.nz == 0 && absl::IsOutOfRange(st)) break;
+      if (!st.ok()) return st;
+      if (absl::Status st = add(k, bytes.data()); !st.ok()) return st;
+    }
+  }
+  // The final SIMPLIFY of each surface, side by side as well.
+  std::vector<absl::Status> finished(sessions.size());
+  {
+    TaskGroup finishing(executor != nullptr ? executor : &Executor::Shared());
+    for (size_t i = 1; i < sessions.size(); ++i) {
+      finishing.Run([&, i] { finished[i] = sessions[i]->Finish(); });
+    }
+    finished[0] = sessions[0]->Finish();
+    finishing.Wait();
+  }
+  for (const absl::Status& st : finished) {
+    if (!st.ok()) return st;
+  }
+  if (absl::Status st = take(); !st.ok()) return st;
+  return sessions;
+}
+
+}  // namespace tandem

@@ -1,0 +1,83 @@
+// TandemSession's inside: the slabs, the slices on their way to them, and the executor that
+// steps them. The schedule itself is in schedule.h, the slabs in slabs.h.
+#ifndef TANDEM_SESSION_IMPL_H_
+#define TANDEM_SESSION_IMPL_H_
+
+#include <array>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "schedule.h"
+#include "slabs.h"
+#include "tandem/executor.h"
+#include "tandem/tandem.h"
+
+namespace tandem {
+
+struct TandemSession::Impl {
+  Impl(const VolumeInfo& grid, const SessionOptions& options, int slabs, Executor* executor);
+  ~Impl();
+
+  // AddSlice and Finish run behind the session's barrier: an exception becomes `failed`,
+  // returned now and by every later call.
+  template <typename F>
+  absl::Status Guarded(F&& f);
+  // values (host floats) or dtype + bytes (converted on the way into the ring).
+  absl::Status AddSlice(const float* values, DType dtype, const uint8_t* bytes);
+  absl::Status Finish();
+  // Waits for the queued slab steps, then pairs the new seam vertices and folds the traces.
+  // It only fills caches, so the const observers use it.
+  absl::Status Sync();
+  void FoldTraces();  // appends the slabs' new trace entries, summed, to stats.trace
+  void Record();      // the whole mesh's count, after Finish
+  // Runs f(slab) for every slab: side by side on the executor when pipelined, else in order.
+  void ForEachSlab(const std::function<void(Slab&)>& f);
+  // Engine frame -> world, in place (a mirrored frame also reverses the triangles' winding).
+  void ToWorld(std::vector<Vec3>* positions, std::vector<uint32_t>* indices) const;
+  const SessionStats& Stats();
+  size_t MemoryBytes();
+
+  // Queued slices (a pipelined split session): each slice is copied once into the ring and
+  // queued for every slab. A slab's steps run one at a time and in order, each step a task
+  // that queues the slab's next one, so the result does not depend on which thread runs it.
+  struct RingSlot {
+    std::vector<float> values;
+    int pending = 0;  // slabs that have not finished with it
+  };
+  struct SlabQueue {
+    std::deque<int> slices;  // ring slots
+    bool busy = false;       // a task of this slab is queued or running
+    absl::Status failure;    // the first failure of a queued step (none expected)
+  };
+  static constexpr int kRingSlots = 4;  // slices in flight, at most
+  void StepQueued(size_t slab);  // one queued step of a slab (a task)
+  absl::Status QueuedFailure();  // mu held
+
+  VolumeInfo grid;
+  SessionOptions options;
+  double scale = 1;  // engine frame -> world: world = engine * scale + grid.origin
+  Executor* executor;
+  Overlap overlap;   // how a slab overlaps EXTRACT(k) with SIMPLIFY(k-1)
+  absl::Status failed;
+  std::vector<std::unique_ptr<Slab>> slabs;
+  Seams seams;
+  size_t folded = 0;  // entries of the slabs' traces already in stats.trace
+  int64_t slices_added = 0;
+  bool queued = false;  // slices go through the ring to tasks
+  std::mutex mu;        // guards queues and the ring slots' pending counts
+  std::vector<SlabQueue> queues;
+  std::array<RingSlot, kRingSlots> ring;
+  int ring_next = 0;
+  std::unique_ptr<TaskGroup> steps;  // the queued slab steps
+  MergedCounts merged;               // of the slabs merged away by Finish
+  std::vector<float> convert;
+  SessionStats stats;
+  bool finished = false;
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_SESSION_IMPL_H_

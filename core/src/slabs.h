@@ -1,0 +1,86 @@
+// Slabs: the grid split along x (SessionOptions::parts), each slab with its own extractor, mesh
+// store and queues, so that slabs can be stepped side by side.
+//
+// Slab p owns cube columns [c_p, c_{p+1}) and grid columns c_p .. c_{p+1}: neighbours share the
+// plane of grid column c_{p+1}. The vertices on that plane's y- and z-edges belong to both
+// (kSeam) and are never contracted while the stream lasts, so every contraction inside a slab
+// is exactly a contraction of the whole mesh (same stars, same link condition). At the end the
+// slabs are merged into the first, the seam copies welded (their quadrics add up to the whole
+// one), and the schedule goes on from the edges at the seam (schedule.h). The split is part of
+// the result: parts = 1 is the paper's algorithm with nothing deferred.
+#ifndef TANDEM_SLABS_H_
+#define TANDEM_SLABS_H_
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "layer_extractor.h"
+#include "mesh_store.h"
+#include "sealer.h"
+#include "simplifier.h"
+#include "tandem/mesh.h"
+#include "tandem/options.h"
+#include "tandem/stats.h"
+#include "tandem/volume.h"
+
+namespace tandem {
+
+struct Slab {
+  Slab(const ExtractorConfig& ec, const SimplifierOptions& so)
+      : extractor(ec, &store), simplifier(&store, so) {}
+  MeshStore store;
+  LayerExtractor extractor;
+  Simplifier simplifier;
+  std::unique_ptr<Sealer> sealer;  // SessionOptions::seal
+  int64_t x0 = 0;                  // first grid column
+  size_t index = 0;                // in the session's slabs
+  // The layer last extracted (the next SIMPLIFY step's DELAY) and this slab's seam vertices
+  // not yet paired with the neighbour's copies, per seam face, in order.
+  std::vector<TriId> new_tris;
+  std::vector<VertexId> new_verts;
+  std::array<std::vector<VertexId>, 2> seam_log;
+  std::vector<int64_t> trace;  // this slab's triangles after every step
+  PhaseTimes time;
+  int64_t triangles_extracted = 0;
+  // The tandem schedules simplify layer k while layer k+1 is extracted (schedule.h).
+  bool simplify_pending = false;
+  int64_t pending_front = 0;
+};
+
+// seams[s]: (vertex in slab s, its copy in slab s+1), per shared grid edge.
+using Seams = std::vector<std::vector<std::pair<VertexId, VertexId>>>;
+
+// The number of slabs a session over `grid` uses (SessionOptions::parts; sealing: one).
+int SlabCount(const VolumeInfo& grid, int requested, bool seal);
+
+// The slabs of `grid` in the engine frame (spacing divided by `scale`), ready for slice 0.
+std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
+                                             double scale, int count, bool parallel_batches);
+
+// Moves the slabs' new seam vertices into `seams` (both sides list the same grid edges in the
+// same order). INTERNAL if two neighbours disagree.
+absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams);
+
+// Appends the slabs' meshes to *out, each seam vertex once (the index of its first copy).
+void AppendWeldedSnapshot(const std::vector<std::unique_ptr<Slab>>& slabs, const Seams& seams,
+                          IndexedMesh* out);
+
+// What the slabs merged away had counted.
+struct MergedCounts {
+  int64_t crossed_cubes = 0, triangles_extracted = 0;
+  PhaseTimes time;
+};
+
+// Merges every slab into the first (the others are freed one by one as they are copied) and
+// welds the seams. Returns the welded seam vertices (ids in the first slab), from which the
+// schedule goes on.
+std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seams* seams,
+                                 bool simplify, MergedCounts* merged);
+
+}  // namespace tandem
+
+#endif  // TANDEM_SLABS_H_

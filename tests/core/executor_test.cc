@@ -1,0 +1,127 @@
+// The executor (executor.h): every task runs once, waiting helps, nested waits cannot deadlock,
+// and a session works only on the executor it is given: it starts no thread of its own, and its
+// mesh does not depend on how many threads the executor has.
+#include <dirent.h>
+
+#include <atomic>
+#include <stdexcept>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "tandem/executor.h"
+#include "tandem/synthetic.h"
+#include "tandem/tandem.h"
+
+namespace tandem {
+namespace {
+
+int ThreadsOfThisProcess() {
+  int n = 0;
+  if (DIR* d = opendir("/proc/self/task")) {
+    while (dirent* e = readdir(d)) n += e->d_name[0] != '.';
+    closedir(d);
+  }
+  return n;
+}
+
+TEST(Executor, RunsEveryTaskOnceAndWaitRethrows) {
+  for (int threads : {0, 1, 3}) {
+    Executor ex(threads);
+    EXPECT_EQ(ex.threads(), threads);
+    std::atomic<int> runs{0};
+    TaskGroup g(&ex);
+    for (int i = 0; i < 100; ++i) g.Run([&] { ++runs; });
+    g.Wait();
+    EXPECT_EQ(runs.load(), 100) << threads << " threads";
+    g.Run([] { throw std::runtime_error("boom"); });
+    EXPECT_THROW(g.Wait(), std::runtime_error);
+    g.Wait();  // the exception was collected once
+  }
+}
+
+TEST(Executor, WithoutThreadsTheWaiterRunsTheTasks) {
+  Executor ex(0);
+  std::thread::id ran;
+  TaskGroup g(&ex);
+  g.Run([&] { ran = std::this_thread::get_id(); });
+  g.Wait();
+  EXPECT_EQ(ran, std::this_thread::get_id());
+}
+
+TEST(Executor, TasksThatWaitForTasksDoNotDeadlock) {
+  // One thread, and every task waits for a group of its own: only helping makes progress.
+  Executor ex(1);
+  std::atomic<int> inner{0};
+  TaskGroup outer(&ex);
+  for (int i = 0; i < 4; ++i) {
+    outer.Run([&] {
+      TaskGroup g(&ex);
+      for (int j = 0; j < 5; ++j) g.Run([&] { ++inner; });
+      g.Wait();
+    });
+  }
+  outer.Wait();
+  EXPECT_EQ(inner.load(), 20);
+}
+
+IndexedMesh RunLink(Executor* ex, bool pipeline, int* threads_added) {
+  auto src = MakeSyntheticSource(Shape::kLink, 96, 96, 40);
+  SessionOptions o;
+  o.error = 0.2;
+  o.parts = 4;
+  o.pipeline = pipeline;
+  const int before = ThreadsOfThisProcess();
+  auto session = TandemSession::Create(src->info(), o, ex);
+  EXPECT_TRUE(session.ok()) << session.status();
+  std::vector<uint8_t> bytes;
+  int most = before;
+  while (src->ReadSlice(&bytes).ok()) {
+    EXPECT_TRUE((*session)->AddSliceBytes(src->info().dtype, bytes.data()).ok());
+    most = std::max(most, ThreadsOfThisProcess());
+  }
+  EXPECT_TRUE((*session)->Finish().ok());
+  if (threads_added != nullptr) *threads_added = most - before;
+  return (*session)->Snapshot();
+}
+
+TEST(Executor, ASessionUsesOnlyTheExecutorItIsGiven) {
+  Executor one(1);  // started before counting
+  int added = -1;
+  const IndexedMesh mesh = RunLink(&one, /*pipeline=*/true, &added);
+  EXPECT_EQ(added, 0) << "a session on a given executor started threads of its own";
+  ASSERT_GT(mesh.num_triangles(), 300u);
+  // Same mesh on no threads, more threads, and with no pipelining at all.
+  Executor none(0), three(3);
+  for (auto [ex, pipeline] : {std::pair{&none, true}, {&three, true}, {&one, false}}) {
+    const IndexedMesh other = RunLink(ex, pipeline, nullptr);
+    EXPECT_EQ(other.positions, mesh.positions);
+    EXPECT_EQ(other.indices, mesh.indices);
+  }
+}
+
+TEST(Executor, SessionsShareOneExecutor) {
+  // Four sessions on one 2-thread executor, fed in turn: each gives the mesh it gives alone.
+  Executor two(2);
+  const IndexedMesh alone = RunLink(&two, true, nullptr);
+  auto src = MakeSyntheticSource(Shape::kLink, 96, 96, 40);
+  SessionOptions o;
+  o.error = 0.2;
+  o.parts = 4;
+  std::vector<std::unique_ptr<TandemSession>> sessions;
+  for (int i = 0; i < 4; ++i) sessions.push_back(*TandemSession::Create(src->info(), o, &two));
+  std::vector<uint8_t> bytes;
+  while (src->ReadSlice(&bytes).ok()) {
+    for (auto& s : sessions) ASSERT_TRUE(s->AddSliceBytes(src->info().dtype, bytes.data()).ok());
+  }
+  for (auto& s : sessions) {
+    ASSERT_TRUE(s->Finish().ok());
+    const IndexedMesh m = s->Snapshot();
+    EXPECT_EQ(m.positions, alone.positions);
+    EXPECT_EQ(m.indices, alone.indices);
+  }
+}
+
+}  // namespace
+}  // namespace tandem
