@@ -358,10 +358,10 @@ int StreamCommand(int argc, char** argv) {
     return 2;
   }
   if (chunk_bytes < 1 || rate < 0 || timeout_s < 0 || preview_every < 0 || preview_ms < 0 ||
-      f.target_triangles < 0 || keepalive_ms < 0 || keepalive_ms > std::numeric_limits<int>::max()) {
+      keepalive_ms < 0 || keepalive_ms > std::numeric_limits<int>::max()) {
     absl::FPrintF(stderr,
                   "tandem-client: --chunk-bytes must be >= 1; --rate, --timeout, --preview-every, "
-                  "--preview-ms, --target-triangles and --keepalive-time-ms must be >= 0\n");
+                  "--preview-ms and --keepalive-time-ms must be >= 0\n");
     return 2;
   }
   const int64_t bits = f.quantization_bits, level = f.compression_level;
@@ -379,11 +379,6 @@ int StreamCommand(int argc, char** argv) {
                             "printed it), got '%s'\n", resume);
       return 2;
     }
-  }
-  if (seal && f.target_triangles > 0) {
-    absl::FPrintF(stderr, "tandem-client: --target-triangles needs the whole mesh at the end: "
-                          "it cannot be combined with --seal or --chunks\n");
-    return 2;
   }
   if (!partials.empty()) {
     if (!flags.IsSet("preview-every")) preview_every = -1;  // set from the depth below
@@ -408,6 +403,8 @@ int StreamCommand(int argc, char** argv) {
   const tandem::VolumeInfo& info = (*source)->info();
   absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos = f.Isos(flags, info);
   if (!isos.ok()) return UsageError(isos.status());
+  // The session's options are checked by core's rules (--target-triangles with --seal or
+  // --chunks too), as `tandem extract` checks them, before anything is sent.
   absl::StatusOr<tandem::SessionOptions> session = f.Options(flags, info);
   if (!session.ok()) return UsageError(session.status());
   if (preview_every < 0) {

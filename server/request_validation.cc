@@ -22,6 +22,11 @@ absl::Status Prefixed(const std::string& prefix, const absl::Status& st) {
   return absl::Status(st.code(), absl::StrCat(prefix, std::string(st.message())));
 }
 
+// SessionOptions' member names are SessionConfig's field names.
+std::string ConfigFieldName(const std::string& field) {
+  return absl::StrCat("config.", field, field == "error" ? " (E0)" : "");
+}
+
 }  // namespace
 
 absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const ServerLimits& limits) {
@@ -97,8 +102,10 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   if (c.has_sag_correction()) o.sag_correction = c.sag_correction();
   o.seal = c.sealed_chunks();
   if (c.has_seal_margin()) o.seal_margin = c.seal_margin();
-  if (!std::isfinite(o.iso)) {
-    return absl::InvalidArgumentError("config.iso is not a finite number");
+  // The options' rules are core's (SessionOptions::ValidateFor); the message names the
+  // request's field.
+  if (absl::Status st = o.ValidateFor(g); !st.ok()) {
+    return NameOptionError(st, ConfigFieldName, " = ");
   }
   out.isos = {o.iso};
   if (c.extra_isos_size() > kMaxExtraIsos) {
@@ -118,38 +125,6 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     }
     out.isos.push_back(v);
   }
-  if (o.schedule != Schedule::kNone && !(o.error > 0 && std::isfinite(o.error))) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.error (E0) = ", o.error,
-        ": must be a finite number > 0 in physical units (e.g. 0.5 x the voxel spacing)"));
-  }
-  if (!(o.alpha >= 0 && o.alpha <= 1)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("config.alpha = ", o.alpha, ": the isotropy parameter must lie in [0, 1]"));
-  }
-  if (!(o.distance_guard >= 0) || !std::isfinite(o.distance_guard)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.distance_guard = ", o.distance_guard,
-        ": must be a finite number >= 0 (a multiple of E0; 0 = off; unset = 2)"));
-  }
-  if (!(o.sag_correction >= 0 && o.sag_correction <= 1)) {
-    return absl::InvalidArgumentError(absl::StrCat("config.sag_correction = ", o.sag_correction,
-                                                   ": must lie in [0, 1] (0 = off; unset = 0.3)"));
-  }
-  if (o.target_triangles < 0) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.target_triangles = ", o.target_triangles, ": must be >= 0 (0 = no target)"));
-  }
-  if (o.seal && o.target_triangles > 0) {
-    return absl::InvalidArgumentError(
-        "config.target_triangles needs the whole mesh at the end: it cannot be combined with "
-        "config.sealed_chunks");
-  }
-  if (!(o.seal_margin >= 0) || !std::isfinite(o.seal_margin)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.seal_margin = ", o.seal_margin, ": must be a finite number of slices >= 0 (unset = 2)"));
-  }
-  if (absl::Status st = o.ValidateFor(g); !st.ok()) return Prefixed("config: ", st);
 
   out.preview_every_slices = c.preview().every_slices();
   out.preview_min_interval_ms = c.preview().min_interval_ms();

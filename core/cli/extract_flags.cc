@@ -4,8 +4,20 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_replace.h"
 
 namespace tandem::cli {
+
+namespace {
+// SessionOptions' member names, '_' written '-', are the flags' names.
+std::string FlagName(const std::string& field) {
+  return absl::StrCat("--", absl::StrReplaceAll(field, {{"_", "-"}}));
+}
+}  // namespace
+
+absl::Status NameOptionFlag(const absl::Status& status) {
+  return NameOptionError(status, FlagName, " ");
+}
 
 void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddString("input", &input, "FILE",
@@ -150,7 +162,7 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
   auto sched = ParseSchedule(schedule);
   if (!sched.ok()) return sched.status();
   o.schedule = no_simplify ? Schedule::kNone : *sched;
-  if (absl::Status st = o.Validate(); !st.ok()) return st;
+  if (absl::Status st = o.ValidateFor(info); !st.ok()) return NameOptionFlag(st);
   return o;
 }
 

@@ -37,8 +37,14 @@ struct ExtractFlags {
   // With the volume's header: the iso-values (--iso, else the file's first suggested one)
   // and the session options (E0 defaults to 0.2 x the smallest spacing).
   absl::StatusOr<std::vector<IsoValue>> Isos(const FlagSet& flags, const VolumeInfo& info) const;
+  // SessionOptions::ValidateFor(info) applied; a refusal names the flag ("--alpha 2:
+  // isotropy alpha must lie in [0, 1]").
   absl::StatusOr<SessionOptions> Options(const FlagSet& flags, const VolumeInfo& info) const;
 };
+
+// A refusal of SessionOptions::Validate() / ValidateFor() worded with the flag's name
+// ("--parts 99: ..."); any other status unchanged.
+absl::Status NameOptionFlag(const absl::Status& status);
 
 }  // namespace tandem::cli
 

@@ -210,12 +210,10 @@ int Extract(int argc, char** argv) {
     outs.push_back(*std::move(name));
   }
   opt.iso = isos[0].value;
-  if (parts < 0 || parts > SessionOptions::kMaxParts) {
-    return Fail(absl::InvalidArgumentError(absl::StrCat(
-        "--parts ", parts, ": expected 0 (automatic) to ", SessionOptions::kMaxParts)));
-  }
-  opt.parts = static_cast<int>(parts);
-  if (absl::Status st = opt.Validate(); !st.ok()) return Fail(st);
+  // Clamped to int: a count out of range stays out of range for Validate().
+  opt.parts = static_cast<int>(std::clamp<int64_t>(parts, std::numeric_limits<int>::min(),
+                                                   std::numeric_limits<int>::max()));
+  if (absl::Status st = opt.ValidateFor(info); !st.ok()) return Fail(cli::NameOptionFlag(st));
 
   cli::Progress progress("slices");
   ValueRangeSource range(source->get());

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "absl/strings/cord.h"
 #include "absl/strings/str_cat.h"
 
 namespace tandem {
@@ -26,41 +27,76 @@ absl::StatusOr<Schedule> ParseSchedule(std::string_view name) {
       "unknown schedule '", std::string(name), "'; expected classical, tandem or tandem-lag"));
 }
 
+namespace {
+
+// A status payload per part of an OptionError.
+constexpr char kFieldUrl[] = "tandem.OptionError.field";
+constexpr char kValueUrl[] = "tandem.OptionError.value";
+constexpr char kRuleUrl[] = "tandem.OptionError.rule";
+
+template <class T>
+absl::Status Refuse(const std::string& field, const T& value, const std::string& rule) {
+  const std::string text = absl::StrCat(value);
+  absl::Status st = absl::InvalidArgumentError(absl::StrCat(field, " = ", text, ": ", rule));
+  st.SetPayload(kFieldUrl, absl::Cord(field));
+  st.SetPayload(kValueUrl, absl::Cord(text));
+  st.SetPayload(kRuleUrl, absl::Cord(rule));
+  return st;
+}
+
+}  // namespace
+
+std::optional<OptionError> OptionErrorOf(const absl::Status& status) {
+  const auto field = status.GetPayload(kFieldUrl);
+  const auto value = status.GetPayload(kValueUrl);
+  const auto rule = status.GetPayload(kRuleUrl);
+  if (!field || !value || !rule) return std::nullopt;
+  return OptionError{std::string(*field), std::string(*value), std::string(*rule)};
+}
+
+absl::Status NameOptionError(const absl::Status& status,
+                             std::string (*label)(const std::string& field),
+                             const std::string& separator) {
+  std::optional<OptionError> e = OptionErrorOf(status);
+  if (!e) return status;
+  return absl::Status(status.code(),
+                      absl::StrCat(label(e->field), separator, e->value, ": ", e->rule));
+}
+
 absl::Status SessionOptions::Validate() const {
-  if (!std::isfinite(iso)) return absl::InvalidArgumentError("iso-value must be a finite number");
+  if (!std::isfinite(iso)) return Refuse("iso", iso, "iso-value must be a finite number");
   if (schedule == Schedule::kNone) return absl::OkStatus();
   if (!(error > 0) || !std::isfinite(error)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "error threshold E0 must be a finite number > 0 (physical units), got ", error));
+    return Refuse("error", error,
+                  "error threshold E0 must be a finite number > 0 (physical units, e.g. 0.5 x "
+                  "the voxel spacing)");
   }
   if (!(alpha >= 0 && alpha <= 1)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("isotropy alpha must lie in [0, 1], got ", alpha));
+    return Refuse("alpha", alpha, "isotropy alpha must lie in [0, 1]");
   }
   if (!(distance_guard >= 0) || !std::isfinite(distance_guard)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "distance guard must be a finite number >= 0 (a multiple of E0; 0 = off), got ",
-        distance_guard));
+    return Refuse("distance_guard", distance_guard,
+                  "distance guard must be a finite number >= 0 (a multiple of E0; 0 = off)");
   }
   if (!(sag_correction >= 0 && sag_correction <= 1)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("sag correction must lie in [0, 1] (0 = off), got ", sag_correction));
+    return Refuse("sag_correction", sag_correction, "sag correction must lie in [0, 1] (0 = off)");
   }
   if (target_triangles < 0) {
-    return absl::InvalidArgumentError("target triangle count must be >= 0");
+    return Refuse("target_triangles", target_triangles,
+                  "target triangle count must be >= 0 (0 = no target)");
   }
   if (seal && target_triangles > 0) {
-    return absl::InvalidArgumentError(
-        "a target triangle count needs the whole mesh at the end; it cannot be combined with "
-        "sealed chunks");
+    return Refuse("target_triangles", target_triangles,
+                  "a target triangle count needs the whole mesh at the end; it cannot be "
+                  "combined with sealed chunks");
   }
   if (!(seal_margin >= 0) || !std::isfinite(seal_margin)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "seal margin must be a finite number of slices >= 0, got ", seal_margin));
+    return Refuse("seal_margin", seal_margin,
+                  "seal margin must be a finite number of slices >= 0");
   }
   if (parts < 0 || parts > kMaxParts) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("parts must lie in [0, ", kMaxParts, "] (0 = automatic), got ", parts));
+    return Refuse("parts", parts,
+                  absl::StrCat("parts must lie in [0, ", kMaxParts, "] (0 = automatic)"));
   }
   return absl::OkStatus();
 }
@@ -71,17 +107,19 @@ absl::Status SessionOptions::ValidateFor(const VolumeInfo& grid) const {
   const double smallest = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
   const double largest = std::max({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
   if (error < kMinErrorVoxels * smallest) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "error threshold E0 = ", error, " is below ", kMinErrorVoxels,
-        " x the smallest voxel spacing (", smallest,
-        "): nothing could be simplified; use --no-simplify (schedule none) for the "
-        "full-resolution surface, or give E0 in the volume's physical units"));
+    return Refuse("error", error,
+                  absl::StrCat("error threshold E0 is below ", kMinErrorVoxels,
+                               " x the smallest voxel spacing (", smallest,
+                               "): nothing could be simplified; use --no-simplify (schedule "
+                               "none) for the full-resolution surface, or give E0 in the "
+                               "volume's physical units"));
   }
   if (error > kMaxErrorVoxels * largest) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "error threshold E0 = ", error, " is above ", kMaxErrorVoxels,
-        " x the largest voxel spacing (", largest,
-        "); give E0 in the volume's physical units (e.g. 0.5 x the spacing)"));
+    return Refuse("error", error,
+                  absl::StrCat("error threshold E0 is above ", kMaxErrorVoxels,
+                               " x the largest voxel spacing (", largest,
+                               "); give E0 in the volume's physical units (e.g. 0.5 x the "
+                               "spacing)"));
   }
   return absl::OkStatus();
 }

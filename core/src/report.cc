@@ -4,6 +4,7 @@
 
 #include <cstdio>
 #include <tuple>
+#include <type_traits>
 
 #include <nlohmann/json.hpp>
 
@@ -71,107 +72,57 @@ std::string DistancesToJson(const Distances& d) {
   return j.dump(1) + "\n";
 }
 
+namespace {
+using Json = nlohmann::json;
+
+void PutJson(Json& j, const Json::json_pointer& key, const std::optional<Distances>& d) {
+  if (d) j[key] = DistanceJson(*d);
+}
+template <class T>
+void PutJson(Json& j, const Json::json_pointer& key, const T& v) {
+  j[key] = v;
+}
+
+void GetJson(const Json& v, std::optional<Distances>* out) {
+  Distances d;
+  d.forward = {v["L1"]["forward"], v["L2"]["forward"], v["Linf"]["forward"]};
+  d.backward = {v["L1"]["backward"], v["L2"]["backward"], v["Linf"]["backward"]};
+  d.l1_max = v["L1"]["max"];
+  d.l2_max = v["L2"]["max"];
+  d.linf_max = v["Linf"]["max"];
+  *out = d;
+}
+template <class T>
+void GetJson(const Json& v, T* out) {
+  v.get_to(*out);
+}
+}  // namespace
+
 std::string ReportToJson(const MetricsReport& r) {
-  nlohmann::json j;
-  j["input"] = r.input;
-  j["frame"] = r.frame;
-  j["schedule"] = r.schedule;
-  j["iso"] = r.iso;
-  j["error_threshold"] = r.error_threshold;
-  j["alpha"] = r.alpha;
-  j["distance_guard"] = r.distance_guard;
-  j["sag_correction"] = r.sag_correction;
-  j["sag_corrected"] = r.sag_corrected;
-  j["target_triangles"] = r.target_triangles;
-  j["grid"] = {r.nx, r.ny, r.nz};
-  j["slices"] = r.slices;
-  j["crossed_cubes"] = r.crossed_cubes;
-  j["triangles_extracted"] = r.triangles_extracted;
-  j["triangles_final"] = r.triangles_final;
-  j["vertices_final"] = r.vertices_final;
-  j["peak_triangles"] = r.peak_triangles;
-  j["error_max"] = r.error_max;
-  j["anisotropy"] = r.anisotropy;
-  j["directional_bias"] = r.directional_bias;
-  j["time_s"] = {{"extract", r.time_extract_s}, {"simplify", r.time_simplify_s},
-                 {"total", r.time_total_s}};
-  j["peak_rss_bytes"] = r.peak_rss_bytes;
-  j["trace"] = r.trace;
-  j["contractions"] = r.contractions;
-  j["refusals"] = {{"link", r.refusals.link},         {"flip", r.refusals.flip},
-                   {"degenerate", r.refusals.degenerate}, {"box", r.refusals.box},
-                   {"error", r.refusals.error},           {"distance", r.refusals.distance}};
-  if (r.distance) j["distance"] = DistanceJson(*r.distance);
-  if (r.bytes_received || r.bytes_sent) {
-    j["bytes_received"] = r.bytes_received;
-    j["bytes_sent"] = r.bytes_sent;
-  }
-  if (r.peak_session_bytes) j["peak_session_bytes"] = r.peak_session_bytes;
+  Json j;
+  VisitReportFields(r, [&](const char* key, const auto& v, Written when) {
+    if constexpr (std::is_arithmetic_v<std::remove_cvref_t<decltype(v)>>) {
+      if (when == Written::kIfNonZero && v == 0) return;
+    }
+    if (when == Written::kIfService && !HasServiceBytes(r)) return;
+    PutJson(j, Json::json_pointer(key), v);  // kIfPresent: PutJson of an optional
+  });
   return j.dump(1) + "\n";
 }
 
 absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
-  nlohmann::json j = nlohmann::json::parse(json, nullptr, /*allow_exceptions=*/false);
+  Json j = Json::parse(json, nullptr, /*allow_exceptions=*/false);
   if (j.is_discarded() || !j.is_object()) {
     return absl::InvalidArgumentError("metrics: not a JSON object");
   }
   MetricsReport r;
   try {
-    r.input = j.value("input", "");
-    r.frame = j.value("frame", "");
-    r.schedule = j.value("schedule", "");
-    r.iso = j.value("iso", 0.0);
-    r.error_threshold = j.value("error_threshold", 0.0);
-    r.alpha = j.value("alpha", 0.0);
-    r.distance_guard = j.value("distance_guard", 0.0);
-    r.sag_correction = j.value("sag_correction", 0.0);
-    r.sag_corrected = j.value("sag_corrected", int64_t{0});
-    r.target_triangles = j.value("target_triangles", int64_t{0});
-    if (j.contains("grid") && j["grid"].size() == 3) {
-      r.nx = j["grid"][0];
-      r.ny = j["grid"][1];
-      r.nz = j["grid"][2];
-    }
-    r.slices = j.value("slices", int64_t{0});
-    r.crossed_cubes = j.value("crossed_cubes", int64_t{0});
-    r.triangles_extracted = j.value("triangles_extracted", int64_t{0});
-    r.triangles_final = j.value("triangles_final", int64_t{0});
-    r.vertices_final = j.value("vertices_final", int64_t{0});
-    r.peak_triangles = j.value("peak_triangles", int64_t{0});
-    r.error_max = j.value("error_max", 0.0);
-    r.anisotropy = j.value("anisotropy", 0.0);
-    r.directional_bias = j.value("directional_bias", 0.0);
-    if (j.contains("time_s")) {
-      r.time_extract_s = j["time_s"].value("extract", 0.0);
-      r.time_simplify_s = j["time_s"].value("simplify", 0.0);
-      r.time_total_s = j["time_s"].value("total", 0.0);
-    }
-    r.peak_rss_bytes = j.value("peak_rss_bytes", int64_t{0});
-    r.trace = j.value("trace", std::vector<int64_t>{});
-    r.contractions = j.value("contractions", int64_t{0});
-    if (j.contains("refusals")) {
-      const auto& f = j["refusals"];
-      r.refusals.link = f.value("link", int64_t{0});
-      r.refusals.flip = f.value("flip", int64_t{0});
-      r.refusals.degenerate = f.value("degenerate", int64_t{0});
-      r.refusals.box = f.value("box", int64_t{0});
-      r.refusals.error = f.value("error", int64_t{0});
-      r.refusals.distance = f.value("distance", int64_t{0});
-    }
-    if (j.contains("distance")) {
-      const auto& d = j["distance"];
-      Distances dd;
-      dd.forward = {d["L1"]["forward"], d["L2"]["forward"], d["Linf"]["forward"]};
-      dd.backward = {d["L1"]["backward"], d["L2"]["backward"], d["Linf"]["backward"]};
-      dd.l1_max = d["L1"]["max"];
-      dd.l2_max = d["L2"]["max"];
-      dd.linf_max = d["Linf"]["max"];
-      r.distance = dd;
-    }
-    r.bytes_received = j.value("bytes_received", int64_t{0});
-    r.bytes_sent = j.value("bytes_sent", int64_t{0});
-    r.peak_session_bytes = j.value("peak_session_bytes", int64_t{0});
-  } catch (const nlohmann::json::exception& e) {
+    // A field the JSON does not hold keeps its default.
+    VisitReportFields(r, [&](const char* key, auto& v, Written) {
+      const Json::json_pointer at(key);
+      if (j.contains(at)) GetJson(j.at(at), &v);
+    });
+  } catch (const Json::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("metrics: ", e.what()));
   }
   return r;
@@ -219,7 +170,7 @@ std::string ReportSummary(const MetricsReport& r) {
     const Distances& d = *r.distance;
     line("distance L1/L2/Linf", absl::StrFormat("%.4g / %.4g / %.4g", d.l1_max, d.l2_max, d.linf_max));
   }
-  if (r.bytes_received || r.bytes_sent) {
+  if (HasServiceBytes(r)) {
     line("bytes received/sent", absl::StrCat(r.bytes_received, " / ", r.bytes_sent));
   }
   return s;

@@ -4,6 +4,7 @@
 #define TANDEM_OPTIONS_H_
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -55,14 +56,33 @@ struct SessionOptions {
   // no target triangle count (that needs the whole mesh at the end).
   bool seal = false;
   double seal_margin = 2;
+  // The rules the options must satisfy, here and nowhere else. A refusal is
+  // InvalidArgument "<field> = <value>: <rule>" (e.g. "alpha = 1.5: isotropy alpha must lie
+  // in [0, 1]") and carries an OptionError, so that a front end can name the field in its
+  // own terms (NameOptionError).
   absl::Status Validate() const;
   // Validate() plus the rules that need the grid: E0 within [kMinErrorVoxels,
   // kMaxErrorVoxels] times the grid's smallest / largest spacing (far below, nothing could
   // ever be contracted; far above, E0 is certainly a unit error). TandemSession::Create
-  // applies it; callers that want a field name in front of the message call it first.
+  // applies it; callers that want their own field names call it first.
   absl::Status ValidateFor(const VolumeInfo& grid) const;
   static constexpr double kMinErrorVoxels = 1e-6, kMaxErrorVoxels = 1e6;
 };
+
+// What Validate() / ValidateFor() refused.
+struct OptionError {
+  std::string field;  // the SessionOptions member: "iso", "error", "alpha", "parts", ...
+  std::string value;  // its value, as text
+  std::string rule;   // what it must satisfy
+};
+// The OptionError a status of Validate() / ValidateFor() carries; nullopt for any other.
+std::optional<OptionError> OptionErrorOf(const absl::Status& status);
+// The same refusal worded "<label(field)><separator><value>: <rule>", e.g. the server's
+// "config.alpha = 1.5: ..." or the command line's "--alpha 1.5: ..."; any other status
+// unchanged.
+absl::Status NameOptionError(const absl::Status& status,
+                             std::string (*label)(const std::string& field),
+                             const std::string& separator);
 
 }  // namespace tandem
 

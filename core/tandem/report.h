@@ -45,13 +45,71 @@ struct MetricsReport {
   int64_t peak_session_bytes = 0;
 };
 
+// When ReportToJson writes a field.
+enum class Written {
+  kAlways,
+  kIfNonZero,   // peak_session_bytes: local runs have none
+  kIfService,   // bytes_received, bytes_sent: both, when either is non-zero (HasServiceBytes)
+  kIfPresent,   // distance: with --reference / compute_distances only
+};
+inline bool HasServiceBytes(const MetricsReport& r) { return r.bytes_received || r.bytes_sent; }
+
+// MetricsReport's one field table: f(key, member, when) for every field, `key` being where
+// the JSON holds it (a JSON pointer: "/time_s/extract" is {"time_s": {"extract": ...}}).
+// ReportToJson and ReportFromJson iterate it; the proto conversion (proto/common/wire.cc)
+// lists the fields again, and tests/service/request_validation_test.cc checks that it
+// carries every one of these. A new figure: a member above, a line here, a FinalMetrics
+// field and its two lines in wire.cc (and MakeReport's line, if the session knows it).
+template <class R, class F>  // R: MetricsReport or const MetricsReport
+void VisitReportFields(R& r, F&& f) {
+  using W = Written;
+  f("/input", r.input, W::kAlways);
+  f("/frame", r.frame, W::kAlways);
+  f("/schedule", r.schedule, W::kAlways);
+  f("/iso", r.iso, W::kAlways);
+  f("/error_threshold", r.error_threshold, W::kAlways);
+  f("/alpha", r.alpha, W::kAlways);
+  f("/distance_guard", r.distance_guard, W::kAlways);
+  f("/sag_correction", r.sag_correction, W::kAlways);
+  f("/sag_corrected", r.sag_corrected, W::kAlways);
+  f("/target_triangles", r.target_triangles, W::kAlways);
+  f("/grid/0", r.nx, W::kAlways);
+  f("/grid/1", r.ny, W::kAlways);
+  f("/grid/2", r.nz, W::kAlways);
+  f("/slices", r.slices, W::kAlways);
+  f("/crossed_cubes", r.crossed_cubes, W::kAlways);
+  f("/triangles_extracted", r.triangles_extracted, W::kAlways);
+  f("/triangles_final", r.triangles_final, W::kAlways);
+  f("/vertices_final", r.vertices_final, W::kAlways);
+  f("/peak_triangles", r.peak_triangles, W::kAlways);
+  f("/error_max", r.error_max, W::kAlways);
+  f("/anisotropy", r.anisotropy, W::kAlways);
+  f("/directional_bias", r.directional_bias, W::kAlways);
+  f("/time_s/extract", r.time_extract_s, W::kAlways);
+  f("/time_s/simplify", r.time_simplify_s, W::kAlways);
+  f("/time_s/total", r.time_total_s, W::kAlways);
+  f("/peak_rss_bytes", r.peak_rss_bytes, W::kAlways);
+  f("/trace", r.trace, W::kAlways);
+  f("/contractions", r.contractions, W::kAlways);
+  f("/refusals/link", r.refusals.link, W::kAlways);
+  f("/refusals/flip", r.refusals.flip, W::kAlways);
+  f("/refusals/degenerate", r.refusals.degenerate, W::kAlways);
+  f("/refusals/box", r.refusals.box, W::kAlways);
+  f("/refusals/error", r.refusals.error, W::kAlways);
+  f("/refusals/distance", r.refusals.distance, W::kAlways);
+  f("/distance", r.distance, W::kIfPresent);
+  f("/bytes_received", r.bytes_received, W::kIfService);
+  f("/bytes_sent", r.bytes_sent, W::kIfService);
+  f("/peak_session_bytes", r.peak_session_bytes, W::kIfNonZero);
+}
+
 // Fills every field a finished session knows (mesh measures are computed on `mesh`).
 MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh);
 // The same for a mesh that left the session in sealed chunks: its counts and shape sums.
 MetricsReport MakeReport(const TandemSession& session, int64_t triangles, int64_t vertices,
                          const ShapeSums& shape);
 
-// JSON text (keys: see tests/core/cli_test.cc and README.md).
+// JSON text: the fields of VisitReportFields (see also README.md).
 std::string ReportToJson(const MetricsReport& r);
 // {"distance": {"L1": {"forward", "backward", "max"}, "L2": ..., "Linf": ...}}: the block
 // ReportToJson writes, alone (tandem measure --json).

@@ -35,7 +35,10 @@ v1::DType DTypeToProto(DType dtype);
 absl::StatusOr<Schedule> ScheduleFromProto(int value);
 v1::Schedule ScheduleToProto(Schedule schedule);
 
-// Every MetricsReport field (input excepted: the server does not know the file name).
+// Every field of MetricsReport's table (VisitReportFields) but input and frame, which the
+// client knows itself. Generated accessors: the fields are listed by hand here, and
+// WireReport.CarriesEveryFieldOfTheReportTable (tests/service/request_validation_test.cc)
+// fails when one of the table is missing.
 void ReportToProto(const MetricsReport& report, v1::FinalMetrics* out);
 MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
 

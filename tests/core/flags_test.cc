@@ -2,11 +2,14 @@
 // environment fallback, and mistakes worded the same way everywhere.
 #include "cli/flags.h"
 
-
 #include <cstdlib>
+#include <optional>
 #include <vector>
 
 #include <gtest/gtest.h>
+
+#include "cli/extract_flags.h"
+#include "tandem/options.h"
 
 namespace tandem::cli {
 namespace {
@@ -150,6 +153,35 @@ TEST(FlagSet, CommandLineBeatsEnvironmentWhichBeatsDefault) {
             "TANDEMTEST_MAX_SESSIONS: 'many' is not an integer");
   unsetenv("TANDEMTEST_MAX_SESSIONS");
   unsetenv("TANDEMTEST_GRACE_SECONDS");
+}
+
+// A refusal of SessionOptions::Validate() says which option, its value and the rule (core's
+// words); each front end names the option in its own terms: the command line by its flag.
+TEST(OptionFlags, RefusalsOfCoreNameTheFlag) {
+  SessionOptions o;
+  o.error = 0.5;
+  o.alpha = 1.5;
+  const absl::Status st = o.Validate();
+  EXPECT_EQ(st.message(), "alpha = 1.5: isotropy alpha must lie in [0, 1]");
+  const std::optional<OptionError> e = OptionErrorOf(st);
+  ASSERT_TRUE(e.has_value());
+  EXPECT_EQ(e->field, "alpha");
+  EXPECT_EQ(e->value, "1.5");
+  const absl::Status named = NameOptionFlag(st);
+  EXPECT_EQ(named.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(named.message(), "--alpha 1.5: isotropy alpha must lie in [0, 1]");
+  o.alpha = 0;
+  o.distance_guard = -2;
+  EXPECT_EQ(NameOptionFlag(o.Validate()).message().substr(0, 20), "--distance-guard -2:");
+  o.distance_guard = 0;
+  o.error = 1e-9;  // the grid's rule
+  VolumeInfo grid;
+  grid.nx = grid.ny = grid.nz = 8;
+  EXPECT_EQ(OptionErrorOf(o.ValidateFor(grid))->field, "error");
+  // Other statuses pass unchanged.
+  const absl::Status other = absl::NotFoundError("x");
+  EXPECT_FALSE(OptionErrorOf(other).has_value());
+  EXPECT_EQ(NameOptionFlag(other), other);
 }
 
 }  // namespace

@@ -6,10 +6,18 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <type_traits>
+#include <vector>
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "server/extract_job.h"
@@ -537,6 +545,80 @@ TEST(ExtractJob, ComputesDistancesWhenAsked) {
   EXPECT_GT(m.distance().forward().samples(), 0u);
   EXPECT_GT(m.distance().linf_max(), 0);
   EXPECT_LE(m.distance().linf_max(), 2 * 0.5 + 1e-9) << "Hausdorff distance near E0";
+}
+
+// The proto conversion lists MetricsReport's fields by hand (generated accessors): a report
+// whose every field of the table (VisitReportFields) has its own value comes back from
+// FinalMetrics with each of them, so that a field added to the table but not to the wire
+// fails here.
+std::string Text(const std::string& v) { return v; }
+std::string Text(double v) { return absl::StrCat(v); }
+std::string Text(int64_t v) { return absl::StrCat(v); }
+std::string Text(const std::vector<int64_t>& v) { return absl::StrJoin(v, ","); }
+std::string Text(const std::optional<Distances>& d) {
+  if (!d) return "none";
+  std::string s;
+  for (const DirectedDistance& x : {d->forward, d->backward}) {
+    absl::StrAppend(&s, x.l1, ",", x.l2, ",", x.linf, ",", x.samples, ";");
+  }
+  return absl::StrCat(s, d->l1_max, ",", d->l2_max, ",", d->linf_max);
+}
+
+// Every field its own non-default value (k counts the fields).
+MetricsReport ReportWithDistinctFields() {
+  MetricsReport r;
+  int k = 0;
+  auto set = [&k](const char*, auto& v, Written) {
+    using T = std::remove_cvref_t<decltype(v)>;
+    ++k;
+    if constexpr (std::is_same_v<T, std::string>) {
+      v = absl::StrCat("text", k);
+    } else if constexpr (std::is_same_v<T, std::vector<int64_t>>) {
+      v = {k, k + 1, k + 2};
+    } else if constexpr (std::is_same_v<T, std::optional<Distances>>) {
+      Distances d;
+      d.forward = {k + 0.25, k + 0.5, k + 0.75, static_cast<size_t>(k + 1)};
+      d.backward = {k + 1.25, k + 1.5, k + 1.75, static_cast<size_t>(k + 2)};
+      d.l1_max = k + 2.25;
+      d.l2_max = k + 2.5;
+      d.linf_max = k + 2.75;
+      v = d;
+    } else if constexpr (std::is_floating_point_v<T>) {
+      v = k + 0.5;
+    } else {
+      v = 1000 + k;
+    }
+  };
+  VisitReportFields(r, set);
+  return r;
+}
+
+// key → value text, through the table.
+std::map<std::string, std::string> Fields(const MetricsReport& r) {
+  std::map<std::string, std::string> out;
+  VisitReportFields(r, [&](const char* key, const auto& v, Written) { out[key] = Text(v); });
+  return out;
+}
+
+TEST(WireReport, CarriesEveryFieldOfTheReportTable) {
+  const MetricsReport want = ReportWithDistinctFields();
+  v1::FinalMetrics m;
+  wire::ReportToProto(want, &m);
+  const std::map<std::string, std::string> got = Fields(wire::ReportFromProto(m));
+  // Not on the wire: the client knows the input's name and frame itself.
+  const std::set<std::string> local_only = {"/input", "/frame"};
+  for (const auto& [key, value] : Fields(want)) {
+    if (local_only.count(key)) continue;
+    EXPECT_EQ(got.at(key), value) << key << " is not carried by FinalMetrics (wire.cc)";
+  }
+}
+
+TEST(WireReport, JsonCarriesEveryFieldOfTheReportTable) {
+  MetricsReport want = ReportWithDistinctFields();
+  want.distance->forward.samples = want.distance->backward.samples = 0;  // not in the JSON
+  auto back = ReportFromJson(ReportToJson(want));
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(Fields(*back), Fields(want));
 }
 
 }  // namespace
