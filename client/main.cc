@@ -610,6 +610,9 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("min preview interval   %d ms (and at most %.0f%% of a stream's time)\n",
                l.min_preview_interval_ms(), 100 * l.max_preview_share());
   absl::PrintF("resume window          %g s\n", l.resume_window_seconds());
+  absl::PrintF("compute threads        %d (shared by all sessions)\n", l.compute_threads());
+  absl::PrintF("watch                  %d MiB kept per session, %g s after it ends\n",
+               l.watch_retain_bytes() >> 20, l.watch_linger_seconds());
   absl::PrintF("active sessions        %d\n", c.active_sessions());
   absl::PrintF("sessions started       %d (finished %d, rejected %d)\n", c.sessions_started(),
                c.sessions_finished(), c.sessions_rejected());

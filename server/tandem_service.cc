@@ -802,6 +802,9 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   l->set_max_preview_share(state_->limits.max_preview_share);
   l->set_max_band_bytes_share(state_->limits.max_band_bytes_share);
   l->set_resume_window_seconds(state_->limits.resume_window_s);
+  l->set_compute_threads(state_->compute->threads());
+  l->set_watch_retain_bytes(state_->limits.watch_retain_bytes);
+  l->set_watch_linger_seconds(state_->limits.watch_linger_s);
   for (v1::DType d : {v1::DTYPE_UINT8, v1::DTYPE_UINT16, v1::DTYPE_INT16, v1::DTYPE_FLOAT32}) {
     response->add_dtypes(d);
   }

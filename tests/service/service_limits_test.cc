@@ -118,6 +118,7 @@ TEST(LimitsTest, DefaultsAreShownByHelpAndReportedByInfo) {
                            "[$TANDEM_TLS_CERT]",
                            "--tls-key FILE",
                            "[$TANDEM_TLS_KEY]",
+                           "--compute-threads N",
                            "--auth-tokens-file FILE",
                            "[$TANDEM_AUTH_TOKENS_FILE]"}) {
     EXPECT_NE(help.out.find(want), std::string::npos) << want << "\n" << help.out;
@@ -148,7 +149,8 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
   auto server = TestServer::Start(
       {"--max-sessions", "3", "--max-voxels-per-slice", "90000", "--max-slices", "500",
        "--max-message-bytes", "2097152", "--idle-timeout-seconds", "42.5", "--keepalive-time-ms",
-       "15000", "--keepalive-permit-without-calls", "--min-preview-interval-ms", "40"},
+       "15000", "--keepalive-permit-without-calls", "--min-preview-interval-ms", "40",
+       "--compute-threads", "3", "--watch-retain-mb", "5", "--watch-linger-seconds", "7"},
       {},
       {"TANDEM_SESSION_MEMORY_MB=64", "TANDEM_MAX_INFLIGHT_BYTES=1000000",
        "TANDEM_KEEPALIVE_TIMEOUT_MS=7000", "TANDEM_KEEPALIVE_MIN_PING_INTERVAL_MS=5000",
@@ -169,6 +171,9 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
   EXPECT_EQ(l.min_ping_interval_ms(), 5000);
   EXPECT_TRUE(l.permit_keepalive_without_calls());
   EXPECT_EQ(l.min_preview_interval_ms(), 40);
+  EXPECT_EQ(l.compute_threads(), 3);
+  EXPECT_EQ(l.watch_retain_bytes(), int64_t{5} << 20);
+  EXPECT_EQ(l.watch_linger_seconds(), 7);
   RunResult client =
       RunProcess({BinPath("tandem-client"), "info", "--server", (*server)->address()});
   ASSERT_EQ(client.exit_code, 0) << client.err;
@@ -176,7 +181,9 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
                            "max inflight bytes     1000000", "idle timeout           42.5 s",
                            "keepalive              time 15000 ms, timeout 7000 ms, min client "
                            "ping interval 5000 ms, pings without calls allowed",
-                           "min preview interval   40 ms"}) {
+                           "min preview interval   40 ms",
+                           "compute threads        3 (shared by all sessions)",
+                           "watch                  5 MiB kept per session, 7 s after it ends"}) {
     EXPECT_NE(client.out.find(want), std::string::npos) << want << "\n" << client.out;
   }
   RunResult bad = RunProcess({BinPath("tandem-server"), "--session-memory-mb", "0"});
