@@ -196,7 +196,13 @@ TandemSession::Impl::~Impl() {
     std::lock_guard<std::mutex> lock(mu);
     for (SlabQueue& q : queues) q.slices.clear();  // only an abandoned session has any
   }
-  steps.reset();  // waits for the step running now, if any
+  // Waits for the step running now, if any; the group stays set meanwhile (a step that ends
+  // queues the next through it).
+  try {
+    steps->Wait();
+  } catch (...) {  // a failure of an abandoned session: nobody to tell
+  }
+  steps.reset();
 }
 
 template <typename F>
@@ -412,6 +418,7 @@ absl::Status TandemSession::Impl::Finish() {
         "the stream ended after ", done, " slices but the volume declared nz = ", grid.nz));
   }
   if (queued) {  // no slice will be queued any more: the ring's slots are not counted now
+    steps->Wait();  // Sync did; nothing is left
     steps.reset();
     queued = false;
   }

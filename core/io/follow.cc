@@ -9,7 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "follow_internal.h"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 #include "tandem/series.h"
 #include "tandem/zarr.h"
 #include "zarr_internal.h"

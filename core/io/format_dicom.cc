@@ -29,7 +29,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "follow_internal.h"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 #include "tandem/series.h"
 
 namespace tandem {

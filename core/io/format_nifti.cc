@@ -14,7 +14,7 @@
 #include <nifti1_io.h>
 
 #include "absl/strings/str_cat.h"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 
 namespace tandem::internal {
 namespace {

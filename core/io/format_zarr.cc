@@ -19,7 +19,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "nlohmann/json.hpp"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 #include "tandem/zarr.h"
 #include "zarr_internal.h"
 

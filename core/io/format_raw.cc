@@ -11,7 +11,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 
 namespace tandem::internal {
 namespace {

@@ -18,7 +18,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 
 namespace tandem::internal {
 namespace {

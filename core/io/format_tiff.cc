@@ -31,7 +31,7 @@
 #include "absl/strings/strip.h"
 #include <filesystem>
 
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 #include "tandem/series.h"
 
 namespace tandem::internal {

@@ -12,7 +12,7 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
-#include "readers_internal.h"
+#include "volume_io_internal.h"
 #include "zarr_internal.h"
 
 namespace tandem::internal::zarr {
