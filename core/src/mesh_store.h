@@ -74,9 +74,6 @@ class MeshStore {
   size_t num_vertices() const { return live_vertices_; }
   size_t num_triangles() const { return live_triangles_; }
 
-  // Unit-free helpers on current positions.
-  Vec3 TriangleNormalTimesTwoArea(TriId t) const;  // cross product, length = 2 * area
-
   // Compacted copy of the live mesh. If vertex_map is given, it receives for every live
   // store vertex its index in the snapshot (kInvalid for dead ones). Vertices without
   // triangles are dropped.

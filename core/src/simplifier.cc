@@ -701,21 +701,16 @@ bool Simplifier::GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard) {
     const auto& tri = store_->triangle(t);
     Vec3 p[3];
     for (int k = 0; k < 3; ++k) p[k] = store_->position(tri[k]);
-    const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);  // = TriangleNormalTimesTwoArea
+    const Vec3 n_old = TwiceAreaVector(p[0], p[1], p[2]);
     const double old2 = Dot(n_old, n_old);
     const double off = Dot(n_old, pos - p[0]);
     const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
     p[CornerOf(tri, v)] = pos;
-    const Vec3 n_new = Cross(p[1] - p[0], p[2] - p[0]);
-    const double new2 = Dot(n_new, n_new);
-    const double scale = Dot(p[1] - p[0], p[1] - p[0]) + Dot(p[2] - p[1], p[2] - p[1]) +
-                         Dot(p[0] - p[2], p[0] - p[2]);
-    const bool degenerate = new2 <= 1e-20 * scale * scale;
-    const bool flip = Dot(n_old, n_new) <= 0.0;
-    if ((old2 != 0.0) & (far | degenerate | flip)) {
+    const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
+    if ((old2 != 0.0) & (far | move.collapses | move.flips)) {
       if (far) {
         ++refusals_.distance;
-      } else if (degenerate) {
+      } else if (move.collapses) {
         ++refusals_.degenerate;
       } else {
         ++refusals_.flip;
@@ -908,7 +903,11 @@ void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> 
   for (VertexId v : verts) {
     SortedFan(*store_, v, &fan);
     Vec3 n{};
-    for (TriId t : fan) n = n + store_->TriangleNormalTimesTwoArea(t);
+    for (TriId t : fan) {
+      const auto& tri = store_->triangle(t);
+      n = n + TwiceAreaVector(store_->position(tri[0]), store_->position(tri[1]),
+                              store_->position(tri[2]));
+    }
     const double len = Norm(n);
     normal[v] = len > 0.0 ? n * (1.0 / len) : Vec3{};
   }
@@ -969,7 +968,7 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<cons
       const auto& tri = store_->triangle(t);
       Vec3 p[3];
       corners(t, p);
-      const Vec3 fn = Cross(p[1] - p[0], p[2] - p[0]);  // 2·area·unit normal
+      const Vec3 fn = TwiceAreaVector(p[0], p[1], p[2]);  // 2·area·unit normal
       const double w = 0.5 * Norm(fn);
       if (w > 0.0) crease |= Dot(fn, normal[v]) < cos_crease * 2.0 * w;
       double s = 0.0;
@@ -1007,12 +1006,9 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<cons
       if (!(is_moving(tri[0]) | is_moving(tri[1]) | is_moving(tri[2]))) continue;
       Vec3 p[3];
       corners(t, p);
-      const Vec3 n_old = Cross(p[1] - p[0], p[2] - p[0]);
+      const Vec3 n_old = TwiceAreaVector(p[0], p[1], p[2]);
       if (Dot(n_old, n_old) == 0.0) continue;  // already degenerate: no orientation to keep
-      const Vec3 q0 = now(tri[0]), q1 = now(tri[1]), q2 = now(tri[2]);
-      const Vec3 n_new = Cross(q1 - q0, q2 - q0);
-      const double scale = Dot(q1 - q0, q1 - q0) + Dot(q2 - q1, q2 - q1) + Dot(q0 - q2, q0 - q2);
-      if (Dot(n_old, n_new) > 0.0 && Dot(n_new, n_new) > 1e-20 * scale * scale) continue;
+      if (MovedCornerKeepsOrientation(n_old, now(tri[0]), now(tri[1]), now(tri[2]))) continue;
       for (VertexId v : tri) {
         if (is_moving(v)) {
           moving[slot(v)] = 0;

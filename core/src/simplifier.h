@@ -23,6 +23,7 @@
 
 #include "mesh_store.h"
 #include "quadric.h"
+#include "tandem/geometry.h"
 #include "tandem/stats.h"
 #include "tandem/types.h"
 
