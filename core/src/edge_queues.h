@@ -210,6 +210,8 @@ class WaitingQueue {
   // Calls take(e) for every entry with key <= front: bucket by bucket, each in push order,
   // then the far ones in push order; then calls done() and drops the released buckets. take
   // and done may Push (keys > front); entries they push are not released by this call.
+  // Known limit (as before the split): take must not Push a far key while the far entries
+  // are being released, which would invalidate that scan.
   template <typename Take, typename Done>
   void ReleaseUpTo(double front, Take&& take, Done&& done);
   size_t MemoryBytes() const;
