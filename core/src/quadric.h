@@ -58,8 +58,8 @@ inline double ShapeError(const Quadric& h, Vec3 x) {
 // the isotropy quadric of the triangles around a or b (`area` = their total area) and
 // W_G = 3·area·√W / E0, which makes G/W_G a squared length like H/W. Its minimiser is the
 // placement of c and IsotropicCost at it is ε_α(c). Zero when W = 0 (no planes). The w field
-// is 0. On every evaluation with α > 0: inline.
-inline Quadric IsotropicCostQuadric(const Quadric& h, Quadric g, double area, double alpha,
+// is 0. On every evaluation with α > 0: inline, and g is scaled in place (no copy).
+inline Quadric IsotropicCostQuadric(const Quadric& h, Quadric&& g, double area, double alpha,
                                     double e0) {
   Quadric combined;
   if (h.w > 0.0) {

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <future>
 #include <system_error>
+#include <utility>
 
 namespace tandem {
 namespace {
@@ -96,7 +97,7 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     };
     for (TriId t : store_->vertex_triangles(a)) add(t, false);
     for (TriId t : store_->vertex_triangles(b)) add(t, true);
-    const Quadric combined = IsotropicCostQuadric(h, g, area, opt_.alpha, opt_.error);
+    const Quadric combined = IsotropicCostQuadric(h, std::move(g), area, opt_.alpha, opt_.error);
     c->pos = MinimizeQuadric(combined, ref, fixed);
     c->cost = IsotropicCost(combined, c->pos);
     c->eps0 = ShapeError(h, c->pos);

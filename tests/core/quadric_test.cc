@@ -244,15 +244,15 @@ TEST(Quadric, IsotropicCostCombinesShapeAndIsotropy) {
   const Quadric g = IsotropyQuadric(p, q, r);
   const double area = g.a00, e0 = 0.3;
   const Vec3 x{0.4, 0.7, -0.2};
-  EXPECT_NEAR(IsotropicCost(IsotropicCostQuadric(h2, g, area, 0.0, e0), x), ShapeError(h2, x), 1e-12);
+  EXPECT_NEAR(IsotropicCost(IsotropicCostQuadric(h2, Quadric(g), area, 0.0, e0), x), ShapeError(h2, x), 1e-12);
   const double big_w = 3.0 * area * std::sqrt(h2.w) / e0;
-  EXPECT_NEAR(IsotropicCostQuadric(h2, g, area, 1.0, e0).Evaluate(x), g.Evaluate(x) / big_w, 1e-12);
+  EXPECT_NEAR(IsotropicCostQuadric(h2, Quadric(g), area, 1.0, e0).Evaluate(x), g.Evaluate(x) / big_w, 1e-12);
   const double alpha = 0.3;
-  const Quadric mixed = IsotropicCostQuadric(h2, g, area, alpha, e0);
+  const Quadric mixed = IsotropicCostQuadric(h2, Quadric(g), area, alpha, e0);
   EXPECT_NEAR(mixed.Evaluate(x),
               (1 - alpha) * h2.Evaluate(x) / h2.w + alpha * g.Evaluate(x) / big_w, 1e-12);
   EXPECT_EQ(mixed.w, 0.0);
-  EXPECT_EQ(IsotropicCostQuadric(Quadric{}, g, area, alpha, e0).Evaluate(x), 0.0);
+  EXPECT_EQ(IsotropicCostQuadric(Quadric{}, Quadric(g), area, alpha, e0).Evaluate(x), 0.0);
 }
 
 }  // namespace
