@@ -1,4 +1,4 @@
-// Mesh quality measures (paper §4, SPEC §7). See tandem/metrics.h for the contracts.
+// Mesh quality measures (paper §4). See tandem/metrics.h for the contracts.
 #include "tandem/metrics.h"
 
 #include <cstring>
@@ -13,11 +13,6 @@ namespace tandem {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-// Relative area threshold of IsDegenerateTriangle: area ≤ kDegenerateRel · Σ edge².
-// An equilateral triangle has area/Σedge² = √3/12 ≈ 0.14, so 1e-12 only catches triangles
-// whose corners are collinear up to round-off (ρ below ~1e-11).
-constexpr double kDegenerateRel = 1e-12;
 
 // The corners of a triangle relative to its centroid: the a, b, c of the paper's M_abc.
 struct CenteredTriangle {
@@ -61,13 +56,6 @@ void ForEachTriangle(const IndexedMesh& mesh, F&& f) {
 }
 
 }  // namespace
-
-bool IsDegenerateTriangle(Vec3 a, Vec3 b, Vec3 c) {
-  const Vec3 ab = b - a, bc = c - b, ca = a - c;
-  const double edge2 = Dot(ab, ab) + Dot(bc, bc) + Dot(ca, ca);
-  // `!(x > y)` rather than `x <= y` so that NaN coordinates count as degenerate.
-  return !(TriangleArea(a, b, c) > kDegenerateRel * edge2);
-}
 
 double TriangleAspectRatio(Vec3 a, Vec3 b, Vec3 c) {
   if (IsDegenerateTriangle(a, b, c)) return 0.0;

@@ -42,7 +42,7 @@ TopologyReport AnalyzeTopology(const IndexedMesh& mesh) {
   he.reserve(nt * 3);
   for (uint32_t t = 0; t < nt; ++t) {
     const uint32_t* v = &mesh.indices[3 * t];
-    if (v[0] == v[1] || v[1] == v[2] || v[2] == v[0]) ++r.degenerate_triangles;
+    if (v[0] == v[1] || v[1] == v[2] || v[2] == v[0]) ++r.repeated_index_triangles;
     for (int k = 0; k < 3; ++k) {
       const uint32_t a = v[k], b = v[(k + 1) % 3];
       used[a] = 1;

@@ -1,4 +1,5 @@
-// LayerExtractor: marching cubes one layer at a time (SPEC §2, the paper's EXTRACT(k)).
+// LayerExtractor: marching cubes one layer at a time (the paper's EXTRACT(k): §2, "Surface
+// extraction", and §3, "Algorithm prototype").
 //
 // AddSlice(k) consumes slice k and emits layer k into a MeshStore: the vertices on slice k's
 // x- and y-edges, the vertices on the z-edges between slices k-1 and k, and the triangles of

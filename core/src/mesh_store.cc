@@ -117,12 +117,6 @@ void MeshStore::MoveTriangles(VertexId from, VertexId to) {
   vtx_[from].adj.count = 0;
 }
 
-Vec3 MeshStore::TriangleNormalTimesTwoArea(TriId t) const {
-  const auto& tri = tris_[t];
-  const Vec3 a = vtx_[tri[0]].pos;
-  return Cross(vtx_[tri[1]].pos - a, vtx_[tri[2]].pos - a);
-}
-
 IndexedMesh MeshStore::Snapshot(std::vector<uint32_t>* vertex_map) const {
   IndexedMesh out;
   std::vector<uint32_t> local_map;

@@ -1,9 +1,9 @@
 // MeshStore: the mutable triangle mesh shared by the layer extractor and the simplifier.
 //
-// Data-oriented on purpose (see ../shared/STYLE.md): flat arrays with 32-bit ids, no
-// pointers; a vertex's fields sit in one 64-byte record (the simplifier reads them together
-// at random ids, see VertexRecord), triangles are an array of index triples. Deletion is a flag plus a free list, so ids stay stable while the simplifier
-// works; compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
+// Data-oriented on purpose: flat arrays with 32-bit ids, no pointers; a vertex's fields sit in
+// one 64-byte record (the simplifier reads them together at random ids, see VertexRecord),
+// triangles are an array of index triples. Deletion is a flag plus a free list, so ids stay
+// stable while the simplifier works; compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
 // triangle ids (its incident triangles); slots come in power-of-two size classes with a free
 // list per class, so adding a triangle never allocates per element.
 #ifndef TANDEM_MESH_STORE_H_
@@ -36,6 +36,9 @@ enum BoxFace : uint8_t {
 inline int CornerOf(const std::array<VertexId, 3>& tri, VertexId v) {
   return static_cast<int>(tri[1] == v) | (static_cast<int>(tri[2] == v) << 1);
 }
+// The corner after and before corner i (0, 1, 2) in the triangle's order.
+inline constexpr int kNextCorner[3] = {1, 2, 0};
+inline constexpr int kPrevCorner[3] = {2, 0, 1};
 
 class MeshStore {
  public:
@@ -74,9 +77,6 @@ class MeshStore {
   size_t num_vertices() const { return live_vertices_; }
   size_t num_triangles() const { return live_triangles_; }
 
-  // Unit-free helpers on current positions.
-  Vec3 TriangleNormalTimesTwoArea(TriId t) const;  // cross product, length = 2 * area
-
   // Compacted copy of the live mesh. If vertex_map is given, it receives for every live
   // store vertex its index in the snapshot (kInvalid for dead ones). Vertices without
   // triangles are dropped.
@@ -103,9 +103,9 @@ class MeshStore {
   void LinkTriangle(VertexId v, TriId t);
   void UnlinkTriangle(VertexId v, TriId t);
 
-  // Vertices: one record each, all of a vertex in one cache line. The simplifier reads a
+  // Vertices: one record each, all of a vertex in one cache line: the simplifier reads a
   // neighbour's position, height, layer, box faces and triangle list together, at random
-  // ids (ids are recycled); as separate arrays (the first layout) that was a miss per field.
+  // ids (ids are recycled). docs/decisions.md: why one record.
   struct alignas(64) VertexRecord {
     Vec3 pos;
     double height = 0;

@@ -6,6 +6,8 @@
 
 #include <Eigen/Dense>
 
+#include "tandem/geometry.h"
+
 namespace tandem {
 
 Quadric& Quadric::operator*=(double s) {
@@ -16,7 +18,7 @@ Quadric& Quadric::operator*=(double s) {
 }
 
 Quadric PlaneQuadric(Vec3 p, Vec3 q, Vec3 r) {
-  const Vec3 n2 = Cross(q - p, r - p);  // length = 2 * area
+  const Vec3 n2 = TwiceAreaVector(p, q, r);  // length = 2 * area
   const double len = Norm(n2);
   Quadric h;
   if (len == 0.0) return h;
@@ -32,7 +34,7 @@ Quadric PlaneQuadric(Vec3 p, Vec3 q, Vec3 r) {
 }
 
 Quadric IsotropyQuadric(Vec3 p, Vec3 q, Vec3 r) {
-  const double area = 0.5 * Norm(Cross(q - p, r - p));
+  const double area = 0.5 * Norm(TwiceAreaVector(p, q, r));
   Quadric g;
   if (area == 0.0) return g;
   const Vec3 t = (p + q + r) * (1.0 / 3.0);

@@ -1,4 +1,5 @@
-// Quadrics (SPEC §3, §4): all quadric math of the project lives here, in double precision.
+// Quadrics (paper §2, "Surface simplification" and "Isotropy parameter"): the plane and
+// isotropy quadrics, the shape error ε0, the cost ε_α and the placement, in double precision.
 //
 // A Quadric stores the symmetric 4x4 matrix H of x̄ᵀ H x̄ with x̄ = (x, 1) as
 //   f(x) = xᵀ A x + 2 bᵀ x + c   (A 3x3 symmetric, 6 entries; b 3; c 1)
@@ -41,7 +42,7 @@ struct Quadric {
 // the unit-normal plane, w = W_t = area. A zero-area triangle gives the zero quadric.
 Quadric PlaneQuadric(Vec3 p, Vec3 q, Vec3 r);
 
-// Isotropy quadric of a triangle (SPEC §4): G_t = w_t [[I, -t̂], [-t̂ᵀ, t̂·t̂ + avg(t)]], so
+// Isotropy quadric of a triangle (paper §2, "Isotropy parameter"): G_t = w_t [[I, -t̂], [-t̂ᵀ, t̂·t̂ + avg(t)]], so
 // x̄ᵀ G_t x̄ = w_t (|x - t̂|² + avg(t)), avg(t) = (|p|² + |q|² + |r|²)/12 from the centroid.
 // Its w field stays 0 (G is not averaged by W_c).
 Quadric IsotropyQuadric(Vec3 p, Vec3 q, Vec3 r);
@@ -50,6 +51,32 @@ Quadric IsotropyQuadric(Vec3 p, Vec3 q, Vec3 r);
 inline double ShapeError(const Quadric& h, Vec3 x) {
   if (h.w <= 0.0) return 0.0;
   return std::sqrt(std::max(0.0, h.Evaluate(x) / h.w));
+}
+
+// The paper's isotropic cost ε_α (paper §2, "Isotropy parameter") as one quadric:
+// (1 − α) H/W + α G/W_G, with H the plane quadric of the contraction (W = h.w its area), G
+// the isotropy quadric of the triangles around a or b (`area` = their total area) and
+// W_G = 3·area·√W / E0, which makes G/W_G a squared length like H/W. Its minimiser is the
+// placement of c and IsotropicCost at it is ε_α(c). Zero when W = 0 (no planes). The w field
+// is 0. On every evaluation with α > 0: inline, and g is scaled in place (no copy).
+inline Quadric IsotropicCostQuadric(const Quadric& h, Quadric&& g, double area, double alpha,
+                                    double e0) {
+  Quadric combined;
+  if (h.w > 0.0) {
+    combined = h;
+    combined *= (1.0 - alpha) / h.w;
+  }
+  if (area > 0.0 && h.w > 0.0) {
+    const double big_w = 3.0 * area * std::sqrt(h.w) / e0;
+    g *= alpha / big_w;
+    combined += g;
+  }
+  combined.w = 0.0;
+  return combined;
+}
+// ε_α at x: sqrt(x̄ᵀ C x̄) for C = IsotropicCostQuadric(...).
+inline double IsotropicCost(const Quadric& combined, Vec3 x) {
+  return std::sqrt(std::max(0.0, combined.Evaluate(x)));
 }
 
 // The largest s in [0, t] with ShapeError(q, x + s·d) <= limit, for a q with planes (w > 0)
@@ -62,13 +89,8 @@ double StepWithinError(const Quadric& q, Vec3 x, Vec3 d, double t, double limit)
 // What "ill-conditioned" means for MinimizeQuadric: an eigen-direction of A whose eigenvalue
 // is below kIllConditioned times the largest. Solving along it would lose more than half of
 // double precision's 16 digits (condition number above 1e8); VTK's quadric decimation draws
-// its line at 1e-10 (relative determinant). It was 1e-3 until 2026-11: that also dropped the
-// directions that carry a smooth patch's curvature (on a surface of radius R a patch of
-// width h gives tangential eigenvalues of about (h/R)² of the normal one, 1e-5..1e-3 at the
-// sizes simplification reaches), so c stayed on the reference point's tangent plane instead
-// of the least-squares point. Measured at the same triangle count (tandem-lag): Link 512³
-// RMS -2.6%, Hausdorff -11%; engine CT -5% / -9%; Pillow Box 256³ -1.5% / -16%; gyroid 256³
-// RMS +4% (a minimal surface: no bias to remove); the rest within ±1% (issue 6 notes).
+// its line at 1e-10 (relative determinant). A larger threshold also drops the directions that
+// carry a smooth patch's curvature (docs/decisions.md: why 1e-8).
 inline constexpr double kIllConditioned = 1e-8;
 
 // Minimises f over x = ref + δ with δ zero on the axes whose bit (1 = x, 2 = y, 4 = z) is in
@@ -76,7 +98,7 @@ inline constexpr double kIllConditioned = 1e-8;
 // the largest) are not moved along, so the result is the closest point to `ref` among the
 // minimisers of the well-determined part: for a single plane, ref projected onto it; for a
 // crease, ref's projection onto the crease line; for a flat-zero quadric, ref itself. This
-// is the stable fallback of SPEC §3 (cf. Lindstrom & Turk 1998).
+// is the stable fallback for singular systems (cf. Lindstrom & Turk 1998).
 Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes = 0);
 // The same with Eigen's closed-form eigen-decomposition: the definition MinimizeQuadric's
 // cheaper rank cases (Newton on the characteristic polynomial, cross-product eigenvectors)

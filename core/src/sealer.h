@@ -6,9 +6,9 @@
 // touches it (Simplifier::Freeze), and a triangle whose three corners are frozen can never
 // change. Such a triangle is sealed: appended to the pending chunk, then removed from the
 // store, and so is every frozen vertex left without triangles. A vertex is sag-corrected
-// (Simplifier::CorrectSag's rule) when it freezes, never after: normals are those of its own
-// triangles, of unfrozen neighbours' current fans, and of frozen neighbours as they were when
-// they froze.
+// (sag_correction.h, through Simplifier::CorrectSagAt) when it freezes, never after: normals
+// are those of its own triangles, of unfrozen neighbours' current fans, and of frozen
+// neighbours as they were when they froze.
 //
 // Chunks name their vertices by global ids, handed out in sealing order; a vertex shared by two
 // chunks appears in both with the same id and the same coordinates, so the union of all chunks,

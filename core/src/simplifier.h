@@ -1,14 +1,14 @@
-// Simplifier: the edge-contraction engine shared by the three schedules (SPEC §3–§6).
+// Simplifier: the edge-contraction engine shared by the three schedules (paper §2, "Surface
+// simplification", and §3, "Algorithm prototype" and "Time-lag").
 //
-// Q is a lazy-deletion min-heap of candidate edges ordered by cost ε_α. The waiting queue W
-// is ordered by a release key (the candidate's reach for tandem-lag, its layer + 1 for
-// tandem without lag); since the front only advances by whole slices, W is a bucket queue
-// indexed by ceil(key), the first front at which the edge may be activated: ACTIVATE(k)
-// takes buckets <= k in O(1) per edge, with the same result as a heap ordered by reach. An entry carries the version stamps of its two vertices; a vertex's
-// stamp changes when it is contracted, so stale entries are recognised by integers, never
-// by comparing costs. Costs are recomputed when an entry is popped (a vertex's quadric keeps
+// Candidate edges wait in W (edge_queues.h) until the front passes their release key (the
+// candidate's reach for tandem-lag, its layer + 1 for tandem without lag), then go to Q,
+// ordered by cost ε_α. An entry carries the version stamps of its two vertices; a vertex's
+// stamp changes when it is contracted, so stale entries are recognised by integers, never by
+// comparing costs. Costs are recomputed when an entry is popped (a vertex's quadric keeps
 // growing until the layer above it is extracted, and the memoryless isotropy term depends on
-// the current neighbourhood), and an entry whose cost went up is pushed back.
+// the current neighbourhood), and an entry whose cost went up is pushed back. A popped edge
+// is contracted if it passes the checks of contraction_checks.h.
 //
 // The schedule (tandem.h) calls: AddTriangles (after EXTRACT), Delay (new edges into W),
 // Activate(front) (W -> Q for keys <= front), Simplify() (contract while MinCost <= E0).
@@ -21,8 +21,12 @@
 #include <span>
 #include <vector>
 
+#include "contraction_checks.h"
+#include "edge_queues.h"
 #include "mesh_store.h"
 #include "quadric.h"
+#include "sag_correction.h"
+#include "tandem/geometry.h"
 #include "tandem/stats.h"
 #include "tandem/types.h"
 
@@ -65,7 +69,6 @@ class Simplifier {
   // (which Q otherwise drops), for a final pass down to a target triangle count.
   void RequeueAll();
 
-  // Error(K) = max ε0 over live vertices.
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
   // quadric and radius (`shared`: dst is the seam vertex both parts held; the quadrics add).
@@ -75,15 +78,13 @@ class Simplifier {
   void AdoptCounters(const Simplifier& from);
   void PushEdgesAround(std::span<const VertexId> verts);
 
+  // Error(K) = max ε0 over live vertices.
   double MaxShapeError() const;
-  // Sag correction (not in the paper; SessionOptions::sag_correction): moves every vertex
-  // not on the grid's box along its normal by `fraction` times the mean sag of its
-  // triangles, as far as ε0 <= max(E0, ε0 now) and the triangles' orientations allow.
+  // Sag correction (sag_correction.h) of every live vertex with the current quadrics.
   // Returns the number of vertices moved. Run it once, on the final mesh.
   int64_t CorrectSag(double fraction);
   // The same for the vertices `verts` only (sealing moves each vertex once, as it freezes):
   // normal[v] must hold the unit normal of every vertex of their triangles (VertexNormals).
-  // Triangles are checked as CorrectSag checks them, around the moving vertices.
   int64_t CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
                        double fraction);
   // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
@@ -104,48 +105,18 @@ class Simplifier {
   // never touched). -inf when none was applied.
   double max_reach_over_front() const { return max_reach_over_front_; }
   double max_layer_over_front() const { return max_layer_over_front_; }
-  size_t queue_sizes() const { return q_size_ + w_size_; }
+  size_t queue_sizes() const { return q_.size() + w_.size(); }
   size_t MemoryBytes() const;
   size_t WaitingBytes() const;
 
  private:
-  // W entry: an edge waiting for the front (key = release key).
-  struct Entry {
-    double key;
-    VertexId a, b;
-    uint32_t va, vb;  // version stamps
-  };
-  struct Candidate {
+  struct Candidate {  // the evaluation of a contraction ab -> c
     Vec3 pos;
     double cost = 0;   // ε_α(c)
     double eps0 = 0;   // ε0(c)
     double height = 0, rad = 0;  // of the new vertex (ReleaseKey fills them)
     int32_t layer = 0;
     uint8_t box_mask = 0;
-  };
-  // Q entry: key = cost, plus the placement computed with it. With α = 0 the cost depends
-  // only on the two quadrics, which cannot change while the stamps match (vertices in Q
-  // are complete), so a popped entry is used as it is; with α > 0 it is recomputed.
-  struct QEntry {  // a queued edge's evaluation, kept in q_slots_ while it is in the heap
-    VertexId a, b;
-    uint32_t va, vb;  // version stamps
-    Vec3 pos;
-    double eps0;
-  };
-  // Heap node: 16 bytes, so that sifting moves little and the heap stays in cache (the
-  // entries themselves are 48). Equal keys (zero-cost edges on flat patches are common)
-  // pop newest first: that keeps consecutive contractions in the same, cached, region.
-  struct QNode {
-    double key;
-    uint32_t slot;  // index into q_slots_
-    uint32_t seq;   // push counter (wraps; only orders ties)
-  };
-  // x pops before y: smaller key, or equal key and pushed later.
-  static bool QNodeBefore(const QNode& x, const QNode& y) {
-    return (x.key < y.key) | ((x.key == y.key) & (x.seq > y.seq));  // no branches
-  }
-  struct QNodeBeforeFn {  // as a type, so that the heap templates inline it
-    bool operator()(const QNode& x, const QNode& y) const { return QNodeBefore(x, y); }
   };
 
   void EnsureVertexCapacity();
@@ -178,33 +149,14 @@ class Simplifier {
   bool Pinned(VertexId a, VertexId b) const {
     return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
-  // LAMBDA(ab). Two implementations of one test, checked against each other and against
-  // the definition in simplifier_test.cc: small fans (at most kFanMax triangles at a and at
-  // b, nearly every call) gather the neighbours into stack arrays; larger ones tally
-  // them in per-vertex marks (mark_), which cost a cache miss per neighbour.
-  bool LinkCondition(VertexId a, VertexId b);
-  static constexpr size_t kFanMax = 16;
-  bool LinkConditionFans(VertexId a, VertexId b);
-  bool LinkConditionMarks(VertexId a, VertexId b);
-  friend struct SimplifierTestPeer;  // the test calls both implementations
-  // Flips, degenerate triangles and (guard = true) the distance guard.
-  bool GeometryOk(VertexId a, VertexId b, Vec3 pos, bool guard);
   void Contract(VertexId a, VertexId b, const Candidate& c);
-  void HeapPush(double key, const QEntry& e);
-  QEntry HeapPop();  // the entry of the smallest key; its slot is recycled
-  const QNode& QTop();  // the node of the smallest key (Q not empty)
-  size_t QBucket(double key) const;
-  void QEnter();
-  void QClear();
-  size_t QBytes() const;
 
   MeshStore* store_;
   SimplifierOptions opt_;
   double front_ = -std::numeric_limits<double>::infinity();
 
-  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end, together (as
-  // three arrays, the first layout, rad and version were cache misses of their own). Not
-  // aligned to lines: padding to 128 bytes saved little and cost a tenth more peak memory.
+  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end, together in
+  // one record (docs/decisions.md: why one record, unpadded).
   struct VertexState {
     Quadric q;
     double rad = 1.0;
@@ -212,44 +164,16 @@ class Simplifier {
   };
   static_assert(sizeof(VertexState) == 104);
   std::vector<VertexState> vs_;
-  struct Mark {  // scratch of the link condition, per vertex x: tallies of edges (a|b, x)
-    uint32_t epoch_a = 0, epoch_b = 0;
-    uint8_t count_a = 0, count_b = 0;
-  };
-  std::vector<Mark> mark_;
-  uint32_t mark_epoch_ = 0;
 
-  // Q: nodes by key in kQBuckets buckets of width E0 / (kQBuckets - 1) (the last one holds
-  // every key beyond, which only a target triangle count queues). Only the lowest non-empty
-  // bucket, q_cur_, is kept as a 4-ary heap; pushes into higher buckets are appended and
-  // sifted in when their bucket becomes the lowest. Pops sift through a bucket of tens of
-  // nodes instead of a heap of all (82% of popped entries are stale re-evaluations).
-  static constexpr size_t kQBuckets = 1024;
-  std::vector<std::vector<QNode>> q_buckets_;  // allocated by the first push
-  std::vector<size_t> q_heaped_;  // per bucket: leading nodes in heap order
-  size_t q_cur_ = 0;
-  size_t q_size_ = 0;
-  double q_scale_ = 0;  // buckets per unit of key
-  std::vector<QEntry> q_slots_;
-  std::vector<uint32_t> q_free_;  // free slots of q_slots_
-  uint32_t q_seq_ = 0;
+  EdgeQueue q_;
   bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
-  // W: bucket b holds entries released at front w_base_ + b; w_size_ counts all entries.
-  std::vector<std::vector<Entry>> w_;
-  int64_t w_base_ = 0;
-  size_t w_size_ = 0;
-  // Entries whose release lies beyond the window (PushW), scanned by every Activate.
-  std::vector<Entry> w_far_;
-  static constexpr int64_t kWBuckets = int64_t{1} << 16;
-  static constexpr double kFarKey = 0x1p52;  // keys at or above this are never bucketed
-  void PushW(const Entry& e);
+  WaitingQueue w_;
   std::vector<VertexId> scratch_;
-  struct Survivor {  // GeometryOk: a triangle that survives the contraction, and its corner
-    TriId t;         // that moves (a or b)
-    VertexId v;
-  };
-  std::vector<Survivor> survivors_;
-  std::vector<uint32_t> sag_slot_;  // CorrectSagAt: per vertex, its index in verts or kInvalid
+  LinkScratch link_scratch_;
+  std::vector<Survivor> survivors_;  // GeometryOk's scratch
+  SagScratch sag_scratch_;
+  std::vector<Quadric> sag_quadrics_;  // CorrectSagAt: the quadrics of its verts
+  std::vector<VertexId> sag_moved_;
   struct BatchEdge {
     VertexId a, b;  // a < b
     bool released;  // from W by ACTIVATE: its release key is known to be <= the front

@@ -1,5 +1,6 @@
 // Metro-style distances between two triangle meshes (Cignoni, Rocchini, Scopigno 1998),
-// SPEC §7: area-uniform samples of one mesh, exact nearest-point queries against the other.
+// as in the paper's §4 (Computational Experiments): area-uniform samples of one mesh, exact
+// nearest-point queries against the other.
 //
 // Units: every distance is in the meshes' units (physical units for tandem's output).
 // Determinism: results depend only on the meshes and on DistanceOptions::samples and ::seed,

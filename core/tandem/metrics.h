@@ -1,7 +1,7 @@
 // Mesh quality measures of Section 4 of Attali, Cohen-Steiner, Edelsbrunner, "Extraction and
-// Simplification of Iso-surfaces in Tandem" (SGP 2005); see SPEC.md §7. Pure functions of an
-// IndexedMesh, with the per-triangle geometry (area, normal, shape tensor) defined once here
-// and reused by distance.cc.
+// Simplification of Iso-surfaces in Tandem" (SGP 2005). Pure functions of an IndexedMesh; the
+// per-triangle area, normal and degeneracy rule come from tandem/geometry.h, which the engine
+// uses too.
 //
 // Units: lengths and areas are in the mesh's units (physical units for tandem's output);
 // aspect ratio, anisotropy and directional bias are dimensionless, in [0, 1].
@@ -10,21 +10,11 @@
 #ifndef TANDEM_METRICS_H_
 #define TANDEM_METRICS_H_
 
+#include "tandem/geometry.h"
 #include "tandem/mesh.h"
 #include "tandem/types.h"
 
 namespace tandem {
-
-// (b − a) × (c − a) / 2: its length is the triangle's area and its direction the unit normal
-// of a counter-clockwise triangle. The one place where triangle area and normal are computed.
-inline Vec3 TriangleAreaVector(Vec3 a, Vec3 b, Vec3 c) { return 0.5 * Cross(b - a, c - a); }
-inline double TriangleArea(Vec3 a, Vec3 b, Vec3 c) { return Norm(TriangleAreaVector(a, b, c)); }
-
-// True when the triangle is treated as having zero area: its area is at most 1e-12 times the
-// sum of its squared edge lengths (so exactly collinear and coincident corners, and corners
-// that are collinear up to round-off). Scale-invariant. Degenerate triangles carry no weight
-// in any measure below and are skipped where a measure counts triangles.
-bool IsDegenerateTriangle(Vec3 a, Vec3 b, Vec3 c);
 
 // The paper's aspect ratio ρ = sqrt(λ2/λ1), where λ1 ≥ λ2 are the two non-zero eigenvalues of
 // M_abc = (aaᵀ + bbᵀ + ccᵀ)/3 with a, b, c taken relative to the centroid. 1 exactly for an
@@ -37,7 +27,7 @@ double SurfaceArea(const IndexedMesh& mesh);
 
 // Anisotropy(K) = 1 − mean over triangles of ρ(t), in [0, 1]; 0 iff all triangles are
 // equilateral. Choice: degenerate (zero-area) triangles are SKIPPED, not counted as ρ = 0.
-// Marching cubes on integer volumes emits about one such triangle in ten (SPEC §2); counting
+// Marching cubes on integer volumes emits about one such triangle in ten; counting
 // them would measure the extraction's zero-area slivers rather than the shape of the
 // triangles that make up the surface. Returns NaN when the mesh has no non-degenerate
 // triangle (the mean is undefined).

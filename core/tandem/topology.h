@@ -18,7 +18,7 @@ struct TopologyReport {
   size_t boundary_edges = 0;        // in exactly one triangle
   size_t nonmanifold_edges = 0;     // in three or more triangles
   size_t misoriented_edges = 0;     // two triangles traverse it in the same direction
-  size_t degenerate_triangles = 0;  // a vertex index repeated
+  size_t repeated_index_triangles = 0;  // a vertex index repeated (not geometry.h's zero area)
   size_t nonmanifold_vertices = 0;  // triangles around it form more than one fan
   size_t components = 0;            // connected through shared vertices
   size_t boundary_loops = 0;
@@ -26,7 +26,7 @@ struct TopologyReport {
 
   // An orientable 2-manifold, possibly with boundary.
   bool IsManifold() const {
-    return nonmanifold_edges == 0 && misoriented_edges == 0 && degenerate_triangles == 0 &&
+    return nonmanifold_edges == 0 && misoriented_edges == 0 && repeated_index_triangles == 0 &&
            nonmanifold_vertices == 0;
   }
   bool IsClosedManifold() const { return IsManifold() && boundary_edges == 0; }

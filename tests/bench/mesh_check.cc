@@ -50,8 +50,8 @@ int main(int argc, char** argv) {
       "\"directional_bias\": %.6g}\n",
       t.triangles, mesh->num_vertices(), t.IsManifold() ? "true" : "false",
       static_cast<long long>(t.euler), t.boundary_edges, t.nonmanifold_edges,
-      t.nonmanifold_vertices, t.misoriented_edges, t.degenerate_triangles, t.components,
+      t.nonmanifold_vertices, t.misoriented_edges, t.repeated_index_triangles, t.components,
       t.boundary_loops, dups, w.IsManifold() ? "true" : "false", static_cast<long long>(w.euler),
-      w.degenerate_triangles, tandem::Anisotropy(*mesh), tandem::DirectionalBias(*mesh));
+      w.repeated_index_triangles, tandem::Anisotropy(*mesh), tandem::DirectionalBias(*mesh));
   return 0;
 }

@@ -1,0 +1,250 @@
+#include "contraction_checks.h"
+
+#include <algorithm>
+#include <cstring>
+
+#include "tandem/geometry.h"
+
+namespace tandem {
+namespace {
+
+// Occurrences of x in a fan array of kFanMax entries (unused ones kInvalid).
+// A fixed length and no loop exit: no branch to mispredict. Written with vector extensions
+// (GCC, Clang: four lanes at a time, on any target): at 16 entries GCC unrolled the plain
+// loop into scalar compares, twice the instructions of the vector loop.
+template <size_t N>
+int CountOf(const VertexId (&v)[N], VertexId x) {
+  static_assert(N % 4 == 0);
+  using V4 = uint32_t __attribute__((vector_size(16)));
+  const V4 xs = {x, x, x, x};
+  V4 acc = {0, 0, 0, 0};
+  for (size_t i = 0; i < N; i += 4) {
+    V4 chunk;
+    std::memcpy(&chunk, v + i, sizeof(chunk));
+    acc -= reinterpret_cast<V4>(chunk == xs);  // a match is all ones: -1
+  }
+  return static_cast<int>(acc[0] + acc[1] + acc[2] + acc[3]);
+}
+
+}  // namespace
+
+bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+  // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
+  // its corner before v (y), in the triangle's order; the caller checked they fit. Written
+  // without early exits where the outcome varies from call to call: the link condition was
+  // the largest source of mispredicted branches in the simplifier.
+  VertexId xa[kFanMax], ya[kFanMax], xb[kFanMax], yb[kFanMax];
+  for (VertexId* v : {xa, ya, xb, yb}) std::fill(v, v + kFanMax, kInvalid);
+  int n_a = 0, n_b = 0;
+  VertexId apex[4];
+  int napex = 0;
+  for (TriId t : store.vertex_triangles(a)) {
+    const auto& tri = store.triangle(t);
+    const int i = CornerOf(tri, a);
+    const VertexId x = tri[kNextCorner[i]], y = tri[kPrevCorner[i]];
+    xa[n_a] = x;
+    ya[n_a++] = y;
+    // The triangle's third corner is an apex if the triangle holds b (kept only then).
+    apex[std::min(napex, 3)] = (x == b) ? y : x;
+    napex += (x == b) | (y == b);
+  }
+  if (napex == 0) return false;  // a and b are not adjacent (any more)
+  if (napex > 2) return false;   // edge in three triangles: not a manifold, refuse
+  if (napex == 1) apex[1] = kInvalid;
+  // An apex is a common neighbour; two equal apexes are one common neighbour for two
+  // triangles on ab (the marks' version: common != napex).
+  if (napex == 2 && apex[0] == apex[1]) return false;
+  for (TriId t : store.vertex_triangles(b)) {
+    const auto& tri = store.triangle(t);
+    const int i = CornerOf(tri, b);
+    xb[n_b] = tri[kNextCorner[i]];
+    yb[n_b++] = tri[kPrevCorner[i]];
+  }
+  // Whether the x and y corners of a fan are different sets of vertices. They are whenever
+  // the vertex is on the boundary (an edge (v, w) in one triangle puts w in one set only),
+  // and on a consistently oriented manifold only then (an interior edge is one triangle's x
+  // and the other's y). Otherwise every neighbour is an x corner. Half the comparisons of
+  // counting each neighbour among all 2n corners.
+  auto sets_differ = [](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+    bool any = false;
+    for (int i = 0; i < n; ++i) any |= (CountOf(y, x[i]) == 0) | (CountOf(x, y[i]) == 0);
+    return any;
+  };
+  auto in_fan_a = [&](VertexId v) { return CountOf(xa, v) + CountOf(ya, v); };
+  // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
+  // y corners too where the two differ.
+  const bool b_open = sets_differ(xb, yb, n_b);
+  bool stray = false;
+  for (int i = 0; i < n_b; ++i) {
+    const VertexId x = xb[i];
+    stray |= (x != a) & (x != apex[0]) & (x != apex[1]) & (in_fan_a(x) != 0);
+  }
+  if (b_open) {
+    for (int i = 0; i < n_b; ++i) {
+      const VertexId y = yb[i];
+      stray |= (y != a) & (y != apex[0]) & (y != apex[1]) & (in_fan_a(y) != 0);
+    }
+  }
+  if (stray) return false;
+  if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
+    const VertexId c = apex[0];
+    return !(in_fan_a(c) == 1 && CountOf(xb, c) + CountOf(yb, c) == 1);
+  }
+  // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
+  // of its edges lies in a single triangle.
+  auto on_boundary = [](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+    bool any = false;
+    for (int i = 0; i < n; ++i) {
+      any |=
+          (CountOf(x, x[i]) + CountOf(y, x[i]) == 1) | (CountOf(x, y[i]) + CountOf(y, y[i]) == 1);
+    }
+    return any;
+  };
+  // Sets that do not differ mean no boundary; the exact count only where they do (rare).
+  if (b_open && on_boundary(xb, yb, n_b) && on_boundary(xa, ya, n_a)) return false;
+  // (3) interior: triangles a-c-d and b-c-d both present?
+  const VertexId c = apex[0], d = apex[1];
+  auto has_cd = [c, d](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+    bool any = false;
+    for (int i = 0; i < n; ++i) any |= ((x[i] == c) & (y[i] == d)) | ((x[i] == d) & (y[i] == c));
+    return any;
+  };
+  return !(has_cd(xa, ya, n_a) && has_cd(xb, yb, n_b));
+}
+
+bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
+  // Lk(a) ∩ Lk(b) = Lk(ab), on the complex completed by a dummy vertex ω joined to every
+  // boundary edge (Dey, Edelsbrunner, Guha, Nekhayev 1999). With manifold input it reduces
+  // to: (1) the common neighbours of a and b are exactly the apexes of ab's triangles;
+  // (2) ω: if a and b are both on the boundary, ab is a boundary edge; (3) no edge of both
+  // links: for an interior edge with apexes c, d, not both acd and bcd are triangles; for a
+  // boundary edge with apex c, not both ac and bc are boundary edges.
+  // Allocated on first use: most meshes never have a fan this large.
+  using Mark = LinkScratch::Mark;
+  std::vector<Mark>& mark = scratch->mark;
+  if (mark.size() < store.vertex_capacity()) mark.resize(store.vertex_capacity());
+  if (++scratch->epoch == 0) {
+    std::fill(mark.begin(), mark.end(), Mark{});
+    scratch->epoch = 1;
+  }
+  const uint32_t ep = scratch->epoch;
+  // Neighbours of a and of b, each with the number of triangles on edge (a, x) or (b, x)
+  // (saturating at 127: bit 7 of count_b is the "seen" flag of the pass over b below). One
+  // Mark per vertex keeps both tallies in one cache line.
+  auto tally = [&](VertexId v, uint32_t Mark::*epoch, uint8_t Mark::*count) {
+    for (TriId t : store.vertex_triangles(v)) {
+      for (VertexId x : store.triangle(t)) {
+        if (x == v) continue;
+        Mark& m = mark[x];
+        if (m.*epoch != ep) {
+          m.*epoch = ep;
+          m.*count = 0;
+        }
+        if (m.*count < 127) ++(m.*count);
+      }
+    }
+  };
+  tally(a, &Mark::epoch_a, &Mark::count_a);  // inlined: same instructions as two loops
+  tally(b, &Mark::epoch_b, &Mark::count_b);
+  VertexId apex[2];
+  int napex = 0;
+  bool a_boundary = false;
+  for (TriId t : store.vertex_triangles(a)) {
+    const auto& tri = store.triangle(t);
+    for (VertexId x : tri) a_boundary |= (x != a && mark[x].count_a == 1);
+    if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
+    if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
+    for (VertexId x : tri) {
+      if (x != a && x != b) apex[napex++] = x;
+    }
+  }
+  if (napex == 0) return false;  // a and b are not adjacent (any more)
+  // Each neighbour x of b once: (b, x) in one triangle makes b a boundary vertex; a common
+  // neighbour must be an apex.
+  bool b_boundary = false;
+  int common = 0;
+  for (TriId t : store.vertex_triangles(b)) {
+    for (VertexId x : store.triangle(t)) {
+      if (x == b) continue;
+      Mark& m = mark[x];
+      const uint8_t cb = m.count_b;
+      if (cb & 0x80) continue;  // seen
+      m.count_b = static_cast<uint8_t>(cb | 0x80);
+      if (cb == 1) b_boundary = true;
+      if (x != a && m.epoch_a == ep) {
+        ++common;
+        bool is_apex = false;
+        for (int k = 0; k < napex; ++k) is_apex |= apex[k] == x;
+        if (!is_apex) return false;  // (1) a common neighbour that is not an apex
+        if (napex == 1 && m.count_a == 1 && cb == 1) return false;  // (3) boundary
+      }
+    }
+  }
+  if (common != napex) return false;
+  if (napex == 2) {
+    if (a_boundary && b_boundary) return false;  // (2) interior edge between boundaries
+    // (3) interior: triangles a-c-d and b-c-d both present?
+    const VertexId c = apex[0], d = apex[1];
+    auto has_triangle = [&](VertexId v) {
+      for (TriId t : store.vertex_triangles(v)) {
+        const auto& tri = store.triangle(t);
+        bool hc = false, hd = false;
+        for (VertexId x : tri) {
+          hc |= x == c;
+          hd |= x == d;
+        }
+        if (hc && hd) return true;
+      }
+      return false;
+    };
+    if (has_triangle(a) && has_triangle(b)) return false;
+  }
+  return true;
+}
+
+bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
+                std::vector<Survivor>* survivors, RefusalCounts* refusals) {
+  // Triangles that survive the contraction move one corner (a or b) to pos. The distance
+  // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|.
+  // Which triangles are on ab (removed) and which are already degenerate (exact iso hits: no
+  // constraint) varies from call to call: branching on it was mispredicted. The survivors
+  // are gathered first (written always, kept by a count), the degenerate ones masked out;
+  // a refusal is rare and may branch.
+  const auto ta = store.vertex_triangles(a), tb = store.vertex_triangles(b);
+  if (survivors->size() < ta.size() + tb.size()) survivors->resize(ta.size() + tb.size());
+  size_t n = 0;
+  for (VertexId v : {a, b}) {
+    const VertexId other = (v == a) ? b : a;
+    for (TriId t : (v == a) ? ta : tb) {
+      const auto& tri = store.triangle(t);
+      (*survivors)[n] = {t, v};
+      n += static_cast<size_t>((tri[0] != other) + (tri[1] != other) + (tri[2] != other) == 3);
+    }
+  }
+  const bool guarded = bound > 0.0;
+  for (size_t i = 0; i < n; ++i) {
+    const auto [t, v] = (*survivors)[i];
+    const auto& tri = store.triangle(t);
+    Vec3 p[3];
+    for (int k = 0; k < 3; ++k) p[k] = store.position(tri[k]);
+    const Vec3 n_old = TwiceAreaVector(p[0], p[1], p[2]);
+    const double old2 = Dot(n_old, n_old);
+    const double off = Dot(n_old, pos - p[0]);
+    const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
+    p[CornerOf(tri, v)] = pos;
+    const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
+    if ((old2 != 0.0) & (far | move.collapses | move.flips)) {
+      if (far) {
+        ++refusals->distance;
+      } else if (move.collapses) {
+        ++refusals->degenerate;
+      } else {
+        ++refusals->flip;
+      }
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace tandem

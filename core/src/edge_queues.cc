@@ -1,0 +1,56 @@
+#include "edge_queues.h"
+
+#include <algorithm>
+
+namespace tandem {
+
+void EdgeQueue::Clear() {
+  for (auto& bucket : buckets_) bucket.clear();
+  std::fill(heaped_.begin(), heaped_.end(), 0);
+  cur_ = buckets_.empty() ? 0 : kBuckets - 1;
+  size_ = 0;
+  slots_.clear();
+  free_.clear();
+}
+
+size_t EdgeQueue::MemoryBytes() const {
+  size_t bytes = buckets_.capacity() * sizeof(std::vector<QNode>) + heaped_.capacity() * sizeof(size_t);
+  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(QNode);
+  return bytes + slots_.capacity() * sizeof(QEntry) + free_.capacity() * sizeof(uint32_t);
+}
+
+void WaitingQueue::Push(const WEntry& e) {
+  if (!(e.key < kFarKey)) {  // also NaN
+    far_.push_back(e);
+    ++size_;
+    return;
+  }
+  const int64_t release = static_cast<int64_t>(std::ceil(e.key));
+  if (buckets_.empty()) base_ = release;
+  if (release < base_) {  // cannot happen for keys > front; keep it correct anyway
+    if (base_ - release + static_cast<int64_t>(buckets_.size()) > kBuckets) {
+      far_.push_back(e);
+      ++size_;
+      return;
+    }
+    buckets_.insert(buckets_.begin(), static_cast<size_t>(base_ - release), {});
+    base_ = release;
+  }
+  const size_t b = static_cast<size_t>(release - base_);
+  if (b >= static_cast<size_t>(kBuckets)) {
+    far_.push_back(e);
+    ++size_;
+    return;
+  }
+  if (b >= buckets_.size()) buckets_.resize(b + 1);
+  buckets_[b].push_back(e);
+  ++size_;
+}
+
+size_t WaitingQueue::MemoryBytes() const {
+  size_t bytes = buckets_.capacity() * sizeof(std::vector<WEntry>);
+  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(WEntry);
+  return bytes + far_.capacity() * sizeof(WEntry);
+}
+
+}  // namespace tandem

@@ -1,0 +1,261 @@
+// The simplifier's two queues of candidate edges (paper §3: the heap Q of PQ-SIMPLIFY and the
+// waiting queue W of the tandem algorithm with time-lag).
+//
+// EdgeQueue (Q): candidate edges ordered by cost ε_α, smallest first, as key buckets with a
+// 4-ary heap on the lowest one. Equal keys pop in reverse push order (newest first), so the
+// output depends on the order of pushes: the simplifier keeps that order deterministic.
+// WaitingQueue (W): edges ordered by a release key, as one bucket per integer front, since the
+// front only advances by whole slices; ReleaseUpTo(front) hands out every entry whose key is
+// <= front, bucket by bucket, each bucket in push order.
+//
+// Entries carry the version stamps of their two vertices: the simplifier recognises stale ones
+// by comparing integers (Simplifier::Stale), the queues never look at the mesh.
+#ifndef TANDEM_EDGE_QUEUES_H_
+#define TANDEM_EDGE_QUEUES_H_
+
+#include <cassert>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "tandem/types.h"
+
+namespace tandem {
+
+// 4-ary min-heap on a vector of nodes (children of i: 4i + 1 .. 4i + 4); before(x, y): x pops
+// first.
+template <typename Node, typename Before>
+void HeapSiftUp(std::vector<Node>& h, size_t i, Before before) {
+  const Node node = h[i];
+  while (i > 0) {
+    const size_t parent = (i - 1) / 4;
+    if (!before(node, h[parent])) break;
+    h[i] = h[parent];
+    i = parent;
+  }
+  h[i] = node;
+}
+
+// Removes h[0]. Floyd's pop: the hole goes from the root down to a leaf along the smallest
+// children, then the last node sifts up from there (it rarely rises far). The choice among
+// four children is branch-free: the comparisons are unpredictable, and mispredictions, not
+// cache misses, made a binary heap's pop a tenth of the run time.
+template <typename Node, typename Before>
+void HeapPopFront(std::vector<Node>& h, Before before) {
+  const Node last = h.back();
+  h.pop_back();
+  const size_t n = h.size();
+  if (n == 0) return;
+  size_t hole = 0;
+  for (;;) {
+    const size_t first = 4 * hole + 1;
+    size_t best;
+    if (first + 3 < n) {
+      const size_t m01 = first + before(h[first + 1], h[first]);
+      const size_t m23 = first + 2 + before(h[first + 3], h[first + 2]);
+      best = before(h[m23], h[m01]) ? m23 : m01;
+    } else if (first < n) {
+      best = first;
+      for (size_t c = first + 1; c < n; ++c) best = before(h[c], h[best]) ? c : best;
+    } else {
+      break;
+    }
+    h[hole] = h[best];
+    hole = best;
+  }
+  h[hole] = last;
+  HeapSiftUp(h, hole, before);
+}
+
+// A queued edge's evaluation (Q), kept in a slot while its node is in the heap. With α = 0
+// the cost depends only on the two quadrics, which cannot change while the stamps match
+// (vertices in Q are complete), so a popped entry is used as it is; with α > 0 it is
+// recomputed.
+struct QEntry {
+  VertexId a, b;
+  uint32_t va, vb;  // version stamps
+  Vec3 pos;         // the placement computed with the cost
+  double eps0;      // ε0 at pos
+};
+
+// Heap node: 16 bytes, so that sifting moves little and the heap stays in cache (the entries
+// themselves are 48). Equal keys (zero-cost edges on flat patches are common) pop newest
+// first: that keeps consecutive contractions in the same, cached, region.
+struct QNode {
+  double key;
+  uint32_t slot;  // index into the entries' slots
+  uint32_t seq;   // push counter (wraps; only orders ties)
+};
+// x pops before y: smaller key, or equal key and pushed later.
+inline bool QNodeBefore(const QNode& x, const QNode& y) {
+  return (x.key < y.key) | ((x.key == y.key) & (x.seq > y.seq));  // no branches
+}
+struct QNodeBeforeFn {  // as a type, so that the heap templates inline it
+  bool operator()(const QNode& x, const QNode& y) const { return QNodeBefore(x, y); }
+};
+
+// Q. Nodes by key in kBuckets buckets of width max_key / (kBuckets - 1) (the last one holds
+// every key beyond, which only a target triangle count queues). Only the lowest non-empty
+// bucket is kept as a 4-ary heap; pushes into higher buckets are appended and sifted in when
+// their bucket becomes the lowest. Pops sift through a bucket of tens of nodes instead of a
+// heap of all (most popped entries are stale re-evaluations). Push, Top and Pop are on the
+// contraction loop: defined here, inline.
+class EdgeQueue {
+ public:
+  // max_key (E0): keys above it all share the last bucket. Allocates nothing until a push.
+  explicit EdgeQueue(double max_key) : max_key_(max_key) {}
+
+  size_t size() const { return size_; }
+  bool empty() const { return size_ == 0; }
+  void Push(double key, const QEntry& e);
+  const QNode& Top();  // the node of the smallest key (not empty)
+  QEntry Pop();        // the entry of the smallest key; its slot is recycled
+  void Clear();
+  size_t MemoryBytes() const;
+
+  static constexpr size_t kBuckets = 1024;
+
+ private:
+  size_t Bucket(double key) const {
+    // Monotone in the key, so bucket order then heap order is exactly (key, seq) order.
+    const double b = key * scale_;
+    return b < static_cast<double>(kBuckets - 1) ? static_cast<size_t>(b) : kBuckets - 1;
+  }
+  void Enter();
+
+  double max_key_;
+  std::vector<std::vector<QNode>> buckets_;  // allocated by the first push
+  std::vector<size_t> heaped_;  // per bucket: leading nodes in heap order
+  size_t cur_ = 0;              // the lowest non-empty bucket (buckets below are empty)
+  size_t size_ = 0;
+  double scale_ = 0;  // buckets per unit of key
+  std::vector<QEntry> slots_;
+  std::vector<uint32_t> free_;  // free slots
+  uint32_t seq_ = 0;
+};
+
+inline void EdgeQueue::Enter() {
+  // Makes cur_ the lowest non-empty bucket and restores its heap order (nodes appended while
+  // it was not current are sifted in).
+  while (buckets_[cur_].empty()) {
+    ++cur_;
+    assert(cur_ < kBuckets);
+  }
+  std::vector<QNode>& h = buckets_[cur_];
+  for (size_t i = heaped_[cur_]; i < h.size(); ++i) HeapSiftUp(h, i, QNodeBeforeFn{});
+  heaped_[cur_] = h.size();
+}
+
+inline void EdgeQueue::Push(double key, const QEntry& e) {
+  uint32_t slot;
+  if (!free_.empty()) {
+    slot = free_.back();
+    free_.pop_back();
+    slots_[slot] = e;
+  } else {
+    slot = static_cast<uint32_t>(slots_.size());
+    slots_.push_back(e);
+  }
+  if (buckets_.empty()) {
+    buckets_.resize(kBuckets);
+    heaped_.assign(kBuckets, 0);
+    scale_ = static_cast<double>(kBuckets - 1) / max_key_;
+    cur_ = kBuckets - 1;
+  }
+  const size_t b = Bucket(key);
+  buckets_[b].push_back(QNode{key, slot, seq_++});
+  ++size_;
+  if (b < cur_) {
+    cur_ = b;  // was empty: a heap of one
+    heaped_[b] = 1;
+  } else if (b == cur_) {
+    HeapSiftUp(buckets_[b], buckets_[b].size() - 1, QNodeBeforeFn{});
+    heaped_[b] = buckets_[b].size();
+  }
+  // Otherwise appended: Enter sifts it in when its bucket becomes the lowest.
+}
+
+inline const QNode& EdgeQueue::Top() {
+  Enter();
+  return buckets_[cur_][0];
+}
+
+inline QEntry EdgeQueue::Pop() {
+  Enter();
+  std::vector<QNode>& h = buckets_[cur_];
+  const uint32_t slot = h[0].slot;
+  HeapPopFront(h, QNodeBeforeFn{});
+  heaped_[cur_] = h.size();
+  --size_;
+  free_.push_back(slot);
+  return slots_[slot];
+}
+
+// An edge waiting in W for the front (key = its release key).
+struct WEntry {
+  double key;
+  VertexId a, b;
+  uint32_t va, vb;  // version stamps
+};
+
+// W. Bucket i holds the entries released at front base_ + i, the first integer front >= key.
+// Fronts only grow, so buckets below the current one are always empty and are recycled by
+// advancing base_. A key outside a window of kBuckets fronts (a vertex whose rad is huge in
+// slice units, on a grid far finer across than between its slices, or an infinite key)
+// waits in far_ instead, scanned by every release, so no input can make the buckets many.
+class WaitingQueue {
+ public:
+  size_t size() const { return size_; }
+  void Push(const WEntry& e);
+  // Calls take(e) for every entry with key <= front: bucket by bucket, each in push order,
+  // then the far ones in push order; then calls done() and drops the released buckets. take
+  // and done may Push (keys > front); entries they push are not released by this call.
+  // Known limit (as before the split): take must not Push a far key while the far entries
+  // are being released, which would invalidate that scan.
+  template <typename Take, typename Done>
+  void ReleaseUpTo(double front, Take&& take, Done&& done);
+  size_t MemoryBytes() const;
+
+  static constexpr int64_t kBuckets = int64_t{1} << 16;
+  static constexpr double kFarKey = 0x1p52;  // keys at or above this are never bucketed
+
+ private:
+  std::vector<std::vector<WEntry>> buckets_;
+  int64_t base_ = 0;
+  size_t size_ = 0;  // all entries, far ones included
+  std::vector<WEntry> far_;
+};
+
+template <typename Take, typename Done>
+void WaitingQueue::ReleaseUpTo(double front, Take&& take, Done&& done) {
+  size_t b = 0;
+  for (; b < buckets_.size() && static_cast<double>(base_) + static_cast<double>(b) <= front;
+       ++b) {
+    std::vector<WEntry> bucket;
+    bucket.swap(buckets_[b]);
+    size_ -= bucket.size();
+    for (const WEntry& e : bucket) take(e);
+  }
+  if (!far_.empty()) {
+    // Released ones go with the rest; the others stay (empty on ordinary grids).
+    size_t kept = 0;
+    for (const WEntry& e : far_) {
+      if (!(e.key > front)) {
+        --size_;
+        take(e);
+      } else {
+        far_[kept++] = e;
+      }
+    }
+    far_.resize(kept);
+  }
+  done();
+  if (b > 0) {
+    buckets_.erase(buckets_.begin(), buckets_.begin() + static_cast<std::ptrdiff_t>(b));
+    base_ += static_cast<int64_t>(b);
+  }
+}
+
+}  // namespace tandem
+
+#endif  // TANDEM_EDGE_QUEUES_H_

@@ -1,0 +1,132 @@
+#include "sag_correction.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "tandem/geometry.h"
+
+namespace tandem {
+namespace {
+
+// The triangles of a fan in increasing id: every sum over them is then taken in the order of
+// a pass over all triangles, whichever vertex asks.
+void SortedFan(const MeshStore& store, VertexId v, std::vector<TriId>* fan) {
+  const auto tris = store.vertex_triangles(v);
+  fan->assign(tris.begin(), tris.end());
+  std::sort(fan->begin(), fan->end());
+}
+
+}  // namespace
+
+void VertexNormals(const MeshStore& store, std::span<const VertexId> verts, std::span<Vec3> normal) {
+  std::vector<TriId> fan;
+  for (VertexId v : verts) {
+    SortedFan(store, v, &fan);
+    Vec3 n{};
+    for (TriId t : fan) {
+      const auto& tri = store.triangle(t);
+      n = n + TwiceAreaVector(store.position(tri[0]), store.position(tri[1]),
+                              store.position(tri[2]));
+    }
+    const double len = Norm(n);
+    normal[v] = len > 0.0 ? n * (1.0 / len) : Vec3{};
+  }
+}
+
+int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
+                     std::span<const Vec3> normal, std::span<const Quadric> quadric, double fraction,
+                     double error, SagScratch* scratch, std::vector<VertexId>* moved_ids) {
+  if (!(fraction > 0.0) || verts.empty()) return 0;
+  // Near a crease the vertex normal averages faces that meet at an angle: the sag estimate
+  // measures the crease, not a curvature, and moving the vertex would cut the edge. A vertex
+  // with a triangle whose normal is more than kSagCreaseDegrees from its own stays
+  // (docs/decisions.md: why 25).
+  constexpr double kSagCreaseDegrees = 25.0;
+  const double cos_crease = std::cos(kSagCreaseDegrees * std::numbers::pi / 180.0);
+  if (scratch->slot.size() < store->vertex_capacity()) scratch->slot.resize(store->vertex_capacity(), kInvalid);
+  std::vector<Vec3> moved(verts.size());
+  std::vector<uint8_t> moving(verts.size(), 0);
+  std::vector<TriId>& fan = scratch->fan;
+  std::vector<TriId>& checks = scratch->checks;
+  checks.clear();
+  auto corners = [&](TriId t, Vec3 p[3]) {
+    const auto& tri = store->triangle(t);
+    for (int k = 0; k < 3; ++k) p[k] = store->position(tri[k]);
+  };
+  // The step of each vertex, limited so that ε0 <= max(E0, ε0 now): its triangles' mean sag
+  // (Σ w·s/24 over area) along its normal, unless it is on the box or at a crease.
+  for (size_t i = 0; i < verts.size(); ++i) {
+    const VertexId v = verts[i];
+    scratch->slot[v] = static_cast<uint32_t>(i);
+    moved[i] = store->position(v);
+    if ((store->box_mask(v) & ~kFrozen) != 0) continue;
+    SortedFan(*store, v, &fan);
+    double sag = 0.0, area = 0.0;
+    bool crease = false;
+    for (TriId t : fan) {
+      const auto& tri = store->triangle(t);
+      Vec3 p[3];
+      corners(t, p);
+      const Vec3 fn = TwiceAreaVector(p[0], p[1], p[2]);  // 2·area·unit normal
+      const double w = 0.5 * Norm(fn);
+      if (w > 0.0) crease |= Dot(fn, normal[v]) < cos_crease * 2.0 * w;
+      double s = 0.0;
+      for (int k = 0; k < 3; ++k) {
+        const int j = (k + 1) % 3;
+        s += Dot(normal[tri[j]] - normal[tri[k]], p[j] - p[k]);
+      }
+      sag += w * s / 24.0;
+      area += w;
+    }
+    const Quadric& q = quadric[i];
+    const Vec3 n = normal[v];
+    if (area <= 0.0 || crease || q.w <= 0.0 || Dot(n, n) == 0.0) continue;
+    const double step = fraction * sag / area;
+    const Vec3 d = step < 0.0 ? n * -1.0 : n;  // t >= 0 along d
+    const Vec3 x = moved[i];
+    const double t =
+        StepWithinError(q, x, d, std::abs(step), std::max(error, ShapeError(q, x)));
+    if (!(t > 0.0)) continue;
+    moved[i] = x + d * t;
+    moving[i] = 1;
+    checks.insert(checks.end(), fan.begin(), fan.end());
+  }
+  // No triangle may turn over or collapse: put the corners of any that would back, until
+  // none does (each round puts at least one vertex back, and the mesh as it was is valid).
+  std::sort(checks.begin(), checks.end());
+  checks.erase(std::unique(checks.begin(), checks.end()), checks.end());
+  auto slot = [&](VertexId v) { return scratch->slot[v]; };
+  auto is_moving = [&](VertexId v) { return slot(v) != kInvalid && moving[slot(v)]; };
+  auto now = [&](VertexId v) { return is_moving(v) ? moved[slot(v)] : store->position(v); };
+  for (bool again = true; again;) {
+    again = false;
+    for (TriId t : checks) {
+      const auto& tri = store->triangle(t);
+      if (!(is_moving(tri[0]) | is_moving(tri[1]) | is_moving(tri[2]))) continue;
+      Vec3 p[3];
+      corners(t, p);
+      const Vec3 n_old = TwiceAreaVector(p[0], p[1], p[2]);
+      if (Dot(n_old, n_old) == 0.0) continue;  // already degenerate: no orientation to keep
+      if (MovedCornerKeepsOrientation(n_old, now(tri[0]), now(tri[1]), now(tri[2]))) continue;
+      for (VertexId v : tri) {
+        if (is_moving(v)) {
+          moving[slot(v)] = 0;
+          again = true;
+        }
+      }
+    }
+  }
+  int64_t count = 0;
+  for (size_t i = 0; i < verts.size(); ++i) {
+    const VertexId v = verts[i];
+    scratch->slot[v] = kInvalid;
+    if (!moving[i]) continue;
+    store->set_position(v, moved[i]);
+    moved_ids->push_back(v);
+    ++count;
+  }
+  return count;
+}
+
+}  // namespace tandem

@@ -1,0 +1,51 @@
+// Sag correction (not in the paper; SessionOptions::sag_correction), run on the final mesh
+// (Simplifier::CorrectSag) or on each vertex as the sealer freezes it (Sealer::Seal): both go
+// through CorrectSagAt below, the one implementation of the rule.
+//
+// A coarse triangle is a chord of the curved surface it replaces: on average its interior lies
+// off the surface, on the concave side, by s = Σ eᵀKe / 24 over its three edges e (K the
+// curvature tensor: linear interpolation of a quadratic errs by ½ Σ λiλj eᵀKe, and λiλj
+// averages 1/12 over a triangle). The quadric minimiser puts each vertex off the surface on
+// the convex side, which cancels only part of s; what is left is a bias toward the concave
+// side. Each vertex moves along its normal by `fraction` times the area-weighted mean s of its
+// triangles (docs/decisions.md: why 0.3 by default). eᵀKe is taken from the mesh itself,
+// (n_j − n_i)·(x_j − x_i) with area-weighted vertex normals: nothing more is stored while
+// simplifying.
+#ifndef TANDEM_SAG_CORRECTION_H_
+#define TANDEM_SAG_CORRECTION_H_
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "mesh_store.h"
+#include "quadric.h"
+#include "tandem/types.h"
+
+namespace tandem {
+
+// Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v]
+// (sums over each fan in increasing triangle id, whichever vertex asks).
+void VertexNormals(const MeshStore& store, std::span<const VertexId> verts,
+                   std::span<Vec3> normal);
+
+// Scratch of CorrectSagAt, kept by the caller between calls.
+struct SagScratch {
+  std::vector<uint32_t> slot;  // per vertex id: its index in verts, or kInvalid
+  std::vector<TriId> fan, checks;
+  size_t MemoryBytes() const { return slot.capacity() * sizeof(uint32_t); }
+};
+
+// Moves each vertex of `verts` not on the grid's box (frozen ones may move: they are frozen
+// now) along normal[v] by `fraction` times the mean sag of its triangles, as far as its ε0
+// (quadric[i] for verts[i]) stays <= max(error, ε0 now), unless it sits at a crease. No
+// triangle may flip or collapse (tandem/geometry.h): the corners of any that would are put
+// back until none does. normal[v] must hold the unit normal of every vertex of their
+// triangles (VertexNormals). Appends the moved vertices to *moved_ids; returns their number.
+int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
+                     std::span<const Vec3> normal, std::span<const Quadric> quadric, double fraction,
+                     double error, SagScratch* scratch, std::vector<VertexId>* moved_ids);
+
+}  // namespace tandem
+
+#endif  // TANDEM_SAG_CORRECTION_H_

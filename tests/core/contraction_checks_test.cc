@@ -1,0 +1,252 @@
+#include <algorithm>
+#include <cmath>
+#include <array>
+#include <iterator>
+#include <limits>
+#include <map>
+#include <numbers>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "contraction_checks.h"
+#include "engine_testutil.h"
+#include "mesh_store.h"
+#include "simplifier.h"
+#include "tandem/geometry.h"
+#include "tandem/synthetic.h"
+#include "tandem/volume.h"
+
+namespace tandem {
+namespace {
+
+// LAMBDA(ab) from its definition (paper §2, "Surface simplification"): Lk(a) ∩ Lk(b) = Lk(ab) in the complex completed
+// by a dummy vertex ω joined to every boundary edge (an edge in one triangle). Links hold
+// vertices and edges; ω is kInvalid.
+bool LinkConditionByDefinition(const MeshStore& store, const EdgeTriangles& edge_triangles,
+                               VertexId a, VertexId b) {
+  const VertexId omega = kInvalid;
+  auto boundary_edge = [&](VertexId x, VertexId y) {
+    auto it = edge_triangles.find(std::minmax(x, y));
+    return it != edge_triangles.end() && it->second == 1;
+  };
+  using Simplex = std::pair<VertexId, VertexId>;  // a vertex is (x, x), an edge (min, max)
+  auto link = [&](VertexId v) {
+    std::set<Simplex> lk;
+    for (TriId t : store.vertex_triangles(v)) {
+      const auto& tri = store.triangle(t);
+      VertexId o[2];
+      int n = 0;
+      for (VertexId x : tri) {
+        if (x != v) o[n++] = x;
+      }
+      lk.insert({o[0], o[0]});
+      lk.insert({o[1], o[1]});
+      lk.insert(std::minmax(o[0], o[1]));
+      for (VertexId x : o) {
+        if (boundary_edge(v, x)) {
+          lk.insert({omega, omega});
+          lk.insert(std::minmax(omega, x));
+        }
+      }
+    }
+    return lk;
+  };
+  const std::set<Simplex> la = link(a), lb = link(b);
+  std::set<Simplex> common;
+  std::set_intersection(la.begin(), la.end(), lb.begin(), lb.end(),
+                        std::inserter(common, common.begin()));
+  std::set<Simplex> lab;
+  for (TriId t : store.vertex_triangles(a)) {
+    const auto& tri = store.triangle(t);
+    if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
+    for (VertexId x : tri) {
+      if (x != a && x != b) lab.insert({x, x});
+    }
+  }
+  if (boundary_edge(a, b)) lab.insert({omega, omega});
+  return common == lab;
+}
+
+// Small complexes where the answer hinges on one clause of the test: a common neighbour
+// reached through a boundary edge (the three triangles around c with boundary a-b-x), a
+// tetrahedron (closed: every contraction pinches), the same without a face (a fan whose
+// boundary is a triangle), a single triangle and two triangles on an edge.
+TEST(LinkCondition, OnSmallComplexes) {
+  using Tri = std::array<int, 3>;
+  const std::vector<std::vector<Tri>> complexes = {
+      {{0, 1, 2}, {1, 3, 2}, {0, 2, 3}},
+      {{0, 1, 2}, {0, 3, 1}, {0, 2, 3}, {1, 3, 2}},
+      {{0, 1, 3}, {1, 2, 3}, {2, 0, 3}},
+      {{0, 1, 2}},
+      {{0, 1, 2}, {1, 0, 3}},
+  };
+  int64_t allowed = 0, refused = 0;
+  for (size_t i = 0; i < complexes.size(); ++i) {
+    MeshStore store;
+    std::vector<VertexId> v;
+    for (int k = 0; k < 4; ++k) {
+      v.push_back(store.AddVertex({static_cast<double>(k & 1), static_cast<double>(k >> 1), k * 0.1},
+                                  0, 0, 0));
+    }
+    for (const Tri& t : complexes[i]) store.AddTriangle(v[t[0]], v[t[1]], v[t[2]]);
+    LinkScratch scratch;
+    const EdgeTriangles edge_triangles = CountEdgeTriangles(store);
+    for (const auto& [edge, count] : edge_triangles) {
+      for (auto [a, b] : {edge, std::pair{edge.second, edge.first}}) {
+        const bool expected = LinkConditionByDefinition(store, edge_triangles, a, b);
+        (expected ? allowed : refused) += 1;
+        EXPECT_EQ(LinkConditionFans(store, a, b), expected) << i << ": " << a << "-" << b;
+        EXPECT_EQ(LinkConditionMarks(store, a, b, &scratch), expected) << i << ": " << a << "-" << b;
+      }
+    }
+  }
+  EXPECT_GT(allowed, 0);
+  EXPECT_GT(refused, 0);
+}
+
+// The link condition's two implementations (small fans in stack arrays, larger ones with
+// per-vertex marks) agree with the definition on every edge, both ways round: on a closed
+// and a box-cut surface as extracted (valence about 6, every contraction allowed but a few)
+// and after simplifying them hard (high valences past kFanMax, tetrahedral corners, thin
+// handles: many refusals). Wrong answers here change topology or stall the simplifier.
+TEST(LinkCondition, MatchesItsDefinition) {
+  int64_t large = 0;  // calls on fans too big for the stack arrays
+  for (const std::string name : {"sphere", "gyroid", "link", "box-cut gyroid"}) {
+    for (double e0 : {0.0, 0.4, 3.0}) {
+      auto src = name == "box-cut gyroid" ? BoxCutGyroid(22, 20, 18)
+                                          : MakeSyntheticSource(*ParseShape(name), 22, 20, 18);
+      MeshStore store;
+      SimplifierOptions so;
+      so.error = e0 > 0 ? e0 : 1e-9;
+      so.release = ReleaseRule::kImmediate;
+      Simplifier simplifier(&store, so);
+      const std::vector<TriId> all = ExtractLayers(src.get(), &store, &simplifier, false);
+      if (e0 > 0) {
+        simplifier.Delay(all);
+        simplifier.Activate(std::numeric_limits<double>::infinity());
+        simplifier.Simplify();
+      }
+      const std::string what = name + " E0 " + std::to_string(e0);
+      LinkScratch scratch;
+      const EdgeTriangles edge_triangles = CountEdgeTriangles(store);
+      int64_t allowed = 0, refused = 0, fans = 0;
+      for (TriId t = 0; t < store.triangle_capacity(); ++t) {
+        if (!store.triangle_alive(t)) continue;
+        const auto& tri = store.triangle(t);
+        for (int i = 0; i < 3; ++i) {
+          for (auto [a, b] : {std::pair{tri[i], tri[(i + 1) % 3]}, std::pair{tri[(i + 1) % 3], tri[i]}}) {
+            const bool expected = LinkConditionByDefinition(store, edge_triangles, a, b);
+            (expected ? allowed : refused) += 1;
+            ASSERT_EQ(LinkConditionMarks(store, a, b, &scratch), expected) << what << " " << a << "-" << b;
+            ASSERT_EQ(LinkCondition(store, a, b, &scratch), expected) << what << " " << a << "-" << b;
+            if (store.vertex_triangles(a).size() <= kFanMax &&
+                store.vertex_triangles(b).size() <= kFanMax) {
+              ++fans;
+              ASSERT_EQ(LinkConditionFans(store, a, b), expected) << what << " " << a << "-" << b;
+            } else {
+              ++large;
+            }
+          }
+        }
+      }
+      EXPECT_GT(allowed, 0) << what;
+      EXPECT_GT(fans, 0) << what;
+      if (e0 > 1) {
+        EXPECT_GT(refused, 0) << what;
+      }
+    }
+  }
+  EXPECT_GT(large, 0);
+}
+
+// ---------------------------------------------------------------- geometry (tandem/geometry.h)
+
+TEST(Geometry, AreaVectorAndTheTwoNoAreaRules) {
+  const Vec3 n = TwiceAreaVector({0, 0, 0}, {2, 0, 0}, {0, 1, 0});  // CCW seen from +z
+  EXPECT_EQ(n, (Vec3{0, 0, 2}));
+  EXPECT_EQ(TriangleAreaVector({0, 0, 0}, {2, 0, 0}, {0, 1, 0}), (Vec3{0, 0, 1}));
+  EXPECT_DOUBLE_EQ(SumSquaredEdges({0, 0, 0}, {2, 0, 0}, {0, 1, 0}), 4.0 + 5.0 + 1.0);
+  EXPECT_TRUE(IsDegenerateTriangle({0, 0, 0}, {1, 1, 1}, {2, 2, 2}));
+  EXPECT_TRUE(IsDegenerateTriangle({0, 0, 0}, {0, 0, 0}, {1, 0, 0}));
+  EXPECT_FALSE(IsDegenerateTriangle({0, 0, 0}, {1, 0, 0}, {0.5, 1e-3, 0}));
+  // area / Σe² ≈ 1e-11: a triangle for the measures, too thin for the engine to make.
+  const Vec3 a{0, 0, 0}, b{1, 0, 0}, c{0.5, 3e-11, 0};
+  EXPECT_FALSE(IsDegenerateTriangle(a, b, c));
+  EXPECT_TRUE(MoveCorners(Vec3{0, 0, 1}, a, b, c).collapses);
+  EXPECT_FALSE(MovedCornerKeepsOrientation(Vec3{0, 0, 1}, a, b, c));
+}
+
+TEST(Geometry, MovedCornersFlipOrCollapse) {
+  const Vec3 p0{0, 0, 0}, p1{1, 0, 0}, p2{0, 1, 0};
+  const Vec3 before = TwiceAreaVector(p0, p1, p2);
+  EXPECT_TRUE(MovedCornerKeepsOrientation(before, {0.2, 0.1, 0.5}, p1, p2));  // tilted
+  const CornerMove flip = MoveCorners(before, {2, 2, 0}, p1, p2);             // across p1p2
+  EXPECT_TRUE(flip.flips);
+  EXPECT_FALSE(flip.collapses);
+  const CornerMove onto = MoveCorners(before, {0.5, 0.5, 0}, p1, p2);  // onto p1p2
+  EXPECT_TRUE(onto.collapses);
+  EXPECT_FALSE(MovedCornerKeepsOrientation(before, {0.5, 0.5, 0}, p1, p2));
+}
+
+// ---------------------------------------------------------------- GeometryOk
+
+// A flat hexagonal fan around vertex 0 in the plane z = 0, counter-clockwise seen from +z;
+// the contraction 0-1 moves vertex 0 and removes triangles 0-6-1 and 0-1-2.
+struct Fan {
+  MeshStore store;
+  std::vector<VertexId> v;
+  Fan() {
+    v.push_back(store.AddVertex({0, 0, 0}, 0, 0, 0));
+    for (int k = 0; k < 6; ++k) {
+      const double t = k * std::numbers::pi / 3.0;
+      v.push_back(store.AddVertex({std::cos(t), std::sin(t), 0}, 0, 0, 0));
+    }
+    for (int k = 1; k <= 6; ++k) store.AddTriangle(v[0], v[k], v[k % 6 + 1]);
+  }
+  bool Ok(Vec3 pos, double bound, RefusalCounts* refusals) {
+    std::vector<Survivor> survivors;
+    return GeometryOk(store, v[0], v[1], pos, bound, &survivors, refusals);
+  }
+};
+
+TEST(GeometryOk, AcceptsAMoveInsideTheFan) {
+  Fan fan;
+  RefusalCounts r;
+  EXPECT_TRUE(fan.Ok({0.5, 0, 0}, 0.0, &r));
+  EXPECT_TRUE(fan.Ok({0.5, 0, 0.3}, 0.0, &r));  // off the plane, no guard: tilted, not flipped
+  EXPECT_EQ(r.flip + r.degenerate + r.distance, 0);
+}
+
+TEST(GeometryOk, RefusesAFlipACollapseAndAFarMoveAndCountsWhy) {
+  Fan fan;
+  RefusalCounts r;
+  EXPECT_FALSE(fan.Ok({-2, 0, 0}, 0.0, &r));  // past vertex 4: triangle 0-3-4 turns over
+  EXPECT_EQ(r.flip, 1);
+  EXPECT_FALSE(fan.Ok({0, std::sqrt(3.0) / 2, 0}, 0.0, &r));  // onto edge 2-3: 0-2-3 collapses
+  EXPECT_EQ(r.degenerate, 1);
+  EXPECT_FALSE(fan.Ok({0.5, 0, 0.3}, 0.1, &r));  // 0.3 off the planes, guard 0.1
+  EXPECT_EQ(r.distance, 1);
+  EXPECT_TRUE(fan.Ok({0.5, 0, 0.05}, 0.1, &r));
+  EXPECT_EQ(r.flip, 1);
+  EXPECT_EQ(r.degenerate, 1);
+  EXPECT_EQ(r.distance, 1);
+}
+
+// A triangle that is already degenerate (an exact iso hit) constrains nothing.
+TEST(GeometryOk, IgnoresTrianglesAlreadyDegenerate) {
+  MeshStore store;
+  const VertexId a = store.AddVertex({0, 0, 0}, 0, 0, 0), b = store.AddVertex({1, 0, 0}, 0, 0, 0),
+                 c = store.AddVertex({0, 1, 0}, 0, 0, 0), d = store.AddVertex({0, 2, 0}, 0, 0, 0);
+  store.AddTriangle(a, b, c);
+  store.AddTriangle(a, c, d);  // collinear: a, c, d on x = 0
+  std::vector<Survivor> survivors;
+  RefusalCounts r;
+  EXPECT_TRUE(GeometryOk(store, b, a, {0.1, 0.0, 0}, 0.0, &survivors, &r));
+  EXPECT_EQ(r.flip + r.degenerate + r.distance, 0);
+}
+
+}  // namespace
+}  // namespace tandem

@@ -1,0 +1,130 @@
+// The simplifier's queues alone: Q's order (key, then newest first among equal keys) across its
+// buckets, and W's release by front (bucket by bucket, each in push order, far keys last).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <tuple>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "edge_queues.h"
+
+namespace tandem {
+namespace {
+
+QEntry EntryFor(uint32_t id) { return QEntry{id, id + 1, 0, 0, Vec3{double(id), 0, 0}, 0.0}; }
+
+// Q pops in (key ascending, push order descending) order, whatever the keys' buckets: keys
+// spread over the range, beyond it (the last bucket), many equal keys, pushes between pops.
+TEST(EdgeQueue, PopsBySmallestKeyThenNewestFirst) {
+  const double max_key = 2.0;
+  EdgeQueue q(max_key);
+  struct Pushed {
+    double key;
+    uint32_t seq;
+  };
+  std::vector<Pushed> reference;  // what is in Q
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0.0, 3.0);  // a third beyond max_key
+  uint32_t seq = 0;
+  auto push = [&](double key) {
+    q.Push(key, EntryFor(seq));
+    reference.push_back({key, seq++});
+  };
+  auto pop = [&] {
+    ASSERT_FALSE(q.empty());
+    auto best = std::min_element(reference.begin(), reference.end(), [](auto& x, auto& y) {
+      return std::tie(x.key, y.seq) < std::tie(y.key, x.seq);
+    });
+    EXPECT_EQ(q.Top().key, best->key);
+    const QEntry e = q.Pop();
+    EXPECT_EQ(e.a, best->seq);
+    EXPECT_EQ(e.pos.x, double(best->seq));  // the entry travels with its node
+    reference.erase(best);
+  };
+  for (int round = 0; round < 200; ++round) {
+    for (int i = 0; i < 20; ++i) {
+      const double key = (i % 3 == 0) ? 0.25 : (i % 5 == 0 ? 0.0 : u(rng));
+      push(round % 7 == 0 ? std::round(key) : key);
+    }
+    for (int i = 0; i < 15; ++i) pop();
+    EXPECT_EQ(q.size(), reference.size());
+  }
+  while (!reference.empty()) pop();
+  EXPECT_TRUE(q.empty());
+}
+
+TEST(EdgeQueue, ClearEmptiesAndKeepsWorking) {
+  EdgeQueue q(1.0);
+  q.Clear();  // before any push: nothing allocated
+  for (uint32_t i = 0; i < 100; ++i) q.Push(1.0 - i * 0.01, EntryFor(i));
+  q.Clear();
+  EXPECT_TRUE(q.empty());
+  q.Push(0.5, EntryFor(1));
+  q.Push(0.5, EntryFor(2));
+  q.Push(0.1, EntryFor(3));
+  EXPECT_EQ(q.Pop().a, 3u);
+  EXPECT_EQ(q.Pop().a, 2u);  // equal keys: newest first
+  EXPECT_EQ(q.Pop().a, 1u);
+  EXPECT_TRUE(q.empty());
+}
+
+// W hands out entries with key <= front, bucket by bucket (a bucket per integer front, ceil of
+// the key), each bucket in push order; keys beyond the window, infinite and NaN ones wait in
+// the far list and are released after the buckets (a NaN key by the next release).
+TEST(WaitingQueue, ReleasesUpToTheFrontInBucketThenPushOrder) {
+  WaitingQueue w;
+  const double inf = std::numeric_limits<double>::infinity();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  auto entry = [](double key, uint32_t id) { return WEntry{key, id, id, 0, 0}; };
+  w.Push(entry(3.5, 0));
+  w.Push(entry(2.0, 1));
+  w.Push(entry(1.2, 2));
+  w.Push(entry(4.0, 3));
+  w.Push(entry(3.1, 4));  // same bucket (4) as 3.5 and 4.0, pushed after both
+  w.Push(entry(1e20, 5));  // far
+  w.Push(entry(inf, 6));
+  w.Push(entry(nan, 7));
+  w.Push(entry(1.9, 8));
+  EXPECT_EQ(w.size(), 9u);
+  auto release = [&](double front) {
+    std::vector<uint32_t> out;
+    int done = 0;
+    w.ReleaseUpTo(front, [&](const WEntry& e) { out.push_back(e.a); }, [&] { ++done; });
+    EXPECT_EQ(done, 1);
+    return out;
+  };
+  EXPECT_EQ(release(1.5), std::vector<uint32_t>{7});
+  EXPECT_EQ(release(2.0), (std::vector<uint32_t>{1, 2, 8}));  // bucket 2, push order
+  EXPECT_EQ(release(3.0), std::vector<uint32_t>{});
+  EXPECT_EQ(release(4.0), (std::vector<uint32_t>{0, 3, 4}));
+  EXPECT_EQ(w.size(), 2u);
+  EXPECT_EQ(release(1e30), std::vector<uint32_t>{5});
+  EXPECT_EQ(release(inf), std::vector<uint32_t>{6});
+  EXPECT_EQ(w.size(), 0u);
+}
+
+// An entry pushed while a release runs (a re-evaluated edge whose key is past the front)
+// waits for a later front.
+TEST(WaitingQueue, PushesDuringAReleaseWait) {
+  WaitingQueue w;
+  w.Push(WEntry{1.0, 1, 1, 0, 0});
+  std::vector<uint32_t> out;
+  w.ReleaseUpTo(
+      1.0,
+      [&](const WEntry& e) {
+        out.push_back(e.a);
+        w.Push(WEntry{1.5, 2, 2, 0, 0});
+      },
+      [&] { w.Push(WEntry{2.0, 3, 3, 0, 0}); });
+  EXPECT_EQ(out, std::vector<uint32_t>{1});
+  EXPECT_EQ(w.size(), 2u);
+  out.clear();
+  w.ReleaseUpTo(2.0, [&](const WEntry& e) { out.push_back(e.a); }, [] {});
+  EXPECT_EQ(out, (std::vector<uint32_t>{2, 3}));
+}
+
+}  // namespace
+}  // namespace tandem

@@ -1,0 +1,112 @@
+// Helpers shared by the engine's tests (simplifier, contraction checks, sag correction):
+// volumes from formulas, layer-by-layer extraction into a store, edge tallies, the full-
+// resolution surface of a source.
+#ifndef TANDEM_TESTS_CORE_ENGINE_TESTUTIL_H_
+#define TANDEM_TESTS_CORE_ENGINE_TESTUTIL_H_
+
+#include <cmath>
+#include <cstring>
+#include <functional>
+#include <map>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "layer_extractor.h"
+#include "mesh_store.h"
+#include "simplifier.h"
+#include "tandem/tandem.h"
+#include "tandem/volume.h"
+
+namespace tandem {
+
+using EdgeTriangles = std::map<std::pair<VertexId, VertexId>, int>;  // edge -> its triangles
+inline EdgeTriangles CountEdgeTriangles(const MeshStore& store) {
+  EdgeTriangles edge_triangles;
+  for (TriId t = 0; t < store.triangle_capacity(); ++t) {
+    if (!store.triangle_alive(t)) continue;
+    const auto& tri = store.triangle(t);
+    for (int i = 0; i < 3; ++i) ++edge_triangles[std::minmax(tri[i], tri[(i + 1) % 3])];
+  }
+  return edge_triangles;
+}
+
+
+// A float32 volume from a formula, slice by slice: surfaces cut by the grid's box.
+class FieldSource : public SliceSource {
+ public:
+  FieldSource(int64_t nx, int64_t ny, int64_t nz, std::function<double(double, double, double)> f)
+      : f_(std::move(f)) {
+    info_.nx = nx;
+    info_.ny = ny;
+    info_.nz = nz;
+    info_.dtype = DType::kFloat32;
+  }
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return k_; }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (k_ >= info_.nz) return absl::OutOfRangeError("end of volume");
+    std::vector<float> v(static_cast<size_t>(info_.nx * info_.ny));
+    for (int64_t j = 0; j < info_.ny; ++j) {
+      for (int64_t i = 0; i < info_.nx; ++i) {
+        v[static_cast<size_t>(j * info_.nx + i)] = static_cast<float>(f_(
+            static_cast<double>(i), static_cast<double>(j), static_cast<double>(k_)));
+      }
+    }
+    bytes->resize(v.size() * sizeof(float));
+    std::memcpy(bytes->data(), v.data(), bytes->size());
+    ++k_;
+    return absl::OkStatus();
+  }
+
+ private:
+  VolumeInfo info_;
+  std::function<double(double, double, double)> f_;
+  int64_t k_ = 0;
+};
+
+// A gyroid filling the whole box: its boundary runs over all six faces.
+inline std::unique_ptr<SliceSource> BoxCutGyroid(int64_t nx, int64_t ny, int64_t nz) {
+  return std::make_unique<FieldSource>(nx, ny, nz, [](double x, double y, double z) {
+    const double w = 0.45;
+    return std::sin(w * x) * std::cos(w * y) + std::sin(w * y) * std::cos(w * z) +
+           std::sin(w * z) * std::cos(w * x) + 0.1;
+  });
+}
+
+// Extracts the whole volume into `store` layer by layer, adding each layer's triangles to the
+// simplifier (and delaying them, as the tandem schedules do, if asked); returns them all.
+inline std::vector<TriId> ExtractLayers(SliceSource* src, MeshStore* store, Simplifier* simplifier,
+                                 bool delay_each_layer) {
+  const VolumeInfo& info = src->info();
+  LayerExtractor ex(ExtractorConfig{info.nx, info.ny, info.nz, info.spacing, info.origin, 0},
+                    store);
+  std::vector<uint8_t> bytes;
+  std::vector<TriId> tris, all;
+  std::vector<VertexId> verts;
+  for (int64_t k = 0; k < info.nz; ++k) {
+    EXPECT_TRUE(src->ReadSlice(&bytes).ok());
+    tris.clear();
+    verts.clear();
+    EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
+    simplifier->AddTriangles(tris, verts);
+    if (delay_each_layer) simplifier->Delay(tris);
+    all.insert(all.end(), tris.begin(), tris.end());
+  }
+  return all;
+}
+
+// The unsimplified surface of a source, to measure distances to.
+inline IndexedMesh FullSurface(SliceSource& src) {
+  SessionOptions o;
+  o.schedule = Schedule::kNone;
+  auto full = RunSession(src, o);
+  EXPECT_TRUE(full.ok()) << full.status();
+  return full.ok() ? (*full)->Snapshot() : IndexedMesh{};
+}
+
+}  // namespace tandem
+
+#endif  // TANDEM_TESTS_CORE_ENGINE_TESTUTIL_H_
