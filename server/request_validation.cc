@@ -199,34 +199,6 @@ absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
   return absl::OkStatus();
 }
 
-absl::Status ValidateSliceValues(const JobConfig& config, int64_t slice, const uint8_t* bytes,
-                                 size_t size) {
-  if (config.grid.dtype != DType::kFloat32) return absl::OkStatus();
-  const size_t n = size / sizeof(float);
-  // Every value of every slice passes here: first a branch-free pass over the exponent bits
-  // (all ones: infinite or NaN), which the compiler vectorizes; the loop that finds and
-  // names the bad voxel runs only when there is one.
-  uint32_t bad = 0;
-  for (size_t i = 0; i < n; ++i) {
-    uint32_t bits;
-    std::memcpy(&bits, bytes + i * sizeof(float), sizeof bits);  // may be unaligned
-    bad |= static_cast<uint32_t>((bits & 0x7f800000u) == 0x7f800000u);
-  }
-  if (bad == 0) return absl::OkStatus();
-  for (size_t i = 0; i < n; ++i) {
-    float v;
-    std::memcpy(&v, bytes + i * sizeof(float), sizeof v);  // the buffer may be unaligned
-    if (!std::isfinite(v)) {
-      const int64_t nx = config.grid.nx;
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "slice %d: voxel (i=%d, j=%d) is %s; float32 volumes must hold finite values", slice,
-          static_cast<int64_t>(i) % nx, static_cast<int64_t>(i) / nx,
-          std::isnan(v) ? "NaN" : "infinite"));
-    }
-  }
-  return absl::OkStatus();
-}
-
 absl::Status ValidateEnd(const v1::End& end, const JobConfig& config, const SliceCursor& cursor) {
   if (cursor.bytes_so_far > 0) {
     return absl::InvalidArgumentError(absl::StrCat(

@@ -85,11 +85,6 @@ struct SliceCursor {
 absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
                            const SliceCursor& cursor, const ServerLimits& limits);
 
-// For float32 slices: every voxel finite (the message gives the first bad voxel's i, j).
-// Other dtypes always pass. `bytes` holds one complete slice.
-absl::Status ValidateSliceValues(const JobConfig& config, int64_t slice, const uint8_t* bytes,
-                                 size_t size);
-
 // Checks the End marker: no partial slice, End.slices (when > 0) and the declared nz
 // match the slices received, at least 2 slices.
 absl::Status ValidateEnd(const v1::End& end, const JobConfig& config, const SliceCursor& cursor);

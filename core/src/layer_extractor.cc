@@ -13,6 +13,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "mc_tables.h"
+#include "tandem/volume.h"
 
 namespace tandem {
 namespace {
@@ -126,11 +127,6 @@ VertexId LayerExtractor::StageVertex(const double idx[3], int seam_face) {
   return id;
 }
 
-absl::Status LayerExtractor::NonFiniteError(int64_t k, int64_t x, int64_t y, float v) {
-  return absl::InvalidArgumentError(absl::StrCat("slice ", k, ": value at (x=", x, ", y=", y,
-                                                 ") is ", v, "; every voxel must be a finite number"));
-}
-
 absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* new_tris,
                                       std::vector<VertexId>* new_verts) {
   if (absl::Status st = ComputeLayer(values); !st.ok()) return st;
@@ -222,7 +218,7 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
     for (int64_t j = 0; j < ny; ++j) {
       for (int64_t i = 0; i < nx; ++i) {
         const float v = values[j * stride + i];
-        if (!std::isfinite(v)) return NonFiniteError(k, i + config_.x_offset, j, v);
+        if (!std::isfinite(v)) return NonFiniteVoxelError(i + config_.x_offset, j, v);
       }
     }
   }

@@ -69,9 +69,6 @@ class LayerExtractor {
   // kBoxZMax bit. Called by the owner when the stream ends (a no-op beyond that).
   void Finish();
 
-  // The error ComputeLayer gives for a non-finite value v at (x, y) of slice k.
-  static absl::Status NonFiniteError(int64_t k, int64_t x, int64_t y, float v);
-
   // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
   // two value planes, their sign bits and the five vertex-id caches.
   static size_t PlaneCacheBytes(int64_t nx, int64_t ny);

@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <future>
-#include <system_error>
 #include <utility>
 
 namespace tandem {
@@ -204,18 +202,14 @@ void Simplifier::FlushBatch() {
   batch_results_.resize(n);
   // Below this size a thread costs more than it saves (a solve is ~1 µs).
   constexpr size_t kParallelMin = 1024;
-  bool done = false;
-  if (opt_.parallel && n >= kParallelMin) {
-    try {
-      auto first_half = std::async(std::launch::async, [this, n] { EvaluateBatchRange(0, n / 2); });
-      EvaluateBatchRange(n / 2, n);
-      first_half.get();
-      done = true;
-    } catch (const std::system_error&) {
-      // No thread to be had: the sequential loop below gives the same result.
-    }
+  if (opt_.parallel != nullptr && n >= kParallelMin) {
+    TaskGroup halves(opt_.parallel);  // with no thread free, Wait runs it here
+    halves.Run([this, n] { EvaluateBatchRange(0, n / 2); });
+    EvaluateBatchRange(n / 2, n);
+    halves.Wait();
+  } else {
+    EvaluateBatchRange(0, n);
   }
-  if (!done) EvaluateBatchRange(0, n);
   for (size_t i = 0; i < n; ++i) {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];

@@ -26,6 +26,7 @@
 #include "mesh_store.h"
 #include "quadric.h"
 #include "sag_correction.h"
+#include "tandem/executor.h"
 #include "tandem/geometry.h"
 #include "tandem/stats.h"
 #include "tandem/types.h"
@@ -44,8 +45,9 @@ struct SimplifierOptions {
   double alpha = 0;           // isotropy parameter in [0, 1]
   ReleaseRule release = ReleaseRule::kReach;
   double slice_spacing = 1;   // sz: converts lengths to slice units for rad()
-  bool parallel = false;      // evaluate the edges of DELAY / ACTIVATE batches on two
-                              // threads (pure work; pushed in the same order: identical)
+  // Evaluate half of every large DELAY / ACTIVATE batch on this executor (pure work, pushed
+  // in the same order: identical results); null: all on the calling thread.
+  Executor* parallel = nullptr;
   double distance_guard = 0;  // K: see SessionOptions::distance_guard (0 = off)
 };
 

@@ -26,7 +26,7 @@ int SlabCount(const VolumeInfo& grid, int requested, bool seal) {
 }
 
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
-                                             double scale, int count, bool parallel_batches) {
+                                             double scale, int count, Executor* batches) {
   const std::array<double, 3> spacing{grid.spacing[0] / scale, grid.spacing[1] / scale,
                                       grid.spacing[2] / scale};
   std::vector<std::unique_ptr<Slab>> slabs;
@@ -41,7 +41,7 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .alpha = options.alpha,
                                .release = RuleFor(options.schedule),
                                .slice_spacing = spacing[2],
-                               .parallel = parallel_batches,
+                               .parallel = batches,
                                .distance_guard = options.distance_guard};
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {

@@ -57,9 +57,10 @@ using Seams = std::vector<std::vector<std::pair<VertexId, VertexId>>>;
 // The number of slabs a session over `grid` uses (SessionOptions::parts; sealing: one).
 int SlabCount(const VolumeInfo& grid, int requested, bool seal);
 
-// The slabs of `grid` in the engine frame (spacing divided by `scale`), ready for slice 0.
+// The slabs of `grid` in the engine frame (spacing divided by `scale`), ready for slice 0;
+// `batches`: where the simplifiers evaluate half of their large batches (null: in place).
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
-                                             double scale, int count, bool parallel_batches);
+                                             double scale, int count, Executor* batches);
 
 // Moves the slabs' new seam vertices into `seams` (both sides list the same grid edges in the
 // same order). INTERNAL if two neighbours disagree.

@@ -26,19 +26,15 @@ double EngineScale(const VolumeInfo& g) {
   return std::ldexp(1.0, std::ilogb(smallest));
 }
 
-// Whether all n values are finite; copies them to dst as well unless it is null. One pass
-// of integer tests on the exponent bits, which the compiler vectorises.
+// Copies n values to dst and says whether all are finite (volume.h's rule), in one pass
+// that the compiler vectorises.
 bool CopyFinite(const float* src, size_t n, float* dst) {
-  const uint32_t* in = reinterpret_cast<const uint32_t*>(src);  // float's bits (may alias)
   uint32_t bad = 0;
-  if (dst == nullptr) {
-    for (size_t i = 0; i < n; ++i) bad |= (in[i] & 0x7f800000u) == 0x7f800000u;
-  } else {
-    uint32_t* out = reinterpret_cast<uint32_t*>(dst);
-    for (size_t i = 0; i < n; ++i) {
-      out[i] = in[i];
-      bad |= (in[i] & 0x7f800000u) == 0x7f800000u;
-    }
+  for (size_t i = 0; i < n; ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, src + i, sizeof bits);
+    std::memcpy(dst + i, &bits, sizeof bits);
+    bad |= static_cast<uint32_t>(NonFiniteBits(bits));
   }
   return bad == 0;
 }
@@ -166,7 +162,8 @@ TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int coun
                           Executor* ex)
     : grid(g), options(o), scale(EngineScale(g)), executor(ex) {
   // With several slabs the threads go to the slabs, not to the batches inside one.
-  slabs = MakeSlabs(grid, options, scale, count, options.pipeline && count == 1);
+  slabs = MakeSlabs(grid, options, scale, count,
+                    options.pipeline && count == 1 ? executor : nullptr);
   seams.resize(static_cast<size_t>(count - 1));
   if (options.pipeline && count == 1) {
     overlap = [ex](const std::function<void()>& first, const std::function<void()>& second) {
@@ -336,19 +333,18 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
   const int64_t k = slices_added;
   if (slabs.size() > 1) {
     // Each slab checks its own columns (and the extractor the end of the volume); with
-    // several, a bad slice must be refused before any of them moves (non-finite values:
-    // below, while the slice is copied for the queued steps).
+    // several, a bad slice must be refused before any of them moves.
     if (grid.nz > 0 && k >= grid.nz) {
       return fail(absl::InvalidArgumentError(
           absl::StrCat("slice ", k, " is past the end of the volume (nz = ", grid.nz, ")")));
     }
   }
   const size_t n = static_cast<size_t>(grid.nx * grid.ny);
+  // A slice must be refused before any slab moves: with several, its values are checked
+  // first (while copied for the queued steps); one slab's extractor checks them as it scans.
   auto non_finite = [&](const float* v) {
-    size_t idx = 0;
-    while (std::isfinite(v[idx])) ++idx;
-    const int64_t i = static_cast<int64_t>(idx);
-    return fail(LayerExtractor::NonFiniteError(k, i % grid.nx, i / grid.nx, v[idx]));
+    const int64_t i = FirstNonFinite(reinterpret_cast<const uint8_t*>(v), n);
+    return fail(NonFiniteVoxelError(i % grid.nx, i / grid.nx, v[i]));
   };
   if (queued) {
     {
@@ -367,7 +363,9 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
       if (!CopyFinite(values, n, dst)) return non_finite(values);
     } else {
       ConvertToFloat(dtype, bytes, n, dst);  // integer types are always finite
-      if (dtype == DType::kFloat32 && !CopyFinite(dst, n, nullptr)) return non_finite(dst);
+      if (dtype == DType::kFloat32 && FirstNonFinite(reinterpret_cast<const uint8_t*>(dst), n) >= 0) {
+        return non_finite(dst);
+      }
     }
     std::vector<size_t> idle;
     {
@@ -387,7 +385,9 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
     stats.time.total_s += Seconds(start, Clock::now());
     return absl::OkStatus();
   }
-  if (slabs.size() > 1 && !CopyFinite(values, n, nullptr)) return non_finite(values);
+  if (slabs.size() > 1 && FirstNonFinite(reinterpret_cast<const uint8_t*>(values), n) >= 0) {
+    return non_finite(values);
+  }
   std::vector<absl::Status> status(slabs.size());
   ForEachSlab([&](Slab& s) {
     status[s.index] = StepSlab(s, values + s.x0, options.schedule, overlap);

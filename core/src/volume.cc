@@ -2,23 +2,14 @@
 // the engine needs; the readers are in core/io).
 #include "tandem/volume.h"
 
-#include <fcntl.h>
-#include <sys/mman.h>
-#include <sys/stat.h>
-#include <unistd.h>
-#include <zlib.h>
-
 #include <algorithm>
-#include <cerrno>
-#include <charconv>
 #include <cmath>
 #include <cstring>
-#include <filesystem>
 #include <limits>
 #include <utility>
 
-#include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 
 namespace tandem {
 
@@ -158,6 +149,28 @@ void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst) {
       std::memcpy(dst, src, n * sizeof(float));
       break;
   }
+}
+
+int64_t FirstNonFinite(const uint8_t* bytes, size_t n) {
+  uint32_t bad = 0;
+  for (size_t i = 0; i < n; ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, bytes + i * sizeof(float), sizeof bits);  // may be unaligned
+    bad |= static_cast<uint32_t>(NonFiniteBits(bits));
+  }
+  if (bad == 0) return -1;
+  for (size_t i = 0; i < n; ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, bytes + i * sizeof(float), sizeof bits);
+    if (NonFiniteBits(bits)) return static_cast<int64_t>(i);
+  }
+  return -1;
+}
+
+absl::Status NonFiniteVoxelError(int64_t i, int64_t j, float v) {
+  return absl::InvalidArgumentError(
+      absl::StrFormat("voxel (i=%d, j=%d) is %s; float32 volumes must hold finite values", i, j,
+                      std::isnan(v) ? "NaN" : "infinite"));
 }
 
 }  // namespace tandem

@@ -27,29 +27,27 @@ struct SessionOptions {
   // new vertex would lie farther than K·E0 from the plane of a triangle it reshapes (one of
   // the triangles around a or b that survive, as they are now). ε0 <= E0 bounds a root mean
   // square over every plane a vertex has absorbed, so one thin feature can end up far from
-  // the surface while the average stays small; the guard bounds each step instead. At the
-  // default 2, the 512³ Pillow Box's Hausdorff distance falls by a quarter and the engine
-  // CT's by a third at the same triangle count; a given E0 keeps 3-12% more triangles.
-  // Not applied past E0, toward target_triangles.
+  // the surface while the average stays small; the guard bounds each step instead (what it
+  // buys and costs: docs/decisions.md). Not applied past E0, toward target_triangles.
   double distance_guard = 2;
   // Sag correction F (not in the paper; 0 turns it off): after the last SIMPLIFY, every
   // vertex not on the grid's box moves along its normal by F times the mean chordal sag of
-  // its triangles (Simplifier::CorrectSag), never so far that its ε0 exceeds E0 or a
+  // its triangles (sag_correction.h), never so far that its ε0 exceeds E0 or a
   // triangle turns over. The quadric minimiser leaves a coarse mesh biased toward the
   // concave side of the surface; F = 0.3 removes most of that bias.
   double sag_correction = 0.3;
   int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
                                 // need be) until at most this many triangles remain
-  bool pipeline = true;         // use more threads (identical results either way): the
-                                // parts on a pool of workers (one per core); with one
-                                // part, EXTRACT(k) while layer k-1 is simplified (tandem
-                                // schedules) and half of every large batch of edge
-                                // evaluations (DELAY, ACTIVATE)
+  bool pipeline = true;         // use the session's executor (identical results either
+                                // way): the slabs side by side, AddSlice queuing up to 4
+                                // slices; with one slab, EXTRACT(k) while layer k-1 is
+                                // simplified (tandem schedules) and half of every large
+                                // batch of edge evaluations (DELAY, ACTIVATE)
   int parts = 0;                // slabs along x (see above); 0 = automatic: 4 when the grid
                                 // is at least 256 wide, else 1. At most one part per 16
                                 // columns (fewer are used on narrow grids).
   static constexpr int kMaxParts = 64;
-  // Sealing (sealer.h): behind the sweep, vertices whose reach lies seal_margin slices below
+  // Sealing: behind the sweep, vertices whose reach lies seal_margin slices below
   // the front freeze, and the triangles they complete leave the session as sealed chunks
   // (TakeSealed): the session then holds the front, not the mesh, and the chunks together
   // are the result (WeldChunks; Snapshot() is only what is not sealed yet). Uses one part;

@@ -110,6 +110,17 @@ class ValueRangeSource final : public SliceSource {
 // Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
 
+// Every voxel must be a finite number. The one rule: a float32 whose exponent bits are all set
+// is NaN or infinite (integer types are always finite).
+constexpr bool NonFiniteBits(uint32_t float_bits) {
+  return (float_bits & 0x7f800000u) == 0x7f800000u;
+}
+// The index of the first of n float32 values at `bytes` (host order, any alignment) that is
+// not finite, or -1. One branch-free pass (vectorised) unless there is one.
+int64_t FirstNonFinite(const uint8_t* bytes, size_t n);
+// The refusal of such a value v at voxel (i, j) of a slice; the caller names the slice.
+absl::Status NonFiniteVoxelError(int64_t i, int64_t j, float v);
+
 // Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
 // *.nii.gz, *.tif / *.tiff (multi-page stack), a Zarr / OME-Zarr store (*.zarr, or a
 // directory holding Zarr metadata; "X.zarr#SELECTOR" picks a level or an array, see

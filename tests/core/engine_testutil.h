@@ -17,6 +17,7 @@
 #include "layer_extractor.h"
 #include "mesh_store.h"
 #include "simplifier.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

@@ -9,10 +9,8 @@
 
 #include "layer_extractor.h"
 #include "mc_tables.h"
-#include "prefetch.h"
-#include "tandem/run_session.h"
-#include "tandem/tandem.h"
 #include "mesh_store.h"
+#include "prefetch.h"
 #include "tandem/synthetic.h"
 #include "tandem/run_session.h"
 #include "tandem/tandem.h"
@@ -104,6 +102,57 @@ bool BoundaryOnBox(const IndexedMesh& m, double xmax, double ymax, double zmax) 
     i = j;
   }
   return true;
+}
+
+// The one finiteness rule (volume.h), which the session and the extractor apply and the
+// server relies on: the first non-finite voxel is found and named.
+TEST(NonFinite, FindsTheFirstNonFiniteVoxel) {
+  std::vector<float> v(16 * 12, 1.0f);
+  auto bytes = [&v] { return reinterpret_cast<const uint8_t*>(v.data()); };
+  auto first = [&](const uint8_t* b) { return FirstNonFinite(b, v.size()); };
+  EXPECT_EQ(first(bytes()), -1);
+  v[2 * 16 + 5] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ(first(bytes()), 2 * 16 + 5);
+  EXPECT_EQ(NonFiniteVoxelError(5, 2, v[2 * 16 + 5]).message().substr(0, 23),
+            "voxel (i=5, j=2) is NaN");
+  v[2 * 16 + 5] = 1;
+  v[0] = -std::numeric_limits<float>::infinity();
+  EXPECT_EQ(first(bytes()), 0);
+  EXPECT_NE(NonFiniteVoxelError(0, 0, v[0]).message().find("is infinite"), std::string::npos);
+  // The quick pass over all values must see the last one, largest finite values pass, and
+  // a NaN with a sign or a payload is still a NaN.
+  v[0] = std::numeric_limits<float>::max();
+  v[1] = -std::numeric_limits<float>::max();
+  v[2] = std::numeric_limits<float>::denorm_min();
+  EXPECT_EQ(first(bytes()), -1);
+  v.back() = -std::numeric_limits<float>::signaling_NaN();
+  EXPECT_EQ(first(bytes()), 16 * 12 - 1);
+  // Unaligned buffers (a chunk's bytes inside a larger message) are read as they are.
+  std::vector<uint8_t> shifted(v.size() * 4 + 1);
+  std::memcpy(shifted.data() + 1, v.data(), v.size() * 4);
+  EXPECT_EQ(first(shifted.data() + 1), 16 * 12 - 1);
+}
+
+// One slab or four, a slice with a NaN is refused with the same message, naming the voxel in
+// the whole grid's columns.
+TEST(NonFinite, SessionsOfOneOrManySlabsNameTheSameVoxel) {
+  VolumeInfo grid;
+  grid.nx = 300;
+  grid.ny = 20;
+  grid.nz = 4;
+  std::vector<float> slice(300 * 20, 1.0f);
+  slice[7 * 300 + 250] = std::numeric_limits<float>::quiet_NaN();
+  for (int parts : {1, 4}) {
+    SessionOptions o;
+    o.error = 0.5;
+    o.parts = parts;
+    auto s = TandemSession::Create(grid, o);
+    ASSERT_TRUE(s.ok()) << s.status();
+    const absl::Status st = (*s)->AddSlice(slice.data());
+    EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << parts;
+    EXPECT_NE(st.message().find("voxel (i=250, j=7) is NaN"), std::string::npos)
+        << parts << ": " << st.message();
+  }
 }
 
 TEST(MeshStore, AddRemoveReuseAndSnapshot) {
@@ -340,7 +389,7 @@ TEST(Extraction, NonFiniteValuesAreRejectedAndLeaveTheMeshUnchanged) {
   bad[6] = std::nanf("");
   absl::Status st = ex.AddSlice(bad.data());
   EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_NE(st.message().find("x=2, y=1"), std::string::npos) << st;
+  EXPECT_NE(st.message().find("voxel (i=2, j=1)"), std::string::npos) << st;
   EXPECT_EQ(ex.slices_done(), 1);
   ASSERT_TRUE(ex.AddSlice(s.data()).ok());
   ASSERT_TRUE(ex.AddSlice(s.data()).ok());
@@ -370,7 +419,7 @@ TEST(Extraction, ARejectedWideSliceLeavesTheExtractorAsItWas) {
         bad[static_cast<size_t>(33 * nx + 100)] = std::numeric_limits<float>::infinity();
         const absl::Status st = ex.AddSlice(bad.data());
         EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
-        EXPECT_NE(st.message().find("x=100, y=33"), std::string::npos) << st;
+        EXPECT_NE(st.message().find("voxel (i=100, j=33)"), std::string::npos) << st;
       }
       EXPECT_TRUE(ex.AddSlice(slice.data()).ok());
     }

@@ -14,6 +14,7 @@
 #include "sag_correction.h"
 #include "tandem/distance.h"
 #include "tandem/synthetic.h"
+#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"
 

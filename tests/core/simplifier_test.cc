@@ -505,7 +505,7 @@ TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
         const absl::Status st = bad == 1 ? (*session)->AddSlice(values.data())
                                          : (*session)->AddSliceBytes(DType::kFloat32, bad_bytes.data());
         EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
-        EXPECT_NE(st.message().find("x=50, y=5"), std::string_view::npos) << st;
+        EXPECT_NE(st.message().find("voxel (i=50, j=5)"), std::string_view::npos) << st;
       }
       ASSERT_TRUE((*session)->AddSliceBytes(src->info().dtype, bytes.data()).ok());
     }

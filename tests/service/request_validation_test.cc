@@ -225,37 +225,6 @@ TEST(ValidateChunk, ChecksIndexOffsetSizeAndDtype) {
               absl::StatusCode::kResourceExhausted, "--max-slices");
 }
 
-TEST(ValidateSliceValues, FindsTheFirstNonFiniteVoxel) {
-  v1::SessionConfig c = GoodConfig();
-  c.set_dtype(v1::DTYPE_FLOAT32);
-  auto cfg = ValidateConfig(c, ServerLimits{});
-  ASSERT_TRUE(cfg.ok());
-  std::vector<float> v(16 * 12, 1.0f);
-  auto bytes = [&v] { return reinterpret_cast<const uint8_t*>(v.data()); };
-  EXPECT_TRUE(ValidateSliceValues(*cfg, 0, bytes(), v.size() * 4).ok());
-  v[2 * 16 + 5] = std::numeric_limits<float>::quiet_NaN();
-  ExpectError(ValidateSliceValues(*cfg, 7, bytes(), v.size() * 4),
-              absl::StatusCode::kInvalidArgument, "slice 7: voxel (i=5, j=2) is NaN");
-  v[2 * 16 + 5] = 1;
-  v[0] = -std::numeric_limits<float>::infinity();
-  ExpectError(ValidateSliceValues(*cfg, 0, bytes(), v.size() * 4),
-              absl::StatusCode::kInvalidArgument, "infinite");
-  // The quick pass over all values must see the last one, largest finite values pass, and
-  // a NaN with a sign or a payload is still a NaN.
-  v[0] = std::numeric_limits<float>::max();
-  v[1] = -std::numeric_limits<float>::max();
-  v[2] = std::numeric_limits<float>::denorm_min();
-  EXPECT_TRUE(ValidateSliceValues(*cfg, 0, bytes(), v.size() * 4).ok());
-  v.back() = -std::numeric_limits<float>::signaling_NaN();
-  ExpectError(ValidateSliceValues(*cfg, 3, bytes(), v.size() * 4),
-              absl::StatusCode::kInvalidArgument, "slice 3: voxel (i=15, j=11) is NaN");
-  // Unaligned buffers (a chunk's bytes inside a larger message) are read as they are.
-  std::vector<uint8_t> shifted(v.size() * 4 + 1);
-  std::memcpy(shifted.data() + 1, v.data(), v.size() * 4);
-  ExpectError(ValidateSliceValues(*cfg, 3, shifted.data() + 1, v.size() * 4),
-              absl::StatusCode::kInvalidArgument, "(i=15, j=11) is NaN");
-}
-
 TEST(ValidateEnd, NeedsCompleteSlicesMatchingCounts) {
   auto cfg = ValidateConfig(GoodConfig(), ServerLimits{});
   ASSERT_TRUE(cfg.ok());
