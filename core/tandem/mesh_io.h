@@ -47,7 +47,7 @@ namespace tandem {
 // corners; GLB always has them; STL has its facet normals.
 // GLB with KHR_draco_mesh_compression: the primitive (positions, normals, triangles) as one
 // Draco buffer, which core cannot make (it holds no Draco): the caller's compressor makes
-// it (proto/codec: GlbDracoCompressor) from the mesh and its normals, and tells what the
+// it (codec/draco_codec.h: GlbDracoCompressor) from the mesh and its normals, and tells what the
 // buffer decodes to, for the glTF accessors: the counts (Draco may split a vertex), the
 // positions' bounds, and the Draco attribute ids of POSITION and NORMAL.
 struct GlbDracoPrimitive {

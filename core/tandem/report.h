@@ -56,7 +56,7 @@ inline bool HasServiceBytes(const MetricsReport& r) { return r.bytes_received ||
 
 // MetricsReport's one field table: f(key, member, when) for every field, `key` being where
 // the JSON holds it (a JSON pointer: "/time_s/extract" is {"time_s": {"extract": ...}}).
-// ReportToJson and ReportFromJson iterate it; the proto conversion (proto/common/wire.cc)
+// ReportToJson and ReportFromJson iterate it; the proto conversion (common/wire.cc)
 // lists the fields again, and tests/service/request_validation_test.cc checks that it
 // carries every one of these. A new figure: a member above, a line here, a FinalMetrics
 // field and its two lines in wire.cc (and MakeReport's line, if the session knows it).
