@@ -1,4 +1,4 @@
-// Headerless raw voxels described by a JSON sidecar (the format of ../shared/data):
+// Headerless raw voxels described by a JSON sidecar (what `tandem generate X.json` writes):
 //   {"dims": [nx, ny, nz], "dtype": "int16", "spacing": [sx, sy, sz], "origin": [..],
 //    "directions": [[x axis], [y axis], [z axis]] (optional, orthonormal; default identity),
 //    "byte_order": "little", "raw_file": "NAME.raw", "raw_bytes": N,

@@ -19,15 +19,18 @@
 
 namespace tandem {
 
-// Bits of MeshStore::box_mask: which faces of the grid's box a vertex lies on.
+// MeshStore::box_mask holds a vertex's flags: the faces of the grid's box it lies on
+// (BoxFace) and two states that also keep it from moving (VertexFlag).
 enum BoxFace : uint8_t {
   kBoxXMin = 1, kBoxXMax = 2, kBoxYMin = 4, kBoxYMax = 8, kBoxZMin = 16, kBoxZMax = 32,
-  // Not a box face: the vertex lies on a grid edge of the plane between two parts of a split
-  // session (tandem.h), shared with the neighbouring part. The simplifier never moves it
-  // until the parts are merged.
+};
+inline constexpr uint8_t kBoxFaces = kBoxXMin | kBoxXMax | kBoxYMin | kBoxYMax | kBoxZMin | kBoxZMax;
+enum VertexFlag : uint8_t {
+  // On a grid edge of the plane between two slabs (slabs.h), shared with the neighbouring
+  // slab. The simplifier never moves it until the slabs are merged.
   kSeam = 64,
-  // Not a box face either: the vertex is sealed (sealer.h). It never moves again and no
-  // contraction touches it; its triangles leave the store once all their corners are sealed.
+  // Sealed (sealer.h): it never moves again and no contraction touches it; its triangles
+  // leave the store once all their corners are sealed.
   kFrozen = 128,
 };
 

@@ -154,7 +154,6 @@ void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
   // at different heights) and off the box (no box face in common) is inside the slab, where
   // two of the layer's triangles share it: its reverse half-edge exists without looking
   // (the search below touches b's list and triangles, a cache miss or two per edge).
-  constexpr uint8_t kBoxFaces = kBoxXMin | kBoxXMax | kBoxYMin | kBoxYMax | kBoxZMin | kBoxZMax;
   for (int k = 0; k < 3; ++k) {
     const VertexId a = tri[k], b = tri[(k + 1) % 3];
     const bool queued_below =
