@@ -36,7 +36,7 @@ class Growing {
   virtual std::string Problem() const { return ""; }
 };
 
-// A DICOM series growing in a folder (reader_dicom.cc). done_file is ignored in listings.
+// A DICOM series growing in a folder (format_dicom.cc). done_file is ignored in listings.
 std::unique_ptr<Growing> MakeGrowingDicom(const std::string& dir, double stable_s,
                                           const std::string& done_file);
 

@@ -1,5 +1,5 @@
 // WriteVolume: raw + JSON sidecar, NRRD (attached/detached, raw/gzip), NIfTI-1 (.nii and
-// .nii.gz), Zarr / OME-Zarr (ZarrAppender) and, through reader_tiff.cc, multi-page TIFF.
+// .nii.gz), Zarr / OME-Zarr (ZarrAppender) and, through format_tiff.cc, multi-page TIFF.
 // Every writer streams: one slice is requested, converted to the stored byte order and written
 // before the next.
 #include "tandem/volume_writers.h"

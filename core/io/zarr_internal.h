@@ -1,4 +1,4 @@
-// Zarr pieces shared by the reader (reader_zarr.cc) and the writer (volume_writers.cc):
+// Zarr pieces shared by the reader (format_zarr.cc) and the writer (volume_writers.cc):
 // chunk codecs through libblosc, libzstd and zlib, and whole-file I/O.
 #ifndef TANDEM_SRC_ZARR_INTERNAL_H_
 #define TANDEM_SRC_ZARR_INTERNAL_H_

@@ -209,9 +209,8 @@ class WaitingQueue {
   void Push(const WEntry& e);
   // Calls take(e) for every entry with key <= front: bucket by bucket, each in push order,
   // then the far ones in push order; then calls done() and drops the released buckets. take
-  // and done may Push (keys > front); entries they push are not released by this call.
-  // Known limit (as before the split): take must not Push a far key while the far entries
-  // are being released, which would invalidate that scan.
+  // and done may Push (keys > front), far keys included; entries they push are not released
+  // by this call.
   template <typename Take, typename Done>
   void ReleaseUpTo(double front, Take&& take, Done&& done);
   size_t MemoryBytes() const;
@@ -237,17 +236,18 @@ void WaitingQueue::ReleaseUpTo(double front, Take&& take, Done&& done) {
     for (const WEntry& e : bucket) take(e);
   }
   if (!far_.empty()) {
-    // Released ones go with the rest; the others stay (empty on ordinary grids).
-    size_t kept = 0;
-    for (const WEntry& e : far_) {
+    // Released ones go with the rest; the others stay, in order (empty on ordinary grids).
+    // Scanned from a copy of its own: take may push far keys meanwhile.
+    std::vector<WEntry> far;
+    far.swap(far_);
+    for (const WEntry& e : far) {
       if (!(e.key > front)) {
         --size_;
         take(e);
       } else {
-        far_[kept++] = e;
+        far_.push_back(e);
       }
     }
-    far_.resize(kept);
   }
   done();
   if (b > 0) {

@@ -70,7 +70,13 @@ void TaskGroup::Run(std::function<void()> fn) {
     while (!unstarted_.empty() && unstarted_.front()->claimed) unstarted_.pop_front();
     unstarted_.push_back(task);
   }
-  executor_->Enqueue(std::move(task));
+  try {
+    executor_->Enqueue(std::move(task));
+  } catch (...) {  // only waiting threads can run it now
+    std::lock_guard<std::mutex> lock(mu_);
+    stranded_ = true;
+    throw;
+  }
 }
 
 void TaskGroup::Notify() {

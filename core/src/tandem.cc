@@ -66,8 +66,8 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
   VolumeInfo g = grid;
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
   if (absl::Status st = options.ValidateFor(g); !st.ok()) return st;
-  if (executor == nullptr) executor = &Executor::Shared();
   try {
+    if (executor == nullptr) executor = &Executor::Shared();
     const int slabs = SlabCount(g, options.parts, options.seal);
     return std::unique_ptr<TandemSession>(
         new TandemSession(std::make_unique<Impl>(g, options, slabs, executor)));
@@ -352,10 +352,12 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
       if (absl::Status st = QueuedFailure(); !st.ok()) return fail(st);
     }
     RingSlot& slot = ring[static_cast<size_t>(ring_next)];
-    steps->WaitUntil([&] {
-      std::lock_guard<std::mutex> lock(mu);
-      return slot.pending == 0;
-    });
+    steps->WaitUntil(
+        [&] {
+          std::lock_guard<std::mutex> lock(mu);
+          return slot.pending == 0;
+        },
+        /*help=*/false);
     // The slot is free (pending == 0) until it is queued: a refused slice leaves it so.
     slot.values.resize(n);
     float* dst = slot.values.data();

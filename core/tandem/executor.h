@@ -70,11 +70,14 @@ class TaskGroup {
   void Wait() { WaitUntil([] { return false; }); }
   // Until done() holds or no task is left (done is called with the group's lock held: it must
   // not call into the group). Tasks that change what done() reads call Notify() after.
+  // help = false: leave the tasks to the executor's threads when it has any (a thread that
+  // only feeds the executor, e.g. a session's caller, then does not compete with them).
   template <typename Done>
-  void WaitUntil(Done done) {
+  void WaitUntil(Done done, bool help = true) {
     std::unique_lock<std::mutex> lock(mu_);
+    help = help || executor_->threads() == 0;
     while (outstanding_ > 0 && !done()) {
-      if (!HelpLocked(lock)) cv_.wait(lock);
+      if (!(help || stranded_) || !HelpLocked(lock)) cv_.wait(lock);
     }
     RethrowLocked();
   }
@@ -93,6 +96,7 @@ class TaskGroup {
   std::condition_variable cv_;
   std::deque<std::shared_ptr<Executor::Task>> unstarted_;  // may hold claimed ones: skipped
   int outstanding_ = 0;
+  bool stranded_ = false;  // a task the executor never got (its queue could not grow)
   std::exception_ptr error_;
 };
 

@@ -106,6 +106,29 @@ TEST(WaitingQueue, ReleasesUpToTheFrontInBucketThenPushOrder) {
   EXPECT_EQ(w.size(), 0u);
 }
 
+// A far key pushed while the far entries are released (a re-evaluated edge whose reach is
+// huge) is kept for a later release, with the far entries not released yet.
+TEST(WaitingQueue, AFarKeyPushedDuringTheFarReleaseIsKept) {
+  WaitingQueue w;
+  auto entry = [](double key, uint32_t id) { return WEntry{key, id, id, 0, 0}; };
+  for (uint32_t i = 0; i < 64; ++i) w.Push(entry(i % 2 ? 1e20 : 1e30, i));  // all far
+  std::vector<uint32_t> out;
+  w.ReleaseUpTo(
+      1e25,
+      [&](const WEntry& e) {
+        out.push_back(e.a);
+        w.Push(entry(1e40, 100 + e.a));  // far again, during the scan
+      },
+      [] {});
+  EXPECT_EQ(out.size(), 32u);
+  EXPECT_EQ(w.size(), 64u);  // 32 kept + 32 pushed
+  std::vector<uint32_t> rest;
+  w.ReleaseUpTo(std::numeric_limits<double>::infinity(),
+                [&](const WEntry& e) { rest.push_back(e.a); }, [] {});
+  EXPECT_EQ(rest.size(), 64u);
+  EXPECT_EQ(w.size(), 0u);
+}
+
 // An entry pushed while a release runs (a re-evaluated edge whose key is past the front)
 // waits for a later front.
 TEST(WaitingQueue, PushesDuringAReleaseWait) {
