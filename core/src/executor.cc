@@ -66,9 +66,9 @@ void TaskGroup::Run(std::function<void()> fn) {
   task->group = this;
   {
     std::lock_guard<std::mutex> lock(mu_);
-    ++outstanding_;
     while (!unstarted_.empty() && unstarted_.front()->claimed) unstarted_.pop_front();
-    unstarted_.push_back(task);
+    unstarted_.push_back(task);  // may throw: then nothing has changed
+    ++outstanding_;
   }
   try {
     executor_->Enqueue(std::move(task));
