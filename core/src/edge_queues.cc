@@ -16,7 +16,7 @@ void EdgeQueue::Clear() {
 size_t EdgeQueue::MemoryBytes() const {
   size_t bytes = buckets_.capacity() * sizeof(std::vector<QNode>) + heaped_.capacity() * sizeof(size_t);
   for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(QNode);
-  return bytes + slots_.capacity() * sizeof(QEntry) + free_.capacity() * sizeof(uint32_t);
+  return bytes + slots_.capacity() * sizeof(QPlacement) + free_.capacity() * sizeof(uint32_t);
 }
 
 void WaitingQueue::Push(const WEntry& e) {

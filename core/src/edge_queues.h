@@ -67,10 +67,9 @@ void HeapPopFront(std::vector<Node>& h, Before before) {
   HeapSiftUp(h, hole, before);
 }
 
-// A queued edge's evaluation (Q), kept in a slot while its node is in the heap. With α = 0
-// the cost depends only on the two quadrics, which cannot change while the stamps match
-// (vertices in Q are complete), so a popped entry is used as it is; with α > 0 it is
-// recomputed.
+// A queued edge's evaluation (Q). With α = 0 the cost depends only on the two quadrics, which
+// cannot change while the stamps match (vertices in Q are complete), so a popped entry is used
+// as it is; with α > 0 it is recomputed.
 struct QEntry {
   VertexId a, b;
   uint32_t va, vb;  // version stamps
@@ -78,14 +77,19 @@ struct QEntry {
   double eps0;      // ε0 at pos
 };
 
-// Heap node: 16 bytes, so that sifting moves little and the heap stays in cache (the entries
-// themselves are 48). Equal keys (zero-cost edges on flat patches are common) pop newest
-// first: that keeps consecutive contractions in the same, cached, region.
+// Heap node: the key, the edge and its stamps (32 bytes, two per cache line), so that a stale
+// entry (most pops: five in six on a dense surface) is recognised without reading the rest of
+// its entry, which waits in a slot (a cache miss per read: the entry was written long ago).
+// Equal keys (zero-cost edges on flat patches are common) pop newest first: that keeps
+// consecutive contractions in the same, cached, region.
 struct QNode {
   double key;
-  uint32_t slot;  // index into the entries' slots
+  uint32_t slot;  // index into the placements' slots
   uint32_t seq;   // push counter (wraps; only orders ties)
+  VertexId a, b;
+  uint32_t va, vb;  // version stamps
 };
+static_assert(sizeof(QNode) == 32);
 // x pops before y: smaller key, or equal key and pushed later.
 inline bool QNodeBefore(const QNode& x, const QNode& y) {
   return (x.key < y.key) | ((x.key == y.key) & (x.seq > y.seq));  // no branches
@@ -93,7 +97,11 @@ inline bool QNodeBefore(const QNode& x, const QNode& y) {
 struct QNodeBeforeFn {  // as a type, so that the heap templates inline it
   bool operator()(const QNode& x, const QNode& y) const { return QNodeBefore(x, y); }
 };
-
+// The rest of a queued entry.
+struct QPlacement {
+  Vec3 pos;
+  double eps0;
+};
 // Q. Nodes by key in kBuckets buckets of width max_key / (kBuckets - 1) (the last one holds
 // every key beyond, which only a target triangle count queues). Only the lowest non-empty
 // bucket is kept as a 4-ary heap; pushes into higher buckets are appended and sifted in when
@@ -109,7 +117,15 @@ class EdgeQueue {
   bool empty() const { return size_ == 0; }
   void Push(double key, const QEntry& e);
   const QNode& Top();  // the node of the smallest key (not empty)
-  QEntry Pop();        // the entry of the smallest key; its slot is recycled
+  // Removes the node of the smallest key; its slot is recycled, so Placement(node) is valid
+  // until the next Push.
+  QNode Pop();
+  const QPlacement& Placement(const QNode& n) const { return slots_[n.slot]; }
+  // The node Top() would return unless a smaller key is pushed first, or null: a hint for
+  // prefetching, without Top's sifting.
+  const QNode* Next() const {
+    return (size_ > 0 && heaped_[cur_] > 0) ? &buckets_[cur_][0] : nullptr;
+  }
   void Clear();
   size_t MemoryBytes() const;
 
@@ -129,7 +145,7 @@ class EdgeQueue {
   size_t cur_ = 0;              // the lowest non-empty bucket (buckets below are empty)
   size_t size_ = 0;
   double scale_ = 0;  // buckets per unit of key
-  std::vector<QEntry> slots_;
+  std::vector<QPlacement> slots_;
   std::vector<uint32_t> free_;  // free slots
   uint32_t seq_ = 0;
 };
@@ -151,10 +167,10 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
   if (!free_.empty()) {
     slot = free_.back();
     free_.pop_back();
-    slots_[slot] = e;
+    slots_[slot] = QPlacement{e.pos, e.eps0};
   } else {
     slot = static_cast<uint32_t>(slots_.size());
-    slots_.push_back(e);
+    slots_.push_back(QPlacement{e.pos, e.eps0});
   }
   if (buckets_.empty()) {
     buckets_.resize(kBuckets);
@@ -163,7 +179,7 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
     cur_ = kBuckets - 1;
   }
   const size_t b = Bucket(key);
-  buckets_[b].push_back(QNode{key, slot, seq_++});
+  buckets_[b].push_back(QNode{key, slot, seq_++, e.a, e.b, e.va, e.vb});
   ++size_;
   if (b < cur_) {
     cur_ = b;  // was empty: a heap of one
@@ -180,15 +196,15 @@ inline const QNode& EdgeQueue::Top() {
   return buckets_[cur_][0];
 }
 
-inline QEntry EdgeQueue::Pop() {
+inline QNode EdgeQueue::Pop() {
   Enter();
   std::vector<QNode>& h = buckets_[cur_];
-  const uint32_t slot = h[0].slot;
+  const QNode node = h[0];
   HeapPopFront(h, QNodeBeforeFn{});
   heaped_[cur_] = h.size();
   --size_;
-  free_.push_back(slot);
-  return slots_[slot];
+  free_.push_back(node.slot);
+  return node;
 }
 
 // An edge waiting in W for the front (key = its release key).

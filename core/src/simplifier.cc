@@ -26,6 +26,7 @@ void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
   if (vs_.size() >= n) return;
   vs_.resize(n);
+  version_.resize(n);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
@@ -34,7 +35,7 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
     // Ids may be recycled from contracted vertices: start clean.
     vs_[v].q = Quadric{};
     vs_[v].rad = 1.0;
-    ++vs_[v].version;
+    ++version_[v];
   }
   for (TriId t : tris) {
     const auto& tri = store_->triangle(t);
@@ -113,7 +114,7 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // grow the heap (on a CT, most of Q). A later neighbour contraction re-pushes it with its
   // new cost; a target triangle count re-queues every edge first (RequeueAll).
   if (!keep_expensive_ && c.cost > opt_.error) return;
-  q_.Push(c.cost, QEntry{a, b, vs_[a].version, vs_[b].version, c.pos, c.eps0});
+  q_.Push(c.cost, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
 void Simplifier::RequeueAll() {
@@ -213,7 +214,7 @@ void Simplifier::FlushBatch() {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];
     if (r.to == 0) {
-      w_.Push(WEntry{r.key, e.a, e.b, vs_[e.a].version, vs_[e.b].version});
+      w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
     } else if (r.to == 1) {
       PushQ(e.a, e.b, r.c);
     } else {
@@ -232,7 +233,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     // when the endpoints' quadrics are complete.
     const double key = ReleaseKey(a, b, &c);
     if (key > front_) {
-      w_.Push(WEntry{key, a, b, vs_[a].version, vs_[b].version});
+      w_.Push(WEntry{key, a, b, version_[a], version_[b]});
       return;
     }
   }
@@ -281,14 +282,14 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   for (int i = 0; i < n_ab; ++i) store_->RemoveTriangle(on_ab[i]);
   store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);
-  ++vs_[b].version;
+  ++version_[b];
   vs_[a].q += vs_[b].q;
   store_->set_position(a, c.pos);
   store_->set_height(a, c.height);
   store_->set_layer(a, c.layer);
   store_->set_box_mask(a, c.box_mask);
   vs_[a].rad = c.rad;
-  ++vs_[a].version;
+  ++version_[a];
   ++contractions_;
   // Recorded from the geometry, not from the release key, so a broken key shows up here.
   max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
@@ -325,12 +326,17 @@ void Simplifier::Simplify(int64_t target_triangles) {
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const double key = q_.Top().key;
     if (!to_target && key > opt_.error) break;
-    const QEntry e = q_.Pop();
+    const QNode e = q_.Pop();
+    if (const QNode* next = q_.Next()) {  // its stamps are read next: start the loads now
+      __builtin_prefetch(&version_[next->a]);
+      __builtin_prefetch(&version_[next->b]);
+    }
     if (Stale(e)) continue;
+    const QPlacement& placement = q_.Placement(e);
     Candidate c;
-    c.pos = e.pos;
+    c.pos = placement.pos;
     c.cost = key;
-    c.eps0 = e.eps0;
+    c.eps0 = placement.eps0;
     if (opt_.alpha > 0.0) {
       // The memoryless isotropy term depends on the current neighbourhood: recompute.
       if (!Evaluate(e.a, e.b, &c)) {
@@ -368,7 +374,7 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
     vs_[dst].q = from.vs_[src].q;
     vs_[dst].rad = from.vs_[src].rad;
   }
-  ++vs_[dst].version;
+  ++version_[dst];
 }
 
 void Simplifier::AdoptCounters(const Simplifier& from) {
@@ -443,7 +449,7 @@ double Simplifier::ShapeErrorAt(VertexId v) const {
 
 void Simplifier::Freeze(VertexId v) {
   store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
-  ++vs_[v].version;
+  ++version_[v];
 }
 
 int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
@@ -454,12 +460,12 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<cons
   sag_moved_.clear();
   const int64_t count = tandem::CorrectSagAt(store_, verts, normal, sag_quadrics_, fraction,
                                              opt_.error, &sag_scratch_, &sag_moved_);
-  for (VertexId v : sag_moved_) ++vs_[v].version;  // moved: entries at v go stale
+  for (VertexId v : sag_moved_) ++version_[v];  // moved: entries at v go stale
   return count;
 }
 
 size_t Simplifier::MemoryBytes() const {
-  return vs_.capacity() * sizeof(VertexState) + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
+  return vs_.capacity() * sizeof(VertexState) + version_.capacity() * sizeof(uint32_t) + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult);

@@ -39,9 +39,10 @@ TEST(EdgeQueue, PopsBySmallestKeyThenNewestFirst) {
       return std::tie(x.key, y.seq) < std::tie(y.key, x.seq);
     });
     EXPECT_EQ(q.Top().key, best->key);
-    const QEntry e = q.Pop();
+    const QNode e = q.Pop();
     EXPECT_EQ(e.a, best->seq);
-    EXPECT_EQ(e.pos.x, double(best->seq));  // the entry travels with its node
+    EXPECT_EQ(e.b, best->seq + 1);
+    EXPECT_EQ(q.Placement(e).pos.x, double(best->seq));  // the placement travels with its node
     reference.erase(best);
   };
   for (int round = 0; round < 200; ++round) {
