@@ -37,6 +37,7 @@ VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t bo
   r.layer = layer;
   r.box = box_mask;
   r.alive = 1;
+  r.rad = 1.0;
   r.adj = AdjSlot{AllocSlot(0), 0, 0};
   ++live_vertices_;
   return v;

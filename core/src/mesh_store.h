@@ -72,6 +72,12 @@ class MeshStore {
   int32_t layer(VertexId v) const { return vtx_[v].layer; }
   void set_layer(VertexId v, int32_t l) { vtx_[v].layer = l; }
   uint8_t box_mask(VertexId v) const { return vtx_[v].box; }
+  // The time-lag's radius of the vertex's patch (slice units; 1 for a new vertex): the
+  // simplifier's bookkeeping, kept here beside height and layer, which it reads with it.
+  double rad(VertexId v) const { return vtx_[v].rad; }
+  // Starts loading v's record (a hint for loops that know which vertices come next).
+  void Prefetch(VertexId v) const { __builtin_prefetch(&vtx_[v]); }
+  void set_rad(VertexId v, double r) { vtx_[v].rad = r; }
   void set_box_mask(VertexId v, uint8_t m) { vtx_[v].box = m; }
 
   // One past the largest id ever handed out (ids below may be dead).
@@ -107,8 +113,8 @@ class MeshStore {
   void UnlinkTriangle(VertexId v, TriId t);
 
   // Vertices: one record each, all of a vertex in one cache line: the simplifier reads a
-  // neighbour's position, height, layer, box faces and triangle list together, at random
-  // ids (ids are recycled). docs/decisions.md: why one record.
+  // neighbour's position, height, rad, layer, box faces and triangle list together, at
+  // random ids (ids are recycled). docs/decisions.md: why one record.
   struct alignas(64) VertexRecord {
     Vec3 pos;
     double height = 0;
@@ -116,6 +122,7 @@ class MeshStore {
     int32_t layer = 0;
     uint8_t box = 0;
     uint8_t alive = 0;
+    double rad = 1.0;
   };
   static_assert(sizeof(VertexRecord) == 64);
   std::vector<VertexRecord> vtx_;

@@ -32,9 +32,8 @@ void Simplifier::EnsureVertexCapacity() {
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
   EnsureVertexCapacity();
   for (VertexId v : new_verts) {
-    // Ids may be recycled from contracted vertices: start clean.
+    // Ids may be recycled from contracted vertices: start clean (the store reset rad).
     vs_[v].q = Quadric{};
-    vs_[v].rad = 1.0;
     ++version_[v];
   }
   for (TriId t : tris) {
@@ -50,7 +49,7 @@ double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
   // rad(c) = (|a - b| + rad(a) + rad(b)) / 2, lengths in slice units.
   c->height = 0.5 * (store_->height(a) + store_->height(b));
   c->rad = 0.5 * (Norm(store_->position(a) - store_->position(b)) / opt_.slice_spacing +
-                  vs_[a].rad + vs_[b].rad);
+                  store_->rad(a) + store_->rad(b));
   c->layer = std::max(store_->layer(a), store_->layer(b));
   switch (opt_.release) {
     case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
@@ -177,8 +176,16 @@ void Simplifier::AddToBatch(VertexId a, VertexId b, bool released) {
 }
 
 void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
-  // PushEdge's decisions without its pushes; reads the store and the quadrics only.
+  // PushEdge's decisions without its pushes; reads the store and the quadrics only. The
+  // ends' records are mostly out of cache (a released edge was last touched a layer or two
+  // ago): their loads start kAhead edges early.
+  constexpr size_t kAhead = 8;
   for (size_t i = begin; i < end; ++i) {
+    if (i + kAhead < end) {
+      const BatchEdge& f = batch_[i + kAhead];
+      PrefetchVertex(f.a);
+      PrefetchVertex(f.b);
+    }
     const BatchEdge e = batch_[i];
     BatchResult& r = batch_results_[i];
     r.c = Candidate{};
@@ -288,7 +295,7 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   store_->set_height(a, c.height);
   store_->set_layer(a, c.layer);
   store_->set_box_mask(a, c.box_mask);
-  vs_[a].rad = c.rad;
+  store_->set_rad(a, c.rad);
   ++version_[a];
   ++contractions_;
   // Recorded from the geometry, not from the release key, so a broken key shows up here.
@@ -316,6 +323,7 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   scratch_.erase(std::unique(scratch_.begin(), scratch_.end()), scratch_.end());
   std::vector<VertexId> nbrs;
   nbrs.swap(scratch_);
+  for (VertexId x : nbrs) PrefetchVertex(x);
   for (VertexId x : nbrs) PushEdge(a, x);
   nbrs.swap(scratch_);
 }
@@ -372,7 +380,7 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
     vs_[dst].q += from.vs_[src].q;  // a seam vertex: each part saw its own triangles
   } else {
     vs_[dst].q = from.vs_[src].q;
-    vs_[dst].rad = from.vs_[src].rad;
+    store_->set_rad(dst, from.store_->rad(src));
   }
   ++version_[dst];
 }
@@ -431,7 +439,7 @@ void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> 
 }
 
 double Simplifier::MaxEdgeReach(VertexId v) const {
-  double reach = store_->height(v) + vs_[v].rad;
+  double reach = store_->height(v) + store_->rad(v);
   for (TriId t : store_->vertex_triangles(v)) {
     for (VertexId x : store_->triangle(t)) {
       if (x == v) continue;

@@ -95,7 +95,7 @@ class Simplifier {
   // Sealing (sealer.h): a frozen vertex (kFrozen) is never contracted, moved or queued again;
   // entries already queued at it go stale.
   void Freeze(VertexId v);
-  double rad(VertexId v) const { return vs_[v].rad; }
+  double rad(VertexId v) const { return store_->rad(v); }
   // The largest reach, height(c) + rad(c), of a contraction of v with a neighbour: once the
   // front has passed it, every edge at v has been offered to Q.
   double MaxEdgeReach(VertexId v) const;
@@ -152,18 +152,23 @@ class Simplifier {
     return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
   void Contract(VertexId a, VertexId b, const Candidate& c);
+  // Starts loading what an evaluation reads of v: its store record and its quadric.
+  void PrefetchVertex(VertexId v) const {
+    store_->Prefetch(v);
+    __builtin_prefetch(&vs_[v]);
+    __builtin_prefetch(reinterpret_cast<const char*>(&vs_[v]) + sizeof(VertexState) - 1);
+  }
 
   MeshStore* store_;
   SimplifierOptions opt_;
   double front_ = -std::numeric_limits<double>::infinity();
 
-  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end, together in
-  // one record (docs/decisions.md: why one record, unpadded).
+  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end besides the
+  // store's record (docs/decisions.md: why rad lives in the store).
   struct VertexState {
     Quadric q;
-    double rad = 1.0;
   };
-  static_assert(sizeof(VertexState) == 96);
+  static_assert(sizeof(VertexState) == sizeof(Quadric));
   std::vector<VertexState> vs_;
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a
   // cache line, and most popped entries are stale.
