@@ -36,8 +36,12 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
     vs_[v].q = Quadric{};
     ++version_[v];
   }
-  for (TriId t : tris) {
-    const auto& tri = store_->triangle(t);
+  for (size_t i = 0; i < tris.size(); ++i) {
+    // Corners on the plane below were made a layer ago, out of cache: start them early.
+    if (i + kAhead < tris.size()) {
+      for (VertexId v : store_->triangle(tris[i + kAhead])) PrefetchVertex(v);
+    }
+    const auto& tri = store_->triangle(tris[i]);
     const Quadric h = PlaneQuadric(store_->position(tri[0]), store_->position(tri[1]),
                                    store_->position(tri[2]));
     for (VertexId v : tri) vs_[v].q += h;
@@ -179,7 +183,6 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
   // PushEdge's decisions without its pushes; reads the store and the quadrics only. The
   // ends' records are mostly out of cache (a released edge was last touched a layer or two
   // ago): their loads start kAhead edges early.
-  constexpr size_t kAhead = 8;
   for (size_t i = begin; i < end; ++i) {
     if (i + kAhead < end) {
       const BatchEdge& f = batch_[i + kAhead];
@@ -255,8 +258,11 @@ void Simplifier::Delay(std::span<const TriId> tris) {
   EnsureVertexCapacity();
   // The tandem schedules delay one new layer at a time; classical delays the whole mesh.
   const bool new_layer = opt_.release != ReleaseRule::kImmediate;
-  for (TriId t : tris) {
-    if (store_->triangle_alive(t)) PushTriangleEdges(t, new_layer);
+  for (size_t i = 0; i < tris.size(); ++i) {
+    if (i + kAhead < tris.size() && store_->triangle_alive(tris[i + kAhead])) {
+      for (VertexId v : store_->triangle(tris[i + kAhead])) store_->Prefetch(v);
+    }
+    if (store_->triangle_alive(tris[i])) PushTriangleEdges(tris[i], new_layer);
   }
   FlushBatch();
 }

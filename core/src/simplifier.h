@@ -152,6 +152,8 @@ class Simplifier {
     return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
   void Contract(VertexId a, VertexId b, const Candidate& c);
+  // Loops over known edges or triangles start loading the records of the one kAhead places on.
+  static constexpr size_t kAhead = 8;
   // Starts loading what an evaluation reads of v: its store record and its quadric.
   void PrefetchVertex(VertexId v) const {
     store_->Prefetch(v);
