@@ -1,6 +1,8 @@
 #include "edge_queues.h"
 
 #include <algorithm>
+#include <cassert>
+#include <type_traits>
 
 namespace tandem {
 
@@ -11,6 +13,19 @@ void EdgeQueue::Clear() {
   size_ = 0;
   slots_.clear();
   free_.clear();
+}
+
+void EdgeQueue::Trim() {
+  assert(size_ == 0);
+  constexpr size_t kKeepBytes = 1024;  // 32 nodes; at most 1 MiB kept over all buckets
+  auto trim = [](auto& v) {
+    if (v.capacity() * sizeof(v[0]) > kKeepBytes) std::remove_reference_t<decltype(v)>().swap(v);
+  };
+  for (auto& bucket : buckets_) trim(bucket);
+  slots_.clear();  // every slot is free
+  free_.clear();
+  trim(slots_);
+  trim(free_);
 }
 
 size_t EdgeQueue::MemoryBytes() const {

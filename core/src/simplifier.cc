@@ -378,6 +378,7 @@ void Simplifier::Simplify(int64_t target_triangles) {
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
   }
+  if (q_.empty()) q_.Trim();
 }
 
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {

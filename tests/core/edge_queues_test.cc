@@ -72,6 +72,31 @@ TEST(EdgeQueue, ClearEmptiesAndKeepsWorking) {
   EXPECT_TRUE(q.empty());
 }
 
+// Trim on an empty Q gives back what its buckets and slots grew to, and Q then pops in the
+// same order as a Q that was never trimmed.
+TEST(EdgeQueue, TrimFreesThePeakAndKeepsTheOrder) {
+  EdgeQueue trimmed(1.0), kept(1.0);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int round = 0; round < 3; ++round) {
+    for (uint32_t i = 0; i < 200000; ++i) {
+      const double key = (i % 4 == 0) ? 0.5 : u(rng);
+      trimmed.Push(key, EntryFor(i));
+      kept.Push(key, EntryFor(i));
+    }
+    const size_t peak = trimmed.MemoryBytes();
+    while (!kept.empty()) {
+      const QNode x = trimmed.Pop(), y = kept.Pop();
+      ASSERT_EQ(x.a, y.a);
+      ASSERT_EQ(x.key, y.key);
+    }
+    ASSERT_TRUE(trimmed.empty());
+    trimmed.Trim();
+    EXPECT_LT(trimmed.MemoryBytes(), peak / 8);
+    EXPECT_GE(kept.MemoryBytes(), peak);  // untrimmed: the peak stays
+  }
+}
+
 // W hands out entries with key <= front, bucket by bucket (a bucket per integer front, ceil of
 // the key), each bucket in push order; keys beyond the window, infinite and NaN ones wait in
 // the far list and are released after the buckets (a NaN key by the next release).
