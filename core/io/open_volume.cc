@@ -198,20 +198,6 @@ uint64_t VolumeBytes(const VolumeInfo& info) {
   return static_cast<uint64_t>(info.slice_bytes()) * static_cast<uint64_t>(info.nz);
 }
 
-absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
-                        int64_t z, std::vector<uint8_t>* bytes) {
-  absl::Status st = slice_fn(z, bytes);
-  if (!st.ok()) {
-    return absl::Status(st.code(), absl::StrCat(path, ": slice ", z, ": ", st.message()));
-  }
-  if (bytes->size() != info.slice_bytes()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        path, ": slice ", z, " has ", bytes->size(), " bytes, expected ", info.slice_bytes(), " (",
-        info.nx, "x", info.ny, " ", Sv(DTypeName(info.dtype)), ")"));
-  }
-  return absl::OkStatus();
-}
-
 std::string VolumeExtension(const std::string& path) {
   std::string name = absl::AsciiStrToLower(std::filesystem::path(path).filename().string());
   if (name.size() > 3 && name.ends_with(".gz")) {

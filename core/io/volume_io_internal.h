@@ -1,6 +1,7 @@
 // Helpers shared by the volume readers and writers (not part of the public API): byte
-// order, plain/gzip byte streams, and one SliceSource for every format whose voxels are a
-// contiguous (possibly gzip-compressed) run of bytes: raw + sidecar, NRRD and NIfTI.
+// order, plain/gzip byte streams, one SliceSource for every format whose voxels are a
+// contiguous (possibly gzip-compressed) run of bytes (raw + sidecar, NRRD and NIfTI), and
+// the per-format entry points. Each format's reader and writer share one file, format_*.cc.
 #ifndef TANDEM_SRC_READERS_INTERNAL_H_
 #define TANDEM_SRC_READERS_INTERNAL_H_
 
@@ -8,6 +9,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <functional>
 #include <memory>
 #include <string>
@@ -62,10 +64,6 @@ std::string DescribeGrid(const VolumeInfo& info);
 
 // Total voxel bytes nx*ny*nz*DTypeSize (the caller has validated the info).
 uint64_t VolumeBytes(const VolumeInfo& info);
-
-// Writers: asks slice_fn for slice z and checks that it produced info.slice_bytes() bytes.
-absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
-                        int64_t z, std::vector<uint8_t>* bytes);
 
 // Lower-cased file name extension handling ".nii.gz"-style double extensions:
 // "a/b.NII.gz" -> ".nii.gz", "x.nrrd" -> ".nrrd", "noext" -> "".
@@ -141,10 +139,51 @@ absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file);
 absl::Status ReadTiffSequenceSlice(const std::string& path, const std::string& first,
                                    const VolumeInfo& info, std::vector<uint8_t>* bytes);
 
-// The TIFF writer lives next to the TIFF reader so that libtiff's error plumbing is in one
-// file. info is validated by the caller.
-absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
+// The writers WriteVolume picks by extension, each in its format's file (Zarr's, WriteZarr
+// and ZarrAppender, are public: tandem/zarr.h). info is validated by the caller.
+absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                          const VolumeWriteOptions& opts);  // format_raw.cc
+absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                       const VolumeWriteOptions& opts);  // format_nrrd.cc
+absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                        const VolumeWriteOptions& opts);  // format_nifti.cc
+absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,  // format_tiff.cc
                              const SliceFn& slice_fn, const VolumeWriteOptions& opts);
+
+// What the writers share (volume_writers.cc).
+
+// Asks slice_fn for slice z and checks that it produced info.slice_bytes() bytes.
+absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                        int64_t z, std::vector<uint8_t>* bytes);
+
+// SHA-256 (FIPS 180-4), streamed, for the sidecar's "sha256" key (same as `sha256sum`).
+class Sha256 {
+ public:
+  void Update(const uint8_t* data, size_t n);
+  std::string HexDigest();
+
+ private:
+  void Compress(const uint8_t* p);
+
+  uint32_t h_[8] = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
+                    0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+  uint8_t block_[64] = {};
+  size_t used_ = 0;
+  uint64_t total_ = 0;
+};
+
+// Streams slices 0..nz-1 from slice_fn to out in the requested byte order. observe (if set)
+// sees each slice in host order; stored (if set) sees the bytes as written.
+absl::Status StreamSlices(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                          bool big_endian, ByteWriter* out,
+                          const std::function<void(const std::vector<uint8_t>&)>& observe = {},
+                          Sha256* stored = nullptr);
+
+// Writes a small text file whole (headers, sidecars).
+absl::Status WriteText(const std::string& path, const std::string& text);
+
+// "dir/STEM" + new_ext for "dir/STEM.ext" (or "dir/STEM.nii.gz"): a detached data file.
+std::filesystem::path SiblingPath(const std::string& path, absl::string_view new_ext);
 
 // NIfTI-1 header layout (byte offsets into the 348-byte header), shared by reader and writer.
 namespace nifti {
