@@ -690,15 +690,13 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
   return r;
 }
 
-class ZarrSliceSource final : public SliceSource {
+class ZarrSliceSource final : public CountedSliceSource {
  public:
   ZarrSliceSource(std::string path, Resolved r, VolumeInfo info, std::vector<int64_t> lead,
                   int64_t first_plane)
-      : path_(std::move(path)),
+      : CountedSliceSource(std::move(path), std::move(info), OnFailure::kKeep, first_plane),
         r_(std::move(r)),
-        info_(std::move(info)),
-        lead_(std::move(lead)),
-        next_(first_plane) {
+        lead_(std::move(lead)) {
     const ArrayMeta& a = r_.array;
     es_ = DTypeSize(a.dtype);
     const size_t nd = a.shape.size();
@@ -706,27 +704,6 @@ class ZarrSliceSource final : public SliceSource {
     for (size_t d = nd - 1; d-- > 0;) stride_[d] = stride_[d + 1] * a.chunks[d + 1];
     chunk_elems_ = static_cast<size_t>(stride_[0] * a.chunks[0]);
     swap_ = a.big_endian == kHostIsLittleEndian && es_ > 1;
-  }
-
-  const VolumeInfo& info() const override { return info_; }
-  int64_t next_slice() const override { return next_; }
-
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
-    if (!sticky_.ok()) return sticky_;
-    if (next_ >= info_.nz) {
-      return absl::OutOfRangeError(
-          absl::StrCat(path_, ": no more slices (all ", info_.nz, " were read)"));
-    }
-    const int64_t depth = r_.array.chunks[r_.array.chunks.size() - 3];
-    const int64_t cz = next_ / depth;
-    if (cz != layer_cz_) {
-      if (absl::Status st = LoadLayer(cz); !st.ok()) return sticky_ = st;
-    }
-    const size_t plane = info_.slice_bytes();
-    const uint8_t* src = layer_.data() + static_cast<size_t>(next_ - cz * depth) * plane;
-    bytes->assign(src, src + plane);
-    ++next_;
-    return absl::OkStatus();
   }
 
   // Planes 0..n-1 whose chunk rows have every chunk file on disk, capped at the shape; rows
@@ -752,6 +729,18 @@ class ZarrSliceSource final : public SliceSource {
   }
 
  private:
+  absl::Status ReadNext(std::vector<uint8_t>* bytes) override {
+    const int64_t depth = r_.array.chunks[r_.array.chunks.size() - 3];
+    const int64_t cz = next_slice() / depth;
+    if (cz != layer_cz_) {
+      if (absl::Status st = LoadLayer(cz); !st.ok()) return st;
+    }
+    const size_t plane = info_.slice_bytes();
+    const uint8_t* src = layer_.data() + static_cast<size_t>(next_slice() - cz * depth) * plane;
+    bytes->assign(src, src + plane);
+    return absl::OkStatus();
+  }
+
   // The index of chunk (lead..., cz, 0, 0); *lead_offset (if set) gets the element offset of
   // the chosen t/c inside such a chunk.
   std::vector<int64_t> ChunkIndex(int64_t cz, size_t* lead_offset) const {
@@ -901,15 +890,12 @@ class ZarrSliceSource final : public SliceSource {
     }
   }
 
-  std::string path_;
   Resolved r_;
-  VolumeInfo info_;
   std::vector<int64_t> lead_;    // indices on the leading (t, c, ...) axes
   std::vector<int64_t> stride_;  // element strides inside a chunk
   size_t chunk_elems_ = 0;
   size_t es_ = 1;
   bool swap_ = false;
-  int64_t next_ = 0;
   int64_t layer_cz_ = -1;
   std::vector<uint8_t> layer_;  // one chunk-z layer: depth x ny x nx
   std::string raw_;             // one chunk file
@@ -919,7 +905,6 @@ class ZarrSliceSource final : public SliceSource {
   std::vector<uint8_t> fill_row_;
   std::unique_ptr<uint8_t[]> decoded_;  // one decoded chunk
   size_t decoded_size_ = 0;
-  absl::Status sticky_;
 };
 
 // growing: an array with fewer than 2 planes (so far) is not an error (follow mode counts

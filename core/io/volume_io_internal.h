@@ -14,6 +14,7 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -106,6 +107,49 @@ class ByteWriter {
  protected:
   explicit ByteWriter(std::string path) : path_(std::move(path)) {}
   std::string path_;
+};
+
+// The base of the file readers' sources: slices next_slice()..nz-1 of a volume of known
+// depth, handed out in order. ReadSlice returns a failure kept from an earlier call, then
+// OutOfRange past the last slice ("<name>: no more slices (all <nz> were read)"); otherwise
+// ReadNext reads slice next_slice() and the slice is counted once it is read.
+class CountedSliceSource : public SliceSource {
+ public:
+  const VolumeInfo& info() const final { return info_; }
+  int64_t next_slice() const final { return next_; }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) final;
+
+ protected:
+  // kKeep: a reader of one stream (a file read front to back, a TIFF's page directories, a
+  // Zarr layer) loses its place when a read fails, so every later call returns that
+  // failure. kRetry: a reader of one file per slice may ask for the same slice again.
+  enum class OnFailure { kKeep, kRetry };
+  CountedSliceSource(std::string name, VolumeInfo info, OnFailure on_failure,
+                     int64_t first_slice = 0)
+      : info_(std::move(info)),
+        name_(std::move(name)),
+        on_failure_(on_failure),
+        next_(first_slice) {}
+
+  // Reads slice next_slice() (< info_.nz) into *bytes, info_.slice_bytes() of them.
+  virtual absl::Status ReadNext(std::vector<uint8_t>* bytes) = 0;
+  // Once the last slice is counted: checks what follows it (a gzip stream: nothing).
+  virtual absl::Status AfterLastSlice() { return absl::OkStatus(); }
+
+  // For a ViewSlice of its own: the kept failure (ok if none), OutOfRange past the last
+  // slice, a failure to keep, and a slice handed out.
+  const absl::Status& kept_failure() const { return failure_; }
+  absl::Status NoMoreSlices() const;
+  absl::Status Keep(absl::Status failure) { return failure_ = std::move(failure); }
+  void Advance() { ++next_; }
+
+  const VolumeInfo info_;  // as delivered
+
+ private:
+  std::string name_;  // the file (or "DICOM series") named in NoMoreSlices
+  OnFailure on_failure_;
+  int64_t next_;
+  absl::Status failure_;
 };
 
 // Where and how the voxels of a contiguous-data volume are stored.
