@@ -23,34 +23,16 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) 
 MetricsReport MakeReport(const TandemSession& session, int64_t triangles, int64_t vertices,
                          const ShapeSums& shape) {
   MetricsReport r;
-  const SessionStats& st = session.stats();
-  const SessionOptions& o = session.options();
-  r.schedule = std::string(ScheduleName(o.schedule));
-  r.iso = o.iso;
-  r.error_threshold = o.error;
-  r.alpha = o.alpha;
-  r.distance_guard = o.distance_guard;
-  r.sag_correction = o.sag_correction;
-  r.sag_corrected = st.sag_corrected;
-  r.target_triangles = o.target_triangles;
+  r.options = session.options();
+  r.stats = session.stats();
   r.nx = session.grid().nx;
   r.ny = session.grid().ny;
-  r.nz = st.slices;
-  r.slices = st.slices;
-  r.crossed_cubes = st.crossed_cubes;
-  r.triangles_extracted = st.triangles_extracted;
+  r.nz = r.stats.slices;
   r.triangles_final = triangles;
   r.vertices_final = vertices;
-  r.peak_triangles = st.peak_triangles;
   r.error_max = session.MaxShapeError();
   r.anisotropy = shape.anisotropy();
   r.directional_bias = shape.directional_bias();
-  r.time_extract_s = st.time.extract_s;
-  r.time_simplify_s = st.time.simplify_s;
-  r.time_total_s = st.time.total_s;
-  r.trace = st.trace;
-  r.refusals = st.refusals;
-  r.contractions = st.contractions;
   return r;
 }
 
@@ -78,12 +60,15 @@ using Json = nlohmann::json;
 void PutJson(Json& j, const Json::json_pointer& key, const std::optional<Distances>& d) {
   if (d) j[key] = DistanceJson(*d);
 }
+void PutJson(Json& j, const Json::json_pointer& key, Schedule s) {
+  j[key] = std::string(ScheduleName(s));
+}
 template <class T>
 void PutJson(Json& j, const Json::json_pointer& key, const T& v) {
   j[key] = v;
 }
 
-void GetJson(const Json& v, std::optional<Distances>* out) {
+absl::Status GetJson(const Json& v, std::optional<Distances>* out) {
   Distances d;
   d.forward = {v["L1"]["forward"], v["L2"]["forward"], v["Linf"]["forward"]};
   d.backward = {v["L1"]["backward"], v["L2"]["backward"], v["Linf"]["backward"]};
@@ -91,10 +76,18 @@ void GetJson(const Json& v, std::optional<Distances>* out) {
   d.l2_max = v["L2"]["max"];
   d.linf_max = v["Linf"]["max"];
   *out = d;
+  return absl::OkStatus();
+}
+absl::Status GetJson(const Json& v, Schedule* out) {
+  absl::StatusOr<Schedule> s = ParseSchedule(v.get<std::string>());
+  if (!s.ok()) return s.status();
+  *out = *s;
+  return absl::OkStatus();
 }
 template <class T>
-void GetJson(const Json& v, T* out) {
+absl::Status GetJson(const Json& v, T* out) {
   v.get_to(*out);
+  return absl::OkStatus();
 }
 }  // namespace
 
@@ -116,15 +109,17 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
     return absl::InvalidArgumentError("metrics: not a JSON object");
   }
   MetricsReport r;
+  absl::Status status;
   try {
     // A field the JSON does not hold keeps its default.
     VisitReportFields(r, [&](const char* key, auto& v, Written) {
       const Json::json_pointer at(key);
-      if (j.contains(at)) GetJson(j.at(at), &v);
+      if (status.ok() && j.contains(at)) status = GetJson(j.at(at), &v);
     });
   } catch (const Json::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("metrics: ", e.what()));
   }
+  if (!status.ok()) return absl::InvalidArgumentError(absl::StrCat("metrics: ", status.message()));
   return r;
 }
 
@@ -133,21 +128,22 @@ std::string ReportSummary(const MetricsReport& r) {
   auto line = [&s](const std::string& k, const std::string& v) {
     absl::StrAppend(&s, absl::StrFormat("  %-22s %s\n", k, v));
   };
-  line("schedule", r.schedule);
+  line("schedule", std::string(ScheduleName(r.options.schedule)));
   line("grid", absl::StrCat(r.nx, " x ", r.ny, " x ", r.nz));
-  line("triangles extracted", absl::StrCat(r.triangles_extracted));
+  line("triangles extracted", absl::StrCat(r.stats.triangles_extracted));
   line("triangles final", absl::StrCat(r.triangles_final, " (", r.vertices_final, " vertices)"));
-  line("peak triangles held", absl::StrCat(r.peak_triangles));
-  if (r.schedule != "none") {
-    line("Error(K)", absl::StrFormat("%.6g (E0 = %.6g)", r.error_max, r.error_threshold));
+  line("peak triangles held", absl::StrCat(r.stats.peak_triangles));
+  if (r.options.schedule != Schedule::kNone) {
+    line("Error(K)", absl::StrFormat("%.6g (E0 = %.6g)", r.error_max, r.options.error));
   }
   line("anisotropy", absl::StrFormat("%.4f", r.anisotropy));
   line("directional bias", absl::StrFormat("%.5f", r.directional_bias));
   // The phases' figures add up the time of every thread that ran them (CPU seconds); the
   // total is wall-clock time in the session, which the threads overlap.
-  line("wall time in session", absl::StrFormat("%.3f s", r.time_total_s));
-  line("CPU extract/simplify", absl::StrFormat("%.3f s / %.3f s (all threads)", r.time_extract_s,
-                                               r.time_simplify_s));
+  const PhaseTimes& t = r.stats.time;
+  line("wall time in session", absl::StrFormat("%.3f s", t.total_s));
+  line("CPU extract/simplify",
+       absl::StrFormat("%.3f s / %.3f s (all threads)", t.extract_s, t.simplify_s));
   if (r.peak_session_bytes) {
     // Through a server: the session's own peak, and the process's, which all sessions share.
     line("peak session memory", absl::StrFormat("%.1f MiB", r.peak_session_bytes / 1048576.0));
@@ -158,13 +154,13 @@ std::string ReportSummary(const MetricsReport& r) {
   } else if (r.peak_rss_bytes) {
     line("peak RSS", absl::StrFormat("%.1f MiB", r.peak_rss_bytes / 1048576.0));
   }
-  line("contractions", absl::StrCat(r.contractions, " (refused: link ", r.refusals.link, ", flip ",
-                                    r.refusals.flip, ", degenerate ", r.refusals.degenerate,
-                                    ", box ", r.refusals.box, ", error ", r.refusals.error,
-                                    ", distance ", r.refusals.distance, ")"));
-  if (r.sag_correction > 0) {
+  const RefusalCounts& no = r.stats.refusals;
+  line("contractions", absl::StrCat(r.stats.contractions, " (refused: link ", no.link, ", flip ",
+                                    no.flip, ", degenerate ", no.degenerate, ", box ", no.box,
+                                    ", error ", no.error, ", distance ", no.distance, ")"));
+  if (r.options.sag_correction > 0) {
     line("sag correction",
-         absl::StrFormat("%g: %d vertices moved", r.sag_correction, r.sag_corrected));
+         absl::StrFormat("%g: %d vertices moved", r.options.sag_correction, r.stats.sag_corrected));
   }
   if (r.distance) {
     const Distances& d = *r.distance;

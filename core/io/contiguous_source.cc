@@ -96,47 +96,69 @@ class MappedVoxels {
   uint64_t released_ = 0;  // mapping bytes [0, released_) are given back
 };
 
-class StreamSliceSource final : public SliceSource {
+class StreamSliceSource final : public CountedSliceSource {
  public:
   StreamSliceSource(StreamVolumeSpec spec, std::unique_ptr<ByteReader> reader)
-      : spec_(std::move(spec)), reader_(std::move(reader)) {
-    info_ = spec_.info;
-    if (spec_.scale) info_.dtype = DType::kFloat32;
+      : CountedSliceSource(spec.path, Delivered(spec), OnFailure::kKeep),
+        spec_(std::move(spec)),
+        reader_(std::move(reader)) {
     where_ = spec_.data_path == spec_.path
                  ? spec_.path
                  : absl::StrCat(spec_.path, " (data file ", spec_.data_path, ")");
     swap_ = spec_.big_endian == kHostIsLittleEndian && DTypeSize(spec_.info.dtype) > 1;
   }
 
-  const VolumeInfo& info() const override { return info_; }
-  int64_t next_slice() const override { return next_; }
-
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
-    if (!sticky_.ok()) return sticky_;
-    if (next_ >= info_.nz) {
-      return absl::OutOfRangeError(
-          absl::StrCat(spec_.path, ": no more slices (all ", info_.nz, " were read)"));
+  absl::Status ViewSlice(const uint8_t** data) override {
+    *data = nullptr;
+    if (!kept_failure().ok()) return kept_failure();
+    // Only voxels usable as stored, from the start (ReadSlice has not moved the reader).
+    if (spec_.gzip || swap_ || spec_.scale || (map_ == nullptr && (no_map_ || next_slice() > 0))) {
+      return absl::OkStatus();
     }
+    if (next_slice() >= info_.nz) return NoMoreSlices();
+    if (map_ == nullptr) {
+      map_ = MappedVoxels::Open(spec_.data_path, spec_.data_offset, VolumeBytes(info_));
+      if (map_ == nullptr) {
+        no_map_ = true;  // e.g. a file system without mmap: ReadSlice it is
+        return absl::OkStatus();
+      }
+    }
+    absl::StatusOr<const uint8_t*> view = MappedSlice();
+    if (!view.ok()) return Keep(view.status());
+    *data = *view;
+    Advance();
+    return absl::OkStatus();
+  }
+
+ private:
+  // The volume as delivered: float32 when scaled.
+  static VolumeInfo Delivered(const StreamVolumeSpec& spec) {
+    VolumeInfo info = spec.info;
+    if (spec.scale) info.dtype = DType::kFloat32;
+    return info;
+  }
+
+  absl::Status ReadNext(std::vector<uint8_t>* bytes) override {
     const VolumeInfo& stored = spec_.info;
     const size_t stored_bytes = stored.slice_bytes();
     if (map_ != nullptr) {  // mapped by an earlier ViewSlice: stay at the same position
-      const uint8_t* view = nullptr;
-      if (absl::Status st = ViewSlice(&view); !st.ok()) return st;
-      bytes->assign(view, view + stored_bytes);
+      absl::StatusOr<const uint8_t*> view = MappedSlice();
+      if (!view.ok()) return view.status();
+      bytes->assign(*view, *view + stored_bytes);
       return absl::OkStatus();
     }
     std::vector<uint8_t>* target = spec_.scale ? &stored_slice_ : bytes;
     target->resize(stored_bytes);
     absl::StatusOr<size_t> got = reader_->Read(target->data(), stored_bytes);
-    if (!got.ok()) return sticky_ = got.status();
+    if (!got.ok()) return got.status();
     if (*got < stored_bytes) {
-      const uint64_t have = static_cast<uint64_t>(next_) * stored_bytes + *got;
+      const uint64_t have = static_cast<uint64_t>(next_slice()) * stored_bytes + *got;
       std::string why = reader_->EndReason();
       if (!why.empty()) why = absl::StrCat(" (", why, ")");
-      return sticky_ = absl::DataLossError(
-                 absl::StrCat(where_, ": truncated: expected ", VolumeBytes(stored),
-                              " bytes of voxel data (", DescribeGrid(stored), "), ",
-                              spec_.gzip ? "compressed stream has " : "file has ", have, why));
+      return absl::DataLossError(
+          absl::StrCat(where_, ": truncated: expected ", VolumeBytes(stored),
+                       " bytes of voxel data (", DescribeGrid(stored), "), ",
+                       spec_.gzip ? "compressed stream has " : "file has ", have, why));
     }
     if (swap_) SwapBytesInPlace(target->data(), stored.slice_voxels(), DTypeSize(stored.dtype));
     if (spec_.scale) {
@@ -147,62 +169,41 @@ class StreamSliceSource final : public SliceSource {
       bytes->resize(scaled_.size() * sizeof(float));
       std::memcpy(bytes->data(), scaled_.data(), bytes->size());
     }
-    ++next_;
-    // A plain file's size was checked at open time; a gzip stream can only be checked here.
-    if (next_ == info_.nz && spec_.gzip) {
-      uint8_t extra;
-      absl::StatusOr<size_t> more = reader_->Read(&extra, 1);
-      if (more.ok() && *more > 0) {
-        return sticky_ = absl::DataLossError(absl::StrCat(
-                   where_, ": size mismatch: compressed stream holds more than the ",
-                   VolumeBytes(stored), " bytes of voxel data that ", DescribeGrid(stored),
-                   " needs (wrong dims or dtype in the header?)"));
-      }
+    return absl::OkStatus();
+  }
+
+  // A plain file's size was checked at open time; a gzip stream can only be checked here.
+  absl::Status AfterLastSlice() override {
+    if (!spec_.gzip) return absl::OkStatus();
+    uint8_t extra;
+    absl::StatusOr<size_t> more = reader_->Read(&extra, 1);
+    if (more.ok() && *more > 0) {
+      const VolumeInfo& stored = spec_.info;
+      return absl::DataLossError(absl::StrCat(
+          where_, ": size mismatch: compressed stream holds more than the ", VolumeBytes(stored),
+          " bytes of voxel data that ", DescribeGrid(stored),
+          " needs (wrong dims or dtype in the header?)"));
     }
     return absl::OkStatus();
   }
 
-  absl::Status ViewSlice(const uint8_t** data) override {
-    *data = nullptr;
-    if (!sticky_.ok()) return sticky_;
-    // Only voxels usable as stored, from the start (ReadSlice has not moved the reader).
-    if (spec_.gzip || swap_ || spec_.scale || (map_ == nullptr && (no_map_ || next_ > 0))) {
-      return absl::OkStatus();
-    }
-    if (next_ >= info_.nz) {
-      return absl::OutOfRangeError(
-          absl::StrCat(spec_.path, ": no more slices (all ", info_.nz, " were read)"));
-    }
+  // Slice next_slice() in the mapping (map_ is set), once the file still holds it.
+  absl::StatusOr<const uint8_t*> MappedSlice() {
     const uint64_t slice = info_.slice_bytes();
-    if (map_ == nullptr) {
-      map_ = MappedVoxels::Open(spec_.data_path, spec_.data_offset, VolumeBytes(info_));
-      if (map_ == nullptr) {
-        no_map_ = true;  // e.g. a file system without mmap: ReadSlice it is
-        return absl::OkStatus();
-      }
-    }
-    const uint64_t begin = static_cast<uint64_t>(next_) * slice;
+    const uint64_t begin = static_cast<uint64_t>(next_slice()) * slice;
     absl::StatusOr<const uint8_t*> view =
         map_->Range(begin, begin + slice, begin + (1 + kReadAhead) * slice);
-    if (!view.ok()) {
-      return sticky_ = absl::DataLossError(absl::StrCat(where_, ": ", view.status().message()));
-    }
-    *data = *view;
-    ++next_;
-    return absl::OkStatus();
+    if (!view.ok()) return absl::DataLossError(absl::StrCat(where_, ": ", view.status().message()));
+    return *view;
   }
 
- private:
   static constexpr uint64_t kReadAhead = 4;  // slices asked of the disk ahead of the view
   StreamVolumeSpec spec_;
   std::unique_ptr<MappedVoxels> map_;  // set by the first ViewSlice where mapping works
   bool no_map_ = false;
   std::unique_ptr<ByteReader> reader_;
-  VolumeInfo info_;  // as delivered (float32 when scaled)
   std::string where_;
   bool swap_ = false;
-  int64_t next_ = 0;
-  absl::Status sticky_;                // a failed stream stays failed
   std::vector<uint8_t> stored_slice_;  // scaled volumes: the slice as stored
   std::vector<float> scaled_;
 };

@@ -519,31 +519,21 @@ absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const Valu
   });
 }
 
-class DicomSliceSource final : public SliceSource {
+// One file per slice (info.nz == slices.size()).
+class DicomSliceSource final : public internal::CountedSliceSource {
  public:
   DicomSliceSource(std::vector<SliceHeader> slices, VolumeInfo info, ValuePlan plan)
-      : slices_(std::move(slices)), info_(std::move(info)), plan_(plan) {}
-
-  const VolumeInfo& info() const override { return info_; }
-  int64_t next_slice() const override { return next_; }
-
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
-    if (next_ >= static_cast<int64_t>(slices_.size())) {
-      return absl::OutOfRangeError(absl::StrCat("DICOM series: no more slices (all ",
-                                                slices_.size(), " were read)"));
-    }
-    if (absl::Status st = ReadPixels(slices_[next_], info_, plan_, &buffer_, bytes); !st.ok()) {
-      return st;
-    }
-    ++next_;
-    return absl::OkStatus();
-  }
+      : CountedSliceSource("DICOM series", std::move(info), OnFailure::kRetry),
+        slices_(std::move(slices)),
+        plan_(plan) {}
 
  private:
+  absl::Status ReadNext(std::vector<uint8_t>* bytes) override {
+    return ReadPixels(slices_[next_slice()], info_, plan_, &buffer_, bytes);
+  }
+
   std::vector<SliceHeader> slices_;
-  VolumeInfo info_;
   ValuePlan plan_;
-  int64_t next_ = 0;
   std::vector<uint8_t> buffer_;
 };
 

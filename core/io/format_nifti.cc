@@ -6,9 +6,13 @@
 // give each axis's spacing (length) and direction (rotations and flips applied), its last
 // column the origin. Intensity scaling follows the standard:
 // scl_slope == 0 means "none"; otherwise, unless it is the identity (slope 1, inter 0),
-// slices are delivered as float32 value * scl_slope + scl_inter.
+// slices are delivered as float32 value * scl_slope + scl_inter. WriteNifti (below) writes
+// a single file, plain or gzip, with the frame in both the sform and the qform.
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <string>
 
 #include <nifti1_io.h>
@@ -262,6 +266,85 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenNiftiVolume(const std::string& 
   absl::StatusOr<StreamVolumeSpec> spec = ParseHeader(path, hdr, *gzip);
   if (!spec.ok()) return spec.status();
   return OpenStreamVolume(*std::move(spec));
+}
+
+// ---------------------------------------------------------------------------------------
+// Writer.
+
+absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                        const VolumeWriteOptions& opts) {
+  if (info.nx > 32767 || info.ny > 32767 || info.nz > 32767) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        path, ": NIfTI-1 dimensions are limited to 32767 per axis (", DescribeGrid(info), ")"));
+  }
+  const bool gzip = VolumeExtension(path) == ".nii.gz";
+  const bool swap = opts.big_endian == kHostIsLittleEndian;
+  // 348-byte header + the 4-byte "no extensions" flag; voxels start at 352.
+  std::array<uint8_t, 352> hdr{};
+  StoreScalar<int32_t>(hdr.data() + nh::kSizeofHdr, nh::kHeaderSize, swap);
+  const int16_t dim[8] = {3,
+                          static_cast<int16_t>(info.nx),
+                          static_cast<int16_t>(info.ny),
+                          static_cast<int16_t>(info.nz),
+                          1,
+                          1,
+                          1,
+                          1};
+  for (int i = 0; i < 8; ++i) StoreScalar<int16_t>(hdr.data() + nh::kDim + 2 * i, dim[i], swap);
+  const int16_t datatype = info.dtype == DType::kUInt8    ? nh::kTypeUInt8
+                           : info.dtype == DType::kUInt16 ? nh::kTypeUInt16
+                           : info.dtype == DType::kInt16  ? nh::kTypeInt16
+                                                          : nh::kTypeFloat32;
+  StoreScalar<int16_t>(hdr.data() + nh::kDatatype, datatype, swap);
+  StoreScalar<int16_t>(hdr.data() + nh::kBitpix, static_cast<int16_t>(8 * DTypeSize(info.dtype)),
+                       swap);
+  const float pixdim[8] = {1.0f,  // qfac
+                           static_cast<float>(info.spacing[0]),
+                           static_cast<float>(info.spacing[1]),
+                           static_cast<float>(info.spacing[2]),
+                           1.0f,
+                           1.0f,
+                           1.0f,
+                           1.0f};
+  for (int i = 0; i < 8; ++i) StoreScalar<float>(hdr.data() + nh::kPixdim + 4 * i, pixdim[i], swap);
+  StoreScalar<float>(hdr.data() + nh::kVoxOffset, 352.0f, swap);
+  StoreScalar<float>(hdr.data() + nh::kSclSlope, opts.nifti_scl_slope, swap);
+  StoreScalar<float>(hdr.data() + nh::kSclInter, opts.nifti_scl_inter, swap);
+  hdr[nh::kXyztUnits] = 2;  // NIFTI_UNITS_MM
+  std::memcpy(hdr.data() + nh::kDescrip, info.description.data(),
+              std::min<size_t>(info.description.size(), 79));
+  // The grid's frame in both forms: the sform holds the matrix (axis a's column = spacing x
+  // direction, the origin last), the qform the same as a quaternion (nifticlib converts).
+  StoreScalar<int16_t>(hdr.data() + nh::kQformCode, 1, swap);
+  StoreScalar<int16_t>(hdr.data() + nh::kSformCode, 1, swap);
+  mat44 m{};
+  for (int r = 0; r < 3; ++r) {
+    for (int a = 0; a < 3; ++a) {
+      m.m[r][a] = static_cast<float>(info.directions[a][r] * info.spacing[a]);
+    }
+    m.m[r][3] = static_cast<float>(info.origin[r]);
+  }
+  m.m[3][3] = 1.0f;
+  float qb, qc, qd, qx, qy, qz, dx, dy, dz, qfac;
+  nifti_mat44_to_quatern(m, &qb, &qc, &qd, &qx, &qy, &qz, &dx, &dy, &dz, &qfac);
+  StoreScalar<float>(hdr.data() + nh::kPixdim, qfac, swap);
+  const float quatern[3] = {qb, qc, qd};
+  for (int i = 0; i < 3; ++i) StoreScalar<float>(hdr.data() + nh::kQuaternB + 4 * i, quatern[i], swap);
+  for (int a = 0; a < 3; ++a) {
+    const float origin = static_cast<float>(info.origin[a]);
+    StoreScalar<float>(hdr.data() + nh::kQoffsetX + 4 * a, origin, swap);
+    uint8_t* row = hdr.data() + nh::kSrowX + 16 * a;
+    for (int c = 0; c < 3; ++c) StoreScalar<float>(row + 4 * c, m.m[a][c], swap);
+    StoreScalar<float>(row + 12, origin, swap);
+  }
+  std::memcpy(hdr.data() + nh::kMagic, "n+1\0", 4);
+
+  absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(path, gzip);
+  if (!w.ok()) return w.status();
+  absl::Status st = (*w)->Write(hdr.data(), hdr.size());
+  if (st.ok()) st = StreamSlices(path, info, slice_fn, opts.big_endian, w->get());
+  if (st.ok()) st = (*w)->Close();
+  return st;
 }
 
 }  // namespace tandem::internal

@@ -3,7 +3,8 @@
 // aliases; encodings raw and gzip; endian little/big; "spacings" or "space directions"
 // (lengths = spacing, unit vectors = the grid axes in the file's space: rotations and flips
 // are applied, sheared grids refused); "space origin"; "byte skip" >= 0 (and -1 for raw data); "content" becomes the
-// description and a "suggested_isovalues:=v1 v2" key/value pair is read back.
+// description and a "suggested_isovalues:=v1 v2" key/value pair is read back. WriteNrrd
+// (below) writes both forms, raw or gzip, in either byte order.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -16,6 +17,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
 #include "volume_io_internal.h"
@@ -322,6 +324,66 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenNrrdVolume(const std::string& p
   absl::StatusOr<StreamVolumeSpec> spec = ParseNrrd(path, *header);
   if (!spec.ok()) return spec.status();
   return OpenStreamVolume(*std::move(spec));
+}
+
+// ---------------------------------------------------------------------------------------
+// Writer.
+
+namespace {
+
+std::string OneLine(absl::string_view s) {
+  return absl::StrReplaceAll(s, {{"\r", " "}, {"\n", " "}});
+}
+
+}  // namespace
+
+absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                       const VolumeWriteOptions& opts) {
+  const bool detached = VolumeExtension(path) == ".nhdr";
+  const char* type = info.dtype == DType::kUInt8    ? "uint8"
+                     : info.dtype == DType::kUInt16 ? "uint16"
+                     : info.dtype == DType::kInt16  ? "int16"
+                                                    : "float";
+  const auto& s = info.spacing;
+  const auto& o = info.origin;
+  std::string dirs;  // one voxel step per axis, in the world
+  for (int a = 0; a < 3; ++a) {
+    const auto& d = info.directions[a];
+    absl::StrAppend(&dirs, a ? " (" : "(", FormatDouble(d[0] * s[a] + 0.0), ",",
+                    FormatDouble(d[1] * s[a] + 0.0), ",", FormatDouble(d[2] * s[a] + 0.0), ")");
+  }
+  std::string header = absl::StrCat(
+      "NRRD0004\n# written by tandem\ntype: ", type, "\ndimension: 3\nsizes: ", info.nx, " ",
+      info.ny, " ", info.nz, "\nspace dimension: 3\nspace directions: ", dirs,
+      "\nspace origin: (",
+      FormatDouble(o[0]), ",", FormatDouble(o[1]), ",", FormatDouble(o[2]),
+      ")\nkinds: domain domain domain\nendian: ", opts.big_endian ? "big" : "little",
+      "\nencoding: ", opts.gzip ? "gzip" : "raw", "\n");
+  if (!info.description.empty())
+    absl::StrAppend(&header, "content: ", OneLine(info.description), "\n");
+  if (!info.suggested_isovalues.empty()) {
+    absl::StrAppend(&header, "suggested_isovalues:=");
+    for (size_t i = 0; i < info.suggested_isovalues.size(); ++i) {
+      absl::StrAppend(&header, i ? " " : "", FormatDouble(info.suggested_isovalues[i]));
+    }
+    absl::StrAppend(&header, "\n");
+  }
+  std::string data_path = path;
+  if (detached) {
+    data_path = SiblingPath(path, opts.gzip ? ".raw.gz" : ".raw").string();
+    absl::StrAppend(&header, "data file: ", std::filesystem::path(data_path).filename().string(),
+                    "\n");
+  } else {
+    absl::StrAppend(&header, "\n");  // the blank line that ends an attached header
+  }
+  if (absl::Status st = WriteText(path, header); !st.ok()) return st;
+  // Attached: the data (a gzip member if compressed) is appended right after the header.
+  absl::StatusOr<std::unique_ptr<ByteWriter>> w =
+      ByteWriter::Open(data_path, opts.gzip, /*append=*/!detached);
+  if (!w.ok()) return w.status();
+  absl::Status st = StreamSlices(path, info, slice_fn, opts.big_endian, w->get());
+  if (st.ok()) st = (*w)->Close();
+  return st;
 }
 
 }  // namespace tandem::internal

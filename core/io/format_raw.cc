@@ -5,8 +5,13 @@
 //    "suggested_isovalues": [..], "description": ".."}
 // Only dims and dtype are required. raw_file is relative to the sidecar's folder and
 // defaults to the sidecar's stem + ".raw". Voxels are x fastest, then y, then z.
+// WriteRawJson (below) writes the same pair, with value_range and sha256 added.
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
+#include <limits>
 #include <string>
 
 #include "absl/strings/str_cat.h"
@@ -167,6 +172,90 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& js
   }
   if (!spec.ok()) return spec.status();
   return OpenStreamVolume(*std::move(spec));
+}
+
+// ---------------------------------------------------------------------------------------
+// Writer: raw voxels in STEM.raw beside the JSON sidecar.
+
+namespace {
+
+// Running min/max of the voxel values (NaNs skipped), for the sidecar's "value_range".
+class ValueRange {
+ public:
+  void Add(DType t, const uint8_t* host, size_t n) {
+    switch (t) {
+      case DType::kUInt8: return AddTyped<uint8_t>(host, n);
+      case DType::kUInt16: return AddTyped<uint16_t>(host, n);
+      case DType::kInt16: return AddTyped<int16_t>(host, n);
+      case DType::kFloat32: return AddTyped<float>(host, n);
+    }
+  }
+  bool empty() const { return !(lo_ <= hi_); }
+  double lo() const { return lo_; }
+  double hi() const { return hi_; }
+
+ private:
+  template <typename T>
+  void AddTyped(const uint8_t* p, size_t n) {
+    for (size_t i = 0; i < n; ++i) {
+      T v;
+      std::memcpy(&v, p + i * sizeof(T), sizeof(T));
+      const double d = static_cast<double>(v);
+      if (std::isnan(d)) continue;
+      lo_ = std::min(lo_, d);
+      hi_ = std::max(hi_, d);
+    }
+  }
+  double lo_ = std::numeric_limits<double>::infinity();
+  double hi_ = -std::numeric_limits<double>::infinity();
+};
+
+}  // namespace
+
+absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                          const VolumeWriteOptions& opts) {
+  const std::filesystem::path raw_path = SiblingPath(path, ".raw");
+  absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(raw_path.string(), false);
+  if (!w.ok()) return w.status();
+  ValueRange range;
+  Sha256 sha;
+  absl::Status st = StreamSlices(
+      path, info, slice_fn, opts.big_endian, w->get(),
+      [&](const std::vector<uint8_t>& s) { range.Add(info.dtype, s.data(), info.slice_voxels()); },
+      &sha);
+  if (st.ok()) st = (*w)->Close();
+  if (!st.ok()) return st;
+
+  using ojson = nlohmann::ordered_json;
+  ojson j;
+  j["dims"] = {info.nx, info.ny, info.nz};
+  j["dtype"] = std::string(DTypeName(info.dtype));
+  j["spacing"] = {info.spacing[0], info.spacing[1], info.spacing[2]};
+  j["origin"] = {info.origin[0], info.origin[1], info.origin[2]};
+  if (!info.axis_aligned()) {
+    const auto& d = info.directions;
+    j["directions"] = {{d[0][0], d[0][1], d[0][2]}, {d[1][0], d[1][1], d[1][2]},
+                       {d[2][0], d[2][1], d[2][2]}};
+  }
+  j["byte_order"] = opts.big_endian ? "big" : "little";
+  j["layout"] = "x fastest, then y, then z: offset=((k*ny+j)*nx+i)*sizeof(dtype)";
+  j["source"] = opts.source;
+  j["license"] = opts.license;
+  j["suggested_isovalues"] = info.suggested_isovalues;
+  j["description"] = info.description;
+  j["modality"] = opts.modality;
+  if (range.empty()) {
+    j["value_range"] = nullptr;
+  } else if (info.dtype == DType::kFloat32) {
+    j["value_range"] = {range.lo(), range.hi()};
+  } else {
+    j["value_range"] = {static_cast<int64_t>(range.lo()), static_cast<int64_t>(range.hi())};
+  }
+  j["raw_file"] = raw_path.filename().string();
+  j["raw_bytes"] = VolumeBytes(info);
+  j["sha256"] = sha.HexDigest();
+  // replace: invalid UTF-8 in a description must not throw.
+  return WriteText(path, j.dump(1, ' ', false, ojson::error_handler_t::replace));
 }
 
 }  // namespace tandem::internal

@@ -211,35 +211,25 @@ ImageJInfo ParseImageJ(absl::string_view desc) {
   return ij;
 }
 
-class TiffSliceSource final : public SliceSource {
+class TiffSliceSource final : public CountedSliceSource {
  public:
   TiffSliceSource(std::unique_ptr<TiffFile> file, VolumeInfo info)
-      : file_(std::move(file)), info_(std::move(info)) {}
-
-  const VolumeInfo& info() const override { return info_; }
-  int64_t next_slice() const override { return next_; }
-
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
-    if (!sticky_.ok()) return sticky_;
-    if (next_ >= info_.nz) {
-      return absl::OutOfRangeError(
-          absl::StrCat(file_->path(), ": no more slices (all ", info_.nz, " were read)"));
-    }
-    TIFF* tif = file_->get();
-    if (next_ > 0 && !TIFFReadDirectory(tif)) {
-      return sticky_ = Failure("cannot read the page directory");
-    }
-    bytes->resize(info_.slice_bytes());
-    absl::Status st = TIFFIsTiled(tif) ? ReadTiles(bytes->data()) : ReadStrips(bytes->data());
-    if (!st.ok()) return sticky_ = st;
-    ++next_;
-    return absl::OkStatus();
-  }
+      : CountedSliceSource(file->path(), std::move(info), OnFailure::kKeep),
+        file_(std::move(file)) {}
 
  private:
+  absl::Status ReadNext(std::vector<uint8_t>* bytes) override {
+    TIFF* tif = file_->get();
+    if (next_slice() > 0 && !TIFFReadDirectory(tif)) {
+      return Failure("cannot read the page directory");
+    }
+    bytes->resize(info_.slice_bytes());
+    return TIFFIsTiled(tif) ? ReadTiles(bytes->data()) : ReadStrips(bytes->data());
+  }
+
   absl::Status Failure(absl::string_view what) {
     return absl::DataLossError(
-        absl::StrCat(file_->path(), ": page ", next_, ": ", what,
+        absl::StrCat(file_->path(), ": page ", next_slice(), ": ", what,
                      " (truncated or corrupt file?): ", file_->TakeErrors("libtiff error")));
   }
 
@@ -290,9 +280,6 @@ class TiffSliceSource final : public SliceSource {
   }
 
   std::unique_ptr<TiffFile> file_;
-  VolumeInfo info_;
-  int64_t next_ = 0;
-  absl::Status sticky_;
   std::vector<uint8_t> tile_;  // reused tile buffer
 };
 
@@ -428,31 +415,18 @@ absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file) {
 namespace {
 
 // One single-page TIFF per slice, opened as it is reached.
-class TiffSequenceSource final : public SliceSource {
+class TiffSequenceSource final : public CountedSliceSource {
  public:
   TiffSequenceSource(std::vector<std::string> files, VolumeInfo info)
-      : files_(std::move(files)), info_(std::move(info)) {}
-
-  const VolumeInfo& info() const override { return info_; }
-  int64_t next_slice() const override { return next_; }
-
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
-    if (next_ >= info_.nz) {
-      return absl::OutOfRangeError(
-          absl::StrCat("TIFF sequence: no more slices (all ", info_.nz, " were read)"));
-    }
-    if (absl::Status st = ReadTiffSequenceSlice(files_[next_], files_.front(), info_, bytes);
-        !st.ok()) {
-      return st;
-    }
-    ++next_;
-    return absl::OkStatus();
-  }
+      : CountedSliceSource("TIFF sequence", std::move(info), OnFailure::kRetry),
+        files_(std::move(files)) {}
 
  private:
+  absl::Status ReadNext(std::vector<uint8_t>* bytes) override {
+    return ReadTiffSequenceSlice(files_[next_slice()], files_.front(), info_, bytes);
+  }
+
   std::vector<std::string> files_;
-  VolumeInfo info_;
-  int64_t next_ = 0;
 };
 
 }  // namespace

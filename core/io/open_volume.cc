@@ -154,6 +154,20 @@ std::vector<std::string> TiffNames(const std::vector<std::string>& files) {
 
 namespace internal {
 
+absl::Status CountedSliceSource::ReadSlice(std::vector<uint8_t>* bytes) {
+  if (!failure_.ok()) return failure_;
+  if (next_ >= info_.nz) return NoMoreSlices();
+  absl::Status st = ReadNext(bytes);
+  if (st.ok() && ++next_ == info_.nz) st = AfterLastSlice();
+  if (!st.ok() && on_failure_ == OnFailure::kKeep) failure_ = st;
+  return st;
+}
+
+absl::Status CountedSliceSource::NoMoreSlices() const {
+  return absl::OutOfRangeError(
+      absl::StrCat(name_, ": no more slices (all ", info_.nz, " were read)"));
+}
+
 void SwapBytesInPlace(uint8_t* data, size_t n, size_t elem_size) {
   if (elem_size < 2) return;
   for (size_t i = 0; i < n; ++i) std::reverse(data + i * elem_size, data + (i + 1) * elem_size);
@@ -196,20 +210,6 @@ std::string DescribeGrid(const VolumeInfo& info) {
 
 uint64_t VolumeBytes(const VolumeInfo& info) {
   return static_cast<uint64_t>(info.slice_bytes()) * static_cast<uint64_t>(info.nz);
-}
-
-absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
-                        int64_t z, std::vector<uint8_t>* bytes) {
-  absl::Status st = slice_fn(z, bytes);
-  if (!st.ok()) {
-    return absl::Status(st.code(), absl::StrCat(path, ": slice ", z, ": ", st.message()));
-  }
-  if (bytes->size() != info.slice_bytes()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        path, ": slice ", z, " has ", bytes->size(), " bytes, expected ", info.slice_bytes(), " (",
-        info.nx, "x", info.ny, " ", Sv(DTypeName(info.dtype)), ")"));
-  }
-  return absl::OkStatus();
 }
 
 std::string VolumeExtension(const std::string& path) {

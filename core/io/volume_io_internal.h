@@ -1,6 +1,7 @@
 // Helpers shared by the volume readers and writers (not part of the public API): byte
-// order, plain/gzip byte streams, and one SliceSource for every format whose voxels are a
-// contiguous (possibly gzip-compressed) run of bytes: raw + sidecar, NRRD and NIfTI.
+// order, plain/gzip byte streams, one SliceSource for every format whose voxels are a
+// contiguous (possibly gzip-compressed) run of bytes (raw + sidecar, NRRD and NIfTI), and
+// the per-format entry points. Each format's reader and writer share one file, format_*.cc.
 #ifndef TANDEM_SRC_READERS_INTERNAL_H_
 #define TANDEM_SRC_READERS_INTERNAL_H_
 
@@ -8,10 +9,12 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <functional>
 #include <memory>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -63,10 +66,6 @@ std::string DescribeGrid(const VolumeInfo& info);
 // Total voxel bytes nx*ny*nz*DTypeSize (the caller has validated the info).
 uint64_t VolumeBytes(const VolumeInfo& info);
 
-// Writers: asks slice_fn for slice z and checks that it produced info.slice_bytes() bytes.
-absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
-                        int64_t z, std::vector<uint8_t>* bytes);
-
 // Lower-cased file name extension handling ".nii.gz"-style double extensions:
 // "a/b.NII.gz" -> ".nii.gz", "x.nrrd" -> ".nrrd", "noext" -> "".
 std::string VolumeExtension(const std::string& path);
@@ -110,6 +109,49 @@ class ByteWriter {
   std::string path_;
 };
 
+// The base of the file readers' sources: slices next_slice()..nz-1 of a volume of known
+// depth, handed out in order. ReadSlice returns a failure kept from an earlier call, then
+// OutOfRange past the last slice ("<name>: no more slices (all <nz> were read)"); otherwise
+// ReadNext reads slice next_slice() and the slice is counted once it is read.
+class CountedSliceSource : public SliceSource {
+ public:
+  const VolumeInfo& info() const final { return info_; }
+  int64_t next_slice() const final { return next_; }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) final;
+
+ protected:
+  // kKeep: a reader of one stream (a file read front to back, a TIFF's page directories, a
+  // Zarr layer) loses its place when a read fails, so every later call returns that
+  // failure. kRetry: a reader of one file per slice may ask for the same slice again.
+  enum class OnFailure { kKeep, kRetry };
+  CountedSliceSource(std::string name, VolumeInfo info, OnFailure on_failure,
+                     int64_t first_slice = 0)
+      : info_(std::move(info)),
+        name_(std::move(name)),
+        on_failure_(on_failure),
+        next_(first_slice) {}
+
+  // Reads slice next_slice() (< info_.nz) into *bytes, info_.slice_bytes() of them.
+  virtual absl::Status ReadNext(std::vector<uint8_t>* bytes) = 0;
+  // Once the last slice is counted: checks what follows it (a gzip stream: nothing).
+  virtual absl::Status AfterLastSlice() { return absl::OkStatus(); }
+
+  // For a ViewSlice of its own: the kept failure (ok if none), OutOfRange past the last
+  // slice, a failure to keep, and a slice handed out.
+  const absl::Status& kept_failure() const { return failure_; }
+  absl::Status NoMoreSlices() const;
+  absl::Status Keep(absl::Status failure) { return failure_ = std::move(failure); }
+  void Advance() { ++next_; }
+
+  const VolumeInfo info_;  // as delivered
+
+ private:
+  std::string name_;  // the file (or "DICOM series") named in NoMoreSlices
+  OnFailure on_failure_;
+  int64_t next_;
+  absl::Status failure_;
+};
+
 // Where and how the voxels of a contiguous-data volume are stored.
 struct StreamVolumeSpec {
   std::string path;          // the file the user opened (named in every message)
@@ -141,10 +183,51 @@ absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file);
 absl::Status ReadTiffSequenceSlice(const std::string& path, const std::string& first,
                                    const VolumeInfo& info, std::vector<uint8_t>* bytes);
 
-// The TIFF writer lives next to the TIFF reader so that libtiff's error plumbing is in one
-// file. info is validated by the caller.
-absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
+// The writers WriteVolume picks by extension, each in its format's file (Zarr's, WriteZarr
+// and ZarrAppender, are public: tandem/zarr.h). info is validated by the caller.
+absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                          const VolumeWriteOptions& opts);  // format_raw.cc
+absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                       const VolumeWriteOptions& opts);  // format_nrrd.cc
+absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                        const VolumeWriteOptions& opts);  // format_nifti.cc
+absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,  // format_tiff.cc
                              const SliceFn& slice_fn, const VolumeWriteOptions& opts);
+
+// What the writers share (volume_writers.cc).
+
+// Asks slice_fn for slice z and checks that it produced info.slice_bytes() bytes.
+absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                        int64_t z, std::vector<uint8_t>* bytes);
+
+// SHA-256 (FIPS 180-4), streamed, for the sidecar's "sha256" key (same as `sha256sum`).
+class Sha256 {
+ public:
+  void Update(const uint8_t* data, size_t n);
+  std::string HexDigest();
+
+ private:
+  void Compress(const uint8_t* p);
+
+  uint32_t h_[8] = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
+                    0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+  uint8_t block_[64] = {};
+  size_t used_ = 0;
+  uint64_t total_ = 0;
+};
+
+// Streams slices 0..nz-1 from slice_fn to out in the requested byte order. observe (if set)
+// sees each slice in host order; stored (if set) sees the bytes as written.
+absl::Status StreamSlices(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
+                          bool big_endian, ByteWriter* out,
+                          const std::function<void(const std::vector<uint8_t>&)>& observe = {},
+                          Sha256* stored = nullptr);
+
+// Writes a small text file whole (headers, sidecars).
+absl::Status WriteText(const std::string& path, const std::string& text);
+
+// "dir/STEM" + new_ext for "dir/STEM.ext" (or "dir/STEM.nii.gz"): a detached data file.
+std::filesystem::path SiblingPath(const std::string& path, absl::string_view new_ext);
 
 // NIfTI-1 header layout (byte offsets into the 348-byte header), shared by reader and writer.
 namespace nifti {

@@ -1,5 +1,6 @@
-// Zarr pieces shared by the reader (format_zarr.cc) and the writer (volume_writers.cc):
-// chunk codecs through libblosc, libzstd and zlib, and whole-file I/O.
+// Zarr internals: zarr_codecs.cc's chunk codecs (libblosc, libzstd, zlib) and whole-file I/O,
+// which format_zarr.cc's reader and writer use, and LooksLikeZarr (format_zarr.cc) for
+// OpenVolume and follow.
 #ifndef TANDEM_SRC_ZARR_INTERNAL_H_
 #define TANDEM_SRC_ZARR_INTERNAL_H_
 

@@ -11,31 +11,25 @@
 #include "absl/status/statusor.h"
 #include "tandem/distance.h"
 #include "tandem/metrics.h"
+#include "tandem/options.h"
 #include "tandem/stats.h"
 #include "tandem/tandem.h"
 
 namespace tandem {
 
 struct MetricsReport {
-  std::string input;     // file name or description
-  std::string frame;     // the world frame of the vertices (VolumeInfo::frame)
-  std::string schedule;  // "none", "classical", "tandem", "tandem-lag"
-  double iso = 0, error_threshold = 0, alpha = 0;
-  double distance_guard = 0;  // K of SessionOptions::distance_guard (0 = off)
-  double sag_correction = 0;  // F of SessionOptions::sag_correction (0 = off)
-  int64_t sag_corrected = 0;  // vertices it moved
-  int64_t target_triangles = 0;
-  int64_t nx = 0, ny = 0, nz = 0;
-  int64_t slices = 0, crossed_cubes = 0;
-  int64_t triangles_extracted = 0, triangles_final = 0, vertices_final = 0;
-  int64_t peak_triangles = 0;
+  std::string input;  // file name or description
+  std::string frame;  // the world frame of the vertices (VolumeInfo::frame)
+  // The session's options and statistics, copied whole by MakeReport. The JSON and the wire
+  // carry the members VisitReportFields lists, not all of them (not pipeline, parts or
+  // seal, nor the front reaches and the sealed counts).
+  SessionOptions options;
+  SessionStats stats;
+  int64_t nx = 0, ny = 0, nz = 0;  // nz: the slices the session received
+  int64_t triangles_final = 0, vertices_final = 0;
   double error_max = 0;        // Error(K), physical units
   double anisotropy = 0, directional_bias = 0;
-  double time_extract_s = 0, time_simplify_s = 0, time_total_s = 0;
   int64_t peak_rss_bytes = 0;
-  std::vector<int64_t> trace;  // triangles after every EXTRACT and every SIMPLIFY
-  RefusalCounts refusals;
-  int64_t contractions = 0;
   std::optional<Distances> distance;  // with --reference: to the unsimplified surface
   // Service only (0 for local runs).
   int64_t bytes_received = 0, bytes_sent = 0;
@@ -58,45 +52,49 @@ inline bool HasServiceBytes(const MetricsReport& r) { return r.bytes_received ||
 // the JSON holds it (a JSON pointer: "/time_s/extract" is {"time_s": {"extract": ...}}).
 // ReportToJson and ReportFromJson iterate it; the proto conversion (common/wire.cc)
 // lists the fields again, and tests/service/request_validation_test.cc checks that it
-// carries every one of these. A new figure: a member above, a line here, a FinalMetrics
-// field and its two lines in wire.cc (and MakeReport's line, if the session knows it).
+// carries every one of these. Reporting a new SessionStats or SessionOptions member takes
+// three places: a line here, a FinalMetrics field in tandem.proto, and its two lines in
+// wire.cc (to and from the proto); MakeReport copies both structs whole. A figure the
+// session does not know also needs a MetricsReport member, set by whoever computes it.
 template <class R, class F>  // R: MetricsReport or const MetricsReport
 void VisitReportFields(R& r, F&& f) {
   using W = Written;
+  auto& o = r.options;
+  auto& s = r.stats;
   f("/input", r.input, W::kAlways);
   f("/frame", r.frame, W::kAlways);
-  f("/schedule", r.schedule, W::kAlways);
-  f("/iso", r.iso, W::kAlways);
-  f("/error_threshold", r.error_threshold, W::kAlways);
-  f("/alpha", r.alpha, W::kAlways);
-  f("/distance_guard", r.distance_guard, W::kAlways);
-  f("/sag_correction", r.sag_correction, W::kAlways);
-  f("/sag_corrected", r.sag_corrected, W::kAlways);
-  f("/target_triangles", r.target_triangles, W::kAlways);
+  f("/schedule", o.schedule, W::kAlways);  // by name: "none", "classical", "tandem", ...
+  f("/iso", o.iso, W::kAlways);
+  f("/error_threshold", o.error, W::kAlways);
+  f("/alpha", o.alpha, W::kAlways);
+  f("/distance_guard", o.distance_guard, W::kAlways);
+  f("/sag_correction", o.sag_correction, W::kAlways);
+  f("/sag_corrected", s.sag_corrected, W::kAlways);
+  f("/target_triangles", o.target_triangles, W::kAlways);
   f("/grid/0", r.nx, W::kAlways);
   f("/grid/1", r.ny, W::kAlways);
   f("/grid/2", r.nz, W::kAlways);
-  f("/slices", r.slices, W::kAlways);
-  f("/crossed_cubes", r.crossed_cubes, W::kAlways);
-  f("/triangles_extracted", r.triangles_extracted, W::kAlways);
+  f("/slices", s.slices, W::kAlways);
+  f("/crossed_cubes", s.crossed_cubes, W::kAlways);
+  f("/triangles_extracted", s.triangles_extracted, W::kAlways);
   f("/triangles_final", r.triangles_final, W::kAlways);
   f("/vertices_final", r.vertices_final, W::kAlways);
-  f("/peak_triangles", r.peak_triangles, W::kAlways);
+  f("/peak_triangles", s.peak_triangles, W::kAlways);
   f("/error_max", r.error_max, W::kAlways);
   f("/anisotropy", r.anisotropy, W::kAlways);
   f("/directional_bias", r.directional_bias, W::kAlways);
-  f("/time_s/extract", r.time_extract_s, W::kAlways);
-  f("/time_s/simplify", r.time_simplify_s, W::kAlways);
-  f("/time_s/total", r.time_total_s, W::kAlways);
+  f("/time_s/extract", s.time.extract_s, W::kAlways);
+  f("/time_s/simplify", s.time.simplify_s, W::kAlways);
+  f("/time_s/total", s.time.total_s, W::kAlways);
   f("/peak_rss_bytes", r.peak_rss_bytes, W::kAlways);
-  f("/trace", r.trace, W::kAlways);
-  f("/contractions", r.contractions, W::kAlways);
-  f("/refusals/link", r.refusals.link, W::kAlways);
-  f("/refusals/flip", r.refusals.flip, W::kAlways);
-  f("/refusals/degenerate", r.refusals.degenerate, W::kAlways);
-  f("/refusals/box", r.refusals.box, W::kAlways);
-  f("/refusals/error", r.refusals.error, W::kAlways);
-  f("/refusals/distance", r.refusals.distance, W::kAlways);
+  f("/trace", s.trace, W::kAlways);
+  f("/contractions", s.contractions, W::kAlways);
+  f("/refusals/link", s.refusals.link, W::kAlways);
+  f("/refusals/flip", s.refusals.flip, W::kAlways);
+  f("/refusals/degenerate", s.refusals.degenerate, W::kAlways);
+  f("/refusals/box", s.refusals.box, W::kAlways);
+  f("/refusals/error", s.refusals.error, W::kAlways);
+  f("/refusals/distance", s.refusals.distance, W::kAlways);
   f("/distance", r.distance, W::kIfPresent);
   f("/bytes_received", r.bytes_received, W::kIfService);
   f("/bytes_sent", r.bytes_sent, W::kIfService);
@@ -114,6 +112,7 @@ std::string ReportToJson(const MetricsReport& r);
 // {"distance": {"L1": {"forward", "backward", "max"}, "L2": ..., "Linf": ...}}: the block
 // ReportToJson writes, alone (tandem measure --json).
 std::string DistancesToJson(const Distances& d);
+// A key the JSON lacks keeps MetricsReport's default (SessionOptions' for the options).
 absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json);
 // A short human-readable summary, one figure per line.
 std::string ReportSummary(const MetricsReport& r);

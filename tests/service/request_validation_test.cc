@@ -472,7 +472,7 @@ TEST(Wire, MetricsReportRoundTrip) {
   ASSERT_TRUE(session.ok());
   const IndexedMesh mesh = (*session)->Snapshot();
   MetricsReport report = MakeReport(**session, mesh);
-  report.sag_corrected = 37;  // here 0: past E0, toward the target, no vertex may move
+  report.stats.sag_corrected = 37;  // here 0: past E0, toward the target, no vertex may move
   report.distance = MeasureDistances(mesh, mesh, DistanceOptions{1000, 1, 1});
   report.peak_rss_bytes = 12345;
   report.bytes_received = 678;
@@ -521,6 +521,7 @@ TEST(ExtractJob, ComputesDistancesWhenAsked) {
 // FinalMetrics with each of them, so that a field added to the table but not to the wire
 // fails here.
 std::string Text(const std::string& v) { return v; }
+std::string Text(Schedule v) { return std::string(ScheduleName(v)); }
 std::string Text(double v) { return absl::StrCat(v); }
 std::string Text(int64_t v) { return absl::StrCat(v); }
 std::string Text(const std::vector<int64_t>& v) { return absl::StrJoin(v, ","); }
@@ -542,6 +543,8 @@ MetricsReport ReportWithDistinctFields() {
     ++k;
     if constexpr (std::is_same_v<T, std::string>) {
       v = absl::StrCat("text", k);
+    } else if constexpr (std::is_same_v<T, Schedule>) {
+      v = Schedule::kClassical;  // the default is kTandemLag
     } else if constexpr (std::is_same_v<T, std::vector<int64_t>>) {
       v = {k, k + 1, k + 2};
     } else if constexpr (std::is_same_v<T, std::optional<Distances>>) {

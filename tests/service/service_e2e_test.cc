@@ -154,16 +154,17 @@ TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
   auto got = ReportFromJson(json);
   ASSERT_TRUE(got.ok()) << got.status();
   EXPECT_EQ(got->input, input);
-  EXPECT_EQ(got->triangles_extracted, want.triangles_extracted);
+  EXPECT_EQ(got->stats.triangles_extracted, want.stats.triangles_extracted);
   EXPECT_EQ(got->triangles_final, want.triangles_final);
   EXPECT_EQ(got->vertices_final, want.vertices_final);
-  EXPECT_EQ(got->peak_triangles, want.peak_triangles);
+  EXPECT_EQ(got->stats.peak_triangles, want.stats.peak_triangles);
   EXPECT_DOUBLE_EQ(got->error_max, want.error_max);
-  EXPECT_EQ(got->trace, want.trace);
-  EXPECT_EQ(got->contractions, want.contractions);
-  EXPECT_EQ(got->sag_corrected, want.sag_corrected);  // the final mesh is corrected as locally
-  EXPECT_EQ(got->refusals.link, want.refusals.link);
-  EXPECT_EQ(got->refusals.flip, want.refusals.flip);
+  EXPECT_EQ(got->stats.trace, want.stats.trace);
+  EXPECT_EQ(got->stats.contractions, want.stats.contractions);
+  // The final mesh is corrected as locally.
+  EXPECT_EQ(got->stats.sag_corrected, want.stats.sag_corrected);
+  EXPECT_EQ(got->stats.refusals.link, want.stats.refusals.link);
+  EXPECT_EQ(got->stats.refusals.flip, want.stats.refusals.flip);
   EXPECT_DOUBLE_EQ(got->anisotropy, want.anisotropy);
   EXPECT_EQ(got->nx, 64);
   EXPECT_EQ(got->nz, 93);
@@ -342,7 +343,7 @@ TEST_F(ServiceE2eTest, EightConcurrentStreamsMatchOneAtATime) {
     ASSERT_EQ(*code, 0) << clients[i]->Stderr();
     auto got = ReportFromJson(ReadFile(dir_ + "/c" + std::to_string(i) + ".json"));
     ASSERT_TRUE(got.ok());
-    EXPECT_EQ(got->trace, want->trace) << i;
+    EXPECT_EQ(got->stats.trace, want->stats.trace) << i;
     EXPECT_EQ(got->triangles_final, want->triangles_final) << i;
     EXPECT_DOUBLE_EQ(got->error_max, want->error_max) << i;
     EXPECT_EQ(ReadFile(dir_ + "/c" + std::to_string(i) + ".drc"), want_mesh)
@@ -594,7 +595,7 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
   EXPECT_TRUE(std::filesystem::exists(dir_ + "/live/chunk_000000.drc"));
   auto report = ReportFromJson(ReadFile(dir_ + "/live.json"));
   ASSERT_TRUE(report.ok());
-  EXPECT_EQ(report->slices, 96);
+  EXPECT_EQ(report->stats.slices, 96);
 
   RunResult unknown = Client({"watch", "--server", server_->address(), "--session",
                               "0123456789abcdef0123456789abcdef", "--out", dir_ + "/u.ply"});
@@ -770,7 +771,7 @@ TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh)
     ExpectSameMesh(dir_ + "/whole_" + tag + ".ply", dir_ + "/resumed_" + tag + ".ply");
     auto report = ReportFromJson(ReadFile(dir_ + "/resumed_" + tag + ".json"));
     ASSERT_TRUE(report.ok()) << report.status();
-    EXPECT_EQ(report->slices, 96);
+    EXPECT_EQ(report->stats.slices, 96);
     EXPECT_FALSE(std::filesystem::exists(dir_ + "/never_" + tag + ".ply"));
   }
   RunResult bad = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
