@@ -93,7 +93,7 @@ absl::Status GetJson(const Json& v, T* out) {
 
 std::string ReportToJson(const MetricsReport& r) {
   Json j;
-  VisitReportFields(r, [&](const char* key, const auto& v, Written when) {
+  VisitReportFields(r, [&](const char* key, const char* /*wire*/, const auto& v, Written when) {
     if constexpr (std::is_arithmetic_v<std::remove_cvref_t<decltype(v)>>) {
       if (when == Written::kIfNonZero && v == 0) return;
     }
@@ -112,7 +112,7 @@ absl::StatusOr<MetricsReport> ReportFromJson(const std::string& json) {
   absl::Status status;
   try {
     // A field the JSON does not hold keeps its default.
-    VisitReportFields(r, [&](const char* key, auto& v, Written) {
+    VisitReportFields(r, [&](const char* key, const char* /*wire*/, auto& v, Written) {
       const Json::json_pointer at(key);
       if (status.ok() && j.contains(at)) status = GetJson(j.at(at), &v);
     });

@@ -48,57 +48,60 @@ enum class Written {
 };
 inline bool HasServiceBytes(const MetricsReport& r) { return r.bytes_received || r.bytes_sent; }
 
-// MetricsReport's one field table: f(key, member, when) for every field, `key` being where
-// the JSON holds it (a JSON pointer: "/time_s/extract" is {"time_s": {"extract": ...}}).
-// ReportToJson and ReportFromJson iterate it; the proto conversion (common/wire.cc)
-// lists the fields again, and tests/service/request_validation_test.cc checks that it
-// carries every one of these. Reporting a new SessionStats or SessionOptions member takes
-// three places: a line here, a FinalMetrics field in tandem.proto, and its two lines in
-// wire.cc (to and from the proto); MakeReport copies both structs whole. A figure the
-// session does not know also needs a MetricsReport member, set by whoever computes it.
+// MetricsReport's one field table: f(key, wire, member, when) for every field. `key` is where
+// the JSON holds it (a JSON pointer: "/time_s/extract" is {"time_s": {"extract": ...}}); `wire`
+// names its field in the proto message tandem.v1.FinalMetrics (proto/tandem/v1/tandem.proto;
+// "refusals.link" is the field link of the sub-message refusals), nullptr when the wire does not
+// carry it (the client knows its input itself). ReportToJson and ReportFromJson iterate it; the
+// proto conversion (common/wire.cc) lists the fields again, and
+// tests/service/request_validation_test.cc checks that it carries every one of these.
+// Reporting a new SessionStats or SessionOptions member takes three places: a line here, a
+// FinalMetrics field in tandem.proto, and its two lines in wire.cc (to and from the proto);
+// MakeReport copies both structs whole. A figure the session does not know also needs a
+// MetricsReport member, set by whoever computes it.
 template <class R, class F>  // R: MetricsReport or const MetricsReport
 void VisitReportFields(R& r, F&& f) {
   using W = Written;
   auto& o = r.options;
   auto& s = r.stats;
-  f("/input", r.input, W::kAlways);
-  f("/frame", r.frame, W::kAlways);
-  f("/schedule", o.schedule, W::kAlways);  // by name: "none", "classical", "tandem", ...
-  f("/iso", o.iso, W::kAlways);
-  f("/error_threshold", o.error, W::kAlways);
-  f("/alpha", o.alpha, W::kAlways);
-  f("/distance_guard", o.distance_guard, W::kAlways);
-  f("/sag_correction", o.sag_correction, W::kAlways);
-  f("/sag_corrected", s.sag_corrected, W::kAlways);
-  f("/target_triangles", o.target_triangles, W::kAlways);
-  f("/grid/0", r.nx, W::kAlways);
-  f("/grid/1", r.ny, W::kAlways);
-  f("/grid/2", r.nz, W::kAlways);
-  f("/slices", s.slices, W::kAlways);
-  f("/crossed_cubes", s.crossed_cubes, W::kAlways);
-  f("/triangles_extracted", s.triangles_extracted, W::kAlways);
-  f("/triangles_final", r.triangles_final, W::kAlways);
-  f("/vertices_final", r.vertices_final, W::kAlways);
-  f("/peak_triangles", s.peak_triangles, W::kAlways);
-  f("/error_max", r.error_max, W::kAlways);
-  f("/anisotropy", r.anisotropy, W::kAlways);
-  f("/directional_bias", r.directional_bias, W::kAlways);
-  f("/time_s/extract", s.time.extract_s, W::kAlways);
-  f("/time_s/simplify", s.time.simplify_s, W::kAlways);
-  f("/time_s/total", s.time.total_s, W::kAlways);
-  f("/peak_rss_bytes", r.peak_rss_bytes, W::kAlways);
-  f("/trace", s.trace, W::kAlways);
-  f("/contractions", s.contractions, W::kAlways);
-  f("/refusals/link", s.refusals.link, W::kAlways);
-  f("/refusals/flip", s.refusals.flip, W::kAlways);
-  f("/refusals/degenerate", s.refusals.degenerate, W::kAlways);
-  f("/refusals/box", s.refusals.box, W::kAlways);
-  f("/refusals/error", s.refusals.error, W::kAlways);
-  f("/refusals/distance", s.refusals.distance, W::kAlways);
-  f("/distance", r.distance, W::kIfPresent);
-  f("/bytes_received", r.bytes_received, W::kIfService);
-  f("/bytes_sent", r.bytes_sent, W::kIfService);
-  f("/peak_session_bytes", r.peak_session_bytes, W::kIfNonZero);
+  f("/input", nullptr, r.input, W::kAlways);
+  f("/frame", nullptr, r.frame, W::kAlways);
+  f("/schedule", "schedule", o.schedule, W::kAlways);  // by name: "none", "classical", ...
+  f("/iso", "iso", o.iso, W::kAlways);
+  f("/error_threshold", "error_threshold", o.error, W::kAlways);
+  f("/alpha", "alpha", o.alpha, W::kAlways);
+  f("/distance_guard", "distance_guard", o.distance_guard, W::kAlways);
+  f("/sag_correction", "sag_correction", o.sag_correction, W::kAlways);
+  f("/sag_corrected", "sag_corrected", s.sag_corrected, W::kAlways);
+  f("/target_triangles", "target_triangles", o.target_triangles, W::kAlways);
+  f("/grid/0", "nx", r.nx, W::kAlways);
+  f("/grid/1", "ny", r.ny, W::kAlways);
+  f("/grid/2", "nz", r.nz, W::kAlways);
+  f("/slices", "slices", s.slices, W::kAlways);
+  f("/crossed_cubes", "crossed_cubes", s.crossed_cubes, W::kAlways);
+  f("/triangles_extracted", "triangles_extracted", s.triangles_extracted, W::kAlways);
+  f("/triangles_final", "triangles_final", r.triangles_final, W::kAlways);
+  f("/vertices_final", "vertices_final", r.vertices_final, W::kAlways);
+  f("/peak_triangles", "peak_triangles", s.peak_triangles, W::kAlways);
+  f("/error_max", "error_max", r.error_max, W::kAlways);
+  f("/anisotropy", "anisotropy", r.anisotropy, W::kAlways);
+  f("/directional_bias", "directional_bias", r.directional_bias, W::kAlways);
+  f("/time_s/extract", "time_extract_s", s.time.extract_s, W::kAlways);
+  f("/time_s/simplify", "time_simplify_s", s.time.simplify_s, W::kAlways);
+  f("/time_s/total", "time_total_s", s.time.total_s, W::kAlways);
+  f("/peak_rss_bytes", "peak_rss_bytes", r.peak_rss_bytes, W::kAlways);
+  f("/trace", "trace", s.trace, W::kAlways);
+  f("/contractions", "contractions", s.contractions, W::kAlways);
+  f("/refusals/link", "refusals.link", s.refusals.link, W::kAlways);
+  f("/refusals/flip", "refusals.flip", s.refusals.flip, W::kAlways);
+  f("/refusals/degenerate", "refusals.degenerate", s.refusals.degenerate, W::kAlways);
+  f("/refusals/box", "refusals.box", s.refusals.box, W::kAlways);
+  f("/refusals/error", "refusals.error", s.refusals.error, W::kAlways);
+  f("/refusals/distance", "refusals.distance", s.refusals.distance, W::kAlways);
+  f("/distance", "distance", r.distance, W::kIfPresent);
+  f("/bytes_received", "bytes_received", r.bytes_received, W::kIfService);
+  f("/bytes_sent", "bytes_sent", r.bytes_sent, W::kIfService);
+  f("/peak_session_bytes", "peak_session_bytes", r.peak_session_bytes, W::kIfNonZero);
 }
 
 // Fills every field a finished session knows (mesh measures are computed on `mesh`).

@@ -538,7 +538,7 @@ std::string Text(const std::optional<Distances>& d) {
 MetricsReport ReportWithDistinctFields() {
   MetricsReport r;
   int k = 0;
-  auto set = [&k](const char*, auto& v, Written) {
+  auto set = [&k](const char*, const char*, auto& v, Written) {
     using T = std::remove_cvref_t<decltype(v)>;
     ++k;
     if constexpr (std::is_same_v<T, std::string>) {
@@ -568,7 +568,9 @@ MetricsReport ReportWithDistinctFields() {
 // key → value text, through the table.
 std::map<std::string, std::string> Fields(const MetricsReport& r) {
   std::map<std::string, std::string> out;
-  VisitReportFields(r, [&](const char* key, const auto& v, Written) { out[key] = Text(v); });
+  VisitReportFields(r, [&](const char* key, const char*, const auto& v, Written) {
+    out[key] = Text(v);
+  });
   return out;
 }
 
