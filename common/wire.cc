@@ -1,6 +1,17 @@
 #include "common/wire.h"
 
+#include <optional>
+#include <set>
+#include <vector>
+
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/message.h>
+#include <google/protobuf/reflection.h>
+
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/string_view.h"
 
 namespace tandem::wire {
 
@@ -53,6 +64,10 @@ v1::Schedule ScheduleToProto(Schedule schedule) {
 }
 
 namespace {
+using google::protobuf::FieldDescriptor;
+using google::protobuf::Message;
+
+// The distances are a nested struct on both sides: converted by hand, as one table entry.
 void DirectedToProto(const DirectedDistance& d, v1::DirectedDistance* out) {
   out->set_l1(d.l1);
   out->set_l2(d.l2);
@@ -67,104 +82,184 @@ DirectedDistance DirectedFromProto(const v1::DirectedDistance& d) {
   out.samples = d.samples();
   return out;
 }
-}  // namespace
-
-void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
-  out->set_schedule(std::string(ScheduleName(r.options.schedule)));
-  out->set_iso(r.options.iso);
-  out->set_error_threshold(r.options.error);
-  out->set_alpha(r.options.alpha);
-  out->set_distance_guard(r.options.distance_guard);
-  out->set_sag_correction(r.options.sag_correction);
-  out->set_sag_corrected(r.stats.sag_corrected);
-  out->set_target_triangles(r.options.target_triangles);
-  out->set_nx(r.nx);
-  out->set_ny(r.ny);
-  out->set_nz(r.nz);
-  out->set_slices(r.stats.slices);
-  out->set_crossed_cubes(r.stats.crossed_cubes);
-  out->set_triangles_extracted(r.stats.triangles_extracted);
-  out->set_triangles_final(r.triangles_final);
-  out->set_vertices_final(r.vertices_final);
-  out->set_peak_triangles(r.stats.peak_triangles);
-  out->set_error_max(r.error_max);
-  out->set_anisotropy(r.anisotropy);
-  out->set_directional_bias(r.directional_bias);
-  out->set_time_extract_s(r.stats.time.extract_s);
-  out->set_time_simplify_s(r.stats.time.simplify_s);
-  out->set_time_total_s(r.stats.time.total_s);
-  out->set_peak_rss_bytes(r.peak_rss_bytes);
-  out->mutable_trace()->Assign(r.stats.trace.begin(), r.stats.trace.end());
-  v1::Refusals* f = out->mutable_refusals();
-  f->set_link(r.stats.refusals.link);
-  f->set_flip(r.stats.refusals.flip);
-  f->set_degenerate(r.stats.refusals.degenerate);
-  f->set_box(r.stats.refusals.box);
-  f->set_error(r.stats.refusals.error);
-  f->set_distance(r.stats.refusals.distance);
-  out->set_contractions(r.stats.contractions);
-  if (r.distance) {
-    v1::Distances* d = out->mutable_distance();
-    DirectedToProto(r.distance->forward, d->mutable_forward());
-    DirectedToProto(r.distance->backward, d->mutable_backward());
-    d->set_l1_max(r.distance->l1_max);
-    d->set_l2_max(r.distance->l2_max);
-    d->set_linf_max(r.distance->linf_max);
-  } else {
-    out->clear_distance();
-  }
-  out->set_bytes_received(r.bytes_received);
-  out->set_bytes_sent(r.bytes_sent);
-  out->set_peak_session_bytes(r.peak_session_bytes);
+void DistancesToProto(const Distances& d, v1::Distances* out) {
+  DirectedToProto(d.forward, out->mutable_forward());
+  DirectedToProto(d.backward, out->mutable_backward());
+  out->set_l1_max(d.l1_max);
+  out->set_l2_max(d.l2_max);
+  out->set_linf_max(d.linf_max);
+}
+Distances DistancesFromProto(const v1::Distances& d) {
+  Distances out;
+  out.forward = DirectedFromProto(d.forward());
+  out.backward = DirectedFromProto(d.backward());
+  out.l1_max = d.l1_max();
+  out.l2_max = d.l2_max();
+  out.linf_max = d.linf_max();
+  return out;
 }
 
-MetricsReport ReportFromProto(const v1::FinalMetrics& m) {
-  MetricsReport r;
+// Each type of the table's members on the wire: Fits says whether a field can hold it, Put
+// writes it and Get reads it (into a field that Fits).
+bool Singular(const FieldDescriptor& f, FieldDescriptor::CppType type) {
+  return !f.is_repeated() && f.cpp_type() == type;
+}
+
+bool Fits(const FieldDescriptor& f, const double*) {
+  return Singular(f, FieldDescriptor::CPPTYPE_DOUBLE);
+}
+void Put(Message* m, const FieldDescriptor* f, double v) { m->GetReflection()->SetDouble(m, f, v); }
+void Get(const Message& m, const FieldDescriptor* f, double* v) {
+  *v = m.GetReflection()->GetDouble(m, f);
+}
+
+bool Fits(const FieldDescriptor& f, const int64_t*) {
+  return Singular(f, FieldDescriptor::CPPTYPE_INT64);
+}
+void Put(Message* m, const FieldDescriptor* f, int64_t v) { m->GetReflection()->SetInt64(m, f, v); }
+void Get(const Message& m, const FieldDescriptor* f, int64_t* v) {
+  *v = m.GetReflection()->GetInt64(m, f);
+}
+
+bool Fits(const FieldDescriptor& f, const std::string*) {
+  return Singular(f, FieldDescriptor::CPPTYPE_STRING);
+}
+void Put(Message* m, const FieldDescriptor* f, const std::string& v) {
+  m->GetReflection()->SetString(m, f, v);
+}
+void Get(const Message& m, const FieldDescriptor* f, std::string* v) {
+  *v = m.GetReflection()->GetString(m, f);
+}
+
+// By name, as in the JSON.
+bool Fits(const FieldDescriptor& f, const Schedule*) {
+  return Singular(f, FieldDescriptor::CPPTYPE_STRING);
+}
+void Put(Message* m, const FieldDescriptor* f, Schedule v) {
+  m->GetReflection()->SetString(m, f, std::string(ScheduleName(v)));
+}
+void Get(const Message& m, const FieldDescriptor* f, Schedule* v) {
   // A name this build does not know (a newer server's) leaves the default.
-  if (absl::StatusOr<Schedule> s = ParseSchedule(m.schedule()); s.ok()) r.options.schedule = *s;
-  r.options.iso = m.iso();
-  r.options.error = m.error_threshold();
-  r.options.alpha = m.alpha();
-  r.options.distance_guard = m.distance_guard();
-  r.options.sag_correction = m.sag_correction();
-  r.stats.sag_corrected = m.sag_corrected();
-  r.options.target_triangles = m.target_triangles();
-  r.nx = m.nx();
-  r.ny = m.ny();
-  r.nz = m.nz();
-  r.stats.slices = m.slices();
-  r.stats.crossed_cubes = m.crossed_cubes();
-  r.stats.triangles_extracted = m.triangles_extracted();
-  r.triangles_final = m.triangles_final();
-  r.vertices_final = m.vertices_final();
-  r.stats.peak_triangles = m.peak_triangles();
-  r.error_max = m.error_max();
-  r.anisotropy = m.anisotropy();
-  r.directional_bias = m.directional_bias();
-  r.stats.time.extract_s = m.time_extract_s();
-  r.stats.time.simplify_s = m.time_simplify_s();
-  r.stats.time.total_s = m.time_total_s();
-  r.peak_rss_bytes = m.peak_rss_bytes();
-  r.stats.trace.assign(m.trace().begin(), m.trace().end());
-  r.stats.refusals.link = m.refusals().link();
-  r.stats.refusals.flip = m.refusals().flip();
-  r.stats.refusals.degenerate = m.refusals().degenerate();
-  r.stats.refusals.box = m.refusals().box();
-  r.stats.refusals.error = m.refusals().error();
-  r.stats.refusals.distance = m.refusals().distance();
-  r.stats.contractions = m.contractions();
-  if (m.has_distance()) {
-    Distances d;
-    d.forward = DirectedFromProto(m.distance().forward());
-    d.backward = DirectedFromProto(m.distance().backward());
-    d.l1_max = m.distance().l1_max();
-    d.l2_max = m.distance().l2_max();
-    d.linf_max = m.distance().linf_max();
-    r.distance = d;
+  if (absl::StatusOr<Schedule> s = ParseSchedule(m.GetReflection()->GetString(m, f)); s.ok()) {
+    *v = *s;
   }
-  r.bytes_received = m.bytes_received();
-  r.bytes_sent = m.bytes_sent();
-  r.peak_session_bytes = m.peak_session_bytes();
+}
+
+bool Fits(const FieldDescriptor& f, const std::vector<int64_t>*) {
+  return f.is_repeated() && f.cpp_type() == FieldDescriptor::CPPTYPE_INT64;
+}
+void Put(Message* m, const FieldDescriptor* f, const std::vector<int64_t>& v) {
+  auto field = m->GetReflection()->GetMutableRepeatedFieldRef<int64_t>(m, f);
+  field.Clear();
+  for (int64_t x : v) field.Add(x);
+}
+void Get(const Message& m, const FieldDescriptor* f, std::vector<int64_t>* v) {
+  auto field = m.GetReflection()->GetRepeatedFieldRef<int64_t>(m, f);
+  v->assign(field.begin(), field.end());
+}
+
+// A Distances message, absent without distances.
+bool Fits(const FieldDescriptor& f, const std::optional<Distances>*) {
+  return Singular(f, FieldDescriptor::CPPTYPE_MESSAGE) &&
+         f.message_type() == v1::Distances::descriptor();
+}
+void Put(Message* m, const FieldDescriptor* f, const std::optional<Distances>& v) {
+  if (!v) {
+    m->GetReflection()->ClearField(m, f);
+    return;
+  }
+  DistancesToProto(*v, google::protobuf::DynamicCastToGenerated<v1::Distances>(
+                           m->GetReflection()->MutableMessage(m, f)));
+}
+void Get(const Message& m, const FieldDescriptor* f, std::optional<Distances>* v) {
+  if (m.GetReflection()->HasField(m, f)) {
+    *v = DistancesFromProto(*google::protobuf::DynamicCastToGenerated<v1::Distances>(
+        &m.GetReflection()->GetMessage(m, f)));
+  }
+}
+
+// The fields a wire name walks from FinalMetrics ("refusals.link": refusals, then its link),
+// the last one able to hold `member`; or why there are none.
+using FieldPath = std::vector<const FieldDescriptor*>;
+template <class T>
+absl::StatusOr<FieldPath> FindWireField(const char* name, const T& member) {
+  FieldPath path;
+  const google::protobuf::Descriptor* message = v1::FinalMetrics::descriptor();
+  for (const absl::string_view part : absl::StrSplit(name, '.')) {
+    const FieldDescriptor* f =
+        message != nullptr ? message->FindFieldByName(std::string(part)) : nullptr;
+    if (f == nullptr) {
+      return absl::NotFoundError(absl::StrCat("tandem.v1.FinalMetrics has no field ", name));
+    }
+    path.push_back(f);
+    message = Singular(*f, FieldDescriptor::CPPTYPE_MESSAGE) ? f->message_type() : nullptr;
+  }
+  const FieldDescriptor& last = *path.back();
+  if (!Fits(last, &member)) {
+    const std::string type = last.message_type() != nullptr ? last.message_type()->full_name()
+                                                            : std::string(last.type_name());
+    return absl::InvalidArgumentError(absl::StrCat("tandem.v1.FinalMetrics.", name, " is of type ",
+                                                   last.is_repeated() ? "repeated " : "", type,
+                                                   ", which cannot hold the report's member"));
+  }
+  return path;
+}
+}  // namespace
+
+template <class T>
+absl::Status CheckWireField(const char* name, const T& member) {
+  return FindWireField(name, member).status();
+}
+template absl::Status CheckWireField(const char*, const double&);
+template absl::Status CheckWireField(const char*, const int64_t&);
+template absl::Status CheckWireField(const char*, const std::string&);
+template absl::Status CheckWireField(const char*, const Schedule&);
+template absl::Status CheckWireField(const char*, const std::vector<int64_t>&);
+template absl::Status CheckWireField(const char*, const std::optional<Distances>&);
+
+absl::Status CheckReportFields() {
+  std::vector<std::string> errors;
+  std::set<std::string> named;
+  const MetricsReport r;
+  VisitReportFields(r, [&](const char* key, const char* wire, const auto& v, Written) {
+    if (wire == nullptr) return;
+    if (!named.insert(wire).second) {
+      errors.push_back(absl::StrCat(key, ": ", wire, " is named twice"));
+    } else if (absl::Status s = CheckWireField(wire, v); !s.ok()) {
+      errors.push_back(absl::StrCat(key, ": ", s.message()));
+    }
+  });
+  if (errors.empty()) return absl::OkStatus();
+  return absl::InternalError(absl::StrJoin(errors, "; "));
+}
+
+// A field that FindWireField refuses is left out, and CheckReportFields names it (a test holds
+// it ok).
+void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
+  VisitReportFields(r, [out](const char*, const char* wire, const auto& v, Written) {
+    if (wire == nullptr) return;  // not on the wire
+    const absl::StatusOr<FieldPath> path = FindWireField(wire, v);
+    if (!path.ok()) return;
+    Message* m = out;
+    for (size_t i = 0; i + 1 < path->size(); ++i) {
+      m = m->GetReflection()->MutableMessage(m, (*path)[i]);
+    }
+    Put(m, path->back(), v);
+  });
+}
+
+MetricsReport ReportFromProto(const v1::FinalMetrics& metrics) {
+  MetricsReport r;
+  VisitReportFields(r, [&metrics](const char*, const char* wire, auto& v, Written) {
+    if (wire == nullptr) return;  // not on the wire: the default
+    const absl::StatusOr<FieldPath> path = FindWireField(wire, v);
+    if (!path.ok()) return;
+    const Message* m = &metrics;
+    for (size_t i = 0; i + 1 < path->size(); ++i) {
+      m = &m->GetReflection()->GetMessage(*m, (*path)[i]);
+    }
+    Get(*m, path->back(), &v);
+  });
   return r;
 }
 

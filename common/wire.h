@@ -35,12 +35,20 @@ v1::DType DTypeToProto(DType dtype);
 absl::StatusOr<Schedule> ScheduleFromProto(int value);
 v1::Schedule ScheduleToProto(Schedule schedule);
 
-// Every field of MetricsReport's table (VisitReportFields) but input and frame, which the
-// client knows itself. Generated accessors: the fields are listed by hand here, and
-// WireReport.CarriesEveryFieldOfTheReportTable (tests/service/request_validation_test.cc)
-// fails when one of the table is missing.
+// Every field of MetricsReport's table (VisitReportFields) that names a FinalMetrics field:
+// all but input and frame, which the client knows itself. Driven by the table through protobuf
+// reflection; a field whose name CheckReportFields refuses is left out.
 void ReportToProto(const MetricsReport& report, v1::FinalMetrics* out);
 MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
+
+// OK when FinalMetrics has the field `wire` ("refusals.link": link of the sub-message refusals)
+// of a type that holds `member`: double, int64, string (std::string and Schedule, by name),
+// repeated int64 (std::vector<int64_t>), Distances (std::optional<Distances>).
+template <class T>
+absl::Status CheckWireField(const char* wire, const T& member);
+// CheckWireField for every wire name of VisitReportFields, each named once; the error lists
+// every one that fails. WireReport.TableNamesFinalMetricsFields holds it OK.
+absl::Status CheckReportFields();
 
 // Canonical codes are numbered the same in Abseil and gRPC.
 grpc::Status ToGrpcStatus(const absl::Status& status);

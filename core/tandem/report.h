@@ -52,13 +52,14 @@ inline bool HasServiceBytes(const MetricsReport& r) { return r.bytes_received ||
 // the JSON holds it (a JSON pointer: "/time_s/extract" is {"time_s": {"extract": ...}}); `wire`
 // names its field in the proto message tandem.v1.FinalMetrics (proto/tandem/v1/tandem.proto;
 // "refusals.link" is the field link of the sub-message refusals), nullptr when the wire does not
-// carry it (the client knows its input itself). ReportToJson and ReportFromJson iterate it; the
-// proto conversion (common/wire.cc) lists the fields again, and
-// tests/service/request_validation_test.cc checks that it carries every one of these.
-// Reporting a new SessionStats or SessionOptions member takes three places: a line here, a
-// FinalMetrics field in tandem.proto, and its two lines in wire.cc (to and from the proto);
-// MakeReport copies both structs whole. A figure the session does not know also needs a
-// MetricsReport member, set by whoever computes it.
+// carry it (the client knows its input itself). ReportToJson and ReportFromJson iterate it, and
+// so do ReportToProto and ReportFromProto (common/wire.cc, by protobuf reflection);
+// WireReport.TableNamesFinalMetricsFields (tests/service/request_validation_test.cc) fails when
+// a wire name is not a FinalMetrics field of the member's type. Reporting a new SessionStats or
+// SessionOptions member of a type the table already has takes two places: a line here and its
+// field in tandem.proto; MakeReport copies both structs whole. A figure the session does not
+// know also needs a MetricsReport member, set by whoever computes it; a member of a new type
+// (another enum or struct) also needs its conversions in report.cc and wire.cc.
 template <class R, class F>  // R: MetricsReport or const MetricsReport
 void VisitReportFields(R& r, F&& f) {
   using W = Written;

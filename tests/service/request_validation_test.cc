@@ -516,10 +516,10 @@ TEST(ExtractJob, ComputesDistancesWhenAsked) {
   EXPECT_LE(m.distance().linf_max(), 2 * 0.5 + 1e-9) << "Hausdorff distance near E0";
 }
 
-// The proto conversion lists MetricsReport's fields by hand (generated accessors): a report
-// whose every field of the table (VisitReportFields) has its own value comes back from
-// FinalMetrics with each of them, so that a field added to the table but not to the wire
-// fails here.
+// The proto conversion follows the report's field table (VisitReportFields) through
+// reflection: every wire name there must be a FinalMetrics field of its member's type, and a
+// report whose every field has its own value must come back from FinalMetrics with each of
+// them.
 std::string Text(const std::string& v) { return v; }
 std::string Text(Schedule v) { return std::string(ScheduleName(v)); }
 std::string Text(double v) { return absl::StrCat(v); }
@@ -574,17 +574,78 @@ std::map<std::string, std::string> Fields(const MetricsReport& r) {
   return out;
 }
 
+TEST(WireReport, TableNamesFinalMetricsFields) {
+  const absl::Status table = wire::CheckReportFields();
+  EXPECT_TRUE(table.ok()) << table;
+  // Only the input's name and frame stay off the wire: the client knows them itself.
+  std::set<std::string> local_only;
+  const MetricsReport r;
+  VisitReportFields(r, [&](const char* key, const char* wire, const auto&, Written) {
+    if (wire == nullptr) local_only.insert(key);
+  });
+  EXPECT_EQ(local_only, (std::set<std::string>{"/input", "/frame"}));
+
+  // The check refuses a name FinalMetrics lacks, and a field of another type than the member.
+  const int64_t count = 0;
+  const double value = 0;
+  const std::vector<int64_t> counts;
+  EXPECT_TRUE(wire::CheckWireField("nx", count).ok());
+  EXPECT_TRUE(wire::CheckWireField("refusals.link", count).ok());
+  EXPECT_TRUE(wire::CheckWireField("trace", counts).ok());
+  EXPECT_TRUE(wire::CheckWireField("distance", std::optional<Distances>()).ok());
+  EXPECT_TRUE(wire::CheckWireField("schedule", Schedule::kTandem).ok());
+  for (const std::string name : {"grid_x", "refusals.shape", "nx.low"}) {
+    ExpectError(wire::CheckWireField(name.c_str(), count), absl::StatusCode::kNotFound,
+                "tandem.v1.FinalMetrics has no field " + name);
+  }
+  ExpectError(wire::CheckWireField("nx", value), absl::StatusCode::kInvalidArgument,
+              "tandem.v1.FinalMetrics.nx is of type int64,");
+  ExpectError(wire::CheckWireField("trace", count), absl::StatusCode::kInvalidArgument,
+              "trace is of type repeated int64,");
+  ExpectError(wire::CheckWireField("contractions", counts), absl::StatusCode::kInvalidArgument,
+              "contractions is of type int64,");
+  ExpectError(wire::CheckWireField("iso", Schedule::kTandem), absl::StatusCode::kInvalidArgument,
+              "iso is of type double,");
+  ExpectError(wire::CheckWireField("refusals", count), absl::StatusCode::kInvalidArgument,
+              "refusals is of type tandem.v1.Refusals,");
+  ExpectError(wire::CheckWireField("distance.forward", std::optional<Distances>()),
+              absl::StatusCode::kInvalidArgument,
+              "distance.forward is of type tandem.v1.DirectedDistance,");
+}
+
 TEST(WireReport, CarriesEveryFieldOfTheReportTable) {
   const MetricsReport want = ReportWithDistinctFields();
   v1::FinalMetrics m;
   wire::ReportToProto(want, &m);
   const std::map<std::string, std::string> got = Fields(wire::ReportFromProto(m));
-  // Not on the wire: the client knows the input's name and frame itself.
-  const std::set<std::string> local_only = {"/input", "/frame"};
   for (const auto& [key, value] : Fields(want)) {
-    if (local_only.count(key)) continue;
-    EXPECT_EQ(got.at(key), value) << key << " is not carried by FinalMetrics (wire.cc)";
+    if (key == "/input" || key == "/frame") {
+      EXPECT_EQ(got.at(key), "") << key << " is not on the wire";
+    } else {
+      EXPECT_EQ(got.at(key), value) << key << " is not carried by FinalMetrics";
+    }
   }
+  // Into FinalMetrics' own fields, as the generated code (and the Python client) reads them,
+  // where the JSON key and the wire name differ.
+  EXPECT_EQ(m.nx(), want.nx);
+  EXPECT_EQ(m.ny(), want.ny);
+  EXPECT_EQ(m.nz(), want.nz);
+  EXPECT_EQ(m.error_threshold(), want.options.error);
+  EXPECT_EQ(m.time_extract_s(), want.stats.time.extract_s);
+  EXPECT_EQ(m.time_simplify_s(), want.stats.time.simplify_s);
+  EXPECT_EQ(m.time_total_s(), want.stats.time.total_s);
+  EXPECT_EQ(m.refusals().link(), want.stats.refusals.link);
+  EXPECT_EQ(m.refusals().distance(), want.stats.refusals.distance);
+  EXPECT_EQ(m.schedule(), "classical");
+  EXPECT_EQ(m.distance().backward().samples(), want.distance->backward.samples);
+  EXPECT_THAT(m.trace(), ::testing::ElementsAreArray(want.stats.trace));
+
+  // Without distances the message has none, and a report read back has none either.
+  MetricsReport plain = want;
+  plain.distance.reset();
+  wire::ReportToProto(plain, &m);  // over the message that had them
+  EXPECT_FALSE(m.has_distance());
+  EXPECT_FALSE(wire::ReportFromProto(m).distance.has_value());
 }
 
 TEST(WireReport, JsonCarriesEveryFieldOfTheReportTable) {
