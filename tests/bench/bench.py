@@ -95,6 +95,40 @@ def run_measured(cmd, stdout_path, stderr_path, launcher, timeout=RUN_TIMEOUT_S)
     return result
 
 
+def run_problem(r, out):
+    """What went wrong with a run_measured result (None: nothing); out = the output file the
+    run must have written, or None when it writes none worth checking."""
+    if r.get("timed_out"):
+        return f"timed out after {RUN_TIMEOUT_S} s"
+    if r["rc"] != 0:
+        return f"exit status {r['rc']}" + (" (crashed)" if r["rc"] < 0 else "")
+    if out is not None and (not os.path.exists(out) or os.path.getsize(out) == 0):
+        return f"output {out} is missing"
+    return None
+
+
+def report_failure(label, problem, cmd, stderr_path, failures):
+    msg = f"{label}: {problem}\n  command: {' '.join(cmd)}\n  stderr tail:\n{tail(stderr_path)}"
+    log("FAILED " + msg)
+    failures.append(msg)
+
+
+def run_checked(label, cmd, out, stdout_path, stderr_path, launcher, parse, failures):
+    """run_measured, then the checks of run_problem and parse() (a dict merged into the
+    result). Returns (result, None), or (None, problem) after reporting the failure."""
+    r = run_measured(cmd, stdout_path, stderr_path, launcher)
+    problem = run_problem(r, out)
+    if problem is None:
+        try:
+            r.update(parse())
+        except (OSError, ValueError, KeyError, RuntimeError) as e:
+            problem = f"unreadable result: {e}"
+    if problem is not None:
+        report_failure(label, problem, cmd, stderr_path, failures)
+        return None, problem
+    return r, None
+
+
 def tail(path, n=20):
     try:
         with open(path, errors="replace") as f:
@@ -303,24 +337,9 @@ def bench_input(inp, e0, args, bins, vtk_modes, failures):
                     os.remove(stale)
             cmd = pipeline_cmd(name, bins, inp, e0, target, out)
             so, se = os.path.join(work, f"{name}.stdout"), os.path.join(work, f"{name}.stderr")
-            r = run_measured(cmd, so, se, bins["bench_run"])
-            problem = None
-            if r.get("timed_out"):
-                problem = f"timed out after {RUN_TIMEOUT_S} s"
-            elif r["rc"] != 0:
-                problem = f"exit status {r['rc']}" + (" (crashed)" if r["rc"] < 0 else "")
-            elif not os.path.exists(out) or os.path.getsize(out) == 0:
-                problem = f"output {out} is missing"
-            if problem is None:
-                try:
-                    r.update(parse_program_result(name, out, so))
-                except (OSError, ValueError, KeyError, RuntimeError) as e:
-                    problem = f"unreadable result: {e}"
+            r, problem = run_checked(f"{inp.name} / {name}", cmd, out, so, se, bins["bench_run"],
+                                     lambda: parse_program_result(name, out, so), failures)
             if problem is not None:
-                msg = f"{inp.name} / {name}: {problem}\n  command: {' '.join(cmd)}\n" \
-                      f"  stderr tail:\n{tail(se)}"
-                log("FAILED " + msg)
-                failures.append(msg)
                 p["failed"] = problem
                 continue
             p["runs"].append(r)
@@ -675,23 +694,28 @@ def print_summary(results):
 
 # ----------------------------------------------------------------------------------------
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_common_args(ap, report, results):
+    """The flags bench.py and dense.py share; report / results: the default file names."""
     ap.add_argument("--bin", help="directory with tandem, bench_run, mesh_check and the peers")
-    ap.add_argument("--quick", action="store_true", help="64³/128³ + smallest shared volume, 1 repeat")
-    ap.add_argument("--repeats", type=int, help="runs per pipeline (default 3, --quick 1)")
-    ap.add_argument("--sizes", help="comma-separated synthetic grid sizes (overrides the mode's)")
     ap.add_argument("--only", action="append", help="only inputs whose name contains this (repeatable)")
-    ap.add_argument("--calibrate", action="store_true", help="redo the E0 search and rewrite e0.json")
     ap.add_argument("--data", default=os.path.normpath(os.path.join(ROOT, "..", "shared", "data")))
     ap.add_argument("--scratch", default=os.environ.get(
         "TANDEM_BENCH_SCRATCH", os.path.join(os.environ.get("TMPDIR", "/tmp"), "tandem-bench")))
-    ap.add_argument("--report", help="Markdown report (default: tests/bench/REPORT.md, or "
-                                     "SCRATCH/REPORT.md with --quick)")
-    ap.add_argument("--json", help="results JSON (default: beside the report, results.json)")
-    ap.add_argument("--keep", action="store_true", help="keep the output meshes in SCRATCH/runs")
-    ap.add_argument("--from-json", metavar="RESULTS", help="only rewrite the report from a "
-                    "results.json of an earlier run (runs nothing)")
+    ap.add_argument("--report", help=f"Markdown report (default: tests/bench/{report}, or "
+                                     f"SCRATCH/{report} with --quick)")
+    ap.add_argument("--json", help=f"results JSON (default: beside the report, {results})")
+    ap.add_argument("--keep", action="store_true", help="keep the output meshes in SCRATCH")
+    ap.add_argument("--from-json", metavar="RESULTS", help=f"only rewrite the report from a "
+                    f"{results} of an earlier run (runs nothing)")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_common_args(ap, "REPORT.md", "results.json")
+    ap.add_argument("--quick", action="store_true", help="64³/128³ + smallest shared volume, 1 repeat")
+    ap.add_argument("--repeats", type=int, help="runs per pipeline (default 3, --quick 1)")
+    ap.add_argument("--sizes", help="comma-separated synthetic grid sizes (overrides the mode's)")
+    ap.add_argument("--calibrate", action="store_true", help="redo the E0 search and rewrite e0.json")
     args = ap.parse_args()
     if args.from_json:
         with open(args.from_json) as f:
@@ -747,14 +771,21 @@ def main():
     meta = {"machine": machine_info(), "packages": package_versions(), "failures": failures,
             "mode": "quick" if args.quick else "full", "repeats": args.repeats,
             "elapsed_s": time.perf_counter() - t_start}
+    finish("bench", report, results_json, results, meta,
+           lambda: write_report(report, results, meta, args), lambda: print_summary(results))
+
+
+def finish(tool, report, results_json, results, meta, write, summary):
+    """Writes the results JSON and (write()) the report, prints summary(), and exits with 1
+    when meta lists failures."""
     with open(results_json, "w") as f:
         json.dump({"meta": meta, "inputs": results}, f, indent=1)
-    write_report(report, results, meta, args)
-    print_summary(results)
+    write()
+    summary()
     log(f"\nwrote {report} and {results_json} ({meta['elapsed_s']:.0f} s)")
-    if failures:
-        log(f"\nbench: {len(failures)} FAILURE(S):")
-        for f in failures:
+    if meta["failures"]:
+        log(f"\n{tool}: {len(meta['failures'])} FAILURE(S):")
+        for f in meta["failures"]:
             log("  " + f.splitlines()[0])
         sys.exit(1)
 

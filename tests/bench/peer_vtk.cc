@@ -6,6 +6,9 @@
 //                        this is "the fastest existing pipeline")
 //   peer_vtk --input V.json --iso C0 --simplify MODE [--target-triangles N] --out M.ply
 //   peer_vtk --modes     prints the modes this build supports
+//   peer_vtk --meshopt-version   prints MESHOPTIMIZER_VERSION of the build (1020 = 1.2), or 0
+// tests/bench/CMakeLists.txt compiles this file twice: peer_vtk against Debian's
+// meshoptimizer, peer_vtk_meshopt_upstream against the upstream source (same settings).
 // The volume is read from the same raw + JSON sidecar files as tandem reads, whole, into a
 // vtkImageData of the file's own voxel type (FlyingEdges3D needs the whole volume).
 // FlyingEdges3D runs with VTK's default SMP backend (TBB on Debian, all cores).
@@ -95,6 +98,14 @@ int main(int argc, char** argv) {
     std::puts("none vtkqd meshopt");
 #else
     std::puts("none vtkqd");
+#endif
+    return 0;
+  }
+  if (flags.count("meshopt-version")) {
+#ifdef BENCH_HAVE_MESHOPT
+    std::printf("%d\n", MESHOPTIMIZER_VERSION);
+#else
+    std::puts("0");
 #endif
     return 0;
   }

@@ -2,6 +2,11 @@
 # The tandem benchmark (issue 6): builds tests/bench (our CLI, mesh_check and the peer
 # programs whose libraries are installed) and runs bench.py.
 #   bash tests/bench/run.sh [--quick] [--repeats N] [--only NAME] [--calibrate] [--keep]
+# With --dense (first argument) it runs the dense family instead (dense.py, issue 25:
+# tests/bench/DENSE.md), which also needs tandem-server and tandem-client: it brings them up
+# to date in the main build ($TANDEM_BENCH_SERVER_BUILD, default <repo>/build) when that is
+# configured, else the server rows are skipped.
+#   bash tests/bench/run.sh --dense [--quick] [--repeats N] [--only NAME] [--keep]
 # Full mode writes tests/bench/REPORT.md and tests/bench/results.json; --quick writes them to
 # the scratch directory ($TANDEM_BENCH_SCRATCH, default ${TMPDIR:-/tmp}/tandem-bench), which
 # also holds the generated volumes (never committed). Peers: bash tests/bench/install-peers.sh
@@ -10,6 +15,13 @@ set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
 build="${TANDEM_BENCH_BUILD:-$root/build-bench-peers}"
+script="$here/bench.py"
+dense=false
+if [[ "${1:-}" == "--dense" ]]; then
+  shift
+  dense=true
+  script="$here/dense.py"
+fi
 python=/usr/bin/python3  # Debian's (python3-matplotlib lives there), not a pyenv shim
 [[ -x $python ]] || python=python3
 
@@ -22,4 +34,17 @@ if ! { cmake -S "$here" -B "$build" -DCMAKE_BUILD_TYPE=Release &&
   exit 1
 fi
 grep -E '^-- bench:' "$build/bench-build.log" || true
-exec "$python" "$here/bench.py" --bin "$build/bin" "$@"
+if $dense; then
+  server_build="${TANDEM_BENCH_SERVER_BUILD:-$root/build}"
+  if [[ -f "$server_build/CMakeCache.txt" ]]; then
+    echo "building tandem-server and tandem-client in $server_build"
+    if ! cmake --build "$server_build" --target tandem-server tandem-client -j"$(nproc)" \
+        >"$build/server-build.log" 2>&1; then
+      tail -n 40 "$build/server-build.log"
+      echo "bench: building the server failed (full log: $build/server-build.log)" >&2
+      exit 1
+    fi
+  fi
+  set -- --server-bin "$server_build/bin" "$@"
+fi
+exec "$python" "$script" --bin "$build/bin" "$@"
