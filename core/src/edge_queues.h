@@ -129,8 +129,8 @@ class EdgeQueue {
   void Clear();
   // Q empties at the end of every SIMPLIFY(E0) (edges above E0 are never queued), but each of
   // its buckets and its slots kept the capacity of their own peaks: two thirds of a dense
-  // session's memory. Trim, on an empty Q, frees every bucket and slot array larger than a
-  // few pages; the order of what is pushed next is unchanged.
+  // session's memory. Trim, on an empty Q holding more than 4 MiB, frees every bucket and
+  // slot array larger than 1 KiB; the order of what is pushed next is unchanged.
   void Trim();
   size_t MemoryBytes() const;
 
