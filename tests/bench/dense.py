@@ -191,6 +191,7 @@ def run_server(inp, e0, bins, work, failures):
     out = os.path.join(work, "tandem-server.drc")
     metrics = out + ".metrics.json"
     so, se = os.path.join(work, "client.stdout"), os.path.join(work, "client.stderr")
+    server_err = os.path.join(work, "server.stderr")
     cmd = [bins["tandem-client"], "stream", "--server", None, "--input", inp.path, "--iso",
            repr(inp.iso), "--error", repr(e0), "--out", out, "--metrics", metrics, "--quiet",
            "--timeout", str(CLIENT_TIMEOUT_S)]
@@ -200,7 +201,7 @@ def run_server(inp, e0, bins, work, failures):
             if os.path.exists(stale):
                 os.remove(stale)
         try:
-            server = Server(bins["tandem-server"], flags, os.path.join(work, "server.stderr"))
+            server = Server(bins["tandem-server"], flags, server_err)
         except RuntimeError as e:
             bench.report_failure(f"{inp.name} / tandem-server", str(e), cmd, se, failures)
             return None, "the server did not start", notes
@@ -235,6 +236,13 @@ def run_server(inp, e0, bins, work, failures):
             except (OSError, ValueError, KeyError) as e:
                 problem = f"unreadable result: {e}"
         if problem is not None:
+            # The benchmark signals its server only after the client has exited: a signal the
+            # server logged during the stream came from elsewhere on the machine.
+            signals = [l.strip() for l in bench.tail(server_err, 50).splitlines()
+                       if "SIGINT:" in l or "SIGTERM:" in l]
+            if signals and "shutting down" in said:
+                problem += f" (the server was stopped during the stream by a signal from " \
+                           f"outside the benchmark: {signals[0]})"
             bench.report_failure(f"{inp.name} / tandem-server", problem, cmd, se, failures)
             return None, problem, notes
         r.update({"client_cpu_s": r["cpu_s"], "client_peak_rss_bytes": r["peak_rss_bytes"],
@@ -445,7 +453,7 @@ def targets_lines(results, meta):
                      f"{fmt(sw)} s = {fmt(ratio(sw, fe), '.1f')}× FlyingEdges3D alone "
                      f"({fmt(fe)} s, process wall); server peak "
                      f"{fmt(mib(med(res, 'tandem-server', 'peak_rss_bytes')), '.0f')} MiB"
-                     + (f". {notes}" if notes else ""))
+                     + (f"; {notes}" if notes else ""))
     if not L:
         L.append("- 2048²×64 gyroids through the server: not run in this mode.")
     for o in OURS:
