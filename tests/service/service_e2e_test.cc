@@ -614,6 +614,71 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
   EXPECT_NE(refused.err.find("FAILED_PRECONDITION"), std::string::npos) << refused.err;
 }
 
+// A watcher that reads nothing holds the stream back in no way, and misses no chunk: the
+// watcher's channel has a 1 KiB flow-control window (no BDP probing), so the server cannot
+// write it a single chunk while it does not read; the stream still runs to its end. Then the
+// watcher reads: every chunk in index order without a gap, as many triangles as the stream's
+// final mesh, and its final metrics; of the previews and progress messages sent while it was
+// stalled it gets only the latest ones (latest wins), not the backlog.
+TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChunk) {
+  auto path = WriteSyntheticVolume(dir_, "gyroid", MakeSyntheticSource(Shape::kGyroid, 96, 96, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto streamer = ChildProcess::Spawn(
+      {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
+       "--iso", "0", "--error", "0.02", "--seal", "--rate", "40", "--preview-every", "1",
+       "--chunks", dir_ + "/chunks", "--out", dir_ + "/s.ply", "--metrics", dir_ + "/s.json"},
+      dir_);
+  ASSERT_TRUE(streamer.ok()) << streamer.status();
+  const std::string id = SessionIdOf(**streamer);
+  ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
+
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 1024);
+  auto stub = v1::Tandem::NewStub(
+      grpc::CreateCustomChannel(server_->address(), server_->Credentials(), args));
+  grpc::ClientContext context;
+  server_->AddToken(&context);
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(180));
+  v1::WatchRequest request;
+  request.set_session_id(id);
+  auto watch = stub->Watch(&context, request);
+  v1::ExtractResponse first;  // attached: the first message is read, then nothing
+  ASSERT_TRUE(watch->Read(&first));
+
+  ASSERT_EQ((*streamer)->Wait(120), std::optional<int>(0)) << (*streamer)->Stderr();
+  auto report = ReportFromJson(ReadFile(dir_ + "/s.json"));
+  ASSERT_TRUE(report.ok()) << report.status();
+  size_t chunk_files = 0;
+  int64_t chunk_bytes = 0;
+  for (const auto& f : std::filesystem::directory_iterator(dir_ + "/chunks")) {
+    ++chunk_files;
+    chunk_bytes += static_cast<int64_t>(std::filesystem::file_size(f.path()));
+  }
+  ASSERT_GE(chunk_files, 2u);
+  ASSERT_GT(chunk_bytes, 64 * 1024) << "the chunks must outgrow the watcher's window many times";
+
+  std::vector<v1::ExtractResponse> got{first};
+  for (v1::ExtractResponse m; watch->Read(&m);) got.push_back(m);
+  ASSERT_TRUE(watch->Finish().ok());
+  // Progress and previews sent once the first chunk was waiting for the window: 96 slices'
+  // worth went by, and the watcher gets no backlog of them, only the latest.
+  int64_t next_index = 0, triangles = 0, late_updates = 0, finals = 0;
+  for (const v1::ExtractResponse& m : got) {
+    if (m.has_sealed_chunk()) {
+      EXPECT_EQ(m.sealed_chunk().index(), next_index++);
+      triangles += m.sealed_chunk().triangles();
+    }
+    if (next_index > 0) late_updates += m.has_progress() + m.has_preview();
+    finals += m.has_final_metrics();
+  }
+  EXPECT_EQ(next_index, static_cast<int64_t>(chunk_files));
+  EXPECT_EQ(triangles, report->triangles_final);
+  EXPECT_EQ(finals, 1);
+  EXPECT_LE(late_updates, 2 * next_index + 2);
+}
+
 // Resume. The ID:TOKEN a streaming client prints for --resume ("" until it has).
 std::string ResumeKey(const std::string& err) {
   const size_t at = err.find("--resume ");
