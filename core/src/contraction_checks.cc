@@ -206,10 +206,10 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
                 std::vector<Survivor>* survivors, RefusalCounts* refusals) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
   // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|.
-  // Which triangles are on ab (removed) and which are already degenerate (exact iso hits: no
-  // constraint) varies from call to call: branching on it was mispredicted. The survivors
-  // are gathered first (written always, kept by a count), the degenerate ones masked out;
-  // a refusal is rare and may branch.
+  // Which triangles are on ab (removed) varies from call to call: branching on it was
+  // mispredicted. The survivors are gathered first (written always, kept by a count); a
+  // refusal is rare and may branch, so whether the survivor was degenerate already (exact iso
+  // hits: no constraint) is asked there.
   const auto ta = store.vertex_triangles(a), tb = store.vertex_triangles(b);
   if (survivors->size() < ta.size() + tb.size()) survivors->resize(ta.size() + tb.size());
   size_t n = 0;
@@ -231,9 +231,17 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     const double old2 = Dot(n_old, n_old);
     const double off = Dot(n_old, pos - p[0]);
     const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
-    p[CornerOf(tri, v)] = pos;
+    const int corner = CornerOf(tri, v);
+    const Vec3 from = p[corner];
+    p[corner] = pos;
     const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
-    if ((old2 != 0.0) & (far | move.collapses | move.flips)) {
+    if (far | move.collapses | move.flips) {
+      // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
+      // point) has no orientation or plane to keep: the contraction is not refused for it.
+      // (Until stop 35 only an exactly zero area was exempt, and the shared integer scans
+      // kept 18 to 136 zero-area triangles.)
+      p[corner] = from;
+      if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
       if (far) {
         ++refusals->distance;
       } else if (move.collapses) {
