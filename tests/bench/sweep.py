@@ -10,11 +10,14 @@ Inputs: the Pillow Box and the Link generated at 256³ and 512³ (SCRATCH/volume
 bench.py) and the shared CT/MRI volumes (../shared/data beside the repository, at their first
 suggested iso-value; skipped when absent).
 
-E0 values, per input: geometric from E0(10 %) (tests/bench/e0.json, the E0 at which tandem-lag
+E0 values, per input (stopping early once tandem-lag's count falls by less than 3 % from one
+value to the next: the floor of a volume with many small components): geometric from E0(10 %) (tests/bench/e0.json, the E0 at which tandem-lag
 keeps ~10 % of the triangles) up to the E0 that keeps ~0.1 %, estimated from one probe run
 (tandem-lag, --parts 1, at 30 × E0(10 %)) by fitting kept ∝ E0^-p through the two points.
---points N values per input (default 7; --points-large for inputs over 1 M triangles,
-default 4; --quick: 3).
+--points N values per input (default 7); inputs over 300 k triangles get --points-mid (5),
+those over 1 M (the 512³ ones) --points-large (2) from ~1 % to ~0.1 % only: the 10 % point is
+the main benchmark's, and a point of theirs costs minutes of CGAL and VTK. --quick: 3 values.
+Order: the 256³ inputs, the shared ones, then the 512³ ones (a partial run keeps the rest).
 
 Per E0, each in its own process (bench.py's launcher: wall time, CPU time, peak RSS):
   classical, tandem, tandem-lag    the CLI with --schedule S, default slabs (--parts 0: 4 on
@@ -50,7 +53,7 @@ HERE = bench.HERE
 OURS = ["classical", "tandem", "tandem-lag"]
 PEERS = {"mc+cgal": "peer_mc_cgal", "fe3d+vtkqd": "peer_vtk"}
 REFERENCE = "tandem-lag"  # the peers are asked for its triangle count (default slabs)
-LARGE = 1_000_000  # full-resolution triangles above which an input gets --points-large
+MID, LARGE = 300_000, 1_000_000  # full-resolution triangles: --points-mid, --points-large
 PROBE_FACTOR = 30.0
 NOTES_BEGIN, NOTES_END = "<!-- notes -->", "<!-- /notes -->"
 
@@ -64,28 +67,40 @@ def variants():
     return out
 
 
+def generated(args, tandem_bin, name):
+    """A generated volume (SHAPE-N), made in SCRATCH/volumes unless it is there already."""
+    shape, n = name.rsplit("-", 1)
+    n = int(n)
+    path = os.path.join(args.scratch, "volumes", f"{name}.json")
+    if not os.path.exists(path) or bench.load_sidecar(path).get("dims") != [n, n, n]:
+        log(f"generating {name} -> {path}")
+        bench.run_tool([tandem_bin, "generate", shape, "--size", str(n), "--out", path])
+    meta = bench.load_sidecar(path)
+    return bench.Input(name, path, 0.0, meta.get("spacing", [1, 1, 1]), meta["dims"],
+                       meta["dtype"], "synthetic")
+
+
 def make_inputs(args, tandem_bin):
     inputs = []
-    synth = ["pillowbox-64"] if args.quick else [
-        "pillowbox-256", "pillowbox-512", "link-256", "link-512"]
+    synth = ["pillowbox-64"] if args.quick else ["pillowbox-256", "link-256"]
     os.makedirs(os.path.join(args.scratch, "volumes"), exist_ok=True)
     for name in synth:
-        if args.only and not any(o in name for o in args.only):
-            continue
-        shape, n = name.rsplit("-", 1)
-        n = int(n)
-        path = os.path.join(args.scratch, "volumes", f"{name}.json")
-        if not os.path.exists(path) or bench.load_sidecar(path).get("dims") != [n, n, n]:
-            log(f"generating {name} -> {path}")
-            bench.run_tool([tandem_bin, "generate", shape, "--size", str(n), "--out", path])
-        meta = bench.load_sidecar(path)
-        inputs.append(bench.Input(name, path, 0.0, meta.get("spacing", [1, 1, 1]), meta["dims"],
-                                  meta["dtype"], "synthetic"))
+        if not args.only or any(o in name for o in args.only):
+            inputs.append(generated(args, tandem_bin, name))
     if args.quick:
         return inputs
+    shared_inputs(args, inputs)
+    # The 512³ inputs last: the most expensive, and a partial run keeps what came before.
+    for name in ("pillowbox-512", "link-512"):
+        if not args.only or any(o in name for o in args.only):
+            inputs.append(generated(args, tandem_bin, name))
+    return inputs
+
+
+def shared_inputs(args, inputs):
     if not os.path.isdir(args.data):
         log(f"SKIP shared volumes: {args.data} is absent")
-        return inputs
+        return
     for fn in sorted(os.listdir(args.data)):
         if not fn.endswith(".json"):
             continue
@@ -101,7 +116,6 @@ def make_inputs(args, tandem_bin):
                                   float(meta["suggested_isovalues"][0]),
                                   meta.get("spacing", [1, 1, 1]), meta["dims"], meta["dtype"],
                                   "shared"))
-    return inputs
 
 
 def ours_cmd(bins, inp, schedule, parts, e0, out):
@@ -168,10 +182,15 @@ def run_one(label, cmd, out, work, bins, parse, failures):
 def e0_points(args, bins, inp, e0_10, kept_10, n_full, work, failures):
     """The sweep's E0 values: geometric from E0(10 %) to the estimated ~0.1 % point."""
     n = args.points
+    first = 0.0  # the first point, as a fraction of the span's logarithm
     if args.quick:
         n = 3
     elif n_full > LARGE:
-        n = args.points_large
+        # Only the coarse half (~1 % to ~0.1 %): the 10 % point is the main benchmark's
+        # (REPORT.md), and a point of these inputs costs minutes of CGAL and VTK.
+        n, first = args.points_large, 0.5
+    elif n_full > MID:
+        n = args.points_mid
     probe_e0 = float(f"{e0_10 * PROBE_FACTOR:.2g}")
     out = os.path.join(work, "probe.ply")
     r = run_one(f"{inp.name} / probe", ours_cmd(bins, inp, "tandem-lag", 1, probe_e0, out), out,
@@ -186,7 +205,8 @@ def e0_points(args, bins, inp, e0_10, kept_10, n_full, work, failures):
             span = (kept_10 / 0.001) ** (1.0 / p)
         span = min(max(span, 5.0), 1000.0)
         os.remove(out)
-    es = [float(f"{e0_10 * span ** (i / (n - 1)):.3g}") for i in range(n)]
+    es = [float(f"{e0_10 * span ** (first + (1 - first) * i / max(1, n - 1)):.3g}")
+          for i in range(n)]
     return es, probe
 
 
@@ -242,6 +262,14 @@ def sweep_input(inp, e0_entry, args, bins, failures):
             for fn in os.listdir(work):
                 if (fn.endswith(".ply") or fn.endswith(".metrics.json")) and fn != "full.ply":
                     os.remove(os.path.join(work, fn))
+        counts = [p["runs"].get(REFERENCE, {}).get("triangles") for p in res["points"][-2:]]
+        if len(counts) == 2 and None not in counts and counts[1] >= 0.97 * counts[0]:
+            # The count stopped falling (the topology floor of a CT with many small
+            # components): coarser E0 values only repeat this point.
+            res["floor"] = counts[1]
+            log(f"  tandem-lag's count stopped falling ({counts[0]:,} -> {counts[1]:,}): "
+                "no coarser E0")
+            break
     if not args.keep:
         os.remove(full)
     return res
@@ -495,8 +523,11 @@ def main():
     bench.add_common_args(ap, "SWEEP.md", "sweep.json")
     ap.add_argument("--quick", action="store_true", help="pillowbox-64, 3 E0 values")
     ap.add_argument("--points", type=int, default=7, help="E0 values per input (default 7)")
-    ap.add_argument("--points-large", type=int, default=4,
-                    help=f"E0 values for inputs over {LARGE:,} triangles (default 4)")
+    ap.add_argument("--points-mid", type=int, default=5,
+                    help=f"E0 values for inputs over {MID:,} triangles (default 5)")
+    ap.add_argument("--points-large", type=int, default=2,
+                    help=f"E0 values for inputs over {LARGE:,} triangles, from ~1 %% to ~0.1 %% "
+                    "(default 2)")
     args = ap.parse_args()
     if args.from_json:
         with open(args.from_json) as f:
