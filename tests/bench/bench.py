@@ -736,14 +736,8 @@ def main():
     results_json = args.json or os.path.join(os.path.dirname(report), "results.json")
     os.makedirs(args.scratch, exist_ok=True)
 
-    bins = {}
-    for prog in ("tandem", "bench_run", "mesh_check", "peer_vtk", "peer_mc_meshopt", "peer_mc_cgal"):
-        path = os.path.join(args.bin, prog)
-        if os.access(path, os.X_OK):
-            bins[prog] = path
-    for required in ("tandem", "bench_run", "mesh_check"):
-        if required not in bins:
-            sys.exit(f"bench: {args.bin}/{required} is missing (build tests/bench first)")
+    bins = find_programs(args.bin, ("tandem", "bench_run", "mesh_check", "peer_vtk",
+                                    "peer_mc_meshopt", "peer_mc_cgal"), "bench")
     vtk_modes = run_tool([bins["peer_vtk"], "--modes"]).split() if "peer_vtk" in bins else []
 
     t_start = time.perf_counter()
@@ -773,6 +767,20 @@ def main():
             "elapsed_s": time.perf_counter() - t_start}
     finish("bench", report, results_json, results, meta,
            lambda: write_report(report, results, meta, args), lambda: print_summary(results))
+
+
+def find_programs(bin_dir, progs, tool):
+    """{program: path} of those of progs built in bin_dir; exits when tandem, bench_run or
+    mesh_check is missing."""
+    bins = {}
+    for prog in progs:
+        path = os.path.join(bin_dir, prog)
+        if os.access(path, os.X_OK):
+            bins[prog] = path
+    for required in ("tandem", "bench_run", "mesh_check"):
+        if required not in bins:
+            sys.exit(f"{tool}: {bin_dir}/{required} is missing (build tests/bench first)")
+    return bins
 
 
 def finish(tool, report, results_json, results, meta, write, summary):

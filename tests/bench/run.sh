@@ -7,6 +7,10 @@
 # to date in the main build ($TANDEM_BENCH_SERVER_BUILD, default <repo>/build) when that is
 # configured, else the server rows are skipped.
 #   bash tests/bench/run.sh --dense [--quick] [--repeats N] [--only NAME] [--keep]
+# With --sweep (first argument) it runs the reduction sweep instead (sweep.py, issue 24:
+# tests/bench/SWEEP.md): every schedule and the CGAL / VTK peers from ~10 % down to ~0.1 %
+# of the triangles.
+#   bash tests/bench/run.sh --sweep [--quick] [--only NAME] [--points N] [--keep]
 # Full mode writes tests/bench/REPORT.md and tests/bench/results.json; --quick writes them to
 # the scratch directory ($TANDEM_BENCH_SCRATCH, default ${TMPDIR:-/tmp}/tandem-bench), which
 # also holds the generated volumes (never committed). Peers: bash tests/bench/install-peers.sh
@@ -21,6 +25,9 @@ if [[ "${1:-}" == "--dense" ]]; then
   shift
   dense=true
   script="$here/dense.py"
+elif [[ "${1:-}" == "--sweep" ]]; then
+  shift
+  script="$here/sweep.py"
 fi
 python=/usr/bin/python3  # Debian's (python3-matplotlib lives there), not a pyenv shim
 [[ -x $python ]] || python=python3

@@ -1,0 +1,585 @@
+#!/usr/bin/env python3
+"""The reduction sweep (issue 24, item 1): quality at every reduction, from the ~10 % point the
+main benchmark uses down to ~0.1 % of the full-resolution triangles.
+
+Run it through tests/bench/run.sh (which builds the programs first):
+    bash tests/bench/run.sh --sweep            # full: tests/bench/SWEEP.md + sweep.json + PNGs
+    bash tests/bench/run.sh --sweep --quick    # pillowbox-64, 3 E0 values, scratch directory
+
+Inputs: the Pillow Box and the Link generated at 256³ and 512³ (SCRATCH/volumes, shared with
+bench.py) and the shared CT/MRI volumes (../shared/data beside the repository, at their first
+suggested iso-value; skipped when absent).
+
+E0 values, per input (stopping early once tandem-lag's count falls by less than 3 % from one
+value to the next: the floor of a volume with many small components): geometric from E0(10 %) (tests/bench/e0.json, the E0 at which tandem-lag
+keeps ~10 % of the triangles) up to the E0 that keeps ~0.1 %, estimated from one probe run
+(tandem-lag, --parts 1, at 30 × E0(10 %)) by fitting kept ∝ E0^-p through the two points.
+--points N values per input (default 7); inputs over 300 k triangles get --points-mid (5),
+those over 1 M (the 512³ ones) --points-large (2) from ~1 % to ~0.1 % only: the 10 % point is
+the main benchmark's, and a point of theirs costs minutes of CGAL and VTK. --quick: 3 values.
+Order: the 256³ inputs, the shared ones, then the 512³ ones (a partial run keeps the rest).
+
+Per E0, each in its own process (bench.py's launcher: wall time, CPU time, peak RSS):
+  classical, tandem, tandem-lag    the CLI with --schedule S, default slabs (--parts 0: 4 on
+                                   grids at least 256 wide) and --parts 1 ("/p1");
+  mc+cgal                          our marching cubes + CGAL edge_collapse (Garland-Heckbert),
+  fe3d+vtkqd                       FlyingEdges3D + vtkQuadricDecimation, both asked for
+                                   tandem-lag's triangle count (default slabs).
+Per output: RMS (L2) and Hausdorff distance to our full-resolution marching-cubes surface
+(`tandem measure full.ply out.ply --json`, undirected), mesh_check (manifold, Euler
+characteristic and components compared with the full surface's, zero-area triangles), and
+for ours Error(K) <= E0 from the metrics (error_max) and the refusal counts.
+
+The report (SWEEP.md) keeps the hand-written text between the markers
+<!-- notes --> and <!-- /notes --> of the existing file (the findings of issue 24, item 2).
+
+Exit status: 0 when every run produced its output, 1 otherwise (the sweep goes on after a
+failure and reports it). A check that fails (non-manifold, Euler characteristic, Error(K))
+is reported, not failed: these are the targets the issue measures.
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench  # noqa: E402  (the launcher, run_tool, machine info, formats)
+from bench import fmt, log, ratio  # noqa: E402
+
+HERE = bench.HERE
+OURS = ["classical", "tandem", "tandem-lag"]
+PEERS = {"mc+cgal": "peer_mc_cgal", "fe3d+vtkqd": "peer_vtk"}
+REFERENCE = "tandem-lag"  # the peers are asked for its triangle count (default slabs)
+MID, LARGE = 300_000, 1_000_000  # full-resolution triangles: --points-mid, --points-large
+PROBE_FACTOR = 30.0
+NOTES_BEGIN, NOTES_END = "<!-- notes -->", "<!-- /notes -->"
+
+
+def variants():
+    """(label, schedule, parts) of our runs: default slabs, then one slab."""
+    out = []
+    for s in OURS:
+        out.append((s, s, None))
+        out.append((s + "/p1", s, 1))
+    return out
+
+
+def generated(args, tandem_bin, name):
+    """A generated volume (SHAPE-N), made in SCRATCH/volumes unless it is there already."""
+    shape, n = name.rsplit("-", 1)
+    n = int(n)
+    path = os.path.join(args.scratch, "volumes", f"{name}.json")
+    if not os.path.exists(path) or bench.load_sidecar(path).get("dims") != [n, n, n]:
+        log(f"generating {name} -> {path}")
+        bench.run_tool([tandem_bin, "generate", shape, "--size", str(n), "--out", path])
+    meta = bench.load_sidecar(path)
+    return bench.Input(name, path, 0.0, meta.get("spacing", [1, 1, 1]), meta["dims"],
+                       meta["dtype"], "synthetic")
+
+
+def make_inputs(args, tandem_bin):
+    inputs = []
+    synth = ["pillowbox-64"] if args.quick else ["pillowbox-256", "link-256"]
+    os.makedirs(os.path.join(args.scratch, "volumes"), exist_ok=True)
+    for name in synth:
+        if not args.only or any(o in name for o in args.only):
+            inputs.append(generated(args, tandem_bin, name))
+    if args.quick:
+        return inputs
+    shared_inputs(args, inputs)
+    # The 512³ inputs last: the most expensive, and a partial run keeps what came before.
+    for name in ("pillowbox-512", "link-512"):
+        if not args.only or any(o in name for o in args.only):
+            inputs.append(generated(args, tandem_bin, name))
+    return inputs
+
+
+def shared_inputs(args, inputs):
+    if not os.path.isdir(args.data):
+        log(f"SKIP shared volumes: {args.data} is absent")
+        return
+    for fn in sorted(os.listdir(args.data)):
+        if not fn.endswith(".json"):
+            continue
+        name = fn[:-5]
+        if args.only and not any(o in name for o in args.only):
+            continue
+        meta = bench.load_sidecar(os.path.join(args.data, fn))
+        raw = os.path.join(args.data, meta.get("raw_file", name + ".raw"))
+        if not os.path.exists(raw):
+            log(f"SKIP {fn}: its raw file {raw} is absent")
+            continue
+        inputs.append(bench.Input(name, os.path.join(args.data, fn),
+                                  float(meta["suggested_isovalues"][0]),
+                                  meta.get("spacing", [1, 1, 1]), meta["dims"], meta["dtype"],
+                                  "shared"))
+
+
+def ours_cmd(bins, inp, schedule, parts, e0, out):
+    cmd = [bins["tandem"], "extract", "--input", inp.path, "--iso", repr(inp.iso),
+           "--out", out, "--metrics", out + ".metrics.json", "--quiet"]
+    if schedule == "none":
+        return cmd + ["--no-simplify"]
+    cmd += ["--error", repr(e0), "--schedule", schedule]
+    if parts is not None:
+        cmd += ["--parts", str(parts)]
+    return cmd
+
+
+def peer_cmd(bins, inp, name, target, out):
+    if name == "fe3d+vtkqd":
+        return [bins["peer_vtk"], "--input", inp.path, "--iso", repr(inp.iso), "--simplify",
+                "vtkqd", "--target-triangles", str(target), "--out", out]
+    return [bins["peer_mc_cgal"], "--input", inp.path, "--iso", repr(inp.iso),
+            "--target-triangles", str(target), "--out", out]
+
+
+def parse_ours(out):
+    m = bench.load_sidecar(out + ".metrics.json")
+    keep = {"triangles": m["triangles_final"], "triangles_extracted": m["triangles_extracted"],
+            "error_max": m["error_max"], "peak_triangles": m.get("peak_triangles")}
+    for k in ("refusals", "contractions", "max_reach_over_front", "max_layer_over_front"):
+        if k in m:
+            keep[k] = m[k]
+    return keep
+
+
+def parse_peer(stdout_path):
+    with open(stdout_path) as f:
+        lines = [l for l in f.read().splitlines() if l.startswith("{")]
+    if not lines:
+        raise RuntimeError("no result line on stdout")
+    r = json.loads(lines[-1])
+    return {"triangles": r["triangles_final"], "triangles_extracted": r["triangles_extracted"]}
+
+
+def measure(bins, full, out):
+    """Distance to the full-resolution surface and topology of one output."""
+    d = json.loads(bench.run_tool([bins["tandem"], "measure", full, out, "--json"]))["distance"]
+    t = json.loads(bench.run_tool([bins["mesh_check"], out]))
+    return {"rms": d["L2"]["max"], "hausdorff": d["Linf"]["max"],
+            "topology": {k: t[k] for k in ("manifold", "euler", "components", "boundary_edges",
+                                           "nonmanifold_edges", "degenerate_triangles")}}
+
+
+def run_one(label, cmd, out, work, bins, parse, failures):
+    """One measured run; returns its result dict or None (failure recorded)."""
+    for stale in (out, out + ".metrics.json"):
+        if os.path.exists(stale):
+            os.remove(stale)
+    stem = os.path.join(work, label.replace("/", "_").replace("+", "_"))
+    so, se = stem + ".stdout", stem + ".stderr"
+    r, problem = bench.run_checked(label, cmd, out, so, se, bins["bench_run"],
+                                   lambda: parse(so), failures)
+    if problem is not None:
+        return None
+    return {k: r[k] for k in r if k not in ("rc",)}
+
+
+def e0_points(args, bins, inp, e0_10, kept_10, n_full, work, failures):
+    """The sweep's E0 values: geometric from E0(10 %) to the estimated ~0.1 % point."""
+    n = args.points
+    first = 0.0  # the first point, as a fraction of the span's logarithm
+    if args.quick:
+        n = 3
+    elif n_full > LARGE:
+        # Only the coarse half (~1 % to ~0.1 %): the 10 % point is the main benchmark's
+        # (REPORT.md), and a point of these inputs costs minutes of CGAL and VTK.
+        n, first = args.points_large, 0.5
+    elif n_full > MID:
+        n = args.points_mid
+    probe_e0 = float(f"{e0_10 * PROBE_FACTOR:.2g}")
+    out = os.path.join(work, "probe.ply")
+    r = run_one(f"{inp.name} / probe", ours_cmd(bins, inp, "tandem-lag", 1, probe_e0, out), out,
+                work, bins, lambda so: parse_ours(out), failures)
+    span = 100.0  # kept ∝ 1/E0 when the probe says nothing
+    probe = None
+    if r is not None:
+        f_probe = r["triangles"] / max(1, n_full)
+        probe = {"e0": probe_e0, "kept": f_probe}
+        if 0 < f_probe < kept_10:
+            p = math.log(kept_10 / f_probe) / math.log(probe_e0 / e0_10)
+            span = (kept_10 / 0.001) ** (1.0 / p)
+        span = min(max(span, 5.0), 1000.0)
+        os.remove(out)
+    es = [float(f"{e0_10 * span ** (first + (1 - first) * i / max(1, n - 1)):.3g}")
+          for i in range(n)]
+    return es, probe
+
+
+def sweep_input(inp, e0_entry, args, bins, failures):
+    work = os.path.join(args.scratch, "sweep", inp.name)
+    os.makedirs(work, exist_ok=True)
+    res = {"name": inp.name, "kind": inp.kind, "grid": inp.grid, "dtype": inp.dtype,
+           "iso": inp.iso, "spacing": inp.spacing, "e0_10": e0_entry["e0"], "points": []}
+    full = os.path.join(work, "full.ply")
+    r = run_one(f"{inp.name} / mc-only", ours_cmd(bins, inp, "none", None, 0, full), full, work,
+                bins, lambda so: parse_ours(full), failures)
+    if r is None:
+        res["failed"] = "full-resolution extraction failed"
+        return res
+    t = json.loads(bench.run_tool([bins["mesh_check"], full]))
+    res["full"] = {"triangles": r["triangles"], "wall_s": r["wall_s"],
+                   "euler": t["euler"], "components": t["components"],
+                   "manifold": t["manifold"]}
+    n_full = r["triangles"]
+    log(f"{inp.name}: {n_full:,} triangles at full resolution, χ = {t['euler']}, "
+        f"{t['components']} components; E0(10 %) = {e0_entry['e0']:g}")
+    es, probe = e0_points(args, bins, inp, e0_entry["e0"], e0_entry["kept"], n_full, work,
+                          failures)
+    res["probe"] = probe
+    log(f"  E0 values: {', '.join(f'{e:g}' for e in es)}")
+    for e0 in es:
+        pt = {"e0": e0, "runs": {}}
+        def run(name, cmd, out, parse):
+            label = f"{inp.name} / E0 {e0:g} / {name}"
+            r = run_one(label, cmd, out, work, bins, parse, failures)
+            if r is not None:
+                r.update(measure_or_fail(bins, full, out, label, failures))
+            pt["runs"][name] = r or {"failed": True}
+
+        for label, sched, parts in variants():
+            out = os.path.join(work, label.replace("/", "_") + ".ply")
+            run(label, ours_cmd(bins, inp, sched, parts, e0, out), out,
+                lambda so, out=out: parse_ours(out))
+        target = pt["runs"].get(REFERENCE, {}).get("triangles")
+        for name, prog in PEERS.items():
+            if prog not in bins:
+                pt["runs"][name] = {"skipped": f"{prog} not built"}
+            elif target is None:
+                pt["runs"][name] = {"failed": True}
+            else:
+                out = os.path.join(work, name.replace("+", "_") + ".ply")
+                run(name, peer_cmd(bins, inp, name, target, out), out, parse_peer)
+        res["points"].append(pt)
+        line = "  ".join(f"{k} {v['triangles']:,}/{fmt(v.get('rms'))}"
+                         for k, v in pt["runs"].items() if "triangles" in v)
+        log(f"  E0 {e0:g}: {line}")
+        if not args.keep:
+            for fn in os.listdir(work):
+                if (fn.endswith(".ply") or fn.endswith(".metrics.json")) and fn != "full.ply":
+                    os.remove(os.path.join(work, fn))
+        counts = [p["runs"].get(REFERENCE, {}).get("triangles") for p in res["points"][-2:]]
+        if len(counts) == 2 and None not in counts and counts[1] >= 0.97 * counts[0]:
+            # The count stopped falling (the topology floor of a CT with many small
+            # components): coarser E0 values only repeat this point.
+            res["floor"] = counts[1]
+            log(f"  tandem-lag's count stopped falling ({counts[0]:,} -> {counts[1]:,}): "
+                "no coarser E0")
+            break
+    if not args.keep:
+        os.remove(full)
+    return res
+
+
+def measure_or_fail(bins, full, out, label, failures):
+    try:
+        return measure(bins, full, out)
+    except (RuntimeError, ValueError, KeyError) as e:
+        msg = f"{label}: measuring the output failed: {e}"
+        log("FAILED " + msg)
+        failures.append(msg)
+        return {"measure_failed": True}
+
+
+# ----------------------------------------------------------------------------------------
+# Checks, ratios, plots, report.
+
+def checks(res, run):
+    """The problems of one of our outputs (or a peer's): topology against the full surface,
+    Error(K) <= E0 (ours)."""
+    problems = []
+    t = run.get("topology")
+    full = res.get("full", {})
+    if t:
+        if not t["manifold"]:
+            problems.append(f"non-manifold ({t['nonmanifold_edges']} edges)")
+        if t["euler"] != full.get("euler"):
+            problems.append(f"χ {t['euler']} (full {full.get('euler')})")
+        if t["components"] != full.get("components"):
+            problems.append(f"{t['components']} components (full {full.get('components')})")
+    return problems
+
+
+def error_ok(run, e0):
+    em = run.get("error_max")
+    return None if em is None else em <= e0 * (1 + 1e-9)
+
+
+def point_ratios(pt):
+    runs = pt["runs"]
+
+    def get(name, key):
+        return runs.get(name, {}).get(key)
+    return {
+        "lag_cgal_rms": ratio(get("tandem-lag", "rms"), get("mc+cgal", "rms")),
+        "lag_vtkqd_rms": ratio(get("tandem-lag", "rms"), get("fe3d+vtkqd", "rms")),
+        "lag_cgal_hausdorff": ratio(get("tandem-lag", "hausdorff"), get("mc+cgal", "hausdorff")),
+        "lag_classical_count": ratio(get("tandem-lag", "triangles"), get("classical", "triangles")),
+        "lag_classical_count_p1": ratio(get("tandem-lag/p1", "triangles"),
+                                        get("classical/p1", "triangles")),
+    }
+
+
+def plot(res, path):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        log("SKIP plots: matplotlib is not installed for this python")
+        return False
+    styles = {"classical": ("tab:blue", "-", "o"), "tandem": ("tab:orange", "-", "s"),
+              "tandem-lag": ("tab:red", "-", "D"), "classical/p1": ("tab:blue", "--", "o"),
+              "tandem/p1": ("tab:orange", "--", "s"), "tandem-lag/p1": ("tab:red", "--", "D"),
+              "mc+cgal": ("black", "-", "x"), "fe3d+vtkqd": ("tab:green", "-", "+")}
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    for name, (color, ls, marker) in styles.items():
+        xs, ys = [], []
+        for pt in res["points"]:
+            r = pt["runs"].get(name, {})
+            if r.get("rms") is not None and r.get("triangles"):
+                xs.append(r["triangles"])
+                ys.append(r["rms"])
+        if xs:
+            label = name.replace("/p1", " (--parts 1)")
+            if name in PEERS:
+                label += " (at tandem-lag's count)"
+            ax.plot(xs, ys, color=color, linestyle=ls, marker=marker, label=label, lw=1.2, ms=5,
+                    fillstyle="none" if "/p1" in name else "full")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("triangles")
+    ax.set_ylabel("RMS distance to the full-resolution surface")
+    full = res.get("full", {}).get("triangles")
+    ax.set_title(f"{res['name']} ({full:,} triangles at full resolution)" if full else res["name"])
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return True
+
+
+def read_notes(path):
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError:
+        return None
+    a, b = text.find(NOTES_BEGIN), text.find(NOTES_END)
+    if a < 0 or b < a:
+        return None
+    return text[a:b + len(NOTES_END)]
+
+
+def geomean(xs):
+    xs = [x for x in xs if x is not None and x > 0]
+    return math.exp(sum(math.log(x) for x in xs) / len(xs)) if xs else None
+
+
+def write_report(path, results, meta, plots):
+    notes = read_notes(path) or (NOTES_BEGIN + "\n(no notes yet)\n" + NOTES_END)
+    m = meta["machine"]
+    L = ["# The reduction sweep (issue 24)", "",
+         "Generated by `bash tests/bench/run.sh --sweep` (tests/bench/sweep.py; results in "
+         "sweep.json beside this file). The text between the notes markers is hand-written and "
+         "kept when the report is regenerated.", "",
+         f"Machine: {m['cpu']}, {m['cores']} cores (shared), {m['memory']}; commit {m['commit']}; "
+         f"{m['date']}; load average at start {', '.join(f'{x:.1f}' for x in m['load_average_at_start'])}; "
+         f"{meta['elapsed_s'] / 60:.0f} min. Mode: {meta['mode']}. One run per point (timings "
+         "are indicative only: other jobs shared the machine).", "",
+         "Every E0 row: our three schedules with the default slabs (4 on grids at least 256 wide, "
+         "else 1) and with `--parts 1` (/p1); CGAL Garland–Heckbert (mc+cgal) and "
+         "vtkQuadricDecimation (fe3d+vtkqd) asked for tandem-lag's count (default slabs). RMS and "
+         "Hausdorff: `tandem measure` against our full-resolution marching-cubes surface.", "",
+         notes, ""]
+    # Summary of the key ratios.
+    L += ["## Key ratios per point", "",
+          "lag/CGAL RMS = tandem-lag RMS / CGAL GH RMS at the same triangle count (target ≤ 1.1); "
+          "lag/vtkqd RMS likewise (target < 1); lag/classical count = tandem-lag triangles / "
+          "classical triangles at the same E0 (target ≤ 1.15), default slabs and --parts 1.", "",
+          "| input | E0 | kept (lag) | lag/CGAL RMS | lag/CGAL Hausdorff | lag/vtkqd RMS | "
+          "lag/classical count | same, --parts 1 |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    allr = {k: [] for k in ("lag_cgal_rms", "lag_vtkqd_rms", "lag_classical_count",
+                            "lag_classical_count_p1", "lag_cgal_hausdorff")}
+    for res in results:
+        nf = res.get("full", {}).get("triangles")
+        for pt in res.get("points", []):
+            q = point_ratios(pt)
+            for k in allr:
+                allr[k].append(q[k])
+            lag = pt["runs"].get("tandem-lag", {}).get("triangles")
+            kept = f"{100 * lag / nf:.2f} %" if lag and nf else "–"
+
+            def b(x, lim):
+                s = fmt(x, ".2f")
+                return f"**{s}**" if x is not None and x > lim else s
+            L.append(f"| {res['name']} | {pt['e0']:g} | {kept} | {b(q['lag_cgal_rms'], 1.1)} | "
+                     f"{fmt(q['lag_cgal_hausdorff'], '.2f')} | {b(q['lag_vtkqd_rms'], 1.0)} | "
+                     f"{b(q['lag_classical_count'], 1.15)} | {b(q['lag_classical_count_p1'], 1.15)} |")
+    L += ["", "Bold: outside the issue's target. Geometric means over all points: "
+          f"lag/CGAL RMS {fmt(geomean(allr['lag_cgal_rms']), '.2f')}, "
+          f"lag/vtkqd RMS {fmt(geomean(allr['lag_vtkqd_rms']), '.2f')}, "
+          f"lag/classical count {fmt(geomean(allr['lag_classical_count']), '.2f')} "
+          f"(--parts 1: {fmt(geomean(allr['lag_classical_count_p1']), '.2f')}); worst: "
+          f"lag/CGAL RMS {fmt(max([x for x in allr['lag_cgal_rms'] if x] or [None], key=lambda x: x or 0), '.2f')}, "
+          f"lag/classical count {fmt(max([x for x in allr['lag_classical_count'] if x] or [None], key=lambda x: x or 0), '.2f')}.",
+          ""]
+    # Checks.
+    L += ["## Checks", "",
+          "Each output against the full-resolution surface: manifold, the same Euler "
+          "characteristic χ and number of components; ours also Error(K) = max ε0 ≤ E0 "
+          "(error_max in the metrics). Zero-area triangles are counted (issue 24, item 5).", ""]
+    bad, zero = [], []
+    for res in results:
+        for pt in res.get("points", []):
+            for name, run in pt["runs"].items():
+                if "triangles" not in run:
+                    continue
+                p = checks(res, run)
+                ok = error_ok(run, pt["e0"])
+                if ok is False:
+                    p.append(f"Error(K) {run['error_max']:.4g} > E0")
+                if p:
+                    bad.append(f"- {res['name']} E0 {pt['e0']:g} {name}: {'; '.join(p)}")
+                z = run.get("topology", {}).get("degenerate_triangles")
+                if z:
+                    zero.append((res["name"], pt["e0"], name, z))
+    L += (bad or ["- every output passed."]) + [""]
+    if zero:
+        ours_z = [z for z in zero if z[2] not in PEERS]
+        L += [f"Zero-area triangles: {len(zero)} outputs hold some ({len(ours_z)} of them ours); "
+              "ours: " + (", ".join(f"{n} E0 {e:g} {p}: {z}" for n, e, p, z in ours_z[:40])
+                          or "none") + ("…" if len(ours_z) > 40 else ""), ""]
+    else:
+        L += ["Zero-area triangles: none in any output.", ""]
+    # Per input.
+    L += ["## Per input", ""]
+    cols = [v[0] for v in variants()] + list(PEERS)
+    for res in results:
+        L += [f"### {res['name']}", ""]
+        if res.get("failed"):
+            L += [f"**FAILED**: {res['failed']}", ""]
+            continue
+        f = res["full"]
+        g = res["grid"]
+        pr = res.get("probe")
+        L += [f"{g[0]}×{g[1]}×{g[2]} {res['dtype']}, spacing {', '.join(f'{s:g}' for s in res['spacing'])}, "
+              f"iso {res['iso']:g}; full resolution {f['triangles']:,} triangles, χ = {f['euler']}, "
+              f"{f['components']} components. E0(10 %) = {res['e0_10']:g}"
+              + (f"; probe: E0 {pr['e0']:g} keeps {100 * pr['kept']:.2f} % (tandem-lag, --parts 1)." if pr else "."),
+              ""]
+        if res["name"] in plots:
+            L += [f"![RMS against triangle count, {res['name']}]({plots[res['name']]})", ""]
+        L += ["Triangles:", "", "| E0 | " + " | ".join(cols) + " |",
+              "|---:|" + "---:|" * len(cols)]
+        for pt in res["points"]:
+            L.append(f"| {pt['e0']:g} | " + " | ".join(
+                f"{pt['runs'][c]['triangles']:,}" if "triangles" in pt["runs"].get(c, {}) else "–"
+                for c in cols) + " |")
+        L += ["", "RMS / Hausdorff:", "", "| E0 | " + " | ".join(cols) + " |",
+              "|---:|" + "---:|" * len(cols)]
+        for pt in res["points"]:
+            cells = []
+            for c in cols:
+                r = pt["runs"].get(c, {})
+                cells.append(f"{fmt(r.get('rms'))} / {fmt(r.get('hausdorff'))}" if "rms" in r else "–")
+            L.append(f"| {pt['e0']:g} | " + " | ".join(cells) + " |")
+        L += ["", "Wall time s (one run, shared machine):", "", "| E0 | " + " | ".join(cols) + " |",
+              "|---:|" + "---:|" * len(cols)]
+        for pt in res["points"]:
+            L.append(f"| {pt['e0']:g} | " + " | ".join(
+                fmt(pt["runs"].get(c, {}).get("wall_s")) for c in cols) + " |")
+        L += ["", "Refusals of tandem-lag/p1 and classical/p1 (link / flip / degenerate / box / "
+              "error / distance) and contractions:", "",
+              "| E0 | tandem-lag/p1 | classical/p1 |", "|---:|---|---|"]
+        for pt in res["points"]:
+            cells = []
+            for c in ("tandem-lag/p1", "classical/p1"):
+                r = pt["runs"].get(c, {})
+                rf = r.get("refusals")
+                if isinstance(rf, dict):
+                    cells.append(" / ".join(str(rf.get(k, "–")) for k in
+                                            ("link", "flip", "degenerate", "box", "error", "distance"))
+                                 + f"; {r.get('contractions', '–')}")
+                else:
+                    cells.append("–")
+            L.append(f"| {pt['e0']:g} | " + " | ".join(cells) + " |")
+        L.append("")
+    if meta["failures"]:
+        L += ["## Failed runs", ""] + [f"- {x.splitlines()[0]}" for x in meta["failures"]] + [""]
+    with open(path, "w") as fobj:
+        fobj.write("\n".join(L))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench.add_common_args(ap, "SWEEP.md", "sweep.json")
+    ap.add_argument("--quick", action="store_true", help="pillowbox-64, 3 E0 values")
+    ap.add_argument("--points", type=int, default=7, help="E0 values per input (default 7)")
+    ap.add_argument("--points-mid", type=int, default=5,
+                    help=f"E0 values for inputs over {MID:,} triangles (default 5)")
+    ap.add_argument("--points-large", type=int, default=2,
+                    help=f"E0 values for inputs over {LARGE:,} triangles, from ~1 %% to ~0.1 %% "
+                    "(default 2)")
+    args = ap.parse_args()
+    if args.from_json:
+        with open(args.from_json) as f:
+            saved = json.load(f)
+        report = args.report or os.path.join(os.path.dirname(os.path.abspath(args.from_json)),
+                                             "SWEEP.md")
+        plots = make_plots(saved["inputs"], os.path.dirname(report))
+        write_report(report, saved["inputs"], saved["meta"], plots)
+        log(f"wrote {report}")
+        return
+    if not args.bin:
+        ap.error("--bin is required")
+    report = args.report or (os.path.join(args.scratch, "SWEEP.md") if args.quick
+                             else os.path.join(HERE, "SWEEP.md"))
+    results_json = args.json or os.path.join(os.path.dirname(report), "sweep.json")
+    os.makedirs(args.scratch, exist_ok=True)
+    bins = bench.find_programs(args.bin, ("tandem", "bench_run", "mesh_check", "peer_vtk",
+                                          "peer_mc_cgal"), "sweep")
+    for name, prog in PEERS.items():
+        if prog not in bins:
+            log(f"SKIP {name}: {prog} not built (bash tests/bench/install-peers.sh)")
+    t0 = time.perf_counter()
+    e0_table = bench.load_e0_table()
+    failures, results = [], []
+    meta = {"machine": bench.machine_info(), "packages": bench.package_versions(),
+            "mode": "quick" if args.quick else "full", "failures": failures}
+    for inp in make_inputs(args, bins["tandem"]):
+        entry = e0_table.get(inp.name)
+        if entry is None:
+            log(f"searching E0 for {inp.name} (tandem-lag keeping ~10%)")
+            entry = bench.calibrate_e0(bins["tandem"], inp, args.scratch)
+        results.append(sweep_input(inp, entry, args, bins, failures))
+        meta["elapsed_s"] = time.perf_counter() - t0
+        with open(results_json, "w") as f:  # after every input: a partial run keeps its data
+            json.dump({"meta": meta, "inputs": results}, f, indent=1)
+    meta["elapsed_s"] = time.perf_counter() - t0
+    plots = make_plots(results, os.path.dirname(report))
+    bench.finish("sweep", report, results_json, results, meta,
+                 lambda: write_report(report, results, meta, plots), lambda: None)
+
+
+def make_plots(results, folder):
+    plots = {}
+    for res in results:
+        if not res.get("points"):
+            continue
+        fn = f"sweep-plots/{res['name']}.png"
+        os.makedirs(os.path.join(folder, "sweep-plots"), exist_ok=True)
+        if plot(res, os.path.join(folder, fn)):
+            plots[res["name"]] = fn
+    return plots
+
+
+if __name__ == "__main__":
+    main()
