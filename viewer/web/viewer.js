@@ -140,6 +140,8 @@ const view = window.tandemView = {
   chunksDrawn: 0, sealedTriangles: 0, bandTriangles: 0, fileTriangles: 0, frames: 0,
   get trianglesDrawn() { return this.sealedTriangles + this.bandTriangles + this.fileTriangles; },
   state: null, finished: false, errors: [],
+  // Whether everything added so far is on screen (no frame waiting to be drawn).
+  get rendered() { return !frameQueued && dataTimer === null; },
   // World boxes of what is drawn ([min, max] corners), for tests and debugging.
   boxes() {
     const box = (o) => { const b = new THREE.Box3().expandByObject(o); return b.isEmpty() ? null : [b.min.toArray(), b.max.toArray()]; };
