@@ -7,89 +7,21 @@
 // refuses a busy port by name. Every wait is bounded; children are killed at the end.
 //   node tests/viewer/viewer_browser_test.mjs BUILD_DIR
 // Exit 0: passed; 1: failed; 77: skipped (no Chromium or node_modules, outside CI).
-import { spawn, spawnSync } from 'node:child_process';
+import { spawnSync } from 'node:child_process';
 import fs from 'node:fs';
-import os from 'node:os';
 import path from 'node:path';
+import { harness } from './browser_harness.mjs';
 
-const build = path.resolve(process.argv[2] || 'build');
-const bin = (name) => path.join(build, 'bin', name);
-const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
-const shots = path.join(build, 'viewer-test');
-const work = fs.mkdtempSync(path.join(os.tmpdir(), 'tandem-viewer-'));
-fs.mkdirSync(shots, { recursive: true });
+const { work, shots, bin, check, start, waitFor, urlIn, startServer, launch, coverage, run } =
+  harness(process.argv[2]);
 
-function skipOrFail(why) {
-  if (process.env.CI === 'true') {
-    console.error(`FAIL: ${why}`);
-    process.exit(1);
-  }
-  console.log(`SKIP: ${why}`);
-  process.exit(77);
-}
-if (!fs.existsSync(chromiumPath)) skipOrFail(`${chromiumPath} is missing (apt-get install chromium)`);
-let chromium, PNG;
-try {
-  ({ chromium } = await import('playwright-core'));
-  ({ PNG } = await import('pngjs'));
-} catch (e) {
-  skipOrFail(`node_modules is missing (bash deploy/install-web.sh): ${e.message}`);
-}
-
-const children = [];
-let failures = 0;
-function check(ok, what, detail = '') {
-  console.log(`${ok ? 'ok  ' : 'FAIL'} ${what}${detail ? `: ${detail}` : ''}`);
-  if (!ok) failures++;
-  return ok;
-}
-function start(name, args) {
-  const child = spawn(bin(name), args, { cwd: work, stdio: ['ignore', 'pipe', 'pipe'] });
-  child.out = '';
-  child.err = '';
-  child.stdout.on('data', (d) => { child.out += d; });
-  child.stderr.on('data', (d) => { child.err += d; });
-  child.exited = new Promise((resolve) => child.on('exit', (code) => { child.code = code; resolve(code); }));
-  children.push(child);
-  return child;
-}
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-async function waitFor(what, fn, seconds) {
-  const until = Date.now() + seconds * 1000;
-  while (Date.now() < until) {
-    const v = await fn();
-    if (v) return v;
-    await sleep(100);
-  }
-  throw new Error(`timed out after ${seconds} s waiting for ${what}`);
-}
-const urlIn = (child) => (child.err.match(/(http:\/\/127\.0\.0\.1:\d+\/\S*)/) || [])[1];
-
-// Share of the view right of the panel whose pixels differ from the page background.
-function coverage(file) {
-  const png = PNG.sync.read(fs.readFileSync(file));
-  const bg = [0x16, 0x18, 0x1d];
-  let lit = 0, all = 0;
-  for (let y = 0; y < png.height; y++) {
-    for (let x = 330; x < png.width; x++) {
-      const i = (y * png.width + x) * 4;
-      const d = Math.abs(png.data[i] - bg[0]) + Math.abs(png.data[i + 1] - bg[1]) + Math.abs(png.data[i + 2] - bg[2]);
-      if (d > 30) lit++;
-      all++;
-    }
-  }
-  return lit / all;
-}
-
-let browser;
-try {
+await run(async () => {
   const volume = path.join(work, 'gyroid.json');
   const gen = spawnSync(bin('tandem'), ['generate', 'gyroid', '--size', '96', '--out', volume]);
   if (gen.status !== 0) throw new Error(`tandem generate: ${gen.stderr}`);
   // Band previews up to 4x the chunks' bytes (default: a quarter, which allows only a few
   // over a short scan), so that the live view has a fresh band to show.
-  const server = start('tandem-server', ['--listen', '127.0.0.1:0', '--max-band-bytes-share', '4']);
-  const address = (await waitFor('the server address', () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 20))[1];
+  const address = await startServer(['--max-band-bytes-share', '4']);
 
   // 96 slices at 5 per second: about 19 s of scan, so that a browser started on a loaded
   // machine (Chromium's launch and first frame took over 8 s at a load of 5 on 2 cores)
@@ -100,10 +32,7 @@ try {
     '--chunks', path.join(work, 'chunks'), '--metrics', path.join(work, 'gyroid.json.metrics'),
     '--view', '127.0.0.1:0', '--view-linger', '60']);
   const url = await waitFor('the viewer address', () => urlIn(client), 20);
-  browser = await chromium.launch({
-    executablePath: chromiumPath,
-    args: ['--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'],
-  });
+  const browser = await launch();
   const page = await browser.newPage({ viewport: { width: 960, height: 640 } });
   const pageErrors = [];
   page.on('pageerror', (e) => pageErrors.push(e.message));
@@ -227,13 +156,4 @@ try {
   }, 30);
   check(dir.drawn === metrics.triangles_final, 'tandem view DIR draws every chunk', `${dir.chunks} chunks, ${dir.drawn} triangles`);
   await page.screenshot({ path: path.join(shots, 'chunks.png') });
-} catch (e) {
-  check(false, 'the test ran to its end', e.stack || String(e));
-} finally {
-  if (browser) await browser.close().catch(() => {});
-  for (const c of children) {
-    if (c.exitCode === null) c.kill('SIGKILL');
-  }
-}
-console.log(failures === 0 ? 'PASS' : `${failures} check(s) failed`);
-process.exit(failures === 0 ? 0 : 1);
+});
