@@ -84,8 +84,10 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    "most 1",
                    false, "F");
   flags->AddInt("target-triangles", &target_triangles,
-                "after the E0 pass, keep contracting (past E0 if need be) until at most N "
-                "triangles remain; 0 = off");
+                "simplify to N triangles: E0 starts at --error or 1/100 of the smallest "
+                "spacing, whichever is smaller, and rises as the mesh grows, so N is reached "
+                "whatever --error is (unless the surface's components need more); the summary "
+                "and --metrics (error_reached) give the E0 reached; 0 = off");
   flags->AddBool("seal", &seal,
                  "seal the mesh behind the sweep: vertices whose reach lies --seal-margin "
                  "slices below the front never change again and their triangles leave the "

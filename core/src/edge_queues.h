@@ -132,6 +132,13 @@ class EdgeQueue {
     return (size_ > 0 && heaped_[cur_] > 0) ? &buckets_[cur_][0] : nullptr;
   }
   void Clear();
+  // Calls f(node, placement) for every queued node, in no particular order.
+  template <typename F>
+  void ForEach(F&& f) const {
+    for (const auto& bucket : buckets_) {
+      for (const QNode& n : bucket) f(n, slots_[n.slot]);
+    }
+  }
   // Q empties at the end of every SIMPLIFY(E0) (edges above E0 are never queued), but each of
   // its buckets and its slots kept the capacity of their own peaks: two thirds of a dense
   // session's memory. Trim, on an empty Q holding more than 4 MiB, frees every bucket and

@@ -16,6 +16,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
+#include <mutex>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -28,6 +30,63 @@ namespace tandem {
 // after the other, first() goes first.
 using Overlap = std::function<void(const std::function<void()>& first,
                                    const std::function<void()>& second)>;
+
+// How far E0 rises next toward a target count, from how the last rise went.
+struct RiseState {
+  double boost = 1;    // doubles after each rise that removed next to nothing
+  int idle = 0;        // x4 rises in a row that removed next to nothing
+  bool floor = false;  // so many: no contraction is left to find
+  // The factor for E0 when `count` triangles should become about `goal`.
+  double Step(double count, double goal, double min_step) const;
+  // After a rise by `step` removed `removed` triangles of the `wanted`.
+  void After(double step, double removed, double wanted);
+};
+
+// A target triangle count N (SessionOptions::target_triangles) for the lock-step. E0 starts
+// small (StartError) and rises as the mesh grows: a coarser E0 can contract the finished
+// part further, nothing can refine it, so a rise must leave more than N triangles behind.
+// E0 is the whole mesh's, shared by the slabs: each slab reports its count after every
+// SIMPLIFY step; once every slab has reported step j, the counts decide E0 for step j (the
+// rule: TargetControl::Decide), and every slab applies that decision at its step
+// j + kLag, in whatever order the slabs ran, so the result does not depend on the threads.
+class TargetControl {
+ public:
+  static constexpr int64_t kLag = 1;
+  TargetControl(int64_t target, size_t slabs, double start_error);
+  int64_t target() const { return target_; }
+  // A slab after its SIMPLIFY step of layer j (each slab's steps in order): its triangles,
+  // of those about `unsettled` in layers the lock-step cannot reach yet, how many the
+  // step's rise of E0 removed, and its Simplifier::NextCost. Returns true when it was the last report of step j: the
+  // decision is made (slabs waiting for it may go on).
+  bool Report(int64_t step, int64_t triangles, int64_t unsettled, int64_t removed,
+              double next_cost);
+  // Whether the decision a slab needs at step j is known (steps below kLag need none).
+  bool Ready(int64_t step) const;
+  // E0 (engine units) for the step j SIMPLIFY, once Ready(j).
+  double ErrorAt(int64_t step) const;
+
+ private:
+  struct Step {  // the sums of a step's reports
+    int reports = 0;
+    double triangles = 0, unsettled = 0, removed = 0;
+    double next_cost = std::numeric_limits<double>::infinity();
+  };
+  double Decide(double error, int64_t step, const Step& r);
+  mutable std::mutex mu_;
+  int64_t target_;
+  size_t slabs_;
+  std::vector<Step> steps_;        // reports per step
+  std::vector<double> decided_;    // decided_[j]: E0 after step j, for step j + kLag
+  int64_t last_rise_ = -(int64_t{1} << 40);
+  double settled_at_rise_ = 0;  // triangles less unsettled ones, when E0 last rose
+  double last_step_ = 1;        // and by how much
+  RiseState rise_;
+  double start_error_;
+};
+
+// The end of a target count N for the whole mesh, `merged` from slabs (their queues are lost):
+// E0 rises until N remains.
+void ReachTarget(Slab& whole, int64_t target, bool merged);
 
 // One slice through one slab. A refused slice (non-finite values, past nz) leaves the slab as it
 // was, apart from the deferred SIMPLIFY step, which the sequential order would have run already.

@@ -50,6 +50,7 @@ struct TandemSession::Impl {
   struct SlabQueue {
     std::deque<int> slices;  // ring slots
     bool busy = false;       // a task of this slab is queued or running
+    bool parked = false;     // waiting for the target count's decision (TargetControl)
     absl::Status failure;    // the first failure of a queued step (none expected)
   };
   static constexpr int kRingSlots = 4;  // slices in flight, at most
@@ -63,6 +64,8 @@ struct TandemSession::Impl {
   Overlap overlap;   // how a slab overlaps EXTRACT(k) with SIMPLIFY(k-1)
   absl::Status failed;
   std::vector<std::unique_ptr<Slab>> slabs;
+  std::unique_ptr<TargetControl> target;  // SessionOptions::target_triangles > 0
+  void WakeParked();  // a target decision was made: parked slabs go on
   Seams seams;
   size_t folded = 0;  // entries of the slabs' traces already in stats.trace
   int64_t slices_added = 0;

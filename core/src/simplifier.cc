@@ -116,7 +116,10 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // An edge costing more than E0 can never be popped by SIMPLIFY(E0): keeping it would only
   // grow the heap (on a CT, most of Q). A later neighbour contraction re-pushes it with its
   // new cost; a target triangle count re-queues every edge first (RequeueAll).
-  if (!keep_expensive_ && c.cost > opt_.error) return;
+  if (!keep_expensive_ && c.cost > opt_.keep * opt_.error) {
+    min_dropped_ = std::min(min_dropped_, c.cost);
+    return;
+  }
   q_.Push(c.cost, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
@@ -127,6 +130,27 @@ void Simplifier::RequeueAll() {
     if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
   }
   FlushBatch();
+}
+
+void Simplifier::RaiseError(double e) {
+  assert(e >= opt_.error);
+  opt_.error = e;
+  if (e <= min_dropped_) {
+    Rebucket(e);
+    return;
+  }
+  q_ = EdgeQueue(e);
+  min_dropped_ = std::numeric_limits<double>::infinity();
+  requeue_released_ = true;
+  for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
+    if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
+  }
+  FlushBatch();
+  requeue_released_ = false;
+}
+
+double Simplifier::NextCost() {
+  return q_.empty() ? min_dropped_ : std::min(min_dropped_, q_.Top().key);
 }
 
 bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
@@ -224,7 +248,7 @@ void Simplifier::FlushBatch() {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];
     if (r.to == 0) {
-      w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
+      if (!requeue_released_) w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
     } else if (r.to == 1) {
       PushQ(e.a, e.b, r.c);
     } else {
@@ -334,12 +358,12 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   nbrs.swap(scratch_);
 }
 
-void Simplifier::Simplify(int64_t target_triangles) {
+void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   while (!q_.empty()) {
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const double key = q_.Top().key;
-    if (!to_target && key > opt_.error) break;
+    if (!past_error && key > opt_.error) break;
     const QNode e = q_.Pop();
     if (const QNode* next = q_.Next()) {  // its stamps are read next: start the loads now
       __builtin_prefetch(&version_[next->a]);
@@ -362,7 +386,7 @@ void Simplifier::Simplify(int64_t target_triangles) {
         continue;
       }
     }
-    if (!to_target && c.eps0 > opt_.error) {
+    if (!past_error && c.eps0 > opt_.error) {
       ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
       continue;
     }
@@ -370,8 +394,8 @@ void Simplifier::Simplify(int64_t target_triangles) {
       ++refusals_.link;
       continue;
     }
-    // Past E0, toward a target triangle count, the guard (a multiple of E0) would stall.
-    const double guard = to_target ? 0.0 : opt_.distance_guard * opt_.error;
+    // Past E0 the guard (a multiple of E0) would stall.
+    const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
     if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) continue;
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
     c.box_mask = ma | mb;
@@ -379,6 +403,18 @@ void Simplifier::Simplify(int64_t target_triangles) {
     Contract(e.a, e.b, c);
   }
   if (q_.empty()) q_.Trim();
+  // Kept edges (keep > 1) stay queued past SIMPLIFY, and most go stale as their neighbours
+  // contract: when they outnumber the mesh's edges (about 1.5 per triangle), Q keeps the
+  // live ones only.
+  if (q_.size() > 3 * store_->num_triangles() + 1024) Rebucket(opt_.error);
+}
+
+void Simplifier::Rebucket(double max_key) {
+  EdgeQueue old = std::move(q_);
+  q_ = EdgeQueue(max_key);  // its buckets are spaced below E0
+  old.ForEach([this](const QNode& n, const QPlacement& p) {
+    if (!Stale(n)) q_.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
+  });
 }
 
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {

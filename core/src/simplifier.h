@@ -49,6 +49,9 @@ struct SimplifierOptions {
   // in the same order: identical results); null: all on the calling thread.
   Executor* parallel = nullptr;
   double distance_guard = 0;  // K: see SessionOptions::distance_guard (0 = off)
+  // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
+  // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
+  double keep = 1;
 };
 
 class Simplifier {
@@ -64,12 +67,29 @@ class Simplifier {
   void Delay(std::span<const TriId> tris);
   // ACTIVATE: moves entries of W whose key <= front into Q. front = +inf for ACTIVATE(∞).
   void Activate(double front);
-  // SIMPLIFY(E0): contracts while Q's minimum cost <= E0 (beyond E0 down to a triangle
-  // count when target_triangles > 0 is given: call RequeueAll first; see tandem.h).
-  void Simplify(int64_t target_triangles = 0);
+  // SIMPLIFY(E0): contracts while Q's minimum cost <= E0, and with target_triangles > 0
+  // while more than that many triangles remain. past_error: in cost order beyond E0, without
+  // the distance guard (a multiple of E0, it would stall there), down to target_triangles
+  // (call RequeueAll first).
+  void Simplify(int64_t target_triangles = 0, bool past_error = false);
   // Puts every edge of the current mesh into Q, including those costing more than E0
-  // (which Q otherwise drops), for a final pass down to a target triangle count.
+  // (which Q otherwise drops), for a final pass past E0 down to a target triangle count.
   void RequeueAll();
+  // E0 as it is now (SimplifierOptions::error, or what RaiseError made it).
+  double error() const { return opt_.error; }
+  // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
+  // (schedule.h). Q holds every edge costing up to e unless it dropped one (costing more than
+  // keep x E0 when pushed) that e now reaches: then the released edges of the mesh (release
+  // key <= the front) are evaluated and queued again (the waiting ones are in W already), one
+  // evaluation per edge; otherwise Q is only re-bucketed for the new E0.
+  void RaiseError(double e);
+  // After SIMPLIFY(E0): about the least cost above E0 among the mesh's edges (the least
+  // queued or dropped since Q last held every released edge; +inf if none): raising E0 to
+  // less contracts nothing.
+  double NextCost();
+  // Q lacks edges it would have kept (a merge brought other slabs' meshes in without their
+  // queues): the next RaiseError evaluates every released edge again.
+  void ForgetKept() { min_dropped_ = 0; }
 
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
@@ -152,6 +172,9 @@ class Simplifier {
     return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
   void Contract(VertexId a, VertexId b, const Candidate& c);
+  // Q again for E0 = max_key, its live entries only (in no particular order: ties may pop
+  // differently).
+  void Rebucket(double max_key);
   // Loops over known edges or triangles start loading the records of the one kAhead places on.
   static constexpr size_t kAhead = 8;
   // Starts loading what an evaluation reads of v: its store record and its quadric.
@@ -178,6 +201,9 @@ class Simplifier {
 
   EdgeQueue q_;
   bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
+  bool requeue_released_ = false;  // RaiseError: edges for W are in W already
+  // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).
+  double min_dropped_ = std::numeric_limits<double>::infinity();
   WaitingQueue w_;
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;

@@ -18,11 +18,24 @@ ReleaseRule RuleFor(Schedule s) {
 
 }  // namespace
 
-int SlabCount(const VolumeInfo& grid, int requested, bool seal) {
-  if (seal) return 1;  // the seams would stay at full resolution, unsealed
+int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
+  if (options.seal) return 1;  // the seams would stay at full resolution, unsealed
+  const int requested = options.parts;
   constexpr int64_t kMinColumns = 16;  // cube columns per slab, at least
   const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 4 : 1);
   return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinColumns)));
+}
+
+// Q keeps edges up to this multiple of E0 toward a target count, so that a rise of E0
+// needs fewer evaluations (RaiseError). Measured on the engine CT, N = 25,000 and 100,000:
+// 1.5 took 0.85-0.95 s, 1 (none kept) 1.06-1.36 s, 2-8 the same time as 1.5 but up to
+// 1.5x the memory (the expensive entries pile up between rises).
+constexpr double kTargetKeep = 1.5;
+
+double StartError(const VolumeInfo& grid, const SessionOptions& options) {
+  if (options.target_triangles <= 0) return options.error;
+  const double spacing = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
+  return std::min(options.error, spacing / 100);
 }
 
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
@@ -37,12 +50,13 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     ec.row_stride = grid.nx;
     if (p > 0) ec.seam_faces |= kBoxXMin;
     if (p + 1 < count) ec.seam_faces |= kBoxXMax;
-    const SimplifierOptions so{.error = options.error / scale,
+    const SimplifierOptions so{.error = StartError(grid, options) / scale,
                                .alpha = options.alpha,
                                .release = RuleFor(options.schedule),
                                .slice_spacing = spacing[2],
                                .parallel = batches,
-                               .distance_guard = options.distance_guard};
+                               .distance_guard = options.distance_guard,
+                               .keep = options.target_triangles > 0 ? kTargetKeep : 1.0};
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {
       const bool simplify = options.schedule != Schedule::kNone;

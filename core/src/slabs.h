@@ -12,6 +12,7 @@
 #define TANDEM_SLABS_H_
 
 #include <array>
+#include <functional>
 #include <cstdint>
 #include <memory>
 #include <utility>
@@ -28,6 +29,8 @@
 #include "tandem/volume.h"
 
 namespace tandem {
+
+class TargetControl;
 
 struct Slab {
   Slab(const ExtractorConfig& ec, const SimplifierOptions& so)
@@ -49,13 +52,29 @@ struct Slab {
   // The tandem schedules simplify layer k while layer k+1 is extracted (schedule.h).
   bool simplify_pending = false;
   int64_t pending_front = 0;
+  // SessionOptions::target_triangles: E0 follows the session's control (schedule.h; null:
+  // no target); the triangle counts of the last layers as extracted, newest last; and who
+  // to call when this slab's report completed a decision (slabs waiting for it may go on).
+  TargetControl* target = nullptr;
+  std::vector<int64_t> recent_layers;
+  std::function<void()> waker;
+  int64_t seam_vertices = 0;  // made so far (never contracted before the merge)
 };
 
 // seams[s]: (vertex in slab s, its copy in slab s+1), per shared grid edge.
 using Seams = std::vector<std::vector<std::pair<VertexId, VertexId>>>;
 
-// The number of slabs a session over `grid` uses (SessionOptions::parts; sealing: one).
-int SlabCount(const VolumeInfo& grid, int requested, bool seal);
+// The number of slabs a session with these options uses over `grid` (SessionOptions::parts;
+// sealing: one).
+int SlabCount(const VolumeInfo& grid, const SessionOptions& options);
+
+// E0 in physical units at the start of a session: SessionOptions::error, but with a target
+// triangle count, which E0 must reach from below, at most 1/100 of the smallest spacing.
+// Starting lower costs time (the engine CT, 10 targets over 5 volumes: 1/1000 took 1.44x
+// the E0 run reaching N, 1/10000 1.50x, 1/100 1.34x), and only a target above what the start
+// keeps (on the engine CT, over 40 % of the full-resolution triangles) needs it: a smaller
+// --error lowers the start.
+double StartError(const VolumeInfo& grid, const SessionOptions& options);
 
 // The slabs of `grid` in the engine frame (spacing divided by `scale`), ready for slice 0;
 // `batches`: where the simplifiers evaluate half of their large batches (null: in place).

@@ -68,7 +68,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
   if (absl::Status st = options.ValidateFor(g); !st.ok()) return st;
   try {
     if (executor == nullptr) executor = &Executor::Shared();
-    const int slabs = SlabCount(g, options.parts, options.seal);
+    const int slabs = SlabCount(g, options);
     return std::unique_ptr<TandemSession>(
         new TandemSession(std::make_unique<Impl>(g, options, slabs, executor)));
   } catch (const std::bad_alloc&) {
@@ -165,6 +165,14 @@ TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int coun
   slabs = MakeSlabs(grid, options, scale, count,
                     options.pipeline && count == 1 ? executor : nullptr);
   seams.resize(static_cast<size_t>(count - 1));
+  if (options.target_triangles > 0 && options.schedule != Schedule::kNone) {
+    target = std::make_unique<TargetControl>(options.target_triangles, slabs.size(),
+                                             slabs[0]->simplifier.error());
+    for (auto& s : slabs) {
+      s->target = target.get();
+      s->waker = [this] { WakeParked(); };
+    }
+  }
   if (options.pipeline && count == 1) {
     overlap = [ex](const std::function<void()>& first, const std::function<void()>& second) {
       TaskGroup both(ex);
@@ -237,6 +245,14 @@ void TandemSession::Impl::StepQueued(size_t i) {
       q.busy = false;
       return;
     }
+    // A step that needs a target decision not made yet waits, off the threads, until the
+    // last slab's report makes it (WakeParked; asked under mu, so no wake is missed).
+    if (slab.target && slab.simplify_pending && q.failure.ok() &&
+        !slab.target->Ready(slab.pending_front)) {
+      q.busy = false;
+      q.parked = true;
+      return;
+    }
     slot = q.slices.front();
     q.slices.pop_front();
     skip = !q.failure.ok();  // a slab that failed is left as it is: its slices are dropped
@@ -260,6 +276,23 @@ void TandemSession::Impl::StepQueued(size_t i) {
     if (!more) q.busy = false;
   }
   if (more) steps->Run([this, i] { StepQueued(i); });  // the slab's next step, after this one
+}
+
+void TandemSession::Impl::WakeParked() {
+  if (!queued) return;  // slabs stepped together never wait
+  std::vector<size_t> wake;
+  {
+    std::lock_guard<std::mutex> lock(mu);
+    for (size_t i = 0; i < queues.size(); ++i) {
+      SlabQueue& q = queues[i];
+      if (q.parked && !q.busy) {
+        q.parked = false;
+        q.busy = true;
+        wake.push_back(i);
+      }
+    }
+  }
+  for (size_t i : wake) steps->Run([this, i] { StepQueued(i); });
 }
 
 absl::Status TandemSession::Impl::Sync() {
@@ -447,6 +480,8 @@ const SessionStats& TandemSession::Impl::Stats() {
   stats.triangles_extracted = merged.triangles_extracted;
   stats.time.extract_s = merged.time.extract_s;
   stats.time.simplify_s = merged.time.simplify_s;
+  stats.error_reached =
+      options.schedule == Schedule::kNone ? 0.0 : first.simplifier.error() * scale;
   stats.refusals = RefusalCounts{};
   stats.contractions = 0;
   stats.max_reach_over_front = -std::numeric_limits<double>::infinity();

@@ -28,7 +28,8 @@ struct SessionOptions {
   // the triangles around a or b that survive, as they are now). ε0 <= E0 bounds a root mean
   // square over every plane a vertex has absorbed, so one thin feature can end up far from
   // the surface while the average stays small; the guard bounds each step instead (what it
-  // buys and costs: docs/decisions.md). Not applied past E0, toward target_triangles.
+  // buys and costs: docs/decisions.md). Not applied to the last contractions toward
+  // target_triangles when E0 cannot reach the count (those go past E0).
   double distance_guard = 2;
   // Sag correction F (not in the paper; 0 turns it off): after the last SIMPLIFY, every
   // vertex not on the grid's box moves along its normal by F times the mean chordal sag of
@@ -36,8 +37,11 @@ struct SessionOptions {
   // triangle turns over. The quadric minimiser leaves a coarse mesh biased toward the
   // concave side of the surface; F = 0.3 removes most of that bias.
   double sag_correction = 0.3;
-  int64_t target_triangles = 0; // > 0: after SIMPLIFY(E0), keep contracting (beyond E0 if
-                                // need be) until at most this many triangles remain
+  // > 0: simplify to this many triangles. E0 starts at min(error, smallest spacing / 100)
+  // and rises as the mesh grows (schedule.h: TargetControl), so the count is reached whatever
+  // error is, unless the surface's components and handles need more; the parts share E0.
+  // SessionStats::error_reached is where it ended.
+  int64_t target_triangles = 0;
   bool pipeline = true;         // use the session's executor (identical results either
                                 // way): the slabs side by side, AddSlice queuing up to 4
                                 // slices; with one slab, EXTRACT(k) while layer k-1 is

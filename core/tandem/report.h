@@ -70,6 +70,7 @@ void VisitReportFields(R& r, F&& f) {
   f("/schedule", "schedule", o.schedule, W::kAlways);  // by name: "none", "classical", ...
   f("/iso", "iso", o.iso, W::kAlways);
   f("/error_threshold", "error_threshold", o.error, W::kAlways);
+  f("/error_reached", "error_reached", s.error_reached, W::kAlways);
   f("/alpha", "alpha", o.alpha, W::kAlways);
   f("/distance_guard", "distance_guard", o.distance_guard, W::kAlways);
   f("/sag_correction", "sag_correction", o.sag_correction, W::kAlways);

@@ -43,6 +43,9 @@ struct SessionStats {
   RefusalCounts refusals;
   int64_t contractions = 0;
   int64_t sag_corrected = 0;        // vertices moved by the sag correction (Finish)
+  // E0 as the simplification left it, physical units: SessionOptions::error, or with
+  // target_triangles the E0 it rose to (0 without simplification).
+  double error_reached = 0;
   double max_reach_over_front = 0;  // <= 0: no contraction's reach exceeded the front
   double max_layer_over_front = 0;  // <= -1: no contraction touched the newest layer
   int64_t sealed_triangles = 0;     // sealing: triangles handed out so far

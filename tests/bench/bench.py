@@ -769,6 +769,23 @@ def main():
            lambda: write_report(report, results, meta, args), lambda: print_summary(results))
 
 
+def report_paths(args, ap, report_name, json_name, write):
+    """The report and results paths of a run (tests/bench/NAME, or SCRATCH/NAME with --quick),
+    or None after --from-json rewrote the report with write(report, saved) (runs nothing)."""
+    if args.from_json:
+        saved = load_sidecar(args.from_json)
+        report = args.report or os.path.join(os.path.dirname(os.path.abspath(args.from_json)),
+                                             report_name)
+        write(report, saved)
+        log(f"wrote {report}")
+        return None
+    if not args.bin:
+        ap.error("--bin is required")
+    report = args.report or (os.path.join(args.scratch, report_name) if args.quick
+                             else os.path.join(HERE, report_name))
+    return report, args.json or os.path.join(os.path.dirname(report), json_name)
+
+
 def find_programs(bin_dir, progs, tool):
     """{program: path} of those of progs built in bin_dir; exits when tandem, bench_run or
     mesh_check is missing."""

@@ -11,6 +11,9 @@
 # tests/bench/SWEEP.md): every schedule and the CGAL / VTK peers from ~10 % down to ~0.1 %
 # of the triangles.
 #   bash tests/bench/run.sh --sweep [--quick] [--only NAME] [--points N] [--keep]
+# With --target (first argument) it runs --target-triangles N against the E0 run that gives N
+# (target.py, issue 24: tests/bench/TARGET.md).
+#   bash tests/bench/run.sh --target [--quick] [--only NAME] [--repeats N] [--keep]
 # Full mode writes tests/bench/REPORT.md and tests/bench/results.json; --quick writes them to
 # the scratch directory ($TANDEM_BENCH_SCRATCH, default ${TMPDIR:-/tmp}/tandem-bench), which
 # also holds the generated volumes (never committed). Peers: bash tests/bench/install-peers.sh
@@ -28,6 +31,9 @@ if [[ "${1:-}" == "--dense" ]]; then
 elif [[ "${1:-}" == "--sweep" ]]; then
   shift
   script="$here/sweep.py"
+elif [[ "${1:-}" == "--target" ]]; then
+  shift
+  script="$here/target.py"
 fi
 python=/usr/bin/python3  # Debian's (python3-matplotlib lives there), not a pyenv shim
 [[ -x $python ]] || python=python3

@@ -529,20 +529,11 @@ def main():
                     help=f"E0 values for inputs over {LARGE:,} triangles, from ~1 %% to ~0.1 %% "
                     "(default 2)")
     args = ap.parse_args()
-    if args.from_json:
-        with open(args.from_json) as f:
-            saved = json.load(f)
-        report = args.report or os.path.join(os.path.dirname(os.path.abspath(args.from_json)),
-                                             "SWEEP.md")
-        plots = make_plots(saved["inputs"], os.path.dirname(report))
-        write_report(report, saved["inputs"], saved["meta"], plots)
-        log(f"wrote {report}")
+    paths = bench.report_paths(args, ap, "SWEEP.md", "sweep.json", lambda report, saved: write_report(
+        report, saved["inputs"], saved["meta"], make_plots(saved["inputs"], os.path.dirname(report))))
+    if paths is None:
         return
-    if not args.bin:
-        ap.error("--bin is required")
-    report = args.report or (os.path.join(args.scratch, "SWEEP.md") if args.quick
-                             else os.path.join(HERE, "SWEEP.md"))
-    results_json = args.json or os.path.join(os.path.dirname(report), "sweep.json")
+    report, results_json = paths
     os.makedirs(args.scratch, exist_ok=True)
     bins = bench.find_programs(args.bin, ("tandem", "bench_run", "mesh_check", "peer_vtk",
                                           "peer_mc_cgal"), "sweep")
