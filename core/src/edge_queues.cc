@@ -20,9 +20,10 @@ void EdgeQueue::Trim() {
   // A small Q keeps its memory: freeing and regrowing it every layer only fragments the
   // heap (a server that ran 50 small streams kept ~0.5 MiB more resident when it did).
   if (MemoryBytes() < (size_t{4} << 20)) return;
-  constexpr size_t kKeepBytes = 1024;  // 32 nodes; at most 1 MiB kept over all buckets
   auto trim = [](auto& v) {
-    if (v.capacity() * sizeof(v[0]) > kKeepBytes) std::remove_reference_t<decltype(v)>().swap(v);
+    if (!Keeps(v.capacity() * sizeof(v[0]), kKeepTrimmed)) {
+      std::remove_reference_t<decltype(v)>().swap(v);
+    }
   };
   for (auto& bucket : buckets_) trim(bucket);
   slots_.clear();  // every slot is free

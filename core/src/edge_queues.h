@@ -13,10 +13,10 @@
 #ifndef TANDEM_EDGE_QUEUES_H_
 #define TANDEM_EDGE_QUEUES_H_
 
+#include <bit>
 #include <cassert>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <vector>
 
 #include "tandem/types.h"
@@ -112,11 +112,10 @@ struct QPlacement {
 class EdgeQueue {
  public:
   // max_key (E0): keys above it all share the last bucket. Allocates nothing until a push.
-  explicit EdgeQueue(double max_key) : max_key_(max_key) {
-    uint64_t max_bits;
-    std::memcpy(&max_bits, &max_key_, sizeof max_bits);
-    bucket_base_ = static_cast<int64_t>(max_bits >> kMantissaShift) - static_cast<int64_t>(kBuckets - 2);
-  }
+  explicit EdgeQueue(double max_key)
+      : max_key_(max_key),
+        bucket_base_(static_cast<int64_t>(std::bit_cast<uint64_t>(max_key) >> kMantissaShift) -
+                     static_cast<int64_t>(kBuckets - 2)) {}
 
   size_t size() const { return size_; }
   bool empty() const { return size_ == 0; }
@@ -147,7 +146,12 @@ class EdgeQueue {
   size_t MemoryBytes() const;
 
   static constexpr size_t kBuckets = 1024;
-  static constexpr size_t kKeepNodes = 4096;  // 128 KiB
+  // What a bucket (or slot array) keeps of its capacity, the one rule in two places: popped
+  // empty during SIMPLIFY (Enter), a bucket up to kKeepPopped bytes, as it will fill again
+  // at once; in Trim, after SIMPLIFY, arrays up to kKeepTrimmed only (at most 1 MiB over all
+  // the buckets), since Q refills from nothing at the next step.
+  static constexpr size_t kKeepPopped = size_t{128} << 10, kKeepTrimmed = 1024;
+  static bool Keeps(size_t bytes, size_t keep) { return bytes <= keep; }
   // The bucket a key goes to (public for the tests).
   size_t Bucket(double key) const {
     // Monotone in the key, so bucket order then heap order is exactly (key, seq) order. On a
@@ -157,9 +161,8 @@ class EdgeQueue {
     // pops, cache misses all the way down, were 40 % of the run.
     if (!(key <= max_key_)) return kBuckets - 1;  // NaN too
     if (key <= 0.0) return 0;
-    uint64_t bits;
-    std::memcpy(&bits, &key, sizeof bits);  // positive doubles' bits grow with the value
-    const int64_t b = static_cast<int64_t>(bits >> kMantissaShift) - bucket_base_;
+    // Positive doubles' bits grow with the value.
+    const int64_t b = static_cast<int64_t>(std::bit_cast<uint64_t>(key) >> kMantissaShift) - bucket_base_;
     return b <= 0 ? 0 : static_cast<size_t>(b);
   }
 
@@ -186,7 +189,9 @@ inline void EdgeQueue::Enter() {
   while (buckets_[cur_].empty()) {
     // Popped empty: a big bucket gives its memory back. Log-spaced buckets each fill in turn
     // as SIMPLIFY's keys rise, and kept, their peaks added up (2048² dense cap: +13 % RSS).
-    if (buckets_[cur_].capacity() > kKeepNodes) std::vector<QNode>().swap(buckets_[cur_]);
+    if (!Keeps(buckets_[cur_].capacity() * sizeof(QNode), kKeepPopped)) {
+      std::vector<QNode>().swap(buckets_[cur_]);
+    }
     ++cur_;
     assert(cur_ < kBuckets);
   }
