@@ -84,7 +84,7 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    "most 1",
                    false, "F");
   flags->AddInt("target-triangles", &target_triangles,
-                "simplify to N triangles: E0 starts at --error or 1/100 of the smallest "
+                "simplify to N triangles: E0 starts at --error or 1/1000 of the smallest "
                 "spacing, whichever is smaller, and rises as the mesh grows, so N is reached "
                 "whatever --error is (unless the surface's components need more); the summary "
                 "and --metrics (error_reached) give the E0 reached; 0 = off");

@@ -248,10 +248,11 @@ int64_t FinishWhole(Slab& whole, const SessionOptions& options,
   if (whole.sealer) {
     whole.sealer->Seal(std::numeric_limits<double>::infinity());  // the rest, sag included
     sag_corrected = whole.sealer->sag_corrected();
-  } else if (simplify && options.sag_correction > 0.0) {
-    sag_corrected = whole.simplifier.CorrectSag(options.sag_correction);
-  } else {
-    return 0;
+  } else if (simplify) {
+    if (options.sag_correction > 0.0) {
+      sag_corrected = whole.simplifier.CorrectSag(options.sag_correction);
+    }
+    whole.simplifier.TidyDegenerate();  // last: the sag correction may leave some
   }
   whole.time.simplify_s += Seconds(t0, Clock::now());
   return sag_corrected;

@@ -477,6 +477,17 @@ int64_t Simplifier::CorrectSag(double fraction) {
   return CorrectSagAt(verts, normal, fraction);
 }
 
+DegenerateCounts Simplifier::TidyDegenerate() {
+  // A collapsed tetrahedron gets a tenth of E0: within the bound, and far above float noise.
+  return tandem::TidyDegenerate(
+      store_, 0.1 * opt_.error,
+      [this](VertexId v, Vec3 p) {
+        return (store_->box_mask(v) & (kSeam | kFrozen)) == 0 &&
+               ShapeError(vs_[v].q, p) <= std::max(opt_.error, ShapeErrorAt(v));
+      },
+      [this](VertexId v) { ++version_[v]; });
+}
+
 void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal) {
   tandem::VertexNormals(*store_, verts, normal);
 }

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "contraction_checks.h"
+#include "degenerate.h"
 #include "edge_queues.h"
 #include "mesh_store.h"
 #include "quadric.h"
@@ -109,6 +110,9 @@ class Simplifier {
   // normal[v] must hold the unit normal of every vertex of their triangles (VertexNormals).
   int64_t CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
                        double fraction);
+  // Mends the zero-area triangles of the final mesh (degenerate.h): flips, and moves within
+  // the error bound (ε0 <= max(E0, ε0 now)).
+  DegenerateCounts TidyDegenerate();
   // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
   void VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal);
 

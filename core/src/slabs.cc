@@ -35,7 +35,7 @@ constexpr double kTargetKeep = 1.5;
 double StartError(const VolumeInfo& grid, const SessionOptions& options) {
   if (options.target_triangles <= 0) return options.error;
   const double spacing = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
-  return std::min(options.error, spacing / 100);
+  return std::min(options.error, spacing / 1000);
 }
 
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,

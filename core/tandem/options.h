@@ -37,7 +37,7 @@ struct SessionOptions {
   // triangle turns over. The quadric minimiser leaves a coarse mesh biased toward the
   // concave side of the surface; F = 0.3 removes most of that bias.
   double sag_correction = 0.3;
-  // > 0: simplify to this many triangles. E0 starts at min(error, smallest spacing / 100)
+  // > 0: simplify to this many triangles. E0 starts at min(error, smallest spacing / 1000)
   // and rises as the mesh grows (schedule.h: TargetControl), so the count is reached whatever
   // error is, unless the surface's components and handles need more; the parts share E0.
   // SessionStats::error_reached is where it ended.

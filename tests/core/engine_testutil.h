@@ -17,6 +17,7 @@
 #include "layer_extractor.h"
 #include "mesh_store.h"
 #include "simplifier.h"
+#include "tandem/geometry.h"
 #include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -106,6 +107,36 @@ inline IndexedMesh FullSurface(SliceSource& src) {
   auto full = RunSession(src, o);
   EXPECT_TRUE(full.ok()) << full.status();
   return full.ok() ? (*full)->Snapshot() : IndexedMesh{};
+}
+
+// A finished session over the n³ float grid v (x fastest, z slowest); null after a failure
+// (reported).
+inline std::unique_ptr<TandemSession> RunCube(const std::vector<float>& v, int n,
+                                              const SessionOptions& options) {
+  VolumeInfo grid;
+  grid.nx = grid.ny = grid.nz = n;
+  grid.dtype = DType::kFloat32;
+  auto session = TandemSession::Create(grid, options);
+  EXPECT_TRUE(session.ok()) << session.status();
+  if (!session.ok()) return nullptr;
+  for (int k = 0; k < n; ++k) {
+    const absl::Status st = (*session)->AddSlice(v.data() + static_cast<size_t>(k) * n * n);
+    EXPECT_TRUE(st.ok()) << st;
+    if (!st.ok()) return nullptr;
+  }
+  const absl::Status st = (*session)->Finish();
+  EXPECT_TRUE(st.ok()) << st;
+  return st.ok() ? std::move(*session) : nullptr;
+}
+
+// Triangles of zero area (IsDegenerateTriangle).
+inline int64_t CountDegenerate(const IndexedMesh& m) {
+  int64_t count = 0;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    count += IsDegenerateTriangle(m.positions[m.indices[3 * t]], m.positions[m.indices[3 * t + 1]],
+                                  m.positions[m.indices[3 * t + 2]]);
+  }
+  return count;
 }
 
 }  // namespace tandem

@@ -368,32 +368,27 @@ TEST(TargetTriangles, PipelinedPartsGiveTheSequentialMesh) {
 // to come).
 TEST(TargetTriangles, AFloorOfComponentsStopsTheRise) {
   constexpr int kN = 35;  // five cells of the lattice each way
-  VolumeInfo info;
-  info.nx = info.ny = info.nz = kN;
-  info.dtype = DType::kFloat32;
-  SessionOptions o;
-  o.error = 0.1;
-  o.target_triangles = 10;
-  auto session = TandemSession::Create(info, o);
-  ASSERT_TRUE(session.ok()) << session.status();
-  std::vector<float> slice(kN * kN);
+  std::vector<float> v(kN * kN * kN);
   for (int z = 0; z < kN; ++z) {
     for (int y = 0; y < kN; ++y) {
       for (int x = 0; x < kN; ++x) {  // balls of radius 2.2 on a lattice of pitch 7: 125
         auto d = [](int c) { return (c % 7) - 3.5; };
-        slice[y * kN + x] = float(std::sqrt(d(x) * d(x) + d(y) * d(y) + d(z) * d(z)) - 2.2);
+        v[(z * kN + y) * kN + x] = float(std::sqrt(d(x) * d(x) + d(y) * d(y) + d(z) * d(z)) - 2.2);
       }
     }
-    ASSERT_TRUE((*session)->AddSlice(slice.data()).ok());
   }
-  ASSERT_TRUE((*session)->Finish().ok());
-  const IndexedMesh mesh = (*session)->Snapshot();
+  SessionOptions o;
+  o.error = 0.1;
+  o.target_triangles = 10;
+  const auto session = RunCube(v, kN, o);
+  ASSERT_NE(session, nullptr);
+  const IndexedMesh mesh = session->Snapshot();
   const TopologyReport t = AnalyzeTopology(mesh);
   EXPECT_EQ(t.components, 125u);
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_GE(mesh.num_triangles(), 4u * 125);
   EXPECT_LT(mesh.num_triangles(), 10u * 125);
-  EXPECT_TRUE(std::isfinite((*session)->stats().error_reached));
+  EXPECT_TRUE(std::isfinite(session->stats().error_reached));
 }
 
 // RunSession takes slices in place from a mapped file (SliceSource::ViewSlice) and reads

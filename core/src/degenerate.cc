@@ -1,0 +1,248 @@
+#include "degenerate.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "tandem/geometry.h"
+
+namespace tandem {
+namespace {
+
+// Degenerate as written: positions leave as 32-bit floats, where corners 1e-9 apart in the
+// engine's doubles fall on one point. Twice the area at most 2e-6 of the squared edges
+// (IsDegenerateTriangle takes 2e-12: exact zeros only).
+constexpr double kWrittenSquared = 4e-12;
+bool Degenerate(Vec3 a, Vec3 b, Vec3 c) {
+  return AreaAtMost(kWrittenSquared, TwiceAreaVector(a, b, c), SumSquaredEdges(a, b, c));
+}
+bool Degenerate(const MeshStore& s, TriId t) {
+  const auto& tri = s.triangle(t);
+  return Degenerate(s.position(tri[0]), s.position(tri[1]), s.position(tri[2]));
+}
+// Two corners of a degenerate triangle at one point, as written: their edge under 1e-4 of the
+// longest one.
+bool Close(Vec3 p, Vec3 q, double longest_squared) {
+  const Vec3 d = p - q;
+  return Dot(d, d) <= 1e-8 * longest_squared;
+}
+
+Vec3 TwiceArea(const MeshStore& s, const std::array<VertexId, 3>& tri) {
+  return TwiceAreaVector(s.position(tri[0]), s.position(tri[1]), s.position(tri[2]));
+}
+
+// The triangle holding the half-edge from -> to, or kInvalid (the box's boundary).
+TriId WithHalfEdge(const MeshStore& s, VertexId from, VertexId to) {
+  for (TriId u : s.vertex_triangles(from)) {
+    const auto& o = s.triangle(u);
+    for (int j = 0; j < 3; ++j) {
+      if (o[j] == from && o[(j + 1) % 3] == to) return u;
+    }
+  }
+  return kInvalid;
+}
+
+bool HasEdge(const MeshStore& s, VertexId a, VertexId b) {
+  for (TriId u : s.vertex_triangles(a)) {
+    for (VertexId x : s.triangle(u)) {
+      if (x == b) return true;
+    }
+  }
+  return false;
+}
+
+// t's corners on one line: flips its longest edge ab to m c (see degenerate.h).
+bool TryFlip(MeshStore* s, TriId t) {
+  const std::array<VertexId, 3> tri = s->triangle(t);
+  int k = 0;
+  double longest = -1;
+  for (int i = 0; i < 3; ++i) {
+    const Vec3 e = s->position(tri[(i + 1) % 3]) - s->position(tri[i]);
+    if (Dot(e, e) > longest) {
+      longest = Dot(e, e);
+      k = i;
+    }
+  }
+  const VertexId a = tri[k], b = tri[(k + 1) % 3], m = tri[(k + 2) % 3];
+  if (Close(s->position(m), s->position(a), longest) ||
+      Close(s->position(m), s->position(b), longest)) {
+    return false;  // corners at one point: not a flip's case
+  }
+  const TriId u = WithHalfEdge(*s, b, a);
+  if (u == kInvalid) return false;
+  const std::array<VertexId, 3> o = s->triangle(u);
+  const VertexId c = o[0] != a && o[0] != b ? o[0] : (o[1] != a && o[1] != b ? o[1] : o[2]);
+  if (c == m || HasEdge(*s, m, c)) return false;
+  // m inside ab: (m, a, c) and (m, c, b) tile u and keep its orientation; otherwise one turns.
+  const Vec3 before = TwiceArea(*s, o);
+  const std::array<VertexId, 3> n1{m, a, c}, n2{m, c, b};
+  for (const auto& n : {n1, n2}) {
+    const Vec3 p0 = s->position(n[0]), p1 = s->position(n[1]), p2 = s->position(n[2]);
+    if (Degenerate(p0, p1, p2) || !MovedCornerKeepsOrientation(before, p0, p1, p2)) {
+      return false;
+    }
+  }
+  s->RemoveTriangle(t);
+  s->RemoveTriangle(u);
+  s->AddTriangle(m, a, c);
+  s->AddTriangle(m, c, b);
+  return true;
+}
+
+// Moves v by kApart toward the centroid of its neighbours not at its point, along its box
+// faces if it is on the grid's box, unless a triangle turns over or collapses (the degenerate
+// ones around it must come out facing as its others do) or may_move refuses.
+bool MoveApart(MeshStore* s, VertexId v, double longest,
+               const std::function<bool(VertexId, Vec3)>& may_move) {
+  const Vec3 p = s->position(v);
+  Vec3 sum{0, 0, 0}, facing{0, 0, 0};
+  int n = 0;
+  for (TriId u : s->vertex_triangles(v)) {
+    if (!Degenerate(*s, u)) facing = facing + TwiceArea(*s, s->triangle(u));
+    for (VertexId x : s->triangle(u)) {
+      if (x != v && !Close(s->position(x), p, longest)) {
+        sum = sum + s->position(x);
+        ++n;
+      }
+    }
+  }
+  if (n == 0) return false;
+  Vec3 step = kApart * (sum * (1.0 / n) - p);
+  const uint8_t box = s->box_mask(v);
+  if (box & (kBoxXMin | kBoxXMax)) step.x = 0;
+  if (box & (kBoxYMin | kBoxYMax)) step.y = 0;
+  if (box & (kBoxZMin | kBoxZMax)) step.z = 0;
+  const Vec3 q = p + step;
+  if (!may_move(v, q)) return false;
+  for (TriId u : s->vertex_triangles(v)) {
+    const auto& w = s->triangle(u);
+    Vec3 c[3];
+    for (int j = 0; j < 3; ++j) c[j] = w[j] == v ? q : s->position(w[j]);
+    if (Degenerate(*s, u)) {
+      // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
+      // for 10 zero-area triangles fewer): left as it is instead.
+      if (!MovedCornerKeepsOrientation(facing, c[0], c[1], c[2])) return false;
+    } else if (!MovedCornerKeepsOrientation(TwiceArea(*s, w), c[0], c[1], c[2])) {
+      return false;
+    }
+  }
+  s->set_position(v, q);
+  return true;
+}
+
+// t's corners at one point, or on one line where no flip could mend it (on the box): each
+// corner at another's point, else the middle one, moves apart (MoveApart).
+int64_t TryApart(MeshStore* s, TriId t, const std::function<bool(VertexId, Vec3)>& may_move,
+                 const std::function<void(VertexId)>& moved) {
+  const std::array<VertexId, 3> tri = s->triangle(t);
+  double longest = 0;
+  int k = 0;
+  for (int i = 0; i < 3; ++i) {
+    const Vec3 e = s->position(tri[(i + 1) % 3]) - s->position(tri[i]);
+    if (Dot(e, e) > longest) {
+      longest = Dot(e, e);
+      k = i;
+    }
+  }
+  std::array<bool, 3> move{};
+  bool coincident = false;
+  for (int i = 0; i < 3; ++i) {
+    const Vec3 p = s->position(tri[i]);
+    move[i] = Close(s->position(tri[(i + 1) % 3]), p, longest) ||
+              Close(s->position(tri[(i + 2) % 3]), p, longest);
+    coincident |= move[i];
+  }
+  if (!coincident) move[(k + 2) % 3] = true;  // collinear: the corner between the other two
+  int64_t count = 0;
+  for (int i = 0; i < 3; ++i) {
+    if (move[i] && MoveApart(s, tri[i], longest, may_move)) {
+      moved(tri[i]);
+      ++count;
+    }
+  }
+  return count;
+}
+
+// t in a closed component of four triangles with every corner at one point (a voxel exactly
+// at the iso-value, alone inside: the link condition keeps a tetrahedron of it): its corners
+// move to a regular tetrahedron of circumradius `size` around the point, facing out.
+int64_t TryInflate(MeshStore* s, TriId t, double size,
+                   const std::function<bool(VertexId, Vec3)>& may_move,
+                   const std::function<void(VertexId)>& moved) {
+  const std::array<VertexId, 3> tri = s->triangle(t);
+  const Vec3 p = s->position(tri[0]);
+  const double tolerance = 1e-6 * size * size;  // squared: a thousandth of the size
+  auto at_p = [&](VertexId x) {
+    const Vec3 d = s->position(x) - p;
+    return Dot(d, d) <= tolerance;
+  };
+  std::array<VertexId, 4> v{tri[0], tri[1], tri[2], kInvalid};
+  std::vector<TriId> faces;
+  for (VertexId x : tri) {
+    if (!at_p(x) || s->vertex_triangles(x).size() != 3) return 0;
+    for (TriId u : s->vertex_triangles(x)) {
+      if (std::find(faces.begin(), faces.end(), u) == faces.end()) faces.push_back(u);
+      for (VertexId y : s->triangle(u)) {
+        if (y != v[0] && y != v[1] && y != v[2]) {
+          if (v[3] != kInvalid && v[3] != y) return 0;
+          v[3] = y;
+        }
+      }
+    }
+  }
+  if (faces.size() != 4 || v[3] == kInvalid || !at_p(v[3]) ||
+      s->vertex_triangles(v[3]).size() != 3) {
+    return 0;
+  }
+  const double d = size / std::sqrt(3.0);
+  std::array<Vec3, 4> q{p + Vec3{d, d, d}, p + Vec3{d, -d, -d}, p + Vec3{-d, d, -d},
+                        p + Vec3{-d, -d, d}};
+  auto volume = [&] {  // six times the signed volume the faces enclose, positive facing out
+    double sum = 0;
+    for (TriId u : faces) {
+      const auto& w = s->triangle(u);
+      Vec3 c[3];
+      for (int j = 0; j < 3; ++j) c[j] = q[std::find(v.begin(), v.end(), w[j]) - v.begin()];
+      sum += Dot(c[0], Cross(c[1], c[2]));
+    }
+    return sum;
+  };
+  if (volume() < 0) std::swap(q[0], q[1]);
+  for (int i = 0; i < 4; ++i) {
+    if (!may_move(v[i], q[i])) return 0;
+  }
+  for (int i = 0; i < 4; ++i) {
+    s->set_position(v[i], q[i]);
+    moved(v[i]);
+  }
+  return 4;
+}
+
+}  // namespace
+
+DegenerateCounts TidyDegenerate(MeshStore* store, double size,
+                                const std::function<bool(VertexId, Vec3)>& may_move,
+                                const std::function<void(VertexId)>& moved) {
+  DegenerateCounts counts;
+  std::vector<TriId> bad;
+  for (TriId t = 0; t < store->triangle_capacity(); ++t) {
+    if (store->triangle_alive(t) && Degenerate(*store, t)) bad.push_back(t);
+  }
+  // An id a flip freed may come back as one of its new triangles: those are not degenerate.
+  for (TriId t : bad) {
+    if (!store->triangle_alive(t) || !Degenerate(*store, t)) continue;
+    if (TryFlip(store, t)) {
+      ++counts.flipped;
+    } else if (const int64_t n = TryInflate(store, t, size, may_move, moved); n > 0) {
+      counts.moved += n;
+    } else {
+      counts.moved += TryApart(store, t, may_move, moved);
+    }
+  }
+  for (TriId t : bad) {
+    counts.left += store->triangle_alive(t) && Degenerate(*store, t);
+  }
+  return counts;
+}
+
+}  // namespace tandem

@@ -1,0 +1,48 @@
+// Zero-area triangles left in a simplified mesh (issue 24: they break normals, STL slicers and
+// some viewers). Marching cubes on integer scans puts the surface point of every crossed edge
+// at a grid point whose value equals the iso-value, and simplification removes almost all of
+// what that makes; what stays is what the link condition or the checks must keep: a triangle
+// with its three corners on one line, or with corners at one point where two sheets touch.
+// TidyDegenerate, run on the final mesh (Simplifier::TidyDegenerate), mends both without
+// changing the topology:
+//   - collinear corners (a, b and m between them): the edge ab is flipped to m c, c the far
+//     corner of the triangle across ab; the two new triangles tile that one exactly, so the
+//     surface does not move;
+//   - a closed component of four triangles at one point (a lone voxel exactly at the
+//     iso-value: the most the link condition lets contractions make of it) becomes a regular
+//     tetrahedron of circumradius `size` around the point, facing out;
+//   - other corners at one point, or on one line where no flip can mend it (the line along
+//     the grid's box): each corner at another's point, else the middle one, moves toward
+//     the centroid of its own neighbours elsewhere by kApart of the way (along its box faces
+//     if it is on the box), which parts the sheets.
+// A move is taken only where no triangle turns over or collapses, the mended ones come out
+// facing as their neighbours do, and `may_move` agrees (the simplifier's error bound).
+#ifndef TANDEM_DEGENERATE_H_
+#define TANDEM_DEGENERATE_H_
+
+#include <cstdint>
+#include <functional>
+
+#include "mesh_store.h"
+#include "tandem/types.h"
+
+namespace tandem {
+
+struct DegenerateCounts {
+  int64_t flipped = 0;  // edges flipped
+  int64_t moved = 0;    // vertices moved apart
+  int64_t left = 0;     // zero-area triangles neither could mend
+};
+
+// Fraction of the way to its neighbours' centroid a corner moves apart.
+inline constexpr double kApart = 0.05;
+
+// Mends the zero-area triangles (IsDegenerateTriangle) of the store. `may_move(v, p)`: whether
+// vertex v may move to p. Moved vertices are passed to `moved(v)`.
+DegenerateCounts TidyDegenerate(MeshStore* store, double size,
+                                const std::function<bool(VertexId, Vec3)>& may_move,
+                                const std::function<void(VertexId)>& moved);
+
+}  // namespace tandem
+
+#endif  // TANDEM_DEGENERATE_H_
