@@ -88,6 +88,12 @@ class Simplifier {
   // queued or dropped since Q last held every released edge; +inf if none): raising E0 to
   // less contracts nothing.
   double NextCost();
+  // Sets E0 to e <= error() once no SIMPLIFY follows: the bound the sag correction and the
+  // tidying keep to, and what the session reports as reached.
+  void LowerErrorAfterSimplify(double e) {
+    assert(e <= opt_.error);
+    opt_.error = e;
+  }
   // Q lacks edges it would have kept (a merge brought other slabs' meshes in without their
   // queues): the next RaiseError evaluates every released edge again.
   void ForgetKept() { min_dropped_ = 0; }
