@@ -179,7 +179,8 @@ int64_t TryInflate(MeshStore* s, TriId t, double size,
   std::array<VertexId, 4> v{tri[0], tri[1], tri[2], kInvalid};
   std::vector<TriId> faces;
   for (VertexId x : tri) {
-    if (!at_p(x) || s->vertex_triangles(x).size() != 3) return 0;
+    // On the grid's box a corner must stay on its faces: not a lone voxel's tetrahedron.
+    if (!at_p(x) || s->vertex_triangles(x).size() != 3 || (s->box_mask(x) & kBoxFaces)) return 0;
     for (TriId u : s->vertex_triangles(x)) {
       if (std::find(faces.begin(), faces.end(), u) == faces.end()) faces.push_back(u);
       for (VertexId y : s->triangle(u)) {
@@ -191,7 +192,7 @@ int64_t TryInflate(MeshStore* s, TriId t, double size,
     }
   }
   if (faces.size() != 4 || v[3] == kInvalid || !at_p(v[3]) ||
-      s->vertex_triangles(v[3]).size() != 3) {
+      s->vertex_triangles(v[3]).size() != 3 || (s->box_mask(v[3]) & kBoxFaces)) {
     return 0;
   }
   const double d = size / std::sqrt(3.0);

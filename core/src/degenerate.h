@@ -8,9 +8,9 @@
 //   - collinear corners (a, b and m between them): the edge ab is flipped to m c, c the far
 //     corner of the triangle across ab; the two new triangles tile that one exactly, so the
 //     surface does not move;
-//   - a closed component of four triangles at one point (a lone voxel exactly at the
-//     iso-value: the most the link condition lets contractions make of it) becomes a regular
-//     tetrahedron of circumradius `size` around the point, facing out;
+//   - a closed component of four triangles at one point, off the grid's box (a lone voxel
+//     exactly at the iso-value: the most the link condition lets contractions make of it)
+//     becomes a regular tetrahedron of circumradius `size` around the point, facing out;
 //   - other corners at one point, or on one line where no flip can mend it (the line along
 //     the grid's box): each corner at another's point, else the middle one, moves toward
 //     the centroid of its own neighbours elsewhere by kApart of the way (along its box faces

@@ -478,9 +478,11 @@ int64_t Simplifier::CorrectSag(double fraction) {
 }
 
 DegenerateCounts Simplifier::TidyDegenerate() {
-  // A collapsed tetrahedron gets a tenth of E0: within the bound, and far above float noise.
+  // A collapsed tetrahedron gets a tenth of E0 (within the bound, and far above float noise),
+  // but never more than a twentieth of a slice: E0 may be huge (a target count at its floor
+  // ran it to 1e6; the fuzzer put such a tetrahedron far outside the grid's box).
   return tandem::TidyDegenerate(
-      store_, 0.1 * opt_.error,
+      store_, std::min(0.1 * opt_.error, 0.05 * opt_.slice_spacing),
       [this](VertexId v, Vec3 p) {
         return (store_->box_mask(v) & (kSeam | kFrozen)) == 0 &&
                ShapeError(vs_[v].q, p) <= std::max(opt_.error, ShapeErrorAt(v));
