@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 #include <vector>
 
 #include "tandem/geometry.h"
@@ -51,18 +52,24 @@ bool HasEdge(const MeshStore& s, VertexId a, VertexId b) {
   return false;
 }
 
-// t's corners on one line: flips its longest edge ab to m c (see degenerate.h).
-bool TryFlip(MeshStore* s, TriId t) {
-  const std::array<VertexId, 3> tri = s->triangle(t);
+// The longest edge of tri, tri[k] -> tri[k + 1], and its squared length.
+std::pair<int, double> LongestEdge(const MeshStore& s, const std::array<VertexId, 3>& tri) {
   int k = 0;
-  double longest = -1;
+  double longest = 0;
   for (int i = 0; i < 3; ++i) {
-    const Vec3 e = s->position(tri[(i + 1) % 3]) - s->position(tri[i]);
+    const Vec3 e = s.position(tri[(i + 1) % 3]) - s.position(tri[i]);
     if (Dot(e, e) > longest) {
       longest = Dot(e, e);
       k = i;
     }
   }
+  return {k, longest};
+}
+
+// t's corners on one line: flips its longest edge ab to m c (see degenerate.h).
+bool TryFlip(MeshStore* s, TriId t) {
+  const std::array<VertexId, 3> tri = s->triangle(t);
+  const auto [k, longest] = LongestEdge(*s, tri);
   const VertexId a = tri[k], b = tri[(k + 1) % 3], m = tri[(k + 2) % 3];
   if (Close(s->position(m), s->position(a), longest) ||
       Close(s->position(m), s->position(b), longest)) {
@@ -135,15 +142,7 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
 int64_t TryApart(MeshStore* s, TriId t, const std::function<bool(VertexId, Vec3)>& may_move,
                  const std::function<void(VertexId)>& moved) {
   const std::array<VertexId, 3> tri = s->triangle(t);
-  double longest = 0;
-  int k = 0;
-  for (int i = 0; i < 3; ++i) {
-    const Vec3 e = s->position(tri[(i + 1) % 3]) - s->position(tri[i]);
-    if (Dot(e, e) > longest) {
-      longest = Dot(e, e);
-      k = i;
-    }
-  }
+  const auto [k, longest] = LongestEdge(*s, tri);
   std::array<bool, 3> move{};
   bool coincident = false;
   for (int i = 0; i < 3; ++i) {
