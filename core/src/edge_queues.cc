@@ -62,13 +62,13 @@ void WaitingQueue::Push(const WEntry& e) {
     return;
   }
   if (b >= buckets_.size()) buckets_.resize(b + 1);
-  buckets_[b].push_back(e);
+  buckets_[b].push_back(WEdge{e.a, e.b, e.va, e.vb});
   ++size_;
 }
 
 size_t WaitingQueue::MemoryBytes() const {
-  size_t bytes = buckets_.capacity() * sizeof(std::vector<WEntry>);
-  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(WEntry);
+  size_t bytes = buckets_.capacity() * sizeof(std::vector<WEdge>);
+  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(WEdge);
   return bytes + far_.capacity() * sizeof(WEntry);
 }
 

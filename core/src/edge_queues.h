@@ -250,6 +250,13 @@ struct WEntry {
   VertexId a, b;
   uint32_t va, vb;  // version stamps
 };
+// What W keeps of an entry in a bucket, and hands out: the key only chose the bucket, so a
+// bucketed edge takes 16 bytes, not 24 (W holds a layer and a half of edges: 50 MB of each
+// part's 250 MB while a 2048² cap waits out the time lag). The far list keeps whole entries.
+struct WEdge {
+  VertexId a, b;
+  uint32_t va, vb;  // version stamps
+};
 
 // W. Bucket i holds the entries released at front base_ + i, the first integer front >= key.
 // Fronts only grow, so buckets below the current one are always empty and are recycled by
@@ -260,7 +267,7 @@ class WaitingQueue {
  public:
   size_t size() const { return size_; }
   void Push(const WEntry& e);
-  // Calls take(e) for every entry with key <= front: bucket by bucket, each in push order,
+  // Calls take(WEdge) for every entry with key <= front: bucket by bucket, each in push order,
   // then the far ones in push order; then calls done() and drops the released buckets. take
   // and done may Push (keys > front), far keys included; entries they push are not released
   // by this call.
@@ -272,7 +279,7 @@ class WaitingQueue {
   static constexpr double kFarKey = 0x1p52;  // keys at or above this are never bucketed
 
  private:
-  std::vector<std::vector<WEntry>> buckets_;
+  std::vector<std::vector<WEdge>> buckets_;
   int64_t base_ = 0;
   size_t size_ = 0;  // all entries, far ones included
   std::vector<WEntry> far_;
@@ -283,10 +290,10 @@ void WaitingQueue::ReleaseUpTo(double front, Take&& take, Done&& done) {
   size_t b = 0;
   for (; b < buckets_.size() && static_cast<double>(base_) + static_cast<double>(b) <= front;
        ++b) {
-    std::vector<WEntry> bucket;
+    std::vector<WEdge> bucket;
     bucket.swap(buckets_[b]);
     size_ -= bucket.size();
-    for (const WEntry& e : bucket) take(e);
+    for (const WEdge& e : bucket) take(e);
   }
   if (!far_.empty()) {
     // Released ones go with the rest; the others stay, in order (empty on ordinary grids).
@@ -296,7 +303,7 @@ void WaitingQueue::ReleaseUpTo(double front, Take&& take, Done&& done) {
     for (const WEntry& e : far) {
       if (!(e.key > front)) {
         --size_;
-        take(e);
+        take(WEdge{e.a, e.b, e.va, e.vb});
       } else {
         far_.push_back(e);
       }

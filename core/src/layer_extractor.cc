@@ -138,6 +138,7 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
                                  std::array<std::vector<VertexId>, 2>* new_seam) {
   if (!staged_) return;
   staged_ = false;
+  store_->Reserve(staged_vertices_.size(), staged_triangles_.size());
   staged_to_store_.resize(staged_vertices_.size());
   for (size_t i = 0; i < staged_vertices_.size(); ++i) {
     const StagedVertex& sv = staged_vertices_[i];
@@ -157,8 +158,22 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
   for (int64_t e : xe_top_set_) xe_top_[e] = resolve(xe_top_[e]);
   for (int64_t e : ye_top_set_) ye_top_[e] = resolve(ye_top_[e]);
   for (VertexId& v : top_plane_vertices_) v = resolve(v);
+  // The staging is empty until the next layer: past 4 MiB (a dense 2048² layer, 5 MB a part;
+  // a closed volume's cap, 50 MB) it is freed, not kept at its largest for the whole
+  // session; allocating it again costs a few page faults a layer.
+  if (StagingBytes() > (size_t{4} << 20)) {
+    std::vector<StagedVertex>().swap(staged_vertices_);
+    std::vector<std::array<VertexId, 3>>().swap(staged_triangles_);
+    std::vector<VertexId>().swap(staged_to_store_);
+  }
   staged_vertices_.clear();
   staged_triangles_.clear();
+}
+
+size_t LayerExtractor::StagingBytes() const {
+  return staged_vertices_.capacity() * sizeof(StagedVertex) +
+         staged_triangles_.capacity() * sizeof(staged_triangles_[0]) +
+         staged_to_store_.capacity() * sizeof(VertexId);
 }
 
 bool LayerExtractor::ScanRow(const float* src, int64_t n, float* dst, uint64_t* signs) const {

@@ -72,6 +72,9 @@ class LayerExtractor {
   // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
   // two value planes, their sign bits and the five vertex-id caches.
   static size_t PlaneCacheBytes(int64_t nx, int64_t ny);
+  // What the staged layer's arrays hold (capacity): about 64 bytes a vertex of the largest
+  // recent layer. Not while ComputeLayer runs on another thread.
+  size_t StagingBytes() const;
 
   int64_t slices_done() const { return slices_done_; }
   int64_t crossed_cubes() const { return crossed_cubes_; }

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cassert>
 
+#include "grow.h"
+
 namespace tandem {
 
 uint32_t MeshStore::AllocSlot(uint8_t size_class) {
@@ -14,11 +16,13 @@ uint32_t MeshStore::AllocSlot(uint8_t size_class) {
   }
   const uint32_t cap = kMinSlot << size_class;
   const uint32_t off = static_cast<uint32_t>(pool_.size());
+  ReserveFor(pool_, pool_.size() + cap);
   pool_.resize(pool_.size() + cap, kInvalid);
   return off;
 }
 
 void MeshStore::FreeSlot(uint32_t offset, uint8_t size_class) {
+  ReserveFor(free_slots_[size_class], free_slots_[size_class].size() + 1);
   free_slots_[size_class].push_back(offset);
 }
 
@@ -29,6 +33,7 @@ VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t bo
     free_vertices_.pop_back();
   } else {
     v = static_cast<VertexId>(vtx_.size());
+    ReserveFor(vtx_, vtx_.size() + 1);
     vtx_.emplace_back();
   }
   VertexRecord& r = vtx_[v];
@@ -41,6 +46,17 @@ VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t bo
   r.adj = AdjSlot{AllocSlot(0), 0, 0};
   ++live_vertices_;
   return v;
+}
+
+void MeshStore::Reserve(size_t vertices, size_t triangles) {
+  auto beyond = [](size_t n, size_t free) { return n > free ? n - free : 0; };
+  const size_t new_vertices = beyond(vertices, free_vertices_.size());
+  const size_t new_triangles = beyond(triangles, free_triangles_.size());
+  ReserveFor(vtx_, vtx_.size() + new_vertices);
+  ReserveFor(tris_, tris_.size() + new_triangles);
+  ReserveFor(tri_alive_, tri_alive_.size() + new_triangles);
+  // Every new vertex takes a slot of the smallest class; the few that outgrow it take more.
+  ReserveFor(pool_, pool_.size() + beyond(vertices, free_slots_[0].size()) * kMinSlot);
 }
 
 void MeshStore::LinkTriangle(VertexId v, TriId t) {
@@ -79,6 +95,8 @@ TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
     tri_alive_[t] = 1;
   } else {
     t = static_cast<TriId>(tris_.size());
+    ReserveFor(tris_, tris_.size() + 1);
+    ReserveFor(tri_alive_, tri_alive_.size() + 1);
     tris_.push_back({a, b, c});
     tri_alive_.push_back(1);
   }
@@ -93,6 +111,7 @@ void MeshStore::RemoveTriangle(TriId t) {
   assert(triangle_alive(t));
   for (VertexId v : tris_[t]) UnlinkTriangle(v, t);
   tri_alive_[t] = 0;
+  ReserveFor(free_triangles_, free_triangles_.size() + 1);
   free_triangles_.push_back(t);
   --live_triangles_;
 }
@@ -102,6 +121,7 @@ void MeshStore::RemoveVertex(VertexId v) {
   FreeSlot(vtx_[v].adj.offset, vtx_[v].adj.size_class);
   vtx_[v].adj = AdjSlot{};
   vtx_[v].alive = 0;
+  ReserveFor(free_vertices_, free_vertices_.size() + 1);
   free_vertices_.push_back(v);
   --live_vertices_;
 }

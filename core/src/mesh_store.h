@@ -50,6 +50,9 @@ class MeshStore {
   VertexId AddVertex(Vec3 pos, double height, int32_t layer, uint8_t box_mask);
   // Adds triangle (a, b, c), counter-clockwise seen from outside. Vertices must be alive.
   TriId AddTriangle(VertexId a, VertexId b, VertexId c);
+  // Makes room for `vertices` more vertices and `triangles` more triangles at once (a
+  // layer's commit): the arrays then grow by what comes, not by double (grow.h).
+  void Reserve(size_t vertices, size_t triangles);
   // Removes a triangle and unlinks it from its vertices' lists.
   void RemoveTriangle(TriId t);
   // Removes a vertex; it must have no incident triangles left.

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <utility>
 
+#include "grow.h"
+
 namespace tandem {
 namespace {
 
@@ -25,6 +27,8 @@ Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
   if (vs_.size() >= n) return;
+  ReserveFor(vs_, n);
+  ReserveFor(version_, n);
   vs_.resize(n);
   version_.resize(n);
 }
@@ -297,7 +301,7 @@ void Simplifier::Activate(double front) {
   // order: Q breaks ties by push order, so that order is part of the output.
   w_.ReleaseUpTo(
       front_,
-      [this](const WEntry& e) {
+      [this](const WEdge& e) {
         if (!Stale(e)) AddToBatch(e.a, e.b, /*released=*/true);
       },
       [this] { FlushBatch(); });

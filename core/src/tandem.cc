@@ -516,7 +516,7 @@ size_t TandemSession::Impl::MemoryBytes() {
     const ExtractorConfig& ec = s->extractor.config();
     if (s->sealer) bytes += s->sealer->MemoryBytes();
     bytes += s->store.MemoryBytes() + s->simplifier.MemoryBytes() +
-             LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny);
+             LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) + s->extractor.StagingBytes();
   }
   for (const auto& s : seams) bytes += s.capacity() * sizeof(s[0]);
   return bytes;

@@ -146,7 +146,7 @@ TEST(WaitingQueue, ReleasesUpToTheFrontInBucketThenPushOrder) {
   auto release = [&](double front) {
     std::vector<uint32_t> out;
     int done = 0;
-    w.ReleaseUpTo(front, [&](const WEntry& e) { out.push_back(e.a); }, [&] { ++done; });
+    w.ReleaseUpTo(front, [&](const WEdge& e) { out.push_back(e.a); }, [&] { ++done; });
     EXPECT_EQ(done, 1);
     return out;
   };
@@ -160,6 +160,17 @@ TEST(WaitingQueue, ReleasesUpToTheFrontInBucketThenPushOrder) {
   EXPECT_EQ(w.size(), 0u);
 }
 
+// A bucketed edge takes 16 bytes: its key only chose the bucket (a far one keeps it).
+TEST(WaitingQueue, ABucketedEdgeTakesSixteenBytes) {
+  WaitingQueue w;
+  constexpr uint32_t n = uint32_t{1} << 17;
+  for (uint32_t i = 0; i < n; ++i) w.Push(WEntry{2.5, i, i + 1, 0, 0});
+  EXPECT_LE(w.MemoryBytes(), size_t{n} * 16 + 4096);
+  std::vector<uint32_t> out;
+  w.ReleaseUpTo(3.0, [&](const WEdge& e) { out.push_back(e.b - e.a); }, [] {});
+  EXPECT_EQ(out, std::vector<uint32_t>(n, 1u));
+}
+
 // A far key pushed while the far entries are released (a re-evaluated edge whose reach is
 // huge) is kept for a later release, with the far entries not released yet.
 TEST(WaitingQueue, AFarKeyPushedDuringTheFarReleaseIsKept) {
@@ -169,7 +180,7 @@ TEST(WaitingQueue, AFarKeyPushedDuringTheFarReleaseIsKept) {
   std::vector<uint32_t> out;
   w.ReleaseUpTo(
       1e25,
-      [&](const WEntry& e) {
+      [&](const WEdge& e) {
         out.push_back(e.a);
         w.Push(entry(1e40, 100 + e.a));  // far again, during the scan
       },
@@ -178,7 +189,7 @@ TEST(WaitingQueue, AFarKeyPushedDuringTheFarReleaseIsKept) {
   EXPECT_EQ(w.size(), 64u);  // 32 kept + 32 pushed
   std::vector<uint32_t> rest;
   w.ReleaseUpTo(std::numeric_limits<double>::infinity(),
-                [&](const WEntry& e) { rest.push_back(e.a); }, [] {});
+                [&](const WEdge& e) { rest.push_back(e.a); }, [] {});
   EXPECT_EQ(rest.size(), 64u);
   EXPECT_EQ(w.size(), 0u);
 }
@@ -191,7 +202,7 @@ TEST(WaitingQueue, PushesDuringAReleaseWait) {
   std::vector<uint32_t> out;
   w.ReleaseUpTo(
       1.0,
-      [&](const WEntry& e) {
+      [&](const WEdge& e) {
         out.push_back(e.a);
         w.Push(WEntry{1.5, 2, 2, 0, 0});
       },
@@ -199,7 +210,7 @@ TEST(WaitingQueue, PushesDuringAReleaseWait) {
   EXPECT_EQ(out, std::vector<uint32_t>{1});
   EXPECT_EQ(w.size(), 2u);
   out.clear();
-  w.ReleaseUpTo(2.0, [&](const WEntry& e) { out.push_back(e.a); }, [] {});
+  w.ReleaseUpTo(2.0, [&](const WEdge& e) { out.push_back(e.a); }, [] {});
   EXPECT_EQ(out, (std::vector<uint32_t>{2, 3}));
 }
 
