@@ -53,6 +53,31 @@ inline double ShapeError(const Quadric& h, Vec3 x) {
   return std::sqrt(std::max(0.0, h.Evaluate(x) / h.w));
 }
 
+// ε0 as Error(K) measures it: ShapeError, but 0 where x̄ᵀHx̄ is within rounding of 0.
+// x̄ᵀHx̄ = Σ_t w_t (n_t·x + d_t)² is computed from H's entries as a difference of products
+// whose magnitudes add up to at most S(x) = (Σ_i √a_ii |x_i| + √c)² (Cauchy-Schwarz over the
+// triangles: Σ_t w_t (Σ_i |n_i x_i| + |d_t|)² <= S), so rounding leaves it uncertain by about
+// γ S(x): a few units of rounding per triangle's quadric, one per addition of the vertex's
+// sum, a dozen in Evaluate. γ = 2⁻⁴⁰ (8192 units) bounds that for thousands of triangles.
+// Where the RMS distance is not told apart from 0 it is 0: a vertex that was never moved lies
+// on all its planes. That noise, √(γ S/W) <= 2|x|√γ ≈ |x|·2e-6 (2e-3 voxel at the far corner of
+// 512³), is far below any E0 that matters, but at extreme anisotropy it is not: with spacing (1e9, 1e6, 1e6) the
+// engine frame's unit is 2¹⁹ and |x| reaches 3e4, one unit of rounding in c made an
+// untouched vertex read ε0 = 1e-5 > E0 = 6e-6 (E0 = 3.2 in world units; fuzz_session).
+// Elsewhere the value is ShapeError's, so a contraction that passed ShapeError <= E0 still
+// reads <= E0 here.
+inline double MeasuredShapeError(const Quadric& h, Vec3 x) {
+  if (h.w <= 0.0) return 0.0;
+  constexpr double kRounding = 0x1p-40;
+  const double root = std::sqrt(std::max(0.0, h.a00)) * std::abs(x.x) +
+                      std::sqrt(std::max(0.0, h.a11)) * std::abs(x.y) +
+                      std::sqrt(std::max(0.0, h.a22)) * std::abs(x.z) +
+                      std::sqrt(std::max(0.0, h.c));
+  const double f = h.Evaluate(x);
+  if (f <= kRounding * root * root) return 0.0;
+  return std::sqrt(f / h.w);
+}
+
 // The paper's isotropic cost ε_α (paper §2, "Isotropy parameter") as one quadric:
 // (1 − α) H/W + α G/W_G, with H the plane quadric of the contraction (W = h.w its area), G
 // the isotropy quadric of the triangles around a or b (`area` = their total area) and

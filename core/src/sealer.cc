@@ -110,7 +110,7 @@ void Sealer::Seal(double front) {
       sag_corrected_ += simplifier_->CorrectSagAt(freeze_, normal_, sag_fraction_);
     }
     for (VertexId v : freeze_) {
-      max_shape_error_ = std::max(max_shape_error_, simplifier_->ShapeErrorAt(v));
+      max_shape_error_ = std::max(max_shape_error_, simplifier_->MeasuredShapeErrorAt(v));
     }
   }
   // 3. Seal the triangles whose last corner froze now, in increasing id.

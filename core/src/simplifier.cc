@@ -465,7 +465,7 @@ double Simplifier::MaxShapeError() const {
   double worst = 0.0;
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
     if (!store_->vertex_alive(v) || v >= vs_.size()) continue;
-    worst = std::max(worst, ShapeError(vs_[v].q, store_->position(v)));
+    worst = std::max(worst, MeasuredShapeErrorAt(v));
   }
   return worst;
 }
@@ -513,6 +513,10 @@ double Simplifier::MaxEdgeReach(VertexId v) const {
 
 double Simplifier::ShapeErrorAt(VertexId v) const {
   return ShapeError(vs_[v].q, store_->position(v));
+}
+
+double Simplifier::MeasuredShapeErrorAt(VertexId v) const {
+  return MeasuredShapeError(vs_[v].q, store_->position(v));
 }
 
 void Simplifier::Freeze(VertexId v) {

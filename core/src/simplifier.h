@@ -107,7 +107,8 @@ class Simplifier {
   void AdoptCounters(const Simplifier& from);
   void PushEdgesAround(std::span<const VertexId> verts);
 
-  // Error(K) = max ε0 over live vertices.
+  // Error(K) = max ε0 over live vertices, as MeasuredShapeError measures it (rounding noise
+  // is not error).
   double MaxShapeError() const;
   // Sag correction (sag_correction.h) of every live vertex with the current quadrics.
   // Returns the number of vertices moved. Run it once, on the final mesh.
@@ -130,6 +131,7 @@ class Simplifier {
   // front has passed it, every edge at v has been offered to Q.
   double MaxEdgeReach(VertexId v) const;
   double ShapeErrorAt(VertexId v) const;  // ε0 of v at its current position
+  double MeasuredShapeErrorAt(VertexId v) const;  // the same for Error(K) (MeasuredShapeError)
   const RefusalCounts& refusals() const { return refusals_; }
   int64_t contractions() const { return contractions_; }
   // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the

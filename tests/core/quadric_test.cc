@@ -30,6 +30,35 @@ TEST(Quadric, PlaneHandValues) {
   EXPECT_EQ(ShapeError(zero, {1, 2, 3}), 0.0);
 }
 
+// Fans of small triangles around a corner p at x = 3e4, as in the engine frame at spacing
+// (1e9, 1e6, 1e6): p lies on every plane, yet x̄ᵀHx̄ comes out a unit of rounding off 0 in
+// about half of them (ShapeError up to 1e-4, where E0 = 3.2 is 6e-6). MeasuredShapeError says
+// 0, and off the planes it is ShapeError's value.
+TEST(Quadric, MeasuredShapeErrorIsZeroOnThePlanesAndShapeErrorElsewhere) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  int noisy = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    const Vec3 p{3e4 + 1907.0 * u(rng), 30 + 20 * u(rng), 6 + 4 * u(rng)};
+    Quadric h;
+    Vec3 prev{p.x + 20.0 * u(rng), p.y + 1.9 * u(rng), p.z + 1.9 * u(rng)};
+    for (int k = 0; k < 6; ++k) {
+      const Vec3 next{p.x + 20.0 * u(rng), p.y + 1.9 * u(rng), p.z + 1.9 * u(rng)};
+      h += PlaneQuadric(p, prev, next);
+      prev = next;
+    }
+    noisy += ShapeError(h, p) > 0.0;
+    EXPECT_EQ(MeasuredShapeError(h, p), 0.0) << trial << ": ShapeError " << ShapeError(h, p);
+    const Vec3 off = p + Vec3{0.0, 0.5, 0.5};
+    EXPECT_EQ(MeasuredShapeError(h, off), ShapeError(h, off));
+  }
+  EXPECT_GT(noisy, 40);  // the rounding the measure must not count
+  const Quadric plane = PlaneQuadric({0, 0, 1}, {2, 0, 1}, {0, 2, 1});
+  EXPECT_DOUBLE_EQ(MeasuredShapeError(plane, {5, -3, 4}), 3.0);
+  EXPECT_EQ(MeasuredShapeError(plane, {7, 5, 1}), 0.0);
+  EXPECT_EQ(MeasuredShapeError(Quadric{}, {1, 2, 3}), 0.0);
+}
+
 TEST(Quadric, CornerOfThreePlanesIsTheMinimiser) {
   // Planes x = 1, y = 2, z = 3 (areas 0.5, 2, 4.5): the unique minimiser is their corner.
   Quadric h = PlaneQuadric({1, 0, 0}, {1, 1, 0}, {1, 0, 1});

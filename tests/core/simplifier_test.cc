@@ -99,6 +99,26 @@ TEST(Simplifier, ErrorBoundAndTopologyOnSyntheticFields) {
   }
 }
 
+// Error(K) <= E0 where E0 is a millionth of the voxel (spacing 1e9 x 1e6 x 1e6, E0 = 3.2: the
+// fuzz_session input in tests/fuzz/crashes/fuzz_session). Nothing can be contracted at that
+// E0, and a vertex that was never moved lies on all its planes, but its quadric, at
+// coordinates up to 3e4 engine units, evaluated one unit of rounding above 0: ε0 read 5.37
+// in world units. Error(K) must not count rounding noise as error (MeasuredShapeError).
+TEST(Simplifier, ErrorBoundHoldsWhereE0IsAMillionthOfTheVoxel) {
+  for (Shape shape : {Shape::kPillowBox, Shape::kSphere}) {
+    for (Schedule s : kSchedules) {
+      auto src = MakeSyntheticSource(shape, 19, 32, 6, {1e9, 1e6, 1e6});
+      const Result run = RunSource(*src, 0.0, s, 3.2, 0.0, 0);
+      const std::string what =
+          std::string(ShapeName(shape)) + " " + std::string(ScheduleName(s));
+      ASSERT_GT(run.mesh.num_triangles(), 0u) << what;
+      EXPECT_EQ(run.stats.contractions, 0) << what;
+      EXPECT_LE(run.error_max, 3.2) << what;
+      EXPECT_EQ(run.error_max, 0.0) << what;  // every vertex is where marching cubes put it
+    }
+  }
+}
+
 TEST(Simplifier, SphereAndLinkKeepTheirTopology) {
   for (Schedule s : kSchedules) {
     const Result sphere = RunShape(Shape::kSphere, 64, s, 0.3);
