@@ -81,8 +81,9 @@ struct QEntry {
 // Heap node: the key, the edge and its stamps (32 bytes, two per cache line), so that a stale
 // entry (most pops: five in six on a dense surface) is recognised without reading the rest of
 // its entry, which waits in a slot (a cache miss per read: the entry was written long ago).
-// Equal keys (zero-cost edges on flat patches are common) pop newest first: that keeps
-// consecutive contractions in the same, cached, region.
+// Equal keys pop newest first: that keeps consecutive contractions in the same, cached,
+// region. (Zero-cost edges on flat patches, which would all tie, come keyed by their length:
+// Simplifier::PushQ.)
 struct QNode {
   double key;
   uint32_t slot;  // index into the placements' slots

@@ -124,7 +124,17 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
     min_dropped_ = std::min(min_dropped_, c.cost);
     return;
   }
-  q_.Push(c.cost, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
+  // Zero-cost edges (an exactly flat patch: a binary mask's faces) would all tie, and Q pops
+  // ties newest first: each survivor's re-pushed edges came next, so it took its neighbours
+  // one after the other into a fan of thousands of triangles, every check over the whole fan
+  // (a 256² x 6 box: 102 s). They pop shortest first instead: the key is the squared length,
+  // scaled to 2^-960 of it, below any cost but 0.
+  double key = c.cost;
+  if (key == 0) {
+    const Vec3 d = store_->position(a) - store_->position(b);
+    key = Dot(d, d) * 0x1p-960;
+  }
+  q_.Push(key, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
 void Simplifier::RequeueAll() {
