@@ -315,6 +315,7 @@ void Simplifier::Activate(double front) {
         if (!Stale(e)) AddToBatch(e.a, e.b, /*released=*/true);
       },
       [this] { FlushBatch(); });
+  step_peak_bytes_ = MemoryBytes();
 }
 
 size_t Simplifier::WaitingBytes() const { return w_.MemoryBytes(); }

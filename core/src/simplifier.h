@@ -141,6 +141,10 @@ class Simplifier {
   double max_layer_over_front() const { return max_layer_over_front_; }
   size_t queue_sizes() const { return q_.size() + w_.size(); }
   size_t MemoryBytes() const;
+  // MemoryBytes as the last ACTIVATE left it: the fullest moment of a step, Q holding every
+  // edge it released (137 MiB a part when a 2048² cap is released), which SIMPLIFY empties
+  // and Trim frees before the step ends.
+  size_t StepPeakBytes() const { return step_peak_bytes_; }
   size_t WaitingBytes() const;
 
  private:
@@ -212,6 +216,7 @@ class Simplifier {
   std::vector<uint32_t> version_;
 
   EdgeQueue q_;
+  size_t step_peak_bytes_ = 0;  // StepPeakBytes
   bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
   bool requeue_released_ = false;  // RaiseError: edges for W are in W already
   // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).

@@ -515,8 +515,12 @@ size_t TandemSession::Impl::MemoryBytes() {
   for (const auto& s : slabs) {
     const ExtractorConfig& ec = s->extractor.config();
     if (s->sealer) bytes += s->sealer->MemoryBytes();
-    bytes += s->store.MemoryBytes() + s->simplifier.MemoryBytes() +
-             LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) + s->extractor.StagingBytes();
+    // The queues at their fullest in the last step, not as its end left them: a budget
+    // checked between slices would otherwise miss Q's peak (a cap's release: 137 MiB a part
+    // at 2048², while the queues read 36 MiB after the step).
+    const size_t queues = std::max(s->simplifier.MemoryBytes(), s->simplifier.StepPeakBytes());
+    bytes += s->store.MemoryBytes() + queues + LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) +
+             s->extractor.StagingBytes();
   }
   for (const auto& s : seams) bytes += s.capacity() * sizeof(s[0]);
   return bytes;

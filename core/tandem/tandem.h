@@ -78,7 +78,8 @@ class TandemSession {
   int num_parts() const;           // slabs; after Finish: 1
   const SessionStats& stats() const;
   double MaxShapeError() const;    // Error(K), in world units
-  size_t MemoryBytes() const;      // mesh store + queues + extractor caches + slice buffers
+  // Mesh store + queues (at their fullest in the last step) + extractor caches + slice buffers.
+  size_t MemoryBytes() const;
   const VolumeInfo& grid() const;
   const SessionOptions& options() const;
   bool finished() const;
