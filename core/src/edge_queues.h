@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "grow.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -209,6 +210,7 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
     slots_[slot] = QPlacement{e.pos, e.eps0};
   } else {
     slot = static_cast<uint32_t>(slots_.size());
+    ReserveFor(slots_, slots_.size() + 1);  // grow.h: Q's peak is a step's peak
     slots_.push_back(QPlacement{e.pos, e.eps0});
   }
   if (buckets_.empty()) {
@@ -217,6 +219,7 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
     cur_ = kBuckets - 1;
   }
   const size_t b = Bucket(key);
+  ReserveFor(buckets_[b], buckets_[b].size() + 1);
   buckets_[b].push_back(QNode{key, slot, seq_++, e.a, e.b, e.va, e.vb});
   ++size_;
   if (b < cur_) {
@@ -241,6 +244,7 @@ inline QNode EdgeQueue::Pop() {
   HeapPopFront(h, QNodeBeforeFn{});
   heaped_[cur_] = h.size();
   --size_;
+  ReserveFor(free_, free_.size() + 1);
   free_.push_back(node.slot);
   return node;
 }
