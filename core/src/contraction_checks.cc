@@ -123,10 +123,7 @@ bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScra
   // Allocated on first use: most meshes never have a fan this large.
   using Mark = LinkScratch::Mark;
   std::vector<Mark>& mark = scratch->mark;
-  if (mark.size() < store.vertex_capacity()) {
-    ReserveFor(mark, store.vertex_capacity());
-    mark.resize(store.vertex_capacity());
-  }
+  if (mark.size() < store.vertex_capacity()) GrowTo(mark, size_t{store.vertex_capacity()});
   if (++scratch->epoch == 0) {
     std::fill(mark.begin(), mark.end(), Mark{});
     scratch->epoch = 1;

@@ -62,8 +62,7 @@ void WaitingQueue::Push(const WEntry& e) {
     return;
   }
   if (b >= buckets_.size()) buckets_.resize(b + 1);
-  ReserveFor(buckets_[b], buckets_[b].size() + 1);
-  buckets_[b].push_back(WEdge{e.a, e.b, e.va, e.vb});
+  PushBack(buckets_[b], WEdge{e.a, e.b, e.va, e.vb});
   ++size_;
 }
 

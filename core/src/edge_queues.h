@@ -210,8 +210,7 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
     slots_[slot] = QPlacement{e.pos, e.eps0};
   } else {
     slot = static_cast<uint32_t>(slots_.size());
-    ReserveFor(slots_, slots_.size() + 1);  // grow.h: Q's peak is a step's peak
-    slots_.push_back(QPlacement{e.pos, e.eps0});
+    PushBack(slots_, QPlacement{e.pos, e.eps0});  // grow.h: Q's peak is a step's peak
   }
   if (buckets_.empty()) {
     buckets_.resize(kBuckets);
@@ -219,8 +218,7 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
     cur_ = kBuckets - 1;
   }
   const size_t b = Bucket(key);
-  ReserveFor(buckets_[b], buckets_[b].size() + 1);
-  buckets_[b].push_back(QNode{key, slot, seq_++, e.a, e.b, e.va, e.vb});
+  PushBack(buckets_[b], QNode{key, slot, seq_++, e.a, e.b, e.va, e.vb});
   ++size_;
   if (b < cur_) {
     cur_ = b;  // was empty: a heap of one
@@ -244,8 +242,7 @@ inline QNode EdgeQueue::Pop() {
   HeapPopFront(h, QNodeBeforeFn{});
   heaped_[cur_] = h.size();
   --size_;
-  ReserveFor(free_, free_.size() + 1);
-  free_.push_back(node.slot);
+  PushBack(free_, node.slot);
   return node;
 }
 

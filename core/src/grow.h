@@ -14,6 +14,7 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <utility>
 #include <vector>
 
 namespace tandem {
@@ -24,6 +25,18 @@ template <class T>
 void ReserveFor(std::vector<T>& v, size_t n) {
   if (n <= v.capacity()) return;
   v.reserve(std::max(n, v.capacity() + v.capacity() / 8));
+}
+
+// push_back and resize, growing as ReserveFor does.
+template <class T, class U>
+void PushBack(std::vector<T>& v, U&& x) {
+  ReserveFor(v, v.size() + 1);
+  v.push_back(std::forward<U>(x));
+}
+template <class T>
+void GrowTo(std::vector<T>& v, size_t n, const T& value = T()) {
+  ReserveFor(v, n);
+  v.resize(n, value);
 }
 
 }  // namespace tandem

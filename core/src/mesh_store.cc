@@ -16,14 +16,12 @@ uint32_t MeshStore::AllocSlot(uint8_t size_class) {
   }
   const uint32_t cap = kMinSlot << size_class;
   const uint32_t off = static_cast<uint32_t>(pool_.size());
-  ReserveFor(pool_, pool_.size() + cap);
-  pool_.resize(pool_.size() + cap, kInvalid);
+  GrowTo(pool_, pool_.size() + cap, kInvalid);
   return off;
 }
 
 void MeshStore::FreeSlot(uint32_t offset, uint8_t size_class) {
-  ReserveFor(free_slots_[size_class], free_slots_[size_class].size() + 1);
-  free_slots_[size_class].push_back(offset);
+  PushBack(free_slots_[size_class], offset);
 }
 
 VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t box_mask) {
@@ -33,8 +31,7 @@ VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t bo
     free_vertices_.pop_back();
   } else {
     v = static_cast<VertexId>(vtx_.size());
-    ReserveFor(vtx_, vtx_.size() + 1);
-    vtx_.emplace_back();
+    PushBack(vtx_, VertexRecord{});
   }
   VertexRecord& r = vtx_[v];
   r.pos = pos;
@@ -95,10 +92,8 @@ TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
     tri_alive_[t] = 1;
   } else {
     t = static_cast<TriId>(tris_.size());
-    ReserveFor(tris_, tris_.size() + 1);
-    ReserveFor(tri_alive_, tri_alive_.size() + 1);
-    tris_.push_back({a, b, c});
-    tri_alive_.push_back(1);
+    PushBack(tris_, std::array<VertexId, 3>{a, b, c});
+    PushBack(tri_alive_, uint8_t{1});
   }
   LinkTriangle(a, t);
   LinkTriangle(b, t);
@@ -111,8 +106,7 @@ void MeshStore::RemoveTriangle(TriId t) {
   assert(triangle_alive(t));
   for (VertexId v : tris_[t]) UnlinkTriangle(v, t);
   tri_alive_[t] = 0;
-  ReserveFor(free_triangles_, free_triangles_.size() + 1);
-  free_triangles_.push_back(t);
+  PushBack(free_triangles_, t);
   --live_triangles_;
 }
 
@@ -121,8 +115,7 @@ void MeshStore::RemoveVertex(VertexId v) {
   FreeSlot(vtx_[v].adj.offset, vtx_[v].adj.size_class);
   vtx_[v].adj = AdjSlot{};
   vtx_[v].alive = 0;
-  ReserveFor(free_vertices_, free_vertices_.size() + 1);
-  free_vertices_.push_back(v);
+  PushBack(free_vertices_, v);
   --live_vertices_;
 }
 

@@ -27,10 +27,8 @@ Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
   if (vs_.size() >= n) return;
-  ReserveFor(vs_, n);
-  ReserveFor(version_, n);
-  vs_.resize(n);
-  version_.resize(n);
+  GrowTo(vs_, n);
+  GrowTo(version_, n);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
