@@ -85,8 +85,7 @@ void SimplifyLayer(Slab& s) {
   const auto t0 = Clock::now();
   const double front = static_cast<double>(s.pending_front);
   s.simplifier.Delay(s.new_tris);
-  s.simplifier.Activate(front);
-  s.simplifier.Simplify();
+  s.simplifier.ActivateAndSimplify(front);
   if (s.target) FollowTarget(s);
   if (s.sealer) s.sealer->Seal(front);
   s.time.simplify_s += Seconds(t0, Clock::now());
@@ -227,8 +226,7 @@ void FinishSlab(Slab& s, Schedule schedule) {
     }
     s.simplifier.Delay(all);
   }
-  s.simplifier.Activate(std::numeric_limits<double>::infinity());
-  s.simplifier.Simplify();
+  s.simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
   s.time.simplify_s += Seconds(t0, Clock::now());
 }
 

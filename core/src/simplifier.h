@@ -53,6 +53,9 @@ struct SimplifierOptions {
   // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
   // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
   double keep = 1;
+  // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time.
+  // 2^18 (16 MiB of Q): no release of the benchmark's 512³ inputs reaches it.
+  size_t release_chunk = size_t{1} << 18;
 };
 
 class Simplifier {
@@ -68,6 +71,12 @@ class Simplifier {
   void Delay(std::span<const TriId> tris);
   // ACTIVATE: moves entries of W whose key <= front into Q. front = +inf for ACTIVATE(∞).
   void Activate(double front);
+  // ACTIVATE(front); SIMPLIFY(E0), as the schedules run them, except that a release of more
+  // than release_chunk edges enters Q a chunk at a time, in W's order, each chunk simplified
+  // before the next is evaluated: Q holds a chunk, not the release (a closed 2048² volume's
+  // cap releases 1.64 M edges a part at once, 64 bytes each in Q). Smaller releases give
+  // exactly Activate then Simplify.
+  void ActivateAndSimplify(double front);
   // SIMPLIFY(E0): contracts while Q's minimum cost <= E0, and with target_triangles > 0
   // while more than that many triangles remain. past_error: in cost order beyond E0, without
   // the distance guard (a multiple of E0, it would stall there), down to target_triangles
@@ -141,9 +150,9 @@ class Simplifier {
   double max_layer_over_front() const { return max_layer_over_front_; }
   size_t queue_sizes() const { return q_.size() + w_.size(); }
   size_t MemoryBytes() const;
-  // MemoryBytes as the last ACTIVATE left it: the fullest moment of a step, Q holding every
-  // edge it released (137 MiB a part when a 2048² cap is released), which SIMPLIFY empties
-  // and Trim frees before the step ends.
+  // MemoryBytes as the last ACTIVATE left it (the largest over ActivateAndSimplify's
+  // chunks): the fullest moment of a step, Q holding every edge it released, which SIMPLIFY
+  // empties and Trim frees before the step ends.
   size_t StepPeakBytes() const { return step_peak_bytes_; }
   size_t WaitingBytes() const;
 
@@ -163,6 +172,11 @@ class Simplifier {
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
+  // PushQ, unless an end is not ready in a chunked release (ActivateAndSimplify): then the
+  // edge waits for that end's chunk.
+  void PushReady(VertexId a, VertexId b, const Candidate& c);
+  uint32_t ReadyGroup(VertexId v) const { return v < ready_.size() ? ready_[v] : 0; }
+  size_t GroupBytes() const;
   // Each edge of t once (see Delay), into batch_. new_layer: t belongs to the layer being
   // delayed, whose edges on the plane below were queued with the layer underneath.
   void PushTriangleEdges(TriId t, bool new_layer);
@@ -222,6 +236,12 @@ class Simplifier {
   // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).
   double min_dropped_ = std::numeric_limits<double>::infinity();
   WaitingQueue w_;
+  // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
+  // (empty otherwise: every vertex ready); the edges of each chunk still to come; the chunk
+  // being simplified.
+  std::vector<uint32_t> ready_;
+  std::vector<std::vector<WEdge>> groups_;
+  uint32_t group_ = 0;
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;
   std::vector<Survivor> survivors_;  // GeometryOk's scratch

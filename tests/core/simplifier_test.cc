@@ -189,6 +189,74 @@ TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
   }
 }
 
+// A closed volume's first layer is a cap across the whole slice, and the time lag releases
+// all its edges in one step: Q held every one of them (64 bytes each, 137 MiB a part on a
+// 2048² gyroid), so the closed 2048² streams were refused by the default budget. Released in
+// chunks, each simplified before the next is evaluated, the step's peak holds a chunk of Q,
+// and the mesh keeps its topology, its error bound and about its count.
+TEST(Simplifier, ALargeReleaseEntersQInChunks) {
+  constexpr int n = 96;
+  struct Run {
+    size_t peak = 0;  // the largest StepPeakBytes
+    IndexedMesh mesh;
+    double error = 0;
+    int64_t refusals = 0;
+  };
+  // A closed slab, bumpy (`flat` false) or a binary mask, whose faces cost exactly 0.
+  auto run = [](size_t chunk, bool flat) {
+    FieldSource src(n, n, 6, [flat](double x, double y, double z) {
+      const bool in = z > 0 && z < 5 && x > 1 && x < n - 2 && y > 1 && y < n - 2;
+      return !in ? 0.0 : flat ? 1.0 : 0.75 + 0.2 * std::sin(x / 9.0) * std::cos(y / 7.0);
+    });
+    MeshStore store;
+    SimplifierOptions so;
+    so.error = 0.02;
+    so.release_chunk = chunk;
+    Simplifier simplifier(&store, so);
+    LayerExtractor ex(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, &store);
+    std::vector<uint8_t> bytes;
+    std::vector<TriId> tris;
+    std::vector<VertexId> verts;
+    Run r;
+    for (int k = 0; k < 6; ++k) {
+      EXPECT_TRUE(src.ReadSlice(&bytes).ok());
+      tris.clear();
+      verts.clear();
+      EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
+      simplifier.AddTriangles(tris, verts);
+      simplifier.Delay(tris);
+      simplifier.ActivateAndSimplify(k);
+      r.peak = std::max(r.peak, simplifier.StepPeakBytes());
+    }
+    ex.Finish();
+    simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+    r.mesh = store.Snapshot();
+    r.error = simplifier.MaxShapeError();
+    r.refusals = simplifier.refusals().total();
+    return r;
+  };
+  const Run whole = run(std::numeric_limits<size_t>::max(), false);
+  const Run chunked = run(1024, false);
+  // The cap: 2 x 93² triangles, 1.5 edges each, 48 bytes or more of Q per edge.
+  constexpr size_t cap_edges = 3 * 93 * 93;
+  EXPECT_LE(chunked.peak + 40 * cap_edges, whole.peak);
+  // 26 chunks on a cap of 26,000 edges: 448 triangles unchunked, 418 chunked.
+  EXPECT_NEAR(double(chunked.mesh.num_triangles()), double(whole.mesh.num_triangles()),
+              0.1 * double(whole.mesh.num_triangles()));
+  // A chunk's SIMPLIFY must not reach into the chunks to come: there Q would hold only the
+  // edges its contractions pushed, and on the mask's flat cap one survivor would take the
+  // next chunk's vertices one by one into a fan (350,000 refused contractions).
+  const Run mask = run(1024, true);
+  EXPECT_LT(mask.refusals, int64_t{2 * 93 * 93} / 10);
+  EXPECT_LT(mask.mesh.num_triangles(), 200u);
+  for (const Run* r : {&whole, &chunked, &mask}) {
+    const TopologyReport t = AnalyzeTopology(r->mesh);
+    EXPECT_TRUE(t.IsClosedManifold());
+    EXPECT_EQ(t.euler, 2);
+    EXPECT_LE(r->error, 0.02);
+  }
+}
+
 TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
   const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
   EXPECT_GT(lag.stats.contractions, 1000);
