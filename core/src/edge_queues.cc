@@ -66,6 +66,37 @@ void WaitingQueue::Push(const WEntry& e) {
   ++size_;
 }
 
+void WaitingQueue::TakeUpTo(double front, std::vector<WEdge>* out) {
+  out->clear();
+  size_t b = 0;
+  for (; b < buckets_.size() && static_cast<double>(base_) + static_cast<double>(b) <= front;
+       ++b) {
+    size_ -= buckets_[b].size();
+    if (out->empty()) {
+      out->swap(buckets_[b]);
+    } else {
+      out->insert(out->end(), buckets_[b].begin(), buckets_[b].end());
+    }
+    buckets_[b] = {};
+  }
+  if (b > 0) {
+    buckets_.erase(buckets_.begin(), buckets_.begin() + static_cast<std::ptrdiff_t>(b));
+    base_ += static_cast<int64_t>(b);
+  }
+  if (!far_.empty()) {  // released ones go with the rest; the others stay, in order
+    size_t kept = 0;
+    for (const WEntry& e : far_) {
+      if (!(e.key > front)) {
+        --size_;
+        out->push_back(WEdge{e.a, e.b, e.va, e.vb});
+      } else {
+        far_[kept++] = e;
+      }
+    }
+    far_.resize(kept);
+  }
+}
+
 size_t WaitingQueue::MemoryBytes() const {
   size_t bytes = buckets_.capacity() * sizeof(std::vector<WEdge>);
   for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(WEdge);

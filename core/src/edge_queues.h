@@ -269,12 +269,19 @@ class WaitingQueue {
  public:
   size_t size() const { return size_; }
   void Push(const WEntry& e);
-  // Calls take(WEdge) for every entry with key <= front: bucket by bucket, each in push order,
-  // then the far ones in push order; then calls done() and drops the released buckets. take
-  // and done may Push (keys > front), far keys included; entries they push are not released
-  // by this call.
+  // Moves every entry with key <= front into *out (replacing it): bucket by bucket, each in
+  // push order, then the far ones in push order. One released bucket is handed over, not
+  // copied: a cap's release holds no second copy of its edges.
+  void TakeUpTo(double front, std::vector<WEdge>* out);
+  // TakeUpTo, then take(WEdge) for each entry in that order, then done(). take and done may
+  // Push (keys > front), far keys included; entries they push are not released by this call.
   template <typename Take, typename Done>
-  void ReleaseUpTo(double front, Take&& take, Done&& done);
+  void ReleaseUpTo(double front, Take&& take, Done&& done) {
+    std::vector<WEdge> released;
+    TakeUpTo(front, &released);
+    for (const WEdge& e : released) take(e);
+    done();
+  }
   size_t MemoryBytes() const;
 
   static constexpr int64_t kBuckets = int64_t{1} << 16;
@@ -286,37 +293,6 @@ class WaitingQueue {
   size_t size_ = 0;  // all entries, far ones included
   std::vector<WEntry> far_;
 };
-
-template <typename Take, typename Done>
-void WaitingQueue::ReleaseUpTo(double front, Take&& take, Done&& done) {
-  size_t b = 0;
-  for (; b < buckets_.size() && static_cast<double>(base_) + static_cast<double>(b) <= front;
-       ++b) {
-    std::vector<WEdge> bucket;
-    bucket.swap(buckets_[b]);
-    size_ -= bucket.size();
-    for (const WEdge& e : bucket) take(e);
-  }
-  if (!far_.empty()) {
-    // Released ones go with the rest; the others stay, in order (empty on ordinary grids).
-    // Scanned from a copy of its own: take may push far keys meanwhile.
-    std::vector<WEntry> far;
-    far.swap(far_);
-    for (const WEntry& e : far) {
-      if (!(e.key > front)) {
-        --size_;
-        take(WEdge{e.a, e.b, e.va, e.vb});
-      } else {
-        far_.push_back(e);
-      }
-    }
-  }
-  done();
-  if (b > 0) {
-    buckets_.erase(buckets_.begin(), buckets_.begin() + static_cast<std::ptrdiff_t>(b));
-    base_ += static_cast<int64_t>(b);
-  }
-}
 
 }  // namespace tandem
 

@@ -53,9 +53,9 @@ struct SimplifierOptions {
   // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
   // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
   double keep = 1;
-  // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time.
-  // 2^18 (16 MiB of Q): no release of the benchmark's 512³ inputs reaches it.
-  size_t release_chunk = size_t{1} << 18;
+  // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time
+  // (2^16: 4 MiB of Q entries; docs/decisions.md).
+  size_t release_chunk = size_t{1} << 16;
 };
 
 class Simplifier {
@@ -176,7 +176,7 @@ class Simplifier {
   // edge waits for that end's chunk.
   void PushReady(VertexId a, VertexId b, const Candidate& c);
   uint32_t ReadyGroup(VertexId v) const { return v < ready_.size() ? ready_[v] : 0; }
-  size_t GroupBytes() const;
+  size_t GroupBytes() const;  // groups_, in WEdges
   // Each edge of t once (see Delay), into batch_. new_layer: t belongs to the layer being
   // delayed, whose edges on the plane below were queued with the layer underneath.
   void PushTriangleEdges(TriId t, bool new_layer);
@@ -239,6 +239,7 @@ class Simplifier {
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
   // (empty otherwise: every vertex ready); the edges of each chunk still to come; the chunk
   // being simplified.
+  std::vector<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
   std::vector<uint32_t> ready_;
   std::vector<std::vector<WEdge>> groups_;
   uint32_t group_ = 0;
