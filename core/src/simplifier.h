@@ -10,8 +10,9 @@
 // the current neighbourhood), and an entry whose cost went up is pushed back. A popped edge
 // is contracted if it passes the checks of contraction_checks.h.
 //
-// The schedule (tandem.h) calls: AddTriangles (after EXTRACT), Delay (new edges into W),
-// Activate(front) (W -> Q for keys <= front), Simplify() (contract while MinCost <= E0).
+// The schedule (schedule.cc) calls: AddTriangles (after EXTRACT), Delay (new edges into W),
+// ActivateAndSimplify(front): ACTIVATE (W -> Q for keys <= front), then SIMPLIFY (contract
+// while MinCost <= E0), a large release a chunk at a time.
 #ifndef TANDEM_SIMPLIFIER_H_
 #define TANDEM_SIMPLIFIER_H_
 
