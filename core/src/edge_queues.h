@@ -5,7 +5,7 @@
 // 4-ary heap on the lowest one. Equal keys pop in reverse push order (newest first), so the
 // output depends on the order of pushes: the simplifier keeps that order deterministic.
 // WaitingQueue (W): edges ordered by a release key, as one bucket per integer front, since the
-// front only advances by whole slices; ReleaseUpTo(front) hands out every entry whose key is
+// front only advances by whole slices; TakeUpTo(front) hands over every entry whose key is
 // <= front, bucket by bucket, each bucket in push order.
 //
 // Entries carry the version stamps of their two vertices: the simplifier recognises stale ones

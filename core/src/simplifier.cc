@@ -303,22 +303,9 @@ void Simplifier::Delay(std::span<const TriId> tris) {
   FlushBatch();
 }
 
-void Simplifier::Activate(double front) {
-  front_ = front;
-  // Released edges are evaluated now (their quadrics are complete) and pushed into Q in W's
-  // order: Q breaks ties by push order, so that order is part of the output.
-  w_.ReleaseUpTo(
-      front_,
-      [this](const WEdge& e) {
-        if (!Stale(e)) AddToBatch(e.a, e.b, /*released=*/true);
-      },
-      [this] { FlushBatch(); });
-  step_peak_bytes_ = MemoryBytes();
-}
-
 void Simplifier::ActivateAndSimplify(double front) {
   front_ = front;
-  w_.TakeUpTo(front_, &released_);  // in W's order, as Activate takes them
+  w_.TakeUpTo(front_, &released_);  // in W's order: Q breaks ties by push order
   const size_t chunk = opt_.release_chunk;
   if (chunk == 0 || released_.size() <= chunk) {
     for (const WEdge& e : released_) {

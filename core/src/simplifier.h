@@ -70,13 +70,12 @@ class Simplifier {
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
   // its edges on the plane below were queued with the layer underneath and are not again.
   void Delay(std::span<const TriId> tris);
-  // ACTIVATE: moves entries of W whose key <= front into Q. front = +inf for ACTIVATE(∞).
-  void Activate(double front);
-  // ACTIVATE(front); SIMPLIFY(E0), as the schedules run them, except that a release of more
-  // than release_chunk edges enters Q a chunk at a time, in W's order, each chunk simplified
-  // before the next is evaluated: Q holds a chunk, not the release (a closed 2048² volume's
-  // cap releases 1.64 M edges a part at once, 64 bytes each in Q). Smaller releases give
-  // exactly Activate then Simplify.
+  // ACTIVATE(front); SIMPLIFY(E0), as the schedules run them: the entries of W whose key is
+  // <= front (+inf for ACTIVATE(∞)) are evaluated into Q in W's order, then contracted. A
+  // release of more than release_chunk edges enters Q a chunk at a time, each chunk
+  // simplified before the next is evaluated: Q holds a chunk, not the release (a closed 2048²
+  // volume's cap releases 1.64 M edges a part at once, 64 bytes each in Q). Smaller releases
+  // are one ACTIVATE then one SIMPLIFY.
   void ActivateAndSimplify(double front);
   // SIMPLIFY(E0): contracts while Q's minimum cost <= E0, and with target_triangles > 0
   // while more than that many triangles remain. past_error: in cost order beyond E0, without

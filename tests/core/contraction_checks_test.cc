@@ -126,8 +126,7 @@ TEST(LinkCondition, MatchesItsDefinition) {
       const std::vector<TriId> all = ExtractLayers(src.get(), &store, &simplifier, false);
       if (e0 > 0) {
         simplifier.Delay(all);
-        simplifier.Activate(std::numeric_limits<double>::infinity());
-        simplifier.Simplify();
+        simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
       }
       const std::string what = name + " E0 " + std::to_string(e0);
       LinkScratch scratch;
