@@ -1,9 +1,11 @@
 #include "layer_extractor.h"
 
+#include <algorithm>
 #include <bit>
 #include <cassert>
 #include <cfloat>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <utility>
 
@@ -66,7 +68,15 @@ LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
 size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny) {
   const size_t n = static_cast<size_t>(nx * ny);
   const size_t words = static_cast<size_t>((nx + 63) / 64 * ny);
-  return n * (2 * sizeof(float) + 5 * sizeof(VertexId)) + 2 * words * sizeof(uint64_t);
+  return n * 2 * sizeof(float) + 2 * words * sizeof(uint64_t) + 5 * words * sizeof(uint32_t);
+}
+
+size_t LayerExtractor::EdgeIdBytes() const {
+  size_t ids = 0;
+  for (const CrossedEdges* e : {&xe_bottom_, &xe_top_, &ye_bottom_, &ye_top_, &ze_}) {
+    ids += e->ids.capacity();
+  }
+  return ids * sizeof(VertexId);
 }
 
 void LayerExtractor::AllocatePlanes() {
@@ -80,11 +90,30 @@ void LayerExtractor::AllocatePlanes() {
   s_top_ = s_bottom_;
   any_in_.resize(static_cast<size_t>(words_));
   all_in_.resize(static_cast<size_t>(words_));
-  xe_bottom_.assign(static_cast<size_t>((config.nx - 1) * config.ny), kInvalid);
-  xe_top_ = xe_bottom_;
-  ye_bottom_.assign(static_cast<size_t>(config.nx * (config.ny - 1)), kInvalid);
-  ye_top_ = ye_bottom_;
-  ze_.assign(n, kInvalid);
+  for (CrossedEdges* e : {&xe_bottom_, &xe_top_, &ye_bottom_, &ye_top_, &ze_}) {
+    e->first.assign(static_cast<size_t>(words_ * config.ny), 0);
+  }
+}
+
+uint64_t LayerExtractor::XCrossings(const uint64_t* signs, int64_t j, int64_t w) const {
+  const uint64_t* row = signs + j * words_;
+  return (row[w] ^ NextBits(row, w, words_)) & LowBits(config_.nx - 1 - w * kWordBits);
+}
+
+uint64_t LayerExtractor::YCrossings(const uint64_t* signs, int64_t j, int64_t w) const {
+  return signs[j * words_ + w] ^ signs[(j + 1) * words_ + w];
+}
+
+uint64_t LayerExtractor::ZCrossings(int64_t j, int64_t w) const {
+  return s_bottom_[static_cast<size_t>(j * words_ + w)] ^ s_top_[static_cast<size_t>(j * words_ + w)];
+}
+
+VertexId LayerExtractor::EdgeId(const CrossedEdges& edges, int64_t i, int64_t j,
+                                uint64_t crossings) const {
+  const int64_t bit = i % kWordBits;
+  if (!((crossings >> bit) & 1)) return kInvalid;
+  return edges.ids[edges.first[static_cast<size_t>(j * words_ + i / kWordBits)] +
+                   static_cast<uint32_t>(std::popcount(crossings & LowBits(bit)))];
 }
 
 uint8_t LayerExtractor::BoxMask(double i, double j, double k) const {
@@ -155,8 +184,8 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     if (new_tris) new_tris->push_back(t);
   }
   // The top plane's cached ids become the next layer's bottom: store ids from now on.
-  for (int64_t e : xe_top_set_) xe_top_[e] = resolve(xe_top_[e]);
-  for (int64_t e : ye_top_set_) ye_top_[e] = resolve(ye_top_[e]);
+  for (VertexId& v : xe_top_.ids) v = resolve(v);
+  for (VertexId& v : ye_top_.ids) v = resolve(v);
   for (VertexId& v : top_plane_vertices_) v = resolve(v);
   // The staging is empty until the next layer: past 4 MiB (a dense 2048² layer, 5 MB a part;
   // a closed volume's cap, 50 MB) it is freed, not kept at its largest for the whole
@@ -212,7 +241,25 @@ bool LayerExtractor::ScanRow(const float* src, int64_t n, float* dst, uint64_t* 
   return finite;
 }
 
-absl::Status LayerExtractor::ComputeLayer(const float* values) {
+template <typename T>
+void LayerExtractor::ScanIntegerRow(const uint8_t* src, int64_t n, float* dst,
+                                    uint64_t* signs) const {
+  const float t = inside_from_;
+  for (int64_t i = 0; i < n; i += kWordBits) {
+    uint64_t word = 0;
+    const int64_t m = std::min<int64_t>(kWordBits, n - i);
+    for (int64_t b = 0; b < m; ++b) {
+      T v;
+      std::memcpy(&v, src + static_cast<size_t>(i + b) * sizeof(T), sizeof(T));
+      const float x = static_cast<float>(v);
+      dst[i + b] = x;
+      word |= static_cast<uint64_t>(x >= t) << b;
+    }
+    signs[i / kWordBits] = word;
+  }
+}
+
+absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   const int64_t nx = config_.nx, ny = config_.ny, words = words_, xo = config_.x_offset;
   const int64_t k = slices_done_;
   if (staged_) return absl::FailedPreconditionError("CommitLayer the previous layer first");
@@ -220,16 +267,28 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
     return absl::InvalidArgumentError(
         absl::StrCat("slice ", k, " is past the end of the volume (nz = ", config_.nz, ")"));
   }
-  if (ze_.empty()) AllocatePlanes();  // ze_ last: all or nothing
+  if (ze_.first.empty()) AllocatePlanes();  // ze_ last: all or nothing
   // Copy the slice and its signs into the bottom buffers (slice k-2's, no longer needed),
   // validating as we go; they become the top only if the whole slice is finite, so a bad
   // slice leaves the extractor (and the store) as it was.
   bool finite = true;
   const int64_t stride = config_.row_stride > 0 ? config_.row_stride : nx;
+  const size_t row_bytes = static_cast<size_t>(stride) * DTypeSize(slice.dtype);
   for (int64_t j = 0; j < ny; ++j) {
-    finite &= ScanRow(values + j * stride, nx, v_bottom_.data() + j * nx, s_bottom_.data() + j * words);
+    const uint8_t* row = slice.bytes + static_cast<size_t>(j) * row_bytes;
+    float* dst = v_bottom_.data() + j * nx;
+    uint64_t* signs = s_bottom_.data() + j * words;
+    switch (slice.dtype) {
+      case DType::kUInt8: ScanIntegerRow<uint8_t>(row, nx, dst, signs); break;
+      case DType::kUInt16: ScanIntegerRow<uint16_t>(row, nx, dst, signs); break;
+      case DType::kInt16: ScanIntegerRow<int16_t>(row, nx, dst, signs); break;
+      case DType::kFloat32:
+        finite &= ScanRow(reinterpret_cast<const float*>(row), nx, dst, signs);
+        break;
+    }
   }
   if (!finite) {
+    const auto* values = reinterpret_cast<const float*>(slice.bytes);
     for (int64_t j = 0; j < ny; ++j) {
       for (int64_t i = 0; i < nx; ++i) {
         const float v = values[j * stride + i];
@@ -240,16 +299,11 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
   std::swap(v_bottom_, v_top_);
   std::swap(s_bottom_, s_top_);
   std::swap(xe_bottom_, xe_top_);
-  std::swap(xe_bottom_set_, xe_top_set_);
   std::swap(ye_bottom_, ye_top_);
-  std::swap(ye_bottom_set_, ye_top_set_);
-  // The top caches still hold slice k-2's ids: clear those entries for slice k.
-  for (int64_t e : xe_top_set_) xe_top_[e] = kInvalid;
-  for (int64_t e : ye_top_set_) ye_top_[e] = kInvalid;
-  for (int64_t e : ze_set_) ze_[e] = kInvalid;
-  xe_top_set_.clear();
-  ye_top_set_.clear();
-  ze_set_.clear();
+  // The top lists still hold slice k-2's ids (their `first` is rewritten below, every word).
+  xe_top_.ids.clear();
+  ye_top_.ids.clear();
+  ze_.ids.clear();
 
   staged_ = true;
   staged_layer_ = static_cast<int32_t>(k);
@@ -265,27 +319,24 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
   // Plane vertices of slice k: x-edges (bit i vs bit i+1 of a row) then y-edges (row j vs
   // row j+1).
   for (int64_t j = 0; j < ny; ++j) {
-    const uint64_t* row = st + j * words;
     for (int64_t w = 0; w < words; ++w) {
-      const uint64_t crossed = (row[w] ^ NextBits(row, w, words)) & LowBits(nx - 1 - w * kWordBits);
-      ForEachBit(crossed, w * kWordBits, [&](int64_t i) {
+      xe_top_.first[static_cast<size_t>(j * words + w)] = static_cast<uint32_t>(xe_top_.ids.size());
+      ForEachBit(XCrossings(st, j, w), w * kWordBits, [&](int64_t i) {
         EdgePoint(double(i + xo), double(j), kz, 0, Rel(vt[j * nx + i]), Rel(vt[j * nx + i + 1]), idx3);
         const VertexId v = StageVertex(idx3);
-        xe_top_[j * (nx - 1) + i] = v;
-        xe_top_set_.push_back(j * (nx - 1) + i);
+        xe_top_.ids.push_back(v);
         top_plane_vertices_.push_back(v);
       });
     }
   }
   for (int64_t j = 0; j + 1 < ny; ++j) {
-    const uint64_t* row = st + j * words;
     for (int64_t w = 0; w < words; ++w) {
-      ForEachBit(row[w] ^ row[w + words], w * kWordBits, [&](int64_t i) {
+      ye_top_.first[static_cast<size_t>(j * words + w)] = static_cast<uint32_t>(ye_top_.ids.size());
+      ForEachBit(YCrossings(st, j, w), w * kWordBits, [&](int64_t i) {
         EdgePoint(double(i + xo), double(j), kz, 1, Rel(vt[j * nx + i]), Rel(vt[(j + 1) * nx + i]),
                   idx3);
         const VertexId v = StageVertex(idx3, SeamFace(i));
-        ye_top_[j * nx + i] = v;
-        ye_top_set_.push_back(j * nx + i);
+        ye_top_.ids.push_back(v);
         top_plane_vertices_.push_back(v);
       });
     }
@@ -296,13 +347,13 @@ absl::Status LayerExtractor::ComputeLayer(const float* values) {
   // z-edges between slices k-1 and k: bottom row vs top row.
   for (int64_t j = 0; j < ny; ++j) {
     for (int64_t w = 0; w < words; ++w) {
-      ForEachBit(sb[j * words + w] ^ st[j * words + w], w * kWordBits, [&](int64_t i) {
+      ze_.first[static_cast<size_t>(j * words + w)] = static_cast<uint32_t>(ze_.ids.size());
+      ForEachBit(ZCrossings(j, w), w * kWordBits, [&](int64_t i) {
         const int64_t idx = j * nx + i;
         const double a = Rel(vb[idx]), b = Rel(vt[idx]);
         EdgePoint(double(i + xo), double(j), kz - 1, 2, a, b, idx3);
         const VertexId v = StageVertex(idx3, SeamFace(i));
-        ze_[idx] = v;
-        ze_set_.push_back(idx);
+        ze_.ids.push_back(v);
         if (b == 0) top_plane_vertices_.push_back(v);
       });
     }
@@ -349,13 +400,23 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
     }
   }
   const mc::CubeCase& cc = mc::Lookup(config, connected);
-  const int64_t xb = j * (nx - 1) + i, yb = j * nx + i;
+  // The 12 edges' ids: x-edges (i, j) and (i, j+1), y-edges (i, j) and (i+1, j) of both
+  // slices, z-edges at the 4 corners (i+1 may lie in the next word).
+  const uint64_t *sb = s_bottom_.data(), *st = s_top_.data();
+  const int64_t w0 = i / kWordBits, w1 = (i + 1) / kWordBits;
   VertexId ev[12];
-  ev[0] = xe_bottom_[xb];  ev[1] = xe_bottom_[xb + nx - 1];
-  ev[2] = xe_top_[xb];     ev[3] = xe_top_[xb + nx - 1];
-  ev[4] = ye_bottom_[yb];  ev[5] = ye_bottom_[yb + 1];
-  ev[6] = ye_top_[yb];     ev[7] = ye_top_[yb + 1];
-  ev[8] = ze_[p00]; ev[9] = ze_[p10]; ev[10] = ze_[p01]; ev[11] = ze_[p11];
+  ev[0] = EdgeId(xe_bottom_, i, j, XCrossings(sb, j, w0));
+  ev[1] = EdgeId(xe_bottom_, i, j + 1, XCrossings(sb, j + 1, w0));
+  ev[2] = EdgeId(xe_top_, i, j, XCrossings(st, j, w0));
+  ev[3] = EdgeId(xe_top_, i, j + 1, XCrossings(st, j + 1, w0));
+  ev[4] = EdgeId(ye_bottom_, i, j, YCrossings(sb, j, w0));
+  ev[5] = EdgeId(ye_bottom_, i + 1, j, YCrossings(sb, j, w1));
+  ev[6] = EdgeId(ye_top_, i, j, YCrossings(st, j, w0));
+  ev[7] = EdgeId(ye_top_, i + 1, j, YCrossings(st, j, w1));
+  ev[8] = EdgeId(ze_, i, j, ZCrossings(j, w0));
+  ev[9] = EdgeId(ze_, i + 1, j, ZCrossings(j, w1));
+  ev[10] = EdgeId(ze_, i, j + 1, ZCrossings(j + 1, w0));
+  ev[11] = EdgeId(ze_, i + 1, j + 1, ZCrossings(j + 1, w1));
   int base = 0;
   for (int l = 0; l < cc.num_loops; ++l) {
     const int len = cc.loop_len[l];

@@ -5,7 +5,8 @@
 // x- and y-edges, the vertices on the z-edges between slices k-1 and k, and the triangles of
 // the cubes between them. Vertices on shared grid edges are created exactly once: the ids of
 // the top plane's edges are kept (plane caches) and become the next layer's bottom, so the
-// mesh is welded with no lookups. Memory is O(nx*ny) plus the mesh.
+// mesh is welded with no hashing. Memory is O(nx*ny) (values, sign bits and 4 bytes a 64-voxel
+// word) plus O(crossed edges) plus the mesh.
 //
 // Cases come from mc_tables.h: ambiguous faces are resolved by the asymptotic decider, which
 // both cubes sharing the face evaluate identically, so the union of all layers is an
@@ -21,8 +22,25 @@
 #include "absl/status/status.h"
 #include "mesh_store.h"
 #include "tandem/types.h"
+#include "tandem/volume.h"
 
 namespace tandem {
+
+// A slice's values as they arrived, x fastest: float32 (4-byte aligned), or integers read as
+// they are scanned (every uint8, uint16 and int16 value is exact in float). So the session's
+// slices in flight hold a 16-bit scan in 2 bytes a voxel, not 4.
+struct SliceValues {
+  const uint8_t* bytes = nullptr;
+  DType dtype = DType::kFloat32;
+
+  static SliceValues Floats(const float* values) {
+    return {reinterpret_cast<const uint8_t*>(values), DType::kFloat32};
+  }
+  // The same slice from column x on.
+  SliceValues From(int64_t x) const {
+    return {bytes + static_cast<size_t>(x) * DTypeSize(dtype), dtype};
+  }
+};
 
 struct ExtractorConfig {
   int64_t nx = 0, ny = 0;
@@ -57,7 +75,8 @@ class LayerExtractor {
   // never touches the store): the new layer is staged in pending buffers. CommitLayer adds
   // it to the store. Between the two, the store may be changed by anyone except in the
   // vertices of the previous top plane (the front, which the schedules never touch).
-  absl::Status ComputeLayer(const float* values);
+  absl::Status ComputeLayer(SliceValues values);
+  absl::Status ComputeLayer(const float* values) { return ComputeLayer(SliceValues::Floats(values)); }
   // `new_seam` gets the new kSeam vertices appended of each seam face (index 0: x = 0, 1: x = nx-1)
   // in a canonical order (y-edges, then z-edges, each by ascending y): the neighbouring part
   // lists the same grid edges in the same order, which pairs the copies.
@@ -70,8 +89,11 @@ class LayerExtractor {
   void Finish();
 
   // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
-  // two value planes, their sign bits and the five vertex-id caches.
+  // two value planes, their sign bits and the five crossed-edge indices' word counts.
   static size_t PlaneCacheBytes(int64_t nx, int64_t ny);
+  // What the crossed edges' ids take (capacity): 4 bytes a crossing of the two slices' planes
+  // and the layer's z-edges. Not while ComputeLayer runs on another thread.
+  size_t EdgeIdBytes() const;
   // What the staged layer's arrays hold (capacity): about 64 bytes a vertex of the largest
   // recent layer. Not while ComputeLayer runs on another thread.
   size_t StagingBytes() const;
@@ -101,8 +123,11 @@ class LayerExtractor {
   // expression, so the cubes sharing an edge or a face agree bit for bit.
   double Rel(float v) const { return static_cast<double>(v) - config_.iso; }
   // Copies the n values of a row to dst and their inside bits to signs (bits past n
-  // cleared); false if a value is not finite.
+  // cleared); false if a value is not finite. The integer rows (src: n values of T, not
+  // necessarily aligned) are always finite.
   bool ScanRow(const float* src, int64_t n, float* dst, uint64_t* signs) const;
+  template <typename T>
+  void ScanIntegerRow(const uint8_t* src, int64_t n, float* dst, uint64_t* signs) const;
   // Stages the triangles (and loop centroids) of crossed cube (i, j) of the current layer,
   // whose bottom slice is at height kz - 1.
   void EmitCube(int64_t i, int64_t j, double kz);
@@ -126,12 +151,26 @@ class LayerExtractor {
   std::vector<float> v_bottom_, v_top_;
   std::vector<uint64_t> s_bottom_, s_top_;
   std::vector<uint64_t> any_in_, all_in_;  // scratch: OR and AND of a row pair's 4 rows
-  // Plane caches: vertex ids of x-edges ((nx-1)*ny) and y-edges (nx*(ny-1)) of the bottom
-  // and top slices, z-edges (nx*ny) of the current layer. kInvalid = no crossing.
-  std::vector<VertexId> xe_bottom_, xe_top_, ye_bottom_, ye_top_, ze_;
-  // The indices of the caches' valid entries (ascending), so that resetting a cache for
-  // reuse and resolving pending ids cost O(crossings), not O(nx*ny).
-  std::vector<int64_t> xe_bottom_set_, xe_top_set_, ye_bottom_set_, ye_top_set_, ze_set_;
+  // The vertex ids of a family of crossed grid edges: x- or y-edges of the bottom (k-1) or
+  // top (k) slice, z-edges of the current layer. Only crossed edges have a vertex, so only
+  // they are listed, in ascending (j, i) order (the order they are staged in); edge (i, j)
+  // is found by its rank, the crossings of its row's earlier words (first) plus those below
+  // it in its word, which the slices' sign bits give again (XCrossings, YCrossings,
+  // ZCrossings). 4 bytes a crossing and 4 a word, where a dense cache took 4 a grid edge: 20
+  // MB a 512 x 2048 part, most of them kInvalid even on a dense surface.
+  struct CrossedEdges {
+    std::vector<uint32_t> first;  // per row j and word w, at j * words_ + w
+    std::vector<VertexId> ids;
+  };
+  CrossedEdges xe_bottom_, xe_top_, ye_bottom_, ye_top_, ze_;
+  // The crossed x- and y-edges of a slice in word w of row j (signs: the slice's bit rows),
+  // the crossed z-edges between two slices.
+  uint64_t XCrossings(const uint64_t* signs, int64_t j, int64_t w) const;
+  uint64_t YCrossings(const uint64_t* signs, int64_t j, int64_t w) const;
+  uint64_t ZCrossings(int64_t j, int64_t w) const;
+  // The id of edge (i, j) of a family whose crossings in word i / 64 of row j are `crossings`
+  // (kInvalid if it is not crossed).
+  VertexId EdgeId(const CrossedEdges& edges, int64_t i, int64_t j, uint64_t crossings) const;
   std::vector<VertexId> top_plane_vertices_;  // for Finish()
 
   // Staged layer (ComputeLayer -> CommitLayer).

@@ -185,7 +185,7 @@ void ReachTarget(Slab& s, int64_t target, bool merged) {
   if (rise.floor) s.simplifier.LowerErrorAfterSimplify(useful);
 }
 
-absl::Status StepSlab(Slab& s, const float* values, Schedule schedule, const Overlap& overlap) {
+absl::Status StepSlab(Slab& s, SliceValues values, Schedule schedule, const Overlap& overlap) {
   absl::Status extracted;
   double extract_s = 0;
   auto extract = [&] {  // the first half of EXTRACT(k): reads the extractor's own state only

@@ -90,7 +90,7 @@ void ReachTarget(Slab& whole, int64_t target, bool merged);
 
 // One slice through one slab. A refused slice (non-finite values, past nz) leaves the slab as it
 // was, apart from the deferred SIMPLIFY step, which the sequential order would have run already.
-absl::Status StepSlab(Slab& slab, const float* values, Schedule schedule, const Overlap& overlap);
+absl::Status StepSlab(Slab& slab, SliceValues values, Schedule schedule, const Overlap& overlap);
 
 // The end of the stream for one slab: its last SIMPLIFY step, the top of the box, and for the
 // classical schedule INSERT(all); then ACTIVATE(∞); SIMPLIFY(E0).

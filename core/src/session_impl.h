@@ -25,7 +25,8 @@ struct TandemSession::Impl {
   // returned now and by every later call.
   template <typename F>
   absl::Status Guarded(F&& f);
-  // values (host floats) or dtype + bytes (converted on the way into the ring).
+  // values (host floats) or dtype + bytes (integers stay as they are, in the ring too: the
+  // extractors convert them as they scan; SliceValues).
   absl::Status AddSlice(const float* values, DType dtype, const uint8_t* bytes);
   absl::Status Finish();
   // Waits for the queued slab steps, then pairs the new seam vertices and folds the traces.
@@ -44,8 +45,12 @@ struct TandemSession::Impl {
   // queued for every slab. A slab's steps run one at a time and in order, each step a task
   // that queues the slab's next one, so the result does not depend on which thread runs it.
   struct RingSlot {
-    std::vector<float> values;
+    std::vector<float> storage;  // the slice's bytes (float storage: float32 stays aligned)
+    DType dtype = DType::kFloat32;
     int pending = 0;  // slabs that have not finished with it
+    SliceValues values() const {
+      return {reinterpret_cast<const uint8_t*>(storage.data()), dtype};
+    }
   };
   struct SlabQueue {
     std::deque<int> slices;  // ring slots
@@ -76,7 +81,7 @@ struct TandemSession::Impl {
   int ring_next = 0;
   std::unique_ptr<TaskGroup> steps;  // the queued slab steps
   MergedCounts merged;               // of the slabs merged away by Finish
-  std::vector<float> convert;
+  std::vector<float> convert;  // float32 bytes not aligned for float (one part or unqueued)
   SessionStats stats;
   bool finished = false;
 };

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <new>
 #include <stdexcept>
@@ -91,9 +92,11 @@ absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
       // host-order floats as they are
       return s.AddSlice(reinterpret_cast<const float*>(bytes), DType::kFloat32, nullptr);
     }
-    if (s.queued) return s.AddSlice(nullptr, dtype, bytes);  // converted into the ring
+    // Integers are read as they are (copied into the ring when queued); so are float32
+    // bytes on their way into the ring, which aligns them.
+    if (s.queued || dtype != DType::kFloat32) return s.AddSlice(nullptr, dtype, bytes);
     s.convert.resize(static_cast<size_t>(s.grid.nx * s.grid.ny));
-    ConvertToFloat(dtype, bytes, s.convert.size(), s.convert.data());
+    std::memcpy(s.convert.data(), bytes, s.convert.size() * sizeof(float));
     return s.AddSlice(s.convert.data(), dtype, nullptr);
   });
 }
@@ -261,7 +264,7 @@ void TandemSession::Impl::StepQueued(size_t i) {
   absl::Status st;
   try {
     if (!skip) {
-      st = StepSlab(slab, ring[static_cast<size_t>(slot)].values.data() + slab.x0,
+      st = StepSlab(slab, ring[static_cast<size_t>(slot)].values().From(slab.x0),
                     options.schedule, overlap);
     }
   } catch (...) {  // this slab is done for; Sync and AddSlice report it
@@ -392,14 +395,17 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
         },
         /*help=*/false);
     // The slot is free (pending == 0) until it is queued: a refused slice leaves it so.
-    slot.values.resize(n);
-    float* dst = slot.values.data();
+    const DType kept = values != nullptr ? DType::kFloat32 : dtype;
+    const size_t size = n * DTypeSize(kept);
+    slot.storage.resize((size + sizeof(float) - 1) / sizeof(float));
+    slot.dtype = kept;
+    auto* dst = reinterpret_cast<uint8_t*>(slot.storage.data());
     if (values != nullptr) {
-      if (!CopyFinite(values, n, dst)) return non_finite(values);
+      if (!CopyFinite(values, n, slot.storage.data())) return non_finite(values);
     } else {
-      ConvertToFloat(dtype, bytes, n, dst);  // integer types are always finite
-      if (dtype == DType::kFloat32 && FirstNonFinite(reinterpret_cast<const uint8_t*>(dst), n) >= 0) {
-        return non_finite(dst);
+      std::memcpy(dst, bytes, size);
+      if (kept == DType::kFloat32 && FirstNonFinite(dst, n) >= 0) {
+        return non_finite(slot.storage.data());
       }
     }
     std::vector<size_t> idle;
@@ -420,12 +426,15 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
     stats.time.total_s += Seconds(start, Clock::now());
     return absl::OkStatus();
   }
-  if (slabs.size() > 1 && FirstNonFinite(reinterpret_cast<const uint8_t*>(values), n) >= 0) {
+  if (values != nullptr && slabs.size() > 1 &&
+      FirstNonFinite(reinterpret_cast<const uint8_t*>(values), n) >= 0) {
     return non_finite(values);
   }
+  // Float32 bytes come here as values (aligned by AddSliceBytes); integers as they are.
+  const SliceValues slice = values != nullptr ? SliceValues::Floats(values) : SliceValues{bytes, dtype};
   std::vector<absl::Status> status(slabs.size());
   ForEachSlab([&](Slab& s) {
-    status[s.index] = StepSlab(s, values + s.x0, options.schedule, overlap);
+    status[s.index] = StepSlab(s, slice.From(s.x0), options.schedule, overlap);
   });
   for (const absl::Status& st : status) {
     if (!st.ok()) {
@@ -509,9 +518,15 @@ const SessionStats& TandemSession::Impl::Stats() {
 size_t TandemSession::Impl::MemoryBytes() {
   (void)Sync();
   // Slice buffers and plane caches as planned (allocated on the first slice), so that a
-  // budget checked before any voxel counts them.
-  const size_t slice = static_cast<size_t>(grid.nx * grid.ny) * sizeof(float);
-  size_t bytes = queued ? kRingSlots * slice : slice;
+  // budget checked before any voxel counts them: the ring's slots hold slices as they arrive
+  // (a 16-bit slice in 2 bytes a voxel); unqueued, the caller's slice (or its aligned copy).
+  size_t bytes = std::max(grid.slice_bytes(), convert.capacity() * sizeof(float));
+  if (queued) {
+    bytes = 0;
+    for (const RingSlot& slot : ring) {
+      bytes += std::max(grid.slice_bytes(), slot.storage.capacity() * sizeof(float));
+    }
+  }
   for (const auto& s : slabs) {
     const ExtractorConfig& ec = s->extractor.config();
     if (s->sealer) bytes += s->sealer->MemoryBytes();
@@ -520,7 +535,7 @@ size_t TandemSession::Impl::MemoryBytes() {
     // at 2048², while the queues read 36 MiB after the step).
     const size_t queues = std::max(s->simplifier.MemoryBytes(), s->simplifier.StepPeakBytes());
     bytes += s->store.MemoryBytes() + queues + LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) +
-             s->extractor.StagingBytes();
+             s->extractor.EdgeIdBytes() + s->extractor.StagingBytes();
   }
   for (const auto& s : seams) bytes += s.capacity() * sizeof(s[0]);
   return bytes;

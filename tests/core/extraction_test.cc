@@ -283,6 +283,95 @@ TEST(Extraction, AHeldCapCostsItsSizeNotTheNextPowerOfTwo) {
   EXPECT_EQ(r.euler, 2);
 }
 
+// Integer slices are kept as they arrive, in the ring of a split session too, and converted
+// by the extractors as they scan: the mesh is the one their values as floats give, and a
+// 16-bit slice in flight takes 2 bytes a voxel (4 slots: a 2048² uint16 stream's ring
+// 32 MiB, not 64). Bytes at an odd address are read as well.
+TEST(Extraction, IntegerSlicesAreKeptAsTheyArrive) {
+  constexpr int64_t nx = 192, ny = 64, nz = 10;
+  constexpr size_t n = size_t{nx} * ny;
+  for (DType dtype : {DType::kUInt8, DType::kUInt16, DType::kInt16}) {
+    for (int parts : {4, 1}) {
+      const std::string what = std::string(DTypeName(dtype)) + ", " + std::to_string(parts) + " parts";
+      VolumeInfo grid;
+      grid.nx = nx;
+      grid.ny = ny;
+      grid.nz = nz;
+      grid.dtype = dtype;
+      SessionOptions o;
+      o.iso = dtype == DType::kInt16 ? -20.5 : 100.5;  // between integers: no exact hits
+      o.error = 0.3;
+      o.parts = parts;
+      auto as_bytes = TandemSession::Create(grid, o);
+      auto as_floats = TandemSession::Create(grid, o);
+      ASSERT_TRUE(as_bytes.ok() && as_floats.ok()) << what;
+      const size_t size = DTypeSize(dtype);
+      std::vector<uint8_t> buffer(n * size + 1);
+      std::vector<float> floats(n);
+      for (int64_t k = 0; k < nz; ++k) {
+        for (size_t v = 0; v < n; ++v) {
+          const double x = double(v % nx), y = double(v / nx);
+          const double g = std::sin(x / 6.0) * std::cos(y / 5.0) + std::sin(y / 4.0) * std::cos(k / 3.0);
+          const int64_t value = (dtype == DType::kInt16 ? -20 : 100) + std::lround(40 * g);  // within uint8
+          floats[v] = float(value);
+          if (dtype == DType::kUInt8) buffer[1 + v] = uint8_t(value);
+          if (dtype == DType::kUInt16) {
+            const auto u = uint16_t(value);
+            std::memcpy(&buffer[1 + 2 * v], &u, 2);
+          }
+          if (dtype == DType::kInt16) {
+            const auto i = int16_t(value);
+            std::memcpy(&buffer[1 + 2 * v], &i, 2);
+          }
+        }
+        ASSERT_TRUE((*as_bytes)->AddSliceBytes(dtype, buffer.data() + 1).ok()) << what;
+        ASSERT_TRUE((*as_floats)->AddSlice(floats.data()).ok()) << what;
+      }
+      if (parts > 1) {
+        // The same mesh and queues: the ring is the only difference (4 slots).
+        EXPECT_EQ((*as_floats)->MemoryBytes() - (*as_bytes)->MemoryBytes(),
+                  4 * n * (sizeof(float) - size))
+            << what;
+      }
+      ASSERT_TRUE((*as_bytes)->Finish().ok() && (*as_floats)->Finish().ok()) << what;
+      const IndexedMesh a = (*as_bytes)->Snapshot(), b = (*as_floats)->Snapshot();
+      EXPECT_GT(a.num_triangles(), 500u) << what;
+      EXPECT_EQ(a.num_triangles(), b.num_triangles()) << what;
+      EXPECT_EQ(a.positions, b.positions) << what;
+      EXPECT_EQ(a.indices, b.indices) << what;
+    }
+  }
+}
+
+// The extractor keeps the vertex ids of crossed grid edges only (4 bytes a crossing and 4 a
+// 64-voxel word), not a cache entry for every grid edge (20 bytes a voxel for the five: 20
+// MiB a 512 x 2048 part of a 2048² stream, whatever its surface). On a very dense surface, a
+// gyroid of period 16 (its ids: 3 bytes a voxel), its planes take under 16 bytes a voxel,
+// 8.6 of them the value planes, sign bits and word counts; the dense caches took 28.
+TEST(Extraction, PlaneCachesHoldCrossedEdgesOnly) {
+  constexpr int64_t n = 512, nz = 6;
+  ExtractorConfig cfg{n, n, nz, {1, 1, 1}, {0, 0, 0}, 0.0};
+  MeshStore store;
+  LayerExtractor ex(cfg, &store);
+  std::vector<float> values(size_t(n) * n);
+  size_t most = 0;
+  const double w = 2 * M_PI / 16;
+  for (int64_t k = 0; k < nz; ++k) {
+    for (int64_t j = 0; j < n; ++j) {
+      for (int64_t i = 0; i < n; ++i) {
+        values[size_t(j * n + i)] = float(std::sin(w * i) * std::cos(w * j) + std::sin(w * j) * std::cos(w * k) +
+                                          std::sin(w * k) * std::cos(w * i));
+      }
+    }
+    ASSERT_TRUE(ex.AddSlice(values.data()).ok());
+    most = std::max(most, LayerExtractor::PlaneCacheBytes(n, n) + ex.EdgeIdBytes());
+  }
+  const double per_voxel = double(most) / double(n * n);
+  EXPECT_GT(store.num_triangles(), size_t(n) * n / 4);  // a dense surface
+  EXPECT_LT(per_voxel, 16.0);
+  EXPECT_GT(per_voxel, 8.5);
+}
+
 TEST(Extraction, SphereIsClosedManifoldWithEulerTwo) {
   for (int n : {8, 33, 64}) {
     auto src = MakeSyntheticSource(Shape::kSphere, n, n, n);
