@@ -283,6 +283,16 @@ class WaitingQueue {
     done();
   }
   size_t MemoryBytes() const;
+  // Removes the entries for which drop(WEdge) is true (stale ones), keeping the others in
+  // order; a bucket left at under half its capacity is shrunk to its size.
+  template <typename Drop>
+  void RemoveIf(Drop&& drop) {
+    for (auto& bucket : buckets_) {
+      size_ -= std::erase_if(bucket, drop);
+      if (bucket.size() < bucket.capacity() / 2) std::vector<WEdge>(bucket).swap(bucket);
+    }
+    size_ -= std::erase_if(far_, [&](const WEntry& e) { return drop(WEdge{e.a, e.b, e.va, e.vb}); });
+  }
 
   static constexpr int64_t kBuckets = int64_t{1} << 16;
   static constexpr double kFarKey = 0x1p52;  // keys at or above this are never bucketed

@@ -172,6 +172,25 @@ TEST(WaitingQueue, ABucketedEdgeTakesSixteenBytes) {
   EXPECT_EQ(out, std::vector<uint32_t>(n, 1u));
 }
 
+// RemoveIf drops entries (the simplifier's stale ones) from every bucket and the far list,
+// keeps the others in order, and gives back the memory of a bucket left under half full.
+TEST(WaitingQueue, RemoveIfKeepsTheRestInOrder) {
+  WaitingQueue w;
+  constexpr uint32_t n = uint32_t{1} << 14;
+  for (uint32_t i = 0; i < n; ++i) w.Push(WEntry{i % 2 ? 2.5 : 3.5, i, i + 1, 0, 0});
+  w.Push(WEntry{1e30, 7, 8, 0, 0});  // far, odd
+  w.Push(WEntry{1e30, 8, 9, 0, 0});  // far, even
+  const size_t before = w.MemoryBytes();
+  w.RemoveIf([](const WEdge& e) { return e.a % 4 != 0; });  // keeps a quarter: a % 4 == 0
+  EXPECT_EQ(w.size(), size_t{n} / 4 + 1);
+  EXPECT_LT(w.MemoryBytes(), before / 2);
+  std::vector<WEdge> out;
+  w.TakeUpTo(std::numeric_limits<double>::infinity(), &out);
+  ASSERT_EQ(out.size(), size_t{n} / 4 + 1);
+  for (size_t i = 0; i + 1 < out.size(); ++i) EXPECT_EQ(out[i].a, 4 * i);  // bucket 4, in order
+  EXPECT_EQ(out.back().a, 8u);
+}
+
 // A far key pushed while the far entries are released (a re-evaluated edge whose reach is
 // huge) is kept for a later release, with the far entries not released yet.
 TEST(WaitingQueue, AFarKeyPushedDuringTheFarReleaseIsKept) {
