@@ -220,12 +220,12 @@ int64_t TryInflate(MeshStore* s, TriId t, double size,
 
 }  // namespace
 
-DegenerateCounts TidyDegenerate(MeshStore* store, double size,
-                                const std::function<bool(VertexId, Vec3)>& may_move,
-                                const std::function<void(VertexId)>& moved) {
+DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
+                                     const std::function<bool(VertexId, Vec3)>& may_move,
+                                     const std::function<void(VertexId)>& moved) {
   DegenerateCounts counts;
   std::vector<TriId> bad;
-  for (TriId t = 0; t < store->triangle_capacity(); ++t) {
+  for (TriId t : tris) {
     if (store->triangle_alive(t) && Degenerate(*store, t)) bad.push_back(t);
   }
   // An id a flip freed may come back as one of its new triangles: those are not degenerate.
@@ -243,6 +243,16 @@ DegenerateCounts TidyDegenerate(MeshStore* store, double size,
     counts.left += store->triangle_alive(t) && Degenerate(*store, t);
   }
   return counts;
+}
+
+DegenerateCounts TidyDegenerate(MeshStore* store, double size,
+                                const std::function<bool(VertexId, Vec3)>& may_move,
+                                const std::function<void(VertexId)>& moved) {
+  std::vector<TriId> all;
+  for (TriId t = 0; t < store->triangle_capacity(); ++t) {
+    if (store->triangle_alive(t)) all.push_back(t);
+  }
+  return TidyDegenerateAmong(store, all, size, may_move, moved);
 }
 
 }  // namespace tandem

@@ -3,8 +3,8 @@
 // at a grid point whose value equals the iso-value, and simplification removes almost all of
 // what that makes; what stays is what the link condition or the checks must keep: a triangle
 // with its three corners on one line, or with corners at one point where two sheets touch.
-// TidyDegenerate, run on the final mesh (Simplifier::TidyDegenerate), mends both without
-// changing the topology:
+// TidyDegenerate, run on the final mesh (Simplifier::TidyDegenerate) or on the triangles a
+// sealer is about to seal (TidyDegenerateAmong), mends both without changing the topology:
 //   - collinear corners (a, b and m between them): the edge ab is flipped to m c, c the far
 //     corner of the triangle across ab; the two new triangles tile that one exactly, so the
 //     surface does not move;
@@ -22,6 +22,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <span>
 
 #include "mesh_store.h"
 #include "tandem/types.h"
@@ -42,6 +43,11 @@ inline constexpr double kApart = 0.05;
 DegenerateCounts TidyDegenerate(MeshStore* store, double size,
                                 const std::function<bool(VertexId, Vec3)>& may_move,
                                 const std::function<void(VertexId)>& moved);
+// The same for the zero-area triangles among `tris` only (live ones; a sealed chunk's, before
+// it is sealed).
+DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
+                                     const std::function<bool(VertexId, Vec3)>& may_move,
+                                     const std::function<void(VertexId)>& moved);
 
 }  // namespace tandem
 

@@ -113,19 +113,23 @@ void Sealer::Seal(double front) {
       max_shape_error_ = std::max(max_shape_error_, simplifier_->MeasuredShapeErrorAt(v));
     }
   }
-  // 3. Seal the triangles whose last corner froze now, in increasing id.
-  tris_.clear();
-  for (VertexId v : freeze_) {
-    for (TriId t : store_->vertex_triangles(v)) {
-      const auto& tri = store_->triangle(t);
-      if (store_->box_mask(tri[0]) & store_->box_mask(tri[1]) & store_->box_mask(tri[2]) &
-          kFrozen) {
-        tris_.push_back(t);
-      }
+  // 3. Seal the triangles whose last corner froze now, in increasing id. Their zero-area ones
+  // are mended first, as the final mesh's are without sealing (degenerate.h); a corner may
+  // move if no chunk has handed it out yet. A flip's two new triangles may hold none of the
+  // vertices freezing now, so they are looked for around the old triangles' corners too.
+  GatherSealable(freeze_);
+  if (simplifier_ != nullptr) {
+    need_.clear();
+    for (TriId t : tris_) {
+      for (VertexId v : store_->triangle(t)) need_.push_back(v);
+    }
+    const DegenerateCounts mended = simplifier_->TidyDegenerateAmong(
+        tris_, [this](VertexId v) { return id_[v] == kInvalid; });
+    if (mended.flipped > 0) {
+      need_.insert(need_.end(), freeze_.begin(), freeze_.end());
+      GatherSealable(need_);
     }
   }
-  std::sort(tris_.begin(), tris_.end());
-  tris_.erase(std::unique(tris_.begin(), tris_.end()), tris_.end());
   drop_.assign(freeze_.begin(), freeze_.end());
   for (TriId t : tris_) {
     for (VertexId v : store_->triangle(t)) {
@@ -155,6 +159,22 @@ void Sealer::Seal(double front) {
       id_[v] = kInvalid;
     }
   }
+}
+
+void Sealer::GatherSealable(std::span<const VertexId> around) {
+  tris_.clear();
+  for (VertexId v : around) {
+    if (!store_->vertex_alive(v)) continue;
+    for (TriId t : store_->vertex_triangles(v)) {
+      const auto& tri = store_->triangle(t);
+      if (store_->box_mask(tri[0]) & store_->box_mask(tri[1]) & store_->box_mask(tri[2]) &
+          kFrozen) {
+        tris_.push_back(t);
+      }
+    }
+  }
+  std::sort(tris_.begin(), tris_.end());
+  tris_.erase(std::unique(tris_.begin(), tris_.end()), tris_.end());
 }
 
 bool Sealer::TakeChunk(SealedChunk* out) {

@@ -17,6 +17,7 @@
 #define TANDEM_SEALER_H_
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "tandem/mesh.h"
@@ -48,6 +49,8 @@ class Sealer {
 
  private:
   void EnsureCapacity();
+  // tris_ = the live triangles around `around` whose three corners are frozen, by id.
+  void GatherSealable(std::span<const VertexId> around);
   uint32_t IdOf(VertexId v);  // its global id, handed out on first use
 
   struct PendingVertex {

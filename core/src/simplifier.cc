@@ -550,15 +550,32 @@ int64_t Simplifier::CorrectSag(double fraction) {
   return CorrectSagAt(verts, normal, fraction);
 }
 
-DegenerateCounts Simplifier::TidyDegenerate() {
+double Simplifier::TidySize() const {
   // A collapsed tetrahedron gets a tenth of E0 (within the bound, and far above float noise),
   // but never more than a twentieth of a slice: E0 may be huge (a target count at its floor
   // ran it to 1e6; the fuzzer put such a tetrahedron far outside the grid's box).
+  return std::min(0.1 * opt_.error, 0.05 * opt_.slice_spacing);
+}
+
+bool Simplifier::TidyMayMove(VertexId v, Vec3 p) const {
+  return ShapeError(vs_[v].q, p) <= std::max(opt_.error, ShapeErrorAt(v));
+}
+
+DegenerateCounts Simplifier::TidyDegenerate() {
   return tandem::TidyDegenerate(
-      store_, std::min(0.1 * opt_.error, 0.05 * opt_.slice_spacing),
+      store_, TidySize(),
       [this](VertexId v, Vec3 p) {
-        return (store_->box_mask(v) & (kSeam | kFrozen)) == 0 &&
-               ShapeError(vs_[v].q, p) <= std::max(opt_.error, ShapeErrorAt(v));
+        return (store_->box_mask(v) & (kSeam | kFrozen)) == 0 && TidyMayMove(v, p);
+      },
+      [this](VertexId v) { ++version_[v]; });
+}
+
+DegenerateCounts Simplifier::TidyDegenerateAmong(std::span<const TriId> tris,
+                                                 const std::function<bool(VertexId)>& movable) {
+  return tandem::TidyDegenerateAmong(
+      store_, tris, TidySize(),
+      [&](VertexId v, Vec3 p) {
+        return (store_->box_mask(v) & kSeam) == 0 && movable(v) && TidyMayMove(v, p);
       },
       [this](VertexId v) { ++version_[v]; });
 }

@@ -18,6 +18,7 @@
 
 #include <cassert>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <span>
 #include <vector>
@@ -129,6 +130,10 @@ class Simplifier {
   // Mends the zero-area triangles of the final mesh (degenerate.h): flips, and moves within
   // the error bound (ε0 <= max(E0, ε0 now)).
   DegenerateCounts TidyDegenerate();
+  // The same among `tris` (a sealed chunk's, as it is sealed): frozen vertices may move too,
+  // where `movable` (the sealer: not handed out yet) and the error bound allow.
+  DegenerateCounts TidyDegenerateAmong(std::span<const TriId> tris,
+                                       const std::function<bool(VertexId)>& movable);
   // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
   void VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal);
 
@@ -170,6 +175,9 @@ class Simplifier {
   bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
   // Release key from the cheap bookkeeping only (no quadric solve); fills height/rad/layer.
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
+  // TidyDegenerate's inflation size, and whether it may move v to p (the error bound).
+  double TidySize() const;
+  bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
   // PushQ, unless an end is not ready in a chunked release (ActivateAndSimplify): then the

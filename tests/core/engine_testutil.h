@@ -4,6 +4,7 @@
 #ifndef TANDEM_TESTS_CORE_ENGINE_TESTUTIL_H_
 #define TANDEM_TESTS_CORE_ENGINE_TESTUTIL_H_
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <functional>
@@ -127,6 +128,19 @@ inline std::unique_ptr<TandemSession> RunCube(const std::vector<float>& v, int n
   const absl::Status st = (*session)->Finish();
   EXPECT_TRUE(st.ok()) << st;
   return st.ok() ? std::move(*session) : nullptr;
+}
+
+// A quantised tangle at grid point (i, j, k): six fixed plane waves (directions and phases
+// from the seed) summed and rounded to the integers 0..8. At iso-value 4, grid values equal to
+// it put edge points on grid points, which leaves zero-area triangles (issue 24).
+inline double QuantisedTangle(int seed, double i, double j, double k) {
+  double f = 0;
+  for (int w = 0; w < 6; ++w) {
+    const double a = 0.37 * (w + 1) + 1.3 * seed, b = 0.91 * (w + 2) + 0.7 * seed;
+    f += std::cos(0.35 * (std::cos(a) * i + std::sin(a) * std::cos(b) * j + std::sin(b) * k) +
+                  1.7 * w + seed);
+  }
+  return std::clamp(std::round(1.5 * f + 4), 0.0, 8.0);
 }
 
 // Triangles of zero area (IsDegenerateTriangle).

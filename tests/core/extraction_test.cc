@@ -574,14 +574,7 @@ TEST(Simplification, TidyingLeavesAlmostNoZeroAreaTriangleOnAQuantisedTangle) {
     for (int k = 0; k < n; ++k)
       for (int j = 0; j < n; ++j)
         for (int i = 0; i < n; ++i) {
-          double f = 0;
-          for (int w = 0; w < 6; ++w) {  // fixed pseudo-random directions and phases
-            const double a = 0.37 * (w + 1) + 1.3 * seed, b = 0.91 * (w + 2) + 0.7 * seed;
-            f += std::cos(0.35 * (std::cos(a) * i + std::sin(a) * std::cos(b) * j +
-                                  std::sin(b) * k) + 1.7 * w + seed);
-          }
-          v[(static_cast<size_t>(k) * n + j) * n + i] =
-              static_cast<float>(std::clamp(std::round(1.5 * f + 4), 0.0, 8.0));
+          v[(static_cast<size_t>(k) * n + j) * n + i] = static_cast<float>(QuantisedTangle(seed, i, j, k));
         }
     auto run = [&](Schedule schedule) {
       SessionOptions options;
