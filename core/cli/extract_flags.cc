@@ -91,7 +91,8 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddBool("seal", &seal,
                  "seal the mesh behind the sweep: vertices whose reach lies --seal-margin "
                  "slices below the front never change again and their triangles leave the "
-                 "session, so its memory follows the front, not the depth (one part; not with "
+                 "session, so its memory follows the front, not the depth (a grid split into "
+                 "parts keeps the triangles at their seams until the end; not with "
                  "--target-triangles)");
   flags->AddDouble("seal-margin", &seal_margin,
                    "--seal: slices between the front and the sealed mesh", false, "N");

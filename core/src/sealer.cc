@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <utility>
 
 namespace tandem {
 
@@ -36,8 +38,45 @@ IndexedMesh WeldChunks(std::span<const SealedChunk> chunks) {
   return out;
 }
 
-Sealer::Sealer(MeshStore* store, Simplifier* simplifier, double margin, double sag_fraction)
-    : store_(store), simplifier_(simplifier), margin_(margin), sag_fraction_(sag_fraction) {}
+SealedChunk JoinChunks(std::vector<SealedChunk> pieces) {
+  if (pieces.size() == 1) return std::move(pieces[0]);
+  SealedChunk out;
+  std::vector<std::pair<uint32_t, Vec3>> verts;  // (id, position)
+  bool spans = false;
+  for (const SealedChunk& p : pieces) {
+    for (size_t i = 0; i < p.ids.size(); ++i) verts.emplace_back(p.ids[i], p.positions[i]);
+    if (!p.ids.empty()) {  // a piece may only retire vertices
+      out.first_slice = spans ? std::min(out.first_slice, p.first_slice) : p.first_slice;
+      out.last_slice = spans ? std::max(out.last_slice, p.last_slice) : p.last_slice;
+      spans = true;
+    }
+    out.retired.insert(out.retired.end(), p.retired.begin(), p.retired.end());
+  }
+  std::sort(verts.begin(), verts.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  out.ids.reserve(verts.size());
+  out.positions.reserve(verts.size());
+  for (const auto& [id, pos] : verts) {
+    out.ids.push_back(id);
+    out.positions.push_back(pos);
+  }
+  for (const SealedChunk& p : pieces) {
+    for (uint32_t i : p.indices) {
+      const auto it = std::lower_bound(out.ids.begin(), out.ids.end(), p.ids[i]);
+      out.indices.push_back(static_cast<uint32_t>(it - out.ids.begin()));
+    }
+  }
+  return out;
+}
+
+Sealer::Sealer(MeshStore* store, Simplifier* simplifier, double margin, double sag_fraction,
+               uint32_t id_first, uint32_t id_stride)
+    : store_(store),
+      simplifier_(simplifier),
+      margin_(margin),
+      sag_fraction_(sag_fraction),
+      next_id_(id_first),
+      id_stride_(id_stride) {}
 
 void Sealer::EnsureCapacity() {
   const size_t n = store_->vertex_capacity();
@@ -55,7 +94,12 @@ void Sealer::AddVertices(std::span<const VertexId> verts) {
 
 uint32_t Sealer::IdOf(VertexId v) {
   if (id_[v] == kInvalid) {
-    id_[v] = next_id_++;
+    if (next_id_ > std::numeric_limits<uint32_t>::max() - id_stride_) {
+      throw std::overflow_error("a sealed session ran out of 32-bit vertex ids");
+    }
+    id_[v] = next_id_;
+    next_id_ += id_stride_;
+    ++handed_out_;
     stamp_[v] = 0;
   }
   return id_[v];
@@ -69,7 +113,12 @@ void Sealer::Seal(double front) {
   freeze_.clear();
   size_t keep = 0;
   for (VertexId v : active_) {
-    if (!store_->vertex_alive(v)) continue;
+    // A dead id may have been handed to a frozen vertex since (MergeSlabs): not ours.
+    if (!store_->vertex_alive(v) || (store_->box_mask(v) & kFrozen)) continue;
+    if (!all && (store_->box_mask(v) & kSeam)) {  // waits for the merge (slabs.h)
+      active_[keep++] = v;
+      continue;
+    }
     const double limit = front - margin_;
     // Its own reach first (cheap), then that of every contraction it could still take part in.
     const bool frozen =
@@ -77,7 +126,9 @@ void Sealer::Seal(double front) {
                     ? store_->height(v) + 1.0 <= limit
                     : store_->height(v) + simplifier_->rad(v) <= limit &&
                           simplifier_->MaxEdgeReach(v) <= limit);
-    if (frozen) {
+    if (frozen && !all && NextToSeam(v)) {  // keeps the seam's fans free for the merge
+      active_[keep++] = v;
+    } else if (frozen) {
       freeze_.push_back(v);
     } else {
       active_[keep++] = v;
@@ -161,6 +212,16 @@ void Sealer::Seal(double front) {
   }
 }
 
+bool Sealer::NextToSeam(VertexId v) const {
+  for (TriId t : store_->vertex_triangles(v)) {
+    const auto& tri = store_->triangle(t);
+    if ((store_->box_mask(tri[0]) | store_->box_mask(tri[1]) | store_->box_mask(tri[2])) & kSeam) {
+      return true;
+    }
+  }
+  return false;
+}
+
 void Sealer::GatherSealable(std::span<const VertexId> around) {
   tris_.clear();
   for (VertexId v : around) {
@@ -207,6 +268,37 @@ bool Sealer::TakeChunk(SealedChunk* out) {
   pend_retired_.clear();
   ++chunk_stamp_;
   return true;
+}
+
+void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
+                    std::span<const VertexId> welded) {
+  EnsureCapacity();
+  const MeshStore& src = *other.store_;
+  std::vector<bool> skip(src.vertex_capacity(), false);
+  for (VertexId v : welded) skip[v] = true;
+  for (VertexId v = 0; v < src.vertex_capacity() && v < map.size(); ++v) {
+    if (!src.vertex_alive(v) || map[v] == kInvalid || skip[v]) continue;
+    const VertexId w = map[v];
+    id_[w] = other.id_[v];
+    // In the other's pending chunk: in this one's now (a vertex is listed once a chunk).
+    stamp_[w] = other.stamp_[v] == other.chunk_stamp_ ? chunk_stamp_ : 0;
+    normal_[w] = other.normal_[v];
+  }
+  for (VertexId v : other.active_) {
+    if (src.vertex_alive(v) && !skip[v]) active_.push_back(map[v]);
+  }
+  // This store's dead ids in active_ may have gone to the vertices just copied: list each
+  // vertex once (Seal drops the frozen and the dead).
+  std::sort(active_.begin(), active_.end());
+  active_.erase(std::unique(active_.begin(), active_.end()), active_.end());
+  pend_verts_.insert(pend_verts_.end(), other.pend_verts_.begin(), other.pend_verts_.end());
+  pend_tris_.insert(pend_tris_.end(), other.pend_tris_.begin(), other.pend_tris_.end());
+  pend_retired_.insert(pend_retired_.end(), other.pend_retired_.begin(),
+                       other.pend_retired_.end());
+  sealed_triangles_ += other.sealed_triangles_;
+  sag_corrected_ += other.sag_corrected_;
+  handed_out_ += other.handed_out_;
+  max_shape_error_ = std::max(max_shape_error_, other.max_shape_error_);
 }
 
 size_t Sealer::MemoryBytes() const {

@@ -12,7 +12,12 @@
 //
 // Chunks name their vertices by global ids, handed out in sealing order; a vertex shared by two
 // chunks appears in both with the same id and the same coordinates, so the union of all chunks,
-// welded by id (WeldChunks), is the mesh.
+// welded by id (WeldChunks), is the mesh. With several slabs (slabs.h) each has a sealer, and
+// slab p of P hands out the ids p, p + P, p + 2P, ...: unique without a lock, and the same
+// whichever thread steps which slab. A seam vertex (kSeam) never freezes while the stream
+// lasts, nor does a vertex next to one (so that the seam can still be coarsened): the
+// triangles around them stay in the slab until the merge, where the schedule goes on from the
+// seam (slabs.h); then the merged sealer (Absorb) seals them.
 #ifndef TANDEM_SEALER_H_
 #define TANDEM_SEALER_H_
 
@@ -27,22 +32,35 @@
 
 namespace tandem {
 
+// One chunk of `pieces` (the slabs' chunks of one moment; no id in two of them): vertices in
+// increasing id, triangles and retired ids in the pieces' order.
+SealedChunk JoinChunks(std::vector<SealedChunk> pieces);
+
 class Sealer {
  public:
   // simplifier == nullptr: a full-resolution session (nothing is contracted; no sag).
-  Sealer(MeshStore* store, Simplifier* simplifier, double margin, double sag_fraction);
+  // Global ids first, first + stride, first + 2 stride, ...
+  Sealer(MeshStore* store, Simplifier* simplifier, double margin, double sag_fraction,
+         uint32_t id_first = 0, uint32_t id_stride = 1);
 
   // Vertices made by the last EXTRACT (unfrozen).
   void AddVertices(std::span<const VertexId> verts);
   // Freezes the vertices whose reach is at least `margin` below the front (every vertex when
   // front = +inf, the end of the stream) and seals what that completes.
   void Seal(double front);
-  // Moves the triangles sealed since the last call into *out (false: none).
+  // Moves the triangles sealed since the last call into *out (false: none). out->index
+  // counts this sealer's chunks.
   bool TakeChunk(SealedChunk* out);
+  // Takes over the sealing state of `other`, whose store's vertices were copied into this
+  // sealer's store (MergeSlabs): vertex v there is map[v] here. Its pending chunk joins this
+  // one; its unfrozen vertices stay unfrozen. `welded`: its seam copies that were welded to
+  // vertices of this store, which keep their own state.
+  void Absorb(const Sealer& other, std::span<const VertexId> map,
+              std::span<const VertexId> welded);
 
   int64_t sealed_triangles() const { return sealed_triangles_; }
   int64_t pending_triangles() const { return static_cast<int64_t>(pend_tris_.size() / 3); }
-  int64_t sealed_vertices() const { return next_id_; }
+  int64_t sealed_vertices() const { return handed_out_; }
   int64_t sag_corrected() const { return sag_corrected_; }
   double max_shape_error() const { return max_shape_error_; }  // over frozen vertices
   size_t MemoryBytes() const;
@@ -52,6 +70,7 @@ class Sealer {
   // tris_ = the live triangles around `around` whose three corners are frozen, by id.
   void GatherSealable(std::span<const VertexId> around);
   uint32_t IdOf(VertexId v);  // its global id, handed out on first use
+  bool NextToSeam(VertexId v) const;  // some triangle at v has a seam vertex
 
   struct PendingVertex {
     uint32_t id;
@@ -74,7 +93,9 @@ class Sealer {
   std::vector<uint32_t> pend_tris_;  // global ids, 3 per triangle
   std::vector<uint32_t> pend_retired_;
   uint32_t chunk_stamp_ = 1;
-  uint32_t next_id_ = 0;
+  uint32_t next_id_ = 0;  // the next id handed out
+  uint32_t id_stride_ = 1;
+  int64_t handed_out_ = 0;  // ids handed out (absorbed sealers' included)
   int64_t chunks_ = 0;
   int64_t sealed_triangles_ = 0;
   int64_t sag_corrected_ = 0;

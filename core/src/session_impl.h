@@ -83,6 +83,7 @@ struct TandemSession::Impl {
   MergedCounts merged;               // of the slabs merged away by Finish
   std::vector<float> convert;  // float32 bytes not aligned for float (one part or unqueued)
   SessionStats stats;
+  int64_t chunks_taken = 0;  // TakeSealed: the next chunk's index
   bool finished = false;
 };
 

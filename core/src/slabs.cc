@@ -19,7 +19,6 @@ ReleaseRule RuleFor(Schedule s) {
 }  // namespace
 
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
-  if (options.seal) return 1;  // the seams would stay at full resolution, unsealed
   const int requested = options.parts;
   constexpr int64_t kMinColumns = 16;  // cube columns per slab, at least
   const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 4 : 1);
@@ -60,9 +59,10 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {
       const bool simplify = options.schedule != Schedule::kNone;
-      slab->sealer = std::make_unique<Sealer>(&slab->store, simplify ? &slab->simplifier : nullptr,
-                                              options.seal_margin,
-                                              simplify ? options.sag_correction : 0.0);
+      slab->sealer = std::make_unique<Sealer>(
+          &slab->store, simplify ? &slab->simplifier : nullptr, options.seal_margin,
+          simplify ? options.sag_correction : 0.0, static_cast<uint32_t>(p),
+          static_cast<uint32_t>(count));
     }
     slab->x0 = c0;
     slab->index = static_cast<size_t>(p);
@@ -107,10 +107,13 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
   Slab& dst = *(*slabs)[0];
   std::vector<VertexId> seam_vertices;  // in dst
   std::vector<VertexId> map, prev;      // a slab's ids -> dst's (prev: the slab before)
+  std::vector<VertexId> welded;         // src's seam copies welded to dst's vertices
   for (size_t p = 1; p < slabs->size(); ++p) {
     Slab& src = *(*slabs)[p];
     map.assign(src.store.vertex_capacity(), kInvalid);
+    welded.clear();
     for (const auto& [left, right] : (*seams)[p - 1]) {
+      welded.push_back(right);
       const VertexId v = p == 1 ? left : prev[left];
       assert(dst.store.vertex_alive(v) && src.store.vertex_alive(right));
       map[right] = v;
@@ -131,6 +134,7 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
       dst.store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
     }
     if (simplify) dst.simplifier.AdoptCounters(src.simplifier);
+    if (dst.sealer) dst.sealer->Absorb(*src.sealer, map, welded);
     merged->crossed_cubes += src.extractor.crossed_cubes();
     merged->triangles_extracted += src.triangles_extracted;
     merged->time.extract_s += src.time.extract_s;

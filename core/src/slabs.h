@@ -64,8 +64,7 @@ struct Slab {
 // seams[s]: (vertex in slab s, its copy in slab s+1), per shared grid edge.
 using Seams = std::vector<std::vector<std::pair<VertexId, VertexId>>>;
 
-// The number of slabs a session with these options uses over `grid` (SessionOptions::parts;
-// sealing: one).
+// The number of slabs a session with these options uses over `grid` (SessionOptions::parts).
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options);
 
 // E0 in physical units at the start of a session: SessionOptions::error, but with a target

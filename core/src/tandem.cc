@@ -121,16 +121,28 @@ IndexedMesh TandemSession::Snapshot() const {
 bool TandemSession::TakeSealed(SealedChunk* out) {
   Impl& s = *impl_;
   (void)s.Sync();
-  Sealer* sealer = s.slabs[0]->sealer.get();
-  if (sealer == nullptr || !sealer->TakeChunk(out)) return false;
+  // Everything sealed since the last call, in one chunk: the slabs' pieces in slab order.
+  std::vector<SealedChunk> pieces;
+  for (const auto& slab : s.slabs) {
+    SealedChunk piece;
+    if (slab->sealer != nullptr && slab->sealer->TakeChunk(&piece)) {
+      pieces.push_back(std::move(piece));
+    }
+  }
+  if (pieces.empty()) return false;
+  *out = JoinChunks(std::move(pieces));
+  out->index = s.chunks_taken++;
   s.ToWorld(&out->positions, &out->indices);
   return true;
 }
 
 int64_t TandemSession::sealed_pending() const {
   (void)impl_->Sync();
-  const Sealer* sealer = impl_->slabs[0]->sealer.get();
-  return sealer != nullptr ? sealer->pending_triangles() : 0;
+  int64_t n = 0;
+  for (const auto& slab : impl_->slabs) {
+    if (slab->sealer) n += slab->sealer->pending_triangles();
+  }
+  return n;
 }
 
 int64_t TandemSession::num_triangles() const {
@@ -495,6 +507,9 @@ const SessionStats& TandemSession::Impl::Stats() {
   stats.contractions = 0;
   stats.max_reach_over_front = -std::numeric_limits<double>::infinity();
   stats.max_layer_over_front = -std::numeric_limits<double>::infinity();
+  if (first.sealer) {
+    stats.sealed_triangles = stats.sealed_vertices = stats.sag_corrected = 0;
+  }
   for (const auto& s : slabs) {
     stats.crossed_cubes += s->extractor.crossed_cubes();
     stats.triangles_extracted += s->triangles_extracted;
@@ -507,9 +522,9 @@ const SessionStats& TandemSession::Impl::Stats() {
     stats.max_layer_over_front =
         std::max(stats.max_layer_over_front, s->simplifier.max_layer_over_front());
     if (s->sealer) {
-      stats.sealed_triangles = s->sealer->sealed_triangles();
-      stats.sealed_vertices = s->sealer->sealed_vertices();
-      stats.sag_corrected = s->sealer->sag_corrected();
+      stats.sealed_triangles += s->sealer->sealed_triangles();
+      stats.sealed_vertices += s->sealer->sealed_vertices();
+      stats.sag_corrected += s->sealer->sag_corrected();
     }
   }
   return stats;

@@ -549,6 +549,67 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   EXPECT_LT(chunk_bytes, 2 * plain_report->bytes_sent);
 }
 
+// A sealed stream of a grid wide enough for four slabs (256 columns): each slab seals its own
+// part, and every chunk the server sends holds what all of them sealed since the last, so the
+// chunks along the way span the whole slice, not the first slab's columns (before, the server
+// took one slab's piece a slice and the others piled up until the end). The chunks weld into
+// the plain stream's kind of mesh.
+TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
+  // Spacing 5 in y and z: a 256 x 240 x 240 box, whose ball-clipped gyroid spans x 26-230.
+  auto path = WriteSyntheticVolume(
+      dir_, "gyroid", MakeSyntheticSource(Shape::kGyroid, 256, 48, 48, {1, 5, 5}));
+  ASSERT_TRUE(path.ok()) << path.status();
+  auto stream = [&](const std::string& name, std::vector<std::string> extra) {
+    return Client(Concat({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                          "0", "--error", "0.2", "--out", dir_ + "/" + name + ".ply",
+                          "--metrics", dir_ + "/" + name + ".json"},
+                         extra));
+  };
+  RunResult plain = stream("plain", {});
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  // Paced (a chunk a second): 48 slices in 2.4 s.
+  RunResult sealed = stream("sealed", {"--chunks", dir_ + "/chunks", "--rate", "20"});
+  ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
+  auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
+  auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
+  ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
+  std::vector<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/chunks")) {
+    files.push_back(e.path().filename().string());
+  }
+  std::sort(files.begin(), files.end());
+  ASSERT_GE(files.size(), 2u);
+  std::vector<SealedChunk> chunks;
+  for (size_t i = 0; i < files.size(); ++i) {
+    SealedChunk c;
+    auto mesh = codec::DecodeDraco(ReadFile(dir_ + "/chunks/" + files[i]), &c.ids);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    c.positions = mesh->positions;
+    c.indices = mesh->indices;
+    if (i + 1 < files.size()) {  // along the way: from the first slab and the last
+      double lo = 1e9, hi = -1e9;
+      for (const Vec3& p : c.positions) {
+        lo = std::min(lo, p.x);
+        hi = std::max(hi, p.x);
+      }
+      EXPECT_LT(lo, 64) << files[i];
+      EXPECT_GT(hi, 192) << files[i];
+    }
+    chunks.push_back(std::move(c));
+  }
+  const IndexedMesh welded = WeldChunks(chunks);
+  EXPECT_EQ(static_cast<int64_t>(welded.num_triangles()), sealed_report->triangles_final);
+  const TopologyReport t = AnalyzeTopology(welded);
+  EXPECT_TRUE(t.IsClosedManifold());
+  auto plain_mesh = ReadMesh(dir_ + "/plain.ply");
+  ASSERT_TRUE(plain_mesh.ok()) << plain_mesh.status();
+  EXPECT_EQ(t.euler, AnalyzeTopology(*plain_mesh).euler);
+  EXPECT_NEAR(static_cast<double>(sealed_report->triangles_final),
+              static_cast<double>(plain_report->triangles_final),
+              0.03 * static_cast<double>(plain_report->triangles_final));
+  EXPECT_LE(sealed_report->error_max, 0.2 * (1 + 1e-9));
+}
+
 // The session id a streaming client prints (bounded wait; "" if it never does).
 std::string SessionIdOf(ChildProcess& streamer) {
   for (int i = 0; i < 200; ++i) {
