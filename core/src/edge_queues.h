@@ -272,16 +272,8 @@ class WaitingQueue {
   // Moves every entry with key <= front into *out (replacing it): bucket by bucket, each in
   // push order, then the far ones in push order. One released bucket is handed over, not
   // copied: a cap's release holds no second copy of its edges.
+  // Entries pushed after it (keys > front, far keys included) wait for a later call.
   void TakeUpTo(double front, std::vector<WEdge>* out);
-  // TakeUpTo, then take(WEdge) for each entry in that order, then done(). take and done may
-  // Push (keys > front), far keys included; entries they push are not released by this call.
-  template <typename Take, typename Done>
-  void ReleaseUpTo(double front, Take&& take, Done&& done) {
-    std::vector<WEdge> released;
-    TakeUpTo(front, &released);
-    for (const WEdge& e : released) take(e);
-    done();
-  }
   size_t MemoryBytes() const;
   // Removes the entries for which drop(WEdge) is true (stale ones), keeping the others in
   // order; a bucket left at under half its capacity is shrunk to its size.
