@@ -92,7 +92,7 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                  "seal the mesh behind the sweep: vertices whose reach lies --seal-margin "
                  "slices below the front never change again and their triangles leave the "
                  "session, so its memory follows the front, not the depth (a grid split into "
-                 "parts keeps the triangles at their seams until the end; not with "
+                 "parts keeps the triangles at their seams for up to 512 slices; not with "
                  "--target-triangles)");
   flags->AddDouble("seal-margin", &seal_margin,
                    "--seal: slices between the front and the sealed mesh", false, "N");

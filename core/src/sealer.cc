@@ -54,6 +54,10 @@ SealedChunk JoinChunks(std::vector<SealedChunk> pieces) {
   }
   std::sort(verts.begin(), verts.end(),
             [](const auto& a, const auto& b) { return a.first < b.first; });
+  // A seam vertex frozen in two slabs comes from both (FreezeShared): listed once.
+  verts.erase(std::unique(verts.begin(), verts.end(),
+                          [](const auto& a, const auto& b) { return a.first == b.first; }),
+              verts.end());
   out.ids.reserve(verts.size());
   out.positions.reserve(verts.size());
   for (const auto& [id, pos] : verts) {
@@ -135,7 +139,7 @@ void Sealer::Seal(double front) {
     }
   }
   active_.resize(keep);
-  if (freeze_.empty()) return;
+  if (freeze_.empty() && shared_.empty()) return;
   for (VertexId v : freeze_) {
     if (simplifier_ != nullptr) {
       simplifier_->Freeze(v);
@@ -168,6 +172,9 @@ void Sealer::Seal(double front) {
   // are mended first, as the final mesh's are without sealing (degenerate.h); a corner may
   // move if no chunk has handed it out yet. A flip's two new triangles may hold none of the
   // vertices freezing now, so they are looked for around the old triangles' corners too.
+  // Shared vertices frozen since the last call (FreezeShared) may complete triangles too.
+  freeze_.insert(freeze_.end(), shared_.begin(), shared_.end());
+  shared_.clear();
   GatherSealable(freeze_);
   if (simplifier_ != nullptr) {
     need_.clear();
@@ -214,12 +221,24 @@ void Sealer::Seal(double front) {
 
 bool Sealer::NextToSeam(VertexId v) const {
   for (TriId t : store_->vertex_triangles(v)) {
-    const auto& tri = store_->triangle(t);
-    if ((store_->box_mask(tri[0]) | store_->box_mask(tri[1]) | store_->box_mask(tri[2])) & kSeam) {
-      return true;
+    for (VertexId x : store_->triangle(t)) {
+      if ((store_->box_mask(x) & (kSeam | kFrozen)) == kSeam) return true;  // not settled
     }
   }
   return false;
+}
+
+void Sealer::FreezeShared(VertexId v, uint32_t id) {
+  EnsureCapacity();
+  id_[v] = id;
+  stamp_[v] = 0;
+  if (simplifier_ != nullptr) {
+    simplifier_->VertexNormals(std::span<const VertexId>(&v, 1), normal_);  // its side's fan
+    simplifier_->Freeze(v);
+  } else {
+    store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
+  }
+  shared_.push_back(v);
 }
 
 void Sealer::GatherSealable(std::span<const VertexId> around) {

@@ -14,10 +14,12 @@
 // chunks appears in both with the same id and the same coordinates, so the union of all chunks,
 // welded by id (WeldChunks), is the mesh. With several slabs (slabs.h) each has a sealer, and
 // slab p of P hands out the ids p, p + P, p + 2P, ...: unique without a lock, and the same
-// whichever thread steps which slab. A seam vertex (kSeam) never freezes while the stream
-// lasts, nor does a vertex next to one (so that the seam can still be coarsened): the
-// triangles around them stay in the slab until the merge, where the schedule goes on from the
-// seam (slabs.h); then the merged sealer (Absorb) seals them.
+// whichever thread steps which slab. A seam vertex (kSeam) does not freeze by its reach, nor
+// does a vertex next to one (so that the seam can still be coarsened): the triangles around
+// them stay in the slab until the merge, where the schedule goes on from the seam (slabs.h);
+// then the merged sealer (Absorb) seals them. Far enough behind the front the session
+// freezes seam vertices as they are, in both slabs at once (FreezeShared), so that a deep
+// stream's seams do not pile up.
 #ifndef TANDEM_SEALER_H_
 #define TANDEM_SEALER_H_
 
@@ -32,8 +34,8 @@
 
 namespace tandem {
 
-// One chunk of `pieces` (the slabs' chunks of one moment; no id in two of them): vertices in
-// increasing id, triangles and retired ids in the pieces' order.
+// One chunk of `pieces` (the slabs' chunks of one moment): vertices in increasing id, each
+// once (a shared seam vertex may be in two), triangles and retired ids in the pieces' order.
 SealedChunk JoinChunks(std::vector<SealedChunk> pieces);
 
 class Sealer {
@@ -57,6 +59,11 @@ class Sealer {
   // vertices of this store, which keep their own state.
   void Absorb(const Sealer& other, std::span<const VertexId> map,
               std::span<const VertexId> welded);
+  // Freezes seam vertex v as it is, with the global id `id` that its copy in the neighbouring
+  // slab gets too (the session hands these out, in an id space of its own); its triangles
+  // are sealed as their other corners freeze. Its retirement, like any, is listed in a chunk:
+  // the id is retired once both copies are (TandemSession::TakeSealed counts them).
+  void FreezeShared(VertexId v, uint32_t id);
 
   int64_t sealed_triangles() const { return sealed_triangles_; }
   int64_t pending_triangles() const { return static_cast<int64_t>(pend_tris_.size() / 3); }
@@ -87,6 +94,7 @@ class Sealer {
   std::vector<Vec3> normal_;      // frozen: its normal when it froze; else scratch
   // Scratch.
   std::vector<VertexId> freeze_, need_, drop_;
+  std::vector<VertexId> shared_;  // frozen by FreezeShared since the last Seal
   std::vector<TriId> tris_;
   // The pending chunk.
   std::vector<PendingVertex> pend_verts_;

@@ -7,6 +7,7 @@
 #include <deque>
 #include <memory>
 #include <mutex>
+#include <unordered_set>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -84,6 +85,12 @@ struct TandemSession::Impl {
   std::vector<float> convert;  // float32 bytes not aligned for float (one part or unqueued)
   SessionStats stats;
   int64_t chunks_taken = 0;  // TakeSealed: the next chunk's index
+  // Sealing with slabs: seam vertices frozen in both slabs (SettleSeams), and those of them
+  // one copy of which was retired so far (the id is retired with the second).
+  int64_t seam_ids = 0;
+  std::unordered_set<uint32_t> half_retired;
+  static constexpr int64_t kSettleEvery = 16;  // slices between SettleSeams
+  void MaybeSettleSeams();  // before slice slices_added is stepped
   bool finished = false;
 };
 

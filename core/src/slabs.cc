@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cassert>
+#include <limits>
+#include <stdexcept>
 
 #include "absl/strings/str_cat.h"
 
@@ -62,7 +64,7 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
       slab->sealer = std::make_unique<Sealer>(
           &slab->store, simplify ? &slab->simplifier : nullptr, options.seal_margin,
           simplify ? options.sag_correction : 0.0, static_cast<uint32_t>(p),
-          static_cast<uint32_t>(count));
+          SealerIdStride(count));
     }
     slab->x0 = c0;
     slab->index = static_cast<size_t>(p);
@@ -86,6 +88,35 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
     right.clear();
   }
   return absl::OkStatus();
+}
+
+void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
+                 double front, int64_t* seam_ids) {
+  const auto count = static_cast<int64_t>(slabs.size());
+  const int64_t stride = SealerIdStride(static_cast<int>(count));
+  const double limit = front - static_cast<double>(kSeamSettleSlices);
+  for (size_t s = 0; s < seams->size(); ++s) {
+    Slab& left = *slabs[s];
+    Slab& right = *slabs[s + 1];
+    auto& pairs = (*seams)[s];
+    size_t keep = 0;
+    for (const auto& [a, b] : pairs) {
+      if (left.store.height(a) > limit) {
+        pairs[keep++] = {a, b};
+        continue;
+      }
+      const int64_t id = *seam_ids * stride + count;
+      if (id > int64_t{std::numeric_limits<uint32_t>::max()} - 1) {
+        throw std::overflow_error("a sealed session ran out of 32-bit vertex ids");
+      }
+      ++*seam_ids;
+      // Both slabs computed the point from the same grid edge; one position, bit for bit.
+      right.store.set_position(b, left.store.position(a));
+      left.sealer->FreezeShared(a, static_cast<uint32_t>(id));
+      right.sealer->FreezeShared(b, static_cast<uint32_t>(id));
+    }
+    pairs.resize(keep);
+  }
 }
 
 void AppendWeldedSnapshot(const std::vector<std::unique_ptr<Slab>>& slabs, const Seams& seams,

@@ -80,6 +80,20 @@ double StartError(const VolumeInfo& grid, const SessionOptions& options);
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
                                              double scale, int count, Executor* batches);
 
+// Sealing with `count` slabs: slab p's sealer hands out ids p + k * stride, and with several
+// slabs the ids k * stride + count are the settled seam vertices' (SettleSeams).
+inline uint32_t SealerIdStride(int count) {
+  return count == 1 ? 1u : static_cast<uint32_t>(count) + 1u;
+}
+
+// Sealing: seam vertices this many slices or more below the front freeze as they are, in both
+// slabs (Sealer::FreezeShared), and leave `seams`; `seam_ids` counts the ids handed out. So
+// the triangles at the seams that wait for the merge follow the front, not the depth; what a
+// settled seam vertex gives up is its contraction at the merge.
+inline constexpr int64_t kSeamSettleSlices = 512;
+void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
+                 double front, int64_t* seam_ids);
+
 // Moves the slabs' new seam vertices into `seams` (both sides list the same grid edges in the
 // same order). INTERNAL if two neighbours disagree.
 absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams);

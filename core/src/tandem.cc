@@ -132,6 +132,16 @@ bool TandemSession::TakeSealed(SealedChunk* out) {
   if (pieces.empty()) return false;
   *out = JoinChunks(std::move(pieces));
   out->index = s.chunks_taken++;
+  if (s.slabs.size() > 1) {  // a settled seam vertex's id is retired with its second copy
+    const uint32_t stride = SealerIdStride(static_cast<int>(s.slabs.size()));
+    const auto seam = static_cast<uint32_t>(s.slabs.size());
+    std::erase_if(out->retired, [&](uint32_t id) {
+      return id % stride == seam && s.half_retired.insert(id).second;
+    });
+    for (uint32_t id : out->retired) {
+      if (id % stride == seam) s.half_retired.erase(id);
+    }
+  }
   s.ToWorld(&out->positions, &out->indices);
   return true;
 }
@@ -321,6 +331,18 @@ absl::Status TandemSession::Impl::Sync() {
   return st;
 }
 
+void TandemSession::Impl::MaybeSettleSeams() {
+  // At fixed slices, every slab stepped up to the same one: the result does not depend on
+  // threads or on when the caller looks.
+  if (!options.seal || slabs.size() < 2 || slices_added == 0 ||
+      slices_added % kSettleEvery != 0) {
+    return;
+  }
+  if (!Sync().ok()) return;  // the failure is reported by the caller
+  SettleSeams(slabs, &seams, static_cast<double>(slabs[0]->extractor.slices_done() - 1),
+              &seam_ids);
+}
+
 void TandemSession::Impl::Record() {
   int64_t n = 0;
   for (const auto& slab : slabs) n += static_cast<int64_t>(slab->store.num_triangles());
@@ -395,6 +417,7 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
     return fail(NonFiniteVoxelError(i % grid.nx, i / grid.nx, v[i]));
   };
   if (queued) {
+    MaybeSettleSeams();
     {
       std::lock_guard<std::mutex> lock(mu);
       if (absl::Status st = QueuedFailure(); !st.ok()) return fail(st);
@@ -442,6 +465,7 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
       FirstNonFinite(reinterpret_cast<const uint8_t*>(values), n) >= 0) {
     return non_finite(values);
   }
+  MaybeSettleSeams();
   // Float32 bytes come here as values (aligned by AddSliceBytes); integers as they are.
   const SliceValues slice = values != nullptr ? SliceValues::Floats(values) : SliceValues{bytes, dtype};
   std::vector<absl::Status> status(slabs.size());
@@ -508,7 +532,8 @@ const SessionStats& TandemSession::Impl::Stats() {
   stats.max_reach_over_front = -std::numeric_limits<double>::infinity();
   stats.max_layer_over_front = -std::numeric_limits<double>::infinity();
   if (first.sealer) {
-    stats.sealed_triangles = stats.sealed_vertices = stats.sag_corrected = 0;
+    stats.sealed_triangles = stats.sag_corrected = 0;
+    stats.sealed_vertices = seam_ids;
   }
   for (const auto& s : slabs) {
     stats.crossed_cubes += s->extractor.crossed_cubes();

@@ -16,6 +16,7 @@
 #include "engine_testutil.h"
 #include "tandem/mesh_io.h"
 #include "sealer.h"
+#include "slabs.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/topology.h"
@@ -316,26 +317,55 @@ TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
   }
 }
 
-// With slabs, what a sealed session holds grows with the depth only by the triangles at the
-// seams, which wait for the merge: a small part of what the plain session's mesh grows by.
-TEST(Sealing, SlabsHoldTheirSeamsNotTheMesh) {
-  int64_t growth[2] = {0, 0};  // held triangles, deep - shallow: plain, sealed
+// With slabs, the triangles at the seams wait for the merge, so what a sealed session holds
+// grows with the depth, a small part of what the plain session's mesh grows by; and only up
+// to kSeamSettleSlices behind the front, past which seam vertices freeze as they are
+// (SettleSeams): from there on it follows the front again. The settled seams, sealed in two
+// slabs under one id, weld into the mesh of the plain split session's topology.
+TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
+  const int64_t settle = kSeamSettleSlices;
+  const int64_t depths[3] = {48, settle + 48, 2 * settle + 96};
+  int64_t held[2][3] = {};  // plain, sealed
+  SealRun settled[2];       // at settle + 48 slices: the seams of the first 48 are settled
   for (bool seal : {false, true}) {
-    PeriodicSource shallow(96, 48), deep(96, 8 * 48);
-    SessionOptions o = Options(Schedule::kTandemLag, 0.05, seal);
-    o.parts = 4;
-    const SealRun a = RunSealed(shallow, o);
-    const SealRun b = RunSealed(deep, o);
-    ASSERT_EQ(b.parts, 4);
-    growth[seal] = b.peak_held - a.peak_held;
-    if (seal) {
-      EXPECT_TRUE(AnalyzeTopology(b.mesh).IsManifold());
+    for (int d = 0; d < (seal ? 3 : 2); ++d) {
+      PeriodicSource src(72, depths[d]);
+      SessionOptions o = Options(Schedule::kTandemLag, 0.05, seal);
+      o.parts = 4;
+      SealRun r = RunSealed(src, o);
+      ASSERT_EQ(r.parts, 4);
+      held[seal][d] = r.peak_held;
+      if (d == 1) settled[seal] = std::move(r);
     }
   }
-  std::printf("held triangles, 8x deeper: plain +%lld, sealed +%lld\n",
-              static_cast<long long>(growth[0]), static_cast<long long>(growth[1]));
-  EXPECT_GT(growth[0], 0);
-  EXPECT_LT(growth[1], growth[0] / 4);
+  std::printf("held triangles at %lld / %lld / %lld slices: plain %lld %lld, sealed %lld %lld %lld\n",
+              static_cast<long long>(depths[0]), static_cast<long long>(depths[1]),
+              static_cast<long long>(depths[2]), static_cast<long long>(held[0][0]),
+              static_cast<long long>(held[0][1]), static_cast<long long>(held[1][0]),
+              static_cast<long long>(held[1][1]), static_cast<long long>(held[1][2]));
+  EXPECT_LT(held[1][1] - held[1][0], (held[0][1] - held[0][0]) / 4);  // the seams only
+  EXPECT_LE(held[1][2], held[1][1] + held[1][1] / 20);                // then flat
+  const SealRun& plain = settled[0];
+  const SealRun& sealed = settled[1];
+  const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+  EXPECT_TRUE(s.IsManifold());  // open at z = 0 and the last slice
+  EXPECT_EQ(s.euler, p.euler);
+  EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0);
+  EXPECT_LE(sealed.error_max, 0.05 * (1 + 1e-9));
+  EXPECT_EQ(sealed.stats.sealed_vertices, static_cast<int64_t>(s.vertices));
+  // The settled seams stay at full resolution: a few per cent more triangles.
+  EXPECT_LT(static_cast<double>(s.triangles), 1.1 * static_cast<double>(p.triangles));
+  // A settled seam vertex is retired once, with its second copy: the writer puts out each
+  // vertex once, with the normal of all its triangles.
+  const std::string path = ::testing::TempDir() + "/settled.ply";
+  auto writer = ChunkedMeshWriter::Open(path);
+  ASSERT_TRUE(writer.ok()) << writer.status();
+  for (const SealedChunk& c : sealed.chunks) ASSERT_TRUE((*writer)->Add(c).ok());
+  ASSERT_TRUE((*writer)->Finish().ok());
+  auto read = ReadMesh(path);
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(read->num_vertices(), sealed.mesh.num_vertices());
+  EXPECT_EQ(TriangleSet(*read), TriangleSet(sealed.mesh));
 }
 
 TEST(Sealing, OptionsAreChecked) {
