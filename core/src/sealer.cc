@@ -261,6 +261,13 @@ bool Sealer::TakeChunk(SealedChunk* out) {
   if (pend_tris_.empty() && pend_retired_.empty()) return false;
   std::sort(pend_verts_.begin(), pend_verts_.end(),
             [](const PendingVertex& a, const PendingVertex& b) { return a.id < b.id; });
+  // After the merge, a settled seam vertex's two copies are two vertices of this store
+  // (SettleSeams): one id, listed once.
+  pend_verts_.erase(std::unique(pend_verts_.begin(), pend_verts_.end(),
+                                [](const PendingVertex& a, const PendingVertex& b) {
+                                  return a.id == b.id;
+                                }),
+                    pend_verts_.end());
   *out = SealedChunk{};
   out->index = chunks_++;
   out->positions.reserve(pend_verts_.size());

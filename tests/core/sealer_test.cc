@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <functional>
 #include <map>
 #include <tuple>
 #include <numbers>
@@ -353,6 +354,10 @@ TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
   EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0);
   EXPECT_LE(sealed.error_max, 0.05 * (1 + 1e-9));
   EXPECT_EQ(sealed.stats.sealed_vertices, static_cast<int64_t>(s.vertices));
+  for (const SealedChunk& c : sealed.chunks) {  // ids sorted, each once a chunk
+    EXPECT_EQ(std::adjacent_find(c.ids.begin(), c.ids.end(), std::greater_equal<uint32_t>()),
+              c.ids.end()) << c.index;
+  }
   // The settled seams stay at full resolution: a few per cent more triangles.
   EXPECT_LT(static_cast<double>(s.triangles), 1.1 * static_cast<double>(p.triangles));
   // A settled seam vertex is retired once, with its second copy: the writer puts out each
