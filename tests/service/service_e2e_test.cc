@@ -462,6 +462,26 @@ TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
   EXPECT_LT(got->distance->l1_max, 0.75) << "mean distance below E0";
 }
 
+// The names of the files in `dir`, sorted (chunk files are zero-padded: in chunk order).
+std::vector<std::string> SortedFileNames(const std::string& dir) {
+  std::vector<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    files.push_back(e.path().filename().string());
+  }
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+// A chunk file saved by `tandem-client stream --chunks`, decoded with its vertex ids.
+absl::StatusOr<SealedChunk> ReadChunkFile(const std::string& path) {
+  SealedChunk c;
+  absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(ReadFile(path), &c.ids);
+  if (!mesh.ok()) return mesh.status();
+  c.positions = std::move(mesh->positions);
+  c.indices = std::move(mesh->indices);
+  return c;
+}
+
 // Sealed chunks: every chunk saved, decoded with its vertex ids; the chunks weld into the
 // final mesh (closed, manifold, the plain stream's topology), a vertex two chunks share
 // decodes to bit-identical coordinates in both, and the bytes stay close to the plain
@@ -486,11 +506,7 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
 
   // The chunk files, zero-padded and in order, decoded with their ids.
-  std::vector<std::string> files;
-  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/chunks")) {
-    files.push_back(e.path().filename().string());
-  }
-  std::sort(files.begin(), files.end());
+  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks");
   ASSERT_GE(files.size(), 2u) << "a chunk a second over 2.4 s";
   std::vector<SealedChunk> chunks;
   std::map<uint32_t, Vec3> at;
@@ -499,11 +515,9 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
     char expected[32];
     std::snprintf(expected, sizeof(expected), "chunk_%06zu.drc", i);
     EXPECT_EQ(files[i], expected);
-    SealedChunk c;
-    auto mesh = codec::DecodeDraco(ReadFile(dir_ + "/chunks/" + files[i]), &c.ids);
-    ASSERT_TRUE(mesh.ok()) << mesh.status();
-    c.positions = mesh->positions;
-    c.indices = mesh->indices;
+    absl::StatusOr<SealedChunk> read = ReadChunkFile(dir_ + "/chunks/" + files[i]);
+    ASSERT_TRUE(read.ok()) << read.status();
+    SealedChunk c = *std::move(read);
     for (size_t v = 0; v < c.ids.size(); ++v) {
       auto [it, fresh] = at.emplace(c.ids[v], c.positions[v]);
       if (!fresh) {
@@ -573,19 +587,13 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
   auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
   ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
-  std::vector<std::string> files;
-  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/chunks")) {
-    files.push_back(e.path().filename().string());
-  }
-  std::sort(files.begin(), files.end());
+  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks");
   ASSERT_GE(files.size(), 2u);
   std::vector<SealedChunk> chunks;
   for (size_t i = 0; i < files.size(); ++i) {
-    SealedChunk c;
-    auto mesh = codec::DecodeDraco(ReadFile(dir_ + "/chunks/" + files[i]), &c.ids);
-    ASSERT_TRUE(mesh.ok()) << mesh.status();
-    c.positions = mesh->positions;
-    c.indices = mesh->indices;
+    absl::StatusOr<SealedChunk> read = ReadChunkFile(dir_ + "/chunks/" + files[i]);
+    ASSERT_TRUE(read.ok()) << read.status();
+    SealedChunk c = *std::move(read);
     if (i + 1 < files.size()) {  // along the way: from the first slab and the last
       double lo = 1e9, hi = -1e9;
       for (const Vec3& p : c.positions) {
@@ -954,11 +962,7 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
   auto report = ReportFromJson(ReadFile(dir_ + "/cut.json"));
   ASSERT_TRUE(report.ok()) << report.status();
   // Every chunk once, named without a gap.
-  std::vector<std::string> files;
-  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/chunks")) {
-    files.push_back(e.path().filename().string());
-  }
-  std::sort(files.begin(), files.end());
+  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks");
   ASSERT_FALSE(files.empty());
   char last[32];
   std::snprintf(last, sizeof(last), "chunk_%06zu.drc", files.size() - 1);
