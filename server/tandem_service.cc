@@ -25,6 +25,9 @@ namespace {
 using Request = v1::ExtractRequest;
 using Response = v1::ExtractResponse;
 
+// How long the final OK waits for a client's half-close after End (see PumpLocked).
+constexpr absl::Duration kOkGrace = absl::Seconds(1);
+
 // A call refused before it started (authentication): finishes at once.
 class RefusedCall final : public grpc::ServerBidiReactor<Request, Response> {
  public:
@@ -129,6 +132,10 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   int64_t inbox_bytes_ ABSL_GUARDED_BY(mu_) = 0;
   bool end_received_ ABSL_GUARDED_BY(mu_) = false;  // a message after it is an error
   bool input_closed_ ABSL_GUARDED_BY(mu_) = false;
+  // The final OK waits a moment for the half-close while a read after End is in flight,
+  // so that a message sent after End is refused whether or not the job was quick to end.
+  absl::Time ok_held_until_ ABSL_GUARDED_BY(mu_) = absl::InfinitePast();
+  bool ok_hold_over_ ABSL_GUARDED_BY(mu_) = false;
   bool cancelled_ ABSL_GUARDED_BY(mu_) = false;
   bool stalled_ ABSL_GUARDED_BY(mu_) = false;  // ended by the idle timeout
   absl::Time last_activity_ ABSL_GUARDED_BY(mu_);  // last read or write completed
@@ -279,6 +286,7 @@ void ExtractCall::OnReadDone(bool ok) {
   read_in_flight_ = false;
   if (!ok) {
     input_closed_ = true;  // half-close by the client, or the call is ending
+    PumpLocked();          // a held OK goes now
     return;
   }
   last_activity_ = absl::Now();
@@ -425,6 +433,13 @@ void ExtractCall::PumpLocked() {
     return;
   }
   if (finish_wanted_.has_value()) {
+    if (finish_wanted_->ok() && end_received_ && read_in_flight_ && !ok_hold_over_) {
+      // A read after End is in flight: the client may have sent one message too many.
+      // Hold the OK until that read completes (half-close or the message) or, for a
+      // client that keeps its side open, until WaitForFinish ends the grace.
+      if (ok_held_until_ == absl::InfinitePast()) ok_held_until_ = absl::Now() + kOkGrace;
+      return;
+    }
     finish_called_ = true;
     Finish(*finish_wanted_);
   }
@@ -671,10 +686,22 @@ void ExtractCall::WaitForFinish() {
     auto finished = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
       return finish_called_ || cancelled_;
     };
+    auto finished_or_held = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+      return finish_called_ || cancelled_ || ok_held_until_ != absl::InfinitePast();
+    };
     if (finished()) return;
     state_->sessions_draining.fetch_add(1);
     while (!finished() && !cancel) {
-      if (!AwaitProgressLocked(absl::Condition(&finished))) cancel = EndIdleStreamLocked();
+      if (ok_held_until_ != absl::InfinitePast()) {  // the OK waits for the half-close
+        if (!mu_.AwaitWithDeadline(absl::Condition(&finished), ok_held_until_)) {
+          ok_hold_over_ = true;
+          PumpLocked();
+        }
+        continue;
+      }
+      if (!AwaitProgressLocked(absl::Condition(&finished_or_held))) {
+        cancel = EndIdleStreamLocked();
+      }
     }
     state_->sessions_draining.fetch_sub(1);
   }

@@ -166,6 +166,45 @@ TEST_F(ServiceRobustnessTest, CancelledStreamLeavesNothingBehind) {
   EXPECT_TRUE(FinishedOk(RunStream(*stub_, Good())));
 }
 
+// A message after End is refused even when it comes after the session's final messages
+// (the job was quicker than the client): the OK waits for the half-close. A client that
+// never half-closes still gets its OK, after a short grace.
+TEST_F(ServiceRobustnessTest, AMessageAfterEndIsRefusedWhateverTheTiming) {
+  ASSERT_NO_FATAL_FAILURE(Start({}));
+  const std::vector<v1::ExtractRequest> requests = Good();
+  for (const bool send_extra : {true, false}) {
+    SCOPED_TRACE(send_extra ? "a chunk after the final metrics" : "no half-close");
+    grpc::ClientContext context;
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    auto stream = stub_->Extract(&context);
+    for (const v1::ExtractRequest& r : requests) ASSERT_TRUE(stream->Write(r));
+    v1::ExtractResponse response;
+    bool final_metrics = false;
+    while (!final_metrics && stream->Read(&response)) final_metrics = response.has_final_metrics();
+    ASSERT_TRUE(final_metrics);  // the job is done, its OK is due
+    const auto start = std::chrono::steady_clock::now();
+    if (send_extra) {
+      stream->Write(requests[1]);
+      stream->WritesDone();
+    }
+    while (stream->Read(&response)) {
+    }
+    const grpc::Status status = stream->Finish();
+    const double waited =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (send_extra) {
+      EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT)
+          << status.error_message();
+      EXPECT_NE(status.error_message().find("got a SliceChunk after End"), std::string::npos)
+          << status.error_message();
+    } else {
+      EXPECT_TRUE(status.ok()) << status.error_message();
+      EXPECT_LT(waited, 10.0);  // the grace is 1 s
+    }
+  }
+  EXPECT_TRUE(server_->WaitIdle(10));
+}
+
 // A reader that does not read while slices stream in gets a few recent previews, not one
 // per slice; they come in increasing slice order and each decodes.
 TEST_F(ServiceRobustnessTest, SlowReaderGetsFewerNewerPreviews) {
