@@ -219,6 +219,10 @@ void Sealer::Seal(double front) {
   }
 }
 
+void Sealer::DropDead() {
+  std::erase_if(active_, [this](VertexId v) { return !store_->vertex_alive(v); });
+}
+
 bool Sealer::NextToSeam(VertexId v) const {
   for (TriId t : store_->vertex_triangles(v)) {
     for (VertexId x : store_->triangle(t)) {
@@ -228,8 +232,9 @@ bool Sealer::NextToSeam(VertexId v) const {
   return false;
 }
 
-void Sealer::FreezeShared(VertexId v, uint32_t id) {
+void Sealer::FreezeShared(VertexId v, uint32_t id, double shape_error) {
   EnsureCapacity();
+  max_shape_error_ = std::max(max_shape_error_, shape_error);
   id_[v] = id;
   stamp_[v] = 0;
   if (simplifier_ != nullptr) {

@@ -18,8 +18,8 @@
 // does a vertex next to one (so that the seam can still be coarsened): the triangles around
 // them stay in the slab until the merge, where the schedule goes on from the seam (slabs.h);
 // then the merged sealer (Absorb) seals them. Far enough behind the front the session
-// freezes seam vertices as they are, in both slabs at once (FreezeShared), so that a deep
-// stream's seams do not pile up.
+// coarsens the seams and freezes their vertices in both slabs at once (SettleSeams,
+// FreezeShared), so that a deep stream's seams do not pile up.
 #ifndef TANDEM_SEALER_H_
 #define TANDEM_SEALER_H_
 
@@ -63,7 +63,13 @@ class Sealer {
   // slab gets too (the session hands these out, in an id space of its own); its triangles
   // are sealed as their other corners freeze. Its retirement, like any, is listed in a chunk:
   // the id is retired once both copies are (TandemSession::TakeSealed counts them).
-  void FreezeShared(VertexId v, uint32_t id);
+  // `shape_error`: ε0 of the welded vertex (both sides' quadrics), for max_shape_error.
+  void FreezeShared(VertexId v, uint32_t id, double shape_error);
+  // Forgets the unfrozen vertices contracted away outside SIMPLIFY (CoarsenSettlingSeam),
+  // whose ids the next EXTRACT may hand out again.
+  void DropDead();
+  // v's global id; kInvalid before one was handed out.
+  uint32_t id(VertexId v) const { return v < id_.size() ? id_[v] : kInvalid; }
 
   int64_t sealed_triangles() const { return sealed_triangles_; }
   int64_t pending_triangles() const { return static_cast<int64_t>(pend_tris_.size() / 3); }

@@ -501,6 +501,20 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
   ++version_[dst];
 }
 
+void Simplifier::ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a) {
+  Candidate c;
+  c.pos = pos;
+  c.eps0 = c.cost = eps0;
+  c.box_mask = store_->box_mask(a) | store_->box_mask(b);
+  ReleaseKey(a, b, &c);  // height, rad, layer of the new vertex
+  if (onto_a) {
+    c.height = store_->height(a);
+    c.rad = store_->rad(a);
+    c.layer = store_->layer(a);
+  }
+  Contract(a, b, c);
+}
+
 void Simplifier::AdoptCounters(const Simplifier& from) {
   refusals_ += from.refusals_;
   contractions_ += from.contractions_;

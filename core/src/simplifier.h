@@ -117,6 +117,15 @@ class Simplifier {
   void AdoptCounters(const Simplifier& from);
   void PushEdgesAround(std::span<const VertexId> verts);
 
+  // Seam coarsening (slabs.h, CoarsenSettlingSeam): the plane quadric of v (this side's
+  // triangles), the distance guard's bound K·E0, and a contraction ab -> pos decided outside
+  // (both slabs contract their copies of one seam edge to one point): a survives, as Simplify
+  // would contract it, without the checks, which the caller made (`onto_a`: a keeps its
+  // height, radius and layer, as its other copy does).
+  const Quadric& quadric(VertexId v) const { return vs_[v].q; }
+  double distance_bound() const { return opt_.distance_guard * opt_.error; }
+  void ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a);
+
   // Error(K) = max ε0 over live vertices, as MeasuredShapeError measures it (rounding noise
   // is not error).
   double MaxShapeError() const;

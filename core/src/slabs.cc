@@ -3,9 +3,14 @@
 #include <algorithm>
 #include <cassert>
 #include <limits>
+#include <queue>
 #include <stdexcept>
+#include <tuple>
 
+#include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
+#include "contraction_checks.h"
+#include "quadric.h"
 
 namespace tandem {
 namespace {
@@ -18,7 +23,229 @@ ReleaseRule RuleFor(Schedule s) {
   }
 }
 
+// A vertex of the welded mesh seen from either slab of a seam: a seam vertex by its left
+// copy (unsettled) or its shared id (settled), any other by its slab and id.
+class WeldedIds {
+ public:
+  WeldedIds(const Slab& left, const Slab& right,
+            const std::vector<std::pair<VertexId, VertexId>>& pairs)
+      : left_(left), right_(right) {
+    left_of_.reserve(pairs.size());
+    for (const auto& [a, b] : pairs) left_of_.emplace(b, a);
+  }
+  // (kind, id), or kind -1 for a right seam vertex not paired yet (refuse).
+  std::pair<int, uint64_t> Of(int side, VertexId v) const {
+    const Slab& slab = side == 0 ? left_ : right_;
+    const uint8_t mask = slab.store.box_mask(v);
+    if (!(mask & kSeam)) return {side, v};
+    if (mask & kFrozen) return {3, slab.sealer->id(v)};
+    if (side == 0) return {2, v};
+    const auto it = left_of_.find(v);
+    if (it == left_of_.end()) return {-1, 0};
+    return {2, it->second};
+  }
+  // The welded link of seam vertex a (copies la, ra): its neighbours in both slabs, each
+  // once, sorted. False if one is unknown.
+  bool Link(VertexId la, VertexId ra, std::vector<std::pair<int, uint64_t>>* out) const {
+    out->clear();
+    for (int side = 0; side < 2; ++side) {
+      const MeshStore& store = side == 0 ? left_.store : right_.store;
+      const VertexId a = side == 0 ? la : ra;
+      for (TriId t : store.vertex_triangles(a)) {
+        for (VertexId x : store.triangle(t)) {
+          if (x == a) continue;
+          out->push_back(Of(side, x));
+          if (out->back().first < 0) return false;
+        }
+      }
+    }
+    std::sort(out->begin(), out->end());
+    out->erase(std::unique(out->begin(), out->end()), out->end());
+    return true;
+  }
+
+ private:
+  const Slab& left_;
+  const Slab& right_;
+  absl::flat_hash_map<VertexId, VertexId> left_of_;  // right copy -> left copy
+};
+
 }  // namespace
+
+int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
+                            const std::vector<std::pair<VertexId, VertexId>>& pairs,
+                            double limit) {
+  // The settling seam vertices (left copy -> right copy).
+  absl::flat_hash_map<VertexId, VertexId> partner;
+  for (const auto& [a, b] : pairs) {
+    if (left.store.height(a) <= limit) partner.emplace(a, b);
+  }
+  if (partner.empty()) return 0;
+  Slab* const slab[2] = {&left, &right};
+  const double error = left.simplifier.error();
+  const double bound = left.simplifier.distance_bound();
+  // kSeamEdge: seam vertices a < b (left ids) to one point of the plane, in both slabs.
+  // 0 or 1: b, a vertex of that slab only, onto seam vertex a (left id), which stays put.
+  constexpr int kSeamEdge = -1;
+  struct Entry {
+    double cost;
+    int kind;
+    VertexId a, b;
+    uint32_t sa, sb;  // their stamps when evaluated
+    Vec3 pos;
+  };
+  auto later = [](const Entry& x, const Entry& y) {  // cheapest first, ties by ids
+    return std::tie(x.cost, x.kind, x.a, x.b) > std::tie(y.cost, y.kind, y.a, y.b);
+  };
+  std::priority_queue<Entry, std::vector<Entry>, decltype(later)> heap(later);
+  absl::flat_hash_map<VertexId, uint32_t> stamp[2];  // by slab and id (a seam vertex: left)
+  auto stamp_of = [&](int kind, VertexId b) -> uint32_t& {
+    return stamp[kind == kSeamEdge ? 0 : kind][b];
+  };
+  // The welded vertex's quadric: both sides' planes, as the merge would add them.
+  auto seam_quadric = [&](VertexId a) {
+    Quadric h = left.simplifier.quadric(a);
+    h += right.simplifier.quadric(partner.at(a));
+    return h;
+  };
+  auto evaluate = [&](int kind, VertexId a, VertexId b) {
+    if (kind == kSeamEdge && a > b) std::swap(a, b);
+    // On the grid's box too (the welded mesh's boundary): left as it is.
+    if (left.store.box_mask(a) & kBoxFaces) return;
+    Quadric h = seam_quadric(a);
+    Vec3 pos = left.store.position(a);
+    if (kind == kSeamEdge) {
+      if (left.store.box_mask(b) & kBoxFaces) return;
+      h += seam_quadric(b);
+      Vec3 ref = (pos + left.store.position(b)) * 0.5;
+      ref.x = pos.x;  // the seam's plane
+      pos = MinimizeQuadric(h, ref, /*fixed_axes=*/1);
+    } else {
+      const MeshStore& store = slab[kind]->store;
+      if (store.box_mask(b) & (kBoxFaces | kSeam | kFrozen)) return;
+      h += slab[kind]->simplifier.quadric(b);
+    }
+    const double eps0 = ShapeError(h, pos);
+    if (eps0 > error) return;
+    heap.push(Entry{eps0, kind, a, b, stamp[0][a], stamp_of(kind, b), pos});
+  };
+  // Every contraction of seam vertex a (left id) with a neighbour; `all_seam`: also seam
+  // neighbours with a smaller id (the first pass takes each seam edge from one end).
+  auto evaluate_around = [&](VertexId a, bool all_seam) {
+    for (int side = 0; side < 2; ++side) {
+      const MeshStore& store = slab[side]->store;
+      const VertexId as = side == 0 ? a : partner.at(a);
+      for (TriId t : store.vertex_triangles(as)) {
+        for (VertexId x : store.triangle(t)) {
+          if (x == as) continue;
+          if (!(store.box_mask(x) & kSeam)) {
+            evaluate(side, a, x);
+          } else if (side == 0 && partner.contains(x) && (all_seam || a < x)) {
+            evaluate(kSeamEdge, a, x);
+          }
+        }
+      }
+    }
+  };
+  for (const auto& [a, b] : partner) evaluate_around(a, false);
+
+  LinkScratch link_scratch;
+  std::vector<Survivor> survivors;
+  RefusalCounts refusals;
+  const WeldedIds welded(left, right, pairs);
+  std::vector<std::pair<int, uint64_t>> link_a, link_b, common;
+  // The corners opposite edge ab in `store`'s triangles on it (at most 2, else false).
+  auto opposites = [](const MeshStore& store, VertexId a, VertexId b, VertexId out[2], int* n) {
+    *n = 0;
+    for (TriId t : store.vertex_triangles(a)) {
+      const auto& tri = store.triangle(t);
+      if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
+      if (*n == 2) return false;
+      for (VertexId x : tri) {
+        if (x != a && x != b) out[*n] = x;
+      }
+      ++*n;
+    }
+    return true;
+  };
+  int64_t contracted = 0;
+  while (!heap.empty()) {
+    const Entry e = heap.top();
+    heap.pop();
+    if (stamp[0][e.a] != e.sa || stamp_of(e.kind, e.b) != e.sb) continue;
+    const VertexId ra = partner.at(e.a);
+    // The link condition on the welded mesh: the welded links of the two ends share exactly
+    // the corners opposite the edge, one in each of its two triangles (a seam edge: one
+    // in each slab), and those two are not joined (only seam vertices could be, across).
+    VertexId opp[2][2];
+    int n[2] = {0, 0};
+    std::pair<int, uint64_t> want[2];
+    if (e.kind == kSeamEdge) {
+      const VertexId rb = partner.at(e.b);
+      if (!opposites(left.store, e.a, e.b, opp[0], &n[0]) ||
+          !opposites(right.store, ra, rb, opp[1], &n[1]) || n[0] != 1 || n[1] != 1 ||
+          !welded.Link(e.a, ra, &link_a) || !welded.Link(e.b, rb, &link_b)) {
+        continue;
+      }
+      want[0] = welded.Of(0, opp[0][0]);
+      want[1] = welded.Of(1, opp[1][0]);
+    } else {
+      const int side = e.kind;
+      const MeshStore& store = slab[side]->store;
+      const VertexId as = side == 0 ? e.a : ra;
+      if (!opposites(store, as, e.b, opp[side], &n[side]) || n[side] != 2 ||
+          !welded.Link(e.a, ra, &link_a)) {
+        continue;
+      }
+      link_b.clear();  // b's link lies in its slab
+      for (TriId t : store.vertex_triangles(e.b)) {
+        for (VertexId x : store.triangle(t)) {
+          if (x != e.b) link_b.push_back(welded.Of(side, x));
+        }
+      }
+      std::sort(link_b.begin(), link_b.end());
+      link_b.erase(std::unique(link_b.begin(), link_b.end()), link_b.end());
+      want[0] = welded.Of(side, opp[side][0]);
+      want[1] = welded.Of(side, opp[side][1]);
+    }
+    if (want[0] == want[1] || (want[0].first >= 2 && want[1].first >= 2)) continue;
+    common.clear();
+    std::set_intersection(link_a.begin(), link_a.end(), link_b.begin(), link_b.end(),
+                          std::back_inserter(common));
+    std::sort(want, want + 2);
+    if (common.size() != 2 || common[0] != want[0] || common[1] != want[1]) continue;
+    // Each slab stays a manifold with its seam as boundary, and nothing folds on either side.
+    if (e.kind == kSeamEdge) {
+      const VertexId rb = partner.at(e.b);
+      if (!LinkCondition(left.store, e.a, e.b, &link_scratch) ||
+          !LinkCondition(right.store, ra, rb, &link_scratch) ||
+          !GeometryOk(left.store, e.a, e.b, e.pos, bound, &survivors, &refusals) ||
+          !GeometryOk(right.store, ra, rb, e.pos, bound, &survivors, &refusals)) {
+        continue;
+      }
+      left.simplifier.ContractAt(e.a, e.b, e.pos, e.cost, /*onto_a=*/false);
+      right.simplifier.ContractAt(ra, rb, e.pos, e.cost, /*onto_a=*/false);
+      partner.erase(e.b);
+    } else {
+      Slab& s = *slab[e.kind];
+      const VertexId as = e.kind == 0 ? e.a : ra;
+      if (!LinkCondition(s.store, as, e.b, &link_scratch) ||
+          !GeometryOk(s.store, as, e.b, e.pos, bound, &survivors, &refusals)) {
+        continue;
+      }
+      s.simplifier.ContractAt(as, e.b, e.pos, e.cost, /*onto_a=*/true);
+    }
+    ++stamp[0][e.a];
+    ++stamp_of(e.kind, e.b);
+    ++contracted;
+    evaluate_around(e.a, true);
+  }
+  if (contracted > 0) {
+    left.sealer->DropDead();  // before the next EXTRACT hands the dead ids out again
+    right.sealer->DropDead();
+  }
+  return contracted;
+}
 
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
   const int requested = options.parts;
@@ -91,7 +318,7 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
 }
 
 void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, int64_t* seam_ids) {
+                 double front, bool coarsen, int64_t* seam_ids) {
   const auto count = static_cast<int64_t>(slabs.size());
   const int64_t stride = SealerIdStride(static_cast<int>(count));
   const double limit = front - static_cast<double>(kSeamSettleSlices);
@@ -99,8 +326,10 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
     Slab& left = *slabs[s];
     Slab& right = *slabs[s + 1];
     auto& pairs = (*seams)[s];
+    if (coarsen) CoarsenSettlingSeam(left, right, pairs, limit);
     size_t keep = 0;
     for (const auto& [a, b] : pairs) {
+      if (!left.store.vertex_alive(a)) continue;  // contracted away just now
       if (left.store.height(a) > limit) {
         pairs[keep++] = {a, b};
         continue;
@@ -112,8 +341,14 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
       ++*seam_ids;
       // Both slabs computed the point from the same grid edge; one position, bit for bit.
       right.store.set_position(b, left.store.position(a));
-      left.sealer->FreezeShared(a, static_cast<uint32_t>(id));
-      right.sealer->FreezeShared(b, static_cast<uint32_t>(id));
+      double shape_error = 0;  // Error(K) at the welded vertex: both sides' planes
+      if (coarsen) {
+        Quadric h = left.simplifier.quadric(a);
+        h += right.simplifier.quadric(b);
+        shape_error = MeasuredShapeError(h, left.store.position(a));
+      }
+      left.sealer->FreezeShared(a, static_cast<uint32_t>(id), shape_error);
+      right.sealer->FreezeShared(b, static_cast<uint32_t>(id), shape_error);
     }
     pairs.resize(keep);
   }

@@ -3,8 +3,9 @@
 //
 // Slab p owns cube columns [c_p, c_{p+1}) and grid columns c_p .. c_{p+1}: neighbours share the
 // plane of grid column c_{p+1}. The vertices on that plane's y- and z-edges belong to both
-// (kSeam) and are never contracted while the stream lasts, so every contraction inside a slab
-// is exactly a contraction of the whole mesh (same stars, same link condition). At the end the
+// (kSeam) and are never contracted by a slab's own schedule, so every contraction inside a slab
+// is exactly a contraction of the whole mesh (same stars, same link condition); a sealed
+// session coarsens them, in both slabs at once, only as they settle (SettleSeams). At the end the
 // slabs are merged into the first, the seam copies welded (their quadrics add up to the whole
 // one), and the schedule goes on from the edges at the seam (schedule.h). The split is part of
 // the result: parts = 1 is the paper's algorithm with nothing deferred.
@@ -58,7 +59,7 @@ struct Slab {
   TargetControl* target = nullptr;
   std::vector<int64_t> recent_layers;
   std::function<void()> waker;
-  int64_t seam_vertices = 0;  // made so far (never contracted before the merge)
+  int64_t seam_vertices = 0;  // made so far
 };
 
 // seams[s]: (vertex in slab s, its copy in slab s+1), per shared grid edge.
@@ -86,13 +87,25 @@ inline uint32_t SealerIdStride(int count) {
   return count == 1 ? 1u : static_cast<uint32_t>(count) + 1u;
 }
 
-// Sealing: seam vertices this many slices or more below the front freeze as they are, in both
-// slabs (Sealer::FreezeShared), and leave `seams`; `seam_ids` counts the ids handed out. So
-// the triangles at the seams that wait for the merge follow the front, not the depth; what a
-// settled seam vertex gives up is its contraction at the merge.
+// Sealing: seam vertices this many slices or more below the front freeze, in both slabs
+// (Sealer::FreezeShared), and leave `seams`; `seam_ids` counts the ids handed out. So the
+// triangles at the seams that wait for the merge follow the front, not the depth. With
+// `coarsen` (a simplifying session) the settling part of each seam is first coarsened along
+// itself (CoarsenSettlingSeam); what a settled seam vertex gives up is a contraction off
+// the seam's plane at the merge.
 inline constexpr int64_t kSeamSettleSlices = 512;
 void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, int64_t* seam_ids);
+                 double front, bool coarsen, int64_t* seam_ids);
+
+// Contracts edges of the seam between `left` and `right` whose ends are both at height
+// <= limit, in both slabs at once: cheapest first, each to the point of the seam's plane
+// that minimises both sides' quadrics, while that costs at most E0 and passes the link
+// condition of the welded mesh, each slab's own and the geometry checks on both sides.
+// The seam vertices of the box's faces stay. Returns the number of contractions; the
+// contracted-away pairs are dead in both stores (the caller drops them from `pairs`).
+int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
+                            const std::vector<std::pair<VertexId, VertexId>>& pairs,
+                            double limit);
 
 // Moves the slabs' new seam vertices into `seams` (both sides list the same grid edges in the
 // same order). INTERNAL if two neighbours disagree.

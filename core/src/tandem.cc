@@ -340,7 +340,7 @@ void TandemSession::Impl::MaybeSettleSeams() {
   }
   if (!Sync().ok()) return;  // the failure is reported by the caller
   SettleSeams(slabs, &seams, static_cast<double>(slabs[0]->extractor.slices_done() - 1),
-              &seam_ids);
+              options.schedule != Schedule::kNone, &seam_ids);
 }
 
 void TandemSession::Impl::Record() {

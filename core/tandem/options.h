@@ -56,8 +56,8 @@ struct SessionOptions {
   // (TakeSealed): the session then holds the front, not the mesh, and the chunks together
   // are the result (WeldChunks; Snapshot() is only what is not sealed yet). With several
   // parts, the triangles at a seam wait for the merge at the end, up to 512 slices behind the
-  // front, where the seam is sealed as it is (sealer.h); no target triangle count (that needs
-  // the whole mesh at the end).
+  // front, where the seam is coarsened in both parts at once and sealed (slabs.h); no target
+  // triangle count (that needs the whole mesh at the end).
   bool seal = false;
   double seal_margin = 2;
   // The rules the options must satisfy, here and nowhere else. A refusal is
