@@ -437,6 +437,44 @@ TEST(Sealing, SettledSeamsAreCoarsenedFirst) {
   }
 }
 
+// The seam coarsening on a surface with many small components and grid values equal to the
+// iso-value (several seam vertices at one grid point): the welded mesh keeps the plain
+// session's topology, component by component, and the error bound. Without the coarsening
+// it kept up to 6.8 % more triangles at E0 = 0.6.
+TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
+  const int64_t depth = kSeamSettleSlices + 64;
+  for (int seed = 0; seed < 2; ++seed) {
+    for (double e0 : {0.2, 0.6}) {
+      auto field = [seed](double i, double j, double k) { return QuantisedTangle(seed, i, j, k); };
+      FieldSource plain_src(72, 40, depth, field), sealed_src(72, 40, depth, field);
+      SessionOptions o = Options(Schedule::kTandemLag, e0, false);
+      o.iso = 4.0;
+      o.parts = 4;
+      const SealRun plain = RunSealed(plain_src, o);
+      o.seal = true;
+      const SealRun sealed = RunSealed(sealed_src, o);
+      const std::string what = "seed " + std::to_string(seed) + " E0 " + std::to_string(e0);
+      const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+      EXPECT_TRUE(s.IsManifold()) << what;
+      EXPECT_EQ(s.euler, p.euler) << what;
+      EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;
+      EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0) << what;
+      EXPECT_LE(sealed.error_max, e0 * (1 + 1e-9)) << what;
+      EXPECT_LT(static_cast<double>(s.triangles), 1.02 * static_cast<double>(p.triangles))
+          << what;
+      // Settled as they were, the seams kept 323-526 zero-area triangles here (iso-hits at
+      // seam grid points); coarsened, 8-23, those at the grid's box or where the link
+      // condition refuses (the plain session's final pass mends those, 0-3).
+      const int64_t degenerate_plain = CountDegenerate(plain.mesh);
+      const int64_t degenerate_sealed = CountDegenerate(sealed.mesh);
+      EXPECT_LE(degenerate_sealed, degenerate_plain + 30) << what;
+      std::printf("%s: triangles plain %zu sealed %zu, zero-area %lld / %lld\n", what.c_str(),
+                  p.triangles, s.triangles, static_cast<long long>(degenerate_plain),
+                  static_cast<long long>(degenerate_sealed));
+    }
+  }
+}
+
 TEST(Sealing, OptionsAreChecked) {
   SessionOptions o = Options(Schedule::kTandemLag, 0.1, true);
   o.target_triangles = 100;
