@@ -25,6 +25,14 @@ enum BoxFace : uint8_t {
   kBoxXMin = 1, kBoxXMax = 2, kBoxYMin = 4, kBoxYMax = 8, kBoxZMin = 16, kBoxZMax = 32,
 };
 inline constexpr uint8_t kBoxFaces = kBoxXMin | kBoxXMax | kBoxYMin | kBoxYMax | kBoxZMin | kBoxZMax;
+// The axes (bit 0: x, 1: y, 2: z) whose coordinate the box faces in `box_mask` fix.
+inline uint8_t FixedAxes(uint8_t box_mask) {
+  uint8_t axes = 0;
+  if (box_mask & (kBoxXMin | kBoxXMax)) axes |= 1;
+  if (box_mask & (kBoxYMin | kBoxYMax)) axes |= 2;
+  if (box_mask & (kBoxZMin | kBoxZMax)) axes |= 4;
+  return axes;
+}
 enum VertexFlag : uint8_t {
   // On a grid edge of the plane between two slabs (slabs.h), shared with the neighbouring
   // slab. The simplifier never moves it until the slabs are merged.

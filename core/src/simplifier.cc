@@ -8,18 +8,6 @@
 #include "grow.h"
 
 namespace tandem {
-namespace {
-
-// Bits of BoxFace per axis, and the axes they fix.
-uint8_t FixedAxes(uint8_t box_mask) {
-  uint8_t axes = 0;
-  if (box_mask & (kBoxXMin | kBoxXMax)) axes |= 1;
-  if (box_mask & (kBoxYMin | kBoxYMax)) axes |= 2;
-  if (box_mask & (kBoxZMin | kBoxZMax)) axes |= 4;
-  return axes;
-}
-
-}  // namespace
 
 Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
     : store_(store), opt_(options), q_(options.error) {}

@@ -110,17 +110,25 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
   };
   auto evaluate = [&](int kind, VertexId a, VertexId b) {
     if (kind == kSeamEdge && a > b) std::swap(a, b);
-    // On the grid's box too (the welded mesh's boundary): left as it is.
-    if (left.store.box_mask(a) & kBoxFaces) return;
     Quadric h = seam_quadric(a);
     Vec3 pos = left.store.position(a);
     if (kind == kSeamEdge) {
-      if (left.store.box_mask(b) & kBoxFaces) return;
+      // A vertex on the grid's box (the welded mesh's boundary) keeps to its faces, as in
+      // Simplifier::Evaluate; two of them are left as they are.
+      const uint8_t fa = left.store.box_mask(a) & kBoxFaces;
+      const uint8_t fb = left.store.box_mask(b) & kBoxFaces;
+      if (fa != 0 && fb != 0) return;
       h += seam_quadric(b);
-      Vec3 ref = (pos + left.store.position(b)) * 0.5;
+      const Vec3 pb = left.store.position(b);
+      Vec3 ref = (pos + pb) * 0.5;
+      const uint8_t fixed = FixedAxes(fa | fb);
+      for (int i = 1; i < 3; ++i) {
+        if ((fixed >> i) & 1) ref[i] = fa != 0 ? pos[i] : pb[i];
+      }
       ref.x = pos.x;  // the seam's plane
-      pos = MinimizeQuadric(h, ref, /*fixed_axes=*/1);
+      pos = MinimizeQuadric(h, ref, static_cast<uint8_t>(fixed | 1));
     } else {
+      // Onto a seam vertex, which stays put (on the box or not).
       const MeshStore& store = slab[kind]->store;
       if (store.box_mask(b) & (kBoxFaces | kSeam | kFrozen)) return;
       h += slab[kind]->simplifier.quadric(b);
