@@ -18,7 +18,7 @@ For each volume, against one tandem-server on 127.0.0.1 (default flags, except
 Nothing is asserted; the figures are printed as a Markdown table (and written to --report).
 
     /usr/bin/python3 tests/bench/keep_pace.py --bin build/bin --volume V.json [--volume ...]
-        [--repeats 3] [--fraction 0.8] [--session-memory-mb N] [--report FILE]
+        [--repeats 3] [--fraction 0.8] [--session-memory-mb N] [--seal] [--report FILE]
 """
 
 import argparse
@@ -36,11 +36,11 @@ sys.path.insert(0, HERE)
 import dense  # noqa: E402  (Server: a tandem-server on a free loopback port)
 
 
-def stream(client, address, volume, workdir, rate=0.0):
+def stream(client, address, volume, workdir, rate=0.0, extra=()):
     """One tandem-client stream; returns (wall s, progress [(t, consumed, sent)])."""
     out = os.path.join(workdir, "out.drc")
     cmd = [client, "stream", "--server", address, "--input", volume, "--out", out,
-           "--timeout", "3600", "--verbose"]
+           "--timeout", "3600", "--verbose", *extra]
     if rate > 0:
         cmd += ["--rate", f"{rate:.6g}"]
     t0 = time.perf_counter()
@@ -97,7 +97,10 @@ def main():
     ap.add_argument("--fraction", type=float, default=0.8)
     ap.add_argument("--session-memory-mb", type=int, default=0)
     ap.add_argument("--report", help="also write the table to this file")
+    ap.add_argument("--seal", action="store_true",
+                    help="stream with tandem-client --seal (sealed chunks)")
     args = ap.parse_args()
+    extra = ["--seal"] if args.seal else []
     # A SIGTERM unwinds like an exception, so that the server below is stopped too.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     server_bin = os.path.join(args.bin, "tandem-server")
@@ -109,11 +112,11 @@ def main():
         try:
             for volume in args.volume:
                 nz = nz_of(volume)
-                walls = [stream(client_bin, server.address, volume, work)[0]
+                walls = [stream(client_bin, server.address, volume, work, extra=extra)[0]
                          for _ in range(args.repeats)]
                 r_max = nz / statistics.median(walls)
                 rate = args.fraction * r_max
-                wall, progress = stream(client_bin, server.address, volume, work, rate)
+                wall, progress = stream(client_bin, server.address, volume, work, rate, extra)
                 f = paced_figures(wall, progress, nz, rate)
                 rows.append((os.path.basename(volume), nz, walls, r_max, rate, wall, f))
                 print(f"{os.path.basename(volume)}: R_max {r_max:.2f} slices/s (walls "
