@@ -33,6 +33,18 @@ inline uint8_t FixedAxes(uint8_t box_mask) {
   if (box_mask & (kBoxZMin | kBoxZMax)) axes |= 4;
   return axes;
 }
+// The reference point of a contraction ab (MinimizeQuadric's): the midpoint, with the
+// box-fixed coordinates taken from the end on more box faces (ma, mb: their masks; one's
+// faces include the other's).
+inline Vec3 BoxedMidpoint(Vec3 pa, uint8_t ma, Vec3 pb, uint8_t mb) {
+  const Vec3 big = ((ma & mb) == ma) ? pb : pa;
+  const uint8_t fixed = FixedAxes(ma | mb);
+  Vec3 ref = (pa + pb) * 0.5;
+  for (int i = 0; i < 3; ++i) {
+    if ((fixed >> i) & 1) ref[i] = big[i];
+  }
+  return ref;
+}
 enum VertexFlag : uint8_t {
   // On a grid edge of the plane between two slabs (slabs.h), shared with the neighbouring
   // slab. The simplifier never moves it until the slabs are merged.

@@ -63,17 +63,10 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
   const uint8_t common = ma & mb;
   if (common != ma && common != mb) return false;  // on different box faces: refuse
-  const VertexId big = (common == ma) ? b : a;       // the vertex on more box faces
-  const Vec3 pa = store_->position(a), pb = store_->position(b);
   Quadric h = vs_[a].q;
   h += vs_[b].q;
   const uint8_t fixed = FixedAxes(ma | mb);
-  // Reference point: the midpoint, with box-fixed coordinates taken from the box vertex.
-  Vec3 ref = (pa + pb) * 0.5;
-  const Vec3 pbig = store_->position(big);
-  for (int i = 0; i < 3; ++i) {
-    if ((fixed >> i) & 1) ref[i] = pbig[i];
-  }
+  const Vec3 ref = BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
 
   if (opt_.alpha > 0.0) {
     // Memoryless isotropy term over T_ab, the triangles around a or b (each once).

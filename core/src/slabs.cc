@@ -44,17 +44,18 @@ class WeldedIds {
     if (it == left_of_.end()) return {-1, 0};
     return {2, it->second};
   }
-  // The welded link of seam vertex a (copies la, ra): its neighbours in both slabs, each
+  // The welded link of a vertex: its neighbours in slab `side` as copy v there, and for a
+  // seam vertex in the other slab too as copy w (kInvalid: a vertex of one slab), each
   // once, sorted. False if one is unknown.
-  bool Link(VertexId la, VertexId ra, std::vector<std::pair<int, uint64_t>>* out) const {
+  bool Link(int side, VertexId v, VertexId w, std::vector<std::pair<int, uint64_t>>* out) const {
     out->clear();
-    for (int side = 0; side < 2; ++side) {
-      const MeshStore& store = side == 0 ? left_.store : right_.store;
-      const VertexId a = side == 0 ? la : ra;
+    for (const auto& [s, a] : {std::pair{side, v}, std::pair{1 - side, w}}) {
+      if (a == kInvalid) continue;
+      const MeshStore& store = s == 0 ? left_.store : right_.store;
       for (TriId t : store.vertex_triangles(a)) {
         for (VertexId x : store.triangle(t)) {
           if (x == a) continue;
-          out->push_back(Of(side, x));
+          out->push_back(Of(s, x));
           if (out->back().first < 0) return false;
         }
       }
@@ -69,6 +70,13 @@ class WeldedIds {
   const Slab& right_;
   absl::flat_hash_map<VertexId, VertexId> left_of_;  // right copy -> left copy
 };
+
+// The welded seam vertex's quadric: both sides' planes, as the merge adds them.
+Quadric WeldedQuadric(const Slab& left, VertexId a, const Slab& right, VertexId b) {
+  Quadric h = left.simplifier.quadric(a);
+  h += right.simplifier.quadric(b);
+  return h;
+}
 
 }  // namespace
 
@@ -102,12 +110,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
   auto stamp_of = [&](int kind, VertexId b) -> uint32_t& {
     return stamp[kind == kSeamEdge ? 0 : kind][b];
   };
-  // The welded vertex's quadric: both sides' planes, as the merge would add them.
-  auto seam_quadric = [&](VertexId a) {
-    Quadric h = left.simplifier.quadric(a);
-    h += right.simplifier.quadric(partner.at(a));
-    return h;
-  };
+  auto seam_quadric = [&](VertexId a) { return WeldedQuadric(left, a, right, partner.at(a)); };
   auto evaluate = [&](int kind, VertexId a, VertexId b) {
     if (kind == kSeamEdge && a > b) std::swap(a, b);
     Quadric h = seam_quadric(a);
@@ -119,14 +122,9 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
       const uint8_t fb = left.store.box_mask(b) & kBoxFaces;
       if (fa != 0 && fb != 0) return;
       h += seam_quadric(b);
-      const Vec3 pb = left.store.position(b);
-      Vec3 ref = (pos + pb) * 0.5;
-      const uint8_t fixed = FixedAxes(fa | fb);
-      for (int i = 1; i < 3; ++i) {
-        if ((fixed >> i) & 1) ref[i] = fa != 0 ? pos[i] : pb[i];
-      }
+      Vec3 ref = BoxedMidpoint(pos, fa, left.store.position(b), fb);
       ref.x = pos.x;  // the seam's plane
-      pos = MinimizeQuadric(h, ref, static_cast<uint8_t>(fixed | 1));
+      pos = MinimizeQuadric(h, ref, static_cast<uint8_t>(FixedAxes(fa | fb) | 1));
     } else {
       // Onto a seam vertex, which stays put (on the box or not).
       const MeshStore& store = slab[kind]->store;
@@ -192,7 +190,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
       const VertexId rb = partner.at(e.b);
       if (!opposites(left.store, e.a, e.b, opp[0], &n[0]) ||
           !opposites(right.store, ra, rb, opp[1], &n[1]) || n[0] != 1 || n[1] != 1 ||
-          !welded.Link(e.a, ra, &link_a) || !welded.Link(e.b, rb, &link_b)) {
+          !welded.Link(0, e.a, ra, &link_a) || !welded.Link(0, e.b, rb, &link_b)) {
         continue;
       }
       want[0] = welded.Of(0, opp[0][0]);
@@ -202,17 +200,9 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
       const MeshStore& store = slab[side]->store;
       const VertexId as = side == 0 ? e.a : ra;
       if (!opposites(store, as, e.b, opp[side], &n[side]) || n[side] != 2 ||
-          !welded.Link(e.a, ra, &link_a)) {
+          !welded.Link(0, e.a, ra, &link_a) || !welded.Link(side, e.b, kInvalid, &link_b)) {
         continue;
       }
-      link_b.clear();  // b's link lies in its slab
-      for (TriId t : store.vertex_triangles(e.b)) {
-        for (VertexId x : store.triangle(t)) {
-          if (x != e.b) link_b.push_back(welded.Of(side, x));
-        }
-      }
-      std::sort(link_b.begin(), link_b.end());
-      link_b.erase(std::unique(link_b.begin(), link_b.end()), link_b.end());
       want[0] = welded.Of(side, opp[side][0]);
       want[1] = welded.Of(side, opp[side][1]);
     }
@@ -349,12 +339,10 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
       ++*seam_ids;
       // Both slabs computed the point from the same grid edge; one position, bit for bit.
       right.store.set_position(b, left.store.position(a));
-      double shape_error = 0;  // Error(K) at the welded vertex: both sides' planes
-      if (coarsen) {
-        Quadric h = left.simplifier.quadric(a);
-        h += right.simplifier.quadric(b);
-        shape_error = MeasuredShapeError(h, left.store.position(a));
-      }
+      // Error(K) at the welded vertex: both sides' planes.
+      const double shape_error =
+          coarsen ? MeasuredShapeError(WeldedQuadric(left, a, right, b), left.store.position(a))
+                  : 0.0;
       left.sealer->FreezeShared(a, static_cast<uint32_t>(id), shape_error);
       right.sealer->FreezeShared(b, static_cast<uint32_t>(id), shape_error);
     }
