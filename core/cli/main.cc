@@ -136,7 +136,8 @@ int Extract(int argc, char** argv) {
   flags.AddInt("parts", &parts,
                "split the grid along x into N slabs, simplified side by side on their own "
                "threads and merged at the end (their seams simplified last); 1 = the paper's "
-               "algorithm unchanged; 0 = automatic: 4 on grids at least 256 wide, else 1");
+               "algorithm unchanged; 0 = automatic: 4 on grids at least 256 wide, 2 on grids at "
+               "least 128 wide, else 1");
   flags.AddInt("samples", &samples,
                "surface samples per direction for --reference (0 = automatic)");
   flags.SetEpilog(

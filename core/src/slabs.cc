@@ -248,7 +248,8 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
   const int requested = options.parts;
   constexpr int64_t kMinColumns = 16;  // cube columns per slab, at least
-  const int64_t wanted = requested > 0 ? requested : (grid.nx >= 256 ? 4 : 1);
+  const int64_t wanted =
+      requested > 0 ? requested : (grid.nx >= 256 ? 4 : grid.nx >= 128 ? 2 : 1);
   return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinColumns)));
 }
 

@@ -48,8 +48,9 @@ struct SessionOptions {
                                 // simplified (tandem schedules) and half of every large
                                 // batch of edge evaluations (DELAY, ACTIVATE)
   int parts = 0;                // slabs along x (see above); 0 = automatic: 4 when the grid
-                                // is at least 256 wide, else 1. At most one part per 16
-                                // columns (fewer are used on narrow grids).
+                                // is at least 256 wide, 2 when at least 128, else 1. At
+                                // most one part per 16 columns (fewer are used on narrow
+                                // grids).
   static constexpr int kMaxParts = 64;
   // Sealing: behind the sweep, vertices whose reach lies seal_margin slices below
   // the front freeze, and the triangles they complete leave the session as sealed chunks
