@@ -1,6 +1,7 @@
 #include "cli/extract_flags.h"
 
 #include <algorithm>
+#include <limits>
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
@@ -88,6 +89,11 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                 "spacing, whichever is smaller, and rises as the mesh grows, so N is reached "
                 "whatever --error is (unless the surface's components need more); the summary "
                 "and --metrics (error_reached) give the E0 reached; 0 = off");
+  flags->AddInt("parts", &parts,
+                "split the grid along x into N slabs, simplified side by side on their own "
+                "threads and merged at the end (their seams simplified last); 1 = the paper's "
+                "algorithm unchanged; 0 = automatic: 4 on grids at least 256 wide, 2 on grids "
+                "at least 128 wide, else 1");
   flags->AddBool("seal", &seal,
                  "seal the mesh behind the sweep: vertices whose reach lies --seal-margin "
                  "slices below the front never change again and their triangles leave the "
@@ -162,6 +168,9 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
   o.target_triangles = target_triangles;
   o.seal = seal;
   o.seal_margin = seal_margin;
+  // Clamped to int: a count out of range stays out of range for Validate().
+  o.parts = static_cast<int>(std::clamp<int64_t>(parts, std::numeric_limits<int>::min(),
+                                                 std::numeric_limits<int>::max()));
   auto sched = ParseSchedule(schedule);
   if (!sched.ok()) return sched.status();
   o.schedule = no_simplify ? Schedule::kNone : *sched;

@@ -22,7 +22,7 @@ struct ExtractFlags {
   double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
   double settle = 10;
-  int64_t target_triangles = 0, expect_slices = 0;
+  int64_t target_triangles = 0, expect_slices = 0, parts = 0;
   int64_t quantization_bits = 16, compression_level = 7;  // Draco
   bool follow = false, seal = false, no_simplify = false, reference = false, strict = false;
   bool quiet = false, glb_draco = false;

@@ -126,18 +126,13 @@ std::string DistanceTable(const Distances& d) {
 
 int Extract(int argc, char** argv) {
   cli::ExtractFlags f;
-  int64_t samples = 0, parts = 0;
+  int64_t samples = 0;
   cli::FlagSet flags(
       "usage: tandem extract --input FILE --out MESH [flags]\n"
       "Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by layer\n"
       "(marching cubes) and simplifies it in tandem by quadric-error edge contraction.");
   f.Add(&flags, "output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex normals, "
                 "binary STL (.stl), or glTF binary (.glb)");
-  flags.AddInt("parts", &parts,
-               "split the grid along x into N slabs, simplified side by side on their own "
-               "threads and merged at the end (their seams simplified last); 1 = the paper's "
-               "algorithm unchanged; 0 = automatic: 4 on grids at least 256 wide, 2 on grids at "
-               "least 128 wide, else 1");
   flags.AddInt("samples", &samples,
                "surface samples per direction for --reference (0 = automatic)");
   flags.SetEpilog(
@@ -211,10 +206,6 @@ int Extract(int argc, char** argv) {
     outs.push_back(*std::move(name));
   }
   opt.iso = isos[0].value;
-  // Clamped to int: a count out of range stays out of range for Validate().
-  opt.parts = static_cast<int>(std::clamp<int64_t>(parts, std::numeric_limits<int>::min(),
-                                                   std::numeric_limits<int>::max()));
-  if (absl::Status st = opt.ValidateFor(info); !st.ok()) return Fail(cli::NameOptionFlag(st));
 
   cli::Progress progress("slices");
   ValueRangeSource range(source->get());

@@ -61,6 +61,7 @@ TEST(ValidateConfig, AcceptsAGoodConfigAndAppliesDefaults) {
   EXPECT_EQ(cfg->options.alpha, 0.25);
   EXPECT_EQ(cfg->options.distance_guard, 2.0);  // unset: the core default
   EXPECT_EQ(cfg->options.sag_correction, 0.3);
+  EXPECT_EQ(cfg->options.parts, 0);  // unset: automatic
   EXPECT_EQ(cfg->draco.quantization_bits, 16);
   EXPECT_EQ(cfg->draco.compression_level, 7);
   EXPECT_EQ(cfg->preview_every_slices, 0);
@@ -74,6 +75,7 @@ TEST(ValidateConfig, ReadsSpacingOriginAndDraco) {
   c.mutable_draco()->set_compression_level(0);
   c.mutable_preview()->set_every_slices(4);
   c.mutable_preview()->set_min_interval_ms(250);
+  c.set_parts(3);
   auto cfg = ValidateConfig(c, ServerLimits{});
   ASSERT_TRUE(cfg.ok()) << cfg.status();
   EXPECT_EQ(cfg->grid.spacing[2], 1.5);
@@ -82,6 +84,7 @@ TEST(ValidateConfig, ReadsSpacingOriginAndDraco) {
   EXPECT_EQ(cfg->draco.compression_level, 0);
   EXPECT_EQ(cfg->preview_every_slices, 4);
   EXPECT_EQ(cfg->preview_min_interval_ms, 250);
+  EXPECT_EQ(cfg->options.parts, 3);
 }
 
 TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
@@ -133,6 +136,8 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        absl::StatusCode::kInvalidArgument, "config.sag_correction"},
       {[](auto* c) { c->set_target_triangles(-3); }, absl::StatusCode::kInvalidArgument,
        "config.target_triangles"},
+      {[](auto* c) { c->set_parts(-1); }, absl::StatusCode::kInvalidArgument, "config.parts"},
+      {[](auto* c) { c->set_parts(65); }, absl::StatusCode::kInvalidArgument, "config.parts = 65"},
       {[](auto* c) { c->set_schedule(static_cast<v1::Schedule>(9)); },
        absl::StatusCode::kInvalidArgument, "config.schedule"},
       {[](auto* c) { c->mutable_draco()->set_quantization_bits(31); },

@@ -618,6 +618,45 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   EXPECT_LE(sealed_report->error_max, 0.2 * (1 + 1e-9));
 }
 
+// SessionConfig.parts (tandem-client --parts): the split the client asks for is the one the
+// server's session runs, so each stream's mesh is the local session's with the same parts,
+// and unset is the automatic split (2 on this 160-wide grid).
+TEST_F(ServiceE2eTest, ThePartsAskedForAreTheSessionsSplit) {
+  auto path = WriteSyntheticVolume(
+      dir_, "gyroid", MakeSyntheticSource(Shape::kGyroid, 160, 40, 40, {1, 4, 4}));
+  ASSERT_TRUE(path.ok()) << path.status();
+  std::set<size_t> counts;
+  for (int parts : {0, 1, 2, 5}) {
+    SCOPED_TRACE(parts);
+    const std::string ply = dir_ + "/p" + std::to_string(parts) + ".ply";
+    std::vector<std::string> args = {"stream", "--server", server_->address(), "--input", *path,
+                                     "--iso", "0", "--error", "0.3", "--out", ply};
+    if (parts > 0) args = Concat(args, {"--parts", std::to_string(parts)});
+    RunResult r = Client(args);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    SessionOptions o;
+    o.error = 0.3;
+    o.parts = parts == 0 ? 2 : parts;
+    auto local = RunLocal(*path, o);
+    ASSERT_TRUE(local.ok()) << local.status();
+    ASSERT_EQ((*local)->num_parts(), 1);  // merged at Finish
+    const IndexedMesh expected = (*local)->Snapshot();
+    auto mesh = ReadMesh(ply);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    ASSERT_EQ(mesh->num_triangles(), expected.num_triangles());
+    auto map = MatchVertices(expected, *mesh, codec::PositionTolerance(expected, 16));
+    ASSERT_TRUE(map.ok()) << map.status();
+    EXPECT_TRUE(SameTriangles(expected, *mesh, *map));
+    counts.insert(expected.num_triangles());
+  }
+  EXPECT_EQ(counts.size(), 3u);  // 1, 2 and 5 parts: three different meshes
+  // Out of range: refused before any slice, naming the field.
+  RunResult bad = Client({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                          "0", "--parts", "65", "--out", dir_ + "/bad.ply"});
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.err.find("--parts 65"), std::string::npos) << bad.err;
+}
+
 // The session id a streaming client prints (bounded wait; "" if it never does).
 std::string SessionIdOf(ChildProcess& streamer) {
   for (int i = 0; i < 200; ++i) {
