@@ -61,6 +61,23 @@ def log(msg):
     print(msg, flush=True)
 
 
+# The hand-written part of a generated report: from NOTES_BEGIN to NOTES_END of the existing
+# file, kept when the report is written again (None: the file has none).
+NOTES_BEGIN, NOTES_END = "<!-- notes -->", "<!-- /notes -->"
+
+
+def read_notes(path):
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError:
+        return None
+    a, b = text.find(NOTES_BEGIN), text.find(NOTES_END)
+    if a < 0 or b < a:
+        return None
+    return text[a:b + len(NOTES_END)]
+
+
 # ----------------------------------------------------------------------------------------
 # Running one process and measuring it.
 

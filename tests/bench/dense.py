@@ -608,6 +608,10 @@ def write_report(path, results, meta, quick):
     if meta["failures"]:
         L += ["", "## Failures", ""]
         L += ["```\n" + f.strip() + "\n```" for f in meta["failures"]]
+    # The hand-written sections (measurements of single steps, findings) stay at the end.
+    notes = bench.read_notes(path)
+    if notes:
+        L += ["", notes]
     L.append("")
     with open(path, "w") as f:
         f.write("\n".join(L))
