@@ -203,6 +203,9 @@ def write_report(path, results, meta):
                                               "with the full surface's χ and components") + ".", ""]
     if meta["failures"]:
         L += ["## Failures", ""] + [f"- {f.splitlines()[0]}" for f in meta["failures"]] + [""]
+    notes = bench.read_notes(path)  # the hand-written findings stay
+    if notes:
+        L += [notes, ""]
     with open(path, "w") as f:
         f.write("\n".join(L))
 
