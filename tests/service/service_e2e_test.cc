@@ -1202,14 +1202,20 @@ TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
   VanishMidScan(*stub, requests, 8, &id, &token);
   ASSERT_TRUE(WaitForSession(**server, id,
                              [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
+  // A stream counts as active until gRPC has finished with it, which may come a moment after
+  // its session parked; a stream in that moment is refused as busy (a retry succeeds). Wait
+  // for the vanished stream's cleanup, and later for the next one's (bounded: 5 s).
+  auto wait_no_active_stream = [&] {
+    for (int i = 0; i < 200; ++i) {
+      auto info = (*server)->Info();
+      if (info.ok() && info->counters().active_sessions() == 0) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    }
+  };
+  wait_no_active_stream();
   StreamOutcome next = RunStream(*stub, requests);
   EXPECT_TRUE(next.status.ok()) << next.status.error_message();
-  // (The slot is free again a moment after the client has its status.)
-  for (int i = 0; i < 200; ++i) {
-    auto info = (*server)->Info();
-    if (info.ok() && info->counters().active_sessions() == 0) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(25));
-  }
+  wait_no_active_stream();
   v1::ExtractRequest head;
   head.mutable_config()->mutable_resume()->set_session_id(id);
   head.mutable_config()->mutable_resume()->set_token(token);
