@@ -21,12 +21,30 @@ std::string NewResumeToken() {
       absl::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 
+bool ResumeTable::AdmitStream(int64_t max_sessions) {
+  absl::MutexLock lock(&mu_);
+  // Sessions waiting for a resume hold a slot too (their memory), but give it up, oldest
+  // first, to a stream that would be refused without it.
+  if (streams_ + ParkedLocked() >= max_sessions &&
+      !(streams_ < max_sessions && EvictOldestLocked())) {
+    return false;
+  }
+  ++streams_;
+  return true;
+}
+
+void ResumeTable::StreamEnded() {
+  absl::MutexLock lock(&mu_);
+  --streams_;
+}
+
 std::optional<ParkedSession> ResumeTable::ParkAndWait(ParkedSession parked) {
   const std::string id = parked.feed->id();
   absl::MutexLock lock(&mu_);
+  --streams_;  // the slot is the parked session's from now on (or freed: it ends)
   if (closed_ || window_ <= absl::ZeroDuration()) return parked;
-  parked.feed->SetWaiting(true);
   parked_[id] = Entry{std::move(parked), absl::Now()};
+  parked_[id].session.feed->SetWaiting(true);
   auto gone = [this, &id]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
     auto it = parked_.find(id);
     return closed_ || it == parked_.end() || it->second.evicted;
@@ -40,8 +58,7 @@ std::optional<ParkedSession> ResumeTable::ParkAndWait(ParkedSession parked) {
   return out;
 }
 
-bool ResumeTable::EvictOldest() {
-  absl::MutexLock lock(&mu_);
+bool ResumeTable::EvictOldestLocked() {
   Entry* oldest = nullptr;
   for (auto& [id, entry] : parked_) {
     if (!entry.evicted && (oldest == nullptr || entry.since < oldest->since)) oldest = &entry;
@@ -53,6 +70,10 @@ bool ResumeTable::EvictOldest() {
 
 int64_t ResumeTable::parked() const {
   absl::MutexLock lock(&mu_);
+  return ParkedLocked();
+}
+
+int64_t ResumeTable::ParkedLocked() const {
   int64_t n = 0;
   for (const auto& [id, entry] : parked_) n += entry.evicted ? 0 : 1;
   return n;

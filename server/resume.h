@@ -41,8 +41,22 @@ class ResumeTable {
   explicit ResumeTable(absl::Duration window) : window_(window) {}
   absl::Duration window() const { return window_; }
 
-  // Parks `parked` and blocks until it is adopted (returns nothing) or its window is over,
-  // or Close was called (returns it: the caller ends it).
+  // The slots tandem-server --max-sessions limits, counted here under one lock so that a
+  // session is counted exactly once on its way from its stream to this table: as a stream
+  // from AdmitStream until StreamEnded or until ParkAndWait takes it, then as a parked
+  // session until it is adopted (the adopting stream holds its own slot), evicted or ended.
+  // (Counting the stream until gRPC has finished with it counted a parked session twice for
+  // a moment, and a new stream in that moment was refused as busy.)
+  //
+  // Takes a slot for a new stream, ending the wait of the oldest parked session if that
+  // frees one; false when every slot is held by a stream.
+  bool AdmitStream(int64_t max_sessions);
+  // Gives back the slot of an admitted stream whose session was not parked.
+  void StreamEnded();
+
+  // Parks `parked` (its stream's slot becomes the parked session's) and blocks until it is
+  // adopted (returns nothing) or its window is over, or Close was called (returns it: the
+  // caller ends it).
   std::optional<ParkedSession> ParkAndWait(ParkedSession parked);
   // Takes the parked session `id` for a new stream that sends `next_slice` first and holds
   // the session's first `chunks_received` sealed chunks (*replay: the ones after them).
@@ -55,9 +69,6 @@ class ResumeTable {
                                       std::vector<v1::SealedChunk>* replay);
   // Ends every wait now and refuses to park from now on (server shutdown).
   void Close();
-  // Ends the wait of the session parked longest ago (a new stream needs its slot); false
-  // when none is parked.
-  bool EvictOldest();
   int64_t parked() const;
 
  private:
@@ -68,8 +79,13 @@ class ResumeTable {
     absl::Time since;
     bool evicted = false;
   };
+  // Ends the wait of the session parked longest ago; false when none is parked.
+  bool EvictOldestLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  int64_t ParkedLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+
   mutable absl::Mutex mu_;
   std::map<std::string, Entry> parked_ ABSL_GUARDED_BY(mu_);
+  int64_t streams_ ABSL_GUARDED_BY(mu_) = 0;  // admitted streams whose session is not parked
 };
 
 }  // namespace tandem::server

@@ -188,11 +188,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
   auto call = std::make_shared<ExtractCall>(state, context);
   call->self_ = call;
   const int64_t max = state->limits.max_sessions;
-  // Sessions waiting for a resume hold a slot too (their memory), but give it up, oldest
-  // first, to a stream that would be refused without it.
-  const int64_t used = state->active_sessions.fetch_add(1) + state->resumable.parked();
-  if (used >= max && !(state->active_sessions.load() <= max && state->resumable.EvictOldest())) {
-    state->active_sessions.fetch_sub(1);
+  if (!state->resumable.AdmitStream(max)) {
     state->sessions_rejected.fetch_add(1);
     call->EndStream(grpc::Status(
         grpc::StatusCode::RESOURCE_EXHAUSTED,
@@ -201,6 +197,7 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
     return call.get();
   }
   call->accepted_ = true;
+  state->active_sessions.fetch_add(1);
   call->feed_ = state->feeds.Create();
   call->resume_token_ = NewResumeToken();
   state->AddStream(call.get(), call);
@@ -242,7 +239,10 @@ ExtractCall::~ExtractCall() {
                               ? "the client left before the end"
                               : absl::StrCat("cancelled; before that: ", status.error_message()));
   }
-  if (!parked_) feed_->Finish({}, status);  // (no effect after the final metrics)
+  if (!parked_) {
+    feed_->Finish({}, status);  // (no effect after the final metrics)
+    state_->resumable.StreamEnded();  // (a parked session's slot went with it)
+  }
   const std::string status_name =
       absl::StatusCodeToString(static_cast<absl::StatusCode>(status.error_code()));
   const double seconds = absl::ToDoubleSeconds(absl::Now() - start_);

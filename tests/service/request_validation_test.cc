@@ -10,6 +10,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <thread>
 #include <type_traits>
 #include <vector>
 
@@ -21,6 +22,7 @@
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "server/extract_job.h"
+#include "server/resume.h"
 #include "tandem/distance.h"
 #include "tandem/metrics.h"
 #include "tandem/mesh.h"
@@ -659,6 +661,49 @@ TEST(WireReport, JsonCarriesEveryFieldOfTheReportTable) {
   auto back = ReportFromJson(ReportToJson(want));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(Fields(*back), Fields(want));
+}
+
+// --max-sessions slots: a session counts once on its way from its stream to the resume
+// table. The stream's slot becomes the parked session's when ParkAndWait takes it, not
+// when gRPC is done with the stream (which can come later: a new stream was refused as
+// busy in that moment).
+TEST(ResumeTable, AParkedSessionHoldsItsStreamsSlotAndGivesItToANewStream) {
+  ResumeTable table(absl::Seconds(30));
+  ASSERT_TRUE(table.AdmitStream(1));
+  EXPECT_FALSE(table.AdmitStream(1));  // the one slot is the stream's
+  ParkedSession parked;
+  parked.feed = std::make_shared<SessionFeed>("s1", 1 << 20);
+  std::optional<ParkedSession> left;
+  std::thread waiter([&] { left = table.ParkAndWait(std::move(parked)); });
+  for (int i = 0; i < 500 && table.parked() == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_EQ(table.parked(), 1);
+  // The parked session holds the slot (no StreamEnded for its stream): a new stream ends
+  // its wait and takes the slot; the next one is refused.
+  EXPECT_TRUE(table.AdmitStream(1));
+  waiter.join();
+  ASSERT_TRUE(left.has_value());  // evicted: handed back to be ended
+  EXPECT_EQ(left->feed->id(), "s1");
+  EXPECT_EQ(table.parked(), 0);
+  EXPECT_FALSE(table.AdmitStream(1));
+  table.StreamEnded();
+  EXPECT_TRUE(table.AdmitStream(1));
+  // With two slots, a stream and a parked session both fit.
+  ResumeTable two(absl::Seconds(30));
+  ASSERT_TRUE(two.AdmitStream(2));
+  ParkedSession p2;
+  p2.feed = std::make_shared<SessionFeed>("s2", 1 << 20);
+  std::thread waiter2([&] { left = two.ParkAndWait(std::move(p2)); });
+  for (int i = 0; i < 500 && two.parked() == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_EQ(two.parked(), 1);
+  EXPECT_TRUE(two.AdmitStream(2));
+  EXPECT_EQ(two.parked(), 1);  // not evicted: there was a free slot
+  EXPECT_TRUE(two.AdmitStream(2));  // the third evicts it
+  waiter2.join();
+  EXPECT_FALSE(two.AdmitStream(2));
 }
 
 }  // namespace

@@ -1202,20 +1202,16 @@ TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
   VanishMidScan(*stub, requests, 8, &id, &token);
   ASSERT_TRUE(WaitForSession(**server, id,
                              [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
-  // A stream counts as active until gRPC has finished with it, which may come a moment after
-  // its session parked; a stream in that moment is refused as busy (a retry succeeds). Wait
-  // for the vanished stream's cleanup, and later for the next one's (bounded: 5 s).
-  auto wait_no_active_stream = [&] {
-    for (int i = 0; i < 200; ++i) {
-      auto info = (*server)->Info();
-      if (info.ok() && info->counters().active_sessions() == 0) return;
-      std::this_thread::sleep_for(std::chrono::milliseconds(25));
-    }
-  };
-  wait_no_active_stream();
+  // The parked session holds the vanished stream's slot from the moment it waits, whether or
+  // not gRPC has finished with that stream (a new stream in between was refused as busy).
   StreamOutcome next = RunStream(*stub, requests);
   EXPECT_TRUE(next.status.ok()) << next.status.error_message();
-  wait_no_active_stream();
+  // The next stream's slot is free once gRPC has finished with it (bounded: 5 s).
+  for (int i = 0; i < 200; ++i) {
+    auto info = (*server)->Info();
+    if (info.ok() && info->counters().active_sessions() == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
   v1::ExtractRequest head;
   head.mutable_config()->mutable_resume()->set_session_id(id);
   head.mutable_config()->mutable_resume()->set_token(token);
