@@ -98,9 +98,11 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
 void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // An edge costing more than E0 can never be popped by SIMPLIFY(E0): keeping it would only
   // grow the heap (on a CT, most of Q). A later neighbour contraction re-pushes it with its
-  // new cost; a target triangle count re-queues every edge first (RequeueAll).
+  // new cost; a rise of E0 offers it again (RaiseError), and a target triangle count's last
+  // pass re-queues every edge (RequeueAll).
   if (!keep_expensive_ && c.cost > opt_.keep * opt_.error) {
     min_dropped_ = std::min(min_dropped_, c.cost);
+    if (opt_.rises) Drop(a, b, c.cost);
     return;
   }
   // Zero-cost edges (an exactly flat patch: a binary mask's faces) would all tie, and Q pops
@@ -128,12 +130,40 @@ void Simplifier::RequeueAll() {
 void Simplifier::RaiseError(double e) {
   assert(e >= opt_.error);
   opt_.error = e;
+  if (opt_.rises && dropped_complete_) {
+    // Re-offer what e brings within keep x e; with α > 0 an edge's cost only grows with E0
+    // (IsotropicCostQuadric), so one listed above that cannot be in Q's reach yet.
+    Rebucket(e);
+    // In place: the list holds about every edge of the mesh (each costs more than E0 after
+    // SIMPLIFY), so a second copy would be most of the session's growth in memory.
+    min_dropped_ = std::numeric_limits<double>::infinity();
+    const double reach = opt_.keep * e;
+    offered_.clear();
+    size_t kept = 0;
+    for (const DroppedEdge& d : dropped_) {
+      if (Stale(d)) continue;
+      if (d.cost <= reach) {
+        offered_.push_back(d);
+      } else {
+        dropped_[kept++] = d;
+        min_dropped_ = std::min(min_dropped_, d.cost);
+      }
+    }
+    dropped_.resize(kept);
+    for (const DroppedEdge& d : offered_) {  // a re-drop lists it again
+      AddToBatch(d.a, d.b, /*released=*/true);
+    }
+    FlushBatch();
+    return;
+  }
   if (e <= min_dropped_) {
     Rebucket(e);
     return;
   }
   q_ = EdgeQueue(e);
   min_dropped_ = std::numeric_limits<double>::infinity();
+  dropped_.clear();
+  dropped_complete_ = true;
   requeue_released_ = true;
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
@@ -240,6 +270,7 @@ void Simplifier::FlushBatch() {
   for (size_t i = 0; i < n; ++i) {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];
+    evaluations_ += r.to != 0;
     if (r.to == 0) {
       if (!requeue_released_) w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
     } else if (r.to == 1) {
@@ -264,6 +295,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
       return;
     }
   }
+  ++evaluations_;
   if (!Evaluate(a, b, &c)) {
     ++refusals_.box;
     return;
@@ -431,6 +463,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     c.eps0 = placement.eps0;
     if (opt_.alpha > 0.0) {
       // The memoryless isotropy term depends on the current neighbourhood: recompute.
+      ++evaluations_;
       if (!Evaluate(e.a, e.b, &c)) {
         ++refusals_.box;
         continue;
@@ -442,6 +475,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     }
     if (!past_error && c.eps0 > opt_.error) {
       ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
+      if (opt_.rises) Drop(e.a, e.b, c.eps0);
       continue;
     }
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
@@ -450,7 +484,12 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     }
     // Past E0 the guard (a multiple of E0) would stall.
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
-    if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) continue;
+    const int64_t far = refusals_.distance;
+    if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) {
+      // The guard grows with E0: the next rise offers it again.
+      if (opt_.rises && refusals_.distance != far) Drop(e.a, e.b, opt_.error);
+      continue;
+    }
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
     c.box_mask = ma | mb;
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
@@ -461,6 +500,9 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   // contract: when they outnumber the mesh's edges (about 1.5 per triangle), Q keeps the
   // live ones only.
   if (q_.size() > 3 * store_->num_triangles() + 1024) Rebucket(opt_.error);
+  if (dropped_.size() > 3 * store_->num_triangles() + 1024) {
+    std::erase_if(dropped_, [this](const DroppedEdge& d) { return Stale(d); });
+  }
 }
 
 void Simplifier::Rebucket(double max_key) {
@@ -628,7 +670,8 @@ size_t Simplifier::MemoryBytes() const {
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
-         (released_.capacity() + GroupBytes()) * sizeof(WEdge) + ready_.capacity() * sizeof(uint32_t);
+         (released_.capacity() + GroupBytes()) * sizeof(WEdge) + ready_.capacity() * sizeof(uint32_t) +
+         (dropped_.capacity() + offered_.capacity()) * sizeof(DroppedEdge);
 }
 
 }  // namespace tandem

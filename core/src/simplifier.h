@@ -55,6 +55,10 @@ struct SimplifierOptions {
   // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
   // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
   double keep = 1;
+  // E0 will rise (a target triangle count): the edges Q drops, and those refused for E0
+  // (ε0 above it, or the distance guard), are listed, so that a rise re-offers those it
+  // brings in reach instead of evaluating every edge of the mesh again (RaiseError).
+  bool rises = false;
   // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time
   // (2^16: 4 MiB of Q entries; docs/decisions.md).
   size_t release_chunk = size_t{1} << 16;
@@ -89,10 +93,12 @@ class Simplifier {
   // E0 as it is now (SimplifierOptions::error, or what RaiseError made it).
   double error() const { return opt_.error; }
   // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
-  // (schedule.h). Q holds every edge costing up to e unless it dropped one (costing more than
-  // keep x E0 when pushed) that e now reaches: then the released edges of the mesh (release
-  // key <= the front) are evaluated and queued again (the waiting ones are in W already), one
-  // evaluation per edge; otherwise Q is only re-bucketed for the new E0.
+  // (schedule.h). Q is re-bucketed for the new E0, and with SimplifierOptions::rises the
+  // listed edges (dropped above keep x E0, or refused for E0) that e brings within keep x e
+  // are evaluated again and offered to Q; the rest stay listed. Without the list (or after
+  // ForgetKept), once e reaches an edge Q dropped, the released edges of the mesh (release
+  // key <= the front) are evaluated and queued again, one evaluation per edge (the waiting
+  // ones are in W already).
   void RaiseError(double e);
   // After SIMPLIFY(E0): about the least cost above E0 among the mesh's edges (the least
   // queued or dropped since Q last held every released edge; +inf if none): raising E0 to
@@ -106,7 +112,10 @@ class Simplifier {
   }
   // Q lacks edges it would have kept (a merge brought other slabs' meshes in without their
   // queues): the next RaiseError evaluates every released edge again.
-  void ForgetKept() { min_dropped_ = 0; }
+  void ForgetKept() {
+    min_dropped_ = 0;
+    dropped_complete_ = false;
+  }
 
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
@@ -157,6 +166,8 @@ class Simplifier {
   double MeasuredShapeErrorAt(VertexId v) const;  // the same for Error(K) (MeasuredShapeError)
   const RefusalCounts& refusals() const { return refusals_; }
   int64_t contractions() const { return contractions_; }
+  // Edge evaluations (quadric solves) so far: what RaiseError's re-offers save is seen here.
+  int64_t evaluations() const { return evaluations_; }
   // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the
   // front, the time-lag rule) and the largest layer(c) - front (<= -1: the newest layer was
   // never touched). -inf when none was applied.
@@ -252,6 +263,23 @@ class Simplifier {
   bool requeue_released_ = false;  // RaiseError: edges for W are in W already
   // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).
   double min_dropped_ = std::numeric_limits<double>::infinity();
+  // SimplifierOptions::rises: the edges dropped or refused for E0, each with the least E0
+  // at which it is worth offering again: its cost, its ε0, or (distance guard) the next rise.
+  // Stale ones are swept at each rise, and when they outnumber the mesh's edges. 24 bytes:
+  // with the placement too (56), a rise would need no solve at α = 0, but the engine CT's
+  // target run took 10-20 % more memory for 4 % fewer instructions.
+  struct DroppedEdge {
+    double cost;
+    VertexId a, b;
+    uint32_t va, vb;  // version stamps
+  };
+  static_assert(sizeof(DroppedEdge) == 24);
+  void Drop(VertexId a, VertexId b, double cost) {
+    dropped_.push_back(DroppedEdge{cost, a, b, version_[a], version_[b]});
+  }
+  std::vector<DroppedEdge> dropped_;
+  std::vector<DroppedEdge> offered_;  // RaiseError's scratch: what it offers to Q again
+  bool dropped_complete_ = true;  // every edge Q lacks is in dropped_ (or W, or refused)
   WaitingQueue w_;
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
   // (empty otherwise: every vertex ready); the edges of each chunk still to come; the chunk
@@ -279,6 +307,7 @@ class Simplifier {
   std::vector<BatchResult> batch_results_;
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
+  int64_t evaluations_ = 0;
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
   double max_layer_over_front_ = -std::numeric_limits<double>::infinity();
 };

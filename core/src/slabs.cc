@@ -283,7 +283,8 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .slice_spacing = spacing[2],
                                .parallel = batches,
                                .distance_guard = options.distance_guard,
-                               .keep = options.target_triangles > 0 ? kTargetKeep : 1.0};
+                               .keep = options.target_triangles > 0 ? kTargetKeep : 1.0,
+                               .rises = options.target_triangles > 0};
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {
       const bool simplify = options.schedule != Schedule::kNone;
