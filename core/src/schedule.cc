@@ -157,11 +157,10 @@ double TargetControl::ErrorAt(int64_t step) const {
   return decided_[static_cast<size_t>(step - kLag)];
 }
 
-void ReachTarget(Slab& s, int64_t target, bool merged) {
+void ReachTarget(Slab& s, int64_t target) {
   // The whole mesh is settled: E0 rises in steps, each SIMPLIFY stopping at N, so that no
   // step can overshoot (a flat face may fall at once when E0 passes its cost), and within a
   // step the contractions still go in cost order.
-  if (merged) s.simplifier.ForgetKept();
   const auto n = static_cast<double>(target);
   constexpr double kFinalStep = 1.05;
   s.simplifier.Simplify(target);
@@ -243,7 +242,7 @@ int64_t FinishWhole(Slab& whole, const SessionOptions& options,
   }
   if (simplify && options.target_triangles > 0) {
     const auto t0 = Clock::now();
-    ReachTarget(whole, options.target_triangles, seam_vertices != nullptr);
+    ReachTarget(whole, options.target_triangles);
     whole.time.simplify_s += Seconds(t0, Clock::now());
   }
   int64_t sag_corrected = 0;

@@ -84,9 +84,9 @@ class TargetControl {
   double start_error_;
 };
 
-// The end of a target count N for the whole mesh, `merged` from slabs (their queues are lost):
-// E0 rises until N remains.
-void ReachTarget(Slab& whole, int64_t target, bool merged);
+// The end of a target count N for the whole mesh (merged from slabs, if split, with their
+// queues): E0 rises until N remains.
+void ReachTarget(Slab& whole, int64_t target);
 
 // One slice through one slab. A refused slice (non-finite values, past nz) leaves the slab as it
 // was, apart from the deferred SIMPLIFY step, which the sequential order would have run already.

@@ -130,7 +130,7 @@ void Simplifier::RequeueAll() {
 void Simplifier::RaiseError(double e) {
   assert(e >= opt_.error);
   opt_.error = e;
-  if (opt_.rises && dropped_complete_) {
+  if (opt_.rises) {
     // Re-offer what e brings within keep x e; with α > 0 an edge's cost only grows with E0
     // (IsotropicCostQuadric), so one listed above that cannot be in Q's reach yet.
     Rebucket(e);
@@ -162,8 +162,6 @@ void Simplifier::RaiseError(double e) {
   }
   q_ = EdgeQueue(e);
   min_dropped_ = std::numeric_limits<double>::infinity();
-  dropped_.clear();
-  dropped_complete_ = true;
   requeue_released_ = true;
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
@@ -478,16 +476,18 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
       if (opt_.rises) Drop(e.a, e.b, c.eps0);
       continue;
     }
+    // A refused edge is pushed again when a contraction at one of its ends changes it; with
+    // rises, each rise offers it again as well (the distance guard grows with E0, and its
+    // neighbourhood may have changed), as the full re-queues did.
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
       ++refusals_.link;
+      if (opt_.rises) Drop(e.a, e.b, opt_.error);
       continue;
     }
     // Past E0 the guard (a multiple of E0) would stall.
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
-    const int64_t far = refusals_.distance;
     if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) {
-      // The guard grows with E0: the next rise offers it again.
-      if (opt_.rises && refusals_.distance != far) Drop(e.a, e.b, opt_.error);
+      if (opt_.rises) Drop(e.a, e.b, opt_.error);
       continue;
     }
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
@@ -536,6 +536,26 @@ void Simplifier::ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool 
     c.layer = store_->layer(a);
   }
   Contract(a, b, c);
+}
+
+void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> map) {
+  if (!opt_.rises) return;
+  auto ends = [&](VertexId a, VertexId b) {
+    const VertexId x = map[a], y = map[b];
+    assert(x != kInvalid && y != kInvalid && !Pinned(x, y));
+    return x < y ? std::pair{x, y} : std::pair{y, x};
+  };
+  from.q_.ForEach([&](const QNode& n, const QPlacement& p) {
+    if (from.Stale(n)) return;
+    const auto [a, b] = ends(n.a, n.b);
+    q_.Push(n.key, QEntry{a, b, version_[a], version_[b], p.pos, p.eps0});
+  });
+  for (const DroppedEdge& d : from.dropped_) {
+    if (from.Stale(d)) continue;
+    const auto [a, b] = ends(d.a, d.b);
+    Drop(a, b, d.cost);
+  }
+  min_dropped_ = std::min(min_dropped_, from.min_dropped_);
 }
 
 void Simplifier::AdoptCounters(const Simplifier& from) {

@@ -95,10 +95,9 @@ class Simplifier {
   // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
   // (schedule.h). Q is re-bucketed for the new E0, and with SimplifierOptions::rises the
   // listed edges (dropped above keep x E0, or refused for E0) that e brings within keep x e
-  // are evaluated again and offered to Q; the rest stay listed. Without the list (or after
-  // ForgetKept), once e reaches an edge Q dropped, the released edges of the mesh (release
-  // key <= the front) are evaluated and queued again, one evaluation per edge (the waiting
-  // ones are in W already).
+  // are evaluated again and offered to Q; the rest stay listed. Without the list, once e
+  // reaches an edge Q dropped, the released edges of the mesh (release key <= the front) are
+  // evaluated and queued again, one evaluation per edge (the waiting ones are in W already).
   void RaiseError(double e);
   // After SIMPLIFY(E0): about the least cost above E0 among the mesh's edges (the least
   // queued or dropped since Q last held every released edge; +inf if none): raising E0 to
@@ -110,19 +109,18 @@ class Simplifier {
     assert(e <= opt_.error);
     opt_.error = e;
   }
-  // Q lacks edges it would have kept (a merge brought other slabs' meshes in without their
-  // queues): the next RaiseError evaluates every released edge again.
-  void ForgetKept() {
-    min_dropped_ = 0;
-    dropped_complete_ = false;
-  }
 
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
   // quadric and radius (`shared`: dst is the seam vertex both parts held; the quadrics add).
   // AdoptCounters adds the other part's contraction and refusal counts. PushEdgesAround
-  // queues every edge at the given vertices (once each), as DELAY does.
+  // queues every edge at the given vertices (once each), as DELAY does. With
+  // SimplifierOptions::rises, AdoptQueues then takes over the other part's queued and listed
+  // edges (map: its vertex ids to this store's), so that E0 can rise on past the merge
+  // without evaluating every edge of the merged mesh again (its W is empty after
+  // ACTIVATE(∞); no entry is at a seam vertex: those edges were pinned).
   void AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared);
+  void AdoptQueues(const Simplifier& from, std::span<const VertexId> map);
   void AdoptCounters(const Simplifier& from);
   void PushEdgesAround(std::span<const VertexId> verts);
 
@@ -279,7 +277,6 @@ class Simplifier {
   }
   std::vector<DroppedEdge> dropped_;
   std::vector<DroppedEdge> offered_;  // RaiseError's scratch: what it offers to Q again
-  bool dropped_complete_ = true;  // every edge Q lacks is in dropped_ (or W, or refused)
   WaitingQueue w_;
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
   // (empty otherwise: every vertex ready); the edges of each chunk still to come; the chunk

@@ -397,7 +397,10 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
       const auto& tri = src.store.triangle(t);
       dst.store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
     }
-    if (simplify) dst.simplifier.AdoptCounters(src.simplifier);
+    if (simplify) {
+      dst.simplifier.AdoptCounters(src.simplifier);
+      dst.simplifier.AdoptQueues(src.simplifier, map);
+    }
     if (dst.sealer) dst.sealer->Absorb(*src.sealer, map, welded);
     merged->crossed_cubes += src.extractor.crossed_cubes();
     merged->triangles_extracted += src.triangles_extracted;

@@ -467,6 +467,60 @@ TEST(Simplifier, ARiseOffersOnlyTheDroppedEdgesItBringsInReach) {
   }
 }
 
+// A split session merges its parts into one store (MergeSlabs), and E0 may rise on after it
+// (a target count): the merged simplifier takes over each part's queued and listed edges,
+// instead of evaluating every edge of the merged mesh again at the next rise (the engine
+// CT's merge at N = 56,283: 75,000 triangles' edges). Here one part's mesh and queues are
+// copied into an empty simplifier, and the same rise contracts the same.
+TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
+  auto src = MakeSyntheticSource(Shape::kLink, 48, 48, 48);
+  SimplifierOptions so;
+  so.error = 0.003;
+  so.keep = 1.5;
+  so.rises = true;
+  MeshStore part_store;
+  Simplifier part(&part_store, so);
+  ExtractLayers(src.get(), &part_store, &part, /*delay_each_layer=*/true);
+  part.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+
+  MeshStore store;
+  Simplifier merged(&store, so);
+  merged.ActivateAndSimplify(std::numeric_limits<double>::infinity());  // as a part ends
+  std::vector<VertexId> map(part_store.vertex_capacity(), kInvalid);
+  for (VertexId v = 0; v < part_store.vertex_capacity(); ++v) {
+    if (!part_store.vertex_alive(v)) continue;
+    map[v] = store.AddVertex(part_store.position(v), part_store.height(v), part_store.layer(v),
+                             part_store.box_mask(v));
+    merged.AdoptVertex(part, v, map[v], /*shared=*/false);
+  }
+  for (TriId t = 0; t < part_store.triangle_capacity(); ++t) {
+    if (!part_store.triangle_alive(t)) continue;
+    const auto& tri = part_store.triangle(t);
+    store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
+  }
+  merged.AdoptQueues(part, map);
+  EXPECT_GT(merged.queue_sizes(), 0u);
+  EXPECT_LE(merged.queue_sizes(), part.queue_sizes());  // less the stale entries
+
+  for (double e : {0.01, 0.03, 0.1}) {
+    const int64_t part_before = part.evaluations(), merged_before = merged.evaluations();
+    part.RaiseError(e);
+    part.Simplify();
+    merged.RaiseError(e);
+    merged.Simplify();
+    EXPECT_EQ(merged.evaluations() - merged_before, part.evaluations() - part_before) << e;
+    // Equal keys may pop in another order (Q's entries were pushed anew), so the counts are
+    // compared, not the meshes: without the queues the merged copy contracted nothing.
+    EXPECT_NEAR(double(store.num_triangles()), double(part_store.num_triangles()),
+                0.02 * double(part_store.num_triangles())) << e;
+    EXPECT_LE(merged.MaxShapeError(), e * (1 + 1e-9)) << e;
+  }
+  const TopologyReport t = AnalyzeTopology(store.Snapshot());
+  EXPECT_TRUE(t.IsManifold());
+  EXPECT_EQ(t.euler, 0);
+  EXPECT_EQ(t.components, 2);
+}
+
 // ---------------------------------------------------------------- target triangle counts
 
 Result RunTarget(Shape shape, int n, Schedule schedule, double e0, int64_t target, int parts,
