@@ -43,6 +43,19 @@ TriId WithHalfEdge(const MeshStore& s, VertexId from, VertexId to) {
   return kInvalid;
 }
 
+// The way a degenerate triangle should face once mended: as its neighbours across its edges
+// do (their summed normals), or `otherwise` when they are degenerate too. Where two sheets
+// touch at a vertex, the sum over the vertex's triangles mixes the two sheets' sides, and
+// with it as the reference the head MR at its 10 % point kept 6 zero-area triangles, not 2.
+Vec3 Across(const MeshStore& s, const std::array<VertexId, 3>& tri, Vec3 otherwise) {
+  Vec3 sum{0, 0, 0};
+  for (int j = 0; j < 3; ++j) {
+    const TriId o = WithHalfEdge(s, tri[(j + 1) % 3], tri[j]);
+    if (o != kInvalid && !Degenerate(s, o)) sum = sum + TwiceArea(s, s.triangle(o));
+  }
+  return Dot(sum, sum) > 0 ? sum : otherwise;
+}
+
 bool HasEdge(const MeshStore& s, VertexId a, VertexId b) {
   for (TriId u : s.vertex_triangles(a)) {
     for (VertexId x : s.triangle(u)) {
@@ -98,7 +111,8 @@ bool TryFlip(MeshStore* s, TriId t) {
 
 // Moves v by kApart toward the centroid of its neighbours not at its point, along its box
 // faces if it is on the grid's box, unless a triangle turns over or collapses (the degenerate
-// ones around it must come out facing as its others do) or may_move refuses.
+// ones around it must come out facing as their neighbours across their edges do: Across) or
+// may_move refuses.
 bool MoveApart(MeshStore* s, VertexId v, double longest,
                const std::function<bool(VertexId, Vec3)>& may_move) {
   const Vec3 p = s->position(v);
@@ -128,7 +142,7 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
     if (Degenerate(*s, u)) {
       // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
       // for 10 zero-area triangles fewer): left as it is instead.
-      if (!MovedCornerKeepsOrientation(facing, c[0], c[1], c[2])) return false;
+      if (!MovedCornerKeepsOrientation(Across(*s, w, facing), c[0], c[1], c[2])) return false;
     } else if (!MovedCornerKeepsOrientation(TwiceArea(*s, w), c[0], c[1], c[2])) {
       return false;
     }
@@ -218,6 +232,68 @@ int64_t TryInflate(MeshStore* s, TriId t, double size,
   return 4;
 }
 
+// t alone in its component (each corner in t only) and flat on one face of the grid's box (a
+// voxel at the iso-value on the box, its surface cut down to a point or a line there): its
+// corners part within that face to a triangle of circumradius `size` (all at one point) or a
+// corner moves `size` off the line, facing into the box, as that voxel's surface does.
+int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
+                        const std::function<bool(VertexId, Vec3)>& may_move,
+                        const std::function<void(VertexId)>& moved) {
+  const std::array<VertexId, 3> tri = s->triangle(t);
+  uint8_t face = kBoxFaces;
+  for (VertexId x : tri) {
+    if (s->vertex_triangles(x).size() != 1) return 0;
+    face &= s->box_mask(x);
+  }
+  int axis = -1;
+  double inward = 0;
+  for (int a = 0; a < 3; ++a) {
+    const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * a)), hi = static_cast<uint8_t>(lo << 1);
+    if (face & (lo | hi)) {
+      if (axis >= 0) return 0;  // on an edge of the box: no plane to part in
+      axis = a;
+      inward = (face & lo) ? 1 : -1;
+    }
+  }
+  if (axis < 0) return 0;
+  Vec3 n{0, 0, 0};
+  (axis == 0 ? n.x : axis == 1 ? n.y : n.z) = inward;
+  const std::array<Vec3, 3> p{s->position(tri[0]), s->position(tri[1]), s->position(tri[2])};
+  const auto [k, longest] = LongestEdge(*s, tri);
+  const Vec3 a = p[k], b = p[(k + 1) % 3];
+  std::array<Vec3, 3> q = p;
+  const bool point = longest <= 1e-8 * size * size;
+  if (point) {  // a small triangle around it
+    const Vec3 e1 = axis == 0 ? Vec3{0, 1, 0} : Vec3{1, 0, 0};
+    const Vec3 e2 = Cross(n, e1);
+    for (int i = 0; i < 3; ++i) {
+      const double angle = 2.0943951023931953 * i;  // 120 degrees apart
+      q[i] = a + (e1 * std::cos(angle) + e2 * std::sin(angle)) * size;
+    }
+  } else {  // a line: the corner off the longest edge leaves it
+    const Vec3 d = Cross(n, b - a);
+    q[(k + 2) % 3] = p[(k + 2) % 3] + d * (size / Norm(d));
+  }
+  if (Dot(TwiceAreaVector(q[0], q[1], q[2]), n) < 0) {  // face into the box
+    if (point) {
+      std::swap(q[1], q[2]);
+    } else {
+      q[(k + 2) % 3] = p[(k + 2) % 3] - (q[(k + 2) % 3] - p[(k + 2) % 3]);
+    }
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (!(q[i] == p[i]) && !may_move(tri[i], q[i])) return 0;
+  }
+  int64_t count = 0;
+  for (int i = 0; i < 3; ++i) {
+    if (q[i] == p[i]) continue;
+    s->set_position(tri[i], q[i]);
+    moved(tri[i]);
+    ++count;
+  }
+  return count;
+}
+
 }  // namespace
 
 DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
@@ -235,6 +311,8 @@ DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tr
       ++counts.flipped;
     } else if (const int64_t n = TryInflate(store, t, size, may_move, moved); n > 0) {
       counts.moved += n;
+    } else if (const int64_t m = TryInflateOnBox(store, t, size, may_move, moved); m > 0) {
+      counts.moved += m;
     } else {
       counts.moved += TryApart(store, t, may_move, moved);
     }

@@ -121,5 +121,112 @@ TEST(TidyDegenerate, PartsCornersAtOnePointWithinWhatMayMove) {
   }
 }
 
+// Two sheets touching at a point of the head MR (48x62x42, iso 16, E0 1.5: its surface around
+// two vertices at one point, as simplification left it, in float): two zero-area triangles
+// share the pair. Parted toward their neighbours, each must face as the triangles across its
+// edges do; the reference was the sum of the moved vertex's own triangles, which mixes the
+// two sheets' sides there, and both stayed zero-area.
+TEST(TidyDegenerate, PartsTwoSheetsTouchingAtAPoint) {
+  const std::vector<Vec3> positions = {
+      {89.43456268310547f, 165.1192169189453f, 157.4331512451172f},
+      {88.67042541503906f, 154.9468231201172f, 156.1416778564453f},
+      {83.93706512451172f, 167.28884887695312f, 145.27377319335938f},
+      {84.0f, 168.0f, 148.0f},
+      {82.29985809326172f, 165.48178100585938f, 149.83494567871094f},
+      {87.27256774902344f, 163.3944549560547f, 151.70274353027344f},
+      {91.58621215820312f, 162.1622772216797f, 153.33595275878906f},
+      {81.20917510986328f, 157.2567901611328f, 150.995361328125f},
+      {80.0f, 164.0f, 155.0f},
+      {78.39134979248047f, 168.62461853027344f, 156.15162658691406f},
+      {84.0f, 168.0f, 148.0f},
+      {84.32506561279297f, 174.85166931152344f, 144.46926879882812f},
+      {95.29791259765625f, 171.0336151123047f, 152.5615234375f},
+      {96.84818267822266f, 176.86082458496094f, 146.58953857421875f},
+      {77.48336029052734f, 179.69313049316406f, 150.3502197265625f},
+      {83.9054183959961f, 169.72488403320312f, 147.96774291992188f},
+      {84.31327819824219f, 164.64768981933594f, 147.0665283203125f},
+      {89.37095642089844f, 186.0274200439453f, 150.3267822265625f},
+      {93.90615844726562f, 179.72348022460938f, 151.8742218017578f},
+      {82.36444854736328f, 173.7377471923828f, 154.0659942626953f},
+      {84.925048828125f, 172.19992065429688f, 148.57464599609375f},
+      {86.20455932617188f, 148.43240356445312f, 156.96949768066406f},
+      {84.44908142089844f, 156.7579803466797f, 149.5115966796875f},
+      {87.79855346679688f, 151.90182495117188f, 155.123291015625f},
+      {83.99920654296875f, 184.0716552734375f, 135.5477294921875f},
+      {83.80818176269531f, 180.027099609375f, 139.8489227294922f},
+      {84.57099151611328f, 184.97567749023438f, 138.03173828125f},
+      {85.02989959716797f, 180.91473388671875f, 140.1439971923828f},
+      {91.66974639892578f, 185.82449340820312f, 142.0950164794922f},
+      {79.14539337158203f, 180.17137145996094f, 144.00144958496094f},
+  };
+  const std::vector<std::array<uint32_t, 3>> triangles = {
+      {2, 3, 4}, {5, 0, 6}, {2, 10, 3}, {11, 12, 13}, {11, 14, 15}, {16, 10, 11}, {17, 11, 18},
+      {15, 19, 4}, {4, 19, 9}, {16, 3, 10}, {20, 15, 5}, {2, 11, 15}, {4, 3, 15}, {2, 15, 10},
+      {5, 1, 0}, {2, 4, 16}, {7, 4, 8}, {20, 10, 15}, {22, 16, 4}, {22, 5, 16}, {11, 13, 18},
+      {16, 15, 3}, {15, 14, 19}, {11, 10, 20}, {4, 9, 8}, {5, 12, 20}, {24, 25, 11}, {26, 24, 11},
+      {26, 11, 27}, {16, 11, 2}, {22, 23, 1}, {22, 4, 7}, {11, 29, 14}, {6, 12, 5}, {25, 29, 11},
+      {27, 11, 28}, {16, 5, 15}, {11, 20, 12}, {28, 11, 17}, {21, 23, 22}, {21, 22, 7},
+      {22, 1, 5},
+  };
+  MeshStore s;
+  for (const Vec3& p : positions) s.AddVertex(p, 0, 0, 0);
+  for (const auto& t : triangles) s.AddTriangle(t[0], t[1], t[2]);
+  ASSERT_EQ(CountDegenerate(s), 2);
+  const TopologyReport before = AnalyzeTopology(s.Snapshot());
+  const DegenerateCounts n = Tidy(&s);
+  EXPECT_GE(n.moved, 1);
+  EXPECT_EQ(n.left, 0);
+  EXPECT_EQ(CountDegenerate(s), 0);
+  const TopologyReport after = AnalyzeTopology(s.Snapshot());
+  EXPECT_EQ(after.euler, before.euler);
+  EXPECT_EQ(after.boundary_edges, before.boundary_edges);
+  EXPECT_EQ(after.misoriented_edges, 0u);
+  for (size_t i = 0; i < positions.size(); ++i) {  // a small step: 5 % toward the neighbours
+    EXPECT_LT(Norm(s.position(VertexId(i)) - positions[i]), 0.5) << i;
+  }
+}
+
+// A triangle alone in its component, flat on a face of the grid's box at a point or along a
+// line (a voxel at the iso-value on the box's first slice: two of them in the head MR at any
+// E0): it parts within that face, facing into the box; on an edge of the box, where it could
+// only part along a line, it stays.
+TEST(TidyDegenerate, PartsALoneTriangleOnTheBoxWithinItsFace) {
+  struct Case {
+    std::array<Vec3, 3> corners;
+    uint8_t box;
+    Vec3 inward;  // zero: left as it is
+  };
+  const std::vector<Case> cases = {
+      {{Vec3{60, 180, 0}, Vec3{60, 180, 0}, Vec3{60, 180, 0}}, kBoxZMin, {0, 0, 1}},
+      {{Vec3{56, 168, 0}, Vec3{56, 168, 0}, Vec3{56, 172, 0}}, kBoxZMin, {0, 0, 1}},
+      {{Vec3{56, 172, 0}, Vec3{56, 168, 0}, Vec3{56, 168, 0}}, kBoxZMin, {0, 0, 1}},
+      {{Vec3{9, 3, 4}, Vec3{9, 3, 4}, Vec3{9, 3, 4}}, kBoxXMax, {-1, 0, 0}},
+      {{Vec3{0, 3, 0}, Vec3{0, 3, 0}, Vec3{0, 3, 0}}, kBoxXMin | kBoxZMin, {0, 0, 0}},
+  };
+  for (size_t i = 0; i < cases.size(); ++i) {
+    const Case& c = cases[i];
+    MeshStore s;
+    std::array<VertexId, 3> v;
+    for (int k = 0; k < 3; ++k) v[k] = s.AddVertex(c.corners[k], 0, 0, c.box);
+    s.AddTriangle(v[0], v[1], v[2]);
+    ASSERT_EQ(CountDegenerate(s), 1) << i;
+    const DegenerateCounts n = Tidy(&s);
+    const Vec3 area = TwiceAreaVector(s.position(v[0]), s.position(v[1]), s.position(v[2]));
+    if (c.inward == Vec3{0, 0, 0}) {
+      EXPECT_EQ(n.left, 1) << i;
+      for (int k = 0; k < 3; ++k) EXPECT_EQ(s.position(v[k]), c.corners[k]) << i;
+      continue;
+    }
+    EXPECT_EQ(n.left, 0) << i;
+    EXPECT_EQ(CountDegenerate(s), 0) << i;
+    EXPECT_GT(Dot(area, c.inward), 0) << i;  // facing into the box
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 p = s.position(v[k]);
+      EXPECT_EQ(Dot(p, c.inward), Dot(c.corners[k], c.inward)) << i;  // still on the face
+      EXPECT_LE(Norm(p - c.corners[k]), 0.1 + 1e-12) << i;  // Tidy's size
+    }
+  }
+}
+
 }  // namespace
 }  // namespace tandem
