@@ -109,10 +109,13 @@ bool TryFlip(MeshStore* s, TriId t) {
   return true;
 }
 
-// Moves v by kApart toward the centroid of its neighbours not at its point, along its box
-// faces if it is on the grid's box, unless a triangle turns over or collapses (the degenerate
-// ones around it must come out facing as their neighbours across their edges do: Across) or
-// may_move refuses.
+// Moves v apart by kApart of the way toward the centroid of its neighbours not at its point,
+// along its box faces if it is on the grid's box, unless a triangle turns over or collapses
+// (the degenerate ones around it must come out facing as their neighbours across their edges
+// do: Across) or may_move refuses. When that direction turns a degenerate triangle the wrong
+// way, the same length is tried across each degenerate triangle's long edge, to the side
+// that makes it face as v's triangles do, then along the sum of those steps (the head MR at
+// the default E0: its last two zero-area triangles part so).
 bool MoveApart(MeshStore* s, VertexId v, double longest,
                const std::function<bool(VertexId, Vec3)>& may_move) {
   const Vec3 p = s->position(v);
@@ -128,27 +131,58 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
     }
   }
   if (n == 0) return false;
-  Vec3 step = kApart * (sum * (1.0 / n) - p);
   const uint8_t box = s->box_mask(v);
-  if (box & (kBoxXMin | kBoxXMax)) step.x = 0;
-  if (box & (kBoxYMin | kBoxYMax)) step.y = 0;
-  if (box & (kBoxZMin | kBoxZMax)) step.z = 0;
-  const Vec3 q = p + step;
-  if (!may_move(v, q)) return false;
-  for (TriId u : s->vertex_triangles(v)) {
-    const auto& w = s->triangle(u);
-    Vec3 c[3];
-    for (int j = 0; j < 3; ++j) c[j] = w[j] == v ? q : s->position(w[j]);
-    if (Degenerate(*s, u)) {
-      // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
-      // for 10 zero-area triangles fewer): left as it is instead.
-      if (!MovedCornerKeepsOrientation(Across(*s, w, facing), c[0], c[1], c[2])) return false;
-    } else if (!MovedCornerKeepsOrientation(TwiceArea(*s, w), c[0], c[1], c[2])) {
-      return false;
+  auto on_box = [box](Vec3 step) {
+    if (box & (kBoxXMin | kBoxXMax)) step.x = 0;
+    if (box & (kBoxYMin | kBoxYMax)) step.y = 0;
+    if (box & (kBoxZMin | kBoxZMax)) step.z = 0;
+    return step;
+  };
+  auto keeps_facing = [&](Vec3 q) {
+    for (TriId u : s->vertex_triangles(v)) {
+      const auto& w = s->triangle(u);
+      Vec3 c[3];
+      for (int j = 0; j < 3; ++j) c[j] = w[j] == v ? q : s->position(w[j]);
+      if (Degenerate(*s, u)) {
+        // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
+        // for 10 zero-area triangles fewer): left as it is instead.
+        if (!MovedCornerKeepsOrientation(Across(*s, w, facing), c[0], c[1], c[2])) return false;
+      } else if (!MovedCornerKeepsOrientation(TwiceArea(*s, w), c[0], c[1], c[2])) {
+        return false;
+      }
     }
+    return true;
+  };
+  auto try_step = [&](Vec3 step) {
+    step = on_box(step);
+    const Vec3 q = p + step;
+    if (Dot(step, step) == 0 || !keeps_facing(q) || !may_move(v, q)) return false;
+    s->set_position(v, q);
+    return true;
+  };
+  const Vec3 toward = kApart * (sum * (1.0 / n) - p);
+  if (try_step(toward)) return true;
+  const double length = Norm(toward);
+  if (!(length > 0) || !(Dot(facing, facing) > 0)) return false;
+  Vec3 all{0, 0, 0};
+  for (TriId u : s->vertex_triangles(v)) {
+    if (!Degenerate(*s, u)) continue;
+    // The corner of u farthest from v: moving v by d turns u's normal to about
+    // (far - p) x d, which faces as the others do for d along facing x (far - p).
+    Vec3 far = p;
+    for (VertexId x : s->triangle(u)) {
+      const Vec3 d = s->position(x) - p;
+      if (Dot(d, d) > Dot(far - p, far - p)) far = s->position(x);
+    }
+    const Vec3 across = on_box(Cross(facing, far - p));
+    const double norm = Norm(across);
+    if (!(norm > 0)) continue;
+    const Vec3 step = across * (length / norm);
+    all = all + step;
+    if (try_step(step)) return true;
   }
-  s->set_position(v, q);
-  return true;
+  const double norm = Norm(all);
+  return norm > 0 && try_step(all * (length / norm));
 }
 
 // t's corners at one point, or on one line where no flip could mend it (on the box): each
