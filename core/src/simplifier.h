@@ -55,9 +55,10 @@ struct SimplifierOptions {
   // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
   // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
   double keep = 1;
-  // E0 will rise (a target triangle count): the edges Q drops, and those refused for E0
-  // (ε0 above it, or the distance guard), are listed, so that a rise re-offers those it
-  // brings in reach instead of evaluating every edge of the mesh again (RaiseError).
+  // E0 will rise (a target triangle count): the edges Q drops, and those SIMPLIFY refuses
+  // (ε0 above E0, the link condition, the geometry checks), are listed, so that a rise
+  // offers Q those it brings in reach instead of evaluating every edge of the mesh again
+  // (RaiseError), and a merge hands them on (AdoptQueues).
   bool rises = false;
   // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time
   // (2^16: 4 MiB of Q entries; docs/decisions.md).
@@ -94,7 +95,7 @@ class Simplifier {
   double error() const { return opt_.error; }
   // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
   // (schedule.h). Q is re-bucketed for the new E0, and with SimplifierOptions::rises the
-  // listed edges (dropped above keep x E0, or refused for E0) that e brings within keep x e
+  // listed edges (dropped above keep x E0, or refused) that e brings within keep x e
   // are evaluated again and offered to Q; the rest stay listed. Without the list, once e
   // reaches an edge Q dropped, the released edges of the mesh (release key <= the front) are
   // evaluated and queued again, one evaluation per edge (the waiting ones are in W already).
@@ -261,8 +262,8 @@ class Simplifier {
   bool requeue_released_ = false;  // RaiseError: edges for W are in W already
   // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).
   double min_dropped_ = std::numeric_limits<double>::infinity();
-  // SimplifierOptions::rises: the edges dropped or refused for E0, each with the least E0
-  // at which it is worth offering again: its cost, its ε0, or (distance guard) the next rise.
+  // SimplifierOptions::rises: the edges dropped or refused, each with the least E0 at which
+  // it is worth offering again: its cost, its ε0, or (refused by the checks) the next rise.
   // Stale ones are swept at each rise, and when they outnumber the mesh's edges. 24 bytes:
   // with the placement too (56), a rise would need no solve at α = 0, but the engine CT's
   // target run took 10-20 % more memory for 4 % fewer instructions.
