@@ -43,8 +43,8 @@ std::optional<ParkedSession> ResumeTable::ParkAndWait(ParkedSession parked) {
   absl::MutexLock lock(&mu_);
   --streams_;  // the slot is the parked session's from now on (or freed: it ends)
   if (closed_ || window_ <= absl::ZeroDuration()) return parked;
+  parked.feed->SetWaiting(true);
   parked_[id] = Entry{std::move(parked), absl::Now()};
-  parked_[id].session.feed->SetWaiting(true);
   auto gone = [this, &id]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
     auto it = parked_.find(id);
     return closed_ || it == parked_.end() || it->second.evicted;

@@ -80,9 +80,11 @@ inline std::unique_ptr<SliceSource> BoxCutGyroid(int64_t nx, int64_t ny, int64_t
 }
 
 // Extracts the whole volume into `store` layer by layer, adding each layer's triangles to the
-// simplifier (and delaying them, as the tandem schedules do, if asked); returns them all.
+// simplifier (and delaying them, as the tandem schedules do, if asked), then calling
+// after_layer(k) if given; returns them all.
 inline std::vector<TriId> ExtractLayers(SliceSource* src, MeshStore* store, Simplifier* simplifier,
-                                 bool delay_each_layer) {
+                                 bool delay_each_layer,
+                                 const std::function<void(int64_t)>& after_layer = nullptr) {
   const VolumeInfo& info = src->info();
   LayerExtractor ex(ExtractorConfig{info.nx, info.ny, info.nz, info.spacing, info.origin, 0},
                     store);
@@ -97,6 +99,7 @@ inline std::vector<TriId> ExtractLayers(SliceSource* src, MeshStore* store, Simp
     simplifier->AddTriangles(tris, verts);
     if (delay_each_layer) simplifier->Delay(tris);
     all.insert(all.end(), tris.begin(), tris.end());
+    if (after_layer) after_layer(k);
   }
   return all;
 }
