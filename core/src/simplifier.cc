@@ -506,11 +506,8 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
 }
 
 void Simplifier::Rebucket(double max_key) {
-  EdgeQueue old = std::move(q_);
-  q_ = EdgeQueue(max_key);  // its buckets are spaced below E0
-  old.ForEach([this](const QNode& n, const QPlacement& p) {
-    if (!Stale(n)) q_.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
-  });
+  // Its buckets are spaced below E0.
+  q_ = q_.Rebuilt(max_key, [this](const QNode& n) { return !Stale(n); });
 }
 
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {

@@ -135,6 +135,36 @@ TEST(EdgeQueue, TrimFreesThePeakAndKeepsTheOrder) {
   }
 }
 
+// Rebuilt keeps what its filter accepts, respaced below a new E0, and pops it in the order a
+// fresh Q would after the same pushes; each bucket and the slots are sized exactly (pushed into
+// an empty Q one by one they regrew by eighths: a third of a target run's rises).
+TEST(EdgeQueue, RebuiltKeepsTheAcceptedInOrderAndSizesItsArraysExactly) {
+  EdgeQueue q(0.5);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 2.0);
+  for (uint32_t i = 0; i < 20000; ++i) q.Push(i % 5 == 0 ? 0.25 : u(rng), EntryFor(i));
+  for (int i = 0; i < 3000; ++i) q.Pop();  // a recycled slot or two
+  auto keep = [](const QNode& n) { return n.a % 3 != 0; };
+  EdgeQueue rebuilt = q.Rebuilt(1.0, keep);
+  EdgeQueue pushed(1.0);  // what Rebucket did before
+  q.ForEach([&](const QNode& n, const QPlacement& p) {
+    if (keep(n)) pushed.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
+  });
+  ASSERT_EQ(rebuilt.size(), pushed.size());
+  ASSERT_GT(rebuilt.size(), 10000u);
+  const size_t fixed = EdgeQueue::kBuckets * (sizeof(std::vector<QNode>) + sizeof(size_t));
+  EXPECT_EQ(rebuilt.MemoryBytes(), fixed + rebuilt.size() * (sizeof(QNode) + sizeof(QPlacement)));
+  EXPECT_GT(pushed.MemoryBytes(), rebuilt.MemoryBytes());
+  while (!pushed.empty()) {
+    const QNode x = rebuilt.Pop(), y = pushed.Pop();
+    ASSERT_EQ(x.a, y.a);
+    ASSERT_EQ(x.key, y.key);
+    ASSERT_EQ(rebuilt.Placement(x).pos.x, pushed.Placement(y).pos.x);
+  }
+  EXPECT_TRUE(rebuilt.empty());
+  EXPECT_TRUE(EdgeQueue(1.0).Rebuilt(2.0, keep).empty());
+}
+
 // W hands out entries with key <= front, bucket by bucket (a bucket per integer front, ceil of
 // the key), each bucket in push order; keys beyond the window, infinite and NaN ones wait in
 // the far list and are released after the buckets (a NaN key by the next release).
