@@ -57,6 +57,7 @@ void MeshStore::Reserve(size_t vertices, size_t triangles) {
 }
 
 void MeshStore::LinkTriangle(VertexId v, TriId t) {
+  ++vtx_[v].star;
   AdjSlot& s = vtx_[v].adj;
   const uint32_t cap = kMinSlot << s.size_class;
   if (s.count == cap) {
@@ -73,6 +74,7 @@ void MeshStore::LinkTriangle(VertexId v, TriId t) {
 }
 
 void MeshStore::UnlinkTriangle(VertexId v, TriId t) {
+  ++vtx_[v].star;
   AdjSlot& s = vtx_[v].adj;
   TriId* begin = pool_.data() + s.offset;
   TriId* end = begin + s.count;
@@ -126,6 +128,7 @@ void MeshStore::MoveTriangles(VertexId from, VertexId to) {
     const TriId t = pool_[vtx_[from].adj.offset + i];  // LinkTriangle may move pool_: index it
     auto& tri = tris_[t];
     tri[CornerOf(tri, from)] = to;
+    for (VertexId v : tri) ++vtx_[v].star;  // their triangle has a new corner
     LinkTriangle(to, t);
   }
   vtx_[from].adj.count = 0;

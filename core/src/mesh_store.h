@@ -103,6 +103,12 @@ class MeshStore {
   void set_rad(VertexId v, double r) { vtx_[v].rad = r; }
   void set_box_mask(VertexId v, uint8_t m) { vtx_[v].box = m; }
 
+  // Changes whenever a triangle around v is added or removed or one of its corners changes
+  // (MoveTriangles): while it stays, v's star has the same triangles with the same corners,
+  // so a link condition at v decides as it did (Simplifier: link refusals wait for it).
+  // Positions are not covered.
+  uint32_t star_stamp(VertexId v) const { return vtx_[v].star; }
+
   // One past the largest id ever handed out (ids below may be dead).
   uint32_t vertex_capacity() const { return static_cast<uint32_t>(vtx_.size()); }
   uint32_t triangle_capacity() const { return static_cast<uint32_t>(tris_.size()); }
@@ -145,6 +151,7 @@ class MeshStore {
     int32_t layer = 0;
     uint8_t box = 0;
     uint8_t alive = 0;
+    uint32_t star = 0;  // star_stamp (in what was padding)
     double rad = 1.0;
   };
   static_assert(sizeof(VertexRecord) == 64);

@@ -150,6 +150,17 @@ void Simplifier::RaiseError(double e) {
       }
     }
     dropped_.resize(kept);
+    // A link refusal stands while both stars do; the others are offered after the list's.
+    kept = 0;
+    for (const RefusedEdge& r : refused_) {
+      if (Stale(r)) continue;
+      if (store_->star_stamp(r.a) == r.sa && store_->star_stamp(r.b) == r.sb) {
+        refused_[kept++] = r;
+      } else {
+        offered_.push_back(DroppedEdge{e, r.a, r.b, r.va, r.vb});
+      }
+    }
+    refused_.resize(kept);
     for (const DroppedEdge& d : offered_) {  // a re-drop lists it again
       AddToBatch(d.a, d.b, /*released=*/true);
     }
@@ -481,7 +492,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     // neighbourhood may have changed), as the full re-queues did.
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
       ++refusals_.link;
-      if (opt_.rises) Drop(e.a, e.b, opt_.error);
+      if (opt_.rises) {
+        refused_.push_back(RefusedEdge{e.a, e.b, e.va, e.vb, store_->star_stamp(e.a),
+                                       store_->star_stamp(e.b)});
+      }
       continue;
     }
     // Past E0 the guard (a multiple of E0) would stall.
@@ -502,6 +516,9 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   if (q_.size() > 3 * store_->num_triangles() + 1024) Rebucket(opt_.error);
   if (dropped_.size() > 3 * store_->num_triangles() + 1024) {
     std::erase_if(dropped_, [this](const DroppedEdge& d) { return Stale(d); });
+  }
+  if (refused_.size() > 3 * store_->num_triangles() + 1024) {
+    std::erase_if(refused_, [this](const RefusedEdge& r) { return Stale(r); });
   }
 }
 
@@ -551,6 +568,12 @@ void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> m
     if (from.Stale(d)) continue;
     const auto [a, b] = ends(d.a, d.b);
     Drop(a, b, d.cost);
+  }
+  // The merged stars are new: each refusal is offered again at the next rise.
+  for (const RefusedEdge& r : from.refused_) {
+    if (from.Stale(r)) continue;
+    const auto [a, b] = ends(r.a, r.b);
+    Drop(a, b, from.opt_.error);
   }
   min_dropped_ = std::min(min_dropped_, from.min_dropped_);
 }
@@ -688,7 +711,8 @@ size_t Simplifier::MemoryBytes() const {
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
          (released_.capacity() + GroupBytes()) * sizeof(WEdge) + ready_.capacity() * sizeof(uint32_t) +
-         (dropped_.capacity() + offered_.capacity()) * sizeof(DroppedEdge);
+         (dropped_.capacity() + offered_.capacity()) * sizeof(DroppedEdge) +
+         refused_.capacity() * sizeof(RefusedEdge);
 }
 
 }  // namespace tandem

@@ -1,5 +1,6 @@
 // Layered marching cubes: manifoldness, topology, case tables, exact iso hits, spacing.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -210,6 +211,42 @@ TEST(MeshStore, MoveTrianglesKeepsEveryTriangleInOrder) {
   for (TriId t : at_b) s.RemoveTriangle(t);
   EXPECT_EQ(s.vertex_triangles(v[0]).size(), 6u);
   EXPECT_EQ(s.vertex_triangles(v[4]).size(), 0u);
+}
+
+// A vertex's star stamp changes with every change to the triangles around it (added,
+// removed, a corner replaced), and with nothing else: the simplifier trusts an unchanged
+// stamp to mean the same star, and re-checks a link refusal only when a stamp moved.
+TEST(MeshStore, StarStampsChangeWithTheTrianglesAroundAVertex) {
+  MeshStore s;
+  VertexId v[6];
+  for (int i = 0; i < 6; ++i) v[i] = s.AddVertex({double(i), 0, 0}, 0, 0, 0);
+  auto stamps = [&] {
+    std::array<uint32_t, 6> out;
+    for (int i = 0; i < 6; ++i) out[i] = s.star_stamp(v[i]);
+    return out;
+  };
+  auto changed = [&](const std::array<uint32_t, 6>& before) {
+    std::vector<int> out;
+    for (int i = 0; i < 6; ++i) {
+      if (s.star_stamp(v[i]) != before[i]) out.push_back(i);
+    }
+    return out;
+  };
+  auto before = stamps();
+  const TriId t = s.AddTriangle(v[0], v[1], v[2]);
+  s.AddTriangle(v[1], v[3], v[2]);
+  EXPECT_EQ(changed(before), (std::vector<int>{0, 1, 2, 3}));
+  before = stamps();
+  s.set_position(v[0], {9, 9, 9});  // positions are not the star's
+  s.set_height(v[0], 3);
+  EXPECT_TRUE(changed(before).empty());
+  before = stamps();
+  s.AddTriangle(v[4], v[5], v[3]);
+  s.MoveTriangles(v[4], v[1]);  // (4 5 3) becomes (1 5 3): 5 and 3 have a new corner
+  EXPECT_EQ(changed(before), (std::vector<int>{1, 3, 4, 5}));
+  before = stamps();
+  s.RemoveTriangle(t);
+  EXPECT_EQ(changed(before), (std::vector<int>{0, 1, 2}));
 }
 
 // The store's arrays grow by an eighth, not by double (grow.h): past 65,536 vertices a
