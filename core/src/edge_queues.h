@@ -137,8 +137,10 @@ class EdgeQueue {
   // pushed in ForEach's order. Each bucket and the slots are sized exactly first: pushed one
   // by one into a fresh queue, they regrew from empty (grow.h's eighths: about 40 copies of
   // a bucket of a hundred), a third of a target run's rises on a CT.
-  template <typename Keep>
-  EdgeQueue Rebuilt(double max_key, Keep&& keep) const;
+  // more(room) calls room(key) for each push the caller will make next, so that those find
+  // their room too (a rise's offered edges).
+  template <typename Keep, typename More>
+  EdgeQueue Rebuilt(double max_key, Keep&& keep, More&& more) const;
   // Calls f(node, placement) for every queued node, in no particular order.
   template <typename F>
   void ForEach(F&& f) const {
@@ -191,8 +193,8 @@ class EdgeQueue {
   uint32_t seq_ = 0;
 };
 
-template <typename Keep>
-EdgeQueue EdgeQueue::Rebuilt(double max_key, Keep&& keep) const {
+template <typename Keep, typename More>
+EdgeQueue EdgeQueue::Rebuilt(double max_key, Keep&& keep, More&& more) const {
   EdgeQueue q(max_key);
   std::vector<uint32_t> count(kBuckets, 0);
   std::vector<bool> kept;  // keep's answer per node in ForEach's order, asked once
@@ -206,12 +208,18 @@ EdgeQueue EdgeQueue::Rebuilt(double max_key, Keep&& keep) const {
       ++total;
     }
   });
+  const size_t kept_total = total;
+  more([&](double key) {
+    ++count[q.Bucket(key)];
+    ++total;
+  });
   if (total == 0) return q;
   q.buckets_.resize(kBuckets);
   q.heaped_.assign(kBuckets, 0);
   q.cur_ = kBuckets - 1;
   for (size_t b = 0; b < kBuckets; ++b) q.buckets_[b].reserve(count[b]);
   q.slots_.reserve(total);
+  if (kept_total == 0) return q;
   size_t i = 0;
   ForEach([&](const QNode& n, const QPlacement& p) {
     if (kept[i++]) q.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});

@@ -17,7 +17,9 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <mutex>
+#include <span>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -87,6 +89,15 @@ class TargetControl {
 // The end of a target count N for the whole mesh (merged from slabs, if split, with their
 // queues): E0 rises until N remains.
 void ReachTarget(Slab& whole, int64_t target);
+
+// Before a split session's merge, with a target count N: the finished slabs come down
+// together toward kNear N, one shared E0 rise at a time, each slab's SIMPLIFY stopping at its
+// share of that (its count's part of the whole), on both cores. Without it the lock-step ended
+// at up to 1.5 N (it rises only while more than that is settled, for the layers to come),
+// and ReachTarget took the rest alone after the merge. for_each(f) runs f on every slab,
+// side by side or not. After any rise, each slab's trace gets its count.
+void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target,
+                    const std::function<void(const std::function<void(Slab&)>&)>& for_each);
 
 // One slice through one slab. A refused slice (non-finite values, past nz) leaves the slab as it
 // was, apart from the deferred SIMPLIFY step, which the sequential order would have run already.

@@ -133,7 +133,6 @@ void Simplifier::RaiseError(double e) {
   if (opt_.rises) {
     // Re-offer what e brings within keep x e; with α > 0 an edge's cost only grows with E0
     // (IsotropicCostQuadric), so one listed above that cannot be in Q's reach yet.
-    Rebucket(e);
     // In place: the list holds about every edge of the mesh (each costs more than E0 after
     // SIMPLIFY), so a second copy would be most of the session's growth in memory.
     min_dropped_ = std::numeric_limits<double>::infinity();
@@ -151,6 +150,7 @@ void Simplifier::RaiseError(double e) {
     }
     dropped_.resize(kept);
     // A link refusal stands while both stars do; the others are offered after the list's.
+    const size_t from_list = offered_.size();
     kept = 0;
     for (const RefusedEdge& r : refused_) {
       if (Stale(r)) continue;
@@ -161,8 +161,21 @@ void Simplifier::RaiseError(double e) {
       }
     }
     refused_.resize(kept);
-    for (const DroppedEdge& d : offered_) {  // a re-drop lists it again
-      AddToBatch(d.a, d.b, /*released=*/true);
+    const bool unplaced = opt_.alpha == 0.0;
+    Rebucket(e, [&](const std::function<void(double)>& room) {  // and room for the offers
+      for (size_t i = 0; i < offered_.size(); ++i) {
+        room(i < from_list && unplaced ? offered_[i].cost : e);
+      }
+    });
+    for (size_t i = 0; i < offered_.size(); ++i) {
+      const DroppedEdge& d = offered_[i];
+      if (i < from_list && unplaced) {
+        // Its cost is what an evaluation would give (the stamps hold its quadrics and ends):
+        // queued as it is, placed when popped. Most of those beyond e go stale in Q first.
+        if (!Pinned(d.a, d.b)) q_.Push(d.cost, QEntry{d.a, d.b, d.va, d.vb, kUnplaced, kNaN});
+      } else {
+        AddToBatch(d.a, d.b, /*released=*/true);  // a re-drop lists it again
+      }
     }
     FlushBatch();
     return;
@@ -470,6 +483,13 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     c.pos = placement.pos;
     c.cost = key;
     c.eps0 = placement.eps0;
+    if (std::isnan(c.eps0)) {  // queued unplaced by a rise (α = 0: the key is its cost)
+      ++evaluations_;
+      if (!Evaluate(e.a, e.b, &c)) {
+        ++refusals_.box;
+        continue;
+      }
+    }
     if (opt_.alpha > 0.0) {
       // The memoryless isotropy term depends on the current neighbourhood: recompute.
       ++evaluations_;
@@ -501,7 +521,8 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     // Past E0 the guard (a multiple of E0) would stall.
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
     if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) {
-      if (opt_.rises) Drop(e.a, e.b, opt_.error);
+      // Offered at the next rise; at α = 0 with its key, which is its cost.
+      if (opt_.rises) Drop(e.a, e.b, opt_.alpha > 0.0 ? opt_.error : key);
       continue;
     }
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
@@ -522,9 +543,13 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   }
 }
 
-void Simplifier::Rebucket(double max_key) {
+void Simplifier::Rebucket(double max_key,
+                          const std::function<void(const std::function<void(double)>&)>& more) {
   // Its buckets are spaced below E0.
-  q_ = q_.Rebuilt(max_key, [this](const QNode& n) { return !Stale(n); });
+  q_ = q_.Rebuilt(max_key, [this](const QNode& n) { return !Stale(n); },
+                  [&](const std::function<void(double)>& room) {
+                    if (more) more(room);
+                  });
 }
 
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {

@@ -231,7 +231,8 @@ class Simplifier {
   void Contract(VertexId a, VertexId b, const Candidate& c);
   // Q again for E0 = max_key, its live entries only (in no particular order: ties may pop
   // differently).
-  void Rebucket(double max_key);
+  // more: as EdgeQueue::Rebuilt's, for the pushes that come next.
+  void Rebucket(double max_key, const std::function<void(const std::function<void(double)>&)>& more = nullptr);
   // Loops over known edges or triangles start loading the records of the one kAhead places on.
   static constexpr size_t kAhead = 8;
   // Starts loading what an evaluation reads of v: its store record and its quadric.
@@ -273,6 +274,9 @@ class Simplifier {
     uint32_t va, vb;  // version stamps
   };
   static_assert(sizeof(DroppedEdge) == 24);
+  // A rise queues a listed edge without its placement (RaiseError): marked by a NaN ε0.
+  static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  static constexpr Vec3 kUnplaced{kNaN, kNaN, kNaN};
   void Drop(VertexId a, VertexId b, double cost) {
     dropped_.push_back(DroppedEdge{cost, a, b, version_[a], version_[b]});
   }

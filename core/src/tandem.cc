@@ -504,9 +504,14 @@ absl::Status TandemSession::Impl::Finish() {
   }
   ForEachSlab([this](Slab& s) { FinishSlab(s, options.schedule); });
   finished = true;
+  const bool merge = slabs.size() > 1;
+  if (merge && options.target_triangles > 0 && options.schedule != Schedule::kNone &&
+      !slabs[0]->sealer) {
+    ApproachTarget(slabs, options.target_triangles,
+                   [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
+  }
   FoldTraces();
   std::vector<VertexId> seam_vertices;
-  const bool merge = slabs.size() > 1;
   if (merge) {
     seam_vertices = MergeSlabs(&slabs, &seams, options.schedule != Schedule::kNone, &merged);
   }

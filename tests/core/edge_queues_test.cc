@@ -137,7 +137,8 @@ TEST(EdgeQueue, TrimFreesThePeakAndKeepsTheOrder) {
 
 // Rebuilt keeps what its filter accepts, respaced below a new E0, and pops it in the order a
 // fresh Q would after the same pushes; each bucket and the slots are sized exactly (pushed into
-// an empty Q one by one they regrew by eighths: a third of a target run's rises).
+// an empty Q one by one they regrew by eighths: a third of a target run's rises), with room
+// for the pushes the caller announces.
 TEST(EdgeQueue, RebuiltKeepsTheAcceptedInOrderAndSizesItsArraysExactly) {
   EdgeQueue q(0.5);
   std::mt19937 rng(5);
@@ -145,12 +146,14 @@ TEST(EdgeQueue, RebuiltKeepsTheAcceptedInOrderAndSizesItsArraysExactly) {
   for (uint32_t i = 0; i < 20000; ++i) q.Push(i % 5 == 0 ? 0.25 : u(rng), EntryFor(i));
   for (int i = 0; i < 3000; ++i) q.Pop();  // a recycled slot or two
   auto keep = [](const QNode& n) { return n.a % 3 != 0; };
-  EdgeQueue rebuilt = q.Rebuilt(1.0, keep);
+  auto nothing_more = [](auto&&) {};
+  EdgeQueue rebuilt = q.Rebuilt(1.0, keep, nothing_more);
   EdgeQueue pushed(1.0);  // what Rebucket did before
   q.ForEach([&](const QNode& n, const QPlacement& p) {
     if (keep(n)) pushed.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
   });
   ASSERT_EQ(rebuilt.size(), pushed.size());
+  const size_t pushed_size = pushed.size();
   ASSERT_GT(rebuilt.size(), 10000u);
   const size_t fixed = EdgeQueue::kBuckets * (sizeof(std::vector<QNode>) + sizeof(size_t));
   EXPECT_EQ(rebuilt.MemoryBytes(), fixed + rebuilt.size() * (sizeof(QNode) + sizeof(QPlacement)));
@@ -162,7 +165,17 @@ TEST(EdgeQueue, RebuiltKeepsTheAcceptedInOrderAndSizesItsArraysExactly) {
     ASSERT_EQ(rebuilt.Placement(x).pos.x, pushed.Placement(y).pos.x);
   }
   EXPECT_TRUE(rebuilt.empty());
-  EXPECT_TRUE(EdgeQueue(1.0).Rebuilt(2.0, keep).empty());
+  EXPECT_TRUE(EdgeQueue(1.0).Rebuilt(2.0, keep, nothing_more).empty());
+  // Room for the pushes announced (a rise's offers): made, and they need no more.
+  std::vector<double> offers;
+  for (int i = 0; i < 5000; ++i) offers.push_back(u(rng));
+  EdgeQueue roomy = q.Rebuilt(1.0, keep, [&](auto&& room) {
+    for (double key : offers) room(key);
+  });
+  const size_t before = roomy.MemoryBytes();
+  for (uint32_t i = 0; i < offers.size(); ++i) roomy.Push(offers[i], EntryFor(i));
+  EXPECT_EQ(roomy.MemoryBytes(), before);
+  EXPECT_EQ(roomy.size(), pushed_size + offers.size());
 }
 
 // W hands out entries with key <= front, bucket by bucket (a bucket per integer front, ceil of
