@@ -332,7 +332,7 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
 
 DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
                                      const std::function<bool(VertexId, Vec3)>& may_move,
-                                     const std::function<void(VertexId)>& moved) {
+                                     const std::function<void(VertexId)>& moved, bool flips) {
   DegenerateCounts counts;
   std::vector<TriId> bad;
   for (TriId t : tris) {
@@ -341,7 +341,7 @@ DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tr
   // An id a flip freed may come back as one of its new triangles: those are not degenerate.
   for (TriId t : bad) {
     if (!store->triangle_alive(t) || !Degenerate(*store, t)) continue;
-    if (TryFlip(store, t)) {
+    if (flips && TryFlip(store, t)) {
       ++counts.flipped;
     } else if (const int64_t n = TryInflate(store, t, size, may_move, moved); n > 0) {
       counts.moved += n;

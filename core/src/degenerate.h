@@ -50,10 +50,12 @@ DegenerateCounts TidyDegenerate(MeshStore* store, double size,
                                 const std::function<bool(VertexId, Vec3)>& may_move,
                                 const std::function<void(VertexId)>& moved);
 // The same for the zero-area triangles among `tris` only (live ones; a sealed chunk's, before
-// it is sealed).
+// it is sealed). Without `flips`, only corners move (may_move deciding): the topology stays
+// as it is, for triangles the simplifier still works on.
 DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
                                      const std::function<bool(VertexId, Vec3)>& may_move,
-                                     const std::function<void(VertexId)>& moved);
+                                     const std::function<void(VertexId)>& moved,
+                                     bool flips = true);
 
 }  // namespace tandem
 

@@ -183,6 +183,23 @@ void Sealer::Seal(double front) {
     }
     const DegenerateCounts mended = simplifier_->TidyDegenerateAmong(
         tris_, [this](VertexId v) { return id_[v] == kInvalid; });
+    // A zero-area triangle that seals later, at a corner handed out now: mended now, while
+    // that corner may still move (frozen, but without an id), the others staying where they
+    // are and the topology too. Left for later, both its coincident corners could be handed
+    // out by other triangles first, and then neither may move (the head MR sealed kept 2 so).
+    later_.clear();
+    for (TriId t : tris_) {
+      for (VertexId v : store_->triangle(t)) {
+        if (id_[v] != kInvalid) continue;
+        for (TriId u : store_->vertex_triangles(v)) later_.push_back(u);
+      }
+    }
+    std::sort(later_.begin(), later_.end());
+    later_.erase(std::unique(later_.begin(), later_.end()), later_.end());
+    simplifier_->TidyDegenerateAmong(
+        later_,
+        [this](VertexId v) { return id_[v] == kInvalid && (store_->box_mask(v) & kFrozen); },
+        /*flips=*/false);
     if (mended.flipped > 0) {
       need_.insert(need_.end(), freeze_.begin(), freeze_.end());
       GatherSealable(need_);
@@ -336,7 +353,8 @@ size_t Sealer::MemoryBytes() const {
   return active_.capacity() * sizeof(VertexId) + id_.capacity() * sizeof(uint32_t) +
          stamp_.capacity() * sizeof(uint32_t) + normal_.capacity() * sizeof(Vec3) +
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
-         tris_.capacity() * sizeof(TriId) + pend_verts_.capacity() * sizeof(PendingVertex) +
+         (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
+         pend_verts_.capacity() * sizeof(PendingVertex) +
          (pend_tris_.capacity() + pend_retired_.capacity()) * sizeof(uint32_t);
 }
 

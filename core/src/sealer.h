@@ -102,6 +102,7 @@ class Sealer {
   std::vector<VertexId> freeze_, need_, drop_;
   std::vector<VertexId> shared_;  // frozen by FreezeShared since the last Seal
   std::vector<TriId> tris_;
+  std::vector<TriId> later_;  // Seal's scratch: the triangles around the corners handed out
   // The pending chunk.
   std::vector<PendingVertex> pend_verts_;
   std::vector<uint32_t> pend_tris_;  // global ids, 3 per triangle

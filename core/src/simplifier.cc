@@ -673,13 +673,14 @@ DegenerateCounts Simplifier::TidyDegenerate() {
 }
 
 DegenerateCounts Simplifier::TidyDegenerateAmong(std::span<const TriId> tris,
-                                                 const std::function<bool(VertexId)>& movable) {
+                                                 const std::function<bool(VertexId)>& movable,
+                                                 bool flips) {
   return tandem::TidyDegenerateAmong(
       store_, tris, TidySize(),
       [&](VertexId v, Vec3 p) {
         return (store_->box_mask(v) & kSeam) == 0 && movable(v) && TidyMayMove(v, p);
       },
-      [this](VertexId v) { ++version_[v]; });
+      [this](VertexId v) { ++version_[v]; }, flips);
 }
 
 void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal) {

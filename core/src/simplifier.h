@@ -148,9 +148,11 @@ class Simplifier {
   // the error bound (ε0 <= max(E0, ε0 now)).
   DegenerateCounts TidyDegenerate();
   // The same among `tris` (a sealed chunk's, as it is sealed): frozen vertices may move too,
-  // where `movable` (the sealer: not handed out yet) and the error bound allow.
+  // where `movable` (the sealer: not handed out yet) and the error bound allow. Without
+  // `flips`, corners move only (tris the simplifier still works on).
   DegenerateCounts TidyDegenerateAmong(std::span<const TriId> tris,
-                                       const std::function<bool(VertexId)>& movable);
+                                       const std::function<bool(VertexId)>& movable,
+                                       bool flips = true);
   // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
   void VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal);
 
