@@ -21,8 +21,8 @@
 // A move is taken only where no triangle turns over or collapses, the mended ones come out
 // facing as their neighbours across their edges do, and `may_move` agrees (the simplifier's
 // error bound). On the shared scans at the benchmark's reductions (TARGET.md's 12 points)
-// none is left; sealed, the head MR keeps 2 at two of its points (a pinch where a corner was
-// handed out in an earlier chunk: it may not move).
+// none is left, sealed or not (the sealer mends the triangles around a corner before it
+// hands the corner out: once out, it may not move).
 #ifndef TANDEM_DEGENERATE_H_
 #define TANDEM_DEGENERATE_H_
 
