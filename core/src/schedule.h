@@ -91,8 +91,9 @@ class TargetControl {
 void ReachTarget(Slab& whole, int64_t target);
 
 // Before a split session's merge, with a target count N: the finished slabs come down
-// together toward kNear N, one shared E0 rise at a time, each slab's SIMPLIFY stopping at its
-// share of that (its count's part of the whole), on both cores. Without it the lock-step ended
+// together toward 1.05 N plus their seams' triangles, one shared E0 rise at a time, on both
+// cores, each slab's SIMPLIFY stopping at its share of N at the latest (its count's part of
+// the whole), so no rise leaves fewer than N. Without it the lock-step ended
 // at up to 1.5 N (it rises only while more than that is settled, for the layers to come),
 // and ReachTarget took the rest alone after the merge. for_each(f) runs f on every slab,
 // side by side or not. After any rise, each slab's trace gets its count.

@@ -507,9 +507,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
       if (opt_.rises) Drop(e.a, e.b, c.eps0);
       continue;
     }
-    // A refused edge is pushed again when a contraction at one of its ends changes it; with
-    // rises, each rise offers it again as well (the distance guard grows with E0, and its
-    // neighbourhood may have changed), as the full re-queues did.
+    // A refused edge is pushed again when a contraction at one of its ends changes it. With
+    // rises it is listed as well: a link refusal comes back at the first rise after a star
+    // of its ends changed (refused_), a geometry refusal at every rise (the distance guard
+    // grows with E0, and a neighbour's move reshapes its triangles).
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
       ++refusals_.link;
       if (opt_.rises) {

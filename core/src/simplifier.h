@@ -95,8 +95,10 @@ class Simplifier {
   double error() const { return opt_.error; }
   // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
   // (schedule.h). Q is re-bucketed for the new E0, and with SimplifierOptions::rises the
-  // listed edges (dropped above keep x E0, or refused) that e brings within keep x e
-  // are evaluated again and offered to Q; the rest stay listed. Without the list, once e
+  // listed edges (dropped above keep x E0, or refused) that e brings within keep x e are
+  // offered to Q: at α = 0 as listed, their placement solved when popped, else evaluated
+  // again; a link refusal only once a star of its ends changed. The rest stay listed.
+  // Without the list, once e
   // reaches an edge Q dropped, the released edges of the mesh (release key <= the front) are
   // evaluated and queued again, one evaluation per edge (the waiting ones are in W already).
   void RaiseError(double e);
@@ -265,11 +267,12 @@ class Simplifier {
   bool requeue_released_ = false;  // RaiseError: edges for W are in W already
   // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).
   double min_dropped_ = std::numeric_limits<double>::infinity();
-  // SimplifierOptions::rises: the edges dropped or refused, each with the least E0 at which
-  // it is worth offering again: its cost, its ε0, or (refused by the checks) the next rise.
-  // Stale ones are swept at each rise, and when they outnumber the mesh's edges. 24 bytes:
-  // with the placement too (56), a rise would need no solve at α = 0, but the engine CT's
-  // target run took 10-20 % more memory for 4 % fewer instructions.
+  // SimplifierOptions::rises: the edges dropped or refused by the geometry checks, each with
+  // the least E0 at which it is worth offering again: its cost, its ε0, or (refused) its key
+  // at α = 0, E0 otherwise, either way the next rise. Stale ones are swept at each rise, and
+  // when they outnumber the mesh's edges. 24 bytes: at α = 0 the cost is what an evaluation
+  // would give, and the placement is solved when Q pops the edge (stored, 56 bytes, it took
+  // 10-20 % more memory on the engine CT's target run).
   struct DroppedEdge {
     double cost;
     VertexId a, b;
