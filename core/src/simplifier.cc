@@ -162,7 +162,8 @@ void Simplifier::RaiseError(double e) {
     }
     refused_.resize(kept);
     const bool unplaced = opt_.alpha == 0.0;
-    Rebucket(e, [&](const std::function<void(double)>& room) {  // and room for the offers
+    // Rebucket, with room for the offers.
+    q_ = q_.Rebuilt(e, [this](const QNode& n) { return !Stale(n); }, [&](auto&& room) {
       for (size_t i = 0; i < offered_.size(); ++i) {
         room(i < from_list && unplaced ? offered_[i].cost : e);
       }
@@ -544,13 +545,9 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   }
 }
 
-void Simplifier::Rebucket(double max_key,
-                          const std::function<void(const std::function<void(double)>&)>& more) {
+void Simplifier::Rebucket(double max_key) {
   // Its buckets are spaced below E0.
-  q_ = q_.Rebuilt(max_key, [this](const QNode& n) { return !Stale(n); },
-                  [&](const std::function<void(double)>& room) {
-                    if (more) more(room);
-                  });
+  q_ = q_.Rebuilt(max_key, [this](const QNode& n) { return !Stale(n); }, [](auto&&) {});
 }
 
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {

@@ -235,8 +235,7 @@ class Simplifier {
   void Contract(VertexId a, VertexId b, const Candidate& c);
   // Q again for E0 = max_key, its live entries only (in no particular order: ties may pop
   // differently).
-  // more: as EdgeQueue::Rebuilt's, for the pushes that come next.
-  void Rebucket(double max_key, const std::function<void(const std::function<void(double)>&)>& more = nullptr);
+  void Rebucket(double max_key);
   // Loops over known edges or triangles start loading the records of the one kAhead places on.
   static constexpr size_t kAhead = 8;
   // Starts loading what an evaluation reads of v: its store record and its quadric.
