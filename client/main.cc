@@ -436,6 +436,7 @@ int StreamCommand(int argc, char** argv) {
   c.set_alpha(session->alpha);
   c.set_distance_guard(session->distance_guard);
   c.set_sag_correction(session->sag_correction);
+  c.set_lockstep_error(session->lockstep_error);
   c.set_parts(session->parts);
   c.set_schedule(tandem::wire::ScheduleToProto(session->schedule));
   c.set_target_triangles(session->target_triangles);

@@ -100,6 +100,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   o.target_triangles = c.target_triangles();
   if (c.has_distance_guard()) o.distance_guard = c.distance_guard();
   if (c.has_sag_correction()) o.sag_correction = c.sag_correction();
+  if (c.has_lockstep_error()) o.lockstep_error = c.lockstep_error();
   o.parts = c.parts();
   o.seal = c.sealed_chunks();
   if (c.has_seal_margin()) o.seal_margin = c.seal_margin();

@@ -84,6 +84,13 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    "mesh's bias toward the concave side; 0 = off (the paper's placement), at "
                    "most 1",
                    false, "F");
+  flags->AddDouble("lockstep-error", &lockstep_error,
+                   "the finishing pass: the lock-step simplifies to F x E0 only, and when the "
+                   "stream ends the whole mesh comes down to E0 in one cost order (closer to "
+                   "the full-resolution surface for its triangle count; holds more triangles "
+                   "until then); not with --seal or --target-triangles, whose E0 rises "
+                   "anyway; 1 = off (the paper's lock-step at E0 throughout)",
+                   false, "F");
   flags->AddInt("target-triangles", &target_triangles,
                 "simplify to N triangles: E0 starts at --error or 1/1000 of the smallest "
                 "spacing, whichever is smaller, and rises as the mesh grows, so N is reached "
@@ -165,6 +172,7 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
   o.alpha = alpha;
   o.distance_guard = distance_guard;
   o.sag_correction = sag_correction;
+  o.lockstep_error = lockstep_error;
   o.target_triangles = target_triangles;
   o.seal = seal;
   o.seal_margin = seal_margin;

@@ -21,6 +21,7 @@ struct ExtractFlags {
   std::string input, zarr_array, out, iso, schedule = "tandem-lag", metrics, done_file;
   double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
+  double lockstep_error = SessionOptions{}.lockstep_error;
   double settle = 10;
   int64_t target_triangles = 0, expect_slices = 0, parts = 0;
   int64_t quantization_bits = 16, compression_level = 7;  // Draco

@@ -81,6 +81,10 @@ absl::Status SessionOptions::Validate() const {
   if (!(sag_correction >= 0 && sag_correction <= 1)) {
     return Refuse("sag_correction", sag_correction, "sag correction must lie in [0, 1] (0 = off)");
   }
+  if (!(lockstep_error > 0 && lockstep_error <= 1)) {
+    return Refuse("lockstep_error", lockstep_error,
+                  "the lock-step's share of E0 must lie in (0, 1] (1 = no finishing pass)");
+  }
   if (target_triangles < 0) {
     return Refuse("target_triangles", target_triangles,
                   "target triangle count must be >= 0 (0 = no target)");

@@ -100,6 +100,14 @@ void ReachTarget(Slab& whole, int64_t target);
 void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target,
                     const std::function<void(const std::function<void(Slab&)>&)>& for_each);
 
+// The finishing pass of an E0 run (SessionOptions::lockstep_error): once every slab is
+// finished at the lock-step's share of E0, each comes down to `error` (the engine frame's
+// E0) in one cost order, side by side (for_each as in ApproachTarget), before the merge;
+// the seams follow after it at `error` (FinishWhole). Slabs already at `error` are left
+// as they are; each slab's trace gets its count.
+void FinishAtError(std::span<const std::unique_ptr<Slab>> slabs, double error,
+                   const std::function<void(const std::function<void(Slab&)>&)>& for_each);
+
 // One slice through one slab. A refused slice (non-finite values, past nz) leaves the slab as it
 // was, apart from the deferred SIMPLIFY step, which the sequential order would have run already.
 absl::Status StepSlab(Slab& slab, SliceValues values, Schedule schedule, const Overlap& overlap);

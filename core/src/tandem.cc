@@ -510,6 +510,10 @@ absl::Status TandemSession::Impl::Finish() {
     ApproachTarget(slabs, options.target_triangles,
                    [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
   }
+  if (LockstepShare(options) < 1.0) {
+    FinishAtError(slabs, options.error / scale,
+                  [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
+  }
   FoldTraces();
   std::vector<VertexId> seam_vertices;
   if (merge) {

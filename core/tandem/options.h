@@ -37,6 +37,15 @@ struct SessionOptions {
   // triangle turns over. The quadric minimiser leaves a coarse mesh biased toward the
   // concave side of the surface; F = 0.3 removes most of that bias.
   double sag_correction = 0.3;
+  // The finishing pass (not in the paper; 1 turns it off). Without target_triangles and
+  // unsealed, the lock-step (tandem, tandem-lag) simplifies to lockstep_error x E0 only,
+  // and when the stream ends the whole mesh comes down to E0 in one cost order, as the
+  // classical algorithm's last contractions would. With E0 itself in lock-step, each region
+  // is taken down to E0 before the next arrives, so the coarsest contractions go in the
+  // sweep's order rather than by cost (RMS distance 1.1-1.2x classical's at a coarse E0,
+  // docs/decisions.md). The session holds the mesh at that fraction of E0 meanwhile (more
+  // triangles than the result), and the pass runs after the last slice.
+  double lockstep_error = 0.5;
   // > 0: simplify to this many triangles. E0 starts at min(error, smallest spacing / 1000)
   // and rises as the mesh grows (schedule.h: TargetControl), so the count is reached whatever
   // error is, unless the surface's components and handles need more; the parts share E0.

@@ -75,6 +75,7 @@ void VisitReportFields(R& r, F&& f) {
   f("/distance_guard", "distance_guard", o.distance_guard, W::kAlways);
   f("/sag_correction", "sag_correction", o.sag_correction, W::kAlways);
   f("/sag_corrected", "sag_corrected", s.sag_corrected, W::kAlways);
+  f("/lockstep_error", "lockstep_error", o.lockstep_error, W::kAlways);
   f("/target_triangles", "target_triangles", o.target_triangles, W::kAlways);
   f("/grid/0", "nx", r.nx, W::kAlways);
   f("/grid/1", "ny", r.ny, W::kAlways);

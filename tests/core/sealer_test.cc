@@ -78,6 +78,9 @@ SessionOptions Options(Schedule schedule, double e0, bool seal) {
   o.error = e0;
   o.seal = seal;
   o.parts = 1;
+  // A sealed stream runs the paper's lock-step at E0 (its chunks cannot wait for a finishing
+  // pass), and so does the plain session it is compared with.
+  o.lockstep_error = 1;
   return o;
 }
 

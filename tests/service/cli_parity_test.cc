@@ -55,6 +55,7 @@ TEST(CliParity, SharedFlagsHaveTheSameNamesValuesAndDefaults) {
   for (const char* name :
        {"input", "zarr-array", "follow", "expect-slices", "settle", "done-file", "out", "iso",
         "error", "alpha", "schedule", "no-simplify", "distance-guard", "sag-correction",
+        "lockstep-error",
         "target-triangles", "parts", "seal", "seal-margin", "metrics", "reference", "strict", "quiet"}) {
     SCOPED_TRACE(name);
     ASSERT_TRUE(a.count(name)) << cli.out;

@@ -63,6 +63,7 @@ TEST(ValidateConfig, AcceptsAGoodConfigAndAppliesDefaults) {
   EXPECT_EQ(cfg->options.alpha, 0.25);
   EXPECT_EQ(cfg->options.distance_guard, 2.0);  // unset: the core default
   EXPECT_EQ(cfg->options.sag_correction, 0.3);
+  EXPECT_EQ(cfg->options.lockstep_error, 0.5);  // unset: the core default
   EXPECT_EQ(cfg->options.parts, 0);  // unset: automatic
   EXPECT_EQ(cfg->draco.quantization_bits, 16);
   EXPECT_EQ(cfg->draco.compression_level, 7);
@@ -125,6 +126,8 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        absl::StatusCode::kInvalidArgument, "config.distance_guard"},
       {[](auto* c) { c->set_sag_correction(-0.5); }, absl::StatusCode::kInvalidArgument,
        "config.sag_correction"},
+      {[](auto* c) { c->set_lockstep_error(0); }, absl::StatusCode::kInvalidArgument,
+       "config.lockstep_error"},
       {[](auto* c) {
          c->set_sealed_chunks(true);
          c->set_target_triangles(100);

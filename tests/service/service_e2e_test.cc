@@ -618,6 +618,30 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   EXPECT_LE(sealed_report->error_max, 0.2 * (1 + 1e-9));
 }
 
+// Streams with the client's `args` and checks that the server's mesh (written to `ply`) is
+// the local session's with options `o` over `path`; returns its triangle count (0 after a
+// failure).
+size_t StreamsAsLocally(const std::vector<std::string>& args, const std::string& path,
+                        const std::string& ply, const SessionOptions& o) {
+  RunResult r = Client(args);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  auto local = RunLocal(path, o);
+  EXPECT_TRUE(local.ok()) << local.status();
+  if (r.exit_code != 0 || !local.ok()) return 0;
+  EXPECT_EQ((*local)->num_parts(), 1);  // merged at Finish
+  const IndexedMesh expected = (*local)->Snapshot();
+  auto mesh = ReadMesh(ply);
+  EXPECT_TRUE(mesh.ok()) << mesh.status();
+  if (!mesh.ok()) return 0;
+  EXPECT_EQ(mesh->num_triangles(), expected.num_triangles());
+  if (mesh->num_triangles() != expected.num_triangles()) return 0;
+  auto map = MatchVertices(expected, *mesh, codec::PositionTolerance(expected, 16));
+  EXPECT_TRUE(map.ok()) << map.status();
+  if (!map.ok()) return 0;
+  EXPECT_TRUE(SameTriangles(expected, *mesh, *map));
+  return expected.num_triangles();
+}
+
 // SessionConfig.parts (tandem-client --parts): the split the client asks for is the one the
 // server's session runs, so each stream's mesh is the local session's with the same parts,
 // and unset is the automatic split (2 on this 160-wide grid).
@@ -632,22 +656,10 @@ TEST_F(ServiceE2eTest, ThePartsAskedForAreTheSessionsSplit) {
     std::vector<std::string> args = {"stream", "--server", server_->address(), "--input", *path,
                                      "--iso", "0", "--error", "0.3", "--out", ply};
     if (parts > 0) args = Concat(args, {"--parts", std::to_string(parts)});
-    RunResult r = Client(args);
-    ASSERT_EQ(r.exit_code, 0) << r.err;
     SessionOptions o;
     o.error = 0.3;
     o.parts = parts == 0 ? 2 : parts;
-    auto local = RunLocal(*path, o);
-    ASSERT_TRUE(local.ok()) << local.status();
-    ASSERT_EQ((*local)->num_parts(), 1);  // merged at Finish
-    const IndexedMesh expected = (*local)->Snapshot();
-    auto mesh = ReadMesh(ply);
-    ASSERT_TRUE(mesh.ok()) << mesh.status();
-    ASSERT_EQ(mesh->num_triangles(), expected.num_triangles());
-    auto map = MatchVertices(expected, *mesh, codec::PositionTolerance(expected, 16));
-    ASSERT_TRUE(map.ok()) << map.status();
-    EXPECT_TRUE(SameTriangles(expected, *mesh, *map));
-    counts.insert(expected.num_triangles());
+    counts.insert(StreamsAsLocally(args, *path, ply, o));
   }
   EXPECT_EQ(counts.size(), 3u);  // 1, 2 and 5 parts: three different meshes
   // Out of range: refused before any slice, naming the field.
@@ -655,6 +667,33 @@ TEST_F(ServiceE2eTest, ThePartsAskedForAreTheSessionsSplit) {
                           "0", "--parts", "65", "--out", dir_ + "/bad.ply"});
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.err.find("--parts 65"), std::string::npos) << bad.err;
+}
+
+// SessionConfig.lockstep_error (tandem-client --lockstep-error): the finishing pass the
+// client asks for, or turns off with 1, is the session's; unset is the core's default.
+TEST_F(ServiceE2eTest, TheFinishingPassAskedForIsTheSessions) {
+  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 48, 48, 48));
+  ASSERT_TRUE(path.ok()) << path.status();
+  std::vector<size_t> counts;
+  for (double lockstep : {0.0, 1.0, 0.3}) {  // 0: the flag not given
+    SCOPED_TRACE(lockstep);
+    const std::string ply = dir_ + "/f" + std::to_string(counts.size()) + ".ply";
+    std::vector<std::string> args = {"stream", "--server", server_->address(), "--input", *path,
+                                     "--iso", "0", "--error", "0.5", "--out", ply};
+    SessionOptions o;
+    o.error = 0.5;
+    if (lockstep > 0) {
+      args = Concat(args, {"--lockstep-error", absl::StrCat(lockstep)});
+      o.lockstep_error = lockstep;
+    }
+    counts.push_back(StreamsAsLocally(args, *path, ply, o));
+    EXPECT_GT(counts.back(), 0u);
+  }
+  EXPECT_NE(counts[0], counts[1]);  // the pass by default, and off
+  RunResult bad = Client({"stream", "--server", server_->address(), "--input", *path, "--iso",
+                          "0", "--lockstep-error", "0", "--out", dir_ + "/bad.ply"});
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.err.find("--lockstep-error 0"), std::string::npos) << bad.err;
 }
 
 // The session id a streaming client prints (bounded wait; "" if it never does).
