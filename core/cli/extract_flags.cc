@@ -85,11 +85,12 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    "most 1",
                    false, "F");
   flags->AddDouble("lockstep-error", &lockstep_error,
-                   "the finishing pass: the lock-step simplifies to F x E0 only, and when the "
+                   "the finishing pass for an --error above the default: the lock-step "
+                   "simplifies to F x E0 only (not below the default E0), and when the "
                    "stream ends the whole mesh comes down to E0 in one cost order (closer to "
                    "the full-resolution surface for its triangle count; holds more triangles "
-                   "until then); not with --seal or --target-triangles, whose E0 rises "
-                   "anyway; 1 = off (the paper's lock-step at E0 throughout)",
+                   "until then); not with --seal or --target-triangles; 1 = off (the paper's "
+                   "lock-step at E0 throughout)",
                    false, "F");
   flags->AddInt("target-triangles", &target_triangles,
                 "simplify to N triangles: E0 starts at --error or 1/1000 of the smallest "
@@ -168,7 +169,7 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
                                                      const VolumeInfo& info) const {
   SessionOptions o;
   const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
-  o.error = flags.IsSet("error") ? error : 0.2 * min_spacing;
+  o.error = flags.IsSet("error") ? error : SessionOptions::kDefaultErrorVoxels * min_spacing;
   o.alpha = alpha;
   o.distance_guard = distance_guard;
   o.sag_correction = sag_correction;

@@ -260,16 +260,14 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
 constexpr double kTargetKeep = 1.5;
 
 double StartError(const VolumeInfo& grid, const SessionOptions& options) {
-  if (options.target_triangles <= 0) return options.error * LockstepShare(options);
   const double spacing = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
-  return std::min(options.error, spacing / 1000);
-}
-
-double LockstepShare(const SessionOptions& options) {
+  if (options.target_triangles > 0) return std::min(options.error, spacing / 1000);
   const bool lockstep =
       options.schedule == Schedule::kTandem || options.schedule == Schedule::kTandemLag;
-  return lockstep && !options.seal && options.target_triangles <= 0 ? options.lockstep_error
-                                                                     : 1.0;
+  if (!lockstep || options.seal) return options.error;
+  return std::min(options.error,
+                  std::max(options.lockstep_error * options.error,
+                           SessionOptions::kDefaultErrorVoxels * spacing));
 }
 
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,

@@ -510,7 +510,8 @@ absl::Status TandemSession::Impl::Finish() {
     ApproachTarget(slabs, options.target_triangles,
                    [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
   }
-  if (LockstepShare(options) < 1.0) {
+  if (options.schedule != Schedule::kNone && options.target_triangles <= 0 &&
+      slabs[0]->simplifier.error() < options.error / scale) {  // the finishing pass
     FinishAtError(slabs, options.error / scale,
                   [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
   }

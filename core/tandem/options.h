@@ -38,13 +38,16 @@ struct SessionOptions {
   // concave side of the surface; F = 0.3 removes most of that bias.
   double sag_correction = 0.3;
   // The finishing pass (not in the paper; 1 turns it off). Without target_triangles and
-  // unsealed, the lock-step (tandem, tandem-lag) simplifies to lockstep_error x E0 only,
-  // and when the stream ends the whole mesh comes down to E0 in one cost order, as the
-  // classical algorithm's last contractions would. With E0 itself in lock-step, each region
-  // is taken down to E0 before the next arrives, so the coarsest contractions go in the
-  // sweep's order rather than by cost (RMS distance 1.1-1.2x classical's at a coarse E0,
-  // docs/decisions.md). The session holds the mesh at that fraction of E0 meanwhile (more
-  // triangles than the result), and the pass runs after the last slice.
+  // unsealed, the lock-step (tandem, tandem-lag) simplifies to lockstep_error x E0, but not
+  // below kDefaultErrorVoxels x the smallest spacing, and when the stream ends the whole
+  // mesh comes down to E0 in one cost order, as the classical algorithm's last contractions
+  // would. With a coarse E0 itself in lock-step, each region is taken down to E0 before the
+  // next arrives, so the coarsest contractions go in the sweep's order rather than by cost
+  // (RMS distance 1.1-1.2x classical's at a few hundred triangles). At E0 up to the default
+  // the lock-step's order is already close to the cost order, and the pass would cost time
+  // and memory on dense streams (docs/decisions.md): E0 runs there are the paper's. The
+  // session holds the mesh at the lock-step's E0 meanwhile, and the pass runs after the
+  // last slice.
   double lockstep_error = 0.5;
   // > 0: simplify to this many triangles. E0 starts at min(error, smallest spacing / 1000)
   // and rises as the mesh grows (schedule.h: TargetControl), so the count is reached whatever
@@ -81,6 +84,9 @@ struct SessionOptions {
   // applies it; callers that want their own field names call it first.
   absl::Status ValidateFor(const VolumeInfo& grid) const;
   static constexpr double kMinErrorVoxels = 1e-6, kMaxErrorVoxels = 1e6;
+  // The command lines' default E0, in smallest spacings (a fifth of a voxel); the finishing
+  // pass's lock-step never runs below it.
+  static constexpr double kDefaultErrorVoxels = 0.2;
 };
 
 // What Validate() / ValidateFor() refused.

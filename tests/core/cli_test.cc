@@ -186,7 +186,7 @@ TEST_F(Cli, ExtractWritesMeshAndMetricsWithEveryKey) {
   EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles());
   EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices());
   EXPECT_LT(mesh->num_triangles(), m["triangles_extracted"].get<size_t>() / 4);
-  EXPECT_EQ(m["trace"].size(), 2u * 48 + 2);  // + the finishing pass's entry, + the final one
+  EXPECT_EQ(m["trace"].size(), 2u * 48 + 1);
   EXPECT_EQ(m["lockstep_error"].get<double>(), 0.5);
   TopologyReport r = AnalyzeTopology(*mesh);
   EXPECT_EQ(r.components, 2u);

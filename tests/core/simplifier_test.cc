@@ -388,9 +388,8 @@ TEST(Simplifier, TandemLagHoldsAQuarterOfClassicalsPeak) {
   const Result lag = RunShape(Shape::kPillowBox, 256, Schedule::kTandemLag, 0.1);
   EXPECT_EQ(classical.stats.peak_triangles, classical.stats.triangles_extracted);
   EXPECT_LE(lag.stats.peak_triangles * 4, classical.stats.peak_triangles);
-  // The saw-tooth: one entry after every EXTRACT and every SIMPLIFY, plus the finishing
-  // pass's (SessionOptions::lockstep_error) and the final one.
-  EXPECT_EQ(lag.stats.trace.size(), 2u * 256 + 2);
+  // The saw-tooth: one entry after every EXTRACT and every SIMPLIFY, plus the final one.
+  EXPECT_EQ(lag.stats.trace.size(), 2u * 256 + 1);
   EXPECT_EQ(classical.stats.trace.size(), 256u + 1);
 }
 
@@ -434,6 +433,17 @@ TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
       << lockstep.mesh.num_triangles() << " at E0 " << e << " in lock-step: " << lockstep_rms;
   const Result classical = run(Schedule::kClassical, e0, SessionOptions{}.lockstep_error);
   EXPECT_LE(pass_rms, 1.05 * rms(classical)) << classical.mesh.num_triangles();
+  // At the default E0 and below, the lock-step's order is already close to the cost order:
+  // no pass (the lock-step never runs below the default E0), the paper's mesh.
+  const double fine = SessionOptions::kDefaultErrorVoxels;  // the grid's spacing is 1
+  const Result fine_pass = run(Schedule::kTandemLag, fine, SessionOptions{}.lockstep_error);
+  const Result fine_off = run(Schedule::kTandemLag, fine, 1.0);
+  EXPECT_EQ(fine_pass.mesh.positions, fine_off.mesh.positions);
+  EXPECT_EQ(fine_pass.mesh.indices, fine_off.mesh.indices);
+  EXPECT_EQ(fine_pass.stats.trace, fine_off.stats.trace);
+  // Just above it, the pass runs from the default E0 up.
+  const Result above = run(Schedule::kTandemLag, 1.5 * fine, SessionOptions{}.lockstep_error);
+  EXPECT_EQ(above.stats.trace.size(), fine_off.stats.trace.size() + 1);
 }
 
 TEST(Simplifier, TargetTriangleCountIsReached) {
