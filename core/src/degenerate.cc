@@ -182,7 +182,25 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
     if (try_step(step)) return true;
   }
   const double norm = Norm(all);
-  return norm > 0 && try_step(all * (length / norm));
+  if (norm > 0 && try_step(all * (length / norm))) return true;
+  // Exactly: moving v by d adds d x (next - prev) to each of its triangles' twice-area
+  // vectors (next, prev: the corners after and before v), so a degenerate u comes out facing
+  // n_u = Across(u) for d . ((next - prev) x n_u) > 0. Where two sheets touch along a
+  // zero-length edge, each sheet's sliver asks for its own side, which the directions above
+  // (built on v's own facing) can both miss; the sum of the two unit directions meets both
+  // half-spaces unless they are opposite (the head MR at E0 4: 2 zero-area triangles left).
+  Vec3 exact{0, 0, 0};
+  for (TriId u : s->vertex_triangles(v)) {
+    if (!Degenerate(*s, u)) continue;
+    const auto& w = s->triangle(u);
+    const int i = w[0] == v ? 0 : w[1] == v ? 1 : 2;
+    const Vec3 a = on_box(Cross(s->position(w[(i + 1) % 3]) - s->position(w[(i + 2) % 3]),
+                                Across(*s, w, facing)));
+    const double an = Norm(a);
+    if (an > 0) exact = exact + a * (1 / an);
+  }
+  const double en = Norm(exact);
+  return en > 0 && try_step(exact * (length / en));
 }
 
 // t's corners at one point, or on one line where no flip could mend it (on the box): each

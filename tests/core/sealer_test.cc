@@ -445,6 +445,24 @@ TEST(Sealing, ACornerIsMendedBeforeItIsHandedOut) {
   }
 }
 
+// The same cut with the finishing pass (SessionOptions::lockstep_error), unsealed: two sheets
+// touch along a zero-length edge, with a zero-area triangle on each side of it. Moving a
+// corner toward its neighbours, or across each sliver by the corner's own facing, turned one
+// of the two the wrong way, so both stayed (the head MR at E0 4 kept such a pair too); each
+// sliver's own side is asked of the step now (MoveApart).
+TEST(Sealing, TwoSliversAlongAZeroLengthEdgePartEachToItsSide) {
+  std::string bytes;
+  ASSERT_TRUE(absl::Base64Unescape(kPinchVolumeBase64, &bytes));
+  BytesSource src(bytes, 16, 20, 18, 4.0);
+  SessionOptions o = Options(Schedule::kTandemLag, 6.0, false);
+  o.iso = 16;
+  o.lockstep_error = SessionOptions{}.lockstep_error;
+  const SealRun run = RunSealed(src, o);
+  EXPECT_EQ(CountDegenerate(run.mesh), 0);  // 2 before
+  EXPECT_TRUE(AnalyzeTopology(run.mesh).IsManifold());
+  EXPECT_LE(run.error_max, 6.0 * (1 + 1e-9));
+}
+
 TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
   for (bool seal : {true, false}) {
     PeriodicSource shallow(72, 48), deep(72, 8 * 48);
