@@ -33,7 +33,7 @@ void EdgeQueue::Trim() {
 }
 
 size_t EdgeQueue::MemoryBytes() const {
-  size_t bytes = buckets_.capacity() * sizeof(std::vector<QNode>) + heaped_.capacity() * sizeof(size_t);
+  size_t bytes = buckets_.capacity() * sizeof(PodArray<QNode>) + heaped_.capacity() * sizeof(size_t);
   for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(QNode);
   return bytes + slots_.capacity() * sizeof(QPlacement) + free_.capacity() * sizeof(uint32_t);
 }
@@ -66,7 +66,7 @@ void WaitingQueue::Push(const WEntry& e) {
   ++size_;
 }
 
-void WaitingQueue::TakeUpTo(double front, std::vector<WEdge>* out) {
+void WaitingQueue::TakeUpTo(double front, PodArray<WEdge>* out) {
   out->clear();
   size_t b = 0;
   for (; b < buckets_.size() && static_cast<double>(base_) + static_cast<double>(b) <= front;
@@ -75,7 +75,7 @@ void WaitingQueue::TakeUpTo(double front, std::vector<WEdge>* out) {
     if (out->empty()) {
       out->swap(buckets_[b]);
     } else {
-      out->insert(out->end(), buckets_[b].begin(), buckets_[b].end());
+      out->append(buckets_[b].begin(), buckets_[b].end());
     }
     buckets_[b] = {};
   }
@@ -98,7 +98,7 @@ void WaitingQueue::TakeUpTo(double front, std::vector<WEdge>* out) {
 }
 
 size_t WaitingQueue::MemoryBytes() const {
-  size_t bytes = buckets_.capacity() * sizeof(std::vector<WEdge>);
+  size_t bytes = buckets_.capacity() * sizeof(PodArray<WEdge>);
   for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(WEdge);
   return bytes + far_.capacity() * sizeof(WEntry);
 }

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "grow.h"
+#include "pod_array.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -27,7 +28,7 @@ namespace tandem {
 // 4-ary min-heap on a vector of nodes (children of i: 4i + 1 .. 4i + 4); before(x, y): x pops
 // first.
 template <typename Node, typename Before>
-void HeapSiftUp(std::vector<Node>& h, size_t i, Before before) {
+void HeapSiftUp(PodArray<Node>& h, size_t i, Before before) {
   const Node node = h[i];
   while (i > 0) {
     const size_t parent = (i - 1) / 4;
@@ -43,7 +44,7 @@ void HeapSiftUp(std::vector<Node>& h, size_t i, Before before) {
 // four children is branch-free: the comparisons are unpredictable, and mispredictions, not
 // cache misses, made a binary heap's pop a tenth of the run time.
 template <typename Node, typename Before>
-void HeapPopFront(std::vector<Node>& h, Before before) {
+void HeapPopFront(PodArray<Node>& h, Before before) {
   const Node last = h.back();
   h.pop_back();
   const size_t n = h.size();
@@ -180,7 +181,7 @@ class EdgeQueue {
   void Enter();
 
   double max_key_;
-  std::vector<std::vector<QNode>> buckets_;  // allocated by the first push
+  std::vector<PodArray<QNode>> buckets_;  // allocated by the first push
   std::vector<size_t> heaped_;  // per bucket: leading nodes in heap order
   size_t cur_ = 0;              // the lowest non-empty bucket (buckets below are empty)
   size_t size_ = 0;
@@ -188,8 +189,8 @@ class EdgeQueue {
   // lands in bucket kBuckets - 2.
   static constexpr int kMantissaShift = 52 - 6;
   int64_t bucket_base_ = 0;
-  std::vector<QPlacement> slots_;
-  std::vector<uint32_t> free_;  // free slots
+  PodArray<QPlacement> slots_;
+  PodArray<uint32_t> free_;  // free slots
   uint32_t seq_ = 0;
 };
 
@@ -234,12 +235,12 @@ inline void EdgeQueue::Enter() {
     // Popped empty: a big bucket gives its memory back. Log-spaced buckets each fill in turn
     // as SIMPLIFY's keys rise, and kept, their peaks added up (2048² dense cap: +13 % RSS).
     if (!Keeps(buckets_[cur_].capacity() * sizeof(QNode), kKeepPopped)) {
-      std::vector<QNode>().swap(buckets_[cur_]);
+      PodArray<QNode>().swap(buckets_[cur_]);
     }
     ++cur_;
     assert(cur_ < kBuckets);
   }
-  std::vector<QNode>& h = buckets_[cur_];
+  PodArray<QNode>& h = buckets_[cur_];
   for (size_t i = heaped_[cur_]; i < h.size(); ++i) HeapSiftUp(h, i, QNodeBeforeFn{});
   heaped_[cur_] = h.size();
 }
@@ -279,7 +280,7 @@ inline const QNode& EdgeQueue::Top() {
 
 inline QNode EdgeQueue::Pop() {
   Enter();
-  std::vector<QNode>& h = buckets_[cur_];
+  PodArray<QNode>& h = buckets_[cur_];
   const QNode node = h[0];
   HeapPopFront(h, QNodeBeforeFn{});
   heaped_[cur_] = h.size();
@@ -315,27 +316,27 @@ class WaitingQueue {
   // push order, then the far ones in push order. One released bucket is handed over, not
   // copied: a cap's release holds no second copy of its edges.
   // Entries pushed after it (keys > front, far keys included) wait for a later call.
-  void TakeUpTo(double front, std::vector<WEdge>* out);
+  void TakeUpTo(double front, PodArray<WEdge>* out);
   size_t MemoryBytes() const;
   // Removes the entries for which drop(WEdge) is true (stale ones), keeping the others in
   // order; a bucket left at under half its capacity is shrunk to its size.
   template <typename Drop>
   void RemoveIf(Drop&& drop) {
     for (auto& bucket : buckets_) {
-      size_ -= std::erase_if(bucket, drop);
-      if (bucket.size() < bucket.capacity() / 2) std::vector<WEdge>(bucket).swap(bucket);
+      size_ -= erase_if(bucket, drop);
+      if (bucket.size() < bucket.capacity() / 2) bucket.shrink_to_fit();
     }
-    size_ -= std::erase_if(far_, [&](const WEntry& e) { return drop(WEdge{e.a, e.b, e.va, e.vb}); });
+    size_ -= erase_if(far_, [&](const WEntry& e) { return drop(WEdge{e.a, e.b, e.va, e.vb}); });
   }
 
   static constexpr int64_t kBuckets = int64_t{1} << 16;
   static constexpr double kFarKey = 0x1p52;  // keys at or above this are never bucketed
 
  private:
-  std::vector<std::vector<WEdge>> buckets_;
+  std::vector<PodArray<WEdge>> buckets_;
   int64_t base_ = 0;
   size_t size_ = 0;  // all entries, far ones included
-  std::vector<WEntry> far_;
+  PodArray<WEntry> far_;
 };
 
 }  // namespace tandem

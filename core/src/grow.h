@@ -8,7 +8,8 @@
 // pool stood at 1.5-1.9x their use, and the server refused the stream at slice 2.
 // Growing by an eighth keeps appends amortised O(1) (an element is copied about 9 times over
 // the array's life, plain memcpy of records, a few ms per million vertices), and a caller
-// that knows how much is coming (a layer's commit) reserves it exactly.
+// that knows how much is coming (a layer's commit) reserves it exactly. The biggest arrays are
+// PodArrays (pod_array.h), whose large blocks grow in place without the copy.
 #ifndef TANDEM_GROW_H_
 #define TANDEM_GROW_H_
 
@@ -21,20 +22,20 @@ namespace tandem {
 
 // Makes room for n elements in v: its capacity becomes at least n, and at least 9/8 of what
 // it was when it has to grow at all.
-template <class T>
-void ReserveFor(std::vector<T>& v, size_t n) {
+template <class V>
+void ReserveFor(V& v, size_t n) {
   if (n <= v.capacity()) return;
   v.reserve(std::max(n, v.capacity() + v.capacity() / 8));
 }
 
 // push_back and resize, growing as ReserveFor does.
-template <class T, class U>
-void PushBack(std::vector<T>& v, U&& x) {
+template <class V, class U>
+void PushBack(V& v, U&& x) {
   ReserveFor(v, v.size() + 1);
   v.push_back(std::forward<U>(x));
 }
-template <class T>
-void GrowTo(std::vector<T>& v, size_t n, const T& value = T()) {
+template <class V>
+void GrowTo(V& v, size_t n, const typename V::value_type& value = typename V::value_type()) {
   ReserveFor(v, n);
   v.resize(n, value);
 }

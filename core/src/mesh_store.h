@@ -14,6 +14,7 @@
 #include <span>
 #include <vector>
 
+#include "pod_array.h"
 #include "tandem/mesh.h"
 #include "tandem/types.h"
 
@@ -155,18 +156,18 @@ class MeshStore {
     double rad = 1.0;
   };
   static_assert(sizeof(VertexRecord) == 64);
-  std::vector<VertexRecord> vtx_;
+  PodArray<VertexRecord> vtx_;
   std::vector<VertexId> free_vertices_;
   size_t live_vertices_ = 0;
 
   // Triangles.
-  std::vector<std::array<VertexId, 3>> tris_;
-  std::vector<uint8_t> tri_alive_;
+  PodArray<std::array<VertexId, 3>> tris_;
+  PodArray<uint8_t> tri_alive_;
   std::vector<TriId> free_triangles_;
   size_t live_triangles_ = 0;
 
   // Incidence pool and its per-size-class free lists.
-  std::vector<TriId> pool_;
+  PodArray<TriId> pool_;
   std::array<std::vector<uint32_t>, kNumClasses> free_slots_;
 };
 

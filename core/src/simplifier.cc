@@ -344,7 +344,7 @@ void Simplifier::ActivateAndSimplify(double front) {
   w_.TakeUpTo(front_, &released_);  // in W's order: Q breaks ties by push order
   // Stale entries are no edges: they neither enter Q nor count towards a chunk or a vertex's
   // readiness, so a sweep of W (below) changes nothing.
-  std::erase_if(released_, [this](const WEdge& e) { return Stale(e); });
+  erase_if(released_, [this](const WEdge& e) { return Stale(e); });
   const size_t chunk = opt_.release_chunk;
   if (chunk == 0 || released_.size() <= chunk) {
     for (const WEdge& e : released_) AddToBatch(e.a, e.b, /*released=*/true);
@@ -375,7 +375,7 @@ void Simplifier::ActivateAndSimplify(double front) {
   for (group_ = 0; group_ < groups; ++group_) {
     // What earlier chunks left for this one (their edges in W's order, then what their
     // contractions pushed), then this chunk's own edges that it makes ready.
-    std::vector<WEdge> left;
+    PodArray<WEdge> left;
     left.swap(groups_[group_]);
     for (const WEdge& e : left) {
       if (!Stale(e)) AddToBatch(e.a, e.b, /*released=*/true);
@@ -397,9 +397,11 @@ void Simplifier::ActivateAndSimplify(double front) {
       swept = w_.size();
     }
   }
+  // Freed (PodArrays; `= {}` on a std::vector keeps its capacity: until stop 46 the release
+  // and the ready marks stayed allocated between steps).
   released_ = {};
   ready_ = {};
-  groups_ = {};
+  std::vector<PodArray<WEdge>>().swap(groups_);
   group_ = 0;
 }
 

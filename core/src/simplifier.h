@@ -255,10 +255,10 @@ class Simplifier {
     Quadric q;
   };
   static_assert(sizeof(VertexState) == sizeof(Quadric));
-  std::vector<VertexState> vs_;
+  PodArray<VertexState> vs_;
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a
   // cache line, and most popped entries are stale.
-  std::vector<uint32_t> version_;
+  PodArray<uint32_t> version_;
 
   EdgeQueue q_;
   size_t step_peak_bytes_ = 0;  // StepPeakBytes
@@ -304,9 +304,9 @@ class Simplifier {
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
   // (empty otherwise: every vertex ready); the edges of each chunk still to come; the chunk
   // being simplified.
-  std::vector<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
-  std::vector<uint32_t> ready_;
-  std::vector<std::vector<WEdge>> groups_;
+  PodArray<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
+  PodArray<uint32_t> ready_;
+  std::vector<PodArray<WEdge>> groups_;
   uint32_t group_ = 0;
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;

@@ -18,7 +18,7 @@ namespace {
 // in that order, then done(); take and done may Push.
 template <typename Take, typename Done>
 void ReleaseUpTo(WaitingQueue& w, double front, Take&& take, Done&& done) {
-  std::vector<WEdge> released;
+  PodArray<WEdge> released;
   w.TakeUpTo(front, &released);
   for (const WEdge& e : released) take(e);
   done();
@@ -237,7 +237,7 @@ TEST(WaitingQueue, RemoveIfKeepsTheRestInOrder) {
   w.RemoveIf([](const WEdge& e) { return e.a % 4 != 0; });  // keeps a quarter: a % 4 == 0
   EXPECT_EQ(w.size(), size_t{n} / 4 + 1);
   EXPECT_LT(w.MemoryBytes(), before / 2);
-  std::vector<WEdge> out;
+  PodArray<WEdge> out;
   w.TakeUpTo(std::numeric_limits<double>::infinity(), &out);
   ASSERT_EQ(out.size(), size_t{n} / 4 + 1);
   for (size_t i = 0; i + 1 < out.size(); ++i) EXPECT_EQ(out[i].a, 4 * i);  // bucket 4, in order
