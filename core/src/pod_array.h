@@ -41,7 +41,6 @@ class PodArray {
   using const_iterator = const T*;
 
   PodArray() = default;
-  explicit PodArray(size_t n, const T& value = T()) { resize(n, value); }
   PodArray(const PodArray& o) {
     if (o.size_ > 0) {
       Reallocate(o.size_);
@@ -74,7 +73,6 @@ class PodArray {
   T* end() { return data_ + size_; }
   const T* begin() const { return data_; }
   const T* end() const { return data_ + size_; }
-  T& front() { return data_[0]; }
   T& back() { return data_[size_ - 1]; }
   const T& back() const { return data_[size_ - 1]; }
 
