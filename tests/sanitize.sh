@@ -54,7 +54,7 @@ export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"
 #   <- gRPC's c-ares resolver when a client dials localhost:PORT (stack: tandem-client
 #   info --server localhost:PORT, TlsTest.StreamHealthAndInfoWorkWithTheCa).
 # - what GDCM had allocated when one of its assertions fired on a corrupt file: the guard in
-#   core/io/format_dicom.cc longjmps out of GDCM (documented there), so those objects are
+#   core/io/dicom_codec.cc longjmps out of GDCM (documented there), so those objects are
 #   never freed (DicomSeries.FilesThatTripGdcmAssertionsAreErrorsNotAborts). Stacks through
 #   GDCM stop at its frames (built without frame pointers), hence the module names too.
 supp="$(cd "$build" && pwd)/lsan.supp"

@@ -1,18 +1,7 @@
-// DICOM series (one instance per z-slice) through GDCM: reader and writer. The rules are in
-// tandem/series.h. Headers are read up to the pixel data for every file at open time (to
+// DICOM series (one instance per z-slice): reader and writer. The rules are in
+// tandem/series.h; GDCM, which reads and writes the files, is behind dicom_codec.h (a module
+// loaded on first use). Headers are read up to the pixel data for every file at open time (to
 // order and check the series); pixel data is decoded one file per ReadSlice.
-#include <gdcmAttribute.h>
-#include <gdcmDataSet.h>
-#include <gdcmImageChangeTransferSyntax.h>
-#include <gdcmImageReader.h>
-#include <gdcmImageWriter.h>
-#include <gdcmMediaStorage.h>
-#include <gdcmReader.h>
-#include <gdcmTrace.h>
-#include <gdcmUIDGenerator.h>
-
-#include <setjmp.h>
-
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
@@ -22,12 +11,12 @@
 #include <filesystem>
 #include <limits>
 #include <map>
-#include <mutex>
 #include <optional>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "dicom_codec.h"
 #include "follow_internal.h"
 #include "volume_io_internal.h"
 #include "tandem/series.h"
@@ -44,241 +33,14 @@ Vec Cross(const Vec& a, const Vec& b) {
 double Dot(const Vec& a, const Vec& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 double Norm(const Vec& a) { return std::sqrt(Dot(a, a)); }
 
-// GDCM reports problems through gdcm::Trace on stderr; our errors carry the file names.
-void SilenceGdcm() {
-  static std::once_flag once;
-  std::call_once(once, [] {
-    gdcm::Trace::SetDebug(false);
-    gdcm::Trace::SetWarning(false);
-    gdcm::Trace::SetError(false);
-  });
-}
-
-// Debian 12 builds GDCM with assertions on, and a corrupt file can trip one (fuzz_dicom found
-// gdcm::ReadExplicitDataElement's assert(0 && "Should not happen") within seconds), which
-// would abort the whole process: a client or CLI reading a damaged series, or a slice read
-// while the scanner is still writing it. An exception cannot help (glibc declares
-// __assert_fail noexcept, so unwinding from it terminates). So the executable's
-// __assert_fail (below; it takes precedence over glibc's for every shared library) jumps
-// back to the GDCM call in progress on this thread, which reports the file as corrupt.
-// What the jump skips (GDCM's objects of that call, and ours inside the guarded lambda) is
-// leaked, never used again: a few KB and a file descriptor per corrupt file. An assertion
-// outside a guarded call prints glibc's message and aborts, as before.
-thread_local sigjmp_buf* t_gdcm_jump = nullptr;
-thread_local const char* t_gdcm_assertion = nullptr;
-
-// Runs f (which must keep what it needs after a jump outside its own frame) and turns a
-// failed GDCM assertion or a GDCM exception into DataLoss naming the file.
-template <typename F>
-absl::Status GdcmGuarded(const std::string& path, F&& f) {
-  absl::Status st;
-  sigjmp_buf here;
-  sigjmp_buf* const outer = t_gdcm_jump;
-  if (sigsetjmp(here, 0) != 0) {
-    t_gdcm_jump = outer;
-    return absl::DataLossError(absl::StrCat(
-        path, ": corrupt DICOM file (GDCM's internal check '", t_gdcm_assertion, "' failed)"));
-  }
-  t_gdcm_jump = &here;
-  try {
-    st = f();
-  } catch (const std::exception& e) {
-    st = absl::DataLossError(absl::StrCat(path, ": corrupt DICOM file (GDCM: ", e.what(), ")"));
-  }
-  t_gdcm_jump = outer;
-  return st;
-}
-
 std::string Base(const std::string& path) { return std::filesystem::path(path).filename(); }
+using dicom::SliceHeader;
 
-// What the header of one file says (only what ordering and checking need).
-struct SliceHeader {
-  std::string path;
-  std::string series_uid;
-  Vec position{0, 0, 0};
-  std::array<double, 6> orientation{1, 0, 0, 0, 1, 0};
-  int64_t rows = 0, cols = 0;
-  double row_spacing = 1, col_spacing = 1;  // PixelSpacing[0], [1]
-  bool has_spacing = false;
-  int bits_allocated = 0, bits_stored = 0, pixel_representation = 0, samples = 1;
-  int64_t frames = 1;
-  double slope = 1, intercept = 0;
-  std::string modality, description;
-  double along = 0;  // position projected on the normal
-  int64_t instance = -1;  // InstanceNumber (0020,0013), -1 when absent
-};
-
-template <uint16_t G, uint16_t E>
-bool Has(const gdcm::DataSet& ds) {
-  return ds.FindDataElement(gdcm::Tag(G, E)) && !ds.GetDataElement(gdcm::Tag(G, E)).IsEmpty();
-}
-
-std::string Trimmed(std::string s) {
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\0')) s.pop_back();
-  return std::string(absl::StripAsciiWhitespace(s));
-}
-
-// Outcome of reading one header: a slice, a file to skip (DICOMDIR), or an error.
-absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string& path,
-                                                               gdcm::Reader& reader) {
-  reader.SetFileName(path.c_str());
-  // Up to and including the pixel data element, whose value is skipped (not loaded).
-  if (!reader.ReadUpToTag(gdcm::Tag(0x7fe0, 0x0010), {gdcm::Tag(0x7fe0, 0x0010)})) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(path, ": not a readable DICOM file (not DICOM, truncated or corrupt); a "
-                           "series folder must hold only the series' files"));
-  }
-  const gdcm::File& file = reader.GetFile();
-  const gdcm::DataSet& ds = file.GetDataSet();
-  gdcm::MediaStorage ms;
-  ms.SetFromFile(file);
-  if (ms == gdcm::MediaStorage::MediaStorageDirectoryStorage) return std::nullopt;  // DICOMDIR
-
-  SliceHeader h;
-  h.path = path;
-  {
-    gdcm::Attribute<0x0020, 0x000e> a;
-    a.SetFromDataSet(ds);
-    h.series_uid = Trimmed(std::string(a.GetValue()));
-  }
-  if (!Has<0x0028, 0x0010>(ds) || !Has<0x0028, 0x0011>(ds)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(path, ": DICOM file without an image (no Rows/Columns)"));
-  }
-  {
-    gdcm::Attribute<0x0028, 0x0010> rows;
-    gdcm::Attribute<0x0028, 0x0011> cols;
-    rows.SetFromDataSet(ds);
-    cols.SetFromDataSet(ds);
-    h.rows = rows.GetValue();
-    h.cols = cols.GetValue();
-  }
-  if (Has<0x0020, 0x0013>(ds)) {
-    gdcm::Attribute<0x0020, 0x0013> instance;
-    instance.SetFromDataSet(ds);
-    h.instance = instance.GetValue();
-  }
-  if (!Has<0x0020, 0x0032>(ds) || !Has<0x0020, 0x0037>(ds)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        path, ": no ImagePositionPatient / ImageOrientationPatient: the slices of this series "
-              "cannot be placed in space (secondary capture or a localizer?)"));
-  }
-  {
-    gdcm::Attribute<0x0020, 0x0032> ipp;
-    gdcm::Attribute<0x0020, 0x0037> iop;
-    ipp.SetFromDataSet(ds);
-    iop.SetFromDataSet(ds);
-    for (int i = 0; i < 3; ++i) h.position[i] = ipp.GetValue(i);
-    for (int i = 0; i < 6; ++i) h.orientation[i] = iop.GetValue(i);
-  }
-  if (Has<0x0028, 0x0030>(ds)) {
-    gdcm::Attribute<0x0028, 0x0030> ps;
-    ps.SetFromDataSet(ds);
-    h.row_spacing = ps.GetValue(0);
-    h.col_spacing = ps.GetValue(1);
-    h.has_spacing = true;
-  }
-  {
-    gdcm::Attribute<0x0028, 0x0100> ba;
-    gdcm::Attribute<0x0028, 0x0101> bs;
-    gdcm::Attribute<0x0028, 0x0103> pr;
-    ba.SetFromDataSet(ds);
-    bs.SetFromDataSet(ds);
-    pr.SetFromDataSet(ds);
-    h.bits_allocated = ba.GetValue();
-    h.bits_stored = Has<0x0028, 0x0101>(ds) ? bs.GetValue() : h.bits_allocated;
-    h.pixel_representation = pr.GetValue();
-  }
-  if (Has<0x0028, 0x0002>(ds)) {
-    gdcm::Attribute<0x0028, 0x0002> spp;
-    spp.SetFromDataSet(ds);
-    h.samples = spp.GetValue();
-  }
-  if (Has<0x0028, 0x0008>(ds)) {
-    gdcm::Attribute<0x0028, 0x0008> nf;
-    nf.SetFromDataSet(ds);
-    h.frames = nf.GetValue();
-  }
-  if (Has<0x0028, 0x1053>(ds)) {
-    gdcm::Attribute<0x0028, 0x1053> s;
-    s.SetFromDataSet(ds);
-    h.slope = s.GetValue();
-  }
-  if (Has<0x0028, 0x1052>(ds)) {
-    gdcm::Attribute<0x0028, 0x1052> i;
-    i.SetFromDataSet(ds);
-    h.intercept = i.GetValue();
-  }
-  if (Has<0x0008, 0x0060>(ds)) {
-    gdcm::Attribute<0x0008, 0x0060> m;
-    m.SetFromDataSet(ds);
-    h.modality = Trimmed(std::string(m.GetValue()));
-  }
-  if (Has<0x0008, 0x103e>(ds)) {
-    gdcm::Attribute<0x0008, 0x103e> d;
-    d.SetFromDataSet(ds);
-    h.description = Trimmed(std::string(d.GetValue()));
-  }
-  // The pixel data must fit in the file: GDCM pads a cut-off element silently, and a slice
-  // still being written (or cut short) must not pass for a whole one. It starts after the
-  // preamble, the meta header and the data set read so far (lengths as declared); its
-  // element header is 12 bytes (explicit VR) or 8 (implicit). Compressed data is checked
-  // by its codec when the slice is read.
-  {
-    std::error_code ec;
-    const uint64_t size = std::filesystem::file_size(path, ec);
-    const gdcm::TransferSyntax ts = file.GetHeader().GetDataSetTransferSyntax();
-    const bool explicit_vr = ts.GetNegociatedType() != gdcm::TransferSyntax::Implicit;
-    const gdcm::VL set = explicit_vr ? ds.GetLength<gdcm::ExplicitDataElement>()
-                                     : ds.GetLength<gdcm::ImplicitDataElement>();
-    const uint64_t pixel_bytes = ts.IsEncapsulated() ? 0
-                                 : uint64_t(h.rows) * uint64_t(h.cols) *
-                                       uint64_t(std::max(h.bits_allocated, 8) / 8);
-    const uint64_t need = uint64_t{file.GetHeader().GetFullLength()} + uint64_t{set} +
-                          (explicit_vr ? 12 : 8) + pixel_bytes;
-    if (!ec && !set.IsUndefined() && need > size) {
-      return absl::DataLossError(absl::StrCat(path, ": truncated: ", need,
-                                              " bytes needed up to the end of the pixel data, "
-                                              "the file has ", size,
-                                              " (still being written, or cut short?)"));
-    }
-  }
-  if (h.samples != 1) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        path, ": ", h.samples, " samples per pixel (colour); only greyscale series are supported"));
-  }
-  if (h.frames != 1) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(path, ": multi-frame image (", h.frames,
-                     " frames); only series with one slice per file are supported"));
-  }
-  if (!(h.bits_allocated == 8 || h.bits_allocated == 16) ||
-      (h.bits_allocated == 8 && h.pixel_representation != 0) || h.bits_stored < 1 ||
-      h.bits_stored > h.bits_allocated) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        path, ": unsupported pixels: ", h.bits_allocated, " bits allocated, ", h.bits_stored,
-        " stored, ", h.pixel_representation ? "signed" : "unsigned",
-        " (supported: 8-bit unsigned, 16-bit signed or unsigned)"));
-  }
-  if (!std::isfinite(h.slope) || !std::isfinite(h.intercept) || h.slope == 0.0) {
-    return absl::InvalidArgumentError(absl::StrCat(path, ": invalid RescaleSlope ", h.slope,
-                                                   " / RescaleIntercept ", h.intercept));
-  }
-  return h;
-}
-
+// One file's header through the DICOM module (dicom_codec.h).
 absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
-  std::optional<SliceHeader> header;
-  absl::Status st = GdcmGuarded(path, [&]() -> absl::Status {
-    auto* reader = new gdcm::Reader;  // leaked, not freed, if an assertion jumps out
-    absl::StatusOr<std::optional<SliceHeader>> h = ReadHeaderUnguarded(path, *reader);
-    delete reader;
-    if (!h.ok()) return h.status();
-    header = *std::move(h);
-    return absl::OkStatus();
-  });
-  if (!st.ok()) return st;
-  return header;
+  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
+  if (!codec.ok()) return codec.status();
+  return (*codec)->read_header(path);
 }
 
 DType StoredType(const SliceHeader& h) {
@@ -439,39 +201,18 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
 }
 
 // Decodes one slice's pixels (through `buffer`) into `bytes` as info.dtype.
-absl::Status ReadPixelsUnguarded(const SliceHeader& h, const VolumeInfo& info,
-                                 const ValuePlan& plan, gdcm::ImageReader& reader,
-                                 std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
-  reader.SetFileName(h.path.c_str());
-  if (!reader.Read()) {
-    return absl::DataLossError(
-        absl::StrCat(h.path, ": cannot read the DICOM image (truncated or corrupt file?)"));
-  }
-  const gdcm::Image& image = reader.GetImage();
+absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
+                        std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
+  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
+  if (!codec.ok()) return codec.status();
   const size_t n = static_cast<size_t>(info.slice_voxels());
-  const size_t stored_bytes = n * DTypeSize(plan.stored);
-  if (image.GetBufferLength() != stored_bytes) {
-    return absl::DataLossError(absl::StrCat(h.path, ": pixel data holds ",
-                                            image.GetBufferLength(), " bytes, expected ",
-                                            stored_bytes, " (truncated or corrupt file?)"));
-  }
-  const gdcm::ByteValue* raw = image.GetDataElement().GetByteValue();
-  if (!image.GetTransferSyntax().IsEncapsulated() &&
-      (raw == nullptr || raw->GetLength() < stored_bytes)) {
-    return absl::DataLossError(absl::StrCat(
-        h.path, ": pixel data is truncated (", raw ? static_cast<uint32_t>(raw->GetLength()) : 0u,
-        " of ", stored_bytes, " bytes)"));
-  }
-  buffer->resize(stored_bytes);
-  if (!image.GetBuffer(reinterpret_cast<char*>(buffer->data()))) {
-    return absl::DataLossError(absl::StrCat(
-        h.path, ": cannot decode the pixel data (transfer syntax ",
-        gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax()),
-        "; truncated or corrupt, or a codec this GDCM build lacks)"));
+  if (absl::Status st = (*codec)->read_pixels(h.path, n * DTypeSize(plan.stored), buffer);
+      !st.ok()) {
+    return st;
   }
   bytes->resize(info.slice_bytes());
   if (!plan.rescale) {
-    std::memcpy(bytes->data(), buffer->data(), stored_bytes);
+    std::memcpy(bytes->data(), buffer->data(), buffer->size());
     return absl::OkStatus();
   }
   const double s = h.slope, b = h.intercept;
@@ -507,16 +248,6 @@ absl::Status ReadPixelsUnguarded(const SliceHeader& h, const VolumeInfo& info,
     convert(float{});
   }
   return absl::OkStatus();
-}
-
-absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
-                        std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
-  return GdcmGuarded(h.path, [&]() -> absl::Status {
-    auto* reader = new gdcm::ImageReader;  // leaked, not freed, if an assertion jumps out
-    absl::Status st = ReadPixelsUnguarded(h, info, plan, *reader, buffer, bytes);
-    delete reader;
-    return st;
-  });
 }
 
 // One file per slice (info.nz == slices.size()).
@@ -748,13 +479,11 @@ class GrowingDicom final : public internal::Growing {
 std::unique_ptr<internal::Growing> internal::MakeGrowingDicom(const std::string& dir,
                                                               double stable_s,
                                                               const std::string& done_file) {
-  SilenceGdcm();
   return std::make_unique<GrowingDicom>(dir, stable_s, done_file);
 }
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
     const std::string& dir, const std::vector<std::string>& files) {
-  SilenceGdcm();
   std::vector<SliceHeader> slices;
   slices.reserve(files.size());
   for (const std::string& f : files) {
@@ -836,7 +565,6 @@ absl::StatusOr<DicomSyntax> ParseDicomSyntax(const std::string& name) {
 
 absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info,
                                                           const DicomWriteOptions& opts) {
-  SilenceGdcm();
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
   if (info.nx > 0xffff || info.ny > 0xffff) {
     return absl::InvalidArgumentError("DICOM slices are at most 65535 x 65535 pixels");
@@ -844,9 +572,10 @@ absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info
   DicomSliceWriter w;
   w.info_ = info;
   w.opts_ = opts;
-  gdcm::UIDGenerator uid;
-  if (w.opts_.series_uid.empty()) w.opts_.series_uid = uid.Generate();
-  if (w.opts_.study_uid.empty()) w.opts_.study_uid = uid.Generate();
+  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
+  if (!codec.ok()) return codec.status();
+  if (w.opts_.series_uid.empty()) w.opts_.series_uid = (*codec)->generate_uid();
+  if (w.opts_.study_uid.empty()) w.opts_.study_uid = (*codec)->generate_uid();
   if (info.dtype == DType::kFloat32) {
     if (!(std::isfinite(opts.float_min) && std::isfinite(opts.float_max) &&
           opts.float_max >= opts.float_min)) {
@@ -866,21 +595,29 @@ absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
     return absl::InvalidArgumentError(absl::StrCat(path, ": slice ", z, " has ", bytes.size(),
                                                    " bytes, expected ", info_.slice_bytes()));
   }
-  const size_t n = static_cast<size_t>(info_.slice_voxels());
+  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
+  if (!codec.ok()) return codec.status();
+  dicom::SliceImage image;
+  image.path = path;
+  image.pixels = bytes.data();
+  image.nx = info_.nx;
+  image.ny = info_.ny;
   std::vector<uint8_t> stored;
-  const uint8_t* pixels = bytes.data();
-  gdcm::PixelFormat pf = gdcm::PixelFormat::UINT8;
   switch (info_.dtype) {
     case DType::kUInt8:
+      image.bits_allocated = 8;
       break;
     case DType::kUInt16:
-      pf = gdcm::PixelFormat::UINT16;
+      image.bits_allocated = 16;
       break;
     case DType::kInt16:
-      pf = gdcm::PixelFormat::INT16;
+      image.bits_allocated = 16;
+      image.is_signed = true;
       break;
     case DType::kFloat32: {
-      pf = gdcm::PixelFormat::INT16;
+      image.bits_allocated = 16;
+      image.is_signed = true;
+      const size_t n = static_cast<size_t>(info_.slice_voxels());
       stored.resize(n * 2);
       for (size_t i = 0; i < n; ++i) {
         float v;
@@ -891,94 +628,27 @@ absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
         const int16_t c = static_cast<int16_t>(std::isfinite(code) ? code : 0.0);
         std::memcpy(stored.data() + 2 * i, &c, 2);
       }
-      pixels = stored.data();
+      image.pixels = stored.data();
       break;
     }
   }
-  const bool ct = opts_.modality == "CT";
-  gdcm::ImageWriter writer;
-  gdcm::Image& image = writer.GetImage();
-  image.SetNumberOfDimensions(2);
-  image.SetDimension(0, static_cast<unsigned int>(info_.nx));
-  image.SetDimension(1, static_cast<unsigned int>(info_.ny));
-  if (opts_.bits_stored > 0 && opts_.bits_stored < pf.GetBitsAllocated()) {
-    pf.SetBitsStored(static_cast<unsigned short>(opts_.bits_stored));
-    pf.SetHighBit(static_cast<unsigned short>(opts_.bits_stored - 1));
-  }
-  image.SetPixelFormat(pf);
-  image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
-  image.SetSpacing(0, info_.spacing[0]);
-  image.SetSpacing(1, info_.spacing[1]);
-  image.SetSpacing(2, info_.spacing[2]);
+  image.bits_stored = opts_.bits_stored;
+  image.spacing = info_.spacing;
   const auto& d = info_.directions;
   const double kz = static_cast<double>(z) * info_.spacing[2];
-  for (unsigned int i = 0; i < 3; ++i) image.SetOrigin(i, info_.origin[i] + kz * d[2][i]);
-  const double cosines[6] = {d[0][0], d[0][1], d[0][2], d[1][0], d[1][1], d[1][2]};
-  image.SetDirectionCosines(cosines);
-  image.SetSlope(opts_.rescale_slope);
-  image.SetIntercept(opts_.rescale_intercept);
-  gdcm::DataElement pixel_data(gdcm::Tag(0x7fe0, 0x0010));
-  pixel_data.SetByteValue(reinterpret_cast<const char*>(pixels),
-                          static_cast<uint32_t>(n * pf.GetPixelSize()));
-  image.SetDataElement(pixel_data);
-  image.SetTransferSyntax(gdcm::TransferSyntax::ExplicitVRLittleEndian);
-
-  gdcm::TransferSyntax::TSType ts = gdcm::TransferSyntax::ExplicitVRLittleEndian;
-  switch (opts_.syntax) {
-    case DicomSyntax::kExplicitLittle:
-      break;
-    case DicomSyntax::kImplicitLittle:
-      ts = gdcm::TransferSyntax::ImplicitVRLittleEndian;
-      break;
-    case DicomSyntax::kJpegLossless:
-      ts = gdcm::TransferSyntax::JPEGLosslessProcess14_1;
-      break;
-    case DicomSyntax::kJpegLs:
-      ts = gdcm::TransferSyntax::JPEGLSLossless;
-      break;
-    case DicomSyntax::kJpeg2000:
-      ts = gdcm::TransferSyntax::JPEG2000Lossless;
-      break;
-    case DicomSyntax::kRle:
-      ts = gdcm::TransferSyntax::RLELossless;
-      break;
-  }
-  if (ts != gdcm::TransferSyntax::ExplicitVRLittleEndian) {
-    gdcm::ImageChangeTransferSyntax change;
-    change.SetTransferSyntax(ts);
-    change.SetInput(image);
-    if (!change.Change()) {
-      return absl::InternalError(absl::StrCat(path, ": GDCM cannot encode transfer syntax ",
-                                              gdcm::TransferSyntax::GetTSString(ts)));
-    }
-    writer.SetImage(change.GetOutput());
-  }
-
-  gdcm::DataSet& ds = writer.GetFile().GetDataSet();
-  auto put = [&ds](uint16_t g, uint16_t e, const std::string& v, gdcm::VR vr) {
-    gdcm::DataElement de(gdcm::Tag(g, e));
-    std::string s = v;
-    if (s.size() % 2 == 1) s.push_back(vr == gdcm::VR::UI ? '\0' : ' ');
-    de.SetVR(vr);
-    de.SetByteValue(s.data(), static_cast<uint32_t>(s.size()));
-    ds.Replace(de);
-  };
-  const gdcm::MediaStorage ms =
-      ct ? gdcm::MediaStorage::CTImageStorage : gdcm::MediaStorage::MRImageStorage;
-  put(0x0008, 0x0016, gdcm::MediaStorage::GetMSString(ms), gdcm::VR::UI);
-  gdcm::UIDGenerator uid;
-  put(0x0008, 0x0018, uid.Generate(), gdcm::VR::UI);
-  put(0x0008, 0x0060, ct ? "CT" : opts_.modality, gdcm::VR::CS);
-  put(0x0008, 0x103e, opts_.series_description, gdcm::VR::LO);
-  put(0x0010, 0x0010, "TANDEM^PHANTOM", gdcm::VR::PN);
-  put(0x0010, 0x0020, "TANDEM0001", gdcm::VR::LO);
-  put(0x0020, 0x000d, opts_.study_uid, gdcm::VR::UI);
-  put(0x0020, 0x000e, opts_.series_uid, gdcm::VR::UI);
-  put(0x0020, 0x0013, std::to_string(z + 1), gdcm::VR::IS);
-  put(0x0018, 0x0050, FormatDouble(info_.spacing[2]), gdcm::VR::DS);
-  writer.SetFileName(path.c_str());
-  if (!writer.Write()) return absl::InternalError(absl::StrCat(path, ": GDCM could not write it"));
-  return absl::OkStatus();
+  for (int i = 0; i < 3; ++i) image.origin[i] = info_.origin[i] + kz * d[2][i];
+  image.cosines = {d[0][0], d[0][1], d[0][2], d[1][0], d[1][1], d[1][2]};
+  image.slope = opts_.rescale_slope;
+  image.intercept = opts_.rescale_intercept;
+  image.syntax = static_cast<int>(opts_.syntax);
+  image.ct = opts_.modality == "CT";
+  image.modality = opts_.modality;
+  image.series_description = opts_.series_description;
+  image.study_uid = opts_.study_uid;
+  image.series_uid = opts_.series_uid;
+  image.instance = z + 1;
+  image.slice_thickness = FormatDouble(info_.spacing[2]);
+  return (*codec)->write_slice(image);
 }
 
 absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
@@ -1020,17 +690,3 @@ absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
 }
 
 }  // namespace tandem
-
-// See GdcmGuarded: a failed assertion inside a guarded GDCM call jumps back to it; any other
-// prints glibc's message and aborts, as glibc's own __assert_fail does.
-extern "C" void __assert_fail(const char* assertion, const char* file,
-                                           unsigned int line, const char* function) noexcept {
-  if (tandem::t_gdcm_jump != nullptr) {
-    tandem::t_gdcm_assertion = assertion;
-    siglongjmp(*tandem::t_gdcm_jump, 1);
-  }
-  std::fprintf(stderr, "%s:%u: %s%sAssertion `%s' failed.\n", file, line,
-               function ? function : "", function ? ": " : "", assertion);
-  std::fflush(stderr);
-  std::abort();
-}

@@ -25,8 +25,9 @@ struct Output {
   std::string text;  // stdout and stderr together
 };
 
-Output RunTandem(const std::string& args) {
-  const std::string cmd = testing::BinPath("tandem") + " " + args + " 2>&1";
+// Runs a shell command line, stderr with stdout.
+Output RunCommand(const std::string& command) {
+  const std::string cmd = command + " 2>&1";
   Output out;
   FILE* p = popen(cmd.c_str(), "r");
   if (!p) return out;
@@ -36,6 +37,10 @@ Output RunTandem(const std::string& args) {
   const int status = pclose(p);
   out.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return out;
+}
+
+Output RunTandem(const std::string& args) {
+  return RunCommand(testing::BinPath("tandem") + " " + args);
 }
 
 nlohmann::json ReadJson(const std::string& path) {
@@ -416,6 +421,46 @@ TEST_F(Cli, FoldersOfSlicesAreVolumesAndInfoShowsTheValues) {
   o = RunTandem("generate link --size 24 --directions 0,1,0,-1,0,0,0,0,1 --out " + Path("r.tif"));
   EXPECT_NE(o.code, 0);
   EXPECT_NE(o.text.find("directions"), std::string::npos) << o.text;
+}
+
+// GDCM lives in a module loaded only when a DICOM file is read or written
+// (core/io/dicom_codec.h): its dictionaries cost about 12 ms at every start otherwise.
+TEST_F(Cli, LoadsTheDicomModuleOnlyForDicom) {
+  Output o = RunTandem("generate link --size 24 --series dicom --out " + Path("dcm"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("generate link --size 24 --out " + Path("v.json"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  // LD_DEBUG=files: the dynamic loader names every library it loads and initialises.
+  auto run = [](const std::string& program, const std::string& args) {
+    return RunCommand("LD_DEBUG=files " + program + " " + args);
+  };
+  const std::string tandem = testing::BinPath("tandem");
+  o = run(tandem, "extract --input " + Path("v.json") + " --iso 0 --out " + Path("v.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(o.text.find("libgdcm"), std::string::npos) << "GDCM loaded for a raw volume";
+  o = run(tandem, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("d.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("libtandem_dicom.so"), std::string::npos) << o.text.substr(0, 2000);
+  EXPECT_NE(o.text.find("libgdcmMSFF"), std::string::npos);
+
+  // Installed: bin/tandem finds it in ../lib/tandem/. Without it, DICOM is a clear error
+  // and every other format still works.
+  namespace fs = std::filesystem;
+  fs::create_directories(Path("prefix/bin"));
+  fs::create_directories(Path("prefix/lib/tandem"));
+  fs::copy_file(tandem, Path("prefix/bin/tandem"));
+  const std::string lonely = Path("prefix/bin/tandem");
+  o = run(lonely, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("m.ply"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("DICOM support is not available"), std::string::npos) << o.text;
+  EXPECT_NE(o.text.find(Path("prefix/lib/tandem/libtandem_dicom.so")), std::string::npos)
+      << o.text;
+  o = run(lonely, "extract --input " + Path("v.json") + " --iso 0 --out " + Path("m.ply"));
+  EXPECT_EQ(o.code, 0) << o.text;
+  fs::copy_file(testing::BinPath("libtandem_dicom.so"),
+                Path("prefix/lib/tandem/libtandem_dicom.so"));
+  o = run(lonely, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("m.ply"));
+  EXPECT_EQ(o.code, 0) << o.text.substr(0, 2000);
 }
 
 TEST_F(Cli, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {

@@ -131,10 +131,17 @@ def main():
         build_runs = " ; ".join(i.args for i in build.all("RUN"))
         for sources, _, src_from in from_copies:
             for s in sources:
-                # The installed data (viewer page, three.js): `cmake --install BUILD --prefix P`
-                # puts it in P/share/tandem.
+                # The installed data (viewer page, three.js) and the DICOM module:
+                # `cmake --install BUILD --prefix P` puts them in P/share/tandem and
+                # P/lib/tandem (the module's target must exist).
                 m = re.search(r"cmake\s+--install\s+(\S+)\s+--prefix\s+(\S+)", build_runs)
-                if m and m.group(1) == build_dir and s.rstrip("/") == m.group(2).rstrip("/") + "/share/tandem":
+                prefix = m.group(2).rstrip("/") if m and m.group(1) == build_dir else None
+                if prefix and s.rstrip("/") == prefix + "/share/tandem":
+                    continue
+                if prefix and s.rstrip("/") == prefix + "/lib/tandem":
+                    if targets and "tandem_dicom" not in targets:
+                        raise Failure(f"COPY --from={src_from} {s}: the configured build has "
+                                      f"no target tandem_dicom (the DICOM module)")
                     continue
                 if not s.startswith(build_dir.rstrip("/") + "/bin/"):
                     raise Failure(f"COPY --from={src_from} {s}: executables land in "

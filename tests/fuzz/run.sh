@@ -72,7 +72,7 @@ for t in "${targets[@]}"; do
   log="$build/fuzz-work/$t.log"
 
   # fuzz_dicom: a failed assertion inside Debian's GDCM (built with them on) is turned into
-  # an error by jumping out of the GDCM call (core/io/format_dicom.cc), which leaks what GDCM had
+  # an error by jumping out of the GDCM call (core/io/dicom_codec.cc), which leaks what GDCM had
   # allocated, sometimes the hundreds of MB a corrupt length asked for. Leak detection would
   # report GDCM's allocations, and the leaks add up in one process: so this target runs in
   # libFuzzer's fork mode (a fresh child when one runs out of memory; OOMs of a child are
