@@ -319,12 +319,12 @@ class WaitingQueue {
   void TakeUpTo(double front, PodArray<WEdge>* out);
   size_t MemoryBytes() const;
   // Removes the entries for which drop(WEdge) is true (stale ones), keeping the others in
-  // order; a bucket left at under half its capacity is shrunk to its size.
+  // order; a bucket left at half its capacity or less is shrunk to its size.
   template <typename Drop>
   void RemoveIf(Drop&& drop) {
     for (auto& bucket : buckets_) {
       size_ -= erase_if(bucket, drop);
-      if (bucket.size() < bucket.capacity() / 2) bucket.shrink_to_fit();
+      if (2 * bucket.size() <= bucket.capacity()) bucket.shrink_to_fit();
     }
     size_ -= erase_if(far_, [&](const WEntry& e) { return drop(WEdge{e.a, e.b, e.va, e.vb}); });
   }
