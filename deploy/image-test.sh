@@ -12,7 +12,8 @@
 #   1. the image builds (its own RUN step checks that no runtime library is missing);
 #   2. the container runs as uid 10001, answers the health check from the host and the
 #      image's HEALTHCHECK from inside, and `tandem-client info` inside it works;
-#   3. a volume streamed from the host gives the mesh `tandem extract` gives on the host
+#   3. a volume streamed from the host gives the mesh `tandem extract` gives on the host,
+#      and so does a DICOM series streamed by the image's own client (its DICOM module)
 #      (same triangle count);
 #   4. SIGTERM (podman stop) during a paced stream: health turns NOT_SERVING at once, the
 #      running stream still finishes OK within the grace period, the container exits 0 and
@@ -155,6 +156,18 @@ triangles() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["t
 [ "$(triangles "$work/local.json")" = "$(triangles "$work/remote.json")" ] \
   || fail "the container's mesh has $(triangles "$work/remote.json") triangles, tandem extract's $(triangles "$work/local.json")"
 say "streamed: $(triangles "$work/remote.json") triangles, as tandem extract"
+# The image's client reads a DICOM series (its DICOM module, lib/tandem, loads GDCM).
+"$bin/tandem" generate link --size 24 --series dicom --out "$work/dcm" > /dev/null
+"$bin/tandem" extract --input "$work/dcm" --iso 0 --error 0.2 --out "$work/dcm.ply" \
+  --metrics "$work/dcm-local.json" > /dev/null
+podman cp "$work/dcm" "$container:/data/dcm" \
+  && podman exec "$container" tandem-client stream --server "$server" --input /data/dcm \
+       --iso 0 --error 0.2 --out /data/dcm.drc --metrics /data/dcm.json > "$work/dcm.log" 2>&1 \
+  && podman cp "$container:/data/dcm.json" "$work/dcm-remote.json" \
+  || { cat "$work/dcm.log" >&2; fail "tandem-client inside the container streaming a DICOM series"; }
+[ "$(triangles "$work/dcm-local.json")" = "$(triangles "$work/dcm-remote.json")" ] \
+  || fail "the container's DICOM mesh has $(triangles "$work/dcm-remote.json") triangles, tandem extract's $(triangles "$work/dcm-local.json")"
+say "a DICOM series streamed from inside the container: $(triangles "$work/dcm-remote.json") triangles"
 
 # --- 4. SIGTERM during a stream ---------------------------------------------------------
 # 96 slices at 16 a second: about 6 s, longer than the drain delay, well within the grace.

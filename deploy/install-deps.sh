@@ -30,7 +30,8 @@ BUILD_PKGS=(
 # `objdump -p` / `ldd` on the Release binaries): gRPC++ (libgrpc++, libgrpc++_reflection),
 # gRPC core (libgrpc, libgpr, libupb, libaddress_sorting), Abseil, Protobuf, Draco,
 # libtiff, zlib, libblosc and libzstd (Zarr codecs), GDCM (DICOM, with its JPEG / JPEG-LS /
-# JPEG 2000 codecs), nifticlib's niftiio (NIfTI orientation), cpp-httplib (the server's
+# JPEG 2000 codecs; linked by the DICOM module, lib/tandem/libtandem_dicom.so, which the
+# client loads when it reads a DICOM series), nifticlib's niftiio (NIfTI orientation), cpp-httplib (the server's
 # metrics endpoint), OpenSSL's libcrypto (the server's TLS key check), and the C++ runtime. The rest (c-ares,
 # re2, OpenSSL, libtiff's codecs) comes in through these packages' own dependencies.
 RUNTIME_PKGS=(
