@@ -1,6 +1,7 @@
 #include "degenerate.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <utility>
 #include <vector>
@@ -200,7 +201,25 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
     if (an > 0) exact = exact + a * (1 / an);
   }
   const double en = Norm(exact);
-  return en > 0 && try_step(exact * (length / en));
+  if (en > 0 && try_step(exact * (length / en))) return true;
+  // On an edge of the grid's box (faces of two axes), every step above stays on the edge's
+  // line, where a corner between two others on it cannot leave (the quantised tangles: a
+  // boundary triangle with its three corners along x = 0, y = max). It may leave one of its
+  // faces, straight into the box, and stay on the other: the triangle then lies in that
+  // other face, and keeps_facing picks the face where it turns as its neighbours do.
+  if (std::popcount(FixedAxes(box)) < 2) return false;
+  for (int a = 0; a < 3; ++a) {
+    const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * a)), hi = static_cast<uint8_t>(lo << 1);
+    if (!(box & (lo | hi))) continue;
+    Vec3 step{0, 0, 0};
+    (a == 0 ? step.x : a == 1 ? step.y : step.z) = (box & lo) ? length : -length;
+    const Vec3 q = p + step;
+    if (!keeps_facing(q) || !may_move(v, q)) continue;
+    s->set_position(v, q);
+    s->set_box_mask(v, static_cast<uint8_t>(s->box_mask(v) & ~(lo | hi)));
+    return true;
+  }
+  return false;
 }
 
 // t's corners at one point, or on one line where no flip could mend it (on the box): each
@@ -284,10 +303,12 @@ int64_t TryInflate(MeshStore* s, TriId t, double size,
   return 4;
 }
 
-// t alone in its component (each corner in t only) and flat on one face of the grid's box (a
-// voxel at the iso-value on the box, its surface cut down to a point or a line there): its
-// corners part within that face to a triangle of circumradius `size` (all at one point) or a
-// corner moves `size` off the line, facing into the box, as that voxel's surface does.
+// t alone in its component (each corner in t only) and flat on the grid's box (a voxel at
+// the iso-value on the box, its surface cut down to a point or a line there): its corners
+// part to a triangle of circumradius `size` (all at one point) or a corner moves `size` off
+// the line, facing into the box, as that voxel's surface does. On one face they part within
+// it. On an edge of the box (two faces) they part within one of the two, the moved corners
+// leaving the other straight into the box; of the two ways, the one that faces into the box.
 int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
                         const std::function<bool(VertexId, Vec3)>& may_move,
                         const std::function<void(VertexId)>& moved) {
@@ -297,53 +318,76 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
     if (s->vertex_triangles(x).size() != 1) return 0;
     face &= s->box_mask(x);
   }
-  int axis = -1;
-  double inward = 0;
+  std::array<int, 2> axes{};
+  std::array<double, 3> inward{};
+  int on = 0;
   for (int a = 0; a < 3; ++a) {
     const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * a)), hi = static_cast<uint8_t>(lo << 1);
     if (face & (lo | hi)) {
-      if (axis >= 0) return 0;  // on an edge of the box: no plane to part in
-      axis = a;
-      inward = (face & lo) ? 1 : -1;
+      if (on == 2) return 0;  // a corner of the box
+      axes[on++] = a;
+      inward[a] = (face & lo) ? 1 : -1;
     }
   }
-  if (axis < 0) return 0;
-  Vec3 n{0, 0, 0};
-  (axis == 0 ? n.x : axis == 1 ? n.y : n.z) = inward;
+  if (on == 0) return 0;
+  auto unit = [](int a, double sign) {
+    Vec3 e{0, 0, 0};
+    (a == 0 ? e.x : a == 1 ? e.y : e.z) = sign;
+    return e;
+  };
   const std::array<Vec3, 3> p{s->position(tri[0]), s->position(tri[1]), s->position(tri[2])};
   const auto [k, longest] = LongestEdge(*s, tri);
   const Vec3 a = p[k], b = p[(k + 1) % 3];
-  std::array<Vec3, 3> q = p;
   const bool point = longest <= 1e-8 * size * size;
-  if (point) {  // a small triangle around it
-    const Vec3 e1 = axis == 0 ? Vec3{0, 1, 0} : Vec3{1, 0, 0};
-    const Vec3 e2 = Cross(n, e1);
+  for (int way = 0; way < on; ++way) {
+    const int stay = axes[way], leave = on == 2 ? axes[1 - way] : -1;
+    const Vec3 n = unit(stay, inward[stay]);
+    std::array<Vec3, 3> q = p;
+    if (point) {  // a small triangle at it
+      if (leave >= 0) {  // a corner, one step into the box, one along the edge
+        q[1] = a + unit(leave, inward[leave]) * size;
+        q[2] = a + unit(3 - stay - leave, 1) * size;
+        q[0] = a;
+      } else {  // around it
+        const Vec3 e1 = stay == 0 ? Vec3{0, 1, 0} : Vec3{1, 0, 0};
+        const Vec3 e2 = Cross(n, e1);
+        for (int i = 0; i < 3; ++i) {
+          const double angle = 2.0943951023931953 * i;  // 120 degrees apart
+          q[i] = a + (e1 * std::cos(angle) + e2 * std::sin(angle)) * size;
+        }
+      }
+      if (Dot(TwiceAreaVector(q[0], q[1], q[2]), n) < 0) std::swap(q[1], q[2]);
+    } else {  // a line: the corner off the longest edge leaves it
+      const int m = (k + 2) % 3;
+      if (leave >= 0) {
+        q[m] = p[m] + unit(leave, inward[leave]) * size;
+        if (Dot(TwiceAreaVector(q[0], q[1], q[2]), n) < 0) continue;  // the other way
+      } else {
+        const Vec3 d = Cross(n, b - a);
+        q[m] = p[m] + d * (size / Norm(d));
+        if (Dot(TwiceAreaVector(q[0], q[1], q[2]), n) < 0) q[m] = p[m] - (q[m] - p[m]);
+      }
+    }
+    bool may = true;
+    for (int i = 0; i < 3; ++i) may = may && (q[i] == p[i] || may_move(tri[i], q[i]));
+    if (!may) continue;
+    int64_t count = 0;
     for (int i = 0; i < 3; ++i) {
-      const double angle = 2.0943951023931953 * i;  // 120 degrees apart
-      q[i] = a + (e1 * std::cos(angle) + e2 * std::sin(angle)) * size;
+      if (q[i] == p[i]) continue;
+      s->set_position(tri[i], q[i]);
+      if (leave >= 0) {  // a corner off the face it left
+        const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * leave));
+        const Vec3 d = q[i] - p[i];
+        if ((leave == 0 ? d.x : leave == 1 ? d.y : d.z) != 0) {
+          s->set_box_mask(tri[i], static_cast<uint8_t>(s->box_mask(tri[i]) & ~(lo | (lo << 1))));
+        }
+      }
+      moved(tri[i]);
+      ++count;
     }
-  } else {  // a line: the corner off the longest edge leaves it
-    const Vec3 d = Cross(n, b - a);
-    q[(k + 2) % 3] = p[(k + 2) % 3] + d * (size / Norm(d));
+    return count;
   }
-  if (Dot(TwiceAreaVector(q[0], q[1], q[2]), n) < 0) {  // face into the box
-    if (point) {
-      std::swap(q[1], q[2]);
-    } else {
-      q[(k + 2) % 3] = p[(k + 2) % 3] - (q[(k + 2) % 3] - p[(k + 2) % 3]);
-    }
-  }
-  for (int i = 0; i < 3; ++i) {
-    if (!(q[i] == p[i]) && !may_move(tri[i], q[i])) return 0;
-  }
-  int64_t count = 0;
-  for (int i = 0; i < 3; ++i) {
-    if (q[i] == p[i]) continue;
-    s->set_position(tri[i], q[i]);
-    moved(tri[i]);
-    ++count;
-  }
-  return count;
+  return 0;
 }
 
 }  // namespace

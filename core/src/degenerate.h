@@ -11,13 +11,16 @@
 //   - a closed component of four triangles at one point, off the grid's box (a lone voxel
 //     exactly at the iso-value: the most the link condition lets contractions make of it)
 //     becomes a regular tetrahedron of circumradius `size` around the point, facing out;
-//   - a triangle alone in its component, flat on one face of the grid's box at a point or
-//     along a line (a voxel at the iso-value on the box): it parts within that face, by
-//     `size`, facing into the box;
+//   - a triangle alone in its component, flat on the grid's box at a point or along a line
+//     (a voxel at the iso-value on the box): it parts by `size`, facing into the box, within
+//     its face, or on an edge of the box within one of its two faces, the moved corners
+//     stepping off the other straight into the box;
 //   - other corners at one point, or on one line where no flip can mend it (the line along
 //     the grid's box): each corner at another's point, else the middle one, moves toward
 //     the centroid of its own neighbours elsewhere by kApart of the way (along its box faces
-//     if it is on the box), which parts the sheets.
+//     if it is on the box), which parts the sheets; a corner on an edge of the box, where
+//     every such step stays on the edge's line, may step off one of its two faces instead.
+// A corner that steps off a face of the box loses that face's flag.
 // A move is taken only where no triangle turns over or collapses, the mended ones come out
 // facing as their neighbours across their edges do, and `may_move` agrees (the simplifier's
 // error bound). On the shared scans at the benchmark's reductions (TARGET.md's 12 points)
