@@ -203,7 +203,7 @@ int64_t ExtractJob::triangles() const {
     for (const auto& s : surfaces_) sum += s->triangles();
     return sum;
   }
-  return session_ ? session_->num_triangles() : final_triangles_;
+  return session_ ? session_->Peek().triangles : final_triangles_;
 }
 
 absl::Status ExtractJob::Handle(v1::ExtractRequest& request) {
@@ -302,13 +302,19 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
 
 absl::Status ExtractJob::MaybeChunk(bool now) {
   if (!config_.options.seal) return absl::OkStatus();
-  const int64_t pending = session_->sealed_pending();
-  if (pending == 0) return absl::OkStatus();
+  // Whether a chunk is due, between slices: as the slabs' last finished steps left the
+  // session (Peek: no wait for the steps in flight, which overlap the next slices).
   const auto t0 = Clock::now();
-  if (!now && pending < kChunkTriangles &&
-      std::chrono::duration<double>(t0 - last_chunk_.value_or(start_)).count() < kChunkSeconds) {
-    return absl::OkStatus();
+  if (!now) {
+    const int64_t peeked = session_->Peek().sealed_pending;
+    if (peeked == 0 || (peeked < kChunkTriangles &&
+                        std::chrono::duration<double>(t0 - last_chunk_.value_or(start_)).count() <
+                            kChunkSeconds)) {
+      return absl::OkStatus();
+    }
   }
+  const int64_t pending = session_->sealed_pending();  // all of it, the steps waited for
+  if (pending == 0) return absl::OkStatus();
   // Unlike a preview, a chunk cannot be skipped: over the budget, the stream fails.
   if (absl::Status st = CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"); !st.ok()) {
     return st;
@@ -332,6 +338,7 @@ absl::Status ExtractJob::MaybeChunk(bool now) {
   out.set_draco(*std::move(bytes));
   out.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
   out.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+  sealed_posted_ += out.triangles();
   if (config_.compute_distances) {
     c.positions = std::move(mesh.positions);
     c.indices = std::move(mesh.indices);
@@ -419,10 +426,13 @@ void ExtractJob::Attach(JobSink* sink) {
 v1::Progress ExtractJob::MakeProgress() const {
   v1::Progress p;
   p.set_slices_consumed(cursor_.slice);
-  p.set_triangles(session_->num_triangles());
-  p.set_peak_triangles(std::max(session_->stats().peak_triangles, session_->num_triangles()));
+  // Sent after every slice: Peek, so that the stream does not wait for the session's
+  // queued steps each time (they overlap the next slices).
+  const TandemSession::Gauge gauge = session_->Peek();
+  p.set_triangles(gauge.triangles);
+  p.set_peak_triangles(gauge.peak_triangles);
   if (config_.options.seal) {
-    p.set_sealed_triangles(session_->stats().sealed_triangles - session_->sealed_pending());
+    p.set_sealed_triangles(sealed_posted_);
     p.set_sealed_chunks(chunks_sent_);
   }
   return p;
@@ -551,8 +561,10 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
 size_t ExtractJob::MemoryBytes() const {
   size_t bytes = slice_.capacity();
   for (const auto& child : surfaces_) bytes += child->MemoryBytes();
-  if (session_) bytes += session_->MemoryBytes();
-  if (reference_) bytes += reference_->MemoryBytes();
+  // Peek: exact between messages except for the slab steps still in flight (a few slices'
+  // growth, counted at their end), and exact after Finish.
+  if (session_) bytes += session_->Peek().memory_bytes;
+  if (reference_) bytes += reference_->Peek().memory_bytes;
   return bytes;
 }
 

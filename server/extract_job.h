@@ -131,6 +131,7 @@ class ExtractJob {
   size_t peak_memory_ = 0;  // the most MemoryBytes() + extra a passed CheckMemory saw
   // Sealed chunks.
   int64_t chunks_sent_ = 0;
+  int64_t sealed_posted_ = 0;  // triangles in the chunks posted by this job
   codec::DracoOptions chunk_draco_;  // the config's, on the session's quantization grid
   std::optional<std::chrono::steady_clock::time_point> last_chunk_;
   ShapeSums shape_;                 // of everything sealed, for the final metrics

@@ -41,6 +41,16 @@ struct TandemSession::Impl {
   void ToWorld(std::vector<Vec3>* positions, std::vector<uint32_t>* indices) const;
   const SessionStats& Stats();
   size_t MemoryBytes();
+  TandemSession::Gauge Peek();
+  // One slab's share of MemoryBytes and of the gauge: read by the task that stepped it, at
+  // the end of each queued step (its own data, then), or by the caller between steps.
+  struct SlabGauge {
+    int64_t triangles = 0;
+    size_t bytes = 0;
+    int64_t sealed_pending = 0;
+  };
+  static SlabGauge Measure(const Slab& slab);
+  size_t BufferBytes() const;  // the slice buffers and the seams' pairs
 
   // Queued slices (a pipelined split session): each slice is copied once into the ring and
   // queued for every slab. A slab's steps run one at a time and in order, each step a task
@@ -78,6 +88,7 @@ struct TandemSession::Impl {
   bool queued = false;  // slices go through the ring to tasks
   std::mutex mu;        // guards queues and the ring slots' pending counts
   std::vector<SlabQueue> queues;
+  std::vector<SlabGauge> gauges;  // each slab's, at the end of its last queued step
   std::array<RingSlot, kRingSlots> ring;
   int ring_next = 0;
   std::unique_ptr<TaskGroup> steps;  // the queued slab steps

@@ -165,6 +165,7 @@ int64_t TandemSession::num_triangles() const {
 int TandemSession::num_parts() const { return static_cast<int>(impl_->slabs.size()); }
 const SessionStats& TandemSession::stats() const { return impl_->Stats(); }
 size_t TandemSession::MemoryBytes() const { return impl_->MemoryBytes(); }
+TandemSession::Gauge TandemSession::Peek() const { return impl_->Peek(); }
 const VolumeInfo& TandemSession::grid() const { return impl_->grid; }
 const SessionOptions& TandemSession::options() const { return impl_->options; }
 bool TandemSession::finished() const { return impl_->finished; }
@@ -217,6 +218,7 @@ TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int coun
   if (queued) {
     queues.resize(static_cast<size_t>(count));
     steps = std::make_unique<TaskGroup>(executor);
+    for (const auto& s : slabs) gauges.push_back(Measure(*s));  // the planes as planned
   }
 }
 
@@ -292,9 +294,11 @@ void TandemSession::Impl::StepQueued(size_t i) {
   } catch (...) {  // this slab is done for; Sync and AddSlice report it
     st = StatusOfException(std::current_exception());
   }
+  const SlabGauge gauge = Measure(slab);
   bool more;
   {
     std::lock_guard<std::mutex> lock(mu);
+    gauges[i] = gauge;
     --ring[static_cast<size_t>(slot)].pending;
     if (!st.ok() && q.failure.ok()) q.failure = std::move(st);
     more = !q.slices.empty();
@@ -565,11 +569,10 @@ const SessionStats& TandemSession::Impl::Stats() {
   return stats;
 }
 
-size_t TandemSession::Impl::MemoryBytes() {
-  (void)Sync();
-  // Slice buffers and plane caches as planned (allocated on the first slice), so that a
-  // budget checked before any voxel counts them: the ring's slots hold slices as they arrive
-  // (a 16-bit slice in 2 bytes a voxel); unqueued, the caller's slice (or its aligned copy).
+size_t TandemSession::Impl::BufferBytes() const {
+  // Slice buffers as planned (allocated on the first slice), so that a budget checked before
+  // any voxel counts them: the ring's slots hold slices as they arrive (a 16-bit slice in 2
+  // bytes a voxel); unqueued, the caller's slice (or its aligned copy).
   size_t bytes = std::max(grid.slice_bytes(), convert.capacity() * sizeof(float));
   if (queued) {
     bytes = 0;
@@ -577,18 +580,52 @@ size_t TandemSession::Impl::MemoryBytes() {
       bytes += std::max(grid.slice_bytes(), slot.storage.capacity() * sizeof(float));
     }
   }
-  for (const auto& s : slabs) {
-    const ExtractorConfig& ec = s->extractor.config();
-    if (s->sealer) bytes += s->sealer->MemoryBytes();
-    // The queues at their fullest in the last step, not as its end left them: a budget
-    // checked between slices would otherwise miss Q's peak (a cap's release: 137 MiB a part
-    // at 2048², while the queues read 36 MiB after the step).
-    const size_t queues = std::max(s->simplifier.MemoryBytes(), s->simplifier.StepPeakBytes());
-    bytes += s->store.MemoryBytes() + queues + LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) +
-             s->extractor.EdgeIdBytes() + s->extractor.StagingBytes();
-  }
   for (const auto& s : seams) bytes += s.capacity() * sizeof(s[0]);
   return bytes;
+}
+
+TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) {
+  SlabGauge g;
+  g.triangles = static_cast<int64_t>(s.store.num_triangles());
+  const ExtractorConfig& ec = s.extractor.config();
+  if (s.sealer) {
+    g.bytes += s.sealer->MemoryBytes();
+    g.sealed_pending = s.sealer->pending_triangles();
+  }
+  // The queues at their fullest in the last step, not as its end left them: a budget checked
+  // between slices would otherwise miss Q's peak (a cap's release: 137 MiB a part at 2048²,
+  // while the queues read 36 MiB after the step). Plane caches as planned, like the slices.
+  const size_t queues = std::max(s.simplifier.MemoryBytes(), s.simplifier.StepPeakBytes());
+  g.bytes += s.store.MemoryBytes() + queues + LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) +
+             s.extractor.EdgeIdBytes() + s.extractor.StagingBytes();
+  return g;
+}
+
+size_t TandemSession::Impl::MemoryBytes() {
+  (void)Sync();
+  size_t bytes = BufferBytes();
+  for (const auto& s : slabs) bytes += Measure(*s).bytes;
+  return bytes;
+}
+
+TandemSession::Gauge TandemSession::Impl::Peek() {
+  TandemSession::Gauge g;
+  std::vector<SlabGauge> now;
+  if (queued) {
+    std::lock_guard<std::mutex> lock(mu);
+    now = gauges;
+  } else {  // nothing runs behind the caller: the slabs as they are
+    (void)Sync();
+    for (const auto& s : slabs) now.push_back(Measure(*s));
+  }
+  g.memory_bytes = BufferBytes();
+  for (const SlabGauge& s : now) {
+    g.triangles += s.triangles;
+    g.memory_bytes += s.bytes;
+    g.sealed_pending += s.sealed_pending;
+  }
+  g.peak_triangles = std::max(stats.peak_triangles, g.triangles);
+  return g;
 }
 
 }  // namespace tandem

@@ -80,6 +80,19 @@ class TandemSession {
   double MaxShapeError() const;    // Error(K), in world units
   // Mesh store + queues (at their fullest in the last step) + extractor caches + slice buffers.
   size_t MemoryBytes() const;
+  // The observers above first wait for every slab step still queued (a split session runs
+  // its slabs' steps up to 4 slices behind AddSlice). A caller that looks after every slice
+  // (the server: its budget, progress and accounting after each message) would drain that
+  // pipeline each time and leave cores idle. Peek does not wait: it gives the figures as
+  // each slab's last finished step left them, exact when no step is in flight (one slab,
+  // or after Finish).
+  struct Gauge {
+    int64_t triangles = 0;       // num_triangles()
+    int64_t peak_triangles = 0;  // stats().peak_triangles, with `triangles`
+    size_t memory_bytes = 0;     // MemoryBytes()
+    int64_t sealed_pending = 0;  // sealed_pending()
+  };
+  Gauge Peek() const;
   const VolumeInfo& grid() const;
   const SessionOptions& options() const;
   bool finished() const;

@@ -819,6 +819,52 @@ TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
   }
 }
 
+// Peek (tandem.h) gives a split session's figures without waiting for the slab steps still
+// queued, as each slab's last finished step left them, and is exact once nothing is in
+// flight. With an executor of no threads a queued step runs only when someone waits, so what
+// Peek must not do is seen: three slices in, no step has run (the server looks after every
+// message, and waiting there drained the pipeline each time).
+TEST(Simplifier, PeekDoesNotWaitForQueuedSlabSteps) {
+  Executor none(0);
+  VolumeInfo grid;
+  grid.nx = 160;
+  grid.ny = 40;
+  grid.nz = 12;
+  grid.dtype = DType::kFloat32;
+  SessionOptions o;
+  o.error = 0.3;
+  auto session = TandemSession::Create(grid, o, &none);
+  ASSERT_TRUE(session.ok()) << session.status();
+  TandemSession& s = **session;
+  ASSERT_EQ(s.num_parts(), 2);
+  auto src = MakeSyntheticSource(Shape::kGyroid, grid.nx, grid.ny, grid.nz);
+  std::vector<uint8_t> bytes;
+  const size_t planned = s.Peek().memory_bytes;
+  EXPECT_EQ(planned, s.MemoryBytes());  // nothing queued yet
+  for (int k = 0; k < 3; ++k) {
+    ASSERT_TRUE(src->ReadSlice(&bytes).ok());
+    ASSERT_TRUE(s.AddSliceBytes(DType::kFloat32, bytes.data()).ok());
+    const TandemSession::Gauge g = s.Peek();
+    EXPECT_EQ(g.triangles, 0) << k;  // no step ran
+    EXPECT_EQ(g.memory_bytes, planned) << k;
+  }
+  const int64_t held = s.num_triangles();  // waits: the steps run here
+  ASSERT_GT(held, 0);
+  const TandemSession::Gauge g = s.Peek();
+  EXPECT_EQ(g.triangles, held);
+  EXPECT_EQ(g.memory_bytes, s.MemoryBytes());
+  EXPECT_GT(g.memory_bytes, planned);
+  EXPECT_EQ(g.peak_triangles, s.stats().peak_triangles);
+  for (int k = 3; k < grid.nz; ++k) {
+    ASSERT_TRUE(src->ReadSlice(&bytes).ok());
+    ASSERT_TRUE(s.AddSliceBytes(DType::kFloat32, bytes.data()).ok());
+  }
+  ASSERT_TRUE(s.Finish().ok());
+  const TandemSession::Gauge end = s.Peek();
+  EXPECT_EQ(end.triangles, s.num_triangles());
+  EXPECT_EQ(end.memory_bytes, s.MemoryBytes());
+}
+
 // ---------------------------------------------------------------- parts (tandem.h)
 
 struct PartsRun {
