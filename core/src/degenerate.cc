@@ -212,7 +212,7 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
     const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * a)), hi = static_cast<uint8_t>(lo << 1);
     if (!(box & (lo | hi))) continue;
     Vec3 step{0, 0, 0};
-    (a == 0 ? step.x : a == 1 ? step.y : step.z) = (box & lo) ? length : -length;
+    step[a] = (box & lo) ? length : -length;
     const Vec3 q = p + step;
     if (!keeps_facing(q) || !may_move(v, q)) continue;
     s->set_position(v, q);
@@ -332,7 +332,7 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
   if (on == 0) return 0;
   auto unit = [](int a, double sign) {
     Vec3 e{0, 0, 0};
-    (a == 0 ? e.x : a == 1 ? e.y : e.z) = sign;
+    e[a] = sign;
     return e;
   };
   const std::array<Vec3, 3> p{s->position(tri[0]), s->position(tri[1]), s->position(tri[2])};
@@ -377,8 +377,7 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
       s->set_position(tri[i], q[i]);
       if (leave >= 0) {  // a corner off the face it left
         const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * leave));
-        const Vec3 d = q[i] - p[i];
-        if ((leave == 0 ? d.x : leave == 1 ? d.y : d.z) != 0) {
+        if (q[i][leave] != p[i][leave]) {
           s->set_box_mask(tri[i], static_cast<uint8_t>(s->box_mask(tri[i]) & ~(lo | (lo << 1))));
         }
       }
