@@ -209,14 +209,13 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
   // other face, and keeps_facing picks the face where it turns as its neighbours do.
   if (std::popcount(FixedAxes(box)) < 2) return false;
   for (int a = 0; a < 3; ++a) {
-    const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * a)), hi = static_cast<uint8_t>(lo << 1);
-    if (!(box & (lo | hi))) continue;
+    if (!(box & AxisFaces(a))) continue;
     Vec3 step{0, 0, 0};
-    step[a] = (box & lo) ? length : -length;
+    step[a] = (box & MinFace(a)) ? length : -length;
     const Vec3 q = p + step;
     if (!keeps_facing(q) || !may_move(v, q)) continue;
     s->set_position(v, q);
-    s->set_box_mask(v, static_cast<uint8_t>(s->box_mask(v) & ~(lo | hi)));
+    s->set_box_mask(v, static_cast<uint8_t>(s->box_mask(v) & ~AxisFaces(a)));
     return true;
   }
   return false;
@@ -322,11 +321,10 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
   std::array<double, 3> inward{};
   int on = 0;
   for (int a = 0; a < 3; ++a) {
-    const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * a)), hi = static_cast<uint8_t>(lo << 1);
-    if (face & (lo | hi)) {
+    if (face & AxisFaces(a)) {
       if (on == 2) return 0;  // a corner of the box
       axes[on++] = a;
-      inward[a] = (face & lo) ? 1 : -1;
+      inward[a] = (face & MinFace(a)) ? 1 : -1;
     }
   }
   if (on == 0) return 0;
@@ -375,11 +373,8 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
     for (int i = 0; i < 3; ++i) {
       if (q[i] == p[i]) continue;
       s->set_position(tri[i], q[i]);
-      if (leave >= 0) {  // a corner off the face it left
-        const uint8_t lo = static_cast<uint8_t>(kBoxXMin << (2 * leave));
-        if (q[i][leave] != p[i][leave]) {
-          s->set_box_mask(tri[i], static_cast<uint8_t>(s->box_mask(tri[i]) & ~(lo | (lo << 1))));
-        }
+      if (leave >= 0 && q[i][leave] != p[i][leave]) {  // a corner off the face it left
+        s->set_box_mask(tri[i], static_cast<uint8_t>(s->box_mask(tri[i]) & ~AxisFaces(leave)));
       }
       moved(tri[i]);
       ++count;

@@ -34,6 +34,9 @@ inline uint8_t FixedAxes(uint8_t box_mask) {
   if (box_mask & (kBoxZMin | kBoxZMax)) axes |= 4;
   return axes;
 }
+// An axis's (0: x, 1: y, 2: z) lower face of the grid's box, and both its faces.
+inline uint8_t MinFace(int axis) { return static_cast<uint8_t>(kBoxXMin << (2 * axis)); }
+inline uint8_t AxisFaces(int axis) { return static_cast<uint8_t>(3u << (2 * axis)); }
 // The reference point of a contraction ab (MinimizeQuadric's): the midpoint, with the
 // box-fixed coordinates taken from the end on more box faces (ma, mb: their masks; one's
 // faces include the other's).

@@ -610,20 +610,19 @@ size_t TandemSession::Impl::MemoryBytes() {
 
 TandemSession::Gauge TandemSession::Impl::Peek() {
   TandemSession::Gauge g;
-  std::vector<SlabGauge> now;
-  if (queued) {
-    std::lock_guard<std::mutex> lock(mu);
-    now = gauges;
-  } else {  // nothing runs behind the caller: the slabs as they are
-    (void)Sync();
-    for (const auto& s : slabs) now.push_back(Measure(*s));
-  }
-  g.memory_bytes = BufferBytes();
-  for (const SlabGauge& s : now) {
+  auto add = [&g](const SlabGauge& s) {
     g.triangles += s.triangles;
     g.memory_bytes += s.bytes;
     g.sealed_pending += s.sealed_pending;
+  };
+  if (queued) {
+    std::lock_guard<std::mutex> lock(mu);
+    for (const SlabGauge& s : gauges) add(s);
+  } else {  // nothing runs behind the caller: the slabs as they are
+    (void)Sync();
+    for (const auto& s : slabs) add(Measure(*s));
   }
+  g.memory_bytes += BufferBytes();  // after Sync, which pairs the seams
   g.peak_triangles = std::max(stats.peak_triangles, g.triangles);
   return g;
 }
