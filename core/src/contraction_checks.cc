@@ -43,6 +43,7 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
     const auto& tri = store.triangle(t);
     const int i = CornerOf(tri, a);
     const VertexId x = tri[kNextCorner[i]], y = tri[kPrevCorner[i]];
+    store.Prefetch(x);  // GeometryOk reads every corner's position next
     xa[n_a] = x;
     ya[n_a++] = y;
     // The triangle's third corner is an apex if the triangle holds b (kept only then).
@@ -58,6 +59,7 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   for (TriId t : store.vertex_triangles(b)) {
     const auto& tri = store.triangle(t);
     const int i = CornerOf(tri, b);
+    store.Prefetch(tri[kNextCorner[i]]);
     xb[n_b] = tri[kNextCorner[i]];
     yb[n_b++] = tri[kPrevCorner[i]];
   }

@@ -479,8 +479,12 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     if (const QNode* next = q_.Next()) {  // its stamps are read next: start the loads now
       __builtin_prefetch(&version_[next->a]);
       __builtin_prefetch(&version_[next->b]);
+      __builtin_prefetch(&q_.Placement(*next));
     }
     if (Stale(e)) continue;
+    // Live: Contract reads both quadrics after the link and geometry checks.
+    PrefetchVertex(e.a);
+    PrefetchVertex(e.b);
     const QPlacement& placement = q_.Placement(e);
     Candidate c;
     c.pos = placement.pos;
