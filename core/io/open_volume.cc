@@ -41,22 +41,14 @@ absl::Status ValueRangeSource::ViewSlice(const uint8_t** data) {
 
 void ValueRangeSource::Scan(const uint8_t* data) {
   const VolumeInfo& info = inner_->info();
-  values_.resize(static_cast<size_t>(info.slice_voxels()));
-  ConvertToFloat(info.dtype, data, values_.size(), values_.data());
-  float lo = std::numeric_limits<float>::infinity(), hi = -lo;
-  for (float v : values_) {
-    if (v == v) {  // NaN never; infinities are values too (they stay on one side)
-      lo = std::min(lo, v);
-      hi = std::max(hi, v);
-    }
-  }
-  if (lo <= hi) {
+  const ValueRange r = RangeOf(info.dtype, data, static_cast<size_t>(info.slice_voxels()));
+  if (r.lo <= r.hi) {
     if (lo_ > hi_) {
-      lo_ = lo;
-      hi_ = hi;
+      lo_ = r.lo;
+      hi_ = r.hi;
     } else {
-      lo_ = std::min<double>(lo_, lo);
-      hi_ = std::max<double>(hi_, hi);
+      lo_ = std::min<double>(lo_, r.lo);
+      hi_ = std::max<double>(hi_, r.hi);
     }
   }
 }

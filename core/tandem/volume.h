@@ -104,11 +104,18 @@ class ValueRangeSource final : public SliceSource {
   SliceSource* inner_;
   std::unique_ptr<SliceSource> owned_;  // set by Replace
   double lo_ = 1.0, hi_ = -1.0;
-  std::vector<float> values_;
 };
 
 // Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
+
+// The smallest and largest of n voxels of type t (host byte order, any alignment) as float,
+// NaNs skipped (infinities count); lo > hi when there is no other value. The same as
+// converting them first, without the copy: one vectorised pass.
+struct ValueRange {
+  float lo = 1.0f, hi = -1.0f;
+};
+ValueRange RangeOf(DType t, const uint8_t* src, size_t n);
 
 // Every voxel must be a finite number. The one rule: a float32 whose exponent bits are all set
 // is NaN or infinite (integer types are always finite).

@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
+#include <random>
 #include <string>
 #include <tuple>
 #include <vector>
@@ -265,6 +267,65 @@ TEST(DTypeTest, ConvertToFloatIsExactForIntegers) {
   ConvertToFloat(DType::kUInt16, unaligned + 1, 2, out);
   EXPECT_EQ(out[0], 4660.0f);
   EXPECT_EQ(out[1], 65535.0f);
+}
+
+TEST(DTypeTest, RangeOfEqualsTheConvertedValuesExtremes) {
+  // The definition: convert, then the extremes of the values that are not NaN.
+  auto expected = [](DType t, const uint8_t* src, size_t n) {
+    std::vector<float> f(n);
+    ConvertToFloat(t, src, n, f.data());
+    ValueRange r;
+    for (float v : f) {
+      if (v != v) continue;
+      if (r.lo > r.hi) {
+        r.lo = r.hi = v;
+      } else {
+        r.lo = std::min(r.lo, v);
+        r.hi = std::max(r.hi, v);
+      }
+    }
+    return r;
+  };
+  std::mt19937 rng(7);
+  for (DType t : {DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32}) {
+    for (size_t n : {size_t{0}, size_t{1}, size_t{15}, size_t{16}, size_t{17}, size_t{100}}) {
+      std::vector<uint8_t> raw(n * DTypeSize(t));
+      for (uint8_t& b : raw) b = static_cast<uint8_t>(rng());
+      if (t == DType::kFloat32) {  // random bits hold NaNs and infinities: keep some of each
+        for (size_t i = 0; i < n; ++i) {
+          float v = std::uniform_real_distribution<float>(-1e6f, 1e6f)(rng);
+          if (i % 7 == 3) v = std::numeric_limits<float>::quiet_NaN();
+          std::memcpy(raw.data() + i * 4, &v, 4);
+        }
+      }
+      for (size_t offset : {size_t{0}, size_t{1}}) {  // aligned and not
+        std::vector<uint8_t> buf(raw.size() + 1);
+        std::copy(raw.begin(), raw.end(), buf.begin() + static_cast<ptrdiff_t>(offset));
+        const ValueRange want = expected(t, buf.data() + offset, n);
+        const ValueRange got = RangeOf(t, buf.data() + offset, n);
+        EXPECT_EQ(got.lo, want.lo) << DTypeName(t) << " n=" << n << " offset=" << offset;
+        EXPECT_EQ(got.hi, want.hi) << DTypeName(t) << " n=" << n << " offset=" << offset;
+      }
+    }
+  }
+  const float inf = std::numeric_limits<float>::infinity(), nan = std::nanf("");
+  const float mixed[20] = {nan, 2.0f, -inf, nan, 5.0f, nan, nan, nan, nan, nan,
+                           nan, nan, nan, nan, nan, nan, nan, 1.0f, nan, nan};
+  ValueRange r = RangeOf(DType::kFloat32, reinterpret_cast<const uint8_t*>(mixed), 20);
+  EXPECT_EQ(r.lo, -inf);  // infinities count
+  EXPECT_EQ(r.hi, 5.0f);
+  const float nans[18] = {nan, nan, nan, nan, nan, nan, nan, nan, nan,
+                          nan, nan, nan, nan, nan, nan, nan, nan, nan};
+  r = RangeOf(DType::kFloat32, reinterpret_cast<const uint8_t*>(nans), 18);
+  EXPECT_GT(r.lo, r.hi);  // none
+  const float ups[3] = {inf, nan, inf};
+  r = RangeOf(DType::kFloat32, reinterpret_cast<const uint8_t*>(ups), 3);
+  EXPECT_EQ(r.lo, inf);
+  EXPECT_EQ(r.hi, inf);
+  const int16_t ends[17] = {-32768, 32767, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, -32768};
+  r = RangeOf(DType::kInt16, reinterpret_cast<const uint8_t*>(ends), 17);
+  EXPECT_EQ(r.lo, -32768.0f);
+  EXPECT_EQ(r.hi, 32767.0f);
 }
 
 TEST(ValidateVolumeInfoTest, RejectsBadGeometry) {
