@@ -133,16 +133,17 @@ void ConvertTyped(const uint8_t* src, size_t n, float* dst) {
   }
 }
 
-// Smallest and largest of n values of type T, NaNs skipped: `v < lo ? v : lo` keeps lo when v
-// is NaN. With GCC/Clang vector extensions of 16 bytes, which become minps/pminub & co.
-// (independent lanes: no floating-point reduction to reassociate; a plain loop over lanes,
-// or 64-byte vectors, stayed scalar: 8 instructions a float voxel). Converting to float is monotone, so the extremes
-// converted are the converted values' extremes.
 // 16 bytes of each type (the attribute does not apply to a template parameter).
 typedef uint8_t U8x16 __attribute__((vector_size(16)));
 typedef uint16_t U16x8 __attribute__((vector_size(16)));
 typedef int16_t I16x8 __attribute__((vector_size(16)));
 typedef float F32x4 __attribute__((vector_size(16)));
+
+// Smallest and largest of n values of type T, NaNs skipped: `v < lo ? v : lo` keeps lo when v
+// is NaN. On vectors V of 16 bytes (GCC/Clang vector extensions), which become minps, pminub
+// and the like: independent lanes, so no floating-point reduction to reassociate (a plain
+// loop over lanes, or 64-byte vectors, stayed scalar: 8 instructions a float voxel).
+// Converting to float is monotone, so the extremes converted are the converted values'.
 template <typename T, typename V>
 ValueRange RangeTyped(const uint8_t* src, size_t n) {
   constexpr size_t kLanes = sizeof(V) / sizeof(T);
@@ -193,10 +194,14 @@ ValueRange RangeTyped(const uint8_t* src, size_t n) {
 
 ValueRange RangeOf(DType t, const uint8_t* src, size_t n) {
   switch (t) {
-    case DType::kUInt8: return RangeTyped<uint8_t, U8x16>(src, n);
-    case DType::kUInt16: return RangeTyped<uint16_t, U16x8>(src, n);
-    case DType::kInt16: return RangeTyped<int16_t, I16x8>(src, n);
-    case DType::kFloat32: return RangeTyped<float, F32x4>(src, n);
+    case DType::kUInt8:
+      return RangeTyped<uint8_t, U8x16>(src, n);
+    case DType::kUInt16:
+      return RangeTyped<uint16_t, U16x8>(src, n);
+    case DType::kInt16:
+      return RangeTyped<int16_t, I16x8>(src, n);
+    case DType::kFloat32:
+      return RangeTyped<float, F32x4>(src, n);
   }
   return {};
 }

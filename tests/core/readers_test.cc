@@ -288,7 +288,7 @@ TEST(DTypeTest, RangeOfEqualsTheConvertedValuesExtremes) {
   };
   std::mt19937 rng(7);
   for (DType t : {DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32}) {
-    for (size_t n : {size_t{0}, size_t{1}, size_t{15}, size_t{16}, size_t{17}, size_t{100}}) {
+    for (size_t n : {size_t{0}, size_t{1}, size_t{15}, size_t{17}, size_t{100}, size_t{300}}) {
       std::vector<uint8_t> raw(n * DTypeSize(t));
       for (uint8_t& b : raw) b = static_cast<uint8_t>(rng());
       if (t == DType::kFloat32) {  // random bits hold NaNs and infinities: keep some of each
