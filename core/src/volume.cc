@@ -207,6 +207,7 @@ ValueRange RangeOf(DType t, const uint8_t* src, size_t n) {
 }
 
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst) {
+  if (n == 0) return;  // dst may be null then (an empty vector's data), which memcpy may not get
   switch (t) {
     case DType::kUInt8:
       ConvertTyped<uint8_t>(src, n, dst);
