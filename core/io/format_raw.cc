@@ -179,33 +179,21 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& js
 
 namespace {
 
-// Running min/max of the voxel values (NaNs skipped), for the sidecar's "value_range".
-class ValueRange {
+// Running min/max of the voxel values (NaNs skipped), for the sidecar's "value_range": each
+// slice's RangeOf (exact for every dtype) merged into the whole volume's.
+class RunningRange {
  public:
   void Add(DType t, const uint8_t* host, size_t n) {
-    switch (t) {
-      case DType::kUInt8: return AddTyped<uint8_t>(host, n);
-      case DType::kUInt16: return AddTyped<uint16_t>(host, n);
-      case DType::kInt16: return AddTyped<int16_t>(host, n);
-      case DType::kFloat32: return AddTyped<float>(host, n);
-    }
+    const ValueRange r = RangeOf(t, host, n);
+    if (r.lo > r.hi) return;  // nothing but NaNs
+    lo_ = std::min(lo_, double{r.lo});
+    hi_ = std::max(hi_, double{r.hi});
   }
   bool empty() const { return !(lo_ <= hi_); }
   double lo() const { return lo_; }
   double hi() const { return hi_; }
 
  private:
-  template <typename T>
-  void AddTyped(const uint8_t* p, size_t n) {
-    for (size_t i = 0; i < n; ++i) {
-      T v;
-      std::memcpy(&v, p + i * sizeof(T), sizeof(T));
-      const double d = static_cast<double>(v);
-      if (std::isnan(d)) continue;
-      lo_ = std::min(lo_, d);
-      hi_ = std::max(hi_, d);
-    }
-  }
   double lo_ = std::numeric_limits<double>::infinity();
   double hi_ = -std::numeric_limits<double>::infinity();
 };
@@ -217,7 +205,7 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
   const std::filesystem::path raw_path = SiblingPath(path, ".raw");
   absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(raw_path.string(), false);
   if (!w.ok()) return w.status();
-  ValueRange range;
+  RunningRange range;
   Sha256 sha;
   absl::Status st = StreamSlices(
       path, info, slice_fn, opts.big_endian, w->get(),
