@@ -98,6 +98,10 @@ absl::Status SessionOptions::Validate() const {
     return Refuse("seal_margin", seal_margin,
                   "seal margin must be a finite number of slices >= 0");
   }
+  if (seal && seam_settle_slices < 1) {
+    return Refuse("seam_settle_slices", seam_settle_slices,
+                  "seams settle at least 1 slice behind the front");
+  }
   if (parts < 0 || parts > kMaxParts) {
     return Refuse("parts", parts,
                   absl::StrCat("parts must lie in [0, ", kMaxParts, "] (0 = automatic)"));

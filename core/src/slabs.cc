@@ -323,10 +323,10 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
 }
 
 void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, bool coarsen, int64_t* seam_ids) {
+                 double front, int64_t settle_slices, bool coarsen, int64_t* seam_ids) {
   const auto count = static_cast<int64_t>(slabs.size());
   const int64_t stride = SealerIdStride(static_cast<int>(count));
-  const double limit = front - static_cast<double>(kSeamSettleSlices);
+  const double limit = front - static_cast<double>(settle_slices);
   for (size_t s = 0; s < seams->size(); ++s) {
     Slab& left = *slabs[s];
     Slab& right = *slabs[s + 1];

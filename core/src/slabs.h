@@ -89,15 +89,14 @@ inline uint32_t SealerIdStride(int count) {
   return count == 1 ? 1u : static_cast<uint32_t>(count) + 1u;
 }
 
-// Sealing: seam vertices this many slices or more below the front freeze, in both slabs
-// (Sealer::FreezeShared), and leave `seams`; `seam_ids` counts the ids handed out. So the
+// Sealing: seam vertices `settle_slices` (SessionOptions::seam_settle_slices) or more below
+// the front freeze, in both slabs (Sealer::FreezeShared), and leave `seams`; `seam_ids` counts the ids handed out. So the
 // triangles at the seams that wait for the merge follow the front, not the depth. With
 // `coarsen` (a simplifying session) the settling part of each seam is first coarsened along
 // itself (CoarsenSettlingSeam); what a settled seam vertex gives up is a contraction off
 // the seam's plane at the merge.
-inline constexpr int64_t kSeamSettleSlices = 512;
 void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, bool coarsen, int64_t* seam_ids);
+                 double front, int64_t settle_slices, bool coarsen, int64_t* seam_ids);
 
 // Contracts edges of the seam between `left` and `right` whose ends are both at height
 // <= limit, in both slabs at once: cheapest first, each to the point of the seam's plane

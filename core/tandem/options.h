@@ -68,11 +68,16 @@ struct SessionOptions {
   // the front freeze, and the triangles they complete leave the session as sealed chunks
   // (TakeSealed): the session then holds the front, not the mesh, and the chunks together
   // are the result (WeldChunks; Snapshot() is only what is not sealed yet). With several
-  // parts, the triangles at a seam wait for the merge at the end, up to 512 slices behind the
-  // front, where the seam is coarsened in both parts at once and sealed (slabs.h); no target
-  // triangle count (that needs the whole mesh at the end).
+  // parts, the triangles at a seam wait for the merge at the end, up to seam_settle_slices
+  // behind the front, where the seam is coarsened in both parts at once and sealed
+  // (slabs.h); no target triangle count (that needs the whole mesh at the end).
   bool seal = false;
   double seal_margin = 2;
+  // What a sealed split session holds at its seams grows with the depth up to this many
+  // slices, then follows the front: deeper, the seams wait longer for the merge's
+  // contractions across them; shallower, less is held (the settled part is coarsened along
+  // the seam only). Checked only with seal; at least 1.
+  int64_t seam_settle_slices = 512;
   // The rules the options must satisfy, here and nowhere else. A refusal is
   // InvalidArgument "<field> = <value>: <rule>" (e.g. "alpha = 1.5: isotropy alpha must lie
   // in [0, 1]") and carries an OptionError, so that a front end can name the field in its

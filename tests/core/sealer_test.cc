@@ -483,11 +483,14 @@ TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
 
 // With slabs, the triangles at the seams wait for the merge, so what a sealed session holds
 // grows with the depth, a small part of what the plain session's mesh grows by; and only up
-// to kSeamSettleSlices behind the front, past which seam vertices freeze as they are
+// to seam_settle_slices behind the front, past which seam vertices freeze as they are
 // (SettleSeams): from there on it follows the front again. The settled seams, sealed in two
-// slabs under one id, weld into the mesh of the plain split session's topology.
+// slabs under one id, weld into the mesh of the plain split session's topology. The seam
+// tests settle at 64 slices, not the default 512: the same bookkeeping on a fifth of the
+// slices (at 512 they took 7 of the sanitizer build's 21 ctest minutes).
+constexpr int64_t kTestSettle = 64;
 TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
-  const int64_t settle = kSeamSettleSlices;
+  const int64_t settle = kTestSettle;
   const int64_t depths[3] = {48, settle + 48, 2 * settle + 96};
   int64_t held[2][3] = {};  // plain, sealed
   SealRun settled[2];       // at settle + 48 slices: the seams of the first 48 are settled
@@ -496,6 +499,7 @@ TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
       PeriodicSource src(72, depths[d]);
       SessionOptions o = Options(Schedule::kTandemLag, 0.05, seal);
       o.parts = 4;
+      o.seam_settle_slices = settle;
       SealRun r = RunSealed(src, o);
       ASSERT_EQ(r.parts, 4);
       held[seal][d] = r.peak_held;
@@ -566,14 +570,16 @@ void ExpectSameChunks(const SealRun& a, const SealRun& b) {
 // Before a seam settles, it is coarsened (CoarsenSettlingSeam): seam edges contract in both
 // slabs at once to a point of the seam's plane, and vertices of one slab onto a seam vertex,
 // under the welded mesh's link condition and E0 for both sides' planes. Without it the
-// settled seams kept their marching-cubes triangles: +1.0 % triangles at E0 = 0.1 and
-// +3.4 % at 0.3 here, and ~170 needles, which Draco's 16-bit grid collapses to zero area
-// (the 2048² x 640 gyroid: 4,362 of them).
+// settled seams (the first 48 of 112 slices) kept their marching-cubes triangles: +4.8 %
+// triangles at E0 = 0.1 and +16.6 % at 0.3 here (with it +0.7 % and +1.3 %), and ~170
+// needles, which Draco's 16-bit grid collapses to zero area (the 2048² x 640 gyroid: 4,362
+// of them).
 TEST(Sealing, SettledSeamsAreCoarsenedFirst) {
-  const int64_t depth = kSeamSettleSlices + 48;
+  const int64_t depth = kTestSettle + 48;
   for (double e0 : {0.1, 0.3}) {
     SessionOptions plain_o = Options(Schedule::kTandemLag, e0, false);
     plain_o.parts = 4;
+    plain_o.seam_settle_slices = kTestSettle;
     SessionOptions sealed_o = plain_o;
     sealed_o.seal = true;
     PeriodicSource a(72, depth), b(72, depth);
@@ -590,7 +596,7 @@ TEST(Sealing, SettledSeamsAreCoarsenedFirst) {
     EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0) << e0;
     // Error(K) counts the settled seam vertices with both sides' planes.
     EXPECT_LE(sealed.error_max, e0 * (1 + 1e-9));
-    EXPECT_LT(static_cast<double>(s.triangles), 1.006 * static_cast<double>(p.triangles)) << e0;
+    EXPECT_LT(static_cast<double>(s.triangles), 1.02 * static_cast<double>(p.triangles)) << e0;
     EXPECT_LE(needles_sealed, needles_plain + 2) << e0;
     if (e0 == 0.3) {  // the coarsening runs between steps: threads change nothing
       sealed_o.pipeline = false;
@@ -603,9 +609,10 @@ TEST(Sealing, SettledSeamsAreCoarsenedFirst) {
 // The seam coarsening on a surface with many small components and grid values equal to the
 // iso-value (several seam vertices at one grid point): the welded mesh keeps the plain
 // session's topology, component by component, and the error bound. Without the coarsening
-// it kept up to 6.8 % more triangles at E0 = 0.6.
+// it kept 3.6-4.4 % more triangles than the plain session at E0 = 0.2 and 23-30 % more at
+// 0.6 (with it 1.2-1.4 % and 3.3-4.2 %: half of the 128 slices have settled seams).
 TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
-  const int64_t depth = kSeamSettleSlices + 64;
+  const int64_t depth = kTestSettle + 64;
   for (int seed = 0; seed < 2; ++seed) {
     for (double e0 : {0.2, 0.6}) {
       auto field = [seed](double i, double j, double k) { return QuantisedTangle(seed, i, j, k); };
@@ -613,6 +620,7 @@ TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
       SessionOptions o = Options(Schedule::kTandemLag, e0, false);
       o.iso = 4.0;
       o.parts = 4;
+      o.seam_settle_slices = kTestSettle;
       const SealRun plain = RunSealed(plain_src, o);
       o.seal = true;
       const SealRun sealed = RunSealed(sealed_src, o);
@@ -623,11 +631,12 @@ TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
       EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;
       EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0) << what;
       EXPECT_LE(sealed.error_max, e0 * (1 + 1e-9)) << what;
-      EXPECT_LT(static_cast<double>(s.triangles), 1.02 * static_cast<double>(p.triangles))
+      const double allowed = e0 < 0.5 ? 1.025 : 1.08;
+      EXPECT_LT(static_cast<double>(s.triangles), allowed * static_cast<double>(p.triangles))
           << what;
-      // Settled as they were, the seams kept 323-526 zero-area triangles here (iso-hits at
-      // seam grid points); coarsened, 8-23, those at the grid's box or where the link
-      // condition refuses (the plain session's final pass mends those, 0-3).
+      // Settled as they were, the seams kept 320-525 zero-area triangles here (iso-hits at
+      // seam grid points); coarsened, 4-16, those at the grid's box or where the link
+      // condition refuses (the plain session's final pass mends those: none here).
       const int64_t degenerate_plain = CountDegenerate(plain.mesh);
       const int64_t degenerate_sealed = CountDegenerate(sealed.mesh);
       EXPECT_LE(degenerate_sealed, degenerate_plain + 30) << what;
@@ -647,6 +656,11 @@ TEST(Sealing, OptionsAreChecked) {
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
   o.seal_margin = std::nan("");
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.seal_margin = 2;
+  o.seam_settle_slices = 0;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.seam_settle_slices = 1;
+  EXPECT_TRUE(o.Validate().ok());
   // Sealing splits a wide grid as the plain session does.
   o.seal_margin = 2;
   o.parts = 0;
