@@ -110,6 +110,33 @@ bool TryFlip(MeshStore* s, TriId t) {
   return true;
 }
 
+// The way v's star faces: the sum of its non-degenerate triangles' twice-area vectors.
+Vec3 StarFacing(const MeshStore& s, VertexId v) {
+  Vec3 facing{0, 0, 0};
+  for (TriId u : s.vertex_triangles(v)) {
+    if (!Degenerate(s, u)) facing = facing + TwiceArea(s, s.triangle(u));
+  }
+  return facing;
+}
+
+// Whether v at q keeps every triangle around it facing as it does, none collapsing, and the
+// degenerate ones facing as their neighbours across their edges do (else `facing`, v's star).
+bool KeepsFacing(const MeshStore& s, VertexId v, Vec3 q, Vec3 facing) {
+  for (TriId u : s.vertex_triangles(v)) {
+    const auto& w = s.triangle(u);
+    Vec3 c[3];
+    for (int j = 0; j < 3; ++j) c[j] = w[j] == v ? q : s.position(w[j]);
+    if (Degenerate(s, u)) {
+      // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
+      // for 10 zero-area triangles fewer): left as it is instead.
+      if (!MovedCornerKeepsOrientation(Across(s, w, facing), c[0], c[1], c[2])) return false;
+    } else if (!MovedCornerKeepsOrientation(TwiceArea(s, w), c[0], c[1], c[2])) {
+      return false;
+    }
+  }
+  return true;
+}
+
 // Moves v apart by kApart of the way toward the centroid of its neighbours not at its point,
 // along its box faces if it is on the grid's box, unless a triangle turns over or collapses
 // (the degenerate ones around it must come out facing as their neighbours across their edges
@@ -120,10 +147,10 @@ bool TryFlip(MeshStore* s, TriId t) {
 bool MoveApart(MeshStore* s, VertexId v, double longest,
                const std::function<bool(VertexId, Vec3)>& may_move) {
   const Vec3 p = s->position(v);
-  Vec3 sum{0, 0, 0}, facing{0, 0, 0};
+  const Vec3 facing = StarFacing(*s, v);
+  Vec3 sum{0, 0, 0};
   int n = 0;
   for (TriId u : s->vertex_triangles(v)) {
-    if (!Degenerate(*s, u)) facing = facing + TwiceArea(*s, s->triangle(u));
     for (VertexId x : s->triangle(u)) {
       if (x != v && !Close(s->position(x), p, longest)) {
         sum = sum + s->position(x);
@@ -139,21 +166,7 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
     if (box & (kBoxZMin | kBoxZMax)) step.z = 0;
     return step;
   };
-  auto keeps_facing = [&](Vec3 q) {
-    for (TriId u : s->vertex_triangles(v)) {
-      const auto& w = s->triangle(u);
-      Vec3 c[3];
-      for (int j = 0; j < 3; ++j) c[j] = w[j] == v ? q : s->position(w[j]);
-      if (Degenerate(*s, u)) {
-        // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
-        // for 10 zero-area triangles fewer): left as it is instead.
-        if (!MovedCornerKeepsOrientation(Across(*s, w, facing), c[0], c[1], c[2])) return false;
-      } else if (!MovedCornerKeepsOrientation(TwiceArea(*s, w), c[0], c[1], c[2])) {
-        return false;
-      }
-    }
-    return true;
-  };
+  auto keeps_facing = [&](Vec3 q) { return KeepsFacing(*s, v, q, facing); };
   auto try_step = [&](Vec3 step) {
     step = on_box(step);
     const Vec3 q = p + step;
@@ -385,6 +398,10 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
 }
 
 }  // namespace
+
+bool MoveKeepsFacing(const MeshStore& store, VertexId v, Vec3 q) {
+  return KeepsFacing(store, v, q, StarFacing(store, v));
+}
 
 DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
                                      const std::function<bool(VertexId, Vec3)>& may_move,

@@ -60,6 +60,10 @@ DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tr
                                      const std::function<void(VertexId)>& moved,
                                      bool flips = true);
 
+// Whether moving v to q keeps its triangles facing as they do, none collapsing (the test a
+// corner's move above must pass), e.g. for the second copy of a seam vertex (slabs.h).
+bool MoveKeepsFacing(const MeshStore& store, VertexId v, Vec3 q);
+
 }  // namespace tandem
 
 #endif  // TANDEM_DEGENERATE_H_

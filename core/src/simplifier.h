@@ -155,6 +155,8 @@ class Simplifier {
   DegenerateCounts TidyDegenerateAmong(std::span<const TriId> tris,
                                        const std::function<bool(VertexId)>& movable,
                                        bool flips = true);
+  // TidyDegenerate's inflation size (a tenth of E0, at most a twentieth of a slice).
+  double TidySize() const;
   // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
   void VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal);
 
@@ -198,8 +200,7 @@ class Simplifier {
   bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
   // Release key from the cheap bookkeeping only (no quadric solve); fills height/rad/layer.
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
-  // TidyDegenerate's inflation size, and whether it may move v to p (the error bound).
-  double TidySize() const;
+  // Whether TidyDegenerate may move v to p (the error bound).
   bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);

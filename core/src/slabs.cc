@@ -10,6 +10,7 @@
 #include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
 #include "contraction_checks.h"
+#include "degenerate.h"
 #include "quadric.h"
 
 namespace tandem {
@@ -78,7 +79,67 @@ Quadric WeldedQuadric(const Slab& left, VertexId a, const Slab& right, VertexId 
   return h;
 }
 
+// Zero-area triangles at the settling seam vertices of `own` (the other slab: `other`;
+// partner: own copy -> other copy): where the welded link condition refused to contract two
+// seam copies at one grid point, they would freeze so (the quantised tangles sealed kept
+// 4-16 a mesh, 0-7 with this; the plain session's final pass parts them). A seam vertex moves apart as
+// TidyDegenerate moves a corner (degenerate.h), within the seam's plane, both copies to one
+// point, where no triangle of either slab turns over or collapses and the welded quadric's
+// ε0 stays within E0 (or where it is). Only seam vertices move here; the others are mended
+// as their chunks seal.
+void MendSettlingSeamSide(Slab& own, Slab& other,
+                          const absl::flat_hash_map<VertexId, VertexId>& partner, bool own_is_left) {
+  std::vector<TriId> tris;
+  for (const auto& [v, w] : partner) {
+    for (TriId t : own.store.vertex_triangles(v)) tris.push_back(t);
+  }
+  std::sort(tris.begin(), tris.end());
+  tris.erase(std::unique(tris.begin(), tris.end()), tris.end());
+  // The seam's plane fixes x as a face of the box would: MoveApart keeps to such faces.
+  for (const auto& [v, w] : partner) {
+    own.store.set_box_mask(v, static_cast<uint8_t>(own.store.box_mask(v) | kBoxXMin));
+  }
+  const double error = own.simplifier.error();
+  auto welded = [&](VertexId v, VertexId w) {
+    return own_is_left ? WeldedQuadric(own, v, other, w) : WeldedQuadric(other, w, own, v);
+  };
+  TidyDegenerateAmong(
+      &own.store, tris, own.simplifier.TidySize(),
+      [&](VertexId v, Vec3 p) {
+        const auto it = partner.find(v);
+        if (it == partner.end() || p.x != own.store.position(v).x) return false;
+        const Quadric h = welded(v, it->second);
+        return ShapeError(h, p) <= std::max(error, ShapeError(h, own.store.position(v))) &&
+               MoveKeepsFacing(other.store, it->second, p);
+      },
+      [&](VertexId v) {
+        const VertexId w = partner.at(v);
+        other.store.set_position(w, own.store.position(v));
+        // A step off a face of the box (MoveApart on an edge of it) leaves it in both.
+        const auto faces = static_cast<uint8_t>(kBoxFaces & ~kBoxXMin);
+        other.store.set_box_mask(w, static_cast<uint8_t>((other.store.box_mask(w) & ~faces) |
+                                                         (own.store.box_mask(v) & faces)));
+      },
+      /*flips=*/false);
+  for (const auto& [v, w] : partner) {
+    own.store.set_box_mask(v, static_cast<uint8_t>(own.store.box_mask(v) & ~kBoxXMin));
+  }
+}
+
 }  // namespace
+
+void MendSettlingSeam(Slab& left, Slab& right,
+                      const std::vector<std::pair<VertexId, VertexId>>& pairs, double limit) {
+  absl::flat_hash_map<VertexId, VertexId> to_right, to_left;
+  for (const auto& [a, b] : pairs) {
+    if (!left.store.vertex_alive(a) || left.store.height(a) > limit) continue;
+    to_right.emplace(a, b);
+    to_left.emplace(b, a);
+  }
+  if (to_right.empty()) return;
+  MendSettlingSeamSide(left, right, to_right, /*own_is_left=*/true);
+  MendSettlingSeamSide(right, left, to_left, /*own_is_left=*/false);
+}
 
 int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
                             const std::vector<std::pair<VertexId, VertexId>>& pairs,
@@ -331,7 +392,10 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
     Slab& left = *slabs[s];
     Slab& right = *slabs[s + 1];
     auto& pairs = (*seams)[s];
-    if (coarsen) CoarsenSettlingSeam(left, right, pairs, limit);
+    if (coarsen) {
+      CoarsenSettlingSeam(left, right, pairs, limit);
+      MendSettlingSeam(left, right, pairs, limit);
+    }
     size_t keep = 0;
     for (const auto& [a, b] : pairs) {
       if (!left.store.vertex_alive(a)) continue;  // contracted away just now

@@ -108,6 +108,12 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
                             const std::vector<std::pair<VertexId, VertexId>>& pairs,
                             double limit);
 
+// Mends the zero-area triangles at the seam vertices of `pairs` at height <= limit (alive),
+// which are about to settle: they move apart within the seam's plane, both copies at once
+// (see MendSettlingSeamSide in slabs.cc). Run after CoarsenSettlingSeam.
+void MendSettlingSeam(Slab& left, Slab& right,
+                      const std::vector<std::pair<VertexId, VertexId>>& pairs, double limit);
+
 // Moves the slabs' new seam vertices into `seams` (both sides list the same grid edges in the
 // same order). INTERNAL if two neighbours disagree.
 absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams);
