@@ -81,14 +81,15 @@ Quadric WeldedQuadric(const Slab& left, VertexId a, const Slab& right, VertexId 
 
 // Zero-area triangles at the settling seam vertices of `own` (the other slab: `other`;
 // partner: own copy -> other copy): where the welded link condition refused to contract two
-// seam copies at one grid point, they would freeze so (the quantised tangles sealed kept
-// 4-16 a mesh, 0-7 with this; the plain session's final pass parts them). A seam vertex moves apart as
-// TidyDegenerate moves a corner (degenerate.h), within the seam's plane, both copies to one
-// point, where no triangle of either slab turns over or collapses and the welded quadric's
-// ε0 stays within E0 (or where it is). Only seam vertices move here; the others are mended
-// as their chunks seal.
+// seam copies at one grid point, they would freeze so (the quantised tangles sealed kept 4-16
+// a mesh, 0-7 with this; the plain session's final pass parts them). A seam vertex moves
+// apart as TidyDegenerate moves a corner (degenerate.h), within the seam's plane, both copies
+// to one point, where no triangle of either slab turns over or collapses and the welded
+// quadric's ε0 stays within E0 (or where it is). Only seam vertices move here; the others
+// are mended as their chunks seal. The caller freezes every one of them next.
 void MendSettlingSeamSide(Slab& own, Slab& other,
-                          const absl::flat_hash_map<VertexId, VertexId>& partner, bool own_is_left) {
+                          const absl::flat_hash_map<VertexId, VertexId>& partner,
+                          bool own_is_left) {
   std::vector<TriId> tris;
   for (const auto& [v, w] : partner) {
     for (TriId t : own.store.vertex_triangles(v)) tris.push_back(t);

@@ -90,11 +90,12 @@ inline uint32_t SealerIdStride(int count) {
 }
 
 // Sealing: seam vertices `settle_slices` (SessionOptions::seam_settle_slices) or more below
-// the front freeze, in both slabs (Sealer::FreezeShared), and leave `seams`; `seam_ids` counts the ids handed out. So the
-// triangles at the seams that wait for the merge follow the front, not the depth. With
-// `coarsen` (a simplifying session) the settling part of each seam is first coarsened along
-// itself (CoarsenSettlingSeam); what a settled seam vertex gives up is a contraction off
-// the seam's plane at the merge.
+// the front freeze, in both slabs (Sealer::FreezeShared), and leave `seams`; `seam_ids`
+// counts the ids handed out. So the triangles at the seams that wait for the merge follow
+// the front, not the depth. With `coarsen` (a simplifying session) the settling part of each
+// seam is first coarsened along itself (CoarsenSettlingSeam), and its copies left at one
+// point are moved apart (MendSettlingSeam); what a settled seam vertex gives up is a
+// contraction off the seam's plane at the merge.
 void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
                  double front, int64_t settle_slices, bool coarsen, int64_t* seam_ids);
 
