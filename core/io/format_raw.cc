@@ -177,39 +177,18 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& js
 // ---------------------------------------------------------------------------------------
 // Writer: raw voxels in STEM.raw beside the JSON sidecar.
 
-namespace {
-
-// Running min/max of the voxel values (NaNs skipped), for the sidecar's "value_range": each
-// slice's RangeOf (exact for every dtype) merged into the whole volume's.
-class RunningRange {
- public:
-  void Add(DType t, const uint8_t* host, size_t n) {
-    const ValueRange r = RangeOf(t, host, n);
-    if (r.lo > r.hi) return;  // nothing but NaNs
-    lo_ = std::min(lo_, double{r.lo});
-    hi_ = std::max(hi_, double{r.hi});
-  }
-  bool empty() const { return !(lo_ <= hi_); }
-  double lo() const { return lo_; }
-  double hi() const { return hi_; }
-
- private:
-  double lo_ = std::numeric_limits<double>::infinity();
-  double hi_ = -std::numeric_limits<double>::infinity();
-};
-
-}  // namespace
-
 absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                           const VolumeWriteOptions& opts) {
   const std::filesystem::path raw_path = SiblingPath(path, ".raw");
   absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(raw_path.string(), false);
   if (!w.ok()) return w.status();
-  RunningRange range;
+  ValueRange range;  // of every slice (RangeOf: NaNs skipped), for the sidecar's "value_range"
   Sha256 sha;
   absl::Status st = StreamSlices(
       path, info, slice_fn, opts.big_endian, w->get(),
-      [&](const std::vector<uint8_t>& s) { range.Add(info.dtype, s.data(), info.slice_voxels()); },
+      [&](const std::vector<uint8_t>& s) {
+        range.Merge(RangeOf(info.dtype, s.data(), info.slice_voxels()));
+      },
       &sha);
   if (st.ok()) st = (*w)->Close();
   if (!st.ok()) return st;
@@ -235,9 +214,9 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
   if (range.empty()) {
     j["value_range"] = nullptr;
   } else if (info.dtype == DType::kFloat32) {
-    j["value_range"] = {range.lo(), range.hi()};
+    j["value_range"] = {static_cast<double>(range.lo), static_cast<double>(range.hi)};
   } else {
-    j["value_range"] = {static_cast<int64_t>(range.lo()), static_cast<int64_t>(range.hi())};
+    j["value_range"] = {static_cast<int64_t>(range.lo), static_cast<int64_t>(range.hi)};
   }
   j["raw_file"] = raw_path.filename().string();
   j["raw_bytes"] = VolumeBytes(info);

@@ -41,16 +41,7 @@ absl::Status ValueRangeSource::ViewSlice(const uint8_t** data) {
 
 void ValueRangeSource::Scan(const uint8_t* data) {
   const VolumeInfo& info = inner_->info();
-  const ValueRange r = RangeOf(info.dtype, data, static_cast<size_t>(info.slice_voxels()));
-  if (r.lo <= r.hi) {
-    if (lo_ > hi_) {
-      lo_ = r.lo;
-      hi_ = r.hi;
-    } else {
-      lo_ = std::min<double>(lo_, r.lo);
-      hi_ = std::max<double>(hi_, r.hi);
-    }
-  }
+  range_.Merge(RangeOf(info.dtype, data, static_cast<size_t>(info.slice_voxels())));
 }
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path) {

@@ -5,6 +5,7 @@
 #ifndef TANDEM_VOLUME_H_
 #define TANDEM_VOLUME_H_
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -77,6 +78,21 @@ class SliceSource {
   }
 };
 
+// The smallest and largest of n voxels of type t (host byte order, any alignment) as float,
+// NaNs skipped (infinities count); lo > hi when there is no other value. The same as
+// converting them first, without the copy: one vectorised pass.
+struct ValueRange {
+  float lo = 1.0f, hi = -1.0f;
+  bool empty() const { return !(lo <= hi); }
+  // Widens this range to hold r too (an empty r changes nothing).
+  void Merge(const ValueRange& r) {
+    if (r.empty()) return;
+    lo = empty() ? r.lo : std::min(lo, r.lo);
+    hi = empty() ? r.hi : std::max(hi, r.hi);
+  }
+};
+ValueRange RangeOf(DType t, const uint8_t* src, size_t n);
+
 // Wraps a source and records the range of the finite values it hands out (read or viewed),
 // so that a caller can tell a user that the iso-value lies outside the data. One extra pass
 // over each slice's values, converted as the session converts them.
@@ -94,28 +110,20 @@ class ValueRangeSource final : public SliceSource {
   absl::Status ReadSlice(std::vector<uint8_t>* bytes) override;
   absl::Status ViewSlice(const uint8_t** data) override;
   // Range of the finite values seen so far; lo > hi while there are none.
-  double lo() const { return lo_; }
-  double hi() const { return hi_; }
+  double lo() const { return range_.lo; }
+  double hi() const { return range_.hi; }
   // True when iso cannot cross the data seen: every value on one side of it (or none).
-  bool Outside(double iso) const { return !(lo_ < iso && iso < hi_); }
+  bool Outside(double iso) const { return !(range_.lo < iso && iso < range_.hi); }
 
  private:
   void Scan(const uint8_t* data);
   SliceSource* inner_;
   std::unique_ptr<SliceSource> owned_;  // set by Replace
-  double lo_ = 1.0, hi_ = -1.0;
+  ValueRange range_;
 };
 
 // Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
-
-// The smallest and largest of n voxels of type t (host byte order, any alignment) as float,
-// NaNs skipped (infinities count); lo > hi when there is no other value. The same as
-// converting them first, without the copy: one vectorised pass.
-struct ValueRange {
-  float lo = 1.0f, hi = -1.0f;
-};
-ValueRange RangeOf(DType t, const uint8_t* src, size_t n);
 
 // Every voxel must be a finite number. The one rule: a float32 whose exponent bits are all set
 // is NaN or infinite (integer types are always finite).
