@@ -179,10 +179,10 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
     Vec3 pos = left.store.position(a);
     if (kind == kSeamEdge) {
       // A vertex on the grid's box (the welded mesh's boundary) keeps to its faces, as in
-      // Simplifier::Evaluate; two of them are left as they are.
+      // Simplifier::Evaluate: two on different faces are left as they are.
       const uint8_t fa = left.store.box_mask(a) & kBoxFaces;
       const uint8_t fb = left.store.box_mask(b) & kBoxFaces;
-      if (fa != 0 && fb != 0) return;
+      if ((fa & fb) != fa && (fa & fb) != fb) return;
       h += seam_quadric(b);
       Vec3 ref = BoxedMidpoint(pos, fa, left.store.position(b), fb);
       ref.x = pos.x;  // the seam's plane

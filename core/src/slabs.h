@@ -103,8 +103,10 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
 // <= limit, in both slabs at once: cheapest first, each to the point of the seam's plane
 // that minimises both sides' quadrics, while that costs at most E0 and passes the link
 // condition of the welded mesh, each slab's own and the geometry checks on both sides.
-// The seam vertices of the box's faces stay. Returns the number of contractions; the
-// contracted-away pairs are dead in both stores (the caller drops them from `pairs`).
+// Seam vertices on the grid's box keep to its faces (two on different faces stay, as in
+// Simplifier::Evaluate), and a slab's own vertices on it stay. Returns the number of
+// contractions; the contracted-away pairs are dead in both stores (the caller drops them
+// from `pairs`).
 int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
                             const std::vector<std::pair<VertexId, VertexId>>& pairs,
                             double limit);
