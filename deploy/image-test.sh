@@ -168,6 +168,13 @@ podman cp "$work/dcm" "$container:/data/dcm" \
 [ "$(triangles "$work/dcm-local.json")" = "$(triangles "$work/dcm-remote.json")" ] \
   || fail "the container's DICOM mesh has $(triangles "$work/dcm-remote.json") triangles, tandem extract's $(triangles "$work/dcm-local.json")"
 say "a DICOM series streamed from inside the container: $(triangles "$work/dcm-remote.json") triangles"
+# ... and shows it in the browser viewer (its viewer module, lib/tandem, loads cpp-httplib).
+podman exec "$container" tandem-client stream --server "$server" --input /data/dcm --iso 0 \
+     --error 0.2 --out /data/dcm-view.drc --view 127.0.0.1:0 --view-linger 0 \
+     > "$work/view.log" 2>&1 \
+  || { cat "$work/view.log" >&2; fail "tandem-client --view inside the container"; }
+grep -q "viewer at http://127.0.0.1:" "$work/view.log" \
+  || { cat "$work/view.log" >&2; fail "tandem-client --view in the container printed no address"; }
 
 # --- 4. SIGTERM during a stream ---------------------------------------------------------
 # 96 slices at 16 a second: about 6 s, longer than the drain delay, well within the grace.

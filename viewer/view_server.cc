@@ -1,3 +1,6 @@
+// libtandem_view.so: the viewer's HTTP server (view_server.h), a module of its own loaded by
+// ViewServer::Start (view_loader.cc), so that only a program that serves the page loads
+// cpp-httplib and the OpenSSL and Brotli it links.
 #include "viewer/view_server.h"
 
 #include <httplib.h>
@@ -22,29 +25,11 @@
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
 
-#ifndef TANDEM_SOURCE_DIR
-#define TANDEM_SOURCE_DIR "."
-#endif
-
 namespace tandem::viewer {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
 namespace {
-
-std::string ExeDir() {
-  std::error_code ec;
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  return ec ? std::string() : exe.parent_path().string();
-}
-
-std::string FirstExisting(const std::vector<std::string>& candidates, const std::string& probe) {
-  for (const std::string& c : candidates) {
-    std::error_code ec;
-    if (!c.empty() && fs::exists(fs::path(c) / probe, ec)) return c;
-  }
-  return "";
-}
 
 bool ReadWhole(const fs::path& path, std::string* out) {
   std::ifstream in(path, std::ios::binary);
@@ -97,50 +82,7 @@ bool PortFree(const std::string& host, int port) {
   return free;
 }
 
-}  // namespace
-
-namespace {
-// `dir` if given, else share/tandem/<installed> next to the running binary, else the
-// source tree's <source>, whichever holds `probe`.
-std::string FindData(const std::string& dir, const std::string& installed,
-                     const std::string& source, const std::string& probe) {
-  if (!dir.empty()) return dir;
-  const std::string exe = ExeDir();
-  return FirstExisting({exe + "/../share/tandem/" + installed, exe + "/" + installed,
-                        std::string(TANDEM_SOURCE_DIR) + "/" + source},
-                       probe);
-}
-}  // namespace
-
-std::string FindAssets(const std::string& dir) {
-  return FindData(dir, "viewer", "viewer/web", "index.html");
-}
-
-std::string FindThree(const std::string& dir) {
-  return FindData(dir, "three", "node_modules/three", "build/three.module.js");
-}
-
-absl::Status ParseListen(const std::string& listen, std::string* host, int* port) {
-  const size_t colon = listen.rfind(':');
-  int p = -1;
-  if (colon == std::string::npos || colon == 0 ||
-      !absl::SimpleAtoi(listen.substr(colon + 1), &p) || p < 0 || p > 65535) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("expected HOST:PORT (e.g. 127.0.0.1:8080), got '", listen, "'"));
-  }
-  *host = listen.substr(0, colon);
-  if (host->size() > 2 && host->front() == '[' && host->back() == ']') {
-    *host = host->substr(1, host->size() - 2);
-  }
-  *port = p;
-  return absl::OkStatus();
-}
-
-bool IsLoopback(const std::string& host) {
-  return host == "localhost" || host == "::1" || absl::StartsWith(host, "127.");
-}
-
-struct ViewServer::Impl {
+struct Impl {
   ViewOptions options;
   std::string assets, three, host;
   int port = 0;
@@ -173,7 +115,7 @@ struct ViewServer::Impl {
   void Routes();
 };
 
-void ViewServer::Impl::Routes() {
+void Impl::Routes() {
   http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
     // The page and three.js are public code; the session's data needs the token.
     const bool data = req.path == "/state.json" || req.path == "/events" ||
@@ -284,7 +226,27 @@ void ViewServer::Impl::Routes() {
   });
 }
 
-absl::StatusOr<std::unique_ptr<ViewServer>> ViewServer::Start(const ViewOptions& options) {
+// The server (view_server.h), behind the interface the programs see.
+class HttpViewServer final : public ViewServer {
+ public:
+  explicit HttpViewServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+  ~HttpViewServer() override;
+  std::string url() const override;
+  void SetSession(const std::string& id, const std::string& description, int64_t nz) override;
+  void SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
+                   int64_t triangles_sealed) override;
+  void AddChunk(std::string draco, int64_t triangles) override;
+  void SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) override;
+  void ClearBand() override;
+  void AddFile(const std::string& name, std::string bytes) override;
+  void Finish(const std::string& metrics_json, const std::string& error) override;
+  int64_t connections() const override { return impl_->connections.load(); }
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+absl::StatusOr<std::unique_ptr<ViewServer>> Start(const ViewOptions& options) {
   auto impl = std::make_unique<Impl>();
   impl->options = options;
   if (absl::Status st = ParseListen(options.listen, &impl->host, &impl->port); !st.ok()) {
@@ -333,12 +295,10 @@ absl::StatusOr<std::unique_ptr<ViewServer>> ViewServer::Start(const ViewOptions&
   impl->thread = std::thread([raw] { raw->http.listen_after_bind(); });
   // Until the loop runs, stop() would not reach it (and the destructor would wait forever).
   for (int i = 0; i < 500 && !impl->http.is_running(); ++i) absl::SleepFor(absl::Milliseconds(10));
-  return std::unique_ptr<ViewServer>(new ViewServer(std::move(impl)));
+  return std::unique_ptr<ViewServer>(new HttpViewServer(std::move(impl)));
 }
 
-ViewServer::ViewServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
-
-ViewServer::~ViewServer() {
+HttpViewServer::~HttpViewServer() {
   impl_->stopping = true;
   {
     absl::MutexLock lock(&impl_->mu);  // wakes the event streams
@@ -348,7 +308,7 @@ ViewServer::~ViewServer() {
   if (impl_->thread.joinable()) impl_->thread.join();
 }
 
-std::string ViewServer::url() const {
+std::string HttpViewServer::url() const {
   const bool v6 = absl::StrContains(impl_->host, ':');
   std::string host = impl_->host == "0.0.0.0" ? "127.0.0.1" : impl_->host;
   if (v6) host = absl::StrCat("[", host, "]");
@@ -356,7 +316,7 @@ std::string ViewServer::url() const {
                       impl_->options.token.empty() ? "" : "?token=" + impl_->options.token);
 }
 
-void ViewServer::SetSession(const std::string& id, const std::string& description, int64_t nz) {
+void HttpViewServer::SetSession(const std::string& id, const std::string& description, int64_t nz) {
   absl::MutexLock lock(&impl_->mu);
   impl_->state["session"] = id;
   impl_->state["description"] = description;
@@ -364,7 +324,7 @@ void ViewServer::SetSession(const std::string& id, const std::string& descriptio
   impl_->ChangedLocked();
 }
 
-void ViewServer::SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
+void HttpViewServer::SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
                              int64_t triangles_sealed) {
   absl::MutexLock lock(&impl_->mu);
   json& s = impl_->state;
@@ -375,7 +335,7 @@ void ViewServer::SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t
   impl_->ChangedLocked();
 }
 
-void ViewServer::AddChunk(std::string draco, int64_t triangles) {
+void HttpViewServer::AddChunk(std::string draco, int64_t triangles) {
   auto bytes = std::make_shared<const std::string>(std::move(draco));
   absl::MutexLock lock(&impl_->mu);
   impl_->chunks.push_back(std::move(bytes));
@@ -384,7 +344,7 @@ void ViewServer::AddChunk(std::string draco, int64_t triangles) {
   impl_->ChangedLocked();
 }
 
-void ViewServer::SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) {
+void HttpViewServer::SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) {
   auto bytes = std::make_shared<const std::string>(std::move(draco));
   absl::MutexLock lock(&impl_->mu);
   impl_->band = std::move(bytes);
@@ -396,14 +356,14 @@ void ViewServer::SetBand(std::string draco, int64_t triangles, int64_t slice, bo
   impl_->ChangedLocked();
 }
 
-void ViewServer::ClearBand() {
+void HttpViewServer::ClearBand() {
   absl::MutexLock lock(&impl_->mu);
   impl_->band.reset();
   impl_->state["band"] = nullptr;
   impl_->ChangedLocked();
 }
 
-void ViewServer::AddFile(const std::string& name, std::string bytes) {
+void HttpViewServer::AddFile(const std::string& name, std::string bytes) {
   auto shared = std::make_shared<const std::string>(std::move(bytes));
   absl::MutexLock lock(&impl_->mu);
   impl_->files[name] = std::move(shared);
@@ -414,7 +374,7 @@ void ViewServer::AddFile(const std::string& name, std::string bytes) {
   impl_->ChangedLocked();
 }
 
-void ViewServer::Finish(const std::string& metrics_json, const std::string& error) {
+void HttpViewServer::Finish(const std::string& metrics_json, const std::string& error) {
   absl::MutexLock lock(&impl_->mu);
   impl_->state["finished"] = true;
   impl_->state["error"] = error;
@@ -424,6 +384,13 @@ void ViewServer::Finish(const std::string& metrics_json, const std::string& erro
   impl_->ChangedLocked();
 }
 
-int64_t ViewServer::connections() const { return impl_->connections.load(); }
+const ViewModule kModule{kViewModuleAbi, &Start};
 
+}  // namespace
 }  // namespace tandem::viewer
+
+// The module's only exported symbol (the rest is hidden: CXX_VISIBILITY_PRESET).
+extern "C" __attribute__((visibility("default"))) const tandem::viewer::ViewModule*
+tandem_view_module() {
+  return &tandem::viewer::kModule;
+}

@@ -44,34 +44,45 @@ absl::Status ParseListen(const std::string& listen, std::string* host, int* port
 // True for 127.0.0.0/8, ::1 and "localhost".
 bool IsLoopback(const std::string& host);
 
+// The server lives in a module of its own, libtandem_view.so (view_server.cc), loaded by
+// Start: cpp-httplib links OpenSSL and Brotli, whose loading cost every start of the CLI and
+// the client ~4.7 ms and 3.8 MB of resident pages when they linked it, viewer or not
+// (core/io/module_loader.h). The programs see only this interface.
 class ViewServer {
  public:
-  // Binds (an error names the address: "127.0.0.1:8080 is in use ...") and serves on a
-  // thread of its own until destroyed.
+  // Loads the module (the first time), binds (an error names the address: "127.0.0.1:8080
+  // is in use ...") and serves on a thread of its own until destroyed. Without the module,
+  // FailedPrecondition naming the places searched.
   static absl::StatusOr<std::unique_ptr<ViewServer>> Start(const ViewOptions& options);
-  ~ViewServer();
-  std::string url() const;  // http://HOST:PORT/ (with ?token= when one is set)
+  virtual ~ViewServer() = default;
+  virtual std::string url() const = 0;  // http://HOST:PORT/ (with ?token= when one is set)
 
   // What the page shows; any thread.
-  void SetSession(const std::string& id, const std::string& description, int64_t nz);
-  void SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
-                   int64_t triangles_sealed);
-  void AddChunk(std::string draco, int64_t triangles);
+  virtual void SetSession(const std::string& id, const std::string& description,
+                          int64_t nz) = 0;
+  virtual void SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
+                           int64_t triangles_sealed) = 0;
+  virtual void AddChunk(std::string draco, int64_t triangles) = 0;
   // The unsealed band (band_only) or the whole partial (or final) mesh.
-  void SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only);
-  void ClearBand();
+  virtual void SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) = 0;
+  virtual void ClearBand() = 0;
   // A finished mesh file, served as /file/NAME (its format from the extension).
-  void AddFile(const std::string& name, std::string bytes);
+  virtual void AddFile(const std::string& name, std::string bytes) = 0;
   // The end: metrics as a JSON object text ("" = none), or an error message.
-  void Finish(const std::string& metrics_json, const std::string& error);
+  virtual void Finish(const std::string& metrics_json, const std::string& error) = 0;
 
-  int64_t connections() const;  // event streams opened so far (for tests and logs)
-
- private:
-  struct Impl;
-  explicit ViewServer(std::unique_ptr<Impl> impl);
-  std::unique_ptr<Impl> impl_;
+  virtual int64_t connections() const = 0;  // event streams opened so far (tests and logs)
 };
+
+// The module's table (view_server.cc; view_loader.cc loads it).
+inline constexpr int kViewModuleAbi = 1;
+struct ViewModule {
+  int abi;
+  absl::StatusOr<std::unique_ptr<ViewServer>> (*start)(const ViewOptions& options);
+};
+extern "C" using ViewModuleEntry = const ViewModule* ();
+inline constexpr const char kViewModuleEntryName[] = "tandem_view_module";
+inline constexpr const char kViewModuleName[] = "libtandem_view.so";
 
 }  // namespace tandem::viewer
 

@@ -1,17 +1,13 @@
 // Loads libtandem_dicom.so (dicom_codec.h) the first time a DICOM file is read or written,
 // and holds the executable's __assert_fail that turns a failed GDCM assertion into an error.
-#include <dlfcn.h>
-
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
 #include <string>
-#include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_join.h"
 #include "dicom_codec.h"
+#include "module_loader.h"
 
 namespace tandem::dicom {
 namespace {
@@ -19,47 +15,22 @@ namespace {
 // Set once the module is loaded; read by __assert_fail on any thread.
 std::atomic<const Codec*> g_codec{nullptr};
 
-// Where the module is looked for: next to the executable (the build tree's bin/), then in
-// ../lib/tandem/ beside it (cmake --install, the container image).
-std::vector<std::string> Places() {
-  std::error_code ec;
-  const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
-  if (ec) return {kModuleName};  // no /proc: the loader's own search path
-  const std::filesystem::path dir = exe.parent_path();
-  return {(dir / kModuleName).string(),
-          (dir.parent_path() / "lib" / "tandem" / kModuleName).string()};
-}
-
 struct Loaded {
   const Codec* codec = nullptr;
   std::string error;
 };
 
 Loaded Load() {
-  std::vector<std::string> problems;
-  for (const std::string& place : Places()) {
-    std::error_code ec;
-    if (place.find('/') != std::string::npos && !std::filesystem::exists(place, ec)) {
-      problems.push_back(absl::StrCat(place, ": no such file"));
-      continue;
-    }
-    // RTLD_NOW: a missing GDCM library shows here, with its name, not at the first call.
-    void* handle = dlopen(place.c_str(), RTLD_NOW | RTLD_LOCAL);
-    if (handle == nullptr) {
-      const char* e = dlerror();
-      problems.push_back(e != nullptr ? e : place + ": cannot be loaded");
-      continue;
-    }
-    auto* entry = reinterpret_cast<CodecEntry*>(dlsym(handle, kCodecEntryName));
-    const Codec* codec = entry != nullptr ? entry() : nullptr;
-    if (codec == nullptr || codec->abi != kDicomCodecAbi) {
-      problems.push_back(absl::StrCat(place, ": not this build's DICOM module (expected ",
-                                      kCodecEntryName, " version ", kDicomCodecAbi, ")"));
-      continue;  // never unloaded: dlclose of a C++ library with statics is not worth it
-    }
-    return {codec, ""};
-  }
-  return {nullptr, absl::StrJoin(problems, "; ")};
+  const Codec* codec = nullptr;
+  absl::StatusOr<void*> entry = LoadModuleEntry(kModuleName, kCodecEntryName, [&](void* e) {
+    codec = reinterpret_cast<CodecEntry*>(e)();
+    if (codec != nullptr && codec->abi == kDicomCodecAbi) return absl::OkStatus();
+    return absl::FailedPreconditionError(absl::StrCat(
+        "not this build's DICOM module (expected ", kCodecEntryName, " version ",
+        kDicomCodecAbi, ")"));
+  });
+  if (!entry.ok()) return {nullptr, std::string(entry.status().message())};
+  return {codec, ""};
 }
 
 }  // namespace

@@ -21,7 +21,7 @@ deploy/Dockerfile: two or more stages FROM Debian 12; the build stage runs
 deploy/install-deps.sh (no option: the README's) and configures with
 -DTANDEM_BUILD_TESTS=OFF; the final stage runs install-deps.sh --runtime, copies only
 tandem-server and tandem-client from the build stage (and the installed share/tandem and
-lib/tandem, the viewer's files and the DICOM module), runs as USER 10001, EXPOSEs 50051
+lib/tandem, the viewer's files and the DICOM and viewer modules), runs as USER 10001, EXPOSEs 50051
 (the port the Kubernetes container declares), has a HEALTHCHECK, and an exec-form
 ENTRYPOINT ["tandem-server"].
 --self-test breaks copies of the real files in memory and checks each break is reported.
@@ -295,8 +295,8 @@ class Checker:
         if not re.search(r"install-deps\.sh\s+--runtime", runs):
             self.err(where, "the final stage does not install deploy/install-deps.sh --runtime")
         # Besides the two binaries, only the installed data folder (the viewer's page and
-        # three.js, `cmake --install` into a staging prefix) and the DICOM module's folder
-        # may come from the build stage.
+        # three.js, `cmake --install` into a staging prefix) and the modules' folder (DICOM,
+        # viewer) may come from the build stage.
         shared = [s for c in copies if c[2] for s in c[0]
                   if s.rstrip("/").endswith(("/share/tandem", "/lib/tandem"))]
         copied = sorted(os.path.basename(s) for c in copies if c[2] for s in c[0] if s not in shared)
