@@ -7,7 +7,8 @@
 namespace tandem::viewer {
 
 absl::StatusOr<std::unique_ptr<ViewServer>> ViewServer::Start(const ViewOptions& options) {
-  static const absl::StatusOr<const ViewModule*> loaded = []() -> absl::StatusOr<const ViewModule*> {
+  using Loaded = absl::StatusOr<const ViewModule*>;
+  static const Loaded loaded = []() -> Loaded {
     const ViewModule* module = nullptr;
     absl::StatusOr<void*> entry =
         LoadModuleEntry(kViewModuleName, kViewModuleEntryName, [&](void* e) {
