@@ -6,6 +6,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include "grow.h"
+
 namespace tandem {
 
 IndexedMesh WeldChunks(std::span<const SealedChunk> chunks) {
@@ -85,9 +87,9 @@ Sealer::Sealer(MeshStore* store, Simplifier* simplifier, double margin, double s
 void Sealer::EnsureCapacity() {
   const size_t n = store_->vertex_capacity();
   if (id_.size() >= n) return;
-  id_.resize(n, kInvalid);
-  stamp_.resize(n, 0);
-  normal_.resize(n);
+  GrowTo(id_, n, kInvalid);
+  GrowTo(stamp_, n, 0u);
+  GrowTo(normal_, n);
 }
 
 void Sealer::AddVertices(std::span<const VertexId> verts) {
