@@ -95,9 +95,9 @@ class Sealer {
   Simplifier* simplifier_;
   double margin_, sag_fraction_;
   std::vector<VertexId> active_;  // unfrozen vertices (dead ones are dropped by Seal)
-  // Per store vertex, grown as the store's arrays are (by eighths, pages of their own: as
-  // std::vectors they doubled, and held up to twice the store's vertices, 43 MiB a part of a
-  // closed 2048² period-32 gyroid's sealed stream).
+  // Per store vertex, grown as the store's arrays are (by eighths, pages of their own). As
+  // std::vectors they doubled and held up to twice the store's vertices: mid-stream, a closed
+  // 2048² period-32 gyroid's sealed stream counted 43 MiB a part of sealer, 33 MiB now.
   PodArray<uint32_t> id_;      // global id, kInvalid before its first sealed triangle
   PodArray<uint32_t> stamp_;   // the pending chunk it was last added to
   PodArray<Vec3> normal_;      // frozen: its normal when it froze; else scratch

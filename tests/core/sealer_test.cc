@@ -483,8 +483,8 @@ TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
 
 // The sealer keeps an id, a chunk stamp and a normal (32 bytes) for every vertex id of the
 // store, and grows them as the store grows its own arrays: by an eighth, not by double. As
-// std::vectors resized to the store's size they held up to twice its vertices (on a closed
-// 2048² period-32 gyroid's sealed stream, 43 MiB a part for 29 MiB of vertices).
+// std::vectors resized to the store's size they held up to twice its vertices (mid-stream, a
+// closed 2048² period-32 gyroid's sealed stream counted 43 MiB a part of sealer, 33 now).
 TEST(Sealing, PerVertexStateGrowsWithTheStore) {
   MeshStore store;
   Sealer sealer(&store, nullptr, 2.0, 0.0);
