@@ -344,7 +344,8 @@ void Simplifier::ActivateAndSimplify(double front) {
   w_.TakeUpTo(front_, &released_);  // in W's order: Q breaks ties by push order
   // Stale entries are no edges: they neither enter Q nor count towards a chunk or a vertex's
   // readiness, so a sweep of W (below) changes nothing.
-  erase_if(released_, [this](const WEdge& e) { return Stale(e); });
+  const auto stale = [this](const WEdge& e) { return Stale(e); };
+  erase_if(released_, stale);
   const size_t chunk = opt_.release_chunk;
   if (chunk == 0 || released_.size() <= chunk) {
     for (const WEdge& e : released_) AddToBatch(e.a, e.b, /*released=*/true);
@@ -360,6 +361,7 @@ void Simplifier::ActivateAndSimplify(double front) {
   // reaches past the chunks taken: where it did, Q held only the edges that contractions
   // had pushed there, and on a flat cap (every cost 0) one survivor swallowed the next
   // chunk's vertices one by one into a fan (a closed 2048² gyroid: 13.5 minutes, not 25 s).
+  //
   // What W held past its stale entries goes back now (at the closing cap of a closed 2048²
   // period-32 gyroid, 60 % of the release: 81 -> 33 MiB a part).
   released_.shrink_to_fit();
@@ -380,6 +382,7 @@ void Simplifier::ActivateAndSimplify(double front) {
   // period-32 gyroid's cap: W 12 -> 38 MiB a part over the step, 40 % of it stale). Those
   // whose far end waits for a later chunk go to that chunk's group, and go stale the same
   // way. W and the groups are swept when they have grown by half since their last sweep.
+  const auto grown = [chunk](size_t now, size_t then) { return now > then + then / 2 + chunk; };
   size_t swept = w_.size();
   size_t waiting = 0;  // edges in groups_ after the last sweep
   for (group_ = 0; group_ < groups; ++group_) {
@@ -405,16 +408,16 @@ void Simplifier::ActivateAndSimplify(double front) {
     FlushBatch();
     step_peak_bytes_ = std::max(step_peak_bytes_, MemoryBytes());
     Simplify();
-    if (w_.size() > swept + swept / 2 + chunk) {
-      w_.RemoveIf([this](const WEdge& e) { return Stale(e); });
+    if (grown(w_.size(), swept)) {
+      w_.RemoveIf(stale);
       swept = w_.size();
     }
     size_t held = 0;
     for (uint32_t g = group_ + 1; g < groups; ++g) held += groups_[g].size();
-    if (held > waiting + waiting / 2 + chunk) {
+    if (grown(held, waiting)) {
       held = 0;
       for (uint32_t g = group_ + 1; g < groups; ++g) {
-        erase_if(groups_[g], [this](const WEdge& e) { return Stale(e); });
+        erase_if(groups_[g], stale);
         groups_[g].shrink_to_fit();
         held += groups_[g].size();
       }
