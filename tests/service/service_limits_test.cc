@@ -380,10 +380,14 @@ TEST(LimitsTest, ServerStopsReadingAStreamWhoseClientDoesNotRead) {
 }
 
 // A client that never reads is cancelled after the idle timeout, mid-stream and after the
-// last slice (the final mesh unread), and its slot is free again.
+// last slice (the final mesh unread), and its slot is free again. Previews are neither spaced
+// in time nor bounded in share: on a fast machine the 120 slices take 30 ms, and spaced
+// previews (one per 250 ms) left the whole stream's output (71 KB) inside the client's
+// 64 KB window plus the socket's buffers, so it finished without ever stalling.
 TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
-  auto server = TestServer::Start(
-      {"--max-inflight-bytes", "16384", "--idle-timeout-seconds", "1", "--max-sessions", "1"});
+  auto server = TestServer::Start({"--max-inflight-bytes", "16384", "--idle-timeout-seconds",
+                                   "1", "--max-sessions", "1", "--min-preview-interval-ms", "0",
+                                   "--max-preview-share", "0"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   auto stub = SmallWindowStub(s);
