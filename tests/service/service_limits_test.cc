@@ -201,7 +201,8 @@ TEST(LimitsTest, ServerSpacesPreviewsWhateverTheClientAsks) {
       WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 32, 32, 60));
   ASSERT_TRUE(volume.ok()) << volume.status();
   auto previews = [&](int64_t floor_ms, double* wall_s) {
-    auto server = TestServer::Start({"--min-preview-interval-ms", std::to_string(floor_ms)});
+    auto server = TestServer::Start(
+        {"--min-preview-interval-ms", std::to_string(floor_ms), "--max-preview-share", "0"});
     EXPECT_TRUE(server.ok()) << server.status();
     if (!server.ok()) return int64_t{-1};
     const auto start = Clock::now();
@@ -291,7 +292,7 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
     std::thread writer([&] {
       for (const v1::ExtractRequest& r : big) {
         if (!stream->Write(r)) return;
-        std::this_thread::sleep_for(std::chrono::milliseconds(5));  // a scanner's pace
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));  // a scanner's pace
       }
       stream->WritesDone();
     });

@@ -291,7 +291,7 @@ TEST(Client, RetriesAStreamRefusedBecauseTheServerIsBusy) {
   };
   for (int retries : {0, 4}) {
     SCOPED_TRACE(retries);
-    auto busy = ChildProcess::Spawn(stream(*slow, {"--rate", "20"}), dir);  // 1.5 s
+    auto busy = ChildProcess::Spawn(stream(*slow, {"--rate", "10"}), dir);  // 3 s
     ASSERT_TRUE(busy.ok());
     bool active = false;
     for (int i = 0; i < 200 && !active; ++i) {

@@ -21,7 +21,7 @@ const MAX_BUFFER_BYTES = 4 << 20;  // one piece's index is 0.75 MiB at most; the
 // Per view, from the page's load to the last triangle drawn: 5-12 s measured on the 2 shared
 // cores (SwiftShader, at a load of 5-10); a page that redraws in a loop or uploads one giant
 // buffer takes longer, but the bound is for a page that stalls.
-const VIEW_SECONDS = 45;
+const VIEW_SECONDS = 120;
 
 // sin x cos y + sin y cos z + sin z cos x, float32, x fastest, with its JSON sidecar.
 function denseGyroid(file, [nx, ny, nz], period) {
