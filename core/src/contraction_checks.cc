@@ -35,6 +35,10 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   // without early exits where the outcome varies from call to call: the link condition was
   // the largest source of mispredicted branches in the simplifier.
   VertexId xa[kFanMax], ya[kFanMax], xb[kFanMax], yb[kFanMax];
+  // Both fans' triangles at once: each is a cache miss at a random id, and the loops below
+  // would otherwise wait for them one after the other.
+  for (TriId t : store.vertex_triangles(a)) store.PrefetchTriangle(t);
+  for (TriId t : store.vertex_triangles(b)) store.PrefetchTriangle(t);
   for (VertexId* v : {xa, ya, xb, yb}) std::fill(v, v + kFanMax, kInvalid);
   int n_a = 0, n_b = 0;
   VertexId apex[4];

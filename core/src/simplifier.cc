@@ -503,12 +503,21 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     const double key = q_.Top().key;
     if (!past_error && key > opt_.error) break;
     const QNode e = q_.Pop();
-    if (const QNode* next = q_.Next()) {  // its stamps are read next: start the loads now
-      __builtin_prefetch(&version_[next->a]);
-      __builtin_prefetch(&version_[next->b]);
-      __builtin_prefetch(&q_.Placement(*next));
+    // The next edge's reads, a stage at a time as each one's address arrives: its stamps,
+    // placement and end records now, its ends' star lists before this edge's link condition,
+    // their triangles after this edge's contraction (each a cache miss at a random id).
+    const QNode* next = q_.Next();
+    const QNode ahead = next != nullptr ? *next : QNode{};
+    if (next != nullptr) {
+      __builtin_prefetch(&version_[ahead.a]);
+      __builtin_prefetch(&version_[ahead.b]);
+      __builtin_prefetch(&q_.Placement(ahead));
+      store_->Prefetch(ahead.a);
+      store_->Prefetch(ahead.b);
     }
     if (Stale(e)) continue;
+    store_->PrefetchStar(e.a);  // in case it came to the top unforeseen
+    store_->PrefetchStar(e.b);
     // Live: Contract reads both quadrics after the link and geometry checks.
     PrefetchVertex(e.a);
     PrefetchVertex(e.b);
@@ -545,6 +554,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     // rises it is listed as well: a link refusal comes back at the first rise after a star
     // of its ends changed (refused_), a geometry refusal at every rise (the distance guard
     // grows with E0, and a neighbour's move reshapes its triangles).
+    if (next != nullptr) {
+      store_->PrefetchStar(ahead.a);
+      store_->PrefetchStar(ahead.b);
+    }
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
       ++refusals_.link;
       if (opt_.rises) {
@@ -564,6 +577,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     c.box_mask = ma | mb;
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
+    if (next != nullptr) {  // a dead end's list is empty
+      for (TriId t : store_->vertex_triangles(ahead.a)) store_->PrefetchTriangle(t);
+      for (TriId t : store_->vertex_triangles(ahead.b)) store_->PrefetchTriangle(t);
+    }
   }
   if (q_.empty()) q_.Trim();
   // Kept edges (keep > 1) stay queued past SIMPLIFY, and most go stale as their neighbours
