@@ -566,6 +566,14 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
       }
       continue;
     }
+    // The apexes' star lists, which Contract searches to unlink the triangles on ab (their
+    // records are in cache: the link condition prefetched every fan corner's).
+    for (TriId t : store_->vertex_triangles(e.a)) {
+      const auto& tri = store_->triangle(t);
+      if (tri[0] == e.b || tri[1] == e.b || tri[2] == e.b) {
+        store_->PrefetchStar(tri[0] ^ tri[1] ^ tri[2] ^ e.a ^ e.b);
+      }
+    }
     // Past E0 the guard (a multiple of E0) would stall.
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
     if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) {
