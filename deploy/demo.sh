@@ -27,6 +27,10 @@ mkdir -p out
 rm -rf out/previews out/acquisition out/pillowbox.ply
 "$bin/tandem" generate pillowbox --size 128 --out out/pillowbox.json
 
+# Emptied here, not by the server's redirection: that runs in the background child, so the
+# loop below could look before the file exists (sed's error ends the script under set -e; it
+# did on a loaded machine) or read a previous run's address.
+: >out/server.stdout
 "$bin/tandem-server" --listen 127.0.0.1:0 ${server_extra[@]+"${server_extra[@]}"} \
   >out/server.stdout 2>out/server.log &
 server=$!
