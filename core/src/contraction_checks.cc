@@ -37,8 +37,8 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   VertexId xa[kFanMax], ya[kFanMax], xb[kFanMax], yb[kFanMax];
   // Both fans' triangles at once: each is a cache miss at a random id, and the loops below
   // would otherwise wait for them one after the other.
-  for (TriId t : store.vertex_triangles(a)) store.PrefetchTriangle(t);
-  for (TriId t : store.vertex_triangles(b)) store.PrefetchTriangle(t);
+  store.PrefetchFan(a);
+  store.PrefetchFan(b);
   for (VertexId* v : {xa, ya, xb, yb}) std::fill(v, v + kFanMax, kInvalid);
   int n_a = 0, n_b = 0;
   VertexId apex[4];

@@ -104,9 +104,12 @@ class MeshStore {
   double rad(VertexId v) const { return vtx_[v].rad; }
   // Starts loading v's record (a hint for loops that know which vertices come next).
   void Prefetch(VertexId v) const { __builtin_prefetch(&vtx_[v]); }
-  void PrefetchTriangle(TriId t) const { __builtin_prefetch(&tris_[t]); }
-  // v's list of triangles (its record must be in cache already, or this waits for it).
+  // v's list of triangles, and the triangles on it (the record, and for PrefetchFan the list,
+  // must be in cache already, or these wait for them).
   void PrefetchStar(VertexId v) const { __builtin_prefetch(pool_.data() + vtx_[v].adj.offset); }
+  void PrefetchFan(VertexId v) const {
+    for (TriId t : vertex_triangles(v)) __builtin_prefetch(&tris_[t]);
+  }
   void set_rad(VertexId v, double r) { vtx_[v].rad = r; }
   void set_box_mask(VertexId v, uint8_t m) { vtx_[v].box = m; }
 

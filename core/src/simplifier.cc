@@ -586,8 +586,8 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
     if (next != nullptr) {  // a dead end's list is empty
-      for (TriId t : store_->vertex_triangles(ahead.a)) store_->PrefetchTriangle(t);
-      for (TriId t : store_->vertex_triangles(ahead.b)) store_->PrefetchTriangle(t);
+      store_->PrefetchFan(ahead.a);
+      store_->PrefetchFan(ahead.b);
     }
   }
   if (q_.empty()) q_.Trim();
