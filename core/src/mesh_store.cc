@@ -27,8 +27,7 @@ void MeshStore::FreeSlot(uint32_t offset, uint8_t size_class) {
 VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t box_mask) {
   VertexId v;
   if (!free_vertices_.empty()) {
-    v = free_vertices_.back();
-    free_vertices_.pop_back();
+    v = free_vertices_.TakeLowest();
   } else {
     v = static_cast<VertexId>(vtx_.size());
     PushBack(vtx_, VertexRecord{});
@@ -88,8 +87,7 @@ TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
   assert(vertex_alive(a) && vertex_alive(b) && vertex_alive(c));
   TriId t;
   if (!free_triangles_.empty()) {
-    t = free_triangles_.back();
-    free_triangles_.pop_back();
+    t = free_triangles_.TakeLowest();
     tris_[t] = {a, b, c};
     tri_alive_[t] = 1;
   } else {
@@ -108,7 +106,7 @@ void MeshStore::RemoveTriangle(TriId t) {
   assert(triangle_alive(t));
   for (VertexId v : tris_[t]) UnlinkTriangle(v, t);
   tri_alive_[t] = 0;
-  PushBack(free_triangles_, t);
+  free_triangles_.Release(t);
   --live_triangles_;
 }
 
@@ -117,7 +115,7 @@ void MeshStore::RemoveVertex(VertexId v) {
   FreeSlot(vtx_[v].adj.offset, vtx_[v].adj.size_class);
   vtx_[v].adj = AdjSlot{};
   vtx_[v].alive = 0;
-  PushBack(free_vertices_, v);
+  free_vertices_.Release(v);
   --live_vertices_;
 }
 
@@ -163,9 +161,9 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
 }
 
 size_t MeshStore::MemoryBytes() const {
-  size_t b = vtx_.capacity() * sizeof(VertexRecord) + free_vertices_.capacity() * sizeof(VertexId) +
+  size_t b = vtx_.capacity() * sizeof(VertexRecord) + free_vertices_.MemoryBytes() +
              tris_.capacity() * sizeof(tris_[0]) + tri_alive_.capacity() +
-             free_triangles_.capacity() * sizeof(TriId) + pool_.capacity() * sizeof(TriId);
+             free_triangles_.MemoryBytes() + pool_.capacity() * sizeof(TriId);
   for (const auto& f : free_slots_) b += f.capacity() * sizeof(uint32_t);
   return b;
 }

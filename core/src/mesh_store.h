@@ -2,8 +2,9 @@
 //
 // Data-oriented on purpose: flat arrays with 32-bit ids, no pointers; a vertex's fields sit in
 // one 64-byte record (the simplifier reads them together at random ids, see VertexRecord),
-// triangles are an array of index triples. Deletion is a flag plus a free list, so ids stay
-// stable while the simplifier works; compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
+// triangles are an array of index triples. Deletion is a flag plus a free list (the lowest
+// free id comes back first: free_ids.h), so ids stay stable while the simplifier works;
+// compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
 // triangle ids (its incident triangles); slots come in power-of-two size classes with a free
 // list per class, so adding a triangle never allocates per element.
 #ifndef TANDEM_MESH_STORE_H_
@@ -14,6 +15,7 @@
 #include <span>
 #include <vector>
 
+#include "free_ids.h"
 #include "pod_array.h"
 #include "tandem/mesh.h"
 #include "tandem/types.h"
@@ -166,13 +168,13 @@ class MeshStore {
   };
   static_assert(sizeof(VertexRecord) == 64);
   PodArray<VertexRecord> vtx_;
-  std::vector<VertexId> free_vertices_;
+  FreeIds free_vertices_;  // handed out lowest first (free_ids.h)
   size_t live_vertices_ = 0;
 
   // Triangles.
   PodArray<std::array<VertexId, 3>> tris_;
   PodArray<uint8_t> tri_alive_;
-  std::vector<TriId> free_triangles_;
+  FreeIds free_triangles_;
   size_t live_triangles_ = 0;
 
   // Incidence pool and its per-size-class free lists.

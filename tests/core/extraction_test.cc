@@ -188,6 +188,41 @@ TEST(MeshStore, AddRemoveReuseAndSnapshot) {
   (void)t0;
 }
 
+// Dead ids come back lowest first, not last freed first (free_ids.h): a layer's new vertices
+// and triangles then follow its scan order in memory, and the live mesh stays packed at the
+// low ids. Freed in scattered order, ids of both kinds are taken back in increasing order,
+// across a word of the bitmap, and new ones follow once none is free.
+TEST(MeshStore, FreeIdsComeBackLowestFirst) {
+  MeshStore s;
+  std::vector<VertexId> v;
+  for (int i = 0; i < 200; ++i) v.push_back(s.AddVertex({double(i), 0, 0}, 0, 0, 0));
+  std::vector<TriId> t;
+  for (int i = 0; i + 2 < 200; ++i) t.push_back(s.AddTriangle(v[i], v[i + 1], v[i + 2]));
+  const std::vector<int> order = {130, 7, 64, 3, 199, 65};  // as contractions might free them
+  for (int i : order) {
+    if (i + 2 < 200) s.RemoveTriangle(t[i]);
+  }
+  for (int i : {150, 2, 63}) {
+    for (TriId u : std::vector<TriId>(s.vertex_triangles(v[i]).begin(),
+                                      s.vertex_triangles(v[i]).end())) {
+      s.RemoveTriangle(u);
+    }
+    s.RemoveVertex(v[i]);
+  }
+  EXPECT_EQ(s.AddVertex({0, 1, 0}, 0, 0, 0), v[2]);
+  EXPECT_EQ(s.AddVertex({0, 2, 0}, 0, 0, 0), v[63]);
+  EXPECT_EQ(s.AddVertex({0, 3, 0}, 0, 0, 0), v[150]);
+  EXPECT_EQ(s.AddVertex({0, 4, 0}, 0, 0, 0), VertexId{200});  // none free: a new id
+  // Triangles 0-2, 61-63 and 148-150 went with the vertices; 3, 7, 64, 65 and 130 alone.
+  std::vector<TriId> freed;
+  for (TriId u = 0; u < s.triangle_capacity(); ++u) {
+    if (!s.triangle_alive(u)) freed.push_back(u);
+  }
+  ASSERT_FALSE(freed.empty());
+  for (TriId expected : freed) EXPECT_EQ(s.AddTriangle(v[10], v[11], v[12]), expected);
+  EXPECT_EQ(s.AddTriangle(v[10], v[11], v[12]), TriId(t.size()));
+}
+
 // A contraction hands all of b's triangles to a at once; a's list may have to grow into a
 // larger slot while that happens.
 TEST(MeshStore, MoveTrianglesKeepsEveryTriangleInOrder) {
