@@ -9,11 +9,7 @@ namespace tandem {
 
 uint32_t MeshStore::AllocSlot(uint8_t size_class) {
   auto& free_list = free_slots_[size_class];
-  if (!free_list.empty()) {
-    uint32_t off = free_list.back();
-    free_list.pop_back();
-    return off;
-  }
+  if (!free_list.empty()) return free_list.TakeLowest() * kMinSlot;
   const uint32_t cap = kMinSlot << size_class;
   const uint32_t off = static_cast<uint32_t>(pool_.size());
   GrowTo(pool_, pool_.size() + cap, kInvalid);
@@ -21,7 +17,7 @@ uint32_t MeshStore::AllocSlot(uint8_t size_class) {
 }
 
 void MeshStore::FreeSlot(uint32_t offset, uint8_t size_class) {
-  PushBack(free_slots_[size_class], offset);
+  free_slots_[size_class].Release(offset / kMinSlot);
 }
 
 VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t box_mask) {
@@ -164,7 +160,7 @@ size_t MeshStore::MemoryBytes() const {
   size_t b = vtx_.capacity() * sizeof(VertexRecord) + free_vertices_.MemoryBytes() +
              tris_.capacity() * sizeof(tris_[0]) + tri_alive_.capacity() +
              free_triangles_.MemoryBytes() + pool_.capacity() * sizeof(TriId);
-  for (const auto& f : free_slots_) b += f.capacity() * sizeof(uint32_t);
+  for (const auto& f : free_slots_) b += f.MemoryBytes();
   return b;
 }
 

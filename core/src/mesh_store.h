@@ -6,7 +6,8 @@
 // free id comes back first: free_ids.h), so ids stay stable while the simplifier works;
 // compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
 // triangle ids (its incident triangles); slots come in power-of-two size classes with a free
-// list per class, so adding a triangle never allocates per element.
+// list per class (lowest offset first, as the ids), so adding a triangle never allocates per
+// element.
 #ifndef TANDEM_MESH_STORE_H_
 #define TANDEM_MESH_STORE_H_
 
@@ -179,7 +180,7 @@ class MeshStore {
 
   // Incidence pool and its per-size-class free lists.
   PodArray<TriId> pool_;
-  std::array<std::vector<uint32_t>, kNumClasses> free_slots_;
+  std::array<FreeIds, kNumClasses> free_slots_;
 };
 
 }  // namespace tandem

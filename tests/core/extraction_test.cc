@@ -4,7 +4,9 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <random>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -190,8 +192,9 @@ TEST(MeshStore, AddRemoveReuseAndSnapshot) {
 
 // Dead ids come back lowest first, not last freed first (free_ids.h): a layer's new vertices
 // and triangles then follow its scan order in memory, and the live mesh stays packed at the
-// low ids. Freed in scattered order, ids of both kinds are taken back in increasing order,
-// across a word of the bitmap, and new ones follow once none is free.
+// low ids. Freed in scattered order, ids of both kinds and the incidence lists' slots are
+// taken back in increasing order, across a word of the bitmap, and new ones follow once none
+// is free.
 TEST(MeshStore, FreeIdsComeBackLowestFirst) {
   MeshStore s;
   std::vector<VertexId> v;
@@ -202,16 +205,21 @@ TEST(MeshStore, FreeIdsComeBackLowestFirst) {
   for (int i : order) {
     if (i + 2 < 200) s.RemoveTriangle(t[i]);
   }
+  std::map<int, const TriId*> slot;  // where each one's incidence list was
   for (int i : {150, 2, 63}) {
+    slot[i] = s.vertex_triangles(v[i]).data();
     for (TriId u : std::vector<TriId>(s.vertex_triangles(v[i]).begin(),
                                       s.vertex_triangles(v[i]).end())) {
       s.RemoveTriangle(u);
     }
     s.RemoveVertex(v[i]);
   }
-  EXPECT_EQ(s.AddVertex({0, 1, 0}, 0, 0, 0), v[2]);
-  EXPECT_EQ(s.AddVertex({0, 2, 0}, 0, 0, 0), v[63]);
-  EXPECT_EQ(s.AddVertex({0, 3, 0}, 0, 0, 0), v[150]);
+  // Each takes the lowest free id and the lowest free slot for its list: the ones it had.
+  for (int i : {2, 63, 150}) {
+    const VertexId w = s.AddVertex({0, double(i), 0}, 0, 0, 0);
+    EXPECT_EQ(w, v[i]);
+    EXPECT_EQ(s.vertex_triangles(w).data(), slot[i]) << i;
+  }
   EXPECT_EQ(s.AddVertex({0, 4, 0}, 0, 0, 0), VertexId{200});  // none free: a new id
   // Triangles 0-2, 61-63 and 148-150 went with the vertices; 3, 7, 64, 65 and 130 alone.
   std::vector<TriId> freed;
