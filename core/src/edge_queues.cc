@@ -32,10 +32,13 @@ void EdgeQueue::Trim() {
   trim(free_);
 }
 
-size_t EdgeQueue::MemoryBytes() const {
+size_t EdgeQueue::Bytes(bool capacity) const {
+  auto of = [capacity](const auto& a) {
+    return capacity ? a.capacity() * sizeof(a[0]) : a.MemoryBytes();
+  };
   size_t bytes = buckets_.capacity() * sizeof(PodArray<QNode>) + heaped_.capacity() * sizeof(size_t);
-  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(QNode);
-  return bytes + slots_.capacity() * sizeof(QPlacement) + free_.capacity() * sizeof(uint32_t);
+  for (const auto& bucket : buckets_) bytes += of(bucket);
+  return bytes + of(slots_) + of(free_);
 }
 
 void WaitingQueue::Push(const WEntry& e) {
@@ -99,8 +102,8 @@ void WaitingQueue::TakeUpTo(double front, PodArray<WEdge>* out) {
 
 size_t WaitingQueue::MemoryBytes() const {
   size_t bytes = buckets_.capacity() * sizeof(PodArray<WEdge>);
-  for (const auto& bucket : buckets_) bytes += bucket.capacity() * sizeof(WEdge);
-  return bytes + far_.capacity() * sizeof(WEntry);
+  for (const auto& bucket : buckets_) bytes += bucket.MemoryBytes();
+  return bytes + far_.MemoryBytes();
 }
 
 }  // namespace tandem

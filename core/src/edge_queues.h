@@ -154,7 +154,10 @@ class EdgeQueue {
   // session's memory. Trim, on an empty Q holding more than 4 MiB, frees every bucket and
   // slot array larger than 1 KiB; the order of what is pushed next is unchanged.
   void Trim();
-  size_t MemoryBytes() const;
+  // Bytes in memory (PodArray::MemoryBytes: a mapped array's pages past what it ever held
+  // are not), and bytes reserved.
+  size_t MemoryBytes() const { return Bytes(false); }
+  size_t CapacityBytes() const { return Bytes(true); }
 
   static constexpr size_t kBuckets = 1024;
   // What a bucket (or slot array) keeps of its capacity, the one rule in two places: popped
@@ -179,6 +182,8 @@ class EdgeQueue {
 
  private:
   void Enter();
+
+  size_t Bytes(bool capacity) const;
 
   double max_key_;
   std::vector<PodArray<QNode>> buckets_;  // allocated by the first push

@@ -46,7 +46,7 @@ class FreeIds {
     return id;
   }
 
-  size_t MemoryBytes() const { return bits_.capacity() * sizeof(uint64_t); }
+  size_t MemoryBytes() const { return bits_.MemoryBytes(); }
 
  private:
   PodArray<uint64_t> bits_;

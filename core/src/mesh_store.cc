@@ -157,9 +157,8 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
 }
 
 size_t MeshStore::MemoryBytes() const {
-  size_t b = vtx_.capacity() * sizeof(VertexRecord) + free_vertices_.MemoryBytes() +
-             tris_.capacity() * sizeof(tris_[0]) + tri_alive_.capacity() +
-             free_triangles_.MemoryBytes() + pool_.capacity() * sizeof(TriId);
+  size_t b = vtx_.MemoryBytes() + free_vertices_.MemoryBytes() + tris_.MemoryBytes() +
+             tri_alive_.MemoryBytes() + free_triangles_.MemoryBytes() + pool_.MemoryBytes();
   for (const auto& f : free_slots_) b += f.MemoryBytes();
   return b;
 }

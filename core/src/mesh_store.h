@@ -137,7 +137,8 @@ class MeshStore {
   // used as given (a vertex already in *out, e.g. welded), the others are filled in.
   void AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_map) const;
 
-  // Bytes held by the store's arrays (capacity, not size): for memory figures.
+  // Bytes the store's arrays take in memory (PodArray::MemoryBytes: capacity, but for a
+  // mapped array only the pages written): for memory figures and the session budget.
   size_t MemoryBytes() const;
 
  private:

@@ -11,15 +11,19 @@
 // returns to the kernel when freed, and grows with mremap: its pages move, nothing is copied
 // and nothing is faulted in again (docs/decisions.md: why not malloc's mmap threshold).
 // Capacity follows std::vector's (libstdc++'s) rules exactly (push_back doubles the size,
-// reserve gives what is asked), so MemoryBytes figures and the server's budget are the same.
+// reserve gives what is asked). What the session's budget counts is MemoryBytes: a mapped
+// block's written pages, not its capacity.
 #ifndef TANDEM_POD_ARRAY_H_
 #define TANDEM_POD_ARRAY_H_
 
+#include <algorithm>
 #include <cstddef>
 #include <cstring>
 #include <new>
 #include <type_traits>
 #include <utility>
+
+#include "pod_array_config.h"
 
 namespace tandem {
 
@@ -29,6 +33,9 @@ namespace tandem {
 // on; 0 frees it. Throws std::bad_alloc.
 void* ResizePodBlock(void* block, size_t old_bytes, size_t new_bytes, size_t align);
 inline constexpr size_t kPodMapBytes = size_t{256} << 10;
+// Whether a block of this many bytes is pages of its own (mmap), and the page size.
+inline constexpr bool PodMapped(size_t bytes) { return TANDEM_POD_MAP && bytes >= kPodMapBytes; }
+inline constexpr size_t kPodPage = 4096;
 
 template <class T>
 class PodArray {
@@ -48,9 +55,9 @@ class PodArray {
       size_ = o.size_;
     }
   }
-  PodArray(PodArray&& o) noexcept : data_(o.data_), size_(o.size_), cap_(o.cap_) {
+  PodArray(PodArray&& o) noexcept : data_(o.data_), size_(o.size_), cap_(o.cap_), high_(o.high_) {
     o.data_ = nullptr;
-    o.size_ = o.cap_ = 0;
+    o.size_ = o.cap_ = o.high_ = 0;
   }
   PodArray& operator=(const PodArray& o) {
     if (this != &o) PodArray(o).swap(*this);
@@ -64,6 +71,15 @@ class PodArray {
 
   size_t size() const { return size_; }
   size_t capacity() const { return cap_; }
+  // The bytes the array takes in memory: its capacity's, except for a block of pages of its
+  // own, where mmap gave the pages past the most it ever held no memory (none was written):
+  // up to there, in whole pages. The session's budget counts this (docs/decisions.md).
+  size_t MemoryBytes() const {
+    const size_t bytes = cap_ * sizeof(T);
+    if (!PodMapped(bytes)) return bytes;
+    const size_t written = std::max(high_, size_) * sizeof(T);
+    return std::min(bytes, (written + kPodPage - 1) / kPodPage * kPodPage);
+  }
   bool empty() const { return size_ == 0; }
   T* data() { return data_; }
   const T* data() const { return data_; }
@@ -82,7 +98,7 @@ class PodArray {
   void shrink_to_fit() {
     if (cap_ > size_) Reallocate(size_);
   }
-  void clear() { size_ = 0; }
+  void clear() { SetSize(0); }
   void push_back(const T& x) {
     if (size_ == cap_) {
       const T copy = x;  // x may live in this array
@@ -92,11 +108,11 @@ class PodArray {
     }
     data_[size_++] = x;
   }
-  void pop_back() { --size_; }
+  void pop_back() { SetSize(size_ - 1); }
   void resize(size_t n, const T& value = T()) {
     if (n > cap_) Reallocate(Grown(n - size_));
     for (size_t i = size_; i < n; ++i) new (&data_[i]) T(value);
-    size_ = n;
+    SetSize(n);
   }
   void assign(size_t n, const T& value) {
     clear();
@@ -112,26 +128,36 @@ class PodArray {
   // Removes the first n elements.
   void erase_front(size_t n) {
     std::memmove(static_cast<void*>(data_), data_ + n, (size_ - n) * sizeof(T));
-    size_ -= n;
+    SetSize(size_ - n);
   }
   void swap(PodArray& o) noexcept {
     std::swap(data_, o.data_);
     std::swap(size_, o.size_);
     std::swap(cap_, o.cap_);
+    std::swap(high_, o.high_);
   }
 
  private:
   // The capacity std::vector (libstdc++) moves to when `extra` more elements do not fit.
   size_t Grown(size_t extra) const { return size_ + (size_ > extra ? size_ : extra); }
   void Reallocate(size_t n) {
+    // A heap block moving to pages of its own is copied whole: those pages are written.
+    if (!PodMapped(cap_ * sizeof(T)) && PodMapped(n * sizeof(T))) high_ = std::max(high_, cap_);
     data_ = static_cast<T*>(ResizePodBlock(data_, cap_ * sizeof(T), n * sizeof(T), alignof(T)));
     cap_ = n;
+    high_ = std::min(high_, n);  // shrunk: the pages past n are gone
     if (size_ > n) size_ = n;
+  }
+  // Sets the size to n, keeping the most held so far in high_.
+  void SetSize(size_t n) {
+    high_ = std::max(high_, size_);
+    size_ = n;
   }
 
   T* data_ = nullptr;
   size_t size_ = 0;
   size_t cap_ = 0;
+  size_t high_ = 0;  // the most elements held at once, but for the current size (MemoryBytes)
 };
 
 // Removes the elements for which pred is true, keeping the others in order; returns how many

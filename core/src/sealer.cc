@@ -352,8 +352,8 @@ void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
 }
 
 size_t Sealer::MemoryBytes() const {
-  return active_.capacity() * sizeof(VertexId) + id_.capacity() * sizeof(uint32_t) +
-         stamp_.capacity() * sizeof(uint32_t) + normal_.capacity() * sizeof(Vec3) +
+  return active_.capacity() * sizeof(VertexId) + id_.MemoryBytes() + stamp_.MemoryBytes() +
+         normal_.MemoryBytes() +
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
          pend_verts_.capacity() * sizeof(PendingVertex) +

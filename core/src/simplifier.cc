@@ -783,16 +783,16 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<cons
 
 size_t Simplifier::GroupBytes() const {  // in WEdges
   size_t edges = groups_.capacity();  // a vector's header is about the size of a WEdge
-  for (const auto& g : groups_) edges += g.capacity();
+  for (const auto& g : groups_) edges += g.MemoryBytes() / sizeof(WEdge);
   return edges;
 }
 
 size_t Simplifier::MemoryBytes() const {
-  return vs_.capacity() * sizeof(VertexState) + version_.capacity() * sizeof(uint32_t) + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
+  return vs_.MemoryBytes() + version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
-         (released_.capacity() + GroupBytes()) * sizeof(WEdge) + ready_.capacity() * sizeof(uint32_t) +
+         released_.MemoryBytes() + GroupBytes() * sizeof(WEdge) + ready_.MemoryBytes() +
          (dropped_.capacity() + offered_.capacity()) * sizeof(DroppedEdge) +
          refused_.capacity() * sizeof(RefusedEdge);
 }

@@ -145,6 +145,36 @@ TEST(PodArray, AMappedArrayGrowsInPlaceAndIsHandedBack) {
   }
   EXPECT_LT(RssAnonKiB() - rss_before, 4 << 10);
 }
+
+// What a mapped array counts (MemoryBytes, the session budget's figure) is what it takes in
+// memory: the pages up to the most it ever held, not the capacity it reserved. 64 MiB
+// reserved and 8 written take about 8 (RssAnon) and count 8; cleared, the pages stay and so
+// does the count; a heap block moved to pages of its own was copied whole and counts so.
+TEST(PodArray, AMappedArrayCountsThePagesItWrote) {
+  constexpr size_t kMiB = size_t{1} << 20;
+  const int64_t rss_before = RssAnonKiB();
+  PodArray<uint64_t> a;
+  a.reserve(64 * kMiB / sizeof(uint64_t));
+  EXPECT_EQ(a.MemoryBytes(), 0u);
+  a.resize(8 * kMiB / sizeof(uint64_t), 1);
+  EXPECT_EQ(a.MemoryBytes(), 8 * kMiB);
+  const int64_t rss = RssAnonKiB() - rss_before;
+  EXPECT_GT(rss, 7 << 10);
+  EXPECT_LT(rss, 12 << 10);  // not the 64 MiB of its capacity
+  a.clear();
+  a.push_back(2);
+  EXPECT_EQ(a.MemoryBytes(), 8 * kMiB);
+  a.resize(1000);  // 8,000 bytes, within the pages held
+  a.shrink_to_fit();  // a heap block again: its capacity
+  EXPECT_EQ(a.MemoryBytes(), 8000u);
+  a.reserve(kMiB);  // mapped again, the 8,000 bytes copied: two pages
+  EXPECT_EQ(a.MemoryBytes(), 8192u);
+  a.resize(a.size() + 1);  // one more element, still within them
+  EXPECT_EQ(a.MemoryBytes(), 8192u);
+  PodArray<uint64_t> small;  // a heap block counts its capacity, written or not
+  small.reserve(100);
+  EXPECT_EQ(small.MemoryBytes(), 800u);
+}
 #endif
 
 }  // namespace
