@@ -19,23 +19,25 @@ void SortedFan(const MeshStore& store, VertexId v, std::vector<TriId>* fan) {
 
 }  // namespace
 
+Vec3 VertexNormal(const MeshStore& store, VertexId v, std::vector<TriId>* fan) {
+  SortedFan(store, v, fan);
+  Vec3 n{};
+  for (TriId t : *fan) {
+    const auto& tri = store.triangle(t);
+    n = n + TwiceAreaVector(store.position(tri[0]), store.position(tri[1]),
+                            store.position(tri[2]));
+  }
+  const double len = Norm(n);
+  return len > 0.0 ? n * (1.0 / len) : Vec3{};
+}
+
 void VertexNormals(const MeshStore& store, std::span<const VertexId> verts, std::span<Vec3> normal) {
   std::vector<TriId> fan;
-  for (VertexId v : verts) {
-    SortedFan(store, v, &fan);
-    Vec3 n{};
-    for (TriId t : fan) {
-      const auto& tri = store.triangle(t);
-      n = n + TwiceAreaVector(store.position(tri[0]), store.position(tri[1]),
-                              store.position(tri[2]));
-    }
-    const double len = Norm(n);
-    normal[v] = len > 0.0 ? n * (1.0 / len) : Vec3{};
-  }
+  for (VertexId v : verts) normal[v] = VertexNormal(store, v, &fan);
 }
 
 int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
-                     std::span<const Vec3> normal, std::span<const Quadric> quadric, double fraction,
+                     VertexNormalTable normal, std::span<const Quadric> quadric, double fraction,
                      double error, SagScratch* scratch, std::vector<VertexId>* moved_ids) {
   if (!(fraction > 0.0) || verts.empty()) return 0;
   // Near a crease the vertex normal averages faces that meet at an angle: the sag estimate

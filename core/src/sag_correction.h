@@ -24,10 +24,27 @@
 
 namespace tandem {
 
-// Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v]
-// (sums over each fan in increasing triangle id, whichever vertex asks).
+// The area-weighted unit normal of v from its current triangles (summed over its fan in
+// increasing triangle id, whichever vertex asks; 0 without area). `fan` is scratch.
+Vec3 VertexNormal(const MeshStore& store, VertexId v, std::vector<TriId>* fan);
+// VertexNormal of each of `verts`, into normal[v].
 void VertexNormals(const MeshStore& store, std::span<const VertexId> verts,
                    std::span<Vec3> normal);
+
+// Vertex normals by vertex id: normal[v], or, kept compactly (the sealer keeps those of its
+// frozen vertices only), normal[slot[v]], 0 where slot[v] is kInvalid.
+struct VertexNormalTable {
+  VertexNormalTable(std::span<const Vec3> by_id) : normal(by_id) {}  // NOLINT: implicit
+  VertexNormalTable(const std::vector<Vec3>& by_id) : normal(by_id) {}  // NOLINT: implicit
+  VertexNormalTable(std::span<const Vec3> compact, std::span<const uint32_t> slots)
+      : normal(compact), slot(slots) {}
+  Vec3 operator[](VertexId v) const {
+    if (slot.empty()) return normal[v];
+    return slot[v] == kInvalid ? Vec3{} : normal[slot[v]];
+  }
+  std::span<const Vec3> normal;
+  std::span<const uint32_t> slot;  // empty: normal is indexed by vertex id
+};
 
 // Scratch of CorrectSagAt, kept by the caller between calls.
 struct SagScratch {
@@ -43,7 +60,7 @@ struct SagScratch {
 // back until none does. normal[v] must hold the unit normal of every vertex of their
 // triangles (VertexNormals). Appends the moved vertices to *moved_ids; returns their number.
 int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
-                     std::span<const Vec3> normal, std::span<const Quadric> quadric, double fraction,
+                     VertexNormalTable normal, std::span<const Quadric> quadric, double fraction,
                      double error, SagScratch* scratch, std::vector<VertexId>* moved_ids);
 
 }  // namespace tandem

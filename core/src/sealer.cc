@@ -89,12 +89,36 @@ void Sealer::EnsureCapacity() {
   if (id_.size() >= n) return;
   GrowTo(id_, n, kInvalid);
   GrowTo(stamp_, n, 0u);
-  GrowTo(normal_, n);
+  GrowTo(normal_slot_, n, kInvalid);
+}
+
+void Sealer::SetNormal(VertexId v, Vec3 n) {
+  uint32_t& slot = normal_slot_[v];
+  if (slot == kInvalid) {
+    if (!free_normals_.empty()) {
+      slot = free_normals_.back();
+      free_normals_.pop_back();
+    } else {
+      slot = static_cast<uint32_t>(normals_.size());
+      PushBack(normals_, Vec3{});
+    }
+  }
+  normals_[slot] = n;
+}
+
+void Sealer::ReleaseNormal(VertexId v) {
+  uint32_t& slot = normal_slot_[v];
+  if (slot == kInvalid) return;
+  PushBack(free_normals_, slot);
+  slot = kInvalid;
 }
 
 void Sealer::AddVertices(std::span<const VertexId> verts) {
   EnsureCapacity();
-  for (VertexId v : verts) id_[v] = kInvalid;  // ids of sealed vertices are recycled
+  for (VertexId v : verts) {  // ids of sealed vertices are recycled
+    id_[v] = kInvalid;
+    ReleaseNormal(v);
+  }
   active_.insert(active_.end(), verts.begin(), verts.end());
 }
 
@@ -163,8 +187,11 @@ void Sealer::Seal(double front) {
       }
       std::sort(need_.begin(), need_.end());
       need_.erase(std::unique(need_.begin(), need_.end()), need_.end());
-      simplifier_->VertexNormals(need_, normal_);
-      sag_corrected_ += simplifier_->CorrectSagAt(freeze_, normal_, sag_fraction_);
+      for (VertexId v : need_) SetNormal(v, VertexNormal(*store_, v, &fan_));
+      sag_corrected_ += simplifier_->CorrectSagAt(freeze_, Normals(), sag_fraction_);
+      for (VertexId v : need_) {
+        if (!(store_->box_mask(v) & kFrozen)) ReleaseNormal(v);  // found again next time
+      }
     }
     for (VertexId v : freeze_) {
       max_shape_error_ = std::max(max_shape_error_, simplifier_->MeasuredShapeErrorAt(v));
@@ -232,6 +259,7 @@ void Sealer::Seal(double front) {
   for (VertexId v : drop_) {
     if (store_->vertex_alive(v) && store_->vertex_triangles(v).empty()) {
       store_->RemoveVertex(v);
+      ReleaseNormal(v);
       if (id_[v] != kInvalid) pend_retired_.push_back(id_[v]);
       id_[v] = kInvalid;
     }
@@ -257,7 +285,7 @@ void Sealer::FreezeShared(VertexId v, uint32_t id, double shape_error) {
   id_[v] = id;
   stamp_[v] = 0;
   if (simplifier_ != nullptr) {
-    simplifier_->VertexNormals(std::span<const VertexId>(&v, 1), normal_);  // its side's fan
+    SetNormal(v, VertexNormal(*store_, v, &fan_));  // its side's fan
     simplifier_->Freeze(v);
   } else {
     store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
@@ -332,7 +360,11 @@ void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
     id_[w] = other.id_[v];
     // In the other's pending chunk: in this one's now (a vertex is listed once a chunk).
     stamp_[w] = other.stamp_[v] == other.chunk_stamp_ ? chunk_stamp_ : 0;
-    normal_[w] = other.normal_[v];
+    if (const uint32_t slot = other.normal_slot_[v]; slot != kInvalid) {
+      SetNormal(w, other.normals_[slot]);
+    } else {
+      ReleaseNormal(w);
+    }
   }
   for (VertexId v : other.active_) {
     if (src.vertex_alive(v) && !skip[v]) active_.push_back(map[v]);
@@ -353,7 +385,8 @@ void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
 
 size_t Sealer::MemoryBytes() const {
   return active_.capacity() * sizeof(VertexId) + id_.MemoryBytes() + stamp_.MemoryBytes() +
-         normal_.MemoryBytes() +
+         normal_slot_.MemoryBytes() + normals_.capacity() * sizeof(Vec3) +
+         (free_normals_.capacity() + fan_.capacity()) * sizeof(uint32_t) +
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
          pend_verts_.capacity() * sizeof(PendingVertex) +

@@ -30,6 +30,7 @@
 #include "tandem/mesh.h"
 #include "mesh_store.h"
 #include "pod_array.h"
+#include "sag_correction.h"
 #include "simplifier.h"
 #include "tandem/types.h"
 
@@ -84,6 +85,9 @@ class Sealer {
   // tris_ = the live triangles around `around` whose three corners are frozen, by id.
   void GatherSealable(std::span<const VertexId> around);
   uint32_t IdOf(VertexId v);  // its global id, handed out on first use
+  void SetNormal(VertexId v, Vec3 n);  // normals_[normal_slot_[v]] = n, taking a slot
+  void ReleaseNormal(VertexId v);      // its slot, if it has one, is free again
+  VertexNormalTable Normals() const { return {normals_, normal_slot_}; }
   bool NextToSeam(VertexId v) const;  // some triangle at v has a seam vertex
 
   struct PendingVertex {
@@ -100,7 +104,15 @@ class Sealer {
   // 2048² period-32 gyroid's sealed stream counted 43 MiB a part of sealer, 33 MiB now.
   PodArray<uint32_t> id_;      // global id, kInvalid before its first sealed triangle
   PodArray<uint32_t> stamp_;   // the pending chunk it was last added to
-  PodArray<Vec3> normal_;      // frozen: its normal when it froze; else scratch
+  // Normals, compactly: normals_[normal_slot_[v]]. A frozen vertex keeps the normal it froze
+  // with while it is in the store (its unfrozen neighbours' sag reads it); the unfrozen
+  // neighbours' are found again at each Seal and let go. Held by vertex id (24 bytes each)
+  // they were two thirds of the sealer: 22 MiB a part at the closed period-32 2048² gyroid's
+  // cap, for a few thousand frozen vertices in the store at a time.
+  PodArray<uint32_t> normal_slot_;  // kInvalid: none
+  std::vector<Vec3> normals_;
+  std::vector<uint32_t> free_normals_;
+  std::vector<TriId> fan_;  // VertexNormal's scratch
   // Scratch.
   std::vector<VertexId> freeze_, need_, drop_;
   std::vector<VertexId> shared_;  // frozen by FreezeShared since the last Seal

@@ -769,7 +769,7 @@ void Simplifier::Freeze(VertexId v) {
   ++version_[v];
 }
 
-int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
+int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
                                  double fraction) {
   if (!(fraction > 0.0) || verts.empty()) return 0;
   sag_quadrics_.resize(verts.size());

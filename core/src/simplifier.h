@@ -144,7 +144,7 @@ class Simplifier {
   int64_t CorrectSag(double fraction);
   // The same for the vertices `verts` only (sealing moves each vertex once, as it freezes):
   // normal[v] must hold the unit normal of every vertex of their triangles (VertexNormals).
-  int64_t CorrectSagAt(std::span<const VertexId> verts, std::span<const Vec3> normal,
+  int64_t CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
                        double fraction);
   // Mends the zero-area triangles of the final mesh (degenerate.h): flips, and moves within
   // the error bound (ε0 <= max(E0, ε0 now)).
