@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cstring>
 
-#include "grow.h"
 #include "tandem/geometry.h"
 
 namespace tandem {
@@ -126,39 +125,40 @@ bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScra
   // (2) ω: if a and b are both on the boundary, ab is a boundary edge; (3) no edge of both
   // links: for an interior edge with apexes c, d, not both acd and bcd are triangles; for a
   // boundary edge with apex c, not both ac and bc are boundary edges.
-  // Allocated on first use: most meshes never have a fan this large.
+  // The neighbours' tallies in a table of at least twice the fans' corners, so at most half
+  // full: every triangle adds at most two neighbours.
   using Mark = LinkScratch::Mark;
-  std::vector<Mark>& mark = scratch->mark;
-  if (mark.size() < store.vertex_capacity()) GrowTo(mark, size_t{store.vertex_capacity()});
-  if (++scratch->epoch == 0) {
-    std::fill(mark.begin(), mark.end(), Mark{});
-    scratch->epoch = 1;
-  }
-  const uint32_t ep = scratch->epoch;
+  const auto ta = store.vertex_triangles(a), tb = store.vertex_triangles(b);
+  int bits = 4;
+  while ((size_t{1} << bits) < 4 * (ta.size() + tb.size())) ++bits;
+  std::vector<Mark>& table = scratch->table;
+  table.assign(size_t{1} << bits, Mark{});
+  const uint32_t mask = (uint32_t{1} << bits) - 1;
+  auto mark = [&](VertexId x) -> Mark& {  // x's entry, made if new
+    uint32_t i = (x * 2654435761u) >> (32 - bits);
+    while (table[i].x != x && table[i].x != kInvalid) i = (i + 1) & mask;
+    table[i].x = x;
+    return table[i];
+  };
   // Neighbours of a and of b, each with the number of triangles on edge (a, x) or (b, x)
-  // (saturating at 127: bit 7 of count_b is the "seen" flag of the pass over b below). One
-  // Mark per vertex keeps both tallies in one cache line.
-  auto tally = [&](VertexId v, uint32_t Mark::*epoch, uint8_t Mark::*count) {
-    for (TriId t : store.vertex_triangles(v)) {
+  // (saturating at 127: bit 7 of count_b is the "seen" flag of the pass over b below).
+  auto tally = [&](VertexId v, std::span<const TriId> fan, uint8_t Mark::*count) {
+    for (TriId t : fan) {
       for (VertexId x : store.triangle(t)) {
         if (x == v) continue;
-        Mark& m = mark[x];
-        if (m.*epoch != ep) {
-          m.*epoch = ep;
-          m.*count = 0;
-        }
+        Mark& m = mark(x);
         if (m.*count < 127) ++(m.*count);
       }
     }
   };
-  tally(a, &Mark::epoch_a, &Mark::count_a);  // inlined: same instructions as two loops
-  tally(b, &Mark::epoch_b, &Mark::count_b);
+  tally(a, ta, &Mark::count_a);
+  tally(b, tb, &Mark::count_b);
   VertexId apex[2];
   int napex = 0;
   bool a_boundary = false;
   for (TriId t : store.vertex_triangles(a)) {
     const auto& tri = store.triangle(t);
-    for (VertexId x : tri) a_boundary |= (x != a && mark[x].count_a == 1);
+    for (VertexId x : tri) a_boundary |= (x != a && mark(x).count_a == 1);
     if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
     if (napex == 2) return false;  // edge in three triangles: not a manifold, refuse
     for (VertexId x : tri) {
@@ -173,12 +173,12 @@ bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScra
   for (TriId t : store.vertex_triangles(b)) {
     for (VertexId x : store.triangle(t)) {
       if (x == b) continue;
-      Mark& m = mark[x];
+      Mark& m = mark(x);
       const uint8_t cb = m.count_b;
       if (cb & 0x80) continue;  // seen
       m.count_b = static_cast<uint8_t>(cb | 0x80);
       if (cb == 1) b_boundary = true;
-      if (x != a && m.epoch_a == ep) {
+      if (x != a && m.count_a != 0) {
         ++common;
         bool is_apex = false;
         for (int k = 0; k < napex; ++k) is_apex |= apex[k] == x;

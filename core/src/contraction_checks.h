@@ -19,17 +19,17 @@ namespace tandem {
 // boundary edge; false also when a and b are not adjacent or ab lies in three triangles. Two
 // implementations of one test, checked against each other and against the definition in
 // contraction_checks_test.cc: small fans (at most kFanMax triangles at a and at b, nearly
-// every call) gather the neighbours into stack arrays; larger ones tally them in per-vertex
-// marks (LinkScratch), which cost a cache miss per neighbour.
+// every call) gather the neighbours into stack arrays; larger ones tally them in a table
+// sized to the two fans (LinkScratch), not to the mesh: a mark per vertex id cost 12 bytes
+// a vertex for the few fans past kFanMax (docs/decisions.md, stop 55).
 inline constexpr size_t kFanMax = 16;
 struct LinkScratch {
-  struct Mark {  // per vertex x: tallies of edges (a|b, x)
-    uint32_t epoch_a = 0, epoch_b = 0;
+  struct Mark {  // per neighbour x of a or b: tallies of edges (a|b, x)
+    VertexId x = kInvalid;
     uint8_t count_a = 0, count_b = 0;
   };
-  std::vector<Mark> mark;  // allocated on first use: most meshes never have a fan this large
-  uint32_t epoch = 0;
-  size_t MemoryBytes() const { return mark.capacity() * sizeof(Mark); }
+  std::vector<Mark> table;  // open addressing, at most half full
+  size_t MemoryBytes() const { return table.capacity() * sizeof(Mark); }
 };
 bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b);  // fans <= kFanMax
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch);
