@@ -35,6 +35,11 @@ class FreeIds {
     if (word < first_) first_ = word;
   }
 
+  bool Contains(uint32_t id) const {
+    const size_t word = id >> 6;
+    return word < bits_.size() && (bits_[word] >> (id & 63) & 1) != 0;
+  }
+
   // The lowest free id (not empty), taken.
   uint32_t TakeLowest() {
     assert(count_ > 0);

@@ -46,7 +46,6 @@ void MeshStore::Reserve(size_t vertices, size_t triangles) {
   const size_t new_triangles = beyond(triangles, free_triangles_.size());
   ReserveFor(vtx_, vtx_.size() + new_vertices);
   ReserveFor(tris_, tris_.size() + new_triangles);
-  ReserveFor(tri_alive_, tri_alive_.size() + new_triangles);
   // Every new vertex takes a slot of the smallest class; the few that outgrow it take more.
   ReserveFor(pool_, pool_.size() + beyond(vertices, free_slots_[0].size()) * kMinSlot);
 }
@@ -85,11 +84,9 @@ TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
   if (!free_triangles_.empty()) {
     t = free_triangles_.TakeLowest();
     tris_[t] = {a, b, c};
-    tri_alive_[t] = 1;
   } else {
     t = static_cast<TriId>(tris_.size());
     PushBack(tris_, std::array<VertexId, 3>{a, b, c});
-    PushBack(tri_alive_, uint8_t{1});
   }
   LinkTriangle(a, t);
   LinkTriangle(b, t);
@@ -101,7 +98,6 @@ TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
 void MeshStore::RemoveTriangle(TriId t) {
   assert(triangle_alive(t));
   for (VertexId v : tris_[t]) UnlinkTriangle(v, t);
-  tri_alive_[t] = 0;
   free_triangles_.Release(t);
   --live_triangles_;
 }
@@ -145,7 +141,7 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
   // Vertices in order of first use by a live triangle, triangles in id order: the result
   // depends only on the store's content, so equal runs give byte-identical snapshots.
   for (TriId t = 0; t < tris_.size(); ++t) {
-    if (!tri_alive_[t]) continue;
+    if (free_triangles_.Contains(t)) continue;
     for (VertexId v : tris_[t]) {
       if (map[v] == kInvalid) {
         map[v] = static_cast<uint32_t>(out->positions.size());
@@ -158,7 +154,7 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
 
 size_t MeshStore::MemoryBytes() const {
   size_t b = vtx_.MemoryBytes() + free_vertices_.MemoryBytes() + tris_.MemoryBytes() +
-             tri_alive_.MemoryBytes() + free_triangles_.MemoryBytes() + pool_.MemoryBytes();
+             free_triangles_.MemoryBytes() + pool_.MemoryBytes();
   for (const auto& f : free_slots_) b += f.MemoryBytes();
   return b;
 }

@@ -3,11 +3,11 @@
 // Data-oriented on purpose: flat arrays with 32-bit ids, no pointers; a vertex's fields sit in
 // one 64-byte record (the simplifier reads them together at random ids, see VertexRecord),
 // triangles are an array of index triples. Deletion is a flag plus a free list (the lowest
-// free id comes back first: free_ids.h), so ids stay stable while the simplifier works;
-// compaction happens only in Snapshot(). Each vertex owns a slot in one pool of
-// triangle ids (its incident triangles); slots come in power-of-two size classes with a free
-// list per class (lowest offset first, as the ids), so adding a triangle never allocates per
-// element.
+// free id comes back first: free_ids.h; a dead triangle's flag is its bit there), so ids stay
+// stable while the simplifier works; compaction happens only in Snapshot(). Each vertex owns
+// a slot in one pool of triangle ids (its incident triangles); slots come in size classes of
+// 6 << k with a free list per class (lowest offset first, as the ids), so adding a triangle
+// never allocates per element.
 #ifndef TANDEM_MESH_STORE_H_
 #define TANDEM_MESH_STORE_H_
 
@@ -89,7 +89,7 @@ class MeshStore {
   void MoveTriangles(VertexId from, VertexId to);
 
   bool vertex_alive(VertexId v) const { return v < vtx_.size() && vtx_[v].alive; }
-  bool triangle_alive(TriId t) const { return t < tri_alive_.size() && tri_alive_[t]; }
+  bool triangle_alive(TriId t) const { return t < tris_.size() && !free_triangles_.Contains(t); }
   const std::array<VertexId, 3>& triangle(TriId t) const { return tris_[t]; }
   std::span<const TriId> vertex_triangles(VertexId v) const {
     return {pool_.data() + vtx_[v].adj.offset, vtx_[v].adj.count};
@@ -147,7 +147,9 @@ class MeshStore {
     uint32_t count = 0;
     uint8_t size_class = 0;  // capacity = kMinSlot << size_class
   };
-  static constexpr uint32_t kMinSlot = 8;
+  // Most vertices have at most 6 triangles (on a closed 2048² gyroid's cap at its release,
+  // 86 %, 58 % exactly 6): with a smallest slot of 8, 37 % of the pool held no id.
+  static constexpr uint32_t kMinSlot = 6;
   static constexpr int kNumClasses = 24;
 
   uint32_t AllocSlot(uint8_t size_class);
@@ -175,8 +177,7 @@ class MeshStore {
 
   // Triangles.
   PodArray<std::array<VertexId, 3>> tris_;
-  PodArray<uint8_t> tri_alive_;
-  FreeIds free_triangles_;
+  FreeIds free_triangles_;  // also the dead ones' flags: a bit a triangle, not a byte
   size_t live_triangles_ = 0;
 
   // Incidence pool and its per-size-class free lists.
