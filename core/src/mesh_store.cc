@@ -35,7 +35,9 @@ VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t bo
   r.box = box_mask;
   r.alive = 1;
   r.rad = 1.0;
-  r.adj = AdjSlot{AllocSlot(0), 0, 0};
+  r.aux = kInvalid;
+  r.adj = AdjSlot{AllocSlot(0), 0};
+  r.size_class = 0;
   ++live_vertices_;
   return v;
 }
@@ -51,18 +53,19 @@ void MeshStore::Reserve(size_t vertices, size_t triangles) {
 }
 
 void MeshStore::LinkTriangle(VertexId v, TriId t) {
-  ++vtx_[v].star;
-  AdjSlot& s = vtx_[v].adj;
-  const uint32_t cap = kMinSlot << s.size_class;
+  VertexRecord& r = vtx_[v];
+  ++r.star;
+  AdjSlot& s = r.adj;
+  const uint32_t cap = kMinSlot << r.size_class;
   if (s.count == cap) {
     // Grow into the next size class; the old slot goes back to its free list.
-    assert(s.size_class + 1 < kNumClasses);
-    const uint8_t cls = static_cast<uint8_t>(s.size_class + 1);
+    assert(r.size_class + 1 < kNumClasses);
+    const auto cls = static_cast<uint8_t>(r.size_class + 1);
     const uint32_t off = AllocSlot(cls);  // may reallocate pool_
     std::copy_n(pool_.begin() + s.offset, s.count, pool_.begin() + off);
-    FreeSlot(s.offset, s.size_class);
+    FreeSlot(s.offset, r.size_class);
     s.offset = off;
-    s.size_class = cls;
+    r.size_class = cls;
   }
   pool_[s.offset + s.count++] = t;
 }
@@ -104,8 +107,9 @@ void MeshStore::RemoveTriangle(TriId t) {
 
 void MeshStore::RemoveVertex(VertexId v) {
   assert(vertex_alive(v) && vtx_[v].adj.count == 0);
-  FreeSlot(vtx_[v].adj.offset, vtx_[v].adj.size_class);
+  FreeSlot(vtx_[v].adj.offset, vtx_[v].size_class);
   vtx_[v].adj = AdjSlot{};
+  vtx_[v].size_class = 0;
   vtx_[v].alive = 0;
   free_vertices_.Release(v);
   --live_vertices_;

@@ -121,6 +121,11 @@ class MeshStore {
   // so a link condition at v decides as it did (Simplifier: link refusals wait for it).
   // Positions are not covered.
   uint32_t star_stamp(VertexId v) const { return vtx_[v].star; }
+  // A 32-bit value of the store's user, in the vertex's record (kInvalid when the vertex is
+  // made): the simplifier keeps there where v's quadric is kept in full (simplifier.h), read
+  // with the position, not at another random address first.
+  uint32_t aux(VertexId v) const { return vtx_[v].aux; }
+  void set_aux(VertexId v, uint32_t x) { vtx_[v].aux = x; }
 
   // One past the largest id ever handed out (ids below may be dead).
   uint32_t vertex_capacity() const { return static_cast<uint32_t>(vtx_.size()); }
@@ -142,10 +147,9 @@ class MeshStore {
   size_t MemoryBytes() const;
 
  private:
-  struct AdjSlot {
+  struct AdjSlot {  // capacity = kMinSlot << VertexRecord::size_class
     uint32_t offset = 0;
     uint32_t count = 0;
-    uint8_t size_class = 0;  // capacity = kMinSlot << size_class
   };
   // Most vertices have at most 6 triangles (on a closed 2048² gyroid's cap at its release,
   // 86 %, 58 % exactly 6): with a smallest slot of 8, 37 % of the pool held no id.
@@ -167,7 +171,9 @@ class MeshStore {
     int32_t layer = 0;
     uint8_t box = 0;
     uint8_t alive = 0;
+    uint8_t size_class = 0;  // of adj
     uint32_t star = 0;  // star_stamp (in what was padding)
+    uint32_t aux = kInvalid;  // aux() (in what was padding too)
     double rad = 1.0;
   };
   static_assert(sizeof(VertexRecord) == 64);

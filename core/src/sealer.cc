@@ -259,6 +259,7 @@ void Sealer::Seal(double front) {
   for (VertexId v : drop_) {
     if (store_->vertex_alive(v) && store_->vertex_triangles(v).empty()) {
       store_->RemoveVertex(v);
+      if (simplifier_ != nullptr) simplifier_->DropQuadric(v);
       ReleaseNormal(v);
       if (id_[v] != kInvalid) pend_retired_.push_back(id_[v]);
       id_[v] = kInvalid;

@@ -14,16 +14,59 @@ Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
-  if (vs_.size() >= n) return;
-  GrowTo(vs_, n);
+  if (planes_.size() >= n) return;
+  GrowTo(planes_, n);
   GrowTo(version_, n);
+  if (opt_.check_quadrics) GrowTo(eager_, n);
+}
+
+void Simplifier::CheckQuadric(VertexId v, const Quadric& q) const {
+  // The sum kept in full and this one: the same planes, the same error (to rounding) near v.
+  const Quadric& e = eager_[v];
+  const Vec3 p = store_->position(v);
+  const double scale = std::abs(e.w) + std::abs(e.a00) + std::abs(e.a11) + std::abs(e.a22);
+  for (const Vec3 d : {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{0, 1, 0}, Vec3{0, 0, 1}, Vec3{1, 1, 1}}) {
+    const Vec3 x = p + d;
+    const double tolerance = 1e-9 * scale * (1 + Dot(p, p));
+    if (!(std::abs(q.Evaluate(x) - e.Evaluate(x)) <= tolerance)) {
+      quadric_mismatches_.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
+  }
+}
+
+void Simplifier::SetQuadric(VertexId v, const Quadric& q) {
+  uint32_t s = store_->aux(v);
+  if (s == kInvalid) {
+    if (!free_quadrics_.empty()) {
+      s = free_quadrics_.TakeLowest();
+    } else {
+      s = static_cast<uint32_t>(quadrics_.size());
+      PushBack(quadrics_, Quadric{});
+    }
+    store_->set_aux(v, s);
+  }
+  quadrics_[s] = q;
+}
+
+void Simplifier::Keep(VertexId v) {
+  if (store_->aux(v) == kInvalid) SetQuadric(v, Q(v));
+}
+
+void Simplifier::DropQuadric(VertexId v) {
+  const uint32_t s = store_->aux(v);
+  if (s == kInvalid) return;
+  free_quadrics_.Release(s);
+  store_->set_aux(v, kInvalid);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
   EnsureVertexCapacity();
   for (VertexId v : new_verts) {
     // Ids may be recycled from contracted vertices: start clean (the store reset rad).
-    vs_[v].q = Quadric{};
+    planes_[v] = PlaneSum{};
+    DropQuadric(v);
+    if (opt_.check_quadrics) eager_[v] = Quadric{};
     ++version_[v];
   }
   for (size_t i = 0; i < tris.size(); ++i) {
@@ -31,10 +74,22 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
     if (i + kAhead < tris.size()) {
       for (VertexId v : store_->triangle(tris[i + kAhead])) PrefetchVertex(v);
     }
+    if (i + kAhead / 2 < tris.size()) {
+      for (VertexId v : store_->triangle(tris[i + kAhead / 2])) PrefetchQuadric(v);
+    }
     const auto& tri = store_->triangle(tris[i]);
     const Quadric h = PlaneQuadric(store_->position(tri[0]), store_->position(tri[1]),
                                    store_->position(tri[2]));
-    for (VertexId v : tri) vs_[v].q += h;
+    for (VertexId v : tri) {
+      if (const uint32_t s = store_->aux(v); s != kInvalid) {
+        quadrics_[s] += h;  // kept in full (it moved): this plane need not pass through it
+      } else {
+        PlaneSum& m = planes_[v];
+        m.a00 += h.a00, m.a01 += h.a01, m.a02 += h.a02;
+        m.a11 += h.a11, m.a12 += h.a12, m.a22 += h.a22;
+      }
+      if (opt_.check_quadrics) eager_[v] += h;
+    }
   }
 }
 
@@ -63,8 +118,9 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
   const uint8_t common = ma & mb;
   if (common != ma && common != mb) return false;  // on different box faces: refuse
-  Quadric h = vs_[a].q;
-  h += vs_[b].q;
+  Quadric h;
+  AddQ(a, &h);
+  AddQ(b, &h);
   const uint8_t fixed = FixedAxes(ma | mb);
   const Vec3 ref = BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
 
@@ -258,6 +314,11 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
       const BatchEdge& f = batch_[i + kAhead];
       PrefetchVertex(f.a);
       PrefetchVertex(f.b);
+    }
+    if (i + kAhead / 2 < end) {  // those records have come in by now
+      const BatchEdge& f = batch_[i + kAhead / 2];
+      PrefetchQuadric(f.a);
+      PrefetchQuadric(f.b);
     }
     const BatchEdge e = batch_[i];
     BatchResult& r = batch_results_[i];
@@ -458,7 +519,12 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);
   ++version_[b];
-  vs_[a].q += vs_[b].q;
+  Quadric q;  // a moves: kept in full (read before the move)
+  AddQ(a, &q);
+  AddQ(b, &q);
+  SetQuadric(a, q);
+  DropQuadric(b);
+  if (opt_.check_quadrics) eager_[a] += eager_[b];
   store_->set_position(a, c.pos);
   store_->set_height(a, c.height);
   store_->set_layer(a, c.layer);
@@ -491,7 +557,10 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   scratch_.erase(std::unique(scratch_.begin(), scratch_.end()), scratch_.end());
   std::vector<VertexId> nbrs;
   nbrs.swap(scratch_);
-  for (VertexId x : nbrs) PrefetchVertex(x);
+  for (VertexId x : nbrs) {  // their records are in cache: the checks read them
+    PrefetchVertex(x);
+    PrefetchQuadric(x);
+  }
   for (VertexId x : nbrs) PushEdge(a, x);
   nbrs.swap(scratch_);
 }
@@ -519,8 +588,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     store_->PrefetchStar(e.a);  // in case it came to the top unforeseen
     store_->PrefetchStar(e.b);
     // Live: Contract reads both quadrics after the link and geometry checks.
-    PrefetchVertex(e.a);
+    PrefetchVertex(e.a);  // their records were started an edge ago
     PrefetchVertex(e.b);
+    PrefetchQuadric(e.a);
+    PrefetchQuadric(e.b);
     const QPlacement& placement = q_.Placement(e);
     Candidate c;
     c.pos = placement.pos;
@@ -611,9 +682,18 @@ void Simplifier::Rebucket(double max_key) {
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
   EnsureVertexCapacity();
   if (shared) {
-    vs_[dst].q += from.vs_[src].q;  // a seam vertex: each part saw its own triangles
+    Quadric q = Q(dst);  // a seam vertex: each part saw its own triangles
+    q += from.Q(src);
+    SetQuadric(dst, q);
+    if (opt_.check_quadrics) eager_[dst] += from.eager_[src];
   } else {
-    vs_[dst].q = from.vs_[src].q;
+    // At src's position: its planes' matrix, or its quadric in full.
+    planes_[dst] = from.planes_[src];
+    DropQuadric(dst);
+    if (const uint32_t s = from.store_->aux(src); s != kInvalid) {
+      SetQuadric(dst, from.quadrics_[s]);
+    }
+    if (opt_.check_quadrics) eager_[dst] = from.eager_[src];
     store_->set_rad(dst, from.store_->rad(src));
   }
   ++version_[dst];
@@ -662,6 +742,7 @@ void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> m
 void Simplifier::AdoptCounters(const Simplifier& from) {
   refusals_ += from.refusals_;
   contractions_ += from.contractions_;
+  quadric_mismatches_ += from.quadric_mismatches_.load();
   max_reach_over_front_ = std::max(max_reach_over_front_, from.max_reach_over_front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, from.max_layer_over_front_);
 }
@@ -691,7 +772,7 @@ void Simplifier::PushEdgesAround(std::span<const VertexId> verts) {
 double Simplifier::MaxShapeError() const {
   double worst = 0.0;
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
-    if (!store_->vertex_alive(v) || v >= vs_.size()) continue;
+    if (!store_->vertex_alive(v) || v >= planes_.size()) continue;
     worst = std::max(worst, MeasuredShapeErrorAt(v));
   }
   return worst;
@@ -716,14 +797,16 @@ double Simplifier::TidySize() const {
 }
 
 bool Simplifier::TidyMayMove(VertexId v, Vec3 p) const {
-  return ShapeError(vs_[v].q, p) <= std::max(opt_.error, ShapeErrorAt(v));
+  return ShapeError(Q(v), p) <= std::max(opt_.error, ShapeErrorAt(v));
 }
 
 DegenerateCounts Simplifier::TidyDegenerate() {
   return tandem::TidyDegenerate(
       store_, TidySize(),
       [this](VertexId v, Vec3 p) {
-        return (store_->box_mask(v) & (kSeam | kFrozen)) == 0 && TidyMayMove(v, p);
+        const bool may = (store_->box_mask(v) & (kSeam | kFrozen)) == 0 && TidyMayMove(v, p);
+        if (may) Keep(v);  // it moves next: its quadric in full first
+        return may;
       },
       [this](VertexId v) { ++version_[v]; });
 }
@@ -734,7 +817,9 @@ DegenerateCounts Simplifier::TidyDegenerateAmong(std::span<const TriId> tris,
   return tandem::TidyDegenerateAmong(
       store_, tris, TidySize(),
       [&](VertexId v, Vec3 p) {
-        return (store_->box_mask(v) & kSeam) == 0 && movable(v) && TidyMayMove(v, p);
+        const bool may = (store_->box_mask(v) & kSeam) == 0 && movable(v) && TidyMayMove(v, p);
+        if (may) Keep(v);  // it moves next: its quadric in full first
+        return may;
       },
       [this](VertexId v) { ++version_[v]; }, flips);
 }
@@ -757,11 +842,11 @@ double Simplifier::MaxEdgeReach(VertexId v) const {
 }
 
 double Simplifier::ShapeErrorAt(VertexId v) const {
-  return ShapeError(vs_[v].q, store_->position(v));
+  return ShapeError(Q(v), store_->position(v));
 }
 
 double Simplifier::MeasuredShapeErrorAt(VertexId v) const {
-  return MeasuredShapeError(vs_[v].q, store_->position(v));
+  return MeasuredShapeError(Q(v), store_->position(v));
 }
 
 void Simplifier::Freeze(VertexId v) {
@@ -772,8 +857,12 @@ void Simplifier::Freeze(VertexId v) {
 int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
                                  double fraction) {
   if (!(fraction > 0.0) || verts.empty()) return 0;
+  EnsureVertexCapacity();
   sag_quadrics_.resize(verts.size());
-  for (size_t i = 0; i < verts.size(); ++i) sag_quadrics_[i] = vs_[verts[i]].q;
+  for (size_t i = 0; i < verts.size(); ++i) {
+    Keep(verts[i]);  // it may move
+    sag_quadrics_[i] = Q(verts[i]);
+  }
   sag_moved_.clear();
   const int64_t count = tandem::CorrectSagAt(store_, verts, normal, sag_quadrics_, fraction,
                                              opt_.error, &sag_scratch_, &sag_moved_);
@@ -788,7 +877,8 @@ size_t Simplifier::GroupBytes() const {  // in WEdges
 }
 
 size_t Simplifier::MemoryBytes() const {
-  return vs_.MemoryBytes() + version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
+  return planes_.MemoryBytes() + quadrics_.MemoryBytes() +
+         free_quadrics_.MemoryBytes() + eager_.MemoryBytes() + version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +

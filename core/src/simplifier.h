@@ -16,6 +16,7 @@
 #ifndef TANDEM_SIMPLIFIER_H_
 #define TANDEM_SIMPLIFIER_H_
 
+#include <atomic>
 #include <cassert>
 #include <cstdint>
 #include <functional>
@@ -26,6 +27,7 @@
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "edge_queues.h"
+#include "free_ids.h"
 #include "mesh_store.h"
 #include "quadric.h"
 #include "sag_correction.h"
@@ -63,6 +65,9 @@ struct SimplifierOptions {
   // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time
   // (2^16: 4 MiB of Q entries; docs/decisions.md).
   size_t release_chunk = size_t{1} << 16;
+  // Tests: keep every vertex's quadric in full as well, as the layers and contractions sum
+  // it, and count those read that differ (Simplifier::quadric_mismatches).
+  bool check_quadrics = false;
 };
 
 class Simplifier {
@@ -70,7 +75,11 @@ class Simplifier {
   Simplifier(MeshStore* store, const SimplifierOptions& options);
 
   // Accumulates the plane quadrics of new triangles into their vertices (a vertex on slice
-  // k is complete once layer k+1 is in) and registers new vertices (rad = 1).
+  // k is complete once layer k+1 is in) and registers new vertices (rad = 1). Every plane of
+  // a vertex's own triangles passes through it, so until it moves its quadric is its matrix
+  // A = Σ w n nᵀ alone (b = -A v, c = vᵀ A v, w = trace A): 48 bytes a vertex, not 88, for
+  // the full-resolution band the time lag holds. A contraction's survivor, or a vertex about
+  // to move, keeps its quadric in full (Keep; docs/decisions.md, stop 55).
   void AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts);
   // DELAY: puts the edges of these triangles into W (or Q for kImmediate), each edge once.
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
@@ -132,7 +141,16 @@ class Simplifier {
   // (both slabs contract their copies of one seam edge to one point): a survives, as Simplify
   // would contract it, without the checks, which the caller made (`onto_a`: a keeps its
   // height, radius and layer, as its other copy does).
-  const Quadric& quadric(VertexId v) const { return vs_[v].q; }
+  Quadric quadric(VertexId v) const { return Q(v); }
+  // Before v moves outside the simplifier (a seam's mend): its quadric in full, as it is.
+  void KeepQuadric(VertexId v) {
+    EnsureVertexCapacity();
+    Keep(v);
+  }
+  void DropQuadric(VertexId v);  // v left the store outside the simplifier (sealing)
+  // SimplifierOptions::check_quadrics: quadrics read that differ from the full sums kept
+  // alongside (a vertex moved without Keep).
+  int64_t quadric_mismatches() const { return quadric_mismatches_.load(); }
   double distance_bound() const { return opt_.distance_guard * opt_.error; }
   void ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a);
 
@@ -239,24 +257,64 @@ class Simplifier {
   void Rebucket(double max_key);
   // Loops over known edges or triangles start loading the records of the one kAhead places on.
   static constexpr size_t kAhead = 8;
-  // Starts loading what an evaluation reads of v: its store record and its quadric.
-  void PrefetchVertex(VertexId v) const {
-    store_->Prefetch(v);
-    __builtin_prefetch(&vs_[v]);
-    __builtin_prefetch(reinterpret_cast<const char*>(&vs_[v]) + sizeof(VertexState) - 1);
+  // Start loading what an evaluation reads of v: its store record; then, once the record
+  // is in (it holds the slot), the quadric it keeps in full or else its planes' matrix.
+  void PrefetchVertex(VertexId v) const { store_->Prefetch(v); }
+  void PrefetchQuadric(VertexId v) const {
+    const char* p = store_->aux(v) != kInvalid
+                        ? reinterpret_cast<const char*>(&quadrics_[store_->aux(v)])
+                        : reinterpret_cast<const char*>(&planes_[v]);
+    __builtin_prefetch(p);
+    __builtin_prefetch(p + sizeof(Quadric) - 1);
   }
+  // Adds v's quadric to *h: kept in full, or from its planes' matrix and its position
+  // (AddTriangles). Q(v) without the copy: an evaluation adds two.
+  [[gnu::always_inline]] void AddQ(VertexId v, Quadric* h) const {
+    if (opt_.check_quadrics) CheckQuadric(v, Q(v));
+    AddQuadricTo(v, h);
+  }
+  Quadric Q(VertexId v) const {
+    Quadric q;
+    AddQuadricTo(v, &q);
+    if (opt_.check_quadrics) CheckQuadric(v, q);
+    return q;
+  }
+  [[gnu::always_inline]] void AddQuadricTo(VertexId v, Quadric* h) const {
+    if (const uint32_t s = store_->aux(v); s != kInvalid) {
+      *h += quadrics_[s];
+      return;
+    }
+    const PlaneSum& m = planes_[v];
+    const Vec3 p = store_->position(v);
+    const double ax = m.a00 * p.x + m.a01 * p.y + m.a02 * p.z;
+    const double ay = m.a01 * p.x + m.a11 * p.y + m.a12 * p.z;
+    const double az = m.a02 * p.x + m.a12 * p.y + m.a22 * p.z;
+    h->a00 += m.a00, h->a01 += m.a01, h->a02 += m.a02;
+    h->a11 += m.a11, h->a12 += m.a12, h->a22 += m.a22;
+    h->b0 -= ax, h->b1 -= ay, h->b2 -= az;
+    h->c += p.x * ax + p.y * ay + p.z * az;
+    h->w += m.a00 + m.a11 + m.a22;
+  }
+  void CheckQuadric(VertexId v, const Quadric& q) const;
+  void Keep(VertexId v);  // v's quadric in full from now on (it moves, or adds another's)
+  void SetQuadric(VertexId v, const Quadric& q);  // kept in full
 
   MeshStore* store_;
   SimplifierOptions opt_;
   double front_ = -std::numeric_limits<double>::infinity();
 
-  // Per vertex, indexed by VertexId: what an edge evaluation reads of each end besides the
-  // store's record (docs/decisions.md: why rad lives in the store).
-  struct VertexState {
-    Quadric q;
+  // Quadrics (AddTriangles), per vertex id: the sum of its planes' matrices; and the quadrics
+  // kept in full, packed, their free slots handed out lowest first, a vertex's slot in its
+  // store record (MeshStore::aux; kInvalid: none). (docs/decisions.md: why rad lives in the
+  // store.)
+  struct PlaneSum {
+    double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0;
   };
-  static_assert(sizeof(VertexState) == sizeof(Quadric));
-  PodArray<VertexState> vs_;
+  PodArray<PlaneSum> planes_;
+  PodArray<Quadric> quadrics_;
+  FreeIds free_quadrics_;
+  PodArray<Quadric> eager_;  // SimplifierOptions::check_quadrics: every quadric in full
+  mutable std::atomic<int64_t> quadric_mismatches_{0};
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a
   // cache line, and most popped entries are stale.
   PodArray<uint32_t> version_;

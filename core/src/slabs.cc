@@ -110,8 +110,14 @@ void MendSettlingSeamSide(Slab& own, Slab& other,
         const auto it = partner.find(v);
         if (it == partner.end() || p.x != own.store.position(v).x) return false;
         const Quadric h = welded(v, it->second);
-        return ShapeError(h, p) <= std::max(error, ShapeError(h, own.store.position(v))) &&
-               MoveKeepsFacing(other.store, it->second, p);
+        const double now = ShapeError(h, own.store.position(v));
+        const bool may = ShapeError(h, p) <= std::max(error, now) &&
+                         MoveKeepsFacing(other.store, it->second, p);
+        if (may) {  // both copies move next: their quadrics in full first
+          own.simplifier.KeepQuadric(v);
+          other.simplifier.KeepQuadric(it->second);
+        }
+        return may;
       },
       [&](VertexId v) {
         const VertexId w = partner.at(v);
@@ -351,7 +357,8 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .parallel = batches,
                                .distance_guard = options.distance_guard,
                                .keep = options.target_triangles > 0 ? kTargetKeep : 1.0,
-                               .rises = options.target_triangles > 0};
+                               .rises = options.target_triangles > 0,
+                               .check_quadrics = options.check_quadrics};
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {
       const bool simplify = options.schedule != Schedule::kNone;
@@ -410,7 +417,11 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
       }
       ++*seam_ids;
       // Both slabs computed the point from the same grid edge; one position, bit for bit.
-      right.store.set_position(b, left.store.position(a));
+      if (const Vec3 p = left.store.position(a), q = right.store.position(b);
+          p.x != q.x || p.y != q.y || p.z != q.z) {
+        right.simplifier.KeepQuadric(b);
+        right.store.set_position(b, p);
+      }
       // Error(K) at the welded vertex: both sides' planes.
       const double shape_error =
           coarsen ? MeasuredShapeError(WeldedQuadric(left, a, right, b), left.store.position(a))

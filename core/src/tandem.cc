@@ -543,6 +543,7 @@ const SessionStats& TandemSession::Impl::Stats() {
       options.schedule == Schedule::kNone ? 0.0 : first.simplifier.error() * scale;
   stats.refusals = RefusalCounts{};
   stats.contractions = 0;
+  stats.quadric_mismatches = 0;
   stats.max_reach_over_front = -std::numeric_limits<double>::infinity();
   stats.max_layer_over_front = -std::numeric_limits<double>::infinity();
   if (first.sealer) {
@@ -556,6 +557,7 @@ const SessionStats& TandemSession::Impl::Stats() {
     stats.time.simplify_s += s->time.simplify_s;
     stats.refusals += s->simplifier.refusals();
     stats.contractions += s->simplifier.contractions();
+    stats.quadric_mismatches += s->simplifier.quadric_mismatches();
     stats.max_reach_over_front =
         std::max(stats.max_reach_over_front, s->simplifier.max_reach_over_front());
     stats.max_layer_over_front =

@@ -78,6 +78,10 @@ struct SessionOptions {
   // contractions across them; shallower, less is held (the settled part is coarsened along
   // the seam only). Checked only with seal; at least 1.
   int64_t seam_settle_slices = 512;
+  // Tests: the simplifier also keeps every vertex's quadric in full, as the layers and the
+  // contractions sum it, and counts the quadrics it reads that differ (SessionStats::
+  // quadric_mismatches; 0: every vertex kept its quadric in full before it moved). Slower.
+  bool check_quadrics = false;
   // The rules the options must satisfy, here and nowhere else. A refusal is
   // InvalidArgument "<field> = <value>: <rule>" (e.g. "alpha = 1.5: isotropy alpha must lie
   // in [0, 1]") and carries an OptionError, so that a front end can name the field in its

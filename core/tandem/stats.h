@@ -50,6 +50,7 @@ struct SessionStats {
   double max_layer_over_front = 0;  // <= -1: no contraction touched the newest layer
   int64_t sealed_triangles = 0;     // sealing: triangles handed out so far
   int64_t sealed_vertices = 0;      // sealing: global vertex ids handed out so far
+  int64_t quadric_mismatches = 0;   // SessionOptions::check_quadrics: should be 0
 };
 
 }  // namespace tandem
