@@ -94,22 +94,14 @@ void Sealer::EnsureCapacity() {
 
 void Sealer::SetNormal(VertexId v, Vec3 n) {
   uint32_t& slot = normal_slot_[v];
-  if (slot == kInvalid) {
-    if (!free_normals_.empty()) {
-      slot = free_normals_.back();
-      free_normals_.pop_back();
-    } else {
-      slot = static_cast<uint32_t>(normals_.size());
-      PushBack(normals_, Vec3{});
-    }
-  }
+  if (slot == kInvalid) slot = normals_.Take();
   normals_[slot] = n;
 }
 
 void Sealer::ReleaseNormal(VertexId v) {
   uint32_t& slot = normal_slot_[v];
   if (slot == kInvalid) return;
-  PushBack(free_normals_, slot);
+  normals_.Release(slot);
   slot = kInvalid;
 }
 
@@ -386,8 +378,7 @@ void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
 
 size_t Sealer::MemoryBytes() const {
   return active_.capacity() * sizeof(VertexId) + id_.MemoryBytes() + stamp_.MemoryBytes() +
-         normal_slot_.MemoryBytes() + normals_.capacity() * sizeof(Vec3) +
-         (free_normals_.capacity() + fan_.capacity()) * sizeof(uint32_t) +
+         normal_slot_.MemoryBytes() + normals_.MemoryBytes() + fan_.capacity() * sizeof(uint32_t) +
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
          pend_verts_.capacity() * sizeof(PendingVertex) +

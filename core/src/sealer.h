@@ -32,6 +32,7 @@
 #include "pod_array.h"
 #include "sag_correction.h"
 #include "simplifier.h"
+#include "slot_pool.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -87,7 +88,7 @@ class Sealer {
   uint32_t IdOf(VertexId v);  // its global id, handed out on first use
   void SetNormal(VertexId v, Vec3 n);  // normals_[normal_slot_[v]] = n, taking a slot
   void ReleaseNormal(VertexId v);      // its slot, if it has one, is free again
-  VertexNormalTable Normals() const { return {normals_, normal_slot_}; }
+  VertexNormalTable Normals() const { return {normals_.values(), normal_slot_}; }
   bool NextToSeam(VertexId v) const;  // some triangle at v has a seam vertex
 
   struct PendingVertex {
@@ -110,8 +111,7 @@ class Sealer {
   // they were two thirds of the sealer: 22 MiB a part at the closed period-32 2048² gyroid's
   // cap, for a few thousand frozen vertices in the store at a time.
   PodArray<uint32_t> normal_slot_;  // kInvalid: none
-  std::vector<Vec3> normals_;
-  std::vector<uint32_t> free_normals_;
+  SlotPool<Vec3> normals_;
   std::vector<TriId> fan_;  // VertexNormal's scratch
   // Scratch.
   std::vector<VertexId> freeze_, need_, drop_;

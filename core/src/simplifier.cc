@@ -38,12 +38,7 @@ void Simplifier::CheckQuadric(VertexId v, const Quadric& q) const {
 void Simplifier::SetQuadric(VertexId v, const Quadric& q) {
   uint32_t s = store_->aux(v);
   if (s == kInvalid) {
-    if (!free_quadrics_.empty()) {
-      s = free_quadrics_.TakeLowest();
-    } else {
-      s = static_cast<uint32_t>(quadrics_.size());
-      PushBack(quadrics_, Quadric{});
-    }
+    s = quadrics_.Take();
     store_->set_aux(v, s);
   }
   quadrics_[s] = q;
@@ -56,7 +51,7 @@ void Simplifier::Keep(VertexId v) {
 void Simplifier::DropQuadric(VertexId v) {
   const uint32_t s = store_->aux(v);
   if (s == kInvalid) return;
-  free_quadrics_.Release(s);
+  quadrics_.Release(s);
   store_->set_aux(v, kInvalid);
 }
 
@@ -682,8 +677,9 @@ void Simplifier::Rebucket(double max_key) {
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
   EnsureVertexCapacity();
   if (shared) {
-    Quadric q = Q(dst);  // a seam vertex: each part saw its own triangles
-    q += from.Q(src);
+    Quadric q;  // a seam vertex: each part saw its own triangles
+    AddQ(dst, &q);
+    from.AddQ(src, &q);
     SetQuadric(dst, q);
     if (opt_.check_quadrics) eager_[dst] += from.eager_[src];
   } else {
@@ -877,8 +873,8 @@ size_t Simplifier::GroupBytes() const {  // in WEdges
 }
 
 size_t Simplifier::MemoryBytes() const {
-  return planes_.MemoryBytes() + quadrics_.MemoryBytes() +
-         free_quadrics_.MemoryBytes() + eager_.MemoryBytes() + version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
+  return planes_.MemoryBytes() + quadrics_.MemoryBytes() + eager_.MemoryBytes() +
+         version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +

@@ -27,10 +27,10 @@
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "edge_queues.h"
-#include "free_ids.h"
 #include "mesh_store.h"
 #include "quadric.h"
 #include "sag_correction.h"
+#include "slot_pool.h"
 #include "tandem/executor.h"
 #include "tandem/geometry.h"
 #include "tandem/stats.h"
@@ -270,7 +270,10 @@ class Simplifier {
   // Adds v's quadric to *h: kept in full, or from its planes' matrix and its position
   // (AddTriangles). Q(v) without the copy: an evaluation adds two.
   [[gnu::always_inline]] void AddQ(VertexId v, Quadric* h) const {
-    if (opt_.check_quadrics) CheckQuadric(v, Q(v));
+    if (opt_.check_quadrics) {
+      *h += Q(v);  // checked there; the same sum
+      return;
+    }
     AddQuadricTo(v, h);
   }
   Quadric Q(VertexId v) const {
@@ -311,8 +314,7 @@ class Simplifier {
     double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0;
   };
   PodArray<PlaneSum> planes_;
-  PodArray<Quadric> quadrics_;
-  FreeIds free_quadrics_;
+  SlotPool<Quadric> quadrics_;
   PodArray<Quadric> eager_;  // SimplifierOptions::check_quadrics: every quadric in full
   mutable std::atomic<int64_t> quadric_mismatches_{0};
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a

@@ -417,8 +417,7 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
       }
       ++*seam_ids;
       // Both slabs computed the point from the same grid edge; one position, bit for bit.
-      if (const Vec3 p = left.store.position(a), q = right.store.position(b);
-          p.x != q.x || p.y != q.y || p.z != q.z) {
+      if (const Vec3 p = left.store.position(a); !(right.store.position(b) == p)) {
         right.simplifier.KeepQuadric(b);
         right.store.set_position(b, p);
       }
