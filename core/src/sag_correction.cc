@@ -46,7 +46,7 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
   // (docs/decisions.md: why 25).
   constexpr double kSagCreaseDegrees = 25.0;
   const double cos_crease = std::cos(kSagCreaseDegrees * std::numbers::pi / 180.0);
-  if (scratch->slot.size() < store->vertex_capacity()) scratch->slot.resize(store->vertex_capacity(), kInvalid);
+  scratch->slot.Assign(verts, store->vertex_capacity());
   std::vector<Vec3> moved(verts.size());
   std::vector<uint8_t> moving(verts.size(), 0);
   std::vector<TriId>& fan = scratch->fan;
@@ -60,7 +60,6 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
   // (Σ w·s/24 over area) along its normal, unless it is on the box or at a crease.
   for (size_t i = 0; i < verts.size(); ++i) {
     const VertexId v = verts[i];
-    scratch->slot[v] = static_cast<uint32_t>(i);
     moved[i] = store->position(v);
     if ((store->box_mask(v) & ~kFrozen) != 0) continue;
     SortedFan(*store, v, &fan);
@@ -98,9 +97,14 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
   // none does (each round puts at least one vertex back, and the mesh as it was is valid).
   std::sort(checks.begin(), checks.end());
   checks.erase(std::unique(checks.begin(), checks.end()), checks.end());
-  auto slot = [&](VertexId v) { return scratch->slot[v]; };
-  auto is_moving = [&](VertexId v) { return slot(v) != kInvalid && moving[slot(v)]; };
-  auto now = [&](VertexId v) { return is_moving(v) ? moved[slot(v)] : store->position(v); };
+  auto is_moving = [&](VertexId v) {
+    const uint32_t i = scratch->slot.Find(v);
+    return i != kInvalid && moving[i];
+  };
+  auto now = [&](VertexId v) {
+    const uint32_t i = scratch->slot.Find(v);
+    return i != kInvalid && moving[i] ? moved[i] : store->position(v);
+  };
   for (bool again = true; again;) {
     again = false;
     for (TriId t : checks) {
@@ -113,7 +117,7 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
       if (MovedCornerKeepsOrientation(n_old, now(tri[0]), now(tri[1]), now(tri[2]))) continue;
       for (VertexId v : tri) {
         if (is_moving(v)) {
-          moving[slot(v)] = 0;
+          moving[scratch->slot.Find(v)] = 0;
           again = true;
         }
       }
@@ -122,12 +126,12 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
   int64_t count = 0;
   for (size_t i = 0; i < verts.size(); ++i) {
     const VertexId v = verts[i];
-    scratch->slot[v] = kInvalid;
     if (!moving[i]) continue;
     store->set_position(v, moved[i]);
     moved_ids->push_back(v);
     ++count;
   }
+  scratch->slot.Clear();
   return count;
 }
 

@@ -18,6 +18,7 @@
 #include <span>
 #include <vector>
 
+#include "id_index.h"
 #include "mesh_store.h"
 #include "quadric.h"
 #include "tandem/types.h"
@@ -48,9 +49,9 @@ struct VertexNormalTable {
 
 // Scratch of CorrectSagAt, kept by the caller between calls.
 struct SagScratch {
-  std::vector<uint32_t> slot;  // per vertex id: its index in verts, or kInvalid
+  IdIndex slot;  // a vertex id's index in verts, or kInvalid
   std::vector<TriId> fan, checks;
-  size_t MemoryBytes() const { return slot.capacity() * sizeof(uint32_t); }
+  size_t MemoryBytes() const { return slot.MemoryBytes(); }
 };
 
 // Moves each vertex of `verts` not on the grid's box (frozen ones may move: they are frozen

@@ -1,0 +1,80 @@
+// IdIndex: where each vertex of a list sits in it (id -> index), as scratch sized to the list
+// when the list is short, and to the mesh's ids only when the list is long.
+//
+// The sag correction of a Seal looks up, for every corner of the triangles it checks, whether
+// that corner is one of the few thousand vertices it moves. A 4-byte slot per vertex id answered
+// that at 3.6 MiB a part of a 2048² stream, held between Seals for lists of a few thousand
+// (docs/decisions.md, stop 56). A short list goes into an open-addressing table at most half
+// full (8 bytes an entry, so 16 to 32 bytes a listed vertex); a list of a quarter of the ids or
+// more (the final pass over the whole mesh) takes the slot per id, which is then the smaller.
+#ifndef TANDEM_ID_INDEX_H_
+#define TANDEM_ID_INDEX_H_
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "tandem/types.h"
+
+namespace tandem {
+
+class IdIndex {
+ public:
+  // ids[i] -> i for the ids of `ids` (the last i for an id listed twice), all below `capacity`
+  // (the store's vertex ids).
+  void Assign(std::span<const VertexId> ids, uint32_t capacity) {
+    Clear();
+    if (ids.size() >= capacity / 4) {
+      if (dense_.size() < capacity) dense_.resize(capacity, kInvalid);
+      for (size_t i = 0; i < ids.size(); ++i) dense_[ids[i]] = static_cast<uint32_t>(i);
+      dense_ids_ = ids;
+      return;
+    }
+    int bits = 4;
+    while ((size_t{1} << bits) < 2 * ids.size()) ++bits;
+    table_.assign(size_t{1} << bits, Entry{});
+    mask_ = static_cast<uint32_t>(table_.size() - 1);
+    shift_ = 32 - bits;
+    for (size_t i = 0; i < ids.size(); ++i) {
+      uint32_t h = Hash(ids[i]);
+      while (table_[h].id != kInvalid && table_[h].id != ids[i]) h = (h + 1) & mask_;
+      table_[h] = Entry{ids[i], static_cast<uint32_t>(i)};
+    }
+  }
+  // ids[i] for the list assigned last, kInvalid for an id not in it.
+  uint32_t Find(VertexId v) const {
+    if (!dense_ids_.empty()) return dense_[v];
+    if (table_.empty()) return kInvalid;
+    for (uint32_t h = Hash(v);; h = (h + 1) & mask_) {
+      if (table_[h].id == v) return table_[h].index;
+      if (table_[h].id == kInvalid) return kInvalid;
+    }
+  }
+  // Forgets the list (the table's capacity stays for the next one).
+  void Clear() {
+    for (VertexId v : dense_ids_) dense_[v] = kInvalid;
+    dense_ids_ = {};
+    table_.clear();
+  }
+  size_t MemoryBytes() const {
+    return dense_.capacity() * sizeof(uint32_t) + table_.capacity() * sizeof(Entry);
+  }
+
+ private:
+  struct Entry {
+    VertexId id = kInvalid;
+    uint32_t index = kInvalid;
+  };
+  // Fibonacci hashing: the product's top bits (ids of a layer are runs of consecutive ids).
+  uint32_t Hash(VertexId v) const { return (v * 0x9E3779B1u) >> shift_; }
+
+  std::vector<uint32_t> dense_;  // per id, for a long list
+  std::span<const VertexId> dense_ids_;  // the long list in dense_, to clear it
+  std::vector<Entry> table_;
+  uint32_t mask_ = 0;
+  int shift_ = 32;
+};
+
+}  // namespace tandem
+
+#endif  // TANDEM_ID_INDEX_H_
