@@ -40,6 +40,13 @@ class FreeIds {
     return word < bits_.size() && (bits_[word] >> (id & 63) & 1) != 0;
   }
 
+  // Takes `id`, which must be free.
+  void Take(uint32_t id) {
+    assert(Contains(id));
+    bits_[id >> 6] &= ~(uint64_t{1} << (id & 63));
+    --count_;
+  }
+
   // The lowest free id (not empty), taken.
   uint32_t TakeLowest() {
     assert(count_ > 0);

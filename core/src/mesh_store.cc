@@ -7,17 +7,50 @@
 
 namespace tandem {
 
+// The pool is a buddy allocator: a slot of class k starts at a multiple of its size, the
+// class's free list holds offset / size, and a freed slot whose twin (the other half of the
+// slot of class k + 1 they make) is free too merges with it. Without merging, the slots a
+// contraction's survivor left as its star grew (and the dead vertices' smallest ones) stayed
+// in their own class: on the closed period-32 2048² gyroid a third of the pool was free slots
+// of the wrong size (docs/decisions.md, stop 56).
 uint32_t MeshStore::AllocSlot(uint8_t size_class) {
-  auto& free_list = free_slots_[size_class];
-  if (!free_list.empty()) return free_list.TakeLowest() * kMinSlot;
-  const uint32_t cap = kMinSlot << size_class;
-  const uint32_t off = static_cast<uint32_t>(pool_.size());
-  GrowTo(pool_, pool_.size() + cap, kInvalid);
-  return off;
+  if (!free_slots_[size_class].empty()) {
+    return free_slots_[size_class].TakeLowest() * (kMinSlot << size_class);
+  }
+  // Split the smallest free slot of a larger class, keeping the halves above.
+  for (int c = size_class + 1; c < kNumClasses; ++c) {
+    if (free_slots_[c].empty()) continue;
+    uint32_t block = free_slots_[c].TakeLowest();
+    for (int k = c - 1; k >= size_class; --k) {
+      block *= 2;
+      free_slots_[k].Release(block + 1);
+    }
+    return block * (kMinSlot << size_class);
+  }
+  // Grow the pool: up to a multiple of the slot's size (the gap goes to the free lists as the
+  // largest aligned slots that fill it), then by the slot.
+  const uint32_t size = kMinSlot << size_class;
+  auto end = static_cast<uint32_t>(pool_.size());
+  const uint32_t aligned = (end + size - 1) / size * size;
+  GrowTo(pool_, aligned + size, kInvalid);
+  while (end < aligned) {
+    int k = 0;
+    while (k + 1 < size_class && end % (kMinSlot << (k + 1)) == 0) ++k;
+    FreeSlot(end, static_cast<uint8_t>(k));
+    end += kMinSlot << k;
+  }
+  return aligned;
 }
 
 void MeshStore::FreeSlot(uint32_t offset, uint8_t size_class) {
-  free_slots_[size_class].Release(offset / kMinSlot);
+  uint32_t block = offset / (kMinSlot << size_class);
+  int k = size_class;
+  while (k + 1 < kNumClasses && free_slots_[k].Contains(block ^ 1)) {
+    free_slots_[k].Take(block ^ 1);
+    block /= 2;
+    ++k;
+  }
+  free_slots_[k].Release(block);
 }
 
 VertexId MeshStore::AddVertex(Vec3 pos, double height, int32_t layer, uint8_t box_mask) {
@@ -49,7 +82,9 @@ void MeshStore::Reserve(size_t vertices, size_t triangles) {
   ReserveFor(vtx_, vtx_.size() + new_vertices);
   ReserveFor(tris_, tris_.size() + new_triangles);
   // Every new vertex takes a slot of the smallest class; the few that outgrow it take more.
-  ReserveFor(pool_, pool_.size() + beyond(vertices, free_slots_[0].size()) * kMinSlot);
+  size_t free_smallest = 0;  // free slots of the smallest class, larger ones split
+  for (int k = 0; k < kNumClasses; ++k) free_smallest += free_slots_[k].size() << k;
+  ReserveFor(pool_, pool_.size() + beyond(vertices, free_smallest) * kMinSlot);
 }
 
 void MeshStore::LinkTriangle(VertexId v, TriId t) {

@@ -6,8 +6,9 @@
 // free id comes back first: free_ids.h; a dead triangle's flag is its bit there), so ids stay
 // stable while the simplifier works; compaction happens only in Snapshot(). Each vertex owns
 // a slot in one pool of triangle ids (its incident triangles); slots come in size classes of
-// 6 << k with a free list per class (lowest offset first, as the ids), so adding a triangle
-// never allocates per element.
+// 6 << k, aligned to their size, with a free list per class (lowest offset first, as the ids)
+// and a freed slot merged with its free twin (a buddy allocator), so adding a triangle never
+// allocates per element and freed slots serve any class.
 #ifndef TANDEM_MESH_STORE_H_
 #define TANDEM_MESH_STORE_H_
 
@@ -145,6 +146,8 @@ class MeshStore {
   // Bytes the store's arrays take in memory (PodArray::MemoryBytes: capacity, but for a
   // mapped array only the pages written): for memory figures and the session budget.
   size_t MemoryBytes() const;
+  // The incidence pool's share of MemoryBytes (for tests of its allocator).
+  size_t IncidenceBytes() const { return pool_.MemoryBytes(); }
 
  private:
   struct AdjSlot {  // capacity = kMinSlot << VertexRecord::size_class

@@ -458,6 +458,36 @@ TEST(Extraction, PlaneCachesHoldCrossedEdgesOnly) {
   EXPECT_GT(per_voxel, 8.5);
 }
 
+// A freed incidence slot merges with its free twin, so the slots that dead vertices leave
+// serve the larger stars of the survivors: here half the vertices die in adjacent pairs and
+// the others grow past 6 triangles, and the pool does not grow (it grew by half, 12 ids for
+// each survivor, when each class kept its own free slots: stop 56).
+TEST(MeshStore, FreedSlotsMergeToServeLargerStars) {
+  constexpr VertexId n = 40000;
+  MeshStore store;
+  for (VertexId i = 0; i < n; ++i) store.AddVertex({double(i), 0, 0}, 0, 0, 0);
+  const size_t before = store.IncidenceBytes();
+  for (VertexId i = 0; i < n; ++i) {
+    if (i % 4 < 2) store.RemoveVertex(i);
+  }
+  std::vector<VertexId> kept;  // ids 4m + 2 and 4m + 3
+  for (VertexId i = 0; i < n; ++i) {
+    if (i % 4 >= 2) kept.push_back(i);
+  }
+  for (size_t i = 0; i + 3 < kept.size(); ++i) {  // 6 to 9 triangles at each kept vertex
+    store.AddTriangle(kept[i], kept[i + 1], kept[i + 2]);
+    store.AddTriangle(kept[i], kept[i + 2], kept[i + 3]);
+    store.AddTriangle(kept[i], kept[i + 1], kept[i + 3]);
+  }
+  size_t grown = 0;
+  for (VertexId v : kept) grown += store.vertex_triangles(v).size() > 6;
+  EXPECT_GT(grown, kept.size() * 9 / 10);
+  EXPECT_LE(store.IncidenceBytes(), before);
+  // And a new vertex takes a slot split from a free larger one.
+  for (int i = 0; i < 100; ++i) store.AddVertex({0, 1, 0}, 0, 0, 0);
+  EXPECT_LE(store.IncidenceBytes(), before);
+}
+
 TEST(Extraction, SphereIsClosedManifoldWithEulerTwo) {
   for (int n : {8, 33, 64}) {
     auto src = MakeSyntheticSource(Shape::kSphere, n, n, n);
