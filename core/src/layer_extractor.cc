@@ -65,10 +65,34 @@ LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
   inside_from_ = InsideFrom(config.iso);
 }
 
-size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny) {
+size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny, DType dtype) {
   const size_t n = static_cast<size_t>(nx * ny);
   const size_t words = static_cast<size_t>((nx + 63) / 64 * ny);
-  return n * 2 * sizeof(float) + 2 * words * sizeof(uint64_t) + 5 * words * sizeof(uint32_t);
+  const size_t value = dtype == DType::kFloat32 ? sizeof(float) : sizeof(uint16_t);
+  return n * 2 * value + 2 * words * sizeof(uint64_t) + 5 * words * sizeof(uint32_t);
+}
+
+size_t LayerExtractor::PlaneBytes(DType planned) const {
+  if (ze_.first.empty()) return PlaneCacheBytes(config_.nx, config_.ny, planned);
+  // The values as held (the bottom plane, empty after the first slice, as the top one); the
+  // sign bits and edge ranks as allocated.
+  auto values = [](const Plane& p) {
+    return p.f.capacity() * sizeof(float) + p.h.capacity() * sizeof(uint16_t);
+  };
+  const size_t words = static_cast<size_t>(words_ * config_.ny);
+  return values(v_top_) + std::max(values(v_bottom_), values(v_top_)) +
+         2 * words * sizeof(uint64_t) + 5 * words * sizeof(uint32_t);
+}
+
+void LayerExtractor::Plane::Prepare(DType type, size_t n) {
+  dtype = type;
+  if (type == DType::kFloat32) {
+    std::vector<uint16_t>().swap(h);
+    f.resize(n);
+  } else {
+    std::vector<float>().swap(f);
+    h.resize(n);
+  }
 }
 
 size_t LayerExtractor::EdgeIdBytes() const {
@@ -83,9 +107,6 @@ void LayerExtractor::AllocatePlanes() {
   // On the first slice, not at construction: a session that never gets a voxel (a bare
   // config, a client that leaves) commits no memory for a grid it never sees.
   const ExtractorConfig& config = config_;
-  const size_t n = static_cast<size_t>(config.nx * config.ny);
-  v_bottom_.resize(n);
-  v_top_.resize(n);
   s_bottom_.assign(static_cast<size_t>(words_ * config.ny), 0);
   s_top_ = s_bottom_;
   any_in_.resize(static_cast<size_t>(words_));
@@ -242,7 +263,7 @@ bool LayerExtractor::ScanRow(const float* src, int64_t n, float* dst, uint64_t* 
 }
 
 template <typename T>
-void LayerExtractor::ScanIntegerRow(const uint8_t* src, int64_t n, float* dst,
+void LayerExtractor::ScanIntegerRow(const uint8_t* src, int64_t n, uint16_t* dst,
                                     uint64_t* signs) const {
   const float t = inside_from_;
   for (int64_t i = 0; i < n; i += kWordBits) {
@@ -252,7 +273,7 @@ void LayerExtractor::ScanIntegerRow(const uint8_t* src, int64_t n, float* dst,
       T v;
       std::memcpy(&v, src + static_cast<size_t>(i + b) * sizeof(T), sizeof(T));
       const float x = static_cast<float>(v);
-      dst[i + b] = x;
+      dst[i + b] = static_cast<uint16_t>(v);  // a byte widened, 16 bits as they are
       word |= static_cast<uint64_t>(x >= t) << b;
     }
     signs[i / kWordBits] = word;
@@ -274,16 +295,17 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   bool finite = true;
   const int64_t stride = config_.row_stride > 0 ? config_.row_stride : nx;
   const size_t row_bytes = static_cast<size_t>(stride) * DTypeSize(slice.dtype);
+  v_bottom_.Prepare(slice.dtype, static_cast<size_t>(nx * ny));
   for (int64_t j = 0; j < ny; ++j) {
     const uint8_t* row = slice.bytes + static_cast<size_t>(j) * row_bytes;
-    float* dst = v_bottom_.data() + j * nx;
+    const size_t at = static_cast<size_t>(j * nx);
     uint64_t* signs = s_bottom_.data() + j * words;
     switch (slice.dtype) {
-      case DType::kUInt8: ScanIntegerRow<uint8_t>(row, nx, dst, signs); break;
-      case DType::kUInt16: ScanIntegerRow<uint16_t>(row, nx, dst, signs); break;
-      case DType::kInt16: ScanIntegerRow<int16_t>(row, nx, dst, signs); break;
+      case DType::kUInt8: ScanIntegerRow<uint8_t>(row, nx, v_bottom_.h.data() + at, signs); break;
+      case DType::kUInt16: ScanIntegerRow<uint16_t>(row, nx, v_bottom_.h.data() + at, signs); break;
+      case DType::kInt16: ScanIntegerRow<int16_t>(row, nx, v_bottom_.h.data() + at, signs); break;
       case DType::kFloat32:
-        finite &= ScanRow(reinterpret_cast<const float*>(row), nx, dst, signs);
+        finite &= ScanRow(reinterpret_cast<const float*>(row), nx, v_bottom_.f.data() + at, signs);
         break;
     }
   }
@@ -308,8 +330,8 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   staged_ = true;
   staged_layer_ = static_cast<int32_t>(k);
   const double kz = static_cast<double>(k);
-  const float* vb = v_bottom_.data();
-  const float* vt = v_top_.data();
+  const Plane& vb = v_bottom_;
+  const Plane& vt = v_top_;
   const uint64_t* sb = s_bottom_.data();
   const uint64_t* st = s_top_.data();
   double idx3[3];
@@ -380,8 +402,8 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
 
 void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
   const int64_t nx = config_.nx;
-  const float* vb = v_bottom_.data();
-  const float* vt = v_top_.data();
+  const Plane& vb = v_bottom_;
+  const Plane& vt = v_top_;
   const int64_t p00 = j * nx + i, p10 = p00 + 1, p01 = p00 + nx, p11 = p01 + 1;
   double f[8];
   f[0] = Rel(vb[p00]); f[1] = Rel(vb[p10]); f[2] = Rel(vb[p01]); f[3] = Rel(vb[p11]);

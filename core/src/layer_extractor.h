@@ -90,7 +90,10 @@ class LayerExtractor {
 
   // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
   // two value planes, their sign bits and the five crossed-edge indices' word counts.
-  static size_t PlaneCacheBytes(int64_t nx, int64_t ny);
+  static size_t PlaneCacheBytes(int64_t nx, int64_t ny, DType dtype);
+  // What this extractor's plane caches take: PlaneCacheBytes for slices of `planned` until a
+  // slice came, then as they hold the slices' values (in their own type: Plane).
+  size_t PlaneBytes(DType planned) const;
   // What the crossed edges' ids take (capacity): 4 bytes a crossing of the two slices' planes
   // and the layer's z-edges. Not while ComputeLayer runs on another thread.
   size_t EdgeIdBytes() const;
@@ -127,7 +130,7 @@ class LayerExtractor {
   // necessarily aligned) are always finite.
   bool ScanRow(const float* src, int64_t n, float* dst, uint64_t* signs) const;
   template <typename T>
-  void ScanIntegerRow(const uint8_t* src, int64_t n, float* dst, uint64_t* signs) const;
+  void ScanIntegerRow(const uint8_t* src, int64_t n, uint16_t* dst, uint64_t* signs) const;
   // Stages the triangles (and loop centroids) of crossed cube (i, j) of the current layer,
   // whose bottom slice is at height kz - 1.
   void EmitCube(int64_t i, int64_t j, double kz);
@@ -148,7 +151,26 @@ class LayerExtractor {
   // per-voxel work is one float compare and the rest is spent where the surface passes.
   int64_t words_ = 0;
   float inside_from_ = 0;  // for finite v: Rel(v) >= 0 iff v >= inside_from_
-  std::vector<float> v_bottom_, v_top_;
+  // A slice's values in its own type: floats for float input, and 16 bits for 8- and 16-bit
+  // integers (a 16-bit value's bits; a byte widened), read back as the float it converts to
+  // exactly. Floats for every type doubled the planes of a 16-bit stream: 16 MiB of a
+  // 2048² session's 32 (docs/decisions.md, stop 56).
+  struct Plane {
+    DType dtype = DType::kFloat32;
+    std::vector<float> f;      // kFloat32
+    std::vector<uint16_t> h;   // kUInt8, kUInt16, kInt16
+    void Prepare(DType type, size_t n);  // for n values of `type`
+    float operator[](size_t i) const {
+      switch (dtype) {
+        case DType::kUInt8:
+        case DType::kUInt16: return static_cast<float>(h[i]);
+        case DType::kInt16: return static_cast<float>(static_cast<int16_t>(h[i]));
+        case DType::kFloat32: break;
+      }
+      return f[i];
+    }
+  };
+  Plane v_bottom_, v_top_;
   std::vector<uint64_t> s_bottom_, s_top_;
   std::vector<uint64_t> any_in_, all_in_;  // scratch: OR and AND of a row pair's 4 rows
   // The vertex ids of a family of crossed grid edges: x- or y-edges of the bottom (k-1) or

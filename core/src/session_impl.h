@@ -49,7 +49,7 @@ struct TandemSession::Impl {
     size_t bytes = 0;
     int64_t sealed_pending = 0;
   };
-  static SlabGauge Measure(const Slab& slab);
+  SlabGauge Measure(const Slab& slab) const;  // reads only the slab and the grid
   size_t BufferBytes() const;  // the slice buffers and the seams' pairs
 
   // Queued slices (a pipelined split session): each slice is copied once into the ring and

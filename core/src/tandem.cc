@@ -76,7 +76,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
     // The extractor's plane caches are O(nx*ny); the only allocation that can be large here.
     return absl::ResourceExhaustedError(absl::StrCat(
         "not enough memory for a ", g.nx, "x", g.ny, " grid (about ",
-        LayerExtractor::PlaneCacheBytes(g.nx, g.ny) >> 20,
+        LayerExtractor::PlaneCacheBytes(g.nx, g.ny, g.dtype) >> 20,
         " MiB of plane caches); use smaller slices"));
   }
 }
@@ -586,10 +586,9 @@ size_t TandemSession::Impl::BufferBytes() const {
   return bytes;
 }
 
-TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) {
+TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) const {
   SlabGauge g;
   g.triangles = static_cast<int64_t>(s.store.num_triangles());
-  const ExtractorConfig& ec = s.extractor.config();
   if (s.sealer) {
     g.bytes += s.sealer->MemoryBytes();
     g.sealed_pending = s.sealer->pending_triangles();
@@ -598,7 +597,7 @@ TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) {
   // between slices would otherwise miss Q's peak (a cap's release: 137 MiB a part at 2048²,
   // while the queues read 36 MiB after the step). Plane caches as planned, like the slices.
   const size_t queues = std::max(s.simplifier.MemoryBytes(), s.simplifier.StepPeakBytes());
-  g.bytes += s.store.MemoryBytes() + queues + LayerExtractor::PlaneCacheBytes(ec.nx, ec.ny) +
+  g.bytes += s.store.MemoryBytes() + queues + s.extractor.PlaneBytes(grid.dtype) +
              s.extractor.EdgeIdBytes() + s.extractor.StagingBytes();
   return g;
 }

@@ -372,7 +372,8 @@ TEST(Extraction, AHeldCapCostsItsSizeNotTheNextPowerOfTwo) {
 // Integer slices are kept as they arrive, in the ring of a split session too, and converted
 // by the extractors as they scan: the mesh is the one their values as floats give, and a
 // 16-bit slice in flight takes 2 bytes a voxel (4 slots: a 2048² uint16 stream's ring
-// 32 MiB, not 64). Bytes at an odd address are read as well.
+// 32 MiB, not 64), and 2 in each of the extractors' two value planes (a byte widened: stop
+// 56). Bytes at an odd address are read as well.
 TEST(Extraction, IntegerSlicesAreKeptAsTheyArrive) {
   constexpr int64_t nx = 192, ny = 64, nz = 10;
   constexpr size_t n = size_t{nx} * ny;
@@ -414,9 +415,11 @@ TEST(Extraction, IntegerSlicesAreKeptAsTheyArrive) {
         ASSERT_TRUE((*as_floats)->AddSlice(floats.data()).ok()) << what;
       }
       if (parts > 1) {
-        // The same mesh and queues: the ring is the only difference (4 slots).
+        // The same mesh and queues: the ring (4 slots) and the value planes (2 a part, whose
+        // columns overlap by one) are the only differences.
+        const auto plane_values = static_cast<size_t>((nx + parts - 1) * ny);
         EXPECT_EQ((*as_floats)->MemoryBytes() - (*as_bytes)->MemoryBytes(),
-                  4 * n * (sizeof(float) - size))
+                  4 * n * (sizeof(float) - size) + 2 * plane_values * (sizeof(float) - 2))
             << what;
       }
       ASSERT_TRUE((*as_bytes)->Finish().ok() && (*as_floats)->Finish().ok()) << what;
@@ -450,12 +453,46 @@ TEST(Extraction, PlaneCachesHoldCrossedEdgesOnly) {
       }
     }
     ASSERT_TRUE(ex.AddSlice(values.data()).ok());
-    most = std::max(most, LayerExtractor::PlaneCacheBytes(n, n) + ex.EdgeIdBytes());
+    most = std::max(most, ex.PlaneBytes(DType::kFloat32) + ex.EdgeIdBytes());
   }
   const double per_voxel = double(most) / double(n * n);
   EXPECT_GT(store.num_triangles(), size_t(n) * n / 4);  // a dense surface
   EXPECT_LT(per_voxel, 16.0);
   EXPECT_GT(per_voxel, 8.5);
+}
+
+// The value planes hold a slice as it came: 2 bytes a voxel for 8- and 16-bit input, not a
+// float (4.6 bytes a voxel with the sign bits and word counts, not 8.6: 16 MiB less a 2048²
+// uint16 stream), and the mesh is the one the floats give.
+TEST(Extraction, PlaneCachesKeepIntegerSlicesInSixteenBits) {
+  constexpr int64_t n = 256, nz = 4;
+  ExtractorConfig cfg{n, n, nz, {1, 1, 1}, {0, 0, 0}, 30000.5};
+  std::vector<uint16_t> slice(size_t(n * n));
+  std::vector<float> as_float(slice.size());
+  MeshStore ints, floats;
+  LayerExtractor by_int(cfg, &ints), by_float(cfg, &floats);
+  const double w = 2 * M_PI / 16;
+  for (int64_t k = 0; k < nz; ++k) {
+    for (int64_t j = 0; j < n; ++j) {
+      for (int64_t i = 0; i < n; ++i) {
+        const double g = std::sin(w * i) * std::cos(w * j) + std::sin(w * j) * std::cos(w * k) +
+                         std::sin(w * k) * std::cos(w * i);
+        slice[size_t(j * n + i)] = uint16_t(std::lround((g + 1.5) * 20000));
+        as_float[size_t(j * n + i)] = float(slice[size_t(j * n + i)]);
+      }
+    }
+    ASSERT_TRUE(by_int.ComputeLayer(SliceValues{reinterpret_cast<const uint8_t*>(slice.data()),
+                                                DType::kUInt16}).ok());
+    by_int.CommitLayer();
+    ASSERT_TRUE(by_float.AddSlice(as_float.data()).ok());
+  }
+  const double ints_per_voxel = double(by_int.PlaneBytes(DType::kUInt16)) / double(n * n);
+  const double floats_per_voxel = double(by_float.PlaneBytes(DType::kFloat32)) / double(n * n);
+  EXPECT_LT(ints_per_voxel, 4.7);
+  EXPECT_NEAR(floats_per_voxel - ints_per_voxel, 4.0, 0.01);
+  EXPECT_GT(ints.num_triangles(), size_t(n) * n / 4);
+  EXPECT_EQ(ints.Snapshot().positions, floats.Snapshot().positions);
+  EXPECT_EQ(ints.Snapshot().indices, floats.Snapshot().indices);
 }
 
 // A freed incidence slot merges with its free twin, so the slots that dead vertices leave
