@@ -33,18 +33,19 @@ void VertexNormals(const MeshStore& store, std::span<const VertexId> verts,
                    std::span<Vec3> normal);
 
 // Vertex normals by vertex id: normal[v], or, kept compactly (the sealer keeps those of its
-// frozen vertices only), normal[slot[v]], 0 where slot[v] is kInvalid.
+// frozen vertices only), normal[*slot.Find(v)], 0 where v has none.
 struct VertexNormalTable {
   VertexNormalTable(std::span<const Vec3> by_id) : normal(by_id) {}  // NOLINT: implicit
   VertexNormalTable(const std::vector<Vec3>& by_id) : normal(by_id) {}  // NOLINT: implicit
-  VertexNormalTable(std::span<const Vec3> compact, std::span<const uint32_t> slots)
+  VertexNormalTable(std::span<const Vec3> compact, const IdMap<uint32_t>* slots)
       : normal(compact), slot(slots) {}
   Vec3 operator[](VertexId v) const {
-    if (slot.empty()) return normal[v];
-    return slot[v] == kInvalid ? Vec3{} : normal[slot[v]];
+    if (slot == nullptr) return normal[v];
+    const uint32_t* s = slot->Find(v);
+    return s == nullptr ? Vec3{} : normal[*s];
   }
   std::span<const Vec3> normal;
-  std::span<const uint32_t> slot;  // empty: normal is indexed by vertex id
+  const IdMap<uint32_t>* slot = nullptr;  // null: normal is indexed by vertex id
 };
 
 // Scratch of CorrectSagAt, kept by the caller between calls.

@@ -84,51 +84,42 @@ Sealer::Sealer(MeshStore* store, Simplifier* simplifier, double margin, double s
       next_id_(id_first),
       id_stride_(id_stride) {}
 
-void Sealer::EnsureCapacity() {
-  const size_t n = store_->vertex_capacity();
-  if (id_.size() >= n) return;
-  GrowTo(id_, n, kInvalid);
-  GrowTo(stamp_, n, 0u);
-  GrowTo(normal_slot_, n, kInvalid);
-}
-
 void Sealer::SetNormal(VertexId v, Vec3 n) {
-  uint32_t& slot = normal_slot_[v];
-  if (slot == kInvalid) slot = normals_.Take();
-  normals_[slot] = n;
+  uint32_t* slot = normal_slot_.Find(v);
+  if (slot == nullptr) slot = &(normal_slot_.At(v) = normals_.Take());
+  normals_[*slot] = n;
 }
 
 void Sealer::ReleaseNormal(VertexId v) {
-  uint32_t& slot = normal_slot_[v];
-  if (slot == kInvalid) return;
-  normals_.Release(slot);
-  slot = kInvalid;
+  const uint32_t* slot = normal_slot_.Find(v);
+  if (slot == nullptr) return;
+  normals_.Release(*slot);
+  normal_slot_.Erase(v);
 }
 
 void Sealer::AddVertices(std::span<const VertexId> verts) {
-  EnsureCapacity();
   for (VertexId v : verts) {  // ids of sealed vertices are recycled
-    id_[v] = kInvalid;
     ReleaseNormal(v);
+    kept_.Erase(v);
   }
   active_.insert(active_.end(), verts.begin(), verts.end());
 }
 
-uint32_t Sealer::IdOf(VertexId v) {
-  if (id_[v] == kInvalid) {
+Sealer::Kept& Sealer::HandOut(VertexId v) {
+  Kept& k = kept_.At(v);
+  if (k.id == kInvalid) {
     if (next_id_ > std::numeric_limits<uint32_t>::max() - id_stride_) {
       throw std::overflow_error("a sealed session ran out of 32-bit vertex ids");
     }
-    id_[v] = next_id_;
+    k.id = next_id_;
     next_id_ += id_stride_;
     ++handed_out_;
-    stamp_[v] = 0;
+    k.stamp = 0;
   }
-  return id_[v];
+  return k;
 }
 
 void Sealer::Seal(double front) {
-  EnsureCapacity();
   const bool all = front == std::numeric_limits<double>::infinity();
   // 1. Freeze. Contractions keep one end's id, so every live unfrozen vertex is in active_;
   // dead ids are dropped here, before the next EXTRACT can hand them out again.
@@ -203,7 +194,7 @@ void Sealer::Seal(double front) {
       for (VertexId v : store_->triangle(t)) need_.push_back(v);
     }
     const DegenerateCounts mended = simplifier_->TidyDegenerateAmong(
-        tris_, [this](VertexId v) { return id_[v] == kInvalid; });
+        tris_, [this](VertexId v) { return id(v) == kInvalid; });
     // A zero-area triangle that seals later, at a corner handed out now: mended now, while
     // that corner may still move (frozen, but without an id), the others staying where they
     // are and the topology too. Left for later, both its coincident corners could be handed
@@ -211,7 +202,7 @@ void Sealer::Seal(double front) {
     later_.clear();
     for (TriId t : tris_) {
       for (VertexId v : store_->triangle(t)) {
-        if (id_[v] != kInvalid) continue;
+        if (id(v) != kInvalid) continue;
         for (TriId u : store_->vertex_triangles(v)) later_.push_back(u);
       }
     }
@@ -219,7 +210,7 @@ void Sealer::Seal(double front) {
     later_.erase(std::unique(later_.begin(), later_.end()), later_.end());
     simplifier_->TidyDegenerateAmong(
         later_,
-        [this](VertexId v) { return id_[v] == kInvalid && (store_->box_mask(v) & kFrozen); },
+        [this](VertexId v) { return id(v) == kInvalid && (store_->box_mask(v) & kFrozen); },
         /*flips=*/false);
     if (mended.flipped > 0) {
       need_.insert(need_.end(), freeze_.begin(), freeze_.end());
@@ -229,12 +220,12 @@ void Sealer::Seal(double front) {
   drop_.assign(freeze_.begin(), freeze_.end());
   for (TriId t : tris_) {
     for (VertexId v : store_->triangle(t)) {
-      const uint32_t id = IdOf(v);
-      if (stamp_[v] != chunk_stamp_) {
-        stamp_[v] = chunk_stamp_;
-        pend_verts_.push_back({id, store_->height(v), store_->position(v)});
+      Kept& k = HandOut(v);
+      if (k.stamp != chunk_stamp_) {
+        k.stamp = chunk_stamp_;
+        pend_verts_.push_back({k.id, store_->height(v), store_->position(v)});
       }
-      pend_tris_.push_back(id);
+      pend_tris_.push_back(k.id);
       drop_.push_back(v);
     }
   }
@@ -253,8 +244,10 @@ void Sealer::Seal(double front) {
       store_->RemoveVertex(v);
       if (simplifier_ != nullptr) simplifier_->DropQuadric(v);
       ReleaseNormal(v);
-      if (id_[v] != kInvalid) pend_retired_.push_back(id_[v]);
-      id_[v] = kInvalid;
+      if (const Kept* k = kept_.Find(v)) {
+        if (k->id != kInvalid) pend_retired_.push_back(k->id);
+        kept_.Erase(v);
+      }
     }
   }
 }
@@ -273,10 +266,10 @@ bool Sealer::NextToSeam(VertexId v) const {
 }
 
 void Sealer::FreezeShared(VertexId v, uint32_t id, double shape_error) {
-  EnsureCapacity();
   max_shape_error_ = std::max(max_shape_error_, shape_error);
-  id_[v] = id;
-  stamp_[v] = 0;
+  Kept& k = kept_.At(v);
+  k.id = id;
+  k.stamp = 0;
   if (simplifier_ != nullptr) {
     SetNormal(v, VertexNormal(*store_, v, &fan_));  // its side's fan
     simplifier_->Freeze(v);
@@ -343,20 +336,24 @@ bool Sealer::TakeChunk(SealedChunk* out) {
 
 void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
                     std::span<const VertexId> welded) {
-  EnsureCapacity();
   const MeshStore& src = *other.store_;
   std::vector<bool> skip(src.vertex_capacity(), false);
   for (VertexId v : welded) skip[v] = true;
   for (VertexId v = 0; v < src.vertex_capacity() && v < map.size(); ++v) {
     if (!src.vertex_alive(v) || map[v] == kInvalid || skip[v]) continue;
     const VertexId w = map[v];
-    id_[w] = other.id_[v];
-    // In the other's pending chunk: in this one's now (a vertex is listed once a chunk).
-    stamp_[w] = other.stamp_[v] == other.chunk_stamp_ ? chunk_stamp_ : 0;
-    if (const uint32_t slot = other.normal_slot_[v]; slot != kInvalid) {
-      SetNormal(w, other.normals_[slot]);
+    if (const uint32_t* slot = other.normal_slot_.Find(v)) {
+      SetNormal(w, other.normals_[*slot]);
     } else {
       ReleaseNormal(w);
+    }
+    if (const Kept* from = other.kept_.Find(v)) {
+      Kept& k = kept_.At(w);
+      k.id = from->id;
+      // In the other's pending chunk: in this one's now (a vertex is listed once a chunk).
+      k.stamp = from->stamp == other.chunk_stamp_ ? chunk_stamp_ : 0;
+    } else {
+      kept_.Erase(w);
     }
   }
   for (VertexId v : other.active_) {
@@ -377,8 +374,8 @@ void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
 }
 
 size_t Sealer::MemoryBytes() const {
-  return active_.capacity() * sizeof(VertexId) + id_.MemoryBytes() + stamp_.MemoryBytes() +
-         normal_slot_.MemoryBytes() + normals_.MemoryBytes() + fan_.capacity() * sizeof(uint32_t) +
+  return active_.capacity() * sizeof(VertexId) + kept_.MemoryBytes() + normal_slot_.MemoryBytes() +
+         normals_.MemoryBytes() + fan_.capacity() * sizeof(uint32_t) +
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
          pend_verts_.capacity() * sizeof(PendingVertex) +

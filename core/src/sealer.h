@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "tandem/mesh.h"
+#include "id_index.h"
 #include "mesh_store.h"
 #include "pod_array.h"
 #include "sag_correction.h"
@@ -72,7 +73,10 @@ class Sealer {
   // whose ids the next EXTRACT may hand out again.
   void DropDead();
   // v's global id; kInvalid before one was handed out.
-  uint32_t id(VertexId v) const { return v < id_.size() ? id_[v] : kInvalid; }
+  uint32_t id(VertexId v) const {
+    const Kept* k = kept_.Find(v);
+    return k != nullptr ? k->id : kInvalid;
+  }
 
   int64_t sealed_triangles() const { return sealed_triangles_; }
   int64_t pending_triangles() const { return static_cast<int64_t>(pend_tris_.size() / 3); }
@@ -82,13 +86,13 @@ class Sealer {
   size_t MemoryBytes() const;
 
  private:
-  void EnsureCapacity();
   // tris_ = the live triangles around `around` whose three corners are frozen, by id.
   void GatherSealable(std::span<const VertexId> around);
-  uint32_t IdOf(VertexId v);  // its global id, handed out on first use
-  void SetNormal(VertexId v, Vec3 n);  // normals_[normal_slot_[v]] = n, taking a slot
+  struct Kept;
+  Kept& HandOut(VertexId v);  // its global id (Kept::id), handed out on first use
+  void SetNormal(VertexId v, Vec3 n);  // normals_[its slot] = n, taking a slot
   void ReleaseNormal(VertexId v);      // its slot, if it has one, is free again
-  VertexNormalTable Normals() const { return {normals_.values(), normal_slot_}; }
+  VertexNormalTable Normals() const { return {normals_.values(), &normal_slot_}; }
   bool NextToSeam(VertexId v) const;  // some triangle at v has a seam vertex
 
   struct PendingVertex {
@@ -100,17 +104,19 @@ class Sealer {
   Simplifier* simplifier_;
   double margin_, sag_fraction_;
   std::vector<VertexId> active_;  // unfrozen vertices (dead ones are dropped by Seal)
-  // Per store vertex, grown as the store's arrays are (by eighths, pages of their own). As
-  // std::vectors they doubled and held up to twice the store's vertices: mid-stream, a closed
-  // 2048² period-32 gyroid's sealed stream counted 43 MiB a part of sealer, 33 MiB now.
-  PodArray<uint32_t> id_;      // global id, kInvalid before its first sealed triangle
-  PodArray<uint32_t> stamp_;   // the pending chunk it was last added to
-  // Normals, compactly: normals_[normal_slot_[v]]. A frozen vertex keeps the normal it froze
-  // with while it is in the store (its unfrozen neighbours' sag reads it); the unfrozen
-  // neighbours' are found again at each Seal and let go. Held by vertex id (24 bytes each)
-  // they were two thirds of the sealer: 22 MiB a part at the closed period-32 2048² gyroid's
-  // cap, for a few thousand frozen vertices in the store at a time.
-  PodArray<uint32_t> normal_slot_;  // kInvalid: none
+  // What the sealer keeps of a vertex, for the few in the store that have any: a frozen
+  // vertex's global id (none before its first sealed triangle) and the pending chunk it was
+  // last added to; and the slot of the normal it froze with, which it keeps while it is in
+  // the store (its unfrozen neighbours' sag reads it; theirs are found again at each Seal and
+  // let go). By vertex id, in arrays, they took 12 bytes an id, 10.6 MiB a part at the
+  // closing cap of a closed 2048² gyroid, for a few thousand frozen vertices (stop 56); as
+  // std::vectors that doubled, 43 MiB (stop 52); normals by id, 22 MiB (stop 53).
+  struct Kept {
+    uint32_t id = kInvalid;
+    uint32_t stamp = 0;
+  };
+  IdMap<Kept> kept_;
+  IdMap<uint32_t> normal_slot_;
   SlotPool<Vec3> normals_;
   std::vector<TriId> fan_;  // VertexNormal's scratch
   // Scratch.

@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <memory>
 #include <numbers>
 #include <tuple>
@@ -209,6 +210,40 @@ TEST(IdIndex, FindsTheListedIdsInATableOrBySlot) {
   EXPECT_EQ(index.Find(5), 2u);
   index.Clear();
   EXPECT_EQ(index.Find(5), kInvalid);
+}
+
+// IdMap against std::map under a random mix of inserts and erases (erasing moves later
+// entries of a probe run back into the hole: every key must still be found after).
+TEST(IdMap, AgreesWithAnOrderedMapUnderInsertsAndErases) {
+  IdMap<uint32_t> map;
+  std::map<VertexId, uint32_t> expected;
+  uint64_t x = 12345;
+  auto next = [&x] {
+    x = x * 6364136223846793005u + 1442695040888963407u;
+    return static_cast<uint32_t>(x >> 33);
+  };
+  for (int step = 0; step < 200000; ++step) {
+    const VertexId v = next() % 5000;  // few keys: long runs, many collisions
+    if (next() % 3 == 0) {
+      map.Erase(v);
+      expected.erase(v);
+    } else {
+      map.At(v) = static_cast<uint32_t>(step);
+      expected[v] = static_cast<uint32_t>(step);
+    }
+    if (step % 1000 == 0) {
+      ASSERT_EQ(map.size(), expected.size());
+      for (VertexId k = 0; k < 5000; ++k) {
+        const uint32_t* found = map.Find(k);
+        const auto it = expected.find(k);
+        ASSERT_EQ(found != nullptr, it != expected.end()) << k << " at step " << step;
+        if (found != nullptr) {
+          ASSERT_EQ(*found, it->second);
+        }
+      }
+    }
+  }
+  EXPECT_LE(map.MemoryBytes(), 8192 * 8u);  // at most half full: 4096 to 8192 slots
 }
 
 TEST(SagCorrection, LeavesFlatFansBoxVerticesAndFractionZeroAlone) {
