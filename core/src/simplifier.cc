@@ -402,7 +402,11 @@ void Simplifier::ActivateAndSimplify(double front) {
   // readiness, so a sweep of W (below) changes nothing.
   const auto stale = [this](const WEdge& e) { return Stale(e); };
   erase_if(released_, stale);
-  const size_t chunk = opt_.release_chunk;
+  // At most 65,535 chunks (ready_ holds 16 bits): only a release of more than 4 G edges, or
+  // a test's tiny chunks, takes larger ones.
+  const size_t chunk = opt_.release_chunk == 0
+                           ? 0
+                           : std::max(opt_.release_chunk, (released_.size() + 65534) / 65535);
   if (chunk == 0 || released_.size() <= chunk) {
     for (const WEdge& e : released_) AddToBatch(e.a, e.b, /*released=*/true);
     FlushBatch();
@@ -425,7 +429,7 @@ void Simplifier::ActivateAndSimplify(double front) {
   const auto groups = static_cast<uint32_t>((n + chunk - 1) / chunk);
   ready_.assign(store_->vertex_capacity(), 0);
   for (size_t i = 0; i < n; ++i) {
-    ready_[released_[i].a] = ready_[released_[i].b] = static_cast<uint32_t>(i / chunk);
+    ready_[released_[i].a] = ready_[released_[i].b] = static_cast<uint16_t>(i / chunk);
   }
   // Last edge first, so that each chunk, once taken, is cut off the end and its pages go
   // back (a PodArray shrinks in place): the release and the edges its chunks leave for later

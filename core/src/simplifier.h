@@ -363,10 +363,11 @@ class Simplifier {
   std::vector<RefusedEdge> refused_;
   WaitingQueue w_;
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
-  // (empty otherwise: every vertex ready); the edges of each chunk still to come; the chunk
+  // (empty otherwise: every vertex ready; 16 bits, a release has at most 65,535 chunks: 2 MiB
+  // less a part at a 2048² cap, stop 56); the edges of each chunk still to come; the chunk
   // being simplified.
   PodArray<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
-  PodArray<uint32_t> ready_;
+  PodArray<uint16_t> ready_;
   std::vector<PodArray<WEdge>> groups_;
   uint32_t group_ = 0;
   std::vector<VertexId> scratch_;
