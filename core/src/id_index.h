@@ -6,11 +6,13 @@
 // that corner is one of the few thousand vertices it moves. A 4-byte slot per vertex id answered
 // that at 3.6 MiB a part of a 2048² stream, held between Seals for lists of a few thousand
 // (docs/decisions.md, stop 56). A short list goes into an open-addressing table at most half
-// full (8 bytes an entry, so 16 to 32 bytes a listed vertex); a list of a quarter of the ids or
-// more (the final pass over the whole mesh) takes the slot per id, which is then the smaller.
+// full (an IdMap, 8 bytes an entry, so 16 to 32 bytes a listed vertex); a list of a quarter of
+// the ids or more (the final pass over the whole mesh) takes the slot per id, which is then
+// the smaller.
 #ifndef TANDEM_ID_INDEX_H_
 #define TANDEM_ID_INDEX_H_
 
+#include <algorithm>
 #include <bit>
 #include <cstdint>
 #include <span>
@@ -20,63 +22,6 @@
 #include "tandem/types.h"
 
 namespace tandem {
-
-class IdIndex {
- public:
-  // ids[i] -> i for the ids of `ids` (the last i for an id listed twice), all below `capacity`
-  // (the store's vertex ids).
-  void Assign(std::span<const VertexId> ids, uint32_t capacity) {
-    Clear();
-    if (ids.size() >= capacity / 4) {
-      if (dense_.size() < capacity) dense_.resize(capacity, kInvalid);
-      for (size_t i = 0; i < ids.size(); ++i) dense_[ids[i]] = static_cast<uint32_t>(i);
-      dense_ids_ = ids;
-      return;
-    }
-    int bits = 4;
-    while ((size_t{1} << bits) < 2 * ids.size()) ++bits;
-    table_.assign(size_t{1} << bits, Entry{});
-    mask_ = static_cast<uint32_t>(table_.size() - 1);
-    shift_ = 32 - bits;
-    for (size_t i = 0; i < ids.size(); ++i) {
-      uint32_t h = Hash(ids[i]);
-      while (table_[h].id != kInvalid && table_[h].id != ids[i]) h = (h + 1) & mask_;
-      table_[h] = Entry{ids[i], static_cast<uint32_t>(i)};
-    }
-  }
-  // ids[i] for the list assigned last, kInvalid for an id not in it.
-  uint32_t Find(VertexId v) const {
-    if (!dense_ids_.empty()) return dense_[v];
-    if (table_.empty()) return kInvalid;
-    for (uint32_t h = Hash(v);; h = (h + 1) & mask_) {
-      if (table_[h].id == v) return table_[h].index;
-      if (table_[h].id == kInvalid) return kInvalid;
-    }
-  }
-  // Forgets the list (the table's capacity stays for the next one).
-  void Clear() {
-    for (VertexId v : dense_ids_) dense_[v] = kInvalid;
-    dense_ids_ = {};
-    table_.clear();
-  }
-  size_t MemoryBytes() const {
-    return dense_.capacity() * sizeof(uint32_t) + table_.capacity() * sizeof(Entry);
-  }
-
- private:
-  struct Entry {
-    VertexId id = kInvalid;
-    uint32_t index = kInvalid;
-  };
-  // Fibonacci hashing: the product's top bits (ids of a layer are runs of consecutive ids).
-  uint32_t Hash(VertexId v) const { return (v * 0x9E3779B1u) >> shift_; }
-
-  std::vector<uint32_t> dense_;  // per id, for a long list
-  std::span<const VertexId> dense_ids_;  // the long list in dense_, to clear it
-  std::vector<Entry> table_;
-  uint32_t mask_ = 0;
-  int shift_ = 32;
-};
 
 // A value for each of a few vertex ids, where an array by id would hold mostly nothing: the
 // sealer's frozen vertices in the store, a few thousand of a part's million ids, took 12 bytes
@@ -122,6 +67,12 @@ class IdMap {
     slots_[hole] = Slot{};
     --size_;
   }
+  // Empties the map (its capacity stays).
+  void Clear() {
+    if (size_ == 0) return;
+    std::fill(slots_.begin(), slots_.end(), Slot{});
+    size_ = 0;
+  }
   size_t size() const { return size_; }
   size_t MemoryBytes() const { return slots_.capacity() * sizeof(Slot); }
 
@@ -130,6 +81,7 @@ class IdMap {
     VertexId key = kInvalid;
     V value{};
   };
+  // Fibonacci hashing: the product's top bits (ids of a layer are runs of consecutive ids).
   uint32_t Hash(VertexId v) const { return (v * 0x9E3779B1u) >> shift_; }
   void Rehash(size_t size) {
     std::vector<Slot> old(size);
@@ -148,6 +100,41 @@ class IdMap {
   uint32_t mask_ = 0;
   int shift_ = 32;
   size_t size_ = 0;
+};
+
+// ids[i] -> i for a list: an IdMap for a short list, a slot per id for a long one.
+class IdIndex {
+ public:
+  // ids[i] -> i for the ids of `ids` (the last i for an id listed twice), all below `capacity`
+  // (the store's vertex ids).
+  void Assign(std::span<const VertexId> ids, uint32_t capacity) {
+    Clear();
+    if (ids.size() >= capacity / 4) {
+      if (dense_.size() < capacity) dense_.resize(capacity, kInvalid);
+      for (size_t i = 0; i < ids.size(); ++i) dense_[ids[i]] = static_cast<uint32_t>(i);
+      dense_ids_ = ids;
+      return;
+    }
+    for (size_t i = 0; i < ids.size(); ++i) table_.At(ids[i]) = static_cast<uint32_t>(i);
+  }
+  // ids[i] for the list assigned last, kInvalid for an id not in it.
+  uint32_t Find(VertexId v) const {
+    if (!dense_ids_.empty()) return dense_[v];
+    const uint32_t* i = table_.Find(v);
+    return i != nullptr ? *i : kInvalid;
+  }
+  // Forgets the list (the table's capacity stays for the next one).
+  void Clear() {
+    for (VertexId v : dense_ids_) dense_[v] = kInvalid;
+    dense_ids_ = {};
+    table_.Clear();
+  }
+  size_t MemoryBytes() const { return dense_.capacity() * sizeof(uint32_t) + table_.MemoryBytes(); }
+
+ private:
+  std::vector<uint32_t> dense_;  // per id, for a long list
+  std::span<const VertexId> dense_ids_;  // the long list in dense_, to clear it
+  IdMap<uint32_t> table_;
 };
 
 }  // namespace tandem

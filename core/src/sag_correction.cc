@@ -116,8 +116,8 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
       if (Dot(n_old, n_old) == 0.0) continue;  // already degenerate: no orientation to keep
       if (MovedCornerKeepsOrientation(n_old, now(tri[0]), now(tri[1]), now(tri[2]))) continue;
       for (VertexId v : tri) {
-        if (is_moving(v)) {
-          moving[scratch->slot.Find(v)] = 0;
+        if (const uint32_t i = scratch->slot.Find(v); i != kInvalid && moving[i]) {
+          moving[i] = 0;
           again = true;
         }
       }
