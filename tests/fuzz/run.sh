@@ -87,7 +87,7 @@ for t in "${targets[@]}"; do
   if compgen -G "$kept/*" >/dev/null; then
     if ! ASAN_OPTIONS="$target_asan" "$bin" -runs=1 "$kept"/* </dev/null >"$log.replay" 2>&1; then
       echo "FAIL $t: an input in $kept/ still crashes:"
-      grep -E "ERROR|SUMMARY|violation|Running:" "$log.replay" | head -n 8
+      grep -E "^fuzz_[a-z_]+: |ERROR|SUMMARY|violation|Running:" "$log.replay" | head -n 8
       failed+=("$t")
       continue
     fi
@@ -117,7 +117,7 @@ for t in "${targets[@]}"; do
   runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log")
   if [ $rc -ne 0 ]; then
     echo "FAIL $t (exit $rc after ${runs:-?} runs); log: $log"
-    grep -E "ERROR|SUMMARY|violation|#[0-9]+ 0x.* in " "$log" | head -n 20
+    grep -E "^fuzz_[a-z_]+: |ERROR|SUMMARY|violation|#[0-9]+ 0x.* in " "$log" | head -n 20
     mkdir -p "$kept"
     for a in "$artifacts"*; do
       [ -f "$a" ] && cp "$a" "$kept/" && echo "     kept $kept/$(basename "$a")"
