@@ -29,7 +29,9 @@ struct RefusalCounts {
 };
 
 struct PhaseTimes {
-  double extract_s = 0, simplify_s = 0;  // CPU-side time of each phase
+  // CPU time of each phase, summed over the threads that ran it (so at most the process's
+  // CPU time, whatever the parts and cores).
+  double extract_s = 0, simplify_s = 0;
   double total_s = 0;  // wall time spent inside AddSlice/Finish (< the sum when pipelined)
 };
 

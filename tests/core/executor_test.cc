@@ -1,7 +1,12 @@
 // The executor (executor.h): every task runs once, waiting helps, nested waits cannot deadlock,
 // and a session works only on the executor it is given: it starts no thread of its own, and its
-// mesh does not depend on how many threads the executor has.
+// mesh does not depend on how many threads the executor has. Its phase times are CPU time,
+// however many threads share the cores.
 #include <dirent.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <stdexcept>
@@ -121,6 +126,60 @@ TEST(Executor, SessionsShareOneExecutor) {
     EXPECT_EQ(m.positions, alone.positions);
     EXPECT_EQ(m.indices, alone.indices);
   }
+}
+
+double ProcessCpuSeconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+}
+
+TEST(Executor, PhaseTimesAreCpuTimeHoweverManyThreadsShareTheCores) {
+  // Eight parts on four times as many threads as there are cores, each simplifying its whole
+  // surface at the end (classical), beside a busy process on every core: timed by the wall
+  // clock, each part's SIMPLIFY also counted its waits for a core, and the phases summed to
+  // more than the process's CPU time. (In lock-step each step is too short to be preempted
+  // often.)
+  const int cores = static_cast<int>(std::max(2u, std::thread::hardware_concurrency()));
+  Executor many(4 * cores);
+  struct Busy {
+    std::vector<pid_t> pids;
+    ~Busy() {  // also when an assertion below returns early
+      for (pid_t pid : pids) kill(pid, SIGKILL);
+      for (pid_t pid : pids) waitpid(pid, nullptr, 0);
+    }
+  } busy;
+  for (int i = 0; i < cores; ++i) {
+    const pid_t pid = fork();
+    if (pid == 0) {
+      alarm(60);  // whatever happens to the test
+      std::atomic<uint64_t> spins{0};
+      for (;;) spins.fetch_add(1, std::memory_order_relaxed);
+    }
+    if (pid > 0) busy.pids.push_back(pid);
+  }
+  auto src = MakeSyntheticSource(Shape::kGyroid, 384, 384, 48);
+  SessionOptions o;
+  o.error = 0.2;
+  o.parts = 8;
+  o.pipeline = true;
+  o.schedule = Schedule::kClassical;
+  auto session = TandemSession::Create(src->info(), o, &many);
+  ASSERT_TRUE(session.ok()) << session.status();
+  std::vector<std::vector<uint8_t>> slices;  // read before: the field's sines are no phase
+  for (std::vector<uint8_t> bytes; src->ReadSlice(&bytes).ok();) slices.push_back(bytes);
+  const double cpu0 = ProcessCpuSeconds();
+  for (const auto& bytes : slices) {
+    ASSERT_TRUE((*session)->AddSliceBytes(src->info().dtype, bytes.data()).ok());
+  }
+  ASSERT_TRUE((*session)->Finish().ok());
+  const double cpu = ProcessCpuSeconds() - cpu0;
+  const PhaseTimes& t = (*session)->stats().time;
+  EXPECT_GT(t.extract_s, 0.0);
+  EXPECT_GT(t.simplify_s, 0.0);
+  EXPECT_LE(t.extract_s + t.simplify_s, cpu + 0.01)  // 10 ms: a clock tick or so of slack
+      << "extract " << t.extract_s << " s, simplify " << t.simplify_s << " s, process CPU " << cpu
+      << " s";
 }
 
 }  // namespace
