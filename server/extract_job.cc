@@ -552,10 +552,16 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
       "session memory budget exceeded: this stream needs %.1f MiB %s (mesh, simplification "
       "queues, slice buffers%s), over this server's per-session budget of %.1f MiB "
       "(tandem-server --session-memory-mb). Use a larger E0, a target triangle count or a "
-      "smaller grid%s, or ask the operator to raise --session-memory-mb",
+      "smaller grid%s%s, or ask the operator to raise --session-memory-mb",
       static_cast<double>(bytes) / kMiB, when,
       reference_ ? ", and the full-resolution reference of compute_distances" : "",
-      static_cast<double>(budget) / kMiB, reference_ ? ", drop compute_distances" : ""));
+      static_cast<double>(budget) / kMiB, reference_ ? ", drop compute_distances" : "",
+      // Without sealing the simplified mesh stays in the session: its memory grows with the
+      // slices (none yet: the grid's own buffers, which sealing does not change).
+      config_.options.seal || cursor_.slice == 0
+          ? ""
+          : ", stream with sealed chunks (tandem-client --seal, SessionConfig.sealed_chunks: "
+            "the session then holds the front, not the whole mesh)"));
 }
 
 size_t ExtractJob::MemoryBytes() const {

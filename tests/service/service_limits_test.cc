@@ -247,6 +247,8 @@ TEST(LimitsTest, JobEnforcesTheMemoryBudget) {
     EXPECT_NE(st.message().find("budget of 1.0 MiB (tandem-server --session-memory-mb)"),
               std::string::npos)
         << st;
+    EXPECT_EQ(st.message().find("sealed chunks"), std::string::npos)
+        << "sealing does not shrink a grid's buffers: " << st;
   }
   {
     NullSink sink;
@@ -318,6 +320,11 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
             std::string::npos)
       << big_outcome.status.error_message();
   EXPECT_NE(big_outcome.status.error_message().find("after slice"), std::string::npos);
+  // Not sealed: its memory grew with the mesh, and the message says what would not.
+  EXPECT_NE(big_outcome.status.error_message().find(
+                "stream with sealed chunks (tandem-client --seal"),
+            std::string::npos)
+      << big_outcome.status.error_message();
   EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
   EXPECT_EQ(counters.sessions_finished(), 2);
   EXPECT_EQ(s.Health(), "SERVING");
