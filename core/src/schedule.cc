@@ -3,21 +3,26 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <ctime>
 #include <limits>
+
+#include "thread_clock.h"
 
 namespace tandem {
 namespace {
 
-// A phase's time is the CPU time of the thread that ran it. The parts and the extraction
-// beside their SIMPLIFY run on more threads than a small machine has cores, and their wall
-// times counted every wait for a core: a 4-part 2048² stream on 2 cores reported 242 s of
-// "simplify" in a run of about 70 s.
-double ThreadSeconds() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
+// A phase's time is CPU time: the phase's own thread's, and what the batch evaluations it
+// handed to the executor took on other threads (Simplifier::TakeHelperSeconds).
+class PhaseClock {
+ public:
+  explicit PhaseClock(Simplifier& s) : s_(s), t0_(ThreadCpuSeconds()) {
+    (void)s_.TakeHelperSeconds();  // spent outside any phase
+  }
+  double Seconds() const { return ThreadCpuSeconds() - t0_ + s_.TakeHelperSeconds(); }
+
+ private:
+  Simplifier& s_;
+  double t0_;
+};
 
 bool Lockstep(Schedule s) { return s == Schedule::kTandem || s == Schedule::kTandemLag; }
 
@@ -87,13 +92,13 @@ void FollowTarget(Slab& s) {
 // DELAY(k); ACTIVATE(k); SIMPLIFY(E0) for the layer extracted last, whose top plane is the
 // front; sealing: then everything the front has left behind for good.
 void SimplifyLayer(Slab& s) {
-  const double t0 = ThreadSeconds();
+  const PhaseClock clock(s.simplifier);
   const double front = static_cast<double>(s.pending_front);
   s.simplifier.Delay(s.new_tris);
   s.simplifier.ActivateAndSimplify(front);
   if (s.target) FollowTarget(s);
   if (s.sealer) s.sealer->Seal(front);
-  s.time.simplify_s += ThreadSeconds() - t0;
+  s.time.simplify_s += clock.Seconds();
   s.trace.push_back(static_cast<int64_t>(s.store.num_triangles()));
 }
 
@@ -224,10 +229,10 @@ void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target
     const double step = rise.Step(now, goal, kFinalStep);
     const double e = From(error, next) * step;
     for_each([&](Slab& s) {
-      const double t0 = ThreadSeconds();
+      const PhaseClock clock(s.simplifier);
       s.simplifier.RaiseError(e);
       s.simplifier.Simplify(share[s.index]);
-      s.time.simplify_s += ThreadSeconds() - t0;
+      s.time.simplify_s += clock.Seconds();
     });
     const double after = count();
     rise.After(step, now - after, now - goal);
@@ -246,10 +251,10 @@ void FinishAtError(std::span<const std::unique_ptr<Slab>> slabs, double error,
   // edge again at each rise (no dropped-edge lists in E0 runs: docs/decisions.md).
   for_each([error](Slab& s) {
     if (s.simplifier.error() < error) {
-      const double t0 = ThreadSeconds();
+      const PhaseClock clock(s.simplifier);
       s.simplifier.RaiseError(error);
       s.simplifier.Simplify();
-      s.time.simplify_s += ThreadSeconds() - t0;
+      s.time.simplify_s += clock.Seconds();
     }
   });
   for (const auto& s : slabs) s->trace.push_back(static_cast<int64_t>(s->store.num_triangles()));
@@ -259,9 +264,9 @@ absl::Status StepSlab(Slab& s, SliceValues values, Schedule schedule, const Over
   absl::Status extracted;
   double extract_s = 0;
   auto extract = [&] {  // the first half of EXTRACT(k): reads the extractor's own state only
-    const double t0 = ThreadSeconds();
+    const double t0 = ThreadCpuSeconds();
     extracted = s.extractor.ComputeLayer(values);
-    extract_s = ThreadSeconds() - t0;
+    extract_s = ThreadCpuSeconds() - t0;
   };
   if (s.simplify_pending) {
     overlap([&] { SimplifyLayer(s); }, extract);  // layer k-1's step beside EXTRACT(k)
@@ -270,9 +275,9 @@ absl::Status StepSlab(Slab& s, SliceValues values, Schedule schedule, const Over
   }
   s.simplify_pending = false;
   if (!extracted.ok()) return extracted;
-  const double t1 = ThreadSeconds();
+  const PhaseClock insert(s.simplifier);
   InsertLayer(s, schedule);
-  s.time.extract_s += extract_s + ThreadSeconds() - t1;
+  s.time.extract_s += extract_s + insert.Seconds();
   s.trace.push_back(static_cast<int64_t>(s.store.num_triangles()));
   if (Lockstep(schedule)) {  // DELAY(k); ACTIVATE(k); SIMPLIFY(E0): at the next step
     s.simplify_pending = true;
@@ -286,7 +291,7 @@ void FinishSlab(Slab& s, Schedule schedule) {
   s.simplify_pending = false;
   s.extractor.Finish();
   if (schedule == Schedule::kNone) return;
-  const double t0 = ThreadSeconds();
+  const PhaseClock clock(s.simplifier);
   if (schedule == Schedule::kClassical) {
     // INSERT every edge of the full-resolution surface, then one SIMPLIFY.
     std::vector<TriId> all;
@@ -297,7 +302,7 @@ void FinishSlab(Slab& s, Schedule schedule) {
     s.simplifier.Delay(all);
   }
   s.simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
-  s.time.simplify_s += ThreadSeconds() - t0;
+  s.time.simplify_s += clock.Seconds();
 }
 
 int64_t FinishWhole(Slab& whole, const SessionOptions& options,
@@ -306,18 +311,18 @@ int64_t FinishWhole(Slab& whole, const SessionOptions& options,
   if (simplify && seam_vertices != nullptr) {
     // SIMPLIFY(E0) from the seam: every other edge was settled inside its slab and keeps its
     // cost; contractions here re-queue their neighbours as usual.
-    const double t0 = ThreadSeconds();
+    const PhaseClock clock(whole.simplifier);
     whole.simplifier.PushEdgesAround(*seam_vertices);
     whole.simplifier.Simplify(options.target_triangles);  // the parts may stand near N
-    whole.time.simplify_s += ThreadSeconds() - t0;
+    whole.time.simplify_s += clock.Seconds();
   }
   if (simplify && options.target_triangles > 0) {
-    const double t0 = ThreadSeconds();
+    const PhaseClock clock(whole.simplifier);
     ReachTarget(whole, options.target_triangles);
-    whole.time.simplify_s += ThreadSeconds() - t0;
+    whole.time.simplify_s += clock.Seconds();
   }
   int64_t sag_corrected = 0;
-  const double t0 = ThreadSeconds();
+  const PhaseClock clock(whole.simplifier);
   if (whole.sealer) {
     whole.sealer->Seal(std::numeric_limits<double>::infinity());  // the rest, sag included
     sag_corrected = whole.sealer->sag_corrected();
@@ -327,7 +332,7 @@ int64_t FinishWhole(Slab& whole, const SessionOptions& options,
     }
     whole.simplifier.TidyDegenerate();  // last: the sag correction may leave some
   }
-  whole.time.simplify_s += ThreadSeconds() - t0;
+  whole.time.simplify_s += clock.Seconds();
   return sag_corrected;
 }
 

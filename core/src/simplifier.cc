@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <thread>
 #include <utility>
 
 #include "grow.h"
+#include "thread_clock.h"
 
 namespace tandem {
 
@@ -340,7 +342,12 @@ void Simplifier::FlushBatch() {
   constexpr size_t kParallelMin = 1024;
   if (opt_.parallel != nullptr && n >= kParallelMin) {
     TaskGroup halves(opt_.parallel);  // with no thread free, Wait runs it here
-    halves.Run([this, n] { EvaluateBatchRange(0, n / 2); });
+    halves.Run([this, n, caller = std::this_thread::get_id()] {
+      const double t0 = ThreadCpuSeconds();
+      EvaluateBatchRange(0, n / 2);
+      // On the waiting thread its time is that thread's own already.
+      if (std::this_thread::get_id() != caller) helper_seconds_ += ThreadCpuSeconds() - t0;
+    });
     EvaluateBatchRange(n / 2, n);
     halves.Wait();
   } else {

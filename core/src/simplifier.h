@@ -198,6 +198,13 @@ class Simplifier {
   double max_layer_over_front() const { return max_layer_over_front_; }
   size_t queue_sizes() const { return q_.size() + w_.size(); }
   size_t MemoryBytes() const;
+  // CPU seconds the batch evaluations handed to `parallel` took on other threads since the
+  // last call (the phase times count them with the calling thread's own).
+  double TakeHelperSeconds() {
+    const double s = helper_seconds_;
+    helper_seconds_ = 0;
+    return s;
+  }
   // MemoryBytes as the last ACTIVATE left it (the largest over ActivateAndSimplify's
   // chunks): the fullest moment of a step, Q holding every edge it released, which SIMPLIFY
   // empties and Trim frees before the step ends.
@@ -387,6 +394,7 @@ class Simplifier {
   };
   std::vector<BatchEdge> batch_;
   std::vector<BatchResult> batch_results_;
+  double helper_seconds_ = 0;  // TakeHelperSeconds; written by a helper before Wait returns
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
   int64_t evaluations_ = 0;

@@ -13,6 +13,7 @@
 #include "mesh_store.h"
 #include "simplifier.h"
 #include "tandem/distance.h"
+#include "tandem/executor.h"
 #include "tandem/metrics.h"
 #include "tandem/synthetic.h"
 #include "tandem/run_session.h"
@@ -191,6 +192,29 @@ TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
           << (rule == ReleaseRule::kReach ? " reach" : " layer");
     }
   }
+}
+
+// Half of a large DELAY batch's evaluations runs on the executor: the CPU time it takes
+// there is handed to the phase that asked (TakeHelperSeconds), which times only its own
+// thread (core/src/schedule.cc).
+TEST(Simplifier, BatchHalvesOnOtherThreadsReportTheirCpuTime) {
+  Executor one(1);
+  auto src = BoxCutGyroid(96, 96, 16);  // thousands of edges a layer: batches of 1024 or more
+  MeshStore store;
+  SimplifierOptions so;
+  so.error = 0.1;
+  so.parallel = &one;
+  Simplifier simplifier(&store, so);
+  ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/true);
+  EXPECT_GT(simplifier.TakeHelperSeconds(), 0.0);
+  EXPECT_EQ(simplifier.TakeHelperSeconds(), 0.0) << "taken once";
+  // Without an executor everything runs on the calling thread: nothing to hand over.
+  MeshStore store0;
+  so.parallel = nullptr;
+  Simplifier alone(&store0, so);
+  src = BoxCutGyroid(96, 96, 16);
+  ExtractLayers(src.get(), &store0, &alone, /*delay_each_layer=*/true);
+  EXPECT_EQ(alone.TakeHelperSeconds(), 0.0);
 }
 
 // Until a vertex moves, its quadric is the matrix of its triangles' planes, which pass
