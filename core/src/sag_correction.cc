@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numbers>
 
+#include "run_in_ranges.h"
 #include "tandem/geometry.h"
 
 namespace tandem {
@@ -15,6 +16,14 @@ void SortedFan(const MeshStore& store, VertexId v, std::vector<TriId>* fan) {
   const auto tris = store.vertex_triangles(v);
   fan->assign(tris.begin(), tris.end());
   std::sort(fan->begin(), fan->end());
+}
+
+// Ranges for a pass over n vertices: one per thread of the executor and one for the caller,
+// from 16,384 vertices on (below, a task costs more than it saves).
+size_t Pieces(Executor* executor, size_t n) {
+  constexpr size_t kParallelMin = 16384;
+  if (executor == nullptr || n < kParallelMin) return 1;
+  return static_cast<size_t>(executor->threads()) + 1;
 }
 
 }  // namespace
@@ -31,14 +40,23 @@ Vec3 VertexNormal(const MeshStore& store, VertexId v, std::vector<TriId>* fan) {
   return len > 0.0 ? n * (1.0 / len) : Vec3{};
 }
 
-void VertexNormals(const MeshStore& store, std::span<const VertexId> verts, std::span<Vec3> normal) {
-  std::vector<TriId> fan;
-  for (VertexId v : verts) normal[v] = VertexNormal(store, v, &fan);
+void VertexNormals(const MeshStore& store, std::span<const VertexId> verts, std::span<Vec3> normal,
+                   Executor* executor, double* helper_seconds) {
+  const double helpers =
+      RunInRanges(executor, verts.size(), Pieces(executor, verts.size()),
+                  [&](size_t, size_t begin, size_t end) {
+                    std::vector<TriId> fan;
+                    for (size_t i = begin; i < end; ++i) {
+                      normal[verts[i]] = VertexNormal(store, verts[i], &fan);
+                    }
+                  });
+  if (helper_seconds != nullptr) *helper_seconds += helpers;
 }
 
 int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
                      VertexNormalTable normal, std::span<const Quadric> quadric, double fraction,
-                     double error, SagScratch* scratch, std::vector<VertexId>* moved_ids) {
+                     double error, SagScratch* scratch, std::vector<VertexId>* moved_ids,
+                     Executor* executor, double* helper_seconds) {
   if (!(fraction > 0.0) || verts.empty()) return 0;
   // Near a crease the vertex normal averages faces that meet at an angle: the sag estimate
   // measures the crease, not a curvature, and moving the vertex would cut the edge. A vertex
@@ -49,7 +67,6 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
   scratch->slot.Assign(verts, store->vertex_capacity());
   std::vector<Vec3> moved(verts.size());
   std::vector<uint8_t> moving(verts.size(), 0);
-  std::vector<TriId>& fan = scratch->fan;
   std::vector<TriId>& checks = scratch->checks;
   checks.clear();
   auto corners = [&](TriId t, Vec3 p[3]) {
@@ -57,11 +74,15 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
     for (int k = 0; k < 3; ++k) p[k] = store->position(tri[k]);
   };
   // The step of each vertex, limited so that ε0 <= max(E0, ε0 now): its triangles' mean sag
-  // (Σ w·s/24 over area) along its normal, unless it is on the box or at a crease.
-  for (size_t i = 0; i < verts.size(); ++i) {
+  // (Σ w·s/24 over area) along its normal, unless it is on the box or at a crease. Each step
+  // reads the mesh as it is and writes its own moved[i], moving[i]: the ranges are
+  // independent, and their triangles to check are sorted below, so the result does not depend
+  // on how many there are.
+  auto step_of = [&](size_t i, std::vector<TriId>* fan_scratch, std::vector<TriId>* to_check) {
     const VertexId v = verts[i];
     moved[i] = store->position(v);
-    if ((store->box_mask(v) & ~kFrozen) != 0) continue;
+    if ((store->box_mask(v) & ~kFrozen) != 0) return;
+    std::vector<TriId>& fan = *fan_scratch;
     SortedFan(*store, v, &fan);
     double sag = 0.0, area = 0.0;
     bool crease = false;
@@ -82,17 +103,28 @@ int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
     }
     const Quadric& q = quadric[i];
     const Vec3 n = normal[v];
-    if (area <= 0.0 || crease || q.w <= 0.0 || Dot(n, n) == 0.0) continue;
+    if (area <= 0.0 || crease || q.w <= 0.0 || Dot(n, n) == 0.0) return;
     const double step = fraction * sag / area;
     const Vec3 d = step < 0.0 ? n * -1.0 : n;  // t >= 0 along d
     const Vec3 x = moved[i];
     const double t =
         StepWithinError(q, x, d, std::abs(step), std::max(error, ShapeError(q, x)));
-    if (!(t > 0.0)) continue;
+    if (!(t > 0.0)) return;
     moved[i] = x + d * t;
     moving[i] = 1;
-    checks.insert(checks.end(), fan.begin(), fan.end());
-  }
+    to_check->insert(to_check->end(), fan.begin(), fan.end());
+  };
+  const size_t pieces = Pieces(executor, verts.size());
+  std::vector<std::vector<TriId>> piece_checks(pieces);
+  const double helpers =
+      RunInRanges(executor, verts.size(), pieces, [&](size_t piece, size_t begin, size_t end) {
+        std::vector<TriId> local_fan;
+        std::vector<TriId>* fan = piece == 0 ? &scratch->fan : &local_fan;
+        std::vector<TriId>* to_check = piece == 0 ? &checks : &piece_checks[piece];
+        for (size_t i = begin; i < end; ++i) step_of(i, fan, to_check);
+      });
+  if (helper_seconds != nullptr) *helper_seconds += helpers;
+  for (const auto& more : piece_checks) checks.insert(checks.end(), more.begin(), more.end());
   // No triangle may turn over or collapse: put the corners of any that would back, until
   // none does (each round puts at least one vertex back, and the mesh as it was is valid).
   std::sort(checks.begin(), checks.end());

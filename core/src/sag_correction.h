@@ -21,6 +21,7 @@
 #include "id_index.h"
 #include "mesh_store.h"
 #include "quadric.h"
+#include "tandem/executor.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -28,9 +29,11 @@ namespace tandem {
 // The area-weighted unit normal of v from its current triangles (summed over its fan in
 // increasing triangle id, whichever vertex asks; 0 without area). `fan` is scratch.
 Vec3 VertexNormal(const MeshStore& store, VertexId v, std::vector<TriId>* fan);
-// VertexNormal of each of `verts`, into normal[v].
+// VertexNormal of each of `verts`, into normal[v]; with an executor, large lists in ranges
+// side by side (the CPU time they take on other threads is added to *helper_seconds).
 void VertexNormals(const MeshStore& store, std::span<const VertexId> verts,
-                   std::span<Vec3> normal);
+                   std::span<Vec3> normal, Executor* executor = nullptr,
+                   double* helper_seconds = nullptr);
 
 // Vertex normals by vertex id: normal[v], or, kept compactly (the sealer keeps those of its
 // frozen vertices only), normal[*slot.Find(v)], 0 where v has none.
@@ -61,9 +64,12 @@ struct SagScratch {
 // triangle may flip or collapse (tandem/geometry.h): the corners of any that would are put
 // back until none does. normal[v] must hold the unit normal of every vertex of their
 // triangles (VertexNormals). Appends the moved vertices to *moved_ids; returns their number.
+// With an executor the steps of a large list are taken in ranges side by side, with the same
+// result (the CPU time they take on other threads is added to *helper_seconds).
 int64_t CorrectSagAt(MeshStore* store, std::span<const VertexId> verts,
                      VertexNormalTable normal, std::span<const Quadric> quadric, double fraction,
-                     double error, SagScratch* scratch, std::vector<VertexId>* moved_ids);
+                     double error, SagScratch* scratch, std::vector<VertexId>* moved_ids,
+                     Executor* executor = nullptr, double* helper_seconds = nullptr);
 
 }  // namespace tandem
 

@@ -306,7 +306,7 @@ void FinishSlab(Slab& s, Schedule schedule) {
 }
 
 int64_t FinishWhole(Slab& whole, const SessionOptions& options,
-                    const std::vector<VertexId>* seam_vertices) {
+                    const std::vector<VertexId>* seam_vertices, Executor* executor) {
   const bool simplify = options.schedule != Schedule::kNone;
   if (simplify && seam_vertices != nullptr) {
     // SIMPLIFY(E0) from the seam: every other edge was settled inside its slab and keeps its
@@ -324,11 +324,12 @@ int64_t FinishWhole(Slab& whole, const SessionOptions& options,
   int64_t sag_corrected = 0;
   const PhaseClock clock(whole.simplifier);
   if (whole.sealer) {
-    whole.sealer->Seal(std::numeric_limits<double>::infinity());  // the rest, sag included
+    // The rest, sag included.
+    whole.sealer->Seal(std::numeric_limits<double>::infinity(), executor);
     sag_corrected = whole.sealer->sag_corrected();
   } else if (simplify) {
     if (options.sag_correction > 0.0) {
-      sag_corrected = whole.simplifier.CorrectSag(options.sag_correction);
+      sag_corrected = whole.simplifier.CorrectSag(options.sag_correction, executor);
     }
     whole.simplifier.TidyDegenerate();  // last: the sag correction may leave some
   }

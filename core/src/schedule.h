@@ -118,9 +118,10 @@ void FinishSlab(Slab& slab, Schedule schedule);
 
 // The end for the whole mesh, once the slabs are merged into `whole`: SIMPLIFY(E0) from the
 // welded seam vertices (null: there was one slab); toward the target triangle count if asked; then the sag correction
-// (sealing: the last seal, sag included). Returns the vertices the sag correction moved.
+// (sealing: the last seal, sag included), in ranges on `executor` if one is given. Returns the
+// vertices the sag correction moved.
 int64_t FinishWhole(Slab& whole, const SessionOptions& options,
-                    const std::vector<VertexId>* seam_vertices);
+                    const std::vector<VertexId>* seam_vertices, Executor* executor = nullptr);
 
 }  // namespace tandem
 

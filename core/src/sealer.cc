@@ -119,7 +119,7 @@ Sealer::Kept& Sealer::HandOut(VertexId v) {
   return k;
 }
 
-void Sealer::Seal(double front) {
+void Sealer::Seal(double front, Executor* executor) {
   const bool all = front == std::numeric_limits<double>::infinity();
   // 1. Freeze. Contractions keep one end's id, so every live unfrozen vertex is in active_;
   // dead ids are dropped here, before the next EXTRACT can hand them out again.
@@ -171,7 +171,7 @@ void Sealer::Seal(double front) {
       std::sort(need_.begin(), need_.end());
       need_.erase(std::unique(need_.begin(), need_.end()), need_.end());
       for (VertexId v : need_) SetNormal(v, VertexNormal(*store_, v, &fan_));
-      sag_corrected_ += simplifier_->CorrectSagAt(freeze_, Normals(), sag_fraction_);
+      sag_corrected_ += simplifier_->CorrectSagAt(freeze_, Normals(), sag_fraction_, executor);
       for (VertexId v : need_) {
         if (!(store_->box_mask(v) & kFrozen)) ReleaseNormal(v);  // found again next time
       }

@@ -52,8 +52,9 @@ class Sealer {
   // Vertices made by the last EXTRACT (unfrozen).
   void AddVertices(std::span<const VertexId> verts);
   // Freezes the vertices whose reach is at least `margin` below the front (every vertex when
-  // front = +inf, the end of the stream) and seals what that completes.
-  void Seal(double front);
+  // front = +inf, the end of the stream) and seals what that completes; with an executor, a
+  // large sag correction in ranges side by side (the same result).
+  void Seal(double front, Executor* executor = nullptr);
   // Moves the triangles sealed since the last call into *out (false: none). out->index
   // counts this sealer's chunks.
   bool TakeChunk(SealedChunk* out);

@@ -3,11 +3,10 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <thread>
 #include <utility>
 
 #include "grow.h"
-#include "thread_clock.h"
+#include "run_in_ranges.h"
 
 namespace tandem {
 
@@ -340,19 +339,10 @@ void Simplifier::FlushBatch() {
   batch_results_.resize(n);
   // Below this size a thread costs more than it saves (a solve is ~1 µs).
   constexpr size_t kParallelMin = 1024;
-  if (opt_.parallel != nullptr && n >= kParallelMin) {
-    TaskGroup halves(opt_.parallel);  // with no thread free, Wait runs it here
-    halves.Run([this, n, caller = std::this_thread::get_id()] {
-      const double t0 = ThreadCpuSeconds();
-      EvaluateBatchRange(0, n / 2);
-      // On the waiting thread its time is that thread's own already.
-      if (std::this_thread::get_id() != caller) helper_seconds_ += ThreadCpuSeconds() - t0;
-    });
-    EvaluateBatchRange(n / 2, n);
-    halves.Wait();
-  } else {
-    EvaluateBatchRange(0, n);
-  }
+  helper_seconds_ += RunInRanges(opt_.parallel, n, n >= kParallelMin ? 2 : 1,
+                                 [this](size_t, size_t begin, size_t end) {
+                                   EvaluateBatchRange(begin, end);
+                                 });
   for (size_t i = 0; i < n; ++i) {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];
@@ -785,15 +775,15 @@ double Simplifier::MaxShapeError() const {
   return worst;
 }
 
-int64_t Simplifier::CorrectSag(double fraction) {
+int64_t Simplifier::CorrectSag(double fraction, Executor* executor) {
   if (!(fraction > 0.0)) return 0;
   std::vector<VertexId> verts;
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
     if (store_->vertex_alive(v)) verts.push_back(v);
   }
   std::vector<Vec3> normal(store_->vertex_capacity());
-  VertexNormals(verts, normal);
-  return CorrectSagAt(verts, normal, fraction);
+  tandem::VertexNormals(*store_, verts, normal, executor, &helper_seconds_);
+  return CorrectSagAt(verts, normal, fraction, executor);
 }
 
 double Simplifier::TidySize() const {
@@ -862,7 +852,7 @@ void Simplifier::Freeze(VertexId v) {
 }
 
 int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
-                                 double fraction) {
+                                 double fraction, Executor* executor) {
   if (!(fraction > 0.0) || verts.empty()) return 0;
   EnsureVertexCapacity();
   sag_quadrics_.resize(verts.size());
@@ -871,8 +861,9 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTa
     sag_quadrics_[i] = Q(verts[i]);
   }
   sag_moved_.clear();
-  const int64_t count = tandem::CorrectSagAt(store_, verts, normal, sag_quadrics_, fraction,
-                                             opt_.error, &sag_scratch_, &sag_moved_);
+  const int64_t count =
+      tandem::CorrectSagAt(store_, verts, normal, sag_quadrics_, fraction, opt_.error,
+                           &sag_scratch_, &sag_moved_, executor, &helper_seconds_);
   for (VertexId v : sag_moved_) ++version_[v];  // moved: entries at v go stale
   return count;
 }

@@ -158,12 +158,13 @@ class Simplifier {
   // is not error).
   double MaxShapeError() const;
   // Sag correction (sag_correction.h) of every live vertex with the current quadrics.
-  // Returns the number of vertices moved. Run it once, on the final mesh.
-  int64_t CorrectSag(double fraction);
+  // Returns the number of vertices moved. Run it once, on the final mesh; with an executor,
+  // its normals and steps in ranges side by side (the same result).
+  int64_t CorrectSag(double fraction, Executor* executor = nullptr);
   // The same for the vertices `verts` only (sealing moves each vertex once, as it freezes):
   // normal[v] must hold the unit normal of every vertex of their triangles (VertexNormals).
   int64_t CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
-                       double fraction);
+                       double fraction, Executor* executor = nullptr);
   // Mends the zero-area triangles of the final mesh (degenerate.h): flips, and moves within
   // the error bound (ε0 <= max(E0, ε0 now)).
   DegenerateCounts TidyDegenerate();

@@ -524,7 +524,8 @@ absl::Status TandemSession::Impl::Finish() {
   if (merge) {
     seam_vertices = MergeSlabs(&slabs, &seams, options.schedule != Schedule::kNone, &merged);
   }
-  const int64_t sag = FinishWhole(*slabs[0], options, merge ? &seam_vertices : nullptr);
+  const int64_t sag = FinishWhole(*slabs[0], options, merge ? &seam_vertices : nullptr,
+                                  options.pipeline ? executor : nullptr);
   if (sag > 0 || slabs[0]->sealer) stats.sag_corrected = sag;
   Record();
   stats.time.total_s += Seconds(start, Clock::now());

@@ -217,6 +217,40 @@ TEST(Simplifier, BatchHalvesOnOtherThreadsReportTheirCpuTime) {
   EXPECT_EQ(alone.TakeHelperSeconds(), 0.0);
 }
 
+// The final sag correction takes its normals and steps in ranges on the executor when it has
+// one (FinishWhole): the same moves as on one thread, the other threads' CPU time reported.
+TEST(Simplifier, SagCorrectionInRangesMovesTheSameVertices) {
+  auto run = [](Executor* executor, double* helper_seconds) {
+    auto src = BoxCutGyroid(64, 64, 32);
+    MeshStore store;
+    SimplifierOptions so;
+    so.error = 0.3;
+    Simplifier simplifier(&store, so);
+    ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/false);
+    EXPECT_GT(store.num_vertices(), 16384u) << "large enough to be cut into ranges";
+    const int64_t moved = simplifier.CorrectSag(1.0, executor);
+    EXPECT_GT(moved, 1000);
+    *helper_seconds = simplifier.TakeHelperSeconds();
+    std::vector<Vec3> positions;
+    for (VertexId v = 0; v < store.vertex_capacity(); ++v) {
+      if (store.vertex_alive(v)) positions.push_back(store.position(v));
+    }
+    return positions;
+  };
+  Executor one(1);
+  double alone = -1, helped = -1;
+  const std::vector<Vec3> sequential = run(nullptr, &alone);
+  const std::vector<Vec3> in_ranges = run(&one, &helped);
+  EXPECT_EQ(alone, 0.0);
+  EXPECT_GT(helped, 0.0) << "no range ran on the executor's thread";
+  ASSERT_EQ(in_ranges.size(), sequential.size());
+  for (size_t i = 0; i < sequential.size(); ++i) {
+    ASSERT_EQ(in_ranges[i].x, sequential[i].x) << i;
+    ASSERT_EQ(in_ranges[i].y, sequential[i].y) << i;
+    ASSERT_EQ(in_ranges[i].z, sequential[i].z) << i;
+  }
+}
+
 // Until a vertex moves, its quadric is the matrix of its triangles' planes, which pass
 // through it (b and c follow from its position: Simplifier::AddTriangles), so whatever moves
 // a vertex first keeps its quadric in full: the sag correction and the tidying of zero-area
