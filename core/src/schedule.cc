@@ -10,8 +10,9 @@
 namespace tandem {
 namespace {
 
-// A phase's time is CPU time: the phase's own thread's, and what the batch evaluations it
-// handed to the executor took on other threads (Simplifier::TakeHelperSeconds).
+// A phase's time is CPU time: the phase's own thread's, and what the work it handed to the
+// executor (batch evaluations, the final sag correction's ranges) took on other threads
+// (Simplifier::TakeHelperSeconds).
 class PhaseClock {
  public:
   explicit PhaseClock(Simplifier& s) : s_(s), t0_(ThreadCpuSeconds()) {
