@@ -199,8 +199,9 @@ class Simplifier {
   double max_layer_over_front() const { return max_layer_over_front_; }
   size_t queue_sizes() const { return q_.size() + w_.size(); }
   size_t MemoryBytes() const;
-  // CPU seconds the batch evaluations handed to `parallel` took on other threads since the
-  // last call (the phase times count them with the calling thread's own).
+  // CPU seconds the work handed to an executor (the batch evaluations on `parallel`, the sag
+  // correction's ranges) took on other threads since the last call (the phase times count
+  // them with the calling thread's own).
   double TakeHelperSeconds() {
     const double s = helper_seconds_;
     helper_seconds_ = 0;
