@@ -3,7 +3,13 @@
 #define TANDEM_TESTS_TESTUTIL_H_
 
 #include <cstdint>
+#include <cstring>
+#include <cmath>
+#include <functional>
+#include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -34,6 +40,48 @@ double LoadValue(DType t, const uint8_t* p);
 
 // Slices of PatternValue for a writer.
 SliceFn PatternSlices(const VolumeInfo& info);
+
+// A float32 volume from a formula, slice by slice: surfaces cut by the grid's box.
+class FieldSource : public SliceSource {
+ public:
+  FieldSource(int64_t nx, int64_t ny, int64_t nz, std::function<double(double, double, double)> f)
+      : f_(std::move(f)) {
+    info_.nx = nx;
+    info_.ny = ny;
+    info_.nz = nz;
+    info_.dtype = DType::kFloat32;
+  }
+  const VolumeInfo& info() const override { return info_; }
+  int64_t next_slice() const override { return k_; }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    if (k_ >= info_.nz) return absl::OutOfRangeError("end of volume");
+    std::vector<float> v(static_cast<size_t>(info_.nx * info_.ny));
+    for (int64_t j = 0; j < info_.ny; ++j) {
+      for (int64_t i = 0; i < info_.nx; ++i) {
+        v[static_cast<size_t>(j * info_.nx + i)] = static_cast<float>(f_(
+            static_cast<double>(i), static_cast<double>(j), static_cast<double>(k_)));
+      }
+    }
+    bytes->resize(v.size() * sizeof(float));
+    std::memcpy(bytes->data(), v.data(), bytes->size());
+    ++k_;
+    return absl::OkStatus();
+  }
+
+ private:
+  VolumeInfo info_;
+  std::function<double(double, double, double)> f_;
+  int64_t k_ = 0;
+};
+
+// A gyroid filling the whole box: its boundary runs over all six faces.
+inline std::unique_ptr<SliceSource> BoxCutGyroid(int64_t nx, int64_t ny, int64_t nz) {
+  return std::make_unique<FieldSource>(nx, ny, nz, [](double x, double y, double z) {
+    const double w = 0.45;
+    return std::sin(w * x) * std::cos(w * y) + std::sin(w * y) * std::cos(w * z) +
+           std::sin(w * z) * std::cos(w * x) + 0.1;
+  });
+}
 
 }  // namespace tandem::testing
 
