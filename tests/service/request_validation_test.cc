@@ -30,6 +30,7 @@
 #include "tandem/synthetic.h"
 #include "tandem/run_session.h"
 #include "tandem/tandem.h"
+#include "testutil/testutil.h"
 
 namespace tandem::server {
 namespace {
@@ -268,19 +269,19 @@ struct RecordingSink : JobSink {
 };
 
 // The messages of a synthetic float32 volume, each slice split in `pieces` chunks.
-std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& options, Shape shape,
-                                                  int64_t nx, int64_t ny, int64_t nz,
-                                                  int pieces) {
-  auto source = MakeSyntheticSource(shape, nx, ny, nz);
+// A float32 source's stream: the config, each slice in `pieces` chunks, the end.
+std::vector<v1::ExtractRequest> SourceRequests(const v1::SessionConfig& options,
+                                               SliceSource* source, int pieces) {
+  const VolumeInfo& info = source->info();
   std::vector<v1::ExtractRequest> out;
   v1::SessionConfig* c = out.emplace_back().mutable_config();
   *c = options;
-  c->set_nx(nx);
-  c->set_ny(ny);
-  c->set_nz(nz);
+  c->set_nx(info.nx);
+  c->set_ny(info.ny);
+  c->set_nz(info.nz);
   c->set_dtype(v1::DTYPE_FLOAT32);
   std::vector<uint8_t> bytes;
-  for (int64_t z = 0; z < nz; ++z) {
+  for (int64_t z = 0; z < info.nz; ++z) {
     EXPECT_TRUE(source->ReadSlice(&bytes).ok());
     const size_t piece = (bytes.size() + pieces - 1) / pieces;
     for (size_t off = 0; off < bytes.size(); off += piece) {
@@ -292,6 +293,11 @@ std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& optio
   }
   out.emplace_back().mutable_end();
   return out;
+}
+std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& options, Shape shape,
+                                                  int64_t nx, int64_t ny, int64_t nz,
+                                                  int pieces) {
+  return SourceRequests(options, MakeSyntheticSource(shape, nx, ny, nz).get(), pieces);
 }
 std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options, int64_t n,
                                                int pieces) {
@@ -334,6 +340,45 @@ TEST(ExtractJob, BetweenSlicesTheJobDoesNotWaitForTheSessionsSteps) {
   EXPECT_GT((*session)->num_triangles(), 0);
 }
 
+// The mesh a local sealed session with E0 = `error` makes of `source`: its chunks welded.
+IndexedMesh LocalSealedMesh(SliceSource* source, double error) {
+  SessionOptions options;
+  options.error = error;
+  options.seal = true;
+  std::vector<SealedChunk> chunks;
+  auto local = RunSession(*source, options, nullptr, [&](SealedChunk c) {
+    chunks.push_back(std::move(c));
+    return absl::OkStatus();
+  });
+  EXPECT_TRUE(local.ok()) << local.status();
+  return WeldChunks(chunks);
+}
+
+// The chunks a job posted, numbered 0, 1, ..., decoded and welded by id, are `expected` (the
+// same vertices in id order, within `step` of its coordinates, and the same triangles).
+void ExpectChunksWeldTo(const std::vector<v1::SealedChunk>& chunks, const IndexedMesh& expected,
+                        double step) {
+  std::vector<SealedChunk> got;
+  for (size_t i = 0; i < chunks.size(); ++i) {
+    EXPECT_EQ(chunks[i].index(), static_cast<int64_t>(i));
+    SealedChunk c;
+    auto mesh = codec::DecodeDraco(chunks[i].draco(), &c.ids);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    EXPECT_EQ(static_cast<int64_t>(mesh->num_triangles()), chunks[i].triangles());
+    c.positions = mesh->positions;
+    c.indices = mesh->indices;
+    got.push_back(std::move(c));
+  }
+  const IndexedMesh welded = WeldChunks(got);
+  ASSERT_EQ(welded.num_vertices(), expected.num_vertices());
+  ASSERT_EQ(welded.num_triangles(), expected.num_triangles());
+  for (size_t i = 0; i < expected.num_vertices(); ++i) {
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_NEAR(welded.positions[i][c], expected.positions[i][c], step) << i;
+    }
+  }
+}
+
 // Sealed: the job's chunks are the local sealed session's (same ids, coordinates within the
 // grid's step), no FinalMesh comes, and the metrics measure their union.
 TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
@@ -351,40 +396,12 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   for (v1::ExtractRequest& r : SphereRequests(options, n, 1)) ASSERT_TRUE(job.Handle(r).ok());
   ASSERT_TRUE(job.done());
 
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
-  SessionOptions local_options;
-  local_options.error = 0.1;
-  local_options.seal = true;
-  std::vector<SealedChunk> local_chunks;
-  auto local = RunSession(*source, local_options, nullptr, [&](SealedChunk c) {
-    local_chunks.push_back(std::move(c));
-    return absl::OkStatus();
-  });
-  ASSERT_TRUE(local.ok());
-  const IndexedMesh expected = WeldChunks(local_chunks);
+  const IndexedMesh expected =
+      LocalSealedMesh(MakeSyntheticSource(Shape::kSphere, n, n, n).get(), 0.1);
 
   ASSERT_EQ(sink.final.size(), 1u);  // FinalMetrics only
   ASSERT_GE(sink.chunks.size(), 2u);  // the previews take what is sealed before each
-  std::vector<SealedChunk> got;
-  for (size_t i = 0; i < sink.chunks.size(); ++i) {
-    EXPECT_EQ(sink.chunks[i].index(), static_cast<int64_t>(i));
-    SealedChunk c;
-    auto mesh = codec::DecodeDraco(sink.chunks[i].draco(), &c.ids);
-    ASSERT_TRUE(mesh.ok()) << mesh.status();
-    EXPECT_EQ(static_cast<int64_t>(mesh->num_triangles()), sink.chunks[i].triangles());
-    c.positions = mesh->positions;
-    c.indices = mesh->indices;
-    got.push_back(std::move(c));
-  }
-  const IndexedMesh welded = WeldChunks(got);
-  ASSERT_EQ(welded.num_vertices(), expected.num_vertices());
-  ASSERT_EQ(welded.num_triangles(), expected.num_triangles());
-  const double step = 1.5 * (n - 1) / ((1 << 16) - 1);  // the session's grid at 16 bits
-  for (size_t i = 0; i < expected.num_vertices(); ++i) {
-    for (int c = 0; c < 3; ++c) {
-      ASSERT_NEAR(welded.positions[i][c], expected.positions[i][c], step) << i;
-    }
-  }
+  ExpectChunksWeldTo(sink.chunks, expected, 1.5 * (n - 1) / ((1 << 16) - 1));
   const v1::FinalMetrics& m = sink.final[0].final_metrics();
   EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles()));
   EXPECT_EQ(m.vertices_final(), static_cast<int64_t>(expected.num_vertices()));
@@ -394,6 +411,46 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   ASSERT_FALSE(sink.previews.empty());
   for (const v1::Preview& p : sink.previews) EXPECT_TRUE(p.band_only());
   EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
+}
+
+// The stream's last chunk (the time lag's band and the seams, sealed at once) goes out as two
+// when it holds at least 2 x 32,768 triangles, encoded side by side: the halves of its
+// triangles, each with the vertices it uses, that weld to the local session's mesh.
+TEST(ExtractJob, ALargeLastChunkGoesOutAsTwoHalves) {
+  v1::SessionConfig options;
+  options.set_error(0.05);
+  options.set_sealed_chunks(true);
+  RecordingSink sink;
+  ExtractJob job(ServerLimits{}, &sink);
+  const int64_t nx = 300, ny = 300, nz = 6;
+  // A gyroid of period 14 voxels filling the box: surface in every slice.
+  for (v1::ExtractRequest& r :
+       SourceRequests(options, ::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 1)) {
+    ASSERT_TRUE(job.Handle(r).ok());
+  }
+  ASSERT_TRUE(job.done());
+  const IndexedMesh expected =
+      LocalSealedMesh(::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 0.05);
+  ExpectChunksWeldTo(sink.chunks, expected, 1.5 * (nx - 1) / ((1 << 16) - 1));
+  // Before the end, a chunk is taken once 32,768 triangles are sealed: the two halves are the
+  // rest, sealed by the end.
+  ASSERT_GE(sink.chunks.size(), 2u);
+  const v1::SealedChunk& a = sink.chunks[sink.chunks.size() - 2];
+  const v1::SealedChunk& b = sink.chunks.back();
+  int64_t before = 0;
+  for (size_t i = 0; i + 2 < sink.chunks.size(); ++i) before += sink.chunks[i].triangles();
+  const int64_t last = static_cast<int64_t>(expected.num_triangles()) - before;
+  EXPECT_GE(last, 2 * 32768);
+  EXPECT_EQ(a.triangles(), last / 2);
+  EXPECT_EQ(b.triangles(), last - last / 2);
+  EXPECT_EQ(a.first_slice(), b.first_slice());
+  EXPECT_EQ(a.last_slice(), nz - 1);
+  EXPECT_EQ(b.last_slice(), nz - 1);
+  ASSERT_EQ(sink.final.size(), 1u);
+  const v1::FinalMetrics& m = sink.final[0].final_metrics();
+  EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size()));
+  EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles()));
+  EXPECT_NEAR(m.anisotropy(), Anisotropy(expected), 1e-9);
 }
 
 // A preview every slice of a small volume: a share bound of 5% skips most of them, and
