@@ -80,35 +80,33 @@ codec::DracoOptions ChunkGrid(const VolumeInfo& g, codec::DracoOptions o, int64_
   return o;
 }
 
-// A chunk's triangles [0, n/2) and [n/2, n) as two chunks of the same slices (a span that
-// holds both halves' vertices), each with the vertices its triangles use, in the chunk's
-// order and under their ids: welded by id, the two are the chunk. The retired ids go with
-// the second (no later chunk has them).
-std::vector<SealedChunk> SplitChunk(SealedChunk c) {
+// A chunk's triangles in `count` runs of nearly equal length, each a chunk of the same slices
+// (a span that holds every run's vertices) with the vertices its triangles use, in the
+// chunk's order and under their ids: welded by id, they are the chunk. The retired ids go with
+// the last (no later chunk has them).
+std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count) {
   const size_t n = c.num_triangles();
-  const size_t bounds[3] = {0, n / 2, n};
   constexpr uint32_t kUnused = ~uint32_t{0};
   std::vector<uint32_t> local(c.positions.size());
-  std::vector<SealedChunk> out(2);
-  for (size_t p = 0; p < 2; ++p) {
+  std::vector<SealedChunk> out(count);
+  for (size_t p = 0; p < count; ++p) {
+    const size_t begin = n * p / count, end = n * (p + 1) / count;
     SealedChunk& o = out[p];
     o.index = c.index;
     o.first_slice = c.first_slice;
     o.last_slice = c.last_slice;
     std::fill(local.begin(), local.end(), kUnused);
-    for (size_t k = 3 * bounds[p]; k < 3 * bounds[p + 1]; ++k) local[c.indices[k]] = 0;
+    for (size_t k = 3 * begin; k < 3 * end; ++k) local[c.indices[k]] = 0;
     for (size_t v = 0; v < local.size(); ++v) {
       if (local[v] == kUnused) continue;
       local[v] = static_cast<uint32_t>(o.positions.size());
       o.positions.push_back(c.positions[v]);
       o.ids.push_back(c.ids[v]);
     }
-    o.indices.reserve(3 * (bounds[p + 1] - bounds[p]));
-    for (size_t k = 3 * bounds[p]; k < 3 * bounds[p + 1]; ++k) {
-      o.indices.push_back(local[c.indices[k]]);
-    }
+    o.indices.reserve(3 * (end - begin));
+    for (size_t k = 3 * begin; k < 3 * end; ++k) o.indices.push_back(local[c.indices[k]]);
   }
-  out[1].retired = std::move(c.retired);
+  out.back().retired = std::move(c.retired);
   return out;
 }
 
@@ -355,12 +353,17 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   SealedChunk c;
   if (!session_->TakeSealed(&c)) return absl::OkStatus();
   // The stream's last chunk holds the time lag's band and the seams, sealed at once, and its
-  // encoding ran on one core while the finished session left the others idle (0.58 s of a
-  // dense 2048² stream's 4.3 s wait after its last slice). A large one goes out as two
-  // chunks, encoded side by side.
+  // encoding ran on one core while the finished session left the others idle (0.5 s of a
+  // dense 2048² stream's 4.3 s wait after its last slice). A large one goes out as one chunk
+  // a compute thread (each of at least kChunkTriangles), encoded side by side.
+  Executor* executor = compute_ != nullptr ? compute_ : &Executor::Shared();
+  const size_t count =
+      last ? std::clamp<size_t>(c.num_triangles() / static_cast<size_t>(kChunkTriangles), 1,
+                                static_cast<size_t>(std::max(1, executor->threads())))
+           : 1;
   std::vector<SealedChunk> parts;
-  if (last && static_cast<int64_t>(c.num_triangles()) >= 2 * kChunkTriangles) {
-    parts = SplitChunk(std::move(c));
+  if (count > 1) {
+    parts = SplitChunk(std::move(c), count);
   } else {
     parts.push_back(std::move(c));
   }
@@ -371,7 +374,7 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   }
   std::vector<absl::StatusOr<std::string>> bytes(parts.size());
   {
-    TaskGroup group(compute_ != nullptr ? compute_ : &Executor::Shared());
+    TaskGroup group(executor);
     for (size_t i = 1; i < parts.size(); ++i) {
       group.Run([&, i] { bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids); });
     }

@@ -105,7 +105,7 @@ class ExtractJob {
   void MaybePreview();
   // Sealed chunks: posts what the session sealed since the last one, when there is enough
   // of it or enough time went by (always with `now`). `last`: the stream's last chunk,
-  // which goes out as two when it is large, their encodings side by side.
+  // which goes out in parts when it is large, their encodings side by side.
   absl::Status MaybeChunk(bool now, bool last = false);
   // RESOURCE_EXHAUSTED when MemoryBytes() + `extra` exceeds the budget; `when` says where.
   // Also records the peak (peak_memory_): every allocation the session makes outside its

@@ -413,44 +413,50 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
 }
 
-// The stream's last chunk (the time lag's band and the seams, sealed at once) goes out as two
-// when it holds at least 2 x 32,768 triangles, encoded side by side: the halves of its
-// triangles, each with the vertices it uses, that weld to the local session's mesh.
-TEST(ExtractJob, ALargeLastChunkGoesOutAsTwoHalves) {
-  v1::SessionConfig options;
-  options.set_error(0.05);
-  options.set_sealed_chunks(true);
-  RecordingSink sink;
-  ExtractJob job(ServerLimits{}, &sink);
+// The stream's last chunk (the time lag's band and the seams, sealed at once) goes out in one
+// part a compute thread when it holds at least 32,768 triangles a part, encoded side by side:
+// runs of its triangles, each with the vertices it uses, that weld to the local session's
+// mesh. With no compute thread it goes out whole.
+TEST(ExtractJob, ALargeLastChunkGoesOutInPartsEncodedSideBySide) {
   const int64_t nx = 300, ny = 300, nz = 6;
-  // A gyroid of period 14 voxels filling the box: surface in every slice.
-  for (v1::ExtractRequest& r :
-       SourceRequests(options, ::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 1)) {
-    ASSERT_TRUE(job.Handle(r).ok());
-  }
-  ASSERT_TRUE(job.done());
   const IndexedMesh expected =
       LocalSealedMesh(::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 0.05);
-  ExpectChunksWeldTo(sink.chunks, expected, 1.5 * (nx - 1) / ((1 << 16) - 1));
-  // Before the end, a chunk is taken once 32,768 triangles are sealed: the two halves are the
-  // rest, sealed by the end.
-  ASSERT_GE(sink.chunks.size(), 2u);
-  const v1::SealedChunk& a = sink.chunks[sink.chunks.size() - 2];
-  const v1::SealedChunk& b = sink.chunks.back();
-  int64_t before = 0;
-  for (size_t i = 0; i + 2 < sink.chunks.size(); ++i) before += sink.chunks[i].triangles();
-  const int64_t last = static_cast<int64_t>(expected.num_triangles()) - before;
-  EXPECT_GE(last, 2 * 32768);
-  EXPECT_EQ(a.triangles(), last / 2);
-  EXPECT_EQ(b.triangles(), last - last / 2);
-  EXPECT_EQ(a.first_slice(), b.first_slice());
-  EXPECT_EQ(a.last_slice(), nz - 1);
-  EXPECT_EQ(b.last_slice(), nz - 1);
-  ASSERT_EQ(sink.final.size(), 1u);
-  const v1::FinalMetrics& m = sink.final[0].final_metrics();
-  EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size()));
-  EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles()));
-  EXPECT_NEAR(m.anisotropy(), Anisotropy(expected), 1e-9);
+  for (int threads : {2, 0}) {
+    const std::string what = std::to_string(threads) + " compute threads";
+    v1::SessionConfig options;
+    options.set_error(0.05);
+    options.set_sealed_chunks(true);
+    RecordingSink sink;
+    Executor compute(threads);
+    ExtractJob job(ServerLimits{}, &sink, &compute);
+    // A gyroid of period 14 voxels filling the box: surface in every slice.
+    for (v1::ExtractRequest& r :
+         SourceRequests(options, ::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 1)) {
+      ASSERT_TRUE(job.Handle(r).ok()) << what;
+    }
+    ASSERT_TRUE(job.done()) << what;
+    ExpectChunksWeldTo(sink.chunks, expected, 1.5 * (nx - 1) / ((1 << 16) - 1));
+    // Before the end, a chunk is taken once 32,768 triangles are sealed (when the job looks):
+    // the last parts are the rest, sealed by the end.
+    const size_t parts = threads == 0 ? 1 : 2;
+    ASSERT_GE(sink.chunks.size(), parts) << what;
+    int64_t before = 0;
+    for (size_t i = 0; i + parts < sink.chunks.size(); ++i) before += sink.chunks[i].triangles();
+    const int64_t last = static_cast<int64_t>(expected.num_triangles()) - before;
+    EXPECT_GE(last, 2 * 32768) << what;
+    const v1::SealedChunk& a = sink.chunks[sink.chunks.size() - parts];
+    const v1::SealedChunk& b = sink.chunks.back();
+    EXPECT_EQ(a.triangles(), last / static_cast<int64_t>(parts)) << what;
+    EXPECT_EQ(b.triangles(), last - (parts - 1) * (last / static_cast<int64_t>(parts))) << what;
+    EXPECT_EQ(a.first_slice(), b.first_slice()) << what;
+    EXPECT_EQ(a.last_slice(), nz - 1) << what;
+    EXPECT_EQ(b.last_slice(), nz - 1) << what;
+    ASSERT_EQ(sink.final.size(), 1u) << what;
+    const v1::FinalMetrics& m = sink.final[0].final_metrics();
+    EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size())) << what;
+    EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles())) << what;
+    EXPECT_NEAR(m.anisotropy(), Anisotropy(expected), 1e-9) << what;
+  }
 }
 
 // A preview every slice of a small volume: a share bound of 5% skips most of them, and
