@@ -156,7 +156,9 @@ class ExtractJob::SurfaceSink final : public JobSink {
 };
 
 ExtractJob::ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute)
-    : limits_(limits), compute_(compute), sink_(sink) {}
+    : limits_(limits),
+      compute_(compute != nullptr ? compute : &Executor::Shared()),
+      sink_(sink) {}
 ExtractJob::~ExtractJob() = default;
 
 absl::Status ExtractJob::StartSurfaces(const v1::SessionConfig& config) {
@@ -356,10 +358,9 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   // encoding ran on one core while the finished session left the others idle (0.5 s of a
   // dense 2048² stream's 4.3 s wait after its last slice). A large one goes out as one chunk
   // a compute thread (each of at least kChunkTriangles), encoded side by side.
-  Executor* executor = compute_ != nullptr ? compute_ : &Executor::Shared();
   const size_t count =
       last ? std::clamp<size_t>(c.num_triangles() / static_cast<size_t>(kChunkTriangles), 1,
-                                static_cast<size_t>(std::max(1, executor->threads())))
+                                static_cast<size_t>(std::max(1, compute_->threads())))
            : 1;
   std::vector<SealedChunk> parts;
   if (count > 1) {
@@ -374,7 +375,7 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   }
   std::vector<absl::StatusOr<std::string>> bytes(parts.size());
   {
-    TaskGroup group(executor);
+    TaskGroup group(compute_);
     for (size_t i = 1; i < parts.size(); ++i) {
       group.Run([&, i] { bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids); });
     }
@@ -533,7 +534,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   absl::StatusOr<std::string> bytes;
   {
     ShapeSums shape;
-    TaskGroup group(compute_ != nullptr ? compute_ : &Executor::Shared());
+    TaskGroup group(compute_);
     group.Run([&] { shape.Add(mesh); });
     bytes = codec::EncodeDraco(mesh, config_.draco);
     group.Wait();

@@ -114,7 +114,7 @@ class ExtractJob {
   v1::Progress MakeProgress() const;
 
   ServerLimits limits_;
-  Executor* compute_;
+  Executor* compute_;  // never null (Executor::Shared() when none is given)
   JobSink* sink_;
   State state_ = State::kWaitConfig;
   JobConfig config_;
