@@ -3,10 +3,14 @@
 // measures (anisotropy, directional bias, SPEC §7) and the number of vertices sharing
 // their exact position with another (unwelded output, e.g. FlyingEdges3D on integer data).
 // "welded_*" repeat manifold/Euler after merging exactly coincident vertices.
+// "degenerate_triangles" are triangles with a repeated vertex index; "zero_area_triangles"
+// are those with three distinct corners but no area as written (issue 24, item 5: twice
+// the area at most 2e-6 of the squared edges, the engine's own rule in core/src/degenerate.cc).
 #include <cstdio>
 #include <map>
 #include <tuple>
 
+#include "tandem/geometry.h"
 #include "tandem/mesh_io.h"
 #include "tandem/metrics.h"
 #include "tandem/topology.h"
@@ -40,6 +44,17 @@ int main(int argc, char** argv) {
     welded.positions = mesh->positions;
   }
   const tandem::TopologyReport w = dups > 0 ? tandem::AnalyzeTopology(welded) : t;
+  size_t zero_area = 0;
+  for (size_t k = 0; k + 2 < mesh->indices.size(); k += 3) {
+    const uint32_t* v = &mesh->indices[k];
+    if (v[0] == v[1] || v[1] == v[2] || v[2] == v[0]) continue;
+    const tandem::Vec3 a = mesh->positions[v[0]], b = mesh->positions[v[1]],
+                       c = mesh->positions[v[2]];
+    if (tandem::AreaAtMost(4e-12, tandem::TwiceAreaVector(a, b, c),
+                           tandem::SumSquaredEdges(a, b, c))) {
+      ++zero_area;
+    }
+  }
 
   std::printf(
       "{\"triangles\": %zu, \"vertices\": %zu, \"manifold\": %s, \"euler\": %lld, "
@@ -47,11 +62,11 @@ int main(int argc, char** argv) {
       "\"misoriented_edges\": %zu, \"degenerate_triangles\": %zu, \"components\": %zu, "
       "\"boundary_loops\": %zu, \"duplicate_positions\": %zu, \"welded_manifold\": %s, "
       "\"welded_euler\": %lld, \"welded_degenerate_triangles\": %zu, \"anisotropy\": %.6g, "
-      "\"directional_bias\": %.6g}\n",
+      "\"directional_bias\": %.6g, \"zero_area_triangles\": %zu}\n",
       t.triangles, mesh->num_vertices(), t.IsManifold() ? "true" : "false",
       static_cast<long long>(t.euler), t.boundary_edges, t.nonmanifold_edges,
       t.nonmanifold_vertices, t.misoriented_edges, t.repeated_index_triangles, t.components,
       t.boundary_loops, dups, w.IsManifold() ? "true" : "false", static_cast<long long>(w.euler),
-      w.repeated_index_triangles, tandem::Anisotropy(*mesh), tandem::DirectionalBias(*mesh));
+      w.repeated_index_triangles, tandem::Anisotropy(*mesh), tandem::DirectionalBias(*mesh), zero_area);
   return 0;
 }
