@@ -1,10 +1,12 @@
 #include "codec/draco_codec.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <span>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -14,6 +16,7 @@
 #include "draco/core/decoder_buffer.h"
 #include "draco/core/encoder_buffer.h"
 #include "draco/mesh/mesh.h"
+#include "tandem/geometry.h"
 
 namespace tandem::codec {
 namespace {
@@ -22,15 +25,172 @@ constexpr int kSequentialLevel = 0;
 // Unit normals in a GLB: 10 bits (Draco's octahedral coding), under a quarter of a degree.
 constexpr int kNormalBits = 10;
 
+// Draco's position grid (AttributeQuantizationTransform with its Quantizer): a coordinate v
+// goes to q = floor((v - origin) * inverse_delta + 0.5) in float32 arithmetic, inverse_delta
+// = max_q / range, max_q = 2^bits - 1. Reproduced here operation for operation (the build
+// targets baseline x86-64: no FMA contracts the product and the sum).
+struct Grid {
+  std::array<float, 3> origin{};
+  float inverse_delta = 1, delta = 1;
+  int32_t max_q = 0;
+  Grid(const std::array<float, 3>& o, float range, int bits)
+      : origin(o), max_q(static_cast<int32_t>((uint32_t{1} << bits) - 1)) {
+    inverse_delta = static_cast<float>(max_q) / range;
+    delta = range / static_cast<float>(max_q);
+  }
+  int32_t Quantize(float v, int axis) const {
+    float value = v - origin[axis];
+    value *= inverse_delta;
+    return static_cast<int32_t>(std::floor(value + 0.5f));
+  }
+};
+
+using Point = std::array<float, 3>;
+using Lattice = std::array<int64_t, 3>;
+
+// Twice the area, in float32 as written: below this share of the squared edges a triangle
+// has none (core/src/degenerate.cc's rule; the benchmark's mesh_check counts with it).
+constexpr double kWrittenSquared = 4e-12;
+Vec3 AsVec(const Point& p) { return Vec3{p[0], p[1], p[2]}; }
+Vec3 AsVec(const Lattice& q) {
+  return Vec3{static_cast<double>(q[0]), static_cast<double>(q[1]), static_cast<double>(q[2])};
+}
+bool HasArea(Vec3 a, Vec3 b, Vec3 c) {
+  return !AreaAtMost(kWrittenSquared, TwiceAreaVector(a, b, c), SumSquaredEdges(a, b, c));
+}
+// On the grid, with the corners' lattice points: it has an area and faces as `facing` (the
+// triangle's twice-area vector as written). Lattice coordinates are below 2^30: their
+// differences' products and sums are exact in doubles.
+bool KeepsArea(const Lattice& a, const Lattice& b, const Lattice& c, Vec3 facing) {
+  const Vec3 pa = AsVec(a), pb = AsVec(b), pc = AsVec(c);
+  return HasArea(pa, pb, pc) && Dot(TwiceAreaVector(pa, pb, pc), facing) > 0;
+}
+
+// Nearly every triangle: on the grid it has an area and each corner lies more than 4 grid
+// steps from the line of the other two. Its corners as given lie within sqrt(3)/2 of a
+// step of their grid points, which moves a corner's distance to that line by less than 2
+// steps: as given, it faces as it does on the grid, and no check is needed.
+bool FarFromLosingArea(const Lattice& a, const Lattice& b, const Lattice& c) {
+  const Vec3 pa = AsVec(a), pb = AsVec(b), pc = AsVec(c);
+  const Vec3 n = TwiceAreaVector(pa, pb, pc);
+  const double longest = std::max({Dot(pb - pa, pb - pa), Dot(pc - pb, pc - pb),
+                                   Dot(pa - pc, pa - pc)});
+  // The least height squared is |n|^2 over the longest edge squared (in steps squared).
+  return Dot(n, n) > 16 * longest && HasArea(pa, pb, pc);
+}
+
+// Where a triangle with an area as written would have none on the grid (or turn over), one
+// of its corners steps to one of its 26 neighbouring grid points (the 6 along the axes
+// first), the first where none of that corner's triangles that have an area loses it or
+// turns over. `fixed` corners (by vertex; empty: none) stay. A step moves a corner by one
+// grid step along each axis at most, so it lies at most 1.5 steps from where it was given.
+// Returns the triangles left without an area on the grid.
+int64_t KeepAreasOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<const uint8_t> fixed,
+                        std::vector<Point>* points, MovedCorners* moved) {
+  const size_t nv = points->size(), nt = mesh.num_triangles();
+  std::vector<Lattice> q(nv);
+  for (size_t i = 0; i < nv; ++i) {
+    for (int a = 0; a < 3; ++a) q[i][a] = grid.Quantize((*points)[i][a], a);
+  }
+  const std::vector<Point> given = *points;  // the facing every check keeps
+  auto corners = [&](size_t t) { return &mesh.indices[3 * t]; };
+  auto facing = [&](size_t t, Vec3* out) {  // false: repeated corner or no area as given
+    const uint32_t* v = corners(t);
+    if (v[0] == v[1] || v[1] == v[2] || v[2] == v[0]) return false;
+    const Vec3 a = AsVec(given[v[0]]), b = AsVec(given[v[1]]), c = AsVec(given[v[2]]);
+    if (!HasArea(a, b, c)) return false;
+    *out = TwiceAreaVector(a, b, c);
+    return true;
+  };
+  auto kept = [&](size_t t, uint32_t moved, const Lattice& at) {
+    const uint32_t* v = corners(t);
+    auto p = [&](int k) -> const Lattice& { return v[k] == moved ? at : q[v[k]]; };
+    if (FarFromLosingArea(p(0), p(1), p(2))) return true;
+    Vec3 f;
+    return !facing(t, &f) || KeepsArea(p(0), p(1), p(2), f);  // nothing to keep, or kept
+  };
+  std::vector<uint32_t> lost;
+  for (size_t t = 0; t < nt; ++t) {
+    if (!kept(t, kInvalid, {})) lost.push_back(static_cast<uint32_t>(t));
+  }
+  if (lost.empty()) return 0;
+  // The triangles of each vertex (CSR), only when some triangle needs a corner moved.
+  std::vector<uint32_t> first(nv + 1, 0), around(3 * nt);
+  for (uint32_t v : mesh.indices) ++first[v + 1];
+  for (size_t i = 0; i < nv; ++i) first[i + 1] += first[i];
+  {
+    std::vector<uint32_t> fill(first.begin(), first.end() - 1);
+    for (size_t k = 0; k < 3 * nt; ++k) around[fill[mesh.indices[k]]++] = static_cast<uint32_t>(k / 3);
+  }
+  std::vector<Lattice> steps;
+  for (int norm = 1; norm <= 3; ++norm) {
+    for (int64_t x = -1; x <= 1; ++x) {
+      for (int64_t y = -1; y <= 1; ++y) {
+        for (int64_t z = -1; z <= 1; ++z) {
+          if (x * x + y * y + z * z == norm) steps.push_back({x, y, z});
+        }
+      }
+    }
+  }
+  int64_t left = 0;
+  for (uint32_t t : lost) {
+    if (kept(t, kInvalid, {})) continue;  // an earlier step mended it
+    const uint32_t* v = corners(t);
+    // The corner across the longest edge first: it moves the farthest from that line.
+    std::array<int, 3> order{0, 1, 2};
+    auto across = [&](int k) {
+      const Vec3 d = AsVec(given[v[(k + 1) % 3]]) - AsVec(given[v[(k + 2) % 3]]);
+      return Dot(d, d);
+    };
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return across(a) > across(b); });
+    bool mended = false;
+    for (int k : order) {
+      const uint32_t m = v[k];
+      if (!fixed.empty() && fixed[m]) continue;
+      for (const Lattice& d : steps) {
+        Lattice at{q[m][0] + d[0], q[m][1] + d[1], q[m][2] + d[2]};
+        if (std::any_of(at.begin(), at.end(), [&](int64_t c) { return c < 0 || c > grid.max_q; })) {
+          continue;
+        }
+        bool ok = true;
+        for (uint32_t i = first[m]; i < first[m + 1] && ok; ++i) ok = kept(around[i], m, at);
+        if (!ok) continue;
+        Point p;
+        for (int a = 0; a < 3; ++a) {
+          p[a] = grid.origin[a] + static_cast<float>(at[a]) * grid.delta;
+          ok = ok && grid.Quantize(p[a], a) == at[a];
+        }
+        if (!ok) continue;
+        (*points)[m] = p;
+        q[m] = at;
+        if (moved != nullptr) moved->emplace_back(m, AsVec(p));
+        mended = true;
+        break;
+      }
+      if (mended) break;
+    }
+    if (!mended) ++left;
+  }
+  return left;
+}
+
 // Builds a draco::Mesh with one point per vertex (identity mapping, no value
-// deduplication), so point ids equal vertex ids.
+// deduplication), so point ids equal vertex ids. Without an explicit grid, `options` gets
+// the one Draco would take (the positions' box: origin at its low corner, range its largest
+// extent, 1 if none), so that the positions can be kept off degenerate places on it.
 absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh,
-                                                          const DracoOptions& options,
-                                                          std::span<const uint32_t> ids) {
+                                                          DracoOptions* options,
+                                                          std::span<const uint32_t> ids,
+                                                          std::span<const uint8_t> fixed,
+                                                          MovedCorners* moved) {
   const size_t nv = mesh.num_vertices();
   if (!ids.empty() && ids.size() != nv) {
     return absl::InvalidArgumentError(
         absl::StrCat(ids.size(), " vertex ids for ", nv, " vertices"));
+  }
+  if (!fixed.empty() && fixed.size() != nv) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(fixed.size(), " fixed-vertex flags for ", nv, " vertices"));
   }
   if (mesh.indices.size() % 3 != 0) {
     return absl::InvalidArgumentError(
@@ -46,21 +206,32 @@ absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh
            sizeof(float) * 3, 0);
   const int att_id = out->AddAttribute(pos, /*identity_mapping=*/true, static_cast<uint32_t>(nv));
   draco::PointAttribute* att = out->attribute(att_id);
+  std::vector<Point> points(nv);
   for (size_t i = 0; i < nv; ++i) {
     const Vec3& p = mesh.positions[i];
-    const float v[3] = {static_cast<float>(p.x), static_cast<float>(p.y), static_cast<float>(p.z)};
+    Point& v = points[i];
+    v = {static_cast<float>(p.x), static_cast<float>(p.y), static_cast<float>(p.z)};
     if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2])) {
       return absl::InvalidArgumentError(absl::StrCat("vertex ", i, " is not finite"));
     }
-    if (options.grid_range > 0) {
-      float c[3];
+    if (options->grid_range > 0) {
       for (int a = 0; a < 3; ++a) {
-        c[a] = std::clamp(v[a], options.grid_origin[a], options.grid_origin[a] + options.grid_range);
+        v[a] = std::clamp(v[a], options->grid_origin[a], options->grid_origin[a] + options->grid_range);
       }
-      att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), c);
-    } else {
-      att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), v);
     }
+  }
+  if (nv > 0 && options->grid_range == 0) {
+    Point lo = points[0], hi = points[0];
+    for (const Point& p : points) {
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], p[a]);
+        hi[a] = std::max(hi[a], p[a]);
+      }
+    }
+    float range = 0;
+    for (int a = 0; a < 3; ++a) range = std::max(range, hi[a] - lo[a]);
+    options->grid_origin = lo;
+    options->grid_range = range > 0 ? range : 1.0f;
   }
   if (!ids.empty()) {
     draco::GeometryAttribute id;
@@ -85,6 +256,13 @@ absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh
       face[c] = draco::PointIndex(v);
     }
     out->SetFace(draco::FaceIndex(static_cast<uint32_t>(t)), face);
+  }
+  if (nv > 0) {  // the indices are checked
+    KeepAreasOnGrid(mesh, Grid(options->grid_origin, options->grid_range, options->quantization_bits),
+                    fixed, &points, moved);
+  }
+  for (size_t i = 0; i < nv; ++i) {
+    att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), points[i].data());
   }
   return out;
 }
@@ -186,10 +364,14 @@ absl::Status ValidateDracoOptions(const DracoOptions& options) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options,
-                                        std::span<const uint32_t> ids) {
-  if (absl::Status st = ValidateDracoOptions(options); !st.ok()) return st;
-  auto dmesh = ToDracoMesh(mesh, options, ids);
+absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& given,
+                                        std::span<const uint32_t> ids,
+                                        std::span<const uint8_t> fixed,
+                                        MovedCorners* moved) {
+  if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
+  DracoOptions options = given;  // with the grid made explicit
+  if (moved != nullptr) moved->clear();
+  auto dmesh = ToDracoMesh(mesh, &options, ids, fixed, moved);
   if (!dmesh.ok()) return dmesh.status();
   if (mesh.num_triangles() == 0) {
     // Draco's mesh decoders refuse zero faces: a mesh without triangles travels as a
@@ -281,8 +463,9 @@ absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint
 
 absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
                                                      const std::vector<Vec3>& normals,
-                                                     const DracoOptions& options) {
-  if (absl::Status st = ValidateDracoOptions(options); !st.ok()) return st;
+                                                     const DracoOptions& given) {
+  if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
+  DracoOptions options = given;  // with the grid made explicit
   GlbDracoPrimitive out;
   if (mesh.num_vertices() == 0) return out;  // an empty scene: nothing to compress
   if (mesh.num_triangles() == 0) {
@@ -293,7 +476,7 @@ absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
     return absl::InvalidArgumentError(
         absl::StrCat(normals.size(), " normals for ", mesh.num_vertices(), " vertices"));
   }
-  auto dmesh = ToDracoMesh(mesh, options, {});
+  auto dmesh = ToDracoMesh(mesh, &options, {}, {}, nullptr);
   if (!dmesh.ok()) return dmesh.status();
   draco::GeometryAttribute normal;
   normal.Init(draco::GeometryAttribute::NORMAL, nullptr, 3, draco::DT_FLOAT32, false,
@@ -355,9 +538,10 @@ double PositionTolerance(const IndexedMesh& mesh, int bits) {
   const double magnitude = std::max({std::abs(lo.x), std::abs(lo.y), std::abs(lo.z),
                                      std::abs(hi.x), std::abs(hi.y), std::abs(hi.z)});
   const double step = extent / static_cast<double>((uint32_t{1} << bits) - 1);
-  // Draco quantizes float32 values and dequantizes in float32: a few roundings of the
-  // largest coordinate come on top of the step.
-  return step + 4 * static_cast<double>(std::numeric_limits<float>::epsilon()) * magnitude;
+  // Half a step to the nearest grid point, one more for a corner moved to keep a triangle's
+  // area, rounded up to two. Draco quantizes float32 values and dequantizes in float32: a
+  // few roundings of the largest coordinate come on top.
+  return 2 * step + 4 * static_cast<double>(std::numeric_limits<float>::epsilon()) * magnitude;
 }
 
 }  // namespace tandem::codec

@@ -5,7 +5,10 @@
 //   * exactly m.num_triangles() triangles and m.num_vertices() vertices, at every level
 //     (degenerate triangles, unreferenced vertices and non-manifold vertices included);
 //   * every coordinate within PositionTolerance(m, o.quantization_bits) of the original:
-//     the quantization step plus float32 rounding;
+//     two quantization steps plus float32 rounding;
+//   * no triangle that has an area as written (float32: twice the area above 2e-6 of its
+//     squared edges) decodes to one without, or turned over, where one grid step of a
+//     corner can prevent it (below);
 //   * compression_level 0 also keeps vertex and triangle order (and corner order), so
 //     decoded vertex i is original vertex i; levels >= 1 may reorder both.
 // Encoding is deterministic: the same mesh and options give byte-identical output.
@@ -17,6 +20,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -52,8 +56,20 @@ absl::Status ValidateDracoOptions(const DracoOptions& options);
 // `ids` (empty, or one per vertex) travel as a GENERIC uint32 attribute, losslessly. With
 // ids, Edgebreaker may split a non-manifold vertex into copies that carry its id and its
 // position: the decoded vertex count may then exceed the original (triangles are kept).
+// Quantization snaps every corner to the nearest grid point, and a thin triangle can lose
+// its area on the grid (its corners on one grid line) or turn over: a zero-area triangle in
+// the output, which breaks normals, slicers and some viewers (issue 24). Where one would,
+// a corner of it steps to a neighbouring grid point where none of that corner's triangles
+// loses its area or turns over (so it lies up to 1.5 steps from where it was). `fixed`
+// (empty, or one flag per vertex) names the corners that may not move: a sealed chunk's
+// vertices that an earlier chunk sent on the same grid. `moved` (if given) gets the corners
+// that moved, each with the position it was encoded at (float32 values, exactly), for a
+// later chunk on the same grid that sends that vertex again.
+using MovedCorners = std::vector<std::pair<uint32_t, Vec3>>;  // (vertex, position sent)
 absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options = {},
-                                        std::span<const uint32_t> ids = {});
+                                        std::span<const uint32_t> ids = {},
+                                        std::span<const uint8_t> fixed = {},
+                                        MovedCorners* moved = nullptr);
 
 // Decodes a Draco mesh or point-cloud buffer (positions as 3 floats per point; a point
 // cloud gives a mesh without triangles). InvalidArgument for what is not Draco, DataLoss
@@ -74,8 +90,10 @@ absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
 GlbDracoCompressor GlbCompressor(const DracoOptions& options = {});
 
 // How far a decoded coordinate may lie from the original: Draco quantizes all three axes
-// on the largest extent of the bounding box, step = extent / (2^bits - 1), and works in
-// float32, which adds a few roundings of the largest |coordinate|. 0 for no vertices.
+// on the largest extent of the bounding box, step = extent / (2^bits - 1), to the nearest
+// grid point, a corner moved to keep a triangle's area goes one step further (two steps in
+// all, rounded up), and Draco works in float32, which adds a few roundings of the largest
+// |coordinate|. 0 for no vertices.
 double PositionTolerance(const IndexedMesh& mesh, int bits);
 
 }  // namespace tandem::codec

@@ -83,11 +83,23 @@ codec::DracoOptions ChunkGrid(const VolumeInfo& g, codec::DracoOptions o, int64_
 // A chunk's triangles in `count` runs of nearly equal length, each a chunk of the same slices
 // (a span that holds every run's vertices) with the vertices its triangles use, in the
 // chunk's order and under their ids: welded by id, they are the chunk. The retired ids go with
-// the last (no later chunk has them).
-std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count) {
+// the last (no later chunk has them). `fixed` (a flag a vertex of c, the corners the grid may
+// not move) comes back as each part's flags, with the vertices of more than one part fixed
+// too: the parts are encoded side by side, and each may move only what no other part has.
+std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count,
+                                    std::vector<std::vector<uint8_t>>* fixed) {
   const size_t n = c.num_triangles();
   constexpr uint32_t kUnused = ~uint32_t{0};
-  std::vector<uint32_t> local(c.positions.size());
+  std::vector<uint32_t> local(c.positions.size(), kUnused);
+  std::vector<uint8_t> whole = std::move(fixed->at(0));
+  for (size_t p = 0; p < count; ++p) {  // local: the last part that used the vertex
+    for (size_t k = 3 * (n * p / count); k < 3 * (n * (p + 1) / count); ++k) {
+      uint32_t& last = local[c.indices[k]];
+      if (last != kUnused && last != p) whole[c.indices[k]] = 1;
+      last = static_cast<uint32_t>(p);
+    }
+  }
+  fixed->assign(count, {});
   std::vector<SealedChunk> out(count);
   for (size_t p = 0; p < count; ++p) {
     const size_t begin = n * p / count, end = n * (p + 1) / count;
@@ -102,6 +114,7 @@ std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count) {
       local[v] = static_cast<uint32_t>(o.positions.size());
       o.positions.push_back(c.positions[v]);
       o.ids.push_back(c.ids[v]);
+      (*fixed)[p].push_back(whole[v]);
     }
     o.indices.reserve(3 * (end - begin));
     for (size_t k = 3 * begin; k < 3 * end; ++k) o.indices.push_back(local[c.indices[k]]);
@@ -362,9 +375,17 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
       last ? std::clamp<size_t>(c.num_triangles() / static_cast<size_t>(kChunkTriangles), 1,
                                 static_cast<size_t>(std::max(1, compute_->threads())))
            : 1;
+  // On the session's grid, a corner an earlier chunk sent may not move, and goes out where
+  // it was sent.
+  std::vector<std::vector<uint8_t>> fixed(1, std::vector<uint8_t>(c.ids.size(), 0));
+  for (size_t i = 0; i < c.ids.size(); ++i) {
+    fixed[0][i] = sent_ids_.contains(c.ids[i]);
+    if (auto it = sent_moved_.find(c.ids[i]); it != sent_moved_.end()) c.positions[i] = it->second;
+  }
+  for (uint32_t id : c.ids) sent_ids_.insert(id);
   std::vector<SealedChunk> parts;
   if (count > 1) {
-    parts = SplitChunk(std::move(c), count);
+    parts = SplitChunk(std::move(c), count, &fixed);
   } else {
     parts.push_back(std::move(c));
   }
@@ -374,16 +395,26 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
     meshes[i].indices = std::move(parts[i].indices);
   }
   std::vector<absl::StatusOr<std::string>> bytes(parts.size());
+  std::vector<codec::MovedCorners> moved(parts.size());
   {
     TaskGroup group(compute_);
     for (size_t i = 1; i < parts.size(); ++i) {
-      group.Run([&, i] { bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids); });
+      group.Run([&, i] {
+        bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids, fixed[i], &moved[i]);
+      });
     }
-    bytes[0] = codec::EncodeDraco(meshes[0], chunk_draco_, parts[0].ids);
+    bytes[0] = codec::EncodeDraco(meshes[0], chunk_draco_, parts[0].ids, fixed[0], &moved[0]);
     for (const IndexedMesh& mesh : meshes) shape_.Add(mesh);  // the chunk's triangles in order
     group.Wait();
   }
   encode_s_ += SecondsSince(t0);
+  for (size_t i = 0; i < parts.size(); ++i) {
+    for (const auto& [v, at] : moved[i]) sent_moved_[parts[i].ids[v]] = at;
+  }
+  for (uint32_t id : parts.back().retired) {  // no later chunk has them
+    sent_ids_.erase(id);
+    sent_moved_.erase(id);
+  }
   for (size_t i = 0; i < parts.size(); ++i) {
     if (!bytes[i].ok()) {
       return absl::InternalError(absl::StrCat("encoding sealed chunk ", chunks_sent_ + i, ": ",
@@ -639,7 +670,8 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
 }
 
 size_t ExtractJob::MemoryBytes() const {
-  size_t bytes = slice_.capacity();
+  size_t bytes = slice_.capacity() + sent_ids_.capacity() * (sizeof(uint32_t) + 1) +
+                 sent_moved_.capacity() * (sizeof(uint32_t) + sizeof(Vec3) + 1);
   for (const auto& child : surfaces_) bytes += child->MemoryBytes();
   // Peek: exact between messages except for the slab steps still in flight (a few slices'
   // growth, counted at their end), and exact after Finish.

@@ -22,6 +22,8 @@
 #include <string>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
+#include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
 #include "server/request_validation.h"
 #include "tandem/metrics.h"
@@ -137,6 +139,12 @@ class ExtractJob {
   std::optional<std::chrono::steady_clock::time_point> last_chunk_;
   ShapeSums shape_;                 // of everything sealed, for the final metrics
   std::vector<SealedChunk> kept_;   // compute_distances only: the chunks, to weld at the end
+  // The ids a chunk sent that a later chunk may send again (not retired): on the shared grid
+  // those corners may not move (codec::EncodeDraco's `fixed`), and those the encoder moved
+  // go out again where they were sent. The front's border and the unsettled seams, not the
+  // depth.
+  absl::flat_hash_set<uint32_t> sent_ids_;
+  absl::flat_hash_map<uint32_t, Vec3> sent_moved_;
   // Several surfaces (see above): the children, their sinks, the latest Progress of each and
   // their final messages, held until the last child is done.
   std::vector<std::unique_ptr<ExtractJob>> surfaces_;

@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include "tandem/geometry.h"
 #include "tandem/mesh_io.h"
 #include "tandem/synthetic.h"
 #include "tandem/run_session.h"
@@ -245,6 +246,105 @@ TEST(DracoCodec, ExplicitGridAndIdsMakeSharedVerticesBitIdentical) {
             absl::StatusCode::kInvalidArgument);
 }
 
+// Needle triangles whose apex lies a fifth of a grid step off their base, on a grid line:
+// quantized as they are, their three corners fall on one line of the grid (zero area, which
+// breaks normals, slicers and some viewers; issue 24). A thin quad's two triangles as well.
+// A large triangle sets the box: 100 units on 8 bits, a step of 100 / 255.
+IndexedMesh NeedlesOnTheGrid(size_t* needles) {
+  const float step = 100.0f / 255.0f;
+  IndexedMesh m;
+  m.positions = {{0, 0, 0}, {100, 0, 0}, {0, 100, 100}};
+  m.indices = {0, 1, 2};
+  for (int k = 0; k < 12; ++k) {
+    const double x = 10 + 6 * k, y = step * static_cast<float>(40 + 11 * k), z = 30 + 3 * k;
+    const uint32_t b = static_cast<uint32_t>(m.positions.size());
+    m.positions.push_back({x, y, z});
+    m.positions.push_back({x + 5, y, z});
+    m.positions.push_back({x + 2.5, y + 0.2 * step, z});
+    m.indices.insert(m.indices.end(), {b, b + 1, b + 2});
+  }
+  const double y = step * 200.0f;  // the quad: (a, b, c) and (a, c, d)
+  const uint32_t b = static_cast<uint32_t>(m.positions.size());
+  m.positions.push_back({20, y, 60});
+  m.positions.push_back({40, y, 60});
+  m.positions.push_back({40, y + 0.2 * step, 60});
+  m.positions.push_back({20, y + 0.2 * step, 60});
+  m.indices.insert(m.indices.end(), {b, b + 1, b + 2, b, b + 2, b + 3});
+  *needles = 14;
+  return m;
+}
+
+bool NoArea(Vec3 a, Vec3 b, Vec3 c) {  // as written: mesh_check's and the engine's rule
+  return AreaAtMost(4e-12, TwiceAreaVector(a, b, c), SumSquaredEdges(a, b, c));
+}
+size_t CountNoArea(const IndexedMesh& m) {
+  size_t n = 0;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    const uint32_t* v = &m.indices[3 * t];
+    n += NoArea(m.positions[v[0]], m.positions[v[1]], m.positions[v[2]]);
+  }
+  return n;
+}
+
+// No triangle that has an area loses it on the grid or turns over: a corner of each such
+// triangle steps to a neighbouring grid point instead (listed in `moved`, decoded exactly
+// there), within two steps of where it was. Corners that may not move (`fixed`) stay on
+// their nearest grid point, and then the needles do lose their area.
+TEST(DracoCodec, ThinTrianglesKeepAnAreaOnTheGrid) {
+  size_t needles = 0;
+  const IndexedMesh mesh = NeedlesOnTheGrid(&needles);
+  ASSERT_EQ(CountNoArea(mesh), 0u);
+  const double step = 100.0 / 255, rounding = 4 * 100 * std::numeric_limits<float>::epsilon();
+  for (int level : {0, 7}) {
+    MovedCorners moved;
+    auto bytes = EncodeDraco(mesh, {8, level}, {}, {}, &moved);
+    ASSERT_TRUE(bytes.ok()) << bytes.status();
+    auto decoded = DecodeDraco(*bytes);
+    ASSERT_TRUE(decoded.ok()) << decoded.status();
+    ASSERT_EQ(decoded->num_triangles(), mesh.num_triangles()) << level;
+    EXPECT_EQ(CountNoArea(*decoded), 0u) << level;
+    EXPECT_GE(moved.size(), needles / 2) << level;  // the quad may need one corner for both
+    EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, 8)) << level;
+    if (level != 0) continue;
+    // Level 0 keeps the order: each triangle faces as it did, the moved corners are where
+    // `moved` says, the others on their nearest grid point.
+    for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+      const uint32_t* v = &mesh.indices[3 * t];
+      const Vec3 before = TwiceAreaVector(mesh.positions[v[0]], mesh.positions[v[1]],
+                                          mesh.positions[v[2]]);
+      const Vec3 after = TwiceAreaVector(decoded->positions[v[0]], decoded->positions[v[1]],
+                                         decoded->positions[v[2]]);
+      EXPECT_GT(Dot(before, after), 0) << t;
+    }
+    std::vector<bool> was_moved(mesh.num_vertices(), false);
+    for (const auto& [v, at] : moved) {
+      ASSERT_LT(v, mesh.num_vertices());
+      was_moved[v] = true;
+      EXPECT_EQ(decoded->positions[v], at) << v;
+      for (int c = 0; c < 3; ++c) EXPECT_LE(std::abs(at[c] - mesh.positions[v][c]), 1.5 * step + rounding);
+    }
+    for (size_t v = 0; v < mesh.num_vertices(); ++v) {
+      if (was_moved[v]) continue;
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_LE(std::abs(decoded->positions[v][c] - mesh.positions[v][c]), 0.5 * step + rounding);
+      }
+    }
+  }
+  // Every corner fixed: nothing moves, and the needles lose their area.
+  const std::vector<uint8_t> all(mesh.num_vertices(), 1);
+  MovedCorners moved;
+  auto bytes = EncodeDraco(mesh, {8, 0}, {}, all, &moved);
+  ASSERT_TRUE(bytes.ok()) << bytes.status();
+  auto decoded = DecodeDraco(*bytes);
+  ASSERT_TRUE(decoded.ok());
+  EXPECT_TRUE(moved.empty());
+  EXPECT_EQ(CountNoArea(*decoded), needles);
+  EXPECT_LE(MaxIndexwiseError(mesh, *decoded), 0.5 * step + rounding);
+  // One flag per vertex, or none.
+  EXPECT_EQ(EncodeDraco(mesh, {8, 0}, {}, std::vector<uint8_t>(2, 0)).status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
 TEST(DracoCodec, RejectsBadMeshesAndOptions) {
   IndexedMesh bad;
   bad.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
@@ -275,11 +375,11 @@ TEST(DracoCodec, RejectsGarbageAndTruncatedBuffers) {
   }
 }
 
-TEST(DracoCodec, PositionToleranceIsTheStepOfTheLargestExtentPlusRounding) {
+TEST(DracoCodec, PositionToleranceIsTwoStepsOfTheLargestExtentPlusRounding) {
   IndexedMesh m;
   m.positions = {{0, 0, 0}, {2, 1, 0.5}};
   const double rounding = 4 * 2 * static_cast<double>(std::numeric_limits<float>::epsilon());
-  EXPECT_DOUBLE_EQ(PositionTolerance(m, 16), 2.0 / 65535 + rounding);
+  EXPECT_DOUBLE_EQ(PositionTolerance(m, 16), 2 * 2.0 / 65535 + rounding);
   EXPECT_EQ(PositionTolerance(IndexedMesh{}, 16), 0);
 }
 
