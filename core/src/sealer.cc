@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
 #include <utility>
 
@@ -187,7 +188,7 @@ void Sealer::Seal(double front, Executor* executor) {
   // Shared vertices frozen since the last call (FreezeShared) may complete triangles too.
   freeze_.insert(freeze_.end(), shared_.begin(), shared_.end());
   shared_.clear();
-  GatherSealable(freeze_);
+  GatherSealable(freeze_, all);
   if (simplifier_ != nullptr) {
     need_.clear();
     for (TriId t : tris_) {
@@ -199,8 +200,9 @@ void Sealer::Seal(double front, Executor* executor) {
     // that corner may still move (frozen, but without an id), the others staying where they
     // are and the topology too. Left for later, both its coincident corners could be handed
     // out by other triangles first, and then neither may move (the head MR sealed kept 2 so).
+    // At the end everything seals now: there is no later.
     later_.clear();
-    for (TriId t : tris_) {
+    for (TriId t : all ? std::span<const TriId>() : tris_) {
       for (VertexId v : store_->triangle(t)) {
         if (id(v) != kInvalid) continue;
         for (TriId u : store_->vertex_triangles(v)) later_.push_back(u);
@@ -214,7 +216,7 @@ void Sealer::Seal(double front, Executor* executor) {
         /*flips=*/false);
     if (mended.flipped > 0) {
       need_.insert(need_.end(), freeze_.begin(), freeze_.end());
-      GatherSealable(need_);
+      GatherSealable(need_, all);
     }
   }
   drop_.assign(freeze_.begin(), freeze_.end());
@@ -226,7 +228,7 @@ void Sealer::Seal(double front, Executor* executor) {
         pend_verts_.push_back({k.id, store_->height(v), store_->position(v)});
       }
       pend_tris_.push_back(k.id);
-      drop_.push_back(v);
+      if (!all) drop_.push_back(v);
     }
   }
   for (TriId t : tris_) store_->RemoveTriangle(t);
@@ -234,11 +236,13 @@ void Sealer::Seal(double front, Executor* executor) {
   // 4. Frozen vertices left without triangles leave the store. A contraction next to a frozen
   // vertex can remove one of its triangles too (the triangle on the contracted edge): such a
   // vertex may lose its last triangle unseen here, so the end of the stream looks at all.
-  if (all) {
-    for (VertexId v = 0; v < store_->vertex_capacity(); ++v) drop_.push_back(v);
+  if (all) {  // every vertex, in increasing id as sorted below
+    drop_.resize(store_->vertex_capacity());
+    std::iota(drop_.begin(), drop_.end(), VertexId{0});
+  } else {
+    std::sort(drop_.begin(), drop_.end());
+    drop_.erase(std::unique(drop_.begin(), drop_.end()), drop_.end());
   }
-  std::sort(drop_.begin(), drop_.end());
-  drop_.erase(std::unique(drop_.begin(), drop_.end()), drop_.end());
   for (VertexId v : drop_) {
     if (store_->vertex_alive(v) && store_->vertex_triangles(v).empty()) {
       store_->RemoveVertex(v);
@@ -279,8 +283,19 @@ void Sealer::FreezeShared(VertexId v, uint32_t id, double shape_error) {
   shared_.push_back(v);
 }
 
-void Sealer::GatherSealable(std::span<const VertexId> around) {
+void Sealer::GatherSealable(std::span<const VertexId> around, bool every) {
   tris_.clear();
+  if (every) {  // the end of the stream: every live triangle, in increasing id
+    for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
+      if (!store_->triangle_alive(t)) continue;
+      const auto& tri = store_->triangle(t);
+      if (store_->box_mask(tri[0]) & store_->box_mask(tri[1]) & store_->box_mask(tri[2]) &
+          kFrozen) {
+        tris_.push_back(t);
+      }
+    }
+    return;
+  }
   for (VertexId v : around) {
     if (!store_->vertex_alive(v)) continue;
     for (TriId t : store_->vertex_triangles(v)) {

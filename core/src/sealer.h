@@ -87,8 +87,9 @@ class Sealer {
   size_t MemoryBytes() const;
 
  private:
-  // tris_ = the live triangles around `around` whose three corners are frozen, by id.
-  void GatherSealable(std::span<const VertexId> around);
+  // tris_ = the live triangles around `around` (`every`: in the store) whose three corners
+  // are frozen, by id.
+  void GatherSealable(std::span<const VertexId> around, bool every = false);
   struct Kept;
   Kept& HandOut(VertexId v);  // its global id (Kept::id), handed out on first use
   void SetNormal(VertexId v, Vec3 n);  // normals_[its slot] = n, taking a slot
