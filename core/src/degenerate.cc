@@ -110,11 +110,37 @@ bool TryFlip(MeshStore* s, TriId t) {
   return true;
 }
 
-// The way v's star faces: the sum of its non-degenerate triangles' twice-area vectors.
+// The way v's star faces: the sum of its non-degenerate triangles' twice-area vectors. When
+// every triangle of v is degenerate (a strip of them flat along an edge of the grid's box, at
+// a settled seam vertex: the quantised tangles sealed kept 4 so), the way the nearest
+// non-degenerate ones face, found ring by ring across the degenerate triangles' edges (up
+// to kFacingRings out); zero if there are none.
+constexpr int kFacingRings = 4;
 Vec3 StarFacing(const MeshStore& s, VertexId v) {
   Vec3 facing{0, 0, 0};
   for (TriId u : s.vertex_triangles(v)) {
     if (!Degenerate(s, u)) facing = facing + TwiceArea(s, s.triangle(u));
+  }
+  if (Dot(facing, facing) > 0) return facing;
+  std::vector<TriId> ring(s.vertex_triangles(v).begin(), s.vertex_triangles(v).end());
+  std::vector<TriId> seen = ring, next;
+  for (int depth = 0; depth < kFacingRings && !ring.empty(); ++depth) {
+    next.clear();
+    for (TriId u : ring) {
+      const auto& w = s.triangle(u);
+      for (int j = 0; j < 3; ++j) {
+        const TriId o = WithHalfEdge(s, w[(j + 1) % 3], w[j]);
+        if (o == kInvalid || std::find(seen.begin(), seen.end(), o) != seen.end()) continue;
+        seen.push_back(o);
+        if (Degenerate(s, o)) {
+          next.push_back(o);
+        } else {
+          facing = facing + TwiceArea(s, s.triangle(o));
+        }
+      }
+    }
+    if (Dot(facing, facing) > 0) return facing;
+    ring.swap(next);
   }
   return facing;
 }
@@ -399,9 +425,12 @@ int64_t TryInflateOnBox(MeshStore* s, TriId t, double size,
 
 }  // namespace
 
-bool MoveKeepsFacing(const MeshStore& store, VertexId v, Vec3 q) {
-  return KeepsFacing(store, v, q, StarFacing(store, v));
+bool MoveKeepsFacing(const MeshStore& store, VertexId v, Vec3 q, Vec3 otherwise) {
+  const Vec3 facing = StarFacing(store, v);
+  return KeepsFacing(store, v, q, Dot(facing, facing) > 0 ? facing : otherwise);
 }
+
+Vec3 VertexFacing(const MeshStore& store, VertexId v) { return StarFacing(store, v); }
 
 DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tris, double size,
                                      const std::function<bool(VertexId, Vec3)>& may_move,

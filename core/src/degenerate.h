@@ -61,8 +61,15 @@ DegenerateCounts TidyDegenerateAmong(MeshStore* store, std::span<const TriId> tr
                                      bool flips = true);
 
 // Whether moving v to q keeps its triangles facing as they do, none collapsing (the test a
-// corner's move above must pass), e.g. for the second copy of a seam vertex (slabs.h).
-bool MoveKeepsFacing(const MeshStore& store, VertexId v, Vec3 q);
+// corner's move above must pass), e.g. for the second copy of a seam vertex (slabs.h). A
+// degenerate triangle must come out facing as its neighbours across its edges do, else as
+// VertexFacing(v), else (no triangle near v has an area) as `otherwise`: the second copy of a
+// seam vertex whose slab holds only a sliver there faces as the first copy's slab.
+bool MoveKeepsFacing(const MeshStore& store, VertexId v, Vec3 q, Vec3 otherwise = {0, 0, 0});
+// The way v's triangles face: the sum of their twice-area vectors, the degenerate ones left
+// out; where all are degenerate, the nearest triangles' with an area, a few rings out across
+// edges; zero if there are none.
+Vec3 VertexFacing(const MeshStore& store, VertexId v);
 
 }  // namespace tandem
 

@@ -112,7 +112,7 @@ void MendSettlingSeamSide(Slab& own, Slab& other,
         const Quadric h = welded(v, it->second);
         const double now = ShapeError(h, own.store.position(v));
         const bool may = ShapeError(h, p) <= std::max(error, now) &&
-                         MoveKeepsFacing(other.store, it->second, p);
+                         MoveKeepsFacing(other.store, it->second, p, VertexFacing(own.store, v));
         if (may) {  // both copies move next: their quadrics in full first
           own.simplifier.KeepQuadric(v);
           other.simplifier.KeepQuadric(it->second);

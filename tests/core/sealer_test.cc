@@ -673,10 +673,14 @@ TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
       // settling seam vertices moved apart (MendSettlingSeam) 0-7; with two seam vertices on
       // one face of the box contracted as two inside it are (at one point there, with a
       // third vertex: no move parts a triangle on the line where the seam meets the face)
-      // 0-4, all of them a strip along the box's edge at the first slice, next to a seam.
+      // 0-4, all of them a strip along the box's edge at the first slice, next to a seam:
+      // two settled seam copies at one point of the box's edge, every triangle around them
+      // degenerate, and the other slab holding only a sliver there. With the facing taken a
+      // few rings out and the other copy's sliver facing as this slab does (stop 59), none;
+      // the same at the default settling, 512 slices (72 x 40 x 576; 4 before).
       const int64_t degenerate_plain = CountDegenerate(plain.mesh);
       const int64_t degenerate_sealed = CountDegenerate(sealed.mesh);
-      EXPECT_LE(degenerate_sealed, degenerate_plain + 4) << what;
+      EXPECT_LE(degenerate_sealed, degenerate_plain) << what;
       std::printf("%s: triangles plain %zu sealed %zu, zero-area %lld / %lld\n", what.c_str(),
                   p.triangles, s.triangles, static_cast<long long>(degenerate_plain),
                   static_cast<long long>(degenerate_sealed));
