@@ -335,7 +335,9 @@ int StreamCommand(int argc, char** argv) {
   tandem::client::LiveView view;
   view.AddFlags(flags);
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
-  flags.AddBool("verbose", &verbose, "print one line per progress and preview message on stderr");
+  flags.AddBool("verbose", &verbose,
+                "print one line per progress, preview and chunk message on stderr, and one "
+                "when the final mesh has arrived (before it is written)");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
   if (absl::Status st = f.Check(flags); !st.ok()) return UsageError(st);
   const std::string input = f.InputPath();
@@ -521,6 +523,10 @@ int StreamCommand(int argc, char** argv) {
     return rc;
   }
   if (!partial_error.ok()) return Fail(partial_error);
+  if (verbose) {  // the mesh is here; writing it (a sealed .drc: encoded again) comes next
+    absl::FPrintF(stderr, "received surfaces=%d triangles=%d seconds=%.3f\n",
+                  result->num_surfaces(), result->triangles, result->seconds);
+  }
 
   SaveOptions save;
   save.seal = result->sealed_session;
