@@ -66,17 +66,18 @@ bool KeepsArea(const Lattice& a, const Lattice& b, const Lattice& c, Vec3 facing
   return HasArea(pa, pb, pc) && Dot(TwiceAreaVector(pa, pb, pc), facing) > 0;
 }
 
-// Nearly every triangle: on the grid it has an area and each corner lies more than 4 grid
-// steps from the line of the other two. Its corners as given lie within sqrt(3)/2 of a
-// step of their grid points, which moves a corner's distance to that line by less than 2
-// steps: as given, it faces as it does on the grid, and no check is needed.
+// Nearly every triangle: on the grid it has an area and each corner lies more than 6 grid
+// steps from the line of the other two. Its corners as given lie within sqrt(3)/2 of a step
+// of their grid points, or within 1.5 sqrt(3) for a corner moved (or about to be) one step,
+// which changes a corner's distance to that line by at most twice that, under 6 steps: as
+// given, it has an area and faces as it does on the grid, and no check is needed.
 bool FarFromLosingArea(const Lattice& a, const Lattice& b, const Lattice& c) {
   const Vec3 pa = AsVec(a), pb = AsVec(b), pc = AsVec(c);
   const Vec3 n = TwiceAreaVector(pa, pb, pc);
   const double longest = std::max({Dot(pb - pa, pb - pa), Dot(pc - pb, pc - pb),
                                    Dot(pa - pc, pa - pc)});
   // The least height squared is |n|^2 over the longest edge squared (in steps squared).
-  return Dot(n, n) > 16 * longest && HasArea(pa, pb, pc);
+  return Dot(n, n) > 36 * longest && HasArea(pa, pb, pc);
 }
 
 // Where a triangle with an area as written would have none on the grid (or turn over), one
