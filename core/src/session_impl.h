@@ -36,7 +36,9 @@ struct TandemSession::Impl {
   void FoldTraces();  // appends the slabs' new trace entries, summed, to stats.trace
   void Record();      // the whole mesh's count, after Finish
   // Runs f(slab) for every slab: side by side on the executor when pipelined, else in order.
-  void ForEachSlab(const std::function<void(Slab&)>& f);
+  // `balanced`: at most as many at once as the executor has threads (the caller counting as
+  // one), each taking the next slab when it is done, for long steps of similar size.
+  void ForEachSlab(const std::function<void(Slab&)>& f, bool balanced = false);
   // Engine frame -> world, in place (a mirrored frame also reverses the triangles' winding).
   void ToWorld(std::vector<Vec3>* positions, std::vector<uint32_t>* indices) const;
   const SessionStats& Stats();
