@@ -528,13 +528,15 @@ absl::Status TandemSession::Impl::Finish() {
   const bool merge = slabs.size() > 1;
   if (merge && options.target_triangles > 0 && options.schedule != Schedule::kNone &&
       !slabs[0]->sealer) {
-    ApproachTarget(slabs, options.target_triangles,
-                   [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
+    ApproachTarget(slabs, options.target_triangles, [this](const std::function<void(Slab&)>& f) {
+      ForEachSlab(f, /*balanced=*/true);
+    });
   }
   if (options.schedule != Schedule::kNone && options.target_triangles <= 0 &&
       slabs[0]->simplifier.error() < options.error / scale) {  // the finishing pass
-    FinishAtError(slabs, options.error / scale,
-                  [this](const std::function<void(Slab&)>& f) { ForEachSlab(f); });
+    FinishAtError(slabs, options.error / scale, [this](const std::function<void(Slab&)>& f) {
+      ForEachSlab(f, /*balanced=*/true);
+    });
   }
   FoldTraces();
   std::vector<VertexId> seam_vertices;
