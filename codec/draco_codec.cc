@@ -41,7 +41,15 @@ struct Grid {
   int32_t Quantize(float v, int axis) const {
     float value = v - origin[axis];
     value *= inverse_delta;
-    return static_cast<int32_t>(std::floor(value + 0.5f));
+    const float q = std::floor(value + 0.5f);
+    // Off the int32 range (or NaN: a box too large for float32, inf * 0): what x86's
+    // conversion gives in Draco, where the cast is undefined.
+    if (!(q >= -2147483648.0f && q < 2147483648.0f)) return std::numeric_limits<int32_t>::min();
+    return static_cast<int32_t>(q);
+  }
+  // A grid whose step float32 can hold (positions spread beyond float32's range cannot).
+  bool usable() const {
+    return std::isfinite(inverse_delta) && inverse_delta > 0 && std::isfinite(delta) && delta > 0;
   }
 };
 
@@ -258,9 +266,9 @@ absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh
     }
     out->SetFace(draco::FaceIndex(static_cast<uint32_t>(t)), face);
   }
-  if (nv > 0) {  // the indices are checked
-    KeepAreasOnGrid(mesh, Grid(options->grid_origin, options->grid_range, options->quantization_bits),
-                    fixed, &points, moved);
+  if (const Grid grid(options->grid_origin, options->grid_range, options->quantization_bits);
+      nv > 0 && grid.usable()) {  // the indices are checked
+    KeepAreasOnGrid(mesh, grid, fixed, &points, moved);
   }
   for (size_t i = 0; i < nv; ++i) {
     att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), points[i].data());
