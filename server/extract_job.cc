@@ -348,25 +348,28 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
 
 absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   if (!config_.options.seal) return absl::OkStatus();
-  // Whether a chunk is due, between slices: as the slabs' last finished steps left the
-  // session (Peek: no wait for the steps in flight, which overlap the next slices).
+  // Whether a chunk is due, between slices: what the slabs' finished steps sealed (Peek and
+  // TakeSealedThrough: no wait for the steps in flight, which overlap the next slices; a wait
+  // for them after every slice stepped the slabs in lock-step). `now`: all of it, the steps
+  // waited for.
   const auto t0 = Clock::now();
-  if (!now) {
-    const int64_t peeked = session_->Peek().sealed_pending;
-    if (peeked == 0 || (peeked < kChunkTriangles &&
-                        std::chrono::duration<double>(t0 - last_chunk_.value_or(start_)).count() <
-                            kChunkSeconds)) {
-      return absl::OkStatus();
-    }
+  const TandemSession::Gauge gauge = now ? TandemSession::Gauge{} : session_->Peek();
+  if (!now && (gauge.sealed_pending == 0 ||
+               (gauge.sealed_pending < kChunkTriangles &&
+                std::chrono::duration<double>(t0 - last_chunk_.value_or(start_)).count() <
+                    kChunkSeconds))) {
+    return absl::OkStatus();
   }
-  const int64_t pending = session_->sealed_pending();  // all of it, the steps waited for
+  const int64_t pending = now ? session_->sealed_pending() : gauge.sealed_pending;
   if (pending == 0) return absl::OkStatus();
   // Unlike a preview, a chunk cannot be skipped: over the budget, the stream fails.
   if (absl::Status st = CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"); !st.ok()) {
     return st;
   }
   SealedChunk c;
-  if (!session_->TakeSealed(&c)) return absl::OkStatus();
+  if (!(now ? session_->TakeSealed(&c) : session_->TakeSealedThrough(gauge.sealed_through, &c))) {
+    return absl::OkStatus();
+  }
   // The stream's last chunk holds the time lag's band and the seams, sealed at once, and its
   // encoding ran on one core while the finished session left the others idle (0.5 s of a
   // dense 2048² stream's 4.3 s wait after its last slice). A large one goes out as one chunk

@@ -35,16 +35,29 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     if (!session.ok()) return session.status();
     sessions.push_back(*std::move(session));
   }
-  auto take = [&]() -> absl::Status {
-    for (size_t i = 0; i < sessions.size(); ++i) {
-      if (!options[i].seal) continue;
+  // Sealed chunks, one a slice, kSlicesInFlight slices behind the last one added: those
+  // steps have finished, so the slabs' steps in flight go on (TakeSealedThrough); the same
+  // chunks as taking each slice's right after it, without the slabs stepping in lock-step.
+  // Then, once finished, what Finish sealed.
+  int64_t next_take = 0;
+  auto take = [&](int64_t through, bool finished) -> absl::Status {
+    for (; next_take <= through; ++next_take) {
+      for (size_t i = 0; i < sessions.size(); ++i) {
+        SealedChunk c;
+        if (options[i].seal && sessions[i]->TakeSealedThrough(next_take, &c)) {
+          if (absl::Status st = on_chunk(i, std::move(c)); !st.ok()) return st;
+        }
+      }
+    }
+    for (size_t i = 0; finished && i < sessions.size(); ++i) {
       SealedChunk c;
-      while (sessions[i]->TakeSealed(&c)) {
+      while (options[i].seal && sessions[i]->TakeSealed(&c)) {
         if (absl::Status st = on_chunk(i, std::move(c)); !st.ok()) return st;
       }
     }
     return absl::OkStatus();
   };
+  int64_t added = 0;  // slices
   // Each session copies the slice into its own ring and, when pipelined, returns while its
   // workers go on: the sessions run side by side from one read of the slice.
   auto add = [&](int64_t k, const uint8_t* bytes) {
@@ -54,7 +67,8 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
         return absl::Status(st.code(), absl::StrCat("slice ", k, ": ", std::string(st.message())));
       }
     }
-    if (absl::Status st = take(); !st.ok()) return st;
+    added = k + 1;
+    if (absl::Status st = take(k - TandemSession::kSlicesInFlight, false); !st.ok()) return st;
     if (progress) progress(k + 1, info.nz);
     return absl::OkStatus();
   };
@@ -81,6 +95,7 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
       if (absl::Status st = add(k, bytes.data()); !st.ok()) return st;
     }
   }
+  if (absl::Status st = take(added - 1, false); !st.ok()) return st;
   // The final SIMPLIFY of each surface, side by side as well.
   std::vector<absl::Status> finished(sessions.size());
   {
@@ -94,7 +109,7 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
   for (const absl::Status& st : finished) {
     if (!st.ok()) return st;
   }
-  if (absl::Status st = take(); !st.ok()) return st;
+  if (absl::Status st = take(added - 1, true); !st.ok()) return st;
   return sessions;
 }
 

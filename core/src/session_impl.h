@@ -49,7 +49,6 @@ struct TandemSession::Impl {
   struct SlabGauge {
     int64_t triangles = 0;
     size_t bytes = 0;
-    int64_t sealed_pending = 0;
   };
   SlabGauge Measure(const Slab& slab) const;  // reads only the slab and the grid
   size_t BufferBytes() const;  // the slice buffers and the seams' pairs
@@ -71,7 +70,7 @@ struct TandemSession::Impl {
     bool parked = false;     // waiting for the target count's decision (TargetControl)
     absl::Status failure;    // the first failure of a queued step (none expected)
   };
-  static constexpr int kRingSlots = 4;  // slices in flight, at most
+  static constexpr int kRingSlots = static_cast<int>(kSlicesInFlight);  // slices in flight
   void StepQueued(size_t slab);  // one queued step of a slab (a task)
   absl::Status QueuedFailure();  // mu held
 
@@ -98,6 +97,19 @@ struct TandemSession::Impl {
   std::vector<float> convert;  // float32 bytes not aligned for float (one part or unqueued)
   SessionStats stats;
   int64_t chunks_taken = 0;  // TakeSealed: the next chunk's index
+  // Sealing: each slab step's share of the sealed mesh, cut as the step ends (CutSealed), by
+  // slab (the slabs as created: they outlive the merge); the front of each is slice
+  // cut_taken's. Guarded by mu, with cut_bytes (their memory).
+  std::vector<std::deque<SealedChunk>> cuts;
+  int64_t cut_taken = 0;
+  size_t cut_bytes = 0;
+  void CutSealed(Slab& slab);  // the slab's step ended (takes mu)
+  int64_t CutThrough() const;  // mu held: the last slice every slab's share is cut for
+  // mu held: moves the shares of slices up to `through` (<= CutThrough()) into *pieces,
+  // slice by slice, each in slab order.
+  void TakeCuts(int64_t through, std::vector<SealedChunk>* pieces);
+  // One chunk of the pieces taken (false: no triangle and no retired id), in world units.
+  bool JoinTaken(std::vector<SealedChunk> pieces, SealedChunk* out);
   // Sealing with slabs: seam vertices frozen in both slabs (SettleSeams), and those of them
   // one copy of which was retired so far (the id is retired with the second).
   int64_t seam_ids = 0;

@@ -21,6 +21,12 @@ double Seconds(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
 }
 
+// What a sealed chunk's arrays take.
+size_t ChunkBytes(const SealedChunk& c) {
+  return c.positions.capacity() * sizeof(Vec3) +
+         (c.ids.capacity() + c.indices.capacity() + c.retired.capacity()) * sizeof(uint32_t);
+}
+
 // The engine frame's unit (TandemSession): the power of two at or below the smallest
 // spacing, so that scaling by it is exact.
 double EngineScale(const VolumeInfo& g) {
@@ -122,34 +128,97 @@ IndexedMesh TandemSession::Snapshot() const {
 bool TandemSession::TakeSealed(SealedChunk* out) {
   Impl& s = *impl_;
   (void)s.Sync();
-  // Everything sealed since the last call, in one chunk: the slabs' pieces in slab order.
+  // Every step's share cut so far, then what the sealers sealed outside the steps (Finish).
   std::vector<SealedChunk> pieces;
+  {
+    std::lock_guard<std::mutex> lock(s.mu);
+    s.TakeCuts(s.CutThrough(), &pieces);
+  }
   for (const auto& slab : s.slabs) {
     SealedChunk piece;
     if (slab->sealer != nullptr && slab->sealer->TakeChunk(&piece)) {
       pieces.push_back(std::move(piece));
     }
   }
+  return s.JoinTaken(std::move(pieces), out);
+}
+
+bool TandemSession::TakeSealedThrough(int64_t slice, SealedChunk* out) {
+  Impl& s = *impl_;
+  if (s.cuts.empty()) return false;  // not sealing
+  // A slice never stepped has no share; a refused one neither.
+  const int64_t through = std::min(slice, s.slices_added - 1);
+  if (s.queued) {
+    s.steps->WaitUntil(
+        [&] {
+          std::lock_guard<std::mutex> lock(s.mu);
+          return s.CutThrough() >= through;
+        },
+        /*help=*/false);
+  }
+  std::vector<SealedChunk> pieces;
+  {
+    std::lock_guard<std::mutex> lock(s.mu);
+    s.TakeCuts(std::min(through, s.CutThrough()), &pieces);
+  }
+  return s.JoinTaken(std::move(pieces), out);
+}
+
+bool TandemSession::Impl::JoinTaken(std::vector<SealedChunk> pieces, SealedChunk* out) {
+  std::erase_if(pieces,
+                [](const SealedChunk& p) { return p.indices.empty() && p.retired.empty(); });
   if (pieces.empty()) return false;
   *out = JoinChunks(std::move(pieces));
-  out->index = s.chunks_taken++;
-  if (s.slabs.size() > 1) {  // a settled seam vertex's id is retired with its second copy
-    const uint32_t stride = SealerIdStride(static_cast<int>(s.slabs.size()));
-    const auto seam = static_cast<uint32_t>(s.slabs.size());
+  out->index = chunks_taken++;
+  if (cuts.size() > 1) {  // a settled seam vertex's id is retired with its second copy
+    const uint32_t stride = SealerIdStride(static_cast<int>(cuts.size()));
+    const auto seam = static_cast<uint32_t>(cuts.size());
     std::erase_if(out->retired, [&](uint32_t id) {
-      return id % stride == seam && s.half_retired.insert(id).second;
+      return id % stride == seam && half_retired.insert(id).second;
     });
     for (uint32_t id : out->retired) {
-      if (id % stride == seam) s.half_retired.erase(id);
+      if (id % stride == seam) half_retired.erase(id);
     }
   }
-  s.ToWorld(&out->positions, &out->indices);
+  ToWorld(&out->positions, &out->indices);
   return true;
+}
+
+void TandemSession::Impl::CutSealed(Slab& slab) {
+  if (slab.sealer == nullptr) return;
+  SealedChunk piece;  // empty if nothing was sealed: every step has its share
+  slab.sealer->TakeChunk(&piece);
+  const size_t bytes = ChunkBytes(piece);
+  std::lock_guard<std::mutex> lock(mu);
+  cuts[static_cast<size_t>(slab.index)].push_back(std::move(piece));
+  cut_bytes += bytes;
+}
+
+int64_t TandemSession::Impl::CutThrough() const {
+  size_t n = std::numeric_limits<size_t>::max();
+  for (const auto& c : cuts) n = std::min(n, c.size());
+  return cuts.empty() ? -1 : cut_taken + static_cast<int64_t>(n) - 1;
+}
+
+void TandemSession::Impl::TakeCuts(int64_t through, std::vector<SealedChunk>* pieces) {
+  for (; cut_taken <= through; ++cut_taken) {
+    for (auto& c : cuts) {
+      cut_bytes -= std::min(cut_bytes, ChunkBytes(c.front()));
+      pieces->push_back(std::move(c.front()));
+      c.pop_front();
+    }
+  }
 }
 
 int64_t TandemSession::sealed_pending() const {
   (void)impl_->Sync();
   int64_t n = 0;
+  {
+    std::lock_guard<std::mutex> lock(impl_->mu);
+    for (const auto& c : impl_->cuts) {
+      for (const SealedChunk& piece : c) n += static_cast<int64_t>(piece.num_triangles());
+    }
+  }
   for (const auto& slab : impl_->slabs) {
     if (slab->sealer) n += slab->sealer->pending_triangles();
   }
@@ -221,6 +290,7 @@ TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int coun
     steps = std::make_unique<TaskGroup>(executor);
     for (const auto& s : slabs) gauges.push_back(Measure(*s));  // the planes as planned
   }
+  if (slabs[0]->sealer != nullptr) cuts.resize(slabs.size());
 }
 
 TandemSession::Impl::~Impl() {
@@ -292,6 +362,7 @@ void TandemSession::Impl::StepQueued(size_t i) {
       st = StepSlab(slab, ring[static_cast<size_t>(slot)].values().From(slab.x0),
                     options.schedule, overlap);
     }
+    CutSealed(slab);  // a share for every step, so that the shares stay in step with slices
   } catch (...) {  // this slab is done for; Sync and AddSlice report it
     st = StatusOfException(std::current_exception());
   }
@@ -500,6 +571,7 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
     }
   }
   if (absl::Status st = Sync(); !st.ok()) return fail(st);
+  for (auto& s : slabs) CutSealed(*s);
   ++slices_added;
   stats.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
@@ -609,10 +681,7 @@ size_t TandemSession::Impl::BufferBytes() const {
 TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) const {
   SlabGauge g;
   g.triangles = static_cast<int64_t>(s.store.num_triangles());
-  if (s.sealer) {
-    g.bytes += s.sealer->MemoryBytes();
-    g.sealed_pending = s.sealer->pending_triangles();
-  }
+  if (s.sealer) g.bytes += s.sealer->MemoryBytes();
   // The queues at their fullest in the last step, not as its end left them: a budget checked
   // between slices would otherwise miss Q's peak (a cap's release: 137 MiB a part at 2048²,
   // while the queues read 36 MiB after the step). Plane caches as planned, like the slices.
@@ -626,7 +695,8 @@ size_t TandemSession::Impl::MemoryBytes() {
   (void)Sync();
   size_t bytes = BufferBytes();
   for (const auto& s : slabs) bytes += Measure(*s).bytes;
-  return bytes;
+  std::lock_guard<std::mutex> lock(mu);
+  return bytes + cut_bytes;
 }
 
 TandemSession::Gauge TandemSession::Impl::Peek() {
@@ -634,7 +704,6 @@ TandemSession::Gauge TandemSession::Impl::Peek() {
   auto add = [&g](const SlabGauge& s) {
     g.triangles += s.triangles;
     g.memory_bytes += s.bytes;
-    g.sealed_pending += s.sealed_pending;
   };
   if (queued) {
     std::lock_guard<std::mutex> lock(mu);
@@ -642,6 +711,17 @@ TandemSession::Gauge TandemSession::Impl::Peek() {
   } else {  // nothing runs behind the caller: the slabs as they are
     (void)Sync();
     for (const auto& s : slabs) add(Measure(*s));
+  }
+  {
+    std::lock_guard<std::mutex> lock(mu);
+    g.memory_bytes += cut_bytes;
+    g.sealed_through = CutThrough();
+    for (const auto& c : cuts) {
+      for (int64_t k = cut_taken; k <= g.sealed_through; ++k) {
+        const SealedChunk& share = c[static_cast<size_t>(k - cut_taken)];
+        g.sealed_pending += static_cast<int64_t>(share.num_triangles());
+      }
+    }
   }
   g.memory_bytes += BufferBytes();  // after Sync, which pairs the seams
   g.peak_triangles = std::max(stats.peak_triangles, g.triangles);

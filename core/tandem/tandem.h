@@ -70,10 +70,20 @@ class TandemSession {
   // Compacted copy of the current (partial or final) mesh, the slabs welded at their seams;
   // with sealing, of the part not sealed yet (empty after Finish).
   IndexedMesh Snapshot() const;
-  // Sealing: moves everything sealed since the last call into one chunk (false: nothing new).
-  // Finish seals the rest.
+  // Sealing: moves everything sealed since the last call into one chunk (false: nothing new),
+  // first waiting for every slab step still queued. Finish seals the rest.
   bool TakeSealed(SealedChunk* out);
   int64_t sealed_pending() const;  // triangles TakeSealed would hand out now
+  // Sealing without draining the pipeline: moves what the steps of slices up to `slice` sealed
+  // (and not taken yet) into one chunk, waiting for those steps only, never for later ones
+  // (false: nothing). Each slab step's share is cut as the step ends, so taking slice k after
+  // AddSlice of slice k + kSlicesInFlight never waits, and gives the chunk that TakeSealed
+  // after AddSlice of slice k gives. Taking after every slice with TakeSealed instead ran a
+  // split session's slabs in lock-step: on 2 cores a dense 2048² stream took about 15 % longer.
+  bool TakeSealedThrough(int64_t slice, SealedChunk* out);
+  // A split session steps its slabs up to this many slices behind AddSlice: once AddSlice of
+  // slice k returns, every step of slice k - kSlicesInFlight has finished.
+  static constexpr int64_t kSlicesInFlight = 4;
   int64_t num_triangles() const;   // held by the session (with sealing: not sealed yet)
   int num_parts() const;           // slabs; after Finish: 1
   const SessionStats& stats() const;
@@ -90,7 +100,11 @@ class TandemSession {
     int64_t triangles = 0;       // num_triangles()
     int64_t peak_triangles = 0;  // stats().peak_triangles, with `triangles`
     size_t memory_bytes = 0;     // MemoryBytes()
-    int64_t sealed_pending = 0;  // sealed_pending()
+    // Sealing: the last slice whose steps every slab finished, and the triangles
+    // TakeSealedThrough(sealed_through) would hand out now (what Finish seals, only
+    // TakeSealed hands out).
+    int64_t sealed_through = -1;
+    int64_t sealed_pending = 0;
   };
   Gauge Peek() const;
   const VolumeInfo& grid() const;
