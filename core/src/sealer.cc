@@ -139,7 +139,7 @@ void Sealer::Seal(double front, Executor* executor) {
         all || (simplifier_ == nullptr
                     ? store_->height(v) + 1.0 <= limit
                     : store_->height(v) + simplifier_->rad(v) <= limit &&
-                          simplifier_->MaxEdgeReach(v) <= limit);
+                          simplifier_->EdgesReachAtMost(v, limit));
     if (frozen && !all && NextToSeam(v)) {  // keeps the seam's fans free for the merge
       active_[keep++] = v;
     } else if (frozen) {

@@ -825,17 +825,24 @@ void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> 
   tandem::VertexNormals(*store_, verts, normal);
 }
 
-double Simplifier::MaxEdgeReach(VertexId v) const {
-  double reach = store_->height(v) + store_->rad(v);
+bool Simplifier::EdgesReachAtMost(VertexId v, double limit) const {
+  const double hv = store_->height(v), rv = store_->rad(v);
+  if (hv + rv > limit) return false;
+  const Vec3 pv = store_->position(v);
   for (TriId t : store_->vertex_triangles(v)) {
     for (VertexId x : store_->triangle(t)) {
       if (x == v) continue;
-      Candidate c;
-      ReleaseKey(v, x, &c);
-      reach = std::max(reach, c.height + c.rad);
+      // ReleaseKey's sums, in its order: height(c) + rad(c) = 0.5 (hv + hx) + 0.5 ((|v - x| /
+      // s + rv) + rx). Rounding is monotone, so without the length the sum is no larger:
+      // where that is already beyond, so is the reach (most vertices the sealer looks at).
+      const double height = 0.5 * (hv + store_->height(x));
+      const double rx = store_->rad(x);
+      if (height + 0.5 * (rv + rx) > limit) return false;
+      const double rad = 0.5 * (Norm(pv - store_->position(x)) / opt_.slice_spacing + rv + rx);
+      if (height + rad > limit) return false;
     }
   }
-  return reach;
+  return true;
 }
 
 double Simplifier::ShapeErrorAt(VertexId v) const {

@@ -183,9 +183,10 @@ class Simplifier {
   // entries already queued at it go stale.
   void Freeze(VertexId v);
   double rad(VertexId v) const { return store_->rad(v); }
-  // The largest reach, height(c) + rad(c), of a contraction of v with a neighbour: once the
-  // front has passed it, every edge at v has been offered to Q.
-  double MaxEdgeReach(VertexId v) const;
+  // Whether v's reach and that of every contraction of v with a neighbour, height(c) + rad(c)
+  // (ReleaseKey), are <= limit: once the front has passed them, every edge at v has been
+  // offered to Q. Stops at the first beyond, and skips the length where the rest is beyond.
+  bool EdgesReachAtMost(VertexId v, double limit) const;
   double ShapeErrorAt(VertexId v) const;  // ε0 of v at its current position
   double MeasuredShapeErrorAt(VertexId v) const;  // the same for Error(K) (MeasuredShapeError)
   const RefusalCounts& refusals() const { return refusals_; }
