@@ -126,7 +126,12 @@ void Sealer::Seal(double front, Executor* executor) {
   // dead ids are dropped here, before the next EXTRACT can hand them out again.
   freeze_.clear();
   size_t keep = 0;
-  for (VertexId v : active_) {
+  // The active vertices' records are at scattered ids, one cache miss each (half of this
+  // scan's time, which runs over the whole front at every slice): fetched a few ahead.
+  constexpr size_t kAhead = 8;
+  for (size_t i = 0; i < active_.size(); ++i) {
+    if (i + kAhead < active_.size()) store_->Prefetch(active_[i + kAhead]);
+    const VertexId v = active_[i];
     // A dead id may have been handed to a frozen vertex since (MergeSlabs): not ours.
     if (!store_->vertex_alive(v) || (store_->box_mask(v) & kFrozen)) continue;
     if (!all && (store_->box_mask(v) & kSeam)) {  // waits for the merge (slabs.h)
