@@ -101,7 +101,10 @@ int64_t KeepAreasOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<con
   for (size_t i = 0; i < nv; ++i) {
     for (int a = 0; a < 3; ++a) q[i][a] = grid.Quantize((*points)[i][a], a);
   }
-  const std::vector<Point> given = *points;  // the facing every check keeps
+  // The facing every check keeps: the positions as given. Nothing moves before the first
+  // pass has found a triangle that needs a corner moved; only then are they copied.
+  std::span<const Point> given(*points);
+  std::vector<Point> given_copy;
   auto corners = [&](size_t t) { return &mesh.indices[3 * t]; };
   auto facing = [&](size_t t, Vec3* out) {  // false: repeated corner or no area as given
     const uint32_t* v = corners(t);
@@ -123,6 +126,8 @@ int64_t KeepAreasOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<con
     if (!kept(t, kInvalid, {})) lost.push_back(static_cast<uint32_t>(t));
   }
   if (lost.empty()) return 0;
+  given_copy = *points;
+  given = given_copy;
   // The triangles of each vertex (CSR), only when some triangle needs a corner moved.
   std::vector<uint32_t> first(nv + 1, 0), around(3 * nt);
   for (uint32_t v : mesh.indices) ++first[v + 1];
