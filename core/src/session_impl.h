@@ -108,6 +108,7 @@ struct TandemSession::Impl {
   // mu held: moves the shares of slices up to `through` (<= CutThrough()) into *pieces,
   // slice by slice, each in slab order.
   void TakeCuts(int64_t through, std::vector<SealedChunk>* pieces);
+  int64_t CutTriangles(int64_t through) const;  // mu held: in the shares TakeCuts would take
   // One chunk of the pieces taken (false: no triangle and no retired id), in world units.
   bool JoinTaken(std::vector<SealedChunk> pieces, SealedChunk* out);
   // Sealing with slabs: seam vertices frozen in both slabs (SettleSeams), and those of them

@@ -210,14 +210,22 @@ void TandemSession::Impl::TakeCuts(int64_t through, std::vector<SealedChunk>* pi
   }
 }
 
+int64_t TandemSession::Impl::CutTriangles(int64_t through) const {
+  int64_t n = 0;
+  for (const auto& c : cuts) {
+    for (int64_t k = cut_taken; k <= through; ++k) {
+      n += static_cast<int64_t>(c[static_cast<size_t>(k - cut_taken)].num_triangles());
+    }
+  }
+  return n;
+}
+
 int64_t TandemSession::sealed_pending() const {
   (void)impl_->Sync();
   int64_t n = 0;
   {
     std::lock_guard<std::mutex> lock(impl_->mu);
-    for (const auto& c : impl_->cuts) {
-      for (const SealedChunk& piece : c) n += static_cast<int64_t>(piece.num_triangles());
-    }
+    n = impl_->CutTriangles(impl_->CutThrough());  // every step has finished: all of them
   }
   for (const auto& slab : impl_->slabs) {
     if (slab->sealer) n += slab->sealer->pending_triangles();
@@ -716,12 +724,7 @@ TandemSession::Gauge TandemSession::Impl::Peek() {
     std::lock_guard<std::mutex> lock(mu);
     g.memory_bytes += cut_bytes;
     g.sealed_through = CutThrough();
-    for (const auto& c : cuts) {
-      for (int64_t k = cut_taken; k <= g.sealed_through; ++k) {
-        const SealedChunk& share = c[static_cast<size_t>(k - cut_taken)];
-        g.sealed_pending += static_cast<int64_t>(share.num_triangles());
-      }
-    }
+    g.sealed_pending = CutTriangles(g.sealed_through);
   }
   g.memory_bytes += BufferBytes();  // after Sync, which pairs the seams
   g.peak_triangles = std::max(stats.peak_triangles, g.triangles);
