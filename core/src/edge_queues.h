@@ -13,6 +13,7 @@
 #ifndef TANDEM_EDGE_QUEUES_H_
 #define TANDEM_EDGE_QUEUES_H_
 
+#include <algorithm>
 #include <bit>
 #include <cassert>
 #include <cmath>
@@ -343,6 +344,49 @@ class WaitingQueue {
   size_t size_ = 0;  // all entries, far ones included
   PodArray<WEntry> far_;
 };
+
+// A released edge's tile for SIMPLIFY's chunks (Simplifier::ActivateAndSimplify): the point
+// (x, y) in tiles of side tile_x by tile_y from the origin, 256 of them along each axis (those
+// beyond, and NaN, fall into the first or last), numbered along a Z-order curve (x's 8 bits
+// in the even bits, y's in the odd ones), so that a run of consecutive numbers is a compact
+// patch of the plane.
+inline uint16_t ZOrderTile(double x, double y, double tile_x, double tile_y) {
+  auto tile = [](double v, double side) -> uint32_t {
+    const double t = v / side;
+    return t >= 0.0 ? static_cast<uint32_t>(std::min(t, 255.0)) : 0;
+  };
+  auto spread = [](uint32_t v) {
+    v = (v | (v << 4)) & 0x0f0fu;
+    v = (v | (v << 2)) & 0x3333u;
+    return (v | (v << 1)) & 0x5555u;
+  };
+  return static_cast<uint16_t>(spread(tile(x, tile_x)) | (spread(tile(y, tile_y)) << 1));
+}
+
+// Orders items[i] by keys[i] (both permuted alike), in place: an American flag sort, every
+// item moved at most once into its key's range, so a release is not held twice. Deterministic,
+// not stable.
+template <typename T>
+void SortByKey16(T* items, uint16_t* keys, size_t n) {
+  constexpr size_t kKeys = size_t{1} << 16;
+  std::vector<uint32_t> head(kKeys + 1, 0);
+  for (size_t i = 0; i < n; ++i) ++head[keys[i] + size_t{1}];
+  for (size_t k = 0; k < kKeys; ++k) head[k + 1] += head[k];
+  std::vector<uint32_t> end(head.begin() + 1, head.end());
+  for (size_t k = 0; k < kKeys; ++k) {
+    while (head[k] < end[k]) {
+      const uint32_t i = head[k];
+      const uint16_t key = keys[i];
+      if (key == k) {
+        ++head[k];
+        continue;
+      }
+      const uint32_t j = head[key]++;  // where item i belongs; item j goes to i and is looked at next
+      std::swap(items[i], items[j]);
+      std::swap(keys[i], keys[j]);
+    }
+  }
+}
 
 }  // namespace tandem
 

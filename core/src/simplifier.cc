@@ -11,7 +11,8 @@
 namespace tandem {
 
 Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
-    : store_(store), opt_(options), q_(options.error) {}
+    : store_(store), opt_(options), q_(options.error) {
+}
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
@@ -422,6 +423,7 @@ void Simplifier::ActivateAndSimplify(double front) {
   // What W held past its stale entries goes back now (at the closing cap of a closed 2048²
   // period-32 gyroid, 60 % of the release: 81 -> 33 MiB a part).
   released_.shrink_to_fit();
+  OrderRelease();
   const size_t n = released_.size();
   const auto groups = static_cast<uint32_t>((n + chunk - 1) / chunk);
   ready_.assign(store_->vertex_capacity(), 0);
@@ -456,6 +458,7 @@ void Simplifier::ActivateAndSimplify(double front) {
       const WEdge& e = released_[n - 1 - i];
       if (const uint32_t g = std::max(ready_[e.a], ready_[e.b]); g > group_) {
         groups_[g].push_back(e);
+        ++deferred_;
       } else if (!Stale(e)) {
         AddToBatch(e.a, e.b, /*released=*/true);
       }
@@ -489,10 +492,29 @@ void Simplifier::ActivateAndSimplify(double front) {
   group_ = 0;
 }
 
+void Simplifier::OrderRelease() {
+  // W's order follows the layer's scan for new edges and the contractions' order for the
+  // others, so a chunk of it was a few rows across the whole slab, with the edges pushed again
+  // last: a vertex waited for the chunk of its last released edge, and every chunk's
+  // contractions reached over the whole front. In tiles along a Z-order curve a chunk is a
+  // compact patch, whose records stay in cache while it is simplified (docs/decisions.md).
+  if (!(opt_.tile_x > 0.0 && opt_.tile_y > 0.0)) return;
+  const size_t n = released_.size();
+  PodArray<uint16_t> keys;
+  keys.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    if (i + kAhead < n) PrefetchVertex(released_[i + kAhead].a);
+    const Vec3 p = store_->position(released_[i].a);
+    keys[i] = ZOrderTile(p.x, p.y, opt_.tile_x, opt_.tile_y);
+  }
+  SortByKey16(released_.data(), keys.data(), n);
+}
+
 void Simplifier::PushReady(VertexId a, VertexId b, const Candidate& c) {
   const uint32_t g = std::max(ReadyGroup(a), ReadyGroup(b));
   if (g > group_) {
     groups_[g].push_back(WEdge{a, b, version_[a], version_[b]});
+    ++deferred_;
     return;
   }
   PushQ(a, b, c);

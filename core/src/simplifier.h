@@ -63,8 +63,12 @@ struct SimplifierOptions {
   // (RaiseError), and a merge hands them on (AdoptQueues).
   bool rises = false;
   // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time
-  // (2^16: 4 MiB of Q entries; docs/decisions.md).
-  size_t release_chunk = size_t{1} << 16;
+  // (2^12: 256 KiB of Q entries; docs/decisions.md).
+  size_t release_chunk = size_t{1} << 12;
+  // The side of the tiles of the xy plane (engine units, x and y) a chunked release is
+  // ordered by, along a Z-order curve over 256 x 256 of them, so that each chunk is a compact
+  // patch of the front; 0: W's order.
+  double tile_x = 0, tile_y = 0;
   // Tests: keep every vertex's quadric in full as well, as the layers and contractions sum
   // it, and count those read that differ (Simplifier::quadric_mismatches).
   bool check_quadrics = false;
@@ -193,6 +197,9 @@ class Simplifier {
   int64_t contractions() const { return contractions_; }
   // Edge evaluations (quadric solves) so far: what RaiseError's re-offers save is seen here.
   int64_t evaluations() const { return evaluations_; }
+  // Edges a chunked release held back for a later chunk (an end not ready yet) so far: the
+  // chunks' borders, which compact chunks keep short (SimplifierOptions::tile_x).
+  int64_t deferred_edges() const { return deferred_; }
   // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the
   // front, the time-lag rule) and the largest layer(c) - front (<= -1: the newest layer was
   // never touched). -inf when none was applied.
@@ -377,6 +384,8 @@ class Simplifier {
   // less a part at a 2048² cap, stop 56); the edges of each chunk still to come; the chunk
   // being simplified.
   PodArray<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
+  // A chunked release in tiles along a Z-order curve (SimplifierOptions::tile_x, tile_y).
+  void OrderRelease();
   PodArray<uint16_t> ready_;
   std::vector<PodArray<WEdge>> groups_;
   uint32_t group_ = 0;
@@ -401,6 +410,7 @@ class Simplifier {
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
   int64_t evaluations_ = 0;
+  int64_t deferred_ = 0;
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
   double max_layer_over_front_ = -std::numeric_limits<double>::infinity();
 };

@@ -350,6 +350,10 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     ec.row_stride = grid.nx;
     if (p > 0) ec.seam_faces |= kBoxXMin;
     if (p + 1 < count) ec.seam_faces |= kBoxXMax;
+    // Tiles of a chunked release: 256 x 256 of them cover the grid's plane, at least a voxel
+    // each, a power of two voxels across.
+    int64_t tile = 1;
+    while (tile * 256 < std::max(grid.nx, grid.ny)) tile *= 2;
     const SimplifierOptions so{.error = StartError(grid, options) / scale,
                                .alpha = options.alpha,
                                .release = RuleFor(options.schedule),
@@ -358,6 +362,8 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .distance_guard = options.distance_guard,
                                .keep = options.target_triangles > 0 ? kTargetKeep : 1.0,
                                .rises = options.target_triangles > 0,
+                               .tile_x = spacing[0] * static_cast<double>(tile),
+                               .tile_y = spacing[1] * static_cast<double>(tile),
                                .check_quadrics = options.check_quadrics};
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {

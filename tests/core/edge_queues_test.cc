@@ -289,5 +289,67 @@ TEST(WaitingQueue, PushesDuringAReleaseWait) {
   EXPECT_EQ(out, (std::vector<uint32_t>{2, 3}));
 }
 
+// A release's tiles (ZOrderTile): 256 along each axis, numbered along a Z-order curve, so that
+// every aligned run of 4^k numbers is a square of 2^k x 2^k tiles; points beyond the range, and
+// NaN, fall into the first or last tile of their axis.
+TEST(ReleaseOrder, TilesAreNumberedAlongAZOrderCurve) {
+  EXPECT_EQ(ZOrderTile(0.5, 0.5, 1, 1), 0);
+  EXPECT_EQ(ZOrderTile(1.5, 0.5, 1, 1), 1);
+  EXPECT_EQ(ZOrderTile(0.5, 1.5, 1, 1), 2);
+  EXPECT_EQ(ZOrderTile(1.5, 1.5, 1, 1), 3);
+  EXPECT_EQ(ZOrderTile(2.5, 0.5, 1, 1), 4);
+  EXPECT_EQ(ZOrderTile(10.0, 20.0, 4, 8), ZOrderTile(2.0, 2.0, 1, 1));
+  EXPECT_EQ(ZOrderTile(1e300, 1e300, 1, 1), 0xffff);
+  EXPECT_EQ(ZOrderTile(-5.0, std::numeric_limits<double>::quiet_NaN(), 1, 1), 0);
+  EXPECT_EQ(ZOrderTile(300.0, -1.0, 1, 1), ZOrderTile(255.0, 0.0, 1, 1));
+  for (int k = 1; k <= 4; ++k) {
+    const int side = 1 << k;
+    for (int start = 0; start < 65536; start += side * side * 37) {
+      const int run = start / (side * side) * (side * side);  // aligned
+      int x0 = 1 << 20, x1 = -1, y0 = 1 << 20, y1 = -1;
+      for (int x = 0; x < 256; ++x) {
+        for (int y = 0; y < 256; ++y) {
+          const int key = ZOrderTile(x + 0.5, y + 0.5, 1, 1);
+          if (key < run || key >= run + side * side) continue;
+          x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
+        }
+      }
+      EXPECT_EQ(x1 - x0 + 1, side);
+      EXPECT_EQ(y1 - y0 + 1, side);
+    }
+  }
+}
+
+// SortByKey16 orders in place by key, moving each item with its key: nothing lost, nothing
+// doubled, and the same order on every run.
+TEST(ReleaseOrder, SortByKeyKeepsEveryItemWithItsKey) {
+  std::mt19937 rng(3);
+  for (size_t n : {size_t{0}, size_t{1}, size_t{7}, size_t{5000}, size_t{100000}}) {
+    std::vector<uint16_t> keys(n);
+    std::vector<WEdge> items(n);
+    // Few distinct keys for the small cases, all of them for the large.
+    std::uniform_int_distribution<int> key(0, n < 1000 ? 9 : 65535);
+    for (size_t i = 0; i < n; ++i) {
+      keys[i] = static_cast<uint16_t>(key(rng));
+      items[i] = WEdge{static_cast<VertexId>(i), keys[i], 0, 0};  // b: the item's key
+    }
+    std::vector<uint16_t> sorted_keys = keys;
+    std::vector<WEdge> sorted = items;
+    SortByKey16(sorted.data(), sorted_keys.data(), n);
+    EXPECT_TRUE(std::is_sorted(sorted_keys.begin(), sorted_keys.end()));
+    std::vector<bool> seen(n, false);
+    for (size_t i = 0; i < n; ++i) {
+      EXPECT_EQ(sorted[i].b, sorted_keys[i]);  // moved with its key
+      ASSERT_LT(sorted[i].a, n);
+      EXPECT_FALSE(seen[sorted[i].a]);
+      seen[sorted[i].a] = true;
+    }
+    std::vector<uint16_t> again_keys = keys;
+    std::vector<WEdge> again = items;
+    SortByKey16(again.data(), again_keys.data(), n);
+    for (size_t i = 0; i < n; ++i) EXPECT_EQ(again[i].a, sorted[i].a);
+  }
+}
+
 }  // namespace
 }  // namespace tandem

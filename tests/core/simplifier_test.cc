@@ -389,6 +389,67 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
   }
 }
 
+// A chunk of a large release is simplified before the next is evaluated, so its records stay
+// in cache; in W's order a chunk was a few rows across the whole slab, in tiles along a Z-order
+// curve (SimplifierOptions::tile_x) it is a compact patch, with a border a fraction as long:
+// fewer edges wait for a later chunk (their far end not ready yet), and the mesh keeps its
+// topology, its bound and about its count.
+TEST(Simplifier, AChunkedReleaseInTilesKeepsItsChunksCompact) {
+  constexpr int n = 160;
+  struct Run {
+    int64_t deferred = 0;
+    IndexedMesh mesh;
+    double error = 0;
+  };
+  auto run = [](double tile, size_t chunk = 2048) {  // tile 0: W's order
+    FieldSource src(n, n, 6, [](double x, double y, double z) {
+      const bool in = z > 0 && z < 5 && x > 1 && x < n - 2 && y > 1 && y < n - 2;
+      return in ? 0.75 + 0.2 * std::sin(x / 9.0) * std::cos(y / 7.0) : 0.0;
+    });
+    MeshStore store;
+    SimplifierOptions so;
+    so.error = 0.02;
+    so.release_chunk = chunk;
+    so.tile_x = so.tile_y = tile;
+    Simplifier simplifier(&store, so);
+    LayerExtractor ex(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, &store);
+    std::vector<uint8_t> bytes;
+    std::vector<TriId> tris;
+    std::vector<VertexId> verts;
+    for (int k = 0; k < 6; ++k) {
+      EXPECT_TRUE(src.ReadSlice(&bytes).ok());
+      tris.clear();
+      verts.clear();
+      EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
+      simplifier.AddTriangles(tris, verts);
+      simplifier.Delay(tris);
+      simplifier.ActivateAndSimplify(k);
+    }
+    ex.Finish();
+    simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+    Run r;
+    r.deferred = simplifier.deferred_edges();
+    r.mesh = store.Snapshot();
+    r.error = simplifier.MaxShapeError();
+    return r;
+  };
+  const Run rows = run(0), tiles = run(1), whole = run(1, std::numeric_limits<size_t>::max());
+  // The cap's 76,000 edges in chunks of 2,048, and the steps after it: 122,340 edges deferred
+  // in W's order, 40,472 in tiles (tiles of 2 to 16 voxels: 40,865 to 61,474).
+  EXPECT_GT(rows.deferred, 10000);
+  EXPECT_LT(2 * tiles.deferred, rows.deferred);
+  EXPECT_EQ(whole.deferred, 0);
+  for (const Run* r : {&rows, &tiles, &whole}) {
+    const TopologyReport t = AnalyzeTopology(r->mesh);
+    EXPECT_TRUE(t.IsClosedManifold());
+    EXPECT_EQ(t.euler, 2);
+    EXPECT_LE(r->error, 0.02);
+  }
+  // Closer to the unchunked count than W's order: 1,066 and 1,068 triangles (964 in W's order).
+  EXPECT_NEAR(double(tiles.mesh.num_triangles()), double(whole.mesh.num_triangles()),
+              0.03 * double(whole.mesh.num_triangles()));
+}
+
 TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
   const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
   EXPECT_GT(lag.stats.contractions, 1000);
