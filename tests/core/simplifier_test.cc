@@ -303,6 +303,28 @@ TEST(Simplifier, MovesKeepTheirQuadricsInFull) {
   }
 }
 
+// An extractor and a simplifier over one store, stepped as the tandem-lag schedule steps a slab
+// (EXTRACT(k); DELAY(k); ACTIVATE(k); SIMPLIFY(E0)), without a session around them.
+struct BareLag {
+  BareLag(const ExtractorConfig& ec, const SimplifierOptions& so)
+      : simplifier(&store, so), ex(ec, &store) {}
+  void Step(FieldSource& src, int k) {
+    EXPECT_TRUE(src.ReadSlice(&bytes).ok());
+    tris.clear();
+    verts.clear();
+    EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
+    simplifier.AddTriangles(tris, verts);
+    simplifier.Delay(tris);
+    simplifier.ActivateAndSimplify(k);
+  }
+  MeshStore store;
+  Simplifier simplifier;
+  LayerExtractor ex;
+  std::vector<uint8_t> bytes;
+  std::vector<TriId> tris;
+  std::vector<VertexId> verts;
+};
+
 // A closed volume's first layer is a cap across the whole slice, and the time lag releases
 // all its edges in one step: Q held every one of them (64 bytes each, 137 MiB a part on a
 // 2048² gyroid), so the closed 2048² streams were refused by the default budget. Released in
@@ -324,31 +346,22 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
       const bool in = z > 0 && z < 5 && x > 1 && x < n - 2 && y > 1 && y < n - 2;
       return !in ? 0.0 : flat ? 1.0 : 0.75 + 0.2 * std::sin(x / 9.0) * std::cos(y / 7.0);
     });
-    MeshStore store;
     SimplifierOptions so;
     so.error = 0.02;
     so.release_chunk = chunk;
-    Simplifier simplifier(&store, so);
-    LayerExtractor ex(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, &store);
-    std::vector<uint8_t> bytes;
-    std::vector<TriId> tris;
-    std::vector<VertexId> verts;
+    BareLag lag(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, so);
+    MeshStore& store = lag.store;
+    Simplifier& simplifier = lag.simplifier;
     Run r;
     for (int k = 0; k < 6; ++k) {
-      EXPECT_TRUE(src.ReadSlice(&bytes).ok());
-      tris.clear();
-      verts.clear();
-      EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
-      simplifier.AddTriangles(tris, verts);
-      simplifier.Delay(tris);
-      simplifier.ActivateAndSimplify(k);
+      lag.Step(src, k);
       r.peak = std::max(r.peak, simplifier.StepPeakBytes());
       if (k == 3) {  // the cap's release: Q is empty after it, W holds its entries
         r.waiting_after_cap = simplifier.queue_sizes();
         r.edges_after_cap = 3 * store.num_triangles() / 2;
       }
     }
-    ex.Finish();
+    lag.ex.Finish();
     const size_t before = simplifier.MemoryBytes();
     simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
     r.last_step_growth = double(simplifier.StepPeakBytes()) / double(before);
@@ -406,31 +419,18 @@ TEST(Simplifier, AChunkedReleaseInTilesKeepsItsChunksCompact) {
       const bool in = z > 0 && z < 5 && x > 1 && x < n - 2 && y > 1 && y < n - 2;
       return in ? 0.75 + 0.2 * std::sin(x / 9.0) * std::cos(y / 7.0) : 0.0;
     });
-    MeshStore store;
     SimplifierOptions so;
     so.error = 0.02;
     so.release_chunk = chunk;
     so.tile_x = so.tile_y = tile;
-    Simplifier simplifier(&store, so);
-    LayerExtractor ex(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, &store);
-    std::vector<uint8_t> bytes;
-    std::vector<TriId> tris;
-    std::vector<VertexId> verts;
-    for (int k = 0; k < 6; ++k) {
-      EXPECT_TRUE(src.ReadSlice(&bytes).ok());
-      tris.clear();
-      verts.clear();
-      EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
-      simplifier.AddTriangles(tris, verts);
-      simplifier.Delay(tris);
-      simplifier.ActivateAndSimplify(k);
-    }
-    ex.Finish();
-    simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+    BareLag lag(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, so);
+    for (int k = 0; k < 6; ++k) lag.Step(src, k);
+    lag.ex.Finish();
+    lag.simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
     Run r;
-    r.deferred = simplifier.deferred_edges();
-    r.mesh = store.Snapshot();
-    r.error = simplifier.MaxShapeError();
+    r.deferred = lag.simplifier.deferred_edges();
+    r.mesh = lag.store.Snapshot();
+    r.error = lag.simplifier.MaxShapeError();
     return r;
   };
   const Run rows = run(0), tiles = run(1), whole = run(1, std::numeric_limits<size_t>::max());
