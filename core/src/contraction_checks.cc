@@ -26,19 +26,19 @@ int CountOf(const VertexId (&v)[N], VertexId x) {
   return static_cast<int>(acc[0] + acc[1] + acc[2] + acc[3]);
 }
 
-}  // namespace
-
-bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+// LinkConditionFans with fan arrays of kFan entries (both fans fit).
+template <size_t kFan>
+bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
   // its corner before v (y), in the triangle's order; the caller checked they fit. Written
   // without early exits where the outcome varies from call to call: the link condition was
   // the largest source of mispredicted branches in the simplifier.
-  VertexId xa[kFanMax], ya[kFanMax], xb[kFanMax], yb[kFanMax];
+  VertexId xa[kFan], ya[kFan], xb[kFan], yb[kFan];
   // Both fans' triangles at once: each is a cache miss at a random id, and the loops below
   // would otherwise wait for them one after the other.
   store.PrefetchFan(a);
   store.PrefetchFan(b);
-  for (VertexId* v : {xa, ya, xb, yb}) std::fill(v, v + kFanMax, kInvalid);
+  for (VertexId* v : {xa, ya, xb, yb}) std::fill(v, v + kFan, kInvalid);
   int n_a = 0, n_b = 0;
   VertexId apex[4];
   int napex = 0;
@@ -71,7 +71,7 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   // and on a consistently oriented manifold only then (an interior edge is one triangle's x
   // and the other's y). Otherwise every neighbour is an x corner. Half the comparisons of
   // counting each neighbour among all 2n corners.
-  auto sets_differ = [](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+  auto sets_differ = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
     for (int i = 0; i < n; ++i) any |= (CountOf(y, x[i]) == 0) | (CountOf(x, y[i]) == 0);
     return any;
@@ -98,7 +98,7 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   }
   // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
   // of its edges lies in a single triangle.
-  auto on_boundary = [](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+  auto on_boundary = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
     for (int i = 0; i < n; ++i) {
       any |=
@@ -110,12 +110,22 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   if (b_open && on_boundary(xb, yb, n_b) && on_boundary(xa, ya, n_a)) return false;
   // (3) interior: triangles a-c-d and b-c-d both present?
   const VertexId c = apex[0], d = apex[1];
-  auto has_cd = [c, d](const VertexId(&x)[kFanMax], const VertexId(&y)[kFanMax], int n) {
+  auto has_cd = [c, d](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
     for (int i = 0; i < n; ++i) any |= ((x[i] == c) & (y[i] == d)) | ((x[i] == d) & (y[i] == c));
     return any;
   };
   return !(has_cd(xa, ya, n_a) && has_cd(xb, yb, n_b));
+}
+
+}  // namespace
+
+bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+  // Most fans on a dense surface hold 8 triangles or fewer: arrays of 8 halve every count.
+  if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
+    return LinkConditionFansOf<8>(store, a, b);
+  }
+  return LinkConditionFansOf<kFanMax>(store, a, b);
 }
 
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {

@@ -337,7 +337,9 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
 void Simplifier::FlushBatch() {
   const size_t n = batch_.size();
   if (n == 0) return;
-  batch_results_.resize(n);
+  // Never shrunk: a resize up after a smaller batch zeroed every result again, and
+  // EvaluateBatchRange writes each one anyway (1 % of a dense run's instructions).
+  if (batch_results_.size() < n) batch_results_.resize(n);
   // Below this size a thread costs more than it saves (a solve is ~1 µs).
   constexpr size_t kParallelMin = 1024;
   helper_seconds_ += RunInRanges(opt_.parallel, n, n >= kParallelMin ? 2 : 1,
