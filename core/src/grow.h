@@ -16,8 +16,11 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <type_traits>
 #include <utility>
 #include <vector>
+
+#include "pod_array.h"
 
 namespace tandem {
 
@@ -32,11 +35,21 @@ inline constexpr size_t kGrowDoubleBytes = size_t{16} << 10;
 
 // Makes room for n elements in v: its capacity becomes at least n, and when it has to grow
 // at all, at least twice what it was (while small), else what it was plus the larger of an
-// eighth and kGrowDoubleBytes.
+// eighth and kGrowDoubleBytes. A PodArray that maps its large blocks doubles all the way: its
+// heap block, below kPodMapBytes, holds at most half that of slack, and the capacity of its
+// pages beyond is address space, not memory (MemoryBytes counts the pages written), while
+// growing by eighths copied a heap block 15 times on its way to kPodMapBytes and remapped the
+// pages 24 times more on the way to 16 times that: W's and Q's arrays regrow every step
+// (docs/decisions.md). Without mappings (AddressSanitizer builds) capacity is memory, and
+// PodArrays grow as the rest.
 template <class V>
 void ReserveFor(V& v, size_t n) {
   const size_t cap = v.capacity();
   if (n <= cap) return;
+  if constexpr (TANDEM_POD_MAP && std::is_same_v<V, PodArray<typename V::value_type>>) {
+    v.reserve(std::max(n, std::max<size_t>(2 * cap, 8)));
+    return;
+  }
   constexpr size_t kSmall =
       std::max<size_t>(kGrowDoubleBytes / sizeof(typename V::value_type), 8);
   v.reserve(std::max(n, cap + std::max(cap / 8, std::min(std::max<size_t>(cap, 8), kSmall))));

@@ -102,8 +102,11 @@ TEST(PodArray, KeepsAlignmentAndInitialisesNewElements) {
 // grow.h: an array pushed from empty doubles while small, so that Q's and W's buckets,
 // which regrow from empty every step, are not copied at every few pushes; big arrays still
 // grow by an eighth (the session's budget counts capacity).
+// ReserveFor: small arrays double (from 8 elements), a std::vector past 16 KiB grows by 16 KiB
+// until an eighth is more, since its capacity is memory; a PodArray that maps its large blocks
+// doubles all the way, and what the budget counts of it (MemoryBytes) stays the pages written.
 TEST(Grow, SmallArraysDoubleBigOnesGrowByAnEighth) {
-  PodArray<uint64_t> a;
+  std::vector<uint64_t> a;
   int grows = 0;
   size_t cap = 0;
   for (uint64_t i = 0; i < 2048; ++i) {  // to 16 KiB
@@ -112,17 +115,35 @@ TEST(Grow, SmallArraysDoubleBigOnesGrowByAnEighth) {
   }
   EXPECT_LE(grows, 9);  // 8, 16, ..., 2048 (by eighths from empty: 57)
   EXPECT_EQ(a[2047], 2047u);
-  PodArray<uint64_t> big;
+  std::vector<uint64_t> big;
   big.reserve(size_t{1} << 20);  // 8 MiB
   big.resize(big.capacity());
   PushBack(big, uint64_t{1});
   EXPECT_EQ(big.capacity(), (size_t{1} << 20) * 9 / 8);
-  PodArray<uint64_t> mid;  // past 16 KiB, by 16 KiB until an eighth is more
+  std::vector<uint64_t> mid;  // past 16 KiB, by 16 KiB until an eighth is more
   mid.reserve(4096);
   mid.resize(4096);
   PushBack(mid, uint64_t{1});
   EXPECT_EQ(mid.capacity(), 4096u + 2048u);
 }
+
+#if TANDEM_POD_MAP
+TEST(Grow, APodArrayDoublesAndCountsThePagesWritten) {
+  PodArray<uint64_t> a;
+  int grows = 0;
+  size_t cap = 0;
+  for (uint64_t i = 0; i < (uint64_t{1} << 20); ++i) {  // to 8 MiB
+    PushBack(a, i);
+    if (a.capacity() != cap) ++grows, cap = a.capacity();
+  }
+  EXPECT_EQ(grows, 18);  // 8, 16, ..., 2^20 (by eighths past 16 KiB: 47)
+  EXPECT_EQ(a[(size_t{1} << 20) - 1], (uint64_t{1} << 20) - 1);
+  PushBack(a, uint64_t{1});
+  EXPECT_EQ(a.capacity(), size_t{1} << 21);
+  // Twice the room, but only the pages written are memory.
+  EXPECT_LE(a.MemoryBytes(), ((size_t{1} << 20) + 1) * sizeof(uint64_t) + kPodPage);
+}
+#endif
 
 #if TANDEM_POD_MAP
 // A mapped array grows without copying: reserving twice the room faults in none of the
