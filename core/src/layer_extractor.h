@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -205,6 +206,7 @@ class LayerExtractor {
   std::vector<StagedVertex> staged_vertices_;
   std::vector<std::array<VertexId, 3>> staged_triangles_;
   std::vector<VertexId> staged_to_store_;
+  std::pair<size_t, size_t> last_staged_{0, 0};  // the last layer's vertices and triangles
   int32_t staged_layer_ = 0;
   bool staged_ = false;
 };
