@@ -363,17 +363,17 @@ inline uint16_t ZOrderTile(double x, double y, double tile_x, double tile_y) {
   return static_cast<uint16_t>(spread(tile(x, tile_x)) | (spread(tile(y, tile_y)) << 1));
 }
 
-// Orders items[i] by keys[i] (both permuted alike), in place: an American flag sort, every
-// item moved at most once into its key's range, so a release is not held twice. Deterministic,
-// not stable.
+// Orders items[i] by keys[i] (both permuted alike; every key below 2^bits, bits <= 16), in
+// place: an American flag sort, every item moved at most once into its key's range, so a
+// release is not held twice. Deterministic, not stable.
 template <typename T>
-void SortByKey16(T* items, uint16_t* keys, size_t n) {
-  constexpr size_t kKeys = size_t{1} << 16;
-  std::vector<uint32_t> head(kKeys + 1, 0);
+void SortByKey(T* items, uint16_t* keys, size_t n, int bits) {
+  const size_t count = size_t{1} << bits;
+  std::vector<uint32_t> head(count + 1, 0);
   for (size_t i = 0; i < n; ++i) ++head[keys[i] + size_t{1}];
-  for (size_t k = 0; k < kKeys; ++k) head[k + 1] += head[k];
+  for (size_t k = 0; k < count; ++k) head[k + 1] += head[k];
   std::vector<uint32_t> end(head.begin() + 1, head.end());
-  for (size_t k = 0; k < kKeys; ++k) {
+  for (size_t k = 0; k < count; ++k) {
     while (head[k] < end[k]) {
       const uint32_t i = head[k];
       const uint16_t key = keys[i];
