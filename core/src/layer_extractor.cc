@@ -185,7 +185,8 @@ absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* n
 }
 
 void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<VertexId>* new_verts,
-                                 std::array<std::vector<VertexId>, 2>* new_seam) {
+                                 std::array<std::vector<VertexId>, 2>* new_seam,
+                                 std::vector<uint8_t>* new_edges) {
   if (!staged_) return;
   staged_ = false;
   store_->Reserve(staged_vertices_.size(), staged_triangles_.size());
@@ -204,6 +205,7 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     const TriId t = store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2]));
     if (new_tris) new_tris->push_back(t);
   }
+  if (new_edges) new_edges->insert(new_edges->end(), staged_edges_.begin(), staged_edges_.end());
   // The top plane's cached ids become the next layer's bottom: store ids from now on.
   for (VertexId& v : xe_top_.ids) v = resolve(v);
   for (VertexId& v : ye_top_.ids) v = resolve(v);
@@ -215,15 +217,17 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
   if (StagingBytes() > (size_t{4} << 20)) {
     std::vector<StagedVertex>().swap(staged_vertices_);
     std::vector<std::array<VertexId, 3>>().swap(staged_triangles_);
+    std::vector<uint8_t>().swap(staged_edges_);
     std::vector<VertexId>().swap(staged_to_store_);
   }
   staged_vertices_.clear();
   staged_triangles_.clear();
+  staged_edges_.clear();
 }
 
 size_t LayerExtractor::StagingBytes() const {
   return staged_vertices_.capacity() * sizeof(StagedVertex) +
-         staged_triangles_.capacity() * sizeof(staged_triangles_[0]) +
+         staged_triangles_.capacity() * sizeof(staged_triangles_[0]) + staged_edges_.capacity() +
          staged_to_store_.capacity() * sizeof(VertexId);
 }
 
@@ -335,6 +339,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   // a third of the run's page faults; CommitLayer frees it past 4 MiB).
   staged_vertices_.reserve(last_staged_.first + last_staged_.first / 16);
   staged_triangles_.reserve(last_staged_.second + last_staged_.second / 16);
+  staged_edges_.reserve(last_staged_.second + last_staged_.second / 16);
   const double kz = static_cast<double>(k);
   const Plane& vb = v_bottom_;
   const Plane& vt = v_top_;
@@ -406,6 +411,29 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   return absl::OkStatus();
 }
 
+namespace {
+
+// The face (mc::FaceCorners' numbering: 0 x=0, 1 x=1, 2 y=0, 3 y=1, 4 z=0, 5 z=1) that cube
+// edges p and q both lie on, for the pairs a loop joins (0 for the others, never asked).
+constexpr auto kCommonFace = [] {
+  std::array<std::array<uint8_t, 12>, 12> face{};
+  for (int p = 0; p < 12; ++p) {
+    for (int q = 0; q < 12; ++q) {
+      const int c[4] = {mc::kEdgeCorners[p][0], mc::kEdgeCorners[p][1], mc::kEdgeCorners[q][0],
+                        mc::kEdgeCorners[q][1]};
+      for (int f = 0; f < 6; ++f) {
+        const int axis = f / 2, bit = f % 2;
+        bool all = true;
+        for (int k : c) all = all && ((k >> axis) & 1) == bit;
+        if (all && p != q) face[p][q] = static_cast<uint8_t>(f);
+      }
+    }
+  }
+  return face;
+}();
+
+}  // namespace
+
 void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
   const int64_t nx = config_.nx;
   const Plane& vb = v_bottom_;
@@ -445,6 +473,18 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
   ev[9] = EdgeId(ze_, i + 1, j, ZCrossings(j, w1));
   ev[10] = EdgeId(ze_, i, j + 1, ZCrossings(j + 1, w0));
   ev[11] = EdgeId(ze_, i + 1, j + 1, ZCrossings(j + 1, w1));
+  // Each triangle's LayerEdges. A loop's own edges lie on the cube's faces: below (the plane
+  // of slice k - 1, shared with the cube underneath but in the first layer), above (the
+  // front), or on a side, shared with the neighbouring cube unless the slab ends there. Fan
+  // diagonals and the edges to a centre vertex are inside the cube, each in two of its
+  // triangles (a fan never joins two points of one face: those loops have a centre vertex).
+  const LayerEdge side[6] = {i > 0 ? kEdgeShared : kEdgeOnce,
+                             i + 2 < nx ? kEdgeShared : kEdgeOnce,
+                             j > 0 ? kEdgeShared : kEdgeOnce,
+                             j + 2 < config_.ny ? kEdgeShared : kEdgeOnce,
+                             kz > 1.0 ? kEdgeBelow : kEdgeOnce,
+                             kEdgeOnce};
+  auto on_face = [&side](int p, int q) { return side[kCommonFace[p][q]]; };  // loop edge p-q
   int base = 0;
   for (int l = 0; l < cc.num_loops; ++l) {
     const int len = cc.loop_len[l];
@@ -474,10 +514,14 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
           {Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2]), int8_t{-1}});
       for (int s = 0; s < len; ++s) {
         staged_triangles_.push_back({cv, ev[e[s]], ev[e[(s + 1) % len]]});
+        staged_edges_.push_back(LayerEdges(kEdgeShared, on_face(e[s], e[(s + 1) % len]), kEdgeShared));
       }
     } else {
       for (int s = 1; s + 1 < len; ++s) {
         staged_triangles_.push_back({ev[e[0]], ev[e[s]], ev[e[s + 1]]});
+        staged_edges_.push_back(LayerEdges(s == 1 ? on_face(e[0], e[1]) : kEdgeShared,
+                                      on_face(e[s], e[s + 1]),
+                                      s + 2 == len ? on_face(e[s + 1], e[0]) : kEdgeShared));
       }
     }
   }

@@ -81,9 +81,13 @@ class LayerExtractor {
   // `new_seam` gets the new kSeam vertices appended of each seam face (index 0: x = 0, 1: x = nx-1)
   // in a canonical order (y-edges, then z-edges, each by ascending y): the neighbouring part
   // lists the same grid edges in the same order, which pairs the copies.
+  // `new_edges` gets, per new triangle (in new_tris's order), what DELAY does with each of its
+  // edges (LayerEdges, mesh_store.h): the layer's topology, which the extractor knows and the
+  // queues would otherwise search the store for.
   void CommitLayer(std::vector<TriId>* new_tris = nullptr,
                    std::vector<VertexId>* new_verts = nullptr,
-                   std::array<std::vector<VertexId>, 2>* new_seam = nullptr);
+                   std::array<std::vector<VertexId>, 2>* new_seam = nullptr,
+                   std::vector<uint8_t>* new_edges = nullptr);
 
   // Declares the last slice added to be the top of the box: its plane vertices get the
   // kBoxZMax bit. Called by the owner when the stream ends (a no-op beyond that).
@@ -205,6 +209,7 @@ class LayerExtractor {
   };
   std::vector<StagedVertex> staged_vertices_;
   std::vector<std::array<VertexId, 3>> staged_triangles_;
+  std::vector<uint8_t> staged_edges_;  // per staged triangle: its LayerEdges
   std::vector<VertexId> staged_to_store_;
   std::pair<size_t, size_t> last_staged_{0, 0};  // the last layer's vertices and triangles
   int32_t staged_layer_ = 0;

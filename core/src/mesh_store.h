@@ -62,6 +62,21 @@ enum VertexFlag : uint8_t {
   kFrozen = 128,
 };
 
+// What DELAY does with an edge of a new layer's triangle, each edge of the layer queued once
+// (LayerExtractor::CommitLayer lists them, Simplifier::Delay follows): kEdgeBelow, on the
+// plane below, in a face the cube underneath shares, so queued with that layer; kEdgeOnce,
+// this triangle's only (on the front, the box, a seam); kEdgeShared, in another triangle of
+// the layer too (inside the cube, or on a face the neighbouring cube shares), queued from
+// the triangle where it runs from the lower vertex id to the higher. A triangle's three
+// (edge k joins corners k and k + 1) take 2 bits each, edge 0 lowest: LayerEdges.
+enum LayerEdge : uint8_t { kEdgeBelow = 0, kEdgeOnce = 1, kEdgeShared = 2 };
+inline uint8_t LayerEdges(LayerEdge e0, LayerEdge e1, LayerEdge e2) {
+  return static_cast<uint8_t>(e0 | (e1 << 2) | (e2 << 4));
+}
+inline LayerEdge EdgeOf(uint8_t layer_edges, int k) {
+  return static_cast<LayerEdge>((layer_edges >> (2 * k)) & 3);
+}
+
 // Which corner (0, 1, 2) of triangle `tri` is v, v being one of them. Without branches: which
 // corner it is follows no pattern a branch predictor could learn.
 inline int CornerOf(const std::array<VertexId, 3>& tri, VertexId v) {

@@ -95,7 +95,7 @@ void FollowTarget(Slab& s) {
 void SimplifyLayer(Slab& s) {
   const PhaseClock clock(s.simplifier);
   const double front = static_cast<double>(s.pending_front);
-  s.simplifier.Delay(s.new_tris);
+  s.simplifier.Delay(s.new_tris, s.new_edges);
   s.simplifier.ActivateAndSimplify(front);
   if (s.target) FollowTarget(s);
   if (s.sealer) s.sealer->Seal(front);
@@ -107,9 +107,10 @@ void SimplifyLayer(Slab& s) {
 // their vertices.
 void InsertLayer(Slab& s, Schedule schedule) {
   s.new_tris.clear();
+  s.new_edges.clear();
   s.new_verts.clear();
   const size_t seam_before = s.seam_log[0].size() + s.seam_log[1].size();
-  s.extractor.CommitLayer(&s.new_tris, &s.new_verts, &s.seam_log);
+  s.extractor.CommitLayer(&s.new_tris, &s.new_verts, &s.seam_log, &s.new_edges);
   s.seam_vertices += static_cast<int64_t>(s.seam_log[0].size() + s.seam_log[1].size() - seam_before);
   s.triangles_extracted += static_cast<int64_t>(s.new_tris.size());
   if (schedule != Schedule::kNone) s.simplifier.AddTriangles(s.new_tris, s.new_verts);

@@ -382,10 +382,29 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
   PushReady(a, b, c);
 }
 
-void Simplifier::Delay(std::span<const TriId> tris) {
+void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges) {
   EnsureVertexCapacity();
   // The tandem schedules delay one new layer at a time; classical delays the whole mesh.
   const bool new_layer = opt_.release != ReleaseRule::kImmediate;
+  if (new_layer && !layer_edges.empty()) {
+    // The extractor's rules: the same edges in the same order as PushTriangleEdges finds
+    // them, without its searches of the store (the ends' records are read by AddToBatch).
+    assert(layer_edges.size() == tris.size());
+    for (size_t i = 0; i < tris.size(); ++i) {
+      if (i + kAhead < tris.size()) {
+        for (VertexId v : store_->triangle(tris[i + kAhead])) store_->Prefetch(v);
+      }
+      if (!store_->triangle_alive(tris[i])) continue;
+      const auto& tri = store_->triangle(tris[i]);
+      for (int k = 0; k < 3; ++k) {
+        const VertexId a = tri[k], b = tri[(k + 1) % 3];
+        const LayerEdge rule = EdgeOf(layer_edges[i], k);
+        if (rule == kEdgeOnce || (rule == kEdgeShared && a < b)) AddToBatch(a, b);
+      }
+    }
+    FlushBatch();
+    return;
+  }
   for (size_t i = 0; i < tris.size(); ++i) {
     if (i + kAhead < tris.size() && store_->triangle_alive(tris[i + kAhead])) {
       for (VertexId v : store_->triangle(tris[i + kAhead])) store_->Prefetch(v);

@@ -88,7 +88,9 @@ class Simplifier {
   // DELAY: puts the edges of these triangles into W (or Q for kImmediate), each edge once.
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
   // its edges on the plane below were queued with the layer underneath and are not again.
-  void Delay(std::span<const TriId> tris);
+  // `layer_edges` (LayerExtractor::CommitLayer's, one per triangle) says which edges those
+  // are; without it they are found in the store.
+  void Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges = {});
   // ACTIVATE(front); SIMPLIFY(E0), as the schedules run them: the entries of W whose key is
   // <= front (+inf for ACTIVATE(∞)) are evaluated into Q in W's order, then contracted. A
   // release of more than release_chunk edges enters Q a chunk at a time, each chunk

@@ -45,6 +45,7 @@ struct Slab {
   // The layer last extracted (the next SIMPLIFY step's DELAY) and this slab's seam vertices
   // not yet paired with the neighbour's copies, per seam face, in order.
   std::vector<TriId> new_tris;
+  std::vector<uint8_t> new_edges;  // the extractor's LayerEdges of new_tris
   std::vector<VertexId> new_verts;
   std::array<std::vector<VertexId>, 2> seam_log;
   std::vector<int64_t> trace;  // this slab's triangles after every step

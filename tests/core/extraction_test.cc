@@ -3,9 +3,11 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <map>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -293,11 +295,13 @@ TEST(MeshStore, StarStampsChangeWithTheTrianglesAroundAVertex) {
   EXPECT_EQ(changed(before), (std::vector<int>{0, 1, 2}));
 }
 
-// The store's arrays grow by an eighth, not by double (grow.h): past 65,536 vertices a
-// doubling store would hold 131,072 records and a pool of a million ids, 1.8x its use. A
-// smallest slot holds 6 triangle ids (8 before stop 55), and a triangle takes its 12 bytes
-// and a bit (a byte more before).
-TEST(MeshStore, GrowsByAnEighthAndReservesWhatALayerBrings) {
+// What the store counts follows its use, not its capacity: past 65,536 vertices a store counted
+// by capacity that doubled would read 131,072 records and a pool of a million ids, 1.8x its
+// use. Its arrays grew by an eighth until stop 61; they double now (grow.h: PodArrays), and
+// MemoryBytes counts a mapped array's pages written (pod_array.h). A smallest slot holds 6
+// triangle ids (8 before stop 55), and a triangle takes its 12 bytes and a bit (a byte more
+// before).
+TEST(MeshStore, CountsItsUseAndReservesWhatALayerBrings) {
   constexpr size_t kVertexBytes = 64 + 6 * sizeof(TriId);  // a record and a smallest slot
   constexpr size_t n = 70000;
   MeshStore grown;
@@ -314,8 +318,90 @@ TEST(MeshStore, GrowsByAnEighthAndReservesWhatALayerBrings) {
     reserved.AddTriangle(VertexId(i + 2), VertexId(i + 1), VertexId(i + 3));
   }
   EXPECT_LE(reserved.MemoryBytes(), exact + 4096);
-  reserved.AddVertex({0, 1, 0}, 0, 0, 0);  // one more grows the records by an eighth
+  reserved.AddVertex({0, 1, 0}, 0, 0, 0);  // one more grows the records: a page more counted
   EXPECT_LE(reserved.MemoryBytes(), exact + n * 64 / 8 + n * sizeof(TriId) + 4096);
+}
+
+// DELAY queues each edge of a layer once, and not the edges on the plane below, which came with
+// the layer underneath: the extractor's LayerEdges say which, from the cubes' topology, where
+// the queues once searched the store (Simplifier::PushTriangleEdges). Checked against the store
+// itself: every edge the layer adds is queued exactly once, none it shares with older
+// triangles is, a kEdgeShared edge lies in two of the layer's triangles and a kEdgeOnce edge
+// in one: on surfaces cut by the box and by seams, with ambiguous faces (noise) and vertices
+// on grid points (integer values).
+TEST(Extraction, LayerEdgesQueueEachNewEdgeOnce) {
+  using Edge = std::pair<VertexId, VertexId>;
+  auto key = [](VertexId a, VertexId b) { return a < b ? Edge{a, b} : Edge{b, a}; };
+  auto noise = [](double x, double y, double z) {
+    uint32_t h = static_cast<uint32_t>(x) * 73856093u ^ static_cast<uint32_t>(y) * 19349663u ^
+                 static_cast<uint32_t>(z) * 83492791u;
+    h ^= h >> 13;
+    h *= 0x5bd1e995u;
+    return static_cast<double>(h >> 8) / double(1 << 24) - 0.5;
+  };
+  const std::function<double(double, double, double)> fields[] = {
+      [](double x, double y, double z) {  // a gyroid, cut by every face of the box
+        return std::sin(x / 3) * std::cos(y / 3) + std::sin(y / 3) * std::cos(z / 3) +
+               std::sin(z / 3) * std::cos(x / 3);
+      },
+      noise,
+      [](double x, double y, double z) {  // integers: iso hits on grid points
+        return static_cast<double>((static_cast<int>(x) * 7 + static_cast<int>(y) * 3 +
+                                    static_cast<int>(z) * 5) % 4) - 2.0;
+      }};
+  for (const auto& field : fields) {
+    for (uint8_t seams : {uint8_t{0}, uint8_t(kBoxXMin | kBoxXMax)}) {
+      constexpr int nx = 30, ny = 27, nz = 9;
+      FieldSource src(nx, ny, nz, field);
+      MeshStore store;
+      ExtractorConfig ec{nx, ny, nz, {1, 1, 1}, {0, 0, 0}, 0.0};
+      ec.seam_faces = seams;
+      LayerExtractor ex(ec, &store);
+      std::map<Edge, int> older;  // edges of the triangles committed before
+      std::vector<uint8_t> bytes;
+      int64_t queued_total = 0, below_total = 0;
+      for (int k = 0; k < nz; ++k) {
+        ASSERT_TRUE(src.ReadSlice(&bytes).ok());
+        std::vector<TriId> tris;
+        std::vector<VertexId> verts;
+        std::vector<uint8_t> edges;
+        ASSERT_TRUE(ex.ComputeLayer(reinterpret_cast<const float*>(bytes.data())).ok());
+        ex.CommitLayer(&tris, &verts, nullptr, &edges);
+        ASSERT_EQ(edges.size(), tris.size());
+        std::map<Edge, int> in_layer, queued;
+        for (TriId t : tris) {
+          const auto& tri = store.triangle(t);
+          for (int c = 0; c < 3; ++c) ++in_layer[key(tri[c], tri[(c + 1) % 3])];
+        }
+        for (size_t i = 0; i < tris.size(); ++i) {
+          const auto& tri = store.triangle(tris[i]);
+          for (int c = 0; c < 3; ++c) {
+            const VertexId a = tri[c], b = tri[(c + 1) % 3];
+            const Edge e = key(a, b);
+            const LayerEdge rule = EdgeOf(edges[i], c);
+            if (rule == kEdgeBelow) {
+              EXPECT_TRUE(older.count(e)) << "a kEdgeBelow edge the layer underneath lacks";
+              ++below_total;
+            } else if (rule == kEdgeShared) {
+              EXPECT_EQ(in_layer[e], 2) << "a kEdgeShared edge not in two of the layer's";
+            } else {
+              EXPECT_EQ(rule, kEdgeOnce);
+              EXPECT_EQ(in_layer[e], 1) << "a kEdgeOnce edge in more of the layer's";
+            }
+            if (rule == kEdgeOnce || (rule == kEdgeShared && a < b)) ++queued[e];
+          }
+        }
+        for (const auto& [e, n] : in_layer) {
+          EXPECT_EQ(queued.count(e) ? queued[e] : 0, older.count(e) ? 0 : 1)
+              << "layer " << k << ": edge " << e.first << "-" << e.second;
+        }
+        for (const auto& [e, n] : queued) queued_total += n;
+        for (const auto& [e, n] : in_layer) older[e] += n;
+      }
+      EXPECT_GT(queued_total, 1000);
+      EXPECT_GT(below_total, 100);
+    }
+  }
 }
 
 // A closed volume whose first slice is all outside: layer 1 is a cap over every cube of the
@@ -357,7 +443,7 @@ TEST(Extraction, AHeldCapCostsItsSizeNotTheNextPowerOfTwo) {
       EXPECT_GE(per_triangle, 100.0);  // what the arrays need: the bound above is not loose
     }
   }
-  // The step that releases the cap fills Q with its edges, a chunk of 65,536 at a time (64
+  // The step that releases the cap fills Q with its edges, a chunk of 4,096 at a time (64
   // bytes each with their slots), which SIMPLIFY empties before the step ends: MemoryBytes
   // still counts that peak, so a budget checked between slices sees it (before, it read less
   // than with the cap waiting).
