@@ -1,16 +1,18 @@
-// Growth of the session's big arrays: by an eighth of what they hold, not by double.
+// Growth of the session's arrays: a std::vector by an eighth of what it holds, not by double;
+// a PodArray by double, since what it holds past its written pages is not memory.
 //
 // std::vector doubles its capacity when it runs out, so an array that has just passed a power
 // of two holds up to twice what it uses, and keeps it for the rest of the session (ids are
 // recycled, the arrays never shrink). The session's memory, as its budget counts it
-// (TandemSession::MemoryBytes), is capacity: after the flat cap of a closed 2048² volume (a
+// (TandemSession::MemoryBytes), was capacity: after the flat cap of a closed 2048² volume (a
 // million triangles in each part's first layer) the store, the quadrics and the incidence
 // pool stood at 1.5-1.9x their use, and the server refused the stream at slice 2.
 // Growing by an eighth keeps appends amortised O(1) (an element is copied about 9 times over
 // the array's life, plain memcpy of records, a few ms per million vertices; small arrays
 // double, below), and a caller
 // that knows how much is coming (a layer's commit) reserves it exactly. The biggest arrays are
-// PodArrays (pod_array.h), whose large blocks grow in place without the copy.
+// PodArrays (pod_array.h), whose large blocks grow in place without the copy, and whose count
+// is the pages they wrote (since stop 54): those double (ReserveFor).
 #ifndef TANDEM_GROW_H_
 #define TANDEM_GROW_H_
 
