@@ -40,10 +40,11 @@ void Simplifier::CheckQuadric(VertexId v, const Quadric& q) const {
 void Simplifier::SetQuadric(VertexId v, const Quadric& q) {
   uint32_t s = store_->aux(v);
   if (s == kInvalid) {
-    s = quadrics_.Take();
+    s = tails_.Take();
     store_->set_aux(v, s);
   }
-  quadrics_[s] = q;
+  planes_[v] = PlaneSum{q.a00, q.a01, q.a02, q.a11, q.a12, q.a22};
+  tails_[s] = QuadricTail{q.b0, q.b1, q.b2, q.c, q.w};
 }
 
 void Simplifier::Keep(VertexId v) {
@@ -53,7 +54,7 @@ void Simplifier::Keep(VertexId v) {
 void Simplifier::DropQuadric(VertexId v) {
   const uint32_t s = store_->aux(v);
   if (s == kInvalid) return;
-  quadrics_.Release(s);
+  tails_.Release(s);
   store_->set_aux(v, kInvalid);
 }
 
@@ -78,12 +79,13 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
     const Quadric h = PlaneQuadric(store_->position(tri[0]), store_->position(tri[1]),
                                    store_->position(tri[2]));
     for (VertexId v : tri) {
+      PlaneSum& m = planes_[v];
+      m.a00 += h.a00, m.a01 += h.a01, m.a02 += h.a02;
+      m.a11 += h.a11, m.a12 += h.a12, m.a22 += h.a22;
       if (const uint32_t s = store_->aux(v); s != kInvalid) {
-        quadrics_[s] += h;  // kept in full (it moved): this plane need not pass through it
-      } else {
-        PlaneSum& m = planes_[v];
-        m.a00 += h.a00, m.a01 += h.a01, m.a02 += h.a02;
-        m.a11 += h.a11, m.a12 += h.a12, m.a22 += h.a22;
+        // Kept in full (it moved): this plane need not pass through it.
+        QuadricTail& t = tails_[s];
+        t.b0 += h.b0, t.b1 += h.b1, t.b2 += h.b2, t.c += h.c, t.w += h.w;
       }
       if (opt_.check_quadrics) eager_[v] += h;
     }
@@ -732,11 +734,13 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
     SetQuadric(dst, q);
     if (opt_.check_quadrics) eager_[dst] += from.eager_[src];
   } else {
-    // At src's position: its planes' matrix, or its quadric in full.
+    // At src's position: its planes' matrix, and the rest of its quadric kept in full.
     planes_[dst] = from.planes_[src];
     DropQuadric(dst);
     if (const uint32_t s = from.store_->aux(src); s != kInvalid) {
-      SetQuadric(dst, from.quadrics_[s]);
+      const uint32_t t = tails_.Take();
+      store_->set_aux(dst, t);
+      tails_[t] = from.tails_[s];
     }
     if (opt_.check_quadrics) eager_[dst] = from.eager_[src];
     store_->set_rad(dst, from.store_->rad(src));
@@ -930,7 +934,7 @@ size_t Simplifier::GroupBytes() const {  // in WEdges
 }
 
 size_t Simplifier::MemoryBytes() const {
-  return planes_.MemoryBytes() + quadrics_.MemoryBytes() + eager_.MemoryBytes() +
+  return planes_.MemoryBytes() + tails_.MemoryBytes() + eager_.MemoryBytes() +
          version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +

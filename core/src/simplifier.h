@@ -83,7 +83,8 @@ class Simplifier {
   // a vertex's own triangles passes through it, so until it moves its quadric is its matrix
   // A = Σ w n nᵀ alone (b = -A v, c = vᵀ A v, w = trace A): 48 bytes a vertex, not 88, for
   // the full-resolution band the time lag holds. A contraction's survivor, or a vertex about
-  // to move, keeps its quadric in full (Keep; docs/decisions.md, stop 55).
+  // to move, keeps its quadric in full (Keep; docs/decisions.md, stop 55): b, c and W beside
+  // its matrix, 40 bytes more (stop 61; a whole quadric's 88 until then).
   void AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts);
   // DELAY: puts the edges of these triangles into W (or Q for kImmediate), each edge once.
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
@@ -277,14 +278,17 @@ class Simplifier {
   // Loops over known edges or triangles start loading the records of the one kAhead places on.
   static constexpr size_t kAhead = 8;
   // Start loading what an evaluation reads of v: its store record; then, once the record
-  // is in (it holds the slot), the quadric it keeps in full or else its planes' matrix.
+  // is in (it holds the slot), its planes' matrix and the rest of a quadric kept in full.
   void PrefetchVertex(VertexId v) const { store_->Prefetch(v); }
   void PrefetchQuadric(VertexId v) const {
-    const char* p = store_->aux(v) != kInvalid
-                        ? reinterpret_cast<const char*>(&quadrics_[store_->aux(v)])
-                        : reinterpret_cast<const char*>(&planes_[v]);
+    const char* p = reinterpret_cast<const char*>(&planes_[v]);
     __builtin_prefetch(p);
-    __builtin_prefetch(p + sizeof(Quadric) - 1);
+    __builtin_prefetch(p + sizeof(PlaneSum) - 1);
+    if (const uint32_t s = store_->aux(v); s != kInvalid) {
+      const char* t = reinterpret_cast<const char*>(&tails_[s]);
+      __builtin_prefetch(t);
+      __builtin_prefetch(t + sizeof(QuadricTail) - 1);
+    }
   }
   // Adds v's quadric to *h: kept in full, or from its planes' matrix and its position
   // (AddTriangles). Q(v) without the copy: an evaluation adds two.
@@ -302,11 +306,16 @@ class Simplifier {
     return q;
   }
   [[gnu::always_inline]] void AddQuadricTo(VertexId v, Quadric* h) const {
+    const PlaneSum& m = planes_[v];
     if (const uint32_t s = store_->aux(v); s != kInvalid) {
-      *h += quadrics_[s];
+      const QuadricTail& t = tails_[s];
+      h->a00 += m.a00, h->a01 += m.a01, h->a02 += m.a02;
+      h->a11 += m.a11, h->a12 += m.a12, h->a22 += m.a22;
+      h->b0 += t.b0, h->b1 += t.b1, h->b2 += t.b2;
+      h->c += t.c;
+      h->w += t.w;
       return;
     }
-    const PlaneSum& m = planes_[v];
     const Vec3 p = store_->position(v);
     const double ax = m.a00 * p.x + m.a01 * p.y + m.a02 * p.z;
     const double ay = m.a01 * p.x + m.a11 * p.y + m.a12 * p.z;
@@ -325,15 +334,18 @@ class Simplifier {
   SimplifierOptions opt_;
   double front_ = -std::numeric_limits<double>::infinity();
 
-  // Quadrics (AddTriangles), per vertex id: the sum of its planes' matrices; and the quadrics
-  // kept in full, packed, their free slots handed out lowest first, a vertex's slot in its
-  // store record (MeshStore::aux; kInvalid: none). (docs/decisions.md: why rad lives in the
-  // store.)
+  // Quadrics (AddTriangles), per vertex id: the sum of its planes' matrices A; and for the
+  // quadrics kept in full, the rest (b, c and W; 40 bytes, not a whole quadric's 88 beside the
+  // matrix), packed, their free slots handed out lowest first, a vertex's slot in its store
+  // record (MeshStore::aux; kInvalid: none). (docs/decisions.md: why rad lives in the store.)
   struct PlaneSum {
     double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0;
   };
+  struct QuadricTail {
+    double b0 = 0, b1 = 0, b2 = 0, c = 0, w = 0;
+  };
   PodArray<PlaneSum> planes_;
-  SlotPool<Quadric> quadrics_;
+  SlotPool<QuadricTail> tails_;
   PodArray<Quadric> eager_;  // SimplifierOptions::check_quadrics: every quadric in full
   mutable std::atomic<int64_t> quadric_mismatches_{0};
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a
