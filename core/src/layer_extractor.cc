@@ -514,14 +514,15 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
           {Vec3{c[0], c[1], c[2]}, ci[2], BoxMask(ci[0], ci[1], ci[2]), int8_t{-1}});
       for (int s = 0; s < len; ++s) {
         staged_triangles_.push_back({cv, ev[e[s]], ev[e[(s + 1) % len]]});
-        staged_edges_.push_back(LayerEdges(kEdgeShared, on_face(e[s], e[(s + 1) % len]), kEdgeShared));
+        staged_edges_.push_back(
+            LayerEdges(kEdgeShared, on_face(e[s], e[(s + 1) % len]), kEdgeShared));
       }
     } else {
       for (int s = 1; s + 1 < len; ++s) {
         staged_triangles_.push_back({ev[e[0]], ev[e[s]], ev[e[s + 1]]});
         staged_edges_.push_back(LayerEdges(s == 1 ? on_face(e[0], e[1]) : kEdgeShared,
-                                      on_face(e[s], e[s + 1]),
-                                      s + 2 == len ? on_face(e[s + 1], e[0]) : kEdgeShared));
+                                           on_face(e[s], e[s + 1]),
+                                           s + 2 == len ? on_face(e[s + 1], e[0]) : kEdgeShared));
       }
     }
   }

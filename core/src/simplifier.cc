@@ -37,14 +37,18 @@ void Simplifier::CheckQuadric(VertexId v, const Quadric& q) const {
   }
 }
 
-void Simplifier::SetQuadric(VertexId v, const Quadric& q) {
+uint32_t Simplifier::TailSlot(VertexId v) {
   uint32_t s = store_->aux(v);
   if (s == kInvalid) {
     s = tails_.Take();
     store_->set_aux(v, s);
   }
+  return s;
+}
+
+void Simplifier::SetQuadric(VertexId v, const Quadric& q) {
   planes_[v] = PlaneSum{q.a00, q.a01, q.a02, q.a11, q.a12, q.a22};
-  tails_[s] = QuadricTail{q.b0, q.b1, q.b2, q.c, q.w};
+  tails_[TailSlot(v)] = QuadricTail{q.b0, q.b1, q.b2, q.c, q.w};
 }
 
 void Simplifier::Keep(VertexId v) {
@@ -738,9 +742,7 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
     planes_[dst] = from.planes_[src];
     DropQuadric(dst);
     if (const uint32_t s = from.store_->aux(src); s != kInvalid) {
-      const uint32_t t = tails_.Take();
-      store_->set_aux(dst, t);
-      tails_[t] = from.tails_[s];
+      tails_[TailSlot(dst)] = from.tails_[s];
     }
     if (opt_.check_quadrics) eager_[dst] = from.eager_[src];
     store_->set_rad(dst, from.store_->rad(src));

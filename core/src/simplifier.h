@@ -307,10 +307,10 @@ class Simplifier {
   }
   [[gnu::always_inline]] void AddQuadricTo(VertexId v, Quadric* h) const {
     const PlaneSum& m = planes_[v];
+    h->a00 += m.a00, h->a01 += m.a01, h->a02 += m.a02;
+    h->a11 += m.a11, h->a12 += m.a12, h->a22 += m.a22;
     if (const uint32_t s = store_->aux(v); s != kInvalid) {
       const QuadricTail& t = tails_[s];
-      h->a00 += m.a00, h->a01 += m.a01, h->a02 += m.a02;
-      h->a11 += m.a11, h->a12 += m.a12, h->a22 += m.a22;
       h->b0 += t.b0, h->b1 += t.b1, h->b2 += t.b2;
       h->c += t.c;
       h->w += t.w;
@@ -320,8 +320,6 @@ class Simplifier {
     const double ax = m.a00 * p.x + m.a01 * p.y + m.a02 * p.z;
     const double ay = m.a01 * p.x + m.a11 * p.y + m.a12 * p.z;
     const double az = m.a02 * p.x + m.a12 * p.y + m.a22 * p.z;
-    h->a00 += m.a00, h->a01 += m.a01, h->a02 += m.a02;
-    h->a11 += m.a11, h->a12 += m.a12, h->a22 += m.a22;
     h->b0 -= ax, h->b1 -= ay, h->b2 -= az;
     h->c += p.x * ax + p.y * ay + p.z * az;
     h->w += m.a00 + m.a11 + m.a22;
@@ -329,6 +327,7 @@ class Simplifier {
   void CheckQuadric(VertexId v, const Quadric& q) const;
   void Keep(VertexId v);  // v's quadric in full from now on (it moves, or adds another's)
   void SetQuadric(VertexId v, const Quadric& q);  // kept in full
+  uint32_t TailSlot(VertexId v);  // v's slot in tails_, taken if it has none
 
   MeshStore* store_;
   SimplifierOptions opt_;
