@@ -421,12 +421,17 @@ TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
       }
       stream->WritesDone();
     });
-    if (whole_volume_first) {
-      v1::Counters k;
-      EXPECT_TRUE(WaitFor(
-          s, 10, [](const v1::Counters& c) { return c.sessions_draining() == 1; }, &k))
-          << k.ShortDebugString();
-    }
+    // Wait until the server holds the session before waiting for it to go: polled too early,
+    // active_sessions() == 0 held before the stream was accepted, the test went on to read
+    // everything and the stream ended OK (a CI run of stop 62).
+    v1::Counters k;
+    EXPECT_TRUE(WaitFor(
+        s, 10,
+        [&](const v1::Counters& c) {
+          return whole_volume_first ? c.sessions_draining() == 1 : c.active_sessions() == 1;
+        },
+        &k))
+        << k.ShortDebugString();
     // Still not reading; the server gives up after about a second.
     v1::Counters counters;
     EXPECT_TRUE(WaitFor(
