@@ -125,6 +125,13 @@ class EdgeQueue {
   bool empty() const { return size_ == 0; }
   void Push(double key, const QEntry& e);
   const QNode& Top();  // the node of the smallest key (not empty)
+  // Top, once the nodes appended to a bucket while it was not the lowest have been sifted
+  // in less those stale(node) rejects (their slots freed, as a Pop would); null when no
+  // node is left. The live nodes pop in the same order: a stale one is skipped either way,
+  // and most are stale by the time their bucket comes up (on a dense surface, five pops in
+  // six were), so they need neither a sift-in nor a pop's sift-down.
+  template <typename Stale>
+  const QNode* TopLive(Stale&& stale);
   // Removes the node of the smallest key; its slot is recycled, so Placement(node) is valid
   // until the next Push.
   QNode Pop();
@@ -148,6 +155,17 @@ class EdgeQueue {
   void ForEach(F&& f) const {
     for (const auto& bucket : buckets_) {
       for (const QNode& n : bucket) f(n, slots_[n.slot]);
+    }
+  }
+  // Calls f(node, placement) for every queued node in the order it was pushed, key bucket by
+  // key bucket: pushed in this order into another Q, equal keys pop in the same order as
+  // here, whatever the heap's layout (which depends on the nodes TopLive dropped).
+  template <typename F>
+  void ForEachInPushOrder(F&& f) const {
+    std::vector<uint32_t> order;
+    for (const auto& bucket : buckets_) {
+      InPushOrder(bucket, &order);
+      for (uint32_t i : order) f(bucket[i], slots_[bucket[i].slot]);
     }
   }
   // Q empties at the end of every SIMPLIFY(E0) (edges above E0 are never queued), but each of
@@ -182,7 +200,17 @@ class EdgeQueue {
   }
 
  private:
+  void Advance();
   void Enter();
+  // The indices of a bucket's nodes, oldest push first (ages count back from seq_, so a
+  // wrapped counter orders them too).
+  void InPushOrder(const PodArray<QNode>& bucket, std::vector<uint32_t>* order) const {
+    order->resize(bucket.size());
+    for (uint32_t i = 0; i < order->size(); ++i) (*order)[i] = i;
+    std::sort(order->begin(), order->end(), [&](uint32_t x, uint32_t y) {
+      return seq_ - bucket[x].seq > seq_ - bucket[y].seq;
+    });
+  }
 
   size_t Bytes(bool capacity) const;
 
@@ -227,16 +255,24 @@ EdgeQueue EdgeQueue::Rebuilt(double max_key, Keep&& keep, More&& more) const {
   for (size_t b = 0; b < kBuckets; ++b) q.buckets_[b].reserve(count[b]);
   q.slots_.reserve(total);
   if (kept_total == 0) return q;
-  size_t i = 0;
-  ForEach([&](const QNode& n, const QPlacement& p) {
-    if (kept[i++]) q.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
-  });
+  // Bucket by bucket in push order (ForEachInPushOrder), with keep's answers from above.
+  std::vector<uint32_t> order;
+  size_t first = 0;  // the bucket's first node in ForEach's order
+  for (const auto& bucket : buckets_) {
+    InPushOrder(bucket, &order);
+    for (uint32_t i : order) {
+      if (!kept[first + i]) continue;
+      const QNode& n = bucket[i];
+      const QPlacement& p = slots_[n.slot];
+      q.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
+    }
+    first += bucket.size();
+  }
   return q;
 }
 
-inline void EdgeQueue::Enter() {
-  // Makes cur_ the lowest non-empty bucket and restores its heap order (nodes appended while
-  // it was not current are sifted in).
+inline void EdgeQueue::Advance() {
+  // Makes cur_ the lowest non-empty bucket (Q is not empty).
   while (buckets_[cur_].empty()) {
     // Popped empty: a big bucket gives its memory back. Log-spaced buckets each fill in turn
     // as SIMPLIFY's keys rise, and kept, their peaks added up (2048² dense cap: +13 % RSS).
@@ -246,6 +282,12 @@ inline void EdgeQueue::Enter() {
     ++cur_;
     assert(cur_ < kBuckets);
   }
+}
+
+inline void EdgeQueue::Enter() {
+  // Makes cur_ the lowest non-empty bucket and restores its heap order (nodes appended while
+  // it was not current are sifted in).
+  Advance();
   PodArray<QNode>& h = buckets_[cur_];
   for (size_t i = heaped_[cur_]; i < h.size(); ++i) HeapSiftUp(h, i, QNodeBeforeFn{});
   heaped_[cur_] = h.size();
@@ -282,6 +324,30 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
 inline const QNode& EdgeQueue::Top() {
   Enter();
   return buckets_[cur_][0];
+}
+
+template <typename Stale>
+const QNode* EdgeQueue::TopLive(Stale&& stale) {
+  while (size_ > 0) {
+    Advance();
+    PodArray<QNode>& h = buckets_[cur_];
+    size_t kept = heaped_[cur_];
+    for (size_t i = kept; i < h.size(); ++i) {
+      const QNode n = h[i];
+      if (stale(n)) {
+        PushBack(free_, n.slot);
+        --size_;
+      } else {
+        h[kept++] = n;
+      }
+    }
+    h.resize(kept);
+    if (!h.empty()) {
+      Enter();  // sifts the live ones in
+      return &h[0];
+    }
+  }
+  return nullptr;
 }
 
 inline QNode EdgeQueue::Pop() {

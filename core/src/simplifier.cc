@@ -255,7 +255,15 @@ void Simplifier::RaiseError(double e) {
 }
 
 double Simplifier::NextCost() {
-  return q_.empty() ? min_dropped_ : std::min(min_dropped_, q_.Top().key);
+  // The cheapest live edge's: stale nodes on top are popped (SIMPLIFY would skip them), so
+  // the answer does not depend on which of them Q still holds (TopLive drops some early).
+  const auto stale = [this](const QNode& n) { return Stale(n); };
+  for (;;) {
+    const QNode* top = q_.TopLive(stale);
+    if (top == nullptr) return min_dropped_;
+    if (!Stale(*top)) return std::min(min_dropped_, top->key);
+    q_.Pop();
+  }
 }
 
 bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
@@ -617,9 +625,12 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
 
 void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
+  const auto stale = [this](const QNode& n) { return Stale(n); };
   while (!q_.empty()) {
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
-    const double key = q_.Top().key;
+    const QNode* top = q_.TopLive(stale);
+    if (top == nullptr) break;
+    const double key = top->key;
     if (!past_error && key > opt_.error) break;
     const QNode e = q_.Pop();
     // The next edge's reads, a stage at a time as each one's address arrives: its stamps,
@@ -771,7 +782,7 @@ void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> m
     assert(x != kInvalid && y != kInvalid && !Pinned(x, y));
     return x < y ? std::pair{x, y} : std::pair{y, x};
   };
-  from.q_.ForEach([&](const QNode& n, const QPlacement& p) {
+  from.q_.ForEachInPushOrder([&](const QNode& n, const QPlacement& p) {
     if (from.Stale(n)) return;
     const auto [a, b] = ends(n.a, n.b);
     q_.Push(n.key, QEntry{a, b, version_[a], version_[b], p.pos, p.eps0});

@@ -93,6 +93,59 @@ TEST(EdgeQueue, BucketsSpreadSmallKeys) {
   }
 }
 
+// TopLive drops the stale nodes appended to a bucket before sifting it in (their slots go
+// back for reuse: every live node keeps its own placement), and the live ones pop in the
+// order Top/Pop gives them with the stale ones skipped; with only stale nodes left above the
+// lowest bucket it returns null and Q is empty.
+TEST(EdgeQueue, TopLiveDropsStaleNodesAndKeepsTheOrder) {
+  EdgeQueue q(1.0), all(1.0);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 1.2);
+  std::vector<bool> stale_id;
+  auto stale = [&](const QNode& n) { return stale_id[n.a]; };
+  uint32_t id = 0;
+  size_t dropped_early = 0;
+  for (int round = 0; round < 50; ++round) {
+    for (int i = 0; i < 400; ++i, ++id) {
+      const double key = i % 4 == 0 ? 0.5 : u(rng);
+      q.Push(key, EntryFor(id));
+      all.Push(key, EntryFor(id));
+      stale_id.push_back(false);
+    }
+    // Most go stale while they wait (a neighbour's contraction re-pushed them).
+    for (uint32_t k = 0; k < id; ++k) stale_id[k] = stale_id[k] || rng() % 3 != 0;
+    for (int i = 0; i < 100; ++i) {
+      while (!all.empty() && stale(all.Top())) all.Pop();  // the loop before TopLive
+      const size_t before = q.size();
+      const QNode* top = q.TopLive(stale);
+      if (all.empty()) {
+        ASSERT_EQ(top, nullptr);
+        break;
+      }
+      ASSERT_NE(top, nullptr);
+      dropped_early += before - q.size();
+      if (stale(*top)) {  // on the heap already when it went stale: popped and skipped
+        q.Pop();
+        --i;
+        continue;
+      }
+      const QNode x = q.Pop(), y = all.Pop();
+      ASSERT_EQ(x.a, y.a);
+      ASSERT_EQ(x.key, y.key);
+      ASSERT_EQ(q.Placement(x).pos.x, double(x.a));
+    }
+  }
+  EXPECT_GT(dropped_early, size_t{id} / 4);  // most stale ones never reached a heap
+  // Nodes appended to buckets above the lowest, all stale: none is left.
+  EdgeQueue waiting(1.0);
+  waiting.Push(0.1, EntryFor(0));  // the lowest bucket's heap
+  for (uint32_t k = 1; k < 1000; ++k) waiting.Push(0.2 + k * 1e-4, EntryFor(k));
+  waiting.Pop();
+  for (uint32_t k = 0; k < 1000; ++k) stale_id[k] = true;
+  EXPECT_EQ(waiting.TopLive(stale), nullptr);
+  EXPECT_TRUE(waiting.empty());
+}
+
 TEST(EdgeQueue, ClearEmptiesAndKeepsWorking) {
   EdgeQueue q(1.0);
   q.Clear();  // before any push: nothing allocated
@@ -135,23 +188,38 @@ TEST(EdgeQueue, TrimFreesThePeakAndKeepsTheOrder) {
   }
 }
 
-// Rebuilt keeps what its filter accepts, respaced below a new E0, and pops it in the order a
-// fresh Q would after the same pushes; each bucket and the slots are sized exactly (pushed into
-// an empty Q one by one they regrew by eighths: a third of a target run's rises), with room
-// for the pushes the caller announces.
+// Rebuilt keeps what its filter accepts, respaced below a new E0, and pops it in the order Q
+// itself would have popped it, equal keys included (in push order, whatever the heaps'
+// layout); each bucket and the slots are sized exactly (pushed into an empty Q one by one
+// they regrew by eighths: a third of a target run's rises), with room for the pushes the
+// caller announces.
 TEST(EdgeQueue, RebuiltKeepsTheAcceptedInOrderAndSizesItsArraysExactly) {
-  EdgeQueue q(0.5);
+  EdgeQueue q(0.5), same(0.5);
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(0.0, 2.0);
-  for (uint32_t i = 0; i < 20000; ++i) q.Push(i % 5 == 0 ? 0.25 : u(rng), EntryFor(i));
-  for (int i = 0; i < 3000; ++i) q.Pop();  // a recycled slot or two
+  for (uint32_t i = 0; i < 20000; ++i) {
+    const double key = i % 5 == 0 ? 0.25 : u(rng);  // a fifth tie, in one bucket
+    q.Push(key, EntryFor(i));
+    same.Push(key, EntryFor(i));
+  }
+  for (int i = 0; i < 3000; ++i) q.Pop(), same.Pop();  // a recycled slot or two
   auto keep = [](const QNode& n) { return n.a % 3 != 0; };
   auto nothing_more = [](auto&&) {};
   EdgeQueue rebuilt = q.Rebuilt(1.0, keep, nothing_more);
-  EdgeQueue pushed(1.0);  // what Rebucket did before
-  q.ForEach([&](const QNode& n, const QPlacement& p) {
+  std::vector<uint32_t> order;  // what Q would have popped of the kept ones
+  while (!same.empty()) {
+    const QNode n = same.Pop();
+    if (keep(n)) order.push_back(n.a);
+  }
+  EdgeQueue pushed(1.0);  // the same nodes pushed one by one, in push order
+  q.ForEachInPushOrder([&](const QNode& n, const QPlacement& p) {
     if (keep(n)) pushed.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
   });
+  {
+    EdgeQueue copy = q.Rebuilt(1.0, keep, nothing_more);
+    for (size_t i = 0; i < order.size(); ++i) ASSERT_EQ(copy.Pop().a, order[i]) << i;
+    EXPECT_TRUE(copy.empty());
+  }
   ASSERT_EQ(rebuilt.size(), pushed.size());
   const size_t pushed_size = pushed.size();
   ASSERT_GT(rebuilt.size(), 10000u);
