@@ -162,11 +162,7 @@ class EdgeQueue {
   // here, whatever the heap's layout (which depends on the nodes TopLive dropped).
   template <typename F>
   void ForEachInPushOrder(F&& f) const {
-    std::vector<uint32_t> order;
-    for (const auto& bucket : buckets_) {
-      InPushOrder(bucket, &order);
-      for (uint32_t i : order) f(bucket[i], slots_[bucket[i].slot]);
-    }
+    VisitInPushOrder([&](const QNode& n, const QPlacement& p, size_t) { f(n, p); });
   }
   // Q empties at the end of every SIMPLIFY(E0) (edges above E0 are never queued), but each of
   // its buckets and its slots kept the capacity of their own peaks: two thirds of a dense
@@ -202,14 +198,22 @@ class EdgeQueue {
  private:
   void Advance();
   void Enter();
-  // The indices of a bucket's nodes, oldest push first (ages count back from seq_, so a
-  // wrapped counter orders them too).
-  void InPushOrder(const PodArray<QNode>& bucket, std::vector<uint32_t>* order) const {
-    order->resize(bucket.size());
-    for (uint32_t i = 0; i < order->size(); ++i) (*order)[i] = i;
-    std::sort(order->begin(), order->end(), [&](uint32_t x, uint32_t y) {
-      return seq_ - bucket[x].seq > seq_ - bucket[y].seq;
-    });
+  // ForEachInPushOrder's walk: each bucket's nodes oldest push first (ages count back from
+  // seq_, so a wrapped counter orders them too); f also gets the node's place in ForEach's
+  // order.
+  template <typename F>
+  void VisitInPushOrder(F&& f) const {
+    std::vector<uint32_t> order;
+    size_t first = 0;  // the bucket's first node in ForEach's order
+    for (const auto& bucket : buckets_) {
+      order.resize(bucket.size());
+      for (uint32_t i = 0; i < order.size(); ++i) order[i] = i;
+      std::sort(order.begin(), order.end(), [&](uint32_t x, uint32_t y) {
+        return seq_ - bucket[x].seq > seq_ - bucket[y].seq;
+      });
+      for (uint32_t i : order) f(bucket[i], slots_[bucket[i].slot], first + i);
+      first += bucket.size();
+    }
   }
 
   size_t Bytes(bool capacity) const;
@@ -255,19 +259,10 @@ EdgeQueue EdgeQueue::Rebuilt(double max_key, Keep&& keep, More&& more) const {
   for (size_t b = 0; b < kBuckets; ++b) q.buckets_[b].reserve(count[b]);
   q.slots_.reserve(total);
   if (kept_total == 0) return q;
-  // Bucket by bucket in push order (ForEachInPushOrder), with keep's answers from above.
-  std::vector<uint32_t> order;
-  size_t first = 0;  // the bucket's first node in ForEach's order
-  for (const auto& bucket : buckets_) {
-    InPushOrder(bucket, &order);
-    for (uint32_t i : order) {
-      if (!kept[first + i]) continue;
-      const QNode& n = bucket[i];
-      const QPlacement& p = slots_[n.slot];
-      q.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
-    }
-    first += bucket.size();
-  }
+  // In push order (ForEachInPushOrder), with keep's answers from above.
+  VisitInPushOrder([&](const QNode& n, const QPlacement& p, size_t i) {
+    if (kept[i]) q.Push(n.key, QEntry{n.a, n.b, n.va, n.vb, p.pos, p.eps0});
+  });
   return q;
 }
 
