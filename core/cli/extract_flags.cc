@@ -101,7 +101,7 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                 "split the grid along x into N slabs, simplified side by side on their own "
                 "threads and merged at the end (their seams simplified last); 1 = the paper's "
                 "algorithm unchanged; 0 = automatic: 4 on grids at least 256 wide, 2 on grids "
-                "at least 128 wide, else 1");
+                "at least 81 wide, else 1");
   flags->AddBool("seal", &seal,
                  "seal the mesh behind the sweep: vertices whose reach lies --seal-margin "
                  "slices below the front never change again and their triangles leave the "

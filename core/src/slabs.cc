@@ -316,9 +316,16 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
   const int requested = options.parts;
   constexpr int64_t kMinColumns = 16;  // cube columns per slab, at least
-  const int64_t wanted =
-      requested > 0 ? requested : (grid.nx >= 256 ? 4 : grid.nx >= 128 ? 2 : 1);
-  return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinColumns)));
+  // The automatic split asks for slabs of at least 40 columns: two from 81 wide. Narrower ones
+  // cost more at their seams than the second core saves (docs/decisions.md, "Two slabs from
+  // 81 wide").
+  constexpr int64_t kMinAutoColumns = 40;
+  if (requested > 0) {
+    return static_cast<int>(
+        std::max<int64_t>(1, std::min<int64_t>(requested, (grid.nx - 1) / kMinColumns)));
+  }
+  const int64_t wanted = grid.nx >= 256 ? 4 : 2;
+  return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinAutoColumns)));
 }
 
 // Q keeps edges up to this multiple of E0 toward a target count, so that a rise of E0

@@ -60,7 +60,7 @@ struct SessionOptions {
                                 // simplified (tandem schedules) and half of every large
                                 // batch of edge evaluations (DELAY, ACTIVATE)
   int parts = 0;                // slabs along x (see above); 0 = automatic: 4 when the grid
-                                // is at least 256 wide, 2 when at least 128, else 1. At
+                                // is at least 256 wide, 2 when at least 81, else 1. At
                                 // most one part per 16 columns (fewer are used on narrow
                                 // grids).
   static constexpr int kMaxParts = 64;

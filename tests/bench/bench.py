@@ -639,7 +639,7 @@ def write_report(path, results, meta, args):
     L.append("- **total s** = wall time of the process, from fork to exit (reading, extraction, "
              "simplification, writing a binary PLY). CPU s = user + system time (wait4). "
              "Threads: VTK's FlyingEdges3D uses all cores (TBB); ours use all cores too (grids "
-             "256 or more wide are split along x into 4 parts (128 to 255 wide: 2) extracted "
+             "256 or more wide are split along x into 4 parts (81 to 255 wide: 2) extracted "
              "and simplified by a pool of workers, one per core, and merged at the end, see "
              "core/tandem/tandem.h; "
              "smaller grids extract layer k+1 while layer k is simplified); meshopt, VTK's "

@@ -581,7 +581,7 @@ def write_report(path, results, meta, quick):
         "slices/s = slices / wall; M input tri/s = the triangles that pipeline's marching "
         "cubes extracted (FE3D's or ours) / wall, in millions.",
         "Threads: FlyingEdges3D uses both cores (TBB), meshopt_simplify one; tandem uses "
-        "both (4 slabs along x on grids 256 or more wide, 2 on grids 128 to 255 wide).",
+        "both (4 slabs along x on grids 256 or more wide, 2 on grids 81 to 255 wide).",
         "No distances in this family (see tests/bench/REPORT.md for the quality comparison); "
         "tandem-lag's output is checked by `mesh_check` (manifold, χ).",
         "Ratios are ours / peer: below 1, ours is faster or smaller.",

@@ -21,7 +21,7 @@ Order: the 256³ inputs, the shared ones, then the 512³ ones (a partial run kee
 
 Per E0, each in its own process (bench.py's launcher: wall time, CPU time, peak RSS):
   classical, tandem, tandem-lag    the CLI with --schedule S, default slabs (--parts 0: 4 on
-                                   grids at least 256 wide, 2 on 128) and --parts 1 ("/p1");
+                                   grids at least 256 wide, 2 on 81) and --parts 1 ("/p1");
   mc+cgal                          our marching cubes + CGAL edge_collapse (Garland-Heckbert),
   fe3d+vtkqd                       FlyingEdges3D + vtkQuadricDecimation, both asked for
                                    tandem-lag's triangle count (default slabs).
@@ -381,7 +381,7 @@ def write_report(path, results, meta, plots):
          f"{meta['elapsed_s'] / 60:.0f} min. Mode: {meta['mode']}. One run per point (timings "
          "are indicative only: other jobs shared the machine).", "",
          "Every E0 row: our three schedules with the default slabs (4 on grids at least 256 wide, "
-         "2 on grids at least 128 wide, else 1) and with `--parts 1` (/p1); CGAL Garland–Heckbert (mc+cgal) and "
+         "2 on grids at least 81 wide, else 1) and with `--parts 1` (/p1); CGAL Garland–Heckbert (mc+cgal) and "
          "vtkQuadricDecimation (fe3d+vtkqd) asked for tandem-lag's count (default slabs). RMS and "
          "Hausdorff: `tandem measure` against our full-resolution marching-cubes surface.", "",
          notes, ""]
