@@ -576,7 +576,7 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
 
 // A sealed stream of a grid wide enough for four slabs (256 columns): each slab seals its own
 // part, and every chunk the server sends holds what all of them sealed since the last, so the
-// chunks along the way span the whole slice, not the first slab's columns (before, the server
+// chunks along the way span several slabs' columns, not one slab's (before, the server
 // took one slab's piece a slice and the others piled up until the end). The chunks weld into
 // the plain stream's kind of mesh.
 TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
@@ -605,14 +605,17 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
     absl::StatusOr<SealedChunk> read = ReadChunkFile(dir_ + "/chunks/" + files[i]);
     ASSERT_TRUE(read.ok()) << read.status();
     SealedChunk c = *std::move(read);
-    if (i + 1 < files.size()) {  // along the way: from the first slab and the last
+    if (i + 1 < files.size()) {
+      // Along the way: wider than a slab (64 columns), so from more than one. Where the
+      // chunk starts and ends depends on when the server took it: under the sanitizers the
+      // first chunk of one run held x 65-192+, the ball's lower cap before it reached the
+      // first slab, so its ends are not checked against the outer slabs' columns.
       double lo = 1e9, hi = -1e9;
       for (const Vec3& p : c.positions) {
         lo = std::min(lo, p.x);
         hi = std::max(hi, p.x);
       }
-      EXPECT_LT(lo, 64) << files[i];
-      EXPECT_GT(hi, 192) << files[i];
+      EXPECT_GT(hi - lo, 64.5) << files[i] << ": x " << lo << " to " << hi;
     }
     chunks.push_back(std::move(c));
   }
