@@ -320,12 +320,10 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
   // cost more at their seams than the second core saves (docs/decisions.md, "Two slabs from
   // 81 wide").
   constexpr int64_t kMinAutoColumns = 40;
-  if (requested > 0) {
-    return static_cast<int>(
-        std::max<int64_t>(1, std::min<int64_t>(requested, (grid.nx - 1) / kMinColumns)));
-  }
-  const int64_t wanted = grid.nx >= 256 ? 4 : 2;
-  return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / kMinAutoColumns)));
+  const bool automatic = requested <= 0;
+  const int64_t wanted = automatic ? (grid.nx >= 256 ? 4 : 2) : requested;
+  const int64_t columns = automatic ? kMinAutoColumns : kMinColumns;
+  return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / columns)));
 }
 
 // Q keeps edges up to this multiple of E0 toward a target count, so that a rise of E0
