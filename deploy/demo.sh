@@ -19,7 +19,7 @@ rate=100
 stream_extra=(--preview-every 16 --partials out/previews)
 if [ "${1:-}" = "--view" ]; then
   view=(--view "${2:-127.0.0.1:8080}")
-  server_extra=(--max-band-bytes-share 4)  # a fresh band to watch (README: Watching ...)
+  server_extra=(--max-band-bytes-share 4)  # a fresh band to watch (docs/guide.md: Watching in a browser)
   rate=10
   stream_extra=(--seal --preview-every 2)
 fi

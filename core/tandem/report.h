@@ -113,7 +113,7 @@ MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh);
 MetricsReport MakeReport(const TandemSession& session, int64_t triangles, int64_t vertices,
                          const ShapeSums& shape);
 
-// JSON text: the fields of VisitReportFields (see also README.md).
+// JSON text: the fields of VisitReportFields (docs/guide.md lists them).
 std::string ReportToJson(const MetricsReport& r);
 // {"distance": {"L1": {"forward", "backward", "max"}, "L2": ..., "Linf": ...}}: the block
 // ReportToJson writes, alone (tandem measure --json).

@@ -482,7 +482,7 @@ def targets_lines(results, meta):
     L.append("- Streams the server's default budget refused (run again with "
              f"`--session-memory-mb {FALLBACK_SESSION_MB}`): "
              + (", ".join(refused) if refused else "none") + ".")
-    L.append("- Measured separately (the README and the sections below): keeping pace at 80 % "
+    L.append("- Measured separately (tests/bench/README.md and the sections below): keeping pace at 80 % "
              "of the maximum rate (`tests/bench/keep_pace.py`), and how deep a dense stream, "
              "plain or sealed, runs under the default budget.")
     return L

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# README's table "what sealing costs": each input at two E0, `tandem extract --parts 1`
+# The table "what sealing costs" (tests/bench/README.md): each input at two E0, `tandem extract --parts 1`
 # without and with --seal (default margin 2), distances by --reference; the volume's
 # default iso-value (its first suggested one) unless given as VOLUME@ISO. One run at a time.
 # Prints: input  E0  triangles plain/seal (change)  RMS plain/seal (change)  Hausdorff (change)
