@@ -17,20 +17,23 @@ Example (volume indexed [z, y, x], as NumPy reads a stack):
     vol = (x * x + y * y + z * z).astype(np.float32)
     result = tandem_client.extract(vol, iso=0.5, error=0.002, spacing=(0.03, 0.03, 0.03))
     print(result.metrics.triangles_final)
-    result.save("sphere.drc")               # Draco bytes as the server sent them
-    tandem_client.draco_to_ply("sphere.drc", "sphere.ply")  # Debian's draco_decoder
+    result.vertices, result.faces           # NumPy arrays: (N, 3) float32, (M, 3) uint32
+    result.write("sphere.stl")              # .ply, .obj, .stl, or .drc as the server sent it
 
-Meshes come back Draco-encoded (the server's only mesh format on the wire); `draco_to_ply`
-decodes with the `draco_decoder` program (Debian package `draco`) when no Python Draco
-binding is at hand.
+Meshes come back Draco-encoded (the server's only mesh format on the wire); they are decoded
+with the `draco_decoder` program (Debian package `draco`), as no Python Draco binding is
+packaged. Sealed chunks are welded by position: a stream quantizes all its chunks on one grid,
+so a vertex two chunks share decodes to the same coordinates in both.
 """
 
 import os
 import shutil
+import struct
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, List, Optional, Sequence
+from typing import Callable, Iterator, List, Optional, Sequence, Tuple
 
 import grpc
 import numpy as np
@@ -59,8 +62,9 @@ class Result:
     """The final mesh (Draco bytes, chunks joined) and the server's FinalMetrics.
 
     With sealed_chunks, `draco` is empty and `sealed` holds the SealedChunk messages in
-    order: each a Draco mesh whose GENERIC uint32 attribute is the vertices' global ids
-    (weld them by id for the whole mesh). `session_id` is the stream's id (for Watch).
+    order: each a Draco mesh whose GENERIC uint32 attribute is the vertices' global ids.
+    `vertices` and `faces` decode either into NumPy arrays. `session_id` is the stream's id
+    (for Watch).
     """
 
     draco: bytes
@@ -68,10 +72,153 @@ class Result:
     previews: List["pb.Preview"] = field(default_factory=list)
     sealed: List["pb.SealedChunk"] = field(default_factory=list)
     session_id: str = ""
+    _mesh: Optional[Tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
 
     def save(self, path: str) -> None:
+        """Writes the Draco bytes as the server sent them (unsealed streams)."""
+        if not self.draco:
+            raise ValueError("a sealed stream has no single Draco mesh: use write() with "
+                             ".ply, .obj or .stl")
         with open(path, "wb") as f:
             f.write(self.draco)
+
+    def _decoded(self) -> Tuple[np.ndarray, np.ndarray]:
+        if self._mesh is None:
+            if self.sealed:
+                self._mesh = weld_by_position([decode_draco(c.draco) for c in self.sealed])
+            else:
+                self._mesh = decode_draco(self.draco)
+        return self._mesh
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(N, 3) float32 vertex positions, in the volume's physical units."""
+        return self._decoded()[0]
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(M, 3) uint32 vertex indices, counter-clockwise seen from outside."""
+        return self._decoded()[1]
+
+    def write(self, path: str) -> None:
+        """Writes the mesh in the format `path`'s extension names (MESH_FORMATS)."""
+        ext = check_mesh_path(path)
+        if ext == ".drc":
+            self.save(path)
+        else:
+            write_mesh(path, self.vertices, self.faces)
+
+
+# What write() and the command line's --out take; anything else is refused before streaming.
+MESH_FORMATS = (".drc", ".ply", ".obj", ".stl")
+
+
+def check_mesh_path(path: str) -> str:
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in MESH_FORMATS:
+        raise ValueError(f"{path}: the output format is named by its extension, one of "
+                         f"{', '.join(MESH_FORMATS)} (for .glb use `tandem-client stream`)")
+    return ext
+
+
+def _read_ply(path: str) -> Tuple[np.ndarray, np.ndarray]:
+    """Positions and triangles of a binary little-endian PLY as draco_decoder writes it."""
+    types = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4",
+             "uint": "<u4", "float": "<f4", "double": "<f8"}
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    elements = []  # [name, count, [(prop, dtype)] or ("list", count type, index type)]
+    for line in data[:end].decode("ascii").splitlines():
+        words = line.split()
+        if words[:1] == ["format"] and words[1] != "binary_little_endian":
+            raise RuntimeError(f"{path}: PLY format {words[1]} (expected binary_little_endian)")
+        if words[:1] == ["element"]:
+            elements.append([words[1], int(words[2]), []])
+        elif words[:2] == ["property", "list"]:
+            elements[-1][2] = ("list", types[words[2]], types[words[3]])
+        elif words[:1] == ["property"]:
+            elements[-1][2].append((words[2], types[words[1]]))
+    offset, vertices, faces = end, None, None
+    for name, count, props in elements:
+        if props and props[0] == "list":
+            row = np.dtype([("n", props[1]), ("i", props[2], 3)])
+            rows = np.frombuffer(data, row, count, offset)
+            if count and not (rows["n"] == 3).all():
+                raise RuntimeError(f"{path}: a face that is not a triangle")
+            offset += row.itemsize * count
+            if name == "face":
+                faces = rows["i"].astype(np.uint32)
+        else:
+            row = np.dtype(props)
+            rows = np.frombuffer(data, row, count, offset)
+            offset += row.itemsize * count
+            if name == "vertex":
+                vertices = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float32)
+    if vertices is None or faces is None:
+        raise RuntimeError(f"{path}: no vertex or face element")
+    return vertices, faces
+
+
+def decode_draco(data: bytes) -> Tuple[np.ndarray, np.ndarray]:
+    """(vertices (N, 3) float32, faces (M, 3) uint32) of a Draco mesh, by draco_decoder."""
+    decoder = shutil.which("draco_decoder")
+    if decoder is None:
+        raise RuntimeError("draco_decoder not found (apt-get install draco)")
+    with tempfile.TemporaryDirectory(prefix="tandem-draco-") as tmp:
+        drc, ply = os.path.join(tmp, "m.drc"), os.path.join(tmp, "m.ply")
+        with open(drc, "wb") as f:
+            f.write(data)
+        subprocess.run([decoder, "-i", drc, "-o", ply], check=True, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.PIPE)
+        return _read_ply(ply)
+
+
+def weld_by_position(meshes: Sequence[Tuple[np.ndarray, np.ndarray]]
+                     ) -> Tuple[np.ndarray, np.ndarray]:
+    """One mesh of several, vertices at the same position made one."""
+    if not meshes:
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32)
+    positions = np.concatenate([v for v, _ in meshes])
+    starts = np.cumsum([0] + [len(v) for v, _ in meshes[:-1]])
+    faces = np.concatenate([f.astype(np.int64) + s for (_, f), s in zip(meshes, starts)])
+    unique, inverse = np.unique(positions, axis=0, return_inverse=True)
+    return unique.astype(np.float32), inverse.reshape(-1)[faces].astype(np.uint32)
+
+
+def write_mesh(path: str, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Binary PLY, OBJ or binary STL (facet normals), by `path`'s extension."""
+    ext = check_mesh_path(path)
+    v = np.asarray(vertices, np.float32)
+    f = np.asarray(faces, np.uint32)
+    if ext == ".ply":
+        header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\n"
+                  "property float x\nproperty float y\nproperty float z\n"
+                  f"element face {len(f)}\nproperty list uchar uint vertex_indices\n"
+                  "end_header\n")
+        rows = np.empty(len(f), np.dtype([("n", "u1"), ("i", "<u4", 3)]))
+        rows["n"], rows["i"] = 3, f
+        with open(path, "wb") as out:
+            out.write(header.encode("ascii"))
+            out.write(v.astype("<f4").tobytes())
+            out.write(rows.tobytes())
+    elif ext == ".obj":
+        with open(path, "w") as out:
+            out.write("".join(f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in v))
+            out.write("".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    elif ext == ".stl":
+        corners = v[f.astype(np.int64)]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+        rows = np.zeros(len(f), np.dtype([("n", "<f4", 3), ("c", "<f4", (3, 3)), ("a", "<u2")]))
+        rows["n"], rows["c"] = normals, corners
+        with open(path, "wb") as out:
+            out.write(b"binary STL written by tandem_client".ljust(80, b" "))
+            out.write(struct.pack("<I", len(f)))
+            out.write(rows.tobytes())
+    else:
+        raise ValueError(f"{path}: write_mesh writes .ply, .obj or .stl")
 
 
 def _requests(volume: np.ndarray, config: "pb.SessionConfig") -> Iterator["pb.ExtractRequest"]:
@@ -154,46 +301,42 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
 
 def draco_to_ply(draco_path: str, ply_path: str) -> None:
     """Decodes a .drc file to PLY with Debian's draco_decoder (package `draco`)."""
-    decoder = shutil.which("draco_decoder")
-    if decoder is None:
-        raise RuntimeError("draco_decoder not found (apt-get install draco)")
-    subprocess.run([decoder, "-i", draco_path, "-o", ply_path], check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    with open(draco_path, "rb") as f:
+        write_mesh(ply_path, *decode_draco(f.read()))
 
 
 def _main(argv: Sequence[str]) -> int:
     import argparse
     parser = argparse.ArgumentParser(
         description="Stream a NumPy volume (.npy, indexed [z, y, x]) to tandem-server and "
-                    "write the mesh (.drc as sent, or .ply through draco_decoder).")
+                    "write the mesh in the format --out names (.drc as sent, .ply, .obj, .stl).")
     parser.add_argument("--server", default=os.environ.get("TANDEM_SERVER", "127.0.0.1:50051"))
     parser.add_argument("--input", required=True, help="volume .npy")
     parser.add_argument("--iso", type=float, required=True)
     parser.add_argument("--error", type=float, required=True)
     parser.add_argument("--spacing", default="1,1,1", help="x,y,z")
     parser.add_argument("--schedule", default="tandem-lag", choices=sorted(_SCHEDULES))
-    parser.add_argument("--out", required=True, help="mesh .drc or .ply")
+    parser.add_argument("--out", required=True, help="mesh: " + ", ".join(MESH_FORMATS))
     args = parser.parse_args(argv)
     spacing = [float(v) for v in args.spacing.split(",")]
     if len(spacing) != 3:
         parser.error("--spacing takes three numbers x,y,z")
     try:
+        check_mesh_path(args.out)  # before anything is streamed
+    except ValueError as e:
+        parser.error(str(e))
+    try:
         result = extract(np.load(args.input), args.iso, args.error, server=args.server,
                          spacing=spacing, schedule=args.schedule,
                          description=os.path.basename(args.input),
                          token=os.environ.get("TANDEM_TOKEN"))
+        result.write(args.out)
     except grpc.RpcError as e:
         print(f"tandem_client: {e.code().name}: {e.details()}", file=sys.stderr)
         return 1
-    except ValueError as e:
-        print(f"tandem_client: {e}", file=sys.stderr)
-        return 2
-    if args.out.endswith(".ply"):
-        drc = args.out[:-4] + ".drc"
-        result.save(drc)
-        draco_to_ply(drc, args.out)
-    else:
-        result.save(args.out)
+    except (ValueError, OSError, RuntimeError, subprocess.CalledProcessError) as e:
+        print(f"tandem_client: {e}", file=sys.stderr)  # the input or a failure: exit 1
+        return 1
     m = result.metrics
     print(f"{m.triangles_final} triangles, {m.vertices_final} vertices "
           f"({m.triangles_extracted} extracted); wrote {args.out}")

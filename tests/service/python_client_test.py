@@ -101,6 +101,18 @@ def main():
 
         check(len(result.session_id) == 32, f"the stream's id ({result.session_id!r})")
 
+        # NumPy arrays of the decoded mesh: the reported counts, indices in range, and the
+        # local run's vertices (within Draco's quantization of the box).
+        verts, faces = result.vertices, result.faces
+        check(verts.shape == (m.vertices_final, 3) and verts.dtype == np.float32 and
+              faces.shape == (m.triangles_final, 3) and faces.dtype == np.uint32 and
+              int(faces.max()) < len(verts),
+              f"vertices {verts.shape} {verts.dtype}, faces {faces.shape} {faces.dtype}")
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        box = np.array([31 * spacing[0], 35 * spacing[1], 39 * spacing[2]])
+        check(bool((lo >= -1e-3).all() and (hi <= box + 1e-3).all()),
+              f"vertices inside the grid's box ({lo}, {hi})")
+
         # Sealed chunks: in order, together the final mesh's triangles, and no FinalMesh.
         sealed = tandem_client.extract(vol, iso=0.5, error=0.01, server=address,
                                        spacing=spacing, sealed_chunks=True)
@@ -110,6 +122,19 @@ def main():
               f"sealed chunks ({len(sealed.sealed)}, "
               f"{sum(c.triangles for c in sealed.sealed)} triangles of "
               f"{sealed.metrics.triangles_final})")
+        check(sealed.faces.shape == (sealed.metrics.triangles_final, 3) and
+              len(sealed.vertices) == sealed.metrics.vertices_final,
+              f"sealed chunks welded by position: {len(sealed.vertices)} vertices, "
+              f"{len(sealed.faces)} faces (reported {sealed.metrics.vertices_final}, "
+              f"{sealed.metrics.triangles_final})")
+
+        # Chunks welded by position: two triangles sent in two chunks share an edge.
+        a = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]]))
+        b = (np.array([[1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]]))
+        wv, wf = tandem_client.weld_by_position([a, b])
+        check(len(wv) == 4 and wf.shape == (2, 3) and
+              set(map(tuple, wv[wf[0]])) >= {(1, 0, 0), (0, 1, 0)} and
+              len(set(wf[0]) & set(wf[1])) == 2, "chunks weld into one mesh by position")
 
         # Integer types, and a big-endian array (converted, not misread as noise).
         for dtype, scale in ((np.uint16, 1000), (np.int16, 1000), (np.uint8, 100)):
@@ -147,6 +172,35 @@ def main():
         check(cli.returncode == 0 and
               ply_counts(os.path.join(tmp, "cli.ply"))[1] == m.triangles_final,
               f"python3 tandem_client.py --out cli.ply ({cli.stdout.strip()}{cli.stderr.strip()})")
+
+        # --out names the format: STL and OBJ as their readers expect, .glb refused (exit 2)
+        # before anything is streamed.
+        def run_cli(out):
+            return subprocess.run([sys.executable, tandem_client.__file__, "--server", address,
+                                   "--input", npy, "--iso", "0.5", "--error", "0.01",
+                                   "--spacing", ",".join(map(str, spacing)), "--out", out],
+                                  capture_output=True, text=True)
+        stl = os.path.join(tmp, "cli.stl")
+        r = run_cli(stl)
+        with open(stl, "rb") as fh:
+            head = fh.read(84)
+        stl_count = int.from_bytes(head[80:84], "little") if len(head) == 84 else -1
+        check(r.returncode == 0 and not head.startswith(b"solid") and
+              stl_count == m.triangles_final and
+              os.path.getsize(stl) == 84 + 50 * m.triangles_final,
+              f"--out cli.stl is a binary STL of {stl_count} triangles ({r.stderr.strip()})")
+        obj = os.path.join(tmp, "cli.obj")
+        r = run_cli(obj)
+        with open(obj) as fh:
+            obj_lines = fh.read().splitlines()
+        check(r.returncode == 0 and
+              sum(ln.startswith("v ") for ln in obj_lines) == m.vertices_final and
+              sum(ln.startswith("f ") for ln in obj_lines) == m.triangles_final,
+              f"--out cli.obj holds the mesh ({r.stderr.strip()})")
+        glb = os.path.join(tmp, "cli.glb")
+        r = run_cli(glb)
+        check(r.returncode == 2 and ".glb" in r.stderr and "extension" in r.stderr and
+              not os.path.exists(glb), f"--out cli.glb refused with exit 2 ({r.stderr.strip()})")
     finally:
         server.terminate()
         try:
