@@ -23,6 +23,9 @@ if [ "${1:-}" = "--view" ]; then
   rate=10
   stream_extra=(--seal --preview-every 2)
 fi
+# The viewer's page needs three.js from npm, so that `tandem view out/pillowbox.ply` works
+# after this first command too (tests/run.sh installs the test packages as well).
+[ -f node_modules/three/package.json ] || bash deploy/install-web.sh --omit=dev
 mkdir -p out
 rm -rf out/previews out/acquisition out/pillowbox.ply
 "$bin/tandem" generate pillowbox --size 128 --out out/pillowbox.json
