@@ -421,7 +421,8 @@ absl::StatusOr<std::string> PickSeries(const std::string& dir,
 // How the first slice of a followed series is known to be the first (tandem/follow.h):
 // a receiver stores files out of position order only within this many of each other...
 constexpr int64_t kReorderWindow = 8;
-// ...and a burst is over after this long with nothing new in the folder.
+// ...and a burst is over after this long with nothing new in the folder (or three of the
+// writer's usual intervals between files, when it writes slower).
 constexpr double kQuietSeconds = 1.0;
 
 using Clock = std::chrono::steady_clock;
@@ -510,6 +511,7 @@ class GrowingDicom final : public internal::Growing {
     if (!files.ok()) return files.status();
     const auto now = Clock::now();
     const int64_t look = looks_++;
+    bool arrived = false;
     for (const std::string& f : *files) {
       if (!done_file_.empty() && Base(f) == done_file_) continue;
       std::error_code ec;
@@ -517,7 +519,10 @@ class GrowingDicom final : public internal::Growing {
       if (ec) continue;
       auto [it, inserted] = seen_.try_emplace(f);
       Seen& s = it->second;
-      if (inserted) s.order = look;
+      if (inserted) {
+        s.order = look;
+        arrived = true;
+      }
       if (inserted || s.size != size) {
         if (s.state == State::kTaken) {
           return absl::FailedPreconditionError(
@@ -548,7 +553,22 @@ class GrowingDicom final : public internal::Growing {
       if (!taken.ok()) return taken.status();
       if (*taken) s.state = State::kTaken;
     }
+    if (arrived) {
+      arrivals_.push_back(now);
+      if (arrivals_.size() > 16) arrivals_.erase(arrivals_.begin());
+    }
     return absl::OkStatus();
+  }
+
+  // How long the folder must stay still for a burst to be over (kQuietSeconds).
+  double QuietNeeded() const {
+    std::vector<double> gaps;
+    for (size_t k = 1; k < arrivals_.size(); ++k) {
+      gaps.push_back(Seconds(arrivals_[k] - arrivals_[k - 1]));
+    }
+    if (gaps.empty()) return kQuietSeconds;
+    std::nth_element(gaps.begin(), gaps.begin() + gaps.size() / 2, gaps.end());
+    return std::max(kQuietSeconds, 3 * gaps[gaps.size() / 2]);
   }
 
   // Sets the series of h aside, `images` of its files seen so far (counted, not kept from
@@ -682,7 +702,7 @@ class GrowingDicom final : public internal::Growing {
   // smallest gap between held neighbours), and (a) they are numbered 1, 2, 3, or (b)
   // kReorderWindow files of the series have appeared since it did (files seen in the same
   // look at the folder count as arriving together), or (c) nothing new has appeared in the
-  // folder for kQuietSeconds and the InstanceNumbers, if they run with the positions, do
+  // folder for QuietNeeded() and the InstanceNumbers, if they run with the positions, do
   // not say a slice is missing between the three. final: any two slices.
   std::optional<double> FirstStep(const Stack& s, bool final) const {
     const std::vector<SliceHeader>& held = s.held;
@@ -706,7 +726,7 @@ class GrowingDicom final : public internal::Growing {
     });
     if (later >= kReorderWindow) return step;
     const bool numbers_gap = s.numbers_agree && (std::abs(n1 - n0) != 1 || std::abs(n2 - n1) != 1);
-    if (!numbers_gap && Seconds(Clock::now() - last_change_) >= kQuietSeconds) return step;
+    if (!numbers_gap && Seconds(Clock::now() - last_change_) >= QuietNeeded()) return step;
     return std::nullopt;
   }
 
@@ -801,6 +821,7 @@ class GrowingDicom final : public internal::Growing {
   std::map<std::string, Seen> seen_;
   int64_t looks_ = 0;
   Clock::time_point last_change_;          // a file appeared or changed size
+  std::vector<Clock::time_point> arrivals_;  // the last looks that found new files
   std::map<std::string, Stack> stacks_;    // by series UID: candidates, then the followed one
   std::map<std::string, SetAside> aside_;  // by series UID
   Stack* followed_ = nullptr;

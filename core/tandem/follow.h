@@ -27,9 +27,10 @@
 //       (a) their InstanceNumbers are 1, 2, 3; or
 //       (b) 8 files of the series have appeared in later looks at the folder than it did
 //           (a receiver reorders files within a burst, not across 8 files); or
-//       (c) nothing has appeared or grown in the folder for 1 s (the burst is over), unless
-//           InstanceNumbers running with the positions say a slice between the three is
-//           missing.
+//       (c) nothing has appeared or grown in the folder for 1 s, or for three of the
+//           writer's usual intervals between files when it writes slower (the burst is
+//           over), unless InstanceNumbers running with the positions say a slice between
+//           the three is missing.
 //     InstanceNumbers are a hint, never a gate: where they contradict the positions
 //     (repeated, running the other way, not one apart where the positions are one step
 //     apart) one note says so and positions alone order the series; absent numbers are fine.
