@@ -328,7 +328,7 @@ struct SeriesSummary {
   std::string uid, description, example;  // example: one of its files
   int64_t images = 0;
   bool localizer = false;  // ImageType LOCALIZER
-  bool parallel = true;    // every image has the first one's orientation
+  bool parallel = true;    // every image's normal is parallel to the first one's
   Vec normal{0, 0, 0};
 };
 
@@ -389,8 +389,8 @@ absl::StatusOr<std::string> PickSeries(const std::string& dir,
         stacks.begin(), stacks.end(),
         [](const SeriesSummary* a, const SeriesSummary* b) { return a->images < b->images; });
     std::erase_if(stacks, [&](const SeriesSummary* s) {
-      std::string why;
       if (s == main) return false;
+      std::string why;
       if (!s->parallel) {
         why = "its images are not parallel (a multi-plane localizer?)";
       } else if (!Parallel(s->normal, main->normal)) {
@@ -642,13 +642,11 @@ class GrowingDicom final : public internal::Growing {
       if (h.along <= sent_.back().along) {
         return absl::FailedPreconditionError(absl::StrCat(
             "DICOM series in ", dir_, ": ", Base(h.path),
-            " arrived at or below slices already "
-            "meshed (",
-            FormatDouble(h.along), " mm along the normal, the last sent is at ",
-            FormatDouble(sent_.back().along),
-            " mm); following needs a series that grows along its normal, its files out of "
-            "order only within a burst (read a series acquired otherwise once it is finished, "
-            "without --follow)"));
+            " arrived at or below slices already meshed (", FormatDouble(h.along),
+            " mm along the normal, the last sent is at ", FormatDouble(sent_.back().along),
+            " mm); following needs a series that grows along its normal, its files out of order "
+            "only within a burst (read a series acquired otherwise once it is finished, without "
+            "--follow)"));
       }
     }
     const double step = &s == followed_ ? step_ : 0;
