@@ -737,11 +737,11 @@ int Simulate(int argc, char** argv) {
   flags.AddDouble("rate", &rate, "slices per second (0 = as fast as possible)", false, "R");
   flags.AddInt("burst", &burst, "dicom: slices per burst");
   flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
-  flags.AddInt("seed", &seed, "shuffle seed for dicom bursts", "S");
+  flags.AddInt("seed", &seed, "shuffle seed for dicom bursts (and --numbering random)", "S");
   flags.AddString("numbering", &numbering, "HOW",
-                  "dicom: InstanceNumbers: ordered (1, 2, ... up the stack), random, restarted "
-                  "(from 1 in every burst), reversed (down the stack), equal (all 1) or absent, "
-                  "as reconstructions and anonymizers leave them");
+                  "dicom: InstanceNumbers: ordered (1 at the bottom of the stack, 2 above it, "
+                  "...), random, restarted (from 1 in every burst), reversed (1 at the top), "
+                  "equal (all 1) or absent, as reconstructions and anonymizers leave them");
   flags.AddBool("scout", &scout,
                 "dicom: first write a localizer series (a front and a side projection, "
                 "ImageType LOCALIZER) into the folder, as a CT does before its stack");
