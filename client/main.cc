@@ -389,12 +389,17 @@ int StreamCommand(int argc, char** argv) {
 
   // One status line while following: slices complete on disk and sent.
   std::atomic<int64_t> on_disk{0};
+  // What the readers set aside (a series, a file) or find odd, unless --quiet; a source
+  // opened again for a resume has said it already.
+  std::atomic<bool> reopened{false};
+  std::atomic<bool> status_shown{false};  // a status line without its newline is on stderr
+  auto note = [&](const std::string& line) {
+    if (reopened || f.quiet) return;
+    absl::FPrintF(stderr, "%standem-client: %s\n", status_shown.exchange(false) ? "\n" : "", line);
+  };
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
-    if (!follow) return tandem::OpenVolume(input);
-    tandem::FollowOptions fo;
-    fo.expect_slices = f.expect_slices;
-    fo.settle_s = f.settle;
-    fo.done_file = f.done_file;
+    if (!follow) return tandem::OpenVolume(input, f.Open(note));
+    tandem::FollowOptions fo = f.Follow(note);
     fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
     return tandem::FollowVolume(input, fo);
   };
@@ -424,6 +429,7 @@ int StreamCommand(int argc, char** argv) {
   options.chunk_bytes = static_cast<size_t>(chunk_bytes);
   options.timeout_s = timeout_s;
   options.rewind = [&]() -> absl::Status {  // a resume needs slices sent before a drop
+    reopened = true;
     absl::StatusOr<std::unique_ptr<tandem::SliceSource>> again = open();
     if (!again.ok()) return again.status();
     range.Replace(*std::move(again));
@@ -474,11 +480,13 @@ int StreamCommand(int argc, char** argv) {
     } else if (bar && nz == 0) {
       absl::FPrintF(stderr, "\rfollowing: %d slices on disk, %d sent, %d meshed, %d triangles   ",
                     on_disk.load(), sent, p.slices_consumed(), p.triangles());
+      status_shown = true;
     } else if (bar && nz > 0) {
       const int width = 30;
       const int filled = static_cast<int>(width * p.slices_consumed() / nz);
       absl::FPrintF(stderr, "\r[%s%s] %d/%d slices, %d triangles", std::string(filled, '#'),
                     std::string(width - filled, ' '), p.slices_consumed(), nz, p.triangles());
+      status_shown = true;
     }
   };
   callbacks.on_retry = [&](const absl::Status& refusal, int retry, double seconds) {

@@ -29,6 +29,10 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddString("zarr-array", &zarr_array, "SEL",
                    "Zarr group: the multiscale level (a number) or the array path to read "
                    "(same as --input X.zarr#SEL); none = level 0");
+  flags->AddString("series", &series, "UID",
+                   "a folder holding several DICOM series: read (or follow) the one with this "
+                   "SeriesInstanceUID; without it, localizers and scouts are skipped with a note "
+                   "and two slice stacks are refused, listing each");
   flags->AddBool("follow", &follow,
                  "the input is still being written (a folder of numbered TIFF slices or of a "
                  "DICOM series, or a Zarr array growing along z): take each slice as soon as "
@@ -124,6 +128,20 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
 
 std::string ExtractFlags::InputPath() const {
   return zarr_array.empty() ? input : absl::StrCat(input, "#", zarr_array);
+}
+
+OpenOptions ExtractFlags::Open(std::function<void(const std::string&)> note) const {
+  return OpenOptions{.dicom_series = series, .note = std::move(note)};
+}
+
+FollowOptions ExtractFlags::Follow(std::function<void(const std::string&)> note) const {
+  FollowOptions fo;
+  fo.expect_slices = expect_slices;
+  fo.settle_s = settle;
+  fo.done_file = done_file;
+  fo.dicom_series = series;
+  fo.note = std::move(note);
+  return fo;
 }
 
 absl::Status ExtractFlags::Check(const FlagSet& flags) const {

@@ -12,13 +12,14 @@
 #include "absl/status/statusor.h"
 #include "cli/cli_util.h"
 #include "cli/flags.h"
+#include "tandem/follow.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 
 namespace tandem::cli {
 
 struct ExtractFlags {
-  std::string input, zarr_array, out, iso, schedule = "tandem-lag", metrics, done_file;
+  std::string input, zarr_array, series, out, iso, schedule = "tandem-lag", metrics, done_file;
   double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
   double lockstep_error = SessionOptions{}.lockstep_error;
@@ -32,6 +33,9 @@ struct ExtractFlags {
   void Add(FlagSet* flags, const std::string& out_help);
   // --input with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
   std::string InputPath() const;
+  // How to open --input (--series) and follow it (--follow's flags); notes go to `note`.
+  OpenOptions Open(std::function<void(const std::string&)> note) const;
+  FollowOptions Follow(std::function<void(const std::string&)> note) const;
   // After parsing: the checks that need no volume (follow-only flags, the iso list, the
   // output names, the schedule).
   absl::Status Check(const FlagSet& flags) const;

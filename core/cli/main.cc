@@ -156,26 +156,31 @@ int Extract(int argc, char** argv) {
   // terminal: slices complete on disk, read, meshed.
   std::atomic<int64_t> seen{0}, read{0};
   const bool tty = isatty(2) && !quiet;
+  std::atomic<bool> status_shown{false};  // a status line without its newline is on stderr
   auto status_line = [&](int64_t meshed) {
     if (tty) {
+      status_shown = true;
       std::fprintf(stderr, "\rfollowing: %lld on disk, %lld read, %lld meshed   ",
                    static_cast<long long>(seen.load()), static_cast<long long>(read.load()),
                    static_cast<long long>(meshed));
     }
   };
+  // What the readers set aside (a series, a file) or find odd, unless --quiet.
+  auto note = [&](const std::string& line) {
+    if (quiet) return;
+    std::fprintf(stderr, "%standem extract: %s\n", status_shown.exchange(false) ? "\n" : "",
+                 line.c_str());
+  };
   absl::StatusOr<std::unique_ptr<SliceSource>> source;
   if (follow) {
-    FollowOptions fo;
-    fo.expect_slices = f.expect_slices;
-    fo.settle_s = f.settle;
-    fo.done_file = f.done_file;
+    FollowOptions fo = f.Follow(note);
     fo.progress = [&](int64_t s, int64_t r) {
       seen = s;
       read = r;
     };
     source = FollowVolume(input_path, fo);
   } else {
-    source = OpenVolume(input_path);
+    source = OpenVolume(input_path, f.Open(note));
   }
   if (!source.ok()) return Fail(source.status());
   const VolumeInfo info = (*source)->info();
@@ -281,7 +286,7 @@ int Extract(int argc, char** argv) {
     s.report.frame = info.frame;
   }
   if (reference) {
-    auto ref_source = OpenVolume(input_path);
+    auto ref_source = OpenVolume(input_path, f.Open(nullptr));
     if (!ref_source.ok()) return Fail(ref_source.status());
     std::vector<SessionOptions> ref_options = options;
     for (SessionOptions& o : ref_options) {
@@ -505,7 +510,8 @@ struct ValueStats {
   std::array<int64_t, 10> bins{};
 };
 
-absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path) {
+absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
+                                      const OpenOptions& open) {
   const VolumeInfo& info = src.info();
   std::vector<uint8_t> bytes;
   std::vector<float> values(static_cast<size_t>(info.slice_voxels()));
@@ -532,7 +538,7 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path)
   }
   if (s.count == 0) return s;
   s.mean = sum / static_cast<double>(s.count);
-  auto again = OpenVolume(path);
+  auto again = OpenVolume(path, open);
   if (!again.ok()) return again.status();
   const double width = (s.hi - s.lo) / 10.0;
   for (int64_t z = 0; z < info.nz; ++z) {
@@ -549,7 +555,7 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path)
 }
 
 int Info(int argc, char** argv) {
-  std::string input_flag, zarr_array;
+  std::string input_flag, zarr_array, series;
   bool no_values = false;
   cli::FlagSet flags(
       "usage: tandem info --input FILE|DIR [flags]\n"
@@ -560,11 +566,17 @@ int Info(int argc, char** argv) {
                   /*required=*/true);
   flags.AddString("zarr-array", &zarr_array, "SEL",
                   "Zarr group: the multiscale level (a number) or the array path to read");
+  flags.AddString("series", &series, "UID",
+                  "a folder holding several DICOM series: the one to describe (without it, "
+                  "localizers and scouts are skipped with a note, two slice stacks refused)");
   flags.AddBool("no-values", &no_values, "skip the value scan (header only)");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   const std::string input =
       zarr_array.empty() ? input_flag : absl::StrCat(input_flag, "#", zarr_array);
-  auto src = OpenVolume(input);
+  auto src =
+      OpenVolume(input, OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
+                                      std::fprintf(stderr, "tandem info: %s\n", line.c_str());
+                                    }});
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo& i = (*src)->info();
   std::printf("grid     %lld x %lld x %lld\n", static_cast<long long>(i.nx), static_cast<long long>(i.ny),
@@ -583,7 +595,7 @@ int Info(int argc, char** argv) {
   std::printf("isovalues %s\n", isos.empty() ? "(none suggested)" : isos.c_str());
   if (!i.description.empty()) std::printf("about    %s\n", i.description.c_str());
   if (no_values || i.nz == 0) return 0;
-  auto stats = ScanValues(**src, input);
+  auto stats = ScanValues(**src, input, OpenOptions{.dicom_series = series});
   if (!stats.ok()) return Fail(stats.status());
   if (stats->count == 0) {
     std::printf("values   none finite\n");
@@ -609,15 +621,112 @@ into DIR slice by slice at R slices per second, as a scanner or microscope would
 `tandem extract --follow` or `tandem-client stream --follow` meshes it:
   dicom   a CT series (GDCM; float volumes quantized to int16 with a rescale), written in
           bursts of N slices (default 8) whose files appear in shuffled order under names
-          that say nothing about position, as a C-STORE receiver stores them
+          that say nothing about position, as a C-STORE receiver stores them; --numbering,
+          --scout and --temp-names play what other scanners, reconstructions and transfer
+          tools do
   tiff    numbered single-page TIFFs slice_00000.tif, ... in order (a reconstruction)
   zarr    an OME-Zarr v2 image whose array grows along z (chunks 4 x 256 x 256,
           blosc-lz4), each chunk row appearing whole (a light-sheet microscope))";
 
+// `tandem simulate --numbering`: the InstanceNumber of slice k of nz.
+absl::StatusOr<std::vector<int64_t>> InstanceNumbers(const std::string& how, int64_t nz,
+                                                     int64_t burst, uint32_t seed) {
+  std::vector<int64_t> n(static_cast<size_t>(nz));
+  for (int64_t k = 0; k < nz; ++k) {
+    int64_t& v = n[static_cast<size_t>(k)];
+    if (how == "ordered" || how == "random") {
+      v = k + 1;
+    } else if (how == "reversed") {
+      v = nz - k;
+    } else if (how == "restarted") {
+      v = k % burst + 1;
+    } else if (how == "equal") {
+      v = 1;
+    } else if (how == "absent") {
+      v = DicomSliceWriter::kNoInstanceNumber;
+    } else {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--numbering '", how,
+                       "': expected ordered, random, restarted, reversed, equal or absent"));
+    }
+  }
+  if (how == "random") std::shuffle(n.begin(), n.end(), std::mt19937(seed));
+  return n;
+}
+
+// The localizer a CT takes before its stack: a front and a side projection (maxima along y
+// and along x, head up), in the volume's frame and voxel type; one pass over the volume.
+absl::Status WriteScout(
+    const std::string& input, const VolumeInfo& info, const DicomWriteOptions& stack_opts,
+    const std::function<absl::Status(const std::string&, const DicomSliceWriter&, int64_t,
+                                     const std::vector<uint8_t>&)>& put) {
+  auto src = OpenVolume(input);
+  if (!src.ok()) return src.status();
+  const int64_t nx = info.nx, ny = info.ny, nz = info.nz;
+  const float none = -std::numeric_limits<float>::infinity();
+  std::vector<float> front(static_cast<size_t>(nx * nz), none),
+      side(static_cast<size_t>(ny * nz), none);
+  std::vector<uint8_t> b;
+  std::vector<float> v(static_cast<size_t>(nx * ny));
+  for (int64_t z = 0; z < nz; ++z) {
+    if (absl::Status st = (*src)->ReadSlice(&b); !st.ok()) return st;
+    ConvertToFloat(info.dtype, b.data(), v.size(), v.data());
+    const int64_t row = nz - 1 - z;  // head up
+    for (int64_t y = 0; y < ny; ++y) {
+      for (int64_t x = 0; x < nx; ++x) {
+        const float f = v[static_cast<size_t>(y * nx + x)];
+        float& a = front[static_cast<size_t>(row * nx + x)];
+        float& c = side[static_cast<size_t>(row * ny + y)];
+        a = std::max(a, f);
+        c = std::max(c, f);
+      }
+    }
+  }
+  DicomWriteOptions o = stack_opts;
+  o.series_description = "Scout";
+  o.image_type = "ORIGINAL\\PRIMARY\\LOCALIZER";
+  o.series_uid = "1.2.826.0.1.3680043.2.1125.7.1";
+  for (int image = 0; image < 2; ++image) {
+    const VolumeInfo si = LocalizerGrid(info, image);
+    const std::vector<float>& values = image == 0 ? front : side;
+    std::vector<uint8_t> bytes(values.size() * DTypeSize(info.dtype));
+    for (size_t i = 0; i < values.size(); ++i) {
+      const float f = values[i];
+      switch (info.dtype) {
+        case DType::kUInt8:
+          bytes[i] = static_cast<uint8_t>(f);
+          break;
+        case DType::kUInt16: {
+          const uint16_t u = static_cast<uint16_t>(f);
+          std::memcpy(&bytes[2 * i], &u, 2);
+          break;
+        }
+        case DType::kInt16: {
+          const int16_t u = static_cast<int16_t>(f);
+          std::memcpy(&bytes[2 * i], &u, 2);
+          break;
+        }
+        case DType::kFloat32:
+          std::memcpy(&bytes[4 * i], &f, 4);
+          break;
+      }
+    }
+    auto w = DicomSliceWriter::Create(si, o);
+    if (!w.ok()) return w.status();
+    if (absl::Status st = put(absl::StrCat("1.2.826.0.1.3680043.2.1125.7.", image + 1, ".dcm"), *w,
+                              image + 1, bytes);
+        !st.ok()) {
+      return st;
+    }
+  }
+  return absl::OkStatus();
+}
+
 int Simulate(int argc, char** argv) {
-  std::string input, out, as, done_file;
+  std::string input, out, as, done_file, numbering = "ordered", temp_names = "none";
   double rate = 20;
   int64_t burst = 8, seed = 1;
+  bool scout = false;
   cli::FlagSet flags(kSimulateUsage);
   flags.AddString("input", &input, "FILE", "the volume to play (any format tandem reads)",
                   /*required=*/true);
@@ -628,11 +737,29 @@ int Simulate(int argc, char** argv) {
   flags.AddDouble("rate", &rate, "slices per second (0 = as fast as possible)", false, "R");
   flags.AddInt("burst", &burst, "dicom: slices per burst");
   flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
-  flags.AddInt("seed", &seed, "shuffle seed for dicom bursts", "S");
+  flags.AddInt("seed", &seed, "shuffle seed for dicom bursts (and --numbering random)", "S");
+  flags.AddString("numbering", &numbering, "HOW",
+                  "dicom: InstanceNumbers: ordered (1 at the bottom of the stack, 2 above it, "
+                  "...), random, restarted (from 1 in every burst), reversed (1 at the top), "
+                  "equal (all 1) or absent, as reconstructions and anonymizers leave them");
+  flags.AddBool("scout", &scout,
+                "dicom: first write a localizer series (a front and a side projection, "
+                "ImageType LOCALIZER) into the folder, as a CT does before its stack");
+  flags.AddString("temp-names", &temp_names, "HOW",
+                  "dicom: write each file under a temporary name, then rename it into place: "
+                  "none, suffix (NAME.part) or hidden (.NAME.tmp), as transfer tools do");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (as != "dicom" && as != "tiff" && as != "zarr") {
     return Fail(absl::InvalidArgumentError(
         absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
+  }
+  if (as != "dicom" && (flags.IsSet("numbering") || scout || flags.IsSet("temp-names"))) {
+    return Fail(
+        absl::InvalidArgumentError("--numbering, --scout and --temp-names go with --as dicom"));
+  }
+  if (temp_names != "none" && temp_names != "suffix" && temp_names != "hidden") {
+    return Fail(absl::InvalidArgumentError(
+        absl::StrCat("--temp-names '", temp_names, "': expected none, suffix or hidden")));
   }
   if (rate < 0 || burst < 1) {
     return Fail(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
@@ -640,6 +767,8 @@ int Simulate(int argc, char** argv) {
   auto src = OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo info = (*src)->info();
+  auto numbers = InstanceNumbers(numbering, info.nz, burst, static_cast<uint32_t>(seed) + 1);
+  if (!numbers.ok()) return Fail(numbers.status());
   std::error_code ec;
   if (std::filesystem::exists(out, ec)) {
     return Fail(absl::AlreadyExistsError(absl::StrCat(out, ": already exists (the simulator "
@@ -678,6 +807,29 @@ int Simulate(int argc, char** argv) {
   }
   if (as != "zarr") std::filesystem::create_directories(out, ec);
   if (ec) return Fail(absl::InternalError(absl::StrCat(out, ": ", ec.message())));
+  // A DICOM file goes in under its name, or through a temporary one (--temp-names).
+  auto put = [&](const std::string& name, const DicomSliceWriter& writer, int64_t z,
+                 const std::vector<uint8_t>& bytes, int64_t instance) -> absl::Status {
+    const std::filesystem::path dir(out), path = dir / name;
+    if (temp_names == "none") return writer.Write(path.string(), z, bytes, instance);
+    const std::filesystem::path temp =
+        dir / (temp_names == "suffix" ? name + ".part" : "." + name + ".tmp");
+    if (absl::Status st = writer.Write(temp.string(), z, bytes, instance); !st.ok()) return st;
+    std::error_code rename_ec;
+    std::filesystem::rename(temp, path, rename_ec);
+    if (rename_ec) {
+      return absl::InternalError(
+          absl::StrCat(temp.string(), ": cannot rename it to ", name, ": ", rename_ec.message()));
+    }
+    return absl::OkStatus();
+  };
+  if (scout) {
+    absl::Status st = WriteScout(
+        input, info, dopt,
+        [&](const std::string& name, const DicomSliceWriter& w, int64_t instance,
+            const std::vector<uint8_t>& bytes) { return put(name, w, 0, bytes, instance); });
+    if (!st.ok()) return Fail(st);
+  }
 
   const auto start = std::chrono::steady_clock::now();
   auto pace = [&](int64_t written) {  // slice `written` may not go before written / rate s
@@ -715,8 +867,8 @@ int Simulate(int argc, char** argv) {
           // Names carry no position: a hash of the slice index.
           const std::string name =
               absl::StrCat("1.2.826.0.1.3680043.2.1125.", (k * 2654435761u) % 1000003u, ".dcm");
-          st = dicom->Write((std::filesystem::path(out) / name).string(), k,
-                            held[static_cast<size_t>(k - first)]);
+          st = put(name, *dicom, k, held[static_cast<size_t>(k - first)],
+                   (*numbers)[static_cast<size_t>(k)]);
           if (!st.ok()) break;
           ++written;
         }

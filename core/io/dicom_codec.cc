@@ -109,7 +109,7 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
     h.series_uid = Trimmed(std::string(a.GetValue()));
   }
   if (!Has<0x0028, 0x0010>(ds) || !Has<0x0028, 0x0011>(ds)) {
-    return absl::InvalidArgumentError(
+    return absl::FailedPreconditionError(
         absl::StrCat(path, ": DICOM file without an image (no Rows/Columns)"));
   }
   {
@@ -126,7 +126,7 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
     h.instance = instance.GetValue();
   }
   if (!Has<0x0020, 0x0032>(ds) || !Has<0x0020, 0x0037>(ds)) {
-    return absl::InvalidArgumentError(absl::StrCat(
+    return absl::FailedPreconditionError(absl::StrCat(
         path, ": no ImagePositionPatient / ImageOrientationPatient: the slices of this series "
               "cannot be placed in space (secondary capture or a localizer?)"));
   }
@@ -185,6 +185,10 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
     gdcm::Attribute<0x0008, 0x103e> d;
     d.SetFromDataSet(ds);
     h.description = Trimmed(std::string(d.GetValue()));
+  }
+  if (Has<0x0008, 0x0008>(ds)) {
+    const gdcm::ByteValue* v = ds.GetDataElement(gdcm::Tag(0x0008, 0x0008)).GetByteValue();
+    if (v != nullptr) h.image_type = Trimmed(std::string(v->GetPointer(), v->GetLength()));
   }
   // The pixel data must fit in the file: GDCM pads a cut-off element silently, and a slice
   // still being written (or cut short) must not pass for a whole one. It starts after the
@@ -372,7 +376,12 @@ absl::Status WriteSlice(const SliceImage& in) {
   put(0x0010, 0x0020, "TANDEM0001", gdcm::VR::LO);
   put(0x0020, 0x000d, in.study_uid, gdcm::VR::UI);
   put(0x0020, 0x000e, in.series_uid, gdcm::VR::UI);
-  put(0x0020, 0x0013, std::to_string(in.instance), gdcm::VR::IS);
+  if (in.instance >= 0) {
+    put(0x0020, 0x0013, std::to_string(in.instance), gdcm::VR::IS);
+  } else {
+    ds.Remove(gdcm::Tag(0x0020, 0x0013));
+  }
+  if (!in.image_type.empty()) put(0x0008, 0x0008, in.image_type, gdcm::VR::CS);
   put(0x0018, 0x0050, in.slice_thickness, gdcm::VR::DS);
   writer.SetFileName(in.path.c_str());
   if (!writer.Write()) return absl::InternalError(absl::StrCat(in.path, ": GDCM could not write it"));

@@ -36,6 +36,7 @@ struct SliceHeader {
   int64_t frames = 1;
   double slope = 1, intercept = 0;
   std::string modality, description;
+  std::string image_type;  // ImageType (0008,0008) as stored: ORIGINAL\PRIMARY\LOCALIZER
   double along = 0;  // position projected on the normal (set by the reader, not the codec)
   int64_t instance = -1;  // InstanceNumber (0020,0013), -1 when absent
 };
@@ -56,16 +57,19 @@ struct SliceImage {
   int syntax = 0;  // tandem::DicomSyntax
   bool ct = true;  // CT Image Storage, else MR
   std::string modality, series_description, study_uid, series_uid;
-  int64_t instance = 1;
+  int64_t instance = 1;         // < 0: no InstanceNumber written
+  std::string image_type;       // "" = GDCM's default
   std::string slice_thickness;  // (0018,0050), as written
 };
 
-inline constexpr int kDicomCodecAbi = 1;
+inline constexpr int kDicomCodecAbi = 2;
 
 struct Codec {
   int abi;
   // A slice, nothing for a file to skip (DICOMDIR), or an error naming the file (a corrupt
-  // file is DataLoss, also when GDCM fails one of its own assertions on it).
+  // file is DataLoss, also when GDCM fails one of its own assertions on it; a whole DICOM
+  // object that is no image slice, without Rows/Columns or ImagePositionPatient, such as a
+  // dose report, is FailedPrecondition).
   absl::StatusOr<std::optional<SliceHeader>> (*read_header)(const std::string& path);
   // The stored pixels of one slice, decoded, exactly `stored_bytes` of them.
   absl::Status (*read_pixels)(const std::string& path, size_t stored_bytes,

@@ -168,8 +168,12 @@ class GrowingZarr final : public Growing {
 // else a DICOM series.
 class GrowingFolder final : public Growing {
  public:
-  GrowingFolder(std::string dir, double stable_s, std::string done_file)
-      : dir_(std::move(dir)), stable_s_(stable_s), done_file_(std::move(done_file)) {}
+  GrowingFolder(std::string dir, const FollowOptions& opts)
+      : dir_(std::move(dir)),
+        stable_s_(opts.stable_s),
+        done_file_(opts.done_file),
+        series_(opts.dicom_series),
+        note_(opts.note) {}
 
   absl::StatusOr<int64_t> Complete(bool* changed) override {
     if (absl::Status st = Decide(); !st.ok()) return st;
@@ -197,15 +201,20 @@ class GrowingFolder final : public Growing {
       other = other || std::filesystem::path(f).filename() != done_file_;
     }
     if (!TiffNames(*files).empty()) {
+      if (!series_.empty()) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            dir_, ": --series picks a series of a DICOM folder; this one holds TIFF slices"));
+      }
       inner_ = std::make_unique<GrowingTiffs>(dir_, stable_s_);
     } else if (other) {
-      inner_ = internal::MakeGrowingDicom(dir_, stable_s_, done_file_);
+      inner_ = internal::MakeGrowingDicom(dir_, stable_s_, done_file_, series_, note_);
     }
     return absl::OkStatus();
   }
   std::string dir_;
   double stable_s_;
-  std::string done_file_;
+  std::string done_file_, series_;
+  std::function<void(const std::string&)> note_;
   std::unique_ptr<Growing> inner_;
 };
 
@@ -326,11 +335,15 @@ absl::StatusOr<std::unique_ptr<SliceSource>> FollowVolume(const std::string& pat
   auto [store, selector] = SplitZarrSelector(path);
   std::error_code ec;
   if (internal::LooksLikeZarr(store) || store.ends_with(".zarr")) {
+    if (!opts.dicom_series.empty()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat(path, ": --series picks a series of a DICOM folder; this is a Zarr store"));
+    }
     growing = std::make_unique<GrowingZarr>(store, selector);
   } else if (std::filesystem::is_directory(path, ec) || !std::filesystem::exists(path, ec)) {
     // A folder, or one the instrument has not created yet: its first files tell TIFF
     // slices from a DICOM series.
-    growing = std::make_unique<GrowingFolder>(path, opts.stable_s, opts.done_file);
+    growing = std::make_unique<GrowingFolder>(path, opts);
   } else {
     return absl::InvalidArgumentError(absl::StrCat(
         path, ": --follow needs a folder (numbered TIFF slices) or a Zarr store (X.zarr), "

@@ -4,6 +4,7 @@
 #define TANDEM_SRC_FOLLOW_INTERNAL_H_
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -36,9 +37,11 @@ class Growing {
   virtual std::string Problem() const { return ""; }
 };
 
-// A DICOM series growing in a folder (format_dicom.cc). done_file is ignored in listings.
+// A DICOM series growing in a folder (format_dicom.cc). done_file is ignored in listings;
+// series and note as FollowOptions::dicom_series and ::note.
 std::unique_ptr<Growing> MakeGrowingDicom(const std::string& dir, double stable_s,
-                                          const std::string& done_file);
+                                          const std::string& done_file, const std::string& series,
+                                          std::function<void(const std::string&)> note);
 
 }  // namespace tandem::internal
 

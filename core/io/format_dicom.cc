@@ -3,23 +3,28 @@
 // loaded on first use). Headers are read up to the pixel data for every file at open time (to
 // order and check the series); pixel data is decoded one file per ReadSlice.
 #include <algorithm>
-#include <cstdio>
-#include <cstdlib>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <functional>
 #include <limits>
 #include <map>
 #include <optional>
 
 #include "absl/strings/ascii.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "absl/strings/str_split.h"
 #include "dicom_codec.h"
 #include "follow_internal.h"
-#include "volume_io_internal.h"
 #include "tandem/series.h"
+#include "volume_io_internal.h"
 
 namespace tandem {
 namespace {
@@ -35,12 +40,50 @@ double Norm(const Vec& a) { return std::sqrt(Dot(a, a)); }
 
 std::string Base(const std::string& path) { return std::filesystem::path(path).filename(); }
 using dicom::SliceHeader;
+using Note = std::function<void(const std::string&)>;
 
-// One file's header through the DICOM module (dicom_codec.h).
-absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
+void Tell(const Note& note, const std::string& line) {
+  if (note) note(line);
+}
+
+// Whether a file can be DICOM: "DICM" after the 128-byte preamble (Part 10), or a data set
+// starting with an element of group 0002 or 0008 (files written without the preamble).
+bool LooksLikeDicom(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char head[132] = {};
+  in.read(reinterpret_cast<char*>(head), sizeof(head));
+  const std::streamsize n = in.gcount();
+  if (n == 132 && std::memcmp(head + 128, "DICM", 4) == 0) return true;
+  const int group = n >= 2 ? head[0] | head[1] << 8 : -1;
+  return group == 0x0002 || group == 0x0008;
+}
+
+// One file's header for a series reader (tandem/series.h): a slice; nothing, with *skip
+// saying why, for a file that is not DICOM or a DICOM object that is no image slice (*skip
+// empty: a DICOMDIR); or an error naming a DICOM file that does not read as a slice.
+absl::StatusOr<std::optional<SliceHeader>> ReadSliceHeader(const std::string& path,
+                                                           std::string* skip) {
+  skip->clear();
   absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
   if (!codec.ok()) return codec.status();
-  return (*codec)->read_header(path);
+  if (!LooksLikeDicom(path)) {
+    *skip = absl::StrCat("skipping ", path, ": not a DICOM file");
+    return std::nullopt;
+  }
+  absl::StatusOr<std::optional<SliceHeader>> h = (*codec)->read_header(path);
+  if (absl::IsFailedPrecondition(h.status())) {
+    *skip = absl::StrCat("skipping ", h.status().message());
+    return std::nullopt;
+  }
+  return h;
+}
+
+// ImageType says the image is a localizer (a scout, topogram, surview).
+bool IsLocalizer(const SliceHeader& h) {
+  for (absl::string_view v : absl::StrSplit(h.image_type, '\\')) {
+    if (absl::EqualsIgnoreCase(absl::StripAsciiWhitespace(v), "LOCALIZER")) return true;
+  }
+  return false;
 }
 
 DType StoredType(const SliceHeader& h) {
@@ -75,27 +118,24 @@ absl::StatusOr<Frame> FrameOf(const SliceHeader& first) {
 }
 
 // Every slice of a series has the first one's size, orientation, pixel spacing and type.
+bool SameOrientation(const SliceHeader& a, const SliceHeader& b) {
+  for (int i = 0; i < 6; ++i) {
+    if (!Near(a.orientation[i], b.orientation[i], 1e-4)) return false;
+  }
+  return true;
+}
+
 absl::Status CheckMatches(const std::string& dir, const SliceHeader& first, const SliceHeader& h) {
   auto mismatch = [&](const std::string& what) {
     return absl::InvalidArgumentError(
         absl::StrCat("DICOM series in ", dir, ": ", Base(h.path), " and ", Base(first.path),
                      " differ in ", what, " (every slice of a series must match)"));
   };
-  if (h.series_uid != first.series_uid) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "DICOM series in ", dir, ": ", Base(h.path), " belongs to series '", h.series_uid,
-        "', not '", first.series_uid, "' of ", Base(first.path),
-        "; put each series in its own folder"));
-  }
   if (h.rows != first.rows || h.cols != first.cols) {
     return mismatch(
         absl::StrCat("size (", h.cols, "x", h.rows, " vs ", first.cols, "x", first.rows, ")"));
   }
-  for (int i = 0; i < 6; ++i) {
-    if (!Near(h.orientation[i], first.orientation[i], 1e-4)) {
-      return mismatch("ImageOrientationPatient");
-    }
-  }
+  if (!SameOrientation(h, first)) return mismatch("ImageOrientationPatient");
   if (h.has_spacing != first.has_spacing ||
       !Near(h.row_spacing, first.row_spacing, 1e-4 * first.row_spacing) ||
       !Near(h.col_spacing, first.col_spacing, 1e-4 * first.col_spacing)) {
@@ -107,10 +147,10 @@ absl::Status CheckMatches(const std::string& dir, const SliceHeader& first, cons
   return absl::OkStatus();
 }
 
-// Neighbours (sorted by `along`) a..b: not at one position, not a step 10% off `step`, not
-// shifted sideways from the first slice.
+// Neighbours (sorted by `along`) a..b: not at one position, not a step 10% off `step` (a
+// gap names where the missing slice would be: `step` above a along `normal`).
 absl::Status CheckStep(const std::string& dir, const SliceHeader& a, const SliceHeader& b,
-                       double step, double in_plane) {
+                       double step, double in_plane, const Vec& normal) {
   const double d = b.along - a.along;
   if (d <= 1e-3 * in_plane) {
     return absl::InvalidArgumentError(
@@ -119,10 +159,16 @@ absl::Status CheckStep(const std::string& dir, const SliceHeader& a, const Slice
                      " mm along the normal); duplicate slice?"));
   }
   if (std::abs(d - step) > 0.1 * step) {
+    std::string where;
+    if (d > step) {
+      where =
+          absl::StrFormat(" at ImagePositionPatient (%g, %g, %g)", a.position[0] + step * normal[0],
+                          a.position[1] + step * normal[1], a.position[2] + step * normal[2]);
+    }
     return absl::InvalidArgumentError(absl::StrCat(
         "DICOM series in ", dir, ": gap between ", Base(a.path), " and ", Base(b.path), ": ",
         FormatDouble(d), " mm apart where the series' usual step is ", FormatDouble(step),
-        " mm (a missing slice, or an irregular series)"));
+        " mm (a missing slice", where, ", or an irregular series)"));
   }
   return absl::OkStatus();
 }
@@ -275,12 +321,125 @@ double MedianStep(const std::vector<SliceHeader>& sorted) {
   return steps[steps.size() / 2];
 }
 
-// A series still arriving (follow mode): complete files are ordered by position and handed
-// out from the lowest, each once the slice one step below it has gone.
+double InPlane(const SliceHeader& first) { return std::min(first.row_spacing, first.col_spacing); }
+
+// One series of a folder, as the choice between series sees it.
+struct SeriesSummary {
+  std::string uid, description, example;  // example: one of its files
+  int64_t images = 0;
+  bool localizer = false;  // ImageType LOCALIZER
+  bool parallel = true;    // every image's normal is parallel to the first one's
+  Vec normal{0, 0, 0};
+};
+
+Vec NormalOf(const SliceHeader& h) {
+  absl::StatusOr<Frame> frame = FrameOf(h);
+  return frame.ok() ? frame->normal : Vec{0, 0, 0};
+}
+
+bool Parallel(const Vec& a, const Vec& b) { return std::abs(Dot(a, b)) > 0.999; }
+
+// "UID 'description' (N images, e.g. FILE)"; images 0 = not counted yet.
+std::string Named(const std::string& uid, const std::string& description, int64_t images,
+                  const std::string& example = "") {
+  std::string s = absl::StrCat(uid, description.empty() ? "" : " '" + description + "'");
+  if (images > 0) {
+    absl::StrAppend(&s, " (", images, images == 1 ? " image" : " images",
+                    example.empty() ? "" : ", e.g. " + Base(example), ")");
+  }
+  return s;
+}
+std::string Named(const SeriesSummary& s) {
+  return Named(s.uid, s.description, s.images, s.example);
+}
+std::string IgnoredLine(const std::string& name, const std::string& reason) {
+  return absl::StrCat("ignoring DICOM series ", name, ": ", reason);
+}
+
+// The series of a folder to read (tandem/series.h states the rule); one note per series
+// set aside.
+absl::StatusOr<std::string> PickSeries(const std::string& dir,
+                                       const std::vector<SeriesSummary>& all,
+                                       const std::string& want, const Note& note) {
+  auto list = [](const std::vector<const SeriesSummary*>& v) {
+    return absl::StrJoin(
+        v, "; ", [](std::string* out, const SeriesSummary* s) { absl::StrAppend(out, Named(*s)); });
+  };
+  std::vector<const SeriesSummary*> stacks;
+  for (const SeriesSummary& s : all) stacks.push_back(&s);
+  if (!want.empty()) {
+    auto hit = std::find_if(stacks.begin(), stacks.end(),
+                            [&](const SeriesSummary* s) { return s->uid == want; });
+    if (hit == stacks.end()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          dir, ": no DICOM series ", want, " (--series) here; the folder holds ", list(stacks)));
+    }
+    for (const SeriesSummary* s : stacks) {
+      if (s != *hit) Tell(note, IgnoredLine(Named(*s), "not the series --series picks"));
+    }
+    return want;
+  }
+  std::vector<std::pair<const SeriesSummary*, std::string>> aside;
+  std::erase_if(stacks, [&](const SeriesSummary* s) {
+    if (s->localizer) aside.emplace_back(s, "a localizer (ImageType LOCALIZER)");
+    return s->localizer;
+  });
+  if (stacks.size() > 1) {
+    const SeriesSummary* main = *std::max_element(
+        stacks.begin(), stacks.end(),
+        [](const SeriesSummary* a, const SeriesSummary* b) { return a->images < b->images; });
+    std::erase_if(stacks, [&](const SeriesSummary* s) {
+      if (s == main) return false;
+      std::string why;
+      if (!s->parallel) {
+        why = "its images are not parallel (a multi-plane localizer?)";
+      } else if (!Parallel(s->normal, main->normal)) {
+        why = absl::StrCat("not parallel to the main stack ", main->uid);
+      } else if (s->images <= 2) {
+        why = "a scout (1 or 2 images beside the main stack)";
+      }
+      if (!why.empty()) aside.emplace_back(s, why);
+      return !why.empty();
+    });
+  }
+  if (stacks.empty()) {
+    std::vector<std::string> why;
+    for (const auto& [s, reason] : aside) why.push_back(absl::StrCat(Named(*s), ": ", reason));
+    return absl::InvalidArgumentError(absl::StrCat(dir, ": no slice stack to read, only ",
+                                                   absl::StrJoin(why, "; "),
+                                                   " (--series UID reads one anyway)"));
+  }
+  if (stacks.size() > 1) {
+    return absl::InvalidArgumentError(absl::StrCat(dir, ": the folder holds ", stacks.size(),
+                                                   " DICOM slice stacks: ", list(stacks),
+                                                   "; pick one with --series UID"));
+  }
+  for (const auto& [s, reason] : aside) Tell(note, IgnoredLine(Named(*s), reason));
+  return stacks.front()->uid;
+}
+
+// How the first slice of a followed series is known to be the first (tandem/follow.h):
+// a receiver stores files out of position order only within this many of each other...
+constexpr int64_t kReorderWindow = 8;
+// ...and a burst is over after this long with nothing new in the folder (or three of the
+// writer's usual intervals between files, when it writes slower).
+constexpr double kQuietSeconds = 1.0;
+
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+// A series still arriving (follow mode): whole files are grouped by series, the one to follow
+// is chosen (tandem/follow.h), and its slices are ordered by position and handed out from the
+// lowest, each once the slice one step below it has gone.
 class GrowingDicom final : public internal::Growing {
  public:
-  GrowingDicom(std::string dir, double stable_s, std::string done_file)
-      : dir_(std::move(dir)), stable_s_(stable_s), done_file_(std::move(done_file)) {}
+  GrowingDicom(std::string dir, double stable_s, std::string done_file, std::string want, Note note)
+      : dir_(std::move(dir)),
+        stable_s_(stable_s),
+        done_file_(std::move(done_file)),
+        want_(std::move(want)),
+        note_(std::move(note)),
+        last_change_(Clock::now()) {}
 
   absl::StatusOr<int64_t> Complete(bool* changed) override {
     if (absl::Status st = Scan(changed); !st.ok()) return st;
@@ -291,7 +450,7 @@ class GrowingDicom final : public internal::Growing {
     bool changed = false;
     if (absl::Status st = Scan(&changed, /*final=*/true); !st.ok()) return st;
     for (const auto& [path, seen] : seen_) {
-      if (!seen.whole && !seen.problem.empty()) {
+      if (seen.state == State::kPending && !seen.problem.empty()) {
         return absl::DataLossError(absl::StrCat(
             seen.problem, " (the acquisition ended with this file still not whole)"));
       }
@@ -300,8 +459,7 @@ class GrowingDicom final : public internal::Growing {
   }
 
   absl::StatusOr<VolumeInfo> Info() override {
-    const SliceHeader& first = sent_.front();
-    return MakeInfo(first, frame_, 0, step_, plan_);
+    return MakeInfo(sent_.front(), followed_->frame, 0, step_, plan_);
   }
 
   absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) override {
@@ -320,11 +478,27 @@ class GrowingDicom final : public internal::Growing {
   std::string Problem() const override { return problem_; }
 
  private:
+  enum class State : uint8_t { kPending, kTaken, kSkipped };
   struct Seen {
     uint64_t size = 0;
-    std::chrono::steady_clock::time_point since;
-    bool whole = false;    // header read and pixel data complete
-    std::string problem;  // why not (yet)
+    Clock::time_point since;
+    int64_t order = 0;  // the look at the folder that first saw it (0, 1, ...)
+    State state = State::kPending;
+    std::string problem;  // why a pending file does not read as a slice (yet)
+  };
+  // One series' slices.
+  struct Stack {
+    SliceHeader first;
+    Frame frame;
+    std::vector<SliceHeader> held;  // by position, not handed out yet
+    int64_t images = 0;
+    int direction = 0;          // how InstanceNumber runs along the normal (+1, -1; 0 = unknown)
+    bool numbers_agree = true;  // every slice is numbered, the numbers running with positions
+    std::string contradiction;  // the first neighbours whose numbers contradict them
+  };
+  struct SetAside {
+    std::string description, reason;
+    int64_t images = 0;
   };
 
   // Reads the headers of files whose size has held for stable_s; a file that does not read
@@ -335,7 +509,9 @@ class GrowingDicom final : public internal::Growing {
     absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(dir_);
     if (absl::IsNotFound(files.status())) return absl::OkStatus();  // not created yet
     if (!files.ok()) return files.status();
-    const auto now = std::chrono::steady_clock::now();
+    const auto now = Clock::now();
+    const int64_t look = looks_++;
+    bool arrived = false;
     for (const std::string& f : *files) {
       if (!done_file_.empty() && Base(f) == done_file_) continue;
       std::error_code ec;
@@ -343,116 +519,294 @@ class GrowingDicom final : public internal::Growing {
       if (ec) continue;
       auto [it, inserted] = seen_.try_emplace(f);
       Seen& s = it->second;
-      if (inserted || s.size != size) {
-        s.size = size;
-        s.since = now;
-        s.whole = false;
-        s.problem.clear();
-        *changed = true;
+      if (inserted) {
+        s.order = look;
+        arrived = true;
       }
-      if (s.whole || !s.problem.empty() || size == 0 ||
-          (!final && std::chrono::duration<double>(now - s.since).count() < stable_s_)) {
+      if (inserted || s.size != size) {
+        if (s.state == State::kTaken) {
+          return absl::FailedPreconditionError(
+              absl::StrCat(f, ": rewritten after it was read as a slice of the followed series"));
+        }
+        s = Seen{size, now, s.order, State::kPending, ""};
+        *changed = true;
+        last_change_ = now;
+      }
+      if (s.state != State::kPending || !s.problem.empty() || size == 0 ||
+          (!final && Seconds(now - s.since) < stable_s_)) {
         continue;
       }
-      absl::StatusOr<std::optional<SliceHeader>> h = ReadHeader(f);
+      std::string skip;
+      absl::StatusOr<std::optional<SliceHeader>> h = ReadSliceHeader(f, &skip);
       if (!h.ok()) {
-        // Not whole (yet): a DataLoss is a file still being written; anything else is kept
-        // as the problem to report if it never becomes a readable slice.
+        // Not whole (yet): a file still being written, or one that never will be, which the
+        // end of the acquisition reports.
         s.problem = problem_ = std::string(h.status().message());
         continue;
       }
-      s.whole = true;
-      if (!h->has_value()) continue;  // DICOMDIR
-      if (absl::Status st = Add(**h); !st.ok()) return st;
+      s.state = State::kSkipped;
+      if (!h->has_value()) {
+        Tell(note_, skip);
+        continue;
+      }
+      absl::StatusOr<bool> taken = Add(**h);
+      if (!taken.ok()) return taken.status();
+      if (*taken) s.state = State::kTaken;
+    }
+    if (arrived) {
+      arrivals_.push_back(now);
+      if (arrivals_.size() > 16) arrivals_.erase(arrivals_.begin());
     }
     return absl::OkStatus();
   }
 
-  absl::Status Add(SliceHeader h) {
-    if (!have_first_) {
+  // How long the folder must stay still for a burst to be over (kQuietSeconds).
+  double QuietNeeded() const {
+    std::vector<double> gaps;
+    for (size_t k = 1; k < arrivals_.size(); ++k) {
+      gaps.push_back(Seconds(arrivals_[k] - arrivals_[k - 1]));
+    }
+    if (gaps.empty()) return kQuietSeconds;
+    std::nth_element(gaps.begin(), gaps.begin() + gaps.size() / 2, gaps.end());
+    return std::max(kQuietSeconds, 3 * gaps[gaps.size() / 2]);
+  }
+
+  // Sets the series of h aside, `images` of its files seen so far (counted, not kept from
+  // now on), with one note; counted: the note gives the count.
+  bool SetSeriesAside(const SliceHeader& h, int64_t images, const std::string& reason,
+                      bool counted = false) {
+    aside_[h.series_uid] = SetAside{h.description, reason, images};
+    Tell(note_, IgnoredLine(Named(h.series_uid, h.description, counted ? images : 0), reason));
+    return false;
+  }
+
+  // Why the series of h is not followed beside the followed stack.
+  std::string BesideFollowed(const SliceHeader& h, int64_t images) const {
+    if (!Parallel(NormalOf(h), followed_->frame.normal)) {
+      return absl::StrCat("not parallel to the followed stack ", followed_uid_);
+    }
+    if (images > 0 && images <= 2) return "a scout (1 or 2 images beside the followed stack)";
+    return absl::StrCat("another series beside the followed stack ", followed_uid_,
+                        " (--series UID follows it instead)");
+  }
+
+  // Takes h into its series' stack (true) or sets it aside (false); an error for a slice
+  // that cannot belong to the followed series.
+  absl::StatusOr<bool> Add(SliceHeader h) {
+    const std::string uid = h.series_uid;
+    if (auto it = aside_.find(uid); it != aside_.end()) {
+      ++it->second.images;
+      return false;
+    }
+    if (!want_.empty() && uid != want_) {
+      return SetSeriesAside(h, 1, "not the series --series picks");
+    }
+    if (want_.empty() && IsLocalizer(h)) {
+      return SetSeriesAside(h, 1, "a localizer (ImageType LOCALIZER)");
+    }
+    if (followed_ != nullptr && uid != followed_uid_) {
+      return SetSeriesAside(h, 1, BesideFollowed(h, 0));
+    }
+    auto [it, inserted] = stacks_.try_emplace(uid);
+    Stack& s = it->second;
+    const bool chosen = &s == followed_ || uid == want_;
+    if (inserted) {
       absl::StatusOr<Frame> frame = FrameOf(h);
       if (!frame.ok()) return frame.status();
-      frame_ = *frame;
-      first_ = h;
-      have_first_ = true;
-    } else if (absl::Status st = CheckMatches(dir_, first_, h); !st.ok()) {
+      s.frame = *frame;
+      s.first = h;
+    } else if (!SameOrientation(s.first, h) && !chosen) {
+      const int64_t images = s.images + 1;
+      Forget(it);
+      return SetSeriesAside(h, images, "its images are not parallel (a multi-plane localizer?)",
+                            /*counted=*/true);
+    } else if (absl::Status st = CheckMatches(dir_, s.first, h); !st.ok()) {
       return st;
     }
-    numbered_ = numbered_ && h.instance >= 0;  // every slice so far has an InstanceNumber
-    h.along = Dot(h.position, frame_.normal);
-    const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
-    if (absl::Status st = CheckInLine(dir_, first_, h, frame_.normal, in_plane); !st.ok()) {
+    h.along = Dot(h.position, s.frame.normal);
+    const double in_plane = InPlane(s.first);
+    if (absl::Status st = CheckInLine(dir_, s.first, h, s.frame.normal, in_plane); !st.ok()) {
       return st;
     }
-    if (!sent_.empty() && h.along <= sent_.back().along + 1e-3 * in_plane) {
-      return absl::FailedPreconditionError(absl::StrCat(
-          "DICOM series in ", dir_, ": ", Base(h.path), " arrived at or below slices already "
-          "meshed (", FormatDouble(h.along), " mm along the normal, the last sent is at ",
-          FormatDouble(sent_.back().along),
-          " mm); following needs a series that grows along its normal (read a series "
-          "acquired the other way once it is finished, without --follow)"));
+    auto by_along = [](const SliceHeader& a, double v) { return a.along < v; };
+    const double eps = 1e-3 * in_plane;
+    auto pos = std::lower_bound(s.held.begin(), s.held.end(), h.along - eps, by_along);
+    if (pos != s.held.end() && pos->along <= h.along + eps) {
+      return CheckStep(dir_, *pos, h, 0, in_plane, s.frame.normal);  // the same position
     }
-    auto pos = std::lower_bound(held_.begin(), held_.end(), h.along,
-                                [](const SliceHeader& s, double a) { return s.along < a; });
-    held_.insert(pos, std::move(h));
+    if (&s == followed_ && !sent_.empty()) {
+      auto at = std::lower_bound(sent_.begin(), sent_.end(), h.along - eps, by_along);
+      if (at != sent_.end() && at->along <= h.along + eps) {
+        return CheckStep(dir_, *at, h, 0, in_plane, s.frame.normal);
+      }
+      if (h.along <= sent_.back().along) {
+        return absl::FailedPreconditionError(absl::StrCat(
+            "DICOM series in ", dir_, ": ", Base(h.path),
+            " arrived at or below slices already meshed (", FormatDouble(h.along),
+            " mm along the normal, the last sent is at ", FormatDouble(sent_.back().along),
+            " mm); following needs a series that grows along its normal, its files out of order "
+            "only within a burst (read a series acquired otherwise once it is finished, without "
+            "--follow)"));
+      }
+    }
+    const double step = &s == followed_ ? step_ : 0;
+    const SliceHeader* below = pos != s.held.begin()               ? &*(pos - 1)
+                               : &s == followed_ && !sent_.empty() ? &sent_.back()
+                                                                   : nullptr;
+    if (below != nullptr) CheckNumbers(s, *below, h, step);
+    if (pos != s.held.end()) CheckNumbers(s, h, *pos, step);
+    s.held.insert(pos, std::move(h));
+    ++s.images;
+    return true;
+  }
+
+  // A stack set aside before it was followed: its files are no longer the follower's.
+  void Forget(std::map<std::string, Stack>::iterator it) {
+    for (const SliceHeader& h : it->second.held) seen_[h.path].state = State::kSkipped;
+    stacks_.erase(it);
+  }
+
+  // Records where the InstanceNumbers of position neighbours a < b contradict them: absent,
+  // equal, running the other way than the series' so far, or not one apart where the
+  // positions are one step apart (step 0: not known yet).
+  static void CheckNumbers(Stack& s, const SliceHeader& a, const SliceHeader& b, double step) {
+    if (!s.numbers_agree) return;
+    if (a.instance < 0 || b.instance < 0) {
+      s.numbers_agree = false;  // absent: nothing to say
+      return;
+    }
+    const int64_t d = b.instance - a.instance;
+    const int direction = d > 0 ? 1 : -1;
+    const char* why = nullptr;
+    if (d == 0) {
+      why = "the same InstanceNumber";
+    } else if (s.direction != 0 && direction != s.direction) {
+      why = "InstanceNumbers running against the series'";
+    } else if (step > 0 && std::abs(b.along - a.along - step) <= 0.1 * step && std::abs(d) != 1) {
+      why = "neighbours whose InstanceNumbers are not one apart";
+    }
+    if (why == nullptr) {
+      s.direction = direction;
+      return;
+    }
+    s.numbers_agree = false;
+    s.contradiction = absl::StrCat(why, ": ", Base(a.path), " (", a.instance, ", at ",
+                                   FormatDouble(a.along), " mm) and ", Base(b.path), " (",
+                                   b.instance, ", at ", FormatDouble(b.along), " mm)");
+  }
+
+  // The z step when the lowest held slice of s can go now as its series' first, else
+  // nothing. The rule (tandem/follow.h): it and the next two are one usual step apart (the
+  // smallest gap between held neighbours), and (a) they are numbered 1, 2, 3, or (b)
+  // kReorderWindow files of the series have appeared since it did (files seen in the same
+  // look at the folder count as arriving together), or (c) nothing new has appeared in the
+  // folder for QuietNeeded() and the InstanceNumbers, if they run with the positions, do
+  // not say a slice is missing between the three. final: any two slices.
+  std::optional<double> FirstStep(const Stack& s, bool final) const {
+    const std::vector<SliceHeader>& held = s.held;
+    if (final) {
+      if (held.size() < 2) return std::nullopt;
+      return RoundStep(MedianStep(held));
+    }
+    if (held.size() < 3) return std::nullopt;
+    double gap = std::numeric_limits<double>::infinity();
+    for (size_t k = 0; k + 1 < held.size(); ++k)
+      gap = std::min(gap, held[k + 1].along - held[k].along);
+    for (size_t k = 0; k < 2; ++k) {
+      if (std::abs(held[k + 1].along - held[k].along - gap) > 0.1 * gap) return std::nullopt;
+    }
+    const double step = RoundStep((held[2].along - held[0].along) / 2);
+    const int64_t n0 = held[0].instance, n1 = held[1].instance, n2 = held[2].instance;
+    if (n0 == 1 && n1 == 2 && n2 == 3) return step;
+    const int64_t first = seen_.at(held[0].path).order;
+    const auto later = std::count_if(held.begin(), held.end(), [&](const SliceHeader& h) {
+      return seen_.at(h.path).order > first;
+    });
+    if (later >= kReorderWindow) return step;
+    const bool numbers_gap = s.numbers_agree && (std::abs(n1 - n0) != 1 || std::abs(n2 - n1) != 1);
+    if (!numbers_gap && Seconds(Clock::now() - last_change_) >= QuietNeeded()) return step;
+    return std::nullopt;
+  }
+
+  // Picks the series to follow: the stack whose first slice can go first; two at once are
+  // told apart as in a finished folder (PickSeries). The other stacks are set aside.
+  absl::Status Choose(bool final) {
+    std::vector<SeriesSummary> ready;
+    std::map<std::string, double> steps;
+    for (const auto& [uid, s] : stacks_) {
+      if (std::optional<double> step = FirstStep(s, final)) {
+        ready.push_back(SeriesSummary{.uid = uid,
+                                      .description = s.first.description,
+                                      .example = s.first.path,
+                                      .images = s.images,
+                                      .normal = s.frame.normal});
+        steps[uid] = *step;
+      }
+    }
+    if (ready.empty()) {
+      if (final && stacks_.empty() && !aside_.empty()) {
+        std::vector<std::string> why;
+        for (const auto& [uid, a] : aside_) {
+          why.push_back(absl::StrCat(Named(uid, a.description, a.images), ": ", a.reason));
+        }
+        return absl::InvalidArgumentError(
+            absl::StrCat(dir_, ": no slice stack to follow arrived, only ",
+                         absl::StrJoin(why, "; "), " (--series UID follows one anyway)"));
+      }
+      return absl::OkStatus();
+    }
+    std::string uid = ready.front().uid;
+    if (ready.size() > 1) {
+      absl::StatusOr<std::string> picked = PickSeries(dir_, ready, "", nullptr);
+      if (!picked.ok()) return picked.status();
+      uid = *picked;
+    }
+    followed_uid_ = uid;
+    followed_ = &stacks_[uid];
+    step_ = steps[uid];
+    const std::vector<SliceHeader>& held = followed_->held;
+    plan_ = PlanValues(held.data(), held.data() + 1);
+    for (size_t k = 0; k + 1 < held.size(); ++k)
+      CheckNumbers(*followed_, held[k], held[k + 1], step_);
+    for (auto it = stacks_.begin(); it != stacks_.end();) {
+      auto next = std::next(it);
+      if (it->first != uid) {
+        const SliceHeader first = it->second.first;
+        const int64_t images = it->second.images;
+        Forget(it);
+        SetSeriesAside(first, images, BesideFollowed(first, images), /*counted=*/true);
+      }
+      it = next;
+    }
     return absl::OkStatus();
   }
 
-  // Whether a and b are neighbours by InstanceNumber (one apart, the way the series counts:
-  // `direction` +1 or -1 along the normal; 0 = not known yet, either).
-  static bool Adjacent(const SliceHeader& a, const SliceHeader& b, int direction) {
-    const int64_t d = b.instance - a.instance;
-    return direction == 0 ? (d == 1 || d == -1) : d == direction;
-  }
-
-  // Moves held slices to sent_ while each is one step above the last sent. A receiver
-  // stores a burst of files in any order, so the first slices seen can be every other one
-  // of the burst (positions 0, 2, 4: a "step" twice the real one). When every slice has an
-  // InstanceNumber, those say which are neighbours: the first slices go only as a run of
-  // three neighbours from the lowest held (and, unless the lowest is instance 1, once it
-  // has been on disk for 2 s, in case the series' first is still being written), the step
-  // is taken from that run, and each next slice must also be the last one's neighbour.
-  // Without instance numbers: the median gap of the first three. Final: positions decide.
+  // Hands out held slices while each is one step above the last sent (final: a gap still
+  // open is an error).
   absl::StatusOr<int64_t> Release(bool final) {
-    const double in_plane = std::min(first_.row_spacing, first_.col_spacing);
-    const bool numbered = numbered_;
-    if (sent_.empty()) {
-      if (held_.size() < (final ? 2u : 3u)) return 0;
-      for (size_t k = 0; k + 1 < held_.size(); ++k) {  // duplicates would look like steps
-        const double d = held_[k + 1].along - held_[k].along;
-        if (d <= 1e-3 * in_plane) return CheckStep(dir_, held_[k], held_[k + 1], d, in_plane);
-      }
-      if (numbered && !final) {
-        const int direction = held_[1].instance > held_[0].instance ? 1 : -1;
-        if (!Adjacent(held_[0], held_[1], 0) || !Adjacent(held_[1], held_[2], direction)) {
-          return 0;  // the slices in between are still to come
-        }
-        const auto since = seen_[held_[0].path].since;
-        if (held_[0].instance != 1 &&
-            std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count() < 2) {
-          return 0;
-        }
-        direction_ = direction;
-        step_ = RoundStep((held_[2].along - held_[0].along) / 2);
-      } else {
-        step_ = RoundStep(MedianStep(held_));
-      }
-      plan_ = PlanValues(&held_.front(), &held_.front() + 1);
+    if (followed_ == nullptr) {
+      if (absl::Status st = Choose(final); !st.ok()) return st;
+      if (followed_ == nullptr) return 0;
     }
-    while (!held_.empty()) {
-      const SliceHeader& next = held_.front();
+    Stack& s = *followed_;
+    const double in_plane = InPlane(s.first);
+    while (!s.held.empty()) {
       if (!sent_.empty()) {
-        absl::Status st = CheckStep(dir_, sent_.back(), next, step_, in_plane);
-        if (st.ok() && numbered && !final && !Adjacent(sent_.back(), next, direction_)) {
-          break;  // a neighbour by position, not by number: wait for the one in between
-        }
+        absl::Status st =
+            CheckStep(dir_, sent_.back(), s.held.front(), step_, in_plane, s.frame.normal);
         if (!st.ok()) {
           if (final) return st;  // the gap never closed
           break;                 // wait for the slice in between
         }
       }
-      sent_.push_back(next);
-      held_.erase(held_.begin());
+      sent_.push_back(std::move(s.held.front()));
+      s.held.erase(s.held.begin());
+    }
+    if (!s.contradiction.empty() && !numbers_noted_) {
+      numbers_noted_ = true;
+      Tell(note_, absl::StrCat("DICOM series ", followed_uid_,
+                               ": InstanceNumbers do not follow the slice positions (",
+                               s.contradiction, "); ordering by position alone"));
     }
     return static_cast<int64_t>(sent_.size());
   }
@@ -460,56 +814,78 @@ class GrowingDicom final : public internal::Growing {
   std::string dir_;
   double stable_s_;
   std::string done_file_;
+  std::string want_;  // --series, "" = the stack that grows
+  Note note_;
   std::map<std::string, Seen> seen_;
-  bool have_first_ = false;
-  SliceHeader first_;  // the first file read: the series' identity and geometry
-  Frame frame_;
+  int64_t looks_ = 0;
+  Clock::time_point last_change_;          // a file appeared or changed size
+  std::vector<Clock::time_point> arrivals_;  // the last looks that found new files
+  std::map<std::string, Stack> stacks_;    // by series UID: candidates, then the followed one
+  std::map<std::string, SetAside> aside_;  // by series UID
+  Stack* followed_ = nullptr;
+  std::string followed_uid_;
   double step_ = 0;
-  int direction_ = 0;  // how InstanceNumber runs along the normal (+1, -1; 0 = unknown)
-  bool numbered_ = true;  // every slice added had an InstanceNumber
   ValuePlan plan_;
-  std::vector<SliceHeader> held_;  // complete, not yet handed out, by position
   std::vector<SliceHeader> sent_;  // handed out, in order
+  bool numbers_noted_ = false;
   std::string problem_;
   std::vector<uint8_t> buffer_;
 };
 
 }  // namespace
 
-std::unique_ptr<internal::Growing> internal::MakeGrowingDicom(const std::string& dir,
-                                                              double stable_s,
-                                                              const std::string& done_file) {
-  return std::make_unique<GrowingDicom>(dir, stable_s, done_file);
+std::unique_ptr<internal::Growing> internal::MakeGrowingDicom(
+    const std::string& dir, double stable_s, const std::string& done_file,
+    const std::string& series, std::function<void(const std::string&)> note) {
+  return std::make_unique<GrowingDicom>(dir, stable_s, done_file, series, std::move(note));
 }
 
-absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
-    const std::string& dir, const std::vector<std::string>& files) {
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& dir,
+                                                             const std::vector<std::string>& files,
+                                                             const OpenOptions& opts) {
   std::vector<SliceHeader> slices;
   slices.reserve(files.size());
+  int64_t skipped = 0;
   for (const std::string& f : files) {
     std::error_code ec;
     if (std::filesystem::file_size(f, ec) == 0 && !ec) continue;  // a marker, not a slice
-    absl::StatusOr<std::optional<SliceHeader>> h = ReadHeader(f);
+    std::string skip;
+    absl::StatusOr<std::optional<SliceHeader>> h = ReadSliceHeader(f, &skip);
     if (!h.ok()) return h.status();
-    if (h->has_value()) slices.push_back(std::move(**h));
+    if (h->has_value()) {
+      slices.push_back(std::move(**h));
+    } else if (!skip.empty()) {
+      Tell(opts.note, skip);
+      ++skipped;
+    }
+  }
+  // The series to read.
+  std::map<std::string, SeriesSummary> by_series;
+  for (const SliceHeader& h : slices) {
+    auto [it, inserted] = by_series.try_emplace(h.series_uid);
+    SeriesSummary& s = it->second;
+    if (inserted) {
+      s = SeriesSummary{.uid = h.series_uid,
+                        .description = h.description,
+                        .example = h.path,
+                        .normal = NormalOf(h)};
+    }
+    ++s.images;
+    s.localizer = s.localizer || IsLocalizer(h);
+    s.parallel = s.parallel && Parallel(NormalOf(h), s.normal);
+  }
+  if (!by_series.empty()) {
+    std::vector<SeriesSummary> all;
+    for (auto& [uid, s] : by_series) all.push_back(std::move(s));
+    absl::StatusOr<std::string> uid = PickSeries(dir, all, opts.dicom_series, opts.note);
+    if (!uid.ok()) return uid.status();
+    std::erase_if(slices, [&](const SliceHeader& h) { return h.series_uid != *uid; });
   }
   if (slices.size() < 2) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(dir, ": a DICOM series needs at least 2 slices, found ", slices.size(),
-                     files.empty() ? " (empty folder)" : ""));
-  }
-  // One series.
-  std::map<std::string, std::vector<const SliceHeader*>> by_series;
-  for (const SliceHeader& h : slices) by_series[h.series_uid].push_back(&h);
-  if (by_series.size() > 1) {
-    std::vector<std::string> parts;
-    for (const auto& [uid, members] : by_series) {
-      parts.push_back(absl::StrCat("'", uid, "' (", members.size(), " files, e.g. ",
-                                   Base(members.front()->path), ")"));
-    }
-    return absl::InvalidArgumentError(
-        absl::StrCat(dir, ": the folder holds ", by_series.size(), " DICOM series: ",
-                     absl::StrJoin(parts, ", "), "; put each series in its own folder"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        dir, ": a DICOM series needs at least 2 slices, found ", slices.size(),
+        files.empty() ? " (empty folder)" : "",
+        skipped > 0 ? absl::StrCat(" (", skipped, " files skipped: not DICOM images)") : ""));
   }
   // One geometry and one pixel type; ordered along the normal, evenly spaced, in line.
   const SliceHeader first = slices.front();
@@ -525,13 +901,15 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(
   const double in_plane = std::min(first.row_spacing, first.col_spacing);
   for (int64_t k = 0; k + 1 < nz; ++k) {  // duplicates first: they would look like gaps
     const double d = slices[k + 1].along - slices[k].along;
-    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], d, in_plane); !st.ok()) {
+    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], d, in_plane, frame->normal);
+        !st.ok()) {
       return st;
     }
   }
   const double median = MedianStep(slices);
   for (int64_t k = 0; k + 1 < nz; ++k) {
-    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], median, in_plane); !st.ok()) {
+    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], median, in_plane, frame->normal);
+        !st.ok()) {
       return st;
     }
   }
@@ -591,6 +969,11 @@ absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info
 
 absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
                                      const std::vector<uint8_t>& bytes) const {
+  return Write(path, z, bytes, z + 1);
+}
+
+absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
+                                     const std::vector<uint8_t>& bytes, int64_t instance) const {
   if (bytes.size() != info_.slice_bytes()) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": slice ", z, " has ", bytes.size(),
                                                    " bytes, expected ", info_.slice_bytes()));
@@ -646,9 +1029,27 @@ absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
   image.series_description = opts_.series_description;
   image.study_uid = opts_.study_uid;
   image.series_uid = opts_.series_uid;
-  image.instance = z + 1;
+  image.instance = instance;  // kNoInstanceNumber (< 0): none written
+  image.image_type = opts_.image_type;
   image.slice_thickness = FormatDouble(info_.spacing[2]);
   return (*codec)->write_slice(image);
+}
+
+VolumeInfo LocalizerGrid(const VolumeInfo& info, int image) {
+  const int across = image == 0 ? 0 : 1, through = image == 0 ? 1 : 0;
+  const auto& d = info.directions;
+  const Vec down{-d[2][0], -d[2][1], -d[2][2]};
+  VolumeInfo g = info;
+  g.nx = image == 0 ? info.nx : info.ny;
+  g.ny = info.nz;
+  g.nz = 0;
+  g.spacing = {info.spacing[across], info.spacing[2], info.spacing[through]};
+  g.directions = {d[across], down, Cross(d[across], down)};
+  const double up = static_cast<double>(info.nz - 1) * info.spacing[2];
+  const double mid =
+      static_cast<double>((image == 0 ? info.ny : info.nx) - 1) / 2 * info.spacing[through];
+  for (int i = 0; i < 3; ++i) g.origin[i] = info.origin[i] + up * d[2][i] + mid * d[through][i];
+  return g;
 }
 
 absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,

@@ -45,8 +45,18 @@ void ValueRangeSource::Scan(const uint8_t* data) {
 }
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path) {
+  return OpenVolume(path, OpenOptions{});
+}
+
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
+                                                        const OpenOptions& opts) {
+  auto not_dicom = [&] {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": --series picks a series of a DICOM folder; this is not one"));
+  };
   // Zarr stores are directories; "image.zarr#1" picks level 1 (see tandem/zarr.h).
   if (auto [store, selector] = SplitZarrSelector(path); internal::LooksLikeZarr(store)) {
+    if (!opts.dicom_series.empty()) return not_dicom();
     return OpenZarrVolume(store, ZarrReadOptions{.array = selector});
   }
   std::error_code ec;
@@ -54,10 +64,12 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path)
     absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(path);
     if (!files.ok()) return files.status();
     if (std::vector<std::string> tiffs = TiffNames(*files); !tiffs.empty()) {
+      if (!opts.dicom_series.empty()) return not_dicom();
       return OpenTiffSequence(path, tiffs);
     }
-    return OpenDicomSeries(path, *files);
+    return OpenDicomSeries(path, *files, opts);
   }
+  if (!opts.dicom_series.empty()) return not_dicom();
   const std::string ext = internal::VolumeExtension(path);
   if (ext == ".json") return internal::OpenRawVolume(path);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::OpenNrrdVolume(path);
@@ -116,7 +128,7 @@ absl::StatusOr<std::vector<std::string>> ListSliceFiles(const std::string& dir) 
   for (; it != std::filesystem::directory_iterator(); it.increment(ec)) {
     if (ec) return absl::InternalError(absl::StrCat(dir, ": listing failed: ", ec.message()));
     const std::string name = it->path().filename().string();
-    if (name.empty() || name[0] == '.') continue;
+    if (name.empty() || name[0] == '.' || IsTemporaryName(name)) continue;
     std::error_code fec;
     if (!it->is_regular_file(fec)) continue;
     names.push_back(name);
@@ -124,6 +136,15 @@ absl::StatusOr<std::vector<std::string>> ListSliceFiles(const std::string& dir) 
   std::sort(names.begin(), names.end(), NaturalLess);
   for (std::string& n : names) n = (std::filesystem::path(dir) / n).string();
   return names;
+}
+
+bool IsTemporaryName(const std::string& name) {
+  const std::string lower = absl::AsciiStrToLower(name);
+  for (const char* suffix : {".part", ".partial", ".filepart", ".crdownload", ".download", ".tmp",
+                             ".temp", ".swp", "~"}) {
+    if (lower.size() > std::strlen(suffix) && lower.ends_with(suffix)) return true;
+  }
+  return false;
 }
 
 std::vector<std::string> TiffNames(const std::vector<std::string>& files) {

@@ -11,12 +11,34 @@
 // When a slice is complete:
 //   - TIFF: the next file in natural name order whose size has not changed for `stable_s`
 //     and that libtiff reads as one whole page;
-//   - DICOM: a file whose size is stable and whose header and pixel data length are whole;
-//     slices are handed out in order of position along the normal, and one is held back
-//     until the slice one step below it has been handed out (the series grows along the
-//     normal, in bursts, in any order within a burst; the step is the median gap once three
-//     slices have arrived). A file that arrives below a slice already handed out, or at its
-//     position, is an error naming it, and so is a gap still open when the scan ends;
+//   - DICOM: a file whose size is stable and whose header and pixel data length are whole
+//     (a file under a temporary name, see tandem/series.h, is not looked at before it is
+//     renamed into place); files that are not DICOM or no image slice (a dose report) are
+//     skipped with a note. Whole slices are grouped by series. A localizer (ImageType
+//     LOCALIZER) is set aside with a note; the series followed is `dicom_series`, else the
+//     first slice stack whose first slice can go (two at once are told apart as in a
+//     finished folder, tandem/series.h: a scout beside the stack is set aside, two stacks
+//     are an error pointing to --series); every other series is set aside with a note.
+//     Slices are handed out in order of position along the normal, each held back until the
+//     slice one step below it has been handed out (the series grows along its normal, in
+//     bursts, its files in any order within a burst). The first slice, the lowest held, goes
+//     when it and the next two lie one usual step apart (the smallest gap between held
+//     neighbours, which becomes the z step) and
+//       (a) their InstanceNumbers are 1, 2, 3; or
+//       (b) 8 files of the series have appeared in later looks at the folder than it did
+//           (a receiver reorders files within a burst, not across 8 files); or
+//       (c) nothing has appeared or grown in the folder for 1 s, or for three of the
+//           writer's usual intervals between files when it writes slower (the burst is
+//           over), unless InstanceNumbers running with the positions say a slice between
+//           the three is missing.
+//     InstanceNumbers are a hint, never a gate: where they contradict the positions
+//     (repeated, running the other way, not one apart where the positions are one step
+//     apart) one note says so and positions alone order the series; absent numbers are fine.
+//     Errors: two slices at one position (at once, naming both files); a file that arrives
+//     below a slice already handed out (a writer that reorders files across more than a
+//     burst, or more than a second apart); when the scan ends, a gap still open (naming the
+//     position of the missing slice), a DICOM file that never became a whole slice (naming
+//     it), or only localizers and scouts (naming them);
 //   - Zarr: the planes of chunk rows whose every chunk file exists (CountCompleteZarrPlanes).
 #ifndef TANDEM_FOLLOW_H_
 #define TANDEM_FOLLOW_H_
@@ -38,6 +60,12 @@ struct FollowOptions {
   double poll_s = 0.05;       // how often the folder is looked at
   // Called (from ReadSlice) with slices seen on disk so far and handed out so far.
   std::function<void(int64_t seen, int64_t sent)> progress;
+  // A folder holding several DICOM series: follow the one with this SeriesInstanceUID (""
+  // = the slice stack that grows; see below). Refused for TIFF folders and Zarr stores.
+  std::string dicom_series;
+  // Receives one line for each thing set aside or worth knowing (a series ignored, a file
+  // that is not DICOM, InstanceNumbers that contradict the positions); unset = dropped.
+  std::function<void(const std::string&)> note;
 };
 
 // Waits (up to settle_s) for the first slice(s) to learn the geometry, then returns the

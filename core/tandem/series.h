@@ -9,14 +9,27 @@
 //
 // DICOM (through GDCM, which decodes the transfer syntaxes its codecs support: implicit and
 // explicit VR little endian, deflate, RLE, JPEG lossless and lossy, JPEG-LS, JPEG 2000):
-//   - every regular, non-hidden, non-empty file must be a DICOM image of one series (DICOMDIR
-//     files and empty marker files are skipped); a second SeriesInstanceUID, a file that is not DICOM, multi-frame or colour
-//     images are errors that name the files;
+//   - files: every regular, non-hidden, non-empty file whose name does not end in a
+//     temporary suffix (below) is looked at. DICOMDIR files and empty marker files are
+//     skipped; so are, with a note naming them, files that are not DICOM (no "DICM" after
+//     the preamble and no DICOM element at the start) and DICOM objects that are no image
+//     slice (no Rows/Columns or no ImagePositionPatient: a dose report, a secondary
+//     capture). A DICOM file that cannot be read (truncated, corrupt), multi-frame or colour
+//     images are errors that name the file;
+//   - series: a folder may hold several (SeriesInstanceUID). OpenOptions::dicom_series
+//     (--series UID) picks one, the others are set aside with a note each. Without it, a
+//     localizer (ImageType holding LOCALIZER) is set aside with a note; when more than one
+//     series is left, so is a scout beside the main stack (the series with the most
+//     images): a series of 1 or 2 images, one whose images do not share one orientation,
+//     or one not parallel to the main stack. One series left is read; none left (only a
+//     localizer) is an error naming it; two or more slice stacks are refused with a
+//     message listing each (UID, description, image count) that points to --series;
 //   - slices are ordered by ImagePositionPatient projected on the slice normal (the cross
 //     product of the ImageOrientationPatient row and column directions), not by file name or
 //     InstanceNumber; two slices at the same position, or a step between neighbours that
-//     differs from the series' mean step by more than 10% (a missing slice), are errors that
-//     name the two files; so are positions that drift sideways (gantry tilt);
+//     differs from the series' median step by more than 10% (a missing slice: the message
+//     also gives the ImagePositionPatient where one is missing), are errors that name the
+//     two files; so are positions that drift sideways (gantry tilt);
 //   - spacing: x and y from PixelSpacing (column, row), z from the positions (never
 //     SliceThickness); origin: the first slice's ImagePositionPatient; directions: the row,
 //     column and normal directions (so vertices come out in the patient LPS frame, mm);
@@ -44,16 +57,23 @@
 namespace tandem {
 
 // The regular, non-hidden files of dir in natural order of their names (digit runs compare as
-// numbers: "s2" < "s10"). NotFound / InvalidArgument errors name dir.
+// numbers: "s2" < "s10"), leaving out names that say the file is still being written under
+// a temporary name (IsTemporaryName). NotFound / InvalidArgument errors name dir.
 absl::StatusOr<std::vector<std::string>> ListSliceFiles(const std::string& dir);
+
+// A name writers give a file before renaming it into place: ending (case-insensitive) in
+// .part, .partial, .filepart, .crdownload, .download, .tmp, .temp, .swp or ~.
+bool IsTemporaryName(const std::string& name);
 
 // The names that end in .tif or .tiff (case-insensitive), in the given order.
 std::vector<std::string> TiffNames(const std::vector<std::string>& files);
 
 // Readers over an explicit list of files (full paths), e.g. what a follower has seen so far.
 // The DICOM list is sorted by position; the TIFF list is read in the given order.
+// opts: the series to read and where notes go (tandem/volume.h).
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& dir,
-                                                             const std::vector<std::string>& files);
+                                                             const std::vector<std::string>& files,
+                                                             const OpenOptions& opts = {});
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffSequence(
     const std::string& dir, const std::vector<std::string>& files);
 
@@ -82,6 +102,9 @@ struct DicomWriteOptions {
   float float_min = 0.0f, float_max = 0.0f;
   // BitsStored for integer volumes (0 = all allocated bits); CT scanners write 12.
   int bits_stored = 0;
+  // ImageType, values separated by a backslash (ORIGINAL\PRIMARY\LOCALIZER for a scout);
+  // "" = GDCM's default.
+  std::string image_type;
 };
 
 // Writes DICOM slices one at a time (a scanner simulator writes them in any order): slice z
@@ -92,12 +115,22 @@ class DicomSliceWriter {
   static absl::StatusOr<DicomSliceWriter> Create(const VolumeInfo& info,
                                                  const DicomWriteOptions& opts);
   absl::Status Write(const std::string& path, int64_t z, const std::vector<uint8_t>& bytes) const;
+  // The same with InstanceNumber `instance` (kNoInstanceNumber: none), as anonymizers and
+  // reconstructions number slices.
+  absl::Status Write(const std::string& path, int64_t z, const std::vector<uint8_t>& bytes,
+                     int64_t instance) const;
+  static constexpr int64_t kNoInstanceNumber = -1;
 
  private:
   DicomSliceWriter() = default;
   VolumeInfo info_;
   DicomWriteOptions opts_;
 };
+
+// The grid of a localizer image across info's volume, as a CT takes one before its stack:
+// image 0 a front view (columns along x, rows down z, head up), 1 a side view (columns along
+// y), through the middle of the other axis; nz = 0.
+VolumeInfo LocalizerGrid(const VolumeInfo& info, int image);
 
 // Writes the whole volume into dir (created if missing) as IM00001.dcm, IM00002.dcm, ...
 absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -142,6 +143,18 @@ absl::Status NonFiniteVoxelError(int64_t i, int64_t j, float v);
 // tandem/zarr.h), or a folder of one file per slice: a DICOM series or numbered TIFFs (see
 // tandem/series.h). Errors name the file and the problem.
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path);
+
+// What OpenVolume may be told besides the path.
+struct OpenOptions {
+  // A folder holding several DICOM series: read the one with this SeriesInstanceUID (""
+  // = the folder's one slice stack; see tandem/series.h). Refused for any other input.
+  std::string dicom_series = "";
+  // Receives one line for each thing set aside on the way (a localizer series, a file that
+  // is not DICOM), for the user; unset = dropped.
+  std::function<void(const std::string&)> note = nullptr;
+};
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
+                                                        const OpenOptions& opts);
 
 }  // namespace tandem
 

@@ -438,6 +438,68 @@ TEST_F(Cli, FoldersOfSlicesAreVolumesAndInfoShowsTheValues) {
   EXPECT_NE(o.text.find("directions"), std::string::npos) << o.text;
 }
 
+// `tandem simulate --as dicom` plays what scanners, reconstructions and transfer tools do:
+// renumbered slices, a localizer series written first, files renamed into place. The
+// folder holds the same stack as a plain run (the same mesh; the localizer set aside with a
+// note, no temporary file left); following it notes the numbers that contradict the
+// positions; two stacks in one folder need --series, which extract and info take.
+TEST_F(Cli, SimulatedDicomVariantsHoldThePlainSeries) {
+  namespace fs = std::filesystem;
+  ASSERT_EQ(RunTandem("generate link --size 20 --out " + Path("l.json")).code, 0);
+  const std::string simulate = "simulate --input " + Path("l.json") + " --as dicom --rate 0 ";
+  Output o = RunTandem(simulate + "--out " + Path("plain"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem(simulate + "--numbering random --scout --temp-names suffix --out " + Path("real"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  int files = 0;
+  for (const auto& e : fs::directory_iterator(Path("real"))) {
+    EXPECT_FALSE(e.path().string().ends_with(".part")) << e.path();
+    ++files;
+  }
+  EXPECT_EQ(files, 20 + 2);
+  const std::string extract = " --iso 0 --error 0.2 --out ";
+  ASSERT_EQ(RunTandem("extract --input " + Path("plain") + extract + Path("plain.ply")).code, 0);
+  o = RunTandem("extract --input " + Path("real") + extract + Path("real.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("tandem extract: ignoring DICOM series 1.2.826.0.1.3680043.2.1125.7.1 "
+                        "'Scout' (2 images"),
+            std::string::npos)
+      << o.text;
+  EXPECT_NE(o.text.find("a localizer (ImageType LOCALIZER)"), std::string::npos) << o.text;
+  EXPECT_EQ(testing::FileBytes(Path("real.ply")), testing::FileBytes(Path("plain.ply")));
+  o = RunTandem("extract --follow --settle 1 --input " + Path("real") + extract +
+                Path("followed.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("InstanceNumbers do not follow the slice positions"), std::string::npos)
+      << o.text;
+  EXPECT_EQ(testing::FileBytes(Path("followed.ply")), testing::FileBytes(Path("plain.ply")));
+
+  // Two stacks: refused, listing both; --series picks one.
+  for (const auto& e : fs::directory_iterator(Path("plain"))) {
+    fs::copy_file(e.path(), Path("real/plain_" + e.path().filename().string()));
+  }
+  o = RunTandem("info --no-values --input " + Path("real"));
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("holds 2 DICOM slice stacks"), std::string::npos) << o.text;
+  const size_t at = o.text.find("1.2.826.0.1.3680043.2.1143.");  // a generated series UID
+  ASSERT_NE(at, std::string::npos) << o.text;
+  const std::string uid = o.text.substr(at, o.text.find(' ', at) - at);
+  o = RunTandem("info --no-values --input " + Path("real") + " --series " + uid);
+  EXPECT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("not the series --series picks"), std::string::npos) << o.text;
+  o = RunTandem("extract --input " + Path("real") + " --series " + uid + extract + Path("picked.ply"));
+  EXPECT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(testing::FileBytes(Path("picked.ply")), testing::FileBytes(Path("plain.ply")));
+
+  o = RunTandem(simulate + "--numbering sideways --out " + Path("x"));
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--numbering 'sideways': expected ordered, random"), std::string::npos)
+      << o.text;
+  o = RunTandem("simulate --input " + Path("l.json") + " --as tiff --scout --out " + Path("y"));
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("go with --as dicom"), std::string::npos) << o.text;
+}
+
 // GDCM lives in a module loaded only when a DICOM file is read or written
 // (core/io/dicom_codec.h): its dictionaries cost about 12 ms at every start otherwise.
 TEST_F(Cli, LoadsTheDicomModuleOnlyForDicom) {

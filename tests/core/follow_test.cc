@@ -4,22 +4,25 @@
 // finished volume, and the first slice must be read before the last one is written. Ends:
 // --expect-slices, a done-file, settling; errors: an acquisition that stops short, a slice
 // file that arrives out of name order.
+#include "tandem/follow.h"
+
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <chrono>
-#include <filesystem>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
+#include <optional>
 #include <random>
 #include <thread>
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
-#include "tandem/follow.h"
+#include "absl/strings/str_join.h"
+#include "tandem/run_session.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
-#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/zarr.h"
 #include "testutil/testutil.h"
@@ -203,51 +206,6 @@ DicomWriteOptions DicomFor(const Volume& v) {
   return o;
 }
 
-// A CT writes a series in bursts, each burst's files in any order (as a C-STORE receiver
-// stores them), under names that say nothing about position.
-TEST(Follow, DicomSeriesArrivingInShuffledBurstsGivesTheFinishedSeriesMesh) {
-  const Volume v = Link();
-  VolumeInfo placed = v.info;
-  placed.origin = {-40, 12, 300};
-  const std::string dir = testing::MakeTempDir() + "/ct";
-  auto writer = DicomSliceWriter::Create(placed, DicomFor(v));
-  ASSERT_TRUE(writer.ok()) << writer.status();
-  std::atomic<int64_t> written{0};
-  std::atomic<int64_t> written_at_first_read{-1};
-  std::thread scanner([&] {
-    fs::create_directories(dir);
-    std::mt19937 rng(5);
-    for (int64_t b = 0; b < v.info.nz; b += 4) {
-      std::vector<int64_t> burst;
-      for (int64_t z = b; z < std::min(b + 4, v.info.nz); ++z) burst.push_back(z);
-      std::shuffle(burst.begin(), burst.end(), rng);
-      for (int64_t z : burst) {
-        const std::string name = absl::StrCat(dir, "/1.2.840.", (z * 7919) % 10007);
-        EXPECT_TRUE(writer->Write(name, z, v.slices[z]).ok());
-        ++written;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(40));
-    }
-    std::ofstream(dir + "/DONE") << "";
-  });
-  FollowOptions f = Fast();
-  f.done_file = "DONE";
-  f.progress = [&](int64_t, int64_t read) {
-    if (read == 1) written_at_first_read = written.load();
-  };
-  auto followed = FollowVolume(dir, f);
-  ASSERT_TRUE(followed.ok()) << followed.status();
-  const IndexedMesh live = MeshOf(**followed);
-  scanner.join();
-  EXPECT_LT(written_at_first_read.load(), v.info.nz) << "the first slice waited for the last";
-  EXPECT_EQ((*followed)->next_slice(), v.info.nz);
-  auto finished = OpenVolume(dir);
-  ASSERT_TRUE(finished.ok()) << finished.status();
-  EXPECT_EQ((*followed)->info().spacing, (*finished)->info().spacing);
-  EXPECT_EQ((*followed)->info().origin, (*finished)->info().origin);
-  ExpectSameMesh(MeshOf(**finished), live);
-}
-
 // The first files of a shuffled burst can be every other slice (0, 2, 4): their gaps look
 // like a step of two. The InstanceNumbers say they are not neighbours, so the follower
 // waits for 1 and 3 instead of meshing 0, 2, 4 and then failing on 1 "below" them (the
@@ -313,7 +271,431 @@ TEST(Follow, DicomSliceBelowMeshedOnesOrAGapThatNeverClosesIsAnError) {
   auto run = RunSession(**held, Options());
   ASSERT_FALSE(run.ok());
   EXPECT_TRUE(absl::StrContains(run.status().message(), "gap between s2 and s4")) << run.status();
+  EXPECT_TRUE(absl::StrContains(run.status().message(),
+                                "a missing slice at ImagePositionPatient (0, 0, 2.25)"))
+      << run.status();
   EXPECT_EQ((*held)->next_slice(), 3);
+}
+
+// InstanceNumbers as series carry them: in position order, or renumbered by an anonymizer
+// or a reconstruction (shuffled, restarted every acquisition of 4 slices, counting down,
+// all the same), or left out.
+enum class Numbering { kOrdered, kRandom, kRestarted, kReversed, kEqual, kAbsent };
+
+std::vector<int64_t> Numbers(Numbering how, int64_t nz) {
+  std::vector<int64_t> n(static_cast<size_t>(nz));
+  for (int64_t z = 0; z < nz; ++z) {
+    int64_t& v = n[static_cast<size_t>(z)];
+    switch (how) {
+      case Numbering::kOrdered:
+      case Numbering::kRandom:
+        v = z + 1;
+        break;
+      case Numbering::kRestarted:
+        v = z % 4 + 1;
+        break;
+      case Numbering::kReversed:
+        v = nz - z;
+        break;
+      case Numbering::kEqual:
+        v = 1;
+        break;
+      case Numbering::kAbsent:
+        v = DicomSliceWriter::kNoInstanceNumber;
+        break;
+    }
+  }
+  if (how == Numbering::kRandom) std::shuffle(n.begin(), n.end(), std::mt19937(11));
+  return n;
+}
+
+// A scanner: the slices in bursts of 4, each burst's files in shuffled order, one every `ms`,
+// under names that say nothing about position, then DONE. `temp`: each file goes in under
+// a temporary name (suffix: NAME.part, hidden: .NAME.tmp), half of it, then the rest
+// `half_ms` later, then it is renamed into place.
+struct Scanner {
+  const Volume& v;
+  const DicomSliceWriter& writer;
+  std::string dir;
+  std::vector<int64_t> numbers;
+  int ms = 40;
+  std::string temp = "";
+  int half_ms = 80;
+  std::atomic<int64_t> written{0};
+
+  void Run() {
+    fs::create_directories(dir);
+    const std::string scratch = testing::MakeTempDir();
+    std::mt19937 rng(5);
+    for (int64_t b = 0; b < v.info.nz; b += 4) {
+      std::vector<int64_t> burst;
+      for (int64_t z = b; z < std::min(b + 4, v.info.nz); ++z) burst.push_back(z);
+      std::shuffle(burst.begin(), burst.end(), rng);
+      for (int64_t z : burst) {
+        const std::string name = absl::StrCat("1.2.840.", (z * 7919) % 10007, ".dcm");
+        const size_t k = static_cast<size_t>(z);
+        if (temp.empty()) {
+          EXPECT_TRUE(writer.Write(dir + "/" + name, z, v.slices[k], numbers[k]).ok());
+        } else {
+          EXPECT_TRUE(writer.Write(scratch + "/" + name, z, v.slices[k], numbers[k]).ok());
+          const std::string bytes = testing::FileBytes(scratch + "/" + name);
+          const std::string part =
+              dir + "/" + (temp == "suffix" ? name + ".part" : "." + name + ".tmp");
+          std::ofstream(part, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+          std::this_thread::sleep_for(std::chrono::milliseconds(half_ms));
+          std::ofstream(part, std::ios::binary | std::ios::app) << bytes.substr(bytes.size() / 2);
+          fs::rename(part, dir + "/" + name);
+        }
+        ++written;
+        std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+      }
+    }
+    std::ofstream(dir + "/DONE") << "";
+  }
+};
+
+std::string Joined(const std::vector<std::string>& lines) { return absl::StrJoin(lines, "\n"); }
+
+int64_t CountContaining(const std::vector<std::string>& lines, const std::string& what) {
+  return std::count_if(lines.begin(), lines.end(),
+                       [&](const std::string& l) { return absl::StrContains(l, what); });
+}
+
+// Follows the scanner's series to its end: the mesh, and how many files were written when
+// the first slice was handed over.
+struct Followed {
+  IndexedMesh mesh;
+  int64_t written_at_first_read = -1;
+  std::vector<std::string> notes;
+  std::unique_ptr<SliceSource> source;
+};
+
+Followed FollowScanner(Scanner& scanner, FollowOptions f = Fast()) {
+  Followed out;
+  std::atomic<int64_t> first{-1};
+  std::thread thread([&] { scanner.Run(); });
+  f.done_file = "DONE";
+  f.note = [&](const std::string& line) { out.notes.push_back(line); };
+  f.progress = [&](int64_t, int64_t read) {
+    if (read == 1) first = scanner.written.load();
+  };
+  auto followed = FollowVolume(scanner.dir, f);
+  EXPECT_TRUE(followed.ok()) << followed.status();
+  if (followed.ok()) {
+    out.mesh = MeshOf(**followed);
+    out.source = *std::move(followed);
+  }
+  thread.join();
+  out.written_at_first_read = first;
+  return out;
+}
+
+class FollowNumbering : public ::testing::TestWithParam<Numbering> {};
+
+// A CT writes a series in bursts, each burst's files in any order (as a C-STORE receiver
+// stores them), under names that say nothing about position. However the InstanceNumbers
+// run, or whether there are any, the followed series gives the finished series' mesh, and
+// its first slice goes while most files are still to come (the numbers are a hint: where
+// they contradict the positions, one note says so).
+TEST_P(FollowNumbering, GivesTheFinishedMeshAndTheFirstSliceEarly) {
+  const Volume v = Link(38);  // 32 slices
+  VolumeInfo placed = v.info;
+  placed.origin = {-40, 12, 300};
+  auto writer = DicomSliceWriter::Create(placed, DicomFor(v));
+  ASSERT_TRUE(writer.ok()) << writer.status();
+  Scanner scanner{v, *writer, testing::MakeTempDir() + "/ct", Numbers(GetParam(), v.info.nz),
+                  /*ms=*/50};
+  const Followed live = FollowScanner(scanner);
+  ASSERT_NE(live.source, nullptr);
+  EXPECT_GE(live.written_at_first_read, 3);
+  EXPECT_LE(live.written_at_first_read, v.info.nz / 2) << "the first slice waited for most files";
+  EXPECT_EQ(live.source->next_slice(), v.info.nz);
+  auto finished = OpenVolume(scanner.dir);
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  EXPECT_EQ(live.source->info().spacing, (*finished)->info().spacing);
+  EXPECT_EQ(live.source->info().origin, (*finished)->info().origin);
+  ExpectSameMesh(MeshOf(**finished), live.mesh);
+  const Numbering n = GetParam();
+  const bool contradict =
+      n == Numbering::kRandom || n == Numbering::kRestarted || n == Numbering::kEqual;
+  EXPECT_EQ(CountContaining(live.notes, "InstanceNumbers do not follow the slice positions"),
+            contradict ? 1 : 0)
+      << Joined(live.notes);
+  EXPECT_EQ(live.notes.size(), contradict ? 1u : 0u) << Joined(live.notes);
+}
+
+std::string NumberingName(const ::testing::TestParamInfo<Numbering>& p) {
+  static const char* kNames[] = {"Ordered", "Random", "Restarted", "Reversed", "Equal", "Absent"};
+  return kNames[static_cast<int>(p.param)];
+}
+
+INSTANTIATE_TEST_SUITE_P(Dicom, FollowNumbering,
+                         ::testing::Values(Numbering::kOrdered, Numbering::kRandom,
+                                           Numbering::kRestarted, Numbering::kReversed,
+                                           Numbering::kEqual, Numbering::kAbsent),
+                         NumberingName);
+
+// A scan of 18 slices and its DICOM writer, for what real scanners write.
+class FollowDicom : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    absl::StatusOr<DicomSliceWriter> w = DicomSliceWriter::Create(v.info, DicomFor(v));
+    ASSERT_TRUE(w.ok()) << w.status();
+    writer.emplace(*std::move(w));
+  }
+  // Slice z as the file `path`, with InstanceNumber `number`.
+  void Put(const std::string& path, int64_t z, int64_t number) {
+    absl::Status st = writer->Write(path, z, v.slices[static_cast<size_t>(z)], number);
+    EXPECT_TRUE(st.ok()) << st;
+  }
+  // A scanner writing the scan into a fresh folder.
+  Scanner Scan(Numbering numbering, int ms = 40, std::string temp = "") {
+    return Scanner{v, *writer, testing::MakeTempDir() + "/ct", Numbers(numbering, v.info.nz), ms,
+                   std::move(temp)};
+  }
+  const Volume v = Link(24);
+  std::optional<DicomSliceWriter> writer;
+};
+
+// A burst that ends with nothing new in the folder for a second lets its lowest slice go,
+// the numbers (shuffled) saying nothing: the first slices do not wait for the next burst.
+TEST_F(FollowDicom, BurstFollowedByAPauseGoesWithinASecondOrSo) {
+  const std::string dir = testing::MakeTempDir();
+  const std::vector<int64_t> numbers = Numbers(Numbering::kRandom, v.info.nz);
+  auto write = [&](int64_t z) {
+    Put(absl::StrCat(dir, "/im", (z * 7919) % 10007), z, numbers[static_cast<size_t>(z)]);
+  };
+  for (int64_t z : {3, 0, 4, 1, 2}) write(z);
+  const auto start = std::chrono::steady_clock::now();
+  std::atomic<double> fifth_read_s{-1};
+  std::thread scanner([&] {  // the next burst comes once the first is meshed (or 5 s)
+    while (fifth_read_s < 0 && std::chrono::steady_clock::now() - start < std::chrono::seconds(5)) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    for (int64_t z = 5; z < v.info.nz; ++z) write(z);
+    std::ofstream(dir + "/DONE") << "";
+  });
+  FollowOptions f = Fast();
+  f.done_file = "DONE";
+  f.progress = [&](int64_t, int64_t read) {
+    if (read == 5) {
+      fifth_read_s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    }
+  };
+  auto followed = FollowVolume(dir, f);
+  ASSERT_TRUE(followed.ok()) << followed.status();
+  const IndexedMesh live = MeshOf(**followed);
+  scanner.join();
+  EXPECT_GT(fifth_read_s.load(), 0) << "the burst waited for the next one";
+  EXPECT_LT(fifth_read_s.load(), 2.5);
+  EXPECT_EQ((*followed)->next_slice(), v.info.nz);
+  auto finished = OpenVolume(dir);
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  ExpectSameMesh(MeshOf(**finished), live);
+}
+
+// A writer slower than a file a second, out of position order: a second without news is
+// no end of a burst for it (its usual interval is), so slice 2 does not go before 1 and 0.
+TEST_F(FollowDicom, SlowWriterOutOfOrderIsWaitedFor) {
+  const std::string dir = testing::MakeTempDir();
+  const std::vector<int64_t> numbers = Numbers(Numbering::kRandom, v.info.nz);
+  std::thread scanner([&] {
+    auto write = [&](int64_t z) {
+      Put(absl::StrCat(dir, "/im", z), z, numbers[static_cast<size_t>(z)]);
+    };
+    int64_t k = 0;
+    for (int64_t z : {2, 3, 4, 1, 0}) {
+      if (k++ > 0) std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+      write(z);
+    }
+    for (int64_t z = 5; z < v.info.nz; ++z) write(z);
+    std::ofstream(dir + "/DONE") << "";
+  });
+  FollowOptions f = Fast();
+  f.done_file = "DONE";
+  auto followed = FollowVolume(dir, f);
+  absl::Status st = followed.status();
+  IndexedMesh live;
+  if (followed.ok()) {
+    auto run = RunSession(**followed, Options());
+    st = run.status();
+    if (run.ok()) live = (*run)->Snapshot();
+  }
+  scanner.join();
+  ASSERT_TRUE(st.ok()) << st;
+  auto finished = OpenVolume(dir);
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  ExpectSameMesh(MeshOf(**finished), live);
+}
+
+// A CT writes its localizer first (a front and a side projection, ImageType LOCALIZER);
+// a scout without that flag (two images that are not parallel) can be there too. Each is
+// set aside with one note naming it, and the stack that grows is followed.
+TEST_F(FollowDicom, ScoutsInTheFolderAreSetAsideAndTheStackFollowed) {
+  Scanner scanner = Scan(Numbering::kRandom);
+  fs::create_directories(scanner.dir);
+  const std::string flagged = testing::WriteLocalizer(scanner.dir, v.info, true);
+  const std::string unflagged = testing::WriteLocalizer(scanner.dir, v.info, false);
+  const Followed live = FollowScanner(scanner);
+  ASSERT_NE(live.source, nullptr);
+  EXPECT_EQ(live.source->next_slice(), v.info.nz);
+  EXPECT_LT(live.written_at_first_read, v.info.nz);
+  std::vector<std::string> notes;
+  auto finished = OpenVolume(
+      scanner.dir, OpenOptions{.note = [&](const std::string& line) { notes.push_back(line); }});
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  ExpectSameMesh(MeshOf(**finished), live.mesh);
+  for (const std::vector<std::string>* lines : {&live.notes, &std::as_const(notes)}) {
+    EXPECT_EQ(CountContaining(*lines, flagged + " 'Scout'"), 1) << Joined(*lines);
+    EXPECT_EQ(CountContaining(*lines, "a localizer (ImageType LOCALIZER)"), 1) << Joined(*lines);
+    EXPECT_EQ(CountContaining(*lines, unflagged + " 'Scout'"), 1) << Joined(*lines);
+    EXPECT_EQ(CountContaining(*lines, "not parallel"), 1) << Joined(*lines);
+  }
+}
+
+// Two reconstructions of one scan in one folder: following needs --series to pick one
+// (without it, an error lists both); with it the other is set aside with a note.
+TEST(Follow, DicomTwoStacksNeedSeriesToPickOne) {
+  const Volume v = Link(24);
+  const std::string dir = testing::MakeTempDir();
+  DicomWriteOptions soft = DicomFor(v), bone = DicomFor(v);
+  soft.series_uid = "1.2.826.0.1.3680043.2.1125.5.1";
+  soft.series_description = "soft tissue";
+  bone.series_uid = "1.2.826.0.1.3680043.2.1125.5.2";
+  bone.series_description = "bone";
+  VolumeInfo shifted = v.info;
+  shifted.origin = {0, 0, 10};
+  for (const auto& [opts, info] : {std::pair{soft, v.info}, std::pair{bone, shifted}}) {
+    auto writer = DicomSliceWriter::Create(info, opts);
+    ASSERT_TRUE(writer.ok()) << writer.status();
+    for (int64_t z = 0; z < v.info.nz; ++z) {
+      ASSERT_TRUE(writer
+                      ->Write(absl::StrCat(dir, "/", opts.series_description, z), z,
+                              v.slices[static_cast<size_t>(z)])
+                      .ok());
+    }
+  }
+  FollowOptions f = Fast();
+  f.settle_s = 0.5;
+  auto both = FollowVolume(dir, f);
+  ASSERT_FALSE(both.ok());
+  const std::string msg(both.status().message());
+  const std::string count = absl::StrCat(" (", v.info.nz, " images");
+  for (const std::string& what : {soft.series_uid + " 'soft tissue'" + count,
+                                  bone.series_uid + " 'bone'" + count, std::string("--series")}) {
+    EXPECT_TRUE(absl::StrContains(msg, what)) << what << " in " << msg;
+  }
+  std::vector<std::string> notes;
+  f.dicom_series = bone.series_uid;
+  f.note = [&](const std::string& line) { notes.push_back(line); };
+  auto picked = FollowVolume(dir, f);
+  ASSERT_TRUE(picked.ok()) << picked.status();
+  const IndexedMesh live = MeshOf(**picked);
+  EXPECT_EQ((*picked)->info().origin, shifted.origin);
+  auto finished = OpenVolume(dir, OpenOptions{.dicom_series = bone.series_uid});
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  ExpectSameMesh(MeshOf(**finished), live);
+  EXPECT_EQ(notes.size(), 1u) << Joined(notes);
+  EXPECT_EQ(
+      CountContaining(notes, soft.series_uid + " 'soft tissue': not the series --series picks"), 1)
+      << Joined(notes);
+}
+
+// Transfer tools write a file under a temporary name (NAME.part, .NAME.tmp) and rename it
+// into place: the half-written temporary files are neither read nor reported.
+TEST_F(FollowDicom, FilesRenamedIntoPlaceAreOnlyTakenWhole) {
+  for (const char* temp : {"suffix", "hidden"}) {
+    SCOPED_TRACE(temp);
+    Scanner scanner = Scan(Numbering::kOrdered, /*ms=*/10, temp);
+    const Followed live = FollowScanner(scanner);
+    ASSERT_NE(live.source, nullptr);
+    EXPECT_EQ(live.source->next_slice(), v.info.nz);
+    EXPECT_TRUE(live.notes.empty()) << Joined(live.notes);
+    auto finished = OpenVolume(scanner.dir);
+    ASSERT_TRUE(finished.ok()) << finished.status();
+    ExpectSameMesh(MeshOf(**finished), live.mesh);
+  }
+}
+
+// Files that are no slice of the series: a note each for a text file, random bytes and a
+// dose report (a DICOM object without an image), and the mesh is the series'.
+TEST_F(FollowDicom, FilesThatAreNoSlicesAreSkippedWithANote) {
+  Scanner scanner = Scan(Numbering::kOrdered);
+  fs::create_directories(scanner.dir);
+  std::ofstream(scanner.dir + "/notes.txt") << "patient moved at slice 12\n";
+  std::ofstream(scanner.dir + "/noise.bin", std::ios::binary) << std::string("\x7f\x13\x00\xee", 4);
+  testing::WriteDoseReport(scanner.dir + "/dose.dcm", "1.2.826.0.1.3680043.2.1125.5.9");
+  const Followed live = FollowScanner(scanner);
+  ASSERT_NE(live.source, nullptr);
+  EXPECT_EQ(live.source->next_slice(), v.info.nz);
+  auto finished = OpenVolume(scanner.dir);
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  ExpectSameMesh(MeshOf(**finished), live.mesh);
+  EXPECT_EQ(live.notes.size(), 3u) << Joined(live.notes);
+  EXPECT_EQ(CountContaining(live.notes, "notes.txt: not a DICOM file"), 1) << Joined(live.notes);
+  EXPECT_EQ(CountContaining(live.notes, "noise.bin: not a DICOM file"), 1) << Joined(live.notes);
+  EXPECT_EQ(CountContaining(live.notes, "dose.dcm: DICOM file without an image"), 1)
+      << Joined(live.notes);
+}
+
+// Bad folders end with an error naming the culprit, never a hang past --settle: slices at
+// one position (at once), a localizer and nothing else, a slice file that never becomes
+// whole and a DICOM file that does not parse (when the scan ends).
+TEST_F(FollowDicom, BadInputsAreClearErrorsNamingTheCulprit) {
+  auto write = [&](const std::string& dir, int64_t z, const std::string& name = "") {
+    const std::string path = dir + "/" + (name.empty() ? absl::StrCat("s", z) : name);
+    EXPECT_TRUE(writer->Write(path, z, v.slices[static_cast<size_t>(z)]).ok());
+    return path;
+  };
+  auto seconds_since = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  };
+  FollowOptions f = Fast();
+  f.settle_s = 0.5;
+
+  const std::string dup = testing::MakeTempDir();
+  for (int64_t z = 0; z < 6; ++z) write(dup, z);
+  write(dup, 3, "again");
+  f.settle_s = 5;  // the error comes as soon as both are seen
+  auto start = std::chrono::steady_clock::now();
+  absl::StatusOr<std::unique_ptr<SliceSource>> twice = FollowVolume(dup, f);
+  absl::Status st = twice.status();
+  if (twice.ok()) st = RunSession(**twice, Options()).status();
+  EXPECT_TRUE(absl::StrContains(st.message(), "are at the same position")) << st;
+  EXPECT_TRUE(absl::StrContains(st.message(), "s3") && absl::StrContains(st.message(), "again"))
+      << st;
+  EXPECT_LT(seconds_since(start), 2.0);
+  f.settle_s = 0.5;
+
+  const std::string scout = testing::MakeTempDir();
+  const std::string uid = testing::WriteLocalizer(scout, v.info);
+  auto only = FollowVolume(scout, f);
+  ASSERT_FALSE(only.ok());
+  EXPECT_TRUE(absl::StrContains(only.status().message(), "no slice stack to follow"))
+      << only.status();
+  EXPECT_TRUE(absl::StrContains(only.status().message(), uid + " 'Scout' (2 images): a localizer"))
+      << only.status();
+
+  for (const bool garbage : {false, true}) {
+    const std::string dir = testing::MakeTempDir();
+    for (int64_t z = 0; z < 6; ++z) write(dir, z);
+    const std::string bad = write(dir, 6, "bad.dcm");
+    if (garbage) {  // a DICOM preamble and nothing a parser can read
+      std::ofstream(bad, std::ios::binary)
+          << std::string(128, '\0') << "DICM" << std::string(300, '\xff');
+    } else {  // cut in its pixel data, and never finished
+      fs::resize_file(bad, fs::file_size(bad) / 2);
+    }
+    start = std::chrono::steady_clock::now();
+    auto followed = FollowVolume(dir, f);
+    ASSERT_TRUE(followed.ok()) << followed.status();
+    auto run = RunSession(**followed, Options());
+    ASSERT_FALSE(run.ok());
+    EXPECT_TRUE(absl::StrContains(run.status().message(), bad)) << run.status();
+    EXPECT_TRUE(absl::StrContains(run.status().message(), "still not whole")) << run.status();
+    EXPECT_LT(seconds_since(start), 4.0);
+  }
 }
 
 TEST(Follow, NothingArrivingIsAClearError) {

@@ -18,10 +18,11 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 #include "tandem/distance.h"
+#include "tandem/run_session.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
-#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
@@ -290,23 +291,101 @@ std::string WriteSeries(const std::string& dir, const VolumeInfo& info,
   return dir;
 }
 
-TEST(DicomSeries, SecondSeriesIsRefusedNamingBoth) {
+// What a reader sets aside, one note line each.
+struct Notes {
+  std::vector<std::string> lines;
+  OpenOptions Options(const std::string& series = "") {
+    return OpenOptions{.dicom_series = series,
+                       .note = [this](const std::string& line) { lines.push_back(line); }};
+  }
+  std::string all() const { return absl::StrJoin(lines, "\n"); }
+};
+
+// A folder holding more than one series: a stray image or two of another series is a scout
+// beside the stack (set aside with a note); two slice stacks are refused, listing each and
+// pointing to --series, which picks one.
+TEST(DicomSeries, ScoutsAreSetAsideAndTwoStacksNeedSeries) {
   const std::string root = testing::MakeTempDir();
   VolumeInfo info = Grid(DType::kInt16);
   DicomWriteOptions a, b;
   a.series_uid = "1.2.826.0.1.3680043.2.1125.1";
+  a.series_description = "axial";
   b.series_uid = "1.2.826.0.1.3680043.2.1125.2";
+  b.series_description = "bone";
   WriteSeries(root + "/s", info, a);
   VolumeInfo other = info;
   other.nz = 3;
   WriteSeries(root + "/b", other, b);
   fs::copy_file(root + "/b/IM00002.dcm", root + "/s/zz_other.dcm");
-  auto src = OpenVolume(root + "/s");
-  ASSERT_FALSE(src.ok());
-  const std::string msg(src.status().message());
-  EXPECT_TRUE(absl::StrContains(msg, "2 DICOM series")) << msg;
-  EXPECT_TRUE(absl::StrContains(msg, a.series_uid)) << msg;
-  EXPECT_TRUE(absl::StrContains(msg, "zz_other.dcm")) << msg;
+  Notes stray;
+  auto src = OpenVolume(root + "/s", stray.Options());
+  ASSERT_TRUE(src.ok()) << src.status();
+  EXPECT_EQ((*src)->info().nz, info.nz);
+  ASSERT_EQ(stray.lines.size(), 1u) << stray.all();
+  EXPECT_EQ(stray.lines[0], "ignoring DICOM series " + b.series_uid +
+                                " 'bone' (1 image, e.g. zz_other.dcm): a scout (1 or 2 images "
+                                "beside the main stack)");
+
+  for (const char* f : {"IM00001.dcm", "IM00003.dcm"}) {
+    fs::copy_file(root + "/b/" + f, root + "/s/zz_" + f);
+  }
+  auto two = OpenVolume(root + "/s");
+  ASSERT_FALSE(two.ok());
+  const std::string msg(two.status().message());
+  EXPECT_TRUE(absl::StrContains(msg, "holds 2 DICOM slice stacks")) << msg;
+  EXPECT_TRUE(absl::StrContains(msg, a.series_uid + " 'axial' (9 images, e.g. IM00001.dcm)"))
+      << msg;
+  EXPECT_TRUE(absl::StrContains(msg, b.series_uid + " 'bone' (3 images, e.g. zz_IM00001.dcm)"))
+      << msg;
+  EXPECT_TRUE(absl::StrContains(msg, "pick one with --series UID")) << msg;
+
+  Notes picked;
+  auto bone = OpenVolume(root + "/s", picked.Options(b.series_uid));
+  ASSERT_TRUE(bone.ok()) << bone.status();
+  EXPECT_EQ((*bone)->info().nz, 3);
+  EXPECT_EQ(picked.all(),
+            "ignoring DICOM series " + a.series_uid +
+                " 'axial' (9 images, e.g. IM00001.dcm): not the series --series picks");
+  auto wrong = OpenVolume(root + "/s", OpenOptions{.dicom_series = "1.2.3"});
+  ASSERT_FALSE(wrong.ok());
+  EXPECT_TRUE(absl::StrContains(wrong.status().message(), "no DICOM series 1.2.3 (--series)"))
+      << wrong.status();
+  EXPECT_TRUE(absl::StrContains(wrong.status().message(), b.series_uid)) << wrong.status();
+  auto tiff = OpenVolume(root + "/t.tif", OpenOptions{.dicom_series = a.series_uid});
+  EXPECT_TRUE(absl::StrContains(tiff.status().message(), "not one")) << tiff.status();
+}
+
+// A CT's localizer (ImageType LOCALIZER) beside its stack is set aside with a note; a
+// localizer alone is an error naming it; a dose report (no image) is skipped with a note.
+TEST(DicomSeries, LocalizersAndDoseReportsAreSetAside) {
+  const std::string root = testing::MakeTempDir();
+  VolumeInfo info = Grid(DType::kInt16);
+  WriteSeries(root + "/ct", info);
+  auto plain = OpenVolume(root + "/ct");
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  const std::string scout = testing::WriteLocalizer(root + "/ct", info);
+  testing::WriteDoseReport(root + "/ct/dose.dcm", "1.2.826.0.1.3680043.2.1125.3");
+  Notes notes;
+  auto src = OpenVolume(root + "/ct", notes.Options());
+  ASSERT_TRUE(src.ok()) << src.status();
+  EXPECT_EQ((*src)->info().nz, info.nz);
+  EXPECT_EQ((*src)->info().origin, (*plain)->info().origin);
+  ASSERT_EQ(notes.lines.size(), 2u) << notes.all();
+  EXPECT_TRUE(absl::StrContains(notes.all(), "dose.dcm: DICOM file without an image"))
+      << notes.all();
+  EXPECT_TRUE(absl::StrContains(notes.all(), "ignoring DICOM series " + scout +
+                                                 " 'Scout' (2 images, e.g. scout1.dcm): a "
+                                                 "localizer (ImageType LOCALIZER)"))
+      << notes.all();
+
+  const std::string alone = testing::MakeTempDir();
+  testing::WriteLocalizer(alone, info);
+  auto only = OpenVolume(alone);
+  ASSERT_FALSE(only.ok());
+  EXPECT_EQ(only.status().message(),
+            alone + ": no slice stack to read, only " + scout +
+                " 'Scout' (2 images, e.g. scout1.dcm): a localizer (ImageType LOCALIZER) "
+                "(--series UID reads one anyway)");
 }
 
 TEST(DicomSeries, DuplicateAndMissingSlicesAreRefusedNamingTheFiles) {
@@ -344,26 +423,38 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
   EXPECT_FALSE(absl::IsOutOfRange(st)) << "truncation went unnoticed";
   EXPECT_TRUE(absl::StrContains(st.message(), "IM00003.dcm")) << st;
 
+  // A file that is not DICOM is skipped with a note naming it; hidden files and files still
+  // being written under a temporary name are not the series' business.
   WriteSeries(root + "/txt", info);
   std::ofstream(root + "/txt/notes.txt") << "scanned on Tuesday\n";
-  auto txt = OpenVolume(root + "/txt");
-  ASSERT_FALSE(txt.ok());
-  EXPECT_TRUE(absl::StrContains(txt.status().message(), "notes.txt")) << txt.status();
-  // Hidden files are not the series' business.
-  fs::remove(root + "/txt/notes.txt");
   std::ofstream(root + "/txt/.DS_Store") << "x";
-  EXPECT_TRUE(OpenVolume(root + "/txt").ok());
+  std::ofstream(root + "/txt/IM00010.dcm.part") << "DICM";
+  std::ofstream(root + "/txt/IM00011.dcm.tmp") << "DICM";
+  Notes notes;
+  auto txt = OpenVolume(root + "/txt", notes.Options());
+  ASSERT_TRUE(txt.ok()) << txt.status();
+  EXPECT_EQ((*txt)->info().nz, info.nz);
+  EXPECT_EQ(notes.all(), "skipping " + root + "/txt/notes.txt: not a DICOM file");
+  // A file that is DICOM but does not parse is an error naming it.
+  std::ofstream(root + "/txt/broken.dcm", std::ios::binary)
+      << std::string(128, '\0') << "DICM" << std::string(64, '\xff');
+  auto broken = OpenVolume(root + "/txt");
+  ASSERT_FALSE(broken.ok());
+  EXPECT_TRUE(absl::StrContains(broken.status().message(), "broken.dcm")) << broken.status();
 
-  WriteSeries(root + "/size", info);
+  // One series whose slices differ in size.
+  DicomWriteOptions one;
+  one.series_uid = "1.2.826.0.1.3680043.2.1125.4";
+  WriteSeries(root + "/size", info, one);
   VolumeInfo small = info;
   small.nx = 20;
-  WriteSeries(root + "/small", small);
+  WriteSeries(root + "/small", small, one);
   fs::remove(root + "/size/IM00009.dcm");
   fs::copy_file(root + "/small/IM00009.dcm", root + "/size/IM00009.dcm");
   auto size = OpenVolume(root + "/size");
   ASSERT_FALSE(size.ok());
   EXPECT_TRUE(absl::StrContains(size.status().message(), "IM00009.dcm")) << size.status();
-  EXPECT_TRUE(absl::StrContains(size.status().message(), "size")) << size.status();
+  EXPECT_TRUE(absl::StrContains(size.status().message(), "differ in size")) << size.status();
 
   auto empty = OpenVolume(testing::MakeTempDir());
   ASSERT_FALSE(empty.ok());

@@ -3,12 +3,62 @@
 - README.md is a front page: at most 250 lines, its first two lines the two set-up commands,
   and the second of them is what .ci/run runs first;
 - the README's C++ snippet is examples/sphere.cc as it is built and run (from its includes on);
-- every relative link in README.md and docs/*.md points at a file that exists.
-Exit 0 when all hold, 1 with one line per broken promise otherwise."""
+- every relative link in README.md and docs/*.md points at a file that exists;
+- docs/decisions.md's entries are numbered headings in order and its index lists exactly them.
+Exit 0 when all hold, 1 with one line per broken promise otherwise. `--fix-decisions` rewrites
+the log's numbering and index (a new entry may be added as a `### Title` heading, or as a
+paragraph opening with its **bold title**, anywhere in its part)."""
 import argparse
 import os
 import re
 import sys
+
+
+def _anchor(title):
+    return re.sub(r"[^a-z0-9 -]", "", title.lower()).replace(" ", "-")
+
+
+def decisions_fixed(text):
+    """The decision log with its entries numbered in order and its index rebuilt."""
+    lines, out, entries = text.split("\n"), [], []
+    i = 0
+    while i < len(lines):
+        ln = lines[i]
+        if ln == "## Index":  # dropped here and rebuilt below
+            i += 1
+            while i < len(lines) and not lines[i].startswith("## "):
+                i += 1
+            continue
+        if ln.startswith("## "):
+            entries.append(("part", ln[3:]))
+            out.append(ln)
+        elif ln.startswith("### "):
+            title = re.sub(r"^\d+\.\s*", "", ln[4:])
+            entries.append(("entry", title))
+            out.append(f"### {sum(k == 'entry' for k, _ in entries)}. {title}")
+        elif ln.startswith("**") and (i == 0 or not lines[i - 1].strip()):
+            para = ln
+            while "**" not in para[2:] and i + 1 < len(lines):
+                i += 1
+                para += " " + lines[i]
+            m = re.match(r"^\*\*(.+?)\*\*[:.]?\s*(.*)$", para)
+            title = m.group(1).rstrip(".:")
+            entries.append(("entry", title))
+            out += [f"### {sum(k == 'entry' for k, _ in entries)}. {title}", ""]
+            if m.group(2):
+                out.append(m.group(2))
+        else:
+            out.append(ln)
+        i += 1
+    index, n = ["## Index"], 0
+    for kind, title in entries:
+        if kind == "part":
+            index += ["", f"**{title}**", ""]
+        else:
+            n += 1
+            index.append(f"- [{n}. {title}](#{_anchor(f'{n}. {title}')})")
+    first = next(j for j, ln in enumerate(out) if ln.startswith("## "))
+    return "\n".join(out[:first] + index + [""] + out[first:])
 
 
 def check(root):
@@ -39,13 +89,23 @@ def check(root):
             path = os.path.normpath(os.path.join(root, os.path.dirname(page), target))
             if not os.path.exists(path):
                 problems.append(f"{page}: link to {target}, which does not exist")
+    log = open(os.path.join(root, "docs", "decisions.md"), encoding="utf-8").read()
+    if decisions_fixed(log) != log:
+        problems.append("docs/decisions.md: entries not numbered in order or the index out of "
+                        "date (run tests/deploy/docs_check.py --root . --fix-decisions)")
     return problems
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--root", required=True)
-    problems = check(ap.parse_args().root)
+    ap.add_argument("--fix-decisions", action="store_true")
+    args = ap.parse_args()
+    if args.fix_decisions:
+        path = os.path.join(args.root, "docs", "decisions.md")
+        text = open(path, encoding="utf-8").read()
+        open(path, "w", encoding="utf-8").write(decisions_fixed(text))
+    problems = check(args.root)
     for p in problems:
         print(p)
     return 1 if problems else 0

@@ -53,7 +53,7 @@ TEST(CliParity, SharedFlagsHaveTheSameNamesValuesAndDefaults) {
   const auto a = FlagsOf(cli.out);
   const auto b = FlagsOf(client.out);
   for (const char* name :
-       {"input", "zarr-array", "follow", "expect-slices", "settle", "done-file", "out", "iso",
+       {"input", "zarr-array", "series", "follow", "expect-slices", "settle", "done-file", "out", "iso",
         "error", "alpha", "schedule", "no-simplify", "distance-guard", "sag-correction",
         "lockstep-error",
         "target-triangles", "parts", "seal", "seal-margin", "metrics", "reference", "strict", "quiet"}) {

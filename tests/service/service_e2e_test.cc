@@ -12,6 +12,7 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include <tuple>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -1514,21 +1515,29 @@ TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
 }
 
 // The README's live demo: `tandem simulate` plays a CT writing a series in shuffled bursts
-// (and a microscope growing an OME-Zarr array) while `tandem-client stream --follow` sends
-// each slice to the real server as it becomes complete. The followed stream gives exactly
-// the mesh of the finished acquisition, and its first preview is saved before the
-// simulator has written the last slice.
+// (also as other scanners do: a localizer series first, InstanceNumbers shuffled, files
+// renamed into place) and a microscope growing an OME-Zarr array, while `tandem-client
+// stream --follow` sends each slice to the real server as it becomes complete. The followed
+// stream gives exactly the mesh of the finished acquisition, and its first preview is saved
+// before the simulator has written the last slice.
 TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
   auto path = WriteSyntheticVolume(dir_, "pb", MakeSyntheticSource(Shape::kPillowBox, 48, 48, 48));
   ASSERT_TRUE(path.ok()) << path.status();
-  for (const std::string as : {"dicom", "tiff", "zarr"}) {
-    SCOPED_TRACE(as);
-    const std::string acq = dir_ + "/acq_" + as + (as == "zarr" ? ".zarr" : "");
-    const std::string previews = dir_ + "/previews_" + as;
+  const std::vector<std::string> real_ct = {"--scout", "--numbering", "random", "--temp-names",
+                                            "hidden"};
+  for (const auto& [name, as, extra] :
+       {std::tuple<std::string, std::string, std::vector<std::string>>{"dicom", "dicom", {}},
+        {"dicom_real", "dicom", real_ct},
+        {"tiff", "tiff", {}},
+        {"zarr", "zarr", {}}}) {
+    SCOPED_TRACE(name);
+    const std::string acq = dir_ + "/acq_" + name + (as == "zarr" ? ".zarr" : "");
+    const std::string previews = dir_ + "/previews_" + name;
     RunResult sim;
     std::thread instrument([&] {
-      sim = RunProcess({BinPath("tandem"), "simulate", "--input", *path, "--out", acq, "--as", as,
-                        "--rate", "20", "--burst", "6", "--done-file", "DONE"});
+      sim = RunProcess(Concat({BinPath("tandem"), "simulate", "--input", *path, "--out", acq,
+                               "--as", as, "--rate", "20", "--burst", "6", "--done-file", "DONE"},
+                              extra));
     });
     std::vector<std::string> follow = {"stream", "--server", server_->address(), "--input", acq,
                                        "--follow", "--settle", "20", "--iso", "0", "--error",
@@ -1545,6 +1554,14 @@ TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
     instrument.join();
     ASSERT_EQ(sim.exit_code, 0) << sim.err;
     ASSERT_EQ(r.exit_code, 0) << r.err;
+    if (!extra.empty()) {
+      EXPECT_NE(r.err.find("tandem-client: ignoring DICOM series 1.2.826.0.1.3680043.2.1125.7.1 "
+                           "'Scout': a localizer (ImageType LOCALIZER)"),
+                std::string::npos)
+          << r.err;
+      EXPECT_NE(r.err.find("InstanceNumbers do not follow the slice positions"), std::string::npos)
+          << r.err;
+    }
     RunResult whole = Client({"stream", "--server", server_->address(), "--input", acq, "--iso",
                               "0", "--error", "0.2", "--compression-level", "0", "--out",
                               dir_ + "/whole.drc", "--metrics", dir_ + "/whole.json"});

@@ -1,13 +1,18 @@
 #include "testutil/testutil.h"
 
+#include <unistd.h>
+
 #include <atomic>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <mutex>
 #include <vector>
 
-#include <unistd.h>
+#include "absl/strings/str_cat.h"
+#include "tandem/series.h"
 
 namespace tandem::testing {
 
@@ -94,6 +99,59 @@ double LoadValue(DType t, const uint8_t* p) {
   float f[1];
   ConvertToFloat(t, p, 1, f);
   return f[0];
+}
+
+std::string WriteLocalizer(const std::string& dir, const VolumeInfo& info, bool flagged) {
+  DicomWriteOptions o;
+  o.series_description = "Scout";
+  o.series_uid = flagged ? "1.2.826.0.1.3680043.2.1125.77.1" : "1.2.826.0.1.3680043.2.1125.77.2";
+  if (flagged) o.image_type = "ORIGINAL\\PRIMARY\\LOCALIZER";
+  o.float_max = 1.0f;
+  for (int image = 0; image < 2; ++image) {
+    const VolumeInfo grid = LocalizerGrid(info, image);
+    absl::StatusOr<DicomSliceWriter> w = DicomSliceWriter::Create(grid, o);
+    EXPECT_TRUE(w.ok()) << w.status();
+    if (!w.ok()) break;
+    const std::vector<uint8_t> zeros(grid.slice_bytes(), 0);
+    absl::Status st =
+        w->Write(absl::StrCat(dir, "/scout", flagged ? "" : "_unflagged", image + 1, ".dcm"), 0,
+                 zeros, image + 1);
+    EXPECT_TRUE(st.ok()) << st;
+  }
+  return o.series_uid;
+}
+
+std::string FileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+void WriteDoseReport(const std::string& path, const std::string& series_uid) {
+  // Explicit VR little endian elements (UI padded with a zero byte, text with a space).
+  auto element = [](uint16_t group, uint16_t elem, const char* vr, std::string value) {
+    if (value.size() % 2 == 1) value.push_back(std::string(vr) == "UI" ? '\0' : ' ');
+    std::string e;
+    for (uint16_t v : {group, elem})
+      e.append({static_cast<char>(v & 0xff), static_cast<char>(v >> 8)});
+    e.append(vr, 2);
+    const size_t n = value.size();
+    e.append({static_cast<char>(n & 0xff), static_cast<char>(n >> 8)});
+    return e + value;
+  };
+  const std::string sop_class = "1.2.840.10008.5.1.4.1.1.88.67";  // X-Ray Radiation Dose SR
+  const std::string sop = series_uid + ".1";
+  std::string meta = element(0x0002, 0x0002, "UI", sop_class) + element(0x0002, 0x0003, "UI", sop) +
+                     element(0x0002, 0x0010, "UI", "1.2.840.10008.1.2.1");
+  std::string length;
+  for (int shift = 0; shift < 32; shift += 8)
+    length.push_back(static_cast<char>(meta.size() >> shift));
+  std::string file(128, '\0');
+  file += "DICM";
+  file += std::string("\x02\x00\x00\x00UL\x04\x00", 8) + length + meta;
+  file += element(0x0008, 0x0016, "UI", sop_class) + element(0x0008, 0x0018, "UI", sop) +
+          element(0x0008, 0x0060, "CS", "SR") + element(0x0008, 0x103e, "LO", "Dose Report") +
+          element(0x0020, 0x000e, "UI", series_uid);
+  std::ofstream(path, std::ios::binary) << file;
 }
 
 SliceFn PatternSlices(const VolumeInfo& info) {

@@ -24,6 +24,9 @@ std::string SharedDataPath(const std::string& name);
 // A fresh empty directory under the system temp dir, unique per call.
 std::string MakeTempDir();
 
+// The bytes of a file ("" when it cannot be read).
+std::string FileBytes(const std::string& path);
+
 // Path of a built executable (build/bin/NAME).
 std::string BinPath(const std::string& name);
 
@@ -40,6 +43,15 @@ double LoadValue(DType t, const uint8_t* p);
 
 // Slices of PatternValue for a writer.
 SliceFn PatternSlices(const VolumeInfo& info);
+
+// Writes a localizer series into dir (which must exist), as a CT takes one before its
+// stack: a front and a side image across info's volume (LocalizerGrid, zeros), description
+// "Scout", ImageType LOCALIZER unless `flagged` is false. Returns its SeriesInstanceUID.
+std::string WriteLocalizer(const std::string& dir, const VolumeInfo& info, bool flagged = true);
+
+// Writes a DICOM object with no image (a radiation dose report, as CTs store beside their
+// series) to path: a Part 10 file holding only its series UID and a few identifiers.
+void WriteDoseReport(const std::string& path, const std::string& series_uid);
 
 // A float32 volume from a formula, slice by slice: surfaces cut by the grid's box.
 class FieldSource : public SliceSource {
