@@ -1397,6 +1397,42 @@ TEST(ServiceShutdown, DrainDelayKeepsServingWhileNotReady) {
   EXPECT_NE(log.find("stopped"), std::string::npos) << log;
 }
 
+// From SIGTERM to the exit, health checks get answers: "" and tandem.v1.Tandem NOT_SERVING,
+// "liveness" SERVING, after the drain delay too, while a running stream finishes (gRPC has
+// stopped listening then: a stand-in answers on the port); a new stream is refused with
+// UNAVAILABLE; the running one ends OK and the server exits 0.
+TEST(ServiceShutdown, HealthAnswersNotServingUntilTheExit) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--drain-delay-seconds", "0.5", "--grace-seconds", "30"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  auto client = StartPacedStream(s, dir, 32, 80, 20);  // 4 s of scan
+  ASSERT_TRUE(client);
+  const auto signalled = std::chrono::steady_clock::now();
+  s.process().Signal(SIGTERM);
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));  // past the delay
+  auto stub = s.NewStub();
+  const StreamOutcome refused = RunStream(*stub, ShapeRequests(Shape::kSphere, 16, 16));
+  EXPECT_EQ(refused.status.error_code(), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_NE(refused.status.error_message().find("shutting down"), std::string::npos)
+      << refused.status.error_message();
+  int checks = 0;
+  while (!client->Wait(0).has_value() &&
+         std::chrono::steady_clock::now() - signalled < std::chrono::seconds(20)) {
+    EXPECT_EQ(s.Health(), "NOT_SERVING");
+    EXPECT_EQ(s.Health("tandem.v1.Tandem"), "NOT_SERVING");
+    EXPECT_EQ(s.Health("liveness"), "SERVING");
+    ++checks;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  EXPECT_GE(checks, 3) << "the stream ended too soon for this test to mean anything";
+  EXPECT_EQ(client->Wait(30), 0) << client->Stderr();
+  EXPECT_EQ(s.process().Wait(30), 0) << s.process().Stderr();
+  const std::string log = s.process().Stderr();
+  EXPECT_NE(log.find("status=OK"), std::string::npos) << log;
+  EXPECT_EQ(log.find("health checks go unanswered"), std::string::npos) << log;
+}
+
 // A second signal cuts the drain delay short.
 TEST(ServiceShutdown, SecondSignalEndsTheDrainDelay) {
   auto server = TestServer::Start({"--drain-delay-seconds", "60"});
