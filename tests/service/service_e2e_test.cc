@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <string_view>
 #include <functional>
 #include <map>
 #include <set>
@@ -42,9 +43,10 @@ std::string ReadFile(const std::string& path) {
   return ss.str();
 }
 
-RunResult Client(std::vector<std::string> args, double timeout_s = 120) {
+RunResult Client(std::vector<std::string> args, double timeout_s = 120,
+                 const std::vector<std::string>& env = {}) {
   args.insert(args.begin(), BinPath("tandem-client"));
-  return RunProcess(args, timeout_s);
+  return RunProcess(args, timeout_s, env);
 }
 
 std::vector<std::string> HeadArgs(const std::string& server, const std::string& input) {
@@ -840,13 +842,16 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
   EXPECT_LE(late_updates, 2 * next_index + 2);
 }
 
-// Resume. The ID:TOKEN a streaming client prints for --resume ("" until it has).
+// Resume. The ID:TOKEN a streaming client prints for TANDEM_RESUME ("" until it has): in a
+// variable, not as --resume, whose value every user could read on the command line.
 std::string ResumeKey(const std::string& err) {
-  const size_t at = err.find("--resume ");
+  constexpr std::string_view kHint = "run the same command with TANDEM_RESUME=";
+  const size_t at = err.find(kHint);
   if (at == std::string::npos) return "";
-  const size_t end = err.find('\n', at);
+  const size_t begin = at + kHint.size();
+  const size_t end = err.find(' ', begin);
   if (end == std::string::npos) return "";
-  return err.substr(at + 9, end - at - 9);
+  return err.substr(begin, end - begin);
 }
 
 // Starts `tandem-client ARGS` in `dir` and waits (bounded) for the ID:TOKEN it prints.
@@ -988,9 +993,19 @@ TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh)
     EXPECT_NE(info.out.find(id + "  waiting for its client to resume"), std::string::npos)
         << info.out;
 
-    RunResult resumed = Client(Concat(base, {"--resume", key, "--out", dir_ + "/resumed_" + tag + ".ply",
-                                             "--metrics", dir_ + "/resumed_" + tag + ".json"}));
+    // The key from the variable (plain) or from a file (sealed), not on the command line.
+    std::vector<std::string> args = Concat(base, {"--out", dir_ + "/resumed_" + tag + ".ply",
+                                                  "--metrics", dir_ + "/resumed_" + tag + ".json"});
+    std::vector<std::string> env;
+    if (seal) {
+      std::ofstream(dir_ + "/resume.txt") << key << "\n";
+      args = Concat(args, {"--resume-file", dir_ + "/resume.txt"});
+    } else {
+      env.push_back("TANDEM_RESUME=" + key);
+    }
+    RunResult resumed = Client(args, 120, env);
     ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    EXPECT_EQ(resumed.err.find("warning"), std::string::npos) << resumed.err;
     EXPECT_NE(resumed.err.find("tandem-client: session " + id + " resumed at slice"),
               std::string::npos)
         << resumed.err;
@@ -1238,8 +1253,14 @@ TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
     ASSERT_TRUE(WaitForSession(holder, id,
                                [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
     const std::string out = dir + "/resumed" + std::to_string(round) + ".ply";
+    // --resume on the command line still works, with a warning that others can read it.
     RunResult resumed = Client(Concat(base, {"--resume", key, "--out", out}));
     ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    EXPECT_NE(resumed.err.find("tandem-client: warning: --resume on the command line can be read "
+                               "by every user of this machine (ps); use --resume-file FILE or "
+                               "$TANDEM_RESUME instead"),
+              std::string::npos)
+        << resumed.err;
     ExpectSameMesh(dir + "/whole.ply", out);
   }
 }
