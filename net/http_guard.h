@@ -86,7 +86,8 @@ class GuardedHttpServer : public httplib::Server {
   class ConnStream;
 
   // cpp-httplib calls this for every accepted socket (on the accept thread, through an
-  // inline task queue): the socket goes to the reactor.
+  // inline task queue): the socket goes to the reactor. (A private virtual of cpp-httplib
+  // 0.11, Debian 12's, as process_request is its protected parser: re-check on an upgrade.)
   bool process_and_close_socket(socket_t sock) override;
   // The checks above; true = go on to the routes. Fills `res` otherwise.
   bool Admit(const httplib::Request& req, httplib::Response& res);
