@@ -25,7 +25,7 @@ void LiveView::AddFlags(cli::FlagSet& flags, const std::string& listen) {
   if (!listen.empty()) {  // tandem-client view: the address is what it is for
     flags.AddString("listen", &listen_, "HOST:PORT", "the same as --view");
   }
-  flags.AddString("view-token", &token_, "TOKEN",
+  flags.AddSecret("view-token", &token_, "TOKEN", "TANDEM_VIEW_TOKEN",
                   "--view: the page and its data need ?token=TOKEN (for an address other "
                   "than loopback, which has no other protection)");
   flags.AddDouble("view-linger", &linger_s_,
@@ -50,7 +50,8 @@ absl::Status LiveView::Start(const std::string& description, int64_t nz) {
       token_.empty()) {
     absl::FPrintF(stderr,
                   "tandem-client: warning: the viewer on %s has no authentication: anyone who "
-                  "can reach it sees the mesh (add --view-token TOKEN)\n",
+                  "can reach it sees the mesh (add --view-token-file FILE or "
+                  "$TANDEM_VIEW_TOKEN)\n",
                   listen_);
   }
   absl::FPrintF(stderr, "tandem-client: viewer at %s\n", server_->url());

@@ -16,8 +16,9 @@ namespace tandem::client {
 
 class LiveView {
  public:
-  // --view ADDR, --view-token, --view-linger. `listen`: the default address ("" = off;
-  // when set, --listen is accepted as another name of --view).
+  // --view ADDR, --view-token (or --view-token-file, $TANDEM_VIEW_TOKEN), --view-linger.
+  // `listen`: the default address ("" = off; when set, --listen is accepted as another name
+  // of --view).
   void AddFlags(cli::FlagSet& flags, const std::string& listen = "");
   bool on() const { return !listen_.empty(); }
   // Starts serving (when on) and prints the address on stderr, with a warning when it is

@@ -59,7 +59,9 @@ constexpr char kMainUsage[] =
     "  --version  print the version and git revision\n"
     "environment: TANDEM_SERVER, TANDEM_TLS_CA, TANDEM_TLS_SERVER_NAME, TANDEM_TOKEN_FILE (as\n"
     "the flags), TANDEM_TOKEN (the bearer token itself; --token-file wins; never a flag,\n"
-    "since command lines are visible to every user of the machine)";
+    "since command lines are visible to every user of the machine); likewise the viewer's\n"
+    "token TANDEM_VIEW_TOKEN (or --view-token-file) and stream's TANDEM_RESUME (or\n"
+    "--resume-file), which as flags work but draw a warning";
 
 // A failure here, with no server involved (a file that cannot be read or written): its
 // message, without a gRPC code.
@@ -327,7 +329,7 @@ int StreamCommand(int argc, char** argv) {
   flags.AddString("chunks", &chunks_dir, "DIR",
                   "--seal (implied): also save every sealed chunk as it arrives, "
                   "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute)");
-  flags.AddString("resume", &resume, "ID:TOKEN",
+  flags.AddSecret("resume", &resume, "ID:TOKEN", "TANDEM_RESUME",
                   "continue the session ID, whose client was stopped or lost its connection "
                   "(the server keeps it for --resume-window-seconds): the same VOLUME is read "
                   "from its start and the slices the session has are skipped; ID:TOKEN is what "
@@ -378,7 +380,7 @@ int StreamCommand(int argc, char** argv) {
     if (colon != std::string::npos) resume_token = resume.substr(colon + 1);
     if (resume_id.empty() || resume_token.empty()) {
       absl::FPrintF(stderr, "tandem-client: --resume: expected ID:TOKEN (as the first client "
-                            "printed it), got '%s'\n", resume);
+                            "printed it), got no ':' or an empty side\n");
       return 2;
     }
   }
@@ -465,7 +467,10 @@ int StreamCommand(int argc, char** argv) {
     if (f.quiet) {
       // no notes
     } else if (!p.session_id().empty() && !p.resume_token().empty()) {  // the session's first
-      absl::FPrintF(stderr, "tandem-client: session %s%s; resume it after a crash with --resume %s:%s\n",
+      // The variable, not --resume: a command line is readable by every user.
+      absl::FPrintF(stderr,
+                    "tandem-client: session %s%s; to resume it after a crash, run the same "
+                    "command with TANDEM_RESUME=%s:%s in its environment\n",
                     p.session_id(),
                     seal ? absl::StrCat(" (tandem-client watch --session ", p.session_id(), ")")
                          : "",

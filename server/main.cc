@@ -2,9 +2,10 @@
 // This file only parses flags, builds the server and handles SIGTERM/SIGINT: it marks the
 // server NOT_SERVING (health service "" and tandem.v1.Tandem; "liveness" stays SERVING),
 // keeps accepting streams for --drain-delay-seconds (load balancers notice meanwhile; a
-// second signal cuts the delay short), then stops accepting, lets running streams finish
-// for --grace-seconds, ends the rest with UNAVAILABLE, waits for their worker threads, and
-// exits 0.
+// second signal cuts the delay short), then stops accepting (a stand-in keeps answering
+// health checks the same way on the port until the exit: server/drain_stand_in.h), lets
+// running streams finish for --grace-seconds, ends the rest with UNAVAILABLE, waits for
+// their worker threads, and exits 0.
 #include <malloc.h>  // mallopt (glibc)
 #include <pthread.h>
 #include <signal.h>
@@ -26,7 +27,6 @@
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
-#include <httplib.h>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -36,6 +36,9 @@
 #include "cli/flags.h"
 #include "common/tokens.h"
 #include "common/wire.h"
+#include "net/http_guard.h"
+#include "net/listen.h"
+#include "server/drain_stand_in.h"
 #include "server/log.h"
 #include "server/request_validation.h"
 #include "server/tandem_service.h"
@@ -92,7 +95,9 @@ int main(int argc, char** argv) {
                 "own start and stop lines still go out)");
   flags.AddString("metrics-listen", &metrics_listen, "HOST:PORT",
                   "serve Prometheus metrics (text format) at http://HOST:PORT/metrics, no "
-                  "authentication (port 0 = any free port; empty = off)");
+                  "authentication: bind it to loopback or where only Prometheus reaches it "
+                  "(GET only, no request body, Host header checked; port 0 = any free port; "
+                  "empty = off)");
   flags.AddString("tls-cert", &tls_cert, "FILE",
                   "PEM certificate chain: serve TLS instead of plaintext (needs --tls-key)");
   flags.AddString("tls-key", &tls_key, "FILE", "PEM private key of --tls-cert");
@@ -280,6 +285,28 @@ int main(int argc, char** argv) {
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   const size_t token_count = tokens.size();
   tandem::server::TandemService service(limits, std::move(tokens), tls);
+  // HOST:PORT of --listen, for messages ("" and -1 when it is not of that form).
+  const std::string host = listen.substr(0, listen.rfind(':'));
+  std::string bare_host = host;
+  if (bare_host.size() >= 2 && bare_host.front() == '[' && bare_host.back() == ']') {
+    bare_host = bare_host.substr(1, bare_host.size() - 2);
+  }
+  int wanted_port = -1;
+  if (listen.find(':') == std::string::npos ||
+      !absl::SimpleAtoi(listen.substr(listen.rfind(':') + 1), &wanted_port)) {
+    wanted_port = -1;
+  }
+  auto cannot_listen = [&] {
+    tandem::server::LogLine(absl::StrFormat(
+        "cannot listen on --listen %s: %s", listen,
+        wanted_port >= 0 ? tandem::net::DescribeBindFailure(bare_host, wanted_port)
+                         : std::string("expected HOST:PORT")));
+    return 1;
+  };
+  // A port another process listens on is refused here, before gRPC logs its own error.
+  if (wanted_port > 0 && tandem::net::ListenError(bare_host, wanted_port) != 0) {
+    return cannot_listen();
+  }
   grpc::ServerBuilder builder;
   int port = 0;
   builder.AddListeningPort(listen, credentials, &port);
@@ -302,22 +329,20 @@ int main(int argc, char** argv) {
   // outside every budget: 4 full-resolution streams at --session-memory-mb 80 peaked at up
   // to 394 MiB against the 371 MiB the budgets allow (without probing, 259-303 MiB).
   builder.AddChannelArgument(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  // gRPC binds with SO_REUSEPORT by default: a second server on a port another one listens on
+  // would start too, and the kernel would split new connections between them.
+  builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
   builder.AddChannelArgument(
       GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES,
       static_cast<int>(std::min<int64_t>(limits.max_inflight_bytes, int64_t{1} << 30)));
   builder.RegisterService(&service);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
-  if (server == nullptr || port == 0) {
-    tandem::server::LogLine(
-        absl::StrFormat("cannot listen on %s (address in use or invalid?)", listen));
-    return 1;
-  }
+  if (server == nullptr || port == 0) return cannot_listen();
   // Kubernetes probes: readiness checks "" (NOT_SERVING from the first signal on),
   // liveness checks "liveness" (SERVING until the process exits).
   server->GetHealthCheckService()->SetServingStatus("liveness", true);
   server->GetHealthCheckService()->SetServingStatus(tandem::v1::Tandem::service_full_name(),
                                                     true);
-  const std::string host = listen.substr(0, listen.rfind(':'));
   absl::PrintF("listening on %s:%d\n", host, port);
   std::fflush(stdout);
   tandem::server::LogLine(
@@ -332,9 +357,8 @@ int main(int argc, char** argv) {
                         "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network"));
   }
 
-  // The metrics endpoint: its own small HTTP server (cpp-httplib), two threads.
-  std::unique_ptr<httplib::Server> http;
-  std::thread http_thread;
+  // The metrics endpoint: its own small HTTP server (cpp-httplib behind net/http_guard.h).
+  std::unique_ptr<tandem::net::GuardedHttpServer> http;
   if (!metrics_listen.empty()) {
     const size_t colon = metrics_listen.rfind(':');
     int mport = -1;
@@ -350,27 +374,24 @@ int main(int argc, char** argv) {
       server->Shutdown();
       return 2;
     }
-    http = std::make_unique<httplib::Server>();
-    http->new_task_queue = [] { return new httplib::ThreadPool(2); };
+    http = std::make_unique<tandem::net::GuardedHttpServer>();
     http->Get("/metrics", [&service](const httplib::Request&, httplib::Response& res) {
       res.set_content(service.MetricsText(), "text/plain; version=0.0.4; charset=utf-8");
     });
-    mport = mport == 0 ? http->bind_to_any_port(mhost)
-                       : (http->bind_to_port(mhost, mport) ? mport : -1);
-    if (mport <= 0) {
-      tandem::server::LogLine(absl::StrFormat("cannot listen on --metrics-listen %s",
-                                              tandem::server::LogQuoted(metrics_listen)));
+    absl::StatusOr<int> bound = http->Start(mhost, mport);
+    if (!bound.ok()) {
+      tandem::server::LogLine(absl::StrCat("--metrics-listen: ", bound.status().message()));
       server->Shutdown();
       return 1;
     }
-    http_thread = std::thread([&http] { http->listen_after_bind(); });
     tandem::server::LogLine(absl::StrFormat("metrics on http://%s:%d/metrics",
                                             colon > 0 && metrics_listen[0] == '['
                                                 ? absl::StrCat("[", mhost, "]")
                                                 : mhost,
-                                            mport));
+                                            *bound));
   }
 
+  std::unique_ptr<tandem::server::DrainStandIn> stand_in;  // from the end of the drain delay
   std::thread signal_thread([&] {
     int sig = 0;
     sigwait(&signals, &sig);
@@ -412,6 +433,12 @@ int main(int argc, char** argv) {
       server->Shutdown(std::chrono::system_clock::now() + seconds(grace_seconds + 5));
       shutdown_done = true;
     });
+    stand_in = tandem::server::DrainStandIn::Start(host, port, credentials, absl::Seconds(2));
+    if (stand_in == nullptr) {
+      tandem::server::LogLine(absl::StrFormat(
+          "%s:%d was taken by another process while draining: health checks go unanswered",
+          host, port));
+    }
     while (service.CountersSnapshot().active_sessions() > 0 &&
            std::chrono::steady_clock::now() < deadline) {
       if (another_signal(0.05)) break;  // yet another signal: end the streams now
@@ -450,10 +477,7 @@ int main(int argc, char** argv) {
   });
   server->Wait();
   signal_thread.join();
-  if (http) {
-    http->stop();
-    http_thread.join();
-  }
+  if (http) http->Stop();
   // Workers notice the cancellation between slices; a slice takes well under a second.
   if (!service.WaitForWorkers(absl::Now() + absl::Seconds(30))) {
     tandem::server::LogLine(absl::StrFormat("worker threads still busy after 30 s; exiting"));

@@ -4,26 +4,27 @@
 #include "viewer/view_server.h"
 
 #include <httplib.h>
-#include <netdb.h>
-#include <sys/socket.h>
-#include <unistd.h>
 
 #include <atomic>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <random>
 #include <sstream>
-#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "absl/strings/strip.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
+#include "net/http_guard.h"
 
 namespace tandem::viewer {
 namespace fs = std::filesystem;
@@ -62,34 +63,48 @@ bool SafeRelative(const std::string& rel) {
   return true;
 }
 
-// Whether nobody listens on host:port. cpp-httplib binds with SO_REUSEPORT, which lets a
-// second server bind a port another one listens on (and then shares its connections), so
-// the port is tried first with a plain socket.
-bool PortFree(const std::string& host, int port) {
-  addrinfo hints{};
-  hints.ai_socktype = SOCK_STREAM;
-  hints.ai_flags = AI_PASSIVE;
-  addrinfo* found = nullptr;
-  if (getaddrinfo(host.c_str(), std::to_string(port).c_str(), &hints, &found) != 0) return true;
-  bool free = true;
-  for (addrinfo* a = found; a != nullptr && free; a = a->ai_next) {
-    const int fd = socket(a->ai_family, a->ai_socktype | SOCK_CLOEXEC, a->ai_protocol);
-    if (fd < 0) continue;
-    if (bind(fd, a->ai_addr, a->ai_addrlen) != 0 && errno == EADDRINUSE) free = false;
-    close(fd);
+// Event streams hold a worker each while open; the others stay for the page's requests.
+constexpr int kWorkers = 16;
+constexpr int kMaxEventStreams = kWorkers - 4;
+
+net::HttpLimits ViewLimits() {
+  net::HttpLimits limits;
+  limits.workers = kWorkers;
+  return limits;
+}
+
+// A fresh random value, for the cookie a browser that showed the token gets.
+std::string RandomHex() {
+  std::random_device random;
+  std::string out;
+  for (int i = 0; i < 4; ++i) absl::StrAppend(&out, absl::Hex(random(), absl::kZeroPad8));
+  return out;
+}
+
+// The value of cookie `name` in a Cookie header ("" when absent).
+std::string CookieValue(const std::string& header, const std::string& name) {
+  for (absl::string_view part : absl::StrSplit(header, ';')) {
+    part = absl::StripAsciiWhitespace(part);
+    if (absl::ConsumePrefix(&part, name) && absl::ConsumePrefix(&part, "=")) {
+      return std::string(part);
+    }
   }
-  freeaddrinfo(found);
-  return free;
+  return "";
 }
 
 struct Impl {
   ViewOptions options;
   std::string assets, three, host;
   int port = 0;
-  httplib::Server http;
-  std::thread thread;
+  // With a token: the cookie a request that showed it gets, so that the page's scripts,
+  // styles and three.js (loaded without ?token=) pass too. Named after the port (cookies
+  // are per host, not per port: two viewers must not overwrite each other's); its value is
+  // not the token.
+  std::string cookie_value;
+  net::GuardedHttpServer http{ViewLimits()};
   std::atomic<bool> stopping{false};
   std::atomic<int64_t> connections{0};
+  std::atomic<int> event_streams{0};  // open now
 
   mutable absl::Mutex mu;
   int64_t version ABSL_GUARDED_BY(mu) = 0;
@@ -107,33 +122,47 @@ struct Impl {
     absl::MutexLock lock(&mu);
     return state.dump();
   }
-  bool Authorized(const httplib::Request& req) const {
+  // Responses that never change: cached for good, by the browser only when they need the
+  // token (a shared cache would hand them out without it).
+  const char* Immutable() const {
+    return options.token.empty() ? "public, max-age=31536000, immutable"
+                                 : "private, max-age=31536000, immutable";
+  }
+  // The token check (every path, the page's files included): ?token=, Authorization:
+  // Bearer, or the cookie.
+  bool Authorized(const httplib::Request& req, httplib::Response& res) const {
     if (options.token.empty()) return true;
-    if (req.get_param_value("token") == options.token) return true;
-    return req.get_header_value("Authorization") == "Bearer " + options.token;
+    const std::string cookie_name = absl::StrCat("tandem_view_", req.local_port);
+    if (req.get_param_value("token") == options.token) {
+      if (req.path == "/") {  // the page: what it loads next comes without the query
+        res.set_header("Set-Cookie", absl::StrCat(cookie_name, "=", cookie_value,
+                                                  "; Path=/; HttpOnly; SameSite=Strict"));
+      }
+      return true;
+    }
+    if (req.get_header_value("Authorization") == "Bearer " + options.token ||
+        CookieValue(req.get_header_value("Cookie"), cookie_name) == cookie_value) {
+      return true;
+    }
+    res.status = 401;
+    res.set_content("this viewer needs its token (?token=... or Authorization: Bearer ...)\n",
+                    "text/plain");
+    return false;
   }
   void Routes();
 };
 
 void Impl::Routes() {
-  http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
-    // The page and three.js are public code; the session's data needs the token.
-    const bool data = req.path == "/state.json" || req.path == "/events" ||
-                      absl::StartsWith(req.path, "/chunk/") ||
-                      absl::StartsWith(req.path, "/band/") || absl::StartsWith(req.path, "/file/");
-    if (!data || Authorized(req)) return httplib::Server::HandlerResponse::Unhandled;
-    res.status = 401;
-    res.set_content("this viewer needs its token (?token=... or Authorization: Bearer ...)\n",
-                    "text/plain");
-    return httplib::Server::HandlerResponse::Handled;
+  http.set_gate([this](const httplib::Request& req, httplib::Response& res) {
+    return Authorized(req, res);
   });
-  auto serve_file = [](const fs::path& path, httplib::Response& res, bool immutable) {
+  auto serve_file = [this](const fs::path& path, httplib::Response& res, bool immutable) {
     std::string bytes;
     if (!ReadWhole(path, &bytes)) {
       res.status = 404;
       return;
     }
-    if (immutable) res.set_header("Cache-Control", "public, max-age=31536000, immutable");
+    if (immutable) res.set_header("Cache-Control", Immutable());
     res.set_content(std::move(bytes), ContentType(path.string()));
   };
   http.Get("/", [this, serve_file](const httplib::Request&, httplib::Response& res) {
@@ -169,7 +198,7 @@ void Impl::Routes() {
       res.status = 404;
       return;
     }
-    res.set_header("Cache-Control", "public, max-age=31536000, immutable");
+    res.set_header("Cache-Control", Immutable());
     res.set_content(*bytes, "application/octet-stream");
   });
   http.Get(R"(/band/(\d+)\.drc)", [this](const httplib::Request& req, httplib::Response& res) {
@@ -183,7 +212,7 @@ void Impl::Routes() {
       res.status = 404;  // superseded: the state names the current one
       return;
     }
-    res.set_header("Cache-Control", "public, max-age=31536000, immutable");
+    res.set_header("Cache-Control", Immutable());
     res.set_content(*bytes, "application/octet-stream");
   });
   http.Get(R"(/file/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
@@ -200,29 +229,42 @@ void Impl::Routes() {
     res.set_content(*bytes, ContentType(std::string(req.matches[1])));
   });
   http.Get("/events", [this](const httplib::Request&, httplib::Response& res) {
+    if (event_streams.fetch_add(1) >= kMaxEventStreams) {
+      event_streams.fetch_sub(1);
+      res.status = 503;
+      res.set_header("Retry-After", "5");
+      res.set_content("too many viewer pages are open at once\n", "text/plain");
+      return;
+    }
     connections.fetch_add(1);
     res.set_header("Cache-Control", "no-store");
     auto sent = std::make_shared<int64_t>(-1);
     res.set_chunked_content_provider(
         "text/event-stream", [this, sent](size_t, httplib::DataSink& sink) {
           // One event per call: the state when it changed, or a comment every 15 s (keeps
-          // proxies from closing an idle stream and notices a browser that left).
+          // proxies from closing an idle stream). A page that left is noticed within a
+          // second (is_writable turns false), so that its worker is free again.
+          const absl::Time keep_alive = absl::Now() + absl::Seconds(15);
           std::string text;
-          {
-            absl::MutexLock lock(&mu);
-            auto changed = [this, sent]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu) {
-              return version != *sent || stopping.load();
-            };
-            mu.AwaitWithTimeout(absl::Condition(&changed), absl::Seconds(15));
-            if (stopping.load()) return false;
-            if (version != *sent) {
-              *sent = version;
-              text = absl::StrCat("data: ", state.dump(), "\n\n");
+          while (text.empty()) {
+            {
+              absl::MutexLock lock(&mu);
+              auto changed = [this, sent]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu) {
+                return version != *sent || stopping.load();
+              };
+              mu.AwaitWithTimeout(absl::Condition(&changed), absl::Seconds(1));
+              if (stopping.load()) return false;
+              if (version != *sent) {
+                *sent = version;
+                text = absl::StrCat("data: ", state.dump(), "\n\n");
+              }
             }
+            if (text.empty() && !sink.is_writable()) return false;
+            if (text.empty() && absl::Now() >= keep_alive) text = ": keep-alive\n\n";
           }
-          if (text.empty()) text = ": keep-alive\n\n";
           return sink.write(text.data(), text.size());
-        });
+        },
+        [this](bool) { event_streams.fetch_sub(1); });
   });
 }
 
@@ -273,28 +315,14 @@ absl::StatusOr<std::unique_ptr<ViewServer>> Start(const ViewOptions& options) {
                        {"band", nullptr},       {"files", json::array()},
                        {"finished", false},     {"error", ""},           {"metrics", nullptr}};
   }
-  // Event streams hold a thread each while open; 16 is plenty for a few browsers.
-  impl->http.new_task_queue = [] { return new httplib::ThreadPool(16); };
+  impl->cookie_value = RandomHex();
   impl->Routes();
-  int port = impl->port;
-  if (port == 0) {
-    port = impl->http.bind_to_any_port(impl->host);
-    if (port < 0) port = 0;
-  } else if (!PortFree(impl->host, port) || !impl->http.bind_to_port(impl->host, port)) {
-    port = 0;
+  absl::StatusOr<int> port = impl->http.Start(impl->host, impl->port);
+  if (!port.ok()) {
+    return absl::UnavailableError(absl::StrCat("the viewer ", port.status().message(),
+                                               "; choose another with --view HOST:PORT"));
   }
-  if (port == 0) {
-    return absl::UnavailableError(absl::StrCat(
-        "cannot serve the viewer on ", options.listen, ": ",
-        impl->port != 0 ? absl::StrCat("port ", impl->port, " is in use (another viewer?) or ")
-                        : "",
-        "the address is not this machine's; choose another with --view HOST:PORT"));
-  }
-  impl->port = port;
-  Impl* raw = impl.get();
-  impl->thread = std::thread([raw] { raw->http.listen_after_bind(); });
-  // Until the loop runs, stop() would not reach it (and the destructor would wait forever).
-  for (int i = 0; i < 500 && !impl->http.is_running(); ++i) absl::SleepFor(absl::Milliseconds(10));
+  impl->port = *port;
   return std::unique_ptr<ViewServer>(new HttpViewServer(std::move(impl)));
 }
 
@@ -304,8 +332,7 @@ HttpViewServer::~HttpViewServer() {
     absl::MutexLock lock(&impl_->mu);  // wakes the event streams
     impl_->ChangedLocked();
   }
-  impl_->http.stop();
-  if (impl_->thread.joinable()) impl_->thread.join();
+  impl_->http.Stop();
 }
 
 std::string HttpViewServer::url() const {

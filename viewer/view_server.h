@@ -14,8 +14,11 @@
 // A page that reloads, or a browser that connects late, reads the state and fetches every
 // chunk by index: nothing is pushed but the small state. No gRPC, Protobuf or Draco here:
 // the bytes are served as they came, the browser decodes them.
-// With a token (--view-token), every request needs `Authorization: Bearer TOKEN` or
-// `?token=TOKEN` (EventSource cannot set headers; the page forwards its own URL's token).
+// With a token (--view-token-file, $TANDEM_VIEW_TOKEN), every request, the page's own files
+// included, needs `Authorization: Bearer TOKEN`, `?token=TOKEN` (EventSource cannot set
+// headers; the page forwards its own URL's token) or the cookie the page got with it (for
+// the scripts, styles and three.js it loads). The HTTP rules of net/http_guard.h apply:
+// GET/HEAD only, no request body, one range, the Host header checked, slow clients cut off.
 #ifndef TANDEM_VIEWER_VIEW_SERVER_H_
 #define TANDEM_VIEWER_VIEW_SERVER_H_
 
@@ -50,9 +53,10 @@ bool IsLoopback(const std::string& host);
 // (core/io/module_loader.h). The programs see only this interface.
 class ViewServer {
  public:
-  // Loads the module (the first time), binds (an error names the address: "127.0.0.1:8080
-  // is in use ...") and serves on a thread of its own until destroyed. Without the module,
-  // FailedPrecondition naming the places searched.
+  // Loads the module (the first time), binds (an error names the address: "the viewer
+  // cannot listen on 127.0.0.1:8080: port 8080 is in use by another process; ...") and
+  // serves on threads of its own until destroyed. Without the module, FailedPrecondition
+  // naming the places searched.
   static absl::StatusOr<std::unique_ptr<ViewServer>> Start(const ViewOptions& options);
   virtual ~ViewServer() = default;
   virtual std::string url() const = 0;  // http://HOST:PORT/ (with ?token= when one is set)

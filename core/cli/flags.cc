@@ -1,8 +1,11 @@
 #include "cli/flags.h"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
+#include <fstream>
 #include <map>
 
 #include <CLI/CLI.hpp>
@@ -36,6 +39,21 @@ void FlagSet::AddBool(const std::string& name, bool* var, const std::string& hel
   Add(Flag{name, "", help, *var ? "true" : "false", Kind::kBool, var, false, false, ""});
 }
 
+void FlagSet::AddSecret(const std::string& name, std::string* var, const std::string& value_name,
+                        const std::string& env, const std::string& help) {
+  secret_files_.emplace_back();
+  Flag value{name, value_name,
+             absl::StrCat(help, " (on the command line other users can read it: prefer --",
+                          name, "-file or $", env, ")"),
+             "", Kind::kString, var, false, false, env};
+  value.secret_file = &secret_files_.back();
+  Add(std::move(value));
+  Add(Flag{name + "-file", "FILE",
+           absl::StrCat("read --", name, " from FILE (its first line that is not blank or a "
+                        "#comment)"),
+           "", Kind::kString, &secret_files_.back(), false, false, ""});
+}
+
 void FlagSet::SetDefaultText(const std::string& name, const std::string& text) {
   if (Flag* f = Find(name)) f->default_text = text;
 }
@@ -43,6 +61,7 @@ void FlagSet::SetDefaultText(const std::string& name, const std::string& text) {
 void FlagSet::UseEnvironment(const std::string& prefix, const std::vector<std::string>& names) {
   for (Flag& f : flags_) {
     if (!names.empty() && std::find(names.begin(), names.end(), f.name) == names.end()) continue;
+    if (f.secret_file != nullptr) continue;  // its own variable
     std::string env = prefix + f.name;
     for (char& c : env) c = c == '-' ? '_' : absl::ascii_toupper(static_cast<unsigned char>(c));
     f.env = env;
@@ -167,9 +186,57 @@ absl::Status FlagSet::Parse(int argc, char** argv, int first) {
     if (absl::Status st = Set(f, values.back(), source); !st.ok()) return st;
   }
   if (help_requested_) return absl::OkStatus();
+  const std::string program = first > 0 && argc > 0 ? argv[0] : "";
+  if (absl::Status st = ResolveSecrets(args, program.substr(program.rfind('/') + 1)); !st.ok()) {
+    return st;
+  }
   for (const Flag& f : flags_) {
     if (f.required && !f.set) {
       return absl::InvalidArgumentError(absl::StrCat("missing --", f.name, " (see --help)"));
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::Status FlagSet::ResolveSecrets(const std::vector<std::string>& args,
+                                     const std::string& program) {
+  auto on_line = [&](const std::string& name) {
+    for (const std::string& a : args) {
+      if (a == "--" + name || a.rfind("--" + name + "=", 0) == 0) return true;
+    }
+    return false;
+  };
+  for (Flag& f : flags_) {
+    if (f.secret_file == nullptr) continue;
+    const std::string& file = *f.secret_file;
+    if (!file.empty()) {
+      if (on_line(f.name)) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--", f.name, " and --", f.name, "-file: give one of them"));
+      }
+      std::ifstream in(file);
+      if (!in) {
+        return absl::InvalidArgumentError(absl::StrCat("--", f.name, "-file ", file,
+                                                       ": cannot open (", std::strerror(errno),
+                                                       ")"));
+      }
+      std::string line, value;
+      while (value.empty() && std::getline(in, line)) {
+        const absl::string_view v = absl::StripAsciiWhitespace(line);
+        if (!v.empty() && v[0] != '#') value = std::string(v);
+      }
+      if (value.empty()) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "--", f.name, "-file ", file, ": no value in it (blank lines and #comments only)"));
+      }
+      *static_cast<std::string*>(f.var) = value;
+      f.set = true;
+    } else if (on_line(f.name)) {
+      warnings_.push_back(absl::StrCat(
+          "--", f.name, " on the command line can be read by every user of this machine (ps); "
+          "use --", f.name, "-file FILE or $", f.env, " instead"));
+      absl::FPrintF(stderr, "%s: warning: %s\n", program.empty() ? "tandem" : program,
+                    warnings_.back());
     }
   }
   return absl::OkStatus();

@@ -906,7 +906,7 @@ int View(int argc, char** argv) {
   double linger_s = -1;
   cli::FlagSet flags(kViewUsage);
   flags.AddString("view", &listen, "HOST:PORT", "where the page is served (port 0 = any free one)");
-  flags.AddString("view-token", &token, "TOKEN",
+  flags.AddSecret("view-token", &token, "TOKEN", "TANDEM_VIEW_TOKEN",
                   "the page and its data need ?token=TOKEN (for an address other than "
                   "loopback, which has no other protection)");
   flags.AddDouble("linger", &linger_s, "serve for this many seconds, then exit (< 0 = until Ctrl-C)",
@@ -966,7 +966,8 @@ int View(int argc, char** argv) {
   if (viewer::ParseListen(options.listen, &host, &port).ok() && !viewer::IsLoopback(host) &&
       options.token.empty()) {
     std::fprintf(stderr, "tandem view: warning: %s has no authentication: anyone who can reach "
-                         "it sees the mesh (add --view-token TOKEN)\n", options.listen.c_str());
+                         "it sees the mesh (add --view-token-file FILE or $TANDEM_VIEW_TOKEN)\n",
+                 options.listen.c_str());
   }
   std::fprintf(stderr, "tandem view: %s at %s%s\n", path.c_str(), (*server)->url().c_str(),
                linger_s < 0 ? " (Ctrl-C to quit)" : "");

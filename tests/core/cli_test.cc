@@ -574,6 +574,42 @@ TEST_F(Cli, LoadsTheViewerModuleOnlyForTheViewer) {
   served(run(lonely, view));
 }
 
+// tandem view takes its token from a file or $TANDEM_VIEW_TOKEN, off the command line that
+// every user of the machine can read; --view-token still works there, with a warning.
+TEST_F(Cli, TheViewersTokenComesFromAFileOrTheEnvironment) {
+  ASSERT_EQ(RunTandem("generate sphere --size 16 --out " + Path("s.json")).code, 0);
+  ASSERT_EQ(RunTandem("extract --input " + Path("s.json") + " --iso 0 --out " + Path("s.ply")).code,
+            0);
+  {
+    std::ofstream(Path("token.txt")) << "# for the viewer\ntok-from-file\n";
+  }
+  const std::string view = "view " + Path("s.ply") + " --view 127.0.0.1:0 --linger 0";
+  Output o = RunTandem(view + " --view-token-file " + Path("token.txt"));
+  if (o.text.find("three.js is not installed") != std::string::npos) {
+    GTEST_SKIP() << "three.js is not installed (deploy/install-web.sh)";
+  }
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("/?token=tok-from-file"), std::string::npos) << o.text;
+  EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
+  o = RunCommand("TANDEM_VIEW_TOKEN=tok-from-env " + testing::BinPath("tandem") + " " + view);
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("/?token=tok-from-env"), std::string::npos) << o.text;
+  EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
+  o = RunTandem(view + " --view-token on-argv");
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("/?token=on-argv"), std::string::npos) << o.text;
+  EXPECT_NE(o.text.find("tandem: warning: --view-token on the command line can be read by every "
+                        "user of this machine (ps); use --view-token-file FILE or "
+                        "$TANDEM_VIEW_TOKEN instead"),
+            std::string::npos)
+      << o.text;
+  o = RunTandem(view + " --view-token-file " + Path("missing.txt"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find("--view-token-file " + Path("missing.txt") + ": cannot open"),
+            std::string::npos)
+      << o.text;
+}
+
 TEST_F(Cli, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
   ASSERT_EQ(RunTandem("generate sphere --size 20 --out " + Path("s.json")).code, 0);
   Output o = RunTandem("extract --input " + Path("s.json") + " --iso 1000 --quiet --out " +

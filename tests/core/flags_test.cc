@@ -3,6 +3,7 @@
 #include "cli/flags.h"
 
 #include <cstdlib>
+#include <fstream>
 #include <optional>
 #include <vector>
 
@@ -153,6 +154,78 @@ TEST(FlagSet, CommandLineBeatsEnvironmentWhichBeatsDefault) {
             "TANDEMTEST_MAX_SESSIONS: 'many' is not an integer");
   unsetenv("TANDEMTEST_MAX_SESSIONS");
   unsetenv("TANDEMTEST_GRACE_SECONDS");
+}
+
+// A secret (a token) comes from --NAME-file FILE or its variable, kept off the command line
+// every user can read; --NAME still works there, with a warning; the file beats the
+// variable, --NAME and --NAME-file together are an error, a missing or empty file is named.
+TEST(FlagSet, SecretsComeFromAFileOrTheirVariableAndTheCommandLineWarns) {
+  const std::string dir = ::testing::TempDir();
+  const std::string file = dir + "/secret_flag_test.txt";
+  {
+    std::ofstream out(file);
+    out << "# the viewer's token\n\n  from-file  \nsecond-line\n";
+  }
+  const std::string empty = dir + "/secret_flag_test_empty.txt";
+  { std::ofstream(empty) << "# nothing\n\n"; }
+  auto parse = [](std::vector<std::string> argv, std::string* token, FlagSet* flags) {
+    flags->AddSecret("view-token", token, "TOKEN", "TANDEMTEST_VIEW_TOKEN", "the token");
+    Args args(std::move(argv));
+    return flags->Parse(args.argc(), args.argv());
+  };
+  std::string token;
+  {
+    FlagSet flags("usage");
+    ASSERT_TRUE(parse({"prog", "--view-token-file", file}, &token, &flags).ok());
+    EXPECT_EQ(token, "from-file");
+    EXPECT_TRUE(flags.IsSet("view-token"));
+    EXPECT_TRUE(flags.warnings().empty());
+    EXPECT_NE(flags.Help().find("--view-token-file FILE"), std::string::npos) << flags.Help();
+    EXPECT_NE(flags.Help().find("[$TANDEMTEST_VIEW_TOKEN]"), std::string::npos) << flags.Help();
+  }
+  setenv("TANDEMTEST_VIEW_TOKEN", "from-env", 1);
+  {
+    FlagSet flags("usage");
+    token.clear();
+    ASSERT_TRUE(parse({"prog"}, &token, &flags).ok());
+    EXPECT_EQ(token, "from-env");
+    EXPECT_TRUE(flags.warnings().empty());
+  }
+  {
+    FlagSet flags("usage");
+    ASSERT_TRUE(parse({"prog", "--view-token-file=" + file}, &token, &flags).ok());
+    EXPECT_EQ(token, "from-file") << "the command line beats the variable";
+  }
+  {
+    FlagSet flags("usage");
+    ASSERT_TRUE(parse({"prog", "--view-token", "on-argv"}, &token, &flags).ok());
+    EXPECT_EQ(token, "on-argv");
+    ASSERT_EQ(flags.warnings().size(), 1u);
+    EXPECT_NE(flags.warnings()[0].find("--view-token on the command line can be read by every "
+                                       "user of this machine"),
+              std::string::npos)
+        << flags.warnings()[0];
+    EXPECT_NE(flags.warnings()[0].find("--view-token-file FILE or $TANDEMTEST_VIEW_TOKEN"),
+              std::string::npos);
+    EXPECT_EQ(flags.warnings()[0].find("on-argv"), std::string::npos) << "never the secret";
+  }
+  unsetenv("TANDEMTEST_VIEW_TOKEN");
+  {
+    FlagSet flags("usage");
+    EXPECT_EQ(parse({"prog", "--view-token", "a", "--view-token-file", file}, &token, &flags)
+                  .message(),
+              "--view-token and --view-token-file: give one of them");
+  }
+  {
+    FlagSet flags("usage");
+    EXPECT_EQ(parse({"prog", "--view-token-file", empty}, &token, &flags).message(),
+              "--view-token-file " + empty + ": no value in it (blank lines and #comments only)");
+  }
+  {
+    FlagSet flags("usage");
+    const absl::Status st = parse({"prog", "--view-token-file", dir + "/none"}, &token, &flags);
+    EXPECT_EQ(st.message().rfind("--view-token-file " + dir + "/none: cannot open", 0), 0u) << st;
+  }
 }
 
 // A refusal of SessionOptions::Validate() says which option, its value and the rule (core's

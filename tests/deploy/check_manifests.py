@@ -14,6 +14,11 @@ apiVersion, kind and metadata.name, and then, by kind:
   HorizontalPodAutoscaler  autoscaling/v2, scaleTargetRef names a Deployment here,
                min <= max replicas, a cpu Resource metric.
   PodDisruptionBudget      selects a Deployment's pods.
+  NetworkPolicy  when a container serves --metrics-listen beyond loopback (plain HTTP, no
+               authentication), a NetworkPolicy must select its pods for Ingress, admit
+               the metrics port only from selected pods (a namespaceSelector or podSelector
+               with labels; no ipBlock, no rule open to every source), and still admit the
+               gRPC port.
 The Compose file (a document with "services"): every service has image or build; the
 server (the service whose image runs tandem-server) has a healthcheck; every service running
 tandem-client depends on the server with condition: service_healthy.
@@ -94,6 +99,7 @@ class Checker:
             self.checked.append(f"{where} {d.get('kind')}/{get(d, 'metadata', 'name')}")
         for where, d in deployments:
             self.check_deployment(where, d, image_user)
+        self.check_network_policies(docs, deployments)
         pod_labels = [get(d, "spec", "template", "metadata", "labels", default={}) or {}
                       for _, d in deployments]
         container_ports = {}
@@ -204,6 +210,62 @@ class Checker:
             user = eff("runAsUser")
             if user is not None and image_user is not None and str(user) != image_user:
                 self.err(cw, f"runAsUser {user} differs from the Dockerfile's USER {image_user}")
+
+    def check_network_policies(self, docs, deployments):
+        """A metrics port bound beyond loopback has no authentication: a NetworkPolicy must
+        admit only Prometheus's pods to it, and still admit the gRPC port."""
+        policies = [(w, d) for w, d in docs if d.get("kind") == "NetworkPolicy"]
+
+        def selective(sel):
+            return isinstance(sel, dict) and bool(sel.get("matchLabels") or
+                                                  sel.get("matchExpressions"))
+
+        def restricted(peer):
+            return "ipBlock" not in peer and (selective(peer.get("podSelector")) or
+                                              selective(peer.get("namespaceSelector")))
+
+        for where, d in deployments:
+            labels = get(d, "spec", "template", "metadata", "labels", default={}) or {}
+            for c in get(d, "spec", "template", "spec", "containers", default=[]) or []:
+                cw = f"{where} container {c.get('name')}"
+                listen = next((a.split("=", 1)[1] for a in (c.get("args") or [])
+                               if isinstance(a, str) and a.startswith("--metrics-listen=")), None)
+                if not listen:
+                    continue
+                host, port = listen.rsplit(":", 1)
+                if host.strip("[]") in ("localhost", "::1") or host.startswith("127."):
+                    continue
+                mport = int(port)
+                ports = c.get("ports", []) or []
+                metrics = {mport} | {p.get("name") for p in ports if p.get("containerPort") == mport}
+                grpc = {PORT} | {p.get("name") for p in ports if p.get("containerPort") == PORT}
+                selecting = [(w, p) for w, p in policies
+                             if selects(get(p, "spec", "podSelector", "matchLabels",
+                                            default={}), labels)
+                             and "Ingress" in (get(p, "spec", "policyTypes") or ["Ingress"])]
+                if not selecting:
+                    self.err(cw, f"--metrics-listen {listen} serves metrics without "
+                                 "authentication and no NetworkPolicy selects the pods: add one "
+                                 f"that admits only Prometheus to port {mport}")
+                    continue
+                grpc_admitted = False
+                for pw, p in selecting:
+                    for rule in get(p, "spec", "ingress", default=[]) or []:
+                        rports = rule.get("ports") or []
+
+                        def covers(names):
+                            return not rports or any(rp.get("port") in names or
+                                                     rp.get("port") is None for rp in rports)
+                        grpc_admitted |= covers(grpc)
+                        peers = rule.get("from") or []
+                        if covers(metrics) and (not peers or
+                                                not all(restricted(x) for x in peers)):
+                            self.err(pw, f"the metrics port {mport} is admitted from every "
+                                         "source or an ipBlock: admit only Prometheus's pods "
+                                         "(a namespaceSelector and podSelector with labels)")
+                if not grpc_admitted:
+                    self.err(cw, f"no NetworkPolicy rule admits the gRPC port {PORT}: clients "
+                                 "and the probes could not reach it")
 
     def check_termination(self, cw, c, spec):
         """The pod's grace period covers the server's drain: delay + grace + 30 s for the
@@ -379,6 +441,9 @@ def self_test(docs, text):
 
     def compose(ds):
         return next(d for _, d in ds if "services" in d)
+
+    def first_in(ds, kind):
+        return next(d for _, d in ds if isinstance(d, dict) and d.get("kind") == kind)
     cases = [
         ("readOnlyRootFilesystem", lambda ds: container(ds)["securityContext"].pop(
             "readOnlyRootFilesystem")),
@@ -397,6 +462,14 @@ def self_test(docs, text):
          .update(name="nope")),
         ("selects no Deployment", lambda ds: next(d for _, d in ds if d.get("kind") == "Service")
          ["spec"].update(selector={"app": "other"})),
+        ("no NetworkPolicy selects the pods", lambda ds: ds.__setitem__(
+            slice(None), [(w, d) for w, d in ds if d.get("kind") != "NetworkPolicy"])),
+        ("admitted from every source", lambda ds: first_in(ds, "NetworkPolicy")["spec"]
+         ["ingress"][1].pop("from")),
+        ("admitted from every source", lambda ds: first_in(ds, "NetworkPolicy")["spec"]
+         ["ingress"][1]["from"].append({"ipBlock": {"cidr": "0.0.0.0/0"}})),
+        ("admits the gRPC port", lambda ds: first_in(ds, "NetworkPolicy")["spec"]
+         ["ingress"].pop(0)),
         ("service_healthy", lambda ds: compose(ds)["services"]["client"].pop("depends_on")),
         ("neither image nor build", lambda ds: [compose(ds)["services"]["sample"].pop(k, None)
                                                 for k in ("image", "build")]),

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <string_view>
 #include <functional>
 #include <map>
 #include <set>
@@ -43,9 +44,10 @@ std::string ReadFile(const std::string& path) {
   return ss.str();
 }
 
-RunResult Client(std::vector<std::string> args, double timeout_s = 120) {
+RunResult Client(std::vector<std::string> args, double timeout_s = 120,
+                 const std::vector<std::string>& env = {}) {
   args.insert(args.begin(), BinPath("tandem-client"));
-  return RunProcess(args, timeout_s);
+  return RunProcess(args, timeout_s, env);
 }
 
 std::vector<std::string> HeadArgs(const std::string& server, const std::string& input) {
@@ -841,13 +843,16 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
   EXPECT_LE(late_updates, 2 * next_index + 2);
 }
 
-// Resume. The ID:TOKEN a streaming client prints for --resume ("" until it has).
+// Resume. The ID:TOKEN a streaming client prints for TANDEM_RESUME ("" until it has): in a
+// variable, not as --resume, whose value every user could read on the command line.
 std::string ResumeKey(const std::string& err) {
-  const size_t at = err.find("--resume ");
+  constexpr std::string_view kHint = "run the same command with TANDEM_RESUME=";
+  const size_t at = err.find(kHint);
   if (at == std::string::npos) return "";
-  const size_t end = err.find('\n', at);
+  const size_t begin = at + kHint.size();
+  const size_t end = err.find(' ', begin);
   if (end == std::string::npos) return "";
-  return err.substr(at + 9, end - at - 9);
+  return err.substr(begin, end - begin);
 }
 
 // Starts `tandem-client ARGS` in `dir` and waits (bounded) for the ID:TOKEN it prints.
@@ -989,9 +994,19 @@ TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh)
     EXPECT_NE(info.out.find(id + "  waiting for its client to resume"), std::string::npos)
         << info.out;
 
-    RunResult resumed = Client(Concat(base, {"--resume", key, "--out", dir_ + "/resumed_" + tag + ".ply",
-                                             "--metrics", dir_ + "/resumed_" + tag + ".json"}));
+    // The key from the variable (plain) or from a file (sealed), not on the command line.
+    std::vector<std::string> args = Concat(base, {"--out", dir_ + "/resumed_" + tag + ".ply",
+                                                  "--metrics", dir_ + "/resumed_" + tag + ".json"});
+    std::vector<std::string> env;
+    if (seal) {
+      std::ofstream(dir_ + "/resume.txt") << key << "\n";
+      args = Concat(args, {"--resume-file", dir_ + "/resume.txt"});
+    } else {
+      env.push_back("TANDEM_RESUME=" + key);
+    }
+    RunResult resumed = Client(args, 120, env);
     ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    EXPECT_EQ(resumed.err.find("warning"), std::string::npos) << resumed.err;
     EXPECT_NE(resumed.err.find("tandem-client: session " + id + " resumed at slice"),
               std::string::npos)
         << resumed.err;
@@ -1239,8 +1254,14 @@ TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
     ASSERT_TRUE(WaitForSession(holder, id,
                                [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
     const std::string out = dir + "/resumed" + std::to_string(round) + ".ply";
+    // --resume on the command line still works, with a warning that others can read it.
     RunResult resumed = Client(Concat(base, {"--resume", key, "--out", out}));
     ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    EXPECT_NE(resumed.err.find("tandem-client: warning: --resume on the command line can be read "
+                               "by every user of this machine (ps); use --resume-file FILE or "
+                               "$TANDEM_RESUME instead"),
+              std::string::npos)
+        << resumed.err;
     ExpectSameMesh(dir + "/whole.ply", out);
   }
 }
@@ -1396,6 +1417,42 @@ TEST(ServiceShutdown, DrainDelayKeepsServingWhileNotReady) {
             std::string::npos)
       << log;
   EXPECT_NE(log.find("stopped"), std::string::npos) << log;
+}
+
+// From SIGTERM to the exit, health checks get answers: "" and tandem.v1.Tandem NOT_SERVING,
+// "liveness" SERVING, after the drain delay too, while a running stream finishes (gRPC has
+// stopped listening then: a stand-in answers on the port); a new stream is refused with
+// UNAVAILABLE; the running one ends OK and the server exits 0.
+TEST(ServiceShutdown, HealthAnswersNotServingUntilTheExit) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--drain-delay-seconds", "0.5", "--grace-seconds", "30"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  auto client = StartPacedStream(s, dir, 32, 80, 20);  // 4 s of scan
+  ASSERT_TRUE(client);
+  const auto signalled = std::chrono::steady_clock::now();
+  s.process().Signal(SIGTERM);
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));  // past the delay
+  auto stub = s.NewStub();
+  const StreamOutcome refused = RunStream(*stub, ShapeRequests(Shape::kSphere, 16, 16));
+  EXPECT_EQ(refused.status.error_code(), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_NE(refused.status.error_message().find("shutting down"), std::string::npos)
+      << refused.status.error_message();
+  int checks = 0;
+  while (!client->Wait(0).has_value() &&
+         std::chrono::steady_clock::now() - signalled < std::chrono::seconds(20)) {
+    EXPECT_EQ(s.Health(), "NOT_SERVING");
+    EXPECT_EQ(s.Health("tandem.v1.Tandem"), "NOT_SERVING");
+    EXPECT_EQ(s.Health("liveness"), "SERVING");
+    ++checks;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  EXPECT_GE(checks, 3) << "the stream ended too soon for this test to mean anything";
+  EXPECT_EQ(client->Wait(30), 0) << client->Stderr();
+  EXPECT_EQ(s.process().Wait(30), 0) << s.process().Stderr();
+  const std::string log = s.process().Stderr();
+  EXPECT_NE(log.find("status=OK"), std::string::npos) << log;
+  EXPECT_EQ(log.find("health checks go unanswered"), std::string::npos) << log;
 }
 
 // A second signal cuts the drain delay short.

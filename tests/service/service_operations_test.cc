@@ -1,9 +1,12 @@
 // What operators see: the Prometheus endpoint (--metrics-listen, served by cpp-httplib)
-// counts sessions by final status, slices, bytes and phase time; --log-format json writes
-// one JSON object per line, client strings escaped and truncated.
+// counts sessions by final status, slices, bytes and phase time, and closes the doors a
+// metrics port does not need (bodies, other methods, ranges, foreign Host headers, slow
+// clients); --log-format json writes one JSON object per line, client strings escaped and
+// truncated; a busy port is refused at start-up.
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <httplib.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <map>
@@ -20,6 +23,7 @@
 #include "client/connection.h"
 #include "service/service_testutil.h"
 #include "tandem/synthetic.h"
+#include "testutil/raw_http.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {
@@ -74,6 +78,30 @@ std::map<std::string, double> Scrape(const std::string& host_port) {
   return out;
 }
 
+int PortOf(const std::string& host_port) {
+  return std::stoi(host_port.substr(host_port.rfind(':') + 1));
+}
+
+// A tandem-server with --metrics-listen 127.0.0.1:0 (and `extra`): the server, its metrics'
+// HOST:PORT and port; `server` is null (and the test failed) when it did not start.
+struct WithMetrics {
+  std::unique_ptr<TestServer> server;
+  std::string url;
+  int port = 0;
+};
+WithMetrics StartWithMetrics(std::vector<std::string> extra = {}) {
+  extra.insert(extra.begin(), {"--metrics-listen", "127.0.0.1:0"});
+  auto server = TestServer::Start(extra);
+  EXPECT_TRUE(server.ok()) << server.status();
+  if (!server.ok()) return {};
+  WithMetrics m{*std::move(server), "", 0};
+  m.url = MetricsUrl(*m.server);
+  EXPECT_FALSE(m.url.empty()) << m.server->process().Stderr();
+  if (m.url.empty()) return {};
+  m.port = PortOf(m.url);
+  return m;
+}
+
 std::vector<v1::ExtractRequest> Sphere(int64_t n) {
   v1::SessionConfig config;
   config.set_error(0.3);
@@ -84,11 +112,10 @@ std::vector<v1::ExtractRequest> Sphere(int64_t n) {
 // A stream whose client vanishes mid-scan shows as a session waiting for a resume until
 // its window (5 s here) is over.
 TEST(Metrics, CountSessionsWaitingForAResume) {
-  auto server = TestServer::Start({"--metrics-listen", "127.0.0.1:0", "--resume-window-seconds", "5"});
-  ASSERT_TRUE(server.ok()) << server.status();
-  TestServer& s = **server;
-  const std::string url = MetricsUrl(s);
-  ASSERT_FALSE(url.empty()) << s.process().Stderr();
+  WithMetrics m = StartWithMetrics({"--resume-window-seconds", "5"});
+  ASSERT_TRUE(m.server);
+  TestServer& s = *m.server;
+  const std::string& url = m.url;
   EXPECT_EQ(Scrape(url)["tandem_sessions_waiting_for_resume"], 0);
   auto stub = s.NewStub();
   {
@@ -114,11 +141,10 @@ TEST(Metrics, CountSessionsWaitingForAResume) {
 }
 
 TEST(Metrics, CountSessionsByStatusSlicesBytesAndPhases) {
-  auto server = TestServer::Start({"--metrics-listen", "127.0.0.1:0"});
-  ASSERT_TRUE(server.ok()) << server.status();
-  TestServer& s = **server;
-  const std::string url = MetricsUrl(s);
-  ASSERT_FALSE(url.empty()) << s.process().Stderr();
+  WithMetrics m = StartWithMetrics();
+  ASSERT_TRUE(m.server);
+  TestServer& s = *m.server;
+  const std::string& url = m.url;
   auto before = Scrape(url);
   EXPECT_EQ(before["tandem_active_sessions"], 0);
   EXPECT_EQ(before["tandem_sessions_finished_total{status=\"OK\"}"], 0);
@@ -154,6 +180,144 @@ TEST(Metrics, BadListenAddressIsAStartupError) {
   RunResult f = RunProcess({BinPath("tandem-server"), "--log-format", "xml"});
   EXPECT_EQ(f.exit_code, 2) << f.err;
   EXPECT_NE(f.err.find("--log-format"), std::string::npos) << f.err;
+}
+
+double SecondsSince(absl::Time t) { return absl::ToDoubleSeconds(absl::Now() - t); }
+
+// The metrics port reads no request body: a POST announcing 256 MiB is refused (405: GET and
+// HEAD only) before any of it is sent, the server takes little of what is sent anyway and
+// does not grow; a GET with a body gets 413; scrapes go on.
+TEST(Metrics, ARequestBodyIsRefusedBeforeItIsRead) {
+  WithMetrics m = StartWithMetrics();
+  ASSERT_TRUE(m.server);
+  TestServer& s = *m.server;
+  const std::string& url = m.url;
+  const int port = m.port;
+  Scrape(url);
+  const int64_t before = ResidentBytes(s.process().pid());
+  for (const std::string method : {"POST", "GET"}) {
+    SCOPED_TRACE(method);
+    auto c = RawHttp::Connect(port);
+    ASSERT_TRUE(c);
+    const absl::Time start = absl::Now();
+    ASSERT_TRUE(c->Send(method + " /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                 "Content-Length: 268435456\r\n\r\n"));
+    EXPECT_EQ(c->ReadResponse(5).status, method == "POST" ? 405 : 413);
+    EXPECT_LT(SecondsSince(start), 2.0);
+    const int64_t taken = c->SendFiller(int64_t{256} << 20, 10);
+    EXPECT_LT(taken, int64_t{32} << 20) << "the server read the body it refused";
+    EXPECT_TRUE(c->WaitClosed(5));
+  }
+  if (!kSanitized) {
+    EXPECT_LT(ResidentBytes(s.process().pid()) - before, int64_t{4} << 20);
+  }
+  EXPECT_EQ(Scrape(url)["tandem_active_sessions"], 0);
+}
+
+// Slow and idle connections cannot starve a scrape (the autoscaler's signal): with 8 idle
+// and 8 trickling connections open, scrapes are answered within a second, again and again,
+// and the trickling ones are dropped once their request has taken 5 s.
+TEST(Metrics, SlowAndIdleConnectionsDoNotStarveAScrape) {
+  WithMetrics m = StartWithMetrics();
+  ASSERT_TRUE(m.server);
+  const int port = m.port;
+  std::vector<std::unique_ptr<RawHttp>> idle, slow;
+  for (int i = 0; i < 8; ++i) {
+    idle.push_back(RawHttp::Connect(port));
+    slow.push_back(RawHttp::Connect(port));
+    ASSERT_TRUE(idle.back() && slow.back());
+    ASSERT_TRUE(slow.back()->Send("GET /metrics HTTP/1.1\r\nHost: 127"));
+  }
+  const absl::Time opened = absl::Now();
+  std::vector<bool> closed(slow.size(), false);
+  size_t open = slow.size();
+  while (open > 0 && SecondsSince(opened) < 12) {
+    const absl::Time asked = absl::Now();
+    RawResponse scrape = RawRequest(port, GetRequest(port, "/metrics"), 5);
+    EXPECT_EQ(scrape.status, 200);
+    EXPECT_NE(scrape.body.find("tandem_active_sessions 0"), std::string::npos);
+    EXPECT_LT(SecondsSince(asked), 1.0) << "a scrape waited behind slow connections";
+    for (size_t i = 0; i < slow.size(); ++i) {  // a byte each, until the server hangs up
+      if (!closed[i] && !slow[i]->Send(".", 0.1)) {
+        closed[i] = true;
+        --open;
+      }
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  }
+  EXPECT_EQ(open, 0u) << "trickling connections still open after 12 s";
+  EXPECT_LT(SecondsSince(opened), 9.0);
+}
+
+// Several ranges get 416, a Host header that does not name the server 403 (DNS rebinding),
+// other methods 405, headers that never end 431.
+TEST(Metrics, RangesForeignHostsOtherMethodsAndEndlessHeadersAreRefused) {
+  WithMetrics m = StartWithMetrics();
+  ASSERT_TRUE(m.server);
+  const int port = m.port;
+  std::string ranges = "bytes=0-";
+  for (int i = 1; i < 1000; ++i) ranges += ",0-";
+  RawResponse many = RawRequest(port, GetRequest(port, "/metrics", "Range: " + ranges + "\r\n"));
+  EXPECT_EQ(many.status, 416);
+  EXPECT_TRUE(many.body.empty());
+  RawResponse foreign = RawRequest(port, GetRequest(port, "/metrics", "Host: attacker.example\r\n"));
+  EXPECT_EQ(foreign.status, 403);
+  EXPECT_EQ(foreign.body.find("tandem_"), std::string::npos);
+  EXPECT_EQ(RawRequest(port, GetRequest(port, "/metrics", "Host: localhost:9090\r\n")).status, 200);
+  RawResponse put = RawRequest(port, "PUT /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+  EXPECT_EQ(put.status, 405);
+  EXPECT_EQ(put.headers["allow"], "GET, HEAD");
+  auto endless = RawHttp::Connect(port);
+  ASSERT_TRUE(endless);
+  std::string headers = "GET /metrics HTTP/1.1\r\n";
+  while (headers.size() < (20 << 10)) headers += "X-Filler: 0123456789abcdef\r\n";
+  endless->Send(headers);
+  EXPECT_EQ(endless->ReadHead(3).status, 431);
+  EXPECT_EQ(Scrape(m.url)["tandem_active_sessions"], 0);
+}
+
+// A port another process listens on is refused at start-up, naming the address: another
+// tandem-server's gRPC or metrics port, or any listening socket; the first server keeps
+// serving. (gRPC and cpp-httplib both bind with SO_REUSEPORT by default, which let a second
+// server start on the same port and take half of its connections.)
+TEST(Startup, ABusyPortIsRefusedAndTheFirstServerKeepsServing) {
+  WithMetrics first = StartWithMetrics();
+  ASSERT_TRUE(first.server);
+  TestServer& a = *first.server;
+  const std::string& metrics = first.url;
+  const std::string grpc_port = std::to_string(PortOf(a.address()));
+  for (const std::string host : {"127.0.0.1", "0.0.0.0"}) {
+    RunResult second =
+        RunProcess({BinPath("tandem-server"), "--listen", host + ":" + grpc_port}, 15);
+    EXPECT_EQ(second.exit_code, 1) << second.err;
+    EXPECT_NE(second.err.find("cannot listen on --listen " + host + ":" + grpc_port + ": port " +
+                              grpc_port + " is in use by another process"),
+              std::string::npos)
+        << second.err;
+  }
+  const std::string metrics_port = std::to_string(first.port);
+  RunResult third = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
+                                "--metrics-listen", "127.0.0.1:" + metrics_port},
+                               15);
+  EXPECT_EQ(third.exit_code, 1) << third.err;
+  EXPECT_NE(third.err.find("--metrics-listen: cannot listen on 127.0.0.1:" + metrics_port +
+                           ": port " + metrics_port + " is in use by another process"),
+            std::string::npos)
+      << third.err;
+  EXPECT_EQ(a.Health(), "SERVING");
+  EXPECT_TRUE(a.Info().ok());
+  EXPECT_EQ(Scrape(metrics)["tandem_active_sessions"], 0);
+
+  // Any socket: one this test listens on.
+  int held_port = 0;
+  const int fd = ListenOnLoopback(&held_port);
+  ASSERT_GE(fd, 0);
+  const std::string held = std::to_string(held_port);
+  RunResult fourth = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:" + held}, 15);
+  close(fd);
+  EXPECT_EQ(fourth.exit_code, 1) << fourth.err;
+  EXPECT_NE(fourth.err.find("port " + held + " is in use by another process"), std::string::npos)
+      << fourth.err;
 }
 
 TEST(Watch, OutOfRangeWatchAndPreviewFlagsAreStartupErrors) {

@@ -363,20 +363,6 @@ StreamOutcome RunStream(v1::Tandem::Stub& stub, const std::vector<v1::ExtractReq
   return outcome;
 }
 
-int64_t ResidentBytes(pid_t pid) {
-  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("VmRSS:", 0) == 0) {
-      std::istringstream fields(line.substr(6));
-      int64_t kib = -1;
-      fields >> kib;
-      return kib < 0 ? -1 : kib * 1024;
-    }
-  }
-  return -1;
-}
-
 std::string ReadFileOrEmpty(const std::string& path) { return ReadAll(path); }
 
 absl::StatusOr<TestPki> MakeTestPki(const std::string& dir) {

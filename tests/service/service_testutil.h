@@ -22,26 +22,12 @@
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 #include "tandem/volume.h"
+#include "testutil/testutil.h"  // ResidentBytes, kSanitized
 
 namespace tandem::testing {
 
 // A child process whose stdout and stderr go to files in `dir`. The destructor kills
 // (SIGKILL) and reaps it if it is still running.
-// Built with ASan or TSan: resident sizes and page-fault counts say nothing there (freed
-// memory sits in the quarantine, shadow memory grows), so bounds on them are checked in
-// normal builds only.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-inline constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-inline constexpr bool kSanitized = true;
-#else
-inline constexpr bool kSanitized = false;
-#endif
-#else
-inline constexpr bool kSanitized = false;
-#endif
-
 class ChildProcess {
  public:
   // `env`: NAME=VALUE entries added to (or replacing in) this process's environment.
@@ -131,9 +117,6 @@ class TcpProxy {
   std::vector<int> fds_;  // every open socket, both sides
   std::vector<std::thread> forwarders_;
 };
-
-// VmRSS of a process in bytes (/proc/PID/status), or -1.
-int64_t ResidentBytes(pid_t pid);
 
 // A throwaway PKI made with the openssl CLI in `dir`: a CA, a server certificate signed by
 // it for IP:127.0.0.1 and DNS:localhost, and a second, unrelated CA.

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iterator>
 #include <mutex>
+#include <sstream>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -56,6 +57,20 @@ std::string MakeTempDir() {
 
 std::string BinPath(const std::string& name) {
   return (std::filesystem::path(TANDEM_BIN_DIR_PATH) / name).string();
+}
+
+int64_t ResidentBytes(int pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) {
+      std::istringstream fields(line.substr(6));
+      int64_t kib = -1;
+      fields >> kib;
+      return kib < 0 ? -1 : kib * 1024;
+    }
+  }
+  return -1;
 }
 
 double PatternValue(DType t, int64_t i, int64_t j, int64_t k) {

@@ -30,6 +30,24 @@ std::string FileBytes(const std::string& path);
 // Path of a built executable (build/bin/NAME).
 std::string BinPath(const std::string& name);
 
+// VmRSS of a process in bytes (/proc/PID/status), or -1.
+int64_t ResidentBytes(int pid);
+
+// Built with ASan or TSan: resident sizes and page-fault counts say nothing there (freed
+// memory sits in the quarantine, shadow memory grows), so bounds on them are checked in
+// normal builds only.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+inline constexpr bool kSanitized = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+inline constexpr bool kSanitized = true;
+#else
+inline constexpr bool kSanitized = false;
+#endif
+#else
+inline constexpr bool kSanitized = false;
+#endif
+
 // Voxel (i, j, k) of the readers' test pattern: uses both bytes of 16-bit types, negatives
 // for int16 and fractions for float32, so byte-order, sign and placement mistakes show
 // (int16 stays in range up to 37 x 21 x 25 voxels).

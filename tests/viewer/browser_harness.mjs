@@ -30,8 +30,9 @@ export function harness(buildDir) {
     if (!ok) failures++;
     return ok;
   }
-  function start(name, args) {
-    const child = spawn(bin(name), args, { cwd: work, stdio: ['ignore', 'pipe', 'pipe'] });
+  function start(name, args, env = {}) {
+    const child = spawn(bin(name), args, { cwd: work, stdio: ['ignore', 'pipe', 'pipe'],
+                                           env: { ...process.env, ...env } });
     child.out = '';
     child.err = '';
     child.stdout.on('data', (d) => { child.out += d; });

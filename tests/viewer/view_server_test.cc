@@ -1,20 +1,59 @@
-// The viewer's HTTP side on 127.0.0.1 with a real HTTP client (cpp-httplib's): addresses,
-// the token, immutable chunks and bands, the event stream, and a busy port.
+// The viewer's HTTP side on 127.0.0.1 with a real HTTP client (cpp-httplib's, or plain
+// sockets for what it will not send): addresses, the token (the page's files included),
+// immutable chunks and bands, the event stream, a busy port, and the doors closed: bodies,
+// methods, ranges, foreign Host headers, slow and idle connections.
 #include "viewer/view_server.h"
 
 #include <httplib.h>
+#include <unistd.h>
 
+#include <chrono>
+#include <fstream>
+#include <memory>
+#include <sstream>
 #include <string>
+#include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "testutil/raw_http.h"
+#include "testutil/testutil.h"
+
 namespace tandem::viewer {
 namespace {
+
+using ::tandem::testing::GetRequest;
+using ::tandem::testing::RawHttp;
+using ::tandem::testing::RawRequest;
+using ::tandem::testing::RawResponse;
+using ::tandem::testing::ResidentBytes;
+using Clock = std::chrono::steady_clock;
 
 int PortOf(const std::string& url) {
   const size_t colon = url.rfind(':');
   return std::stoi(url.substr(colon + 1));
+}
+
+struct Viewer {
+  std::unique_ptr<ViewServer> server;
+  int port = 0;
+};
+
+Viewer StartViewer(const std::string& token = "", const std::string& listen = "127.0.0.1:0") {
+  ViewOptions options;
+  options.listen = listen;
+  options.token = token;
+  auto server = ViewServer::Start(options);
+  EXPECT_TRUE(server.ok()) << server.status();
+  if (!server.ok()) return {};
+  const int port = PortOf((*server)->url().substr(0, (*server)->url().rfind('/')));
+  return {*std::move(server), port};
+}
+
+double SecondsSince(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
 TEST(ViewServer, AddressesAreParsedAndLoopbackIsRecognised) {
@@ -49,16 +88,8 @@ TEST(ViewServer, ServesTheStateChunksAndBandBehindItsToken) {
   (*server)->SetProgress(9, 8, 100, 12);
   httplib::Client http("127.0.0.1", PortOf((*server)->url()));
 
-  auto page = http.Get("/");  // the page itself is public
-  ASSERT_TRUE(page);
-  EXPECT_EQ(page->status, 200);
-  EXPECT_NE(page->body.find("viewer.js"), std::string::npos);
-  auto three = http.Get("/three/build/three.module.js");
-  ASSERT_TRUE(three);
-  EXPECT_EQ(three->status, 200);
-  EXPECT_EQ(http.Get("/three/../package.json")->status, 404);
-
-  for (const char* path : {"/state.json", "/chunk/0.drc", "/band/1.drc", "/events"}) {
+  for (const char* path : {"/", "/viewer.js", "/viewer.css", "/three/build/three.module.js",
+                           "/state.json", "/chunk/0.drc", "/band/1.drc", "/events"}) {
     auto refused = http.Get(path);
     ASSERT_TRUE(refused) << path;
     EXPECT_EQ(refused->status, 401) << path;
@@ -76,6 +107,8 @@ TEST(ViewServer, ServesTheStateChunksAndBandBehindItsToken) {
   EXPECT_FALSE(s["finished"].get<bool>());
 
   httplib::Headers bearer = {{"Authorization", "Bearer s3cret"}};
+  EXPECT_EQ(http.Get("/three/build/three.module.js", bearer)->status, 200);
+  EXPECT_EQ(http.Get("/three/../package.json", bearer)->status, 404);
   auto chunk = http.Get("/chunk/0.drc", bearer);
   ASSERT_TRUE(chunk);
   EXPECT_EQ(chunk->body, "chunk-zero");
@@ -114,6 +147,261 @@ TEST(ViewServer, ABusyPortIsAnErrorNamingIt) {
       << second.status();
   options.listen = "no-port";
   EXPECT_FALSE(ViewServer::Start(options).ok());
+}
+
+// The page's own files need the token as well. The printed address (with ?token=) gives the
+// browser a cookie for what the page loads next; the cookie holds another value than the
+// token, is named after the port, and a wrong one is refused.
+TEST(ViewServer, ThePagesFilesNeedTheTokenAndTheAddressGivesACookie) {
+  Viewer v = StartViewer("s3cret");
+  ASSERT_TRUE(v.server);
+  const std::string name = "tandem_view_" + std::to_string(v.port);
+  RawResponse page = RawRequest(v.port, GetRequest(v.port, "/?token=s3cret"));
+  ASSERT_EQ(page.status, 200);
+  EXPECT_NE(page.body.find("viewer.js"), std::string::npos);
+  const std::string cookie = page.headers["set-cookie"];
+  ASSERT_EQ(cookie.rfind(name + "=", 0), 0u) << cookie;
+  EXPECT_NE(cookie.find("HttpOnly"), std::string::npos) << cookie;
+  EXPECT_NE(cookie.find("SameSite=Strict"), std::string::npos) << cookie;
+  EXPECT_EQ(cookie.find("s3cret"), std::string::npos) << "the cookie must not be the token";
+  const std::string value = cookie.substr(name.size() + 1, cookie.find(';') - name.size() - 1);
+  ASSERT_GE(value.size(), 16u);
+  for (const char* path : {"/viewer.js", "/viewer.css", "/three/build/three.module.js",
+                           "/state.json"}) {
+    SCOPED_TRACE(path);
+    EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, path)).status, 401);
+    EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, path, "Cookie: " + name + "=wrong\r\n")).status,
+              401);
+    EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, path, "Cookie: tandem_view_1=" + value +
+                                                            "\r\n")).status,
+              401);
+    RawResponse ok = RawRequest(
+        v.port, GetRequest(v.port, path, "Cookie: other=1; " + name + "=" + value + "\r\n"));
+    EXPECT_EQ(ok.status, 200);
+    EXPECT_FALSE(ok.body.empty());
+    EXPECT_EQ(ok.headers.count("set-cookie"), 0u) << "only the page itself sets it";
+  }
+  RawResponse three = RawRequest(v.port, GetRequest(v.port, "/three/build/three.module.js",
+                                                    "Cookie: " + name + "=" + value + "\r\n"));
+  EXPECT_EQ(three.headers["cache-control"].rfind("private", 0), 0u)
+      << "no shared cache may keep what needs the token: " << three.headers["cache-control"];
+}
+
+// A request's body is refused before it is read: a POST announcing 256 MiB gets 405 (GET
+// and HEAD only) before any of it is sent, the viewer takes little of what is sent anyway,
+// and its memory does not grow; a GET with a body gets 413, and "Expect: 100-continue" the
+// refusal instead of "100 Continue".
+TEST(ViewServer, RequestBodiesAreRefusedBeforeTheyAreRead) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  const int64_t before = ResidentBytes(getpid());
+  auto post = RawHttp::Connect(v.port);
+  ASSERT_TRUE(post);
+  const auto start = Clock::now();
+  ASSERT_TRUE(post->Send(
+      "POST /state.json HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 268435456\r\n\r\n"));
+  RawResponse refused = post->ReadResponse(5);
+  EXPECT_EQ(refused.status, 405);
+  EXPECT_LT(SecondsSince(start), 2.0);
+  const int64_t taken = post->SendFiller(int64_t{256} << 20, 10);
+  EXPECT_LT(taken, int64_t{32} << 20) << "the viewer read the body it refused";
+  EXPECT_TRUE(post->WaitClosed(5));
+  if (!::tandem::testing::kSanitized) {
+    EXPECT_LT(ResidentBytes(getpid()) - before, int64_t{8} << 20);
+  }
+
+  for (const char* method : {"PUT", "DELETE", "OPTIONS", "PATCH", "POST"}) {
+    RawResponse r = RawRequest(v.port, std::string(method) +
+                                           " / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+    EXPECT_EQ(r.status, 405) << method;
+    EXPECT_EQ(r.headers["allow"], "GET, HEAD") << method;
+  }
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/state.json", "Content-Length: 5\r\n") +
+                                   "hello").status,
+            413);
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/state.json", "Transfer-Encoding: chunked\r\n") +
+                                   "5\r\nhello\r\n0\r\n\r\n").status,
+            413);
+  RawResponse expect = RawRequest(
+      v.port, "POST / HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000000\r\n"
+              "Expect: 100-continue\r\n\r\n");
+  EXPECT_EQ(expect.status, 405);
+  auto head = RawHttp::Connect(v.port);
+  ASSERT_TRUE(head);
+  head->Send("HEAD /state.json HTTP/1.1\r\nHost: localhost\r\n\r\n");
+  EXPECT_EQ(head->ReadHead(5).status, 200);
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/state.json")).status, 200);
+}
+
+// Several ranges get 416, with no multipart answer built (1,000 ranges of three.js's core
+// would be 1.4 GB); one range is served; the viewer goes on serving.
+TEST(ViewServer, SeveralRangesAreRefused) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  std::string ranges = "bytes=0-";
+  for (int i = 1; i < 1000; ++i) ranges += ",0-";
+  const int64_t before = ResidentBytes(getpid());
+  auto c = RawHttp::Connect(v.port);
+  ASSERT_TRUE(c);
+  ASSERT_TRUE(c->Send(GetRequest(v.port, "/three/build/three.core.js", "Range: " + ranges + "\r\n")));
+  RawResponse many = c->ReadHead(10);
+  EXPECT_EQ(many.status, 416);
+  EXPECT_EQ(many.headers["content-length"], "0");
+  if (!::tandem::testing::kSanitized) {
+    EXPECT_LT(ResidentBytes(getpid()) - before, int64_t{16} << 20);
+  }
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/state.json", "Range: bytes=0-0,2-2\r\n")).status,
+            416);
+  RawResponse one =
+      RawRequest(v.port, GetRequest(v.port, "/three/build/three.core.js", "Range: bytes=0-9\r\n"));
+  EXPECT_EQ(one.status, 206);
+  std::ifstream file(FindThree("") + "/build/three.core.js", std::ios::binary);
+  std::string first(10, '\0');
+  file.read(first.data(), 10);
+  EXPECT_EQ(one.body, first);
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/state.json")).status, 200);
+}
+
+// Against DNS rebinding: a Host header that does not name this server gets 403 and none of
+// the session's data. Bound to loopback, only loopback names pass; bound to every address,
+// IP literals and this machine's name pass too, other names still do not.
+TEST(ViewServer, AHostThatIsNotThisServersIsRefused) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  v.server->AddChunk("the-mesh-bytes", 3);
+  const std::string port = std::to_string(v.port);
+  for (const std::string& host : std::vector<std::string>{"evil.example", "evil.example:" + port, "10.1.2.3",
+                                 "localhost.evil.example", "127.0.0.1.evil.example:" + port,
+                                 "[fe80::1]:" + port}) {
+    SCOPED_TRACE(host);
+    for (const char* path : {"/state.json", "/chunk/0.drc", "/"}) {
+      RawResponse r = RawRequest(v.port, GetRequest(v.port, path, "Host: " + host + "\r\n"));
+      EXPECT_EQ(r.status, 403) << path;
+      EXPECT_EQ(r.body.find("the-mesh"), std::string::npos);
+      EXPECT_EQ(r.body.find("chunk_triangles"), std::string::npos);
+    }
+  }
+  for (const std::string& host : std::vector<std::string>{"127.0.0.1:" + port, "localhost:" + port, "LocalHost", "[::1]:" + port,
+                                 "127.0.0.1", "localhost.", "127.5.6.7:9"}) {
+    EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/chunk/0.drc", "Host: " + host + "\r\n")).body,
+              "the-mesh-bytes")
+        << host;
+  }
+  EXPECT_EQ(RawRequest(v.port, "GET /state.json HTTP/1.0\r\n\r\n").status, 200)
+      << "no Host at all: not a browser";
+
+  Viewer any = StartViewer("", "0.0.0.0:0");
+  ASSERT_TRUE(any.server);
+  char self[256] = "";
+  ASSERT_EQ(gethostname(self, sizeof(self) - 1), 0);
+  for (const std::string& host : std::vector<std::string>{"127.0.0.1", "192.168.7.9:8080", "[fe80::1]", std::string(self)}) {
+    EXPECT_EQ(RawRequest(any.port, GetRequest(any.port, "/state.json", "Host: " + host + "\r\n")).status,
+              200)
+        << host;
+  }
+  EXPECT_EQ(RawRequest(any.port, GetRequest(any.port, "/state.json", "Host: evil.example\r\n")).status,
+            403);
+}
+
+// Idle and slowly trickled connections hold no thread: with 20 of each open, a request is
+// answered at once; a request still incomplete 5 s after its first byte gets 408 and is
+// closed, however slowly its bytes keep coming.
+TEST(ViewServer, SlowAndIdleConnectionsDoNotHoldUpOthers) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  std::vector<std::unique_ptr<RawHttp>> idle, slow;
+  for (int i = 0; i < 20; ++i) {
+    idle.push_back(RawHttp::Connect(v.port));
+    slow.push_back(RawHttp::Connect(v.port));
+    ASSERT_TRUE(idle.back() && slow.back());
+    ASSERT_TRUE(slow.back()->Send("GET /state.json HTTP/1.1\r\nHo"));
+  }
+  const auto trickle_start = Clock::now();
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  for (int round = 0; round < 3; ++round) {
+    const auto asked = Clock::now();
+    RawResponse r = RawRequest(v.port, GetRequest(v.port, "/state.json"), 5);
+    EXPECT_EQ(r.status, 200);
+    EXPECT_LT(SecondsSince(asked), 1.0);
+    for (auto& s : slow) s->Send("s");
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  }
+  // Keep trickling (a byte every 0.3 s) until the server closes them.
+  size_t open = slow.size();
+  std::vector<bool> closed(slow.size(), false);
+  while (open > 0 && SecondsSince(trickle_start) < 12) {
+    for (size_t i = 0; i < slow.size(); ++i) {
+      if (!closed[i] && !slow[i]->Send("t", 0.1)) {
+        closed[i] = true;
+        --open;
+      }
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  }
+  EXPECT_EQ(open, 0u) << "trickled requests still open after " << SecondsSince(trickle_start) << " s";
+  EXPECT_LT(SecondsSince(trickle_start), 9.0);
+  for (auto& c : idle) EXPECT_TRUE(c->WaitClosed(3)) << "an idle connection is closed too";
+}
+
+// Headers that never end are refused once they pass 16 KiB (431), not read on and on.
+TEST(ViewServer, EndlessHeadersAreRefused) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  auto c = RawHttp::Connect(v.port);
+  ASSERT_TRUE(c);
+  std::string request = "GET /state.json HTTP/1.1\r\nHost: 127.0.0.1\r\n";
+  while (request.size() < (20 << 10)) request += "X-Filler: abcdefghijklmnopqrstuvwxyz\r\n";
+  c->Send(request);
+  EXPECT_EQ(c->ReadHead(3).status, 431);
+  EXPECT_TRUE(c->WaitClosed(3));
+}
+
+// Event streams hold a worker each: past 12 open ones the next gets 503 (and may retry),
+// while the page's other requests are still answered.
+TEST(ViewServer, EventStreamsAreCappedAndTheRestIsStillServed) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  std::vector<std::unique_ptr<RawHttp>> streams;
+  for (int i = 0; i < 12; ++i) {
+    streams.push_back(RawHttp::Connect(v.port));
+    ASSERT_TRUE(streams.back());
+    ASSERT_TRUE(streams.back()->Send(GetRequest(v.port, "/events")));
+    ASSERT_EQ(streams.back()->ReadHead(5).status, 200) << i;
+  }
+  RawResponse over = RawRequest(v.port, GetRequest(v.port, "/events"));
+  EXPECT_EQ(over.status, 503);
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/state.json")).status, 200);
+  streams.pop_back();
+  int status = 0;
+  for (int i = 0; i < 50 && status != 200; ++i) {
+    auto again = RawHttp::Connect(v.port);
+    ASSERT_TRUE(again);
+    again->Send(GetRequest(v.port, "/events"));
+    status = again->ReadHead(5).status;
+    if (status != 200) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  EXPECT_EQ(status, 200) << "a closed page's stream frees its place";
+}
+
+// A chunk, band or file that does not exist is a plain 404 without a body, whatever the
+// index looks like, with a Range header, with the token; nothing else changes.
+TEST(ViewServer, AMissingChunkIsAPlain404) {
+  Viewer v = StartViewer("s3cret");
+  ASSERT_TRUE(v.server);
+  v.server->AddChunk("chunk-zero", 1);
+  for (const char* path : {"/chunk/1.drc", "/chunk/99999999999999999999999999.drc",
+                           "/chunk/-1.drc", "/chunk/x.drc", "/chunk/0.drc.bak", "/band/7.drc",
+                           "/file/none.ply", "/chunk/"}) {
+    for (const char* range : {"", "Range: bytes=0-0\r\n"}) {
+      RawResponse r =
+          RawRequest(v.port, GetRequest(v.port, std::string(path) + "?token=s3cret", range));
+      EXPECT_EQ(r.status, 404) << path << " " << range;
+      EXPECT_EQ(r.headers["content-length"], "0") << path;
+      EXPECT_TRUE(r.body.empty()) << path;
+      EXPECT_EQ(r.headers.count("set-cookie"), 0u) << path;
+    }
+  }
+  EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/chunk/0.drc?token=s3cret")).body, "chunk-zero");
 }
 
 }  // namespace

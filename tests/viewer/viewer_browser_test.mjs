@@ -3,8 +3,9 @@
 // against the real tandem-server on 127.0.0.1, and checks that the mesh is drawn (a
 // screenshot whose non-background pixels cover a share of the view), that it grows, that
 // the final counts shown equal the final metrics, that a reload catches up, and that
-// `tandem view` shows a finished mesh file and a folder of chunks (behind a token), and
-// refuses a busy port by name. Every wait is bounded; children are killed at the end.
+// `tandem view` shows a finished mesh file and a folder of chunks (behind a token, the
+// page's own files included, read from a file or the environment), and refuses a busy port
+// by name. Every wait is bounded; children are killed at the end.
 //   node tests/viewer/viewer_browser_test.mjs BUILD_DIR
 // Exit 0: passed; 1: failed; 77: skipped (no Chromium or node_modules, outside CI).
 import { spawnSync } from 'node:child_process';
@@ -93,9 +94,15 @@ await run(async () => {
 
   // A late viewer of the finished session (tandem-client view: the watch RPC) draws it all.
   const session = (client.err.match(/session ([0-9a-f]{32})/) || [])[1];
+  // Its token from the environment: the page's own files need it too, and the browser
+  // gets them through the cookie the printed address gives it.
   const watcher = start('tandem-client', ['view', '--server', address, '--session', session,
-                                          '--view', '127.0.0.1:0', '--view-linger', '60']);
+                                          '--view', '127.0.0.1:0', '--view-linger', '60'],
+                        { TANDEM_VIEW_TOKEN: 'w4tch' });
   const watchUrl = await waitFor('tandem-client view', () => urlIn(watcher), 20);
+  check(watchUrl.includes('?token=w4tch'), 'the token from $TANDEM_VIEW_TOKEN', watchUrl);
+  const script = await fetch(watchUrl.replace(/\?token=.*/, 'viewer.js'));
+  check(script.status === 401, "the page's files need the token too", `HTTP ${script.status}`);
   const watchPage = await browser.newPage({ viewport: { width: 960, height: 640 } });
   await watchPage.goto(watchUrl);
   const watched = await waitFor('the watched session drawn', () => watchPage.evaluate(() => {
@@ -144,9 +151,12 @@ await run(async () => {
   check(drawnGlb.drawn === glbTriangles, 'tandem view draws a Draco-compressed GLB whole',
         `${drawnGlb.drawn} of ${glbTriangles} triangles`);
 
-  const dirView = start('tandem', ['view', path.join(work, 'chunks'), '--view', '127.0.0.1:0', '--view-token', 's3cret', '--linger', '60']);
+  fs.writeFileSync(path.join(work, 'view-token'), 's3cret\n');
+  const dirView = start('tandem', ['view', path.join(work, 'chunks'), '--view', '127.0.0.1:0',
+                                   '--view-token-file', path.join(work, 'view-token'), '--linger', '60']);
   const dirUrl = await waitFor('tandem view DIR', () => urlIn(dirView), 20);
   check(dirUrl.includes('?token=s3cret'), 'the printed address carries the token', dirUrl);
+  check(!dirView.err.includes('warning'), 'no warning for a token read from a file', dirView.err);
   const refused = await fetch(dirUrl.replace(/\?token=.*/, 'state.json'));
   check(refused.status === 401, 'data without the token is refused', `HTTP ${refused.status}`);
   await page.goto(dirUrl);
