@@ -9,6 +9,7 @@
 #include <span>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
 #include "draco/compression/config/compression_shared.h"
 #include "draco/compression/decode.h"
@@ -24,6 +25,9 @@ namespace {
 constexpr int kSequentialLevel = 0;
 // Unit normals in a GLB: 10 bits (Draco's octahedral coding), under a quarter of a degree.
 constexpr int kNormalBits = 10;
+
+using Point = std::array<float, 3>;
+using Lattice = std::array<int64_t, 3>;
 
 // Draco's position grid (AttributeQuantizationTransform with its Quantizer): a coordinate v
 // goes to q = floor((v - origin) * inverse_delta + 0.5) in float32 arithmetic, inverse_delta
@@ -47,25 +51,33 @@ struct Grid {
     if (!(q >= -2147483648.0f && q < 2147483648.0f)) return std::numeric_limits<int32_t>::min();
     return static_cast<int32_t>(q);
   }
+  // A grid point as one number: its coordinates side by side where each fits in 21 bits (up
+  // to 21 quantization bits), else mixed (splitmix64's finaliser), where two points share
+  // one with a chance of 2^-64, which would only make a vertex step off a free point.
+  static uint64_t Key(const Lattice& q) {
+    constexpr int64_t kBits = 21;
+    if (std::all_of(q.begin(), q.end(), [](int64_t c) { return c >= 0 && c < (1 << kBits); })) {
+      return static_cast<uint64_t>(q[0]) | static_cast<uint64_t>(q[1]) << kBits |
+             static_cast<uint64_t>(q[2]) << (2 * kBits);
+    }
+    uint64_t h = static_cast<uint64_t>(q[0]) * 0x9E3779B97F4A7C15u ^
+                 static_cast<uint64_t>(q[1]) * 0xC2B2AE3D27D4EB4Fu ^
+                 static_cast<uint64_t>(q[2]) * 0x165667B19E3779F9u;
+    h = (h ^ (h >> 30)) * 0xBF58476D1CE4E5B9u;
+    h = (h ^ (h >> 27)) * 0x94D049BB133111EBu;
+    return (h ^ (h >> 31)) | uint64_t{1} << 63;  // never a packed key
+  }
   // A grid whose step float32 can hold (positions spread beyond float32's range cannot).
   bool usable() const {
     return std::isfinite(inverse_delta) && inverse_delta > 0 && std::isfinite(delta) && delta > 0;
   }
 };
 
-using Point = std::array<float, 3>;
-using Lattice = std::array<int64_t, 3>;
-
-// Twice the area, in float32 as written: below this share of the squared edges a triangle
-// has none (core/src/degenerate.cc's rule; the benchmark's mesh_check counts with it).
-constexpr double kWrittenSquared = 4e-12;
 Vec3 AsVec(const Point& p) { return Vec3{p[0], p[1], p[2]}; }
 Vec3 AsVec(const Lattice& q) {
   return Vec3{static_cast<double>(q[0]), static_cast<double>(q[1]), static_cast<double>(q[2])};
 }
-bool HasArea(Vec3 a, Vec3 b, Vec3 c) {
-  return !AreaAtMost(kWrittenSquared, TwiceAreaVector(a, b, c), SumSquaredEdges(a, b, c));
-}
+bool HasArea(Vec3 a, Vec3 b, Vec3 c) { return !IsWrittenDegenerate(a, b, c); }
 // On the grid, with the corners' lattice points: it has an area and faces as `facing` (the
 // triangle's twice-area vector as written). Lattice coordinates are below 2^30: their
 // differences' products and sums are exact in doubles.
@@ -89,20 +101,47 @@ bool FarFromLosingArea(const Lattice& a, const Lattice& b, const Lattice& c) {
 }
 
 // Where a triangle with an area as written would have none on the grid (or turn over), one
-// of its corners steps to one of its 26 neighbouring grid points (the 6 along the axes
-// first), the first where none of that corner's triangles that have an area loses it or
-// turns over. `fixed` corners (by vertex; empty: none) stay. A step moves a corner by one
-// grid step along each axis at most, so it lies at most 1.5 steps from where it was given.
-// Returns the triangles left without an area on the grid.
-int64_t KeepAreasOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<const uint8_t> fixed,
-                        std::vector<Point>* points, MovedCorners* moved) {
+// of its corners steps to one of its 26 neighbouring grid points (the nearest to where it was
+// given first), the first where none of that corner's triangles that have an area loses it
+// or turns over. Where vertices quantize to one grid point (or to one of `avoid`'s: the
+// vertices another buffer on the same grid sent), all but one step off it the same way, so
+// that no two share a position as decoded, which a reader welding by position would join.
+// A step never lands on a grid point that another vertex holds. `fixed` corners (by vertex;
+// empty: none) stay. A step moves a corner by one grid step along each axis at most, so it
+// lies at most 1.5 steps from where it was given. Returns the triangles left without an area
+// on the grid and the vertices left on a grid point with another.
+int64_t KeepOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<const uint8_t> fixed,
+                   std::span<const Vec3> avoid, std::vector<Point>* points, MovedCorners* moved) {
   const size_t nv = points->size(), nt = mesh.num_triangles();
   std::vector<Lattice> q(nv);
   for (size_t i = 0; i < nv; ++i) {
     for (int a = 0; a < 3; ++a) q[i][a] = grid.Quantize((*points)[i][a], a);
   }
+  auto is_fixed = [&](uint32_t v) { return !fixed.empty() && fixed[v]; };
+  // Who holds each grid point: a vertex, or kAvoided (another buffer's). A vertex that finds
+  // its point held must step, unless it is fixed and the holder is not (they swap).
+  constexpr uint32_t kAvoided = ~uint32_t{0};
+  absl::flat_hash_map<uint64_t, uint32_t> held;  // by Key: half the bytes of a Lattice's
+  held.reserve(nv + avoid.size());
+  for (const Vec3& p : avoid) {
+    held.emplace(grid.Key({grid.Quantize(static_cast<float>(p.x), 0),
+                           grid.Quantize(static_cast<float>(p.y), 1),
+                           grid.Quantize(static_cast<float>(p.z), 2)}),
+                 kAvoided);
+  }
+  std::vector<uint32_t> crowded;
+  for (uint32_t v = 0; v < nv; ++v) {
+    auto [it, fresh] = held.emplace(grid.Key(q[v]), v);
+    if (fresh) continue;
+    if (is_fixed(v) && it->second != kAvoided && !is_fixed(it->second)) {
+      crowded.push_back(it->second);
+      it->second = v;
+    } else {
+      crowded.push_back(v);
+    }
+  }
   // The facing every check keeps: the positions as given. Nothing moves before the first
-  // pass has found a triangle that needs a corner moved; only then are they copied.
+  // pass has found a vertex that must move; only then are they copied.
   std::span<const Point> given(*points);
   std::vector<Point> given_copy;
   auto corners = [&](size_t t) { return &mesh.indices[3 * t]; };
@@ -125,10 +164,10 @@ int64_t KeepAreasOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<con
   for (size_t t = 0; t < nt; ++t) {
     if (!kept(t, kInvalid, {})) lost.push_back(static_cast<uint32_t>(t));
   }
-  if (lost.empty()) return 0;
+  if (lost.empty() && crowded.empty()) return 0;
   given_copy = *points;
   given = given_copy;
-  // The triangles of each vertex (CSR), only when some triangle needs a corner moved.
+  // The triangles of each vertex (CSR), only when some vertex must move.
   std::vector<uint32_t> first(nv + 1, 0), around(3 * nt);
   for (uint32_t v : mesh.indices) ++first[v + 1];
   for (size_t i = 0; i < nv; ++i) first[i + 1] += first[i];
@@ -146,57 +185,93 @@ int64_t KeepAreasOnGrid(const IndexedMesh& mesh, const Grid& grid, std::span<con
       }
     }
   }
-  int64_t left = 0;
-  for (uint32_t t : lost) {
-    if (kept(t, kInvalid, {})) continue;  // an earlier step mended it
+  // Moves vertex m to the free grid point next to its own (the nearest to where it was
+  // given first: a vertex that moved again stays next to its own), of those where none of
+  // its triangles that keeps its area and facing loses them and `mend` (a triangle of m's,
+  // or kInvalid) gets them back; false if there is none.
+  const std::vector<Lattice> own = q;
+  std::vector<std::pair<double, int>> order(steps.size());
+  std::vector<uint8_t> stepped(nv, 0);
+  auto step = [&](uint32_t m, uint32_t mend) {
+    if (is_fixed(m)) return false;
+    for (size_t k = 0; k < steps.size(); ++k) {
+      double far = 0;
+      for (int a = 0; a < 3; ++a) {
+        const double off = (given[m][a] - grid.origin[a]) * grid.inverse_delta -
+                           static_cast<double>(own[m][a]) - static_cast<double>(steps[k][a]);
+        far += off * off;
+      }
+      order[k] = {far, static_cast<int>(k)};
+    }
+    std::sort(order.begin(), order.end());
+    for (const auto& [far, k] : order) {
+      const Lattice& d = steps[k];
+      Lattice at{own[m][0] + d[0], own[m][1] + d[1], own[m][2] + d[2]};
+      if (std::any_of(at.begin(), at.end(), [&](int64_t c) { return c < 0 || c > grid.max_q; }) ||
+          at == q[m] || held.contains(grid.Key(at))) {
+        continue;
+      }
+      bool ok = mend == kInvalid || kept(mend, m, at);
+      for (uint32_t i = first[m]; i < first[m + 1] && ok; ++i) {
+        ok = kept(around[i], m, at) || !kept(around[i], kInvalid, {});
+      }
+      if (!ok) continue;
+      Point p;
+      for (int a = 0; a < 3; ++a) {
+        p[a] = grid.origin[a] + static_cast<float>(at[a]) * grid.delta;
+        ok = ok && grid.Quantize(p[a], a) == at[a];
+      }
+      if (!ok) continue;
+      if (auto it = held.find(grid.Key(q[m])); it != held.end() && it->second == m) held.erase(it);
+      held.emplace(grid.Key(at), m);
+      (*points)[m] = p;
+      q[m] = at;
+      stepped[m] = 1;
+      return true;
+    }
+    return false;
+  };
+  // Whether vertex m has its grid point to itself, taking it if it is free, or stepping off.
+  auto separate = [&](uint32_t m) {
+    auto [it, fresh] = held.emplace(grid.Key(q[m]), m);
+    return fresh || it->second == m || step(m, kInvalid);
+  };
+  // Whether triangle t keeps its area and facing, or a step of one of its corners (the one
+  // across the longest edge first: it moves the farthest from that line) mends it.
+  auto mend = [&](uint32_t t) {
+    if (kept(t, kInvalid, {})) return true;
     const uint32_t* v = corners(t);
-    // The corner across the longest edge first: it moves the farthest from that line.
     std::array<int, 3> order{0, 1, 2};
     auto across = [&](int k) {
       const Vec3 d = AsVec(given[v[(k + 1) % 3]]) - AsVec(given[v[(k + 2) % 3]]);
       return Dot(d, d);
     };
     std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return across(a) > across(b); });
-    bool mended = false;
-    for (int k : order) {
-      const uint32_t m = v[k];
-      if (!fixed.empty() && fixed[m]) continue;
-      for (const Lattice& d : steps) {
-        Lattice at{q[m][0] + d[0], q[m][1] + d[1], q[m][2] + d[2]};
-        if (std::any_of(at.begin(), at.end(), [&](int64_t c) { return c < 0 || c > grid.max_q; })) {
-          continue;
-        }
-        bool ok = true;
-        for (uint32_t i = first[m]; i < first[m + 1] && ok; ++i) ok = kept(around[i], m, at);
-        if (!ok) continue;
-        Point p;
-        for (int a = 0; a < 3; ++a) {
-          p[a] = grid.origin[a] + static_cast<float>(at[a]) * grid.delta;
-          ok = ok && grid.Quantize(p[a], a) == at[a];
-        }
-        if (!ok) continue;
-        (*points)[m] = p;
-        q[m] = at;
-        if (moved != nullptr) moved->emplace_back(m, AsVec(p));
-        mended = true;
-        break;
-      }
-      if (mended) break;
-    }
-    if (!mended) ++left;
+    return std::any_of(order.begin(), order.end(), [&](int k) { return step(v[k], t); });
+  };
+  // A step may free a grid point, or take a corner off a triangle's line, that another
+  // vertex or triangle waited for: a few rounds, while they help.
+  for (int round = 0; round < 4 && !(crowded.empty() && lost.empty()); ++round) {
+    const size_t before = crowded.size() + lost.size();
+    std::erase_if(crowded, separate);
+    std::erase_if(lost, mend);
+    if (crowded.size() + lost.size() == before) break;
   }
-  return left;
+  if (moved != nullptr) {
+    for (uint32_t m = 0; m < nv; ++m) {
+      if (stepped[m]) moved->emplace_back(m, AsVec((*points)[m]));
+    }
+  }
+  return static_cast<int64_t>(crowded.size() + lost.size());
 }
 
 // Builds a draco::Mesh with one point per vertex (identity mapping, no value
 // deduplication), so point ids equal vertex ids. Without an explicit grid, `options` gets
 // the one Draco would take (the positions' box: origin at its low corner, range its largest
 // extent, 1 if none), so that the positions can be kept off degenerate places on it.
-absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh,
-                                                          DracoOptions* options,
-                                                          std::span<const uint32_t> ids,
-                                                          std::span<const uint8_t> fixed,
-                                                          MovedCorners* moved) {
+absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(
+    const IndexedMesh& mesh, DracoOptions* options, std::span<const uint32_t> ids,
+    std::span<const uint8_t> fixed, MovedCorners* moved, std::span<const Vec3> avoid) {
   const size_t nv = mesh.num_vertices();
   if (!ids.empty() && ids.size() != nv) {
     return absl::InvalidArgumentError(
@@ -273,7 +348,7 @@ absl::StatusOr<std::unique_ptr<draco::Mesh>> ToDracoMesh(const IndexedMesh& mesh
   }
   if (const Grid grid(options->grid_origin, options->grid_range, options->quantization_bits);
       nv > 0 && grid.usable()) {  // the indices are checked
-    KeepAreasOnGrid(mesh, grid, fixed, &points, moved);
+    KeepOnGrid(mesh, grid, fixed, avoid, &points, moved);
   }
   for (size_t i = 0; i < nv; ++i) {
     att->SetAttributeValue(draco::AttributeValueIndex(static_cast<uint32_t>(i)), points[i].data());
@@ -380,12 +455,12 @@ absl::Status ValidateDracoOptions(const DracoOptions& options) {
 
 absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& given,
                                         std::span<const uint32_t> ids,
-                                        std::span<const uint8_t> fixed,
-                                        MovedCorners* moved) {
+                                        std::span<const uint8_t> fixed, MovedCorners* moved,
+                                        std::span<const Vec3> avoid) {
   if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
   DracoOptions options = given;  // with the grid made explicit
   if (moved != nullptr) moved->clear();
-  auto dmesh = ToDracoMesh(mesh, &options, ids, fixed, moved);
+  auto dmesh = ToDracoMesh(mesh, &options, ids, fixed, moved, avoid);
   if (!dmesh.ok()) return dmesh.status();
   if (mesh.num_triangles() == 0) {
     // Draco's mesh decoders refuse zero faces: a mesh without triangles travels as a
@@ -490,7 +565,7 @@ absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
     return absl::InvalidArgumentError(
         absl::StrCat(normals.size(), " normals for ", mesh.num_vertices(), " vertices"));
   }
-  auto dmesh = ToDracoMesh(mesh, &options, {}, {}, nullptr);
+  auto dmesh = ToDracoMesh(mesh, &options, {}, {}, nullptr, {});
   if (!dmesh.ok()) return dmesh.status();
   draco::GeometryAttribute normal;
   normal.Init(draco::GeometryAttribute::NORMAL, nullptr, 3, draco::DT_FLOAT32, false,

@@ -7,8 +7,8 @@
 //   * every coordinate within PositionTolerance(m, o.quantization_bits) of the original:
 //     two quantization steps plus float32 rounding;
 //   * no triangle that has an area as written (float32: twice the area above 2e-6 of its
-//     squared edges) decodes to one without, or turned over, where one grid step of a
-//     corner can prevent it (below);
+//     squared edges) decodes to one without, or turned over, and no two vertices decode to
+//     one position, where one grid step of a corner can prevent it (below);
 //   * compression_level 0 also keeps vertex and triangle order (and corner order), so
 //     decoded vertex i is original vertex i; levels >= 1 may reorder both.
 // Encoding is deterministic: the same mesh and options give byte-identical output.
@@ -58,18 +58,22 @@ absl::Status ValidateDracoOptions(const DracoOptions& options);
 // position: the decoded vertex count may then exceed the original (triangles are kept).
 // Quantization snaps every corner to the nearest grid point, and a thin triangle can lose
 // its area on the grid (its corners on one grid line) or turn over: a zero-area triangle in
-// the output, which breaks normals, slicers and some viewers (issue 24). Where one would,
-// a corner of it steps to a neighbouring grid point where none of that corner's triangles
-// loses its area or turns over (so it lies up to 1.5 steps from where it was). `fixed`
-// (empty, or one flag per vertex) names the corners that may not move: a sealed chunk's
-// vertices that an earlier chunk sent on the same grid. `moved` (if given) gets the corners
-// that moved, each with the position it was encoded at (float32 values, exactly), for a
-// later chunk on the same grid that sends that vertex again.
+// the output, which breaks normals, slicers and some viewers (issue 24); and two vertices
+// closer than a step can land on one grid point, which a reader welding by position joins
+// (a non-manifold mesh). Where either would happen, a corner steps to a free neighbouring
+// grid point where none of its triangles loses its area or turns over (so it lies up to 1.5
+// steps from where it was). `fixed` (empty, or one flag per vertex) names the corners that
+// may not move: a sealed chunk's vertices that an earlier chunk sent on the same grid.
+// `moved` (if given) gets the corners that moved, each with the position it was encoded at
+// (float32 values, exactly), for a later chunk on the same grid that sends that vertex
+// again. `avoid`: positions other buffers on the same grid sent (an earlier chunk's
+// vertices), whose grid points no vertex here may take unless it is fixed.
 using MovedCorners = std::vector<std::pair<uint32_t, Vec3>>;  // (vertex, position sent)
 absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOptions& options = {},
                                         std::span<const uint32_t> ids = {},
                                         std::span<const uint8_t> fixed = {},
-                                        MovedCorners* moved = nullptr);
+                                        MovedCorners* moved = nullptr,
+                                        std::span<const Vec3> avoid = {});
 
 // Decodes a Draco mesh or point-cloud buffer (positions as 3 floats per point; a point
 // cloud gives a mesh without triangles). InvalidArgument for what is not Draco, DataLoss

@@ -400,19 +400,35 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   std::vector<absl::StatusOr<std::string>> bytes(parts.size());
   std::vector<codec::MovedCorners> moved(parts.size());
   {
+    // Each part keeps off the last chunk's grid points and the earlier parts' (encoded side
+    // by side, they cannot see each other's steps).
+    std::vector<std::vector<Vec3>> avoid(parts.size(), last_sent_);
+    for (size_t i = 1; i < parts.size(); ++i) {
+      avoid[i] = avoid[i - 1];
+      avoid[i].insert(avoid[i].end(), meshes[i - 1].positions.begin(),
+                      meshes[i - 1].positions.end());
+    }
     TaskGroup group(compute_);
     for (size_t i = 1; i < parts.size(); ++i) {
       group.Run([&, i] {
-        bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids, fixed[i], &moved[i]);
+        bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids, fixed[i], &moved[i],
+                                      avoid[i]);
       });
     }
-    bytes[0] = codec::EncodeDraco(meshes[0], chunk_draco_, parts[0].ids, fixed[0], &moved[0]);
+    bytes[0] =
+        codec::EncodeDraco(meshes[0], chunk_draco_, parts[0].ids, fixed[0], &moved[0], avoid[0]);
     for (const IndexedMesh& mesh : meshes) shape_.Add(mesh);  // the chunk's triangles in order
     group.Wait();
   }
   encode_s_ += SecondsSince(t0);
+  last_sent_.clear();
   for (size_t i = 0; i < parts.size(); ++i) {
-    for (const auto& [v, at] : moved[i]) sent_moved_[parts[i].ids[v]] = at;
+    const size_t at_part = last_sent_.size();
+    last_sent_.insert(last_sent_.end(), meshes[i].positions.begin(), meshes[i].positions.end());
+    for (const auto& [v, at] : moved[i]) {
+      sent_moved_[parts[i].ids[v]] = at;
+      last_sent_[at_part + v] = at;
+    }
   }
   for (uint32_t id : parts.back().retired) {  // no later chunk has them
     sent_ids_.erase(id);
@@ -674,7 +690,8 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
 
 size_t ExtractJob::MemoryBytes() const {
   size_t bytes = slice_.capacity() + sent_ids_.capacity() * (sizeof(uint32_t) + 1) +
-                 sent_moved_.capacity() * (sizeof(uint32_t) + sizeof(Vec3) + 1);
+                 sent_moved_.capacity() * (sizeof(uint32_t) + sizeof(Vec3) + 1) +
+                 last_sent_.capacity() * sizeof(Vec3);
   for (const auto& child : surfaces_) bytes += child->MemoryBytes();
   // Peek: exact between messages except for the slab steps still in flight (a few slices'
   // growth, counted at their end), and exact after Finish.

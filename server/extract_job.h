@@ -145,6 +145,9 @@ class ExtractJob {
   // depth.
   absl::flat_hash_set<uint32_t> sent_ids_;
   absl::flat_hash_map<uint32_t, Vec3> sent_moved_;
+  // The positions the last chunk sent: a vertex of the next may not take one's grid point
+  // (codec::EncodeDraco's `avoid`), where two sheets touch across the two chunks.
+  std::vector<Vec3> last_sent_;
   // Several surfaces (see above): the children, their sinks, the latest Progress of each and
   // their final messages, held until the last child is done.
   std::vector<std::unique_ptr<ExtractJob>> surfaces_;

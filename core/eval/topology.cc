@@ -153,17 +153,50 @@ TopologyReport AnalyzeTopology(const IndexedMesh& mesh) {
   return r;
 }
 
-size_t CountDuplicatePositions(const IndexedMesh& mesh) {
+namespace {
+
+// The vertices sorted by position (x, then y, then z; ties by id).
+std::vector<uint32_t> ByPosition(const IndexedMesh& mesh) {
   std::vector<uint32_t> order(mesh.num_vertices());
   std::iota(order.begin(), order.end(), 0u);
   auto key = [&mesh](uint32_t v) {
     const Vec3& p = mesh.positions[v];
-    return std::make_tuple(p.x, p.y, p.z);
+    return std::make_tuple(p.x, p.y, p.z, v);
   };
   std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return key(a) < key(b); });
+  return order;
+}
+
+}  // namespace
+
+size_t CountDuplicatePositions(const IndexedMesh& mesh) {
+  const std::vector<uint32_t> order = ByPosition(mesh);
   size_t dup = 0;
-  for (size_t i = 1; i < order.size(); ++i) dup += key(order[i]) == key(order[i - 1]);
+  for (size_t i = 1; i < order.size(); ++i) {
+    dup += mesh.positions[order[i]] == mesh.positions[order[i - 1]];
+  }
   return dup;
+}
+
+IndexedMesh WeldByPosition(const IndexedMesh& mesh) {
+  const std::vector<uint32_t> order = ByPosition(mesh);
+  // Each vertex goes to the least id at its position; ids are renumbered in ascending order.
+  std::vector<uint32_t> first(mesh.num_vertices());
+  for (size_t i = 0; i < order.size(); ++i) {
+    const bool same = i > 0 && mesh.positions[order[i]] == mesh.positions[order[i - 1]];
+    first[order[i]] = same ? first[order[i - 1]] : order[i];
+  }
+  IndexedMesh out;
+  std::vector<uint32_t> id(mesh.num_vertices());
+  for (uint32_t v = 0; v < mesh.num_vertices(); ++v) {
+    if (first[v] == v) {
+      id[v] = static_cast<uint32_t>(out.positions.size());
+      out.positions.push_back(mesh.positions[v]);
+    }
+  }
+  out.indices.reserve(mesh.indices.size());
+  for (uint32_t v : mesh.indices) out.indices.push_back(id[first[v]]);
+  return out;
 }
 
 }  // namespace tandem

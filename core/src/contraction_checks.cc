@@ -220,7 +220,8 @@ bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScra
 }
 
 bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
-                std::vector<Survivor>* survivors, RefusalCounts* refusals) {
+                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                RefusalCounts* refusals) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
   // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|.
   // Which triangles are on ab (removed) varies from call to call: branching on it was
@@ -259,6 +260,17 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
       // kept 18 to 136 zero-area triangles.)
       p[corner] = from;
       if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
+      // One with an offset edge stands for such a triangle: it may turn over or leave its
+      // plane (else every grid point on the iso-value holds back the contractions around
+      // it), but not collapse.
+      if (!move.collapses) {
+        const double height =
+            std::max({store.height(tri[0]), store.height(tri[1]), store.height(tri[2])});
+        if (offsets.Holds(p[1] - p[0], height) || offsets.Holds(p[2] - p[1], height) ||
+            offsets.Holds(p[0] - p[2], height)) {
+          continue;
+        }
+      }
       if (far) {
         ++refusals->distance;
       } else if (move.collapses) {

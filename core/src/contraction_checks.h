@@ -5,11 +5,13 @@
 #ifndef TANDEM_CONTRACTION_CHECKS_H_
 #define TANDEM_CONTRACTION_CHECKS_H_
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
 
 #include "mesh_store.h"
+#include "tandem/geometry.h"
 #include "tandem/stats.h"
 #include "tandem/types.h"
 
@@ -40,17 +42,39 @@ inline bool LinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkSc
   return LinkConditionMarks(store, a, b, scratch);
 }
 
+// The edges the extractor's offset makes of a grid point on the iso-value (EdgeOffset,
+// tandem/geometry.h): its surface points lie δ to 1.5 δ off it, so at most 3δ apart along an
+// axis, where without the offset they were one point. A triangle with an edge that short
+// stands for one collapsed at the grid point, whose orientation and plane are the offset's,
+// not the surface's.
+struct OffsetEdges {
+  double reach = 0, reach_per_slice = 0;  // ExtractorConfig's
+  double spacing = 0;                     // the smallest, engine units; 0: no edge is one
+  double anisotropy = 1;                  // the largest spacing over the smallest
+  // Whether d (an edge's vector, engine units) in a triangle whose corners lie at most
+  // `height` (slices) up is one: at most 3δ along each axis, δ the offset at that slice (the
+  // largest its ends can have).
+  bool Holds(Vec3 d, double height) const {
+    const double limit = 2 * kEdgeOffsetSpread *
+                         EdgeOffset(reach + std::ceil(height) * reach_per_slice, anisotropy) *
+                         spacing * (1 + 1e-9);  // the ends' positions as computed
+    return std::fabs(d.x) <= limit && std::fabs(d.y) <= limit && std::fabs(d.z) <= limit;
+  }
+};
+
 // Geometry of contracting ab to a vertex at `pos`: no surviving triangle may flip or collapse
 // (tandem/geometry.h's MoveCorners), and with bound > 0 (the distance guard, K·E0) pos may lie
-// at most `bound` from each one's present plane. Triangles already degenerate (exact iso hits)
-// constrain nothing. On refusal, counts its reason in *refusals (distance before degenerate
-// before flip) and returns false. `survivors` is scratch.
+// at most `bound` from each one's present plane. Triangles already collapsed constrain nothing,
+// and those with an offset edge (`offsets`) may turn over or leave their plane, but not
+// collapse. On refusal, counts its reason in *refusals
+// (distance before degenerate before flip) and returns false. `survivors` is scratch.
 struct Survivor {  // a triangle that survives the contraction, and its corner that moves
   TriId t;
   VertexId v;
 };
 bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
-                std::vector<Survivor>* survivors, RefusalCounts* refusals);
+                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                RefusalCounts* refusals);
 
 }  // namespace tandem
 

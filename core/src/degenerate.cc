@@ -11,13 +11,8 @@
 namespace tandem {
 namespace {
 
-// Degenerate as written: positions leave as 32-bit floats, where corners 1e-9 apart in the
-// engine's doubles fall on one point. Twice the area at most 2e-6 of the squared edges
-// (IsDegenerateTriangle takes 2e-12: exact zeros only).
-constexpr double kWrittenSquared = 4e-12;
-bool Degenerate(Vec3 a, Vec3 b, Vec3 c) {
-  return AreaAtMost(kWrittenSquared, TwiceAreaVector(a, b, c), SumSquaredEdges(a, b, c));
-}
+// Degenerate as written (IsDegenerateTriangle takes 2e-12: exact zeros only).
+bool Degenerate(Vec3 a, Vec3 b, Vec3 c) { return IsWrittenDegenerate(a, b, c); }
 bool Degenerate(const MeshStore& s, TriId t) {
   const auto& tri = s.triangle(t);
   return Degenerate(s.position(tri[0]), s.position(tri[1]), s.position(tri[2]));

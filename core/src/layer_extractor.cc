@@ -151,15 +151,30 @@ uint8_t LayerExtractor::BoxMask(double i, double j, double k) const {
 }
 
 void LayerExtractor::EdgePoint(double pi, double pj, double pk, int axis, double fp, double fq,
-                               double idx[3]) {
+                               double offset, double idx[3]) {
   // fp and fq have different signs (one >= 0, one < 0), so the denominator is never 0 and
-  // t lies in [0, 1]; t = 0 or 1 exactly when a grid value equals the iso-value. The cube
-  // loop recomputes points with this same function, so they match bit for bit.
-  const double t = fp / (fp - fq);
+  // t lies in [0, 1]; t = 0 or 1 exactly when a grid value equals the iso-value, and the
+  // offset keeps the point off the grid point. The cube loop recomputes points with this
+  // same function, so they match bit for bit.
+  double t = fp / (fp - fq);
+  if (!(t >= kEdgeOffsetSpread * offset && t <= 1.0 - kEdgeOffsetSpread * offset)) {
+    const double own = offset * EdgeOffsetShare(static_cast<int64_t>(pi), static_cast<int64_t>(pj),
+                                                static_cast<int64_t>(pk), axis);
+    t = std::clamp(t, own, 1.0 - own);
+  }
   idx[0] = pi;
   idx[1] = pj;
   idx[2] = pk;
   idx[axis] += t;
+}
+
+std::array<double, 3> LayerExtractor::Offsets(int64_t k) const {
+  const std::array<double, 3>& s = config_.spacing;
+  const double smallest = std::min({s[0], s[1], s[2]});
+  const double offset = EdgeOffset(config_.reach + static_cast<double>(k) * config_.reach_per_slice,
+                                   std::max({s[0], s[1], s[2]}) / smallest) *
+                        smallest;
+  return {offset / s[0], offset / s[1], offset / s[2]};
 }
 
 int LayerExtractor::SeamFace(int64_t i) const {
@@ -334,6 +349,8 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
 
   staged_ = true;
   staged_layer_ = static_cast<int32_t>(k);
+  offset_bottom_ = offset_top_;
+  offset_top_ = Offsets(k);
   // Room for about what the last layer staged, at once: grown by doubling from empty, the
   // staging was copied on its way up and faulted in about twice over (a dense 2048² stream:
   // a third of the run's page faults; CommitLayer frees it past 4 MiB).
@@ -355,7 +372,8 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
     for (int64_t w = 0; w < words; ++w) {
       xe_top_.first[static_cast<size_t>(j * words + w)] = static_cast<uint32_t>(xe_top_.ids.size());
       ForEachBit(XCrossings(st, j, w), w * kWordBits, [&](int64_t i) {
-        EdgePoint(double(i + xo), double(j), kz, 0, Rel(vt[j * nx + i]), Rel(vt[j * nx + i + 1]), idx3);
+        EdgePoint(double(i + xo), double(j), kz, 0, Rel(vt[j * nx + i]), Rel(vt[j * nx + i + 1]),
+                  offset_top_[0], idx3);
         const VertexId v = StageVertex(idx3);
         xe_top_.ids.push_back(v);
         top_plane_vertices_.push_back(v);
@@ -367,7 +385,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
       ye_top_.first[static_cast<size_t>(j * words + w)] = static_cast<uint32_t>(ye_top_.ids.size());
       ForEachBit(YCrossings(st, j, w), w * kWordBits, [&](int64_t i) {
         EdgePoint(double(i + xo), double(j), kz, 1, Rel(vt[j * nx + i]), Rel(vt[(j + 1) * nx + i]),
-                  idx3);
+                  offset_top_[1], idx3);
         const VertexId v = StageVertex(idx3, SeamFace(i));
         ye_top_.ids.push_back(v);
         top_plane_vertices_.push_back(v);
@@ -384,10 +402,8 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
       ForEachBit(ZCrossings(j, w), w * kWordBits, [&](int64_t i) {
         const int64_t idx = j * nx + i;
         const double a = Rel(vb[idx]), b = Rel(vt[idx]);
-        EdgePoint(double(i + xo), double(j), kz - 1, 2, a, b, idx3);
-        const VertexId v = StageVertex(idx3, SeamFace(i));
-        ze_.ids.push_back(v);
-        if (b == 0) top_plane_vertices_.push_back(v);
+        EdgePoint(double(i + xo), double(j), kz - 1, 2, a, b, offset_top_[2], idx3);
+        ze_.ids.push_back(StageVertex(idx3, SeamFace(i)));
       });
     }
   }
@@ -498,8 +514,12 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
         const int c0 = mc::kEdgeCorners[e[s]][0], c1 = mc::kEdgeCorners[e[s]][1];
         const int axis = (c1 - c0) == 1 ? 0 : ((c1 - c0) == 2 ? 1 : 2);
         double p[3];
-        EdgePoint(double(i + config_.x_offset + (c0 & 1)), double(j + ((c0 >> 1) & 1)), kz - 1 + ((c0 >> 2) & 1),
-                  axis, f[c0], f[c1], p);
+        // A z-edge, or an edge of the top slice, is this layer's; the bottom slice's are the
+        // last layer's, with its offset.
+        const double offset =
+            (axis == 2 || ((c0 >> 2) & 1) != 0 ? offset_top_ : offset_bottom_)[axis];
+        EdgePoint(double(i + config_.x_offset + (c0 & 1)), double(j + ((c0 >> 1) & 1)),
+                  kz - 1 + ((c0 >> 2) & 1), axis, f[c0], f[c1], offset, p);
         const Vec3 q = Physical(p[0], p[1], p[2]);
         c[0] += q.x;
         c[1] += q.y;

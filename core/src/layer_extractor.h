@@ -22,6 +22,7 @@
 
 #include "absl/status/status.h"
 #include "mesh_store.h"
+#include "tandem/geometry.h"
 #include "tandem/types.h"
 #include "tandem/volume.h"
 
@@ -57,6 +58,10 @@ struct ExtractorConfig {
   int64_t x_offset = 0;
   int64_t row_stride = 0;
   uint8_t seam_faces = 0;
+  // How far from 0 the written positions of slice k's points may lie, in units of the
+  // smallest spacing: at most reach + k * reach_per_slice (the whole grid's, in the frame the
+  // outputs are written in), which sets the edge offset (EdgeOffset, tandem/geometry.h).
+  double reach = 0, reach_per_slice = 0;
 };
 
 class LayerExtractor {
@@ -117,11 +122,15 @@ class LayerExtractor {
   static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
 
   // Index-space point on the grid edge from index point p (value fp) along `axis` to the
-  // next grid point (value fq); fp, fq relative to the iso-value, exactly one >= 0. Index
-  // space is the whole grid's (x from x_offset on), so that a part computes the very
-  // positions an unsplit extraction would.
+  // next grid point (value fq); fp, fq relative to the iso-value, exactly one >= 0; at
+  // least `offset` (a fraction of the edge: Offsets) from both ends. Index space is the whole
+  // grid's (x from x_offset on), so that a part computes the very positions an unsplit
+  // extraction would.
   static void EdgePoint(double pi, double pj, double pk, int axis, double fp, double fq,
-                        double idx[3]);
+                        double offset, double idx[3]);
+  // The edge offset of the edges in slice k and of the z-edges below it, per axis as a
+  // fraction of the edge: EdgeOffset smallest spacings.
+  std::array<double, 3> Offsets(int64_t k) const;
   // Stages a vertex at an index-space point; returns its pending id. seam_face: 0 or 1 for a
   // y- or z-edge on the seam face x = 0 or x = nx-1, else -1.
   VertexId StageVertex(const double idx[3], int seam_face = -1);
@@ -148,6 +157,7 @@ class LayerExtractor {
   MeshStore* store_;
   int64_t slices_done_ = 0;
   int64_t crossed_cubes_ = 0;
+  std::array<double, 3> offset_bottom_{}, offset_top_{};  // Offsets(k - 1), Offsets(k), layer k
   bool finished_ = false;
 
   // Bottom (k-1) and top (k) slices: their values as given, and their signs bit-packed per

@@ -708,7 +708,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     }
     // Past E0 the guard (a multiple of E0) would stall.
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
-    if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, &survivors_, &refusals_)) {
+    if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, opt_.offset_edges, &survivors_, &refusals_)) {
       // Offered at the next rise; at α = 0 with its key, which is its cost.
       if (opt_.rises) Drop(e.a, e.b, opt_.alpha > 0.0 ? opt_.error : key);
       continue;

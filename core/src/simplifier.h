@@ -72,6 +72,7 @@ struct SimplifierOptions {
   // Tests: keep every vertex's quadric in full as well, as the layers and contractions sum
   // it, and count those read that differ (Simplifier::quadric_mismatches).
   bool check_quadrics = false;
+  OffsetEdges offset_edges;  // the extractor's (GeometryOk)
 };
 
 class Simplifier {
@@ -159,6 +160,7 @@ class Simplifier {
   // alongside (a vertex moved without Keep).
   int64_t quadric_mismatches() const { return quadric_mismatches_.load(); }
   double distance_bound() const { return opt_.distance_guard * opt_.error; }
+  const OffsetEdges& offset_edges() const { return opt_.offset_edges; }
   void ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a);
 
   // Error(K) = max ε0 over live vertices, as MeasuredShapeError measures it (rounding noise

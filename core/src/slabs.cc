@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cassert>
+#include <cmath>
 #include <limits>
 #include <queue>
 #include <stdexcept>
@@ -160,6 +161,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
   Slab* const slab[2] = {&left, &right};
   const double error = left.simplifier.error();
   const double bound = left.simplifier.distance_bound();
+  const OffsetEdges& offsets = left.simplifier.offset_edges();
   // kSeamEdge: seam vertices a < b (left ids) to one point of the plane, in both slabs.
   // 0 or 1: b, a vertex of that slab only, onto seam vertex a (left id), which stays put.
   constexpr int kSeamEdge = -1;
@@ -285,8 +287,8 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
       const VertexId rb = partner.at(e.b);
       if (!LinkCondition(left.store, e.a, e.b, &link_scratch) ||
           !LinkCondition(right.store, ra, rb, &link_scratch) ||
-          !GeometryOk(left.store, e.a, e.b, e.pos, bound, &survivors, &refusals) ||
-          !GeometryOk(right.store, ra, rb, e.pos, bound, &survivors, &refusals)) {
+          !GeometryOk(left.store, e.a, e.b, e.pos, bound, offsets, &survivors, &refusals) ||
+          !GeometryOk(right.store, ra, rb, e.pos, bound, offsets, &survivors, &refusals)) {
         continue;
       }
       left.simplifier.ContractAt(e.a, e.b, e.pos, e.cost, /*onto_a=*/false);
@@ -296,7 +298,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
       Slab& s = *slab[e.kind];
       const VertexId as = e.kind == 0 ? e.a : ra;
       if (!LinkCondition(s.store, as, e.b, &link_scratch) ||
-          !GeometryOk(s.store, as, e.b, e.pos, bound, &survivors, &refusals)) {
+          !GeometryOk(s.store, as, e.b, e.pos, bound, offsets, &survivors, &refusals)) {
         continue;
       }
       s.simplifier.ContractAt(as, e.b, e.pos, e.cost, /*onto_a=*/true);
@@ -347,10 +349,23 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                              double scale, int count, Executor* batches) {
   const std::array<double, 3> spacing{grid.spacing[0] / scale, grid.spacing[1] / scale,
                                       grid.spacing[2] / scale};
+  // The world frame's coordinates (ToWorld: origin plus the axes' steps, each axis of unit
+  // length) in smallest spacings, which set the edge offset: the same in every slab.
+  const double smallest = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
+  const double origin =
+      std::max({std::fabs(grid.origin[0]), std::fabs(grid.origin[1]), std::fabs(grid.origin[2])});
+  const double reach = (origin + static_cast<double>(grid.nx - 1) * grid.spacing[0] +
+                        static_cast<double>(grid.ny - 1) * grid.spacing[1]) /
+                       smallest;
   std::vector<std::unique_ptr<Slab>> slabs;
   for (int p = 0; p < count; ++p) {
     const int64_t c0 = p * (grid.nx - 1) / count, c1 = (p + 1) * (grid.nx - 1) / count;
     ExtractorConfig ec{c1 - c0 + 1, grid.ny, grid.nz, spacing, {0, 0, 0}, options.iso};
+    ec.reach = reach;
+    ec.reach_per_slice = grid.spacing[2] / smallest;
+    const OffsetEdges offset_edges{
+        ec.reach, ec.reach_per_slice, smallest / scale,
+        std::max({grid.spacing[0], grid.spacing[1], grid.spacing[2]}) / smallest};
     ec.x_offset = c0;
     ec.row_stride = grid.nx;
     if (p > 0) ec.seam_faces |= kBoxXMin;
@@ -369,7 +384,8 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .rises = options.target_triangles > 0,
                                .tile_x = spacing[0] * static_cast<double>(tile),
                                .tile_y = spacing[1] * static_cast<double>(tile),
-                               .check_quadrics = options.check_quadrics};
+                               .check_quadrics = options.check_quadrics,
+                               .offset_edges = offset_edges};
     auto slab = std::make_unique<Slab>(ec, so);
     if (options.seal) {
       const bool simplify = options.schedule != Schedule::kNone;

@@ -36,6 +36,10 @@ TopologyReport AnalyzeTopology(const IndexedMesh& mesh);
 
 // Number of vertices whose positions coincide exactly with another vertex's.
 size_t CountDuplicatePositions(const IndexedMesh& mesh);
+// The mesh as a reader that merges vertices by position sees it (STL readers, slicers): the
+// vertices at one exact position become one (the first of them, in id order), the
+// triangles kept as they are.
+IndexedMesh WeldByPosition(const IndexedMesh& mesh);
 
 }  // namespace tandem
 

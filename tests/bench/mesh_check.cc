@@ -5,10 +5,8 @@
 // "welded_*" repeat manifold/Euler after merging exactly coincident vertices.
 // "degenerate_triangles" are triangles with a repeated vertex index; "zero_area_triangles"
 // are those with three distinct corners but no area as written (issue 24, item 5: twice
-// the area at most 2e-6 of the squared edges, the engine's own rule in core/src/degenerate.cc).
+// the area at most 2e-6 of the squared edges, tandem/geometry.h's kWrittenSquared).
 #include <cstdio>
-#include <map>
-#include <tuple>
 
 #include "tandem/geometry.h"
 #include "tandem/mesh_io.h"
@@ -28,32 +26,15 @@ int main(int argc, char** argv) {
   const tandem::TopologyReport t = tandem::AnalyzeTopology(*mesh);
   const size_t dups = tandem::CountDuplicatePositions(*mesh);
 
-  tandem::IndexedMesh welded;
-  welded.indices = mesh->indices;
-  if (dups > 0) {
-    std::map<std::tuple<double, double, double>, uint32_t> first;
-    std::vector<uint32_t> remap(mesh->positions.size());
-    for (size_t i = 0; i < mesh->positions.size(); ++i) {
-      const tandem::Vec3 p = mesh->positions[i];
-      auto [it, inserted] = first.emplace(std::make_tuple(p.x, p.y, p.z), uint32_t(welded.positions.size()));
-      if (inserted) welded.positions.push_back(p);
-      remap[i] = it->second;
-    }
-    for (uint32_t& i : welded.indices) i = remap[i];
-  } else {
-    welded.positions = mesh->positions;
-  }
-  const tandem::TopologyReport w = dups > 0 ? tandem::AnalyzeTopology(welded) : t;
+  const tandem::TopologyReport w =
+      dups > 0 ? tandem::AnalyzeTopology(tandem::WeldByPosition(*mesh)) : t;
   size_t zero_area = 0;
   for (size_t k = 0; k + 2 < mesh->indices.size(); k += 3) {
     const uint32_t* v = &mesh->indices[k];
     if (v[0] == v[1] || v[1] == v[2] || v[2] == v[0]) continue;
     const tandem::Vec3 a = mesh->positions[v[0]], b = mesh->positions[v[1]],
                        c = mesh->positions[v[2]];
-    if (tandem::AreaAtMost(4e-12, tandem::TwiceAreaVector(a, b, c),
-                           tandem::SumSquaredEdges(a, b, c))) {
-      ++zero_area;
-    }
+    zero_area += tandem::IsWrittenDegenerate(a, b, c);
   }
 
   std::printf(

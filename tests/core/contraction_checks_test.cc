@@ -243,7 +243,7 @@ struct Fan {
   }
   bool Ok(Vec3 pos, double bound, RefusalCounts* refusals) {
     std::vector<Survivor> survivors;
-    return GeometryOk(store, v[0], v[1], pos, bound, &survivors, refusals);
+    return GeometryOk(store, v[0], v[1], pos, bound, OffsetEdges{}, &survivors, refusals);
   }
 };
 
@@ -279,8 +279,37 @@ TEST(GeometryOk, IgnoresTrianglesAlreadyDegenerate) {
   store.AddTriangle(a, c, d);  // collinear: a, c, d on x = 0
   std::vector<Survivor> survivors;
   RefusalCounts r;
-  EXPECT_TRUE(GeometryOk(store, b, a, {0.1, 0.0, 0}, 0.0, &survivors, &r));
+  EXPECT_TRUE(GeometryOk(store, b, a, {0.1, 0.0, 0}, 0.0, OffsetEdges{}, &survivors, &r));
   EXPECT_EQ(r.flip + r.degenerate + r.distance, 0);
+}
+
+// A triangle with an edge of the extractor's offset (two surface points δ off one grid point
+// on the iso-value, where without the offset they were one point) may turn over and leave its
+// plane, as the collapsed triangle it stands for may, but may not collapse; an edge longer
+// than 3δ along an axis is an edge of the surface.
+TEST(GeometryOk, LetsATriangleOnAnOffsetEdgeTurnButNotCollapse) {
+  const double delta = EdgeOffset(0, 1);
+  for (const double length : {delta, 1.5 * delta, 4 * delta}) {
+    MeshStore store;
+    const VertexId u = store.AddVertex({length, 0, 0}, 0, 0, 0),
+                   v = store.AddVertex({0, length, 0}, 0, 0, 0),
+                   a = store.AddVertex({1, 1, 0}, 0, 0, 0), b = store.AddVertex({2, 1, 0}, 0, 0, 0),
+                   w = store.AddVertex({2, 2, 0}, 0, 0, 0);
+    store.AddTriangle(u, a, v);  // on the offset edge uv, moves with a
+    store.AddTriangle(a, b, w);  // on ab: goes
+    std::vector<Survivor> survivors;
+    const OffsetEdges offsets{0, 0, 1, 1};
+    const bool offset_edge = length <= 3 * delta;
+    RefusalCounts r;
+    // Across uv: u-a-v turns over.
+    EXPECT_EQ(GeometryOk(store, a, b, {-1, -1, 0}, 0.0, offsets, &survivors, &r), offset_edge);
+    EXPECT_FALSE(GeometryOk(store, a, b, {-1, -1, 0}, 0.0, OffsetEdges{}, &survivors, &r));
+    // 0.5 off u-a-v's plane, the guard 0.1.
+    EXPECT_EQ(GeometryOk(store, a, b, {1, 1, 0.5}, 0.1, offsets, &survivors, &r), offset_edge);
+    // Onto the line uv: u-a-v collapses.
+    EXPECT_FALSE(GeometryOk(store, a, b, {-1, 1 + length, 0}, 0.0, offsets, &survivors, &r));
+    EXPECT_EQ(r.degenerate, 1);
+  }
 }
 
 }  // namespace

@@ -22,6 +22,7 @@
 #include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
+#include "testutil/embedded.h"
 #include "testutil/testutil.h"
 
 namespace tandem {
@@ -112,12 +113,7 @@ inline double QuantisedTangle(int seed, double i, double j, double k) {
 
 // Triangles of zero area (IsDegenerateTriangle).
 inline int64_t CountDegenerate(const IndexedMesh& m) {
-  int64_t count = 0;
-  for (size_t t = 0; t < m.num_triangles(); ++t) {
-    count += IsDegenerateTriangle(m.positions[m.indices[3 * t]], m.positions[m.indices[3 * t + 1]],
-                                  m.positions[m.indices[3 * t + 2]]);
-  }
-  return count;
+  return testing::CountTrianglesWhere(m, IsDegenerateTriangle);
 }
 
 }  // namespace tandem

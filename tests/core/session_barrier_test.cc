@@ -123,7 +123,9 @@ TEST(Geometry, ExtremeGridsAreRefusedWithTheField) {
 
 // The engine works relative to the grid: moving the grid moves the mesh and nothing else,
 // and changing the unit by a power of two scales it exactly (the quadrics, costs and
-// queues see the same numbers).
+// queues see the same numbers). Only the surface points' offset from the grid points grows
+// where float32 holds fewer digits of the coordinates (EdgeOffset): far off, the mesh keeps
+// its topology and error bound.
 TEST(Geometry, MeshDoesNotDependOnOriginOrUnit) {
   const auto slices = Slices(Shape::kPillowBox, 48, 48);
   SessionOptions o;
@@ -131,8 +133,19 @@ TEST(Geometry, MeshDoesNotDependOnOriginOrUnit) {
   const Outcome base = RunGrid(Grid(48, 48, {1, 1, 1}), o, slices);
   ASSERT_TRUE(base.status.ok()) << base.status;
   ASSERT_GT(base.mesh.num_triangles(), 100u);
+  const TopologyReport topology = AnalyzeTopology(base.mesh);
 
-  const std::array<double, 3> origin{1e5, -7e5, 3.25e5};
+  const std::array<double, 3> far{1e5, -7e5, 3.25e5};
+  const Outcome far_off = RunGrid(Grid(48, 48, {1, 1, 1}, far), o, slices);
+  ASSERT_TRUE(far_off.status.ok()) << far_off.status;
+  const TopologyReport far_topology = AnalyzeTopology(far_off.mesh);
+  EXPECT_TRUE(far_topology.IsClosedManifold());
+  EXPECT_EQ(far_topology.euler, topology.euler);
+  EXPECT_EQ(far_topology.components, topology.components);
+  EXPECT_LE(far_off.error_max, o.error);
+
+  // Within 1,000 voxels of 0 the offset is its floor.
+  const std::array<double, 3> origin{-900.5, 640.25, 333};
   const Outcome moved = RunGrid(Grid(48, 48, {1, 1, 1}, origin), o, slices);
   ASSERT_TRUE(moved.status.ok()) << moved.status;
   EXPECT_EQ(moved.mesh.indices, base.mesh.indices);

@@ -10,11 +10,15 @@
 
 #include <gtest/gtest.h>
 
+#include "absl/strings/str_cat.h"
 #include "tandem/geometry.h"
 #include "tandem/mesh_io.h"
 #include "tandem/synthetic.h"
 #include "tandem/run_session.h"
 #include "tandem/tandem.h"
+#include "tandem/topology.h"
+#include "tandem/volume.h"
+#include "testutil/embedded.h"
 
 namespace tandem::codec {
 namespace {
@@ -343,6 +347,81 @@ TEST(DracoCodec, ThinTrianglesKeepAnAreaOnTheGrid) {
   // One flag per vertex, or none.
   EXPECT_EQ(EncodeDraco(mesh, {8, 0}, {}, std::vector<uint8_t>(2, 0)).status().code(),
             absl::StatusCode::kInvalidArgument);
+}
+
+// Two sheets touching at a point (a grid point on the iso-value, the extractor's offset
+// keeping them a hair apart): two fans, each a cone, whose apexes lie closer than a grid
+// step. On the grid the apexes would be one point, which a reader welding by position joins
+// (a non-manifold vertex); one of them steps to a free neighbouring grid point, where its
+// triangles keep their areas and facing. With `avoid` (another buffer's vertex there) both
+// move off it; fixed, they stay on it.
+TEST(DracoCodec, VerticesOnOneGridPointStepApart) {
+  IndexedMesh mesh;
+  // A step is 1.9 / 255 (the box's largest extent, y); the apexes, 0.5 over its lowest z,
+  // lie inside one, on grid point 67 of z.
+  const double hair = 1e-4;
+  for (const double side : {1.0, -0.5}) {
+    const uint32_t apex = static_cast<uint32_t>(mesh.positions.size());
+    mesh.positions.push_back({0, 0, side > 0 ? hair : -hair});
+    for (int k = 0; k < 5; ++k) {
+      const double a = 2 * 3.141592653589793 * k / 5;
+      mesh.positions.push_back({std::cos(a), std::sin(a), side});
+    }
+    for (uint32_t k = 0; k < 5; ++k) {
+      const uint32_t b = apex + 1 + k, c = apex + 1 + (k + 1) % 5;
+      mesh.indices.insert(mesh.indices.end(), {apex, side > 0 ? b : c, side > 0 ? c : b});
+    }
+  }
+  auto check = [&](const std::vector<Vec3>& avoid, const std::vector<uint8_t>& fixed,
+                   size_t duplicates, size_t apexes_moved, const std::string& what) {
+    for (int level : {0, 7}) {
+      MovedCorners moved;
+      auto bytes = EncodeDraco(mesh, {8, level}, {}, fixed, &moved, avoid);
+      ASSERT_TRUE(bytes.ok()) << bytes.status();
+      auto decoded = DecodeDraco(*bytes);
+      ASSERT_TRUE(decoded.ok()) << decoded.status();
+      EXPECT_EQ(CountDuplicatePositions(*decoded), duplicates) << what << level;
+      EXPECT_EQ(CountNoArea(*decoded), 0u) << what << level;
+      EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, 8)) << what << level;
+      EXPECT_EQ(moved.size(), apexes_moved) << what << level;
+      for (const auto& [v, at] : moved) EXPECT_TRUE(v == 0 || v == 6) << what << v;
+    }
+  };
+  check({}, {}, 0, 1, "apart ");
+  check({{0, 0, 0}}, {}, 0, 2, "avoiding the apexes' point ");
+  std::vector<uint8_t> fixed(mesh.num_vertices(), 0);
+  fixed[0] = fixed[6] = 1;
+  check({}, fixed, 1, 0, "fixed ");
+}
+
+// The full-resolution surface of an integer scan at an integer iso-value (surface points a
+// hair off the grid points on it, closer together than a grid step at every depth below 16
+// bits) keeps its vertices apart and its triangles' areas on the grid, down to 8 bits: welded
+// by position, the decoded mesh is the indexed one.
+TEST(DracoCodec, AnIntegerScansFullSurfaceKeepsItsVerticesApartAtEveryDepth) {
+  constexpr int64_t nx = 96, ny = 48, nz = 40;
+  testing::QuantisedSource phantom(
+      DType::kUInt8, nx, ny, nz,
+      [](double i, double j, double k) { return testing::Phantom(nx, ny, nz, i, j, k); },
+      {0.7, 0.7, 1.2}, {-130.5, 42.25, 300});
+  SessionOptions o;
+  o.iso = 120;
+  o.schedule = Schedule::kNone;
+  auto session = RunSession(phantom, o);
+  ASSERT_TRUE(session.ok()) << session.status();
+  const IndexedMesh mesh = (*session)->Snapshot();
+  const TopologyReport indexed = AnalyzeTopology(mesh);
+  ASSERT_TRUE(indexed.IsManifold());
+  for (int bits : {16, 14, 12, 10, 8}) {
+    for (int level : {0, 7}) {
+      auto bytes = EncodeDraco(mesh, {bits, level});
+      ASSERT_TRUE(bytes.ok()) << bytes.status();
+      auto decoded = DecodeDraco(*bytes);
+      ASSERT_TRUE(decoded.ok()) << decoded.status();
+      testing::ExpectEmbedded(*decoded, indexed, absl::StrCat(bits, " bits, level ", level));
+      EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, bits)) << bits;
+    }
+  }
 }
 
 TEST(DracoCodec, RejectsBadMeshesAndOptions) {

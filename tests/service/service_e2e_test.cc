@@ -30,6 +30,7 @@
 #include "tandem/synthetic.h"
 #include "tandem/topology.h"
 #include "tandem/volume_writers.h"
+#include "testutil/embedded.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {
@@ -575,6 +576,80 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
     chunk_bytes += static_cast<int64_t>(std::filesystem::file_size(dir_ + "/chunks/" + f));
   }
   EXPECT_LT(chunk_bytes, 2 * plain_report->bytes_sent);
+}
+
+// A uint8 scan at an integer iso-value (many grid values equal to it) through the real
+// server and client, every Draco output decoded: the final mesh (full resolution,
+// simplified, split, to a target count), the previews, the sealed chunks welded by id, and a
+// Draco GLB. None has a zero-area triangle as written or two vertices at one position, and
+// welded by position each is the mesh its ids make.
+TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
+  constexpr int64_t nx = 96, ny = 48, nz = 40;
+  QuantisedSource phantom(DType::kUInt8, nx, ny, nz,
+                          [](double i, double j, double k) { return Phantom(nx, ny, nz, i, j, k); },
+                          {0.7, 0.7, 1.2}, {-130.5, 42.25, 300});
+  const std::string volume = dir_ + "/phantom.json";
+  ASSERT_TRUE(WriteVolume(volume, phantom.info(), [&](int64_t, std::vector<uint8_t>* bytes) {
+                return phantom.ReadSlice(bytes);
+              }).ok());
+  auto stream = [&](const std::string& name, const std::vector<std::string>& extra) {
+    return Client(Concat({"stream", "--server", server_->address(), "--input", volume, "--iso",
+                          "120", "--quiet", "--out", dir_ + "/" + name},
+                         extra));
+  };
+  auto decode = [&](const std::string& path) {
+    absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(ReadFile(path));
+    EXPECT_TRUE(mesh.ok()) << path << ": " << mesh.status();
+    return mesh.ok() ? *std::move(mesh) : IndexedMesh{};
+  };
+  for (const auto& [name, extra] : std::vector<std::pair<std::string, std::vector<std::string>>>{
+           {"full", {"--no-simplify"}},
+           {"plain", {}},
+           {"parts", {"--parts", "2"}},
+           {"target", {"--target-triangles", "1500", "--parts", "2"}},
+           {"level0", {"--compression-level", "0"}},
+           {"bits12", {"--quantization-bits", "12"}},
+           {"full-bits14", {"--no-simplify", "--quantization-bits", "14"}}}) {
+    const std::string previews = dir_ + "/previews_" + name;
+    RunResult r =
+        stream(name + ".drc",
+               Concat(extra, {"--partials", previews, "--preview-every", "6", "--rate", "30"}));
+    ASSERT_EQ(r.exit_code, 0) << name << ": " << r.err;
+    const IndexedMesh mesh = decode(dir_ + "/" + name + ".drc");
+    ASSERT_GT(mesh.num_triangles(), 200u) << name;
+    const TopologyReport t = AnalyzeTopology(mesh);
+    EXPECT_TRUE(t.IsManifold()) << name;
+    ExpectEmbedded(mesh, t, name);
+    const std::vector<std::string> files = SortedFileNames(previews);
+    EXPECT_GE(files.size(), 2u) << name;
+    for (const std::string& f : files) {
+      const IndexedMesh preview = decode(previews + "/" + f);
+      ExpectEmbedded(preview, AnalyzeTopology(preview), name + " " + f);
+    }
+  }
+  // Sealed, split: the chunks welded by id.
+  for (const std::string parts : {"1", "2"}) {
+    const std::string chunks_dir = dir_ + "/chunks" + parts;
+    RunResult r = stream("sealed" + parts + ".ply", {"--chunks", chunks_dir, "--parts", parts});
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    std::vector<SealedChunk> chunks;
+    for (const std::string& f : SortedFileNames(chunks_dir)) {
+      absl::StatusOr<SealedChunk> c = ReadChunkFile(chunks_dir + "/" + f);
+      ASSERT_TRUE(c.ok()) << c.status();
+      chunks.push_back(*std::move(c));
+    }
+    const IndexedMesh welded = WeldChunks(chunks);
+    const TopologyReport t = AnalyzeTopology(welded);
+    EXPECT_TRUE(t.IsManifold());
+    ExpectEmbedded(welded, t, "sealed chunks, parts " + parts);
+  }
+  // A Draco GLB, as the client writes it.
+  RunResult r = stream("mesh.glb", {"--glb-draco"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string glb = ReadGlb(dir_ + "/mesh.glb").draco;
+  absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(glb);
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  ExpectEmbedded(*mesh, AnalyzeTopology(*mesh), "Draco GLB");
 }
 
 // A sealed stream of a grid wide enough for four slabs (256 columns): each slab seals its own
