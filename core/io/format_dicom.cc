@@ -17,6 +17,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "dicom_codec.h"
+#include "dicom_worker_client.h"
 #include "follow_internal.h"
 #include "volume_io_internal.h"
 #include "tandem/series.h"
@@ -36,11 +37,9 @@ double Norm(const Vec& a) { return std::sqrt(Dot(a, a)); }
 std::string Base(const std::string& path) { return std::filesystem::path(path).filename(); }
 using dicom::SliceHeader;
 
-// One file's header through the DICOM module (dicom_codec.h).
+// One file's header, read in the DICOM reader process (dicom_worker_client.h).
 absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
-  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
-  if (!codec.ok()) return codec.status();
-  return (*codec)->read_header(path);
+  return dicom::ReadHeader(path);
 }
 
 DType StoredType(const SliceHeader& h) {
@@ -203,11 +202,8 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
 // Decodes one slice's pixels (through `buffer`) into `bytes` as info.dtype.
 absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
                         std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
-  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
-  if (!codec.ok()) return codec.status();
   const size_t n = static_cast<size_t>(info.slice_voxels());
-  if (absl::Status st = (*codec)->read_pixels(h.path, n * DTypeSize(plan.stored), buffer);
-      !st.ok()) {
+  if (absl::Status st = dicom::ReadPixels(h.path, n * DTypeSize(plan.stored), buffer); !st.ok()) {
     return st;
   }
   bytes->resize(info.slice_bytes());
