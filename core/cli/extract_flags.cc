@@ -23,7 +23,7 @@ absl::Status NameOptionFlag(const absl::Status& status) {
 void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddString("input", &input, "FILE",
                    "volume: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-                   ".tiff, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
+                   ".tiff, .mha, .mhd, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
                    "numbered single-page TIFFs",
                    /*required=*/true);
   flags->AddString("zarr-array", &zarr_array, "SEL",

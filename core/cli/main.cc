@@ -69,7 +69,8 @@ Usage:
 Every subcommand's --help lists its flags with their defaults.
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
-.tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
+.tif/.tiff (multi-page stack), .mha/.mhd (ITK MetaImage), Zarr v2/v3 and OME-Zarr stores
+(X.zarr; X.zarr#N reads
 multiscale level N, X.zarr#PATH the array PATH inside the group), or a folder of one
 file per slice: a DICOM series (any names and order; vertices in the patient frame) or
 numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
@@ -347,7 +348,8 @@ int Generate(int argc, char** argv) {
       "usage: tandem generate SHAPE --size N --out FILE [flags]\n"
       "Writes a synthetic float32 volume in the format of FILE's extension, every one the readers\n"
       "read: .json (FILE.raw beside it plus the JSON sidecar, whose \"suggested_isovalues\" holds\n"
-      "the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, or .zarr (an\n"
+      "the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, .mha, .mhd\n"
+      "(+ .raw), or .zarr (an "
       "OME-Zarr image: one level, array \"0\", axes z/y/x with the spacing as scale).\n"
       "SHAPE: sphere, pillowbox (the paper's Pillow Box), link (two interlocked tori),\n"
       "gyroid (a solid gyroid clipped to a ball: closed, high genus).");

@@ -137,7 +137,8 @@ int64_t FirstNonFinite(const uint8_t* bytes, size_t n);
 absl::Status NonFiniteVoxelError(int64_t i, int64_t j, float v);
 
 // Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
-// *.nii.gz, *.tif / *.tiff (multi-page stack), a Zarr / OME-Zarr store (*.zarr, or a
+// *.nii.gz, *.tif / *.tiff (multi-page stack), *.mha / *.mhd (ITK MetaImage), a Zarr /
+// OME-Zarr store (*.zarr, or a
 // directory holding Zarr metadata; "X.zarr#SELECTOR" picks a level or an array, see
 // tandem/zarr.h), or a folder of one file per slice: a DICOM series or numbered TIFFs (see
 // tandem/series.h). Errors name the file and the problem.
