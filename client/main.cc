@@ -389,17 +389,30 @@ int StreamCommand(int argc, char** argv) {
 
   // One status line while following: slices complete on disk and sent.
   std::atomic<int64_t> on_disk{0};
+  std::string spacing_warning;  // --spacing replacing the file's own
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
-    if (!follow) return tandem::OpenVolume(input);
-    tandem::FollowOptions fo;
-    fo.expect_slices = f.expect_slices;
-    fo.settle_s = f.settle;
-    fo.done_file = f.done_file;
-    fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
-    return tandem::FollowVolume(input, fo);
+    absl::StatusOr<std::unique_ptr<tandem::SliceSource>> src;
+    if (!follow) {
+      src = tandem::OpenVolume(input);
+    } else {
+      tandem::FollowOptions fo;
+      fo.expect_slices = f.expect_slices;
+      fo.settle_s = f.settle;
+      fo.done_file = f.done_file;
+      fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
+      src = tandem::FollowVolume(input, fo);
+    }
+    if (!src.ok()) return src;
+    absl::StatusOr<std::string> warn = f.ApplySpacing(&*src);
+    if (!warn.ok()) return warn.status();
+    spacing_warning = *warn;
+    return src;
   };
   absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source = open();
   if (!source.ok()) return Fail(source.status());
+  if (!spacing_warning.empty()) {
+    std::fprintf(stderr, "tandem-client: warning: %s\n", spacing_warning.c_str());
+  }
   // --iso and --error default as in `tandem extract`: the file's first suggested iso-value,
   // 0.2 x the smallest spacing.
   const tandem::VolumeInfo& info = (*source)->info();

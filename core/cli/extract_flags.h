@@ -6,6 +6,7 @@
 #define TANDEM_CLI_EXTRACT_FLAGS_H_
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -18,7 +19,7 @@
 namespace tandem::cli {
 
 struct ExtractFlags {
-  std::string input, zarr_array, out, iso, schedule = "tandem-lag", metrics, done_file;
+  std::string input, zarr_array, out, iso, schedule = "tandem-lag", metrics, done_file, spacing;
   double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
   double lockstep_error = SessionOptions{}.lockstep_error;
@@ -32,6 +33,9 @@ struct ExtractFlags {
   void Add(FlagSet* flags, const std::string& out_help);
   // --input with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
   std::string InputPath() const;
+  // --spacing: `source` delivers that spacing. "" when the file had none, else a warning
+  // naming the spacing the file carries and the flag replaces.
+  absl::StatusOr<std::string> ApplySpacing(std::unique_ptr<SliceSource>* source) const;
   // After parsing: the checks that need no volume (follow-only flags, the iso list, the
   // output names, the schedule).
   absl::Status Check(const FlagSet& flags) const;

@@ -179,6 +179,11 @@ int Extract(int argc, char** argv) {
     source = OpenVolume(input_path);
   }
   if (!source.ok()) return Fail(source.status());
+  if (absl::StatusOr<std::string> warn = f.ApplySpacing(&*source); !warn.ok()) {
+    return Fail(warn.status());
+  } else if (!warn->empty()) {
+    std::fprintf(stderr, "tandem extract: warning: %s\n", warn->c_str());
+  }
   const VolumeInfo info = (*source)->info();
 
   MeshWriteOptions write;
@@ -284,6 +289,7 @@ int Extract(int argc, char** argv) {
   if (reference) {
     auto ref_source = OpenVolume(input_path);
     if (!ref_source.ok()) return Fail(ref_source.status());
+    if (absl::Status st = f.ApplySpacing(&*ref_source).status(); !st.ok()) return Fail(st);
     std::vector<SessionOptions> ref_options = options;
     for (SessionOptions& o : ref_options) {
       o.schedule = Schedule::kNone;

@@ -140,6 +140,8 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
     if (absl::Status st = ParseNumbers(path, "ElementSpacing", *sp, 3, info.spacing.data()); !st.ok()) {
       return st;
     }
+  } else {
+    info.spacing_known = false;
   }
   if (const std::string* o = h.Find({"offset", "position", "origin"}); o != nullptr) {
     if (absl::Status st = ParseNumbers(path, "Offset", *o, 3, info.origin.data()); !st.ok()) return st;

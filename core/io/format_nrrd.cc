@@ -200,6 +200,8 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
       return st;
     }
     for (double& s : info.spacing) s = std::abs(s);
+  } else {
+    info.spacing_known = false;
   }
   if (const std::string* space = h.Find("space"); space != nullptr) {
     info.frame = absl::StrCat("NRRD space ", *space);

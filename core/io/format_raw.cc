@@ -84,6 +84,7 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
   info.dtype = *dtype;
 
   if (absl::Status st = ReadVec3(path, j, "spacing", &info.spacing); !st.ok()) return st;
+  info.spacing_known = j.contains("spacing");
   if (absl::Status st = ReadVec3(path, j, "origin", &info.origin); !st.ok()) return st;
   if (j.contains("directions")) {  // optional: [[x axis], [y axis], [z axis]] in the world
     info.frame = "sidecar origin, spacing and directions";

@@ -1096,6 +1096,7 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
   info.ny = a.shape[nd - 2];
   info.nx = a.shape[nd - 1];
   info.dtype = a.dtype;
+  info.spacing_known = !r.scale.empty();
   if (!r.scale.empty()) {
     for (int k = 0; k < 3; ++k) {
       info.spacing[k] = r.scale[nd - 1 - k];

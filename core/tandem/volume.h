@@ -29,6 +29,10 @@ struct VolumeInfo {
   int64_t nx = 0, ny = 0, nz = 0;  // grid vertices per axis; nz = 0 means "not known yet"
   DType dtype = DType::kUInt8;
   std::array<double, 3> spacing{1.0, 1.0, 1.0};  // physical units per voxel step
+  // False when the file gives no spacing (a TIFF stack without resolution tags, a plain
+  // Zarr array, a NRRD or MetaImage header without one): 1 was assumed, and the programs'
+  // --spacing flag supplies it.
+  bool spacing_known = true;
   std::array<double, 3> origin{0.0, 0.0, 0.0};   // physical position of voxel (0,0,0)
   // World unit vectors of the grid's x, y and z axes (orthonormal; a flip or a rotation, as
   // DICOM ImageOrientationPatient or a NIfTI / NRRD orientation gives).

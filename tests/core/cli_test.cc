@@ -1,6 +1,7 @@
 // The `tandem` executable, run as a user would: exit codes, files written, messages.
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -486,6 +487,55 @@ TEST_F(Cli, LoadsGdcmOnlyForDicomAndReadsItInTheWorker) {
                              Path("prefix/lib/tandem/libtandem_dicom.so"));
   o = run(lonely, "generate link --size 24 --series dicom --out " + Path("dcm2"));
   EXPECT_EQ(o.code, 0) << o.text.substr(0, 2000);
+}
+
+// The corners of a mesh's bounding box.
+std::pair<Vec3, Vec3> Bounds(const std::string& path) {
+  auto mesh = ReadMesh(path);
+  EXPECT_TRUE(mesh.ok()) << mesh.status();
+  Vec3 lo{1e30, 1e30, 1e30}, hi{-1e30, -1e30, -1e30};
+  for (const Vec3& p : mesh.ok() ? mesh->positions : std::vector<Vec3>{}) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  return {lo, hi};
+}
+
+// A TIFF stack without resolution tags gives no spacing: --spacing supplies it and the
+// mesh's extent follows it exactly; a file's own spacing is replaced with a warning.
+TEST_F(Cli, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
+  testing::WriteBareTiffStack(Path("bare.tif"), 24, 20, 16);
+  const std::string common = " --iso 100 --no-simplify --quiet --input ";
+  Output o = RunTandem("extract --out " + Path("grid.ply") + common + Path("bare.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("extract --spacing 0.5,0.25,2 --out " + Path("mm.ply") + common + Path("bare.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
+  const auto [glo, ghi] = Bounds(Path("grid.ply"));
+  const auto [mlo, mhi] = Bounds(Path("mm.ply"));
+  const double s[3] = {0.5, 0.25, 2};
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GT(ghi[a] - glo[a], 5) << a;
+    EXPECT_NEAR(mlo[a], glo[a] * s[a], 1e-4) << a;
+    EXPECT_NEAR(mhi[a], ghi[a] * s[a], 1e-4) << a;
+  }
+  // ImageJ's description gives spacing 1: the flag replaces it, saying so.
+  o = RunTandem("generate sphere --size 20 --out " + Path("ij.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("extract --spacing 2,2,2 --iso 0 --out " + Path("ij.ply") + " --input " +
+                Path("ij.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("warning: --spacing 2,2,2 replaces the spacing 1,1,1 that " +
+                        Path("ij.tif") + " carries"),
+            std::string::npos)
+      << o.text;
+  o = RunTandem("extract --spacing 1,0,1 --iso 100 --out " + Path("x.ply") + " --input " +
+                Path("bare.tif"));
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--spacing 1,0,1: expected three positive numbers"), std::string::npos)
+      << o.text;
 }
 
 // The viewer's HTTP server is a module too (viewer/view_server.h): Debian's cpp-httplib links
