@@ -10,6 +10,8 @@
 // (ElementByteOrderMSB / BinaryDataByteOrderMSB); CompressedData (a zlib stream, optionally
 // CompressedDataSize bytes long); HeaderSize (bytes before the data in the data file, -1 =
 // the data ends the file); ElementDataFile LOCAL or one file (relative to the header).
+// tandem's own SuggestedIsovalues field (MetaIO keeps unknown fields) carries the volume's
+// suggested iso-values, as NRRD's suggested_isovalues key does.
 #include <zlib.h>
 
 #include <cmath>
@@ -158,6 +160,12 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
   if (const std::string* o = h.Find({"anatomicalorientation"}); o != nullptr) {
     info.description = absl::StrCat("MetaImage, AnatomicalOrientation ", *o);
   }
+  if (const std::string* isos = h.Find({"suggestedisovalues"}); isos != nullptr) {
+    for (absl::string_view part : absl::StrSplit(*isos, absl::ByAnyChar(" \t"), absl::SkipEmpty())) {
+      double iso;
+      if (absl::SimpleAtod(part, &iso) && std::isfinite(iso)) info.suggested_isovalues.push_back(iso);
+    }
+  }
   if (const std::string* msb = h.Find({"elementbyteordermsb", "binarydatabyteordermsb"});
       msb != nullptr) {
     absl::StatusOr<bool> b = Flag(path, "ElementByteOrderMSB", *msb);
@@ -239,6 +247,11 @@ absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,
       triple(d[0]), " ", triple(d[1]), " ", triple(d[2]), "\nOffset = ", triple(info.origin),
       "\nElementSpacing = ", triple(info.spacing), "\nDimSize = ", info.nx, " ", info.ny, " ",
       info.nz, "\nElementType = ", type, "\n");
+  if (!info.suggested_isovalues.empty()) {
+    absl::StrAppend(&header, "SuggestedIsovalues =");
+    for (double v : info.suggested_isovalues) absl::StrAppend(&header, " ", FormatDouble(v));
+    absl::StrAppend(&header, "\n");
+  }
   std::string data_path = path;
   if (detached) {
     data_path = SiblingPath(path, ".raw").string();

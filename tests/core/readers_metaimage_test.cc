@@ -72,6 +72,7 @@ void ExpectVolume(const std::string& path, const VolumeInfo& info) {
   EXPECT_EQ(got.origin, info.origin);
   EXPECT_EQ(got.directions, info.directions);
   EXPECT_EQ(got.frame, "MetaImage physical space (ITK's LPS)");
+  EXPECT_EQ(got.suggested_isovalues, info.suggested_isovalues);
   ExpectPattern(**src);
 }
 
@@ -115,6 +116,7 @@ TEST(MetaImage, RoundTripsEveryTypeBothFormsAndByteOrders) {
         VolumeInfo info = Grid(t);
         const double c = std::sqrt(0.5);
         info.directions = {{{c, c, 0}, {-c, c, 0}, {0, 0, -1}}};  // rotated and flipped
+        info.suggested_isovalues = {12.5, -3};
         const std::string path = absl::StrCat(dir, "/v", name, big, ext);
         VolumeWriteOptions o;
         o.big_endian = big;
@@ -307,7 +309,8 @@ TEST(MetaImageItk, ItkReadsWhatTandemWrites) {
   const std::string dir = testing::MakeTempDir();
   for (const char* ext : {".mha", ".mhd"}) {
     for (bool big : {false, true}) {
-      const VolumeInfo info = Rotated(DType::kInt16);
+      VolumeInfo info = Rotated(DType::kInt16);
+      info.suggested_isovalues = {100};  // tandem's own field: ITK keeps it as metadata
       const std::string path = absl::StrCat(dir, "/t", big, ext);
       VolumeWriteOptions o;
       o.big_endian = big;
