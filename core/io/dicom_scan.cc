@@ -305,7 +305,7 @@ class Walker {
         }
         continue;
       }
-      if (absl::Status st = FitsOrTruncated(g, e, len, at); !st.ok()) return Refuse(st);
+      if (Walk w = Fits(g, e, len, at); w.lost || !w.status.ok()) return w;
       // A defined-length value that starts with an item is parsed as a sequence by GDCM
       // (an implicit VR SQ found by its dictionary, or an explicit UN holding one).
       if (!sequence && (f.implicit || un) && len >= 8 &&
@@ -313,7 +313,7 @@ class Walker {
         sequence = true;
       }
       if (sequence) {
-        if (Walk w = Push(Kind::kSequence, src_.pos() + len, f.implicit, at);
+        if (Walk w = Push(Kind::kSequence, src_.pos() + len, f.implicit || un, at);
             w.lost || !w.status.ok()) {
           return w;
         }
@@ -336,12 +336,12 @@ class Walker {
     const Frame f = stack_.back();
     if (e == 0xe000 && f.kind == Kind::kSequence) {  // an item: a data set
       if (len == kUndefined) return Push(Kind::kDataSet, kNoEnd, f.implicit);
-      if (absl::Status st = FitsOrTruncated(0xfffe, e, len, at); !st.ok()) return Refuse(st);
+      if (Walk w = Fits(0xfffe, e, len, at); w.lost || !w.status.ok()) return w;
       return Push(Kind::kDataSet, src_.pos() + len, f.implicit);
     }
     if (e == 0xe000 && f.kind == Kind::kFragments) {  // a fragment: bytes
       if (len == kUndefined) return Lost();
-      if (absl::Status st = FitsOrTruncated(0xfffe, e, len, at); !st.ok()) return Refuse(st);
+      if (Walk w = Fits(0xfffe, e, len, at); w.lost || !w.status.ok()) return w;
       // The image's fragments (after the offset table) under RLE: GDCM decodes the first one
       // while it reads the file, trusting its header.
       if (rle_ && stack_.size() == 2 && stack_.back().items++ > 0) {
@@ -404,21 +404,19 @@ class Walker {
     return {};
   }
 
-  // A defined length must fit in what holds it: the enclosing item or sequence, and the file.
-  absl::Status FitsOrTruncated(uint16_t g, uint16_t e, uint64_t len, uint64_t at) {
-    uint64_t room = src_.Left();
-    for (const Frame& f : stack_) {
-      if (f.end != kNoEnd) room = std::min(room, f.end - std::min(f.end, src_.pos()));
-    }
-    if (len <= room) return absl::OkStatus();
-    if (room == src_.Left() || stack_.size() == 1) {
-      return absl::DataLossError(Msg(absl::StrCat(
+  // A defined length must fit in the file (else the file is cut short: GDCM would allocate
+  // the length and pad) and in the item or sequence holding it (else the stream is one GDCM
+  // may read its own way: left to it).
+  Walk Fits(uint16_t g, uint16_t e, uint64_t len, uint64_t at) {
+    if (len > src_.Left()) {
+      return Refuse(absl::DataLossError(Msg(absl::StrCat(
           "truncated: element ", TagText(g, e), " at byte ", at, " declares ", len,
-          " bytes, only ", room, " follow (still being written, or cut short?)")));
+          " bytes, only ", src_.Left(), " follow (still being written, or cut short?)"))));
     }
-    return absl::InvalidArgumentError(Msg(absl::StrCat(
-        "corrupt: element ", TagText(g, e), " at byte ", at, " declares ", len,
-        " bytes, more than the ", room, " left in the sequence item holding it")));
+    for (const Frame& f : stack_) {
+      if (f.end != kNoEnd && len > f.end - std::min(f.end, src_.pos())) return Lost();
+    }
+    return {};
   }
 
   Walk Truncated(uint64_t at, uint64_t len) {

@@ -30,7 +30,7 @@ struct ScanLimits {
 // OK when the file stays within the limits, or when its stream is one this walk cannot
 // follow (left to GDCM). InvalidArgument naming the file when it nests too deep or holds too
 // many elements; DataLoss naming the file when a declared length runs past the end of the
-// file or of the item holding it (truncated: still being written, or cut short).
+// file (truncated: still being written, or cut short).
 absl::Status ScanFile(const std::string& path, const ScanLimits& limits = {});
 
 }  // namespace tandem::dicom
