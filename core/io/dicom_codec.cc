@@ -283,7 +283,13 @@ absl::Status ReadPixelsUnguarded(const std::string& path, size_t stored_bytes,
 }
 
 absl::Status ReadPixels(const std::string& path, size_t stored_bytes, uint8_t* out) {
-  if (absl::Status st = ScanFile(path); !st.ok()) return st;
+  ScanResult scan;
+  if (absl::Status st = ScanFile(path, {}, &scan); !st.ok()) return st;
+  if (scan.pixel_bytes >= 0 && static_cast<uint64_t>(scan.pixel_bytes) < stored_bytes) {
+    return absl::DataLossError(absl::StrCat(path, ": pixel data holds ", scan.pixel_bytes,
+                                            " bytes, the image needs ", stored_bytes,
+                                            " (truncated or corrupt file?)"));
+  }
   return GdcmGuarded(path, [&]() -> absl::Status {
     auto* reader = new gdcm::ImageReader;  // leaked, not freed, if an assertion jumps out
     absl::Status st = ReadPixelsUnguarded(path, stored_bytes, *reader, out);

@@ -229,6 +229,8 @@ class Walker {
   Walker(const std::string& path, const ScanLimits& limits, Source* src, uint64_t base)
       : path_(path), limits_(limits), src_(*src), base_(base) {}
 
+  int64_t pixel_bytes() const { return pixel_bytes_; }
+
   Walk Run(const Syntax& syntax) {
     stack_.push_back({Kind::kDataSet, kNoEnd, !syntax.is_explicit});
     big_ = syntax.big_endian;
@@ -306,6 +308,7 @@ class Walker {
         continue;
       }
       if (Walk w = Fits(g, e, len, at); w.lost || !w.status.ok()) return w;
+      if (g == 0x7fe0 && e == 0x0010 && stack_.size() == 1) pixel_bytes_ = static_cast<int64_t>(len);
       // A defined-length value that starts with an item is parsed as a sequence by GDCM
       // (an implicit VR SQ found by its dictionary, or an explicit UN holding one).
       if (!sequence && (f.implicit || un) && len >= 8 &&
@@ -438,6 +441,7 @@ class Walker {
   std::vector<Frame> stack_;
   int depth_ = 0;
   uint64_t elements_ = 0;
+  int64_t pixel_bytes_ = -1;
 };
 
 // The file meta information (explicit VR little endian, group 0002) from `start`: the data
@@ -487,7 +491,7 @@ Meta ReadMeta(int fd, uint64_t size, uint64_t start) {
 
 }  // namespace
 
-absl::Status ScanFile(const std::string& path, const ScanLimits& limits) {
+absl::Status ScanFile(const std::string& path, const ScanLimits& limits, ScanResult* result) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) {
     return absl::NotFoundError(absl::StrCat(path, ": cannot open: ", std::strerror(errno)));
@@ -517,7 +521,10 @@ absl::Status ScanFile(const std::string& path, const ScanLimits& limits) {
     } else {
       src = std::make_unique<FileSource>(fd, meta.data_set, size);
     }
-    return Walker(path, limits, src.get(), syntax.deflated ? 0 : meta.data_set).Run(syntax);
+    Walker walker(path, limits, src.get(), syntax.deflated ? 0 : meta.data_set);
+    Walk w = walker.Run(syntax);
+    if (result != nullptr && !w.lost) result->pixel_bytes = walker.pixel_bytes();
+    return w;
   };
   Walk w = walk(meta.syntax);
   // GDCM reads a data set whose "explicit" elements carry no VR as implicit: so does this.

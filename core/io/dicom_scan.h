@@ -27,11 +27,20 @@ struct ScanLimits {
   uint64_t max_inflated = 1ull << 30;  // bytes of a deflated data set
 };
 
+// What the walk saw that a reader of the pixels needs before GDCM allocates them.
+struct ScanResult {
+  // The declared length of the data set's native (not encapsulated) pixel data, -1 when
+  // there is none: GDCM pads a shorter element to the image's size, so a tiny file claiming
+  // a huge image would make it allocate and zero gigabytes.
+  int64_t pixel_bytes = -1;
+};
+
 // OK when the file stays within the limits, or when its stream is one this walk cannot
 // follow (left to GDCM). InvalidArgument naming the file when it nests too deep or holds too
 // many elements; DataLoss naming the file when a declared length runs past the end of the
 // file (truncated: still being written, or cut short).
-absl::Status ScanFile(const std::string& path, const ScanLimits& limits = {});
+absl::Status ScanFile(const std::string& path, const ScanLimits& limits = {},
+                      ScanResult* result = nullptr);
 
 }  // namespace tandem::dicom
 

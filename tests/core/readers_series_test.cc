@@ -505,7 +505,7 @@ TEST(DicomSeries, DeepSequencesAreRefusedBeforeParsingAndShallowOnesReadAtOnce) 
 
 // A declared length past the end of the file (GDCM would allocate it, then pad) and more
 // elements than any slice holds are refused before GDCM parses the file.
-TEST(DicomSeries, LengthsPastTheEndAndMillionsOfElementsAreRefused) {
+TEST(DicomSeries, LengthsPastTheEndShortPixelsAndMillionsOfElementsAreRefused) {
   const std::string root = testing::MakeTempDir();
   const VolumeInfo info = Grid(DType::kInt16);
   const std::string big = WriteSeries(root + "/big", info) + "/IM00002.dcm";
@@ -522,6 +522,20 @@ TEST(DicomSeries, LengthsPastTheEndAndMillionsOfElementsAreRefused) {
   st = ReadToEnd(root + "/many");
   EXPECT_LT(SecondsSince(t0), 2.0);
   EXPECT_TRUE(absl::StrContains(st.message(), many + ": more than 1048576 data elements")) << st;
+
+  // Pixel data shorter than the image: GDCM would pad it to the image's size (a few bytes
+  // claiming gigabytes); refused before it reads them.
+  const std::string cut = WriteSeries(root + "/cut", info) + "/IM00003.dcm";
+  std::string bytes = Slurp(cut);
+  const size_t pixels = bytes.rfind(std::string("\xe0\x7f\x10\x00OW\0\0", 8));
+  ASSERT_NE(pixels, std::string::npos);
+  Spit(cut, bytes.substr(0, pixels + 8) + U32Le(10) + std::string(10, '\0'));
+  st = ReadToEnd(root + "/cut");
+  EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+  EXPECT_TRUE(absl::StrContains(
+      st.message(), absl::StrCat(cut, ": pixel data holds 10 bytes, the image needs ",
+                                 info.slice_bytes())))
+      << st;
 }
 
 // What no check can foresee costs the reader process, not the program: a crash, a hang

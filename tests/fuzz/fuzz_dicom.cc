@@ -6,7 +6,9 @@
 // before GDCM (dicom_scan.h) is also called here, in this process, for its coverage.
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
+#include <string>
 
 #include "dicom_scan.h"
 #include "fuzz_common.h"
@@ -18,6 +20,16 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   data += 4;
   size -= 4;
   if (a > size) a = static_cast<uint32_t>(size);
+  // The reader processes this starts: under ASan they have no address-space limit, and GDCM
+  // allocates (and zeroes) what a corrupt length declares; a process asking for more than
+  // the largest slice read here (fuzz_common.h) is stopped at once instead.
+  static const bool limited = [] {
+    const char* asan = std::getenv("ASAN_OPTIONS");
+    const std::string options = std::string(asan != nullptr ? asan : "") +
+                                ":max_allocation_size_mb=64:allocator_may_return_null=0";
+    return ::setenv("ASAN_OPTIONS", options.c_str(), 1) == 0;
+  }();
+  (void)limited;
   static const std::string dir = [] {
     const std::string d = tandem::fuzz::ScratchDir() + "/series";
     std::string cmd = "mkdir -p '" + d + "'";
