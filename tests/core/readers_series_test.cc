@@ -5,6 +5,7 @@
 // or foreign file, mixed slice sizes), each refused with a message naming the files.
 #include <gtest/gtest.h>
 #include <tiffio.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <chrono>
@@ -535,6 +536,51 @@ TEST(DicomSeries, LengthsPastTheEndShortPixelsAndMillionsOfElementsAreRefused) {
   EXPECT_TRUE(absl::StrContains(
       st.message(), absl::StrCat(cut, ": pixel data holds 10 bytes, the image needs ",
                                  info.slice_bytes())))
+      << st;
+}
+
+// A GDCM-written explicit VR little endian file rewritten as Deflated Explicit VR Little
+// Endian (1.2.840.10008.1.2.1.99): the meta group's transfer syntax (and group length)
+// changed, the data set after it deflated (raw deflate, PS3.5 A.5).
+void Deflate(const std::string& file) {
+  std::string bytes = Slurp(file);
+  uint32_t group = 0;
+  std::memcpy(&group, bytes.data() + 140, 4);  // (0002,0000) after the preamble and "DICM"
+  const size_t data_set = 144 + group;
+  const std::string ts = std::string("\x02\x00\x10\x00UI", 6);
+  const size_t at = bytes.find(ts);
+  ASSERT_LT(at, data_set);
+  uint16_t len = 0;
+  std::memcpy(&len, bytes.data() + at + 6, 2);
+  const std::string uid("1.2.840.10008.1.2.1.99", 22);
+  std::string meta = bytes.substr(0, data_set);
+  meta.replace(at + 6, 2 + len, std::string("\x16\x00", 2) + uid);
+  const uint32_t new_group = group + 22 - len;
+  std::memcpy(meta.data() + 140, &new_group, 4);
+  z_stream zs{};
+  ASSERT_EQ(deflateInit2(&zs, 6, Z_DEFLATED, -15, 8, Z_DEFAULT_STRATEGY), Z_OK);
+  std::string raw = bytes.substr(data_set), out(deflateBound(&zs, raw.size()), '\0');
+  zs.next_in = reinterpret_cast<Bytef*>(raw.data());
+  zs.avail_in = static_cast<uInt>(raw.size());
+  zs.next_out = reinterpret_cast<Bytef*>(out.data());
+  zs.avail_out = static_cast<uInt>(out.size());
+  ASSERT_EQ(deflate(&zs, Z_FINISH), Z_STREAM_END);
+  out.resize(zs.total_out);
+  deflateEnd(&zs);
+  Spit(file, meta + out);
+}
+
+// A deflated data set is walked inflated, with the same bounds.
+TEST(DicomSeries, DeflatedDataSetsAreBoundedToo) {
+  const std::string root = testing::MakeTempDir();
+  const VolumeInfo info = Grid(DType::kInt16);
+  const std::string dir = WriteSeries(root + "/s", info);
+  Deflate(dir + "/IM00003.dcm");
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir))) << ReadToEnd(dir);
+  InsertBeforePixels(dir + "/IM00005.dcm", NestedSequences(4000, true));
+  Deflate(dir + "/IM00005.dcm");
+  const absl::Status st = ReadToEnd(dir);
+  EXPECT_TRUE(absl::StrContains(st.message(), dir + "/IM00005.dcm: sequences nested more than 32"))
       << st;
 }
 
