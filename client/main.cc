@@ -305,7 +305,8 @@ int StreamCommand(int argc, char** argv) {
   bool verbose = false;
   FlagSet flags(
       "usage: tandem-client stream --input VOLUME --out MESH [flags]\n"
-      "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, .mha/.mhd, a Zarr/OME-Zarr\n"
+      "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, .mha/.mhd, a "
+      "Zarr/OME-Zarr\n"
       "store X.zarr, X.zarr#LEVEL or X.zarr#ARRAY_PATH, or a folder holding a DICOM series\n"
       "or numbered single-slice TIFFs) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"

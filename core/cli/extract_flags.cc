@@ -12,8 +12,8 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
-#include "absl/strings/str_split.h"
 #include "absl/strings/str_replace.h"
+#include "absl/strings/str_split.h"
 
 namespace tandem::cli {
 
@@ -29,11 +29,12 @@ absl::Status NameOptionFlag(const absl::Status& status) {
 }
 
 void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
-  flags->AddString("input", &input, "FILE",
-                   "volume: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-                   ".tiff, .mha, .mhd, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
-                   "numbered single-page TIFFs",
-                   /*required=*/true);
+  flags->AddString(
+      "input", &input, "FILE",
+      "volume: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
+      ".tiff, .mha, .mhd, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
+      "numbered single-page TIFFs",
+      /*required=*/true);
   flags->AddString("zarr-array", &zarr_array, "SEL",
                    "Zarr group: the multiscale level (a number) or the array path to read "
                    "(same as --input X.zarr#SEL); none = level 0");
@@ -183,8 +184,8 @@ absl::StatusOr<std::string> ExtractFlags::ApplySpacing(std::unique_ptr<SliceSour
   const VolumeInfo& info = (*source)->info();
   std::string warning;
   if (info.spacing_known && info.spacing != *s) {
-    warning = absl::StrCat("--spacing ", Triple(*s), " replaces the spacing ",
-                           Triple(info.spacing), " that ", InputPath(), " carries");
+    warning = absl::StrCat("--spacing ", Triple(*s), " replaces the spacing ", Triple(info.spacing),
+                           " that ", InputPath(), " carries");
   }
   VolumeInfo checked = info;
   checked.spacing = *s;

@@ -138,8 +138,8 @@ class ZlibReader final : public ByteReader {
       if (rc == Z_STREAM_END) {
         ended_ = true;
       } else if (rc != Z_OK && rc != Z_BUF_ERROR) {
-        return absl::DataLossError(absl::StrCat(path_, ": corrupt zlib data: ",
-                                                zs_.msg != nullptr ? zs_.msg : "inflate failed"));
+        return absl::DataLossError(absl::StrCat(
+            path_, ": corrupt zlib data: ", zs_.msg != nullptr ? zs_.msg : "inflate failed"));
       }
     }
     return total;

@@ -2,6 +2,8 @@
 // which tandem_io loads to write (dicom_codec_loader.cc), and into tandem-dicom-worker, the
 // process that reads (dicom_worker.cc). Only what touches GDCM is here; the series' rules
 // are in format_dicom.cc and tandem/series.h.
+#include "dicom_codec.h"
+
 #include <gdcmAttribute.h>
 #include <gdcmDataSet.h>
 #include <gdcmImageChangeTransferSyntax.h>
@@ -11,7 +13,6 @@
 #include <gdcmReader.h>
 #include <gdcmTrace.h>
 #include <gdcmUIDGenerator.h>
-
 #include <setjmp.h>
 
 #include <algorithm>
@@ -22,7 +23,6 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
-#include "dicom_codec.h"
 #include "dicom_scan.h"
 #include "tandem/series.h"
 
@@ -230,9 +230,9 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
 // has one segment per byte of a sample (PS3.5 G.2): GDCM decodes other counts to garbage.
 absl::Status CheckRle(const std::string& path, const gdcm::Image& image) {
   const gdcm::SequenceOfFragments* frags = image.GetDataElement().GetSequenceOfFragments();
-  const gdcm::ByteValue* bv =
-      frags != nullptr && frags->GetNumberOfFragments() == 1 ? frags->GetFragment(0).GetByteValue()
-                                                             : nullptr;
+  const gdcm::ByteValue* bv = frags != nullptr && frags->GetNumberOfFragments() == 1
+                                  ? frags->GetFragment(0).GetByteValue()
+                                  : nullptr;
   if (bv == nullptr || bv->GetLength() < 4) {
     return absl::DataLossError(
         absl::StrCat(path, ": corrupt RLE pixel data: a one-frame image has one fragment"));

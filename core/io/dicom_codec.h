@@ -7,9 +7,9 @@
 // The module holds only what touches GDCM (one header, one slice's pixels, one slice
 // written, a UID) and no other tandem code; the reading program tandem-dicom-worker
 // (dicom_worker.cc) is built from the same source and reads files for tandem_io
-// (dicom_worker_client.h), which loads the module only to write: ordering, checking and converting a series stay
-// in tandem_io. Both sides are built together, with the same compiler and libraries, so the
-// table passes C++ types (std::string, absl::Status); kDicomCodecAbi guards against a stale
+// (dicom_worker_client.h), which loads the module only to write: ordering, checking and converting
+// a series stay in tandem_io. Both sides are built together, with the same compiler and libraries,
+// so the table passes C++ types (std::string, absl::Status); kDicomCodecAbi guards against a stale
 // module.
 #ifndef TANDEM_IO_DICOM_CODEC_H_
 #define TANDEM_IO_DICOM_CODEC_H_

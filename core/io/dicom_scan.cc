@@ -161,8 +161,8 @@ class InflateSource final : public Source {
     uint8_t scratch[4096];
     uint64_t done = 0;
     while (done < n) {
-      const size_t got = Produce(scratch, static_cast<size_t>(std::min<uint64_t>(sizeof scratch,
-                                                                                 n - done)));
+      const size_t got =
+          Produce(scratch, static_cast<size_t>(std::min<uint64_t>(sizeof scratch, n - done)));
       if (got == 0) break;
       done += got;
     }
@@ -308,11 +308,12 @@ class Walker {
         continue;
       }
       if (Walk w = Fits(g, e, len, at); w.lost || !w.status.ok()) return w;
-      if (g == 0x7fe0 && e == 0x0010 && stack_.size() == 1) pixel_bytes_ = static_cast<int64_t>(len);
+      if (g == 0x7fe0 && e == 0x0010 && stack_.size() == 1)
+        pixel_bytes_ = static_cast<int64_t>(len);
       // A defined-length value that starts with an item is parsed as a sequence by GDCM
       // (an implicit VR SQ found by its dictionary, or an explicit UN holding one).
-      if (!sequence && (f.implicit || un) && len >= 8 &&
-          src_.Fill(4) && U16(src_.Data(), big_) == 0xfffe && U16(src_.Data() + 2, big_) == 0xe000) {
+      if (!sequence && (f.implicit || un) && len >= 8 && src_.Fill(4) &&
+          U16(src_.Data(), big_) == 0xfffe && U16(src_.Data() + 2, big_) == 0xe000) {
         sequence = true;
       }
       if (sequence) {
@@ -413,8 +414,8 @@ class Walker {
   Walk Fits(uint16_t g, uint16_t e, uint64_t len, uint64_t at) {
     if (len > src_.Left()) {
       return Refuse(absl::DataLossError(Msg(absl::StrCat(
-          "truncated: element ", TagText(g, e), " at byte ", at, " declares ", len,
-          " bytes, only ", src_.Left(), " follow (still being written, or cut short?)"))));
+          "truncated: element ", TagText(g, e), " at byte ", at, " declares ", len, " bytes, only ",
+          src_.Left(), " follow (still being written, or cut short?)"))));
     }
     for (const Frame& f : stack_) {
       if (f.end != kNoEnd && len > f.end - std::min(f.end, src_.pos())) return Lost();
@@ -424,9 +425,9 @@ class Walker {
 
   Walk Truncated(uint64_t at, uint64_t len) {
     if (!src_.Failure().empty()) return Refuse(absl::DataLossError(Msg(src_.Failure())));
-    return Refuse(absl::DataLossError(Msg(absl::StrCat(
-        "truncated: the value at byte ", at, " declares ", len,
-        " bytes and the file ends first (still being written, or cut short?)"))));
+    return Refuse(absl::DataLossError(
+        Msg(absl::StrCat("truncated: the value at byte ", at, " declares ", len,
+                         " bytes and the file ends first (still being written, or cut short?)"))));
   }
 
   std::string Msg(const std::string& what) const { return absl::StrCat(path_, ": ", what); }
@@ -511,8 +512,8 @@ absl::Status ScanFile(const std::string& path, const ScanLimits& limits, ScanRes
   Meta meta = ReadMeta(fd, size, start);
   if (!meta.known) {  // no transfer syntax: GDCM guesses from the first element, so do we
     uint8_t first[6];
-    meta.syntax.is_explicit = ::pread(fd, first, 6, static_cast<off_t>(meta.data_set)) == 6 &&
-                              IsVr(first + 4);
+    meta.syntax.is_explicit =
+        ::pread(fd, first, 6, static_cast<off_t>(meta.data_set)) == 6 && IsVr(first + 4);
   }
   auto walk = [&](const Syntax& syntax) {
     std::unique_ptr<Source> src;

@@ -22,8 +22,8 @@
 namespace tandem::dicom {
 
 struct ScanLimits {
-  int max_depth = 32;                 // sequences inside sequences (real images: under 10)
-  uint64_t max_elements = 1u << 20;   // data elements and items (real slices: a few thousand)
+  int max_depth = 32;                  // sequences inside sequences (real images: under 10)
+  uint64_t max_elements = 1u << 20;    // data elements and items (real slices: a few thousand)
   uint64_t max_inflated = 1ull << 30;  // bytes of a deflated data set
 };
 

@@ -80,8 +80,7 @@ bool Reply(const absl::Status& st, const char* payload, size_t n) {
   w.U8(g_assertion_failed);
   w.U64(n);
   w.out() += msg;
-  return WriteFull(w.out().data(), w.out().size()) && WriteFull(payload, n) &&
-         !g_assertion_failed;
+  return WriteFull(w.out().data(), w.out().size()) && WriteFull(payload, n) && !g_assertion_failed;
 }
 
 // Tests of the caller's limits: a crash, a hang, an allocation without bound.
@@ -115,7 +114,8 @@ bool Serve(uint8_t op, uint64_t arg, const std::string& path) {
     static void* mapped = MAP_FAILED;
     static size_t mapped_size = 0;
     struct stat st;
-    if (::fstat(tandem::dicom::wire::kSharedFd, &st) != 0 || static_cast<uint64_t>(st.st_size) < arg) {
+    if (::fstat(tandem::dicom::wire::kSharedFd, &st) != 0 ||
+        static_cast<uint64_t>(st.st_size) < arg) {
       return Reply(absl::InternalError("the shared pixel buffer is too small"), nullptr, 0);
     }
     if (static_cast<size_t>(st.st_size) != mapped_size) {
@@ -129,8 +129,9 @@ bool Serve(uint8_t op, uint64_t arg, const std::string& path) {
                      0);
       }
     }
-    return Reply(g_codec->read_pixels(path, static_cast<size_t>(arg), static_cast<uint8_t*>(mapped)),
-                 nullptr, 0);
+    return Reply(
+        g_codec->read_pixels(path, static_cast<size_t>(arg), static_cast<uint8_t*>(mapped)),
+        nullptr, 0);
   }
   if (op == tandem::dicom::wire::kMisbehave) return Misbehave(arg);
   return Reply(absl::InvalidArgumentError("unknown request"), nullptr, 0);
@@ -145,8 +146,8 @@ extern "C" void __assert_fail(const char* assertion, const char* file, unsigned 
                               const char* function) noexcept {
   g_assertion_failed = true;
   if (g_codec != nullptr) g_codec->on_failed_assertion(assertion);  // returns outside GDCM
-  std::fprintf(stderr, "%s:%u: %s%sAssertion `%s' failed.\n", file, line,
-               function ? function : "", function ? ": " : "", assertion);
+  std::fprintf(stderr, "%s:%u: %s%sAssertion `%s' failed.\n", file, line, function ? function : "",
+               function ? ": " : "", assertion);
   std::abort();
 }
 

@@ -160,8 +160,8 @@ enum class Got { kOk, kClosed, kLate };
 Got RecvAll(int fd, void* dst, size_t n, Clock::time_point deadline) {
   char* p = static_cast<char*>(dst);
   while (n > 0) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline -
-                                                                              Clock::now());
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     if (left.count() <= 0) return Got::kLate;
     pollfd pfd{fd, POLLIN, 0};
     const int ready = ::poll(&pfd, 1, static_cast<int>(std::min<int64_t>(left.count(), 1 << 30)));
@@ -238,9 +238,8 @@ absl::Status Call(const std::string& path, uint8_t op, uint64_t arg, size_t max_
     }
   }
   if (const double t = g_time_limit.load(); t > 0) seconds = t;
-  const auto deadline =
-      Clock::now() + std::chrono::duration_cast<Clock::duration>(
-                         std::chrono::duration<double>(seconds));
+  const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                           std::chrono::duration<double>(seconds));
   char fixed[wire::kReplyFixed];
   Got got = RecvAll(w.fd, fixed, sizeof fixed, deadline);
   wire::Reader r(fixed, sizeof fixed);
@@ -261,14 +260,14 @@ absl::Status Call(const std::string& path, uint8_t op, uint64_t arg, size_t max_
   }
   if (got == Got::kLate) {
     Kill(w);
-    return absl::DataLossError(absl::StrCat(
-        path, ": the DICOM reader took more than ", seconds,
-        " s on this file and was stopped (a corrupt file can make the decoder loop)"));
+    return absl::DataLossError(
+        absl::StrCat(path, ": the DICOM reader took more than ", seconds,
+                     " s on this file and was stopped (a corrupt file can make the decoder loop)"));
   }
   if (got == Got::kClosed) {
-    return absl::DataLossError(absl::StrCat(
-        path, ": the DICOM reader process died reading this file (", Reap(w),
-        "): GDCM or one of its codecs cannot read it (corrupt, or crafted?)"));
+    return absl::DataLossError(
+        absl::StrCat(path, ": the DICOM reader process died reading this file (", Reap(w),
+                     "): GDCM or one of its codecs cannot read it (corrupt, or crafted?)"));
   }
   if (code == 0 && shared > 0) std::memcpy(shared_out, w.map, shared);
   if (retiring) {

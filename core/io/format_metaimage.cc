@@ -67,8 +67,8 @@ absl::StatusOr<MetaHeader> ReadHeader(const std::string& path, uint64_t file_siz
     if (absl::StripAsciiWhitespace(line).empty()) continue;
     const size_t eq = line.find('=');
     if (eq == absl::string_view::npos) {
-      return MetaError(path, absl::StrCat("not a MetaImage header line: \"",
-                                          line.substr(0, 80), "\" (expected Key = Value)"));
+      return MetaError(path, absl::StrCat("not a MetaImage header line: \"", line.substr(0, 80),
+                                          "\" (expected Key = Value)"));
     }
     std::string key = absl::AsciiStrToLower(absl::StripAsciiWhitespace(line.substr(0, eq)));
     std::string value(absl::StripAsciiWhitespace(line.substr(eq + 1)));
@@ -139,14 +139,16 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
     if (!*b) return MetaError(path, "BinaryData = False (text voxels) is not supported");
   }
   if (const std::string* sp = h.Find({"elementspacing", "elementsize"}); sp != nullptr) {
-    if (absl::Status st = ParseNumbers(path, "ElementSpacing", *sp, 3, info.spacing.data()); !st.ok()) {
+    if (absl::Status st = ParseNumbers(path, "ElementSpacing", *sp, 3, info.spacing.data());
+        !st.ok()) {
       return st;
     }
   } else {
     info.spacing_known = false;
   }
   if (const std::string* o = h.Find({"offset", "position", "origin"}); o != nullptr) {
-    if (absl::Status st = ParseNumbers(path, "Offset", *o, 3, info.origin.data()); !st.ok()) return st;
+    if (absl::Status st = ParseNumbers(path, "Offset", *o, 3, info.origin.data()); !st.ok())
+      return st;
   }
   if (const std::string* m = h.Find({"transformmatrix", "rotation", "orientation"}); m != nullptr) {
     double d[9];
@@ -161,9 +163,11 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
     info.description = absl::StrCat("MetaImage, AnatomicalOrientation ", *o);
   }
   if (const std::string* isos = h.Find({"suggestedisovalues"}); isos != nullptr) {
-    for (absl::string_view part : absl::StrSplit(*isos, absl::ByAnyChar(" \t"), absl::SkipEmpty())) {
+    for (absl::string_view part :
+         absl::StrSplit(*isos, absl::ByAnyChar(" \t"), absl::SkipEmpty())) {
       double iso;
-      if (absl::SimpleAtod(part, &iso) && std::isfinite(iso)) info.suggested_isovalues.push_back(iso);
+      if (absl::SimpleAtod(part, &iso) && std::isfinite(iso))
+        info.suggested_isovalues.push_back(iso);
     }
   }
   if (const std::string* msb = h.Find({"elementbyteordermsb", "binarydatabyteordermsb"});
@@ -243,10 +247,10 @@ absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,
   const auto& d = info.directions;
   std::string header = absl::StrCat(
       "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = ",
-      opts.big_endian ? "True" : "False", "\nCompressedData = False\nTransformMatrix = ",
-      triple(d[0]), " ", triple(d[1]), " ", triple(d[2]), "\nOffset = ", triple(info.origin),
-      "\nElementSpacing = ", triple(info.spacing), "\nDimSize = ", info.nx, " ", info.ny, " ",
-      info.nz, "\nElementType = ", type, "\n");
+      opts.big_endian ? "True" : "False",
+      "\nCompressedData = False\nTransformMatrix = ", triple(d[0]), " ", triple(d[1]), " ",
+      triple(d[2]), "\nOffset = ", triple(info.origin), "\nElementSpacing = ", triple(info.spacing),
+      "\nDimSize = ", info.nx, " ", info.ny, " ", info.nz, "\nElementType = ", type, "\n");
   if (!info.suggested_isovalues.empty()) {
     absl::StrAppend(&header, "SuggestedIsovalues =");
     for (double v : info.suggested_isovalues) absl::StrAppend(&header, " ", FormatDouble(v));
@@ -255,8 +259,8 @@ absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,
   std::string data_path = path;
   if (detached) {
     data_path = SiblingPath(path, ".raw").string();
-    absl::StrAppend(&header, "ElementDataFile = ",
-                    std::filesystem::path(data_path).filename().string(), "\n");
+    absl::StrAppend(
+        &header, "ElementDataFile = ", std::filesystem::path(data_path).filename().string(), "\n");
   } else {
     absl::StrAppend(&header, "ElementDataFile = LOCAL\n");
   }

@@ -27,8 +27,8 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "nlohmann/json.hpp"
-#include "volume_io_internal.h"
 #include "tandem/zarr.h"
+#include "volume_io_internal.h"
 #include "zarr_internal.h"
 
 namespace tandem {
@@ -604,8 +604,8 @@ absl::StatusOr<std::string> InsideStore(const std::string& root, const std::stri
   bool up = false;
   for (const fs::path& part : p) up = up || part == "..";
   const auto refuse = [&](absl::string_view why) {
-    return absl::InvalidArgumentError(absl::StrCat(what, " '", rel, "' ", why, " (",
-                                                   root, "); paths must stay inside the store"));
+    return absl::InvalidArgumentError(absl::StrCat(what, " '", rel, "' ", why, " (", root,
+                                                   "); paths must stay inside the store"));
   };
   if (rel.empty() || p.is_absolute() || up) {
     return refuse(rel.empty() ? "is empty" : p.is_absolute() ? "is absolute" : "goes up with ..");
@@ -616,7 +616,8 @@ absl::StatusOr<std::string> InsideStore(const std::string& root, const std::stri
   const fs::path real = fs::weakly_canonical(joined, ec);
   if (!ec_root && !ec) {
     auto [r, j] = std::mismatch(real_root.begin(), real_root.end(), real.begin(), real.end());
-    if (r != real_root.end()) return refuse(absl::StrCat("leads outside the group, to ", real.string()));
+    if (r != real_root.end())
+      return refuse(absl::StrCat("leads outside the group, to ", real.string()));
   }
   return joined.string();
 }

@@ -71,8 +71,8 @@ absl::Status ParseNumbers(const std::string& path, absl::string_view field, absl
   std::vector<absl::string_view> parts =
       absl::StrSplit(text, absl::ByAnyChar(" \t"), absl::SkipEmpty());
   if (parts.size() != n) {
-    return absl::InvalidArgumentError(absl::StrCat(path, ": \"", field, "\" needs ", n,
-                                                   " values, got \"", text, "\""));
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": \"", field, "\" needs ", n, " values, got \"", text, "\""));
   }
   for (size_t i = 0; i < n; ++i) {
     bool ok;

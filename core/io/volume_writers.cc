@@ -177,9 +177,10 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
   const std::string ext = internal::VolumeExtension(path);
   if (!info.axis_aligned() && (ext == ".tif" || ext == ".tiff" || ext == ".zarr")) {
     return absl::UnimplementedError(absl::StrCat(
-        path, ": this writer stores spacing and origin only, not rotated or flipped grid "
-              "directions (.json, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd and a DICOM series "
-              "store them)"));
+        path,
+        ": this writer stores spacing and origin only, not rotated or flipped grid "
+        "directions (.json, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd and a DICOM series "
+        "store them)"));
   }
   if (ext == ".json") return internal::WriteRawJson(path, info, slice_fn, opts);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::WriteNrrd(path, info, slice_fn, opts);

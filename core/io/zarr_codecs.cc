@@ -106,14 +106,13 @@ absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t*
   return absl::InternalError("unknown codec");
 }
 
-absl::Status CheckDecodedSize(const Compression& c, const uint8_t* src, size_t n,
-                              size_t expected) {
+absl::Status CheckDecodedSize(const Compression& c, const uint8_t* src, size_t n, size_t expected) {
   // blosc and zstd expand zeros by up to ~65536 (a 128 KiB zstd block in a few bytes).
   constexpr uint64_t kMaxRatio = 65536, kMaxDeflateRatio = 1032;
   const auto cannot = [&](absl::string_view codec, uint64_t ratio) -> absl::Status {
     if (uint64_t{n} * ratio + 64 >= expected) return absl::OkStatus();
-    return absl::DataLossError(absl::StrCat(codec, " data of ", n,
-                                            " bytes cannot hold the chunk's ", expected));
+    return absl::DataLossError(
+        absl::StrCat(codec, " data of ", n, " bytes cannot hold the chunk's ", expected));
   };
   switch (c.kind) {
     case Compression::kGzip:

@@ -30,8 +30,7 @@ absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t*
 // bytes that cannot decode to that size: blosc's and zstd's headers state their size, no
 // codec expands more than 65536 times, deflate at most 1032 times (a tiny chunk must not
 // make us allocate gigabytes).
-absl::Status CheckDecodedSize(const Compression& c, const uint8_t* src, size_t n,
-                              size_t expected);
+absl::Status CheckDecodedSize(const Compression& c, const uint8_t* src, size_t n, size_t expected);
 
 // Encodes n bytes of elements of typesize bytes (blosc's shuffle works per element).
 absl::Status Encode(const Compression& c, const uint8_t* src, size_t n, size_t typesize,

@@ -1,17 +1,16 @@
 // The `tandem` executable, run as a user would: exit codes, files written, messages.
+#include <gtest/gtest.h>
 #include <sys/wait.h>
 
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 
 #include "tandem/mesh_io.h"
 #include "tandem/metrics.h"
@@ -459,9 +458,9 @@ TEST_F(Cli, LoadsGdcmOnlyForDicomAndReadsItInTheWorker) {
   o = run(tandem, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("d.ply"));
   ASSERT_EQ(o.code, 0) << o.text;
   EXPECT_EQ(o.text.find("libtandem_dicom.so"), std::string::npos) << o.text.substr(0, 2000);
-  EXPECT_NE(o.text.find("libgdcmMSFF.so.3.0 [0];  needed by " +
-                        testing::BinPath("tandem-dicom-worker")),
-            std::string::npos)
+  EXPECT_NE(
+      o.text.find("libgdcmMSFF.so.3.0 [0];  needed by " + testing::BinPath("tandem-dicom-worker")),
+      std::string::npos)
       << o.text.substr(0, 2000);
 
   // Installed: bin/tandem finds the worker in ../lib/tandem/. Without it, reading DICOM is a

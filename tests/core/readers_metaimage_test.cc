@@ -99,9 +99,10 @@ void Spit(const std::string& path, const std::string& bytes) {
 std::string Zlib(const std::string& raw) {
   uLongf n = compressBound(static_cast<uLong>(raw.size()));
   std::string out(n, '\0');
-  EXPECT_EQ(compress2(reinterpret_cast<Bytef*>(out.data()), &n,
-                      reinterpret_cast<const Bytef*>(raw.data()), static_cast<uLong>(raw.size()), 6),
-            Z_OK);
+  EXPECT_EQ(
+      compress2(reinterpret_cast<Bytef*>(out.data()), &n,
+                reinterpret_cast<const Bytef*>(raw.data()), static_cast<uLong>(raw.size()), 6),
+      Z_OK);
   out.resize(n);
   return out;
 }
@@ -328,7 +329,8 @@ TEST(MetaImageItk, ItkReadsWhatTandemWrites) {
         EXPECT_EQ(image->GetOrigin()[a], info.origin[a]);
         for (int b = 0; b < 3; ++b) EXPECT_EQ(image->GetDirection()(b, a), info.directions[a][b]);
       }
-      for (itk::ImageRegionIterator<itk::Image<int16_t, 3>> it(image, image->GetLargestPossibleRegion());
+      for (itk::ImageRegionIterator<itk::Image<int16_t, 3>> it(image,
+                                                               image->GetLargestPossibleRegion());
            !it.IsAtEnd(); ++it) {
         const auto idx = it.GetIndex();
         ASSERT_EQ(it.Get(), PatternValue(DType::kInt16, idx[0], idx[1], idx[2]));

@@ -22,9 +22,9 @@
 #include "absl/strings/str_cat.h"
 #include "dicom_worker_client.h"
 #include "tandem/distance.h"
+#include "tandem/run_session.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
-#include "tandem/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
@@ -434,8 +434,8 @@ TEST(DicomSeries, CraftedRleHeadersAreRefusedNamingTheFile) {
     EXPECT_LT(SecondsSince(t0), 1.0);
     EXPECT_TRUE(absl::StrContains(st.message(), victim)) << st;
     EXPECT_TRUE(absl::StrContains(st.message(), "corrupt RLE pixel data")) << st;
-    EXPECT_TRUE(absl::StrContains(st.message(), segments == 1 ? "1 segment(s), 16-bit samples need 2"
-                                                              : "segments (1..15)"))
+    EXPECT_TRUE(absl::StrContains(
+        st.message(), segments == 1 ? "1 segment(s), 16-bit samples need 2" : "segments (1..15)"))
         << st;
   }
   EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(WriteSeries(root + "/good", info, rle))));
@@ -463,7 +463,8 @@ std::string NestedSequences(int depth, bool undefined) {
     item_size[d] = size;
     size += 8 + 12;
   }
-  for (int d = depth - 1; d >= 0; --d) out += sq + U32Le(item_size[d] + 8) + item + U32Le(item_size[d]);
+  for (int d = depth - 1; d >= 0; --d)
+    out += sq + U32Le(item_size[d] + 8) + item + U32Le(item_size[d]);
   return out + inner;
 }
 
@@ -534,8 +535,8 @@ TEST(DicomSeries, LengthsPastTheEndShortPixelsAndMillionsOfElementsAreRefused) {
   st = ReadToEnd(root + "/cut");
   EXPECT_TRUE(absl::IsDataLoss(st)) << st;
   EXPECT_TRUE(absl::StrContains(
-      st.message(), absl::StrCat(cut, ": pixel data holds 10 bytes, the image needs ",
-                                 info.slice_bytes())))
+      st.message(),
+      absl::StrCat(cut, ": pixel data holds 10 bytes, the image needs ", info.slice_bytes())))
       << st;
 }
 

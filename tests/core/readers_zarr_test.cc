@@ -742,10 +742,11 @@ TEST(ZarrBadInput, TinyChunksClaimingHugeOnesAreRefusedBeforeDecoding) {
   const std::string root = testing::MakeTempDir();
   for (const char* codec : {"gzip", "blosc"}) {
     const std::string store = absl::StrCat(root, "/", codec, ".zarr");
-    WriteText(store + "/.zarray",
-              absl::StrCat(R"({"zarr_format": 2, "shape": [2, 4096, 8192], "chunks": [1, 4096, 8192],
+    WriteText(
+        store + "/.zarray",
+        absl::StrCat(R"({"zarr_format": 2, "shape": [2, 4096, 8192], "chunks": [1, 4096, 8192],
                 "dtype": "<u2", "fill_value": 0, "compressor": {"id": ")",
-                           codec, R"("}})"));
+                     codec, R"("}})"));
     std::string chunk;
     if (std::string(codec) == "gzip") {
       chunk = std::string("\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03", 10) + std::string(90, '\0');
@@ -761,7 +762,8 @@ TEST(ZarrBadInput, TinyChunksClaimingHugeOnesAreRefusedBeforeDecoding) {
     const absl::Status st = ReadAll(store);
     EXPECT_TRUE(absl::IsDataLoss(st)) << st;
     EXPECT_TRUE(absl::StrContains(st.message(), store + "/0.0.0: chunk (0, 0, 0)")) << st;
-    EXPECT_TRUE(absl::StrContains(st.message(), " data of 100 bytes cannot hold the chunk's 67108864"))
+    EXPECT_TRUE(
+        absl::StrContains(st.message(), " data of 100 bytes cannot hold the chunk's 67108864"))
         << st;
   }
 }
@@ -772,9 +774,14 @@ TEST(ZarrBadInput, OutlandishMetadataIsRefusedBeforeAnyArithmetic) {
   const std::string v2 = SmallArray(2, ZarrCompressor::kNone);
   const std::string m2 = v2 + "/.zarray";
   ExpectMetadataError(
-      v2, m2, [](json& j) { j["shape"] = {int64_t{1} << 50, 8, 10}; }, "is beyond any volume");
+      v2, m2,
+      [](json& j) {
+        j["shape"] = {int64_t{1} << 50, 8, 10};
+      },
+      "is beyond any volume");
   ExpectMetadataError(
-      v2, m2, [](json& j) { j["dtype"] = json::parse(std::string(5000, '[') + std::string(5000, ']')); },
+      v2, m2,
+      [](json& j) { j["dtype"] = json::parse(std::string(5000, '[') + std::string(5000, ']')); },
       "JSON nested more than 64 levels deep");
   const std::string root = testing::MakeTempDir() + "/sharded.zarr";
   WriteShardedArray(root, false, {-1, -1, -1});
@@ -782,7 +789,7 @@ TEST(ZarrBadInput, OutlandishMetadataIsRefusedBeforeAnyArithmetic) {
       root, root + "/zarr.json",
       [](json& j) {
         j["chunk_grid"]["configuration"]["chunk_shape"] = {int64_t{1} << 40, int64_t{1} << 40,
-                                                          int64_t{1} << 40};
+                                                           int64_t{1} << 40};
         j["codecs"][0]["configuration"]["chunk_shape"] = {1, 1, 1};
       },
       "more than 2^24 inner chunks per shard");
@@ -807,10 +814,10 @@ TEST(OmeZarr, PathsOutsideTheStoreAreRefused) {
   };
   multiscale("0");
   ASSERT_TRUE(ReadAll(store).ok());
-  for (const auto& [path, why] : std::vector<std::pair<std::string, std::string>>{
-           {"../outside", "goes up with .."},
-           {root + "/outside", "is absolute"},
-           {"link", "leads outside the group"}}) {
+  for (const auto& [path, why] :
+       std::vector<std::pair<std::string, std::string>>{{"../outside", "goes up with .."},
+                                                        {root + "/outside", "is absolute"},
+                                                        {"link", "leads outside the group"}}) {
     multiscale(path);
     absl::Status st = ReadAll(store);
     EXPECT_TRUE(absl::IsInvalidArgument(st)) << st;

@@ -41,7 +41,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   for (const char* f : {"/a", "/b"}) {
     const absl::Status st = tandem::dicom::ScanFile(dir + f);
     if (!st.ok() && st.message().find(dir + f) == std::string::npos) {
-      tandem::fuzz::Violation("ScanFile error without the file's name: " + std::string(st.message()));
+      tandem::fuzz::Violation("ScanFile error without the file's name: " +
+                              std::string(st.message()));
     }
   }
   tandem::fuzz::ReadAllSlices(dir);

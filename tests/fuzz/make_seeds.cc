@@ -79,9 +79,8 @@ int main(int argc, char** argv) {
   const fs::path out(argv[1]);
   const fs::path tmp = fs::temp_directory_path() / ("tandem-seeds-" + std::to_string(getpid()));
   fs::create_directories(tmp);
-  for (const char* t :
-       {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_metaimage", "fuzz_zarr",
-        "fuzz_dicom"}) {
+  for (const char* t : {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_metaimage",
+                        "fuzz_zarr", "fuzz_dicom"}) {
     fs::create_directories(out / t);
   }
 
@@ -153,19 +152,23 @@ int main(int argc, char** argv) {
   Write(out / "fuzz_metaimage" / "seed_uint16.mha", Info(4, 3, 2, DType::kUInt16));
   const std::string mha = "ObjectType = Image\nNDims = 3\nBinaryData = True\n";
   Put(out / "fuzz_metaimage" / "seed_zlib.mha",
-      mha + "CompressedData = True\nCompressedDataSize = 11\nDimSize = 2 2 2\n"
-            "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+      mha +
+          "CompressedData = True\nCompressedDataSize = 11\nDimSize = 2 2 2\n"
+          "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
           std::string("\x78\x9c\x63\x60\x80\x03\x00\x00\x08\x00\x01", 11));
   Put(out / "fuzz_metaimage" / "seed_detached_raw.mha",
-      mha + "DimSize = 16 16 16\nElementSize = 0.5 0.5 2\nPosition = 1 2 3\n"
-            "Rotation = 0 1 0 1 0 0 0 0 -1\nAnatomicalOrientation = RAI\n"
-            "ElementType = MET_UCHAR\nElementDataFile = fz.raw\n");
+      mha +
+          "DimSize = 16 16 16\nElementSize = 0.5 0.5 2\nPosition = 1 2 3\n"
+          "Rotation = 0 1 0 1 0 0 0 0 -1\nAnatomicalOrientation = RAI\n"
+          "ElementType = MET_UCHAR\nElementDataFile = fz.raw\n");
   Put(out / "fuzz_metaimage" / "seed_detached_zraw.mha",
-      mha + "CompressedData = True\nElementByteOrderMSB = True\nDimSize = 8 8 32\n"
-            "ElementType = MET_USHORT\nElementDataFile = fz.zraw\n");
+      mha +
+          "CompressedData = True\nElementByteOrderMSB = True\nDimSize = 8 8 32\n"
+          "ElementType = MET_USHORT\nElementDataFile = fz.zraw\n");
   Put(out / "fuzz_metaimage" / "seed_tail.mha",
-      mha + "HeaderSize = -1\nDimSize = 8 8 16\nElementType = MET_SHORT\n"
-            "ElementDataFile = fz.raw\n");
+      mha +
+          "HeaderSize = -1\nDimSize = 8 8 16\nElementType = MET_SHORT\n"
+          "ElementDataFile = fz.raw\n");
 
   // fuzz_zarr: one-chunk arrays (chunk = the whole volume) packed as version byte, metadata
   // length, metadata, chunk.
@@ -261,7 +264,10 @@ int main(int argc, char** argv) {
                 std::string(100, '[') + std::string(100, ']') + "}",
             "");
   for (const char* path : {"0", "../0", "/tmp/0"}) {
-    zarr_seed(std::string("seed_ome_") + (path[0] == '0' ? "ok" : path[0] == '.' ? "up" : "abs") +
+    zarr_seed(std::string("seed_ome_") +
+                  (path[0] == '0'   ? "ok"
+                   : path[0] == '.' ? "up"
+                                    : "abs") +
                   ".bin",
               2,
               std::string(R"({"multiscales": [{"version": "0.4", "axes": ["z", "y", "x"],)"
@@ -326,10 +332,16 @@ int main(int argc, char** argv) {
     const std::string p = Slurp(plain / "IM00002.dcm");
     const size_t at = p.rfind(std::string("\xe0\x7f\x10\x00", 4));
     std::string nested;
-    for (int d = 0; d < 40; ++d) nested += std::string("\x40\x00\x30\xa7SQ\0\0\xff\xff\xff\xff"
-                                                       "\xfe\xff\x00\xe0\xff\xff\xff\xff", 20);
-    for (int d = 0; d < 40; ++d) nested += std::string("\xfe\xff\x0d\xe0\0\0\0\0"
-                                                       "\xfe\xff\xdd\xe0\0\0\0\0", 16);
+    for (int d = 0; d < 40; ++d)
+      nested += std::string(
+          "\x40\x00\x30\xa7SQ\0\0\xff\xff\xff\xff"
+          "\xfe\xff\x00\xe0\xff\xff\xff\xff",
+          20);
+    for (int d = 0; d < 40; ++d)
+      nested += std::string(
+          "\xfe\xff\x0d\xe0\0\0\0\0"
+          "\xfe\xff\xdd\xe0\0\0\0\0",
+          16);
     Put(out / "fuzz_dicom" / "seed_nested_40.bin",
         pack(Slurp(plain / "IM00001.dcm"), p.substr(0, at) + nested + p.substr(at)));
     Put(out / "fuzz_dicom" / "seed_length_past_end.bin",

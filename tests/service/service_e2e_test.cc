@@ -431,9 +431,9 @@ TEST_F(ServiceE2eTest, ClientReportsErrorsClearly) {
 TEST_F(ServiceE2eTest, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
   testing::WriteBareTiffStack(dir_ + "/bare.tif", 24, 20, 16);
   auto run = [&](const std::string& out, std::vector<std::string> extra) {
-    std::vector<std::string> args = {"stream", "--server", server_->address(), "--input",
-                                     dir_ + "/bare.tif", "--iso", "100", "--no-simplify",
-                                     "--out", out};
+    std::vector<std::string> args = {
+        "stream", "--server", server_->address(), "--input", dir_ + "/bare.tif",
+        "--iso",  "100",      "--no-simplify",    "--out",   out};
     args.insert(args.end(), extra.begin(), extra.end());
     RunResult r = Client(args);
     EXPECT_EQ(r.exit_code, 0) << r.err;

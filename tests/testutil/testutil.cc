@@ -1,5 +1,8 @@
 #include "testutil/testutil.h"
 
+#include <tiffio.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
 #include <cstdlib>
@@ -7,9 +10,6 @@
 #include <filesystem>
 #include <mutex>
 #include <vector>
-
-#include <tiffio.h>
-#include <unistd.h>
 
 namespace tandem::testing {
 
