@@ -39,11 +39,6 @@ namespace {
 using tandem::dicom::wire::Reader;
 using tandem::dicom::wire::Writer;
 
-// Address space the process may use: a slice of 2^28 16-bit voxels held twice by GDCM, its
-// codecs' buffers and the libraries fit; a corrupt length asking for more fails as
-// bad_alloc, reported as an error.
-constexpr rlim_t kMemoryLimit = rlim_t{4} << 30;
-
 const tandem::dicom::Codec* g_codec = nullptr;
 bool g_assertion_failed = false;
 
@@ -157,6 +152,9 @@ int main() {
   const rlimit no_core{0, 0};
   ::setrlimit(RLIMIT_CORE, &no_core);
 #ifndef TANDEM_SANITIZED
+  // Address space: a slice of 2^28 16-bit voxels held twice by GDCM, its codecs' buffers and
+  // the libraries fit; a corrupt length asking for more fails as bad_alloc, an error.
+  constexpr rlim_t kMemoryLimit = rlim_t{4} << 30;
   const rlimit memory{kMemoryLimit, kMemoryLimit};
   ::setrlimit(RLIMIT_AS, &memory);
 #endif

@@ -340,7 +340,8 @@ TEST(MetaImageItk, ItkReadsWhatTandemWrites) {
 }
 #else
 TEST(MetaImageItk, TandemReadsWhatItkWrites) {
-  GTEST_SKIP() << "ITK not found at build time (apt-get install libinsighttoolkit5-dev)";
+  GTEST_SKIP() << "ITK not found at build time (apt-get install libinsighttoolkit5-dev), or "
+                  "not a GCC build (Debian's ITK headers accept only GCC)";
 }
 #endif
 
