@@ -47,7 +47,10 @@ start=$(date +%s)
 bash tests/sanitize.sh --build-only "${targets[@]}" fuzz_make_seeds
 
 if [ "$seeds" = 1 ]; then
-  rm -rf tests/fuzz/corpus
+  # Only the generated corpora: fuzz_session's seeds are written by hand.
+  for t in "${all[@]}"; do
+    [ "$t" = fuzz_session ] || rm -rf "tests/fuzz/corpus/$t"
+  done
   "$build/bin/fuzz_make_seeds" tests/fuzz/corpus
   if [ -x "$build/bin/fuzz_request" ]; then
     mkdir -p tests/fuzz/corpus/fuzz_request
