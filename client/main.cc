@@ -307,7 +307,8 @@ int StreamCommand(int argc, char** argv) {
   bool verbose = false;
   FlagSet flags(
       "usage: tandem-client stream --input VOLUME --out MESH [flags]\n"
-      "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, a Zarr/OME-Zarr\n"
+      "Streams VOLUME (.json+.raw, .nrrd/.nhdr, .nii/.nii.gz, .tif/.tiff, .mha/.mhd, a "
+      "Zarr/OME-Zarr\n"
       "store X.zarr, X.zarr#LEVEL or X.zarr#ARRAY_PATH, or a folder holding a DICOM series\n"
       "or numbered single-slice TIFFs) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
@@ -399,14 +400,27 @@ int StreamCommand(int argc, char** argv) {
     if (reopened || f.quiet) return;
     absl::FPrintF(stderr, "%standem-client: %s\n", status_shown.exchange(false) ? "\n" : "", line);
   };
+  std::string spacing_warning;  // --spacing replacing the file's own
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
-    if (!follow) return tandem::OpenVolume(input, f.Open(note));
-    tandem::FollowOptions fo = f.Follow(note);
-    fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
-    return tandem::FollowVolume(input, fo);
+    absl::StatusOr<std::unique_ptr<tandem::SliceSource>> src;
+    if (!follow) {
+      src = tandem::OpenVolume(input, f.Open(note));
+    } else {
+      tandem::FollowOptions fo = f.Follow(note);
+      fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
+      src = tandem::FollowVolume(input, fo);
+    }
+    if (!src.ok()) return src;
+    absl::StatusOr<std::string> warn = f.ApplySpacing(&*src);
+    if (!warn.ok()) return warn.status();
+    spacing_warning = *warn;
+    return src;
   };
   absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source = open();
   if (!source.ok()) return Fail(source.status());
+  if (!spacing_warning.empty()) {
+    std::fprintf(stderr, "tandem-client: warning: %s\n", spacing_warning.c_str());
+  }
   // --iso and --error default as in `tandem extract`: the file's first suggested iso-value,
   // 0.2 x the smallest spacing.
   const tandem::VolumeInfo& info = (*source)->info();

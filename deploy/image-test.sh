@@ -156,7 +156,7 @@ triangles() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["t
 [ "$(triangles "$work/local.json")" = "$(triangles "$work/remote.json")" ] \
   || fail "the container's mesh has $(triangles "$work/remote.json") triangles, tandem extract's $(triangles "$work/local.json")"
 say "streamed: $(triangles "$work/remote.json") triangles, as tandem extract"
-# The image's client reads a DICOM series (its DICOM module, lib/tandem, loads GDCM).
+# The image's client reads a DICOM series (its DICOM reader, lib/tandem/tandem-dicom-worker, runs GDCM).
 "$bin/tandem" generate link --size 24 --series dicom --out "$work/dcm" > /dev/null
 "$bin/tandem" extract --input "$work/dcm" --iso 0 --error 0.2 --out "$work/dcm.ply" \
   --metrics "$work/dcm-local.json" > /dev/null

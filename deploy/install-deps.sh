@@ -17,12 +17,15 @@ BUILD_PKGS=(
   libblosc-dev libzstd-dev python3-zarr python3-numcodecs
   libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev libcli11-dev
   libssl-dev python3-grpcio python3-protobuf python3-numpy draco
-  help2man chromium
+  help2man chromium libinsighttoolkit5-dev
 )
 # (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
 # libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built
 # the image on a bare Debian 12.)
 # (chromium: the headless browser the viewer's test loads the page in, tests/viewer.)
+# (libinsighttoolkit5-dev: ITK, whose own MetaImageIO writes and reads the .mha / .mhd files
+# tests/core/readers_metaimage_test.cc cross-checks the MetaImage reader and writer against;
+# test-only, those tests skip without it.)
 # (python3-zarr / python3-numcodecs: the independent Zarr writer and reader the Zarr tests
 # cross-check against. python3-grpcio, python3-protobuf, python3-numpy: the Python client
 # in client/python and its test; draco: draco_decoder, which it decodes meshes with.)

@@ -1,11 +1,19 @@
 #include "cli/extract_flags.h"
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <limits>
+#include <memory>
+#include <utility>
+#include <vector>
 
 #include "absl/strings/match.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 #include "absl/strings/str_replace.h"
+#include "absl/strings/str_split.h"
 
 namespace tandem::cli {
 
@@ -21,11 +29,12 @@ absl::Status NameOptionFlag(const absl::Status& status) {
 }
 
 void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
-  flags->AddString("input", &input, "FILE",
-                   "volume: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
-                   ".tiff, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
-                   "numbered single-page TIFFs",
-                   /*required=*/true);
+  flags->AddString(
+      "input", &input, "FILE",
+      "volume: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, "
+      ".tiff, .mha, .mhd, a Zarr / OME-Zarr store, or a folder holding a DICOM series or "
+      "numbered single-page TIFFs",
+      /*required=*/true);
   flags->AddString("zarr-array", &zarr_array, "SEL",
                    "Zarr group: the multiscale level (a number) or the array path to read "
                    "(same as --input X.zarr#SEL); none = level 0");
@@ -33,6 +42,11 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    "a folder holding several DICOM series: read (or follow) the one with this "
                    "SeriesInstanceUID; without it, localizers and scouts are skipped with a note "
                    "and two slice stacks are refused, listing each");
+  flags->AddString("spacing", &spacing, "SX,SY,SZ",
+                   "voxel size along x, y and z for an input that carries none (a TIFF stack "
+                   "without resolution tags or ImageJ description, a plain Zarr array, a NRRD "
+                   "or MetaImage header without spacing): the mesh's extent follows it. A "
+                   "file's own spacing, when it differs, is replaced with a warning");
   flags->AddBool("follow", &follow,
                  "the input is still being written (a folder of numbered TIFF slices or of a "
                  "DICOM series, or a Zarr array growing along z): take each slice as soon as "
@@ -126,6 +140,66 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddBool("quiet", &quiet, "no summary, no progress and no notes on stderr");
 }
 
+namespace {
+
+absl::StatusOr<std::array<double, 3>> ParseSpacing(const std::string& text) {
+  std::vector<std::string> parts = absl::StrSplit(text, ',');
+  std::array<double, 3> s{};
+  bool ok = parts.size() == 3;
+  for (size_t i = 0; ok && i < 3; ++i) {
+    ok = absl::SimpleAtod(parts[i], &s[i]) && std::isfinite(s[i]) && s[i] > 0;
+  }
+  if (!ok) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "--spacing ", text, ": expected three positive numbers SX,SY,SZ (e.g. 0.5,0.5,2)"));
+  }
+  return s;
+}
+
+// The volume of `inner` with another spacing (its depth as it grows, when followed).
+class SpacingSource final : public SliceSource {
+ public:
+  SpacingSource(std::unique_ptr<SliceSource> inner, std::array<double, 3> spacing)
+      : inner_(std::move(inner)), info_(inner_->info()) {
+    info_.spacing = spacing;
+    info_.spacing_known = true;
+  }
+  const VolumeInfo& info() const override {
+    info_.nz = inner_->info().nz;
+    return info_;
+  }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override { return inner_->ReadSlice(bytes); }
+  absl::Status ViewSlice(const uint8_t** data) override { return inner_->ViewSlice(data); }
+  int64_t next_slice() const override { return inner_->next_slice(); }
+
+ private:
+  std::unique_ptr<SliceSource> inner_;
+  mutable VolumeInfo info_;
+};
+
+std::string Triple(const std::array<double, 3>& v) { return absl::StrJoin(v, ","); }
+
+}  // namespace
+
+absl::StatusOr<std::string> ExtractFlags::ApplySpacing(std::unique_ptr<SliceSource>* source) const {
+  if (spacing.empty()) return std::string();
+  absl::StatusOr<std::array<double, 3>> s = ParseSpacing(spacing);
+  if (!s.ok()) return s.status();
+  const VolumeInfo& info = (*source)->info();
+  std::string warning;
+  if (info.spacing_known && info.spacing != *s) {
+    warning = absl::StrCat("--spacing ", Triple(*s), " replaces the spacing ", Triple(info.spacing),
+                           " that ", InputPath(), " carries");
+  }
+  VolumeInfo checked = info;
+  checked.spacing = *s;
+  if (absl::Status st = ValidateVolumeInfo(checked); !st.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("--spacing ", spacing, ": ", st.message()));
+  }
+  *source = std::make_unique<SpacingSource>(std::move(*source), *s);
+  return warning;
+}
+
 std::string ExtractFlags::InputPath() const {
   return zarr_array.empty() ? input : absl::StrCat(input, "#", zarr_array);
 }
@@ -147,6 +221,11 @@ FollowOptions ExtractFlags::Follow(std::function<void(const std::string&)> note)
 absl::Status ExtractFlags::Check(const FlagSet& flags) const {
   if (!follow && (flags.IsSet("expect-slices") || flags.IsSet("settle") || flags.IsSet("done-file"))) {
     return absl::InvalidArgumentError("--expect-slices, --settle and --done-file go with --follow");
+  }
+  if (!spacing.empty()) {
+    if (absl::StatusOr<std::array<double, 3>> s = ParseSpacing(spacing); !s.ok()) {
+      return s.status();
+    }
   }
   if (quantization_bits < 1 || quantization_bits > 30 || compression_level < 0 ||
       compression_level > 10) {

@@ -6,6 +6,7 @@
 #define TANDEM_CLI_EXTRACT_FLAGS_H_
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -19,7 +20,8 @@
 namespace tandem::cli {
 
 struct ExtractFlags {
-  std::string input, zarr_array, series, out, iso, schedule = "tandem-lag", metrics, done_file;
+  std::string input, zarr_array, series, out, iso, schedule = "tandem-lag", metrics, done_file,
+      spacing;
   double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
   double lockstep_error = SessionOptions{}.lockstep_error;
@@ -36,6 +38,9 @@ struct ExtractFlags {
   // How to open --input (--series) and follow it (--follow's flags); notes go to `note`.
   OpenOptions Open(std::function<void(const std::string&)> note) const;
   FollowOptions Follow(std::function<void(const std::string&)> note) const;
+  // --spacing: `source` delivers that spacing. "" when the file had none, else a warning
+  // naming the spacing the file carries and the flag replaces.
+  absl::StatusOr<std::string> ApplySpacing(std::unique_ptr<SliceSource>* source) const;
   // After parsing: the checks that need no volume (follow-only flags, the iso list, the
   // output names, the schedule).
   absl::Status Check(const FlagSet& flags) const;

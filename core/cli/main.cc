@@ -69,7 +69,8 @@ Usage:
 Every subcommand's --help lists its flags with their defaults.
 
 Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.gz,
-.tif/.tiff (multi-page stack), Zarr v2/v3 and OME-Zarr stores (X.zarr; X.zarr#N reads
+.tif/.tiff (multi-page stack), .mha/.mhd (ITK MetaImage), Zarr v2/v3 and OME-Zarr stores
+(X.zarr; X.zarr#N reads
 multiscale level N, X.zarr#PATH the array PATH inside the group), or a folder of one
 file per slice: a DICOM series (any names and order; vertices in the patient frame) or
 numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
@@ -183,6 +184,11 @@ int Extract(int argc, char** argv) {
     source = OpenVolume(input_path, f.Open(note));
   }
   if (!source.ok()) return Fail(source.status());
+  if (absl::StatusOr<std::string> warn = f.ApplySpacing(&*source); !warn.ok()) {
+    return Fail(warn.status());
+  } else if (!warn->empty()) {
+    std::fprintf(stderr, "tandem extract: warning: %s\n", warn->c_str());
+  }
   const VolumeInfo info = (*source)->info();
 
   MeshWriteOptions write;
@@ -288,6 +294,7 @@ int Extract(int argc, char** argv) {
   if (reference) {
     auto ref_source = OpenVolume(input_path, f.Open(nullptr));
     if (!ref_source.ok()) return Fail(ref_source.status());
+    if (absl::Status st = f.ApplySpacing(&*ref_source).status(); !st.ok()) return Fail(st);
     std::vector<SessionOptions> ref_options = options;
     for (SessionOptions& o : ref_options) {
       o.schedule = Schedule::kNone;
@@ -352,7 +359,8 @@ int Generate(int argc, char** argv) {
       "usage: tandem generate SHAPE --size N --out FILE [flags]\n"
       "Writes a synthetic float32 volume in the format of FILE's extension, every one the readers\n"
       "read: .json (FILE.raw beside it plus the JSON sidecar, whose \"suggested_isovalues\" holds\n"
-      "the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, or .zarr (an\n"
+      "the shape's iso-value, 0), .nrrd, .nhdr (+ .raw), .nii, .nii.gz, .tif/.tiff, .mha, .mhd\n"
+      "(+ .raw), or .zarr (an "
       "OME-Zarr image: one level, array \"0\", axes z/y/x with the spacing as scale).\n"
       "SHAPE: sphere, pillowbox (the paper's Pillow Box), link (two interlocked tori),\n"
       "gyroid (a solid gyroid clipped to a ball: closed, high genus).");

@@ -103,6 +103,66 @@ class GzipReader final : public ByteReader {
 
 }  // namespace
 
+namespace {
+
+// inflate over a plain reader: zlib's gz* functions read gzip files only.
+class ZlibReader final : public ByteReader {
+ public:
+  ZlibReader(std::string path, std::unique_ptr<ByteReader> in)
+      : ByteReader(std::move(path), true), in_(std::move(in)), buf_(1 << 17) {
+    started_ = inflateInit(&zs_) == Z_OK;
+  }
+  ~ZlibReader() override {
+    if (started_) inflateEnd(&zs_);
+  }
+  absl::StatusOr<size_t> Read(void* dst, size_t n) override {
+    if (!started_) return absl::ResourceExhaustedError(absl::StrCat(path_, ": cannot start zlib"));
+    auto* out = static_cast<uint8_t*>(dst);
+    size_t total = 0;
+    while (total < n && !ended_) {
+      if (zs_.avail_in == 0) {
+        absl::StatusOr<size_t> got = in_->Read(buf_.data(), buf_.size());
+        if (!got.ok()) return got.status();
+        if (*got == 0) {
+          end_reason_ = "unexpected end of file";
+          break;
+        }
+        zs_.next_in = buf_.data();
+        zs_.avail_in = static_cast<uInt>(*got);
+      }
+      const size_t want = std::min<size_t>(n - total, 1u << 30);
+      zs_.next_out = out + total;
+      zs_.avail_out = static_cast<uInt>(want);
+      const int rc = inflate(&zs_, Z_NO_FLUSH);
+      total += want - zs_.avail_out;
+      if (rc == Z_STREAM_END) {
+        ended_ = true;
+      } else if (rc != Z_OK && rc != Z_BUF_ERROR) {
+        return absl::DataLossError(absl::StrCat(
+            path_, ": corrupt zlib data: ", zs_.msg != nullptr ? zs_.msg : "inflate failed"));
+      }
+    }
+    return total;
+  }
+  std::string EndReason() override { return end_reason_; }
+
+ private:
+  std::unique_ptr<ByteReader> in_;
+  std::vector<uint8_t> buf_;
+  z_stream zs_{};
+  bool started_ = false, ended_ = false;
+  std::string end_reason_;
+};
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<ByteReader>> ByteReader::OpenZlib(const std::string& path,
+                                                                 uint64_t offset) {
+  absl::StatusOr<std::unique_ptr<ByteReader>> plain = Open(path, offset, /*gzip=*/false);
+  if (!plain.ok()) return plain.status();
+  return std::unique_ptr<ByteReader>(new ZlibReader(path, *std::move(plain)));
+}
+
 absl::StatusOr<std::unique_ptr<ByteReader>> ByteReader::Open(const std::string& path,
                                                              uint64_t offset, bool gzip) {
   if (!gzip) {

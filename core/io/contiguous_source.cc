@@ -245,7 +245,8 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenStreamVolume(StreamVolumeSpec s
     }
   }
   absl::StatusOr<std::unique_ptr<ByteReader>> reader =
-      ByteReader::Open(spec.data_path, spec.data_offset, spec.gzip);
+      spec.zlib ? ByteReader::OpenZlib(spec.data_path, spec.data_offset)
+                : ByteReader::Open(spec.data_path, spec.data_offset, spec.gzip);
   if (!reader.ok()) return reader.status();
   if (spec.skip_bytes > 0) {
     if (absl::Status st = (*reader)->Skip(spec.skip_bytes); !st.ok()) {

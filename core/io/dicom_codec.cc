@@ -1,6 +1,9 @@
-// libtandem_dicom.so: the GDCM side of the DICOM reader and writer (dicom_codec.h), loaded
-// on first use by tandem_io (dicom_codec_loader.cc). Only what touches GDCM is here; the
-// series' rules are in format_dicom.cc and tandem/series.h.
+// The GDCM side of the DICOM reader and writer (dicom_codec.h): built into libtandem_dicom.so,
+// which tandem_io loads to write (dicom_codec_loader.cc), and into tandem-dicom-worker, the
+// process that reads (dicom_worker.cc). Only what touches GDCM is here; the series' rules
+// are in format_dicom.cc and tandem/series.h.
+#include "dicom_codec.h"
+
 #include <gdcmAttribute.h>
 #include <gdcmDataSet.h>
 #include <gdcmImageChangeTransferSyntax.h>
@@ -10,19 +13,17 @@
 #include <gdcmReader.h>
 #include <gdcmTrace.h>
 #include <gdcmUIDGenerator.h>
-
 #include <setjmp.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <exception>
-#include <filesystem>
 #include <mutex>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
-#include "dicom_codec.h"
+#include "dicom_scan.h"
 #include "tandem/series.h"
 
 namespace tandem::dicom {
@@ -40,15 +41,13 @@ void SilenceGdcm() {
 
 // Debian 12 builds GDCM with assertions on, and a corrupt file can trip one (fuzz_dicom found
 // gdcm::ReadExplicitDataElement's assert(0 && "Should not happen") within seconds), which
-// would abort the whole process: a client or CLI reading a damaged series, or a slice read
-// while the scanner is still writing it. An exception cannot help (glibc declares
-// __assert_fail noexcept, so unwinding from it terminates). So the executable's
-// __assert_fail (dicom_codec_loader.cc; it takes precedence over glibc's for every shared
-// library, this module's GDCM too) calls OnFailedAssertion, which jumps back to the GDCM
-// call in progress on this thread, which reports the file as corrupt.
-// What the jump skips (GDCM's objects of that call, and ours inside the guarded lambda) is
-// leaked, never used again: a few KB and a file descriptor per corrupt file. An assertion
-// outside a guarded call prints glibc's message and aborts, as before.
+// aborts the reading process. An exception cannot help (glibc declares __assert_fail
+// noexcept, so unwinding from it terminates). So the reader's __assert_fail
+// (dicom_worker.cc; it takes precedence over glibc's for GDCM's libraries) calls
+// OnFailedAssertion, which jumps back to the GDCM call in progress on this thread, which
+// reports the file as corrupt, naming the assertion; the reader then exits, since what the
+// jump skipped (GDCM's objects of that call, ours inside the guarded lambda) is leaked. An
+// assertion outside a guarded call prints glibc's message and aborts.
 thread_local sigjmp_buf* t_gdcm_jump = nullptr;
 thread_local const char* t_gdcm_assertion = nullptr;
 
@@ -190,30 +189,6 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
     const gdcm::ByteValue* v = ds.GetDataElement(gdcm::Tag(0x0008, 0x0008)).GetByteValue();
     if (v != nullptr) h.image_type = Trimmed(std::string(v->GetPointer(), v->GetLength()));
   }
-  // The pixel data must fit in the file: GDCM pads a cut-off element silently, and a slice
-  // still being written (or cut short) must not pass for a whole one. It starts after the
-  // preamble, the meta header and the data set read so far (lengths as declared); its
-  // element header is 12 bytes (explicit VR) or 8 (implicit). Compressed data is checked
-  // by its codec when the slice is read.
-  {
-    std::error_code ec;
-    const uint64_t size = std::filesystem::file_size(path, ec);
-    const gdcm::TransferSyntax ts = file.GetHeader().GetDataSetTransferSyntax();
-    const bool explicit_vr = ts.GetNegociatedType() != gdcm::TransferSyntax::Implicit;
-    const gdcm::VL set = explicit_vr ? ds.GetLength<gdcm::ExplicitDataElement>()
-                                     : ds.GetLength<gdcm::ImplicitDataElement>();
-    const uint64_t pixel_bytes = ts.IsEncapsulated() ? 0
-                                 : uint64_t(h.rows) * uint64_t(h.cols) *
-                                       uint64_t(std::max(h.bits_allocated, 8) / 8);
-    const uint64_t need = uint64_t{file.GetHeader().GetFullLength()} + uint64_t{set} +
-                          (explicit_vr ? 12 : 8) + pixel_bytes;
-    if (!ec && !set.IsUndefined() && need > size) {
-      return absl::DataLossError(absl::StrCat(path, ": truncated: ", need,
-                                              " bytes needed up to the end of the pixel data, "
-                                              "the file has ", size,
-                                              " (still being written, or cut short?)"));
-    }
-  }
   if (h.samples != 1) {
     return absl::InvalidArgumentError(absl::StrCat(
         path, ": ", h.samples, " samples per pixel (colour); only greyscale series are supported"));
@@ -239,6 +214,9 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
 }
 
 absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
+  // Depth, element count and lengths first (a declared length past the end of the file is a
+  // slice still being written or cut short: GDCM would pad it silently).
+  if (absl::Status st = ScanFile(path); !st.ok()) return st;
   std::optional<SliceHeader> header;
   absl::Status st = GdcmGuarded(path, [&]() -> absl::Status {
     auto* reader = new gdcm::Reader;  // leaked, not freed, if an assertion jumps out
@@ -252,8 +230,32 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
   return header;
 }
 
+// An RLE frame is one fragment whose header (checked by ScanFile before GDCM decodes it)
+// has one segment per byte of a sample (PS3.5 G.2): GDCM decodes other counts to garbage.
+absl::Status CheckRle(const std::string& path, const gdcm::Image& image) {
+  const gdcm::SequenceOfFragments* frags = image.GetDataElement().GetSequenceOfFragments();
+  const gdcm::ByteValue* bv = frags != nullptr && frags->GetNumberOfFragments() == 1
+                                  ? frags->GetFragment(0).GetByteValue()
+                                  : nullptr;
+  if (bv == nullptr || bv->GetLength() < 4) {
+    return absl::DataLossError(
+        absl::StrCat(path, ": corrupt RLE pixel data: a one-frame image has one fragment"));
+  }
+  uint32_t segments;
+  std::memcpy(&segments, bv->GetPointer(), 4);  // little-endian, as the host
+  const gdcm::PixelFormat& pf = image.GetPixelFormat();
+  const uint32_t want = static_cast<uint32_t>(pf.GetSamplesPerPixel()) *
+                        static_cast<uint32_t>((pf.GetBitsAllocated() + 7) / 8);
+  if (segments != want) {
+    return absl::DataLossError(absl::StrCat(path, ": corrupt RLE pixel data: ", segments,
+                                            " segment(s), ", pf.GetBitsAllocated(),
+                                            "-bit samples need ", want));
+  }
+  return absl::OkStatus();
+}
+
 absl::Status ReadPixelsUnguarded(const std::string& path, size_t stored_bytes,
-                                 gdcm::ImageReader& reader, std::vector<uint8_t>* out) {
+                                 gdcm::ImageReader& reader, uint8_t* out) {
   reader.SetFileName(path.c_str());
   if (!reader.Read()) {
     return absl::DataLossError(
@@ -272,8 +274,10 @@ absl::Status ReadPixelsUnguarded(const std::string& path, size_t stored_bytes,
         path, ": pixel data is truncated (", raw ? static_cast<uint32_t>(raw->GetLength()) : 0u,
         " of ", stored_bytes, " bytes)"));
   }
-  out->resize(stored_bytes);
-  if (!image.GetBuffer(reinterpret_cast<char*>(out->data()))) {
+  if (image.GetTransferSyntax() == gdcm::TransferSyntax::RLELossless) {
+    if (absl::Status st = CheckRle(path, image); !st.ok()) return st;
+  }
+  if (!image.GetBuffer(reinterpret_cast<char*>(out))) {
     return absl::DataLossError(absl::StrCat(
         path, ": cannot decode the pixel data (transfer syntax ",
         gdcm::TransferSyntax::GetTSString(image.GetTransferSyntax()),
@@ -282,7 +286,14 @@ absl::Status ReadPixelsUnguarded(const std::string& path, size_t stored_bytes,
   return absl::OkStatus();
 }
 
-absl::Status ReadPixels(const std::string& path, size_t stored_bytes, std::vector<uint8_t>* out) {
+absl::Status ReadPixels(const std::string& path, size_t stored_bytes, uint8_t* out) {
+  ScanResult scan;
+  if (absl::Status st = ScanFile(path, {}, &scan); !st.ok()) return st;
+  if (scan.pixel_bytes >= 0 && static_cast<uint64_t>(scan.pixel_bytes) < stored_bytes) {
+    return absl::DataLossError(absl::StrCat(path, ": pixel data holds ", scan.pixel_bytes,
+                                            " bytes, the image needs ", stored_bytes,
+                                            " (truncated or corrupt file?)"));
+  }
   return GdcmGuarded(path, [&]() -> absl::Status {
     auto* reader = new gdcm::ImageReader;  // leaked, not freed, if an assertion jumps out
     absl::Status st = ReadPixelsUnguarded(path, stored_bytes, *reader, out);

@@ -5,9 +5,11 @@
 // DICOM or not; now only a program that reads or writes DICOM does.
 //
 // The module holds only what touches GDCM (one header, one slice's pixels, one slice
-// written, a UID) and no other tandem code: ordering, checking and converting a series stay
-// in tandem_io. Both sides are built together, with the same compiler and libraries, so the
-// table passes C++ types (std::string, absl::Status); kDicomCodecAbi guards against a stale
+// written, a UID) and no other tandem code; the reading program tandem-dicom-worker
+// (dicom_worker.cc) is built from the same source and reads files for tandem_io
+// (dicom_worker_client.h), which loads the module only to write: ordering, checking and converting
+// a series stay in tandem_io. Both sides are built together, with the same compiler and libraries,
+// so the table passes C++ types (std::string, absl::Status); kDicomCodecAbi guards against a stale
 // module.
 #ifndef TANDEM_IO_DICOM_CODEC_H_
 #define TANDEM_IO_DICOM_CODEC_H_
@@ -69,15 +71,15 @@ struct Codec {
   // A slice, nothing for a file to skip (DICOMDIR), or an error naming the file (a corrupt
   // file is DataLoss, also when GDCM fails one of its own assertions on it; a whole DICOM
   // object that is no image slice, without Rows/Columns or ImagePositionPatient, such as a
-  // dose report, is FailedPrecondition).
+  // dose report, is FailedPrecondition). Both reads check the file's structure first
+  // (dicom_scan.h).
   absl::StatusOr<std::optional<SliceHeader>> (*read_header)(const std::string& path);
-  // The stored pixels of one slice, decoded, exactly `stored_bytes` of them.
-  absl::Status (*read_pixels)(const std::string& path, size_t stored_bytes,
-                              std::vector<uint8_t>* out);
+  // The stored pixels of one slice, decoded into `out`: exactly `stored_bytes` of them.
+  absl::Status (*read_pixels)(const std::string& path, size_t stored_bytes, uint8_t* out);
   absl::Status (*write_slice)(const SliceImage& image);
   std::string (*generate_uid)();
-  // Called by the executable's __assert_fail (dicom_codec_loader.cc): when a guarded GDCM
-  // call is in progress on this thread, jumps back to it; otherwise returns.
+  // Called by the executable's __assert_fail (dicom_worker.cc): when a guarded GDCM call is
+  // in progress on this thread, jumps back to it; otherwise returns.
   void (*on_failed_assertion)(const char* assertion);
 };
 

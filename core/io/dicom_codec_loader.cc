@@ -1,8 +1,5 @@
-// Loads libtandem_dicom.so (dicom_codec.h) the first time a DICOM file is read or written,
-// and holds the executable's __assert_fail that turns a failed GDCM assertion into an error.
-#include <atomic>
-#include <cstdio>
-#include <cstdlib>
+// Loads libtandem_dicom.so (dicom_codec.h) the first time a DICOM file is written (files
+// are read by tandem-dicom-worker: dicom_worker_client.h).
 #include <string>
 
 #include "absl/strings/str_cat.h"
@@ -11,9 +8,6 @@
 
 namespace tandem::dicom {
 namespace {
-
-// Set once the module is loaded; read by __assert_fail on any thread.
-std::atomic<const Codec*> g_codec{nullptr};
 
 struct Loaded {
   const Codec* codec = nullptr;
@@ -36,11 +30,7 @@ Loaded Load() {
 }  // namespace
 
 absl::StatusOr<const Codec*> LoadCodec() {
-  static const Loaded loaded = [] {
-    Loaded l = Load();
-    g_codec.store(l.codec, std::memory_order_release);
-    return l;
-  }();
+  static const Loaded loaded = Load();
   if (loaded.codec == nullptr) {
     return absl::FailedPreconditionError(absl::StrCat(
         "DICOM support is not available: its module ", kModuleName,
@@ -50,20 +40,3 @@ absl::StatusOr<const Codec*> LoadCodec() {
 }
 
 }  // namespace tandem::dicom
-
-// Debian builds GDCM with assertions on (see dicom_codec.cc, GdcmGuarded). The executable's
-// definition takes precedence over glibc's for every shared library, also the module's GDCM
-// loaded later (it is exported: tandem_io's link option --export-dynamic-symbol). A failed
-// assertion inside a guarded GDCM call jumps back to that call; any other prints glibc's
-// message and aborts, as glibc's own __assert_fail does.
-extern "C" void __assert_fail(const char* assertion, const char* file, unsigned int line,
-                              const char* function) noexcept {
-  if (const tandem::dicom::Codec* codec =
-          tandem::dicom::g_codec.load(std::memory_order_acquire)) {
-    codec->on_failed_assertion(assertion);  // returns only outside a guarded call
-  }
-  std::fprintf(stderr, "%s:%u: %s%sAssertion `%s' failed.\n", file, line,
-               function ? function : "", function ? ": " : "", assertion);
-  std::fflush(stderr);
-  std::abort();
-}

@@ -22,6 +22,7 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "dicom_codec.h"
+#include "dicom_worker_client.h"
 #include "follow_internal.h"
 #include "tandem/series.h"
 #include "volume_io_internal.h"
@@ -64,13 +65,12 @@ bool LooksLikeDicom(const std::string& path) {
 absl::StatusOr<std::optional<SliceHeader>> ReadSliceHeader(const std::string& path,
                                                            std::string* skip) {
   skip->clear();
-  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
-  if (!codec.ok()) return codec.status();
   if (!LooksLikeDicom(path)) {
     *skip = absl::StrCat("skipping ", path, ": not a DICOM file");
     return std::nullopt;
   }
-  absl::StatusOr<std::optional<SliceHeader>> h = (*codec)->read_header(path);
+  // Read in the DICOM reader process (dicom_worker_client.h).
+  absl::StatusOr<std::optional<SliceHeader>> h = dicom::ReadHeader(path);
   if (absl::IsFailedPrecondition(h.status())) {
     *skip = absl::StrCat("skipping ", h.status().message());
     return std::nullopt;
@@ -249,11 +249,8 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
 // Decodes one slice's pixels (through `buffer`) into `bytes` as info.dtype.
 absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
                         std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
-  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
-  if (!codec.ok()) return codec.status();
   const size_t n = static_cast<size_t>(info.slice_voxels());
-  if (absl::Status st = (*codec)->read_pixels(h.path, n * DTypeSize(plan.stored), buffer);
-      !st.ok()) {
+  if (absl::Status st = dicom::ReadPixels(h.path, n * DTypeSize(plan.stored), buffer); !st.ok()) {
     return st;
   }
   bytes->resize(info.slice_bytes());

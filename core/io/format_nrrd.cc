@@ -51,12 +51,9 @@ struct NrrdHeader {
 absl::StatusOr<NrrdHeader> ReadHeader(const std::string& path, uint64_t file_size) {
   // Headers are small text; 1 MiB is far more than any real one and bounds the read.
   constexpr uint64_t kMaxHeader = 1 << 20;
-  std::string text(static_cast<size_t>(std::min(file_size, kMaxHeader)), '\0');
-  FILE* f = std::fopen(path.c_str(), "rb");
-  if (f == nullptr) return ErrnoError(path, "cannot open");
-  const size_t got = std::fread(text.data(), 1, text.size(), f);
-  std::fclose(f);
-  if (got != text.size()) return ErrnoError(path, "read error");
+  absl::StatusOr<std::string> read = ReadHead(path, file_size, kMaxHeader);
+  if (!read.ok()) return read.status();
+  const std::string& text = *read;
 
   if (!text.starts_with("NRRD000") || text.size() < 8 || text[7] < '1' || text[7] > '5') {
     return NrrdError(path, "not a NRRD file (it must start with \"NRRD000X\")");
@@ -116,30 +113,6 @@ absl::StatusOr<DType> ParseNrrdType(const std::string& path, const std::string& 
   if (t == "float") return DType::kFloat32;
   return NrrdError(
       path, absl::StrCat("unsupported type '", name, "' (supported: uint8, uint16, int16, float)"));
-}
-
-// Parses whitespace-separated numbers; exactly `n` of them.
-template <typename T>
-absl::Status ParseNumbers(const std::string& path, absl::string_view field, absl::string_view text,
-                          size_t n, T* out) {
-  std::vector<absl::string_view> parts =
-      absl::StrSplit(text, absl::ByAnyChar(" \t"), absl::SkipEmpty());
-  if (parts.size() != n) {
-    return NrrdError(path,
-                     absl::StrCat("\"", field, "\" needs ", n, " values, got \"", text, "\""));
-  }
-  for (size_t i = 0; i < n; ++i) {
-    bool ok;
-    if constexpr (std::is_integral_v<T>) {
-      ok = absl::SimpleAtoi(parts[i], &out[i]);
-    } else {
-      ok = absl::SimpleAtod(parts[i], &out[i]);
-    }
-    if (!ok) {
-      return NrrdError(path, absl::StrCat("\"", field, "\": bad number \"", parts[i], "\""));
-    }
-  }
-  return absl::OkStatus();
 }
 
 // Parses "(a,b,c) (d,e,f) ..." into vectors of 3.
@@ -227,6 +200,8 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
       return st;
     }
     for (double& s : info.spacing) s = std::abs(s);
+  } else {
+    info.spacing_known = false;
   }
   if (const std::string* space = h.Find("space"); space != nullptr) {
     info.frame = absl::StrCat("NRRD space ", *space);
@@ -376,14 +351,7 @@ absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const Sl
   } else {
     absl::StrAppend(&header, "\n");  // the blank line that ends an attached header
   }
-  if (absl::Status st = WriteText(path, header); !st.ok()) return st;
-  // Attached: the data (a gzip member if compressed) is appended right after the header.
-  absl::StatusOr<std::unique_ptr<ByteWriter>> w =
-      ByteWriter::Open(data_path, opts.gzip, /*append=*/!detached);
-  if (!w.ok()) return w.status();
-  absl::Status st = StreamSlices(path, info, slice_fn, opts.big_endian, w->get());
-  if (st.ok()) st = (*w)->Close();
-  return st;
+  return WriteHeaderThenVoxels(path, header, data_path, info, slice_fn, opts);
 }
 
 }  // namespace tandem::internal

@@ -37,13 +37,7 @@ absl::StatusOr<std::string> ReadSmallFile(const std::string& path) {
     return SidecarError(
         path, absl::StrCat("not a JSON sidecar (", *size, " bytes; sidecars are under 1 MiB)"));
   }
-  std::string text(*size, '\0');
-  FILE* f = std::fopen(path.c_str(), "rb");
-  if (f == nullptr) return ErrnoError(path, "cannot open");
-  const size_t got = std::fread(text.data(), 1, text.size(), f);
-  std::fclose(f);
-  if (got != text.size()) return ErrnoError(path, "read error");
-  return text;
+  return ReadHead(path, *size, kMaxSidecar);
 }
 
 // Reads a 3-vector of numbers at key into *out; absent keys keep the default.
@@ -90,6 +84,7 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
   info.dtype = *dtype;
 
   if (absl::Status st = ReadVec3(path, j, "spacing", &info.spacing); !st.ok()) return st;
+  info.spacing_known = j.contains("spacing");
   if (absl::Status st = ReadVec3(path, j, "origin", &info.origin); !st.ok()) return st;
   if (j.contains("directions")) {  // optional: [[x axis], [y axis], [z axis]] in the world
     info.frame = "sidecar origin, spacing and directions";

@@ -356,6 +356,7 @@ absl::StatusOr<OpenedTiff> OpenTiffPages(const std::string& path) {
     for (int a = 0; a < 3; ++a) info.origin[a] = -ij.origin[a] * info.spacing[a];
   } else {
     info.description = description;
+    info.spacing_known = false;
   }
   return OpenedTiff{*std::move(file), std::move(info), ij.present};
 }
@@ -407,7 +408,10 @@ absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file) {
   if (!t->imagej) {
     // Reconstructions are isotropic: z takes the x pixel size.
     const std::array<double, 2> mm = ResolutionMm(t->file->get());
-    if (mm[0] > 0 && mm[1] > 0) info.spacing = {mm[0], mm[1], mm[0]};
+    if (mm[0] > 0 && mm[1] > 0) {
+      info.spacing = {mm[0], mm[1], mm[0]};
+      info.spacing_known = true;
+    }
   }
   return info;
 }

@@ -7,6 +7,10 @@
 //
 // The writer (ZarrAppender, WriteZarr; at the end of this file) works the other way round:
 // it gathers one chunk-z layer of planes, then writes every chunk of that row.
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -23,8 +27,8 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "nlohmann/json.hpp"
-#include "volume_io_internal.h"
 #include "tandem/zarr.h"
+#include "volume_io_internal.h"
 #include "zarr_internal.h"
 
 namespace tandem {
@@ -39,14 +43,52 @@ constexpr uint64_t kMaxMetadataBytes = 16 << 20;
 // One decoded chunk, and one chunk-z layer, must fit in memory comfortably.
 constexpr uint64_t kMaxChunkBytes = uint64_t{512} << 20;
 constexpr uint64_t kMaxLayerBytes = uint64_t{1} << 30;
+// Every chunk costs a file to open (or a range of a shard to read), a few microseconds: a
+// store of tiny chunks takes hours, and metadata alone can claim billions of them. Arrays
+// read in at most kFreeChunks chunks, or in chunks of kMinChunkVoxels voxels on average
+// (the chosen t/c), per chunk row and in all.
+constexpr uint64_t kFreeChunks = 1 << 16;
+constexpr uint64_t kMinChunkVoxels = 4096;
+// Shape values beyond this are refused before any arithmetic on them.
+constexpr int64_t kMaxShape = int64_t{1} << 40;
+// nlohmann's dump and comparisons recurse: metadata nested deeper is refused unread.
+constexpr int kMaxJsonDepth = 64;
 
 absl::Status MetaError(const std::string& file, absl::string_view what) {
   return absl::InvalidArgumentError(absl::StrCat(file, ": ", what));
 }
 
+// The deepest nesting of arrays and objects in JSON text (strings skipped).
+int JsonDepth(const std::string& text) {
+  int depth = 0, deepest = 0;
+  bool in_string = false, escaped = false;
+  for (const char c : text) {
+    if (in_string) {
+      if (escaped) {
+        escaped = false;
+      } else if (c == '\\') {
+        escaped = true;
+      } else if (c == '"') {
+        in_string = false;
+      }
+    } else if (c == '"') {
+      in_string = true;
+    } else if (c == '[' || c == '{') {
+      deepest = std::max(deepest, ++depth);
+    } else if (c == ']' || c == '}') {
+      --depth;
+    }
+  }
+  return deepest;
+}
+
 absl::StatusOr<json> ReadJsonFile(const std::string& file) {
   std::string text;
   if (absl::Status st = zarr::ReadWholeFile(file, kMaxMetadataBytes, &text); !st.ok()) return st;
+  if (JsonDepth(text) > kMaxJsonDepth) {
+    return MetaError(file, absl::StrCat("JSON nested more than ", kMaxJsonDepth,
+                                        " levels deep (Zarr metadata nests a few)"));
+  }
   json j = json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (j.is_discarded()) return MetaError(file, "invalid JSON");
   if (!j.is_object()) return MetaError(file, "expected a JSON object");
@@ -553,6 +595,33 @@ absl::Status ApplyTransforms(const std::string& file, const json& list, size_t n
   return absl::OkStatus();
 }
 
+// `rel` (an array selector, or a multiscales dataset's path, named `what` in the error) as
+// a path inside the group at `root`: relative, without "..", and inside it still once
+// symlinks are resolved, so that metadata cannot send the reader elsewhere on the disk.
+absl::StatusOr<std::string> InsideStore(const std::string& root, const std::string& rel,
+                                        const std::string& what) {
+  const fs::path p(rel);
+  bool up = false;
+  for (const fs::path& part : p) up = up || part == "..";
+  const auto refuse = [&](absl::string_view why) {
+    return absl::InvalidArgumentError(absl::StrCat(what, " '", rel, "' ", why, " (", root,
+                                                   "); paths must stay inside the store"));
+  };
+  if (rel.empty() || p.is_absolute() || up) {
+    return refuse(rel.empty() ? "is empty" : p.is_absolute() ? "is absolute" : "goes up with ..");
+  }
+  const fs::path joined = fs::path(root) / p;
+  std::error_code ec_root, ec;
+  const fs::path real_root = fs::weakly_canonical(root, ec_root);
+  const fs::path real = fs::weakly_canonical(joined, ec);
+  if (!ec_root && !ec) {
+    auto [r, j] = std::mismatch(real_root.begin(), real_root.end(), real.begin(), real.end());
+    if (r != real_root.end())
+      return refuse(absl::StrCat("leads outside the group, to ", real.string()));
+  }
+  return joined.string();
+}
+
 bool AllDigits(const std::string& s) {
   return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
 }
@@ -586,7 +655,9 @@ absl::StatusOr<Resolved> Resolve(const std::string& root, const std::string& sel
     }
     return ResolveMultiscale(root, *node, selector.empty() ? "0" : selector, "");
   }
-  const std::string sub = (fs::path(root) / selector).string();
+  absl::StatusOr<std::string> inside = InsideStore(root, selector, "array path");
+  if (!inside.ok()) return inside.status();
+  const std::string sub = *inside;
   absl::StatusOr<Node> inner = LoadNode(sub);
   if (!inner.ok()) return inner.status();
   if (!inner->is_array) return Resolve(sub, "");
@@ -640,7 +711,10 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
   } else {
     path = path_sel;  // an array of the group that is not a level: no transforms
   }
-  absl::StatusOr<Node> arr = LoadNode((fs::path(root) / path).string());
+  absl::StatusOr<std::string> inside =
+      InsideStore(root, path, absl::StrCat(file, ": multiscales dataset path"));
+  if (!inside.ok()) return inside.status();
+  absl::StatusOr<Node> arr = LoadNode(*inside);
   if (!arr.ok()) return arr.status();
   if (!arr->is_array) {
     return absl::InvalidArgumentError(
@@ -692,6 +766,9 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
 
 class ZarrSliceSource final : public CountedSliceSource {
  public:
+  ~ZarrSliceSource() override {
+    if (shard_fd_ >= 0) ::close(shard_fd_);
+  }
   ZarrSliceSource(std::string path, Resolved r, VolumeInfo info, std::vector<int64_t> lead,
                   int64_t first_plane)
       : CountedSliceSource(std::move(path), std::move(info), OnFailure::kKeep, first_plane),
@@ -777,20 +854,26 @@ class ZarrSliceSource final : public CountedSliceSource {
                          uint64_t max_bytes) {
     const ArrayMeta& a = r_.array;
     if (!a.sharded) return zarr::ReadWholeFile(file, max_bytes, &raw_);
-    if (file != shard_file_) {  // read the shard's index once for all its inner chunks
+    if (file != shard_file_) {  // open the shard and read its index once for its inner chunks
       shard_file_.clear();
+      if (shard_fd_ >= 0) ::close(shard_fd_);
+      shard_fd_ = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
+      if (shard_fd_ < 0) return ErrnoError(file, "cannot open");  // NotFound: all fill_value
       size_t n = 1;
       for (size_t d = 0; d < idx.size(); ++d) n *= static_cast<size_t>(a.shard[d] / a.chunks[d]);
       const uint64_t index_bytes = 16 * uint64_t{n} + a.index_tail;
-      absl::StatusOr<uint64_t> size = FileSize(file);
-      if (!size.ok()) return size.status();  // NotFound: the whole shard holds fill_value
-      if (*size < index_bytes) {
-        return absl::DataLossError(absl::StrCat(file, ": truncated shard: ", *size,
+      struct stat file_info;
+      if (::fstat(shard_fd_, &file_info) != 0) return ErrnoError(file, "cannot stat");
+      const uint64_t size = static_cast<uint64_t>(file_info.st_size);
+      if (size < index_bytes) {
+        return absl::DataLossError(absl::StrCat(file, ": truncated shard: ", size,
                                                 " bytes, its index alone needs ", index_bytes));
       }
-      shard_size_ = *size;
-      const uint64_t at = a.index_at_start ? 0 : *size - index_bytes;
-      if (absl::Status st = zarr::ReadRange(file, at, 16 * n, &raw_); !st.ok()) return st;
+      shard_size_ = size;
+      const uint64_t at = a.index_at_start ? 0 : size - index_bytes;
+      if (absl::Status st = zarr::ReadRangeAt(shard_fd_, file, at, 16 * n, &raw_); !st.ok()) {
+        return st;
+      }
       shard_index_.resize(2 * n);
       for (size_t i = 0; i < 2 * n; ++i) {
         shard_index_[i] = LoadScalar<uint64_t>(
@@ -812,7 +895,7 @@ class ZarrSliceSource final : public CountedSliceSource {
           absl::StrCat(file, ": shard index entry ", inner, " (offset ", offset, ", ", nbytes,
                        " bytes) lies outside the shard's ", shard_size_, " bytes"));
     }
-    return zarr::ReadRange(file, offset, nbytes, &raw_);
+    return zarr::ReadRangeAt(shard_fd_, file, offset, nbytes, &raw_);
   }
 
   // Decodes every chunk of chunk row cz into layer_ (host byte order).
@@ -842,6 +925,9 @@ class ZarrSliceSource final : public CountedSliceSource {
         if (!st.ok()) return st;
         const std::string where = absl::StrCat(file, ": chunk (", absl::StrJoin(idx, ", "), ")");
         if (a.has_compression) {
+          const uint8_t* encoded = reinterpret_cast<const uint8_t*>(raw_.data());
+          st = zarr::CheckDecodedSize(a.compression, encoded, raw_.size(), chunk_bytes);
+          if (!st.ok()) return absl::DataLossError(absl::StrCat(where, ": ", st.message()));
           // Uninitialised: a damaged chunk fails before its declared size is touched.
           if (decoded_size_ < chunk_bytes) {
             decoded_.reset(new uint8_t[chunk_bytes]);
@@ -900,12 +986,37 @@ class ZarrSliceSource final : public CountedSliceSource {
   std::vector<uint8_t> layer_;  // one chunk-z layer: depth x ny x nx
   std::string raw_;             // one chunk file
   std::string shard_file_;      // the shard whose index is in shard_index_
+  int shard_fd_ = -1;           // that shard, open
   uint64_t shard_size_ = 0;
   std::vector<uint64_t> shard_index_;
   std::vector<uint8_t> fill_row_;
   std::unique_ptr<uint8_t[]> decoded_;  // one decoded chunk
   size_t decoded_size_ = 0;
 };
+
+uint64_t CeilDiv(uint64_t a, uint64_t b) { return (a + b - 1) / b; }
+
+// See kFreeChunks. info's extents are validated (at most 2^20 on each axis).
+absl::Status CheckChunkCount(const std::string& file, const ArrayMeta& a, const VolumeInfo& info) {
+  const size_t nd = a.chunks.size();
+  const uint64_t cz = static_cast<uint64_t>(a.chunks[nd - 3]),
+                 cy = static_cast<uint64_t>(a.chunks[nd - 2]),
+                 cx = static_cast<uint64_t>(a.chunks[nd - 1]);
+  const uint64_t nx = static_cast<uint64_t>(info.nx), ny = static_cast<uint64_t>(info.ny),
+                 nz = static_cast<uint64_t>(std::max<int64_t>(info.nz, 1));
+  const uint64_t per_row = CeilDiv(ny, cy) * CeilDiv(nx, cx);
+  const uint64_t total = per_row * CeilDiv(nz, cz);
+  const uint64_t row_voxels = nx * ny * std::min(cz, nz), voxels = nx * ny * nz;
+  const bool row_ok = per_row <= std::max(kFreeChunks, row_voxels / kMinChunkVoxels);
+  if (row_ok && total <= std::max(kFreeChunks, voxels / kMinChunkVoxels)) return absl::OkStatus();
+  return MetaError(
+      file, absl::StrCat("chunks of ", cz, "x", cy, "x", cx, " voxels: its ", nz, "x", ny, "x", nx,
+                         " voxels lie in ", row_ok ? total : per_row,
+                         row_ok ? " chunks" : " chunks per chunk row",
+                         ", each a file or shard range to read; tandem reads arrays of at most ",
+                         kFreeChunks, " chunks, or whose chunks hold ", kMinChunkVoxels,
+                         " voxels or more on average (1x64x64, 16x16x16 or larger): rechunk it"));
+}
 
 // growing: an array with fewer than 2 planes (so far) is not an error (follow mode counts
 // its planes).
@@ -926,6 +1037,10 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
   uint64_t chunk_elems = 1;
   for (size_t d = 0; d < nd; ++d) {
     if (a.shape[d] < 0) return MetaError(file, "negative shape");
+    if (a.shape[d] > kMaxShape) {
+      return MetaError(file, absl::StrCat("shape ", a.shape[d], " on axis ", d,
+                                          " is beyond any volume (at most 2^40)"));
+    }
     if (a.chunks[d] < 1 || a.chunks[d] > (int64_t{1} << 31)) {
       return MetaError(file, absl::StrCat("inconsistent metadata: chunk size ", a.chunks[d],
                                           " on axis ", d, " (must be at least 1)"));
@@ -939,12 +1054,14 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
   uint64_t inner_per_shard = 1;
   if (a.sharded) {
     for (size_t d = 0; d < nd; ++d) {
-      if (a.shard.size() != nd || a.shard[d] < 1 || a.shard[d] % a.chunks[d] != 0) {
+      if (a.shard.size() != nd || a.shard[d] < 1 || a.shard[d] > kMaxShape ||
+          a.shard[d] % a.chunks[d] != 0) {
         return MetaError(
             file, absl::StrCat("inconsistent metadata: shard shape ", absl::StrJoin(a.shard, "x"),
                                " is not a multiple of the inner chunk shape ",
                                absl::StrJoin(a.chunks, "x")));
       }
+      // Both factors at most 2^40 and 2^24 before the check: no overflow.
       inner_per_shard *= static_cast<uint64_t>(a.shard[d] / a.chunks[d]);
       if (inner_per_shard > (uint64_t{1} << 24)) {
         return MetaError(file, "sharding: more than 2^24 inner chunks per shard");
@@ -980,6 +1097,7 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
   info.ny = a.shape[nd - 2];
   info.nx = a.shape[nd - 1];
   info.dtype = a.dtype;
+  info.spacing_known = !r.scale.empty();
   if (!r.scale.empty()) {
     for (int k = 0; k < 3; ++k) {
       info.spacing[k] = r.scale[nd - 1 - k];
@@ -999,6 +1117,7 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
     return MetaError(file, absl::StrCat("a layer of chunks ", a.chunks[nd - 3],
                                         " planes deep is too large to hold (at most 1 GiB)"));
   }
+  if (absl::Status st = CheckChunkCount(file, a, info); !st.ok()) return st;
   info.suggested_isovalues = a.isovalues;
   info.description = r.what;
   if (!lead_text.empty()) absl::StrAppend(&info.description, ", ", lead_text);

@@ -9,10 +9,8 @@
 #include "absl/strings/str_join.h"
 
 namespace tandem {
-namespace {
 
-// Where a module is looked for (module_loader.h).
-std::vector<std::string> Places(const std::string& module) {
+std::vector<std::string> ModulePlaces(const std::string& module) {
   std::error_code ec;
   const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
   if (ec) return {module};  // no /proc: the dynamic loader's own search path
@@ -20,12 +18,10 @@ std::vector<std::string> Places(const std::string& module) {
   return {(dir / module).string(), (dir.parent_path() / "lib" / "tandem" / module).string()};
 }
 
-}  // namespace
-
 absl::StatusOr<void*> LoadModuleEntry(const std::string& module, const std::string& entry,
                                       const std::function<absl::Status(void*)>& accept) {
   std::vector<std::string> problems;
-  for (const std::string& place : Places(module)) {
+  for (const std::string& place : ModulePlaces(module)) {
     std::error_code ec;
     if (place.find('/') != std::string::npos && !std::filesystem::exists(place, ec)) {
       problems.push_back(absl::StrCat(place, ": no such file"));

@@ -13,11 +13,16 @@
 
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 
 namespace tandem {
+
+// Where a module (or a helper program installed with the modules) named `name` is looked
+// for, in order.
+std::vector<std::string> ModulePlaces(const std::string& name);
 
 // The address of the C function `entry` of the first `module` found whose entry `accept`
 // takes (OK, or why not); otherwise NotFound whose message names every place tried and

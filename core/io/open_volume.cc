@@ -75,6 +75,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
   if (ext == ".nrrd" || ext == ".nhdr") return internal::OpenNrrdVolume(path);
   if (ext == ".nii" || ext == ".nii.gz") return internal::OpenNiftiVolume(path);
   if (ext == ".tif" || ext == ".tiff") return internal::OpenTiffVolume(path);
+  if (ext == ".mha" || ext == ".mhd") return internal::OpenMetaImageVolume(path);
   if (ext == ".hdr" || ext == ".img" || ext == ".hdr.gz" || ext == ".img.gz") {
     return absl::InvalidArgumentError(absl::StrCat(
         path,
@@ -83,7 +84,8 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
   }
   return absl::InvalidArgumentError(absl::StrCat(
       path, ": unsupported volume format '", ext.empty() ? "(no extension)" : ext,
-      "'; supported: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff, a "
+      "'; supported: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, .tif, .tiff, "
+      ".mha, .mhd, a "
       "Zarr store, or a folder holding a DICOM series or numbered TIFF slices"));
 }
 
@@ -200,6 +202,16 @@ absl::StatusOr<uint64_t> NonEmptyFileSize(const std::string& path) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": empty file (0 bytes)"));
   }
   return size;
+}
+
+absl::StatusOr<std::string> ReadHead(const std::string& path, uint64_t file_size, uint64_t max) {
+  std::string text(static_cast<size_t>(std::min(file_size, max)), '\0');
+  FILE* f = std::fopen(path.c_str(), "rb");
+  if (f == nullptr) return ErrnoError(path, "cannot open");
+  const size_t got = std::fread(text.data(), 1, text.size(), f);
+  std::fclose(f);
+  if (got != text.size()) return ErrnoError(path, "read error");
+  return text;
 }
 
 std::string FormatDouble(double v) {

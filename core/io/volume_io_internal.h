@@ -19,6 +19,9 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
@@ -57,6 +60,35 @@ absl::StatusOr<uint64_t> NonEmptyFileSize(const std::string& path);
 // "<path>: <what>: <strerror(errno)>" with a code chosen from errno.
 absl::Status ErrnoError(const std::string& path, absl::string_view what);
 
+// The first min(file_size, max) bytes of a file (a text header).
+absl::StatusOr<std::string> ReadHead(const std::string& path, uint64_t file_size, uint64_t max);
+
+// Whitespace-separated numbers of a header field (NRRD, MetaImage): exactly `n` of them;
+// errors name the path and the field.
+template <typename T>
+absl::Status ParseNumbers(const std::string& path, absl::string_view field, absl::string_view text,
+                          size_t n, T* out) {
+  std::vector<absl::string_view> parts =
+      absl::StrSplit(text, absl::ByAnyChar(" \t"), absl::SkipEmpty());
+  if (parts.size() != n) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path, ": \"", field, "\" needs ", n, " values, got \"", text, "\""));
+  }
+  for (size_t i = 0; i < n; ++i) {
+    bool ok;
+    if constexpr (std::is_integral_v<T>) {
+      ok = absl::SimpleAtoi(parts[i], &out[i]);
+    } else {
+      ok = absl::SimpleAtod(parts[i], &out[i]);
+    }
+    if (!ok) {
+      return absl::InvalidArgumentError(
+          absl::StrCat(path, ": \"", field, "\": bad number \"", parts[i], "\""));
+    }
+  }
+  return absl::OkStatus();
+}
+
 // Shortest decimal text that reads back as the same double ("0.5", "3.2", "1e-07").
 std::string FormatDouble(double v);
 
@@ -78,6 +110,9 @@ class ByteReader {
   // gzip, starts there).
   static absl::StatusOr<std::unique_ptr<ByteReader>> Open(const std::string& path, uint64_t offset,
                                                           bool gzip);
+  // A zlib stream (RFC 1950, as MetaImage's CompressedData) from byte `offset`; gzip() is true.
+  static absl::StatusOr<std::unique_ptr<ByteReader>> OpenZlib(const std::string& path,
+                                                              uint64_t offset);
   virtual ~ByteReader() = default;
   // Reads up to n bytes; fewer only at the end of the data. Errors name the path.
   virtual absl::StatusOr<size_t> Read(void* dst, size_t n) = 0;
@@ -160,6 +195,7 @@ struct StreamVolumeSpec {
   uint64_t data_offset = 0;  // byte offset of the (compressed) data in data_path
   uint64_t skip_bytes = 0;   // decompressed bytes to discard before the voxels (gzip only)
   bool gzip = false;
+  bool zlib = false;        // with gzip: a zlib stream (MetaImage), not a gzip file
   bool big_endian = false;  // byte order of the stored voxels
   // NIfTI scl_slope / scl_inter: when set, slices are delivered as float32 = v*slope+inter.
   bool scale = false;
@@ -175,6 +211,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& js
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenNrrdVolume(const std::string& path);
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenNiftiVolume(const std::string& path);
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& path);
+absl::StatusOr<std::unique_ptr<SliceSource>> OpenMetaImageVolume(const std::string& path);
 
 // TIFF sequences (a folder of single-page files): the geometry the first file gives (nz = 1;
 // ImageJ spacing, else resolution in cm/inch as mm with z = x, else 1), and one slice read
@@ -193,6 +230,8 @@ absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const S
                         const VolumeWriteOptions& opts);  // format_nifti.cc
 absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,  // format_tiff.cc
                              const SliceFn& slice_fn, const VolumeWriteOptions& opts);
+absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,  // format_metaimage.cc
+                            const SliceFn& slice_fn, const VolumeWriteOptions& opts);
 
 // What the writers share (volume_writers.cc).
 
@@ -225,6 +264,12 @@ absl::Status StreamSlices(const std::string& path, const VolumeInfo& info, const
 
 // Writes a small text file whole (headers, sidecars).
 absl::Status WriteText(const std::string& path, const std::string& text);
+
+// A header format's file: the header at path, then the voxels (gzip if opts.gzip, in
+// opts' byte order) appended to it when data_path == path, else written to data_path.
+absl::Status WriteHeaderThenVoxels(const std::string& path, const std::string& header,
+                                   const std::string& data_path, const VolumeInfo& info,
+                                   const SliceFn& slice_fn, const VolumeWriteOptions& opts);
 
 // "dir/STEM" + new_ext for "dir/STEM.ext" (or "dir/STEM.nii.gz"): a detached data file.
 std::filesystem::path SiblingPath(const std::string& path, absl::string_view new_ext);

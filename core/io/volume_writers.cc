@@ -144,6 +144,19 @@ absl::Status WriteText(const std::string& path, const std::string& text) {
   return (*w)->Close();
 }
 
+absl::Status WriteHeaderThenVoxels(const std::string& path, const std::string& header,
+                                   const std::string& data_path, const VolumeInfo& info,
+                                   const SliceFn& slice_fn, const VolumeWriteOptions& opts) {
+  if (absl::Status st = WriteText(path, header); !st.ok()) return st;
+  // Attached: the data (a gzip member if compressed) is appended right after the header.
+  absl::StatusOr<std::unique_ptr<ByteWriter>> w =
+      ByteWriter::Open(data_path, opts.gzip, /*append=*/data_path == path);
+  if (!w.ok()) return w.status();
+  absl::Status st = StreamSlices(path, info, slice_fn, opts.big_endian, w->get());
+  if (st.ok()) st = (*w)->Close();
+  return st;
+}
+
 std::filesystem::path SiblingPath(const std::string& path, absl::string_view new_ext) {
   const std::filesystem::path p(path);
   std::string name = p.filename().string();
@@ -164,13 +177,16 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
   const std::string ext = internal::VolumeExtension(path);
   if (!info.axis_aligned() && (ext == ".tif" || ext == ".tiff" || ext == ".zarr")) {
     return absl::UnimplementedError(absl::StrCat(
-        path, ": this writer stores spacing and origin only, not rotated or flipped grid "
-              "directions (.json, .nrrd, .nhdr, .nii, .nii.gz and a DICOM series store them)"));
+        path,
+        ": this writer stores spacing and origin only, not rotated or flipped grid "
+        "directions (.json, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd and a DICOM series "
+        "store them)"));
   }
   if (ext == ".json") return internal::WriteRawJson(path, info, slice_fn, opts);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::WriteNrrd(path, info, slice_fn, opts);
   if (ext == ".nii" || ext == ".nii.gz") return internal::WriteNifti(path, info, slice_fn, opts);
   if (ext == ".tif" || ext == ".tiff") return internal::WriteTiffVolume(path, info, slice_fn, opts);
+  if (ext == ".mha" || ext == ".mhd") return internal::WriteMetaImage(path, info, slice_fn, opts);
   if (ext == ".zarr") {
     ZarrWriteOptions zo;
     zo.big_endian = opts.big_endian;
@@ -179,7 +195,7 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
   return absl::InvalidArgumentError(
       absl::StrCat(path, ": cannot write format '", ext.empty() ? "(no extension)" : ext,
                    "'; supported: .json (raw + JSON sidecar), .nrrd, .nhdr, .nii, .nii.gz, "
-                   ".tif, .tiff, .zarr"));
+                   ".tif, .tiff, .mha, .mhd, .zarr"));
 }
 
 }  // namespace tandem

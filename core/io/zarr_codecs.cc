@@ -76,19 +76,12 @@ absl::Status Deflate(const uint8_t* src, size_t n, int level, bool gzip,
 
 absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t* dst,
                     size_t dst_size) {
+  if (absl::Status st = CheckDecodedSize(c, src, n, dst_size); !st.ok()) return st;
   switch (c.kind) {
     case Compression::kGzip:
     case Compression::kZlib:
       return Inflate(src, n, dst, dst_size, c.kind == Compression::kGzip);
     case Compression::kZstd: {
-      const unsigned long long content = ZSTD_getFrameContentSize(src, n);
-      if (content == ZSTD_CONTENTSIZE_ERROR) {
-        return absl::DataLossError("corrupt zstd data (no zstd frame header)");
-      }
-      if (content != ZSTD_CONTENTSIZE_UNKNOWN && content != dst_size) {
-        return absl::DataLossError(
-            absl::StrCat("zstd frame holds ", content, " bytes, expected ", dst_size));
-      }
       const size_t got = ZSTD_decompress(dst, dst_size, src, n);
       if (ZSTD_isError(got)) {
         return absl::DataLossError(absl::StrCat("corrupt zstd data: ", ZSTD_getErrorName(got)));
@@ -100,16 +93,6 @@ absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t*
       return absl::OkStatus();
     }
     case Compression::kBlosc: {
-      size_t nbytes = 0;
-      // Checks the header against the buffer's length before blosc reads past it.
-      if (n < BLOSC_MIN_HEADER_LENGTH || blosc_cbuffer_validate(src, n, &nbytes) != 0) {
-        return absl::DataLossError(
-            absl::StrCat("corrupt or truncated blosc data (", n, " bytes, no valid blosc header)"));
-      }
-      if (nbytes != dst_size) {
-        return absl::DataLossError(
-            absl::StrCat("blosc data holds ", nbytes, " bytes, expected ", dst_size));
-      }
       if (dst_size == 0) return absl::OkStatus();
       const int got = blosc_decompress_ctx(src, dst, dst_size, 1);
       if (got <= 0 || static_cast<size_t>(got) != dst_size) {
@@ -118,6 +101,45 @@ absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t*
                                                 "damaged)"));
       }
       return absl::OkStatus();
+    }
+  }
+  return absl::InternalError("unknown codec");
+}
+
+absl::Status CheckDecodedSize(const Compression& c, const uint8_t* src, size_t n, size_t expected) {
+  // blosc and zstd expand zeros by up to ~65536 (a 128 KiB zstd block in a few bytes).
+  constexpr uint64_t kMaxRatio = 65536, kMaxDeflateRatio = 1032;
+  const auto cannot = [&](absl::string_view codec, uint64_t ratio) -> absl::Status {
+    if (uint64_t{n} * ratio + 64 >= expected) return absl::OkStatus();
+    return absl::DataLossError(
+        absl::StrCat(codec, " data of ", n, " bytes cannot hold the chunk's ", expected));
+  };
+  switch (c.kind) {
+    case Compression::kGzip:
+    case Compression::kZlib:
+      return cannot("deflate", kMaxDeflateRatio);
+    case Compression::kZstd: {
+      const unsigned long long content = ZSTD_getFrameContentSize(src, n);
+      if (content == ZSTD_CONTENTSIZE_ERROR) {
+        return absl::DataLossError("corrupt zstd data (no zstd frame header)");
+      }
+      if (content != ZSTD_CONTENTSIZE_UNKNOWN && content != expected) {
+        return absl::DataLossError(
+            absl::StrCat("zstd frame holds ", content, " bytes, expected ", expected));
+      }
+      return cannot("zstd", kMaxRatio);
+    }
+    case Compression::kBlosc: {
+      size_t nbytes = 0;
+      if (n < BLOSC_MIN_HEADER_LENGTH || blosc_cbuffer_validate(src, n, &nbytes) != 0) {
+        return absl::DataLossError(
+            absl::StrCat("corrupt or truncated blosc data (", n, " bytes, no valid blosc header)"));
+      }
+      if (nbytes != expected) {
+        return absl::DataLossError(
+            absl::StrCat("blosc data holds ", nbytes, " bytes, expected ", expected));
+      }
+      return cannot("blosc", kMaxRatio);
     }
   }
   return absl::InternalError("unknown codec");
@@ -199,21 +221,23 @@ absl::Status ReadWholeFile(const std::string& path, uint64_t max_bytes, std::str
 absl::Status ReadRange(const std::string& path, uint64_t offset, uint64_t n, std::string* out) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return ErrnoError(path, "cannot open");
+  absl::Status st = ReadRangeAt(fd, path, offset, n, out);
+  ::close(fd);
+  return st;
+}
+
+absl::Status ReadRangeAt(int fd, const std::string& path, uint64_t offset, uint64_t n,
+                         std::string* out) {
   out->resize(static_cast<size_t>(n));
   size_t done = 0;
   while (done < n) {
     const ssize_t got = ::pread(fd, out->data() + done, static_cast<size_t>(n) - done,
                                 static_cast<off_t>(offset + done));
     if (got < 0 && errno == EINTR) continue;
-    if (got < 0) {
-      absl::Status s = ErrnoError(path, "read error");
-      ::close(fd);
-      return s;
-    }
+    if (got < 0) return ErrnoError(path, "read error");
     if (got == 0) break;
     done += static_cast<size_t>(got);
   }
-  ::close(fd);
   if (done < n) {
     return absl::DataLossError(absl::StrCat(path, ": truncated: bytes ", offset, "..", offset + n,
                                             " expected, the file ends at ", offset + done));

@@ -26,6 +26,12 @@ struct Compression {
 absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t* dst,
                     size_t dst_size);
 
+// Refuses, before a buffer of `expected` bytes is allocated for it, an encoded chunk of n
+// bytes that cannot decode to that size: blosc's and zstd's headers state their size, no
+// codec expands more than 65536 times, deflate at most 1032 times (a tiny chunk must not
+// make us allocate gigabytes).
+absl::Status CheckDecodedSize(const Compression& c, const uint8_t* src, size_t n, size_t expected);
+
 // Encodes n bytes of elements of typesize bytes (blosc's shuffle works per element).
 absl::Status Encode(const Compression& c, const uint8_t* src, size_t n, size_t typesize,
                     std::vector<uint8_t>* out);
@@ -36,6 +42,9 @@ absl::Status ReadWholeFile(const std::string& path, uint64_t max_bytes, std::str
 
 // Bytes [offset, offset + n) of a file into *out; a file that ends first is DataLoss.
 absl::Status ReadRange(const std::string& path, uint64_t offset, uint64_t n, std::string* out);
+// The same from an open file (fd), named `path` in errors.
+absl::Status ReadRangeAt(int fd, const std::string& path, uint64_t offset, uint64_t n,
+                         std::string* out);
 
 // Writes path.tmp and renames it onto path: readers see the old content or the new, never
 // a part (a chunk file that exists is complete).

@@ -30,6 +30,10 @@ struct VolumeInfo {
   int64_t nx = 0, ny = 0, nz = 0;  // grid vertices per axis; nz = 0 means "not known yet"
   DType dtype = DType::kUInt8;
   std::array<double, 3> spacing{1.0, 1.0, 1.0};  // physical units per voxel step
+  // False when the file gives no spacing (a TIFF stack without resolution tags, a plain
+  // Zarr array, a NRRD or MetaImage header without one): 1 was assumed, and the programs'
+  // --spacing flag supplies it.
+  bool spacing_known = true;
   std::array<double, 3> origin{0.0, 0.0, 0.0};   // physical position of voxel (0,0,0)
   // World unit vectors of the grid's x, y and z axes (orthonormal; a flip or a rotation, as
   // DICOM ImageOrientationPatient or a NIfTI / NRRD orientation gives).
@@ -138,7 +142,8 @@ int64_t FirstNonFinite(const uint8_t* bytes, size_t n);
 absl::Status NonFiniteVoxelError(int64_t i, int64_t j, float v);
 
 // Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
-// *.nii.gz, *.tif / *.tiff (multi-page stack), a Zarr / OME-Zarr store (*.zarr, or a
+// *.nii.gz, *.tif / *.tiff (multi-page stack), *.mha / *.mhd (ITK MetaImage), a Zarr /
+// OME-Zarr store (*.zarr, or a
 // directory holding Zarr metadata; "X.zarr#SELECTOR" picks a level or an array, see
 // tandem/zarr.h), or a folder of one file per slice: a DICOM series or numbered TIFFs (see
 // tandem/series.h). Errors name the file and the problem.

@@ -18,7 +18,8 @@ struct VolumeWriteOptions {
   // .nrrd / .nhdr: gzip encoding; .tif / .tiff: deflate compression. (.nii.gz is chosen by
   // the extension alone.)
   bool gzip = false;
-  // Store voxels big-endian (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif); default little.
+  // Store voxels big-endian (.json, .nrrd, .nhdr, .nii, .nii.gz, .tif, .mha, .mhd); default
+  // little.
   bool big_endian = false;
   // .tif / .tiff: 0 writes strips, otherwise square tiles of this size (a multiple of 16).
   int tiff_tile_size = 0;
@@ -45,6 +46,8 @@ using SliceFn = std::function<absl::Status(int64_t z, std::vector<uint8_t>* byte
 //   .nhdr         detached NRRD header + STEM.raw (or STEM.raw.gz with opts.gzip)
 //   .nii/.nii.gz  NIfTI-1 single file (qform and sform both carry spacing and origin)
 //   .tif/.tiff    multi-page TIFF, one page per z-slice, ImageJ description for spacing/origin
+//   .mha / .mhd   ITK MetaImage, uncompressed: header and data in one file, or header +
+//                 STEM.raw (spacing, origin and directions)
 //   .zarr         OME-Zarr v2 image, blosc-lz4, chunks 1x256x256 (WriteZarr in tandem/zarr.h
 //                 for other versions, codecs and chunks)
 // info.nz must be known. Errors name the file and the problem.

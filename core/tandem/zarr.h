@@ -17,6 +17,11 @@
 // sharding_indexed (index at start or end; a crc32c on the index is skipped, not checked;
 // the inner chunk is the unit decoded, read from its shard by range). Types uint8, uint16,
 // int16, float32 in either byte order. A chunk file that does not exist holds fill_value.
+// Bounds: an array read in more than 65536 chunks must average 4096 voxels a chunk or more
+// (each chunk is a file to open), chunks are refused when their codec cannot hold the
+// chunk's declared size before a buffer is allocated, shapes beyond 2^40 and metadata
+// nested over 64 deep are refused, and OME dataset paths and selectors must stay inside
+// the store (relative, no "..", no symlink out of it).
 #ifndef TANDEM_ZARR_H_
 #define TANDEM_ZARR_H_
 

@@ -1,16 +1,16 @@
 // The `tandem` executable, run as a user would: exit codes, files written, messages.
+#include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 
 #include "tandem/mesh_io.h"
 #include "tandem/metrics.h"
@@ -502,35 +502,101 @@ TEST_F(Cli, SimulatedDicomVariantsHoldThePlainSeries) {
 
 // GDCM lives in a module loaded only when a DICOM file is read or written
 // (core/io/dicom_codec.h): its dictionaries cost about 12 ms at every start otherwise.
-TEST_F(Cli, LoadsTheDicomModuleOnlyForDicom) {
-  Output o = RunTandem("generate link --size 24 --series dicom --out " + Path("dcm"));
-  ASSERT_EQ(o.code, 0) << o.text;
-  o = RunTandem("generate link --size 24 --out " + Path("v.json"));
+// GDCM is loaded only where DICOM is read or written: a DICOM series is read by the
+// tandem-dicom-worker process (core/io/dicom_worker_client.h), never by the CLI itself, and
+// the DICOM module is loaded by the CLI only to write one.
+TEST_F(Cli, LoadsGdcmOnlyForDicomAndReadsItInTheWorker) {
+  Output o = RunTandem("generate link --size 24 --out " + Path("v.json"));
   ASSERT_EQ(o.code, 0) << o.text;
   const std::string tandem = testing::BinPath("tandem");
   auto run = RunLoading;
+  o = run(tandem, "generate link --size 24 --series dicom --out " + Path("dcm"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("libtandem_dicom.so"), std::string::npos) << o.text.substr(0, 2000);
   o = run(tandem, "extract --input " + Path("v.json") + " --iso 0 --out " + Path("v.ply"));
   ASSERT_EQ(o.code, 0) << o.text;
   EXPECT_EQ(o.text.find("libgdcm"), std::string::npos) << "GDCM loaded for a raw volume";
+  EXPECT_EQ(o.text.find("tandem-dicom-worker"), std::string::npos);
   o = run(tandem, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("d.ply"));
   ASSERT_EQ(o.code, 0) << o.text;
-  EXPECT_NE(o.text.find("libtandem_dicom.so"), std::string::npos) << o.text.substr(0, 2000);
-  EXPECT_NE(o.text.find("libgdcmMSFF"), std::string::npos);
+  EXPECT_EQ(o.text.find("libtandem_dicom.so"), std::string::npos) << o.text.substr(0, 2000);
+  EXPECT_NE(
+      o.text.find("libgdcmMSFF.so.3.0 [0];  needed by " + testing::BinPath("tandem-dicom-worker")),
+      std::string::npos)
+      << o.text.substr(0, 2000);
 
-  // Installed: bin/tandem finds it in ../lib/tandem/. Without it, DICOM is a clear error
-  // and every other format still works.
+  // Installed: bin/tandem finds the worker in ../lib/tandem/. Without it, reading DICOM is a
+  // clear error and every other format still works.
   const std::string lonely = InstallAlone("prefix");
   o = run(lonely, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("m.ply"));
   EXPECT_NE(o.code, 0);
   EXPECT_NE(o.text.find("DICOM support is not available"), std::string::npos) << o.text;
-  EXPECT_NE(o.text.find(Path("prefix/lib/tandem/libtandem_dicom.so")), std::string::npos)
+  EXPECT_NE(o.text.find(Path("prefix/lib/tandem/tandem-dicom-worker")), std::string::npos)
       << o.text;
   o = run(lonely, "extract --input " + Path("v.json") + " --iso 0 --out " + Path("m.ply"));
   EXPECT_EQ(o.code, 0) << o.text;
-  std::filesystem::copy_file(testing::BinPath("libtandem_dicom.so"),
-                             Path("prefix/lib/tandem/libtandem_dicom.so"));
+  std::filesystem::copy_file(testing::BinPath("tandem-dicom-worker"),
+                             Path("prefix/lib/tandem/tandem-dicom-worker"));
   o = run(lonely, "extract --input " + Path("dcm") + " --iso 0 --out " + Path("m.ply"));
   EXPECT_EQ(o.code, 0) << o.text.substr(0, 2000);
+  // Writing DICOM loads the module, also from ../lib/tandem/.
+  o = run(lonely, "generate link --size 24 --series dicom --out " + Path("dcm2"));
+  EXPECT_NE(o.code, 0);
+  EXPECT_NE(o.text.find(Path("prefix/lib/tandem/libtandem_dicom.so")), std::string::npos)
+      << o.text.substr(0, 2000);
+  std::filesystem::copy_file(testing::BinPath("libtandem_dicom.so"),
+                             Path("prefix/lib/tandem/libtandem_dicom.so"));
+  o = run(lonely, "generate link --size 24 --series dicom --out " + Path("dcm2"));
+  EXPECT_EQ(o.code, 0) << o.text.substr(0, 2000);
+}
+
+// The corners of a mesh's bounding box.
+std::pair<Vec3, Vec3> Bounds(const std::string& path) {
+  auto mesh = ReadMesh(path);
+  EXPECT_TRUE(mesh.ok()) << mesh.status();
+  Vec3 lo{1e30, 1e30, 1e30}, hi{-1e30, -1e30, -1e30};
+  for (const Vec3& p : mesh.ok() ? mesh->positions : std::vector<Vec3>{}) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  return {lo, hi};
+}
+
+// A TIFF stack without resolution tags gives no spacing: --spacing supplies it and the
+// mesh's extent follows it exactly; a file's own spacing is replaced with a warning.
+TEST_F(Cli, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
+  testing::WriteBareTiffStack(Path("bare.tif"), 24, 20, 16);
+  const std::string common = " --iso 100 --no-simplify --quiet --input ";
+  Output o = RunTandem("extract --out " + Path("grid.ply") + common + Path("bare.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("extract --spacing 0.5,0.25,2 --out " + Path("mm.ply") + common + Path("bare.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
+  const auto [glo, ghi] = Bounds(Path("grid.ply"));
+  const auto [mlo, mhi] = Bounds(Path("mm.ply"));
+  const double s[3] = {0.5, 0.25, 2};
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GT(ghi[a] - glo[a], 5) << a;
+    EXPECT_NEAR(mlo[a], glo[a] * s[a], 1e-4) << a;
+    EXPECT_NEAR(mhi[a], ghi[a] * s[a], 1e-4) << a;
+  }
+  // ImageJ's description gives spacing 1: the flag replaces it, saying so.
+  o = RunTandem("generate sphere --size 20 --out " + Path("ij.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("extract --spacing 2,2,2 --iso 0 --out " + Path("ij.ply") + " --input " +
+                Path("ij.tif"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  EXPECT_NE(o.text.find("warning: --spacing 2,2,2 replaces the spacing 1,1,1 that " +
+                        Path("ij.tif") + " carries"),
+            std::string::npos)
+      << o.text;
+  o = RunTandem("extract --spacing 1,0,1 --iso 100 --out " + Path("x.ply") + " --input " +
+                Path("bare.tif"));
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--spacing 1,0,1: expected three positive numbers"), std::string::npos)
+      << o.text;
 }
 
 // The viewer's HTTP server is a module too (viewer/view_server.h): Debian's cpp-httplib links

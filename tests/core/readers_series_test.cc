@@ -5,8 +5,10 @@
 // or foreign file, mixed slice sizes), each refused with a message naming the files.
 #include <gtest/gtest.h>
 #include <tiffio.h>
+#include <zlib.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -19,6 +21,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "dicom_worker_client.h"
 #include "tandem/distance.h"
 #include "tandem/run_session.h"
 #include "tandem/series.h"
@@ -27,6 +30,16 @@
 #include "tandem/volume.h"
 #include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
+
+// The reader process sets no address-space limit under ASan (it reserves terabytes).
+#if defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define TANDEM_TEST_ASAN 1
+#endif
+#endif
+#ifdef __SANITIZE_ADDRESS__
+#define TANDEM_TEST_ASAN 1
+#endif
 
 namespace tandem {
 namespace {
@@ -459,6 +472,236 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
   auto empty = OpenVolume(testing::MakeTempDir());
   ASSERT_FALSE(empty.ok());
   EXPECT_TRUE(absl::StrContains(empty.status().message(), "empty folder")) << empty.status();
+}
+
+std::string Slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+void Spit(const std::string& path, const std::string& bytes) {
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
+}
+std::string U32Le(uint32_t v) { return std::string(reinterpret_cast<const char*>(&v), 4); }
+
+// Reads a series folder to the end: the status that ended it (OutOfRange: every slice read).
+absl::Status ReadToEnd(const std::string& dir) {
+  auto src = OpenVolume(dir);
+  if (!src.ok()) return src.status();
+  std::vector<uint8_t> slice;
+  absl::Status st;
+  while ((st = (*src)->ReadSlice(&slice)).ok()) {
+  }
+  return st;
+}
+
+double SecondsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// An RLE fragment header whose segment count GDCM's decoder divides by (0) or follows past
+// the header (0xFFFFFFFF) killed the process with SIGFPE / SIGSEGV. Each is refused, naming
+// the file and the rule, before GDCM sees it; the program goes on reading other series.
+TEST(DicomSeries, CraftedRleHeadersAreRefusedNamingTheFile) {
+  const std::string root = testing::MakeTempDir();
+  DicomWriteOptions rle;
+  rle.syntax = DicomSyntax::kRle;
+  const VolumeInfo info = Grid(DType::kInt16);
+  for (uint32_t segments : {0u, 0xffffffffu, 16u, 1u}) {
+    const std::string dir = WriteSeries(absl::StrCat(root, "/s", segments), info, rle);
+    const std::string victim = dir + "/IM00005.dcm";
+    std::string bytes = Slurp(victim);
+    // Pixel data (OB, undefined length), the offset table item, then the first fragment's
+    // item header: its first 4 bytes are the segment count.
+    const size_t pixels = bytes.find(std::string("\xe0\x7f\x10\x00OB\0\0\xff\xff\xff\xff", 12));
+    ASSERT_NE(pixels, std::string::npos);
+    uint32_t table = 0;
+    std::memcpy(&table, bytes.data() + pixels + 16, 4);
+    const size_t header = pixels + 12 + 8 + table + 8;
+    ASSERT_EQ(bytes.substr(header - 8, 4), std::string("\xfe\xff\x00\xe0", 4));
+    bytes.replace(header, 4, U32Le(segments));
+    Spit(victim, bytes);
+    const auto t0 = std::chrono::steady_clock::now();
+    const absl::Status st = ReadToEnd(dir);
+    EXPECT_LT(SecondsSince(t0), 1.0);
+    EXPECT_TRUE(absl::StrContains(st.message(), victim)) << st;
+    EXPECT_TRUE(absl::StrContains(st.message(), "corrupt RLE pixel data")) << st;
+    EXPECT_TRUE(absl::StrContains(
+        st.message(), segments == 1 ? "1 segment(s), 16-bit samples need 2" : "segments (1..15)"))
+        << st;
+  }
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(WriteSeries(root + "/good", info, rle))));
+}
+
+// `depth` sequences (0040,A730) nested in one another, with undefined or defined lengths,
+// as an explicit VR little endian element stream.
+std::string NestedSequences(int depth, bool undefined) {
+  const std::string inner = std::string("\x08\x00\x00\x01SH\x02\x00XX", 10);
+  const std::string sq = std::string("\x40\x00\x30\xa7SQ\0\0", 8);
+  const std::string item = std::string("\xfe\xff\x00\xe0", 4);
+  std::string out;
+  if (undefined) {
+    for (int d = 0; d < depth; ++d) out += sq + U32Le(0xffffffffu) + item + U32Le(0xffffffffu);
+    out += inner;
+    for (int d = 0; d < depth; ++d) {
+      out += std::string("\xfe\xff\x0d\xe0", 4) + U32Le(0) + std::string("\xfe\xff\xdd\xe0", 4) +
+             U32Le(0);
+    }
+    return out;
+  }
+  std::vector<uint32_t> item_size(depth);  // from the innermost level out
+  uint32_t size = static_cast<uint32_t>(inner.size());
+  for (int d = 0; d < depth; ++d) {
+    item_size[d] = size;
+    size += 8 + 12;
+  }
+  for (int d = depth - 1; d >= 0; --d)
+    out += sq + U32Le(item_size[d] + 8) + item + U32Le(item_size[d]);
+  return out + inner;
+}
+
+// Puts `elements` into a GDCM-written explicit VR file right before its pixel data.
+void InsertBeforePixels(const std::string& file, const std::string& elements) {
+  std::string bytes = Slurp(file);
+  const size_t pixels = bytes.rfind(std::string("\xe0\x7f\x10\x00", 4));
+  ASSERT_NE(pixels, std::string::npos);
+  bytes.insert(pixels, elements);
+  Spit(file, bytes);
+}
+
+// GDCM parses sequences recursively: 4,000 undefined-length levels (or 50,000 defined ones)
+// overflowed its stack, and 15 undefined-length levels took over a minute (GDCM's length
+// of such a data set is exponential in the depth). Deep files are refused before GDCM
+// parses them, naming the file; a real image's few levels read at once.
+TEST(DicomSeries, DeepSequencesAreRefusedBeforeParsingAndShallowOnesReadAtOnce) {
+  const std::string root = testing::MakeTempDir();
+  const VolumeInfo info = Grid(DType::kInt16);
+  struct Case {
+    int depth;
+    bool undefined;
+    bool refused;
+  };
+  for (const Case& c : {Case{15, true, false}, Case{15, false, false}, Case{4000, true, true},
+                        Case{50000, false, true}}) {
+    const std::string dir = WriteSeries(absl::StrCat(root, "/d", c.depth, c.undefined), info);
+    InsertBeforePixels(dir + "/IM00004.dcm", NestedSequences(c.depth, c.undefined));
+    const auto t0 = std::chrono::steady_clock::now();
+    const absl::Status st = ReadToEnd(dir);
+    EXPECT_LT(SecondsSince(t0), 1.0) << c.depth;
+    if (c.refused) {
+      EXPECT_TRUE(absl::StrContains(st.message(), dir + "/IM00004.dcm")) << st;
+      EXPECT_TRUE(absl::StrContains(st.message(), "sequences nested more than 32 deep")) << st;
+    } else {
+      EXPECT_TRUE(absl::IsOutOfRange(st)) << st;
+    }
+  }
+}
+
+// A declared length past the end of the file (GDCM would allocate it, then pad) and more
+// elements than any slice holds are refused before GDCM parses the file.
+TEST(DicomSeries, LengthsPastTheEndShortPixelsAndMillionsOfElementsAreRefused) {
+  const std::string root = testing::MakeTempDir();
+  const VolumeInfo info = Grid(DType::kInt16);
+  const std::string big = WriteSeries(root + "/big", info) + "/IM00002.dcm";
+  InsertBeforePixels(big, std::string("\x09\x00\x10\x10OB\0\0", 8) + U32Le(0xfffffff0u));
+  absl::Status st = ReadToEnd(root + "/big");
+  EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+  EXPECT_TRUE(absl::StrContains(st.message(), big + ": truncated: element (0009,1010)")) << st;
+
+  const std::string many = WriteSeries(root + "/many", info) + "/IM00002.dcm";
+  std::string elements;
+  for (int i = 0; i < (1 << 20) + 1; ++i) elements += std::string("\x09\x00\x10\x10LO\0\0", 8);
+  InsertBeforePixels(many, elements);
+  const auto t0 = std::chrono::steady_clock::now();
+  st = ReadToEnd(root + "/many");
+  EXPECT_LT(SecondsSince(t0), 2.0);
+  EXPECT_TRUE(absl::StrContains(st.message(), many + ": more than 1048576 data elements")) << st;
+
+  // Pixel data shorter than the image: GDCM would pad it to the image's size (a few bytes
+  // claiming gigabytes); refused before it reads them.
+  const std::string cut = WriteSeries(root + "/cut", info) + "/IM00003.dcm";
+  std::string bytes = Slurp(cut);
+  const size_t pixels = bytes.rfind(std::string("\xe0\x7f\x10\x00OW\0\0", 8));
+  ASSERT_NE(pixels, std::string::npos);
+  Spit(cut, bytes.substr(0, pixels + 8) + U32Le(10) + std::string(10, '\0'));
+  st = ReadToEnd(root + "/cut");
+  EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+  EXPECT_TRUE(absl::StrContains(
+      st.message(),
+      absl::StrCat(cut, ": pixel data holds 10 bytes, the image needs ", info.slice_bytes())))
+      << st;
+}
+
+// A GDCM-written explicit VR little endian file rewritten as Deflated Explicit VR Little
+// Endian (1.2.840.10008.1.2.1.99): the meta group's transfer syntax (and group length)
+// changed, the data set after it deflated (raw deflate, PS3.5 A.5).
+void Deflate(const std::string& file) {
+  std::string bytes = Slurp(file);
+  uint32_t group = 0;
+  std::memcpy(&group, bytes.data() + 140, 4);  // (0002,0000) after the preamble and "DICM"
+  const size_t data_set = 144 + group;
+  const std::string ts = std::string("\x02\x00\x10\x00UI", 6);
+  const size_t at = bytes.find(ts);
+  ASSERT_LT(at, data_set);
+  uint16_t len = 0;
+  std::memcpy(&len, bytes.data() + at + 6, 2);
+  const std::string uid("1.2.840.10008.1.2.1.99", 22);
+  std::string meta = bytes.substr(0, data_set);
+  meta.replace(at + 6, 2 + len, std::string("\x16\x00", 2) + uid);
+  const uint32_t new_group = group + 22 - len;
+  std::memcpy(meta.data() + 140, &new_group, 4);
+  z_stream zs{};
+  ASSERT_EQ(deflateInit2(&zs, 6, Z_DEFLATED, -15, 8, Z_DEFAULT_STRATEGY), Z_OK);
+  std::string raw = bytes.substr(data_set), out(deflateBound(&zs, raw.size()), '\0');
+  zs.next_in = reinterpret_cast<Bytef*>(raw.data());
+  zs.avail_in = static_cast<uInt>(raw.size());
+  zs.next_out = reinterpret_cast<Bytef*>(out.data());
+  zs.avail_out = static_cast<uInt>(out.size());
+  ASSERT_EQ(deflate(&zs, Z_FINISH), Z_STREAM_END);
+  out.resize(zs.total_out);
+  deflateEnd(&zs);
+  Spit(file, meta + out);
+}
+
+// A deflated data set is walked inflated, with the same bounds.
+TEST(DicomSeries, DeflatedDataSetsAreBoundedToo) {
+  const std::string root = testing::MakeTempDir();
+  const VolumeInfo info = Grid(DType::kInt16);
+  const std::string dir = WriteSeries(root + "/s", info);
+  Deflate(dir + "/IM00003.dcm");
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir))) << ReadToEnd(dir);
+  InsertBeforePixels(dir + "/IM00005.dcm", NestedSequences(4000, true));
+  Deflate(dir + "/IM00005.dcm");
+  const absl::Status st = ReadToEnd(dir);
+  EXPECT_TRUE(absl::StrContains(st.message(), dir + "/IM00005.dcm: sequences nested more than 32"))
+      << st;
+}
+
+// What no check can foresee costs the reader process, not the program: a crash, a hang
+// (stopped at the time limit) and an allocation without bound each give an error, and the
+// next series reads with a fresh process.
+TEST(DicomReaderProcess, CrashHangAndRunawayMemoryCostTheReaderNotTheProgram) {
+  const std::string dir = WriteSeries(testing::MakeTempDir() + "/s", Grid(DType::kUInt16));
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
+  absl::Status st = dicom::testing::Misbehave(1);
+  EXPECT_TRUE(absl::StrContains(st.message(), "the DICOM reader process died reading this file"))
+      << st;
+  EXPECT_TRUE(absl::StrContains(st.message(), "signal 11")) << st;
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
+
+  dicom::testing::SetTimeLimit(0.5);
+  const auto t0 = std::chrono::steady_clock::now();
+  st = dicom::testing::Misbehave(2);
+  dicom::testing::SetTimeLimit(0);
+  EXPECT_LT(SecondsSince(t0), 5.0);
+  EXPECT_TRUE(absl::StrContains(st.message(), "took more than 0.5 s on this file and was stopped"))
+      << st;
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
+
+#ifndef TANDEM_TEST_ASAN
+  st = dicom::testing::Misbehave(3);  // the address-space limit (not set under ASan)
+  EXPECT_TRUE(absl::IsResourceExhausted(st)) << st;
+  EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
+#endif
 }
 
 // Files that trip assertions inside Debian's GDCM (built with them on; found by fuzz_dicom)

@@ -3,6 +3,7 @@
 // and levels, damaged stores, and arrays written by an independent writer (zarr-python).
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -694,6 +695,138 @@ TEST(ZarrBadInput, MetadataProblemsAreNamed) {
   fs::create_directories(dir);
   absl::Status empty = ReadAll(dir);
   EXPECT_TRUE(absl::StrContains(empty.message(), "not a Zarr array or group")) << empty;
+}
+
+double SecondsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// Every chunk is a file to open: a store of 1x1x1 chunks (or metadata alone claiming
+// billions of them, all missing) took minutes to hours. Arrays of at most 65536 chunks, or
+// of chunks holding 4096 voxels or more on average, are read; others are refused at once,
+// saying which chunking works.
+TEST(ZarrBadInput, TinyChunksAreReadUpTo65536AndRefusedBeyondSayingWhatWorks) {
+  const std::string root = testing::MakeTempDir();
+  ZarrWriteOptions o;
+  o.ome = false;
+  o.compressor = ZarrCompressor::kNone;
+  o.chunks = {1, 1, 1};
+  const VolumeInfo small = Grid(DType::kUInt8, 24, 24, 24);
+  ASSERT_TRUE(WriteZarr(root + "/small.zarr", small, PatternSlices(small), o).ok());
+  auto src = OpenVolume(root + "/small.zarr");
+  ASSERT_TRUE(src.ok()) << src.status();
+  ExpectPatternValue(**src);
+
+  // Metadata alone: 64^3 one-voxel chunks; 10^9 voxels in 10^6 chunks of 1000 per plane.
+  WriteText(root + "/claim.zarr/.zarray",
+            R"({"zarr_format": 2, "shape": [64, 64, 64], "chunks": [1, 1, 1],
+                "dtype": "|u1", "compressor": null, "fill_value": 0})");
+  WriteText(root + "/plane.zarr/.zarray",
+            R"({"zarr_format": 2, "shape": [1000, 1000, 1000], "chunks": [1000, 1, 1],
+                "dtype": "|u1", "compressor": null, "fill_value": 0})");
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::Status st = ReadAll(root + "/claim.zarr");
+  EXPECT_TRUE(absl::StrContains(st.message(), root + "/claim.zarr/.zarray: chunks of 1x1x1 voxels"))
+      << st;
+  EXPECT_TRUE(absl::StrContains(st.message(), "lie in 262144 chunks")) << st;
+  EXPECT_TRUE(absl::StrContains(st.message(), "1x64x64, 16x16x16 or larger")) << st;
+  st = ReadAll(root + "/plane.zarr");
+  EXPECT_TRUE(absl::StrContains(st.message(), "1000000 chunks per chunk row")) << st;
+  EXPECT_LT(SecondsSince(t0), 1.0);
+}
+
+// A chunk a few bytes long whose codec claims a huge chunk is refused before a buffer of
+// the chunk's size is allocated for it (deflate expands at most 1032 times, blosc and zstd
+// 65536 times).
+TEST(ZarrBadInput, TinyChunksClaimingHugeOnesAreRefusedBeforeDecoding) {
+  const std::string root = testing::MakeTempDir();
+  for (const char* codec : {"gzip", "blosc"}) {
+    const std::string store = absl::StrCat(root, "/", codec, ".zarr");
+    WriteText(
+        store + "/.zarray",
+        absl::StrCat(R"({"zarr_format": 2, "shape": [2, 4096, 8192], "chunks": [1, 4096, 8192],
+                "dtype": "<u2", "fill_value": 0, "compressor": {"id": ")",
+                     codec, R"("}})"));
+    std::string chunk;
+    if (std::string(codec) == "gzip") {
+      chunk = std::string("\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03", 10) + std::string(90, '\0');
+    } else {  // a blosc header: version 2, lz4 1, byte shuffle, typesize 2, 64 MiB, 100 bytes
+      const uint32_t nbytes = 64u << 20, blocksize = 1u << 16, cbytes = 100;
+      chunk = std::string("\x02\x01\x01\x02", 4);
+      for (uint32_t v : {nbytes, blocksize, cbytes}) {
+        chunk.append(reinterpret_cast<const char*>(&v), 4);
+      }
+      chunk.resize(cbytes, '\0');
+    }
+    WriteText(store + "/0.0.0", chunk);
+    const absl::Status st = ReadAll(store);
+    EXPECT_TRUE(absl::IsDataLoss(st)) << st;
+    EXPECT_TRUE(absl::StrContains(st.message(), store + "/0.0.0: chunk (0, 0, 0)")) << st;
+    EXPECT_TRUE(
+        absl::StrContains(st.message(), " data of 100 bytes cannot hold the chunk's 67108864"))
+        << st;
+  }
+}
+
+// Shapes and shard shapes beyond any volume, and metadata nested thousands deep (which
+// nlohmann's recursive dump would follow into a stack overflow), are refused by name.
+TEST(ZarrBadInput, OutlandishMetadataIsRefusedBeforeAnyArithmetic) {
+  const std::string v2 = SmallArray(2, ZarrCompressor::kNone);
+  const std::string m2 = v2 + "/.zarray";
+  ExpectMetadataError(
+      v2, m2,
+      [](json& j) {
+        j["shape"] = {int64_t{1} << 50, 8, 10};
+      },
+      "is beyond any volume");
+  ExpectMetadataError(
+      v2, m2,
+      [](json& j) { j["dtype"] = json::parse(std::string(5000, '[') + std::string(5000, ']')); },
+      "JSON nested more than 64 levels deep");
+  const std::string root = testing::MakeTempDir() + "/sharded.zarr";
+  WriteShardedArray(root, false, {-1, -1, -1});
+  ExpectMetadataError(
+      root, root + "/zarr.json",
+      [](json& j) {
+        j["chunk_grid"]["configuration"]["chunk_shape"] = {int64_t{1} << 40, int64_t{1} << 40,
+                                                           int64_t{1} << 40};
+        j["codecs"][0]["configuration"]["chunk_shape"] = {1, 1, 1};
+      },
+      "more than 2^24 inner chunks per shard");
+}
+
+// OME-Zarr dataset paths and array selectors name arrays inside the store: "..", absolute
+// paths and symlinks leading out of it are refused, naming the path.
+TEST(OmeZarr, PathsOutsideTheStoreAreRefused) {
+  const std::string root = testing::MakeTempDir();
+  ZarrWriteOptions o;
+  o.ome = false;
+  const VolumeInfo info = Grid(DType::kUInt8, 20, 15, 10);
+  ASSERT_TRUE(WriteZarr(root + "/outside", info, PatternSlices(info), o).ok());
+  const std::string store = root + "/img.zarr";
+  ASSERT_TRUE(WriteZarr(store + "/0", info, PatternSlices(info), o).ok());
+  fs::create_symlink(root + "/outside", store + "/link");
+  WriteText(store + "/.zgroup", R"({"zarr_format": 2})");
+  const auto multiscale = [&](const std::string& path) {
+    WriteText(store + "/.zattrs",
+              absl::StrCat(R"({"multiscales": [{"version": "0.4", "datasets": [{"path": ")", path,
+                           R"("}]}]})"));
+  };
+  multiscale("0");
+  ASSERT_TRUE(ReadAll(store).ok());
+  for (const auto& [path, why] :
+       std::vector<std::pair<std::string, std::string>>{{"../outside", "goes up with .."},
+                                                        {root + "/outside", "is absolute"},
+                                                        {"link", "leads outside the group"}}) {
+    multiscale(path);
+    absl::Status st = ReadAll(store);
+    EXPECT_TRUE(absl::IsInvalidArgument(st)) << st;
+    EXPECT_TRUE(absl::StrContains(st.message(), "multiscales dataset path '" + path + "' " + why))
+        << st;
+    EXPECT_TRUE(absl::StrContains(st.message(), store + "/.zattrs")) << st;
+    st = ReadAll(store + "#" + path);
+    EXPECT_TRUE(absl::StrContains(st.message(), "array path '" + path + "' " + why)) << st;
+  }
 }
 
 // ---------------------------------------------------------------------------------------

@@ -1,8 +1,10 @@
 // libFuzzer target: a Zarr array (OpenVolume on a store directory). Input: one byte
-// (bit 0: v3 `zarr.json`, else v2 `.zarray`), a 2-byte little-endian length L, L bytes of
-// array metadata, then the bytes of chunk (0, 0, 0), stored under every key spelling the
-// metadata might ask for ("0.0.0", "0/0/0", "c/0/0/0"; for a sharded array, shard
-// (0, 0, 0)); other chunks are missing (fill).
+// (bit 0: v3 `zarr.json`, else v2 `.zarray`; bit 1: an OME-Zarr group instead, see below),
+// a 2-byte little-endian length L, L bytes of array metadata, then the bytes of chunk
+// (0, 0, 0), stored under every key spelling the metadata might ask for ("0.0.0", "0/0/0",
+// "c/0/0/0"; for a sharded array, shard (0, 0, 0)); other chunks are missing (fill).
+// Group mode: the L bytes are the v2 group's .zattrs (multiscales: dataset paths,
+// transforms, axes), over a fixed 2x3x3 uint8 array "0" whose chunk is the rest.
 #include <unistd.h>
 
 #include <algorithm>
@@ -25,10 +27,23 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (std::system(cmd.c_str()) != 0) std::abort();
     return d;
   }();
-  ::unlink((dir + "/.zarray").c_str());
-  ::unlink((dir + "/zarr.json").c_str());
-  tandem::fuzz::WriteFileOrDie(dir + (v3 ? "/zarr.json" : "/.zarray"), meta, meta_len);
-  for (const char* key : {"/0.0.0", "/0/0/0", "/c/0/0/0"}) {
+  for (const char* f : {"/.zarray", "/zarr.json", "/.zgroup", "/.zattrs", "/0/.zarray"}) {
+    ::unlink((dir + f).c_str());
+  }
+  if ((data[0] & 2) != 0) {
+    static const char kGroup[] = "{\"zarr_format\": 2}";
+    static const char kArray[] =
+        "{\"zarr_format\": 2, \"shape\": [2, 3, 3], \"chunks\": [2, 3, 3], \"dtype\": "
+        "\"|u1\", \"compressor\": null, \"fill_value\": 0}";
+    tandem::fuzz::WriteFileOrDie(dir + "/.zgroup", reinterpret_cast<const uint8_t*>(kGroup),
+                                 sizeof kGroup - 1);
+    tandem::fuzz::WriteFileOrDie(dir + "/.zattrs", meta, meta_len);
+    tandem::fuzz::WriteFileOrDie(dir + "/0/.zarray", reinterpret_cast<const uint8_t*>(kArray),
+                                 sizeof kArray - 1);
+  } else {
+    tandem::fuzz::WriteFileOrDie(dir + (v3 ? "/zarr.json" : "/.zarray"), meta, meta_len);
+  }
+  for (const char* key : {"/0.0.0", "/0/0/0", "/c/0/0/0", "/0/0.0.0"}) {
     tandem::fuzz::WriteFileOrDie(dir + key, chunk, chunk_len);
   }
   tandem::fuzz::ReadAllSlices(dir);

@@ -79,8 +79,8 @@ int main(int argc, char** argv) {
   const fs::path out(argv[1]);
   const fs::path tmp = fs::temp_directory_path() / ("tandem-seeds-" + std::to_string(getpid()));
   fs::create_directories(tmp);
-  for (const char* t :
-       {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_zarr", "fuzz_dicom"}) {
+  for (const char* t : {"fuzz_raw_json", "fuzz_nrrd", "fuzz_nifti", "fuzz_tiff", "fuzz_metaimage",
+                        "fuzz_zarr", "fuzz_dicom"}) {
     fs::create_directories(out / t);
   }
 
@@ -143,6 +143,33 @@ int main(int argc, char** argv) {
   deflate.gzip = true;
   Write(out / "fuzz_tiff" / "seed_deflate_int16.tif", spaced, deflate);
 
+  // MetaImage: attached in every type and both byte orders, and hand-written headers for the
+  // variants: zlib data, synonyms, HeaderSize -1, detached data files (the target's fz.raw
+  // and fz.zraw companions).
+  Write(out / "fuzz_metaimage" / "seed_uint8.mha", Info(5, 4, 3, DType::kUInt8));
+  Write(out / "fuzz_metaimage" / "seed_big_int16.mha", spaced, big);
+  Write(out / "fuzz_metaimage" / "seed_float32.mha", Info(3, 3, 2, DType::kFloat32));
+  Write(out / "fuzz_metaimage" / "seed_uint16.mha", Info(4, 3, 2, DType::kUInt16));
+  const std::string mha = "ObjectType = Image\nNDims = 3\nBinaryData = True\n";
+  Put(out / "fuzz_metaimage" / "seed_zlib.mha",
+      mha +
+          "CompressedData = True\nCompressedDataSize = 11\nDimSize = 2 2 2\n"
+          "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+          std::string("\x78\x9c\x63\x60\x80\x03\x00\x00\x08\x00\x01", 11));
+  Put(out / "fuzz_metaimage" / "seed_detached_raw.mha",
+      mha +
+          "DimSize = 16 16 16\nElementSize = 0.5 0.5 2\nPosition = 1 2 3\n"
+          "Rotation = 0 1 0 1 0 0 0 0 -1\nAnatomicalOrientation = RAI\n"
+          "ElementType = MET_UCHAR\nElementDataFile = fz.raw\n");
+  Put(out / "fuzz_metaimage" / "seed_detached_zraw.mha",
+      mha +
+          "CompressedData = True\nElementByteOrderMSB = True\nDimSize = 8 8 32\n"
+          "ElementType = MET_USHORT\nElementDataFile = fz.zraw\n");
+  Put(out / "fuzz_metaimage" / "seed_tail.mha",
+      mha +
+          "HeaderSize = -1\nDimSize = 8 8 16\nElementType = MET_SHORT\n"
+          "ElementDataFile = fz.raw\n");
+
   // fuzz_zarr: one-chunk arrays (chunk = the whole volume) packed as version byte, metadata
   // length, metadata, chunk.
   int zn = 0;
@@ -203,16 +230,61 @@ int main(int argc, char** argv) {
     Put(out / "fuzz_zarr" / "seed_v3_sharded.bin", seed + meta + shard);
   }
 
+  // fuzz_zarr, the inputs that cost minutes or gigabytes: a million one-voxel chunks, a
+  // blosc chunk of 100 bytes claiming 64 MiB, a shape beyond any volume, nested JSON, and
+  // OME groups (mode byte 2) whose dataset paths are fine, go up, or are absolute.
+  auto zarr_seed = [&](const std::string& name, char mode, const std::string& meta,
+                       const std::string& chunk) {
+    std::string seed(1, mode);
+    seed.push_back(static_cast<char>(meta.size() & 0xff));
+    seed.push_back(static_cast<char>(meta.size() >> 8));
+    Put(out / "fuzz_zarr" / name, seed + meta + chunk);
+  };
+  zarr_seed("seed_tiny_chunks.bin", 0,
+            R"({"zarr_format": 2, "shape": [100, 100, 100], "chunks": [1, 1, 1], "dtype": "|u1",)"
+            R"( "compressor": null, "fill_value": 0})",
+            "");
+  {
+    std::string blosc("\x02\x01\x01\x02", 4);
+    for (uint32_t v : {64u << 20, 1u << 16, 100u}) {
+      for (int b = 0; b < 4; ++b) blosc.push_back(static_cast<char>(v >> (8 * b)));
+    }
+    blosc.resize(100, '\0');
+    zarr_seed("seed_blosc_claim.bin", 0,
+              R"({"zarr_format": 2, "shape": [2, 4096, 8192], "chunks": [1, 4096, 8192],)"
+              R"( "dtype": "<u2", "compressor": {"id": "blosc"}, "fill_value": 0})",
+              blosc);
+  }
+  zarr_seed("seed_huge_shape.bin", 0,
+            R"({"zarr_format": 2, "shape": [1125899906842624, 4, 4], "chunks": [1, 4, 4],)"
+            R"( "dtype": "|u1", "compressor": null, "fill_value": 0})",
+            "");
+  zarr_seed("seed_nested.bin", 0,
+            R"({"zarr_format": 2, "shape": [2, 3, 3], "chunks": [2, 3, 3], "dtype": )" +
+                std::string(100, '[') + std::string(100, ']') + "}",
+            "");
+  for (const char* path : {"0", "../0", "/tmp/0"}) {
+    zarr_seed(std::string("seed_ome_") +
+                  (path[0] == '0'   ? "ok"
+                   : path[0] == '.' ? "up"
+                                    : "abs") +
+                  ".bin",
+              2,
+              std::string(R"({"multiscales": [{"version": "0.4", "axes": ["z", "y", "x"],)"
+                          R"( "datasets": [{"path": ")") +
+                  path +
+                  R"(", "coordinateTransformations": [{"type": "scale", "scale": [2, 1, 1]}]}]}]})",
+              std::string(18, '\x40'));
+  }
+
   // fuzz_dicom: two slices of a series (GDCM-written) packed as [u32 LE size of a][a][b],
   // in three transfer syntaxes and with a CT rescale.
-  int dn = 0;
-  for (auto [syntax, t] : {std::pair{tandem::DicomSyntax::kExplicitLittle, DType::kInt16},
-                           {tandem::DicomSyntax::kImplicitLittle, DType::kUInt8},
-                           {tandem::DicomSyntax::kJpegLossless, DType::kUInt16}}) {
-    const fs::path dir = tmp / ("dcm" + std::to_string(dn));
+  // Two slices of value 7z + 1 (GDCM-written) in dir; false if GDCM refused.
+  auto write_series = [&](const fs::path& dir, tandem::DicomSyntax syntax, DType t,
+                          double intercept) {
     tandem::DicomWriteOptions opts;
     opts.syntax = syntax;
-    opts.rescale_intercept = dn == 0 ? -1024 : 0;
+    opts.rescale_intercept = intercept;
     VolumeInfo info = Info(6, 5, 2, t);
     absl::Status st = tandem::WriteDicomSeries(
         dir.string(), info,
@@ -221,14 +293,61 @@ int main(int argc, char** argv) {
           return absl::OkStatus();
         },
         opts);
-    if (!st.ok()) {
-      std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
-      return 1;
-    }
-    const std::string a = Slurp(dir / "IM00001.dcm"), b = Slurp(dir / "IM00002.dcm");
+    if (!st.ok()) std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
+    return st.ok();
+  };
+  auto pack = [](const std::string& x, const std::string& y) {
     std::string seed;
-    for (int i = 0; i < 4; ++i) seed.push_back(static_cast<char>((a.size() >> (8 * i)) & 0xff));
-    Put(out / "fuzz_dicom" / ("seed_" + std::to_string(dn++) + ".bin"), seed + a + b);
+    for (int i = 0; i < 4; ++i) seed.push_back(static_cast<char>((x.size() >> (8 * i)) & 0xff));
+    return seed + x + y;
+  };
+  int dn = 0;
+  for (auto [syntax, t] : {std::pair{tandem::DicomSyntax::kExplicitLittle, DType::kInt16},
+                           {tandem::DicomSyntax::kImplicitLittle, DType::kUInt8},
+                           {tandem::DicomSyntax::kJpegLossless, DType::kUInt16}}) {
+    const fs::path dir = tmp / ("dcm" + std::to_string(dn));
+    if (!write_series(dir, syntax, t, dn == 0 ? -1024 : 0)) return 1;
+    Put(out / "fuzz_dicom" / ("seed_" + std::to_string(dn++) + ".bin"),
+        pack(Slurp(dir / "IM00001.dcm"), Slurp(dir / "IM00002.dcm")));
+  }
+  // fuzz_dicom, the files that crashed or hung GDCM: RLE fragment headers declaring 0 or
+  // 0xFFFFFFFF segments (SIGFPE, SIGSEGV), sequences nested 40 deep (the stack overflowed
+  // at a few thousand, 15 took minutes), a length past the end of the file.
+  {
+    const fs::path dir = tmp / "rle";
+    if (!write_series(dir, tandem::DicomSyntax::kRle, DType::kInt16, 0)) return 1;
+    const std::string a = Slurp(dir / "IM00001.dcm"), b = Slurp(dir / "IM00002.dcm");
+    const size_t pixels = b.find(std::string("\xe0\x7f\x10\x00OB\0\0\xff\xff\xff\xff", 12));
+    if (pixels == std::string::npos) return 1;
+    const size_t table = static_cast<uint8_t>(b[pixels + 16]);  // a small offset table
+    for (uint32_t segments : {0u, 0xffffffffu}) {
+      std::string bad = b;
+      for (int i = 0; i < 4; ++i) {
+        bad[pixels + 12 + 8 + table + 8 + i] = static_cast<char>(segments >> (8 * i));
+      }
+      Put(out / "fuzz_dicom" / ("seed_rle_" + std::to_string(segments & 0xff) + ".bin"),
+          pack(a, bad));
+    }
+    const fs::path plain = tmp / "dcm0";
+    const std::string p = Slurp(plain / "IM00002.dcm");
+    const size_t at = p.rfind(std::string("\xe0\x7f\x10\x00", 4));
+    std::string nested;
+    for (int d = 0; d < 40; ++d)
+      nested += std::string(
+          "\x40\x00\x30\xa7SQ\0\0\xff\xff\xff\xff"
+          "\xfe\xff\x00\xe0\xff\xff\xff\xff",
+          20);
+    for (int d = 0; d < 40; ++d)
+      nested += std::string(
+          "\xfe\xff\x0d\xe0\0\0\0\0"
+          "\xfe\xff\xdd\xe0\0\0\0\0",
+          16);
+    Put(out / "fuzz_dicom" / "seed_nested_40.bin",
+        pack(Slurp(plain / "IM00001.dcm"), p.substr(0, at) + nested + p.substr(at)));
+    Put(out / "fuzz_dicom" / "seed_length_past_end.bin",
+        pack(Slurp(plain / "IM00001.dcm"),
+             p.substr(0, at) + std::string("\x09\x00\x10\x10OB\0\0\xf0\xff\xff\xff", 12) +
+                 p.substr(at)));
   }
 
   fs::remove_all(tmp);

@@ -430,6 +430,34 @@ TEST_F(ServiceE2eTest, ClientReportsErrorsClearly) {
   }
 }
 
+// tandem-client stream --spacing gives a TIFF stack without resolution tags its extent, as
+// tandem extract does (the flags are shared): the mesh scales axis by axis.
+TEST_F(ServiceE2eTest, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
+  testing::WriteBareTiffStack(dir_ + "/bare.tif", 24, 20, 16);
+  auto run = [&](const std::string& out, std::vector<std::string> extra) {
+    std::vector<std::string> args = {
+        "stream", "--server", server_->address(), "--input", dir_ + "/bare.tif",
+        "--iso",  "100",      "--no-simplify",    "--out",   out};
+    args.insert(args.end(), extra.begin(), extra.end());
+    RunResult r = Client(args);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    auto mesh = ReadMesh(out);
+    EXPECT_TRUE(mesh.ok()) << mesh.status();
+    std::array<double, 3> hi{-1e30, -1e30, -1e30};
+    for (const Vec3& p : mesh.ok() ? mesh->positions : std::vector<Vec3>{}) {
+      for (int a = 0; a < 3; ++a) hi[a] = std::max<double>(hi[a], p[a]);
+    }
+    return hi;
+  };
+  const std::array<double, 3> grid = run(dir_ + "/grid.ply", {});
+  const std::array<double, 3> mm = run(dir_ + "/mm.ply", {"--spacing", "0.5,0.25,2"});
+  const double s[3] = {0.5, 0.25, 2};
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GT(grid[a], 5) << a;
+    EXPECT_NEAR(mm[a], grid[a] * s[a], 1e-3) << a;
+  }
+}
+
 // The final metrics carry the session's own memory peak (as its budget counts it), next to
 // the server process's peak RSS, which every session shares: --reference (a second,
 // full-resolution session) raises the first, and both are labelled in the summary.

@@ -1,7 +1,9 @@
 #include "testutil/testutil.h"
 
+#include <tiffio.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdlib>
 #include <cstring>
@@ -181,6 +183,31 @@ SliceFn PatternSlices(const VolumeInfo& info) {
     }
     return absl::OkStatus();
   };
+}
+
+void WriteBareTiffStack(const std::string& path, int nx, int ny, int nz) {
+  TIFF* tif = TIFFOpen(path.c_str(), "w");
+  ASSERT_NE(tif, nullptr) << path;
+  const double r = 0.35 * std::min({nx, ny, nz});
+  std::vector<uint8_t> row(static_cast<size_t>(nx));
+  for (int z = 0; z < nz; ++z) {
+    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, nx);
+    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, ny);
+    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, 8);
+    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 1);
+    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+    TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+    TIFFSetField(tif, TIFFTAG_SUBFILETYPE, FILETYPE_PAGE);
+    for (int y = 0; y < ny; ++y) {
+      for (int x = 0; x < nx; ++x) {
+        const double dx = x - (nx - 1) / 2.0, dy = y - (ny - 1) / 2.0, dz = z - (nz - 1) / 2.0;
+        row[static_cast<size_t>(x)] = dx * dx + dy * dy + dz * dz < r * r ? 200 : 0;
+      }
+      ASSERT_EQ(TIFFWriteScanline(tif, row.data(), static_cast<uint32_t>(y), 0), 1);
+    }
+    ASSERT_EQ(TIFFWriteDirectory(tif), 1);
+  }
+  TIFFClose(tif);
 }
 
 }  // namespace tandem::testing

@@ -59,6 +59,11 @@ void StoreValue(DType t, double v, uint8_t* dst);
 // The voxel of type t (host byte order) at p, as float.
 double LoadValue(DType t, const uint8_t* p);
 
+// A multi-page uint8 TIFF written by libtiff with no resolution tags and no ImageJ
+// description (as many microscopes and converters write them): a ball of radius 0.35 x
+// the smallest extent, 200 inside and 0 outside. The file gives no spacing.
+void WriteBareTiffStack(const std::string& path, int nx, int ny, int nz);
+
 // Slices of PatternValue for a writer.
 SliceFn PatternSlices(const VolumeInfo& info);
 
