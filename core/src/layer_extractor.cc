@@ -225,6 +225,12 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
   staged_edges_.clear();
 }
 
+size_t LayerExtractor::HeldBytes(DType dtype) const {
+  return PlaneBytes(dtype) + EdgeIdBytes() + StagingBytes() +
+         staged_vertices_.size() * commit_vertex_bytes_ +
+         staged_triangles_.size() * commit_triangle_bytes_;
+}
+
 size_t LayerExtractor::StagingBytes() const {
   return staged_vertices_.capacity() * sizeof(StagedVertex) +
          staged_triangles_.capacity() * sizeof(staged_triangles_[0]) + staged_edges_.capacity() +
@@ -361,6 +367,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         top_plane_vertices_.push_back(v);
       });
     }
+    Checkpoint(slice.dtype, k);
   }
   for (int64_t j = 0; j + 1 < ny; ++j) {
     for (int64_t w = 0; w < words; ++w) {
@@ -373,6 +380,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         top_plane_vertices_.push_back(v);
       });
     }
+    Checkpoint(slice.dtype, k);
   }
   ++slices_done_;
   if (k == 0) return absl::OkStatus();  // slice 0 has no layer below it
@@ -390,6 +398,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         if (b == 0) top_plane_vertices_.push_back(v);
       });
     }
+    Checkpoint(slice.dtype, k);
   }
 
   // Cubes of layer k. Cube (i, j) is crossed unless its 8 corners are all out or all in:
@@ -407,6 +416,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
                                LowBits(nx - 1 - w * kWordBits);
       ForEachBit(crossed, w * kWordBits, [&](int64_t i) { EmitCube(i, j, kz); });
     }
+    Checkpoint(slice.dtype, k);
   }
   return absl::OkStatus();
 }
