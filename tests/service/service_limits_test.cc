@@ -331,6 +331,52 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
   EXPECT_TRUE(FinishedOk(RunStream(*s.NewStub(), Good()))) << "other sessions carry on";
 }
 
+// Noise (every layer a dense surface, about 200,000 triangles a slice here): the session
+// checks its budget while it extracts, so each stream is refused inside its first layers
+// with the budget's message, not after slices of growth; the refused sessions' work stops,
+// so their slots and memory are free as soon as the streams end; the server carries on.
+// Small enough for the sanitizer pass (the pod-sized patterns are in the sizing tests).
+TEST(LimitsTest, NoiseIsRefusedWhileItIsExtractedAndItsSlotsComeFreeAtOnce) {
+  auto server = TestServer::Start({"--max-sessions", "2", "--session-memory-mb", "16"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  const std::string dir = MakeTempDir();
+  double iso = 0;
+  auto volume = WritePattern(dir, Pattern::kNoise, 256, 16, &iso);
+  ASSERT_TRUE(volume.ok()) << volume.status();
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int i = 0; i < 2; ++i) {
+    auto c = ChildProcess::Spawn({BinPath("tandem-client"), "stream", "--server", s.address(),
+                                  "--input", *volume, "--iso", absl::StrCat(iso), "--retries",
+                                  "0", "--out", absl::StrCat(dir, "/out", i, ".drc")},
+                                 dir);
+    ASSERT_TRUE(c.ok()) << c.status();
+    clients.push_back(*std::move(c));
+  }
+  for (auto& c : clients) {
+    const std::optional<int> code = c->Wait(60);
+    ASSERT_TRUE(code.has_value()) << "a client did not finish";
+    EXPECT_EQ(*code, 1);
+    const std::string err = c->Stderr();
+    EXPECT_NE(err.find("RESOURCE_EXHAUSTED: session memory budget exceeded: this stream needs "),
+              std::string::npos)
+        << err;
+    EXPECT_NE(err.find(" while extracting slice "), std::string::npos) << err;
+    EXPECT_NE(err.find("over this server's per-session budget of 16.0 MiB (tandem-server "
+                       "--session-memory-mb)"),
+              std::string::npos)
+        << err;
+  }
+  const auto ended = Clock::now();
+  v1::Counters counters;
+  EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
+  EXPECT_LT(SecondsSince(ended), 5) << "the refused sessions' work ran on";
+  EXPECT_EQ(counters.sessions_finished(), 2);
+  EXPECT_EQ(counters.sessions_rejected(), 0);
+  EXPECT_EQ(s.Health(), "SERVING");
+  EXPECT_TRUE(FinishedOk(RunStream(*s.NewStub(), Good()))) << "the server carries on";
+}
+
 // A client that stops reading: once the stream's unsent responses reach
 // --max-inflight-bytes the server stops reading it (no slice consumed, memory constant);
 // when the client reads again, the stream resumes and completes. (Previews are not encoded
