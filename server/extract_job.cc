@@ -123,6 +123,23 @@ std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count,
   return out;
 }
 
+// Bytes a job holds for a while beside its sessions (a chunk being encoded), told to their
+// budget meanwhile: their queued steps run on beside it.
+class HeldBeside {
+ public:
+  HeldBeside(MemoryBudget& budget, size_t bytes)
+      : budget_(budget), bytes_(static_cast<int64_t>(bytes)) {
+    budget_.AddOutside(bytes_);
+  }
+  ~HeldBeside() { budget_.AddOutside(-bytes_); }
+  HeldBeside(const HeldBeside&) = delete;
+  HeldBeside& operator=(const HeldBeside&) = delete;
+
+ private:
+  MemoryBudget& budget_;
+  const int64_t bytes_;
+};
+
 const char* KindName(const v1::ExtractRequest& r) {
   switch (r.kind_case()) {
     case v1::ExtractRequest::kConfig: return "a SessionConfig";
@@ -386,6 +403,7 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   if (absl::Status st = CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"); !st.ok()) {
     return st;
   }
+  const HeldBeside encoding(*budget_, EncodeBytes(pending));
   SealedChunk c;
   if (!(now ? session_->TakeSealed(&c) : session_->TakeSealedThrough(gauge.sealed_through, &c))) {
     return absl::OkStatus();

@@ -273,6 +273,39 @@ TEST(LimitsTest, JobEnforcesTheMemoryBudget) {
   }
 }
 
+// A sealed chunk is encoded while the session's queued steps run on: its encoding's estimate
+// is counted by the budget the steps check, for as long as the chunk is being made.
+TEST(LimitsTest, ASealedChunkIsCountedByTheBudgetWhileItIsEncoded) {
+  struct ChunkSink : NullSink {
+    void PostChunk(v1::SealedChunk chunk) override {
+      held.push_back(job->budget()->held());
+      triangles.push_back(chunk.triangles());
+    }
+    server::ExtractJob* job = nullptr;
+    std::vector<int64_t> held, triangles;
+  };
+  ChunkSink sink;
+  server::ExtractJob job(server::ServerLimits{}, &sink);
+  sink.job = &job;
+  v1::SessionConfig c;
+  c.set_schedule(v1::SCHEDULE_NONE);  // full resolution: a chunk every few slices
+  c.set_sealed_chunks(true);
+  c.set_parts(1);  // no step runs on after a slice: the budget's figure is the session's
+  auto source = MakeSyntheticSource(Shape::kGyroid, 256, 256, 64);
+  std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, c, 1 << 20);
+  requests.pop_back();  // the End: the last chunk goes out after the session is freed
+  for (v1::ExtractRequest& r : requests) {
+    const size_t chunks = sink.held.size();
+    ASSERT_TRUE(job.Handle(r).ok());
+    const int64_t after = job.budget()->held();
+    for (size_t i = chunks; i < sink.held.size(); ++i) {
+      EXPECT_GE(sink.held[i] - after, 100 * sink.triangles[i])
+          << "chunk " << i << " of " << sink.triangles[i] << " triangles";
+    }
+  }
+  EXPECT_GE(sink.held.size(), 1u) << "no chunk before the End";
+}
+
 // A tiny budget: the big stream fails with RESOURCE_EXHAUSTED mid-stream while a small one
 // running at the same time completes.
 TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {

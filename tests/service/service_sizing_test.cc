@@ -100,7 +100,7 @@ TEST(Sizing, SessionsStayWithinTheirBudgetsAtThePeak) {
 // and message limits, grace), read from the manifest, and its memory limit.
 struct Pod {
   std::vector<std::string> flags;
-  int64_t limit_mib = 0, sessions = 0, budget_mib = 0, slice_voxels = 0;
+  int64_t limit_mib = 0, sessions = 0, budget_mib = 0, slice_voxels = 0, inflight = 0;
 };
 
 void ReadPod(Pod* pod) {
@@ -125,6 +125,7 @@ void ReadPod(Pod* pod) {
       if (flag.rfind("--max-sessions=", 0) == 0) pod->sessions = value(flag);
       if (flag.rfind("--session-memory-mb=", 0) == 0) pod->budget_mib = value(flag);
       if (flag.rfind("--max-voxels-per-slice=", 0) == 0) pod->slice_voxels = value(flag);
+      if (flag.rfind("--max-inflight-bytes=", 0) == 0) pod->inflight = value(flag);
       pod->flags.push_back(flag);
       continue;
     }
@@ -139,6 +140,7 @@ void ReadPod(Pod* pod) {
   ASSERT_GT(pod->sessions, 0) << "no --max-sessions in the manifest's args";
   ASSERT_GT(pod->budget_mib, 0) << "no --session-memory-mb in the manifest's args";
   ASSERT_GT(pod->slice_voxels, 0) << "no --max-voxels-per-slice in the manifest's args";
+  ASSERT_GT(pod->inflight, 0) << "no --max-inflight-bytes in the manifest's args";
   ASSERT_GT(pod->limit_mib, 0) << "no memory limit in the manifest";
 }
 
@@ -170,10 +172,11 @@ TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
 }
 
 // The pod (its flags from the manifest) under as many streams of `pattern` as it takes
-// sessions, slices as large as it allows: the server's peak stays under the pod's memory
-// limit, every stream ends (RESOURCE_EXHAUSTED with the budget's message, or a mesh), the
-// slots come free as soon as the streams end (the refused sessions' work stops), and the
-// server goes on serving: health SERVING, a normal stream after them succeeds.
+// sessions, slices as large as it allows: the server's peak stays under deploy/README.md's
+// rule, idle + sessions x (budget + in flight), and so under the pod's memory limit; every
+// stream ends (RESOURCE_EXHAUSTED with the budget's message, or a mesh), the slots come free
+// as soon as the streams end (the refused sessions' work stops), and the server goes on
+// serving: health SERVING, a normal stream after them succeeds.
 void HoldThePodLimit(Pattern pattern) {
   if (kSanitized) GTEST_SKIP() << "resident sizes are the sanitizer's own under ASan and TSan";
   Pod pod;
@@ -186,6 +189,9 @@ void HoldThePodLimit(Pattern pattern) {
   auto server = TestServer::Start(pod.flags);
   ASSERT_TRUE(server.ok()) << server.status();
   const pid_t pid = (*server)->process().pid();
+  const int64_t idle = ResidentBytes(pid);
+  ASSERT_GT(idle, 0);
+  const int64_t rule = idle + pod.sessions * ((pod.budget_mib << 20) + pod.inflight);
 
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<std::unique_ptr<ChildProcess>> clients;
@@ -219,10 +225,12 @@ void HoldThePodLimit(Pattern pattern) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - ended).count();
   const int64_t peak = PeakResidentBytes(pid);
   std::printf("%lld streams of %lldx%lldx8 (iso %g): %d refused in %.2f s, slots free %.2f s "
-              "later; server peak %lld MiB, pod limit %lld Mi\n",
+              "later; server peak %lld MiB, rule %lld MiB, pod limit %lld Mi\n",
               static_cast<long long>(pod.sessions), static_cast<long long>(n),
               static_cast<long long>(n), iso, refused, streams_s, free_s,
-              static_cast<long long>(peak >> 20), static_cast<long long>(pod.limit_mib));
+              static_cast<long long>(peak >> 20), static_cast<long long>(rule >> 20),
+              static_cast<long long>(pod.limit_mib));
+  EXPECT_LE(peak, rule) << "idle " << (idle >> 20) << " MiB";
   EXPECT_LE(peak, pod.limit_mib << 20) << "the pod would be OOM-killed";
   EXPECT_LT(free_s, 5) << "the refused sessions' work ran on";
 
