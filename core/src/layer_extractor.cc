@@ -340,6 +340,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
 
   staged_ = true;
   staged_layer_ = static_cast<int32_t>(k);
+  check_at_ = kCheckEvery;
   // Room for about what the last layer staged, at once: grown by doubling from empty, the
   // staging was copied on its way up and faulted in about twice over (a dense 2048² stream:
   // a third of the run's page faults; CommitLayer frees it past 4 MiB).

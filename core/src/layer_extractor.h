@@ -126,10 +126,15 @@ class LayerExtractor {
 
  private:
   void AllocatePlanes();  // the plane caches, on the first ComputeLayer
-  // After a row of ComputeLayer of slice k: reports to the account (throws SessionStop).
+  // After a row of ComputeLayer of slice k: once kCheckEvery more vertices and triangles are
+  // staged, reports to the account (throws SessionStop). A compare a row otherwise.
   void Checkpoint(DType dtype, int64_t k) {
-    if (account_ != nullptr) account_->Hold(HeldBytes(dtype), "extracting slice", k);
+    const size_t staged = staged_vertices_.size() + staged_triangles_.size();
+    if (account_ == nullptr || staged < check_at_) return;
+    check_at_ = staged + kCheckEvery;
+    account_->Hold(HeldBytes(dtype), "extracting slice", k);
   }
+  static constexpr size_t kCheckEvery = 2048;  // about 150 KiB once committed
   // Pending vertex ids carry this tag until CommitLayer maps them to store ids.
   static constexpr VertexId kPending = 0x80000000u;
   static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
@@ -234,6 +239,7 @@ class LayerExtractor {
   bool staged_ = false;
   Meter::Account* account_ = nullptr;
   size_t commit_vertex_bytes_ = 0, commit_triangle_bytes_ = 0;
+  size_t check_at_ = 0;  // staged elements at the next Checkpoint
 };
 
 }  // namespace tandem

@@ -628,7 +628,6 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   const auto stale = [this](const QNode& n) { return Stale(n); };
   while (!q_.empty()) {
-    if (++since_checkpoint_ >= kCheckEvery) Checkpoint();
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const QNode* top = q_.TopLive(stale);
     if (top == nullptr) break;
@@ -719,6 +718,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     c.box_mask = ma | mb;
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
+    if (++since_checkpoint_ >= kCheckEvery) Checkpoint();  // Contract queues its new edges
     if (next != nullptr) {  // a dead end's list is empty
       store_->PrefetchFan(ahead.a);
       store_->PrefetchFan(ahead.b);
