@@ -627,7 +627,9 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
 void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   const auto stale = [this](const QNode& n) { return Stale(n); };
+  uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
   while (!q_.empty()) {
+    if ((++pops & (kCheckEvery - 1)) == 0) Checkpoint();  // contractions queue new edges
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const QNode* top = q_.TopLive(stale);
     if (top == nullptr) break;
@@ -718,7 +720,6 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     c.box_mask = ma | mb;
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
-    if (++since_checkpoint_ >= kCheckEvery) Checkpoint();  // Contract queues its new edges
     if (next != nullptr) {  // a dead end's list is empty
       store_->PrefetchFan(ahead.a);
       store_->PrefetchFan(ahead.b);

@@ -214,10 +214,10 @@ class Simplifier {
   static size_t VertexBytes();
   // Called where the simplifier's memory grows and where long work may stop: after each
   // batch of edges is queued (DELAY, each chunk of a release, a rise) and every
-  // kCheckEvery contractions of SIMPLIFY. The owner reports to its budget there (meter.h); a
+  // kCheckEvery edges SIMPLIFY pops. The owner reports to its budget there (meter.h); a
   // SessionStop it throws leaves the simplifier fit only to be destroyed.
   void set_checkpoint(std::function<void()> f) { checkpoint_ = std::move(f); }
-  static constexpr int kCheckEvery = 4096;
+  static constexpr uint32_t kCheckEvery = 4096;  // a power of two
   // CPU seconds the work handed to an executor (the batch evaluations on `parallel`, the sag
   // correction's ranges) took on other threads since the last call (the phase times count
   // them with the calling thread's own).
@@ -435,9 +435,7 @@ class Simplifier {
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
   double max_layer_over_front_ = -std::numeric_limits<double>::infinity();
   std::function<void()> checkpoint_;
-  int since_checkpoint_ = 0;  // contractions since the last checkpoint
   void Checkpoint() {
-    since_checkpoint_ = 0;
     if (checkpoint_) checkpoint_();
   }
 };
