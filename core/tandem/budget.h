@@ -2,15 +2,15 @@
 // arrays grow, and a way to stop them.
 //
 // A session given a budget (TandemSession::Create) reports what it holds at the points where
-// it grows: each row of a layer being extracted (counting what the layer will take once
-// committed: the mesh store's records and the quadrics), each layer committed, each batch of
-// edges queued and every few thousand contractions, each part merged at the end. The engine
-// counts what TandemSession::MemoryBytes counts (the store's written pages, the queues, the
-// extractor's planes and staging, the slices in flight), not allocator slack. Once the
-// total of every session sharing the budget, plus what the owner declared (AddOutside),
-// passes the limit, the session that found it fails with RESOURCE_EXHAUSTED, and every
-// session on the budget stops at its next check with that status: no step runs to its end
-// first. Cancel stops them the same way with CANCELLED. The checks cost no time per element:
+// it grows: every 2,048 vertices and triangles a layer stages (counting what the layer will
+// take once committed: the mesh store's records and the quadrics), each layer committed,
+// each batch of edges queued and every 4,096 edges SIMPLIFY pops, each part merged at the
+// end. It counts what TandemSession::MemoryBytes counts (the store's written pages, the
+// queues, the extractor's planes and staging, the slices in flight), not allocator slack.
+// Once the total of every session sharing the budget, plus what the owner declared
+// (AddOutside), passes the limit, the session that found it fails with RESOURCE_EXHAUSTED,
+// and every session on the budget stops at its next check with that status: no step runs to
+// its end first. Cancel stops them the same way with CANCELLED. The checks cost no time per element:
 // an atomic add when a part's figure moved by kGrainBytes, a flag read otherwise.
 #ifndef TANDEM_BUDGET_H_
 #define TANDEM_BUDGET_H_

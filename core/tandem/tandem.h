@@ -17,7 +17,8 @@
 //
 // Memory: a session given a MemoryBudget (budget.h) checks it where its arrays grow, inside
 // its steps, and fails with RESOURCE_EXHAUSTED (naming the budget and the bytes) before it
-// outgrows it by more than a few rows of a layer; the budget's Cancel stops it (CANCELLED).
+// outgrows it by more than a grain of each part's figure; the budget's Cancel stops it
+// (CANCELLED).
 // Destroying a session stops its queued work at once: steps not started never run, a running
 // one returns at its next check, and the destructor returns once they have let go.
 #ifndef TANDEM_TANDEM_H_
