@@ -123,6 +123,23 @@ std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count,
   return out;
 }
 
+// Bytes a job holds for a while beside its sessions (a chunk being encoded), told to their
+// budget meanwhile: their queued steps run on beside it.
+class HeldBeside {
+ public:
+  HeldBeside(MemoryBudget& budget, size_t bytes)
+      : budget_(budget), bytes_(static_cast<int64_t>(bytes)) {
+    budget_.AddOutside(bytes_);
+  }
+  ~HeldBeside() { budget_.AddOutside(-bytes_); }
+  HeldBeside(const HeldBeside&) = delete;
+  HeldBeside& operator=(const HeldBeside&) = delete;
+
+ private:
+  MemoryBudget& budget_;
+  const int64_t bytes_;
+};
+
 const char* KindName(const v1::ExtractRequest& r) {
   switch (r.kind_case()) {
     case v1::ExtractRequest::kConfig: return "a SessionConfig";
@@ -168,11 +185,21 @@ class ExtractJob::SurfaceSink final : public JobSink {
   int surface_;
 };
 
-ExtractJob::ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute)
+ExtractJob::ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute,
+                       std::shared_ptr<MemoryBudget> budget)
     : limits_(limits),
       compute_(compute != nullptr ? compute : &Executor::Shared()),
+      budget_(budget ? std::move(budget)
+                     : std::make_shared<MemoryBudget>(limits.session_memory_bytes)),
       sink_(sink) {}
-ExtractJob::~ExtractJob() = default;
+
+ExtractJob::~ExtractJob() {
+  // The sessions stop and let go first (their own ends), then this job's own bytes.
+  surfaces_.clear();
+  session_.reset();
+  reference_.reset();
+  budget_->AddOutside(-static_cast<int64_t>(own_reported_));
+}
 
 absl::Status ExtractJob::StartSurfaces(const v1::SessionConfig& config) {
   const size_t n = config_.isos.size();
@@ -181,8 +208,8 @@ absl::Status ExtractJob::StartSurfaces(const v1::SessionConfig& config) {
   surface_progress_.resize(n);
   for (size_t i = 0; i < n; ++i) {
     surface_sinks_.push_back(std::make_unique<SurfaceSink>(this, static_cast<int>(i)));
-    surfaces_.push_back(
-        std::make_unique<ExtractJob>(child_limits, surface_sinks_.back().get(), compute_));
+    surfaces_.push_back(std::make_unique<ExtractJob>(child_limits, surface_sinks_.back().get(),
+                                                     compute_, budget_));
   }
   for (size_t i = 0; i < n; ++i) {
     v1::ExtractRequest request;
@@ -253,6 +280,12 @@ int64_t ExtractJob::triangles() const {
 }
 
 absl::Status ExtractJob::Handle(v1::ExtractRequest& request) {
+  absl::Status st = HandleMessage(request);
+  ReportOwnBytes();
+  return st;
+}
+
+absl::Status ExtractJob::HandleMessage(v1::ExtractRequest& request) {
   if (!surfaces_.empty()) return HandleSurfaces(request);
   switch (state_) {
     case State::kWaitConfig:
@@ -287,7 +320,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
   if (!cfg.ok()) return cfg.status();
   config_ = *std::move(cfg);
   if (config_.isos.size() > 1) return StartSurfaces(config);
-  auto session = TandemSession::Create(config_.grid, config_.options, compute_);
+  auto session = TandemSession::Create(config_.grid, config_.options, compute_, budget_);
   if (!session.ok()) return session.status();
   session_ = *std::move(session);
   if (config_.options.seal) chunk_draco_ = ChunkGrid(config_.grid, config_.draco, limits_.max_slices);
@@ -295,7 +328,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
     SessionOptions full = config_.options;
     full.schedule = Schedule::kNone;
     full.seal = false;  // the whole surface stays, to measure against
-    auto reference = TandemSession::Create(config_.grid, full, compute_);
+    auto reference = TandemSession::Create(config_.grid, full, compute_, budget_);
     if (!reference.ok()) return reference.status();
     reference_ = *std::move(reference);
   }
@@ -319,7 +352,10 @@ absl::Status ExtractJob::HandleChunk(v1::SliceChunk& chunk) {
     // A whole slice in one message: no copy.
     return ConsumeSlice(reinterpret_cast<const uint8_t*>(data.data()));
   }
-  if (slice_.size() != slice_bytes) slice_.resize(slice_bytes);
+  if (slice_.size() != slice_bytes) {
+    slice_.resize(slice_bytes);
+    ReportOwnBytes();
+  }
   std::memcpy(slice_.data() + cursor_.bytes_so_far, data.data(), data.size());
   cursor_.bytes_so_far += data.size();
   if (cursor_.bytes_so_far < slice_bytes) return absl::OkStatus();
@@ -331,6 +367,7 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
   for (TandemSession* s : {session_.get(), reference_.get()}) {
     if (s == nullptr) continue;
     if (absl::Status st = s->AddSliceBytes(config_.grid.dtype, bytes); !st.ok()) {
+      if (budget_->stopped()) return SessionFailure(st);  // (names the slice it was at)
       return absl::Status(st.code(), absl::StrCat("slice ", cursor_.slice, ": ",
                                                   std::string(st.message())));
     }
@@ -366,6 +403,7 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   if (absl::Status st = CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"); !st.ok()) {
     return st;
   }
+  const HeldBeside encoding(*budget_, EncodeBytes(pending));
   SealedChunk c;
   if (!(now ? session_->TakeSealed(&c) : session_->TakeSealedThrough(gauge.sealed_through, &c))) {
     return absl::OkStatus();
@@ -554,7 +592,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   if (absl::Status st = ValidateEnd(end, config_, cursor_); !st.ok()) return st;
   for (TandemSession* s : {session_.get(), reference_.get()}) {
     if (s == nullptr) continue;
-    if (absl::Status st = s->Finish(); !st.ok()) return st;
+    if (absl::Status st = s->Finish(); !st.ok()) return SessionFailure(st);
   }
   if (absl::Status st = CheckMemory(0, "after the last slice"); !st.ok()) return st;
   if (config_.options.seal) return FinishSealed();
@@ -671,6 +709,17 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
     peak_memory_ = std::max(peak_memory_, bytes);  // what is then allocated
     return absl::OkStatus();
   }
+  return BudgetError(bytes, budget, when);
+}
+
+absl::Status ExtractJob::SessionFailure(absl::Status st) const {
+  if (!absl::IsResourceExhausted(st) || !budget_->exceeded()) return st;
+  return BudgetError(static_cast<size_t>(budget_->exceeded_bytes()), budget_->limit(),
+                     "while " + budget_->exceeded_where());
+}
+
+absl::Status ExtractJob::BudgetError(size_t bytes, int64_t budget,
+                                     const std::string& when) const {
   constexpr double kMiB = 1 << 20;
   return absl::ResourceExhaustedError(absl::StrFormat(
       "session memory budget exceeded: this stream needs %.1f MiB %s (mesh, simplification "
@@ -688,10 +737,20 @@ absl::Status ExtractJob::CheckMemory(size_t extra, const std::string& when) {
             "the session then holds the front, not the whole mesh)"));
 }
 
+size_t ExtractJob::OwnBytes() const {
+  return slice_.capacity() + sent_ids_.capacity() * (sizeof(uint32_t) + 1) +
+         sent_moved_.capacity() * (sizeof(uint32_t) + sizeof(Vec3) + 1) +
+         last_sent_.capacity() * sizeof(Vec3);
+}
+
+void ExtractJob::ReportOwnBytes() {
+  const size_t own = OwnBytes();
+  budget_->AddOutside(static_cast<int64_t>(own) - static_cast<int64_t>(own_reported_));
+  own_reported_ = own;
+}
+
 size_t ExtractJob::MemoryBytes() const {
-  size_t bytes = slice_.capacity() + sent_ids_.capacity() * (sizeof(uint32_t) + 1) +
-                 sent_moved_.capacity() * (sizeof(uint32_t) + sizeof(Vec3) + 1) +
-                 last_sent_.capacity() * sizeof(Vec3);
+  size_t bytes = OwnBytes();
   for (const auto& child : surfaces_) bytes += child->MemoryBytes();
   // Peek: exact between messages except for the slab steps still in flight (a few slices'
   // growth, counted at their end), and exact after Finish.

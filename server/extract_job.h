@@ -11,7 +11,10 @@
 // MemoryBytes() after the config (which counts the slice buffers and plane caches the
 // session will allocate on its first slice), after every slice, and before each copy or
 // encoding of the mesh, by an estimate of what it will take (extract_job.cc: EncodeBytes);
-// past it the job fails with RESOURCE_EXHAUSTED, and a preview is skipped.
+// past it the job fails with RESOURCE_EXHAUSTED, and a preview is skipped. The sessions
+// check the same budget themselves while they work (a MemoryBudget shared by the job's
+// sessions, tandem/budget.h, told what the job holds beside them): inside their steps,
+// where a noisy slice grows them by hundreds of MiB before its message is handled.
 #ifndef TANDEM_SERVER_EXTRACT_JOB_H_
 #define TANDEM_SERVER_EXTRACT_JOB_H_
 
@@ -26,6 +29,7 @@
 #include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
 #include "server/request_validation.h"
+#include "tandem/budget.h"
 #include "tandem/metrics.h"
 #include "tandem/report.h"
 #include "tandem/tandem.h"
@@ -57,8 +61,11 @@ class JobSink {
 // final messages are posted at once, surface after surface, when the last one is done.
 class ExtractJob {
  public:
-  // `compute`: the executor the job's sessions run on (null: Executor::Shared()).
-  ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute = nullptr);
+  // `compute`: the executor the job's sessions run on (null: Executor::Shared()). `budget`:
+  // the one its sessions check (null: one of limits.session_memory_bytes; a job of several
+  // surfaces hands its own to the children).
+  ExtractJob(const ServerLimits& limits, JobSink* sink, Executor* compute = nullptr,
+             std::shared_ptr<MemoryBudget> budget = nullptr);
   ~ExtractJob();
 
   // Handles the next message of the stream (chunk data may be moved out of `request`).
@@ -81,6 +88,9 @@ class ExtractJob {
   int64_t triangles() const;
   // Memory held now (sessions, slice buffer, encoded output not yet handed over).
   size_t MemoryBytes() const;
+  // The budget its sessions check. Its Cancel (any thread) stops their work at once: the
+  // job then fails at its next call into a session.
+  const std::shared_ptr<MemoryBudget>& budget() const { return budget_; }
   // Seconds spent so far in each phase (for the server's metrics).
   struct Phases {
     double extract_s = 0, simplify_s = 0, encode_s = 0;
@@ -90,6 +100,7 @@ class ExtractJob {
  private:
   enum class State { kWaitConfig, kStreaming, kDone };
   class SurfaceSink;
+  absl::Status HandleMessage(v1::ExtractRequest& request);  // Handle, but for ReportOwnBytes
   // Several surfaces: creates the children and hands them the config.
   absl::Status StartSurfaces(const v1::SessionConfig& config);
   absl::Status HandleSurfaces(v1::ExtractRequest& request);
@@ -113,10 +124,20 @@ class ExtractJob {
   // Also records the peak (peak_memory_): every allocation the session makes outside its
   // engine is checked here first.
   absl::Status CheckMemory(size_t extra, const std::string& when);
+  // The error of a stream over `budget`: `bytes` needed `when`.
+  absl::Status BudgetError(size_t bytes, int64_t budget, const std::string& when) const;
+  // A session's failure, as this job reports it: over the budget, BudgetError.
+  absl::Status SessionFailure(absl::Status st) const;
+  // What the job holds beside its sessions (slice buffer, the ids of sent chunks), and
+  // telling the budget when that moved.
+  size_t OwnBytes() const;
+  void ReportOwnBytes();
   v1::Progress MakeProgress() const;
 
   ServerLimits limits_;
   Executor* compute_;  // never null (Executor::Shared() when none is given)
+  std::shared_ptr<MemoryBudget> budget_;  // never null
+  size_t own_reported_ = 0;  // OwnBytes as the budget was last told
   JobSink* sink_;
   State state_ = State::kWaitConfig;
   JobConfig config_;

@@ -117,7 +117,8 @@ int main(int argc, char** argv) {
                "largest request message accepted (bounds SliceChunk size)");
   flags.AddInt("session-memory-mb", &session_memory_mb,
                "memory budget of one session in MiB (mesh, simplification queues, slice "
-               "buffers); a stream that needs more ends with RESOURCE_EXHAUSTED");
+               "buffers), checked as the session grows, inside each slice's work; a stream "
+               "that needs more ends with RESOURCE_EXHAUSTED and its work stops at once");
   flags.AddInt("max-inflight-bytes", &limits.max_inflight_bytes,
                "per stream: received-but-unprocessed plus unsent response bytes; at this level "
                "the server stops reading the stream until it drains (also the stream's HTTP/2 "

@@ -67,7 +67,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   bool PreviewPending() const override;
   void PostFinal(std::vector<Response> messages) override;
   void PostChunk(v1::SealedChunk chunk) override;
-  void Abort(grpc::Status status) override { EndStream(std::move(status)); }
+  void Abort(grpc::Status status) override;
 
  private:
   // The worker: takes messages to the job until the stream ends. Returns the job when the
@@ -164,6 +164,9 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   bool resumed_ = false;      // the worker adopted a parked session
   bool id_sent_ ABSL_GUARDED_BY(mu_) = false;
   bool parked_ ABSL_GUARDED_BY(mu_) = false;  // the session outlives this stream
+  // The budget of the job the worker runs: cancelled when the stream ends and its session
+  // cannot wait for a resume, so that the worker's call into it returns at once.
+  std::shared_ptr<MemoryBudget> job_budget_ ABSL_GUARDED_BY(mu_);
 };
 
 // A parked session's wait (on its old worker thread), and its end when nobody resumed it.
@@ -335,8 +338,17 @@ void ExtractCall::OnWriteDone(bool ok) {
   SyncBufferedLocked();
 }
 
+void ExtractCall::Abort(grpc::Status status) {
+  absl::MutexLock lock(&mu_);
+  EndStreamLocked(std::move(status));
+  SyncBufferedLocked();
+  if (job_budget_) job_budget_->Cancel();  // the server ends it: no resume
+}
+
 void ExtractCall::OnCancel() {
   absl::MutexLock lock(&mu_);
+  // Without a resume window the session ends with its stream: its work stops now.
+  if (state_->limits.resume_window_s <= 0 && job_budget_) job_budget_->Cancel();
   cancelled_ = true;
   EndStreamLocked(grpc::Status(
       grpc::StatusCode::CANCELLED,
@@ -548,6 +560,10 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
   std::optional<ParkedSession> parked;
   {
     auto job = std::make_unique<ExtractJob>(state_->limits, this, state_->compute.get());
+    {
+      absl::MutexLock lock(&mu_);
+      job_budget_ = job->budget();
+    }
     int64_t accounted_bytes = 0;
     bool first = true, failed = false;
     while (true) {
@@ -596,7 +612,10 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
       }
       first = false;
       request.reset();
-      const int64_t bytes = static_cast<int64_t>(job->MemoryBytes());
+      // What the sessions' own checks last saw, steps in flight included, if more: a failed
+      // session holds its memory until it is destroyed below.
+      const int64_t bytes =
+          std::max(static_cast<int64_t>(job->MemoryBytes()), job->budget()->held());
       state_->session_bytes.fetch_add(bytes - accounted_bytes);
       accounted_bytes = bytes;
       {
@@ -604,6 +623,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
         state_->slices_total.fetch_add(job->slices() - slices_);
         slices_ = job->slices();
         triangles_ = job->triangles();
+        job_budget_ = job->budget();  // (a resumed stream's job is another)
       }
       if (!status.ok()) {
         failed = true;
@@ -615,7 +635,6 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
         break;
       }
     }
-    state_->session_bytes.fetch_sub(accounted_bytes);
     const ExtractJob::Phases phases = job->PhaseSeconds();
     auto micros = [](double s) { return static_cast<int64_t>(s * 1e6); };
     state_->extract_us_total.fetch_add(micros(phases.extract_s));
@@ -628,6 +647,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
       parked_ = cancelled_ && !stalled_ && !failed && job->resumable() &&
                 state_->limits.resume_window_s > 0;
       if (parked_) {
+        job_budget_.reset();  // the session is the resume table's now
         job->Detach();
         parked.emplace();
         parked->memory_bytes = static_cast<int64_t>(job->MemoryBytes());
@@ -636,7 +656,11 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
         parked->token = resume_token_;
       }
     }
-  }  // the session's memory goes here (unless parked), before the output is delivered
+    // The session stops its queued work and lets go of its memory here (unless parked),
+    // before the output is delivered and before the slot is given back (~ExtractCall).
+    job.reset();
+    state_->session_bytes.fetch_sub(accounted_bytes);
+  }
   if (cancel) CancelCall();
   WaitForFinish();
   return parked;

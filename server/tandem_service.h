@@ -24,8 +24,13 @@
 //     reader gets fewer, newer previews), the final messages an ordered queue.
 //   * Cleanup: client cancel, disconnect, deadline or server shutdown set the stream's
 //     cancel flag; the worker checks it between messages, and the stream's resources go
-//     when both the reactor (OnDone) and the worker have let go. When the last session
-//     goes, freed heap is handed back to the OS (malloc_trim).
+//     when both the reactor (OnDone) and the worker have let go. A stream ended for good
+//     (server shutdown; a client cancel when no resume can follow) also cancels its job's
+//     MemoryBudget, so that the session's running steps stop at their next check. An ended
+//     session is destroyed (queued steps dropped, running ones stopped) before its memory
+//     leaves session_bytes and before its slot is given back: --max-sessions and the
+//     budgets bound what the process holds, not only what live streams do. When the last
+//     session goes, freed heap is handed back to the OS (malloc_trim).
 //   * Idle streams: a stream on which nothing moves (no message read, no response
 //     written, the worker waiting) for limits.idle_timeout_s ends with DEADLINE_EXCEEDED;
 //     if a response is stuck because the client does not read, the call is also
@@ -35,8 +40,9 @@
 //     status (tandem-server calls it when --grace-seconds are over: UNAVAILABLE), so a
 //     client learns why its stream ended instead of a bare CANCELLED.
 //   * Memory per stream: the session (budget limits.session_memory_bytes, enforced by
-//     ExtractJob), one slice buffer, the bytes in flight above, one message being read,
-//     and the encoded final mesh while it is sent.
+//     ExtractJob between messages and by the session inside its steps), one slice buffer,
+//     the bytes in flight above, one message being read, and the encoded final mesh while
+//     it is sent.
 #ifndef TANDEM_SERVER_TANDEM_SERVICE_H_
 #define TANDEM_SERVER_TANDEM_SERVICE_H_
 

@@ -240,6 +240,12 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
   staged_edges_.clear();
 }
 
+size_t LayerExtractor::HeldBytes(DType dtype) const {
+  return PlaneBytes(dtype) + EdgeIdBytes() + StagingBytes() +
+         staged_vertices_.size() * commit_vertex_bytes_ +
+         staged_triangles_.size() * commit_triangle_bytes_;
+}
+
 size_t LayerExtractor::StagingBytes() const {
   return staged_vertices_.capacity() * sizeof(StagedVertex) +
          staged_triangles_.capacity() * sizeof(staged_triangles_[0]) + staged_edges_.capacity() +
@@ -351,6 +357,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   staged_layer_ = static_cast<int32_t>(k);
   offset_bottom_ = offset_top_;
   offset_top_ = Offsets(k);
+  check_at_ = kCheckEvery;
   // Room for about what the last layer staged, at once: grown by doubling from empty, the
   // staging was copied on its way up and faulted in about twice over (a dense 2048² stream:
   // a third of the run's page faults; CommitLayer frees it past 4 MiB).
@@ -379,6 +386,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         top_plane_vertices_.push_back(v);
       });
     }
+    Checkpoint(slice.dtype, k);
   }
   for (int64_t j = 0; j + 1 < ny; ++j) {
     for (int64_t w = 0; w < words; ++w) {
@@ -391,6 +399,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         top_plane_vertices_.push_back(v);
       });
     }
+    Checkpoint(slice.dtype, k);
   }
   ++slices_done_;
   if (k == 0) return absl::OkStatus();  // slice 0 has no layer below it
@@ -406,6 +415,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         ze_.ids.push_back(StageVertex(idx3, SeamFace(i)));
       });
     }
+    Checkpoint(slice.dtype, k);
   }
 
   // Cubes of layer k. Cube (i, j) is crossed unless its 8 corners are all out or all in:
@@ -423,6 +433,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
                                LowBits(nx - 1 - w * kWordBits);
       ForEachBit(crossed, w * kWordBits, [&](int64_t i) { EmitCube(i, j, kz); });
     }
+    Checkpoint(slice.dtype, k);
   }
   return absl::OkStatus();
 }

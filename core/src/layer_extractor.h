@@ -22,6 +22,7 @@
 
 #include "absl/status/status.h"
 #include "mesh_store.h"
+#include "meter.h"
 #include "tandem/geometry.h"
 #include "tandem/types.h"
 #include "tandem/volume.h"
@@ -111,12 +112,34 @@ class LayerExtractor {
   // recent layer. Not while ComputeLayer runs on another thread.
   size_t StagingBytes() const;
 
+  // The owner's budget account (meter.h; null: none), reported to after every row that
+  // ComputeLayer scans, with the staged layer counted as it will be once committed: `vertex`
+  // and `triangle` bytes each (the store's records, the quadrics), so that a layer too large
+  // for the budget stops while it is staged, not after it has grown the store.
+  void set_account(Meter::Account* account, size_t vertex, size_t triangle) {
+    account_ = account;
+    commit_vertex_bytes_ = vertex;
+    commit_triangle_bytes_ = triangle;
+  }
+  // What the account is told: PlaneBytes(dtype) + EdgeIdBytes() + StagingBytes() and the
+  // staged layer once committed. Not while ComputeLayer runs on another thread.
+  size_t HeldBytes(DType dtype) const;
+
   int64_t slices_done() const { return slices_done_; }
   int64_t crossed_cubes() const { return crossed_cubes_; }
   const ExtractorConfig& config() const { return config_; }
 
  private:
   void AllocatePlanes();  // the plane caches, on the first ComputeLayer
+  // After a row of ComputeLayer of slice k: once kCheckEvery more vertices and triangles are
+  // staged, reports to the account (throws SessionStop). A compare a row otherwise.
+  void Checkpoint(DType dtype, int64_t k) {
+    const size_t staged = staged_vertices_.size() + staged_triangles_.size();
+    if (account_ == nullptr || staged < check_at_) return;
+    check_at_ = staged + kCheckEvery;
+    account_->Hold(HeldBytes(dtype), "extracting slice", k);
+  }
+  static constexpr size_t kCheckEvery = 2048;  // about 150 KiB once committed
   // Pending vertex ids carry this tag until CommitLayer maps them to store ids.
   static constexpr VertexId kPending = 0x80000000u;
   static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
@@ -224,6 +247,9 @@ class LayerExtractor {
   std::pair<size_t, size_t> last_staged_{0, 0};  // the last layer's vertices and triangles
   int32_t staged_layer_ = 0;
   bool staged_ = false;
+  Meter::Account* account_ = nullptr;
+  size_t commit_vertex_bytes_ = 0, commit_triangle_bytes_ = 0;
+  size_t check_at_ = 0;  // staged elements at the next Checkpoint
 };
 
 }  // namespace tandem

@@ -191,6 +191,9 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
   }
 }
 
+size_t MeshStore::VertexBytes() { return sizeof(VertexRecord) + kMinSlot * sizeof(TriId); }
+size_t MeshStore::TriangleBytes() { return sizeof(std::array<VertexId, 3>); }
+
 size_t MeshStore::MemoryBytes() const {
   size_t b = vtx_.MemoryBytes() + free_vertices_.MemoryBytes() + tris_.MemoryBytes() +
              free_triangles_.MemoryBytes() + pool_.MemoryBytes();

@@ -161,6 +161,10 @@ class MeshStore {
   // Bytes the store's arrays take in memory (PodArray::MemoryBytes: capacity, but for a
   // mapped array only the pages written): for memory figures and the session budget.
   size_t MemoryBytes() const;
+  // What a vertex and a triangle take that need a new id (their records, a vertex's
+  // smallest slot of the incidence pool).
+  static size_t VertexBytes();
+  static size_t TriangleBytes();
   // The incidence pool's share of MemoryBytes (for tests of its allocator).
   size_t IncidenceBytes() const { return pool_.MemoryBytes(); }
 

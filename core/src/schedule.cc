@@ -101,6 +101,7 @@ void SimplifyLayer(Slab& s) {
   if (s.sealer) s.sealer->Seal(front);
   s.time.simplify_s += clock.Seconds();
   s.trace.push_back(static_cast<int64_t>(s.store.num_triangles()));
+  s.CheckHolding("simplifying slice", s.pending_front);
 }
 
 // The second half of EXTRACT(k): the staged layer joins the store, its triangles' quadrics
@@ -263,6 +264,7 @@ void FinishAtError(std::span<const std::unique_ptr<Slab>> slabs, double error,
 }
 
 absl::Status StepSlab(Slab& s, SliceValues values, Schedule schedule, const Overlap& overlap) {
+  s.meter->CheckStop();  // a stopped session's step does not start
   absl::Status extracted;
   double extract_s = 0;
   auto extract = [&] {  // the first half of EXTRACT(k): reads the extractor's own state only
@@ -279,6 +281,11 @@ absl::Status StepSlab(Slab& s, SliceValues values, Schedule schedule, const Over
   if (!extracted.ok()) return extracted;
   const PhaseClock insert(s.simplifier);
   InsertLayer(s, schedule);
+  // The staged layer is in the store now: the extractor's figure gives it up first, so that
+  // the layer is not counted twice.
+  const int64_t slice = s.extractor.slices_done() - 1;
+  s.extraction.Hold(s.extractor.HeldBytes(values.dtype), "extracting slice", slice);
+  s.CheckHolding("adding slice", slice);
   s.time.extract_s += extract_s + insert.Seconds();
   s.trace.push_back(static_cast<int64_t>(s.store.num_triangles()));
   if (Lockstep(schedule)) {  // DELAY(k); ACTIVATE(k); SIMPLIFY(E0): at the next step
@@ -305,6 +312,7 @@ void FinishSlab(Slab& s, Schedule schedule) {
   }
   s.simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
   s.time.simplify_s += clock.Seconds();
+  s.CheckHolding("finishing after slice", s.extractor.slices_done() - 1);
 }
 
 int64_t FinishWhole(Slab& whole, const SessionOptions& options,
@@ -336,6 +344,7 @@ int64_t FinishWhole(Slab& whole, const SessionOptions& options,
     whole.simplifier.TidyDegenerate();  // last: the sag correction may leave some
   }
   whole.time.simplify_s += clock.Seconds();
+  whole.CheckHolding("finishing after slice", whole.extractor.slices_done() - 1);
   return sag_corrected;
 }
 

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "meter.h"
 #include "schedule.h"
 #include "slabs.h"
 #include "tandem/executor.h"
@@ -19,7 +20,8 @@
 namespace tandem {
 
 struct TandemSession::Impl {
-  Impl(const VolumeInfo& grid, const SessionOptions& options, int slabs, Executor* executor);
+  Impl(const VolumeInfo& grid, const SessionOptions& options, int slabs, Executor* executor,
+       std::shared_ptr<MemoryBudget> budget);
   ~Impl();
 
   // AddSlice and Finish run behind the session's barrier: an exception becomes `failed`,
@@ -78,6 +80,10 @@ struct TandemSession::Impl {
   SessionOptions options;
   double scale = 1;  // engine frame -> world: world = engine * scale + grid.origin
   Executor* executor;
+  // The budget and the stop of every step (meter.h); before the slabs, which report to it.
+  Meter meter;
+  Meter::Account buffers{&meter};  // BufferBytes (the caller's thread)
+  Meter::Account cut_account{&meter};  // cut_bytes (under mu)
   Overlap overlap;   // how a slab overlaps EXTRACT(k) with SIMPLIFY(k-1)
   absl::Status failed;
   std::vector<std::unique_ptr<Slab>> slabs;

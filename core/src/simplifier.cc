@@ -373,6 +373,7 @@ void Simplifier::FlushBatch() {
     }
   }
   batch_.clear();
+  Checkpoint();
 }
 
 void Simplifier::PushEdge(VertexId a, VertexId b) {
@@ -626,7 +627,9 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
 void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   const auto stale = [this](const QNode& n) { return Stale(n); };
+  uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
   while (!q_.empty()) {
+    if ((++pops & (kCheckEvery - 1)) == 0) Checkpoint();  // contractions queue new edges
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const QNode* top = q_.TopLive(stale);
     if (top == nullptr) break;
@@ -945,6 +948,8 @@ size_t Simplifier::GroupBytes() const {  // in WEdges
   for (const auto& g : groups_) edges += g.MemoryBytes() / sizeof(WEdge);
   return edges;
 }
+
+size_t Simplifier::VertexBytes() { return sizeof(PlaneSum) + sizeof(uint32_t); }
 
 size_t Simplifier::MemoryBytes() const {
   return planes_.MemoryBytes() + tails_.MemoryBytes() + eager_.MemoryBytes() +

@@ -212,6 +212,14 @@ class Simplifier {
   double max_layer_over_front() const { return max_layer_over_front_; }
   size_t queue_sizes() const { return q_.size() + w_.size(); }
   size_t MemoryBytes() const;
+  // What AddTriangles adds for a new vertex id (its planes' matrix and stamp).
+  static size_t VertexBytes();
+  // Called where the simplifier's memory grows and where long work may stop: after each
+  // batch of edges is queued (DELAY, each chunk of a release, a rise) and every
+  // kCheckEvery edges SIMPLIFY pops. The owner reports to its budget there (meter.h); a
+  // SessionStop it throws leaves the simplifier fit only to be destroyed.
+  void set_checkpoint(std::function<void()> f) { checkpoint_ = std::move(f); }
+  static constexpr uint32_t kCheckEvery = 4096;  // a power of two
   // CPU seconds the work handed to an executor (the batch evaluations on `parallel`, the sag
   // correction's ranges) took on other threads since the last call (the phase times count
   // them with the calling thread's own).
@@ -428,6 +436,10 @@ class Simplifier {
   int64_t deferred_ = 0;
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
   double max_layer_over_front_ = -std::numeric_limits<double>::infinity();
+  std::function<void()> checkpoint_;
+  void Checkpoint() {
+    if (checkpoint_) checkpoint_();
+  }
 };
 
 }  // namespace tandem

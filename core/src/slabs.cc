@@ -345,8 +345,24 @@ double StartError(const VolumeInfo& grid, const SessionOptions& options) {
                            SessionOptions::kDefaultErrorVoxels * spacing));
 }
 
+Slab::Slab(const ExtractorConfig& ec, const SimplifierOptions& so, Meter* m)
+    : meter(m), extractor(ec, &store), simplifier(&store, so) {
+  // Slabs live behind unique_ptrs: `this` stays where it is.
+  simplifier.set_checkpoint([this] { CheckHolding("simplifying slice", pending_front); });
+}
+
+size_t Slab::HoldingBytes() const {
+  size_t bytes = store.MemoryBytes() + simplifier.MemoryBytes() +
+                 (sealer ? sealer->MemoryBytes() : 0) +
+                 (new_tris.capacity() + new_verts.capacity()) * sizeof(uint32_t) +
+                 new_edges.capacity() + trace.capacity() * sizeof(int64_t);
+  for (const auto& log : seam_log) bytes += log.capacity() * sizeof(VertexId);
+  return bytes;
+}
+
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
-                                             double scale, int count, Executor* batches) {
+                                             double scale, int count, Executor* batches,
+                                             Meter* meter) {
   const std::array<double, 3> spacing{grid.spacing[0] / scale, grid.spacing[1] / scale,
                                       grid.spacing[2] / scale};
   // The world frame's coordinates (ToWorld: origin plus the axes' steps, each axis of unit
@@ -386,9 +402,16 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .tile_y = spacing[1] * static_cast<double>(tile),
                                .check_quadrics = options.check_quadrics,
                                .offset_edges = offset_edges};
-    auto slab = std::make_unique<Slab>(ec, so);
+    auto slab = std::make_unique<Slab>(ec, so, meter);
+    const bool simplify = options.schedule != Schedule::kNone;
+    // A staged vertex becomes a store record with its smallest incidence slot, its quadric
+    // (simplifying), and an entry of the commit's id lists; a triangle its record and lists.
+    slab->extractor.set_account(
+        &slab->extraction,
+        MeshStore::VertexBytes() + (simplify ? Simplifier::VertexBytes() : 0) +
+            2 * sizeof(VertexId),
+        MeshStore::TriangleBytes() + sizeof(TriId) + 1);
     if (options.seal) {
-      const bool simplify = options.schedule != Schedule::kNone;
       slab->sealer = std::make_unique<Sealer>(
           &slab->store, simplify ? &slab->simplifier : nullptr, options.seal_margin,
           simplify ? options.sag_correction : 0.0, static_cast<uint32_t>(p),
@@ -396,6 +419,8 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     }
     slab->x0 = c0;
     slab->index = static_cast<size_t>(p);
+    slab->extraction.Set(slab->extractor.HeldBytes(grid.dtype));  // the planes as planned
+    slab->holding.Set(slab->HoldingBytes());
     slabs.push_back(std::move(slab));
   }
   return slabs;
@@ -514,6 +539,8 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
     merged->time.extract_s += src.time.extract_s;
     merged->time.simplify_s += src.time.simplify_s;
     prev.swap(map);
+    // Both copies are held at this moment: the budget sees the merge's peak.
+    dst.CheckHolding("merging the parts after slice", dst.extractor.slices_done() - 1);
     (*slabs)[p].reset();  // copied: give its memory back before the next slab grows dst
   }
   slabs->resize(1);

@@ -22,6 +22,7 @@
 #include "absl/status/status.h"
 #include "layer_extractor.h"
 #include "mesh_store.h"
+#include "meter.h"
 #include "sealer.h"
 #include "simplifier.h"
 #include "tandem/mesh.h"
@@ -34,8 +35,20 @@ namespace tandem {
 class TargetControl;
 
 struct Slab {
-  Slab(const ExtractorConfig& ec, const SimplifierOptions& so)
-      : extractor(ec, &store), simplifier(&store, so) {}
+  // `meter`: the session's (meter.h), which must outlive the slab.
+  Slab(const ExtractorConfig& ec, const SimplifierOptions& so, Meter* meter);
+  // The session's budget: what the extractor holds, its staged layer counted as committed
+  // (reported by the extractor as it scans a slice), and what the rest of the slab holds
+  // (HoldingBytes, reported by CheckHolding: by the simplifier as it queues and contracts,
+  // and by the schedule after each layer's commit and SIMPLIFY step).
+  Meter* meter;
+  Meter::Account extraction{meter}, holding{meter};
+  size_t HoldingBytes() const;
+  // Reports HoldingBytes while `doing` slice `slice`; throws SessionStop when the session
+  // must stop.
+  void CheckHolding(const char* doing, int64_t slice) {
+    holding.Hold(HoldingBytes(), doing, slice);
+  }
   MeshStore store;
   LayerExtractor extractor;
   Simplifier simplifier;
@@ -80,9 +93,11 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options);
 double StartError(const VolumeInfo& grid, const SessionOptions& options);
 
 // The slabs of `grid` in the engine frame (spacing divided by `scale`), ready for slice 0;
-// `batches`: where the simplifiers evaluate half of their large batches (null: in place).
+// `batches`: where the simplifiers evaluate half of their large batches (null: in place);
+// `meter`: the session's budget, told what the slabs hold as planned.
 std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const SessionOptions& options,
-                                             double scale, int count, Executor* batches);
+                                             double scale, int count, Executor* batches,
+                                             Meter* meter);
 
 // Sealing with `count` slabs: slab p's sealer hands out ids p + k * stride, and with several
 // slabs the ids k * stride + count are the settled seam vertices' (SettleSeams).

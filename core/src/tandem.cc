@@ -52,6 +52,8 @@ bool CopyFinite(const float* src, size_t n, float* dst) {
 absl::Status StatusOfException(std::exception_ptr e) {
   try {
     std::rethrow_exception(e);
+  } catch (const SessionStop& stop) {
+    return stop.status();
   } catch (const std::bad_alloc&) {
     return absl::ResourceExhaustedError("out of memory while processing this volume");
   } catch (const std::length_error& ex) {
@@ -70,7 +72,8 @@ TandemSession::TandemSession(std::unique_ptr<Impl> impl) : impl_(std::move(impl)
 TandemSession::~TandemSession() = default;
 
 absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
-    const VolumeInfo& grid, const SessionOptions& options, Executor* executor) {
+    const VolumeInfo& grid, const SessionOptions& options, Executor* executor,
+    std::shared_ptr<MemoryBudget> budget) {
   VolumeInfo g = grid;
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
   if (absl::Status st = options.ValidateFor(g); !st.ok()) return st;
@@ -78,7 +81,7 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
     if (executor == nullptr) executor = &Executor::Shared();
     const int slabs = SlabCount(g, options);
     return std::unique_ptr<TandemSession>(
-        new TandemSession(std::make_unique<Impl>(g, options, slabs, executor)));
+        new TandemSession(std::make_unique<Impl>(g, options, slabs, executor, std::move(budget))));
   } catch (const std::bad_alloc&) {
     // The extractor's plane caches are O(nx*ny); the only allocation that can be large here.
     return absl::ResourceExhaustedError(absl::StrCat(
@@ -192,6 +195,7 @@ void TandemSession::Impl::CutSealed(Slab& slab) {
   std::lock_guard<std::mutex> lock(mu);
   cuts[static_cast<size_t>(slab.index)].push_back(std::move(piece));
   cut_bytes += bytes;
+  cut_account.Hold(cut_bytes, "sealing slice", slab.extractor.slices_done() - 1);
 }
 
 int64_t TandemSession::Impl::CutThrough() const {
@@ -208,6 +212,7 @@ void TandemSession::Impl::TakeCuts(int64_t through, std::vector<SealedChunk>* pi
       c.pop_front();
     }
   }
+  cut_account.Set(cut_bytes);  // (the caller's copy of them is its own to count)
 }
 
 int64_t TandemSession::Impl::CutTriangles(int64_t through) const {
@@ -263,11 +268,11 @@ double TandemSession::MaxShapeError() const {
 // ---- Impl ----
 
 TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int count,
-                          Executor* ex)
-    : grid(g), options(o), scale(EngineScale(g)), executor(ex) {
+                          Executor* ex, std::shared_ptr<MemoryBudget> budget)
+    : grid(g), options(o), scale(EngineScale(g)), executor(ex), meter(std::move(budget)) {
   // With several slabs the threads go to the slabs, not to the batches inside one.
   slabs = MakeSlabs(grid, options, scale, count,
-                    options.pipeline && count == 1 ? executor : nullptr);
+                    options.pipeline && count == 1 ? executor : nullptr, &meter);
   seams.resize(static_cast<size_t>(count - 1));
   if (options.target_triangles > 0 && options.schedule != Schedule::kNone) {
     target = std::make_unique<TargetControl>(options.target_triangles, slabs.size(),
@@ -299,9 +304,12 @@ TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int coun
     for (const auto& s : slabs) gauges.push_back(Measure(*s));  // the planes as planned
   }
   if (slabs[0]->sealer != nullptr) cuts.resize(slabs.size());
+  buffers.Set(BufferBytes());  // the slices as planned
 }
 
 TandemSession::Impl::~Impl() {
+  // Steps queued never start, and one running returns at its next check.
+  meter.Stop();
   if (!queued) return;
   {
     std::lock_guard<std::mutex> lock(mu);
@@ -318,6 +326,7 @@ TandemSession::Impl::~Impl() {
 
 template <typename F>
 absl::Status TandemSession::Impl::Guarded(F&& f) {
+  if (failed.ok() && meter.stopped()) failed = meter.status();  // cancelled, or over budget
   if (!failed.ok()) return failed;
   try {
     absl::Status st = f();
@@ -361,7 +370,10 @@ void TandemSession::Impl::StepQueued(size_t i) {
     }
     slot = q.slices.front();
     q.slices.pop_front();
-    skip = !q.failure.ok();  // a slab that failed is left as it is: its slices are dropped
+    // A slab that failed is left as it is: its slices are dropped; so are a stopped
+    // session's, at once.
+    if (q.failure.ok() && meter.stopped()) q.failure = meter.status();
+    skip = !q.failure.ok();
   }
   // ring[slot] is not written while a slab still needs it (pending > 0).
   absl::Status st;
@@ -543,6 +555,7 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
         return non_finite(slot.storage.data());
       }
     }
+    buffers.Hold(BufferBytes(), "receiving slice", k);
     std::vector<size_t> idle;
     {
       std::lock_guard<std::mutex> lock(mu);

@@ -14,6 +14,13 @@
 // Threads: a session runs its work on the Executor it is given (executor.h), never on threads
 // of its own, apart from the caller's: with SessionOptions::pipeline, AddSlice may queue the
 // slice for the executor and return. Many sessions on one executor share its threads.
+//
+// Memory: a session given a MemoryBudget (budget.h) checks it where its arrays grow, inside
+// its steps, and fails with RESOURCE_EXHAUSTED (naming the budget and the bytes) before it
+// outgrows it by more than a grain of each part's figure; the budget's Cancel stops it
+// (CANCELLED).
+// Destroying a session stops its queued work at once: steps not started never run, a running
+// one returns at its next check, and the destructor returns once they have let go.
 #ifndef TANDEM_TANDEM_H_
 #define TANDEM_TANDEM_H_
 
@@ -25,6 +32,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "tandem/budget.h"
 #include "tandem/executor.h"
 #include "tandem/mesh.h"
 #include "tandem/options.h"
@@ -50,10 +58,11 @@ namespace tandem {
 class TandemSession {
  public:
   // `grid`: nx, ny (>= 2), nz (0 if unknown), spacing, origin. `executor`: the threads to use
-  // (null: Executor::Shared()); it must outlive the session.
-  static absl::StatusOr<std::unique_ptr<TandemSession>> Create(const VolumeInfo& grid,
-                                                                const SessionOptions& options,
-                                                                Executor* executor = nullptr);
+  // (null: Executor::Shared()); it must outlive the session. `budget`: the memory it may hold,
+  // shared with other sessions or not (null: no limit).
+  static absl::StatusOr<std::unique_ptr<TandemSession>> Create(
+      const VolumeInfo& grid, const SessionOptions& options, Executor* executor = nullptr,
+      std::shared_ptr<MemoryBudget> budget = nullptr);
   ~TandemSession();
   TandemSession(const TandemSession&) = delete;
   TandemSession& operator=(const TandemSession&) = delete;

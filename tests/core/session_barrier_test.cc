@@ -20,6 +20,12 @@
 #include "tandem/topology.h"
 #include "tandem/volume.h"
 
+// The replaced operator new allocates with malloc, so its delete frees with free; GCC 12
+// cannot see the pair through inlining and warns about every sized delete.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+#endif
+
 namespace {
 std::atomic<int64_t> g_fail_in{-1};  // allocations left before the injected failure; < 0: off
 }  // namespace

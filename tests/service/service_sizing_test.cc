@@ -4,18 +4,25 @@
 // are the hard case for the accounting: full-resolution surfaces (every triangle kept), so
 // that the final copy and Draco encoding of the mesh weigh as much as the session itself.
 // Some streams end with RESOURCE_EXHAUSTED (honestly: their final mesh would not fit); the
-// process stays under the bound either way. Normal builds only: under ASan the resident
-// size is the sanitizer's.
-#include <cstdio>
+// process stays under the bound either way. And whatever the voxels: streams of noise, a
+// checkerboard or an iso-value inside noise, which grow a session by hundreds of MiB a
+// slice, keep the pod under its memory limit too (the sessions check their budget while
+// they extract and simplify, and stop at once when refused). Normal builds only: under ASan
+// the resident size is the sanitizer's.
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
 #include <fstream>
-#include <thread>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
 
+#include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "service/service_testutil.h"
 #include "tandem/synthetic.h"
 #include "testutil/testutil.h"
@@ -90,18 +97,17 @@ TEST(Sizing, SessionsStayWithinTheirBudgetsAtThePeak) {
 }
 
 // The pod as deploy/k8s/deployment.yaml runs it: its server flags (sessions, budgets, slice
-// and message limits, grace), read from the manifest, and as many full-resolution streams
-// as it takes sessions, each large enough to fill its budget (a 256x256x600 gyroid: 833,418
-// triangles, whose encoding alone is over half the 256 MiB budget). The server's peak must
-// stay under the container's memory limit (requests = limits, so this is also what the
-// scheduler reserves): above it the kernel would OOM-kill the pod and every session on it.
-TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
-  if (kSanitized) GTEST_SKIP() << "resident sizes are the sanitizer's own under ASan and TSan";
+// and message limits, grace), read from the manifest, and its memory limit.
+struct Pod {
+  std::vector<std::string> flags;
+  int64_t limit_mib = 0, sessions = 0, budget_mib = 0, slice_voxels = 0, inflight = 0;
+};
+
+void ReadPod(Pod* pod) {
   std::ifstream yaml(TANDEM_DEPLOYMENT_YAML);
   ASSERT_TRUE(yaml) << TANDEM_DEPLOYMENT_YAML;
-  std::vector<std::string> flags;
-  int64_t limit_mib = 0, sessions = 0;
   bool in_args = false, in_limits = false;
+  auto value = [](const std::string& flag) { return std::stoll(flag.substr(flag.find('=') + 1)); };
   for (std::string line; std::getline(yaml, line);) {
     const size_t text = line.find_first_not_of(' ');
     if (text == std::string::npos) continue;
@@ -116,37 +122,132 @@ TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
           flag.rfind("--drain-delay-seconds", 0) == 0) {
         continue;
       }
-      if (flag.rfind("--max-sessions=", 0) == 0) sessions = std::stoll(flag.substr(15));
-      flags.push_back(flag);
+      if (flag.rfind("--max-sessions=", 0) == 0) pod->sessions = value(flag);
+      if (flag.rfind("--session-memory-mb=", 0) == 0) pod->budget_mib = value(flag);
+      if (flag.rfind("--max-voxels-per-slice=", 0) == 0) pod->slice_voxels = value(flag);
+      if (flag.rfind("--max-inflight-bytes=", 0) == 0) pod->inflight = value(flag);
+      pod->flags.push_back(flag);
       continue;
     }
     in_args = false;
     if (in_limits && item.rfind("memory:", 0) == 0) {
-      const std::string value = item.substr(item.find_first_not_of(' ', 7));
-      ASSERT_EQ(value.substr(value.size() - 2), "Mi") << line;
-      limit_mib = std::stoll(value.substr(0, value.size() - 2));
+      const std::string limit = item.substr(item.find_first_not_of(' ', 7));
+      ASSERT_EQ(limit.substr(limit.size() - 2), "Mi") << line;
+      pod->limit_mib = std::stoll(limit.substr(0, limit.size() - 2));
       in_limits = false;
     }
   }
-  ASSERT_GT(sessions, 0) << "no --max-sessions in the manifest's args";
-  ASSERT_GT(limit_mib, 0) << "no memory limit in the manifest";
+  ASSERT_GT(pod->sessions, 0) << "no --max-sessions in the manifest's args";
+  ASSERT_GT(pod->budget_mib, 0) << "no --session-memory-mb in the manifest's args";
+  ASSERT_GT(pod->slice_voxels, 0) << "no --max-voxels-per-slice in the manifest's args";
+  ASSERT_GT(pod->inflight, 0) << "no --max-inflight-bytes in the manifest's args";
+  ASSERT_GT(pod->limit_mib, 0) << "no memory limit in the manifest";
+}
+
+// As many full-resolution streams as the pod takes sessions, each large enough to fill its
+// budget (a 256x256x600 gyroid: 833,418 triangles, whose encoding alone is over half the 256
+// MiB budget). The server's peak must stay under the container's memory limit (requests =
+// limits, so this is also what the scheduler reserves): above it the kernel would OOM-kill
+// the pod and every session on it.
+TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
+  if (kSanitized) GTEST_SKIP() << "resident sizes are the sanitizer's own under ASan and TSan";
+  Pod pod;
+  ASSERT_NO_FATAL_FAILURE(ReadPod(&pod));
   const std::string dir = MakeTempDir();
   auto volume = WriteSyntheticVolume(dir, "gyroid",
                                      MakeSyntheticSource(Shape::kGyroid, 256, 256, 600));
   ASSERT_TRUE(volume.ok()) << volume.status();
-  auto server = TestServer::Start(flags);
+  auto server = TestServer::Start(pod.flags);
   ASSERT_TRUE(server.ok()) << server.status();
   const pid_t pid = (*server)->process().pid();
   int ok = 0;
   ASSERT_NO_FATAL_FAILURE(RunFullResolutionStreams(**server, *volume, dir,
-                                                   static_cast<int>(sessions), 300, 400, &ok));
+                                                   static_cast<int>(pod.sessions), 300, 400, &ok));
   const int64_t peak = PeakResidentBytes(pid);
   std::printf("pod flags (%zu from the manifest): server peak %lld MiB, limit %lld Mi, "
               "%d of %lld streams OK\n",
-              flags.size(), static_cast<long long>(peak >> 20),
-              static_cast<long long>(limit_mib), ok, static_cast<long long>(sessions));
-  EXPECT_LE(peak, limit_mib << 20) << "the pod would be OOM-killed";
+              pod.flags.size(), static_cast<long long>(peak >> 20),
+              static_cast<long long>(pod.limit_mib), ok, static_cast<long long>(pod.sessions));
+  EXPECT_LE(peak, pod.limit_mib << 20) << "the pod would be OOM-killed";
 }
+
+// The pod (its flags from the manifest) under as many streams of `pattern` as it takes
+// sessions, slices as large as it allows: the server's peak stays under deploy/README.md's
+// rule, idle + sessions x (budget + in flight), and so under the pod's memory limit; every
+// stream ends (RESOURCE_EXHAUSTED with the budget's message, or a mesh), the slots come free
+// as soon as the streams end (the refused sessions' work stops), and the server goes on
+// serving: health SERVING, a normal stream after them succeeds.
+void HoldThePodLimit(Pattern pattern) {
+  if (kSanitized) GTEST_SKIP() << "resident sizes are the sanitizer's own under ASan and TSan";
+  Pod pod;
+  ASSERT_NO_FATAL_FAILURE(ReadPod(&pod));
+  const std::string dir = MakeTempDir();
+  const auto n = static_cast<int64_t>(std::sqrt(static_cast<double>(pod.slice_voxels)));
+  double iso = 0;
+  auto volume = WritePattern(dir, pattern, n, 8, &iso);
+  ASSERT_TRUE(volume.ok()) << volume.status();
+  auto server = TestServer::Start(pod.flags);
+  ASSERT_TRUE(server.ok()) << server.status();
+  const pid_t pid = (*server)->process().pid();
+  const int64_t idle = ResidentBytes(pid);
+  ASSERT_GT(idle, 0);
+  const int64_t rule = idle + pod.sessions * ((pod.budget_mib << 20) + pod.inflight);
+
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int64_t i = 0; i < pod.sessions; ++i) {
+    auto c = ChildProcess::Spawn(
+        {BinPath("tandem-client"), "stream", "--server", (*server)->address(), "--input",
+         *volume, "--iso", absl::StrCat(iso), "--retries", "0", "--timeout", "120", "--out",
+         absl::StrCat(dir, "/out", i, ".drc")},
+        dir);
+    ASSERT_TRUE(c.ok()) << c.status();
+    clients.push_back(*std::move(c));
+  }
+  int refused = 0;
+  const std::string budget = absl::StrCat("budget of ", pod.budget_mib, ".0 MiB");
+  for (auto& c : clients) {
+    const std::optional<int> code = c->Wait(120);
+    ASSERT_TRUE(code.has_value()) << "a client did not finish";
+    if (*code == 0) continue;
+    ++refused;
+    const std::string err = c->Stderr();
+    EXPECT_TRUE(absl::StrContains(err, "RESOURCE_EXHAUSTED: session memory budget exceeded") &&
+                absl::StrContains(err, budget) &&
+                absl::StrContains(err, "tandem-server --session-memory-mb"))
+        << err;
+  }
+  const double streams_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const auto ended = std::chrono::steady_clock::now();
+  v1::Counters last;
+  EXPECT_TRUE((*server)->WaitIdle(10, &last)) << last.DebugString();
+  const double free_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - ended).count();
+  const int64_t peak = PeakResidentBytes(pid);
+  std::printf("%lld streams of %lldx%lldx8 (iso %g): %d refused in %.2f s, slots free %.2f s "
+              "later; server peak %lld MiB, rule %lld MiB, pod limit %lld Mi\n",
+              static_cast<long long>(pod.sessions), static_cast<long long>(n),
+              static_cast<long long>(n), iso, refused, streams_s, free_s,
+              static_cast<long long>(peak >> 20), static_cast<long long>(rule >> 20),
+              static_cast<long long>(pod.limit_mib));
+  EXPECT_LE(peak, rule) << "idle " << (idle >> 20) << " MiB";
+  EXPECT_LE(peak, pod.limit_mib << 20) << "the pod would be OOM-killed";
+  EXPECT_LT(free_s, 5) << "the refused sessions' work ran on";
+
+  EXPECT_EQ((*server)->Health(), "SERVING");
+  auto normal = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 64, 64, 64));
+  ASSERT_TRUE(normal.ok()) << normal.status();
+  RunResult after = RunProcess({BinPath("tandem-client"), "stream", "--server",
+                                (*server)->address(), "--input", *normal, "--iso", "0",
+                                "--out", dir + "/sphere.drc"},
+                               120);
+  EXPECT_EQ(after.exit_code, 0) << after.err;
+  EXPECT_FALSE((*server)->process().Wait(0).has_value()) << "the server exited";
+}
+
+TEST(Sizing, ThePodHoldsItsLimitUnderWhiteNoise) { HoldThePodLimit(Pattern::kNoise); }
+TEST(Sizing, ThePodHoldsItsLimitUnderACheckerboard) { HoldThePodLimit(Pattern::kCheckerboard); }
+TEST(Sizing, ThePodHoldsItsLimitUnderAnIsoInsideNoise) { HoldThePodLimit(Pattern::kNoisyField); }
 
 // A config alone commits no slice-sized memory: the plane caches and slice buffers of a
 // 4096^2 uint16 grid (201 MiB: 4 slices in flight at 2 bytes a voxel, the planes' values

@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <random>
 #include <sstream>
 #include <thread>
 #include <unordered_map>
@@ -237,6 +238,39 @@ absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const s
 
 absl::StatusOr<std::string> WriteLoadVolume(const std::string& dir) {
   return WriteSyntheticVolume(dir, "load", MakeSyntheticSource(Shape::kLink, 64, 64, 93));
+}
+
+absl::StatusOr<std::string> WritePattern(const std::string& dir, Pattern pattern, int64_t n,
+                                         int64_t nz, double* iso) {
+  VolumeInfo info;
+  info.nx = info.ny = n;
+  info.nz = nz;
+  info.dtype = DType::kUInt8;
+  std::mt19937 rng(62);
+  *iso = pattern == Pattern::kNoisyField ? 128 : 127.5;
+  const std::string path = absl::StrCat(dir, "/pattern", static_cast<int>(pattern), ".json");
+  absl::Status st = WriteVolume(path, info, [&](int64_t k, std::vector<uint8_t>* bytes) {
+    bytes->resize(static_cast<size_t>(n * n));
+    for (int64_t j = 0; j < n; ++j) {
+      for (int64_t i = 0; i < n; ++i) {
+        uint8_t& v = (*bytes)[static_cast<size_t>(j * n + i)];
+        switch (pattern) {
+          case Pattern::kNoise: v = static_cast<uint8_t>(rng() >> 24); break;
+          case Pattern::kCheckerboard: v = (i + j + k) % 2 == 0 ? 0 : 255; break;
+          case Pattern::kNoisyField: {
+            const double smooth = 60 * std::sin(static_cast<double>(i) / 40) *
+                                  std::cos(static_cast<double>(j) / 50);
+            const double noise = static_cast<double>(rng() >> 24) - 127.5;
+            v = static_cast<uint8_t>(std::clamp(128 + smooth + noise, 0.0, 255.0));
+            break;
+          }
+        }
+      }
+    }
+    return absl::OkStatus();
+  });
+  if (!st.ok()) return st;
+  return path;
 }
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunLocal(const std::string& path,

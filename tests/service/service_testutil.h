@@ -134,6 +134,18 @@ absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const s
 // ../shared runs them: the Link (two interlocked tori) on the shared head CT's grid,
 // 64 x 64 x 93, float32, as DIR/load.json. Stream it with --iso kLoadIso --error kLoadError.
 absl::StatusOr<std::string> WriteLoadVolume(const std::string& dir);
+
+// Voxels no scan has, each making every layer a dense surface: most cubes crossed, two to
+// four triangles a voxel, about 300 bytes a voxel once in a session's store and queues.
+enum class Pattern {
+  kNoise,         // uniform random bytes, iso at the median
+  kCheckerboard,  // 0 and 255 alternating along every axis
+  kNoisyField,    // a smooth field under strong noise, iso at its mean: no malice needed
+};
+// An n x n x nz uint8 volume of `pattern` (the same bytes every time) as DIR/patternP.json;
+// *iso: the iso-value where it is hardest.
+absl::StatusOr<std::string> WritePattern(const std::string& dir, Pattern pattern, int64_t n,
+                                         int64_t nz, double* iso);
 inline constexpr char kLoadIso[] = "0";
 inline constexpr char kLoadError[] = "0.05";
 
