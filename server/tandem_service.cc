@@ -581,7 +581,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
           break;
         }
         if (StoppingLocked()) break;
-        if (inbox_.empty() && job->resumable()) {
+        if (inbox_.empty() && job->resumable() && state_->limits.resume_window_s > 0) {
           // The input closed mid-scan. A client that vanished (its connection lost) also
           // has its call cancelled, an instant later: wait for that before taking the
           // close as a missing End, so that the session can wait for a resume.
