@@ -1547,6 +1547,93 @@ TEST(ServiceResume, AResumeAfterTheServerRestartedSaysTheSessionIsLost) {
   EXPECT_EQ(again.exit_code, 0) << again.err;
 }
 
+// The server side of a resume from the client's folder: a session whose client asked for
+// chunk_acks keeps every chunk the client has not acknowledged although --watch-retain-mb
+// (0 here) dropped them for watchers, while it waits for the resume; a resume that holds
+// none of them gets them all again, and the chunks make up the uninterrupted stream's mesh.
+// Without chunk_acks the same resume is refused: the server no longer has chunk 0.
+TEST(ServiceResume, UnacknowledgedChunksWaitWithTheParkedSession) {
+  auto server = TestServer::Start({"--watch-retain-mb", "0", "--resume-window-seconds", "8"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto stub = (*server)->NewStub();
+  std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kGyroid, 40, 40);
+  requests.front().mutable_config()->set_sealed_chunks(true);
+  StreamOutcome whole = RunStream(*stub, requests);
+  ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
+  ASSERT_TRUE(whole.responses.back().has_final_metrics());
+  const int64_t triangles = whole.responses.back().final_metrics().triangles_final();
+  constexpr int64_t kVanishAt = 36;
+
+  for (const bool acks : {true, false}) {
+    SCOPED_TRACE(acks ? "chunk_acks" : "no chunk_acks");
+    std::vector<v1::ExtractRequest> mine = requests;
+    mine.front().mutable_config()->set_chunk_acks(acks);
+    // Paced (a chunk comes about every second), never acknowledging, then gone.
+    std::string id, token, watch_key;
+    int64_t chunks_seen = 0;
+    {
+      grpc::ClientContext context;
+      context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+      auto stream = stub->Extract(&context);
+      std::thread writer([&] {
+        for (const v1::ExtractRequest& r : mine) {
+          if (r.has_end() || (r.has_chunk() && r.chunk().slice() >= kVanishAt)) break;
+          if (r.has_chunk()) std::this_thread::sleep_for(std::chrono::milliseconds(70));
+          if (!stream->Write(r)) break;
+        }
+      });
+      v1::ExtractResponse response;
+      while (stream->Read(&response)) {
+        if (response.has_progress() && !response.progress().session_id().empty()) {
+          id = response.progress().session_id();
+          token = response.progress().resume_token();
+          watch_key = response.progress().watch_key();
+          EXPECT_EQ(response.progress().chunk_acks(), acks);
+        }
+        if (response.has_sealed_chunk()) ++chunks_seen;
+        if (response.has_progress() && response.progress().slices_consumed() == kVanishAt) break;
+      }
+      writer.join();
+      context.TryCancel();
+      stream->Finish();
+    }
+    ASSERT_GE(chunks_seen, 2) << "the watch retention dropped some";
+    ASSERT_TRUE(WaitForSession(**server, id, watch_key, [](const v1::SessionSummary& s) {
+      return s.waiting_for_resume();
+    }));
+    std::vector<v1::ExtractRequest> rest;
+    v1::ExtractRequest head;
+    head.mutable_config()->mutable_resume()->set_session_id(id);
+    head.mutable_config()->mutable_resume()->set_token(token);
+    head.mutable_config()->mutable_resume()->set_next_slice(kVanishAt);
+    head.mutable_config()->mutable_resume()->set_chunks_received(0);
+    rest.push_back(head);
+    for (const v1::ExtractRequest& r : mine) {
+      if (r.has_end() || (r.has_chunk() && r.chunk().slice() >= kVanishAt)) rest.push_back(r);
+    }
+    StreamOutcome resumed = RunStream(*stub, rest);
+    if (!acks) {
+      EXPECT_EQ(resumed.status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+      EXPECT_NE(resumed.status.error_message().find("cannot resend its sealed chunks from index 0"),
+                std::string::npos)
+          << resumed.status.error_message();
+      continue;
+    }
+    ASSERT_TRUE(resumed.status.ok()) << resumed.status.error_message();
+    int64_t next = 0, sum = 0;
+    for (const v1::ExtractResponse& r : resumed.responses) {
+      if (!r.has_sealed_chunk()) continue;
+      EXPECT_EQ(r.sealed_chunk().index(), next);
+      ++next;
+      sum += r.sealed_chunk().triangles();
+    }
+    EXPECT_GT(next, chunks_seen);
+    ASSERT_TRUE(resumed.responses.back().has_final_metrics());
+    EXPECT_EQ(resumed.responses.back().final_metrics().triangles_final(), triangles);
+    EXPECT_EQ(sum, triangles);
+  }
+}
+
 // A session waiting for a resume holds a session slot, but gives it up to a new stream
 // that would otherwise be refused as busy.
 TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
