@@ -181,9 +181,10 @@ absl::Status MakeOutputDir(const char* flag, const std::string& dir) {
 // The chunk callback of stream and watch: a line with --verbose; with `store` (watch
 // --chunks; stream's are saved by StreamVolume) DIR/chunk_<index>.drc of session `session`,
 // the first write error kept in *error.
-std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(
-    tandem::client::ChunkStore* store, const std::string& session, const bool& verbose,
-    absl::Status* error) {
+std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::ChunkStore* store,
+                                                               const std::string& session,
+                                                               const bool& verbose,
+                                                               absl::Status* error) {
   return [store, &session, &verbose, error](const tandem::v1::SealedChunk& c) {
     if (verbose) {
       absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
@@ -493,8 +494,8 @@ int StreamCommand(int argc, char** argv) {
                       "command with TANDEM_RESUME=%s:%s in its environment\n",
                       p.session_id(), p.session_id(), p.resume_token());
       } else {
-        absl::FPrintF(stderr, "tandem-client: session %s resumed at slice %d\n",
-                      p.session_id(), p.slices_consumed());
+        absl::FPrintF(stderr, "tandem-client: session %s resumed at slice %d\n", p.session_id(),
+                      p.slices_consumed());
       }
       if (!p.watch_key().empty()) {  // the session is private to it (and to the token)
         absl::FPrintF(stderr, "tandem-client: %s: TANDEM_WATCH_KEY=%s tandem-client %s\n",
@@ -552,8 +553,9 @@ int StreamCommand(int argc, char** argv) {
   callbacks.on_chunk = ChunkSaver(nullptr, "", verbose, &partial_error);
   callbacks.on_chunks_kept = [&](int64_t kept) {
     if (!f.quiet) {
-      absl::FPrintF(stderr, "tandem-client: %d sealed chunks kept in %s; the server sends the "
-                            "rest\n", kept, chunks_dir);
+      absl::FPrintF(stderr,
+                    "tandem-client: %d sealed chunks kept in %s; the server sends the rest\n",
+                    kept, chunks_dir);
     }
   };
   if (absl::Status st = view.Start(c.description(), nz); !st.ok()) return Fail(st);
@@ -614,10 +616,11 @@ int InfoCommand(int argc, char** argv) {
   ConnectionFlags connection;
   double timeout_s = 10;
   std::string watch_key;
-  FlagSet flags("usage: tandem-client info [--server HOST:PORT] [flags]\n"
-                "Prints the server's version, security, limits, supported dtypes and live "
-                "counters, and the sessions this call may see: those created with its bearer "
-                "token, and the one of --watch-key.");
+  FlagSet flags(
+      "usage: tandem-client info [--server HOST:PORT] [flags]\n"
+      "Prints the server's version, security, limits, supported dtypes and live "
+      "counters, and the sessions this call may see: those created with its bearer "
+      "token, and the one of --watch-key.");
   connection.Add(flags, /*token=*/true);
   flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
   flags.AddSecret("watch-key", &watch_key, "KEY", "TANDEM_WATCH_KEY",
@@ -680,9 +683,10 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("draining sessions      %d\n", c.sessions_draining());
   absl::PrintF("waiting for a resume   %d\n", c.sessions_waiting_for_resume());
   absl::PrintF("unauthenticated calls  %d\n", c.unauthenticated_calls());
-  absl::PrintF("sessions listed        %d (others' ids and descriptions are private: the bearer "
-               "token that created a session, or its --watch-key, lists it)\n",
-               info.sessions_size());
+  absl::PrintF(
+      "sessions listed        %d (others' ids and descriptions are private: the bearer "
+      "token that created a session, or its --watch-key, lists it)\n",
+      info.sessions_size());
   for (const tandem::v1::SessionSummary& session : info.sessions()) {
     absl::PrintF("session                %s  %s, %d slices, %s%s, %.0f s\n", session.id(),
                  session.finished()             ? "finished"
@@ -714,11 +718,13 @@ int WatchCommand(int argc, char** argv, bool view_command) {
             "address; the page draws every chunk so far, then the live ones and the band not\n"
             "sealed yet, then the final metrics. The same as tandem-client watch --view."
           : "usage: tandem-client watch --session ID --out MESH [flags]\n"
-            "Follows a session another client is streaming with sealed chunks (tandem-client stream\n"
+            "Follows a session another client is streaming with sealed chunks (tandem-client "
+            "stream\n"
             "--seal prints its id and watch key; give the key with --watch-key-file FILE or\n"
             "$TANDEM_WATCH_KEY; a session is private to those who have it, and to the bearer\n"
             "token that created it): every chunk so far, then the\n"
-            "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, .stl,\n"
+            "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, "
+            ".stl,\n"
             ".glb, or .drc re-encoded) and prints the metrics. A finished session stays watchable\n"
             "for tandem-server --watch-linger-seconds.");
   connection.Add(flags, /*token=*/true);

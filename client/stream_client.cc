@@ -298,9 +298,8 @@ absl::Status Sender::Run() {
       // go out meanwhile.
       const absl::Time due =
           start + absl::Seconds(static_cast<double>(z - first_slice_) / options_.rate);
-      auto stop_or_ack = [this]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
-        return stop_ || AckDueLocked();
-      };
+      auto stop_or_ack = [this]()
+                             ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return stop_ || AckDueLocked(); };
       while (true) {
         {
           absl::MutexLock lock(&mu_);

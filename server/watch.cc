@@ -99,9 +99,9 @@ absl::Status SessionFeed::Acknowledge(int64_t count) {
   absl::MutexLock lock(&mu_);
   const size_t posted = dropped_ + chunks_.size();
   if (count < 0 || static_cast<uint64_t>(count) > posted) {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "ChunksReceived.count = %d, but session %s has sent %d sealed chunks", count, id_,
-        static_cast<int64_t>(posted)));
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ChunksReceived.count = %d, but session %s has sent %d sealed chunks",
+                        count, id_, static_cast<int64_t>(posted)));
   }
   acknowledged_ = std::max(acknowledged_, static_cast<size_t>(count));
   while (!held_.empty() && dropped_ - held_.size() < acknowledged_) {
@@ -147,7 +147,8 @@ absl::Status SessionFeed::ChunksFrom(size_t first, std::vector<v1::SealedChunk>*
   }
   out->clear();
   for (size_t i = first; i < dropped_; ++i) out->push_back(held_[i - kept_from]);
-  out->insert(out->end(), chunks_.begin() + static_cast<std::ptrdiff_t>(std::max(first, dropped_) - dropped_),
+  out->insert(out->end(),
+              chunks_.begin() + static_cast<std::ptrdiff_t>(std::max(first, dropped_) - dropped_),
               chunks_.end());
   return absl::OkStatus();
 }
@@ -268,8 +269,7 @@ std::shared_ptr<SessionFeed> FeedRegistry::Find(const std::string& id) {
 }
 
 std::shared_ptr<SessionFeed> FeedRegistry::FindReadable(const std::string& id,
-                                                        std::string_view watch_key,
-                                                        int identity) {
+                                                        std::string_view watch_key, int identity) {
   std::shared_ptr<SessionFeed> feed = Find(id);
   // An unknown id costs the same comparison as a known one with the wrong key.
   static const SessionFeed kNobody("", std::string(32, '0'), TokenAuthenticator::kNoIdentity, 0);

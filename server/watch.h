@@ -53,8 +53,11 @@ class SessionFeed {
  public:
   // `owner`: the creator's bearer token identity (TokenAuthenticator::Check).
   SessionFeed(std::string id, std::string watch_key, int owner, int64_t retain_bytes)
-      : id_(std::move(id)), watch_key_(std::move(watch_key)), owner_(owner),
-        retain_bytes_(retain_bytes), start_(absl::Now()) {}
+      : id_(std::move(id)),
+        watch_key_(std::move(watch_key)),
+        owner_(owner),
+        retain_bytes_(retain_bytes),
+        start_(absl::Now()) {}
   ~SessionFeed();
   const std::string& id() const { return id_; }
   const std::string& watch_key() const { return watch_key_; }

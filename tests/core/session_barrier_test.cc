@@ -217,7 +217,8 @@ TEST(Geometry, AUnitChangeIsExactByAPowerOfTwoAndKeepsTheGuaranteesOtherwise) {
     SCOPED_TRACE(unit);
     SessionOptions so = o;
     so.error = o.error * unit;
-    const Outcome r = RunGrid(Grid(48, 48, scaled(spacing, unit), scaled(origin, unit)), so, slices);
+    const Outcome r =
+        RunGrid(Grid(48, 48, scaled(spacing, unit), scaled(origin, unit)), so, slices);
     ASSERT_TRUE(r.status.ok()) << r.status;
     const TopologyReport t = AnalyzeTopology(r.mesh);
     EXPECT_TRUE(t.IsClosedManifold());

@@ -931,9 +931,10 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
   ASSERT_EQ(plain.exit_code, 0) << plain.err;
   const std::string plain_id = PrintedVariable(plain.err, "TANDEM_RESUME").substr(0, 32);
   ASSERT_EQ(plain_id.size(), 32u) << plain.err;
+  const std::string plain_key = PrintedVariable(plain.err, "TANDEM_WATCH_KEY");
   RunResult refused = Client({"watch", "--server", server_->address(), "--session", plain_id,
                               "--out", dir_ + "/r.ply"},
-                             120, {"TANDEM_WATCH_KEY=" + PrintedVariable(plain.err, "TANDEM_WATCH_KEY")});
+                             120, {"TANDEM_WATCH_KEY=" + plain_key});
   EXPECT_EQ(refused.exit_code, 1);
   EXPECT_NE(refused.err.find("FAILED_PRECONDITION"), std::string::npos) << refused.err;
 }
@@ -1211,7 +1212,9 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
                                      dir_, WatchKeyEnv(started));
   ASSERT_TRUE(watcher.ok()) << watcher.status();
   ASSERT_TRUE(WaitForSession(*server_, id, started.watch_key,
-                             [](const v1::SessionSummary& s) { return s.slices_consumed() >= 24; }));
+                             [](const v1::SessionSummary& s) {
+                               return s.slices_consumed() >= 24;
+                             }));
   EXPECT_GE((*proxy)->CutAll(), 1);
   ASSERT_EQ(client->Wait(90), std::optional<int>(0)) << client->Stderr();
   const std::string err = client->Stderr();
@@ -1287,7 +1290,9 @@ TEST_F(ServiceE2eTest, ACutStreamOfSeveralSurfacesResumesEachOfThem) {
       &started);
   ASSERT_TRUE(client != nullptr && started.ok());
   ASSERT_TRUE(WaitForSession(*server_, started.id, started.watch_key,
-                             [](const v1::SessionSummary& s) { return s.slices_consumed() >= 24; }));
+                             [](const v1::SessionSummary& s) {
+                               return s.slices_consumed() >= 24;
+                             }));
   EXPECT_GE((*proxy)->CutAll(), 1);
   ASSERT_EQ(client->Wait(90), std::optional<int>(0)) << client->Stderr();
   EXPECT_NE(client->Stderr().find("resumed at slice"), std::string::npos) << client->Stderr();
@@ -1450,8 +1455,11 @@ TEST(ServiceResume, AKilledClientResumesFromItsChunkFolderPastTheWatchRetention)
     // Killed once several chunks came (saved, with --chunks) and the server's watch retention
     // dropped them: mid-scan.
     ASSERT_TRUE(WaitForSession(**server, started.id, started.watch_key,
-                               [](const v1::SessionSummary& s) { return s.slices_consumed() >= 100; }));
-    for (int i = 0; i < 400 && keep && !std::filesystem::exists(chunks + "/chunk_000003.drc"); ++i) {
+                               [](const v1::SessionSummary& s) {
+                                 return s.slices_consumed() >= 100;
+                               }));
+    const std::string fourth = chunks + "/chunk_000003.drc";
+    for (int i = 0; i < 400 && keep && !std::filesystem::exists(fourth); ++i) {
       std::this_thread::sleep_for(std::chrono::milliseconds(25));
     }
     ASSERT_LT(Summary(**server, started.id, started.watch_key)->slices_consumed(), 192);
@@ -1460,7 +1468,7 @@ TEST(ServiceResume, AKilledClientResumesFromItsChunkFolderPastTheWatchRetention)
     ASSERT_TRUE(WaitForSession(**server, started.id, started.watch_key,
                                [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
     if (keep) {
-      ASSERT_TRUE(std::filesystem::exists(chunks + "/chunk_000003.drc")) << first->Stderr();
+      ASSERT_TRUE(std::filesystem::exists(fourth)) << first->Stderr();
     }
     const std::string out = dir + "/resumed_" + tag + ".ply";
     RunResult resumed = Client(Concat(args, {"--out", out, "--verbose"}), 120,
@@ -1524,7 +1532,9 @@ TEST(ServiceResume, AResumeAfterTheServerRestartedSaysTheSessionIsLost) {
                                dir, &started);
     ASSERT_TRUE(first != nullptr && started.ok());
     ASSERT_TRUE(WaitForSession(**server, started.id, started.watch_key,
-                               [](const v1::SessionSummary& s) { return s.slices_consumed() >= 10; }));
+                               [](const v1::SessionSummary& s) {
+                                 return s.slices_consumed() >= 10;
+                               }));
     first->Signal(SIGKILL);
     EXPECT_EQ(first->Wait(10), 128 + SIGKILL);
     (*server)->process().Signal(SIGKILL);

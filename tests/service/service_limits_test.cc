@@ -422,10 +422,11 @@ TEST(LimitsTest, NoiseIsRefusedWhileItIsExtractedAndItsSlotsComeFreeAtOnce) {
 }
 
 // Dense streams keep the one compute thread busy: a session whose client is killed waits, in
-// its next slice, for steps queued behind the other sessions'. Without a resume window its stream ends with the kill, its session stops
-// waiting at once (its budget is cancelled, which wakes it) and its slot comes free within a
-// fraction of a second. (Where in that round the kill lands is chance: budget_test's
-// ASessionWaitingBehindOtherWorkWakesWhenCancelled pins the wake down.)
+// its next slice, for steps queued behind the other sessions'. Without a resume window its
+// stream ends with the kill, its session stops waiting at once (its budget is cancelled, which
+// wakes it) and its slot comes free within a fraction of a second. (Where in that round the
+// kill lands is chance: budget_test's ASessionWaitingBehindOtherWorkWakesWhenCancelled pins
+// the wake down.)
 TEST(LimitsTest, AKilledClientsSlotComesFreeAtOnceUnderDenseLoad) {
   auto server = TestServer::Start({"--max-sessions", "4", "--compute-threads", "1",
                                    "--resume-window-seconds", "0"});

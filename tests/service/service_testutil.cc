@@ -181,7 +181,8 @@ void TestServer::AddToken(grpc::ClientContext* context) const {
   if (!auth_.token.empty()) context->AddMetadata("authorization", "Bearer " + auth_.token);
 }
 
-absl::StatusOr<v1::InfoResponse> TestServer::Info(const std::vector<std::string>& watch_keys) const {
+absl::StatusOr<v1::InfoResponse> TestServer::Info(
+    const std::vector<std::string>& watch_keys) const {
   auto stub = NewStub();
   grpc::ClientContext context;
   context.set_deadline(In(5));
