@@ -94,11 +94,13 @@ await run(async () => {
 
   // A late viewer of the finished session (tandem-client view: the watch RPC) draws it all.
   const session = (client.err.match(/session ([0-9a-f]{32})/) || [])[1];
+  // Sessions are private: the watch key the streaming client printed lets the viewer read it.
+  const watchKey = (client.err.match(/TANDEM_WATCH_KEY=([0-9a-f]{32})/) || [])[1];
   // Its token from the environment: the page's own files need it too, and the browser
   // gets them through the cookie the printed address gives it.
   const watcher = start('tandem-client', ['view', '--server', address, '--session', session,
                                           '--view', '127.0.0.1:0', '--view-linger', '60'],
-                        { TANDEM_VIEW_TOKEN: 'w4tch' });
+                        { TANDEM_VIEW_TOKEN: 'w4tch', TANDEM_WATCH_KEY: watchKey });
   const watchUrl = await waitFor('tandem-client view', () => urlIn(watcher), 20);
   check(watchUrl.includes('?token=w4tch'), 'the token from $TANDEM_VIEW_TOKEN', watchUrl);
   const script = await fetch(watchUrl.replace(/\?token=.*/, 'viewer.js'));
