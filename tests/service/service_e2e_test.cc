@@ -1644,6 +1644,46 @@ TEST(ServiceResume, UnacknowledgedChunksWaitWithTheParkedSession) {
   }
 }
 
+// ChunksReceived is the client's word about what it saved: on a stream that did not ask for
+// chunk_acks, or above the chunks sent, it ends the stream with INVALID_ARGUMENT naming why.
+TEST(ServiceResume, ChunksReceivedOutOfTurnIsRefusedNamingTheRule) {
+  auto server = TestServer::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto stub = (*server)->NewStub();
+  std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kSphere, 32, 24);
+  requests.front().mutable_config()->set_sealed_chunks(true);
+  v1::ExtractRequest ack;
+  ack.mutable_chunks_received()->set_count(5);
+
+  StreamOutcome unasked = RunStream(*stub, {requests.front(), ack});
+  EXPECT_EQ(unasked.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(unasked.status.error_message().find("SessionConfig.chunk_acks"), std::string::npos)
+      << unasked.status.error_message();
+
+  // Asked for, after the first Progress said so, but above the chunks sent (none yet).
+  requests.front().mutable_config()->set_chunk_acks(true);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  auto stream = stub->Extract(&context);
+  ASSERT_TRUE(stream->Write(requests.front()));
+  v1::ExtractResponse first;
+  ASSERT_TRUE(stream->Read(&first));
+  ASSERT_TRUE(first.has_progress());
+  EXPECT_TRUE(first.progress().chunk_acks());
+  const std::string id = first.progress().session_id();
+  stream->Write(ack);
+  stream->WritesDone();
+  v1::ExtractResponse rest;
+  while (stream->Read(&rest)) {
+  }
+  const grpc::Status st = stream->Finish();
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(st.error_message(),
+            "ChunksReceived.count = 5, but session " + id + " has sent 0 sealed chunks");
+  v1::Counters counters;
+  EXPECT_TRUE((*server)->WaitIdle(20, &counters)) << counters.ShortDebugString();
+}
+
 // A session waiting for a resume holds a session slot, but gives it up to a new stream
 // that would otherwise be refused as busy.
 TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
