@@ -1,7 +1,6 @@
 #include "simplifier.h"
 
 #include <algorithm>
-#include <bit>
 #include <cassert>
 #include <cmath>
 #include <utility>
@@ -384,7 +383,7 @@ void Simplifier::FlushBatch() {
   Checkpoint();
 }
 
-void Simplifier::PushEdge(VertexId a, VertexId b, double* wait) {
+void Simplifier::PushEdge(VertexId a, VertexId b) {
   if (Pinned(a, b)) return;
   if (a > b) std::swap(a, b);
   Candidate c;
@@ -392,10 +391,6 @@ void Simplifier::PushEdge(VertexId a, VertexId b, double* wait) {
     // Waiting edges need only their release key; the quadric solve happens at ACTIVATE,
     // when the endpoints' quadrics are complete.
     const double key = ReleaseKey(a, b, &c);
-    if (key > front_ && wait != nullptr) {
-      *wait = std::fmin(*wait, key);
-      return;
-    }
     if (key > front_) {
       ++w_pushes_;
       w_.Push(WEntry{key, a, b, version_[a], version_[b]});
@@ -445,7 +440,6 @@ void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> lay
 void Simplifier::ActivateAndSimplify(double front) {
   front_ = front;
   w_.TakeUpTo(front_, &released_);  // in W's order: Q breaks ties by push order
-  ExpandWaitingVertices();
   // Stale entries are no edges: they neither enter Q nor count towards a chunk or a vertex's
   // readiness, so a sweep of W (below) changes nothing.
   const auto stale = [this](const WEdge& e) { return Stale(e); };
@@ -608,25 +602,10 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // Recorded from the geometry, not from the release key, so a broken key shows up here.
   max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, static_cast<double>(c.layer) - front_);
-  // Re-evaluate the edges around c, in increasing neighbour id; those past the front wait in
-  // W as one entry for c, not one each (most go stale before the front reaches them).
-  Neighbours(a);
-  std::vector<VertexId> nbrs;
-  nbrs.swap(scratch_);
-  for (VertexId x : nbrs) {  // their records are in cache: the checks read them
-    PrefetchVertex(x);
-    PrefetchQuadric(x);
-  }
-  double wait = kNaN;
-  for (VertexId x : nbrs) PushEdge(a, x, &wait);
-  if (!std::isnan(wait)) PushWaitingVertex(a, wait);
-  nbrs.swap(scratch_);
-}
-
-void Simplifier::Neighbours(VertexId a) {
-  // Each neighbour once before sorting (the sort of all corners, every neighbour twice, was a
-  // third of Contract, mispredicted branches mostly): the corner after a in each triangle
-  // covers a closed fan; on the boundary one neighbour is only ever the corner before a.
+  // Re-evaluate the edges around c, in increasing neighbour id. Each neighbour once before
+  // sorting (the sort of all corners, every neighbour twice, was a third of this function,
+  // mispredicted branches mostly): the corner after c in each triangle covers a closed fan;
+  // on the boundary one neighbour is only ever the corner before c.
   scratch_.clear();
   const auto fan = store_->vertex_triangles(a);
   for (TriId t : fan) {
@@ -643,49 +622,14 @@ void Simplifier::Neighbours(VertexId a) {
   }
   std::sort(scratch_.begin(), scratch_.end());
   scratch_.erase(std::unique(scratch_.begin(), scratch_.end()), scratch_.end());
-}
-
-void Simplifier::PushWaitingVertex(VertexId v, double key) {
-  // The front it was made at, rounded down to a float: its edges up to there went to Q then.
-  float made = static_cast<float>(front_);
-  if (static_cast<double>(made) > front_) made = std::nextafter(made, -std::numeric_limits<float>::infinity());
-  ++w_pushes_;
-  w_.Push(WEntry{key, v, v, version_[v], std::bit_cast<uint32_t>(made)});
-}
-
-void Simplifier::ExpandWaitingVertices() {
-  // A waiting vertex stands for its edges past the front it was made at: those the front has
-  // reached now join the release in its place, the others wait again behind one entry.
-  size_t vertices = 0;
-  for (const WEdge& e : released_) vertices += e.a == e.b;
-  if (vertices == 0) return;
-  PodArray<WEdge> edges;
-  edges.reserve(released_.size() + 4 * vertices);
-  for (const WEdge& e : released_) {
-    if (Stale(e)) continue;
-    if (e.a != e.b) {
-      edges.push_back(e);
-      continue;
-    }
-    const VertexId v = e.a;
-    const double made = static_cast<double>(std::bit_cast<float>(e.vb));
-    Neighbours(v);
-    double wait = kNaN;
-    Candidate c;
-    for (VertexId x : scratch_) {
-      if (Pinned(v, x)) continue;
-      const VertexId lo = std::min(v, x), hi = std::max(v, x);
-      const double key = ReleaseKey(lo, hi, &c);
-      if (key <= made) continue;  // queued when v was made
-      if (key > front_) {
-        wait = std::fmin(wait, key);
-      } else {
-        edges.push_back(WEdge{lo, hi, version_[lo], version_[hi]});
-      }
-    }
-    if (!std::isnan(wait)) PushWaitingVertex(v, wait);
+  std::vector<VertexId> nbrs;
+  nbrs.swap(scratch_);
+  for (VertexId x : nbrs) {  // their records are in cache: the checks read them
+    PrefetchVertex(x);
+    PrefetchQuadric(x);
   }
-  released_.swap(edges);
+  for (VertexId x : nbrs) PushEdge(a, x);
+  nbrs.swap(scratch_);
 }
 
 void Simplifier::Simplify(int64_t target_triangles, bool past_error) {

@@ -253,15 +253,7 @@ class Simplifier {
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   // Whether TidyDegenerate may move v to p (the error bound).
   bool TidyMayMove(VertexId v, Vec3 p) const;
-  // Evaluates, then to Q or W by key vs front; with `wait`, an edge past the front is not
-  // pushed into W but its key min'ed into *wait (NaN: none yet), for PushWaitingVertex.
-  void PushEdge(VertexId a, VertexId b, double* wait = nullptr);
-  // A vertex whose edges past the front wait in W as one entry (a = b = v, vb the front it
-  // was made at, as float bits) keyed by the least of their keys; ActivateAndSimplify
-  // expands it into those edges (ExpandWaitingVertices) when the front reaches the key.
-  void PushWaitingVertex(VertexId v, double key);
-  void ExpandWaitingVertices();
-  void Neighbours(VertexId a);  // a's neighbours, each once, ascending, into scratch_
+  void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
   // PushQ, unless an end is not ready in a chunked release (ActivateAndSimplify): then the
   // edge waits for that end's chunk.
@@ -281,11 +273,6 @@ class Simplifier {
   // A vertex's stamp changes whenever it is contracted away, moved, or its id is handed to a
   // new vertex (AddTriangles, AdoptVertex), and entries are made for live vertices only, so
   // matching stamps mean both ends are alive: the store's flags need not be read.
-  // A waiting vertex's entry (a = b) holds no second stamp.
-  bool Stale(const WEdge& e) const {
-    if (e.a == e.b) return version_[e.a] != e.va;
-    return Stale<WEdge>(e);
-  }
   template <typename E>
   bool Stale(const E& e) const {
     const bool stale = ((version_[e.a] ^ e.va) | (version_[e.b] ^ e.vb)) != 0;
