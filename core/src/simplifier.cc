@@ -117,26 +117,13 @@ double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
   return 0;
 }
 
-bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c, bool place) {
+bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
   const uint8_t common = ma & mb;
   if (common != ma && common != mb) return false;  // on different box faces: refuse
   Quadric h;
   AddQ(a, &h);
   AddQ(b, &h);
-  if (!place && opt_.alpha == 0.0) {
-    // Keyed by the better end, an upper bound of the placed cost; placed when popped, as
-    // most such entries go stale first. One Q would drop is placed now: its cost may fit.
-    const double bound = std::min(ShapeError(h, store_->position(a)),
-                                  ShapeError(h, store_->position(b)));
-    if (bound <= opt_.keep * opt_.error) {
-      c->pos = kUnplaced;
-      c->eps0 = kNaN;
-      c->cost = bound;
-      c->box_mask = ma | mb;
-      return true;
-    }
-  }
   const uint8_t fixed = FixedAxes(ma | mb);
   const Vec3 ref = BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
 
@@ -411,7 +398,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     }
   }
   ++evaluations_;
-  if (!Evaluate(a, b, &c, /*place=*/false)) {
+  if (!Evaluate(a, b, &c)) {
     ++refusals_.box;
     return;
   }
@@ -682,14 +669,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     c.pos = placement.pos;
     c.cost = key;
     c.eps0 = placement.eps0;
-    if (std::isnan(c.eps0)) {  // queued unplaced (α = 0: the key bounds its cost)
+    if (std::isnan(c.eps0)) {  // queued unplaced by a rise (α = 0: the key is its cost)
       ++evaluations_;
       if (!Evaluate(e.a, e.b, &c)) {
         ++refusals_.box;
-        continue;
-      }
-      if (c.cost > key * (1.0 + 1e-12) + 1e-300) {  // placed, it costs more than its key
-        PushQ(e.a, e.b, c);
         continue;
       }
     }

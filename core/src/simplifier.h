@@ -248,9 +248,7 @@ class Simplifier {
   };
 
   void EnsureVertexCapacity();
-  // false: box refusal. Without `place` (α = 0), c may come unplaced (kUnplaced, ε0 NaN)
-  // with an upper bound of its cost, to be placed when Q pops it.
-  bool Evaluate(VertexId a, VertexId b, Candidate* c, bool place = true);
+  bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
   // Release key from the cheap bookkeeping only (no quadric solve); fills height/rad/layer.
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   // Whether TidyDegenerate may move v to p (the error bound).
