@@ -174,21 +174,8 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
     const Vec3 d = store_->position(a) - store_->position(b);
     key = Dot(d, d) * 0x1p-960;
   }
-  if (collect_) {  // Simplify decides: contracted next, or pushed in this order
-    pending_.push_back(Pending{key, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0}});
-    return;
-  }
   ++q_pushes_;
   q_.Push(key, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
-}
-
-void Simplifier::FlushPending(size_t skip) {
-  for (size_t i = 0; i < pending_.size(); ++i) {
-    if (i == skip) continue;
-    ++q_pushes_;
-    q_.Push(pending_[i].key, pending_[i].e);
-  }
-  pending_.clear();
 }
 
 void Simplifier::RequeueAll() {
@@ -649,57 +636,18 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   const auto stale = [this](const QNode& n) { return Stale(n); };
   uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
-  // A contraction's survivor's edges are held back from Q (pending_) until the next pop:
-  // when the cheapest of them would pop next (it is the newest, so it wins a tie), it is
-  // contracted without entering Q, and the others, stale once it is, never enter either.
-  // The same pops in the same order as pushing them all.
-  const bool chains = opt_.alpha == 0.0;
-  size_t chained = kNone;  // index in pending_ of the edge taken, kNone: from Q
-  for (;;) {
-    if (chained != kNone) {
-      // The edge taken from pending_ was refused: the others go to Q as they would have.
-      FlushPending(chained);
-      chained = kNone;
-    }
-    if (!pending_.empty()) {
-      size_t best = 0;
-      for (size_t i = 1; i < pending_.size(); ++i) {
-        best = pending_[i].key <= pending_[best].key ? i : best;  // a tie: the newest
-      }
-      const QNode* top = q_.TopLive(stale);
-      const double k = pending_[best].key;
-      if ((top == nullptr || k <= top->key) && (past_error || k <= opt_.error) &&
-          !(to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles)) {
-        chained = best;
-      } else {
-        FlushPending(kNone);
-      }
-    }
-    if (chained == kNone && q_.empty()) break;
+  while (!q_.empty()) {
     if ((++pops & (kCheckEvery - 1)) == 0) Checkpoint();  // contractions queue new edges
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
-    QNode e;
-    double key;
-    QPlacement taken;
-    const QNode* next = nullptr;
-    if (chained != kNone) {
-      const Pending& p = pending_[chained];
-      key = p.key;
-      e = QNode{key, 0, 0, p.e.a, p.e.b, p.e.va, p.e.vb};
-      taken = QPlacement{p.e.pos, p.e.eps0};
-    } else {
-      const QNode* top = q_.TopLive(stale);
-      if (top == nullptr) break;
-      key = top->key;
-      if (!past_error && key > opt_.error) break;
-      e = q_.Pop();
-      taken = q_.Placement(e);
-      // The next edge's reads, a stage at a time as each one's address arrives: its stamps,
-      // placement and end records now, its ends' star lists before this edge's link
-      // condition, their triangles after this edge's contraction (each a cache miss at a
-      // random id).
-      next = q_.Next();
-    }
+    const QNode* top = q_.TopLive(stale);
+    if (top == nullptr) break;
+    const double key = top->key;
+    if (!past_error && key > opt_.error) break;
+    const QNode e = q_.Pop();
+    // The next edge's reads, a stage at a time as each one's address arrives: its stamps,
+    // placement and end records now, its ends' star lists before this edge's link condition,
+    // their triangles after this edge's contraction (each a cache miss at a random id).
+    const QNode* next = q_.Next();
     const QNode ahead = next != nullptr ? *next : QNode{};
     if (next != nullptr) {
       __builtin_prefetch(&version_[ahead.a]);
@@ -716,10 +664,11 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     PrefetchVertex(e.b);
     PrefetchQuadric(e.a);
     PrefetchQuadric(e.b);
+    const QPlacement& placement = q_.Placement(e);
     Candidate c;
-    c.pos = taken.pos;
+    c.pos = placement.pos;
     c.cost = key;
-    c.eps0 = taken.eps0;
+    c.eps0 = placement.eps0;
     if (std::isnan(c.eps0)) {  // queued unplaced by a rise (α = 0: the key is its cost)
       ++evaluations_;
       if (!Evaluate(e.a, e.b, &c)) {
@@ -778,13 +727,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
     c.box_mask = ma | mb;
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
-    if (chained != kNone) {
-      pending_.clear();  // stale now: they hold e's ends
-      chained = kNone;
-    }
-    collect_ = chains;
     Contract(e.a, e.b, c);
-    collect_ = false;
     if (next != nullptr) {  // a dead end's list is empty
       store_->PrefetchFan(ahead.a);
       store_->PrefetchFan(ahead.b);

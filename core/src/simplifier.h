@@ -255,9 +255,6 @@ class Simplifier {
   bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
-  // Pushes pending_ into Q in order, but for the one at `skip` (kNone: all), and clears it.
-  void FlushPending(size_t skip);
-  static constexpr size_t kNone = ~size_t{0};
   // PushQ, unless an end is not ready in a chunked release (ActivateAndSimplify): then the
   // edge waits for that end's chunk.
   void PushReady(VertexId a, VertexId b, const Candidate& c);
@@ -368,14 +365,6 @@ class Simplifier {
   PodArray<uint32_t> version_;
 
   EdgeQueue q_;
-  // Simplify: while collect_, PushQ holds Q's entries in pending_ (a contraction's survivor's
-  // edges) instead of pushing them.
-  struct Pending {
-    double key;
-    QEntry e;
-  };
-  bool collect_ = false;
-  std::vector<Pending> pending_;
   size_t step_peak_bytes_ = 0;  // StepPeakBytes
   bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
   bool requeue_released_ = false;  // RaiseError: edges for W are in W already
