@@ -146,13 +146,8 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     c->cost = IsotropicCost(combined, c->pos);
     c->eps0 = ShapeError(h, c->pos);
   } else {
-    // Placed at the better end, as meshoptimizer does: no solve.
-    (void)ref;
-    (void)fixed;
-    const Vec3 pa = store_->position(a), pb = store_->position(b);
-    const double ea = ShapeError(h, pa), eb = ShapeError(h, pb);
-    c->pos = ea <= eb ? pa : pb;
-    c->eps0 = std::min(ea, eb);
+    c->pos = MinimizeQuadric(h, ref, fixed);
+    c->eps0 = ShapeError(h, c->pos);
     c->cost = c->eps0;
   }
   c->box_mask = ma | mb;
