@@ -173,6 +173,13 @@ struct Impl {
     return false;
   }
   void Routes();
+  // A 404 that says what is missing (not with a Range header: cpp-httplib would cut the text
+  // by it). The text names no more of the request than its number.
+  static void NotFound(const httplib::Request& req, httplib::Response& res,
+                       const std::string& text) {
+    res.status = 404;
+    if (req.ranges.empty()) res.set_content(text, "text/plain; charset=utf-8");
+  }
 };
 
 void Impl::Routes() {
@@ -211,14 +218,20 @@ void Impl::Routes() {
     res.set_content(StateText(), "application/json");
   });
   http.Get(R"(/chunk/(\d+)\.drc)", [this](const httplib::Request& req, httplib::Response& res) {
-    size_t index = 0;
+    size_t index = 0, count = 0;
     std::shared_ptr<const std::string> bytes;
-    if (absl::SimpleAtoi(std::string(req.matches[1]), &index)) {
+    {
       absl::MutexLock lock(&mu);
-      if (index < chunks.size()) bytes = chunks[index];
+      count = chunks.size();
+      if (absl::SimpleAtoi(std::string(req.matches[1]), &index) && index < count) {
+        bytes = chunks[index];
+      }
     }
     if (!bytes) {
-      res.status = 404;
+      NotFound(req, res, absl::StrCat("no chunk ", std::string(req.matches[1]), ": this session has ",
+                                      count, count == 1 ? " chunk" : " chunks",
+                                      count > 0 ? absl::StrCat(" (0 to ", count - 1, ")") : "",
+                                      " so far\n"));
       return;
     }
     res.set_header("Cache-Control", Immutable());
@@ -234,7 +247,9 @@ void Impl::Routes() {
       }
     }
     if (!bytes) {
-      res.status = 404;  // superseded: the state names the current one
+      NotFound(req, res, absl::StrCat("no band version ", std::string(req.matches[1]),
+                                      ": superseded or never made (state.json names the current "
+                                      "ones)\n"));
       return;
     }
     res.set_header("Cache-Control", Immutable());
@@ -248,7 +263,7 @@ void Impl::Routes() {
       if (it != files.end()) bytes = it->second;
     }
     if (!bytes) {
-      res.status = 404;
+      NotFound(req, res, "no such file here (state.json lists the files)\n");
       return;
     }
     res.set_content(*bytes, ContentType(std::string(req.matches[1])));

@@ -439,24 +439,37 @@ TEST(ViewServer, EventStreamsAreCappedAndTheRestIsStillServed) {
   EXPECT_EQ(status, 200) << "a closed page's stream frees its place";
 }
 
-// A chunk, band or file that does not exist is a plain 404 without a body, whatever the
-// index looks like, with a Range header, with the token; nothing else changes.
-TEST(ViewServer, AMissingChunkIsAPlain404) {
+// A chunk, band or file that does not exist: a 404 whose text names it and what there is
+// (plain, without a Range header, which would cut the text), nothing else; the server goes on.
+TEST(ViewServer, AMissingChunkIsA404NamingIt) {
   Viewer v = StartViewer("s3cret");
   ASSERT_TRUE(v.server);
   v.server->AddChunk("chunk-zero", 1, 0);
-  for (const char* path : {"/chunk/1.drc", "/chunk/99999999999999999999999999.drc",
-                           "/chunk/-1.drc", "/chunk/x.drc", "/chunk/0.drc.bak", "/band/7.drc",
-                           "/file/none.ply", "/chunk/"}) {
+  const std::vector<std::pair<std::string, std::string>> missing = {
+      {"/chunk/1.drc", "no chunk 1: this session has 1 chunk (0 to 0) so far\n"},
+      {"/chunk/99999999999999999999999999.drc",
+       "no chunk 99999999999999999999999999: this session has 1 chunk (0 to 0) so far\n"},
+      {"/band/7.drc", "no band version 7: superseded or never made (state.json names the "
+                      "current ones)\n"},
+      {"/file/none.ply", "no such file here (state.json lists the files)\n"},
+      {"/chunk/-1.drc", ""},  // no such address at all
+      {"/chunk/x.drc", ""},
+      {"/chunk/0.drc.bak", ""},
+      {"/chunk/", ""}};
+  for (const auto& [path, text] : missing) {
     for (const char* range : {"", "Range: bytes=0-0\r\n"}) {
-      RawResponse r =
-          RawRequest(v.port, GetRequest(v.port, std::string(path) + "?token=s3cret", range));
+      RawResponse r = RawRequest(v.port, GetRequest(v.port, path + "?token=s3cret", range));
       EXPECT_EQ(r.status, 404) << path << " " << range;
-      EXPECT_EQ(r.headers["content-length"], "0") << path;
-      EXPECT_TRUE(r.body.empty()) << path;
+      const std::string body = *range == '\0' ? text : "";
+      EXPECT_EQ(r.body, body) << path << " " << range;
+      EXPECT_EQ(r.headers["content-length"], std::to_string(body.size())) << path;
       EXPECT_EQ(r.headers.count("set-cookie"), 0u) << path;
     }
   }
+  Viewer empty = StartViewer();
+  ASSERT_TRUE(empty.server);
+  EXPECT_EQ(RawRequest(empty.port, GetRequest(empty.port, "/chunk/0.drc")).body,
+            "no chunk 0: this session has 0 chunks so far\n");
   EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/chunk/0.drc?token=s3cret")).body, "chunk-zero");
 }
 
