@@ -59,7 +59,7 @@ export function harness(buildDir) {
   async function startServer(args = []) {
     const server = start('tandem-server', ['--listen', '127.0.0.1:0', ...args]);
     return (await waitFor('the server address',
-                          () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 20))[1];
+                          () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 120))[1];
   }
 
   // Chromium, playwright-core and pngjs, or skip/fail if they are missing (before any child

@@ -87,8 +87,9 @@ await run(async () => {
 
   const browser = await launch();
   async function viewAll(target, expected, what, shot) {
-    const viewer = start('tandem', ['view', target, '--view', '127.0.0.1:0', '--linger', '120']);
-    const url = await waitFor(`tandem view ${what}`, () => urlIn(viewer), 20);
+    // Bounds that only end a stuck run: the test kills the viewer when it is done.
+    const viewer = start('tandem', ['view', target, '--view', '127.0.0.1:0', '--linger', '900']);
+    const url = await waitFor(`tandem view ${what}`, () => urlIn(viewer), 240);
     const page = await browser.newPage({ viewport: { width: 960, height: 640 } });
     await page.addInitScript(countGl);
     const pageErrors = [];

@@ -122,17 +122,24 @@ await run(async () => {
     }, LONG);
     return count;
   }
-  // Shows only surface `only` (the legend's boxes; -1 = all) and waits for the frame.
-  async function showOnly(page, only) {
+  // Does `act` (a click, a scroll) and waits until the page has drawn a frame since and has
+  // none waiting: what a screenshot then shows is the result of `act`.
+  async function afterFrame(page, act, what) {
     const before = (await viewOf(page)).frames;
-    const n = (await viewOf(page)).surfaces.length;
-    for (let i = 0; i < n; i++) {
-      await page.setChecked(`#legend label.surface[data-surface="${i}"] input`, only < 0 || i === only);
-    }
-    await waitFor('the page to draw the surfaces asked for', async () => {
+    await act();
+    await waitFor(what, async () => {
       const v = await viewOf(page);
       return v.rendered && v.frames > before;
     }, LONG);
+  }
+  // Shows only surface `only` (the legend's boxes; -1 = all) and waits for the frame.
+  async function showOnly(page, only) {
+    const n = (await viewOf(page)).surfaces.length;
+    await afterFrame(page, async () => {
+      for (let i = 0; i < n; i++) {
+        await page.setChecked(`#legend label.surface[data-surface="${i}"] input`, only < 0 || i === only);
+      }
+    }, 'the page to draw the surfaces asked for');
   }
   // Each surface alone, in a canvas screenshot: its pixels' colour is its own `key` colour
   // (sealedColor or bandColor), nearer to it than to any other surface's.
@@ -272,18 +279,15 @@ await run(async () => {
   check(finalCoverage > 0.05, 'sealed: the final canvas shows the mesh', `${(100 * finalCoverage).toFixed(1)} % of the view`);
 
   // The clipping plane cuts the mesh (half of it gone), reset view brings back the framing.
-  await page.check('#clip');
-  await page.waitForTimeout(300);
+  await afterFrame(page, () => page.check('#clip'), 'the clipped frame');
   const clipped = coverage(await canvasShot(page, 'clipped.png'));
   await pageShot(page, 'page-clipped.png');
   check(clipped > 0.01 && clipped < 0.85 * finalCoverage, 'the clipping plane cuts the mesh',
         `${(100 * clipped).toFixed(1)} % of the view against ${(100 * finalCoverage).toFixed(1)} %`);
-  await page.uncheck('#clip');
+  await afterFrame(page, () => page.uncheck('#clip'), 'the unclipped frame');
   await page.mouse.move(700, 300);
-  await page.mouse.wheel(0, 2000);  // zoom out
-  await page.waitForTimeout(300);
-  await page.click('#reset');
-  await page.waitForTimeout(300);
+  await afterFrame(page, () => page.mouse.wheel(0, 2000), 'the zoomed-out frame');
+  await afterFrame(page, () => page.click('#reset'), 'the reset frame');
   const reset = coverage(await canvasShot(page, 'reset.png'));
   check(Math.abs(reset - finalCoverage) < 0.2 * finalCoverage, 'reset view frames the mesh again',
         `${(100 * reset).toFixed(1)} % of the view`);
