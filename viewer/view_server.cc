@@ -228,10 +228,10 @@ void Impl::Routes() {
       }
     }
     if (!bytes) {
-      NotFound(req, res, absl::StrCat("no chunk ", std::string(req.matches[1]), ": this session has ",
-                                      count, count == 1 ? " chunk" : " chunks",
-                                      count > 0 ? absl::StrCat(" (0 to ", count - 1, ")") : "",
-                                      " so far\n"));
+      NotFound(req, res,
+               absl::StrCat("no chunk ", std::string(req.matches[1]), ": this session has ", count,
+                            count == 1 ? " chunk" : " chunks",
+                            count > 0 ? absl::StrCat(" (0 to ", count - 1, ")") : "", " so far\n"));
       return;
     }
     res.set_header("Cache-Control", Immutable());
@@ -247,9 +247,9 @@ void Impl::Routes() {
       }
     }
     if (!bytes) {
-      NotFound(req, res, absl::StrCat("no band version ", std::string(req.matches[1]),
-                                      ": superseded or never made (state.json names the current "
-                                      "ones)\n"));
+      NotFound(req, res,
+               absl::StrCat("no band version ", std::string(req.matches[1]),
+                            ": superseded or never made (state.json names the current ones)\n"));
       return;
     }
     res.set_header("Cache-Control", Immutable());

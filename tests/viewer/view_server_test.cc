@@ -449,8 +449,8 @@ TEST(ViewServer, AMissingChunkIsA404NamingIt) {
       {"/chunk/1.drc", "no chunk 1: this session has 1 chunk (0 to 0) so far\n"},
       {"/chunk/99999999999999999999999999.drc",
        "no chunk 99999999999999999999999999: this session has 1 chunk (0 to 0) so far\n"},
-      {"/band/7.drc", "no band version 7: superseded or never made (state.json names the "
-                      "current ones)\n"},
+      {"/band/7.drc",
+       "no band version 7: superseded or never made (state.json names the current ones)\n"},
       {"/file/none.ply", "no such file here (state.json lists the files)\n"},
       {"/chunk/-1.drc", ""},  // no such address at all
       {"/chunk/x.drc", ""},
