@@ -254,6 +254,24 @@ await run(async () => {
   check(liveNormals.shared > 0 && liveNormals.spread < 1e-6 && liveNormals.error < 1e-3,
         'sealed: a vertex on a chunk border has one normal in all its chunks, mid-scan', JSON.stringify(liveNormals));
 
+  // A watcher joining mid-scan (tandem-client watch --view) draws the chunks so far while the
+  // scan is still held, its bar over the depth the session announces.
+  const session = (client.err.match(/session ([0-9a-f]{32})/) || [])[1];
+  const liveWatcher = start('tandem-client', ['watch', '--server', address, '--session', session,
+                                              '--out', path.join(work, 'watched.ply'),
+                                              '--view', '127.0.0.1:0', '--view-linger', String(LONG)]);
+  const liveWatchPage = await openPage(liveWatcher, 'watcher mid-scan');
+  const watchedLive = await waitFor('the watcher to draw the chunks so far', async () => {
+    const v = await viewOf(liveWatchPage);
+    return v && v.chunks >= early.chunks && v.rendered ? v : null;
+  }, LONG);
+  const watchedCoverage = coverage(await canvasShot(liveWatchPage, 'live-watcher.png'));
+  check(!watchedLive.finished && client.exitCode === null && watchedLive.sealed > 0 && watchedCoverage > 0.01 &&
+        watchedLive.progress.max === DEPTH && watchedLive.progress.value === inB,
+        'watch --view joining mid-scan draws the chunks so far, the bar over the depth',
+        `${describe(watchedLive)}, ${(100 * watchedCoverage).toFixed(1)} % of the view`);
+  await liveWatchPage.close();
+
   copySlices(staged, scanB, inB, DEPTH);
   const done = await waitFor('the end of the stream', async () => {
     const v = await viewOf(page);
@@ -294,7 +312,6 @@ await run(async () => {
 
   // A late viewer of the finished session (tandem-client view: the watch RPC) draws it all,
   // its bar over the depth the session announces.
-  const session = (client.err.match(/session ([0-9a-f]{32})/) || [])[1];
   // Its token from the environment: the page's own files need it too, and the browser
   // gets them through the cookie the printed address gives it.
   const watcher = start('tandem-client', ['view', '--server', address, '--session', session,
