@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -437,6 +438,28 @@ TEST(ViewServer, EventStreamsAreCappedAndTheRestIsStillServed) {
     if (status != 200) std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
   EXPECT_EQ(status, 200) << "a closed page's stream frees its place";
+}
+
+// What a browser offers (gzip, deflate, br) gets gzip, never Brotli, whose slowest quality
+// (cpp-httplib's) takes seconds on three.js at every fresh page load; Brotli alone gets the
+// file as it is.
+TEST(ViewServer, ThePagesFilesComeGzippedNeverBrotli) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  std::ifstream file(FindThree("") + "/build/three.core.js", std::ios::binary);
+  const std::string whole((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  ASSERT_GT(whole.size(), 100000u);
+  RawResponse offered = RawRequest(v.port, GetRequest(v.port, "/three/build/three.core.js",
+                                                      "Accept-Encoding: gzip, deflate, br\r\n"));
+  EXPECT_EQ(offered.status, 200);
+  EXPECT_EQ(offered.headers["content-encoding"], "gzip");
+  EXPECT_LT(offered.body.size(), whole.size() / 2);
+  for (const char* only_br : {"Accept-Encoding: br\r\n", "Accept-Encoding: BR;q=1.0\r\n"}) {
+    RawResponse br = RawRequest(v.port, GetRequest(v.port, "/three/build/three.core.js", only_br));
+    EXPECT_EQ(br.status, 200) << only_br;
+    EXPECT_EQ(br.headers.count("content-encoding"), 0u) << only_br;
+    EXPECT_TRUE(br.body == whole) << only_br << ": " << br.body.size() << " bytes";
+  }
 }
 
 // A chunk, band or file that does not exist: a 404 whose text names it and what there is
