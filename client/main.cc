@@ -18,6 +18,7 @@
 #include <fstream>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include <grpcpp/grpcpp.h>
@@ -177,22 +178,20 @@ absl::Status MakeOutputDir(const char* flag, const std::string& dir) {
   return absl::OkStatus();
 }
 
-// The chunk callback of stream and watch: a line with --verbose, DIR/chunk_<index>.drc with
-// --chunks (the first write error kept in *error).
-std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(const std::string& dir,
+// The chunk callback of stream and watch: a line with --verbose; with `store` (watch
+// --chunks; stream's are saved by StreamVolume) DIR/chunk_<index>.drc of session `session`,
+// the first write error kept in *error.
+std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::ChunkStore* store,
+                                                               const std::string& session,
                                                                const bool& verbose,
                                                                absl::Status* error) {
-  return [&dir, &verbose, error](const tandem::v1::SealedChunk& c) {
+  return [store, &session, &verbose, error](const tandem::v1::SealedChunk& c) {
     if (verbose) {
       absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
                     c.index(), c.first_slice(), c.last_slice(), c.triangles(), c.vertices(),
                     c.draco().size());
     }
-    if (!dir.empty() && error->ok()) {
-      *error = WriteFile(
-          (std::filesystem::path(dir) / absl::StrFormat("chunk_%06d.drc", c.index())).string(),
-          c.draco());
-    }
+    if (store != nullptr && error->ok()) *error = store->Save(session, c);
   };
 }
 
@@ -330,12 +329,16 @@ int StreamCommand(int argc, char** argv) {
   flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice, 6 digits>.drc");
   flags.AddString("chunks", &chunks_dir, "DIR",
                   "--seal (implied): also save every sealed chunk as it arrives, "
-                  "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute)");
+                  "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute), "
+                  "listed in DIR/chunks.tsv; the server keeps each chunk until it is saved, and "
+                  "--resume with the same DIR asks only for those not saved");
   flags.AddSecret("resume", &resume, "ID:TOKEN", "TANDEM_RESUME",
                   "continue the session ID, whose client was stopped or lost its connection "
                   "(the server keeps it for --resume-window-seconds): the same VOLUME is read "
                   "from its start and the slices the session has are skipped; ID:TOKEN is what "
-                  "the first client printed (a client resumes by itself while it runs)");
+                  "the first client printed (a client resumes by itself while it runs); a sealed "
+                  "session needs the first run's --chunks DIR, unless it is small (tandem-server "
+                  "--watch-retain-mb)");
   tandem::client::LiveView view;
   view.AddFlags(flags);
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
@@ -445,7 +448,10 @@ int StreamCommand(int argc, char** argv) {
   }
 
   tandem::ValueRangeSource range(source->get());  // for the iso-outside-the-data warning
+  std::optional<tandem::client::ChunkStore> chunk_store;
+  if (!chunks_dir.empty()) chunk_store.emplace(chunks_dir);
   tandem::client::StreamOptions options;
+  options.chunk_store = chunk_store ? &*chunk_store : nullptr;
   options.connection = connection.options;
   options.connection.keepalive_time_ms = keepalive_ms;
   options.rate = rate;
@@ -487,18 +493,24 @@ int StreamCommand(int argc, char** argv) {
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
     if (f.quiet) {
       // no notes
-    } else if (!p.session_id().empty() && !p.resume_token().empty()) {  // the session's first
-      // The variable, not --resume: a command line is readable by every user.
-      absl::FPrintF(stderr,
-                    "tandem-client: session %s%s; to resume it after a crash, run the same "
-                    "command with TANDEM_RESUME=%s:%s in its environment\n",
-                    p.session_id(),
-                    seal ? absl::StrCat(" (tandem-client watch --session ", p.session_id(), ")")
-                         : "",
-                    p.session_id(), p.resume_token());
-    } else if (!p.session_id().empty()) {
-      absl::FPrintF(stderr, "tandem-client: session %s resumed at slice %d\n", p.session_id(),
-                    p.slices_consumed());
+    } else if (!p.session_id().empty()) {  // a stream's first
+      // The variables, not --resume or --watch-key: a command line is readable by every user.
+      if (!p.resume_token().empty()) {  // the session's first
+        absl::FPrintF(stderr,
+                      "tandem-client: session %s; to resume it after a crash, run the same "
+                      "command with TANDEM_RESUME=%s:%s in its environment\n",
+                      p.session_id(), p.session_id(), p.resume_token());
+      } else {
+        absl::FPrintF(stderr, "tandem-client: session %s resumed at slice %d\n", p.session_id(),
+                      p.slices_consumed());
+      }
+      if (!p.watch_key().empty()) {  // the session is private to it (and to the token)
+        absl::FPrintF(stderr, "tandem-client: %s: TANDEM_WATCH_KEY=%s tandem-client %s\n",
+                      seal ? "to let others watch it, give them its watch key"
+                           : "its watch key shows it in info",
+                      p.watch_key(),
+                      seal ? absl::StrCat("watch --session ", p.session_id()) : "info");
+      }
     }
     if (verbose) {
       absl::FPrintF(stderr, "progress slices=%d triangles=%d peak=%d sent=%d\n",
@@ -545,7 +557,14 @@ int StreamCommand(int argc, char** argv) {
                                 p.draco());
     }
   };
-  callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &partial_error);
+  callbacks.on_chunk = ChunkSaver(nullptr, "", verbose, &partial_error);
+  callbacks.on_chunks_kept = [&](int64_t kept) {
+    if (!f.quiet) {
+      absl::FPrintF(stderr,
+                    "tandem-client: %d sealed chunks kept in %s; the server sends the rest\n",
+                    kept, chunks_dir);
+    }
+  };
   if (absl::Status st = view.Start(c.description(), nz); !st.ok()) return Fail(st);
   std::vector<std::string> iso_texts;
   for (const tandem::cli::IsoValue& v : *isos) iso_texts.push_back(v.text);
@@ -607,11 +626,16 @@ void SetDeadline(grpc::ClientContext* context, double seconds) {
 int InfoCommand(int argc, char** argv) {
   ConnectionFlags connection;
   double timeout_s = 10;
-  FlagSet flags("usage: tandem-client info [--server HOST:PORT] [flags]\n"
-                "Prints the server's version, security, limits, supported dtypes and live "
-                "counters.");
+  std::string watch_key;
+  FlagSet flags(
+      "usage: tandem-client info [--server HOST:PORT] [flags]\n"
+      "Prints the server's version, security, limits, supported dtypes and live "
+      "counters, and the sessions this call may see: those created with its bearer "
+      "token, and the one of --watch-key.");
   connection.Add(flags, /*token=*/true);
   flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
+  flags.AddSecret("watch-key", &watch_key, "KEY", "TANDEM_WATCH_KEY",
+                  "also list the session of this watch key (its streaming client prints it)");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
   absl::StatusOr<std::shared_ptr<grpc::Channel>> channel =
       tandem::client::MakeChannel(connection.options);
@@ -621,7 +645,9 @@ int InfoCommand(int argc, char** argv) {
   SetDeadline(&context, timeout_s);
   tandem::client::AddToken(connection.options, &context);
   tandem::v1::InfoResponse info;
-  grpc::Status st = stub->GetInfo(&context, tandem::v1::InfoRequest(), &info);
+  tandem::v1::InfoRequest request;
+  if (!watch_key.empty()) request.add_watch_keys(watch_key);
+  grpc::Status st = stub->GetInfo(&context, request, &info);
   if (!st.ok()) return connection.Fail(tandem::wire::FromGrpcStatus(st));
   std::string dtypes, schedules;
   for (int d : info.dtypes()) {
@@ -666,7 +692,12 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("session bytes          %d\n", c.session_bytes());
   absl::PrintF("buffered bytes         %d\n", c.buffered_bytes());
   absl::PrintF("draining sessions      %d\n", c.sessions_draining());
+  absl::PrintF("waiting for a resume   %d\n", c.sessions_waiting_for_resume());
   absl::PrintF("unauthenticated calls  %d\n", c.unauthenticated_calls());
+  absl::PrintF(
+      "sessions listed        %d (others' ids and descriptions are private: the bearer "
+      "token that created a session, or its --watch-key, lists it)\n",
+      info.sessions_size());
   for (const tandem::v1::SessionSummary& session : info.sessions()) {
     absl::PrintF("session                %s  %s, %d slices, %s%s, %.0f s\n", session.id(),
                  session.finished()             ? "finished"
@@ -684,7 +715,7 @@ int InfoCommand(int argc, char** argv) {
 // --out optional).
 int WatchCommand(int argc, char** argv, bool view_command) {
   ConnectionFlags connection;
-  std::string session, out, metrics_path, chunks_dir;
+  std::string session, watch_key, out, metrics_path, chunks_dir;
   double timeout_s = 0;
   int64_t bits = 16, level = 7;
   bool verbose = false, quiet = false, glb_draco = false;
@@ -692,18 +723,26 @@ int WatchCommand(int argc, char** argv, bool view_command) {
       view_command
           ? "usage: tandem-client view --session ID [--listen HOST:PORT] [--out MESH] [flags]\n"
             "Shows a session another client is streaming with sealed chunks live in a browser\n"
-            "(tandem-client stream --seal prints its id; tandem-client info lists them): serves\n"
+            "(tandem-client stream --seal prints its id and watch key; give the key with\n"
+            "--watch-key-file FILE or $TANDEM_WATCH_KEY): serves\n"
             "the viewer page on --listen (or --view; default 127.0.0.1:8080) and prints its\n"
             "address; the page draws every chunk so far, then the live ones and the band not\n"
             "sealed yet, then the final metrics. The same as tandem-client watch --view."
           : "usage: tandem-client watch --session ID --out MESH [flags]\n"
-            "Follows a session another client is streaming with sealed chunks (tandem-client stream\n"
-            "--seal prints its id; tandem-client info lists them): every chunk so far, then the\n"
-            "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, .stl,\n"
+            "Follows a session another client is streaming with sealed chunks (tandem-client "
+            "stream\n"
+            "--seal prints its id and watch key; give the key with --watch-key-file FILE or\n"
+            "$TANDEM_WATCH_KEY; a session is private to those who have it, and to the bearer\n"
+            "token that created it): every chunk so far, then the\n"
+            "live ones, then its final metrics. Saves the mesh (the chunks welded: .ply, .obj, "
+            ".stl,\n"
             ".glb, or .drc re-encoded) and prints the metrics. A finished session stays watchable\n"
             "for tandem-server --watch-linger-seconds.");
   connection.Add(flags, /*token=*/true);
   flags.AddString("session", &session, "ID", "the session to watch", /*required=*/true);
+  flags.AddSecret("watch-key", &watch_key, "KEY", "TANDEM_WATCH_KEY",
+                  "the session's watch key, which its streaming client prints (not needed with "
+                  "the bearer token that created the session)");
   flags.AddString("out", &out, "MESH",
                   view_command ? "also save the final mesh: .drc, .ply, .obj, .stl or .glb"
                                : "final mesh: .drc, .ply, .obj, .stl or .glb",
@@ -736,8 +775,11 @@ int WatchCommand(int argc, char** argv, bool view_command) {
     if (absl::Status st = MakeOutputDir("--chunks", chunks_dir); !st.ok()) return Fail(st);
   }
   absl::Status chunk_error;
+  std::optional<tandem::client::ChunkStore> chunk_store;
+  if (!chunks_dir.empty()) chunk_store.emplace(chunks_dir);
   tandem::client::StreamCallbacks callbacks;
-  callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &chunk_error);
+  callbacks.on_chunk =
+      ChunkSaver(chunk_store ? &*chunk_store : nullptr, session, verbose, &chunk_error);
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t) {
     if (verbose) {
       absl::FPrintF(stderr, "progress slices=%d triangles=%d sealed=%d\n", p.slices_consumed(),
@@ -753,7 +795,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   if (absl::Status st = view.Start(absl::StrCat("session ", session), 0); !st.ok()) return Fail(st);
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
-      tandem::client::WatchSession(connection.options, session, timeout_s, callbacks);
+      tandem::client::WatchSession(connection.options, session, watch_key, timeout_s, callbacks);
   if (!result.ok()) {
     const int rc = connection.Fail(result.status());
     view.Finish(result);

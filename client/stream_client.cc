@@ -206,6 +206,12 @@ class Sender {
     absl::MutexLock lock(&mu_);
     accepted_ = true;
   }
+  // The client keeps sealed chunks 0 .. count-1: a ChunksReceived goes out before the next
+  // slice (or at once, while paced), until End.
+  void Acknowledge(int64_t count) {
+    absl::MutexLock lock(&mu_);
+    ack_wanted_ = std::max(ack_wanted_, count);
+  }
   int64_t slices_sent() const {
     absl::MutexLock lock(&mu_);
     return slices_sent_;
@@ -215,6 +221,9 @@ class Sender {
   // The next slice from the source: *data points into `bytes` or into a mapped file;
   // OutOfRange at the end of the volume.
   absl::Status FromSource(std::vector<uint8_t>* bytes, const uint8_t** data, size_t* size);
+  // Writes a ChunksReceived if one is due; false when the stream is broken.
+  bool SendAcknowledgement();
+  bool AckDueLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return ack_wanted_ > ack_sent_; }
 
   SliceSource& source_;
   const StreamOptions& options_;
@@ -225,7 +234,20 @@ class Sender {
   bool stop_ ABSL_GUARDED_BY(mu_) = false;
   bool accepted_ ABSL_GUARDED_BY(mu_) = false;
   int64_t slices_sent_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t ack_wanted_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t ack_sent_ ABSL_GUARDED_BY(mu_) = 0;
 };
+
+bool Sender::SendAcknowledgement() {
+  v1::ExtractRequest ack;
+  {
+    absl::MutexLock lock(&mu_);
+    if (!AckDueLocked()) return true;
+    ack_sent_ = ack_wanted_;
+    ack.mutable_chunks_received()->set_count(ack_sent_);
+  }
+  return stream_->Write(ack);
+}
 
 absl::Status Sender::FromSource(std::vector<uint8_t>* bytes, const uint8_t** data,
                                 size_t* size) {
@@ -272,16 +294,27 @@ absl::Status Sender::Run() {
     if (absl::IsOutOfRange(st)) break;
     if (!st.ok()) return st;
     if (options_.rate > 0) {
-      // Pace like a scanner: slice z leaves at start + (z - first) / rate.
+      // Pace like a scanner: slice z leaves at start + (z - first) / rate. Acknowledgements
+      // go out meanwhile.
       const absl::Time due =
           start + absl::Seconds(static_cast<double>(z - first_slice_) / options_.rate);
-      absl::MutexLock lock(&mu_);
-      mu_.AwaitWithDeadline(absl::Condition(&stop_), due);
+      auto stop_or_ack = [this]()
+                             ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return stop_ || AckDueLocked(); };
+      while (true) {
+        {
+          absl::MutexLock lock(&mu_);
+          mu_.AwaitWithDeadline(absl::Condition(&stop_or_ack), due);
+          if (stop_) return absl::OkStatus();
+        }
+        if (!SendAcknowledgement()) return absl::OkStatus();
+        if (absl::Now() >= due) break;
+      }
     }
     {
       absl::MutexLock lock(&mu_);
       if (stop_) return absl::OkStatus();
     }
+    if (!SendAcknowledgement()) return absl::OkStatus();
     for (size_t offset = 0; offset < size; offset += options_.chunk_bytes) {
       request.Clear();
       v1::SliceChunk* chunk = request.mutable_chunk();
@@ -297,10 +330,17 @@ absl::Status Sender::Run() {
     absl::MutexLock lock(&mu_);
     slices_sent_ = z + 1;
   }
+  if (!SendAcknowledgement()) return absl::OkStatus();
   request.Clear();
   request.mutable_end()->set_slices(z);
   if (stream_->Write(request)) stream_->WritesDone();
   return absl::OkStatus();
+}
+
+// A local failure (not the server's): `what` says which part of the client failed.
+absl::Status Local(absl::Status status, const char* what) {
+  status.SetPayload(kLocalPayload, absl::Cord(what));
+  return status;
 }
 
 // What StreamVolume carries from one attempt to the next.
@@ -345,6 +385,8 @@ absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t 
   });
 
   v1::ExtractResponse response;
+  bool acks = false;  // the server takes ChunksReceived on this stream
+  absl::Status save_status;
   while (stream->Read(&response)) {
     if (!attempt->answered) {
       attempt->answered = true;
@@ -355,8 +397,18 @@ absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t 
       if (!p.session_id().empty()) {
         resumption.id = result.session_id = p.session_id();
         if (!p.resume_token().empty()) resumption.token = p.resume_token();
+        acks = p.chunk_acks();
       }
       resumption.consumed = std::max(resumption.consumed, p.slices_consumed());
+    }
+    if (response.has_sealed_chunk() && opts.chunk_store != nullptr) {
+      // Kept before the callbacks see it, and acknowledged once kept.
+      save_status = opts.chunk_store->Save(resumption.id, response.sealed_chunk());
+      if (!save_status.ok()) {
+        context.TryCancel();
+        break;
+      }
+      if (acks) sender.Acknowledge(opts.chunk_store->saved());
     }
     collector.Handle(response, sender.slices_sent());
   }
@@ -364,11 +416,8 @@ absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t 
   send_thread.join();
   const grpc::Status status = stream->Finish();
   result.slices_sent = std::max(result.slices_sent, sender.slices_sent());
-  if (!send_status.ok()) {
-    absl::Status local = send_status;
-    local.SetPayload(kLocalPayload, absl::Cord("reading the volume"));
-    return local;
-  }
+  if (!send_status.ok()) return Local(send_status, "reading the volume");
+  if (!save_status.ok()) return Local(save_status, "saving the sealed chunks");
   if (!status.ok()) {
     // Retryable: nothing came back, and the server did not mark the refusal as final
     // (it does, with grpc-retry-pushback-ms: -1, for its limits: the same scan would fail
@@ -428,6 +477,7 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
     }
   }
 
+  if (opts.chunk_store != nullptr && c.sealed_chunks()) c.set_chunk_acks(true);
   if (opts.connection.max_receive_bytes == 0) {
     opts.connection.max_receive_bytes = wire::kClientMaxReceiveBytes;
   }
@@ -441,6 +491,17 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   Collector collector(callbacks, &result, opts.config.sealed_chunks(),
                       1 + static_cast<size_t>(opts.config.extra_isos_size()));
   Resumption resumption{opts.resume_session_id, opts.resume_token, 0};
+  if (opts.chunk_store != nullptr && !resumption.id.empty()) {
+    // A restarted client holds the chunks it kept: the server sends the others.
+    absl::StatusOr<std::vector<v1::SealedChunk>> kept = opts.chunk_store->Load(resumption.id);
+    if (!kept.ok()) return Local(kept.status(), "reading the sealed chunks kept");
+    if (callbacks.on_chunks_kept) callbacks.on_chunks_kept(static_cast<int64_t>(kept->size()));
+    v1::ExtractResponse r;
+    for (v1::SealedChunk& chunk : *kept) {
+      *r.mutable_sealed_chunk() = std::move(chunk);
+      collector.Handle(r, 0);
+    }
+  }
   absl::Status broke;  // the drop being resumed, if any
   int64_t first_slice = 0;
   absl::BitGen jitter;
@@ -471,6 +532,16 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
     if (a.answered) attempt = 0;  // it got through: the budget is for this drop
     const bool resuming = !resumption.token.empty();
     if (!broke.ok() && !resuming) return st;
+    const bool round_robin = opts.connection.lb_policy == "round_robin";
+    if (resuming && !a.answered && absl::IsNotFound(st) &&
+        (!round_robin || attempt >= opts.connection.retries)) {
+      // Sessions live in the server's memory: no replica has this one (any more).
+      return absl::NotFoundError(absl::StrCat(
+          broke.ok() ? "" : absl::StrCat("the stream broke (", broke.ToString(), ") and "),
+          "the server no longer has session ", resumption.id,
+          " (it restarted or the session expired); send the scan again",
+          opts.resume_session_id.empty() ? "" : " without --resume"));
+    }
     // What to do next, and after how long.
     double backoff = std::min(5.0, 0.5 * std::pow(2.0, attempt)) * absl::Uniform(jitter, 0.8, 1.2);
     if (resuming && a.expected_slice >= 0 && a.expected_slice != first_slice) {
@@ -480,8 +551,7 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
     } else if (resuming && a.answered && absl::IsUnavailable(st)) {
       broke = st;  // the connection broke mid-stream: resume where the server is
       first_slice = resumption.consumed;
-    } else if (resuming && !a.answered && absl::IsNotFound(st) &&
-               opts.connection.lb_policy == "round_robin") {
+    } else if (resuming && !a.answered && absl::IsNotFound(st) && round_robin) {
       // Another replica took the resume: the next stream goes to the next one. A short pause,
       // so that a replica still connecting is among those the balancer picks from.
       backoff = 0.1;
@@ -503,7 +573,8 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
 }
 
 absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
-                                          const std::string& session_id, double timeout_s,
+                                          const std::string& session_id,
+                                          const std::string& watch_key, double timeout_s,
                                           const StreamCallbacks& callbacks) {
   ConnectionOptions options = connection;
   if (options.max_receive_bytes == 0) options.max_receive_bytes = wire::kClientMaxReceiveBytes;
@@ -519,6 +590,7 @@ absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
   const absl::Time start = absl::Now();
   v1::WatchRequest request;
   request.set_session_id(session_id);
+  request.set_watch_key(watch_key);
   std::unique_ptr<grpc::ClientReader<v1::ExtractResponse>> reader = stub->Watch(&context, request);
   StreamResult result;
   Collector collector(callbacks, &result, /*sealed=*/true, /*surfaces=*/0);

@@ -12,6 +12,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "client/chunk_store.h"
 #include "client/connection.h"
 #include "tandem/mesh.h"
 #include "tandem/v1/tandem.pb.h"
@@ -29,6 +30,11 @@ struct StreamOptions {
   // its id and token (the first Progress of the stream that started it). The source is
   // read from its start; the slices the session already consumed are skipped.
   std::string resume_session_id, resume_token;
+  // Sealed chunks are saved here as they arrive (before the callbacks see them) and
+  // acknowledged to the server (SessionConfig.chunk_acks), which then keeps every chunk not
+  // saved yet until the session ends; a resume starts from the chunks already in it (they go
+  // through the callbacks and into the result first). Null: none kept.
+  ChunkStore* chunk_store = nullptr;
   // Puts the source back at its first slice (opens the volume again), for a resume that
   // needs slices the source has passed (sent before the connection broke, not consumed).
   // Unset: such a resume fails.
@@ -47,6 +53,9 @@ struct StreamCallbacks {
   // `seconds` (attempt 1.. since the last one that got through).
   std::function<void(const absl::Status& cause, int64_t slice, int attempt, double seconds)>
       on_resume;
+  // A resume with StreamOptions::chunk_store: how many chunks it holds already (they come
+  // through on_chunk next).
+  std::function<void(int64_t kept)> on_chunks_kept;
 };
 
 // One surface's final mesh and metrics.
@@ -77,8 +86,8 @@ struct StreamResult : SurfaceResult {
   }
 };
 
-// Whether a failed StreamVolume's status is a local one (reading the volume), not the
-// server's: it carries a payload that says so.
+// Whether a failed StreamVolume's status is a local one (reading the volume, saving the
+// chunks), not the server's: it carries a payload that says so.
 bool IsLocalError(const absl::Status& status);
 
 // Runs one Extract stream. The client sends the config, then waits for the server's first
@@ -91,15 +100,19 @@ bool IsLocalError(const absl::Status& status);
 // Once the session has started, a stream that breaks (UNAVAILABLE: connection lost, server
 // restarting) is resumed (tandem.proto: Resume) with the same backoff and budget, from the
 // first slice the server has not consumed, read again through options.rewind (the client
-// holds no copy of what it sent).
+// holds no copy of what it sent). A resume the server answers with NOT_FOUND (it restarted,
+// or the session's window is over) fails with NOT_FOUND "the server no longer has session
+// ID ...; send the scan again".
 absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptions& options,
                                           const StreamCallbacks& callbacks);
 
-// Watches another stream's session (tandem.proto: Watch) by its id: its sealed chunks, from
-// the first, then its progress, previews and final metrics, as StreamVolume collects them
-// (slices_sent = the session's slices).
+// Watches another stream's session (tandem.proto: Watch) by its id and watch key (or, with
+// a bearer token, as its creator): its sealed chunks, from the first, then its progress,
+// previews and final metrics, as StreamVolume collects them (slices_sent = the session's
+// slices).
 absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
-                                          const std::string& session_id, double timeout_s,
+                                          const std::string& session_id,
+                                          const std::string& watch_key, double timeout_s,
                                           const StreamCallbacks& callbacks);
 
 }  // namespace tandem::client

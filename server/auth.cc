@@ -19,7 +19,9 @@ constexpr absl::Duration kLogWindow = absl::Seconds(10);
 
 }  // namespace
 
-grpc::Status TokenAuthenticator::Check(const grpc::ServerContextBase& context, const char* method) {
+grpc::Status TokenAuthenticator::Check(const grpc::ServerContextBase& context, const char* method,
+                                       int* identity) {
+  if (identity != nullptr) *identity = kNoIdentity;
   if (!enabled()) return grpc::Status::OK;
   const auto& metadata = context.client_metadata();
   std::string reason;
@@ -39,11 +41,17 @@ grpc::Status TokenAuthenticator::Check(const grpc::ServerContextBase& context, c
       std::string_view token = value.substr(kScheme.size());
       while (!token.empty() && token.front() == ' ') token.remove_prefix(1);
       while (!token.empty() && token.back() == ' ') token.remove_suffix(1);
-      bool match = false;
+      int match = kNoIdentity;
       if (token.size() <= auth::kMaxTokenBytes) {
-        for (const std::string& t : tokens_) match |= auth::ConstantTimeEquals(t, token);
+        // Every token compared (no early exit); the first equal one names the caller.
+        for (size_t i = tokens_.size(); i-- > 0;) {
+          if (auth::ConstantTimeEquals(tokens_[i], token)) match = static_cast<int>(i);
+        }
       }
-      if (match) return grpc::Status::OK;
+      if (match != kNoIdentity) {
+        if (identity != nullptr) *identity = match;
+        return grpc::Status::OK;
+      }
       reason = "unknown bearer token";
     }
   }

@@ -37,8 +37,12 @@ class TokenAuthenticator {
 
   bool enabled() const { return !tokens_.empty(); }
   // OK, or UNAUTHENTICATED saying what is wrong (no metadata, not "Bearer", unknown token).
-  // `method` and the peer are only for the log line.
-  grpc::Status Check(const grpc::ServerContextBase& context, const char* method);
+  // `method` and the peer are only for the log line. *identity (when given): on OK, which
+  // configured token the call presented (its first line in the file among equal ones), or
+  // kNoIdentity when authentication is off; a session is readable by calls of its creator's.
+  static constexpr int kNoIdentity = -1;
+  grpc::Status Check(const grpc::ServerContextBase& context, const char* method,
+                     int* identity = nullptr);
   int64_t refused() const { return refused_.load(); }
 
  private:

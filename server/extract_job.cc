@@ -145,6 +145,7 @@ const char* KindName(const v1::ExtractRequest& r) {
     case v1::ExtractRequest::kConfig: return "a SessionConfig";
     case v1::ExtractRequest::kChunk: return "a SliceChunk";
     case v1::ExtractRequest::kEnd: return "an End";
+    case v1::ExtractRequest::kChunksReceived: return "a ChunksReceived";
     default: return "an empty ExtractRequest";
   }
 }

@@ -131,7 +131,8 @@ int main(int argc, char** argv) {
                   "bytes (0 = no bound)");
   flags.AddInt("watch-retain-mb", &watch_retain_mb,
                "per session: sealed chunks kept (compressed) for watchers that come late; a "
-               "session past it takes no new watcher");
+               "session past it takes no new watcher (chunks a tandem-client stream --chunks DIR "
+               "has not saved yet are kept for its resume besides, in the session's budget)");
   flags.AddDouble("watch-linger-seconds", &limits.watch_linger_s,
                   "how long a finished session stays watchable (tandem-client watch)");
   flags.AddDouble("resume-window-seconds", &limits.resume_window_s,

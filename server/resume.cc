@@ -11,7 +11,7 @@
 
 namespace tandem::server {
 
-std::string NewResumeToken() {
+std::string NewSecret() {
   std::array<unsigned char, 16> bytes{};
   if (RAND_bytes(bytes.data(), static_cast<int>(bytes.size())) != 1) {
     std::random_device device;  // (reads the kernel's generator too)
@@ -118,6 +118,7 @@ absl::StatusOr<ParkedSession> ResumeTable::Adopt(const std::string& id, const st
       !st.ok()) {
     return st;
   }
+  (void)p.feed->Acknowledge(chunks_received);  // (within the chunks posted: checked above)
   ParkedSession out = std::move(p);
   parked_.erase(it);
   out.feed->SetWaiting(false);

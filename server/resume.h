@@ -26,8 +26,8 @@
 
 namespace tandem::server {
 
-// A random secret of 128 bits in hex (OpenSSL's RAND_bytes).
-std::string NewResumeToken();
+// A random secret of 128 bits in hex (OpenSSL's RAND_bytes): resume tokens, watch keys.
+std::string NewSecret();
 
 struct ParkedSession {
   std::unique_ptr<ExtractJob> job;  // detached (ExtractJob::Detach)
@@ -59,7 +59,8 @@ class ResumeTable {
   // caller ends it).
   std::optional<ParkedSession> ParkAndWait(ParkedSession parked);
   // Takes the parked session `id` for a new stream that sends `next_slice` first and holds
-  // the session's first `chunks_received` sealed chunks (*replay: the ones after them).
+  // the session's first `chunks_received` sealed chunks (*replay: the ones after them;
+  // those it holds count as acknowledged, SessionFeed::Acknowledge).
   // Errors (the session stays parked): NOT_FOUND (none parked under this id),
   // PERMISSION_DENIED (token), FAILED_PRECONDITION (the next slice, and *expected_slice is
   // set to the one it needs; or chunks no longer kept).

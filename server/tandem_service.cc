@@ -53,9 +53,10 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   ~ExtractCall() override;
 
   // Accepts the stream (first read + worker thread) or finishes it at once when every
-  // session slot is taken. Returns the reactor gRPC drives.
+  // session slot is taken. `identity`: the caller's bearer token (TokenAuthenticator), which
+  // may read the session it creates. Returns the reactor gRPC drives.
   static ExtractCall* Start(std::shared_ptr<ServiceState> state,
-                            grpc::CallbackServerContext* context);
+                            grpc::CallbackServerContext* context, int identity);
 
   void OnReadDone(bool ok) override;
   void OnWriteDone(bool ok) override;
@@ -73,10 +74,16 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   // The worker: takes messages to the job until the stream ends. Returns the job when the
   // client vanished mid-scan and the session may be resumed (server/resume.h).
   std::optional<ParkedSession> RunWorker();
-  // The first message carried SessionConfig.resume: adopts the parked session into *job.
-  absl::Status Resume(const v1::Resume& resume, std::unique_ptr<ExtractJob>* job);
+  // The first message carried SessionConfig.resume: adopts the parked session into *job
+  // (`acks`: the config asks for SessionConfig.chunk_acks).
+  absl::Status Resume(const v1::Resume& resume, bool acks, std::unique_ptr<ExtractJob>* job);
   // Queues a sealed chunk for this stream only (PostChunk also publishes it to the feed).
   void QueueChunk(v1::SealedChunk chunk);
+  // SessionConfig.chunk_acks: the feed keeps what the client has not acknowledged, and this
+  // stream takes ChunksReceived.
+  void TakeAcknowledgements(const std::shared_ptr<MemoryBudget>& budget);
+  // A ChunksReceived message (OnReadDone).
+  void AcknowledgeLocked(int64_t count) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   // After the job: waits until Finish has been called (every response written, or
   // dropped after an error) or the call is cancelled; cancels a call whose client stopped
   // reading for limits.idle_timeout_s.
@@ -160,6 +167,9 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
   // Set by Start before any other thread sees the call; replaced by the worker when it
   // resumes a session (only the worker and the destructor use it).
   std::shared_ptr<SessionFeed> feed_;
+  // feed_, once the session keeps what its client has not acknowledged: the reactor passes
+  // ChunksReceived to it.
+  std::shared_ptr<SessionFeed> acks_feed_ ABSL_GUARDED_BY(mu_);
   std::string resume_token_;  // the session's (same ownership as feed_)
   bool resumed_ = false;      // the worker adopted a parked session
   bool id_sent_ ABSL_GUARDED_BY(mu_) = false;
@@ -170,6 +180,8 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
 };
 
 // A parked session's wait (on its old worker thread), and its end when nobody resumed it.
+// Its memory (counted in session_bytes meanwhile) includes the chunks its client has not
+// acknowledged.
 void HoldParked(ServiceState& state, ParkedSession parked) {
   const std::string id = parked.feed->id();
   const int64_t bytes = parked.memory_bytes;
@@ -187,7 +199,7 @@ void HoldParked(ServiceState& state, ParkedSession parked) {
 }
 
 ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
-                                grpc::CallbackServerContext* context) {
+                                grpc::CallbackServerContext* context, int identity) {
   auto call = std::make_shared<ExtractCall>(state, context);
   call->self_ = call;
   const int64_t max = state->limits.max_sessions;
@@ -201,8 +213,8 @@ ExtractCall* ExtractCall::Start(std::shared_ptr<ServiceState> state,
   }
   call->accepted_ = true;
   state->active_sessions.fetch_add(1);
-  call->feed_ = state->feeds.Create();
-  call->resume_token_ = NewResumeToken();
+  call->feed_ = state->feeds.Create(NewSecret(), identity);
+  call->resume_token_ = NewSecret();
   state->AddStream(call.get(), call);
   state->sessions_started.fetch_add(1);
   {
@@ -297,10 +309,11 @@ void ExtractCall::OnReadDone(bool ok) {
   bytes_received_ += bytes;
   state_->bytes_received_total.fetch_add(bytes);
   if (end_received_) {  // End must be the last message; replaces an OK not yet sent
-    const std::string kind = read_buf_.has_chunk()    ? "a SliceChunk"
-                             : read_buf_.has_config() ? "a SessionConfig"
-                             : read_buf_.has_end()    ? "a second End"
-                                                      : "an empty message";
+    const std::string kind = read_buf_.has_chunk()             ? "a SliceChunk"
+                             : read_buf_.has_config()          ? "a SessionConfig"
+                             : read_buf_.has_end()             ? "a second End"
+                             : read_buf_.has_chunks_received() ? "a ChunksReceived"
+                                                               : "an empty message";
     read_buf_.Clear();
     EndStreamLocked(grpc::Status(
         grpc::StatusCode::INVALID_ARGUMENT,
@@ -313,12 +326,37 @@ void ExtractCall::OnReadDone(bool ok) {
     read_buf_.Clear();
     return;
   }
+  if (read_buf_.has_chunks_received()) {  // for the feed, not the job: taken here at once
+    const int64_t count = read_buf_.chunks_received().count();
+    read_buf_.Clear();
+    AcknowledgeLocked(count);
+    MaybeStartReadLocked();
+    SyncBufferedLocked();
+    return;
+  }
   end_received_ = read_buf_.has_end();
   inbox_.push_back(Received{std::move(read_buf_), bytes});
   inbox_bytes_ += bytes;
   read_buf_.Clear();
   MaybeStartReadLocked();
   SyncBufferedLocked();
+}
+
+void ExtractCall::AcknowledgeLocked(int64_t count) {
+  absl::Status st =
+      acks_feed_ == nullptr
+          ? absl::InvalidArgumentError(
+                "got a ChunksReceived on a stream that does not take them: send them only "
+                "after a first Progress that says chunk_acks (SessionConfig.chunk_acks with "
+                "sealed_chunks)")
+          : acks_feed_->Acknowledge(count);
+  if (!st.ok()) EndStreamLocked(wire::ToGrpcStatus(st));
+}
+
+void ExtractCall::TakeAcknowledgements(const std::shared_ptr<MemoryBudget>& budget) {
+  feed_->KeepUnacknowledged(budget);
+  absl::MutexLock lock(&mu_);
+  acks_feed_ = feed_;
 }
 
 void ExtractCall::OnWriteDone(bool ok) {
@@ -464,6 +502,8 @@ void ExtractCall::PostProgress(v1::Progress progress) {
   if (!id_sent_) {  // the first Progress names the session (and gives its creator the token)
     progress.set_session_id(feed_->id());
     if (!resumed_) progress.set_resume_token(resume_token_);
+    progress.set_watch_key(feed_->watch_key());  // (the resume token is more)
+    progress.set_chunk_acks(acks_feed_ != nullptr);
     id_sent_ = true;
   }
   progress_bytes_ = static_cast<int64_t>(progress.ByteSizeLong());
@@ -509,6 +549,24 @@ void ExtractCall::PostFinal(std::vector<Response> messages) {
 void ExtractCall::PostChunk(v1::SealedChunk chunk) {
   feed_->Chunk(chunk);
   QueueChunk(std::move(chunk));
+  const int64_t unacknowledged = feed_->unacknowledged_bytes();
+  absl::MutexLock lock(&mu_);
+  if (unacknowledged == 0 || job_budget_ == nullptr || job_budget_->limit() <= 0 ||
+      job_budget_->held() <= job_budget_->limit()) {
+    return;
+  }
+  constexpr double kMiB = 1 << 20;
+  EndStreamLocked(grpc::Status(
+      grpc::StatusCode::RESOURCE_EXHAUSTED,
+      absl::StrFormat("session memory budget exceeded: %.1f MiB of sealed chunks the client has "
+                      "not acknowledged (ChunksReceived) take the session to %.1f MiB, over this "
+                      "server's per-session budget of %.1f MiB (tandem-server "
+                      "--session-memory-mb); a client that asks for SessionConfig.chunk_acks "
+                      "must acknowledge the chunks it keeps",
+                      unacknowledged / kMiB, job_budget_->held() / kMiB,
+                      job_budget_->limit() / kMiB)));
+  SyncBufferedLocked();
+  job_budget_->Cancel();  // the session's steps stop: the stream has failed
 }
 
 void ExtractCall::QueueChunk(v1::SealedChunk chunk) {
@@ -568,6 +626,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
     bool first = true, failed = false;
     while (true) {
       std::optional<Request> request;
+      bool wants_acks = false;
       {
         absl::MutexLock lock(&mu_);
         const bool woken = AwaitProgressLocked(absl::Condition(
@@ -581,7 +640,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
           break;
         }
         if (StoppingLocked()) break;
-        if (inbox_.empty() && job->resumable()) {
+        if (inbox_.empty() && job->resumable() && state_->limits.resume_window_s > 0) {
           // The input closed mid-scan. A client that vanished (its connection lost) also
           // has its call cancelled, an instant later: wait for that before taking the
           // close as a missing End, so that the session can wait for a resume.
@@ -596,6 +655,8 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
             description_ = request->config().description();
             feed_->SetSealed(request->config().sealed_chunks(), description_);
           }
+          wants_acks = request->has_config() && request->config().chunk_acks() &&
+                       (request->config().has_resume() || request->config().sealed_chunks());
           MaybeStartReadLocked();  // room in the inbox again
           SyncBufferedLocked();
         }
@@ -603,8 +664,10 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
       absl::Status status;
       try {  // the barrier: nothing a client sends may end the process
         if (first && request && request->has_config() && request->config().has_resume()) {
-          status = Resume(request->config().resume(), &job);
+          status = Resume(request->config().resume(), wants_acks, &job);
         } else {
+          // Before the config's first Progress, which says whether acknowledgements are taken.
+          if (wants_acks) TakeAcknowledgements(job->budget());
           status = request ? job->Handle(*request) : job->HandleEndOfInput();
         }
       } catch (...) {
@@ -650,7 +713,9 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
         job_budget_.reset();  // the session is the resume table's now
         job->Detach();
         parked.emplace();
-        parked->memory_bytes = static_cast<int64_t>(job->MemoryBytes());
+        // (The budget also counts the chunks the client has not acknowledged.)
+        parked->memory_bytes =
+            std::max(static_cast<int64_t>(job->MemoryBytes()), job->budget()->held());
         parked->job = std::move(job);
         parked->feed = feed_;
         parked->token = resume_token_;
@@ -666,7 +731,8 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
   return parked;
 }
 
-absl::Status ExtractCall::Resume(const v1::Resume& resume, std::unique_ptr<ExtractJob>* job) {
+absl::Status ExtractCall::Resume(const v1::Resume& resume, bool acks,
+                                 std::unique_ptr<ExtractJob>* job) {
   int64_t expected = -1;
   std::vector<v1::SealedChunk> replay;
   absl::StatusOr<ParkedSession> p =
@@ -698,6 +764,7 @@ absl::Status ExtractCall::Resume(const v1::Resume& resume, std::unique_ptr<Extra
     description_ = p->job->description();
   }
   *job = std::move(p->job);
+  if (acks || feed_->keeps_unacknowledged()) TakeAcknowledgements((*job)->budget());
   (*job)->Attach(this);  // its Progress goes first, naming the session
   for (v1::SealedChunk& c : replay) QueueChunk(std::move(c));
   return absl::OkStatus();
@@ -798,10 +865,11 @@ TandemService::~TandemService() {
 
 grpc::ServerBidiReactor<Request, Response>* TandemService::Extract(
     grpc::CallbackServerContext* context) {
-  if (grpc::Status st = state_->auth.Check(*context, "Extract"); !st.ok()) {
+  int identity = TokenAuthenticator::kNoIdentity;
+  if (grpc::Status st = state_->auth.Check(*context, "Extract", &identity); !st.ok()) {
     return new RefusedCall(st);
   }
-  return ExtractCall::Start(state_, context);
+  return ExtractCall::Start(state_, context, identity);
 }
 
 v1::Counters TandemService::CountersSnapshot() const {
@@ -815,6 +883,7 @@ v1::Counters TandemService::CountersSnapshot() const {
   c.set_unauthenticated_calls(state_->auth.refused());
   c.set_buffered_bytes(state_->buffered_bytes.load());
   c.set_sessions_draining(state_->sessions_draining.load());
+  c.set_sessions_waiting_for_resume(state_->resumable.parked());
   return c;
 }
 
@@ -822,17 +891,21 @@ std::string TandemService::MetricsText() const { return PrometheusText(*state_);
 
 grpc::ServerWriteReactor<v1::ExtractResponse>* TandemService::Watch(
     grpc::CallbackServerContext* context, const v1::WatchRequest* request) {
-  if (grpc::Status st = state_->auth.Check(*context, "Watch"); !st.ok()) {
+  int identity = TokenAuthenticator::kNoIdentity;
+  if (grpc::Status st = state_->auth.Check(*context, "Watch", &identity); !st.ok()) {
     return StartWatch(nullptr, "", st);
   }
-  return StartWatch(state_->feeds.Find(request->session_id()), request->session_id());
+  return StartWatch(
+      state_->feeds.FindReadable(request->session_id(), request->watch_key(), identity),
+      request->session_id());
 }
 
 grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* context,
-                                                 const v1::InfoRequest* /*request*/,
+                                                 const v1::InfoRequest* request,
                                                  v1::InfoResponse* response) {
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  if (grpc::Status st = state_->auth.Check(*context, "GetInfo"); !st.ok()) {
+  int identity = TokenAuthenticator::kNoIdentity;
+  if (grpc::Status st = state_->auth.Check(*context, "GetInfo", &identity); !st.ok()) {
     reactor->Finish(st);
     return reactor;
   }
@@ -866,7 +939,11 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   *response->mutable_counters() = CountersSnapshot();
   response->set_tls(state_->tls);
   response->set_token_required(state_->auth.enabled());
-  for (v1::SessionSummary& summary : state_->feeds.Summaries()) {
+  // Only the sessions this call may read: ids and descriptions are the creators' (patient
+  // data, for a scan); everyone gets the counters.
+  const std::vector<std::string_view> keys(request->watch_keys().begin(),
+                                           request->watch_keys().end());
+  for (v1::SessionSummary& summary : state_->feeds.Summaries(keys, identity)) {
     *response->add_sessions() = std::move(summary);
   }
   reactor->Finish(grpc::Status::OK);

@@ -4,10 +4,33 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "common/tokens.h"
+#include "server/auth.h"
 
 namespace tandem::server {
 
 using Response = v1::ExtractResponse;
+
+namespace {
+
+// Longer keys are never compared (keys are 32 hex digits).
+constexpr size_t kMaxWatchKeyBytes = 64;
+constexpr size_t kMaxInfoWatchKeys = 64;
+
+}  // namespace
+
+SessionFeed::~SessionFeed() {
+  absl::MutexLock lock(&mu_);
+  held_.clear();
+  held_bytes_ = 0;
+  AccountHeldLocked();
+}
+
+bool SessionFeed::MayRead(std::string_view watch_key, int identity) const {
+  if (identity != TokenAuthenticator::kNoIdentity && identity == owner_) return true;
+  return !watch_key.empty() && watch_key.size() <= kMaxWatchKeyBytes &&
+         auth::ConstantTimeEquals(watch_key_, watch_key);
+}
 
 void SessionFeed::SetSealed(bool sealed, const std::string& description) {
   absl::MutexLock lock(&mu_);
@@ -48,12 +71,57 @@ void SessionFeed::Chunk(const v1::SealedChunk& c) {
     // stream replays those its client missed; watchers' cursors index chunks_, and there
     // are none).
     while (overflowed_ && !watched && kept_bytes_ > retain_bytes_ && chunks_.size() > 1) {
-      kept_bytes_ -= static_cast<int64_t>(chunks_.front().ByteSizeLong());
+      const int64_t front = static_cast<int64_t>(chunks_.front().ByteSizeLong());
+      kept_bytes_ -= front;
+      if (budget_ != nullptr && dropped_ >= acknowledged_) {  // the client may still need it
+        held_.push_back(std::move(chunks_.front()));
+        held_bytes_ += front;
+      }
       chunks_.pop_front();
       ++dropped_;
     }
+    AccountHeldLocked();
   }
   WakeAll();
+}
+
+void SessionFeed::KeepUnacknowledged(std::shared_ptr<MemoryBudget> budget) {
+  absl::MutexLock lock(&mu_);
+  if (budget_ == nullptr) budget_ = std::move(budget);
+}
+
+bool SessionFeed::keeps_unacknowledged() const {
+  absl::MutexLock lock(&mu_);
+  return budget_ != nullptr;
+}
+
+absl::Status SessionFeed::Acknowledge(int64_t count) {
+  absl::MutexLock lock(&mu_);
+  const size_t posted = dropped_ + chunks_.size();
+  if (count < 0 || static_cast<uint64_t>(count) > posted) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("ChunksReceived.count = %d, but session %s has sent %d sealed chunks",
+                        count, id_, static_cast<int64_t>(posted)));
+  }
+  acknowledged_ = std::max(acknowledged_, static_cast<size_t>(count));
+  while (!held_.empty() && dropped_ - held_.size() < acknowledged_) {
+    held_bytes_ -= static_cast<int64_t>(held_.front().ByteSizeLong());
+    held_.pop_front();
+  }
+  AccountHeldLocked();
+  return absl::OkStatus();
+}
+
+int64_t SessionFeed::unacknowledged_bytes() const {
+  absl::MutexLock lock(&mu_);
+  return held_bytes_;
+}
+
+void SessionFeed::AccountHeldLocked() {
+  if (budget_ != nullptr && held_bytes_ != held_accounted_) {
+    budget_->AddOutside(held_bytes_ - held_accounted_);
+  }
+  held_accounted_ = held_bytes_;
 }
 
 void SessionFeed::SetWaiting(bool waiting) {
@@ -69,13 +137,19 @@ bool SessionFeed::finished() const {
 absl::Status SessionFeed::ChunksFrom(size_t first, std::vector<v1::SealedChunk>* out) const {
   absl::MutexLock lock(&mu_);
   const size_t end = dropped_ + chunks_.size();
-  if (first < dropped_ || first > end) {
+  const size_t kept_from = dropped_ - held_.size();
+  if (first < kept_from || first > end) {
     return absl::FailedPreconditionError(absl::StrFormat(
-        "session %s cannot resend its sealed chunks from index %d: it keeps %d..%d "
-        "(tandem-server --watch-retain-mb)",
-        id_, first, dropped_, static_cast<int64_t>(end) - 1));
+        "session %s cannot resend its sealed chunks from index %d: it keeps %d..%d (the "
+        "newest tandem-server --watch-retain-mb of them, and those a client that keeps its "
+        "chunks, tandem-client stream --chunks DIR, has not acknowledged)",
+        id_, first, kept_from, static_cast<int64_t>(end) - 1));
   }
-  out->assign(chunks_.begin() + static_cast<std::ptrdiff_t>(first - dropped_), chunks_.end());
+  out->clear();
+  for (size_t i = first; i < dropped_; ++i) out->push_back(held_[i - kept_from]);
+  out->insert(out->end(),
+              chunks_.begin() + static_cast<std::ptrdiff_t>(std::max(first, dropped_) - dropped_),
+              chunks_.end());
   return absl::OkStatus();
 }
 
@@ -87,6 +161,9 @@ void SessionFeed::Finish(std::vector<v1::FinalMetrics> metrics, const grpc::Stat
     status_ = status;
     preview_.reset();  // everything is in the chunks now
     finished_at_ = absl::Now();
+    held_.clear();  // no resume can follow
+    held_bytes_ = 0;
+    AccountHeldLocked();
   }
   WakeAll();
 }
@@ -171,7 +248,7 @@ bool SessionFeed::finished_before(absl::Time t) const {
   return status_.has_value() && finished_at_ < t;
 }
 
-std::shared_ptr<SessionFeed> FeedRegistry::Create() {
+std::shared_ptr<SessionFeed> FeedRegistry::Create(std::string watch_key, int owner) {
   static thread_local std::mt19937_64 random{std::random_device{}()};
   absl::MutexLock lock(&mu_);
   ExpireLocked();
@@ -179,7 +256,7 @@ std::shared_ptr<SessionFeed> FeedRegistry::Create() {
   do {
     id = absl::StrFormat("%016x%016x", random(), random());
   } while (feeds_.count(id) > 0);
-  auto feed = std::make_shared<SessionFeed>(id, retain_bytes_);
+  auto feed = std::make_shared<SessionFeed>(id, std::move(watch_key), owner, retain_bytes_);
   feeds_[id] = feed;
   return feed;
 }
@@ -191,16 +268,31 @@ std::shared_ptr<SessionFeed> FeedRegistry::Find(const std::string& id) {
   return it == feeds_.end() ? nullptr : it->second;
 }
 
+std::shared_ptr<SessionFeed> FeedRegistry::FindReadable(const std::string& id,
+                                                        std::string_view watch_key, int identity) {
+  std::shared_ptr<SessionFeed> feed = Find(id);
+  // An unknown id costs the same comparison as a known one with the wrong key.
+  static const SessionFeed kNobody("", std::string(32, '0'), TokenAuthenticator::kNoIdentity, 0);
+  const bool may = (feed != nullptr ? *feed : kNobody).MayRead(watch_key, identity);
+  return may && feed != nullptr ? feed : nullptr;
+}
+
 void FeedRegistry::Remove(const std::string& id) {
   absl::MutexLock lock(&mu_);
   feeds_.erase(id);
 }
 
-std::vector<v1::SessionSummary> FeedRegistry::Summaries() {
+std::vector<v1::SessionSummary> FeedRegistry::Summaries(
+    const std::vector<std::string_view>& watch_keys, int identity) {
   absl::MutexLock lock(&mu_);
   ExpireLocked();
   std::vector<v1::SessionSummary> out;
-  for (const auto& [id, feed] : feeds_) out.push_back(feed->Summary());
+  const size_t keys = std::min(watch_keys.size(), kMaxInfoWatchKeys);
+  for (const auto& [id, feed] : feeds_) {
+    bool may = feed->MayRead("", identity);
+    for (size_t k = 0; k < keys && !may; ++k) may = feed->MayRead(watch_keys[k], identity);
+    if (may) out.push_back(feed->Summary());
+  }
   return out;
 }
 
@@ -231,8 +323,11 @@ class WatchCall final : public grpc::ServerWriteReactor<Response>,
     if (feed_ == nullptr) {
       FinishLocked(grpc::Status(
           grpc::StatusCode::NOT_FOUND,
-          absl::StrCat("no session '", absl::string_view(id).substr(0, 64), "' on this server (unknown, or finished longer ago "
-                       "than tandem-server --watch-linger-seconds); tandem-client info lists them")));
+          absl::StrCat("no session '", absl::string_view(id).substr(0, 64),
+                       "' that this call may watch on this server: unknown, finished longer ago "
+                       "than tandem-server --watch-linger-seconds, or the watch key is missing "
+                       "or wrong (the streaming client prints it; tandem-client watch takes it "
+                       "from --watch-key-file FILE or $TANDEM_WATCH_KEY)")));
       return;
     }
     if (grpc::Status st = feed_->Attach(weak_from_this()); !st.ok()) {

@@ -10,6 +10,17 @@
 // then wakes the watchers (outside it): a slow watcher holds nothing back. Lock order:
 // a watcher's mutex, then its feed's; a feed's mutex is never held while a watcher's is
 // taken.
+//
+// Privacy: a feed is read (watched, listed by GetInfo) only by a call that presents its watch
+// key (random, given to the creator in its first Progress) or the bearer token its creator
+// used (MayRead); to any other call it does not exist.
+//
+// Resume: the chunks also serve the session's own client, resumed after its connection
+// dropped (server/resume.h), which asks for those it did not keep. A client that acknowledges
+// the chunks it kept (SessionConfig.chunk_acks) has every chunk it did not acknowledge kept
+// for it until the session ends (held_, beside the newest retain_bytes kept for watchers),
+// counted in the session's memory budget; without acknowledgements only the newest
+// retain_bytes are kept once the chunks outgrew it.
 #ifndef TANDEM_SERVER_WATCH_H_
 #define TANDEM_SERVER_WATCH_H_
 
@@ -19,6 +30,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
@@ -26,6 +38,7 @@
 #include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
+#include "tandem/budget.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {
@@ -38,9 +51,18 @@ class FeedWatcher {
 
 class SessionFeed {
  public:
-  SessionFeed(std::string id, int64_t retain_bytes)
-      : id_(std::move(id)), retain_bytes_(retain_bytes), start_(absl::Now()) {}
+  // `owner`: the creator's bearer token identity (TokenAuthenticator::Check).
+  SessionFeed(std::string id, std::string watch_key, int owner, int64_t retain_bytes)
+      : id_(std::move(id)),
+        watch_key_(std::move(watch_key)),
+        owner_(owner),
+        retain_bytes_(retain_bytes),
+        start_(absl::Now()) {}
+  ~SessionFeed();
   const std::string& id() const { return id_; }
+  const std::string& watch_key() const { return watch_key_; }
+  // Whether a call that presents `watch_key` and bearer token `identity` may read it.
+  bool MayRead(std::string_view watch_key, int identity) const;
 
   // Producer side (the Extract stream's threads). SetSealed: from its config.
   void SetSealed(bool sealed, const std::string& description);
@@ -55,6 +77,16 @@ class SessionFeed {
   // The chunks from index `first` on, for a resumed stream; FAILED_PRECONDITION when some
   // of them are no longer kept (see Chunk).
   absl::Status ChunksFrom(size_t first, std::vector<v1::SealedChunk>* out) const;
+  // The client acknowledges the chunks it keeps (SessionConfig.chunk_acks): from now on
+  // every chunk it has not acknowledged is kept until the session ends, its bytes counted
+  // in `budget` (the session's).
+  void KeepUnacknowledged(std::shared_ptr<MemoryBudget> budget);
+  bool keeps_unacknowledged() const;
+  // The client holds chunks 0 .. count-1 (a lower count than before changes nothing);
+  // INVALID_ARGUMENT when fewer were posted.
+  absl::Status Acknowledge(int64_t count);
+  // Bytes of the chunks kept only because the client has not acknowledged them.
+  int64_t unacknowledged_bytes() const;
 
   // Watcher side. Attach fails (with the status to send) for a session that cannot be
   // watched now.
@@ -73,7 +105,11 @@ class SessionFeed {
 
  private:
   void WakeAll();
+  // Brings the budget's count of held_ up to date.
+  void AccountHeldLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   const std::string id_;
+  const std::string watch_key_;
+  const int owner_;
   const int64_t retain_bytes_;
   const absl::Time start_;
   mutable absl::Mutex mu_;
@@ -89,6 +125,13 @@ class SessionFeed {
   // client, which may have missed the last few).
   bool overflowed_ ABSL_GUARDED_BY(mu_) = false;
   size_t dropped_ ABSL_GUARDED_BY(mu_) = 0;
+  // Chunks dropped from chunks_ that the client has not acknowledged: held_[i] is chunk
+  // dropped_ - held_.size() + i (kept while budget_ is set).
+  std::shared_ptr<MemoryBudget> budget_ ABSL_GUARDED_BY(mu_);
+  std::deque<v1::SealedChunk> held_ ABSL_GUARDED_BY(mu_);
+  int64_t held_bytes_ ABSL_GUARDED_BY(mu_) = 0;
+  int64_t held_accounted_ ABSL_GUARDED_BY(mu_) = 0;  // what budget_ was told
+  size_t acknowledged_ ABSL_GUARDED_BY(mu_) = 0;
   std::optional<v1::Progress> progress_ ABSL_GUARDED_BY(mu_);
   int64_t progress_version_ ABSL_GUARDED_BY(mu_) = 0;
   std::optional<v1::Preview> preview_ ABSL_GUARDED_BY(mu_);
@@ -104,10 +147,17 @@ class FeedRegistry {
  public:
   FeedRegistry(absl::Duration linger, int64_t retain_bytes)
       : linger_(linger), retain_bytes_(retain_bytes) {}
-  std::shared_ptr<SessionFeed> Create();  // with a fresh random id
+  // With a fresh random id, for a creator of bearer token identity `owner`.
+  std::shared_ptr<SessionFeed> Create(std::string watch_key, int owner);
   std::shared_ptr<SessionFeed> Find(const std::string& id);
+  // Find, for a call that presents `watch_key` and bearer token `identity`: null as well
+  // when it may not read the feed.
+  std::shared_ptr<SessionFeed> FindReadable(const std::string& id, std::string_view watch_key,
+                                            int identity);
   void Remove(const std::string& id);  // a feed never used (its stream resumed another)
-  std::vector<v1::SessionSummary> Summaries();
+  // The sessions a call may read (see FindReadable), given any of `watch_keys`.
+  std::vector<v1::SessionSummary> Summaries(const std::vector<std::string_view>& watch_keys,
+                                            int identity);
 
  private:
   void ExpireLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
@@ -117,8 +167,9 @@ class FeedRegistry {
   std::map<std::string, std::shared_ptr<SessionFeed>> feeds_ ABSL_GUARDED_BY(mu_);
 };
 
-// Starts a Watch call on `feed` (null: unknown id `id`), or one that ends at once with
-// `refused` when that is not OK (authentication). The reactor owns itself.
+// Starts a Watch call on `feed` (null: unknown id `id`, or one the call may not read), or one
+// that ends at once with `refused` when that is not OK (authentication). The reactor owns
+// itself.
 grpc::ServerWriteReactor<v1::ExtractResponse>* StartWatch(
     std::shared_ptr<SessionFeed> feed, const std::string& id,
     const grpc::Status& refused = grpc::Status::OK);

@@ -64,7 +64,8 @@ class Result:
     With sealed_chunks, `draco` is empty and `sealed` holds the SealedChunk messages in
     order: each a Draco mesh whose GENERIC uint32 attribute is the vertices' global ids.
     `vertices` and `faces` decode either into NumPy arrays. `session_id` is the stream's id
-    (for Watch).
+    and `watch_key` the secret that lets others read it (Watch, GetInfo): sessions are
+    private to their creator's bearer token and to those given the key.
     """
 
     draco: bytes
@@ -72,6 +73,7 @@ class Result:
     previews: List["pb.Preview"] = field(default_factory=list)
     sealed: List["pb.SealedChunk"] = field(default_factory=list)
     session_id: str = ""
+    watch_key: str = ""
     _mesh: Optional[Tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
 
     def save(self, path: str) -> None:
@@ -270,7 +272,7 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
     chunks: List[bytes] = []
     previews: List[pb.Preview] = []
     sealed: List[pb.SealedChunk] = []
-    session_id = ""
+    session_id = watch_key = ""
     metrics = None
     with channel:
         stub = pb_grpc.TandemStub(channel)
@@ -279,6 +281,7 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
             kind = response.WhichOneof("kind")
             if kind == "progress":
                 session_id = session_id or response.progress.session_id
+                watch_key = watch_key or response.progress.watch_key
                 if on_progress is not None:
                     on_progress(response.progress)
             elif kind == "sealed_chunk":
@@ -296,7 +299,7 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
     if metrics is None:
         raise RuntimeError("the stream ended without final metrics")
     return Result(draco=b"".join(chunks), metrics=metrics, previews=previews, sealed=sealed,
-                  session_id=session_id)
+                  session_id=session_id, watch_key=watch_key)
 
 
 def draco_to_ply(draco_path: str, ply_path: str) -> None:

@@ -19,24 +19,46 @@ int64_t MemoryBudget::Add(int64_t delta) {
 bool MemoryBudget::Report(int64_t delta, const char* doing, int64_t slice) {
   const int64_t total = Add(delta);
   if (delta <= 0 || limit_ <= 0 || total <= limit_) return true;
-  std::lock_guard<std::mutex> lock(mu_);
-  if (status_.ok()) {
-    exceeded_bytes_ = total;
-    exceeded_where_ = slice >= 0 ? absl::StrCat(doing, " ", slice) : std::string(doing);
-    constexpr double kMiB = 1 << 20;
-    status_ = absl::ResourceExhaustedError(absl::StrFormat(
-        "memory budget exceeded while %s: the session would hold %.1f MiB, over its budget of "
-        "%.1f MiB",
-        exceeded_where_, static_cast<double>(total) / kMiB, static_cast<double>(limit_) / kMiB));
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (status_.ok()) {
+      exceeded_bytes_ = total;
+      exceeded_where_ = slice >= 0 ? absl::StrCat(doing, " ", slice) : std::string(doing);
+      constexpr double kMiB = 1 << 20;
+      status_ = absl::ResourceExhaustedError(absl::StrFormat(
+          "memory budget exceeded while %s: the session would hold %.1f MiB, over its budget "
+          "of %.1f MiB",
+          exceeded_where_, static_cast<double>(total) / kMiB, static_cast<double>(limit_) / kMiB));
+    }
+    stopped_.store(true, std::memory_order_relaxed);
   }
-  stopped_.store(true, std::memory_order_relaxed);
+  WakeAll();
   return false;
 }
 
 void MemoryBudget::Cancel() {
-  std::lock_guard<std::mutex> lock(mu_);
-  if (status_.ok()) status_ = absl::CancelledError("the session was cancelled");
-  stopped_.store(true, std::memory_order_relaxed);
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (status_.ok()) status_ = absl::CancelledError("the session was cancelled");
+    stopped_.store(true, std::memory_order_relaxed);
+  }
+  WakeAll();
+}
+
+void MemoryBudget::AddWaker(const void* key, std::function<void()> wake) {
+  std::lock_guard<std::mutex> lock(wake_mu_);
+  wakers_.emplace_back(key, std::move(wake));
+}
+
+void MemoryBudget::RemoveWaker(const void* key) {
+  std::lock_guard<std::mutex> lock(wake_mu_);
+  std::erase_if(wakers_, [key](const auto& w) { return w.first == key; });
+}
+
+void MemoryBudget::WakeAll() {
+  // Under the lock: RemoveWaker (a session's end) waits for a call in progress.
+  std::lock_guard<std::mutex> lock(wake_mu_);
+  for (const auto& w : wakers_) w.second();
 }
 
 bool MemoryBudget::exceeded() const {

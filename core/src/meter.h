@@ -42,6 +42,7 @@ class Meter {
   void Stop() { stop_.store(true, std::memory_order_relaxed); }
   bool stopped() const { return stop_.load(std::memory_order_relaxed) || budget_->stopped(); }
   absl::Status status() const;  // why it stopped (OK while it runs)
+  MemoryBudget& budget() const { return *budget_; }
   // A point where long work may stop: throws SessionStop once stopped. A flag read.
   void CheckStop() const {
     if (stopped()) throw SessionStop(status());

@@ -155,9 +155,10 @@ bool TandemSession::TakeSealedThrough(int64_t slice, SealedChunk* out) {
     s.steps->WaitUntil(
         [&] {
           std::lock_guard<std::mutex> lock(s.mu);
-          return s.CutThrough() >= through;
+          return s.CutThrough() >= through || s.meter.stopped();
         },
         /*help=*/false);
+    if (s.meter.stopped()) return false;  // the session fails at its next call
   }
   std::vector<SealedChunk> pieces;
   {
@@ -302,6 +303,9 @@ TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int coun
     queues.resize(static_cast<size_t>(count));
     steps = std::make_unique<TaskGroup>(executor);
     for (const auto& s : slabs) gauges.push_back(Measure(*s));  // the planes as planned
+    // The caller waits for its queued steps, which may stand behind other sessions' on a
+    // shared executor: a stop ends that wait at once (AddSlice, TakeSealedThrough).
+    meter.budget().AddWaker(this, [this] { steps->Notify(); });
   }
   if (slabs[0]->sealer != nullptr) cuts.resize(slabs.size());
   buffers.Set(BufferBytes());  // the slices as planned
@@ -311,6 +315,7 @@ TandemSession::Impl::~Impl() {
   // Steps queued never start, and one running returns at its next check.
   meter.Stop();
   if (!queued) return;
+  meter.budget().RemoveWaker(this);
   {
     std::lock_guard<std::mutex> lock(mu);
     for (SlabQueue& q : queues) q.slices.clear();  // only an abandoned session has any
@@ -538,9 +543,10 @@ absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
     steps->WaitUntil(
         [&] {
           std::lock_guard<std::mutex> lock(mu);
-          return slot.pending == 0;
+          return slot.pending == 0 || meter.stopped();
         },
         /*help=*/false);
+    if (meter.stopped()) return fail(meter.status());  // its steps are dropped with it
     // The slot is free (pending == 0) until it is queued: a refused slice leaves it so.
     const DType kept = values != nullptr ? DType::kFloat32 : dtype;
     const size_t size = n * DTypeSize(kept);

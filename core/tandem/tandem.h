@@ -43,9 +43,13 @@ namespace tandem {
 
 // Coordinates: the engine works in a frame of its own, relative to the grid: voxel (i, j, k)
 // at (i*sx, j*sy, k*sz) / s, with s the power of two nearest below the smallest spacing. The
-// origin drops out (a scan placed at 1e9 mm simplifies exactly as one at 0) and so does the
-// unit (spacing 1e-300 or 1e12 behaves as spacing 1), while the scaling by a power of two is
-// exact, so a grid with origin 0 gives bit for bit the mesh it gave in world coordinates.
+// origin drops out (a scan at origin 1e5 mm simplifies as one at 0, moved, with the same
+// topology and error bound; the vertices' float32 positions hold fewer digits far off) and
+// the unit's size does not matter (spacing 1e-12 works as spacing 1). A
+// change of unit by a power of two (spacing, origin and E0 all times 2^k) gives the same mesh
+// times 2^k, bit for bit, because the frame sees the same numbers; any other factor (mm to m)
+// rounds the frame's numbers differently, which can reorder contractions of equal cost: the
+// mesh keeps its guarantees (topology, Error(K) <= E0) but not its exact triangles.
 // Everything the session hands out is in world coordinates.
 //
 // Failures: no input ends the process. Every exception thrown inside a session (an

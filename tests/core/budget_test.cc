@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
+#include <future>
 #include <memory>
 #include <random>
 #include <thread>
@@ -233,6 +234,49 @@ TEST(MemoryBudget, CancelledOrDestroyedSessionsStopTheirRunningStepsAtOnce) {
               "%.3f s\n", step_s, cancel_s, drop_s);
   EXPECT_LT(cancel_s, step_s / 4);
   EXPECT_LT(drop_s, step_s / 4);
+  EXPECT_EQ(budget->held(), 0);
+}
+
+// A session whose slices wait in the ring for its queued steps, which stand behind another
+// session's long step on a shared executor (here: its one thread, held by a task that does
+// not end), returns from AddSlice as soon as its budget is cancelled, not when its steps
+// get the thread: a server gives a vanished client's slot back at once under load.
+TEST(MemoryBudget, ASessionWaitingBehindOtherWorkWakesWhenCancelled) {
+  constexpr int64_t n = 96, nz = 8;
+  const auto slices = NoiseSlices(n, nz, 5);
+  Executor executor(1);
+  std::promise<void> release;
+  std::shared_future<void> released = release.get_future().share();
+  TaskGroup other(&executor);
+  other.Run([released] { released.wait(); });  // another session's step, as long as we like
+  SessionOptions o = NoiseOptions();
+  o.parts = 2;
+  auto budget = std::make_shared<MemoryBudget>();
+  auto s = TandemSession::Create(ByteGrid(n, nz), o, &executor, budget);
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ((*s)->num_parts(), 2);
+  // The ring holds TandemSession::kSlicesInFlight slices; the next one waits for a slot.
+  for (int64_t k = 0; k < TandemSession::kSlicesInFlight; ++k) {
+    ASSERT_TRUE((*s)->AddSliceBytes(DType::kUInt8, slices[k].data()).ok());
+  }
+  std::future<absl::Status> waiting = std::async(std::launch::async, [&] {
+    return (*s)->AddSliceBytes(DType::kUInt8, slices[TandemSession::kSlicesInFlight].data());
+  });
+  EXPECT_EQ(waiting.wait_for(std::chrono::milliseconds(200)), std::future_status::timeout)
+      << "the slice did not wait for the ring";
+  const auto t0 = Clock::now();
+  budget->Cancel();
+  const bool woke = waiting.wait_for(std::chrono::seconds(5)) == std::future_status::ready;
+  const double wake_s = SecondsSince(t0);
+  release.set_value();  // (without the wake, the slice waits for this)
+  const absl::Status st = waiting.get();
+  EXPECT_TRUE(woke) << "AddSlice waited for the executor";
+  EXPECT_LT(wake_s, 1.0);
+  EXPECT_EQ(st.code(), absl::StatusCode::kCancelled) << st;
+  EXPECT_EQ((*s)->AddSliceBytes(DType::kUInt8, slices[5].data()).code(),
+            absl::StatusCode::kCancelled);
+  s->reset();
+  other.Wait();
   EXPECT_EQ(budget->held(), 0);
 }
 

@@ -8,6 +8,7 @@
 // makes it.
 #include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <new>
 #include <string>
@@ -127,6 +128,21 @@ TEST(Geometry, ExtremeGridsAreRefusedWithTheField) {
   EXPECT_TRUE(o.ValidateFor(g).ok());
 }
 
+// `r` is `base` times `unit`, bit for bit: the same triangles, every coordinate and the
+// error bound reached multiplied.
+void ExpectScaledBy(const Outcome& r, const Outcome& base, double unit) {
+  SCOPED_TRACE(unit);
+  ASSERT_TRUE(r.status.ok()) << r.status;
+  EXPECT_EQ(r.mesh.indices, base.mesh.indices);
+  ASSERT_EQ(r.mesh.positions.size(), base.mesh.positions.size());
+  for (size_t i = 0; i < base.mesh.positions.size(); ++i) {
+    ASSERT_EQ(r.mesh.positions[i].x, base.mesh.positions[i].x * unit) << i;
+    ASSERT_EQ(r.mesh.positions[i].y, base.mesh.positions[i].y * unit) << i;
+    ASSERT_EQ(r.mesh.positions[i].z, base.mesh.positions[i].z * unit) << i;
+  }
+  EXPECT_EQ(r.error_max, base.error_max * unit);
+}
+
 // The engine works relative to the grid: moving the grid moves the mesh and nothing else,
 // and changing the unit by a power of two scales it exactly (the quadrics, costs and
 // queues see the same numbers). Only the surface points' offset from the grid points grows
@@ -167,15 +183,53 @@ TEST(Geometry, MeshDoesNotDependOnOriginOrUnit) {
   for (double unit : {0x1p-36, 0x1p30}) {
     SessionOptions scaled = o;
     scaled.error = o.error * unit;
-    const Outcome r = RunGrid(Grid(48, 48, {unit, unit, unit}), scaled, slices);
+    ExpectScaledBy(RunGrid(Grid(48, 48, {unit, unit, unit}), scaled, slices), base, unit);
+  }
+}
+
+// What a change of unit keeps, exactly: by a power of two (spacing, origin and E0 all
+// multiplied by it) the mesh is the same mesh multiplied, bit for bit, for any spacing and
+// origin; by another factor (millimetres to metres or inches) the frame's numbers round
+// differently, which can reorder contractions of equal cost: the mesh keeps its guarantees
+// (closed manifold, topology, Error(K) <= E0) and about its size, not its triangles.
+TEST(Geometry, AUnitChangeIsExactByAPowerOfTwoAndKeepsTheGuaranteesOtherwise) {
+  const auto slices = Slices(Shape::kPillowBox, 48, 48);
+  const std::array<double, 3> spacing{0.7, 0.7, 1.3};
+  const std::array<double, 3> origin{-12.5, 30.25, 7};
+  SessionOptions o;
+  o.error = 0.05;
+  const Outcome base = RunGrid(Grid(48, 48, spacing, origin), o, slices);
+  ASSERT_TRUE(base.status.ok()) << base.status;
+  const TopologyReport topology = AnalyzeTopology(base.mesh);
+  ASSERT_TRUE(topology.IsClosedManifold());
+  const double triangles = static_cast<double>(base.mesh.num_triangles());
+  ASSERT_GT(triangles, 100);
+  auto scaled = [&](const std::array<double, 3>& v, double unit) {
+    return std::array<double, 3>{v[0] * unit, v[1] * unit, v[2] * unit};
+  };
+  for (double unit : {0x1p-10, 0x1p7}) {
+    SessionOptions so = o;
+    so.error = o.error * unit;
+    ExpectScaledBy(RunGrid(Grid(48, 48, scaled(spacing, unit), scaled(origin, unit)), so, slices),
+                   base, unit);
+  }
+  for (double unit : {1e-3, 1 / 25.4, 1000.0}) {
+    SCOPED_TRACE(unit);
+    SessionOptions so = o;
+    so.error = o.error * unit;
+    const Outcome r =
+        RunGrid(Grid(48, 48, scaled(spacing, unit), scaled(origin, unit)), so, slices);
     ASSERT_TRUE(r.status.ok()) << r.status;
-    EXPECT_EQ(r.mesh.indices, base.mesh.indices) << unit;
-    ASSERT_EQ(r.mesh.positions.size(), base.mesh.positions.size());
-    for (size_t i = 0; i < base.mesh.positions.size(); ++i) {
-      ASSERT_EQ(r.mesh.positions[i].x, base.mesh.positions[i].x * unit) << i;
-      ASSERT_EQ(r.mesh.positions[i].z, base.mesh.positions[i].z * unit) << i;
-    }
-    EXPECT_EQ(r.error_max, base.error_max * unit);
+    const TopologyReport t = AnalyzeTopology(r.mesh);
+    EXPECT_TRUE(t.IsClosedManifold());
+    EXPECT_EQ(t.euler, topology.euler);
+    EXPECT_EQ(t.components, topology.components);
+    EXPECT_LE(r.error_max, so.error);
+    const double change = std::abs(static_cast<double>(r.mesh.num_triangles()) / triangles - 1);
+    EXPECT_LT(change, 0.05) << r.mesh.num_triangles() << " vs " << triangles;
+    std::printf("unit %g: %zu triangles (%zu at unit 1), change %.2f %%, indices %s\n", unit,
+                r.mesh.num_triangles(), base.mesh.num_triangles(), 100 * change,
+                r.mesh.indices == base.mesh.indices ? "equal" : "differ");
   }
 }
 

@@ -100,6 +100,8 @@ def main():
               f"the Draco bytes decode to the reported counts {ply_counts(ply)}")
 
         check(len(result.session_id) == 32, f"the stream's id ({result.session_id!r})")
+        check(len(result.watch_key) == 32 and result.watch_key != result.session_id,
+              f"the stream's watch key ({result.watch_key!r})")
 
         # NumPy arrays of the decoded mesh: the reported counts, indices in range, and the
         # local run's vertices (within Draco's quantization of the box).

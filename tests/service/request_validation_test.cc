@@ -23,7 +23,9 @@
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "server/extract_job.h"
+#include "server/auth.h"
 #include "server/resume.h"
+#include "server/watch.h"
 #include "tandem/distance.h"
 #include "tandem/geometry.h"
 #include "tandem/metrics.h"
@@ -843,7 +845,7 @@ TEST(ResumeTable, AParkedSessionHoldsItsStreamsSlotAndGivesItToANewStream) {
   ASSERT_TRUE(table.AdmitStream(1));
   EXPECT_FALSE(table.AdmitStream(1));  // the one slot is the stream's
   ParkedSession parked;
-  parked.feed = std::make_shared<SessionFeed>("s1", 1 << 20);
+  parked.feed = std::make_shared<SessionFeed>("s1", "k1", TokenAuthenticator::kNoIdentity, 1 << 20);
   std::optional<ParkedSession> left;
   std::thread waiter([&] { left = table.ParkAndWait(std::move(parked)); });
   for (int i = 0; i < 500 && table.parked() == 0; ++i) {
@@ -864,7 +866,7 @@ TEST(ResumeTable, AParkedSessionHoldsItsStreamsSlotAndGivesItToANewStream) {
   ResumeTable two(absl::Seconds(30));
   ASSERT_TRUE(two.AdmitStream(2));
   ParkedSession p2;
-  p2.feed = std::make_shared<SessionFeed>("s2", 1 << 20);
+  p2.feed = std::make_shared<SessionFeed>("s2", "k2", TokenAuthenticator::kNoIdentity, 1 << 20);
   std::thread waiter2([&] { left = two.ParkAndWait(std::move(p2)); });
   for (int i = 0; i < 500 && two.parked() == 0; ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -875,6 +877,114 @@ TEST(ResumeTable, AParkedSessionHoldsItsStreamsSlotAndGivesItToANewStream) {
   EXPECT_TRUE(two.AdmitStream(2));  // the third evicts it
   waiter2.join();
   EXPECT_FALSE(two.AdmitStream(2));
+}
+
+// Privacy: a session is read with its watch key or by its creator's bearer token; to every
+// other call it does not exist, the same as an unknown id, and GetInfo does not list it.
+TEST(SessionFeed, OnlyItsWatchKeyOrItsCreatorsTokenReadsIt) {
+  const std::string key = NewSecret();
+  ASSERT_EQ(key.size(), 32u);
+  SessionFeed feed("s", key, /*owner=*/2, 1 << 20);
+  EXPECT_TRUE(feed.MayRead(key, TokenAuthenticator::kNoIdentity));
+  EXPECT_TRUE(feed.MayRead("", 2));
+  EXPECT_FALSE(feed.MayRead("", TokenAuthenticator::kNoIdentity));
+  EXPECT_FALSE(feed.MayRead("", 3));
+  EXPECT_FALSE(feed.MayRead(NewSecret(), 3));
+  EXPECT_FALSE(feed.MayRead(key.substr(0, 31), TokenAuthenticator::kNoIdentity));
+  EXPECT_FALSE(feed.MayRead(key + key + key, TokenAuthenticator::kNoIdentity));
+  // Without authentication nobody has an identity: the key alone reads it.
+  SessionFeed open("o", key, TokenAuthenticator::kNoIdentity, 1 << 20);
+  EXPECT_FALSE(open.MayRead("", TokenAuthenticator::kNoIdentity));
+
+  FeedRegistry registry(absl::Seconds(60), 1 << 20);
+  std::shared_ptr<SessionFeed> mine = registry.Create(key, 0);
+  std::shared_ptr<SessionFeed> other = registry.Create(NewSecret(), 1);
+  EXPECT_EQ(registry.FindReadable(mine->id(), key, TokenAuthenticator::kNoIdentity), mine);
+  EXPECT_EQ(registry.FindReadable(mine->id(), "", 0), mine);
+  EXPECT_EQ(registry.FindReadable(mine->id(), "", 1), nullptr);
+  EXPECT_EQ(registry.FindReadable(mine->id(), other->watch_key(), 1), nullptr);
+  EXPECT_EQ(registry.FindReadable("0123456789abcdef0123456789abcdef", key, 0), nullptr);
+  auto ids = [](const std::vector<v1::SessionSummary>& list) {
+    std::vector<std::string> out;
+    for (const v1::SessionSummary& s : list) out.push_back(s.id());
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  EXPECT_TRUE(registry.Summaries({}, TokenAuthenticator::kNoIdentity).empty());
+  EXPECT_EQ(ids(registry.Summaries({}, 1)), std::vector<std::string>{other->id()});
+  EXPECT_EQ(ids(registry.Summaries({key}, TokenAuthenticator::kNoIdentity)),
+            std::vector<std::string>{mine->id()});
+  std::vector<std::string> both = {mine->id(), other->id()};
+  std::sort(both.begin(), both.end());
+  EXPECT_EQ(ids(registry.Summaries({key}, 1)), both);
+}
+
+// A sealed chunk of `bytes` bytes (its index and surface set).
+v1::SealedChunk ChunkOfBytes(int64_t index, size_t bytes) {
+  v1::SealedChunk c;
+  c.set_index(index);
+  c.set_draco(std::string(bytes, static_cast<char>('a' + index % 26)));
+  return c;
+}
+
+// Resume from a client's kept chunks: once the chunks outgrow the watchers' retention, the
+// feed keeps (for the session's own client) every chunk the client has not acknowledged,
+// counted in the session's budget, and forgets each as it is acknowledged; without
+// acknowledgements it keeps only the newest. The session's end gives the memory back.
+TEST(SessionFeed, ChunksTheClientHasNotAcknowledgedOutliveTheWatchRetention) {
+  constexpr int64_t kRetain = 4000;
+  auto budget = std::make_shared<MemoryBudget>();
+  SessionFeed feed("s", NewSecret(), TokenAuthenticator::kNoIdentity, kRetain);
+  feed.SetSealed(true, "");
+  feed.KeepUnacknowledged(budget);
+  SessionFeed plain("p", NewSecret(), TokenAuthenticator::kNoIdentity, kRetain);
+  plain.SetSealed(true, "");
+  for (int64_t i = 0; i < 40; ++i) {
+    feed.Chunk(ChunkOfBytes(i, 500));
+    plain.Chunk(ChunkOfBytes(i, 500));
+  }
+  std::vector<v1::SealedChunk> replay;
+  ASSERT_TRUE(feed.ChunksFrom(0, &replay).ok());
+  ASSERT_EQ(replay.size(), 40u);
+  for (int64_t i = 0; i < 40; ++i) {
+    ASSERT_EQ(replay[static_cast<size_t>(i)].index(), i);
+    ASSERT_EQ(replay[static_cast<size_t>(i)].draco(), ChunkOfBytes(i, 500).draco());
+  }
+  const absl::Status dropped = plain.ChunksFrom(0, &replay);
+  EXPECT_EQ(dropped.code(), absl::StatusCode::kFailedPrecondition) << dropped;
+  EXPECT_NE(dropped.message().find("--chunks DIR"), std::string::npos) << dropped;
+  // What only the client's resume needs is in the budget; the newest kRetain are the
+  // watchers' as before.
+  const int64_t held = feed.unacknowledged_bytes();
+  EXPECT_GT(held, 30 * 500);
+  EXPECT_EQ(budget->held(), held);
+  EXPECT_EQ(plain.unacknowledged_bytes(), 0);
+
+  ASSERT_TRUE(feed.Acknowledge(25).ok());
+  EXPECT_FALSE(feed.ChunksFrom(24, &replay).ok());
+  ASSERT_TRUE(feed.ChunksFrom(25, &replay).ok());
+  EXPECT_EQ(replay.size(), 15u);
+  EXPECT_EQ(replay.front().index(), 25);
+  EXPECT_LT(feed.unacknowledged_bytes(), held);
+  EXPECT_EQ(budget->held(), feed.unacknowledged_bytes());
+  ASSERT_TRUE(feed.Acknowledge(10).ok()) << "a lower count changes nothing";
+  ASSERT_TRUE(feed.ChunksFrom(25, &replay).ok());
+  const absl::Status too_many = feed.Acknowledge(41);
+  EXPECT_EQ(too_many.code(), absl::StatusCode::kInvalidArgument) << too_many;
+  EXPECT_NE(too_many.message().find("has sent 40 sealed chunks"), std::string::npos);
+  // Acknowledged, a chunk is the watchers' rule's again: the next ones drop the old ones.
+  ASSERT_TRUE(feed.Acknowledge(40).ok());
+  EXPECT_EQ(feed.unacknowledged_bytes(), 0);
+  feed.Chunk(ChunkOfBytes(40, 500));
+  EXPECT_FALSE(feed.ChunksFrom(30, &replay).ok());
+  ASSERT_TRUE(feed.ChunksFrom(40, &replay).ok());
+  for (int64_t i = 41; i < 50; ++i) feed.Chunk(ChunkOfBytes(i, 500));  // 40, 41 not acknowledged
+  EXPECT_EQ(feed.unacknowledged_bytes(), budget->held());
+  EXPECT_GT(budget->held(), 0);
+  ASSERT_TRUE(feed.ChunksFrom(40, &replay).ok());
+  feed.Finish({}, grpc::Status::OK);  // no resume after the end
+  EXPECT_EQ(feed.unacknowledged_bytes(), 0);
+  EXPECT_EQ(budget->held(), 0);
 }
 
 }  // namespace

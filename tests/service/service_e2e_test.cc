@@ -20,6 +20,8 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "codec/draco_codec.h"
 #include "service/service_testutil.h"
@@ -500,11 +502,13 @@ TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
   EXPECT_LT(got->distance->l1_max, 0.75) << "mean distance below E0";
 }
 
-// The names of the files in `dir`, sorted (chunk files are zero-padded: in chunk order).
-std::vector<std::string> SortedFileNames(const std::string& dir) {
+// The names of the files in `dir` that start with `prefix`, sorted (chunk files are
+// zero-padded: in chunk order).
+std::vector<std::string> SortedFileNames(const std::string& dir, absl::string_view prefix = "") {
   std::vector<std::string> files;
   for (const auto& e : std::filesystem::directory_iterator(dir)) {
-    files.push_back(e.path().filename().string());
+    const std::string name = e.path().filename().string();
+    if (absl::StartsWith(name, prefix)) files.push_back(name);
   }
   std::sort(files.begin(), files.end());
   return files;
@@ -553,7 +557,7 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   }
 
   // The chunk files, zero-padded and in order, decoded with their ids.
-  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks");
+  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks", "chunk_");
   ASSERT_GE(files.size(), 2u) << "a chunk a second over 2.4 s";
   std::vector<SealedChunk> chunks;
   std::map<uint32_t, Vec3> at;
@@ -665,7 +669,7 @@ TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
     RunResult r = stream("sealed" + parts + ".ply", {"--chunks", chunks_dir, "--parts", parts});
     ASSERT_EQ(r.exit_code, 0) << r.err;
     std::vector<SealedChunk> chunks;
-    for (const std::string& f : SortedFileNames(chunks_dir)) {
+    for (const std::string& f : SortedFileNames(chunks_dir, "chunk_")) {
       absl::StatusOr<SealedChunk> c = ReadChunkFile(chunks_dir + "/" + f);
       ASSERT_TRUE(c.ok()) << c.status();
       chunks.push_back(*std::move(c));
@@ -708,7 +712,7 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
   auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
   ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
-  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks");
+  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks", "chunk_");
   ASSERT_GE(files.size(), 2u);
   std::vector<SealedChunk> chunks;
   for (size_t i = 0; i < files.size(); ++i) {
@@ -820,22 +824,47 @@ TEST_F(ServiceE2eTest, TheFinishingPassAskedForIsTheSessions) {
   EXPECT_NE(bad.err.find("--lockstep-error 0"), std::string::npos) << bad.err;
 }
 
-// The session id a streaming client prints (bounded wait; "" if it never does).
-std::string SessionIdOf(ChildProcess& streamer) {
-  for (int i = 0; i < 200; ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(25));
-    const std::string err = streamer.Stderr();
-    const size_t at = err.find("tandem-client: session ");
-    if (at != std::string::npos && err.find('\n', at) != std::string::npos) {
-      return err.substr(at + 23, 32);
-    }
-  }
-  return "";
+// A value a streaming client prints as NAME=VALUE, up to the next space ("" until it has).
+// Secrets go in variables, not flags, whose values every user could read on a command line.
+std::string PrintedVariable(const std::string& err, absl::string_view name) {
+  const std::string tag = absl::StrCat(name, "=");
+  const size_t at = err.find(tag);
+  if (at == std::string::npos) return "";
+  const size_t begin = at + tag.size();
+  const size_t end = err.find(' ', begin);
+  if (end == std::string::npos) return "";
+  return err.substr(begin, end - begin);
 }
 
-// Watch: a second client attached by id while a sealed stream runs, and another after it
-// ended, save byte-identical meshes to the streaming client's; unknown ids and sessions
-// without sealed chunks are refused clearly.
+// The session a streaming client started, as it prints it: its id, its watch key (for
+// TANDEM_WATCH_KEY) and ID:TOKEN (for TANDEM_RESUME).
+struct Started {
+  std::string id, watch_key, resume;
+  bool ok() const { return id.size() == 32 && watch_key.size() == 32 && resume.size() == 65; }
+};
+
+// What `streamer` printed about its session (bounded wait: up to 10 s).
+Started StartedOf(ChildProcess& streamer) {
+  Started s;
+  for (int i = 0; i < 400 && !s.ok(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    const std::string err = streamer.Stderr();
+    s.resume = PrintedVariable(err, "TANDEM_RESUME");
+    s.watch_key = PrintedVariable(err, "TANDEM_WATCH_KEY");
+    s.id = s.resume.substr(0, 32);
+  }
+  if (!s.ok()) ADD_FAILURE() << "no session printed: " << streamer.Stderr();
+  return s;
+}
+
+std::vector<std::string> WatchKeyEnv(const Started& s) {
+  return {"TANDEM_WATCH_KEY=" + s.watch_key};
+}
+
+// Watch: a second client attached by id and watch key while a sealed stream runs, and
+// another after it ended, save byte-identical meshes to the streaming client's; unknown ids
+// and sessions without sealed chunks are refused clearly. Without the key the session does
+// not exist for a client: not in info, and its id gets the unknown id's NOT_FOUND.
 TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
   auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
@@ -845,19 +874,42 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
        "--out", dir_ + "/s.ply"},
       dir_);
   ASSERT_TRUE(streamer.ok()) << streamer.status();
-  const std::string id = SessionIdOf(**streamer);
-  ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
-  // Listed by info while it runs.
-  RunResult info = Client({"info", "--server", server_->address()});
+  const Started started = StartedOf(**streamer);
+  ASSERT_TRUE(started.ok());
+  const std::string& id = started.id;
+  // Listed by info while it runs, to a client with the key (from a file), and to no other.
+  std::ofstream(dir_ + "/key.txt") << started.watch_key << "\n";
+  RunResult info = Client({"info", "--server", server_->address(), "--watch-key-file",
+                           dir_ + "/key.txt"});
   EXPECT_NE(info.out.find(id), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("link.json"), std::string::npos) << info.out;
+  RunResult stranger = Client({"info", "--server", server_->address()});
+  EXPECT_EQ(stranger.exit_code, 0) << stranger.err;
+  EXPECT_EQ(stranger.out.find(id), std::string::npos) << stranger.out;
+  EXPECT_EQ(stranger.out.find("link.json"), std::string::npos) << stranger.out;
+  EXPECT_NE(stranger.out.find("active sessions        1"), std::string::npos) << stranger.out;
+  RunResult no_key = Client({"watch", "--server", server_->address(), "--session", id, "--out",
+                             dir_ + "/no_key.ply"});
+  EXPECT_EQ(no_key.exit_code, 1);
+  EXPECT_NE(no_key.err.find("NOT_FOUND: no session '" + id + "' that this call may watch"),
+            std::string::npos)
+      << no_key.err;
+  RunResult wrong_key = Client({"watch", "--server", server_->address(), "--session", id,
+                                "--out", dir_ + "/no_key.ply"},
+                               120, {"TANDEM_WATCH_KEY=" + std::string(32, 'f')});
+  EXPECT_EQ(wrong_key.exit_code, 1);
+  EXPECT_NE(wrong_key.err.find("NOT_FOUND"), std::string::npos) << wrong_key.err;
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/no_key.ply"));
   RunResult live = Client({"watch", "--server", server_->address(), "--session", id, "--out",
                            dir_ + "/live.ply", "--chunks", dir_ + "/live", "--metrics",
-                           dir_ + "/live.json", "--verbose"});
+                           dir_ + "/live.json", "--verbose"},
+                          120, WatchKeyEnv(started));
   ASSERT_EQ(live.exit_code, 0) << live.err;
+  EXPECT_EQ(live.err.find("warning"), std::string::npos) << live.err;
   ASSERT_EQ((*streamer)->Wait(60), std::optional<int>(0)) << (*streamer)->Stderr();
   EXPECT_NE(live.err.find("progress "), std::string::npos) << "it saw the session run";
   RunResult late = Client({"watch", "--server", server_->address(), "--session", id, "--out",
-                           dir_ + "/late.ply"});
+                           dir_ + "/late.ply", "--watch-key-file", dir_ + "/key.txt"});
   ASSERT_EQ(late.exit_code, 0) << late.err;
   const std::string mesh = ReadFile(dir_ + "/s.ply");
   ASSERT_FALSE(mesh.empty());
@@ -868,19 +920,25 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
   ASSERT_TRUE(report.ok());
   EXPECT_EQ(report->stats.slices, 96);
 
+  // An unknown id says the same as a known one without its key.
   RunResult unknown = Client({"watch", "--server", server_->address(), "--session",
-                              "0123456789abcdef0123456789abcdef", "--out", dir_ + "/u.ply"});
+                              "0123456789abcdef0123456789abcdef", "--out", dir_ + "/u.ply"},
+                             120, WatchKeyEnv(started));
   EXPECT_EQ(unknown.exit_code, 1);
-  EXPECT_NE(unknown.err.find("NOT_FOUND"), std::string::npos) << unknown.err;
+  const std::string unknown_text = absl::StrReplaceAll(
+      unknown.err, {{"0123456789abcdef0123456789abcdef", id}});
+  EXPECT_EQ(unknown_text, no_key.err);
   EXPECT_NE(unknown.err.find("0123456789abcdef0123456789abcdef"), std::string::npos) << unknown.err;
-  // A plain (unsealed) stream has an id too, but cannot be watched.
+  // A plain (unsealed) stream has an id and a key too, but cannot be watched.
   RunResult plain = Client({"stream", "--server", server_->address(), "--input", *path, "--iso",
                             "0", "--error", "0.5", "--out", dir_ + "/p.ply"});
   ASSERT_EQ(plain.exit_code, 0) << plain.err;
-  const size_t at = plain.err.find("tandem-client: session ");
-  ASSERT_NE(at, std::string::npos) << plain.err;
-  RunResult refused = Client({"watch", "--server", server_->address(), "--session",
-                              plain.err.substr(at + 23, 32), "--out", dir_ + "/r.ply"});
+  const std::string plain_id = PrintedVariable(plain.err, "TANDEM_RESUME").substr(0, 32);
+  ASSERT_EQ(plain_id.size(), 32u) << plain.err;
+  const std::string plain_key = PrintedVariable(plain.err, "TANDEM_WATCH_KEY");
+  RunResult refused = Client({"watch", "--server", server_->address(), "--session", plain_id,
+                              "--out", dir_ + "/r.ply"},
+                             120, {"TANDEM_WATCH_KEY=" + plain_key});
   EXPECT_EQ(refused.exit_code, 1);
   EXPECT_NE(refused.err.find("FAILED_PRECONDITION"), std::string::npos) << refused.err;
 }
@@ -900,8 +958,8 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
        "--chunks", dir_ + "/chunks", "--out", dir_ + "/s.ply", "--metrics", dir_ + "/s.json"},
       dir_);
   ASSERT_TRUE(streamer.ok()) << streamer.status();
-  const std::string id = SessionIdOf(**streamer);
-  ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
+  const Started started = StartedOf(**streamer);
+  ASSERT_TRUE(started.ok());
 
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
@@ -913,7 +971,8 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
   server_->AddToken(&context);
   context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(180));
   v1::WatchRequest request;
-  request.set_session_id(id);
+  request.set_session_id(started.id);
+  request.set_watch_key(started.watch_key);
   auto watch = stub->Watch(&context, request);
   v1::ExtractResponse first;  // attached: the first message is read, then nothing
   ASSERT_TRUE(watch->Read(&first));
@@ -923,9 +982,9 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
   ASSERT_TRUE(report.ok()) << report.status();
   size_t chunk_files = 0;
   int64_t chunk_bytes = 0;
-  for (const auto& f : std::filesystem::directory_iterator(dir_ + "/chunks")) {
+  for (const std::string& f : SortedFileNames(dir_ + "/chunks", "chunk_")) {
     ++chunk_files;
-    chunk_bytes += static_cast<int64_t>(std::filesystem::file_size(f.path()));
+    chunk_bytes += static_cast<int64_t>(std::filesystem::file_size(dir_ + "/chunks/" + f));
   }
   ASSERT_GE(chunk_files, 2u);
   ASSERT_GT(chunk_bytes, 64 * 1024) << "the chunks must outgrow the watcher's window many times";
@@ -950,38 +1009,24 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
   EXPECT_LE(late_updates, 2 * next_index + 2);
 }
 
-// Resume. The ID:TOKEN a streaming client prints for TANDEM_RESUME ("" until it has): in a
-// variable, not as --resume, whose value every user could read on the command line.
-std::string ResumeKey(const std::string& err) {
-  constexpr std::string_view kHint = "run the same command with TANDEM_RESUME=";
-  const size_t at = err.find(kHint);
-  if (at == std::string::npos) return "";
-  const size_t begin = at + kHint.size();
-  const size_t end = err.find(' ', begin);
-  if (end == std::string::npos) return "";
-  return err.substr(begin, end - begin);
-}
-
-// Starts `tandem-client ARGS` in `dir` and waits (bounded) for the ID:TOKEN it prints.
+// Starts `tandem-client ARGS` in `dir` and waits (bounded) for the session it prints.
 std::unique_ptr<ChildProcess> StartStreamer(std::vector<std::string> args, const std::string& dir,
-                                            std::string* key) {
+                                            Started* started) {
   args.insert(args.begin(), BinPath("tandem-client"));
   auto child = ChildProcess::Spawn(args, dir);
   if (!child.ok()) {
     ADD_FAILURE() << child.status();
     return nullptr;
   }
-  for (int i = 0; i < 400 && key->empty(); ++i) {  // up to 10 s
-    std::this_thread::sleep_for(std::chrono::milliseconds(25));
-    *key = ResumeKey((*child)->Stderr());
-  }
-  if (key->size() != 65) ADD_FAILURE() << "no ID:TOKEN printed: " << (*child)->Stderr();
+  *started = StartedOf(**child);
   return *std::move(child);
 }
 
-// The session `id` as GetInfo lists it (nullopt while it is not listed).
-std::optional<v1::SessionSummary> Summary(const TestServer& server, const std::string& id) {
-  auto info = server.Info();
+// The session `id` as GetInfo lists it to a call with its watch key (nullopt while it is
+// not listed).
+std::optional<v1::SessionSummary> Summary(const TestServer& server, const std::string& id,
+                                          const std::string& watch_key) {
+  auto info = server.Info({watch_key});
   if (!info.ok()) return std::nullopt;
   for (const v1::SessionSummary& s : info->sessions()) {
     if (s.id() == id) return s;
@@ -990,11 +1035,11 @@ std::optional<v1::SessionSummary> Summary(const TestServer& server, const std::s
 }
 
 // Waits (bounded) until `pred` holds for session `id`'s summary.
-bool WaitForSession(const TestServer& server, const std::string& id,
+bool WaitForSession(const TestServer& server, const std::string& id, const std::string& watch_key,
                     const std::function<bool(const v1::SessionSummary&)>& pred,
                     double timeout_s = 20) {
   for (int i = 0; i < timeout_s * 20; ++i) {
-    if (auto s = Summary(server, id); s && pred(*s)) return true;
+    if (auto s = Summary(server, id, watch_key); s && pred(*s)) return true;
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
   return false;
@@ -1052,10 +1097,11 @@ TEST_F(ServiceE2eTest, SeveralIsoValuesInOneStreamEqualTheirSingleStreams) {
        dir_ + "/chunks", "--out", dir_ + "/sealed_{iso}.ply"},
       dir_);
   ASSERT_TRUE(streamer.ok()) << streamer.status();
-  const std::string id = SessionIdOf(**streamer);
-  ASSERT_EQ(id.size(), 32u) << (*streamer)->Stderr();
-  RunResult live = Client({"watch", "--server", server_->address(), "--session", id, "--out",
-                           dir_ + "/watched_{iso}.ply"});
+  const Started started = StartedOf(**streamer);
+  ASSERT_TRUE(started.ok());
+  RunResult live = Client({"watch", "--server", server_->address(), "--session", started.id,
+                           "--out", dir_ + "/watched_{iso}.ply"},
+                          120, WatchKeyEnv(started));
   ASSERT_EQ(live.exit_code, 0) << live.err;
   ASSERT_EQ((*streamer)->Wait(60), std::optional<int>(0)) << (*streamer)->Stderr();
   for (const std::string iso : {"0", "0.05"}) {
@@ -1085,21 +1131,24 @@ TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh)
     RunResult whole = Client(Concat(base, {"--out", dir_ + "/whole_" + tag + ".ply"}));
     ASSERT_EQ(whole.exit_code, 0) << whole.err;
 
-    std::string key;
+    Started started;
     auto first =
         StartStreamer(Concat(base, {"--rate", "40", "--out", dir_ + "/never_" + tag + ".ply"}),
-                      dir_, &key);
-    ASSERT_TRUE(first != nullptr && key.size() == 65u);
-    const std::string id = key.substr(0, 32);
-    ASSERT_TRUE(WaitForSession(*server_, id,
+                      dir_, &started);
+    ASSERT_TRUE(first != nullptr && started.ok());
+    const std::string& id = started.id;
+    const std::string& key = started.resume;
+    ASSERT_TRUE(WaitForSession(*server_, id, started.watch_key,
                                [](const v1::SessionSummary& s) { return s.slices_consumed() >= 12; }));
     first->Signal(SIGKILL);
     EXPECT_EQ(first->Wait(10), 128 + SIGKILL);
-    EXPECT_TRUE(WaitForSession(*server_, id,
+    EXPECT_TRUE(WaitForSession(*server_, id, started.watch_key,
                                [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
-    RunResult info = Client({"info", "--server", server_->address()});
+    RunResult info =
+        Client({"info", "--server", server_->address()}, 120, WatchKeyEnv(started));
     EXPECT_NE(info.out.find(id + "  waiting for its client to resume"), std::string::npos)
         << info.out;
+    EXPECT_NE(info.out.find("waiting for a resume   1"), std::string::npos) << info.out;
 
     // The key from the variable (plain) or from a file (sealed), not on the command line.
     std::vector<std::string> args = Concat(base, {"--out", dir_ + "/resumed_" + tag + ".ply",
@@ -1155,19 +1204,21 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
   RunResult whole = Client(Concat(args(address), {"--out", dir_ + "/whole.ply"}));
   ASSERT_EQ(whole.exit_code, 0) << whole.err;
 
-  std::string key;
+  Started started;
   auto client = StartStreamer(
       Concat(args((*proxy)->address()), {"--rate", "40", "--chunks", dir_ + "/chunks", "--out",
                                          dir_ + "/cut.ply", "--metrics", dir_ + "/cut.json"}),
-      dir_, &key);
-  ASSERT_TRUE(client != nullptr && key.size() == 65u);
-  const std::string id = key.substr(0, 32);
+      dir_, &started);
+  ASSERT_TRUE(client != nullptr && started.ok());
+  const std::string& id = started.id;
   auto watcher = ChildProcess::Spawn({BinPath("tandem-client"), "watch", "--server", address,
                                       "--session", id, "--out", dir_ + "/watched.ply"},
-                                     dir_);
+                                     dir_, WatchKeyEnv(started));
   ASSERT_TRUE(watcher.ok()) << watcher.status();
-  ASSERT_TRUE(WaitForSession(*server_, id,
-                             [](const v1::SessionSummary& s) { return s.slices_consumed() >= 24; }));
+  ASSERT_TRUE(WaitForSession(*server_, id, started.watch_key,
+                             [](const v1::SessionSummary& s) {
+                               return s.slices_consumed() >= 24;
+                             }));
   EXPECT_GE((*proxy)->CutAll(), 1);
   ASSERT_EQ(client->Wait(90), std::optional<int>(0)) << client->Stderr();
   const std::string err = client->Stderr();
@@ -1176,8 +1227,8 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
   ExpectSameMesh(dir_ + "/whole.ply", dir_ + "/cut.ply");
   auto report = ReportFromJson(ReadFile(dir_ + "/cut.json"));
   ASSERT_TRUE(report.ok()) << report.status();
-  // Every chunk once, named without a gap.
-  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks");
+  // Every chunk once, named without a gap, and no temporary file left.
+  const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks", "chunk_");
   ASSERT_FALSE(files.empty());
   char last[32];
   std::snprintf(last, sizeof(last), "chunk_%06zu.drc", files.size() - 1);
@@ -1196,9 +1247,10 @@ std::vector<v1::ExtractRequest> ShapeRequests(Shape shape, int64_t n, int64_t nz
 }
 
 // Starts a stream, sends the config and slices 0..slices-1, waits until they are consumed,
-// then vanishes (cancels). Sets the session's id and resume token.
+// then vanishes (cancels). Sets the session's id, resume token and watch key.
 void VanishMidScan(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>& requests,
-                   int64_t slices, std::string* id, std::string* token) {
+                   int64_t slices, std::string* id, std::string* token,
+                   std::string* watch_key) {
   grpc::ClientContext context;
   context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
   auto stream = stub.Extract(&context);
@@ -1211,6 +1263,7 @@ void VanishMidScan(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>
     if (response.has_progress() && !response.progress().session_id().empty()) {
       *id = response.progress().session_id();
       *token = response.progress().resume_token();
+      *watch_key = response.progress().watch_key();
     }
     if (response.has_progress() && response.progress().slices_consumed() == slices) break;
   }
@@ -1235,14 +1288,15 @@ TEST_F(ServiceE2eTest, ACutStreamOfSeveralSurfacesResumesEachOfThem) {
   };
   RunResult whole = Client(Concat(args(address), {"--out", dir_ + "/whole_{iso}.ply"}));
   ASSERT_EQ(whole.exit_code, 0) << whole.err;
-  std::string key;
+  Started started;
   auto client = StartStreamer(
       Concat(args((*proxy)->address()), {"--rate", "40", "--out", dir_ + "/cut_{iso}.ply"}), dir_,
-      &key);
-  ASSERT_TRUE(client != nullptr && key.size() == 65u);
-  ASSERT_TRUE(WaitForSession(*server_, key.substr(0, 32), [](const v1::SessionSummary& s) {
-    return s.slices_consumed() >= 24;
-  }));
+      &started);
+  ASSERT_TRUE(client != nullptr && started.ok());
+  ASSERT_TRUE(WaitForSession(*server_, started.id, started.watch_key,
+                             [](const v1::SessionSummary& s) {
+                               return s.slices_consumed() >= 24;
+                             }));
   EXPECT_GE((*proxy)->CutAll(), 1);
   ASSERT_EQ(client->Wait(90), std::optional<int>(0)) << client->Stderr();
   EXPECT_NE(client->Stderr().find("resumed at slice"), std::string::npos) << client->Stderr();
@@ -1260,14 +1314,13 @@ TEST(ServiceResume, BadResumesAreRefusedAndAnUnclaimedSessionEnds) {
   StreamOutcome whole = RunStream(*stub, requests);
   ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
 
-  auto start_and_vanish = [&](std::string* id, std::string* token) {
-    VanishMidScan(*stub, requests, 10, id, token);
-  };
-  std::string id, token;
-  start_and_vanish(&id, &token);
+  std::string id, token, watch_key;
+  VanishMidScan(*stub, requests, 10, &id, &token, &watch_key);
   ASSERT_EQ(id.size(), 32u);
   ASSERT_EQ(token.size(), 32u);
-  ASSERT_TRUE(WaitForSession(**server, id, [](const v1::SessionSummary& s) {
+  ASSERT_EQ(watch_key.size(), 32u);
+  EXPECT_NE(watch_key, token) << "watching is not resuming";
+  ASSERT_TRUE(WaitForSession(**server, id, watch_key, [](const v1::SessionSummary& s) {
     return s.waiting_for_resume() && s.slices_consumed() == 10;
   }));
 
@@ -1305,6 +1358,7 @@ TEST(ServiceResume, BadResumesAreRefusedAndAnUnclaimedSessionEnds) {
   ASSERT_FALSE(good.responses.empty());
   EXPECT_EQ(good.responses.front().progress().session_id(), id);
   EXPECT_TRUE(good.responses.front().progress().resume_token().empty()) << "creator only";
+  EXPECT_EQ(good.responses.front().progress().watch_key(), watch_key);
   EXPECT_EQ(good.responses.front().progress().slices_consumed(), 10);
   auto final_mesh = [](const StreamOutcome& o) {
     std::string draco;
@@ -1320,13 +1374,13 @@ TEST(ServiceResume, BadResumesAreRefusedAndAnUnclaimedSessionEnds) {
   EXPECT_EQ(resume(id, token, 10).status.error_code(), grpc::StatusCode::NOT_FOUND);
 
   // Nobody resumes the next one: after the 8 s window it ends, and nothing is left.
-  std::string id2, token2;
-  start_and_vanish(&id2, &token2);
-  ASSERT_TRUE(WaitForSession(**server, id2,
+  std::string id2, token2, watch_key2;
+  VanishMidScan(*stub, requests, 10, &id2, &token2, &watch_key2);
+  ASSERT_TRUE(WaitForSession(**server, id2, watch_key2,
                              [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
   v1::Counters counters;
   EXPECT_TRUE((*server)->WaitIdle(20, &counters)) << counters.ShortDebugString();
-  EXPECT_TRUE(WaitForSession(**server, id2, [](const v1::SessionSummary& s) {
+  EXPECT_TRUE(WaitForSession(**server, id2, watch_key2, [](const v1::SessionSummary& s) {
     return s.finished() && !s.waiting_for_resume();
   }));
   EXPECT_EQ(resume(id2, token2, 10).status.error_code(), grpc::StatusCode::NOT_FOUND);
@@ -1349,16 +1403,18 @@ TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
   ASSERT_EQ(whole.exit_code, 0) << whole.err;
   for (int round = 0; round < 2; ++round) {  // the session on either replica
     SCOPED_TRACE(round);
-    std::string key;
-    auto first = StartStreamer(Concat(base, {"--rate", "25", "--out", dir + "/never.ply"}), dir, &key);
-    ASSERT_TRUE(first != nullptr && key.size() == 65u);
-    const std::string id = key.substr(0, 32);
-    TestServer& holder = Summary(**a, id) ? **a : **b;
-    ASSERT_TRUE(WaitForSession(holder, id,
+    Started started;
+    auto first =
+        StartStreamer(Concat(base, {"--rate", "25", "--out", dir + "/never.ply"}), dir, &started);
+    ASSERT_TRUE(first != nullptr && started.ok());
+    const std::string& id = started.id;
+    const std::string& key = started.resume;
+    TestServer& holder = Summary(**a, id, started.watch_key) ? **a : **b;
+    ASSERT_TRUE(WaitForSession(holder, id, started.watch_key,
                                [](const v1::SessionSummary& s) { return s.slices_consumed() >= 10; }));
     first->Signal(SIGKILL);
     first->Wait(10);
-    ASSERT_TRUE(WaitForSession(holder, id,
+    ASSERT_TRUE(WaitForSession(holder, id, started.watch_key,
                                [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
     const std::string out = dir + "/resumed" + std::to_string(round) + ".ply";
     // --resume on the command line still works, with a warning that others can read it.
@@ -1373,6 +1429,265 @@ TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
   }
 }
 
+// A deep sealed scan, whose chunks outgrow the server's --watch-retain-mb (0 here: it keeps
+// only the newest for watchers), resumed by a new client process after a SIGKILL: with the
+// first run's --chunks DIR it asks only for the chunks not saved there, which the server kept
+// because they were not acknowledged, and the mesh is the uninterrupted stream's; without
+// them the resume is refused, naming --chunks DIR.
+TEST(ServiceResume, AKilledClientResumesFromItsChunkFolderPastTheWatchRetention) {
+  const std::string dir = MakeTempDir();
+  auto server = TestServer::Start({"--watch-retain-mb", "0", "--resume-window-seconds", "8"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  // A gyroid through every slice: a chunk about every second at --rate 30.
+  auto path = WriteSyntheticVolume(
+      dir, "gyroid", MakeSyntheticSource(Shape::kGyroid, 64, 64, 192, {1, 1, 1.0 / 3}));
+  ASSERT_TRUE(path.ok()) << path.status();
+  const std::vector<std::string> base = {"stream", "--server", (*server)->address(), "--input",
+                                         *path, "--iso", "0", "--error", "0.05", "--seal"};
+  RunResult whole = Client(Concat(base, {"--out", dir + "/whole.ply"}));
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+  for (const bool keep : {true, false}) {
+    SCOPED_TRACE(keep ? "with --chunks" : "without --chunks");
+    const std::string tag = keep ? "kept" : "lost";
+    const std::string chunks = dir + "/chunks_" + tag;
+    std::vector<std::string> args = base;
+    if (keep) args = Concat(args, {"--chunks", chunks});
+    Started started;
+    auto first = StartStreamer(Concat(args, {"--rate", "30", "--out", dir + "/never.ply"}), dir,
+                               &started);
+    ASSERT_TRUE(first != nullptr && started.ok());
+    // Killed once several chunks came (saved, with --chunks) and the server's watch retention
+    // dropped them: mid-scan.
+    ASSERT_TRUE(WaitForSession(**server, started.id, started.watch_key,
+                               [](const v1::SessionSummary& s) {
+                                 return s.slices_consumed() >= 100;
+                               }));
+    const std::string fourth = chunks + "/chunk_000003.drc";
+    for (int i = 0; i < 400 && keep && !std::filesystem::exists(fourth); ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    }
+    ASSERT_LT(Summary(**server, started.id, started.watch_key)->slices_consumed(), 192);
+    first->Signal(SIGKILL);
+    EXPECT_EQ(first->Wait(10), 128 + SIGKILL);
+    ASSERT_TRUE(WaitForSession(**server, started.id, started.watch_key,
+                               [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
+    if (keep) {
+      ASSERT_TRUE(std::filesystem::exists(fourth)) << first->Stderr();
+    }
+    const std::string out = dir + "/resumed_" + tag + ".ply";
+    RunResult resumed = Client(Concat(args, {"--out", out, "--verbose"}), 120,
+                               {"TANDEM_RESUME=" + started.resume});
+    if (!keep) {
+      EXPECT_EQ(resumed.exit_code, 1) << resumed.err;
+      EXPECT_NE(resumed.err.find("FAILED_PRECONDITION: session " + started.id +
+                                 " cannot resend its sealed chunks from index 0"),
+                std::string::npos)
+          << resumed.err;
+      EXPECT_NE(resumed.err.find("tandem-client stream --chunks DIR"), std::string::npos)
+          << resumed.err;
+      EXPECT_FALSE(std::filesystem::exists(out));
+      continue;
+    }
+    ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    int64_t kept = -1;
+    const std::string note = " sealed chunks kept in " + chunks + "; the server sends the rest";
+    const size_t note_at = resumed.err.find(note);
+    ASSERT_NE(note_at, std::string::npos) << resumed.err;
+    const size_t number_at = resumed.err.rfind(' ', note_at - 1) + 1;
+    ASSERT_TRUE(absl::SimpleAtoi(resumed.err.substr(number_at, note_at - number_at), &kept))
+        << resumed.err;
+    EXPECT_GE(kept, 3) << resumed.err;
+    // The folder's chunks, then the server's from where the folder stopped: each chunk once.
+    const std::vector<std::string> files = SortedFileNames(chunks);
+    ASSERT_GE(files.size(), static_cast<size_t>(kept) + 2);
+    for (size_t i = 0; i + 1 < files.size(); ++i) {
+      const std::string line = absl::StrFormat("chunk index=%d ", i);
+      const size_t seen = resumed.err.find(line, note_at);
+      EXPECT_NE(seen, std::string::npos) << line << resumed.err;
+      EXPECT_EQ(resumed.err.find(line, seen + 1), std::string::npos) << line << resumed.err;
+    }
+    ExpectSameMesh(dir + "/whole.ply", out);
+    // The folder holds every chunk once, listed in its manifest, no temporary file left.
+    EXPECT_EQ(files.back(), "chunks.tsv");
+    for (size_t i = 0; i + 1 < files.size(); ++i) {
+      EXPECT_EQ(files[i], absl::StrFormat("chunk_%06d.drc", i));
+    }
+    const std::vector<std::string> lines =
+        absl::StrSplit(ReadFile(chunks + "/chunks.tsv"), '\n', absl::SkipEmpty());
+    EXPECT_EQ(lines.size(), files.size()) << "the session line and one a chunk";
+    EXPECT_EQ(lines.front(), "session\t" + started.id);
+  }
+  v1::Counters counters;
+  EXPECT_TRUE((*server)->WaitIdle(20, &counters)) << counters.ShortDebugString();
+}
+
+// Sessions live in the server's memory: a killed client resumed against the restarted
+// server is told that its session is gone and to send the scan again, not a bare NOT_FOUND.
+TEST(ServiceResume, AResumeAfterTheServerRestartedSaysTheSessionIsLost) {
+  const std::string dir = MakeTempDir();
+  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 48, 48, 96));
+  ASSERT_TRUE(path.ok()) << path.status();
+  Started started;
+  {
+    auto server = TestServer::Start();
+    ASSERT_TRUE(server.ok()) << server.status();
+    auto first = StartStreamer({"stream", "--server", (*server)->address(), "--input", *path,
+                                "--iso", "0", "--rate", "30", "--out", dir + "/never.ply"},
+                               dir, &started);
+    ASSERT_TRUE(first != nullptr && started.ok());
+    ASSERT_TRUE(WaitForSession(**server, started.id, started.watch_key,
+                               [](const v1::SessionSummary& s) {
+                                 return s.slices_consumed() >= 10;
+                               }));
+    first->Signal(SIGKILL);
+    EXPECT_EQ(first->Wait(10), 128 + SIGKILL);
+    (*server)->process().Signal(SIGKILL);
+  }
+  auto restarted = TestServer::Start();
+  ASSERT_TRUE(restarted.ok()) << restarted.status();
+  RunResult resumed = Client({"stream", "--server", (*restarted)->address(), "--input", *path,
+                              "--iso", "0", "--out", dir + "/resumed.ply"},
+                             120, {"TANDEM_RESUME=" + started.resume});
+  EXPECT_EQ(resumed.exit_code, 1) << resumed.err;
+  EXPECT_NE(resumed.err.find("NOT_FOUND: the server no longer has session " + started.id +
+                             " (it restarted or the session expired); send the scan again "
+                             "without --resume"),
+            std::string::npos)
+      << resumed.err;
+  EXPECT_FALSE(std::filesystem::exists(dir + "/resumed.ply"));
+  // Sent again without the resume, the scan gives its mesh.
+  RunResult again = Client({"stream", "--server", (*restarted)->address(), "--input", *path,
+                            "--iso", "0", "--out", dir + "/again.ply"});
+  EXPECT_EQ(again.exit_code, 0) << again.err;
+}
+
+// The server side of a resume from the client's folder: a session whose client asked for
+// chunk_acks keeps every chunk the client has not acknowledged although --watch-retain-mb
+// (0 here) dropped them for watchers, while it waits for the resume; a resume that holds
+// none of them gets them all again, and the chunks make up the uninterrupted stream's mesh.
+// Without chunk_acks the same resume is refused: the server no longer has chunk 0.
+TEST(ServiceResume, UnacknowledgedChunksWaitWithTheParkedSession) {
+  auto server = TestServer::Start({"--watch-retain-mb", "0", "--resume-window-seconds", "8"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto stub = (*server)->NewStub();
+  std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kGyroid, 40, 40);
+  requests.front().mutable_config()->set_sealed_chunks(true);
+  StreamOutcome whole = RunStream(*stub, requests);
+  ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
+  ASSERT_TRUE(whole.responses.back().has_final_metrics());
+  const int64_t triangles = whole.responses.back().final_metrics().triangles_final();
+  constexpr int64_t kVanishAt = 36;
+
+  for (const bool acks : {true, false}) {
+    SCOPED_TRACE(acks ? "chunk_acks" : "no chunk_acks");
+    std::vector<v1::ExtractRequest> mine = requests;
+    mine.front().mutable_config()->set_chunk_acks(acks);
+    // Paced (a chunk comes about every second), never acknowledging, then gone.
+    std::string id, token, watch_key;
+    int64_t chunks_seen = 0;
+    {
+      grpc::ClientContext context;
+      context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+      auto stream = stub->Extract(&context);
+      std::thread writer([&] {
+        for (const v1::ExtractRequest& r : mine) {
+          if (r.has_end() || (r.has_chunk() && r.chunk().slice() >= kVanishAt)) break;
+          if (r.has_chunk()) std::this_thread::sleep_for(std::chrono::milliseconds(70));
+          if (!stream->Write(r)) break;
+        }
+      });
+      v1::ExtractResponse response;
+      while (stream->Read(&response)) {
+        if (response.has_progress() && !response.progress().session_id().empty()) {
+          id = response.progress().session_id();
+          token = response.progress().resume_token();
+          watch_key = response.progress().watch_key();
+          EXPECT_EQ(response.progress().chunk_acks(), acks);
+        }
+        if (response.has_sealed_chunk()) ++chunks_seen;
+        if (response.has_progress() && response.progress().slices_consumed() == kVanishAt) break;
+      }
+      writer.join();
+      context.TryCancel();
+      stream->Finish();
+    }
+    ASSERT_GE(chunks_seen, 2) << "the watch retention dropped some";
+    ASSERT_TRUE(WaitForSession(**server, id, watch_key, [](const v1::SessionSummary& s) {
+      return s.waiting_for_resume();
+    }));
+    std::vector<v1::ExtractRequest> rest;
+    v1::ExtractRequest head;
+    head.mutable_config()->mutable_resume()->set_session_id(id);
+    head.mutable_config()->mutable_resume()->set_token(token);
+    head.mutable_config()->mutable_resume()->set_next_slice(kVanishAt);
+    head.mutable_config()->mutable_resume()->set_chunks_received(0);
+    rest.push_back(head);
+    for (const v1::ExtractRequest& r : mine) {
+      if (r.has_end() || (r.has_chunk() && r.chunk().slice() >= kVanishAt)) rest.push_back(r);
+    }
+    StreamOutcome resumed = RunStream(*stub, rest);
+    if (!acks) {
+      EXPECT_EQ(resumed.status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+      EXPECT_NE(resumed.status.error_message().find("cannot resend its sealed chunks from index 0"),
+                std::string::npos)
+          << resumed.status.error_message();
+      continue;
+    }
+    ASSERT_TRUE(resumed.status.ok()) << resumed.status.error_message();
+    int64_t next = 0, sum = 0;
+    for (const v1::ExtractResponse& r : resumed.responses) {
+      if (!r.has_sealed_chunk()) continue;
+      EXPECT_EQ(r.sealed_chunk().index(), next);
+      ++next;
+      sum += r.sealed_chunk().triangles();
+    }
+    EXPECT_GT(next, chunks_seen);
+    ASSERT_TRUE(resumed.responses.back().has_final_metrics());
+    EXPECT_EQ(resumed.responses.back().final_metrics().triangles_final(), triangles);
+    EXPECT_EQ(sum, triangles);
+  }
+}
+
+// ChunksReceived is the client's word about what it saved: on a stream that did not ask for
+// chunk_acks, or above the chunks sent, it ends the stream with INVALID_ARGUMENT naming why.
+TEST(ServiceResume, ChunksReceivedOutOfTurnIsRefusedNamingTheRule) {
+  auto server = TestServer::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  auto stub = (*server)->NewStub();
+  std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kSphere, 32, 24);
+  requests.front().mutable_config()->set_sealed_chunks(true);
+  v1::ExtractRequest ack;
+  ack.mutable_chunks_received()->set_count(5);
+
+  StreamOutcome unasked = RunStream(*stub, {requests.front(), ack});
+  EXPECT_EQ(unasked.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(unasked.status.error_message().find("SessionConfig.chunk_acks"), std::string::npos)
+      << unasked.status.error_message();
+
+  // Asked for, after the first Progress said so, but above the chunks sent (none yet).
+  requests.front().mutable_config()->set_chunk_acks(true);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  auto stream = stub->Extract(&context);
+  ASSERT_TRUE(stream->Write(requests.front()));
+  v1::ExtractResponse first;
+  ASSERT_TRUE(stream->Read(&first));
+  ASSERT_TRUE(first.has_progress());
+  EXPECT_TRUE(first.progress().chunk_acks());
+  const std::string id = first.progress().session_id();
+  stream->Write(ack);
+  stream->WritesDone();
+  v1::ExtractResponse rest;
+  while (stream->Read(&rest)) {
+  }
+  const grpc::Status st = stream->Finish();
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(st.error_message(),
+            "ChunksReceived.count = 5, but session " + id + " has sent 0 sealed chunks");
+  v1::Counters counters;
+  EXPECT_TRUE((*server)->WaitIdle(20, &counters)) << counters.ShortDebugString();
+}
+
 // A session waiting for a resume holds a session slot, but gives it up to a new stream
 // that would otherwise be refused as busy.
 TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
@@ -1380,9 +1695,9 @@ TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
   ASSERT_TRUE(server.ok()) << server.status();
   auto stub = (*server)->NewStub();
   const std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kSphere, 32, 24);
-  std::string id, token;
-  VanishMidScan(*stub, requests, 8, &id, &token);
-  ASSERT_TRUE(WaitForSession(**server, id,
+  std::string id, token, watch_key;
+  VanishMidScan(*stub, requests, 8, &id, &token, &watch_key);
+  ASSERT_TRUE(WaitForSession(**server, id, watch_key,
                              [](const v1::SessionSummary& s) { return s.waiting_for_resume(); }));
   // The parked session holds the vanished stream's slot from the moment it waits, whether or
   // not gRPC has finished with that stream (a new stream in between was refused as busy).

@@ -421,6 +421,52 @@ TEST(LimitsTest, NoiseIsRefusedWhileItIsExtractedAndItsSlotsComeFreeAtOnce) {
   EXPECT_TRUE(FinishedOk(RunStream(*s.NewStub(), Good()))) << "the server carries on";
 }
 
+// Dense streams keep the one compute thread busy: a session whose client is killed waits, in
+// its next slice, for steps queued behind the other sessions'. Without a resume window its
+// stream ends with the kill, its session stops waiting at once (its budget is cancelled, which
+// wakes it) and its slot comes free within a fraction of a second. (Where in that round the
+// kill lands is chance: budget_test's ASessionWaitingBehindOtherWorkWakesWhenCancelled pins
+// the wake down.)
+TEST(LimitsTest, AKilledClientsSlotComesFreeAtOnceUnderDenseLoad) {
+  auto server = TestServer::Start({"--max-sessions", "4", "--compute-threads", "1",
+                                   "--resume-window-seconds", "0"});
+  ASSERT_TRUE(server.ok()) << server.status();
+  TestServer& s = **server;
+  const std::string dir = MakeTempDir();
+  double iso = 0;
+  auto volume = WritePattern(dir, Pattern::kNoise, 256, 24, &iso);
+  ASSERT_TRUE(volume.ok()) << volume.status();
+  std::vector<std::unique_ptr<ChildProcess>> clients;
+  for (int i = 0; i < 4; ++i) {
+    auto c = ChildProcess::Spawn({BinPath("tandem-client"), "stream", "--server", s.address(),
+                                  "--input", *volume, "--iso", absl::StrCat(iso), "--parts", "2",
+                                  "--retries", "0", "--out", absl::StrCat(dir, "/out", i, ".drc")},
+                                 dir);
+    ASSERT_TRUE(c.ok()) << c.status();
+    clients.push_back(*std::move(c));
+  }
+  // Every session past its first slices: the ring full, steps queued on the one thread.
+  ASSERT_TRUE(WaitFor(s, 60, [](const v1::Counters& c) {
+    return c.active_sessions() == 4 && c.session_bytes() > 4 * (int64_t{64} << 20);
+  }));
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  clients[0]->Signal(SIGKILL);
+  const auto killed = Clock::now();
+  EXPECT_EQ(clients[0]->Wait(10), 128 + SIGKILL);
+  v1::Counters counters;
+  EXPECT_TRUE(WaitFor(s, 30, [](const v1::Counters& c) { return c.active_sessions() == 3; },
+                      &counters))
+      << counters.ShortDebugString();
+  const double freed_s = SecondsSince(killed);
+  std::printf("the killed client's slot came free after %.3f s\n", freed_s);
+  RecordProperty("slot_freed_seconds", std::to_string(freed_s));
+  EXPECT_LT(freed_s, kSanitized ? 3.0 : 1.0);
+  // The slot takes a new stream while the others go on.
+  EXPECT_TRUE(FinishedOk(RunStream(*s.NewStub(), Good()))) << "the freed slot takes a stream";
+  for (size_t i = 1; i < clients.size(); ++i) clients[i]->Signal(SIGKILL);
+  EXPECT_TRUE(s.WaitIdle(30, &counters)) << counters.ShortDebugString();
+}
+
 // A client that stops reading: once the stream's unsent responses reach
 // --max-inflight-bytes the server stops reading it (no slice consumed, memory constant);
 // when the client reads again, the stream resumes and completes. (Previews are not encoded

@@ -342,6 +342,55 @@ TEST_F(AuthTest, ClientSendsItsTokenAndTheLogNeverShowsOne) {
   EXPECT_EQ(log.find("tok-"), std::string::npos) << log;
 }
 
+// Sessions are their creator's: with per-user tokens, a user's clients list and watch the
+// user's sessions without a key; another user's token sees neither the id nor the mesh
+// (NOT_FOUND, as for an unknown id) until it is given the watch key.
+TEST_F(AuthTest, ASessionIsItsTokensAndTheWatchKeysOnly) {
+  auto server = TestServer::Start({"--auth-tokens-file", *tokens_file_});
+  ASSERT_TRUE(server.ok()) << server.status();
+  const std::string& address = (*server)->address();
+  const std::string alpha = std::string("TANDEM_TOKEN=") + kToken1;
+  const std::string bravo = std::string("TANDEM_TOKEN=") + kToken2;
+  RunResult stream = Client(Concat(StreamArgs(address, *dir_ + "/mine.ply"), {"--seal"}), {alpha});
+  ASSERT_EQ(stream.exit_code, 0) << stream.err;
+  // "... TANDEM_RESUME=ID:TOKEN ..." and "... TANDEM_WATCH_KEY=KEY ..."
+  auto printed = [&](const std::string& name) {
+    const size_t at = stream.err.find(name + "=");
+    if (at == std::string::npos) return std::string();
+    return stream.err.substr(at + name.size() + 1, 32);
+  };
+  const std::string id = printed("TANDEM_RESUME");
+  const std::string key = printed("TANDEM_WATCH_KEY");
+  ASSERT_EQ(id.size(), 32u) << stream.err;
+  ASSERT_EQ(key.size(), 32u) << stream.err;
+
+  RunResult own_info = Client({"info", "--server", address}, {alpha});
+  ASSERT_EQ(own_info.exit_code, 0) << own_info.err;
+  EXPECT_NE(own_info.out.find("session                " + id), std::string::npos) << own_info.out;
+  RunResult other_info = Client({"info", "--server", address}, {bravo});
+  ASSERT_EQ(other_info.exit_code, 0) << other_info.err;
+  EXPECT_EQ(other_info.out.find(id), std::string::npos) << other_info.out;
+  EXPECT_NE(other_info.out.find("sessions listed        0"), std::string::npos) << other_info.out;
+  RunResult keyed_info = Client({"info", "--server", address}, {bravo, "TANDEM_WATCH_KEY=" + key});
+  EXPECT_NE(keyed_info.out.find("session                " + id), std::string::npos)
+      << keyed_info.out;
+
+  const std::vector<std::string> watch = {"watch", "--server", address, "--session", id, "--out"};
+  RunResult own = Client(Concat(watch, {*dir_ + "/own.ply"}), {alpha});
+  ASSERT_EQ(own.exit_code, 0) << own.err;
+  EXPECT_EQ(ReadFileOrEmpty(*dir_ + "/own.ply"), ReadFileOrEmpty(*dir_ + "/mine.ply"));
+  RunResult other = Client(Concat(watch, {*dir_ + "/other.ply"}), {bravo});
+  EXPECT_EQ(other.exit_code, 1) << other.err;
+  EXPECT_NE(other.err.find("NOT_FOUND: no session '" + id + "' that this call may watch"),
+            std::string::npos)
+      << other.err;
+  EXPECT_FALSE(std::filesystem::exists(*dir_ + "/other.ply"));
+  RunResult shared =
+      Client(Concat(watch, {*dir_ + "/shared.ply"}), {bravo, "TANDEM_WATCH_KEY=" + key});
+  ASSERT_EQ(shared.exit_code, 0) << shared.err;
+  EXPECT_EQ(ReadFileOrEmpty(*dir_ + "/shared.ply"), ReadFileOrEmpty(*dir_ + "/mine.ply"));
+}
+
 TEST_F(AuthTest, TokensOverTls) {
   auto server = TestServer::Start(Concat(TlsArgs(), {"--auth-tokens-file", *tokens_file_}),
                                   {ReadFileOrEmpty(pki_->ca_crt), kToken1});

@@ -181,13 +181,16 @@ void TestServer::AddToken(grpc::ClientContext* context) const {
   if (!auth_.token.empty()) context->AddMetadata("authorization", "Bearer " + auth_.token);
 }
 
-absl::StatusOr<v1::InfoResponse> TestServer::Info() const {
+absl::StatusOr<v1::InfoResponse> TestServer::Info(
+    const std::vector<std::string>& watch_keys) const {
   auto stub = NewStub();
   grpc::ClientContext context;
   context.set_deadline(In(5));
   AddToken(&context);
   v1::InfoResponse info;
-  grpc::Status st = stub->GetInfo(&context, v1::InfoRequest(), &info);
+  v1::InfoRequest request;
+  for (const std::string& key : watch_keys) request.add_watch_keys(key);
+  grpc::Status st = stub->GetInfo(&context, request, &info);
   if (!st.ok()) return wire::FromGrpcStatus(st);
   return info;
 }

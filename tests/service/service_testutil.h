@@ -79,7 +79,8 @@ class TestServer {
   // A stub with this server's credentials; add the token with AddToken.
   std::unique_ptr<v1::Tandem::Stub> NewStub() const;
   void AddToken(grpc::ClientContext* context) const;
-  absl::StatusOr<v1::InfoResponse> Info() const;
+  // GetInfo with this server's token; `watch_keys` list those sessions too.
+  absl::StatusOr<v1::InfoResponse> Info(const std::vector<std::string>& watch_keys = {}) const;
   // "SERVING", "NOT_SERVING", ... or the RPC error's code name, for health service
   // `service` ("" = the server as a whole).
   std::string Health(const std::string& service = "") const;

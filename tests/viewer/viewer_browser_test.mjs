@@ -257,9 +257,12 @@ await run(async () => {
   // A watcher joining mid-scan (tandem-client watch --view) draws the chunks so far while the
   // scan is still held, its bar over the depth the session announces.
   const session = (client.err.match(/session ([0-9a-f]{32})/) || [])[1];
+  // Sessions are private: the watch key the streaming client printed lets watchers read it.
+  const watchKey = (client.err.match(/TANDEM_WATCH_KEY=([0-9a-f]{32})/) || [])[1];
   const liveWatcher = start('tandem-client', ['watch', '--server', address, '--session', session,
                                               '--out', path.join(work, 'watched.ply'),
-                                              '--view', '127.0.0.1:0', '--view-linger', String(LONG)]);
+                                              '--view', '127.0.0.1:0', '--view-linger', String(LONG)],
+                            { TANDEM_WATCH_KEY: watchKey });
   const liveWatchPage = await openPage(liveWatcher, 'watcher mid-scan');
   const watchedLive = await waitFor('the watcher to draw the chunks so far', async () => {
     const v = await viewOf(liveWatchPage);
@@ -316,7 +319,7 @@ await run(async () => {
   // gets them through the cookie the printed address gives it.
   const watcher = start('tandem-client', ['view', '--server', address, '--session', session,
                                           '--view', '127.0.0.1:0', '--view-linger', String(LONG)],
-                        { TANDEM_VIEW_TOKEN: 'w4tch' });
+                        { TANDEM_VIEW_TOKEN: 'w4tch', TANDEM_WATCH_KEY: watchKey });
   const watchUrl = await waitFor('tandem-client view', () => urlIn(watcher), LONG);
   check(watchUrl.includes('?token=w4tch'), 'the token from $TANDEM_VIEW_TOKEN', watchUrl);
   const script = await fetch(watchUrl.replace(/\?token=.*/, 'viewer.js'));
