@@ -11,8 +11,17 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "tandem/tandem.h"
 
 namespace tandem::cli {
+
+// The exit statuses of the three programs (and the Python client): 2 for a mistake in the
+// command line itself (a flag unknown, missing, malformed or given twice, a value an
+// option's rule refuses, an output extension no writer has, an unknown subcommand), 1 for
+// what goes wrong while running (the input, files, devices, servers, the network, a
+// session's failure). 0 is success; 3 is `--strict`'s empty surface.
+inline constexpr int kExitFailure = 1;
+inline constexpr int kExitUsage = 2;
 
 // Several surfaces in one pass: "--iso 60,120" as its values and the text of each (for
 // output names). At most kMaxIsoValues, finite, no value twice; errors name the flag.

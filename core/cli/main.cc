@@ -76,9 +76,25 @@ file per slice: a DICOM series (any names and order; vertices in the patient fra
 numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
 )";
 
+// A failure met while running (a file, a device, a session): exit status 1 (cli_util.h).
 int Fail(const absl::Status& st) {
   std::fprintf(stderr, "tandem: %s\n", std::string(st.message()).c_str());
-  return st.code() == absl::StatusCode::kInvalidArgument ? 2 : 1;
+  return cli::kExitFailure;
+}
+
+// A mistake in the command line itself: exit status 2.
+int Usage(const absl::Status& st) {
+  std::fprintf(stderr, "tandem: %s\n", std::string(st.message()).c_str());
+  return cli::kExitUsage;
+}
+
+// A writer's refusal of what the flags ask for (a format that cannot hold it: Invalid
+// argument or Unimplemented) is the command line's; anything else happened while writing.
+int FailWriting(const absl::Status& st) {
+  return st.code() == absl::StatusCode::kInvalidArgument ||
+                 st.code() == absl::StatusCode::kUnimplemented
+             ? Usage(st)
+             : Fail(st);
 }
 
 // Parses a subcommand's flags (argv[2..]): -1 to go on, else the exit status (0 after
@@ -89,7 +105,7 @@ int ParseOrExit(cli::FlagSet& flags, int argc, char** argv) {
     std::fputs(flags.Help().c_str(), stdout);
     return 0;
   }
-  if (!st.ok()) return Fail(st);
+  if (!st.ok()) return Usage(st);
   return -1;
 }
 
@@ -138,16 +154,17 @@ int Extract(int argc, char** argv) {
                "surface samples per direction for --reference (0 = automatic)");
   flags.SetEpilog(
       "Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0\n"
-      "done, 1 failure while running, 2 bad arguments or input, 3 with --strict: the iso-value\n"
-      "is outside the data (a warning on stderr otherwise).\n");
+      "done, 1 a failure while running (the input, a file, the session), 2 a mistake in the\n"
+      "command line, 3 with --strict: the iso-value is outside the data (a warning on stderr\n"
+      "otherwise).\n");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (!flags.positional().empty()) {
-    return Fail(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
+    return Usage(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
   }
-  if (absl::Status st = f.Check(flags); !st.ok()) return Fail(st);
+  if (absl::Status st = f.Check(flags); !st.ok()) return Usage(st);
   const std::string& out = f.out;
   if (!IsMeshOutputPath(out)) {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
   }
   const std::string input_path = f.InputPath();
@@ -184,14 +201,15 @@ int Extract(int argc, char** argv) {
     source = OpenVolume(input_path, f.Open(note));
   }
   if (!source.ok()) return Fail(source.status());
-  if (absl::StatusOr<std::string> warn = f.ApplySpacing(&*source); !warn.ok()) {
-    return Fail(warn.status());
+  if (absl::StatusOr<std::string> warn = f.ApplyGeometry(&*source); !warn.ok()) {
+    return Usage(warn.status());
   } else if (!warn->empty()) {
     std::fprintf(stderr, "tandem extract: warning: %s\n", warn->c_str());
   }
   const VolumeInfo info = (*source)->info();
 
   MeshWriteOptions write;
+  write.space = info.space;
   if (f.glb_draco) {
 #ifdef TANDEM_HAVE_DRACO
     codec::DracoOptions draco;
@@ -199,21 +217,21 @@ int Extract(int argc, char** argv) {
     draco.compression_level = static_cast<int>(f.compression_level);
     write.glb_draco = codec::GlbCompressor(draco);
 #else
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         "--glb-draco: this tandem was built without Draco (-DTANDEM_BUILD_SERVICE=OFF)"));
 #endif
   }
   auto parsed_opt = f.Options(flags, info);
-  if (!parsed_opt.ok()) return Fail(parsed_opt.status());
+  if (!parsed_opt.ok()) return Usage(parsed_opt.status());
   SessionOptions opt = *parsed_opt;
   // --iso A,B,...: one surface per value, from one read of the slices.
   auto parsed_isos = f.Isos(flags, info);
-  if (!parsed_isos.ok()) return Fail(parsed_isos.status());
+  if (!parsed_isos.ok()) return Usage(parsed_isos.status());
   const std::vector<cli::IsoValue> isos = *std::move(parsed_isos);
   std::vector<std::string> outs;
   for (const cli::IsoValue& iso : isos) {
     auto name = cli::NameForIso("out", out, iso, isos.size());
-    if (!name.ok()) return Fail(name.status());
+    if (!name.ok()) return Usage(name.status());
     outs.push_back(*std::move(name));
   }
   opt.iso = isos[0].value;
@@ -241,7 +259,7 @@ int Extract(int argc, char** argv) {
     s.out = outs[i];
     options.push_back(s.opt);
     if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !reference) {
-      auto w = ChunkedMeshWriter::Open(s.out);
+      auto w = ChunkedMeshWriter::Open(s.out, write);
       if (!w.ok()) return Fail(w.status());
       s.writer = *std::move(w);
     }
@@ -289,12 +307,11 @@ int Extract(int argc, char** argv) {
       s.report = measured.get();
     }
     s.report.input = input_path;
-    s.report.frame = info.frame;
   }
   if (reference) {
     auto ref_source = OpenVolume(input_path, f.Open(nullptr));
     if (!ref_source.ok()) return Fail(ref_source.status());
-    if (absl::Status st = f.ApplySpacing(&*ref_source).status(); !st.ok()) return Fail(st);
+    if (absl::Status st = f.ApplyGeometry(&*ref_source).status(); !st.ok()) return Usage(st);
     std::vector<SessionOptions> ref_options = options;
     for (SessionOptions& o : ref_options) {
       o.schedule = Schedule::kNone;
@@ -321,7 +338,7 @@ int Extract(int argc, char** argv) {
     if (!metrics.empty()) {
       if (metrics.find("{iso}") != std::string::npos) {
         auto name = cli::NameForIso("metrics", metrics, isos[i], isos.size());
-        if (!name.ok()) return Fail(name.status());
+        if (!name.ok()) return Usage(name.status());
         if (absl::Status st = WriteText(*name, ReportToJson(s.report)); !st.ok()) return Fail(st);
       } else {
         json.push_back(ReportToJson(s.report));
@@ -390,47 +407,47 @@ int Generate(int argc, char** argv) {
   flags.SetDefaultText("dicom-syntax", "explicit");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
-    return Fail(absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
+    return Usage(absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
   }
   auto shape = ParseShape(flags.positional()[0]);
-  if (!shape.ok()) return Fail(shape.status());
+  if (!shape.ok()) return Usage(shape.status());
   ZarrWriteOptions zarr;
   zarr.version = static_cast<int>(zarr_version);
   if (!zarr_codec.empty()) {
     auto codec = ParseZarrCompressor(zarr_codec);
-    if (!codec.ok()) return Fail(codec.status());
+    if (!codec.ok()) return Usage(codec.status());
     zarr.compressor = *codec;
   }
   if (!zarr_chunks.empty()) {
     auto t = ParseTriple(zarr_chunks, "--zarr-chunks");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     zarr.chunks = {int64_t((*t)[0]), int64_t((*t)[1]), int64_t((*t)[2])};
   }
   std::array<double, 3> dims{};
   if (!dims_text.empty()) {
     auto t = ParseTriple(dims_text, "--dims");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     dims = *t;
   } else {
     if (!flags.IsSet("size")) {
-      return Fail(absl::InvalidArgumentError("--size N (or --dims NX,NY,NZ) is required"));
+      return Usage(absl::InvalidArgumentError("--size N (or --dims NX,NY,NZ) is required"));
     }
     dims = {double(size), double(size), double(size)};
   }
   std::array<double, 3> spacing{1, 1, 1};
   if (!spacing_text.empty()) {
     auto t = ParseTriple(spacing_text, "--spacing");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     spacing = *t;
   }
   if (!series.empty() && series != "dicom" && series != "tiff") {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--series must be dicom or tiff, not '", series, "'")));
   }
   DicomWriteOptions dicom;
   if (!dicom_syntax.empty()) {
     auto syntax = ParseDicomSyntax(dicom_syntax);
-    if (!syntax.ok()) return Fail(syntax.status());
+    if (!syntax.ok()) return Usage(syntax.status());
     dicom.syntax = *syntax;
   }
   auto make = [&] {
@@ -443,7 +460,7 @@ int Generate(int argc, char** argv) {
   VolumeInfo info = src->info();
   if (!origin_text.empty()) {
     auto t = ParseTriple(origin_text, "--origin");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     info.origin = *t;
   }
   if (!directions_text.empty()) {
@@ -455,12 +472,12 @@ int Generate(int argc, char** argv) {
       v.push_back(x);
     }
     if (!numbers || v.size() != 9) {
-      return Fail(absl::InvalidArgumentError(
+      return Usage(absl::InvalidArgumentError(
           "--directions needs 9 numbers: the world directions of the x, y and z axes"));
     }
     for (int a = 0; a < 3; ++a) info.directions[a] = {v[3 * a], v[3 * a + 1], v[3 * a + 2]};
   }
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return Fail(st);
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return Usage(st);
   cli::Progress progress("slices");
   const int64_t nz = info.nz;
   const SliceFn next = [&](int64_t z, std::vector<uint8_t>* bytes) {
@@ -473,7 +490,7 @@ int Generate(int argc, char** argv) {
                     : out.ends_with(".zarr") ? WriteZarr(out, info, next, zarr)
                                               : WriteVolume(out, info, next);
   progress.Done();
-  if (!st.ok()) return Fail(st);
+  if (!st.ok()) return FailWriting(st);
   std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out.c_str(),
                static_cast<long long>(dims[0]), static_cast<long long>(dims[1]),
                static_cast<long long>(dims[2]));
@@ -491,7 +508,14 @@ int Measure(int argc, char** argv) {
   flags.AddInt("samples", &samples, "surface samples per direction (0 = automatic)");
   flags.AddBool("json", &json, "print the distances as JSON instead of a table");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
-  if (flags.positional().size() != 2) return Fail(absl::InvalidArgumentError("expected two meshes: A B"));
+  if (flags.positional().size() != 2) return Usage(absl::InvalidArgumentError("expected two meshes: A B"));
+  for (const std::string& path : flags.positional()) {
+    const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
+    if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
+      return Usage(absl::InvalidArgumentError(
+          absl::StrCat(path, ": expected a .ply, .obj or .stl mesh")));
+    }
+  }
   auto a = ReadMesh(flags.positional()[0]);
   if (!a.ok()) return Fail(a.status());
   auto b = ReadMesh(flags.positional()[1]);
@@ -770,13 +794,13 @@ int Simulate(int argc, char** argv) {
         absl::StrCat("--temp-names '", temp_names, "': expected none, suffix or hidden")));
   }
   if (rate < 0 || burst < 1) {
-    return Fail(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
+    return Usage(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
   }
   auto src = OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo info = (*src)->info();
   auto numbers = InstanceNumbers(numbering, info.nz, burst, static_cast<uint32_t>(seed) + 1);
-  if (!numbers.ok()) return Fail(numbers.status());
+  if (!numbers.ok()) return Usage(numbers.status());
   std::error_code ec;
   if (std::filesystem::exists(out, ec)) {
     return Fail(absl::AlreadyExistsError(absl::StrCat(out, ": already exists (the simulator "
@@ -921,7 +945,7 @@ int View(int argc, char** argv) {
                   false, "S");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
-    return Fail(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
+    return Usage(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
   }
   const std::string path = flags.positional()[0];
   std::vector<std::string> chunks;
@@ -940,7 +964,7 @@ int View(int argc, char** argv) {
   } else {
     const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb" && ext != ".drc") {
-      return Fail(absl::InvalidArgumentError(
+      return Usage(absl::InvalidArgumentError(
           absl::StrCat(path, ": expected a .ply, .obj, .stl, .glb or .drc file, or a folder of chunks")));
     }
   }

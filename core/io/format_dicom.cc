@@ -238,6 +238,7 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
   info.origin = first.position;
   info.directions = {frame.row, frame.col, frame.normal};
   info.frame = "DICOM patient LPS (mm)";
+  info.space = Space::kLPS;
   info.description =
       absl::StrCat("DICOM ", first.modality.empty() ? "" : first.modality + " ", "series",
                    first.description.empty() ? "" : " '" + first.description + "'",
@@ -737,7 +738,7 @@ class GrowingDicom final : public internal::Growing {
                                       .example = s.first.path,
                                       .images = s.images,
                                       .normal = s.frame.normal});
-        steps[uid] = *step;
+        starts[uid] = *start;
       }
     }
     if (ready.empty()) {
@@ -945,7 +946,10 @@ absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info
     return absl::InvalidArgumentError("DICOM slices are at most 65535 x 65535 pixels");
   }
   DicomSliceWriter w;
-  w.info_ = info;
+  // DICOM positions are LPS: a RAS grid is turned into it (nothing moves in the patient).
+  absl::StatusOr<VolumeInfo> lps = info.space == Space::kRAS ? InFrame(info, Space::kLPS) : info;
+  if (!lps.ok()) return lps.status();
+  w.info_ = *std::move(lps);
   w.opts_ = opts;
   absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
   if (!codec.ok()) return codec.status();

@@ -23,6 +23,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/mesh.h"
+#include "tandem/volume.h"
 
 namespace tandem {
 
@@ -61,6 +62,11 @@ using GlbDracoCompressor = std::function<absl::StatusOr<GlbDracoPrimitive>(
 
 struct MeshWriteOptions {
   bool normals = true;
+  // The frame of the positions, written where 3D Slicer reads it: "SPACE=LPS" or
+  // "SPACE=RAS" in a PLY comment, the OBJ's first comment and the binary STL header (other
+  // frames are named without "SPACE=", which Slicer then takes as LPS); a GLB names it in
+  // asset.extras.frame ("LPS", "RAS", "grid", "voxel"), its positions left in that frame.
+  Space space = Space::kGrid;
   GlbDracoCompressor glb_draco;  // .glb: set = Draco-compressed primitive
 };
 absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
