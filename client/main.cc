@@ -126,10 +126,7 @@ struct ConnectionFlags {
     }
     if (!with_token) return -1;
     absl::StatusOr<std::string> token = tandem::client::LoadToken(token_file);
-    if (!token.ok()) {
-      absl::FPrintF(stderr, "tandem-client: %s\n", std::string(token.status().message()));
-      return 2;
-    }
+    if (!token.ok()) return ::Fail(token.status());  // a file or the environment, read
     options.token = *std::move(token);
     return -1;
   }
@@ -211,7 +208,7 @@ struct SaveOptions {
   std::string out_pattern, metrics_path;
   tandem::codec::DracoOptions draco;  // .drc re-encoding of sealed chunks; --glb-draco
   bool glb_draco = false;
-  std::string input, frame;  // for the report
+  std::string input, frame_text;  // for the report (the frame itself comes with the metrics)
   std::vector<tandem::cli::IsoValue> isos;  // as the user wrote them ({iso} names), or none
   const char* wall_label = "stream wall time";
   bool quiet = false;
@@ -483,7 +480,19 @@ int StreamCommand(int argc, char** argv) {
   const bool bar = isatty(STDERR_FILENO) != 0 && !verbose && !f.quiet;
   absl::Status partial_error;
   tandem::client::StreamCallbacks callbacks;
+  // After the last slice, the server says what its finish is doing: one status line.
+  tandem::cli::FinishingStatus finishing("tandem-client: ", f.quiet);
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
+    if (!p.finishing().empty()) {
+      if (verbose) {
+        absl::FPrintF(stderr, "progress finishing=\"%s\" share=%.3f seconds=%.1f\n",
+                      p.finishing(), p.finishing_share(), p.finishing_seconds());
+      } else {
+        if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
+        finishing.Show({tandem::wire::FinishingFromProto(p)});
+      }
+      return;
+    }
     if (f.quiet) {
       // no notes
     } else if (!p.session_id().empty() && !p.resume_token().empty()) {  // the session's first
@@ -545,11 +554,14 @@ int StreamCommand(int argc, char** argv) {
     }
   };
   callbacks.on_chunk = ChunkSaver(chunks_dir, verbose, &partial_error);
-  if (absl::Status st = view.Start(c.description(), nz); !st.ok()) return Fail(st);
+  if (absl::Status st = view.Start(c.description(), nz); !st.ok()) {
+    return absl::IsInvalidArgument(st) ? UsageError(st) : Fail(st);  // --view's address
+  }
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::StreamVolume(range, options, callbacks);
-  if (bar) absl::FPrintF(stderr, "\n");
+  if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
+  finishing.Done();
   if (!result.ok()) {
     const int rc = connection.Fail(result.status());
     view.Finish(result);
@@ -745,7 +757,9 @@ int WatchCommand(int argc, char** argv, bool view_command) {
                     p.triangles(), p.band_only() ? 1 : 0);
     }
   };
-  if (absl::Status st = view.Start(absl::StrCat("session ", session), 0); !st.ok()) return Fail(st);
+  if (absl::Status st = view.Start(absl::StrCat("session ", session), 0); !st.ok()) {
+    return absl::IsInvalidArgument(st) ? UsageError(st) : Fail(st);  // --view's address
+  }
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::WatchSession(connection.options, session, timeout_s, callbacks);

@@ -277,15 +277,32 @@ int Extract(int argc, char** argv) {
     s.shape.Add(piece);
     return st;
   };
-  auto sessions = RunSessions(range, options, [&](int64_t d, int64_t t) {
-    if (follow) {
-      status_line(d);
-    } else {
-      if (!quiet) progress.Update(d, t);
-    }
-  }, on_chunk);
-  if (follow && tty) std::fprintf(stderr, "\n");
-  progress.Done();
+  // After the last slice: what the finish is doing, with an estimate of the time left.
+  cli::FinishingStatus finishing("tandem extract: ", quiet);
+  bool slices_done = false;  // the slices' line was ended
+  auto sessions = RunSessions(
+      range, options,
+      [&](int64_t d, int64_t t) {
+        if (follow) {
+          status_line(d);
+        } else {
+          if (!quiet) progress.Update(d, t);
+        }
+      },
+      on_chunk, nullptr, [&](const std::vector<TandemSession::Finishing>& f) {
+        if (!slices_done) {
+          slices_done = true;
+          if (follow && tty) std::fprintf(stderr, "\n");
+          progress.Done();
+          status_shown = false;
+        }
+        finishing.Show(f);
+      });
+  if (!slices_done) {
+    if (follow && tty) std::fprintf(stderr, "\n");
+    progress.Done();
+  }
+  finishing.Done();
   if (!sessions.ok()) return Fail(absl::Status(sessions.status().code(),
                                                absl::StrCat(input_path, ": ", std::string(sessions.status().message()))));
   for (size_t i = 0; i < surfaces.size(); ++i) {

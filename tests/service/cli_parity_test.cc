@@ -279,5 +279,37 @@ TEST(CliParity, TheFrameTravelsWithTheStreamedMesh) {
   }
 }
 
+// After the last slice, while the session finishes (here: --schedule classical, whose whole
+// simplification runs then), `tandem extract` and `tandem-client stream` say so, with the
+// share done and an estimate of the time left. TANDEM_PROGRESS_SECONDS=0 asks for a line at
+// every update on a stderr that is not a terminal (a log gets one every 10 s by default).
+TEST(CliParity, AStatusLineWithAnEstimateWhileTheSessionFinishes) {
+  const std::string dir = MakeTempDir();
+  absl::StatusOr<std::string> input =
+      WriteSyntheticVolume(dir, "g", MakeSyntheticSource(Shape::kGyroid, 176, 176, 176));
+  ASSERT_TRUE(input.ok()) << input.status();
+  absl::StatusOr<std::unique_ptr<TestServer>> server = TestServer::Start();
+  ASSERT_TRUE(server.ok()) << server.status();
+  const std::vector<std::string> env = {"TANDEM_PROGRESS_SECONDS=0"};
+  const std::regex line(
+      R"((tandem extract|tandem-client): finishing: simplifying the whole mesh, ([0-9]+)%, about [0-9]+ s left \([0-9.]+ s so far\))");
+  for (std::vector<std::string> args :
+       {std::vector<std::string>{"tandem", "extract"},
+        {"tandem-client", "stream", "--server", (*server)->address()}}) {
+    SCOPED_TRACE(args[0]);
+    args[0] = BinPath(args[0]);
+    args.insert(args.end(), {"--input", *input, "--iso", "0", "--schedule", "classical",
+                             "--out", dir + "/g.ply"});
+    const RunResult r = RunProcess(args, 300, env);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    std::smatch m;
+    EXPECT_TRUE(std::regex_search(r.err, m, line)) << r.err;
+    // Without the variable, a log (not a terminal) gets no line for a finish this short.
+    const RunResult quiet = RunProcess(args, 300);
+    ASSERT_EQ(quiet.exit_code, 0) << quiet.err;
+    EXPECT_EQ(quiet.err.find("finishing:"), std::string::npos) << quiet.err;
+  }
+}
+
 }  // namespace
 }  // namespace tandem::testing
