@@ -775,7 +775,7 @@ int Simulate(int argc, char** argv) {
   std::string input, out, as, done_file, numbering = "ordered", temp_names = "none";
   double rate = 20;
   int64_t burst = 8, seed = 1;
-  bool scout = false;
+  bool scout = false, descending = false;
   cli::FlagSet flags(kSimulateUsage);
   flags.AddString("input", &input, "FILE", "the volume to play (any format tandem reads)",
                   /*required=*/true);
@@ -788,9 +788,15 @@ int Simulate(int argc, char** argv) {
   flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
   flags.AddInt("seed", &seed, "shuffle seed for dicom bursts (and --numbering random)", "S");
   flags.AddString("numbering", &numbering, "HOW",
-                  "dicom: InstanceNumbers: ordered (1 at the bottom of the stack, 2 above it, "
-                  "...), random, restarted (from 1 in every burst), reversed (1 at the top), "
-                  "equal (all 1) or absent, as reconstructions and anonymizers leave them");
+                  "dicom: InstanceNumbers: ordered (1 at the first slice acquired, the bottom "
+                  "of the stack, 2 above it, ...), random, restarted (from 1 in every burst), "
+                  "reversed (1 at the last acquired, the top), equal (all 1) or absent, as "
+                  "reconstructions and anonymizers leave them");
+  flags.AddBool("descending", &descending,
+                "dicom: acquire the stack from its last slice down to its first (head to feet "
+                "for the usual axial CT: positions decreasing along the slice normal); "
+                "InstanceNumbers then count in that order (ordered: 1 at the top). The whole "
+                "volume is read first");
   flags.AddBool("scout", &scout,
                 "dicom: first write a localizer series (a front and a side projection, "
                 "ImageType LOCALIZER) into the folder, as a CT does before its stack");
@@ -799,15 +805,16 @@ int Simulate(int argc, char** argv) {
                   "none, suffix (NAME.part) or hidden (.NAME.tmp), as transfer tools do");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (as != "dicom" && as != "tiff" && as != "zarr") {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
   }
-  if (as != "dicom" && (flags.IsSet("numbering") || scout || flags.IsSet("temp-names"))) {
-    return Fail(
-        absl::InvalidArgumentError("--numbering, --scout and --temp-names go with --as dicom"));
+  if (as != "dicom" &&
+      (flags.IsSet("numbering") || scout || flags.IsSet("temp-names") || descending)) {
+    return Usage(absl::InvalidArgumentError(
+        "--numbering, --scout, --temp-names and --descending go with --as dicom"));
   }
   if (temp_names != "none" && temp_names != "suffix" && temp_names != "hidden") {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--temp-names '", temp_names, "': expected none, suffix or hidden")));
   }
   if (rate < 0 || burst < 1) {
@@ -889,10 +896,24 @@ int Simulate(int argc, char** argv) {
   std::mt19937 rng(static_cast<uint32_t>(seed));
   cli::Progress progress("slices written");
   std::vector<std::vector<uint8_t>> held;
+  // --descending: the slices in acquisition order, the last of the volume first.
+  std::vector<std::vector<uint8_t>> volume;
+  if (descending) {
+    volume.resize(static_cast<size_t>(info.nz));
+    for (auto it = volume.rbegin(); it != volume.rend(); ++it) {
+      if (absl::Status st = (*src)->ReadSlice(&*it); !st.ok()) return Fail(st);
+    }
+  }
+  // Acquisition index a -> the slice of the volume it is.
+  auto slice_of = [&](int64_t a) { return descending ? info.nz - 1 - a : a; };
   int64_t written = 0;
-  for (int64_t z = 0; z < info.nz; ++z) {
+  for (int64_t z = 0; z < info.nz; ++z) {  // z: the acquisition index
     std::vector<uint8_t> bytes;
-    if (absl::Status st = (*src)->ReadSlice(&bytes); !st.ok()) return Fail(st);
+    if (descending) {
+      bytes = std::move(volume[static_cast<size_t>(z)]);
+    } else if (absl::Status st = (*src)->ReadSlice(&bytes); !st.ok()) {
+      return Fail(st);
+    }
     absl::Status st;
     if (as == "tiff") {
       char name[32];
@@ -914,9 +935,10 @@ int Simulate(int argc, char** argv) {
         for (int64_t k : order) {
           pace(written);
           // Names carry no position: a hash of the slice index.
-          const std::string name =
-              absl::StrCat("1.2.826.0.1.3680043.2.1125.", (k * 2654435761u) % 1000003u, ".dcm");
-          st = put(name, *dicom, k, held[static_cast<size_t>(k - first)],
+          const int64_t slice = slice_of(k);
+          const std::string name = absl::StrCat("1.2.826.0.1.3680043.2.1125.",
+                                                (slice * 2654435761u) % 1000003u, ".dcm");
+          st = put(name, *dicom, slice, held[static_cast<size_t>(k - first)],
                    (*numbers)[static_cast<size_t>(k)]);
           if (!st.ok()) break;
           ++written;
@@ -996,7 +1018,7 @@ int View(int argc, char** argv) {
   options.listen = listen;
   options.token = token;
   auto server = viewer::ViewServer::Start(options);
-  if (!server.ok()) return Fail(server.status());
+  if (!server.ok()) return FailWriting(server.status());
   (*server)->SetSession("", std::filesystem::path(path).filename().string(), 0);
   if (chunks.empty()) {
     auto bytes = read(path);

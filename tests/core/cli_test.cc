@@ -633,6 +633,41 @@ TEST_F(Cli, SimulatedDicomVariantsHoldThePlainSeries) {
   EXPECT_NE(o.text.find("go with --as dicom"), std::string::npos) << o.text;
 }
 
+// `tandem simulate --descending` plays a head-to-feet CT (the last slice of the volume first);
+// `tandem extract --follow` meshes it as it comes, head to feet: the full-resolution surface
+// of the finished folder (as many triangles and vertices), its grid's z axis turned round.
+TEST_F(Cli, SimulatedDescendingAcquisitionIsFollowedHeadToFeet) {
+  ASSERT_EQ(RunTandem("generate link --size 24 --out " + Path("l.json")).code, 0);
+  const std::string dir = Path("desc");
+  const Output o = RunCommand(
+      testing::BinPath("tandem") + " simulate --input " + Path("l.json") + " --out " + dir +
+      " --as dicom --rate 40 --descending --done-file DONE & " + testing::BinPath("tandem") +
+      " extract --follow --done-file DONE --input " + dir + " --iso 0 --no-simplify --out " +
+      Path("followed.ply") + " --metrics " + Path("followed.json") + " --frame voxel; wait");
+  ASSERT_EQ(o.code, 0) << o.text;
+  ASSERT_TRUE(std::filesystem::exists(Path("followed.ply"))) << o.text;
+  const Output f = RunTandem("extract --input " + dir + " --iso 0 --no-simplify --out " +
+                             Path("finished.ply") + " --metrics " + Path("finished.json") +
+                             " --frame voxel");
+  ASSERT_EQ(f.code, 0) << f.text;
+  const nlohmann::json a = ReadJson(Path("followed.json")), b = ReadJson(Path("finished.json"));
+  EXPECT_EQ(a["triangles_final"], b["triangles_final"]);
+  EXPECT_EQ(a["vertices_final"], b["vertices_final"]);
+  EXPECT_GT(a["triangles_final"].get<int64_t>(), 500);
+  // In voxel frame the followed grid runs the other way: slice k is the finished one's 23 - k.
+  const IndexedMesh fm = *ReadMesh(Path("followed.ply")), gm = *ReadMesh(Path("finished.ply"));
+  double lo = 1e9, hi = -1e9, glo = 1e9, ghi = -1e9;
+  for (const Vec3& p : fm.positions) lo = std::min(lo, p.z), hi = std::max(hi, p.z);
+  for (const Vec3& p : gm.positions) glo = std::min(glo, p.z), ghi = std::max(ghi, p.z);
+  EXPECT_NEAR(lo, 23 - ghi, 1e-3);
+  EXPECT_NEAR(hi, 23 - glo, 1e-3);
+  EXPECT_GT(SignedVolume(fm) * SignedVolume(gm), 0) << "normals point the same way";
+  const Output bad = RunTandem("simulate --input " + Path("l.json") + " --out " + Path("t") +
+                               " --as tiff --descending");
+  EXPECT_EQ(bad.code, 2) << bad.text;
+  EXPECT_NE(bad.text.find("--descending go with --as dicom"), std::string::npos) << bad.text;
+}
+
 // GDCM lives in a module loaded only when a DICOM file is read or written
 // (core/io/dicom_codec.h): its dictionaries cost about 12 ms at every start otherwise.
 // GDCM is loaded only where DICOM is read or written: a DICOM series is read by the
