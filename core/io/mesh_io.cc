@@ -879,22 +879,22 @@ absl::Status ChunkedMeshWriter::Failed(const char* what) const {
 
 absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
   const size_t nt = chunk.num_triangles();
-  std::vector<uint32_t> ids(3 * nt);
   for (size_t t = 0; t < nt; ++t) {
     const uint32_t* tri = &chunk.indices[3 * t];
     const Vec3 w = TriangleAreaVector(chunk.positions[tri[0]], chunk.positions[tri[1]],
                                       chunk.positions[tri[2]]);
+    WaitingTriangle& waiting = waiting_.emplace_back();
+    waiting.place = triangles_ + static_cast<int64_t>(t);
+    waiting.open = 7;
     for (int k = 0; k < 3; ++k) {
       const uint32_t id = chunk.ids[tri[k]];
       auto [it, fresh] = open_.try_emplace(id, OpenVertex{chunk.positions[tri[k]], Vec3{0, 0, 0}});
       it->second.normal = it->second.normal + w;
-      ids[3 * t + k] = id;
+      waiting.corners[k] = id;
     }
   }
-  if (nt > 0 && std::fwrite(ids.data(), sizeof(uint32_t), ids.size(), tris_) != ids.size()) {
-    return Failed("writing the scratch file of triangles");
-  }
   triangles_ += static_cast<int64_t>(nt);
+  retired_.clear();
   for (uint32_t id : chunk.retired) {
     auto it = open_.find(id);
     if (it == open_.end()) continue;  // retired before any of its triangles: none it had
@@ -906,11 +906,55 @@ absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
     if (std::fwrite(record, sizeof record, 1, verts_) != 1) {
       return Failed("writing the scratch file of vertices");
     }
-    if (id >= index_.size()) index_.resize(std::max<size_t>(id + 1, 2 * index_.size()), kInvalid);
-    index_[id] = static_cast<uint32_t>(vertices_++);
+    retired_[id] = static_cast<uint32_t>(vertices_++);
     open_.erase(it);
   }
-  return absl::OkStatus();
+  if (retired_.empty()) return absl::OkStatus();
+  // Triangles whose last vertex this chunk retired go to their places; those of one chunk
+  // mostly follow each other there, written as runs.
+  int64_t run_place = 0;
+  auto flush = [&]() -> absl::Status {
+    if (run_.empty()) return absl::OkStatus();
+    if (run_place != tris_at_ &&
+        std::fseek(tris_, static_cast<long>(run_place * 3 * sizeof(uint32_t)), SEEK_SET) != 0) {
+      return Failed("writing the scratch file of triangles");
+    }
+    if (std::fwrite(run_.data(), sizeof(uint32_t), run_.size(), tris_) != run_.size()) {
+      return Failed("writing the scratch file of triangles");
+    }
+    tris_at_ = run_place + static_cast<int64_t>(run_.size() / 3);
+    run_.clear();
+    return absl::OkStatus();
+  };
+  size_t kept = 0;
+  for (size_t i = 0; i < waiting_.size(); ++i) {
+    WaitingTriangle w = waiting_[i];
+    for (int k = 0; k < 3; ++k) {
+      if ((w.open >> k & 1) == 0) continue;
+      if (auto r = retired_.find(w.corners[k]); r != retired_.end()) {
+        w.corners[k] = r->second;
+        w.open &= static_cast<uint8_t>(~(1u << k));
+      }
+    }
+    if (w.open != 0) {
+      waiting_[kept++] = w;
+      continue;
+    }
+    if (!run_.empty() && w.place != run_place + static_cast<int64_t>(run_.size() / 3)) {
+      if (absl::Status st = flush(); !st.ok()) return st;
+    }
+    if (run_.empty()) run_place = w.place;
+    run_.insert(run_.end(), w.corners, w.corners + 3);
+  }
+  waiting_.resize(kept);
+  return flush();
+}
+
+size_t ChunkedMeshWriter::MemoryBytes() const {
+  // A flat_hash_map slot holds its pair plus one control byte.
+  return open_.capacity() * (sizeof(std::pair<const uint32_t, OpenVertex>) + 1) +
+         retired_.capacity() * (sizeof(std::pair<const uint32_t, uint32_t>) + 1) +
+         waiting_.capacity() * sizeof(WaitingTriangle) + run_.capacity() * sizeof(uint32_t);
 }
 
 absl::Status ChunkedMeshWriter::Finish() {
@@ -958,7 +1002,6 @@ absl::Status ChunkedMeshWriter::Finish() {
     if (std::fread(tris.data(), 3 * sizeof(uint32_t), n, tris_) != n) {
       return Failed("reading back the scratch file of triangles");
     }
-    for (size_t i = 0; i < 3 * n; ++i) tris[i] = index_[tris[i]];
     for (size_t i = 0; i < n; ++i) {
       if (ply) {
         AppendPlyFace(out, &tris[3 * i]);

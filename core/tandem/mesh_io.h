@@ -76,12 +76,13 @@ inline constexpr const char* kMeshExtensions = ".ply, .obj, .stl or .glb";
 bool IsMeshOutputPath(const std::string& path);
 
 // Writes a mesh that arrives in sealed chunks (sealer.h) to a .ply or .obj file (as WriteMesh
-// writes them) while it comes, so that memory holds only the vertices still open plus 4
-// bytes per vertex: a vertex is written once a chunk retires its id, with the area-weighted
-// normal of all its triangles; triangles wait in a scratch file by global id, and Finish
-// writes the header, the vertices and the triangles renumbered. The mesh is WeldChunks's,
-// its vertices in the order they were retired. Errors as WriteMesh's; Finish fails with
-// Internal when a vertex was never retired (chunks missing).
+// writes them) while it comes, so that memory holds only the vertices still open and the
+// triangles that touch them, whatever the depth: a vertex is written once a chunk retires
+// its id, with the area-weighted normal of all its triangles, and gets its index then; a
+// triangle goes to its place in a scratch file once its last vertex is retired, and Finish
+// writes the header, the vertices and the triangles. The mesh is WeldChunks's, its vertices
+// in the order they were retired. Errors as WriteMesh's; Finish fails with Internal when a
+// vertex was never retired (chunks missing).
 class ChunkedMeshWriter {
  public:
   static bool Supports(const std::string& path);  // .ply and .obj
@@ -92,11 +93,19 @@ class ChunkedMeshWriter {
   absl::Status Finish();
   int64_t vertices() const { return vertices_; }
   int64_t triangles() const { return triangles_; }
+  // What the writer holds in memory: the open vertices, the triangles waiting for them and
+  // the last chunk's retired indices (tables at their capacity).
+  size_t MemoryBytes() const;
 
  private:
   struct OpenVertex {
     Vec3 pos;
     Vec3 normal;  // sum of the area vectors of its triangles so far
+  };
+  struct WaitingTriangle {
+    int64_t place;        // in the order the triangles came
+    uint32_t corners[3];  // an output index once retired, else a global id
+    uint8_t open;         // bit k: corners[k] is still a global id
   };
   ChunkedMeshWriter(std::string path, MeshWriteOptions options, std::FILE* verts, std::FILE* tris)
       : path_(std::move(path)), options_(options), verts_(verts), tris_(tris) {}
@@ -104,9 +113,12 @@ class ChunkedMeshWriter {
   std::string path_;
   MeshWriteOptions options_;
   std::FILE* verts_;  // scratch: float32 x y z nx ny nz per written vertex
-  std::FILE* tris_;   // scratch: 3 global ids per triangle
+  std::FILE* tris_;   // scratch: 3 output indices per triangle, in the order they came
+  int64_t tris_at_ = 0;  // the triangle tris_'s position is at
   absl::flat_hash_map<uint32_t, OpenVertex> open_;
-  std::vector<uint32_t> index_;  // global id -> output index
+  std::vector<WaitingTriangle> waiting_;  // in the order they came
+  absl::flat_hash_map<uint32_t, uint32_t> retired_;  // the last chunk's: global id -> index
+  std::vector<uint32_t> run_;  // triangles of consecutive places, written at once
   int64_t vertices_ = 0, triangles_ = 0;
 };
 
