@@ -538,6 +538,14 @@ TEST_F(Cli, FrameFlagPutsNiftiAndDicomMeshesInOneFrame) {
   EXPECT_NE(testing::FileBytes(Path("d.stl")).substr(0, 80).find("SPACE=RAS"), std::string::npos);
   EXPECT_NE(testing::FileBytes(Path("dcm.ply")).find("comment SPACE=LPS"), std::string::npos);
   EXPECT_NE(testing::FileBytes(Path("nii.ply")).find("comment SPACE=RAS"), std::string::npos);
+  // A GLB names it in asset.extras (glTF's own frame is another); a sealed .ply, written as
+  // its chunks come, says it as the welded one does.
+  ASSERT_EQ(RunTandem("extract --input " + Path("dcm") + flags + Path("d.glb") + " --frame ras").code, 0);
+  EXPECT_NE(testing::FileBytes(Path("d.glb")).find(R"("extras":{"frame":"RAS"})"), std::string::npos);
+  Output sealed = RunTandem("extract --input " + Path("v.nii") + flags + Path("sealed.ply") +
+                            " --seal --frame lps");
+  ASSERT_EQ(sealed.code, 0) << sealed.text;
+  EXPECT_NE(testing::FileBytes(Path("sealed.ply")).find("\ncomment SPACE=LPS\n"), std::string::npos);
   // Voxel frame: the grid coordinates of the world mesh's vertices, no SPACE= (not a
   // patient frame); E0 in voxels (0.1 of a step, not 0.1 mm).
   extract("dcm", "voxel", "vox.ply");
