@@ -1694,10 +1694,14 @@ TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
     const std::string acq = dir_ + "/acq_" + name + (as == "zarr" ? ".zarr" : "");
     const std::string previews = dir_ + "/previews_" + name;
     RunResult sim;
+    // Copies: clang 14 cannot capture structured bindings in a lambda.
+    const std::string as_kind = as;
+    const std::vector<std::string> sim_extra = extra;
     std::thread instrument([&] {
       sim = RunProcess(Concat({BinPath("tandem"), "simulate", "--input", *path, "--out", acq,
-                               "--as", as, "--rate", "20", "--burst", "6", "--done-file", "DONE"},
-                              extra));
+                               "--as", as_kind, "--rate", "20", "--burst", "6", "--done-file",
+                               "DONE"},
+                              sim_extra));
     });
     std::vector<std::string> follow = {"stream", "--server", server_->address(), "--input", acq,
                                        "--follow", "--settle", "20", "--iso", "0", "--error",
