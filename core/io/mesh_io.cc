@@ -883,18 +883,28 @@ absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
     const uint32_t* tri = &chunk.indices[3 * t];
     const Vec3 w = TriangleAreaVector(chunk.positions[tri[0]], chunk.positions[tri[1]],
                                       chunk.positions[tri[2]]);
-    WaitingTriangle& waiting = waiting_.emplace_back();
+    uint32_t slot;
+    if (free_.empty()) {
+      slot = static_cast<uint32_t>(waiting_.size());
+      waiting_.emplace_back();
+    } else {
+      slot = free_.back();
+      free_.pop_back();
+    }
+    WaitingTriangle& waiting = waiting_[slot];
     waiting.place = triangles_ + static_cast<int64_t>(t);
-    waiting.open = 7;
+    waiting.open = 3;
     for (int k = 0; k < 3; ++k) {
       const uint32_t id = chunk.ids[tri[k]];
       auto [it, fresh] = open_.try_emplace(id, OpenVertex{chunk.positions[tri[k]], Vec3{0, 0, 0}});
       it->second.normal = it->second.normal + w;
       waiting.corners[k] = id;
+      waiting.next[k] = it->second.waiting;
+      it->second.waiting = 3 * slot + static_cast<uint32_t>(k);
     }
   }
   triangles_ += static_cast<int64_t>(nt);
-  retired_.clear();
+  done_.clear();
   for (uint32_t id : chunk.retired) {
     auto it = open_.find(id);
     if (it == open_.end()) continue;  // retired before any of its triangles: none it had
@@ -906,55 +916,46 @@ absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
     if (std::fwrite(record, sizeof record, 1, verts_) != 1) {
       return Failed("writing the scratch file of vertices");
     }
-    retired_[id] = static_cast<uint32_t>(vertices_++);
+    const uint32_t index = static_cast<uint32_t>(vertices_++);
+    for (uint32_t c = it->second.waiting; c != kNoCorner;) {
+      WaitingTriangle& waiting = waiting_[c / 3];
+      waiting.corners[c % 3] = index;
+      const uint32_t next = waiting.next[c % 3];
+      if (--waiting.open == 0) {
+        done_.push_back(waiting);
+        free_.push_back(c / 3);
+      }
+      c = next;
+    }
     open_.erase(it);
   }
-  if (retired_.empty()) return absl::OkStatus();
-  // Triangles whose last vertex this chunk retired go to their places; those of one chunk
-  // mostly follow each other there, written as runs.
-  int64_t run_place = 0;
-  auto flush = [&]() -> absl::Status {
-    if (run_.empty()) return absl::OkStatus();
-    if (run_place != tris_at_ &&
-        std::fseek(tris_, static_cast<long>(run_place * 3 * sizeof(uint32_t)), SEEK_SET) != 0) {
+  // The triangles whose last vertex this chunk retired go to their places; those of one
+  // chunk mostly follow each other there, written as runs.
+  std::sort(done_.begin(), done_.end(),
+            [](const WaitingTriangle& x, const WaitingTriangle& y) { return x.place < y.place; });
+  for (size_t i = 0; i < done_.size();) {
+    const int64_t place = done_[i].place;
+    run_.clear();
+    for (; i < done_.size() && done_[i].place == place + static_cast<int64_t>(run_.size() / 3); ++i) {
+      run_.insert(run_.end(), done_[i].corners, done_[i].corners + 3);
+    }
+    if (place != tris_at_ &&
+        std::fseek(tris_, static_cast<long>(place * 3 * sizeof(uint32_t)), SEEK_SET) != 0) {
       return Failed("writing the scratch file of triangles");
     }
     if (std::fwrite(run_.data(), sizeof(uint32_t), run_.size(), tris_) != run_.size()) {
       return Failed("writing the scratch file of triangles");
     }
-    tris_at_ = run_place + static_cast<int64_t>(run_.size() / 3);
-    run_.clear();
-    return absl::OkStatus();
-  };
-  size_t kept = 0;
-  for (size_t i = 0; i < waiting_.size(); ++i) {
-    WaitingTriangle w = waiting_[i];
-    for (int k = 0; k < 3; ++k) {
-      if ((w.open >> k & 1) == 0) continue;
-      if (auto r = retired_.find(w.corners[k]); r != retired_.end()) {
-        w.corners[k] = r->second;
-        w.open &= static_cast<uint8_t>(~(1u << k));
-      }
-    }
-    if (w.open != 0) {
-      waiting_[kept++] = w;
-      continue;
-    }
-    if (!run_.empty() && w.place != run_place + static_cast<int64_t>(run_.size() / 3)) {
-      if (absl::Status st = flush(); !st.ok()) return st;
-    }
-    if (run_.empty()) run_place = w.place;
-    run_.insert(run_.end(), w.corners, w.corners + 3);
+    tris_at_ = place + static_cast<int64_t>(run_.size() / 3);
   }
-  waiting_.resize(kept);
-  return flush();
+  return absl::OkStatus();
 }
 
 size_t ChunkedMeshWriter::MemoryBytes() const {
   // A flat_hash_map slot holds its pair plus one control byte.
   return open_.capacity() * (sizeof(std::pair<const uint32_t, OpenVertex>) + 1) +
-         retired_.capacity() * (sizeof(std::pair<const uint32_t, uint32_t>) + 1) +
-         waiting_.capacity() * sizeof(WaitingTriangle) + run_.capacity() * sizeof(uint32_t);
+         (waiting_.capacity() + done_.capacity()) * sizeof(WaitingTriangle) +
+         (free_.capacity() + run_.capacity()) * sizeof(uint32_t);
 }
 
 absl::Status ChunkedMeshWriter::Finish() {

@@ -94,18 +94,21 @@ class ChunkedMeshWriter {
   int64_t vertices() const { return vertices_; }
   int64_t triangles() const { return triangles_; }
   // What the writer holds in memory: the open vertices, the triangles waiting for them and
-  // the last chunk's retired indices (tables at their capacity).
+  // the free slots among them (tables at their capacity).
   size_t MemoryBytes() const;
 
  private:
+  static constexpr uint32_t kNoCorner = 0xffffffffu;
   struct OpenVertex {
     Vec3 pos;
     Vec3 normal;  // sum of the area vectors of its triangles so far
+    uint32_t waiting = kNoCorner;  // its first corner in waiting_ (3 * slot + k), a list
   };
   struct WaitingTriangle {
-    int64_t place;        // in the order the triangles came
+    int64_t place : 62;   // in the order the triangles came
+    uint64_t open : 2;    // corners still a global id
     uint32_t corners[3];  // an output index once retired, else a global id
-    uint8_t open;         // bit k: corners[k] is still a global id
+    uint32_t next[3];     // the next waiting corner of the same vertex
   };
   ChunkedMeshWriter(std::string path, MeshWriteOptions options, std::FILE* verts, std::FILE* tris)
       : path_(std::move(path)), options_(options), verts_(verts), tris_(tris) {}
@@ -116,8 +119,9 @@ class ChunkedMeshWriter {
   std::FILE* tris_;   // scratch: 3 output indices per triangle, in the order they came
   int64_t tris_at_ = 0;  // the triangle tris_'s position is at
   absl::flat_hash_map<uint32_t, OpenVertex> open_;
-  std::vector<WaitingTriangle> waiting_;  // in the order they came
-  absl::flat_hash_map<uint32_t, uint32_t> retired_;  // the last chunk's: global id -> index
+  std::vector<WaitingTriangle> waiting_;  // slots, reused
+  std::vector<uint32_t> free_;           // free slots of waiting_
+  std::vector<WaitingTriangle> done_;    // the last chunk's complete triangles, by place
   std::vector<uint32_t> run_;  // triangles of consecutive places, written at once
   int64_t vertices_ = 0, triangles_ = 0;
 };
