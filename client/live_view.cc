@@ -3,6 +3,7 @@
 #include <atomic>
 #include <csignal>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
@@ -17,11 +18,39 @@ void OnQuit(int) { g_quit = true; }
 
 }  // namespace
 
+double FinishingEstimateSeconds(int64_t triangles_held) {
+  // The finishing pass, the sag correction, the encoding and the client's decoding and
+  // writing each take about a microsecond a triangle held on one core, plus a fixed part.
+  return 0.05 + 3e-6 * static_cast<double>(triangles_held);
+}
+
+// The stream's source, watched for its end (OutOfRange): a scan of unknown depth says only
+// there that it is over.
+class LiveView::EndTracker final : public SliceSource {
+ public:
+  EndTracker(SliceSource* inner, LiveView* view) : inner_(inner), view_(view) {}
+  const VolumeInfo& info() const override { return inner_->info(); }
+  int64_t next_slice() const override { return inner_->next_slice(); }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override {
+    return Noted(inner_->ReadSlice(bytes));
+  }
+  absl::Status ViewSlice(const uint8_t** data) override { return Noted(inner_->ViewSlice(data)); }
+
+ private:
+  absl::Status Noted(absl::Status st) {
+    if (absl::IsOutOfRange(st)) view_->SourceEnded(inner_->next_slice());
+    return st;
+  }
+  SliceSource* inner_;
+  LiveView* view_;
+};
+
 void LiveView::AddFlags(cli::FlagSet& flags, const std::string& listen) {
   listen_ = listen;
   flags.AddString("view", &listen_, "HOST:PORT",
                   "show the session live in a browser: serve the viewer page on this address "
-                  "(e.g. 127.0.0.1:8080; port 0 = any free one)");
+                  "(e.g. 127.0.0.1:8080; port 0 = any free one); the page draws the mesh as it "
+                  "grows (sealed chunks and band, or the previews), then the final mesh");
   if (!listen.empty()) {  // tandem-client view: the address is what it is for
     flags.AddString("listen", &listen_, "HOST:PORT", "the same as --view");
   }
@@ -43,6 +72,10 @@ absl::Status LiveView::Start(const std::string& description, int64_t nz) {
   server_ = *std::move(server);
   description_ = description;
   nz_ = nz;
+  {
+    absl::MutexLock lock(&mu_);
+    expected_ = nz;
+  }
   server_->SetSession("", description, nz);
   std::string host;
   int port = 0;
@@ -58,24 +91,70 @@ absl::Status LiveView::Start(const std::string& description, int64_t nz) {
   return absl::OkStatus();
 }
 
+void LiveView::SetIsos(const std::vector<std::string>& isos) {
+  if (!server_) return;
+  std::vector<std::string> labels;
+  for (const std::string& iso : isos) labels.push_back(absl::StrCat("iso ", iso));
+  server_->SetSurfaces(labels);
+  labeled_ = true;
+}
+
+SliceSource* LiveView::Track(SliceSource* source) {
+  if (!server_) return source;
+  tracker_ = std::make_unique<EndTracker>(source, this);
+  return tracker_.get();
+}
+
+void LiveView::SourceEnded(int64_t slices) {
+  absl::MutexLock lock(&mu_);
+  slices_total_ = slices;
+  MaybeFinishingLocked();
+}
+
+void LiveView::MaybeFinishingLocked() {
+  if (finishing_ || !server_) return;
+  const int64_t total = expected_ > 0 ? expected_ : slices_total_;
+  if (total < 0 || consumed_ < total) return;
+  finishing_ = true;
+  server_->SetFinishing(held_, FinishingEstimateSeconds(held_));
+}
+
 void LiveView::Wire(StreamCallbacks* callbacks) {
   if (!server_) return;
   viewer::ViewServer* view = server_.get();
   auto progress = callbacks->on_progress;
   callbacks->on_progress = [this, view, progress](const v1::Progress& p, int64_t sent) {
-    if (!p.session_id().empty()) view->SetSession(p.session_id(), description_, nz_);
-    view->SetProgress(sent, p.slices_consumed(), p.triangles(), p.sealed_triangles());
+    if (!p.session_id().empty()) {
+      session_id_ = p.session_id();
+      view->SetSession(session_id_, description_, nz_);
+    }
+    viewer::ViewProgress shown;
+    shown.slices_sent = sent;
+    shown.slices_meshed = p.slices_consumed();
+    shown.triangles_held = p.triangles();
+    shown.triangles_sealed = p.sealed_triangles();
+    if (on_disk_ != nullptr && nz_ == 0) shown.slices_on_disk = on_disk_->load();
+    {
+      absl::MutexLock lock(&mu_);
+      if (nz_ == 0 && p.slices_expected() > 0 && expected_ != p.slices_expected()) {
+        expected_ = p.slices_expected();  // a watcher learns the depth from the session
+        view->SetSession(session_id_, description_, expected_);
+      }
+      consumed_ = p.slices_consumed();
+      held_ = p.triangles();
+      view->SetProgress(shown);
+      MaybeFinishingLocked();
+    }
     if (progress) progress(p, sent);
   };
   auto preview = callbacks->on_preview;
   callbacks->on_preview = [view, preview](const v1::Preview& p, int64_t sent) {
-    // Several surfaces: the page draws every surface's chunks, and the first one's band.
-    if (p.surface() == 0) view->SetBand(p.draco(), p.triangles(), p.slice(), p.band_only());
+    view->SetBand(p.surface(), p.draco(), p.triangles(), p.slice(), p.band_only());
     if (preview) preview(p, sent);
   };
   auto chunk = callbacks->on_chunk;
   callbacks->on_chunk = [view, chunk](const v1::SealedChunk& c) {
-    view->AddChunk(c.draco(), c.triangles());
+    view->AddChunk(c.draco(), c.triangles(), c.surface());
     if (chunk) chunk(c);
   };
 }
@@ -83,13 +162,25 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
 void LiveView::Finish(const absl::StatusOr<StreamResult>& result) {
   if (!server_) return;
   if (result.ok()) {
-    if (result->sealed_session) {
-      server_->ClearBand();  // the chunks are the whole mesh
-    } else {
-      server_->SetBand(result->draco, result->triangles, result->metrics.slices(), false);
+    std::vector<std::string> labels;
+    std::string metrics = "[";
+    for (size_t i = 0; i < result->num_surfaces(); ++i) {
+      const SurfaceResult& surface = result->surface(i);
+      labels.push_back(absl::StrCat("iso ", absl::StrFormat("%g", surface.metrics.iso())));
+      if (!result->sealed_session) {  // the final mesh, whole
+        server_->SetBand(static_cast<int>(i), surface.draco, surface.triangles,
+                         surface.metrics.slices(), false);
+      }
+      absl::StrAppend(&metrics, i == 0 ? "" : ",",
+                      ReportToJson(wire::ReportFromProto(surface.metrics)));
     }
-    MetricsReport report = wire::ReportFromProto(result->metrics);
-    server_->Finish(ReportToJson(report), "");
+    absl::StrAppend(&metrics, "]");
+    if (result->sealed_session) server_->ClearBands();  // the chunks are the whole mesh
+    if (!labeled_) server_->SetSurfaces(labels);
+    server_->Finish(result->num_surfaces() == 1
+                        ? ReportToJson(wire::ReportFromProto(result->metrics))
+                        : metrics,
+                    "");
   } else {
     server_->Finish("", result.status().ToString());
   }

@@ -325,7 +325,8 @@ int StreamCommand(int argc, char** argv) {
   flags.AddDouble("rate", &rate, "send at most this many slices per second (0 = no pacing)");
   flags.AddInt("chunk-bytes", &chunk_bytes, "bytes of voxel data per message");
   flags.AddInt("preview-every", &preview_every,
-               "ask for a preview mesh every N slices (0 = none; with --partials: about 20 over the volume)");
+               "ask for a preview mesh every N slices (0 = none; with --partials: about 20 over "
+               "the volume; else with --view: every slice, at most one per 500 ms)");
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
   flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice, 6 digits>.drc");
   flags.AddString("chunks", &chunks_dir, "DIR",
@@ -388,6 +389,12 @@ int StreamCommand(int argc, char** argv) {
   if (!partials.empty()) {
     if (!flags.IsSet("preview-every")) preview_every = -1;  // set from the depth below
     if (absl::Status st = MakeOutputDir("--partials", partials); !st.ok()) return Fail(st);
+  }
+  if (view.on() && partials.empty() && !flags.IsSet("preview-every")) {
+    // The page draws the growing mesh from the previews (unsealed: the whole partial mesh;
+    // sealed: the band beside the chunks): one at every slice, time-bounded.
+    preview_every = 1;
+    if (!flags.IsSet("preview-ms")) preview_ms = tandem::client::kViewPreviewMs;
   }
 
   // One status line while following: slices complete on disk and sent.
@@ -557,9 +564,13 @@ int StreamCommand(int argc, char** argv) {
   if (absl::Status st = view.Start(c.description(), nz); !st.ok()) {
     return absl::IsInvalidArgument(st) ? UsageError(st) : Fail(st);  // --view's address
   }
+  std::vector<std::string> iso_texts;
+  for (const tandem::cli::IsoValue& v : *isos) iso_texts.push_back(v.text);
+  view.SetIsos(iso_texts);
+  if (follow) view.SetOnDisk(&on_disk);
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
-      tandem::client::StreamVolume(range, options, callbacks);
+      tandem::client::StreamVolume(*view.Track(&range), options, callbacks);
   if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
   finishing.Done();
   if (!result.ok()) {

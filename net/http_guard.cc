@@ -233,6 +233,8 @@ GuardedHttpServer::GuardedHttpServer(HttpLimits limits) : limits_(limits) {
   set_keep_alive_timeout(std::max<time_t>(1, absl::ToInt64Seconds(limits_.idle_timeout)));
   set_payload_max_length(0);
   set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+    // The request is the server's own, not const (cpp-httplib passes it so to handlers).
+    OfferNoBrotli(const_cast<httplib::Request&>(req));
     return Admit(req, res) ? HandlerResponse::Unhandled : HandlerResponse::Handled;
   });
   // Before "100 Continue" is sent: a request refused anyway is answered without its body.
@@ -242,6 +244,16 @@ GuardedHttpServer::GuardedHttpServer(HttpLimits limits) : limits_(limits) {
 }
 
 GuardedHttpServer::~GuardedHttpServer() { Stop(); }
+
+void OfferNoBrotli(httplib::Request& req) {
+  std::string offered;  // every Accept-Encoding header, lower case
+  auto [begin, end] = req.headers.equal_range("Accept-Encoding");
+  for (auto it = begin; it != end; ++it)
+    absl::StrAppend(&offered, absl::AsciiStrToLower(it->second), ",");
+  if (!absl::StrContains(offered, "br")) return;
+  req.headers.erase("Accept-Encoding");
+  if (absl::StrContains(offered, "gzip")) req.headers.emplace("Accept-Encoding", "gzip");
+}
 
 bool GuardedHttpServer::Admit(const httplib::Request& req, httplib::Response& res) {
   auto refuse = [&](int status, const char* text, bool close) {

@@ -16,6 +16,7 @@
 //     and closed); a connection with no request under way closes after idle_timeout; past
 //     max_connections the one waiting longest is closed for the newcomer. So a slowloris
 //     client, or many idle ones, cannot keep a scrape waiting.
+//   * Compression: gzip when the client takes it, never Brotli (OfferNoBrotli below).
 // The application adds its own check after these with set_gate (the viewer's token).
 #ifndef TANDEM_NET_HTTP_GUARD_H_
 #define TANDEM_NET_HTTP_GUARD_H_
@@ -48,6 +49,11 @@ struct HttpLimits {
   absl::Duration idle_timeout = absl::Seconds(5);     // between requests
   absl::Duration write_timeout = absl::Seconds(10);   // for each write to make progress
 };
+
+// Leaves Brotli out of what `req` accepts (gzip stays, if it was there): cpp-httplib
+// compresses at Brotli's slowest quality, seconds for three.js on every fresh page load,
+// where gzip takes a tenth of a second (docs/decisions.md, "The viewer's files go gzip").
+void OfferNoBrotli(httplib::Request& req);
 
 // Whether a request's Host header (`host_header`, "name[:port]" or "[v6][:port]") names a
 // server bound to `bound_host` (the HOST of its HOST:PORT). The port is not compared (a

@@ -310,6 +310,7 @@ v1::Progress ExtractJob::SumProgress() const {
     }
   }
   if (config_.options.seal) sum.set_sealed_chunks(chunks_sent_);
+  sum.set_slices_expected(config_.grid.nz);
   return sum;
 }
 
@@ -619,6 +620,7 @@ void ExtractJob::Attach(JobSink* sink) {
 v1::Progress ExtractJob::MakeProgress() const {
   v1::Progress p;
   p.set_slices_consumed(cursor_.slice);
+  p.set_slices_expected(config_.grid.nz);
   // Sent after every slice: Peek, so that the stream does not wait for the session's
   // queued steps each time (they overlap the next slices).
   const TandemSession::Gauge gauge = session_->Peek();

@@ -5,10 +5,12 @@
 
 #include <httplib.h>
 
+#include <algorithm>
 #include <atomic>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <vector>
@@ -110,17 +112,38 @@ struct Impl {
   int64_t version ABSL_GUARDED_BY(mu) = 0;
   json state ABSL_GUARDED_BY(mu);
   std::vector<std::shared_ptr<const std::string>> chunks ABSL_GUARDED_BY(mu);
-  std::shared_ptr<const std::string> band ABSL_GUARDED_BY(mu);
+  // Each surface's latest band, by the version that names it (versions count over all
+  // surfaces, so that /band/V.drc needs no surface).
+  struct Band {
+    int64_t version = 0;
+    std::shared_ptr<const std::string> bytes;
+  };
+  std::vector<Band> bands ABSL_GUARDED_BY(mu);
   int64_t band_version ABSL_GUARDED_BY(mu) = 0;
+  std::optional<absl::Time> finishing_since ABSL_GUARDED_BY(mu);
   std::map<std::string, std::shared_ptr<const std::string>> files ABSL_GUARDED_BY(mu);
 
   void ChangedLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu) {
     ++version;
     state["version"] = version;
   }
-  std::string StateText() const {
-    absl::MutexLock lock(&mu);
+  // The state as sent: the finishing time counted up to now (the page counts on from there).
+  std::string DumpLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu) {
+    if (finishing_since && state["finishing"].is_object()) {
+      state["finishing"]["elapsed_s"] = absl::ToDoubleSeconds(absl::Now() - *finishing_since);
+    }
     return state.dump();
+  }
+  std::string StateText() {
+    absl::MutexLock lock(&mu);
+    return DumpLocked();
+  }
+  // The slot of `surface` in the per-surface arrays, grown to hold it.
+  void GrowSurfacesLocked(int surface) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu) {
+    while (static_cast<int>(bands.size()) <= surface) {
+      bands.emplace_back();
+      state["bands"].push_back(nullptr);
+    }
   }
   // Responses that never change: cached for good, by the browser only when they need the
   // token (a shared cache would hand them out without it).
@@ -150,6 +173,13 @@ struct Impl {
     return false;
   }
   void Routes();
+  // A 404 that says what is missing (not with a Range header: cpp-httplib would cut the text
+  // by it). The text names no more of the request than its number.
+  static void NotFound(const httplib::Request& req, httplib::Response& res,
+                       const std::string& text) {
+    res.status = 404;
+    if (req.ranges.empty()) res.set_content(text, "text/plain; charset=utf-8");
+  }
 };
 
 void Impl::Routes() {
@@ -188,14 +218,20 @@ void Impl::Routes() {
     res.set_content(StateText(), "application/json");
   });
   http.Get(R"(/chunk/(\d+)\.drc)", [this](const httplib::Request& req, httplib::Response& res) {
-    size_t index = 0;
+    size_t index = 0, count = 0;
     std::shared_ptr<const std::string> bytes;
-    if (absl::SimpleAtoi(std::string(req.matches[1]), &index)) {
+    {
       absl::MutexLock lock(&mu);
-      if (index < chunks.size()) bytes = chunks[index];
+      count = chunks.size();
+      if (absl::SimpleAtoi(std::string(req.matches[1]), &index) && index < count) {
+        bytes = chunks[index];
+      }
     }
     if (!bytes) {
-      res.status = 404;
+      NotFound(req, res,
+               absl::StrCat("no chunk ", std::string(req.matches[1]), ": this session has ", count,
+                            count == 1 ? " chunk" : " chunks",
+                            count > 0 ? absl::StrCat(" (0 to ", count - 1, ")") : "", " so far\n"));
       return;
     }
     res.set_header("Cache-Control", Immutable());
@@ -206,10 +242,14 @@ void Impl::Routes() {
     std::shared_ptr<const std::string> bytes;
     if (absl::SimpleAtoi(std::string(req.matches[1]), &v)) {
       absl::MutexLock lock(&mu);
-      if (v == band_version) bytes = band;
+      for (const Band& band : bands) {
+        if (band.bytes && band.version == v) bytes = band.bytes;
+      }
     }
     if (!bytes) {
-      res.status = 404;  // superseded: the state names the current one
+      NotFound(req, res,
+               absl::StrCat("no band version ", std::string(req.matches[1]),
+                            ": superseded or never made (state.json names the current ones)\n"));
       return;
     }
     res.set_header("Cache-Control", Immutable());
@@ -223,7 +263,7 @@ void Impl::Routes() {
       if (it != files.end()) bytes = it->second;
     }
     if (!bytes) {
-      res.status = 404;
+      NotFound(req, res, "no such file here (state.json lists the files)\n");
       return;
     }
     res.set_content(*bytes, ContentType(std::string(req.matches[1])));
@@ -256,7 +296,7 @@ void Impl::Routes() {
               if (stopping.load()) return false;
               if (version != *sent) {
                 *sent = version;
-                text = absl::StrCat("data: ", state.dump(), "\n\n");
+                text = absl::StrCat("data: ", DumpLocked(), "\n\n");
               }
             }
             if (text.empty() && !sink.is_writable()) return false;
@@ -275,11 +315,13 @@ class HttpViewServer final : public ViewServer {
   ~HttpViewServer() override;
   std::string url() const override;
   void SetSession(const std::string& id, const std::string& description, int64_t nz) override;
-  void SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
-                   int64_t triangles_sealed) override;
-  void AddChunk(std::string draco, int64_t triangles) override;
-  void SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) override;
-  void ClearBand() override;
+  void SetSurfaces(const std::vector<std::string>& labels) override;
+  void SetProgress(const ViewProgress& progress) override;
+  void AddChunk(std::string draco, int64_t triangles, int surface) override;
+  void SetBand(int surface, std::string draco, int64_t triangles, int64_t slice,
+               bool band_only) override;
+  void ClearBands() override;
+  void SetFinishing(int64_t triangles_held, double estimate_s) override;
   void AddFile(const std::string& name, std::string bytes) override;
   void Finish(const std::string& metrics_json, const std::string& error) override;
   int64_t connections() const override { return impl_->connections.load(); }
@@ -308,12 +350,25 @@ absl::StatusOr<std::unique_ptr<ViewServer>> Start(const ViewOptions& options) {
   }
   {
     absl::MutexLock lock(&impl->mu);
-    impl->state = json{{"version", 0},          {"session", ""},         {"description", ""},
-                       {"nz", 0},               {"slices_sent", 0},      {"slices_meshed", 0},
-                       {"triangles_held", 0},   {"triangles_sealed", 0}, {"chunks", 0},
+    impl->state = json{{"version", 0},
+                       {"session", ""},
+                       {"description", ""},
+                       {"nz", 0},
+                       {"slices_sent", 0},
+                       {"slices_meshed", 0},
+                       {"slices_on_disk", -1},
+                       {"triangles_held", 0},
+                       {"triangles_sealed", 0},
+                       {"surfaces", json::array()},
+                       {"chunks", 0},
                        {"chunk_triangles", json::array()},
-                       {"band", nullptr},       {"files", json::array()},
-                       {"finished", false},     {"error", ""},           {"metrics", nullptr}};
+                       {"chunk_surfaces", json::array()},
+                       {"bands", json::array()},
+                       {"files", json::array()},
+                       {"finishing", nullptr},
+                       {"finished", false},
+                       {"error", ""},
+                       {"metrics", nullptr}};
   }
   impl->cookie_value = RandomHex();
   impl->Routes();
@@ -351,42 +406,68 @@ void HttpViewServer::SetSession(const std::string& id, const std::string& descri
   impl_->ChangedLocked();
 }
 
-void HttpViewServer::SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
-                             int64_t triangles_sealed) {
+void HttpViewServer::SetSurfaces(const std::vector<std::string>& labels) {
   absl::MutexLock lock(&impl_->mu);
-  json& s = impl_->state;
-  s["slices_sent"] = slices_sent;
-  s["slices_meshed"] = slices_meshed;
-  s["triangles_held"] = triangles_held;
-  s["triangles_sealed"] = triangles_sealed;
+  json surfaces = json::array();
+  for (const std::string& label : labels) surfaces.push_back(json{{"label", label}});
+  impl_->state["surfaces"] = std::move(surfaces);
+  if (!labels.empty()) impl_->GrowSurfacesLocked(static_cast<int>(labels.size()) - 1);
   impl_->ChangedLocked();
 }
 
-void HttpViewServer::AddChunk(std::string draco, int64_t triangles) {
-  auto bytes = std::make_shared<const std::string>(std::move(draco));
+void HttpViewServer::SetProgress(const ViewProgress& p) {
   absl::MutexLock lock(&impl_->mu);
+  json& s = impl_->state;
+  s["slices_sent"] = p.slices_sent;
+  s["slices_meshed"] = p.slices_meshed;
+  s["slices_on_disk"] = p.slices_on_disk;
+  s["triangles_held"] = p.triangles_held;
+  s["triangles_sealed"] = p.triangles_sealed;
+  impl_->ChangedLocked();
+}
+
+void HttpViewServer::AddChunk(std::string draco, int64_t triangles, int surface) {
+  auto bytes = std::make_shared<const std::string>(std::move(draco));
+  surface = std::max(surface, 0);
+  absl::MutexLock lock(&impl_->mu);
+  impl_->GrowSurfacesLocked(surface);
   impl_->chunks.push_back(std::move(bytes));
   impl_->state["chunks"] = impl_->chunks.size();
   impl_->state["chunk_triangles"].push_back(triangles);
+  impl_->state["chunk_surfaces"].push_back(surface);
   impl_->ChangedLocked();
 }
 
-void HttpViewServer::SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) {
+void HttpViewServer::SetBand(int surface, std::string draco, int64_t triangles, int64_t slice,
+                             bool band_only) {
   auto bytes = std::make_shared<const std::string>(std::move(draco));
+  surface = std::max(surface, 0);
   absl::MutexLock lock(&impl_->mu);
-  impl_->band = std::move(bytes);
-  ++impl_->band_version;
-  impl_->state["band"] = json{{"version", impl_->band_version},
-                              {"triangles", triangles},
-                              {"slice", slice},
-                              {"band_only", band_only}};
+  impl_->GrowSurfacesLocked(surface);
+  Impl::Band& band = impl_->bands[surface];
+  band.bytes = std::move(bytes);
+  band.version = ++impl_->band_version;
+  impl_->state["bands"][surface] = json{{"version", band.version},
+                                        {"triangles", triangles},
+                                        {"slice", slice},
+                                        {"band_only", band_only}};
   impl_->ChangedLocked();
 }
 
-void HttpViewServer::ClearBand() {
+void HttpViewServer::ClearBands() {
   absl::MutexLock lock(&impl_->mu);
-  impl_->band.reset();
-  impl_->state["band"] = nullptr;
+  for (size_t i = 0; i < impl_->bands.size(); ++i) {
+    impl_->bands[i] = Impl::Band();
+    impl_->state["bands"][i] = nullptr;
+  }
+  impl_->ChangedLocked();
+}
+
+void HttpViewServer::SetFinishing(int64_t triangles_held, double estimate_s) {
+  absl::MutexLock lock(&impl_->mu);
+  impl_->finishing_since = absl::Now();
+  impl_->state["finishing"] =
+      json{{"triangles", triangles_held}, {"estimate_s", estimate_s}, {"elapsed_s", 0.0}};
   impl_->ChangedLocked();
 }
 
@@ -403,6 +484,11 @@ void HttpViewServer::AddFile(const std::string& name, std::string bytes) {
 
 void HttpViewServer::Finish(const std::string& metrics_json, const std::string& error) {
   absl::MutexLock lock(&impl_->mu);
+  if (impl_->finishing_since) {  // the time it took, frozen
+    impl_->state["finishing"]["elapsed_s"] =
+        absl::ToDoubleSeconds(absl::Now() - *impl_->finishing_since);
+    impl_->finishing_since.reset();
+  }
   impl_->state["finished"] = true;
   impl_->state["error"] = error;
   if (!metrics_json.empty()) {

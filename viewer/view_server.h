@@ -6,11 +6,14 @@
 //   GET /state.json        the state below, now
 //   GET /events            server-sent events: the state again each time it changes
 //   GET /chunk/N.drc       sealed chunk N (Draco; never changes: cached for good)
-//   GET /band/V.drc        the unsealed band (or the whole partial mesh), version V
+//   GET /band/V.drc        a surface's unsealed band (or its whole partial or final mesh),
+//                          version V (versions count over all surfaces)
 //   GET /file/NAME         a finished mesh file (tandem view FILE)
 // State (JSON): {version, session, description, nz, slices_sent, slices_meshed,
-// triangles_held, triangles_sealed, chunks, chunk_triangles, band {version, triangles,
-// slice, band_only}, files [{name, format}], finished, error, metrics {...}}.
+// slices_on_disk, triangles_held, triangles_sealed, surfaces [{label}], chunks,
+// chunk_triangles [], chunk_surfaces [], bands [per surface: null or {version, triangles,
+// slice, band_only}], files [{name, format}], finishing (null or {triangles, estimate_s,
+// elapsed_s}), finished, error, metrics (an object, or one per surface)}.
 // A page that reloads, or a browser that connects late, reads the state and fetches every
 // chunk by index: nothing is pushed but the small state. No gRPC, Protobuf or Draco here:
 // the bytes are served as they came, the browser decodes them.
@@ -25,6 +28,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 
@@ -51,6 +55,13 @@ bool IsLoopback(const std::string& host);
 // Start: cpp-httplib links OpenSSL and Brotli, whose loading cost every start of the CLI and
 // the client ~5 ms and 3.8 MB of resident pages when they linked it, viewer or not
 // (core/io/module_loader.h). The programs see only this interface.
+// Where the scan is (ViewServer::SetProgress).
+struct ViewProgress {
+  int64_t slices_sent = 0, slices_meshed = 0;
+  int64_t slices_on_disk = -1;  // following a scan of unknown depth: slices seen so far
+  int64_t triangles_held = 0, triangles_sealed = 0;
+};
+
 class ViewServer {
  public:
   // Loads the module (the first time), binds (an error names the address: "the viewer
@@ -61,25 +72,31 @@ class ViewServer {
   virtual ~ViewServer() = default;
   virtual std::string url() const = 0;  // http://HOST:PORT/ (with ?token= when one is set)
 
-  // What the page shows; any thread.
+  // What the page shows; any thread. `surface` counts from 0 (the first --iso).
   virtual void SetSession(const std::string& id, const std::string& description,
                           int64_t nz) = 0;
-  virtual void SetProgress(int64_t slices_sent, int64_t slices_meshed, int64_t triangles_held,
-                           int64_t triangles_sealed) = 0;
-  virtual void AddChunk(std::string draco, int64_t triangles) = 0;
-  // The unsealed band (band_only) or the whole partial (or final) mesh.
-  virtual void SetBand(std::string draco, int64_t triangles, int64_t slice, bool band_only) = 0;
-  virtual void ClearBand() = 0;
+  // One label per surface ("iso 500"), in surface order; none = one unnamed surface.
+  virtual void SetSurfaces(const std::vector<std::string>& labels) = 0;
+  virtual void SetProgress(const ViewProgress& progress) = 0;
+  virtual void AddChunk(std::string draco, int64_t triangles, int surface) = 0;
+  // A surface's unsealed band (band_only) or its whole partial (or final) mesh.
+  virtual void SetBand(int surface, std::string draco, int64_t triangles, int64_t slice,
+                       bool band_only) = 0;
+  virtual void ClearBands() = 0;
+  // Every slice is in: the session simplifies and encodes what it holds, for about
+  // estimate_s seconds (elapsed_s in the state counts from this call).
+  virtual void SetFinishing(int64_t triangles_held, double estimate_s) = 0;
   // A finished mesh file, served as /file/NAME (its format from the extension).
   virtual void AddFile(const std::string& name, std::string bytes) = 0;
-  // The end: metrics as a JSON object text ("" = none), or an error message.
+  // The end: metrics as a JSON text, an object or an array of one per surface ("" = none),
+  // or an error message.
   virtual void Finish(const std::string& metrics_json, const std::string& error) = 0;
 
   virtual int64_t connections() const = 0;  // event streams opened so far (tests and logs)
 };
 
 // The module's table (view_server.cc; view_loader.cc loads it).
-inline constexpr int kViewModuleAbi = 1;
+inline constexpr int kViewModuleAbi = 2;
 struct ViewModule {
   int abi;
   absl::StatusOr<std::unique_ptr<ViewServer>> (*start)(const ViewOptions& options);

@@ -1028,7 +1028,7 @@ int View(int argc, char** argv) {
     for (const std::string& c : chunks) {
       auto bytes = read(c);
       if (!bytes.ok()) return Fail(bytes.status());
-      (*server)->AddChunk(*std::move(bytes), -1);
+      (*server)->AddChunk(*std::move(bytes), -1, 0);
     }
   }
   (*server)->Finish("", "");

@@ -174,6 +174,7 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
     const Vec3 d = store_->position(a) - store_->position(b);
     key = Dot(d, d) * 0x1p-960;
   }
+  ++q_pushes_;
   q_.Push(key, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
@@ -232,7 +233,10 @@ void Simplifier::RaiseError(double e) {
       if (i < from_list && unplaced) {
         // Its cost is what an evaluation would give (the stamps hold its quadrics and ends):
         // queued as it is, placed when popped. Most of those beyond e go stale in Q first.
-        if (!Pinned(d.a, d.b)) q_.Push(d.cost, QEntry{d.a, d.b, d.va, d.vb, kUnplaced, kNaN});
+        if (!Pinned(d.a, d.b)) {
+          ++q_pushes_;
+          q_.Push(d.cost, QEntry{d.a, d.b, d.va, d.vb, kUnplaced, kNaN});
+        }
       } else {
         AddToBatch(d.a, d.b, /*released=*/true);  // a re-drop lists it again
       }
@@ -365,7 +369,10 @@ void Simplifier::FlushBatch() {
     const BatchResult& r = batch_results_[i];
     evaluations_ += r.to != 0;
     if (r.to == 0) {
-      if (!requeue_released_) w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
+      if (!requeue_released_) {
+        ++w_pushes_;
+        w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
+      }
     } else if (r.to == 1) {
       PushReady(e.a, e.b, r.c);
     } else {
@@ -385,6 +392,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     // when the endpoints' quadrics are complete.
     const double key = ReleaseKey(a, b, &c);
     if (key > front_) {
+      ++w_pushes_;
       w_.Push(WEntry{key, a, b, version_[a], version_[b]});
       return;
     }
@@ -816,6 +824,7 @@ void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> m
   from.q_.ForEachInPushOrder([&](const QNode& n, const QPlacement& p) {
     if (from.Stale(n)) return;
     const auto [a, b] = ends(n.a, n.b);
+    ++q_pushes_;
     q_.Push(n.key, QEntry{a, b, version_[a], version_[b], p.pos, p.eps0});
   });
   for (const DroppedEdge& d : from.dropped_) {
@@ -835,6 +844,9 @@ void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> m
 void Simplifier::AdoptCounters(const Simplifier& from) {
   refusals_ += from.refusals_;
   contractions_ += from.contractions_;
+  evaluations_ += from.evaluations_;
+  q_pushes_ += from.q_pushes_;
+  w_pushes_ += from.w_pushes_;
   quadric_mismatches_ += from.quadric_mismatches_.load();
   max_reach_over_front_ = std::max(max_reach_over_front_, from.max_reach_over_front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, from.max_layer_over_front_);

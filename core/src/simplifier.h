@@ -202,6 +202,9 @@ class Simplifier {
   int64_t contractions() const { return contractions_; }
   // Edge evaluations (quadric solves) so far: what RaiseError's re-offers save is seen here.
   int64_t evaluations() const { return evaluations_; }
+  // Entries pushed into Q and into W so far (most Q entries are popped stale).
+  int64_t q_pushes() const { return q_pushes_; }
+  int64_t w_pushes() const { return w_pushes_; }
   // Edges a chunked release held back for a later chunk (an end not ready yet) so far: the
   // chunks' borders, which compact chunks keep short (SimplifierOptions::tile_x).
   int64_t deferred_edges() const { return deferred_; }
@@ -441,6 +444,7 @@ class Simplifier {
   RefusalCounts refusals_;
   int64_t contractions_ = 0;
   int64_t evaluations_ = 0;
+  int64_t q_pushes_ = 0, w_pushes_ = 0;
   int64_t deferred_ = 0;
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
   double max_layer_over_front_ = -std::numeric_limits<double>::infinity();

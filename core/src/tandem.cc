@@ -705,7 +705,7 @@ const SessionStats& TandemSession::Impl::Stats() {
   stats.error_reached =
       options.schedule == Schedule::kNone ? 0.0 : first.simplifier.error() * scale;
   stats.refusals = RefusalCounts{};
-  stats.contractions = 0;
+  stats.contractions = stats.evaluations = stats.q_pushes = stats.w_pushes = 0;
   stats.quadric_mismatches = 0;
   stats.max_reach_over_front = -std::numeric_limits<double>::infinity();
   stats.max_layer_over_front = -std::numeric_limits<double>::infinity();
@@ -720,6 +720,9 @@ const SessionStats& TandemSession::Impl::Stats() {
     stats.time.simplify_s += s->time.simplify_s;
     stats.refusals += s->simplifier.refusals();
     stats.contractions += s->simplifier.contractions();
+    stats.evaluations += s->simplifier.evaluations();
+    stats.q_pushes += s->simplifier.q_pushes();
+    stats.w_pushes += s->simplifier.w_pushes();
     stats.quadric_mismatches += s->simplifier.quadric_mismatches();
     stats.max_reach_over_front =
         std::max(stats.max_reach_over_front, s->simplifier.max_reach_over_front());

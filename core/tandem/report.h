@@ -98,6 +98,9 @@ void VisitReportFields(R& r, F&& f) {
   f("/peak_rss_bytes", "peak_rss_bytes", r.peak_rss_bytes, W::kAlways);
   f("/trace", "trace", s.trace, W::kAlways);
   f("/contractions", "contractions", s.contractions, W::kAlways);
+  f("/evaluations", "evaluations", s.evaluations, W::kAlways);
+  f("/q_pushes", "q_pushes", s.q_pushes, W::kAlways);
+  f("/w_pushes", "w_pushes", s.w_pushes, W::kAlways);
   f("/refusals/link", "refusals.link", s.refusals.link, W::kAlways);
   f("/refusals/flip", "refusals.flip", s.refusals.flip, W::kAlways);
   f("/refusals/degenerate", "refusals.degenerate", s.refusals.degenerate, W::kAlways);

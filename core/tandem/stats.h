@@ -44,6 +44,11 @@ struct SessionStats {
   PhaseTimes time;
   RefusalCounts refusals;
   int64_t contractions = 0;
+  // The simplifier's work behind them: edge evaluations (quadric solves), and the entries
+  // pushed into Q (by cost) and into W (waiting for the front).
+  int64_t evaluations = 0;
+  int64_t q_pushes = 0;
+  int64_t w_pushes = 0;
   int64_t sag_corrected = 0;        // vertices moved by the sag correction (Finish)
   // E0 as the simplification left it, physical units: SessionOptions::error, or with
   // target_triangles the E0 it rose to (0 without simplification).

@@ -462,6 +462,21 @@ TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
   EXPECT_GT(tandem.stats.max_reach_over_front, 0.0);
 }
 
+// The work counters: every contraction was popped from Q after an evaluation; classical
+// queues nothing in W, the time lag most edges before they reach Q.
+TEST(Simplifier, CountsEvaluationsAndQueuePushes) {
+  const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
+  const SessionStats& s = lag.stats;
+  EXPECT_GT(s.contractions, 1000);
+  EXPECT_GE(s.evaluations, s.contractions);
+  EXPECT_GE(s.q_pushes, s.contractions);
+  EXPECT_LE(s.q_pushes, s.evaluations);
+  EXPECT_GT(s.w_pushes, s.contractions);
+  const Result classical = RunShape(Shape::kPillowBox, 64, Schedule::kClassical, 0.2);
+  EXPECT_GE(classical.stats.q_pushes, classical.stats.contractions);
+  EXPECT_EQ(classical.stats.w_pushes, 0);
+}
+
 // On real data a contracted vertex can carry an averaged height far below its position, so
 // the paper's reach rule alone lets an edge to a front vertex through; the schedule must
 // still never touch the front (layer(c) <= front - 1) nor run ahead of reach.

@@ -165,6 +165,10 @@ TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
   EXPECT_DOUBLE_EQ(got->error_max, want.error_max);
   EXPECT_EQ(got->stats.trace, want.stats.trace);
   EXPECT_EQ(got->stats.contractions, want.stats.contractions);
+  EXPECT_EQ(got->stats.evaluations, want.stats.evaluations);
+  EXPECT_EQ(got->stats.q_pushes, want.stats.q_pushes);
+  EXPECT_EQ(got->stats.w_pushes, want.stats.w_pushes);
+  EXPECT_GT(got->stats.w_pushes, 0);
   // The final mesh is corrected as locally.
   EXPECT_EQ(got->stats.sag_corrected, want.stats.sag_corrected);
   EXPECT_EQ(got->stats.refusals.link, want.stats.refusals.link);

@@ -15,6 +15,7 @@ export function harness(buildDir) {
   const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
   const children = [];
   let failures = 0, browser = null, chromium = null, PNG = null;
+  const began = Date.now();
   const bin = (name) => path.join(build, 'bin', name);
 
   function skipOrFail(why) {
@@ -26,7 +27,8 @@ export function harness(buildDir) {
     process.exit(77);
   }
   function check(ok, what, detail = '') {
-    console.log(`${ok ? 'ok  ' : 'FAIL'} ${what}${detail ? `: ${detail}` : ''}`);
+    const at = ((Date.now() - began) / 1000).toFixed(1);
+    console.log(`${ok ? 'ok  ' : 'FAIL'} [${at} s] ${what}${detail ? `: ${detail}` : ''}`);
     if (!ok) failures++;
     return ok;
   }
@@ -57,7 +59,7 @@ export function harness(buildDir) {
   async function startServer(args = []) {
     const server = start('tandem-server', ['--listen', '127.0.0.1:0', ...args]);
     return (await waitFor('the server address',
-                          () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 20))[1];
+                          () => (server.out + server.err).match(/listening on (127\.0\.0\.1:\d+)/), 120))[1];
   }
 
   // Chromium, playwright-core and pngjs, or skip/fail if they are missing (before any child
@@ -80,21 +82,53 @@ export function harness(buildDir) {
     return browser;
   }
 
-  // Share of a screenshot's view right of the panel whose pixels differ from the page's
-  // background.
-  function coverage(file) {
+  // The 3D view alone (the canvas, not the panel), as a PNG file in the shots folder.
+  async function canvasShot(page, name) {
+    const file = path.join(shots, name);
+    await page.locator('#view canvas').screenshot({ path: file, timeout: 120000 });
+    return file;
+  }
+  // The whole page (panel and view), for the docs (viewer/screenshots).
+  async function pageShot(page, name) {
+    await page.screenshot({ path: path.join(shots, name), timeout: 120000 });
+  }
+  // Pixels of a canvas screenshot that differ from the page's background, as
+  // {share, mean: [r, g, b] of those pixels, chroma: mean of r,g,b / (r+g+b)}.
+  const BACKGROUND = [0x16, 0x18, 0x1d];
+  function pixels(file) {
     const png = PNG.sync.read(fs.readFileSync(file));
-    const bg = [0x16, 0x18, 0x1d];
-    let lit = 0, all = 0;
-    for (let y = 0; y < png.height; y++) {
-      for (let x = 330; x < png.width; x++) {
-        const i = (y * png.width + x) * 4;
-        const d = Math.abs(png.data[i] - bg[0]) + Math.abs(png.data[i + 1] - bg[1]) + Math.abs(png.data[i + 2] - bg[2]);
-        if (d > 30) lit++;
-        all++;
-      }
+    let lit = 0;
+    const sum = [0, 0, 0], chroma = [0, 0, 0];
+    for (let i = 0; i < png.width * png.height * 4; i += 4) {
+      const rgb = [png.data[i], png.data[i + 1], png.data[i + 2]];
+      const d = rgb.reduce((n, c, k) => n + Math.abs(c - BACKGROUND[k]), 0);
+      if (d <= 30) continue;
+      lit++;
+      const total = rgb[0] + rgb[1] + rgb[2] || 1;
+      for (let k = 0; k < 3; k++) { sum[k] += rgb[k]; chroma[k] += rgb[k] / total; }
     }
-    return lit / all;
+    const n = Math.max(lit, 1);
+    return { share: lit / (png.width * png.height), mean: sum.map((v) => v / n), chroma: chroma.map((v) => v / n) };
+  }
+  const coverage = (file) => pixels(file).share;
+  // A colour '#rrggbb' as chromaticity r,g,b / (r+g+b), and the distance of two of them.
+  const chromaOf = (hex) => {
+    const rgb = [1, 3, 5].map((k) => parseInt(hex.slice(k, k + 2), 16));
+    const total = rgb[0] + rgb[1] + rgb[2];
+    return rgb.map((c) => c / total);
+  };
+  const chromaDistance = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+
+  // Copies slices [from, to) of a folder of numbered TIFFs into the folder a client follows
+  // (each under a temporary name first, then renamed into place: a reader never sees half a
+  // file). Returns the count copied so far.
+  function copySlices(staged, target, from, to) {
+    const names = fs.readdirSync(staged).filter((n) => n.endsWith('.tif')).sort();
+    for (let i = from; i < Math.min(to, names.length); i++) {
+      fs.copyFileSync(path.join(staged, names[i]), path.join(target, `${names[i]}.part`));
+      fs.renameSync(path.join(target, `${names[i]}.part`), path.join(target, names[i]));
+    }
+    return Math.min(to, names.length);
   }
 
   // Runs the test's body; a throw is one failed check. Then closes the browser, kills the
@@ -115,5 +149,6 @@ export function harness(buildDir) {
     process.exit(failures === 0 ? 0 : 1);
   }
 
-  return { build, work, shots, bin, check, start, sleep, waitFor, urlIn, startServer, launch, coverage, run };
+  return { build, work, shots, bin, check, start, sleep, waitFor, urlIn, startServer, launch,
+           canvasShot, pageShot, pixels, coverage, chromaOf, chromaDistance, copySlices, run };
 }

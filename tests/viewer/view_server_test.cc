@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -83,9 +84,14 @@ TEST(ViewServer, ServesTheStateChunksAndBandBehindItsToken) {
   ASSERT_TRUE(server.ok()) << server.status();
   EXPECT_NE((*server)->url().find("?token=s3cret"), std::string::npos);
   (*server)->SetSession("abc", "volume.nii", 40);
-  (*server)->AddChunk("chunk-zero", 12);
-  (*server)->SetBand("band-one", 5, 7, true);
-  (*server)->SetProgress(9, 8, 100, 12);
+  (*server)->AddChunk("chunk-zero", 12, 0);
+  (*server)->SetBand(0, "band-one", 5, 7, true);
+  ViewProgress progress;
+  progress.slices_sent = 9;
+  progress.slices_meshed = 8;
+  progress.triangles_held = 100;
+  progress.triangles_sealed = 12;
+  (*server)->SetProgress(progress);
   httplib::Client http("127.0.0.1", PortOf((*server)->url()));
 
   for (const char* path : {"/", "/viewer.js", "/viewer.css", "/three/build/three.module.js",
@@ -102,7 +108,7 @@ TEST(ViewServer, ServesTheStateChunksAndBandBehindItsToken) {
   EXPECT_EQ(s["nz"], 40);
   EXPECT_EQ(s["chunks"], 1);
   EXPECT_EQ(s["chunk_triangles"][0], 12);
-  EXPECT_EQ(s["band"]["version"], 1);
+  EXPECT_EQ(s["bands"][0]["version"], 1);
   EXPECT_EQ(s["slices_meshed"], 8);
   EXPECT_FALSE(s["finished"].get<bool>());
 
@@ -115,7 +121,7 @@ TEST(ViewServer, ServesTheStateChunksAndBandBehindItsToken) {
   EXPECT_NE(chunk->get_header_value("Cache-Control").find("immutable"), std::string::npos);
   EXPECT_EQ(http.Get("/chunk/1.drc", bearer)->status, 404);
   EXPECT_EQ(http.Get("/band/1.drc", bearer)->body, "band-one");
-  (*server)->SetBand("band-two", 6, 9, true);
+  (*server)->SetBand(0, "band-two", 6, 9, true);
   EXPECT_EQ(http.Get("/band/1.drc", bearer)->status, 404) << "superseded";
   EXPECT_EQ(http.Get("/band/2.drc", bearer)->body, "band-two");
 
@@ -127,11 +133,62 @@ TEST(ViewServer, ServesTheStateChunksAndBandBehindItsToken) {
   });
   ASSERT_EQ(first_event.rfind("data: ", 0), 0u) << first_event;
   const auto e = nlohmann::json::parse(first_event.substr(6, first_event.find("\n\n") - 6));
-  EXPECT_EQ(e["band"]["version"], 2);
+  EXPECT_EQ(e["bands"][0]["version"], 2);
   (*server)->Finish(R"({"triangles_final": 18})", "");
   const auto end = nlohmann::json::parse(http.Get("/state.json?token=s3cret")->body);
   EXPECT_TRUE(end["finished"].get<bool>());
   EXPECT_EQ(end["metrics"]["triangles_final"], 18);
+}
+
+// Several surfaces: labels, each chunk's surface, a band per surface (each served by its own
+// version, a newer one of one surface leaving the other's in place), the slices on disk, the
+// finishing state with its time counted by the server and frozen at the end, and one
+// metrics object per surface.
+TEST(ViewServer, SurfacesHaveTheirOwnChunksBandsAndMetricsAndTheEndIsTimed) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  httplib::Client http("127.0.0.1", v.port);
+  auto state = [&] { return nlohmann::json::parse(http.Get("/state.json")->body); };
+  v.server->SetSurfaces({"iso -500", "iso 300"});
+  v.server->AddChunk("skin-0", 4, 0);
+  v.server->AddChunk("bone-0", 5, 1);
+  v.server->SetBand(1, "bone-band", 7, 11, true);
+  v.server->SetBand(0, "skin-band", 6, 12, true);
+  ViewProgress progress;
+  progress.slices_sent = 14;
+  progress.slices_meshed = 13;
+  progress.slices_on_disk = 20;
+  v.server->SetProgress(progress);
+  nlohmann::json s = state();
+  EXPECT_EQ(s["surfaces"][1]["label"], "iso 300");
+  EXPECT_EQ(s["chunk_surfaces"], nlohmann::json::parse("[0, 1]"));
+  EXPECT_EQ(s["bands"][1]["version"], 1);
+  EXPECT_EQ(s["bands"][0]["version"], 2);
+  EXPECT_EQ(s["bands"][0]["slice"], 12);
+  EXPECT_EQ(s["slices_on_disk"], 20);
+  EXPECT_TRUE(s["finishing"].is_null());
+  EXPECT_EQ(http.Get("/band/1.drc")->body, "bone-band");
+  EXPECT_EQ(http.Get("/band/2.drc")->body, "skin-band");
+  v.server->SetBand(1, "bone-band-2", 8, 13, true);
+  EXPECT_EQ(http.Get("/band/1.drc")->status, 404) << "superseded";
+  EXPECT_EQ(http.Get("/band/2.drc")->body, "skin-band") << "the other surface's stays";
+  EXPECT_EQ(http.Get("/band/3.drc")->body, "bone-band-2");
+
+  v.server->SetFinishing(1234, 2.5);
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  s = state();
+  EXPECT_EQ(s["finishing"]["triangles"], 1234);
+  EXPECT_EQ(s["finishing"]["estimate_s"], 2.5);
+  EXPECT_GE(s["finishing"]["elapsed_s"].get<double>(), 0.3);
+  v.server->ClearBands();
+  v.server->Finish(R"([{"triangles_final": 10}, {"triangles_final": 12}])", "");
+  s = state();
+  EXPECT_TRUE(s["bands"][0].is_null() && s["bands"][1].is_null());
+  EXPECT_EQ(http.Get("/band/2.drc")->status, 404);
+  EXPECT_EQ(s["metrics"][1]["triangles_final"], 12);
+  const double took = s["finishing"]["elapsed_s"].get<double>();
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  EXPECT_EQ(state()["finishing"]["elapsed_s"].get<double>(), took) << "frozen at the end";
 }
 
 TEST(ViewServer, ABusyPortIsAnErrorNamingIt) {
@@ -268,7 +325,7 @@ TEST(ViewServer, SeveralRangesAreRefused) {
 TEST(ViewServer, AHostThatIsNotThisServersIsRefused) {
   Viewer v = StartViewer();
   ASSERT_TRUE(v.server);
-  v.server->AddChunk("the-mesh-bytes", 3);
+  v.server->AddChunk("the-mesh-bytes", 3, 0);
   const std::string port = std::to_string(v.port);
   for (const std::string& host : std::vector<std::string>{"evil.example", "evil.example:" + port, "10.1.2.3",
                                  "localhost.evil.example", "127.0.0.1.evil.example:" + port,
@@ -383,24 +440,59 @@ TEST(ViewServer, EventStreamsAreCappedAndTheRestIsStillServed) {
   EXPECT_EQ(status, 200) << "a closed page's stream frees its place";
 }
 
-// A chunk, band or file that does not exist is a plain 404 without a body, whatever the
-// index looks like, with a Range header, with the token; nothing else changes.
-TEST(ViewServer, AMissingChunkIsAPlain404) {
+// What a browser offers (gzip, deflate, br) gets gzip, never Brotli, whose slowest quality
+// (cpp-httplib's) takes seconds on three.js at every fresh page load; Brotli alone gets the
+// file as it is.
+TEST(ViewServer, ThePagesFilesComeGzippedNeverBrotli) {
+  Viewer v = StartViewer();
+  ASSERT_TRUE(v.server);
+  std::ifstream file(FindThree("") + "/build/three.core.js", std::ios::binary);
+  const std::string whole((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  ASSERT_GT(whole.size(), 100000u);
+  RawResponse offered = RawRequest(v.port, GetRequest(v.port, "/three/build/three.core.js",
+                                                      "Accept-Encoding: gzip, deflate, br\r\n"));
+  EXPECT_EQ(offered.status, 200);
+  EXPECT_EQ(offered.headers["content-encoding"], "gzip");
+  EXPECT_LT(offered.body.size(), whole.size() / 2);
+  for (const char* only_br : {"Accept-Encoding: br\r\n", "Accept-Encoding: BR;q=1.0\r\n"}) {
+    RawResponse br = RawRequest(v.port, GetRequest(v.port, "/three/build/three.core.js", only_br));
+    EXPECT_EQ(br.status, 200) << only_br;
+    EXPECT_EQ(br.headers.count("content-encoding"), 0u) << only_br;
+    EXPECT_TRUE(br.body == whole) << only_br << ": " << br.body.size() << " bytes";
+  }
+}
+
+// A chunk, band or file that does not exist: a 404 whose text names it and what there is
+// (plain, without a Range header, which would cut the text), nothing else; the server goes on.
+TEST(ViewServer, AMissingChunkIsA404NamingIt) {
   Viewer v = StartViewer("s3cret");
   ASSERT_TRUE(v.server);
-  v.server->AddChunk("chunk-zero", 1);
-  for (const char* path : {"/chunk/1.drc", "/chunk/99999999999999999999999999.drc",
-                           "/chunk/-1.drc", "/chunk/x.drc", "/chunk/0.drc.bak", "/band/7.drc",
-                           "/file/none.ply", "/chunk/"}) {
+  v.server->AddChunk("chunk-zero", 1, 0);
+  const std::vector<std::pair<std::string, std::string>> missing = {
+      {"/chunk/1.drc", "no chunk 1: this session has 1 chunk (0 to 0) so far\n"},
+      {"/chunk/99999999999999999999999999.drc",
+       "no chunk 99999999999999999999999999: this session has 1 chunk (0 to 0) so far\n"},
+      {"/band/7.drc",
+       "no band version 7: superseded or never made (state.json names the current ones)\n"},
+      {"/file/none.ply", "no such file here (state.json lists the files)\n"},
+      {"/chunk/-1.drc", ""},  // no such address at all
+      {"/chunk/x.drc", ""},
+      {"/chunk/0.drc.bak", ""},
+      {"/chunk/", ""}};
+  for (const auto& [path, text] : missing) {
     for (const char* range : {"", "Range: bytes=0-0\r\n"}) {
-      RawResponse r =
-          RawRequest(v.port, GetRequest(v.port, std::string(path) + "?token=s3cret", range));
+      RawResponse r = RawRequest(v.port, GetRequest(v.port, path + "?token=s3cret", range));
       EXPECT_EQ(r.status, 404) << path << " " << range;
-      EXPECT_EQ(r.headers["content-length"], "0") << path;
-      EXPECT_TRUE(r.body.empty()) << path;
+      const std::string body = *range == '\0' ? text : "";
+      EXPECT_EQ(r.body, body) << path << " " << range;
+      EXPECT_EQ(r.headers["content-length"], std::to_string(body.size())) << path;
       EXPECT_EQ(r.headers.count("set-cookie"), 0u) << path;
     }
   }
+  Viewer empty = StartViewer();
+  ASSERT_TRUE(empty.server);
+  EXPECT_EQ(RawRequest(empty.port, GetRequest(empty.port, "/chunk/0.drc")).body,
+            "no chunk 0: this session has 0 chunks so far\n");
   EXPECT_EQ(RawRequest(v.port, GetRequest(v.port, "/chunk/0.drc?token=s3cret")).body, "chunk-zero");
 }
 

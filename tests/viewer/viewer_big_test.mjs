@@ -13,7 +13,7 @@ import fs from 'node:fs';
 import path from 'node:path';
 import { harness } from './browser_harness.mjs';
 
-const { work, shots, bin, check, start, sleep, waitFor, urlIn, startServer, launch, coverage, run } =
+const { work, bin, check, start, sleep, waitFor, urlIn, startServer, launch, canvasShot, coverage, run } =
   harness(process.argv[2]);
 
 const MAX_MESH_TRIANGLES = 65536;  // the page's pieces
@@ -87,8 +87,9 @@ await run(async () => {
 
   const browser = await launch();
   async function viewAll(target, expected, what, shot) {
-    const viewer = start('tandem', ['view', target, '--view', '127.0.0.1:0', '--linger', '120']);
-    const url = await waitFor(`tandem view ${what}`, () => urlIn(viewer), 20);
+    // Bounds that only end a stuck run: the test kills the viewer when it is done.
+    const viewer = start('tandem', ['view', target, '--view', '127.0.0.1:0', '--linger', '900']);
+    const url = await waitFor(`tandem view ${what}`, () => urlIn(viewer), 240);
     const page = await browser.newPage({ viewport: { width: 960, height: 640 } });
     await page.addInitScript(countGl);
     const pageErrors = [];
@@ -124,8 +125,7 @@ await run(async () => {
     const idleDraws = (await page.evaluate(() => window.__gl.draws)) - buffers.draws;
     check(idleDraws === 0, `${what}: no redraw while nothing changes`, `${idleDraws} draw calls in 1.5 s`);
     if (shot) {
-      await page.screenshot({ path: path.join(shots, shot), timeout: 60000 });
-      const lit = coverage(path.join(shots, shot));
+      const lit = coverage(await canvasShot(page, shot));
       check(lit > 0.05, `${what}: the screenshot shows the mesh`, `${(100 * lit).toFixed(1)} % of the view`);
     }
     const errors = [...pageErrors, ...(last ? last.errors : [])];
