@@ -2,9 +2,10 @@
 //   tandem-client stream --server HOST:PORT --input VOLUME --iso C0 --error E0 --out MESH ...
 //   tandem-client info   --server HOST:PORT
 //   tandem-client health --server HOST:PORT
-// Exit status: 0 success, 1 failure (the message on stderr names the problem and, for a
-// server error, its gRPC code), 2 bad command line, 3 stream --strict: the iso-value lies
-// outside the data sent (a warning otherwise).
+// Exit status (cli/cli_util.h): 0 success, 1 a failure while running (the message on
+// stderr names the problem and, for a server error, its gRPC code), 2 a mistake in the
+// command line, 3 stream --strict: the iso-value lies outside the data sent (a warning
+// otherwise).
 #include <unistd.h>
 #if defined(__GLIBC__)
 #include <malloc.h>  // mallopt
@@ -68,7 +69,7 @@ constexpr char kMainUsage[] =
 // message, without a gRPC code.
 int Fail(const absl::Status& st) {
   absl::FPrintF(stderr, "tandem-client: error: %s\n", std::string(st.message()));
-  return 1;
+  return tandem::cli::kExitFailure;
 }
 
 // A call's failure: the server's (or the transport's) status code, its message, and a hint.
@@ -76,13 +77,13 @@ int RpcFail(const absl::Status& st, const std::string& hint = "") {
   if (tandem::client::IsLocalError(st)) return Fail(st);  // reading the volume mid-stream
   absl::FPrintF(stderr, "tandem-client: error: %s: %s%s\n", absl::StatusCodeToString(st.code()),
                 std::string(st.message()), hint.empty() ? "" : absl::StrCat(" (", hint, ")"));
-  return 1;
+  return tandem::cli::kExitFailure;
 }
 
 // A mistake in the flags, found before anything was sent: exit status 2, no gRPC code.
 int UsageError(const absl::Status& st) {
   absl::FPrintF(stderr, "tandem-client: %s\n", st.message());
-  return 2;
+  return tandem::cli::kExitUsage;
 }
 
 // --server and the TLS / token flags every command has (health: no token).
@@ -126,10 +127,7 @@ struct ConnectionFlags {
     }
     if (!with_token) return -1;
     absl::StatusOr<std::string> token = tandem::client::LoadToken(token_file);
-    if (!token.ok()) {
-      absl::FPrintF(stderr, "tandem-client: %s\n", std::string(token.status().message()));
-      return 2;
-    }
+    if (!token.ok()) return ::Fail(token.status());  // a file or the environment, read
     options.token = *std::move(token);
     return -1;
   }
@@ -185,7 +183,7 @@ std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::C
                                                                const std::string& session,
                                                                const bool& verbose,
                                                                absl::Status* error) {
-  return [store, &session, &verbose, error](const tandem::v1::SealedChunk& c) {
+  return [store, session, &verbose, error](const tandem::v1::SealedChunk& c) {
     if (verbose) {
       absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
                     c.index(), c.first_slice(), c.last_slice(), c.triangles(), c.vertices(),
@@ -209,7 +207,7 @@ struct SaveOptions {
   std::string out_pattern, metrics_path;
   tandem::codec::DracoOptions draco;  // .drc re-encoding of sealed chunks; --glb-draco
   bool glb_draco = false;
-  std::string input, frame;  // for the report
+  std::string input, frame_text;  // for the report (the frame itself comes with the metrics)
   std::vector<tandem::cli::IsoValue> isos;  // as the user wrote them ({iso} names), or none
   const char* wall_label = "stream wall time";
   bool quiet = false;
@@ -241,13 +239,16 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
   }
   tandem::MeshWriteOptions write;
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
+  // The frame the session ran in, as the server echoes it: the watcher of a session learns
+  // it there too. An older server sends none: the grid's own frame.
+  write.space = tandem::ParseSpace(s.metrics.frame()).value_or(tandem::Space::kGrid);
   absl::Status saved =
       ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh, write);
   if (!saved.ok()) return Fail(saved);
 
   tandem::MetricsReport report = tandem::wire::ReportFromProto(s.metrics);
   report.input = o.input;
-  report.frame = o.frame;
+  report.frame_text = o.frame_text;
   json->push_back(tandem::ReportToJson(report));
   if (o.quiet) return 0;
   if (result.num_surfaces() > 1) absl::PrintF("%s (iso %g)\n", out, s.metrics.iso());
@@ -362,9 +363,8 @@ int StreamCommand(int argc, char** argv) {
   // Fail before streaming, not after: the output's folder must exist.
   if (const std::filesystem::path parent = std::filesystem::path(out).parent_path();
       !parent.empty() && !std::filesystem::is_directory(parent)) {
-    absl::FPrintF(stderr, "tandem-client: --out %s: folder %s does not exist\n", out,
-                  parent.string());
-    return 2;
+    return Fail(absl::NotFoundError(
+        absl::StrCat("--out ", out, ": folder ", parent.string(), " does not exist")));
   }
   if (chunk_bytes < 1 || rate < 0 || timeout_s < 0 || preview_every < 0 || preview_ms < 0 ||
       keepalive_ms < 0 || keepalive_ms > std::numeric_limits<int>::max()) {
@@ -411,6 +411,7 @@ int StreamCommand(int argc, char** argv) {
     absl::FPrintF(stderr, "%standem-client: %s\n", status_shown.exchange(false) ? "\n" : "", line);
   };
   std::string spacing_warning;  // --spacing replacing the file's own
+  bool geometry_refused = false;  // --spacing or --frame does not fit the volume: usage
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
     absl::StatusOr<std::unique_ptr<tandem::SliceSource>> src;
     if (!follow) {
@@ -421,13 +422,14 @@ int StreamCommand(int argc, char** argv) {
       src = tandem::FollowVolume(input, fo);
     }
     if (!src.ok()) return src;
-    absl::StatusOr<std::string> warn = f.ApplySpacing(&*src);
+    absl::StatusOr<std::string> warn = f.ApplyGeometry(&*src);
+    geometry_refused = !warn.ok();
     if (!warn.ok()) return warn.status();
     spacing_warning = *warn;
     return src;
   };
   absl::StatusOr<std::unique_ptr<tandem::SliceSource>> source = open();
-  if (!source.ok()) return Fail(source.status());
+  if (!source.ok()) return geometry_refused ? UsageError(source.status()) : Fail(source.status());
   if (!spacing_warning.empty()) {
     std::fprintf(stderr, "tandem-client: warning: %s\n", spacing_warning.c_str());
   }
@@ -485,12 +487,25 @@ int StreamCommand(int argc, char** argv) {
   c.set_sealed_chunks(seal);
   if (seal) c.set_seal_margin(session->seal_margin);
   c.set_description(std::filesystem::path(input).filename().string());
+  c.set_frame(std::string(tandem::SpaceName(info.space)));
 
   const int64_t nz = (*source)->info().nz;
   const bool bar = isatty(STDERR_FILENO) != 0 && !verbose && !f.quiet;
   absl::Status partial_error;
   tandem::client::StreamCallbacks callbacks;
+  // After the last slice, the server says what its finish is doing: one status line.
+  tandem::cli::FinishingStatus finishing("tandem-client: ", f.quiet);
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
+    if (!p.finishing().empty()) {
+      if (verbose) {
+        absl::FPrintF(stderr, "progress finishing=\"%s\" share=%.3f seconds=%.1f\n",
+                      p.finishing(), p.finishing_share(), p.finishing_seconds());
+      } else {
+        if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
+        finishing.Show({tandem::wire::FinishingFromProto(p)});
+      }
+      return;
+    }
     if (f.quiet) {
       // no notes
     } else if (!p.session_id().empty()) {  // a stream's first
@@ -565,7 +580,9 @@ int StreamCommand(int argc, char** argv) {
                     kept, chunks_dir);
     }
   };
-  if (absl::Status st = view.Start(c.description(), nz); !st.ok()) return Fail(st);
+  if (absl::Status st = view.Start(c.description(), nz); !st.ok()) {
+    return absl::IsInvalidArgument(st) ? UsageError(st) : Fail(st);  // --view's address
+  }
   std::vector<std::string> iso_texts;
   for (const tandem::cli::IsoValue& v : *isos) iso_texts.push_back(v.text);
   view.SetIsos(iso_texts);
@@ -573,7 +590,8 @@ int StreamCommand(int argc, char** argv) {
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::StreamVolume(*view.Track(&range), options, callbacks);
-  if (bar) absl::FPrintF(stderr, "\n");
+  if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
+  finishing.Done();
   if (!result.ok()) {
     const int rc = connection.Fail(result.status());
     view.Finish(result);
@@ -593,7 +611,7 @@ int StreamCommand(int argc, char** argv) {
   save.draco.compression_level = static_cast<int>(level);
   save.glb_draco = f.glb_draco;
   save.input = input;
-  save.frame = (*source)->info().frame;
+  save.frame_text = info.frame;
   save.isos = *isos;
   save.quiet = f.quiet;
   if (int rc = SaveResult(*result, save);
@@ -792,7 +810,9 @@ int WatchCommand(int argc, char** argv, bool view_command) {
                     p.triangles(), p.band_only() ? 1 : 0);
     }
   };
-  if (absl::Status st = view.Start(absl::StrCat("session ", session), 0); !st.ok()) return Fail(st);
+  if (absl::Status st = view.Start(absl::StrCat("session ", session), 0); !st.ok()) {
+    return absl::IsInvalidArgument(st) ? UsageError(st) : Fail(st);  // --view's address
+  }
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
       tandem::client::WatchSession(connection.options, session, watch_key, timeout_s, callbacks);

@@ -263,6 +263,25 @@ MetricsReport ReportFromProto(const v1::FinalMetrics& metrics) {
   return r;
 }
 
+void FinishingToProto(const TandemSession::Finishing& f, v1::Progress* out) {
+  if (!f.running) return;
+  out->set_finishing(f.step);
+  out->set_finishing_share(f.share);
+  out->set_finishing_step_seconds(f.step_seconds);
+  out->set_finishing_seconds(f.seconds);
+}
+
+TandemSession::Finishing FinishingFromProto(const v1::Progress& p) {
+  TandemSession::Finishing f;
+  if (p.finishing().empty()) return f;
+  f.running = true;
+  f.step = p.finishing().c_str();  // valid while p is
+  f.share = p.finishing_share();
+  f.step_seconds = p.finishing_step_seconds();
+  f.seconds = p.finishing_seconds();
+  return f;
+}
+
 grpc::Status ToGrpcStatus(const absl::Status& status) {
   if (status.ok()) return grpc::Status::OK;
   return grpc::Status(static_cast<grpc::StatusCode>(status.code()),

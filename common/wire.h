@@ -51,6 +51,11 @@ absl::Status CheckWireField(const char* wire, const T& member);
 absl::Status CheckReportFields();
 
 // Canonical codes are numbered the same in Abseil and gRPC.
+// A session's finishing gauge into Progress's finishing fields, and back (running = a step
+// is named).
+void FinishingToProto(const TandemSession::Finishing& f, v1::Progress* out);
+TandemSession::Finishing FinishingFromProto(const v1::Progress& p);
+
 grpc::Status ToGrpcStatus(const absl::Status& status);
 absl::Status FromGrpcStatus(const grpc::Status& status);
 

@@ -2,8 +2,13 @@
 
 #include <algorithm>
 #include <bit>
+#include <chrono>
+#include <condition_variable>
 #include <cstring>
+#include <mutex>
+#include <optional>
 #include <string>
+#include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -122,6 +127,41 @@ std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count,
   out.back().retired = std::move(c.retired);
   return out;
 }
+
+// While a session finishes (its caller's thread inside Finish), posts the last Progress
+// again every kFinishingEvery seconds with the finishing fields: the client's status line
+// after the last slice. The session's other observers wait for Finish; FinishProgress alone
+// is read.
+class FinishingTicker {
+ public:
+  static constexpr double kFinishingEvery = 0.5;
+  FinishingTicker(const TandemSession& session, v1::Progress last, JobSink* sink)
+      : thread_([this, &session, last = std::move(last), sink] {
+          std::unique_lock<std::mutex> lock(mu_);
+          const auto every = std::chrono::duration<double>(kFinishingEvery);
+          while (!cv_.wait_for(lock, every, [this] { return stop_; })) {
+            v1::Progress p = last;
+            wire::FinishingToProto(session.FinishProgress(), &p);
+            if (!p.finishing().empty()) sink->PostProgress(std::move(p));
+          }
+        }) {}
+  ~FinishingTicker() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  FinishingTicker(const FinishingTicker&) = delete;
+  FinishingTicker& operator=(const FinishingTicker&) = delete;
+
+ private:
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stop_ = false;
+  std::thread thread_;  // last: started once the rest is
+};
 
 // Bytes a job holds for a while beside its sessions (a chunk being encoded), told to their
 // budget meanwhile: their queued steps run on beside it.
@@ -266,6 +306,9 @@ v1::Progress ExtractJob::SumProgress() const {
     sum.set_triangles(sum.triangles() + p.triangles());
     sum.set_peak_triangles(sum.peak_triangles() + p.peak_triangles());
     sum.set_sealed_triangles(sum.sealed_triangles() + p.sealed_triangles());
+    if (!p.finishing().empty()) {  // the surface finishing now (they finish in turn)
+      wire::FinishingToProto(wire::FinishingFromProto(p), &sum);
+    }
   }
   if (config_.options.seal) sum.set_sealed_chunks(chunks_sent_);
   sum.set_slices_expected(config_.grid.nz);
@@ -595,6 +638,8 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   if (absl::Status st = ValidateEnd(end, config_, cursor_); !st.ok()) return st;
   for (TandemSession* s : {session_.get(), reference_.get()}) {
     if (s == nullptr) continue;
+    std::optional<FinishingTicker> ticker;
+    if (s == session_.get() && sink_ != nullptr) ticker.emplace(*s, MakeProgress(), sink_);
     if (absl::Status st = s->Finish(); !st.ok()) return SessionFailure(st);
   }
   if (absl::Status st = CheckMemory(0, "after the last slice"); !st.ok()) return st;

@@ -33,6 +33,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
 #include "cli/version.h"
+#include "cli/cli_util.h"
 #include "cli/flags.h"
 #include "common/tokens.h"
 #include "common/wire.h"
@@ -255,13 +256,13 @@ int main(int argc, char** argv) {
     for (const auto* pem : {&cert, &key}) {
       if (!pem->ok()) {
         absl::FPrintF(stderr, "tandem-server: %s\n", std::string(pem->status().message()));
-        return 2;
+        return tandem::cli::kExitFailure;
       }
     }
     if (absl::Status pair = tandem::server::CheckCertificateAndKey(*cert, *key, tls_cert, tls_key);
         !pair.ok()) {
       absl::FPrintF(stderr, "tandem-server: %s\n", std::string(pair.message()));
-      return 2;
+      return tandem::cli::kExitFailure;
     }
     grpc::SslServerCredentialsOptions ssl;
     ssl.pem_key_cert_pairs.push_back({*key, *cert});
@@ -278,7 +279,7 @@ int main(int argc, char** argv) {
     if (!read.ok()) {
       absl::FPrintF(stderr, "tandem-server: --auth-tokens-file: %s\n",
                     std::string(read.status().message()));
-      return 2;
+      return tandem::cli::kExitFailure;
     }
     tokens = *std::move(read);
   }
@@ -303,7 +304,8 @@ int main(int argc, char** argv) {
         "cannot listen on --listen %s: %s", listen,
         wanted_port >= 0 ? tandem::net::DescribeBindFailure(bare_host, wanted_port)
                          : std::string("expected HOST:PORT")));
-    return 1;
+    // A malformed address is the command line's mistake; a port taken is the machine's.
+    return wanted_port >= 0 ? tandem::cli::kExitFailure : tandem::cli::kExitUsage;
   };
   // A port another process listens on is refused here, before gRPC logs its own error.
   if (wanted_port > 0 && tandem::net::ListenError(bare_host, wanted_port) != 0) {

@@ -88,6 +88,15 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     }
   }
   g.description = c.description();
+  if (!c.frame().empty()) {
+    absl::StatusOr<Space> space = ParseSpace(c.frame());
+    if (!space.ok()) {
+      return absl::InvalidArgumentError(
+          "config.frame: expected \"LPS\", \"RAS\", \"voxel\", \"grid\" or none");
+    }
+    g.space = *space;
+    g.frame = std::string(SpaceName(*space));
+  }
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return Prefixed("config: ", st);
 
   SessionOptions& o = out.options;

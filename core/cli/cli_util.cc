@@ -7,8 +7,12 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 
 namespace tandem::cli {
 
@@ -78,6 +82,62 @@ void Progress::Update(int64_t done, int64_t total) {
 
 void Progress::Done() {
   if (tty_ && last_percent_ >= 0) std::fprintf(stderr, "\n");
+}
+
+namespace {
+// Seconds left in a step: unknown (< 0) until 2 % of it lies behind.
+double SecondsLeft(const TandemSession::Finishing& f) {
+  if (!(f.share >= 0.02)) return -1;
+  return f.step_seconds * (1.0 - f.share) / f.share;
+}
+}  // namespace
+
+std::string FinishingLine(const std::vector<TandemSession::Finishing>& sessions) {
+  const TandemSession::Finishing* pick = nullptr;
+  for (const TandemSession::Finishing& f : sessions) {
+    if (!f.running) continue;
+    if (pick == nullptr || SecondsLeft(f) > SecondsLeft(*pick)) pick = &f;
+  }
+  if (pick == nullptr) return "";
+  const TandemSession::Finishing& f = *pick;
+  std::string line = absl::StrCat("finishing: ", f.step);
+  if (f.share >= 0) absl::StrAppend(&line, ", ", static_cast<int>(100 * f.share), "%");
+  if (const double left = SecondsLeft(f); left >= 0) {
+    absl::StrAppend(&line, ", about ", static_cast<int64_t>(std::max(1.0, std::ceil(left))),
+                    " s left");
+  }
+  absl::StrAppend(&line, " (", absl::StrFormat("%.1f", f.seconds), " s so far)");
+  return line;
+}
+
+FinishingStatus::FinishingStatus(std::string prefix, bool quiet)
+    : prefix_(std::move(prefix)), quiet_(quiet), tty_(isatty(STDERR_FILENO) != 0) {
+  if (const char* env = std::getenv("TANDEM_PROGRESS_SECONDS"); env != nullptr) {
+    char* end = nullptr;
+    const double v = std::strtod(env, &end);
+    if (end != env && *end == '\0' && v >= 0) every_s_ = v;
+  }
+}
+
+void FinishingStatus::Show(const std::vector<TandemSession::Finishing>& sessions) {
+  if (quiet_) return;
+  const std::string line = FinishingLine(sessions);
+  if (line.empty()) return;
+  double seconds = 0;
+  for (const TandemSession::Finishing& f : sessions) seconds = std::max(seconds, f.seconds);
+  if (tty_) {
+    std::fprintf(stderr, "\r%s%s   ", prefix_.c_str(), line.c_str());
+    std::fflush(stderr);
+    shown_ = true;
+  } else if (seconds >= every_s_ && (last_ < 0 || seconds - last_ >= every_s_)) {
+    std::fprintf(stderr, "%s%s\n", prefix_.c_str(), line.c_str());
+    last_ = seconds;
+  }
+}
+
+void FinishingStatus::Done() {
+  if (shown_) std::fprintf(stderr, "\n");
+  shown_ = false;
 }
 
 }  // namespace tandem::cli

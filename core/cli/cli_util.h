@@ -11,8 +11,17 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "tandem/tandem.h"
 
 namespace tandem::cli {
+
+// The exit statuses of the three programs (and the Python client): 2 for a mistake in the
+// command line itself (a flag unknown, missing, malformed or given twice, a value an
+// option's rule refuses, an output extension no writer has, an unknown subcommand), 1 for
+// what goes wrong while running (the input, files, devices, servers, the network, a
+// session's failure). 0 is success; 3 is `--strict`'s empty surface.
+inline constexpr int kExitFailure = 1;
+inline constexpr int kExitUsage = 2;
 
 // Several surfaces in one pass: "--iso 60,120" as its values and the text of each (for
 // output names). At most kMaxIsoValues, finite, no value twice; errors name the flag.
@@ -40,6 +49,29 @@ class Progress {
   std::string label_;
   bool tty_;
   int64_t last_percent_ = -1;
+};
+
+// After the last slice, while the sessions finish: "finishing: STEP, 43%, about 3 s left
+// (12 s so far)", the estimate from the step's share done and its time so far (none before
+// 2 % of it); for several surfaces finishing side by side, the one with the most time left.
+// "" when none is running.
+std::string FinishingLine(const std::vector<TandemSession::Finishing>& sessions);
+
+// Shows FinishingLine on stderr: on a terminal, rewritten in place at every call; elsewhere
+// (a log), one line every TANDEM_PROGRESS_SECONDS seconds (10 by default; 0 = at every
+// call) once the finish has run that long. `prefix` starts each line ("tandem extract: ").
+class FinishingStatus {
+ public:
+  FinishingStatus(std::string prefix, bool quiet);
+  void Show(const std::vector<TandemSession::Finishing>& sessions);
+  void Done();  // ends the line left on a terminal
+
+ private:
+  std::string prefix_;
+  bool quiet_, tty_;
+  double every_s_ = 10;
+  double last_ = -1;  // Finish's seconds at the last line written to a log
+  bool shown_ = false;
 };
 
 }  // namespace tandem::cli

@@ -47,6 +47,13 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                    "without resolution tags or ImageJ description, a plain Zarr array, a NRRD "
                    "or MetaImage header without spacing): the mesh's extent follows it. A "
                    "file's own spacing, when it differs, is replaced with a warning");
+  flags->AddString("frame", &frame, "lps|ras|voxel",
+                   "the frame of the output's vertices: lps or ras (patient frames: DICOM and "
+                   "MetaImage are LPS, NIfTI RAS, NRRD and a raw sidecar say theirs; the two "
+                   "differ by the sign of x and y), or voxel (grid indices i, j, k: --error, "
+                   "the metrics' distances and E0's default 0.2 are then in voxels). Written "
+                   "into the mesh file as SPACE=LPS or SPACE=RAS, as 3D Slicer reads it");
+  flags->SetDefaultText("frame", "the input's own");
   flags->AddBool("follow", &follow,
                  "the input is still being written (a folder of numbered TIFF slices or of a "
                  "DICOM series, or a Zarr array growing along z): take each slice as soon as "
@@ -156,47 +163,47 @@ absl::StatusOr<std::array<double, 3>> ParseSpacing(const std::string& text) {
   return s;
 }
 
-// The volume of `inner` with another spacing (its depth as it grows, when followed).
-class SpacingSource final : public SliceSource {
- public:
-  SpacingSource(std::unique_ptr<SliceSource> inner, std::array<double, 3> spacing)
-      : inner_(std::move(inner)), info_(inner_->info()) {
-    info_.spacing = spacing;
-    info_.spacing_known = true;
+// --frame: lps, ras or voxel (the input's own frame is the default, not a value).
+absl::StatusOr<Space> FrameFlag(const std::string& text) {
+  absl::StatusOr<Space> s = ParseSpace(text);
+  if (!s.ok() || *s == Space::kGrid) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--frame ", text, ": expected lps, ras or voxel"));
   }
-  const VolumeInfo& info() const override {
-    info_.nz = inner_->info().nz;
-    return info_;
-  }
-  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override { return inner_->ReadSlice(bytes); }
-  absl::Status ViewSlice(const uint8_t** data) override { return inner_->ViewSlice(data); }
-  int64_t next_slice() const override { return inner_->next_slice(); }
-
- private:
-  std::unique_ptr<SliceSource> inner_;
-  mutable VolumeInfo info_;
-};
+  return s;
+}
 
 std::string Triple(const std::array<double, 3>& v) { return absl::StrJoin(v, ","); }
 
 }  // namespace
 
-absl::StatusOr<std::string> ExtractFlags::ApplySpacing(std::unique_ptr<SliceSource>* source) const {
-  if (spacing.empty()) return std::string();
-  absl::StatusOr<std::array<double, 3>> s = ParseSpacing(spacing);
-  if (!s.ok()) return s.status();
-  const VolumeInfo& info = (*source)->info();
+absl::StatusOr<std::string> ExtractFlags::ApplyGeometry(std::unique_ptr<SliceSource>* source) const {
+  VolumeInfo info = (*source)->info();
   std::string warning;
-  if (info.spacing_known && info.spacing != *s) {
-    warning = absl::StrCat("--spacing ", Triple(*s), " replaces the spacing ", Triple(info.spacing),
-                           " that ", InputPath(), " carries");
+  if (!spacing.empty()) {
+    absl::StatusOr<std::array<double, 3>> s = ParseSpacing(spacing);
+    if (!s.ok()) return s.status();
+    if (info.spacing_known && info.spacing != *s) {
+      warning = absl::StrCat("--spacing ", Triple(*s), " replaces the spacing ",
+                             Triple(info.spacing), " that ", InputPath(), " carries");
+    }
+    info.spacing = *s;
+    info.spacing_known = true;
+    if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
+      return absl::InvalidArgumentError(absl::StrCat("--spacing ", spacing, ": ", st.message()));
+    }
   }
-  VolumeInfo checked = info;
-  checked.spacing = *s;
-  if (absl::Status st = ValidateVolumeInfo(checked); !st.ok()) {
-    return absl::InvalidArgumentError(absl::StrCat("--spacing ", spacing, ": ", st.message()));
+  if (!frame.empty()) {
+    absl::StatusOr<Space> to = FrameFlag(frame);
+    if (!to.ok()) return to.status();
+    absl::StatusOr<VolumeInfo> moved = InFrame(info, *to);
+    if (!moved.ok()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--frame ", frame, ": ", moved.status().message()));
+    }
+    info = *std::move(moved);
   }
-  *source = std::make_unique<SpacingSource>(std::move(*source), *s);
+  if (!spacing.empty() || !frame.empty()) *source = Regrid(std::move(*source), std::move(info));
   return warning;
 }
 
@@ -226,6 +233,9 @@ absl::Status ExtractFlags::Check(const FlagSet& flags) const {
     if (absl::StatusOr<std::array<double, 3>> s = ParseSpacing(spacing); !s.ok()) {
       return s.status();
     }
+  }
+  if (!frame.empty()) {
+    if (absl::StatusOr<Space> s = FrameFlag(frame); !s.ok()) return s.status();
   }
   if (quantization_bits < 1 || quantization_bits > 30 || compression_level < 0 ||
       compression_level > 10) {

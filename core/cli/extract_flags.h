@@ -21,7 +21,7 @@ namespace tandem::cli {
 
 struct ExtractFlags {
   std::string input, zarr_array, series, out, iso, schedule = "tandem-lag", metrics, done_file,
-      spacing;
+      spacing, frame;
   double error = 0, alpha = 0, distance_guard = SessionOptions{}.distance_guard;
   double sag_correction = SessionOptions{}.sag_correction, seal_margin = SessionOptions{}.seal_margin;
   double lockstep_error = SessionOptions{}.lockstep_error;
@@ -38,9 +38,10 @@ struct ExtractFlags {
   // How to open --input (--series) and follow it (--follow's flags); notes go to `note`.
   OpenOptions Open(std::function<void(const std::string&)> note) const;
   FollowOptions Follow(std::function<void(const std::string&)> note) const;
-  // --spacing: `source` delivers that spacing. "" when the file had none, else a warning
-  // naming the spacing the file carries and the flag replaces.
-  absl::StatusOr<std::string> ApplySpacing(std::unique_ptr<SliceSource>* source) const;
+  // --spacing, then --frame: `source` delivers that spacing, in that frame. Returns "" or a
+  // warning naming the spacing the file carries and --spacing replaces. A refusal (a
+  // spacing or frame the volume cannot take) names the flag.
+  absl::StatusOr<std::string> ApplyGeometry(std::unique_ptr<SliceSource>* source) const;
   // After parsing: the checks that need no volume (follow-only flags, the iso list, the
   // output names, the schedule).
   absl::Status Check(const FlagSet& flags) const;

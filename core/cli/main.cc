@@ -76,9 +76,25 @@ file per slice: a DICOM series (any names and order; vertices in the patient fra
 numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
 )";
 
+// A failure met while running (a file, a device, a session): exit status 1 (cli_util.h).
 int Fail(const absl::Status& st) {
   std::fprintf(stderr, "tandem: %s\n", std::string(st.message()).c_str());
-  return st.code() == absl::StatusCode::kInvalidArgument ? 2 : 1;
+  return cli::kExitFailure;
+}
+
+// A mistake in the command line itself: exit status 2.
+int Usage(const absl::Status& st) {
+  std::fprintf(stderr, "tandem: %s\n", std::string(st.message()).c_str());
+  return cli::kExitUsage;
+}
+
+// A writer's refusal of what the flags ask for (a format that cannot hold it: Invalid
+// argument or Unimplemented) is the command line's; anything else happened while writing.
+int FailWriting(const absl::Status& st) {
+  return st.code() == absl::StatusCode::kInvalidArgument ||
+                 st.code() == absl::StatusCode::kUnimplemented
+             ? Usage(st)
+             : Fail(st);
 }
 
 // Parses a subcommand's flags (argv[2..]): -1 to go on, else the exit status (0 after
@@ -89,7 +105,7 @@ int ParseOrExit(cli::FlagSet& flags, int argc, char** argv) {
     std::fputs(flags.Help().c_str(), stdout);
     return 0;
   }
-  if (!st.ok()) return Fail(st);
+  if (!st.ok()) return Usage(st);
   return -1;
 }
 
@@ -138,16 +154,17 @@ int Extract(int argc, char** argv) {
                "surface samples per direction for --reference (0 = automatic)");
   flags.SetEpilog(
       "Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0\n"
-      "done, 1 failure while running, 2 bad arguments or input, 3 with --strict: the iso-value\n"
-      "is outside the data (a warning on stderr otherwise).\n");
+      "done, 1 a failure while running (the input, a file, the session), 2 a mistake in the\n"
+      "command line, 3 with --strict: the iso-value is outside the data (a warning on stderr\n"
+      "otherwise).\n");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (!flags.positional().empty()) {
-    return Fail(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
+    return Usage(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
   }
-  if (absl::Status st = f.Check(flags); !st.ok()) return Fail(st);
+  if (absl::Status st = f.Check(flags); !st.ok()) return Usage(st);
   const std::string& out = f.out;
   if (!IsMeshOutputPath(out)) {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
   }
   const std::string input_path = f.InputPath();
@@ -184,14 +201,15 @@ int Extract(int argc, char** argv) {
     source = OpenVolume(input_path, f.Open(note));
   }
   if (!source.ok()) return Fail(source.status());
-  if (absl::StatusOr<std::string> warn = f.ApplySpacing(&*source); !warn.ok()) {
-    return Fail(warn.status());
+  if (absl::StatusOr<std::string> warn = f.ApplyGeometry(&*source); !warn.ok()) {
+    return Usage(warn.status());
   } else if (!warn->empty()) {
     std::fprintf(stderr, "tandem extract: warning: %s\n", warn->c_str());
   }
   const VolumeInfo info = (*source)->info();
 
   MeshWriteOptions write;
+  write.space = info.space;
   if (f.glb_draco) {
 #ifdef TANDEM_HAVE_DRACO
     codec::DracoOptions draco;
@@ -199,21 +217,21 @@ int Extract(int argc, char** argv) {
     draco.compression_level = static_cast<int>(f.compression_level);
     write.glb_draco = codec::GlbCompressor(draco);
 #else
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         "--glb-draco: this tandem was built without Draco (-DTANDEM_BUILD_SERVICE=OFF)"));
 #endif
   }
   auto parsed_opt = f.Options(flags, info);
-  if (!parsed_opt.ok()) return Fail(parsed_opt.status());
+  if (!parsed_opt.ok()) return Usage(parsed_opt.status());
   SessionOptions opt = *parsed_opt;
   // --iso A,B,...: one surface per value, from one read of the slices.
   auto parsed_isos = f.Isos(flags, info);
-  if (!parsed_isos.ok()) return Fail(parsed_isos.status());
+  if (!parsed_isos.ok()) return Usage(parsed_isos.status());
   const std::vector<cli::IsoValue> isos = *std::move(parsed_isos);
   std::vector<std::string> outs;
   for (const cli::IsoValue& iso : isos) {
     auto name = cli::NameForIso("out", out, iso, isos.size());
-    if (!name.ok()) return Fail(name.status());
+    if (!name.ok()) return Usage(name.status());
     outs.push_back(*std::move(name));
   }
   opt.iso = isos[0].value;
@@ -241,7 +259,7 @@ int Extract(int argc, char** argv) {
     s.out = outs[i];
     options.push_back(s.opt);
     if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !reference) {
-      auto w = ChunkedMeshWriter::Open(s.out);
+      auto w = ChunkedMeshWriter::Open(s.out, write);
       if (!w.ok()) return Fail(w.status());
       s.writer = *std::move(w);
     }
@@ -259,15 +277,32 @@ int Extract(int argc, char** argv) {
     s.shape.Add(piece);
     return st;
   };
-  auto sessions = RunSessions(range, options, [&](int64_t d, int64_t t) {
-    if (follow) {
-      status_line(d);
-    } else {
-      if (!quiet) progress.Update(d, t);
-    }
-  }, on_chunk);
-  if (follow && tty) std::fprintf(stderr, "\n");
-  progress.Done();
+  // After the last slice: what the finish is doing, with an estimate of the time left.
+  cli::FinishingStatus finishing("tandem extract: ", quiet);
+  bool slices_done = false;  // the slices' line was ended
+  auto sessions = RunSessions(
+      range, options,
+      [&](int64_t d, int64_t t) {
+        if (follow) {
+          status_line(d);
+        } else {
+          if (!quiet) progress.Update(d, t);
+        }
+      },
+      on_chunk, nullptr, [&](const std::vector<TandemSession::Finishing>& f) {
+        if (!slices_done) {
+          slices_done = true;
+          if (follow && tty) std::fprintf(stderr, "\n");
+          progress.Done();
+          status_shown = false;
+        }
+        finishing.Show(f);
+      });
+  if (!slices_done) {
+    if (follow && tty) std::fprintf(stderr, "\n");
+    progress.Done();
+  }
+  finishing.Done();
   if (!sessions.ok()) return Fail(absl::Status(sessions.status().code(),
                                                absl::StrCat(input_path, ": ", std::string(sessions.status().message()))));
   for (size_t i = 0; i < surfaces.size(); ++i) {
@@ -289,12 +324,11 @@ int Extract(int argc, char** argv) {
       s.report = measured.get();
     }
     s.report.input = input_path;
-    s.report.frame = info.frame;
   }
   if (reference) {
     auto ref_source = OpenVolume(input_path, f.Open(nullptr));
     if (!ref_source.ok()) return Fail(ref_source.status());
-    if (absl::Status st = f.ApplySpacing(&*ref_source).status(); !st.ok()) return Fail(st);
+    if (absl::Status st = f.ApplyGeometry(&*ref_source).status(); !st.ok()) return Usage(st);
     std::vector<SessionOptions> ref_options = options;
     for (SessionOptions& o : ref_options) {
       o.schedule = Schedule::kNone;
@@ -321,7 +355,7 @@ int Extract(int argc, char** argv) {
     if (!metrics.empty()) {
       if (metrics.find("{iso}") != std::string::npos) {
         auto name = cli::NameForIso("metrics", metrics, isos[i], isos.size());
-        if (!name.ok()) return Fail(name.status());
+        if (!name.ok()) return Usage(name.status());
         if (absl::Status st = WriteText(*name, ReportToJson(s.report)); !st.ok()) return Fail(st);
       } else {
         json.push_back(ReportToJson(s.report));
@@ -390,47 +424,47 @@ int Generate(int argc, char** argv) {
   flags.SetDefaultText("dicom-syntax", "explicit");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
-    return Fail(absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
+    return Usage(absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
   }
   auto shape = ParseShape(flags.positional()[0]);
-  if (!shape.ok()) return Fail(shape.status());
+  if (!shape.ok()) return Usage(shape.status());
   ZarrWriteOptions zarr;
   zarr.version = static_cast<int>(zarr_version);
   if (!zarr_codec.empty()) {
     auto codec = ParseZarrCompressor(zarr_codec);
-    if (!codec.ok()) return Fail(codec.status());
+    if (!codec.ok()) return Usage(codec.status());
     zarr.compressor = *codec;
   }
   if (!zarr_chunks.empty()) {
     auto t = ParseTriple(zarr_chunks, "--zarr-chunks");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     zarr.chunks = {int64_t((*t)[0]), int64_t((*t)[1]), int64_t((*t)[2])};
   }
   std::array<double, 3> dims{};
   if (!dims_text.empty()) {
     auto t = ParseTriple(dims_text, "--dims");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     dims = *t;
   } else {
     if (!flags.IsSet("size")) {
-      return Fail(absl::InvalidArgumentError("--size N (or --dims NX,NY,NZ) is required"));
+      return Usage(absl::InvalidArgumentError("--size N (or --dims NX,NY,NZ) is required"));
     }
     dims = {double(size), double(size), double(size)};
   }
   std::array<double, 3> spacing{1, 1, 1};
   if (!spacing_text.empty()) {
     auto t = ParseTriple(spacing_text, "--spacing");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     spacing = *t;
   }
   if (!series.empty() && series != "dicom" && series != "tiff") {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--series must be dicom or tiff, not '", series, "'")));
   }
   DicomWriteOptions dicom;
   if (!dicom_syntax.empty()) {
     auto syntax = ParseDicomSyntax(dicom_syntax);
-    if (!syntax.ok()) return Fail(syntax.status());
+    if (!syntax.ok()) return Usage(syntax.status());
     dicom.syntax = *syntax;
   }
   auto make = [&] {
@@ -443,7 +477,7 @@ int Generate(int argc, char** argv) {
   VolumeInfo info = src->info();
   if (!origin_text.empty()) {
     auto t = ParseTriple(origin_text, "--origin");
-    if (!t.ok()) return Fail(t.status());
+    if (!t.ok()) return Usage(t.status());
     info.origin = *t;
   }
   if (!directions_text.empty()) {
@@ -455,12 +489,12 @@ int Generate(int argc, char** argv) {
       v.push_back(x);
     }
     if (!numbers || v.size() != 9) {
-      return Fail(absl::InvalidArgumentError(
+      return Usage(absl::InvalidArgumentError(
           "--directions needs 9 numbers: the world directions of the x, y and z axes"));
     }
     for (int a = 0; a < 3; ++a) info.directions[a] = {v[3 * a], v[3 * a + 1], v[3 * a + 2]};
   }
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return Fail(st);
+  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return Usage(st);
   cli::Progress progress("slices");
   const int64_t nz = info.nz;
   const SliceFn next = [&](int64_t z, std::vector<uint8_t>* bytes) {
@@ -473,7 +507,7 @@ int Generate(int argc, char** argv) {
                     : out.ends_with(".zarr") ? WriteZarr(out, info, next, zarr)
                                               : WriteVolume(out, info, next);
   progress.Done();
-  if (!st.ok()) return Fail(st);
+  if (!st.ok()) return FailWriting(st);
   std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out.c_str(),
                static_cast<long long>(dims[0]), static_cast<long long>(dims[1]),
                static_cast<long long>(dims[2]));
@@ -491,7 +525,14 @@ int Measure(int argc, char** argv) {
   flags.AddInt("samples", &samples, "surface samples per direction (0 = automatic)");
   flags.AddBool("json", &json, "print the distances as JSON instead of a table");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
-  if (flags.positional().size() != 2) return Fail(absl::InvalidArgumentError("expected two meshes: A B"));
+  if (flags.positional().size() != 2) return Usage(absl::InvalidArgumentError("expected two meshes: A B"));
+  for (const std::string& path : flags.positional()) {
+    const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
+    if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
+      return Usage(absl::InvalidArgumentError(
+          absl::StrCat(path, ": expected a .ply, .obj or .stl mesh")));
+    }
+  }
   auto a = ReadMesh(flags.positional()[0]);
   if (!a.ok()) return Fail(a.status());
   auto b = ReadMesh(flags.positional()[1]);
@@ -734,7 +775,7 @@ int Simulate(int argc, char** argv) {
   std::string input, out, as, done_file, numbering = "ordered", temp_names = "none";
   double rate = 20;
   int64_t burst = 8, seed = 1;
-  bool scout = false;
+  bool scout = false, descending = false;
   cli::FlagSet flags(kSimulateUsage);
   flags.AddString("input", &input, "FILE", "the volume to play (any format tandem reads)",
                   /*required=*/true);
@@ -747,9 +788,15 @@ int Simulate(int argc, char** argv) {
   flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
   flags.AddInt("seed", &seed, "shuffle seed for dicom bursts (and --numbering random)", "S");
   flags.AddString("numbering", &numbering, "HOW",
-                  "dicom: InstanceNumbers: ordered (1 at the bottom of the stack, 2 above it, "
-                  "...), random, restarted (from 1 in every burst), reversed (1 at the top), "
-                  "equal (all 1) or absent, as reconstructions and anonymizers leave them");
+                  "dicom: InstanceNumbers: ordered (1 at the first slice acquired, the bottom "
+                  "of the stack, 2 above it, ...), random, restarted (from 1 in every burst), "
+                  "reversed (1 at the last acquired, the top), equal (all 1) or absent, as "
+                  "reconstructions and anonymizers leave them");
+  flags.AddBool("descending", &descending,
+                "dicom: acquire the stack from its last slice down to its first (head to feet "
+                "for the usual axial CT: positions decreasing along the slice normal); "
+                "InstanceNumbers then count in that order (ordered: 1 at the top). The whole "
+                "volume is read first");
   flags.AddBool("scout", &scout,
                 "dicom: first write a localizer series (a front and a side projection, "
                 "ImageType LOCALIZER) into the folder, as a CT does before its stack");
@@ -758,25 +805,26 @@ int Simulate(int argc, char** argv) {
                   "none, suffix (NAME.part) or hidden (.NAME.tmp), as transfer tools do");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (as != "dicom" && as != "tiff" && as != "zarr") {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
   }
-  if (as != "dicom" && (flags.IsSet("numbering") || scout || flags.IsSet("temp-names"))) {
-    return Fail(
-        absl::InvalidArgumentError("--numbering, --scout and --temp-names go with --as dicom"));
+  if (as != "dicom" &&
+      (flags.IsSet("numbering") || scout || flags.IsSet("temp-names") || descending)) {
+    return Usage(absl::InvalidArgumentError(
+        "--numbering, --scout, --temp-names and --descending go with --as dicom"));
   }
   if (temp_names != "none" && temp_names != "suffix" && temp_names != "hidden") {
-    return Fail(absl::InvalidArgumentError(
+    return Usage(absl::InvalidArgumentError(
         absl::StrCat("--temp-names '", temp_names, "': expected none, suffix or hidden")));
   }
   if (rate < 0 || burst < 1) {
-    return Fail(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
+    return Usage(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
   }
   auto src = OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo info = (*src)->info();
   auto numbers = InstanceNumbers(numbering, info.nz, burst, static_cast<uint32_t>(seed) + 1);
-  if (!numbers.ok()) return Fail(numbers.status());
+  if (!numbers.ok()) return Usage(numbers.status());
   std::error_code ec;
   if (std::filesystem::exists(out, ec)) {
     return Fail(absl::AlreadyExistsError(absl::StrCat(out, ": already exists (the simulator "
@@ -848,10 +896,24 @@ int Simulate(int argc, char** argv) {
   std::mt19937 rng(static_cast<uint32_t>(seed));
   cli::Progress progress("slices written");
   std::vector<std::vector<uint8_t>> held;
+  // --descending: the slices in acquisition order, the last of the volume first.
+  std::vector<std::vector<uint8_t>> volume;
+  if (descending) {
+    volume.resize(static_cast<size_t>(info.nz));
+    for (auto it = volume.rbegin(); it != volume.rend(); ++it) {
+      if (absl::Status st = (*src)->ReadSlice(&*it); !st.ok()) return Fail(st);
+    }
+  }
+  // Acquisition index a -> the slice of the volume it is.
+  auto slice_of = [&](int64_t a) { return descending ? info.nz - 1 - a : a; };
   int64_t written = 0;
-  for (int64_t z = 0; z < info.nz; ++z) {
+  for (int64_t z = 0; z < info.nz; ++z) {  // z: the acquisition index
     std::vector<uint8_t> bytes;
-    if (absl::Status st = (*src)->ReadSlice(&bytes); !st.ok()) return Fail(st);
+    if (descending) {
+      bytes = std::move(volume[static_cast<size_t>(z)]);
+    } else if (absl::Status st = (*src)->ReadSlice(&bytes); !st.ok()) {
+      return Fail(st);
+    }
     absl::Status st;
     if (as == "tiff") {
       char name[32];
@@ -873,9 +935,10 @@ int Simulate(int argc, char** argv) {
         for (int64_t k : order) {
           pace(written);
           // Names carry no position: a hash of the slice index.
-          const std::string name =
-              absl::StrCat("1.2.826.0.1.3680043.2.1125.", (k * 2654435761u) % 1000003u, ".dcm");
-          st = put(name, *dicom, k, held[static_cast<size_t>(k - first)],
+          const int64_t slice = slice_of(k);
+          const std::string name = absl::StrCat("1.2.826.0.1.3680043.2.1125.",
+                                                (slice * 2654435761u) % 1000003u, ".dcm");
+          st = put(name, *dicom, slice, held[static_cast<size_t>(k - first)],
                    (*numbers)[static_cast<size_t>(k)]);
           if (!st.ok()) break;
           ++written;
@@ -921,7 +984,7 @@ int View(int argc, char** argv) {
                   false, "S");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
-    return Fail(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
+    return Usage(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
   }
   const std::string path = flags.positional()[0];
   std::vector<std::string> chunks;
@@ -940,7 +1003,7 @@ int View(int argc, char** argv) {
   } else {
     const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb" && ext != ".drc") {
-      return Fail(absl::InvalidArgumentError(
+      return Usage(absl::InvalidArgumentError(
           absl::StrCat(path, ": expected a .ply, .obj, .stl, .glb or .drc file, or a folder of chunks")));
     }
   }
@@ -955,7 +1018,7 @@ int View(int argc, char** argv) {
   options.listen = listen;
   options.token = token;
   auto server = viewer::ViewServer::Start(options);
-  if (!server.ok()) return Fail(server.status());
+  if (!server.ok()) return FailWriting(server.status());
   (*server)->SetSession("", std::filesystem::path(path).filename().string(), 0);
   if (chunks.empty()) {
     auto bytes = read(path);

@@ -25,6 +25,8 @@ MetricsReport MakeReport(const TandemSession& session, int64_t triangles, int64_
   MetricsReport r;
   r.options = session.options();
   r.stats = session.stats();
+  r.frame = std::string(SpaceName(session.grid().space));
+  r.frame_text = session.grid().frame;
   r.nx = session.grid().nx;
   r.ny = session.grid().ny;
   r.nz = r.stats.slices;

@@ -238,6 +238,7 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
   info.origin = first.position;
   info.directions = {frame.row, frame.col, frame.normal};
   info.frame = "DICOM patient LPS (mm)";
+  info.space = Space::kLPS;
   info.description =
       absl::StrCat("DICOM ", first.modality.empty() ? "" : first.modality + " ", "series",
                    first.description.empty() ? "" : " '" + first.description + "'",
@@ -486,7 +487,10 @@ class GrowingDicom final : public internal::Growing {
   // One series' slices.
   struct Stack {
     SliceHeader first;
+    // frame.normal points the way the series grows: ImageOrientationPatient's normal, or its
+    // opposite once the series is followed head to feet (sweep -1); `along` is measured on it.
     Frame frame;
+    int sweep = 1;
     std::vector<SliceHeader> held;  // by position, not handed out yet
     int64_t images = 0;
     int direction = 0;          // how InstanceNumber runs along the normal (+1, -1; 0 = unknown)
@@ -638,12 +642,14 @@ class GrowingDicom final : public internal::Growing {
       }
       if (h.along <= sent_.back().along) {
         return absl::FailedPreconditionError(absl::StrCat(
-            "DICOM series in ", dir_, ": ", Base(h.path),
-            " arrived at or below slices already meshed (", FormatDouble(h.along),
-            " mm along the normal, the last sent is at ", FormatDouble(sent_.back().along),
-            " mm); following needs a series that grows along its normal, its files out of order "
-            "only within a burst (read a series acquired otherwise once it is finished, without "
-            "--follow)"));
+            "DICOM series in ", dir_, ": ", Base(h.path), " arrived at or ",
+            s.sweep > 0 ? "below" : "above", " slices already meshed (",
+            FormatDouble(s.sweep * h.along), " mm along the normal, the last sent is at ",
+            FormatDouble(s.sweep * sent_.back().along), " mm; the series is followed ",
+            s.sweep > 0 ? "feet to head, along" : "head to feet, against",
+            " its normal); following needs a series that grows one way, its files out of "
+            "order only within a burst (read a series acquired otherwise once it is finished, "
+            "without --follow)"));
       }
     }
     const double step = &s == followed_ ? step_ : 0;
@@ -692,52 +698,94 @@ class GrowingDicom final : public internal::Growing {
                                    b.instance, ", at ", FormatDouble(b.along), " mm)");
   }
 
-  // The z step when the lowest held slice of s can go now as its series' first, else
-  // nothing. The rule (tandem/follow.h): it and the next two are one usual step apart (the
-  // smallest gap between held neighbours), and (a) they are numbered 1, 2, 3, or (b)
-  // kReorderWindow files of the series have appeared since it did (files seen in the same
-  // look at the folder count as arriving together), or (c) nothing new has appeared in the
-  // folder for QuietNeeded() and the InstanceNumbers, if they run with the positions, do
-  // not say a slice is missing between the three. final: any two slices.
-  std::optional<double> FirstStep(const Stack& s, bool final) const {
+  // Where a followed series starts: the z step, and the way it grows (+1: along the normal
+  // of ImageOrientationPatient, feet to head for the usual axial slices; -1: against it).
+  struct Start {
+    double step = 0;
+    int sweep = 1;
+  };
+  // The start when the slice at one end of those held of s can go now as its series' first,
+  // else nothing. The rule (tandem/follow.h): it and the next two are one usual step apart
+  // (the smallest gap between held neighbours), and (a) they are numbered 1, 2, 3 from that
+  // end; or (b) kReorderWindow files of the series have appeared since it did (files seen in
+  // the same look at the folder count as arriving together), more than since the slice at
+  // the other end did (a receiver reorders files within a burst only: the series grows away
+  // from the end that came first); or (c) nothing new has appeared in the folder for
+  // QuietNeeded() and the InstanceNumbers, if they run with the positions, do not say a
+  // slice is missing between the three: then from the end their numbers start at, or the
+  // lowest without them. final: any two slices, from the lowest unless the way is known.
+  std::optional<Start> FirstStep(const Stack& s, bool final) const {
     const std::vector<SliceHeader>& held = s.held;
     if (final) {
       if (held.size() < 2) return std::nullopt;
-      return RoundStep(MedianStep(held));
+      return Start{RoundStep(MedianStep(held)), 1};
     }
-    if (held.size() < 3) return std::nullopt;
+    const size_t n = held.size();
+    if (n < 3) return std::nullopt;
     double gap = std::numeric_limits<double>::infinity();
-    for (size_t k = 0; k + 1 < held.size(); ++k)
-      gap = std::min(gap, held[k + 1].along - held[k].along);
-    for (size_t k = 0; k < 2; ++k) {
-      if (std::abs(held[k + 1].along - held[k].along - gap) > 0.1 * gap) return std::nullopt;
+    for (size_t k = 0; k + 1 < n; ++k) gap = std::min(gap, held[k + 1].along - held[k].along);
+    // The k-th slice from an end (sweep +1: the lowest, -1: the highest).
+    auto at = [&](int sweep, size_t k) -> const SliceHeader& {
+      return sweep > 0 ? held[k] : held[n - 1 - k];
+    };
+    auto even = [&](int sweep) {
+      for (size_t k = 0; k < 2; ++k) {
+        if (std::abs(std::abs(at(sweep, k + 1).along - at(sweep, k).along) - gap) > 0.1 * gap) {
+          return false;
+        }
+      }
+      return true;
+    };
+    auto later = [&](int sweep) {  // files of the series seen after the end's slice was
+      const int64_t first = seen_.at(at(sweep, 0).path).order;
+      return std::count_if(held.begin(), held.end(),
+                           [&](const SliceHeader& h) { return seen_.at(h.path).order > first; });
+    };
+    auto start = [&](int sweep) {
+      return Start{RoundStep(std::abs(at(sweep, 2).along - at(sweep, 0).along) / 2), sweep};
+    };
+    auto numbered = [&](int sweep) {
+      return at(sweep, 0).instance == 1 && at(sweep, 1).instance == 2 &&
+             at(sweep, 2).instance == 3;
+    };
+    for (int sweep : {1, -1}) {
+      if (even(sweep) && numbered(sweep)) return start(sweep);
     }
-    const double step = RoundStep((held[2].along - held[0].along) / 2);
-    const int64_t n0 = held[0].instance, n1 = held[1].instance, n2 = held[2].instance;
-    if (n0 == 1 && n1 == 2 && n2 == 3) return step;
-    const int64_t first = seen_.at(held[0].path).order;
-    const auto later = std::count_if(held.begin(), held.end(), [&](const SliceHeader& h) {
-      return seen_.at(h.path).order > first;
-    });
-    if (later >= kReorderWindow) return step;
+    const auto low = later(1), high = later(-1);
+    if (even(1) && low >= kReorderWindow && low > high) return start(1);
+    if (even(-1) && high >= kReorderWindow && high > low) return start(-1);
+    // InstanceNumbers running with the positions start at one end: the first acquired.
+    const int sweep = s.numbers_agree && s.direction < 0 ? -1 : 1;
+    if (!even(sweep)) return std::nullopt;
+    const int64_t n0 = at(sweep, 0).instance, n1 = at(sweep, 1).instance,
+                  n2 = at(sweep, 2).instance;
     const bool numbers_gap = s.numbers_agree && (std::abs(n1 - n0) != 1 || std::abs(n2 - n1) != 1);
-    if (!numbers_gap && Seconds(Clock::now() - last_change_) >= QuietNeeded()) return step;
+    if (!numbers_gap && Seconds(Clock::now() - last_change_) >= QuietNeeded()) return start(sweep);
     return std::nullopt;
+  }
+
+  // The stack grows against its normal: the normal turned around, positions measured on it.
+  static void Reverse(Stack& s) {
+    s.sweep = -s.sweep;
+    for (double& c : s.frame.normal) c = -c;
+    for (SliceHeader& h : s.held) h.along = -h.along;
+    std::reverse(s.held.begin(), s.held.end());
+    s.direction = -s.direction;
   }
 
   // Picks the series to follow: the stack whose first slice can go first; two at once are
   // told apart as in a finished folder (PickSeries). The other stacks are set aside.
   absl::Status Choose(bool final) {
     std::vector<SeriesSummary> ready;
-    std::map<std::string, double> steps;
+    std::map<std::string, Start> starts;
     for (const auto& [uid, s] : stacks_) {
-      if (std::optional<double> step = FirstStep(s, final)) {
+      if (std::optional<Start> start = FirstStep(s, final)) {
         ready.push_back(SeriesSummary{.uid = uid,
                                       .description = s.first.description,
                                       .example = s.first.path,
                                       .images = s.images,
                                       .normal = s.frame.normal});
-        steps[uid] = *step;
+        starts[uid] = *start;
       }
     }
     if (ready.empty()) {
@@ -760,7 +808,8 @@ class GrowingDicom final : public internal::Growing {
     }
     followed_uid_ = uid;
     followed_ = &stacks_[uid];
-    step_ = steps[uid];
+    step_ = starts[uid].step;
+    if (starts[uid].sweep < 0) Reverse(*followed_);
     const std::vector<SliceHeader>& held = followed_->held;
     plan_ = PlanValues(held.data(), held.data() + 1);
     for (size_t k = 0; k + 1 < held.size(); ++k)
@@ -945,7 +994,10 @@ absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info
     return absl::InvalidArgumentError("DICOM slices are at most 65535 x 65535 pixels");
   }
   DicomSliceWriter w;
-  w.info_ = info;
+  // DICOM positions are LPS: a RAS grid is turned into it (nothing moves in the patient).
+  absl::StatusOr<VolumeInfo> lps = info.space == Space::kRAS ? InFrame(info, Space::kLPS) : info;
+  if (!lps.ok()) return lps.status();
+  w.info_ = *std::move(lps);
   w.opts_ = opts;
   absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
   if (!codec.ok()) return codec.status();

@@ -158,6 +158,7 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
     }
   }
   info.frame = "MetaImage physical space (ITK's LPS)";
+  info.space = Space::kLPS;
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return MetaError(path, st.message());
   if (const std::string* o = h.Find({"anatomicalorientation"}); o != nullptr) {
     info.description = absl::StrCat("MetaImage, AnatomicalOrientation ", *o);

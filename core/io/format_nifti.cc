@@ -199,6 +199,7 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const uint
   }
   if (have) {
     info.frame = absl::StrCat("NIfTI ", method, " RAS");
+    info.space = Space::kRAS;
     for (int a = 0; a < 3; ++a) {
       const double col[3] = {m.m[0][a], m.m[1][a], m.m[2][a]};
       const double len = std::sqrt(col[0] * col[0] + col[1] * col[1] + col[2] * col[2]);

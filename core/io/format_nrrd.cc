@@ -48,6 +48,15 @@ struct NrrdHeader {
   }
 };
 
+// The patient frame a "space" field names (NRRD's long names or their initials); any other
+// (scanner-xyz, 3D-right-handed, left-anterior-superior, ...) is a frame of the file's own.
+Space NrrdSpace(const std::string& space) {
+  const std::string s = absl::AsciiStrToLower(absl::StripAsciiWhitespace(space));
+  if (s == "left-posterior-superior" || s == "lps") return Space::kLPS;
+  if (s == "right-anterior-superior" || s == "ras") return Space::kRAS;
+  return Space::kGrid;
+}
+
 absl::StatusOr<NrrdHeader> ReadHeader(const std::string& path, uint64_t file_size) {
   // Headers are small text; 1 MiB is far more than any real one and bounds the read.
   constexpr uint64_t kMaxHeader = 1 << 20;
@@ -205,6 +214,7 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
   }
   if (const std::string* space = h.Find("space"); space != nullptr) {
     info.frame = absl::StrCat("NRRD space ", *space);
+    info.space = NrrdSpace(*space);
   } else if (h.Find("space directions") != nullptr) {
     info.frame = "NRRD space directions";
   }
@@ -329,7 +339,11 @@ absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const Sl
   }
   std::string header = absl::StrCat(
       "NRRD0004\n# written by tandem\ntype: ", type, "\ndimension: 3\nsizes: ", info.nx, " ",
-      info.ny, " ", info.nz, "\nspace dimension: 3\nspace directions: ", dirs,
+      info.ny, " ", info.nz, "\n",
+      info.space == Space::kLPS   ? "space: left-posterior-superior"
+      : info.space == Space::kRAS ? "space: right-anterior-superior"
+                                  : "space dimension: 3",
+      "\nspace directions: ", dirs,
       "\nspace origin: (",
       FormatDouble(o[0]), ",", FormatDouble(o[1]), ",", FormatDouble(o[2]),
       ")\nkinds: domain domain domain\nendian: ", opts.big_endian ? "big" : "little",

@@ -1,6 +1,7 @@
 // Headerless raw voxels described by a JSON sidecar (what `tandem generate X.json` writes):
 //   {"dims": [nx, ny, nz], "dtype": "int16", "spacing": [sx, sy, sz], "origin": [..],
 //    "directions": [[x axis], [y axis], [z axis]] (optional, orthonormal; default identity),
+//    "space": "LPS" or "RAS" (optional: the patient frame of origin and directions),
 //    "byte_order": "little", "raw_file": "NAME.raw", "raw_bytes": N,
 //    "suggested_isovalues": [..], "description": ".."}
 // Only dims and dtype are required. raw_file is relative to the sidecar's folder and
@@ -101,6 +102,17 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
       }
     }
   }
+  if (j.contains("space")) {  // optional: the patient frame the geometry is in
+    const json& sp = j["space"];
+    absl::StatusOr<Space> space =
+        sp.is_string() ? ParseSpace(sp.get<std::string>()) : absl::InvalidArgumentError("");
+    if (!space.ok() || (*space != Space::kLPS && *space != Space::kRAS)) {
+      return SidecarError(path, "\"space\" must be \"LPS\" or \"RAS\" (the patient frame of "
+                                "origin and directions)");
+    }
+    info.space = *space;
+    info.frame = absl::StrCat("sidecar origin, spacing and directions in ", SpaceName(*space));
+  }
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
     return SidecarError(path, st.message());
   }
@@ -198,6 +210,9 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
     const auto& d = info.directions;
     j["directions"] = {{d[0][0], d[0][1], d[0][2]}, {d[1][0], d[1][1], d[1][2]},
                        {d[2][0], d[2][1], d[2][2]}};
+  }
+  if (info.space == Space::kLPS || info.space == Space::kRAS) {
+    j["space"] = std::string(SpaceName(info.space));
   }
   j["byte_order"] = opts.big_endian ? "big" : "little";
   j["layout"] = "x fastest, then y, then z: offset=((k*ny+j)*nx+i)*sizeof(dtype)";

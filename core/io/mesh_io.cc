@@ -111,8 +111,20 @@ void AppendVec3(BufferedWriter& out, const Vec3& v) {
   for (int k = 0; k < 3; ++k) out.AppendLe32(std::bit_cast<uint32_t>(static_cast<float>(v[k])));
 }
 
-void AppendPlyHeader(BufferedWriter& out, size_t vertices, size_t triangles, bool normals) {
+// The frame of the positions as 3D Slicer looks for it in a model file's header ("SPACE=RAS"
+// or "SPACE=LPS" anywhere in a PLY comment, OBJ's first comment or binary STL's header; LPS
+// assumed without it); the frames Slicer does not know are named without "SPACE=".
+std::string FrameTag(Space space) {
+  if (space == Space::kLPS || space == Space::kRAS) {
+    return absl::StrCat("SPACE=", SpaceName(space));
+  }
+  return absl::StrCat("frame ", SpaceName(space), " (not a patient frame)");
+}
+
+void AppendPlyHeader(BufferedWriter& out, size_t vertices, size_t triangles, bool normals,
+                     Space space) {
   out.Append(absl::StrCat("ply\nformat binary_little_endian 1.0\ncomment written by tandem\n",
+                          "comment ", FrameTag(space), "\n",
                           "element vertex ", vertices,
                           "\nproperty float x\nproperty float y\nproperty float z\n",
                           normals ? "property float nx\nproperty float ny\nproperty float nz\n" : "",
@@ -126,8 +138,9 @@ void AppendPlyFace(BufferedWriter& out, const uint32_t* tri) {
   for (int k = 0; k < 3; ++k) out.AppendLe32(tri[k]);
 }
 
-void WritePly(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
-  AppendPlyHeader(out, mesh.num_vertices(), mesh.num_triangles(), !normals.empty());
+void WritePly(const IndexedMesh& mesh, const std::vector<Vec3>& normals, Space space,
+              BufferedWriter& out) {
+  AppendPlyHeader(out, mesh.num_vertices(), mesh.num_triangles(), !normals.empty(), space);
   for (size_t v = 0; v < mesh.positions.size(); ++v) {
     AppendVec3(out, mesh.positions[v]);
     if (!normals.empty()) AppendVec3(out, normals[v]);
@@ -146,9 +159,9 @@ void AppendObjVec3(BufferedWriter& out, absl::string_view tag, const Vec3& v) {
   out.Append("\n");
 }
 
-void AppendObjHeader(BufferedWriter& out, size_t vertices, size_t triangles) {
+void AppendObjHeader(BufferedWriter& out, size_t vertices, size_t triangles, Space space) {
   out.Append(absl::StrCat("# written by tandem: ", vertices, " vertices, ", triangles,
-                          " triangles\n"));
+                          " triangles\n# ", FrameTag(space), "\n"));
 }
 
 void AppendObjFace(BufferedWriter& out, const uint32_t* tri, bool normals) {
@@ -165,8 +178,9 @@ void AppendObjFace(BufferedWriter& out, const uint32_t* tri, bool normals) {
   out.Append("\n");
 }
 
-void WriteObj(const IndexedMesh& mesh, const std::vector<Vec3>& normals, BufferedWriter& out) {
-  AppendObjHeader(out, mesh.num_vertices(), mesh.num_triangles());
+void WriteObj(const IndexedMesh& mesh, const std::vector<Vec3>& normals, Space space,
+              BufferedWriter& out) {
+  AppendObjHeader(out, mesh.num_vertices(), mesh.num_triangles(), space);
   for (const Vec3& p : mesh.positions) AppendObjVec3(out, "v", p);
   for (const Vec3& n : normals) AppendObjVec3(out, "vn", n);
   for (size_t t = 0; t < mesh.num_triangles(); ++t) {
@@ -176,10 +190,11 @@ void WriteObj(const IndexedMesh& mesh, const std::vector<Vec3>& normals, Buffere
 
 // Binary STL: an 80-byte header, the triangle count, then per triangle its unit normal, its
 // three corners (float32) and a zero attribute word. STL has no shared vertices.
-void WriteStl(const IndexedMesh& mesh, BufferedWriter& out) {
+void WriteStl(const IndexedMesh& mesh, Space space, BufferedWriter& out) {
   char header[80] = {};
-  const absl::string_view text = "binary STL written by tandem";  // never "solid": not ASCII
-  std::memcpy(header, text.data(), text.size());
+  // Never "solid" first: that would be an ASCII STL.
+  const std::string text = absl::StrCat("binary STL written by tandem ", FrameTag(space));
+  std::memcpy(header, text.data(), std::min(text.size(), sizeof header));
   out.Append(header, sizeof header);
   out.AppendLe32(static_cast<uint32_t>(mesh.num_triangles()));
   for (size_t t = 0; t < mesh.num_triangles(); ++t) {
@@ -200,7 +215,7 @@ void WriteStl(const IndexedMesh& mesh, BufferedWriter& out) {
 // With `draco`, the primitive is that Draco buffer (KHR_draco_mesh_compression): the
 // accessors say what it decodes to and have no buffer view of their own.
 void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
-              const GlbDracoPrimitive* draco, BufferedWriter& out) {
+              const GlbDracoPrimitive* draco, Space space, BufferedWriter& out) {
   const size_t nv = draco ? draco->vertices : mesh.num_vertices();
   const size_t ni = draco ? draco->indices : mesh.indices.size();
   std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
@@ -214,7 +229,11 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
   const size_t pos_bytes = 12 * nv, nrm_bytes = 12 * nv, idx_bytes = 4 * ni;
   const size_t bin_bytes = pos_bytes + nrm_bytes + idx_bytes;  // multiples of 4 already
   nlohmann::json j;
-  j["asset"] = {{"version", "2.0"}, {"generator", "tandem"}};
+  // glTF's own frame (metres, +y up) is not the volume's: positions stay in the volume's
+  // frame and units, named here for programs that care.
+  j["asset"] = {{"version", "2.0"},
+                {"generator", "tandem"},
+                {"extras", {{"frame", std::string(SpaceName(space))}}}};
   j["scene"] = 0;
   j["scenes"] = nlohmann::json::array({{{"nodes", {0}}}});
   j["nodes"] = nlohmann::json::array({{{"mesh", 0}}});
@@ -810,10 +829,10 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
   }
   BufferedWriter out(file);
   switch (*format) {
-    case Format::kPly: WritePly(mesh, normals, out); break;
-    case Format::kObj: WriteObj(mesh, normals, out); break;
-    case Format::kStl: WriteStl(mesh, out); break;
-    case Format::kGlb: WriteGlb(mesh, normals, draco ? &*draco : nullptr, out); break;
+    case Format::kPly: WritePly(mesh, normals, options.space, out); break;
+    case Format::kObj: WriteObj(mesh, normals, options.space, out); break;
+    case Format::kStl: WriteStl(mesh, options.space, out); break;
+    case Format::kGlb: WriteGlb(mesh, normals, draco ? &*draco : nullptr, options.space, out); break;
   }
   if (const int err = out.Close(); err != 0) {
     return Error(absl::StatusCode::kUnavailable, path,
@@ -860,22 +879,32 @@ absl::Status ChunkedMeshWriter::Failed(const char* what) const {
 
 absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
   const size_t nt = chunk.num_triangles();
-  std::vector<uint32_t> ids(3 * nt);
   for (size_t t = 0; t < nt; ++t) {
     const uint32_t* tri = &chunk.indices[3 * t];
     const Vec3 w = TriangleAreaVector(chunk.positions[tri[0]], chunk.positions[tri[1]],
                                       chunk.positions[tri[2]]);
+    uint32_t slot;
+    if (free_.empty()) {
+      slot = static_cast<uint32_t>(waiting_.size());
+      waiting_.emplace_back();
+    } else {
+      slot = free_.back();
+      free_.pop_back();
+    }
+    WaitingTriangle& waiting = waiting_[slot];
+    waiting.place = triangles_ + static_cast<int64_t>(t);
+    waiting.open = 3;
     for (int k = 0; k < 3; ++k) {
       const uint32_t id = chunk.ids[tri[k]];
       auto [it, fresh] = open_.try_emplace(id, OpenVertex{chunk.positions[tri[k]], Vec3{0, 0, 0}});
       it->second.normal = it->second.normal + w;
-      ids[3 * t + k] = id;
+      waiting.corners[k] = id;
+      waiting.next[k] = it->second.waiting;
+      it->second.waiting = 3 * slot + static_cast<uint32_t>(k);
     }
   }
-  if (nt > 0 && std::fwrite(ids.data(), sizeof(uint32_t), ids.size(), tris_) != ids.size()) {
-    return Failed("writing the scratch file of triangles");
-  }
   triangles_ += static_cast<int64_t>(nt);
+  done_.clear();
   for (uint32_t id : chunk.retired) {
     auto it = open_.find(id);
     if (it == open_.end()) continue;  // retired before any of its triangles: none it had
@@ -887,11 +916,46 @@ absl::Status ChunkedMeshWriter::Add(const SealedChunk& chunk) {
     if (std::fwrite(record, sizeof record, 1, verts_) != 1) {
       return Failed("writing the scratch file of vertices");
     }
-    if (id >= index_.size()) index_.resize(std::max<size_t>(id + 1, 2 * index_.size()), kInvalid);
-    index_[id] = static_cast<uint32_t>(vertices_++);
+    const uint32_t index = static_cast<uint32_t>(vertices_++);
+    for (uint32_t c = it->second.waiting; c != kNoCorner;) {
+      WaitingTriangle& waiting = waiting_[c / 3];
+      waiting.corners[c % 3] = index;
+      const uint32_t next = waiting.next[c % 3];
+      if (--waiting.open == 0) {
+        done_.push_back(waiting);
+        free_.push_back(c / 3);
+      }
+      c = next;
+    }
     open_.erase(it);
   }
+  // The triangles whose last vertex this chunk retired go to their places; those of one
+  // chunk mostly follow each other there, written as runs.
+  std::sort(done_.begin(), done_.end(),
+            [](const WaitingTriangle& x, const WaitingTriangle& y) { return x.place < y.place; });
+  for (size_t i = 0; i < done_.size();) {
+    const int64_t place = done_[i].place;
+    run_.clear();
+    for (; i < done_.size() && done_[i].place == place + static_cast<int64_t>(run_.size() / 3); ++i) {
+      run_.insert(run_.end(), done_[i].corners, done_[i].corners + 3);
+    }
+    if (place != tris_at_ &&
+        std::fseek(tris_, static_cast<long>(place * 3 * sizeof(uint32_t)), SEEK_SET) != 0) {
+      return Failed("writing the scratch file of triangles");
+    }
+    if (std::fwrite(run_.data(), sizeof(uint32_t), run_.size(), tris_) != run_.size()) {
+      return Failed("writing the scratch file of triangles");
+    }
+    tris_at_ = place + static_cast<int64_t>(run_.size() / 3);
+  }
   return absl::OkStatus();
+}
+
+size_t ChunkedMeshWriter::MemoryBytes() const {
+  // A flat_hash_map slot holds its pair plus one control byte.
+  return open_.capacity() * (sizeof(std::pair<const uint32_t, OpenVertex>) + 1) +
+         (waiting_.capacity() + done_.capacity()) * sizeof(WaitingTriangle) +
+         (free_.capacity() + run_.capacity()) * sizeof(uint32_t);
 }
 
 absl::Status ChunkedMeshWriter::Finish() {
@@ -906,9 +970,9 @@ absl::Status ChunkedMeshWriter::Finish() {
   const size_t nv = static_cast<size_t>(vertices_), nt = static_cast<size_t>(triangles_);
   const bool normals = options_.normals;
   if (ply) {
-    AppendPlyHeader(out, nv, nt, normals);
+    AppendPlyHeader(out, nv, nt, normals, options_.space);
   } else {
-    AppendObjHeader(out, nv, nt);
+    AppendObjHeader(out, nv, nt, options_.space);
   }
   // Vertices: PLY one record each; OBJ the "v" lines, then the "vn" lines.
   std::vector<float> block(6 * 4096);
@@ -939,7 +1003,6 @@ absl::Status ChunkedMeshWriter::Finish() {
     if (std::fread(tris.data(), 3 * sizeof(uint32_t), n, tris_) != n) {
       return Failed("reading back the scratch file of triangles");
     }
-    for (size_t i = 0; i < 3 * n; ++i) tris[i] = index_[tris[i]];
     for (size_t i = 0; i < n; ++i) {
       if (ply) {
         AppendPlyFace(out, &tris[3 * i]);

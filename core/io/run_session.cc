@@ -1,6 +1,10 @@
 #include "tandem/run_session.h"
 
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
 #include <string>
+#include <thread>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
@@ -23,7 +27,8 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
 absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     SliceSource& source, const std::vector<SessionOptions>& options,
     const std::function<void(int64_t, int64_t)>& progress,
-    const std::function<absl::Status(size_t, SealedChunk)>& on_chunk, Executor* executor) {
+    const std::function<absl::Status(size_t, SealedChunk)>& on_chunk, Executor* executor,
+    const FinishingFn& finishing) {
   const VolumeInfo& info = source.info();
   if (options.empty()) return absl::InvalidArgumentError("RunSessions: no session options");
   std::vector<std::unique_ptr<TandemSession>> sessions;
@@ -96,8 +101,38 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     }
   }
   if (absl::Status st = take(added - 1, false); !st.ok()) return st;
-  // The final SIMPLIFY of each surface, side by side as well.
+  // The final SIMPLIFY of each surface, side by side as well, watched from a thread of its
+  // own when asked to.
   std::vector<absl::Status> finished(sessions.size());
+  std::mutex watch_mu;
+  std::condition_variable watch_cv;
+  bool done = false;
+  std::thread watcher;
+  if (finishing) {
+    watcher = std::thread([&] {
+      std::unique_lock<std::mutex> lock(watch_mu);
+      const auto every = std::chrono::duration<double>(kFinishingEvery);
+      while (!watch_cv.wait_for(lock, every, [&] { return done; })) {
+        std::vector<TandemSession::Finishing> now;
+        for (const auto& s : sessions) now.push_back(s->FinishProgress());
+        finishing(now);
+      }
+    });
+  }
+  struct StopWatcher {  // however the block below is left
+    std::mutex& mu;
+    std::condition_variable& cv;
+    bool& done;
+    std::thread& watcher;
+    ~StopWatcher() {
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        done = true;
+      }
+      cv.notify_all();
+      if (watcher.joinable()) watcher.join();
+    }
+  } stop_watcher{watch_mu, watch_cv, done, watcher};
   {
     TaskGroup finishing(executor != nullptr ? executor : &Executor::Shared());
     for (size_t i = 1; i < sessions.size(); ++i) {

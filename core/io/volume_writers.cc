@@ -184,9 +184,21 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
   }
   if (ext == ".json") return internal::WriteRawJson(path, info, slice_fn, opts);
   if (ext == ".nrrd" || ext == ".nhdr") return internal::WriteNrrd(path, info, slice_fn, opts);
-  if (ext == ".nii" || ext == ".nii.gz") return internal::WriteNifti(path, info, slice_fn, opts);
+  // NIfTI holds RAS, MetaImage LPS: a grid in the other patient frame is turned into it.
+  auto in = [&](Space fixed, Space other) -> absl::StatusOr<VolumeInfo> {
+    return info.space == other ? InFrame(info, fixed) : info;
+  };
+  if (ext == ".nii" || ext == ".nii.gz") {
+    absl::StatusOr<VolumeInfo> ras = in(Space::kRAS, Space::kLPS);
+    if (!ras.ok()) return ras.status();
+    return internal::WriteNifti(path, *ras, slice_fn, opts);
+  }
   if (ext == ".tif" || ext == ".tiff") return internal::WriteTiffVolume(path, info, slice_fn, opts);
-  if (ext == ".mha" || ext == ".mhd") return internal::WriteMetaImage(path, info, slice_fn, opts);
+  if (ext == ".mha" || ext == ".mhd") {
+    absl::StatusOr<VolumeInfo> lps = in(Space::kLPS, Space::kRAS);
+    if (!lps.ok()) return lps.status();
+    return internal::WriteMetaImage(path, *lps, slice_fn, opts);
+  }
   if (ext == ".zarr") {
     ZarrWriteOptions zo;
     zo.big_endian = opts.big_endian;

@@ -142,6 +142,16 @@ class EdgeQueue {
     return (size_ > 0 && heaped_[cur_] > 0) ? &buckets_[cur_][0] : nullptr;
   }
   void Clear();
+  // For progress: (*below)[b] = the nodes in the buckets below b, b = 0 .. kBuckets (the
+  // last: all of them); the bucket pops come from now.
+  void CountBelow(std::vector<int64_t>* below) const {
+    below->assign(kBuckets + 1, 0);
+    for (size_t b = 0; b < buckets_.size(); ++b) {
+      (*below)[b + 1] = (*below)[b] + static_cast<int64_t>(buckets_[b].size());
+    }
+    for (size_t b = buckets_.size(); b < kBuckets; ++b) (*below)[b + 1] = (*below)[b];
+  }
+  size_t current_bucket() const { return cur_; }
   // Q over again with its buckets spaced below max_key, holding the nodes keep(node) accepts,
   // pushed in ForEach's order. Each bucket and the slots are sized exactly first: pushed one
   // by one into a fresh queue, they regrew from empty (grow.h's eighths: about 40 copies of

@@ -4,6 +4,7 @@
 #define TANDEM_SESSION_IMPL_H_
 
 #include <array>
+#include <chrono>
 #include <deque>
 #include <memory>
 #include <mutex>
@@ -124,6 +125,13 @@ struct TandemSession::Impl {
   static constexpr int64_t kSettleEvery = 16;  // slices between SettleSeams
   void MaybeSettleSeams();  // before slice slices_added is stepped
   bool finished = false;
+  // FinishProgress: the step Finish is in and the simplifiers it runs (tracked), under
+  // finish_mu; a reader takes the lock, the simplifiers' counters are atomic.
+  void BeginFinishStep(const char* step, std::vector<Simplifier*> simplifiers);
+  mutable std::mutex finish_mu;
+  const char* finish_step = nullptr;  // null: Finish is not running
+  std::vector<Simplifier*> tracked;
+  std::chrono::steady_clock::time_point finish_start, step_start;
 };
 
 }  // namespace tandem

@@ -437,6 +437,22 @@ void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> lay
   FlushBatch();
 }
 
+void Simplifier::TrackStart() {
+  q_.CountBelow(&below_);
+  if (chunk_span_ == 0) {
+    progress_done_.store(0, std::memory_order_relaxed);
+    progress_total_.store(below_.back(), std::memory_order_relaxed);
+  }
+}
+
+void Simplifier::TrackAt(size_t bucket) {
+  const int64_t behind = below_[std::min(bucket, EdgeQueue::kBuckets)], all = below_.back();
+  const int64_t done = chunk_span_ == 0 ? behind
+                       : all > 0        ? chunk_base_ + chunk_span_ * behind / all
+                                        : chunk_base_ + chunk_span_;
+  progress_done_.store(done, std::memory_order_relaxed);
+}
+
 void Simplifier::ActivateAndSimplify(double front) {
   front_ = front;
   w_.TakeUpTo(front_, &released_);  // in W's order: Q breaks ties by push order
@@ -488,6 +504,10 @@ void Simplifier::ActivateAndSimplify(double front) {
   const auto grown = [chunk](size_t now, size_t then) { return now > then + then / 2 + chunk; };
   size_t swept = w_.size();
   size_t waiting = 0;  // edges in groups_ after the last sweep
+  if (track_) {
+    progress_done_.store(0, std::memory_order_relaxed);
+    progress_total_.store(static_cast<int64_t>(n), std::memory_order_relaxed);
+  }
   for (group_ = 0; group_ < groups; ++group_) {
     // What earlier chunks left for this one (their edges in W's order, then what their
     // contractions pushed), then this chunk's own edges that it makes ready.
@@ -511,7 +531,10 @@ void Simplifier::ActivateAndSimplify(double front) {
     released_.shrink_to_fit();
     FlushBatch();
     step_peak_bytes_ = std::max(step_peak_bytes_, MemoryBytes());
+    chunk_base_ = static_cast<int64_t>(group_ * chunk);
+    chunk_span_ = static_cast<int64_t>(end - group_ * chunk);
     Simplify();
+    chunk_base_ = chunk_span_ = 0;
     if (grown(w_.size(), swept)) {
       w_.RemoveIf(stale);
       swept = w_.size();
@@ -635,9 +658,13 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
 void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   const auto stale = [this](const QNode& n) { return Stale(n); };
+  if (track_) TrackStart();
   uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
   while (!q_.empty()) {
-    if ((++pops & (kCheckEvery - 1)) == 0) Checkpoint();  // contractions queue new edges
+    if ((++pops & (kCheckEvery - 1)) == 0) {
+      Checkpoint();  // contractions queue new edges
+      if (track_) TrackAt(q_.current_bucket());
+    }
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const QNode* top = q_.TopLive(stale);
     if (top == nullptr) break;
@@ -733,6 +760,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
       store_->PrefetchFan(ahead.b);
     }
   }
+  if (track_) TrackAt(EdgeQueue::kBuckets);
   if (q_.empty()) q_.Trim();
   // Kept edges (keep > 1) stay queued past SIMPLIFY, and most go stale as their neighbours
   // contract: when they outnumber the mesh's edges (about 1.5 per triangle), Q keeps the

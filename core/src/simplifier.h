@@ -236,6 +236,14 @@ class Simplifier {
   // empties and Trim frees before the step ends.
   size_t StepPeakBytes() const { return step_peak_bytes_; }
   size_t WaitingBytes() const;
+  // How far the SIMPLIFY running now has come, for a status line read on another thread:
+  // with tracking on, each SIMPLIFY counts its Q's nodes by key bucket as it starts (total)
+  // and, every kCheckEvery pops, those in the buckets below the one it pops from (done): the
+  // share of the queue it began with that lies behind it (new edges a contraction queues
+  // are not counted).
+  void TrackProgress(bool on) { track_ = on; }
+  int64_t progress_done() const { return progress_done_.load(std::memory_order_relaxed); }
+  int64_t progress_total() const { return progress_total_.load(std::memory_order_relaxed); }
 
  private:
   struct Candidate {  // the evaluation of a contraction ab -> c
@@ -444,6 +452,14 @@ class Simplifier {
   void Checkpoint() {
     if (checkpoint_) checkpoint_();
   }
+  bool track_ = false;
+  std::vector<int64_t> below_;  // tracking: nodes in the buckets below each, at the start
+  std::atomic<int64_t> progress_done_{0}, progress_total_{0};
+  // A release in chunks (ActivateAndSimplify) counts in released edges: each chunk's
+  // SIMPLIFY covers [chunk_base_, chunk_base_ + chunk_span_) of them; 0: not chunked.
+  int64_t chunk_base_ = 0, chunk_span_ = 0;
+  void TrackStart();
+  void TrackAt(size_t bucket);
 };
 
 }  // namespace tandem

@@ -254,6 +254,35 @@ const VolumeInfo& TandemSession::grid() const { return impl_->grid; }
 const SessionOptions& TandemSession::options() const { return impl_->options; }
 bool TandemSession::finished() const { return impl_->finished; }
 
+TandemSession::Finishing TandemSession::FinishProgress() const {
+  const Impl& s = *impl_;
+  std::lock_guard<std::mutex> lock(s.finish_mu);
+  Finishing f;
+  if (s.finish_step == nullptr) return f;
+  const auto now = Clock::now();
+  f.running = true;
+  f.step = s.finish_step;
+  f.step_seconds = Seconds(s.step_start, now);
+  f.seconds = Seconds(s.finish_start, now);
+  int64_t done = 0, total = 0;
+  for (const Simplifier* t : s.tracked) {
+    done += t->progress_done();
+    total += t->progress_total();
+  }
+  if (total > 0) f.share = std::clamp(static_cast<double>(done) / static_cast<double>(total), 0.0, 1.0);
+  return f;
+}
+
+void TandemSession::Impl::BeginFinishStep(const char* step, std::vector<Simplifier*> simplifiers) {
+  std::lock_guard<std::mutex> lock(finish_mu);
+  for (Simplifier* t : tracked) t->TrackProgress(false);
+  for (Simplifier* t : simplifiers) t->TrackProgress(true);
+  tracked = std::move(simplifiers);
+  finish_step = step;
+  step_start = Clock::now();
+  if (step == nullptr) tracked.clear();
+}
+
 double TandemSession::MaxShapeError() const {
   Impl& s = *impl_;
   if (s.options.schedule == Schedule::kNone) return 0.0;
@@ -622,17 +651,35 @@ absl::Status TandemSession::Impl::Finish() {
     steps.reset();
     queued = false;
   }
+  {
+    std::lock_guard<std::mutex> lock(finish_mu);
+    finish_start = Clock::now();
+  }
+  struct EndSteps {  // however Finish leaves (an exception too): no step is running
+    Impl* impl;
+    ~EndSteps() { impl->BeginFinishStep(nullptr, {}); }
+  } end_steps{this};
+  auto simplifiers = [this] {
+    std::vector<Simplifier*> all;
+    for (auto& s : slabs) all.push_back(&s->simplifier);
+    return all;
+  };
+  BeginFinishStep(options.schedule == Schedule::kClassical ? "simplifying the whole mesh"
+                                                            : "simplifying the last slices",
+                  simplifiers());
   ForEachSlab([this](Slab& s) { FinishSlab(s, options.schedule); }, /*balanced=*/true);
   finished = true;
   const bool merge = slabs.size() > 1;
   if (merge && options.target_triangles > 0 && options.schedule != Schedule::kNone &&
       !slabs[0]->sealer) {
+    BeginFinishStep("simplifying toward the target triangle count", {});
     ApproachTarget(slabs, options.target_triangles, [this](const std::function<void(Slab&)>& f) {
       ForEachSlab(f, /*balanced=*/true);
     });
   }
   if (options.schedule != Schedule::kNone && options.target_triangles <= 0 &&
       slabs[0]->simplifier.error() < options.error / scale) {  // the finishing pass
+    BeginFinishStep("simplifying the whole mesh to E0", simplifiers());
     FinishAtError(slabs, options.error / scale, [this](const std::function<void(Slab&)>& f) {
       ForEachSlab(f, /*balanced=*/true);
     });
@@ -640,8 +687,11 @@ absl::Status TandemSession::Impl::Finish() {
   FoldTraces();
   std::vector<VertexId> seam_vertices;
   if (merge) {
+    BeginFinishStep("merging the parts", {});  // the slabs go away: none is tracked
     seam_vertices = MergeSlabs(&slabs, &seams, options.schedule != Schedule::kNone, &merged);
   }
+  BeginFinishStep(merge ? "simplifying the seams, correcting the sag" : "correcting the sag",
+                  simplifiers());
   const int64_t sag = FinishWhole(*slabs[0], options, merge ? &seam_vertices : nullptr,
                                   options.pipeline ? executor : nullptr);
   if (sag > 0 || slabs[0]->sealer) stats.sag_corrected = sag;

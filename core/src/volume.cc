@@ -8,6 +8,7 @@
 #include <limits>
 #include <utility>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 
@@ -47,6 +48,83 @@ size_t DTypeSize(DType t) {
       return 4;
   }
   return 1;
+}
+
+const char* SpaceName(Space s) {
+  switch (s) {
+    case Space::kGrid:
+      return "grid";
+    case Space::kLPS:
+      return "LPS";
+    case Space::kRAS:
+      return "RAS";
+    case Space::kVoxel:
+      return "voxel";
+  }
+  return "grid";
+}
+
+absl::StatusOr<Space> ParseSpace(std::string_view name) {
+  for (Space s : {Space::kGrid, Space::kLPS, Space::kRAS, Space::kVoxel}) {
+    if (absl::EqualsIgnoreCase(absl::string_view(name.data(), name.size()), SpaceName(s))) {
+      return s;
+    }
+  }
+  return absl::InvalidArgumentError(
+      absl::StrCat("'", std::string(name), "': expected LPS, RAS, voxel or grid"));
+}
+
+absl::StatusOr<VolumeInfo> InFrame(const VolumeInfo& info, Space to) {
+  if (to == info.space) return info;
+  VolumeInfo out = info;
+  out.space = to;
+  if (to == Space::kVoxel) {
+    out.origin = {0, 0, 0};
+    out.spacing = {1, 1, 1};
+    out.spacing_known = true;
+    out.directions = VolumeInfo{}.directions;
+    out.frame = absl::StrCat("voxel indices i, j, k of ", info.frame);
+    return out;
+  }
+  const bool patient = info.space == Space::kLPS || info.space == Space::kRAS;
+  if (to == Space::kGrid || !patient) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "the input's vertices are in ", info.frame, ", not in a patient frame (LPS or RAS): ",
+        to == Space::kGrid ? "" : absl::StrCat(std::string(SpaceName(to)), " cannot be derived from it; "),
+        "only voxel can be asked for"));
+  }
+  // A half turn about z: x and y change sign, z and the handedness stay.
+  for (int a = 0; a < 2; ++a) out.origin[a] = -info.origin[a] + 0.0;
+  for (auto& d : out.directions) {
+    for (int a = 0; a < 2; ++a) d[a] = -d[a] + 0.0;
+  }
+  out.frame = absl::StrCat(std::string(SpaceName(to)), ": ", info.frame, " with x and y negated");
+  return out;
+}
+
+namespace {
+
+class RegridSource final : public SliceSource {
+ public:
+  RegridSource(std::unique_ptr<SliceSource> inner, VolumeInfo info)
+      : inner_(std::move(inner)), info_(std::move(info)) {}
+  const VolumeInfo& info() const override {
+    info_.nz = inner_->info().nz;
+    return info_;
+  }
+  absl::Status ReadSlice(std::vector<uint8_t>* bytes) override { return inner_->ReadSlice(bytes); }
+  absl::Status ViewSlice(const uint8_t** data) override { return inner_->ViewSlice(data); }
+  int64_t next_slice() const override { return inner_->next_slice(); }
+
+ private:
+  std::unique_ptr<SliceSource> inner_;
+  mutable VolumeInfo info_;  // nz kept up to date with inner_'s
+};
+
+}  // namespace
+
+std::unique_ptr<SliceSource> Regrid(std::unique_ptr<SliceSource> inner, VolumeInfo info) {
+  return std::make_unique<RegridSource>(std::move(inner), std::move(info));
 }
 
 absl::Status ValidateVolumeInfo(const VolumeInfo& info) {

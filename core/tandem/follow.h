@@ -19,24 +19,35 @@
 //     first slice stack whose first slice can go (two at once are told apart as in a
 //     finished folder, tandem/series.h: a scout beside the stack is set aside, two stacks
 //     are an error pointing to --series); every other series is set aside with a note.
-//     Slices are handed out in order of position along the normal, each held back until the
-//     slice one step below it has been handed out (the series grows along its normal, in
-//     bursts, its files in any order within a burst). The first slice, the lowest held, goes
-//     when it and the next two lie one usual step apart (the smallest gap between held
-//     neighbours, which becomes the z step) and
-//       (a) their InstanceNumbers are 1, 2, 3; or
-//       (b) 8 files of the series have appeared in later looks at the folder than it did
-//           (a receiver reorders files within a burst, not across 8 files); or
+//     Slices are handed out in order of position along the way the series grows, each held
+//     back until the slice one step before it has been handed out (the series grows one
+//     way, in bursts, its files in any order within a burst). It grows along its normal
+//     (feet to head for the usual axial slices) or against it (head to feet, as many CT
+//     protocols acquire): the first slice, the lowest or the highest held, goes when it
+//     and the next two lie one usual step apart (the smallest gap between held neighbours,
+//     which becomes the z step) and
+//       (a) their InstanceNumbers are 1, 2, 3 from that end; or
+//       (b) 8 files of the series have appeared in later looks at the folder than it did,
+//           more than after the slice at the other end (a receiver reorders files within
+//           a burst, not across 8 files: the series grows away from the end that came
+//           first); or
 //       (c) nothing has appeared or grown in the folder for 1 s, or for three of the
 //           writer's usual intervals between files when it writes slower (the burst is
 //           over), unless InstanceNumbers running with the positions say a slice between
-//           the three is missing.
+//           the three is missing: from the end those numbers start at (1 at the top: head
+//           to feet), the lowest without them.
+//     A series followed head to feet has its grid's z axis against the normal, its origin
+//     at the first slice acquired (the highest): a mirrored frame, so the triangles' winding
+//     is reversed and normals still point out. Its mesh is the finished folder's surface
+//     (read from the lowest slice up): without simplification the same triangles, their
+//     positions equal up to float rounding; simplified, the same surface swept the other
+//     way (each within E0 of it).
 //     InstanceNumbers are a hint, never a gate: where they contradict the positions
 //     (repeated, running the other way, not one apart where the positions are one step
 //     apart) one note says so and positions alone order the series; absent numbers are fine.
 //     Errors: two slices at one position (at once, naming both files); a file that arrives
-//     below a slice already handed out (a writer that reorders files across more than a
-//     burst, or more than a second apart); when the scan ends, a gap still open (naming the
+//     behind a slice already handed out (a writer that reorders files across more than a
+//     burst, or more than a second apart; or a series that turns round); when the scan ends, a gap still open (naming the
 //     position of the missing slice), a DICOM file that never became a whole slice (naming
 //     it), or only localizers and scouts (naming them);
 //   - Zarr: the planes of chunk rows whose every chunk file exists (CountCompleteZarrPlanes).

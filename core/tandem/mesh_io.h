@@ -23,6 +23,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/mesh.h"
+#include "tandem/volume.h"
 
 namespace tandem {
 
@@ -61,6 +62,11 @@ using GlbDracoCompressor = std::function<absl::StatusOr<GlbDracoPrimitive>(
 
 struct MeshWriteOptions {
   bool normals = true;
+  // The frame of the positions, written where 3D Slicer reads it: "SPACE=LPS" or
+  // "SPACE=RAS" in a PLY comment, the OBJ's first comment and the binary STL header (other
+  // frames are named without "SPACE=", which Slicer then takes as LPS); a GLB names it in
+  // asset.extras.frame ("LPS", "RAS", "grid", "voxel"), its positions left in that frame.
+  Space space = Space::kGrid;
   GlbDracoCompressor glb_draco;  // .glb: set = Draco-compressed primitive
 };
 absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
@@ -70,12 +76,13 @@ inline constexpr const char* kMeshExtensions = ".ply, .obj, .stl or .glb";
 bool IsMeshOutputPath(const std::string& path);
 
 // Writes a mesh that arrives in sealed chunks (sealer.h) to a .ply or .obj file (as WriteMesh
-// writes them) while it comes, so that memory holds only the vertices still open plus 4
-// bytes per vertex: a vertex is written once a chunk retires its id, with the area-weighted
-// normal of all its triangles; triangles wait in a scratch file by global id, and Finish
-// writes the header, the vertices and the triangles renumbered. The mesh is WeldChunks's,
-// its vertices in the order they were retired. Errors as WriteMesh's; Finish fails with
-// Internal when a vertex was never retired (chunks missing).
+// writes them) while it comes, so that memory holds only the vertices still open and the
+// triangles that touch them, whatever the depth: a vertex is written once a chunk retires
+// its id, with the area-weighted normal of all its triangles, and gets its index then; a
+// triangle goes to its place in a scratch file once its last vertex is retired, and Finish
+// writes the header, the vertices and the triangles. The mesh is WeldChunks's, its vertices
+// in the order they were retired. Errors as WriteMesh's; Finish fails with Internal when a
+// vertex was never retired (chunks missing).
 class ChunkedMeshWriter {
  public:
   static bool Supports(const std::string& path);  // .ply and .obj
@@ -86,11 +93,22 @@ class ChunkedMeshWriter {
   absl::Status Finish();
   int64_t vertices() const { return vertices_; }
   int64_t triangles() const { return triangles_; }
+  // What the writer holds in memory: the open vertices, the triangles waiting for them and
+  // the free slots among them (tables at their capacity).
+  size_t MemoryBytes() const;
 
  private:
+  static constexpr uint32_t kNoCorner = 0xffffffffu;
   struct OpenVertex {
     Vec3 pos;
     Vec3 normal;  // sum of the area vectors of its triangles so far
+    uint32_t waiting = kNoCorner;  // its first corner in waiting_ (3 * slot + k), a list
+  };
+  struct WaitingTriangle {
+    int64_t place : 62;   // in the order the triangles came
+    uint64_t open : 2;    // corners still a global id
+    uint32_t corners[3];  // an output index once retired, else a global id
+    uint32_t next[3];     // the next waiting corner of the same vertex
   };
   ChunkedMeshWriter(std::string path, MeshWriteOptions options, std::FILE* verts, std::FILE* tris)
       : path_(std::move(path)), options_(options), verts_(verts), tris_(tris) {}
@@ -98,9 +116,13 @@ class ChunkedMeshWriter {
   std::string path_;
   MeshWriteOptions options_;
   std::FILE* verts_;  // scratch: float32 x y z nx ny nz per written vertex
-  std::FILE* tris_;   // scratch: 3 global ids per triangle
+  std::FILE* tris_;   // scratch: 3 output indices per triangle, in the order they came
+  int64_t tris_at_ = 0;  // the triangle tris_'s position is at
   absl::flat_hash_map<uint32_t, OpenVertex> open_;
-  std::vector<uint32_t> index_;  // global id -> output index
+  std::vector<WaitingTriangle> waiting_;  // slots, reused
+  std::vector<uint32_t> free_;           // free slots of waiting_
+  std::vector<WaitingTriangle> done_;    // the last chunk's complete triangles, by place
+  std::vector<uint32_t> run_;  // triangles of consecutive places, written at once
   int64_t vertices_ = 0, triangles_ = 0;
 };
 

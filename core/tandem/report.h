@@ -19,7 +19,9 @@ namespace tandem {
 
 struct MetricsReport {
   std::string input;  // file name or description
-  std::string frame;  // the world frame of the vertices (VolumeInfo::frame)
+  // The frame of the vertices: SpaceName(VolumeInfo::space) ("LPS", "RAS", "voxel", "grid"),
+  // and VolumeInfo::frame, for people.
+  std::string frame, frame_text;
   // The session's options and statistics, copied whole by MakeReport. The JSON and the wire
   // carry the members VisitReportFields lists, not all of them (not pipeline, parts or
   // seal, nor the front reaches and the sealed counts).
@@ -66,7 +68,8 @@ void VisitReportFields(R& r, F&& f) {
   auto& o = r.options;
   auto& s = r.stats;
   f("/input", nullptr, r.input, W::kAlways);
-  f("/frame", nullptr, r.frame, W::kAlways);
+  f("/frame", "frame", r.frame, W::kAlways);
+  f("/frame_text", nullptr, r.frame_text, W::kAlways);
   f("/schedule", "schedule", o.schedule, W::kAlways);  // by name: "none", "classical", ...
   f("/iso", "iso", o.iso, W::kAlways);
   f("/error_threshold", "error_threshold", o.error, W::kAlways);

@@ -30,12 +30,16 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
 // Several surfaces in one pass (e.g. skin and bone, one iso-value each): one session per
 // options entry, all fed from a single read of each slice and run side by side. Each
 // session's mesh is the one RunSession would give with its options alone. on_chunk gets the
-// index of the options entry the chunk belongs to.
+// index of the options entry the chunk belongs to. `finishing`, once the last slice is in,
+// is called every kFinishingEvery seconds from another thread while the sessions finish, with
+// each session's TandemSession::FinishProgress (for a status line).
+using FinishingFn = std::function<void(const std::vector<TandemSession::Finishing>&)>;
+inline constexpr double kFinishingEvery = 0.2;
 absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     SliceSource& source, const std::vector<SessionOptions>& options,
     const std::function<void(int64_t, int64_t)>& progress = nullptr,
     const std::function<absl::Status(size_t, SealedChunk)>& on_chunk = nullptr,
-    Executor* executor = nullptr);
+    Executor* executor = nullptr, const FinishingFn& finishing = nullptr);
 
 }  // namespace tandem
 

@@ -109,7 +109,7 @@ struct DicomWriteOptions {
 
 // Writes DICOM slices one at a time (a scanner simulator writes them in any order): slice z
 // of info goes to `path` with its position origin + z * spacing_z * normal and
-// InstanceNumber z + 1. info.nz need not be known.
+// InstanceNumber z + 1 (a RAS grid turned into DICOM's LPS first). info.nz need not be known.
 class DicomSliceWriter {
  public:
   static absl::StatusOr<DicomSliceWriter> Create(const VolumeInfo& info,

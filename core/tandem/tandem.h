@@ -120,6 +120,17 @@ class TandemSession {
     int64_t sealed_pending = 0;
   };
   Gauge Peek() const;
+  // What Finish is doing, asked from any thread while it runs (the session's own thread is
+  // inside it), for a status line after the last slice: the step, how much of the step's
+  // work lies behind it (`share`, 0..1, by the queue of edges the step began with; -1 for a
+  // step without such a measure) and the wall seconds spent in the step and in Finish.
+  struct Finishing {
+    bool running = false;  // Finish has started and not returned
+    const char* step = "";
+    double share = -1;
+    double step_seconds = 0, seconds = 0;
+  };
+  Finishing FinishProgress() const;
   const VolumeInfo& grid() const;
   const SessionOptions& options() const;
   bool finished() const;

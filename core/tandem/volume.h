@@ -26,6 +26,17 @@ std::string_view DTypeName(DType t);
 absl::StatusOr<DType> ParseDType(std::string_view name);
 size_t DTypeSize(DType t);
 
+// Where a grid's origin, spacing and directions put its vertices, for programs (VolumeInfo's
+// `frame` says it for people): a patient frame, LPS (x toward the patient's left, y
+// posterior, z superior: DICOM, ITK, MetaImage) or RAS (x right, y anterior: NIfTI, 3D
+// Slicer's scene); a frame of the file's own with no anatomical meaning (kGrid: TIFF, Zarr,
+// a sidecar without "space"); or the grid's index coordinates (kVoxel).
+enum class Space : uint8_t { kGrid, kLPS, kRAS, kVoxel };
+// "grid", "LPS", "RAS", "voxel".
+const char* SpaceName(Space s);
+// SpaceName's names, in any case; otherwise an error listing them.
+absl::StatusOr<Space> ParseSpace(std::string_view name);
+
 struct VolumeInfo {
   int64_t nx = 0, ny = 0, nz = 0;  // grid vertices per axis; nz = 0 means "not known yet"
   DType dtype = DType::kUInt8;
@@ -42,7 +53,8 @@ struct VolumeInfo {
   // What world the vertices land in (origin, spacing and directions above), for people:
   // "DICOM patient LPS (mm)", "NIfTI sform RAS", "grid (spacing and origin)", ...
   std::string frame = "grid (spacing and origin)";
-  std::string description;                       // optional
+  Space space = Space::kGrid;  // the same, for programs
+  std::string description;     // optional
 
   bool axis_aligned() const {
     return directions == std::array<std::array<double, 3>, 3>{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
@@ -59,6 +71,14 @@ absl::Status ValidateVolumeInfo(const VolumeInfo& info);
 inline constexpr double kMinSpacing = 1e-12, kMaxSpacing = 1e12;
 inline constexpr double kMaxAnisotropy = 1e4;
 inline constexpr double kMaxOriginVoxels = 1e6;
+
+// The same grid with its vertices in the frame `to`: LPS <-> RAS negates the world x and y
+// of the origin and of the directions (a half turn about z: nothing is mirrored, so the
+// triangles keep their winding); kVoxel puts vertex (i, j, k) at (i, j, k) (origin 0, unit
+// spacing, identity directions: E0 and distances are then in voxels). `to` == info.space
+// returns `info`. Refused (InvalidArgument): LPS or RAS from a grid in neither (kGrid,
+// kVoxel: nothing says where the patient is), and kGrid as a target.
+absl::StatusOr<VolumeInfo> InFrame(const VolumeInfo& info, Space to);
 
 // A sequential reader of z-slices 0, 1, ..., nz-1.
 class SliceSource {
@@ -82,6 +102,10 @@ class SliceSource {
     return absl::OkStatus();
   }
 };
+
+// `inner`'s voxels on the grid `info` (its nx, ny and dtype; nz follows `inner`'s, which
+// grows while an acquisition is followed): another spacing or frame for the same slices.
+std::unique_ptr<SliceSource> Regrid(std::unique_ptr<SliceSource> inner, VolumeInfo info);
 
 // The smallest and largest of n voxels of type t (host byte order, any alignment) as float,
 // NaNs skipped (infinities count); lo > hi when there is no other value. The same as

@@ -3,7 +3,9 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -12,9 +14,12 @@
 #include <utility>
 #include <vector>
 
+#include "tandem/geometry.h"
 #include "tandem/mesh_io.h"
 #include "tandem/metrics.h"
+#include "tandem/series.h"
 #include "tandem/topology.h"
+#include "tandem/volume_writers.h"
 #include "testutil/testutil.h"
 
 namespace tandem {
@@ -381,7 +386,7 @@ TEST_F(Cli, ExtremeSidecarGeometryIsRefusedNotAborted) {
     edited["raw_file"] = Path("s.raw");
     std::ofstream(Path("e.json")) << edited.dump();
     const Output o = RunTandem("extract --input " + Path("e.json") + " --out " + Path("e.ply"));
-    EXPECT_EQ(o.code, 2) << o.text;
+    EXPECT_EQ(o.code, 1) << o.text;  // the input's fault, not the command line's
     EXPECT_NE(o.text.find(c.text), std::string::npos) << o.text;
   }
 }
@@ -438,6 +443,142 @@ TEST_F(Cli, FoldersOfSlicesAreVolumesAndInfoShowsTheValues) {
   EXPECT_NE(o.text.find("directions"), std::string::npos) << o.text;
 }
 
+// Six times the signed volume a closed mesh encloses: positive when its triangles wind
+// counter-clockwise seen from outside (normals pointing out).
+double SignedVolume(const IndexedMesh& m) {
+  double v = 0;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    const Vec3 a = m.positions[m.indices[3 * t]], b = m.positions[m.indices[3 * t + 1]],
+               c = m.positions[m.indices[3 * t + 2]];
+    v += Dot(a, Cross(b, c));
+  }
+  return v;
+}
+
+// The largest distance between the vertices of two meshes of one vertex order (-1 when the
+// counts differ).
+double MaxVertexDistance(const IndexedMesh& a, const IndexedMesh& b) {
+  if (a.num_vertices() != b.num_vertices() || a.indices != b.indices) return -1;
+  double d = 0;
+  for (size_t v = 0; v < a.num_vertices(); ++v) d = std::max(d, Norm(a.positions[v] - b.positions[v]));
+  return d;
+}
+
+// --frame: a patient's NIfTI (RAS) and DICOM series (LPS) of one volume, written by the
+// project's writers with the same geometry in the patient, give one mesh when both are
+// asked for the same frame, and the files say which (SPACE=, as 3D Slicer reads it). In
+// voxel frame the vertices are the grid coordinates of the world mesh's. Normals point out
+// in every frame.
+TEST_F(Cli, FrameFlagPutsNiftiAndDicomMeshesInOneFrame) {
+  VolumeInfo info;
+  info.nx = 28;
+  info.ny = 24;
+  info.nz = 20;
+  info.dtype = DType::kInt16;
+  info.spacing = {0.75, 0.5, 2.0};
+  info.origin = {-120.5, 80.25, 30.0};
+  const double c = std::cos(0.5), s = std::sin(0.5);  // rotated in the slice plane
+  info.directions = {{{c, s, 0}, {-s, c, 0}, {0, 0, 1}}};
+  info.space = Space::kLPS;
+  // An off-centre ellipsoid (values 0..1000, iso 500): a flip or a shift shows.
+  const SliceFn slices = [&](int64_t k, std::vector<uint8_t>* bytes) {
+    bytes->resize(info.slice_bytes());
+    for (int64_t j = 0; j < info.ny; ++j) {
+      for (int64_t i = 0; i < info.nx; ++i) {
+        const double x = (i - 11.0) / 7.0, y = (j - 13.0) / 6.0, z = (k - 9.0) / 5.0;
+        const auto v = static_cast<int16_t>(std::clamp(1000.0 - 500.0 * (x * x + y * y + z * z), 0.0, 1000.0));
+        std::memcpy(bytes->data() + 2 * (j * info.nx + i), &v, 2);
+      }
+    }
+    return absl::OkStatus();
+  };
+  ASSERT_TRUE(WriteDicomSeries(Path("dcm"), info, slices).ok());
+  ASSERT_TRUE(WriteVolume(Path("v.nii"), info, slices).ok());  // turned into RAS
+  const std::string flags = " --iso 500 --error 0.1 --out ";
+  auto extract = [&](const std::string& input, const std::string& frame, const std::string& out) {
+    const Output o = RunTandem("extract --input " + Path(input) + flags + Path(out) +
+                               (frame.empty() ? "" : " --frame " + frame) + " --metrics " +
+                               Path(out + ".json"));
+    EXPECT_EQ(o.code, 0) << o.text;
+    absl::StatusOr<IndexedMesh> m = ReadMesh(Path(out));
+    EXPECT_TRUE(m.ok()) << m.status();
+    EXPECT_GT(m->num_triangles(), 100u);
+    EXPECT_GT(SignedVolume(*m), 0) << out << ": normals point in";
+    return *m;
+  };
+  // Their own frames: the NIfTI's vertices are the DICOM's with x and y negated.
+  const IndexedMesh dcm = extract("dcm", "", "dcm.ply");
+  const IndexedMesh nii = extract("v.nii", "", "nii.ply");
+  ASSERT_EQ(dcm.num_vertices(), nii.num_vertices());
+  double flipped = 0;
+  for (size_t v = 0; v < dcm.num_vertices(); ++v) {
+    const Vec3 a = dcm.positions[v], b = nii.positions[v];
+    flipped = std::max(flipped, Norm(Vec3{a.x + b.x, a.y + b.y, a.z - b.z}));
+  }
+  EXPECT_LT(flipped, 1e-3);
+  EXPECT_EQ(ReadJson(Path("dcm.ply.json"))["frame"], "LPS");
+  EXPECT_EQ(ReadJson(Path("nii.ply.json"))["frame"], "RAS");
+  EXPECT_EQ(ReadJson(Path("dcm.ply.json"))["frame_text"], "DICOM patient LPS (mm)");
+  // One frame asked of both: one mesh (float rounding: the NIfTI header holds float32).
+  for (const char* frame : {"lps", "ras"}) {
+    SCOPED_TRACE(frame);
+    const IndexedMesh a = extract("dcm", frame, std::string("dcm_") + frame + ".ply");
+    const IndexedMesh b = extract("v.nii", frame, std::string("nii_") + frame + ".ply");
+    const double d = MaxVertexDistance(a, b);
+    EXPECT_GE(d, 0) << "the meshes differ in their triangles";
+    EXPECT_LT(d, 1e-3);
+  }
+  EXPECT_LT(MaxVertexDistance(extract("v.nii", "lps", "n.ply"), dcm), 1e-3);
+  // Where 3D Slicer reads the frame: a PLY comment, the OBJ's first comment, the STL header.
+  extract("v.nii", "lps", "n.obj");
+  extract("dcm", "ras", "d.stl");
+  EXPECT_NE(testing::FileBytes(Path("n.ply")).find("\ncomment SPACE=LPS\n"), std::string::npos);
+  const std::string obj = testing::FileBytes(Path("n.obj"));
+  EXPECT_EQ(obj.find("# SPACE=LPS\n"), obj.find('\n') + 1) << obj.substr(0, 200);
+  EXPECT_NE(testing::FileBytes(Path("d.stl")).substr(0, 80).find("SPACE=RAS"), std::string::npos);
+  EXPECT_NE(testing::FileBytes(Path("dcm.ply")).find("comment SPACE=LPS"), std::string::npos);
+  EXPECT_NE(testing::FileBytes(Path("nii.ply")).find("comment SPACE=RAS"), std::string::npos);
+  // A GLB names it in asset.extras (glTF's own frame is another); a sealed .ply, written as
+  // its chunks come, says it as the welded one does.
+  ASSERT_EQ(RunTandem("extract --input " + Path("dcm") + flags + Path("d.glb") + " --frame ras").code, 0);
+  EXPECT_NE(testing::FileBytes(Path("d.glb")).find(R"("extras":{"frame":"RAS"})"), std::string::npos);
+  Output sealed = RunTandem("extract --input " + Path("v.nii") + flags + Path("sealed.ply") +
+                            " --seal --frame lps");
+  ASSERT_EQ(sealed.code, 0) << sealed.text;
+  EXPECT_NE(testing::FileBytes(Path("sealed.ply")).find("\ncomment SPACE=LPS\n"), std::string::npos);
+  // Voxel frame: the grid coordinates of the world mesh's vertices, no SPACE= (not a
+  // patient frame); E0 in voxels (0.1 of a step, not 0.1 mm).
+  extract("dcm", "voxel", "vox.ply");
+  EXPECT_EQ(testing::FileBytes(Path("vox.ply")).find("SPACE="), std::string::npos);
+  EXPECT_EQ(ReadJson(Path("vox.ply.json"))["frame"], "voxel");
+  EXPECT_EQ(ReadJson(Path("vox.ply.json"))["error_threshold"], 0.1);
+  Output o = RunTandem("extract --input " + Path("dcm") + " --iso 500 --no-simplify --out " +
+                       Path("full_vox.ply") + " --frame voxel");
+  ASSERT_EQ(o.code, 0) << o.text;
+  o = RunTandem("extract --input " + Path("dcm") + " --iso 500 --no-simplify --out " +
+                Path("full_lps.ply"));
+  ASSERT_EQ(o.code, 0) << o.text;
+  const IndexedMesh fv = *ReadMesh(Path("full_vox.ply")), fl = *ReadMesh(Path("full_lps.ply"));
+  ASSERT_EQ(fv.num_vertices(), fl.num_vertices());
+  EXPECT_EQ(fv.indices, fl.indices);
+  double off_grid = 0;
+  for (size_t v = 0; v < fv.num_vertices(); ++v) {
+    const Vec3 w = fl.positions[v] - Vec3{info.origin[0], info.origin[1], info.origin[2]};
+    for (int a = 0; a < 3; ++a) {
+      const Vec3 d{info.directions[a][0], info.directions[a][1], info.directions[a][2]};
+      off_grid = std::max(off_grid, std::abs(Dot(w, d) / info.spacing[a] - fv.positions[v][a]));
+    }
+  }
+  EXPECT_LT(off_grid, 1e-3);
+  EXPECT_GT(SignedVolume(fv), 0);
+  // A frame the input cannot give: a usage error naming the flag.
+  ASSERT_EQ(RunTandem("generate sphere --size 12 --out " + Path("s.json")).code, 0);
+  o = RunTandem("extract --input " + Path("s.json") + " --frame ras --out " + Path("s.ply"));
+  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_NE(o.text.find("--frame ras: the input's vertices are in grid"), std::string::npos)
+      << o.text;
+}
+
 // `tandem simulate --as dicom` plays what scanners, reconstructions and transfer tools do:
 // renumbered slices, a localizer series written first, files renamed into place. The
 // folder holds the same stack as a plain run (the same mesh; the localizer set aside with a
@@ -479,7 +620,7 @@ TEST_F(Cli, SimulatedDicomVariantsHoldThePlainSeries) {
     fs::copy_file(e.path(), Path("real/plain_" + e.path().filename().string()));
   }
   o = RunTandem("info --no-values --input " + Path("real"));
-  EXPECT_EQ(o.code, 2) << o.text;
+  EXPECT_EQ(o.code, 1) << o.text;
   EXPECT_NE(o.text.find("holds 2 DICOM slice stacks"), std::string::npos) << o.text;
   const size_t at = o.text.find("1.2.826.0.1.3680043.2.1143.");  // a generated series UID
   ASSERT_NE(at, std::string::npos) << o.text;
@@ -498,6 +639,41 @@ TEST_F(Cli, SimulatedDicomVariantsHoldThePlainSeries) {
   o = RunTandem("simulate --input " + Path("l.json") + " --as tiff --scout --out " + Path("y"));
   EXPECT_EQ(o.code, 2) << o.text;
   EXPECT_NE(o.text.find("go with --as dicom"), std::string::npos) << o.text;
+}
+
+// `tandem simulate --descending` plays a head-to-feet CT (the last slice of the volume first);
+// `tandem extract --follow` meshes it as it comes, head to feet: the full-resolution surface
+// of the finished folder (as many triangles and vertices), its grid's z axis turned round.
+TEST_F(Cli, SimulatedDescendingAcquisitionIsFollowedHeadToFeet) {
+  ASSERT_EQ(RunTandem("generate link --size 24 --out " + Path("l.json")).code, 0);
+  const std::string dir = Path("desc");
+  const Output o = RunCommand(
+      testing::BinPath("tandem") + " simulate --input " + Path("l.json") + " --out " + dir +
+      " --as dicom --rate 40 --descending --done-file DONE & " + testing::BinPath("tandem") +
+      " extract --follow --done-file DONE --input " + dir + " --iso 0 --no-simplify --out " +
+      Path("followed.ply") + " --metrics " + Path("followed.json") + " --frame voxel; wait");
+  ASSERT_EQ(o.code, 0) << o.text;
+  ASSERT_TRUE(std::filesystem::exists(Path("followed.ply"))) << o.text;
+  const Output f = RunTandem("extract --input " + dir + " --iso 0 --no-simplify --out " +
+                             Path("finished.ply") + " --metrics " + Path("finished.json") +
+                             " --frame voxel");
+  ASSERT_EQ(f.code, 0) << f.text;
+  const nlohmann::json a = ReadJson(Path("followed.json")), b = ReadJson(Path("finished.json"));
+  EXPECT_EQ(a["triangles_final"], b["triangles_final"]);
+  EXPECT_EQ(a["vertices_final"], b["vertices_final"]);
+  EXPECT_GT(a["triangles_final"].get<int64_t>(), 500);
+  // In voxel frame the followed grid runs the other way: slice k is the finished one's 23 - k.
+  const IndexedMesh fm = *ReadMesh(Path("followed.ply")), gm = *ReadMesh(Path("finished.ply"));
+  double lo = 1e9, hi = -1e9, glo = 1e9, ghi = -1e9;
+  for (const Vec3& p : fm.positions) lo = std::min(lo, p.z), hi = std::max(hi, p.z);
+  for (const Vec3& p : gm.positions) glo = std::min(glo, p.z), ghi = std::max(ghi, p.z);
+  EXPECT_NEAR(lo, 23 - ghi, 1e-3);
+  EXPECT_NEAR(hi, 23 - glo, 1e-3);
+  EXPECT_GT(SignedVolume(fm) * SignedVolume(gm), 0) << "normals point the same way";
+  const Output bad = RunTandem("simulate --input " + Path("l.json") + " --out " + Path("t") +
+                               " --as tiff --descending");
+  EXPECT_EQ(bad.code, 2) << bad.text;
+  EXPECT_NE(bad.text.find("--descending go with --as dicom"), std::string::npos) << bad.text;
 }
 
 // GDCM lives in a module loaded only when a DICOM file is read or written

@@ -13,6 +13,8 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
 #include <optional>
 #include <random>
 #include <thread>
@@ -20,10 +22,13 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "tandem/distance.h"
+#include "tandem/geometry.h"
 #include "tandem/run_session.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
+#include "tandem/topology.h"
 #include "tandem/zarr.h"
 #include "testutil/testutil.h"
 
@@ -321,6 +326,8 @@ struct Scanner {
   int ms = 40;
   std::string temp = "";
   int half_ms = 80;
+  // Head to feet: the last slice first (numbers counted in that order: 1 at the top).
+  bool descending = false;
   std::atomic<int64_t> written{0};
 
   void Run() {
@@ -329,15 +336,17 @@ struct Scanner {
     std::mt19937 rng(5);
     for (int64_t b = 0; b < v.info.nz; b += 4) {
       std::vector<int64_t> burst;
-      for (int64_t z = b; z < std::min(b + 4, v.info.nz); ++z) burst.push_back(z);
+      for (int64_t a = b; a < std::min(b + 4, v.info.nz); ++a) burst.push_back(a);
       std::shuffle(burst.begin(), burst.end(), rng);
-      for (int64_t z : burst) {
-        const std::string name = absl::StrCat("1.2.840.", (z * 7919) % 10007, ".dcm");
+      for (int64_t a : burst) {
+        const int64_t z = descending ? v.info.nz - 1 - a : a;
         const size_t k = static_cast<size_t>(z);
+        const int64_t number = numbers[static_cast<size_t>(a)];
+        const std::string name = absl::StrCat("1.2.840.", (z * 7919) % 10007, ".dcm");
         if (temp.empty()) {
-          EXPECT_TRUE(writer.Write(dir + "/" + name, z, v.slices[k], numbers[k]).ok());
+          EXPECT_TRUE(writer.Write(dir + "/" + name, z, v.slices[k], number).ok());
         } else {
-          EXPECT_TRUE(writer.Write(scratch + "/" + name, z, v.slices[k], numbers[k]).ok());
+          EXPECT_TRUE(writer.Write(scratch + "/" + name, z, v.slices[k], number).ok());
           const std::string bytes = testing::FileBytes(scratch + "/" + name);
           const std::string part =
               dir + "/" + (temp == "suffix" ? name + ".part" : "." + name + ".tmp");
@@ -370,7 +379,8 @@ struct Followed {
   std::unique_ptr<SliceSource> source;
 };
 
-Followed FollowScanner(Scanner& scanner, FollowOptions f = Fast()) {
+Followed FollowScanner(Scanner& scanner, FollowOptions f = Fast(),
+                       const SessionOptions& options = Options()) {
   Followed out;
   std::atomic<int64_t> first{-1};
   std::thread thread([&] { scanner.Run(); });
@@ -382,7 +392,9 @@ Followed FollowScanner(Scanner& scanner, FollowOptions f = Fast()) {
   auto followed = FollowVolume(scanner.dir, f);
   EXPECT_TRUE(followed.ok()) << followed.status();
   if (followed.ok()) {
-    out.mesh = MeshOf(**followed);
+    auto run = RunSession(**followed, options);
+    EXPECT_TRUE(run.ok()) << run.status();
+    if (run.ok()) out.mesh = (*run)->Snapshot();
     out.source = *std::move(followed);
   }
   thread.join();
@@ -433,6 +445,125 @@ INSTANTIATE_TEST_SUITE_P(Dicom, FollowNumbering,
                          ::testing::Values(Numbering::kOrdered, Numbering::kRandom,
                                            Numbering::kRestarted, Numbering::kReversed,
                                            Numbering::kEqual, Numbering::kAbsent),
+                         NumberingName);
+
+// Twice the signed volume a closed mesh encloses (the sign: which way its normals point).
+double SignedVolume(const IndexedMesh& m) {
+  double v = 0;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    v += Dot(m.positions[m.indices[3 * t]],
+             Cross(m.positions[m.indices[3 * t + 1]], m.positions[m.indices[3 * t + 2]]));
+  }
+  return v;
+}
+
+// The farthest a vertex of `b` lies from the nearest vertex of `a` (one-sided; both ways: the
+// same vertex sets up to that distance).
+double FarthestVertex(const IndexedMesh& a, const IndexedMesh& b) {
+  constexpr double kCell = 1e-2;  // larger than any rounding, smaller than any spacing
+  std::map<std::array<int64_t, 3>, std::vector<Vec3>> cells;
+  auto cell = [](const Vec3& p, int dx, int dy, int dz) {
+    return std::array<int64_t, 3>{std::llround(std::floor(p.x / kCell)) + dx,
+                                  std::llround(std::floor(p.y / kCell)) + dy,
+                                  std::llround(std::floor(p.z / kCell)) + dz};
+  };
+  for (const Vec3& p : a.positions) cells[cell(p, 0, 0, 0)].push_back(p);
+  double worst = 0;
+  for (const Vec3& p : b.positions) {
+    double best = std::numeric_limits<double>::infinity();
+    for (int dx = -1; dx <= 1; ++dx) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dz = -1; dz <= 1; ++dz) {
+          auto it = cells.find(cell(p, dx, dy, dz));
+          if (it == cells.end()) continue;
+          for (const Vec3& q : it->second) best = std::min(best, Norm(p - q));
+        }
+      }
+    }
+    worst = std::max(worst, best);
+  }
+  return worst;
+}
+
+class FollowDescending : public ::testing::TestWithParam<Numbering> {};
+
+// Many CT protocols acquire head to feet: positions decreasing along the slice normal. The
+// followed series grows that way (its grid's z axis against the normal, its origin at the
+// first slice acquired), its first slice goes while most files are still to come, and its
+// mesh is the finished folder's surface (read from the lowest slice up): at full resolution
+// the same vertices (up to float rounding), as many triangles, normals out the same way
+// (marching cubes splits some cubes' quads along the other diagonal when the grid runs the
+// other way); simplified, the same surface swept the other way, as close to the full
+// resolution as the finished folder's mesh is.
+TEST_P(FollowDescending, GrowsHeadToFeetWithTheFinishedFoldersSurface) {
+  const Volume v = Link(38);  // 32 slices
+  VolumeInfo placed = v.info;
+  placed.origin = {-40, 12, 300};
+  auto writer = DicomSliceWriter::Create(placed, DicomFor(v));
+  ASSERT_TRUE(writer.ok()) << writer.status();
+  Scanner scanner{v, *writer, testing::MakeTempDir() + "/ct", Numbers(GetParam(), v.info.nz),
+                  /*ms=*/50};
+  scanner.descending = true;
+  std::atomic<int64_t> first{-1};
+  std::thread thread([&] { scanner.Run(); });
+  FollowOptions f = Fast();
+  f.done_file = "DONE";
+  f.progress = [&](int64_t, int64_t read) {
+    if (read == 1) first = scanner.written.load();
+  };
+  auto followed = FollowVolume(scanner.dir, f);
+  ASSERT_TRUE(followed.ok()) << followed.status();
+  SessionOptions full = Options();
+  full.schedule = Schedule::kNone;
+  auto live = RunSessions(**followed, {full, Options()});
+  thread.join();
+  ASSERT_TRUE(live.ok()) << live.status();
+  EXPECT_GE(first.load(), 3);
+  EXPECT_LE(first.load(), v.info.nz / 2) << "the first slice waited for most files";
+  const VolumeInfo& grid = (*followed)->info();
+  EXPECT_EQ((*followed)->next_slice(), v.info.nz);
+  const double top = 300 + (v.info.nz - 1) * v.info.spacing[2];
+  EXPECT_NEAR(grid.origin[2], top, 1e-9) << "the origin is the first slice acquired";
+  EXPECT_EQ(grid.directions[2], (std::array<double, 3>{0, 0, -1}));
+  EXPECT_EQ(grid.spacing, v.info.spacing);
+
+  auto finished = OpenVolume(scanner.dir);
+  ASSERT_TRUE(finished.ok()) << finished.status();
+  EXPECT_EQ((*finished)->info().directions[2], (std::array<double, 3>{0, 0, 1}));
+  auto read = RunSessions(**finished, {full, Options()});
+  ASSERT_TRUE(read.ok()) << read.status();
+  const IndexedMesh a = (*read)[0]->Snapshot(), b = (*live)[0]->Snapshot();
+  ASSERT_GT(a.num_triangles(), 1000u);
+  EXPECT_EQ(a.num_triangles(), b.num_triangles());
+  EXPECT_EQ(a.num_vertices(), b.num_vertices());
+  // (The engine's float32 vertices, placed from the other end of each z edge.)
+  EXPECT_LT(FarthestVertex(a, b), 1e-3 * v.info.spacing[0]);
+  EXPECT_LT(FarthestVertex(b, a), 1e-3 * v.info.spacing[0]);
+  EXPECT_NEAR(SignedVolume(b) / SignedVolume(a), 1.0, 1e-3) << "normals point the same way";
+  auto same_topology = [](const IndexedMesh& x, const IndexedMesh& y) {
+    const TopologyReport tx = AnalyzeTopology(x), ty = AnalyzeTopology(y);
+    EXPECT_TRUE(ty.IsManifold());
+    EXPECT_EQ(tx.euler, ty.euler);
+    EXPECT_EQ(tx.components, ty.components);
+    EXPECT_EQ(tx.boundary_edges > 0, ty.boundary_edges > 0);
+  };
+  same_topology(a, b);
+  const Distances apart = MeasureDistances(a, b);
+  EXPECT_LT(apart.linf_max, 0.25 * v.info.spacing[0]);  // the other diagonal of some quads
+  // Simplified: the other sweep's simplification of the same surface, as good.
+  const IndexedMesh sa = (*read)[1]->Snapshot(), sb = (*live)[1]->Snapshot();
+  same_topology(sa, sb);
+  EXPECT_NEAR(static_cast<double>(sb.num_triangles()) / static_cast<double>(sa.num_triangles()),
+              1.0, 0.15);
+  const double finished_off = MeasureDistances(a, sa).linf_max;
+  const double followed_off = MeasureDistances(a, sb).linf_max;
+  EXPECT_LT(followed_off, 1.5 * finished_off + 0.1 * Options().error);
+  EXPECT_NEAR(SignedVolume(sb) / SignedVolume(sa), 1.0, 0.02);
+}
+
+INSTANTIATE_TEST_SUITE_P(Dicom, FollowDescending,
+                         ::testing::Values(Numbering::kOrdered, Numbering::kRandom,
+                                           Numbering::kAbsent),
                          NumberingName);
 
 // A scan of 18 slices and its DICOM writer, for what real scanners write.

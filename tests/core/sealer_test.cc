@@ -284,6 +284,48 @@ class PeriodicSource final : public SliceSource {
   int64_t k_ = 0;
 };
 
+// The chunked writer holds the vertices still open and the triangles waiting for them, not
+// the mesh: written from a volume four times deeper (the same slices repeated), it needs no
+// more memory than from the shallow one (a table indexed by global id would need 4x).
+TEST(Sealing, ChunkedWriterMemoryFollowsTheFrontNotTheDepth) {
+  const std::string dir = ::testing::TempDir();
+  size_t peak[2] = {0, 0};
+  int64_t vertices[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    PeriodicSource src(64, deep ? 192 : 48);
+    SessionOptions o = Options(Schedule::kTandemLag, 0.2, true);
+    o.parts = 2;
+    o.seam_settle_slices = 32;  // the seams' hold stops growing within the shallow volume
+    auto s = TandemSession::Create(src.info(), o);
+    ASSERT_TRUE(s.ok()) << s.status();
+    const std::string path = dir + "/depth" + std::to_string(deep) + ".ply";
+    auto writer = ChunkedMeshWriter::Open(path);
+    ASSERT_TRUE(writer.ok()) << writer.status();
+    auto take = [&] {
+      SealedChunk c;
+      while ((*s)->TakeSealed(&c)) {
+        ASSERT_TRUE((*writer)->Add(c).ok());
+        peak[deep] = std::max(peak[deep], (*writer)->MemoryBytes());
+      }
+    };
+    std::vector<uint8_t> bytes;
+    while (src.ReadSlice(&bytes).ok()) {
+      ASSERT_TRUE((*s)->AddSliceBytes(src.info().dtype, bytes.data()).ok());
+      take();
+    }
+    ASSERT_TRUE((*s)->Finish().ok());
+    take();
+    ASSERT_TRUE((*writer)->Finish().ok());
+    vertices[deep] = (*writer)->vertices();
+    auto read = ReadMesh(path);
+    ASSERT_TRUE(read.ok()) << read.status();
+    EXPECT_EQ(static_cast<int64_t>(read->num_vertices()), vertices[deep]);
+    EXPECT_TRUE(AnalyzeTopology(*read).IsManifold());
+  }
+  EXPECT_GT(vertices[1], 3 * vertices[0]);
+  EXPECT_LE(peak[1], peak[0] * 5 / 4) << peak[0] << " bytes at 48 slices, " << peak[1] << " at 192";
+}
+
 // Sealed chunks are mended as the final mesh is without sealing (degenerate.h), each as it is
 // sealed: on the quantised tangles, whose values equal to the iso-value leave zero-area
 // triangles that the link condition must keep, the welded chunks hold none in 6 tangles (13

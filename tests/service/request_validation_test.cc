@@ -659,6 +659,7 @@ TEST(Wire, MetricsReportRoundTrip) {
   wire::ReportToProto(report, &proto);
   MetricsReport back = wire::ReportFromProto(proto);
   back.input = report.input;  // not on the wire: the client knows its file name
+  back.frame_text = report.frame_text;  // nor the frame's description (the frame travels)
   EXPECT_EQ(ReportToJson(back), ReportToJson(report));
 }
 
@@ -757,13 +758,14 @@ std::map<std::string, std::string> Fields(const MetricsReport& r) {
 TEST(WireReport, TableNamesFinalMetricsFields) {
   const absl::Status table = wire::CheckReportFields();
   EXPECT_TRUE(table.ok()) << table;
-  // Only the input's name and frame stay off the wire: the client knows them itself.
+  // Only the input's name and the frame's description stay off the wire: the client knows
+  // them itself (the frame itself travels: a watcher writes it into its mesh files).
   std::set<std::string> local_only;
   const MetricsReport r;
   VisitReportFields(r, [&](const char* key, const char* wire, const auto&, Written) {
     if (wire == nullptr) local_only.insert(key);
   });
-  EXPECT_EQ(local_only, (std::set<std::string>{"/input", "/frame"}));
+  EXPECT_EQ(local_only, (std::set<std::string>{"/input", "/frame_text"}));
 
   // The check refuses a name FinalMetrics lacks, and a field of another type than the member.
   const int64_t count = 0;
@@ -799,7 +801,7 @@ TEST(WireReport, CarriesEveryFieldOfTheReportTable) {
   wire::ReportToProto(want, &m);
   const std::map<std::string, std::string> got = Fields(wire::ReportFromProto(m));
   for (const auto& [key, value] : Fields(want)) {
-    if (key == "/input" || key == "/frame") {
+    if (key == "/input" || key == "/frame_text") {
       EXPECT_EQ(got.at(key), "") << key << " is not on the wire";
     } else {
       EXPECT_EQ(got.at(key), value) << key << " is not carried by FinalMetrics";

@@ -181,18 +181,18 @@ TEST_F(TlsTest, BadTlsConfigurationStopsTheServerWithAMessage) {
       << only_cert.err;
   RunResult missing = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0", "--tls-cert",
                                   *dir_ + "/absent.crt", "--tls-key", pki_->server_key});
-  EXPECT_EQ(missing.exit_code, 2);
+  EXPECT_EQ(missing.exit_code, 1);  // a file, not the command line
   EXPECT_NE(missing.err.find("absent.crt"), std::string::npos) << missing.err;
   RunResult not_pem = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0", "--tls-cert",
                                   *tokens_file_, "--tls-key", pki_->server_key});
-  EXPECT_EQ(not_pem.exit_code, 2);
+  EXPECT_EQ(not_pem.exit_code, 1);  // a file, not the command line
   EXPECT_NE(not_pem.err.find("not a PEM file"), std::string::npos) << not_pem.err;
   // The CA's key with the server's certificate: before the check, gRPC logged "Invalid
   // private key" and the server only guessed at the cause.
   RunResult wrong_key = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
                                     "--tls-cert", pki_->server_crt, "--tls-key",
                                     *dir_ + "/ca.key"});
-  EXPECT_EQ(wrong_key.exit_code, 2);
+  EXPECT_EQ(wrong_key.exit_code, 1);  // a file, not the command line
   EXPECT_NE(wrong_key.err.find("--tls-key " + *dir_ + "/ca.key is not the private key of the "
                                "certificate in --tls-cert " + pki_->server_crt),
             std::string::npos)
@@ -200,13 +200,13 @@ TEST_F(TlsTest, BadTlsConfigurationStopsTheServerWithAMessage) {
   RunResult cert_as_key = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
                                       "--tls-cert", pki_->server_crt, "--tls-key",
                                       pki_->server_crt});
-  EXPECT_EQ(cert_as_key.exit_code, 2);
+  EXPECT_EQ(cert_as_key.exit_code, 1);  // a file, not the command line
   EXPECT_NE(cert_as_key.err.find("no unencrypted PEM private key"), std::string::npos)
       << cert_as_key.err;
   RunResult key_as_cert = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0",
                                       "--tls-cert", pki_->server_key, "--tls-key",
                                       pki_->server_key});
-  EXPECT_EQ(key_as_cert.exit_code, 2);
+  EXPECT_EQ(key_as_cert.exit_code, 1);  // a file, not the command line
   EXPECT_NE(key_as_cert.err.find("no PEM certificate"), std::string::npos) << key_as_cert.err;
   RunResult bad_ca = Client({"info", "--server", "127.0.0.1:1", "--tls-ca", *tokens_file_});
   EXPECT_EQ(bad_ca.exit_code, 1);
@@ -417,11 +417,11 @@ TEST_F(AuthTest, BadTokensFileStopsTheServer) {
   std::ofstream(empty) << "# no tokens yet\n\n";
   RunResult r = RunProcess(
       {BinPath("tandem-server"), "--listen", "127.0.0.1:0", "--auth-tokens-file", empty});
-  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.exit_code, 1);  // the file's content
   EXPECT_NE(r.err.find("no token in the file"), std::string::npos) << r.err;
   RunResult missing = RunProcess({BinPath("tandem-server"), "--listen", "127.0.0.1:0"}, 60,
                                  {"TANDEM_AUTH_TOKENS_FILE=" + *dir_ + "/absent_tokens.txt"});
-  EXPECT_EQ(missing.exit_code, 2);
+  EXPECT_EQ(missing.exit_code, 1);
   EXPECT_NE(missing.err.find("absent_tokens.txt"), std::string::npos) << missing.err;
 }
 
