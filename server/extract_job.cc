@@ -17,6 +17,7 @@
 #include "tandem/distance.h"
 #include "tandem/executor.h"
 #include "tandem/report.h"
+#include "tandem/run_session.h"
 
 namespace tandem::server {
 namespace {
@@ -129,12 +130,11 @@ std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count,
 }
 
 // While a session finishes (its caller's thread inside Finish), posts the last Progress
-// again every kFinishingEvery seconds with the finishing fields: the client's status line
-// after the last slice. The session's other observers wait for Finish; FinishProgress alone
-// is read.
+// again every kFinishingEvery seconds (the CLI's period, so a short finish shows in both) with
+// the finishing fields: the client's status line after the last slice. The session's other
+// observers wait for Finish; FinishProgress alone is read.
 class FinishingTicker {
  public:
-  static constexpr double kFinishingEvery = 0.5;
   FinishingTicker(const TandemSession& session, v1::Progress last, JobSink* sink)
       : thread_([this, &session, last = std::move(last), sink] {
           std::unique_lock<std::mutex> lock(mu_);

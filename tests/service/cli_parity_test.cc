@@ -286,7 +286,7 @@ TEST(CliParity, TheFrameTravelsWithTheStreamedMesh) {
 TEST(CliParity, AStatusLineWithAnEstimateWhileTheSessionFinishes) {
   const std::string dir = MakeTempDir();
   absl::StatusOr<std::string> input =
-      WriteSyntheticVolume(dir, "g", MakeSyntheticSource(Shape::kGyroid, 176, 176, 176));
+      WriteSyntheticVolume(dir, "g", MakeSyntheticSource(Shape::kGyroid, 224, 224, 224));
   ASSERT_TRUE(input.ok()) << input.status();
   absl::StatusOr<std::unique_ptr<TestServer>> server = TestServer::Start();
   ASSERT_TRUE(server.ok()) << server.status();
