@@ -405,7 +405,12 @@ TEST(LimitsTest, NoiseIsRefusedWhileItIsExtractedAndItsSlotsComeFreeAtOnce) {
     EXPECT_NE(err.find("RESOURCE_EXHAUSTED: session memory budget exceeded: this stream needs "),
               std::string::npos)
         << err;
-    EXPECT_NE(err.find(" while extracting slice "), std::string::npos) << err;
+    // Refused within its first layers, by the check inside extraction or, when the slices
+    // queued ahead of a busy executor already fill the budget, by the one as a slice arrives.
+    std::smatch at;
+    ASSERT_TRUE(std::regex_search(err, at, std::regex(" while (extracting|adding) slice ([0-9]+)")))
+        << err;
+    EXPECT_LT(std::stoi(at[2].str()), 4) << err;
     EXPECT_NE(err.find("over this server's per-session budget of 16.0 MiB (tandem-server "
                        "--session-memory-mb)"),
               std::string::npos)
