@@ -255,9 +255,8 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
     if (far | move.collapses | move.flips) {
       // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
-      // point) has no orientation or plane to keep: the contraction is not refused for it.
-      // (Until stop 35 only an exactly zero area was exempt, and the shared integer scans
-      // kept 18 to 136 zero-area triangles.)
+      // point) has no orientation or plane to keep: the contraction is not refused for it
+      // (exempting only an exactly zero area left zero-area triangles on integer scans).
       p[corner] = from;
       if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
       // One with an offset edge stands for such a triangle: it may turn over or leave its

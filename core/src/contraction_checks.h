@@ -22,8 +22,8 @@ namespace tandem {
 // implementations of one test, checked against each other and against the definition in
 // contraction_checks_test.cc: small fans (at most kFanMax triangles at a and at b, nearly
 // every call) gather the neighbours into stack arrays; larger ones tally them in a table
-// sized to the two fans (LinkScratch), not to the mesh: a mark per vertex id cost 12 bytes
-// a vertex for the few fans past kFanMax (docs/decisions.md, stop 55).
+// sized to the two fans (LinkScratch), not to the mesh, since a mark per vertex id would cost
+// every vertex memory for the few fans past kFanMax (docs/decisions.md 14).
 inline constexpr size_t kFanMax = 16;
 struct LinkScratch {
   struct Mark {  // per neighbour x of a or b: tallies of edges (a|b, x)

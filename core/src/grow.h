@@ -12,7 +12,7 @@
 // double, below), and a caller
 // that knows how much is coming (a layer's commit) reserves it exactly. The biggest arrays are
 // PodArrays (pod_array.h), whose large blocks grow in place without the copy, and whose count
-// is the pages they wrote (since stop 54): those double (ReserveFor).
+// is the pages they wrote (docs/decisions.md 7): those double (ReserveFor).
 #ifndef TANDEM_GROW_H_
 #define TANDEM_GROW_H_
 

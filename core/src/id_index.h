@@ -3,9 +3,9 @@
 // the few vertex ids of a store that have one (the sealer's frozen vertices).
 //
 // The sag correction of a Seal looks up, for every corner of the triangles it checks, whether
-// that corner is one of the few thousand vertices it moves. A 4-byte slot per vertex id answered
-// that at 3.6 MiB a part of a 2048² stream, held between Seals for lists of a few thousand
-// (docs/decisions.md, stop 56). A short list goes into an open-addressing table at most half
+// that corner is one of the few thousand vertices it moves. A 4-byte slot per vertex id would
+// hold memory for the whole part between Seals for lists of a few thousand (docs/decisions.md
+// 18). A short list goes into an open-addressing table at most half
 // full (an IdMap, 8 bytes an entry, so 16 to 32 bytes a listed vertex); a list of a quarter of
 // the ids or more (the final pass over the whole mesh) takes the slot per id, which is then
 // the smaller.

@@ -191,8 +191,8 @@ class LayerExtractor {
   float inside_from_ = 0;  // for finite v: Rel(v) >= 0 iff v >= inside_from_
   // A slice's values in its own type: floats for float input, and 16 bits for 8- and 16-bit
   // integers (a 16-bit value's bits; a byte widened), read back as the float it converts to
-  // exactly. Floats for every type doubled the planes of a 16-bit stream: 16 MiB of a
-  // 2048² session's 32 (docs/decisions.md, stop 56).
+  // exactly, since floats for every type would double the planes of a 16-bit stream
+  // (docs/decisions.md 18).
   struct Plane {
     DType dtype = DType::kFloat32;
     std::vector<float> f;      // kFloat32

@@ -11,8 +11,8 @@ namespace tandem {
 // class's free list holds offset / size, and a freed slot whose twin (the other half of the
 // slot of class k + 1 they make) is free too merges with it. Without merging, the slots a
 // contraction's survivor left as its star grew (and the dead vertices' smallest ones) stayed
-// in their own class: on the closed period-32 2048² gyroid a third of the pool was free slots
-// of the wrong size (docs/decisions.md, stop 56).
+// in their own class, and dense surfaces left much of the pool as free slots of the wrong
+// size (docs/decisions.md 18).
 uint32_t MeshStore::AllocSlot(uint8_t size_class) {
   if (!free_slots_[size_class].empty()) {
     return free_slots_[size_class].TakeLowest() * (kMinSlot << size_class);

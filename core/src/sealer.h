@@ -110,9 +110,8 @@ class Sealer {
   // vertex's global id (none before its first sealed triangle) and the pending chunk it was
   // last added to; and the slot of the normal it froze with, which it keeps while it is in
   // the store (its unfrozen neighbours' sag reads it; theirs are found again at each Seal and
-  // let go). By vertex id, in arrays, they took 12 bytes an id, 10.6 MiB a part at the
-  // closing cap of a closed 2048² gyroid, for a few thousand frozen vertices (stop 56); as
-  // std::vectors that doubled, 43 MiB (stop 52); normals by id, 22 MiB (stop 53).
+  // let go). Kept per listed vertex, not by vertex id, since arrays by id would cost every
+  // vertex of the part for a few thousand frozen ones (docs/decisions.md 18).
   struct Kept {
     uint32_t id = kInvalid;
     uint32_t stamp = 0;

@@ -551,8 +551,8 @@ void Simplifier::ActivateAndSimplify(double front) {
       waiting = held;
     }
   }
-  // Freed (PodArrays; `= {}` on a std::vector keeps its capacity: until stop 46 the release
-  // and the ready marks stayed allocated between steps).
+  // Freed, not cleared (`= {}` on a std::vector keeps its capacity), so the release and
+  // the ready marks do not stay allocated between steps.
   released_ = {};
   ready_ = {};
   std::vector<PodArray<WEdge>>().swap(groups_);

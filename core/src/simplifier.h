@@ -84,8 +84,8 @@ class Simplifier {
   // a vertex's own triangles passes through it, so until it moves its quadric is its matrix
   // A = Σ w n nᵀ alone (b = -A v, c = vᵀ A v, w = trace A): 48 bytes a vertex, not 88, for
   // the full-resolution band the time lag holds. A contraction's survivor, or a vertex about
-  // to move, keeps its quadric in full (Keep; docs/decisions.md, stop 55): b, c and W beside
-  // its matrix, 40 bytes more (stop 61; a whole quadric's 88 until then).
+  // to move, keeps its quadric in full (Keep; docs/decisions.md 17): b, c and W beside
+  // its matrix.
   void AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts);
   // DELAY: puts the edges of these triangles into W (or Q for kImmediate), each edge once.
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
@@ -414,9 +414,8 @@ class Simplifier {
   std::vector<RefusedEdge> refused_;
   WaitingQueue w_;
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
-  // (empty otherwise: every vertex ready; 16 bits, a release has at most 65,535 chunks: 2 MiB
-  // less a part at a 2048² cap, stop 56); the edges of each chunk still to come; the chunk
-  // being simplified.
+  // (empty otherwise: every vertex ready; 16 bits, since a release has at most 65,535
+  // chunks); the edges of each chunk still to come; the chunk being simplified.
   PodArray<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
   // A chunked release in tiles along a Z-order curve (SimplifierOptions::tile_x, tile_y).
   void OrderRelease();
