@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # A/B of two `tandem` builds on a noisy shared machine: the two binaries run side by side, one
 # core each (taskset), `--parts 1`, so that both see the same load; every round is four runs,
-# each binary on each core and each started first (on the 2-core VM of stop 49 core 1 ran
-# ~13 % faster than core 0, and the binary started second ~5 % faster: a single ordering
-# hid, or made up, changes of that size). Prints each run's B/A user time and their
+# each binary on each core and each started first (on a shared VM one core and the binary
+# started second can each run several % faster: a single ordering hides, or makes up,
+# changes of that size). Prints each run's B/A user time and their
 # geometric mean; outputs are not compared (tests/bench/same_outputs.sh does that).
 #   bash tests/bench/ab_pair.sh OLD/tandem NEW/tandem VOLUME [ROUNDS [extract flags...]]
 # Default 2 rounds (8 runs), `--error 0.2`. Needs two free cores; the machine otherwise idle.

@@ -438,7 +438,7 @@ def write_report(path, results, meta, plots):
                 if p:
                     bad.append(f"- {res['name']} E0 {pt['e0']:g} {name}: {'; '.join(p)}")
                 # mesh_check's degenerate_triangles are repeated indices; zero_area_triangles
-                # (since stop 59) have three corners and no area as written.
+                # have three corners and no area as written.
                 topo = run.get("topology", {})
                 if "zero_area_triangles" not in topo:
                     uncounted += 1

@@ -297,10 +297,9 @@ TEST(MeshStore, StarStampsChangeWithTheTrianglesAroundAVertex) {
 
 // What the store counts follows its use, not its capacity: past 65,536 vertices a store counted
 // by capacity that doubled would read 131,072 records and a pool of a million ids, 1.8x its
-// use. Its arrays grew by an eighth until stop 61; they double now (grow.h: PodArrays), and
-// MemoryBytes counts a mapped array's pages written (pod_array.h). A smallest slot holds 6
-// triangle ids (8 before stop 55), and a triangle takes its 12 bytes and a bit (a byte more
-// before).
+// use. Its arrays double (grow.h: PodArrays), and MemoryBytes counts a mapped array's pages
+// written (pod_array.h). A smallest slot holds 6 triangle ids, and a triangle takes its 12
+// bytes and a bit.
 TEST(MeshStore, CountsItsUseAndReservesWhatALayerBrings) {
   constexpr size_t kVertexBytes = 64 + 6 * sizeof(TriId);  // a record and a smallest slot
   constexpr size_t n = 70000;
@@ -409,10 +408,8 @@ TEST(Extraction, LayerEdgesQueueEachNewEdgeOnce) {
 // full resolution into the next step, and what the session counts for it then (the server's
 // budget, MemoryBytes) is about 125 bytes a held triangle: the store's records, the planes'
 // matrices (a quadric in full only once a vertex moves: simplifier.h), W's 16-byte edges,
-// the plane caches and evaluation batches. 151 before stop 55 (every quadric in full, a
-// smallest incidence slot of 8 ids, a byte for a triangle's flag); before grow.h, WEdge and
-// the staging's trim: 300 (arrays at the next power of two, 24-byte W entries, 4 MiB of
-// staging kept).
+// the plane caches and evaluation batches; arrays at the next power of two, a quadric in
+// full per vertex or staging kept between layers would each show here.
 TEST(Extraction, AHeldCapCostsItsSizeNotTheNextPowerOfTwo) {
   constexpr int n = 256;
   VolumeInfo grid;
@@ -583,8 +580,8 @@ TEST(Extraction, PlaneCachesKeepIntegerSlicesInSixteenBits) {
 
 // A freed incidence slot merges with its free twin, so the slots that dead vertices leave
 // serve the larger stars of the survivors: here half the vertices die in adjacent pairs and
-// the others grow past 6 triangles, and the pool does not grow (it grew by half, 12 ids for
-// each survivor, when each class kept its own free slots: stop 56).
+// the others grow past 6 triangles, and the pool does not grow (with a free list per class
+// it would grow by half: 12 ids for each survivor).
 TEST(MeshStore, FreedSlotsMergeToServeLargerStars) {
   constexpr VertexId n = 40000;
   MeshStore store;
@@ -837,9 +834,9 @@ TEST(Simplification, TidyingLeavesNoZeroAreaTriangleOnAQuantisedTangle) {
   }
   EXPECT_GT(hits, 1000);  // the case this is about
   EXPECT_EQ(before_total, 0);
-  // 25 were left before stop 36, then 2 on edges of the grid's box (a lone triangle, and a
-  // boundary triangle with its three corners on the edge's line), where no step within both
-  // faces parts them: now a corner may step off one face into the box (degenerate.h).
+  // The hard cases are on edges of the grid's box (a lone triangle, and a boundary triangle
+  // with its three corners on the edge's line), where no step within both faces parts them:
+  // a corner may step off one face into the box (degenerate.h).
   EXPECT_EQ(after_total, 0);
 }
 

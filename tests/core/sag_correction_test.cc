@@ -175,8 +175,7 @@ TEST(SagCorrection, MovesAConvexFanOutwardWithinTheLimits) {
 
 // A Seal corrects the few thousand vertices it freezes on a store of a million ids: the
 // scratch that says which corners move is sized to that list, not to the ids (a 4-byte slot
-// per id before stop 56: 800 KB here, 3.6 MiB a part of a 2048² stream). The result is the
-// same wherever the ids are.
+// per id would cost the whole store's ids). The result is the same wherever the ids are.
 TEST(SagCorrection, ScratchIsSizedToTheListNotToTheIds) {
   Dome near(0.3), far(0.3, 0, 200000);
   std::vector<VertexId> moved_near, moved_far;

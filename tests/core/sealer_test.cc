@@ -530,9 +530,7 @@ TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
 
 // An unfrozen vertex costs the sealer its place in the unfrozen list (4 bytes, doubled) and
 // nothing else: the id, chunk stamp and normal's slot are kept for the frozen vertices still
-// in the store only (IdMap). Before stop 56 the sealer kept those 12 bytes for every vertex
-// id, grown by an eighth (25.6 bytes a vertex at worst here; as std::vectors that doubled,
-// 43 MiB a part of a closed 2048² period-32 gyroid's sealed stream). A sealed vertex's id is
+// in the store only (IdMap), not 12 bytes for every vertex id. A sealed vertex's id is
 // retired and forgotten with it.
 TEST(Sealing, UnfrozenVerticesCostOnlyTheirPlaceInTheList) {
   MeshStore store;
@@ -723,8 +721,8 @@ TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
       // 0-4, all of them a strip along the box's edge at the first slice, next to a seam:
       // two settled seam copies at one point of the box's edge, every triangle around them
       // degenerate, and the other slab holding only a sliver there. With the facing taken a
-      // few rings out and the other copy's sliver facing as this slab does (stop 59), none;
-      // the same at the default settling, 512 slices (72 x 40 x 576; 4 before).
+      // few rings out and the other copy's sliver facing as this slab does, none; the same
+      // at the default settling, 512 slices (72 x 40 x 576).
       const int64_t degenerate_plain = CountDegenerate(plain.mesh);
       const int64_t degenerate_sealed = CountDegenerate(sealed.mesh);
       EXPECT_LE(degenerate_sealed, degenerate_plain) << what;

@@ -1236,8 +1236,8 @@ TEST(Parts, AutomaticAndClampedCounts) {
     return s.ok() ? (*s)->num_parts() : -1;
   };
   EXPECT_EQ(parts_of(80, 0), 1);  // slabs of 40 columns or more: narrower seams cost more
-  EXPECT_EQ(parts_of(81, 0), 2);  // both cores from 81 wide: the MNI T1 (91) 2x faster (stop 64)
-  EXPECT_EQ(parts_of(128, 0), 2);  // and on a 128³ volume: 1.4-1.7x faster (stop 42)
+  EXPECT_EQ(parts_of(81, 0), 2);  // both cores from 81 wide (docs/decisions.md 40)
+  EXPECT_EQ(parts_of(128, 0), 2);  // and on a 128³ volume (docs/decisions.md 39)
   EXPECT_EQ(parts_of(255, 0), 2);
   EXPECT_EQ(parts_of(256, 0), 4);
   EXPECT_EQ(parts_of(64, 8), 3);  // at least 16 cube columns each

@@ -311,8 +311,8 @@ std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options,
 // After every message the job checks its budget, posts progress, and the server's worker
 // reads its memory and triangles. A split session runs its slabs' steps behind AddSlice:
 // waiting for them there drained that pipeline every message and made the worker compute
-// beside the executor's threads (a 512² x 64 dense gyroid took 20 % longer through the server
-// than with these looks not waiting; stop 48). With an executor of no threads a queued step
+// beside the executor's threads (a dense stream took longer through the server than the CLI;
+// docs/decisions.md 33). With an executor of no threads a queued step
 // runs only when someone waits: three slices in (the ring holds four), none has, yet the
 // mesh at the end is the local session's.
 TEST(ExtractJob, BetweenSlicesTheJobDoesNotWaitForTheSessionsSteps) {

@@ -564,7 +564,7 @@ TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
     });
     // Wait until the server holds the session before waiting for it to go: polled too early,
     // active_sessions() == 0 held before the stream was accepted, the test went on to read
-    // everything and the stream ended OK (a CI run of stop 62).
+    // everything and the stream ended OK.
     v1::Counters k;
     EXPECT_TRUE(WaitFor(
         s, 10,
