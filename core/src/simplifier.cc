@@ -11,64 +11,20 @@
 namespace tandem {
 
 Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
-    : store_(store), opt_(options), q_(options.error) {
-}
+    : store_(store), opt_(options), quadrics_(store, options.check_quadrics), q_(options.error) {}
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
-  if (planes_.size() >= n) return;
-  GrowTo(planes_, n);
+  if (quadrics_.size() >= n) return;
+  quadrics_.EnsureCapacity(n);
   GrowTo(version_, n);
-  if (opt_.check_quadrics) GrowTo(eager_, n);
-}
-
-void Simplifier::CheckQuadric(VertexId v, const Quadric& q) const {
-  // The sum kept in full and this one: the same planes, the same error (to rounding) near v.
-  const Quadric& e = eager_[v];
-  const Vec3 p = store_->position(v);
-  const double scale = std::abs(e.w) + std::abs(e.a00) + std::abs(e.a11) + std::abs(e.a22);
-  for (const Vec3 d : {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{0, 1, 0}, Vec3{0, 0, 1}, Vec3{1, 1, 1}}) {
-    const Vec3 x = p + d;
-    const double tolerance = 1e-9 * scale * (1 + Dot(p, p));
-    if (!(std::abs(q.Evaluate(x) - e.Evaluate(x)) <= tolerance)) {
-      quadric_mismatches_.fetch_add(1, std::memory_order_relaxed);
-      return;
-    }
-  }
-}
-
-uint32_t Simplifier::TailSlot(VertexId v) {
-  uint32_t s = store_->aux(v);
-  if (s == kInvalid) {
-    s = tails_.Take();
-    store_->set_aux(v, s);
-  }
-  return s;
-}
-
-void Simplifier::SetQuadric(VertexId v, const Quadric& q) {
-  planes_[v] = PlaneSum{q.a00, q.a01, q.a02, q.a11, q.a12, q.a22};
-  tails_[TailSlot(v)] = QuadricTail{q.b0, q.b1, q.b2, q.c, q.w};
-}
-
-void Simplifier::Keep(VertexId v) {
-  if (store_->aux(v) == kInvalid) SetQuadric(v, Q(v));
-}
-
-void Simplifier::DropQuadric(VertexId v) {
-  const uint32_t s = store_->aux(v);
-  if (s == kInvalid) return;
-  tails_.Release(s);
-  store_->set_aux(v, kInvalid);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
   EnsureVertexCapacity();
   for (VertexId v : new_verts) {
     // Ids may be recycled from contracted vertices: start clean (the store reset rad).
-    planes_[v] = PlaneSum{};
-    DropQuadric(v);
-    if (opt_.check_quadrics) eager_[v] = Quadric{};
+    quadrics_.Reset(v);
     ++version_[v];
   }
   for (size_t i = 0; i < tris.size(); ++i) {
@@ -82,17 +38,7 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
     const auto& tri = store_->triangle(tris[i]);
     const Quadric h = PlaneQuadric(store_->position(tri[0]), store_->position(tri[1]),
                                    store_->position(tri[2]));
-    for (VertexId v : tri) {
-      PlaneSum& m = planes_[v];
-      m.a00 += h.a00, m.a01 += h.a01, m.a02 += h.a02;
-      m.a11 += h.a11, m.a12 += h.a12, m.a22 += h.a22;
-      if (const uint32_t s = store_->aux(v); s != kInvalid) {
-        // Kept in full (it moved): this plane need not pass through it.
-        QuadricTail& t = tails_[s];
-        t.b0 += h.b0, t.b1 += h.b1, t.b2 += h.b2, t.c += h.c, t.w += h.w;
-      }
-      if (opt_.check_quadrics) eager_[v] += h;
-    }
+    for (VertexId v : tri) quadrics_.AddPlane(v, h);
   }
 }
 
@@ -122,8 +68,8 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   const uint8_t common = ma & mb;
   if (common != ma && common != mb) return false;  // on different box faces: refuse
   Quadric h;
-  AddQ(a, &h);
-  AddQ(b, &h);
+  quadrics_.AddTo(a, &h);
+  quadrics_.AddTo(b, &h);
   const uint8_t fixed = FixedAxes(ma | mb);
   const Vec3 ref = BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
 
@@ -609,12 +555,7 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);
   ++version_[b];
-  Quadric q;  // a moves: kept in full (read before the move)
-  AddQ(a, &q);
-  AddQ(b, &q);
-  SetQuadric(a, q);
-  DropQuadric(b);
-  if (opt_.check_quadrics) eager_[a] += eager_[b];
+  quadrics_.Merge(a, b);  // before a moves
   store_->set_position(a, c.pos);
   store_->set_height(a, c.height);
   store_->set_layer(a, c.layer);
@@ -781,22 +722,8 @@ void Simplifier::Rebucket(double max_key) {
 
 void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
   EnsureVertexCapacity();
-  if (shared) {
-    Quadric q;  // a seam vertex: each part saw its own triangles
-    AddQ(dst, &q);
-    from.AddQ(src, &q);
-    SetQuadric(dst, q);
-    if (opt_.check_quadrics) eager_[dst] += from.eager_[src];
-  } else {
-    // At src's position: its planes' matrix, and the rest of its quadric kept in full.
-    planes_[dst] = from.planes_[src];
-    DropQuadric(dst);
-    if (const uint32_t s = from.store_->aux(src); s != kInvalid) {
-      tails_[TailSlot(dst)] = from.tails_[s];
-    }
-    if (opt_.check_quadrics) eager_[dst] = from.eager_[src];
-    store_->set_rad(dst, from.store_->rad(src));
-  }
+  quadrics_.Adopt(from.quadrics_, src, dst, shared);
+  if (!shared) store_->set_rad(dst, from.store_->rad(src));
   ++version_[dst];
 }
 
@@ -847,7 +774,7 @@ void Simplifier::AdoptCounters(const Simplifier& from) {
   evaluations_ += from.evaluations_;
   q_pushes_ += from.q_pushes_;
   w_pushes_ += from.w_pushes_;
-  quadric_mismatches_ += from.quadric_mismatches_.load();
+  quadrics_.AddMismatches(from.quadrics_.mismatches());
   max_reach_over_front_ = std::max(max_reach_over_front_, from.max_reach_over_front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, from.max_layer_over_front_);
 }
@@ -877,7 +804,7 @@ void Simplifier::PushEdgesAround(std::span<const VertexId> verts) {
 double Simplifier::MaxShapeError() const {
   double worst = 0.0;
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
-    if (!store_->vertex_alive(v) || v >= planes_.size()) continue;
+    if (!store_->vertex_alive(v) || v >= quadrics_.size()) continue;
     worst = std::max(worst, MeasuredShapeErrorAt(v));
   }
   return worst;
@@ -902,7 +829,7 @@ double Simplifier::TidySize() const {
 }
 
 bool Simplifier::TidyMayMove(VertexId v, Vec3 p) const {
-  return ShapeError(Q(v), p) <= std::max(opt_.error, ShapeErrorAt(v));
+  return ShapeError(quadrics_.Get(v), p) <= std::max(opt_.error, ShapeErrorAt(v));
 }
 
 DegenerateCounts Simplifier::TidyDegenerate() {
@@ -910,7 +837,7 @@ DegenerateCounts Simplifier::TidyDegenerate() {
       store_, TidySize(),
       [this](VertexId v, Vec3 p) {
         const bool may = (store_->box_mask(v) & (kSeam | kFrozen)) == 0 && TidyMayMove(v, p);
-        if (may) Keep(v);  // it moves next: its quadric in full first
+        if (may) quadrics_.Keep(v);  // it moves next: its quadric in full first
         return may;
       },
       [this](VertexId v) { ++version_[v]; });
@@ -923,7 +850,7 @@ DegenerateCounts Simplifier::TidyDegenerateAmong(std::span<const TriId> tris,
       store_, tris, TidySize(),
       [&](VertexId v, Vec3 p) {
         const bool may = (store_->box_mask(v) & kSeam) == 0 && movable(v) && TidyMayMove(v, p);
-        if (may) Keep(v);  // it moves next: its quadric in full first
+        if (may) quadrics_.Keep(v);  // it moves next: its quadric in full first
         return may;
       },
       [this](VertexId v) { ++version_[v]; }, flips);
@@ -954,11 +881,11 @@ bool Simplifier::EdgesReachAtMost(VertexId v, double limit) const {
 }
 
 double Simplifier::ShapeErrorAt(VertexId v) const {
-  return ShapeError(Q(v), store_->position(v));
+  return ShapeError(quadrics_.Get(v), store_->position(v));
 }
 
 double Simplifier::MeasuredShapeErrorAt(VertexId v) const {
-  return MeasuredShapeError(Q(v), store_->position(v));
+  return MeasuredShapeError(quadrics_.Get(v), store_->position(v));
 }
 
 void Simplifier::Freeze(VertexId v) {
@@ -972,8 +899,8 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTa
   EnsureVertexCapacity();
   sag_quadrics_.resize(verts.size());
   for (size_t i = 0; i < verts.size(); ++i) {
-    Keep(verts[i]);  // it may move
-    sag_quadrics_[i] = Q(verts[i]);
+    quadrics_.Keep(verts[i]);  // it may move
+    sag_quadrics_[i] = quadrics_.Get(verts[i]);
   }
   sag_moved_.clear();
   const int64_t count =
@@ -989,10 +916,10 @@ size_t Simplifier::GroupBytes() const {  // in WEdges
   return edges;
 }
 
-size_t Simplifier::VertexBytes() { return sizeof(PlaneSum) + sizeof(uint32_t); }
+size_t Simplifier::VertexBytes() { return QuadricStore::VertexBytes() + sizeof(uint32_t); }
 
 size_t Simplifier::MemoryBytes() const {
-  return planes_.MemoryBytes() + tails_.MemoryBytes() + eager_.MemoryBytes() +
+  return quadrics_.MemoryBytes() +
          version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +

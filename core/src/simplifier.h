@@ -29,6 +29,7 @@
 #include "edge_queues.h"
 #include "mesh_store.h"
 #include "quadric.h"
+#include "quadric_store.h"
 #include "sag_correction.h"
 #include "slot_pool.h"
 #include "tandem/executor.h"
@@ -80,12 +81,7 @@ class Simplifier {
   Simplifier(MeshStore* store, const SimplifierOptions& options);
 
   // Accumulates the plane quadrics of new triangles into their vertices (a vertex on slice
-  // k is complete once layer k+1 is in) and registers new vertices (rad = 1). Every plane of
-  // a vertex's own triangles passes through it, so until it moves its quadric is its matrix
-  // A = Σ w n nᵀ alone (b = -A v, c = vᵀ A v, w = trace A): 48 bytes a vertex, not 88, for
-  // the full-resolution band the time lag holds. A contraction's survivor, or a vertex about
-  // to move, keeps its quadric in full (Keep; docs/decisions.md 17): b, c and W beside
-  // its matrix.
+  // k is complete once layer k+1 is in; quadric_store.h) and registers new vertices (rad = 1).
   void AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts);
   // DELAY: puts the edges of these triangles into W (or Q for kImmediate), each edge once.
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
@@ -149,16 +145,17 @@ class Simplifier {
   // (both slabs contract their copies of one seam edge to one point): a survives, as Simplify
   // would contract it, without the checks, which the caller made (`onto_a`: a keeps its
   // height, radius and layer, as its other copy does).
-  Quadric quadric(VertexId v) const { return Q(v); }
+  Quadric quadric(VertexId v) const { return quadrics_.Get(v); }
   // Before v moves outside the simplifier (a seam's mend): its quadric in full, as it is.
   void KeepQuadric(VertexId v) {
     EnsureVertexCapacity();
-    Keep(v);
+    quadrics_.Keep(v);
   }
-  void DropQuadric(VertexId v);  // v left the store outside the simplifier (sealing)
+  // v left the store outside the simplifier (sealing).
+  void DropQuadric(VertexId v) { quadrics_.Drop(v); }
   // SimplifierOptions::check_quadrics: quadrics read that differ from the full sums kept
   // alongside (a vertex moved without Keep).
-  int64_t quadric_mismatches() const { return quadric_mismatches_.load(); }
+  int64_t quadric_mismatches() const { return quadrics_.mismatches(); }
   double distance_bound() const { return opt_.distance_guard * opt_.error; }
   const OffsetEdges& offset_edges() const { return opt_.offset_edges; }
   void ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a);
@@ -301,73 +298,13 @@ class Simplifier {
   // Start loading what an evaluation reads of v: its store record; then, once the record
   // is in (it holds the slot), its planes' matrix and the rest of a quadric kept in full.
   void PrefetchVertex(VertexId v) const { store_->Prefetch(v); }
-  void PrefetchQuadric(VertexId v) const {
-    const char* p = reinterpret_cast<const char*>(&planes_[v]);
-    __builtin_prefetch(p);
-    __builtin_prefetch(p + sizeof(PlaneSum) - 1);
-    if (const uint32_t s = store_->aux(v); s != kInvalid) {
-      const char* t = reinterpret_cast<const char*>(&tails_[s]);
-      __builtin_prefetch(t);
-      __builtin_prefetch(t + sizeof(QuadricTail) - 1);
-    }
-  }
-  // Adds v's quadric to *h: kept in full, or from its planes' matrix and its position
-  // (AddTriangles). Q(v) without the copy: an evaluation adds two.
-  [[gnu::always_inline]] void AddQ(VertexId v, Quadric* h) const {
-    if (opt_.check_quadrics) {
-      *h += Q(v);  // checked there; the same sum
-      return;
-    }
-    AddQuadricTo(v, h);
-  }
-  Quadric Q(VertexId v) const {
-    Quadric q;
-    AddQuadricTo(v, &q);
-    if (opt_.check_quadrics) CheckQuadric(v, q);
-    return q;
-  }
-  [[gnu::always_inline]] void AddQuadricTo(VertexId v, Quadric* h) const {
-    const PlaneSum& m = planes_[v];
-    h->a00 += m.a00, h->a01 += m.a01, h->a02 += m.a02;
-    h->a11 += m.a11, h->a12 += m.a12, h->a22 += m.a22;
-    if (const uint32_t s = store_->aux(v); s != kInvalid) {
-      const QuadricTail& t = tails_[s];
-      h->b0 += t.b0, h->b1 += t.b1, h->b2 += t.b2;
-      h->c += t.c;
-      h->w += t.w;
-      return;
-    }
-    const Vec3 p = store_->position(v);
-    const double ax = m.a00 * p.x + m.a01 * p.y + m.a02 * p.z;
-    const double ay = m.a01 * p.x + m.a11 * p.y + m.a12 * p.z;
-    const double az = m.a02 * p.x + m.a12 * p.y + m.a22 * p.z;
-    h->b0 -= ax, h->b1 -= ay, h->b2 -= az;
-    h->c += p.x * ax + p.y * ay + p.z * az;
-    h->w += m.a00 + m.a11 + m.a22;
-  }
-  void CheckQuadric(VertexId v, const Quadric& q) const;
-  void Keep(VertexId v);  // v's quadric in full from now on (it moves, or adds another's)
-  void SetQuadric(VertexId v, const Quadric& q);  // kept in full
-  uint32_t TailSlot(VertexId v);  // v's slot in tails_, taken if it has none
+  void PrefetchQuadric(VertexId v) const { quadrics_.Prefetch(v); }
 
   MeshStore* store_;
   SimplifierOptions opt_;
   double front_ = -std::numeric_limits<double>::infinity();
 
-  // Quadrics (AddTriangles), per vertex id: the sum of its planes' matrices A; and for the
-  // quadrics kept in full, the rest (b, c and W; 40 bytes, not a whole quadric's 88 beside the
-  // matrix), packed, their free slots handed out lowest first, a vertex's slot in its store
-  // record (MeshStore::aux; kInvalid: none). (docs/decisions.md: why rad lives in the store.)
-  struct PlaneSum {
-    double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0;
-  };
-  struct QuadricTail {
-    double b0 = 0, b1 = 0, b2 = 0, c = 0, w = 0;
-  };
-  PodArray<PlaneSum> planes_;
-  SlotPool<QuadricTail> tails_;
-  PodArray<Quadric> eager_;  // SimplifierOptions::check_quadrics: every quadric in full
-  mutable std::atomic<int64_t> quadric_mismatches_{0};
+  QuadricStore quadrics_;  // H_u of every vertex (AddTriangles, Contract)
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a
   // cache line, and most popped entries are stale.
   PodArray<uint32_t> version_;
