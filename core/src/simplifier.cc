@@ -11,7 +11,9 @@
 namespace tandem {
 
 Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
-    : store_(store), opt_(options), quadrics_(store, options.check_quadrics), q_(options.error) {}
+    : store_(store), opt_(options), quadrics_(store, options.check_quadrics),
+      q_(options.error),
+      rises_(store, &version_, options.rises) {}
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
@@ -106,8 +108,7 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // new cost; a rise of E0 offers it again (RaiseError), and a target triangle count's last
   // pass re-queues every edge (RequeueAll).
   if (!keep_expensive_ && c.cost > opt_.keep * opt_.error) {
-    min_dropped_ = std::min(min_dropped_, c.cost);
-    if (opt_.rises) Drop(a, b, c.cost);
+    rises_.Dropped(a, b, c.cost);
     return;
   }
   // Zero-cost edges (an exactly flat patch: a binary mask's faces) would all tie, and Q pops
@@ -139,43 +140,17 @@ void Simplifier::RaiseError(double e) {
   if (opt_.rises) {
     // Re-offer what e brings within keep x e; with α > 0 an edge's cost only grows with E0
     // (IsotropicCostQuadric), so one listed above that cannot be in Q's reach yet.
-    // In place: the list holds about every edge of the mesh (each costs more than E0 after
-    // SIMPLIFY), so a second copy would be most of the session's growth in memory.
-    min_dropped_ = std::numeric_limits<double>::infinity();
-    const double reach = opt_.keep * e;
-    offered_.clear();
-    size_t kept = 0;
-    for (const DroppedEdge& d : dropped_) {
-      if (Stale(d)) continue;
-      if (d.cost <= reach) {
-        offered_.push_back(d);
-      } else {
-        dropped_[kept++] = d;
-        min_dropped_ = std::min(min_dropped_, d.cost);
-      }
-    }
-    dropped_.resize(kept);
-    // A link refusal stands while both stars do; the others are offered after the list's.
-    const size_t from_list = offered_.size();
-    kept = 0;
-    for (const RefusedEdge& r : refused_) {
-      if (Stale(r)) continue;
-      if (store_->star_stamp(r.a) == r.sa && store_->star_stamp(r.b) == r.sb) {
-        refused_[kept++] = r;
-      } else {
-        offered_.push_back(DroppedEdge{e, r.a, r.b, r.va, r.vb});
-      }
-    }
-    refused_.resize(kept);
+    const size_t from_list = rises_.Offer(e, opt_.keep * e);
+    const std::vector<DroppedEdge>& offers = rises_.offers();
     const bool unplaced = opt_.alpha == 0.0;
     // Rebucket, with room for the offers.
     q_ = q_.Rebuilt(e, [this](const QNode& n) { return !Stale(n); }, [&](auto&& room) {
-      for (size_t i = 0; i < offered_.size(); ++i) {
-        room(i < from_list && unplaced ? offered_[i].cost : e);
+      for (size_t i = 0; i < offers.size(); ++i) {
+        room(i < from_list && unplaced ? offers[i].cost : e);
       }
     });
-    for (size_t i = 0; i < offered_.size(); ++i) {
-      const DroppedEdge& d = offered_[i];
+    for (size_t i = 0; i < offers.size(); ++i) {
+      const DroppedEdge& d = offers[i];
       if (i < from_list && unplaced) {
         // Its cost is what an evaluation would give (the stamps hold its quadrics and ends):
         // queued as it is, placed when popped. Most of those beyond e go stale in Q first.
@@ -190,12 +165,12 @@ void Simplifier::RaiseError(double e) {
     FlushBatch();
     return;
   }
-  if (e <= min_dropped_) {
+  if (e <= rises_.min_dropped()) {
     Rebucket(e);
     return;
   }
   q_ = EdgeQueue(e);
-  min_dropped_ = std::numeric_limits<double>::infinity();
+  rises_.ForgetDropped();
   requeue_released_ = true;
   for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
     if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
@@ -204,17 +179,7 @@ void Simplifier::RaiseError(double e) {
   requeue_released_ = false;
 }
 
-double Simplifier::NextCost() {
-  // The cheapest live edge's: stale nodes on top are popped (SIMPLIFY would skip them), so
-  // the answer does not depend on which of them Q still holds (TopLive drops some early).
-  const auto stale = [this](const QNode& n) { return Stale(n); };
-  for (;;) {
-    const QNode* top = q_.TopLive(stale);
-    if (top == nullptr) return min_dropped_;
-    if (!Stale(*top)) return std::min(min_dropped_, top->key);
-    q_.Pop();
-  }
-}
+double Simplifier::NextCost() { return rises_.NextCost(&q_); }
 
 bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
   bool found = false;
@@ -658,12 +623,12 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     }
     if (!past_error && c.eps0 > opt_.error) {
       ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
-      if (opt_.rises) Drop(e.a, e.b, c.eps0);
+      rises_.List(e.a, e.b, c.eps0);
       continue;
     }
     // A refused edge is pushed again when a contraction at one of its ends changes it. With
     // rises it is listed as well: a link refusal comes back at the first rise after a star
-    // of its ends changed (refused_), a geometry refusal at every rise (the distance guard
+    // of its ends changed (RiseLists), a geometry refusal at every rise (the distance guard
     // grows with E0, and a neighbour's move reshapes its triangles).
     if (next != nullptr) {
       store_->PrefetchStar(ahead.a);
@@ -671,10 +636,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     }
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
       ++refusals_.link;
-      if (opt_.rises) {
-        refused_.push_back(RefusedEdge{e.a, e.b, e.va, e.vb, store_->star_stamp(e.a),
-                                       store_->star_stamp(e.b)});
-      }
+      rises_.Refused(e.a, e.b, e.va, e.vb);
       continue;
     }
     // The apexes' star lists, which Contract searches to unlink the triangles on ab (their
@@ -689,7 +651,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
     if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, opt_.offset_edges, &survivors_, &refusals_)) {
       // Offered at the next rise; at α = 0 with its key, which is its cost.
-      if (opt_.rises) Drop(e.a, e.b, opt_.alpha > 0.0 ? opt_.error : key);
+      rises_.List(e.a, e.b, opt_.alpha > 0.0 ? opt_.error : key);
       continue;
     }
     const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
@@ -707,12 +669,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   // contract: when they outnumber the mesh's edges (about 1.5 per triangle), Q keeps the
   // live ones only.
   if (q_.size() > 3 * store_->num_triangles() + 1024) Rebucket(opt_.error);
-  if (dropped_.size() > 3 * store_->num_triangles() + 1024) {
-    std::erase_if(dropped_, [this](const DroppedEdge& d) { return Stale(d); });
-  }
-  if (refused_.size() > 3 * store_->num_triangles() + 1024) {
-    std::erase_if(refused_, [this](const RefusedEdge& r) { return Stale(r); });
-  }
+  rises_.SweepBeyond(3 * store_->num_triangles() + 1024);
 }
 
 void Simplifier::Rebucket(double max_key) {
@@ -754,18 +711,8 @@ void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> m
     ++q_pushes_;
     q_.Push(n.key, QEntry{a, b, version_[a], version_[b], p.pos, p.eps0});
   });
-  for (const DroppedEdge& d : from.dropped_) {
-    if (from.Stale(d)) continue;
-    const auto [a, b] = ends(d.a, d.b);
-    Drop(a, b, d.cost);
-  }
   // The merged stars are new: each refusal is offered again at the next rise.
-  for (const RefusedEdge& r : from.refused_) {
-    if (from.Stale(r)) continue;
-    const auto [a, b] = ends(r.a, r.b);
-    Drop(a, b, from.opt_.error);
-  }
-  min_dropped_ = std::min(min_dropped_, from.min_dropped_);
+  rises_.Adopt(from.rises_, map, from.opt_.error);
 }
 
 void Simplifier::AdoptCounters(const Simplifier& from) {
@@ -925,8 +872,7 @@ size_t Simplifier::MemoryBytes() const {
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
          released_.MemoryBytes() + GroupBytes() * sizeof(WEdge) + ready_.MemoryBytes() +
-         (dropped_.capacity() + offered_.capacity()) * sizeof(DroppedEdge) +
-         refused_.capacity() * sizeof(RefusedEdge);
+         rises_.MemoryBytes();
 }
 
 }  // namespace tandem

@@ -30,6 +30,7 @@
 #include "mesh_store.h"
 #include "quadric.h"
 #include "quadric_store.h"
+#include "rise_lists.h"
 #include "sag_correction.h"
 #include "slot_pool.h"
 #include "tandem/executor.h"
@@ -313,42 +314,11 @@ class Simplifier {
   size_t step_peak_bytes_ = 0;  // StepPeakBytes
   bool keep_expensive_ = false;  // RequeueAll: also queue edges costing more than E0
   bool requeue_released_ = false;  // RaiseError: edges for W are in W already
-  // The cheapest edge PushQ dropped since Q last held every released edge (RaiseError).
-  double min_dropped_ = std::numeric_limits<double>::infinity();
-  // SimplifierOptions::rises: the edges dropped or refused by the geometry checks, each with
-  // the least E0 at which it is worth offering again: its cost, its ε0, or (refused) its key
-  // at α = 0, E0 otherwise, either way the next rise. Stale ones are swept at each rise, and
-  // when they outnumber the mesh's edges. 24 bytes: at α = 0 the cost is what an evaluation
-  // would give, and the placement is solved when Q pops the edge (stored, 56 bytes, it took
-  // 10-20 % more memory on the engine CT's target run).
-  struct DroppedEdge {
-    double cost;
-    VertexId a, b;
-    uint32_t va, vb;  // version stamps
-  };
-  static_assert(sizeof(DroppedEdge) == 24);
+  // Edges dropped or refused, for a rise of E0 (RaiseError), and the cheapest dropped.
+  RiseLists rises_;
   // A rise queues a listed edge without its placement (RaiseError): marked by a NaN ε0.
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
   static constexpr Vec3 kUnplaced{kNaN, kNaN, kNaN};
-  void Drop(VertexId a, VertexId b, double cost) {
-    dropped_.push_back(DroppedEdge{cost, a, b, version_[a], version_[b]});
-  }
-  std::vector<DroppedEdge> dropped_;
-  std::vector<DroppedEdge> offered_;  // RaiseError's scratch: what it offers to Q again
-  // SimplifierOptions::rises: the edges the link condition refused, with their ends' star
-  // stamps (MeshStore::star_stamp). The condition reads only the two stars, so a rise offers
-  // such an edge again only once a star has changed. At a floor of small components, where
-  // every rise finds next to nothing, re-checking them all was a third of a target run (MR
-  // head at E0 24: 102,624 link refusals against 9,216 in the E0 run). Edges the geometry
-  // checks refused are listed with the rest (Drop): their guard grows with E0, and a
-  // neighbour's move reshapes their triangles without touching a star.
-  struct RefusedEdge {
-    VertexId a, b;
-    uint32_t va, vb;  // version stamps
-    uint32_t sa, sb;  // star stamps
-  };
-  static_assert(sizeof(RefusedEdge) == 24);
-  std::vector<RefusedEdge> refused_;
   WaitingQueue w_;
   // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
   // (empty otherwise: every vertex ready; 16 bits, since a release has at most 65,535
