@@ -96,7 +96,8 @@ void SimplifyLayer(Slab& s) {
   const PhaseClock clock(s.simplifier);
   const double front = static_cast<double>(s.pending_front);
   s.simplifier.Delay(s.new_tris, s.new_edges);
-  s.simplifier.ActivateAndSimplify(front);
+  s.simplifier.Activate(front);
+  s.simplifier.Simplify();
   if (s.target) FollowTarget(s);
   if (s.sealer) s.sealer->Seal(front);
   s.time.simplify_s += clock.Seconds();
@@ -310,7 +311,8 @@ void FinishSlab(Slab& s, Schedule schedule) {
     }
     s.simplifier.Delay(all);
   }
-  s.simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+  s.simplifier.Activate(std::numeric_limits<double>::infinity());  // ACTIVATE(∞)
+  s.simplifier.Simplify();
   s.time.simplify_s += clock.Seconds();
   s.CheckHolding("finishing after slice", s.extractor.slices_done() - 1);
 }

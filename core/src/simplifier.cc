@@ -13,7 +13,8 @@ namespace tandem {
 Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
     : store_(store), opt_(options), quadrics_(store, options.check_quadrics),
       q_(options.error),
-      rises_(store, &version_, options.rises) {}
+      rises_(store, &version_, options.rises),
+      release_(store, &version_, options.release_chunk, options.tile_x, options.tile_y) {}
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
@@ -364,143 +365,34 @@ void Simplifier::TrackAt(size_t bucket) {
   progress_done_.store(done, std::memory_order_relaxed);
 }
 
-void Simplifier::ActivateAndSimplify(double front) {
+void Simplifier::Activate(double front) {
+  // ACTIVATE(front): W's entries with key <= front are evaluated into Q in W's order. A large
+  // release enters a chunk at a time (chunked_release.h), each chunk simplified before the
+  // next is evaluated, so that Q holds a chunk, not the release; the last chunk is left for
+  // the SIMPLIFY that follows.
   front_ = front;
-  w_.TakeUpTo(front_, &released_);  // in W's order: Q breaks ties by push order
-  // Stale entries are no edges: they neither enter Q nor count towards a chunk or a vertex's
-  // readiness, so a sweep of W (below) changes nothing.
-  const auto stale = [this](const WEdge& e) { return Stale(e); };
-  erase_if(released_, stale);
-  // At most 65,535 chunks (ready_ holds 16 bits): only a release of more than 4 G edges, or
-  // a test's tiny chunks, takes larger ones.
-  const size_t chunk = opt_.release_chunk == 0
-                           ? 0
-                           : std::max(opt_.release_chunk, (released_.size() + 65534) / 65535);
-  if (chunk == 0 || released_.size() <= chunk) {
-    for (const WEdge& e : released_) AddToBatch(e.a, e.b, /*released=*/true);
-    FlushBatch();
-    released_ = {};
-    step_peak_bytes_ = MemoryBytes();
-    Simplify();
-    return;
-  }
-  // A vertex is ready once the chunk holding the last of its released edges is in; an edge
-  // enters Q with the chunk that makes both its ends ready, and a contraction's edge to a
-  // vertex that is not ready yet waits for that vertex's chunk (PushReady). So SIMPLIFY never
-  // reaches past the chunks taken: where it did, Q held only the edges that contractions
-  // had pushed there, and on a flat cap (every cost 0) one survivor swallowed the next
-  // chunk's vertices one by one into a fan (a closed 2048² gyroid: 13.5 minutes, not 25 s).
-  //
-  // What W held past its stale entries goes back now (at the closing cap of a closed 2048²
-  // period-32 gyroid, 60 % of the release: 81 -> 33 MiB a part).
-  released_.shrink_to_fit();
-  OrderRelease();
-  const size_t n = released_.size();
-  const auto groups = static_cast<uint32_t>((n + chunk - 1) / chunk);
-  ready_.assign(store_->vertex_capacity(), 0);
-  for (size_t i = 0; i < n; ++i) {
-    ready_[released_[i].a] = ready_[released_[i].b] = static_cast<uint16_t>(i / chunk);
-  }
-  // Last edge first, so that each chunk, once taken, is cut off the end and its pages go
-  // back (a PodArray shrinks in place): the release and the edges its chunks leave for later
-  // ones are not held twice.
-  std::reverse(released_.begin(), released_.end());
-  groups_.assign(groups, {});
-  step_peak_bytes_ = 0;
-  // A chunk's contractions re-push the edges around each survivor; those whose reach is past
-  // the front go to W, and most of them are stale a few contractions later (a closed 2048²
-  // period-32 gyroid's cap: W 12 -> 38 MiB a part over the step, 40 % of it stale). Those
-  // whose far end waits for a later chunk go to that chunk's group, and go stale the same
-  // way. W and the groups are swept when they have grown by half since their last sweep.
-  const auto grown = [chunk](size_t now, size_t then) { return now > then + then / 2 + chunk; };
-  size_t swept = w_.size();
-  size_t waiting = 0;  // edges in groups_ after the last sweep
-  if (track_) {
+  const size_t chunks = release_.Take(&w_, front_);
+  const size_t chunk = release_.chunk(), n = release_.size();
+  if (chunks > 1 && track_) {
     progress_done_.store(0, std::memory_order_relaxed);
     progress_total_.store(static_cast<int64_t>(n), std::memory_order_relaxed);
   }
-  for (group_ = 0; group_ < groups; ++group_) {
-    // What earlier chunks left for this one (their edges in W's order, then what their
-    // contractions pushed), then this chunk's own edges that it makes ready.
-    PodArray<WEdge> left;
-    left.swap(groups_[group_]);
-    for (const WEdge& e : left) {
-      if (!Stale(e)) AddToBatch(e.a, e.b, /*released=*/true);
-    }
-    left = {};
-    const size_t end = std::min(n, (group_ + size_t{1}) * chunk);
-    for (size_t i = group_ * chunk; i < end; ++i) {
-      const WEdge& e = released_[n - 1 - i];
-      if (const uint32_t g = std::max(ready_[e.a], ready_[e.b]); g > group_) {
-        groups_[g].push_back(e);
-        ++deferred_;
-      } else if (!Stale(e)) {
-        AddToBatch(e.a, e.b, /*released=*/true);
-      }
-    }
-    released_.resize(n - end);
-    released_.shrink_to_fit();
+  step_peak_bytes_ = chunks == 0 ? MemoryBytes() : 0;
+  for (size_t g = 0; g < chunks; ++g) {
+    release_.ForEachIn(g, [this](const WEdge& e) { AddToBatch(e.a, e.b, /*released=*/true); });
     FlushBatch();
     step_peak_bytes_ = std::max(step_peak_bytes_, MemoryBytes());
-    chunk_base_ = static_cast<int64_t>(group_ * chunk);
-    chunk_span_ = static_cast<int64_t>(end - group_ * chunk);
-    Simplify();
-    chunk_base_ = chunk_span_ = 0;
-    if (grown(w_.size(), swept)) {
-      w_.RemoveIf(stale);
-      swept = w_.size();
+    if (chunks > 1) {
+      chunk_base_ = static_cast<int64_t>(g * chunk);
+      chunk_span_ = static_cast<int64_t>(std::min(n, (g + 1) * chunk) - g * chunk);
     }
-    size_t held = 0;
-    for (uint32_t g = group_ + 1; g < groups; ++g) held += groups_[g].size();
-    if (grown(held, waiting)) {
-      held = 0;
-      for (uint32_t g = group_ + 1; g < groups; ++g) {
-        erase_if(groups_[g], stale);
-        groups_[g].shrink_to_fit();
-        held += groups_[g].size();
-      }
-      waiting = held;
-    }
+    if (g + 1 < chunks) Simplify();
   }
-  // Freed, not cleared (`= {}` on a std::vector keeps its capacity), so the release and
-  // the ready marks do not stay allocated between steps.
-  released_ = {};
-  ready_ = {};
-  std::vector<PodArray<WEdge>>().swap(groups_);
-  group_ = 0;
-}
-
-void Simplifier::OrderRelease() {
-  // W's order follows the layer's scan for new edges and the contractions' order for the
-  // others, so a chunk of it was a few rows across the whole slab, with the edges pushed again
-  // last: a vertex waited for the chunk of its last released edge, and every chunk's
-  // contractions reached over the whole front. In tiles along a Z-order curve a chunk is a
-  // compact patch, whose records stay in cache while it is simplified (docs/decisions.md).
-  if (!(opt_.tile_x > 0.0 && opt_.tile_y > 0.0)) return;
-  // Tiles coarser by a power of four (the curve's numbers shifted) for about 8 edges each:
-  // the sort's counts are then a fraction of the release, not 65,536 for every one.
-  const size_t n = released_.size();
-  int bits = 2;
-  while (bits < 16 && (size_t{8} << bits) < n) bits += 2;
-  const int shift = 16 - bits;
-  PodArray<uint16_t> keys;
-  keys.resize(n);
-  for (size_t i = 0; i < n; ++i) {
-    if (i + kAhead < n) PrefetchVertex(released_[i + kAhead].a);
-    const Vec3 p = store_->position(released_[i].a);
-    keys[i] = static_cast<uint16_t>(ZOrderTile(p.x, p.y, opt_.tile_x, opt_.tile_y) >> shift);
-  }
-  SortByKey(released_.data(), keys.data(), n, bits);
+  release_.Done();
 }
 
 void Simplifier::PushReady(VertexId a, VertexId b, const Candidate& c) {
-  const uint32_t g = std::max(ReadyGroup(a), ReadyGroup(b));
-  if (g > group_) {
-    groups_[g].push_back(WEdge{a, b, version_[a], version_[b]});
-    ++deferred_;
-    return;
-  }
-  PushQ(a, b, c);
+  if (!release_.Defer(a, b)) PushQ(a, b, c);
 }
 
 size_t Simplifier::WaitingBytes() const { return w_.MemoryBytes(); }
@@ -561,92 +453,74 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   nbrs.swap(scratch_);
 }
 
+// A popped edge's candidate: placed now if a rise queued it unplaced, and at α > 0 evaluated
+// again (the memoryless isotropy term depends on the current neighbourhood), pushed back if
+// its cost grew since it was queued. False: not contracted now.
+[[gnu::always_inline]] inline bool Simplifier::Reevaluate(const QNode& e, Candidate* c) {
+  const double key = c->cost;
+  if (std::isnan(c->eps0)) {  // queued unplaced by a rise (α = 0: the key is its cost)
+    ++evaluations_;
+    if (!Evaluate(e.a, e.b, c)) {
+      ++refusals_.box;
+      return false;
+    }
+  }
+  if (opt_.alpha > 0.0) {
+    ++evaluations_;
+    if (!Evaluate(e.a, e.b, c)) {
+      ++refusals_.box;
+      return false;
+    }
+    if (c->cost > key * (1.0 + 1e-12) + 1e-300) {
+      PushQ(e.a, e.b, *c);
+      return false;
+    }
+  }
+  return true;
+}
+
 void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const bool to_target = target_triangles > 0;
   const auto stale = [this](const QNode& n) { return Stale(n); };
   if (track_) TrackStart();
   uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
+  // A refused edge is pushed again when a contraction at one of its ends changes it; with
+  // rises it is listed as well (RiseLists), to be offered again at a rise of E0.
   while (!q_.empty()) {
     if ((++pops & (kCheckEvery - 1)) == 0) {
       Checkpoint();  // contractions queue new edges
       if (track_) TrackAt(q_.current_bucket());
     }
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
-    const QNode* top = q_.TopLive(stale);
+    const QNode* top = q_.TopLive(stale);  // pop: MinCost(Q) <= E0
     if (top == nullptr) break;
     const double key = top->key;
     if (!past_error && key > opt_.error) break;
     const QNode e = q_.Pop();
-    // The next edge's reads, a stage at a time as each one's address arrives: its stamps,
-    // placement and end records now, its ends' star lists before this edge's link condition,
-    // their triangles after this edge's contraction (each a cache miss at a random id).
     const QNode* next = q_.Next();
     const QNode ahead = next != nullptr ? *next : QNode{};
-    if (next != nullptr) {
-      __builtin_prefetch(&version_[ahead.a]);
-      __builtin_prefetch(&version_[ahead.b]);
-      __builtin_prefetch(&q_.Placement(ahead));
-      store_->Prefetch(ahead.a);
-      store_->Prefetch(ahead.b);
-    }
-    if (Stale(e)) continue;
-    store_->PrefetchStar(e.a);  // in case it came to the top unforeseen
-    store_->PrefetchStar(e.b);
-    // Live: Contract reads both quadrics after the link and geometry checks.
-    PrefetchVertex(e.a);  // their records were started an edge ago
-    PrefetchVertex(e.b);
-    PrefetchQuadric(e.a);
-    PrefetchQuadric(e.b);
+    if (next != nullptr) next = &ahead;  // Q's node may move as contractions push
+    PrefetchAhead(next, Ahead::kRecords);
+    if (Stale(e)) continue;  // stale: an end was contracted or moved since
+    PrefetchEnds(e);
     const QPlacement& placement = q_.Placement(e);
     Candidate c;
     c.pos = placement.pos;
     c.cost = key;
     c.eps0 = placement.eps0;
-    if (std::isnan(c.eps0)) {  // queued unplaced by a rise (α = 0: the key is its cost)
-      ++evaluations_;
-      if (!Evaluate(e.a, e.b, &c)) {
-        ++refusals_.box;
-        continue;
-      }
-    }
-    if (opt_.alpha > 0.0) {
-      // The memoryless isotropy term depends on the current neighbourhood: recompute.
-      ++evaluations_;
-      if (!Evaluate(e.a, e.b, &c)) {
-        ++refusals_.box;
-        continue;
-      }
-      if (c.cost > key * (1.0 + 1e-12) + 1e-300) {  // cost grew since it was queued
-        PushQ(e.a, e.b, c);
-        continue;
-      }
-    }
+    if (!Reevaluate(e, &c)) continue;
     if (!past_error && c.eps0 > opt_.error) {
       ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
       rises_.List(e.a, e.b, c.eps0);
       continue;
     }
-    // A refused edge is pushed again when a contraction at one of its ends changes it. With
-    // rises it is listed as well: a link refusal comes back at the first rise after a star
-    // of its ends changed (RiseLists), a geometry refusal at every rise (the distance guard
-    // grows with E0, and a neighbour's move reshapes its triangles).
-    if (next != nullptr) {
-      store_->PrefetchStar(ahead.a);
-      store_->PrefetchStar(ahead.b);
-    }
+    PrefetchAhead(next, Ahead::kStars);
     if (!LinkCondition(*store_, e.a, e.b, &link_scratch_)) {
       ++refusals_.link;
       rises_.Refused(e.a, e.b, e.va, e.vb);
       continue;
     }
-    // The apexes' star lists, which Contract searches to unlink the triangles on ab (their
-    // records are in cache: the link condition prefetched every fan corner's).
-    for (TriId t : store_->vertex_triangles(e.a)) {
-      const auto& tri = store_->triangle(t);
-      if (tri[0] == e.b || tri[1] == e.b || tri[2] == e.b) {
-        store_->PrefetchStar(tri[0] ^ tri[1] ^ tri[2] ^ e.a ^ e.b);
-      }
-    }
+    PrefetchApexes(e);
     // Past E0 the guard (a multiple of E0) would stall.
     const double guard = past_error ? 0.0 : opt_.distance_guard * opt_.error;
     if (!GeometryOk(*store_, e.a, e.b, c.pos, guard, opt_.offset_edges, &survivors_, &refusals_)) {
@@ -654,14 +528,10 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
       rises_.List(e.a, e.b, opt_.alpha > 0.0 ? opt_.error : key);
       continue;
     }
-    const uint8_t ma = store_->box_mask(e.a), mb = store_->box_mask(e.b);
-    c.box_mask = ma | mb;
+    c.box_mask = store_->box_mask(e.a) | store_->box_mask(e.b);
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
     Contract(e.a, e.b, c);
-    if (next != nullptr) {  // a dead end's list is empty
-      store_->PrefetchFan(ahead.a);
-      store_->PrefetchFan(ahead.b);
-    }
+    PrefetchAhead(next, Ahead::kFans);
   }
   if (track_) TrackAt(EdgeQueue::kBuckets);
   if (q_.empty()) q_.Trim();
@@ -670,6 +540,8 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   // live ones only.
   if (q_.size() > 3 * store_->num_triangles() + 1024) Rebucket(opt_.error);
   rises_.SweepBeyond(3 * store_->num_triangles() + 1024);
+  if (chunk_span_ != 0) release_.Sweep(&w_);  // a chunk's: W and the chunks to come
+  chunk_base_ = chunk_span_ = 0;
 }
 
 void Simplifier::Rebucket(double max_key) {
@@ -857,12 +729,6 @@ int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTa
   return count;
 }
 
-size_t Simplifier::GroupBytes() const {  // in WEdges
-  size_t edges = groups_.capacity();  // a vector's header is about the size of a WEdge
-  for (const auto& g : groups_) edges += g.MemoryBytes() / sizeof(WEdge);
-  return edges;
-}
-
 size_t Simplifier::VertexBytes() { return QuadricStore::VertexBytes() + sizeof(uint32_t); }
 
 size_t Simplifier::MemoryBytes() const {
@@ -871,8 +737,7 @@ size_t Simplifier::MemoryBytes() const {
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
-         released_.MemoryBytes() + GroupBytes() * sizeof(WEdge) + ready_.MemoryBytes() +
-         rises_.MemoryBytes();
+         release_.MemoryBytes() + rises_.MemoryBytes();
 }
 
 }  // namespace tandem

@@ -11,8 +11,8 @@
 // is contracted if it passes the checks of contraction_checks.h.
 //
 // The schedule (schedule.cc) calls: AddTriangles (after EXTRACT), Delay (new edges into W),
-// ActivateAndSimplify(front): ACTIVATE (W -> Q for keys <= front), then SIMPLIFY (contract
-// while MinCost <= E0), a large release a chunk at a time.
+// Activate(front) (W -> Q for keys <= front, a large release a chunk at a time), Simplify
+// (contract while MinCost <= E0).
 #ifndef TANDEM_SIMPLIFIER_H_
 #define TANDEM_SIMPLIFIER_H_
 
@@ -24,6 +24,7 @@
 #include <span>
 #include <vector>
 
+#include "chunked_release.h"
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "edge_queues.h"
@@ -64,7 +65,7 @@ struct SimplifierOptions {
   // offers Q those it brings in reach instead of evaluating every edge of the mesh again
   // (RaiseError), and a merge hands them on (AdoptQueues).
   bool rises = false;
-  // ActivateAndSimplify: a release of more edges than this enters Q a chunk at a time
+  // Activate: a release of more edges than this enters Q a chunk at a time
   // (2^12: 256 KiB of Q entries; docs/decisions.md).
   size_t release_chunk = size_t{1} << 12;
   // The side of the tiles of the xy plane (engine units, x and y) a chunked release is
@@ -90,13 +91,12 @@ class Simplifier {
   // `layer_edges` (LayerExtractor::CommitLayer's, one per triangle) says which edges those
   // are; without it they are found in the store.
   void Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges = {});
-  // ACTIVATE(front); SIMPLIFY(E0), as the schedules run them: the entries of W whose key is
-  // <= front (+inf for ACTIVATE(∞)) are evaluated into Q in W's order, then contracted. A
-  // release of more than release_chunk edges enters Q a chunk at a time, each chunk
-  // simplified before the next is evaluated: Q holds a chunk, not the release (a closed 2048²
-  // volume's cap releases 1.64 M edges a part at once, 64 bytes each in Q). Smaller releases
-  // are one ACTIVATE then one SIMPLIFY.
-  void ActivateAndSimplify(double front);
+  // ACTIVATE(front): the entries of W whose key is <= front (+inf for ACTIVATE(∞)) are
+  // evaluated into Q in W's order. A release of more than release_chunk edges enters Q a
+  // chunk at a time (chunked_release.h), each chunk simplified before the next is evaluated,
+  // and its last chunk is left in Q for the SIMPLIFY that follows: Q holds a chunk, not the
+  // release (a closed 2048² volume's cap releases 1.64 M edges a slab at once).
+  void Activate(double front);
   // SIMPLIFY(E0): contracts while Q's minimum cost <= E0, and with target_triangles > 0
   // while more than that many triangles remain. past_error: in cost order beyond E0, without
   // the distance guard (a multiple of E0, it would stall there), down to target_triangles
@@ -205,7 +205,7 @@ class Simplifier {
   int64_t w_pushes() const { return w_pushes_; }
   // Edges a chunked release held back for a later chunk (an end not ready yet) so far: the
   // chunks' borders, which compact chunks keep short (SimplifierOptions::tile_x).
-  int64_t deferred_edges() const { return deferred_; }
+  int64_t deferred_edges() const { return release_.deferred(); }
   // Over the contractions applied: the largest reach(c) - front (<= 0: none ran ahead of the
   // front, the time-lag rule) and the largest layer(c) - front (<= -1: the newest layer was
   // never touched). -inf when none was applied.
@@ -229,7 +229,7 @@ class Simplifier {
     helper_seconds_ = 0;
     return s;
   }
-  // MemoryBytes as the last ACTIVATE left it (the largest over ActivateAndSimplify's
+  // MemoryBytes as the last ACTIVATE left it (the largest over its
   // chunks): the fullest moment of a step, Q holding every edge it released, which SIMPLIFY
   // empties and Trim frees before the step ends.
   size_t StepPeakBytes() const { return step_peak_bytes_; }
@@ -261,11 +261,9 @@ class Simplifier {
   bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
-  // PushQ, unless an end is not ready in a chunked release (ActivateAndSimplify): then the
+  // PushQ, unless an end is not ready in a chunked release (Activate): then the
   // edge waits for that end's chunk.
   void PushReady(VertexId a, VertexId b, const Candidate& c);
-  uint32_t ReadyGroup(VertexId v) const { return v < ready_.size() ? ready_[v] : 0; }
-  size_t GroupBytes() const;  // groups_, in WEdges
   // Each edge of t once (see Delay), into batch_. new_layer: t belongs to the layer being
   // delayed, whose edges on the plane below were queued with the layer underneath.
   void PushTriangleEdges(TriId t, bool new_layer);
@@ -290,16 +288,62 @@ class Simplifier {
   bool Pinned(VertexId a, VertexId b) const {
     return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
+  bool Reevaluate(const QNode& e, Candidate* c);  // SIMPLIFY's, for a popped edge
   void Contract(VertexId a, VertexId b, const Candidate& c);
   // Q again for E0 = max_key, its live entries only (in no particular order: ties may pop
   // differently).
   void Rebucket(double max_key);
+  // Prefetching: what the loops read next, a cache miss at a random id each, started early.
   // Loops over known edges or triangles start loading the records of the one kAhead places on.
   static constexpr size_t kAhead = 8;
-  // Start loading what an evaluation reads of v: its store record; then, once the record
-  // is in (it holds the slot), its planes' matrix and the rest of a quadric kept in full.
+  // What an evaluation reads of v: its store record; then, once the record is in (it holds
+  // the slot), its planes' matrix and the rest of a quadric kept in full.
   void PrefetchVertex(VertexId v) const { store_->Prefetch(v); }
   void PrefetchQuadric(VertexId v) const { quadrics_.Prefetch(v); }
+  // SIMPLIFY's next edge (null: none), a stage at a time as each one's address arrives: its
+  // stamps, placement and end records as this edge is popped, its ends' star lists before
+  // this edge's link condition, their triangles after this edge's contraction.
+  enum class Ahead { kRecords, kStars, kFans };
+  [[gnu::always_inline]] void PrefetchAhead(const QNode* next, Ahead stage) const {
+    if (next == nullptr) return;
+    switch (stage) {
+      case Ahead::kRecords:
+        __builtin_prefetch(&version_[next->a]);
+        __builtin_prefetch(&version_[next->b]);
+        __builtin_prefetch(&q_.Placement(*next));
+        store_->Prefetch(next->a);
+        store_->Prefetch(next->b);
+        return;
+      case Ahead::kStars:
+        store_->PrefetchStar(next->a);
+        store_->PrefetchStar(next->b);
+        return;
+      case Ahead::kFans:  // a dead end's list is empty
+        store_->PrefetchFan(next->a);
+        store_->PrefetchFan(next->b);
+        return;
+    }
+  }
+  // A live popped edge: its ends' star lists (in case it came to the top unforeseen), and
+  // what Contract reads after the checks, the records (started an edge ago) and quadrics.
+  [[gnu::always_inline]] void PrefetchEnds(const QNode& e) const {
+    store_->PrefetchStar(e.a);
+    store_->PrefetchStar(e.b);
+    PrefetchVertex(e.a);
+    PrefetchVertex(e.b);
+    PrefetchQuadric(e.a);
+    PrefetchQuadric(e.b);
+  }
+  // The apexes' star lists, which Contract searches to unlink the triangles on ab (their
+  // records are in cache: the link condition prefetched every fan corner's).
+  [[gnu::always_inline]] void PrefetchApexes(const QNode& e) const {
+    for (TriId t : store_->vertex_triangles(e.a)) {
+      const auto& tri = store_->triangle(t);
+      if (tri[0] == e.b || tri[1] == e.b || tri[2] == e.b) {
+        store_->PrefetchStar(tri[0] ^ tri[1] ^ tri[2] ^ e.a ^ e.b);
+      }
+    }
+  }
 
   MeshStore* store_;
   SimplifierOptions opt_;
@@ -320,15 +364,7 @@ class Simplifier {
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
   static constexpr Vec3 kUnplaced{kNaN, kNaN, kNaN};
   WaitingQueue w_;
-  // A chunked release (ActivateAndSimplify): per vertex id, the chunk that makes it ready
-  // (empty otherwise: every vertex ready; 16 bits, since a release has at most 65,535
-  // chunks); the edges of each chunk still to come; the chunk being simplified.
-  PodArray<WEdge> released_;  // the step's release (ActivateAndSimplify), W's bucket
-  // A chunked release in tiles along a Z-order curve (SimplifierOptions::tile_x, tile_y).
-  void OrderRelease();
-  PodArray<uint16_t> ready_;
-  std::vector<PodArray<WEdge>> groups_;
-  uint32_t group_ = 0;
+  ChunkedRelease release_;  // ACTIVATE of a large release, a chunk at a time
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;
   std::vector<Survivor> survivors_;  // GeometryOk's scratch
@@ -351,7 +387,6 @@ class Simplifier {
   int64_t contractions_ = 0;
   int64_t evaluations_ = 0;
   int64_t q_pushes_ = 0, w_pushes_ = 0;
-  int64_t deferred_ = 0;
   double max_reach_over_front_ = -std::numeric_limits<double>::infinity();
   double max_layer_over_front_ = -std::numeric_limits<double>::infinity();
   std::function<void()> checkpoint_;
@@ -361,7 +396,7 @@ class Simplifier {
   bool track_ = false;
   std::vector<int64_t> below_;  // tracking: nodes in the buckets below each, at the start
   std::atomic<int64_t> progress_done_{0}, progress_total_{0};
-  // A release in chunks (ActivateAndSimplify) counts in released edges: each chunk's
+  // A release in chunks (Activate) counts in released edges: each chunk's
   // SIMPLIFY covers [chunk_base_, chunk_base_ + chunk_span_) of them; 0: not chunked.
   int64_t chunk_base_ = 0, chunk_span_ = 0;
   void TrackStart();

@@ -126,7 +126,8 @@ TEST(LinkCondition, MatchesItsDefinition) {
       const std::vector<TriId> all = ExtractLayers(src.get(), &store, &simplifier, false);
       if (e0 > 0) {
         simplifier.Delay(all);
-        simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+        simplifier.Activate(std::numeric_limits<double>::infinity());
+        simplifier.Simplify();
       }
       const std::string what = name + " E0 " + std::to_string(e0);
       LinkScratch scratch;

@@ -315,7 +315,8 @@ struct BareLag {
     EXPECT_TRUE(ex.AddSlice(reinterpret_cast<const float*>(bytes.data()), &tris, &verts).ok());
     simplifier.AddTriangles(tris, verts);
     simplifier.Delay(tris);
-    simplifier.ActivateAndSimplify(k);
+    simplifier.Activate(k);
+    simplifier.Simplify();
   }
   MeshStore store;
   Simplifier simplifier;
@@ -363,7 +364,8 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
     }
     lag.ex.Finish();
     const size_t before = simplifier.MemoryBytes();
-    simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+    simplifier.Activate(std::numeric_limits<double>::infinity());
+    simplifier.Simplify();
     r.last_step_growth = double(simplifier.StepPeakBytes()) / double(before);
     r.mesh = store.Snapshot();
     r.error = simplifier.MaxShapeError();
@@ -426,7 +428,8 @@ TEST(Simplifier, AChunkedReleaseInTilesKeepsItsChunksCompact) {
     BareLag lag(ExtractorConfig{n, n, 6, {1, 1, 1}, {0, 0, 0}, 0.5}, so);
     for (int k = 0; k < 6; ++k) lag.Step(src, k);
     lag.ex.Finish();
-    lag.simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+    lag.simplifier.Activate(std::numeric_limits<double>::infinity());
+    lag.simplifier.Simplify();
     Run r;
     r.deferred = lag.simplifier.deferred_edges();
     r.mesh = lag.store.Snapshot();
@@ -674,7 +677,8 @@ TEST(Simplifier, ARiseOffersOnlyTheDroppedEdgesItBringsInReach) {
       Run r;
       double e = so.error;
       ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/true, [&](int64_t k) {
-        simplifier.ActivateAndSimplify(static_cast<double>(k));
+        simplifier.Activate(static_cast<double>(k));
+        simplifier.Simplify();
         if (k % 4 == 3) {  // E0 rises every few layers, as toward a target count
           e *= 1.3;
           const int64_t before = simplifier.evaluations();
@@ -684,7 +688,8 @@ TEST(Simplifier, ARiseOffersOnlyTheDroppedEdgesItBringsInReach) {
           r.evaluations += simplifier.evaluations() - before;
         }
       });
-      simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+      simplifier.Activate(std::numeric_limits<double>::infinity());
+      simplifier.Simplify();
       r.triangles = store.num_triangles();
       r.error = simplifier.MaxShapeError();
       r.e = e;
@@ -735,9 +740,11 @@ TEST(Simplifier, ARiseAtAFloorChecksNoLinkRefusalAgain) {
   so.rises = true;
   Simplifier simplifier(&store, so);
   ExtractLayers(&src, &store, &simplifier, /*delay_each_layer=*/true, [&](int64_t k) {
-    simplifier.ActivateAndSimplify(static_cast<double>(k));
+    simplifier.Activate(static_cast<double>(k));
+    simplifier.Simplify();
   });
-  simplifier.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+  simplifier.Activate(std::numeric_limits<double>::infinity());
+  simplifier.Simplify();
   double e = so.error;
   int idle = 0;  // rises in a row that contracted nothing
   int64_t link_rechecks = 0;
@@ -777,11 +784,13 @@ TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
   MeshStore part_store;
   Simplifier part(&part_store, so);
   ExtractLayers(src.get(), &part_store, &part, /*delay_each_layer=*/true);
-  part.ActivateAndSimplify(std::numeric_limits<double>::infinity());
+  part.Activate(std::numeric_limits<double>::infinity());
+  part.Simplify();
 
   MeshStore store;
   Simplifier merged(&store, so);
-  merged.ActivateAndSimplify(std::numeric_limits<double>::infinity());  // as a part ends
+  merged.Activate(std::numeric_limits<double>::infinity());  // as a part ends
+  merged.Simplify();
   std::vector<VertexId> map(part_store.vertex_capacity(), kInvalid);
   for (VertexId v = 0; v < part_store.vertex_capacity(); ++v) {
     if (!part_store.vertex_alive(v)) continue;
