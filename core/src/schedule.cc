@@ -248,6 +248,17 @@ void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target
   }
 }
 
+double StartError(const VolumeInfo& grid, const SessionOptions& options) {
+  const double spacing = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
+  if (options.target_triangles > 0) return std::min(options.error, spacing / 1000);
+  const bool lockstep =
+      options.schedule == Schedule::kTandem || options.schedule == Schedule::kTandemLag;
+  if (!lockstep || options.seal) return options.error;
+  return std::min(options.error,
+                  std::max(options.lockstep_error * options.error,
+                           SessionOptions::kDefaultErrorVoxels * spacing));
+}
+
 void FinishAtError(std::span<const std::unique_ptr<Slab>> slabs, double error,
                    const std::function<void(const std::function<void(Slab&)>&)>& for_each) {
   // One rise, straight to E0: rises of x1.3 gave no better a mesh for its count (link-256 at

@@ -13,6 +13,7 @@
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "quadric.h"
+#include "schedule.h"
 
 namespace tandem {
 namespace {
@@ -333,17 +334,6 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
 // 1.5 took 0.85-0.95 s, 1 (none kept) 1.06-1.36 s, 2-8 the same time as 1.5 but up to
 // 1.5x the memory (the expensive entries pile up between rises).
 constexpr double kTargetKeep = 1.5;
-
-double StartError(const VolumeInfo& grid, const SessionOptions& options) {
-  const double spacing = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
-  if (options.target_triangles > 0) return std::min(options.error, spacing / 1000);
-  const bool lockstep =
-      options.schedule == Schedule::kTandem || options.schedule == Schedule::kTandemLag;
-  if (!lockstep || options.seal) return options.error;
-  return std::min(options.error,
-                  std::max(options.lockstep_error * options.error,
-                           SessionOptions::kDefaultErrorVoxels * spacing));
-}
 
 Slab::Slab(const ExtractorConfig& ec, const SimplifierOptions& so, Meter* m)
     : meter(m), extractor(ec, &store), simplifier(&store, so) {

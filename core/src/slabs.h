@@ -82,16 +82,6 @@ using Seams = std::vector<std::vector<std::pair<VertexId, VertexId>>>;
 // The number of slabs a session with these options uses over `grid` (SessionOptions::parts).
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options);
 
-// E0 in physical units at the start of a session: SessionOptions::error, or below it the
-// finishing pass's lock-step E0 (SessionOptions::lockstep_error; FinishAtError brings it up
-// at the end); with a target triangle count, which E0 must reach from below, at most 1/1000
-// of the smallest spacing.
-// 1/100 was 5 % faster (10 targets over 5 volumes: 1.15x the E0 run reaching N against
-// 1.22x) but kept fewer than the Pillow Box 256³ at its 10 % point (E0 = 1/167 of the
-// spacing): 61 % of N. A target above what the start keeps (on the engine CT, over ~85 % of
-// the full-resolution triangles) needs a smaller --error, which lowers the start.
-double StartError(const VolumeInfo& grid, const SessionOptions& options);
-
 // The slabs of `grid` in the engine frame (spacing divided by `scale`), ready for slice 0;
 // `batches`: where the simplifiers evaluate half of their large batches (null: in place);
 // `meter`: the session's budget, told what the slabs hold as planned.
