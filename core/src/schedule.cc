@@ -248,15 +248,18 @@ void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target
   }
 }
 
-double StartError(const VolumeInfo& grid, const SessionOptions& options) {
+double FinalError(const SessionOptions& options, double scale) { return options.error / scale; }
+
+double StartError(const VolumeInfo& grid, const SessionOptions& options, double scale) {
   const double spacing = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
-  if (options.target_triangles > 0) return std::min(options.error, spacing / 1000);
-  const bool lockstep =
-      options.schedule == Schedule::kTandem || options.schedule == Schedule::kTandemLag;
-  if (!lockstep || options.seal) return options.error;
-  return std::min(options.error,
-                  std::max(options.lockstep_error * options.error,
-                           SessionOptions::kDefaultErrorVoxels * spacing));
+  double start = options.error;  // physical units
+  if (options.target_triangles > 0) {
+    start = spacing / 1000;
+  } else if (Lockstep(options.schedule) && !options.seal) {
+    start = std::max(options.lockstep_error * options.error,
+                     SessionOptions::kDefaultErrorVoxels * spacing);
+  }
+  return std::min(FinalError(options, scale), start / scale);
 }
 
 void FinishAtError(std::span<const std::unique_ptr<Slab>> slabs, double error,

@@ -100,7 +100,10 @@ void ReachTarget(Slab& whole, int64_t target);
 void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target,
                     const std::function<void(const std::function<void(Slab&)>&)>& for_each);
 
-// E0 in physical units at the start of a session: SessionOptions::error, or below it the
+// E0 in the engine frame (physical units over `scale`, as the slabs' coordinates): what
+// every slab comes down to by the end (FinishAtError).
+double FinalError(const SessionOptions& options, double scale);
+// E0 in the engine frame at the start of a session: FinalError, or below it the
 // finishing pass's lock-step E0 (SessionOptions::lockstep_error; FinishAtError brings it up
 // at the end); with a target triangle count, which E0 must reach from below, at most 1/1000
 // of the smallest spacing.
@@ -108,7 +111,7 @@ void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target
 // 1.22x) but kept fewer than the Pillow Box 256³ at its 10 % point (E0 = 1/167 of the
 // spacing): 61 % of N. A target above what the start keeps (on the engine CT, over ~85 % of
 // the full-resolution triangles) needs a smaller --error, which lowers the start.
-double StartError(const VolumeInfo& grid, const SessionOptions& options);
+double StartError(const VolumeInfo& grid, const SessionOptions& options, double scale);
 
 // The finishing pass of an E0 run (SessionOptions::lockstep_error): once every slab is
 // finished at the lock-step's share of E0, each comes down to `error` (the engine frame's

@@ -380,7 +380,7 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     // each, a power of two voxels across.
     int64_t tile = 1;
     while (tile * 256 < std::max(grid.nx, grid.ny)) tile *= 2;
-    const SimplifierOptions so{.error = StartError(grid, options) / scale,
+    const SimplifierOptions so{.error = StartError(grid, options, scale),
                                .alpha = options.alpha,
                                .release = RuleFor(options.schedule),
                                .slice_spacing = spacing[2],

@@ -678,9 +678,9 @@ absl::Status TandemSession::Impl::Finish() {
     });
   }
   if (options.schedule != Schedule::kNone && options.target_triangles <= 0 &&
-      slabs[0]->simplifier.error() < options.error / scale) {  // the finishing pass
+      slabs[0]->simplifier.error() < FinalError(options, scale)) {  // the finishing pass
     BeginFinishStep("simplifying the whole mesh to E0", simplifiers());
-    FinishAtError(slabs, options.error / scale, [this](const std::function<void(Slab&)>& f) {
+    FinishAtError(slabs, FinalError(options, scale), [this](const std::function<void(Slab&)>& f) {
       ForEachSlab(f, /*balanced=*/true);
     });
   }
