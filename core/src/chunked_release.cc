@@ -41,9 +41,7 @@ void ChunkedRelease::Sweep(WaitingQueue* w) {
   // A chunk's contractions re-push the edges around each survivor; those whose reach is past
   // the front go to W, and most of them are stale a few contractions later. Those whose far
   // end waits for a later chunk go to that chunk's group, and go stale the same way.
-  const auto grown = [this](size_t now, size_t then) {
-    return now > then + then / 2 + chunk_now_;
-  };
+  const auto grown = [this](size_t now, size_t then) { return now > then + then / 2 + chunk_now_; };
   const auto stale = [this](const WEdge& e) { return Stale(e); };
   if (grown(w->size(), swept_)) {
     w->RemoveIf(stale);

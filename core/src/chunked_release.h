@@ -54,7 +54,7 @@ class ChunkedRelease {
     ++deferred_;
     return true;
   }
-  size_t size() const { return n_; }  // edges taken by the last Take
+  size_t size() const { return n_; }           // edges taken by the last Take
   size_t chunk() const { return chunk_now_; }  // edges a chunk of it
   // Edges held back for a later chunk so far: the chunks' borders.
   int64_t deferred() const { return deferred_; }
@@ -76,8 +76,8 @@ class ChunkedRelease {
   PodArray<WEdge> released_;  // W's bucket; chunked: last edge first, cut as chunks are taken
   PodArray<uint16_t> ready_;  // chunked: per vertex id, the chunk that makes it ready
   std::vector<PodArray<WEdge>> groups_;  // per chunk, the edges left for it
-  uint32_t group_ = 0;  // the chunk being simplified
-  size_t swept_ = 0, waiting_ = 0;  // W's size and the groups' after their last sweeps
+  uint32_t group_ = 0;                   // the chunk being simplified
+  size_t swept_ = 0, waiting_ = 0;       // W's size and the groups' after their last sweeps
   int64_t deferred_ = 0;
 };
 

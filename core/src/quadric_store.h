@@ -27,7 +27,7 @@ class QuadricStore {
   QuadricStore(MeshStore* store, bool check) : store_(store), check_(check) {}
 
   size_t size() const { return planes_.size(); }  // vertex ids with a quadric
-  void EnsureCapacity(size_t n);  // ids below n have a quadric (new ones: none)
+  void EnsureCapacity(size_t n);                  // ids below n have a quadric (new ones: none)
   // A new vertex (its id may be a contracted one's): no planes yet.
   void Reset(VertexId v) {
     planes_[v] = PlaneSum{};
@@ -126,9 +126,9 @@ class QuadricStore {
 
   MeshStore* store_;
   bool check_;
-  PodArray<PlaneSum> planes_;  // by vertex id
+  PodArray<PlaneSum> planes_;    // by vertex id
   SlotPool<QuadricTail> tails_;  // the quadrics kept in full, lowest free slot first
-  PodArray<Quadric> eager_;  // check_: every quadric in full
+  PodArray<Quadric> eager_;      // check_: every quadric in full
   mutable std::atomic<int64_t> mismatches_{0};
 };
 

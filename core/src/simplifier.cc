@@ -126,62 +126,6 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   q_.Push(key, QEntry{a, b, version_[a], version_[b], c.pos, c.eps0});
 }
 
-void Simplifier::RequeueAll() {
-  keep_expensive_ = true;
-  q_.Clear();
-  for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
-    if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
-  }
-  FlushBatch();
-}
-
-void Simplifier::RaiseError(double e) {
-  assert(e >= opt_.error);
-  opt_.error = e;
-  if (opt_.rises) {
-    // Re-offer what e brings within keep x e; with α > 0 an edge's cost only grows with E0
-    // (IsotropicCostQuadric), so one listed above that cannot be in Q's reach yet.
-    const size_t from_list = rises_.Offer(e, opt_.keep * e);
-    const std::vector<DroppedEdge>& offers = rises_.offers();
-    const bool unplaced = opt_.alpha == 0.0;
-    // Rebucket, with room for the offers.
-    q_ = q_.Rebuilt(e, [this](const QNode& n) { return !Stale(n); }, [&](auto&& room) {
-      for (size_t i = 0; i < offers.size(); ++i) {
-        room(i < from_list && unplaced ? offers[i].cost : e);
-      }
-    });
-    for (size_t i = 0; i < offers.size(); ++i) {
-      const DroppedEdge& d = offers[i];
-      if (i < from_list && unplaced) {
-        // Its cost is what an evaluation would give (the stamps hold its quadrics and ends):
-        // queued as it is, placed when popped. Most of those beyond e go stale in Q first.
-        if (!Pinned(d.a, d.b)) {
-          ++q_pushes_;
-          q_.Push(d.cost, QEntry{d.a, d.b, d.va, d.vb, kUnplaced, kNaN});
-        }
-      } else {
-        AddToBatch(d.a, d.b, /*released=*/true);  // a re-drop lists it again
-      }
-    }
-    FlushBatch();
-    return;
-  }
-  if (e <= rises_.min_dropped()) {
-    Rebucket(e);
-    return;
-  }
-  q_ = EdgeQueue(e);
-  rises_.ForgetDropped();
-  requeue_released_ = true;
-  for (TriId t = 0; t < store_->triangle_capacity(); ++t) {
-    if (store_->triangle_alive(t)) PushTriangleEdges(t, /*new_layer=*/false);
-  }
-  FlushBatch();
-  requeue_released_ = false;
-}
-
-double Simplifier::NextCost() { return rises_.NextCost(&q_); }
-
 bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
   bool found = false;
   for (TriId u : store_->vertex_triangles(a)) {
@@ -391,12 +335,6 @@ void Simplifier::Activate(double front) {
   release_.Done();
 }
 
-void Simplifier::PushReady(VertexId a, VertexId b, const Candidate& c) {
-  if (!release_.Defer(a, b)) PushQ(a, b, c);
-}
-
-size_t Simplifier::WaitingBytes() const { return w_.MemoryBytes(); }
-
 void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // a survives as c; b's triangles move to a; the triangles on ab disappear.
   TriId on_ab[3];  // the link condition passed: ab is in one or two triangles
@@ -504,10 +442,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     if (Stale(e)) continue;  // stale: an end was contracted or moved since
     PrefetchEnds(e);
     const QPlacement& placement = q_.Placement(e);
-    Candidate c;
-    c.pos = placement.pos;
-    c.cost = key;
-    c.eps0 = placement.eps0;
+    Candidate c{.pos = placement.pos, .cost = key, .eps0 = placement.eps0};
     if (!Reevaluate(e, &c)) continue;
     if (!past_error && c.eps0 > opt_.error) {
       ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
@@ -547,186 +482,6 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
 void Simplifier::Rebucket(double max_key) {
   // Its buckets are spaced below E0.
   q_ = q_.Rebuilt(max_key, [this](const QNode& n) { return !Stale(n); }, [](auto&&) {});
-}
-
-void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
-  EnsureVertexCapacity();
-  quadrics_.Adopt(from.quadrics_, src, dst, shared);
-  if (!shared) store_->set_rad(dst, from.store_->rad(src));
-  ++version_[dst];
-}
-
-void Simplifier::ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a) {
-  Candidate c;
-  c.pos = pos;
-  c.eps0 = c.cost = eps0;
-  c.box_mask = store_->box_mask(a) | store_->box_mask(b);
-  ReleaseKey(a, b, &c);  // height, rad, layer of the new vertex
-  if (onto_a) {
-    c.height = store_->height(a);
-    c.rad = store_->rad(a);
-    c.layer = store_->layer(a);
-  }
-  Contract(a, b, c);
-}
-
-void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> map) {
-  if (!opt_.rises) return;
-  auto ends = [&](VertexId a, VertexId b) {
-    const VertexId x = map[a], y = map[b];
-    assert(x != kInvalid && y != kInvalid && !Pinned(x, y));
-    return x < y ? std::pair{x, y} : std::pair{y, x};
-  };
-  from.q_.ForEachInPushOrder([&](const QNode& n, const QPlacement& p) {
-    if (from.Stale(n)) return;
-    const auto [a, b] = ends(n.a, n.b);
-    ++q_pushes_;
-    q_.Push(n.key, QEntry{a, b, version_[a], version_[b], p.pos, p.eps0});
-  });
-  // The merged stars are new: each refusal is offered again at the next rise.
-  rises_.Adopt(from.rises_, map, from.opt_.error);
-}
-
-void Simplifier::AdoptCounters(const Simplifier& from) {
-  refusals_ += from.refusals_;
-  contractions_ += from.contractions_;
-  evaluations_ += from.evaluations_;
-  q_pushes_ += from.q_pushes_;
-  w_pushes_ += from.w_pushes_;
-  quadrics_.AddMismatches(from.quadrics_.mismatches());
-  max_reach_over_front_ = std::max(max_reach_over_front_, from.max_reach_over_front_);
-  max_layer_over_front_ = std::max(max_layer_over_front_, from.max_layer_over_front_);
-}
-
-void Simplifier::PushEdgesAround(std::span<const VertexId> verts) {
-  EnsureVertexCapacity();
-  std::vector<BatchEdge> edges;
-  for (VertexId v : verts) {
-    for (TriId t : store_->vertex_triangles(v)) {
-      for (VertexId x : store_->triangle(t)) {
-        if (x != v) edges.push_back(v < x ? BatchEdge{v, x, false} : BatchEdge{x, v, false});
-      }
-    }
-  }
-  std::sort(edges.begin(), edges.end(), [](const BatchEdge& p, const BatchEdge& q) {
-    return p.a != q.a ? p.a < q.a : p.b < q.b;
-  });
-  edges.erase(std::unique(edges.begin(), edges.end(),
-                          [](const BatchEdge& p, const BatchEdge& q) {
-                            return p.a == q.a && p.b == q.b;
-                          }),
-              edges.end());
-  for (const BatchEdge& e : edges) AddToBatch(e.a, e.b);
-  FlushBatch();
-}
-
-double Simplifier::MaxShapeError() const {
-  double worst = 0.0;
-  for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
-    if (!store_->vertex_alive(v) || v >= quadrics_.size()) continue;
-    worst = std::max(worst, MeasuredShapeErrorAt(v));
-  }
-  return worst;
-}
-
-int64_t Simplifier::CorrectSag(double fraction, Executor* executor) {
-  if (!(fraction > 0.0)) return 0;
-  std::vector<VertexId> verts;
-  for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
-    if (store_->vertex_alive(v)) verts.push_back(v);
-  }
-  std::vector<Vec3> normal(store_->vertex_capacity());
-  tandem::VertexNormals(*store_, verts, normal, executor, &helper_seconds_);
-  return CorrectSagAt(verts, normal, fraction, executor);
-}
-
-double Simplifier::TidySize() const {
-  // A collapsed tetrahedron gets a tenth of E0 (within the bound, and far above float noise),
-  // but never more than a twentieth of a slice: E0 may be huge (a target count at its floor
-  // ran it to 1e6; the fuzzer put such a tetrahedron far outside the grid's box).
-  return std::min(0.1 * opt_.error, 0.05 * opt_.slice_spacing);
-}
-
-bool Simplifier::TidyMayMove(VertexId v, Vec3 p) const {
-  return ShapeError(quadrics_.Get(v), p) <= std::max(opt_.error, ShapeErrorAt(v));
-}
-
-DegenerateCounts Simplifier::TidyDegenerate() {
-  return tandem::TidyDegenerate(
-      store_, TidySize(),
-      [this](VertexId v, Vec3 p) {
-        const bool may = (store_->box_mask(v) & (kSeam | kFrozen)) == 0 && TidyMayMove(v, p);
-        if (may) quadrics_.Keep(v);  // it moves next: its quadric in full first
-        return may;
-      },
-      [this](VertexId v) { ++version_[v]; });
-}
-
-DegenerateCounts Simplifier::TidyDegenerateAmong(std::span<const TriId> tris,
-                                                 const std::function<bool(VertexId)>& movable,
-                                                 bool flips) {
-  return tandem::TidyDegenerateAmong(
-      store_, tris, TidySize(),
-      [&](VertexId v, Vec3 p) {
-        const bool may = (store_->box_mask(v) & kSeam) == 0 && movable(v) && TidyMayMove(v, p);
-        if (may) quadrics_.Keep(v);  // it moves next: its quadric in full first
-        return may;
-      },
-      [this](VertexId v) { ++version_[v]; }, flips);
-}
-
-void Simplifier::VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal) {
-  tandem::VertexNormals(*store_, verts, normal);
-}
-
-bool Simplifier::EdgesReachAtMost(VertexId v, double limit) const {
-  const double hv = store_->height(v), rv = store_->rad(v);
-  if (hv + rv > limit) return false;
-  const Vec3 pv = store_->position(v);
-  for (TriId t : store_->vertex_triangles(v)) {
-    for (VertexId x : store_->triangle(t)) {
-      if (x == v) continue;
-      // ReleaseKey's sums, in its order: height(c) + rad(c) = 0.5 (hv + hx) + 0.5 ((|v - x| /
-      // s + rv) + rx). Rounding is monotone, so without the length the sum is no larger:
-      // where that is already beyond, so is the reach (most vertices the sealer looks at).
-      const double height = 0.5 * (hv + store_->height(x));
-      const double rx = store_->rad(x);
-      if (height + 0.5 * (rv + rx) > limit) return false;
-      const double rad = 0.5 * (Norm(pv - store_->position(x)) / opt_.slice_spacing + rv + rx);
-      if (height + rad > limit) return false;
-    }
-  }
-  return true;
-}
-
-double Simplifier::ShapeErrorAt(VertexId v) const {
-  return ShapeError(quadrics_.Get(v), store_->position(v));
-}
-
-double Simplifier::MeasuredShapeErrorAt(VertexId v) const {
-  return MeasuredShapeError(quadrics_.Get(v), store_->position(v));
-}
-
-void Simplifier::Freeze(VertexId v) {
-  store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
-  ++version_[v];
-}
-
-int64_t Simplifier::CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
-                                 double fraction, Executor* executor) {
-  if (!(fraction > 0.0) || verts.empty()) return 0;
-  EnsureVertexCapacity();
-  sag_quadrics_.resize(verts.size());
-  for (size_t i = 0; i < verts.size(); ++i) {
-    quadrics_.Keep(verts[i]);  // it may move
-    sag_quadrics_[i] = quadrics_.Get(verts[i]);
-  }
-  sag_moved_.clear();
-  const int64_t count =
-      tandem::CorrectSagAt(store_, verts, normal, sag_quadrics_, fraction, opt_.error,
-                           &sag_scratch_, &sag_moved_, executor, &helper_seconds_);
-  for (VertexId v : sag_moved_) ++version_[v];  // moved: entries at v go stale
-  return count;
 }
 
 size_t Simplifier::VertexBytes() { return QuadricStore::VertexBytes() + sizeof(uint32_t); }

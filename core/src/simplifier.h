@@ -29,54 +29,16 @@
 #include "degenerate.h"
 #include "edge_queues.h"
 #include "mesh_store.h"
-#include "quadric.h"
 #include "quadric_store.h"
 #include "rise_lists.h"
 #include "sag_correction.h"
-#include "slot_pool.h"
+#include "simplifier_options.h"
 #include "tandem/executor.h"
 #include "tandem/geometry.h"
 #include "tandem/stats.h"
 #include "tandem/types.h"
 
 namespace tandem {
-
-// When an edge leaves the waiting queue W for Q (SessionOptions::schedule picks one).
-enum class ReleaseRule : uint8_t {
-  kImmediate,  // classical: every edge goes straight to Q
-  kLayer,      // tandem without lag: key = max(layer(a), layer(b)) + 1
-  kReach,      // tandem with time-lag: key = reach(c) = height(c) + rad(c)
-};
-
-struct SimplifierOptions {
-  double error = 0;           // E0, physical units
-  double alpha = 0;           // isotropy parameter in [0, 1]
-  ReleaseRule release = ReleaseRule::kReach;
-  double slice_spacing = 1;   // sz: converts lengths to slice units for rad()
-  // Evaluate half of every large DELAY / ACTIVATE batch on this executor (pure work, pushed
-  // in the same order: identical results); null: all on the calling thread.
-  Executor* parallel = nullptr;
-  double distance_guard = 0;  // K: see SessionOptions::distance_guard (0 = off)
-  // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
-  // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
-  double keep = 1;
-  // E0 will rise (a target triangle count): the edges Q drops, and those SIMPLIFY refuses
-  // (ε0 above E0, the link condition, the geometry checks), are listed, so that a rise
-  // offers Q those it brings in reach instead of evaluating every edge of the mesh again
-  // (RaiseError), and a merge hands them on (AdoptQueues).
-  bool rises = false;
-  // Activate: a release of more edges than this enters Q a chunk at a time
-  // (2^12: 256 KiB of Q entries; docs/decisions.md).
-  size_t release_chunk = size_t{1} << 12;
-  // The side of the tiles of the xy plane (engine units, x and y) a chunked release is
-  // ordered by, along a Z-order curve over 256 x 256 of them, so that each chunk is a compact
-  // patch of the front; 0: W's order.
-  double tile_x = 0, tile_y = 0;
-  // Tests: keep every vertex's quadric in full as well, as the layers and contractions sum
-  // it, and count those read that differ (Simplifier::quadric_mismatches).
-  bool check_quadrics = false;
-  OffsetEdges offset_edges;  // the extractor's (GeometryOk)
-};
 
 class Simplifier {
  public:
@@ -108,13 +70,9 @@ class Simplifier {
   // E0 as it is now (SimplifierOptions::error, or what RaiseError made it).
   double error() const { return opt_.error; }
   // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
-  // (schedule.h). Q is re-bucketed for the new E0, and with SimplifierOptions::rises the
-  // listed edges (dropped above keep x E0, or refused) that e brings within keep x e are
-  // offered to Q: at α = 0 as listed, their placement solved when popped, else evaluated
-  // again; a link refusal only once a star of its ends changed. The rest stay listed.
-  // Without the list, once e
-  // reaches an edge Q dropped, the released edges of the mesh (release key <= the front) are
-  // evaluated and queued again, one evaluation per edge (the waiting ones are in W already).
+  // (schedule.h; simplifier_rises.cc): Q is re-bucketed for the new E0 and offered what e
+  // brings within reach, the listed edges (rise_lists.h) or, without lists, every released
+  // edge of the mesh once e reaches an edge Q dropped.
   void RaiseError(double e);
   // After SIMPLIFY(E0): about the least cost above E0 among the mesh's edges (the least
   // queued or dropped since Q last held every released edge; +inf if none): raising E0 to
@@ -233,7 +191,7 @@ class Simplifier {
   // chunks): the fullest moment of a step, Q holding every edge it released, which SIMPLIFY
   // empties and Trim frees before the step ends.
   size_t StepPeakBytes() const { return step_peak_bytes_; }
-  size_t WaitingBytes() const;
+  size_t WaitingBytes() const { return w_.MemoryBytes(); }
   // How far the SIMPLIFY running now has come, for a status line read on another thread:
   // with tracking on, each SIMPLIFY counts its Q's nodes by key bucket as it starts (total)
   // and, every kCheckEvery pops, those in the buckets below the one it pops from (done): the
@@ -263,7 +221,9 @@ class Simplifier {
   void PushQ(VertexId a, VertexId b, const Candidate& c);
   // PushQ, unless an end is not ready in a chunked release (Activate): then the
   // edge waits for that end's chunk.
-  void PushReady(VertexId a, VertexId b, const Candidate& c);
+  void PushReady(VertexId a, VertexId b, const Candidate& c) {
+    if (!release_.Defer(a, b)) PushQ(a, b, c);
+  }
   // Each edge of t once (see Delay), into batch_. new_layer: t belongs to the layer being
   // delayed, whose edges on the plane below were queued with the layer underneath.
   void PushTriangleEdges(TriId t, bool new_layer);

@@ -1,13 +1,14 @@
 // ChunkedRelease: a release enters whole or a chunk at a time, every live edge exactly once,
 // an edge with an end not ready yet waiting for that end's chunk, chunks ordered in tiles.
+#include "chunked_release.h"
+
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <set>
 #include <utility>
 #include <vector>
 
-#include <gtest/gtest.h>
-
-#include "chunked_release.h"
 #include "edge_queues.h"
 #include "mesh_store.h"
 #include "pod_array.h"
@@ -40,7 +41,7 @@ std::vector<Edge> Chunk(ChunkedRelease& r, size_t g) {
 TEST(ChunkedRelease, SmallReleaseEntersWholeInWOrderWithoutStaleEdges) {
   Fixture f(6);
   ChunkedRelease r(&f.store, &f.version, /*chunk=*/16, 0, 0);
-  ++f.version[0];  // edge 0-1 is stale
+  ++f.version[0];                    // edge 0-1 is stale
   EXPECT_EQ(r.Take(&f.w, 0.5), 0u);  // nothing released below its key
   EXPECT_EQ(r.Take(&f.w, 1.0), 1u);
   EXPECT_EQ(r.size(), 4u);
@@ -116,7 +117,7 @@ TEST(ChunkedRelease, SweepDropsStaleWaitingEdgesOnceWGrew) {
   // Contractions push edges for later fronts into W, and most go stale.
   for (VertexId i = 0; i < 8; ++i) f.w.Push(WEntry{5.0, i, i + 1, 0, 0});
   r.Sweep(&f.w);
-  EXPECT_EQ(f.w.size(), 8u);  // live: kept
+  EXPECT_EQ(f.w.size(), 8u);                                               // live: kept
   for (VertexId i = 0; i < 2; ++i) f.w.Push(WEntry{5.0, i, i + 1, 1, 0});  // stale
   r.Sweep(&f.w);
   EXPECT_EQ(f.w.size(), 10u);  // grown by less than half and a chunk: not swept yet

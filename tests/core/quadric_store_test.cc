@@ -1,13 +1,14 @@
 // QuadricStore: the compact per-vertex quadrics give the full sums of the planes, whether a
 // vertex keeps only its matrix or its quadric in full, through moves, merges and adoption.
-#include <cmath>
-#include <vector>
+#include "quadric_store.h"
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <vector>
+
 #include "mesh_store.h"
 #include "quadric.h"
-#include "quadric_store.h"
 
 namespace tandem {
 namespace {

@@ -1,14 +1,15 @@
 // RiseLists: what a rise of E0 offers again (listed edges within reach, link refusals whose
 // stars changed), what it keeps, the next cost, stale sweeps and a merge's adoption.
-#include <limits>
-#include <vector>
+#include "rise_lists.h"
 
 #include <gtest/gtest.h>
+
+#include <limits>
+#include <vector>
 
 #include "edge_queues.h"
 #include "mesh_store.h"
 #include "pod_array.h"
-#include "rise_lists.h"
 
 namespace tandem {
 namespace {
@@ -32,7 +33,7 @@ TEST(RiseLists, OffersListedEdgesWithinReachAndKeepsTheRest) {
   r.List(f.v[1], f.v[2], 1.0);
   r.Dropped(f.v[3], f.v[4], 2.0);
   EXPECT_EQ(r.min_dropped(), 2.0);  // List alone (a refusal) does not count as a drop
-  ++f.version[f.v[4]];  // v4 contracted: its edge is stale
+  ++f.version[f.v[4]];              // v4 contracted: its edge is stale
   const size_t from_list = r.Offer(/*e=*/1.5, /*reach=*/2.5);
   ASSERT_EQ(from_list, 1u);
   ASSERT_EQ(r.offers().size(), 1u);
