@@ -116,7 +116,9 @@ class Simplifier {
   // alongside (a vertex moved without Keep).
   int64_t quadric_mismatches() const { return quadrics_.mismatches(); }
   double distance_bound() const { return opt_.distance_guard * opt_.error; }
-  const OffsetEdges& offset_edges() const { return opt_.offset_edges; }
+  // SIMPLIFY's checks for ab -> pos (the link condition, then the geometry checks with the
+  // distance guard's bound `guard`), refusals not counted: the caller decides for a pair.
+  bool MayContract(VertexId a, VertexId b, Vec3 pos, double guard);
   void ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a);
 
   // Error(K) = max ε0 over live vertices, as MeasuredShapeError measures it (rounding noise

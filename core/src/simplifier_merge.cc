@@ -16,6 +16,12 @@ void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst,
   ++version_[dst];
 }
 
+bool Simplifier::MayContract(VertexId a, VertexId b, Vec3 pos, double guard) {
+  RefusalCounts uncounted;
+  return LinkCondition(*store_, a, b, &link_scratch_) &&
+         GeometryOk(*store_, a, b, pos, guard, opt_.offset_edges, &survivors_, &uncounted);
+}
+
 void Simplifier::ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a) {
   Candidate c;
   c.pos = pos;

@@ -162,7 +162,6 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
   Slab* const slab[2] = {&left, &right};
   const double error = left.simplifier.error();
   const double bound = left.simplifier.distance_bound();
-  const OffsetEdges& offsets = left.simplifier.offset_edges();
   // kSeamEdge: seam vertices a < b (left ids) to one point of the plane, in both slabs.
   // 0 or 1: b, a vertex of that slab only, onto seam vertex a (left id), which stays put.
   constexpr int kSeamEdge = -1;
@@ -226,9 +225,6 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
   };
   for (const auto& [a, b] : partner) evaluate_around(a, false);
 
-  LinkScratch link_scratch;
-  std::vector<Survivor> survivors;
-  RefusalCounts refusals;
   const WeldedIds welded(left, right, pairs);
   std::vector<std::pair<int, uint64_t>> link_a, link_b, common;
   // The corners opposite edge ab in `store`'s triangles on it (at most 2, else false).
@@ -283,13 +279,12 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
                           std::back_inserter(common));
     std::sort(want, want + 2);
     if (common.size() != 2 || common[0] != want[0] || common[1] != want[1]) continue;
-    // Each slab stays a manifold with its seam as boundary, and nothing folds on either side.
+    // Each slab stays a manifold with its seam as boundary, and nothing folds on either side:
+    // SIMPLIFY's checks and contraction, in each slab.
     if (e.kind == kSeamEdge) {
       const VertexId rb = partner.at(e.b);
-      if (!LinkCondition(left.store, e.a, e.b, &link_scratch) ||
-          !LinkCondition(right.store, ra, rb, &link_scratch) ||
-          !GeometryOk(left.store, e.a, e.b, e.pos, bound, offsets, &survivors, &refusals) ||
-          !GeometryOk(right.store, ra, rb, e.pos, bound, offsets, &survivors, &refusals)) {
+      if (!left.simplifier.MayContract(e.a, e.b, e.pos, bound) ||
+          !right.simplifier.MayContract(ra, rb, e.pos, bound)) {
         continue;
       }
       left.simplifier.ContractAt(e.a, e.b, e.pos, e.cost, /*onto_a=*/false);
@@ -298,10 +293,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
     } else {
       Slab& s = *slab[e.kind];
       const VertexId as = e.kind == 0 ? e.a : ra;
-      if (!LinkCondition(s.store, as, e.b, &link_scratch) ||
-          !GeometryOk(s.store, as, e.b, e.pos, bound, offsets, &survivors, &refusals)) {
-        continue;
-      }
+      if (!s.simplifier.MayContract(as, e.b, e.pos, bound)) continue;
       s.simplifier.ContractAt(as, e.b, e.pos, e.cost, /*onto_a=*/true);
     }
     ++stamp[0][e.a];
