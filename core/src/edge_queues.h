@@ -416,7 +416,7 @@ class WaitingQueue {
   PodArray<WEntry> far_;
 };
 
-// A released edge's tile for SIMPLIFY's chunks (Simplifier::ActivateAndSimplify): the point
+// A released edge's tile for ACTIVATE's chunks (chunked_release.h): the point
 // (x, y) in tiles of side tile_x by tile_y from the origin, 256 of them along each axis (those
 // beyond, and NaN, fall into the first or last), numbered along a Z-order curve (x's 8 bits
 // in the even bits, y's in the odd ones), so that a run of consecutive numbers is a compact
