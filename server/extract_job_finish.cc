@@ -19,7 +19,7 @@
 #include "tandem/distance.h"
 #include "tandem/executor.h"
 #include "tandem/report.h"
-#include "tandem/run_session.h"
+#include "tandem/tandem.h"
 
 namespace tandem::server {
 namespace {
