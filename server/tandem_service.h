@@ -1,4 +1,5 @@
-// TandemService: the gRPC callback service (reactors only; the work is in ExtractJob).
+// TandemService: the gRPC callback service's entry points (each Extract stream is an ExtractCall,
+// server/extract_call.h; its work is an ExtractJob, server/extract_job.h).
 //
 // Threading: each accepted Extract stream gets one worker thread (at most
 // limits.max_sessions at once; more streams get RESOURCE_EXHAUSTED), which owns the
