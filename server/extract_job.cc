@@ -1,3 +1,5 @@
+// ExtractJob's intake: the config, the slices assembled from their chunks, progress, and the
+// detach and attach of a resume.
 #include "server/extract_job.h"
 
 #include <bit>

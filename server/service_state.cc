@@ -1,3 +1,4 @@
+// ServiceState: the worker count, the registry of live streams, and the heap handed back when idle.
 #include "server/service_state.h"
 
 #include <malloc.h>  // malloc_trim (glibc)

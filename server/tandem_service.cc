@@ -1,3 +1,5 @@
+// The service's RPCs: each checks the bearer token first; Extract starts an ExtractCall, Watch
+// reads a feed, GetInfo reports the limits, counters and the caller's sessions.
 #include "server/tandem_service.h"
 
 #include <string>
