@@ -26,7 +26,6 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/mesh.h"
-#include "tandem/mesh_io.h"
 
 namespace tandem::codec {
 
@@ -85,7 +84,7 @@ absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes,
 
 // glTF's KHR_draco_mesh_compression: the mesh with its unit normals (one per vertex; a zero
 // one becomes +z) as one Draco buffer, positions quantized as `options` say and normals on
-// 10 bits, with what it decodes to (tandem/mesh_io.h: GlbDracoPrimitive). InvalidArgument
+// 10 bits, with what it decodes to (tandem/mesh.h: GlbDracoPrimitive). InvalidArgument
 // for a mesh with vertices but no triangle (Draco has no such mesh).
 absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
                                                      const std::vector<Vec3>& normals,

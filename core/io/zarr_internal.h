@@ -1,6 +1,6 @@
 // Zarr internals: zarr_codecs.cc's chunk codecs (libblosc, libzstd, zlib) and whole-file I/O,
-// which format_zarr.cc's reader and writer use, and LooksLikeZarr (format_zarr.cc) for
-// OpenVolume and follow.
+// which the reader (format_zarr.cc) and the writer (zarr_writer.cc) use, and LooksLikeZarr
+// (format_zarr.cc) for OpenVolume and follow.
 #ifndef TANDEM_SRC_ZARR_INTERNAL_H_
 #define TANDEM_SRC_ZARR_INTERNAL_H_
 

@@ -4,10 +4,15 @@
 #ifndef TANDEM_MESH_H_
 #define TANDEM_MESH_H_
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <span>
+#include <string>
 #include <vector>
 
+#include "absl/status/statusor.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -37,6 +42,21 @@ struct SealedChunk {
 // The mesh the chunks make together: one vertex per global id (in increasing id), the
 // triangles in chunk order.
 IndexedMesh WeldChunks(std::span<const SealedChunk> chunks);
+
+// A GLB file's primitive with KHR_draco_mesh_compression (tandem/mesh_io.h writes GLB):
+// positions, normals and triangles as one Draco buffer, which neither core nor io can make
+// (neither holds Draco). The caller's compressor (codec/draco_codec.h: GlbCompressor) makes it
+// from the mesh and its normals, and tells what the buffer decodes to, for the glTF
+// accessors: the counts (Draco may split a vertex), the positions' bounds, and the Draco
+// attribute ids of POSITION and NORMAL.
+struct GlbDracoPrimitive {
+  std::string bytes;
+  size_t vertices = 0, indices = 0;
+  std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  int position_id = 0, normal_id = 1;
+};
+using GlbDracoCompressor = std::function<absl::StatusOr<GlbDracoPrimitive>(
+    const IndexedMesh& mesh, const std::vector<Vec3>& normals)>;
 
 }  // namespace tandem
 

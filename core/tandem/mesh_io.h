@@ -46,19 +46,8 @@ namespace tandem {
 // Normals (MeshWriteOptions::normals, default on) are the area-weighted vertex normals of
 // VertexNormals: PLY gets float nx ny nz vertex properties, OBJ "vn" lines and "f i//i"
 // corners; GLB always has them; STL has its facet normals.
-// GLB with KHR_draco_mesh_compression: the primitive (positions, normals, triangles) as one
-// Draco buffer, which core cannot make (it holds no Draco): the caller's compressor makes
-// it (codec/draco_codec.h: GlbDracoCompressor) from the mesh and its normals, and tells what the
-// buffer decodes to, for the glTF accessors: the counts (Draco may split a vertex), the
-// positions' bounds, and the Draco attribute ids of POSITION and NORMAL.
-struct GlbDracoPrimitive {
-  std::string bytes;
-  size_t vertices = 0, indices = 0;
-  std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
-  int position_id = 0, normal_id = 1;
-};
-using GlbDracoCompressor = std::function<absl::StatusOr<GlbDracoPrimitive>(
-    const IndexedMesh& mesh, const std::vector<Vec3>& normals)>;
+// GLB with KHR_draco_mesh_compression: the caller's compressor (tandem/mesh.h:
+// GlbDracoCompressor) makes the primitive.
 
 struct MeshWriteOptions {
   bool normals = true;

@@ -66,7 +66,7 @@ class Cli : public ::testing::Test {
   void SetUp() override { dir_ = testing::MakeTempDir(); }
   std::string Path(const std::string& name) const { return dir_ + "/" + name; }
   // A copy of the CLI installed alone: PREFIX/bin/tandem, and PREFIX/lib/tandem/ (where the
-  // modules go, core/io/module_loader.h) empty. Its path.
+  // modules go, core/module/module_loader.h) empty. Its path.
   std::string InstallAlone(const std::string& prefix) const {
     namespace fs = std::filesystem;
     fs::create_directories(Path(prefix + "/bin"));

@@ -8,8 +8,8 @@
 // (dlclose of a C++ library with statics is not worth it). Both sides are built together,
 // with the same compiler and libraries, so a module's entry returns a table of C++ types;
 // the caller checks the table's version (another build's module is refused, not used).
-#ifndef TANDEM_IO_MODULE_LOADER_H_
-#define TANDEM_IO_MODULE_LOADER_H_
+#ifndef TANDEM_MODULE_LOADER_H_
+#define TANDEM_MODULE_LOADER_H_
 
 #include <functional>
 #include <string>
@@ -32,4 +32,4 @@ absl::StatusOr<void*> LoadModuleEntry(const std::string& module, const std::stri
 
 }  // namespace tandem
 
-#endif  // TANDEM_IO_MODULE_LOADER_H_
+#endif  // TANDEM_MODULE_LOADER_H_
