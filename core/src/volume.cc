@@ -135,8 +135,10 @@ absl::Status ValidateVolumeInfo(const VolumeInfo& info) {
   for (int a = 0; a < 3; ++a) {
     if (a == 2 && dims[a] == 0) continue;  // nz not known yet
     if (dims[a] < 2) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "invalid dimensions: ", names[a], " = ", dims[a], " (need at least 2 samples per axis)"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("invalid dimensions: ", names[a], " = ", dims[a],
+                       a == 2 ? " (need at least 2 slices, or 0 if the count is unknown)"
+                              : " (need at least 2 samples per axis)"));
     }
     if (dims[a] > kMaxAxis) {
       return absl::InvalidArgumentError(absl::StrCat(

@@ -114,7 +114,7 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        },
        absl::StatusCode::kInvalidArgument, "config: invalid dimensions: nx = -4611686018427387904"},
       {[](auto* c) { c->set_nz(1); }, absl::StatusCode::kInvalidArgument,
-       "config: invalid dimensions: nz = 1"},
+       "config: invalid dimensions: nz = 1 (need at least 2 slices, or 0 if the count is unknown)"},
       {[](auto* c) { c->set_nz(-3); }, absl::StatusCode::kInvalidArgument,
        "config: invalid dimensions: nz = -3"},
       {[](auto* c) { c->set_dtype(v1::DTYPE_UNSPECIFIED); }, absl::StatusCode::kInvalidArgument,
