@@ -15,7 +15,7 @@
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "tandem/distance.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 #include "tandem/report.h"
 #include "tandem/run_session.h"
 

@@ -15,7 +15,7 @@
 #include "meter.h"
 #include "schedule.h"
 #include "slabs.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 #include "tandem/tandem.h"
 
 namespace tandem {

@@ -1,57 +1,9 @@
-#include "tandem/executor.h"
+// TaskGroup (task_group.h): tasks on an Executor, claimed once by whoever starts them first.
+#include "tandem/task_group.h"
 
-#include <algorithm>
-#include <system_error>
 #include <utility>
 
 namespace tandem {
-
-Executor::Executor(int threads) {
-  try {
-    for (int i = 0; i < threads; ++i) threads_.emplace_back([this] { Loop(); });
-  } catch (const std::system_error&) {
-    // Fewer threads than asked: waiting threads run what the others cannot.
-  }
-}
-
-Executor::~Executor() {
-  {
-    std::lock_guard<std::mutex> lock(mu_);
-    stop_ = true;
-  }
-  cv_.notify_all();
-  for (std::thread& t : threads_) t.join();
-}
-
-Executor& Executor::Shared() {
-  static Executor* shared =
-      new Executor(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
-  return *shared;  // never destroyed: sessions may outlive static destruction order
-}
-
-void Executor::Enqueue(std::shared_ptr<Task> task) {
-  if (threads_.empty()) return;  // the waiting thread runs it
-  {
-    std::lock_guard<std::mutex> lock(mu_);
-    queue_.push_back(std::move(task));
-  }
-  cv_.notify_one();
-}
-
-void Executor::Loop() {
-  for (;;) {
-    std::shared_ptr<Task> task;
-    {
-      std::unique_lock<std::mutex> lock(mu_);
-      cv_.wait(lock, [&] { return stop_ || !queue_.empty(); });
-      if (queue_.empty()) return;  // stop_ and nothing left
-      task = std::move(queue_.front());
-      queue_.pop_front();
-    }
-    if (task->claimed.exchange(true)) continue;  // a waiting thread ran it
-    task->group->Execute(task);
-  }
-}
 
 TaskGroup::~TaskGroup() {
   std::unique_lock<std::mutex> lock(mu_);
@@ -61,17 +13,19 @@ TaskGroup::~TaskGroup() {
 }
 
 void TaskGroup::Run(std::function<void()> fn) {
-  auto task = std::make_shared<Executor::Task>();
+  auto task = std::make_shared<Task>();
   task->fn = std::move(fn);
-  task->group = this;
   {
     std::lock_guard<std::mutex> lock(mu_);
     while (!unstarted_.empty() && unstarted_.front()->claimed) unstarted_.pop_front();
     unstarted_.push_back(task);  // may throw: then nothing has changed
     ++outstanding_;
   }
+  if (executor_->threads() == 0) return;  // the waiting thread runs it
   try {
-    executor_->Enqueue(std::move(task));
+    executor_->Enqueue([this, task = std::move(task)] {
+      if (!task->claimed.exchange(true)) Execute(task);  // else a waiting thread ran it
+    });
   } catch (...) {  // only waiting threads can run it now
     std::lock_guard<std::mutex> lock(mu_);
     stranded_ = true;
@@ -86,7 +40,7 @@ void TaskGroup::Notify() {
 
 bool TaskGroup::HelpLocked(std::unique_lock<std::mutex>& lock) {
   while (!unstarted_.empty()) {
-    std::shared_ptr<Executor::Task> task = std::move(unstarted_.front());
+    std::shared_ptr<Task> task = std::move(unstarted_.front());
     unstarted_.pop_front();
     if (task->claimed.exchange(true)) continue;  // an executor thread has it
     lock.unlock();
@@ -97,7 +51,7 @@ bool TaskGroup::HelpLocked(std::unique_lock<std::mutex>& lock) {
   return false;
 }
 
-void TaskGroup::Execute(const std::shared_ptr<Executor::Task>& task) {
+void TaskGroup::Execute(const std::shared_ptr<Task>& task) {
   std::exception_ptr error;
   try {
     task->fn();
