@@ -1,5 +1,7 @@
 // TandemSession::Impl (session_impl.h): the session's slabs stepped slice by slice, Finish, and
 // what the observers read. The queued steps and the sealed shares are in slab_pipeline.cc.
+#include "session_impl.h"
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -9,7 +11,6 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
-#include "session_impl.h"
 
 namespace tandem {
 namespace {
@@ -19,25 +20,11 @@ double Seconds(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
 }
 
-
 // The engine frame's unit (TandemSession): the power of two at or below the smallest
 // spacing, so that scaling by it is exact.
 double EngineScale(const VolumeInfo& g) {
   const double smallest = std::min({g.spacing[0], g.spacing[1], g.spacing[2]});
   return std::ldexp(1.0, std::ilogb(smallest));
-}
-
-// Copies n values to dst and says whether all are finite (volume.h's rule), in one pass
-// that the compiler vectorises.
-bool CopyFinite(const float* src, size_t n, float* dst) {
-  uint32_t bad = 0;
-  for (size_t i = 0; i < n; ++i) {
-    uint32_t bits;
-    std::memcpy(&bits, src + i, sizeof bits);
-    std::memcpy(dst + i, &bits, sizeof bits);
-    bad |= static_cast<uint32_t>(NonFiniteBits(bits));
-  }
-  return bad == 0;
 }
 
 }  // namespace
@@ -57,7 +44,8 @@ TandemSession::Finishing TandemSession::Impl::FinishProgress() const {
     done += t->progress_done();
     total += t->progress_total();
   }
-  if (total > 0) f.share = std::clamp(static_cast<double>(done) / static_cast<double>(total), 0.0, 1.0);
+  if (total > 0)
+    f.share = std::clamp(static_cast<double>(done) / static_cast<double>(total), 0.0, 1.0);
   return f;
 }
 
@@ -73,8 +61,8 @@ void TandemSession::Impl::BeginFinishStep(const char* step, std::vector<Simplifi
 
 // ---- Impl ----
 
-TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int count,
-                          Executor* ex, std::shared_ptr<MemoryBudget> budget)
+TandemSession::Impl::Impl(const VolumeInfo& g, const SessionOptions& o, int count, Executor* ex,
+                          std::shared_ptr<MemoryBudget> budget)
     : grid(g), options(o), scale(EngineScale(g)), executor(ex), meter(std::move(budget)) {
   // With several slabs the threads go to the slabs, not to the batches inside one.
   slabs = MakeSlabs(grid, options, scale, count,
@@ -148,8 +136,7 @@ absl::Status TandemSession::Impl::Sync() {
 void TandemSession::Impl::MaybeSettleSeams() {
   // At fixed slices, every slab stepped up to the same one: the result does not depend on
   // threads or on when the caller looks.
-  if (!options.seal || slabs.size() < 2 || slices_added == 0 ||
-      slices_added % kSettleEvery != 0) {
+  if (!options.seal || slabs.size() < 2 || slices_added == 0 || slices_added % kSettleEvery != 0) {
     return;
   }
   if (!Sync().ok()) return;  // the failure is reported by the caller
@@ -222,98 +209,57 @@ void TandemSession::Impl::ForEachSlab(const std::function<void(Slab&)>& f, bool 
   for (auto& slab : slabs) f(*slab);
 }
 
-absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype,
-                                           const uint8_t* bytes) {
+absl::Status TandemSession::Impl::AddSlice(const float* values, DType dtype, const uint8_t* bytes) {
   if (finished) return absl::FailedPreconditionError("session already finished");
   const auto start = Clock::now();
-  auto fail = [&](absl::Status st) {
-    stats.time.total_s += Seconds(start, Clock::now());
-    return st;
-  };
-  const int64_t k = slices_added;
-  if (slabs.size() > 1) {
-    // Each slab checks its own columns (and the extractor the end of the volume); with
-    // several, a bad slice must be refused before any of them moves.
-    if (grid.nz > 0 && k >= grid.nz) {
-      return fail(absl::InvalidArgumentError(
-          absl::StrCat("slice ", k, " is past the end of the volume (nz = ", grid.nz, ")")));
-    }
+  const absl::Status st =
+      queued ? QueueSlice(values, dtype, bytes) : StepSlice(values, dtype, bytes);
+  stats.time.total_s += Seconds(start, Clock::now());
+  return st;
+}
+
+absl::Status TandemSession::Impl::CheckSliceIndex() const {
+  // Each slab checks its own columns (and the extractor the end of the volume); with
+  // several, a bad slice must be refused before any of them moves.
+  if (slabs.size() > 1 && grid.nz > 0 && slices_added >= grid.nz) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "slice ", slices_added, " is past the end of the volume (nz = ", grid.nz, ")"));
   }
-  const size_t n = static_cast<size_t>(grid.nx * grid.ny);
+  return absl::OkStatus();
+}
+
+absl::Status TandemSession::Impl::NonFiniteError(const float* values) const {
+  const int64_t i = FirstNonFinite(reinterpret_cast<const uint8_t*>(values),
+                                   static_cast<size_t>(grid.nx * grid.ny));
+  return NonFiniteVoxelError(i % grid.nx, i / grid.nx, values[i]);
+}
+
+absl::Status TandemSession::Impl::StepSlice(const float* values, DType dtype,
+                                            const uint8_t* bytes) {
+  if (absl::Status st = CheckSliceIndex(); !st.ok()) return st;
   // A slice must be refused before any slab moves: with several, its values are checked
-  // first (while copied for the queued steps); one slab's extractor checks them as it scans.
-  auto non_finite = [&](const float* v) {
-    const int64_t i = FirstNonFinite(reinterpret_cast<const uint8_t*>(v), n);
-    return fail(NonFiniteVoxelError(i % grid.nx, i / grid.nx, v[i]));
-  };
-  if (queued) {
-    MaybeSettleSeams();
-    {
-      std::lock_guard<std::mutex> lock(mu);
-      if (absl::Status st = QueuedFailure(); !st.ok()) return fail(st);
-    }
-    RingSlot& slot = ring[static_cast<size_t>(ring_next)];
-    steps->WaitUntil(
-        [&] {
-          std::lock_guard<std::mutex> lock(mu);
-          return slot.pending == 0 || meter.stopped();
-        },
-        /*help=*/false);
-    if (meter.stopped()) return fail(meter.status());  // its steps are dropped with it
-    // The slot is free (pending == 0) until it is queued: a refused slice leaves it so.
-    const DType kept = values != nullptr ? DType::kFloat32 : dtype;
-    const size_t size = n * DTypeSize(kept);
-    slot.storage.resize((size + sizeof(float) - 1) / sizeof(float));
-    slot.dtype = kept;
-    auto* dst = reinterpret_cast<uint8_t*>(slot.storage.data());
-    if (values != nullptr) {
-      if (!CopyFinite(values, n, slot.storage.data())) return non_finite(values);
-    } else {
-      std::memcpy(dst, bytes, size);
-      if (kept == DType::kFloat32 && FirstNonFinite(dst, n) >= 0) {
-        return non_finite(slot.storage.data());
-      }
-    }
-    buffers.Hold(BufferBytes(), "receiving slice", k);
-    std::vector<size_t> idle;
-    {
-      std::lock_guard<std::mutex> lock(mu);
-      slot.pending = static_cast<int>(slabs.size());
-      for (size_t i = 0; i < slabs.size(); ++i) {
-        queues[i].slices.push_back(ring_next);
-        if (!queues[i].busy) {
-          queues[i].busy = true;
-          idle.push_back(i);
-        }
-      }
-    }
-    for (size_t i : idle) steps->Run([this, i] { StepQueued(i); });
-    ring_next = (ring_next + 1) % kRingSlots;
-    ++slices_added;
-    stats.time.total_s += Seconds(start, Clock::now());
-    return absl::OkStatus();
-  }
+  // first; one slab's extractor checks them as it scans.
   if (values != nullptr && slabs.size() > 1 &&
-      FirstNonFinite(reinterpret_cast<const uint8_t*>(values), n) >= 0) {
-    return non_finite(values);
+      FirstNonFinite(reinterpret_cast<const uint8_t*>(values),
+                     static_cast<size_t>(grid.nx * grid.ny)) >= 0) {
+    return NonFiniteError(values);
   }
   MaybeSettleSeams();
   // Float32 bytes come here as values (aligned by AddSliceBytes); integers as they are.
-  const SliceValues slice = values != nullptr ? SliceValues::Floats(values) : SliceValues{bytes, dtype};
+  const SliceValues slice =
+      values != nullptr ? SliceValues::Floats(values) : SliceValues{bytes, dtype};
   std::vector<absl::Status> status(slabs.size());
-  ForEachSlab([&](Slab& s) {
-    status[s.index] = StepSlab(s, slice.From(s.x0), options.schedule, overlap);
-  });
+  ForEachSlab(
+      [&](Slab& s) { status[s.index] = StepSlab(s, slice.From(s.x0), options.schedule, overlap); });
   for (const absl::Status& st : status) {
     if (!st.ok()) {
       FoldTraces();  // the SIMPLIFY step before the failed EXTRACT happened
-      return fail(st);
+      return st;
     }
   }
-  if (absl::Status st = Sync(); !st.ok()) return fail(st);
+  if (absl::Status st = Sync(); !st.ok()) return st;
   for (auto& s : slabs) CutSealed(*s);
   ++slices_added;
-  stats.time.total_s += Seconds(start, Clock::now());
   return absl::OkStatus();
 }
 
@@ -330,7 +276,7 @@ absl::Status TandemSession::Impl::Finish() {
     return absl::FailedPreconditionError(absl::StrCat(
         "the stream ended after ", done, " slices but the volume declared nz = ", grid.nz));
   }
-  if (queued) {  // no slice will be queued any more: the ring's slots are not counted now
+  if (queued) {     // no slice will be queued any more: the ring's slots are not counted now
     steps->Wait();  // Sync did; nothing is left
     steps.reset();
     queued = false;
@@ -349,7 +295,7 @@ absl::Status TandemSession::Impl::Finish() {
     return all;
   };
   BeginFinishStep(options.schedule == Schedule::kClassical ? "simplifying the whole mesh"
-                                                            : "simplifying the last slices",
+                                                           : "simplifying the last slices",
                   simplifiers());
   ForEachSlab([this](Slab& s) { FinishSlab(s, options.schedule); }, /*balanced=*/true);
   finished = true;

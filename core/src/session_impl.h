@@ -34,6 +34,10 @@ struct TandemSession::Impl {
   // values (host floats) or dtype + bytes (integers stay as they are, in the ring too: the
   // extractors convert them as they scan; SliceValues).
   absl::Status AddSlice(const float* values, DType dtype, const uint8_t* bytes);
+  absl::Status StepSlice(const float* values, DType dtype, const uint8_t* bytes);  // unqueued
+  absl::Status QueueSlice(const float* values, DType dtype, const uint8_t* bytes);  // the ring
+  absl::Status CheckSliceIndex() const;  // the next slice lies within nz
+  absl::Status NonFiniteError(const float* values) const;  // names the first bad voxel
   absl::Status Finish();
   // Waits for the queued slab steps, then pairs the new seam vertices and folds the traces.
   // It only fills caches, so the const observers use it.

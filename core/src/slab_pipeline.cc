@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <mutex>
 
@@ -17,6 +18,19 @@ namespace {
 size_t ChunkBytes(const SealedChunk& c) {
   return c.positions.capacity() * sizeof(Vec3) +
          (c.ids.capacity() + c.indices.capacity() + c.retired.capacity()) * sizeof(uint32_t);
+}
+
+// Copies n values to dst and says whether all are finite (volume.h's rule), in one pass
+// that the compiler vectorises.
+bool CopyFinite(const float* src, size_t n, float* dst) {
+  uint32_t bad = 0;
+  for (size_t i = 0; i < n; ++i) {
+    uint32_t bits;
+    std::memcpy(&bits, src + i, sizeof bits);
+    std::memcpy(dst + i, &bits, sizeof bits);
+    bad |= static_cast<uint32_t>(NonFiniteBits(bits));
+  }
+  return bad == 0;
 }
 
 }  // namespace
@@ -79,6 +93,58 @@ int64_t TandemSession::Impl::CutTriangles(int64_t through) const {
   return n;
 }
 
+absl::Status TandemSession::Impl::QueueSlice(const float* values, DType dtype,
+                                             const uint8_t* bytes) {
+  if (absl::Status st = CheckSliceIndex(); !st.ok()) return st;
+  const int64_t k = slices_added;
+  const size_t n = static_cast<size_t>(grid.nx * grid.ny);
+  MaybeSettleSeams();
+  {
+    std::lock_guard<std::mutex> lock(mu);
+    if (absl::Status st = QueuedFailure(); !st.ok()) return st;
+  }
+  RingSlot& slot = ring[static_cast<size_t>(ring_next)];
+  steps->WaitUntil(
+      [&] {
+        std::lock_guard<std::mutex> lock(mu);
+        return slot.pending == 0 || meter.stopped();
+      },
+      /*help=*/false);
+  if (meter.stopped()) return meter.status();  // its steps are dropped with it
+  // The slot is free (pending == 0) until it is queued: a refused slice leaves it so. A slice
+  // is refused before any slab moves: its values are checked while copied.
+  const DType kept = values != nullptr ? DType::kFloat32 : dtype;
+  const size_t size = n * DTypeSize(kept);
+  slot.storage.resize((size + sizeof(float) - 1) / sizeof(float));
+  slot.dtype = kept;
+  auto* dst = reinterpret_cast<uint8_t*>(slot.storage.data());
+  if (values != nullptr) {
+    if (!CopyFinite(values, n, slot.storage.data())) return NonFiniteError(values);
+  } else {
+    std::memcpy(dst, bytes, size);
+    if (kept == DType::kFloat32 && FirstNonFinite(dst, n) >= 0) {
+      return NonFiniteError(slot.storage.data());
+    }
+  }
+  buffers.Hold(BufferBytes(), "receiving slice", k);
+  std::vector<size_t> idle;
+  {
+    std::lock_guard<std::mutex> lock(mu);
+    slot.pending = static_cast<int>(slabs.size());
+    for (size_t i = 0; i < slabs.size(); ++i) {
+      queues[i].slices.push_back(ring_next);
+      if (!queues[i].busy) {
+        queues[i].busy = true;
+        idle.push_back(i);
+      }
+    }
+  }
+  for (size_t i : idle) steps->Run([this, i] { StepQueued(i); });
+  ring_next = (ring_next + 1) % kRingSlots;
+  ++slices_added;
+  return absl::OkStatus();
+}
+
 absl::Status TandemSession::Impl::QueuedFailure() {
   for (const SlabQueue& q : queues) {
     if (!q.failure.ok()) return q.failure;
@@ -116,11 +182,11 @@ void TandemSession::Impl::StepQueued(size_t i) {
   absl::Status st;
   try {
     if (!skip) {
-      st = StepSlab(slab, ring[static_cast<size_t>(slot)].values().From(slab.x0),
-                    options.schedule, overlap);
+      st = StepSlab(slab, ring[static_cast<size_t>(slot)].values().From(slab.x0), options.schedule,
+                    overlap);
     }
     CutSealed(slab);  // a share for every step, so that the shares stay in step with slices
-  } catch (...) {  // this slab is done for; Sync and AddSlice report it
+  } catch (...) {     // this slab is done for; Sync and AddSlice report it
     st = StatusOfException(std::current_exception());
   }
   const SlabGauge gauge = Measure(slab);

@@ -19,9 +19,7 @@ struct RingSlot {
   std::vector<float> storage;  // the slice's bytes (float storage: float32 stays aligned)
   DType dtype = DType::kFloat32;
   int pending = 0;  // slabs that have not finished with it
-  SliceValues values() const {
-    return {reinterpret_cast<const uint8_t*>(storage.data()), dtype};
-  }
+  SliceValues values() const { return {reinterpret_cast<const uint8_t*>(storage.data()), dtype}; }
 };
 struct SlabQueue {
   std::deque<int> slices;  // ring slots

@@ -27,7 +27,9 @@ class TaskGroup {
   // Queues fn on the executor. May be called from inside one of the group's tasks.
   void Run(std::function<void()> fn);
   // Until every task run so far has finished; rethrows the first exception of a task.
-  void Wait() { WaitUntil([] { return false; }); }
+  void Wait() {
+    WaitUntil([] { return false; });
+  }
   // Until done() holds or no task is left (done is called with the group's lock held: it must
   // not call into the group). Tasks that change what done() reads call Notify() after.
   // help = false: leave the tasks to the executor's threads when it has any (a thread that
