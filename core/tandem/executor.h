@@ -14,8 +14,9 @@ class Executor {
  public:
   virtual ~Executor() = default;
 
-  // Runs `task` once, on any thread, now (inline) or later. Called only when threads() > 0.
-  // It may throw (the task is then not queued): whoever waits for the task runs it instead.
+  // Runs `task` once, on any thread, now (inline) or later; the task itself never throws.
+  // Called only when threads() > 0. It may throw (the task is then not queued): whoever waits
+  // for the task runs it instead.
   // A session calls it once per task (a slab's step, a batch), never per voxel or triangle.
   virtual void Enqueue(std::function<void()> task) = 0;
   // How many tasks may run at once, for sizing parallel work. 0: Enqueue is never called, and
