@@ -17,7 +17,7 @@
 #include "common/wire.h"
 #include "server/extract_job_internal.h"
 #include "tandem/distance.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 #include "tandem/report.h"
 #include "tandem/tandem.h"
 

@@ -12,7 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "codec/draco_codec.h"
 #include "server/extract_job_internal.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 
 namespace tandem::server {
 namespace {

@@ -38,7 +38,7 @@ class LiveStream {
 struct ServiceState {
   ServiceState(const ServerLimits& l, std::vector<std::string> tokens, bool tls_on)
       : limits(l),
-        compute(std::make_unique<Executor>(
+        compute(NewThreadPool(
             l.compute_threads > 0 ? l.compute_threads
                                   : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())))),
         tls(tls_on), auth(std::move(tokens)),

@@ -9,7 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "prefetch.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 
 namespace tandem {
 

@@ -9,7 +9,7 @@
 #include <thread>
 #include <vector>
 
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 #include "thread_clock.h"
 
 namespace tandem {

@@ -1,5 +1,6 @@
 // TandemSession's inside: the slabs, the slices on their way to them, and the executor that
-// steps them. The schedule itself is in schedule.h, the slabs in slabs.h.
+// steps them. The schedule itself is in schedule.h, the slabs in slabs.h, the ring and the
+// queued steps in slab_pipeline.h.
 #ifndef TANDEM_SESSION_IMPL_H_
 #define TANDEM_SESSION_IMPL_H_
 
@@ -14,8 +15,9 @@
 #include "absl/status/status.h"
 #include "meter.h"
 #include "schedule.h"
+#include "slab_pipeline.h"
 #include "slabs.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
 #include "tandem/tandem.h"
 
 namespace tandem {
@@ -32,6 +34,10 @@ struct TandemSession::Impl {
   // values (host floats) or dtype + bytes (integers stay as they are, in the ring too: the
   // extractors convert them as they scan; SliceValues).
   absl::Status AddSlice(const float* values, DType dtype, const uint8_t* bytes);
+  absl::Status StepSlice(const float* values, DType dtype, const uint8_t* bytes);  // unqueued
+  absl::Status QueueSlice(const float* values, DType dtype, const uint8_t* bytes);  // the ring
+  absl::Status CheckSliceIndex() const;  // the next slice lies within nz
+  absl::Status NonFiniteError(const float* values) const;  // names the first bad voxel
   absl::Status Finish();
   // Waits for the queued slab steps, then pairs the new seam vertices and folds the traces.
   // It only fills caches, so the const observers use it.
@@ -56,23 +62,8 @@ struct TandemSession::Impl {
   SlabGauge Measure(const Slab& slab) const;  // reads only the slab and the grid
   size_t BufferBytes() const;  // the slice buffers and the seams' pairs
 
-  // Queued slices (a pipelined split session): each slice is copied once into the ring and
-  // queued for every slab. A slab's steps run one at a time and in order, each step a task
-  // that queues the slab's next one, so the result does not depend on which thread runs it.
-  struct RingSlot {
-    std::vector<float> storage;  // the slice's bytes (float storage: float32 stays aligned)
-    DType dtype = DType::kFloat32;
-    int pending = 0;  // slabs that have not finished with it
-    SliceValues values() const {
-      return {reinterpret_cast<const uint8_t*>(storage.data()), dtype};
-    }
-  };
-  struct SlabQueue {
-    std::deque<int> slices;  // ring slots
-    bool busy = false;       // a task of this slab is queued or running
-    bool parked = false;     // waiting for the target count's decision (TargetControl)
-    absl::Status failure;    // the first failure of a queued step (none expected)
-  };
+  // Queued slices (a pipelined split session, slab_pipeline.h): each slice is copied once
+  // into the ring and queued for every slab.
   static constexpr int kRingSlots = static_cast<int>(kSlicesInFlight);  // slices in flight
   void StepQueued(size_t slab);  // one queued step of a slab (a task)
   absl::Status QueuedFailure();  // mu held
@@ -128,6 +119,7 @@ struct TandemSession::Impl {
   // FinishProgress: the step Finish is in and the simplifiers it runs (tracked), under
   // finish_mu; a reader takes the lock, the simplifiers' counters are atomic.
   void BeginFinishStep(const char* step, std::vector<Simplifier*> simplifiers);
+  TandemSession::Finishing FinishProgress() const;
   mutable std::mutex finish_mu;
   const char* finish_step = nullptr;  // null: Finish is not running
   std::vector<Simplifier*> tracked;

@@ -1,19 +1,25 @@
 // TandemSession: extraction and simplification in lock-step (Attali, Cohen-Steiner,
 // Edelsbrunner, "Extraction and Simplification of Iso-surfaces in Tandem", SGP 2005).
 //
+// The contract in one place: the session below, what it is asked to do (SessionOptions,
+// options.h), what it hands back (IndexedMesh and SealedChunk, mesh.h) and what it measured
+// (SessionStats, stats.h). The engine behind it is internal (core/src/).
+//
 // Push model: the caller feeds slices 0, 1, ... with AddSlice and calls Finish once; the
-// session does no I/O (RunSession, below, is the driver for a SliceSource). Per slice k it runs
-// the paper's EXTRACT(k) and, for the tandem schedules, the SIMPLIFY step behind the sweep
-// (SessionOptions::schedule). E0 is in the volume's physical units.
+// session does no I/O (RunSession, tandem_io's run_session.h, is the driver for a
+// SliceSource). Per slice k it runs the paper's EXTRACT(k) and, for the tandem schedules, the
+// SIMPLIFY step behind the sweep (SessionOptions::schedule). E0 is in the volume's physical
+// units.
 //
 // Slabs: the grid may be split along x into slabs (SessionOptions::parts) run side by side; the
 // vertices on the planes between slabs wait until Finish, which merges the slabs and goes on
 // from the seams. The split is part of the result (parts = 1 is the paper's algorithm, nothing
 // deferred); threads are not: a pipelined and a sequential run give identical meshes.
 //
-// Threads: a session runs its work on the Executor it is given (executor.h), never on threads
-// of its own, apart from the caller's: with SessionOptions::pipeline, AddSlice may queue the
-// slice for the executor and return. Many sessions on one executor share its threads.
+// Threads: a session runs its work on the Executor it is given (executor.h: the built-in pool
+// or one the caller implements), never on threads of its own, apart from the caller's: with
+// SessionOptions::pipeline, AddSlice may queue the slice for the executor and return. Many
+// sessions on one executor share its threads.
 //
 // Memory: a session given a MemoryBudget (budget.h) checks it where its arrays grow, inside
 // its steps, and fails with RESOURCE_EXHAUSTED (naming the budget and the bytes) before it
@@ -26,13 +32,10 @@
 
 #include <cstdint>
 #include <exception>
-#include <functional>
 #include <memory>
-#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "tandem/budget.h"
 #include "tandem/executor.h"
 #include "tandem/mesh.h"
 #include "tandem/options.h"
@@ -40,6 +43,8 @@
 #include "tandem/volume.h"
 
 namespace tandem {
+
+class MemoryBudget;  // budget.h
 
 // Coordinates: the engine works in a frame of its own, relative to the grid: voxel (i, j, k)
 // at (i*sx, j*sy, k*sz) / s, with s the power of two nearest below the smallest spacing. The
@@ -61,6 +66,8 @@ namespace tandem {
 // those is reported by the next AddSlice or Finish.
 class TandemSession {
  public:
+  // ---- The session: slices in, a mesh out ----
+
   // `grid`: nx, ny (>= 2), nz (0 if unknown), spacing, origin. `executor`: the threads to use
   // (null: Executor::Shared()); it must outlive the session. `budget`: the memory it may hold,
   // shared with other sessions or not (null: no limit).
@@ -83,32 +90,40 @@ class TandemSession {
   // Compacted copy of the current (partial or final) mesh, the slabs welded at their seams;
   // with sealing, of the part not sealed yet (empty after Finish).
   IndexedMesh Snapshot() const;
-  // Sealing: moves everything sealed since the last call into one chunk (false: nothing new),
-  // first waiting for every slab step still queued. Finish seals the rest.
+  const SessionStats& stats() const;
+  double MaxShapeError() const;  // Error(K), in world units
+  const VolumeInfo& grid() const;
+  const SessionOptions& options() const;
+  bool finished() const;
+
+  // ---- Sealing (SessionOptions::seal): the final mesh handed out in pieces as it settles ----
+
+  // Moves everything sealed since the last call into one chunk (false: nothing new), first
+  // waiting for every slab step still queued. Finish seals the rest.
   bool TakeSealed(SealedChunk* out);
   int64_t sealed_pending() const;  // triangles TakeSealed would hand out now
   // Sealing without draining the pipeline: moves what the steps of slices up to `slice` sealed
   // (and not taken yet) into one chunk, waiting for those steps only, never for later ones
   // (false: nothing). Each slab step's share is cut as the step ends, so taking slice k after
   // AddSlice of slice k + kSlicesInFlight never waits, and gives the chunk that TakeSealed
-  // after AddSlice of slice k gives. Taking after every slice with TakeSealed instead ran a
-  // split session's slabs in lock-step: on 2 cores a dense 2048² stream took about 15 % longer.
+  // after AddSlice of slice k gives. A caller taking after every slice uses this one: with
+  // TakeSealed a split session's slabs would run in lock-step.
   bool TakeSealedThrough(int64_t slice, SealedChunk* out);
   // A split session steps its slabs up to this many slices behind AddSlice: once AddSlice of
   // slice k returns, every step of slice k - kSlicesInFlight has finished.
   static constexpr int64_t kSlicesInFlight = 4;
-  int64_t num_triangles() const;   // held by the session (with sealing: not sealed yet)
-  int num_parts() const;           // slabs; after Finish: 1
-  const SessionStats& stats() const;
-  double MaxShapeError() const;    // Error(K), in world units
+
+  // ---- Introspection (a server's budget, progress and accounting) ----
+
+  int64_t num_triangles() const;  // held by the session (with sealing: not sealed yet)
+  int num_parts() const;          // slabs; after Finish: 1
   // Mesh store + queues (at their fullest in the last step) + extractor caches + slice buffers.
   size_t MemoryBytes() const;
-  // The observers above first wait for every slab step still queued (a split session runs
-  // its slabs' steps up to 4 slices behind AddSlice). A caller that looks after every slice
-  // (the server: its budget, progress and accounting after each message) would drain that
-  // pipeline each time and leave cores idle. Peek does not wait: it gives the figures as
-  // each slab's last finished step left them, exact when no step is in flight (one slab,
-  // or after Finish).
+  // The observers of this class first wait for every slab step still queued (a split session
+  // runs its slabs' steps up to kSlicesInFlight slices behind AddSlice). A caller that looks
+  // after every slice would drain that pipeline each time and leave cores idle. Peek does not
+  // wait: it gives the figures as each slab's last finished step left them, exact when no
+  // step is in flight (one slab, or after Finish).
   struct Gauge {
     int64_t triangles = 0;       // num_triangles()
     int64_t peak_triangles = 0;  // stats().peak_triangles, with `triangles`
@@ -131,9 +146,6 @@ class TandemSession {
     double step_seconds = 0, seconds = 0;
   };
   Finishing FinishProgress() const;
-  const VolumeInfo& grid() const;
-  const SessionOptions& options() const;
-  bool finished() const;
 
  private:
   struct Impl;  // session_impl.h

@@ -16,7 +16,8 @@
 
 #include "absl/strings/match.h"
 #include "tandem/budget.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
+#include "thread_pool.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -192,7 +193,7 @@ TEST(MemoryBudget, SessionsSharingABudgetAreBoundedTogether) {
 TEST(MemoryBudget, CancelledOrDestroyedSessionsStopTheirRunningStepsAtOnce) {
   constexpr int64_t n = 256, nz = 6;
   const auto slices = NoiseSlices(n, nz, 3);
-  Executor executor(2);
+  ThreadPool executor(2);
   SessionOptions o = NoiseOptions();
   o.parts = 2;  // a step a thread
   // Slices 0..3 stepped, then slice 4 queued, and its steps seen running (the budget hears
@@ -244,7 +245,7 @@ TEST(MemoryBudget, CancelledOrDestroyedSessionsStopTheirRunningStepsAtOnce) {
 TEST(MemoryBudget, ASessionWaitingBehindOtherWorkWakesWhenCancelled) {
   constexpr int64_t n = 96, nz = 8;
   const auto slices = NoiseSlices(n, nz, 5);
-  Executor executor(1);
+  ThreadPool executor(1);
   std::promise<void> release;
   std::shared_future<void> released = release.get_future().share();
   TaskGroup other(&executor);

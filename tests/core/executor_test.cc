@@ -1,7 +1,8 @@
-// The executor (executor.h): every task runs once, waiting helps, nested waits cannot deadlock,
-// and a session works only on the executor it is given: it starts no thread of its own, and its
-// mesh does not depend on how many threads the executor has. Its phase times are CPU time,
-// however many threads share the cores.
+// The executor (executor.h, task_group.h): every task runs once, waiting helps, nested waits
+// cannot deadlock, and a session works only on the executor it is given (the built-in pool or
+// one the caller supplies): it starts no thread of its own, and its mesh does not depend on how
+// many threads the executor has. Its phase times are CPU time, however many threads share the
+// cores.
 #include <dirent.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -9,13 +10,15 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <functional>
 #include <stdexcept>
 #include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
 
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
+#include "thread_pool.h"
 #include "tandem/synthetic.h"
 #include "tandem/tandem.h"
 
@@ -33,7 +36,7 @@ int ThreadsOfThisProcess() {
 
 TEST(Executor, RunsEveryTaskOnceAndWaitRethrows) {
   for (int threads : {0, 1, 3}) {
-    Executor ex(threads);
+    ThreadPool ex(threads);
     EXPECT_EQ(ex.threads(), threads);
     std::atomic<int> runs{0};
     TaskGroup g(&ex);
@@ -47,7 +50,7 @@ TEST(Executor, RunsEveryTaskOnceAndWaitRethrows) {
 }
 
 TEST(Executor, WithoutThreadsTheWaiterRunsTheTasks) {
-  Executor ex(0);
+  ThreadPool ex(0);
   std::thread::id ran;
   TaskGroup g(&ex);
   g.Run([&] { ran = std::this_thread::get_id(); });
@@ -57,7 +60,7 @@ TEST(Executor, WithoutThreadsTheWaiterRunsTheTasks) {
 
 TEST(Executor, TasksThatWaitForTasksDoNotDeadlock) {
   // One thread, and every task waits for a group of its own: only helping makes progress.
-  Executor ex(1);
+  ThreadPool ex(1);
   std::atomic<int> inner{0};
   TaskGroup outer(&ex);
   for (int i = 0; i < 4; ++i) {
@@ -92,13 +95,13 @@ IndexedMesh RunLink(Executor* ex, bool pipeline, int* threads_added) {
 }
 
 TEST(Executor, ASessionUsesOnlyTheExecutorItIsGiven) {
-  Executor one(1);  // started before counting
+  ThreadPool one(1);  // started before counting
   int added = -1;
   const IndexedMesh mesh = RunLink(&one, /*pipeline=*/true, &added);
   EXPECT_EQ(added, 0) << "a session on a given executor started threads of its own";
   ASSERT_GT(mesh.num_triangles(), 300u);
   // Same mesh on no threads, more threads, and with no pipelining at all.
-  Executor none(0), three(3);
+  ThreadPool none(0), three(3);
   for (auto [ex, pipeline] : {std::pair{&none, true}, {&three, true}, {&one, false}}) {
     const IndexedMesh other = RunLink(ex, pipeline, nullptr);
     EXPECT_EQ(other.positions, mesh.positions);
@@ -106,9 +109,51 @@ TEST(Executor, ASessionUsesOnlyTheExecutorItIsGiven) {
   }
 }
 
+// Executors the caller supplies (executor.h's interface): one that runs each task at once on
+// the thread that enqueues it, and one that counts the tasks it hands to a pool.
+class InlineExecutor final : public Executor {
+ public:
+  void Enqueue(std::function<void()> task) override {
+    ++tasks;
+    task();
+  }
+  int threads() const override { return 1; }
+  int tasks = 0;
+};
+
+class CountingExecutor final : public Executor {
+ public:
+  explicit CountingExecutor(int threads) : pool_(threads) {}
+  void Enqueue(std::function<void()> task) override {
+    ++tasks;
+    pool_.Enqueue(std::move(task));
+  }
+  int threads() const override { return pool_.threads(); }
+  std::atomic<int> tasks{0};
+
+ private:
+  ThreadPool pool_;
+};
+
+TEST(Executor, ASessionRunsOnAnExecutorTheCallerSupplies) {
+  const IndexedMesh shared = RunLink(&Executor::Shared(), /*pipeline=*/true, nullptr);
+  ASSERT_GT(shared.num_triangles(), 300u);
+  InlineExecutor serial;
+  CountingExecutor counting(2);
+  for (Executor* ex : {static_cast<Executor*>(&serial), static_cast<Executor*>(&counting)}) {
+    const IndexedMesh mesh = RunLink(ex, /*pipeline=*/true, nullptr);
+    EXPECT_EQ(mesh.positions, shared.positions);
+    EXPECT_EQ(mesh.indices, shared.indices);
+  }
+  // A task a slab step (4 slabs, 40 slices) or a batch, never one a voxel or a triangle.
+  EXPECT_GE(serial.tasks, 4 * 40);
+  EXPECT_GE(counting.tasks.load(), 4 * 40);
+  EXPECT_LT(counting.tasks.load(), 2 * 4 * 40);
+}
+
 TEST(Executor, SessionsShareOneExecutor) {
   // Four sessions on one 2-thread executor, fed in turn: each gives the mesh it gives alone.
-  Executor two(2);
+  ThreadPool two(2);
   const IndexedMesh alone = RunLink(&two, true, nullptr);
   auto src = MakeSyntheticSource(Shape::kLink, 96, 96, 40);
   SessionOptions o;
@@ -141,7 +186,7 @@ TEST(Executor, PhaseTimesAreCpuTimeHoweverManyThreadsShareTheCores) {
   // more than the process's CPU time. (In lock-step each step is too short to be preempted
   // often.)
   const int cores = static_cast<int>(std::max(2u, std::thread::hardware_concurrency()));
-  Executor many(4 * cores);
+  ThreadPool many(4 * cores);
   struct Busy {
     std::vector<pid_t> pids;
     ~Busy() {  // also when an assertion below returns early

@@ -21,7 +21,8 @@
 #include "absl/strings/escaping.h"
 
 #include "engine_testutil.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
+#include "thread_pool.h"
 #include "tandem/mesh_io.h"
 #include "sealer.h"
 #include "slabs.h"
@@ -896,7 +897,7 @@ TEST(Sealing, FinishedStepsAreTakenWithoutWaitingForTheStepsInFlight) {
   const SealRun reference = RunSealed(a, o);  // TakeSealed after every slice
   ASSERT_GT(reference.chunks_before_finish, 40u);
 
-  Executor executor(2);
+  ThreadPool executor(2);
   auto s = TandemSession::Create(b.info(), o, &executor);
   ASSERT_TRUE(s.ok()) << s.status();
   SealRun through;

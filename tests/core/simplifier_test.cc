@@ -13,7 +13,8 @@
 #include "mesh_store.h"
 #include "simplifier.h"
 #include "tandem/distance.h"
-#include "tandem/executor.h"
+#include "tandem/task_group.h"
+#include "thread_pool.h"
 #include "tandem/metrics.h"
 #include "tandem/synthetic.h"
 #include "tandem/run_session.h"
@@ -198,7 +199,7 @@ TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
 // there is handed to the phase that asked (TakeHelperSeconds), which times only its own
 // thread (core/src/schedule.cc).
 TEST(Simplifier, BatchHalvesOnOtherThreadsReportTheirCpuTime) {
-  Executor one(1);
+  ThreadPool one(1);
   auto src = BoxCutGyroid(96, 96, 16);  // thousands of edges a layer: batches of 1024 or more
   MeshStore store;
   SimplifierOptions so;
@@ -237,7 +238,7 @@ TEST(Simplifier, SagCorrectionInRangesMovesTheSameVertices) {
     }
     return positions;
   };
-  Executor one(1);
+  ThreadPool one(1);
   double alone = -1, helped = -1;
   const std::vector<Vec3> sequential = run(nullptr, &alone);
   const std::vector<Vec3> in_ranges = run(&one, &helped);
@@ -1028,7 +1029,7 @@ TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
 // Peek must not do is seen: three slices in, no step has run (the server looks after every
 // message, and waiting there drained the pipeline each time).
 TEST(Simplifier, PeekDoesNotWaitForQueuedSlabSteps) {
-  Executor none(0);
+  ThreadPool none(0);
   VolumeInfo grid;
   grid.nx = 160;
   grid.ny = 40;

@@ -327,11 +327,11 @@ std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options,
 // runs only when someone waits: three slices in (the ring holds four), none has, yet the
 // mesh at the end is the local session's.
 TEST(ExtractJob, BetweenSlicesTheJobDoesNotWaitForTheSessionsSteps) {
-  Executor none(0);
+  const std::unique_ptr<Executor> none = NewThreadPool(0);
   v1::SessionConfig options;
   options.set_error(0.3);
   RecordingSink sink;
-  ExtractJob job(ServerLimits{}, &sink, &none);
+  ExtractJob job(ServerLimits{}, &sink, none.get());
   std::vector<v1::ExtractRequest> requests =
       SyntheticRequests(options, Shape::kGyroid, 160, 40, 12, 2);
   ASSERT_EQ(requests.size(), 1u + 12 * 2 + 1);
@@ -442,8 +442,8 @@ TEST(ExtractJob, ALargeLastChunkGoesOutInPartsEncodedSideBySide) {
     options.set_error(0.05);
     options.set_sealed_chunks(true);
     RecordingSink sink;
-    Executor compute(threads);
-    ExtractJob job(ServerLimits{}, &sink, &compute);
+    const std::unique_ptr<Executor> compute = NewThreadPool(threads);
+    ExtractJob job(ServerLimits{}, &sink, compute.get());
     // A gyroid of period 14 voxels filling the box: surface in every slice.
     for (v1::ExtractRequest& r :
          SourceRequests(options, ::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 1)) {
@@ -493,8 +493,8 @@ TEST(ExtractJob, SealedChunksKeepTheirTrianglesAreasOnTheGrid) {
   limits.max_preview_share = 0;  // every preview asked for
   limits.max_band_bytes_share = 0;
   RecordingSink sink;
-  Executor compute(2);
-  ExtractJob job(limits, &sink, &compute);
+  const std::unique_ptr<Executor> compute = NewThreadPool(2);
+  ExtractJob job(limits, &sink, compute.get());
   for (v1::ExtractRequest& r :
        SourceRequests(options, ::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 1)) {
     ASSERT_TRUE(job.Handle(r).ok());
