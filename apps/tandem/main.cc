@@ -29,10 +29,10 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
-#include "cli/cli_util.h"
-#include "cli/extract_flags.h"
-#include "cli/flags.h"
-#include "cli/version.h"
+#include "apps/common/cli_util.h"
+#include "apps/common/extract_flags.h"
+#include "apps/common/flags.h"
+#include "apps/common/version.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "codec/draco_codec.h"
 #endif

@@ -2,7 +2,7 @@
 //   tandem-client stream --server HOST:PORT --input VOLUME --iso C0 --error E0 --out MESH ...
 //   tandem-client info   --server HOST:PORT
 //   tandem-client health --server HOST:PORT
-// Exit status (cli/cli_util.h): 0 success, 1 a failure while running (the message on
+// Exit status (apps/common/cli_util.h): 0 success, 1 a failure while running (the message on
 // stderr names the problem and, for a server error, its gRPC code), 2 a mistake in the
 // command line, 3 stream --strict: the iso-value lies outside the data sent (a warning
 // otherwise).
@@ -29,14 +29,14 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
-#include "cli/cli_util.h"
-#include "cli/extract_flags.h"
-#include "cli/version.h"
+#include "apps/common/cli_util.h"
+#include "apps/common/extract_flags.h"
+#include "apps/common/version.h"
 #include "client/connection.h"
-#include "client/live_view.h"
+#include "apps/tandem-client/live_view.h"
 #include "client/stream_client.h"
 #include "codec/draco_codec.h"
-#include "cli/flags.h"
+#include "apps/common/flags.h"
 #include "common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/follow.h"
