@@ -3,10 +3,10 @@
 #ifndef TANDEM_APPS_TANDEM_CLIENT_COMMAND_H_
 #define TANDEM_APPS_TANDEM_CLIENT_COMMAND_H_
 
+#include <grpcpp/grpcpp.h>
+
 #include <cstdint>
 #include <string>
-
-#include <grpcpp/grpcpp.h>
 
 #include "absl/status/status.h"
 #include "apps/common/flags.h"

@@ -1,10 +1,9 @@
 // tandem-client health: the standard gRPC health service's answer (exit 0 only when SERVING).
-#include "apps/tandem-client/command.h"
-
 #include <memory>
 #include <string>
 
 #include "absl/strings/str_format.h"
+#include "apps/tandem-client/command.h"
 #include "common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 
@@ -14,9 +13,10 @@ int HealthCommand(int argc, char** argv) {
   ConnectionFlags connection;
   std::string service;
   double timeout_s = 5;
-  FlagSet flags("usage: tandem-client health [--server HOST:PORT] [flags]\n"
-                "Asks grpc.health.v1.Health/Check; prints the status, exits 0 only if SERVING.\n"
-                "The health service needs no token, even when the server requires one.");
+  FlagSet flags(
+      "usage: tandem-client health [--server HOST:PORT] [flags]\n"
+      "Asks grpc.health.v1.Health/Check; prints the status, exits 0 only if SERVING.\n"
+      "The health service needs no token, even when the server requires one.");
   connection.Add(flags, /*token=*/false);
   flags.AddString("service", &service, "NAME", "service name to ask about (empty = the server)");
   flags.AddDouble("timeout", &timeout_s, "seconds to wait for the answer");
@@ -32,7 +32,8 @@ int HealthCommand(int argc, char** argv) {
   grpc::health::v1::HealthCheckResponse response;
   grpc::Status st = stub->Check(&context, request, &response);
   if (!st.ok()) return connection.Fail(tandem::wire::FromGrpcStatus(st));
-  absl::PrintF("%s\n", grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status()));
+  absl::PrintF("%s\n",
+               grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status()));
   return response.status() == grpc::health::v1::HealthCheckResponse::SERVING ? 0 : 1;
 }
 

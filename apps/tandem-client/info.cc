@@ -1,13 +1,12 @@
 // tandem-client info: the server's version, security, limits, live counters and the sessions
 // this call may see.
-#include "apps/tandem-client/command.h"
-
 #include <memory>
 #include <string>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "apps/tandem-client/command.h"
 #include "common/wire.h"
 #include "tandem/options.h"
 #include "tandem/v1/tandem.grpc.pb.h"
@@ -66,10 +65,11 @@ int InfoCommand(int argc, char** argv) {
   absl::PrintF("idle timeout           %g s\n", l.idle_timeout_seconds());
   absl::PrintF("session memory         %d MiB\n", l.session_memory_bytes() >> 20);
   absl::PrintF("max inflight bytes     %d\n", l.max_inflight_bytes());
-  absl::PrintF("keepalive              time %d ms, timeout %d ms, min client ping interval %d ms, "
-               "pings without calls %s\n",
-               l.keepalive_time_ms(), l.keepalive_timeout_ms(), l.min_ping_interval_ms(),
-               l.permit_keepalive_without_calls() ? "allowed" : "refused");
+  absl::PrintF(
+      "keepalive              time %d ms, timeout %d ms, min client ping interval %d ms, "
+      "pings without calls %s\n",
+      l.keepalive_time_ms(), l.keepalive_timeout_ms(), l.min_ping_interval_ms(),
+      l.permit_keepalive_without_calls() ? "allowed" : "refused");
   absl::PrintF("min preview interval   %d ms (and at most %.0f%% of a stream's time)\n",
                l.min_preview_interval_ms(), 100 * l.max_preview_share());
   absl::PrintF("resume window          %g s\n", l.resume_window_seconds());

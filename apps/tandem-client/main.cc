@@ -10,7 +10,7 @@
 #include <cstdio>
 #include <string>
 #if defined(__GLIBC__)  // (defined by the headers above)
-#include <malloc.h>  // mallopt
+#include <malloc.h>     // mallopt
 #endif
 
 #include "absl/strings/str_format.h"
@@ -49,7 +49,8 @@ int main(int argc, char** argv) {
   const std::string command = argc > 1 ? argv[1] : "";
   if (command == "stream") return tandem::client_app::StreamCommand(argc, argv);
   if (command == "info") return tandem::client_app::InfoCommand(argc, argv);
-  if (command == "watch") return tandem::client_app::WatchCommand(argc, argv, /*view_command=*/false);
+  if (command == "watch")
+    return tandem::client_app::WatchCommand(argc, argv, /*view_command=*/false);
   if (command == "view") return tandem::client_app::WatchCommand(argc, argv, /*view_command=*/true);
   if (command == "health") return tandem::client_app::HealthCommand(argc, argv);
   if (command == "--help" || command == "-h" || command == "help") {

@@ -39,10 +39,10 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
   }
   if (static_cast<int64_t>(mesh->num_triangles()) != s.triangles ||
       static_cast<int64_t>(mesh->num_vertices()) != s.vertices) {
-    return Fail(absl::DataLossError(absl::StrCat(
-        "the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
-        mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
-        s.vertices)));
+    return Fail(absl::DataLossError(
+        absl::StrCat("the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
+                     mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
+                     s.vertices)));
   }
   tandem::MeshWriteOptions write;
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
@@ -96,8 +96,9 @@ std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::C
 
 bool DracoFlagsOk(int64_t bits, int64_t level) {
   if (bits >= 1 && bits <= 30 && level >= 0 && level <= 10) return true;
-  absl::FPrintF(stderr, "tandem-client: need 1 <= --quantization-bits <= 30 and "
-                        "0 <= --compression-level <= 10\n");
+  absl::FPrintF(stderr,
+                "tandem-client: need 1 <= --quantization-bits <= 30 and "
+                "0 <= --compression-level <= 10\n");
   return false;
 }
 
@@ -107,10 +108,9 @@ int SaveResult(tandem::client::StreamResult& result, const SaveOptions& o) {
   std::vector<std::string> json;
   for (size_t i = 0; i < n; ++i) {
     tandem::client::SurfaceResult& s = result.surface(i);
-    const tandem::cli::IsoValue iso = i < o.isos.size()
-                                          ? o.isos[i]
-                                          : tandem::cli::IsoValue{s.metrics.iso(),
-                                                                  absl::StrCat(s.metrics.iso())};
+    const tandem::cli::IsoValue iso =
+        i < o.isos.size() ? o.isos[i]
+                          : tandem::cli::IsoValue{s.metrics.iso(), absl::StrCat(s.metrics.iso())};
     absl::StatusOr<std::string> out = tandem::cli::NameForIso("out", o.out_pattern, iso, n);
     if (!out.ok()) return Fail(out.status());
     if (int rc = SaveSurface(result, s, o, *out, &json); rc != 0) {

@@ -1,7 +1,5 @@
 // tandem-client stream: a volume, slice by slice, to tandem-server; the simplified
 // iso-surface and its metrics back (with previews, sealed chunks, resume and the live view).
-#include "apps/tandem-client/command.h"
-
 #include <unistd.h>
 
 #include <algorithm>
@@ -20,6 +18,7 @@
 #include "absl/strings/str_format.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/extract_flags.h"
+#include "apps/tandem-client/command.h"
 #include "apps/tandem-client/live_view.h"
 #include "apps/tandem-client/save.h"
 #include "client/chunk_store.h"
@@ -51,8 +50,9 @@ int StreamCommand(int argc, char** argv) {
       "simplified iso-surface: .drc (the server's Draco bytes), or decoded: .ply or .obj (with "
       "vertex normals), .stl, .glb.");
   connection.Add(flags, /*token=*/true);
-  f.Add(&flags, "final mesh: .drc (the server's Draco bytes), .ply or .obj (with vertex "
-                "normals), .stl or .glb");
+  f.Add(&flags,
+        "final mesh: .drc (the server's Draco bytes), .ply or .obj (with vertex "
+        "normals), .stl or .glb");
   flags.AddInt("keepalive-time-ms", &keepalive_ms,
                "while streaming, ping the server when the connection has been quiet this "
                "long, so that proxies and NATs keep it (0 = never; keep it at or above the "
@@ -63,7 +63,8 @@ int StreamCommand(int argc, char** argv) {
                "ask for a preview mesh every N slices (0 = none; with --partials: about 20 over "
                "the volume; else with --view: every slice, at most one per 500 ms)");
   flags.AddInt("preview-ms", &preview_ms, "and at most one preview per this many milliseconds");
-  flags.AddString("partials", &partials, "DIR", "save each preview as DIR/preview_<slice, 6 digits>.drc");
+  flags.AddString("partials", &partials, "DIR",
+                  "save each preview as DIR/preview_<slice, 6 digits>.drc");
   flags.AddString("chunks", &chunks_dir, "DIR",
                   "--seal (implied): also save every sealed chunk as it arrives, "
                   "DIR/chunk_<index, 6 digits>.drc (Draco, vertex ids as a generic attribute), "
@@ -120,8 +121,9 @@ int StreamCommand(int argc, char** argv) {
     resume_id = resume.substr(0, colon);
     if (colon != std::string::npos) resume_token = resume.substr(colon + 1);
     if (resume_id.empty() || resume_token.empty()) {
-      absl::FPrintF(stderr, "tandem-client: --resume: expected ID:TOKEN (as the first client "
-                            "printed it), got no ':' or an empty side\n");
+      absl::FPrintF(stderr,
+                    "tandem-client: --resume: expected ID:TOKEN (as the first client "
+                    "printed it), got no ':' or an empty side\n");
       return 2;
     }
   }
@@ -146,7 +148,7 @@ int StreamCommand(int argc, char** argv) {
     if (reopened || f.quiet) return;
     absl::FPrintF(stderr, "%standem-client: %s\n", status_shown.exchange(false) ? "\n" : "", line);
   };
-  std::string spacing_warning;  // --spacing replacing the file's own
+  std::string spacing_warning;    // --spacing replacing the file's own
   bool geometry_refused = false;  // --spacing or --frame does not fit the volume: usage
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
     absl::StatusOr<std::unique_ptr<tandem::SliceSource>> src;
@@ -234,8 +236,8 @@ int StreamCommand(int argc, char** argv) {
   callbacks.on_progress = [&](const tandem::v1::Progress& p, int64_t sent) {
     if (!p.finishing().empty()) {
       if (verbose) {
-        absl::FPrintF(stderr, "progress finishing=\"%s\" share=%.3f seconds=%.1f\n",
-                      p.finishing(), p.finishing_share(), p.finishing_seconds());
+        absl::FPrintF(stderr, "progress finishing=\"%s\" share=%.3f seconds=%.1f\n", p.finishing(),
+                      p.finishing_share(), p.finishing_seconds());
       } else {
         if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
         finishing.Show({tandem::wire::FinishingFromProto(p)});
@@ -280,12 +282,12 @@ int StreamCommand(int argc, char** argv) {
   };
   callbacks.on_retry = [&](const absl::Status& refusal, int retry, double seconds) {
     absl::FPrintF(stderr, "tandem-client: refused (%s: %s); retry %d of %d in %.1f s\n",
-                  absl::StatusCodeToString(refusal.code()), std::string(refusal.message()),
-                  retry, connection.options.retries, seconds);
+                  absl::StatusCodeToString(refusal.code()), std::string(refusal.message()), retry,
+                  connection.options.retries, seconds);
   };
-  callbacks.on_resume = [&](const absl::Status& cause, int64_t slice, int attempt,
-                            double seconds) {
-    absl::FPrintF(stderr, "%standem-client: the stream broke (%s: %s); resuming at slice %d, "
+  callbacks.on_resume = [&](const absl::Status& cause, int64_t slice, int attempt, double seconds) {
+    absl::FPrintF(stderr,
+                  "%standem-client: the stream broke (%s: %s); resuming at slice %d, "
                   "attempt %d of %d in %.1f s\n",
                   bar ? "\n" : "", absl::StatusCodeToString(cause.code()),
                   std::string(cause.message()), slice, attempt, connection.options.retries,
@@ -312,8 +314,8 @@ int StreamCommand(int argc, char** argv) {
   callbacks.on_chunks_kept = [&](int64_t kept) {
     if (!f.quiet) {
       absl::FPrintF(stderr,
-                    "tandem-client: %d sealed chunks kept in %s; the server sends the rest\n",
-                    kept, chunks_dir);
+                    "tandem-client: %d sealed chunks kept in %s; the server sends the rest\n", kept,
+                    chunks_dir);
     }
   };
   if (absl::Status st = view.Start(c.description(), nz); !st.ok()) {
@@ -350,8 +352,7 @@ int StreamCommand(int argc, char** argv) {
   save.frame_text = info.frame;
   save.isos = *isos;
   save.quiet = f.quiet;
-  if (int rc = SaveResult(*result, save);
-      rc != 0) {
+  if (int rc = SaveResult(*result, save); rc != 0) {
     return rc;
   }
   bool outside = false;

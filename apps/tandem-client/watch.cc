@@ -1,7 +1,5 @@
 // tandem-client watch and view: follow another stream's sealed-chunk session by its id, save
 // its mesh and metrics, or show it live in the browser viewer.
-#include "apps/tandem-client/command.h"
-
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -9,6 +7,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "apps/tandem-client/command.h"
 #include "apps/tandem-client/live_view.h"
 #include "apps/tandem-client/save.h"
 #include "client/chunk_store.h"
@@ -59,7 +58,8 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   flags.AddBool("glb-draco", &glb_draco,
                 ".glb output: compress the mesh with Draco (glTF's KHR_draco_mesh_compression)");
   flags.AddDouble("timeout", &timeout_s, "give up after this many seconds (0 = never)");
-  flags.AddBool("verbose", &verbose, "print one line per chunk, progress and preview message on stderr");
+  flags.AddBool("verbose", &verbose,
+                "print one line per chunk, progress and preview message on stderr");
   flags.AddBool("quiet", &quiet, "no summary on stdout");
   tandem::client::LiveView view;
   view.AddFlags(flags, view_command ? "127.0.0.1:8080" : "");
@@ -72,7 +72,8 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   }
   if (!DracoFlagsOk(bits, level)) return 2;
   if (glb_draco && Lower(std::filesystem::path(out).extension().string()) != ".glb") {
-    absl::FPrintF(stderr, "tandem-client: --glb-draco compresses a .glb output; --out is %s\n", out);
+    absl::FPrintF(stderr, "tandem-client: --glb-draco compresses a .glb output; --out is %s\n",
+                  out);
     return 2;
   }
   if (!chunks_dir.empty()) {
@@ -119,8 +120,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
     save.input = absl::StrCat("session ", session);
     save.wall_label = "watch wall time";
     save.quiet = quiet;
-    if (int rc = SaveResult(*result, save);
-        rc != 0) {
+    if (int rc = SaveResult(*result, save); rc != 0) {
       return rc;
     }
   }

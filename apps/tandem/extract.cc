@@ -1,7 +1,5 @@
 // tandem extract: a volume, read slice by slice, to simplified iso-surface meshes and
 // their metrics.
-#include "apps/tandem/command.h"
-
 #include <atomic>
 #include <cstdio>
 #include <future>
@@ -15,6 +13,7 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/extract_flags.h"
 #include "apps/common/flags.h"
+#include "apps/tandem/command.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "codec/draco_codec.h"
 #endif
@@ -36,8 +35,9 @@ int ExtractCommand(int argc, char** argv) {
       "usage: tandem extract --input FILE --out MESH [flags]\n"
       "Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by layer\n"
       "(marching cubes) and simplifies it in tandem by quadric-error edge contraction.");
-  f.Add(&flags, "output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex normals, "
-                "binary STL (.stl), or glTF binary (.glb)");
+  f.Add(&flags,
+        "output mesh: binary PLY (.ply) or OBJ (.obj), both with vertex normals, "
+        "binary STL (.stl), or glTF binary (.glb)");
   flags.AddInt("samples", &samples,
                "surface samples per direction for --reference (0 = automatic)");
   flags.SetEpilog(
@@ -47,7 +47,8 @@ int ExtractCommand(int argc, char** argv) {
       "otherwise).\n");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (!flags.positional().empty()) {
-    return Usage(absl::InvalidArgumentError(absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
+    return Usage(absl::InvalidArgumentError(
+        absl::StrCat("unexpected argument '", flags.positional()[0], "'")));
   }
   if (absl::Status st = f.Check(flags); !st.ok()) return Usage(st);
   const std::string& out = f.out;
@@ -177,7 +178,8 @@ int ExtractCommand(int argc, char** argv) {
           if (!quiet) progress.Update(d, t);
         }
       },
-      on_chunk, nullptr, [&](const std::vector<TandemSession::Finishing>& f) {
+      on_chunk, nullptr,
+      [&](const std::vector<TandemSession::Finishing>& f) {
         if (!slices_done) {
           slices_done = true;
           if (follow && tty) std::fprintf(stderr, "\n");
@@ -191,8 +193,10 @@ int ExtractCommand(int argc, char** argv) {
     progress.Done();
   }
   finishing.Done();
-  if (!sessions.ok()) return Fail(absl::Status(sessions.status().code(),
-                                               absl::StrCat(input_path, ": ", std::string(sessions.status().message()))));
+  if (!sessions.ok())
+    return Fail(
+        absl::Status(sessions.status().code(),
+                     absl::StrCat(input_path, ": ", std::string(sessions.status().message()))));
   for (size_t i = 0; i < surfaces.size(); ++i) {
     Surface& s = surfaces[i];
     const TandemSession& session = *(*sessions)[i];
@@ -205,9 +209,8 @@ int ExtractCommand(int argc, char** argv) {
       // The report's measures (Error(K), anisotropy, bias) only read the mesh and the
       // finished session: work them out on another core while the mesh is written.
       // (async | deferred: runs here, later, when no thread can be had.)
-      std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred, [&] {
-        return MakeReport(session, s.mesh);
-      });
+      std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred,
+                                                       [&] { return MakeReport(session, s.mesh); });
       if (absl::Status st = WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
@@ -223,16 +226,16 @@ int ExtractCommand(int argc, char** argv) {
       o.seal = false;
     }
     cli::Progress ref_progress("reference slices");
-    auto refs = RunSessions(**ref_source, ref_options,
-                            [&](int64_t d, int64_t t) {
-                              if (!quiet) ref_progress.Update(d, t);
-                            });
+    auto refs = RunSessions(**ref_source, ref_options, [&](int64_t d, int64_t t) {
+      if (!quiet) ref_progress.Update(d, t);
+    });
     ref_progress.Done();
     if (!refs.ok()) return Fail(refs.status());
     DistanceOptions dopt;
     dopt.samples = static_cast<size_t>(samples);
     for (size_t i = 0; i < surfaces.size(); ++i) {
-      surfaces[i].report.distance = MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
+      surfaces[i].report.distance =
+          MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
     }
   }
   bool outside = false;
@@ -256,17 +259,20 @@ int ExtractCommand(int argc, char** argv) {
     // An iso-value the data never crosses gives an empty mesh: say so, never silently.
     if (range.Outside(s.opt.iso)) {
       outside = true;
-      std::fprintf(stderr, "tandem extract: warning: %s\n",
-                   range.lo() > range.hi()
-                       ? absl::StrCat("the volume holds no finite value: no surface at iso ", s.opt.iso).c_str()
-                       : absl::StrCat("iso ", s.opt.iso, " is outside the data's value range [",
-                                      range.lo(), ", ", range.hi(),
-                                      "]: the surface is empty (see tandem info)").c_str());
+      std::fprintf(
+          stderr, "tandem extract: warning: %s\n",
+          range.lo() > range.hi()
+              ? absl::StrCat("the volume holds no finite value: no surface at iso ", s.opt.iso)
+                    .c_str()
+              : absl::StrCat("iso ", s.opt.iso, " is outside the data's value range [", range.lo(),
+                             ", ", range.hi(), "]: the surface is empty (see tandem info)")
+                    .c_str());
     }
   }
   if (!json.empty()) {
     // One surface: its report; several into one file: a JSON array of them, in --iso order.
-    std::string text = json.size() == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
+    std::string text =
+        json.size() == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
     if (absl::Status st = WriteText(metrics, text); !st.ok()) return Fail(st);
   }
   if (outside && f.strict) return 3;

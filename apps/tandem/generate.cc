@@ -1,7 +1,5 @@
 // tandem generate: a synthetic volume (raw + JSON sidecar, another volume format, OME-Zarr,
 // or a DICOM / TIFF series).
-#include "apps/tandem/command.h"
-
 #include <array>
 #include <cstdio>
 #include <cstdlib>
@@ -13,6 +11,7 @@
 #include "absl/strings/str_split.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
+#include "apps/tandem/command.h"
 #include "tandem/series.h"
 #include "tandem/synthetic.h"
 #include "tandem/volume.h"
@@ -27,7 +26,8 @@ namespace {
 absl::StatusOr<std::array<double, 3>> ParseTriple(const std::string& s, const char* what) {
   std::vector<std::string> parts = absl::StrSplit(s, ',');
   if (parts.size() != 3) {
-    return absl::InvalidArgumentError(absl::StrCat(what, ": expected three comma-separated numbers, got '", s, "'"));
+    return absl::InvalidArgumentError(
+        absl::StrCat(what, ": expected three comma-separated numbers, got '", s, "'"));
   }
   std::array<double, 3> v{};
   for (int i = 0; i < 3; ++i) {
@@ -81,7 +81,8 @@ int GenerateCommand(int argc, char** argv) {
   flags.SetDefaultText("dicom-syntax", "explicit");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
-    return Usage(absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
+    return Usage(
+        absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
   }
   auto shape = ParseShape(flags.positional()[0]);
   if (!shape.ok()) return Usage(shape.status());
@@ -159,10 +160,10 @@ int GenerateCommand(int argc, char** argv) {
     if (z < src->next_slice()) src = make();  // a second pass (the DICOM writer's range scan)
     return src->ReadSlice(bytes);
   };
-  absl::Status st = series == "dicom"         ? WriteDicomSeries(out, info, next, dicom)
-                    : series == "tiff"        ? WriteTiffSequence(out, info, next)
+  absl::Status st = series == "dicom"        ? WriteDicomSeries(out, info, next, dicom)
+                    : series == "tiff"       ? WriteTiffSequence(out, info, next)
                     : out.ends_with(".zarr") ? WriteZarr(out, info, next, zarr)
-                                              : WriteVolume(out, info, next);
+                                             : WriteVolume(out, info, next);
   progress.Done();
   if (!st.ok()) return FailWriting(st);
   std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out.c_str(),

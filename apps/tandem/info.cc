@@ -1,6 +1,4 @@
 // tandem info: what a volume file holds (grid, voxel type, frame) and its values' range.
-#include "apps/tandem/command.h"
-
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -12,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
+#include "apps/tandem/command.h"
 #include "tandem/volume.h"
 
 namespace tandem::app {
@@ -97,8 +96,8 @@ int InfoCommand(int argc, char** argv) {
                                     }});
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo& i = (*src)->info();
-  std::printf("grid     %lld x %lld x %lld\n", static_cast<long long>(i.nx), static_cast<long long>(i.ny),
-              static_cast<long long>(i.nz));
+  std::printf("grid     %lld x %lld x %lld\n", static_cast<long long>(i.nx),
+              static_cast<long long>(i.ny), static_cast<long long>(i.nz));
   std::printf("dtype    %s\n", std::string(DTypeName(i.dtype)).c_str());
   std::printf("spacing  %g %g %g\n", i.spacing[0], i.spacing[1], i.spacing[2]);
   std::printf("origin   %g %g %g\n", i.origin[0], i.origin[1], i.origin[2]);

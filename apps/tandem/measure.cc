@@ -1,6 +1,4 @@
 // tandem measure: Metro-style distances between two meshes.
-#include "apps/tandem/command.h"
-
 #include <cstdio>
 #include <filesystem>
 #include <string>
@@ -9,6 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "apps/common/flags.h"
+#include "apps/tandem/command.h"
 #include "tandem/distance.h"
 #include "tandem/mesh_io.h"
 #include "tandem/report.h"
@@ -18,10 +17,14 @@ namespace tandem::app {
 namespace {
 
 std::string DistanceTable(const Distances& d) {
-  std::string s = absl::StrFormat("%-6s %14s %14s %14s\n", "", "forward(A->B)", "backward(B->A)", "max");
-  absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "L1", d.forward.l1, d.backward.l1, d.l1_max));
-  absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "L2", d.forward.l2, d.backward.l2, d.l2_max));
-  absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "Linf", d.forward.linf, d.backward.linf, d.linf_max));
+  std::string s =
+      absl::StrFormat("%-6s %14s %14s %14s\n", "", "forward(A->B)", "backward(B->A)", "max");
+  absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "L1", d.forward.l1,
+                                      d.backward.l1, d.l1_max));
+  absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "L2", d.forward.l2,
+                                      d.backward.l2, d.l2_max));
+  absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "Linf", d.forward.linf,
+                                      d.backward.linf, d.linf_max));
   return s;
 }
 
@@ -38,12 +41,13 @@ int MeasureCommand(int argc, char** argv) {
   flags.AddInt("samples", &samples, "surface samples per direction (0 = automatic)");
   flags.AddBool("json", &json, "print the distances as JSON instead of a table");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
-  if (flags.positional().size() != 2) return Usage(absl::InvalidArgumentError("expected two meshes: A B"));
+  if (flags.positional().size() != 2)
+    return Usage(absl::InvalidArgumentError("expected two meshes: A B"));
   for (const std::string& path : flags.positional()) {
     const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
     if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
-      return Usage(absl::InvalidArgumentError(
-          absl::StrCat(path, ": expected a .ply, .obj or .stl mesh")));
+      return Usage(
+          absl::InvalidArgumentError(absl::StrCat(path, ": expected a .ply, .obj or .stl mesh")));
     }
   }
   auto a = ReadMesh(flags.positional()[0]);

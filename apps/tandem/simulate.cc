@@ -1,7 +1,5 @@
 // tandem simulate: an instrument for demos and tests, writing a volume slice by slice at a
 // rate as a DICOM series, numbered TIFFs or a growing Zarr store.
-#include "apps/tandem/command.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -21,6 +19,7 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
+#include "apps/tandem/command.h"
 #include "tandem/series.h"
 #include "tandem/volume.h"
 #include "tandem/zarr.h"
@@ -153,7 +152,8 @@ int SimulateCommand(int argc, char** argv) {
                   /*required=*/true);
   flags.AddDouble("rate", &rate, "slices per second (0 = as fast as possible)", false, "R");
   flags.AddInt("burst", &burst, "dicom: slices per burst");
-  flags.AddString("done-file", &done_file, "NAME", "create DIR/NAME (an empty file) after the last slice");
+  flags.AddString("done-file", &done_file, "NAME",
+                  "create DIR/NAME (an empty file) after the last slice");
   flags.AddInt("seed", &seed, "shuffle seed for dicom bursts (and --numbering random)", "S");
   flags.AddString("numbering", &numbering, "HOW",
                   "dicom: InstanceNumbers: ordered (1 at the first slice acquired, the bottom "
@@ -173,8 +173,8 @@ int SimulateCommand(int argc, char** argv) {
                   "none, suffix (NAME.part) or hidden (.NAME.tmp), as transfer tools do");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (as != "dicom" && as != "tiff" && as != "zarr") {
-    return Usage(absl::InvalidArgumentError(
-        absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
+    return Usage(
+        absl::InvalidArgumentError(absl::StrCat("--as '", as, "': expected dicom, tiff or zarr")));
   }
   if (as != "dicom" &&
       (flags.IsSet("numbering") || scout || flags.IsSet("temp-names") || descending)) {
@@ -195,7 +195,8 @@ int SimulateCommand(int argc, char** argv) {
   if (!numbers.ok()) return Usage(numbers.status());
   std::error_code ec;
   if (std::filesystem::exists(out, ec)) {
-    return Fail(absl::AlreadyExistsError(absl::StrCat(out, ": already exists (the simulator "
+    return Fail(absl::AlreadyExistsError(absl::StrCat(out,
+                                                      ": already exists (the simulator "
                                                       "writes a fresh acquisition)")));
   }
   // Slices are read as they are written (one burst in memory for DICOM).
@@ -258,8 +259,9 @@ int SimulateCommand(int argc, char** argv) {
   const auto start = std::chrono::steady_clock::now();
   auto pace = [&](int64_t written) {  // slice `written` may not go before written / rate s
     if (rate <= 0) return;
-    std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                              std::chrono::duration<double>(written / rate)));
+    std::this_thread::sleep_until(start +
+                                  std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                      std::chrono::duration<double>(written / rate)));
   };
   std::mt19937 rng(static_cast<uint32_t>(seed));
   cli::Progress progress("slices written");
@@ -304,8 +306,8 @@ int SimulateCommand(int argc, char** argv) {
           pace(written);
           // Names carry no position: a hash of the slice index.
           const int64_t slice = slice_of(k);
-          const std::string name = absl::StrCat("1.2.826.0.1.3680043.2.1125.",
-                                                (slice * 2654435761u) % 1000003u, ".dcm");
+          const std::string name =
+              absl::StrCat("1.2.826.0.1.3680043.2.1125.", (slice * 2654435761u) % 1000003u, ".dcm");
           st = put(name, *dicom, slice, held[static_cast<size_t>(k - first)],
                    (*numbers)[static_cast<size_t>(k)]);
           if (!st.ok()) break;

@@ -1,6 +1,4 @@
 // tandem view: a finished mesh or folder of sealed chunks, shown in the browser viewer.
-#include "apps/tandem/command.h"
-
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -17,6 +15,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "apps/common/flags.h"
+#include "apps/tandem/command.h"
 #include "viewer/view_server.h"
 
 namespace tandem::app {
@@ -43,8 +42,8 @@ int ViewCommand(int argc, char** argv) {
   flags.AddSecret("view-token", &token, "TOKEN", "TANDEM_VIEW_TOKEN",
                   "the page and its data need ?token=TOKEN (for an address other than "
                   "loopback, which has no other protection)");
-  flags.AddDouble("linger", &linger_s, "serve for this many seconds, then exit (< 0 = until Ctrl-C)",
-                  false, "S");
+  flags.AddDouble("linger", &linger_s,
+                  "serve for this many seconds, then exit (< 0 = until Ctrl-C)", false, "S");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
     return Usage(absl::InvalidArgumentError("expected one mesh file or folder of chunks to show"));
@@ -66,8 +65,8 @@ int ViewCommand(int argc, char** argv) {
   } else {
     const std::string ext = absl::AsciiStrToLower(std::filesystem::path(path).extension().string());
     if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb" && ext != ".drc") {
-      return Usage(absl::InvalidArgumentError(
-          absl::StrCat(path, ": expected a .ply, .obj, .stl, .glb or .drc file, or a folder of chunks")));
+      return Usage(absl::InvalidArgumentError(absl::StrCat(
+          path, ": expected a .ply, .obj, .stl, .glb or .drc file, or a folder of chunks")));
     }
   }
   auto read = [](const std::string& file) -> absl::StatusOr<std::string> {
@@ -99,16 +98,18 @@ int ViewCommand(int argc, char** argv) {
   int port = 0;
   if (viewer::ParseListen(options.listen, &host, &port).ok() && !viewer::IsLoopback(host) &&
       options.token.empty()) {
-    std::fprintf(stderr, "tandem view: warning: %s has no authentication: anyone who can reach "
-                         "it sees the mesh (add --view-token-file FILE or $TANDEM_VIEW_TOKEN)\n",
+    std::fprintf(stderr,
+                 "tandem view: warning: %s has no authentication: anyone who can reach "
+                 "it sees the mesh (add --view-token-file FILE or $TANDEM_VIEW_TOKEN)\n",
                  options.listen.c_str());
   }
   std::fprintf(stderr, "tandem view: %s at %s%s\n", path.c_str(), (*server)->url().c_str(),
                linger_s < 0 ? " (Ctrl-C to quit)" : "");
   std::signal(SIGINT, [](int) { g_view_quit = true; });
   std::signal(SIGTERM, [](int) { g_view_quit = true; });
-  const auto until = std::chrono::steady_clock::now() +
-                     std::chrono::milliseconds(static_cast<int64_t>(std::max(0.0, linger_s) * 1000));
+  const auto until =
+      std::chrono::steady_clock::now() +
+      std::chrono::milliseconds(static_cast<int64_t>(std::max(0.0, linger_s) * 1000));
   while (!g_view_quit && (linger_s < 0 || std::chrono::steady_clock::now() < until)) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
