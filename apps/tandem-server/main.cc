@@ -226,6 +226,7 @@ int main(int argc, char** argv) {
         "metrics on http://%s:%d/metrics",
         colon > 0 && metrics_listen[0] == '[' ? absl::StrCat("[", mhost, "]") : mhost, *bound));
   }
+
   std::unique_ptr<tandem::server::DrainStandIn> stand_in;  // from the end of the drain delay
   std::thread signal_thread([&] {
     int sig = 0;
