@@ -10,7 +10,7 @@
 // The per-session budget (ServerLimits::session_memory_bytes) is checked against
 // MemoryBytes() after the config (which counts the slice buffers and plane caches the
 // session will allocate on its first slice), after every slice, and before each copy or
-// encoding of the mesh, by an estimate of what it will take (extract_job.cc: EncodeBytes);
+// encoding of the mesh, by an estimate of what it will take (extract_job_internal.h: EncodeBytes);
 // past it the job fails with RESOURCE_EXHAUSTED, and a preview is skipped. The sessions
 // check the same budget themselves while they work (a MemoryBudget shared by the job's
 // sessions, tandem/budget.h, told what the job holds beside them): inside their steps,

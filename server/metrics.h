@@ -7,7 +7,7 @@
 
 #include <string>
 
-#include "server/tandem_service.h"
+#include "server/service_state.h"
 
 namespace tandem::server {
 

@@ -32,17 +32,9 @@ std::string ConfigFieldName(const std::string& field) {
 absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const ServerLimits& limits) {
   JobConfig out;
   VolumeInfo& g = out.grid;
-  if (c.nx() < 2 || c.ny() < 2) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.nx = ", c.nx(), ", config.ny = ", c.ny(), ": a slice needs at least 2 x 2 voxels"));
-  }
-  if (c.nz() < 0 || c.nz() == 1) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.nz = ", c.nz(), ": give the number of slices (>= 2), or 0 if it is unknown"));
-  }
-  // Compare factor by factor first so that nx * ny cannot overflow.
-  if (c.nx() > limits.max_voxels_per_slice || c.ny() > limits.max_voxels_per_slice ||
-      c.nx() * c.ny() > limits.max_voxels_per_slice) {
+  // This server's limits come first (RESOURCE_EXHAUSTED); ValidateVolumeInfo below names any
+  // other bad dimension. Divided so that nx * ny cannot overflow.
+  if (c.nx() > 0 && c.ny() > 0 && c.nx() > limits.max_voxels_per_slice / c.ny()) {
     return absl::ResourceExhaustedError(absl::StrCat(
         "config.nx x config.ny = ", c.nx(), " x ", c.ny(), " voxels per slice exceeds this server's limit of ",
         limits.max_voxels_per_slice, " (tandem-server --max-voxels-per-slice)"));
@@ -68,15 +60,6 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     }
     for (int a = 0; a < 3; ++a) (*target)[a] = values->Get(a);
   }
-  for (int a = 0; a < 3; ++a) {
-    if (!std::isfinite(g.spacing[a]) || g.spacing[a] <= 0) {
-      return absl::InvalidArgumentError(absl::StrCat("config.spacing[", a, "] = ", g.spacing[a],
-                                                     ": must be finite and > 0"));
-    }
-    if (!std::isfinite(g.origin[a])) {
-      return absl::InvalidArgumentError(absl::StrCat("config.origin[", a, "] is not finite"));
-    }
-  }
   if (!c.directions().empty()) {
     if (c.directions_size() != 9) {
       return absl::InvalidArgumentError(
@@ -97,6 +80,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     g.space = *space;
     g.frame = std::string(SpaceName(*space));
   }
+  // The grid's rules are core's (ValidateVolumeInfo); the prefix says they are the config's.
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return Prefixed("config: ", st);
 
   SessionOptions& o = out.options;

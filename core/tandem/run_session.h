@@ -34,7 +34,6 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
 // is called every kFinishingEvery seconds from another thread while the sessions finish, with
 // each session's TandemSession::FinishProgress (for a status line).
 using FinishingFn = std::function<void(const std::vector<TandemSession::Finishing>&)>;
-inline constexpr double kFinishingEvery = 0.2;
 absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     SliceSource& source, const std::vector<SessionOptions>& options,
     const std::function<void(int64_t, int64_t)>& progress = nullptr,

@@ -141,6 +141,9 @@ class TandemSession {
   std::unique_ptr<Impl> impl_;
 };
 
+// How often a status line asks FinishProgress while Finish runs (the CLI and the server alike).
+inline constexpr double kFinishingEvery = 0.2;
+
 // The status an exception caught by a barrier becomes: RESOURCE_EXHAUSTED for a failed
 // allocation (bad_alloc, length_error), INTERNAL with what() otherwise. The session's
 // barrier uses it, and so do the server's worker and the CLI around everything else.

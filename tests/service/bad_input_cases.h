@@ -114,6 +114,20 @@ inline std::vector<BadInputCase> BadInputCases() {
        grpc::StatusCode::INVALID_ARGUMENT, "invalid spacing 1e+160 on axis 0"},
       {"spacing 1e-300", [](auto* r) { SetSpacing(&(*r)[0], {1e-300, 1e-300, 1e-300}); },
        grpc::StatusCode::INVALID_ARGUMENT, "invalid spacing 1e-300 on axis 0"},
+      // The grid's rules are core's (ValidateVolumeInfo), their message prefixed with the config.
+      {"nx = 1", [](auto* r) { (*r)[0].mutable_config()->set_nx(1); },
+       grpc::StatusCode::INVALID_ARGUMENT,
+       "config: invalid dimensions: nx = 1 (need at least 2 samples per axis)"},
+      {"nz = 1", [](auto* r) { (*r)[0].mutable_config()->set_nz(1); },
+       grpc::StatusCode::INVALID_ARGUMENT, "config: invalid dimensions: nz = 1"},
+      {"spacing 0", [](auto* r) { SetSpacing(&(*r)[0], {1, 0, 1}); },
+       grpc::StatusCode::INVALID_ARGUMENT,
+       "config: invalid spacing 0 on axis 1 (must be finite and > 0)"},
+      {"NaN origin",
+       [](auto* r) {
+         for (double o : {0.0, 0.0, std::nan("")}) (*r)[0].mutable_config()->add_origin(o);
+       },
+       grpc::StatusCode::INVALID_ARGUMENT, "config: invalid origin nan on axis 2 (must be finite)"},
       {"spacing 1e5 times longer on z", [](auto* r) { SetSpacing(&(*r)[0], {1, 1, 1e5}); },
        grpc::StatusCode::INVALID_ARGUMENT, "times longer on one axis"},
       {"origin 1e30",

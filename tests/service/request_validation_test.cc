@@ -104,9 +104,19 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
     std::string text;
   };
   const std::vector<Case> cases = {
-      {[](auto* c) { c->set_nx(1); }, absl::StatusCode::kInvalidArgument, "at least 2 x 2"},
-      {[](auto* c) { c->set_ny(-5); }, absl::StatusCode::kInvalidArgument, "config.ny = -5"},
-      {[](auto* c) { c->set_nz(1); }, absl::StatusCode::kInvalidArgument, "config.nz = 1"},
+      {[](auto* c) { c->set_nx(1); }, absl::StatusCode::kInvalidArgument,
+       "config: invalid dimensions: nx = 1 (need at least 2 samples per axis)"},
+      {[](auto* c) { c->set_ny(-5); }, absl::StatusCode::kInvalidArgument,
+       "config: invalid dimensions: ny = -5"},
+      {[](auto* c) {  // negative factors whose product would overflow
+         c->set_nx(-(int64_t{1} << 62));
+         c->set_ny(-(int64_t{1} << 62));
+       },
+       absl::StatusCode::kInvalidArgument, "config: invalid dimensions: nx = -4611686018427387904"},
+      {[](auto* c) { c->set_nz(1); }, absl::StatusCode::kInvalidArgument,
+       "config: invalid dimensions: nz = 1"},
+      {[](auto* c) { c->set_nz(-3); }, absl::StatusCode::kInvalidArgument,
+       "config: invalid dimensions: nz = -3"},
       {[](auto* c) { c->set_dtype(v1::DTYPE_UNSPECIFIED); }, absl::StatusCode::kInvalidArgument,
        "config.dtype is unset"},
       {[](auto* c) { c->set_dtype(static_cast<v1::DType>(42)); },
@@ -115,11 +125,12 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
       {[](auto* c) {
          for (double s : {1.0, 0.0, 1.0}) c->add_spacing(s);
        },
-       absl::StatusCode::kInvalidArgument, "config.spacing[1]"},
+       absl::StatusCode::kInvalidArgument,
+       "config: invalid spacing 0 on axis 1 (must be finite and > 0)"},
       {[nan](auto* c) {
          for (double o : {0.0, 0.0, nan}) c->add_origin(o);
        },
-       absl::StatusCode::kInvalidArgument, "config.origin[2]"},
+       absl::StatusCode::kInvalidArgument, "config: invalid origin nan on axis 2 (must be finite)"},
       {[nan](auto* c) { c->set_iso(nan); }, absl::StatusCode::kInvalidArgument, "config.iso"},
       {[](auto* c) { c->set_error(0); }, absl::StatusCode::kInvalidArgument, "config.error (E0)"},
       {[](auto* c) { c->set_error(-1); }, absl::StatusCode::kInvalidArgument, "config.error (E0)"},
