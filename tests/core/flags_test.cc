@@ -1,6 +1,6 @@
 // FlagSet, the parser of all three programs (on CLI11): forms, defaults in --help,
 // environment fallback, and mistakes worded the same way everywhere.
-#include "cli/flags.h"
+#include "apps/common/flags.h"
 
 #include <cstdlib>
 #include <fstream>
@@ -9,7 +9,7 @@
 
 #include <gtest/gtest.h>
 
-#include "cli/extract_flags.h"
+#include "apps/common/extract_flags.h"
 #include "tandem/options.h"
 
 namespace tandem::cli {

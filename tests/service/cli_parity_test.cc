@@ -119,7 +119,7 @@ TEST(CliParity, MistakesAreWordedTheSameWayByEveryProgram) {
   }
 }
 
-// One exit status rule for the three programs (cli/cli_util.h): 2 for a mistake in the
+// One exit status rule for the three programs (apps/common/cli_util.h): 2 for a mistake in the
 // command line itself, 1 for what goes wrong with the input, the files, the server or the
 // network. A corrupt input file is 1 for `tandem extract` and `tandem-client stream` alike,
 // whether it fails as it is opened or in the middle of the session.

@@ -1,4 +1,4 @@
-#include "cli/flags.h"
+#include "apps/common/flags.h"
 
 #include <algorithm>
 #include <cerrno>

@@ -1,4 +1,4 @@
-#include "cli/cli_util.h"
+#include "apps/common/cli_util.h"
 
 #include <unistd.h>
 

@@ -1,7 +1,7 @@
 // Command-line helpers shared by the tandem executables: iso-value lists and the output
-// names they give, and a terminal progress line. Flags: cli/flags.h.
-#ifndef TANDEM_CLI_UTIL_H_
-#define TANDEM_CLI_UTIL_H_
+// names they give, and a terminal progress line. Flags: apps/common/flags.h.
+#ifndef TANDEM_APPS_COMMON_CLI_UTIL_H_
+#define TANDEM_APPS_COMMON_CLI_UTIL_H_
 
 #include <cstdint>
 #include <map>
@@ -76,4 +76,4 @@ class FinishingStatus {
 
 }  // namespace tandem::cli
 
-#endif  // TANDEM_CLI_UTIL_H_
+#endif  // TANDEM_APPS_COMMON_CLI_UTIL_H_

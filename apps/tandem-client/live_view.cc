@@ -1,4 +1,4 @@
-#include "client/live_view.h"
+#include "apps/tandem-client/live_view.h"
 
 #include <atomic>
 #include <csignal>

@@ -2,8 +2,8 @@
 // so that both programs have the same names, defaults and help for the same meaning (the
 // input, following a growing acquisition, the session's options, the outputs). Each
 // program adds its own flags after these (the client: the server, pacing, previews).
-#ifndef TANDEM_CLI_EXTRACT_FLAGS_H_
-#define TANDEM_CLI_EXTRACT_FLAGS_H_
+#ifndef TANDEM_APPS_COMMON_EXTRACT_FLAGS_H_
+#define TANDEM_APPS_COMMON_EXTRACT_FLAGS_H_
 
 #include <cstdint>
 #include <memory>
@@ -11,8 +11,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "cli/cli_util.h"
-#include "cli/flags.h"
+#include "apps/common/cli_util.h"
+#include "apps/common/flags.h"
 #include "tandem/follow.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -59,4 +59,4 @@ absl::Status NameOptionFlag(const absl::Status& status);
 
 }  // namespace tandem::cli
 
-#endif  // TANDEM_CLI_EXTRACT_FLAGS_H_
+#endif  // TANDEM_APPS_COMMON_EXTRACT_FLAGS_H_

@@ -1,4 +1,4 @@
-#include "cli/extract_flags.h"
+#include "apps/common/extract_flags.h"
 
 #include <algorithm>
 #include <array>

@@ -17,8 +17,8 @@
 // mistakes the same way: an unknown option names the closest real one ("did you mean"), a
 // valued flag given twice is an error that shows both values (never "the last one wins"),
 // and a malformed number names the flag (or the variable) and the text.
-#ifndef TANDEM_CLI_FLAGS_H_
-#define TANDEM_CLI_FLAGS_H_
+#ifndef TANDEM_APPS_COMMON_FLAGS_H_
+#define TANDEM_APPS_COMMON_FLAGS_H_
 
 #include <cstdint>
 #include <deque>
@@ -107,4 +107,4 @@ std::string DidYouMean(const std::string& name, const std::vector<std::string>& 
 
 }  // namespace tandem::cli
 
-#endif  // TANDEM_CLI_FLAGS_H_
+#endif  // TANDEM_APPS_COMMON_FLAGS_H_

@@ -3,8 +3,8 @@
 // The page always has the growing mesh to draw: every surface's sealed chunks and band, or
 // (unsealed) the whole partial meshes the previews bring, then the final meshes; the
 // progress follows the slices meshed, then a finishing state from the last slice to the end.
-#ifndef TANDEM_CLIENT_LIVE_VIEW_H_
-#define TANDEM_CLIENT_LIVE_VIEW_H_
+#ifndef TANDEM_APPS_TANDEM_CLIENT_LIVE_VIEW_H_
+#define TANDEM_APPS_TANDEM_CLIENT_LIVE_VIEW_H_
 
 #include <atomic>
 #include <memory>
@@ -15,7 +15,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
-#include "cli/flags.h"
+#include "apps/common/flags.h"
 #include "client/stream_client.h"
 #include "tandem/volume.h"
 #include "viewer/view_server.h"
@@ -82,4 +82,4 @@ class LiveView {
 
 }  // namespace tandem::client
 
-#endif  // TANDEM_CLIENT_LIVE_VIEW_H_
+#endif  // TANDEM_APPS_TANDEM_CLIENT_LIVE_VIEW_H_

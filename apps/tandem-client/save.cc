@@ -1,0 +1,133 @@
+// Saving what stream and watch received: each surface's mesh (decoded and checked, or the
+// sealed chunks welded) and its metrics.
+#include "apps/tandem-client/save.h"
+
+#include <filesystem>
+#include <string>
+#include <system_error>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "apps/tandem-client/command.h"
+#include "common/wire.h"
+#include "tandem/mesh_io.h"
+#include "tandem/report.h"
+#include "tandem/volume.h"
+
+namespace tandem::client_app {
+namespace {
+
+// Saves one surface's final mesh of a stream or a watch to `out` (.drc: Draco bytes; sealed:
+// the chunks welded), prints its summary on stdout and appends its metrics JSON to *json.
+// 0 or the exit status of the failure.
+int SaveSurface(const tandem::client::StreamResult& result, tandem::client::SurfaceResult& s,
+                const SaveOptions& o, const std::string& out, std::vector<std::string>* json) {
+  const bool seal = o.seal;
+  const std::string ext = Lower(std::filesystem::path(out).extension().string());
+  // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
+  // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
+  absl::StatusOr<tandem::IndexedMesh> mesh =
+      seal ? tandem::WeldChunks(s.sealed) : tandem::codec::DecodeDraco(s.draco);
+  if (!mesh.ok()) return Fail(mesh.status());
+  if (seal && ext == ".drc") {
+    absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, o.draco);
+    if (!bytes.ok()) return Fail(bytes.status());
+    s.draco = *std::move(bytes);
+  }
+  if (static_cast<int64_t>(mesh->num_triangles()) != s.triangles ||
+      static_cast<int64_t>(mesh->num_vertices()) != s.vertices) {
+    return Fail(absl::DataLossError(
+        absl::StrCat("the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
+                     mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
+                     s.vertices)));
+  }
+  tandem::MeshWriteOptions write;
+  if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
+  // The frame the session ran in, as the server echoes it: the watcher of a session learns
+  // it there too. An older server sends none: the grid's own frame.
+  write.space = tandem::ParseSpace(s.metrics.frame()).value_or(tandem::Space::kGrid);
+  absl::Status saved =
+      ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh, write);
+  if (!saved.ok()) return Fail(saved);
+
+  tandem::MetricsReport report = tandem::wire::ReportFromProto(s.metrics);
+  report.input = o.input;
+  report.frame_text = o.frame_text;
+  json->push_back(tandem::ReportToJson(report));
+  if (o.quiet) return 0;
+  if (result.num_surfaces() > 1) absl::PrintF("%s (iso %g)\n", out, s.metrics.iso());
+  absl::PrintF("%s", tandem::ReportSummary(report));
+  absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", o.wall_label,
+               result.seconds, result.slices_sent,
+               result.seconds > 0 ? result.slices_sent / result.seconds : 0.0,
+               s.metrics.previews_sent());
+  if (seal) {
+    absl::PrintF("  %-22s %d chunks, %d bytes received in all\n", "sealed", s.sealed.size(),
+                 s.metrics.bytes_sent());
+  }
+  return 0;
+}
+
+}  // namespace
+
+absl::Status MakeOutputDir(const char* flag, const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return absl::UnavailableError(absl::StrCat(flag, " ", dir, ": ", ec.message()));
+  return absl::OkStatus();
+}
+
+std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::ChunkStore* store,
+                                                               const std::string& session,
+                                                               const bool& verbose,
+                                                               absl::Status* error) {
+  return [store, session, &verbose, error](const tandem::v1::SealedChunk& c) {
+    if (verbose) {
+      absl::FPrintF(stderr, "chunk index=%d slices=%d..%d triangles=%d vertices=%d bytes=%d\n",
+                    c.index(), c.first_slice(), c.last_slice(), c.triangles(), c.vertices(),
+                    c.draco().size());
+    }
+    if (store != nullptr && error->ok()) *error = store->Save(session, c);
+  };
+}
+
+bool DracoFlagsOk(int64_t bits, int64_t level) {
+  if (bits >= 1 && bits <= 30 && level >= 0 && level <= 10) return true;
+  absl::FPrintF(stderr,
+                "tandem-client: need 1 <= --quantization-bits <= 30 and "
+                "0 <= --compression-level <= 10\n");
+  return false;
+}
+
+int SaveResult(tandem::client::StreamResult& result, const SaveOptions& o) {
+  const size_t n = result.num_surfaces();
+  const std::string& metrics_path = o.metrics_path;
+  std::vector<std::string> json;
+  for (size_t i = 0; i < n; ++i) {
+    tandem::client::SurfaceResult& s = result.surface(i);
+    const tandem::cli::IsoValue iso =
+        i < o.isos.size() ? o.isos[i]
+                          : tandem::cli::IsoValue{s.metrics.iso(), absl::StrCat(s.metrics.iso())};
+    absl::StatusOr<std::string> out = tandem::cli::NameForIso("out", o.out_pattern, iso, n);
+    if (!out.ok()) return Fail(out.status());
+    if (int rc = SaveSurface(result, s, o, *out, &json); rc != 0) {
+      return rc;
+    }
+    if (!metrics_path.empty() && metrics_path.find("{iso}") != std::string::npos) {
+      absl::StatusOr<std::string> name = tandem::cli::NameForIso("metrics", metrics_path, iso, n);
+      if (!name.ok()) return Fail(name.status());
+      if (absl::Status st = WriteFile(*name, json.back()); !st.ok()) return Fail(st);
+    }
+  }
+  if (!metrics_path.empty() && metrics_path.find("{iso}") == std::string::npos) {
+    const std::string text =
+        n == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
+    if (absl::Status st = WriteFile(metrics_path, text); !st.ok()) return Fail(st);
+  }
+  return 0;
+}
+
+}  // namespace tandem::client_app

@@ -1,0 +1,41 @@
+// The subcommands of `tandem` (one file each; main.cc dispatches) and how each reports a
+// mistake in its command line or a failure while running.
+#ifndef TANDEM_APPS_TANDEM_COMMAND_H_
+#define TANDEM_APPS_TANDEM_COMMAND_H_
+
+#include <string>
+
+#include "absl/status/status.h"
+#include "apps/common/flags.h"
+
+namespace tandem::app {
+
+// Each takes the whole command line (argv[1] is the subcommand) and returns the exit status.
+int ExtractCommand(int argc, char** argv);
+int GenerateCommand(int argc, char** argv);
+int MeasureCommand(int argc, char** argv);
+int InfoCommand(int argc, char** argv);
+int SimulateCommand(int argc, char** argv);
+int ViewCommand(int argc, char** argv);
+
+// A failure met while running (a file, a device, a session): "tandem: MESSAGE" on stderr,
+// exit status 1 (apps/common/cli_util.h).
+int Fail(const absl::Status& st);
+
+// A mistake in the command line itself: exit status 2.
+int Usage(const absl::Status& st);
+
+// A writer's refusal of what the flags ask for (a format that cannot hold it: Invalid
+// argument or Unimplemented) is the command line's; anything else happened while writing.
+int FailWriting(const absl::Status& st);
+
+// Parses a subcommand's flags (argv[2..]): -1 to go on, else the exit status (0 after
+// printing --help).
+int ParseOrExit(cli::FlagSet& flags, int argc, char** argv);
+
+// Writes `text` to `path`; an error names the path.
+absl::Status WriteText(const std::string& path, const std::string& text);
+
+}  // namespace tandem::app
+
+#endif  // TANDEM_APPS_TANDEM_COMMAND_H_
