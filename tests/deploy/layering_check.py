@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+"""Checks the include and link graphs against docs/layering.md (the one home of the rules).
+
+  layering_check.py --root SRC --links BUILD/layering_links.txt
+  layering_check.py --root SRC --self-test     breaks a copy of the rules and expects errors
+
+Fails (exit 1, one line per culprit) on an #include "..." crossing an arrow the table does not
+list, on a link between the project's targets the table does not list, and on an include of a
+library that none of the including library's targets links (directly or through others).
+The links file is written by tests/layering/CMakeLists.txt at generate time: one line per
+target, `target: dep;dep;...` (its LINK_LIBRARIES and INTERFACE_LINK_LIBRARIES).
+"""
+import argparse
+import os
+import re
+import sys
+
+SKIP_DIRS = {".git", "node_modules", "tests", "build", "deploy", "examples", "docs"}
+# Where a quoted include is looked up, besides the including file's own folder (the
+# include roots the targets declare).
+INCLUDE_ROOTS = ["", "core", "core/src", "core/io", "apps"]
+
+
+def parse_rules(text):
+    """Rows of the table: name -> (targets, code paths, may-use set or None for '*')."""
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) != 4 or cells[0] in ("library", "") or set(cells[0]) <= set("-"):
+            continue
+        name, targets, code, uses = cells
+        split = lambda s: [x.strip() for x in s.split(",") if x.strip() and x.strip() != "—"]
+        rows[name] = (split(targets), split(code), None if uses == "*" else set(split(uses)))
+    if not rows:
+        raise SystemExit("layering_check: no rules table in the rules file")
+    for name, (_, _, uses) in rows.items():
+        for u in uses or ():
+            if u not in rows:
+                raise SystemExit(f"layering_check: row {name} may use unknown library {u}")
+    return rows
+
+
+def library_of(path, rows):
+    """The row whose code path is the longest prefix of path (relative, '/'-separated)."""
+    best, best_len = None, -1
+    for name, (_, code, _) in rows.items():
+        for c in code:
+            hit = path == c if not c.endswith("/") else path.startswith(c)
+            if hit and len(c) > best_len:
+                best, best_len = name, len(c)
+    return best
+
+
+def resolve(root, src_dir, inc):
+    if inc.endswith(".pb.h"):
+        return "proto/" + os.path.basename(inc)
+    for base in [src_dir] + INCLUDE_ROOTS:
+        cand = os.path.normpath(os.path.join(base, inc))
+        if os.path.isfile(os.path.join(root, cand)):
+            return cand.replace(os.sep, "/")
+    return None
+
+
+def include_arrows(root, rows):
+    """(from library, to library, file, include) for every include crossing libraries."""
+    out = []
+    for d, dirs, files in os.walk(root):
+        rel_dir = os.path.relpath(d, root)
+        dirs[:] = [x for x in dirs if x not in SKIP_DIRS and not x.startswith("build")]
+        for f in sorted(files):
+            if not f.endswith((".cc", ".h")):
+                continue
+            rel = os.path.normpath(os.path.join(rel_dir, f)).replace(os.sep, "/")
+            src = library_of(rel, rows)
+            if src is None:
+                continue
+            with open(os.path.join(root, rel), encoding="utf-8") as fh:
+                text = fh.read()
+            for m in re.finditer(r'^\s*#\s*include\s+"([^"]+)"', text, re.M):
+                target = resolve(root, os.path.dirname(rel), m.group(1))
+                lib = library_of(target, rows) if target else None
+                if lib is not None and lib != src:
+                    out.append((src, lib, rel, m.group(1)))
+    return out
+
+
+def parse_links(text):
+    links = {}
+    for line in text.splitlines():
+        if ":" in line:
+            t, deps = line.split(":", 1)
+            links[t.strip()] = [d for d in deps.strip().split(";") if d]
+    return links
+
+
+def check(root, rules_text, links_text):
+    rows = parse_rules(rules_text)
+    errors = []
+    allowed = lambda a, b: rows[a][2] is None or b in rows[a][2]
+    for src, dst, path, inc in include_arrows(root, rows):
+        if not allowed(src, dst):
+            errors.append(f'{path}: #include "{inc}" makes {src} use {dst}, '
+                          f"which docs/layering.md does not allow")
+    if links_text is None:
+        return errors
+    links = parse_links(links_text)
+    lib_of_target = {t: name for name, (ts, _, _) in rows.items() for t in ts}
+    for t in lib_of_target:
+        if t not in links:
+            errors.append(f"docs/layering.md names target {t}, which the build does not define")
+    for t, deps in links.items():
+        for d in deps:
+            d = re.sub(r"^\$<LINK_ONLY:(.*)>$", r"\1", d)
+            a, b = lib_of_target.get(t), lib_of_target.get(d)
+            if a and b and a != b and not allowed(a, b):
+                errors.append(f"target {t} links {d}: {a} -> {b} is not in docs/layering.md")
+
+    def closure(lib):
+        seen, todo = set(), list(rows[lib][0])
+        while todo:
+            t = todo.pop()
+            for d in links.get(t, []):
+                d = re.sub(r"^\$<LINK_ONLY:(.*)>$", r"\1", d)
+                if d in lib_of_target and d not in seen:
+                    seen.add(d)
+                    todo.append(d)
+        return {lib_of_target[t] for t in seen}
+
+    for src, dst, path, inc in include_arrows(root, rows):
+        if rows[src][2] is not None and allowed(src, dst) and dst not in closure(src):
+            errors.append(f'{path}: #include "{inc}" uses {dst}, which no target of {src} links')
+    return errors
+
+
+def self_test(root, rules_text, links_text):
+    """The checker must catch a forbidden include arrow and a forbidden link."""
+    rows = parse_rules(rules_text)
+    if check(root, rules_text, links_text):
+        return ["self-test: the real tree must pass before the self-test"]
+    problems = []
+    # Forbid every arrow of io: its includes of the engine must now fail.
+    broken = re.sub(r"^(\| io \|[^|]*\|[^|]*\|)[^|]*\|", r"\1 — |", rules_text, flags=re.M)
+    if not any("makes io use engine" in e for e in check(root, broken, links_text)):
+        problems.append("self-test: an io -> engine include was not caught with the arrow gone")
+    if links_text is not None and "tandem_io" in rows["io"][0]:
+        fake = links_text + "\ntandem_core: tandem_io\n"
+        if not any("tandem_core links tandem_io" in e for e in check(root, rules_text, fake)):
+            problems.append("self-test: an engine -> io link was not caught")
+    return problems
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", required=True)
+    ap.add_argument("--rules", default=None, help="default: ROOT/docs/layering.md")
+    ap.add_argument("--links", default=None, help="BUILD/layering_links.txt")
+    ap.add_argument("--self-test", action="store_true")
+    args = ap.parse_args()
+    rules_path = args.rules or os.path.join(args.root, "docs", "layering.md")
+    with open(rules_path, encoding="utf-8") as fh:
+        rules_text = fh.read()
+    links_text = None
+    if args.links:
+        with open(args.links, encoding="utf-8") as fh:
+            links_text = fh.read()
+    errors = check(args.root, rules_text, links_text)
+    if args.self_test and not errors:
+        errors = self_test(args.root, rules_text, links_text)
+    for e in errors:
+        print(e)
+    print(f"layering_check: {len(errors)} problem(s)")
+    return 1 if errors else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
