@@ -11,7 +11,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "tandem/report.h"
+#include "tandem/eval/report.h"
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"

@@ -30,8 +30,8 @@
 #include "absl/status/status.h"
 #include "server/request_validation.h"
 #include "tandem/budget.h"
-#include "tandem/metrics.h"
-#include "tandem/report.h"
+#include "tandem/eval/metrics.h"
+#include "tandem/eval/report.h"
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.pb.h"
 

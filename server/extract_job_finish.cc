@@ -16,9 +16,9 @@
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "server/extract_job_internal.h"
-#include "tandem/distance.h"
+#include "tandem/eval/distance.h"
 #include "tandem/task_group.h"
-#include "tandem/report.h"
+#include "tandem/eval/report.h"
 #include "tandem/tandem.h"
 
 namespace tandem::server {

@@ -1,7 +1,7 @@
 // ViewServer::Start in the programs: loads libtandem_view.so (view_server.h) the first time
 // and starts its server.
 #include "absl/strings/str_cat.h"
-#include "module_loader.h"
+#include "tandem/module/module_loader.h"
 #include "viewer/view_server.h"
 
 namespace tandem::viewer {

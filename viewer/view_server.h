@@ -54,7 +54,7 @@ bool IsLoopback(const std::string& host);
 // The server lives in a module of its own, libtandem_view.so (view_server.cc), loaded by
 // Start: cpp-httplib links OpenSSL and Brotli, whose loading cost every start of the CLI and
 // the client ~5 ms and 3.8 MB of resident pages when they linked it, viewer or not
-// (core/module/module_loader.h). The programs see only this interface.
+// (core/module/include/tandem/module/module_loader.h). The programs see only this interface.
 // Where the scan is (ViewServer::SetProgress).
 struct ViewProgress {
   int64_t slices_sent = 0, slices_meshed = 0;

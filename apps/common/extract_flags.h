@@ -13,7 +13,7 @@
 #include "absl/status/statusor.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
-#include "tandem/follow.h"
+#include "tandem/io/follow.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

@@ -8,7 +8,7 @@
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
 #include "common/wire.h"
-#include "tandem/report.h"
+#include "tandem/eval/report.h"
 
 namespace tandem::client {
 namespace {

@@ -24,8 +24,8 @@
 #include "client/chunk_store.h"
 #include "client/stream_client.h"
 #include "common/wire.h"
-#include "tandem/follow.h"
-#include "tandem/mesh_io.h"
+#include "tandem/io/follow.h"
+#include "tandem/io/mesh_io.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

@@ -12,7 +12,7 @@
 #include "apps/tandem-client/save.h"
 #include "client/chunk_store.h"
 #include "client/stream_client.h"
-#include "tandem/mesh_io.h"
+#include "tandem/io/mesh_io.h"
 
 namespace tandem::client_app {
 

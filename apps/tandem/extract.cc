@@ -17,12 +17,12 @@
 #ifdef TANDEM_HAVE_DRACO
 #include "codec/draco_codec.h"
 #endif
-#include "tandem/distance.h"
-#include "tandem/follow.h"
-#include "tandem/mesh_io.h"
-#include "tandem/metrics.h"
-#include "tandem/report.h"
-#include "tandem/run_session.h"
+#include "tandem/eval/distance.h"
+#include "tandem/io/follow.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/eval/metrics.h"
+#include "tandem/eval/report.h"
+#include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

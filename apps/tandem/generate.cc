@@ -12,11 +12,11 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
-#include "tandem/series.h"
-#include "tandem/synthetic.h"
+#include "tandem/io/series.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
-#include "tandem/zarr.h"
+#include "tandem/io/volume_writers.h"
+#include "tandem/io/zarr.h"
 
 namespace tandem::app {
 

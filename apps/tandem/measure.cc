@@ -8,9 +8,9 @@
 #include "absl/strings/str_format.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
-#include "tandem/distance.h"
-#include "tandem/mesh_io.h"
-#include "tandem/report.h"
+#include "tandem/eval/distance.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/eval/report.h"
 
 namespace tandem::app {
 

@@ -20,9 +20,9 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 #include "tandem/volume.h"
-#include "tandem/zarr.h"
+#include "tandem/io/zarr.h"
 
 namespace tandem::app {
 

@@ -1,6 +1,6 @@
 // Metro-style mesh distances: a BVH for exact closest-point queries and chunked, seeded,
 // area-uniform sampling. See tandem/distance.h for the contracts.
-#include "tandem/distance.h"
+#include "tandem/eval/distance.h"
 
 #include <algorithm>
 #include <array>
@@ -11,7 +11,7 @@
 #include <random>
 #include <thread>
 
-#include "tandem/metrics.h"
+#include "tandem/eval/metrics.h"
 
 namespace tandem {
 namespace {

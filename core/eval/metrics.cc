@@ -1,5 +1,5 @@
 // Mesh quality measures (paper §4). See tandem/metrics.h for the contracts.
-#include "tandem/metrics.h"
+#include "tandem/eval/metrics.h"
 
 #include <cstring>
 

@@ -1,4 +1,4 @@
-#include "tandem/report.h"
+#include "tandem/eval/report.h"
 
 #include <sys/resource.h>
 
@@ -10,7 +10,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "tandem/metrics.h"
+#include "tandem/eval/metrics.h"
 
 namespace tandem {
 MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) {

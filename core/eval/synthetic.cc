@@ -1,4 +1,4 @@
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 
 #include <algorithm>
 #include <cmath>

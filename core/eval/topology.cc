@@ -1,4 +1,4 @@
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 
 #include <algorithm>
 #include <numeric>

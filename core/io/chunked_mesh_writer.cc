@@ -9,7 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "mesh_io_internal.h"
 #include "tandem/geometry.h"
-#include "tandem/mesh_io.h"
+#include "tandem/io/mesh_io.h"
 
 namespace tandem {
 namespace {

@@ -16,9 +16,9 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 #include "tandem/volume.h"
-#include "tandem/zarr.h"
+#include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 

@@ -24,7 +24,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "dicom_scan.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 
 namespace tandem::dicom {
 namespace {

@@ -4,7 +4,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "dicom_codec.h"
-#include "module_loader.h"
+#include "tandem/module/module_loader.h"
 
 namespace tandem::dicom {
 namespace {

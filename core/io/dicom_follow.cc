@@ -11,7 +11,7 @@
 #include "absl/strings/str_join.h"
 #include "dicom_series.h"
 #include "follow_internal.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 #include "volume_io_internal.h"
 
 namespace tandem {

@@ -18,7 +18,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "dicom_wire.h"
-#include "module_loader.h"
+#include "tandem/module/module_loader.h"
 
 extern char** environ;
 

@@ -1,6 +1,6 @@
 // Following an acquisition in progress (tandem/follow.h): one polling loop, with the notion
 // of "the next slice is complete" supplied per kind of input.
-#include "tandem/follow.h"
+#include "tandem/io/follow.h"
 
 #include <chrono>
 #include <filesystem>
@@ -10,8 +10,8 @@
 #include "absl/strings/str_cat.h"
 #include "follow_internal.h"
 #include "volume_io_internal.h"
-#include "tandem/series.h"
-#include "tandem/zarr.h"
+#include "tandem/io/series.h"
+#include "tandem/io/zarr.h"
 #include "zarr_internal.h"
 
 namespace tandem {

@@ -9,7 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "dicom_series.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 #include "volume_io_internal.h"
 
 namespace tandem {

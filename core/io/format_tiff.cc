@@ -32,7 +32,7 @@
 #include <filesystem>
 
 #include "volume_io_internal.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 
 namespace tandem::internal {
 namespace {

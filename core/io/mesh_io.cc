@@ -4,7 +4,7 @@
 // Reading loads the whole file (meshes of millions of triangles are tens of MB) and parses
 // it in place with std::from_chars (locale-independent, no allocation per number); writing
 // streams through one fixed buffer.
-#include "tandem/mesh_io.h"
+#include "tandem/io/mesh_io.h"
 
 #include <bit>
 #include <cerrno>

@@ -18,7 +18,7 @@
 #include "absl/status/statusor.h"
 #include "absl/strings/string_view.h"
 #include "tandem/mesh.h"
-#include "tandem/mesh_io.h"
+#include "tandem/io/mesh_io.h"
 #include "tandem/volume.h"
 
 namespace tandem::internal::meshio {

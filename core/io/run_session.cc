@@ -1,4 +1,4 @@
-#include "tandem/run_session.h"
+#include "tandem/io/run_session.h"
 
 #include <chrono>
 #include <condition_variable>

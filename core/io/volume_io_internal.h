@@ -24,7 +24,7 @@
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 
 namespace tandem::internal {
 

@@ -3,7 +3,7 @@
 // reader: format_raw.cc (.json + .raw), format_nrrd.cc, format_nifti.cc, format_tiff.cc and
 // format_zarr.cc (ZarrAppender, WriteZarr). Every writer streams: one slice is requested,
 // converted to the stored byte order and written before the next.
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 
 #include <algorithm>
 #include <cstring>
@@ -12,7 +12,7 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/zarr.h"
+#include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
 
 namespace tandem {

@@ -11,7 +11,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
-#include "tandem/zarr.h"
+#include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 

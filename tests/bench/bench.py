@@ -641,7 +641,7 @@ def write_report(path, results, meta, args):
              "Threads: VTK's FlyingEdges3D uses all cores (TBB); ours use all cores too (grids "
              "256 or more wide are split along x into 4 parts (81 to 255 wide: 2) extracted "
              "and simplified by a pool of workers, one per core, and merged at the end, see "
-             "core/tandem/tandem.h; "
+             "core/include/tandem/tandem.h; "
              "smaller grids extract layer k+1 while layer k is simplified); meshopt, VTK's "
              "decimation and CGAL run on one core. Peak RSS "
              "= ru_maxrss of the process, forked by a small launcher (`bench_run`) so that the "

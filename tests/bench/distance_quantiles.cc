@@ -12,8 +12,8 @@
 #include <random>
 #include <vector>
 
-#include "tandem/distance.h"
-#include "tandem/mesh_io.h"
+#include "tandem/eval/distance.h"
+#include "tandem/io/mesh_io.h"
 
 namespace {
 

@@ -9,9 +9,9 @@
 #include <cstdio>
 
 #include "tandem/geometry.h"
-#include "tandem/mesh_io.h"
-#include "tandem/metrics.h"
-#include "tandem/topology.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/eval/metrics.h"
+#include "tandem/eval/topology.h"
 
 int main(int argc, char** argv) {
   if (argc != 2) {

@@ -18,7 +18,7 @@
 #include "tandem/budget.h"
 #include "tandem/task_group.h"
 #include "thread_pool.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

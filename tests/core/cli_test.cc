@@ -15,11 +15,11 @@
 #include <vector>
 
 #include "tandem/geometry.h"
-#include "tandem/mesh_io.h"
-#include "tandem/metrics.h"
-#include "tandem/series.h"
-#include "tandem/topology.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/eval/metrics.h"
+#include "tandem/io/series.h"
+#include "tandem/eval/topology.h"
+#include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
 namespace tandem {
@@ -66,7 +66,7 @@ class Cli : public ::testing::Test {
   void SetUp() override { dir_ = testing::MakeTempDir(); }
   std::string Path(const std::string& name) const { return dir_ + "/" + name; }
   // A copy of the CLI installed alone: PREFIX/bin/tandem, and PREFIX/lib/tandem/ (where the
-  // modules go, core/module/module_loader.h) empty. Its path.
+  // modules go, core/module/include/tandem/module/module_loader.h) empty. Its path.
   std::string InstallAlone(const std::string& prefix) const {
     namespace fs = std::filesystem;
     fs::create_directories(Path(prefix + "/bin"));

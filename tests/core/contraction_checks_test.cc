@@ -16,7 +16,7 @@
 #include "mesh_store.h"
 #include "simplifier.h"
 #include "tandem/geometry.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/volume.h"
 
 namespace tandem {

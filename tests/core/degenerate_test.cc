@@ -8,7 +8,7 @@
 #include "degenerate.h"
 #include "mesh_store.h"
 #include "tandem/geometry.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 
 namespace tandem {
 namespace {

@@ -19,7 +19,7 @@
 #include "mesh_store.h"
 #include "simplifier.h"
 #include "tandem/geometry.h"
-#include "tandem/run_session.h"
+#include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 #include "testutil/embedded.h"

@@ -19,7 +19,7 @@
 
 #include "tandem/task_group.h"
 #include "thread_pool.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
 
 namespace tandem {

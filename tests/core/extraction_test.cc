@@ -19,10 +19,10 @@
 #include "prefetch.h"
 #include "simplifier.h"
 #include "tandem/geometry.h"
-#include "tandem/synthetic.h"
-#include "tandem/run_session.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 #include "testutil/testutil.h"
 

@@ -4,7 +4,7 @@
 // finished volume, and the first slice must be read before the last one is written. Ends:
 // --expect-slices, a done-file, settling; errors: an acquisition that stops short, a slice
 // file that arrives out of name order.
-#include "tandem/follow.h"
+#include "tandem/io/follow.h"
 
 #include <gtest/gtest.h>
 
@@ -22,14 +22,14 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
-#include "tandem/distance.h"
+#include "tandem/eval/distance.h"
 #include "tandem/geometry.h"
-#include "tandem/run_session.h"
-#include "tandem/series.h"
-#include "tandem/synthetic.h"
+#include "tandem/io/run_session.h"
+#include "tandem/io/series.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
-#include "tandem/topology.h"
-#include "tandem/zarr.h"
+#include "tandem/eval/topology.h"
+#include "tandem/io/zarr.h"
 #include "testutil/testutil.h"
 
 namespace tandem {

@@ -1,7 +1,7 @@
 // Tests of PLY/OBJ reading and writing (mesh_io.h): exact round trips, the PLY variants
 // other tools write (ASCII, big-endian, double coordinates, extra properties, polygons),
 // OBJ face forms, and errors that name the file and the problem.
-#include "tandem/mesh_io.h"
+#include "tandem/io/mesh_io.h"
 
 #include <gtest/gtest.h>
 

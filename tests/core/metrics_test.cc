@@ -1,7 +1,7 @@
 // Tests of the quality measures (metrics.h) and the Metro-style distances (distance.h).
 // Meshes are built here (icosphere, cube-sphere, planar grids) so these tests do not depend
 // on the extraction code.
-#include "tandem/metrics.h"
+#include "tandem/eval/metrics.h"
 
 #include <gtest/gtest.h>
 
@@ -14,7 +14,7 @@
 #include <random>
 #include <utility>
 
-#include "tandem/distance.h"
+#include "tandem/eval/distance.h"
 #include "tandem/mesh.h"
 
 namespace tandem {

@@ -14,7 +14,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
 #ifdef TANDEM_HAVE_ITK

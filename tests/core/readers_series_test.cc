@@ -22,13 +22,13 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "dicom_worker_client.h"
-#include "tandem/distance.h"
-#include "tandem/run_session.h"
-#include "tandem/series.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/distance.h"
+#include "tandem/io/run_session.h"
+#include "tandem/io/series.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
 // The reader process sets no address-space limit under ASan (it reserves terabytes).

@@ -18,7 +18,7 @@
 #include "absl/strings/match.h"
 #include "nlohmann/json.hpp"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
 namespace tandem {

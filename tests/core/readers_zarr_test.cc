@@ -18,7 +18,7 @@
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
 #include "tandem/volume.h"
-#include "tandem/zarr.h"
+#include "tandem/io/zarr.h"
 #include "testutil/testutil.h"
 
 namespace tandem {

@@ -14,11 +14,11 @@
 #include "mesh_store.h"
 #include "quadric.h"
 #include "sag_correction.h"
-#include "tandem/distance.h"
-#include "tandem/synthetic.h"
-#include "tandem/run_session.h"
+#include "tandem/eval/distance.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 
 namespace tandem {
 namespace {

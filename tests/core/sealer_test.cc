@@ -23,12 +23,12 @@
 #include "engine_testutil.h"
 #include "tandem/task_group.h"
 #include "thread_pool.h"
-#include "tandem/mesh_io.h"
+#include "tandem/io/mesh_io.h"
 #include "sealer.h"
 #include "slabs.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 
 namespace tandem {

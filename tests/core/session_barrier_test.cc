@@ -16,9 +16,9 @@
 
 #include <gtest/gtest.h>
 
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 
 // The replaced operator new allocates with malloc, so its delete frees with free; GCC 12

@@ -18,7 +18,8 @@ import sys
 SKIP_DIRS = {".git", "node_modules", "tests", "build", "deploy", "examples", "docs"}
 # Where a quoted include is looked up, besides the including file's own folder (the
 # include roots the targets declare).
-INCLUDE_ROOTS = ["", "core", "core/src", "core/io", "apps"]
+INCLUDE_ROOTS = ["", "core/include", "core/eval/include", "core/io/include",
+                 "core/module/include", "core/src", "core/io"]
 
 
 def parse_rules(text):
@@ -62,7 +63,8 @@ def resolve(root, src_dir, inc):
 
 
 def include_arrows(root, rows):
-    """(from library, to library, file, include) for every include crossing libraries."""
+    """(from library, to library, file, include, included file) for every include crossing
+    libraries."""
     out = []
     for d, dirs, files in os.walk(root):
         rel_dir = os.path.relpath(d, root)
@@ -80,7 +82,7 @@ def include_arrows(root, rows):
                 target = resolve(root, os.path.dirname(rel), m.group(1))
                 lib = library_of(target, rows) if target else None
                 if lib is not None and lib != src:
-                    out.append((src, lib, rel, m.group(1)))
+                    out.append((src, lib, rel, m.group(1), target))
     return out
 
 
@@ -97,10 +99,15 @@ def check(root, rules_text, links_text):
     rows = parse_rules(rules_text)
     errors = []
     allowed = lambda a, b: rows[a][2] is None or b in rows[a][2]
-    for src, dst, path, inc in include_arrows(root, rows):
+    arrows = include_arrows(root, rows)
+    rooted = {dst for _, dst, _, _, target in arrows if "/include/" in target}
+    for src, dst, path, inc, target in arrows:
         if not allowed(src, dst):
             errors.append(f'{path}: #include "{inc}" makes {src} use {dst}, '
                           f"which docs/layering.md does not allow")
+        elif dst in rooted and "/include/" not in target:
+            errors.append(f'{path}: #include "{inc}" reaches {target}, inside {dst}: only its '
+                          f"include/ root is public")
     if links_text is None:
         return errors
     links = parse_links(links_text)
@@ -126,7 +133,7 @@ def check(root, rules_text, links_text):
                     todo.append(d)
         return {lib_of_target[t] for t in seen}
 
-    for src, dst, path, inc in include_arrows(root, rows):
+    for src, dst, path, inc, _ in arrows:
         if rows[src][2] is not None and allowed(src, dst) and dst not in closure(src):
             errors.append(f'{path}: #include "{inc}" uses {dst}, which no target of {src} links')
     return errors

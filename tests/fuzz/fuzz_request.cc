@@ -34,7 +34,7 @@
 #include "codec/draco_codec.h"
 #include "server/extract_job.h"
 #include "server/request_validation.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/v1/tandem.pb.h"
 
 namespace {

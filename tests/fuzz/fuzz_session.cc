@@ -24,7 +24,7 @@
 #include <string>
 #include <vector>
 
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

@@ -11,10 +11,10 @@
 #include <string>
 #include <vector>
 
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
-#include "tandem/zarr.h"
+#include "tandem/io/volume_writers.h"
+#include "tandem/io/zarr.h"
 
 namespace fs = std::filesystem;
 using tandem::DType;

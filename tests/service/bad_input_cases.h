@@ -19,7 +19,7 @@
 #include <vector>
 
 #include "service/service_testutil.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 
 namespace tandem::testing {
 

@@ -15,9 +15,9 @@
 #include <gtest/gtest.h>
 
 #include "service/service_testutil.h"
-#include "tandem/mesh_io.h"
-#include "tandem/synthetic.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {

@@ -12,11 +12,11 @@
 
 #include "absl/strings/str_cat.h"
 #include "tandem/geometry.h"
-#include "tandem/mesh_io.h"
-#include "tandem/synthetic.h"
-#include "tandem/run_session.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 #include "testutil/embedded.h"
 

@@ -22,7 +22,7 @@
 #include "absl/strings/str_cat.h"
 #include "client/connection.h"
 #include "service/service_testutil.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "testutil/raw_http.h"
 #include "testutil/testutil.h"
 

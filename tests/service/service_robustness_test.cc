@@ -18,7 +18,7 @@
 #include "codec/draco_codec.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {

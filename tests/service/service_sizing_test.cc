@@ -24,7 +24,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "service/service_testutil.h"
-#include "tandem/synthetic.h"
+#include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {

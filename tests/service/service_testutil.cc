@@ -26,9 +26,9 @@
 #include "absl/strings/str_cat.h"
 #include "common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
-#include "tandem/run_session.h"
-#include "tandem/synthetic.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/run_session.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
 extern char** environ;

@@ -23,7 +23,7 @@
 
 #include "tandem/geometry.h"
 #include "tandem/mesh.h"
-#include "tandem/topology.h"
+#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 #include "testutil/testutil.h"
 

@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/series.h"
+#include "tandem/io/series.h"
 
 namespace tandem::testing {
 

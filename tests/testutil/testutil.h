@@ -14,7 +14,7 @@
 #include <gtest/gtest.h>
 
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 
 namespace tandem::testing {
 

@@ -9,8 +9,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "tandem/distance.h"
-#include "tandem/metrics.h"
+#include "tandem/eval/distance.h"
+#include "tandem/eval/metrics.h"
 #include "tandem/options.h"
 #include "tandem/stats.h"
 #include "tandem/tandem.h"

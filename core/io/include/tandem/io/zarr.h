@@ -34,7 +34,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/volume.h"
-#include "tandem/volume_writers.h"
+#include "tandem/io/volume_writers.h"
 
 namespace tandem {
 
