@@ -437,13 +437,17 @@ absl::StatusOr<Decoded> DecodeToDraco(std::string_view bytes) {
 }  // namespace
 
 absl::Status ValidateDracoOptions(const DracoOptions& options) {
-  if (options.quantization_bits < 1 || options.quantization_bits > 30) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "quantization_bits must be in [1, 30], got ", options.quantization_bits));
+  if (options.quantization_bits < kMinQuantizationBits ||
+      options.quantization_bits > kMaxQuantizationBits) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("quantization_bits must be in [", kMinQuantizationBits, ", ",
+                     kMaxQuantizationBits, "], got ", options.quantization_bits));
   }
-  if (options.compression_level < 0 || options.compression_level > 10) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "compression_level must be in [0, 10], got ", options.compression_level));
+  if (options.compression_level < kMinCompressionLevel ||
+      options.compression_level > kMaxCompressionLevel) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("compression_level must be in [", kMinCompressionLevel, ", ",
+                     kMaxCompressionLevel, "], got ", options.compression_level));
   }
   if (!(options.grid_range >= 0) || !std::isfinite(options.grid_range) ||
       !std::isfinite(options.grid_origin[0]) || !std::isfinite(options.grid_origin[1]) ||

@@ -124,7 +124,8 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   out.preview_every_slices = c.preview().every_slices();
   out.preview_min_interval_ms = c.preview().min_interval_ms();
   out.draco.quantization_bits =
-      c.draco().quantization_bits() == 0 ? 16 : static_cast<int>(c.draco().quantization_bits());
+      c.draco().quantization_bits() == 0 ? codec::kDefaultQuantizationBits
+                                      : static_cast<int>(c.draco().quantization_bits());
   if (c.draco().has_compression_level()) out.draco.compression_level = c.draco().compression_level();
   if (absl::Status st = codec::ValidateDracoOptions(out.draco); !st.ok()) {
     return Prefixed("config.draco.", st);

@@ -11,6 +11,9 @@
 
 #include "apps/common/extract_flags.h"
 #include "tandem/options.h"
+#ifdef TANDEM_HAVE_DRACO
+#include "codec/draco_codec.h"
+#endif
 
 namespace tandem::cli {
 namespace {
@@ -256,6 +259,25 @@ TEST(OptionFlags, RefusalsOfCoreNameTheFlag) {
   EXPECT_FALSE(OptionErrorOf(other).has_value());
   EXPECT_EQ(NameOptionFlag(other), other);
 }
+
+#ifdef TANDEM_HAVE_DRACO
+// The Draco flags take the codec's defaults and its range check, the refusal naming the flag.
+TEST(DracoFlags, CodecDefaultsAndRangesWithTheFlagNamed) {
+  FlagSet flags("usage");
+  ExtractFlags f;
+  f.Add(&flags, "mesh");
+  EXPECT_EQ(f.quantization_bits, codec::kDefaultQuantizationBits);
+  EXPECT_EQ(f.compression_level, codec::kDefaultCompressionLevel);
+  EXPECT_TRUE(CheckDracoFlags(1, 0).ok());
+  EXPECT_TRUE(CheckDracoFlags(30, 10).ok());
+  const absl::Status bits = CheckDracoFlags(31, 7);
+  EXPECT_EQ(bits.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(bits.message(), "--quantization-bits must be in [1, 30], got 31");
+  EXPECT_EQ(CheckDracoFlags(16, -1).message(), "--compression-level must be in [0, 10], got -1");
+  // Past int's range: refused, not wrapped into [1, 30] (2^32 + 16 would wrap to 16).
+  EXPECT_FALSE(CheckDracoFlags((int64_t{1} << 32) + 16, 7).ok());
+}
+#endif
 
 }  // namespace
 }  // namespace tandem::cli
