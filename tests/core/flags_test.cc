@@ -4,6 +4,7 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -258,6 +259,27 @@ TEST(OptionFlags, RefusalsOfCoreNameTheFlag) {
   const absl::Status other = absl::NotFoundError("x");
   EXPECT_FALSE(OptionErrorOf(other).has_value());
   EXPECT_EQ(NameOptionFlag(other), other);
+}
+
+// One rule for an iso list (core's), each front end naming its flag.
+TEST(IsoList, CoreRuleWithTheFlagNamed) {
+  const std::vector<double> eight = {1, 2, 3, 4, 5, 6, 7, 8};
+  EXPECT_TRUE(ValidateIsoList(eight).ok());
+  const std::vector<double> nine = {1, 2, 3, 4, 5, 6, 7, 8, 9};
+  EXPECT_EQ(ValidateIsoList(nine).message(), "at most 8 iso-values in one pass, got 9");
+  const std::vector<double> twice = {60, 120, 60};
+  EXPECT_EQ(ValidateIsoList(twice).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ValidateIsoList(twice).message(), "iso-value 60 is given twice");
+  const std::vector<double> inf = {60, std::numeric_limits<double>::infinity()};
+  EXPECT_EQ(ValidateIsoList(inf).message(), "iso-value inf is not a finite number");
+  EXPECT_EQ(ParseIsoList("60,120,60").status().message(),
+            "--iso '60,120,60': iso-value 60 is given twice");
+  EXPECT_EQ(ParseIsoList("1,2,3,4,5,6,7,8,9").status().message(),
+            "--iso '1,2,3,4,5,6,7,8,9': at most 8 iso-values in one pass, got 9");
+  EXPECT_EQ(ParseIsoList("60,inf").status().message(),
+            "--iso '60,inf': iso-value inf is not a finite number");
+  ASSERT_TRUE(ParseIsoList("60, 120").ok());
+  EXPECT_EQ(ParseIsoList("60, 120")->at(1).text, "120");
 }
 
 #ifdef TANDEM_HAVE_DRACO
