@@ -18,6 +18,7 @@
 #include "draco/core/encoder_buffer.h"
 #include "draco/mesh/mesh.h"
 #include "tandem/geometry.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::codec {
 namespace {
@@ -461,7 +462,7 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
                                         std::span<const uint32_t> ids,
                                         std::span<const uint8_t> fixed, MovedCorners* moved,
                                         std::span<const Vec3> avoid) {
-  if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateDracoOptions(given));
   DracoOptions options = given;  // with the grid made explicit
   if (moved != nullptr) moved->clear();
   auto dmesh = ToDracoMesh(mesh, &options, ids, fixed, moved, avoid);
@@ -557,7 +558,7 @@ absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint
 absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
                                                      const std::vector<Vec3>& normals,
                                                      const DracoOptions& given) {
-  if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateDracoOptions(given));
   DracoOptions options = given;  // with the grid made explicit
   GlbDracoPrimitive out;
   if (mesh.num_vertices() == 0) return out;  // an empty scene: nothing to compress

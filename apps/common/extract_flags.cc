@@ -15,6 +15,7 @@
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
+#include "tandem/status_macros.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "codec/draco_codec.h"
 #endif
@@ -266,9 +267,7 @@ absl::Status ExtractFlags::Check(const FlagSet& flags) const {
     if (absl::StatusOr<Space> s = FrameFlag(frame); !s.ok()) return s.status();
   }
 #ifdef TANDEM_HAVE_DRACO
-  if (absl::Status st = CheckDracoFlags(quantization_bits, compression_level); !st.ok()) {
-    return st;
-  }
+  TANDEM_RETURN_IF_ERROR(CheckDracoFlags(quantization_bits, compression_level));
 #endif
   if (glb_draco && !absl::EndsWith(out, ".glb")) {
     return absl::InvalidArgumentError(
