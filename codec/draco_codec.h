@@ -63,7 +63,7 @@ absl::Status ValidateDracoOptions(const DracoOptions& options);
 // position: the decoded vertex count may then exceed the original (triangles are kept).
 // Quantization snaps every corner to the nearest grid point, and a thin triangle can lose
 // its area on the grid (its corners on one grid line) or turn over: a zero-area triangle in
-// the output, which breaks normals, slicers and some viewers (issue 24); and two vertices
+// the output, which breaks normals, slicers and some viewers; and two vertices
 // closer than a step can land on one grid point, which a reader welding by position joins
 // (a non-manifold mesh). Where either would happen, a corner steps to a free neighbouring
 // grid point where none of its triangles loses its area or turns over (so it lies up to 1.5

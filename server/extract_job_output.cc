@@ -146,8 +146,8 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
     return absl::OkStatus();
   }
   // The stream's last chunk holds the time lag's band and the seams, sealed at once, and its
-  // encoding ran on one core while the finished session left the others idle (0.5 s of a
-  // dense 2048² stream's 4.3 s wait after its last slice). A large one goes out as one chunk
+  // encoding ran on one core while the finished session left the others idle
+  // (docs/decisions.md 46). A large one goes out as one chunk
   // a compute thread (each of at least kChunkTriangles), encoded side by side.
   const size_t count =
       last ? std::clamp<size_t>(c.num_triangles() / static_cast<size_t>(kChunkTriangles), 1,

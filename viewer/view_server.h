@@ -52,9 +52,9 @@ absl::Status ParseListen(const std::string& listen, std::string* host, int* port
 bool IsLoopback(const std::string& host);
 
 // The server lives in a module of its own, libtandem_view.so (view_server.cc), loaded by
-// Start: cpp-httplib links OpenSSL and Brotli, whose loading cost every start of the CLI and
-// the client ~5 ms and 3.8 MB of resident pages when they linked it, viewer or not
-// (core/module/module_loader.h). The programs see only this interface.
+// Start: cpp-httplib links OpenSSL and Brotli, whose loading would cost every start of the
+// CLI and the client, viewer or not (docs/decisions.md 43). The programs see only this
+// interface.
 // Where the scan is (ViewServer::SetProgress).
 struct ViewProgress {
   int64_t slices_sent = 0, slices_meshed = 0;

@@ -41,8 +41,8 @@ int main(int argc, char** argv) {
   // Every message of a stream is a fresh buffer of about a chunk (1 MiB), serialized and
   // freed by gRPC. glibc hands freed memory at the top of a thread's heap back to the kernel
   // once it exceeds the trim threshold (a few MiB at most), so each buffer was faulted in
-  // and zeroed anew: a quarter of a million page faults and two thirds of the client's CPU
-  // time per GiB streamed. A short-lived client can keep its few MiB of buffers instead.
+  // and zeroed anew (docs/decisions.md 54). A short-lived client can keep its few MiB of
+  // buffers instead.
   mallopt(M_MMAP_THRESHOLD, 64 << 20);
   mallopt(M_TRIM_THRESHOLD, 256 << 20);
 #endif

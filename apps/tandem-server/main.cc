@@ -164,10 +164,8 @@ int main(int argc, char** argv) {
   builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS,
                              limits.permit_keepalive_without_calls ? 1 : 0);
   // The receive window of a stream: what it may have received but not yet processed, as
-  // --max-inflight-bytes says, not what gRPC's BDP probing would grow it to. With probing, a
-  // fast client made each stream's window grow to tens of MiB on loopback, buffered by gRPC
-  // outside every budget: 4 full-resolution streams at --session-memory-mb 80 peaked at up
-  // to 394 MiB against the 371 MiB the budgets allow (without probing, 259-303 MiB).
+  // --max-inflight-bytes says, not what gRPC's BDP probing would grow it to: that is buffered
+  // by gRPC outside every budget (docs/decisions.md 38).
   builder.AddChannelArgument(GRPC_ARG_HTTP2_BDP_PROBE, 0);
   // gRPC binds with SO_REUSEPORT by default: a second server on a port another one listens on
   // would start too, and the kernel would split new connections between them.

@@ -139,7 +139,7 @@ std::string ReportSummary(const MetricsReport& r) {
     // Contractions never remove a component or a handle: a surface made of many small pieces
     // keeps some triangles each, at any E0.
     // Below it: the first E0 (at most 1/1000 of the smallest spacing, or --error when smaller)
-    // already simplified further, as on the engine CT asked for over ~85 % of its triangles.
+    // already simplified further (docs/decisions.md 23).
     line("target", r.triangles_final > target
                        ? absl::StrCat(target, " NOT reached: no contraction the checks allow is "
                                               "left (components and handles stay)")

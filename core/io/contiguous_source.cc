@@ -89,7 +89,7 @@ class MappedVoxels {
 
   // Pages go back in steps of at least this much: each MADV_DONTNEED flushes the TLBs of the
   // session's other threads (an interrupt per core), and a 128² float slice is 16 pages
-  // (link-128: 3.5 % of the CLI's time in madvise's shootdowns, one per slice).
+  // (tests/bench/DENSE.md).
   static constexpr uint64_t kReleaseStep = uint64_t{4} << 20;
   int fd_;
   uint8_t* base_;

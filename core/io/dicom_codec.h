@@ -1,8 +1,7 @@
 // The GDCM side of the DICOM reader and writer (format_dicom.cc), as a module loaded on first
 // use: libtandem_dicom.so (dicom_codec.cc), found next to the executable or in
-// ../lib/tandem/. GDCM loads its dictionaries when its libraries are loaded (gdcm::Global,
-// 58 M instructions, about 12 ms), so a program linked with GDCM paid that at every start,
-// DICOM or not; now only a program that reads or writes DICOM does.
+// ../lib/tandem/. GDCM loads its dictionaries when its libraries are loaded (gdcm::Global),
+// so only a program that reads or writes DICOM should pay that (docs/decisions.md 41).
 //
 // The module holds only what touches GDCM (one header, one slice's pixels, one slice
 // written, a UID) and no other tandem code; the reading program tandem-dicom-worker

@@ -11,7 +11,7 @@ namespace {
 // Occurrences of x in a fan array of kFanMax entries (unused ones kInvalid).
 // A fixed length and no loop exit: no branch to mispredict. Written with vector extensions
 // (GCC, Clang: four lanes at a time, on any target): at 16 entries GCC unrolled the plain
-// loop into scalar compares, twice the instructions of the vector loop.
+// loop into scalar compares.
 template <size_t N>
 int CountOf(const VertexId (&v)[N], VertexId x) {
   static_assert(N % 4 == 0);

@@ -42,7 +42,7 @@ TriId WithHalfEdge(const MeshStore& s, VertexId from, VertexId to) {
 // The way a degenerate triangle should face once mended: as its neighbours across its edges
 // do (their summed normals), or `otherwise` when they are degenerate too. Where two sheets
 // touch at a vertex, the sum over the vertex's triangles mixes the two sheets' sides, and
-// with it as the reference the head MR at its 10 % point kept 6 zero-area triangles, not 2.
+// with it as the reference more stayed unmended (docs/decisions.md 26).
 Vec3 Across(const MeshStore& s, const std::array<VertexId, 3>& tri, Vec3 otherwise) {
   Vec3 sum{0, 0, 0};
   for (int j = 0; j < 3; ++j) {
@@ -148,8 +148,8 @@ bool KeepsFacing(const MeshStore& s, VertexId v, Vec3 q, Vec3 facing) {
     Vec3 c[3];
     for (int j = 0; j < 3; ++j) c[j] = w[j] == v ? q : s.position(w[j]);
     if (Degenerate(s, u)) {
-      // Parting sheets that touch can fold a sliver back (the head MR: 7 sharp folds more
-      // for 10 zero-area triangles fewer): left as it is instead.
+      // Parting sheets that touch can fold a sliver back, a sharp fold worse than the zero
+      // area it mends (docs/decisions.md 26): left as it is instead.
       if (!MovedCornerKeepsOrientation(Across(s, w, facing), c[0], c[1], c[2])) return false;
     } else if (!MovedCornerKeepsOrientation(TwiceArea(s, w), c[0], c[1], c[2])) {
       return false;
@@ -163,8 +163,8 @@ bool KeepsFacing(const MeshStore& s, VertexId v, Vec3 q, Vec3 facing) {
 // (the degenerate ones around it must come out facing as their neighbours across their edges
 // do: Across) or may_move refuses. When that direction turns a degenerate triangle the wrong
 // way, the same length is tried across each degenerate triangle's long edge, to the side
-// that makes it face as v's triangles do, then along the sum of those steps (the head MR at
-// the default E0: its last two zero-area triangles part so).
+// that makes it face as v's triangles do, then along the sum of those steps (where two
+// sheets touch, the last zero-area triangles part only so).
 bool MoveApart(MeshStore* s, VertexId v, double longest,
                const std::function<bool(VertexId, Vec3)>& may_move) {
   const Vec3 p = s->position(v);
@@ -223,7 +223,7 @@ bool MoveApart(MeshStore* s, VertexId v, double longest,
   // n_u = Across(u) for d . ((next - prev) x n_u) > 0. Where two sheets touch along a
   // zero-length edge, each sheet's sliver asks for its own side, which the directions above
   // (built on v's own facing) can both miss; the sum of the two unit directions meets both
-  // half-spaces unless they are opposite (the head MR at E0 4: 2 zero-area triangles left).
+  // half-spaces unless they are opposite.
   Vec3 exact{0, 0, 0};
   for (TriId u : s->vertex_triangles(v)) {
     if (!Degenerate(*s, u)) continue;

@@ -1,4 +1,4 @@
-// Zero-area triangles left in a simplified mesh (issue 24: they break normals, STL slicers and
+// Zero-area triangles left in a simplified mesh (they break normals, STL slicers and
 // some viewers). Marching cubes on integer scans puts the surface point of every crossed edge
 // at a grid point whose value equals the iso-value, and simplification removes almost all of
 // what that makes; what stays is what the link condition or the checks must keep: a triangle

@@ -17,8 +17,8 @@ void EdgeQueue::Clear() {
 
 void EdgeQueue::Trim() {
   assert(size_ == 0);
-  // A small Q keeps its memory: freeing and regrowing it every layer only fragments the
-  // heap (a server that ran 50 small streams kept ~0.5 MiB more resident when it did).
+  // A small Q keeps its memory: freeing and regrowing it every layer only fragments the heap
+  // (docs/decisions.md 1).
   if (MemoryBytes() < (size_t{4} << 20)) return;
   auto trim = [](auto& v) {
     if (!Keeps(v.capacity() * sizeof(v[0]), kKeepTrimmed)) {

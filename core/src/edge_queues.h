@@ -175,7 +175,7 @@ class EdgeQueue {
     VisitInPushOrder([&](const QNode& n, const QPlacement& p, size_t) { f(n, p); });
   }
   // Q empties at the end of every SIMPLIFY(E0) (edges above E0 are never queued), but each of
-  // its buckets and its slots kept the capacity of their own peaks: two thirds of a dense
+  // its buckets and its slots kept the capacity of their own peaks, most of a dense
   // session's memory. Trim, on an empty Q holding more than 4 MiB, frees every bucket and
   // slot array larger than 1 KiB; the order of what is pushed next is unchanged.
   void Trim();
@@ -196,8 +196,8 @@ class EdgeQueue {
     // Monotone in the key, so bucket order then heap order is exactly (key, seq) order. On a
     // log scale: 64 buckets per binade over the 16 binades below E0 (keys under E0 / 2^16
     // share bucket 0). Evenly spaced buckets put every key under E0 / 1023 into one: a
-    // nearly flat patch (a scan's end cap) made that bucket's heap millions deep, and its
-    // pops, cache misses all the way down, were 40 % of the run.
+    // nearly flat patch (a scan's end cap) made that bucket's heap millions deep, its pops
+    // cache misses all the way down (docs/decisions.md 1).
     if (!(key <= max_key_)) return kBuckets - 1;  // NaN too
     if (key <= 0.0) return 0;
     // Positive doubles' bits grow with the value.
@@ -280,7 +280,7 @@ inline void EdgeQueue::Advance() {
   // Makes cur_ the lowest non-empty bucket (Q is not empty).
   while (buckets_[cur_].empty()) {
     // Popped empty: a big bucket gives its memory back. Log-spaced buckets each fill in turn
-    // as SIMPLIFY's keys rise, and kept, their peaks added up (2048² dense cap: +13 % RSS).
+    // as SIMPLIFY's keys rise, and kept, their peaks would add up (docs/decisions.md 1).
     if (!Keeps(buckets_[cur_].capacity() * sizeof(QNode), kKeepPopped)) {
       PodArray<QNode>().swap(buckets_[cur_]);
     }
@@ -373,8 +373,8 @@ struct WEntry {
   uint32_t va, vb;  // version stamps
 };
 // What W keeps of an entry in a bucket, and hands out: the key only chose the bucket, so a
-// bucketed edge takes 16 bytes, not 24 (W holds a layer and a half of edges: 50 MB of each
-// part's 250 MB while a 2048² cap waits out the time lag). The far list keeps whole entries.
+// bucketed edge takes 16 bytes, not 24 (W holds a layer and a half of edges while a cap waits
+// out the time lag; docs/decisions.md 4). The far list keeps whole entries.
 struct WEdge {
   VertexId a, b;
   uint32_t va, vb;  // version stamps

@@ -3,14 +3,10 @@
 //
 // std::vector doubles its capacity when it runs out, so an array that has just passed a power
 // of two holds up to twice what it uses, and keeps it for the rest of the session (ids are
-// recycled, the arrays never shrink). The session's memory, as its budget counts it
-// (TandemSession::MemoryBytes), was capacity: after the flat cap of a closed 2048² volume (a
-// million triangles in each part's first layer) the store, the quadrics and the incidence
-// pool stood at 1.5-1.9x their use, and the server refused the stream at slice 2.
-// Growing by an eighth keeps appends amortised O(1) (an element is copied about 9 times over
-// the array's life, plain memcpy of records, a few ms per million vertices; small arrays
-// double, below), and a caller
-// that knows how much is coming (a layer's commit) reserves it exactly. The biggest arrays are
+// recycled, the arrays never shrink), and the session's budget counts a heap array's capacity
+// (docs/decisions.md 4). Growing by an eighth keeps appends amortised O(1) (small arrays
+// double, below), and a caller that knows how much is coming (a layer's commit) reserves it
+// exactly. The biggest arrays are
 // PodArrays (pod_array.h), whose large blocks grow in place without the copy, and whose count
 // is the pages they wrote (docs/decisions.md 7): those double (ReserveFor).
 #ifndef TANDEM_GROW_H_
@@ -27,12 +23,9 @@
 namespace tandem {
 
 // Below this many bytes an array doubles (from 8 elements); above, it grows by this many
-// bytes at a time until an eighth is more. Grown by eighths from empty, a small array grew
-// one element at a time up to 16 and was copied some 55 times on its way to 16 KiB; Q's and
-// W's buckets regrow from empty every step, and on a 128³ volume those copies were 5 % of
-// the run's instructions (8 % of its time in memmove): 625 M instructions before, 599 M now
-// (`--parts 1`, Link 128³). The slack this adds is at most 16 KiB an array, and Q has a
-// thousand buckets a part: a 64 KiB threshold saved a little more (591 M) for four times that.
+// bytes at a time until an eighth is more: grown by eighths from empty, Q's and W's buckets,
+// regrown every step, were copied dozens of times (docs/decisions.md 4). At most 16 KiB of
+// slack an array, over Q's thousand buckets a part.
 inline constexpr size_t kGrowDoubleBytes = size_t{16} << 10;
 
 // Makes room for n elements in v: its capacity becomes at least n, and when it has to grow

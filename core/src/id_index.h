@@ -24,11 +24,10 @@
 namespace tandem {
 
 // A value for each of a few vertex ids, where an array by id would hold mostly nothing: the
-// sealer's frozen vertices in the store, a few thousand of a part's million ids, took 12 bytes
-// an id in three arrays (10.6 MiB a part at the closing cap of a closed 2048² gyroid: stop
-// 56). Open addressing, linear probing, at most half full, backward-shift deletion (no
-// tombstones: the table holds what is in it). References from At and Find are valid until the
-// next At or Erase.
+// sealer's frozen vertices in the store, a few thousand of a part's million ids
+// (docs/decisions.md 18). Open addressing, linear probing, at most half full, backward-shift
+// deletion (no tombstones: the table holds what is in it). References from At and Find are
+// valid until the next At or Erase.
 template <typename V>
 class IdMap {
  public:

@@ -225,9 +225,9 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
   for (VertexId& v : xe_top_.ids) v = resolve(v);
   for (VertexId& v : ye_top_.ids) v = resolve(v);
   for (VertexId& v : top_plane_vertices_) v = resolve(v);
-  // The staging is empty until the next layer: past 4 MiB (a dense 2048² layer, 5 MB a part;
-  // a closed volume's cap, 50 MB) it is freed, not kept at its largest for the whole
-  // session; the next layer reserves what this one staged.
+  // The staging is empty until the next layer: past 4 MiB (a closed volume's cap stages many
+  // times a dense layer) it is freed, not kept at its largest for the whole session; the
+  // next layer reserves what this one staged (docs/decisions.md 4).
   last_staged_ = {staged_vertices_.size(), staged_triangles_.size()};
   if (StagingBytes() > (size_t{4} << 20)) {
     std::vector<StagedVertex>().swap(staged_vertices_);
@@ -359,8 +359,8 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
   offset_top_ = Offsets(k);
   check_at_ = kCheckEvery;
   // Room for about what the last layer staged, at once: grown by doubling from empty, the
-  // staging was copied on its way up and faulted in about twice over (a dense 2048² stream:
-  // a third of the run's page faults; CommitLayer frees it past 4 MiB).
+  // staging was copied on its way up and faulted in about twice over (tests/bench/DENSE.md;
+  // CommitLayer frees it past 4 MiB).
   staged_vertices_.reserve(last_staged_.first + last_staged_.first / 16);
   staged_triangles_.reserve(last_staged_.second + last_staged_.second / 16);
   staged_edges_.reserve(last_staged_.second + last_staged_.second / 16);

@@ -127,7 +127,7 @@ const Tables& GetTables() {
       t->ambiguous[config] = amb;
     }
     // Only the bits of ambiguous faces matter: build each distinct case once (656 of
-    // the 16,384 slots; building all of them was 13 M instructions at every start) and copy
+    // the 16,384 slots; building all of them slowed every start, docs/decisions.md 41) and copy
     // it to the slots that differ in the other bits. conn & amb <= conn, so it is built.
     t->cases.resize(256 * 64);
     for (int config = 0; config < 256; ++config) {

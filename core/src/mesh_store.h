@@ -173,8 +173,8 @@ class MeshStore {
     uint32_t offset = 0;
     uint32_t count = 0;
   };
-  // Most vertices have at most 6 triangles (on a closed 2048² gyroid's cap at its release,
-  // 86 %, 58 % exactly 6): with a smallest slot of 8, 37 % of the pool held no id.
+  // Most vertices have at most 6 triangles: a smallest slot of 8 left much of the pool empty
+  // (docs/decisions.md 15).
   static constexpr uint32_t kMinSlot = 6;
   static constexpr int kNumClasses = 24;
 

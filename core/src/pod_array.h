@@ -6,10 +6,10 @@
 // glibc's heap the freed blocks stay resident for the process's life (the heap only shrinks
 // from its top, and blocks past the mmap threshold come from the heap too once a large block
 // has been freed: the threshold rises up to 32 MiB), so the session's arrays, grown by
-// eighths (grow.h) and freed after each step (Q, W's buckets), left a closed 512² gyroid's
-// CLI at 248 MiB resident for 171 MiB of live heap. Mapped with mmap instead, a block
-// returns to the kernel when freed, and grows with mremap: its pages move, nothing is copied
-// and nothing is faulted in again (docs/decisions.md: why not malloc's mmap threshold).
+// eighths (grow.h) and freed after each step (Q, W's buckets), kept the process resident far
+// above its live heap. Mapped with mmap instead, a block returns to the kernel when freed,
+// and grows with mremap: its pages move, nothing is copied and nothing is faulted in again
+// (docs/decisions.md 6, also why not malloc's mmap threshold).
 // Capacity follows std::vector's (libstdc++'s) rules exactly (push_back doubles the size,
 // reserve gives what is asked). What the session's budget counts is MemoryBytes: a mapped
 // block's written pages, not its capacity.

@@ -62,10 +62,10 @@ Sym3 FreeMatrix(const Quadric& q, uint8_t fixed_axes) {
 }
 
 // x = M⁻¹ g by LDLᵀ (Cholesky without square roots): backward stable for a positive
-// definite M, so x is good to about κ ε. The adjugate (Cramer's rule) used before was not:
-// det cancels to an absolute error of ε λ1³, a relative one of ε κ² (2e-6 at κ = 1e5, 5e-7
-// of the step against the reference in the rank-case test). False on a pivot that is not
-// positive (callers only use it for matrices they know to be well inside positive definite).
+// definite M, so x is good to about κ ε. The adjugate (Cramer's rule) is not: det cancels
+// to an absolute error of ε λ1³, a relative one of ε κ² (2e-6 at κ = 1e5). False on a
+// pivot that is not positive (callers only use it for matrices they know to be well inside
+// positive definite).
 bool SolveLdlt(const Sym3& m, const double g[3], double x[3]) {
   const double d0 = m.a00;
   if (!(d0 > 0.0)) return false;
@@ -180,9 +180,8 @@ Vec3 MinimizeQuadricReference(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
 }
 
 Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
-  // Same result as MinimizeQuadricReference (up to rounding) without its trigonometric
-  // eigen-solver, which cost ~1000 instructions a call and a third of all simplification
-  // work: smooth surfaces give near-rank-1 quadrics, so almost every call truncates.
+  // Same result as MinimizeQuadricReference (up to rounding) without its costly trigonometric
+  // eigen-solver (docs/decisions.md 20): smooth surfaces give near-rank-1 quadrics.
   const Sym3 m = FreeMatrix(q, fixed_axes);
   double g[3] = {-(q.a00 * ref.x + q.a01 * ref.y + q.a02 * ref.z + q.b0),
                  -(q.a01 * ref.x + q.a11 * ref.y + q.a12 * ref.z + q.b1),
@@ -205,11 +204,7 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   // error of a few dozen ε c2³ and ε c2² (every entry is at most c2), so the test keeps a
   // margin of 64 ε c2³: a (near-)planar quadric, whose det is rounding noise, never passes.
   // This catches every curved patch (λ2 λ3 of 1e-10..1e-6 λ1²); the truncating path below is
-  // left to planes and creases. (Until 2026-11 the test was det >= τ c2³, which sent 78% of
-  // the Pillow Box's and 58% of the Link's calls through the deflation below instead. With
-  // this test and SolveLdlt, median CPU time of 5 interleaved runs went from 3.67 to 3.11 s on
-  // the Pillow Box 512³ and 1.72 to 1.64 s on the Link 512³; the meshes are the same up to
-  // rounding: triangle counts within 0.02%, RMS distance within 0.3%.)
+  // left to planes and creases (docs/decisions.md 20).
   constexpr double kRounding = 64.0 * std::numeric_limits<double>::epsilon();
   if (c0 >= kIllConditioned * c1 * c2 + kRounding * c2 * c2 * c2) {
     if (!SolveLdlt(m, g, delta)) return MinimizeQuadricReference(q, ref, fixed_axes);

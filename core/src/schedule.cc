@@ -33,13 +33,12 @@ bool Lockstep(Schedule s) { return s == Schedule::kTandem || s == Schedule::kTan
 constexpr double kGoal = 1.2, kExponent = 1.5, kMinStep = 1.25, kMaxStep = 4;
 // E0 rises while the lock-step holds more than kHigh N triangles besides the unsettled ones:
 // those of the last kRecentLayers layers as extracted (partly simplified already), and about
-// two per seam vertex. Fewer recent layers (3 against 8) left more to the parallel lock-step:
-// 1.33x against 1.36x the time of the E0 run reaching N (geometric mean, 10 runs over 5
-// volumes), 1.10x against 1.21x its peak RSS, every count reached.
+// two per seam vertex. Few recent layers leave more to the parallel lock-step
+// (docs/decisions.md 23).
 constexpr double kHigh = 1.5;
 constexpr size_t kRecentLayers = 3;
 // Where a rise starts: from the least cost above E0, when there is one (a small first E0
-// can sit far below every cost: the engine CT's start, 0.01, below costs of ~0.1).
+// can sit far below every cost).
 double From(double error, double next_cost) {
   return std::isfinite(next_cost) ? std::max(error, next_cost) : error;
 }
@@ -52,7 +51,7 @@ double RiseState::Step(double count, double goal, double min_step) const {
 
 void RiseState::After(double step, double removed, double wanted) {
   // A rise that removed under 1 % of what it aimed at doubles the next one: a CT's costs can
-  // sit far above a small E0 (the engine at 400,000 of 580,000 triangles needed x50). After
+  // sit far above a small E0 (docs/decisions.md 23). After
   // kGiveUp x4 rises in a row that removed next to nothing, the surface is at its floor
   // (components and handles no contraction may remove, as on a head MR at a few hundred
   // triangles).
@@ -194,7 +193,7 @@ void ReachTarget(Slab& s, int64_t target) {
     s.simplifier.Simplify(target, /*past_error=*/true);
   }
   // At the floor E0 ran up by 4^8 for nothing: the sag correction and the report take the E0
-  // that last did some good (the head MR at 300 triangles: 7e6 against the 1.6 reached).
+  // that last did some good.
   if (rise.floor) s.simplifier.LowerErrorAfterSimplify(useful);
 }
 
@@ -204,7 +203,7 @@ void ApproachTarget(std::span<const std::unique_ptr<Slab>> slabs, int64_t target
   constexpr double kNear = 1.05, kFinalStep = 1.05;
   // The seams stay at full resolution until the merge (about two triangles a seam vertex,
   // as in FollowTarget): the parts come down to N besides them, not to N with them, or E0
-  // would climb past what the whole needs (the engine CT at N = 11,001: 0.44 against 0.24).
+  // would climb past what the whole needs.
   double seams = 0;
   for (const auto& s : slabs) seams += 2.0 * static_cast<double>(s->seam_vertices);
   const double goal = kNear * static_cast<double>(target) + seams;

@@ -106,11 +106,8 @@ double FinalError(const SessionOptions& options, double scale);
 // E0 in the engine frame at the start of a session: FinalError, or below it the
 // finishing pass's lock-step E0 (SessionOptions::lockstep_error; FinishAtError brings it up
 // at the end); with a target triangle count, which E0 must reach from below, at most 1/1000
-// of the smallest spacing.
-// 1/100 was 5 % faster (10 targets over 5 volumes: 1.15x the E0 run reaching N against
-// 1.22x) but kept fewer than the Pillow Box 256³ at its 10 % point (E0 = 1/167 of the
-// spacing): 61 % of N. A target above what the start keeps (on the engine CT, over ~85 % of
-// the full-resolution triangles) needs a smaller --error, which lowers the start.
+// of the smallest spacing: a larger start can keep fewer than a smooth surface's target
+// (docs/decisions.md 23). A target above what the start keeps needs a smaller --error.
 double StartError(const VolumeInfo& grid, const SessionOptions& options, double scale);
 
 // The finishing pass of an E0 run (SessionOptions::lockstep_error): once every slab is

@@ -204,7 +204,7 @@ void Sealer::Seal(double front, Executor* executor) {
     // A zero-area triangle that seals later, at a corner handed out now: mended now, while
     // that corner may still move (frozen, but without an id), the others staying where they
     // are and the topology too. Left for later, both its coincident corners could be handed
-    // out by other triangles first, and then neither may move (the head MR sealed kept 2 so).
+    // out by other triangles first, and then neither may move.
     // At the end everything seals now: there is no later.
     later_.clear();
     for (TriId t : all ? std::span<const TriId>() : tris_) {

@@ -185,8 +185,7 @@ void TandemSession::Impl::ToWorld(std::vector<Vec3>* positions,
 void TandemSession::Impl::ForEachSlab(const std::function<void(Slab&)>& f, bool balanced) {
   if (options.pipeline && slabs.size() > 1 && balanced) {
     // The caller and threads - 1 tasks take the slabs in turn: with one worker a core, no
-    // slab starts late to run alone while a core idles (the end of a dense 2048² stream: four
-    // slabs of about 0.7 s each on 2 cores took 1.63 s as three workers, one started late).
+    // slab starts late to run alone while a core idles (tests/bench/DENSE.md).
     const size_t workers =
         std::min(slabs.size(), static_cast<size_t>(std::max(1, executor->threads())));
     std::atomic<size_t> next{0};
@@ -393,8 +392,8 @@ TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) const
   g.triangles = static_cast<int64_t>(s.store.num_triangles());
   if (s.sealer) g.bytes += s.sealer->MemoryBytes();
   // The queues at their fullest in the last step, not as its end left them: a budget checked
-  // between slices would otherwise miss Q's peak (a cap's release: 137 MiB a part at 2048²,
-  // while the queues read 36 MiB after the step). Plane caches as planned, like the slices.
+  // between slices would otherwise miss Q's peak (a cap's release, docs/decisions.md 8).
+  // Plane caches as planned, like the slices.
   const size_t queues = std::max(s.simplifier.MemoryBytes(), s.simplifier.StepPeakBytes());
   g.bytes += s.store.MemoryBytes() + queues + s.extractor.PlaneBytes(grid.dtype) +
              s.extractor.EdgeIdBytes() + s.extractor.StagingBytes();

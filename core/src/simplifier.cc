@@ -115,7 +115,7 @@ void Simplifier::PushQ(VertexId a, VertexId b, const Candidate& c) {
   // Zero-cost edges (an exactly flat patch: a binary mask's faces) would all tie, and Q pops
   // ties newest first: each survivor's re-pushed edges came next, so it took its neighbours
   // one after the other into a fan of thousands of triangles, every check over the whole fan
-  // (a 256² x 6 box: 102 s). They pop shortest first instead: the key is the squared length,
+  // (docs/decisions.md 3). They pop shortest first instead: the key is the squared length,
   // scaled to 2^-960 of it, below any cost but 0.
   double key = c.cost;
   if (key == 0) {
@@ -145,8 +145,8 @@ void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
   // cubes cuts shared faces alike), and that cube's triangle, the reverse half-edge, queued
   // it as a front edge when its layer was delayed. The schedules never touch the front, so
   // that entry is still valid: queueing the edge again only made a duplicate that was
-  // evaluated, queued and popped for nothing (a tenth of the released edges on the Link,
-  // and a refused edge was counted twice). Without the reverse half-edge (the first layer's
+  // evaluated, queued and popped for nothing (and a refused edge was counted twice).
+  // Without the reverse half-edge (the first layer's
   // bottom, on the box) it is queued here.
   const int32_t layer = new_layer ? std::max({store_->layer(tri[0]), store_->layer(tri[1]),
                                               store_->layer(tri[2])})
@@ -211,8 +211,8 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
 void Simplifier::FlushBatch() {
   const size_t n = batch_.size();
   if (n == 0) return;
-  // Never shrunk: a resize up after a smaller batch zeroed every result again, and
-  // EvaluateBatchRange writes each one anyway (1 % of a dense run's instructions).
+  // Never shrunk: a resize up after a smaller batch zeroed every result again, which
+  // EvaluateBatchRange writes anyway.
   if (batch_results_.size() < n) batch_results_.resize(n);
   // Below this size a thread costs more than it saves (a solve is ~1 µs).
   constexpr size_t kParallelMin = 1024;
@@ -362,8 +362,8 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, static_cast<double>(c.layer) - front_);
   // Re-evaluate the edges around c, in increasing neighbour id. Each neighbour once before
-  // sorting (the sort of all corners, every neighbour twice, was a third of this function,
-  // mispredicted branches mostly): the corner after c in each triangle covers a closed fan;
+  // sorting (sorting all corners, every neighbour twice, costs mispredicted branches): the
+  // corner after c in each triangle covers a closed fan;
   // on the boundary one neighbour is only ever the corner before c.
   scratch_.clear();
   const auto fan = store_->vertex_triangles(a);

@@ -57,7 +57,7 @@ class Simplifier {
   // evaluated into Q in W's order. A release of more than release_chunk edges enters Q a
   // chunk at a time (chunked_release.h), each chunk simplified before the next is evaluated,
   // and its last chunk is left in Q for the SIMPLIFY that follows: Q holds a chunk, not the
-  // release (a closed 2048² volume's cap releases 1.64 M edges a slab at once).
+  // release (a closed volume's cap releases a whole layer at once; docs/decisions.md 8).
   void Activate(double front);
   // SIMPLIFY(E0): contracts while Q's minimum cost <= E0, and with target_triangles > 0
   // while more than that many triangles remain. past_error: in cost order beyond E0, without

@@ -322,9 +322,8 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
 }
 
 // Q keeps edges up to this multiple of E0 toward a target count, so that a rise of E0
-// needs fewer evaluations (RaiseError). Measured on the engine CT, N = 25,000 and 100,000:
-// 1.5 took 0.85-0.95 s, 1 (none kept) 1.06-1.36 s, 2-8 the same time as 1.5 but up to
-// 1.5x the memory (the expensive entries pile up between rises).
+// needs fewer evaluations (RaiseError); more only piles up expensive entries between rises
+// (docs/decisions.md 23).
 constexpr double kTargetKeep = 1.5;
 
 Slab::Slab(const ExtractorConfig& ec, const SimplifierOptions& so, Meter* m)

@@ -1,8 +1,7 @@
 // The CPU time of the calling thread, for the phase times of SessionStats: the parts and the
 // extraction beside their SIMPLIFY run on more threads than a small machine has cores, and a
-// wall clock there counts every wait for a core (a 4-part 2048² stream on 2 cores reported
-// 242 s of "simplify"; the test Executor.PhaseTimesAreCpuTimeHoweverManyThreadsShareTheCores
-// saw twice the process's CPU time).
+// wall clock there counts every wait for a core (docs/decisions.md 44; the test
+// Executor.PhaseTimesAreCpuTimeHoweverManyThreadsShareTheCores).
 #ifndef TANDEM_THREAD_CLOCK_H_
 #define TANDEM_THREAD_CLOCK_H_
 

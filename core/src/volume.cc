@@ -222,7 +222,7 @@ typedef float F32x4 __attribute__((vector_size(16)));
 // Smallest and largest of n values of type T, NaNs skipped: `v < lo ? v : lo` keeps lo when v
 // is NaN. On vectors V of 16 bytes (GCC/Clang vector extensions), which become minps, pminub
 // and the like: independent lanes, so no floating-point reduction to reassociate (a plain
-// loop over lanes, or 64-byte vectors, stayed scalar: 8 instructions a float voxel).
+// loop over lanes, or 64-byte vectors, stayed scalar).
 // Converting to float is monotone, so the extremes converted are the converted values'.
 template <typename T, typename V>
 ValueRange RangeTyped(const uint8_t* src, size_t n) {

@@ -44,9 +44,9 @@ struct SessionOptions {
   // mesh comes down to E0 in one cost order, as the classical algorithm's last contractions
   // would. With a coarse E0 itself in lock-step, each region is taken down to E0 before the
   // next arrives, so the coarsest contractions go in the sweep's order rather than by cost
-  // (RMS distance 1.1-1.2x classical's at a few hundred triangles). At E0 up to the default
+  // (RMS distance above classical's at a few hundred triangles). At E0 up to the default
   // the lock-step's order is already close to the cost order, and the pass would cost time
-  // and memory on dense streams (docs/decisions.md): E0 runs there are the paper's. The
+  // and memory on dense streams (docs/decisions.md 25): E0 runs there are the paper's. The
   // session holds the mesh at the lock-step's E0 meanwhile, and the pass runs after the
   // last slice.
   double lockstep_error = 0.5;

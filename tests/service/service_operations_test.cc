@@ -215,7 +215,7 @@ TEST(Metrics, ARequestBodyIsRefusedBeforeItIsRead) {
 }
 
 // Slow and idle connections cannot starve a scrape (the autoscaler's signal): with 8 idle
-// and 8 trickling connections open, scrapes are answered within a second, again and again,
+// and 8 trickling connections open, scrapes are answered at once, again and again,
 // and the trickling ones are dropped once their request has taken 5 s.
 TEST(Metrics, SlowAndIdleConnectionsDoNotStarveAScrape) {
   WithMetrics m = StartWithMetrics();
@@ -236,7 +236,8 @@ TEST(Metrics, SlowAndIdleConnectionsDoNotStarveAScrape) {
     RawResponse scrape = RawRequest(port, GetRequest(port, "/metrics"), 5);
     EXPECT_EQ(scrape.status, 200);
     EXPECT_NE(scrape.body.find("tandem_active_sessions 0"), std::string::npos);
-    EXPECT_LT(SecondsSince(asked), 1.0) << "a scrape waited behind slow connections";
+    // Starved, a scrape would wait for a slow request's 5 s; 2.5 s leaves a loaded machine room.
+    EXPECT_LT(SecondsSince(asked), 2.5) << "a scrape waited behind slow connections";
     for (size_t i = 0; i < slow.size(); ++i) {  // a byte each, until the server hangs up
       if (!closed[i] && !slow[i]->Send(".", 0.1)) {
         closed[i] = true;
@@ -246,7 +247,9 @@ TEST(Metrics, SlowAndIdleConnectionsDoNotStarveAScrape) {
     std::this_thread::sleep_for(std::chrono::milliseconds(300));
   }
   EXPECT_EQ(open, 0u) << "trickling connections still open after 12 s";
-  EXPECT_LT(SecondsSince(opened), 9.0);
+  // 5 s a request plus the server's sweep and this loop's steps: about 8 s on an idle machine,
+  // so the bound leaves room for a loaded one.
+  EXPECT_LT(SecondsSince(opened), 10.5);
 }
 
 // Several ranges get 416, a Host header that does not name the server 403 (DNS rebinding),
