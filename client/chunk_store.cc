@@ -10,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::client {
 namespace {
@@ -115,7 +116,7 @@ absl::StatusOr<std::vector<v1::SealedChunk>> ChunkStore::Load(const std::string&
   session_ = session_id;
   saved_ = static_cast<int64_t>(out.size());
   if (kept.size() + 1 != lines.size() || text->back() != '\n') {
-    if (absl::Status st = RewriteManifest(kept); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(RewriteManifest(kept));
   }
   return out;
 }
@@ -124,14 +125,14 @@ absl::Status ChunkStore::Save(const std::string& session_id, const v1::SealedChu
   if (session_id != session_) {
     session_ = session_id;
     saved_ = 0;
-    if (absl::Status st = RewriteManifest({}); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(RewriteManifest({}));
   }
   if (c.index() < saved_) return absl::OkStatus();  // resent after a resume: kept already
   if (c.index() > saved_) {
     return absl::DataLossError(absl::StrCat("sealed chunk ", c.index(), " arrived; ", dir_,
                                             " holds chunks 0..", saved_ - 1));
   }
-  if (absl::Status st = WriteWhole(ChunkPath(c.index()), c.draco()); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(WriteWhole(ChunkPath(c.index()), c.draco()));
   const fs::path manifest = fs::path(dir_) / kManifest;
   std::ofstream out(manifest, std::ios::binary | std::ios::app);
   out << ManifestLine(c);

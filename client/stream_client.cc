@@ -19,6 +19,7 @@
 #include "absl/time/time.h"
 #include "codec/draco_codec.h"
 #include "common/wire.h"
+#include "tandem/status_macros.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::client {
@@ -254,13 +255,13 @@ absl::Status Sender::FromSource(std::vector<uint8_t>* bytes, const uint8_t** dat
   // A mapped file offers its slices in place (SliceSource::ViewSlice): sent from there, they
   // are not first copied out of the page cache into `bytes`.
   const uint8_t* view = nullptr;
-  if (absl::Status st = source_.ViewSlice(&view); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(source_.ViewSlice(&view));
   if (view != nullptr) {
     *data = view;
     *size = source_.info().slice_bytes();
     return absl::OkStatus();
   }
-  if (absl::Status st = source_.ReadSlice(bytes); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(source_.ReadSlice(bytes));
   *data = bytes->data();
   *size = bytes->size();
   return absl::OkStatus();

@@ -18,6 +18,7 @@
 #include "draco/core/encoder_buffer.h"
 #include "draco/mesh/mesh.h"
 #include "tandem/geometry.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::codec {
 namespace {
@@ -437,13 +438,17 @@ absl::StatusOr<Decoded> DecodeToDraco(std::string_view bytes) {
 }  // namespace
 
 absl::Status ValidateDracoOptions(const DracoOptions& options) {
-  if (options.quantization_bits < 1 || options.quantization_bits > 30) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "quantization_bits must be in [1, 30], got ", options.quantization_bits));
+  if (options.quantization_bits < kMinQuantizationBits ||
+      options.quantization_bits > kMaxQuantizationBits) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("quantization_bits must be in [", kMinQuantizationBits, ", ",
+                     kMaxQuantizationBits, "], got ", options.quantization_bits));
   }
-  if (options.compression_level < 0 || options.compression_level > 10) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "compression_level must be in [0, 10], got ", options.compression_level));
+  if (options.compression_level < kMinCompressionLevel ||
+      options.compression_level > kMaxCompressionLevel) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("compression_level must be in [", kMinCompressionLevel, ", ",
+                     kMaxCompressionLevel, "], got ", options.compression_level));
   }
   if (!(options.grid_range >= 0) || !std::isfinite(options.grid_range) ||
       !std::isfinite(options.grid_origin[0]) || !std::isfinite(options.grid_origin[1]) ||
@@ -457,7 +462,7 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
                                         std::span<const uint32_t> ids,
                                         std::span<const uint8_t> fixed, MovedCorners* moved,
                                         std::span<const Vec3> avoid) {
-  if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateDracoOptions(given));
   DracoOptions options = given;  // with the grid made explicit
   if (moved != nullptr) moved->clear();
   auto dmesh = ToDracoMesh(mesh, &options, ids, fixed, moved, avoid);
@@ -553,7 +558,7 @@ absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint
 absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
                                                      const std::vector<Vec3>& normals,
                                                      const DracoOptions& given) {
-  if (absl::Status st = ValidateDracoOptions(given); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateDracoOptions(given));
   DracoOptions options = given;  // with the grid made explicit
   GlbDracoPrimitive out;
   if (mesh.num_vertices() == 0) return out;  // an empty scene: nothing to compress

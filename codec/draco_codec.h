@@ -29,11 +29,16 @@
 
 namespace tandem::codec {
 
+// The ranges and defaults every front end (flags, the wire config) takes from here.
+inline constexpr int kMinQuantizationBits = 1, kMaxQuantizationBits = 30;
+inline constexpr int kMinCompressionLevel = 0, kMaxCompressionLevel = 10;
+inline constexpr int kDefaultQuantizationBits = 16, kDefaultCompressionLevel = 7;
+
 struct DracoOptions {
-  int quantization_bits = 16;  // position quantization, 1..30
+  int quantization_bits = kDefaultQuantizationBits;  // position quantization, 1..30
   // 0..10. 0 = sequential coding (fast, order kept, larger); 1..10 = Edgebreaker, where a
   // higher level means smaller output for more encoding time (Draco speed = 10 - level).
-  int compression_level = 7;
+  int compression_level = kDefaultCompressionLevel;
   // Explicit quantization grid (grid_range > 0): every axis is quantized on
   // [grid_origin, grid_origin + grid_range] instead of the mesh's own bounding box, so that
   // meshes encoded on one grid decode a vertex they share to bit-identical coordinates
@@ -42,7 +47,8 @@ struct DracoOptions {
   float grid_range = 0;
 };
 
-// Checks the ranges above; InvalidArgument names the field.
+// Checks the ranges above; InvalidArgument starts with the field's name
+// ("quantization_bits must be in [1, 30], got 31"), for a front end to rename.
 absl::Status ValidateDracoOptions(const DracoOptions& options);
 
 // Encodes positions (as float32) and triangles. InvalidArgument for invalid options, an

@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "server/extract_job_internal.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::server {
 namespace {
@@ -107,9 +108,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
     reference_ = *std::move(reference);
   }
   // A slice sent in pieces is assembled in a buffer of its own: count it now.
-  if (absl::Status st = CheckMemory(config_.grid.slice_bytes(), "for this grid"); !st.ok()) {
-    return st;
-  }
+  TANDEM_RETURN_IF_ERROR(CheckMemory(config_.grid.slice_bytes(), "for this grid"));
   start_ = Clock::now();
   state_ = State::kStreaming;
   // At once, before any slice: tells the client the session is taken (it sends no slice
@@ -119,7 +118,7 @@ absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
 }
 
 absl::Status ExtractJob::HandleChunk(v1::SliceChunk& chunk) {
-  if (absl::Status st = ValidateChunk(chunk, config_, cursor_, limits_); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateChunk(chunk, config_, cursor_, limits_));
   const size_t slice_bytes = config_.grid.slice_bytes();
   const std::string& data = chunk.data();
   if (cursor_.bytes_so_far == 0 && data.size() == slice_bytes) {
@@ -148,10 +147,8 @@ absl::Status ExtractJob::ConsumeSlice(const uint8_t* bytes) {
   }
   ++cursor_.slice;
   cursor_.bytes_so_far = 0;
-  if (absl::Status st = CheckMemory(0, absl::StrCat("after slice ", cursor_.slice - 1)); !st.ok()) {
-    return st;
-  }
-  if (absl::Status st = MaybeChunk(false); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckMemory(0, absl::StrCat("after slice ", cursor_.slice - 1)));
+  TANDEM_RETURN_IF_ERROR(MaybeChunk(false));
   sink_->PostProgress(MakeProgress());
   MaybePreview();
   return absl::OkStatus();

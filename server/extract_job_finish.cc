@@ -16,7 +16,12 @@
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "server/extract_job_internal.h"
+<<<<<<< HEAD
 #include "tandem/eval/distance.h"
+=======
+#include "tandem/eval/distance.h"
+#include "tandem/status_macros.h"
+>>>>>>> main
 #include "tandem/task_group.h"
 #include "tandem/eval/report.h"
 #include "tandem/tandem.h"
@@ -61,14 +66,14 @@ class FinishingTicker {
 }  // namespace
 
 absl::Status ExtractJob::HandleEnd(const v1::End& end) {
-  if (absl::Status st = ValidateEnd(end, config_, cursor_); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateEnd(end, config_, cursor_));
   for (TandemSession* s : {session_.get(), reference_.get()}) {
     if (s == nullptr) continue;
     std::optional<FinishingTicker> ticker;
     if (s == session_.get() && sink_ != nullptr) ticker.emplace(*s, MakeProgress(), sink_);
     if (absl::Status st = s->Finish(); !st.ok()) return SessionFailure(st);
   }
-  if (absl::Status st = CheckMemory(0, "after the last slice"); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckMemory(0, "after the last slice"));
   if (config_.options.seal) return FinishSealed();
   // Every step below is counted before it allocates; the session is freed as soon as its
   // mesh and report are out, so the encoder never runs beside it.
@@ -86,7 +91,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   session_time_ = session_->stats().time;
   session_.reset();
   final_triangles_ = triangles;
-  if (absl::Status st = MeasureDistancesTo(mesh, &report); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(MeasureDistancesTo(mesh, &report));
   if (absl::Status st = CheckMemory(EncodeBytes(triangles), "to encode the final mesh");
       !st.ok()) {
     return st;
@@ -139,7 +144,7 @@ absl::Status ExtractJob::FinishSealed() {
   if (reference_) {
     const IndexedMesh mesh = WeldChunks(kept_);
     kept_ = {};
-    if (absl::Status st = MeasureDistancesTo(mesh, &report); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(MeasureDistancesTo(mesh, &report));
   }
   PostMetrics(report, {});
   return absl::OkStatus();

@@ -12,6 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "codec/draco_codec.h"
 #include "server/extract_job_internal.h"
+#include "tandem/status_macros.h"
 #include "tandem/task_group.h"
 
 namespace tandem::server {
@@ -138,9 +139,7 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   const int64_t pending = now ? session_->sealed_pending() : gauge.sealed_pending;
   if (pending == 0) return absl::OkStatus();
   // Unlike a preview, a chunk cannot be skipped: over the budget, the stream fails.
-  if (absl::Status st = CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"); !st.ok()) {
-    return st;
-  }
+  TANDEM_RETURN_IF_ERROR(CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"));
   const HeldBeside encoding(*budget_, EncodeBytes(pending));
   SealedChunk c;
   if (!(now ? session_->TakeSealed(&c) : session_->TakeSealedThrough(gauge.sealed_through, &c))) {

@@ -103,28 +103,17 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
     return NameOptionError(st, ConfigFieldName, " = ");
   }
   out.isos = {o.iso};
-  if (c.extra_isos_size() > kMaxExtraIsos) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "config.extra_isos has ", c.extra_isos_size(), " values: at most ", kMaxExtraIsos,
-        " (", kMaxExtraIsos + 1, " surfaces in one pass)"));
-  }
-  for (int i = 0; i < c.extra_isos_size(); ++i) {
-    const double v = c.extra_isos(i);
-    if (!std::isfinite(v)) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("config.extra_isos[", i, "] is not a finite number"));
-    }
-    if (std::find(out.isos.begin(), out.isos.end(), v) != out.isos.end()) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "config.extra_isos[", i, "] = ", v, " repeats an iso-value already asked for"));
-    }
-    out.isos.push_back(v);
+  out.isos.insert(out.isos.end(), c.extra_isos().begin(), c.extra_isos().end());
+  if (absl::Status st = ValidateIsoList(out.isos); !st.ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("config.iso and config.extra_isos: ", st.message()));
   }
 
   out.preview_every_slices = c.preview().every_slices();
   out.preview_min_interval_ms = c.preview().min_interval_ms();
   out.draco.quantization_bits =
-      c.draco().quantization_bits() == 0 ? 16 : static_cast<int>(c.draco().quantization_bits());
+      c.draco().quantization_bits() == 0 ? codec::kDefaultQuantizationBits
+                                      : static_cast<int>(c.draco().quantization_bits());
   if (c.draco().has_compression_level()) out.draco.compression_level = c.draco().compression_level();
   if (absl::Status st = codec::ValidateDracoOptions(out.draco); !st.ok()) {
     return Prefixed("config.draco.", st);

@@ -68,8 +68,6 @@ struct JobConfig {
   std::vector<double> isos;  // the surfaces: options.iso, then SessionConfig.extra_isos
 };
 
-inline constexpr int kMaxExtraIsos = 7;  // 8 surfaces in one pass at most
-
 // Checks every field of the first message (see tandem.proto for the rules and defaults).
 absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& config,
                                          const ServerLimits& limits);

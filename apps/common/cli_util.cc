@@ -27,24 +27,19 @@ absl::StatusOr<std::vector<IsoValue>> ParseIsoList(const std::string& text) {
     item.erase(item.find_last_not_of(' ') + 1);
     char* end = nullptr;
     const double v = item.empty() ? 0.0 : std::strtod(item.c_str(), &end);
-    if (item.empty() || *end != '\0' || !std::isfinite(v)) {
+    if (item.empty() || *end != '\0') {
       return absl::InvalidArgumentError(absl::StrCat(
           "--iso: '", item, "' is not a number (one value, or several separated "
           "by commas: --iso 60,120)"));
-    }
-    for (const IsoValue& seen : isos) {
-      if (seen.value == v) {
-        return absl::InvalidArgumentError(
-            absl::StrCat("--iso '", text, "': ", item, " is given twice"));
-      }
     }
     isos.push_back({v, item});
     if (comma == std::string::npos) break;
     begin = comma + 1;
   }
-  if (isos.size() > static_cast<size_t>(kMaxIsoValues)) {
-    return absl::InvalidArgumentError(absl::StrCat("--iso '", text, "': at most ", kMaxIsoValues,
-                                                   " iso-values in one pass, got ", isos.size()));
+  std::vector<double> values;
+  for (const IsoValue& iso : isos) values.push_back(iso.value);
+  if (absl::Status st = ValidateIsoList(values); !st.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("--iso '", text, "': ", st.message()));
   }
   return isos;
 }

@@ -24,8 +24,7 @@ inline constexpr int kExitFailure = 1;
 inline constexpr int kExitUsage = 2;
 
 // Several surfaces in one pass: "--iso 60,120" as its values and the text of each (for
-// output names). At most kMaxIsoValues, finite, no value twice; errors name the flag.
-inline constexpr int kMaxIsoValues = 8;
+// output names). The list is held to ValidateIsoList (tandem/options.h); errors name the flag.
 struct IsoValue {
   double value;
   std::string text;  // as the user wrote it, e.g. "120" or "0.5"

@@ -14,6 +14,11 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
+#include "absl/strings/string_view.h"
+#include "tandem/status_macros.h"
+#ifdef TANDEM_HAVE_DRACO
+#include "codec/draco_codec.h"
+#endif
 
 namespace tandem::cli {
 
@@ -27,6 +32,26 @@ std::string FlagName(const std::string& field) {
 absl::Status NameOptionFlag(const absl::Status& status) {
   return NameOptionError(status, FlagName, " ");
 }
+
+#ifdef TANDEM_HAVE_DRACO
+absl::Status CheckDracoFlags(int64_t bits, int64_t level) {
+  // Saturated, so a value past int's range is refused rather than wrapped into the range.
+  const auto to_int = [](int64_t v) {
+    return static_cast<int>(std::clamp<int64_t>(v, std::numeric_limits<int>::min(),
+                                                std::numeric_limits<int>::max()));
+  };
+  codec::DracoOptions options;
+  options.quantization_bits = to_int(bits);
+  options.compression_level = to_int(level);
+  absl::Status st = codec::ValidateDracoOptions(options);
+  if (st.ok()) return st;
+  // The codec's refusal starts with the field's name; the flag is that name, dashed.
+  const absl::string_view message = st.message();
+  const size_t space = std::min(message.find(' '), message.size());
+  return absl::InvalidArgumentError(
+      absl::StrCat(FlagName(std::string(message.substr(0, space))), message.substr(space)));
+}
+#endif
 
 void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddString(
@@ -72,10 +97,14 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->AddBool("glb-draco", &glb_draco,
                  ".glb output: compress the mesh with Draco (glTF's KHR_draco_mesh_compression, "
                  "which three.js, Blender and most glTF viewers read)");
+#ifdef TANDEM_HAVE_DRACO
+  quantization_bits = codec::kDefaultQuantizationBits;
+  compression_level = codec::kDefaultCompressionLevel;
   flags->AddInt("quantization-bits", &quantization_bits,
                 "Draco position quantization, 1..30 (meshes the server sends; --glb-draco)");
   flags->AddInt("compression-level", &compression_level,
                 "Draco level 0..10 (0 keeps vertex order; higher = smaller, slower)");
+#endif
   flags->AddString("iso", &iso, "C0[,C1,...]",
                    "iso-value, required when the file suggests none. Several (up to 8, e.g. "
                    "skin and bone: --iso 60,120) give one surface each from one read of the "
@@ -237,11 +266,9 @@ absl::Status ExtractFlags::Check(const FlagSet& flags) const {
   if (!frame.empty()) {
     if (absl::StatusOr<Space> s = FrameFlag(frame); !s.ok()) return s.status();
   }
-  if (quantization_bits < 1 || quantization_bits > 30 || compression_level < 0 ||
-      compression_level > 10) {
-    return absl::InvalidArgumentError(
-        "need 1 <= --quantization-bits <= 30 and 0 <= --compression-level <= 10");
-  }
+#ifdef TANDEM_HAVE_DRACO
+  TANDEM_RETURN_IF_ERROR(CheckDracoFlags(quantization_bits, compression_level));
+#endif
   if (glb_draco && !absl::EndsWith(out, ".glb")) {
     return absl::InvalidArgumentError(
         absl::StrCat("--glb-draco compresses a .glb output; --out is ", out));

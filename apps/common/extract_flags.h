@@ -27,7 +27,7 @@ struct ExtractFlags {
   double lockstep_error = SessionOptions{}.lockstep_error;
   double settle = 10;
   int64_t target_triangles = 0, expect_slices = 0, parts = 0;
-  int64_t quantization_bits = 16, compression_level = 7;  // Draco
+  int64_t quantization_bits = 0, compression_level = 0;  // Draco: Add() sets the codec's defaults
   bool follow = false, seal = false, no_simplify = false, reference = false, strict = false;
   bool quiet = false, glb_draco = false;
 
@@ -52,6 +52,12 @@ struct ExtractFlags {
   // isotropy alpha must lie in [0, 1]").
   absl::StatusOr<SessionOptions> Options(const FlagSet& flags, const VolumeInfo& info) const;
 };
+
+#ifdef TANDEM_HAVE_DRACO
+// --quantization-bits and --compression-level held to the codec's ranges
+// (ValidateDracoOptions), the refusal naming the flag ("--quantization-bits must be in ...").
+absl::Status CheckDracoFlags(int64_t bits, int64_t level);
+#endif
 
 // A refusal of SessionOptions::Validate() / ValidateFor() worded with the flag's name
 // ("--parts 99: ..."); any other status unchanged.

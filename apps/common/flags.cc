@@ -14,6 +14,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::cli {
 
@@ -183,13 +184,11 @@ absl::Status FlagSet::Parse(int argc, char** argv, int first) {
       on_line |= a == "--" + f.name || a.rfind("--" + f.name + "=", 0) == 0;
     }
     const std::string source = on_line || f.env.empty() ? "--" + f.name : f.env;
-    if (absl::Status st = Set(f, values.back(), source); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(Set(f, values.back(), source));
   }
   if (help_requested_) return absl::OkStatus();
   const std::string program = first > 0 && argc > 0 ? argv[0] : "";
-  if (absl::Status st = ResolveSecrets(args, program.substr(program.rfind('/') + 1)); !st.ok()) {
-    return st;
-  }
+  TANDEM_RETURN_IF_ERROR(ResolveSecrets(args, program.substr(program.rfind('/') + 1)));
   for (const Flag& f : flags_) {
     if (f.required && !f.set) {
       return absl::InvalidArgumentError(absl::StrCat("missing --", f.name, " (see --help)"));

@@ -94,14 +94,6 @@ std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::C
   };
 }
 
-bool DracoFlagsOk(int64_t bits, int64_t level) {
-  if (bits >= 1 && bits <= 30 && level >= 0 && level <= 10) return true;
-  absl::FPrintF(stderr,
-                "tandem-client: need 1 <= --quantization-bits <= 30 and "
-                "0 <= --compression-level <= 10\n");
-  return false;
-}
-
 int SaveResult(tandem::client::StreamResult& result, const SaveOptions& o) {
   const size_t n = result.num_surfaces();
   const std::string& metrics_path = o.metrics_path;

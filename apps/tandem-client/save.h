@@ -28,9 +28,6 @@ std::function<void(const tandem::v1::SealedChunk&)> ChunkSaver(tandem::client::C
                                                                const bool& verbose,
                                                                absl::Status* error);
 
-// Draco flags of stream and watch: false (after a message) when out of range.
-bool DracoFlagsOk(int64_t bits, int64_t level);
-
 // How stream and watch save what they received.
 struct SaveOptions {
   bool seal = false;  // the mesh came as sealed chunks

@@ -7,11 +7,13 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "apps/common/extract_flags.h"
 #include "apps/tandem-client/command.h"
 #include "apps/tandem-client/live_view.h"
 #include "apps/tandem-client/save.h"
 #include "client/chunk_store.h"
 #include "client/stream_client.h"
+#include "codec/draco_codec.h"
 #include "tandem/io/mesh_io.h"
 
 namespace tandem::client_app {
@@ -20,7 +22,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   ConnectionFlags connection;
   std::string session, watch_key, out, metrics_path, chunks_dir;
   double timeout_s = 0;
-  int64_t bits = 16, level = 7;
+  int64_t bits = codec::kDefaultQuantizationBits, level = codec::kDefaultCompressionLevel;
   bool verbose = false, quiet = false, glb_draco = false;
   FlagSet flags(
       view_command
@@ -70,7 +72,7 @@ int WatchCommand(int argc, char** argv, bool view_command) {
                   tandem::kMeshExtensions);
     return 2;
   }
-  if (!DracoFlagsOk(bits, level)) return 2;
+  if (absl::Status st = cli::CheckDracoFlags(bits, level); !st.ok()) return UsageError(st);
   if (glb_draco && Lower(std::filesystem::path(out).extension().string()) != ".glb") {
     absl::FPrintF(stderr, "tandem-client: --glb-draco compresses a .glb output; --out is %s\n",
                   out);

@@ -11,6 +11,7 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
+#include "tandem/status_macros.h"
 #include "tandem/volume.h"
 
 namespace tandem::app {
@@ -37,7 +38,7 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
   cli::Progress progress("scanning values");
   // Pass 1: range and mean; pass 2 (the volume reopened): the histogram over that range.
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = src.ReadSlice(&bytes); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(src.ReadSlice(&bytes));
     ConvertToFloat(info.dtype, bytes.data(), values.size(), values.data());
     for (float v : values) {
       if (!std::isfinite(v)) {
@@ -57,7 +58,7 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
   if (!again.ok()) return again.status();
   const double width = (s.hi - s.lo) / 10.0;
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = (*again)->ReadSlice(&bytes); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR((*again)->ReadSlice(&bytes));
     ConvertToFloat(info.dtype, bytes.data(), values.size(), values.data());
     for (float v : values) {
       if (!std::isfinite(v)) continue;

@@ -20,7 +20,12 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
+<<<<<<< HEAD
 #include "tandem/io/series.h"
+=======
+#include "tandem/io/series.h"
+#include "tandem/status_macros.h"
+>>>>>>> main
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 
@@ -83,7 +88,7 @@ absl::Status WriteScout(
   std::vector<uint8_t> b;
   std::vector<float> v(static_cast<size_t>(nx * ny));
   for (int64_t z = 0; z < nz; ++z) {
-    if (absl::Status st = (*src)->ReadSlice(&b); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR((*src)->ReadSlice(&b));
     ConvertToFloat(info.dtype, b.data(), v.size(), v.data());
     const int64_t row = nz - 1 - z;  // head up
     for (int64_t y = 0; y < ny; ++y) {
@@ -239,7 +244,7 @@ int SimulateCommand(int argc, char** argv) {
     if (temp_names == "none") return writer.Write(path.string(), z, bytes, instance);
     const std::filesystem::path temp =
         dir / (temp_names == "suffix" ? name + ".part" : "." + name + ".tmp");
-    if (absl::Status st = writer.Write(temp.string(), z, bytes, instance); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(writer.Write(temp.string(), z, bytes, instance));
     std::error_code rename_ec;
     std::filesystem::rename(temp, path, rename_ec);
     if (rename_ec) {

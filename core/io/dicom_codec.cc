@@ -24,7 +24,12 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "dicom_scan.h"
+<<<<<<< HEAD
 #include "tandem/io/series.h"
+=======
+#include "tandem/io/series.h"
+#include "tandem/status_macros.h"
+>>>>>>> main
 
 namespace tandem::dicom {
 namespace {
@@ -216,7 +221,7 @@ absl::StatusOr<std::optional<SliceHeader>> ReadHeaderUnguarded(const std::string
 absl::StatusOr<std::optional<SliceHeader>> ReadHeader(const std::string& path) {
   // Depth, element count and lengths first (a declared length past the end of the file is a
   // slice still being written or cut short: GDCM would pad it silently).
-  if (absl::Status st = ScanFile(path); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ScanFile(path));
   std::optional<SliceHeader> header;
   absl::Status st = GdcmGuarded(path, [&]() -> absl::Status {
     auto* reader = new gdcm::Reader;  // leaked, not freed, if an assertion jumps out
@@ -275,7 +280,7 @@ absl::Status ReadPixelsUnguarded(const std::string& path, size_t stored_bytes,
         " of ", stored_bytes, " bytes)"));
   }
   if (image.GetTransferSyntax() == gdcm::TransferSyntax::RLELossless) {
-    if (absl::Status st = CheckRle(path, image); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(CheckRle(path, image));
   }
   if (!image.GetBuffer(reinterpret_cast<char*>(out))) {
     return absl::DataLossError(absl::StrCat(
@@ -288,7 +293,7 @@ absl::Status ReadPixelsUnguarded(const std::string& path, size_t stored_bytes,
 
 absl::Status ReadPixels(const std::string& path, size_t stored_bytes, uint8_t* out) {
   ScanResult scan;
-  if (absl::Status st = ScanFile(path, {}, &scan); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ScanFile(path, {}, &scan));
   if (scan.pixel_bytes >= 0 && static_cast<uint64_t>(scan.pixel_bytes) < stored_bytes) {
     return absl::DataLossError(absl::StrCat(path, ": pixel data holds ", scan.pixel_bytes,
                                             " bytes, the image needs ", stored_bytes,

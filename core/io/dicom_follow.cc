@@ -11,7 +11,12 @@
 #include "absl/strings/str_join.h"
 #include "dicom_series.h"
 #include "follow_internal.h"
+<<<<<<< HEAD
 #include "tandem/io/series.h"
+=======
+#include "tandem/io/series.h"
+#include "tandem/status_macros.h"
+>>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {
@@ -69,13 +74,13 @@ class GrowingDicom final : public internal::Growing {
         last_change_(Clock::now()) {}
 
   absl::StatusOr<int64_t> Complete(bool* changed) override {
-    if (absl::Status st = Scan(changed); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(Scan(changed));
     return Release(/*final=*/false);
   }
 
   absl::StatusOr<int64_t> Final() override {
     bool changed = false;
-    if (absl::Status st = Scan(&changed, /*final=*/true); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(Scan(&changed, /*final=*/true));
     for (const auto& [path, seen] : seen_) {
       if (seen.state == State::kPending && !seen.problem.empty()) {
         return absl::DataLossError(absl::StrCat(
@@ -255,9 +260,7 @@ class GrowingDicom final : public internal::Growing {
     }
     h.along = Dot(h.position, s.frame.normal);
     const double in_plane = InPlane(s.first);
-    if (absl::Status st = CheckInLine(dir_, s.first, h, s.frame.normal, in_plane); !st.ok()) {
-      return st;
-    }
+    TANDEM_RETURN_IF_ERROR(CheckInLine(dir_, s.first, h, s.frame.normal, in_plane));
     auto by_along = [](const SliceHeader& a, double v) { return a.along < v; };
     const double eps = 1e-3 * in_plane;
     auto pos = std::lower_bound(s.held.begin(), s.held.end(), h.along - eps, by_along);
@@ -460,7 +463,7 @@ class GrowingDicom final : public internal::Growing {
   // open is an error).
   absl::StatusOr<int64_t> Release(bool final) {
     if (followed_ == nullptr) {
-      if (absl::Status st = Choose(final); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(Choose(final));
       if (followed_ == nullptr) return 0;
     }
     Stack& s = *followed_;

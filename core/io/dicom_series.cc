@@ -16,6 +16,7 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "dicom_worker_client.h"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
 namespace tandem::internal::dicom_series {
@@ -233,9 +234,7 @@ VolumeInfo MakeInfo(const SliceHeader& first, const Frame& frame, int64_t nz, do
 absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const ValuePlan& plan,
                         std::vector<uint8_t>* buffer, std::vector<uint8_t>* bytes) {
   const size_t n = static_cast<size_t>(info.slice_voxels());
-  if (absl::Status st = dicom::ReadPixels(h.path, n * DTypeSize(plan.stored), buffer); !st.ok()) {
-    return st;
-  }
+  TANDEM_RETURN_IF_ERROR(dicom::ReadPixels(h.path, n * DTypeSize(plan.stored), buffer));
   bytes->resize(info.slice_bytes());
   if (!plan.rescale) {
     std::memcpy(bytes->data(), buffer->data(), buffer->size());

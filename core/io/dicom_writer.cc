@@ -10,7 +10,12 @@
 #include "absl/strings/str_cat.h"
 #include "dicom_codec.h"
 #include "dicom_series.h"
+<<<<<<< HEAD
 #include "tandem/io/series.h"
+=======
+#include "tandem/io/series.h"
+#include "tandem/status_macros.h"
+>>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {
@@ -37,7 +42,7 @@ absl::StatusOr<DicomSyntax> ParseDicomSyntax(const std::string& name) {
 
 absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info,
                                                           const DicomWriteOptions& opts) {
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateVolumeInfo(info));
   if (info.nx > 0xffff || info.ny > 0xffff) {
     return absl::InvalidArgumentError("DICOM slices are at most 65535 x 65535 pixels");
   }
@@ -151,7 +156,7 @@ VolumeInfo LocalizerGrid(const VolumeInfo& info, int image) {
 
 absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
                               const SliceFn& slice_fn, const DicomWriteOptions& opts) {
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateVolumeInfo(info));
   if (info.nz < 2) return absl::InvalidArgumentError("WriteDicomSeries: nz must be known");
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
@@ -161,9 +166,7 @@ absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
   if (info.dtype == DType::kFloat32) {  // a first pass finds the range to quantize
     float lo = std::numeric_limits<float>::infinity(), hi = -lo;
     for (int64_t z = 0; z < info.nz; ++z) {
-      if (absl::Status st = internal::FetchSlice(dir, info, slice_fn, z, &bytes); !st.ok()) {
-        return st;
-      }
+      TANDEM_RETURN_IF_ERROR(internal::FetchSlice(dir, info, slice_fn, z, &bytes));
       for (size_t i = 0; i < bytes.size() / 4; ++i) {
         float v;
         std::memcpy(&v, bytes.data() + 4 * i, 4);
@@ -176,7 +179,7 @@ absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
   absl::StatusOr<DicomSliceWriter> writer = DicomSliceWriter::Create(info, o);
   if (!writer.ok()) return writer.status();
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = internal::FetchSlice(dir, info, slice_fn, z, &bytes); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(internal::FetchSlice(dir, info, slice_fn, z, &bytes));
     char name[32];
     std::snprintf(name, sizeof(name), "IM%05lld.dcm", static_cast<long long>(z + 1));
     if (absl::Status st = writer->Write((std::filesystem::path(dir) / name).string(), z, bytes);

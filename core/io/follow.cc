@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "follow_internal.h"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 #include "tandem/io/series.h"
 #include "tandem/io/zarr.h"
@@ -176,11 +177,11 @@ class GrowingFolder final : public Growing {
         note_(opts.note) {}
 
   absl::StatusOr<int64_t> Complete(bool* changed) override {
-    if (absl::Status st = Decide(); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(Decide());
     return inner_ ? inner_->Complete(changed) : 0;
   }
   absl::StatusOr<int64_t> Final() override {
-    if (absl::Status st = Decide(); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(Decide());
     return inner_ ? inner_->Final() : 0;
   }
   absl::StatusOr<VolumeInfo> Info() override { return inner_->Info(); }
@@ -350,7 +351,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> FollowVolume(const std::string& pat
               "not a file"));
   }
   auto source = std::make_unique<FollowSource>(std::move(growing), opts);
-  if (absl::Status st = source->Start(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(source->Start());
   return std::unique_ptr<SliceSource>(std::move(source));
 }
 

@@ -9,7 +9,12 @@
 
 #include "absl/strings/str_cat.h"
 #include "dicom_series.h"
+<<<<<<< HEAD
 #include "tandem/io/series.h"
+=======
+#include "tandem/io/series.h"
+#include "tandem/status_macros.h"
+>>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {
@@ -108,7 +113,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
   absl::StatusOr<Frame> frame = FrameOf(first);
   if (!frame.ok()) return frame.status();
   for (SliceHeader& h : slices) {
-    if (absl::Status st = CheckMatches(dir, first, h); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(CheckMatches(dir, first, h));
     h.along = Dot(h.position, frame->normal);
   }
   std::sort(slices.begin(), slices.end(),
@@ -130,9 +135,7 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
     }
   }
   for (const SliceHeader& h : slices) {
-    if (absl::Status st = CheckInLine(dir, slices.front(), h, frame->normal, in_plane); !st.ok()) {
-      return st;
-    }
+    TANDEM_RETURN_IF_ERROR(CheckInLine(dir, slices.front(), h, frame->normal, in_plane));
   }
   const ValuePlan plan = PlanValues(slices.data(), slices.data() + slices.size());
   const double step = RoundStep((slices.back().along - slices.front().along) / static_cast<double>(nz - 1));

@@ -26,6 +26,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
 namespace tandem::internal {
@@ -120,7 +121,7 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
   const std::string* dims = h.Find({"dimsize"});
   if (dims == nullptr) return MetaError(path, "missing DimSize");
   int64_t n[3];
-  if (absl::Status st = ParseNumbers(path, "DimSize", *dims, 3, n); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseNumbers(path, "DimSize", *dims, 3, n));
   info.nx = n[0];
   info.ny = n[1];
   info.nz = n[2];
@@ -152,7 +153,7 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
   }
   if (const std::string* m = h.Find({"transformmatrix", "rotation", "orientation"}); m != nullptr) {
     double d[9];
-    if (absl::Status st = ParseNumbers(path, "TransformMatrix", *m, 9, d); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(ParseNumbers(path, "TransformMatrix", *m, 9, d));
     for (int a = 0; a < 3; ++a) {
       for (int b = 0; b < 3; ++b) info.directions[a][b] = d[3 * a + b] + 0.0;
     }

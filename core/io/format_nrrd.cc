@@ -20,6 +20,7 @@
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/strip.h"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
 namespace tandem::internal {
@@ -182,7 +183,7 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
   const std::string* sizes = h.Find("sizes");
   if (sizes == nullptr) return NrrdError(path, "missing \"sizes\" field");
   int64_t n[3];
-  if (absl::Status st = ParseNumbers(path, "sizes", *sizes, 3, n); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseNumbers(path, "sizes", *sizes, 3, n));
   info.nx = n[0];
   info.ny = n[1];
   info.nz = n[2];
@@ -205,9 +206,7 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
       for (int b = 0; b < 3; ++b) info.directions[a][b] = d[b] / len + 0.0;
     }
   } else if (const std::string* sp = h.Find("spacings"); sp != nullptr) {
-    if (absl::Status st = ParseNumbers(path, "spacings", *sp, 3, info.spacing.data()); !st.ok()) {
-      return st;
-    }
+    TANDEM_RETURN_IF_ERROR(ParseNumbers(path, "spacings", *sp, 3, info.spacing.data()));
     for (double& s : info.spacing) s = std::abs(s);
   } else {
     info.spacing_known = false;

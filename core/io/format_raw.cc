@@ -17,6 +17,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
 namespace tandem::internal {
@@ -84,9 +85,9 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
   if (!dtype.ok()) return SidecarError(path, dtype.status().message());
   info.dtype = *dtype;
 
-  if (absl::Status st = ReadVec3(path, j, "spacing", &info.spacing); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ReadVec3(path, j, "spacing", &info.spacing));
   info.spacing_known = j.contains("spacing");
-  if (absl::Status st = ReadVec3(path, j, "origin", &info.origin); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ReadVec3(path, j, "origin", &info.origin));
   if (j.contains("directions")) {  // optional: [[x axis], [y axis], [z axis]] in the world
     info.frame = "sidecar origin, spacing and directions";
     const json& d = j["directions"];

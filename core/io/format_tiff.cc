@@ -31,6 +31,7 @@
 #include "absl/strings/strip.h"
 #include <filesystem>
 
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 #include "tandem/io/series.h"
 
@@ -319,8 +320,8 @@ absl::StatusOr<OpenedTiff> OpenTiffPages(const std::string& path) {
                        p->bits, "-bit but page 0 is ", first.width, "x", first.height, " ",
                        first.bits, "-bit (all pages of a stack must match)"));
     }
-    if (absl::Status st = CheckTileSize(path, pages, *p, *dtype); !st.ok()) return st;
-    if (absl::Status st = CheckStrilesInFile(f, pages, *size); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(CheckTileSize(path, pages, *p, *dtype));
+    TANDEM_RETURN_IF_ERROR(CheckStrilesInFile(f, pages, *size));
     ++pages;
   } while (TIFFReadDirectory(tif));
   if (std::string e = f.TakeErrors(""); !e.empty()) {
@@ -486,7 +487,7 @@ absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
       static_cast<uint32_t>(std::clamp<size_t>((size_t{1} << 16) / row_bytes, 1, info.ny));
   std::vector<uint8_t> slice, tile_buf;
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = FetchSlice(path, info, slice_fn, z, &slice); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(FetchSlice(path, info, slice_fn, z, &slice));
     TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, static_cast<uint32_t>(info.nx));
     TIFFSetField(tif, TIFFTAG_IMAGELENGTH, static_cast<uint32_t>(info.ny));
     TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, bits);
@@ -579,14 +580,14 @@ absl::Status WriteTiffSlice(const std::string& path, const VolumeInfo& info, int
 
 absl::Status WriteTiffSequence(const std::string& dir, const VolumeInfo& info,
                                const SliceFn& slice_fn) {
-  if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateVolumeInfo(info));
   if (info.nz < 2) return absl::InvalidArgumentError("WriteTiffSequence: nz must be known");
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) return absl::InternalError(absl::StrCat(dir, ": cannot create: ", ec.message()));
   std::vector<uint8_t> bytes;
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = internal::FetchSlice(dir, info, slice_fn, z, &bytes); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(internal::FetchSlice(dir, info, slice_fn, z, &bytes));
     char name[32];
     std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
     if (absl::Status st = WriteTiffSlice((std::filesystem::path(dir) / name).string(), info, z, bytes);

@@ -24,7 +24,12 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "nlohmann/json.hpp"
+<<<<<<< HEAD
 #include "tandem/io/zarr.h"
+=======
+#include "tandem/status_macros.h"
+#include "tandem/io/zarr.h"
+>>>>>>> main
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 #include "zarr_metadata.h"
@@ -99,7 +104,7 @@ class ZarrSliceSource final : public CountedSliceSource {
     const int64_t depth = r_.array.chunks[r_.array.chunks.size() - 3];
     const int64_t cz = next_slice() / depth;
     if (cz != layer_cz_) {
-      if (absl::Status st = LoadLayer(cz); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(LoadLayer(cz));
     }
     const size_t plane = info_.slice_bytes();
     const uint8_t* src = layer_.data() + static_cast<size_t>(next_slice() - cz * depth) * plane;
@@ -160,9 +165,7 @@ class ZarrSliceSource final : public CountedSliceSource {
       }
       shard_size_ = size;
       const uint64_t at = a.index_at_start ? 0 : size - index_bytes;
-      if (absl::Status st = zarr::ReadRangeAt(shard_fd_, file, at, 16 * n, &raw_); !st.ok()) {
-        return st;
-      }
+      TANDEM_RETURN_IF_ERROR(zarr::ReadRangeAt(shard_fd_, file, at, 16 * n, &raw_));
       shard_index_.resize(2 * n);
       for (size_t i = 0; i < 2 * n; ++i) {
         shard_index_[i] = LoadScalar<uint64_t>(
@@ -406,7 +409,7 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenResolved(const std::string&
     return MetaError(file, absl::StrCat("a layer of chunks ", a.chunks[nd - 3],
                                         " planes deep is too large to hold (at most 1 GiB)"));
   }
-  if (absl::Status st = CheckChunkCount(file, a, info); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckChunkCount(file, a, info));
   info.suggested_isovalues = a.isovalues;
   info.description = r.what;
   if (!lead_text.empty()) absl::StrAppend(&info.description, ", ", lead_text);

@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "prefetch.h"
+#include "tandem/status_macros.h"
 #include "tandem/task_group.h"
 
 namespace tandem {
@@ -50,14 +51,14 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
       for (size_t i = 0; i < sessions.size(); ++i) {
         SealedChunk c;
         if (options[i].seal && sessions[i]->TakeSealedThrough(next_take, &c)) {
-          if (absl::Status st = on_chunk(i, std::move(c)); !st.ok()) return st;
+          TANDEM_RETURN_IF_ERROR(on_chunk(i, std::move(c)));
         }
       }
     }
     for (size_t i = 0; finished && i < sessions.size(); ++i) {
       SealedChunk c;
       while (options[i].seal && sessions[i]->TakeSealed(&c)) {
-        if (absl::Status st = on_chunk(i, std::move(c)); !st.ok()) return st;
+        TANDEM_RETURN_IF_ERROR(on_chunk(i, std::move(c)));
       }
     }
     return absl::OkStatus();
@@ -73,20 +74,20 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
       }
     }
     added = k + 1;
-    if (absl::Status st = take(k - TandemSession::kSlicesInFlight, false); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(take(k - TandemSession::kSlicesInFlight, false));
     if (progress) progress(k + 1, info.nz);
     return absl::OkStatus();
   };
   // A mapped file hands its slices over in place: the session's copy into its ring is the
   // only one (a read() would copy every byte out of the page cache first).
   const uint8_t* view = nullptr;
-  if (absl::Status st = source.ViewSlice(&view); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(source.ViewSlice(&view));
   if (view != nullptr) {
     for (int64_t k = 0; k < info.nz; ++k) {
       if (k > 0) {
-        if (absl::Status st = source.ViewSlice(&view); !st.ok()) return st;
+        TANDEM_RETURN_IF_ERROR(source.ViewSlice(&view));
       }
-      if (absl::Status st = add(k, view); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(add(k, view));
     }
   } else {
     // Reading runs ahead on another thread; conversion happens on the way into the session.
@@ -97,10 +98,10 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
       absl::Status st = prefetch.Next(&bytes);
       if (info.nz == 0 && absl::IsOutOfRange(st)) break;
       if (!st.ok()) return st;
-      if (absl::Status st = add(k, bytes.data()); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(add(k, bytes.data()));
     }
   }
-  if (absl::Status st = take(added - 1, false); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(take(added - 1, false));
   // The final SIMPLIFY of each surface, side by side as well, watched from a thread of its
   // own when asked to.
   std::vector<absl::Status> finished(sessions.size());
@@ -144,7 +145,7 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
   for (const absl::Status& st : finished) {
     if (!st.ok()) return st;
   }
-  if (absl::Status st = take(added - 1, true); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(take(added - 1, true));
   return sessions;
 }
 

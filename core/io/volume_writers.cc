@@ -12,7 +12,12 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
+<<<<<<< HEAD
 #include "tandem/io/zarr.h"
+=======
+#include "tandem/status_macros.h"
+#include "tandem/io/zarr.h"
+>>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {
@@ -128,11 +133,11 @@ absl::Status StreamSlices(const std::string& path, const VolumeInfo& info, const
   const bool swap = big_endian == kHostIsLittleEndian && DTypeSize(info.dtype) > 1;
   std::vector<uint8_t> slice;
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = FetchSlice(path, info, slice_fn, z, &slice); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(FetchSlice(path, info, slice_fn, z, &slice));
     if (observe) observe(slice);
     if (swap) SwapBytesInPlace(slice.data(), info.slice_voxels(), DTypeSize(info.dtype));
     if (stored != nullptr) stored->Update(slice.data(), slice.size());
-    if (absl::Status st = out->Write(slice.data(), slice.size()); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(out->Write(slice.data(), slice.size()));
   }
   return absl::OkStatus();
 }
@@ -140,14 +145,14 @@ absl::Status StreamSlices(const std::string& path, const VolumeInfo& info, const
 absl::Status WriteText(const std::string& path, const std::string& text) {
   absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(path, /*gzip=*/false);
   if (!w.ok()) return w.status();
-  if (absl::Status st = (*w)->Write(text.data(), text.size()); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR((*w)->Write(text.data(), text.size()));
   return (*w)->Close();
 }
 
 absl::Status WriteHeaderThenVoxels(const std::string& path, const std::string& header,
                                    const std::string& data_path, const VolumeInfo& info,
                                    const SliceFn& slice_fn, const VolumeWriteOptions& opts) {
-  if (absl::Status st = WriteText(path, header); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(WriteText(path, header));
   // Attached: the data (a gzip member if compressed) is appended right after the header.
   absl::StatusOr<std::unique_ptr<ByteWriter>> w =
       ByteWriter::Open(data_path, opts.gzip, /*append=*/data_path == path);

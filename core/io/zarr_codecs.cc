@@ -12,6 +12,7 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
@@ -76,7 +77,7 @@ absl::Status Deflate(const uint8_t* src, size_t n, int level, bool gzip,
 
 absl::Status Decode(const Compression& c, const uint8_t* src, size_t n, uint8_t* dst,
                     size_t dst_size) {
-  if (absl::Status st = CheckDecodedSize(c, src, n, dst_size); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckDecodedSize(c, src, n, dst_size));
   switch (c.kind) {
     case Compression::kGzip:
     case Compression::kZlib:

@@ -13,6 +13,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+#include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 #include "zarr_metadata.h"
 
@@ -60,7 +61,7 @@ int JsonDepth(const std::string& text) {
 
 absl::StatusOr<json> ReadJsonFile(const std::string& file) {
   std::string text;
-  if (absl::Status st = zarr::ReadWholeFile(file, kMaxMetadataBytes, &text); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(zarr::ReadWholeFile(file, kMaxMetadataBytes, &text));
   if (JsonDepth(text) > kMaxJsonDepth) {
     return MetaError(file, absl::StrCat("JSON nested more than ", kMaxJsonDepth,
                                         " levels deep (Zarr metadata nests a few)"));
@@ -171,17 +172,17 @@ absl::Status ParseFill(const std::string& file, const json& v, ArrayMeta* m) {
   uint8_t host[4] = {};
   switch (m->dtype) {
     case DType::kUInt8:
-      if (absl::Status st = range(0, 255); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(range(0, 255));
       host[0] = static_cast<uint8_t>(d);
       break;
     case DType::kUInt16: {
-      if (absl::Status st = range(0, 65535); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(range(0, 65535));
       const uint16_t x = static_cast<uint16_t>(d);
       std::memcpy(host, &x, 2);
       break;
     }
     case DType::kInt16: {
-      if (absl::Status st = range(-32768, 32767); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(range(-32768, 32767));
       const int16_t x = static_cast<int16_t>(d);
       std::memcpy(host, &x, 2);
       break;
@@ -257,7 +258,7 @@ absl::StatusOr<ArrayMeta> ParseV2Array(const std::string& dir, const std::string
   if (!chunks.ok()) return chunks.status();
   m.shape = *std::move(shape);
   m.chunks = *std::move(chunks);
-  if (absl::Status st = ParseV2DType(file, j["dtype"], &m); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseV2DType(file, j["dtype"], &m));
   if (j.contains("order") && j["order"] != "C") {
     return MetaError(file, absl::StrCat("order ", j["order"].dump(),
                                         " is not supported (only C order: x fastest)"));
@@ -266,10 +267,8 @@ absl::StatusOr<ArrayMeta> ParseV2Array(const std::string& dir, const std::string
       !(j["filters"].is_array() && j["filters"].empty())) {
     return MetaError(file, absl::StrCat("filters are not supported: ", j["filters"].dump()));
   }
-  if (absl::Status st = ParseV2Compressor(file, j.value("compressor", json()), &m); !st.ok()) {
-    return st;
-  }
-  if (absl::Status st = ParseFill(file, j.value("fill_value", json()), &m); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseV2Compressor(file, j.value("compressor", json()), &m));
+  TANDEM_RETURN_IF_ERROR(ParseFill(file, j.value("fill_value", json()), &m));
   if (j.contains("dimension_separator")) {
     const json& s = j["dimension_separator"];
     if (s == ".") {
@@ -298,7 +297,7 @@ absl::Status ParseSharding(const std::string& file, const json& cfg, ArrayMeta* 
   m->sharded = true;
   m->shard = std::move(m->chunks);
   m->chunks = *std::move(inner);
-  if (absl::Status st = ParseV3Codecs(file, cfg["codecs"], m); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseV3Codecs(file, cfg["codecs"], m));
   const json loc = cfg.value("index_location", json("end"));
   if (loc != "end" && loc != "start") {
     return MetaError(file, absl::StrCat("sharding: unsupported index_location ", loc.dump()));
@@ -412,11 +411,11 @@ absl::StatusOr<ArrayMeta> ParseV3Array(const std::string& dir, const std::string
                                         "' (supported: uint8, uint16, int16, float32)"));
   }
   m.dtype = *t;
-  if (absl::Status st = ParseV3Codecs(file, j["codecs"], &m); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseV3Codecs(file, j["codecs"], &m));
   if (j.contains("storage_transformers") && !j["storage_transformers"].empty()) {
     return MetaError(file, "storage_transformers are not supported");
   }
-  if (absl::Status st = ParseFill(file, j.value("fill_value", json()), &m); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ParseFill(file, j.value("fill_value", json()), &m));
   m.v3_default_key = true;
   m.separator = '/';
   if (j.contains("chunk_key_encoding")) {

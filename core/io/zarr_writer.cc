@@ -11,7 +11,12 @@
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+<<<<<<< HEAD
 #include "tandem/io/zarr.h"
+=======
+#include "tandem/status_macros.h"
+#include "tandem/io/zarr.h"
+>>>>>>> main
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
@@ -98,11 +103,11 @@ class ZarrAppenderImpl final : public ZarrAppender {
       return absl::InternalError(absl::StrCat(array_path_, ": cannot create: ", ec.message()));
     }
     if (opts_.ome) {
-      if (absl::Status st = WriteGroup(); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(WriteGroup());
     }
     if (opts_.version == 2 && !info_.suggested_isovalues.empty()) {
       const std::string attrs = (std::filesystem::path(array_path_) / ".zattrs").string();
-      if (absl::Status st = WriteJson(attrs, ArrayAttributes()); !st.ok()) return st;
+      TANDEM_RETURN_IF_ERROR(WriteJson(attrs, ArrayAttributes()));
     }
     return WriteArrayMeta();
   }
@@ -169,9 +174,7 @@ class ZarrAppenderImpl final : public ZarrAppender {
           {{"zarr_format", 3}, {"node_type", "group"}, {"attributes", {{"ome", ome}}}});
     }
     ms["version"] = "0.4";
-    if (absl::Status st = WriteJson((root / ".zgroup").string(), {{"zarr_format", 2}}); !st.ok()) {
-      return st;
-    }
+    TANDEM_RETURN_IF_ERROR(WriteJson((root / ".zgroup").string(), {{"zarr_format", 2}}));
     return WriteJson((root / ".zattrs").string(), {{"multiscales", {ms}}});
   }
 
@@ -253,7 +256,7 @@ class ZarrAppenderImpl final : public ZarrAppender {
           data = encoded_.data();
           n = encoded_.size();
         }
-        if (absl::Status st = zarr::WriteFileAtomic(file.string(), data, n); !st.ok()) return st;
+        TANDEM_RETURN_IF_ERROR(zarr::WriteFileAtomic(file.string(), data, n));
       }
     }
     visible_ = shown;
@@ -311,7 +314,7 @@ absl::StatusOr<std::unique_ptr<ZarrAppender>> ZarrAppender::Create(const std::st
                            "flipped grid directions"));
   }
   auto appender = std::make_unique<internal::ZarrAppenderImpl>(path, info, opts);
-  if (absl::Status st = appender->Start(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(appender->Start());
   return std::unique_ptr<ZarrAppender>(std::move(appender));
 }
 
@@ -326,10 +329,8 @@ absl::Status WriteZarr(const std::string& path, const VolumeInfo& info, const Sl
   if (!w.ok()) return w.status();
   std::vector<uint8_t> slice;
   for (int64_t z = 0; z < info.nz; ++z) {
-    if (absl::Status st = internal::FetchSlice(path, info, slice_fn, z, &slice); !st.ok()) {
-      return st;
-    }
-    if (absl::Status st = (*w)->Append(slice.data()); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(internal::FetchSlice(path, info, slice_fn, z, &slice));
+    TANDEM_RETURN_IF_ERROR((*w)->Append(slice.data()));
   }
   return (*w)->Finish();
 }

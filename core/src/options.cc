@@ -63,6 +63,24 @@ absl::Status NameOptionError(const absl::Status& status,
                       absl::StrCat(label(e->field), separator, e->value, ": ", e->rule));
 }
 
+absl::Status ValidateIsoList(std::span<const double> isos) {
+  // The count first: the pairwise check below is quadratic in it.
+  if (isos.size() > static_cast<size_t>(kMaxIsoValues)) {
+    return absl::InvalidArgumentError(absl::StrCat("at most ", kMaxIsoValues,
+                                                   " iso-values in one pass, got ", isos.size()));
+  }
+  for (size_t i = 0; i < isos.size(); ++i) {
+    if (!std::isfinite(isos[i])) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("iso-value ", isos[i], " is not a finite number"));
+    }
+    if (std::find(isos.begin(), isos.begin() + i, isos[i]) != isos.begin() + i) {
+      return absl::InvalidArgumentError(absl::StrCat("iso-value ", isos[i], " is given twice"));
+    }
+  }
+  return absl::OkStatus();
+}
+
 absl::Status SessionOptions::Validate() const {
   if (!std::isfinite(iso)) return Refuse("iso", iso, "iso-value must be a finite number");
   if (schedule == Schedule::kNone) return absl::OkStatus();

@@ -4,6 +4,7 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -11,6 +12,9 @@
 
 #include "apps/common/extract_flags.h"
 #include "tandem/options.h"
+#ifdef TANDEM_HAVE_DRACO
+#include "codec/draco_codec.h"
+#endif
 
 namespace tandem::cli {
 namespace {
@@ -256,6 +260,46 @@ TEST(OptionFlags, RefusalsOfCoreNameTheFlag) {
   EXPECT_FALSE(OptionErrorOf(other).has_value());
   EXPECT_EQ(NameOptionFlag(other), other);
 }
+
+// One rule for an iso list (core's), each front end naming its flag.
+TEST(IsoList, CoreRuleWithTheFlagNamed) {
+  const std::vector<double> eight = {1, 2, 3, 4, 5, 6, 7, 8};
+  EXPECT_TRUE(ValidateIsoList(eight).ok());
+  const std::vector<double> nine = {1, 2, 3, 4, 5, 6, 7, 8, 9};
+  EXPECT_EQ(ValidateIsoList(nine).message(), "at most 8 iso-values in one pass, got 9");
+  const std::vector<double> twice = {60, 120, 60};
+  EXPECT_EQ(ValidateIsoList(twice).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ValidateIsoList(twice).message(), "iso-value 60 is given twice");
+  const std::vector<double> inf = {60, std::numeric_limits<double>::infinity()};
+  EXPECT_EQ(ValidateIsoList(inf).message(), "iso-value inf is not a finite number");
+  EXPECT_EQ(ParseIsoList("60,120,60").status().message(),
+            "--iso '60,120,60': iso-value 60 is given twice");
+  EXPECT_EQ(ParseIsoList("1,2,3,4,5,6,7,8,9").status().message(),
+            "--iso '1,2,3,4,5,6,7,8,9': at most 8 iso-values in one pass, got 9");
+  EXPECT_EQ(ParseIsoList("60,inf").status().message(),
+            "--iso '60,inf': iso-value inf is not a finite number");
+  ASSERT_TRUE(ParseIsoList("60, 120").ok());
+  EXPECT_EQ(ParseIsoList("60, 120")->at(1).text, "120");
+}
+
+#ifdef TANDEM_HAVE_DRACO
+// The Draco flags take the codec's defaults and its range check, the refusal naming the flag.
+TEST(DracoFlags, CodecDefaultsAndRangesWithTheFlagNamed) {
+  FlagSet flags("usage");
+  ExtractFlags f;
+  f.Add(&flags, "mesh");
+  EXPECT_EQ(f.quantization_bits, codec::kDefaultQuantizationBits);
+  EXPECT_EQ(f.compression_level, codec::kDefaultCompressionLevel);
+  EXPECT_TRUE(CheckDracoFlags(1, 0).ok());
+  EXPECT_TRUE(CheckDracoFlags(30, 10).ok());
+  const absl::Status bits = CheckDracoFlags(31, 7);
+  EXPECT_EQ(bits.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(bits.message(), "--quantization-bits must be in [1, 30], got 31");
+  EXPECT_EQ(CheckDracoFlags(16, -1).message(), "--compression-level must be in [0, 10], got -1");
+  // Past int's range: refused, not wrapped into [1, 30] (2^32 + 16 would wrap to 16).
+  EXPECT_FALSE(CheckDracoFlags((int64_t{1} << 32) + 16, 7).ok());
+}
+#endif
 
 }  // namespace
 }  // namespace tandem::cli

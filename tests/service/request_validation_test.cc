@@ -177,18 +177,19 @@ TEST(ValidateConfig, RejectsEachBadFieldWithItsName) {
        absl::StatusCode::kResourceExhausted, "--max-voxels-per-slice"},
       {[](auto* c) { c->set_nz(100000); }, absl::StatusCode::kResourceExhausted, "--max-slices"},
       {[nan](auto* c) { c->add_extra_isos(nan); }, absl::StatusCode::kInvalidArgument,
-       "config.extra_isos[0] is not a finite number"},
+       "config.iso and config.extra_isos: iso-value nan is not a finite number"},
       {[](auto* c) { c->add_extra_isos(c->iso()); }, absl::StatusCode::kInvalidArgument,
-       "config.extra_isos[0]"},
+       "config.iso and config.extra_isos: iso-value 100 is given twice"},
       {[](auto* c) {
          c->add_extra_isos(7);
          c->add_extra_isos(7);
        },
-       absl::StatusCode::kInvalidArgument, "config.extra_isos[1] = 7 repeats"},
+       absl::StatusCode::kInvalidArgument, "config.extra_isos: iso-value 7 is given twice"},
       {[](auto* c) {
          for (int i = 1; i <= 8; ++i) c->add_extra_isos(c->iso() + i);
        },
-       absl::StatusCode::kInvalidArgument, "at most 7"},
+       absl::StatusCode::kInvalidArgument,
+       "config.extra_isos: at most 8 iso-values in one pass, got 9"},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     v1::SessionConfig c = GoodConfig();

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 
@@ -112,6 +113,13 @@ std::optional<OptionError> OptionErrorOf(const absl::Status& status);
 absl::Status NameOptionError(const absl::Status& status,
                              std::string (*label)(const std::string& field),
                              const std::string& separator);
+
+// Several surfaces from one read of the slices: each runs its own session side by side.
+inline constexpr int kMaxIsoValues = 8;
+// The rule on such a list: at most kMaxIsoValues values, each finite, none twice.
+// InvalidArgument ("iso-value 60 is given twice"), for a front end to prefix with its
+// flag or field.
+absl::Status ValidateIsoList(std::span<const double> isos);
 
 }  // namespace tandem
 
