@@ -16,12 +16,8 @@
 #include "codec/draco_codec.h"
 #include "common/wire.h"
 #include "server/extract_job_internal.h"
-<<<<<<< HEAD
-#include "tandem/eval/distance.h"
-=======
 #include "tandem/eval/distance.h"
 #include "tandem/status_macros.h"
->>>>>>> main
 #include "tandem/task_group.h"
 #include "tandem/eval/report.h"
 #include "tandem/tandem.h"

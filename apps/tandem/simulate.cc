@@ -20,12 +20,8 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
-<<<<<<< HEAD
-#include "tandem/io/series.h"
-=======
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
->>>>>>> main
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 

@@ -24,12 +24,8 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "dicom_scan.h"
-<<<<<<< HEAD
-#include "tandem/io/series.h"
-=======
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
->>>>>>> main
 
 namespace tandem::dicom {
 namespace {

@@ -11,12 +11,8 @@
 #include "absl/strings/str_join.h"
 #include "dicom_series.h"
 #include "follow_internal.h"
-<<<<<<< HEAD
-#include "tandem/io/series.h"
-=======
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
->>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {

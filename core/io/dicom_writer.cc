@@ -10,12 +10,8 @@
 #include "absl/strings/str_cat.h"
 #include "dicom_codec.h"
 #include "dicom_series.h"
-<<<<<<< HEAD
-#include "tandem/io/series.h"
-=======
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
->>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {

@@ -24,12 +24,8 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "nlohmann/json.hpp"
-<<<<<<< HEAD
-#include "tandem/io/zarr.h"
-=======
 #include "tandem/status_macros.h"
 #include "tandem/io/zarr.h"
->>>>>>> main
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 #include "zarr_metadata.h"

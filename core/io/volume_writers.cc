@@ -12,12 +12,8 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
-<<<<<<< HEAD
-#include "tandem/io/zarr.h"
-=======
 #include "tandem/status_macros.h"
 #include "tandem/io/zarr.h"
->>>>>>> main
 #include "volume_io_internal.h"
 
 namespace tandem {
