@@ -16,19 +16,10 @@
 
 #include <gtest/gtest.h>
 
+#include "testutil/inline_executor.h"
+
 namespace tandem {
 namespace {
-
-// Runs every task at once on the thread that enqueues it.
-class SerialExecutor final : public Executor {
- public:
-  void Enqueue(std::function<void()> task) override {
-    ++tasks;
-    task();
-  }
-  int threads() const override { return 1; }
-  int tasks = 0;
-};
 
 IndexedMesh Torus(Executor* executor) {
   VolumeInfo grid;
@@ -59,7 +50,7 @@ IndexedMesh Torus(Executor* executor) {
 TEST(Contract, ACallersExecutorGivesTheMeshOfTheBuiltInPool) {
   const IndexedMesh pooled = Torus(&Executor::Shared());
   ASSERT_GT(pooled.num_triangles(), 200u);
-  SerialExecutor serial;
+  InlineExecutor serial;
   const IndexedMesh mesh = Torus(&serial);
   EXPECT_EQ(mesh.positions, pooled.positions);
   EXPECT_EQ(mesh.indices, pooled.indices);

@@ -21,6 +21,7 @@
 #include "thread_pool.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
+#include "testutil/inline_executor.h"
 
 namespace tandem {
 namespace {
@@ -109,18 +110,8 @@ TEST(Executor, ASessionUsesOnlyTheExecutorItIsGiven) {
   }
 }
 
-// Executors the caller supplies (executor.h's interface): one that runs each task at once on
-// the thread that enqueues it, and one that counts the tasks it hands to a pool.
-class InlineExecutor final : public Executor {
- public:
-  void Enqueue(std::function<void()> task) override {
-    ++tasks;
-    task();
-  }
-  int threads() const override { return 1; }
-  int tasks = 0;
-};
-
+// Executors the caller supplies (executor.h's interface): InlineExecutor (testutil), and one
+// that counts the tasks it hands to a pool.
 class CountingExecutor final : public Executor {
  public:
   explicit CountingExecutor(int threads) : pool_(threads) {}
