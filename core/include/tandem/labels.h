@@ -1,0 +1,48 @@
+// Label volumes (segmentations): every label's surface from one sweep, touching labels
+// sharing their interface triangles. The session extracts the interface complex (each
+// triangle separates two labels) and simplifies it as one mesh, so where two labels touch
+// their surfaces are the same triangles; SplitByLabel cuts it into one surface per label.
+#ifndef TANDEM_LABELS_H_
+#define TANDEM_LABELS_H_
+
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+#include "tandem/mesh.h"
+
+namespace tandem {
+
+using LabelId = uint64_t;
+
+// SessionOptions::labels: whether the volume is a label map, and which labels count.
+struct LabelOptions {
+  bool enabled = false;
+  LabelId background = 0;     // has no surface of its own
+  std::vector<LabelId> only;  // not empty: every other label counts as background
+  bool close = false;         // close the surfaces at the grid's box (else open there)
+};
+
+// One side each: `inside` is the label the triangle's normal points away from (the
+// triangle is counter-clockwise seen from `outside`).
+struct LabelPair {
+  LabelId inside = 0, outside = 0;
+  friend bool operator==(const LabelPair&, const LabelPair&) = default;
+};
+
+// The interface complex: `patch[t]` indexes `pairs` for triangle t.
+struct LabeledMesh {
+  IndexedMesh mesh;
+  std::vector<uint32_t> patch;
+  std::vector<LabelPair> pairs;
+};
+
+// One surface per label other than the background, in increasing label: the triangles with
+// that label inside as they are, those with it outside reversed, the vertices compacted
+// (a vertex two labels share has the same position in both).
+std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
+                                                          LabelId background = 0);
+
+}  // namespace tandem
+
+#endif  // TANDEM_LABELS_H_
