@@ -4,6 +4,7 @@
 // Neuroglancer reads it (shard index, gzip minishard index, manifest, Draco fragments).
 #include "tandem/io/neuroglancer.h"
 
+#include <sys/wait.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -182,6 +183,81 @@ NeuroglancerOptions DracoOptions() {
   return o;
 }
 
+// A segment as Neuroglancer reads it from DIR/mesh: the shard by the id's hash, the
+// minishard index (gzip), the manifest, the fragments just before it. Empty if missing.
+struct Stored {
+  std::array<float, 3> chunk_shape{}, grid_origin{};
+  std::vector<float> lod_scales;
+  std::vector<std::vector<std::array<uint32_t, 3>>> positions;  // per level
+  std::vector<std::vector<codec::IntegerMesh>> fragments;       // per level
+};
+Stored ReadSegment(const std::string& dir, uint64_t want) {
+  Stored out;
+  const auto mesh_info = nlohmann::json::parse(ReadAll(dir + "/mesh/info"));
+  const auto& sh = mesh_info["sharding"];
+  EXPECT_EQ(sh["@type"], "neuroglancer_uint64_sharded_v1");
+  EXPECT_EQ(sh["hash"], "murmurhash3_x86_128");
+  EXPECT_EQ(sh["minishard_index_encoding"], "gzip");
+  EXPECT_EQ(sh["data_encoding"], "raw");
+  NeuroglancerSharding sharding;
+  sharding.minishard_bits = sh["minishard_bits"];
+  sharding.shard_bits = sh["shard_bits"];
+  sharding.preshift_bits = sh["preshift_bits"];
+  const ShardLocation at = LocateChunk(want, sharding);
+  const std::string shard =
+      ReadAll(std::filesystem::path(dir) / "mesh" / ShardFileName(at.shard, sharding));
+  const size_t index_end = 16u << sharding.minishard_bits;
+  if (shard.size() < index_end) return out;
+  const uint64_t lo = U64(shard, 16 * at.minishard), hi = U64(shard, 16 * at.minishard + 8);
+  if (lo == hi) return out;
+  const std::string index = Gunzip(shard.substr(index_end + lo, hi - lo));
+  EXPECT_EQ(index.size() % 24, 0u);
+  const size_t n = index.size() / 24;
+  uint64_t id = 0, end = 0, start = 0, size = 0;
+  bool found = false;
+  for (size_t i = 0; i < n && !found; ++i) {
+    id += U64(index, 8 * i);
+    start = end + U64(index, 8 * (n + i));
+    size = U64(index, 8 * (2 * n + i));
+    end = start + size;
+    found = id == want;
+  }
+  if (!found) return out;
+  const std::string m = shard.substr(index_end + start, size);
+  for (int j = 0; j < 3; ++j)
+    out.chunk_shape[j] = F32(m, 4 * j), out.grid_origin[j] = F32(m, 12 + 4 * j);
+  const size_t lods = U32(m, 24);
+  size_t at_byte = 28;
+  for (size_t k = 0; k < lods; ++k) out.lod_scales.push_back(F32(m, at_byte)), at_byte += 4;
+  at_byte += 12 * lods;  // vertex offsets
+  std::vector<uint32_t> counts;
+  for (size_t k = 0; k < lods; ++k) counts.push_back(U32(m, at_byte)), at_byte += 4;
+  std::vector<std::vector<uint32_t>> sizes(lods);
+  uint64_t total = 0;
+  out.positions.resize(lods);
+  for (size_t k = 0; k < lods; ++k) {
+    for (uint32_t f = 0; f < counts[k]; ++f) {
+      out.positions[k].push_back({U32(m, at_byte + 4 * f), U32(m, at_byte + 4 * (counts[k] + f)),
+                                  U32(m, at_byte + 4 * (2 * counts[k] + f))});
+      sizes[k].push_back(U32(m, at_byte + 4 * (3 * counts[k] + f)));
+      total += sizes[k].back();
+    }
+    at_byte += 16 * counts[k];
+  }
+  EXPECT_EQ(at_byte, m.size());
+  size_t frag = index_end + start - total;
+  out.fragments.resize(lods);
+  for (size_t k = 0; k < lods; ++k) {
+    for (uint32_t bytes : sizes[k]) {
+      auto decoded = codec::DecodeNeuroglancerFragment(shard.substr(frag, bytes));
+      EXPECT_TRUE(decoded.ok()) << decoded.status();
+      out.fragments[k].push_back(decoded.ok() ? *decoded : codec::IntegerMesh{});
+      frag += bytes;
+    }
+  }
+  return out;
+}
+
 TEST(NeuroglancerExport, ReadsBackAsNeuroglancerDoes) {
   const std::string dir = testing::MakeTempDir() + "/ng";
   std::vector<NeuroglancerSegment> segments;
@@ -193,86 +269,129 @@ TEST(NeuroglancerExport, ReadsBackAsNeuroglancerDoes) {
   grid.nx = grid.ny = grid.nz = 20;
   grid.spacing = {4, 4, 40};
   NeuroglancerOptions options = DracoOptions();
-  options.nm_per_unit = 1;
+  options.nm_per_unit = 2;
   ASSERT_TRUE(WriteNeuroglancer(dir, grid, segments, options).ok());
 
   const auto info = nlohmann::json::parse(ReadAll(dir + "/info"));
   EXPECT_EQ(info["type"], "segmentation");
   EXPECT_EQ(info["mesh"], "mesh");
-  EXPECT_EQ(info["scales"][0]["resolution"], nlohmann::json({4.0, 4.0, 40.0}));
+  EXPECT_EQ(info["scales"][0]["resolution"], nlohmann::json({8.0, 8.0, 80.0}));
   const auto mesh_info = nlohmann::json::parse(ReadAll(dir + "/mesh/info"));
   EXPECT_EQ(mesh_info["@type"], "neuroglancer_multilod_draco");
   EXPECT_EQ(mesh_info["vertex_quantization_bits"], 16);
-  const auto& sh = mesh_info["sharding"];
-  EXPECT_EQ(sh["@type"], "neuroglancer_uint64_sharded_v1");
-  EXPECT_EQ(sh["hash"], "murmurhash3_x86_128");
-  NeuroglancerSharding sharding;
-  sharding.minishard_bits = sh["minishard_bits"];
-  sharding.shard_bits = sh["shard_bits"];
+  EXPECT_EQ(mesh_info["transform"], nlohmann::json({2.0, 0, 0, 0, 0, 2.0, 0, 0, 0, 0, 2.0, 0}));
 
   for (const NeuroglancerSegment& seg : segments) {
     SCOPED_TRACE(seg.id);
-    const ShardLocation at = LocateChunk(seg.id, sharding);
-    const std::string shard =
-        ReadAll(std::filesystem::path(dir) / "mesh" / ShardFileName(at.shard, sharding));
-    const size_t index_end = 16u << sharding.minishard_bits;
-    ASSERT_GE(shard.size(), index_end);
-    const uint64_t lo = U64(shard, 16 * at.minishard), hi = U64(shard, 16 * at.minishard + 8);
-    const std::string index = Gunzip(shard.substr(index_end + lo, hi - lo));
-    ASSERT_EQ(index.size() % 24, 0u);
-    const size_t n = index.size() / 24;
-    uint64_t id = 0, end = 0, start = 0, size = 0;
-    bool found = false;
-    for (size_t i = 0; i < n && !found; ++i) {
-      id += U64(index, 8 * i);
-      start = end + U64(index, 8 * (n + i));
-      size = U64(index, 8 * (2 * n + i));
-      end = start + size;
-      found = id == seg.id;
-    }
-    ASSERT_TRUE(found);
-    const std::string manifest = shard.substr(index_end + start, size);
-    ASSERT_EQ(U32(manifest, 24), 3u);  // levels
-    const size_t lods = 3;
-    size_t at_frag = 28 + lods * 4 + lods * 12;
-    std::vector<uint32_t> counts;
-    for (size_t k = 0; k < lods; ++k) counts.push_back(U32(manifest, at_frag + 4 * k));
-    at_frag += 4 * lods;
-    std::vector<uint32_t> sizes;
-    for (size_t k = 0; k < lods; ++k) {
-      ASSERT_EQ(counts[k], 1u);  // one node per level, at the grid's corner
-      for (int j = 0; j < 3; ++j) EXPECT_EQ(U32(manifest, at_frag + 4 * j), 0u);
-      sizes.push_back(U32(manifest, at_frag + 12));
-      at_frag += 16;
-    }
-    ASSERT_EQ(at_frag, manifest.size());
-    // The fragments sit just before the manifest, finest first.
-    size_t frag = index_end + start - (sizes[0] + sizes[1] + sizes[2]);
+    const Stored stored = ReadSegment(dir, seg.id);
+    ASSERT_EQ(stored.fragments.size(), 3u);
+    EXPECT_EQ(stored.lod_scales, std::vector<float>({4, 8, 16}));  // 2^k x finest spacing
     auto quantized = QuantizeSegment(seg, 16);
     ASSERT_TRUE(quantized.ok());
-    for (size_t k = 0; k < lods; ++k) {
-      auto decoded = codec::DecodeNeuroglancerFragment(shard.substr(frag, sizes[k]));
-      frag += sizes[k];
-      ASSERT_TRUE(decoded.ok()) << decoded.status();
+    EXPECT_EQ(stored.chunk_shape, quantized->chunk_shape);
+    EXPECT_EQ(stored.grid_origin, quantized->grid_origin);
+    for (size_t k = 0; k < 3; ++k) {
+      // One node per level, at the grid's corner, holding the whole segment.
+      ASSERT_EQ(stored.fragments[k].size(), 1u);
+      EXPECT_EQ(stored.positions[k][0], (std::array<uint32_t, 3>{0, 0, 0}));
+      const codec::IntegerMesh& got = stored.fragments[k][0];
       const NeuroglancerFragment& want = quantized->lods[k];
-      EXPECT_EQ(Triangles(decoded->positions, decoded->indices),
-                Triangles(want.positions, want.indices))
+      EXPECT_EQ(Triangles(got.positions, got.indices), Triangles(want.positions, want.indices))
           << "level " << k;
       // The formula Neuroglancer applies gives back each vertex within half a step, so
       // nothing was clamped: every level fits its node, and levels > 0 its low octant.
       for (size_t v = 0; v < want.positions.size(); ++v) {
         const Vec3 p = DequantizePosition(*quantized, static_cast<int>(k), want.positions[v], 16);
         const Vec3& o = seg.lods[k].positions[v];
-        const double step = std::ldexp(quantized->chunk_shape[0], static_cast<int>(k)) / 65535;
-        EXPECT_NEAR(p.x, o.x, step);
-        EXPECT_NEAR(p.y, o.y, std::ldexp(quantized->chunk_shape[1], int(k)) / 65535);
-        EXPECT_NEAR(p.z, o.z, std::ldexp(quantized->chunk_shape[2], int(k)) / 65535);
+        auto step = [&](int j) {
+          return std::ldexp(quantized->chunk_shape[j], static_cast<int>(k)) / 65535;
+        };
+        EXPECT_NEAR(p.x, o.x, step(0));
+        EXPECT_NEAR(p.y, o.y, step(1));
+        EXPECT_NEAR(p.z, o.z, step(2));
         if (k > 0) {
           for (int j = 0; j < 3; ++j) EXPECT_LE(want.positions[v][j], 32768u);
         }
       }
     }
   }
+  EXPECT_TRUE(ReadSegment(dir, 8).fragments.empty());  // no such segment
+}
+
+TEST(NeuroglancerExport, ManySegmentsSpreadOverShards) {
+  const std::string dir = testing::MakeTempDir() + "/ng";
+  std::vector<NeuroglancerSegment> segments;
+  for (LabelId id = 1; id <= 40; ++id) {
+    segments.push_back({id * 0x9e3779b97f4a7c15u, {Octahedron({float(id), 0, 0}, 0.5f, 0.5f)}});
+  }
+  VolumeInfo grid;
+  grid.nx = grid.ny = grid.nz = 8;
+  NeuroglancerOptions options = DracoOptions();
+  options.choose_sharding = false;
+  options.sharding.shard_bits = 2;
+  options.sharding.minishard_bits = 2;
+  ASSERT_TRUE(WriteNeuroglancer(dir, grid, segments, options).ok());
+  size_t files = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir + "/mesh")) {
+    files += e.path().extension() == ".shard";
+  }
+  EXPECT_EQ(files, 4u);
+  for (const NeuroglancerSegment& seg : segments) {
+    const Stored stored = ReadSegment(dir, seg.id);
+    ASSERT_EQ(stored.fragments.size(), 1u) << seg.id;
+    EXPECT_EQ(stored.fragments[0][0].indices.size(), 24u) << seg.id;
+  }
+}
+
+// Runs a shell command line, stderr with stdout; the exit status.
+int Shell(const std::string& command, std::string* output) {
+  FILE* p = popen((command + " 2>&1").c_str(), "r");
+  if (p == nullptr) return -1;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof(buf), p)) > 0) output->append(buf, n);
+  const int status = pclose(p);
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+TEST(NeuroglancerExport, ExtractWritesEachSurfaceWithCoarserSweeps) {
+  const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
+  std::string out;
+  ASSERT_EQ(Shell(tandem + " generate sphere --size 32 --out " + tmp + "/s.nrrd", &out), 0) << out;
+  ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/s.nrrd --iso 0,0.3 --quiet --out " + tmp +
+                      "/s_{iso}.ply --neuroglancer " + tmp + "/ng --neuroglancer-lods 4",
+                  &out),
+            0)
+      << out;
+  size_t previous_outer = 0;
+  for (uint64_t id : {1, 2}) {
+    SCOPED_TRACE(id);
+    const Stored stored = ReadSegment(tmp + "/ng", id);
+    ASSERT_EQ(stored.fragments.size(), 4u);
+    // Sweeps at E0, 2 E0, 4 E0, 8 E0: each level coarser than the one before.
+    for (size_t k = 1; k < 4; ++k) {
+      EXPECT_LT(stored.fragments[k][0].indices.size(), stored.fragments[k - 1][0].indices.size())
+          << "level " << k;
+    }
+    if (id == 2) {
+      EXPECT_LT(stored.fragments[0][0].indices.size(), previous_outer);
+    }
+    previous_outer = stored.fragments[0][0].indices.size();
+  }
+  EXPECT_TRUE(ReadSegment(tmp + "/ng", 3).fragments.empty());
+  // Flag mistakes name the flag and exit 2.
+  out.clear();
+  EXPECT_EQ(Shell(tandem + " extract --input " + tmp + "/s.nrrd --out " + tmp +
+                      "/x.ply --neuroglancer " + tmp + "/ng --neuroglancer-lods 0",
+                  &out),
+            2);
+  EXPECT_NE(out.find("--neuroglancer-lods must be in [1, 8], got 0"), std::string::npos) << out;
+  out.clear();
+  EXPECT_EQ(Shell(tandem + " extract --input " + tmp + "/s.nrrd --out " + tmp +
+                      "/x.ply --neuroglancer-lods 2",
+                  &out),
+            2);
+  EXPECT_NE(out.find("go with --neuroglancer DIR"), std::string::npos) << out;
 }
 
 TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {
