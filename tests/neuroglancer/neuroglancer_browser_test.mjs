@@ -2,15 +2,18 @@
 // by bundle.mjs) in headless Debian Chromium: a tiny HTTP server on 127.0.0.1 (port 0, byte
 // ranges as the sharded format needs) serves the bundle and the export; Neuroglancer shows
 // the segmentation layer's meshes in the 3D view. Checks: the meshes load (from range reads
-// of the shard), the 3D panel shows them in each segment's colour, and a switch to the
-// coarsest level of detail changes the picture without opening a crack (every row of the
-// closed surface's silhouette is one unbroken run). Saves the picture at
-// build/viewer-test/neuroglancer.png (docs/img/neuroglancer.png is a copy of it).
+// of the shard), the 3D panel shows them in each segment's colour, a fine detail setting
+// reads level 0 and a coarse one only the coarsest level (the byte ranges it reads), and
+// neither picture has a crack (no background pixel enclosed by the closed surface's
+// picture). Saves the picture at
+// build/viewer-test/neuroglancer.png (docs/img/neuroglancer.png is a copy of it): two exports
+// side by side, as two segmentation layers.
 // usage: node tests/neuroglancer/neuroglancer_browser_test.mjs BUILD_DIR
 import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
+import zlib from 'node:zlib';
 import { fileURLToPath } from 'node:url';
 import { harness } from '../viewer/browser_harness.mjs';
 
@@ -40,6 +43,8 @@ function serve(web, data, log) {
     '<link rel="stylesheet" href="/ng/main.bundle.css"></head>' +
     '<body style="margin:0;overflow:hidden"><script type="module" src="/ng/main.bundle.js">' +
     '</script></body></html>';
+  // Every page load reads afresh, so the reads tell which levels that load drew.
+  const noStore = { 'Cache-Control': 'no-store' };
   const server = http.createServer((req, res) => {
     const url = new URL(req.url, 'http://127.0.0.1');
     if (url.pathname === '/') {
@@ -73,14 +78,15 @@ function serve(web, data, log) {
         return;
       }
       log.push({ path: url.pathname, status: 206, start, end });
-      res.writeHead(206, { 'Content-Type': type, 'Content-Length': end - start + 1,
+      res.writeHead(206, { 'Content-Type': type, 'Content-Length': end - start + 1, ...noStore,
                            'Content-Range': `bytes ${start}-${end}/${size}`,
                            'Accept-Ranges': 'bytes' });
       fs.createReadStream(file, { start, end }).pipe(res);
       return;
     }
     log.push({ path: url.pathname, status: 200 });
-    res.writeHead(200, { 'Content-Type': type, 'Content-Length': size, 'Accept-Ranges': 'bytes' });
+    res.writeHead(200, { 'Content-Type': type, 'Content-Length': size, 'Accept-Ranges': 'bytes',
+                         ...noStore });
     fs.createReadStream(file).pipe(res);
   });
   return new Promise((resolve) => server.listen(0, '127.0.0.1', () => resolve(server)));
@@ -131,6 +137,44 @@ function measure(file, PNG) {
   return { share: lit / n, red: red / n, blue: blue / n, gaps };
 }
 
+// Where each level's fragment of segment `id` lies in its shard (as byte ranges), read the
+// way Neuroglancer reads it: minishard index (gzip), manifest, fragments just before it.
+// Only for the export's single-shard, single-minishard layout (a few segments).
+function fragmentRanges(data, id) {
+  const info = JSON.parse(fs.readFileSync(path.join(data, 'mesh', 'info'))).sharding;
+  if (info.shard_bits !== 0 || info.minishard_bits !== 0) throw new Error('expected one shard');
+  const shard = fs.readFileSync(path.join(data, 'mesh', '0.shard'));
+  const u64 = (b, at) => Number(b.readBigUInt64LE(at));
+  const index = zlib.gunzipSync(shard.subarray(16 + u64(shard, 0), 16 + u64(shard, 8)));
+  const n = index.length / 24;
+  let key = 0, end = 0;
+  for (let i = 0; i < n; i++) {
+    key += u64(index, 8 * i);
+    const start = end + u64(index, 8 * (n + i)), size = u64(index, 8 * (2 * n + i));
+    end = start + size;
+    if (key !== id) continue;
+    const m = shard.subarray(16 + start, 16 + end);
+    const lods = m.readUInt32LE(24);
+    let at = 28 + 16 * lods, total = 0;
+    const counts = [], sizes = [];
+    for (let k = 0; k < lods; k++) counts.push(m.readUInt32LE(at + 4 * k));
+    at += 4 * lods;
+    for (let k = 0; k < lods; k++) {
+      sizes.push(m.readUInt32LE(at + 12 * counts[k]));  // one node per level
+      total += sizes[k];
+      at += 16 * counts[k];
+    }
+    let from = 16 + start - total;
+    return sizes.map((bytes) => { const r = [from, from + bytes]; from += bytes; return r; });
+  }
+  throw new Error(`segment ${id} is not in the shard`);
+}
+// The levels whose fragment a range read of the shard since `since` fetched.
+const levelsRead = (log, ranges, since) => ranges
+  .map((r, k) => (log.slice(since).some((q) => q.status === 206 && q.path.endsWith('.shard') &&
+                                         q.start >= r[0] && q.start < r[1]) ? k : -1))
+  .filter((k) => k >= 0);
+
 await h.run(async () => {
   const { PNG } = await import('pngjs');
   const web = path.join(h.build, 'neuroglancer-web');
@@ -166,7 +210,9 @@ await h.run(async () => {
       layout: '3d', showAxisLines: false, showScaleBar: false, showDefaultAnnotations: false,
       projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
     });
+    // A fresh page each time (a hash change alone would keep the loaded levels).
     const open = async (segments, renderScale) => {
+      await page.goto('about:blank');
       await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(state(segments, renderScale)))}`);
       await waitFor('the Neuroglancer viewer', () => page.evaluate(() => !!window.viewer), 60);
       // Ready: every visible layer's chunks loaded, the meshes drawn.
@@ -176,12 +222,19 @@ await h.run(async () => {
     };
     const shoot = async (name) => {
       const file = path.join(shots, name);
-      await page.locator('.neuroglancer-rendered-data-panel').first().screenshot({ path: file });
+      await page.mouse.move(1, 1);  // off the panel: its hover widgets stay hidden
+      const box = await page.locator('.neuroglancer-rendered-data-panel').first().boundingBox();
+      await page.screenshot({ path: file, clip: box });
       return measure(file, PNG);
     };
 
+    const ranges = fragmentRanges(data, 1);
+    check(ranges.length === 3, 'segment 1 has three levels in the shard');
+    let since = log.length;
     await open(['1'], 0.5);
     const fine = await shoot('neuroglancer-fine.png');
+    const fineLevels = levelsRead(log, ranges, since);
+    check(fineLevels.includes(0), 'a fine detail setting draws level 0', `read levels ${fineLevels}`);
     check(fine.share > 0.05, 'the 3D panel shows segment 1', `${(100 * fine.share).toFixed(1)} % lit`);
     check(fine.red > 0.6 * fine.share, "in segment 1's colour", `${(100 * fine.red).toFixed(1)} % red`);
     check(fine.gaps === 0, 'the finest level has no crack', `${fine.gaps} background pixels inside`);
@@ -190,9 +243,14 @@ await h.run(async () => {
           `${log.filter((r) => r.status === 206).length} range reads`);
     check(errors.length === 0, 'no page errors', errors.join('; '));
 
-    // The coarsest level: a detail cutoff no level fails.
-    await open(['1'], 1e6);
+    // The coarsest level: a detail cutoff that no level of this size fails.
+    since = log.length;
+    await open(['1'], 60000);  // Neuroglancer's largest detail cutoff is 65535
     const coarse = await shoot('neuroglancer-coarse.png');
+    const coarseLevels = levelsRead(log, ranges, since);
+    check(coarseLevels.includes(2) && !coarseLevels.includes(0),
+          'a coarse detail setting draws level 2 and never fetches level 0',
+          `read levels ${coarseLevels}`);
     check(coarse.share > 0.05 && coarse.red > 0.6 * coarse.share, 'the coarsest level shows segment 1');
     check(coarse.gaps === 0, 'the coarsest level has no crack', `${coarse.gaps} background pixels inside`);
     const a = PNG.sync.read(fs.readFileSync(path.join(shots, 'neuroglancer-fine.png')));
@@ -210,9 +268,32 @@ await h.run(async () => {
           `${(100 * inner.blue).toFixed(1)} % blue`);
     check(inner.share < fine.share, 'segment 2 is the smaller sphere');
 
-    // The picture for the docs: segment 1 cut open by a clip? Simply both segments, fine.
-    await open(['1', '2'], 0.5);
-    await page.screenshot({ path: path.join(shots, 'neuroglancer.png') });
+    // The picture for the docs (docs/img/neuroglancer.png): a gyroid ball and two linked
+    // tori beside it, two exports as two segmentation layers, each segment in its colour.
+    const layers = [];
+    for (const [shape, x, color] of [['gyroid', 0, '#e8a33d'], ['link', 52, '#3db4e8']]) {
+      const v = path.join(work, `${shape}.nrrd`), dir = path.join(work, `ng-${shape}`);
+      execFileSync(bin('tandem'), ['generate', shape, '--size', '48', '--origin', `${x},0,0`,
+                                   '--out', v]);
+      execFileSync(bin('tandem'), ['extract', '--input', v, '--iso', '0', '--quiet',
+                                   '--out', path.join(work, `${shape}.ply`), '--neuroglancer', dir]);
+      fs.symlinkSync(dir, path.join(data, shape));
+      layers.push({ type: 'segmentation', name: shape, source: `precomputed://${base}/data/${shape}`,
+                    segments: ['1'], segmentColors: { 1: color } });
+    }
+    const picture = { layers, layout: '3d', showAxisLines: false, showScaleBar: false,
+                      projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
+                      showDefaultAnnotations: false,
+                      projectionOrientation: [0.12, 0.2, 0, 0.972], projectionScale: 8.5e-8,
+                      position: [44, 24, 24] };
+    await page.goto('about:blank');
+    await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(picture))}`);
+    await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+    await waitFor('both layers to load', () => page.evaluate(() => window.viewer.isReady()), 90);
+    await page.addStyleTag({ content: '.neuroglancer-display-dimensions-widget { display: none }' });
+    await sleep(500);
+    const both = await shoot('neuroglancer.png');
+    check(both.share > 0.1, 'two exports side by side in the 3D view', `${(100 * both.share).toFixed(1)} % lit`);
     check(errors.length === 0, 'no page errors at the end', errors.join('; '));
   } finally {
     server.close();
