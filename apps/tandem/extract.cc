@@ -1,5 +1,6 @@
 // tandem extract: a volume, read slice by slice, to simplified iso-surface meshes and
 // their metrics.
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -192,6 +193,8 @@ int ExtractCommand(int argc, char** argv) {
     for (size_t k = 1; k <= coarser; ++k) {
       SessionOptions o = surfaces[i].opt;
       o.error = std::ldexp(o.error, static_cast<int>(k));
+      // Triangles go about as 1 / E0: each level asks for half the count of the one before.
+      if (o.target_triangles > 0) o.target_triangles = std::max<int64_t>(4, o.target_triangles >> k);
       options.push_back(o);
     }
   }

@@ -379,6 +379,19 @@ TEST(NeuroglancerExport, ExtractWritesEachSurfaceWithCoarserSweeps) {
     previous_outer = stored.fragments[0][0].indices.size();
   }
   EXPECT_TRUE(ReadSegment(tmp + "/ng", 3).fragments.empty());
+  // With a triangle target, each level asks for half the triangles of the one before.
+  ASSERT_EQ(
+      Shell(tandem + " extract --input " + tmp + "/s.nrrd --quiet --target-triangles 1200 --out " +
+                tmp + "/t.ply --neuroglancer " + tmp + "/ngt --neuroglancer-lods 3",
+            &out),
+      0)
+      << out;
+  const Stored targeted = ReadSegment(tmp + "/ngt", 1);
+  ASSERT_EQ(targeted.fragments.size(), 3u);
+  for (size_t k = 1; k < 3; ++k) {
+    EXPECT_LT(targeted.fragments[k][0].indices.size(), targeted.fragments[k - 1][0].indices.size())
+        << "level " << k;
+  }
   // Flag mistakes name the flag and exit 2.
   out.clear();
   EXPECT_EQ(Shell(tandem + " extract --input " + tmp + "/s.nrrd --out " + tmp +
