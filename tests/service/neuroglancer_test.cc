@@ -127,6 +127,17 @@ TEST(NeuroglancerShard, BytesByHand) {
   put(5), put(2), put(3), put(1), put(3), put(2);
   EXPECT_EQ(*shard, want);
   EXPECT_FALSE(BuildShard({{1, "", "a"}, {1, "", "b"}}, s).ok());
+  // gzip data: the chunk (the manifest) is compressed, the prefix (the fragments) is not.
+  s.gzip_data = true;
+  s.minishard_bits = 0;
+  auto zipped = BuildShard({{4, "frag", "manifest"}}, s);
+  ASSERT_TRUE(zipped.ok());
+  const uint64_t index_at = 16 + U64(*zipped, 0), index_end = 16 + U64(*zipped, 8);
+  const uint64_t start = 16 + U64(*zipped, index_at + 8), size = U64(*zipped, index_at + 16);
+  EXPECT_EQ(index_at, start + size);
+  EXPECT_EQ(index_end, index_at + 24);
+  EXPECT_EQ(zipped->substr(start - 4, 4), "frag");
+  EXPECT_EQ(Gunzip(zipped->substr(start, size)), "manifest");
 }
 
 TEST(NeuroglancerManifest, BytesByHand) {
