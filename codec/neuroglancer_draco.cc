@@ -5,27 +5,17 @@
 #include <memory>
 
 #include "absl/strings/str_cat.h"
+#include "codec/draco_encode.h"
 #include "draco/compression/decode.h"
-#include "draco/compression/encode.h"
 #include "draco/core/decoder_buffer.h"
-#include "draco/core/encoder_buffer.h"
 #include "draco/mesh/mesh.h"
 
 namespace tandem::codec {
 namespace {
 
 absl::StatusOr<std::string> Encode(const draco::Mesh& mesh, int level) {
-  draco::Encoder encoder;
-  const int speed = 10 - level;
-  encoder.SetSpeedOptions(speed, speed);
-  encoder.SetEncodingMethod(level == 0 ? draco::MESH_SEQUENTIAL_ENCODING
-                                       : draco::MESH_EDGEBREAKER_ENCODING);
-  draco::EncoderBuffer buffer;
-  const draco::Status st = encoder.EncodeMeshToBuffer(mesh, &buffer);
-  if (!st.ok()) {
-    return absl::InternalError(absl::StrCat("Draco encoding failed: ", st.error_msg_string()));
-  }
-  return std::string(buffer.data(), buffer.size());
+  draco::Encoder encoder;  // no quantization: Neuroglancer takes the integers as they are
+  return EncodeMeshAtLevel(encoder, mesh, level);
 }
 
 absl::StatusOr<std::unique_ptr<draco::Mesh>> Decode(std::string_view bytes) {
