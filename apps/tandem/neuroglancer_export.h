@@ -20,7 +20,8 @@ namespace tandem::app {
 double DefaultNmPerUnit(const VolumeInfo& info);
 
 // One segment per (id, levels finest first); every segment has the same number of levels.
-// The label mode hands its per-label surfaces here as iso-surfaces hand theirs.
+// The label mode's hook: its sessions' SplitByLabel results, one per level, joined by
+// io::JoinLevels, come here as the iso-surfaces' (id 1..N) do.
 absl::Status WriteNeuroglancerExport(
     const std::string& dir, const VolumeInfo& info,
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,

@@ -98,6 +98,20 @@ absl::Status CheckSegment(const NeuroglancerSegment& s, size_t lods) {
 
 }  // namespace
 
+std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> JoinLevels(
+    std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> levels) {
+  std::map<LabelId, std::vector<IndexedMesh>> by_label;
+  for (size_t k = 0; k < levels.size(); ++k) {
+    for (auto& [id, mesh] : levels[k]) {
+      std::vector<IndexedMesh>& lods = by_label[id];
+      lods.resize(levels.size());
+      lods[k] = std::move(mesh);
+    }
+    levels[k].clear();
+  }
+  return {std::make_move_iterator(by_label.begin()), std::make_move_iterator(by_label.end())};
+}
+
 std::string EncodeManifest(const NeuroglancerManifest& m) {
   std::string out;
   for (float f : m.chunk_shape) PutF32(&out, f);

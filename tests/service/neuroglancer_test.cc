@@ -260,6 +260,10 @@ Stored ReadSegment(const std::string& dir, uint64_t want) {
   out.fragments.resize(lods);
   for (size_t k = 0; k < lods; ++k) {
     for (uint32_t bytes : sizes[k]) {
+      if (bytes == 0) {  // an empty node
+        out.fragments[k].emplace_back();
+        continue;
+      }
       auto decoded = codec::DecodeNeuroglancerFragment(shard.substr(frag, bytes));
       EXPECT_TRUE(decoded.ok()) << decoded.status();
       out.fragments[k].push_back(decoded.ok() ? *decoded : codec::IntegerMesh{});
@@ -416,6 +420,33 @@ TEST(NeuroglancerExport, ExtractWritesEachSurfaceWithCoarserSweeps) {
                   &out),
             2);
   EXPECT_NE(out.find("go with --neuroglancer DIR"), std::string::npos) << out;
+}
+
+TEST(NeuroglancerExport, JoinLevelsGivesEachLabelAllItsLevels) {
+  const IndexedMesh a = Octahedron({0, 0, 0}, 1, 1), b = Octahedron({5, 0, 0}, 1, 1),
+                    c = Octahedron({5, 0, 0}, 2, 2);
+  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> levels(2);
+  levels[0] = {{3, a}, {9, b}};
+  levels[1] = {{9, c}};  // label 3 gone at the coarser level
+  const auto joined = JoinLevels(std::move(levels));
+  ASSERT_EQ(joined.size(), 2u);
+  EXPECT_EQ(joined[0].first, 3u);
+  ASSERT_EQ(joined[0].second.size(), 2u);
+  EXPECT_EQ(joined[0].second[0].num_triangles(), 8u);
+  EXPECT_EQ(joined[0].second[1].num_triangles(), 0u);
+  EXPECT_EQ(joined[1].first, 9u);
+  EXPECT_EQ(joined[1].second[1].positions[0].x, 7.0f);
+  // An empty level writes an empty node, and the other levels stay readable.
+  const std::string dir = testing::MakeTempDir() + "/ng";
+  std::vector<NeuroglancerSegment> segments;
+  for (const auto& [id, lods] : joined) segments.push_back({id, lods});
+  VolumeInfo grid;
+  grid.nx = grid.ny = grid.nz = 8;
+  ASSERT_TRUE(WriteNeuroglancer(dir, grid, segments, DracoOptions()).ok());
+  const Stored three = ReadSegment(dir, 3);
+  ASSERT_EQ(three.fragments.size(), 2u);
+  EXPECT_EQ(three.fragments[0][0].indices.size(), 24u);
+  EXPECT_TRUE(three.fragments[1][0].indices.empty());
 }
 
 TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {

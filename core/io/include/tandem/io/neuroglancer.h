@@ -13,6 +13,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -73,6 +74,12 @@ struct NeuroglancerOptions {
 absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
                                std::span<const NeuroglancerSegment> segments,
                                const NeuroglancerOptions& options);
+
+// Per label, its surface at every level, from one SplitByLabel result per level (finest
+// first): labels in increasing id, a label missing at a level gets an empty mesh there (its
+// node is then empty, which Neuroglancer skips).
+std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> JoinLevels(
+    std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> levels);
 
 // --- The format's pieces, for tests and readers. ---
 
