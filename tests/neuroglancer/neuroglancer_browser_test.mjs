@@ -238,6 +238,27 @@ await h.run(async () => {
     check(fine.share > 0.05, 'the 3D panel shows segment 1', `${(100 * fine.share).toFixed(1)} % lit`);
     check(fine.red > 0.6 * fine.share, "in segment 1's colour", `${(100 * fine.red).toFixed(1)} % red`);
     check(fine.gaps === 0, 'the finest level has no crack', `${fine.gaps} background pixels inside`);
+    {
+      // The detector itself: a 3 x 3 hole punched into the surface's middle is counted.
+      const file = path.join(shots, 'neuroglancer-fine.png');
+      const png = PNG.sync.read(fs.readFileSync(file));
+      let sx = 0, sy = 0, m = 0;
+      for (let p = 0; p < png.width * png.height; p++) {
+        if (png.data[4 * p] > 100 && png.data[4 * p] > 1.5 * png.data[4 * p + 2]) {
+          sx += p % png.width, sy += Math.floor(p / png.width), m++;
+        }
+      }
+      const [cx, cy] = [Math.round(sx / m), Math.round(sy / m)];
+      for (let dy = -1; dy <= 1; dy++) {
+        for (let dx = -1; dx <= 1; dx++) {
+          const at = 4 * ((cy + dy) * png.width + cx + dx);
+          png.data.fill(0, at, at + 3);
+        }
+      }
+      const punched = path.join(shots, 'neuroglancer-punched.png');
+      fs.writeFileSync(punched, PNG.sync.write(png));
+      check(measure(punched, PNG).gaps === 9, 'the crack check counts a punched hole');
+    }
     check(log.some((r) => r.status === 206 && r.path.endsWith('.shard')),
           'Neuroglancer read the shard by byte ranges',
           `${log.filter((r) => r.status === 206).length} range reads`);
