@@ -1,4 +1,4 @@
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 
 #include <algorithm>
 #include <array>
@@ -11,7 +11,7 @@
 
 #include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
-#include "codec/draco_encode.h"
+#include "draco_encode.h"
 #include "draco/compression/config/compression_shared.h"
 #include "draco/compression/decode.h"
 #include "draco/compression/encode.h"

@@ -1,11 +1,11 @@
 // Neuroglancer mesh fragments as Draco meshes with integer positions (neuroglancer_draco.h).
-#include "codec/neuroglancer_draco.h"
+#include "tandem/codec/neuroglancer_draco.h"
 
 #include <limits>
 #include <memory>
 
 #include "absl/strings/str_cat.h"
-#include "codec/draco_encode.h"
+#include "draco_encode.h"
 #include "draco/compression/decode.h"
 #include "draco/core/decoder_buffer.h"
 #include "draco/mesh/mesh.h"

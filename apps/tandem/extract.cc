@@ -18,7 +18,7 @@
 #include "apps/tandem/command.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "apps/tandem/neuroglancer_export.h"
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #endif
 #include "tandem/eval/distance.h"
 #include "tandem/io/follow.h"

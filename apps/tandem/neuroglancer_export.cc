@@ -3,7 +3,7 @@
 
 #include <utility>
 
-#include "codec/neuroglancer_draco.h"
+#include "tandem/codec/neuroglancer_draco.h"
 #include "tandem/io/neuroglancer.h"
 
 namespace tandem::app {

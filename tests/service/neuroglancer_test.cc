@@ -17,7 +17,7 @@
 #include <set>
 #include <sstream>
 
-#include "codec/neuroglancer_draco.h"
+#include "tandem/codec/neuroglancer_draco.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "testutil/testutil.h"
