@@ -5,10 +5,10 @@
 #include <memory>
 
 #include "absl/strings/str_cat.h"
-#include "draco_encode.h"
 #include "draco/compression/decode.h"
 #include "draco/core/decoder_buffer.h"
 #include "draco/mesh/mesh.h"
+#include "draco_encode.h"
 
 namespace tandem::codec {
 namespace {

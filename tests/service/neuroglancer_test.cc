@@ -17,9 +17,9 @@
 #include <set>
 #include <sstream>
 
-#include "tandem/codec/neuroglancer_draco.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "tandem/codec/neuroglancer_draco.h"
 #include "testutil/testutil.h"
 
 namespace tandem::io {
