@@ -6,7 +6,10 @@
 //                [--min-voxels 64] [--max-labels 1000] [--seed 1] [--dtype uint32]
 //   labels_bench reference --input V.json --out DIR    one PLY per label, <id>.ply
 //   labels_bench measure --input V.json --method NAME=DIR[,FULLDIR] [--method ...] --out M.json
-//                [--gap-samples 32] [--rms-samples 20000] [--margin 2] [--threads 2]
+//                [--gap-samples 32] [--rms-samples 20000] [--margin 2] [--margin-length X]
+//                [--threads 2]
+// (--margin-length: the interface samples' margin as a length, per axis, when more voxels than
+// --margin; labels_lib.h MarginFor)
 // measure: for each method (a folder of <id>.ply, one surface per label), per label the RMS
 // and Hausdorff distances to the label's reference surface (both directions, the larger) and,
 // given FULLDIR (the method's own full-resolution surfaces), the RMS distance to those too,
@@ -182,7 +185,8 @@ int Measure(int argc, char** argv) {
   const LabelVolume v = labels::ReadLabelVolume(bench::Require(f, "input"));
   const size_t gap_samples = std::stoull(Get(f, "gap-samples", "32"));
   const size_t rms_samples = std::stoull(Get(f, "rms-samples", "20000"));
-  const int margin = std::stoi(Get(f, "margin", "2"));
+  const labels::Margin margin =
+      labels::MarginFor(v, std::stoi(Get(f, "margin", "2")), std::stod(Get(f, "margin-length", "0")));
   const int threads = std::max(1, std::stoi(Get(f, "threads", "2")));
 
   const std::vector<LabelBox> boxes = labels::LabelBoxes(v);
@@ -236,7 +240,7 @@ int Measure(int argc, char** argv) {
                         {"pairs", pairs.size()},
                         {"pairs_sampled", pairs_sampled},
                         {"gap_samples", samples},
-                        {"margin_voxels", margin},
+                        {"margin_voxels", {margin[0], margin[1], margin[2]}},
                         {"spacing", v.spacing},
                         {"methods", nlohmann::json::object()}};
   std::printf("%zu labels, %zu reference triangles, %zu touching pairs (%zu sampled, %zu samples)\n",

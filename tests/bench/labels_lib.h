@@ -399,17 +399,19 @@ inline tandem::IndexedMesh ReferenceSurface(const LabelVolume& v, const LabelBox
 }
 
 // Interface samples of two touching labels a < b: midpoints of 6-adjacent voxel pairs of a
-// and b whose neighbourhood (`margin` voxels around both) holds no third label.
+// and b whose neighbourhood (margin[axis] voxels around both) holds no third label.
 struct PairSamples {
   uint32_t a = 0, b = 0;
   int64_t faces = 0;  // every a-b voxel face, interior or not
   std::vector<tandem::Vec3> points;
 };
 
+using Margin = std::array<int, 3>;
+
 inline bool OnlyTwoLabels(const LabelVolume& v, int64_t i, int64_t j, int64_t k, int axis,
-                          int margin, uint32_t a, uint32_t b) {
-  int64_t lo[3] = {i - margin, j - margin, k - margin};
-  int64_t hi[3] = {i + margin, j + margin, k + margin};
+                          const Margin& margin, uint32_t a, uint32_t b) {
+  int64_t lo[3] = {i - margin[0], j - margin[1], k - margin[2]};
+  int64_t hi[3] = {i + margin[0], j + margin[1], k + margin[2]};
   hi[axis] += 1;  // the face's second voxel
   const int64_t dims[3] = {v.nx, v.ny, v.nz};
   for (int d = 0; d < 3; ++d) {
@@ -431,7 +433,8 @@ inline bool OnlyTwoLabels(const LabelVolume& v, int64_t i, int64_t j, int64_t k,
 // (a, b); faces are drawn in a fixed pseudo-random order, so the samples spread over the
 // interface and repeat from run to run.
 inline std::vector<PairSamples> InterfaceSamples(const LabelVolume& v, size_t per_pair,
-                                                 int margin = 2, uint32_t background = 0) {
+                                                 const Margin& margin = {2, 2, 2},
+                                                 uint32_t background = 0) {
   std::unordered_map<uint64_t, size_t> slot;
   std::vector<PairSamples> pairs;
   std::vector<std::vector<uint64_t>> faces;  // voxel index * 3 + axis
@@ -476,6 +479,17 @@ inline std::vector<PairSamples> InterfaceSamples(const LabelVolume& v, size_t pe
   std::sort(pairs.begin(), pairs.end(),
             [](const PairSamples& x, const PairSamples& y) { return std::pair(x.a, x.b) < std::pair(y.a, y.b); });
   return pairs;
+}
+
+// margin voxels on each axis, or more where `physical` (a length) needs more: a method whose
+// surfaces move by up to E from the full-resolution ones needs about 3 E, so that the point
+// of A's surface nearest a sample is on the A-B interface rather than on another one.
+inline Margin MarginFor(const LabelVolume& v, int voxels, double physical) {
+  Margin m;
+  for (int a = 0; a < 3; ++a) {
+    m[a] = std::max(voxels, int(std::ceil(physical / v.spacing[a] - 1e-9)));
+  }
+  return m;
 }
 
 // The gap at interface sample p between the surfaces of two labels (see the file comment).

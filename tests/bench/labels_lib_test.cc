@@ -74,7 +74,7 @@ LabelVolume TwoBlocks(int64_t n, int64_t split, uint32_t a, uint32_t b, uint32_t
 
 TEST(InterfaceTest, SamplesLieOnTheInterfaceAwayFromOtherLabels) {
   const LabelVolume v = TwoBlocks(10, 5, 70000, 9, 123456);
-  const auto pairs = InterfaceSamples(v, 1000, 2);
+  const auto pairs = InterfaceSamples(v, 1000, {2, 2, 2});
   // Pairs (9, 70000), (9, 123456), (70000, 123456), in increasing order.
   ASSERT_EQ(pairs.size(), 3u);
   EXPECT_EQ(pairs[0].a, 9u);
@@ -87,7 +87,19 @@ TEST(InterfaceTest, SamplesLieOnTheInterfaceAwayFromOtherLabels) {
     // No voxel of label c within 2 voxels: j <= 1 and k <= 1 hold c, so y >= 4 or z >= 4 voxels.
     EXPECT_TRUE(p.y >= 4 || p.z >= 2 * 4) << p.y << " " << p.z;
   }
-  EXPECT_EQ(InterfaceSamples(v, 5, 2)[0].points.size(), 5u);
+  EXPECT_EQ(InterfaceSamples(v, 5, {2, 2, 2})[0].points.size(), 5u);
+  // A wider margin along y keeps samples farther from the corner block.
+  for (const Vec3& p : InterfaceSamples(v, 1000, {2, 4, 2})[0].points) {
+    EXPECT_TRUE(p.y >= 6 || p.z >= 2 * 4) << p.y << " " << p.z;
+  }
+}
+
+TEST(InterfaceTest, MarginFollowsAPhysicalLengthPerAxis) {
+  LabelVolume v;
+  v.spacing = {4, 4, 40};
+  EXPECT_EQ(MarginFor(v, 2, 12), (Margin{3, 3, 2}));
+  EXPECT_EQ(MarginFor(v, 2, 0), (Margin{2, 2, 2}));
+  EXPECT_EQ(MarginFor(v, 1, 81), (Margin{21, 21, 3}));
 }
 
 TEST(InterfaceTest, ReferenceSurfacesOfTouchingLabelsHaveNoGap) {
@@ -99,7 +111,7 @@ TEST(InterfaceTest, ReferenceSurfacesOfTouchingLabelsHaveNoGap) {
   ASSERT_GT(ma.num_triangles(), 0u);
   const TriangleBvh a(ma), b(mb);
   const TriangleBvh b_moved(Shifted(mb, {0.5, 0, 0}));
-  const auto pairs = InterfaceSamples(v, 64, 2);
+  const auto pairs = InterfaceSamples(v, 64, {2, 2, 2});
   ASSERT_EQ(pairs.size(), 1u);
   ASSERT_FALSE(pairs[0].points.empty());
   for (const Vec3& p : pairs[0].points) {
