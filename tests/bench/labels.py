@@ -260,12 +260,12 @@ def write_report(path, results, meta, args):
                   f"with interface samples, {ms['gap_samples']:,} samples).", ""]
         L += ["| method | wall s | CPU s | peak RSS MiB | triangles | RMS geomean / worst "
               f"({u}) | RMS to own full res. | gap max / mean ({u}) | gap-free samples | "
-              "non-manifold labels |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "non-manifold labels | topology changed |", "|---|---|---|---|---|---|---|---|---|---|---|"]
         for name, r in res["methods"].items():
             mm = (ms or {}).get("methods", {}).get(name)
             if mm is None:
                 L.append(f"| {name} | {fmt(r['wall_s'])} | {fmt(r['cpu_s'])} | "
-                         f"{fmt(mib(r['peak_rss_bytes']), '.0f')} | (as vtk-dfe) | | | | | |")
+                         f"{fmt(mib(r['peak_rss_bytes']), '.0f')} | (as vtk-dfe) | | | | | | |")
                 continue
             own = (f"{fmt(mm['rms_own_geomean'])} / {fmt(mm['rms_own_max'])}"
                    if mm.get("rms_own_labels") else "–")
@@ -275,13 +275,16 @@ def write_report(path, results, meta, args):
                      f"{fmt(mib(r['peak_rss_bytes']), '.0f')} | {mm['triangles']:,} | "
                      f"{fmt(mm['rms_geomean'])} / {fmt(mm['rms_max'])} | {own} | "
                      f"{fmt(mm['gap_max'])} / {fmt(mm['gap_mean'])} | {zero} | "
-                     f"{mm['nonmanifold_labels']} |")
+                     f"{mm['nonmanifold_labels']} | "
+                     f"{mm.get('topology_changed_labels', '–') if mm.get('rms_own_labels') else '–'} |")
         if not meta["tandem"]:
-            L.append("| tandem | not yet | | | | | | | | |")
+            L.append("| tandem | not yet | | | | | | | | | |")
         L += ["", "Commands (BIN: the benchmark's build, SCRATCH: its scratch folder):", "```"]
         cmds = [r["command"] for r in res["methods"].values()] + [res.get("measure_command")]
         for c in filter(None, cmds):
-            L.append(c.replace(args.bin.rstrip("/"), "BIN").replace(args.scratch.rstrip("/"), "SCRATCH"))
+            for path, tag in ((meta.get("bin"), "BIN"), (meta.get("scratch"), "SCRATCH")):
+                c = c.replace(path, tag) if path else c
+            L.append(c)
         L += ["```", ""]
     L += ["## What is measured", "",
           "- **Time, CPU, peak RSS**: the method's process from start to its last PLY written "
@@ -301,14 +304,16 @@ def write_report(path, results, meta, args):
           "of two 6-adjacent voxels, one of A and one of B, with no third label within 2 voxels "
           "of either, or within 3 E where that is more voxels, so that for a method whose "
           "surfaces move by up to E the point of A's surface nearest the sample lies on the A-B "
-          f"interface; up to {args.gap_samples} a pair, drawn at random), q = the point of A's "
+          f"interface; up to {meta.get('gap_samples', 32)} a pair, drawn at random), q = the point of A's "
           "surface closest to p and gap = distance from q to B's surface; the same with A and "
           "B swapped; the larger of the two. It is 0 wherever the two surfaces keep the same "
           "triangles (or coplanar ones) near p, and measures how far apart they drift where "
           "each label is simplified on its own. Max over every sample and mean over every "
           "sample; \"gap-free\": the share of samples below 10⁻⁶ of the smallest spacing.",
           "- **Non-manifold labels**: labels whose surface has an edge in 3+ triangles, a "
-          "pinched vertex or inconsistent orientation (tandem_core's AnalyzeTopology).", ""]
+          "pinched vertex or inconsistent orientation (tandem_core's AnalyzeTopology). "
+          "**Topology changed**: labels whose Euler characteristic or number of components "
+          "differs from the method's own full-resolution surface of the label.", ""]
     L += ["## zmesh", "",
           "zmesh (seung-lab/zmesh: marching cubes over every label, then each label "
           "simplified on its own by a quadric simplifier; the mesher of Igneous) is not built "
@@ -325,7 +330,9 @@ def write_report(path, results, meta, args):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--bin", required=True)
+    ap.add_argument("--bin", help="the benchmark build's bin folder (required unless --from-json)")
+    ap.add_argument("--from-json", metavar="LABELS.json", help="only write the report again from "
+                    "the results of an earlier run (runs nothing)")
     ap.add_argument("--quick", action="store_true", help="the small Voronoi volume only, 1 run")
     ap.add_argument("--repeats", type=int, help="runs per method (default 3, --quick 1)")
     ap.add_argument("--data", default=os.path.normpath(os.path.join(ROOT, "..", "shared", "data")))
@@ -337,6 +344,15 @@ def main():
     ap.add_argument("--gap-samples", type=int, default=32, help="interface samples a pair")
     ap.add_argument("--rms-samples", type=int, default=20000, help="samples a label, at most")
     args = ap.parse_args()
+    if args.from_json:
+        with open(args.from_json) as f:
+            saved = json.load(f)
+        report = args.report or os.path.join(HERE, "LABELS.md")
+        write_report(report, saved["inputs"], saved["meta"], args)
+        log(f"wrote {report}")
+        return
+    if not args.bin:
+        ap.error("--bin is required")
     args.repeats = args.repeats or (1 if args.quick else 3)
     report = args.report or (os.path.join(args.scratch, "LABELS.md") if args.quick
                              else os.path.join(HERE, "LABELS.md"))
@@ -370,6 +386,8 @@ def main():
     meta = {"machine": bench.machine_info(), "packages": bench.package_versions(),
             "failures": failures, "mode": "quick" if args.quick else "full",
             "repeats": args.repeats, "tandem": have_tandem,
+            "bin": args.bin.rstrip("/"), "scratch": args.scratch.rstrip("/"),
+            "gap_samples": args.gap_samples,
             "elapsed_s": time.perf_counter() - t_start}
     with open(results_json, "w") as f:
         json.dump({"meta": meta, "inputs": results}, f, indent=1)

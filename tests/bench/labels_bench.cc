@@ -12,7 +12,8 @@
 // --margin; labels_lib.h MarginFor)
 // measure: for each method (a folder of <id>.ply, one surface per label), per label the RMS
 // and Hausdorff distances to the label's reference surface (both directions, the larger) and,
-// given FULLDIR (the method's own full-resolution surfaces), the RMS distance to those too,
+// given FULLDIR (the method's own full-resolution surfaces), the RMS distance to those too and
+// whether the label's Euler characteristic or number of components changed,
 // its triangles and whether it is a manifold; per touching pair the gap at the pair's
 // interface samples. Prints a summary and writes everything to M.json.
 #include <atomic>
@@ -138,6 +139,7 @@ struct LabelResult {
   size_t triangles = 0;
   double rms = NAN, hausdorff = NAN, rms_own = NAN;
   bool manifold = true;
+  bool topology_changed = false;  // Euler characteristic or components unlike its own full res.
 };
 
 struct Method {
@@ -207,7 +209,8 @@ int Measure(int argc, char** argv) {
       if (!LoadSurface(m.dir, boxes[s].id, &mesh)) continue;
       r.found = true;
       r.triangles = mesh.num_triangles();
-      r.manifold = tandem::AnalyzeTopology(mesh).IsManifold();
+      const tandem::TopologyReport topology = tandem::AnalyzeTopology(mesh);
+      r.manifold = topology.IsManifold();
       tandem::DistanceOptions opt;
       opt.threads = 1;
       opt.samples = std::clamp<size_t>(2 * mesh.num_triangles(), 1000, rms_samples);
@@ -223,6 +226,9 @@ int Measure(int argc, char** argv) {
       opt.samples = std::clamp<size_t>(2 * full.num_triangles(), 1000, rms_samples);
       const auto own_bwd = tandem::MeasureDirectedDistance(full, tandem::TriangleBvh(mesh), opt);
       r.rms_own = std::max(own_fwd.l2, own_bwd.l2);
+      const tandem::TopologyReport full_topology = tandem::AnalyzeTopology(full);
+      r.topology_changed = topology.euler != full_topology.euler ||
+                           topology.components != full_topology.components;
     }
   });
 
@@ -284,7 +290,7 @@ int Measure(int argc, char** argv) {
     double rms_own_max = 0;
     double rms_max = 0, hausdorff_max = 0;
     uint32_t worst = 0;
-    size_t found = 0, triangles = 0, nonmanifold = 0;
+    size_t found = 0, triangles = 0, nonmanifold = 0, topology_changed = 0;
     nlohmann::json per_label = nlohmann::json::array();
     for (size_t s = 0; s < boxes.size(); ++s) {
       const LabelResult& r = m.per_label[s];
@@ -292,6 +298,7 @@ int Measure(int argc, char** argv) {
       ++found;
       triangles += r.triangles;
       nonmanifold += !r.manifold;
+      topology_changed += r.topology_changed;
       if (!std::isnan(r.rms)) {
         rms.push_back(r.rms);
         if (r.rms > rms_max) {
@@ -315,15 +322,16 @@ int Measure(int argc, char** argv) {
         {"rms_geomean", GeoMean(rms)},    {"rms_max", rms_max},
         {"rms_max_label", worst},         {"hausdorff_max", hausdorff_max},
         {"rms_own_geomean", GeoMean(rms_own)}, {"rms_own_max", rms_own_max},
-        {"rms_own_labels", rms_own.size()},
+        {"rms_own_labels", rms_own.size()}, {"topology_changed_labels", topology_changed},
         {"gap_max", gap_max},             {"gap_mean", gap_mean},
         {"gap_samples", gap_n},           {"gap_zero_samples", gap_zero},
         {"per_label", per_label}};
     std::printf("%-14s labels %zu/%zu  triangles %zu  rms geomean %.4g max %.4g (own full "
                 "resolution: %.4g, %.4g)  gap max %.4g mean %.4g (%zu samples, %zu zero)  "
-                "non-manifold %zu\n",
+                "non-manifold %zu, topology changed %zu\n",
                 m.name.c_str(), found, boxes.size(), triangles, GeoMean(rms), rms_max,
-                GeoMean(rms_own), rms_own_max, gap_max, gap_mean, gap_n, gap_zero, nonmanifold);
+                GeoMean(rms_own), rms_own_max, gap_max, gap_mean, gap_n, gap_zero, nonmanifold,
+                topology_changed);
   }
   std::ofstream js(bench::Require(f, "out"));
   js << out.dump(1) << "\n";
