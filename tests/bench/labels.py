@@ -60,18 +60,32 @@ METHODS = {
 }
 
 
-def tandem_label_support(tandem):
-    """Whether the CLI has `extract --labels` (the label mode), and the label dtype it reads."""
-    p = subprocess.run([tandem, "extract", "--help"], capture_output=True, text=True)
-    has_labels = "--labels" in (p.stdout + p.stderr)
-    return has_labels
-
-
 def reads_uint32(tandem, scratch, labels_bench):
     """Whether tandem's readers take a uint32 sidecar (tandem info on a tiny one)."""
     probe = os.path.join(scratch, "probe-uint32.json")
     bench.run_tool([labels_bench, "voronoi", "--out", probe, "--dims", "4,4,4", "--cells", "2"])
-    return subprocess.run([tandem, "info", probe], capture_output=True).returncode == 0
+    return subprocess.run([tandem, "info", "--input", probe], capture_output=True).returncode == 0
+
+
+def tandem_label_mode(tandem, scratch, labels_bench, dtype):
+    """(None, None) when `tandem extract --labels` meshes a tiny label volume; (why, None) when
+    it is not there yet (no --labels in the CLI, or an engine without the label mode); (None,
+    problem) when it is there and fails."""
+    help_text = subprocess.run([tandem, "extract", "--help"], capture_output=True, text=True)
+    if "--labels" not in help_text.stdout + help_text.stderr:
+        return "this CLI has no `extract --labels`", None
+    probe = os.path.join(scratch, f"probe-labels-{dtype}.json")
+    out = os.path.join(scratch, "probe-labels-out")
+    shutil.rmtree(out, ignore_errors=True)
+    bench.run_tool([labels_bench, "voronoi", "--out", probe, "--dims", "12,12,6", "--cells", "4",
+                    "--background", "0", "--dtype", dtype])
+    p = subprocess.run([tandem, "extract", "--input", probe, "--labels", "--error", "4",
+                        "--out", out + "/", "--quiet"], capture_output=True, text=True)
+    if p.returncode == 0 and os.path.isdir(out) and per_label_counts(out):
+        return None, None
+    why = (p.stderr.strip().splitlines() or [f"exit status {p.returncode}"])[-1]
+    why = why.replace(probe, "PROBE")
+    return (why, None) if "no label mode" in why else (None, why)
 
 
 def make_input(spec, bins, args, dtype):
@@ -225,6 +239,7 @@ def unit_of(res):
 
 
 def write_report(path, results, meta, args):
+    notes = bench.read_notes(path)  # the hand-written findings stay
     L = ["# Segmentation benchmark: every label's surface, tandem against VTK", "",
          f"Written by `tests/bench/labels.py` (`bash tests/bench/run.sh --labels"
          f"{' --quick' if meta['mode'] == 'quick' else ''}`) on {meta['machine']['date']}, "
@@ -235,10 +250,13 @@ def write_report(path, results, meta, args):
           f"start {', '.join(f'{x:.2f}' for x in m['load_average_at_start'])}. VTK: "
           f"{meta['packages'].get('libvtk9-dev', '?')}.", ""]
     if not meta["tandem"]:
-        L += ["**tandem: not yet.** The CLI built here has no `extract --labels` (the label mode "
-              "is on its way to main); its rows appear once it does. The VTK peers then simplify "
-              "each label to 10 % of its triangles.", ""]
+        L += ["**tandem: not yet.** `tandem extract --labels` of this build does not mesh a "
+              f"label volume (it says: \"{meta.get('tandem_not_yet') or 'no --labels'}\"); its rows "
+              "appear once the label mode is on main. The VTK peers then simplify each label to "
+              "10 % of its triangles.", ""]
     L += ["zmesh (seung-lab/zmesh) is not in the table: see \"zmesh\" below.", ""]
+    if notes:
+        L += [notes, ""]
     for res in results:
         if res is None:
             continue
@@ -323,6 +341,8 @@ def write_report(path, results, meta, args):
           "could not be assembled; the workplace's rules also keep code brought in that way, "
           "and recipes that build it, out of the repository. Its design is vtk-dfe+qd's "
           "(each label simplified alone), so its gaps are of the same kind.", ""]
+    if meta["failures"]:
+        L += ["## Failures", ""] + ["```\n" + f.strip() + "\n```" for f in meta["failures"]] + [""]
     with open(path, "w") as f:
         f.write("\n".join(L))
 
@@ -370,22 +390,26 @@ def main():
     if "peer_vtk_labels" not in bins:
         log("SKIP the VTK peers: peer_vtk_labels is not built (VTK 9 missing: "
             "bash tests/bench/install-peers.sh)")
-    have_tandem = tandem_label_support(bins["tandem"])
-    if not have_tandem:
-        log("tandem: not yet (this CLI has no `extract --labels`); the peers run alone")
     dtype = "uint32" if reads_uint32(bins["tandem"], args.scratch, bins["labels_bench"]) else "uint16"
-    if have_tandem and dtype != "uint32":
+    if dtype != "uint32":
         log("tandem reads no uint32 volume yet: the ids are scattered over uint16")
+    why_not, problem = tandem_label_mode(bins["tandem"], args.scratch, bins["labels_bench"], dtype)
+    have_tandem = why_not is None
+    if why_not:
+        log(f"tandem: not yet ({why_not}); the peers run alone")
 
     t_start = time.perf_counter()
     specs = [VORONOI_QUICK] if args.quick else [VORONOI_FULL, CT_ENGINE]
     failures, results = [], []
+    if problem:
+        log(f"FAILED tandem's label mode on a tiny volume: {problem}")
+        failures.append(f"tandem extract --labels on a 12x12x6 Voronoi volume: {problem}")
     for spec in specs:
         results.append(bench_input(spec, bins, args, dtype, have_tandem, failures))
     results = [r for r in results if r is not None]
     meta = {"machine": bench.machine_info(), "packages": bench.package_versions(),
             "failures": failures, "mode": "quick" if args.quick else "full",
-            "repeats": args.repeats, "tandem": have_tandem,
+            "repeats": args.repeats, "tandem": have_tandem, "tandem_not_yet": why_not,
             "bin": args.bin.rstrip("/"), "scratch": args.scratch.rstrip("/"),
             "gap_samples": args.gap_samples,
             "elapsed_s": time.perf_counter() - t_start}
