@@ -214,6 +214,8 @@ def bench_input(spec, bins, args, dtype, have_tandem, failures):
     log(f"  measured in {time.perf_counter() - t0:.0f} s")
     with open(os.path.join(work, "measure.json")) as f:
         res["measure"] = json.load(f)
+    for mm in res["measure"]["methods"].values():  # per label: in SCRATCH's measure.json only
+        mm.pop("per_label", None)
     res["measure_command"] = " ".join(cmd)
     # Shared interfaces leave no gap: a method claimed to share them must show none.
     for m in ("vtk-dfe", "tandem", "tandem-full"):
@@ -232,6 +234,14 @@ def bench_input(spec, bins, args, dtype, have_tandem, failures):
         for r in results.values():
             shutil.rmtree(r["dir"], ignore_errors=True)
     return res
+
+
+def length(x, res):
+    """A length of the report: 0 below 10^-9 of the smallest spacing (round-off, and the
+    geometric mean's floor for labels at 0)."""
+    if x is None:
+        return "–"
+    return "0" if abs(x) < 1e-9 * min(res["measure"]["spacing"]) else fmt(x)
 
 
 def unit_of(res):
@@ -285,14 +295,14 @@ def write_report(path, results, meta, args):
                 L.append(f"| {name} | {fmt(r['wall_s'])} | {fmt(r['cpu_s'])} | "
                          f"{fmt(mib(r['peak_rss_bytes']), '.0f')} | (as vtk-dfe) | | | | | | |")
                 continue
-            own = (f"{fmt(mm['rms_own_geomean'])} / {fmt(mm['rms_own_max'])}"
+            own = (f"{length(mm['rms_own_geomean'], res)} / {length(mm['rms_own_max'], res)}"
                    if mm.get("rms_own_labels") else "–")
             zero = (f"{100 * mm['gap_zero_samples'] / mm['gap_samples']:.1f} %"
                     if mm["gap_samples"] else "–")
             L.append(f"| {name} | {fmt(r['wall_s'])} | {fmt(r['cpu_s'])} | "
                      f"{fmt(mib(r['peak_rss_bytes']), '.0f')} | {mm['triangles']:,} | "
-                     f"{fmt(mm['rms_geomean'])} / {fmt(mm['rms_max'])} | {own} | "
-                     f"{fmt(mm['gap_max'])} / {fmt(mm['gap_mean'])} | {zero} | "
+                     f"{length(mm['rms_geomean'], res)} / {length(mm['rms_max'], res)} | {own} | "
+                     f"{length(mm['gap_max'], res)} / {length(mm['gap_mean'], res)} | {zero} | "
                      f"{mm['nonmanifold_labels']} | "
                      f"{mm.get('topology_changed_labels', '–') if mm.get('rms_own_labels') else '–'} |")
         if not meta["tandem"]:
@@ -300,8 +310,8 @@ def write_report(path, results, meta, args):
         L += ["", "Commands (BIN: the benchmark's build, SCRATCH: its scratch folder):", "```"]
         cmds = [r["command"] for r in res["methods"].values()] + [res.get("measure_command")]
         for c in filter(None, cmds):
-            for path, tag in ((meta.get("bin"), "BIN"), (meta.get("scratch"), "SCRATCH")):
-                c = c.replace(path, tag) if path else c
+            for prefix, tag in ((meta.get("bin"), "BIN"), (meta.get("scratch"), "SCRATCH")):
+                c = c.replace(prefix, tag) if prefix else c
             L.append(c)
         L += ["```", ""]
     L += ["## What is measured", "",
