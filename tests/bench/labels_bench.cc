@@ -84,8 +84,13 @@ int Voronoi(const std::map<std::string, std::string>& f) {
   const LabelVolume v = labels::MakeVoronoi(o);
   nlohmann::json extra = {
       {"description", "synthetic EM-like segmentation: bent Voronoi cells, scattered ids"},
-      {"generated", {{"kind", "voronoi"}, {"cells", o.cells}, {"background", o.background_fraction},
-                     {"wobble", o.wobble}, {"elongation", o.elongation}, {"seed", o.seed}}}};
+      {"generated",
+       {{"kind", "voronoi"},
+        {"cells", o.cells},
+        {"background", o.background_fraction},
+        {"wobble", o.wobble},
+        {"elongation", o.elongation},
+        {"seed", o.seed}}}};
   labels::WriteLabelVolume(bench::Require(f, "out"), v, dtype, extra);
   Summarize(bench::Require(f, "out"), v);
   return 0;
@@ -102,8 +107,10 @@ int CtBands(const std::map<std::string, std::string>& f) {
   nlohmann::json extra = {
       {"description", "bands of " + std::filesystem::path(input).filename().string() +
                           " split into 6-connected components, scattered ids"},
-      {"generated", {{"kind", "ct-bands"}, {"thresholds", thresholds},
-                     {"min_voxels", Get(f, "min-voxels", "64")}}}};
+      {"generated",
+       {{"kind", "ct-bands"},
+        {"thresholds", thresholds},
+        {"min_voxels", Get(f, "min-voxels", "64")}}}};
   labels::WriteLabelVolume(bench::Require(f, "out"), v, dtype, extra);
   Summarize(bench::Require(f, "out"), v);
   return 0;
@@ -187,8 +194,8 @@ int Measure(int argc, char** argv) {
   const LabelVolume v = labels::ReadLabelVolume(bench::Require(f, "input"));
   const size_t gap_samples = std::stoull(Get(f, "gap-samples", "32"));
   const size_t rms_samples = std::stoull(Get(f, "rms-samples", "20000"));
-  const labels::Margin margin =
-      labels::MarginFor(v, std::stoi(Get(f, "margin", "2")), std::stod(Get(f, "margin-length", "0")));
+  const labels::Margin margin = labels::MarginFor(v, std::stoi(Get(f, "margin", "2")),
+                                                  std::stod(Get(f, "margin-length", "0")));
   const int threads = std::max(1, std::stoi(Get(f, "threads", "2")));
 
   const std::vector<LabelBox> boxes = labels::LabelBoxes(v);
@@ -227,8 +234,8 @@ int Measure(int argc, char** argv) {
       const auto own_bwd = tandem::MeasureDirectedDistance(full, tandem::TriangleBvh(mesh), opt);
       r.rms_own = std::max(own_fwd.l2, own_bwd.l2);
       const tandem::TopologyReport full_topology = tandem::AnalyzeTopology(full);
-      r.topology_changed = topology.euler != full_topology.euler ||
-                           topology.components != full_topology.components;
+      r.topology_changed =
+          topology.euler != full_topology.euler || topology.components != full_topology.components;
     }
   });
 
@@ -249,8 +256,9 @@ int Measure(int argc, char** argv) {
                         {"margin_voxels", {margin[0], margin[1], margin[2]}},
                         {"spacing", v.spacing},
                         {"methods", nlohmann::json::object()}};
-  std::printf("%zu labels, %zu reference triangles, %zu touching pairs (%zu sampled, %zu samples)\n",
-              boxes.size(), ref_total, pairs.size(), pairs_sampled, samples);
+  std::printf(
+      "%zu labels, %zu reference triangles, %zu touching pairs (%zu sampled, %zu samples)\n",
+      boxes.size(), ref_total, pairs.size(), pairs_sampled, samples);
 
   const double zero = 1e-6 * std::min({v.spacing[0], v.spacing[1], v.spacing[2]});
   for (Method& m : methods) {
@@ -258,7 +266,8 @@ int Measure(int argc, char** argv) {
     std::vector<std::unique_ptr<tandem::TriangleBvh>> bvh(boxes.size());
     ParallelFor(boxes.size(), threads, [&](size_t s) {
       tandem::IndexedMesh mesh;
-      if (LoadSurface(m.dir, boxes[s].id, &mesh)) bvh[s] = std::make_unique<tandem::TriangleBvh>(mesh);
+      if (LoadSurface(m.dir, boxes[s].id, &mesh))
+        bvh[s] = std::make_unique<tandem::TriangleBvh>(mesh);
     });
     std::vector<double> pair_max(pairs.size(), NAN), pair_sum(pairs.size(), 0);
     std::vector<size_t> pair_zero(pairs.size(), 0), pair_n(pairs.size(), 0);
@@ -315,23 +324,30 @@ int Measure(int argc, char** argv) {
           {boxes[s].id, r.triangles, reference_triangles[s], r.rms, r.hausdorff, r.rms_own});
     }
     const double gap_mean = gap_n ? gap_sum / double(gap_n) : NAN;
-    out["methods"][m.name] = {
-        {"dir", m.dir.string()},          {"labels_found", found},
-        {"labels_missing", boxes.size() - found},
-        {"triangles", triangles},         {"nonmanifold_labels", nonmanifold},
-        {"rms_geomean", GeoMean(rms)},    {"rms_max", rms_max},
-        {"rms_max_label", worst},         {"hausdorff_max", hausdorff_max},
-        {"rms_own_geomean", GeoMean(rms_own)}, {"rms_own_max", rms_own_max},
-        {"rms_own_labels", rms_own.size()}, {"topology_changed_labels", topology_changed},
-        {"gap_max", gap_max},             {"gap_mean", gap_mean},
-        {"gap_samples", gap_n},           {"gap_zero_samples", gap_zero},
-        {"per_label", per_label}};
-    std::printf("%-14s labels %zu/%zu  triangles %zu  rms geomean %.4g max %.4g (own full "
-                "resolution: %.4g, %.4g)  gap max %.4g mean %.4g (%zu samples, %zu zero)  "
-                "non-manifold %zu, topology changed %zu\n",
-                m.name.c_str(), found, boxes.size(), triangles, GeoMean(rms), rms_max,
-                GeoMean(rms_own), rms_own_max, gap_max, gap_mean, gap_n, gap_zero, nonmanifold,
-                topology_changed);
+    out["methods"][m.name] = {{"dir", m.dir.string()},
+                              {"labels_found", found},
+                              {"labels_missing", boxes.size() - found},
+                              {"triangles", triangles},
+                              {"nonmanifold_labels", nonmanifold},
+                              {"rms_geomean", GeoMean(rms)},
+                              {"rms_max", rms_max},
+                              {"rms_max_label", worst},
+                              {"hausdorff_max", hausdorff_max},
+                              {"rms_own_geomean", GeoMean(rms_own)},
+                              {"rms_own_max", rms_own_max},
+                              {"rms_own_labels", rms_own.size()},
+                              {"topology_changed_labels", topology_changed},
+                              {"gap_max", gap_max},
+                              {"gap_mean", gap_mean},
+                              {"gap_samples", gap_n},
+                              {"gap_zero_samples", gap_zero},
+                              {"per_label", per_label}};
+    std::printf(
+        "%-14s labels %zu/%zu  triangles %zu  rms geomean %.4g max %.4g (own full "
+        "resolution: %.4g, %.4g)  gap max %.4g mean %.4g (%zu samples, %zu zero)  "
+        "non-manifold %zu, topology changed %zu\n",
+        m.name.c_str(), found, boxes.size(), triangles, GeoMean(rms), rms_max, GeoMean(rms_own),
+        rms_own_max, gap_max, gap_mean, gap_n, gap_zero, nonmanifold, topology_changed);
   }
   std::ofstream js(bench::Require(f, "out"));
   js << out.dump(1) << "\n";
@@ -348,6 +364,7 @@ int main(int argc, char** argv) {
   if (cmd == "voronoi") return Voronoi(flags);
   if (cmd == "ct-bands") return CtBands(flags);
   if (cmd == "reference") return Reference(flags);
-  std::fprintf(stderr, "usage: labels_bench voronoi|ct-bands|reference|measure ... (see the source)\n");
+  std::fprintf(stderr,
+               "usage: labels_bench voronoi|ct-bands|reference|measure ... (see the source)\n");
   return 2;
 }

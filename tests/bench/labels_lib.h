@@ -19,14 +19,13 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
 #include <utility>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "tandem/eval/distance.h"
 #include "tandem/mesh.h"
@@ -92,7 +91,8 @@ inline void WriteLabelVolume(const std::string& json_path, const LabelVolume& v,
 
 // Reads a raw + sidecar volume of unsigned integers (uint8/16/32) or, for the CT bands,
 // int16 (negative values read as 0).
-inline LabelVolume ReadLabelVolume(const std::string& json_path, nlohmann::json* sidecar = nullptr) {
+inline LabelVolume ReadLabelVolume(const std::string& json_path,
+                                   nlohmann::json* sidecar = nullptr) {
   std::ifstream in(json_path);
   if (!in) Fail(json_path + ": cannot open");
   const nlohmann::json j = nlohmann::json::parse(in, nullptr, false);
@@ -110,7 +110,8 @@ inline LabelVolume ReadLabelVolume(const std::string& json_path, nlohmann::json*
   const bool int16 = dtype == "int16";
   const size_t bytes = int16 ? 2 : DTypeBytes(dtype);
   if (bytes == 0) Fail(json_path + ": dtype " + dtype + " is not an integer type read here");
-  std::filesystem::path raw = j.value("raw_file", std::filesystem::path(json_path).stem().string() + ".raw");
+  std::filesystem::path raw =
+      j.value("raw_file", std::filesystem::path(json_path).stem().string() + ".raw");
   raw = std::filesystem::path(json_path).parent_path() / raw;
   const size_t n = size_t(v.nx) * size_t(v.ny) * size_t(v.nz);
   std::vector<uint8_t> buf(n * bytes);
@@ -234,13 +235,14 @@ inline LabelVolume MakeVoronoi(const VoronoiOptions& o, VoronoiCells* cells_out 
         double best = INFINITY;
         uint32_t best_seed = 0;
         for (int64_t r = 0;; ++r) {
-          for (int64_t bz = std::max<int64_t>(0, b[2] - r); bz <= std::min(g[2] - 1, b[2] + r); ++bz) {
+          for (int64_t bz = std::max<int64_t>(0, b[2] - r); bz <= std::min(g[2] - 1, b[2] + r);
+               ++bz) {
             for (int64_t by = std::max<int64_t>(0, b[1] - r); by <= std::min(g[1] - 1, b[1] + r);
                  ++by) {
               for (int64_t bx = std::max<int64_t>(0, b[0] - r); bx <= std::min(g[0] - 1, b[0] + r);
                    ++bx) {
-                const int64_t ring = std::max({std::abs(bx - b[0]), std::abs(by - b[1]),
-                                               std::abs(bz - b[2])});
+                const int64_t ring =
+                    std::max({std::abs(bx - b[0]), std::abs(by - b[1]), std::abs(bz - b[2])});
                 if (ring != r) continue;
                 for (uint32_t s : buckets[size_t((bz * g[1] + by) * g[0] + bx)]) {
                   const tandem::Vec3 d = seeds[s] - q;
@@ -314,7 +316,8 @@ inline LabelVolume BandComponents(const LabelVolume& ct, const std::vector<doubl
   }
   std::vector<uint32_t> order(sizes.size());
   for (uint32_t c = 0; c < order.size(); ++c) order[c] = c;
-  std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return sizes[a] > sizes[b]; });
+  std::stable_sort(order.begin(), order.end(),
+                   [&](uint32_t a, uint32_t b) { return sizes[a] > sizes[b]; });
   size_t kept = 0;
   while (kept < order.size() && kept < max_labels && sizes[order[kept]] >= min_voxels) ++kept;
   std::mt19937_64 rng(seed);
@@ -355,7 +358,8 @@ inline std::vector<LabelBox> LabelBoxes(const LabelVolume& v, uint32_t backgroun
       }
     }
   }
-  std::sort(boxes.begin(), boxes.end(), [](const LabelBox& a, const LabelBox& b) { return a.id < b.id; });
+  std::sort(boxes.begin(), boxes.end(),
+            [](const LabelBox& a, const LabelBox& b) { return a.id < b.id; });
   return boxes;
 }
 
@@ -383,8 +387,9 @@ inline tandem::IndexedMesh ReferenceSurface(const LabelVolume& v, const LabelBox
   opt.schedule = tandem::Schedule::kNone;
   opt.parts = 1;
   auto session = tandem::TandemSession::Create(grid, opt);
-  if (!session.ok()) Fail("reference of label " + std::to_string(box.id) + ": " +
-                          std::string(session.status().message()));
+  if (!session.ok())
+    Fail("reference of label " + std::to_string(box.id) + ": " +
+         std::string(session.status().message()));
   std::vector<float> slice(size_t(grid.nx * grid.ny));
   for (int64_t k = lo[2]; k <= hi[2]; ++k) {
     for (int64_t j = lo[1]; j <= hi[1]; ++j) {
@@ -476,8 +481,9 @@ inline std::vector<PairSamples> InterfaceSamples(const LabelVolume& v, size_t pe
     }
     std::vector<uint64_t>().swap(f);
   }
-  std::sort(pairs.begin(), pairs.end(),
-            [](const PairSamples& x, const PairSamples& y) { return std::pair(x.a, x.b) < std::pair(y.a, y.b); });
+  std::sort(pairs.begin(), pairs.end(), [](const PairSamples& x, const PairSamples& y) {
+    return std::pair(x.a, x.b) < std::pair(y.a, y.b);
+  });
   return pairs;
 }
 

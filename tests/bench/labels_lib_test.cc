@@ -2,10 +2,10 @@
 // the interface samples, the reference surfaces and the generated label volumes.
 #include "labels_lib.h"
 
+#include <gtest/gtest.h>
+
 #include <filesystem>
 #include <set>
-
-#include <gtest/gtest.h>
 
 #include "tandem/eval/topology.h"
 
@@ -218,9 +218,9 @@ TEST(BandTest, BandsSplitIntoComponentsSmallOnesDropped) {
       for (int64_t j = 0; j < 12; ++j)
         for (int64_t i = i0; i < i1; ++i) ct.ids[ct.Index(i, j, k)] = value;
   };
-  fill(0, 3, 100);    // band 1, one component
-  fill(5, 8, 100);    // band 1, a second one
-  fill(8, 10, 250);   // band 2, touching the second
+  fill(0, 3, 100);                   // band 1, one component
+  fill(5, 8, 100);                   // band 1, a second one
+  fill(8, 10, 250);                  // band 2, touching the second
   ct.ids[ct.Index(11, 0, 0)] = 100;  // band 1, one voxel: below min_voxels
   const LabelVolume v = BandComponents(ct, {60, 200}, 2, 100, UINT32_MAX, 7);
   const auto boxes = LabelBoxes(v);

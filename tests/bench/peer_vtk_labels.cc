@@ -26,13 +26,12 @@
 
 #include <algorithm>
 #include <array>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <unordered_map>
-
 #include <nlohmann/json.hpp>
+#include <unordered_map>
 
 #include "bench_common.h"
 
@@ -61,10 +60,17 @@ Volume ReadVolume(const std::string& json_path) {
     if (j.contains("spacing")) v.spacing[a] = j["spacing"][a];
   }
   const std::string dtype = j.at("dtype");
-  if (dtype == "uint8") { v.vtk_type = VTK_UNSIGNED_CHAR; v.bytes = 1; }
-  else if (dtype == "uint16") { v.vtk_type = VTK_UNSIGNED_SHORT; v.bytes = 2; }
-  else if (dtype == "uint32") { v.vtk_type = VTK_UNSIGNED_INT; v.bytes = 4; }
-  else bench::Die(json_path + ": label dtype " + dtype + " is not uint8, uint16 or uint32");
+  if (dtype == "uint8") {
+    v.vtk_type = VTK_UNSIGNED_CHAR;
+    v.bytes = 1;
+  } else if (dtype == "uint16") {
+    v.vtk_type = VTK_UNSIGNED_SHORT;
+    v.bytes = 2;
+  } else if (dtype == "uint32") {
+    v.vtk_type = VTK_UNSIGNED_INT;
+    v.bytes = 4;
+  } else
+    bench::Die(json_path + ": label dtype " + dtype + " is not uint8, uint16 or uint32");
   std::filesystem::path raw = j.value("raw_file", std::string());
   if (raw.empty()) raw = std::filesystem::path(json_path).replace_extension(".raw").filename();
   raw = std::filesystem::path(json_path).parent_path() / raw;
@@ -170,7 +176,8 @@ std::vector<std::array<vtkIdType, 3>> Triangles(vtkPolyData* pd) {
 // `remap` (one entry per point of pd, all kNone) is returned as it came.
 constexpr uint32_t kNone = UINT32_MAX;
 void ToArrays(vtkPolyData* pd, const std::vector<std::array<vtkIdType, 3>>& tris,
-              std::vector<uint32_t>* remap, std::vector<float>* xyz, std::vector<uint32_t>* indices) {
+              std::vector<uint32_t>* remap, std::vector<float>* xyz,
+              std::vector<uint32_t>* indices) {
   xyz->clear();
   indices->clear();
   std::vector<vtkIdType> used;
@@ -200,7 +207,8 @@ vtkSmartPointer<vtkPolyData> ToPolyData(const std::vector<float>& xyz,
                                         const std::vector<uint32_t>& indices) {
   vtkNew<vtkPoints> points;
   points->SetNumberOfPoints(vtkIdType(xyz.size() / 3));
-  for (size_t i = 0; i < xyz.size() / 3; ++i) points->SetPoint(vtkIdType(i), xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+  for (size_t i = 0; i < xyz.size() / 3; ++i)
+    points->SetPoint(vtkIdType(i), xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
   vtkNew<vtkCellArray> cells;
   for (size_t t = 0; t < indices.size() / 3; ++t) {
     const vtkIdType tri[3] = {indices[3 * t], indices[3 * t + 1], indices[3 * t + 2]};
@@ -282,7 +290,8 @@ int main(int argc, char** argv) {
     r.extract_s += clock.Lap();
     if (mode != "none" && extracted > 0) {
       auto it = targets.find(b.id);
-      const double target = it != targets.end() ? double(it->second) : std::ceil(keep * double(extracted));
+      const double target =
+          it != targets.end() ? double(it->second) : std::ceil(keep * double(extracted));
       const double reduction = std::clamp(1.0 - target / double(extracted), 0.0, 1.0);
       vtkSmartPointer<vtkPolyData> pd = ToPolyData(xyz, indices);
       vtkSmartPointer<vtkPolyData> simplified;
