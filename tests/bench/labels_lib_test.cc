@@ -135,6 +135,31 @@ TEST(ReferenceTest, OneVoxelIsAClosedManifold) {
   EXPECT_EQ(t.euler, 2);
 }
 
+// Every voxel lies in a cell whose seed is nearest to it (ties aside), z distances counted
+// 1 / elongation.
+void ExpectNearestCells(const LabelVolume& v, const VoronoiCells& cells, double elongation) {
+  auto dist = [&](Vec3 a, Vec3 b) {
+    Vec3 d = a - b;
+    d.z /= elongation;
+    return tandem::Norm(d);
+  };
+  for (int64_t k = 0; k < v.nz; ++k) {
+    for (int64_t j = 0; j < v.ny; ++j) {
+      for (int64_t i = 0; i < v.nx; ++i) {
+        const Vec3 p = v.Position(i, j, k);
+        double best = INFINITY;
+        for (const Vec3& s : cells.seeds) best = std::min(best, dist(s, p));
+        const uint32_t id = v.At(i, j, k);
+        bool nearest = false;
+        for (size_t s = 0; s < cells.seeds.size(); ++s) {
+          nearest |= cells.ids[s] == id && dist(cells.seeds[s], p) <= best + 1e-9;
+        }
+        ASSERT_TRUE(nearest) << i << " " << j << " " << k;
+      }
+    }
+  }
+}
+
 TEST(VoronoiTest, IdsAreUniqueScatteredAndEachVoxelIsInItsNearestCell) {
   VoronoiOptions o;
   o.nx = 40;
@@ -160,25 +185,23 @@ TEST(VoronoiTest, IdsAreUniqueScatteredAndEachVoxelIsInItsNearestCell) {
   // Scattered over uint32: not 1..N, and spread far beyond 16 bits.
   EXPECT_GT(*distinct.rbegin(), uint32_t{1} << 24);
   EXPECT_GT(*distinct.rbegin() - *distinct.begin(), 1000u * distinct.size());
-  for (int64_t k = 0; k < v.nz; ++k) {
-    for (int64_t j = 0; j < v.ny; ++j) {
-      for (int64_t i = 0; i < v.nx; ++i) {
-        const Vec3 p = v.Position(i, j, k);
-        double best = INFINITY;
-        for (const Vec3& s : cells.seeds) best = std::min(best, tandem::Norm(s - p));
-        const uint32_t id = v.At(i, j, k);
-        // The voxel's cell is a nearest one (ties aside).
-        bool nearest = false;
-        for (size_t s = 0; s < cells.seeds.size(); ++s) {
-          nearest |= cells.ids[s] == id && tandem::Norm(cells.seeds[s] - p) <= best + 1e-9;
-        }
-        ASSERT_TRUE(nearest) << i << " " << j << " " << k;
-      }
-    }
-  }
+  ExpectNearestCells(v, cells, 1);
   // The same seed gives the same volume; the labels in it are those of the cells.
   EXPECT_EQ(MakeVoronoi(o).ids, v.ids);
   for (const LabelBox& b : LabelBoxes(v)) EXPECT_TRUE(distinct.count(b.id)) << b.id;
+}
+
+TEST(VoronoiTest, ElongatedCellsAreNearestWithZShrunk) {
+  VoronoiOptions o;
+  o.nx = 30;
+  o.ny = 30;
+  o.nz = 16;
+  o.cells = 40;
+  o.wobble = 0;
+  o.elongation = 3;
+  VoronoiCells cells;
+  const LabelVolume v = MakeVoronoi(o, &cells);
+  ExpectNearestCells(v, cells, 3);
 }
 
 TEST(VoronoiTest, SixteenBitIdsFit) {
