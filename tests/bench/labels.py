@@ -264,6 +264,9 @@ def write_report(path, results, meta, args):
               f"label volume (it says: \"{meta.get('tandem_not_yet') or 'no --labels'}\"); its rows "
               "appear once the label mode is on main. The VTK peers then simplify each label to "
               "10 % of its triangles.", ""]
+    else:
+        L += ["The VTK peers simplify each label to tandem's triangle count of that label, so "
+              "that RMS and gaps compare at the same size.", ""]
     L += ["zmesh (seung-lab/zmesh) is not in the table: see \"zmesh\" below.", ""]
     if notes:
         L += [notes, ""]
