@@ -190,8 +190,7 @@ TEST(LabelSession, TwoTouchingBoxesAreTwoClosedSpheresSharingTheirInterface) {
   Volume vol(20, 20, 20);
   vol.Box({4, 4, 4}, {10, 16, 16}, 1);
   vol.Box({10, 4, 4}, {16, 16, 16}, 2);
-  const auto topology = CheckSchedules(vol, /*closed=*/true, LabelOptionsFor(Schedule::kNone),
-                                       /*reduction=*/0.1);
+  const auto topology = CheckSchedules(vol, /*closed=*/true, LabelOptionsFor(Schedule::kNone));
   ASSERT_EQ(topology.size(), 2u);
   for (const auto& [label, t] : topology) {
     EXPECT_EQ(t.euler, 2) << label;
@@ -280,7 +279,7 @@ TEST(LabelSession, OneVoxelLabelIsAClosedSphere) {
   vol.Box({2, 2, 2}, {10, 10, 10}, 1);
   vol.at(5, 5, 5) = 9;    // inside label 1
   vol.at(0, 11, 11) = 4;  // alone, in a corner of the box (closed with close)
-  const auto topology = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true), 0.9);
+  const auto topology = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
   for (LabelId l : {4, 9}) {
     EXPECT_EQ(topology.at(l).euler, 2) << l;
     EXPECT_EQ(topology.at(l).components, 1u) << l;
@@ -292,13 +291,13 @@ TEST(LabelSession, LabelsMeetingAtAnEdgeOrACornerStayManifold) {
   Volume edge(16, 16, 16);
   edge.Box({3, 3, 3}, {8, 8, 13}, 1);
   edge.Box({8, 8, 3}, {13, 13, 13}, 2);
-  const auto e = CheckSchedules(edge, true, LabelOptionsFor(Schedule::kNone), 0.3);
+  const auto e = CheckSchedules(edge, true, LabelOptionsFor(Schedule::kNone));
   Volume corner(16, 16, 16);
   corner.Box({3, 3, 3}, {8, 8, 8}, 1);
   corner.Box({8, 8, 8}, {13, 13, 13}, 2);
   corner.Box({9, 2, 2}, {12, 5, 5}, 4);  // label 4 touching itself at a corner only
   corner.Box({12, 5, 5}, {15, 8, 8}, 4);
-  const auto c = CheckSchedules(corner, true, LabelOptionsFor(Schedule::kNone), 0.3);
+  const auto c = CheckSchedules(corner, true, LabelOptionsFor(Schedule::kNone));
   EXPECT_EQ(e.at(1).components, 1u);
   EXPECT_EQ(e.at(2).components, 1u);
   EXPECT_EQ(e.at(1).euler, 2);
@@ -311,9 +310,9 @@ TEST(LabelSession, LabelsTouchingTheBoxAreOpenThereUnlessClosed) {
   Volume vol(14, 12, 10);
   vol.Box({0, 0, 0}, {6, 12, 10}, 1);  // a whole side of the box
   vol.Box({6, 3, 0}, {10, 9, 5}, 2);   // the bottom face
-  const auto open = CheckSchedules(vol, false, LabelOptionsFor(Schedule::kNone), 0.3);
+  const auto open = CheckSchedules(vol, false, LabelOptionsFor(Schedule::kNone));
   EXPECT_EQ(open.at(2).components, 1u);
-  const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true), 0.3);
+  const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
   EXPECT_EQ(closed.at(1).euler, 2);
   EXPECT_EQ(closed.at(2).euler, 2);
   // Open, the surfaces end on the box: a disk each (one boundary loop, χ = 1).
@@ -331,7 +330,7 @@ TEST(LabelSession, OnlyAndBackgroundChooseTheLabels) {
   EXPECT_EQ(all.size(), 3u);
   EXPECT_TRUE(all.count(0));
   o.labels.only = {2};
-  const auto two = CheckSchedules(vol, true, o, 0.2);
+  const auto two = CheckSchedules(vol, true, o);
   ASSERT_EQ(two.size(), 1u);
   EXPECT_EQ(two.at(2).euler, 2);
   // Only label 2's surface: every triangle separates 2 from the background.
