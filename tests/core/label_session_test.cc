@@ -55,9 +55,11 @@ SessionOptions LabelOptionsFor(Schedule schedule, bool close = false) {
   return o;
 }
 
-Meshed Mesh(const Volume& vol, const SessionOptions& options) {
+Meshed Mesh(const Volume& vol, const SessionOptions& options,
+            std::array<double, 3> spacing = {1, 1, 1}) {
   Meshed r;
   VolumeInfo grid;
+  grid.spacing = spacing;
   grid.nx = vol.nx;
   grid.ny = vol.ny;
   grid.nz = vol.nz;
@@ -272,6 +274,37 @@ TEST(LabelSession, VoronoiCellsFillingTheBoxAreOpenThereOrClosed) {
   const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
   EXPECT_EQ(closed.size(), open.size());
   for (const auto& [label, t] : closed) EXPECT_EQ(t.euler, 2 * static_cast<int64_t>(t.components));
+}
+
+TEST(LabelSession, IsotropyATargetCountAndAnisotropicVoxelsKeepEachLabel) {
+  const Volume vol = Voronoi(true, 5);
+  SessionOptions o = LabelOptionsFor(Schedule::kNone);
+  const auto reference = CheckSurfaces(Mesh(vol, o), vol, true);
+  auto same_topology = [&](const std::map<LabelId, LabelTopology>& t) {
+    ASSERT_EQ(t.size(), reference.size());
+    for (const auto& [label, ref] : reference) {
+      EXPECT_EQ(t.at(label).euler, ref.euler) << label;
+      EXPECT_EQ(t.at(label).components, ref.components) << label;
+    }
+  };
+  o.schedule = Schedule::kTandemLag;
+  o.alpha = 0.5;
+  const Meshed isotropic = Mesh(vol, o);
+  ASSERT_TRUE(isotropic.status.ok()) << isotropic.status;
+  same_topology(CheckSurfaces(isotropic, vol, true));
+  EXPECT_LE(isotropic.max_error, o.error * (1 + 1e-9));
+  o.alpha = 0;
+  o.target_triangles = 700;
+  const Meshed target = Mesh(vol, o);
+  ASSERT_TRUE(target.status.ok()) << target.status;
+  same_topology(CheckSurfaces(target, vol, true));
+  EXPECT_LE(target.mesh.mesh.num_triangles(), 770u);
+  o.target_triangles = 0;
+  o.error = 1.2;  // voxels 1 x 1 x 3: E0 in physical units
+  const Meshed thick = Mesh(vol, o, {1, 1, 3});
+  ASSERT_TRUE(thick.status.ok()) << thick.status;
+  same_topology(CheckSurfaces(thick, vol, true));
+  EXPECT_LE(thick.max_error, o.error * (1 + 1e-9));
 }
 
 TEST(LabelSession, OneVoxelLabelIsAClosedSphere) {
