@@ -55,14 +55,15 @@ SessionOptions LabelOptionsFor(Schedule schedule, bool close = false) {
   return o;
 }
 
+// `declare_nz` false: a stream whose depth is not known until it ends.
 Meshed Mesh(const Volume& vol, const SessionOptions& options,
-            std::array<double, 3> spacing = {1, 1, 1}) {
+            std::array<double, 3> spacing = {1, 1, 1}, bool declare_nz = true) {
   Meshed r;
   VolumeInfo grid;
   grid.spacing = spacing;
   grid.nx = vol.nx;
   grid.ny = vol.ny;
-  grid.nz = vol.nz;
+  grid.nz = declare_nz ? vol.nz : 0;
   grid.dtype = DType::kUInt16;
   auto session = TandemSession::Create(grid, options);
   if (!session.ok()) {
@@ -350,6 +351,25 @@ TEST(LabelSession, LabelsTouchingTheBoxAreOpenThereUnlessClosed) {
   EXPECT_EQ(closed.at(2).euler, 2);
   // Open, the surfaces end on the box: a disk each (one boundary loop, χ = 1).
   EXPECT_EQ(open.at(2).euler, 1);
+  // A stream of unknown depth finds the top of the box when it ends: the same meshes.
+  for (bool close : {false, true}) {
+    const SessionOptions o = LabelOptionsFor(Schedule::kTandemLag, close);
+    const Meshed known = Mesh(vol, o), streamed = Mesh(vol, o, {1, 1, 1}, false);
+    ASSERT_TRUE(streamed.status.ok()) << streamed.status;
+    EXPECT_EQ(streamed.mesh.mesh.indices, known.mesh.mesh.indices) << close;
+    EXPECT_EQ(streamed.mesh.patch, known.mesh.patch) << close;
+  }
+}
+
+TEST(LabelSession, OneLabelEverywhereIsNoSurfaceOrTheClosedBox) {
+  const Volume vol(9, 8, 7, 3);
+  const Meshed open = Mesh(vol, LabelOptionsFor(Schedule::kTandemLag));
+  ASSERT_TRUE(open.status.ok()) << open.status;
+  EXPECT_EQ(open.mesh.mesh.num_triangles(), 0u);
+  const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
+  ASSERT_EQ(closed.size(), 1u);
+  EXPECT_EQ(closed.at(3).euler, 2);
+  EXPECT_EQ(closed.at(3).components, 1u);
 }
 
 TEST(LabelSession, OnlyAndBackgroundChooseTheLabels) {
