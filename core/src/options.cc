@@ -154,6 +154,11 @@ absl::Status SessionOptions::Validate() const {
 
 absl::Status SessionOptions::ValidateFor(const VolumeInfo& grid) const {
   if (absl::Status st = Validate(); !st.ok()) return st;
+  if (labels.enabled && grid.dtype == DType::kFloat32) {
+    return Refuse("labels.enabled", "true",
+                  "a label volume needs integer voxels (uint8, uint16, int16, ...); this volume "
+                  "is float32");
+  }
   if (schedule == Schedule::kNone) return absl::OkStatus();
   const double smallest = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
   const double largest = std::max({grid.spacing[0], grid.spacing[1], grid.spacing[2]});

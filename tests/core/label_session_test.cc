@@ -413,6 +413,9 @@ TEST(LabelSession, OptionsAreValidated) {
   grid.nx = 300;
   grid.ny = 4;
   grid.nz = 2;
+  grid.dtype = DType::kFloat32;
+  const absl::Status floats = TandemSession::Create(grid, o).status();
+  EXPECT_NE(floats.message().find("float32"), std::string::npos) << floats;
   grid.dtype = DType::kUInt16;
   auto session = TandemSession::Create(grid, o);
   ASSERT_TRUE(session.ok()) << session.status();
