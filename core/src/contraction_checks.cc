@@ -304,8 +304,20 @@ bool LabelLinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkScra
     std::sort(out->begin(), out->end());
     out->erase(std::unique(out->begin(), out->end()), out->end());
   };
+  // Inside one patch (most edges) both labels' surfaces are the stars themselves, a
+  // consistently oriented manifold there: the iso-surface's test decides for both.
+  const auto ta = store.vertex_triangles(a), tb = store.vertex_triangles(b);
+  if (ta.empty() || tb.empty()) return false;
+  const uint32_t patch = store.patch(ta[0]);
+  bool one_patch = true;
+  for (TriId t : ta) one_patch &= store.patch(t) == patch;
+  for (TriId t : tb) one_patch &= store.patch(t) == patch;
+  if (one_patch) {
+    return ta.size() <= kFanMax && tb.size() <= kFanMax ? LinkConditionFans(store, a, b)
+                                                        : LinkConditionMarks(store, a, b, scratch);
+  }
   int on_ab = 0;
-  for (TriId t : store.vertex_triangles(a)) {
+  for (TriId t : ta) {
     const auto& tri = store.triangle(t);
     on_ab += (tri[0] == b) | (tri[1] == b) | (tri[2] == b);
   }
