@@ -16,6 +16,7 @@
 
 #include "gtest/gtest.h"
 #include "tandem/eval/topology.h"
+#include "tandem/geometry.h"
 #include "tandem/labels.h"
 #include "tandem/tandem.h"
 
@@ -183,6 +184,14 @@ std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, 
       EXPECT_EQ(topology.at(label).components, ref.components);
     }
     EXPECT_LE(run.max_error, base.error * (1 + 1e-9));
+    size_t degenerate = 0;  // zero-area triangles (tidied at the end)
+    const IndexedMesh& mesh = run.mesh.mesh;
+    for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+      degenerate += IsDegenerateTriangle(mesh.positions[mesh.indices[3 * t]],
+                                         mesh.positions[mesh.indices[3 * t + 1]],
+                                         mesh.positions[mesh.indices[3 * t + 2]]);
+    }
+    EXPECT_EQ(degenerate, 0u);
     EXPECT_LT(static_cast<double>(run.mesh.mesh.num_triangles()),
               reduction * static_cast<double>(full.mesh.mesh.num_triangles()));
   }
