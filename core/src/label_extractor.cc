@@ -307,7 +307,11 @@ size_t LabelLayers::MemoryBytes() const {
   auto map_bytes = [](const absl::flat_hash_map<uint64_t, VertexId>& m) {
     return m.capacity() * (sizeof(uint64_t) + sizeof(VertexId) + 1);
   };
-  return (bottom_.capacity() + top_.capacity()) * sizeof(LabelId) + map_bytes(plane_bottom_) +
+  // The two planes as planned until the first slice allocates them (a budget checked before
+  // any voxel counts them).
+  const size_t planes = top_.empty() ? 2 * static_cast<size_t>((nx_ + 2) * (ny_ + 2))
+                                     : bottom_.capacity() + top_.capacity();
+  return planes * sizeof(LabelId) + map_bytes(plane_bottom_) +
          map_bytes(plane_top_) + map_bytes(inside_) + staged_patch_.capacity() * sizeof(uint32_t) +
          pairs_.capacity() * sizeof(LabelPair) + store_patch_.capacity() * sizeof(uint32_t);
 }

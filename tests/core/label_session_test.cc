@@ -429,6 +429,8 @@ TEST(LabelSession, OptionsAreValidated) {
   auto session = TandemSession::Create(grid, o);
   ASSERT_TRUE(session.ok()) << session.status();
   EXPECT_EQ((*session)->num_parts(), 1);
+  // The label planes are counted before the first slice: two padded planes of 64-bit labels.
+  EXPECT_GE((*session)->MemoryBytes(), 2u * 302 * 6 * sizeof(LabelId));
 }
 
 TEST(LabelSession, FloatAndNegativeValuesAreRefused) {
