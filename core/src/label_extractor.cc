@@ -46,7 +46,7 @@ Point Centroid(std::initializer_list<int> corners) {
 
 }  // namespace
 
-bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out) {
+bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out, int64_t* refused) {
   switch (dtype) {
     case DType::kUInt8:
       *out = bytes[i];
@@ -61,6 +61,7 @@ bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out) {
       int16_t v;
       std::memcpy(&v, bytes + i * sizeof(v), sizeof(v));
       *out = static_cast<LabelId>(static_cast<uint16_t>(v));
+      *refused = v;
       return v >= 0;
     }
     case DType::kFloat32:
@@ -85,9 +86,8 @@ void LabelLayers::ReadSlice(SliceValues slice, std::vector<LabelId>* plane, int6
   for (int64_t j = 0; j < ny_; ++j) {
     for (int64_t i = 0; i < nx_; ++i) {
       LabelId raw = 0;
-      if (!LabelOfVoxel(slice.dtype, slice.bytes, static_cast<size_t>(j * nx_ + i), &raw)) {
-        int16_t v = 0;
-        std::memcpy(&v, slice.bytes + static_cast<size_t>(j * nx_ + i) * sizeof(v), sizeof(v));
+      int64_t v = 0;
+      if (!LabelOfVoxel(slice.dtype, slice.bytes, static_cast<size_t>(j * nx_ + i), &raw, &v)) {
         *status = absl::InvalidArgumentError(absl::StrCat("voxel (", i, ", ", j, ", ", k,
                                                           ") of the label volume is ", v,
                                                           ": labels must be whole numbers >= 0"));
@@ -311,8 +311,8 @@ size_t LabelLayers::MemoryBytes() const {
   // any voxel counts them).
   const size_t planes = top_.empty() ? 2 * static_cast<size_t>((nx_ + 2) * (ny_ + 2))
                                      : bottom_.capacity() + top_.capacity();
-  return planes * sizeof(LabelId) + map_bytes(plane_bottom_) +
-         map_bytes(plane_top_) + map_bytes(inside_) + staged_patch_.capacity() * sizeof(uint32_t) +
+  return planes * sizeof(LabelId) + map_bytes(plane_bottom_) + map_bytes(plane_top_) +
+         map_bytes(inside_) + staged_patch_.capacity() * sizeof(uint32_t) +
          pairs_.capacity() * sizeof(LabelPair) + store_patch_.capacity() * sizeof(uint32_t);
 }
 

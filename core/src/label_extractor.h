@@ -41,8 +41,8 @@ class LayerExtractor;
 struct SliceValues;
 
 // The label of voxel i of a slice of `dtype` (an integer type). The one place a raw value
-// becomes a LabelId; false for a value that is no label (a negative one).
-bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out);
+// becomes a LabelId: false for a value that is no label (a negative one, then in *refused).
+bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out, int64_t* refused);
 
 class LabelLayers {
  public:
