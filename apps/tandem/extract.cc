@@ -267,7 +267,19 @@ int ExtractCommand(int argc, char** argv) {
     s.report.input = input_path;
   }
 #ifdef TANDEM_HAVE_DRACO
-  if (!neuroglancer.empty()) {
+  if (!neuroglancer.empty() && opt.labels.enabled) {
+    // A label session is one surface of many labels: its levels' labels are the segments.
+    std::vector<const TandemSession*> levels{(*sessions)[0].get()};
+    for (size_t k = 1; k <= coarser; ++k) {
+      levels.push_back((*sessions)[surfaces.size() + k - 1].get());
+    }
+    const double nm = flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : DefaultNmPerUnit(info);
+    if (absl::Status st = WriteNeuroglancerLabels(neuroglancer, info, levels, opt.labels.background,
+                                                  nm, static_cast<int>(f.compression_level));
+        !st.ok()) {
+      return Fail(st);
+    }
+  } else if (!neuroglancer.empty()) {
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments;
     for (size_t i = 0; i < surfaces.size(); ++i) {
       std::vector<IndexedMesh> lods{surfaces[i].mesh};

@@ -27,4 +27,17 @@ absl::Status WriteNeuroglancerExport(
   return io::WriteNeuroglancer(dir, info, list, options);
 }
 
+absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
+                                     const std::vector<const TandemSession*>& levels,
+                                     LabelId background, double nm_per_unit,
+                                     int compression_level) {
+  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> split;
+  split.reserve(levels.size());
+  for (const TandemSession* session : levels) {
+    split.push_back(SplitByLabel(session->SnapshotLabeled(), background));
+  }
+  return WriteNeuroglancerExport(dir, info, io::JoinLevels(std::move(split)), nm_per_unit,
+                                 compression_level);
+}
+
 }  // namespace tandem::app

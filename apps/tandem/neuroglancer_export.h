@@ -10,6 +10,7 @@
 #include "absl/status/status.h"
 #include "tandem/labels.h"
 #include "tandem/mesh.h"
+#include "tandem/tandem.h"
 #include "tandem/volume.h"
 
 namespace tandem::app {
@@ -20,12 +21,17 @@ namespace tandem::app {
 double DefaultNmPerUnit(const VolumeInfo& info);
 
 // One segment per (id, levels finest first); every segment has the same number of levels.
-// The label mode's hook: its sessions' SplitByLabel results, one per level, joined by
-// io::JoinLevels, come here as the iso-surfaces' (id 1..N) do.
+// The iso-surfaces come here as ids 1..N, the labels through WriteNeuroglancerLabels.
 absl::Status WriteNeuroglancerExport(
     const std::string& dir, const VolumeInfo& info,
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
     int compression_level);
+
+// The label mode's export: `levels[k]` is the finished label session swept at E0 * 2^k
+// (finest first); each label other than `background` becomes the segment of its own id.
+absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
+                                     const std::vector<const TandemSession*>& levels,
+                                     LabelId background, double nm_per_unit, int compression_level);
 
 }  // namespace tandem::app
 

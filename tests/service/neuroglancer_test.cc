@@ -17,9 +17,11 @@
 #include <set>
 #include <sstream>
 
+#include "apps/tandem/neuroglancer_export.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "tandem/codec/neuroglancer_draco.h"
+#include "tandem/tandem.h"
 #include "testutil/testutil.h"
 
 namespace tandem::io {
@@ -447,6 +449,56 @@ TEST(NeuroglancerExport, JoinLevelsGivesEachLabelAllItsLevels) {
   ASSERT_EQ(three.fragments.size(), 2u);
   EXPECT_EQ(three.fragments[0][0].indices.size(), 24u);
   EXPECT_TRUE(three.fragments[1][0].indices.empty());
+}
+
+// Two touching boxes of labels 5 and 9 in background 0, meshed by label sessions at E0 and
+// 2 E0 and exported as the CLI's label mode does: one segment per label, both levels.
+TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
+  VolumeInfo grid;
+  grid.nx = 14, grid.ny = 10, grid.nz = 10;
+  grid.dtype = DType::kUInt16;
+  std::vector<uint16_t> voxels(grid.nx * grid.ny * grid.nz, 0);
+  for (int64_t z = 2; z < 8; ++z) {
+    for (int64_t y = 2; y < 8; ++y) {
+      for (int64_t x = 2; x < 12; ++x) voxels[(z * grid.ny + y) * grid.nx + x] = x < 7 ? 5 : 9;
+    }
+  }
+  std::vector<std::unique_ptr<TandemSession>> sessions;
+  std::vector<const TandemSession*> levels;
+  for (double e0 : {0.3, 0.6}) {
+    SessionOptions o;
+    o.labels.enabled = true;
+    o.error = e0;
+    auto session = TandemSession::Create(grid, o);
+    ASSERT_TRUE(session.ok()) << session.status();
+    for (int64_t z = 0; z < grid.nz; ++z) {
+      ASSERT_TRUE((*session)
+                      ->AddSliceBytes(DType::kUInt16, reinterpret_cast<const uint8_t*>(
+                                                          voxels.data() + z * grid.nx * grid.ny))
+                      .ok());
+    }
+    ASSERT_TRUE((*session)->Finish().ok());
+    levels.push_back(session->get());
+    sessions.push_back(*std::move(session));
+  }
+  const std::string dir = testing::MakeTempDir() + "/ng";
+  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, levels, 0, 1, 7).ok());
+  for (LabelId id : {5u, 9u}) {
+    SCOPED_TRACE(id);
+    const Stored stored = ReadSegment(dir, id);
+    ASSERT_EQ(stored.fragments.size(), 2u);
+    // Level 0 is the label's own surface from SplitByLabel, as quantized.
+    for (const auto& [label, mesh] : SplitByLabel(levels[0]->SnapshotLabeled(), 0)) {
+      if (label != id) continue;
+      auto q = QuantizeSegment({id, {mesh}}, 16);
+      ASSERT_TRUE(q.ok());
+      EXPECT_GT(mesh.num_triangles(), 0u);
+      EXPECT_EQ(Triangles(stored.fragments[0][0].positions, stored.fragments[0][0].indices).size(),
+                mesh.num_triangles());
+    }
+    EXPECT_FALSE(stored.fragments[1][0].indices.empty());
+  }
+  EXPECT_TRUE(ReadSegment(dir, 0).fragments.empty());  // the background has no segment
 }
 
 TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {
