@@ -843,6 +843,10 @@ TEST(Sealing, OptionsAreChecked) {
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
   o.seam_settle_slices = 1;
   EXPECT_TRUE(o.Validate().ok());
+  o.seam_hold_vertices = 0;
+  EXPECT_EQ(OptionErrorOf(o.Validate())->field, "seam_hold_vertices");
+  o.seam_hold_vertices = 1;
+  EXPECT_TRUE(o.Validate().ok());
   // Sealing splits a wide grid as the plain session does.
   o.seal_margin = 2;
   o.parts = 0;
