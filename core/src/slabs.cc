@@ -427,15 +427,24 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
   return absl::OkStatus();
 }
 
-void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, int64_t settle_slices, bool coarsen, int64_t* seam_ids) {
+void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams, double front,
+                 int64_t settle_slices, int64_t hold_vertices, bool coarsen, int64_t* seam_ids) {
   const auto count = static_cast<int64_t>(slabs.size());
   const int64_t stride = SealerIdStride(static_cast<int>(count));
-  const double limit = front - static_cast<double>(settle_slices);
+  const double by_slices = front - static_cast<double>(settle_slices);
+  const double floor = front - static_cast<double>(std::min(settle_slices, kSeamSettleFloor));
   for (size_t s = 0; s < seams->size(); ++s) {
     Slab& left = *slabs[s];
     Slab& right = *slabs[s + 1];
     auto& pairs = (*seams)[s];
+    // Pairs are listed as the slabs made them, slice by slice: past hold_vertices, those up
+    // to the height of the newest one beyond them settle.
+    double limit = by_slices;
+    const auto held = static_cast<int64_t>(pairs.size());
+    if (held > hold_vertices) {
+      const VertexId newest_settling = pairs[static_cast<size_t>(held - hold_vertices - 1)].first;
+      limit = std::max(limit, std::min(floor, left.store.height(newest_settling)));
+    }
     if (coarsen) {
       CoarsenSettlingSeam(left, right, pairs, limit);
       MendSettlingSeam(left, right, pairs, limit);

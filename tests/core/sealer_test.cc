@@ -26,6 +26,7 @@
 #include "tandem/io/mesh_io.h"
 #include "sealer.h"
 #include "slabs.h"
+#include "tandem/budget.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/eval/topology.h"
@@ -45,9 +46,10 @@ struct SealRun {
   size_t chunks_before_finish = 0;
 };
 
-SealRun RunSealed(SliceSource& src, SessionOptions o) {
+SealRun RunSealed(SliceSource& src, SessionOptions o,
+                  std::shared_ptr<MemoryBudget> budget = nullptr) {
   SealRun r;
-  auto s = TandemSession::Create(src.info(), o);
+  auto s = TandemSession::Create(src.info(), o, nullptr, std::move(budget));
   EXPECT_TRUE(s.ok()) << s.status();
   if (!s.ok()) return r;
   std::vector<uint8_t> bytes;
@@ -255,8 +257,10 @@ TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
 // repetitions of the same surface.
 class PeriodicSource final : public SliceSource {
  public:
-  PeriodicSource(int64_t n, int64_t nz) {
-    info_.nx = info_.ny = n;
+  PeriodicSource(int64_t n, int64_t nz) : PeriodicSource(n, n, nz) {}
+  PeriodicSource(int64_t nx, int64_t ny, int64_t nz) {
+    info_.nx = nx;
+    info_.ny = ny;
     info_.nz = nz;
     info_.dtype = DType::kFloat32;
   }
@@ -325,6 +329,35 @@ TEST(Sealing, ChunkedWriterMemoryFollowsTheFrontNotTheDepth) {
   }
   EXPECT_GT(vertices[1], 3 * vertices[0]);
   EXPECT_LE(peak[1], peak[0] * 5 / 4) << peak[0] << " bytes at 48 slices, " << peak[1] << " at 192";
+}
+
+// A sealed split session's seams settle once they hold SessionOptions::seam_hold_vertices (at
+// its default), so what it holds is flat in the depth: from a volume eight times deeper (the
+// same slices repeated), its peak accounting, the merge at the end included (the budget's
+// peak), stays within 1.2x of the shallow one's. The grid is tall in y, so that its seam
+// nears the default hold within the shallow volume; a seam settled only by
+// seam_settle_slices (512) would hold about 2x at 512 slices.
+TEST(Sealing, SplitSessionMemoryIsFlatInDepth) {
+  constexpr int64_t kDepth = 64;
+  size_t peak[2] = {0, 0};
+  int64_t budget_peak[2] = {0, 0}, triangles[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    PeriodicSource src(48, 192, deep ? 8 * kDepth : kDepth);
+    SessionOptions o = Options(Schedule::kTandemLag, 0.2, true);
+    o.parts = 2;
+    auto budget = std::make_shared<MemoryBudget>(0);
+    const SealRun r = RunSealed(src, o, budget);
+    ASSERT_EQ(r.parts, 2);
+    peak[deep] = r.peak_memory;
+    budget_peak[deep] = budget->peak();
+    triangles[deep] = static_cast<int64_t>(r.mesh.num_triangles());
+  }
+  EXPECT_GT(triangles[1], 7 * triangles[0]);
+  EXPECT_LE(peak[1], peak[0] * 6 / 5) << peak[0] << " bytes at " << kDepth << " slices, "
+                                      << peak[1] << " at " << 8 * kDepth;
+  EXPECT_LE(budget_peak[1], budget_peak[0] * 6 / 5)
+      << budget_peak[0] << " bytes at " << kDepth << " slices, " << budget_peak[1] << " at "
+      << 8 * kDepth;
 }
 
 // Sealed chunks are mended as the final mesh is without sealing (degenerate.h), each as it is
@@ -809,6 +842,10 @@ TEST(Sealing, OptionsAreChecked) {
   o.seam_settle_slices = 0;
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
   o.seam_settle_slices = 1;
+  EXPECT_TRUE(o.Validate().ok());
+  o.seam_hold_vertices = 0;
+  EXPECT_EQ(OptionErrorOf(o.Validate())->field, "seam_hold_vertices");
+  o.seam_hold_vertices = 1;
   EXPECT_TRUE(o.Validate().ok());
   // Sealing splits a wide grid as the plain session does.
   o.seal_margin = 2;
