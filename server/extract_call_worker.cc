@@ -190,7 +190,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
       }
       if (!status.ok()) {
         failed = true;
-        EndStream(wire::ToGrpcStatus(status));
+        EndStream(common::ToGrpcStatus(status));
         break;
       }
       if (job->done()) {

@@ -77,7 +77,7 @@ v1::Progress ExtractJob::SumProgress() const {
     sum.set_peak_triangles(sum.peak_triangles() + p.peak_triangles());
     sum.set_sealed_triangles(sum.sealed_triangles() + p.sealed_triangles());
     if (!p.finishing().empty()) {  // the surface finishing now (they finish in turn)
-      wire::FinishingToProto(wire::FinishingFromProto(p), &sum);
+      common::FinishingToProto(common::FinishingFromProto(p), &sum);
     }
   }
   if (config_.options.seal) sum.set_sealed_chunks(chunks_sent_);

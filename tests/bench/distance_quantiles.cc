@@ -18,7 +18,7 @@
 namespace {
 
 using tandem::IndexedMesh;
-using tandem::TriangleBvh;
+using tandem::eval::TriangleBvh;
 using tandem::Vec3;
 
 std::vector<double> SampleDistances(const IndexedMesh& from, const TriangleBvh& to, size_t n) {

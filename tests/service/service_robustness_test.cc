@@ -136,7 +136,7 @@ TEST_F(ServiceRobustnessTest, CancelledStreamLeavesNothingBehind) {
   v1::SessionConfig config;
   config.set_error(0.5);
   config.mutable_preview()->set_every_slices(1);  // keep writes in flight
-  auto source = MakeSyntheticSource(Shape::kSphere, 48, 48, 48);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, 48, 48, 48);
   const std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, config, 4096);
   int streams = 0;
   for (size_t sent : {size_t{1}, size_t{3}, requests.size() / 2, requests.size() - 1}) {
@@ -217,7 +217,7 @@ TEST_F(ServiceRobustnessTest, SlowReaderGetsFewerNewerPreviews) {
   config.set_schedule(v1::SCHEDULE_NONE);  // full resolution: previews of tens of KB
   config.mutable_preview()->set_every_slices(1);
   config.mutable_draco()->set_compression_level(0);
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
   const std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, config, 1 << 20);
   // A fixed 64 KiB receive window (no BDP growth): what HTTP/2 lets the server buffer
   // ahead of the reader stays small and known.

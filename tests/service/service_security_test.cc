@@ -45,7 +45,7 @@ class SecurityTest : public ::testing::Test {
     ASSERT_TRUE(pki.ok()) << pki.status();
     pki_ = new TestPki(*pki);
     auto volume =
-        WriteSyntheticVolume(*dir_, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 24));
+        WriteSyntheticVolume(*dir_, "sphere", eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 24));
     ASSERT_TRUE(volume.ok()) << volume.status();
     volume_ = new std::string(*volume);
     tokens_file_ = new std::string(*dir_ + "/tokens.txt");

@@ -112,9 +112,9 @@ class ExtractJob {
   absl::Status FinishSealed();  // HandleEnd's tail when the mesh left in sealed chunks
   // compute_distances: the L1/L2/Linf distances of `mesh` to the reference (freed after);
   // and the process's peak RSS, in any case.
-  absl::Status MeasureDistancesTo(const IndexedMesh& mesh, MetricsReport* report);
+  absl::Status MeasureDistancesTo(const IndexedMesh& mesh, eval::MetricsReport* report);
   // Appends FinalMetrics to `out` and posts it all: the job is done.
-  void PostMetrics(const MetricsReport& report, std::vector<v1::ExtractResponse> out);
+  void PostMetrics(const eval::MetricsReport& report, std::vector<v1::ExtractResponse> out);
   void MaybePreview();
   // Sealed chunks: posts what the session sealed since the last one, when there is enough
   // of it or enough time went by (always with `now`). `last`: the stream's last chunk,
@@ -158,7 +158,7 @@ class ExtractJob {
   int64_t sealed_posted_ = 0;  // triangles in the chunks posted by this job
   codec::DracoOptions chunk_draco_;  // the config's, on the session's quantization grid
   std::optional<std::chrono::steady_clock::time_point> last_chunk_;
-  ShapeSums shape_;                 // of everything sealed, for the final metrics
+  eval::ShapeSums shape_;                 // of everything sealed, for the final metrics
   std::vector<SealedChunk> kept_;   // compute_distances only: the chunks, to weld at the end
   // The ids a chunk sent that a later chunk may send again (not retired): on the shared grid
   // those corners may not move (codec::EncodeDraco's `fixed`), and those the encoder moved
