@@ -556,8 +556,8 @@ TEST(Sealing, UnfrozenVerticesCostOnlyTheirPlaceInTheList) {
   EXPECT_EQ(chunk.ids.size(), 999u + 998);  // 0..998 and 1000..1997
   EXPECT_EQ(chunk.retired.size(), 999u + 998);
   EXPECT_FALSE(store.vertex_alive(0));
-  EXPECT_EQ(sealer.id(0), kInvalid);
-  EXPECT_EQ(sealer.id(1000), kInvalid);
+  EXPECT_EQ(sealer.id(0), kNoGlobalId);
+  EXPECT_EQ(sealer.id(1000), kNoGlobalId);
 }
 
 // With slabs, the triangles at the seams wait for the merge, so what a sealed session holds

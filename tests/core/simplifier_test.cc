@@ -792,17 +792,18 @@ TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
   Simplifier merged(&store, so);
   merged.Activate(std::numeric_limits<double>::infinity());  // as a part ends
   merged.Simplify();
-  std::vector<VertexId> map(part_store.vertex_capacity(), kInvalid);
+  PartVertexMap map;
+  map.Reset(part_store.vertex_capacity());
   for (VertexId v = 0; v < part_store.vertex_capacity(); ++v) {
     if (!part_store.vertex_alive(v)) continue;
-    map[v] = store.AddVertex(part_store.position(v), part_store.height(v), part_store.layer(v),
-                             part_store.box_mask(v));
-    merged.AdoptVertex(part, v, map[v], /*shared=*/false);
+    map[PartVertex{v}] = store.AddVertex(part_store.position(v), part_store.height(v),
+                                         part_store.layer(v), part_store.box_mask(v));
+    merged.AdoptVertex(part, PartVertex{v}, map[PartVertex{v}], /*shared=*/false);
   }
   for (TriId t = 0; t < part_store.triangle_capacity(); ++t) {
     if (!part_store.triangle_alive(t)) continue;
     const auto& tri = part_store.triangle(t);
-    store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
+    store.AddTriangle(map[PartVertex{tri[0]}], map[PartVertex{tri[1]}], map[PartVertex{tri[2]}]);
   }
   merged.AdoptQueues(part, map);
   EXPECT_GT(merged.queue_sizes(), 0u);
