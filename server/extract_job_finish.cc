@@ -1,7 +1,5 @@
 // How an ExtractJob ends: the sessions finish, the final mesh or the last sealed chunk goes
 // out, and the final metrics.
-#include "tandem/server/extract_job.h"
-
 #include <algorithm>
 #include <chrono>
 #include <condition_variable>
@@ -13,14 +11,15 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "extract_job_internal.h"
 #include "tandem/codec/draco_codec.h"
 #include "tandem/common/wire.h"
-#include "extract_job_internal.h"
 #include "tandem/eval/distance.h"
-#include "tandem/status_macros.h"
-#include "tandem/task_group.h"
 #include "tandem/eval/report.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/status_macros.h"
 #include "tandem/tandem.h"
+#include "tandem/task_group.h"
 
 namespace tandem::server {
 namespace {
@@ -81,8 +80,9 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   const IndexedMesh mesh = session_->Snapshot();
   // The triangles' shape sums (a tenth of a second a million triangles) are taken beside the
   // encoding below, on a core the finished session left idle.
-  eval::MetricsReport report = eval::MakeReport(*session_, static_cast<int64_t>(mesh.num_triangles()),
-                                    static_cast<int64_t>(mesh.num_vertices()), eval::ShapeSums{});
+  eval::MetricsReport report =
+      eval::MakeReport(*session_, static_cast<int64_t>(mesh.num_triangles()),
+                       static_cast<int64_t>(mesh.num_vertices()), eval::ShapeSums{});
   sink_->PostProgress(MakeProgress());
   session_time_ = session_->stats().time;
   session_.reset();
@@ -163,7 +163,8 @@ absl::Status ExtractJob::MeasureDistancesTo(const IndexedMesh& mesh, eval::Metri
   return absl::OkStatus();
 }
 
-void ExtractJob::PostMetrics(const eval::MetricsReport& report, std::vector<v1::ExtractResponse> out) {
+void ExtractJob::PostMetrics(const eval::MetricsReport& report,
+                             std::vector<v1::ExtractResponse> out) {
   v1::FinalMetrics* metrics = out.emplace_back().mutable_final_metrics();
   common::ReportToProto(report, metrics);
   metrics->set_time_encode_s(encode_s_);

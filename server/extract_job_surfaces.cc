@@ -1,14 +1,13 @@
 // ExtractJob with several surfaces (SessionConfig.extra_isos): one child job per iso-value.
-#include "tandem/server/extract_job.h"
-
 #include <memory>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/common/wire.h"
 #include "extract_job_internal.h"
+#include "tandem/common/wire.h"
+#include "tandem/server/extract_job.h"
 
 namespace tandem::server {
 

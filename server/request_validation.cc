@@ -130,8 +130,8 @@ absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
   const int64_t z = chunk.slice();
   if (chunk.dtype() != v1::DTYPE_UNSPECIFIED && chunk.dtype() != common::DTypeToProto(g.dtype)) {
     return absl::InvalidArgumentError(absl::StrCat(
-        "slice ", z, ": chunk.dtype ", v1::DType_Name(chunk.dtype()), " does not match config.dtype ",
-        v1::DType_Name(common::DTypeToProto(g.dtype))));
+        "slice ", z, ": chunk.dtype ", v1::DType_Name(chunk.dtype()),
+        " does not match config.dtype ", v1::DType_Name(common::DTypeToProto(g.dtype))));
   }
   if (chunk.slice_size() != 0 && chunk.slice_size() != slice_bytes) {
     return absl::InvalidArgumentError(absl::StrCat(

@@ -7,9 +7,9 @@
 #include <utility>
 #include <vector>
 
-#include "tandem/common/wire.h"
 #include "extract_call.h"
 #include "metrics.h"
+#include "tandem/common/wire.h"
 
 namespace tandem::server {
 namespace {

@@ -4,8 +4,8 @@
 
 #include "absl/strings/str_format.h"
 #include "apps/tandem-client/command.h"
-#include "tandem/common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "tandem/common/wire.h"
 
 namespace tandem::client_app {
 

@@ -13,8 +13,8 @@
 #include "absl/strings/str_join.h"
 #include "apps/tandem-client/command.h"
 #include "tandem/common/wire.h"
-#include "tandem/io/mesh_io.h"
 #include "tandem/eval/report.h"
+#include "tandem/io/mesh_io.h"
 #include "tandem/volume.h"
 
 namespace tandem::client_app {

@@ -209,8 +209,9 @@ int ExtractCommand(int argc, char** argv) {
       // The report's measures (Error(K), anisotropy, bias) only read the mesh and the
       // finished session: work them out on another core while the mesh is written.
       // (async | deferred: runs here, later, when no thread can be had.)
-      std::future<eval::MetricsReport> measured = std::async(std::launch::async | std::launch::deferred,
-                                                       [&] { return eval::MakeReport(session, s.mesh); });
+      std::future<eval::MetricsReport> measured =
+          std::async(std::launch::async | std::launch::deferred,
+                     [&] { return eval::MakeReport(session, s.mesh); });
       if (absl::Status st = WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
@@ -247,7 +248,8 @@ int ExtractCommand(int argc, char** argv) {
       if (metrics.find("{iso}") != std::string::npos) {
         auto name = cli::NameForIso("metrics", metrics, isos[i], isos.size());
         if (!name.ok()) return Usage(name.status());
-        if (absl::Status st = WriteText(*name, eval::ReportToJson(s.report)); !st.ok()) return Fail(st);
+        if (absl::Status st = WriteText(*name, eval::ReportToJson(s.report)); !st.ok())
+          return Fail(st);
       } else {
         json.push_back(eval::ReportToJson(s.report));
       }

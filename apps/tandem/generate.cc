@@ -127,7 +127,7 @@ int GenerateCommand(int argc, char** argv) {
   }
   auto make = [&] {
     return eval::MakeSyntheticSource(*shape, int64_t(dims[0]), int64_t(dims[1]), int64_t(dims[2]),
-                               spacing);
+                                     spacing);
   };
   auto src = make();
   // The shape is drawn on the grid; --origin and --directions only place the grid in the

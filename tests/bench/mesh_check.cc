@@ -48,6 +48,7 @@ int main(int argc, char** argv) {
       static_cast<long long>(t.euler), t.boundary_edges, t.nonmanifold_edges,
       t.nonmanifold_vertices, t.misoriented_edges, t.repeated_index_triangles, t.components,
       t.boundary_loops, dups, w.IsManifold() ? "true" : "false", static_cast<long long>(w.euler),
-      w.repeated_index_triangles, tandem::eval::Anisotropy(*mesh), tandem::eval::DirectionalBias(*mesh), zero_area);
+      w.repeated_index_triangles, tandem::eval::Anisotropy(*mesh),
+      tandem::eval::DirectionalBias(*mesh), zero_area);
   return 0;
 }

@@ -239,7 +239,8 @@ TEST_F(Cli, SealedExtractWritesTheWholeMeshAndCountsIt) {
     EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles()) << out;
     EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices()) << out;
     EXPECT_LE(m["error_max"].get<double>(), 0.2);
-    EXPECT_NEAR(m["anisotropy"].get<double>(), eval::Anisotropy(*mesh), 1e-4) << out;  // float32 file
+    EXPECT_NEAR(m["anisotropy"].get<double>(), eval::Anisotropy(*mesh), 1e-4)
+        << out;  // float32 file
     anisotropy[run++] = m["anisotropy"].get<double>();
     const eval::TopologyReport r = eval::AnalyzeTopology(*mesh);
     EXPECT_EQ(r.components, 2u);

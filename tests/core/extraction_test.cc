@@ -643,7 +643,10 @@ TEST(Extraction, GyroidInBallIsClosedHighGenusManifold) {
 }
 
 TEST(Extraction, CrossedCubeFractionsMatchThePaperAt128) {
-  struct Case { eval::Shape shape; double paper; };
+  struct Case {
+    eval::Shape shape;
+    double paper;
+  };
   for (Case c : {Case{eval::Shape::kPillowBox, 0.0353}, Case{eval::Shape::kLink, 0.0171}}) {
     auto src = eval::MakeSyntheticSource(c.shape, 128, 128, 128);
     Extracted e = ExtractSource(*src, 0.0);
@@ -825,7 +828,8 @@ TEST(Simplification, TidyingLeavesNoZeroAreaTriangleOnAQuantisedTangle) {
     after_total += CountDegenerate(simplified);
     before_total += CountDegenerate(full);
     hits += std::count(v.begin(), v.end(), 4.0f);
-    const eval::TopologyReport a = eval::AnalyzeTopology(full), b = eval::AnalyzeTopology(simplified);
+    const eval::TopologyReport a = eval::AnalyzeTopology(full),
+                               b = eval::AnalyzeTopology(simplified);
     EXPECT_TRUE(b.IsManifold()) << "seed " << seed;
     EXPECT_EQ(b.euler, a.euler) << "seed " << seed;
     EXPECT_EQ(b.components, a.components) << "seed " << seed;

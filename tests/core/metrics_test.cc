@@ -166,7 +166,8 @@ TEST(AspectRatioTest, EquilateralIsOneInAnyPoseAndScale) {
 TEST(AspectRatioTest, RightIsoscelesByHand) {
   // Centred corners (−1/3,−1/3), (2/3,−1/3), (−1/3,2/3): (aaᵀ+bbᵀ+ccᵀ)/3 =
   // [[2/9, −1/9], [−1/9, 2/9]], eigenvalues 1/3 and 1/9, so ρ = sqrt(1/3).
-  EXPECT_NEAR(eval::TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0, 1, 0}), std::sqrt(1.0 / 3.0), 1e-14);
+  EXPECT_NEAR(eval::TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0, 1, 0}), std::sqrt(1.0 / 3.0),
+              1e-14);
   EXPECT_NEAR(eval::TriangleAspectRatio(Rotate({0, 0, 0}), Rotate({0, 5, 0}), Rotate({0, 0, 5})),
               std::sqrt(1.0 / 3.0), 1e-14);
 }
@@ -309,10 +310,10 @@ TEST(ClosestPointTest, HandComputedRegions) {
     EXPECT_NEAR(q.z, t.expected.z, 1e-15) << t.region;
   }
   // Distances: vertex region √2, edge region √2, bc region √(1/2).
-  EXPECT_NEAR(Norm(Vec3{-1, -1, 0} - eval::ClosestPointOnTriangle({-1, -1, 0}, a, b, c)), std::sqrt(2.0),
-              1e-15);
-  EXPECT_NEAR(Norm(Vec3{1, 1, 0} - eval::ClosestPointOnTriangle({1, 1, 0}, a, b, c)), std::sqrt(0.5),
-              1e-15);
+  EXPECT_NEAR(Norm(Vec3{-1, -1, 0} - eval::ClosestPointOnTriangle({-1, -1, 0}, a, b, c)),
+              std::sqrt(2.0), 1e-15);
+  EXPECT_NEAR(Norm(Vec3{1, 1, 0} - eval::ClosestPointOnTriangle({1, 1, 0}, a, b, c)),
+              std::sqrt(0.5), 1e-15);
 }
 
 TEST(ClosestPointTest, DegenerateTriangles) {
@@ -340,8 +341,8 @@ TEST(TriangleBvhTest, MatchesBruteForce) {
     double brute = std::numeric_limits<double>::infinity();
     for (size_t t = 0; t < m.num_triangles(); ++t) {
       const Vec3 q = eval::ClosestPointOnTriangle(p, m.positions[m.indices[3 * t]],
-                                            m.positions[m.indices[3 * t + 1]],
-                                            m.positions[m.indices[3 * t + 2]]);
+                                                  m.positions[m.indices[3 * t + 1]],
+                                                  m.positions[m.indices[3 * t + 2]]);
       brute = std::min(brute, Norm(p - q));
     }
     const eval::TriangleBvh::Hit hit = bvh.Closest(p);
@@ -423,7 +424,8 @@ TEST(DistanceTest, ShiftedSphereHausdorffIsTheShift) {
 TEST(DistanceTest, DeterministicForAnyThreadCount) {
   const IndexedMesh a = Icosphere(4);
   const IndexedMesh b = Translated(Icosphere(2, 1.02), {0.01, 0.02, 0});
-  const eval::Distances one = eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = 1});
+  const eval::Distances one =
+      eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = 1});
   for (int threads : {2, 3, 0}) {
     const eval::Distances many =
         eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = threads});
@@ -434,7 +436,8 @@ TEST(DistanceTest, DeterministicForAnyThreadCount) {
     EXPECT_EQ(one.backward.linf, many.backward.linf) << threads << " threads";
   }
   // Another seed gives other samples, hence a slightly different (but close) mean.
-  const eval::Distances other = eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 4, .threads = 2});
+  const eval::Distances other =
+      eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 4, .threads = 2});
   EXPECT_NE(one.forward.l1, other.forward.l1);
   EXPECT_NEAR(one.forward.l1, other.forward.l1, 0.01 * one.forward.l1);
 }
@@ -443,7 +446,8 @@ TEST(DistanceTest, ReusableReferenceHierarchy) {
   const IndexedMesh reference = Icosphere(4);
   const eval::TriangleBvh bvh(reference);
   const IndexedMesh shifted = Translated(reference, {0, 0, 0.02});
-  const eval::DirectedDistance dd = eval::MeasureDirectedDistance(shifted, bvh, {.samples = 30'000});
+  const eval::DirectedDistance dd =
+      eval::MeasureDirectedDistance(shifted, bvh, {.samples = 30'000});
   const eval::Distances full = eval::MeasureDistances(shifted, reference, {.samples = 30'000});
   EXPECT_EQ(dd.l1, full.forward.l1);
   EXPECT_EQ(dd.linf, full.forward.linf);
@@ -460,7 +464,8 @@ TEST(DistanceTest, EmptyMeshesGiveNaN) {
   // A mesh without area (points only) is measured by its vertices.
   IndexedMesh points;
   points.positions = {{0.5, 0.5, 1}, {0.5, 0.5, 2}};
-  const eval::DirectedDistance p = eval::MeasureDirectedDistance(points, eval::TriangleBvh(PlaneGrid(2, 2, 1, 1)));
+  const eval::DirectedDistance p =
+      eval::MeasureDirectedDistance(points, eval::TriangleBvh(PlaneGrid(2, 2, 1, 1)));
   EXPECT_EQ(p.samples, 0u);
   EXPECT_NEAR(p.linf, 2.0, 1e-15);
   EXPECT_NEAR(p.l1, 1.5, 1e-15);

@@ -28,8 +28,8 @@ static_assert(std::is_invocable_v<decltype(&Simplifier::AdoptVertex), Simplifier
                                   const Simplifier&, PartVertex, VertexId, bool>);
 static_assert(!std::is_invocable_v<decltype(&Simplifier::AdoptQueues), Simplifier&,
                                    const Simplifier&, std::span<const VertexId>>);
-static_assert(!std::is_invocable_v<decltype(&Sealer::FreezeShared), Sealer&, VertexId, uint32_t,
-                                   double>);
+static_assert(
+    !std::is_invocable_v<decltype(&Sealer::FreezeShared), Sealer&, VertexId, uint32_t, double>);
 static_assert(!std::is_invocable_v<decltype(&Sealer::Absorb), Sealer&, const Sealer&,
                                    std::span<const VertexId>, std::span<const VertexId>>);
 // Zero cost: the same size and the same bits.

@@ -29,7 +29,8 @@ namespace {
 // here; docs/decisions.md has the benchmark's figures), Hausdorff too.
 TEST(SagCorrection, BringsACurvedSurfaceCloserWithTheSameMesh) {
   const int n = 128;
-  const IndexedMesh reference = FullSurface(*eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n));
+  const IndexedMesh reference =
+      FullSurface(*eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n));
   auto run = [&](double fraction) {
     SessionOptions o;
     o.error = 0.048;

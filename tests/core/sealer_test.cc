@@ -99,8 +99,9 @@ std::vector<int64_t> Sorted(std::vector<int64_t> v) {
 // within the error bound, and within `count_tolerance` of its triangle count, all of them
 // handed out. Returns the welded mesh's report.
 eval::TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& sealed, double e0,
-                                     double count_tolerance, const std::string& what) {
-  const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh), s = eval::AnalyzeTopology(sealed.mesh);
+                                           double count_tolerance, const std::string& what) {
+  const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                             s = eval::AnalyzeTopology(sealed.mesh);
   EXPECT_TRUE(s.IsClosedManifold()) << what;
   EXPECT_EQ(s.euler, p.euler) << what;
   EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;
@@ -108,7 +109,8 @@ eval::TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& 
   // at that grid point; a contraction may not have merged them yet when they freeze
   // (the gyroid at E0 = 0.05: one pair, twice). Anything more would be a vertex handed
   // out under two ids.
-  EXPECT_LE(eval::CountDuplicatePositions(sealed.mesh), eval::CountDuplicatePositions(plain.mesh) + 2)
+  EXPECT_LE(eval::CountDuplicatePositions(sealed.mesh),
+            eval::CountDuplicatePositions(plain.mesh) + 2)
       << what;
   EXPECT_LE(sealed.error_max, e0 * (1 + 1e-9)) << what;
   EXPECT_NEAR(static_cast<double>(s.triangles), static_cast<double>(p.triangles),
@@ -118,7 +120,8 @@ eval::TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& 
 }
 
 TEST(Sealing, ChunksWeldIntoAClosedManifoldWithTheSameTopologyAndCount) {
-  for (eval::Shape shape : {eval::Shape::kSphere, eval::Shape::kLink, eval::Shape::kGyroid, eval::Shape::kPillowBox}) {
+  for (eval::Shape shape :
+       {eval::Shape::kSphere, eval::Shape::kLink, eval::Shape::kGyroid, eval::Shape::kPillowBox}) {
     for (double e0 : {0.05, 0.3}) {
       auto a = eval::MakeSyntheticSource(shape, 64, 64, 64);
       auto b = eval::MakeSyntheticSource(shape, 64, 64, 64);
@@ -345,7 +348,8 @@ TEST(Sealing, ChunksAreTidiedOfZeroAreaTriangles) {
     const SealRun sealed = RunSealed(sealed_src, o);
     const SealRun full = RunSealed(full_src, f);
     degenerate += CountDegenerate(sealed.mesh);
-    const eval::TopologyReport a = eval::AnalyzeTopology(full.mesh), b = eval::AnalyzeTopology(sealed.mesh);
+    const eval::TopologyReport a = eval::AnalyzeTopology(full.mesh),
+                               b = eval::AnalyzeTopology(sealed.mesh);
     EXPECT_TRUE(b.IsManifold()) << "seed " << seed;
     EXPECT_EQ(b.euler, a.euler) << "seed " << seed;
     EXPECT_EQ(b.components, a.components) << "seed " << seed;
@@ -594,7 +598,8 @@ TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
   EXPECT_LE(held[1][2], held[1][1] + held[1][1] / 20);                // then flat
   const SealRun& plain = settled[0];
   const SealRun& sealed = settled[1];
-  const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh), s = eval::AnalyzeTopology(sealed.mesh);
+  const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                             s = eval::AnalyzeTopology(sealed.mesh);
   EXPECT_TRUE(s.IsManifold());  // open at z = 0 and the last slice
   EXPECT_EQ(s.euler, p.euler);
   EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0);
@@ -664,7 +669,8 @@ TEST(Sealing, SettledSeamsAreCoarsenedFirst) {
     PeriodicSource a(72, depth), b(72, depth);
     const SealRun plain = RunSealed(a, plain_o);
     const SealRun sealed = RunSealed(b, sealed_o);
-    const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh), s = eval::AnalyzeTopology(sealed.mesh);
+    const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                               s = eval::AnalyzeTopology(sealed.mesh);
     const int64_t needles_plain = CountNeedles(plain.mesh, 1.0 / 64);
     const int64_t needles_sealed = CountNeedles(sealed.mesh, 1.0 / 64);
     std::printf("E0 %g: triangles plain %lld sealed %lld, needles plain %lld sealed %lld\n", e0,
@@ -704,7 +710,8 @@ TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
       o.seal = true;
       const SealRun sealed = RunSealed(sealed_src, o);
       const std::string what = "seed " + std::to_string(seed) + " E0 " + std::to_string(e0);
-      const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh), s = eval::AnalyzeTopology(sealed.mesh);
+      const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                                 s = eval::AnalyzeTopology(sealed.mesh);
       EXPECT_TRUE(s.IsManifold()) << what;
       EXPECT_EQ(s.euler, p.euler) << what;
       EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;

@@ -76,9 +76,12 @@ constexpr Schedule kSchedules[] = {Schedule::kClassical, Schedule::kTandem,
                                    Schedule::kTandemLag};
 
 TEST(Simplifier, ErrorBoundAndTopologyOnSyntheticFields) {
-  struct Case { eval::Shape shape; int n; };
-  for (Case c : {Case{eval::Shape::kSphere, 48}, Case{eval::Shape::kPillowBox, 64}, Case{eval::Shape::kLink, 64},
-                 Case{eval::Shape::kGyroid, 64}}) {
+  struct Case {
+    eval::Shape shape;
+    int n;
+  };
+  for (Case c : {Case{eval::Shape::kSphere, 48}, Case{eval::Shape::kPillowBox, 64},
+                 Case{eval::Shape::kLink, 64}, Case{eval::Shape::kGyroid, 64}}) {
     const Result full = RunShape(c.shape, c.n, Schedule::kNone, 0);
     const eval::TopologyReport before = eval::AnalyzeTopology(full.mesh);
     for (Schedule s : kSchedules) {
@@ -174,7 +177,8 @@ TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
 TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
   for (bool closed : {true, false}) {
     for (ReleaseRule rule : {ReleaseRule::kReach, ReleaseRule::kLayer}) {
-      auto src = closed ? eval::MakeSyntheticSource(eval::Shape::kSphere, 29, 26, 23) : BoxCutGyroid(29, 26, 23);
+      auto src = closed ? eval::MakeSyntheticSource(eval::Shape::kSphere, 29, 26, 23)
+                        : BoxCutGyroid(29, 26, 23);
       MeshStore store;
       SimplifierOptions so;
       so.error = 0.1;
@@ -613,7 +617,8 @@ TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
   const Result pass = run(Schedule::kTandemLag, e0, SessionOptions{}.lockstep_error);
   EXPECT_LE(pass.error_max, e0 * (1 + 1e-9));
   EXPECT_EQ(pass.stats.error_reached, e0);
-  const eval::TopologyReport a = eval::AnalyzeTopology(full.mesh), b = eval::AnalyzeTopology(pass.mesh);
+  const eval::TopologyReport a = eval::AnalyzeTopology(full.mesh),
+                             b = eval::AnalyzeTopology(pass.mesh);
   EXPECT_TRUE(b.IsClosedManifold());
   EXPECT_EQ(b.euler, a.euler);
   EXPECT_EQ(b.components, a.components);
@@ -842,7 +847,8 @@ Result RunTarget(eval::Shape shape, int n, Schedule schedule, double e0, int64_t
 // part and three (whose shared E0 each part applies at the same step), the topology kept.
 TEST(TargetTriangles, ReachedWhateverE0) {
   constexpr int64_t kTarget = 1500;
-  const eval::TopologyReport full = eval::AnalyzeTopology(RunShape(eval::Shape::kLink, 64, Schedule::kNone, 0).mesh);
+  const eval::TopologyReport full =
+      eval::AnalyzeTopology(RunShape(eval::Shape::kLink, 64, Schedule::kNone, 0).mesh);
   for (Schedule schedule : kSchedules) {
     for (int parts : {1, 3}) {
       for (double e0 : {1e-4, 0.05, 5.0}) {
@@ -884,8 +890,10 @@ TEST(TargetTriangles, HoldAFewTimesWhatTheE0RunHolds) {
 // whatever the threads did, the result is the sequential one.
 TEST(TargetTriangles, PipelinedPartsGiveTheSequentialMesh) {
   for (int parts : {3, 4}) {
-    const Result a = RunTarget(eval::Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, false);
-    const Result b = RunTarget(eval::Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, true);
+    const Result a =
+        RunTarget(eval::Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, false);
+    const Result b =
+        RunTarget(eval::Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, true);
     EXPECT_EQ(a.mesh.indices, b.mesh.indices) << parts;
     EXPECT_EQ(a.mesh.positions, b.mesh.positions) << parts;
     EXPECT_EQ(a.stats.trace, b.stats.trace) << parts;
@@ -992,36 +1000,36 @@ TEST(Simplifier, MappedAndStreamedFilesGiveTheSameSession) {
 // With parts (tandem.h), the pipelined run puts each part on its own thread instead.
 TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
   for (int parts : {1, 3})
-  for (eval::Shape shape : {eval::Shape::kGyroid, eval::Shape::kLink}) {
-    for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
-      IndexedMesh meshes[2];
-      SessionStats stats[2];
-      for (int pipelined = 0; pipelined < 2; ++pipelined) {
-        auto src = eval::MakeSyntheticSource(shape, 56, 56, 56);
-        SessionOptions o;
-        o.schedule = s;
-        o.error = 0.3;
-        o.alpha = 0.2;
-        o.parts = parts;
-        o.pipeline = pipelined == 1;
-        auto session = RunSession(*src, o);
-        ASSERT_TRUE(session.ok()) << session.status();
-        meshes[pipelined] = (*session)->Snapshot();
-        stats[pipelined] = (*session)->stats();
+    for (eval::Shape shape : {eval::Shape::kGyroid, eval::Shape::kLink}) {
+      for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
+        IndexedMesh meshes[2];
+        SessionStats stats[2];
+        for (int pipelined = 0; pipelined < 2; ++pipelined) {
+          auto src = eval::MakeSyntheticSource(shape, 56, 56, 56);
+          SessionOptions o;
+          o.schedule = s;
+          o.error = 0.3;
+          o.alpha = 0.2;
+          o.parts = parts;
+          o.pipeline = pipelined == 1;
+          auto session = RunSession(*src, o);
+          ASSERT_TRUE(session.ok()) << session.status();
+          meshes[pipelined] = (*session)->Snapshot();
+          stats[pipelined] = (*session)->stats();
+        }
+        const std::string what = std::string(eval::ShapeName(shape)) + " " +
+                                 std::string(ScheduleName(s)) + " parts " + std::to_string(parts);
+        EXPECT_EQ(meshes[0].indices, meshes[1].indices) << what;
+        ASSERT_EQ(meshes[0].positions.size(), meshes[1].positions.size()) << what;
+        for (size_t i = 0; i < meshes[0].positions.size(); ++i) {
+          ASSERT_EQ(meshes[0].positions[i], meshes[1].positions[i]) << what << " vertex " << i;
+        }
+        EXPECT_EQ(stats[0].trace, stats[1].trace) << what;
+        EXPECT_EQ(stats[0].contractions, stats[1].contractions) << what;
+        EXPECT_EQ(stats[0].refusals.link, stats[1].refusals.link) << what;
+        EXPECT_GT(stats[1].contractions, 1000) << what;
       }
-      const std::string what = std::string(eval::ShapeName(shape)) + " " +
-                               std::string(ScheduleName(s)) + " parts " + std::to_string(parts);
-      EXPECT_EQ(meshes[0].indices, meshes[1].indices) << what;
-      ASSERT_EQ(meshes[0].positions.size(), meshes[1].positions.size()) << what;
-      for (size_t i = 0; i < meshes[0].positions.size(); ++i) {
-        ASSERT_EQ(meshes[0].positions[i], meshes[1].positions[i]) << what << " vertex " << i;
-      }
-      EXPECT_EQ(stats[0].trace, stats[1].trace) << what;
-      EXPECT_EQ(stats[0].contractions, stats[1].contractions) << what;
-      EXPECT_EQ(stats[0].refusals.link, stats[1].refusals.link) << what;
-      EXPECT_GT(stats[1].contractions, 1000) << what;
     }
-  }
 }
 
 // Peek (tandem.h) gives a split session's figures without waiting for the slab steps still
@@ -1157,11 +1165,13 @@ TEST(Parts, SplitRunKeepsTopologyErrorBoundAndCount) {
       const double e0 = 0.3;
       const PartsRun whole = RunParts(shape, 64, s, e0, 1);
       const PartsRun split = RunParts(shape, 64, s, e0, 3);
-      const std::string what = std::string(eval::ShapeName(shape)) + " " + std::string(ScheduleName(s));
+      const std::string what =
+          std::string(eval::ShapeName(shape)) + " " + std::string(ScheduleName(s));
       const eval::TopologyReport t = eval::AnalyzeTopology(split.mesh);
       EXPECT_TRUE(t.IsManifold()) << what;
       EXPECT_EQ(t.euler, euler) << what;
-      EXPECT_EQ(t.boundary_edges == 0, eval::AnalyzeTopology(whole.mesh).boundary_edges == 0) << what;
+      EXPECT_EQ(t.boundary_edges == 0, eval::AnalyzeTopology(whole.mesh).boundary_edges == 0)
+          << what;
       EXPECT_EQ(eval::CountDuplicatePositions(split.mesh), 0u) << what;
       EXPECT_LE(split.error_max, e0 * (1 + 1e-9)) << what;
       const double nw = double(whole.mesh.num_triangles());
@@ -1266,7 +1276,8 @@ TEST(Parts, AutomaticAndClampedCounts) {
 // (docs/decisions.md).
 TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
   const int n = 128;
-  const IndexedMesh reference = FullSurface(*eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n));
+  const IndexedMesh reference =
+      FullSurface(*eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n));
   struct Result {
     size_t triangles;
     double hausdorff;

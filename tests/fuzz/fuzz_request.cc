@@ -32,9 +32,9 @@
 #include <vector>
 
 #include "tandem/codec/draco_codec.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/server/extract_job.h"
 #include "tandem/server/request_validation.h"
-#include "tandem/eval/synthetic.h"
 #include "tandem/v1/tandem.pb.h"
 
 namespace {

@@ -1,6 +1,6 @@
 // The Draco codec: counts kept exactly at every level, positions within the quantization
 // step, order kept at level 0, deterministic output, clear errors on bad input.
-#include "tandem/codec/draco_codec.h"
+#include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
@@ -8,15 +8,14 @@
 #include <limits>
 #include <map>
 
-#include <gtest/gtest.h>
-
 #include "absl/strings/str_cat.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/eval/topology.h"
 #include "tandem/geometry.h"
 #include "tandem/io/mesh_io.h"
-#include "tandem/eval/synthetic.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
-#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 #include "testutil/embedded.h"
 

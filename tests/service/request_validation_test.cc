@@ -3,6 +3,9 @@
 // exactly the local session's.
 #include "tandem/server/request_validation.h"
 
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -15,24 +18,21 @@
 #include <type_traits>
 #include <vector>
 
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
-
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "tandem/codec/draco_codec.h"
 #include "tandem/common/wire.h"
-#include "tandem/server/extract_job.h"
-#include "tandem/server/auth.h"
-#include "tandem/server/resume.h"
-#include "tandem/server/watch.h"
 #include "tandem/eval/distance.h"
-#include "tandem/geometry.h"
 #include "tandem/eval/metrics.h"
-#include "tandem/mesh.h"
 #include "tandem/eval/report.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/geometry.h"
 #include "tandem/io/run_session.h"
+#include "tandem/mesh.h"
+#include "tandem/server/auth.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/server/resume.h"
+#include "tandem/server/watch.h"
 #include "tandem/tandem.h"
 #include "testutil/testutil.h"
 
@@ -310,9 +310,9 @@ std::vector<v1::ExtractRequest> SourceRequests(const v1::SessionConfig& options,
   out.emplace_back().mutable_end();
   return out;
 }
-std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& options, eval::Shape shape,
-                                                  int64_t nx, int64_t ny, int64_t nz,
-                                                  int pieces) {
+std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& options,
+                                                  eval::Shape shape, int64_t nx, int64_t ny,
+                                                  int64_t nz, int pieces) {
   return SourceRequests(options, eval::MakeSyntheticSource(shape, nx, ny, nz).get(), pieces);
 }
 std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options, int64_t n,
@@ -761,9 +761,8 @@ eval::MetricsReport ReportWithDistinctFields() {
 // key → value text, through the table.
 std::map<std::string, std::string> Fields(const eval::MetricsReport& r) {
   std::map<std::string, std::string> out;
-  eval::VisitReportFields(r, [&](const char* key, const char*, const auto& v, eval::Written) {
-    out[key] = Text(v);
-  });
+  eval::VisitReportFields(
+      r, [&](const char* key, const char*, const auto& v, eval::Written) { out[key] = Text(v); });
   return out;
 }
 

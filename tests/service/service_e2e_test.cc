@@ -1,5 +1,6 @@
 // End to end: the real tandem-server (child process, 127.0.0.1, ephemeral port) and the
 // real tandem-client binary. Every wait is bounded.
+#include <gtest/gtest.h>
 #include <signal.h>
 
 #include <algorithm>
@@ -7,31 +8,29 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <string_view>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
+#include <string_view>
 #include <thread>
 #include <tuple>
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
-#include "tandem/codec/draco_codec.h"
 #include "service/service_testutil.h"
-#include "tandem/io/mesh_io.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/eval/report.h"
-#include "tandem/mesh.h"
-#include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/eval/topology.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/io/series.h"
 #include "tandem/io/volume_writers.h"
+#include "tandem/mesh.h"
 #include "testutil/embedded.h"
 #include "testutil/testutil.h"
 
@@ -314,8 +313,8 @@ TEST_F(ServiceE2eTest, MappedAndReadVolumesStreamTheSameMesh) {
 TEST_F(ServiceE2eTest, StreamingDoesNotPageFaultEveryMessageAnew) {
   if (kSanitized) GTEST_SKIP() << "page faults are the sanitizer's own under ASan and TSan";
   constexpr int64_t kN = 256;  // 64 MiB of float32 in 256 slices of 256 KiB
-  auto path =
-      WriteSyntheticVolume(dir_, "sphere256", eval::MakeSyntheticSource(eval::Shape::kSphere, kN, kN, kN));
+  auto path = WriteSyntheticVolume(dir_, "sphere256",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, kN, kN, kN));
   ASSERT_TRUE(path.ok()) << path.status();
   RunResult r = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
                         "--error", "0.5", "--out", dir_ + "/sphere256.ply"});
@@ -468,7 +467,8 @@ TEST_F(ServiceE2eTest, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
 // the server process's peak RSS, which every session shares: --reference (a second,
 // full-resolution session) raises the first, and both are labelled in the summary.
 TEST_F(ServiceE2eTest, MetricsCarryTheSessionsOwnPeakMemory) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& name, std::vector<std::string> extra) {
     RunResult r = Client(Concat({"stream", "--server", server_->address(), "--input", *path,
@@ -529,7 +529,8 @@ absl::StatusOr<SealedChunk> ReadChunkFile(const std::string& path) {
 // decodes to bit-identical coordinates in both, and the bytes stay close to the plain
 // stream's.
 TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 96, 96, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 96, 96, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& name, std::vector<std::string> extra) {
     return Client(Concat({"stream", "--server", server_->address(), "--input", *path, "--iso",
@@ -800,7 +801,8 @@ TEST_F(ServiceE2eTest, ThePartsAskedForAreTheSessionsSplit) {
 // SessionConfig.lockstep_error (tandem-client --lockstep-error): the finishing pass the
 // client asks for, or turns off with 1, is the session's; unset is the core's default.
 TEST_F(ServiceE2eTest, TheFinishingPassAskedForIsTheSessions) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 48));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 48));
   ASSERT_TRUE(path.ok()) << path.status();
   std::vector<size_t> counts;
   for (double lockstep : {0.0, 1.0, 0.3}) {  // 0: the flag not given
@@ -866,7 +868,8 @@ std::vector<std::string> WatchKeyEnv(const Started& s) {
 // and sessions without sealed chunks are refused clearly. Without the key the session does
 // not exist for a client: not in info, and its id gets the unknown id's NOT_FOUND.
 TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   auto streamer = ChildProcess::Spawn(
       {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
@@ -950,7 +953,8 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
 // final mesh, and its final metrics; of the previews and progress messages sent while it was
 // stalled it gets only the latest ones (latest wins), not the backlog.
 TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChunk) {
-  auto path = WriteSyntheticVolume(dir_, "gyroid", eval::MakeSyntheticSource(eval::Shape::kGyroid, 96, 96, 96));
+  auto path = WriteSyntheticVolume(dir_, "gyroid",
+                                   eval::MakeSyntheticSource(eval::Shape::kGyroid, 96, 96, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   auto streamer = ChildProcess::Spawn(
       {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
@@ -1062,7 +1066,8 @@ void ExpectSameMesh(const std::string& a_path, const std::string& b_path) {
 // is the one its own single-iso stream gives (the same bytes), plain; and sealed, live
 // through a watcher too, each the same mesh as its single sealed stream.
 TEST_F(ServiceE2eTest, SeveralIsoValuesInOneStreamEqualTheirSingleStreams) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& iso, const std::string& out,
                     std::vector<std::string> extra) {
@@ -1120,7 +1125,8 @@ TEST_F(ServiceE2eTest, SeveralIsoValuesInOneStreamEqualTheirSingleStreams) {
 // session (listed as waiting), the new client skips what it has, and the mesh is the one
 // an uninterrupted stream gives; plain and sealed.
 TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   for (const bool seal : {false, true}) {
     SCOPED_TRACE(seal ? "sealed" : "plain");
@@ -1192,7 +1198,8 @@ absl::StatusOr<std::unique_ptr<TcpProxy>> ProxyTo(const TestServer& server) {
 // client resumes by itself, its chunk files have no gap and no repeat, a watcher attached
 // before the cut gets the whole mesh too, and it is the uninterrupted stream's mesh.
 TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::string& address = server_->address();
   auto proxy = ProxyTo(*server_);
@@ -1277,7 +1284,8 @@ void VanishMidScan(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>
 // Several surfaces in one stream survive a cut too: the client resumes the one session
 // (its chunk indices count all surfaces) and each surface is the uninterrupted stream's.
 TEST_F(ServiceE2eTest, ACutStreamOfSeveralSurfacesResumesEachOfThem) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::string& address = server_->address();
   auto proxy = ProxyTo(*server_);
@@ -1395,7 +1403,8 @@ TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
   auto b = TestServer::Start();
   ASSERT_TRUE(a.ok() && b.ok());
   const std::string target = absl::StrCat("ipv4:", (*a)->address(), ",", (*b)->address());
-  auto path = WriteSyntheticVolume(dir, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 80));
+  auto path =
+      WriteSyntheticVolume(dir, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 80));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::vector<std::string> base = {"stream", "--server", target, "--lb", "round_robin",
                                          "--input", *path, "--iso", "0", "--error", "0.05"};
@@ -1525,7 +1534,8 @@ TEST(ServiceResume, AKilledClientResumesFromItsChunkFolderPastTheWatchRetention)
 // server is told that its session is gone and to send the scan again, not a bare NOT_FOUND.
 TEST(ServiceResume, AResumeAfterTheServerRestartedSaysTheSessionIsLost) {
   const std::string dir = MakeTempDir();
-  auto path = WriteSyntheticVolume(dir, "sphere", eval::MakeSyntheticSource(eval::Shape::kSphere, 48, 48, 96));
+  auto path = WriteSyntheticVolume(dir, "sphere",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, 48, 48, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   Started started;
   {
@@ -1720,7 +1730,8 @@ TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
 }
 
 TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {
-  auto path = WriteSyntheticVolume(dir_, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16));
+  auto path =
+      WriteSyntheticVolume(dir_, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16));
   ASSERT_TRUE(path.ok());
   RunResult r = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
                         "--error", "0.1", "--out", dir_ + "/x.ply", "--seal",
@@ -1736,8 +1747,8 @@ TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {
 // and returns once the server reports the session active (nullptr on failure).
 std::unique_ptr<ChildProcess> StartPacedStream(TestServer& server, const std::string& dir,
                                                int64_t nxy, int64_t nz, int rate) {
-  auto path =
-      WriteSyntheticVolume(dir, "sphere", eval::MakeSyntheticSource(eval::Shape::kSphere, nxy, nxy, nz));
+  auto path = WriteSyntheticVolume(dir, "sphere",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, nxy, nxy, nz));
   EXPECT_TRUE(path.ok());
   if (!path.ok()) return nullptr;
   std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
@@ -1797,7 +1808,8 @@ TEST(ServiceShutdown, StreamsPastTheGracePeriodEndWithUnavailable) {
 // server exits, an idle client connection holding nothing up.
 TEST(ServiceShutdown, DrainDelayKeepsServingWhileNotReady) {
   const std::string dir = MakeTempDir();
-  auto volume = WriteSyntheticVolume(dir, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 20, 20, 20));
+  auto volume =
+      WriteSyntheticVolume(dir, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 20, 20, 20));
   ASSERT_TRUE(volume.ok()) << volume.status();
   auto server = TestServer::Start({"--drain-delay-seconds", "3", "--grace-seconds", "5"});
   ASSERT_TRUE(server.ok()) << server.status();
@@ -1893,7 +1905,8 @@ TEST(ServiceShutdown, SecondSignalEndsTheDrainDelay) {
 // The client writes the server's mesh in every format the CLI writes: STL read back with
 // the PLY's counts (the GLB is validated by tests/formats on the CLI's writer, shared).
 TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
-  auto path = WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 40, 40, 40));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 40, 40, 40));
   ASSERT_TRUE(path.ok()) << path.status();
   std::vector<std::string> base = {"stream", "--server", server_->address(), "--input", *path,
                                    "--iso", "0", "--error", "0.3", "--compression-level", "0"};
@@ -2000,7 +2013,8 @@ TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
 // stream gives exactly the mesh of the finished acquisition, and its first preview is saved
 // before the simulator has written the last slice.
 TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
-  auto path = WriteSyntheticVolume(dir_, "pb", eval::MakeSyntheticSource(eval::Shape::kPillowBox, 48, 48, 48));
+  auto path = WriteSyntheticVolume(dir_, "pb",
+                                   eval::MakeSyntheticSource(eval::Shape::kPillowBox, 48, 48, 48));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::vector<std::string> real_ct = {"--scout", "--numbering", "random", "--temp-names",
                                             "hidden"};
@@ -2077,7 +2091,8 @@ TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
 }
 
 TEST_F(ServiceE2eTest, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
-  auto path = WriteSyntheticVolume(dir_, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 20, 20, 20));
+  auto path =
+      WriteSyntheticVolume(dir_, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 20, 20, 20));
   ASSERT_TRUE(path.ok()) << path.status();
   std::vector<std::string> args = {"stream", "--server", server_->address(), "--input", *path,
                                    "--iso", "1000", "--error", "0.3", "--out", dir_ + "/e.ply"};

@@ -3,9 +3,9 @@
 // in flight per stream are bounded (the server stops reading a stream whose client does
 // not read); a stream stalled on either side ends after the idle timeout; keepalive finds
 // a frozen client; the server's ping policy is enforced.
+#include <dirent.h>
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <dirent.h>
 
 #include <atomic>
 #include <regex>
@@ -14,10 +14,10 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_split.h"
-#include "tandem/server/extract_job.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/server/extract_job.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {
@@ -207,8 +207,8 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
 // gets a preview for most slices.
 TEST(LimitsTest, ServerSpacesPreviewsWhateverTheClientAsks) {
   const std::string dir = MakeTempDir();
-  auto volume =
-      WriteSyntheticVolume(dir, "sphere", eval::MakeSyntheticSource(eval::Shape::kSphere, 32, 32, 60));
+  auto volume = WriteSyntheticVolume(dir, "sphere",
+                                     eval::MakeSyntheticSource(eval::Shape::kSphere, 32, 32, 60));
   ASSERT_TRUE(volume.ok()) << volume.status();
   auto previews = [&](int64_t floor_ms, double* wall_s) {
     auto server = TestServer::Start(
@@ -610,7 +610,8 @@ TEST(LimitsTest, KeepaliveFreesTheSessionOfAFrozenClient) {
                                    "--resume-window-seconds", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
-  auto path = WriteSyntheticVolume(dir, "sphere", eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 40));
+  auto path = WriteSyntheticVolume(dir, "sphere",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 40));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream_args = [&](const std::string& rate, const std::string& out) {
     return std::vector<std::string>{BinPath("tandem-client"),
@@ -732,7 +733,8 @@ TEST(LimitsTest, StreamsShareTheServersComputeThreads) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--compute-threads", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
-  auto path = WriteSyntheticVolume(dir, "wide", eval::MakeSyntheticSource(eval::Shape::kLink, 320, 48, 60));
+  auto path =
+      WriteSyntheticVolume(dir, "wide", eval::MakeSyntheticSource(eval::Shape::kLink, 320, 48, 60));
   ASSERT_TRUE(path.ok()) << path.status();
   const pid_t pid = (*server)->process().pid();
   const int idle = ThreadsOf(pid);

@@ -18,10 +18,10 @@
 #include <random>
 #include <thread>
 
-#include "tandem/client/stream_client.h"
-#include "tandem/common/wire.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
+#include "tandem/client/stream_client.h"
+#include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 

@@ -2,6 +2,7 @@
 // requests can be malformed on purpose): each gets the right code and a message that
 // names the problem, and the server keeps serving. Also: session limit, message size
 // limit, cancellation, and the latest-wins previews of a slow reader.
+#include <gtest/gtest.h>
 #include <signal.h>
 
 #include <algorithm>
@@ -11,13 +12,10 @@
 #include <limits>
 #include <thread>
 
-#include <gtest/gtest.h>
-
 #include "absl/strings/str_split.h"
-
-#include "tandem/codec/draco_codec.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 

@@ -4,10 +4,10 @@
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <poll.h>
-#include <sys/socket.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/resource.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -24,10 +24,10 @@
 #include <unordered_map>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
-#include "tandem/io/run_session.h"
+#include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
@@ -240,7 +240,8 @@ absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const s
 }
 
 absl::StatusOr<std::string> WriteLoadVolume(const std::string& dir) {
-  return WriteSyntheticVolume(dir, "load", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 93));
+  return WriteSyntheticVolume(dir, "load",
+                              eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 93));
 }
 
 absl::StatusOr<std::string> WritePattern(const std::string& dir, Pattern pattern, int64_t n,

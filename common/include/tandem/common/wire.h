@@ -3,11 +3,11 @@
 #ifndef TANDEM_PROTO_COMMON_WIRE_H_
 #define TANDEM_PROTO_COMMON_WIRE_H_
 
+#include <grpcpp/support/status.h>
+
 #include <cstddef>
 #include <cstdint>
 #include <string>
-
-#include <grpcpp/support/status.h>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
