@@ -168,9 +168,9 @@ int ExtractCommand(int argc, char** argv) {
     std::string out;
     std::vector<SealedChunk> chunks;
     std::unique_ptr<ChunkedMeshWriter> writer;
-    ShapeSums shape;
+    eval::ShapeSums shape;
     IndexedMesh mesh;
-    MetricsReport report;
+    eval::MetricsReport report;
   };
   std::vector<Surface> surfaces(isos.size());
   std::vector<SessionOptions> options;
@@ -252,15 +252,16 @@ int ExtractCommand(int argc, char** argv) {
     const TandemSession& session = *(*sessions)[i];
     if (s.writer) {
       if (absl::Status st = s.writer->Finish(); !st.ok()) return Fail(st);
-      s.report = MakeReport(session, s.writer->triangles(), s.writer->vertices(), s.shape);
+      s.report = eval::MakeReport(session, s.writer->triangles(), s.writer->vertices(), s.shape);
     } else {
       s.mesh = s.opt.seal ? WeldChunks(s.chunks) : session.Snapshot();
       s.chunks = {};
       // The report's measures (Error(K), anisotropy, bias) only read the mesh and the
       // finished session: work them out on another core while the mesh is written.
       // (async | deferred: runs here, later, when no thread can be had.)
-      std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred,
-                                                       [&] { return MakeReport(session, s.mesh); });
+      std::future<eval::MetricsReport> measured =
+          std::async(std::launch::async | std::launch::deferred,
+                     [&] { return eval::MakeReport(session, s.mesh); });
       if (absl::Status st = WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
@@ -314,30 +315,31 @@ int ExtractCommand(int argc, char** argv) {
     });
     ref_progress.Done();
     if (!refs.ok()) return Fail(refs.status());
-    DistanceOptions dopt;
+    eval::DistanceOptions dopt;
     dopt.samples = static_cast<size_t>(samples);
     for (size_t i = 0; i < surfaces.size(); ++i) {
       surfaces[i].report.distance =
-          MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
+          eval::MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
     }
   }
   bool outside = false;
   std::vector<std::string> json;
   for (size_t i = 0; i < surfaces.size(); ++i) {
     Surface& s = surfaces[i];
-    s.report.peak_rss_bytes = PeakRssBytes();  // the process's, as /usr/bin/time reports it
+    s.report.peak_rss_bytes = eval::PeakRssBytes();  // the process's, as /usr/bin/time reports it
     if (!metrics.empty()) {
       if (metrics.find("{iso}") != std::string::npos) {
         auto name = cli::NameForIso("metrics", metrics, isos[i], isos.size());
         if (!name.ok()) return Usage(name.status());
-        if (absl::Status st = WriteText(*name, ReportToJson(s.report)); !st.ok()) return Fail(st);
+        if (absl::Status st = WriteText(*name, eval::ReportToJson(s.report)); !st.ok())
+          return Fail(st);
       } else {
-        json.push_back(ReportToJson(s.report));
+        json.push_back(eval::ReportToJson(s.report));
       }
     } else if (!quiet) {
       const std::string which = isos.size() > 1 ? absl::StrCat(" (iso ", isos[i].text, ")") : "";
       std::fprintf(stderr, "%s -> %s%s\n%s", input_path.c_str(), s.out.c_str(), which.c_str(),
-                   ReportSummary(s.report).c_str());
+                   eval::ReportSummary(s.report).c_str());
     }
     // An iso-value the data never crosses gives an empty mesh: say so, never silently.
     if (range.Outside(s.opt.iso)) {
