@@ -2,8 +2,8 @@
 // (neuroglancer_multilod_draco, src/datasource/precomputed/meshes.md in Neuroglancer) stored
 // in shards (neuroglancer_uint64_sharded_v1, sharded.md), and the segmentation `info` that
 // points at it, so that `precomputed://URL` opens the export as a segmentation layer.
-// The Draco fragments come from the caller's encoder (codec/draco_codec.h:
-// NeuroglancerEncoder): io holds no Draco, as for the GLB writer.
+// The Draco fragments come from the caller's encoder (tandem/codec/neuroglancer_draco.h:
+// EncodeNeuroglancerFragment): io holds no Draco, as for the GLB writer.
 #ifndef TANDEM_IO_NEUROGLANCER_H_
 #define TANDEM_IO_NEUROGLANCER_H_
 
