@@ -63,6 +63,11 @@ absl::Status TandemSession::AddSlice(const float* values) {
 absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
   Impl& s = *impl_;
   return s.Guarded([&] {
+    if (!SliceValues::ScannedAsIs(dtype)) {  // int8, 32- and 64-bit integers: as float32
+      s.convert.resize(static_cast<size_t>(s.grid.nx * s.grid.ny));
+      ConvertToFloat(dtype, bytes, s.convert.size(), s.convert.data());
+      return s.AddSlice(s.convert.data(), DType::kFloat32, nullptr);
+    }
     if (dtype == DType::kFloat32 && reinterpret_cast<uintptr_t>(bytes) % alignof(float) == 0) {
       // host-order floats as they are
       return s.AddSlice(reinterpret_cast<const float*>(bytes), DType::kFloat32, nullptr);
