@@ -2,6 +2,7 @@
 // interfaces), written one file per label and as one GLB with a node per label, with
 // per-label figures.
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <string>
 #include <utility>
@@ -28,15 +29,28 @@ struct LabelRun {
   std::vector<std::pair<LabelId, IndexedMesh>> surfaces;
 };
 
-absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, const SessionOptions& options,
+// A template on the options' type, so that this builds with an engine that has no label mode
+// (no SessionOptions::labels: refused) as well as with one.
+template <typename Options>
+absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
                                          const LabelOptions& labels,
                                          const std::function<void(int64_t, int64_t)>& progress) {
-  (void)source;
-  (void)options;
-  (void)labels;
-  (void)progress;
-  return absl::UnimplementedError(
-      "--labels: this build's engine has no label mode (SessionOptions::labels)");
+  if constexpr (requires { options.labels; }) {
+    options.labels = labels;
+    if (!options.labels.enabled) return absl::InvalidArgumentError("--labels is not set");
+    auto sessions = RunSessions(source, std::vector<Options>{options}, progress);
+    if (!sessions.ok()) return sessions.status();
+    LabelRun run;
+    run.complex = (*sessions)[0]->SnapshotLabeled();
+    run.session = std::move((*sessions)[0]);
+    run.surfaces = SplitByLabel(run.complex, labels.background);
+    return run;
+  } else {
+    (void)source;
+    (void)progress;
+    return absl::UnimplementedError(
+        "--labels: this build's engine has no label mode (SessionOptions::labels)");
+  }
 }
 
 }  // namespace
