@@ -1,4 +1,4 @@
-#include "client/chunk_store.h"
+#include "tandem/client/chunk_store.h"
 
 #include <filesystem>
 #include <fstream>

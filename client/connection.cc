@@ -1,4 +1,4 @@
-#include "client/connection.h"
+#include "tandem/client/connection.h"
 
 #include <cerrno>
 #include <cstdlib>
@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "common/tokens.h"
+#include "tandem/common/tokens.h"
 
 namespace tandem::client {
 

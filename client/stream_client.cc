@@ -1,4 +1,4 @@
-#include "client/stream_client.h"
+#include "tandem/client/stream_client.h"
 
 #include <algorithm>
 #include <chrono>
@@ -17,8 +17,8 @@
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "codec/draco_codec.h"
-#include "common/wire.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/common/wire.h"
 #include "tandem/status_macros.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 

@@ -1,4 +1,4 @@
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 
 #include <algorithm>
 #include <array>

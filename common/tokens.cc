@@ -1,4 +1,4 @@
-#include "common/tokens.h"
+#include "tandem/common/tokens.h"
 
 #include <cerrno>
 #include <cstring>

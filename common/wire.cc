@@ -1,4 +1,4 @@
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 
 #include <optional>
 #include <set>

@@ -1,4 +1,4 @@
-#include "net/http_guard.h"
+#include "tandem/net/http_guard.h"
 
 #include <arpa/inet.h>
 #include <fcntl.h>
@@ -17,7 +17,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/clock.h"
-#include "net/listen.h"
+#include "tandem/net/listen.h"
 
 namespace tandem::net {
 namespace {

@@ -1,4 +1,4 @@
-#include "net/listen.h"
+#include "tandem/net/listen.h"
 
 #include <netdb.h>
 #include <sys/socket.h>

@@ -1,12 +1,12 @@
-#include "server/auth.h"
+#include "tandem/server/auth.h"
 
 #include <cstdio>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "common/tokens.h"
-#include "server/log.h"
+#include "tandem/common/tokens.h"
+#include "tandem/server/log.h"
 
 namespace tandem::server {
 namespace {

@@ -1,4 +1,4 @@
-#include "server/drain_stand_in.h"
+#include "tandem/server/drain_stand_in.h"
 
 #include <grpcpp/generic/async_generic_service.h>
 
@@ -7,7 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/time/clock.h"
 #include "grpc/health/v1/health.grpc.pb.h"
-#include "net/listen.h"
+#include "tandem/net/listen.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {

@@ -1,5 +1,5 @@
 // The Extract stream's reactor side: reads, writes, its end, and what the worker posts.
-#include "server/extract_call.h"
+#include "extract_call.h"
 
 #include <algorithm>
 #include <string>
@@ -9,8 +9,8 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "common/wire.h"
-#include "server/log.h"
+#include "tandem/common/wire.h"
+#include "tandem/server/log.h"
 
 namespace tandem::server {
 namespace {

@@ -15,10 +15,10 @@
 #include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "server/extract_job.h"
-#include "server/resume.h"
-#include "server/service_state.h"
-#include "server/watch.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/server/resume.h"
+#include "tandem/server/service_state.h"
+#include "tandem/server/watch.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {
@@ -63,7 +63,7 @@ class ExtractCall final : public grpc::ServerBidiReactor<Request, Response>,
 
  private:
   // The worker: takes messages to the job until the stream ends. Returns the job when the
-  // client vanished mid-scan and the session may be resumed (server/resume.h).
+  // client vanished mid-scan and the session may be resumed (tandem/server/resume.h).
   std::optional<ParkedSession> RunWorker();
   // The first message carried SessionConfig.resume: adopts the parked session into *job
   // (`acks`: the config asks for SessionConfig.chunk_acks).

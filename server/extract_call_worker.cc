@@ -1,6 +1,6 @@
 // The Extract stream's worker thread: started with the stream, it feeds the job, resumes a
 // parked session, waits for the last write, and holds a session its client left.
-#include "server/extract_call.h"
+#include "extract_call.h"
 
 #include <algorithm>
 #include <optional>
@@ -13,8 +13,8 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "common/wire.h"
-#include "server/log.h"
+#include "tandem/common/wire.h"
+#include "tandem/server/log.h"
 
 namespace tandem::server {
 namespace {

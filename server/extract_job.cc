@@ -1,13 +1,13 @@
 // ExtractJob's intake: the config, the slices assembled from their chunks, progress, and the
 // detach and attach of a resume.
-#include "server/extract_job.h"
+#include "tandem/server/extract_job.h"
 
 #include <bit>
 #include <cstring>
 #include <string>
 
 #include "absl/strings/str_cat.h"
-#include "server/extract_job_internal.h"
+#include "extract_job_internal.h"
 #include "tandem/status_macros.h"
 
 namespace tandem::server {

@@ -1,11 +1,11 @@
 // An ExtractJob's accounting: the memory it holds against its budget, and its phases' time.
-#include "server/extract_job.h"
+#include "tandem/server/extract_job.h"
 
 #include <algorithm>
 #include <string>
 
 #include "absl/strings/str_format.h"
-#include "server/extract_job_internal.h"
+#include "extract_job_internal.h"
 
 namespace tandem::server {
 ExtractJob::Phases ExtractJob::PhaseSeconds() const {

@@ -1,6 +1,6 @@
 // How an ExtractJob ends: the sessions finish, the final mesh or the last sealed chunk goes
 // out, and the final metrics.
-#include "server/extract_job.h"
+#include "tandem/server/extract_job.h"
 
 #include <algorithm>
 #include <chrono>
@@ -13,9 +13,9 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "codec/draco_codec.h"
-#include "common/wire.h"
-#include "server/extract_job_internal.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/common/wire.h"
+#include "extract_job_internal.h"
 #include "tandem/eval/distance.h"
 #include "tandem/status_macros.h"
 #include "tandem/task_group.h"

@@ -9,8 +9,8 @@
 #include <utility>
 #include <vector>
 
-#include "codec/draco_codec.h"
-#include "server/extract_job.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/server/extract_job.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"
 

@@ -1,6 +1,6 @@
 // What an ExtractJob sends while the slices arrive: sealed chunks on one Draco grid, and
 // previews.
-#include "server/extract_job.h"
+#include "tandem/server/extract_job.h"
 
 #include <algorithm>
 #include <chrono>
@@ -10,8 +10,8 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "codec/draco_codec.h"
-#include "server/extract_job_internal.h"
+#include "tandem/codec/draco_codec.h"
+#include "extract_job_internal.h"
 #include "tandem/status_macros.h"
 #include "tandem/task_group.h"
 

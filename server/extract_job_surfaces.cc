@@ -1,5 +1,5 @@
 // ExtractJob with several surfaces (SessionConfig.extra_isos): one child job per iso-value.
-#include "server/extract_job.h"
+#include "tandem/server/extract_job.h"
 
 #include <memory>
 #include <string>
@@ -7,8 +7,8 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "common/wire.h"
-#include "server/extract_job_internal.h"
+#include "tandem/common/wire.h"
+#include "extract_job_internal.h"
 
 namespace tandem::server {
 

@@ -1,4 +1,4 @@
-#include "server/log.h"
+#include "tandem/server/log.h"
 
 #include <cmath>
 #include <cstdio>

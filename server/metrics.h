@@ -7,7 +7,7 @@
 
 #include <string>
 
-#include "server/service_state.h"
+#include "tandem/server/service_state.h"
 
 namespace tandem::server {
 

@@ -1,4 +1,4 @@
-#include "server/request_validation.h"
+#include "tandem/server/request_validation.h"
 
 #include <algorithm>
 #include <cmath>
@@ -7,7 +7,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 
 namespace tandem::server {
 namespace {

@@ -1,4 +1,4 @@
-#include "server/resume.h"
+#include "tandem/server/resume.h"
 
 #include <openssl/crypto.h>
 #include <openssl/rand.h>

@@ -1,5 +1,5 @@
 // ServiceState: the worker count, the registry of live streams, and the heap handed back when idle.
-#include "server/service_state.h"
+#include "tandem/server/service_state.h"
 
 #include <malloc.h>  // malloc_trim (glibc)
 

@@ -1,15 +1,15 @@
 // The service's RPCs: each checks the bearer token first; Extract starts an ExtractCall, Watch
 // reads a feed, GetInfo reports the limits, counters and the caller's sessions.
-#include "server/tandem_service.h"
+#include "tandem/server/tandem_service.h"
 
 #include <string>
 #include <string_view>
 #include <utility>
 #include <vector>
 
-#include "common/wire.h"
-#include "server/extract_call.h"
-#include "server/metrics.h"
+#include "tandem/common/wire.h"
+#include "extract_call.h"
+#include "metrics.h"
 
 namespace tandem::server {
 namespace {

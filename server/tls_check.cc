@@ -1,4 +1,4 @@
-#include "server/tls_check.h"
+#include "tandem/server/tls_check.h"
 
 #include <memory>
 

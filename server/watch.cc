@@ -1,11 +1,11 @@
-#include "server/watch.h"
+#include "tandem/server/watch.h"
 
 #include <random>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "common/tokens.h"
-#include "server/auth.h"
+#include "tandem/common/tokens.h"
+#include "tandem/server/auth.h"
 
 namespace tandem::server {
 

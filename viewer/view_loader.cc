@@ -2,7 +2,7 @@
 // and starts its server.
 #include "absl/strings/str_cat.h"
 #include "tandem/module/module_loader.h"
-#include "viewer/view_server.h"
+#include "tandem/viewer/view_server.h"
 
 namespace tandem::viewer {
 

@@ -1,7 +1,7 @@
 // libtandem_view.so: the viewer's HTTP server (view_server.h), a module of its own loaded by
 // ViewServer::Start (view_loader.cc), so that only a program that serves the page loads
 // cpp-httplib and the OpenSSL and Brotli it links.
-#include "viewer/view_server.h"
+#include "tandem/viewer/view_server.h"
 
 #include <httplib.h>
 
@@ -26,7 +26,7 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
-#include "net/http_guard.h"
+#include "tandem/net/http_guard.h"
 
 namespace tandem::viewer {
 namespace fs = std::filesystem;

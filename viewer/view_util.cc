@@ -1,4 +1,4 @@
-#include "viewer/view_server.h"
+#include "tandem/viewer/view_server.h"
 
 #include <filesystem>
 #include <vector>

@@ -20,7 +20,7 @@
 #include "absl/strings/strip.h"
 #include "tandem/status_macros.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #endif
 
 namespace tandem::cli {

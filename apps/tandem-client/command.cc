@@ -11,7 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "apps/common/cli_util.h"
-#include "client/stream_client.h"
+#include "tandem/client/stream_client.h"
 
 namespace tandem::client_app {
 

@@ -10,8 +10,8 @@
 
 #include "absl/status/status.h"
 #include "apps/common/flags.h"
-#include "client/connection.h"
-#include "common/wire.h"
+#include "tandem/client/connection.h"
+#include "tandem/common/wire.h"
 
 namespace tandem::client_app {
 

@@ -4,7 +4,7 @@
 
 #include "absl/strings/str_format.h"
 #include "apps/tandem-client/command.h"
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 
 namespace tandem::client_app {

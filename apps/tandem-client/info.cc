@@ -7,7 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "apps/tandem-client/command.h"
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 #include "tandem/options.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 

@@ -7,7 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 #include "tandem/eval/report.h"
 
 namespace tandem::client {

@@ -1,4 +1,4 @@
-// --view for tandem-client stream and watch: the live browser viewer (viewer/view_server.h)
+// --view for tandem-client stream and watch: the live browser viewer (tandem/viewer/view_server.h)
 // fed from the stream's callbacks, kept up after the end until Ctrl-C (or --view-linger).
 // The page always has the growing mesh to draw: every surface's sealed chunks and band, or
 // (unsealed) the whole partial meshes the previews bring, then the final meshes; the
@@ -16,9 +16,9 @@
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "apps/common/flags.h"
-#include "client/stream_client.h"
+#include "tandem/client/stream_client.h"
 #include "tandem/volume.h"
-#include "viewer/view_server.h"
+#include "tandem/viewer/view_server.h"
 
 namespace tandem::client {
 

@@ -12,7 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "apps/tandem-client/command.h"
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/eval/report.h"
 #include "tandem/volume.h"

@@ -10,9 +10,9 @@
 
 #include "absl/status/status.h"
 #include "apps/common/cli_util.h"
-#include "client/chunk_store.h"
-#include "client/stream_client.h"
-#include "codec/draco_codec.h"
+#include "tandem/client/chunk_store.h"
+#include "tandem/client/stream_client.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/v1/tandem.pb.h"
 
 namespace tandem::client_app {

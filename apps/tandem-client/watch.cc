@@ -11,9 +11,9 @@
 #include "apps/tandem-client/command.h"
 #include "apps/tandem-client/live_view.h"
 #include "apps/tandem-client/save.h"
-#include "client/chunk_store.h"
-#include "client/stream_client.h"
-#include "codec/draco_codec.h"
+#include "tandem/client/chunk_store.h"
+#include "tandem/client/stream_client.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/io/mesh_io.h"
 
 namespace tandem::client_app {

@@ -10,7 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "apps/common/flags.h"
 #include "apps/common/version.h"
-#include "server/log.h"
+#include "tandem/server/log.h"
 
 namespace tandem::server_app {
 namespace {

@@ -5,8 +5,8 @@
 #include <cstdint>
 #include <string>
 
-#include "common/wire.h"
-#include "server/tandem_service.h"
+#include "tandem/common/wire.h"
+#include "tandem/server/tandem_service.h"
 
 namespace tandem::server_app {
 

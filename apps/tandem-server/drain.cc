@@ -13,7 +13,7 @@
 
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
-#include "server/log.h"
+#include "tandem/server/log.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server_app {

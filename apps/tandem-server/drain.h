@@ -9,8 +9,8 @@
 #include <memory>
 #include <string>
 
-#include "server/drain_stand_in.h"
-#include "server/tandem_service.h"
+#include "tandem/server/drain_stand_in.h"
+#include "tandem/server/tandem_service.h"
 
 namespace tandem::server_app {
 

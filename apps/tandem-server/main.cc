@@ -27,14 +27,14 @@
 #include "apps/common/cli_util.h"
 #include "apps/tandem-server/config.h"
 #include "apps/tandem-server/drain.h"
-#include "common/tokens.h"
-#include "common/wire.h"
-#include "net/http_guard.h"
-#include "net/listen.h"
-#include "server/drain_stand_in.h"
-#include "server/log.h"
-#include "server/tandem_service.h"
-#include "server/tls_check.h"
+#include "tandem/common/tokens.h"
+#include "tandem/common/wire.h"
+#include "tandem/net/http_guard.h"
+#include "tandem/net/listen.h"
+#include "tandem/server/drain_stand_in.h"
+#include "tandem/server/log.h"
+#include "tandem/server/tandem_service.h"
+#include "tandem/server/tls_check.h"
 
 namespace {
 
@@ -194,7 +194,7 @@ int main(int argc, char** argv) {
                         "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network"));
   }
 
-  // The metrics endpoint: its own small HTTP server (cpp-httplib behind net/http_guard.h).
+  // The metrics endpoint: its own small HTTP server (cpp-httplib behind tandem/net/http_guard.h).
   std::unique_ptr<tandem::net::GuardedHttpServer> http;
   if (!metrics_listen.empty()) {
     const size_t colon = metrics_listen.rfind(':');

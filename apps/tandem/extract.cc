@@ -15,7 +15,7 @@
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #endif
 #include "tandem/eval/distance.h"
 #include "tandem/io/follow.h"

@@ -16,7 +16,7 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
-#include "viewer/view_server.h"
+#include "tandem/viewer/view_server.h"
 
 namespace tandem::app {
 

@@ -759,8 +759,8 @@ TEST_F(Cli, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
       << o.text;
 }
 
-// The viewer's HTTP server is a module too (viewer/view_server.h): Debian's cpp-httplib links
-// OpenSSL and Brotli, whose loading cost every start of the CLI ~5 ms and 3.8 MB resident
+// The viewer's HTTP server is a module too (tandem/viewer/view_server.h): Debian's cpp-httplib
+// links OpenSSL and Brotli, whose loading cost every start of the CLI ~5 ms and 3.8 MB resident
 // (12.6 -> 7.7 ms for `tandem --version`, 19.7 -> 15.9 MB for the 128³ Link's extraction).
 TEST_F(Cli, LoadsTheViewerModuleOnlyForTheViewer) {
   Output o = RunTandem("generate link --size 24 --out " + Path("v.json"));

@@ -13,7 +13,7 @@
 #include "apps/common/extract_flags.h"
 #include "tandem/options.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #endif
 
 namespace tandem::cli {

@@ -31,9 +31,9 @@
 #include <string>
 #include <vector>
 
-#include "codec/draco_codec.h"
-#include "server/extract_job.h"
-#include "server/request_validation.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/server/request_validation.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/v1/tandem.pb.h"
 

@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "common/tokens.h"
+#include "tandem/common/tokens.h"
 #include "testutil/testutil.h"
 
 namespace tandem::auth {

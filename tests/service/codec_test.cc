@@ -1,6 +1,6 @@
 // The Draco codec: counts kept exactly at every level, positions within the quantization
 // step, order kept at level 0, deterministic output, clear errors on bad input.
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,7 +1,7 @@
 // request_validation (proto → core options or a Status) and ExtractJob driven directly,
 // without gRPC: codes, messages a person can act on, cadence, and the final mesh being
 // exactly the local session's.
-#include "server/request_validation.h"
+#include "tandem/server/request_validation.h"
 
 #include <cmath>
 #include <cstdio>
@@ -20,12 +20,12 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
-#include "codec/draco_codec.h"
-#include "common/wire.h"
-#include "server/extract_job.h"
-#include "server/auth.h"
-#include "server/resume.h"
-#include "server/watch.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/common/wire.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/server/auth.h"
+#include "tandem/server/resume.h"
+#include "tandem/server/watch.h"
 #include "tandem/eval/distance.h"
 #include "tandem/geometry.h"
 #include "tandem/eval/metrics.h"

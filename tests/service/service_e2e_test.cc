@@ -23,7 +23,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #include "service/service_testutil.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/eval/report.h"

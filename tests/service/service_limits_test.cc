@@ -14,7 +14,7 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_split.h"
-#include "server/extract_job.h"
+#include "tandem/server/extract_job.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"

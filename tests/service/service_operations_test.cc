@@ -20,7 +20,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/str_cat.h"
-#include "client/connection.h"
+#include "tandem/client/connection.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/raw_http.h"

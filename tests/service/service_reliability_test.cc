@@ -18,8 +18,8 @@
 #include <random>
 #include <thread>
 
-#include "client/stream_client.h"
-#include "common/wire.h"
+#include "tandem/client/stream_client.h"
+#include "tandem/common/wire.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"

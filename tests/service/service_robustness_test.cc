@@ -15,7 +15,7 @@
 
 #include "absl/strings/str_split.h"
 
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"

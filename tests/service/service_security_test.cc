@@ -8,7 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"

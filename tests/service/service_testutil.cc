@@ -24,7 +24,7 @@
 #include <unordered_map>
 
 #include "absl/strings/str_cat.h"
-#include "common/wire.h"
+#include "tandem/common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/io/run_session.h"
 #include "tandem/eval/synthetic.h"

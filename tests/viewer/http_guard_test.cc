@@ -1,6 +1,6 @@
-// net/http_guard.h's rules on their own: which Host headers name a server bound where, and
+// tandem/net/http_guard.h's rules on their own: which Host headers name a server bound where, and
 // what a failed bind is reported as (with real sockets on 127.0.0.1).
-#include "net/http_guard.h"
+#include "tandem/net/http_guard.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "net/listen.h"
+#include "tandem/net/listen.h"
 #include "testutil/raw_http.h"
 
 namespace tandem::net {

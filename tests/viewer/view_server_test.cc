@@ -2,7 +2,7 @@
 // sockets for what it will not send): addresses, the token (the page's files included),
 // immutable chunks and bands, the event stream, a busy port, and the doors closed: bodies,
 // methods, ranges, foreign Host headers, slow and idle connections.
-#include "viewer/view_server.h"
+#include "tandem/viewer/view_server.h"
 
 #include <httplib.h>
 #include <unistd.h>

@@ -45,8 +45,8 @@ IndexedMesh WeldChunks(std::span<const SealedChunk> chunks);
 
 // A GLB file's primitive with KHR_draco_mesh_compression (tandem/mesh_io.h writes GLB):
 // positions, normals and triangles as one Draco buffer, which neither core nor io can make
-// (neither holds Draco). The caller's compressor (codec/draco_codec.h: GlbCompressor) makes it
-// from the mesh and its normals, and tells what the buffer decodes to, for the glTF
+// (neither holds Draco). The caller's compressor (tandem/codec/draco_codec.h: GlbCompressor)
+// makes it from the mesh and its normals, and tells what the buffer decodes to, for the glTF
 // accessors: the counts (Draco may split a vertex), the positions' bounds, and the Draco
 // attribute ids of POSITION and NORMAL.
 struct GlbDracoPrimitive {

@@ -1,7 +1,7 @@
 // Modules: parts of the programs built as shared objects of their own and loaded the first
 // time they are needed, so that a run that never needs them does not load their libraries:
 //   libtandem_dicom.so  GDCM (io/dicom_codec.h): its dictionaries load at every start;
-//   libtandem_view.so   the browser viewer's HTTP server (viewer/view_server.h): cpp-httplib
+//   libtandem_view.so   the browser viewer's HTTP server (tandem/viewer/view_server.h): cpp-httplib
 //                       and the OpenSSL and Brotli it links (docs/decisions.md 41, 43).
 // A module is looked for next to the executable (the build tree's bin/), then in
 // ../lib/tandem/ beside it (cmake --install, the container image). It is never unloaded

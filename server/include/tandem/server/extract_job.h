@@ -28,7 +28,7 @@
 #include "absl/container/flat_hash_map.h"
 #include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
-#include "server/request_validation.h"
+#include "tandem/server/request_validation.h"
 #include "tandem/budget.h"
 #include "tandem/eval/metrics.h"
 #include "tandem/eval/report.h"
@@ -76,7 +76,7 @@ class ExtractJob {
   absl::Status HandleEndOfInput() const;
 
   bool done() const { return state_ == State::kDone; }
-  // Resume (server/resume.h). A job past its config and before End can wait for a new
+  // Resume (tandem/server/resume.h). A job past its config and before End can wait for a new
   // stream: Detach drops a partly received slice and the sink (nothing is posted while
   // detached); Attach gives it the new stream's sink and posts a Progress.
   bool resumable() const { return state_ == State::kStreaming; }

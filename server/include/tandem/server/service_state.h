@@ -17,10 +17,10 @@
 
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "server/auth.h"
-#include "server/request_validation.h"
-#include "server/resume.h"
-#include "server/watch.h"
+#include "tandem/server/auth.h"
+#include "tandem/server/request_validation.h"
+#include "tandem/server/resume.h"
+#include "tandem/server/watch.h"
 #include "tandem/executor.h"
 
 namespace tandem::server {

@@ -2,7 +2,7 @@
 //
 // When an Extract stream is cancelled before End (the client's process died, the connection
 // was lost, the client cancelled) and its job is between slices, the stream's worker parks
-// the job here under the session's id, with its feed (server/watch.h, so watchers stay
+// the job here under the session's id, with its feed (tandem/server/watch.h, so watchers stay
 // attached and the sealed chunks stay available for replay) and its resume token, and then
 // waits, on its own thread, until another stream adopts the job or the window is over.
 // Adopt checks the token and the next slice; a stream that adopts a job continues it
@@ -21,8 +21,8 @@
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "server/extract_job.h"
-#include "server/watch.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/server/watch.h"
 
 namespace tandem::server {
 

@@ -14,7 +14,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "codec/draco_codec.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"

@@ -12,8 +12,8 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "client/chunk_store.h"
-#include "client/connection.h"
+#include "tandem/client/chunk_store.h"
+#include "tandem/client/connection.h"
 #include "tandem/mesh.h"
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"

@@ -1,5 +1,5 @@
 // TandemService: the gRPC callback service's entry points (each Extract stream is an ExtractCall,
-// server/extract_call.h; its work is an ExtractJob, server/extract_job.h).
+// server/extract_call.h; its work is an ExtractJob, tandem/server/extract_job.h).
 //
 // Threading: each accepted Extract stream gets one worker thread (at most
 // limits.max_sessions at once; more streams get RESOURCE_EXHAUSTED), which owns the
@@ -8,14 +8,14 @@
 // compute_threads + gRPC's own, whatever the streams ask for.
 // Reactions never block and never compute: they move messages between gRPC and the worker
 // under a mutex.
-//   * Watch: every accepted stream publishes into a SessionFeed (server/watch.h) under a
+//   * Watch: every accepted stream publishes into a SessionFeed (tandem/server/watch.h) under a
 //     random id it sends in its first Progress; Watch calls read the feed.
 //   * Resume: a stream cancelled between its config and End (its client vanished) parks
-//     its job in ServiceState::resumable (server/resume.h) and its worker thread waits
+//     its job in ServiceState::resumable (tandem/server/resume.h) and its worker thread waits
 //     there, up to limits.resume_window_s, for a stream whose config carries Resume; that
 //     stream's worker adopts the job and its feed, and goes on with it.
 //   * Authentication: with tokens configured, Extract, GetInfo and Watch check the bearer token
-//     before anything else (server/auth.h explains why there and not in gRPC hooks).
+//     before anything else (tandem/server/auth.h explains why there and not in gRPC hooks).
 //   * Flow control: one read in flight; the next starts as soon as the previous message
 //     is queued, while the stream's bytes in flight (received, not yet taken by the
 //     worker, plus responses not yet sent) stay below limits.max_inflight_bytes. At that
@@ -55,8 +55,8 @@
 #include <grpcpp/grpcpp.h>
 
 #include "absl/time/time.h"
-#include "server/request_validation.h"
-#include "server/service_state.h"
+#include "tandem/server/request_validation.h"
+#include "tandem/server/service_state.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {

@@ -20,7 +20,7 @@
 // With a token (--view-token-file, $TANDEM_VIEW_TOKEN), every request, the page's own files
 // included, needs `Authorization: Bearer TOKEN`, `?token=TOKEN` (EventSource cannot set
 // headers; the page forwards its own URL's token) or the cookie the page got with it (for
-// the scripts, styles and three.js it loads). The HTTP rules of net/http_guard.h apply:
+// the scripts, styles and three.js it loads). The HTTP rules of tandem/net/http_guard.h apply:
 // GET/HEAD only, no request body, one range, the Host header checked, slow clients cut off.
 #ifndef TANDEM_VIEWER_VIEW_SERVER_H_
 #define TANDEM_VIEWER_VIEW_SERVER_H_

@@ -16,8 +16,8 @@
 // used (MayRead); to any other call it does not exist.
 //
 // Resume: the chunks also serve the session's own client, resumed after its connection
-// dropped (server/resume.h), which asks for those it did not keep. A client that acknowledges
-// the chunks it kept (SessionConfig.chunk_acks) has every chunk it did not acknowledge kept
+// dropped (tandem/server/resume.h), which asks for those it did not keep. A client that
+// acknowledges the chunks it kept (SessionConfig.chunk_acks) has every chunk it did not acknowledge kept
 // for it until the session ends (held_, beside the newest retain_bytes kept for watchers),
 // counted in the session's memory budget; without acknowledgements only the newest
 // retain_bytes are kept once the chunks outgrew it.
@@ -71,7 +71,7 @@ class SessionFeed {
   void Chunk(const v1::SealedChunk& c);
   // `metrics`: one FinalMetrics per surface (none when the stream failed).
   void Finish(std::vector<v1::FinalMetrics> metrics, const grpc::Status& status);
-  // Resume (server/resume.h): the session waits for its client to come back.
+  // Resume (tandem/server/resume.h): the session waits for its client to come back.
   void SetWaiting(bool waiting);
   bool finished() const;
   // The chunks from index `first` on, for a resumed stream; FAILED_PRECONDITION when some

@@ -48,7 +48,7 @@ absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const ConnectionOptio
 void AddToken(const ConnectionOptions& options, grpc::ClientContext* context);
 
 // The client's token: the first token of `token_file` when given (the server's tokens
-// file format: common/tokens.h), else $TANDEM_TOKEN, else "". Errors name the file or the
+// file format: tandem/common/tokens.h), else $TANDEM_TOKEN, else "". Errors name the file or the
 // variable, never the token.
 absl::StatusOr<std::string> LoadToken(const std::string& token_file);
 
