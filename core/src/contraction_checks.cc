@@ -26,6 +26,16 @@ int CountOf(const VertexId (&v)[N], VertexId x) {
   return static_cast<int>(acc[0] + acc[1] + acc[2] + acc[3]);
 }
 
+// Whether triangle tri has both c and d among its corners (the triangle x-c-d of a fan).
+bool HoldsBoth(const std::array<VertexId, 3>& tri, VertexId c, VertexId d) {
+  bool hc = false, hd = false;
+  for (VertexId x : tri) {
+    hc |= x == c;
+    hd |= x == d;
+  }
+  return hc && hd;
+}
+
 // LinkConditionFans with fan arrays of kFan entries (both fans fit).
 template <size_t kFan>
 bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
@@ -204,17 +214,128 @@ bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScra
     const VertexId c = apex[0], d = apex[1];
     auto has_triangle = [&](VertexId v) {
       for (TriId t : store.vertex_triangles(v)) {
-        const auto& tri = store.triangle(t);
-        bool hc = false, hd = false;
-        for (VertexId x : tri) {
-          hc |= x == c;
-          hd |= x == d;
-        }
-        if (hc && hd) return true;
+        if (HoldsBoth(store.triangle(t), c, d)) return true;
       }
       return false;
     };
     if (has_triangle(a) && has_triangle(b)) return false;
+  }
+  return true;
+}
+
+namespace {
+
+using Tri = std::array<VertexId, 3>;
+
+// The neighbours of v in its triangles `fan`, each with the number of them on edge (v, x).
+void TallyNeighbours(std::span<const Tri> fan, VertexId v,
+                     std::vector<std::pair<VertexId, int>>* out) {
+  out->clear();
+  for (const Tri& tri : fan) {
+    for (VertexId x : tri) {
+      if (x == v) continue;
+      auto it = std::find_if(out->begin(), out->end(), [x](const auto& e) { return e.first == x; });
+      if (it == out->end()) {
+        out->push_back({x, 1});
+      } else {
+        ++it->second;
+      }
+    }
+  }
+}
+
+int CountIn(const std::vector<std::pair<VertexId, int>>& tally, VertexId x) {
+  for (const auto& [y, n] : tally) {
+    if (y == x) return n;
+  }
+  return 0;
+}
+
+// LAMBDA(ab) in one surface, given its triangles at a and at b (the rules of
+// LinkConditionMarks, on lists: a label's fans are small).
+bool SurfaceLinkCondition(std::span<const Tri> fa, std::span<const Tri> fb, VertexId a, VertexId b,
+                          LinkScratch* scratch) {
+  VertexId apex[2];
+  int napex = 0;
+  for (const Tri& tri : fa) {
+    if (tri[0] != b && tri[1] != b && tri[2] != b) continue;
+    if (napex == 2) return false;  // an edge in three triangles of one surface
+    for (VertexId x : tri) {
+      if (x != a && x != b) apex[napex++] = x;
+    }
+  }
+  if (napex == 0) return false;  // a and b both in the surface, but not joined in it
+  if (napex == 2 && apex[0] == apex[1]) return false;
+  auto& ta = scratch->tally_a;
+  auto& tb = scratch->tally_b;
+  TallyNeighbours(fa, a, &ta);
+  TallyNeighbours(fb, b, &tb);
+  bool a_boundary = false, b_boundary = false;
+  for (const auto& [x, n] : ta) a_boundary |= n == 1;
+  for (const auto& [x, n] : tb) b_boundary |= n == 1;
+  int common = 0;
+  for (const auto& [x, n] : tb) {
+    if (x == a || CountIn(ta, x) == 0) continue;
+    ++common;
+    if (x != apex[0] && (napex < 2 || x != apex[1])) return false;  // (1) not an apex
+  }
+  if (common != napex) return false;
+  if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
+    return !(CountIn(ta, apex[0]) == 1 && CountIn(tb, apex[0]) == 1);
+  }
+  if (a_boundary && b_boundary) return false;  // (2) interior edge between boundaries
+  const VertexId c = apex[0], d = apex[1];
+  auto has_cd = [c, d](std::span<const Tri> fan) {
+    return std::any_of(fan.begin(), fan.end(), [c, d](const Tri& t) { return HoldsBoth(t, c, d); });
+  };
+  return !(has_cd(fa) && has_cd(fb));  // (3) interior: acd and bcd both present
+}
+
+}  // namespace
+
+bool LabelLinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
+  auto labels_at = [&store](VertexId v, std::vector<LabelId>* out) {
+    out->clear();
+    for (TriId t : store.vertex_triangles(v)) {
+      const LabelPair& p = store.pair_of(t);
+      out->push_back(p.inside);
+      out->push_back(p.outside);
+    }
+    std::sort(out->begin(), out->end());
+    out->erase(std::unique(out->begin(), out->end()), out->end());
+  };
+  // Inside one patch (most edges) both labels' surfaces are the stars themselves, a
+  // consistently oriented manifold there: the iso-surface's test decides for both.
+  const auto ta = store.vertex_triangles(a), tb = store.vertex_triangles(b);
+  if (ta.empty() || tb.empty()) return false;
+  const uint32_t patch = store.patch(ta[0]);
+  bool one_patch = true;
+  for (TriId t : ta) one_patch &= store.patch(t) == patch;
+  for (TriId t : tb) one_patch &= store.patch(t) == patch;
+  if (one_patch) {
+    return ta.size() <= kFanMax && tb.size() <= kFanMax ? LinkConditionFans(store, a, b)
+                                                        : LinkConditionMarks(store, a, b, scratch);
+  }
+  int on_ab = 0;
+  for (TriId t : ta) {
+    const auto& tri = store.triangle(t);
+    on_ab += (tri[0] == b) | (tri[1] == b) | (tri[2] == b);
+  }
+  if (on_ab == 0 || on_ab > kMaxEdgeTriangles) return false;
+  labels_at(a, &scratch->labels_a);
+  labels_at(b, &scratch->labels_b);
+  auto fan_of = [&store](VertexId v, LabelId l, std::vector<Tri>* out) {
+    out->clear();
+    for (TriId t : store.vertex_triangles(v)) {
+      const LabelPair& p = store.pair_of(t);
+      if (p.inside == l || p.outside == l) out->push_back(store.triangle(t));
+    }
+  };
+  for (LabelId l : scratch->labels_a) {
+    if (!std::binary_search(scratch->labels_b.begin(), scratch->labels_b.end(), l)) continue;
+    fan_of(a, l, &scratch->fan_a);
+    fan_of(b, l, &scratch->fan_b);
+    if (!SurfaceLinkCondition(scratch->fan_a, scratch->fan_b, a, b, scratch)) return false;
   }
   return true;
 }

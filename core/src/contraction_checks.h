@@ -5,9 +5,11 @@
 #ifndef TANDEM_CONTRACTION_CHECKS_H_
 #define TANDEM_CONTRACTION_CHECKS_H_
 
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "mesh_store.h"
@@ -31,11 +33,30 @@ struct LinkScratch {
     uint8_t count_a = 0, count_b = 0;
   };
   std::vector<Mark> table;  // open addressing, at most half full
-  size_t MemoryBytes() const { return table.capacity() * sizeof(Mark); }
+  // Label mode: the labels around a and b, one label's triangles at each, their neighbours.
+  std::vector<LabelId> labels_a, labels_b;
+  std::vector<std::array<VertexId, 3>> fan_a, fan_b;
+  std::vector<std::pair<VertexId, int>> tally_a, tally_b;
+  size_t MemoryBytes() const {
+    return table.capacity() * sizeof(Mark) +
+           (labels_a.capacity() + labels_b.capacity()) * sizeof(LabelId) +
+           (fan_a.capacity() + fan_b.capacity()) * sizeof(fan_a[0]) +
+           (tally_a.capacity() + tally_b.capacity()) * sizeof(tally_a[0]);
+  }
 };
 bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b);  // fans <= kFanMax
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch);
+// The interface complex of a label session (MeshStore::labeled): for every label whose
+// surface (its triangles, either side) holds both a and b, ab is an edge of that surface and
+// LAMBDA(ab) holds in it; a label whose surface holds one of them asks nothing. So every
+// label keeps its topology while the triangles stay shared (docs/decisions.md, "Label
+// volumes"). False also when ab lies in more than kMaxEdgeTriangles triangles.
+inline constexpr int kMaxEdgeTriangles = 8;
+bool LabelLinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch);
 inline bool LinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
+  if (store.labeled()) [[unlikely]] {
+    return LabelLinkCondition(store, a, b, scratch);
+  }
   if (store.vertex_triangles(a).size() <= kFanMax && store.vertex_triangles(b).size() <= kFanMax) {
     return LinkConditionFans(store, a, b);
   }

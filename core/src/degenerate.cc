@@ -89,6 +89,16 @@ bool TryFlip(MeshStore* s, TriId t) {
   const std::array<VertexId, 3> o = s->triangle(u);
   const VertexId c = o[0] != a && o[0] != b ? o[0] : (o[1] != a && o[1] != b ? o[1] : o[2]);
   if (c == m || HasEdge(*s, m, c)) return false;
+  if (s->labeled()) {
+    // The complex of a label session: a flip keeps within one patch, on an edge of two
+    // triangles (where labels meet it would cut one label's surface from another's).
+    int on_ab = 0;
+    for (TriId x : s->vertex_triangles(a)) {
+      const auto& w = s->triangle(x);
+      on_ab += (w[0] == b) | (w[1] == b) | (w[2] == b);
+    }
+    if (on_ab != 2 || s->patch(t) != s->patch(u)) return false;
+  }
   // m inside ab: (m, a, c) and (m, c, b) tile u and keep its orientation; otherwise one turns.
   const Vec3 before = TwiceArea(*s, o);
   const std::array<VertexId, 3> n1{m, a, c}, n2{m, c, b};
@@ -98,10 +108,14 @@ bool TryFlip(MeshStore* s, TriId t) {
       return false;
     }
   }
+  const uint32_t patch = s->labeled() ? s->patch(t) : 0;
   s->RemoveTriangle(t);
   s->RemoveTriangle(u);
-  s->AddTriangle(m, a, c);
-  s->AddTriangle(m, c, b);
+  const TriId t1 = s->AddTriangle(m, a, c), t2 = s->AddTriangle(m, c, b);
+  if (s->labeled()) {
+    s->set_patch(t1, patch);
+    s->set_patch(t2, patch);
+  }
   return true;
 }
 

@@ -14,6 +14,7 @@
 #endif
 
 #include "absl/strings/str_cat.h"
+#include "label_extractor.h"
 #include "mc_tables.h"
 #include "tandem/volume.h"
 
@@ -63,6 +64,15 @@ LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
     : config_(config), store_(store) {
   words_ = (config.nx + kWordBits - 1) / kWordBits;
   inside_from_ = InsideFrom(config.iso);
+  if (config.labels.enabled) {
+    labels_ = std::make_unique<LabelLayers>(config.nx, config.ny, config.nz, config.labels);
+  }
+}
+
+LayerExtractor::~LayerExtractor() = default;
+
+bool LayerExtractor::ComputeClosingLayer() {
+  return labels_ != nullptr && labels_->ComputeClosing(this);
 }
 
 size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny, DType dtype) {
@@ -75,6 +85,7 @@ size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny, DType dtype) {
 }
 
 size_t LayerExtractor::PlaneBytes(DType planned) const {
+  if (labels_) return labels_->MemoryBytes();
   if (ze_.first.empty()) return PlaneCacheBytes(config_.nx, config_.ny, planned);
   // The values as held (the bottom plane, empty after the first slice, as the top one); the
   // sign bits and edge ranks as allocated.
@@ -218,9 +229,19 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     if (new_seam && (sv.box_mask & kSeam)) (*new_seam)[sv.seam_face].push_back(v);
   }
   auto resolve = [this](VertexId v) { return IsPending(v) ? staged_to_store_[v & ~kPending] : v; };
-  for (const auto& tri : staged_triangles_) {
-    const TriId t = store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2]));
-    if (new_tris) new_tris->push_back(t);
+  if (labels_) {
+    std::vector<TriId> tris;
+    tris.reserve(staged_triangles_.size());
+    for (const auto& tri : staged_triangles_) {
+      tris.push_back(store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2])));
+    }
+    labels_->Commit(store_, tris, staged_to_store_);
+    if (new_tris) new_tris->insert(new_tris->end(), tris.begin(), tris.end());
+  } else {
+    for (const auto& tri : staged_triangles_) {
+      const TriId t = store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2]));
+      if (new_tris) new_tris->push_back(t);
+    }
   }
   if (new_edges) new_edges->insert(new_edges->end(), staged_edges_.begin(), staged_edges_.end());
   // The top plane's cached ids become the next layer's bottom: store ids from now on.
@@ -316,6 +337,7 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
     return absl::InvalidArgumentError(
         absl::StrCat("slice ", k, " is past the end of the volume (nz = ", config_.nz, ")"));
   }
+  if (labels_) return labels_->Compute(slice, this);
   if (!SliceValues::ScannedAsIs(slice.dtype)) {
     return absl::InternalError(absl::StrCat(std::string(DTypeName(slice.dtype)),
                                             " voxels reach the extractor unconverted"));
@@ -575,6 +597,7 @@ void LayerExtractor::Finish() {
   if (finished_) return;
   finished_ = true;
   if (config_.nz > 0) return;  // kBoxZMax was set at creation
+  if (config_.labels.close) return;  // closed: nothing lies on the box
   for (VertexId v : top_plane_vertices_) {
     if (store_->vertex_alive(v)) {
       store_->set_box_mask(v, store_->box_mask(v) | kBoxZMax);

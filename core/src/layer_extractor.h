@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <utility>
 #include <vector>
 
@@ -24,6 +25,7 @@
 #include "mesh_store.h"
 #include "meter.h"
 #include "tandem/geometry.h"
+#include "tandem/labels.h"
 #include "tandem/types.h"
 #include "tandem/volume.h"
 
@@ -67,12 +69,18 @@ struct ExtractorConfig {
   // smallest spacing: at most reach + k * reach_per_slice (the whole grid's, in the frame the
   // outputs are written in), which sets the edge offset (EdgeOffset, tandem/geometry.h).
   double reach = 0, reach_per_slice = 0;
+  // A label session (labels.enabled): the layers come from LabelLayers (label_extractor.h),
+  // through this extractor's staging and commit; `iso` and the offsets are not used.
+  LabelOptions labels{};
 };
+
+class LabelLayers;
 
 class LayerExtractor {
  public:
   // `store` must outlive the extractor.
   LayerExtractor(const ExtractorConfig& config, MeshStore* store);
+  ~LayerExtractor();
 
   // Consumes the next slice (nx*ny values, x fastest): ComputeLayer then CommitLayer.
   // Appends the ids of the triangles and vertices it created to *new_tris / *new_verts when
@@ -102,6 +110,9 @@ class LayerExtractor {
   // Declares the last slice added to be the top of the box: its plane vertices get the
   // kBoxZMax bit. Called by the owner when the stream ends (a no-op beyond that).
   void Finish();
+  // A label session with labels.close, once the last slice is in: stages the layer between
+  // it and the background above (CommitLayer adds it). False when there is none.
+  bool ComputeClosingLayer();
 
   // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
   // two value planes, their sign bits and the five crossed-edge indices' word counts.
@@ -134,6 +145,7 @@ class LayerExtractor {
   const ExtractorConfig& config() const { return config_; }
 
  private:
+  friend class LabelLayers;  // stages its layers here
   void AllocatePlanes();  // the plane caches, on the first ComputeLayer
   // After a row of ComputeLayer of slice k: once kCheckEvery more vertices and triangles are
   // staged, reports to the account (throws SessionStop). A compare a row otherwise.
@@ -260,6 +272,7 @@ class LayerExtractor {
   Meter::Account* account_ = nullptr;
   size_t commit_vertex_bytes_ = 0, commit_triangle_bytes_ = 0;
   size_t check_at_ = 0;  // staged elements at the next Checkpoint
+  std::unique_ptr<LabelLayers> labels_;  // a label session's layers (null: iso-surface)
 };
 
 }  // namespace tandem

@@ -191,6 +191,27 @@ void MeshStore::AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_m
   }
 }
 
+void MeshStore::set_patch(TriId t, uint32_t p) {
+  if (patch_.size() <= t) patch_.resize(std::max<size_t>(t + 1, patch_.size() * 3 / 2), 0);
+  patch_[t] = p;
+}
+
+uint32_t MeshStore::PatchOf(LabelPair pair) {
+  const auto [it, added] =
+      pair_index_.try_emplace({pair.inside, pair.outside}, static_cast<uint32_t>(pairs_.size()));
+  if (added) pairs_.push_back(pair);
+  return it->second;
+}
+
+std::vector<uint32_t> MeshStore::SnapshotPatches() const {
+  std::vector<uint32_t> out;
+  out.reserve(live_triangles_);
+  for (TriId t = 0; t < tris_.size(); ++t) {
+    if (!free_triangles_.Contains(t)) out.push_back(patch_[t]);
+  }
+  return out;
+}
+
 size_t MeshStore::VertexBytes() { return sizeof(VertexRecord) + kMinSlot * sizeof(TriId); }
 size_t MeshStore::TriangleBytes() { return sizeof(std::array<VertexId, 3>); }
 
@@ -198,6 +219,8 @@ size_t MeshStore::MemoryBytes() const {
   size_t b = vtx_.MemoryBytes() + free_vertices_.MemoryBytes() + tris_.MemoryBytes() +
              free_triangles_.MemoryBytes() + pool_.MemoryBytes();
   for (const auto& f : free_slots_) b += f.MemoryBytes();
+  b += patch_.capacity() * sizeof(uint32_t) + pairs_.capacity() * sizeof(LabelPair) +
+       pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1);
   return b;
 }
 

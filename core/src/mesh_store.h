@@ -17,8 +17,10 @@
 #include <span>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "free_ids.h"
 #include "pod_array.h"
+#include "tandem/labels.h"
 #include "tandem/mesh.h"
 #include "tandem/types.h"
 
@@ -158,6 +160,19 @@ class MeshStore {
   // used as given (a vertex already in *out, e.g. welded), the others are filled in.
   void AppendSnapshot(IndexedMesh* out, std::vector<uint32_t>* vertex_map) const;
 
+  // Label mode (SessionOptions::labels): each triangle's patch, an index into pairs(), the
+  // two labels it separates. Kept beside the triangles only once EnableLabels is called, so
+  // an iso-surface store carries nothing for it.
+  void EnableLabels() { labeled_ = true; }
+  bool labeled() const { return labeled_; }
+  uint32_t patch(TriId t) const { return patch_[t]; }
+  void set_patch(TriId t, uint32_t p);
+  const std::vector<LabelPair>& pairs() const { return pairs_; }
+  const LabelPair& pair_of(TriId t) const { return pairs_[patch_[t]]; }
+  uint32_t PatchOf(LabelPair pair);  // its index in pairs(), added if new
+  // The patches of the live triangles in Snapshot's order (triangle id order).
+  std::vector<uint32_t> SnapshotPatches() const;
+
   // Bytes the store's arrays take in memory (PodArray::MemoryBytes: capacity, but for a
   // mapped array only the pages written): for memory figures and the session budget.
   size_t MemoryBytes() const;
@@ -207,6 +222,12 @@ class MeshStore {
   PodArray<std::array<VertexId, 3>> tris_;
   FreeIds free_triangles_;  // also the dead ones' flags: a bit a triangle, not a byte
   size_t live_triangles_ = 0;
+
+  // Label mode: patch per triangle id, the pairs and their index.
+  bool labeled_ = false;
+  std::vector<uint32_t> patch_;
+  std::vector<LabelPair> pairs_;
+  absl::flat_hash_map<std::pair<LabelId, LabelId>, uint32_t> pair_index_;
 
   // Incidence pool and its per-size-class free lists.
   PodArray<TriId> pool_;

@@ -5,6 +5,7 @@
 
 #include "absl/strings/cord.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 
 namespace tandem {
 
@@ -83,6 +84,30 @@ absl::Status ValidateIsoList(std::span<const double> isos) {
 
 absl::Status SessionOptions::Validate() const {
   if (!std::isfinite(iso)) return Refuse("iso", iso, "iso-value must be a finite number");
+  if (labels.enabled) {
+    const std::vector<LabelId>& only = labels.only;
+    for (size_t i = 1; i < only.size(); ++i) {
+      if (only[i] <= only[i - 1]) {
+        return Refuse("labels.only", absl::StrJoin(only, ","),
+                      "the labels to keep must be given in increasing order, each once");
+      }
+    }
+    if (std::binary_search(only.begin(), only.end(), labels.background)) {
+      return Refuse("labels.background", labels.background,
+                    "the background label has no surface; it cannot be one of the labels to "
+                    "keep (labels.only)");
+    }
+    if (seal) {
+      return Refuse("seal", "true",
+                    "a label volume is meshed whole: sealed chunks are not supported with "
+                    "labels");
+    }
+    if (parts > 1) {
+      return Refuse("parts", parts,
+                    "a label volume is meshed in one part: parts must be 0 (automatic) or 1 "
+                    "with labels");
+    }
+  }
   if (schedule == Schedule::kNone) return absl::OkStatus();
   if (!(error > 0) || !std::isfinite(error)) {
     return Refuse("error", error,
@@ -129,6 +154,11 @@ absl::Status SessionOptions::Validate() const {
 
 absl::Status SessionOptions::ValidateFor(const VolumeInfo& grid) const {
   if (absl::Status st = Validate(); !st.ok()) return st;
+  if (labels.enabled && grid.dtype == DType::kFloat32) {
+    return Refuse("labels.enabled", "true",
+                  "a label volume needs integer voxels (uint8, uint16, int16, ...); this volume "
+                  "is float32");
+  }
   if (schedule == Schedule::kNone) return absl::OkStatus();
   const double smallest = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
   const double largest = std::max({grid.spacing[0], grid.spacing[1], grid.spacing[2]});

@@ -312,6 +312,13 @@ absl::Status StepSlab(Slab& s, SliceValues values, Schedule schedule, const Over
 void FinishSlab(Slab& s, Schedule schedule) {
   if (s.simplify_pending) SimplifyLayer(s);
   s.simplify_pending = false;
+  if (s.extractor.ComputeClosingLayer()) {  // a closed label volume: the background above
+    InsertLayer(s, schedule);
+    if (Lockstep(schedule)) {
+      s.pending_front = s.extractor.slices_done();
+      SimplifyLayer(s);
+    }
+  }
   s.extractor.Finish();
   if (schedule == Schedule::kNone) return;
   const PhaseClock clock(s.simplifier);

@@ -135,7 +135,33 @@ bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
   return found;
 }
 
+void Simplifier::PushComplexTriangleEdges(TriId t, bool new_layer) {
+  // Where 3 or more labels meet, an edge lies in as many triangles, facing either way, so
+  // half-edges cannot say which triangle queues it: the one of least id does, among the new
+  // layer's (an edge in a triangle of an older layer was queued with that layer).
+  auto layer_of = [this](TriId u) {
+    const auto& o = store_->triangle(u);
+    return std::max({store_->layer(o[0]), store_->layer(o[1]), store_->layer(o[2])});
+  };
+  const int32_t layer = new_layer ? layer_of(t) : 0;
+  const auto& tri = store_->triangle(t);
+  for (int k = 0; k < 3; ++k) {
+    const VertexId a = tri[k], b = tri[(k + 1) % 3];
+    bool queued = false;
+    for (TriId u : store_->vertex_triangles(a)) {
+      const auto& o = store_->triangle(u);
+      if (u == t || (o[0] != b && o[1] != b && o[2] != b)) continue;
+      queued |= (new_layer && layer_of(u) < layer) || u < t;
+    }
+    if (!queued) AddToBatch(a, b);
+  }
+}
+
 void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
+  if (store_->labeled()) {
+    PushComplexTriangleEdges(t, new_layer);
+    return;
+  }
   // Each edge once: an interior edge is traversed a -> b by one triangle and b -> a by the
   // other, so it is pushed from the a < b side; an edge with no reverse half-edge (box
   // boundary, or the front before the next layer) is pushed from its only triangle.
@@ -337,15 +363,17 @@ void Simplifier::Activate(double front) {
 
 void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // a survives as c; b's triangles move to a; the triangles on ab disappear.
-  TriId on_ab[3];  // the link condition passed: ab is in one or two triangles
+  // The link condition passed: ab is in one or two triangles, or in a label session's
+  // complex in up to kMaxEdgeTriangles.
+  TriId on_ab[kMaxEdgeTriangles + 1];
   int n_ab = 0;
   for (TriId t : store_->vertex_triangles(a)) {
     const auto& tri = store_->triangle(t);
-    on_ab[std::min(n_ab, 2)] = t;  // branch-free: which ones they are is unpredictable
+    on_ab[std::min(n_ab, kMaxEdgeTriangles)] = t;  // branch-free: which ones is unpredictable
     n_ab += static_cast<int>(tri[0] == b) + static_cast<int>(tri[1] == b) +
             static_cast<int>(tri[2] == b);
   }
-  assert(n_ab == 1 || n_ab == 2);
+  assert(n_ab >= 1 && n_ab <= (store_->labeled() ? kMaxEdgeTriangles : 2));
   for (int i = 0; i < n_ab; ++i) store_->RemoveTriangle(on_ab[i]);
   store_->MoveTriangles(b, a);
   store_->RemoveVertex(b);

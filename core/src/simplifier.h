@@ -229,6 +229,7 @@ class Simplifier {
   // Each edge of t once (see Delay), into batch_. new_layer: t belongs to the layer being
   // delayed, whose edges on the plane below were queued with the layer underneath.
   void PushTriangleEdges(TriId t, bool new_layer);
+  void PushComplexTriangleEdges(TriId t, bool new_layer);  // the same in a label session
   bool HasHalfEdge(VertexId a, VertexId b) const;  // some triangle traverses a -> b
   // Batches: PushEdge's work for many edges, the pure part (release key, quadric solve)
   // possibly on two threads, then the pushes in batch order.

@@ -316,6 +316,7 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
   // 81 wide").
   constexpr int64_t kMinAutoColumns = 40;
   const bool automatic = requested <= 0;
+  if (options.labels.enabled) return 1;  // a label volume is one part (options.cc)
   const int64_t wanted = automatic ? (grid.nx >= 256 ? 4 : 2) : requested;
   const int64_t columns = automatic ? kMinAutoColumns : kMinColumns;
   return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / columns)));
@@ -358,6 +359,7 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
   for (int p = 0; p < count; ++p) {
     const int64_t c0 = p * (grid.nx - 1) / count, c1 = (p + 1) * (grid.nx - 1) / count;
     ExtractorConfig ec{c1 - c0 + 1, grid.ny, grid.nz, spacing, {0, 0, 0}, options.iso};
+    ec.labels = options.labels;
     ec.reach = reach;
     ec.reach_per_slice = grid.spacing[2] / smallest;
     const OffsetEdges offset_edges{
@@ -384,6 +386,7 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .check_quadrics = options.check_quadrics,
                                .offset_edges = offset_edges};
     auto slab = std::make_unique<Slab>(ec, so, meter);
+    if (options.labels.enabled) slab->store.EnableLabels();
     const bool simplify = options.schedule != Schedule::kNone;
     // A staged vertex becomes a store record with its smallest incidence slot, its quadric
     // (simplifying), and an entry of the commit's id lists; a triangle its record and lists.

@@ -56,14 +56,28 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
   }
 }
 
+namespace {
+
+absl::Status FloatLabelsError() {
+  return absl::InvalidArgumentError(
+      "a label volume needs integer voxels (uint8, uint16, int16, ...) given through "
+      "AddSliceBytes; float32 values are not labels");
+}
+
+}  // namespace
+
 absl::Status TandemSession::AddSlice(const float* values) {
+  if (impl_->options.labels.enabled) return FloatLabelsError();
   return impl_->Guarded([&] { return impl_->AddSlice(values, DType::kFloat32, nullptr); });
 }
 
 absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
   Impl& s = *impl_;
+  if (s.options.labels.enabled && dtype == DType::kFloat32) return FloatLabelsError();
   return s.Guarded([&] {
-    if (!SliceValues::ScannedAsIs(dtype)) {  // int8, 32- and 64-bit integers: as float32
+    // An intensity volume of int8, 32- or 64-bit integers: as float32 (a label session reads
+    // every integer type as it is).
+    if (!s.options.labels.enabled && !SliceValues::ScannedAsIs(dtype)) {
       s.convert.resize(static_cast<size_t>(s.grid.nx * s.grid.ny));
       ConvertToFloat(dtype, bytes, s.convert.size(), s.convert.data());
       return s.AddSlice(s.convert.data(), DType::kFloat32, nullptr);
@@ -95,6 +109,20 @@ IndexedMesh TandemSession::Snapshot() const {
     AppendWeldedSnapshot(s.slabs, s.seams, &out);
   }
   s.ToWorld(&out.positions, &out.indices);
+  return out;
+}
+
+LabeledMesh TandemSession::SnapshotLabeled() const {
+  Impl& s = *impl_;
+  LabeledMesh out;
+  if (!s.options.labels.enabled) return out;
+  (void)s.Sync();  // a failure is reported by AddSlice or Finish
+  // A label session is one part.
+  const MeshStore& store = s.slabs[0]->store;
+  out.mesh = store.Snapshot();
+  out.patch = store.SnapshotPatches();
+  out.pairs = store.pairs();
+  s.ToWorld(&out.mesh.positions, &out.mesh.indices);
   return out;
 }
 

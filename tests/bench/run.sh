@@ -14,6 +14,10 @@
 # With --target (first argument) it runs --target-triangles N against the E0 run that gives N
 # (target.py, issue 24: tests/bench/TARGET.md).
 #   bash tests/bench/run.sh --target [--quick] [--only NAME] [--repeats N] [--keep]
+# With --labels (first argument) it runs the segmentation benchmark instead (labels.py, issue
+# 64: tests/bench/LABELS.md): label volumes meshed by tandem's label mode and by VTK's
+# discrete flying edges + per-label decimation, with the gaps between touching labels.
+#   bash tests/bench/run.sh --labels [--quick] [--repeats N] [--keep]
 # Full mode writes tests/bench/REPORT.md and tests/bench/results.json; --quick writes them to
 # the scratch directory ($TANDEM_BENCH_SCRATCH, default ${TMPDIR:-/tmp}/tandem-bench), which
 # also holds the generated volumes (never committed). Peers: bash tests/bench/install-peers.sh
@@ -24,6 +28,7 @@ root="$(cd "$here/../.." && pwd)"
 build="${TANDEM_BENCH_BUILD:-$root/build-bench-peers}"
 script="$here/bench.py"
 dense=false
+labels=false
 if [[ "${1:-}" == "--dense" ]]; then
   shift
   dense=true
@@ -34,6 +39,10 @@ elif [[ "${1:-}" == "--sweep" ]]; then
 elif [[ "${1:-}" == "--target" ]]; then
   shift
   script="$here/target.py"
+elif [[ "${1:-}" == "--labels" ]]; then
+  shift
+  script="$here/labels.py"
+  labels=true
 fi
 python=/usr/bin/python3  # Debian's (python3-matplotlib lives there), not a pyenv shim
 [[ -x $python ]] || python=python3
@@ -47,6 +56,10 @@ if ! { cmake -S "$here" -B "$build" -DCMAKE_BUILD_TYPE=Release &&
   exit 1
 fi
 grep -E '^-- bench:' "$build/bench-build.log" || true
+if $labels && [[ -x "$build/bin/labels_lib_test" ]]; then
+  # The measures the report rests on check themselves first.
+  ctest --test-dir "$build" -R labels_lib_test --output-on-failure
+fi
 if $dense; then
   server_build="${TANDEM_BENCH_SERVER_BUILD:-$root/build}"
   if [[ -f "$server_build/CMakeCache.txt" ]]; then

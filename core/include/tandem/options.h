@@ -11,6 +11,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "tandem/labels.h"
 #include "tandem/volume.h"
 
 namespace tandem {
@@ -83,6 +84,10 @@ struct SessionOptions {
   // contractions sum it, and counts the quadrics it reads that differ (SessionStats::
   // quadric_mismatches; 0: every vertex kept its quadric in full before it moved). Slower.
   bool check_quadrics = false;
+  // Label mode (labels.enabled): the slices are a label map (integer dtypes through
+  // AddSliceBytes; float input is refused), every label's surface comes out of one sweep as
+  // the interface complex (SnapshotLabeled), `iso` is not used. One part, no sealing.
+  LabelOptions labels{};
   // The rules the options must satisfy, here and nowhere else. A refusal is
   // InvalidArgument "<field> = <value>: <rule>" (e.g. "alpha = 1.5: isotropy alpha must lie
   // in [0, 1]") and carries an OptionError, so that a front end can name the field in its

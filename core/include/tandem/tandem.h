@@ -37,6 +37,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "tandem/executor.h"
+#include "tandem/labels.h"
 #include "tandem/mesh.h"
 #include "tandem/options.h"
 #include "tandem/stats.h"
@@ -78,11 +79,13 @@ class TandemSession {
   TandemSession(const TandemSession&) = delete;
   TandemSession& operator=(const TandemSession&) = delete;
 
-  // Consumes the next slice (nx*ny floats, x fastest). A rejected slice (non-finite values,
-  // past nz) leaves the mesh as it was, apart from the deferred SIMPLIFY step of the slice
-  // before, which the sequential order would have run already.
+  // Consumes the next slice (nx*ny floats, x fastest; a label session refuses floats). A rejected
+  // slice (non-finite values, past nz) leaves the mesh as it was, apart from the deferred SIMPLIFY
+  // step of the slice before, which the sequential order would have run already.
   absl::Status AddSlice(const float* values);
-  // Same, from raw voxels of the given type in host byte order.
+  // Same, from raw voxels of the given type in host byte order. A label session
+  // (SessionOptions::labels) takes its slices here, in an integer type (each value a label;
+  // a negative one is refused, naming the voxel).
   absl::Status AddSliceBytes(DType dtype, const uint8_t* bytes);
   // Ends the stream: at least 2 slices (and nz if it was declared) must have been added.
   absl::Status Finish();
@@ -90,6 +93,10 @@ class TandemSession {
   // Compacted copy of the current (partial or final) mesh, the slabs welded at their seams;
   // with sealing, of the part not sealed yet (empty after Finish).
   IndexedMesh Snapshot() const;
+  // A label session's current mesh (the same as Snapshot, in the same order) with the pair
+  // of labels each triangle separates (labels.h; SplitByLabel makes one surface per label).
+  // Empty for an iso-surface session.
+  LabeledMesh SnapshotLabeled() const;
   const SessionStats& stats() const;
   double MaxShapeError() const;  // Error(K), in world units
   const VolumeInfo& grid() const;

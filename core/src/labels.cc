@@ -1,0 +1,66 @@
+// SplitByLabel (tandem/labels.h): the interface complex cut into one surface per label.
+#include "tandem/labels.h"
+
+#include <algorithm>
+#include <cstdint>
+#include <tuple>
+
+#include "tandem/types.h"
+
+namespace tandem {
+
+std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
+                                                          LabelId background) {
+  // Each triangle once per side that is not background: (label, triangle, reversed), sorted
+  // by label, so that the split is one pass over the complex however many labels it has.
+  struct Side {
+    LabelId label;
+    uint32_t tri;
+    bool reversed;
+  };
+  const size_t n = std::min(mesh.mesh.num_triangles(), mesh.patch.size());
+  std::vector<Side> sides;
+  sides.reserve(2 * n);
+  for (size_t t = 0; t < n; ++t) {
+    if (mesh.patch[t] >= mesh.pairs.size()) continue;  // no pair: belongs to no label
+    const LabelPair& p = mesh.pairs[mesh.patch[t]];
+    const auto id = static_cast<uint32_t>(t);
+    if (p.inside != background) sides.push_back({p.inside, id, false});
+    if (p.outside != background && p.outside != p.inside) sides.push_back({p.outside, id, true});
+  }
+  std::stable_sort(sides.begin(), sides.end(),
+                   [](const Side& a, const Side& b) { return a.label < b.label; });
+  std::vector<std::pair<LabelId, IndexedMesh>> out;
+  std::vector<uint32_t> map(mesh.mesh.num_vertices(), kInvalid);
+  for (size_t begin = 0; begin < sides.size();) {
+    size_t end = begin;
+    while (end < sides.size() && sides[end].label == sides[begin].label) ++end;
+    IndexedMesh m;
+    m.indices.reserve(3 * (end - begin));
+    for (size_t s = begin; s < end; ++s) {
+      const uint32_t* tri = mesh.mesh.indices.data() + 3 * size_t{sides[s].tri};
+      const uint32_t corners[3] = {tri[0], sides[s].reversed ? tri[2] : tri[1],
+                                   sides[s].reversed ? tri[1] : tri[2]};
+      for (uint32_t v : corners) {
+        if (v >= map.size()) continue;
+        if (map[v] == kInvalid) {
+          map[v] = static_cast<uint32_t>(m.positions.size());
+          m.positions.push_back(mesh.mesh.positions[v]);
+        }
+        m.indices.push_back(map[v]);
+      }
+      if (m.indices.size() % 3 != 0) m.indices.resize(m.indices.size() / 3 * 3);
+    }
+    for (size_t s = begin; s < end; ++s) {  // reset the map for the next label
+      const uint32_t* tri = mesh.mesh.indices.data() + 3 * size_t{sides[s].tri};
+      for (int k = 0; k < 3; ++k) {
+        if (tri[k] < map.size()) map[tri[k]] = kInvalid;
+      }
+    }
+    out.emplace_back(sides[begin].label, std::move(m));
+    begin = end;
+  }
+  return out;
+}
+
+}  // namespace tandem

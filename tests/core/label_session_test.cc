@@ -1,0 +1,488 @@
+// Label sessions (SessionOptions::labels): every label's surface from one sweep, on label
+// volumes made here. Each label's surface (SplitByLabel) must be an oriented 2-manifold,
+// closed or open only on the grid's box, with the topology of the unsimplified surface; the
+// interfaces are the same triangles in both labels' surfaces; the error stays within E0.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <map>
+#include <random>
+#include <set>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "gtest/gtest.h"
+#include "tandem/eval/topology.h"
+#include "tandem/geometry.h"
+#include "tandem/labels.h"
+#include "tandem/tandem.h"
+
+namespace tandem {
+namespace {
+
+struct Volume {
+  int64_t nx, ny, nz;
+  std::vector<uint16_t> v;
+  Volume(int64_t x, int64_t y, int64_t z, uint16_t fill = 0)
+      : nx(x), ny(y), nz(z), v(static_cast<size_t>(x * y * z), fill) {}
+  uint16_t& at(int64_t x, int64_t y, int64_t z) {
+    return v[static_cast<size_t>((z * ny + y) * nx + x)];
+  }
+  // Label l in the voxels [x0, x1) x [y0, y1) x [z0, z1).
+  void Box(std::array<int64_t, 3> lo, std::array<int64_t, 3> hi, uint16_t l) {
+    for (int64_t z = lo[2]; z < hi[2]; ++z) {
+      for (int64_t y = lo[1]; y < hi[1]; ++y) {
+        for (int64_t x = lo[0]; x < hi[0]; ++x) at(x, y, z) = l;
+      }
+    }
+  }
+};
+
+struct Meshed {
+  absl::Status status;
+  LabeledMesh mesh;
+  double max_error = 0;
+};
+
+SessionOptions LabelOptionsFor(Schedule schedule, bool close = false) {
+  SessionOptions o;
+  o.labels.enabled = true;
+  o.labels.close = close;
+  o.schedule = schedule;
+  o.error = 0.5;
+  return o;
+}
+
+// `declare_nz` false: a stream whose depth is not known until it ends.
+Meshed Mesh(const Volume& vol, const SessionOptions& options,
+            std::array<double, 3> spacing = {1, 1, 1}, bool declare_nz = true) {
+  Meshed r;
+  VolumeInfo grid;
+  grid.spacing = spacing;
+  grid.nx = vol.nx;
+  grid.ny = vol.ny;
+  grid.nz = declare_nz ? vol.nz : 0;
+  grid.dtype = DType::kUInt16;
+  auto session = TandemSession::Create(grid, options);
+  if (!session.ok()) {
+    r.status = session.status();
+    return r;
+  }
+  const size_t slice = static_cast<size_t>(vol.nx * vol.ny);
+  for (int64_t z = 0; z < vol.nz; ++z) {
+    r.status = (*session)->AddSliceBytes(
+        DType::kUInt16, reinterpret_cast<const uint8_t*>(vol.v.data() + z * slice));
+    if (!r.status.ok()) return r;
+  }
+  r.status = (*session)->Finish();
+  r.mesh = (*session)->SnapshotLabeled();
+  r.max_error = (*session)->MaxShapeError();
+  return r;
+}
+
+// Whether p lies on the grid's box (spacing 1, origin 0).
+bool OnBox(const Vec3& p, const Volume& vol) {
+  return p.x == 0 || p.y == 0 || p.z == 0 || p.x == static_cast<double>(vol.nx - 1) ||
+         p.y == static_cast<double>(vol.ny - 1) || p.z == static_cast<double>(vol.nz - 1);
+}
+
+using Triple = std::array<std::array<double, 3>, 3>;
+// The triangle's corner positions, rotated to start at the least: one key per oriented
+// triangle, whatever the indices.
+Triple Key(const IndexedMesh& m, size_t t, bool reversed) {
+  Triple k;
+  for (int c = 0; c < 3; ++c) {
+    const int corner = reversed ? (3 - c) % 3 : c;
+    const Vec3& p = m.positions[m.indices[3 * t + static_cast<size_t>(corner)]];
+    k[static_cast<size_t>(c)] = {p.x, p.y, p.z};
+  }
+  const auto least = std::min_element(k.begin(), k.end()) - k.begin();
+  std::rotate(k.begin(), k.begin() + least, k.end());
+  return k;
+}
+
+struct LabelTopology {
+  int64_t euler = 0;
+  size_t components = 0, triangles = 0;
+};
+
+// Checks every label's surface of `run` and returns its topology by label: an oriented
+// 2-manifold, each triangle once, boundary edges only on the grid's box (none when
+// `closed`); and the interfaces: each triangle between two labels is in the first one's
+// surface as it is and in the second's reversed, at the same positions.
+std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& vol, bool closed,
+                                               LabelId background = 0) {
+  std::map<LabelId, LabelTopology> out;
+  const LabeledMesh& m = run.mesh;
+  EXPECT_EQ(m.patch.size(), m.mesh.num_triangles());
+  std::map<LabelId, std::multiset<Triple>> sides;
+  for (const auto& [label, surface] : SplitByLabel(m, background)) {
+    const TopologyReport t = AnalyzeTopology(surface);
+    SCOPED_TRACE("label " + std::to_string(label));
+    EXPECT_TRUE(t.IsManifold()) << t.nonmanifold_edges << " non-manifold edges, "
+                                << t.nonmanifold_vertices << " non-manifold vertices, "
+                                << t.misoriented_edges << " misoriented edges, "
+                                << t.repeated_index_triangles << " repeated indices";
+    if (closed) {
+      EXPECT_EQ(t.boundary_edges, 0u);
+    }
+    // An open surface's boundary lies on the box: each boundary edge's ends.
+    std::map<std::pair<uint32_t, uint32_t>, int> edges;
+    for (size_t i = 0; i < surface.num_triangles(); ++i) {
+      for (int c = 0; c < 3; ++c) {
+        uint32_t a = surface.indices[3 * i + c], b = surface.indices[3 * i + (c + 1) % 3];
+        ++edges[{std::min(a, b), std::max(a, b)}];
+      }
+      sides[label].insert(Key(surface, i, false));
+    }
+    for (const auto& [e, n] : edges) {
+      if (n == 1) {
+        EXPECT_TRUE(OnBox(surface.positions[e.first], vol) &&
+                    OnBox(surface.positions[e.second], vol));
+      }
+    }
+    out[label] = {t.euler, t.components, t.triangles};
+  }
+  for (size_t i = 0; i < m.mesh.num_triangles(); ++i) {
+    const LabelPair& p = m.pairs[m.patch[i]];
+    EXPECT_NE(p.inside, p.outside);
+    EXPECT_NE(p.inside, background);  // the background is never inside
+    EXPECT_EQ(sides[p.inside].count(Key(m.mesh, i, false)), 1u);
+    if (p.outside != background) {
+      EXPECT_EQ(sides[p.outside].count(Key(m.mesh, i, true)), 1u);
+    }
+  }
+  return out;
+}
+
+// The labels' topology of the full-resolution surface and of every simplifying schedule
+// agree, the simplified ones within E0 and with far fewer triangles. Returns the
+// full-resolution topology.
+std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, SessionOptions base,
+                                                double reduction = 0.5) {
+  base.schedule = Schedule::kNone;
+  const Meshed full = Mesh(vol, base);
+  EXPECT_TRUE(full.status.ok()) << full.status;
+  const auto reference = CheckSurfaces(full, vol, closed, base.labels.background);
+  for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
+    SCOPED_TRACE(std::string(ScheduleName(s)));
+    base.schedule = s;
+    const Meshed run = Mesh(vol, base);
+    EXPECT_TRUE(run.status.ok()) << run.status;
+    const auto topology = CheckSurfaces(run, vol, closed, base.labels.background);
+    EXPECT_EQ(topology.size(), reference.size());
+    for (const auto& [label, ref] : reference) {
+      SCOPED_TRACE("label " + std::to_string(label));
+      if (!topology.count(label)) {
+        ADD_FAILURE() << "no surface";
+        continue;
+      }
+      EXPECT_EQ(topology.at(label).euler, ref.euler);
+      EXPECT_EQ(topology.at(label).components, ref.components);
+    }
+    EXPECT_LE(run.max_error, base.error * (1 + 1e-9));
+    size_t degenerate = 0;  // zero-area triangles (tidied at the end)
+    const IndexedMesh& mesh = run.mesh.mesh;
+    for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+      degenerate += IsDegenerateTriangle(mesh.positions[mesh.indices[3 * t]],
+                                         mesh.positions[mesh.indices[3 * t + 1]],
+                                         mesh.positions[mesh.indices[3 * t + 2]]);
+    }
+    EXPECT_EQ(degenerate, 0u);
+    EXPECT_LT(static_cast<double>(run.mesh.mesh.num_triangles()),
+              reduction * static_cast<double>(full.mesh.mesh.num_triangles()));
+  }
+  return reference;
+}
+
+TEST(LabelSession, TwoTouchingBoxesAreTwoClosedSpheresSharingTheirInterface) {
+  Volume vol(20, 20, 20);
+  vol.Box({4, 4, 4}, {10, 16, 16}, 1);
+  vol.Box({10, 4, 4}, {16, 16, 16}, 2);
+  const auto topology = CheckSchedules(vol, /*closed=*/true, LabelOptionsFor(Schedule::kNone));
+  ASSERT_EQ(topology.size(), 2u);
+  for (const auto& [label, t] : topology) {
+    EXPECT_EQ(t.euler, 2) << label;
+    EXPECT_EQ(t.components, 1u) << label;
+  }
+  // The full-resolution complex has an edge in 3 triangles where 1, 2 and the background
+  // meet; the interface between the boxes is one patch of the pair (1, 2).
+  const Meshed full = Mesh(vol, LabelOptionsFor(Schedule::kNone));
+  EXPECT_FALSE(AnalyzeTopology(full.mesh.mesh).IsManifold());
+  EXPECT_NE(std::find(full.mesh.pairs.begin(), full.mesh.pairs.end(), LabelPair{1, 2}),
+            full.mesh.pairs.end());
+}
+
+TEST(LabelSession, NestedSpheresKeepTheirShells) {
+  Volume vol(26, 26, 26);
+  for (int64_t z = 0; z < 26; ++z) {
+    for (int64_t y = 0; y < 26; ++y) {
+      for (int64_t x = 0; x < 26; ++x) {
+        const double r = std::hypot(x - 12.5, y - 12.5, z - 12.5);
+        vol.at(x, y, z) = r < 4 ? 3 : r < 7.5 ? 2 : r < 11 ? 1 : 0;
+      }
+    }
+  }
+  const auto topology = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone));
+  ASSERT_EQ(topology.size(), 3u);
+  EXPECT_EQ(topology.at(3).euler, 2);  // a ball
+  EXPECT_EQ(topology.at(3).components, 1u);
+  for (LabelId shell : {1, 2}) {  // two spheres each
+    EXPECT_EQ(topology.at(shell).euler, 4) << shell;
+    EXPECT_EQ(topology.at(shell).components, 2u) << shell;
+  }
+}
+
+// About 30 cells of a Voronoi diagram with random 16-bit ids, inside a ball (open: also
+// filling the whole box).
+Volume Voronoi(bool ball, uint32_t seed) {
+  Volume vol(30, 28, 26);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> pos(0, 1);
+  std::uniform_int_distribution<int> id(1, 65535);
+  std::vector<std::array<double, 3>> seeds;
+  std::vector<uint16_t> ids;
+  std::set<uint16_t> used;
+  while (seeds.size() < 30) {
+    const auto l = static_cast<uint16_t>(id(rng));
+    if (!used.insert(l).second) continue;
+    seeds.push_back({pos(rng) * 30, pos(rng) * 28, pos(rng) * 26});
+    ids.push_back(l);
+  }
+  for (int64_t z = 0; z < vol.nz; ++z) {
+    for (int64_t y = 0; y < vol.ny; ++y) {
+      for (int64_t x = 0; x < vol.nx; ++x) {
+        if (ball && std::hypot(x - 14.5, y - 13.5, z - 12.5) > 11.5) continue;
+        size_t best = 0;
+        double d = 1e30;
+        for (size_t s = 0; s < seeds.size(); ++s) {
+          const double e = std::hypot(x - seeds[s][0], y - seeds[s][1], z - seeds[s][2]);
+          if (e < d) {
+            d = e;
+            best = s;
+          }
+        }
+        vol.at(x, y, z) = ids[best];
+      }
+    }
+  }
+  return vol;
+}
+
+TEST(LabelSession, VoronoiCellsInABallAreClosedManifolds) {
+  const auto topology = CheckSchedules(Voronoi(true, 7), true, LabelOptionsFor(Schedule::kNone));
+  EXPECT_GE(topology.size(), 20u);
+}
+
+TEST(LabelSession, VoronoiCellsFillingTheBoxAreOpenThereOrClosed) {
+  const Volume vol = Voronoi(false, 11);
+  const auto open = CheckSchedules(vol, false, LabelOptionsFor(Schedule::kNone));
+  EXPECT_GE(open.size(), 25u);
+  const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
+  EXPECT_EQ(closed.size(), open.size());
+  for (const auto& [label, t] : closed) EXPECT_EQ(t.euler, 2 * static_cast<int64_t>(t.components));
+}
+
+TEST(LabelSession, IsotropyATargetCountAndAnisotropicVoxelsKeepEachLabel) {
+  const Volume vol = Voronoi(true, 5);
+  SessionOptions o = LabelOptionsFor(Schedule::kNone);
+  const auto reference = CheckSurfaces(Mesh(vol, o), vol, true);
+  auto same_topology = [&](const std::map<LabelId, LabelTopology>& t) {
+    ASSERT_EQ(t.size(), reference.size());
+    for (const auto& [label, ref] : reference) {
+      EXPECT_EQ(t.at(label).euler, ref.euler) << label;
+      EXPECT_EQ(t.at(label).components, ref.components) << label;
+    }
+  };
+  o.schedule = Schedule::kTandemLag;
+  o.alpha = 0.5;
+  const Meshed isotropic = Mesh(vol, o);
+  ASSERT_TRUE(isotropic.status.ok()) << isotropic.status;
+  same_topology(CheckSurfaces(isotropic, vol, true));
+  EXPECT_LE(isotropic.max_error, o.error * (1 + 1e-9));
+  o.alpha = 0;
+  o.target_triangles = 700;
+  const Meshed target = Mesh(vol, o);
+  ASSERT_TRUE(target.status.ok()) << target.status;
+  same_topology(CheckSurfaces(target, vol, true));
+  EXPECT_LE(target.mesh.mesh.num_triangles(), 770u);
+  o.target_triangles = 0;
+  o.error = 1.2;  // voxels 1 x 1 x 3: E0 in physical units
+  const Meshed thick = Mesh(vol, o, {1, 1, 3});
+  ASSERT_TRUE(thick.status.ok()) << thick.status;
+  same_topology(CheckSurfaces(thick, vol, true));
+  EXPECT_LE(thick.max_error, o.error * (1 + 1e-9));
+}
+
+TEST(LabelSession, OneVoxelLabelIsAClosedSphere) {
+  Volume vol(12, 12, 12);
+  vol.Box({2, 2, 2}, {10, 10, 10}, 1);
+  vol.at(5, 5, 5) = 9;    // inside label 1
+  vol.at(0, 11, 11) = 4;  // alone, in a corner of the box (closed with close)
+  const auto topology = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
+  for (LabelId l : {4, 9}) {
+    EXPECT_EQ(topology.at(l).euler, 2) << l;
+    EXPECT_EQ(topology.at(l).components, 1u) << l;
+  }
+  EXPECT_EQ(topology.at(1).euler, 4);  // a box with a one-voxel cavity
+}
+
+TEST(LabelSession, LabelsMeetingAtAnEdgeOrACornerStayManifold) {
+  Volume edge(16, 16, 16);
+  edge.Box({3, 3, 3}, {8, 8, 13}, 1);
+  edge.Box({8, 8, 3}, {13, 13, 13}, 2);
+  const auto e = CheckSchedules(edge, true, LabelOptionsFor(Schedule::kNone));
+  Volume corner(16, 16, 16);
+  corner.Box({3, 3, 3}, {8, 8, 8}, 1);
+  corner.Box({8, 8, 8}, {13, 13, 13}, 2);
+  corner.Box({9, 2, 2}, {12, 5, 5}, 4);  // label 4 touching itself at a corner only
+  corner.Box({12, 5, 5}, {15, 8, 8}, 4);
+  const auto c = CheckSchedules(corner, true, LabelOptionsFor(Schedule::kNone));
+  EXPECT_EQ(e.at(1).components, 1u);
+  EXPECT_EQ(e.at(2).components, 1u);
+  EXPECT_EQ(e.at(1).euler, 2);
+  EXPECT_EQ(c.at(1).euler, 2);
+  EXPECT_EQ(c.at(2).euler, 2);
+  EXPECT_EQ(c.at(4).euler, 2 * static_cast<int64_t>(c.at(4).components));
+}
+
+TEST(LabelSession, LabelsTouchingTheBoxAreOpenThereUnlessClosed) {
+  Volume vol(14, 12, 10);
+  vol.Box({0, 0, 0}, {6, 12, 10}, 1);  // a whole side of the box
+  vol.Box({6, 3, 0}, {10, 9, 5}, 2);   // the bottom face
+  const auto open = CheckSchedules(vol, false, LabelOptionsFor(Schedule::kNone));
+  EXPECT_EQ(open.at(2).components, 1u);
+  const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
+  EXPECT_EQ(closed.at(1).euler, 2);
+  EXPECT_EQ(closed.at(2).euler, 2);
+  // Open, the surfaces end on the box: a disk each (one boundary loop, χ = 1).
+  EXPECT_EQ(open.at(2).euler, 1);
+  // A stream of unknown depth finds the top of the box when it ends: the same meshes.
+  for (bool close : {false, true}) {
+    const SessionOptions o = LabelOptionsFor(Schedule::kTandemLag, close);
+    const Meshed known = Mesh(vol, o), streamed = Mesh(vol, o, {1, 1, 1}, false);
+    ASSERT_TRUE(streamed.status.ok()) << streamed.status;
+    EXPECT_EQ(streamed.mesh.mesh.indices, known.mesh.mesh.indices) << close;
+    EXPECT_EQ(streamed.mesh.patch, known.mesh.patch) << close;
+  }
+}
+
+TEST(LabelSession, OneLabelEverywhereIsNoSurfaceOrTheClosedBox) {
+  const Volume vol(9, 8, 7, 3);
+  const Meshed open = Mesh(vol, LabelOptionsFor(Schedule::kTandemLag));
+  ASSERT_TRUE(open.status.ok()) << open.status;
+  EXPECT_EQ(open.mesh.mesh.num_triangles(), 0u);
+  const auto closed = CheckSchedules(vol, true, LabelOptionsFor(Schedule::kNone, true));
+  ASSERT_EQ(closed.size(), 1u);
+  EXPECT_EQ(closed.at(3).euler, 2);
+  EXPECT_EQ(closed.at(3).components, 1u);
+}
+
+TEST(LabelSession, OnlyAndBackgroundChooseTheLabels) {
+  Volume vol(16, 16, 16, 7);  // 7 is the background here
+  vol.Box({3, 3, 3}, {8, 12, 12}, 1);
+  vol.Box({8, 3, 3}, {13, 12, 12}, 2);
+  vol.Box({5, 5, 5}, {7, 7, 7}, 0);  // 0 is a label like any other
+  SessionOptions o = LabelOptionsFor(Schedule::kNone);
+  o.labels.background = 7;
+  const auto all = CheckSchedules(vol, true, o);
+  EXPECT_EQ(all.size(), 3u);
+  EXPECT_TRUE(all.count(0));
+  o.labels.only = {2};
+  const auto two = CheckSchedules(vol, true, o);
+  ASSERT_EQ(two.size(), 1u);
+  EXPECT_EQ(two.at(2).euler, 2);
+  // Only label 2's surface: every triangle separates 2 from the background.
+  o.schedule = Schedule::kTandemLag;
+  const Meshed run = Mesh(vol, o);
+  ASSERT_TRUE(run.status.ok()) << run.status;
+  for (uint32_t p : run.mesh.patch) EXPECT_EQ(run.mesh.pairs[p], (LabelPair{2, 7}));
+}
+
+TEST(LabelSession, OptionsAreValidated) {
+  SessionOptions o = LabelOptionsFor(Schedule::kTandemLag);
+  o.labels.only = {3, 2};
+  EXPECT_NE(o.Validate().message().find("labels.only"), std::string::npos);
+  o.labels.only = {2, 2};
+  EXPECT_FALSE(o.Validate().ok());
+  o.labels.only = {0, 2};
+  EXPECT_NE(o.Validate().message().find("labels.background"), std::string::npos);
+  o.labels.only = {2};
+  EXPECT_TRUE(o.Validate().ok());
+  o.seal = true;
+  EXPECT_NE(o.Validate().message().find("seal"), std::string::npos);
+  o.seal = false;
+  o.parts = 2;
+  EXPECT_NE(o.Validate().message().find("parts"), std::string::npos);
+  o.parts = 0;  // automatic: one part, even on a wide grid
+  VolumeInfo grid;
+  grid.nx = 300;
+  grid.ny = 4;
+  grid.nz = 2;
+  grid.dtype = DType::kFloat32;
+  const absl::Status floats = TandemSession::Create(grid, o).status();
+  EXPECT_NE(floats.message().find("float32"), std::string::npos) << floats;
+  grid.dtype = DType::kUInt16;
+  auto session = TandemSession::Create(grid, o);
+  ASSERT_TRUE(session.ok()) << session.status();
+  EXPECT_EQ((*session)->num_parts(), 1);
+  // The label planes are counted before the first slice: two padded planes of 64-bit labels.
+  EXPECT_GE((*session)->MemoryBytes(), 2u * 302 * 6 * sizeof(LabelId));
+}
+
+TEST(LabelSession, FloatAndNegativeValuesAreRefused) {
+  VolumeInfo grid;
+  grid.nx = 4;
+  grid.ny = 4;
+  grid.nz = 3;
+  grid.dtype = DType::kInt16;
+  auto session = TandemSession::Create(grid, LabelOptionsFor(Schedule::kTandemLag));
+  ASSERT_TRUE(session.ok());
+  std::vector<float> f(16, 1.0f);
+  const absl::Status st = (*session)->AddSlice(f.data());
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(st.message().find("float32"), std::string::npos) << st;
+  std::vector<int16_t> s(16, 1);
+  s[6] = -3;
+  const absl::Status neg =
+      (*session)->AddSliceBytes(DType::kInt16, reinterpret_cast<const uint8_t*>(s.data()));
+  EXPECT_NE(neg.message().find("voxel (2, 1, 0)"), std::string::npos) << neg;
+  EXPECT_NE(neg.message().find("-3"), std::string::npos) << neg;
+  s[6] = 1;  // the session goes on
+  for (int z = 0; z < 3; ++z) {
+    ASSERT_TRUE(
+        (*session)->AddSliceBytes(DType::kInt16, reinterpret_cast<const uint8_t*>(s.data())).ok());
+  }
+  EXPECT_TRUE((*session)->Finish().ok());
+}
+
+TEST(LabelSession, SplitByLabelOrientsEachSurfaceOutward) {
+  LabeledMesh m;
+  m.mesh.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  m.mesh.indices = {0, 1, 2, 0, 1, 3};
+  m.pairs = {{5, 0}, {5, 8}};
+  m.patch = {0, 1};
+  const auto split = SplitByLabel(m, 0);
+  ASSERT_EQ(split.size(), 2u);
+  EXPECT_EQ(split[0].first, 5u);
+  EXPECT_EQ(split[0].second.num_triangles(), 2u);
+  EXPECT_EQ(split[1].first, 8u);
+  ASSERT_EQ(split[1].second.num_triangles(), 1u);
+  const IndexedMesh& s8 = split[1].second;  // reversed: 0 3 1
+  EXPECT_EQ(s8.positions[s8.indices[1]].z, 1.0);
+  EXPECT_EQ(s8.positions[s8.indices[2]].x, 1.0);
+  // An iso-surface session has no labeled mesh.
+  VolumeInfo grid;
+  grid.nx = grid.ny = grid.nz = 4;
+  SessionOptions iso;
+  iso.schedule = Schedule::kNone;
+  auto session = TandemSession::Create(grid, iso);
+  ASSERT_TRUE(session.ok());
+  EXPECT_TRUE((*session)->SnapshotLabeled().patch.empty());
+}
+
+}  // namespace
+}  // namespace tandem
