@@ -19,6 +19,7 @@
 #include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "tandem/io/zarr.h"
+#include "tandem/labels.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 #include "testutil/testutil.h"
@@ -418,6 +419,52 @@ TEST(ToLabelIdsTest, EveryIntegerTypeExactlyNegativesAndFloatsRefused) {
   std::memcpy(shifted + 1, &big, 8);
   ASSERT_TRUE(ToLabelIds(DType::kUInt64, shifted + 1, 1, out).ok());
   EXPECT_EQ(out[0], big);
+}
+
+// A label session takes every integer type as it is: uint64 ids past 2^53 come out of
+// SplitByLabel exactly, and a negative int32 id is refused naming its voxel.
+TEST(LabelSessionTypes, WideIdsExactlyAndNegativesRefused) {
+  VolumeInfo grid;
+  grid.nx = grid.ny = grid.nz = 6;
+  SessionOptions opt;
+  opt.labels.enabled = true;
+  opt.error = 0.2;
+  const uint64_t big = (uint64_t{1} << 60) + 12345;
+  for (DType t : {DType::kUInt64, DType::kInt32}) {
+    SCOPED_TRACE(DTypeName(t));
+    grid.dtype = t;
+    auto session = TandemSession::Create(grid, opt);
+    ASSERT_TRUE(session.ok()) << session.status();
+    absl::Status st;
+    for (int64_t k = 0; k < 6 && st.ok(); ++k) {
+      std::vector<uint8_t> slice(36 * DTypeSize(t), 0);
+      for (int64_t j = 2; j < 4; ++j) {
+        for (int64_t i = 2; i < 4; ++i) {
+          if (k < 2 || k > 3) continue;
+          if (t == DType::kUInt64) {
+            std::memcpy(slice.data() + (j * 6 + i) * 8, &big, 8);
+          } else {
+            const int32_t v = i == 3 && j == 3 && k == 3 ? -4 : 9;
+            std::memcpy(slice.data() + (j * 6 + i) * 4, &v, 4);
+          }
+        }
+      }
+      st = (*session)->AddSliceBytes(t, slice.data());
+    }
+    if (t == DType::kInt32) {
+      EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+      EXPECT_NE(st.message().find("voxel (3, 3, 3) of the label volume is -4"),
+                absl::string_view::npos)
+          << st;
+      continue;
+    }
+    ASSERT_TRUE(st.ok()) << st;
+    ASSERT_TRUE((*session)->Finish().ok());
+    const auto surfaces = SplitByLabel((*session)->SnapshotLabeled());
+    ASSERT_EQ(surfaces.size(), 1u);
+    EXPECT_EQ(surfaces[0].first, big);
+    EXPECT_GT(surfaces[0].second.num_triangles(), 0u);
+  }
 }
 
 TEST(DTypes, NamesSizesAndRanges) {
