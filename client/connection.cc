@@ -73,7 +73,7 @@ void AddToken(const ConnectionOptions& options, grpc::ClientContext* context) {
 
 absl::StatusOr<std::string> LoadToken(const std::string& token_file) {
   if (!token_file.empty()) {
-    absl::StatusOr<std::vector<std::string>> tokens = auth::ReadTokensFile(token_file);
+    absl::StatusOr<std::vector<std::string>> tokens = common::ReadTokensFile(token_file);
     if (!tokens.ok()) {
       return absl::Status(tokens.status().code(),
                           absl::StrCat("--token-file: ", std::string(tokens.status().message())));
@@ -86,7 +86,7 @@ absl::StatusOr<std::string> LoadToken(const std::string& token_file) {
   }
   const char* env = std::getenv("TANDEM_TOKEN");
   if (env == nullptr || *env == '\0') return std::string();
-  absl::StatusOr<std::vector<std::string>> tokens = auth::ParseTokens(env, "$TANDEM_TOKEN");
+  absl::StatusOr<std::vector<std::string>> tokens = common::ParseTokens(env, "$TANDEM_TOKEN");
   if (!tokens.ok()) return tokens.status();
   if (tokens->size() != 1) {
     return absl::InvalidArgumentError("$TANDEM_TOKEN: give exactly one token");

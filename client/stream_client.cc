@@ -1,5 +1,7 @@
 #include "tandem/client/stream_client.h"
 
+#include <grpcpp/grpcpp.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -7,8 +9,6 @@
 #include <optional>
 #include <thread>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
 
 #include "absl/random/distributions.h"
 #include "absl/random/random.h"
@@ -324,7 +324,7 @@ absl::Status Sender::Run() {
       chunk->set_data(data + offset, std::min(options_.chunk_bytes, size - offset));
       if (offset == 0) {
         chunk->set_slice_size(size);
-        chunk->set_dtype(wire::DTypeToProto(info.dtype));
+        chunk->set_dtype(common::DTypeToProto(info.dtype));
       }
       if (!stream_->Write(request)) return absl::OkStatus();
     }
@@ -437,7 +437,7 @@ absl::Status StreamOnce(SliceSource& source, const StreamOptions& opts, int64_t 
                          &slice)) {
       attempt->expected_slice = slice;
     }
-    return wire::FromGrpcStatus(status);
+    return common::FromGrpcStatus(status);
   }
   return absl::OkStatus();
 }
@@ -464,7 +464,7 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   c.set_nx(info.nx);
   c.set_ny(info.ny);
   c.set_nz(info.nz);
-  c.set_dtype(wire::DTypeToProto(info.dtype));
+  c.set_dtype(common::DTypeToProto(info.dtype));
   c.clear_spacing();
   c.clear_origin();
   for (int a = 0; a < 3; ++a) {
@@ -480,7 +480,7 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
 
   if (opts.chunk_store != nullptr && c.sealed_chunks()) c.set_chunk_acks(true);
   if (opts.connection.max_receive_bytes == 0) {
-    opts.connection.max_receive_bytes = wire::kClientMaxReceiveBytes;
+    opts.connection.max_receive_bytes = common::kClientMaxReceiveBytes;
   }
   absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(opts.connection);
   if (!channel.ok()) return channel.status();
@@ -578,7 +578,7 @@ absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
                                           const std::string& watch_key, double timeout_s,
                                           const StreamCallbacks& callbacks) {
   ConnectionOptions options = connection;
-  if (options.max_receive_bytes == 0) options.max_receive_bytes = wire::kClientMaxReceiveBytes;
+  if (options.max_receive_bytes == 0) options.max_receive_bytes = common::kClientMaxReceiveBytes;
   absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(options);
   if (!channel.ok()) return channel.status();
   std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(*channel);
@@ -599,7 +599,7 @@ absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
   while (reader->Read(&response)) collector.Handle(response, 0);
   const grpc::Status status = reader->Finish();
   result.seconds = absl::ToDoubleSeconds(absl::Now() - start);
-  if (!status.ok()) return wire::FromGrpcStatus(status);
+  if (!status.ok()) return common::FromGrpcStatus(status);
   const std::string malformed = collector.Check();
   if (!malformed.empty()) {
     return absl::DataLossError(

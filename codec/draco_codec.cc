@@ -11,6 +11,7 @@
 
 #include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
+#include "draco_encode.h"
 #include "draco/compression/config/compression_shared.h"
 #include "draco/compression/decode.h"
 #include "draco/compression/encode.h"
@@ -386,16 +387,7 @@ absl::StatusOr<std::string> EncodeWith(const draco::Mesh& mesh, const DracoOptio
   if (mesh.GetNamedAttributeId(draco::GeometryAttribute::NORMAL) >= 0) {
     encoder.SetAttributeQuantization(draco::GeometryAttribute::NORMAL, kNormalBits);
   }
-  const int speed = 10 - level;
-  encoder.SetSpeedOptions(speed, speed);
-  encoder.SetEncodingMethod(level == kSequentialLevel ? draco::MESH_SEQUENTIAL_ENCODING
-                                                      : draco::MESH_EDGEBREAKER_ENCODING);
-  draco::EncoderBuffer buffer;
-  const draco::Status st = encoder.EncodeMeshToBuffer(mesh, &buffer);
-  if (!st.ok()) {
-    return absl::InternalError(absl::StrCat("Draco encoding failed: ", st.error_msg_string()));
-  }
-  return std::string(buffer.data(), buffer.size());
+  return EncodeMeshAtLevel(encoder, mesh, level);
 }
 
 // Decodes into Draco's own types: a Mesh, or a PointCloud (then *faces stays null).
@@ -636,6 +628,20 @@ double PositionTolerance(const IndexedMesh& mesh, int bits) {
   // area, rounded up to two. Draco quantizes float32 values and dequantizes in float32: a
   // few roundings of the largest coordinate come on top.
   return 2 * step + 4 * static_cast<double>(std::numeric_limits<float>::epsilon()) * magnitude;
+}
+
+absl::StatusOr<std::string> EncodeMeshAtLevel(draco::Encoder& encoder, const draco::Mesh& mesh,
+                                              int level) {
+  const int speed = 10 - level;
+  encoder.SetSpeedOptions(speed, speed);
+  encoder.SetEncodingMethod(level == kSequentialLevel ? draco::MESH_SEQUENTIAL_ENCODING
+                                                      : draco::MESH_EDGEBREAKER_ENCODING);
+  draco::EncoderBuffer buffer;
+  const draco::Status st = encoder.EncodeMeshToBuffer(mesh, &buffer);
+  if (!st.ok()) {
+    return absl::InternalError(absl::StrCat("Draco encoding failed: ", st.error_msg_string()));
+  }
+  return std::string(buffer.data(), buffer.size());
 }
 
 }  // namespace tandem::codec

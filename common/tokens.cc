@@ -9,7 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 
-namespace tandem::auth {
+namespace tandem::common {
 
 absl::StatusOr<std::vector<std::string>> ParseTokens(std::string_view text,
                                                      const std::string& source) {
@@ -59,4 +59,4 @@ bool ConstantTimeEquals(std::string_view a, std::string_view b) {
   return diff == 0;
 }
 
-}  // namespace tandem::auth
+}  // namespace tandem::common

@@ -1,20 +1,20 @@
 #include "tandem/common/wire.h"
 
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/message.h>
+#include <google/protobuf/reflection.h>
+
 #include <optional>
 #include <set>
 #include <utility>
 #include <vector>
-
-#include <google/protobuf/descriptor.h>
-#include <google/protobuf/message.h>
-#include <google/protobuf/reflection.h>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
 
-namespace tandem::wire {
+namespace tandem::common {
 
 std::string ServiceVersion() { return "tandem " TANDEM_VERSION_STRING; }
 
@@ -81,29 +81,29 @@ using google::protobuf::FieldDescriptor;
 using google::protobuf::Message;
 
 // The distances are a nested struct on both sides: converted by hand, as one table entry.
-void DirectedToProto(const DirectedDistance& d, v1::DirectedDistance* out) {
+void DirectedToProto(const eval::DirectedDistance& d, v1::DirectedDistance* out) {
   out->set_l1(d.l1);
   out->set_l2(d.l2);
   out->set_linf(d.linf);
   out->set_samples(d.samples);
 }
-DirectedDistance DirectedFromProto(const v1::DirectedDistance& d) {
-  DirectedDistance out;
+eval::DirectedDistance DirectedFromProto(const v1::DirectedDistance& d) {
+  eval::DirectedDistance out;
   out.l1 = d.l1();
   out.l2 = d.l2();
   out.linf = d.linf();
   out.samples = d.samples();
   return out;
 }
-void DistancesToProto(const Distances& d, v1::Distances* out) {
+void DistancesToProto(const eval::Distances& d, v1::Distances* out) {
   DirectedToProto(d.forward, out->mutable_forward());
   DirectedToProto(d.backward, out->mutable_backward());
   out->set_l1_max(d.l1_max);
   out->set_l2_max(d.l2_max);
   out->set_linf_max(d.linf_max);
 }
-Distances DistancesFromProto(const v1::Distances& d) {
-  Distances out;
+eval::Distances DistancesFromProto(const v1::Distances& d) {
+  eval::Distances out;
   out.forward = DirectedFromProto(d.forward());
   out.backward = DirectedFromProto(d.backward());
   out.l1_max = d.l1_max();
@@ -172,11 +172,11 @@ void Get(const Message& m, const FieldDescriptor* f, std::vector<int64_t>* v) {
 }
 
 // A Distances message, absent without distances.
-bool Fits(const FieldDescriptor& f, const std::optional<Distances>*) {
+bool Fits(const FieldDescriptor& f, const std::optional<eval::Distances>*) {
   return Singular(f, FieldDescriptor::CPPTYPE_MESSAGE) &&
          f.message_type() == v1::Distances::descriptor();
 }
-void Put(Message* m, const FieldDescriptor* f, const std::optional<Distances>& v) {
+void Put(Message* m, const FieldDescriptor* f, const std::optional<eval::Distances>& v) {
   if (!v) {
     m->GetReflection()->ClearField(m, f);
     return;
@@ -184,7 +184,7 @@ void Put(Message* m, const FieldDescriptor* f, const std::optional<Distances>& v
   DistancesToProto(*v, google::protobuf::DynamicCastToGenerated<v1::Distances>(
                            m->GetReflection()->MutableMessage(m, f)));
 }
-void Get(const Message& m, const FieldDescriptor* f, std::optional<Distances>* v) {
+void Get(const Message& m, const FieldDescriptor* f, std::optional<eval::Distances>* v) {
   if (m.GetReflection()->HasField(m, f)) {
     *v = DistancesFromProto(*google::protobuf::DynamicCastToGenerated<v1::Distances>(
         &m.GetReflection()->GetMessage(m, f)));
@@ -228,13 +228,13 @@ template absl::Status CheckWireField(const char*, const int64_t&);
 template absl::Status CheckWireField(const char*, const std::string&);
 template absl::Status CheckWireField(const char*, const Schedule&);
 template absl::Status CheckWireField(const char*, const std::vector<int64_t>&);
-template absl::Status CheckWireField(const char*, const std::optional<Distances>&);
+template absl::Status CheckWireField(const char*, const std::optional<eval::Distances>&);
 
 absl::Status CheckReportFields() {
   std::vector<std::string> errors;
   std::set<std::string> named;
-  const MetricsReport r;
-  VisitReportFields(r, [&](const char* key, const char* wire, const auto& v, Written) {
+  const eval::MetricsReport r;
+  eval::VisitReportFields(r, [&](const char* key, const char* wire, const auto& v, eval::Written) {
     if (wire == nullptr) return;
     if (!named.insert(wire).second) {
       errors.push_back(absl::StrCat(key, ": ", wire, " is named twice"));
@@ -248,8 +248,8 @@ absl::Status CheckReportFields() {
 
 // A field that FindWireField refuses is left out, and CheckReportFields names it (a test holds
 // it ok).
-void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
-  VisitReportFields(r, [out](const char*, const char* wire, const auto& v, Written) {
+void ReportToProto(const eval::MetricsReport& r, v1::FinalMetrics* out) {
+  eval::VisitReportFields(r, [out](const char*, const char* wire, const auto& v, eval::Written) {
     if (wire == nullptr) return;  // not on the wire
     const absl::StatusOr<FieldPath> path = FindWireField(wire, v);
     if (!path.ok()) return;
@@ -261,9 +261,9 @@ void ReportToProto(const MetricsReport& r, v1::FinalMetrics* out) {
   });
 }
 
-MetricsReport ReportFromProto(const v1::FinalMetrics& metrics) {
-  MetricsReport r;
-  VisitReportFields(r, [&metrics](const char*, const char* wire, auto& v, Written) {
+eval::MetricsReport ReportFromProto(const v1::FinalMetrics& metrics) {
+  eval::MetricsReport r;
+  eval::VisitReportFields(r, [&metrics](const char*, const char* wire, auto& v, eval::Written) {
     if (wire == nullptr) return;  // not on the wire: the default
     const absl::StatusOr<FieldPath> path = FindWireField(wire, v);
     if (!path.ok()) return;
@@ -306,4 +306,4 @@ absl::Status FromGrpcStatus(const grpc::Status& status) {
   return absl::Status(static_cast<absl::StatusCode>(status.error_code()), status.error_message());
 }
 
-}  // namespace tandem::wire
+}  // namespace tandem::common

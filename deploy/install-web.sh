@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs the npm side of tandem from package-lock.json (npm ci): three.js and its Draco
 # decoder (the browser viewer's page loads them), and for the tests the Khronos glTF
-# validator, playwright-core (drives Debian's Chromium) and pngjs (reads its screenshots).
+# validator, playwright-core (drives Debian's Chromium), pngjs (reads its screenshots), and
+# Neuroglancer with esbuild (bundles it for the export's browser test).
 # Installs Debian's nodejs and npm first when node or npm is missing. Non-interactive; run
 # from anywhere (as root or with sudo for the packages).
 set -euo pipefail

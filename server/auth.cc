@@ -42,10 +42,10 @@ grpc::Status TokenAuthenticator::Check(const grpc::ServerContextBase& context, c
       while (!token.empty() && token.front() == ' ') token.remove_prefix(1);
       while (!token.empty() && token.back() == ' ') token.remove_suffix(1);
       int match = kNoIdentity;
-      if (token.size() <= auth::kMaxTokenBytes) {
+      if (token.size() <= common::kMaxTokenBytes) {
         // Every token compared (no early exit); the first equal one names the caller.
         for (size_t i = tokens_.size(); i-- > 0;) {
-          if (auth::ConstantTimeEquals(tokens_[i], token)) match = static_cast<int>(i);
+          if (common::ConstantTimeEquals(tokens_[i], token)) match = static_cast<int>(i);
         }
       }
       if (match != kNoIdentity) {

@@ -132,7 +132,7 @@ void ExtractCall::AcknowledgeLocked(int64_t count) {
                 "after a first Progress that says chunk_acks (SessionConfig.chunk_acks with "
                 "sealed_chunks)")
           : acks_feed_->Acknowledge(count);
-  if (!st.ok()) EndStreamLocked(wire::ToGrpcStatus(st));
+  if (!st.ok()) EndStreamLocked(common::ToGrpcStatus(st));
 }
 
 void ExtractCall::TakeAcknowledgements(const std::shared_ptr<MemoryBudget>& budget) {

@@ -3,14 +3,14 @@
 #ifndef TANDEM_SERVER_EXTRACT_CALL_H_
 #define TANDEM_SERVER_EXTRACT_CALL_H_
 
+#include <grpcpp/grpcpp.h>
+
 #include <cstdint>
 #include <deque>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
 
 #include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"

@@ -1,7 +1,5 @@
 // The Extract stream's worker thread: started with the stream, it feeds the job, resumes a
 // parked session, waits for the last write, and holds a session its client left.
-#include "extract_call.h"
-
 #include <algorithm>
 #include <optional>
 #include <string>
@@ -13,6 +11,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "extract_call.h"
 #include "tandem/common/wire.h"
 #include "tandem/server/log.h"
 
@@ -190,7 +189,7 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
       }
       if (!status.ok()) {
         failed = true;
-        EndStream(wire::ToGrpcStatus(status));
+        EndStream(common::ToGrpcStatus(status));
         break;
       }
       if (job->done()) {

@@ -1,11 +1,10 @@
 // An ExtractJob's accounting: the memory it holds against its budget, and its phases' time.
-#include "tandem/server/extract_job.h"
-
 #include <algorithm>
 #include <string>
 
 #include "absl/strings/str_format.h"
 #include "extract_job_internal.h"
+#include "tandem/server/extract_job.h"
 
 namespace tandem::server {
 ExtractJob::Phases ExtractJob::PhaseSeconds() const {

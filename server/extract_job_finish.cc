@@ -1,7 +1,5 @@
 // How an ExtractJob ends: the sessions finish, the final mesh or the last sealed chunk goes
 // out, and the final metrics.
-#include "tandem/server/extract_job.h"
-
 #include <algorithm>
 #include <chrono>
 #include <condition_variable>
@@ -13,14 +11,15 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "extract_job_internal.h"
 #include "tandem/codec/draco_codec.h"
 #include "tandem/common/wire.h"
-#include "extract_job_internal.h"
 #include "tandem/eval/distance.h"
-#include "tandem/status_macros.h"
-#include "tandem/task_group.h"
 #include "tandem/eval/report.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/status_macros.h"
 #include "tandem/tandem.h"
+#include "tandem/task_group.h"
 
 namespace tandem::server {
 namespace {
@@ -37,7 +36,7 @@ class FinishingTicker {
           const auto every = std::chrono::duration<double>(kFinishingEvery);
           while (!cv_.wait_for(lock, every, [this] { return stop_; })) {
             v1::Progress p = last;
-            wire::FinishingToProto(session.FinishProgress(), &p);
+            common::FinishingToProto(session.FinishProgress(), &p);
             if (!p.finishing().empty()) sink->PostProgress(std::move(p));
           }
         }) {}
@@ -81,8 +80,9 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   const IndexedMesh mesh = session_->Snapshot();
   // The triangles' shape sums (a tenth of a second a million triangles) are taken beside the
   // encoding below, on a core the finished session left idle.
-  MetricsReport report = MakeReport(*session_, static_cast<int64_t>(mesh.num_triangles()),
-                                    static_cast<int64_t>(mesh.num_vertices()), ShapeSums{});
+  eval::MetricsReport report =
+      eval::MakeReport(*session_, static_cast<int64_t>(mesh.num_triangles()),
+                       static_cast<int64_t>(mesh.num_vertices()), eval::ShapeSums{});
   sink_->PostProgress(MakeProgress());
   session_time_ = session_->stats().time;
   session_.reset();
@@ -96,7 +96,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   const auto t0 = Clock::now();
   absl::StatusOr<std::string> bytes;
   {
-    ShapeSums shape;
+    eval::ShapeSums shape;
     TaskGroup group(compute_);
     group.Run([&] { shape.Add(mesh); });
     bytes = codec::EncodeDraco(mesh, config_.draco);
@@ -110,7 +110,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
                                             std::string(bytes.status().message())));
   }
   const std::string& all = *bytes;
-  const size_t chunk = wire::kFinalMeshChunkBytes;
+  const size_t chunk = common::kFinalMeshChunkBytes;
   const size_t count = std::max<size_t>(1, (all.size() + chunk - 1) / chunk);
   std::vector<v1::ExtractResponse> out;
   out.reserve(count + 1);
@@ -132,8 +132,8 @@ absl::Status ExtractJob::FinishSealed() {
   if (absl::Status st = MaybeChunk(true, true); !st.ok()) return st;  // the rest, sealed by Finish
   const SessionStats& stats = session_->stats();
   final_triangles_ = stats.sealed_triangles;
-  MetricsReport report =
-      MakeReport(*session_, stats.sealed_triangles, stats.sealed_vertices, shape_);
+  eval::MetricsReport report =
+      eval::MakeReport(*session_, stats.sealed_triangles, stats.sealed_vertices, shape_);
   sink_->PostProgress(MakeProgress());
   session_time_ = stats.time;
   session_.reset();
@@ -146,7 +146,7 @@ absl::Status ExtractJob::FinishSealed() {
   return absl::OkStatus();
 }
 
-absl::Status ExtractJob::MeasureDistancesTo(const IndexedMesh& mesh, MetricsReport* report) {
+absl::Status ExtractJob::MeasureDistancesTo(const IndexedMesh& mesh, eval::MetricsReport* report) {
   if (reference_) {
     if (absl::Status st = CheckMemory(EncodeBytes(static_cast<int64_t>(mesh.num_triangles())) +
                                           DistanceBytes(reference_->num_triangles()),
@@ -154,18 +154,19 @@ absl::Status ExtractJob::MeasureDistancesTo(const IndexedMesh& mesh, MetricsRepo
         !st.ok()) {
       return st;
     }
-    DistanceOptions dopt;
+    eval::DistanceOptions dopt;
     dopt.threads = 1;  // one core per session: other sessions share the machine
-    report->distance = MeasureDistances(mesh, reference_->Snapshot(), dopt);
+    report->distance = eval::MeasureDistances(mesh, reference_->Snapshot(), dopt);
     reference_.reset();
   }
-  report->peak_rss_bytes = PeakRssBytes();
+  report->peak_rss_bytes = eval::PeakRssBytes();
   return absl::OkStatus();
 }
 
-void ExtractJob::PostMetrics(const MetricsReport& report, std::vector<v1::ExtractResponse> out) {
+void ExtractJob::PostMetrics(const eval::MetricsReport& report,
+                             std::vector<v1::ExtractResponse> out) {
   v1::FinalMetrics* metrics = out.emplace_back().mutable_final_metrics();
-  wire::ReportToProto(report, metrics);
+  common::ReportToProto(report, metrics);
   metrics->set_time_encode_s(encode_s_);
   metrics->set_time_wall_s(SecondsSince(start_));
   metrics->set_sealed_chunks(chunks_sent_);

@@ -1,7 +1,5 @@
 // What an ExtractJob sends while the slices arrive: sealed chunks on one Draco grid, and
 // previews.
-#include "tandem/server/extract_job.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -10,8 +8,9 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/codec/draco_codec.h"
 #include "extract_job_internal.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/server/extract_job.h"
 #include "tandem/status_macros.h"
 #include "tandem/task_group.h"
 

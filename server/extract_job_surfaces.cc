@@ -1,14 +1,13 @@
 // ExtractJob with several surfaces (SessionConfig.extra_isos): one child job per iso-value.
-#include "tandem/server/extract_job.h"
-
 #include <memory>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/common/wire.h"
 #include "extract_job_internal.h"
+#include "tandem/common/wire.h"
+#include "tandem/server/extract_job.h"
 
 namespace tandem::server {
 
@@ -77,7 +76,7 @@ v1::Progress ExtractJob::SumProgress() const {
     sum.set_peak_triangles(sum.peak_triangles() + p.peak_triangles());
     sum.set_sealed_triangles(sum.sealed_triangles() + p.sealed_triangles());
     if (!p.finishing().empty()) {  // the surface finishing now (they finish in turn)
-      wire::FinishingToProto(wire::FinishingFromProto(p), &sum);
+      common::FinishingToProto(common::FinishingFromProto(p), &sum);
     }
   }
   if (config_.options.seal) sum.set_sealed_chunks(chunks_sent_);

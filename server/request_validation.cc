@@ -47,7 +47,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   g.nx = c.nx();
   g.ny = c.ny();
   g.nz = c.nz();
-  absl::StatusOr<DType> dtype = wire::DTypeFromProto(c.dtype(), "config.dtype");
+  absl::StatusOr<DType> dtype = common::DTypeFromProto(c.dtype(), "config.dtype");
   if (!dtype.ok()) return dtype.status();
   g.dtype = *dtype;
   for (auto [field, values, target] :
@@ -84,7 +84,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return Prefixed("config: ", st);
 
   SessionOptions& o = out.options;
-  absl::StatusOr<Schedule> schedule = wire::ScheduleFromProto(c.schedule());
+  absl::StatusOr<Schedule> schedule = common::ScheduleFromProto(c.schedule());
   if (!schedule.ok()) return schedule.status();
   o.schedule = *schedule;
   o.iso = c.iso();
@@ -128,10 +128,10 @@ absl::Status ValidateChunk(const v1::SliceChunk& chunk, const JobConfig& config,
   const VolumeInfo& g = config.grid;
   const uint64_t slice_bytes = g.slice_bytes();
   const int64_t z = chunk.slice();
-  if (chunk.dtype() != v1::DTYPE_UNSPECIFIED && chunk.dtype() != wire::DTypeToProto(g.dtype)) {
+  if (chunk.dtype() != v1::DTYPE_UNSPECIFIED && chunk.dtype() != common::DTypeToProto(g.dtype)) {
     return absl::InvalidArgumentError(absl::StrCat(
-        "slice ", z, ": chunk.dtype ", v1::DType_Name(chunk.dtype()), " does not match config.dtype ",
-        v1::DType_Name(wire::DTypeToProto(g.dtype))));
+        "slice ", z, ": chunk.dtype ", v1::DType_Name(chunk.dtype()),
+        " does not match config.dtype ", v1::DType_Name(common::DTypeToProto(g.dtype))));
   }
   if (chunk.slice_size() != 0 && chunk.slice_size() != slice_bytes) {
     return absl::InvalidArgumentError(absl::StrCat(

@@ -7,9 +7,9 @@
 #include <utility>
 #include <vector>
 
-#include "tandem/common/wire.h"
 #include "extract_call.h"
 #include "metrics.h"
+#include "tandem/common/wire.h"
 
 namespace tandem::server {
 namespace {
@@ -78,7 +78,7 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
     reactor->Finish(st);
     return reactor;
   }
-  response->set_version(wire::ServiceVersion());
+  response->set_version(common::ServiceVersion());
   v1::Limits* l = response->mutable_limits();
   l->set_max_voxels_per_slice(state_->limits.max_voxels_per_slice);
   l->set_max_slices(state_->limits.max_slices);

@@ -1,12 +1,12 @@
 #include "tandem/server/tls_check.h"
 
-#include <memory>
-
 #include <openssl/bio.h>
 #include <openssl/err.h>
 #include <openssl/evp.h>
 #include <openssl/pem.h>
 #include <openssl/x509.h>
+
+#include <memory>
 
 #include "absl/strings/str_cat.h"
 

@@ -29,7 +29,7 @@ SessionFeed::~SessionFeed() {
 bool SessionFeed::MayRead(std::string_view watch_key, int identity) const {
   if (identity != TokenAuthenticator::kNoIdentity && identity == owner_) return true;
   return !watch_key.empty() && watch_key.size() <= kMaxWatchKeyBytes &&
-         auth::ConstantTimeEquals(watch_key_, watch_key);
+         common::ConstantTimeEquals(watch_key_, watch_key);
 }
 
 void SessionFeed::SetSealed(bool sealed, const std::string& description) {

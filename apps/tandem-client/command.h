@@ -42,7 +42,7 @@ struct ConnectionFlags {
   bool with_token = true;
   int64_t retries_flag = 4;
 
-  ConnectionFlags() { options.server = tandem::wire::kDefaultServerAddress; }
+  ConnectionFlags() { options.server = tandem::common::kDefaultServerAddress; }
   void Add(FlagSet& flags, bool token);
   // After parsing: loads the token. -1 to go on, else the exit status.
   int Finish();

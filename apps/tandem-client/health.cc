@@ -4,8 +4,8 @@
 
 #include "absl/strings/str_format.h"
 #include "apps/tandem-client/command.h"
-#include "tandem/common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "tandem/common/wire.h"
 
 namespace tandem::client_app {
 
@@ -31,7 +31,7 @@ int HealthCommand(int argc, char** argv) {
   request.set_service(service);
   grpc::health::v1::HealthCheckResponse response;
   grpc::Status st = stub->Check(&context, request, &response);
-  if (!st.ok()) return connection.Fail(tandem::wire::FromGrpcStatus(st));
+  if (!st.ok()) return connection.Fail(tandem::common::FromGrpcStatus(st));
   absl::PrintF("%s\n",
                grpc::health::v1::HealthCheckResponse::ServingStatus_Name(response.status()));
   return response.status() == grpc::health::v1::HealthCheckResponse::SERVING ? 0 : 1;

@@ -38,14 +38,14 @@ int InfoCommand(int argc, char** argv) {
   tandem::v1::InfoRequest request;
   if (!watch_key.empty()) request.add_watch_keys(watch_key);
   grpc::Status st = stub->GetInfo(&context, request, &info);
-  if (!st.ok()) return connection.Fail(tandem::wire::FromGrpcStatus(st));
+  if (!st.ok()) return connection.Fail(tandem::common::FromGrpcStatus(st));
   std::string dtypes, schedules;
   for (int d : info.dtypes()) {
     absl::StrAppend(&dtypes, dtypes.empty() ? "" : ", ",
                     absl::AsciiStrToLower(tandem::v1::DType_Name(d).substr(6)));
   }
   for (int s : info.schedules()) {
-    absl::StatusOr<tandem::Schedule> schedule = tandem::wire::ScheduleFromProto(s);
+    absl::StatusOr<tandem::Schedule> schedule = tandem::common::ScheduleFromProto(s);
     if (schedule.ok()) {
       absl::StrAppend(&schedules, schedules.empty() ? "" : ", ",
                       std::string(tandem::ScheduleName(*schedule)));

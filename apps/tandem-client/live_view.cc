@@ -172,13 +172,13 @@ void LiveView::Finish(const absl::StatusOr<StreamResult>& result) {
                          surface.metrics.slices(), false);
       }
       absl::StrAppend(&metrics, i == 0 ? "" : ",",
-                      ReportToJson(wire::ReportFromProto(surface.metrics)));
+                      eval::ReportToJson(common::ReportFromProto(surface.metrics)));
     }
     absl::StrAppend(&metrics, "]");
     if (result->sealed_session) server_->ClearBands();  // the chunks are the whole mesh
     if (!labeled_) server_->SetSurfaces(labels);
     server_->Finish(result->num_surfaces() == 1
-                        ? ReportToJson(wire::ReportFromProto(result->metrics))
+                        ? eval::ReportToJson(common::ReportFromProto(result->metrics))
                         : metrics,
                     "");
   } else {

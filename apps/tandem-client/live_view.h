@@ -17,8 +17,8 @@
 #include "absl/synchronization/mutex.h"
 #include "apps/common/flags.h"
 #include "tandem/client/stream_client.h"
-#include "tandem/volume.h"
 #include "tandem/viewer/view_server.h"
+#include "tandem/volume.h"
 
 namespace tandem::client {
 

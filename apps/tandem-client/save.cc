@@ -13,8 +13,8 @@
 #include "absl/strings/str_join.h"
 #include "apps/tandem-client/command.h"
 #include "tandem/common/wire.h"
-#include "tandem/io/mesh_io.h"
 #include "tandem/eval/report.h"
+#include "tandem/io/mesh_io.h"
 #include "tandem/volume.h"
 
 namespace tandem::client_app {
@@ -53,13 +53,13 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
       ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh, write);
   if (!saved.ok()) return Fail(saved);
 
-  tandem::MetricsReport report = tandem::wire::ReportFromProto(s.metrics);
+  tandem::eval::MetricsReport report = tandem::common::ReportFromProto(s.metrics);
   report.input = o.input;
   report.frame_text = o.frame_text;
-  json->push_back(tandem::ReportToJson(report));
+  json->push_back(tandem::eval::ReportToJson(report));
   if (o.quiet) return 0;
   if (result.num_surfaces() > 1) absl::PrintF("%s (iso %g)\n", out, s.metrics.iso());
-  absl::PrintF("%s", tandem::ReportSummary(report));
+  absl::PrintF("%s", tandem::eval::ReportSummary(report));
   absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", o.wall_label,
                result.seconds, result.slices_sent,
                result.seconds > 0 ? result.slices_sent / result.seconds : 0.0,

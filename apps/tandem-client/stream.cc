@@ -37,7 +37,7 @@ int StreamCommand(int argc, char** argv) {
   int64_t keepalive_ms = 30000;
   std::string partials, chunks_dir, resume;
   double rate = 0, timeout_s = 0;
-  int64_t chunk_bytes = tandem::wire::kDefaultSliceChunkBytes;
+  int64_t chunk_bytes = tandem::common::kDefaultSliceChunkBytes;
   int64_t preview_every = 0, preview_ms = 0;
   bool verbose = false;
   FlagSet flags(
@@ -220,7 +220,7 @@ int StreamCommand(int argc, char** argv) {
   c.set_sag_correction(session->sag_correction);
   c.set_lockstep_error(session->lockstep_error);
   c.set_parts(session->parts);
-  c.set_schedule(tandem::wire::ScheduleToProto(session->schedule));
+  c.set_schedule(tandem::common::ScheduleToProto(session->schedule));
   c.set_target_triangles(session->target_triangles);
   c.mutable_preview()->set_every_slices(static_cast<uint32_t>(preview_every));
   c.mutable_preview()->set_min_interval_ms(static_cast<uint32_t>(preview_ms));
@@ -245,7 +245,7 @@ int StreamCommand(int argc, char** argv) {
                       p.finishing_share(), p.finishing_seconds());
       } else {
         if (status_shown.exchange(false)) absl::FPrintF(stderr, "\n");
-        finishing.Show({tandem::wire::FinishingFromProto(p)});
+        finishing.Show({tandem::common::FinishingFromProto(p)});
       }
       return;
     }

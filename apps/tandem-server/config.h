@@ -11,7 +11,7 @@
 namespace tandem::server_app {
 
 struct ServerConfig {
-  std::string listen = tandem::wire::kDefaultServerAddress;
+  std::string listen = tandem::common::kDefaultServerAddress;
   std::string tls_cert, tls_key, tokens_file, metrics_listen;
   tandem::server::ServerLimits limits;
   double grace_seconds = 10;

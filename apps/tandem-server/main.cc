@@ -105,7 +105,7 @@ int main(int argc, char** argv) {
   }
   std::vector<std::string> tokens;
   if (!tokens_file.empty()) {
-    absl::StatusOr<std::vector<std::string>> read = tandem::auth::ReadTokensFile(tokens_file);
+    absl::StatusOr<std::vector<std::string>> read = tandem::common::ReadTokensFile(tokens_file);
     if (read.ok() && read->empty()) {
       read = absl::InvalidArgumentError(
           absl::StrCat(tokens_file,
@@ -184,7 +184,7 @@ int main(int argc, char** argv) {
   std::fflush(stdout);
   tandem::server::LogLine(
       absl::StrFormat("%s listening on %s:%d (max %d sessions, %d MiB each; %s; %s)",
-                      tandem::wire::ServiceVersion(), host, port, limits.max_sessions,
+                      tandem::common::ServiceVersion(), host, port, limits.max_sessions,
                       limits.session_memory_bytes >> 20, tls ? "TLS" : "plaintext",
                       token_count > 0 ? absl::StrCat("bearer tokens: ", token_count)
                                       : std::string("no authentication")));

@@ -1,6 +1,8 @@
 // tandem extract: a volume, read slice by slice, to simplified iso-surface meshes and
 // their metrics.
+#include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <future>
 #include <memory>
@@ -15,6 +17,7 @@
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
 #ifdef TANDEM_HAVE_DRACO
+#include "apps/tandem/neuroglancer_export.h"
 #include "tandem/codec/draco_codec.h"
 #endif
 #include "tandem/eval/distance.h"
@@ -31,6 +34,9 @@ namespace tandem::app {
 int ExtractCommand(int argc, char** argv) {
   cli::ExtractFlags f;
   int64_t samples = 0;
+  std::string neuroglancer;
+  int64_t neuroglancer_lods = 3;
+  double neuroglancer_nm = 0;
   cli::FlagSet flags(
       "usage: tandem extract --input FILE --out MESH [flags]\n"
       "Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by layer\n"
@@ -40,6 +46,15 @@ int ExtractCommand(int argc, char** argv) {
         "binary STL (.stl), or glTF binary (.glb)");
   flags.AddInt("samples", &samples,
                "surface samples per direction for --reference (0 = automatic)");
+  flags.AddString("neuroglancer", &neuroglancer, "DIR",
+                  "also write the surfaces as a Neuroglancer precomputed segmentation in DIR "
+                  "(multi-resolution Draco meshes, sharded; segment id 1, or 1..N for N "
+                  "--iso values): open it as precomputed://URL-of-DIR");
+  flags.AddInt("neuroglancer-lods", &neuroglancer_lods,
+               "--neuroglancer: levels of detail, from sweeps at E0, 2 E0, 4 E0, ... (1..8)");
+  flags.AddDouble("neuroglancer-nm", &neuroglancer_nm,
+                  "--neuroglancer: nanometres per unit of the volume's spacing", false, "N");
+  flags.SetDefaultText("neuroglancer-nm", "1e6 for DICOM/NIfTI (mm), else 1");
   flags.SetEpilog(
       "Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0\n"
       "done, 1 a failure while running (the input, a file, the session), 2 a mistake in the\n"
@@ -56,6 +71,24 @@ int ExtractCommand(int argc, char** argv) {
     return Usage(absl::InvalidArgumentError(
         absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
   }
+  if (neuroglancer.empty() && (flags.IsSet("neuroglancer-lods") || flags.IsSet("neuroglancer-nm"))) {
+    return Usage(absl::InvalidArgumentError(
+        "--neuroglancer-lods and --neuroglancer-nm go with --neuroglancer DIR"));
+  }
+  if (neuroglancer_lods < 1 || neuroglancer_lods > 8) {
+    return Usage(absl::InvalidArgumentError(
+        absl::StrCat("--neuroglancer-lods must be in [1, 8], got ", neuroglancer_lods)));
+  }
+  if (flags.IsSet("neuroglancer-nm") && !(neuroglancer_nm > 0 && neuroglancer_nm < 1e15)) {
+    return Usage(absl::InvalidArgumentError(
+        absl::StrCat("--neuroglancer-nm must be positive, got ", neuroglancer_nm)));
+  }
+#ifndef TANDEM_HAVE_DRACO
+  if (!neuroglancer.empty()) {
+    return Usage(absl::InvalidArgumentError(
+        "--neuroglancer: this tandem was built without Draco (-DTANDEM_BUILD_SERVICE=OFF)"));
+  }
+#endif
   const std::string input_path = f.InputPath();
   const bool follow = f.follow, quiet = f.quiet, reference = f.reference;
   const std::string& metrics = f.metrics;
@@ -136,9 +169,9 @@ int ExtractCommand(int argc, char** argv) {
     std::string out;
     std::vector<SealedChunk> chunks;
     std::unique_ptr<ChunkedMeshWriter> writer;
-    ShapeSums shape;
+    eval::ShapeSums shape;
     IndexedMesh mesh;
-    MetricsReport report;
+    eval::MetricsReport report;
   };
   std::vector<Surface> surfaces(isos.size());
   std::vector<SessionOptions> options;
@@ -148,13 +181,30 @@ int ExtractCommand(int argc, char** argv) {
     s.opt.iso = isos[i].value;
     s.out = outs[i];
     options.push_back(s.opt);
-    if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !reference) {
+    if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !reference && neuroglancer.empty()) {
       auto w = ChunkedMeshWriter::Open(s.out, write);
       if (!w.ok()) return Fail(w.status());
       s.writer = *std::move(w);
     }
   }
+  // --neuroglancer: the coarser levels, surface i's level k (1..) at E0 * 2^k, read in the
+  // same pass; session surfaces.size() + i * (lods - 1) + k - 1.
+  const size_t coarser = neuroglancer.empty() ? 0 : static_cast<size_t>(neuroglancer_lods - 1);
+  for (size_t i = 0; i < surfaces.size(); ++i) {
+    for (size_t k = 1; k <= coarser; ++k) {
+      SessionOptions o = surfaces[i].opt;
+      o.error = std::ldexp(o.error, static_cast<int>(k));
+      // Triangles go about as 1 / E0: each level asks for half the count of the one before.
+      if (o.target_triangles > 0) o.target_triangles = std::max<int64_t>(4, o.target_triangles >> k);
+      options.push_back(o);
+    }
+  }
+  std::vector<std::vector<SealedChunk>> level_chunks(options.size() - surfaces.size());
   auto on_chunk = [&](size_t i, SealedChunk c) -> absl::Status {
+    if (i >= surfaces.size()) {
+      level_chunks[i - surfaces.size()].push_back(std::move(c));
+      return absl::OkStatus();
+    }
     Surface& s = surfaces[i];
     if (!s.writer) {
       s.chunks.push_back(std::move(c));
@@ -203,25 +253,59 @@ int ExtractCommand(int argc, char** argv) {
     const TandemSession& session = *(*sessions)[i];
     if (s.writer) {
       if (absl::Status st = s.writer->Finish(); !st.ok()) return Fail(st);
-      s.report = MakeReport(session, s.writer->triangles(), s.writer->vertices(), s.shape);
+      s.report = eval::MakeReport(session, s.writer->triangles(), s.writer->vertices(), s.shape);
     } else {
       s.mesh = s.opt.seal ? WeldChunks(s.chunks) : session.Snapshot();
       s.chunks = {};
       // The report's measures (Error(K), anisotropy, bias) only read the mesh and the
       // finished session: work them out on another core while the mesh is written.
       // (async | deferred: runs here, later, when no thread can be had.)
-      std::future<MetricsReport> measured = std::async(std::launch::async | std::launch::deferred,
-                                                       [&] { return MakeReport(session, s.mesh); });
+      std::future<eval::MetricsReport> measured =
+          std::async(std::launch::async | std::launch::deferred,
+                     [&] { return eval::MakeReport(session, s.mesh); });
       if (absl::Status st = WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
     s.report.input = input_path;
   }
+#ifdef TANDEM_HAVE_DRACO
+  if (!neuroglancer.empty() && opt.labels.enabled) {
+    // A label session is one surface of many labels: its levels' labels are the segments.
+    std::vector<const TandemSession*> levels{(*sessions)[0].get()};
+    for (size_t k = 1; k <= coarser; ++k) {
+      levels.push_back((*sessions)[surfaces.size() + k - 1].get());
+    }
+    const double nm = flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : DefaultNmPerUnit(info);
+    if (absl::Status st = WriteNeuroglancerLabels(neuroglancer, info, levels, opt.labels.background,
+                                                  nm, static_cast<int>(f.compression_level));
+        !st.ok()) {
+      return Fail(st);
+    }
+  } else if (!neuroglancer.empty()) {
+    std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments;
+    for (size_t i = 0; i < surfaces.size(); ++i) {
+      std::vector<IndexedMesh> lods{surfaces[i].mesh};
+      for (size_t k = 1; k <= coarser; ++k) {
+        const size_t at = surfaces.size() + i * coarser + k - 1;
+        std::vector<SealedChunk>& chunks = level_chunks[at - surfaces.size()];
+        lods.push_back(options[at].seal ? WeldChunks(chunks) : (*sessions)[at]->Snapshot());
+        chunks = {};
+      }
+      segments.emplace_back(static_cast<LabelId>(i + 1), std::move(lods));
+    }
+    const double nm = flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : DefaultNmPerUnit(info);
+    if (absl::Status st = WriteNeuroglancerExport(neuroglancer, info, std::move(segments), nm,
+                                                  static_cast<int>(f.compression_level));
+        !st.ok()) {
+      return Fail(st);
+    }
+  }
+#endif
   if (reference) {
     auto ref_source = OpenVolume(input_path, f.Open(nullptr));
     if (!ref_source.ok()) return Fail(ref_source.status());
     if (absl::Status st = f.ApplyGeometry(&*ref_source).status(); !st.ok()) return Usage(st);
-    std::vector<SessionOptions> ref_options = options;
+    std::vector<SessionOptions> ref_options(options.begin(), options.begin() + surfaces.size());
     for (SessionOptions& o : ref_options) {
       o.schedule = Schedule::kNone;
       o.seal = false;
@@ -232,30 +316,31 @@ int ExtractCommand(int argc, char** argv) {
     });
     ref_progress.Done();
     if (!refs.ok()) return Fail(refs.status());
-    DistanceOptions dopt;
+    eval::DistanceOptions dopt;
     dopt.samples = static_cast<size_t>(samples);
     for (size_t i = 0; i < surfaces.size(); ++i) {
       surfaces[i].report.distance =
-          MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
+          eval::MeasureDistances((*refs)[i]->Snapshot(), surfaces[i].mesh, dopt);
     }
   }
   bool outside = false;
   std::vector<std::string> json;
   for (size_t i = 0; i < surfaces.size(); ++i) {
     Surface& s = surfaces[i];
-    s.report.peak_rss_bytes = PeakRssBytes();  // the process's, as /usr/bin/time reports it
+    s.report.peak_rss_bytes = eval::PeakRssBytes();  // the process's, as /usr/bin/time reports it
     if (!metrics.empty()) {
       if (metrics.find("{iso}") != std::string::npos) {
         auto name = cli::NameForIso("metrics", metrics, isos[i], isos.size());
         if (!name.ok()) return Usage(name.status());
-        if (absl::Status st = WriteText(*name, ReportToJson(s.report)); !st.ok()) return Fail(st);
+        if (absl::Status st = WriteText(*name, eval::ReportToJson(s.report)); !st.ok())
+          return Fail(st);
       } else {
-        json.push_back(ReportToJson(s.report));
+        json.push_back(eval::ReportToJson(s.report));
       }
     } else if (!quiet) {
       const std::string which = isos.size() > 1 ? absl::StrCat(" (iso ", isos[i].text, ")") : "";
       std::fprintf(stderr, "%s -> %s%s\n%s", input_path.c_str(), s.out.c_str(), which.c_str(),
-                   ReportSummary(s.report).c_str());
+                   eval::ReportSummary(s.report).c_str());
     }
     // An iso-value the data never crosses gives an empty mesh: say so, never silently.
     if (range.Outside(s.opt.iso)) {

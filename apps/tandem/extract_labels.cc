@@ -90,24 +90,24 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
     return FailWriting(st);
   }
 
-  std::vector<LabelMetrics> measured;
+  std::vector<eval::LabelMetrics> measured;
   for (const auto& [id, mesh] : run->surfaces) {
-    LabelMetrics m = MeasureLabel(id, mesh);
+    eval::LabelMetrics m = eval::MeasureLabel(id, mesh);
     if (auto it = names.find(id); it != names.end()) m.name = it->second.name;
     measured.push_back(std::move(m));
   }
-  MetricsReport report = MakeReport(*run->session, run->complex.mesh);
+  eval::MetricsReport report = eval::MakeReport(*run->session, run->complex.mesh);
   report.input = input;
-  report.peak_rss_bytes = PeakRssBytes();
+  report.peak_rss_bytes = eval::PeakRssBytes();
   if (!f.metrics.empty()) {
-    if (absl::Status st = WriteText(f.metrics, ReportWithLabelsToJson(report, measured));
+    if (absl::Status st = WriteText(f.metrics, eval::ReportWithLabelsToJson(report, measured));
         !st.ok()) {
       return Fail(st);
     }
   } else if (!f.quiet) {
     std::fprintf(stderr, "%s -> %s (%zu labels)\n%s  labels:\n%s", input.c_str(), f.out.c_str(),
-                 measured.size(), ReportSummary(report).c_str(),
-                 LabelMetricsSummary(measured).c_str());
+                 measured.size(), eval::ReportSummary(report).c_str(),
+                 eval::LabelMetricsSummary(measured).c_str());
   }
   if (measured.empty() && !f.quiet) {
     std::fprintf(stderr, "tandem extract: warning: %s holds no label but the background (%s)\n",

@@ -84,7 +84,7 @@ int GenerateCommand(int argc, char** argv) {
     return Usage(
         absl::InvalidArgumentError("expected one shape: sphere, pillowbox, link or gyroid"));
   }
-  auto shape = ParseShape(flags.positional()[0]);
+  auto shape = eval::ParseShape(flags.positional()[0]);
   if (!shape.ok()) return Usage(shape.status());
   ZarrWriteOptions zarr;
   zarr.version = static_cast<int>(zarr_version);
@@ -126,8 +126,8 @@ int GenerateCommand(int argc, char** argv) {
     dicom.syntax = *syntax;
   }
   auto make = [&] {
-    return MakeSyntheticSource(*shape, int64_t(dims[0]), int64_t(dims[1]), int64_t(dims[2]),
-                               spacing);
+    return eval::MakeSyntheticSource(*shape, int64_t(dims[0]), int64_t(dims[1]), int64_t(dims[2]),
+                                     spacing);
   };
   auto src = make();
   // The shape is drawn on the grid; --origin and --directions only place the grid in the

@@ -16,7 +16,7 @@ namespace tandem::app {
 
 namespace {
 
-std::string DistanceTable(const Distances& d) {
+std::string DistanceTable(const eval::Distances& d) {
   std::string s =
       absl::StrFormat("%-6s %14s %14s %14s\n", "", "forward(A->B)", "backward(B->A)", "max");
   absl::StrAppend(&s, absl::StrFormat("%-6s %14.6g %14.6g %14.6g\n", "L1", d.forward.l1,
@@ -57,11 +57,11 @@ int MeasureCommand(int argc, char** argv) {
   if (a->num_triangles() == 0 || b->num_triangles() == 0) {
     return Fail(absl::InvalidArgumentError("both meshes need at least one triangle"));
   }
-  DistanceOptions dopt;
+  eval::DistanceOptions dopt;
   dopt.samples = static_cast<size_t>(samples);
-  const Distances d = MeasureDistances(*a, *b, dopt);
+  const eval::Distances d = eval::MeasureDistances(*a, *b, dopt);
   if (json) {
-    std::fputs(DistancesToJson(d).c_str(), stdout);
+    std::fputs(eval::DistancesToJson(d).c_str(), stdout);
   } else {
     std::fputs(DistanceTable(d).c_str(), stdout);
   }

@@ -13,7 +13,7 @@
 
 #include "tandem/eval/metrics.h"
 
-namespace tandem {
+namespace tandem::eval {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
@@ -385,4 +385,4 @@ Distances MeasureDistances(const IndexedMesh& a, const IndexedMesh& b,
   return d;
 }
 
-}  // namespace tandem
+}  // namespace tandem::eval

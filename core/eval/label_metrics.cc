@@ -7,7 +7,7 @@
 #include "tandem/eval/metrics.h"
 #include "tandem/eval/topology.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 LabelMetrics MeasureLabel(LabelId label, const IndexedMesh& mesh) {
   LabelMetrics m;
@@ -90,4 +90,4 @@ std::string LabelMetricsSummary(const std::vector<LabelMetrics>& labels) {
   return s;
 }
 
-}  // namespace tandem
+}  // namespace tandem::eval

@@ -9,7 +9,7 @@
 #include <cmath>
 #include <limits>
 
-namespace tandem {
+namespace tandem::eval {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -149,4 +149,4 @@ double ShapeSums::directional_bias() const {
   return std::clamp(bias, 0.0, 1.0);
 }
 
-}  // namespace tandem
+}  // namespace tandem::eval

@@ -12,7 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "tandem/eval/metrics.h"
 
-namespace tandem {
+namespace tandem::eval {
 MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) {
   ShapeSums shape;
   shape.Add(mesh);
@@ -199,4 +199,4 @@ int64_t PeakRssBytes() {
   return static_cast<int64_t>(ru.ru_maxrss) * 1024;  // Linux reports KiB
 }
 
-}  // namespace tandem
+}  // namespace tandem::eval

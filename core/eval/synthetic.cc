@@ -8,7 +8,7 @@
 
 #include "absl/strings/str_cat.h"
 
-namespace tandem {
+namespace tandem::eval {
 namespace {
 
 constexpr double kSphereRadius = 0.8;
@@ -130,4 +130,4 @@ std::unique_ptr<SliceSource> MakeSyntheticSource(Shape shape, int64_t nx, int64_
   return std::make_unique<SyntheticSource>(shape, info);
 }
 
-}  // namespace tandem
+}  // namespace tandem::eval

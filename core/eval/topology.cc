@@ -4,7 +4,7 @@
 #include <numeric>
 #include <tuple>
 
-namespace tandem {
+namespace tandem::eval {
 namespace {
 
 struct DisjointSets {
@@ -199,5 +199,5 @@ IndexedMesh WeldByPosition(const IndexedMesh& mesh) {
   return out;
 }
 
-}  // namespace tandem
+}  // namespace tandem::eval
 

@@ -145,6 +145,10 @@ absl::Status SessionOptions::Validate() const {
     return Refuse("seam_settle_slices", seam_settle_slices,
                   "seams settle at least 1 slice behind the front");
   }
+  if (seal && seam_hold_vertices < 1) {
+    return Refuse("seam_hold_vertices", seam_hold_vertices,
+                  "a seam holds at least 1 vertex before its oldest settle");
+  }
   if (parts < 0 || parts > kMaxParts) {
     return Refuse("parts", parts,
                   absl::StrCat("parts must lie in [0, ", kMaxParts, "] (0 = automatic)"));

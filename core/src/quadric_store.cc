@@ -52,7 +52,9 @@ void QuadricStore::Drop(VertexId v) {
   store_->set_aux(v, kInvalid);
 }
 
-void QuadricStore::Adopt(const QuadricStore& from, VertexId src, VertexId dst, bool shared) {
+void QuadricStore::Adopt(const QuadricStore& from, PartVertex part_src, VertexId dst,
+                         bool shared) {
+  const VertexId src = InPart(part_src);  // an index of from's arrays only
   if (shared) {
     Quadric q;  // a seam vertex: each part saw its own triangles
     AddTo(dst, &q);

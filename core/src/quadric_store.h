@@ -8,6 +8,7 @@
 #include <cstdint>
 
 #include "mesh_store.h"
+#include "part_ids.h"
 #include "pod_array.h"
 #include "quadric.h"
 #include "slot_pool.h"
@@ -74,7 +75,7 @@ class QuadricStore {
   }
   // dst takes src's quadric from another store (a slab merge); `shared`: dst is the seam
   // vertex both held, each with its own triangles' planes, and the two add.
-  void Adopt(const QuadricStore& from, VertexId src, VertexId dst, bool shared);
+  void Adopt(const QuadricStore& from, PartVertex src, VertexId dst, bool shared);
   // Starts loading v's matrix and its full quadric's rest (v's store record must be in).
   void Prefetch(VertexId v) const {
     const char* p = reinterpret_cast<const char*>(&planes_[v]);

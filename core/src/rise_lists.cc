@@ -45,9 +45,9 @@ void RiseLists::SweepBeyond(size_t limit) {
   }
 }
 
-void RiseLists::Adopt(const RiseLists& from, std::span<const VertexId> map, double error) {
-  auto ends = [&](VertexId a, VertexId b) {
-    const VertexId x = map[a], y = map[b];
+void RiseLists::Adopt(const RiseLists& from, const PartVertexMap& map, double error) {
+  auto ends = [&](VertexId a, VertexId b) {  // from's ids
+    const VertexId x = map[PartVertex{a}], y = map[PartVertex{b}];
     assert(x != kInvalid && y != kInvalid);
     return x < y ? std::pair{x, y} : std::pair{y, x};
   };

@@ -12,6 +12,7 @@
 
 #include "edge_queues.h"
 #include "mesh_store.h"
+#include "part_ids.h"
 #include "pod_array.h"
 #include "tandem/types.h"
 
@@ -90,7 +91,7 @@ class RiseLists {
   void SweepBeyond(size_t limit);
   // A slab merge: the other lists' live edges, ends mapped to this store's ids (`map`), stamps
   // of this one; its link refusals are listed at `error` (the merged stars are new).
-  void Adopt(const RiseLists& from, std::span<const VertexId> map, double error);
+  void Adopt(const RiseLists& from, const PartVertexMap& map, double error);
   size_t MemoryBytes() const {
     return (dropped_.capacity() + offered_.capacity()) * sizeof(DroppedEdge) +
            refused_.capacity() * sizeof(RefusedEdge);

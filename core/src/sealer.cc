@@ -108,11 +108,11 @@ void Sealer::AddVertices(std::span<const VertexId> verts) {
 
 Sealer::Kept& Sealer::HandOut(VertexId v) {
   Kept& k = kept_.At(v);
-  if (k.id == kInvalid) {
+  if (k.id == kNoGlobalId) {
     if (next_id_ > std::numeric_limits<uint32_t>::max() - id_stride_) {
       throw std::overflow_error("a sealed session ran out of 32-bit vertex ids");
     }
-    k.id = next_id_;
+    k.id = GlobalId{next_id_};
     next_id_ += id_stride_;
     ++handed_out_;
     k.stamp = 0;
@@ -200,7 +200,7 @@ void Sealer::Seal(double front, Executor* executor) {
       for (VertexId v : store_->triangle(t)) need_.push_back(v);
     }
     const DegenerateCounts mended = simplifier_->TidyDegenerateAmong(
-        tris_, [this](VertexId v) { return id(v) == kInvalid; });
+        tris_, [this](VertexId v) { return id(v) == kNoGlobalId; });
     // A zero-area triangle that seals later, at a corner handed out now: mended now, while
     // that corner may still move (frozen, but without an id), the others staying where they
     // are and the topology too. Left for later, both its coincident corners could be handed
@@ -209,7 +209,7 @@ void Sealer::Seal(double front, Executor* executor) {
     later_.clear();
     for (TriId t : all ? std::span<const TriId>() : tris_) {
       for (VertexId v : store_->triangle(t)) {
-        if (id(v) != kInvalid) continue;
+        if (id(v) != kNoGlobalId) continue;
         for (TriId u : store_->vertex_triangles(v)) later_.push_back(u);
       }
     }
@@ -217,7 +217,7 @@ void Sealer::Seal(double front, Executor* executor) {
     later_.erase(std::unique(later_.begin(), later_.end()), later_.end());
     simplifier_->TidyDegenerateAmong(
         later_,
-        [this](VertexId v) { return id(v) == kInvalid && (store_->box_mask(v) & kFrozen); },
+        [this](VertexId v) { return id(v) == kNoGlobalId && (store_->box_mask(v) & kFrozen); },
         /*flips=*/false);
     if (mended.flipped > 0) {
       need_.insert(need_.end(), freeze_.begin(), freeze_.end());
@@ -254,7 +254,7 @@ void Sealer::Seal(double front, Executor* executor) {
       if (simplifier_ != nullptr) simplifier_->DropQuadric(v);
       ReleaseNormal(v);
       if (const Kept* k = kept_.Find(v)) {
-        if (k->id != kInvalid) pend_retired_.push_back(k->id);
+        if (k->id != kNoGlobalId) pend_retired_.push_back(k->id);
         kept_.Erase(v);
       }
     }
@@ -274,7 +274,7 @@ bool Sealer::NextToSeam(VertexId v) const {
   return false;
 }
 
-void Sealer::FreezeShared(VertexId v, uint32_t id, double shape_error) {
+void Sealer::FreezeShared(VertexId v, GlobalId id, double shape_error) {
   max_shape_error_ = std::max(max_shape_error_, shape_error);
   Kept& k = kept_.At(v);
   k.id = id;
@@ -333,7 +333,7 @@ bool Sealer::TakeChunk(SealedChunk* out) {
   double lo = std::numeric_limits<double>::infinity(), hi = -lo;
   for (const PendingVertex& p : pend_verts_) {
     out->positions.push_back(p.pos);
-    out->ids.push_back(p.id);
+    out->ids.push_back(Value(p.id));
     lo = std::min(lo, p.height);
     hi = std::max(hi, p.height);
   }
@@ -342,11 +342,12 @@ bool Sealer::TakeChunk(SealedChunk* out) {
     out->last_slice = static_cast<int64_t>(std::ceil(hi));
   }
   out->indices.reserve(pend_tris_.size());
-  for (uint32_t id : pend_tris_) {
-    const auto it = std::lower_bound(out->ids.begin(), out->ids.end(), id);
+  for (GlobalId id : pend_tris_) {
+    const auto it = std::lower_bound(out->ids.begin(), out->ids.end(), Value(id));
     out->indices.push_back(static_cast<uint32_t>(it - out->ids.begin()));
   }
-  out->retired.swap(pend_retired_);
+  out->retired.reserve(pend_retired_.size());
+  for (GlobalId id : pend_retired_) out->retired.push_back(Value(id));
   pend_verts_.clear();
   pend_tris_.clear();
   pend_retired_.clear();
@@ -354,14 +355,14 @@ bool Sealer::TakeChunk(SealedChunk* out) {
   return true;
 }
 
-void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
-                    std::span<const VertexId> welded) {
+void Sealer::Absorb(const Sealer& other, const PartVertexMap& map,
+                    std::span<const PartVertex> welded) {
   const MeshStore& src = *other.store_;
   std::vector<bool> skip(src.vertex_capacity(), false);
-  for (VertexId v : welded) skip[v] = true;
+  for (PartVertex v : welded) skip[InPart(v)] = true;
   for (VertexId v = 0; v < src.vertex_capacity() && v < map.size(); ++v) {
-    if (!src.vertex_alive(v) || map[v] == kInvalid || skip[v]) continue;
-    const VertexId w = map[v];
+    const VertexId w = map[PartVertex{v}];
+    if (!src.vertex_alive(v) || w == kInvalid || skip[v]) continue;
     if (const uint32_t* slot = other.normal_slot_.Find(v)) {
       SetNormal(w, other.normals_[*slot]);
     } else {
@@ -377,7 +378,7 @@ void Sealer::Absorb(const Sealer& other, std::span<const VertexId> map,
     }
   }
   for (VertexId v : other.active_) {
-    if (src.vertex_alive(v) && !skip[v]) active_.push_back(map[v]);
+    if (src.vertex_alive(v) && !skip[v]) active_.push_back(map[PartVertex{v}]);
   }
   // This store's dead ids in active_ may have gone to the vertices just copied: list each
   // vertex once (Seal drops the frozen and the dead).
@@ -399,7 +400,7 @@ size_t Sealer::MemoryBytes() const {
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
          pend_verts_.capacity() * sizeof(PendingVertex) +
-         (pend_tris_.capacity() + pend_retired_.capacity()) * sizeof(uint32_t);
+         (pend_tris_.capacity() + pend_retired_.capacity()) * sizeof(GlobalId);
 }
 
 }  // namespace tandem

@@ -30,6 +30,7 @@
 #include "tandem/mesh.h"
 #include "id_index.h"
 #include "mesh_store.h"
+#include "part_ids.h"
 #include "pod_array.h"
 #include "sag_correction.h"
 #include "simplifier.h"
@@ -62,21 +63,20 @@ class Sealer {
   // sealer's store (MergeSlabs): vertex v there is map[v] here. Its pending chunk joins this
   // one; its unfrozen vertices stay unfrozen. `welded`: its seam copies that were welded to
   // vertices of this store, which keep their own state.
-  void Absorb(const Sealer& other, std::span<const VertexId> map,
-              std::span<const VertexId> welded);
+  void Absorb(const Sealer& other, const PartVertexMap& map, std::span<const PartVertex> welded);
   // Freezes seam vertex v as it is, with the global id `id` that its copy in the neighbouring
   // slab gets too (the session hands these out, in an id space of its own); its triangles
   // are sealed as their other corners freeze. Its retirement, like any, is listed in a chunk:
   // the id is retired once both copies are (TandemSession::TakeSealed counts them).
   // `shape_error`: ε0 of the welded vertex (both sides' quadrics), for max_shape_error.
-  void FreezeShared(VertexId v, uint32_t id, double shape_error);
+  void FreezeShared(VertexId v, GlobalId id, double shape_error);
   // Forgets the unfrozen vertices contracted away outside SIMPLIFY (CoarsenSettlingSeam),
   // whose ids the next EXTRACT may hand out again.
   void DropDead();
-  // v's global id; kInvalid before one was handed out.
-  uint32_t id(VertexId v) const {
+  // v's global id; kNoGlobalId before one was handed out.
+  GlobalId id(VertexId v) const {
     const Kept* k = kept_.Find(v);
-    return k != nullptr ? k->id : kInvalid;
+    return k != nullptr ? k->id : kNoGlobalId;
   }
 
   int64_t sealed_triangles() const { return sealed_triangles_; }
@@ -98,7 +98,7 @@ class Sealer {
   bool NextToSeam(VertexId v) const;  // some triangle at v has a seam vertex
 
   struct PendingVertex {
-    uint32_t id;
+    GlobalId id;
     double height;
     Vec3 pos;
   };
@@ -113,7 +113,7 @@ class Sealer {
   // let go). Kept per listed vertex, not by vertex id, since arrays by id would cost every
   // vertex of the part for a few thousand frozen ones (docs/decisions.md 18).
   struct Kept {
-    uint32_t id = kInvalid;
+    GlobalId id = kNoGlobalId;
     uint32_t stamp = 0;
   };
   IdMap<Kept> kept_;
@@ -127,8 +127,8 @@ class Sealer {
   std::vector<TriId> later_;  // Seal's scratch: the triangles around the corners handed out
   // The pending chunk.
   std::vector<PendingVertex> pend_verts_;
-  std::vector<uint32_t> pend_tris_;  // global ids, 3 per triangle
-  std::vector<uint32_t> pend_retired_;
+  std::vector<GlobalId> pend_tris_;  // 3 per triangle
+  std::vector<GlobalId> pend_retired_;
   uint32_t chunk_stamp_ = 1;
   uint32_t next_id_ = 0;  // the next id handed out
   uint32_t id_stride_ = 1;

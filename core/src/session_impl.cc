@@ -141,7 +141,8 @@ void TandemSession::Impl::MaybeSettleSeams() {
   }
   if (!Sync().ok()) return;  // the failure is reported by the caller
   SettleSeams(slabs, &seams, static_cast<double>(slabs[0]->extractor.slices_done() - 1),
-              options.seam_settle_slices, options.schedule != Schedule::kNone, &seam_ids);
+              options.seam_settle_slices, options.seam_hold_vertices,
+              options.schedule != Schedule::kNone, &seam_ids);
 }
 
 void TandemSession::Impl::Record() {

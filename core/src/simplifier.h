@@ -29,6 +29,7 @@
 #include "degenerate.h"
 #include "edge_queues.h"
 #include "mesh_store.h"
+#include "part_ids.h"
 #include "quadric_store.h"
 #include "rise_lists.h"
 #include "sag_correction.h"
@@ -94,8 +95,8 @@ class Simplifier {
   // edges (map: its vertex ids to this store's), so that E0 can rise on past the merge
   // without evaluating every edge of the merged mesh again (its W is empty after
   // ACTIVATE(∞); no entry is at a seam vertex: those edges were pinned).
-  void AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared);
-  void AdoptQueues(const Simplifier& from, std::span<const VertexId> map);
+  void AdoptVertex(const Simplifier& from, PartVertex src, VertexId dst, bool shared);
+  void AdoptQueues(const Simplifier& from, const PartVertexMap& map);
   void AdoptCounters(const Simplifier& from);
   void PushEdgesAround(std::span<const VertexId> verts);
 

@@ -9,10 +9,10 @@
 
 namespace tandem {
 
-void Simplifier::AdoptVertex(const Simplifier& from, VertexId src, VertexId dst, bool shared) {
+void Simplifier::AdoptVertex(const Simplifier& from, PartVertex src, VertexId dst, bool shared) {
   EnsureVertexCapacity();
   quadrics_.Adopt(from.quadrics_, src, dst, shared);
-  if (!shared) store_->set_rad(dst, from.store_->rad(src));
+  if (!shared) store_->set_rad(dst, from.store_->rad(InPart(src)));
   ++version_[dst];
 }
 
@@ -36,10 +36,10 @@ void Simplifier::ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool 
   Contract(a, b, c);
 }
 
-void Simplifier::AdoptQueues(const Simplifier& from, std::span<const VertexId> map) {
+void Simplifier::AdoptQueues(const Simplifier& from, const PartVertexMap& map) {
   if (!opt_.rises) return;
-  auto ends = [&](VertexId a, VertexId b) {
-    const VertexId x = map[a], y = map[b];
+  auto ends = [&](VertexId a, VertexId b) {  // from's ids
+    const VertexId x = map[PartVertex{a}], y = map[PartVertex{b}];
     assert(x != kInvalid && y != kInvalid && !Pinned(x, y));
     return x < y ? std::pair{x, y} : std::pair{y, x};
   };

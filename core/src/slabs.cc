@@ -41,7 +41,7 @@ class WeldedIds {
     const Slab& slab = side == 0 ? left_ : right_;
     const uint8_t mask = slab.store.box_mask(v);
     if (!(mask & kSeam)) return {side, v};
-    if (mask & kFrozen) return {3, slab.sealer->id(v)};
+    if (mask & kFrozen) return {3, Value(slab.sealer->id(v))};
     if (side == 0) return {2, v};
     const auto it = left_of_.find(v);
     if (it == left_of_.end()) return {-1, 0};
@@ -427,15 +427,24 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
   return absl::OkStatus();
 }
 
-void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, int64_t settle_slices, bool coarsen, int64_t* seam_ids) {
+void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams, double front,
+                 int64_t settle_slices, int64_t hold_vertices, bool coarsen, int64_t* seam_ids) {
   const auto count = static_cast<int64_t>(slabs.size());
   const int64_t stride = SealerIdStride(static_cast<int>(count));
-  const double limit = front - static_cast<double>(settle_slices);
+  const double by_slices = front - static_cast<double>(settle_slices);
+  const double floor = front - static_cast<double>(std::min(settle_slices, kSeamSettleFloor));
   for (size_t s = 0; s < seams->size(); ++s) {
     Slab& left = *slabs[s];
     Slab& right = *slabs[s + 1];
     auto& pairs = (*seams)[s];
+    // Pairs are listed as the slabs made them, slice by slice: past hold_vertices, those up
+    // to the height of the newest one beyond them settle.
+    double limit = by_slices;
+    const auto held = static_cast<int64_t>(pairs.size());
+    if (held > hold_vertices) {
+      const VertexId newest_settling = pairs[static_cast<size_t>(held - hold_vertices - 1)].first;
+      limit = std::max(limit, std::min(floor, left.store.height(newest_settling)));
+    }
     if (coarsen) {
       CoarsenSettlingSeam(left, right, pairs, limit);
       MendSettlingSeam(left, right, pairs, limit);
@@ -461,8 +470,9 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
       const double shape_error =
           coarsen ? MeasuredShapeError(WeldedQuadric(left, a, right, b), left.store.position(a))
                   : 0.0;
-      left.sealer->FreezeShared(a, static_cast<uint32_t>(id), shape_error);
-      right.sealer->FreezeShared(b, static_cast<uint32_t>(id), shape_error);
+      const GlobalId global{static_cast<uint32_t>(id)};
+      left.sealer->FreezeShared(a, global, shape_error);
+      right.sealer->FreezeShared(b, global, shape_error);
     }
     pairs.resize(keep);
   }
@@ -486,32 +496,35 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
                                  bool simplify, MergedCounts* merged) {
   Slab& dst = *(*slabs)[0];
   std::vector<VertexId> seam_vertices;  // in dst
-  std::vector<VertexId> map, prev;      // a slab's ids -> dst's (prev: the slab before)
-  std::vector<VertexId> welded;         // src's seam copies welded to dst's vertices
+  PartVertexMap map, prev;              // a slab's ids -> dst's (prev: the slab before)
+  std::vector<PartVertex> welded;       // src's seam copies welded to dst's vertices
   for (size_t p = 1; p < slabs->size(); ++p) {
     Slab& src = *(*slabs)[p];
-    map.assign(src.store.vertex_capacity(), kInvalid);
+    map.Reset(src.store.vertex_capacity());
     welded.clear();
     for (const auto& [left, right] : (*seams)[p - 1]) {
-      welded.push_back(right);
-      const VertexId v = p == 1 ? left : prev[left];
+      const PartVertex copy{right};
+      welded.push_back(copy);
+      const VertexId v = p == 1 ? left : prev[PartVertex{left}];
       assert(dst.store.vertex_alive(v) && src.store.vertex_alive(right));
-      map[right] = v;
+      map[copy] = v;
       dst.store.set_box_mask(v, (dst.store.box_mask(v) | src.store.box_mask(right)) &
                                     static_cast<uint8_t>(~kSeam));
-      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, right, v, /*shared=*/true);
+      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, copy, v, /*shared=*/true);
       seam_vertices.push_back(v);
     }
     for (VertexId v = 0; v < src.store.vertex_capacity(); ++v) {
-      if (!src.store.vertex_alive(v) || map[v] != kInvalid) continue;
-      map[v] = dst.store.AddVertex(src.store.position(v), src.store.height(v), src.store.layer(v),
-                                   src.store.box_mask(v));
-      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, v, map[v], /*shared=*/false);
+      const PartVertex part{v};
+      if (!src.store.vertex_alive(v) || map[part] != kInvalid) continue;
+      map[part] = dst.store.AddVertex(src.store.position(v), src.store.height(v),
+                                      src.store.layer(v), src.store.box_mask(v));
+      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, part, map[part], /*shared=*/false);
     }
     for (TriId t = 0; t < src.store.triangle_capacity(); ++t) {
       if (!src.store.triangle_alive(t)) continue;
       const auto& tri = src.store.triangle(t);
-      dst.store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
+      dst.store.AddTriangle(map[PartVertex{tri[0]}], map[PartVertex{tri[1]}],
+                            map[PartVertex{tri[2]}]);
     }
     if (simplify) {
       dst.simplifier.AdoptCounters(src.simplifier);

@@ -96,14 +96,18 @@ inline uint32_t SealerIdStride(int count) {
 }
 
 // Sealing: seam vertices `settle_slices` (SessionOptions::seam_settle_slices) or more below
-// the front freeze, in both slabs (Sealer::FreezeShared), and leave `seams`; `seam_ids`
-// counts the ids handed out. So the triangles at the seams that wait for the merge follow
-// the front, not the depth. With `coarsen` (a simplifying session) the settling part of each
+// the front freeze, in both slabs (Sealer::FreezeShared), and leave `seams`; so do a seam's
+// oldest past its newest `hold_vertices` (SessionOptions::seam_hold_vertices), but none within
+// kSeamSettleFloor slices of the front. `seam_ids` counts the ids handed out. So the
+// triangles at the seams that wait for the merge follow the front, not the depth. With `coarsen` (a simplifying session) the settling part of each
 // seam is first coarsened along itself (CoarsenSettlingSeam), and its copies left at one
 // point are moved apart (MendSettlingSeam); what a settled seam vertex gives up is a
 // contraction off the seam's plane at the merge.
-void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams,
-                 double front, int64_t settle_slices, bool coarsen, int64_t* seam_ids);
+void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams, double front,
+                 int64_t settle_slices, int64_t hold_vertices, bool coarsen, int64_t* seam_ids);
+// Seam vertices this close to the front wait, however many a seam holds: their neighbours in
+// the slabs are still being simplified.
+inline constexpr int64_t kSeamSettleFloor = 64;
 
 // Contracts edges of the seam between `left` and `right` whose ends are both at height
 // <= limit, in both slabs at once: cheapest first, each to the point of the seam's plane

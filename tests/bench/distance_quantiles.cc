@@ -18,8 +18,8 @@
 namespace {
 
 using tandem::IndexedMesh;
-using tandem::TriangleBvh;
 using tandem::Vec3;
+using tandem::eval::TriangleBvh;
 
 std::vector<double> SampleDistances(const IndexedMesh& from, const TriangleBvh& to, size_t n) {
   const size_t num_tris = from.num_triangles();

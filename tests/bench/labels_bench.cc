@@ -209,31 +209,31 @@ int Measure(int argc, char** argv) {
     const tandem::IndexedMesh ref = labels::ReferenceSurface(v, boxes[s]);
     reference_triangles[s] = ref.num_triangles();
     if (ref.num_triangles() == 0) return;
-    const tandem::TriangleBvh ref_bvh(ref);
+    const tandem::eval::TriangleBvh ref_bvh(ref);
     for (Method& m : methods) {
       tandem::IndexedMesh mesh;
       LabelResult& r = m.per_label[s];
       if (!LoadSurface(m.dir, boxes[s].id, &mesh)) continue;
       r.found = true;
       r.triangles = mesh.num_triangles();
-      const tandem::TopologyReport topology = tandem::AnalyzeTopology(mesh);
+      const tandem::eval::TopologyReport topology = tandem::eval::AnalyzeTopology(mesh);
       r.manifold = topology.IsManifold();
-      tandem::DistanceOptions opt;
+      tandem::eval::DistanceOptions opt;
       opt.threads = 1;
       opt.samples = std::clamp<size_t>(2 * mesh.num_triangles(), 1000, rms_samples);
-      const auto fwd = tandem::MeasureDirectedDistance(mesh, ref_bvh, opt);
+      const auto fwd = tandem::eval::MeasureDirectedDistance(mesh, ref_bvh, opt);
       opt.samples = std::clamp<size_t>(2 * ref.num_triangles(), 1000, rms_samples);
-      const auto bwd = tandem::MeasureDirectedDistance(ref, tandem::TriangleBvh(mesh), opt);
+      const auto bwd = tandem::eval::MeasureDirectedDistance(ref, tandem::eval::TriangleBvh(mesh), opt);
       r.rms = std::max(fwd.l2, bwd.l2);
       r.hausdorff = std::max(fwd.linf, bwd.linf);
       tandem::IndexedMesh full;
       if (m.full_dir.empty() || !LoadSurface(m.full_dir, boxes[s].id, &full)) continue;
       opt.samples = std::clamp<size_t>(2 * mesh.num_triangles(), 1000, rms_samples);
-      const auto own_fwd = tandem::MeasureDirectedDistance(mesh, tandem::TriangleBvh(full), opt);
+      const auto own_fwd = tandem::eval::MeasureDirectedDistance(mesh, tandem::eval::TriangleBvh(full), opt);
       opt.samples = std::clamp<size_t>(2 * full.num_triangles(), 1000, rms_samples);
-      const auto own_bwd = tandem::MeasureDirectedDistance(full, tandem::TriangleBvh(mesh), opt);
+      const auto own_bwd = tandem::eval::MeasureDirectedDistance(full, tandem::eval::TriangleBvh(mesh), opt);
       r.rms_own = std::max(own_fwd.l2, own_bwd.l2);
-      const tandem::TopologyReport full_topology = tandem::AnalyzeTopology(full);
+      const tandem::eval::TopologyReport full_topology = tandem::eval::AnalyzeTopology(full);
       r.topology_changed =
           topology.euler != full_topology.euler || topology.components != full_topology.components;
     }
@@ -263,11 +263,11 @@ int Measure(int argc, char** argv) {
   const double zero = 1e-6 * std::min({v.spacing[0], v.spacing[1], v.spacing[2]});
   for (Method& m : methods) {
     // The gap needs every surface of the method at once.
-    std::vector<std::unique_ptr<tandem::TriangleBvh>> bvh(boxes.size());
+    std::vector<std::unique_ptr<tandem::eval::TriangleBvh>> bvh(boxes.size());
     ParallelFor(boxes.size(), threads, [&](size_t s) {
       tandem::IndexedMesh mesh;
       if (LoadSurface(m.dir, boxes[s].id, &mesh))
-        bvh[s] = std::make_unique<tandem::TriangleBvh>(mesh);
+        bvh[s] = std::make_unique<tandem::eval::TriangleBvh>(mesh);
     });
     std::vector<double> pair_max(pairs.size(), NAN), pair_sum(pairs.size(), 0);
     std::vector<size_t> pair_zero(pairs.size(), 0), pair_n(pairs.size(), 0);

@@ -499,7 +499,7 @@ inline Margin MarginFor(const LabelVolume& v, int voxels, double physical) {
 }
 
 // The gap at interface sample p between the surfaces of two labels (see the file comment).
-inline double GapAt(const tandem::TriangleBvh& a, const tandem::TriangleBvh& b, tandem::Vec3 p) {
+inline double GapAt(const tandem::eval::TriangleBvh& a, const tandem::eval::TriangleBvh& b, tandem::Vec3 p) {
   const double ab = b.Distance(a.Closest(p).point);
   const double ba = a.Distance(b.Closest(p).point);
   return std::max(ab, ba);

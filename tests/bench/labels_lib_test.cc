@@ -13,7 +13,7 @@ namespace labels {
 namespace {
 
 using tandem::IndexedMesh;
-using tandem::TriangleBvh;
+using tandem::eval::TriangleBvh;
 using tandem::Vec3;
 
 // An axis-aligned box as 12 triangles.
@@ -129,7 +129,7 @@ TEST(ReferenceTest, OneVoxelIsAClosedManifold) {
   ASSERT_EQ(boxes.size(), 1u);
   EXPECT_EQ(boxes[0].voxels, 1);
   const IndexedMesh m = ReferenceSurface(v, boxes[0]);
-  const tandem::TopologyReport t = tandem::AnalyzeTopology(m);
+  const tandem::eval::TopologyReport t = tandem::eval::AnalyzeTopology(m);
   EXPECT_EQ(m.num_triangles(), 8u);  // the octahedron of the 6 edge midpoints
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_EQ(t.euler, 2);

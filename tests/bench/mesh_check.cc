@@ -23,11 +23,11 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "%s\n", std::string(mesh.status().message()).c_str());
     return 1;
   }
-  const tandem::TopologyReport t = tandem::AnalyzeTopology(*mesh);
-  const size_t dups = tandem::CountDuplicatePositions(*mesh);
+  const tandem::eval::TopologyReport t = tandem::eval::AnalyzeTopology(*mesh);
+  const size_t dups = tandem::eval::CountDuplicatePositions(*mesh);
 
-  const tandem::TopologyReport w =
-      dups > 0 ? tandem::AnalyzeTopology(tandem::WeldByPosition(*mesh)) : t;
+  const tandem::eval::TopologyReport w =
+      dups > 0 ? tandem::eval::AnalyzeTopology(tandem::eval::WeldByPosition(*mesh)) : t;
   size_t zero_area = 0;
   for (size_t k = 0; k + 2 < mesh->indices.size(); k += 3) {
     const uint32_t* v = &mesh->indices[k];
@@ -48,6 +48,7 @@ int main(int argc, char** argv) {
       static_cast<long long>(t.euler), t.boundary_edges, t.nonmanifold_edges,
       t.nonmanifold_vertices, t.misoriented_edges, t.repeated_index_triangles, t.components,
       t.boundary_loops, dups, w.IsManifold() ? "true" : "false", static_cast<long long>(w.euler),
-      w.repeated_index_triangles, tandem::Anisotropy(*mesh), tandem::DirectionalBias(*mesh), zero_area);
+      w.repeated_index_triangles, tandem::eval::Anisotropy(*mesh),
+      tandem::eval::DirectionalBias(*mesh), zero_area);
   return 0;
 }

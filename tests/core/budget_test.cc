@@ -138,7 +138,7 @@ TEST(MemoryBudget, ANoisyLayerFailsTheSessionWhileItIsExtracted) {
 // A session that fits is not changed by its budget: the same mesh as without one.
 TEST(MemoryBudget, ASessionWithinItsBudgetGivesTheSameMesh) {
   auto run = [](std::shared_ptr<MemoryBudget> budget) {
-    auto src = MakeSyntheticSource(Shape::kGyroid, 160, 96, 64);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kGyroid, 160, 96, 64);
     SessionOptions o;
     o.error = 0.2;
     auto s = TandemSession::Create(src->info(), o, nullptr, std::move(budget));

@@ -125,7 +125,7 @@ TEST_F(CliLabels, ALabelMapToOneClosedFilePerLabel) {
     SCOPED_TRACE(file);
     auto mesh = ReadMesh(out + file);
     ASSERT_TRUE(mesh.ok()) << mesh.status();
-    const TopologyReport t = AnalyzeTopology(*mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(*mesh);
     EXPECT_TRUE(t.IsClosedManifold());
     EXPECT_EQ(t.euler, 2);
     EXPECT_EQ(t.components, 1u);

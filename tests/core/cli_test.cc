@@ -166,7 +166,7 @@ TEST_F(Cli, GenerateThenExtractFullResolution) {
   ASSERT_EQ(e.code, 0) << e.text;
   auto mesh = ReadMesh(Path("s.ply"));
   ASSERT_TRUE(mesh.ok()) << mesh.status();
-  TopologyReport r = AnalyzeTopology(*mesh);
+  eval::TopologyReport r = eval::AnalyzeTopology(*mesh);
   EXPECT_TRUE(r.IsClosedManifold());
   EXPECT_EQ(r.euler, 2);
   EXPECT_GT(r.triangles, 2000u);
@@ -197,7 +197,7 @@ TEST_F(Cli, ExtractWritesMeshAndMetricsWithEveryKey) {
   EXPECT_LT(mesh->num_triangles(), m["triangles_extracted"].get<size_t>() / 4);
   EXPECT_EQ(m["trace"].size(), 2u * 48 + 1);
   EXPECT_EQ(m["lockstep_error"].get<double>(), 0.5);
-  TopologyReport r = AnalyzeTopology(*mesh);
+  eval::TopologyReport r = eval::AnalyzeTopology(*mesh);
   EXPECT_EQ(r.components, 2u);
   EXPECT_TRUE(r.IsClosedManifold());
   // Without --metrics a summary goes to stderr.
@@ -223,9 +223,10 @@ TEST_F(Cli, SealedExtractWritesTheWholeMeshAndCountsIt) {
     EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles()) << out;
     EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices()) << out;
     EXPECT_LE(m["error_max"].get<double>(), 0.2);
-    EXPECT_NEAR(m["anisotropy"].get<double>(), Anisotropy(*mesh), 1e-4) << out;  // float32 file
+    EXPECT_NEAR(m["anisotropy"].get<double>(), eval::Anisotropy(*mesh), 1e-4)
+        << out;  // float32 file
     anisotropy[run++] = m["anisotropy"].get<double>();
-    const TopologyReport r = AnalyzeTopology(*mesh);
+    const eval::TopologyReport r = eval::AnalyzeTopology(*mesh);
     EXPECT_EQ(r.components, 2u);
     EXPECT_TRUE(r.IsClosedManifold());
   }
@@ -349,7 +350,7 @@ TEST_F(Cli, ExtractsTheSharedEngineCtToAPly) {
   auto mesh = ReadMesh(Path("engine.ply"));
   ASSERT_TRUE(mesh.ok());
   EXPECT_GT(mesh->num_triangles(), 500000u);
-  EXPECT_TRUE(AnalyzeTopology(*mesh).IsManifold());
+  EXPECT_TRUE(eval::AnalyzeTopology(*mesh).IsManifold());
 }
 
 // Geometry that once aborted the CLI (exit 134: std::length_error from a queue sized by

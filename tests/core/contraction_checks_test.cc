@@ -116,8 +116,9 @@ TEST(LinkCondition, MatchesItsDefinition) {
   int64_t large = 0;  // calls on fans too big for the stack arrays
   for (const std::string name : {"sphere", "gyroid", "link", "box-cut gyroid"}) {
     for (double e0 : {0.0, 0.4, 3.0}) {
-      auto src = name == "box-cut gyroid" ? BoxCutGyroid(22, 20, 18)
-                                          : MakeSyntheticSource(*ParseShape(name), 22, 20, 18);
+      auto src = name == "box-cut gyroid"
+                     ? BoxCutGyroid(22, 20, 18)
+                     : eval::MakeSyntheticSource(*eval::ParseShape(name), 22, 20, 18);
       MeshStore store;
       SimplifierOptions so;
       so.error = e0 > 0 ? e0 : 1e-9;

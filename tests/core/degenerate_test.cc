@@ -40,13 +40,13 @@ TEST(TidyDegenerate, FlipsACollinearSliver) {
   s.AddTriangle(a, m, d);  // below, on each side of m
   s.AddTriangle(m, b, d);
   ASSERT_EQ(CountDegenerate(s), 1);
-  const TopologyReport before = AnalyzeTopology(s.Snapshot());
+  const eval::TopologyReport before = eval::AnalyzeTopology(s.Snapshot());
   const DegenerateCounts n = Tidy(&s);
   EXPECT_EQ(n.flipped, 1);
   EXPECT_EQ(n.left, 0);
   EXPECT_EQ(CountDegenerate(s), 0);
   const IndexedMesh after = s.Snapshot();
-  const TopologyReport t = AnalyzeTopology(after);
+  const eval::TopologyReport t = eval::AnalyzeTopology(after);
   EXPECT_TRUE(t.IsManifold());
   EXPECT_EQ(t.euler, before.euler);
   EXPECT_EQ(t.boundary_edges, before.boundary_edges);
@@ -72,7 +72,7 @@ TEST(TidyDegenerate, InflatesATetrahedronCollapsedToAPoint) {
     EXPECT_EQ(n.moved, 4);
     EXPECT_EQ(CountDegenerate(s), 0);
     const IndexedMesh m = s.Snapshot();
-    const TopologyReport t = AnalyzeTopology(m);
+    const eval::TopologyReport t = eval::AnalyzeTopology(m);
     EXPECT_TRUE(t.IsClosedManifold());
     EXPECT_EQ(t.euler, 2);
     double volume = 0;  // six times the signed volume: positive when the faces look out
@@ -221,13 +221,13 @@ TEST(TidyDegenerate, PartsTwoSheetsTouchingAtAPoint) {
     for (const Vec3& p : *positions) s.AddVertex(p, 0, 0, 0);
     for (const auto& t : *triangles) s.AddTriangle(t[0], t[1], t[2]);
     ASSERT_EQ(CountDegenerate(s), 2);
-    const TopologyReport before = AnalyzeTopology(s.Snapshot());
+    const eval::TopologyReport before = eval::AnalyzeTopology(s.Snapshot());
     const DegenerateCounts n = Tidy(&s);
     const bool b = positions == &kPinchBPositions;
     EXPECT_GE(n.moved, 1) << b;
     EXPECT_EQ(n.left, 0) << b;
     EXPECT_EQ(CountDegenerate(s), 0) << b;
-    const TopologyReport after = AnalyzeTopology(s.Snapshot());
+    const eval::TopologyReport after = eval::AnalyzeTopology(s.Snapshot());
     EXPECT_EQ(after.euler, before.euler) << b;
     EXPECT_EQ(after.boundary_edges, before.boundary_edges) << b;
     EXPECT_EQ(after.misoriented_edges, 0u) << b;
@@ -261,7 +261,7 @@ TEST(TidyDegenerate, PartsCollinearCornersOnAnEdgeOfTheBoxOffOneFace) {
   EXPECT_EQ((p.x == 0) + (p.y == 10), 1);
   EXPECT_EQ(s.box_mask(m), p.x == 0 ? kBoxXMin : kBoxYMax);
   const IndexedMesh after = s.Snapshot();
-  EXPECT_TRUE(AnalyzeTopology(after).IsManifold());
+  EXPECT_TRUE(eval::AnalyzeTopology(after).IsManifold());
   for (size_t t = 0; t < after.num_triangles(); ++t) {
     const Vec3 n2 = TwiceAreaVector(after.positions[after.indices[3 * t]],
                                     after.positions[after.indices[3 * t + 1]],

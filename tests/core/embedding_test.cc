@@ -96,7 +96,7 @@ TEST(Embedding, EveryCubeOfValuesAtTheIsoKeepsItsPointsApartWithArea) {
           ASSERT_GE(off, delta * (1 - 1e-6)) << "cube " << code;
         }
       }
-      ASSERT_EQ(CountDuplicatePositions(m), 0u) << "cube " << code;
+      ASSERT_EQ(eval::CountDuplicatePositions(m), 0u) << "cube " << code;
       for (size_t t = 0; t < m.num_triangles(); ++t) {
         const Vec3 a = m.positions[m.indices[3 * t]], b = m.positions[m.indices[3 * t + 1]],
                    c = m.positions[m.indices[3 * t + 2]];
@@ -322,7 +322,7 @@ TEST(Embedding, EveryFileFormatWeldsToTheIndexedMesh) {
     auto ply = ReadMesh(dir + "/out.ply");
     ASSERT_TRUE(ply.ok()) << ply.status();
     ASSERT_GT(ply->num_triangles(), 200u) << what;
-    const TopologyReport indexed = AnalyzeTopology(*ply);
+    const eval::TopologyReport indexed = eval::AnalyzeTopology(*ply);
     EXPECT_TRUE(indexed.IsManifold()) << what;
     ExpectEmbedded(*ply, indexed, what + " .ply");
     for (const char* ext : {"obj", "stl"}) {

@@ -76,7 +76,7 @@ TEST(Executor, TasksThatWaitForTasksDoNotDeadlock) {
 }
 
 IndexedMesh RunLink(Executor* ex, bool pipeline, int* threads_added) {
-  auto src = MakeSyntheticSource(Shape::kLink, 96, 96, 40);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 96, 96, 40);
   SessionOptions o;
   o.error = 0.2;
   o.parts = 4;
@@ -146,7 +146,7 @@ TEST(Executor, SessionsShareOneExecutor) {
   // Four sessions on one 2-thread executor, fed in turn: each gives the mesh it gives alone.
   ThreadPool two(2);
   const IndexedMesh alone = RunLink(&two, true, nullptr);
-  auto src = MakeSyntheticSource(Shape::kLink, 96, 96, 40);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 96, 96, 40);
   SessionOptions o;
   o.error = 0.2;
   o.parts = 4;
@@ -194,7 +194,7 @@ TEST(Executor, PhaseTimesAreCpuTimeHoweverManyThreadsShareTheCores) {
     }
     if (pid > 0) busy.pids.push_back(pid);
   }
-  auto src = MakeSyntheticSource(Shape::kGyroid, 384, 384, 48);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kGyroid, 384, 384, 48);
   SessionOptions o;
   o.error = 0.2;
   o.parts = 8;

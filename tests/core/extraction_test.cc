@@ -447,7 +447,7 @@ TEST(Extraction, AHeldCapCostsItsSizeNotTheNextPowerOfTwo) {
   EXPECT_GE(*std::max_element(bytes.begin() + 3, bytes.end()),
             bytes[2] + size_t{64} * SimplifierOptions().release_chunk);
   ASSERT_TRUE((*s)->Finish().ok());
-  const TopologyReport r = AnalyzeTopology((*s)->Snapshot());
+  const eval::TopologyReport r = eval::AnalyzeTopology((*s)->Snapshot());
   EXPECT_TRUE(r.IsClosedManifold());
   EXPECT_EQ(r.euler, 2);
 }
@@ -610,50 +610,53 @@ TEST(MeshStore, FreedSlotsMergeToServeLargerStars) {
 
 TEST(Extraction, SphereIsClosedManifoldWithEulerTwo) {
   for (int n : {8, 33, 64}) {
-    auto src = MakeSyntheticSource(Shape::kSphere, n, n, n);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
     Extracted e = ExtractSource(*src, 0.0);
-    TopologyReport r = AnalyzeTopology(e.mesh);
+    eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
     EXPECT_TRUE(r.IsClosedManifold()) << "n=" << n;
     EXPECT_EQ(r.euler, 2) << "n=" << n;
     EXPECT_EQ(r.components, 1u);
-    EXPECT_EQ(CountDuplicatePositions(e.mesh), 0u);
+    EXPECT_EQ(eval::CountDuplicatePositions(e.mesh), 0u);
   }
 }
 
 TEST(Extraction, LinkIsTwoTori) {
-  auto src = MakeSyntheticSource(Shape::kLink, 96, 96, 96);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 96, 96, 96);
   Extracted e = ExtractSource(*src, 0.0);
-  TopologyReport r = AnalyzeTopology(e.mesh);
+  eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
   EXPECT_TRUE(r.IsClosedManifold());
   ASSERT_EQ(r.components, 2u);
   EXPECT_EQ(r.component_euler[0], 0);
   EXPECT_EQ(r.component_euler[1], 0);
-  EXPECT_EQ(CountDuplicatePositions(e.mesh), 0u);
+  EXPECT_EQ(eval::CountDuplicatePositions(e.mesh), 0u);
 }
 
 TEST(Extraction, GyroidInBallIsClosedHighGenusManifold) {
-  auto src = MakeSyntheticSource(Shape::kGyroid, 80, 80, 80);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kGyroid, 80, 80, 80);
   Extracted e = ExtractSource(*src, 0.0);
-  TopologyReport r = AnalyzeTopology(e.mesh);
+  eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
   EXPECT_TRUE(r.IsClosedManifold());
-  EXPECT_EQ(CountDuplicatePositions(e.mesh), 0u);
+  EXPECT_EQ(eval::CountDuplicatePositions(e.mesh), 0u);
   // Closed orientable surfaces have even chi = 2 * (components - genus); high genus here.
   EXPECT_EQ(r.euler % 2, 0);
   EXPECT_LT(r.euler, -10) << "expected a high-genus surface";
 }
 
 TEST(Extraction, CrossedCubeFractionsMatchThePaperAt128) {
-  struct Case { Shape shape; double paper; };
-  for (Case c : {Case{Shape::kPillowBox, 0.0353}, Case{Shape::kLink, 0.0171}}) {
-    auto src = MakeSyntheticSource(c.shape, 128, 128, 128);
+  struct Case {
+    eval::Shape shape;
+    double paper;
+  };
+  for (Case c : {Case{eval::Shape::kPillowBox, 0.0353}, Case{eval::Shape::kLink, 0.0171}}) {
+    auto src = eval::MakeSyntheticSource(c.shape, 128, 128, 128);
     Extracted e = ExtractSource(*src, 0.0);
     const double frac = double(e.crossed_cubes) / double(e.cubes);
-    EXPECT_NEAR(frac, c.paper, 0.15 * c.paper) << ShapeName(c.shape);
+    EXPECT_NEAR(frac, c.paper, 0.15 * c.paper) << eval::ShapeName(c.shape);
     // About two triangles per crossed cube, as in the paper's Table 1.
     const double per_cube = double(e.mesh.num_triangles()) / double(e.crossed_cubes);
-    EXPECT_GT(per_cube, 1.8) << ShapeName(c.shape);
-    EXPECT_LT(per_cube, 2.3) << ShapeName(c.shape);
-    EXPECT_TRUE(AnalyzeTopology(e.mesh).IsClosedManifold());
+    EXPECT_GT(per_cube, 1.8) << eval::ShapeName(c.shape);
+    EXPECT_LT(per_cube, 2.3) << eval::ShapeName(c.shape);
+    EXPECT_TRUE(eval::AnalyzeTopology(e.mesh).IsClosedManifold());
   }
 }
 
@@ -667,7 +670,7 @@ TEST(Extraction, EverySingleCubeConfigurationIsAManifoldPatch) {
       std::vector<float> v(8);
       for (int c = 0; c < 8; ++c) v[c] = ((config >> c) & 1) ? mag(rng) : -mag(rng);
       Extracted e = ExtractGrid(v, 2, 2, 2);
-      TopologyReport r = AnalyzeTopology(e.mesh);
+      eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
       ASSERT_TRUE(r.IsManifold()) << "config " << config;
       ASSERT_TRUE(BoundaryOnBox(e.mesh, 1, 1, 1)) << "config " << config;
       if (config != 0 && config != 255) {
@@ -694,7 +697,7 @@ TEST(Extraction, PairsOfCubesMeetWithoutCracksOrOverlaps) {
         std::vector<float> v(12);
         for (int p = 0; p < 12; ++p) v[p] = ((pattern >> p) & 1) ? mag(rng) : -mag(rng);
         Extracted e = ExtractGrid(v, d[0], d[1], d[2]);
-        TopologyReport r = AnalyzeTopology(e.mesh);
+        eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
         ASSERT_TRUE(r.IsManifold()) << "pattern " << pattern;
         ASSERT_TRUE(BoundaryOnBox(e.mesh, d[0] - 1, d[1] - 1, d[2] - 1)) << "pattern " << pattern;
       }
@@ -724,7 +727,7 @@ TEST(Extraction, ValuesEqualToIsoStillGiveAManifold) {
   const size_t hits = std::count(v.begin(), v.end(), 0.0f);
   ASSERT_GT(hits, 100u);
   Extracted e = ExtractGrid(v, n, n, n, 0.0);
-  TopologyReport r = AnalyzeTopology(e.mesh);
+  eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
   EXPECT_TRUE(r.IsClosedManifold());
   EXPECT_EQ(r.euler, 2);
   // A block of voxels exactly at the iso-value counts as inside.
@@ -733,7 +736,7 @@ TEST(Extraction, ValuesEqualToIsoStillGiveAManifold) {
     for (int j = 2; j < 6; ++j)
       for (int i = 2; i < 6; ++i) b[(k * 8 + j) * 8 + i] = 0.0f;
   Extracted eb = ExtractGrid(b, 8, 8, 8, 0.0);
-  TopologyReport rb = AnalyzeTopology(eb.mesh);
+  eval::TopologyReport rb = eval::AnalyzeTopology(eb.mesh);
   EXPECT_TRUE(rb.IsClosedManifold());
   EXPECT_EQ(rb.euler, 2);
 }
@@ -757,7 +760,7 @@ TEST(Simplification, ValuesEqualToIsoLeaveNoZeroAreaTriangles) {
   const IndexedMesh simplified = session->Snapshot();
   ASSERT_LT(simplified.num_triangles(), full.mesh.num_triangles() / 4);
   EXPECT_EQ(CountDegenerate(simplified), 0);
-  TopologyReport r = AnalyzeTopology(simplified);
+  eval::TopologyReport r = eval::AnalyzeTopology(simplified);
   EXPECT_TRUE(r.IsClosedManifold());
   EXPECT_EQ(r.euler, 2);
   EXPECT_LE(session->MaxShapeError(), options.error);
@@ -790,7 +793,7 @@ TEST(Simplification, AFlatMaskCoarsensEvenlyNotIntoFans) {
     EXPECT_LT(stats.refusals.total(), stats.triangles_extracted / 10) << int(schedule);
     const IndexedMesh m = session->Snapshot();
     EXPECT_LE(m.num_triangles(), 60u) << int(schedule);
-    const TopologyReport r = AnalyzeTopology(m);
+    const eval::TopologyReport r = eval::AnalyzeTopology(m);
     EXPECT_TRUE(r.IsClosedManifold());
     EXPECT_EQ(r.euler, 2);
     EXPECT_LE(session->MaxShapeError(), options.error);
@@ -825,7 +828,8 @@ TEST(Simplification, TidyingLeavesNoZeroAreaTriangleOnAQuantisedTangle) {
     after_total += CountDegenerate(simplified);
     before_total += CountDegenerate(full);
     hits += std::count(v.begin(), v.end(), 4.0f);
-    const TopologyReport a = AnalyzeTopology(full), b = AnalyzeTopology(simplified);
+    const eval::TopologyReport a = eval::AnalyzeTopology(full),
+                               b = eval::AnalyzeTopology(simplified);
     EXPECT_TRUE(b.IsManifold()) << "seed " << seed;
     EXPECT_EQ(b.euler, a.euler) << "seed " << seed;
     EXPECT_EQ(b.components, a.components) << "seed " << seed;
@@ -843,10 +847,10 @@ TEST(Simplification, TidyingLeavesNoZeroAreaTriangleOnAQuantisedTangle) {
 TEST(Extraction, AnisotropicSpacingPutsVerticesOnThePhysicalSphere) {
   const std::array<double, 3> spacing{1.0, 1.0, 3.0};
   const int64_t nx = 64, ny = 64, nz = 22;
-  auto src = MakeSyntheticSource(Shape::kSphere, nx, ny, nz, spacing);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, nx, ny, nz, spacing);
   Extracted e = ExtractSource(*src, 0.0);
   ASSERT_GT(e.mesh.num_triangles(), 1000u);
-  EXPECT_TRUE(AnalyzeTopology(e.mesh).IsClosedManifold());
+  EXPECT_TRUE(eval::AnalyzeTopology(e.mesh).IsClosedManifold());
   // Box centre and radius as in synthetic.h: radius 0.8 * smallest half-extent.
   const double cx = 31.5, cy = 31.5, cz = 0.5 * 21 * 3.0;
   const double radius = 0.8 * std::min({31.5, 31.5, 31.5});
@@ -858,8 +862,8 @@ TEST(Extraction, AnisotropicSpacingPutsVerticesOnThePhysicalSphere) {
 }
 
 TEST(Extraction, UnknownDepthGivesTheSameMeshAsKnownDepth) {
-  auto a = MakeSyntheticSource(Shape::kLink, 40, 40, 40);
-  auto b = MakeSyntheticSource(Shape::kLink, 40, 40, 40);
+  auto a = eval::MakeSyntheticSource(eval::Shape::kLink, 40, 40, 40);
+  auto b = eval::MakeSyntheticSource(eval::Shape::kLink, 40, 40, 40);
   Extracted ea = ExtractSource(*a, 0.0, /*pass_nz=*/true);
   Extracted eb = ExtractSource(*b, 0.0, /*pass_nz=*/false);
   EXPECT_EQ(ea.mesh.indices, eb.mesh.indices);
@@ -939,7 +943,7 @@ TEST(Extraction, ARejectedWideSliceLeavesTheExtractorAsItWas) {
     EXPECT_EQ(clean.positions[v].x, after_bad.positions[v].x);
     EXPECT_EQ(clean.positions[v].z, after_bad.positions[v].z);
   }
-  const TopologyReport r = AnalyzeTopology(clean);
+  const eval::TopologyReport r = eval::AnalyzeTopology(clean);
   EXPECT_TRUE(r.IsClosedManifold());
   EXPECT_EQ(r.euler, 2);
 }
@@ -989,7 +993,7 @@ TEST(Extraction, SharedRealVolumesAreManifoldsWithBoundaryOnTheBox) {
     ASSERT_TRUE(src.ok()) << src.status();
     const VolumeInfo info = (*src)->info();
     Extracted e = ExtractSource(**src, c.iso);
-    TopologyReport r = AnalyzeTopology(e.mesh);
+    eval::TopologyReport r = eval::AnalyzeTopology(e.mesh);
     EXPECT_TRUE(r.IsManifold()) << c.file << " nonmanifold_edges=" << r.nonmanifold_edges
                                 << " misoriented=" << r.misoriented_edges
                                 << " nonmanifold_vertices=" << r.nonmanifold_vertices;
@@ -1013,8 +1017,8 @@ namespace tandem {
 namespace {
 
 TEST(Prefetch, YieldsTheSourceSlicesInOrderThenOutOfRange) {
-  auto direct = MakeSyntheticSource(Shape::kGyroid, 20, 17, 9);
-  auto ahead = MakeSyntheticSource(Shape::kGyroid, 20, 17, 9);
+  auto direct = eval::MakeSyntheticSource(eval::Shape::kGyroid, 20, 17, 9);
+  auto ahead = eval::MakeSyntheticSource(eval::Shape::kGyroid, 20, 17, 9);
   SlicePrefetcher prefetch(ahead.get(), 3);
   std::vector<uint8_t> expect, got;
   for (int k = 0; k < 9; ++k) {
@@ -1069,7 +1073,7 @@ TEST(Prefetch, ReadErrorsArriveInOrderAndStopTheStream) {
 
 // Destroying a prefetcher early (a cancelled run) stops its thread cleanly.
 TEST(Prefetch, StopsWhenDestroyedEarly) {
-  auto src = MakeSyntheticSource(Shape::kSphere, 64, 64, 64);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, 64, 64, 64);
   {
     SlicePrefetcher prefetch(src.get(), 2);
     std::vector<uint8_t> v;

@@ -43,7 +43,7 @@ struct Volume {
 };
 
 Volume Link(int64_t n = 36) {
-  auto src = MakeSyntheticSource(Shape::kLink, n, n - 4, n - 6, {0.5, 0.5, 0.75});
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, n, n - 4, n - 6, {0.5, 0.5, 0.75});
   Volume v{src->info(), {}};
   v.slices.resize(v.info.nz);
   for (auto& s : v.slices) EXPECT_TRUE(src->ReadSlice(&s).ok());
@@ -541,22 +541,22 @@ TEST_P(FollowDescending, GrowsHeadToFeetWithTheFinishedFoldersSurface) {
   EXPECT_LT(FarthestVertex(b, a), 1e-3 * v.info.spacing[0]);
   EXPECT_NEAR(SignedVolume(b) / SignedVolume(a), 1.0, 1e-3) << "normals point the same way";
   auto same_topology = [](const IndexedMesh& x, const IndexedMesh& y) {
-    const TopologyReport tx = AnalyzeTopology(x), ty = AnalyzeTopology(y);
+    const eval::TopologyReport tx = eval::AnalyzeTopology(x), ty = eval::AnalyzeTopology(y);
     EXPECT_TRUE(ty.IsManifold());
     EXPECT_EQ(tx.euler, ty.euler);
     EXPECT_EQ(tx.components, ty.components);
     EXPECT_EQ(tx.boundary_edges > 0, ty.boundary_edges > 0);
   };
   same_topology(a, b);
-  const Distances apart = MeasureDistances(a, b);
+  const eval::Distances apart = eval::MeasureDistances(a, b);
   EXPECT_LT(apart.linf_max, 0.25 * v.info.spacing[0]);  // the other diagonal of some quads
   // Simplified: the other sweep's simplification of the same surface, as good.
   const IndexedMesh sa = (*read)[1]->Snapshot(), sb = (*live)[1]->Snapshot();
   same_topology(sa, sb);
   EXPECT_NEAR(static_cast<double>(sb.num_triangles()) / static_cast<double>(sa.num_triangles()),
               1.0, 0.15);
-  const double finished_off = MeasureDistances(a, sa).linf_max;
-  const double followed_off = MeasureDistances(a, sb).linf_max;
+  const double finished_off = eval::MeasureDistances(a, sa).linf_max;
+  const double followed_off = eval::MeasureDistances(a, sb).linf_max;
   EXPECT_LT(followed_off, 1.5 * finished_off + 0.1 * Options().error);
   EXPECT_NEAR(SignedVolume(sb) / SignedVolume(sa), 1.0, 0.02);
 }

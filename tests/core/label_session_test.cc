@@ -120,7 +120,7 @@ std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& 
   EXPECT_EQ(m.patch.size(), m.mesh.num_triangles());
   std::map<LabelId, std::multiset<Triple>> sides;
   for (const auto& [label, surface] : SplitByLabel(m, background)) {
-    const TopologyReport t = AnalyzeTopology(surface);
+    const eval::TopologyReport t = eval::AnalyzeTopology(surface);
     SCOPED_TRACE("label " + std::to_string(label));
     EXPECT_TRUE(t.IsManifold()) << t.nonmanifold_edges << " non-manifold edges, "
                                 << t.nonmanifold_vertices << " non-manifold vertices, "
@@ -211,7 +211,7 @@ TEST(LabelSession, TwoTouchingBoxesAreTwoClosedSpheresSharingTheirInterface) {
   // The full-resolution complex has an edge in 3 triangles where 1, 2 and the background
   // meet; the interface between the boxes is one patch of the pair (1, 2).
   const Meshed full = Mesh(vol, LabelOptionsFor(Schedule::kNone));
-  EXPECT_FALSE(AnalyzeTopology(full.mesh.mesh).IsManifold());
+  EXPECT_FALSE(eval::AnalyzeTopology(full.mesh.mesh).IsManifold());
   EXPECT_NE(std::find(full.mesh.pairs.begin(), full.mesh.pairs.end(), LabelPair{1, 2}),
             full.mesh.pairs.end());
 }

@@ -23,6 +23,12 @@ namespace tandem {
 namespace {
 
 namespace fs = std::filesystem;
+using eval::AnalyzeTopology;
+using eval::LabelMetrics;
+using eval::LabelMetricsSummary;
+using eval::LabelMetricsToJson;
+using eval::MeasureLabel;
+using eval::TopologyReport;
 
 // The unit cube at (x0, 0, 0), 12 triangles counter-clockwise seen from outside, each face
 // split along the same diagonal as the neighbour's (the shared face x = 1 is the same two

@@ -152,22 +152,23 @@ Vec3 Rotate(Vec3 p) {
 
 TEST(AspectRatioTest, EquilateralIsOneInAnyPoseAndScale) {
   const double h = std::sqrt(3.0) / 2.0;
-  EXPECT_NEAR(TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0.5, h, 0}), 1.0, 1e-12);
+  EXPECT_NEAR(eval::TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0.5, h, 0}), 1.0, 1e-12);
   for (double scale : {1e-6, 1.0, 1e6}) {
     const Vec3 shift = scale * Vec3{3, -2, 7};  // a fixed shift would cancel at 1e-6
     const Vec3 a = Rotate(scale * Vec3{0, 0, 0}) + shift;
     const Vec3 b = Rotate(scale * Vec3{1, 0, 0}) + shift;
     const Vec3 c = Rotate(scale * Vec3{0.5, h, 0}) + shift;
-    EXPECT_NEAR(TriangleAspectRatio(a, b, c), 1.0, 1e-12) << "scale " << scale;
-    EXPECT_NEAR(TriangleAspectRatio(c, b, a), 1.0, 1e-12) << "reversed, scale " << scale;
+    EXPECT_NEAR(eval::TriangleAspectRatio(a, b, c), 1.0, 1e-12) << "scale " << scale;
+    EXPECT_NEAR(eval::TriangleAspectRatio(c, b, a), 1.0, 1e-12) << "reversed, scale " << scale;
   }
 }
 
 TEST(AspectRatioTest, RightIsoscelesByHand) {
   // Centred corners (−1/3,−1/3), (2/3,−1/3), (−1/3,2/3): (aaᵀ+bbᵀ+ccᵀ)/3 =
   // [[2/9, −1/9], [−1/9, 2/9]], eigenvalues 1/3 and 1/9, so ρ = sqrt(1/3).
-  EXPECT_NEAR(TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0, 1, 0}), std::sqrt(1.0 / 3.0), 1e-14);
-  EXPECT_NEAR(TriangleAspectRatio(Rotate({0, 0, 0}), Rotate({0, 5, 0}), Rotate({0, 0, 5})),
+  EXPECT_NEAR(eval::TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0, 1, 0}), std::sqrt(1.0 / 3.0),
+              1e-14);
+  EXPECT_NEAR(eval::TriangleAspectRatio(Rotate({0, 0, 0}), Rotate({0, 5, 0}), Rotate({0, 0, 5})),
               std::sqrt(1.0 / 3.0), 1e-14);
 }
 
@@ -176,31 +177,31 @@ TEST(AspectRatioTest, IsoscelesFamilyByHand) {
   // √3/h beyond (the long axis switches to the apex direction).
   for (double h : {0.01, 0.5, 1.0, 1.7, 2.5, 10.0}) {
     const double expected = h <= std::sqrt(3.0) ? h / std::sqrt(3.0) : std::sqrt(3.0) / h;
-    EXPECT_NEAR(TriangleAspectRatio({-1, 0, 0}, {1, 0, 0}, {0, h, 0}), expected, 1e-13)
+    EXPECT_NEAR(eval::TriangleAspectRatio({-1, 0, 0}, {1, 0, 0}, {0, h, 0}), expected, 1e-13)
         << "h = " << h;
   }
 }
 
 TEST(AspectRatioTest, ThinAndDegenerateTriangles) {
-  EXPECT_LT(TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0.5, 0.05, 0}), 0.2);
-  EXPECT_GT(TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0.5, 0.05, 0}), 0.0);
+  EXPECT_LT(eval::TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0.5, 0.05, 0}), 0.2);
+  EXPECT_GT(eval::TriangleAspectRatio({0, 0, 0}, {1, 0, 0}, {0.5, 0.05, 0}), 0.0);
   // A needle (one very short edge) is thin as well.
-  EXPECT_LT(TriangleAspectRatio({0, 0, 0}, {10, 0, 0}, {10, 0.1, 0}), 0.2);
-  EXPECT_EQ(TriangleAspectRatio({0, 0, 0}, {1, 1, 1}, {2, 2, 2}), 0.0);  // collinear
-  EXPECT_EQ(TriangleAspectRatio({1, 2, 3}, {1, 2, 3}, {1, 2, 3}), 0.0);  // a point
-  EXPECT_EQ(TriangleAspectRatio({0, 0, 0}, {0, 0, 0}, {1, 0, 0}), 0.0);  // two coincide
+  EXPECT_LT(eval::TriangleAspectRatio({0, 0, 0}, {10, 0, 0}, {10, 0.1, 0}), 0.2);
+  EXPECT_EQ(eval::TriangleAspectRatio({0, 0, 0}, {1, 1, 1}, {2, 2, 2}), 0.0);  // collinear
+  EXPECT_EQ(eval::TriangleAspectRatio({1, 2, 3}, {1, 2, 3}, {1, 2, 3}), 0.0);  // a point
+  EXPECT_EQ(eval::TriangleAspectRatio({0, 0, 0}, {0, 0, 0}, {1, 0, 0}), 0.0);  // two coincide
   EXPECT_TRUE(IsDegenerateTriangle({0, 0, 0}, {1, 1, 1}, {2, 2, 2}));
   EXPECT_FALSE(IsDegenerateTriangle({0, 0, 0}, {1, 0, 0}, {0.5, 1e-3, 0}));
 }
 
 TEST(AnisotropyTest, ZeroForEquilateralMeshes) {
-  EXPECT_NEAR(Anisotropy(Icosphere(0)), 0.0, 1e-12);  // the icosahedron
+  EXPECT_NEAR(eval::Anisotropy(Icosphere(0)), 0.0, 1e-12);  // the icosahedron
   const IndexedMesh plane = EquilateralPlane(12, 9);
   ASSERT_GT(plane.num_triangles(), 150u);
-  EXPECT_NEAR(Anisotropy(plane), 0.0, 1e-12);
+  EXPECT_NEAR(eval::Anisotropy(plane), 0.0, 1e-12);
   // A subdivided icosphere's triangles are only nearly equilateral (ρ down to 0.80 at
   // level 3). Reference value from an independent Jacobi eigen-solver of the 3×3 M_abc.
-  EXPECT_NEAR(Anisotropy(Icosphere(3)), 0.1284565, 1e-6);
+  EXPECT_NEAR(eval::Anisotropy(Icosphere(3)), 0.1284565, 1e-6);
 }
 
 TEST(AnisotropyTest, MeanOverTrianglesSkippingDegenerateOnes) {
@@ -209,77 +210,77 @@ TEST(AnisotropyTest, MeanOverTrianglesSkippingDegenerateOnes) {
   AddTriangle(m, {0, 0, 0}, {1, 0, 0}, {0.5, h, 0});  // ρ = 1
   AddTriangle(m, {0, 0, 1}, {1, 0, 1}, {0, 1, 1});    // ρ = sqrt(1/3)
   const double expected = 1.0 - (1.0 + std::sqrt(1.0 / 3.0)) / 2.0;
-  EXPECT_NEAR(Anisotropy(m), expected, 1e-14);
+  EXPECT_NEAR(eval::Anisotropy(m), expected, 1e-14);
   AddTriangle(m, {0, 0, 2}, {1, 0, 2}, {2, 0, 2});  // zero area: skipped, by contract
   AddTriangle(m, {5, 5, 5}, {5, 5, 5}, {5, 5, 5});
-  EXPECT_NEAR(Anisotropy(m), expected, 1e-14);
+  EXPECT_NEAR(eval::Anisotropy(m), expected, 1e-14);
 }
 
 TEST(AnisotropyTest, EmptyOrAllDegenerateIsNaN) {
-  EXPECT_TRUE(std::isnan(Anisotropy(IndexedMesh{})));
+  EXPECT_TRUE(std::isnan(eval::Anisotropy(IndexedMesh{})));
   IndexedMesh m;
   AddTriangle(m, {0, 0, 0}, {1, 0, 0}, {2, 0, 0});
-  EXPECT_TRUE(std::isnan(Anisotropy(m)));
-  EXPECT_TRUE(std::isnan(DirectionalBias(m)));
-  EXPECT_EQ(SurfaceArea(m), 0.0);
+  EXPECT_TRUE(std::isnan(eval::Anisotropy(m)));
+  EXPECT_TRUE(std::isnan(eval::DirectionalBias(m)));
+  EXPECT_EQ(eval::SurfaceArea(m), 0.0);
 }
 
 // ---------------------------------------------------------------------------------------
 // Area and directional bias
 
 TEST(SurfaceAreaTest, KnownAreas) {
-  EXPECT_NEAR(SurfaceArea(PlaneGrid(7, 5, 0.5, 2.0)), 3.5 * 10.0, 1e-12);
+  EXPECT_NEAR(eval::SurfaceArea(PlaneGrid(7, 5, 0.5, 2.0)), 3.5 * 10.0, 1e-12);
   IndexedMesh tri;
   AddTriangle(tri, Rotate({0, 0, 0}), Rotate({2, 0, 0}), Rotate({1, std::sqrt(3.0), 0}));
-  EXPECT_NEAR(SurfaceArea(tri), std::sqrt(3.0), 1e-14);
+  EXPECT_NEAR(eval::SurfaceArea(tri), std::sqrt(3.0), 1e-14);
   // Inscribed polyhedra approach 4π from below.
-  const double a5 = SurfaceArea(Icosphere(5));
+  const double a5 = eval::SurfaceArea(Icosphere(5));
   EXPECT_LT(a5, 4 * kPi);
   EXPECT_NEAR(a5, 4 * kPi, 4 * kPi * 2e-3);
-  EXPECT_EQ(SurfaceArea(IndexedMesh{}), 0.0);
+  EXPECT_EQ(eval::SurfaceArea(IndexedMesh{}), 0.0);
   const Vec3 v = TriangleAreaVector({0, 0, 0}, {1, 0, 0}, {0, 1, 0});  // CCW seen from +z
   EXPECT_EQ(v, (Vec3{0, 0, 0.5}));
 }
 
 TEST(DirectionalBiasTest, ZeroForEquilateralPlane) {
   // M_n = e_z e_zᵀ and M_s = I − e_z e_zᵀ, so M = I.
-  EXPECT_NEAR(DirectionalBias(EquilateralPlane(10, 10)), 0.0, 1e-12);
+  EXPECT_NEAR(eval::DirectionalBias(EquilateralPlane(10, 10)), 0.0, 1e-12);
 }
 
 TEST(DirectionalBiasTest, ZeroForSymmetricSpheres) {
   // The icosahedral and cubic rotation groups act irreducibly on R³, so a triangulation with
   // either symmetry has M ∝ I whatever its triangles look like.
   for (int level : {0, 1, 4}) {
-    EXPECT_NEAR(DirectionalBias(Icosphere(level)), 0.0, 1e-12) << "level " << level;
+    EXPECT_NEAR(eval::DirectionalBias(Icosphere(level)), 0.0, 1e-12) << "level " << level;
   }
-  EXPECT_NEAR(DirectionalBias(CubeSphere({12, 12, 12})), 0.0, 1e-12);
+  EXPECT_NEAR(eval::DirectionalBias(CubeSphere({12, 12, 12})), 0.0, 1e-12);
   // Independent of pose: a rotated icosphere.
   IndexedMesh r = Icosphere(3);
   for (Vec3& p : r.positions) p = Rotate(p);
-  EXPECT_NEAR(DirectionalBias(r), 0.0, 1e-12);
+  EXPECT_NEAR(eval::DirectionalBias(r), 0.0, 1e-12);
 }
 
 TEST(DirectionalBiasTest, RightTriangleGridByHand) {
   // Unit squares split along (1,1): every triangle has M_abc/trace = [[1/2, 1/4], [1/4, 1/2]]
   // (long axis along the shared hypotenuse direction), so M = [[1, 1/2, 0], [1/2, 1, 0],
   // [0, 0, 1]]: trace 3, det 3/4, Bias = 1 − 27·(3/4)/27 = 1/4.
-  EXPECT_NEAR(DirectionalBias(PlaneGrid(6, 4, 1.0, 1.0)), 0.25, 1e-12);
+  EXPECT_NEAR(eval::DirectionalBias(PlaneGrid(6, 4, 1.0, 1.0)), 0.25, 1e-12);
 }
 
 TEST(DirectionalBiasTest, PositiveForStretchedTriangles) {
   // Cells 6 times longer along x than along y.
-  const double plane = DirectionalBias(PlaneGrid(4, 24, 6.0, 1.0));
+  const double plane = eval::DirectionalBias(PlaneGrid(4, 24, 6.0, 1.0));
   EXPECT_GT(plane, 0.5);
   // The same sphere, with side-face triangles stretched 4:1 along z (the sweep direction of
   // a tandem run without time-lag produces this kind of bias).
   // Bias grows with the stretch: ≈0 (1:1, cubic symmetry), 0.05 (2:1), 0.13 (4:1).
-  const double stretched4 = DirectionalBias(CubeSphere({16, 16, 4}));
-  const double stretched2 = DirectionalBias(CubeSphere({16, 16, 8}));
+  const double stretched4 = eval::DirectionalBias(CubeSphere({16, 16, 4}));
+  const double stretched2 = eval::DirectionalBias(CubeSphere({16, 16, 8}));
   EXPECT_GT(stretched4, 0.1);
   EXPECT_LE(stretched4, 1.0);
   EXPECT_GT(stretched4, 2 * stretched2);
   EXPECT_GT(stretched2, 0.03);
-  EXPECT_LT(DirectionalBias(CubeSphere({16, 16, 16})), 1e-12);
+  EXPECT_LT(eval::DirectionalBias(CubeSphere({16, 16, 16})), 1e-12);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -303,25 +304,25 @@ TEST(ClosestPointTest, HandComputedRegions) {
       {{0.1, 0.1, 0}, {0.1, 0.1, 0}, "on the triangle"},
   };
   for (const Case& t : cases) {
-    const Vec3 q = ClosestPointOnTriangle(t.p, a, b, c);
+    const Vec3 q = eval::ClosestPointOnTriangle(t.p, a, b, c);
     EXPECT_NEAR(q.x, t.expected.x, 1e-15) << t.region;
     EXPECT_NEAR(q.y, t.expected.y, 1e-15) << t.region;
     EXPECT_NEAR(q.z, t.expected.z, 1e-15) << t.region;
   }
   // Distances: vertex region √2, edge region √2, bc region √(1/2).
-  EXPECT_NEAR(Norm(Vec3{-1, -1, 0} - ClosestPointOnTriangle({-1, -1, 0}, a, b, c)), std::sqrt(2.0),
-              1e-15);
-  EXPECT_NEAR(Norm(Vec3{1, 1, 0} - ClosestPointOnTriangle({1, 1, 0}, a, b, c)), std::sqrt(0.5),
-              1e-15);
+  EXPECT_NEAR(Norm(Vec3{-1, -1, 0} - eval::ClosestPointOnTriangle({-1, -1, 0}, a, b, c)),
+              std::sqrt(2.0), 1e-15);
+  EXPECT_NEAR(Norm(Vec3{1, 1, 0} - eval::ClosestPointOnTriangle({1, 1, 0}, a, b, c)),
+              std::sqrt(0.5), 1e-15);
 }
 
 TEST(ClosestPointTest, DegenerateTriangles) {
   // Collinear corners: the closest point of the segment [0, 2] on the x axis.
-  const Vec3 q = ClosestPointOnTriangle({1.5, 1, 0}, {0, 0, 0}, {1, 0, 0}, {2, 0, 0});
+  const Vec3 q = eval::ClosestPointOnTriangle({1.5, 1, 0}, {0, 0, 0}, {1, 0, 0}, {2, 0, 0});
   EXPECT_NEAR(Norm(q - Vec3{1.5, 0, 0}), 0.0, 1e-15);
-  const Vec3 r = ClosestPointOnTriangle({3, 1, 0}, {0, 0, 0}, {2, 0, 0}, {1, 0, 0});
+  const Vec3 r = eval::ClosestPointOnTriangle({3, 1, 0}, {0, 0, 0}, {2, 0, 0}, {1, 0, 0});
   EXPECT_NEAR(Norm(r - Vec3{2, 0, 0}), 0.0, 1e-15);
-  const Vec3 s = ClosestPointOnTriangle({1, 1, 1}, {4, 5, 6}, {4, 5, 6}, {4, 5, 6});
+  const Vec3 s = eval::ClosestPointOnTriangle({1, 1, 1}, {4, 5, 6}, {4, 5, 6}, {4, 5, 6});
   EXPECT_EQ(s, (Vec3{4, 5, 6}));
 }
 
@@ -331,7 +332,7 @@ TEST(TriangleBvhTest, MatchesBruteForce) {
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> jitter(-0.05, 0.05), box(-1.6, 1.6);
   for (Vec3& p : m.positions) p = p + Vec3{jitter(rng), jitter(rng), jitter(rng)};
-  const TriangleBvh bvh(m);
+  const eval::TriangleBvh bvh(m);
   ASSERT_EQ(bvh.num_triangles(), m.num_triangles());
   std::uniform_int_distribution<uint32_t> any_triangle(
       0, static_cast<uint32_t>(m.num_triangles() - 1));
@@ -339,12 +340,12 @@ TEST(TriangleBvhTest, MatchesBruteForce) {
     const Vec3 p{box(rng), box(rng), box(rng)};
     double brute = std::numeric_limits<double>::infinity();
     for (size_t t = 0; t < m.num_triangles(); ++t) {
-      const Vec3 q = ClosestPointOnTriangle(p, m.positions[m.indices[3 * t]],
-                                            m.positions[m.indices[3 * t + 1]],
-                                            m.positions[m.indices[3 * t + 2]]);
+      const Vec3 q = eval::ClosestPointOnTriangle(p, m.positions[m.indices[3 * t]],
+                                                  m.positions[m.indices[3 * t + 1]],
+                                                  m.positions[m.indices[3 * t + 2]]);
       brute = std::min(brute, Norm(p - q));
     }
-    const TriangleBvh::Hit hit = bvh.Closest(p);
+    const eval::TriangleBvh::Hit hit = bvh.Closest(p);
     EXPECT_NEAR(hit.distance, brute, 1e-14) << "query " << i;
     EXPECT_NEAR(Norm(hit.point - p), hit.distance, 1e-14);
     ASSERT_LT(hit.triangle, m.num_triangles());
@@ -354,13 +355,13 @@ TEST(TriangleBvhTest, MatchesBruteForce) {
 }
 
 TEST(TriangleBvhTest, EmptyAndTinyMeshes) {
-  const TriangleBvh empty{IndexedMesh{}};
+  const eval::TriangleBvh empty{IndexedMesh{}};
   EXPECT_TRUE(empty.empty());
   EXPECT_TRUE(std::isinf(empty.Distance({0, 0, 0})));
   EXPECT_EQ(empty.Closest({0, 0, 0}).triangle, kInvalid);
   IndexedMesh one;
   AddTriangle(one, {0, 0, 0}, {1, 0, 0}, {0, 1, 0});
-  EXPECT_NEAR(TriangleBvh(one).Distance({0.25, 0.25, -3}), 3.0, 1e-15);
+  EXPECT_NEAR(eval::TriangleBvh(one).Distance({0.25, 0.25, -3}), 3.0, 1e-15);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -368,7 +369,7 @@ TEST(TriangleBvhTest, EmptyAndTinyMeshes) {
 
 TEST(DistanceTest, IdenticalMeshesAreAtZero) {
   const IndexedMesh m = Icosphere(3);
-  const Distances d = MeasureDistances(m, m);
+  const eval::Distances d = eval::MeasureDistances(m, m);
   EXPECT_LT(d.linf_max, 1e-12);
   EXPECT_LT(d.l2_max, 1e-12);
   EXPECT_LT(d.l1_max, 1e-12);
@@ -379,8 +380,8 @@ TEST(DistanceTest, ParallelPlanesAreExactlyOffset) {
   // Every sample of one square lies straight above the other: all distances equal h.
   const IndexedMesh lower = PlaneGrid(3, 3, 1.0, 1.0);
   const IndexedMesh upper = Translated(lower, {0, 0, 0.125});
-  const Distances d = MeasureDistances(lower, upper, {.samples = 20'000});
-  for (const DirectedDistance& dd : {d.forward, d.backward}) {
+  const eval::Distances d = eval::MeasureDistances(lower, upper, {.samples = 20'000});
+  for (const eval::DirectedDistance& dd : {d.forward, d.backward}) {
     EXPECT_NEAR(dd.l1, 0.125, 1e-15);
     EXPECT_NEAR(dd.l2, 0.125, 1e-15);
     EXPECT_NEAR(dd.linf, 0.125, 1e-15);
@@ -394,7 +395,7 @@ TEST(DistanceTest, HalfSquareAgainstSquare) {
   // B→A: 0.
   const IndexedMesh a = PlaneGrid(8, 8, 1.0 / 8, 1.0 / 8);
   const IndexedMesh b = PlaneGrid(4, 8, 1.0 / 8, 1.0 / 8);
-  const Distances d = MeasureDistances(a, b, {.samples = 200'000});
+  const eval::Distances d = eval::MeasureDistances(a, b, {.samples = 200'000});
   EXPECT_NEAR(d.forward.l1, 1.0 / 8, 1e-3);
   EXPECT_NEAR(d.forward.l2, std::sqrt(1.0 / 24), 1e-3);
   EXPECT_NEAR(d.forward.linf, 0.5, 1e-15);
@@ -410,7 +411,7 @@ TEST(DistanceTest, ShiftedSphereHausdorffIsTheShift) {
   const double delta = 0.05;
   const IndexedMesh a = Icosphere(5);
   const IndexedMesh b = Translated(a, {delta, 0, 0});
-  const Distances d = MeasureDistances(a, b);
+  const eval::Distances d = eval::MeasureDistances(a, b);
   EXPECT_NEAR(d.linf_max, delta, 0.03 * delta);
   EXPECT_NEAR(d.forward.linf, d.backward.linf, 0.01 * delta);
   EXPECT_NEAR(d.forward.l1, delta / 2, 0.03 * delta / 2);
@@ -423,10 +424,11 @@ TEST(DistanceTest, ShiftedSphereHausdorffIsTheShift) {
 TEST(DistanceTest, DeterministicForAnyThreadCount) {
   const IndexedMesh a = Icosphere(4);
   const IndexedMesh b = Translated(Icosphere(2, 1.02), {0.01, 0.02, 0});
-  const Distances one = MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = 1});
+  const eval::Distances one =
+      eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = 1});
   for (int threads : {2, 3, 0}) {
-    const Distances many =
-        MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = threads});
+    const eval::Distances many =
+        eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 3, .threads = threads});
     EXPECT_EQ(one.forward.l1, many.forward.l1) << threads << " threads";
     EXPECT_EQ(one.forward.l2, many.forward.l2) << threads << " threads";
     EXPECT_EQ(one.forward.linf, many.forward.linf) << threads << " threads";
@@ -434,24 +436,26 @@ TEST(DistanceTest, DeterministicForAnyThreadCount) {
     EXPECT_EQ(one.backward.linf, many.backward.linf) << threads << " threads";
   }
   // Another seed gives other samples, hence a slightly different (but close) mean.
-  const Distances other = MeasureDistances(a, b, {.samples = 50'000, .seed = 4, .threads = 2});
+  const eval::Distances other =
+      eval::MeasureDistances(a, b, {.samples = 50'000, .seed = 4, .threads = 2});
   EXPECT_NE(one.forward.l1, other.forward.l1);
   EXPECT_NEAR(one.forward.l1, other.forward.l1, 0.01 * one.forward.l1);
 }
 
 TEST(DistanceTest, ReusableReferenceHierarchy) {
   const IndexedMesh reference = Icosphere(4);
-  const TriangleBvh bvh(reference);
+  const eval::TriangleBvh bvh(reference);
   const IndexedMesh shifted = Translated(reference, {0, 0, 0.02});
-  const DirectedDistance dd = MeasureDirectedDistance(shifted, bvh, {.samples = 30'000});
-  const Distances full = MeasureDistances(shifted, reference, {.samples = 30'000});
+  const eval::DirectedDistance dd =
+      eval::MeasureDirectedDistance(shifted, bvh, {.samples = 30'000});
+  const eval::Distances full = eval::MeasureDistances(shifted, reference, {.samples = 30'000});
   EXPECT_EQ(dd.l1, full.forward.l1);
   EXPECT_EQ(dd.linf, full.forward.linf);
 }
 
 TEST(DistanceTest, EmptyMeshesGiveNaN) {
   const IndexedMesh m = Icosphere(1);
-  const Distances d = MeasureDistances(m, IndexedMesh{});
+  const eval::Distances d = eval::MeasureDistances(m, IndexedMesh{});
   EXPECT_TRUE(std::isnan(d.forward.l1));
   EXPECT_TRUE(std::isnan(d.forward.linf));
   EXPECT_TRUE(std::isnan(d.backward.l2));
@@ -460,7 +464,8 @@ TEST(DistanceTest, EmptyMeshesGiveNaN) {
   // A mesh without area (points only) is measured by its vertices.
   IndexedMesh points;
   points.positions = {{0.5, 0.5, 1}, {0.5, 0.5, 2}};
-  const DirectedDistance p = MeasureDirectedDistance(points, TriangleBvh(PlaneGrid(2, 2, 1, 1)));
+  const eval::DirectedDistance p =
+      eval::MeasureDirectedDistance(points, eval::TriangleBvh(PlaneGrid(2, 2, 1, 1)));
   EXPECT_EQ(p.samples, 0u);
   EXPECT_NEAR(p.linf, 2.0, 1e-15);
   EXPECT_NEAR(p.l1, 1.5, 1e-15);

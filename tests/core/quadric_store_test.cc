@@ -130,10 +130,11 @@ TEST(QuadricStore, AdoptCopiesOrAddsAcrossStores) {
   sum += b.Full(b.v[0]);
   qb.Keep(b.v[3]);
   b.store.set_position(b.v[3], {3, 3, 3});
-  qa.Adopt(qb, b.v[3], a.v[2], /*shared=*/false);  // a.v[2]'s record is b.v[3]'s from now
+  qa.Adopt(qb, PartVertex{b.v[3]}, a.v[2],
+           /*shared=*/false);  // a.v[2]'s record is b.v[3]'s from now
   a.store.set_position(a.v[2], {3, 3, 3});
   ExpectSame(qa.Get(a.v[2]), want3);
-  qa.Adopt(qb, b.v[0], a.v[0], /*shared=*/true);
+  qa.Adopt(qb, PartVertex{b.v[0]}, a.v[0], /*shared=*/true);
   ExpectSame(qa.Get(a.v[0]), sum);
   EXPECT_GT(qa.MemoryBytes(), 0u);
 }

@@ -223,7 +223,7 @@ struct HeldVolume {
 };
 
 HeldVolume HeldLink(int64_t nx, int64_t ny, int64_t nz, std::array<double, 3> spacing) {
-  auto src = MakeSyntheticSource(Shape::kLink, nx, ny, nz, spacing);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, nx, ny, nz, spacing);
   HeldVolume v{src->info(), {}};
   v.slices.resize(v.info.nz);
   for (auto& s : v.slices) EXPECT_TRUE(src->ReadSlice(&s).ok());
@@ -281,7 +281,7 @@ TEST(DicomSeries, RotatedAndMirroredFramesPlaceTheMeshInTheWorld) {
       for (int a = 0; a < 3; ++a) q = q + Vec3{f.d[a][0], f.d[a][1], f.d[a][2]} * p[a];
       p = q;
     }
-    const Distances d = MeasureDistances(expected, world, DistanceOptions{});
+    const eval::Distances d = eval::MeasureDistances(expected, world, eval::DistanceOptions{});
     // Reversed slices are simplified in the other sweep direction, so the two meshes are
     // different simplifications of one surface; a wrong frame would be voxels away.
     EXPECT_LT(d.linf_max, 0.3) << "Hausdorff between the moved and the read mesh";

@@ -107,7 +107,9 @@ TEST(RiseLists, AdoptMapsIdsAndListsRefusalsAtTheGivenError) {
   a.List(from.v[3], from.v[4], 9.0);
   ++from.version[from.v[3]];  // stale: not adopted
   into.version[into.v[5]] = 7;
-  const std::vector<VertexId> map = {5, 4, 3, 2, 1, 0};
+  PartVertexMap map;  // from's ids reversed
+  map.Reset(6);
+  for (VertexId v = 0; v < 6; ++v) map[PartVertex{v}] = 5 - v;
   b.Adopt(a, map, /*error=*/0.25);
   EXPECT_EQ(b.min_dropped(), 2.0);
   EXPECT_EQ(b.listed(), 2u);

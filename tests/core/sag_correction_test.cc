@@ -29,12 +29,13 @@ namespace {
 // here; docs/decisions.md has the benchmark's figures), Hausdorff too.
 TEST(SagCorrection, BringsACurvedSurfaceCloserWithTheSameMesh) {
   const int n = 128;
-  const IndexedMesh reference = FullSurface(*MakeSyntheticSource(Shape::kLink, n, n, n));
+  const IndexedMesh reference =
+      FullSurface(*eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n));
   auto run = [&](double fraction) {
     SessionOptions o;
     o.error = 0.048;
     o.sag_correction = fraction;
-    auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n);
     auto session = RunSession(*src, o);
     EXPECT_TRUE(session.ok()) << session.status();
     EXPECT_LE((*session)->MaxShapeError(), o.error) << fraction;
@@ -47,13 +48,13 @@ TEST(SagCorrection, BringsACurvedSurfaceCloserWithTheSameMesh) {
   ASSERT_EQ(on.num_triangles(), off.num_triangles());
   ASSERT_EQ(on.num_vertices(), off.num_vertices());
   EXPECT_TRUE(std::equal(on.indices.begin(), on.indices.end(), off.indices.begin()));
-  const TopologyReport t = AnalyzeTopology(on);
+  const eval::TopologyReport t = eval::AnalyzeTopology(on);
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_EQ(t.euler, 0);
-  DistanceOptions d;
+  eval::DistanceOptions d;
   d.samples = 200000;
-  const Distances before = MeasureDistances(reference, off, d);
-  const Distances after = MeasureDistances(reference, on, d);
+  const eval::Distances before = eval::MeasureDistances(reference, off, d);
+  const eval::Distances after = eval::MeasureDistances(reference, on, d);
   EXPECT_LT(after.l2_max, 0.92 * before.l2_max) << before.l2_max << " -> " << after.l2_max;
   EXPECT_LT(after.linf_max, before.linf_max);
 }
@@ -80,15 +81,15 @@ TEST(SagCorrection, LeavesCreasesAndTheBoxAlone) {
   const auto [cube_on, cube_moved] = cube_run(0.3);
   FieldSource full_src(n, n, n, cube);
   const IndexedMesh reference = FullSurface(full_src);
-  DistanceOptions d;
+  eval::DistanceOptions d;
   d.samples = 100000;
-  const double h_off = MeasureDistances(reference, cube_off, d).linf_max;
-  const double h_on = MeasureDistances(reference, cube_on, d).linf_max;
+  const double h_off = eval::MeasureDistances(reference, cube_off, d).linf_max;
+  const double h_on = eval::MeasureDistances(reference, cube_on, d).linf_max;
   // At most two stray vertices on the chamfers marching cubes cuts along the edges, which
   // bend (which of them survive the simplification is up to the order ties pop in).
   EXPECT_LE(cube_moved, 2) << cube_moved << " of " << cube_on.num_vertices();
   EXPECT_LE(h_on, h_off * (1 + 1e-6)) << h_off << " -> " << h_on;
-  EXPECT_TRUE(AnalyzeTopology(cube_on).IsClosedManifold());
+  EXPECT_TRUE(eval::AnalyzeTopology(cube_on).IsClosedManifold());
 
   auto run = [&](double fraction) {
     SessionOptions g;

@@ -26,6 +26,7 @@
 #include "tandem/io/mesh_io.h"
 #include "sealer.h"
 #include "slabs.h"
+#include "tandem/budget.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/tandem.h"
 #include "tandem/eval/topology.h"
@@ -45,9 +46,10 @@ struct SealRun {
   size_t chunks_before_finish = 0;
 };
 
-SealRun RunSealed(SliceSource& src, SessionOptions o) {
+SealRun RunSealed(SliceSource& src, SessionOptions o,
+                  std::shared_ptr<MemoryBudget> budget = nullptr) {
   SealRun r;
-  auto s = TandemSession::Create(src.info(), o);
+  auto s = TandemSession::Create(src.info(), o, nullptr, std::move(budget));
   EXPECT_TRUE(s.ok()) << s.status();
   if (!s.ok()) return r;
   std::vector<uint8_t> bytes;
@@ -98,9 +100,10 @@ std::vector<int64_t> Sorted(std::vector<int64_t> v) {
 // The welded chunks against the plain session's mesh: a closed manifold of the same topology,
 // within the error bound, and within `count_tolerance` of its triangle count, all of them
 // handed out. Returns the welded mesh's report.
-TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& sealed, double e0,
-                                     double count_tolerance, const std::string& what) {
-  const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+eval::TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& sealed, double e0,
+                                           double count_tolerance, const std::string& what) {
+  const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                             s = eval::AnalyzeTopology(sealed.mesh);
   EXPECT_TRUE(s.IsClosedManifold()) << what;
   EXPECT_EQ(s.euler, p.euler) << what;
   EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;
@@ -108,7 +111,8 @@ TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& sealed
   // at that grid point; a contraction may not have merged them yet when they freeze
   // (the gyroid at E0 = 0.05: one pair, twice). Anything more would be a vertex handed
   // out under two ids.
-  EXPECT_LE(CountDuplicatePositions(sealed.mesh), CountDuplicatePositions(plain.mesh) + 2)
+  EXPECT_LE(eval::CountDuplicatePositions(sealed.mesh),
+            eval::CountDuplicatePositions(plain.mesh) + 2)
       << what;
   EXPECT_LE(sealed.error_max, e0 * (1 + 1e-9)) << what;
   EXPECT_NEAR(static_cast<double>(s.triangles), static_cast<double>(p.triangles),
@@ -118,13 +122,14 @@ TopologyReport ExpectSealedLikePlain(const SealRun& plain, const SealRun& sealed
 }
 
 TEST(Sealing, ChunksWeldIntoAClosedManifoldWithTheSameTopologyAndCount) {
-  for (Shape shape : {Shape::kSphere, Shape::kLink, Shape::kGyroid, Shape::kPillowBox}) {
+  for (eval::Shape shape :
+       {eval::Shape::kSphere, eval::Shape::kLink, eval::Shape::kGyroid, eval::Shape::kPillowBox}) {
     for (double e0 : {0.05, 0.3}) {
-      auto a = MakeSyntheticSource(shape, 64, 64, 64);
-      auto b = MakeSyntheticSource(shape, 64, 64, 64);
+      auto a = eval::MakeSyntheticSource(shape, 64, 64, 64);
+      auto b = eval::MakeSyntheticSource(shape, 64, 64, 64);
       const SealRun plain = RunSealed(*a, Options(Schedule::kTandemLag, e0, false));
       const SealRun sealed = RunSealed(*b, Options(Schedule::kTandemLag, e0, true));
-      const std::string what = std::string(ShapeName(shape)) + " E0=" + std::to_string(e0);
+      const std::string what = std::string(eval::ShapeName(shape)) + " E0=" + std::to_string(e0);
       // Sealing freezes nothing a contraction could still want: the counts stay close.
       ExpectSealedLikePlain(plain, sealed, e0, 0.05, what);
       EXPECT_GT(sealed.chunks.size(), 8u) << what;  // handed out along the way, not at the end
@@ -133,7 +138,7 @@ TEST(Sealing, ChunksWeldIntoAClosedManifoldWithTheSameTopologyAndCount) {
 }
 
 TEST(Sealing, AVertexSharedByChunksHasOneIdAndBitIdenticalCoordinates) {
-  auto src = MakeSyntheticSource(Shape::kLink, 64, 64, 64, {0.7, 0.7, 1.3});
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64, {0.7, 0.7, 1.3});
   const SealRun r = RunSealed(*src, Options(Schedule::kTandemLag, 0.1, true));
   std::map<uint32_t, Vec3> seen;
   size_t shared = 0;
@@ -158,8 +163,8 @@ TEST(Sealing, AVertexSharedByChunksHasOneIdAndBitIdenticalCoordinates) {
 }
 
 TEST(Sealing, FullResolutionChunksAreExactlyTheSurface) {
-  auto a = MakeSyntheticSource(Shape::kGyroid, 48, 40, 56);
-  auto b = MakeSyntheticSource(Shape::kGyroid, 48, 40, 56);
+  auto a = eval::MakeSyntheticSource(eval::Shape::kGyroid, 48, 40, 56);
+  auto b = eval::MakeSyntheticSource(eval::Shape::kGyroid, 48, 40, 56);
   const SealRun plain = RunSealed(*a, Options(Schedule::kNone, 0, false));
   const SealRun sealed = RunSealed(*b, Options(Schedule::kNone, 0, true));
   // The same triangles, as sets of corner coordinates.
@@ -201,7 +206,7 @@ std::vector<std::array<float, 9>> TriangleSet(const IndexedMesh& m) {
 TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
   const std::string dir = ::testing::TempDir();
   for (const char* ext : {".ply", ".obj", ".4.ply"}) {  // .4: three slabs side by side
-    auto src = MakeSyntheticSource(Shape::kLink, 64, 64, 64, {0.8, 0.8, 1.1});
+    auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64, {0.8, 0.8, 1.1});
     SessionOptions o = Options(Schedule::kTandemLag, 0.05, true);
     if (std::string(ext) == ".4.ply") o.parts = 4;
     auto s = TandemSession::Create(src->info(), o);
@@ -234,7 +239,7 @@ TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
     ASSERT_TRUE(read.ok()) << read.status();
     EXPECT_EQ(read->num_vertices(), welded.num_vertices()) << ext;
     EXPECT_EQ(TriangleSet(*read), TriangleSet(welded)) << ext;
-    EXPECT_TRUE(AnalyzeTopology(*read).IsClosedManifold()) << ext;
+    EXPECT_TRUE(eval::AnalyzeTopology(*read).IsClosedManifold()) << ext;
   }
   // A missing chunk: a vertex is never retired.
   auto writer = ChunkedMeshWriter::Open(dir + "/missing.ply");
@@ -255,8 +260,10 @@ TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
 // repetitions of the same surface.
 class PeriodicSource final : public SliceSource {
  public:
-  PeriodicSource(int64_t n, int64_t nz) {
-    info_.nx = info_.ny = n;
+  PeriodicSource(int64_t n, int64_t nz) : PeriodicSource(n, n, nz) {}
+  PeriodicSource(int64_t nx, int64_t ny, int64_t nz) {
+    info_.nx = nx;
+    info_.ny = ny;
     info_.nz = nz;
     info_.dtype = DType::kFloat32;
   }
@@ -321,10 +328,39 @@ TEST(Sealing, ChunkedWriterMemoryFollowsTheFrontNotTheDepth) {
     auto read = ReadMesh(path);
     ASSERT_TRUE(read.ok()) << read.status();
     EXPECT_EQ(static_cast<int64_t>(read->num_vertices()), vertices[deep]);
-    EXPECT_TRUE(AnalyzeTopology(*read).IsManifold());
+    EXPECT_TRUE(eval::AnalyzeTopology(*read).IsManifold());
   }
   EXPECT_GT(vertices[1], 3 * vertices[0]);
   EXPECT_LE(peak[1], peak[0] * 5 / 4) << peak[0] << " bytes at 48 slices, " << peak[1] << " at 192";
+}
+
+// A sealed split session's seams settle once they hold SessionOptions::seam_hold_vertices (at
+// its default), so what it holds is flat in the depth: from a volume eight times deeper (the
+// same slices repeated), its peak accounting, the merge at the end included (the budget's
+// peak), stays within 1.2x of the shallow one's. The grid is tall in y, so that its seam
+// nears the default hold within the shallow volume; a seam settled only by
+// seam_settle_slices (512) would hold about 2x at 512 slices.
+TEST(Sealing, SplitSessionMemoryIsFlatInDepth) {
+  constexpr int64_t kDepth = 64;
+  size_t peak[2] = {0, 0};
+  int64_t budget_peak[2] = {0, 0}, triangles[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    PeriodicSource src(48, 192, deep ? 8 * kDepth : kDepth);
+    SessionOptions o = Options(Schedule::kTandemLag, 0.2, true);
+    o.parts = 2;
+    auto budget = std::make_shared<MemoryBudget>(0);
+    const SealRun r = RunSealed(src, o, budget);
+    ASSERT_EQ(r.parts, 2);
+    peak[deep] = r.peak_memory;
+    budget_peak[deep] = budget->peak();
+    triangles[deep] = static_cast<int64_t>(r.mesh.num_triangles());
+  }
+  EXPECT_GT(triangles[1], 7 * triangles[0]);
+  EXPECT_LE(peak[1], peak[0] * 6 / 5) << peak[0] << " bytes at " << kDepth << " slices, "
+                                      << peak[1] << " at " << 8 * kDepth;
+  EXPECT_LE(budget_peak[1], budget_peak[0] * 6 / 5)
+      << budget_peak[0] << " bytes at " << kDepth << " slices, " << budget_peak[1] << " at "
+      << 8 * kDepth;
 }
 
 // Sealed chunks are mended as the final mesh is without sealing (degenerate.h), each as it is
@@ -345,7 +381,8 @@ TEST(Sealing, ChunksAreTidiedOfZeroAreaTriangles) {
     const SealRun sealed = RunSealed(sealed_src, o);
     const SealRun full = RunSealed(full_src, f);
     degenerate += CountDegenerate(sealed.mesh);
-    const TopologyReport a = AnalyzeTopology(full.mesh), b = AnalyzeTopology(sealed.mesh);
+    const eval::TopologyReport a = eval::AnalyzeTopology(full.mesh),
+                               b = eval::AnalyzeTopology(sealed.mesh);
     EXPECT_TRUE(b.IsManifold()) << "seed " << seed;
     EXPECT_EQ(b.euler, a.euler) << "seed " << seed;
     EXPECT_EQ(b.components, a.components) << "seed " << seed;
@@ -475,14 +512,14 @@ TEST(Sealing, ACornerIsMendedBeforeItIsHandedOut) {
   std::string bytes;
   ASSERT_TRUE(absl::Base64Unescape(kPinchVolumeBase64, &bytes));
   ASSERT_EQ(bytes.size(), 16u * 20 * 18);
-  TopologyReport plain;
+  eval::TopologyReport plain;
   for (bool seal : {false, true}) {
     BytesSource src(bytes, 16, 20, 18, 4.0);
     SessionOptions o = Options(Schedule::kTandemLag, 6.0, seal);
     o.iso = 16;
     const SealRun run = RunSealed(src, o);
     EXPECT_EQ(CountDegenerate(run.mesh), 0) << "seal " << seal;  // sealed: 2 before
-    const TopologyReport t = AnalyzeTopology(run.mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(run.mesh);
     EXPECT_TRUE(t.IsManifold()) << "seal " << seal;
     EXPECT_LE(run.error_max, 6.0 * (1 + 1e-9)) << "seal " << seal;
     if (!seal) {
@@ -508,7 +545,7 @@ TEST(Sealing, TwoSliversAlongAZeroLengthEdgePartEachToItsSide) {
   o.lockstep_error = SessionOptions{}.lockstep_error;
   const SealRun run = RunSealed(src, o);
   EXPECT_EQ(CountDegenerate(run.mesh), 0);  // 2 before
-  EXPECT_TRUE(AnalyzeTopology(run.mesh).IsManifold());
+  EXPECT_TRUE(eval::AnalyzeTopology(run.mesh).IsManifold());
   EXPECT_LE(run.error_max, 6.0 * (1 + 1e-9));
 }
 
@@ -522,7 +559,7 @@ TEST(Sealing, MemoryFollowsTheFrontNotTheDepth) {
     if (seal) {
       EXPECT_LE(memory, 1.2) << a.peak_memory << " -> " << b.peak_memory;
       EXPECT_LE(held, 1.2) << a.peak_held << " -> " << b.peak_held;
-      EXPECT_TRUE(AnalyzeTopology(b.mesh).IsManifold());  // open at z = 0 and the last slice
+      EXPECT_TRUE(eval::AnalyzeTopology(b.mesh).IsManifold());  // open at z = 0 and the last slice
     } else {
       EXPECT_GT(held, 3.0);  // what sealing removes: the mesh grows with the depth
     }
@@ -556,8 +593,8 @@ TEST(Sealing, UnfrozenVerticesCostOnlyTheirPlaceInTheList) {
   EXPECT_EQ(chunk.ids.size(), 999u + 998);  // 0..998 and 1000..1997
   EXPECT_EQ(chunk.retired.size(), 999u + 998);
   EXPECT_FALSE(store.vertex_alive(0));
-  EXPECT_EQ(sealer.id(0), kInvalid);
-  EXPECT_EQ(sealer.id(1000), kInvalid);
+  EXPECT_EQ(sealer.id(0), kNoGlobalId);
+  EXPECT_EQ(sealer.id(1000), kNoGlobalId);
 }
 
 // With slabs, the triangles at the seams wait for the merge, so what a sealed session holds
@@ -594,7 +631,8 @@ TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
   EXPECT_LE(held[1][2], held[1][1] + held[1][1] / 20);                // then flat
   const SealRun& plain = settled[0];
   const SealRun& sealed = settled[1];
-  const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+  const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                             s = eval::AnalyzeTopology(sealed.mesh);
   EXPECT_TRUE(s.IsManifold());  // open at z = 0 and the last slice
   EXPECT_EQ(s.euler, p.euler);
   EXPECT_EQ(s.boundary_edges > 0, p.boundary_edges > 0);
@@ -664,7 +702,8 @@ TEST(Sealing, SettledSeamsAreCoarsenedFirst) {
     PeriodicSource a(72, depth), b(72, depth);
     const SealRun plain = RunSealed(a, plain_o);
     const SealRun sealed = RunSealed(b, sealed_o);
-    const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+    const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                               s = eval::AnalyzeTopology(sealed.mesh);
     const int64_t needles_plain = CountNeedles(plain.mesh, 1.0 / 64);
     const int64_t needles_sealed = CountNeedles(sealed.mesh, 1.0 / 64);
     std::printf("E0 %g: triangles plain %lld sealed %lld, needles plain %lld sealed %lld\n", e0,
@@ -704,7 +743,8 @@ TEST(Sealing, SeamCoarseningKeepsTheTopologyOfQuantisedTangles) {
       o.seal = true;
       const SealRun sealed = RunSealed(sealed_src, o);
       const std::string what = "seed " + std::to_string(seed) + " E0 " + std::to_string(e0);
-      const TopologyReport p = AnalyzeTopology(plain.mesh), s = AnalyzeTopology(sealed.mesh);
+      const eval::TopologyReport p = eval::AnalyzeTopology(plain.mesh),
+                                 s = eval::AnalyzeTopology(sealed.mesh);
       EXPECT_TRUE(s.IsManifold()) << what;
       EXPECT_EQ(s.euler, p.euler) << what;
       EXPECT_EQ(Sorted(s.component_euler), Sorted(p.component_euler)) << what;
@@ -810,6 +850,10 @@ TEST(Sealing, OptionsAreChecked) {
   EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
   o.seam_settle_slices = 1;
   EXPECT_TRUE(o.Validate().ok());
+  o.seam_hold_vertices = 0;
+  EXPECT_EQ(OptionErrorOf(o.Validate())->field, "seam_hold_vertices");
+  o.seam_hold_vertices = 1;
+  EXPECT_TRUE(o.Validate().ok());
   // Sealing splits a wide grid as the plain session does.
   o.seal_margin = 2;
   o.parts = 0;
@@ -831,19 +875,19 @@ TEST(Sealing, OptionsAreChecked) {
 // among them, which the last SEAL must not take for its own unfrozen ones (the pillow box
 // at E0 = 0.1 moved one, by the sag correction).
 TEST(Sealing, SlabsSealSideBySide) {
-  for (Shape shape : {Shape::kLink, Shape::kGyroid, Shape::kPillowBox}) {
+  for (eval::Shape shape : {eval::Shape::kLink, eval::Shape::kGyroid, eval::Shape::kPillowBox}) {
     for (double e0 : {0.05, 0.1, 0.3}) {
-      const std::string what = std::string(ShapeName(shape)) + " E0=" + std::to_string(e0);
+      const std::string what = std::string(eval::ShapeName(shape)) + " E0=" + std::to_string(e0);
       SessionOptions plain_o = Options(Schedule::kTandemLag, e0, false);
       plain_o.parts = 4;
       SessionOptions sealed_o = plain_o;
       sealed_o.seal = true;
-      auto a = MakeSyntheticSource(shape, 96, 80, 72);
-      auto b = MakeSyntheticSource(shape, 96, 80, 72);
+      auto a = eval::MakeSyntheticSource(shape, 96, 80, 72);
+      auto b = eval::MakeSyntheticSource(shape, 96, 80, 72);
       const SealRun plain = RunSealed(*a, plain_o);
       const SealRun sealed = RunSealed(*b, sealed_o);
       ASSERT_EQ(sealed.parts, 4) << what;
-      const TopologyReport s = ExpectSealedLikePlain(plain, sealed, e0, 0.03, what);
+      const eval::TopologyReport s = ExpectSealedLikePlain(plain, sealed, e0, 0.03, what);
       EXPECT_EQ(sealed.stats.sealed_vertices, static_cast<int64_t>(s.vertices)) << what;
       // Chunks numbered in order, from every slab along the way; a vertex has one id.
       std::map<uint32_t, Vec3> seen;
@@ -874,8 +918,8 @@ TEST(Sealing, SlabsSealSideBySide) {
 TEST(Sealing, SlabsSealTheSameWithOrWithoutThreads) {
   SessionOptions o = Options(Schedule::kTandemLag, 0.1, true);
   o.parts = 4;
-  auto a = MakeSyntheticSource(Shape::kLink, 96, 80, 72);
-  auto b = MakeSyntheticSource(Shape::kLink, 96, 80, 72);
+  auto a = eval::MakeSyntheticSource(eval::Shape::kLink, 96, 80, 72);
+  auto b = eval::MakeSyntheticSource(eval::Shape::kLink, 96, 80, 72);
   const SealRun threads = RunSealed(*a, o);
   o.pipeline = false;
   const SealRun one = RunSealed(*b, o);

@@ -47,8 +47,8 @@ namespace {
 
 // Every slice of a synthetic shape, as floats, so that feeding a session allocates nothing
 // outside it.
-std::vector<std::vector<float>> Slices(Shape shape, int64_t n, int64_t nz) {
-  auto src = MakeSyntheticSource(shape, n, n, nz);
+std::vector<std::vector<float>> Slices(eval::Shape shape, int64_t n, int64_t nz) {
+  auto src = eval::MakeSyntheticSource(shape, n, n, nz);
   std::vector<std::vector<float>> out;
   std::vector<uint8_t> bytes;
   while (src->ReadSlice(&bytes).ok()) {
@@ -149,18 +149,18 @@ void ExpectScaledBy(const Outcome& r, const Outcome& base, double unit) {
 // where float32 holds fewer digits of the coordinates (EdgeOffset): far off, the mesh keeps
 // its topology and error bound.
 TEST(Geometry, MeshDoesNotDependOnOriginOrUnit) {
-  const auto slices = Slices(Shape::kPillowBox, 48, 48);
+  const auto slices = Slices(eval::Shape::kPillowBox, 48, 48);
   SessionOptions o;
   o.error = 0.2;
   const Outcome base = RunGrid(Grid(48, 48, {1, 1, 1}), o, slices);
   ASSERT_TRUE(base.status.ok()) << base.status;
   ASSERT_GT(base.mesh.num_triangles(), 100u);
-  const TopologyReport topology = AnalyzeTopology(base.mesh);
+  const eval::TopologyReport topology = eval::AnalyzeTopology(base.mesh);
 
   const std::array<double, 3> far{1e5, -7e5, 3.25e5};
   const Outcome far_off = RunGrid(Grid(48, 48, {1, 1, 1}, far), o, slices);
   ASSERT_TRUE(far_off.status.ok()) << far_off.status;
-  const TopologyReport far_topology = AnalyzeTopology(far_off.mesh);
+  const eval::TopologyReport far_topology = eval::AnalyzeTopology(far_off.mesh);
   EXPECT_TRUE(far_topology.IsClosedManifold());
   EXPECT_EQ(far_topology.euler, topology.euler);
   EXPECT_EQ(far_topology.components, topology.components);
@@ -193,14 +193,14 @@ TEST(Geometry, MeshDoesNotDependOnOriginOrUnit) {
 // differently, which can reorder contractions of equal cost: the mesh keeps its guarantees
 // (closed manifold, topology, Error(K) <= E0) and about its size, not its triangles.
 TEST(Geometry, AUnitChangeIsExactByAPowerOfTwoAndKeepsTheGuaranteesOtherwise) {
-  const auto slices = Slices(Shape::kPillowBox, 48, 48);
+  const auto slices = Slices(eval::Shape::kPillowBox, 48, 48);
   const std::array<double, 3> spacing{0.7, 0.7, 1.3};
   const std::array<double, 3> origin{-12.5, 30.25, 7};
   SessionOptions o;
   o.error = 0.05;
   const Outcome base = RunGrid(Grid(48, 48, spacing, origin), o, slices);
   ASSERT_TRUE(base.status.ok()) << base.status;
-  const TopologyReport topology = AnalyzeTopology(base.mesh);
+  const eval::TopologyReport topology = eval::AnalyzeTopology(base.mesh);
   ASSERT_TRUE(topology.IsClosedManifold());
   const double triangles = static_cast<double>(base.mesh.num_triangles());
   ASSERT_GT(triangles, 100);
@@ -220,7 +220,7 @@ TEST(Geometry, AUnitChangeIsExactByAPowerOfTwoAndKeepsTheGuaranteesOtherwise) {
     const Outcome r =
         RunGrid(Grid(48, 48, scaled(spacing, unit), scaled(origin, unit)), so, slices);
     ASSERT_TRUE(r.status.ok()) << r.status;
-    const TopologyReport t = AnalyzeTopology(r.mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(r.mesh);
     EXPECT_TRUE(t.IsClosedManifold());
     EXPECT_EQ(t.euler, topology.euler);
     EXPECT_EQ(t.components, topology.components);
@@ -237,7 +237,7 @@ TEST(Geometry, AUnitChangeIsExactByAPowerOfTwoAndKeepsTheGuaranteesOtherwise) {
 // of slices ahead (rad is counted in slice units): they wait outside the release buckets,
 // which stay small, and the result keeps every guarantee.
 TEST(Geometry, HighlyAnisotropicGridKeepsTheGuarantees) {
-  const auto slices = Slices(Shape::kSphere, 32, 32);
+  const auto slices = Slices(eval::Shape::kSphere, 32, 32);
   SessionOptions o;
   o.error = 5;
   const VolumeInfo g = Grid(32, 32, {500, 500, 0.05});
@@ -251,7 +251,7 @@ TEST(Geometry, HighlyAnisotropicGridKeepsTheGuarantees) {
   ASSERT_TRUE((*s)->Finish().ok());
   EXPECT_LT(peak, size_t{16} << 20);
   EXPECT_LE((*s)->MaxShapeError(), o.error);
-  const TopologyReport t = AnalyzeTopology((*s)->Snapshot());
+  const eval::TopologyReport t = eval::AnalyzeTopology((*s)->Snapshot());
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_EQ(t.euler, 2);
 }
@@ -266,7 +266,7 @@ TEST(Barrier, AFailedAllocationAnywhereEndsOnlyTheSession) {
     bool pipeline;
   };
   for (const Case& c : {Case{24, 1, false}, Case{24, 1, true}, Case{72, 4, true}}) {
-    const auto slices = Slices(Shape::kLink, c.n, 20);
+    const auto slices = Slices(eval::Shape::kLink, c.n, 20);
     SessionOptions o;
     o.error = 0.2;
     o.parts = c.parts;

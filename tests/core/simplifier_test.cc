@@ -59,9 +59,9 @@ Result RunSource(SliceSource& src, double iso, Schedule schedule, double e0, dou
   return RunOptions(src, o);
 }
 
-Result RunShape(Shape shape, int n, Schedule schedule, double e0, double alpha = 0,
+Result RunShape(eval::Shape shape, int n, Schedule schedule, double e0, double alpha = 0,
                 int64_t target = 0) {
-  auto src = MakeSyntheticSource(shape, n, n, n);
+  auto src = eval::MakeSyntheticSource(shape, n, n, n);
   return RunSource(*src, 0.0, schedule, e0, alpha, target);
 }
 
@@ -76,20 +76,23 @@ constexpr Schedule kSchedules[] = {Schedule::kClassical, Schedule::kTandem,
                                    Schedule::kTandemLag};
 
 TEST(Simplifier, ErrorBoundAndTopologyOnSyntheticFields) {
-  struct Case { Shape shape; int n; };
-  for (Case c : {Case{Shape::kSphere, 48}, Case{Shape::kPillowBox, 64}, Case{Shape::kLink, 64},
-                 Case{Shape::kGyroid, 64}}) {
+  struct Case {
+    eval::Shape shape;
+    int n;
+  };
+  for (Case c : {Case{eval::Shape::kSphere, 48}, Case{eval::Shape::kPillowBox, 64},
+                 Case{eval::Shape::kLink, 64}, Case{eval::Shape::kGyroid, 64}}) {
     const Result full = RunShape(c.shape, c.n, Schedule::kNone, 0);
-    const TopologyReport before = AnalyzeTopology(full.mesh);
+    const eval::TopologyReport before = eval::AnalyzeTopology(full.mesh);
     for (Schedule s : kSchedules) {
       for (double alpha : {0.0, 0.2, 0.6}) {
         const double e0 = 0.2;
         const Result run = RunShape(c.shape, c.n, s, e0, alpha);
-        const std::string what = std::string(ShapeName(c.shape)) + " " +
+        const std::string what = std::string(eval::ShapeName(c.shape)) + " " +
                                  std::string(ScheduleName(s)) + " alpha=" + std::to_string(alpha);
         EXPECT_LE(run.error_max, e0) << what;
         EXPECT_LT(run.mesh.num_triangles(), full.mesh.num_triangles() / 4) << what;
-        const TopologyReport after = AnalyzeTopology(run.mesh);
+        const eval::TopologyReport after = eval::AnalyzeTopology(run.mesh);
         EXPECT_TRUE(after.IsClosedManifold()) << what;
         EXPECT_EQ(after.euler, before.euler) << what;
         EXPECT_EQ(after.components, before.components) << what;
@@ -111,12 +114,12 @@ TEST(Simplifier, ErrorBoundAndTopologyOnSyntheticFields) {
 // coordinates up to 3e4 engine units, evaluated one unit of rounding above 0: ε0 read 5.37
 // in world units. Error(K) must not count rounding noise as error (MeasuredShapeError).
 TEST(Simplifier, ErrorBoundHoldsWhereE0IsAMillionthOfTheVoxel) {
-  for (Shape shape : {Shape::kPillowBox, Shape::kSphere}) {
+  for (eval::Shape shape : {eval::Shape::kPillowBox, eval::Shape::kSphere}) {
     for (Schedule s : kSchedules) {
-      auto src = MakeSyntheticSource(shape, 19, 32, 6, {1e9, 1e6, 1e6});
+      auto src = eval::MakeSyntheticSource(shape, 19, 32, 6, {1e9, 1e6, 1e6});
       const Result run = RunSource(*src, 0.0, s, 3.2, 0.0, 0);
       const std::string what =
-          std::string(ShapeName(shape)) + " " + std::string(ScheduleName(s));
+          std::string(eval::ShapeName(shape)) + " " + std::string(ScheduleName(s));
       ASSERT_GT(run.mesh.num_triangles(), 0u) << what;
       EXPECT_EQ(run.stats.contractions, 0) << what;
       EXPECT_LE(run.error_max, 3.2) << what;
@@ -127,10 +130,10 @@ TEST(Simplifier, ErrorBoundHoldsWhereE0IsAMillionthOfTheVoxel) {
 
 TEST(Simplifier, SphereAndLinkKeepTheirTopology) {
   for (Schedule s : kSchedules) {
-    const Result sphere = RunShape(Shape::kSphere, 64, s, 0.3);
-    EXPECT_EQ(AnalyzeTopology(sphere.mesh).euler, 2);
-    const Result link = RunShape(Shape::kLink, 64, s, 0.3);
-    const TopologyReport r = AnalyzeTopology(link.mesh);
+    const Result sphere = RunShape(eval::Shape::kSphere, 64, s, 0.3);
+    EXPECT_EQ(eval::AnalyzeTopology(sphere.mesh).euler, 2);
+    const Result link = RunShape(eval::Shape::kLink, 64, s, 0.3);
+    const eval::TopologyReport r = eval::AnalyzeTopology(link.mesh);
     ASSERT_EQ(r.components, 2u);
     EXPECT_EQ(r.component_euler, (std::vector<int64_t>{0, 0}));
     EXPECT_TRUE(r.IsClosedManifold());
@@ -148,13 +151,13 @@ TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
     const VolumeInfo info = (*info_src)->info();
     const double e0 = 0.5 * std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
     const Result full = RunFile(path, c.iso, Schedule::kNone, 0);
-    const TopologyReport before = AnalyzeTopology(full.mesh);
+    const eval::TopologyReport before = eval::AnalyzeTopology(full.mesh);
     for (Schedule s : kSchedules) {
       const Result run = RunFile(path, c.iso, s, e0, 0.2);
       const std::string what = std::string(c.file) + " " + std::string(ScheduleName(s));
       EXPECT_LE(run.error_max, e0) << what;
       EXPECT_LT(run.mesh.num_triangles(), full.mesh.num_triangles() / 2) << what;
-      const TopologyReport after = AnalyzeTopology(run.mesh);
+      const eval::TopologyReport after = eval::AnalyzeTopology(run.mesh);
       EXPECT_TRUE(after.IsManifold()) << what;
       EXPECT_EQ(after.euler, before.euler) << what;
       EXPECT_EQ(after.components, before.components) << what;
@@ -174,7 +177,8 @@ TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
 TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
   for (bool closed : {true, false}) {
     for (ReleaseRule rule : {ReleaseRule::kReach, ReleaseRule::kLayer}) {
-      auto src = closed ? MakeSyntheticSource(Shape::kSphere, 29, 26, 23) : BoxCutGyroid(29, 26, 23);
+      auto src = closed ? eval::MakeSyntheticSource(eval::Shape::kSphere, 29, 26, 23)
+                        : BoxCutGyroid(29, 26, 23);
       MeshStore store;
       SimplifierOptions so;
       so.error = 0.1;
@@ -263,7 +267,7 @@ TEST(Simplifier, MovesKeepTheirQuadricsInFull) {
   so.error = 0.5;
   so.check_quadrics = true;
   {
-    auto src = MakeSyntheticSource(Shape::kSphere, 24, 24, 24);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 24);
     MeshStore store;
     Simplifier simplifier(&store, so);
     ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/false);
@@ -282,7 +286,7 @@ TEST(Simplifier, MovesKeepTheirQuadricsInFull) {
   {
     // Two corners at one point (a vertex put onto a neighbour's place, kept in full first):
     // the tidying parts them, moving the neighbour too.
-    auto src = MakeSyntheticSource(Shape::kSphere, 24, 24, 24);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 24);
     MeshStore store;
     Simplifier simplifier(&store, so);
     ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/false);
@@ -398,7 +402,7 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
   EXPECT_LT(mask.refusals, int64_t{2 * 93 * 93} / 10);
   EXPECT_LT(mask.mesh.num_triangles(), 200u);
   for (const Run* r : {&whole, &chunked, &mask}) {
-    const TopologyReport t = AnalyzeTopology(r->mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(r->mesh);
     EXPECT_TRUE(t.IsClosedManifold());
     EXPECT_EQ(t.euler, 2);
     EXPECT_LE(r->error, 0.02);
@@ -444,7 +448,7 @@ TEST(Simplifier, AChunkedReleaseInTilesKeepsItsChunksCompact) {
   EXPECT_LT(2 * tiles.deferred, rows.deferred);
   EXPECT_EQ(whole.deferred, 0);
   for (const Run* r : {&rows, &tiles, &whole}) {
-    const TopologyReport t = AnalyzeTopology(r->mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(r->mesh);
     EXPECT_TRUE(t.IsClosedManifold());
     EXPECT_EQ(t.euler, 2);
     EXPECT_LE(r->error, 0.02);
@@ -455,11 +459,11 @@ TEST(Simplifier, AChunkedReleaseInTilesKeepsItsChunksCompact) {
 }
 
 TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
-  const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
+  const Result lag = RunShape(eval::Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
   EXPECT_GT(lag.stats.contractions, 1000);
   EXPECT_LE(lag.stats.max_reach_over_front, 0.0);
   EXPECT_LE(lag.stats.max_layer_over_front, -1.0);
-  const Result tandem = RunShape(Shape::kPillowBox, 64, Schedule::kTandem, 0.2);
+  const Result tandem = RunShape(eval::Shape::kPillowBox, 64, Schedule::kTandem, 0.2);
   EXPECT_GT(tandem.stats.contractions, 1000);
   EXPECT_LE(tandem.stats.max_layer_over_front, -1.0);
   // Without the lag, contractions do run ahead of the reach rule: the two schedules differ.
@@ -469,14 +473,14 @@ TEST(Simplifier, NoContractionRunsAheadOfTheFront) {
 // The work counters: every contraction was popped from Q after an evaluation; classical
 // queues nothing in W, the time lag most edges before they reach Q.
 TEST(Simplifier, CountsEvaluationsAndQueuePushes) {
-  const Result lag = RunShape(Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
+  const Result lag = RunShape(eval::Shape::kPillowBox, 64, Schedule::kTandemLag, 0.2);
   const SessionStats& s = lag.stats;
   EXPECT_GT(s.contractions, 1000);
   EXPECT_GE(s.evaluations, s.contractions);
   EXPECT_GE(s.q_pushes, s.contractions);
   EXPECT_LE(s.q_pushes, s.evaluations);
   EXPECT_GT(s.w_pushes, s.contractions);
-  const Result classical = RunShape(Shape::kPillowBox, 64, Schedule::kClassical, 0.2);
+  const Result classical = RunShape(eval::Shape::kPillowBox, 64, Schedule::kClassical, 0.2);
   EXPECT_GE(classical.stats.q_pushes, classical.stats.contractions);
   EXPECT_EQ(classical.stats.w_pushes, 0);
 }
@@ -498,7 +502,7 @@ TEST(Simplifier, TimeLagNeverTouchesTheFrontOnARealCt) {
 TEST(Simplifier, TandemNeverTouchesTheNewestLayer) {
   const int n = 48;
   for (Schedule sched : {Schedule::kTandem, Schedule::kTandemLag}) {
-    auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n);
     SessionOptions o;
     o.schedule = sched;
     o.error = 0.5;
@@ -538,9 +542,9 @@ TEST(Simplifier, TandemNeverTouchesTheNewestLayer) {
 
 TEST(Simplifier, AnisotropyFallsAsAlphaRises) {
   for (Schedule s : {Schedule::kClassical, Schedule::kTandemLag}) {
-    const double a0 = Anisotropy(RunShape(Shape::kPillowBox, 96, s, 0.2, 0.0).mesh);
-    const double a2 = Anisotropy(RunShape(Shape::kPillowBox, 96, s, 0.2, 0.2).mesh);
-    const double a6 = Anisotropy(RunShape(Shape::kPillowBox, 96, s, 0.2, 0.6).mesh);
+    const double a0 = eval::Anisotropy(RunShape(eval::Shape::kPillowBox, 96, s, 0.2, 0.0).mesh);
+    const double a2 = eval::Anisotropy(RunShape(eval::Shape::kPillowBox, 96, s, 0.2, 0.2).mesh);
+    const double a6 = eval::Anisotropy(RunShape(eval::Shape::kPillowBox, 96, s, 0.2, 0.6).mesh);
     EXPECT_LT(a2, a0) << ScheduleName(s);
     EXPECT_LT(a6, a0) << ScheduleName(s);
   }
@@ -548,11 +552,11 @@ TEST(Simplifier, AnisotropyFallsAsAlphaRises) {
 
 TEST(Simplifier, TimeLagRemovesDirectionalBiasAndMatchesClassicalCount) {
   const double e0 = 0.1;
-  const Result classical = RunShape(Shape::kPillowBox, 128, Schedule::kClassical, e0);
-  const Result tandem = RunShape(Shape::kPillowBox, 128, Schedule::kTandem, e0);
-  const Result lag = RunShape(Shape::kPillowBox, 128, Schedule::kTandemLag, e0);
-  const double bias_tandem = DirectionalBias(tandem.mesh);
-  const double bias_lag = DirectionalBias(lag.mesh);
+  const Result classical = RunShape(eval::Shape::kPillowBox, 128, Schedule::kClassical, e0);
+  const Result tandem = RunShape(eval::Shape::kPillowBox, 128, Schedule::kTandem, e0);
+  const Result lag = RunShape(eval::Shape::kPillowBox, 128, Schedule::kTandemLag, e0);
+  const double bias_tandem = eval::DirectionalBias(tandem.mesh);
+  const double bias_lag = eval::DirectionalBias(lag.mesh);
   EXPECT_LT(bias_lag, bias_tandem);
   const double nc = double(classical.mesh.num_triangles());
   EXPECT_NEAR(double(lag.mesh.num_triangles()), nc, 0.10 * nc);
@@ -560,10 +564,10 @@ TEST(Simplifier, TimeLagRemovesDirectionalBiasAndMatchesClassicalCount) {
 
 TEST(Simplifier, MeanAndRmsDistanceStayBelowE0OnThePillowBox) {
   const double e0 = 0.2;
-  const Result full = RunShape(Shape::kPillowBox, 96, Schedule::kNone, 0);
+  const Result full = RunShape(eval::Shape::kPillowBox, 96, Schedule::kNone, 0);
   for (Schedule s : kSchedules) {
-    const Result run = RunShape(Shape::kPillowBox, 96, s, e0);
-    const Distances d = MeasureDistances(full.mesh, run.mesh);
+    const Result run = RunShape(eval::Shape::kPillowBox, 96, s, e0);
+    const eval::Distances d = eval::MeasureDistances(full.mesh, run.mesh);
     EXPECT_LT(d.l1_max, e0) << ScheduleName(s);
     EXPECT_LT(d.l2_max, e0) << ScheduleName(s);
     EXPECT_LE(d.l1_max, d.l2_max);
@@ -576,14 +580,14 @@ TEST(Simplifier, MeanAndRmsDistanceStayBelowE0OnARealCt) {
   const double e0_ct = 0.75;  // mm; voxels are 3.2 x 3.2 x 1.5 mm
   const Result ct_full = RunFile(path, 1150, Schedule::kNone, 0);
   const Result ct = RunFile(path, 1150, Schedule::kTandemLag, e0_ct);
-  const Distances d = MeasureDistances(ct_full.mesh, ct.mesh);
+  const eval::Distances d = eval::MeasureDistances(ct_full.mesh, ct.mesh);
   EXPECT_LT(d.l1_max, e0_ct);
   EXPECT_LT(d.l2_max, e0_ct);
 }
 
 TEST(Simplifier, TandemLagHoldsAQuarterOfClassicalsPeak) {
-  const Result classical = RunShape(Shape::kPillowBox, 256, Schedule::kClassical, 0.1);
-  const Result lag = RunShape(Shape::kPillowBox, 256, Schedule::kTandemLag, 0.1);
+  const Result classical = RunShape(eval::Shape::kPillowBox, 256, Schedule::kClassical, 0.1);
+  const Result lag = RunShape(eval::Shape::kPillowBox, 256, Schedule::kTandemLag, 0.1);
   EXPECT_EQ(classical.stats.peak_triangles, classical.stats.triangles_extracted);
   EXPECT_LE(lag.stats.peak_triangles * 4, classical.stats.peak_triangles);
   // The saw-tooth: one entry after every EXTRACT and every SIMPLIFY, plus the final one.
@@ -600,20 +604,21 @@ TEST(Simplifier, TandemLagHoldsAQuarterOfClassicalsPeak) {
 TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
   const int n = 96;
   const double e0 = 1.0;
-  const Result full = RunShape(Shape::kLink, n, Schedule::kNone, 0);
+  const Result full = RunShape(eval::Shape::kLink, n, Schedule::kNone, 0);
   auto run = [&](Schedule schedule, double error, double lockstep) {
     SessionOptions o;
     o.schedule = schedule;
     o.error = error;
     o.lockstep_error = lockstep;
-    auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n);
     return RunOptions(*src, o);
   };
-  auto rms = [&](const Result& r) { return MeasureDistances(full.mesh, r.mesh).l2_max; };
+  auto rms = [&](const Result& r) { return eval::MeasureDistances(full.mesh, r.mesh).l2_max; };
   const Result pass = run(Schedule::kTandemLag, e0, SessionOptions{}.lockstep_error);
   EXPECT_LE(pass.error_max, e0 * (1 + 1e-9));
   EXPECT_EQ(pass.stats.error_reached, e0);
-  const TopologyReport a = AnalyzeTopology(full.mesh), b = AnalyzeTopology(pass.mesh);
+  const eval::TopologyReport a = eval::AnalyzeTopology(full.mesh),
+                             b = eval::AnalyzeTopology(pass.mesh);
   EXPECT_TRUE(b.IsClosedManifold());
   EXPECT_EQ(b.euler, a.euler);
   EXPECT_EQ(b.components, a.components);
@@ -645,10 +650,10 @@ TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
 }
 
 TEST(Simplifier, TargetTriangleCountIsReached) {
-  const Result run = RunShape(Shape::kSphere, 48, Schedule::kTandemLag, 0.05, 0.0, 500);
+  const Result run = RunShape(eval::Shape::kSphere, 48, Schedule::kTandemLag, 0.05, 0.0, 500);
   EXPECT_LE(run.mesh.num_triangles(), 500u);
   EXPECT_GT(run.mesh.num_triangles(), 400u);
-  EXPECT_EQ(AnalyzeTopology(run.mesh).euler, 2);
+  EXPECT_EQ(eval::AnalyzeTopology(run.mesh).euler, 2);
 }
 
 // A rise of E0 (a target count) offers Q the edges it had dropped above keep x E0, or
@@ -664,10 +669,10 @@ TEST(Simplifier, ARiseOffersOnlyTheDroppedEdgesItBringsInReach) {
       int64_t offer_evaluations = 0;  // during the rises only
       size_t triangles = 0;
       double error = 0, e = 0;
-      TopologyReport topology;
+      eval::TopologyReport topology;
     };
     auto run = [alpha](bool rises) {
-      auto src = MakeSyntheticSource(Shape::kLink, 64, 64, 64);
+      auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64);
       MeshStore store;
       SimplifierOptions so;
       so.error = 0.002;
@@ -694,7 +699,7 @@ TEST(Simplifier, ARiseOffersOnlyTheDroppedEdgesItBringsInReach) {
       r.triangles = store.num_triangles();
       r.error = simplifier.MaxShapeError();
       r.e = e;
-      r.topology = AnalyzeTopology(store.Snapshot());
+      r.topology = eval::AnalyzeTopology(store.Snapshot());
       return r;
     };
     const Run listed = run(true), requeued = run(false);
@@ -765,7 +770,7 @@ TEST(Simplifier, ARiseAtAFloorChecksNoLinkRefusalAgain) {
   ASSERT_EQ(idle, 3) << "no floor reached";
   EXPECT_GT(simplifier.refusals().link, 125);  // the test's premise: links refused at the floor
   EXPECT_EQ(link_rechecks, 0);
-  const TopologyReport t = AnalyzeTopology(store.Snapshot());
+  const eval::TopologyReport t = eval::AnalyzeTopology(store.Snapshot());
   EXPECT_EQ(t.components, 125u);
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_LE(simplifier.MaxShapeError(), e * (1 + 1e-9));
@@ -777,7 +782,7 @@ TEST(Simplifier, ARiseAtAFloorChecksNoLinkRefusalAgain) {
 // CT's merge at N = 56,283: 75,000 triangles' edges). Here one part's mesh and queues are
 // copied into an empty simplifier, and the same rise contracts the same.
 TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
-  auto src = MakeSyntheticSource(Shape::kLink, 48, 48, 48);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 48);
   SimplifierOptions so;
   so.error = 0.003;
   so.keep = 1.5;
@@ -792,17 +797,18 @@ TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
   Simplifier merged(&store, so);
   merged.Activate(std::numeric_limits<double>::infinity());  // as a part ends
   merged.Simplify();
-  std::vector<VertexId> map(part_store.vertex_capacity(), kInvalid);
+  PartVertexMap map;
+  map.Reset(part_store.vertex_capacity());
   for (VertexId v = 0; v < part_store.vertex_capacity(); ++v) {
     if (!part_store.vertex_alive(v)) continue;
-    map[v] = store.AddVertex(part_store.position(v), part_store.height(v), part_store.layer(v),
-                             part_store.box_mask(v));
-    merged.AdoptVertex(part, v, map[v], /*shared=*/false);
+    map[PartVertex{v}] = store.AddVertex(part_store.position(v), part_store.height(v),
+                                         part_store.layer(v), part_store.box_mask(v));
+    merged.AdoptVertex(part, PartVertex{v}, map[PartVertex{v}], /*shared=*/false);
   }
   for (TriId t = 0; t < part_store.triangle_capacity(); ++t) {
     if (!part_store.triangle_alive(t)) continue;
     const auto& tri = part_store.triangle(t);
-    store.AddTriangle(map[tri[0]], map[tri[1]], map[tri[2]]);
+    store.AddTriangle(map[PartVertex{tri[0]}], map[PartVertex{tri[1]}], map[PartVertex{tri[2]}]);
   }
   merged.AdoptQueues(part, map);
   EXPECT_GT(merged.queue_sizes(), 0u);
@@ -821,7 +827,7 @@ TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
                 0.02 * double(part_store.num_triangles())) << e;
     EXPECT_LE(merged.MaxShapeError(), e * (1 + 1e-9)) << e;
   }
-  const TopologyReport t = AnalyzeTopology(store.Snapshot());
+  const eval::TopologyReport t = eval::AnalyzeTopology(store.Snapshot());
   EXPECT_TRUE(t.IsManifold());
   EXPECT_EQ(t.euler, 0);
   EXPECT_EQ(t.components, 2);
@@ -829,9 +835,9 @@ TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
 
 // ---------------------------------------------------------------- target triangle counts
 
-Result RunTarget(Shape shape, int n, Schedule schedule, double e0, int64_t target, int parts,
+Result RunTarget(eval::Shape shape, int n, Schedule schedule, double e0, int64_t target, int parts,
                  bool pipeline = true) {
-  auto src = MakeSyntheticSource(shape, n, n, n);
+  auto src = eval::MakeSyntheticSource(shape, n, n, n);
   return RunSource(*src, 0.0, schedule, e0, 0.0, target, parts, pipeline);
 }
 
@@ -841,16 +847,17 @@ Result RunTarget(Shape shape, int n, Schedule schedule, double e0, int64_t targe
 // part and three (whose shared E0 each part applies at the same step), the topology kept.
 TEST(TargetTriangles, ReachedWhateverE0) {
   constexpr int64_t kTarget = 1500;
-  const TopologyReport full = AnalyzeTopology(RunShape(Shape::kLink, 64, Schedule::kNone, 0).mesh);
+  const eval::TopologyReport full =
+      eval::AnalyzeTopology(RunShape(eval::Shape::kLink, 64, Schedule::kNone, 0).mesh);
   for (Schedule schedule : kSchedules) {
     for (int parts : {1, 3}) {
       for (double e0 : {1e-4, 0.05, 5.0}) {
-        const Result r = RunTarget(Shape::kLink, 64, schedule, e0, kTarget, parts);
+        const Result r = RunTarget(eval::Shape::kLink, 64, schedule, e0, kTarget, parts);
         const std::string what = std::string(ScheduleName(schedule)) + " parts " +
                                  std::to_string(parts) + " E0 " + std::to_string(e0);
         EXPECT_LE(int64_t(r.mesh.num_triangles()), kTarget) << what;
         EXPECT_GE(int64_t(r.mesh.num_triangles()), kTarget * 99 / 100) << what;
-        const TopologyReport t = AnalyzeTopology(r.mesh);
+        const eval::TopologyReport t = eval::AnalyzeTopology(r.mesh);
         EXPECT_TRUE(t.IsManifold()) << what;
         EXPECT_EQ(t.euler, full.euler) << what;
         EXPECT_EQ(t.components, full.components) << what;
@@ -867,11 +874,11 @@ TEST(TargetTriangles, ReachedWhateverE0) {
 // count holds (up to 1.5 N besides its last layers: schedule.cc; measured 1.2-2.3x on these),
 // not the full-resolution mesh that a small E0 kept before.
 TEST(TargetTriangles, HoldAFewTimesWhatTheE0RunHolds) {
-  for (Shape shape : {Shape::kGyroid, Shape::kPillowBox}) {
+  for (eval::Shape shape : {eval::Shape::kGyroid, eval::Shape::kPillowBox}) {
     const Result plain = RunShape(shape, 96, Schedule::kTandemLag, 0.2);
     const auto n = int64_t(plain.mesh.num_triangles());
     const Result r = RunTarget(shape, 96, Schedule::kTandemLag, 1e-4, n, 0);
-    const std::string what(ShapeName(shape));
+    const std::string what(eval::ShapeName(shape));
     EXPECT_LE(int64_t(r.mesh.num_triangles()), n) << what;
     EXPECT_GE(int64_t(r.mesh.num_triangles()), n * 99 / 100) << what;
     EXPECT_LT(r.stats.peak_triangles, plain.stats.peak_triangles * 5 / 2) << what;
@@ -883,8 +890,10 @@ TEST(TargetTriangles, HoldAFewTimesWhatTheE0RunHolds) {
 // whatever the threads did, the result is the sequential one.
 TEST(TargetTriangles, PipelinedPartsGiveTheSequentialMesh) {
   for (int parts : {3, 4}) {
-    const Result a = RunTarget(Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, false);
-    const Result b = RunTarget(Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, true);
+    const Result a =
+        RunTarget(eval::Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, false);
+    const Result b =
+        RunTarget(eval::Shape::kGyroid, 72, Schedule::kTandemLag, 0.2, 2000, parts, true);
     EXPECT_EQ(a.mesh.indices, b.mesh.indices) << parts;
     EXPECT_EQ(a.mesh.positions, b.mesh.positions) << parts;
     EXPECT_EQ(a.stats.trace, b.stats.trace) << parts;
@@ -899,7 +908,7 @@ TEST(TargetTriangles, PipelinedPartsGiveTheSequentialMesh) {
 // end; the mesh still reaches N, with the bound and the topology.
 TEST(TargetTriangles, SplitPartsComeDownTogetherBeforeTheMerge) {
   constexpr int64_t kTarget = 6000;
-  const Result r = RunTarget(Shape::kLink, 128, Schedule::kTandemLag, 0.03, kTarget, 2, true);
+  const Result r = RunTarget(eval::Shape::kLink, 128, Schedule::kTandemLag, 0.03, kTarget, 2, true);
   const std::vector<int64_t>& trace = r.stats.trace;
   ASSERT_GE(trace.size(), 3u);
   const int64_t end = trace[trace.size() - 3], approached = trace[trace.size() - 2];
@@ -910,7 +919,7 @@ TEST(TargetTriangles, SplitPartsComeDownTogetherBeforeTheMerge) {
   EXPECT_EQ(trace.back(), kTarget);
   EXPECT_EQ(r.mesh.num_triangles(), static_cast<size_t>(kTarget));
   EXPECT_LE(r.error_max, r.stats.error_reached * (1 + 1e-9));
-  const TopologyReport t = AnalyzeTopology(r.mesh);
+  const eval::TopologyReport t = eval::AnalyzeTopology(r.mesh);
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_EQ(t.euler, 0);
   EXPECT_EQ(t.components, 2u);
@@ -936,7 +945,7 @@ TEST(TargetTriangles, AFloorOfComponentsStopsTheRise) {
   const auto session = RunCube(v, kN, o);
   ASSERT_NE(session, nullptr);
   const IndexedMesh mesh = session->Snapshot();
-  const TopologyReport t = AnalyzeTopology(mesh);
+  const eval::TopologyReport t = eval::AnalyzeTopology(mesh);
   EXPECT_EQ(t.components, 125u);
   EXPECT_TRUE(t.IsClosedManifold());
   EXPECT_GE(mesh.num_triangles(), 4u * 125);
@@ -949,7 +958,7 @@ TEST(TargetTriangles, AFloorOfComponentsStopsTheRise) {
 // path. Both must give the same session, with one part or several.
 TEST(Simplifier, MappedAndStreamedFilesGiveTheSameSession) {
   const std::string dir = tandem::testing::MakeTempDir();
-  auto src = MakeSyntheticSource(Shape::kLink, 48, 44, 40);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 48, 44, 40);
   const VolumeInfo info = src->info();
   std::vector<std::vector<uint8_t>> slices(static_cast<size_t>(info.nz));
   for (auto& s : slices) ASSERT_TRUE(src->ReadSlice(&s).ok());
@@ -991,36 +1000,36 @@ TEST(Simplifier, MappedAndStreamedFilesGiveTheSameSession) {
 // With parts (tandem.h), the pipelined run puts each part on its own thread instead.
 TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
   for (int parts : {1, 3})
-  for (Shape shape : {Shape::kGyroid, Shape::kLink}) {
-    for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
-      IndexedMesh meshes[2];
-      SessionStats stats[2];
-      for (int pipelined = 0; pipelined < 2; ++pipelined) {
-        auto src = MakeSyntheticSource(shape, 56, 56, 56);
-        SessionOptions o;
-        o.schedule = s;
-        o.error = 0.3;
-        o.alpha = 0.2;
-        o.parts = parts;
-        o.pipeline = pipelined == 1;
-        auto session = RunSession(*src, o);
-        ASSERT_TRUE(session.ok()) << session.status();
-        meshes[pipelined] = (*session)->Snapshot();
-        stats[pipelined] = (*session)->stats();
+    for (eval::Shape shape : {eval::Shape::kGyroid, eval::Shape::kLink}) {
+      for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
+        IndexedMesh meshes[2];
+        SessionStats stats[2];
+        for (int pipelined = 0; pipelined < 2; ++pipelined) {
+          auto src = eval::MakeSyntheticSource(shape, 56, 56, 56);
+          SessionOptions o;
+          o.schedule = s;
+          o.error = 0.3;
+          o.alpha = 0.2;
+          o.parts = parts;
+          o.pipeline = pipelined == 1;
+          auto session = RunSession(*src, o);
+          ASSERT_TRUE(session.ok()) << session.status();
+          meshes[pipelined] = (*session)->Snapshot();
+          stats[pipelined] = (*session)->stats();
+        }
+        const std::string what = std::string(eval::ShapeName(shape)) + " " +
+                                 std::string(ScheduleName(s)) + " parts " + std::to_string(parts);
+        EXPECT_EQ(meshes[0].indices, meshes[1].indices) << what;
+        ASSERT_EQ(meshes[0].positions.size(), meshes[1].positions.size()) << what;
+        for (size_t i = 0; i < meshes[0].positions.size(); ++i) {
+          ASSERT_EQ(meshes[0].positions[i], meshes[1].positions[i]) << what << " vertex " << i;
+        }
+        EXPECT_EQ(stats[0].trace, stats[1].trace) << what;
+        EXPECT_EQ(stats[0].contractions, stats[1].contractions) << what;
+        EXPECT_EQ(stats[0].refusals.link, stats[1].refusals.link) << what;
+        EXPECT_GT(stats[1].contractions, 1000) << what;
       }
-      const std::string what = std::string(ShapeName(shape)) + " " +
-                               std::string(ScheduleName(s)) + " parts " + std::to_string(parts);
-      EXPECT_EQ(meshes[0].indices, meshes[1].indices) << what;
-      ASSERT_EQ(meshes[0].positions.size(), meshes[1].positions.size()) << what;
-      for (size_t i = 0; i < meshes[0].positions.size(); ++i) {
-        ASSERT_EQ(meshes[0].positions[i], meshes[1].positions[i]) << what << " vertex " << i;
-      }
-      EXPECT_EQ(stats[0].trace, stats[1].trace) << what;
-      EXPECT_EQ(stats[0].contractions, stats[1].contractions) << what;
-      EXPECT_EQ(stats[0].refusals.link, stats[1].refusals.link) << what;
-      EXPECT_GT(stats[1].contractions, 1000) << what;
     }
-  }
 }
 
 // Peek (tandem.h) gives a split session's figures without waiting for the slab steps still
@@ -1041,7 +1050,7 @@ TEST(Simplifier, PeekDoesNotWaitForQueuedSlabSteps) {
   ASSERT_TRUE(session.ok()) << session.status();
   TandemSession& s = **session;
   ASSERT_EQ(s.num_parts(), 2);
-  auto src = MakeSyntheticSource(Shape::kGyroid, grid.nx, grid.ny, grid.nz);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kGyroid, grid.nx, grid.ny, grid.nz);
   std::vector<uint8_t> bytes;
   const size_t planned = s.Peek().memory_bytes;
   EXPECT_EQ(planned, s.MemoryBytes());  // nothing queued yet
@@ -1078,8 +1087,8 @@ struct PartsRun {
   int parts_during = 0, parts_after = 0;
 };
 
-PartsRun RunParts(Shape shape, int n, Schedule schedule, double e0, int parts, int mid = -1) {
-  auto src = MakeSyntheticSource(shape, n, n, n);
+PartsRun RunParts(eval::Shape shape, int n, Schedule schedule, double e0, int parts, int mid = -1) {
+  auto src = eval::MakeSyntheticSource(shape, n, n, n);
   SessionOptions o;
   o.schedule = schedule;
   o.error = e0;
@@ -1126,16 +1135,16 @@ std::vector<std::array<Vec3, 3>> CanonicalTriangles(const IndexedMesh& m) {
 // The parts' extractions, welded at the seams (mid-stream snapshots) and merged (Finish),
 // are exactly the whole grid's surface: same triangles, no seam vertex twice.
 TEST(Parts, FullResolutionSurfaceIsTheWholeGridsSurface) {
-  for (Shape shape : {Shape::kLink, Shape::kGyroid}) {
+  for (eval::Shape shape : {eval::Shape::kLink, eval::Shape::kGyroid}) {
     const PartsRun whole = RunParts(shape, 64, Schedule::kNone, 0, 1, 40);
     const PartsRun split = RunParts(shape, 64, Schedule::kNone, 0, 3, 40);
-    const std::string what(ShapeName(shape));
+    const std::string what(eval::ShapeName(shape));
     EXPECT_EQ(split.parts_during, 3) << what;
     EXPECT_EQ(split.parts_after, 1) << what;
     for (auto [a, b] : {std::pair{&whole.mesh, &split.mesh}, {&whole.mid_mesh, &split.mid_mesh}}) {
       EXPECT_EQ(a->num_vertices(), b->num_vertices()) << what;
       EXPECT_TRUE(CanonicalTriangles(*a) == CanonicalTriangles(*b)) << what;
-      const TopologyReport ta = AnalyzeTopology(*a), tb = AnalyzeTopology(*b);
+      const eval::TopologyReport ta = eval::AnalyzeTopology(*a), tb = eval::AnalyzeTopology(*b);
       EXPECT_EQ(ta.boundary_edges, tb.boundary_edges) << what;  // no crack at a seam
       EXPECT_EQ(ta.euler, tb.euler) << what;
       EXPECT_TRUE(tb.IsManifold()) << what;
@@ -1149,19 +1158,21 @@ TEST(Parts, FullResolutionSurfaceIsTheWholeGridsSurface) {
 // Seam vertices wait for the merge, so every contraction inside a part is one of the whole
 // mesh: the result is a manifold of the input's type within E0, about as small as unsplit.
 TEST(Parts, SplitRunKeepsTopologyErrorBoundAndCount) {
-  for (Shape shape : {Shape::kSphere, Shape::kLink, Shape::kGyroid}) {
+  for (eval::Shape shape : {eval::Shape::kSphere, eval::Shape::kLink, eval::Shape::kGyroid}) {
     const PartsRun full = RunParts(shape, 64, Schedule::kNone, 0, 1);
-    const int64_t euler = AnalyzeTopology(full.mesh).euler;
+    const int64_t euler = eval::AnalyzeTopology(full.mesh).euler;
     for (Schedule s : kSchedules) {
       const double e0 = 0.3;
       const PartsRun whole = RunParts(shape, 64, s, e0, 1);
       const PartsRun split = RunParts(shape, 64, s, e0, 3);
-      const std::string what = std::string(ShapeName(shape)) + " " + std::string(ScheduleName(s));
-      const TopologyReport t = AnalyzeTopology(split.mesh);
+      const std::string what =
+          std::string(eval::ShapeName(shape)) + " " + std::string(ScheduleName(s));
+      const eval::TopologyReport t = eval::AnalyzeTopology(split.mesh);
       EXPECT_TRUE(t.IsManifold()) << what;
       EXPECT_EQ(t.euler, euler) << what;
-      EXPECT_EQ(t.boundary_edges == 0, AnalyzeTopology(whole.mesh).boundary_edges == 0) << what;
-      EXPECT_EQ(CountDuplicatePositions(split.mesh), 0u) << what;
+      EXPECT_EQ(t.boundary_edges == 0, eval::AnalyzeTopology(whole.mesh).boundary_edges == 0)
+          << what;
+      EXPECT_EQ(eval::CountDuplicatePositions(split.mesh), 0u) << what;
       EXPECT_LE(split.error_max, e0 * (1 + 1e-9)) << what;
       const double nw = double(whole.mesh.num_triangles());
       // Within 25%: the coarsest of these meshes (the sphere) has ~200 triangles across two
@@ -1184,7 +1195,7 @@ TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
   o.parts = 2;
   IndexedMesh meshes[3];
   for (int bad = 0; bad < 3; ++bad) {  // none, through AddSlice, through AddSliceBytes
-    auto src = MakeSyntheticSource(Shape::kLink, n, n, n);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n);
     auto session = TandemSession::Create(src->info(), o);
     ASSERT_TRUE(session.ok()) << session.status();
     std::vector<uint8_t> bytes;
@@ -1216,7 +1227,7 @@ TEST(Parts, ANonFiniteValueLeavesEveryPartAsItWas) {
 // its workers, which must stop (no hang, nothing touched after the session is gone).
 TEST(Parts, AnAbandonedSessionStopsItsWorkers) {
   for (int slices : {1, 20, 63}) {
-    auto src = MakeSyntheticSource(Shape::kGyroid, 64, 64, 64);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kGyroid, 64, 64, 64);
     SessionOptions o;
     o.error = 0.3;
     o.parts = 4;
@@ -1265,7 +1276,8 @@ TEST(Parts, AutomaticAndClampedCounts) {
 // (docs/decisions.md).
 TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
   const int n = 128;
-  const IndexedMesh reference = FullSurface(*MakeSyntheticSource(Shape::kPillowBox, n, n, n));
+  const IndexedMesh reference =
+      FullSurface(*eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n));
   struct Result {
     size_t triangles;
     double hausdorff;
@@ -1275,17 +1287,17 @@ TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
     SessionOptions o;
     o.error = e0;
     o.distance_guard = guard;
-    auto src = MakeSyntheticSource(Shape::kPillowBox, n, n, n);
+    auto src = eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n);
     auto session = RunSession(*src, o);
     EXPECT_TRUE(session.ok()) << session.status();
     const IndexedMesh mesh = (*session)->Snapshot();
-    const TopologyReport t = AnalyzeTopology(mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(mesh);
     EXPECT_TRUE(t.IsClosedManifold()) << guard;
     EXPECT_EQ(t.euler, 2) << guard;
     EXPECT_LE((*session)->MaxShapeError(), o.error * (1 + 1e-9)) << guard;
-    DistanceOptions d;
+    eval::DistanceOptions d;
     d.samples = 200000;
-    return Result{mesh.num_triangles(), MeasureDistances(reference, mesh, d).linf_max,
+    return Result{mesh.num_triangles(), eval::MeasureDistances(reference, mesh, d).linf_max,
                   (*session)->stats().refusals.distance};
   };
   const Result off = run(0), on = run(2);
@@ -1307,7 +1319,7 @@ TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
   SessionOptions o;
   o.error = 0.012;
   o.target_triangles = static_cast<int64_t>(off.triangles) / 4;
-  auto src = MakeSyntheticSource(Shape::kPillowBox, n, n, n);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n);
   auto session = RunSession(*src, o);
   ASSERT_TRUE(session.ok()) << session.status();
   EXPECT_LE(int64_t((*session)->Snapshot().num_triangles()), o.target_triangles);

@@ -5,8 +5,11 @@
   layering_check.py --root SRC --self-test     breaks a copy of the rules and expects errors
 
 Fails (exit 1, one line per culprit) on an #include "..." crossing an arrow the table does not
-list, on a link between the project's targets the table does not list, and on an include of a
-library that none of the including library's targets links (directly or through others).
+list, on a link between the project's targets the table does not list, on an include of a
+library that none of the including library's targets links (directly or through others), on
+an include that reaches another library's files past its include root (<code>/include/, the
+only public part of a library) or is spelled through a root's own path, and on a library file
+that does not open its library's namespace (the namespace table).
 The links file is written by tests/layering/CMakeLists.txt at generate time: one line per
 target, `target: dep;dep;...` (its LINK_LIBRARIES and INTERFACE_LINK_LIBRARIES).
 """
@@ -16,10 +19,11 @@ import re
 import sys
 
 SKIP_DIRS = {".git", "node_modules", "tests", "build", "deploy", "examples", "docs"}
-# Where a quoted include is looked up, besides the including file's own folder (the
-# include roots the targets declare).
-INCLUDE_ROOTS = ["", "core/include", "core/eval/include", "core/io/include",
-                 "core/module/include", "core/src", "core/io"]
+# Where a quoted include is looked up besides the including file's own folder and the
+# libraries' include roots: the repository's root (on the programs' path) and the folders the
+# tests' internal targets add.
+EXTRA_ROOTS = ["", "core/src", "core/io"]
+GENERATED = (".pb.h",)  # generated into the build tree: public without an include root
 
 
 def parse_rules(text):
@@ -52,20 +56,38 @@ def library_of(path, rows):
     return best
 
 
-def resolve(root, src_dir, inc):
-    if inc.endswith(".pb.h"):
+def parse_namespaces(text):
+    """The namespace table (| library | namespace |): name -> namespace, '—' for none."""
+    out = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 2 and cells[0] not in ("library", "") and not set(cells[0]) <= set("-"):
+            out[cells[0]] = cells[1].strip("`")
+    return out
+
+
+def include_roots(root, rows):
+    """Library -> its include roots ('<code>/include/', relative, '/'-terminated)."""
+    out = {}
+    for name, (_, code, _) in rows.items():
+        out[name] = [c if c.endswith("include/") else c + "include/" for c in code
+                     if c.endswith("/") and (c.endswith("include/") or
+                                             os.path.isdir(os.path.join(root, c, "include")))]
+    return out
+
+
+def resolve(root, src_dir, inc, roots):
+    if inc.endswith(GENERATED):
         return "proto/" + os.path.basename(inc)
-    for base in [src_dir] + INCLUDE_ROOTS:
+    for base in [src_dir] + roots + EXTRA_ROOTS:
         cand = os.path.normpath(os.path.join(base, inc))
         if os.path.isfile(os.path.join(root, cand)):
             return cand.replace(os.sep, "/")
     return None
 
 
-def include_arrows(root, rows):
-    """(from library, to library, file, include, included file) for every include crossing
-    libraries."""
-    out = []
+def library_files(root, rows):
+    """(relative path, library, text) of every .cc/.h file that belongs to a library."""
     for d, dirs, files in os.walk(root):
         rel_dir = os.path.relpath(d, root)
         dirs[:] = [x for x in dirs if x not in SKIP_DIRS and not x.startswith("build")]
@@ -73,17 +95,71 @@ def include_arrows(root, rows):
             if not f.endswith((".cc", ".h")):
                 continue
             rel = os.path.normpath(os.path.join(rel_dir, f)).replace(os.sep, "/")
-            src = library_of(rel, rows)
-            if src is None:
-                continue
-            with open(os.path.join(root, rel), encoding="utf-8") as fh:
-                text = fh.read()
-            for m in re.finditer(r'^\s*#\s*include\s+"([^"]+)"', text, re.M):
-                target = resolve(root, os.path.dirname(rel), m.group(1))
-                lib = library_of(target, rows) if target else None
-                if lib is not None and lib != src:
-                    out.append((src, lib, rel, m.group(1), target))
+            lib = library_of(rel, rows)
+            if lib is not None:
+                with open(os.path.join(root, rel), encoding="utf-8") as fh:
+                    yield rel, lib, fh.read()
+
+
+def include_arrows(root, rows, files):
+    """(from library, to library, file, include, included file) for every include crossing
+    libraries."""
+    out = []
+    roots = [r.rstrip("/") for rs in include_roots(root, rows).values() for r in rs]
+    for rel, src, text in files:
+        for m in re.finditer(r'^\s*#\s*include\s+"([^"]+)"', text, re.M):
+            target = resolve(root, os.path.dirname(rel), m.group(1), roots)
+            lib = library_of(target, rows) if target else None
+            if lib is not None and lib != src:
+                out.append((src, lib, rel, m.group(1), target))
     return out
+
+
+def past_roots(root, rows, arrows, files):
+    """Includes that reach another library past its include root, or name a root's path."""
+    roots = include_roots(root, rows)
+    errors = []
+    for src, dst, path, inc, target in arrows:
+        if target.endswith(GENERATED) or any(target.startswith(r) for r in roots[dst]):
+            continue
+        where = (f"only {', '.join(roots[dst])} is public" if roots[dst]
+                 else f"{dst} has no include root (<code>/include/)")
+        errors.append(f'{path}: #include "{inc}" reaches {target}, inside {dst}: {where}')
+    for path, _, text in files:
+        for m in re.finditer(r'^\s*#\s*include\s+"((?:[^"]*/)?include/[^"]*)"', text, re.M):
+            errors.append(f'{path}: #include "{m.group(1)}" names an include root\'s path: '
+                          f"include it as the root spells it (tandem/...)")
+    return errors
+
+
+def declares(text):
+    """Whether a file declares anything a namespace should hold: not a header of macros alone,
+    nor a program's main file."""
+    if re.search(r"^int main\(", text, re.M):
+        return False
+    code = re.sub(r"//[^\n]*|/\*.*?\*/", "", text, flags=re.S)
+    code = re.sub(r"^\s*#(?:[^\n]*\\\n)*[^\n]*", "", code, flags=re.M)
+    return bool(code.strip())
+
+
+def namespace_errors(rows, namespaces, files):
+    """Library files that open no namespace of their library's, or another library's."""
+    errors = []
+    for name in rows:
+        if name not in namespaces:
+            errors.append(f"docs/layering.md: library {name} has no row in the namespace table")
+    for path, lib, text in files:
+        ns = namespaces.get(lib, "—")
+        if ns in ("—", ""):
+            continue
+        opened = re.findall(r"^\s*namespace\s+(tandem[\w:]*)\s*\{", text, re.M)
+        inside = lambda n: n == ns or n.startswith(ns + "::")
+        if not any(inside(n) for n in opened) and declares(text):
+            errors.append(f"{path}: opens no namespace {ns} ({lib}'s)")
+        for n in opened:
+            if not inside(n):
+                errors.append(f"{path}: opens namespace {n}, outside {lib}'s {ns}")
+    return errors
 
 
 def parse_links(text):
@@ -99,15 +175,14 @@ def check(root, rules_text, links_text):
     rows = parse_rules(rules_text)
     errors = []
     allowed = lambda a, b: rows[a][2] is None or b in rows[a][2]
-    arrows = include_arrows(root, rows)
-    rooted = {dst for _, dst, _, _, target in arrows if "/include/" in target}
+    files = list(library_files(root, rows))
+    arrows = include_arrows(root, rows, files)
     for src, dst, path, inc, target in arrows:
         if not allowed(src, dst):
             errors.append(f'{path}: #include "{inc}" makes {src} use {dst}, '
                           f"which docs/layering.md does not allow")
-        elif dst in rooted and "/include/" not in target:
-            errors.append(f'{path}: #include "{inc}" reaches {target}, inside {dst}: only its '
-                          f"include/ root is public")
+    errors += past_roots(root, rows, arrows, files)
+    errors += namespace_errors(rows, parse_namespaces(rules_text), files)
     if links_text is None:
         return errors
     links = parse_links(links_text)
@@ -153,7 +228,41 @@ def self_test(root, rules_text, links_text):
         fake = links_text + "\ntandem_core: tandem_io\n"
         if not any("tandem_core links tandem_io" in e for e in check(root, rules_text, fake)):
             problems.append("self-test: an engine -> io link was not caught")
+    problems += synthetic_self_test()
     return problems
+
+
+def synthetic_self_test():
+    """A two-library tree with one of each culprit: each must be reported."""
+    import tempfile
+    rules = ("| library | targets | code | may use |\n|---|---|---|---|\n"
+             "| a | ta | a/ | — |\n| b | tb | b/ | a |\n\n"
+             "| library | namespace |\n|---|---|\n| a | `tandem::a` |\n| b | `tandem::b` |\n")
+    files = {
+        "a/include/tandem/a/pub.h": "namespace tandem::a {}\n",
+        "a/own.h": "namespace tandem::a {}\n",
+        "b/past.cc": '#include "a/own.h"\nnamespace tandem::b {}\n',
+        "b/spelled.cc": '#include "a/include/tandem/a/pub.h"\nnamespace tandem::b {}\n',
+        "b/fine.cc": '#include "tandem/a/pub.h"\nnamespace tandem::b {}\n',
+        "b/stray.cc": "namespace tandem::a {}\n",
+        "b/none.cc": "namespace {}\n",
+        "b/macros.h": "// Only macros.\n#define B_ONE 1\n#define B_TWO \\\n  2\n",
+    }
+    expect = ['b/past.cc: #include "a/own.h" reaches a/own.h, inside a',
+              'b/spelled.cc: #include "a/include/tandem/a/pub.h" names an include root',
+              "b/stray.cc: opens no namespace tandem::b",
+              "b/stray.cc: opens namespace tandem::a, outside b's",
+              "b/none.cc: opens no namespace tandem::b"]
+    with tempfile.TemporaryDirectory() as tree:
+        for rel, text in files.items():
+            os.makedirs(os.path.join(tree, os.path.dirname(rel)), exist_ok=True)
+            with open(os.path.join(tree, rel), "w", encoding="utf-8") as fh:
+                fh.write(text)
+        errors = check(tree, rules, None)
+    missed = [e for e in expect if not any(x.startswith(e) for x in errors)]
+    extra = [x for x in errors if not any(x.startswith(e) for e in expect)]
+    return ([f"self-test: not caught: {e}" for e in missed] +
+            [f"self-test: reported on a sound file: {x}" for x in extra])
 
 
 def main():

@@ -32,9 +32,9 @@
 #include <vector>
 
 #include "tandem/codec/draco_codec.h"
+#include "tandem/eval/synthetic.h"
 #include "tandem/server/extract_job.h"
 #include "tandem/server/request_validation.h"
-#include "tandem/eval/synthetic.h"
 #include "tandem/v1/tandem.pb.h"
 
 namespace {
@@ -107,7 +107,7 @@ void CheckError(const absl::Status& st) {
 
 // Valid streams for the corpus.
 void WriteSeeds(const std::string& dir) {
-  using tandem::Shape;
+  using tandem::eval::Shape;
   struct Seed {
     const char* name;
     Shape shape;
@@ -151,7 +151,7 @@ void WriteSeeds(const std::string& dir) {
        }},
   };
   for (const Seed& s : seeds) {
-    auto source = tandem::MakeSyntheticSource(s.shape, s.n, s.n, s.nz);
+    auto source = tandem::eval::MakeSyntheticSource(s.shape, s.n, s.n, s.nz);
     const tandem::VolumeInfo& info = source->info();
     std::vector<ExtractRequest> requests;
     tandem::v1::SessionConfig* c = requests.emplace_back().mutable_config();

@@ -105,7 +105,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   o.distance_guard = in.Double();
   o.sag_correction = in.Double();
   o.iso = 0;
-  const Shape shape = static_cast<Shape>(in.Byte() % 4);
+  const eval::Shape shape = static_cast<eval::Shape>(in.Byte() % 4);
 
   auto session = TandemSession::Create(g, o);
   if (!session.ok()) {
@@ -116,7 +116,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }
   // The shape's values at unit spacing (the field does not care about the grid's units),
   // then the input's edits.
-  auto src = MakeSyntheticSource(shape, g.nx, g.ny, g.nz);
+  auto src = eval::MakeSyntheticSource(shape, g.nx, g.ny, g.nz);
   std::vector<std::vector<float>> slices;
   std::vector<uint8_t> bytes;
   while (src->ReadSlice(&bytes).ok()) {

@@ -8,7 +8,7 @@
 #include "tandem/common/tokens.h"
 #include "testutil/testutil.h"
 
-namespace tandem::auth {
+namespace tandem::common {
 namespace {
 
 TEST(AuthTokens, ParsesLinesSkippingBlanksAndComments) {
@@ -57,4 +57,4 @@ TEST(AuthTokens, ConstantTimeEqualsIsEquality) {
 }
 
 }  // namespace
-}  // namespace tandem::auth
+}  // namespace tandem::common

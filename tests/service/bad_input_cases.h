@@ -30,7 +30,7 @@ inline constexpr size_t kChunk = 200;
 inline std::vector<v1::ExtractRequest> Good(int64_t n = kN, size_t chunk = kChunk) {
   v1::SessionConfig config;
   config.set_error(0.5);
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
   return VolumeRequests(*source, config, chunk);
 }
 

@@ -125,8 +125,8 @@ TEST(CliParity, MistakesAreWordedTheSameWayByEveryProgram) {
 // whether it fails as it is opened or in the middle of the session.
 TEST(CliParity, ExitStatusIsTwoForTheCommandLineAndOneForTheRest) {
   const std::string dir = MakeTempDir();
-  absl::StatusOr<std::string> good =
-      WriteSyntheticVolume(dir, "good", MakeSyntheticSource(Shape::kSphere, 16, 16, 16));
+  absl::StatusOr<std::string> good = WriteSyntheticVolume(
+      dir, "good", eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16));
   ASSERT_TRUE(good.ok()) << good.status();
   // A float32 volume with a NaN in slice 5: found by the session, not when it is opened.
   VolumeInfo info;
@@ -141,7 +141,9 @@ TEST(CliParity, ExitStatusIsTwoForTheCommandLineAndOneForTheRest) {
                 return absl::OkStatus();
               }).ok());
   // A raw file cut short: refused as it is opened.
-  ASSERT_TRUE(WriteSyntheticVolume(dir, "cut", MakeSyntheticSource(Shape::kSphere, 16, 16, 16)).ok());
+  ASSERT_TRUE(
+      WriteSyntheticVolume(dir, "cut", eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16))
+          .ok());
   std::filesystem::resize_file(dir + "/cut.raw", 1000);
   std::ofstream(dir + "/corrupt.ply") << "ply\nformat binary_little_endian 1.0\nelement vertex 3\n";
   std::filesystem::create_directories(dir + "/empty");
@@ -285,8 +287,8 @@ TEST(CliParity, TheFrameTravelsWithTheStreamedMesh) {
 // every update on a stderr that is not a terminal (a log gets one every 10 s by default).
 TEST(CliParity, AStatusLineWithAnEstimateWhileTheSessionFinishes) {
   const std::string dir = MakeTempDir();
-  absl::StatusOr<std::string> input =
-      WriteSyntheticVolume(dir, "g", MakeSyntheticSource(Shape::kGyroid, 224, 224, 224));
+  absl::StatusOr<std::string> input = WriteSyntheticVolume(
+      dir, "g", eval::MakeSyntheticSource(eval::Shape::kGyroid, 224, 224, 224));
   ASSERT_TRUE(input.ok()) << input.status();
   absl::StatusOr<std::unique_ptr<TestServer>> server = TestServer::Start();
   ASSERT_TRUE(server.ok()) << server.status();

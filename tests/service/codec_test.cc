@@ -1,6 +1,6 @@
 // The Draco codec: counts kept exactly at every level, positions within the quantization
 // step, order kept at level 0, deterministic output, clear errors on bad input.
-#include "tandem/codec/draco_codec.h"
+#include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
@@ -8,15 +8,14 @@
 #include <limits>
 #include <map>
 
-#include <gtest/gtest.h>
-
 #include "absl/strings/str_cat.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/eval/synthetic.h"
+#include "tandem/eval/topology.h"
 #include "tandem/geometry.h"
 #include "tandem/io/mesh_io.h"
-#include "tandem/eval/synthetic.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
-#include "tandem/eval/topology.h"
 #include "tandem/volume.h"
 #include "testutil/embedded.h"
 
@@ -24,7 +23,7 @@ namespace tandem::codec {
 namespace {
 
 IndexedMesh SphereMesh(Schedule schedule, int64_t n = 32) {
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
   SessionOptions options;
   options.schedule = schedule;
   options.error = 0.3;
@@ -380,7 +379,7 @@ TEST(DracoCodec, VerticesOnOneGridPointStepApart) {
       ASSERT_TRUE(bytes.ok()) << bytes.status();
       auto decoded = DecodeDraco(*bytes);
       ASSERT_TRUE(decoded.ok()) << decoded.status();
-      EXPECT_EQ(CountDuplicatePositions(*decoded), duplicates) << what << level;
+      EXPECT_EQ(eval::CountDuplicatePositions(*decoded), duplicates) << what << level;
       EXPECT_EQ(CountNoArea(*decoded), 0u) << what << level;
       EXPECT_LE(MaxSortedError(mesh, *decoded), PositionTolerance(mesh, 8)) << what << level;
       EXPECT_EQ(moved.size(), apexes_moved) << what << level;
@@ -410,7 +409,7 @@ TEST(DracoCodec, AnIntegerScansFullSurfaceKeepsItsVerticesApartAtEveryDepth) {
   auto session = RunSession(phantom, o);
   ASSERT_TRUE(session.ok()) << session.status();
   const IndexedMesh mesh = (*session)->Snapshot();
-  const TopologyReport indexed = AnalyzeTopology(mesh);
+  const eval::TopologyReport indexed = eval::AnalyzeTopology(mesh);
   ASSERT_TRUE(indexed.IsManifold());
   for (int bits : {16, 14, 12, 10, 8}) {
     for (int level : {0, 7}) {

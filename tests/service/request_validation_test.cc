@@ -3,6 +3,9 @@
 // exactly the local session's.
 #include "tandem/server/request_validation.h"
 
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -15,24 +18,21 @@
 #include <type_traits>
 #include <vector>
 
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
-
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "tandem/codec/draco_codec.h"
 #include "tandem/common/wire.h"
-#include "tandem/server/extract_job.h"
-#include "tandem/server/auth.h"
-#include "tandem/server/resume.h"
-#include "tandem/server/watch.h"
 #include "tandem/eval/distance.h"
-#include "tandem/geometry.h"
 #include "tandem/eval/metrics.h"
-#include "tandem/mesh.h"
 #include "tandem/eval/report.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/geometry.h"
 #include "tandem/io/run_session.h"
+#include "tandem/mesh.h"
+#include "tandem/server/auth.h"
+#include "tandem/server/extract_job.h"
+#include "tandem/server/resume.h"
+#include "tandem/server/watch.h"
 #include "tandem/tandem.h"
 #include "testutil/testutil.h"
 
@@ -310,14 +310,14 @@ std::vector<v1::ExtractRequest> SourceRequests(const v1::SessionConfig& options,
   out.emplace_back().mutable_end();
   return out;
 }
-std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& options, Shape shape,
-                                                  int64_t nx, int64_t ny, int64_t nz,
-                                                  int pieces) {
-  return SourceRequests(options, MakeSyntheticSource(shape, nx, ny, nz).get(), pieces);
+std::vector<v1::ExtractRequest> SyntheticRequests(const v1::SessionConfig& options,
+                                                  eval::Shape shape, int64_t nx, int64_t ny,
+                                                  int64_t nz, int pieces) {
+  return SourceRequests(options, eval::MakeSyntheticSource(shape, nx, ny, nz).get(), pieces);
 }
 std::vector<v1::ExtractRequest> SphereRequests(const v1::SessionConfig& options, int64_t n,
                                                int pieces) {
-  return SyntheticRequests(options, Shape::kSphere, n, n, n, pieces);
+  return SyntheticRequests(options, eval::Shape::kSphere, n, n, n, pieces);
 }
 
 // After every message the job checks its budget, posts progress, and the server's worker
@@ -334,7 +334,7 @@ TEST(ExtractJob, BetweenSlicesTheJobDoesNotWaitForTheSessionsSteps) {
   RecordingSink sink;
   ExtractJob job(ServerLimits{}, &sink, none.get());
   std::vector<v1::ExtractRequest> requests =
-      SyntheticRequests(options, Shape::kGyroid, 160, 40, 12, 2);
+      SyntheticRequests(options, eval::Shape::kGyroid, 160, 40, 12, 2);
   ASSERT_EQ(requests.size(), 1u + 12 * 2 + 1);
   for (size_t i = 0; i < requests.size(); ++i) {
     ASSERT_TRUE(job.Handle(requests[i]).ok()) << i;
@@ -345,7 +345,7 @@ TEST(ExtractJob, BetweenSlicesTheJobDoesNotWaitForTheSessionsSteps) {
     }
   }
   ASSERT_TRUE(job.done());
-  auto source = MakeSyntheticSource(Shape::kGyroid, 160, 40, 12);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kGyroid, 160, 40, 12);
   SessionOptions local;
   local.error = 0.3;
   auto session = RunSession(*source, local);
@@ -413,7 +413,7 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   ASSERT_TRUE(job.done());
 
   const IndexedMesh expected =
-      LocalSealedMesh(MakeSyntheticSource(Shape::kSphere, n, n, n).get(), 0.1);
+      LocalSealedMesh(eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n).get(), 0.1);
 
   ASSERT_EQ(sink.final.size(), 1u);  // FinalMetrics only
   ASSERT_GE(sink.chunks.size(), 2u);  // the previews take what is sealed before each
@@ -422,8 +422,8 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles()));
   EXPECT_EQ(m.vertices_final(), static_cast<int64_t>(expected.num_vertices()));
   EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size()));
-  EXPECT_NEAR(m.anisotropy(), Anisotropy(expected), 1e-9);
-  EXPECT_NEAR(m.directional_bias(), DirectionalBias(expected), 1e-9);
+  EXPECT_NEAR(m.anisotropy(), eval::Anisotropy(expected), 1e-9);
+  EXPECT_NEAR(m.directional_bias(), eval::DirectionalBias(expected), 1e-9);
   ASSERT_FALSE(sink.previews.empty());
   for (const v1::Preview& p : sink.previews) EXPECT_TRUE(p.band_only());
   EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
@@ -471,7 +471,7 @@ TEST(ExtractJob, ALargeLastChunkGoesOutInPartsEncodedSideBySide) {
     const v1::FinalMetrics& m = sink.final[0].final_metrics();
     EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size())) << what;
     EXPECT_EQ(m.triangles_final(), static_cast<int64_t>(expected.num_triangles())) << what;
-    EXPECT_NEAR(m.anisotropy(), Anisotropy(expected), 1e-9) << what;
+    EXPECT_NEAR(m.anisotropy(), eval::Anisotropy(expected), 1e-9) << what;
   }
 }
 
@@ -601,7 +601,7 @@ TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
   ASSERT_TRUE(job.done());
   EXPECT_EQ(job.slices(), n);
 
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
   SessionOptions local_options;
   local_options.error = 0.4;
   local_options.alpha = 0.1;
@@ -651,7 +651,7 @@ TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
 // Every MetricsReport field survives the wire (a field added to core but not to the proto
 // shows up here as a JSON difference).
 TEST(Wire, MetricsReportRoundTrip) {
-  auto source = MakeSyntheticSource(Shape::kSphere, 16, 16, 16);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16);
   SessionOptions options;
   options.error = 0.5;
   options.alpha = 0.2;
@@ -661,18 +661,18 @@ TEST(Wire, MetricsReportRoundTrip) {
   auto session = RunSession(*source, options);
   ASSERT_TRUE(session.ok());
   const IndexedMesh mesh = (*session)->Snapshot();
-  MetricsReport report = MakeReport(**session, mesh);
+  eval::MetricsReport report = eval::MakeReport(**session, mesh);
   report.stats.sag_corrected = 37;  // here 0: past E0, toward the target, no vertex may move
-  report.distance = MeasureDistances(mesh, mesh, DistanceOptions{1000, 1, 1});
+  report.distance = eval::MeasureDistances(mesh, mesh, eval::DistanceOptions{1000, 1, 1});
   report.peak_rss_bytes = 12345;
   report.bytes_received = 678;
   report.bytes_sent = 910;
   v1::FinalMetrics proto;
-  wire::ReportToProto(report, &proto);
-  MetricsReport back = wire::ReportFromProto(proto);
+  common::ReportToProto(report, &proto);
+  eval::MetricsReport back = common::ReportFromProto(proto);
   back.input = report.input;  // not on the wire: the client knows its file name
   back.frame_text = report.frame_text;  // nor the frame's description (the frame travels)
-  EXPECT_EQ(ReportToJson(back), ReportToJson(report));
+  EXPECT_EQ(eval::ReportToJson(back), eval::ReportToJson(report));
 }
 
 TEST(ExtractJob, OrderOfMessagesIsEnforced) {
@@ -718,20 +718,20 @@ std::string Text(Schedule v) { return std::string(ScheduleName(v)); }
 std::string Text(double v) { return absl::StrCat(v); }
 std::string Text(int64_t v) { return absl::StrCat(v); }
 std::string Text(const std::vector<int64_t>& v) { return absl::StrJoin(v, ","); }
-std::string Text(const std::optional<Distances>& d) {
+std::string Text(const std::optional<eval::Distances>& d) {
   if (!d) return "none";
   std::string s;
-  for (const DirectedDistance& x : {d->forward, d->backward}) {
+  for (const eval::DirectedDistance& x : {d->forward, d->backward}) {
     absl::StrAppend(&s, x.l1, ",", x.l2, ",", x.linf, ",", x.samples, ";");
   }
   return absl::StrCat(s, d->l1_max, ",", d->l2_max, ",", d->linf_max);
 }
 
 // Every field its own non-default value (k counts the fields).
-MetricsReport ReportWithDistinctFields() {
-  MetricsReport r;
+eval::MetricsReport ReportWithDistinctFields() {
+  eval::MetricsReport r;
   int k = 0;
-  auto set = [&k](const char*, const char*, auto& v, Written) {
+  auto set = [&k](const char*, const char*, auto& v, eval::Written) {
     using T = std::remove_cvref_t<decltype(v)>;
     ++k;
     if constexpr (std::is_same_v<T, std::string>) {
@@ -740,8 +740,8 @@ MetricsReport ReportWithDistinctFields() {
       v = Schedule::kClassical;  // the default is kTandemLag
     } else if constexpr (std::is_same_v<T, std::vector<int64_t>>) {
       v = {k, k + 1, k + 2};
-    } else if constexpr (std::is_same_v<T, std::optional<Distances>>) {
-      Distances d;
+    } else if constexpr (std::is_same_v<T, std::optional<eval::Distances>>) {
+      eval::Distances d;
       d.forward = {k + 0.25, k + 0.5, k + 0.75, static_cast<size_t>(k + 1)};
       d.backward = {k + 1.25, k + 1.5, k + 1.75, static_cast<size_t>(k + 2)};
       d.l1_max = k + 2.25;
@@ -754,27 +754,26 @@ MetricsReport ReportWithDistinctFields() {
       v = 1000 + k;
     }
   };
-  VisitReportFields(r, set);
+  eval::VisitReportFields(r, set);
   return r;
 }
 
 // key → value text, through the table.
-std::map<std::string, std::string> Fields(const MetricsReport& r) {
+std::map<std::string, std::string> Fields(const eval::MetricsReport& r) {
   std::map<std::string, std::string> out;
-  VisitReportFields(r, [&](const char* key, const char*, const auto& v, Written) {
-    out[key] = Text(v);
-  });
+  eval::VisitReportFields(
+      r, [&](const char* key, const char*, const auto& v, eval::Written) { out[key] = Text(v); });
   return out;
 }
 
 TEST(WireReport, TableNamesFinalMetricsFields) {
-  const absl::Status table = wire::CheckReportFields();
+  const absl::Status table = common::CheckReportFields();
   EXPECT_TRUE(table.ok()) << table;
   // Only the input's name and the frame's description stay off the wire: the client knows
   // them itself (the frame itself travels: a watcher writes it into its mesh files).
   std::set<std::string> local_only;
-  const MetricsReport r;
-  VisitReportFields(r, [&](const char* key, const char* wire, const auto&, Written) {
+  const eval::MetricsReport r;
+  eval::VisitReportFields(r, [&](const char* key, const char* wire, const auto&, eval::Written) {
     if (wire == nullptr) local_only.insert(key);
   });
   EXPECT_EQ(local_only, (std::set<std::string>{"/input", "/frame_text"}));
@@ -783,35 +782,35 @@ TEST(WireReport, TableNamesFinalMetricsFields) {
   const int64_t count = 0;
   const double value = 0;
   const std::vector<int64_t> counts;
-  EXPECT_TRUE(wire::CheckWireField("nx", count).ok());
-  EXPECT_TRUE(wire::CheckWireField("refusals.link", count).ok());
-  EXPECT_TRUE(wire::CheckWireField("trace", counts).ok());
-  EXPECT_TRUE(wire::CheckWireField("distance", std::optional<Distances>()).ok());
-  EXPECT_TRUE(wire::CheckWireField("schedule", Schedule::kTandem).ok());
+  EXPECT_TRUE(common::CheckWireField("nx", count).ok());
+  EXPECT_TRUE(common::CheckWireField("refusals.link", count).ok());
+  EXPECT_TRUE(common::CheckWireField("trace", counts).ok());
+  EXPECT_TRUE(common::CheckWireField("distance", std::optional<eval::Distances>()).ok());
+  EXPECT_TRUE(common::CheckWireField("schedule", Schedule::kTandem).ok());
   for (const std::string name : {"grid_x", "refusals.shape", "nx.low"}) {
-    ExpectError(wire::CheckWireField(name.c_str(), count), absl::StatusCode::kNotFound,
+    ExpectError(common::CheckWireField(name.c_str(), count), absl::StatusCode::kNotFound,
                 "tandem.v1.FinalMetrics has no field " + name);
   }
-  ExpectError(wire::CheckWireField("nx", value), absl::StatusCode::kInvalidArgument,
+  ExpectError(common::CheckWireField("nx", value), absl::StatusCode::kInvalidArgument,
               "tandem.v1.FinalMetrics.nx is of type int64,");
-  ExpectError(wire::CheckWireField("trace", count), absl::StatusCode::kInvalidArgument,
+  ExpectError(common::CheckWireField("trace", count), absl::StatusCode::kInvalidArgument,
               "trace is of type repeated int64,");
-  ExpectError(wire::CheckWireField("contractions", counts), absl::StatusCode::kInvalidArgument,
+  ExpectError(common::CheckWireField("contractions", counts), absl::StatusCode::kInvalidArgument,
               "contractions is of type int64,");
-  ExpectError(wire::CheckWireField("iso", Schedule::kTandem), absl::StatusCode::kInvalidArgument,
+  ExpectError(common::CheckWireField("iso", Schedule::kTandem), absl::StatusCode::kInvalidArgument,
               "iso is of type double,");
-  ExpectError(wire::CheckWireField("refusals", count), absl::StatusCode::kInvalidArgument,
+  ExpectError(common::CheckWireField("refusals", count), absl::StatusCode::kInvalidArgument,
               "refusals is of type tandem.v1.Refusals,");
-  ExpectError(wire::CheckWireField("distance.forward", std::optional<Distances>()),
+  ExpectError(common::CheckWireField("distance.forward", std::optional<eval::Distances>()),
               absl::StatusCode::kInvalidArgument,
               "distance.forward is of type tandem.v1.DirectedDistance,");
 }
 
 TEST(WireReport, CarriesEveryFieldOfTheReportTable) {
-  const MetricsReport want = ReportWithDistinctFields();
+  const eval::MetricsReport want = ReportWithDistinctFields();
   v1::FinalMetrics m;
-  wire::ReportToProto(want, &m);
-  const std::map<std::string, std::string> got = Fields(wire::ReportFromProto(m));
+  common::ReportToProto(want, &m);
+  const std::map<std::string, std::string> got = Fields(common::ReportFromProto(m));
   for (const auto& [key, value] : Fields(want)) {
     if (key == "/input" || key == "/frame_text") {
       EXPECT_EQ(got.at(key), "") << key << " is not on the wire";
@@ -835,17 +834,17 @@ TEST(WireReport, CarriesEveryFieldOfTheReportTable) {
   EXPECT_THAT(m.trace(), ::testing::ElementsAreArray(want.stats.trace));
 
   // Without distances the message has none, and a report read back has none either.
-  MetricsReport plain = want;
+  eval::MetricsReport plain = want;
   plain.distance.reset();
-  wire::ReportToProto(plain, &m);  // over the message that had them
+  common::ReportToProto(plain, &m);  // over the message that had them
   EXPECT_FALSE(m.has_distance());
-  EXPECT_FALSE(wire::ReportFromProto(m).distance.has_value());
+  EXPECT_FALSE(common::ReportFromProto(m).distance.has_value());
 }
 
 TEST(WireReport, JsonCarriesEveryFieldOfTheReportTable) {
-  MetricsReport want = ReportWithDistinctFields();
+  eval::MetricsReport want = ReportWithDistinctFields();
   want.distance->forward.samples = want.distance->backward.samples = 0;  // not in the JSON
-  auto back = ReportFromJson(ReportToJson(want));
+  auto back = eval::ReportFromJson(eval::ReportToJson(want));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(Fields(*back), Fields(want));
 }

@@ -1,5 +1,6 @@
 // End to end: the real tandem-server (child process, 127.0.0.1, ephemeral port) and the
 // real tandem-client binary. Every wait is bounded.
+#include <gtest/gtest.h>
 #include <signal.h>
 
 #include <algorithm>
@@ -7,31 +8,29 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <string_view>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
+#include <string_view>
 #include <thread>
 #include <tuple>
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
-#include "tandem/codec/draco_codec.h"
 #include "service/service_testutil.h"
-#include "tandem/io/mesh_io.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/eval/report.h"
-#include "tandem/mesh.h"
-#include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/eval/topology.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/io/series.h"
 #include "tandem/io/volume_writers.h"
+#include "tandem/mesh.h"
 #include "testutil/embedded.h"
 #include "testutil/testutil.h"
 
@@ -142,7 +141,7 @@ TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
   auto local = RunLocal(input, HeadOptions());
   ASSERT_TRUE(local.ok()) << local.status();
   const IndexedMesh expected = (*local)->Snapshot();
-  const MetricsReport want = MakeReport(**local, expected);
+  const eval::MetricsReport want = eval::MakeReport(**local, expected);
 
   auto mesh = codec::DecodeDraco(ReadFile(drc));
   ASSERT_TRUE(mesh.ok()) << mesh.status();
@@ -159,7 +158,7 @@ TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
   EXPECT_LE(worst, tol);
 
   const std::string json = ReadFile(metrics);
-  auto got = ReportFromJson(json);
+  auto got = eval::ReportFromJson(json);
   ASSERT_TRUE(got.ok()) << got.status();
   EXPECT_EQ(got->input, input);
   EXPECT_EQ(got->stats.triangles_extracted, want.stats.triangles_extracted);
@@ -184,7 +183,7 @@ TEST_F(ServiceE2eTest, SharedVolumeMatchesLocalSession) {
   EXPECT_GT(got->bytes_sent, 0);
   // The keys of `tandem extract --metrics` (ReportToJson of a local run), plus the
   // service-only byte counts and the session's memory peak.
-  std::set<std::string> want_keys = Keys(ReportToJson(want));
+  std::set<std::string> want_keys = Keys(eval::ReportToJson(want));
   want_keys.insert({"bytes_received", "bytes_sent", "peak_session_bytes"});
   EXPECT_EQ(Keys(json), want_keys);
 }
@@ -260,7 +259,7 @@ TEST_F(ServiceE2eTest, PacedStreamGetsAPreviewBeforeTheLastSlice) {
 // slices: the sphere is a small blob in the middle, so the time goes to moving slices.)
 TEST_F(ServiceE2eTest, SlicesLargerThanFourMiBInChunksAndWhole) {
   auto path = WriteSyntheticVolume(dir_, "big_sphere",
-                                   MakeSyntheticSource(Shape::kSphere, 1100, 1100, 6));
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, 1100, 1100, 6));
   ASSERT_TRUE(path.ok()) << path.status();
   SessionOptions options;
   options.error = 0.1;
@@ -283,7 +282,7 @@ TEST_F(ServiceE2eTest, SlicesLargerThanFourMiBInChunksAndWhole) {
 // The client sends a mapped file's slices in place and reads the others (gzip NRRD here):
 // the server must see the same voxels either way.
 TEST_F(ServiceE2eTest, MappedAndReadVolumesStreamTheSameMesh) {
-  auto source = MakeSyntheticSource(Shape::kLink, 40, 36, 30);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kLink, 40, 36, 30);
   const VolumeInfo info = source->info();
   std::vector<std::vector<uint8_t>> slices(static_cast<size_t>(info.nz));
   for (auto& slice : slices) ASSERT_TRUE(source->ReadSlice(&slice).ok());
@@ -316,8 +315,8 @@ TEST_F(ServiceE2eTest, MappedAndReadVolumesStreamTheSameMesh) {
 TEST_F(ServiceE2eTest, StreamingDoesNotPageFaultEveryMessageAnew) {
   if (kSanitized) GTEST_SKIP() << "page faults are the sanitizer's own under ASan and TSan";
   constexpr int64_t kN = 256;  // 64 MiB of float32 in 256 slices of 256 KiB
-  auto path =
-      WriteSyntheticVolume(dir_, "sphere256", MakeSyntheticSource(Shape::kSphere, kN, kN, kN));
+  auto path = WriteSyntheticVolume(dir_, "sphere256",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, kN, kN, kN));
   ASSERT_TRUE(path.ok()) << path.status();
   RunResult r = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
                         "--error", "0.5", "--out", dir_ + "/sphere256.ply"});
@@ -348,14 +347,14 @@ TEST_F(ServiceE2eTest, EightConcurrentStreamsMatchOneAtATime) {
     ASSERT_TRUE(child.ok());
     clients.push_back(*std::move(child));
   }
-  auto want = ReportFromJson(ReadFile(dir_ + "/single.json"));
+  auto want = eval::ReportFromJson(ReadFile(dir_ + "/single.json"));
   ASSERT_TRUE(want.ok());
   const std::string want_mesh = ReadFile(dir_ + "/single.drc");
   for (int i = 0; i < 8; ++i) {
     std::optional<int> code = clients[i]->Wait(120);
     ASSERT_TRUE(code.has_value()) << "client " << i << " still running";
     ASSERT_EQ(*code, 0) << clients[i]->Stderr();
-    auto got = ReportFromJson(ReadFile(dir_ + "/c" + std::to_string(i) + ".json"));
+    auto got = eval::ReportFromJson(ReadFile(dir_ + "/c" + std::to_string(i) + ".json"));
     ASSERT_TRUE(got.ok());
     EXPECT_EQ(got->stats.trace, want->stats.trace) << i;
     EXPECT_EQ(got->triangles_final, want->triangles_final) << i;
@@ -470,7 +469,8 @@ TEST_F(ServiceE2eTest, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
 // the server process's peak RSS, which every session shares: --reference (a second,
 // full-resolution session) raises the first, and both are labelled in the summary.
 TEST_F(ServiceE2eTest, MetricsCarryTheSessionsOwnPeakMemory) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 64));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& name, std::vector<std::string> extra) {
     RunResult r = Client(Concat({"stream", "--server", server_->address(), "--input", *path,
@@ -497,7 +497,7 @@ TEST_F(ServiceE2eTest, ReferenceAddsDistances) {
   RunResult r = Client(Concat(HeadArgs(server_->address(), input),
                               {"--reference", "--out", dir_ + "/m.drc", "--metrics", metrics}));
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  auto got = ReportFromJson(ReadFile(metrics));
+  auto got = eval::ReportFromJson(ReadFile(metrics));
   ASSERT_TRUE(got.ok());
   ASSERT_TRUE(got->distance.has_value());
   EXPECT_GT(got->distance->linf_max, 0);
@@ -531,7 +531,8 @@ absl::StatusOr<SealedChunk> ReadChunkFile(const std::string& path) {
 // decodes to bit-identical coordinates in both, and the bytes stay close to the plain
 // stream's.
 TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 96, 96, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 96, 96, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& name, std::vector<std::string> extra) {
     return Client(Concat({"stream", "--server", server_->address(), "--input", *path, "--iso",
@@ -545,8 +546,8 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   RunResult sealed =
       stream("sealed", {"--chunks", dir_ + "/chunks", "--rate", "40", "--reference"});
   ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
-  auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
-  auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
+  auto plain_report = eval::ReportFromJson(ReadFile(dir_ + "/plain.json"));
+  auto sealed_report = eval::ReportFromJson(ReadFile(dir_ + "/sealed.json"));
   ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
   // --verbose says when the mesh has arrived, after the last chunk and before it is written
   // (tests/bench/keep_pace.py times the arrival from it).
@@ -584,11 +585,11 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   const IndexedMesh welded = WeldChunks(chunks);
   EXPECT_EQ(static_cast<int64_t>(welded.num_triangles()), sealed_report->triangles_final);
   EXPECT_EQ(static_cast<int64_t>(welded.num_vertices()), sealed_report->vertices_final);
-  const TopologyReport t = AnalyzeTopology(welded);
+  const eval::TopologyReport t = eval::AnalyzeTopology(welded);
   EXPECT_TRUE(t.IsClosedManifold());
   auto plain_mesh = ReadMesh(dir_ + "/plain.ply");
   ASSERT_TRUE(plain_mesh.ok()) << plain_mesh.status();
-  EXPECT_EQ(t.euler, AnalyzeTopology(*plain_mesh).euler);
+  EXPECT_EQ(t.euler, eval::AnalyzeTopology(*plain_mesh).euler);
   // --out holds the same welded mesh.
   auto out_mesh = ReadMesh(dir_ + "/sealed.ply");
   ASSERT_TRUE(out_mesh.ok()) << out_mesh.status();
@@ -655,14 +656,14 @@ TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
     ASSERT_EQ(r.exit_code, 0) << name << ": " << r.err;
     const IndexedMesh mesh = decode(dir_ + "/" + name + ".drc");
     ASSERT_GT(mesh.num_triangles(), 200u) << name;
-    const TopologyReport t = AnalyzeTopology(mesh);
+    const eval::TopologyReport t = eval::AnalyzeTopology(mesh);
     EXPECT_TRUE(t.IsManifold()) << name;
     ExpectEmbedded(mesh, t, name);
     const std::vector<std::string> files = SortedFileNames(previews);
     EXPECT_GE(files.size(), 2u) << name;
     for (const std::string& f : files) {
       const IndexedMesh preview = decode(previews + "/" + f);
-      ExpectEmbedded(preview, AnalyzeTopology(preview), name + " " + f);
+      ExpectEmbedded(preview, eval::AnalyzeTopology(preview), name + " " + f);
     }
   }
   // Sealed, split: the chunks welded by id.
@@ -677,7 +678,7 @@ TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
       chunks.push_back(*std::move(c));
     }
     const IndexedMesh welded = WeldChunks(chunks);
-    const TopologyReport t = AnalyzeTopology(welded);
+    const eval::TopologyReport t = eval::AnalyzeTopology(welded);
     EXPECT_TRUE(t.IsManifold());
     ExpectEmbedded(welded, t, "sealed chunks, parts " + parts);
   }
@@ -687,7 +688,7 @@ TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
   const std::string glb = ReadGlb(dir_ + "/mesh.glb").draco;
   absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(glb);
   ASSERT_TRUE(mesh.ok()) << mesh.status();
-  ExpectEmbedded(*mesh, AnalyzeTopology(*mesh), "Draco GLB");
+  ExpectEmbedded(*mesh, eval::AnalyzeTopology(*mesh), "Draco GLB");
 }
 
 // A sealed stream of a grid wide enough for four slabs (256 columns): each slab seals its own
@@ -698,7 +699,7 @@ TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
 TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   // Spacing 5 in y and z: a 256 x 240 x 240 box, whose ball-clipped gyroid spans x 26-230.
   auto path = WriteSyntheticVolume(
-      dir_, "gyroid", MakeSyntheticSource(Shape::kGyroid, 256, 48, 48, {1, 5, 5}));
+      dir_, "gyroid", eval::MakeSyntheticSource(eval::Shape::kGyroid, 256, 48, 48, {1, 5, 5}));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& name, std::vector<std::string> extra) {
     return Client(Concat({"stream", "--server", server_->address(), "--input", *path, "--iso",
@@ -711,8 +712,8 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   // Paced (a chunk a second): 48 slices in 2.4 s.
   RunResult sealed = stream("sealed", {"--chunks", dir_ + "/chunks", "--rate", "20"});
   ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
-  auto plain_report = ReportFromJson(ReadFile(dir_ + "/plain.json"));
-  auto sealed_report = ReportFromJson(ReadFile(dir_ + "/sealed.json"));
+  auto plain_report = eval::ReportFromJson(ReadFile(dir_ + "/plain.json"));
+  auto sealed_report = eval::ReportFromJson(ReadFile(dir_ + "/sealed.json"));
   ASSERT_TRUE(plain_report.ok() && sealed_report.ok());
   const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks", "chunk_");
   ASSERT_GE(files.size(), 2u);
@@ -737,11 +738,11 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   }
   const IndexedMesh welded = WeldChunks(chunks);
   EXPECT_EQ(static_cast<int64_t>(welded.num_triangles()), sealed_report->triangles_final);
-  const TopologyReport t = AnalyzeTopology(welded);
+  const eval::TopologyReport t = eval::AnalyzeTopology(welded);
   EXPECT_TRUE(t.IsClosedManifold());
   auto plain_mesh = ReadMesh(dir_ + "/plain.ply");
   ASSERT_TRUE(plain_mesh.ok()) << plain_mesh.status();
-  EXPECT_EQ(t.euler, AnalyzeTopology(*plain_mesh).euler);
+  EXPECT_EQ(t.euler, eval::AnalyzeTopology(*plain_mesh).euler);
   EXPECT_NEAR(static_cast<double>(sealed_report->triangles_final),
               static_cast<double>(plain_report->triangles_final),
               0.03 * static_cast<double>(plain_report->triangles_final));
@@ -777,7 +778,7 @@ size_t StreamsAsLocally(const std::vector<std::string>& args, const std::string&
 // and unset is the automatic split (2 on this 160-wide grid).
 TEST_F(ServiceE2eTest, ThePartsAskedForAreTheSessionsSplit) {
   auto path = WriteSyntheticVolume(
-      dir_, "gyroid", MakeSyntheticSource(Shape::kGyroid, 160, 40, 40, {1, 4, 4}));
+      dir_, "gyroid", eval::MakeSyntheticSource(eval::Shape::kGyroid, 160, 40, 40, {1, 4, 4}));
   ASSERT_TRUE(path.ok()) << path.status();
   std::set<size_t> counts;
   for (int parts : {0, 1, 2, 5}) {
@@ -802,7 +803,8 @@ TEST_F(ServiceE2eTest, ThePartsAskedForAreTheSessionsSplit) {
 // SessionConfig.lockstep_error (tandem-client --lockstep-error): the finishing pass the
 // client asks for, or turns off with 1, is the session's; unset is the core's default.
 TEST_F(ServiceE2eTest, TheFinishingPassAskedForIsTheSessions) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 48, 48, 48));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 48));
   ASSERT_TRUE(path.ok()) << path.status();
   std::vector<size_t> counts;
   for (double lockstep : {0.0, 1.0, 0.3}) {  // 0: the flag not given
@@ -868,7 +870,8 @@ std::vector<std::string> WatchKeyEnv(const Started& s) {
 // and sessions without sealed chunks are refused clearly. Without the key the session does
 // not exist for a client: not in info, and its id gets the unknown id's NOT_FOUND.
 TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   auto streamer = ChildProcess::Spawn(
       {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
@@ -918,7 +921,7 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
   EXPECT_EQ(ReadFile(dir_ + "/live.ply"), mesh);
   EXPECT_EQ(ReadFile(dir_ + "/late.ply"), mesh);
   EXPECT_TRUE(std::filesystem::exists(dir_ + "/live/chunk_000000.drc"));
-  auto report = ReportFromJson(ReadFile(dir_ + "/live.json"));
+  auto report = eval::ReportFromJson(ReadFile(dir_ + "/live.json"));
   ASSERT_TRUE(report.ok());
   EXPECT_EQ(report->stats.slices, 96);
 
@@ -952,7 +955,8 @@ TEST_F(ServiceE2eTest, WatchersGetTheStreamsMeshLiveAndLate) {
 // final mesh, and its final metrics; of the previews and progress messages sent while it was
 // stalled it gets only the latest ones (latest wins), not the backlog.
 TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChunk) {
-  auto path = WriteSyntheticVolume(dir_, "gyroid", MakeSyntheticSource(Shape::kGyroid, 96, 96, 96));
+  auto path = WriteSyntheticVolume(dir_, "gyroid",
+                                   eval::MakeSyntheticSource(eval::Shape::kGyroid, 96, 96, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   auto streamer = ChildProcess::Spawn(
       {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", *path,
@@ -980,7 +984,7 @@ TEST_F(ServiceE2eTest, AWatcherThatDoesNotReadNeitherSlowsTheStreamNorMissesAChu
   ASSERT_TRUE(watch->Read(&first));
 
   ASSERT_EQ((*streamer)->Wait(120), std::optional<int>(0)) << (*streamer)->Stderr();
-  auto report = ReportFromJson(ReadFile(dir_ + "/s.json"));
+  auto report = eval::ReportFromJson(ReadFile(dir_ + "/s.json"));
   ASSERT_TRUE(report.ok()) << report.status();
   size_t chunk_files = 0;
   int64_t chunk_bytes = 0;
@@ -1064,7 +1068,8 @@ void ExpectSameMesh(const std::string& a_path, const std::string& b_path) {
 // is the one its own single-iso stream gives (the same bytes), plain; and sealed, live
 // through a watcher too, each the same mesh as its single sealed stream.
 TEST_F(ServiceE2eTest, SeveralIsoValuesInOneStreamEqualTheirSingleStreams) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 64));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 64));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream = [&](const std::string& iso, const std::string& out,
                     std::vector<std::string> extra) {
@@ -1122,7 +1127,8 @@ TEST_F(ServiceE2eTest, SeveralIsoValuesInOneStreamEqualTheirSingleStreams) {
 // session (listed as waiting), the new client skips what it has, and the mesh is the one
 // an uninterrupted stream gives; plain and sealed.
 TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   for (const bool seal : {false, true}) {
     SCOPED_TRACE(seal ? "sealed" : "plain");
@@ -1169,7 +1175,7 @@ TEST_F(ServiceE2eTest, AKilledClientRestartedWithResumeGetsTheUninterruptedMesh)
               std::string::npos)
         << resumed.err;
     ExpectSameMesh(dir_ + "/whole_" + tag + ".ply", dir_ + "/resumed_" + tag + ".ply");
-    auto report = ReportFromJson(ReadFile(dir_ + "/resumed_" + tag + ".json"));
+    auto report = eval::ReportFromJson(ReadFile(dir_ + "/resumed_" + tag + ".json"));
     ASSERT_TRUE(report.ok()) << report.status();
     EXPECT_EQ(report->stats.slices, 96);
     EXPECT_FALSE(std::filesystem::exists(dir_ + "/never_" + tag + ".ply"));
@@ -1194,7 +1200,8 @@ absl::StatusOr<std::unique_ptr<TcpProxy>> ProxyTo(const TestServer& server) {
 // client resumes by itself, its chunk files have no gap and no repeat, a watcher attached
 // before the cut gets the whole mesh too, and it is the uninterrupted stream's mesh.
 TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::string& address = server_->address();
   auto proxy = ProxyTo(*server_);
@@ -1227,7 +1234,7 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
   EXPECT_NE(err.find("the stream broke"), std::string::npos) << err;
   EXPECT_NE(err.find("resumed at slice"), std::string::npos) << err;
   ExpectSameMesh(dir_ + "/whole.ply", dir_ + "/cut.ply");
-  auto report = ReportFromJson(ReadFile(dir_ + "/cut.json"));
+  auto report = eval::ReportFromJson(ReadFile(dir_ + "/cut.json"));
   ASSERT_TRUE(report.ok()) << report.status();
   // Every chunk once, named without a gap, and no temporary file left.
   const std::vector<std::string> files = SortedFileNames(dir_ + "/chunks", "chunk_");
@@ -1240,11 +1247,11 @@ TEST_F(ServiceE2eTest, AConnectionCutMidScanIsResumedByTheClientItself) {
 }
 
 // The request stream of a synthetic n x n x nz shape, iso 0, E0 0.05, 1 MiB chunks.
-std::vector<v1::ExtractRequest> ShapeRequests(Shape shape, int64_t n, int64_t nz) {
+std::vector<v1::ExtractRequest> ShapeRequests(eval::Shape shape, int64_t n, int64_t nz) {
   v1::SessionConfig config;
   config.set_iso(0);
   config.set_error(0.05);
-  auto source = MakeSyntheticSource(shape, n, n, nz);
+  auto source = eval::MakeSyntheticSource(shape, n, n, nz);
   return VolumeRequests(*source, config, 1 << 20);
 }
 
@@ -1279,7 +1286,8 @@ void VanishMidScan(v1::Tandem::Stub& stub, const std::vector<v1::ExtractRequest>
 // Several surfaces in one stream survive a cut too: the client resumes the one session
 // (its chunk indices count all surfaces) and each surface is the uninterrupted stream's.
 TEST_F(ServiceE2eTest, ACutStreamOfSeveralSurfacesResumesEachOfThem) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 64, 64, 96));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::string& address = server_->address();
   auto proxy = ProxyTo(*server_);
@@ -1312,7 +1320,7 @@ TEST(ServiceResume, BadResumesAreRefusedAndAnUnclaimedSessionEnds) {
   auto server = TestServer::Start({"--resume-window-seconds", "8"});
   ASSERT_TRUE(server.ok()) << server.status();
   auto stub = (*server)->NewStub();
-  const std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kLink, 48, 40);
+  const std::vector<v1::ExtractRequest> requests = ShapeRequests(eval::Shape::kLink, 48, 40);
   StreamOutcome whole = RunStream(*stub, requests);
   ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
 
@@ -1397,7 +1405,8 @@ TEST(ServiceResume, ARoundRobinClientFindsTheReplicaWithItsSession) {
   auto b = TestServer::Start();
   ASSERT_TRUE(a.ok() && b.ok());
   const std::string target = absl::StrCat("ipv4:", (*a)->address(), ",", (*b)->address());
-  auto path = WriteSyntheticVolume(dir, "link", MakeSyntheticSource(Shape::kLink, 48, 48, 80));
+  auto path =
+      WriteSyntheticVolume(dir, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 80));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::vector<std::string> base = {"stream", "--server", target, "--lb", "round_robin",
                                          "--input", *path, "--iso", "0", "--error", "0.05"};
@@ -1442,7 +1451,7 @@ TEST(ServiceResume, AKilledClientResumesFromItsChunkFolderPastTheWatchRetention)
   ASSERT_TRUE(server.ok()) << server.status();
   // A gyroid through every slice: a chunk about every second at --rate 30.
   auto path = WriteSyntheticVolume(
-      dir, "gyroid", MakeSyntheticSource(Shape::kGyroid, 64, 64, 192, {1, 1, 1.0 / 3}));
+      dir, "gyroid", eval::MakeSyntheticSource(eval::Shape::kGyroid, 64, 64, 192, {1, 1, 1.0 / 3}));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::vector<std::string> base = {"stream", "--server", (*server)->address(), "--input",
                                          *path, "--iso", "0", "--error", "0.05", "--seal"};
@@ -1527,7 +1536,8 @@ TEST(ServiceResume, AKilledClientResumesFromItsChunkFolderPastTheWatchRetention)
 // server is told that its session is gone and to send the scan again, not a bare NOT_FOUND.
 TEST(ServiceResume, AResumeAfterTheServerRestartedSaysTheSessionIsLost) {
   const std::string dir = MakeTempDir();
-  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 48, 48, 96));
+  auto path = WriteSyntheticVolume(dir, "sphere",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, 48, 48, 96));
   ASSERT_TRUE(path.ok()) << path.status();
   Started started;
   {
@@ -1572,7 +1582,7 @@ TEST(ServiceResume, UnacknowledgedChunksWaitWithTheParkedSession) {
   auto server = TestServer::Start({"--watch-retain-mb", "0", "--resume-window-seconds", "8"});
   ASSERT_TRUE(server.ok()) << server.status();
   auto stub = (*server)->NewStub();
-  std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kGyroid, 40, 40);
+  std::vector<v1::ExtractRequest> requests = ShapeRequests(eval::Shape::kGyroid, 40, 40);
   requests.front().mutable_config()->set_sealed_chunks(true);
   StreamOutcome whole = RunStream(*stub, requests);
   ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
@@ -1656,7 +1666,7 @@ TEST(ServiceResume, ChunksReceivedOutOfTurnIsRefusedNamingTheRule) {
   auto server = TestServer::Start();
   ASSERT_TRUE(server.ok()) << server.status();
   auto stub = (*server)->NewStub();
-  std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kSphere, 32, 24);
+  std::vector<v1::ExtractRequest> requests = ShapeRequests(eval::Shape::kSphere, 32, 24);
   requests.front().mutable_config()->set_sealed_chunks(true);
   v1::ExtractRequest ack;
   ack.mutable_chunks_received()->set_count(5);
@@ -1696,7 +1706,7 @@ TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
   auto server = TestServer::Start({"--max-sessions", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
   auto stub = (*server)->NewStub();
-  const std::vector<v1::ExtractRequest> requests = ShapeRequests(Shape::kSphere, 32, 24);
+  const std::vector<v1::ExtractRequest> requests = ShapeRequests(eval::Shape::kSphere, 32, 24);
   std::string id, token, watch_key;
   VanishMidScan(*stub, requests, 8, &id, &token, &watch_key);
   ASSERT_TRUE(WaitForSession(**server, id, watch_key,
@@ -1722,7 +1732,8 @@ TEST(ServiceResume, AWaitingSessionGivesItsSlotToANewStream) {
 }
 
 TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {
-  auto path = WriteSyntheticVolume(dir_, "s", MakeSyntheticSource(Shape::kSphere, 16, 16, 16));
+  auto path =
+      WriteSyntheticVolume(dir_, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16));
   ASSERT_TRUE(path.ok());
   RunResult r = Client({"stream", "--server", server_->address(), "--input", *path, "--iso", "0",
                         "--error", "0.1", "--out", dir_ + "/x.ply", "--seal",
@@ -1738,8 +1749,8 @@ TEST_F(ServiceE2eTest, SealedChunksRefuseATargetTriangleCount) {
 // and returns once the server reports the session active (nullptr on failure).
 std::unique_ptr<ChildProcess> StartPacedStream(TestServer& server, const std::string& dir,
                                                int64_t nxy, int64_t nz, int rate) {
-  auto path =
-      WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, nxy, nxy, nz));
+  auto path = WriteSyntheticVolume(dir, "sphere",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, nxy, nxy, nz));
   EXPECT_TRUE(path.ok());
   if (!path.ok()) return nullptr;
   std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
@@ -1799,7 +1810,8 @@ TEST(ServiceShutdown, StreamsPastTheGracePeriodEndWithUnavailable) {
 // server exits, an idle client connection holding nothing up.
 TEST(ServiceShutdown, DrainDelayKeepsServingWhileNotReady) {
   const std::string dir = MakeTempDir();
-  auto volume = WriteSyntheticVolume(dir, "s", MakeSyntheticSource(Shape::kSphere, 20, 20, 20));
+  auto volume =
+      WriteSyntheticVolume(dir, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 20, 20, 20));
   ASSERT_TRUE(volume.ok()) << volume.status();
   auto server = TestServer::Start({"--drain-delay-seconds", "3", "--grace-seconds", "5"});
   ASSERT_TRUE(server.ok()) << server.status();
@@ -1858,7 +1870,7 @@ TEST(ServiceShutdown, HealthAnswersNotServingUntilTheExit) {
   s.process().Signal(SIGTERM);
   std::this_thread::sleep_for(std::chrono::milliseconds(1000));  // past the delay
   auto stub = s.NewStub();
-  const StreamOutcome refused = RunStream(*stub, ShapeRequests(Shape::kSphere, 16, 16));
+  const StreamOutcome refused = RunStream(*stub, ShapeRequests(eval::Shape::kSphere, 16, 16));
   EXPECT_EQ(refused.status.error_code(), grpc::StatusCode::UNAVAILABLE);
   EXPECT_NE(refused.status.error_message().find("shutting down"), std::string::npos)
       << refused.status.error_message();
@@ -1895,7 +1907,8 @@ TEST(ServiceShutdown, SecondSignalEndsTheDrainDelay) {
 // The client writes the server's mesh in every format the CLI writes: STL read back with
 // the PLY's counts (the GLB is validated by tests/formats on the CLI's writer, shared).
 TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
-  auto path = WriteSyntheticVolume(dir_, "link", MakeSyntheticSource(Shape::kLink, 40, 40, 40));
+  auto path =
+      WriteSyntheticVolume(dir_, "link", eval::MakeSyntheticSource(eval::Shape::kLink, 40, 40, 40));
   ASSERT_TRUE(path.ok()) << path.status();
   std::vector<std::string> base = {"stream", "--server", server_->address(), "--input", *path,
                                    "--iso", "0", "--error", "0.3", "--compression-level", "0"};
@@ -1940,7 +1953,7 @@ TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
 // server gets the grid directions and sends back the local session's mesh, in the patient
 // frame.
 TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
-  auto src = MakeSyntheticSource(Shape::kLink, 40, 36, 30, {0.7, 0.7, 1.2});
+  auto src = eval::MakeSyntheticSource(eval::Shape::kLink, 40, 36, 30, {0.7, 0.7, 1.2});
   VolumeInfo info = src->info();
   info.origin = {-120, 35, 410};
   const double c = std::sqrt(0.5);
@@ -2002,7 +2015,8 @@ TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
 // stream gives exactly the mesh of the finished acquisition, and its first preview is saved
 // before the simulator has written the last slice.
 TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
-  auto path = WriteSyntheticVolume(dir_, "pb", MakeSyntheticSource(Shape::kPillowBox, 48, 48, 48));
+  auto path = WriteSyntheticVolume(dir_, "pb",
+                                   eval::MakeSyntheticSource(eval::Shape::kPillowBox, 48, 48, 48));
   ASSERT_TRUE(path.ok()) << path.status();
   const std::vector<std::string> real_ct = {"--scout", "--numbering", "random", "--temp-names",
                                             "hidden"};
@@ -2079,7 +2093,8 @@ TEST_F(ServiceE2eTest, FollowedSimulatedAcquisitionGivesTheFinishedMesh) {
 }
 
 TEST_F(ServiceE2eTest, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
-  auto path = WriteSyntheticVolume(dir_, "s", MakeSyntheticSource(Shape::kSphere, 20, 20, 20));
+  auto path =
+      WriteSyntheticVolume(dir_, "s", eval::MakeSyntheticSource(eval::Shape::kSphere, 20, 20, 20));
   ASSERT_TRUE(path.ok()) << path.status();
   std::vector<std::string> args = {"stream", "--server", server_->address(), "--input", *path,
                                    "--iso", "1000", "--error", "0.3", "--out", dir_ + "/e.ply"};
@@ -2094,7 +2109,7 @@ TEST_F(ServiceE2eTest, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
 // --expect-slices) fails the stream with a message naming the files; the server keeps
 // serving and has no session left behind.
 TEST_F(ServiceE2eTest, AFollowedScanThatGoesWrongFailsCleanly) {
-  auto src = MakeSyntheticSource(Shape::kSphere, 24, 24, 24);
+  auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 24);
   VolumeInfo info = src->info();
   std::vector<std::vector<uint8_t>> slices(info.nz);
   for (auto& b : slices) ASSERT_TRUE(src->ReadSlice(&b).ok());

@@ -3,9 +3,9 @@
 // in flight per stream are bounded (the server stops reading a stream whose client does
 // not read); a stream stalled on either side ends after the idle timeout; keepalive finds
 // a frozen client; the server's ping policy is enforced.
+#include <dirent.h>
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <dirent.h>
 
 #include <atomic>
 #include <regex>
@@ -14,10 +14,10 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_split.h"
-#include "tandem/server/extract_job.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/server/extract_job.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {
@@ -71,7 +71,7 @@ std::vector<v1::ExtractRequest> PreviewHeavy(int64_t n, int64_t nz) {
   config.set_schedule(v1::SCHEDULE_NONE);
   config.mutable_preview()->set_every_slices(1);
   config.mutable_draco()->set_compression_level(0);
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, nz);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, nz);
   return VolumeRequests(*source, config, 1 << 20);
 }
 
@@ -207,8 +207,8 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
 // gets a preview for most slices.
 TEST(LimitsTest, ServerSpacesPreviewsWhateverTheClientAsks) {
   const std::string dir = MakeTempDir();
-  auto volume =
-      WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 32, 32, 60));
+  auto volume = WriteSyntheticVolume(dir, "sphere",
+                                     eval::MakeSyntheticSource(eval::Shape::kSphere, 32, 32, 60));
   ASSERT_TRUE(volume.ok()) << volume.status();
   auto previews = [&](int64_t floor_ms, double* wall_s) {
     auto server = TestServer::Start(
@@ -265,7 +265,7 @@ TEST(LimitsTest, JobEnforcesTheMemoryBudget) {
     server::ExtractJob job(limits, &sink);
     v1::SessionConfig c;
     c.set_schedule(v1::SCHEDULE_NONE);  // nothing simplified: the mesh only grows
-    auto source = MakeSyntheticSource(Shape::kGyroid, 48, 48, 200);
+    auto source = eval::MakeSyntheticSource(eval::Shape::kGyroid, 48, 48, 200);
     std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, c, 1 << 20);
     absl::Status st;
     size_t handled = 0;
@@ -301,7 +301,7 @@ TEST(LimitsTest, ASealedChunkIsCountedByTheBudgetWhileItIsEncoded) {
   c.set_schedule(v1::SCHEDULE_NONE);  // full resolution: a chunk every few slices
   c.set_sealed_chunks(true);
   c.set_parts(1);  // no step runs on after a slice: the budget's figure is the session's
-  auto source = MakeSyntheticSource(Shape::kGyroid, 256, 256, 64);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kGyroid, 256, 256, 64);
   std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, c, 1 << 20);
   requests.pop_back();  // the End: the last chunk goes out after the session is freed
   for (v1::ExtractRequest& r : requests) {
@@ -325,7 +325,7 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
   v1::SessionConfig c;
   c.set_schedule(v1::SCHEDULE_NONE);
   c.set_description("big gyroid");
-  auto source = MakeSyntheticSource(Shape::kGyroid, 64, 64, 400);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kGyroid, 64, 64, 400);
   const std::vector<v1::ExtractRequest> big = VolumeRequests(*source, c, 1 << 20);
 
   StreamOutcome big_outcome;
@@ -547,7 +547,7 @@ TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
       v1::SessionConfig c;
       c.set_schedule(v1::SCHEDULE_NONE);
       c.mutable_draco()->set_compression_level(0);  // a final mesh of a few hundred KB
-      auto source = MakeSyntheticSource(Shape::kSphere, 64, 64, 64);
+      auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, 64, 64, 64);
       requests = VolumeRequests(*source, c, 1 << 20);
     } else {
       requests = PreviewHeavy(40, 120);
@@ -610,7 +610,8 @@ TEST(LimitsTest, KeepaliveFreesTheSessionOfAFrozenClient) {
                                    "--resume-window-seconds", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
-  auto path = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 40));
+  auto path = WriteSyntheticVolume(dir, "sphere",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 40));
   ASSERT_TRUE(path.ok()) << path.status();
   auto stream_args = [&](const std::string& rate, const std::string& out) {
     return std::vector<std::string>{BinPath("tandem-client"),
@@ -732,7 +733,8 @@ TEST(LimitsTest, StreamsShareTheServersComputeThreads) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--compute-threads", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
-  auto path = WriteSyntheticVolume(dir, "wide", MakeSyntheticSource(Shape::kLink, 320, 48, 60));
+  auto path =
+      WriteSyntheticVolume(dir, "wide", eval::MakeSyntheticSource(eval::Shape::kLink, 320, 48, 60));
   ASSERT_TRUE(path.ok()) << path.status();
   const pid_t pid = (*server)->process().pid();
   const int idle = ThreadsOf(pid);

@@ -4,24 +4,23 @@
 // clients); --log-format json writes one JSON object per line, client strings escaped and
 // truncated; a busy port is refused at start-up.
 #include <gtest/gtest.h>
-#include <signal.h>
 #include <httplib.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <chrono>
 #include <map>
-#include <set>
-#include <regex>
-#include <thread>
-
 #include <nlohmann/json.hpp>
+#include <regex>
+#include <set>
+#include <thread>
 
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
-#include "absl/strings/str_split.h"
 #include "absl/strings/str_cat.h"
-#include "tandem/client/connection.h"
+#include "absl/strings/str_split.h"
 #include "service/service_testutil.h"
+#include "tandem/client/connection.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/raw_http.h"
 #include "testutil/testutil.h"
@@ -105,7 +104,7 @@ WithMetrics StartWithMetrics(std::vector<std::string> extra = {}) {
 std::vector<v1::ExtractRequest> Sphere(int64_t n) {
   v1::SessionConfig config;
   config.set_error(0.3);
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
   return VolumeRequests(*source, config, 1 << 20);
 }
 
@@ -446,8 +445,10 @@ TEST(Client, RetriesAStreamRefusedBecauseTheServerIsBusy) {
   auto server = TestServer::Start({"--max-sessions", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
-  auto small = WriteSyntheticVolume(dir, "small", MakeSyntheticSource(Shape::kSphere, 16, 16, 16));
-  auto slow = WriteSyntheticVolume(dir, "slow", MakeSyntheticSource(Shape::kSphere, 16, 16, 30));
+  auto small = WriteSyntheticVolume(dir, "small",
+                                    eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 16));
+  auto slow = WriteSyntheticVolume(dir, "slow",
+                                   eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 30));
   ASSERT_TRUE(small.ok() && slow.ok());
   auto stream = [&](const std::string& input, std::vector<std::string> extra) {
     std::vector<std::string> argv = {BinPath("tandem-client"), "stream", "--server",
@@ -490,7 +491,8 @@ TEST(Client, DoesNotRetryARequestOverTheServersLimits) {
   const std::string dir = MakeTempDir();
   auto server = TestServer::Start({"--max-voxels-per-slice", "100"});
   ASSERT_TRUE(server.ok()) << server.status();
-  auto volume = WriteSyntheticVolume(dir, "v", MakeSyntheticSource(Shape::kSphere, 16, 16, 8));
+  auto volume =
+      WriteSyntheticVolume(dir, "v", eval::MakeSyntheticSource(eval::Shape::kSphere, 16, 16, 8));
   ASSERT_TRUE(volume.ok());
   RunResult r = RunProcess({BinPath("tandem-client"), "stream", "--server",
                             (*server)->address(), "--input", *volume, "--iso", "0",

@@ -18,10 +18,10 @@
 #include <random>
 #include <thread>
 
-#include "tandem/client/stream_client.h"
-#include "tandem/common/wire.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
+#include "tandem/client/stream_client.h"
+#include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 
@@ -38,7 +38,7 @@ double SecondsSince(Clock::time_point t) {
 client::StreamOptions LoadOptions(const TestServer& server) {
   client::StreamOptions o;
   o.connection.server = server.address();
-  o.chunk_bytes = wire::kDefaultSliceChunkBytes;
+  o.chunk_bytes = common::kDefaultSliceChunkBytes;
   o.timeout_s = 120;
   o.config.set_iso(std::stod(kLoadIso));
   o.config.set_error(std::stod(kLoadError));
@@ -244,7 +244,7 @@ TEST(ReliabilityTest, BadInputCorpusWhileAGoodStreamRuns) {
   config.set_error(0.5);
   config.mutable_preview()->set_every_slices(4);
   config.mutable_draco()->set_compression_level(0);
-  auto source = MakeSyntheticSource(Shape::kLink, 48, 48, 60);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kLink, 48, 48, 60);
   const std::vector<v1::ExtractRequest> good = VolumeRequests(*source, config, 1 << 20);
   const StreamOutcome alone = RunStream(*s.NewStub(), good);
   ASSERT_TRUE(alone.status.ok()) << alone.status.error_message();

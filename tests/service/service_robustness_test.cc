@@ -2,6 +2,7 @@
 // requests can be malformed on purpose): each gets the right code and a message that
 // names the problem, and the server keeps serving. Also: session limit, message size
 // limit, cancellation, and the latest-wins previews of a slow reader.
+#include <gtest/gtest.h>
 #include <signal.h>
 
 #include <algorithm>
@@ -11,13 +12,10 @@
 #include <limits>
 #include <thread>
 
-#include <gtest/gtest.h>
-
 #include "absl/strings/str_split.h"
-
-#include "tandem/codec/draco_codec.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 
@@ -136,7 +134,7 @@ TEST_F(ServiceRobustnessTest, CancelledStreamLeavesNothingBehind) {
   v1::SessionConfig config;
   config.set_error(0.5);
   config.mutable_preview()->set_every_slices(1);  // keep writes in flight
-  auto source = MakeSyntheticSource(Shape::kSphere, 48, 48, 48);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, 48, 48, 48);
   const std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, config, 4096);
   int streams = 0;
   for (size_t sent : {size_t{1}, size_t{3}, requests.size() / 2, requests.size() - 1}) {
@@ -217,7 +215,7 @@ TEST_F(ServiceRobustnessTest, SlowReaderGetsFewerNewerPreviews) {
   config.set_schedule(v1::SCHEDULE_NONE);  // full resolution: previews of tens of KB
   config.mutable_preview()->set_every_slices(1);
   config.mutable_draco()->set_compression_level(0);
-  auto source = MakeSyntheticSource(Shape::kSphere, n, n, n);
+  auto source = eval::MakeSyntheticSource(eval::Shape::kSphere, n, n, n);
   const std::vector<v1::ExtractRequest> requests = VolumeRequests(*source, config, 1 << 20);
   // A fixed 64 KiB receive window (no BDP growth): what HTTP/2 lets the server buffer
   // ahead of the reader stays small and known.

@@ -8,9 +8,9 @@
 #include <filesystem>
 #include <fstream>
 
-#include "tandem/codec/draco_codec.h"
 #include "service/bad_input_cases.h"
 #include "service/service_testutil.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/eval/synthetic.h"
 #include "testutil/testutil.h"
 
@@ -44,8 +44,8 @@ class SecurityTest : public ::testing::Test {
     auto pki = MakeTestPki(*dir_);
     ASSERT_TRUE(pki.ok()) << pki.status();
     pki_ = new TestPki(*pki);
-    auto volume =
-        WriteSyntheticVolume(*dir_, "sphere", MakeSyntheticSource(Shape::kSphere, 24, 24, 24));
+    auto volume = WriteSyntheticVolume(*dir_, "sphere",
+                                       eval::MakeSyntheticSource(eval::Shape::kSphere, 24, 24, 24));
     ASSERT_TRUE(volume.ok()) << volume.status();
     volume_ = new std::string(*volume);
     tokens_file_ = new std::string(*dir_ + "/tokens.txt");

@@ -70,8 +70,8 @@ TEST(Sizing, SessionsStayWithinTheirBudgetsAtThePeak) {
   const std::string dir = MakeTempDir();
   // 192^3 gyroid: 466,110 triangles at full resolution, a session of about 50 MiB and a
   // final encoding of about as much again.
-  auto volume = WriteSyntheticVolume(dir, "gyroid",
-                                     MakeSyntheticSource(Shape::kGyroid, 192, 192, 192));
+  auto volume = WriteSyntheticVolume(
+      dir, "gyroid", eval::MakeSyntheticSource(eval::Shape::kGyroid, 192, 192, 192));
   ASSERT_TRUE(volume.ok()) << volume.status();
   constexpr int kSessions = 4;
   constexpr int64_t kBudgetMiB = 80, kInflight = 8 << 20;
@@ -154,8 +154,8 @@ TEST(Sizing, ThePodsFlagsKeepItsSessionsUnderItsMemoryLimit) {
   Pod pod;
   ASSERT_NO_FATAL_FAILURE(ReadPod(&pod));
   const std::string dir = MakeTempDir();
-  auto volume = WriteSyntheticVolume(dir, "gyroid",
-                                     MakeSyntheticSource(Shape::kGyroid, 256, 256, 600));
+  auto volume = WriteSyntheticVolume(
+      dir, "gyroid", eval::MakeSyntheticSource(eval::Shape::kGyroid, 256, 256, 600));
   ASSERT_TRUE(volume.ok()) << volume.status();
   auto server = TestServer::Start(pod.flags);
   ASSERT_TRUE(server.ok()) << server.status();
@@ -235,7 +235,8 @@ void HoldThePodLimit(Pattern pattern) {
   EXPECT_LT(free_s, 5) << "the refused sessions' work ran on";
 
   EXPECT_EQ((*server)->Health(), "SERVING");
-  auto normal = WriteSyntheticVolume(dir, "sphere", MakeSyntheticSource(Shape::kSphere, 64, 64, 64));
+  auto normal = WriteSyntheticVolume(dir, "sphere",
+                                     eval::MakeSyntheticSource(eval::Shape::kSphere, 64, 64, 64));
   ASSERT_TRUE(normal.ok()) << normal.status();
   RunResult after = RunProcess({BinPath("tandem-client"), "stream", "--server",
                                 (*server)->address(), "--input", *normal, "--iso", "0",

@@ -4,10 +4,10 @@
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <poll.h>
-#include <sys/socket.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/resource.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -24,10 +24,10 @@
 #include <unordered_map>
 
 #include "absl/strings/str_cat.h"
-#include "tandem/common/wire.h"
 #include "grpc/health/v1/health.grpc.pb.h"
-#include "tandem/io/run_session.h"
+#include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
 
@@ -173,7 +173,7 @@ std::shared_ptr<grpc::ChannelCredentials> TestServer::Credentials() const {
 
 std::unique_ptr<v1::Tandem::Stub> TestServer::NewStub() const {
   grpc::ChannelArguments args;
-  args.SetMaxReceiveMessageSize(wire::kClientMaxReceiveBytes);
+  args.SetMaxReceiveMessageSize(common::kClientMaxReceiveBytes);
   return v1::Tandem::NewStub(grpc::CreateCustomChannel(address_, Credentials(), args));
 }
 
@@ -191,7 +191,7 @@ absl::StatusOr<v1::InfoResponse> TestServer::Info(
   v1::InfoRequest request;
   for (const std::string& key : watch_keys) request.add_watch_keys(key);
   grpc::Status st = stub->GetInfo(&context, request, &info);
-  if (!st.ok()) return wire::FromGrpcStatus(st);
+  if (!st.ok()) return common::FromGrpcStatus(st);
   return info;
 }
 
@@ -240,7 +240,8 @@ absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const s
 }
 
 absl::StatusOr<std::string> WriteLoadVolume(const std::string& dir) {
-  return WriteSyntheticVolume(dir, "load", MakeSyntheticSource(Shape::kLink, 64, 64, 93));
+  return WriteSyntheticVolume(dir, "load",
+                              eval::MakeSyntheticSource(eval::Shape::kLink, 64, 64, 93));
 }
 
 absl::StatusOr<std::string> WritePattern(const std::string& dir, Pattern pattern, int64_t n,
@@ -359,7 +360,7 @@ std::vector<v1::ExtractRequest> VolumeRequests(SliceSource& source,
   c->set_nx(info.nx);
   c->set_ny(info.ny);
   c->set_nz(info.nz);
-  c->set_dtype(wire::DTypeToProto(info.dtype));
+  c->set_dtype(common::DTypeToProto(info.dtype));
   c->clear_spacing();
   for (double s : info.spacing) c->add_spacing(s);
   std::vector<uint8_t> bytes;

@@ -54,11 +54,11 @@ inline int64_t CountWrittenDegenerate(const IndexedMesh& m) {
 // `written` (float32 positions) has no triangle without an area as written and no two
 // vertices at one position, and welded by position it has the indexed mesh's topology
 // (`indexed`: its vertices, edges, boundary, non-manifold places and Euler characteristic).
-inline void ExpectEmbedded(const IndexedMesh& written, const TopologyReport& indexed,
+inline void ExpectEmbedded(const IndexedMesh& written, const eval::TopologyReport& indexed,
                            const std::string& what) {
   EXPECT_EQ(CountWrittenDegenerate(written), 0) << what;
-  EXPECT_EQ(CountDuplicatePositions(written), 0u) << what;
-  const TopologyReport welded = AnalyzeTopology(WeldByPosition(written));
+  EXPECT_EQ(eval::CountDuplicatePositions(written), 0u) << what;
+  const eval::TopologyReport welded = eval::AnalyzeTopology(eval::WeldByPosition(written));
   EXPECT_EQ(welded.IsManifold(), indexed.IsManifold()) << what;
   EXPECT_EQ(welded.nonmanifold_edges, indexed.nonmanifold_edges) << what;
   EXPECT_EQ(welded.nonmanifold_vertices, indexed.nonmanifold_vertices) << what;
@@ -72,7 +72,7 @@ inline void ExpectEmbedded(const IndexedMesh& written, const TopologyReport& ind
 // otherwise (a sealed session's band, cut from what it sealed, may pinch at the cut).
 inline void ExpectEmbedded(const IndexedMesh& indexed, const std::string& what,
                            bool manifold = true) {
-  const TopologyReport topology = AnalyzeTopology(indexed);
+  const eval::TopologyReport topology = eval::AnalyzeTopology(indexed);
   if (manifold) {
     EXPECT_TRUE(topology.IsManifold()) << what;
   }

@@ -4,6 +4,7 @@
 // methods, ranges, foreign Host headers, slow and idle connections.
 #include "tandem/viewer/view_server.h"
 
+#include <gtest/gtest.h>
 #include <httplib.h>
 #include <unistd.h>
 
@@ -11,13 +12,11 @@
 #include <fstream>
 #include <iterator>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 
 #include "testutil/raw_http.h"
 #include "testutil/testutil.h"

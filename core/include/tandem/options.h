@@ -80,6 +80,12 @@ struct SessionOptions {
   // contractions across them; shallower, less is held (the settled part is coarsened along
   // the seam only). Checked only with seal; at least 1.
   int64_t seam_settle_slices = 512;
+  // And up to this many vertices a seam: past them, its oldest vertices settle too, down to
+  // this many, except those within kSeamSettleFloor slices of the front (slabs.h). So a
+  // dense seam (the seams' full-resolution fans cost about a KiB a vertex) is held for fewer
+  // slices, and a sparse one, whose settling would cost triangles for little memory, waits
+  // as long as seam_settle_slices says. Checked only with seal; at least 1.
+  int64_t seam_hold_vertices = 2048;
   // Tests: the simplifier also keeps every vertex's quadric in full, as the layers and the
   // contractions sum it, and counts the quadrics it reads that differ (SessionStats::
   // quadric_mismatches; 0: every vertex kept its quadric in full before it moved). Slower.

@@ -81,9 +81,7 @@ struct StreamResult : SurfaceResult {
 
   size_t num_surfaces() const { return 1 + extra_surfaces.size(); }
   SurfaceResult& surface(size_t i) { return i == 0 ? *this : extra_surfaces[i - 1]; }
-  const SurfaceResult& surface(size_t i) const {
-    return i == 0 ? *this : extra_surfaces[i - 1];
-  }
+  const SurfaceResult& surface(size_t i) const { return i == 0 ? *this : extra_surfaces[i - 1]; }
 };
 
 // Whether a failed StreamVolume's status is a local one (reading the volume, saving the

@@ -15,7 +15,7 @@
 
 #include "absl/status/statusor.h"
 
-namespace tandem::auth {
+namespace tandem::common {
 
 inline constexpr size_t kMaxTokenBytes = 4096;
 
@@ -30,6 +30,6 @@ absl::StatusOr<std::vector<std::string>> ReadTokensFile(const std::string& path)
 // differ nor on a's length (b is what the caller sent, a the secret).
 bool ConstantTimeEquals(std::string_view a, std::string_view b);
 
-}  // namespace tandem::auth
+}  // namespace tandem::common
 
 #endif  // TANDEM_PROTO_COMMON_TOKENS_H_

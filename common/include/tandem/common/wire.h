@@ -3,12 +3,12 @@
 #ifndef TANDEM_PROTO_COMMON_WIRE_H_
 #define TANDEM_PROTO_COMMON_WIRE_H_
 
+#include <grpcpp/support/status.h>
+
 #include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
-
-#include <grpcpp/support/status.h>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -17,7 +17,7 @@
 #include "tandem/v1/tandem.pb.h"
 #include "tandem/volume.h"
 
-namespace tandem::wire {
+namespace tandem::common {
 
 inline constexpr char kDefaultServerAddress[] = "127.0.0.1:50051";
 // Largest FinalMesh chunk the server sends (well below gRPC's 4 MiB default).
@@ -41,8 +41,8 @@ v1::Schedule ScheduleToProto(Schedule schedule);
 // Every field of MetricsReport's table (VisitReportFields) that names a FinalMetrics field:
 // all but input and frame, which the client knows itself. Driven by the table through protobuf
 // reflection; a field whose name CheckReportFields refuses is left out.
-void ReportToProto(const MetricsReport& report, v1::FinalMetrics* out);
-MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
+void ReportToProto(const eval::MetricsReport& report, v1::FinalMetrics* out);
+eval::MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
 
 // OK when FinalMetrics has the field `wire` ("refusals.link": link of the sub-message refusals)
 // of a type that holds `member`: double, int64, string (std::string and Schedule, by name),
@@ -62,6 +62,6 @@ TandemSession::Finishing FinishingFromProto(const v1::Progress& p);
 grpc::Status ToGrpcStatus(const absl::Status& status);
 absl::Status FromGrpcStatus(const grpc::Status& status);
 
-}  // namespace tandem::wire
+}  // namespace tandem::common
 
 #endif  // TANDEM_PROTO_COMMON_WIRE_H_

@@ -28,10 +28,10 @@
 #include "absl/container/flat_hash_map.h"
 #include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
-#include "tandem/server/request_validation.h"
 #include "tandem/budget.h"
 #include "tandem/eval/metrics.h"
 #include "tandem/eval/report.h"
+#include "tandem/server/request_validation.h"
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.pb.h"
 
@@ -112,9 +112,9 @@ class ExtractJob {
   absl::Status FinishSealed();  // HandleEnd's tail when the mesh left in sealed chunks
   // compute_distances: the L1/L2/Linf distances of `mesh` to the reference (freed after);
   // and the process's peak RSS, in any case.
-  absl::Status MeasureDistancesTo(const IndexedMesh& mesh, MetricsReport* report);
+  absl::Status MeasureDistancesTo(const IndexedMesh& mesh, eval::MetricsReport* report);
   // Appends FinalMetrics to `out` and posts it all: the job is done.
-  void PostMetrics(const MetricsReport& report, std::vector<v1::ExtractResponse> out);
+  void PostMetrics(const eval::MetricsReport& report, std::vector<v1::ExtractResponse> out);
   void MaybePreview();
   // Sealed chunks: posts what the session sealed since the last one, when there is enough
   // of it or enough time went by (always with `now`). `last`: the stream's last chunk,
@@ -135,9 +135,9 @@ class ExtractJob {
   v1::Progress MakeProgress() const;
 
   ServerLimits limits_;
-  Executor* compute_;  // never null (Executor::Shared() when none is given)
+  Executor* compute_;                     // never null (Executor::Shared() when none is given)
   std::shared_ptr<MemoryBudget> budget_;  // never null
-  size_t own_reported_ = 0;  // OwnBytes as the budget was last told
+  size_t own_reported_ = 0;               // OwnBytes as the budget was last told
   JobSink* sink_;
   State state_ = State::kWaitConfig;
   JobConfig config_;
@@ -150,16 +150,16 @@ class ExtractJob {
   double encode_s_ = 0;
   double preview_s_ = 0;  // of encode_s_, the previews' (and the chunks they flushed)
   int64_t preview_bytes_ = 0, chunk_bytes_ = 0;  // Draco bytes posted
-  PhaseTimes session_time_;  // of the session, kept when it is freed
+  PhaseTimes session_time_;                      // of the session, kept when it is freed
   int64_t final_triangles_ = 0;
   size_t peak_memory_ = 0;  // the most MemoryBytes() + extra a passed CheckMemory saw
   // Sealed chunks.
   int64_t chunks_sent_ = 0;
-  int64_t sealed_posted_ = 0;  // triangles in the chunks posted by this job
+  int64_t sealed_posted_ = 0;        // triangles in the chunks posted by this job
   codec::DracoOptions chunk_draco_;  // the config's, on the session's quantization grid
   std::optional<std::chrono::steady_clock::time_point> last_chunk_;
-  ShapeSums shape_;                 // of everything sealed, for the final metrics
-  std::vector<SealedChunk> kept_;   // compute_distances only: the chunks, to weld at the end
+  eval::ShapeSums shape_;          // of everything sealed, for the final metrics
+  std::vector<SealedChunk> kept_;  // compute_distances only: the chunks, to weld at the end
   // The ids a chunk sent that a later chunk may send again (not retired): on the shared grid
   // those corners may not move (codec::EncodeDraco's `fixed`), and those the encoder moved
   // go out again where they were sent. The front's border and the unsettled seams, not the

@@ -32,10 +32,10 @@ struct ServerLimits {
   int64_t max_inflight_bytes = int64_t{16} << 20;       // --max-inflight-bytes
   // Watch: sealed chunks kept per session for late watchers, and how long a finished
   // session stays watchable.
-  int64_t watch_retain_bytes = int64_t{64} << 20;       // --watch-retain-mb
-  double watch_linger_s = 60;                           // --watch-linger-seconds
+  int64_t watch_retain_bytes = int64_t{64} << 20;  // --watch-retain-mb
+  double watch_linger_s = 60;                      // --watch-linger-seconds
   // A stream whose client vanished before End keeps its session this long for a resume.
-  double resume_window_s = 60;                          // --resume-window-seconds
+  double resume_window_s = 60;  // --resume-window-seconds
   // Previews are never closer than this, whatever the client asks (each one snapshots and
   // encodes the whole partial mesh): --min-preview-interval-ms.
   int64_t min_preview_interval_ms = 250;
@@ -47,9 +47,9 @@ struct ServerLimits {
   // this share of the chunks' bytes (the first one always goes). <= 0: no bound.
   double max_band_bytes_share = 0.25;
   // HTTP/2 transport (grpc::ServerBuilder channel arguments).
-  int64_t keepalive_time_ms = 60000;         // --keepalive-time-ms (0 = no pings)
-  int64_t keepalive_timeout_ms = 20000;      // --keepalive-timeout-ms
-  int64_t min_ping_interval_ms = 10000;      // --keepalive-min-ping-interval-ms
+  int64_t keepalive_time_ms = 60000;            // --keepalive-time-ms (0 = no pings)
+  int64_t keepalive_timeout_ms = 20000;         // --keepalive-timeout-ms
+  int64_t min_ping_interval_ms = 10000;         // --keepalive-min-ping-interval-ms
   bool permit_keepalive_without_calls = false;  // --keepalive-permit-without-calls
   // Threads that all sessions share for their computing (each session's own worker thread
   // feeds it and runs its steps too): --compute-threads; 0 = one per core.

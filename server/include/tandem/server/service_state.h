@@ -3,6 +3,8 @@
 #ifndef TANDEM_SERVER_SERVICE_STATE_H_
 #define TANDEM_SERVER_SERVICE_STATE_H_
 
+#include <grpcpp/grpcpp.h>
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -13,15 +15,13 @@
 #include <thread>
 #include <vector>
 
-#include <grpcpp/grpcpp.h>
-
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
+#include "tandem/executor.h"
 #include "tandem/server/auth.h"
 #include "tandem/server/request_validation.h"
 #include "tandem/server/resume.h"
 #include "tandem/server/watch.h"
-#include "tandem/executor.h"
 
 namespace tandem::server {
 
@@ -39,9 +39,11 @@ struct ServiceState {
   ServiceState(const ServerLimits& l, std::vector<std::string> tokens, bool tls_on)
       : limits(l),
         compute(NewThreadPool(
-            l.compute_threads > 0 ? l.compute_threads
-                                  : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())))),
-        tls(tls_on), auth(std::move(tokens)),
+            l.compute_threads > 0
+                ? l.compute_threads
+                : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())))),
+        tls(tls_on),
+        auth(std::move(tokens)),
         feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes),
         resumable(absl::Seconds(l.resume_window_s)) {}
   const ServerLimits limits;
@@ -49,7 +51,7 @@ struct ServiceState {
   const std::unique_ptr<Executor> compute;
   const bool tls;
   TokenAuthenticator auth;
-  FeedRegistry feeds;  // what every stream sends, for Watch
+  FeedRegistry feeds;     // what every stream sends, for Watch
   ResumeTable resumable;  // sessions whose client vanished, for Resume
   std::atomic<int64_t> active_sessions{0};
   std::atomic<int64_t> sessions_started{0};

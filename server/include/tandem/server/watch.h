@@ -17,12 +17,14 @@
 //
 // Resume: the chunks also serve the session's own client, resumed after its connection
 // dropped (tandem/server/resume.h), which asks for those it did not keep. A client that
-// acknowledges the chunks it kept (SessionConfig.chunk_acks) has every chunk it did not acknowledge kept
-// for it until the session ends (held_, beside the newest retain_bytes kept for watchers),
+// acknowledges the chunks it kept (SessionConfig.chunk_acks) has every chunk it did not acknowledge
+// kept for it until the session ends (held_, beside the newest retain_bytes kept for watchers),
 // counted in the session's memory budget; without acknowledgements only the newest
 // retain_bytes are kept once the chunks outgrew it.
 #ifndef TANDEM_SERVER_WATCH_H_
 #define TANDEM_SERVER_WATCH_H_
+
+#include <grpcpp/grpcpp.h>
 
 #include <cstdint>
 #include <deque>
@@ -32,8 +34,6 @@
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <grpcpp/grpcpp.h>
 
 #include "absl/status/status.h"
 #include "absl/synchronization/mutex.h"

@@ -36,7 +36,7 @@ namespace tandem::viewer {
 
 struct ViewOptions {
   std::string listen = "127.0.0.1:8080";  // HOST:PORT (port 0: any free port)
-  std::string token;                       // "" = no check
+  std::string token;                      // "" = no check
   // Where the page and three.js are (empty: next to the binary, then the source tree).
   std::string assets_dir, three_dir;
 };
@@ -73,8 +73,7 @@ class ViewServer {
   virtual std::string url() const = 0;  // http://HOST:PORT/ (with ?token= when one is set)
 
   // What the page shows; any thread. `surface` counts from 0 (the first --iso).
-  virtual void SetSession(const std::string& id, const std::string& description,
-                          int64_t nz) = 0;
+  virtual void SetSession(const std::string& id, const std::string& description, int64_t nz) = 0;
   // One label per surface ("iso 500"), in surface order; none = one unnamed surface.
   virtual void SetSurfaces(const std::vector<std::string>& labels) = 0;
   virtual void SetProgress(const ViewProgress& progress) = 0;
@@ -101,7 +100,7 @@ struct ViewModule {
   int abi;
   absl::StatusOr<std::unique_ptr<ViewServer>> (*start)(const ViewOptions& options);
 };
-extern "C" using ViewModuleEntry = const ViewModule* ();
+extern "C" using ViewModuleEntry = const ViewModule * ();
 inline constexpr const char kViewModuleEntryName[] = "tandem_view_module";
 inline constexpr const char kViewModuleName[] = "libtandem_view.so";
 

@@ -15,7 +15,7 @@
 #include "tandem/mesh.h"
 #include "tandem/types.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 // The point of triangle abc closest to p (Ericson, Real-Time Collision Detection §5.1.5,
 // Voronoi-region method), in double. Also correct for degenerate (collinear or coincident)
@@ -102,6 +102,6 @@ DirectedDistance MeasureDirectedDistance(const IndexedMesh& from, const Triangle
 Distances MeasureDistances(const IndexedMesh& a, const IndexedMesh& b,
                            const DistanceOptions& options = {});
 
-}  // namespace tandem
+}  // namespace tandem::eval
 
 #endif  // TANDEM_DISTANCE_H_

@@ -12,7 +12,7 @@
 #include "tandem/labels.h"
 #include "tandem/mesh.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 struct LabelMetrics {
   LabelId label = 0;
@@ -42,6 +42,6 @@ std::string ReportWithLabelsToJson(const MetricsReport& report,
 // A short table for people, one line per label.
 std::string LabelMetricsSummary(const std::vector<LabelMetrics>& labels);
 
-}  // namespace tandem
+}  // namespace tandem::eval
 
 #endif  // TANDEM_EVAL_LABEL_METRICS_H_

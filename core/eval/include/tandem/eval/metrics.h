@@ -14,7 +14,7 @@
 #include "tandem/mesh.h"
 #include "tandem/types.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 // The paper's aspect ratio ρ = sqrt(λ2/λ1), where λ1 ≥ λ2 are the two non-zero eigenvalues of
 // M_abc = (aaᵀ + bbᵀ + ccᵀ)/3 with a, b, c taken relative to the centroid. 1 exactly for an
@@ -56,6 +56,6 @@ class ShapeSums {
   double area_ = 0.0;
 };
 
-}  // namespace tandem
+}  // namespace tandem::eval
 
 #endif  // TANDEM_METRICS_H_

@@ -15,7 +15,7 @@
 #include "tandem/stats.h"
 #include "tandem/tandem.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 struct MetricsReport {
   std::string input;  // file name or description
@@ -132,6 +132,6 @@ std::string ReportSummary(const MetricsReport& r);
 // Peak resident set size of this process in bytes (getrusage), 0 if unknown.
 int64_t PeakRssBytes();
 
-}  // namespace tandem
+}  // namespace tandem::eval
 
 #endif  // TANDEM_REPORT_H_

@@ -20,7 +20,7 @@
 #include "absl/status/statusor.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 enum class Shape { kSphere, kPillowBox, kLink, kGyroid };
 
@@ -34,6 +34,6 @@ std::unique_ptr<SliceSource> MakeSyntheticSource(Shape shape, int64_t nx, int64_
 // The field's value at a physical point, for a box with the given dims and spacing.
 double SyntheticValue(Shape shape, const VolumeInfo& box, double px, double py, double pz);
 
-}  // namespace tandem
+}  // namespace tandem::eval
 
 #endif  // TANDEM_SYNTHETIC_H_

@@ -8,7 +8,7 @@
 
 #include "tandem/mesh.h"
 
-namespace tandem {
+namespace tandem::eval {
 
 struct TopologyReport {
   size_t vertices = 0;   // vertices used by at least one triangle
@@ -41,6 +41,6 @@ size_t CountDuplicatePositions(const IndexedMesh& mesh);
 // triangles kept as they are.
 IndexedMesh WeldByPosition(const IndexedMesh& mesh);
 
-}  // namespace tandem
+}  // namespace tandem::eval
 
 #endif  // TANDEM_TOPOLOGY_H_

@@ -1,0 +1,43 @@
+// The Neuroglancer export's glue: io's format with the codec's Draco fragments.
+#include "apps/tandem/neuroglancer_export.h"
+
+#include <utility>
+
+#include "tandem/codec/neuroglancer_draco.h"
+#include "tandem/io/neuroglancer.h"
+
+namespace tandem::app {
+
+double DefaultNmPerUnit(const VolumeInfo& info) {
+  return info.space == Space::kLPS || info.space == Space::kRAS ? 1e6 : 1.0;
+}
+
+absl::Status WriteNeuroglancerExport(
+    const std::string& dir, const VolumeInfo& info,
+    std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
+    int compression_level) {
+  std::vector<io::NeuroglancerSegment> list;
+  list.reserve(segments.size());
+  for (auto& [id, lods] : segments) list.push_back({id, std::move(lods)});
+  io::NeuroglancerOptions options;
+  options.nm_per_unit = nm_per_unit;
+  options.encode = [compression_level](const io::NeuroglancerFragment& f) {
+    return codec::EncodeNeuroglancerFragment(f.positions, f.indices, compression_level);
+  };
+  return io::WriteNeuroglancer(dir, info, list, options);
+}
+
+absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
+                                     const std::vector<const TandemSession*>& levels,
+                                     LabelId background, double nm_per_unit,
+                                     int compression_level) {
+  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> split;
+  split.reserve(levels.size());
+  for (const TandemSession* session : levels) {
+    split.push_back(SplitByLabel(session->SnapshotLabeled(), background));
+  }
+  return WriteNeuroglancerExport(dir, info, io::JoinLevels(std::move(split)), nm_per_unit,
+                                 compression_level);
+}
+
+}  // namespace tandem::app

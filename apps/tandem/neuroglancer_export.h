@@ -1,0 +1,38 @@
+// `tandem extract --neuroglancer DIR`: surfaces and their coarser sweeps as a Neuroglancer
+// precomputed segmentation (tandem/io/neuroglancer.h), Draco fragments from the codec.
+#ifndef TANDEM_APPS_TANDEM_NEUROGLANCER_EXPORT_H_
+#define TANDEM_APPS_TANDEM_NEUROGLANCER_EXPORT_H_
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "tandem/labels.h"
+#include "tandem/mesh.h"
+#include "tandem/tandem.h"
+#include "tandem/volume.h"
+
+namespace tandem::app {
+
+// Nanometres per unit of the grid's spacing when --neuroglancer-nm is not given: patient
+// frames (DICOM LPS, NIfTI RAS) are millimetres; any other grid is taken as nanometres
+// (electron microscopy's usual unit).
+double DefaultNmPerUnit(const VolumeInfo& info);
+
+// One segment per (id, levels finest first); every segment has the same number of levels.
+// The iso-surfaces come here as ids 1..N, the labels through WriteNeuroglancerLabels.
+absl::Status WriteNeuroglancerExport(
+    const std::string& dir, const VolumeInfo& info,
+    std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
+    int compression_level);
+
+// The label mode's export: `levels[k]` is the finished label session swept at E0 * 2^k
+// (finest first); each label other than `background` becomes the segment of its own id.
+absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
+                                     const std::vector<const TandemSession*>& levels,
+                                     LabelId background, double nm_per_unit, int compression_level);
+
+}  // namespace tandem::app
+
+#endif  // TANDEM_APPS_TANDEM_NEUROGLANCER_EXPORT_H_
