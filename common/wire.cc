@@ -6,6 +6,7 @@
 
 #include <optional>
 #include <set>
+#include <utility>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -17,28 +18,40 @@ namespace tandem::common {
 
 std::string ServiceVersion() { return "tandem " TANDEM_VERSION_STRING; }
 
+namespace {
+// The wire's DType of each of tandem's, both ways.
+constexpr std::pair<v1::DType, DType> kWireDTypes[] = {
+    {v1::DTYPE_UINT8, DType::kUInt8},    {v1::DTYPE_INT8, DType::kInt8},
+    {v1::DTYPE_UINT16, DType::kUInt16},  {v1::DTYPE_INT16, DType::kInt16},
+    {v1::DTYPE_UINT32, DType::kUInt32},  {v1::DTYPE_INT32, DType::kInt32},
+    {v1::DTYPE_UINT64, DType::kUInt64},  {v1::DTYPE_INT64, DType::kInt64},
+    {v1::DTYPE_FLOAT32, DType::kFloat32}};
+}  // namespace
+
 absl::StatusOr<DType> DTypeFromProto(int value, const std::string& field) {
-  switch (value) {
-    case v1::DTYPE_UINT8: return DType::kUInt8;
-    case v1::DTYPE_UINT16: return DType::kUInt16;
-    case v1::DTYPE_INT16: return DType::kInt16;
-    case v1::DTYPE_FLOAT32: return DType::kFloat32;
-    case v1::DTYPE_UNSPECIFIED:
-      return absl::InvalidArgumentError(
-          absl::StrCat(field, " is unset: say DTYPE_UINT8, DTYPE_UINT16, DTYPE_INT16 or DTYPE_FLOAT32"));
-    default:
-      return absl::InvalidArgumentError(absl::StrCat(field, " has unknown value ", value));
+  for (const auto& [wire, dtype] : kWireDTypes) {
+    if (value == wire) return dtype;
   }
+  if (value == v1::DTYPE_UNSPECIFIED) {
+    std::vector<std::string> names;
+    for (const auto& [wire, dtype] : kWireDTypes) names.push_back(v1::DType_Name(wire));
+    return absl::InvalidArgumentError(
+        absl::StrCat(field, " is unset: say ", absl::StrJoin(names, ", ")));
+  }
+  return absl::InvalidArgumentError(absl::StrCat(field, " has unknown value ", value));
 }
 
 v1::DType DTypeToProto(DType dtype) {
-  switch (dtype) {
-    case DType::kUInt8: return v1::DTYPE_UINT8;
-    case DType::kUInt16: return v1::DTYPE_UINT16;
-    case DType::kInt16: return v1::DTYPE_INT16;
-    case DType::kFloat32: return v1::DTYPE_FLOAT32;
+  for (const auto& [wire, d] : kWireDTypes) {
+    if (d == dtype) return wire;
   }
   return v1::DTYPE_UNSPECIFIED;
+}
+
+std::vector<v1::DType> WireDTypes() {
+  std::vector<v1::DType> out;
+  for (const auto& [wire, dtype] : kWireDTypes) out.push_back(wire);
+  return out;
 }
 
 absl::StatusOr<Schedule> ScheduleFromProto(int value) {

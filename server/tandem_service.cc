@@ -98,9 +98,7 @@ grpc::ServerUnaryReactor* TandemService::GetInfo(grpc::CallbackServerContext* co
   l->set_compute_threads(state_->compute->threads());
   l->set_watch_retain_bytes(state_->limits.watch_retain_bytes);
   l->set_watch_linger_seconds(state_->limits.watch_linger_s);
-  for (v1::DType d : {v1::DTYPE_UINT8, v1::DTYPE_UINT16, v1::DTYPE_INT16, v1::DTYPE_FLOAT32}) {
-    response->add_dtypes(d);
-  }
+  for (v1::DType d : common::WireDTypes()) response->add_dtypes(d);
   for (v1::Schedule s : {v1::SCHEDULE_NONE, v1::SCHEDULE_CLASSICAL, v1::SCHEDULE_TANDEM,
                          v1::SCHEDULE_TANDEM_LAG}) {
     response->add_schedules(s);

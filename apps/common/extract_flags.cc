@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <memory>
 #include <utility>
 #include <vector>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -15,6 +17,7 @@
 #include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
+#include "absl/strings/strip.h"
 #include "tandem/status_macros.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "tandem/codec/draco_codec.h"
@@ -174,6 +177,79 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                  "exit 3 (after writing the mesh) when an iso-value lies outside the data's "
                  "value range, so the surface is empty (a warning otherwise)");
   flags->AddBool("quiet", &quiet, "no summary, no progress and no notes on stderr");
+  flags->AddBool("labels", &labels,
+                 "the volume is a label map (a segmentation: integer voxels, each value a "
+                 "label id): every label's surface from one sweep, touching labels sharing "
+                 "their interface. --out DIR/ writes DIR/<id or name>.<--format> per label and "
+                 "DIR/labels.glb (a node per label, a colour each); --out X.glb that GLB alone. "
+                 "Not with --iso or --reference");
+  flags->AddString("background", &background, "ID",
+                   "--labels: the label with no surface of its own (what surrounds the others)");
+  flags->AddString("label-ids", &label_ids, "A,B,...",
+                   "--labels: mesh these labels only; every other label counts as background");
+  flags->SetDefaultText("label-ids", "every label");
+  flags->AddString("label-names", &label_names, "FILE",
+                   "--labels: names (and colours) of the labels, for the file names and the "
+                   "GLB's nodes: a CSV of id,name lines (a header line allowed; 3D Slicer's CSV "
+                   "colour tables too) or a 3D Slicer colour table (.ctbl, .txt: \"id name r g "
+                   "b a\" lines, # comments)");
+  flags->AddBool("close", &close,
+                 "--labels: close the surfaces where labels touch the volume's border (as if "
+                 "it were surrounded by background); else they are open there");
+  flags->AddString("format", &format, "ply|obj|stl|glb",
+                   "--labels --out DIR/: the format of the per-label files");
+}
+
+namespace {
+
+// "--label-ids 3,x": each a whole number in [0, 2^64).
+absl::StatusOr<LabelId> ParseLabelId(const std::string& flag, const std::string& text,
+                                     const std::string& item) {
+  LabelId id = 0;
+  if (item.empty() || !absl::ascii_isdigit(static_cast<unsigned char>(item[0])) ||
+      !absl::SimpleAtoi(item, &id)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        flag, " ", text, ": '", item, "' is not a label id (a whole number in [0, 2^64))"));
+  }
+  return id;
+}
+
+}  // namespace
+
+bool ExtractFlags::LabelsToFolder() const {
+  std::error_code ec;
+  return absl::EndsWith(out, "/") || std::filesystem::is_directory(out, ec);
+}
+
+absl::StatusOr<LabelOptions> ExtractFlags::Labels() const {
+  LabelOptions o;
+  o.enabled = labels;
+  o.close = close;
+  TANDEM_ASSIGN_OR_RETURN(o.background, ParseLabelId("--background", background, background));
+  if (!label_ids.empty()) {
+    for (absl::string_view item : absl::StrSplit(label_ids, ',')) {
+      TANDEM_ASSIGN_OR_RETURN(
+          LabelId id,
+          ParseLabelId("--label-ids", label_ids, std::string(absl::StripAsciiWhitespace(item))));
+      if (id == o.background) {
+        return absl::InvalidArgumentError(absl::StrCat("--label-ids ", label_ids, ": ", id,
+                                                       " is the background (--background ",
+                                                       background, "), which has no surface"));
+      }
+      o.only.push_back(id);
+    }
+    std::sort(o.only.begin(), o.only.end());
+    o.only.erase(std::unique(o.only.begin(), o.only.end()), o.only.end());
+  }
+  return o;
+}
+
+absl::Status ExtractFlags::CheckLabelInput(const VolumeInfo& info) const {
+  if (labels && !IsIntegerDType(info.dtype)) {
+    return absl::InvalidArgumentError(absl::StrCat("--labels needs integer voxels; ", InputPath(),
+                                                   " holds ", std::string(DTypeName(info.dtype))));
+  }
+  return absl::OkStatus();
 }
 
 namespace {
@@ -269,7 +345,48 @@ absl::Status ExtractFlags::Check(const FlagSet& flags) const {
 #ifdef TANDEM_HAVE_DRACO
   TANDEM_RETURN_IF_ERROR(CheckDracoFlags(quantization_bits, compression_level));
 #endif
-  if (glb_draco && !absl::EndsWith(out, ".glb")) {
+  if (!labels) {
+    for (const char* flag : {"background", "label-ids", "label-names", "close", "format"}) {
+      if (flags.IsSet(flag)) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--", flag, " goes with --labels (the volume as a label map)"));
+      }
+    }
+  } else {
+    if (flags.IsSet("iso")) {
+      return absl::InvalidArgumentError(
+          "--iso does not go with --labels: a label map's surfaces lie between its labels");
+    }
+    if (reference) {
+      return absl::InvalidArgumentError(
+          "--reference does not go with --labels (it measures an iso-surface)");
+    }
+    if (seal) {
+      return absl::InvalidArgumentError(
+          "--seal does not go with --labels (the label outputs are cut from the whole mesh at "
+          "the end)");
+    }
+    TANDEM_RETURN_IF_ERROR(Labels().status());
+    if (format != "ply" && format != "obj" && format != "stl" && format != "glb") {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--format ", format, ": expected ply, obj, stl or glb"));
+    }
+    if (!LabelsToFolder() && !absl::EndsWith(absl::AsciiStrToLower(out), ".glb")) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--labels writes one mesh per label: --out ", out,
+                       " must be a folder (end it with /) or one .glb (a node per label)"));
+    }
+    if (flags.IsSet("format") && !LabelsToFolder()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--format is the per-label files' format, for --out DIR/; --out is ", out));
+    }
+  }
+  if (glb_draco && labels && !(LabelsToFolder() && format == "glb")) {
+    return absl::InvalidArgumentError(
+        "--glb-draco with --labels compresses the per-label files of --out DIR/ --format glb "
+        "(labels.glb and --out X.glb hold every label uncompressed)");
+  }
+  if (glb_draco && !labels && !absl::EndsWith(out, ".glb")) {
     return absl::InvalidArgumentError(
         absl::StrCat("--glb-draco compresses a .glb output; --out is ", out));
   }

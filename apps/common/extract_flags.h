@@ -14,6 +14,7 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "tandem/io/follow.h"
+#include "tandem/labels.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 
@@ -30,6 +31,9 @@ struct ExtractFlags {
   int64_t quantization_bits = 0, compression_level = 0;  // Draco: Add() sets the codec's defaults
   bool follow = false, seal = false, no_simplify = false, reference = false, strict = false;
   bool quiet = false, glb_draco = false;
+  // Label volumes (segmentations): --labels and the flags that go with it.
+  bool labels = false, close = false;
+  std::string background = "0", label_ids, label_names, format = "ply";
 
   // Registers the shared flags; `out_help` says which mesh formats --out takes.
   void Add(FlagSet* flags, const std::string& out_help);
@@ -48,6 +52,14 @@ struct ExtractFlags {
   // With the volume's header: the iso-values (--iso, else the file's first suggested one)
   // and the session options (E0 defaults to 0.2 x the smallest spacing).
   absl::StatusOr<std::vector<IsoValue>> Isos(const FlagSet& flags, const VolumeInfo& info) const;
+  // --labels' folder output: --out ends in '/' or names an existing folder (else the one
+  // GLB --out X.glb names).
+  bool LabelsToFolder() const;
+  // --labels, --background, --label-ids and --close (held to their rules by Check).
+  absl::StatusOr<LabelOptions> Labels() const;
+  // --labels with the volume's header: its voxels must be integers (the refusal names the
+  // input and its type).
+  absl::Status CheckLabelInput(const VolumeInfo& info) const;
   // SessionOptions::ValidateFor(info) applied; a refusal names the flag ("--alpha 2:
   // isotropy alpha must lie in [0, 1]").
   absl::StatusOr<SessionOptions> Options(const FlagSet& flags, const VolumeInfo& info) const;

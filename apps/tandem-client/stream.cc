@@ -85,6 +85,11 @@ int StreamCommand(int argc, char** argv) {
                 "when the final mesh has arrived (before it is written)");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
   if (absl::Status st = f.Check(flags); !st.ok()) return UsageError(st);
+  if (f.labels) {
+    return UsageError(absl::InvalidArgumentError(
+        "--labels: tandem-server does not mesh label volumes; run `tandem extract --labels` "
+        "where the volume is"));
+  }
   const std::string input = f.InputPath();
   const std::string& out = f.out;
   const std::string& metrics_path = f.metrics;

@@ -6,7 +6,10 @@
 #include <string>
 
 #include "absl/status/status.h"
+#include "apps/common/extract_flags.h"
 #include "apps/common/flags.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/volume.h"
 
 namespace tandem::app {
 
@@ -17,6 +20,11 @@ int MeasureCommand(int argc, char** argv);
 int InfoCommand(int argc, char** argv);
 int SimulateCommand(int argc, char** argv);
 int ViewCommand(int argc, char** argv);
+
+// `tandem extract --labels` once the volume is open (extract.cc hands over to
+// extract_labels.cc): the session, the per-label outputs and figures.
+int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSource& source,
+                  const MeshWriteOptions& write);
 
 // A failure met while running (a file, a device, a session): "tandem: MESSAGE" on stderr,
 // exit status 1 (apps/common/cli_util.h).

@@ -67,7 +67,7 @@ int ExtractCommand(int argc, char** argv) {
   }
   if (absl::Status st = f.Check(flags); !st.ok()) return Usage(st);
   const std::string& out = f.out;
-  if (!IsMeshOutputPath(out)) {
+  if (!f.labels && !IsMeshOutputPath(out)) {
     return Usage(absl::InvalidArgumentError(
         absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
   }
@@ -143,6 +143,7 @@ int ExtractCommand(int argc, char** argv) {
         "--glb-draco: this tandem was built without Draco (-DTANDEM_BUILD_SERVICE=OFF)"));
 #endif
   }
+  if (f.labels) return ExtractLabels(f, flags, **source, write);
   auto parsed_opt = f.Options(flags, info);
   if (!parsed_opt.ok()) return Usage(parsed_opt.status());
   SessionOptions opt = *parsed_opt;

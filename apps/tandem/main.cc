@@ -36,7 +36,9 @@ Volume files: .json (raw + JSON sidecar), .nrrd/.nhdr (raw or gzip), .nii/.nii.g
 (X.zarr; X.zarr#N reads
 multiscale level N, X.zarr#PATH the array PATH inside the group), or a folder of one
 file per slice: a DICOM series (any names and order; vertices in the patient frame) or
-numbered single-page TIFFs. Voxel types uint8, uint16, int16, float32.
+numbered single-page TIFFs. Voxel types uint8, int8, uint16, int16, uint32, int32, uint64,
+int64, float32; `extract --labels` meshes an integer volume as a label map (one surface per
+label).
 )";
 
 }  // namespace

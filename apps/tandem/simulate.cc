@@ -124,6 +124,13 @@ absl::Status WriteScout(
         case DType::kFloat32:
           std::memcpy(&bytes[4 * i], &f, 4);
           break;
+        case DType::kInt8:
+        case DType::kUInt32:
+        case DType::kInt32:
+        case DType::kUInt64:
+        case DType::kInt64:  // DicomSliceWriter::Create refused the stack already
+          return absl::InvalidArgumentError(
+              absl::StrCat("a DICOM scout of ", std::string(DTypeName(info.dtype)), " voxels"));
       }
     }
     auto w = DicomSliceWriter::Create(si, o);

@@ -44,8 +44,13 @@ from tandem.v1 import tandem_pb2_grpc as pb_grpc
 # NumPy dtypes the server takes, as little-endian, and their wire names.
 _DTYPES = {
     np.dtype(np.uint8): pb.DTYPE_UINT8,
+    np.dtype(np.int8): pb.DTYPE_INT8,
     np.dtype(np.uint16): pb.DTYPE_UINT16,
     np.dtype(np.int16): pb.DTYPE_INT16,
+    np.dtype(np.uint32): pb.DTYPE_UINT32,
+    np.dtype(np.int32): pb.DTYPE_INT32,
+    np.dtype(np.uint64): pb.DTYPE_UINT64,
+    np.dtype(np.int64): pb.DTYPE_INT64,
     np.dtype(np.float32): pb.DTYPE_FLOAT32,
 }
 _SCHEDULES = {
@@ -252,7 +257,8 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
         raise ValueError(f"volume must be 3-D with at least 2 voxels per axis, got {volume.shape}")
     native = volume.dtype.newbyteorder("=")
     if native not in _DTYPES:
-        raise ValueError(f"dtype {volume.dtype} is not one of uint8, uint16, int16, float32 "
+        raise ValueError(f"dtype {volume.dtype} is not one of "
+                         f"{', '.join(str(d) for d in _DTYPES)} "
                          "(convert it, e.g. volume.astype(np.float32))")
     if schedule not in _SCHEDULES:
         raise ValueError(f"schedule {schedule!r} is not one of {', '.join(_SCHEDULES)}")

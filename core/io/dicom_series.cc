@@ -263,7 +263,12 @@ absl::Status ReadPixels(const SliceHeader& h, const VolumeInfo& info, const Valu
         run(int16_t{});
         break;
       case DType::kFloat32:
-        break;  // never stored in DICOM images
+      case DType::kInt8:
+      case DType::kUInt32:
+      case DType::kInt32:
+      case DType::kUInt64:
+      case DType::kInt64:
+        break;  // never stored in DICOM images (StoredType)
     }
   };
   // int16 only when the slope is 1 and the shifted range fits (PlanValues): exact.

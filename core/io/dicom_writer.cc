@@ -42,6 +42,12 @@ absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info
   if (info.nx > 0xffff || info.ny > 0xffff) {
     return absl::InvalidArgumentError("DICOM slices are at most 65535 x 65535 pixels");
   }
+  if (!(info.dtype == DType::kUInt8 || info.dtype == DType::kUInt16 ||
+        info.dtype == DType::kInt16 || info.dtype == DType::kFloat32)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("DICOM is written from uint8, uint16, int16 or float32 voxels, not ",
+                     std::string(DTypeName(info.dtype))));
+  }
   DicomSliceWriter w;
   // DICOM positions are LPS: a RAS grid is turned into it (nothing moves in the patient).
   absl::StatusOr<VolumeInfo> lps = info.space == Space::kRAS ? InFrame(info, Space::kLPS) : info;
@@ -112,6 +118,12 @@ absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
       image.pixels = stored.data();
       break;
     }
+    case DType::kInt8:
+    case DType::kUInt32:
+    case DType::kInt32:
+    case DType::kUInt64:
+    case DType::kInt64:
+      return absl::InternalError("DicomSliceWriter: a voxel type Create refuses");
   }
   image.bits_stored = opts_.bits_stored;
   image.spacing = info_.spacing;

@@ -2,11 +2,12 @@
 // data in ElementDataFile), read like NRRD through the shared contiguous-data source (one
 // slice at a time, mapped when uncompressed and in host byte order).
 // Supported: ObjectType = Image, NDims = 3, one channel, binary data; ElementType MET_UCHAR,
-// MET_USHORT, MET_SHORT, MET_FLOAT (others are refused: tandem's volumes hold no other
-// type); ElementSpacing (else ElementSize); Offset / Position / Origin; TransformMatrix /
-// Rotation / Orientation, the world directions of the grid's x, y and z axes one after the
-// other, as ITK writes them (its direction matrix column by column); the world is ITK's,
-// LPS, whatever AnatomicalOrientation says (reported in the description); byte order
+// MET_CHAR, MET_USHORT, MET_SHORT, MET_UINT, MET_INT, MET_ULONG, MET_LONG (4 bytes, as
+// MetaIO sizes them), MET_ULONG_LONG, MET_LONG_LONG, MET_FLOAT (others are refused:
+// tandem's volumes hold no other type); ElementSpacing (else ElementSize); Offset / Position /
+// Origin; TransformMatrix / Rotation / Orientation, the world directions of the grid's x, y and z
+// axes one after the other, as ITK writes them (its direction matrix column by column); the world
+// is ITK's, LPS, whatever AnatomicalOrientation says (reported in the description); byte order
 // (ElementByteOrderMSB / BinaryDataByteOrderMSB); CompressedData (a zlib stream, optionally
 // CompressedDataSize bytes long); HeaderSize (bytes before the data in the data file, -1 =
 // the data ends the file); ElementDataFile LOCAL or one file (relative to the header).
@@ -94,14 +95,37 @@ absl::StatusOr<bool> Flag(const std::string& path, absl::string_view key, const 
   return MetaError(path, absl::StrCat(key, " = ", v, ": expected True or False"));
 }
 
+// MetaIO's ElementType names of each DType, the first the one written (MET_LONG and
+// MET_ULONG are 4 bytes in MetaIO's own size table).
+struct MetaType {
+  DType dtype;
+  std::vector<absl::string_view> names;
+};
+const std::vector<MetaType>& MetaTypes() {
+  static const auto* types = new std::vector<MetaType>{
+      {DType::kUInt8, {"MET_UCHAR"}},
+      {DType::kInt8, {"MET_CHAR"}},
+      {DType::kUInt16, {"MET_USHORT"}},
+      {DType::kInt16, {"MET_SHORT"}},
+      {DType::kUInt32, {"MET_UINT", "MET_ULONG"}},
+      {DType::kInt32, {"MET_INT", "MET_LONG"}},
+      {DType::kUInt64, {"MET_ULONG_LONG"}},
+      {DType::kInt64, {"MET_LONG_LONG"}},
+      {DType::kFloat32, {"MET_FLOAT"}},
+  };
+  return *types;
+}
+
 absl::StatusOr<DType> ElementType(const std::string& path, const std::string& name) {
-  if (name == "MET_UCHAR") return DType::kUInt8;
-  if (name == "MET_USHORT") return DType::kUInt16;
-  if (name == "MET_SHORT") return DType::kInt16;
-  if (name == "MET_FLOAT") return DType::kFloat32;
-  return MetaError(path, absl::StrCat("ElementType ", name,
-                                      " is not supported (MET_UCHAR, MET_USHORT, MET_SHORT, "
-                                      "MET_FLOAT: the types tandem's volumes hold)"));
+  std::string supported;
+  for (const MetaType& t : MetaTypes()) {
+    for (absl::string_view n : t.names) {
+      if (name == n) return t.dtype;
+      absl::StrAppend(&supported, supported.empty() ? "" : ", ", n);
+    }
+  }
+  return MetaError(path, absl::StrCat("ElementType ", name, " is not supported (", supported,
+                                      ": the types tandem's volumes hold)"));
 }
 
 absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const MetaHeader& h) {
@@ -238,10 +262,10 @@ absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,
         path, ": MetaImage is written uncompressed (.nrrd, .nii.gz and .zarr compress)"));
   }
   const bool detached = VolumeExtension(path) == ".mhd";
-  const char* type = info.dtype == DType::kUInt8    ? "MET_UCHAR"
-                     : info.dtype == DType::kUInt16 ? "MET_USHORT"
-                     : info.dtype == DType::kInt16  ? "MET_SHORT"
-                                                    : "MET_FLOAT";
+  absl::string_view type = "MET_FLOAT";
+  for (const MetaType& t : MetaTypes()) {
+    if (t.dtype == info.dtype) type = t.names[0];
+  }
   const auto triple = [](const std::array<double, 3>& v) {
     return absl::StrCat(FormatDouble(v[0] + 0.0), " ", FormatDouble(v[1] + 0.0), " ",
                         FormatDouble(v[2] + 0.0));

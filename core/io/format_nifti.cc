@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <cstring>
 #include <string>
+#include <utility>
 
 #include <nifti1_io.h>
 
@@ -87,6 +88,31 @@ absl::string_view NiftiTypeName(int code) {
   }
 }
 
+// The NIfTI datatype codes of the DTypes, both ways.
+constexpr std::pair<int16_t, DType> kNiftiTypes[] = {
+    {nh::kTypeUInt8, DType::kUInt8},    {nh::kTypeInt8, DType::kInt8},
+    {nh::kTypeUInt16, DType::kUInt16},  {nh::kTypeInt16, DType::kInt16},
+    {nh::kTypeUInt32, DType::kUInt32},  {nh::kTypeInt32, DType::kInt32},
+    {nh::kTypeUInt64, DType::kUInt64},  {nh::kTypeInt64, DType::kInt64},
+    {nh::kTypeFloat32, DType::kFloat32}};
+
+absl::StatusOr<DType> DTypeOfNifti(int16_t code) {
+  std::string supported;
+  for (const auto& [c, t] : kNiftiTypes) {
+    if (c == code) return t;
+    absl::StrAppend(&supported, supported.empty() ? "" : ", ", c, " (", Sv(DTypeName(t)), ")");
+  }
+  return absl::InvalidArgumentError(absl::StrCat("unsupported NIfTI datatype ", code, " (",
+                                                 NiftiTypeName(code), "); supported: ", supported));
+}
+
+int16_t NiftiCode(DType t) {
+  for (const auto& [c, type] : kNiftiTypes) {
+    if (type == t) return c;
+  }
+  return nh::kTypeFloat32;  // every DType is in the table
+}
+
 // gzip is detected from the content, not the name, so a mis-named file still opens.
 absl::StatusOr<bool> IsGzip(const std::string& path) {
   FILE* f = std::fopen(path.c_str(), "rb");
@@ -147,25 +173,9 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const uint
   info.nz = dim[3];
 
   const int16_t datatype = LoadScalar<int16_t>(hdr + nh::kDatatype, swap);
-  switch (datatype) {
-    case nh::kTypeUInt8:
-      info.dtype = DType::kUInt8;
-      break;
-    case nh::kTypeInt16:
-      info.dtype = DType::kInt16;
-      break;
-    case nh::kTypeUInt16:
-      info.dtype = DType::kUInt16;
-      break;
-    case nh::kTypeFloat32:
-      info.dtype = DType::kFloat32;
-      break;
-    default:
-      return NiftiError(
-          path, absl::StrCat("unsupported NIfTI datatype ", datatype, " (", NiftiTypeName(datatype),
-                             "); supported: 2 (uint8), 4 (int16), 512 (uint16), "
-                             "16 (float32)"));
-  }
+  absl::StatusOr<DType> dtype = DTypeOfNifti(datatype);
+  if (!dtype.ok()) return NiftiError(path, dtype.status().message());
+  info.dtype = *dtype;
   const int16_t bitpix = LoadScalar<int16_t>(hdr + nh::kBitpix, swap);
   if (bitpix != static_cast<int16_t>(8 * DTypeSize(info.dtype))) {
     return NiftiError(path, absl::StrCat("bitpix ", bitpix, " does not match datatype ", datatype,
@@ -292,11 +302,7 @@ absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const S
                           1,
                           1};
   for (int i = 0; i < 8; ++i) StoreScalar<int16_t>(hdr.data() + nh::kDim + 2 * i, dim[i], swap);
-  const int16_t datatype = info.dtype == DType::kUInt8    ? nh::kTypeUInt8
-                           : info.dtype == DType::kUInt16 ? nh::kTypeUInt16
-                           : info.dtype == DType::kInt16  ? nh::kTypeInt16
-                                                          : nh::kTypeFloat32;
-  StoreScalar<int16_t>(hdr.data() + nh::kDatatype, datatype, swap);
+  StoreScalar<int16_t>(hdr.data() + nh::kDatatype, NiftiCode(info.dtype), swap);
   StoreScalar<int16_t>(hdr.data() + nh::kBitpix, static_cast<int16_t>(8 * DTypeSize(info.dtype)),
                        swap);
   const float pixdim[8] = {1.0f,  // qfac

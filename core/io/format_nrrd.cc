@@ -1,10 +1,10 @@
 // NRRD reader: attached (.nrrd, header then a blank line then data) and detached (.nhdr
-// with "data file:"). Supported: dimension 3; types uchar/ushort/short/float and their
-// aliases; encodings raw and gzip; endian little/big; "spacings" or "space directions"
-// (lengths = spacing, unit vectors = the grid axes in the file's space: rotations and flips
-// are applied, sheared grids refused); "space origin"; "byte skip" >= 0 (and -1 for raw data); "content" becomes the
-// description and a "suggested_isovalues:=v1 v2" key/value pair is read back. WriteNrrd
-// (below) writes both forms, raw or gzip, in either byte order.
+// with "data file:"). Supported: dimension 3; the 8-, 16-, 32- and 64-bit integer types and
+// float, with their aliases; encodings raw and gzip; endian little/big; "spacings" or "space
+// directions" (lengths = spacing, unit vectors = the grid axes in the file's space: rotations and
+// flips are applied, sheared grids refused); "space origin"; "byte skip" >= 0 (and -1 for raw
+// data); "content" becomes the description and a "suggested_isovalues:=v1 v2" key/value pair is
+// read back. WriteNrrd (below) writes both forms, raw or gzip, in either byte order.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -107,22 +107,42 @@ absl::StatusOr<NrrdHeader> ReadHeader(const std::string& path, uint64_t file_siz
   return h;
 }
 
+// The NRRD type names of each DType (the standard's synonyms, lower case), the first the
+// one written.
+struct NrrdType {
+  DType dtype;
+  std::vector<absl::string_view> names;
+};
+const std::vector<NrrdType>& NrrdTypes() {
+  static const auto* types = new std::vector<NrrdType>{
+      {DType::kUInt8, {"uint8", "uchar", "unsigned char", "uint8_t"}},
+      {DType::kInt8, {"int8", "signed char", "int8_t"}},
+      {DType::kUInt16, {"uint16", "ushort", "unsigned short", "unsigned short int", "uint16_t"}},
+      {DType::kInt16,
+       {"int16", "short", "short int", "signed short", "signed short int", "int16_t"}},
+      {DType::kUInt32, {"uint32", "uint", "unsigned int", "uint32_t"}},
+      {DType::kInt32, {"int32", "int", "signed int", "int32_t"}},
+      {DType::kUInt64,
+       {"uint64", "ulonglong", "unsigned long long", "unsigned long long int", "uint64_t"}},
+      {DType::kInt64,
+       {"int64", "longlong", "long long", "long long int", "signed long long",
+        "signed long long int", "int64_t"}},
+      {DType::kFloat32, {"float"}},
+  };
+  return *types;
+}
+
 absl::StatusOr<DType> ParseNrrdType(const std::string& path, const std::string& name) {
   const std::string t = absl::AsciiStrToLower(name);
-  if (t == "uchar" || t == "unsigned char" || t == "uint8" || t == "uint8_t") {
-    return DType::kUInt8;
+  std::string supported;
+  for (const NrrdType& type : NrrdTypes()) {
+    for (absl::string_view n : type.names) {
+      if (t == n) return type.dtype;
+    }
+    absl::StrAppend(&supported, supported.empty() ? "" : ", ", type.names[0]);
   }
-  if (t == "ushort" || t == "unsigned short" || t == "unsigned short int" || t == "uint16" ||
-      t == "uint16_t") {
-    return DType::kUInt16;
-  }
-  if (t == "short" || t == "short int" || t == "signed short" || t == "signed short int" ||
-      t == "int16" || t == "int16_t") {
-    return DType::kInt16;
-  }
-  if (t == "float") return DType::kFloat32;
-  return NrrdError(
-      path, absl::StrCat("unsupported type '", name, "' (supported: uint8, uint16, int16, float)"));
+  return NrrdError(path,
+                   absl::StrCat("unsupported type '", name, "' (supported: ", supported, ")"));
 }
 
 // Parses "(a,b,c) (d,e,f) ..." into vectors of 3.
@@ -324,10 +344,10 @@ std::string OneLine(absl::string_view s) {
 absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                        const VolumeWriteOptions& opts) {
   const bool detached = VolumeExtension(path) == ".nhdr";
-  const char* type = info.dtype == DType::kUInt8    ? "uint8"
-                     : info.dtype == DType::kUInt16 ? "uint16"
-                     : info.dtype == DType::kInt16  ? "int16"
-                                                    : "float";
+  absl::string_view type = "float";
+  for (const NrrdType& t : NrrdTypes()) {
+    if (t.dtype == info.dtype) type = t.names[0];
+  }
   const auto& s = info.spacing;
   const auto& o = info.origin;
   std::string dirs;  // one voxel step per axis, in the world

@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <limits>
 #include <string>
+#include <type_traits>
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
@@ -79,7 +80,7 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
   }
 
   if (!j.contains("dtype") || !j["dtype"].is_string()) {
-    return SidecarError(path, "missing \"dtype\" (uint8, uint16, int16 or float32)");
+    return SidecarError(path, absl::StrCat("missing \"dtype\" (", DTypeNames(), ")"));
   }
   absl::StatusOr<DType> dtype = ParseDType(j["dtype"].get<std::string>());
   if (!dtype.ok()) return SidecarError(path, dtype.status().message());
@@ -185,17 +186,79 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& js
 // ---------------------------------------------------------------------------------------
 // Writer: raw voxels in STEM.raw beside the JSON sidecar.
 
+namespace {
+
+// The smallest and largest of integer voxels, exactly: signed types in int64, unsigned in
+// uint64.
+struct IntegerRange {
+  bool any = false;
+  int64_t lo = 0, hi = 0;
+  uint64_t ulo = 0, uhi = 0;
+
+  void Add(DType t, const uint8_t* src, size_t n) {
+    switch (t) {
+      case DType::kUInt8:
+        return Typed<uint8_t>(src, n);
+      case DType::kInt8:
+        return Typed<int8_t>(src, n);
+      case DType::kUInt16:
+        return Typed<uint16_t>(src, n);
+      case DType::kInt16:
+        return Typed<int16_t>(src, n);
+      case DType::kUInt32:
+        return Typed<uint32_t>(src, n);
+      case DType::kInt32:
+        return Typed<int32_t>(src, n);
+      case DType::kUInt64:
+        return Typed<uint64_t>(src, n);
+      case DType::kInt64:
+        return Typed<int64_t>(src, n);
+      case DType::kFloat32:
+        return;
+    }
+  }
+  template <typename J>
+  J Json(DType t) const {
+    if (IsSignedDType(t)) return J::array({lo, hi});
+    return J::array({ulo, uhi});
+  }
+
+ private:
+  template <typename T>
+  void Typed(const uint8_t* src, size_t n) {
+    for (size_t i = 0; i < n; ++i) {
+      T v;
+      std::memcpy(&v, src + i * sizeof(T), sizeof(T));
+      if constexpr (std::is_signed_v<T>) {
+        lo = any ? std::min<int64_t>(lo, v) : v;
+        hi = any ? std::max<int64_t>(hi, v) : v;
+      } else {
+        ulo = any ? std::min<uint64_t>(ulo, v) : v;
+        uhi = any ? std::max<uint64_t>(uhi, v) : v;
+      }
+      any = true;
+    }
+  }
+};
+
+}  // namespace
+
 absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                           const VolumeWriteOptions& opts) {
   const std::filesystem::path raw_path = SiblingPath(path, ".raw");
   absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(raw_path.string(), false);
   if (!w.ok()) return w.status();
   ValueRange range;  // of every slice (RangeOf: NaNs skipped), for the sidecar's "value_range"
+  IntegerRange exact;  // the same for integers, exactly (a float rounds ids past 2^24)
   Sha256 sha;
   absl::Status st = StreamSlices(
       path, info, slice_fn, opts.big_endian, w->get(),
       [&](const std::vector<uint8_t>& s) {
-        range.Merge(RangeOf(info.dtype, s.data(), info.slice_voxels()));
+        if (IsIntegerDType(info.dtype)) {
+          exact.Add(info.dtype, s.data(), static_cast<size_t>(info.slice_voxels()));
+        } else {
+          range.Merge(RangeOf(info.dtype, s.data(), info.slice_voxels()));
+        }
       },
       &sha);
   if (st.ok()) st = (*w)->Close();
@@ -222,12 +285,12 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
   j["suggested_isovalues"] = info.suggested_isovalues;
   j["description"] = info.description;
   j["modality"] = opts.modality;
-  if (range.empty()) {
-    j["value_range"] = nullptr;
-  } else if (info.dtype == DType::kFloat32) {
+  if (IsIntegerDType(info.dtype) && exact.any) {
+    j["value_range"] = exact.Json<ojson>(info.dtype);
+  } else if (!IsIntegerDType(info.dtype) && !range.empty()) {
     j["value_range"] = {static_cast<double>(range.lo), static_cast<double>(range.hi)};
   } else {
-    j["value_range"] = {static_cast<int64_t>(range.lo), static_cast<int64_t>(range.hi)};
+    j["value_range"] = nullptr;
   }
   j["raw_file"] = raw_path.filename().string();
   j["raw_bytes"] = VolumeBytes(info);

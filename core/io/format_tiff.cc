@@ -1,8 +1,9 @@
 // Multi-page TIFF stacks (one page = one z-slice) through libtiff, reader and writer.
 //
 // Pages must all share width, height, bits per sample and sample format; 1 sample per pixel;
-// 8/16-bit unsigned, 16-bit signed or 32-bit IEEE float; strips or tiles, any compression
-// libtiff decodes. Values are delivered as stored (PhotometricInterpretation is ignored).
+// 8/16/32/64-bit unsigned or signed integers or 32-bit IEEE float; strips or tiles, any
+// compression libtiff decodes. Values are delivered as stored (PhotometricInterpretation is
+// ignored).
 //
 // Geometry: a plain TIFF has no reliable notion of voxel size (X/YResolution are usually
 // print DPI), so spacing is (1,1,1) and origin 0. Stacks written by ImageJ/Fiji (and by
@@ -143,23 +144,28 @@ absl::Status CheckTileSize(const std::string& path, int64_t page, const PageForm
   return absl::OkStatus();
 }
 
+uint16_t TiffSampleFormat(DType t) {
+  return t == DType::kFloat32 ? SAMPLEFORMAT_IEEEFP
+         : IsSignedDType(t)   ? SAMPLEFORMAT_INT
+                              : SAMPLEFORMAT_UINT;
+}
+
 absl::StatusOr<DType> PageDType(const std::string& path, int64_t page, const PageFormat& p) {
   if (p.samples != 1) {
     return absl::InvalidArgumentError(
         absl::StrCat(path, ": page ", page, " has ", p.samples,
                      " samples per pixel (RGB?); only single-channel stacks are supported"));
   }
-  if (p.sample_format == SAMPLEFORMAT_UINT && p.bits == 8) return DType::kUInt8;
-  if (p.sample_format == SAMPLEFORMAT_UINT && p.bits == 16) return DType::kUInt16;
-  if (p.sample_format == SAMPLEFORMAT_INT && p.bits == 16) return DType::kInt16;
-  if (p.sample_format == SAMPLEFORMAT_IEEEFP && p.bits == 32) return DType::kFloat32;
+  for (DType t : kAllDTypes) {
+    if (p.bits == 8 * DTypeSize(t) && p.sample_format == TiffSampleFormat(t)) return t;
+  }
   const char* kind = p.sample_format == SAMPLEFORMAT_INT      ? "signed integer"
                      : p.sample_format == SAMPLEFORMAT_IEEEFP ? "floating-point"
                      : p.sample_format == SAMPLEFORMAT_UINT   ? "unsigned integer"
                                                               : "complex/other";
   return absl::InvalidArgumentError(
       absl::StrCat(path, ": unsupported pixel type on page ", page, ": ", p.bits, "-bit ", kind,
-                   " (supported: 8/16-bit unsigned, 16-bit signed, 32-bit float)"));
+                   " (supported: 8/16/32/64-bit unsigned or signed integer, 32-bit float)"));
 }
 
 // Strip/tile extents must lie inside the file; catches truncation before any slice is read.
@@ -466,9 +472,7 @@ absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
   TIFF* tif = f.get();
 
   uint16_t bits = static_cast<uint16_t>(8 * DTypeSize(info.dtype));
-  uint16_t format = info.dtype == DType::kInt16     ? SAMPLEFORMAT_INT
-                    : info.dtype == DType::kFloat32 ? SAMPLEFORMAT_IEEEFP
-                                                    : SAMPLEFORMAT_UINT;
+  uint16_t format = TiffSampleFormat(info.dtype);
   // ImageJ-style description: carries z spacing and the origin (in pixels, negated).
   std::string desc = absl::StrCat("ImageJ=1.11a\nimages=", info.nz, "\nslices=", info.nz,
                                   "\nunit=mm\nspacing=", FormatDouble(info.spacing[2]), "\n");

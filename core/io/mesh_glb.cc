@@ -8,6 +8,19 @@
 
 namespace tandem::internal::meshio {
 
+void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes) {
+  json.append((4 - json.size() % 4) % 4, ' ');
+  out.AppendLe32(0x46546C67u);  // "glTF"
+  out.AppendLe32(2);
+  out.AppendLe32(static_cast<uint32_t>(12 + 8 + json.size() + (bin_bytes > 0 ? 8 + bin_bytes : 0)));
+  out.AppendLe32(static_cast<uint32_t>(json.size()));
+  out.AppendLe32(0x4E4F534Au);  // "JSON"
+  out.Append(json);
+  if (bin_bytes == 0) return;
+  out.AppendLe32(static_cast<uint32_t>(bin_bytes));
+  out.AppendLe32(0x004E4942u);  // "BIN\0"
+}
+
 // GLB (binary glTF 2.0): one mesh, one triangle primitive with POSITION, NORMAL (unit
 // length, as glTF requires: a vertex whose triangles have no area gets +z) and 32-bit
 // indices, in one buffer. glTF's unit is the metre; positions keep the mesh's units.
@@ -80,19 +93,9 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
     j.erase("accessors");
     j["nodes"] = nlohmann::json::array({nlohmann::json::object()});
   }
-  std::string text = j.dump();
-  text.append((4 - text.size() % 4) % 4, ' ');
   const size_t bin_payload = draco_bytes > 0 ? (draco_bytes + 3) / 4 * 4 : bin_bytes;
-  const size_t bin_chunk = nv == 0 ? 0 : 8 + bin_payload;
-  out.AppendLe32(0x46546C67u);  // "glTF"
-  out.AppendLe32(2);
-  out.AppendLe32(static_cast<uint32_t>(12 + 8 + text.size() + bin_chunk));
-  out.AppendLe32(static_cast<uint32_t>(text.size()));
-  out.AppendLe32(0x4E4F534Au);  // "JSON"
-  out.Append(text);
+  AppendGlbContainer(out, j.dump(), nv == 0 ? 0 : bin_payload);
   if (nv == 0) return;
-  out.AppendLe32(static_cast<uint32_t>(bin_payload));
-  out.AppendLe32(0x004E4942u);  // "BIN\0"
   if (draco_bytes > 0) {
     out.Append(draco->bytes);
     out.Append(std::string(bin_payload - draco_bytes, '\0'));

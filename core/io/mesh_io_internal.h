@@ -132,6 +132,10 @@ void WriteStl(const IndexedMesh& mesh, Space space, BufferedWriter& out);
 // appearance, so a mesh written by WriteStl reads back with its vertex count.
 absl::StatusOr<IndexedMesh> ReadStl(const std::string& path, const std::string& data);
 
+// The GLB container up to its binary payload: the 12-byte header, the JSON chunk (`json`,
+// padded here to 4 bytes with spaces) and, when bin_bytes > 0 (a multiple of 4), the BIN
+// chunk's header; the caller appends the payload.
+void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes);
 // GLB, binary glTF 2.0 (mesh_glb.cc); with `draco`, the primitive is that Draco buffer.
 void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
               const GlbDracoPrimitive* draco, Space space, BufferedWriter& out);

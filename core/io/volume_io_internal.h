@@ -293,7 +293,9 @@ inline constexpr int kQuaternB = 256;   // float x3 (b, c, d)
 inline constexpr int kQoffsetX = 268;   // float x3
 inline constexpr int kSrowX = 280;      // float[4] x3 (srow_x, srow_y, srow_z)
 inline constexpr int kMagic = 344;      // char[4]
-inline constexpr int16_t kTypeUInt8 = 2, kTypeInt16 = 4, kTypeFloat32 = 16, kTypeUInt16 = 512;
+inline constexpr int16_t kTypeUInt8 = 2, kTypeInt16 = 4, kTypeInt32 = 8, kTypeFloat32 = 16,
+                         kTypeInt8 = 256, kTypeUInt16 = 512, kTypeUInt32 = 768, kTypeInt64 = 1024,
+                         kTypeUInt64 = 1280;
 }  // namespace nifti
 
 }  // namespace tandem::internal

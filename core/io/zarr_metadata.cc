@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <limits>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -105,29 +106,28 @@ absl::StatusOr<std::vector<int64_t>> IntList(const std::string& file, const json
   return out;
 }
 
-// v2 "<u2" / ">f4" / "|u1"; v3 "uint16" (byte order from the bytes codec).
+// v2 "<u2" / ">f4" / "|u1" (numpy's typestr: byte order, kind, size); v3 "uint16" (byte
+// order from the bytes codec).
 absl::Status ParseV2DType(const std::string& file, const json& v, ArrayMeta* m) {
   const std::string s = v.is_string() ? v.get<std::string>() : v.dump();
   const auto bad = [&] {
     return MetaError(file, absl::StrCat("unsupported dtype '", s,
-                                        "' (supported: |u1, <u2, >u2, <i2, >i2, <f4, >f4)"));
+                                        "' (supported: |u1, |i1, <u2, <i2, <u4, <i4, <u8, "
+                                        "<i8, <f4, or > for big-endian)"));
   };
   if (!v.is_string() || s.size() != 3) return bad();
-  const std::string kind = s.substr(1);
-  if (kind == "u1") {
-    m->dtype = DType::kUInt8;
-  } else if (kind == "u2") {
-    m->dtype = DType::kUInt16;
-  } else if (kind == "i2") {
-    m->dtype = DType::kInt16;
-  } else if (kind == "f4") {
-    m->dtype = DType::kFloat32;
-  } else {
-    return bad();
+  bool found = false;
+  for (DType t : kAllDTypes) {
+    const char kind = t == DType::kFloat32 ? 'f' : IsSignedDType(t) ? 'i' : 'u';
+    if (s[1] == kind && s[2] == static_cast<char>('0' + DTypeSize(t))) {
+      m->dtype = t;
+      found = true;
+    }
   }
+  if (!found) return bad();
   if (s[0] == '>') {
     m->big_endian = true;
-  } else if (s[0] == '<' || (s[0] == '|' && m->dtype == DType::kUInt8)) {
+  } else if (s[0] == '<' || (s[0] == '|' && DTypeSize(m->dtype) == 1)) {
     m->big_endian = false;
   } else {
     return bad();
@@ -162,44 +162,77 @@ absl::Status ParseFill(const std::string& file, const json& v, ArrayMeta* m) {
   } else {
     return MetaError(file, absl::StrCat("unsupported fill_value ", v.dump()));
   }
-  const auto range = [&](double lo, double hi) -> absl::Status {
-    if (!(d >= lo && d <= hi) || d != std::floor(d)) {
-      return MetaError(file, absl::StrCat("fill_value ", v.dump(), " does not fit dtype ",
-                                          Sv(DTypeName(m->dtype))));
+  const auto misfit = [&] {
+    return MetaError(file, absl::StrCat("fill_value ", v.dump(), " does not fit dtype ",
+                                        Sv(DTypeName(m->dtype))));
+  };
+  // An integer fill, exactly: JSON integers as they are (a uint64 id is beyond a double's
+  // 53 bits), any other number only if it is a whole one.
+  const auto integer = [&](auto* x) -> absl::Status {
+    using T = std::remove_pointer_t<decltype(x)>;
+    if (v.is_number_unsigned()) {
+      const uint64_t u = v.get<uint64_t>();
+      if (u > static_cast<uint64_t>(std::numeric_limits<T>::max())) return misfit();
+      *x = static_cast<T>(u);
+    } else if (v.is_number_integer()) {
+      const int64_t i = v.get<int64_t>();
+      if (!std::in_range<T>(i)) return misfit();
+      *x = static_cast<T>(i);
+    } else {
+      // 2^63 and 2^64 are exact doubles: below them every whole double converts.
+      if (!(d >= static_cast<double>(std::numeric_limits<T>::lowest()) &&
+            d < std::ldexp(1.0, std::numeric_limits<T>::digits)) ||
+          d != std::floor(d)) {
+        return misfit();
+      }
+      *x = static_cast<T>(d);
     }
     return absl::OkStatus();
   };
-  uint8_t host[4] = {};
+  const auto store = [&](auto x) -> absl::Status {
+    TANDEM_RETURN_IF_ERROR(integer(&x));
+    std::memcpy(m->fill.data(), &x, sizeof x);
+    return absl::OkStatus();
+  };
+  m->fill = {};
   switch (m->dtype) {
     case DType::kUInt8:
-      TANDEM_RETURN_IF_ERROR(range(0, 255));
-      host[0] = static_cast<uint8_t>(d);
+      TANDEM_RETURN_IF_ERROR(store(uint8_t{}));
       break;
-    case DType::kUInt16: {
-      TANDEM_RETURN_IF_ERROR(range(0, 65535));
-      const uint16_t x = static_cast<uint16_t>(d);
-      std::memcpy(host, &x, 2);
+    case DType::kInt8:
+      TANDEM_RETURN_IF_ERROR(store(int8_t{}));
       break;
-    }
-    case DType::kInt16: {
-      TANDEM_RETURN_IF_ERROR(range(-32768, 32767));
-      const int16_t x = static_cast<int16_t>(d);
-      std::memcpy(host, &x, 2);
+    case DType::kUInt16:
+      TANDEM_RETURN_IF_ERROR(store(uint16_t{}));
       break;
-    }
+    case DType::kInt16:
+      TANDEM_RETURN_IF_ERROR(store(int16_t{}));
+      break;
+    case DType::kUInt32:
+      TANDEM_RETURN_IF_ERROR(store(uint32_t{}));
+      break;
+    case DType::kInt32:
+      TANDEM_RETURN_IF_ERROR(store(int32_t{}));
+      break;
+    case DType::kUInt64:
+      TANDEM_RETURN_IF_ERROR(store(uint64_t{}));
+      break;
+    case DType::kInt64:
+      TANDEM_RETURN_IF_ERROR(store(int64_t{}));
+      break;
     case DType::kFloat32: {
       if (have_bits) {
-        std::memcpy(host, &bits, 4);
+        std::memcpy(m->fill.data(), &bits, 4);
       } else {
         const float x = static_cast<float>(d);
-        std::memcpy(host, &x, 4);
+        std::memcpy(m->fill.data(), &x, 4);
       }
       break;
     }
   }
-  const size_t es = DTypeSize(m->dtype);
-  if (m->big_endian == kHostIsLittleEndian) SwapBytesInPlace(host, 1, es);
-  std::memcpy(m->fill.data(), host, es);
+  // In the host's order now: into the array's.
+  if (m->big_endian == kHostIsLittleEndian)
+    SwapBytesInPlace(m->fill.data(), 1, DTypeSize(m->dtype));
   return absl::OkStatus();
 }
 
@@ -407,8 +440,8 @@ absl::StatusOr<ArrayMeta> ParseV3Array(const std::string& dir, const std::string
   const std::string dts = dt.is_string() ? dt.get<std::string>() : dt.dump();
   absl::StatusOr<DType> t = ParseDType(dts);
   if (!dt.is_string() || !t.ok()) {
-    return MetaError(file, absl::StrCat("unsupported data_type '", dts,
-                                        "' (supported: uint8, uint16, int16, float32)"));
+    return MetaError(
+        file, absl::StrCat("unsupported data_type '", dts, "' (supported: ", DTypeNames(), ")"));
   }
   m.dtype = *t;
   TANDEM_RETURN_IF_ERROR(ParseV3Codecs(file, j["codecs"], &m));

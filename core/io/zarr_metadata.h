@@ -28,7 +28,7 @@ struct ArrayMeta {
   bool big_endian = false;
   bool has_compression = false;
   Compression compression;
-  std::array<uint8_t, 4> fill{};  // one element in stored byte order
+  std::array<uint8_t, 8> fill{};  // one element in stored byte order
   bool v3_default_key = false;    // "c/0/1/2" (v3 default) vs "0.1.2" (v2)
   char separator = '.';
   std::vector<double> isovalues;  // the array's "suggested_isovalues" attribute (tandem's)

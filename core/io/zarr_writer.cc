@@ -197,11 +197,11 @@ class ZarrAppenderImpl final : public ZarrAppender {
            {"attributes", ArrayAttributes()},
            {"dimension_names", {"z", "y", "x"}}});
     }
-    const char kind = info_.dtype == DType::kFloat32 ? 'f'
-                      : info_.dtype == DType::kInt16 ? 'i'
-                                                     : 'u';
-    const std::string dtype =
-        es_ == 1 ? "|u1" : absl::StrCat(opts_.big_endian ? ">" : "<", std::string(1, kind), es_);
+    const char kind = info_.dtype == DType::kFloat32 ? 'f' : IsSignedDType(info_.dtype) ? 'i' : 'u';
+    const std::string dtype = absl::StrCat(es_ == 1           ? "|"
+                                           : opts_.big_endian ? ">"
+                                                              : "<",
+                                           std::string(1, kind), es_);
     return WriteJson((dir / ".zarray").string(),
                      {{"zarr_format", 2},
                       {"shape", shape},

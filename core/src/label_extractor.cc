@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cstring>
+#include <type_traits>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
@@ -46,26 +47,31 @@ Point Centroid(std::initializer_list<int> corners) {
 
 }  // namespace
 
+namespace {
+template <typename T>
+bool LabelOf(const uint8_t* bytes, size_t i, LabelId* out, int64_t* refused) {
+  T v;
+  std::memcpy(&v, bytes + i * sizeof(v), sizeof(v));
+  *out = static_cast<LabelId>(v);
+  if constexpr (std::is_signed_v<T>) {
+    *refused = static_cast<int64_t>(v);
+    return v >= 0;
+  }
+  return true;
+}
+}  // namespace
+
 bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out, int64_t* refused) {
   switch (dtype) {
-    case DType::kUInt8:
-      *out = bytes[i];
-      return true;
-    case DType::kUInt16: {
-      uint16_t v;
-      std::memcpy(&v, bytes + i * sizeof(v), sizeof(v));
-      *out = v;
-      return true;
-    }
-    case DType::kInt16: {
-      int16_t v;
-      std::memcpy(&v, bytes + i * sizeof(v), sizeof(v));
-      *out = static_cast<LabelId>(static_cast<uint16_t>(v));
-      *refused = v;
-      return v >= 0;
-    }
-    case DType::kFloat32:
-      break;
+    case DType::kUInt8: return LabelOf<uint8_t>(bytes, i, out, refused);
+    case DType::kInt8: return LabelOf<int8_t>(bytes, i, out, refused);
+    case DType::kUInt16: return LabelOf<uint16_t>(bytes, i, out, refused);
+    case DType::kInt16: return LabelOf<int16_t>(bytes, i, out, refused);
+    case DType::kUInt32: return LabelOf<uint32_t>(bytes, i, out, refused);
+    case DType::kInt32: return LabelOf<int32_t>(bytes, i, out, refused);
+    case DType::kUInt64: return LabelOf<uint64_t>(bytes, i, out, refused);
+    case DType::kInt64: return LabelOf<int64_t>(bytes, i, out, refused);
+    case DType::kFloat32: break;
   }
   return false;
 }

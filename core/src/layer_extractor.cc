@@ -78,7 +78,9 @@ bool LayerExtractor::ComputeClosingLayer() {
 size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny, DType dtype) {
   const size_t n = static_cast<size_t>(nx * ny);
   const size_t words = static_cast<size_t>((nx + 63) / 64 * ny);
-  const size_t value = dtype == DType::kFloat32 ? sizeof(float) : sizeof(uint16_t);
+  const size_t value = dtype == DType::kFloat32 || !SliceValues::ScannedAsIs(dtype)
+                           ? sizeof(float)
+                           : sizeof(uint16_t);
   return n * 2 * value + 2 * words * sizeof(uint64_t) + 5 * words * sizeof(uint32_t);
 }
 
@@ -336,6 +338,10 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
         absl::StrCat("slice ", k, " is past the end of the volume (nz = ", config_.nz, ")"));
   }
   if (labels_) return labels_->Compute(slice, this);
+  if (!SliceValues::ScannedAsIs(slice.dtype)) {
+    return absl::InternalError(absl::StrCat(std::string(DTypeName(slice.dtype)),
+                                            " voxels reach the extractor unconverted"));
+  }
   if (ze_.first.empty()) AllocatePlanes();  // ze_ last: all or nothing
   // Copy the slice and its signs into the bottom buffers (slice k-2's, no longer needed),
   // validating as we go; they become the top only if the whole slice is finite, so a bad
@@ -355,6 +361,12 @@ absl::Status LayerExtractor::ComputeLayer(SliceValues slice) {
       case DType::kFloat32:
         finite &= ScanRow(reinterpret_cast<const float*>(row), nx, v_bottom_.f.data() + at, signs);
         break;
+      case DType::kInt8:
+      case DType::kUInt32:
+      case DType::kInt32:
+      case DType::kUInt64:
+      case DType::kInt64:
+        break;  // refused above
     }
   }
   if (!finite) {

@@ -38,6 +38,10 @@ struct SliceValues {
   const uint8_t* bytes = nullptr;
   DType dtype = DType::kFloat32;
 
+  // The types read as they are; TandemSession::AddSliceBytes converts any other to float32.
+  static constexpr bool ScannedAsIs(DType t) {
+    return t == DType::kUInt8 || t == DType::kUInt16 || t == DType::kInt16 || t == DType::kFloat32;
+  }
   static SliceValues Floats(const float* values) {
     return {reinterpret_cast<const uint8_t*>(values), DType::kFloat32};
   }
@@ -215,7 +219,13 @@ class LayerExtractor {
         case DType::kUInt8:
         case DType::kUInt16: return static_cast<float>(h[i]);
         case DType::kInt16: return static_cast<float>(static_cast<int16_t>(h[i]));
-        case DType::kFloat32: break;
+        case DType::kFloat32:
+        case DType::kInt8:
+        case DType::kUInt32:
+        case DType::kInt32:
+        case DType::kUInt64:
+        case DType::kInt64:
+          break;  // held as float32 (SliceValues::ScannedAsIs)
       }
       return f[i];
     }

@@ -92,7 +92,9 @@ struct TandemSession::Impl {
   int ring_next = 0;
   std::unique_ptr<TaskGroup> steps;  // the queued slab steps
   MergedCounts merged;               // of the slabs merged away by Finish
-  std::vector<float> convert;  // float32 bytes not aligned for float (one part or unqueued)
+  // float32 bytes not aligned for float (one part or unqueued); voxels of a type the
+  // extractor does not read as it is (SliceValues::ScannedAsIs), converted
+  std::vector<float> convert;
   SessionStats stats;
   int64_t chunks_taken = 0;  // TakeSealed: the next chunk's index
   // Sealing: each slab step's share of the sealed mesh, cut as the step ends (CutSealed), by

@@ -75,6 +75,13 @@ absl::Status TandemSession::AddSliceBytes(DType dtype, const uint8_t* bytes) {
   Impl& s = *impl_;
   if (s.options.labels.enabled && dtype == DType::kFloat32) return FloatLabelsError();
   return s.Guarded([&] {
+    // An intensity volume of int8, 32- or 64-bit integers: as float32 (a label session reads
+    // every integer type as it is).
+    if (!s.options.labels.enabled && !SliceValues::ScannedAsIs(dtype)) {
+      s.convert.resize(static_cast<size_t>(s.grid.nx * s.grid.ny));
+      ConvertToFloat(dtype, bytes, s.convert.size(), s.convert.data());
+      return s.AddSlice(s.convert.data(), DType::kFloat32, nullptr);
+    }
     if (dtype == DType::kFloat32 && reinterpret_cast<uintptr_t>(bytes) % alignof(float) == 0) {
       // host-order floats as they are
       return s.AddSlice(reinterpret_cast<const float*>(bytes), DType::kFloat32, nullptr);

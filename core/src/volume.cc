@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 #include <utility>
 
 #include "absl/strings/match.h"
@@ -25,27 +26,50 @@ std::string_view DTypeName(DType t) {
       return "int16";
     case DType::kFloat32:
       return "float32";
+    case DType::kInt8:
+      return "int8";
+    case DType::kUInt32:
+      return "uint32";
+    case DType::kInt32:
+      return "int32";
+    case DType::kUInt64:
+      return "uint64";
+    case DType::kInt64:
+      return "int64";
   }
   return "unknown";
 }
 
+std::string DTypeNames() {
+  std::string names;
+  for (DType t : kAllDTypes)
+    absl::StrAppend(&names, names.empty() ? "" : ", ", std::string(DTypeName(t)));
+  return names;
+}
+
 absl::StatusOr<DType> ParseDType(std::string_view name) {
-  for (DType t : {DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32}) {
+  for (DType t : kAllDTypes) {
     if (name == DTypeName(t)) return t;
   }
-  return absl::InvalidArgumentError(absl::StrCat("unsupported dtype '", std::string(name),
-                                                 "' (supported: uint8, uint16, int16, float32)"));
+  return absl::InvalidArgumentError(
+      absl::StrCat("unsupported dtype '", std::string(name), "' (supported: ", DTypeNames(), ")"));
 }
 
 size_t DTypeSize(DType t) {
   switch (t) {
     case DType::kUInt8:
+    case DType::kInt8:
       return 1;
     case DType::kUInt16:
     case DType::kInt16:
       return 2;
     case DType::kFloat32:
+    case DType::kUInt32:
+    case DType::kInt32:
       return 4;
+    case DType::kUInt64:
+    case DType::kInt64:
+      return 8;
   }
   return 1;
 }
@@ -215,8 +239,13 @@ void ConvertTyped(const uint8_t* src, size_t n, float* dst) {
 
 // 16 bytes of each type (the attribute does not apply to a template parameter).
 typedef uint8_t U8x16 __attribute__((vector_size(16)));
+typedef int8_t I8x16 __attribute__((vector_size(16)));
 typedef uint16_t U16x8 __attribute__((vector_size(16)));
 typedef int16_t I16x8 __attribute__((vector_size(16)));
+typedef uint32_t U32x4 __attribute__((vector_size(16)));
+typedef int32_t I32x4 __attribute__((vector_size(16)));
+typedef uint64_t U64x2 __attribute__((vector_size(16)));
+typedef int64_t I64x2 __attribute__((vector_size(16)));
 typedef float F32x4 __attribute__((vector_size(16)));
 
 // Smallest and largest of n values of type T, NaNs skipped: `v < lo ? v : lo` keeps lo when v
@@ -282,6 +311,16 @@ ValueRange RangeOf(DType t, const uint8_t* src, size_t n) {
       return RangeTyped<int16_t, I16x8>(src, n);
     case DType::kFloat32:
       return RangeTyped<float, F32x4>(src, n);
+    case DType::kInt8:
+      return RangeTyped<int8_t, I8x16>(src, n);
+    case DType::kUInt32:
+      return RangeTyped<uint32_t, U32x4>(src, n);
+    case DType::kInt32:
+      return RangeTyped<int32_t, I32x4>(src, n);
+    case DType::kUInt64:
+      return RangeTyped<uint64_t, U64x2>(src, n);
+    case DType::kInt64:
+      return RangeTyped<int64_t, I64x2>(src, n);
   }
   return {};
 }
@@ -301,7 +340,74 @@ void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst) {
     case DType::kFloat32:
       std::memcpy(dst, src, n * sizeof(float));
       break;
+    case DType::kInt8:
+      ConvertTyped<int8_t>(src, n, dst);
+      break;
+    case DType::kUInt32:
+      ConvertTyped<uint32_t>(src, n, dst);
+      break;
+    case DType::kInt32:
+      ConvertTyped<int32_t>(src, n, dst);
+      break;
+    case DType::kUInt64:
+      ConvertTyped<uint64_t>(src, n, dst);
+      break;
+    case DType::kInt64:
+      ConvertTyped<int64_t>(src, n, dst);
+      break;
   }
+}
+
+namespace {
+template <typename T>
+absl::Status LabelsTyped(const uint8_t* src, size_t n, uint64_t* out) {
+  T any_negative = 0;  // the OR of all values: its sign bit says whether one is negative
+  for (size_t i = 0; i < n; ++i) {
+    T v;
+    std::memcpy(&v, src + i * sizeof(T), sizeof(T));  // may be unaligned
+    out[i] = static_cast<uint64_t>(v);
+    any_negative |= v;
+  }
+  if constexpr (std::is_signed_v<T>) {
+    if (any_negative < 0) {
+      for (size_t i = 0; i < n; ++i) {
+        T v;
+        std::memcpy(&v, src + i * sizeof(T), sizeof(T));
+        if (v < 0) {
+          return absl::InvalidArgumentError(
+              absl::StrCat("voxel ", i, " holds ", static_cast<int64_t>(v),
+                           ": label ids must not be negative (a signed label map holds ids >= 0)"));
+        }
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+}  // namespace
+
+absl::Status ToLabelIds(DType t, const uint8_t* bytes, size_t n, uint64_t* out) {
+  switch (t) {
+    case DType::kUInt8:
+      return LabelsTyped<uint8_t>(bytes, n, out);
+    case DType::kInt8:
+      return LabelsTyped<int8_t>(bytes, n, out);
+    case DType::kUInt16:
+      return LabelsTyped<uint16_t>(bytes, n, out);
+    case DType::kInt16:
+      return LabelsTyped<int16_t>(bytes, n, out);
+    case DType::kUInt32:
+      return LabelsTyped<uint32_t>(bytes, n, out);
+    case DType::kInt32:
+      return LabelsTyped<int32_t>(bytes, n, out);
+    case DType::kUInt64:
+      return LabelsTyped<uint64_t>(bytes, n, out);
+    case DType::kInt64:
+      return LabelsTyped<int64_t>(bytes, n, out);
+    case DType::kFloat32:
+      break;
+  }
+  return absl::InvalidArgumentError(
+      absl::StrCat("label ids must be integers; the voxels are ", std::string(DTypeName(t))));
 }
 
 int64_t FirstNonFinite(const uint8_t* bytes, size_t n) {

@@ -25,24 +25,8 @@
 namespace tandem {
 namespace {
 
-struct Output {
-  int code = -1;
-  std::string text;  // stdout and stderr together
-};
-
-// Runs a shell command line, stderr with stdout.
-Output RunCommand(const std::string& command) {
-  const std::string cmd = command + " 2>&1";
-  Output out;
-  FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return out;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.text.append(buf, n);
-  const int status = pclose(p);
-  out.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return out;
-}
+using Output = testing::CommandOutput;
+using testing::RunCommand;
 
 Output RunTandem(const std::string& args) {
   return RunCommand(testing::BinPath("tandem") + " " + args);

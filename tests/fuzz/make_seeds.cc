@@ -57,6 +57,32 @@ void Write(const fs::path& path, const VolumeInfo& info, const VolumeWriteOption
           case DType::kUInt16: { uint16_t x = static_cast<uint16_t>(v < 0 ? 0 : v * 100); std::memcpy(p, &x, 2); break; }
           case DType::kInt16: { int16_t x = static_cast<int16_t>(v); std::memcpy(p, &x, 2); break; }
           case DType::kFloat32: { float x = static_cast<float>(v); std::memcpy(p, &x, 4); break; }
+          // The wider integers as label maps: ids past float's 2^24 (and uint64's past 2^53).
+          case DType::kInt8: {
+            int8_t x = static_cast<int8_t>(v < 0 ? -1 : v);
+            std::memcpy(p, &x, 1);
+            break;
+          }
+          case DType::kUInt32: {
+            uint32_t x = v < 0 ? 0 : 0x1000001u + static_cast<uint32_t>(v);
+            std::memcpy(p, &x, 4);
+            break;
+          }
+          case DType::kInt32: {
+            int32_t x = v < 0 ? 0 : 0x7000001 + static_cast<int32_t>(v);
+            std::memcpy(p, &x, 4);
+            break;
+          }
+          case DType::kUInt64: {
+            uint64_t x = v < 0 ? 0 : (uint64_t{1} << 60) + 1 + static_cast<uint64_t>(v);
+            std::memcpy(p, &x, 8);
+            break;
+          }
+          case DType::kInt64: {
+            int64_t x = v < 0 ? 0 : (int64_t{1} << 54) + 1 + static_cast<int64_t>(v);
+            std::memcpy(p, &x, 8);
+            break;
+          }
         }
       }
     }
@@ -106,6 +132,9 @@ int main(int argc, char** argv) {
   raw_seed(spaced, big);
   raw_seed(Info(3, 3, 2, DType::kFloat32), {});
   raw_seed(Info(6, 2, 2, DType::kUInt16), {});
+  raw_seed(Info(4, 3, 2, DType::kUInt32), {});
+  raw_seed(Info(3, 3, 2, DType::kUInt64), big);
+  raw_seed(Info(5, 2, 2, DType::kInt8), {});
 
   // NRRD: attached raw / gzip / big-endian, and detached headers matching the target's
   // 4096-byte companions fz.raw and fz.raw.gz.
@@ -114,6 +143,8 @@ int main(int argc, char** argv) {
   Write(out / "fuzz_nrrd" / "seed_attached_uint8.nrrd", Info(5, 4, 3, DType::kUInt8));
   Write(out / "fuzz_nrrd" / "seed_attached_gzip_int16.nrrd", spaced, gz);
   Write(out / "fuzz_nrrd" / "seed_attached_big_float32.nrrd", Info(3, 3, 2, DType::kFloat32), big);
+  Write(out / "fuzz_nrrd" / "seed_attached_big_uint32.nrrd", Info(4, 3, 2, DType::kUInt32), big);
+  Write(out / "fuzz_nrrd" / "seed_attached_gzip_int64.nrrd", Info(3, 3, 2, DType::kInt64), gz);
   Write(tmp / "fz.nhdr", Info(16, 16, 16, DType::kUInt8));
   Put(out / "fuzz_nrrd" / "seed_detached_raw", Slurp(tmp / "fz.nhdr"));
   Write(tmp / "fz.nhdr", Info(8, 8, 32, DType::kUInt16), gz);
@@ -132,6 +163,9 @@ int main(int argc, char** argv) {
   scaled.nifti_scl_inter = 1.0f;
   Write(out / "fuzz_nifti" / "seed_scaled_uint16.nii", Info(4, 3, 2, DType::kUInt16), scaled);
   Write(out / "fuzz_nifti" / "seed_gzip_float32.nii.gz", Info(3, 3, 2, DType::kFloat32));
+  Write(out / "fuzz_nifti" / "seed_uint32.nii", Info(4, 3, 2, DType::kUInt32));
+  Write(out / "fuzz_nifti" / "seed_big_uint64.nii", Info(3, 3, 2, DType::kUInt64), big);
+  Write(out / "fuzz_nifti" / "seed_int8.nii", Info(5, 2, 2, DType::kInt8));
 
   // TIFF: strips, big-endian, tiles, deflate.
   Write(out / "fuzz_tiff" / "seed_strips_uint8.tif", Info(5, 4, 3, DType::kUInt8));
@@ -142,6 +176,9 @@ int main(int argc, char** argv) {
   VolumeWriteOptions deflate;
   deflate.gzip = true;
   Write(out / "fuzz_tiff" / "seed_deflate_int16.tif", spaced, deflate);
+  Write(out / "fuzz_tiff" / "seed_uint32.tif", Info(4, 3, 2, DType::kUInt32));
+  Write(out / "fuzz_tiff" / "seed_big_uint64.tif", Info(3, 3, 2, DType::kUInt64), big);
+  Write(out / "fuzz_tiff" / "seed_deflate_int32.tif", Info(4, 3, 2, DType::kInt32), deflate);
 
   // MetaImage: attached in every type and both byte orders, and hand-written headers for the
   // variants: zlib data, synonyms, HeaderSize -1, detached data files (the target's fz.raw
@@ -150,6 +187,9 @@ int main(int argc, char** argv) {
   Write(out / "fuzz_metaimage" / "seed_big_int16.mha", spaced, big);
   Write(out / "fuzz_metaimage" / "seed_float32.mha", Info(3, 3, 2, DType::kFloat32));
   Write(out / "fuzz_metaimage" / "seed_uint16.mha", Info(4, 3, 2, DType::kUInt16));
+  Write(out / "fuzz_metaimage" / "seed_uint32.mha", Info(4, 3, 2, DType::kUInt32));
+  Write(out / "fuzz_metaimage" / "seed_big_int64.mha", Info(3, 3, 2, DType::kInt64), big);
+  Write(out / "fuzz_metaimage" / "seed_int8.mha", Info(5, 2, 2, DType::kInt8));
   const std::string mha = "ObjectType = Image\nNDims = 3\nBinaryData = True\n";
   Put(out / "fuzz_metaimage" / "seed_zlib.mha",
       mha +
@@ -177,7 +217,11 @@ int main(int argc, char** argv) {
     for (auto [codec, t] : {std::pair{tandem::ZarrCompressor::kNone, DType::kUInt8},
                             {tandem::ZarrCompressor::kBloscLz4, DType::kUInt16},
                             {tandem::ZarrCompressor::kZstd, DType::kInt16},
-                            {tandem::ZarrCompressor::kGzip, DType::kFloat32}}) {
+                            {tandem::ZarrCompressor::kGzip, DType::kFloat32},
+                            {tandem::ZarrCompressor::kBloscZstd, DType::kUInt32},
+                            {tandem::ZarrCompressor::kNone, DType::kUInt64},
+                            {tandem::ZarrCompressor::kBloscLz4, DType::kInt8},
+                            {tandem::ZarrCompressor::kZstd, DType::kInt64}}) {
       const fs::path store = tmp / ("z" + std::to_string(zn) + ".zarr");
       const VolumeInfo info = Info(6, 5, 3, t);
       tandem::ZarrWriteOptions zo;

@@ -139,7 +139,8 @@ def main():
               len(set(wf[0]) & set(wf[1])) == 2, "chunks weld into one mesh by position")
 
         # Integer types, and a big-endian array (converted, not misread as noise).
-        for dtype, scale in ((np.uint16, 1000), (np.int16, 1000), (np.uint8, 100)):
+        for dtype, scale in ((np.uint16, 1000), (np.int16, 1000), (np.uint8, 100),
+                             (np.uint32, 100000), (np.int64, 1000)):
             r = tandem_client.extract((vol * scale).astype(dtype), iso=0.5 * scale,
                                       error=0.01, server=address, spacing=spacing)
             check(r.metrics.triangles_final > 100, f"{np.dtype(dtype).name} volume meshed "

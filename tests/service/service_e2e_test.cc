@@ -121,7 +121,9 @@ TEST_F(ServiceE2eTest, HealthAndInfo) {
   EXPECT_EQ(health.out, "SERVING\n");
   RunResult info = Client({"info", "--server", server_->address()});
   EXPECT_EQ(info.exit_code, 0) << info.err;
-  EXPECT_NE(info.out.find("dtypes                 uint8, uint16, int16, float32"), std::string::npos)
+  EXPECT_NE(info.out.find("dtypes                 uint8, int8, uint16, int16, uint32, int32, "
+                          "uint64, int64, float32"),
+            std::string::npos)
       << info.out;
   EXPECT_NE(info.out.find("max sessions           8"), std::string::npos) << info.out;
   EXPECT_NE(info.out.find("active sessions        0"), std::string::npos) << info.out;

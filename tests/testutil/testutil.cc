@@ -1,10 +1,12 @@
 #include "testutil/testutil.h"
 
+#include <sys/wait.h>
 #include <tiffio.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -75,6 +77,19 @@ int64_t ResidentBytes(int pid) {
   return -1;
 }
 
+CommandOutput RunCommand(const std::string& command) {
+  const std::string cmd = command + " 2>&1";
+  CommandOutput out;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.text.append(buf, n);
+  const int status = pclose(p);
+  out.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return out;
+}
+
 double PatternValue(DType t, int64_t i, int64_t j, int64_t k) {
   switch (t) {
     case DType::kUInt8:
@@ -85,6 +100,16 @@ double PatternValue(DType t, int64_t i, int64_t j, int64_t k) {
       return static_cast<double>(-20000 + i * 311 + j * 977 + k * 1001);
     case DType::kFloat32:
       return -3.25 + i * 0.5 + j * 1.125 + k * 100.0625;
+    case DType::kInt8:
+      return static_cast<double>((i * 7 + j * 13 + k * 29) % 256 - 128);
+    case DType::kUInt32:
+      return 3e9 + static_cast<double>(i * 65537 + j * 4099 + k * 1000003);
+    case DType::kInt32:
+      return -2e9 + static_cast<double>(i * 65537 + j * 4099 + k * 1000003);
+    case DType::kUInt64:  // every byte used, and exact in a double (below 2^53)
+      return 0x1f00000000000p0 + static_cast<double>(i * 65537 + j * 4099 + k * 1000003);
+    case DType::kInt64:
+      return -0x1f00000000000p0 + static_cast<double>(i * 65537 + j * 4099 + k * 1000003);
   }
   return 0;
 }
@@ -107,6 +132,31 @@ void StoreValue(DType t, double v, uint8_t* dst) {
     case DType::kFloat32: {
       const float x = static_cast<float>(v);
       std::memcpy(dst, &x, 4);
+      break;
+    }
+    case DType::kInt8: {
+      const int8_t x = static_cast<int8_t>(v);
+      std::memcpy(dst, &x, 1);
+      break;
+    }
+    case DType::kUInt32: {
+      const uint32_t x = static_cast<uint32_t>(v);
+      std::memcpy(dst, &x, 4);
+      break;
+    }
+    case DType::kInt32: {
+      const int32_t x = static_cast<int32_t>(v);
+      std::memcpy(dst, &x, 4);
+      break;
+    }
+    case DType::kUInt64: {
+      const uint64_t x = static_cast<uint64_t>(v);
+      std::memcpy(dst, &x, 8);
+      break;
+    }
+    case DType::kInt64: {
+      const int64_t x = static_cast<int64_t>(v);
+      std::memcpy(dst, &x, 8);
       break;
     }
   }

@@ -29,6 +29,13 @@ std::string FileBytes(const std::string& path);
 
 // Path of a built executable (build/bin/NAME).
 std::string BinPath(const std::string& name);
+// A shell command line's exit status (-1 when it did not exit) and its stdout and stderr
+// together.
+struct CommandOutput {
+  int code = -1;
+  std::string text;
+};
+CommandOutput RunCommand(const std::string& command);
 
 // VmRSS of a process in bytes (/proc/PID/status), or -1.
 int64_t ResidentBytes(int pid);
@@ -50,7 +57,8 @@ inline constexpr bool kSanitized = false;
 
 // Voxel (i, j, k) of the readers' test pattern: uses both bytes of 16-bit types, negatives
 // for int16 and fractions for float32, so byte-order, sign and placement mistakes show
-// (int16 stays in range up to 37 x 21 x 25 voxels).
+// (int16 stays in range up to 37 x 21 x 25 voxels). The wider integers hold values a
+// double holds exactly (below 2^53).
 double PatternValue(DType t, int64_t i, int64_t j, int64_t k);
 
 // Stores v as one voxel of type t (host byte order) at dst.

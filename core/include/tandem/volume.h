@@ -19,12 +19,41 @@
 
 namespace tandem {
 
-enum class DType : uint8_t { kUInt8, kUInt16, kInt16, kFloat32 };
+// The voxel types. The wider integers (and int8) are what label maps come in: a numpy
+// array's default int64, ITK's and FreeSurfer's int32, Neuroglancer's uint64 ids.
+enum class DType : uint8_t {
+  kUInt8,
+  kUInt16,
+  kInt16,
+  kFloat32,
+  kInt8,
+  kUInt32,
+  kInt32,
+  kUInt64,
+  kInt64,
+};
+// Every DType, in the order the names are listed to people.
+inline constexpr DType kAllDTypes[] = {DType::kUInt8,  DType::kInt8,   DType::kUInt16,
+                                       DType::kInt16,  DType::kUInt32, DType::kInt32,
+                                       DType::kUInt64, DType::kInt64,  DType::kFloat32};
 
-// "uint8", "uint16", "int16", "float32".
+// "uint8", "int8", "uint16", "int16", "uint32", "int32", "uint64", "int64", "float32".
 std::string_view DTypeName(DType t);
+// DTypeName's names; otherwise an error listing them.
 absl::StatusOr<DType> ParseDType(std::string_view name);
+// "uint8, int8, ..., float32": DTypeName of every kAllDTypes, for messages.
+std::string DTypeNames();
 size_t DTypeSize(DType t);
+constexpr bool IsIntegerDType(DType t) { return t != DType::kFloat32; }
+constexpr bool IsSignedDType(DType t) {
+  return t == DType::kInt8 || t == DType::kInt16 || t == DType::kInt32 || t == DType::kInt64 ||
+         t == DType::kFloat32;
+}
+
+// Label ids (LabelId, tandem/labels.h) from n voxels of an integer type t (host byte order,
+// any alignment): every value as it is, uint64 exactly. Refused (InvalidArgument): float32
+// voxels, and a negative value (the message names its index among the n and the value).
+absl::Status ToLabelIds(DType t, const uint8_t* bytes, size_t n, uint64_t* out);
 
 // Where a grid's origin, spacing and directions put its vertices, for programs (VolumeInfo's
 // `frame` says it for people): a patient frame, LPS (x toward the patient's left, y
@@ -151,7 +180,8 @@ class ValueRangeSource final : public SliceSource {
   ValueRange range_;
 };
 
-// Converts n voxels of type t (host byte order) to float. uint8/uint16/int16 are exact.
+// Converts n voxels of type t (host byte order) to float. 8- and 16-bit integers are exact;
+// 32- and 64-bit ones are rounded to the nearest float (exact up to 2^24 in magnitude).
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst);
 
 // Every voxel must be a finite number. The one rule: a float32 whose exponent bits are all set

@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -31,6 +32,8 @@ std::string ServiceVersion();  // "tandem <project version>"
 // DTYPE_UNSPECIFIED (and unknown values) → InvalidArgument naming `field`.
 absl::StatusOr<DType> DTypeFromProto(int value, const std::string& field);
 v1::DType DTypeToProto(DType dtype);
+// Every DType the wire carries, in the order the server lists them (ServerInfo.dtypes).
+std::vector<v1::DType> WireDTypes();
 // SCHEDULE_UNSPECIFIED → kTandemLag; unknown values → InvalidArgument.
 absl::StatusOr<Schedule> ScheduleFromProto(int value);
 v1::Schedule ScheduleToProto(Schedule schedule);

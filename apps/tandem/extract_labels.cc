@@ -1,0 +1,119 @@
+// tandem extract --labels: a label volume to one surface per label (sharing their
+// interfaces), written one file per label and as one GLB with a node per label, with
+// per-label figures.
+#include <cstdio>
+#include <functional>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "apps/common/cli_util.h"
+#include "apps/tandem/command.h"
+#include "tandem/eval/label_metrics.h"
+#include "tandem/eval/report.h"
+#include "tandem/io/labels_io.h"
+#include "tandem/io/run_session.h"
+#include "tandem/labels.h"
+
+namespace tandem::app {
+
+namespace {
+
+// What a label session leaves: the session (for the run's report), its interface complex and
+// the complex cut into one surface per label.
+struct LabelRun {
+  std::unique_ptr<TandemSession> session;
+  LabeledMesh complex;
+  std::vector<std::pair<LabelId, IndexedMesh>> surfaces;
+};
+
+// A template on the options' type, so that this builds with an engine that has no label mode
+// (no SessionOptions::labels: refused) as well as with one.
+template <typename Options>
+absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
+                                         const LabelOptions& labels,
+                                         const std::function<void(int64_t, int64_t)>& progress) {
+  if constexpr (requires { options.labels; }) {
+    options.labels = labels;
+    if (!options.labels.enabled) return absl::InvalidArgumentError("--labels is not set");
+    auto sessions = RunSessions(source, std::vector<Options>{options}, progress);
+    if (!sessions.ok()) return sessions.status();
+    LabelRun run;
+    run.complex = (*sessions)[0]->SnapshotLabeled();
+    run.session = std::move((*sessions)[0]);
+    run.surfaces = SplitByLabel(run.complex, labels.background);
+    return run;
+  } else {
+    (void)source;
+    (void)progress;
+    return absl::UnimplementedError(
+        "--labels: this build's engine has no label mode (SessionOptions::labels)");
+  }
+}
+
+}  // namespace
+
+int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSource& source,
+                  const MeshWriteOptions& write) {
+  const VolumeInfo info = source.info();
+  const std::string input = f.InputPath();
+  if (absl::Status st = f.CheckLabelInput(info); !st.ok()) return Usage(st);
+  absl::StatusOr<LabelOptions> labels = f.Labels();
+  if (!labels.ok()) return Usage(labels.status());
+  LabelNames names;
+  if (!f.label_names.empty()) {
+    absl::StatusOr<LabelNames> read = ReadLabelNames(f.label_names);
+    if (!read.ok()) return Fail(read.status());
+    names = *std::move(read);
+  }
+  absl::StatusOr<SessionOptions> options = f.Options(flags, info);
+  if (!options.ok()) return Usage(options.status());
+
+  cli::Progress progress("slices");
+  absl::StatusOr<LabelRun> run =
+      RunLabelSession(source, *options, *labels, [&](int64_t d, int64_t t) {
+        if (!f.quiet) progress.Update(d, t);
+      });
+  progress.Done();
+  if (!run.ok()) {
+    return Fail(absl::Status(run.status().code(),
+                             absl::StrCat(input, ": ", std::string(run.status().message()))));
+  }
+  const LabelNames* table = f.label_names.empty() ? nullptr : &names;
+  if (f.LabelsToFolder()) {
+    absl::StatusOr<std::vector<LabelFile>> files =
+        WriteLabelMeshes(f.out, absl::StrCat(".", f.format), run->surfaces, table, write);
+    if (!files.ok()) return FailWriting(files.status());
+  } else if (absl::Status st = WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
+    return FailWriting(st);
+  }
+
+  std::vector<eval::LabelMetrics> measured;
+  for (const auto& [id, mesh] : run->surfaces) {
+    eval::LabelMetrics m = eval::MeasureLabel(id, mesh);
+    if (auto it = names.find(id); it != names.end()) m.name = it->second.name;
+    measured.push_back(std::move(m));
+  }
+  eval::MetricsReport report = eval::MakeReport(*run->session, run->complex.mesh);
+  report.input = input;
+  report.peak_rss_bytes = eval::PeakRssBytes();
+  if (!f.metrics.empty()) {
+    if (absl::Status st = WriteText(f.metrics, eval::ReportWithLabelsToJson(report, measured));
+        !st.ok()) {
+      return Fail(st);
+    }
+  } else if (!f.quiet) {
+    std::fprintf(stderr, "%s -> %s (%zu labels)\n%s  labels:\n%s", input.c_str(), f.out.c_str(),
+                 measured.size(), eval::ReportSummary(report).c_str(),
+                 eval::LabelMetricsSummary(measured).c_str());
+  }
+  if (measured.empty() && !f.quiet) {
+    std::fprintf(stderr, "tandem extract: warning: %s holds no label but the background (%s)\n",
+                 input.c_str(), f.background.c_str());
+  }
+  return 0;
+}
+
+}  // namespace tandem::app
