@@ -106,7 +106,7 @@ TEST(LabelMeshes, OneClosedFilePerLabelAndTheSharedFaceIdentical) {
       auto m = ReadMesh(f.path);
       ASSERT_TRUE(m.ok()) << m.status();
       EXPECT_EQ(m->num_triangles(), 12u);
-      const TopologyReport t = AnalyzeTopology(*m);
+      const eval::TopologyReport t = eval::AnalyzeTopology(*m);
       EXPECT_TRUE(t.IsClosedManifold()) << f.path;
       EXPECT_EQ(t.euler, 2);
       EXPECT_EQ(MeasureLabel(f.id, *m).volume, 1.0);  // outward: counter-clockwise kept
