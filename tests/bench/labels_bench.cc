@@ -22,6 +22,7 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -223,15 +224,18 @@ int Measure(int argc, char** argv) {
       opt.samples = std::clamp<size_t>(2 * mesh.num_triangles(), 1000, rms_samples);
       const auto fwd = tandem::eval::MeasureDirectedDistance(mesh, ref_bvh, opt);
       opt.samples = std::clamp<size_t>(2 * ref.num_triangles(), 1000, rms_samples);
-      const auto bwd = tandem::eval::MeasureDirectedDistance(ref, tandem::eval::TriangleBvh(mesh), opt);
+      const auto bwd =
+          tandem::eval::MeasureDirectedDistance(ref, tandem::eval::TriangleBvh(mesh), opt);
       r.rms = std::max(fwd.l2, bwd.l2);
       r.hausdorff = std::max(fwd.linf, bwd.linf);
       tandem::IndexedMesh full;
       if (m.full_dir.empty() || !LoadSurface(m.full_dir, boxes[s].id, &full)) continue;
       opt.samples = std::clamp<size_t>(2 * mesh.num_triangles(), 1000, rms_samples);
-      const auto own_fwd = tandem::eval::MeasureDirectedDistance(mesh, tandem::eval::TriangleBvh(full), opt);
+      const auto own_fwd =
+          tandem::eval::MeasureDirectedDistance(mesh, tandem::eval::TriangleBvh(full), opt);
       opt.samples = std::clamp<size_t>(2 * full.num_triangles(), 1000, rms_samples);
-      const auto own_bwd = tandem::eval::MeasureDirectedDistance(full, tandem::eval::TriangleBvh(mesh), opt);
+      const auto own_bwd =
+          tandem::eval::MeasureDirectedDistance(full, tandem::eval::TriangleBvh(mesh), opt);
       r.rms_own = std::max(own_fwd.l2, own_bwd.l2);
       const tandem::eval::TopologyReport full_topology = tandem::eval::AnalyzeTopology(full);
       r.topology_changed =
@@ -261,6 +265,8 @@ int Measure(int argc, char** argv) {
       boxes.size(), ref_total, pairs.size(), pairs_sampled, samples);
 
   const double zero = 1e-6 * std::min({v.spacing[0], v.spacing[1], v.spacing[2]});
+  const double reach = 0.5 * std::min({margin[0] * v.spacing[0], margin[1] * v.spacing[1],
+                                       margin[2] * v.spacing[2]});
   for (Method& m : methods) {
     // The gap needs every surface of the method at once.
     std::vector<std::unique_ptr<tandem::eval::TriangleBvh>> bvh(boxes.size());
@@ -270,14 +276,20 @@ int Measure(int argc, char** argv) {
         bvh[s] = std::make_unique<tandem::eval::TriangleBvh>(mesh);
     });
     std::vector<double> pair_max(pairs.size(), NAN), pair_sum(pairs.size(), 0);
-    std::vector<size_t> pair_zero(pairs.size(), 0), pair_n(pairs.size(), 0);
+    std::vector<size_t> pair_zero(pairs.size(), 0), pair_n(pairs.size(), 0),
+        pair_beyond(pairs.size(), 0);
     ParallelFor(pairs.size(), threads, [&](size_t p) {
       const auto& a = bvh[slot.at(pairs[p].a)];
       const auto& b = bvh[slot.at(pairs[p].b)];
       if (!a || !b || pairs[p].points.empty()) return;
       double mx = 0;
       for (const tandem::Vec3& q : pairs[p].points) {
-        const double g = labels::GapAt(*a, *b, q);
+        const std::optional<double> within = labels::GapWithin(*a, *b, q, reach);
+        if (!within) {
+          ++pair_beyond[p];
+          continue;
+        }
+        const double g = *within;
         mx = std::max(mx, g);
         pair_sum[p] += g;
         pair_zero[p] += g <= zero;
@@ -286,8 +298,9 @@ int Measure(int argc, char** argv) {
       pair_max[p] = mx;
     });
     double gap_max = 0, gap_sum = 0;
-    size_t gap_n = 0, gap_zero = 0;
+    size_t gap_n = 0, gap_zero = 0, gap_beyond = 0;
     for (size_t p = 0; p < pairs.size(); ++p) {
+      gap_beyond += pair_beyond[p];
       if (pair_n[p] == 0) continue;
       gap_max = std::max(gap_max, pair_max[p]);
       gap_sum += pair_sum[p];
@@ -341,13 +354,15 @@ int Measure(int argc, char** argv) {
                               {"gap_mean", gap_mean},
                               {"gap_samples", gap_n},
                               {"gap_zero_samples", gap_zero},
+                              {"gap_beyond_reach", gap_beyond},
                               {"per_label", per_label}};
     std::printf(
         "%-14s labels %zu/%zu  triangles %zu  rms geomean %.4g max %.4g (own full "
-        "resolution: %.4g, %.4g)  gap max %.4g mean %.4g (%zu samples, %zu zero)  "
+        "resolution: %.4g, %.4g)  gap max %.4g mean %.4g (%zu samples, %zu zero, %zu beyond reach) "
+        " "
         "non-manifold %zu, topology changed %zu\n",
         m.name.c_str(), found, boxes.size(), triangles, GeoMean(rms), rms_max, GeoMean(rms_own),
-        rms_own_max, gap_max, gap_mean, gap_n, gap_zero, nonmanifold, topology_changed);
+        rms_own_max, gap_max, gap_mean, gap_n, gap_zero, gap_beyond, nonmanifold, topology_changed);
   }
   std::ofstream js(bench::Require(f, "out"));
   js << out.dump(1) << "\n";

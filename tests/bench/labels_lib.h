@@ -7,7 +7,8 @@
 //     two 6-adjacent voxels, one of A and one of B, whose neighbourhood holds no third label):
 //     q = the point of A's surface closest to p, gap = the distance from q to B's surface, and
 //     the same with A and B swapped; the larger of the two. Zero wherever the two surfaces
-//     share the triangles near p.
+//     share the triangles near p. A sample farther than the margin's reach from either surface
+//     is not counted (GapWithin): there the nearest point may lie on another interface.
 // Voxel (i, j, k) sits at (i sx, j sy, k sz) (origin 0), x fastest, as the sidecar says.
 #ifndef TANDEM_BENCH_LABELS_LIB_H_
 #define TANDEM_BENCH_LABELS_LIB_H_
@@ -20,6 +21,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <random>
 #include <string>
 #include <unordered_map>
@@ -499,10 +501,23 @@ inline Margin MarginFor(const LabelVolume& v, int voxels, double physical) {
 }
 
 // The gap at interface sample p between the surfaces of two labels (see the file comment).
-inline double GapAt(const tandem::eval::TriangleBvh& a, const tandem::eval::TriangleBvh& b, tandem::Vec3 p) {
+inline double GapAt(const tandem::eval::TriangleBvh& a, const tandem::eval::TriangleBvh& b,
+                    tandem::Vec3 p) {
   const double ab = b.Distance(a.Closest(p).point);
   const double ba = a.Distance(b.Closest(p).point);
   return std::max(ab, ba);
+}
+
+// GapAt where both surfaces pass within `reach` of p (half the smallest margin, as a length),
+// so that the nearest points lie in p's neighbourhood, which holds A and B only; nullopt
+// otherwise (a surface that moved farther from its voxels than that, as a coarse one may on
+// anisotropic voxels, has its nearest point on another interface, and the gap would be that
+// interface's distance, not a gap).
+inline std::optional<double> GapWithin(const tandem::eval::TriangleBvh& a,
+                                       const tandem::eval::TriangleBvh& b, tandem::Vec3 p,
+                                       double reach) {
+  if (a.Distance(p) > reach || b.Distance(p) > reach) return std::nullopt;
+  return GapAt(a, b, p);
 }
 
 }  // namespace labels

@@ -52,6 +52,15 @@ TEST(GapTest, CubesHalfApartHaveAGapOfOneHalf) {
   EXPECT_NEAR(GapAt(b, a, {1.25, 0.5, 0.5}), 0.5, 1e-12);
 }
 
+TEST(GapTest, ASampleBeyondTheReachOfASurfaceIsNotCounted) {
+  const TriangleBvh a(Box({0, 0, 0}, {1, 1, 1}));
+  const TriangleBvh b(Box({1.5, 0, 0}, {2.5, 1, 1}));
+  ASSERT_TRUE(GapWithin(a, b, {1.25, 0.5, 0.5}, 0.3).has_value());
+  EXPECT_NEAR(*GapWithin(a, b, {1.25, 0.5, 0.5}, 0.3), 0.5, 1e-12);
+  EXPECT_FALSE(GapWithin(a, b, {1.25, 0.5, 0.5}, 0.2).has_value());
+  EXPECT_FALSE(GapWithin(a, b, {1.1, 0.5, 0.5}, 0.3).has_value());  // 0.4 from b
+}
+
 TEST(GapTest, AGapOnOneSideOnlyCounts) {
   // b covers a's face only partly: from p, a's nearest point is on the face, b's is 0.25 off.
   const TriangleBvh a(Box({0, 0, 0}, {1, 1, 1}));
