@@ -21,10 +21,19 @@ int InfoCommand(int argc, char** argv);
 int SimulateCommand(int argc, char** argv);
 int ViewCommand(int argc, char** argv);
 
+// `tandem extract --neuroglancer DIR` as parsed (extract.cc): levels of detail and nanometres
+// per unit of the spacing (0: the grid's default, DefaultNmPerUnit).
+struct NeuroglancerRequest {
+  std::string dir;  // empty: no export
+  int lods = 3;
+  double nm_per_unit = 0;
+};
+
 // `tandem extract --labels` once the volume is open (extract.cc hands over to
-// extract_labels.cc): the session, the per-label outputs and figures.
+// extract_labels.cc): the session (and its coarser sweeps for --neuroglancer), the per-label
+// outputs and figures.
 int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSource& source,
-                  const MeshWriteOptions& write);
+                  const MeshWriteOptions& write, const NeuroglancerRequest& neuroglancer);
 
 // A failure met while running (a file, a device, a session): "tandem: MESSAGE" on stderr,
 // exit status 1 (apps/common/cli_util.h).

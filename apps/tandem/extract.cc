@@ -143,7 +143,11 @@ int ExtractCommand(int argc, char** argv) {
         "--glb-draco: this tandem was built without Draco (-DTANDEM_BUILD_SERVICE=OFF)"));
 #endif
   }
-  if (f.labels) return ExtractLabels(f, flags, **source, write);
+  if (f.labels) {
+    const NeuroglancerRequest ng{neuroglancer, static_cast<int>(neuroglancer_lods),
+                                 flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : 0.0};
+    return ExtractLabels(f, flags, **source, write, ng);
+  }
   auto parsed_opt = f.Options(flags, info);
   if (!parsed_opt.ok()) return Usage(parsed_opt.status());
   SessionOptions opt = *parsed_opt;
@@ -269,19 +273,7 @@ int ExtractCommand(int argc, char** argv) {
     s.report.input = input_path;
   }
 #ifdef TANDEM_HAVE_DRACO
-  if (!neuroglancer.empty() && opt.labels.enabled) {
-    // A label session is one surface of many labels: its levels' labels are the segments.
-    std::vector<const TandemSession*> levels{(*sessions)[0].get()};
-    for (size_t k = 1; k <= coarser; ++k) {
-      levels.push_back((*sessions)[surfaces.size() + k - 1].get());
-    }
-    const double nm = flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : DefaultNmPerUnit(info);
-    if (absl::Status st = WriteNeuroglancerLabels(neuroglancer, info, levels, opt.labels.background,
-                                                  nm, static_cast<int>(f.compression_level));
-        !st.ok()) {
-      return Fail(st);
-    }
-  } else if (!neuroglancer.empty()) {
+  if (!neuroglancer.empty()) {
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments;
     for (size_t i = 0; i < surfaces.size(); ++i) {
       std::vector<IndexedMesh> lods{surfaces[i].mesh};

@@ -1,6 +1,8 @@
 // tandem extract --labels: a label volume to one surface per label (sharing their
 // interfaces), written one file per label and as one GLB with a node per label, with
 // per-label figures.
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <functional>
 #include <memory>
@@ -11,6 +13,9 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
 #include "apps/tandem/command.h"
+#ifdef TANDEM_HAVE_DRACO
+#include "apps/tandem/neuroglancer_export.h"
+#endif
 #include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
 #include "tandem/io/labels_io.h"
@@ -22,31 +27,43 @@ namespace tandem::app {
 namespace {
 
 // What a label session leaves: the session (for the run's report), its interface complex and
-// the complex cut into one surface per label.
+// the complex cut into one surface per label; with --neuroglancer, the sessions of the
+// coarser sweeps (E0 * 2^k, k = 1..) too.
 struct LabelRun {
   std::unique_ptr<TandemSession> session;
   LabeledMesh complex;
   std::vector<std::pair<LabelId, IndexedMesh>> surfaces;
+  std::vector<std::unique_ptr<TandemSession>> coarser;
 };
 
 // A template on the options' type, so that this builds with an engine that has no label mode
 // (no SessionOptions::labels: refused) as well as with one.
 template <typename Options>
 absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
-                                         const LabelOptions& labels,
+                                         const LabelOptions& labels, int coarser,
                                          const std::function<void(int64_t, int64_t)>& progress) {
   if constexpr (requires { options.labels; }) {
     options.labels = labels;
     if (!options.labels.enabled) return absl::InvalidArgumentError("--labels is not set");
-    auto sessions = RunSessions(source, std::vector<Options>{options}, progress);
+    std::vector<Options> all{options};
+    for (int k = 1; k <= coarser; ++k) {  // read in the same pass as the finest
+      Options o = options;
+      o.error = std::ldexp(o.error, k);
+      if (o.target_triangles > 0)
+        o.target_triangles = std::max<int64_t>(4, o.target_triangles >> k);
+      all.push_back(o);
+    }
+    auto sessions = RunSessions(source, all, progress);
     if (!sessions.ok()) return sessions.status();
     LabelRun run;
     run.complex = (*sessions)[0]->SnapshotLabeled();
     run.session = std::move((*sessions)[0]);
     run.surfaces = SplitByLabel(run.complex, labels.background);
+    for (size_t k = 1; k < sessions->size(); ++k) run.coarser.push_back(std::move((*sessions)[k]));
     return run;
   } else {
     (void)source;
+    (void)coarser;
     (void)progress;
     return absl::UnimplementedError(
         "--labels: this build's engine has no label mode (SessionOptions::labels)");
@@ -56,7 +73,7 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
 }  // namespace
 
 int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSource& source,
-                  const MeshWriteOptions& write) {
+                  const MeshWriteOptions& write, const NeuroglancerRequest& neuroglancer) {
   const VolumeInfo info = source.info();
   const std::string input = f.InputPath();
   if (absl::Status st = f.CheckLabelInput(info); !st.ok()) return Usage(st);
@@ -72,8 +89,9 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   if (!options.ok()) return Usage(options.status());
 
   cli::Progress progress("slices");
-  absl::StatusOr<LabelRun> run =
-      RunLabelSession(source, *options, *labels, [&](int64_t d, int64_t t) {
+  absl::StatusOr<LabelRun> run = RunLabelSession(
+      source, *options, *labels, neuroglancer.dir.empty() ? 0 : neuroglancer.lods - 1,
+      [&](int64_t d, int64_t t) {
         if (!f.quiet) progress.Update(d, t);
       });
   progress.Done();
@@ -89,6 +107,20 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   } else if (absl::Status st = WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
     return FailWriting(st);
   }
+#ifdef TANDEM_HAVE_DRACO
+  if (!neuroglancer.dir.empty()) {
+    std::vector<const TandemSession*> levels{run->session.get()};
+    for (const auto& s : run->coarser) levels.push_back(s.get());
+    const double nm =
+        neuroglancer.nm_per_unit > 0 ? neuroglancer.nm_per_unit : DefaultNmPerUnit(info);
+    if (absl::Status st =
+            WriteNeuroglancerLabels(neuroglancer.dir, info, levels, labels->background, nm,
+                                    static_cast<int>(f.compression_level));
+        !st.ok()) {
+      return FailWriting(st);
+    }
+  }
+#endif
 
   std::vector<eval::LabelMetrics> measured;
   for (const auto& [id, mesh] : run->surfaces) {

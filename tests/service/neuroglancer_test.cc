@@ -21,6 +21,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "tandem/codec/neuroglancer_draco.h"
+#include "tandem/io/volume_writers.h"
 #include "tandem/tandem.h"
 #include "testutil/testutil.h"
 
@@ -499,6 +500,45 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
     EXPECT_FALSE(stored.fragments[1][0].indices.empty());
   }
   EXPECT_TRUE(ReadSegment(dir, 0).fragments.empty());  // the background has no segment
+}
+
+TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
+  // tandem extract --labels --neuroglancer: the label map's labels as segments of their ids,
+  // each with its coarser sweeps, beside the per-label files.
+  VolumeInfo grid;
+  grid.nx = 14, grid.ny = 10, grid.nz = 10;
+  grid.dtype = DType::kUInt16;
+  std::vector<uint16_t> voxels(grid.nx * grid.ny * grid.nz, 0);
+  for (int64_t z = 2; z < 8; ++z) {
+    for (int64_t y = 2; y < 8; ++y) {
+      for (int64_t x = 2; x < 12; ++x) voxels[(z * grid.ny + y) * grid.nx + x] = x < 7 ? 5 : 9;
+    }
+  }
+  const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
+  ASSERT_TRUE(WriteVolume(tmp + "/labels.nrrd", grid,
+                          [&](int64_t z, std::vector<uint8_t>* bytes) {
+                            const auto* b = reinterpret_cast<const uint8_t*>(
+                                voxels.data() + z * grid.nx * grid.ny);
+                            bytes->assign(b, b + grid.slice_bytes());
+                            return absl::OkStatus();
+                          })
+                  .ok());
+  std::string out;
+  ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/labels.nrrd --labels --error 0.3 --quiet" +
+                      " --out " + tmp + "/cells/ --neuroglancer " + tmp + "/ng" +
+                      " --neuroglancer-lods 2",
+                  &out),
+            0)
+      << out;
+  for (uint64_t id : {5, 9}) {
+    SCOPED_TRACE(id);
+    EXPECT_TRUE(std::filesystem::exists(tmp + "/cells/" + std::to_string(id) + ".ply"));
+    const Stored stored = ReadSegment(tmp + "/ng", id);
+    ASSERT_EQ(stored.fragments.size(), 2u);
+    EXPECT_FALSE(stored.fragments[0][0].indices.empty());
+    EXPECT_FALSE(stored.fragments[1][0].indices.empty());
+  }
+  EXPECT_TRUE(ReadSegment(tmp + "/ng", 0).fragments.empty());  // the background has none
 }
 
 TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {
