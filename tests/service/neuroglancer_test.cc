@@ -454,16 +454,29 @@ TEST(NeuroglancerExport, JoinLevelsGivesEachLabelAllItsLevels) {
 
 // Two touching boxes of labels 5 and 9 in background 0, meshed by label sessions at E0 and
 // 2 E0 and exported as the CLI's label mode does: one segment per label, both levels.
-TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
+// Two touching boxes of labels 5 and 9 in a background of 0, as uint16.
+struct TwoLabels {
   VolumeInfo grid;
+  std::vector<uint16_t> voxels;
+};
+TwoLabels TwoTouchingLabels() {
+  TwoLabels t;
+  VolumeInfo& grid = t.grid;
   grid.nx = 14, grid.ny = 10, grid.nz = 10;
   grid.dtype = DType::kUInt16;
-  std::vector<uint16_t> voxels(grid.nx * grid.ny * grid.nz, 0);
+  t.voxels.assign(grid.nx * grid.ny * grid.nz, 0);
   for (int64_t z = 2; z < 8; ++z) {
     for (int64_t y = 2; y < 8; ++y) {
-      for (int64_t x = 2; x < 12; ++x) voxels[(z * grid.ny + y) * grid.nx + x] = x < 7 ? 5 : 9;
+      for (int64_t x = 2; x < 12; ++x) t.voxels[(z * grid.ny + y) * grid.nx + x] = x < 7 ? 5 : 9;
     }
   }
+  return t;
+}
+
+TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
+  const TwoLabels two = TwoTouchingLabels();
+  const VolumeInfo& grid = two.grid;
+  const std::vector<uint16_t>& voxels = two.voxels;
   std::vector<std::unique_ptr<TandemSession>> sessions;
   std::vector<const TandemSession*> levels;
   for (double e0 : {0.3, 0.6}) {
@@ -505,15 +518,9 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
 TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
   // tandem extract --labels --neuroglancer: the label map's labels as segments of their ids,
   // each with its coarser sweeps, beside the per-label files.
-  VolumeInfo grid;
-  grid.nx = 14, grid.ny = 10, grid.nz = 10;
-  grid.dtype = DType::kUInt16;
-  std::vector<uint16_t> voxels(grid.nx * grid.ny * grid.nz, 0);
-  for (int64_t z = 2; z < 8; ++z) {
-    for (int64_t y = 2; y < 8; ++y) {
-      for (int64_t x = 2; x < 12; ++x) voxels[(z * grid.ny + y) * grid.nx + x] = x < 7 ? 5 : 9;
-    }
-  }
+  const TwoLabels two = TwoTouchingLabels();
+  const VolumeInfo& grid = two.grid;
+  const std::vector<uint16_t>& voxels = two.voxels;
   const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
   ASSERT_TRUE(WriteVolume(tmp + "/labels.nrrd", grid,
                           [&](int64_t z, std::vector<uint8_t>* bytes) {
