@@ -230,18 +230,24 @@ void WriteHandTiff(const std::string& path, const std::vector<HandPage>& pages,
 // Basics.
 
 TEST(DTypeTest, NamesSizesAndParsing) {
-  for (DType t : {DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32}) {
+  for (DType t : {DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32, DType::kInt8,
+                  DType::kUInt32, DType::kInt32, DType::kUInt64, DType::kInt64}) {
     absl::StatusOr<DType> parsed = ParseDType(DTypeName(t));
-    ASSERT_TRUE(parsed.ok());
+    ASSERT_TRUE(parsed.ok()) << DTypeName(t);
     EXPECT_EQ(*parsed, t);
   }
   EXPECT_EQ(DTypeSize(DType::kUInt8), 1u);
   EXPECT_EQ(DTypeSize(DType::kUInt16), 2u);
   EXPECT_EQ(DTypeSize(DType::kInt16), 2u);
   EXPECT_EQ(DTypeSize(DType::kFloat32), 4u);
-  absl::StatusOr<DType> bad = ParseDType("int32");
+  EXPECT_EQ(DTypeSize(DType::kInt8), 1u);
+  EXPECT_EQ(DTypeSize(DType::kUInt32), 4u);
+  EXPECT_EQ(DTypeSize(DType::kInt32), 4u);
+  EXPECT_EQ(DTypeSize(DType::kUInt64), 8u);
+  EXPECT_EQ(DTypeSize(DType::kInt64), 8u);
+  absl::StatusOr<DType> bad = ParseDType("float64");
   ASSERT_FALSE(bad.ok());
-  EXPECT_NE(bad.status().message().find("int32"), absl::string_view::npos);
+  EXPECT_NE(bad.status().message().find("float64"), absl::string_view::npos);
 }
 
 TEST(DTypeTest, ConvertToFloatIsExactForIntegers) {
