@@ -1,30 +1,11 @@
 #include "contraction_checks.h"
 
 #include <algorithm>
-#include <cstring>
 
 #include "tandem/geometry.h"
 
 namespace tandem {
 namespace {
-
-// Occurrences of x in a fan array of kFanMax entries (unused ones kInvalid).
-// A fixed length and no loop exit: no branch to mispredict. Written with vector extensions
-// (GCC, Clang: four lanes at a time, on any target): at 16 entries GCC unrolled the plain
-// loop into scalar compares.
-template <size_t N>
-int CountOf(const VertexId (&v)[N], VertexId x) {
-  static_assert(N % 4 == 0);
-  using V4 = uint32_t __attribute__((vector_size(16)));
-  const V4 xs = {x, x, x, x};
-  V4 acc = {0, 0, 0, 0};
-  for (size_t i = 0; i < N; i += 4) {
-    V4 chunk;
-    std::memcpy(&chunk, v + i, sizeof(chunk));
-    acc -= reinterpret_cast<V4>(chunk == xs);  // a match is all ones: -1
-  }
-  return static_cast<int>(acc[0] + acc[1] + acc[2] + acc[3]);
-}
 
 // Whether triangle tri has both c and d among its corners (the triangle x-c-d of a fan).
 bool HoldsBoth(const std::array<VertexId, 3>& tri, VertexId c, VertexId d) {
@@ -86,7 +67,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
     for (int i = 0; i < n; ++i) any |= (CountOf(y, x[i]) == 0) | (CountOf(x, y[i]) == 0);
     return any;
   };
-  auto in_fan_a = [&](VertexId v) { return CountOf(xa, v) + CountOf(ya, v); };
+  auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
   // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
   // y corners too where the two differ.
   const bool b_open = sets_differ(xb, yb, n_b);
@@ -104,7 +85,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   if (stray) return false;
   if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
     const VertexId c = apex[0];
-    return !(in_fan_a(c) == 1 && CountOf(xb, c) + CountOf(yb, c) == 1);
+    return !(in_fan_a(c) == 1 && CountOf(xb, yb, c) == 1);
   }
   // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
   // of its edges lies in a single triangle.
@@ -112,7 +93,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
     bool any = false;
     for (int i = 0; i < n; ++i) {
       any |=
-          (CountOf(x, x[i]) + CountOf(y, x[i]) == 1) | (CountOf(x, y[i]) + CountOf(y, y[i]) == 1);
+          (CountOf(x, y, x[i]) == 1) | (CountOf(x, y, y[i]) == 1);
     }
     return any;
   };

@@ -393,18 +393,29 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // sorting (sorting all corners, every neighbour twice, costs mispredicted branches): the
   // corner after c in each triangle covers a closed fan;
   // on the boundary one neighbour is only ever the corner before c.
+  // A fan that fits (nearly all) keeps its next corners in a fixed array too, searched four
+  // at a time (CountOf).
   scratch_.clear();
   const auto fan = store_->vertex_triangles(a);
-  for (TriId t : fan) {
-    const auto& tri = store_->triangle(t);
-    scratch_.push_back(tri[kNextCorner[CornerOf(tri, a)]]);
+  const bool fits = fan.size() <= kFanMax;
+  VertexId next[kFanMax];
+  std::fill(next, next + kFanMax, kInvalid);
+  for (size_t i = 0; i < fan.size(); ++i) {
+    const auto& tri = store_->triangle(fan[i]);
+    const VertexId x = tri[kNextCorner[CornerOf(tri, a)]];
+    if (fits) next[i] = x;
+    scratch_.push_back(x);
   }
   const size_t nexts = scratch_.size();
   for (TriId t : fan) {
     const auto& tri = store_->triangle(t);
     const VertexId prev = tri[kPrevCorner[CornerOf(tri, a)]];
     bool found = false;  // no early exit: where it would leave is unpredictable
-    for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
+    if (fits) {
+      found = CountOf(next, prev) != 0;
+    } else {
+      for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
+    }
     if (!found) scratch_.push_back(prev);
   }
   std::sort(scratch_.begin(), scratch_.end());
