@@ -73,8 +73,10 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   Quadric h;
   quadrics_.AddTo(a, &h);
   quadrics_.AddTo(b, &h);
-  const uint8_t fixed = FixedAxes(ma | mb);
-  const Vec3 ref = BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
+  // Most edges are off the box: nothing fixed, the reference point the midpoint.
+  const uint8_t fixed = (ma | mb) == 0 ? 0 : FixedAxes(ma | mb);
+  const Vec3 ref = (ma | mb) == 0 ? (store_->position(a) + store_->position(b)) * 0.5
+                                  : BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
 
   if (opt_.alpha > 0.0) {
     // Memoryless isotropy term over T_ab, the triangles around a or b (each once).
