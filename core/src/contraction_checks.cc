@@ -338,7 +338,7 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     for (TriId t : (v == a) ? ta : tb) {
       const auto& tri = store.triangle(t);
       (*survivors)[n] = {t, v};
-      n += static_cast<size_t>((tri[0] != other) + (tri[1] != other) + (tri[2] != other) == 3);
+      n += static_cast<size_t>(!((tri[0] == other) | (tri[1] == other) | (tri[2] == other)));
     }
   }
   const bool guarded = bound > 0.0;
@@ -352,14 +352,13 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     const double off = Dot(n_old, pos - p[0]);
     const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
     const int corner = CornerOf(tri, v);
-    const Vec3 from = p[corner];
     p[corner] = pos;
     const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
     if (far | move.collapses | move.flips) {
       // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
       // point) has no orientation or plane to keep: the contraction is not refused for it
       // (exempting only an exactly zero area left zero-area triangles on integer scans).
-      p[corner] = from;
+      p[corner] = store.position(v);  // as it was (a refusal is rare: read again)
       if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
       // One with an offset edge stands for such a triangle: it may turn over or leave its
       // plane (else every grid point on the iso-value holds back the contractions around
