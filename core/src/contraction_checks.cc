@@ -1,6 +1,7 @@
 #include "contraction_checks.h"
 
 #include <algorithm>
+#include <cstring>
 
 #include "tandem/geometry.h"
 
@@ -15,6 +16,22 @@ bool HoldsBoth(const std::array<VertexId, 3>& tri, VertexId c, VertexId d) {
     hd |= x == d;
   }
   return hc && hd;
+}
+
+// Whether a fan (x and y corners, unused entries kInvalid) has a triangle on edge cd, c and d
+// vertices: four entries at a time, as CountOf.
+template <size_t N>
+bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexId d) {
+  using fan_count::V4;
+  const V4 cs = {c, c, c, c}, ds = {d, d, d, d};
+  V4 any = {0, 0, 0, 0};
+  for (size_t i = 0; i < N; i += 4) {
+    V4 xi, yi;
+    std::memcpy(&xi, x + i, sizeof(xi));
+    std::memcpy(&yi, y + i, sizeof(yi));
+    any |= reinterpret_cast<V4>(((xi == cs) & (yi == ds)) | ((xi == ds) & (yi == cs)));
+  }
+  return fan_count::Lanes(any) != 0;  // lanes of all ones or zero: a sum of ones is not 0
 }
 
 // LinkConditionFans with fan arrays of kFan entries (both fans fit).
@@ -101,12 +118,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   if (b_open && on_boundary(xb, yb, n_b) && on_boundary(xa, ya, n_a)) return false;
   // (3) interior: triangles a-c-d and b-c-d both present?
   const VertexId c = apex[0], d = apex[1];
-  auto has_cd = [c, d](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
-    bool any = false;
-    for (int i = 0; i < n; ++i) any |= ((x[i] == c) & (y[i] == d)) | ((x[i] == d) & (y[i] == c));
-    return any;
-  };
-  return !(has_cd(xa, ya, n_a) && has_cd(xb, yb, n_b));
+  return !(HasEdge(xa, ya, c, d) && HasEdge(xb, yb, c, d));
 }
 
 }  // namespace
