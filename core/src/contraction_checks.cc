@@ -109,8 +109,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   auto on_boundary = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
     for (int i = 0; i < n; ++i) {
-      any |=
-          (CountOf(x, y, x[i]) == 1) | (CountOf(x, y, y[i]) == 1);
+      any |= (CountOf(x, y, x[i]) == 1) | (CountOf(x, y, y[i]) == 1);
     }
     return any;
   };
