@@ -64,7 +64,7 @@ int ExtractCommand(int argc, char** argv) {
                   "--neuroglancer: depth in voxels of the strips that close the cuts where "
                   "two levels meet (0: none)",
                   false, "N");
-  flags.SetDefaultText("neuroglancer-skirt", "2^(lods-1)");
+  flags.SetDefaultText("neuroglancer-skirt", "1");
   flags.SetEpilog(
       "Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0\n"
       "done, 1 a failure while running (the input, a file, the session), 2 a mistake in the\n"

@@ -21,7 +21,7 @@ namespace tandem::app {
 double DefaultNmPerUnit(const VolumeInfo& info);
 
 // The octree's shape: finest node edge and skirt depth in voxels (negative: the default,
-// the coarsest level's scale; 0: none).
+// one voxel; 0: none).
 struct NeuroglancerOctree {
   int chunk_voxels = 32;
   double skirt_voxels = -1;

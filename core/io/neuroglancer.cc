@@ -328,8 +328,9 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         uint32_t qlo[3], qhi[3];
         for (int j = 0; j < 3; ++j) {
           const bool high = lod > 0 && (c[j] & 1);
-          qlo[j] = lod == 0 ? 0 : (high ? mid + 1 : 0);
-          qhi[j] = lod == 0 ? top : (high ? top : mid - 1);
+          // Octants meet at `mid`, which Neuroglancer's partition lets either side use.
+          qlo[j] = lod == 0 ? 0 : (high ? mid : 0);
+          qhi[j] = lod == 0 ? top : (high ? top : mid);
         }
         const double size[3] = {std::ldexp(double{g.chunk_shape[0]}, lod),
                                 std::ldexp(double{g.chunk_shape[1]}, lod),
@@ -411,6 +412,10 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
           std::array<uint32_t, 3> q = quantize(far);
           const int j = key2.second / 2;
           q[j] = f.positions[key2.first][j];  // stays in the face
+          // A strip wholly on `mid` would go to the low octant: a high one tilts it a step.
+          for (int i = 0; i < 3; ++i) {
+            if (lod > 0 && (c[i] & 1) && q[i] == mid) q[i] = mid + 1;
+          }
           lower[key2] = node.Vertex(q);
         }
         for (const Hang& h : hangs) {
@@ -473,10 +478,13 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
     return absl::InvalidArgumentError(
         absl::StrCat("chunk_voxels must be in [1, 4096], got ", options.chunk_voxels));
   }
-  const NeuroglancerGrid octree = ChooseOctreeGrid(grid, segments, options.chunk_voxels);
+  // One level has nothing to refine: one node over the whole grid, as few fragments as can be.
+  const int chunk = lods < 2 ? static_cast<int>(std::min<int64_t>(
+                                   4096, std::max({grid.nx, grid.ny, grid.nz, int64_t{1}}) + 1))
+                             : options.chunk_voxels;
+  const NeuroglancerGrid octree = ChooseOctreeGrid(grid, segments, chunk);
   // One level draws everywhere alike: no face where two levels meet, nothing to skirt.
-  const double skirt =
-      lods < 2 ? 0.0 : (options.skirt >= 0 ? options.skirt : double{scales.back()});
+  const double skirt = lods < 2 ? 0.0 : (options.skirt >= 0 ? options.skirt : finest);
   const NeuroglancerSharding sharding =
       options.choose_sharding ? ChooseSharding(segments.size()) : options.sharding;
   if (sharding.shard_bits < 0 || sharding.minishard_bits < 0 || sharding.preshift_bits < 0 ||

@@ -60,7 +60,7 @@ struct NeuroglancerOptions {
   std::vector<double> lod_scales;
   // The finest octree node's edge in voxels; level k's nodes are 2^k times larger.
   int chunk_voxels = 32;
-  // Skirt depth (BuildOctree) in mesh units; negative: the coarsest level's lod scale.
+  // Skirt depth (BuildOctree) in mesh units; negative: the finest spacing (one voxel).
   double skirt = -1;
   // Shards and minishards; all bits 0 and murmurhash: chosen from the segment count
   // (ChooseSharding).
@@ -142,11 +142,11 @@ struct NeuroglancerNode {
 };
 // A segment's octree: per level (finest first) its nodes in z-order. Level k's mesh is cut
 // exactly along the faces of its cells (the nodes for k = 0, their octants for k > 0, as the
-// format's 2x2x2 partition asks), each cell's piece quantized inside the cell (a level > 0
-// octant keeps one step off its node's middle plane, where Neuroglancer's partition would
-// give it to the low octant). With skirt > 0 every cut edge hangs a strip of that depth
-// (mesh units) inside the cut face, away from the surface's outer side, so that two levels
-// meeting on a face overlap instead of leaving the crack between their cuts; 0: none.
+// format's 2x2x2 partition asks), each cell's piece quantized inside the cell, octants
+// meeting on the step 2^(bits-1) that Neuroglancer's partition lets either side hold. With
+// skirt > 0 every cut edge hangs a strip of that depth (mesh units) inside the cut face,
+// away from the surface's outer side, so that two levels meeting on a face overlap instead
+// of leaving the crack between their cuts; 0: none.
 absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
     const NeuroglancerSegment& segment, const NeuroglancerGrid& grid, int bits, double skirt);
 // Where quantized position q of level `lod`'s node `node` lands (meshes.md's formula).
