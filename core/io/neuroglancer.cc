@@ -219,6 +219,12 @@ class NodeBuilder {
     if (fresh) f_.positions.push_back(q);
     return it->second;
   }
+  // A corner of its own (a skirt's far corner): welded to nothing, so no strip pinches the
+  // surface into a non-manifold vertex, which Draco's Edgebreaker cannot code.
+  uint32_t Fresh(const std::array<uint32_t, 3>& q) {
+    f_.positions.push_back(q);
+    return static_cast<uint32_t>(f_.positions.size() - 1);
+  }
   void Triangle(uint32_t a, uint32_t b, uint32_t c) {
     if (a == b || b == c || a == c) return;  // collapsed by quantization: no area left
     f_.indices.insert(f_.indices.end(), {a, b, c});
@@ -416,7 +422,7 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
           for (int i = 0; i < 3; ++i) {
             if (lod > 0 && (c[i] & 1) && q[i] == mid) q[i] = mid + 1;
           }
-          lower[key2] = node.Vertex(q);
+          lower[key2] = node.Fresh(q);
         }
         for (const Hang& h : hangs) {
           const uint32_t la = lower[{h.a, h.face}], lb = lower[{h.b, h.face}];
