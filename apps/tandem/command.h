@@ -27,6 +27,8 @@ struct NeuroglancerRequest {
   std::string dir;  // empty: no export
   int lods = 3;
   double nm_per_unit = 0;
+  int chunk_voxels = 32;
+  double skirt_voxels = -1;  // negative: the default
 };
 
 // `tandem extract --labels` once the volume is open (extract.cc hands over to

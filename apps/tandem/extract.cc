@@ -37,6 +37,8 @@ int ExtractCommand(int argc, char** argv) {
   std::string neuroglancer;
   int64_t neuroglancer_lods = 3;
   double neuroglancer_nm = 0;
+  int64_t neuroglancer_chunk = 32;
+  double neuroglancer_skirt = -1;
   cli::FlagSet flags(
       "usage: tandem extract --input FILE --out MESH [flags]\n"
       "Reads the volume one slice at a time, extracts the iso-surface F = C0 layer by layer\n"
@@ -55,6 +57,14 @@ int ExtractCommand(int argc, char** argv) {
   flags.AddDouble("neuroglancer-nm", &neuroglancer_nm,
                   "--neuroglancer: nanometres per unit of the volume's spacing", false, "N");
   flags.SetDefaultText("neuroglancer-nm", "1e6 for DICOM/NIfTI (mm), else 1");
+  flags.AddInt("neuroglancer-chunk", &neuroglancer_chunk,
+               "--neuroglancer: the finest octree node's edge in voxels; level k's nodes are "
+               "2^k times larger (1..4096)");
+  flags.AddDouble("neuroglancer-skirt", &neuroglancer_skirt,
+                  "--neuroglancer: depth in voxels of the strips that close the cuts where "
+                  "two levels meet (0: none)",
+                  false, "N");
+  flags.SetDefaultText("neuroglancer-skirt", "1");
   flags.SetEpilog(
       "Progress (slices done / total) is shown on stderr when it is a terminal. Exit status: 0\n"
       "done, 1 a failure while running (the input, a file, the session), 2 a mistake in the\n"
@@ -71,9 +81,19 @@ int ExtractCommand(int argc, char** argv) {
     return Usage(absl::InvalidArgumentError(
         absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
   }
-  if (neuroglancer.empty() && (flags.IsSet("neuroglancer-lods") || flags.IsSet("neuroglancer-nm"))) {
+  if (neuroglancer.empty() && (flags.IsSet("neuroglancer-lods") || flags.IsSet("neuroglancer-nm") ||
+                                flags.IsSet("neuroglancer-chunk") ||
+                                flags.IsSet("neuroglancer-skirt"))) {
     return Usage(absl::InvalidArgumentError(
-        "--neuroglancer-lods and --neuroglancer-nm go with --neuroglancer DIR"));
+        "--neuroglancer-lods, -nm, -chunk and -skirt go with --neuroglancer DIR"));
+  }
+  if (neuroglancer_chunk < 1 || neuroglancer_chunk > 4096) {
+    return Usage(absl::InvalidArgumentError(
+        absl::StrCat("--neuroglancer-chunk must be in [1, 4096], got ", neuroglancer_chunk)));
+  }
+  if (flags.IsSet("neuroglancer-skirt") && !(neuroglancer_skirt >= 0 && neuroglancer_skirt < 1e6)) {
+    return Usage(absl::InvalidArgumentError(
+        absl::StrCat("--neuroglancer-skirt must be 0 or more, got ", neuroglancer_skirt)));
   }
   if (neuroglancer_lods < 1 || neuroglancer_lods > 8) {
     return Usage(absl::InvalidArgumentError(
@@ -145,7 +165,9 @@ int ExtractCommand(int argc, char** argv) {
   }
   if (f.labels) {
     const NeuroglancerRequest ng{neuroglancer, static_cast<int>(neuroglancer_lods),
-                                 flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : 0.0};
+                                 flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : 0.0,
+                                 static_cast<int>(neuroglancer_chunk),
+                                 flags.IsSet("neuroglancer-skirt") ? neuroglancer_skirt : -1.0};
     return ExtractLabels(f, flags, **source, write, ng);
   }
   auto parsed_opt = f.Options(flags, info);
@@ -286,8 +308,10 @@ int ExtractCommand(int argc, char** argv) {
       segments.emplace_back(static_cast<LabelId>(i + 1), std::move(lods));
     }
     const double nm = flags.IsSet("neuroglancer-nm") ? neuroglancer_nm : DefaultNmPerUnit(info);
+    const NeuroglancerOctree octree{static_cast<int>(neuroglancer_chunk),
+                                    flags.IsSet("neuroglancer-skirt") ? neuroglancer_skirt : -1.0};
     if (absl::Status st = WriteNeuroglancerExport(neuroglancer, info, std::move(segments), nm,
-                                                  static_cast<int>(f.compression_level));
+                                                  static_cast<int>(f.compression_level), octree);
         !st.ok()) {
       return Fail(st);
     }

@@ -129,7 +129,8 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
         neuroglancer.nm_per_unit > 0 ? neuroglancer.nm_per_unit : DefaultNmPerUnit(info);
     if (absl::Status st =
             WriteNeuroglancerLabels(neuroglancer.dir, info, levels, labels->background, nm,
-                                    static_cast<int>(f.compression_level));
+                                    static_cast<int>(f.compression_level),
+                                    {neuroglancer.chunk_voxels, neuroglancer.skirt_voxels});
         !st.ok()) {
       return FailWriting(st);
     }

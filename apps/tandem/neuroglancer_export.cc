@@ -1,6 +1,7 @@
 // The Neuroglancer export's glue: io's format with the codec's Draco fragments.
 #include "apps/tandem/neuroglancer_export.h"
 
+#include <algorithm>
 #include <utility>
 
 #include "tandem/codec/neuroglancer_draco.h"
@@ -15,12 +16,15 @@ double DefaultNmPerUnit(const VolumeInfo& info) {
 absl::Status WriteNeuroglancerExport(
     const std::string& dir, const VolumeInfo& info,
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
-    int compression_level) {
+    int compression_level, const NeuroglancerOctree& octree) {
   std::vector<io::NeuroglancerSegment> list;
   list.reserve(segments.size());
   for (auto& [id, lods] : segments) list.push_back({id, std::move(lods)});
   io::NeuroglancerOptions options;
   options.nm_per_unit = nm_per_unit;
+  options.chunk_voxels = octree.chunk_voxels;
+  const double finest = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+  options.skirt = octree.skirt_voxels < 0 ? -1.0 : octree.skirt_voxels * finest;
   options.encode = [compression_level](const io::NeuroglancerFragment& f) {
     return codec::EncodeNeuroglancerFragment(f.positions, f.indices, compression_level);
   };
@@ -29,15 +33,15 @@ absl::Status WriteNeuroglancerExport(
 
 absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
                                      const std::vector<const TandemSession*>& levels,
-                                     LabelId background, double nm_per_unit,
-                                     int compression_level) {
+                                     LabelId background, double nm_per_unit, int compression_level,
+                                     const NeuroglancerOctree& octree) {
   std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> split;
   split.reserve(levels.size());
   for (const TandemSession* session : levels) {
     split.push_back(SplitByLabel(session->SnapshotLabeled(), background));
   }
   return WriteNeuroglancerExport(dir, info, io::JoinLevels(std::move(split)), nm_per_unit,
-                                 compression_level);
+                                 compression_level, octree);
 }
 
 }  // namespace tandem::app

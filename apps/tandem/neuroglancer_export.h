@@ -20,18 +20,26 @@ namespace tandem::app {
 // (electron microscopy's usual unit).
 double DefaultNmPerUnit(const VolumeInfo& info);
 
+// The octree's shape: finest node edge and skirt depth in voxels (negative: the default,
+// one voxel; 0: none).
+struct NeuroglancerOctree {
+  int chunk_voxels = 32;
+  double skirt_voxels = -1;
+};
+
 // One segment per (id, levels finest first); every segment has the same number of levels.
 // The iso-surfaces come here as ids 1..N, the labels through WriteNeuroglancerLabels.
 absl::Status WriteNeuroglancerExport(
     const std::string& dir, const VolumeInfo& info,
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
-    int compression_level);
+    int compression_level, const NeuroglancerOctree& octree = {});
 
 // The label mode's export: `levels[k]` is the finished label session swept at E0 * 2^k
 // (finest first); each label other than `background` becomes the segment of its own id.
 absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
                                      const std::vector<const TandemSession*>& levels,
-                                     LabelId background, double nm_per_unit, int compression_level);
+                                     LabelId background, double nm_per_unit, int compression_level,
+                                     const NeuroglancerOctree& octree = {});
 
 }  // namespace tandem::app
 

@@ -176,19 +176,6 @@ IndexedMesh Octahedron(Vec3 c, float r, float top) {
   return m;
 }
 
-// Triangles as position triples starting at the smallest corner (orientation kept).
-std::multiset<std::array<std::array<uint32_t, 3>, 3>> Triangles(
-    const std::vector<std::array<uint32_t, 3>>& p, const std::vector<uint32_t>& idx) {
-  std::multiset<std::array<std::array<uint32_t, 3>, 3>> out;
-  for (size_t t = 0; t + 2 < idx.size(); t += 3) {
-    std::array<std::array<uint32_t, 3>, 3> tri = {p[idx[t]], p[idx[t + 1]], p[idx[t + 2]]};
-    const size_t first = std::min_element(tri.begin(), tri.end()) - tri.begin();
-    std::rotate(tri.begin(), tri.begin() + first, tri.end());
-    out.insert(tri);
-  }
-  return out;
-}
-
 NeuroglancerOptions DracoOptions() {
   NeuroglancerOptions o;
   o.encode = [](const NeuroglancerFragment& f) {
@@ -276,64 +263,173 @@ Stored ReadSegment(const std::string& dir, uint64_t want) {
   return out;
 }
 
-TEST(NeuroglancerExport, ReadsBackAsNeuroglancerDoes) {
-  const std::string dir = testing::MakeTempDir() + "/ng";
+// A sphere of radius r around c as a latitude-longitude mesh of `n` bands (outward).
+IndexedMesh Sphere(Vec3 c, double r, int n) {
+  IndexedMesh m;
+  const double pi = std::acos(-1.0);
+  m.positions.push_back({c.x, c.y, c.z + r});
+  for (int i = 1; i < n; ++i) {
+    for (int j = 0; j < 2 * n; ++j) {
+      const double t = pi * i / n, f = pi * j / n;
+      m.positions.push_back({c.x + r * std::sin(t) * std::cos(f),
+                             c.y + r * std::sin(t) * std::sin(f), c.z + r * std::cos(t)});
+    }
+  }
+  m.positions.push_back({c.x, c.y, c.z - r});
+  const uint32_t south = static_cast<uint32_t>(m.positions.size() - 1);
+  auto at = [&](int i, int j) { return static_cast<uint32_t>(1 + (i - 1) * 2 * n + j % (2 * n)); };
+  for (int j = 0; j < 2 * n; ++j) {
+    m.indices.insert(m.indices.end(), {0, at(1, j), at(1, j + 1)});
+    for (int i = 1; i + 1 < n; ++i) {
+      m.indices.insert(m.indices.end(), {at(i, j), at(i + 1, j), at(i + 1, j + 1)});
+      m.indices.insert(m.indices.end(), {at(i, j), at(i + 1, j + 1), at(i, j + 1)});
+    }
+    m.indices.insert(m.indices.end(), {at(n - 1, j), south, at(n - 1, j + 1)});
+  }
+  return m;
+}
+
+double Area(Vec3 a, Vec3 b, Vec3 c) { return 0.5 * Norm(Cross(b - a, c - a)); }
+
+// Distance from p to triangle (a, b, c).
+double PointTriangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) {
+  const Vec3 n = Cross(b - a, c - a);
+  const double nn = Dot(n, n);
+  if (nn > 0) {
+    const Vec3 q = p - n * (Dot(p - a, n) / nn);
+    const bool in = Dot(Cross(b - a, q - a), n) >= 0 && Dot(Cross(c - b, q - b), n) >= 0 &&
+                    Dot(Cross(a - c, q - c), n) >= 0;
+    if (in) return Norm(p - q);
+  }
+  auto seg = [&](Vec3 u, Vec3 v) {
+    const double l = Dot(v - u, v - u);
+    const double t = l > 0 ? std::clamp(Dot(p - u, v - u) / l, 0.0, 1.0) : 0.0;
+    return Norm(p - (u + (v - u) * t));
+  };
+  return std::min({seg(a, b), seg(b, c), seg(c, a)});
+}
+
+// A level's fragments as triangles in mesh units (meshes.md's formula).
+std::vector<std::array<Vec3, 3>> Dequantized(const Stored& s, size_t k) {
+  NeuroglancerGrid g{s.chunk_shape, s.grid_origin};
+  std::vector<std::array<Vec3, 3>> out;
+  for (size_t f = 0; f < s.fragments[k].size(); ++f) {
+    const codec::IntegerMesh& m = s.fragments[k][f];
+    for (size_t t = 0; t + 2 < m.indices.size(); t += 3) {
+      std::array<Vec3, 3> tri;
+      for (int c = 0; c < 3; ++c) {
+        tri[c] = DequantizePosition(g, static_cast<int>(k), s.positions[k][f],
+                                    m.positions[m.indices[t + c]], 16);
+      }
+      out.push_back(tri);
+    }
+  }
+  return out;
+}
+
+uint64_t ZCode(const std::array<uint32_t, 3>& p) {
+  uint64_t code = 0;
+  for (int b = 0; b < 21; ++b) {
+    for (int j = 0; j < 3; ++j) code |= static_cast<uint64_t>(p[j] >> b & 1) << (3 * b + j);
+  }
+  return code;
+}
+
+// Two spheres at three levels over nodes of 4 voxels (4 x 4 x 8 units: anisotropic), read
+// back as Neuroglancer reads them; with skirts off, the fragments are the levels cut.
+TEST(NeuroglancerExport, OctreeReadsBackAsNeuroglancerDoes) {
   std::vector<NeuroglancerSegment> segments;
-  for (LabelId id : {7u, 1000000007u, 3u}) {
-    const Vec3 c{static_cast<float>(id % 13), 2.0f, -5.0f};
-    segments.push_back({id, {Octahedron(c, 3, 3), Octahedron(c, 3, 2.5f), Octahedron(c, 3.1f, 2)}});
+  for (LabelId id : {7u, 1000000007u}) {
+    const Vec3 c{10.0 + static_cast<double>(id % 13), 20.0, 30.0};
+    segments.push_back({id, {Sphere(c, 9, 16), Sphere(c, 9, 10), Sphere(c, 9, 6)}});
   }
   VolumeInfo grid;
-  grid.nx = grid.ny = grid.nz = 20;
-  grid.spacing = {4, 4, 40};
-  NeuroglancerOptions options = DracoOptions();
-  options.nm_per_unit = 2;
-  ASSERT_TRUE(WriteNeuroglancer(dir, grid, segments, options).ok());
+  grid.nx = grid.ny = 40;
+  grid.nz = 20;
+  grid.spacing = {1, 1, 2};
+  for (double skirt : {0.0, -1.0}) {
+    SCOPED_TRACE(skirt);
+    const std::string dir = testing::MakeTempDir() + "/ng";
+    NeuroglancerOptions options = DracoOptions();
+    options.nm_per_unit = 2;
+    options.chunk_voxels = 4;
+    options.skirt = skirt;
+    ASSERT_TRUE(WriteNeuroglancer(dir, grid, segments, options).ok());
+    const auto info = nlohmann::json::parse(ReadAll(dir + "/info"));
+    EXPECT_EQ(info["type"], "segmentation");
+    EXPECT_EQ(info["scales"][0]["resolution"], nlohmann::json({2.0, 2.0, 4.0}));
+    const auto mesh_info = nlohmann::json::parse(ReadAll(dir + "/mesh/info"));
+    EXPECT_EQ(mesh_info["@type"], "neuroglancer_multilod_draco");
+    EXPECT_EQ(mesh_info["vertex_quantization_bits"], 16);
 
-  const auto info = nlohmann::json::parse(ReadAll(dir + "/info"));
-  EXPECT_EQ(info["type"], "segmentation");
-  EXPECT_EQ(info["mesh"], "mesh");
-  EXPECT_EQ(info["scales"][0]["resolution"], nlohmann::json({8.0, 8.0, 80.0}));
-  const auto mesh_info = nlohmann::json::parse(ReadAll(dir + "/mesh/info"));
-  EXPECT_EQ(mesh_info["@type"], "neuroglancer_multilod_draco");
-  EXPECT_EQ(mesh_info["vertex_quantization_bits"], 16);
-  EXPECT_EQ(mesh_info["transform"], nlohmann::json({2.0, 0, 0, 0, 0, 2.0, 0, 0, 0, 0, 2.0, 0}));
-
-  for (const NeuroglancerSegment& seg : segments) {
-    SCOPED_TRACE(seg.id);
-    const Stored stored = ReadSegment(dir, seg.id);
-    ASSERT_EQ(stored.fragments.size(), 3u);
-    EXPECT_EQ(stored.lod_scales, std::vector<float>({4, 8, 16}));  // 2^k x finest spacing
-    auto quantized = QuantizeSegment(seg, 16);
-    ASSERT_TRUE(quantized.ok());
-    EXPECT_EQ(stored.chunk_shape, quantized->chunk_shape);
-    EXPECT_EQ(stored.grid_origin, quantized->grid_origin);
-    for (size_t k = 0; k < 3; ++k) {
-      // One node per level, at the grid's corner, holding the whole segment.
-      ASSERT_EQ(stored.fragments[k].size(), 1u);
-      EXPECT_EQ(stored.positions[k][0], (std::array<uint32_t, 3>{0, 0, 0}));
-      const codec::IntegerMesh& got = stored.fragments[k][0];
-      const NeuroglancerFragment& want = quantized->lods[k];
-      EXPECT_EQ(Triangles(got.positions, got.indices), Triangles(want.positions, want.indices))
-          << "level " << k;
-      // The formula Neuroglancer applies gives back each vertex within half a step, so
-      // nothing was clamped: every level fits its node, and levels > 0 its low octant.
-      for (size_t v = 0; v < want.positions.size(); ++v) {
-        const Vec3 p = DequantizePosition(*quantized, static_cast<int>(k), want.positions[v], 16);
-        const Vec3& o = seg.lods[k].positions[v];
-        auto step = [&](int j) {
-          return std::ldexp(quantized->chunk_shape[j], static_cast<int>(k)) / 65535;
-        };
-        EXPECT_NEAR(p.x, o.x, step(0));
-        EXPECT_NEAR(p.y, o.y, step(1));
-        EXPECT_NEAR(p.z, o.z, step(2));
-        if (k > 0) {
-          for (int j = 0; j < 3; ++j) EXPECT_LE(want.positions[v][j], 32768u);
+    std::set<std::array<float, 3>> origins;
+    for (const NeuroglancerSegment& seg : segments) {
+      SCOPED_TRACE(seg.id);
+      const Stored stored = ReadSegment(dir, seg.id);
+      ASSERT_EQ(stored.fragments.size(), 3u);
+      EXPECT_EQ(stored.lod_scales, std::vector<float>({1, 2, 4}));
+      EXPECT_EQ(stored.chunk_shape, (std::array<float, 3>{4, 4, 8}));
+      origins.insert(stored.grid_origin);
+      for (size_t k = 0; k < 3; ++k) {
+        SCOPED_TRACE(k);
+        // A real octree: several nodes, in z-order, each with its parent one level up.
+        EXPECT_GT(stored.positions[k].size(), k == 2 ? 1u : 8u);
+        for (size_t f = 1; f < stored.positions[k].size(); ++f) {
+          EXPECT_LT(ZCode(stored.positions[k][f - 1]), ZCode(stored.positions[k][f]));
+        }
+        if (k + 1 < 3) {
+          for (const auto& p : stored.positions[k]) {
+            const std::array<uint32_t, 3> up = {p[0] >> 1, p[1] >> 1, p[2] >> 1};
+            EXPECT_NE(std::find(stored.positions[k + 1].begin(), stored.positions[k + 1].end(), up),
+                      stored.positions[k + 1].end());
+          }
+        }
+        // Levels > 0: no triangle crosses a node's middle plane (2^15, which both sides may
+        // touch), where Neuroglancer partitions a fragment into its octants.
+        for (const codec::IntegerMesh& m : stored.fragments[k]) {
+          for (size_t t = 0; k > 0 && t + 2 < m.indices.size(); t += 3) {
+            for (int j = 0; j < 3; ++j) {
+              int below = 0, above = 0;
+              for (int c = 0; c < 3; ++c) {
+                const uint32_t v = m.positions[m.indices[t + c]][j];
+                below += v<32768, above += v> 32768;
+              }
+              EXPECT_TRUE(below == 0 || above == 0) << "a triangle crosses a middle plane";
+            }
+          }
+        }
+        // Every triangle of the level is in the union of its fragments (its centroid lies on
+        // one of them), and with no skirt the fragments hold nothing else (equal area).
+        const std::vector<std::array<Vec3, 3>> got = Dequantized(stored, k);
+        const IndexedMesh& want = seg.lods[k];
+        double want_area = 0, got_area = 0;
+        for (const auto& t : got) got_area += Area(t[0], t[1], t[2]);
+        size_t missing = 0;
+        for (size_t t = 0; t + 2 < want.indices.size(); t += 3) {
+          const Vec3 a = want.positions[want.indices[t]], b = want.positions[want.indices[t + 1]],
+                     c = want.positions[want.indices[t + 2]];
+          want_area += Area(a, b, c);
+          const Vec3 centroid = (a + b + c) * (1.0 / 3);
+          double best = 1e9;
+          for (const auto& g : got)
+            best = std::min(best, PointTriangle(centroid, g[0], g[1], g[2]));
+          missing += best > 1e-3;
+        }
+        EXPECT_EQ(missing, 0u);
+        if (skirt == 0) {
+          EXPECT_NEAR(got_area, want_area, 1e-3 * want_area);
+        } else {
+          EXPECT_GT(got_area, want_area * 1.01) << "skirts add strips";
+        }
+        // Level 0 has no empty node (a coarser one may be empty, as a finer node's parent).
+        for (const codec::IntegerMesh& m : stored.fragments[k]) {
+          EXPECT_TRUE(k > 0 || !m.indices.empty());
         }
       }
     }
+    EXPECT_EQ(origins.size(), 1u) << "one octree grid for every segment";
+    EXPECT_TRUE(ReadSegment(dir, 8).fragments.empty());  // no such segment
   }
-  EXPECT_TRUE(ReadSegment(dir, 8).fragments.empty());  // no such segment
 }
 
 TEST(NeuroglancerExport, ManySegmentsSpreadOverShards) {
@@ -345,6 +441,7 @@ TEST(NeuroglancerExport, ManySegmentsSpreadOverShards) {
   VolumeInfo grid;
   grid.nx = grid.ny = grid.nz = 8;
   NeuroglancerOptions options = DracoOptions();
+  options.chunk_voxels = 64;  // one node holds them all
   options.choose_sharding = false;
   options.sharding.shard_bits = 2;
   options.sharding.minishard_bits = 2;
@@ -359,6 +456,13 @@ TEST(NeuroglancerExport, ManySegmentsSpreadOverShards) {
     ASSERT_EQ(stored.fragments.size(), 1u) << seg.id;
     EXPECT_EQ(stored.fragments[0][0].indices.size(), 24u) << seg.id;
   }
+}
+
+// Index count of level k over all its fragments.
+size_t Indices(const Stored& s, size_t k) {
+  size_t n = 0;
+  for (const codec::IntegerMesh& m : s.fragments[k]) n += m.indices.size();
+  return n;
 }
 
 // Runs a shell command line, stderr with stdout; the exit status.
@@ -388,13 +492,12 @@ TEST(NeuroglancerExport, ExtractWritesEachSurfaceWithCoarserSweeps) {
     ASSERT_EQ(stored.fragments.size(), 4u);
     // Sweeps at E0, 2 E0, 4 E0, 8 E0: each level coarser than the one before.
     for (size_t k = 1; k < 4; ++k) {
-      EXPECT_LT(stored.fragments[k][0].indices.size(), stored.fragments[k - 1][0].indices.size())
-          << "level " << k;
+      EXPECT_LT(Indices(stored, k), Indices(stored, k - 1)) << "level " << k;
     }
     if (id == 2) {
-      EXPECT_LT(stored.fragments[0][0].indices.size(), previous_outer);
+      EXPECT_LT(Indices(stored, 0), previous_outer);
     }
-    previous_outer = stored.fragments[0][0].indices.size();
+    previous_outer = Indices(stored, 0);
   }
   EXPECT_TRUE(ReadSegment(tmp + "/ng", 3).fragments.empty());
   // With a triangle target, each level asks for half the triangles of the one before.
@@ -407,8 +510,7 @@ TEST(NeuroglancerExport, ExtractWritesEachSurfaceWithCoarserSweeps) {
   const Stored targeted = ReadSegment(tmp + "/ngt", 1);
   ASSERT_EQ(targeted.fragments.size(), 3u);
   for (size_t k = 1; k < 3; ++k) {
-    EXPECT_LT(targeted.fragments[k][0].indices.size(), targeted.fragments[k - 1][0].indices.size())
-        << "level " << k;
+    EXPECT_LT(Indices(targeted, k), Indices(targeted, k - 1)) << "level " << k;
   }
   // Flag mistakes name the flag and exit 2.
   out.clear();
@@ -423,6 +525,12 @@ TEST(NeuroglancerExport, ExtractWritesEachSurfaceWithCoarserSweeps) {
                   &out),
             2);
   EXPECT_NE(out.find("go with --neuroglancer DIR"), std::string::npos) << out;
+  out.clear();
+  EXPECT_EQ(Shell(tandem + " extract --input " + tmp + "/s.nrrd --out " + tmp +
+                      "/x.ply --neuroglancer " + tmp + "/ng --neuroglancer-chunk 0",
+                  &out),
+            2);
+  EXPECT_NE(out.find("--neuroglancer-chunk must be in [1, 4096], got 0"), std::string::npos) << out;
 }
 
 TEST(NeuroglancerExport, JoinLevelsGivesEachLabelAllItsLevels) {
@@ -496,21 +604,68 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
     sessions.push_back(*std::move(session));
   }
   const std::string dir = testing::MakeTempDir() + "/ng";
-  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, levels, 0, 1, 7).ok());
+  // Nodes of 4 voxels: the interface is cut by node faces at 3.5 and 7.5.
+  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, levels, 0, 1, 7, {4, -1}).ok());
   for (LabelId id : {5u, 9u}) {
     SCOPED_TRACE(id);
     const Stored stored = ReadSegment(dir, id);
     ASSERT_EQ(stored.fragments.size(), 2u);
-    // Level 0 is the label's own surface from SplitByLabel, as quantized.
-    for (const auto& [label, mesh] : SplitByLabel(levels[0]->SnapshotLabeled(), 0)) {
-      if (label != id) continue;
-      auto q = QuantizeSegment({id, {mesh}}, 16);
-      ASSERT_TRUE(q.ok());
-      EXPECT_GT(mesh.num_triangles(), 0u);
-      EXPECT_EQ(Triangles(stored.fragments[0][0].positions, stored.fragments[0][0].indices).size(),
-                mesh.num_triangles());
+    EXPECT_GT(Indices(stored, 0), 0u);
+    EXPECT_GT(Indices(stored, 1), 0u);
+  }
+  // Where the two labels touch, each level's fragments hold the same triangles for both
+  // (cut and quantized alike, up to orientation): all of the interface x = 6.5.
+  const Stored five = ReadSegment(dir, 5), nine = ReadSegment(dir, 9);
+  for (size_t k = 0; k < 2; ++k) {
+    SCOPED_TRACE(k);
+    auto unoriented = [&](const Stored& s) {
+      std::multiset<std::array<std::array<uint32_t, 3>, 3>> out;
+      for (size_t f = 0; f < s.fragments[k].size(); ++f) {
+        const codec::IntegerMesh& m = s.fragments[k][f];
+        for (size_t t = 0; t + 2 < m.indices.size(); t += 3) {
+          std::array<std::array<uint32_t, 3>, 3> tri;
+          for (int c = 0; c < 3; ++c) {
+            tri[c] = m.positions[m.indices[t + c]];
+            for (int j = 0; j < 3; ++j) tri[c][j] += 65536 * s.positions[k][f][j];
+          }
+          std::sort(tri.begin(), tri.end());
+          out.insert(tri);
+        }
+      }
+      return out;
+    };
+    const auto a5 = unoriented(five), a9 = unoriented(nine);
+    std::vector<std::array<std::array<uint32_t, 3>, 3>> common;
+    std::set_intersection(a5.begin(), a5.end(), a9.begin(), a9.end(), std::back_inserter(common));
+    const NeuroglancerGrid g{five.chunk_shape, five.grid_origin};
+    double shared = 0;
+    for (const auto& tri : common) {
+      Vec3 p[3];
+      for (int c = 0; c < 3; ++c) {
+        std::array<uint32_t, 3> node, q;
+        for (int j = 0; j < 3; ++j) node[j] = tri[c][j] / 65536, q[j] = tri[c][j] % 65536;
+        p[c] = DequantizePosition(g, static_cast<int>(k), node, q, 16);
+      }
+      shared += Area(p[0], p[1], p[2]);
     }
-    EXPECT_FALSE(stored.fragments[1][0].indices.empty());
+    // The interface in the sweep's own output: the triangles both labels' surfaces hold.
+    std::map<std::array<double, 9>, int> seen;
+    double interface = 0;
+    for (const auto& [label, mesh] : SplitByLabel(levels[k]->SnapshotLabeled(), 0)) {
+      for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
+        std::array<Vec3, 3> v = {mesh.positions[mesh.indices[t]],
+                                 mesh.positions[mesh.indices[t + 1]],
+                                 mesh.positions[mesh.indices[t + 2]]};
+        std::array<std::array<double, 3>, 3> key;
+        for (int c = 0; c < 3; ++c) key[c] = {v[c].x, v[c].y, v[c].z};
+        std::sort(key.begin(), key.end());
+        std::array<double, 9> flat;
+        for (int c = 0; c < 9; ++c) flat[c] = key[c / 3][c % 3];
+        if (++seen[flat] == 2) interface += Area(v[0], v[1], v[2]);
+      }
+    }
+    EXPECT_GT(interface, 20.0);
+    EXPECT_NEAR(shared, interface, 1e-3 * interface) << "the interface, cut alike for both";
   }
   EXPECT_TRUE(ReadSegment(dir, 0).fragments.empty());  // the background has no segment
 }
@@ -522,14 +677,12 @@ TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
   const VolumeInfo& grid = two.grid;
   const std::vector<uint16_t>& voxels = two.voxels;
   const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
-  ASSERT_TRUE(WriteVolume(tmp + "/labels.nrrd", grid,
-                          [&](int64_t z, std::vector<uint8_t>* bytes) {
-                            const auto* b = reinterpret_cast<const uint8_t*>(
-                                voxels.data() + z * grid.nx * grid.ny);
-                            bytes->assign(b, b + grid.slice_bytes());
-                            return absl::OkStatus();
-                          })
-                  .ok());
+  ASSERT_TRUE(WriteVolume(tmp + "/labels.nrrd", grid, [&](int64_t z, std::vector<uint8_t>* bytes) {
+                const auto* b =
+                    reinterpret_cast<const uint8_t*>(voxels.data() + z * grid.nx * grid.ny);
+                bytes->assign(b, b + grid.slice_bytes());
+                return absl::OkStatus();
+              }).ok());
   std::string out;
   ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/labels.nrrd --labels --error 0.3 --quiet" +
                       " --out " + tmp + "/cells/ --neuroglancer " + tmp + "/ng" +
@@ -564,6 +717,10 @@ TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {
   std::vector<NeuroglancerSegment> out_of_range = {{3, {bad}}};
   EXPECT_EQ(WriteNeuroglancer(tmp, grid, out_of_range, o).message(),
             "segment 3 level 0: index 99 out of range");
+  o.chunk_voxels = 0;
+  EXPECT_EQ(WriteNeuroglancer(tmp, grid, {}, o).message(),
+            "chunk_voxels must be in [1, 4096], got 0");
+  o.chunk_voxels = 32;
   o.vertex_quantization_bits = 12;
   EXPECT_EQ(WriteNeuroglancer(tmp, grid, {}, o).message(),
             "vertex_quantization_bits must be 10 or 16, got 12");

@@ -58,6 +58,10 @@ struct NeuroglancerOptions {
   double nm_per_unit = 1.0;
   // Per level (finest first), in mesh units; empty: 2^k times the grid's finest spacing.
   std::vector<double> lod_scales;
+  // The finest octree node's edge in voxels; level k's nodes are 2^k times larger.
+  int chunk_voxels = 32;
+  // Skirt depth (BuildOctree) in mesh units; negative: the finest spacing (one voxel).
+  double skirt = -1;
   // Shards and minishards; all bits 0 and murmurhash: chosen from the segment count
   // (ChooseSharding).
   NeuroglancerSharding sharding;
@@ -67,10 +71,10 @@ struct NeuroglancerOptions {
 
 // Writes DIR/info (a uint64 segmentation whose "mesh" is "mesh", the grid's size,
 // resolution and offset in nanometres, no voxel data) and DIR/mesh/ (info and the shard
-// files). Each segment is one octree node per level whose box holds all its levels, so a
-// level switch replaces the whole segment at once (docs/decisions.md). InvalidArgument for
-// no encoder, bad bits, an empty level list, unequal level counts, non-finite positions,
-// an index out of range or two segments with one id; a failed write names the file.
+// files). Each segment is an octree of fragments per level (BuildOctree), skirted where
+// there is more than one level (docs/decisions.md). InvalidArgument for no encoder, bad
+// bits or chunk size, an empty level list, unequal level counts, non-finite positions, an
+// index out of range or two segments with one id; a failed write names the file.
 absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
                                std::span<const NeuroglancerSegment> segments,
                                const NeuroglancerOptions& options);
@@ -119,17 +123,35 @@ struct NeuroglancerManifest {
 };
 std::string EncodeManifest(const NeuroglancerManifest& manifest);
 
-// A segment's node box (the same cube corner for every level) and its levels quantized in
-// it: level k's node is chunk_shape * 2^k from grid_origin, positions as meshes.md's formula
-// reads them back in float32.
-struct QuantizedSegment {
+// The octree every segment shares: the finest node's shape and the grid's corner, so that
+// touching segments cut and quantize their common triangles alike. Level k's node (x, y, z)
+// is the box grid_origin + (x, y, z) * chunk_shape * 2^k, of size chunk_shape * 2^k.
+struct NeuroglancerGrid {
   std::array<float, 3> chunk_shape{1, 1, 1}, grid_origin{0, 0, 0};
-  std::vector<NeuroglancerFragment> lods;
 };
-absl::StatusOr<QuantizedSegment> QuantizeSegment(const NeuroglancerSegment& segment, int bits);
-// Where a quantized position of level `lod` lands (meshes.md's formula, in float32).
-Vec3 DequantizePosition(const QuantizedSegment& segment, int lod, const std::array<uint32_t, 3>& q,
-                        int bits);
+// Nodes of `chunk_voxels` voxels a side, the corner half a voxel below the volume and below
+// every vertex (so an open border at the volume's faces never lies on a node face).
+NeuroglancerGrid ChooseOctreeGrid(const VolumeInfo& grid,
+                                  std::span<const NeuroglancerSegment> segments, int chunk_voxels);
+
+// One octree node of one level: its grid position and its fragment (empty: a node kept only
+// as the parent of finer ones).
+struct NeuroglancerNode {
+  std::array<uint32_t, 3> position{0, 0, 0};
+  NeuroglancerFragment fragment;
+};
+// A segment's octree: per level (finest first) its nodes in z-order. Level k's mesh is cut
+// exactly along the faces of its cells (the nodes for k = 0, their octants for k > 0, as the
+// format's 2x2x2 partition asks), each cell's piece quantized inside the cell, octants
+// meeting on the step 2^(bits-1) that Neuroglancer's partition lets either side hold. With
+// skirt > 0 every cut edge hangs a strip of that depth (mesh units) inside the cut face,
+// away from the surface's outer side, so that two levels meeting on a face overlap instead
+// of leaving the crack between their cuts; 0: none.
+absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
+    const NeuroglancerSegment& segment, const NeuroglancerGrid& grid, int bits, double skirt);
+// Where quantized position q of level `lod`'s node `node` lands (meshes.md's formula).
+Vec3 DequantizePosition(const NeuroglancerGrid& grid, int lod, const std::array<uint32_t, 3>& node,
+                        const std::array<uint32_t, 3>& q, int bits);
 
 // gzip (RFC 1952) of `bytes`, as sharded.md's "gzip" encoding.
 absl::StatusOr<std::string> GzipBytes(std::string_view bytes);
