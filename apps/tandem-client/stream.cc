@@ -49,7 +49,7 @@ int StreamCommand(int argc, char** argv) {
       "or numbered single-slice TIFFs) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
       "simplified iso-surface: .drc (the server's Draco bytes), or decoded: .ply or .obj (with "
-      "vertex normals), .stl, .glb. With --labels (a label map): every label's surface, into\n"
+      "vertex normals), .stl, .glb.\nWith --labels (a label map): every label's surface, into "
       "--out DIR/ (a file per label and labels.glb) or one .glb, as `tandem extract --labels`.");
   connection.Add(flags, /*token=*/true);
   f.Add(&flags,
