@@ -35,10 +35,17 @@ class Collector {
  public:
   // `sealed`: the mesh is expected as sealed chunks (the messages decide in the end);
   // `surfaces`: 1 + config.extra_isos, or 0 to learn them from the messages (a watcher).
-  Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed, size_t surfaces)
-      : callbacks_(callbacks), result_(*result), state_(std::max<size_t>(surfaces, 1)),
-        learn_surfaces_(surfaces == 0) {
+  // `labels`: a label session (config.labels), whose surfaces are its labels, as many as the
+  // session's own metrics say.
+  Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed, size_t surfaces,
+            bool labels = false)
+      : callbacks_(callbacks),
+        result_(*result),
+        state_(std::max<size_t>(surfaces, 1)),
+        learn_surfaces_(surfaces == 0 || labels),
+        labels_(labels) {
     result_.sealed_session = sealed;
+    result_.labels = labels;
     result_.extra_surfaces.resize(state_.size() - 1);
   }
 
@@ -104,6 +111,11 @@ class Collector {
       }
       case v1::ExtractResponse::kFinalMetrics: {
         const v1::FinalMetrics& m = response.final_metrics();
+        if (labels_ && !m.has_label()) {  // the session's own, the last message
+          result.session_metrics = m;
+          have_session_metrics_ = true;
+          break;
+        }
         SurfaceResult* out = Surface(m.surface(), "final metrics");
         if (out == nullptr) break;
         out->metrics = m;
@@ -118,7 +130,18 @@ class Collector {
   // After an OK status: what is missing or inconsistent ("" when the reply is whole).
   std::string Check() {
     StreamResult& result = result_;
-    for (size_t i = 0; i < state_.size() && malformed_.empty(); ++i) {
+    size_t surfaces = state_.size();
+    if (labels_ && malformed_.empty()) {
+      surfaces = static_cast<size_t>(std::max<int64_t>(0, result.session_metrics.labels()));
+      if (!have_session_metrics_) {
+        malformed_ = "the label stream ended without the session's final metrics";
+      } else if (surfaces != learned_) {
+        malformed_ =
+            absl::StrCat("the label stream sent ", learned_, " labels; its metrics say ", surfaces);
+      }
+      if (surfaces == 0) result.extra_surfaces.clear();
+    }
+    for (size_t i = 0; i < surfaces && malformed_.empty(); ++i) {
       SurfaceResult& out = result.surface(i);
       const State& st = state_[i];
       const std::string which = state_.size() > 1 ? absl::StrCat(" of surface ", i) : "";
@@ -154,6 +177,23 @@ class Collector {
   };
   // The result for a message's surface, or nullptr (and malformed) for one not asked for.
   SurfaceResult* Surface(int32_t surface, const char* what) {
+    if (labels_ && surface >= 0) {
+      // A label's surfaces come in turn: only the next one may begin.
+      const auto s = static_cast<size_t>(surface);
+      if (s + 1 == learned_ || s == learned_) {
+        learned_ = s + 1;
+        if (s >= state_.size()) {
+          state_.resize(s + 1);
+          result_.extra_surfaces.resize(s);
+        }
+        return &result_.surface(s);
+      }
+      if (malformed_.empty()) {
+        malformed_ = absl::StrCat(what, " for label surface ", surface, " arrived after surface ",
+                                  learned_ == 0 ? -1 : static_cast<int64_t>(learned_) - 1);
+      }
+      return nullptr;
+    }
     if (learn_surfaces_ && surface > 0 && surface < kMaxSurfaces &&
         static_cast<size_t>(surface) >= state_.size()) {
       state_.resize(static_cast<size_t>(surface) + 1);
@@ -175,6 +215,9 @@ class Collector {
   static constexpr int32_t kMaxSurfaces = 8;  // tandem.proto: SessionConfig.extra_isos
   std::vector<State> state_;  // per surface
   const bool learn_surfaces_;
+  const bool labels_;
+  size_t learned_ = 0;  // labels: the surfaces begun so far
+  bool have_session_metrics_ = false;
   int64_t& chunks_ = result_.chunks_received;  // all surfaces together
 };
 
@@ -490,7 +533,8 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
                         std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000));
   StreamResult result;
   Collector collector(callbacks, &result, opts.config.sealed_chunks(),
-                      1 + static_cast<size_t>(opts.config.extra_isos_size()));
+                      1 + static_cast<size_t>(opts.config.extra_isos_size()),
+                      opts.config.labels().enabled());
   Resumption resumption{opts.resume_session_id, opts.resume_token, 0};
   if (opts.chunk_store != nullptr && !resumption.id.empty()) {
     // A restarted client holds the chunks it kept: the server sends the others.

@@ -276,6 +276,34 @@ eval::MetricsReport ReportFromProto(const v1::FinalMetrics& metrics) {
   return r;
 }
 
+void LabelMetricsToProto(const eval::LabelMetrics& m, v1::FinalMetrics* out) {
+  out->set_label(m.label);
+  out->set_triangles_final(m.triangles);
+  out->set_vertices_final(m.vertices);
+  v1::LabelFigures* f = out->mutable_label_figures();
+  f->set_area(m.area);
+  f->set_volume(m.volume);
+  f->set_euler(m.euler);
+  f->set_components(m.components);
+  f->set_manifold(m.manifold);
+  f->set_closed(m.closed);
+}
+
+eval::LabelMetrics LabelMetricsFromProto(const v1::FinalMetrics& metrics) {
+  const v1::LabelFigures& f = metrics.label_figures();
+  eval::LabelMetrics m;
+  m.label = metrics.label();
+  m.triangles = metrics.triangles_final();
+  m.vertices = metrics.vertices_final();
+  m.area = f.area();
+  m.volume = f.volume();
+  m.euler = f.euler();
+  m.components = f.components();
+  m.manifold = f.manifold();
+  m.closed = f.closed();
+  return m;
+}
+
 void FinishingToProto(const TandemSession::Finishing& f, v1::Progress* out) {
   if (!f.running) return;
   out->set_finishing(f.step);

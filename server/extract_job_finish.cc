@@ -70,6 +70,7 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
   }
   TANDEM_RETURN_IF_ERROR(CheckMemory(0, "after the last slice"));
   if (config_.options.seal) return FinishSealed();
+  if (config_.options.labels.enabled) return FinishLabels();
   // Every step below is counted before it allocates; the session is freed as soon as its
   // mesh and report are out, so the encoder never runs beside it.
   const int64_t triangles = session_->num_triangles();
@@ -109,23 +110,30 @@ absl::Status ExtractJob::HandleEnd(const v1::End& end) {
     return absl::InternalError(absl::StrCat("encoding the final mesh: ",
                                             std::string(bytes.status().message())));
   }
-  const std::string& all = *bytes;
+  std::vector<v1::ExtractResponse> out;
+  AppendFinalMesh(*bytes, mesh, &out);
+  final_triangles_ = static_cast<int64_t>(mesh.num_triangles());
+  PostMetrics(report, std::move(out));
+  return absl::OkStatus();
+}
+
+std::vector<v1::FinalMesh*> AppendFinalMesh(const std::string& all, const IndexedMesh& mesh,
+                                            std::vector<v1::ExtractResponse>* out) {
   const size_t chunk = common::kFinalMeshChunkBytes;
   const size_t count = std::max<size_t>(1, (all.size() + chunk - 1) / chunk);
-  std::vector<v1::ExtractResponse> out;
-  out.reserve(count + 1);
+  std::vector<v1::FinalMesh*> added;
+  out->reserve(out->size() + count + 1);
   for (size_t i = 0; i < count; ++i) {
-    v1::FinalMesh* m = out.emplace_back().mutable_final_mesh();
+    v1::FinalMesh* m = out->emplace_back().mutable_final_mesh();
     m->set_chunk_index(static_cast<uint32_t>(i));
     m->set_chunk_count(static_cast<uint32_t>(count));
     m->set_draco(all.substr(i * chunk, chunk));  // i * chunk <= size: no throw
     m->set_total_bytes(all.size());
     m->set_triangles(static_cast<int64_t>(mesh.num_triangles()));
     m->set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+    added.push_back(m);
   }
-  final_triangles_ = static_cast<int64_t>(mesh.num_triangles());
-  PostMetrics(report, std::move(out));
-  return absl::OkStatus();
+  return added;
 }
 
 absl::Status ExtractJob::FinishSealed() {
@@ -171,6 +179,11 @@ void ExtractJob::PostMetrics(const eval::MetricsReport& report,
   metrics->set_time_wall_s(SecondsSince(start_));
   metrics->set_sealed_chunks(chunks_sent_);
   metrics->set_peak_session_bytes(static_cast<int64_t>(std::max(peak_memory_, MemoryBytes())));
+  if (config_.options.labels.enabled) {
+    metrics->set_labels(std::count_if(out.begin(), out.end(), [](const v1::ExtractResponse& r) {
+      return r.has_final_metrics() && r.final_metrics().has_label();
+    }));
+  }
   // bytes_received, bytes_sent and previews_sent are filled in by the transport, which
   // alone knows what went over the wire.
   slice_ = {};

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -70,6 +71,16 @@ class ExtractJob::SurfaceSink final : public JobSink {
   ExtractJob* parent_;
   int surface_;
 };
+
+// Appends `all` (the Draco bytes of `mesh`) to `out` as FinalMesh chunks, which it returns
+// (the messages are in `out`: pointers valid until it grows).
+std::vector<v1::FinalMesh*> AppendFinalMesh(const std::string& all, const IndexedMesh& mesh,
+                                            std::vector<v1::ExtractResponse>* out);
+
+// A label session's preview mesh: every label's surface (SplitByLabel) one after the other,
+// with `group` the index into `labels` of each vertex's label.
+IndexedMesh LabelPreviewMesh(const TandemSession& session, LabelId background,
+                             std::vector<uint32_t>* group, std::vector<LabelId>* labels);
 
 // "a SessionConfig", "an End", ...: the message's kind, for errors.
 const char* KindName(const v1::ExtractRequest& r);

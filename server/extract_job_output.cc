@@ -263,13 +263,19 @@ void ExtractJob::MaybePreview() {
     return;
   }
   // A preview is best effort: one that would take the session over its budget is skipped.
-  if (!CheckMemory(EncodeBytes(session_->num_triangles()), "").ok()) return;
+  // (A label session's preview has each interface triangle twice, once for each label.)
+  const bool labels = config_.options.labels.enabled;
+  if (!CheckMemory(EncodeBytes((labels ? 2 : 1) * session_->num_triangles()), "").ok()) return;
   // Sealed: everything sealed so far goes out first, so that chunks and band cover the mesh.
   if (!MaybeChunk(true).ok()) return;  // the stream fails at the next check anyway
   last_preview_ = now;
   const auto t0 = Clock::now();  // (MaybeChunk counted its own encoding)
-  const IndexedMesh mesh = session_->Snapshot();
-  absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, config_.draco);
+  std::vector<uint32_t> group;
+  std::vector<LabelId> label_ids;
+  const IndexedMesh mesh =
+      labels ? LabelPreviewMesh(*session_, config_.options.labels.background, &group, &label_ids)
+             : session_->Snapshot();
+  absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, config_.draco, group);
   encode_s_ += SecondsSince(t0);
   preview_s_ += SecondsSince(now);
   if (!bytes.ok()) return;  // a preview is best effort; the final mesh reports errors
@@ -279,6 +285,7 @@ void ExtractJob::MaybePreview() {
   preview.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
   preview.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
   preview.set_band_only(config_.options.seal);
+  for (LabelId id : label_ids) preview.add_labels(id);
   preview_bytes_ += static_cast<int64_t>(preview.draco().size());
   sink_->PostPreview(std::move(preview));
 }

@@ -8,6 +8,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "tandem/common/wire.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::server {
 namespace {
@@ -25,6 +26,41 @@ absl::Status Prefixed(const std::string& prefix, const absl::Status& st) {
 // SessionOptions' member names are SessionConfig's field names.
 std::string ConfigFieldName(const std::string& field) {
   return absl::StrCat("config.", field, field == "error" ? " (E0)" : "");
+}
+
+// SessionConfig.labels into the options, with the refusals of what a label session cannot
+// do on this server, each naming its field.
+absl::Status ApplyLabels(const v1::SessionConfig& c, SessionOptions* o) {
+  const v1::LabelConfig& l = c.labels();
+  if (!l.enabled()) {
+    if (l.background() != 0 || l.only_size() > 0 || l.close()) {
+      return absl::InvalidArgumentError(
+          "config.labels.background, .only and .close go with config.labels.enabled");
+    }
+    return absl::OkStatus();
+  }
+  const struct {
+    bool set;
+    const char *field, *why;
+  } refused[] = {
+      {!c.extra_isos().empty(), "config.extra_isos",
+       "a label map's surfaces lie between its labels, not at iso-values"},
+      {c.sealed_chunks(), "config.sealed_chunks",
+       "a label session sends each label's surface whole, after End"},
+      {c.compute_distances(), "config.compute_distances",
+       "the distances measure an iso-surface against its unsimplified self"},
+  };
+  for (const auto& r : refused) {
+    if (r.set) {
+      return absl::InvalidArgumentError(
+          absl::StrCat(r.field, " does not go with config.labels: ", r.why));
+    }
+  }
+  o->labels.enabled = true;
+  o->labels.background = l.background();
+  o->labels.only.assign(l.only().begin(), l.only().end());
+  o->labels.close = l.close();
+  return absl::OkStatus();
 }
 
 }  // namespace
@@ -97,6 +133,7 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   o.parts = c.parts();
   o.seal = c.sealed_chunks();
   if (c.has_seal_margin()) o.seal_margin = c.seal_margin();
+  TANDEM_RETURN_IF_ERROR(ApplyLabels(c, &o));
   // The options' rules are core's (SessionOptions::ValidateFor); the message names the
   // request's field.
   if (absl::Status st = o.ValidateFor(g); !st.ok()) {

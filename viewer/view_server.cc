@@ -314,7 +314,8 @@ class HttpViewServer final : public ViewServer {
   ~HttpViewServer() override;
   std::string url() const override;
   void SetSession(const std::string& id, const std::string& description, int64_t nz) override;
-  void SetSurfaces(const std::vector<std::string>& labels) override;
+  void SetSurfaces(const std::vector<std::string>& labels,
+                   const std::vector<std::string>& colors) override;
   void SetProgress(const ViewProgress& progress) override;
   void AddChunk(std::string draco, int64_t triangles, int surface) override;
   void SetBand(int surface, std::string draco, int64_t triangles, int64_t slice,
@@ -405,10 +406,15 @@ void HttpViewServer::SetSession(const std::string& id, const std::string& descri
   impl_->ChangedLocked();
 }
 
-void HttpViewServer::SetSurfaces(const std::vector<std::string>& labels) {
+void HttpViewServer::SetSurfaces(const std::vector<std::string>& labels,
+                                 const std::vector<std::string>& colors) {
   absl::MutexLock lock(&impl_->mu);
   json surfaces = json::array();
-  for (const std::string& label : labels) surfaces.push_back(json{{"label", label}});
+  for (size_t i = 0; i < labels.size(); ++i) {
+    json s{{"label", labels[i]}};
+    if (i < colors.size()) s["color"] = colors[i];
+    surfaces.push_back(std::move(s));
+  }
   impl_->state["surfaces"] = std::move(surfaces);
   if (!labels.empty()) impl_->GrowSurfacesLocked(static_cast<int>(labels.size()) - 1);
   impl_->ChangedLocked();

@@ -1,13 +1,19 @@
 #include "apps/tandem-client/live_view.h"
 
+#include <array>
 #include <atomic>
 #include <csignal>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/clock.h"
 #include "absl/time/time.h"
+#include "tandem/codec/draco_codec.h"
 #include "tandem/common/wire.h"
+#include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
 
 namespace tandem::client {
@@ -99,6 +105,66 @@ void LiveView::SetIsos(const std::vector<std::string>& isos) {
   labeled_ = true;
 }
 
+void LiveView::SetLabels(const LabelNames* names) {
+  label_session_ = true;
+  label_names_ = names;
+  labeled_ = true;
+}
+
+int LiveView::SurfaceOfLabel(LabelId id) {
+  auto [it, added] = label_surface_.try_emplace(id, static_cast<int>(label_order_.size()));
+  if (added) label_order_.push_back(id);
+  return it->second;
+}
+
+void LiveView::PublishLabels() {
+  if (labels_published_ == label_order_.size()) return;
+  labels_published_ = label_order_.size();
+  std::vector<std::string> names, colors;
+  for (size_t k = 0; k < label_order_.size(); ++k) {
+    const LabelId id = label_order_[k];
+    std::string name = absl::StrCat("label ", id);
+    if (label_names_ != nullptr) {
+      if (auto it = label_names_->find(id); it != label_names_->end()) {
+        name = absl::StrCat(it->second.name, " (", id, ")");
+      }
+    }
+    names.push_back(std::move(name));
+    const std::array<uint8_t, 4> c = LabelColor(id, k, label_names_);
+    colors.push_back(absl::StrFormat("#%02x%02x%02x", c[0], c[1], c[2]));
+  }
+  server_->SetSurfaces(names, colors);
+}
+
+void LiveView::ShowLabelPreview(const v1::Preview& p) {
+  std::vector<uint32_t> group;
+  absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(p.draco(), &group);
+  if (!mesh.ok() || group.size() != mesh->positions.size()) return;  // best effort
+  const auto n = static_cast<uint32_t>(p.labels_size());
+  std::vector<IndexedMesh> parts(n);
+  std::vector<uint32_t> local(mesh->positions.size());
+  for (size_t v = 0; v < group.size(); ++v) {
+    if (group[v] >= n) continue;
+    local[v] = static_cast<uint32_t>(parts[group[v]].positions.size());
+    parts[group[v]].positions.push_back(mesh->positions[v]);
+  }
+  for (size_t k = 0; k + 2 < mesh->indices.size(); k += 3) {
+    const uint32_t* t = &mesh->indices[k];
+    const uint32_t g = group[t[0]];
+    if (g >= n || group[t[1]] != g || group[t[2]] != g) continue;
+    for (int c = 0; c < 3; ++c) parts[g].indices.push_back(local[t[c]]);
+  }
+  codec::DracoOptions fast;
+  fast.compression_level = 0;  // the page decodes it at once; size matters little on loopback
+  for (uint32_t g = 0; g < n; ++g) {
+    absl::StatusOr<std::string> bytes = codec::EncodeDraco(parts[g], fast);
+    if (!bytes.ok()) continue;
+    server_->SetBand(SurfaceOfLabel(p.labels(static_cast<int>(g))), *std::move(bytes),
+                     static_cast<int64_t>(parts[g].num_triangles()), p.slice(), false);
+  }
+  PublishLabels();
+}
+
 SliceSource* LiveView::Track(SliceSource* source) {
   if (!server_) return source;
   tracker_ = std::make_unique<EndTracker>(source, this);
@@ -148,8 +214,12 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
     if (progress) progress(p, sent);
   };
   auto preview = callbacks->on_preview;
-  callbacks->on_preview = [view, preview](const v1::Preview& p, int64_t sent) {
-    view->SetBand(p.surface(), p.draco(), p.triangles(), p.slice(), p.band_only());
+  callbacks->on_preview = [this, view, preview](const v1::Preview& p, int64_t sent) {
+    if (label_session_) {
+      ShowLabelPreview(p);
+    } else {
+      view->SetBand(p.surface(), p.draco(), p.triangles(), p.slice(), p.band_only());
+    }
     if (preview) preview(p, sent);
   };
   auto chunk = callbacks->on_chunk;
@@ -161,7 +231,33 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
 
 void LiveView::Finish(const absl::StatusOr<StreamResult>& result) {
   if (!server_) return;
-  if (result.ok()) {
+  if (result.ok() && label_session_) {
+    // Each label's final mesh on its surface, and a row of figures per label.
+    std::vector<eval::LabelMetrics> rows;
+    for (size_t i = 0; i < result->num_labels(); ++i) {
+      const SurfaceResult& surface = result->surface(i);
+      const int k = SurfaceOfLabel(surface.metrics.label());
+      server_->SetBand(k, surface.draco, surface.triangles, result->session_metrics.slices(),
+                       false);
+      if (rows.size() <= static_cast<size_t>(k)) rows.resize(static_cast<size_t>(k) + 1);
+      rows[static_cast<size_t>(k)] = common::LabelMetricsFromProto(surface.metrics);
+      if (label_names_ != nullptr) {
+        if (auto it = label_names_->find(surface.metrics.label()); it != label_names_->end()) {
+          rows[static_cast<size_t>(k)].name = it->second.name;
+        }
+      }
+    }
+    for (size_t k = 0; k < label_order_.size(); ++k) {  // shown live, gone at the end
+      if (k >= rows.size() || rows[k].label != label_order_[k]) {
+        if (rows.size() <= k) rows.resize(k + 1);
+        rows[k].label = label_order_[k];
+        server_->SetBand(static_cast<int>(k), codec::EncodeDraco(IndexedMesh{}).value_or(""), 0,
+                         result->session_metrics.slices(), false);
+      }
+    }
+    PublishLabels();
+    server_->Finish(eval::LabelMetricsToJson(rows), "");
+  } else if (result.ok()) {
     std::vector<std::string> labels;
     std::string metrics = "[";
     for (size_t i = 0; i < result->num_surfaces(); ++i) {

@@ -7,6 +7,7 @@
 #define TANDEM_APPS_TANDEM_CLIENT_LIVE_VIEW_H_
 
 #include <atomic>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -17,6 +18,7 @@
 #include "absl/synchronization/mutex.h"
 #include "apps/common/flags.h"
 #include "tandem/client/stream_client.h"
+#include "tandem/io/labels_io.h"
 #include "tandem/viewer/view_server.h"
 #include "tandem/volume.h"
 
@@ -44,6 +46,11 @@ class LiveView {
   absl::Status Start(const std::string& description, int64_t nz);
   // The surfaces' iso-values as the user wrote them, for the page's legend and table.
   void SetIsos(const std::vector<std::string>& isos);
+  // A label session: each label is a surface of the page's, in a colour of its own (the
+  // table's, with `names`; else LabelColor's hue, in the order the labels first showed), the
+  // previews cut by label, and the final table has a row per label. `names` (or null) must
+  // outlive the view.
+  void SetLabels(const LabelNames* names);
   // Following a scan of unknown depth: the slices on disk so far, the progress's measure.
   void SetOnDisk(const std::atomic<int64_t>* on_disk) { on_disk_ = on_disk; }
   // The source to stream from: `source`, watched for its end (a scan of unknown depth is
@@ -61,6 +68,11 @@ class LiveView {
   void SourceEnded(int64_t slices);
   // Enters the finishing state once every slice is in and consumed (once).
   void MaybeFinishingLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Label sessions (on the stream's thread): the page's surface of label `id` (a new one is
+  // added, published by PublishLabels), and a preview cut into one band per label.
+  int SurfaceOfLabel(LabelId id);
+  void PublishLabels();
+  void ShowLabelPreview(const v1::Preview& preview);
 
   std::string listen_, token_;
   double linger_s_ = -1;
@@ -71,6 +83,11 @@ class LiveView {
   std::unique_ptr<SliceSource> tracker_;
   bool labeled_ = false;  // the surfaces have their labels (a watcher's come with the metrics)
   std::string session_id_;
+  bool label_session_ = false;
+  const LabelNames* label_names_ = nullptr;
+  std::map<LabelId, int> label_surface_;
+  std::vector<LabelId> label_order_;  // by surface
+  size_t labels_published_ = 0;
 
   absl::Mutex mu_;
   int64_t slices_total_ ABSL_GUARDED_BY(mu_) = -1;  // the source's end, once reached

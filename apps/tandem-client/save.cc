@@ -13,12 +13,28 @@
 #include "absl/strings/str_join.h"
 #include "apps/tandem-client/command.h"
 #include "tandem/common/wire.h"
+#include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
+#include "tandem/io/labels_io.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/volume.h"
 
 namespace tandem::client_app {
 namespace {
+
+// The final mesh of one surface, decoded and held to the counts the server announced.
+absl::StatusOr<tandem::IndexedMesh> DecodeFinal(const tandem::client::SurfaceResult& s) {
+  absl::StatusOr<tandem::IndexedMesh> mesh = tandem::codec::DecodeDraco(s.draco);
+  if (!mesh.ok()) return mesh.status();
+  if (static_cast<int64_t>(mesh->num_triangles()) != s.triangles ||
+      static_cast<int64_t>(mesh->num_vertices()) != s.vertices) {
+    return absl::DataLossError(absl::StrCat("the final mesh decodes to ", mesh->num_triangles(),
+                                            " triangles and ", mesh->num_vertices(),
+                                            " vertices; the server announced ", s.triangles,
+                                            " and ", s.vertices));
+  }
+  return mesh;
+}
 
 // Saves one surface's final mesh of a stream or a watch to `out` (.drc: Draco bytes; sealed:
 // the chunks welded), prints its summary on stdout and appends its metrics JSON to *json.
@@ -29,20 +45,12 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   // Decode even for .drc: it checks the bytes and the counts the server announced. Sealed:
   // the chunks, welded (their counts were checked against the metrics), encoded for .drc.
-  absl::StatusOr<tandem::IndexedMesh> mesh =
-      seal ? tandem::WeldChunks(s.sealed) : tandem::codec::DecodeDraco(s.draco);
+  absl::StatusOr<tandem::IndexedMesh> mesh = seal ? tandem::WeldChunks(s.sealed) : DecodeFinal(s);
   if (!mesh.ok()) return Fail(mesh.status());
   if (seal && ext == ".drc") {
     absl::StatusOr<std::string> bytes = tandem::codec::EncodeDraco(*mesh, o.draco);
     if (!bytes.ok()) return Fail(bytes.status());
     s.draco = *std::move(bytes);
-  }
-  if (static_cast<int64_t>(mesh->num_triangles()) != s.triangles ||
-      static_cast<int64_t>(mesh->num_vertices()) != s.vertices) {
-    return Fail(absl::DataLossError(
-        absl::StrCat("the final mesh decodes to ", mesh->num_triangles(), " triangles and ",
-                     mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
-                     s.vertices)));
   }
   tandem::MeshWriteOptions write;
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
@@ -118,6 +126,61 @@ int SaveResult(tandem::client::StreamResult& result, const SaveOptions& o) {
     const std::string text =
         n == 1 ? json[0] : absl::StrCat("[\n", absl::StrJoin(json, ",\n"), "]\n");
     if (absl::Status st = WriteFile(metrics_path, text); !st.ok()) return Fail(st);
+  }
+  return 0;
+}
+
+int SaveLabels(tandem::client::StreamResult& result, const SaveOptions& o) {
+  std::vector<std::pair<tandem::LabelId, tandem::IndexedMesh>> surfaces;
+  std::vector<tandem::eval::LabelMetrics> measured;
+  for (size_t i = 0; i < result.num_labels(); ++i) {
+    const tandem::client::SurfaceResult& s = result.surface(i);
+    absl::StatusOr<tandem::IndexedMesh> mesh = DecodeFinal(s);
+    if (!mesh.ok()) {
+      return Fail(absl::Status(mesh.status().code(), absl::StrCat("label ", s.metrics.label(), ": ",
+                                                                  mesh.status().message())));
+    }
+    tandem::eval::LabelMetrics m = tandem::common::LabelMetricsFromProto(s.metrics);
+    if (o.label_names != nullptr) {
+      if (auto it = o.label_names->find(m.label); it != o.label_names->end()) {
+        m.name = it->second.name;
+      }
+    }
+    measured.push_back(std::move(m));
+    surfaces.emplace_back(s.metrics.label(), *std::move(mesh));
+  }
+  tandem::MeshWriteOptions write;
+  if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
+  write.space = tandem::ParseSpace(result.session_metrics.frame()).value_or(tandem::Space::kGrid);
+  if (!o.label_extension.empty()) {
+    absl::StatusOr<std::vector<tandem::LabelFile>> files =
+        tandem::WriteLabelMeshes(o.out_pattern, o.label_extension, surfaces, o.label_names, write);
+    if (!files.ok()) return Fail(files.status());
+  } else if (absl::Status st =
+                 tandem::WriteLabelsGlb(o.out_pattern, surfaces, o.label_names, write.space);
+             !st.ok()) {
+    return Fail(st);
+  }
+  tandem::eval::MetricsReport report = tandem::common::ReportFromProto(result.session_metrics);
+  report.input = o.input;
+  report.frame_text = o.frame_text;
+  if (!o.metrics_path.empty()) {
+    if (absl::Status st =
+            WriteFile(o.metrics_path, tandem::eval::ReportWithLabelsToJson(report, measured));
+        !st.ok()) {
+      return Fail(st);
+    }
+  } else if (!o.quiet) {
+    absl::PrintF("%s -> %s (%d labels)\n%s  labels:\n%s", o.input, o.out_pattern, measured.size(),
+                 tandem::eval::ReportSummary(report), tandem::eval::LabelMetricsSummary(measured));
+    absl::PrintF("  %-22s %.3f s for %d slices (%.1f slices/s), %d previews\n", o.wall_label,
+                 result.seconds, result.slices_sent,
+                 result.seconds > 0 ? result.slices_sent / result.seconds : 0.0,
+                 result.session_metrics.previews_sent());
+  }
+  if (measured.empty() && !o.quiet) {
+    absl::FPrintF(stderr, "tandem-client: warning: %s holds no label but the background\n",
+                  o.input);
   }
   return 0;
 }

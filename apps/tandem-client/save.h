@@ -13,6 +13,7 @@
 #include "tandem/client/chunk_store.h"
 #include "tandem/client/stream_client.h"
 #include "tandem/codec/draco_codec.h"
+#include "tandem/io/labels_io.h"
 #include "tandem/v1/tandem.pb.h"
 
 namespace tandem::client_app {
@@ -38,12 +39,21 @@ struct SaveOptions {
   std::vector<tandem::cli::IsoValue> isos;  // as the user wrote them ({iso} names), or none
   const char* wall_label = "stream wall time";
   bool quiet = false;
+  // A label session: --out is a folder (label_extension the per-label files' ".ply", ...) or,
+  // with label_extension empty, one .glb; the names and colours of --label-names, or null.
+  std::string label_extension;
+  const tandem::LabelNames* label_names = nullptr;
 };
 
 // Every surface of a stream or a watch: to the names `out_pattern` gives (with {iso} when
 // there are several), the metrics to `metrics_path` (one file per surface with {iso}, else
 // one report, or a JSON array of them in surface order). 0 or the exit status of the failure.
 int SaveResult(tandem::client::StreamResult& result, const SaveOptions& o);
+
+// A label session's surfaces, as `tandem extract --labels` writes them (tandem/io/labels_io.h:
+// one file per label and labels.glb, or one .glb), and its metrics (the session's report with
+// the labels' figures). 0 or the exit status of the failure.
+int SaveLabels(tandem::client::StreamResult& result, const SaveOptions& o);
 
 }  // namespace tandem::client_app
 

@@ -25,6 +25,7 @@
 #include "tandem/client/stream_client.h"
 #include "tandem/common/wire.h"
 #include "tandem/io/follow.h"
+#include "tandem/io/labels_io.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -48,7 +49,8 @@ int StreamCommand(int argc, char** argv) {
       "or numbered single-slice TIFFs) slice by slice to\n"
       "tandem-server, prints the final metrics as a table on stdout, and saves the\n"
       "simplified iso-surface: .drc (the server's Draco bytes), or decoded: .ply or .obj (with "
-      "vertex normals), .stl, .glb.");
+      "vertex normals), .stl, .glb.\nWith --labels (a label map): every label's surface, into "
+      "--out DIR/ (a file per label and labels.glb) or one .glb, as `tandem extract --labels`.");
   connection.Add(flags, /*token=*/true);
   f.Add(&flags,
         "final mesh: .drc (the server's Draco bytes), .ply or .obj (with vertex "
@@ -85,11 +87,6 @@ int StreamCommand(int argc, char** argv) {
                 "when the final mesh has arrived (before it is written)");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
   if (absl::Status st = f.Check(flags); !st.ok()) return UsageError(st);
-  if (f.labels) {
-    return UsageError(absl::InvalidArgumentError(
-        "--labels: tandem-server does not mesh label volumes; run `tandem extract --labels` "
-        "where the volume is"));
-  }
   const std::string input = f.InputPath();
   const std::string& out = f.out;
   const std::string& metrics_path = f.metrics;
@@ -97,14 +94,17 @@ int StreamCommand(int argc, char** argv) {
   bool& seal = f.seal;  // --chunks implies it, below
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
-  if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
+  // --labels' --out (a folder, or one .glb) is held to its rules by f.Check.
+  if (!f.labels && ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
                   tandem::kMeshExtensions);
     return 2;
   }
   // Fail before streaming, not after: the output's folder must exist.
+  // (A label folder is made when it is written, as `tandem extract --labels` makes it.)
   if (const std::filesystem::path parent = std::filesystem::path(out).parent_path();
-      !parent.empty() && !std::filesystem::is_directory(parent)) {
+      !(f.labels && f.LabelsToFolder()) && !parent.empty() &&
+      !std::filesystem::is_directory(parent)) {
     return Fail(absl::NotFoundError(
         absl::StrCat("--out ", out, ": folder ", parent.string(), " does not exist")));
   }
@@ -179,8 +179,21 @@ int StreamCommand(int argc, char** argv) {
   // --iso and --error default as in `tandem extract`: the file's first suggested iso-value,
   // 0.2 x the smallest spacing.
   const tandem::VolumeInfo& info = (*source)->info();
-  absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos = f.Isos(flags, info);
+  // A label map has no iso-value: its surfaces lie between its labels.
+  absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos =
+      f.labels ? std::vector<tandem::cli::IsoValue>{{0, "0"}} : f.Isos(flags, info);
   if (!isos.ok()) return UsageError(isos.status());
+  tandem::LabelNames label_names;
+  absl::StatusOr<tandem::LabelOptions> labels = f.Labels();
+  if (!labels.ok()) return UsageError(labels.status());
+  if (f.labels) {
+    if (absl::Status st = f.CheckLabelInput(info); !st.ok()) return UsageError(st);
+    if (!f.label_names.empty()) {
+      absl::StatusOr<tandem::LabelNames> read = tandem::ReadLabelNames(f.label_names);
+      if (!read.ok()) return Fail(read.status());
+      label_names = *std::move(read);
+    }
+  }
   // The session's options are checked by core's rules (--target-triangles with --seal or
   // --chunks too), as `tandem extract` checks them, before anything is sent.
   absl::StatusOr<tandem::SessionOptions> session = f.Options(flags, info);
@@ -231,6 +244,13 @@ int StreamCommand(int argc, char** argv) {
   if (seal) c.set_seal_margin(session->seal_margin);
   c.set_description(std::filesystem::path(input).filename().string());
   c.set_frame(std::string(tandem::SpaceName(info.space)));
+  if (labels->enabled) {
+    tandem::v1::LabelConfig& l = *c.mutable_labels();
+    l.set_enabled(true);
+    l.set_background(labels->background);
+    for (tandem::LabelId id : labels->only) l.add_only(id);
+    l.set_close(labels->close);
+  }
 
   const int64_t nz = (*source)->info().nz;
   const bool bar = isatty(STDERR_FILENO) != 0 && !verbose && !f.quiet;
@@ -328,7 +348,11 @@ int StreamCommand(int argc, char** argv) {
   }
   std::vector<std::string> iso_texts;
   for (const tandem::cli::IsoValue& v : *isos) iso_texts.push_back(v.text);
-  view.SetIsos(iso_texts);
+  if (f.labels) {
+    view.SetLabels(f.label_names.empty() ? nullptr : &label_names);
+  } else {
+    view.SetIsos(iso_texts);
+  }
   if (follow) view.SetOnDisk(&on_disk);
   view.Wire(&callbacks);
   absl::StatusOr<tandem::client::StreamResult> result =
@@ -357,6 +381,13 @@ int StreamCommand(int argc, char** argv) {
   save.frame_text = info.frame;
   save.isos = *isos;
   save.quiet = f.quiet;
+  if (f.labels) {
+    save.label_extension = f.LabelsToFolder() ? absl::StrCat(".", f.format) : "";
+    save.label_names = f.label_names.empty() ? nullptr : &label_names;
+    const int rc = SaveLabels(*result, save);
+    view.Finish(result);
+    return rc;
+  }
   if (int rc = SaveResult(*result, save); rc != 0) {
     return rc;
   }

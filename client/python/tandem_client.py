@@ -33,7 +33,7 @@ import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple
 
 import grpc
 import numpy as np
@@ -79,6 +79,9 @@ class Result:
     sealed: List["pb.SealedChunk"] = field(default_factory=list)
     session_id: str = ""
     watch_key: str = ""
+    # labels=True: each label's own Result (its mesh and its FinalMetrics, whose `label` and
+    # `label_figures` say which and what), by label id; `metrics` is then the whole session's.
+    labels: Dict[int, "Result"] = field(default_factory=dict)
     _mesh: Optional[Tuple[np.ndarray, np.ndarray]] = field(default=None, repr=False)
 
     def save(self, path: str) -> None:
@@ -243,12 +246,17 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
             spacing: Sequence[float] = (1.0, 1.0, 1.0), origin: Sequence[float] = (0, 0, 0),
             schedule: str = "tandem-lag", target_triangles: int = 0, preview_every: int = 0,
             description: str = "python", sealed_chunks: bool = False,
+            labels: bool = False, background: int = 0, label_ids: Sequence[int] = (),
+            close: bool = False,
             token: Optional[str] = None,
             tls_ca: Optional[str] = None, timeout: Optional[float] = None,
             on_progress: Optional[Callable[["pb.Progress"], None]] = None) -> Result:
     """Streams `volume` ([z, y, x]: slice k is volume[k]) and returns the mesh.
 
-    spacing and origin are (x, y, z), in the physical units E0 (`error`) is in. Raises
+    spacing and origin are (x, y, z), in the physical units E0 (`error`) is in. labels=True:
+    the volume is a label map (integer ids; `iso` is not used): every label other than
+    `background` (or those of `label_ids`) gets its surface in Result.labels, closed at the
+    volume's border with `close` (tandem.proto: LabelConfig). Raises
     ValueError for a volume the server cannot take, grpc.RpcError with the server's
     status (INVALID_ARGUMENT, RESOURCE_EXHAUSTED, ... and a message naming the problem).
     """
@@ -269,6 +277,9 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
         iso=iso, error=error, schedule=_SCHEDULES[schedule], target_triangles=target_triangles,
         preview=pb.PreviewCadence(every_slices=preview_every), description=description,
         sealed_chunks=sealed_chunks)
+    if labels:
+        config.labels.CopyFrom(pb.LabelConfig(enabled=True, background=background,
+                                              only=sorted(label_ids), close=close))
     if tls_ca is not None:
         with open(tls_ca, "rb") as f:
             channel = grpc.secure_channel(server, grpc.ssl_channel_credentials(f.read()))
@@ -280,6 +291,8 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
     sealed: List[pb.SealedChunk] = []
     session_id = watch_key = ""
     metrics = None
+    label_chunks: Dict[int, List[bytes]] = {}  # a label session's meshes, by label id
+    per_label: Dict[int, Result] = {}
     with channel:
         stub = pb_grpc.TandemStub(channel)
         for response in stub.Extract(_requests(volume, config), metadata=metadata,
@@ -297,15 +310,23 @@ def extract(volume: np.ndarray, iso: float, error: float, server: str = "127.0.0
             elif kind == "preview":
                 previews.append(response.preview)
             elif kind == "final_mesh":
-                if response.final_mesh.chunk_index != len(chunks):
+                mesh = response.final_mesh
+                into = label_chunks.setdefault(mesh.label, []) if mesh.HasField("label") \
+                    else chunks
+                if mesh.chunk_index != len(into):
                     raise RuntimeError("final mesh chunks out of order")
-                chunks.append(response.final_mesh.draco)
+                into.append(mesh.draco)
             elif kind == "final_metrics":
-                metrics = response.final_metrics
+                if response.final_metrics.HasField("label"):
+                    m = response.final_metrics
+                    per_label[m.label] = Result(draco=b"".join(label_chunks.get(m.label, [])),
+                                                metrics=m)
+                else:
+                    metrics = response.final_metrics
     if metrics is None:
         raise RuntimeError("the stream ended without final metrics")
     return Result(draco=b"".join(chunks), metrics=metrics, previews=previews, sealed=sealed,
-                  session_id=session_id, watch_key=watch_key)
+                  session_id=session_id, watch_key=watch_key, labels=per_label)
 
 
 def draco_to_ply(draco_path: str, ply_path: str) -> None:
@@ -321,25 +342,47 @@ def _main(argv: Sequence[str]) -> int:
                     "write the mesh in the format --out names (.drc as sent, .ply, .obj, .stl).")
     parser.add_argument("--server", default=os.environ.get("TANDEM_SERVER", "127.0.0.1:50051"))
     parser.add_argument("--input", required=True, help="volume .npy")
-    parser.add_argument("--iso", type=float, required=True)
+    parser.add_argument("--iso", type=float, help="the iso-value (not with --labels)")
     parser.add_argument("--error", type=float, required=True)
     parser.add_argument("--spacing", default="1,1,1", help="x,y,z")
     parser.add_argument("--schedule", default="tandem-lag", choices=sorted(_SCHEDULES))
-    parser.add_argument("--out", required=True, help="mesh: " + ", ".join(MESH_FORMATS))
+    parser.add_argument("--out", required=True, help="mesh: " + ", ".join(MESH_FORMATS) +
+                        "; with --labels a folder DIR/, written DIR/<id>.ply per label")
+    parser.add_argument("--labels", action="store_true",
+                        help="the volume is a label map: one surface per label")
+    parser.add_argument("--background", type=int, default=0,
+                        help="--labels: the label with no surface of its own")
+    parser.add_argument("--label-ids", default="", help="--labels: mesh these labels only (A,B,...)")
+    parser.add_argument("--close", action="store_true",
+                        help="--labels: close the surfaces at the volume's border")
     args = parser.parse_args(argv)
+    if args.labels == (args.iso is not None):
+        parser.error("give --iso, or --labels (a label map), not both")
     spacing = [float(v) for v in args.spacing.split(",")]
     if len(spacing) != 3:
         parser.error("--spacing takes three numbers x,y,z")
     try:
-        check_mesh_path(args.out)  # before anything is streamed
+        if args.labels:
+            label_ids = [int(v) for v in args.label_ids.split(",") if v.strip()]
+            if not args.out.endswith("/"):
+                raise ValueError(f"--labels --out {args.out}: give a folder, ending in /")
+        else:
+            check_mesh_path(args.out)  # before anything is streamed
     except ValueError as e:
         parser.error(str(e))
     try:
-        result = extract(np.load(args.input), args.iso, args.error, server=args.server,
+        result = extract(np.load(args.input), args.iso or 0.0, args.error, server=args.server,
                          spacing=spacing, schedule=args.schedule,
                          description=os.path.basename(args.input),
-                         token=os.environ.get("TANDEM_TOKEN"))
-        result.write(args.out)
+                         token=os.environ.get("TANDEM_TOKEN"), labels=args.labels,
+                         background=args.background, label_ids=label_ids if args.labels else (),
+                         close=args.close)
+        if args.labels:
+            os.makedirs(args.out, exist_ok=True)
+            for label, one in sorted(result.labels.items()):
+                one.write(os.path.join(args.out, f"{label}.ply"))
+        else:
+            result.write(args.out)
     except grpc.RpcError as e:
         print(f"tandem_client: {e.code().name}: {e.details()}", file=sys.stderr)
         return 1
@@ -347,8 +390,9 @@ def _main(argv: Sequence[str]) -> int:
         print(f"tandem_client: {e}", file=sys.stderr)  # the input or a failure: exit 1
         return 1
     m = result.metrics
+    labels = f" in {len(result.labels)} labels" if args.labels else ""
     print(f"{m.triangles_final} triangles, {m.vertices_final} vertices "
-          f"({m.triangles_extracted} extracted); wrote {args.out}")
+          f"({m.triangles_extracted} extracted){labels}; wrote {args.out}")
     return 0
 
 

@@ -222,14 +222,17 @@ TEST_F(CliLabels, SealDoesNotGoWithTheNeuroglancerExport) {
       << r.text;
 }
 
-TEST_F(CliLabels, TheClientRefusesLabels) {
+// The client checks a label volume as the CLI does, before it connects (the server is never
+// asked: the address has none).
+TEST_F(CliLabels, TheClientRefusesAFloatLabelVolumeBeforeSending) {
   const std::string client = testing::BinPath("tandem-client");
   if (!std::filesystem::exists(client)) GTEST_SKIP() << "built without the service";
-  const auto r = testing::RunCommand(client + " stream --input " +
-                                     LabelVolume("u.mha", DType::kUInt32) + " --labels --out " +
-                                     Path("out/"));
+  const std::string in = LabelVolume("f.mha", DType::kFloat32);
+  const auto r = testing::RunCommand(client + " stream --server 127.0.0.1:1 --input " + in +
+                                     " --labels --out " + Path("out/"));
   EXPECT_EQ(r.code, 2) << r.text;
-  EXPECT_NE(r.text.find("--labels: tandem-server does not mesh label volumes"), std::string::npos)
+  EXPECT_NE(r.text.find("--labels needs integer voxels; " + in + " holds float32"),
+            std::string::npos)
       << r.text;
 }
 

@@ -204,6 +204,30 @@ def main():
         r = run_cli(glb)
         check(r.returncode == 2 and ".glb" in r.stderr and "extension" in r.stderr and
               not os.path.exists(glb), f"--out cli.glb refused with exit 2 ({r.stderr.strip()})")
+
+        # A label map (two touching boxes, uint16): --labels gives one file per label, each
+        # the triangles `tandem extract --labels` gives it.
+        seg = np.zeros((20, 18, 16), np.uint16)
+        seg[4:14, 4:14, 3:8], seg[4:14, 4:14, 8:13] = 3, 7
+        seg.astype("<u2").tofile(os.path.join(tmp, "seg.raw"))
+        with open(os.path.join(tmp, "seg.json"), "w") as fh:
+            json.dump({"dims": [16, 18, 20], "dtype": "uint16", "spacing": [1, 1, 1],
+                       "origin": [0, 0, 0], "byte_order": "little", "raw_file": "seg.raw"}, fh)
+        subprocess.run([os.path.join(args.bin_dir, "tandem"), "extract", "--input",
+                        os.path.join(tmp, "seg.json"), "--labels", "--error", "0.5", "--out",
+                        os.path.join(tmp, "seg_local") + "/"], check=True,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        np.save(os.path.join(tmp, "seg.npy"), seg)
+        r = subprocess.run([sys.executable, tandem_client.__file__, "--server", address,
+                            "--input", os.path.join(tmp, "seg.npy"), "--labels", "--error",
+                            "0.5", "--out", os.path.join(tmp, "seg_py") + "/"],
+                           capture_output=True, text=True)
+        counts = {f: (ply_counts(os.path.join(tmp, "seg_py", f)),
+                      ply_counts(os.path.join(tmp, "seg_local", f))) for f in ("3.ply", "7.ply")
+                  if os.path.exists(os.path.join(tmp, "seg_py", f))}
+        check(r.returncode == 0 and len(counts) == 2 and all(a == b for a, b in counts.values()),
+              f"--labels writes a file per label as tandem extract --labels ({counts}, "
+              f"{r.stdout.strip()}{r.stderr.strip()})")
     finally:
         server.terminate()
         try:

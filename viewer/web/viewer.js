@@ -213,6 +213,15 @@ class Surface {
     this.chunks = 0;
   }
   materials() { return [this.sealedMaterial, this.bandMaterial]; }
+  // A colour of its own (a label session's label: its table's colour or a hue of its own),
+  // for what is settled and what still changes alike.
+  setColor(color) {
+    if (this.customColor === color) return;
+    this.customColor = color;
+    this.sealedColor = this.bandColor = color;
+    for (const m of this.materials()) m.color.set(color);
+    requestRender();
+  }
 }
 const surfaces = [];
 function surface(i) {
@@ -475,7 +484,7 @@ function escapeHtml(text) {
 let legendKey = '';
 function showLegend(s) {
   const sealed = s.chunks > 0 || (s.bands || []).some((b) => b && b.band_only);
-  const key = JSON.stringify([surfaces.length, surfaces.map((x) => label(x.index)), sealed, !!s.finished]);
+  const key = JSON.stringify([surfaces.length, surfaces.map((x) => [label(x.index), x.sealedColor]), sealed, !!s.finished]);
   if (key === legendKey) return;
   legendKey = key;
   const [settled, changing] = sealed ? ['sealed', 'not sealed yet'] : ['final', 'preview'];
@@ -556,7 +565,10 @@ function showPanel(s) {
 function showMetrics(metrics) {
   const all = Array.isArray(metrics) ? metrics : [metrics];
   const main = ['triangles_final', 'vertices_final', 'slices', 'error_threshold', 'error_max',
-                'peak_triangles', 'time_wall_s', 'bytes_sent', 'sealed_chunks'];
+                'peak_triangles', 'time_wall_s', 'bytes_sent', 'sealed_chunks',
+                // a label session's labels, one object each
+                'label', 'name', 'triangles', 'vertices', 'area', 'volume', 'euler', 'components',
+                'closed'];
   let html = '<tr><th colspan="2">final metrics</th></tr>';
   all.forEach((m, i) => {
     if (!m || typeof m !== 'object') return;
@@ -590,7 +602,11 @@ async function apply() {
       latest = null;
       view.state = s;
       stateAt = latestAt;
-      for (let i = 0; i < Math.max(s.surfaces.length, s.bands.length); i++) surface(i);
+      for (let i = 0; i < Math.max(s.surfaces.length, s.bands.length); i++) {
+        const known = s.surfaces[i];
+        if (known && known.color) surface(i).setColor(known.color);
+        else surface(i);
+      }
       showPanel(s);
       while (view.chunksDrawn < s.chunks) {
         // A few chunks fetched and decoded at once (the decoder has several workers), drawn

@@ -4,6 +4,7 @@
 #ifndef TANDEM_CLIENT_STREAM_CLIENT_H_
 #define TANDEM_CLIENT_STREAM_CLIENT_H_
 
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -72,6 +73,14 @@ struct SurfaceResult {
 // config.extra_isos, extra_surfaces holds the others, in order.
 struct StreamResult : SurfaceResult {
   std::vector<SurfaceResult> extra_surfaces;
+  // A label session (config.labels): the surfaces are its labels' (metrics.label() the id,
+  // num_labels() of them, none when only the background was found), and session_metrics
+  // the whole session's figures.
+  bool labels = false;
+  v1::FinalMetrics session_metrics;
+  size_t num_labels() const {
+    return static_cast<size_t>(std::max<int64_t>(0, session_metrics.labels()));
+  }
   bool sealed_session = false;  // the mesh came as sealed chunks
   std::string session_id;       // the session's id (first Progress)
   int resumes = 0;              // times the stream was resumed after a drop

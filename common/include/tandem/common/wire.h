@@ -12,6 +12,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
 #include "tandem/tandem.h"
 #include "tandem/v1/tandem.pb.h"
@@ -43,6 +44,10 @@ v1::Schedule ScheduleToProto(Schedule schedule);
 // reflection; a field whose name CheckReportFields refuses is left out.
 void ReportToProto(const eval::MetricsReport& report, v1::FinalMetrics* out);
 eval::MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
+// One label's figures (a label session's per-label FinalMetrics: label, label_figures,
+// triangles_final, vertices_final); the name stays off the wire (the client's --label-names).
+void LabelMetricsToProto(const eval::LabelMetrics& m, v1::FinalMetrics* out);
+eval::LabelMetrics LabelMetricsFromProto(const v1::FinalMetrics& metrics);
 
 // OK when FinalMetrics has the field `wire` ("refusals.link": link of the sub-message refusals)
 // of a type that holds `member`: double, int64, string (std::string and Schedule, by name),

@@ -110,6 +110,9 @@ class ExtractJob {
   absl::Status ConsumeSlice(const uint8_t* bytes);
   absl::Status HandleEnd(const v1::End& end);
   absl::Status FinishSealed();  // HandleEnd's tail when the mesh left in sealed chunks
+  // HandleEnd's tail in a label session (SessionConfig.labels): each label's surface and
+  // figures, then the session's (extract_job_labels.cc).
+  absl::Status FinishLabels();
   // compute_distances: the L1/L2/Linf distances of `mesh` to the reference (freed after);
   // and the process's peak RSS, in any case.
   absl::Status MeasureDistancesTo(const IndexedMesh& mesh, eval::MetricsReport* report);

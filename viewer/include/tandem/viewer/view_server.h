@@ -75,7 +75,10 @@ class ViewServer {
   // What the page shows; any thread. `surface` counts from 0 (the first --iso).
   virtual void SetSession(const std::string& id, const std::string& description, int64_t nz) = 0;
   // One label per surface ("iso 500"), in surface order; none = one unnamed surface.
-  virtual void SetSurfaces(const std::vector<std::string>& labels) = 0;
+  // `colors`: none (the page's palette), or a CSS colour ("#rrggbb") per surface, the one it
+  // is drawn in (a label session's labels).
+  virtual void SetSurfaces(const std::vector<std::string>& labels,
+                           const std::vector<std::string>& colors = {}) = 0;
   virtual void SetProgress(const ViewProgress& progress) = 0;
   virtual void AddChunk(std::string draco, int64_t triangles, int surface) = 0;
   // A surface's unsealed band (band_only) or its whole partial (or final) mesh.
@@ -95,7 +98,7 @@ class ViewServer {
 };
 
 // The module's table (view_server.cc; view_loader.cc loads it).
-inline constexpr int kViewModuleAbi = 2;
+inline constexpr int kViewModuleAbi = 3;
 struct ViewModule {
   int abi;
   absl::StatusOr<std::unique_ptr<ViewServer>> (*start)(const ViewOptions& options);

@@ -1,0 +1,357 @@
+// Label volumes through the service (SessionConfig.labels): the real tandem-server on
+// 127.0.0.1 and the real tandem-client write what `tandem extract --labels` writes (the same
+// files, triangles and positions, up to Draco's quantization), touching labels keep sharing
+// their interface triangles, every label's surface is a manifold, closed or open only at
+// the box; previews carry every label; what a label session cannot do is refused naming
+// the field, and the server stays healthy.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "service/service_testutil.h"
+#include "tandem/codec/draco_codec.h"
+#include "tandem/common/wire.h"
+#include "tandem/eval/topology.h"
+#include "tandem/io/mesh_io.h"
+#include "tandem/io/volume_writers.h"
+#include "tandem/mesh.h"
+#include "testutil/testutil.h"
+
+namespace tandem::testing {
+namespace {
+
+constexpr int64_t kNx = 30, kNy = 28, kNz = 26;
+
+// About a dozen Voronoi cells with uint32 ids scattered past 2^16, filling the box (their
+// surfaces are open where they meet it) except a ball of background in the middle.
+std::string WriteLabelVolume(const std::string& dir) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> pos(0, 1);
+  std::uniform_int_distribution<uint32_t> id(1, 4000000000u);
+  std::vector<std::array<double, 3>> seeds;
+  std::vector<uint32_t> ids;
+  while (seeds.size() < 12) {
+    seeds.push_back({pos(rng) * kNx, pos(rng) * kNy, pos(rng) * kNz});
+    ids.push_back(id(rng));
+  }
+  VolumeInfo info;
+  info.nx = kNx;
+  info.ny = kNy;
+  info.nz = kNz;
+  info.dtype = DType::kUInt32;
+  const std::string path = dir + "/cells.nrrd";
+  const absl::Status st = WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
+    bytes->assign(static_cast<size_t>(kNx * kNy) * 4, 0);
+    for (int64_t y = 0; y < kNy; ++y) {
+      for (int64_t x = 0; x < kNx; ++x) {
+        if (std::hypot(x - 14.5, y - 13.5, z - 12.5) < 5) continue;  // background
+        size_t best = 0;
+        double d = 1e30;
+        for (size_t s = 0; s < seeds.size(); ++s) {
+          const double e = std::hypot(x - seeds[s][0], y - seeds[s][1], z - seeds[s][2]);
+          if (e < d) {
+            d = e;
+            best = s;
+          }
+        }
+        StoreValue(DType::kUInt32, ids[best], bytes->data() + (y * kNx + x) * 4);
+      }
+    }
+    return absl::OkStatus();
+  });
+  EXPECT_TRUE(st.ok()) << st;
+  return path;
+}
+
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// The files of a label folder, by name.
+std::set<std::string> LabelFiles(const std::string& dir) {
+  std::set<std::string> names;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    names.insert(e.path().filename().string());
+  }
+  return names;
+}
+
+using Key = std::array<std::array<double, 3>, 3>;
+// Triangle t's corners from the least, reversed when asked: one key per oriented triangle.
+Key TriangleKey(const IndexedMesh& m, size_t t, bool reversed) {
+  Key k;
+  for (int c = 0; c < 3; ++c) {
+    const int corner = reversed ? (3 - c) % 3 : c;
+    const Vec3& p = m.positions[m.indices[3 * t + static_cast<size_t>(corner)]];
+    k[static_cast<size_t>(c)] = {p.x, p.y, p.z};
+  }
+  std::rotate(k.begin(), std::min_element(k.begin(), k.end()), k.end());
+  return k;
+}
+
+// For every two labels' files: how many triangles of the first are in the second reversed,
+// at bit-identical positions (their shared interface).
+std::map<std::pair<std::string, std::string>, size_t> SharedTriangles(
+    const std::map<std::string, IndexedMesh>& meshes) {
+  std::map<std::pair<std::string, std::string>, size_t> shared;
+  for (const auto& [a, ma] : meshes) {
+    std::set<Key> keys;
+    for (size_t t = 0; t < ma.num_triangles(); ++t) keys.insert(TriangleKey(ma, t, false));
+    for (const auto& [b, mb] : meshes) {
+      if (b <= a) continue;
+      size_t n = 0;
+      for (size_t t = 0; t < mb.num_triangles(); ++t) n += keys.count(TriangleKey(mb, t, true));
+      if (n > 0) shared[{a, b}] = n;
+    }
+  }
+  return shared;
+}
+
+// Every boundary edge's two ends lie on the grid's box (spacing 1, origin 0), within `tol`.
+void ExpectOpenOnlyAtTheBox(const IndexedMesh& m, double tol) {
+  std::map<std::pair<uint32_t, uint32_t>, int> edges;
+  for (size_t t = 0; t < m.num_triangles(); ++t) {
+    for (int c = 0; c < 3; ++c) {
+      uint32_t a = m.indices[3 * t + c], b = m.indices[3 * t + (c + 1) % 3];
+      ++edges[{std::min(a, b), std::max(a, b)}];
+    }
+  }
+  auto on_box = [&](const Vec3& p) {
+    return std::abs(p.x) <= tol || std::abs(p.y) <= tol || std::abs(p.z) <= tol ||
+           std::abs(p.x - (kNx - 1)) <= tol || std::abs(p.y - (kNy - 1)) <= tol ||
+           std::abs(p.z - (kNz - 1)) <= tol;
+  };
+  for (const auto& [e, n] : edges) {
+    if (n != 1) continue;
+    EXPECT_TRUE(on_box(m.positions[e.first]) && on_box(m.positions[e.second]))
+        << "a boundary edge inside the box at " << m.positions[e.first].x << ", "
+        << m.positions[e.first].y << ", " << m.positions[e.first].z;
+  }
+}
+
+class ServiceLabelsTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto server = TestServer::Start({"--min-preview-interval-ms", "0", "--max-preview-share", "0"});
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+    dir_ = MakeTempDir();
+    volume_ = WriteLabelVolume(dir_);
+  }
+  RunResult Run(const std::string& program, std::vector<std::string> args) {
+    args.insert(args.begin(), BinPath(program));
+    return RunProcess(args, 120);
+  }
+  // The label config of a gRPC stream, on the volume's own grid.
+  std::vector<v1::ExtractRequest> Requests(const v1::SessionConfig& config) {
+    auto source = OpenVolume(volume_);
+    EXPECT_TRUE(source.ok()) << source.status();
+    return VolumeRequests(**source, config, 1 << 20);
+  }
+  static v1::SessionConfig LabelConfig() {
+    v1::SessionConfig c;
+    c.set_error(0.5);
+    c.set_alpha(0.5);
+    c.mutable_labels()->set_enabled(true);
+    return c;
+  }
+  std::unique_ptr<TestServer> server_;
+  std::string dir_, volume_;
+};
+
+// The client's folder holds tandem extract --labels' files, each the same mesh; interfaces
+// shared; manifolds open only at the box, or closed with --close; the same figures.
+TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
+  for (const bool close : {false, true}) {
+    SCOPED_TRACE(close ? "--close" : "open at the box");
+    const std::string tag = close ? "closed" : "open";
+    std::vector<std::string> common = {"--input", volume_, "--labels", "--error", "0.5", "--quiet"};
+    if (close) common.push_back("--close");
+    const std::string local = dir_ + "/local_" + tag + "/", remote = dir_ + "/remote_" + tag + "/";
+    RunResult cli = Run("tandem", [&] {
+      std::vector<std::string> a = {"extract", "--out", local, "--metrics", dir_ + "/l.json"};
+      a.insert(a.end(), common.begin(), common.end());
+      return a;
+    }());
+    ASSERT_EQ(cli.exit_code, 0) << cli.err;
+    RunResult client = Run("tandem-client", [&] {
+      std::vector<std::string> a = {"stream", "--server",  server_->address(), "--out",
+                                    remote,   "--metrics", dir_ + "/r.json"};
+      a.insert(a.end(), common.begin(), common.end());
+      return a;
+    }());
+    ASSERT_EQ(client.exit_code, 0) << client.err;
+
+    const std::set<std::string> names = LabelFiles(local);
+    ASSERT_GE(names.size(), 9u);  // a dozen cells, less the few the ball swallowed
+    EXPECT_EQ(LabelFiles(remote), names);
+    // The shared grid's step (the volume's box, padded by half its extent), two and a bit.
+    const double tol = 3 * 1.5 * (kNx - 1) / 65535.0;
+    std::map<std::string, IndexedMesh> local_meshes, remote_meshes;
+    for (const std::string& name : names) {
+      if (name == "labels.glb") continue;
+      SCOPED_TRACE(name);
+      auto a = ReadMesh(local + name);
+      auto b = ReadMesh(remote + name);
+      ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
+      ASSERT_EQ(a->num_triangles(), b->num_triangles());
+      ASSERT_EQ(a->num_vertices(), b->num_vertices());
+      auto map = MatchVertices(*a, *b, tol);
+      ASSERT_TRUE(map.ok()) << map.status();
+      EXPECT_TRUE(SameTriangles(*a, *b, *map));
+      const eval::TopologyReport t = eval::AnalyzeTopology(*b);
+      EXPECT_TRUE(t.IsManifold());
+      if (close) {
+        EXPECT_TRUE(t.IsClosedManifold());
+      } else {
+        ExpectOpenOnlyAtTheBox(*b, 1e-3);
+      }
+      local_meshes[name] = *std::move(a);
+      remote_meshes[name] = *std::move(b);
+    }
+    // Touching labels share their interface triangles, exactly, in both outputs alike.
+    const auto shared = SharedTriangles(local_meshes);
+    EXPECT_GE(shared.size(), 10u);
+    EXPECT_EQ(SharedTriangles(remote_meshes), shared);
+    auto want = nlohmann::json::parse(ReadText(dir_ + "/l.json"));
+    auto got = nlohmann::json::parse(ReadText(dir_ + "/r.json"));
+    ASSERT_EQ(got["labels"].size(), want["labels"].size());
+    EXPECT_EQ(got["labels"].size(), names.size() - 1);
+    for (size_t i = 0; i < want["labels"].size(); ++i) {
+      const auto& a = want["labels"][i];
+      const auto& b = got["labels"][i];
+      EXPECT_EQ(b["label"], a["label"]);
+      EXPECT_EQ(b["triangles"], a["triangles"]);
+      EXPECT_EQ(b["euler"], a["euler"]);
+      EXPECT_EQ(b["closed"], a["closed"]);
+      EXPECT_DOUBLE_EQ(b["area"].get<double>(), a["area"].get<double>());
+    }
+    EXPECT_EQ(got["triangles_final"], want["triangles_final"]);
+    EXPECT_EQ(got["contractions"], want["contractions"]);
+  }
+}
+
+// Previews of a label session hold every label's surface, each vertex tagged with its
+// label (Preview.labels), while the scan is still arriving; the final messages carry each
+// label's id, then the session's figures.
+TEST_F(ServiceLabelsTest, PreviewsAndFinalMessagesCarryTheLabels) {
+  v1::SessionConfig config = LabelConfig();
+  config.mutable_preview()->set_every_slices(1);
+  auto stub = server_->NewStub();
+  const StreamOutcome outcome = RunStream(*stub, Requests(config), server_.get());
+  ASSERT_TRUE(outcome.status.ok()) << outcome.status.error_message();
+  size_t previews_mid_scan = 0;
+  std::set<uint64_t> final_labels;
+  int64_t session_labels = -1;
+  for (const v1::ExtractResponse& r : outcome.responses) {
+    if (r.has_preview() && r.preview().slice() < kNz - 1 && r.preview().triangles() > 0) {
+      const v1::Preview& p = r.preview();
+      std::vector<uint32_t> group;
+      auto mesh = codec::DecodeDraco(p.draco(), &group);
+      ASSERT_TRUE(mesh.ok()) << mesh.status();
+      ASSERT_GE(p.labels_size(), 2);
+      EXPECT_TRUE(std::is_sorted(p.labels().begin(), p.labels().end()));
+      std::set<uint32_t> seen(group.begin(), group.end());
+      EXPECT_GE(seen.size(), 2u);
+      EXPECT_LT(*seen.rbegin(), static_cast<uint32_t>(p.labels_size()));
+      ++previews_mid_scan;
+    }
+    if (r.has_final_mesh()) {
+      ASSERT_TRUE(r.final_mesh().has_label());
+      final_labels.insert(r.final_mesh().label());
+    }
+    if (r.has_final_metrics()) {
+      const v1::FinalMetrics& m = r.final_metrics();
+      if (m.has_label()) {
+        EXPECT_TRUE(final_labels.count(m.label()));
+        EXPECT_GT(m.label_figures().area(), 0);
+        EXPECT_TRUE(m.label_figures().manifold());
+      } else {
+        session_labels = m.labels();
+        EXPECT_GT(m.triangles_final(), 0);
+      }
+    }
+  }
+  EXPECT_GE(previews_mid_scan, 3u);
+  EXPECT_GE(final_labels.size(), 9u);
+  for (uint64_t id : final_labels) EXPECT_GT(id, 65535u) << "ids are kept as they are";
+  EXPECT_EQ(session_labels, static_cast<int64_t>(final_labels.size()));
+  EXPECT_TRUE(outcome.responses.back().has_final_metrics());
+  EXPECT_FALSE(outcome.responses.back().final_metrics().has_label());
+}
+
+// What a label session cannot do is refused with INVALID_ARGUMENT naming the field; the
+// server then meshes a good label stream as ever.
+TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
+  auto stub = server_->NewStub();
+  struct Case {
+    std::string field;
+    v1::SessionConfig config;
+    bool float32 = false;
+  };
+  std::vector<Case> cases;
+  auto add = [&](const std::string& field, auto edit, bool float32 = false) {
+    Case c{field, LabelConfig(), float32};
+    edit(c.config);
+    cases.push_back(c);
+  };
+  add(
+      "config.labels.enabled", [](v1::SessionConfig&) {}, /*float32=*/true);
+  add("config.extra_isos", [](v1::SessionConfig& c) { c.add_extra_isos(3); });
+  add("config.sealed_chunks", [](v1::SessionConfig& c) { c.set_sealed_chunks(true); });
+  add("config.parts", [](v1::SessionConfig& c) { c.set_parts(2); });
+  add("config.compute_distances", [](v1::SessionConfig& c) { c.set_compute_distances(true); });
+  add("config.labels.only", [](v1::SessionConfig& c) {
+    c.mutable_labels()->add_only(9);
+    c.mutable_labels()->add_only(4);
+  });
+  add("config.labels.background", [](v1::SessionConfig& c) {
+    c.mutable_labels()->set_background(4);
+    c.mutable_labels()->add_only(4);
+  });
+  add("config.labels.background", [](v1::SessionConfig& c) {
+    c.mutable_labels()->set_enabled(false);
+    c.mutable_labels()->set_background(4);
+  });
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.field);
+    std::vector<v1::ExtractRequest> requests = Requests(c.config);
+    if (c.float32) {  // the same bytes, declared float32 (ids read as floats)
+      requests[0].mutable_config()->set_dtype(v1::DTYPE_FLOAT32);
+    }
+    const StreamOutcome outcome = RunStream(*stub, requests, server_.get());
+    EXPECT_EQ(outcome.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT)
+        << outcome.status.error_message();
+    EXPECT_NE(outcome.status.error_message().find(c.field), std::string::npos)
+        << outcome.status.error_message();
+  }
+  // The client refuses --seal and --iso with --labels before it sends anything.
+  RunResult seal = Run("tandem-client", {"stream", "--server", server_->address(), "--input",
+                                         volume_, "--labels", "--seal", "--out", dir_ + "/s/"});
+  EXPECT_EQ(seal.exit_code, 2) << seal.err;
+  EXPECT_NE(seal.err.find("--seal does not go with --labels"), std::string::npos) << seal.err;
+  EXPECT_EQ(server_->Health(), "SERVING");
+  const StreamOutcome good = RunStream(*stub, Requests(LabelConfig()), server_.get());
+  EXPECT_TRUE(good.status.ok()) << good.status.error_message();
+  EXPECT_TRUE(server_->WaitIdle(20));
+}
+
+}  // namespace
+}  // namespace tandem::testing
