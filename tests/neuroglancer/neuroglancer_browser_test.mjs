@@ -355,7 +355,7 @@ await h.run(async () => {
           'the sheet fills the view', `${(100 * sheetPicture.share).toFixed(1)} % lit`);
     check(mixed.cut.picture.gaps > 100, 'cut without skirts, the levels leave cracks the check sees',
           `${mixed.cut.picture.gaps} background pixels inside`);
-    // One pixel may slip through where a strip is clamped at a cell's edge (see decision 59).
+    // One pixel may slip through where a strip is clamped at a cell's edge (see decision 60).
     check(sheetPicture.gaps <= 1, 'with skirts, no crack where the levels meet',
           `${sheetPicture.gaps} background pixels inside`);
     // The picture for the docs (docs/img/neuroglancer.png): a gyroid ball and two linked
