@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -19,9 +20,13 @@ namespace {
 
 // Sealed chunks: at least this many triangles each, unless kChunkSeconds went by (so that a
 // viewer sees a sparse surface grow) or the stream ended. Fewer, larger chunks compress
-// better and repeat fewer border vertices.
-constexpr int64_t kChunkTriangles = 32768;
+// better and repeat fewer border vertices; smaller ones hold less while they are taken and
+// encoded, and a short stream already reaches their size, so a long one peaks no higher.
+constexpr int64_t kChunkTriangles = 16384;
 constexpr double kChunkSeconds = 1.0;
+// A chunk is encoded in parts of at most this many triangles, so that the encoder's buffers
+// (EncodeBytes a triangle) stay bounded whatever the server's pace left pending.
+constexpr int64_t kEncodeTriangles = kChunkTriangles;
 
 // A chunk's triangles in `count` runs of nearly equal length, each a chunk of the same slices
 // (a span that holds every run's vertices) with the vertices its triangles use, in the
@@ -137,21 +142,22 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   }
   const int64_t pending = now ? session_->sealed_pending() : gauge.sealed_pending;
   if (pending == 0) return absl::OkStatus();
+  // The stream's last chunk holds the time lag's band and the seams, sealed at once, and its
+  // encoding ran on one core while the finished session left the others idle
+  // (docs/decisions.md 46): its parts are encoded side by side, one a compute thread.
+  const int64_t side_by_side = last ? std::max(1, compute_->threads()) : 1;
+  // The chunk itself, and the parts being encoded at once.
+  const size_t encode_bytes =
+      SnapshotBytes(pending) + EncodeBytes(std::min(pending, side_by_side * kEncodeTriangles));
   // Unlike a preview, a chunk cannot be skipped: over the budget, the stream fails.
-  TANDEM_RETURN_IF_ERROR(CheckMemory(EncodeBytes(pending), "to encode a sealed chunk"));
-  const HeldBeside encoding(*budget_, EncodeBytes(pending));
+  TANDEM_RETURN_IF_ERROR(CheckMemory(encode_bytes, "to encode a sealed chunk"));
+  const HeldBeside encoding(*budget_, encode_bytes);
   SealedChunk c;
   if (!(now ? session_->TakeSealed(&c) : session_->TakeSealedThrough(gauge.sealed_through, &c))) {
     return absl::OkStatus();
   }
-  // The stream's last chunk holds the time lag's band and the seams, sealed at once, and its
-  // encoding ran on one core while the finished session left the others idle
-  // (docs/decisions.md 46). A large one goes out as one chunk
-  // a compute thread (each of at least kChunkTriangles), encoded side by side.
-  const size_t count =
-      last ? std::clamp<size_t>(c.num_triangles() / static_cast<size_t>(kChunkTriangles), 1,
-                                static_cast<size_t>(std::max(1, compute_->threads())))
-           : 1;
+  const size_t count = static_cast<size_t>(std::max<int64_t>(
+      1, (static_cast<int64_t>(c.num_triangles()) + kEncodeTriangles - 1) / kEncodeTriangles));
   // On the session's grid, a corner an earlier chunk sent may not move, and goes out where
   // it was sent.
   std::vector<std::vector<uint8_t>> fixed(1, std::vector<uint8_t>(c.ids.size(), 0));
@@ -174,25 +180,27 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   std::vector<absl::StatusOr<std::string>> bytes(parts.size());
   std::vector<codec::MovedCorners> moved(parts.size());
   {
-    // Each part keeps off the last chunk's grid points and the earlier parts' (encoded side
-    // by side, they cannot see each other's steps).
-    std::vector<std::vector<Vec3>> avoid(parts.size(), last_sent_);
-    for (size_t i = 1; i < parts.size(); ++i) {
-      avoid[i] = avoid[i - 1];
-      avoid[i].insert(avoid[i].end(), meshes[i - 1].positions.begin(),
-                      meshes[i - 1].positions.end());
+    // Each part keeps off the last chunk's grid points and the earlier parts' as they were
+    // taken (a part encoded side by side cannot see the others' steps): a prefix of `seen`.
+    std::vector<Vec3> seen = last_sent_;
+    std::vector<size_t> avoid(parts.size());
+    for (size_t i = 0; i < parts.size(); ++i) {
+      avoid[i] = seen.size();
+      seen.insert(seen.end(), meshes[i].positions.begin(), meshes[i].positions.end());
     }
-    TaskGroup group(compute_);
-    for (size_t i = 1; i < parts.size(); ++i) {
-      group.Run([&, i] {
-        bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids, fixed[i], &moved[i],
-                                      avoid[i]);
-      });
+    auto encode = [&](size_t i) {
+      bytes[i] = codec::EncodeDraco(meshes[i], chunk_draco_, parts[i].ids, fixed[i], &moved[i],
+                                    std::span<const Vec3>(seen.data(), avoid[i]));
+    };
+    const size_t width = static_cast<size_t>(side_by_side);
+    for (size_t first = 0; first < parts.size(); first += width) {
+      TaskGroup group(compute_);
+      const size_t end = std::min(parts.size(), first + width);
+      for (size_t i = first + 1; i < end; ++i) group.Run([&encode, i] { encode(i); });
+      encode(first);
+      group.Wait();
     }
-    bytes[0] =
-        codec::EncodeDraco(meshes[0], chunk_draco_, parts[0].ids, fixed[0], &moved[0], avoid[0]);
     for (const IndexedMesh& mesh : meshes) shape_.Add(mesh);  // the chunk's triangles in order
-    group.Wait();
   }
   encode_s_ += SecondsSince(t0);
   last_sent_.clear();

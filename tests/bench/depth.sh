@@ -6,8 +6,10 @@
 # runs with --max-inflight-bytes 2 MiB: with the default 16 MiB, a deep volume's slices
 # queued ahead of the session (a shallow one is smaller than that) weigh more than the mesh.
 #   tests/bench/depth.sh [--bin DIR] [--size N] [--depth Z] [--repeat R] [--modes "plain seal"]
+#                        [--server-flag FLAG]...
 # (defaults build/bin, 192, 48, 1, both): with --repeat, each peak is the median of R runs
-# (the machine is shared); --modes seal measures the sealed rows only.
+# (the machine is shared); --modes seal measures the sealed rows only; --server-flag adds a
+# flag to every server (e.g. --watch-retain-mb=0: no chunks kept for late watchers).
 # Nothing is asserted (tests/core/sealer_test.cc checks the bound on MemoryBytes); this
 # script gives the figures of tests/bench/SEALING.md.
 set -euo pipefail
@@ -17,6 +19,7 @@ size=192
 depth=48
 repeat=1
 modes="plain seal"
+server_flags=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --bin) bin="$2"; shift 2;;
@@ -24,6 +27,7 @@ while [ $# -gt 0 ]; do
     --depth) depth="$2"; shift 2;;
     --repeat) repeat="$2"; shift 2;;
     --modes) modes="$2"; shift 2;;
+    --server-flag) server_flags+=("$2"); shift 2;;
     *) echo "depth: unknown argument $1" >&2; exit 2;;
   esac
 done
@@ -84,7 +88,7 @@ for mode in $modes; do
   for vol in shallow deep; do
     runs=()
     for _ in $(seq 1 "$repeat"); do
-      start_server --max-inflight-bytes 2097152
+      start_server --max-inflight-bytes 2097152 "${server_flags[@]}"
       "$bin/tandem-client" stream --server "$address" --input "$work/$vol.json" --iso 30000 \
         --error 0.2 --out "$work/o.drc" --metrics "$work/m.json" --timeout 900 "${flags[@]}" \
         > /dev/null 2> "$work/client.err" || { cat "$work/client.err" >&2; exit 1; }

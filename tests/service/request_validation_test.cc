@@ -429,12 +429,14 @@ TEST(ExtractJob, SealedChunksAreTheLocalSessionsChunks) {
   EXPECT_GT(sink.progress.back().sealed_triangles(), 0);
 }
 
-// The stream's last chunk (the time lag's band and the seams, sealed at once) goes out in one
-// part a compute thread when it holds at least 32,768 triangles a part, encoded side by side:
-// runs of its triangles, each with the vertices it uses, that weld to the local session's
-// mesh. With no compute thread it goes out whole.
+// The stream's last chunk (the time lag's band and the seams, sealed at once) goes out in
+// parts of at most 16,384 triangles, encoded side by side (one a compute thread), and every
+// chunk before it too (one at a time): runs of its triangles, each with the vertices it uses,
+// that weld to the local session's mesh. The encoder's buffers stay bounded by the parts'
+// size, however many triangles the chunk holds.
 TEST(ExtractJob, ALargeLastChunkGoesOutInPartsEncodedSideBySide) {
   const int64_t nx = 300, ny = 300, nz = 6;
+  constexpr int64_t kPart = 16384;
   const IndexedMesh expected =
       LocalSealedMesh(::tandem::testing::BoxCutGyroid(nx, ny, nz).get(), 0.05);
   for (int threads : {2, 0}) {
@@ -452,21 +454,26 @@ TEST(ExtractJob, ALargeLastChunkGoesOutInPartsEncodedSideBySide) {
     }
     ASSERT_TRUE(job.done()) << what;
     ExpectChunksWeldTo(sink.chunks, expected, 1.5 * (nx - 1) / ((1 << 16) - 1));
-    // Before the end, a chunk is taken once 32,768 triangles are sealed (when the job looks):
-    // the last parts are the rest, sealed by the end.
-    const size_t parts = threads == 0 ? 1 : 2;
-    ASSERT_GE(sink.chunks.size(), parts) << what;
-    int64_t before = 0;
-    for (size_t i = 0; i + parts < sink.chunks.size(); ++i) before += sink.chunks[i].triangles();
-    const int64_t last = static_cast<int64_t>(expected.num_triangles()) - before;
-    EXPECT_GE(last, 2 * 32768) << what;
-    const v1::SealedChunk& a = sink.chunks[sink.chunks.size() - parts];
-    const v1::SealedChunk& b = sink.chunks.back();
-    EXPECT_EQ(a.triangles(), last / static_cast<int64_t>(parts)) << what;
-    EXPECT_EQ(b.triangles(), last - (parts - 1) * (last / static_cast<int64_t>(parts))) << what;
-    EXPECT_EQ(a.first_slice(), b.first_slice()) << what;
-    EXPECT_EQ(a.last_slice(), nz - 1) << what;
-    EXPECT_EQ(b.last_slice(), nz - 1) << what;
+    for (const v1::SealedChunk& c : sink.chunks) EXPECT_LE(c.triangles(), kPart) << what;
+    // The last chunk's parts: the chunks through the last slice from its first slice, in
+    // runs of nearly equal length.
+    const int64_t first = sink.chunks.back().first_slice();
+    size_t parts = 0;
+    int64_t last = 0;
+    for (auto c = sink.chunks.rbegin();
+         c != sink.chunks.rend() && c->first_slice() == first && c->last_slice() == nz - 1; ++c) {
+      ++parts;
+      last += c->triangles();
+    }
+    EXPECT_GE(last, 2 * kPart) << what;
+    EXPECT_EQ(static_cast<int64_t>(parts), (last + kPart - 1) / kPart) << what;
+    for (size_t p = 0; p < parts; ++p) {
+      const int64_t n = static_cast<int64_t>(parts);
+      const int64_t i = static_cast<int64_t>(p);
+      EXPECT_EQ(sink.chunks[sink.chunks.size() - parts + p].triangles(),
+                last * (i + 1) / n - last * i / n)
+          << what << ", part " << p;
+    }
     ASSERT_EQ(sink.final.size(), 1u) << what;
     const v1::FinalMetrics& m = sink.final[0].final_metrics();
     EXPECT_EQ(m.sealed_chunks(), static_cast<int64_t>(sink.chunks.size())) << what;

@@ -5,12 +5,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <set>
 #include <sstream>
 #include <string_view>
@@ -615,6 +617,60 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
     chunk_bytes += static_cast<int64_t>(std::filesystem::file_size(dir_ + "/chunks/" + f));
   }
   EXPECT_LT(chunk_bytes, 2 * plain_report->bytes_sent);
+}
+
+// A sealed stream's memory is flat in its depth: through the real server and client, a
+// volume eight times deeper (the same slices repeated) peaks within 1.2x of the shallow one
+// in the server's own accounting (FinalMetrics.peak_session_bytes: the session, its slice
+// buffers and the chunk being taken and encoded). The chunks are what a long stream could
+// grow: however many triangles its pace leaves sealed, each goes out in parts of at most
+// 16,384 (a deep stream's reached 33-45 k).
+TEST_F(ServiceE2eTest, SealedStreamMemoryIsFlatInDepth) {
+  constexpr int64_t kSide = 160, kDepth = 64;
+  auto server = TestServer::Start({"--max-inflight-bytes", std::to_string(2 << 20)});
+  ASSERT_TRUE(server.ok()) << server.status();
+  int64_t peak[2] = {0, 0}, triangles[2] = {0, 0}, largest[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    const int64_t nz = deep ? 8 * kDepth : kDepth;
+    // A gyroid periodic in z (24 voxels), closed at the x/y borders.
+    auto path = WriteSyntheticVolume(
+        dir_, "gyroid" + std::to_string(nz),
+        std::make_unique<FieldSource>(
+            kSide, kSide, nz, [side = static_cast<double>(kSide)](double i, double j, double k) {
+              const double w = 2 * std::numbers::pi / 24.0;
+              if (std::min({i, j, side - 1 - i, side - 1 - j}) < 2) return 1.0;
+              return std::sin(w * i) * std::cos(w * j) + std::sin(w * j) * std::cos(w * k) +
+                     std::sin(w * k) * std::cos(w * i);
+            }));
+    ASSERT_TRUE(path.ok()) << path.status();
+    const std::string name = dir_ + "/depth" + std::to_string(nz);
+    RunResult r = Client(
+        {"stream", "--server", (*server)->address(), "--input", *path, "--iso", "0", "--error",
+         "0.2", "--seal", "--verbose", "--out", name + ".drc", "--metrics", name + ".json"},
+        300);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const nlohmann::json m = nlohmann::json::parse(ReadFile(name + ".json"));
+    peak[deep] = m["peak_session_bytes"].get<int64_t>();
+    triangles[deep] = m["triangles_final"].get<int64_t>();
+    for (absl::string_view line : absl::StrSplit(r.err, '\n')) {
+      if (!absl::StartsWith(line, "chunk ")) continue;  // chunk index=.. slices=.. triangles=T
+      for (absl::string_view word : absl::StrSplit(line, ' ')) {
+        int64_t t = 0;
+        if (absl::ConsumePrefix(&word, "triangles=") && absl::SimpleAtoi(word, &t)) {
+          largest[deep] = std::max(largest[deep], t);
+        }
+      }
+    }
+  }
+  std::printf("peak_session_bytes %lld at %lld slices, %lld at %lld; largest chunk %lld\n",
+              static_cast<long long>(peak[0]), static_cast<long long>(kDepth),
+              static_cast<long long>(peak[1]), static_cast<long long>(8 * kDepth),
+              static_cast<long long>(largest[1]));
+  EXPECT_GT(triangles[1], 7 * triangles[0]);
+  EXPECT_GT(largest[1], 0) << "no chunk line in --verbose";
+  EXPECT_LE(largest[1], 16384);
+  EXPECT_LE(peak[1], peak[0] * 6 / 5)
+      << peak[0] << " bytes at " << kDepth << " slices, " << peak[1] << " at " << 8 * kDepth;
 }
 
 // A uint8 scan at an integer iso-value (many grid values equal to it) through the real
