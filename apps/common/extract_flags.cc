@@ -18,6 +18,7 @@
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
 #include "absl/strings/strip.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/status_macros.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "tandem/codec/draco_codec.h"

@@ -14,6 +14,7 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "tandem/io/follow.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/labels.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"

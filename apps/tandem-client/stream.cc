@@ -26,6 +26,7 @@
 #include "tandem/common/wire.h"
 #include "tandem/io/follow.h"
 #include "tandem/io/mesh_io.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 

@@ -25,6 +25,7 @@
 #include "tandem/io/mesh_io.h"
 #include "tandem/eval/metrics.h"
 #include "tandem/eval/report.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"

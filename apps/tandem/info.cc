@@ -11,6 +11,7 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "apps/tandem/command.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/status_macros.h"
 #include "tandem/volume.h"
 

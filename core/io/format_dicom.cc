@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "dicom_series.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"

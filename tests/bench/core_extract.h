@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "bench_common.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"

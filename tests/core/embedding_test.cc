@@ -21,6 +21,7 @@
 #include "mesh_store.h"
 #include "tandem/geometry.h"
 #include "tandem/io/mesh_io.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/eval/topology.h"

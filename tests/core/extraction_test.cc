@@ -20,6 +20,7 @@
 #include "simplifier.h"
 #include "tandem/geometry.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/eval/topology.h"

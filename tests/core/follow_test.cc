@@ -24,6 +24,7 @@
 #include "absl/strings/str_join.h"
 #include "tandem/eval/distance.h"
 #include "tandem/geometry.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"

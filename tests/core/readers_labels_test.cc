@@ -16,6 +16,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "tandem/io/zarr.h"

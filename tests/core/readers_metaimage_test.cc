@@ -13,6 +13,7 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"

@@ -23,6 +23,7 @@
 #include "absl/strings/str_join.h"
 #include "dicom_worker_client.h"
 #include "tandem/eval/distance.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"

@@ -17,6 +17,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 #include "testutil/testutil.h"

@@ -13,6 +13,7 @@
 #include "mesh_store.h"
 #include "simplifier.h"
 #include "tandem/eval/distance.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/task_group.h"
 #include "thread_pool.h"
 #include "tandem/eval/metrics.h"

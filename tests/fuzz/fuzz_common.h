@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 
 namespace tandem::fuzz {

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"

@@ -23,6 +23,7 @@
 #include "tandem/client/stream_client.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/open_volume.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {

@@ -27,6 +27,7 @@
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"

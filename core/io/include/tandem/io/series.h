@@ -51,6 +51,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 
