@@ -44,13 +44,13 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
                      mesh->num_vertices(), " vertices; the server announced ", s.triangles, " and ",
                      s.vertices)));
   }
-  tandem::MeshWriteOptions write;
+  tandem::io::MeshWriteOptions write;
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
   // The frame the session ran in, as the server echoes it: the watcher of a session learns
   // it there too. An older server sends none: the grid's own frame.
   write.space = tandem::ParseSpace(s.metrics.frame()).value_or(tandem::Space::kGrid);
   absl::Status saved =
-      ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh, write);
+      ext == ".drc" ? WriteFile(out, s.draco) : tandem::io::WriteMesh(out, *mesh, write);
   if (!saved.ok()) return Fail(saved);
 
   tandem::eval::MetricsReport report = tandem::common::ReportFromProto(s.metrics);

@@ -98,9 +98,9 @@ int StreamCommand(int argc, char** argv) {
   bool& seal = f.seal;  // --chunks implies it, below
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
-  if (ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
+  if (ext != ".drc" && !tandem::io::IsMeshOutputPath(out)) {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
-                  tandem::kMeshExtensions);
+                  tandem::io::kMeshExtensions);
     return 2;
   }
   // Fail before streaming, not after: the output's folder must exist.
@@ -159,11 +159,11 @@ int StreamCommand(int argc, char** argv) {
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
     absl::StatusOr<std::unique_ptr<tandem::SliceSource>> src;
     if (!follow) {
-      src = tandem::OpenVolume(input, f.Open(note));
+      src = tandem::io::OpenVolume(input, f.Open(note));
     } else {
-      tandem::FollowOptions fo = f.Follow(note);
+      tandem::io::FollowOptions fo = f.Follow(note);
       fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
-      src = tandem::FollowVolume(input, fo);
+      src = tandem::io::FollowVolume(input, fo);
     }
     if (!src.ok()) return src;
     absl::StatusOr<std::string> warn = f.ApplyGeometry(&*src);

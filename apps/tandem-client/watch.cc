@@ -66,10 +66,10 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   tandem::client::LiveView view;
   view.AddFlags(flags, view_command ? "127.0.0.1:8080" : "");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
-  if (!out.empty() && !tandem::IsMeshOutputPath(out) &&
+  if (!out.empty() && !tandem::io::IsMeshOutputPath(out) &&
       Lower(std::filesystem::path(out).extension().string()) != ".drc") {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
-                  tandem::kMeshExtensions);
+                  tandem::io::kMeshExtensions);
     return 2;
   }
   if (absl::Status st = cli::CheckDracoFlags(bits, level); !st.ok()) return UsageError(st);

@@ -14,7 +14,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using internal::dicom_series::CheckInLine;
@@ -144,4 +144,4 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
   return std::unique_ptr<SliceSource>(new DicomSliceSource(std::move(slices), std::move(info), plan));
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -24,7 +24,7 @@
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 
 using internal::Sv;
 
@@ -222,4 +222,4 @@ std::string VolumeExtension(const std::string& path) {
 }
 
 }  // namespace internal
-}  // namespace tandem
+}  // namespace tandem::io

@@ -32,7 +32,7 @@ class CliLabels : public ::testing::Test {
     info.nx = info.ny = info.nz = 6;
     info.dtype = t;
     const std::string path = Path(name);
-    EXPECT_TRUE(WriteVolume(path, info, [t](int64_t z, std::vector<uint8_t>* bytes) {
+    EXPECT_TRUE(io::WriteVolume(path, info, [t](int64_t z, std::vector<uint8_t>* bytes) {
                   bytes->assign(36 * DTypeSize(t), 0);
                   for (int64_t j = 1; j < 4; ++j) {
                     for (int64_t i = 1; i < 5; ++i) {
@@ -123,7 +123,7 @@ TEST_F(CliLabels, ALabelMapToOneClosedFilePerLabel) {
   ASSERT_EQ(r.code, 0) << r.text;
   for (const char* file : {"Liver.ply", "7.ply"}) {
     SCOPED_TRACE(file);
-    auto mesh = ReadMesh(out + file);
+    auto mesh = io::ReadMesh(out + file);
     ASSERT_TRUE(mesh.ok()) << mesh.status();
     const eval::TopologyReport t = eval::AnalyzeTopology(*mesh);
     EXPECT_TRUE(t.IsClosedManifold());

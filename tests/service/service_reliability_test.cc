@@ -49,7 +49,7 @@ client::StreamOptions LoadOptions(const TestServer& server) {
 
 absl::StatusOr<client::StreamResult> StreamFile(const std::string& path,
                                                 const client::StreamOptions& options) {
-  auto source = OpenVolume(path);
+  auto source = io::OpenVolume(path);
   if (!source.ok()) return source.status();
   return client::StreamVolume(**source, options, {});
 }

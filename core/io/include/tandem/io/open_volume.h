@@ -10,7 +10,7 @@
 #include "absl/status/statusor.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::io {
 
 // Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
 // *.nii.gz, *.tif / *.tiff (multi-page stack), *.mha / *.mhd (ITK MetaImage), a Zarr /
@@ -31,6 +31,6 @@ struct OpenOptions {
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
                                                         const OpenOptions& opts);
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_IO_OPEN_VOLUME_H_
