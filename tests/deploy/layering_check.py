@@ -229,6 +229,30 @@ def self_test(root, rules_text, links_text):
         if not any("tandem_core links tandem_io" in e for e in check(root, rules_text, fake)):
             problems.append("self-test: an engine -> io link was not caught")
     problems += synthetic_self_test()
+    problems += own_namespace_self_test(rules_text)
+    return problems
+
+
+def own_namespace_self_test(rules_text):
+    """A file of io and one of the module loader that open only `namespace tandem` (the
+    engine's) must each be reported under the real table."""
+    import tempfile
+    rows, namespaces = parse_rules(rules_text), parse_namespaces(rules_text)
+    problems = []
+    for lib in ("io", "module"):
+        code = [c for c in rows[lib][1] if c.endswith("/")]
+        ns = namespaces.get(lib, "—")
+        if not code or ns in ("—", "", "tandem"):
+            problems.append(f"self-test: {lib} has no namespace of its own in docs/layering.md")
+            continue
+        rel = code[0] + "stray.cc"
+        with tempfile.TemporaryDirectory() as tree:
+            os.makedirs(os.path.join(tree, code[0]))
+            with open(os.path.join(tree, rel), "w", encoding="utf-8") as fh:
+                fh.write("namespace tandem {\nint Stray();\n}  // namespace tandem\n")
+            errors = namespace_errors(rows, namespaces, library_files(tree, rows))
+        if not any(e.startswith(f"{rel}: opens no namespace {ns}") for e in errors):
+            problems.append(f"self-test: not caught: {rel} opening tandem, not {ns}")
     return problems
 
 
