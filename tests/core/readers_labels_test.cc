@@ -342,7 +342,7 @@ TEST(LabelReaders, WideIntegersMeshAsTheirFloatValues) {
   constexpr int64_t n = 16;
   VolumeInfo grid;
   grid.nx = grid.ny = grid.nz = n;
-  auto ball = [&](DType t, double inside) -> SliceFn {
+  auto ball = [&](DType t, double inside) -> io::SliceFn {
     return [=](int64_t z, std::vector<uint8_t>* bytes) {
       VolumeInfo g = grid;
       g.dtype = t;
