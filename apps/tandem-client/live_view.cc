@@ -1,4 +1,4 @@
-#include "apps/tandem-client/live_view.h"
+#include "live_view.h"
 
 #include <atomic>
 #include <csignal>

@@ -1,6 +1,6 @@
 // Saving what stream and watch received: each surface's mesh (decoded and checked, or the
 // sealed chunks welded) and its metrics.
-#include "apps/tandem-client/save.h"
+#include "save.h"
 
 #include <filesystem>
 #include <string>
@@ -11,7 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
-#include "apps/tandem-client/command.h"
+#include "command.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/report.h"
 #include "tandem/io/mesh_io.h"

@@ -15,9 +15,9 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/extract_flags.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "apps/tandem/neuroglancer_export.h"
+#include "neuroglancer_export.h"
 #include "tandem/codec/draco_codec.h"
 #endif
 #include "tandem/eval/distance.h"

@@ -12,9 +12,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "apps/tandem/neuroglancer_export.h"
+#include "neuroglancer_export.h"
 #endif
 #include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"

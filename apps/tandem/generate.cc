@@ -11,7 +11,7 @@
 #include "absl/strings/str_split.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/volume.h"

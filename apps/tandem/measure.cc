@@ -7,7 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/eval/distance.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/eval/report.h"

@@ -19,7 +19,7 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
