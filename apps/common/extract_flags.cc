@@ -183,7 +183,8 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
                  "label id): every label's surface from one sweep, touching labels sharing "
                  "their interface. --out DIR/ writes DIR/<id or name>.<--format> per label and "
                  "DIR/labels.glb (a node per label, a colour each); --out X.glb that GLB alone. "
-                 "Not with --iso or --reference");
+                 "With --seal the session holds the front only and the outputs come from its "
+                 "chunks. Not with --iso or --reference");
   flags->AddString("background", &background, "ID",
                    "--labels: the label with no surface of its own (what surrounds the others)");
   flags->AddString("label-ids", &label_ids, "A,B,...",
@@ -361,11 +362,6 @@ absl::Status ExtractFlags::Check(const FlagSet& flags) const {
     if (reference) {
       return absl::InvalidArgumentError(
           "--reference does not go with --labels (it measures an iso-surface)");
-    }
-    if (seal) {
-      return absl::InvalidArgumentError(
-          "--seal does not go with --labels (the label outputs are cut from the whole mesh at "
-          "the end)");
     }
     TANDEM_RETURN_IF_ERROR(Labels().status());
     if (format != "ply" && format != "obj" && format != "stl" && format != "glb") {

@@ -53,10 +53,19 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
         o.target_triangles = std::max<int64_t>(4, o.target_triangles >> k);
       all.push_back(o);
     }
-    auto sessions = io::RunSessions(source, all, progress);
+    // Sealed (--seal): the finest sweep's chunks, welded at the end into the same complex.
+    std::vector<SealedChunk> chunks;
+    std::function<absl::Status(size_t, SealedChunk)> on_chunk;
+    if (options.seal) {
+      on_chunk = [&chunks](size_t, SealedChunk c) {
+        chunks.push_back(std::move(c));
+        return absl::OkStatus();
+      };
+    }
+    auto sessions = io::RunSessions(source, all, progress, on_chunk);
     if (!sessions.ok()) return sessions.status();
     LabelRun run;
-    run.complex = (*sessions)[0]->SnapshotLabeled();
+    run.complex = options.seal ? WeldLabeledChunks(chunks) : (*sessions)[0]->SnapshotLabeled();
     run.session = std::move((*sessions)[0]);
     run.surfaces = SplitByLabel(run.complex, labels.background);
     for (size_t k = 1; k < sessions->size(); ++k) run.coarser.push_back(std::move((*sessions)[k]));
@@ -87,6 +96,11 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   }
   absl::StatusOr<SessionOptions> options = f.Options(flags, info);
   if (!options.ok()) return Usage(options.status());
+  if (options->seal && !neuroglancer.dir.empty()) {
+    return Usage(absl::InvalidArgumentError(
+        "--seal does not go with --labels --neuroglancer (the export reads each level's whole "
+        "mesh from its session)"));
+  }
 
   cli::Progress progress("slices");
   absl::StatusOr<LabelRun> run = RunLabelSession(

@@ -8,24 +8,6 @@
 namespace tandem {
 namespace {
 
-// Occurrences of x in a fan array of kFanMax entries (unused ones kInvalid).
-// A fixed length and no loop exit: no branch to mispredict. Written with vector extensions
-// (GCC, Clang: four lanes at a time, on any target): at 16 entries GCC unrolled the plain
-// loop into scalar compares.
-template <size_t N>
-int CountOf(const VertexId (&v)[N], VertexId x) {
-  static_assert(N % 4 == 0);
-  using V4 = uint32_t __attribute__((vector_size(16)));
-  const V4 xs = {x, x, x, x};
-  V4 acc = {0, 0, 0, 0};
-  for (size_t i = 0; i < N; i += 4) {
-    V4 chunk;
-    std::memcpy(&chunk, v + i, sizeof(chunk));
-    acc -= reinterpret_cast<V4>(chunk == xs);  // a match is all ones: -1
-  }
-  return static_cast<int>(acc[0] + acc[1] + acc[2] + acc[3]);
-}
-
 // Whether triangle tri has both c and d among its corners (the triangle x-c-d of a fan).
 bool HoldsBoth(const std::array<VertexId, 3>& tri, VertexId c, VertexId d) {
   bool hc = false, hd = false;
@@ -34,6 +16,22 @@ bool HoldsBoth(const std::array<VertexId, 3>& tri, VertexId c, VertexId d) {
     hd |= x == d;
   }
   return hc && hd;
+}
+
+// Whether a fan (x and y corners, unused entries kInvalid) has a triangle on edge cd, c and d
+// vertices: four entries at a time, as CountOf.
+template <size_t N>
+bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexId d) {
+  using fan_count::V4;
+  const V4 cs = {c, c, c, c}, ds = {d, d, d, d};
+  V4 any = {0, 0, 0, 0};
+  for (size_t i = 0; i < N; i += 4) {
+    V4 xi, yi;
+    std::memcpy(&xi, x + i, sizeof(xi));
+    std::memcpy(&yi, y + i, sizeof(yi));
+    any |= reinterpret_cast<V4>(((xi == cs) & (yi == ds)) | ((xi == ds) & (yi == cs)));
+  }
+  return fan_count::Lanes(any) != 0;  // lanes of all ones or zero: a sum of ones is not 0
 }
 
 // LinkConditionFans with fan arrays of kFan entries (both fans fit).
@@ -86,7 +84,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
     for (int i = 0; i < n; ++i) any |= (CountOf(y, x[i]) == 0) | (CountOf(x, y[i]) == 0);
     return any;
   };
-  auto in_fan_a = [&](VertexId v) { return CountOf(xa, v) + CountOf(ya, v); };
+  auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
   // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
   // y corners too where the two differ.
   const bool b_open = sets_differ(xb, yb, n_b);
@@ -104,15 +102,14 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   if (stray) return false;
   if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
     const VertexId c = apex[0];
-    return !(in_fan_a(c) == 1 && CountOf(xb, c) + CountOf(yb, c) == 1);
+    return !(in_fan_a(c) == 1 && CountOf(xb, yb, c) == 1);
   }
   // (2) an interior edge between two boundary vertices; a vertex is on the boundary when one
   // of its edges lies in a single triangle.
   auto on_boundary = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
     for (int i = 0; i < n; ++i) {
-      any |=
-          (CountOf(x, x[i]) + CountOf(y, x[i]) == 1) | (CountOf(x, y[i]) + CountOf(y, y[i]) == 1);
+      any |= (CountOf(x, y, x[i]) == 1) | (CountOf(x, y, y[i]) == 1);
     }
     return any;
   };
@@ -120,12 +117,7 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   if (b_open && on_boundary(xb, yb, n_b) && on_boundary(xa, ya, n_a)) return false;
   // (3) interior: triangles a-c-d and b-c-d both present?
   const VertexId c = apex[0], d = apex[1];
-  auto has_cd = [c, d](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
-    bool any = false;
-    for (int i = 0; i < n; ++i) any |= ((x[i] == c) & (y[i] == d)) | ((x[i] == d) & (y[i] == c));
-    return any;
-  };
-  return !(has_cd(xa, ya, n_a) && has_cd(xb, yb, n_b));
+  return !(HasEdge(xa, ya, c, d) && HasEdge(xb, yb, c, d));
 }
 
 }  // namespace
@@ -357,7 +349,7 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     for (TriId t : (v == a) ? ta : tb) {
       const auto& tri = store.triangle(t);
       (*survivors)[n] = {t, v};
-      n += static_cast<size_t>((tri[0] != other) + (tri[1] != other) + (tri[2] != other) == 3);
+      n += static_cast<size_t>(!((tri[0] == other) | (tri[1] == other) | (tri[2] == other)));
     }
   }
   const bool guarded = bound > 0.0;
@@ -371,14 +363,13 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     const double off = Dot(n_old, pos - p[0]);
     const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
     const int corner = CornerOf(tri, v);
-    const Vec3 from = p[corner];
     p[corner] = pos;
     const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
     if (far | move.collapses | move.flips) {
       // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
       // point) has no orientation or plane to keep: the contraction is not refused for it
       // (exempting only an exactly zero area left zero-area triangles on integer scans).
-      p[corner] = from;
+      p[corner] = store.position(v);  // as it was (a refusal is rare: read again)
       if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
       // One with an offset edge stands for such a triangle: it may turn over or leave its
       // plane (else every grid point on the iso-value holds back the contractions around

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <utility>
 #include <vector>
 
@@ -18,6 +19,44 @@
 #include "tandem/types.h"
 
 namespace tandem {
+
+// Occurrences of x in fan arrays of N entries (unused ones kInvalid), summed over one or two
+// arrays. A fixed length and no loop exit: no branch to mispredict. Written with vector
+// extensions (GCC, Clang: four lanes at a time, on any target): at 16 entries GCC unrolled the
+// plain loop into scalar compares. Two arrays share one sum across the lanes (its extraction
+// was a third of a count).
+namespace fan_count {
+using V4 = uint32_t __attribute__((vector_size(16)));
+template <size_t N>
+void Accumulate(const VertexId (&v)[N], V4 xs, V4* acc) {
+  static_assert(N % 4 == 0);
+  for (size_t i = 0; i < N; i += 4) {
+    V4 chunk;
+    std::memcpy(&chunk, v + i, sizeof(chunk));
+    *acc -= reinterpret_cast<V4>(chunk == xs);  // a match is all ones: -1
+  }
+}
+inline int Lanes(V4 acc) {
+  acc += __builtin_shufflevector(acc, acc, 2, 3, 0, 1);
+  acc += __builtin_shufflevector(acc, acc, 1, 0, 3, 2);
+  return static_cast<int>(acc[0]);
+}
+}  // namespace fan_count
+template <size_t N>
+int CountOf(const VertexId (&v)[N], VertexId x) {
+  const fan_count::V4 xs = {x, x, x, x};
+  fan_count::V4 acc = {0, 0, 0, 0};
+  fan_count::Accumulate(v, xs, &acc);
+  return fan_count::Lanes(acc);
+}
+template <size_t N>
+int CountOf(const VertexId (&v)[N], const VertexId (&w)[N], VertexId x) {
+  const fan_count::V4 xs = {x, x, x, x};
+  fan_count::V4 acc = {0, 0, 0, 0};
+  fan_count::Accumulate(v, xs, &acc);
+  fan_count::Accumulate(w, xs, &acc);
+  return fan_count::Lanes(acc);
+}
 
 // LAMBDA(ab): Lk(a) ∩ Lk(b) = Lk(ab) on the complex completed by a dummy vertex joined to every
 // boundary edge; false also when a and b are not adjacent or ab lies in three triangles. Two

@@ -309,6 +309,13 @@ void LabelLayers::Commit(MeshStore* store, std::span<const TriId> tris,
   }
 }
 
+void LabelLayers::ForgetPairs() {
+  assert(staged_patch_.empty());
+  pairs_ = {};
+  pair_index_ = {};
+  store_patch_ = {};
+}
+
 size_t LabelLayers::MemoryBytes() const {
   auto map_bytes = [](const absl::flat_hash_map<uint64_t, VertexId>& m) {
     return m.capacity() * (sizeof(uint64_t) + sizeof(VertexId) + 1);
@@ -319,7 +326,8 @@ size_t LabelLayers::MemoryBytes() const {
                                      : bottom_.capacity() + top_.capacity();
   return planes * sizeof(LabelId) + map_bytes(plane_bottom_) + map_bytes(plane_top_) +
          map_bytes(inside_) + staged_patch_.capacity() * sizeof(uint32_t) +
-         pairs_.capacity() * sizeof(LabelPair) + store_patch_.capacity() * sizeof(uint32_t);
+         pairs_.capacity() * sizeof(LabelPair) + store_patch_.capacity() * sizeof(uint32_t) +
+         pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1);
 }
 
 }  // namespace tandem

@@ -60,6 +60,9 @@ class LabelLayers {
   void Commit(MeshStore* store, std::span<const TriId> tris,
               std::span<const VertexId> staged_to_store);
   size_t MemoryBytes() const;
+  // Between layers (nothing staged): forgets the pairs met so far and their store patches
+  // (the store's pairs were compacted), met again as they come.
+  void ForgetPairs();
 
  private:
   using Point = std::array<int64_t, 3>;  // twelfths of a voxel, within the cube

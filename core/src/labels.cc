@@ -1,10 +1,12 @@
-// SplitByLabel (tandem/labels.h): the interface complex cut into one surface per label.
+// SplitByLabel (tandem/labels.h): the interface complex cut into one surface per label; and
+// the complex welded from a label session's sealed chunks.
 #include "tandem/labels.h"
 
 #include <algorithm>
 #include <cstdint>
 #include <tuple>
 
+#include "sealer.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -60,6 +62,13 @@ std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mes
     out.emplace_back(sides[begin].label, std::move(m));
     begin = end;
   }
+  return out;
+}
+
+LabeledMesh WeldLabeledChunks(std::span<const SealedChunk> chunks) {
+  LabeledMesh out;
+  out.mesh = WeldChunks(chunks);
+  JoinPairs(chunks, &out.patch, &out.pairs);
   return out;
 }
 

@@ -75,6 +75,18 @@ bool LayerExtractor::ComputeClosingLayer() {
   return labels_ != nullptr && labels_->ComputeClosing(this);
 }
 
+void LayerExtractor::CompactLabelPairs() {
+  // At least this many pairs before the first compaction: a scan over the live triangles
+  // is not worth fewer.
+  constexpr size_t kMinPairs = 1024;
+  if (labels_ == nullptr || store_->pairs().size() < std::max(kMinPairs, compact_pairs_at_)) {
+    return;
+  }
+  store_->CompactPairs();
+  labels_->ForgetPairs();
+  compact_pairs_at_ = 2 * store_->pairs().size();
+}
+
 size_t LayerExtractor::PlaneCacheBytes(int64_t nx, int64_t ny, DType dtype) {
   const size_t n = static_cast<size_t>(nx * ny);
   const size_t words = static_cast<size_t>((nx + 63) / 64 * ny);

@@ -113,6 +113,10 @@ class LayerExtractor {
   // A label session with labels.close, once the last slice is in: stages the layer between
   // it and the background above (CommitLayer adds it). False when there is none.
   bool ComputeClosingLayer();
+  // A sealed label session, between layers: once the store's label pairs have doubled since
+  // the last time, drops those no live triangle holds (MeshStore::CompactPairs), and this
+  // extractor's own, so that a stream of ever new labels holds the front's pairs, not all.
+  void CompactLabelPairs();
 
   // What the plane caches of an nx x ny extractor take once the first slice has arrived: the
   // two value planes, their sign bits and the five crossed-edge indices' word counts.
@@ -273,6 +277,7 @@ class LayerExtractor {
   size_t commit_vertex_bytes_ = 0, commit_triangle_bytes_ = 0;
   size_t check_at_ = 0;  // staged elements at the next Checkpoint
   std::unique_ptr<LabelLayers> labels_;  // a label session's layers (null: iso-surface)
+  size_t compact_pairs_at_ = 0;          // CompactLabelPairs: the store's pairs, at the next
 };
 
 }  // namespace tandem

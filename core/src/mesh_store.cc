@@ -203,6 +203,39 @@ uint32_t MeshStore::PatchOf(LabelPair pair) {
   return it->second;
 }
 
+void MeshStore::CompactPairs() {
+  std::vector<uint32_t> renumber(pairs_.size(), kInvalid);
+  for (TriId t = 0; t < tris_.size(); ++t) {
+    if (!free_triangles_.Contains(t)) renumber[patch_[t]] = 0;
+  }
+  std::vector<LabelPair> kept;
+  decltype(pair_index_) index;
+  for (uint32_t p = 0; p < pairs_.size(); ++p) {
+    if (renumber[p] == kInvalid) continue;
+    renumber[p] = static_cast<uint32_t>(kept.size());
+    index.try_emplace({pairs_[p].inside, pairs_[p].outside}, renumber[p]);
+    kept.push_back(pairs_[p]);
+  }
+  for (TriId t = 0; t < tris_.size(); ++t) {
+    if (!free_triangles_.Contains(t)) patch_[t] = renumber[patch_[t]];
+  }
+  pairs_ = std::move(kept);
+  pair_index_ = std::move(index);
+}
+
+bool MeshStore::OnePatchAround(VertexId v) const {
+  if (vertex_triangles(v).empty()) return false;
+  const uint32_t p = patch_[vertex_triangles(v)[0]];
+  for (TriId t : vertex_triangles(v)) {
+    for (VertexId x : triangle(t)) {
+      for (TriId u : vertex_triangles(x)) {
+        if (patch_[u] != p) return false;
+      }
+    }
+  }
+  return true;
+}
+
 std::vector<uint32_t> MeshStore::SnapshotPatches() const {
   std::vector<uint32_t> out;
   out.reserve(live_triangles_);

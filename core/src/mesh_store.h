@@ -170,6 +170,12 @@ class MeshStore {
   const std::vector<LabelPair>& pairs() const { return pairs_; }
   const LabelPair& pair_of(TriId t) const { return pairs_[patch_[t]]; }
   uint32_t PatchOf(LabelPair pair);  // its index in pairs(), added if new
+  // Whether v has triangles, and they and its neighbours' all lie in one patch (where labels
+  // meet, the triangles face every way and a vertex normal means nothing).
+  bool OnePatchAround(VertexId v) const;
+  // Keeps only the pairs of live triangles, in the order of their first patch index, and
+  // renumbers the patches.
+  void CompactPairs();
   // The patches of the live triangles in Snapshot's order (triangle id order).
   std::vector<uint32_t> SnapshotPatches() const;
 

@@ -97,11 +97,6 @@ absl::Status SessionOptions::Validate() const {
                     "the background label has no surface; it cannot be one of the labels to "
                     "keep (labels.only)");
     }
-    if (seal) {
-      return Refuse("seal", "true",
-                    "a label volume is meshed whole: sealed chunks are not supported with "
-                    "labels");
-    }
     if (parts > 1) {
       return Refuse("parts", parts,
                     "a label volume is meshed in one part: parts must be 0 (automatic) or 1 "

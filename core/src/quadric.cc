@@ -186,8 +186,10 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   double g[3] = {-(q.a00 * ref.x + q.a01 * ref.y + q.a02 * ref.z + q.b0),
                  -(q.a01 * ref.x + q.a11 * ref.y + q.a12 * ref.z + q.b1),
                  -(q.a02 * ref.x + q.a12 * ref.y + q.a22 * ref.z + q.b2)};
-  for (int i = 0; i < 3; ++i) {
-    if ((fixed_axes >> i) & 1) g[i] = 0.0;
+  if (fixed_axes != 0) {  // most edges are off the box
+    for (int i = 0; i < 3; ++i) {
+      if ((fixed_axes >> i) & 1) g[i] = 0.0;
+    }
   }
   // Characteristic polynomial p(x) = x³ - c2 x² + c1 x - c0 (invariants of m).
   const double c2 = m.a00 + m.a11 + m.a22;
@@ -242,8 +244,10 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
     delta[1] = step.y;
     delta[2] = step.z;
   }
-  for (int i = 0; i < 3; ++i) {
-    if ((fixed_axes >> i) & 1) delta[i] = 0.0;  // exact, whatever the rounding above
+  if (fixed_axes != 0) {
+    for (int i = 0; i < 3; ++i) {
+      if ((fixed_axes >> i) & 1) delta[i] = 0.0;  // exact, whatever the rounding above
+    }
   }
   return {ref.x + delta[0], ref.y + delta[1], ref.z + delta[2]};
 }

@@ -116,6 +116,7 @@ void InsertLayer(Slab& s, Schedule schedule) {
   s.triangles_extracted += static_cast<int64_t>(s.new_tris.size());
   if (schedule != Schedule::kNone) s.simplifier.AddTriangles(s.new_tris, s.new_verts);
   if (s.sealer) {
+    s.extractor.CompactLabelPairs();
     s.sealer->AddVertices(s.new_verts);
     // Full resolution: nothing will change below the front plane.
     if (schedule == Schedule::kNone) s.sealer->Seal(static_cast<double>(s.extractor.slices_done() - 1));

@@ -5,11 +5,20 @@
 #include <limits>
 #include <numeric>
 #include <stdexcept>
+#include <tuple>
 #include <utility>
 
 #include "grow.h"
 
 namespace tandem {
+namespace {
+
+// The order of a chunk's pairs.
+bool PairBefore(const LabelPair& a, const LabelPair& b) {
+  return std::tie(a.inside, a.outside) < std::tie(b.inside, b.outside);
+}
+
+}  // namespace
 
 IndexedMesh WeldChunks(std::span<const SealedChunk> chunks) {
   uint32_t max_id = 0;
@@ -41,9 +50,24 @@ IndexedMesh WeldChunks(std::span<const SealedChunk> chunks) {
   return out;
 }
 
+void JoinPairs(std::span<const SealedChunk> chunks, std::vector<uint32_t>* patch,
+               std::vector<LabelPair>* pairs) {
+  pairs->clear();
+  for (const SealedChunk& c : chunks) pairs->insert(pairs->end(), c.pairs.begin(), c.pairs.end());
+  std::sort(pairs->begin(), pairs->end(), PairBefore);
+  pairs->erase(std::unique(pairs->begin(), pairs->end()), pairs->end());
+  for (const SealedChunk& c : chunks) {
+    for (uint32_t p : c.patch) {
+      const auto it = std::lower_bound(pairs->begin(), pairs->end(), c.pairs[p], PairBefore);
+      patch->push_back(static_cast<uint32_t>(it - pairs->begin()));
+    }
+  }
+}
+
 SealedChunk JoinChunks(std::vector<SealedChunk> pieces) {
   if (pieces.size() == 1) return std::move(pieces[0]);
   SealedChunk out;
+  JoinPairs(pieces, &out.patch, &out.pairs);
   std::vector<std::pair<uint32_t, Vec3>> verts;  // (id, position)
   bool spans = false;
   for (const SealedChunk& p : pieces) {
@@ -177,7 +201,15 @@ void Sealer::Seal(double front, Executor* executor) {
       std::sort(need_.begin(), need_.end());
       need_.erase(std::unique(need_.begin(), need_.end()), need_.end());
       for (VertexId v : need_) SetNormal(v, VertexNormal(*store_, v, &fan_));
-      sag_corrected_ += simplifier_->CorrectSagAt(freeze_, Normals(), sag_fraction_, executor);
+      std::span<const VertexId> moving = freeze_;
+      if (store_->labeled()) {
+        sag_.clear();
+        for (VertexId v : freeze_) {
+          if (store_->OnePatchAround(v)) sag_.push_back(v);  // as without sealing
+        }
+        moving = sag_;
+      }
+      sag_corrected_ += simplifier_->CorrectSagAt(moving, Normals(), sag_fraction_, executor);
       for (VertexId v : need_) {
         if (!(store_->box_mask(v) & kFrozen)) ReleaseNormal(v);  // found again next time
       }
@@ -235,6 +267,7 @@ void Sealer::Seal(double front, Executor* executor) {
       pend_tris_.push_back(k.id);
       if (!all) drop_.push_back(v);
     }
+    if (store_->labeled()) pend_pairs_.push_back(store_->pair_of(t));
   }
   for (TriId t : tris_) store_->RemoveTriangle(t);
   sealed_triangles_ += static_cast<int64_t>(tris_.size());
@@ -348,11 +381,24 @@ bool Sealer::TakeChunk(SealedChunk* out) {
   }
   out->retired.reserve(pend_retired_.size());
   for (GlobalId id : pend_retired_) out->retired.push_back(Value(id));
+  if (store_->labeled()) TakePairs(out);
   pend_verts_.clear();
   pend_tris_.clear();
+  pend_pairs_.clear();
   pend_retired_.clear();
   ++chunk_stamp_;
   return true;
+}
+
+void Sealer::TakePairs(SealedChunk* out) const {
+  out->pairs = pend_pairs_;
+  std::sort(out->pairs.begin(), out->pairs.end(), PairBefore);
+  out->pairs.erase(std::unique(out->pairs.begin(), out->pairs.end()), out->pairs.end());
+  out->patch.reserve(pend_pairs_.size());
+  for (const LabelPair& p : pend_pairs_) {
+    out->patch.push_back(static_cast<uint32_t>(
+        std::lower_bound(out->pairs.begin(), out->pairs.end(), p, PairBefore) - out->pairs.begin()));
+  }
 }
 
 void Sealer::Absorb(const Sealer& other, const PartVertexMap& map,
@@ -386,6 +432,7 @@ void Sealer::Absorb(const Sealer& other, const PartVertexMap& map,
   active_.erase(std::unique(active_.begin(), active_.end()), active_.end());
   pend_verts_.insert(pend_verts_.end(), other.pend_verts_.begin(), other.pend_verts_.end());
   pend_tris_.insert(pend_tris_.end(), other.pend_tris_.begin(), other.pend_tris_.end());
+  pend_pairs_.insert(pend_pairs_.end(), other.pend_pairs_.begin(), other.pend_pairs_.end());
   pend_retired_.insert(pend_retired_.end(), other.pend_retired_.begin(),
                        other.pend_retired_.end());
   sealed_triangles_ += other.sealed_triangles_;
@@ -400,7 +447,8 @@ size_t Sealer::MemoryBytes() const {
          (freeze_.capacity() + need_.capacity() + drop_.capacity()) * sizeof(VertexId) +
          (tris_.capacity() + later_.capacity()) * sizeof(TriId) +
          pend_verts_.capacity() * sizeof(PendingVertex) +
-         (pend_tris_.capacity() + pend_retired_.capacity()) * sizeof(GlobalId);
+         (pend_tris_.capacity() + pend_retired_.capacity()) * sizeof(GlobalId) +
+         pend_pairs_.capacity() * sizeof(LabelPair) + sag_.capacity() * sizeof(VertexId);
 }
 
 }  // namespace tandem

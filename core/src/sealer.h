@@ -42,6 +42,10 @@ namespace tandem {
 // One chunk of `pieces` (the slabs' chunks of one moment): vertices in increasing id, each
 // once (a shared seam vertex may be in two), triangles and retired ids in the pieces' order.
 SealedChunk JoinChunks(std::vector<SealedChunk> pieces);
+// A label session's chunks: each one's triangles' pairs appended to *patch, as indices into
+// *pairs, which gets every pair they hold, in increasing (inside, outside), each once.
+void JoinPairs(std::span<const SealedChunk> chunks, std::vector<uint32_t>* patch,
+               std::vector<LabelPair>* pairs);
 
 class Sealer {
  public:
@@ -92,6 +96,7 @@ class Sealer {
   void GatherSealable(std::span<const VertexId> around, bool every = false);
   struct Kept;
   Kept& HandOut(VertexId v);  // its global id (Kept::id), handed out on first use
+  void TakePairs(SealedChunk* out) const;  // the pending triangles' patch and pairs
   void SetNormal(VertexId v, Vec3 n);  // normals_[its slot] = n, taking a slot
   void ReleaseNormal(VertexId v);      // its slot, if it has one, is free again
   VertexNormalTable Normals() const { return {normals_.values(), &normal_slot_}; }
@@ -121,13 +126,14 @@ class Sealer {
   SlotPool<Vec3> normals_;
   std::vector<TriId> fan_;  // VertexNormal's scratch
   // Scratch.
-  std::vector<VertexId> freeze_, need_, drop_;
+  std::vector<VertexId> freeze_, need_, drop_, sag_;
   std::vector<VertexId> shared_;  // frozen by FreezeShared since the last Seal
   std::vector<TriId> tris_;
   std::vector<TriId> later_;  // Seal's scratch: the triangles around the corners handed out
   // The pending chunk.
   std::vector<PendingVertex> pend_verts_;
   std::vector<GlobalId> pend_tris_;  // 3 per triangle
+  std::vector<LabelPair> pend_pairs_;  // a label session's: the pair of each
   std::vector<GlobalId> pend_retired_;
   uint32_t chunk_stamp_ = 1;
   uint32_t next_id_ = 0;  // the next id handed out

@@ -73,8 +73,10 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   Quadric h;
   quadrics_.AddTo(a, &h);
   quadrics_.AddTo(b, &h);
-  const uint8_t fixed = FixedAxes(ma | mb);
-  const Vec3 ref = BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
+  // Most edges are off the box: nothing fixed, the reference point the midpoint.
+  const uint8_t fixed = (ma | mb) == 0 ? 0 : FixedAxes(ma | mb);
+  const Vec3 ref = (ma | mb) == 0 ? (store_->position(a) + store_->position(b)) * 0.5
+                                  : BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
 
   if (opt_.alpha > 0.0) {
     // Memoryless isotropy term over T_ab, the triangles around a or b (each once).
@@ -393,18 +395,29 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // sorting (sorting all corners, every neighbour twice, costs mispredicted branches): the
   // corner after c in each triangle covers a closed fan;
   // on the boundary one neighbour is only ever the corner before c.
+  // A fan that fits (nearly all) keeps its next corners in a fixed array too, searched four
+  // at a time (CountOf).
   scratch_.clear();
   const auto fan = store_->vertex_triangles(a);
-  for (TriId t : fan) {
-    const auto& tri = store_->triangle(t);
-    scratch_.push_back(tri[kNextCorner[CornerOf(tri, a)]]);
+  const bool fits = fan.size() <= kFanMax;
+  VertexId next[kFanMax];
+  std::fill(next, next + kFanMax, kInvalid);
+  for (size_t i = 0; i < fan.size(); ++i) {
+    const auto& tri = store_->triangle(fan[i]);
+    const VertexId x = tri[kNextCorner[CornerOf(tri, a)]];
+    if (fits) next[i] = x;
+    scratch_.push_back(x);
   }
   const size_t nexts = scratch_.size();
   for (TriId t : fan) {
     const auto& tri = store_->triangle(t);
     const VertexId prev = tri[kPrevCorner[CornerOf(tri, a)]];
     bool found = false;  // no early exit: where it would leave is unpredictable
-    for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
+    if (fits) {
+      found = CountOf(next, prev) != 0;
+    } else {
+      for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
+    }
     if (!found) scratch_.push_back(prev);
   }
   std::sort(scratch_.begin(), scratch_.end());

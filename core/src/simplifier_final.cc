@@ -21,22 +21,12 @@ double Simplifier::MaxShapeError() const {
 int64_t Simplifier::CorrectSag(double fraction, Executor* executor) {
   if (!(fraction > 0.0)) return 0;
   std::vector<VertexId> verts;
-  // A label session's complex: where labels meet, the triangles face every way and a normal
-  // means nothing; a vertex moves only where it and its neighbours lie in one patch.
-  auto one_patch = [this](VertexId v) {
-    if (store_->vertex_triangles(v).empty()) return false;
-    const uint32_t p = store_->patch(store_->vertex_triangles(v)[0]);
-    for (TriId t : store_->vertex_triangles(v)) {
-      for (VertexId x : store_->triangle(t)) {
-        for (TriId u : store_->vertex_triangles(x)) {
-          if (store_->patch(u) != p) return false;
-        }
-      }
-    }
-    return true;
-  };
+  // A label session's complex: a vertex moves only where it and its neighbours lie in one
+  // patch.
   for (VertexId v = 0; v < store_->vertex_capacity(); ++v) {
-    if (store_->vertex_alive(v) && (!store_->labeled() || one_patch(v))) verts.push_back(v);
+    if (store_->vertex_alive(v) && (!store_->labeled() || store_->OnePatchAround(v))) {
+      verts.push_back(v);
+    }
   }
   std::vector<Vec3> normal(store_->vertex_capacity());
   tandem::VertexNormals(*store_, verts, normal, executor, &helper_seconds_);

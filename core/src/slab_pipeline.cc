@@ -17,7 +17,9 @@ namespace {
 // What a sealed chunk's arrays take.
 size_t ChunkBytes(const SealedChunk& c) {
   return c.positions.capacity() * sizeof(Vec3) +
-         (c.ids.capacity() + c.indices.capacity() + c.retired.capacity()) * sizeof(uint32_t);
+         (c.ids.capacity() + c.indices.capacity() + c.retired.capacity() + c.patch.capacity()) *
+             sizeof(uint32_t) +
+         c.pairs.capacity() * sizeof(LabelPair);
 }
 
 // Copies n values to dst and says whether all are finite (volume.h's rule), in one pass

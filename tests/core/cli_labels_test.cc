@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -73,7 +74,6 @@ TEST_F(CliLabels, BadLabelIdsAndFlagsWithoutLabelsAreNamed) {
       {"--background 2", "--background goes with --labels"},
       {"--close", "--close goes with --labels"},
       {"--labels --iso 3", "--iso does not go with --labels"},
-      {"--labels --seal", "--seal does not go with --labels"},
       {"--labels --format vtk", "--format vtk: expected ply, obj, stl or glb"},
   };
   for (const auto& c : cases) {
@@ -139,6 +139,87 @@ TEST_F(CliLabels, ALabelMapToOneClosedFilePerLabel) {
   EXPECT_EQ(m["labels"][1]["label"], 7);
   EXPECT_GT(m["labels"][1]["volume"].get<double>(), 0.0);
   EXPECT_TRUE(std::filesystem::exists(out + "labels.glb"));
+}
+
+// --seal: the same outputs from the welded chunks: a file per label, each a closed manifold
+// of the unsealed run's topology, the GLB and the figures per label.
+TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
+  VolumeInfo info;
+  info.nx = info.ny = 10;
+  info.nz = 40;
+  info.dtype = DType::kUInt16;
+  const std::string in = Path("stack.nrrd");
+  // Boxes of labels 1..4 stacked along z, each 8 slices, with a tunnel through label 2 (a
+  // torus) and label 3 wrapped around a voxel of label 9.
+  ASSERT_TRUE(io::WriteVolume(in, info, [](int64_t z, std::vector<uint8_t>* bytes) {
+                bytes->assign(100 * sizeof(uint16_t), 0);
+                for (int64_t j = 1; j < 9; ++j) {
+                  for (int64_t i = 1; i < 9; ++i) {
+                    uint16_t id = z < 2 || z >= 34 ? 0 : static_cast<uint16_t>(1 + (z - 2) / 8);
+                    if (id == 2 && i >= 4 && i < 6 && j >= 4 && j < 6) id = 0;
+                    if (id == 3 && i == 5 && j == 5 && z == 21) id = 9;
+                    testing::StoreValue(DType::kUInt16, id,
+                                        bytes->data() + (j * 10 + i) * sizeof(uint16_t));
+                  }
+                }
+                return absl::OkStatus();
+              }).ok());
+  std::map<std::string, eval::TopologyReport> runs[2];
+  nlohmann::json metrics[2];
+  for (int sealed = 0; sealed < 2; ++sealed) {
+    const std::string out = Path(sealed ? "sealed" : "whole") + "/";
+    const std::string json = Path(sealed ? "sealed.json" : "whole.json");
+    const auto r = Tandem("--input " + in + " --labels --close --error 0.3 --out " + out +
+                          " --metrics " + json + (sealed ? " --seal" : ""));
+    ASSERT_EQ(r.code, 0) << r.text;
+    for (const auto& entry : std::filesystem::directory_iterator(out)) {
+      if (entry.path().extension() != ".ply") continue;
+      auto mesh = io::ReadMesh(entry.path().string());
+      ASSERT_TRUE(mesh.ok()) << mesh.status();
+      runs[sealed][entry.path().filename().string()] = eval::AnalyzeTopology(*mesh);
+    }
+    EXPECT_TRUE(std::filesystem::exists(out + "labels.glb"));
+    std::ifstream in_json(json);
+    metrics[sealed] = nlohmann::json::parse(in_json);
+  }
+  ASSERT_EQ(runs[1].size(), 5u);
+  for (const auto& [file, whole] : runs[0]) {
+    SCOPED_TRACE(file);
+    ASSERT_TRUE(runs[1].count(file));
+    const eval::TopologyReport& t = runs[1].at(file);
+    EXPECT_TRUE(t.IsClosedManifold());
+    EXPECT_EQ(t.euler, whole.euler);
+    EXPECT_EQ(t.components, whole.components);
+  }
+  EXPECT_EQ(runs[1].at("2.ply").euler, 0);  // the tunnel: a torus
+  EXPECT_EQ(runs[1].at("3.ply").euler, 4);  // a box around a cavity
+  ASSERT_EQ(metrics[1]["labels"].size(), metrics[0]["labels"].size());
+  for (size_t i = 0; i < metrics[1]["labels"].size(); ++i) {
+    EXPECT_EQ(metrics[1]["labels"][i]["label"], metrics[0]["labels"][i]["label"]);
+    EXPECT_EQ(metrics[1]["labels"][i]["closed"], true);
+  }
+  // Sealed, the session handed the mesh out as it went: it held less after every slice past
+  // the first box's seal, and nothing at the end.
+  const auto& whole = metrics[0]["trace"];
+  const auto& sealed = metrics[1]["trace"];
+  ASSERT_LE(sealed.size(), whole.size());  // the unsealed run adds its finishing pass
+  EXPECT_EQ(sealed.back(), 0);
+  int64_t less = 0;
+  for (size_t i = 0; i < sealed.size(); ++i) {
+    EXPECT_LE(sealed[i].get<int64_t>(), whole[i].get<int64_t>()) << i;
+    less += sealed[i].get<int64_t>() < whole[i].get<int64_t>();
+  }
+  EXPECT_GT(less, static_cast<int64_t>(sealed.size()) / 2);
+}
+
+TEST_F(CliLabels, SealDoesNotGoWithTheNeuroglancerExport) {
+  const auto r = Tandem("--input " + LabelVolume("n.nrrd", DType::kUInt16) +
+                        " --labels --seal --neuroglancer " + Path("ng") + " --out " +
+                        Path("out/"));
+  if (r.text.find("built without Draco") != std::string::npos) GTEST_SKIP() << r.text;
+  EXPECT_EQ(r.code, 2) << r.text;
+  EXPECT_NE(r.text.find("--seal does not go with --labels --neuroglancer"), std::string::npos)
+      << r.text;
 }
 
 TEST_F(CliLabels, TheClientRefusesLabels) {

@@ -215,7 +215,8 @@ TEST(LabelEngine, SagCorrectionLeavesJunctionsInPlace) {
       }
     }
   }
-  auto run = [&](double sag) {
+  // Sealed, each vertex is corrected as it freezes, by the same rule.
+  auto run = [&](double sag, bool seal) {
     VolumeInfo grid;
     grid.nx = grid.ny = grid.nz = n;
     grid.dtype = DType::kUInt16;
@@ -223,17 +224,22 @@ TEST(LabelEngine, SagCorrectionLeavesJunctionsInPlace) {
     o.labels.enabled = true;
     o.error = 0.5;
     o.sag_correction = sag;
+    o.seal = seal;
     auto session = TandemSession::Create(grid, o);
     EXPECT_TRUE(session.ok());
+    std::vector<SealedChunk> chunks;
+    SealedChunk c;
     for (int64_t k = 0; k < n; ++k) {
       EXPECT_TRUE((*session)
                       ->AddSliceBytes(DType::kUInt16,
                                       reinterpret_cast<const uint8_t*>(v.data() + k * n * n))
                       .ok());
+      while ((*session)->TakeSealed(&c)) chunks.push_back(std::move(c));
     }
     EXPECT_TRUE((*session)->Finish().ok());
+    while ((*session)->TakeSealed(&c)) chunks.push_back(std::move(c));
     EXPECT_EQ((*session)->stats().sag_corrected > 0, sag > 0);  // it moved some vertices
-    return (*session)->SnapshotLabeled();
+    return seal ? WeldLabeledChunks(chunks) : (*session)->SnapshotLabeled();
   };
   // The positions of the vertices at a junction (in triangles of more than one patch) and
   // of their neighbours, whose sag estimate would read the junction's normal.
@@ -253,9 +259,12 @@ TEST(LabelEngine, SagCorrectionLeavesJunctionsInPlace) {
     }
     return out;
   };
-  const auto without = junctions(run(0)), with = junctions(run(0.3));
-  EXPECT_GE(without.size(), 10u);
-  EXPECT_EQ(with, without);
+  for (bool seal : {false, true}) {
+    SCOPED_TRACE(seal ? "sealed" : "whole");
+    const auto without = junctions(run(0, seal)), with = junctions(run(0.3, seal));
+    EXPECT_GE(without.size(), 10u);
+    EXPECT_EQ(with, without);
+  }
 }
 
 }  // namespace

@@ -45,6 +45,10 @@ struct Meshed {
   absl::Status status;
   LabeledMesh mesh;
   double max_error = 0;
+  // Sealing: the chunks taken, those taken before Finish, their triangles, and the most
+  // triangles the session held after a slice.
+  int64_t chunks = 0, early_chunks = 0, early_triangles = 0, peak_held = 0;
+  size_t peak_bytes = 0;  // MemoryBytes after a slice, at its most
 };
 
 SessionOptions LabelOptionsFor(Schedule schedule, bool close = false) {
@@ -72,14 +76,41 @@ Meshed Mesh(const Volume& vol, const SessionOptions& options,
     return r;
   }
   const size_t slice = static_cast<size_t>(vol.nx * vol.ny);
+  std::vector<SealedChunk> chunks;
+  // Sealing: every chunk a label session hands out has a pair for each triangle, its pairs
+  // listed once each, in order.
+  auto take = [&] {
+    SealedChunk c;
+    while ((*session)->TakeSealed(&c)) {
+      EXPECT_EQ(c.patch.size(), c.num_triangles());
+      for (uint32_t p : c.patch) EXPECT_LT(p, c.pairs.size());
+      for (size_t i = 1; i < c.pairs.size(); ++i) {
+        EXPECT_LT(std::tie(c.pairs[i - 1].inside, c.pairs[i - 1].outside),
+                  std::tie(c.pairs[i].inside, c.pairs[i].outside));
+      }
+      chunks.push_back(std::move(c));
+    }
+  };
   for (int64_t z = 0; z < vol.nz; ++z) {
     r.status = (*session)->AddSliceBytes(
         DType::kUInt16, reinterpret_cast<const uint8_t*>(vol.v.data() + z * slice));
     if (!r.status.ok()) return r;
+    if (options.seal) take();
+    r.peak_held = std::max(r.peak_held, (*session)->num_triangles());
+    r.peak_bytes = std::max(r.peak_bytes, (*session)->MemoryBytes());
   }
+  r.early_chunks = static_cast<int64_t>(chunks.size());
+  for (const SealedChunk& c : chunks) r.early_triangles += static_cast<int64_t>(c.num_triangles());
   r.status = (*session)->Finish();
-  r.mesh = (*session)->SnapshotLabeled();
   r.max_error = (*session)->MaxShapeError();
+  if (!options.seal) {
+    r.mesh = (*session)->SnapshotLabeled();
+    return r;
+  }
+  take();
+  r.chunks = static_cast<int64_t>(chunks.size());
+  EXPECT_EQ((*session)->SnapshotLabeled().mesh.num_triangles(), 0u);  // all sealed
+  r.mesh = WeldLabeledChunks(chunks);
   return r;
 }
 
@@ -159,7 +190,8 @@ std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& 
 }
 
 // The labels' topology of the full-resolution surface and of every simplifying schedule
-// agree, the simplified ones within E0 and with far fewer triangles. Returns the
+// agree, the simplified ones within E0 and with far fewer triangles; so do the lock-step
+// schedules' and the full resolution's sealed (the chunks welded). Returns the
 // full-resolution topology.
 std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, SessionOptions base,
                                                 double reduction = 0.5) {
@@ -167,9 +199,24 @@ std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, 
   const Meshed full = Mesh(vol, base);
   EXPECT_TRUE(full.status.ok()) << full.status;
   const auto reference = CheckSurfaces(full, vol, closed, base.labels.background);
-  for (Schedule s : {Schedule::kClassical, Schedule::kTandem, Schedule::kTandemLag}) {
-    SCOPED_TRACE(std::string(ScheduleName(s)));
+  base.seal = true;
+  const Meshed sealed_full = Mesh(vol, base);
+  EXPECT_TRUE(sealed_full.status.ok()) << sealed_full.status;
+  {
+    SCOPED_TRACE("sealed full resolution");
+    const auto topology = CheckSurfaces(sealed_full, vol, closed, base.labels.background);
+    EXPECT_EQ(sealed_full.mesh.mesh.num_triangles(), full.mesh.mesh.num_triangles());
+    EXPECT_EQ(topology.size(), reference.size());
+    for (const auto& [label, ref] : reference) {
+      EXPECT_EQ(topology.count(label) ? topology.at(label).euler : -999, ref.euler) << label;
+    }
+  }
+  for (auto [s, seal] : {std::pair{Schedule::kClassical, false}, {Schedule::kTandem, false},
+                         {Schedule::kTandemLag, false}, {Schedule::kTandem, true},
+                         {Schedule::kTandemLag, true}}) {
+    SCOPED_TRACE(std::string(ScheduleName(s)) + (seal ? " sealed" : ""));
     base.schedule = s;
+    base.seal = seal;
     const Meshed run = Mesh(vol, base);
     EXPECT_TRUE(run.status.ok()) << run.status;
     const auto topology = CheckSurfaces(run, vol, closed, base.labels.background);
@@ -270,6 +317,87 @@ Volume Voronoi(bool ball, uint32_t seed) {
     }
   }
   return vol;
+}
+
+// Voronoi cells of an EM-like stack, `depth` slices: 24 cells every 16 slices, each with ids
+// of its own (1 + 32 p + i for the i-th seed of period p), so that the labels go on with the
+// depth as a deep segmentation's do.
+Volume DeepVoronoi(int64_t depth) {
+  constexpr int64_t kPeriod = 16, kCells = 24;
+  Volume vol(36, 32, depth);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> pos(0, 1);
+  const int64_t periods = (depth + kPeriod - 1) / kPeriod + 1;
+  std::vector<std::array<double, 3>> seeds;
+  for (int64_t p = 0; p < periods; ++p) {
+    for (int64_t i = 0; i < kCells; ++i) {
+      seeds.push_back({pos(rng) * 36, pos(rng) * 32, static_cast<double>(p * kPeriod) +
+                                                         pos(rng) * kPeriod});
+    }
+  }
+  for (int64_t z = 0; z < vol.nz; ++z) {
+    const int64_t p0 = std::max<int64_t>(0, z / kPeriod - 1);
+    const int64_t p1 = std::min<int64_t>(periods - 1, z / kPeriod + 1);
+    for (int64_t y = 0; y < vol.ny; ++y) {
+      for (int64_t x = 0; x < vol.nx; ++x) {
+        double d = 1e30;
+        int64_t best = 0;
+        for (int64_t s = p0 * kCells; s < (p1 + 1) * kCells; ++s) {
+          const double e = std::hypot(x - seeds[s][0], y - seeds[s][1], z - seeds[s][2]);
+          if (e < d) {
+            d = e;
+            best = s;
+          }
+        }
+        vol.at(x, y, z) = static_cast<uint16_t>(1 + (best / kCells) * 32 + best % kCells);
+      }
+    }
+  }
+  return vol;
+}
+
+// Sealed, a label session holds the front, not the mesh: from a stack eight times deeper
+// (eight times the labels and triangles), the most triangles it holds after a slice and its
+// peak memory (the store's label pairs included) stay within 1.2x; unsealed, they grow with
+// the depth. The welded chunks keep every label's topology.
+TEST(LabelSession, SealedMemoryIsFlatInDepth) {
+  constexpr int64_t kDepth = 64;
+  int64_t held[2] = {0, 0}, triangles[2] = {0, 0}, unsealed_held[2] = {0, 0};
+  size_t bytes[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    const Volume vol = DeepVoronoi(deep ? 8 * kDepth : kDepth);
+    SessionOptions o = LabelOptionsFor(Schedule::kTandemLag);
+    o.seal = true;
+    const Meshed run = Mesh(vol, o);
+    ASSERT_TRUE(run.status.ok()) << run.status;
+    held[deep] = run.peak_held;
+    bytes[deep] = run.peak_bytes;
+    triangles[deep] = static_cast<int64_t>(run.mesh.mesh.num_triangles());
+    EXPECT_GT(2 * run.early_triangles, triangles[deep]);  // most sealed before Finish
+    EXPECT_LE(run.max_error, o.error * (1 + 1e-9));
+    if (!deep) {
+      o.seal = false;
+      const Meshed whole = Mesh(vol, o);
+      o.schedule = Schedule::kNone;
+      const auto reference = CheckSurfaces(Mesh(vol, o), vol, false);
+      const auto topology = CheckSurfaces(run, vol, false);
+      ASSERT_EQ(topology.size(), reference.size());
+      for (const auto& [label, ref] : reference) {
+        EXPECT_EQ(topology.at(label).euler, ref.euler) << label;
+        EXPECT_EQ(topology.at(label).components, ref.components) << label;
+      }
+      unsealed_held[0] = whole.peak_held;
+    } else {
+      o.seal = false;
+      unsealed_held[1] = Mesh(vol, o).peak_held;
+    }
+  }
+  EXPECT_GT(triangles[1], 6 * triangles[0]);
+  EXPECT_LE(held[1], held[0] * 6 / 5) << held[0] << " triangles held at " << kDepth
+                                      << " slices, " << held[1] << " at " << 8 * kDepth;
+  EXPECT_LE(bytes[1], bytes[0] * 6 / 5) << bytes[0] << " bytes at " << kDepth << " slices, "
+                                        << bytes[1] << " at " << 8 * kDepth;
+  EXPECT_GT(unsealed_held[1], 4 * unsealed_held[0]);
 }
 
 TEST(LabelSession, VoronoiCellsInABallAreClosedManifolds) {
@@ -412,8 +540,8 @@ TEST(LabelSession, OptionsAreValidated) {
   EXPECT_NE(o.Validate().message().find("labels.background"), std::string::npos);
   o.labels.only = {2};
   EXPECT_TRUE(o.Validate().ok());
-  o.seal = true;
-  EXPECT_NE(o.Validate().message().find("seal"), std::string::npos);
+  o.seal = true;  // sealed chunks carry their triangles' pairs
+  EXPECT_TRUE(o.Validate().ok());
   o.seal = false;
   o.parts = 2;
   EXPECT_NE(o.Validate().message().find("parts"), std::string::npos);

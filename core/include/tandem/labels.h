@@ -6,6 +6,7 @@
 #define TANDEM_LABELS_H_
 
 #include <cstdint>
+#include <span>
 #include <utility>
 #include <vector>
 
@@ -13,21 +14,12 @@
 
 namespace tandem {
 
-using LabelId = uint64_t;
-
 // SessionOptions::labels: whether the volume is a label map, and which labels count.
 struct LabelOptions {
   bool enabled = false;
   LabelId background = 0;     // has no surface of its own
   std::vector<LabelId> only;  // not empty: every other label counts as background
   bool close = false;         // close the surfaces at the grid's box (else open there)
-};
-
-// One side each: `inside` is the label the triangle's normal points away from (the
-// triangle is counter-clockwise seen from `outside`).
-struct LabelPair {
-  LabelId inside = 0, outside = 0;
-  friend bool operator==(const LabelPair&, const LabelPair&) = default;
 };
 
 // The interface complex: `patch[t]` indexes `pairs` for triangle t.
@@ -42,6 +34,10 @@ struct LabeledMesh {
 // (a vertex two labels share has the same position in both).
 std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
                                                           LabelId background = 0);
+
+// The interface complex a label session's sealed chunks make together (WeldChunks with each
+// triangle's pair): its pairs in increasing (inside, outside), each once.
+LabeledMesh WeldLabeledChunks(std::span<const SealedChunk> chunks);
 
 }  // namespace tandem
 

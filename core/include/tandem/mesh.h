@@ -25,6 +25,17 @@ struct IndexedMesh {
   size_t num_triangles() const { return indices.size() / 3; }
 };
 
+// A label map's id (labels.h).
+using LabelId = uint64_t;
+
+// The two labels a triangle of a label session separates, one side each: `inside` is the
+// label the triangle's normal points away from (the triangle is counter-clockwise seen from
+// `outside`).
+struct LabelPair {
+  LabelId inside = 0, outside = 0;
+  friend bool operator==(const LabelPair&, const LabelPair&) = default;
+};
+
 // A sealed chunk (TandemSession::TakeSealed): a piece of the final mesh that never changes
 // once handed out.
 struct SealedChunk {
@@ -36,6 +47,11 @@ struct SealedChunk {
   // Ids no later chunk has: every triangle of these vertices is in this chunk or an earlier
   // one (a writer can put them out now, normals complete). Not sent on the wire.
   std::vector<uint32_t> retired;
+  // A label session's chunk (SessionOptions::labels): triangle t separates pairs[patch[t]];
+  // `pairs` holds the pairs of this chunk's triangles, in increasing (inside, outside), each
+  // once. Both empty for an iso-surface session.
+  std::vector<uint32_t> patch;
+  std::vector<LabelPair> pairs;
   size_t num_triangles() const { return indices.size() / 3; }
 };
 

@@ -92,7 +92,8 @@ struct SessionOptions {
   bool check_quadrics = false;
   // Label mode (labels.enabled): the slices are a label map (integer dtypes through
   // AddSliceBytes; float input is refused), every label's surface comes out of one sweep as
-  // the interface complex (SnapshotLabeled), `iso` is not used. One part, no sealing.
+  // the interface complex (SnapshotLabeled), `iso` is not used. One part. With seal, each
+  // chunk carries its triangles' label pairs (SealedChunk::patch, pairs; WeldLabeledChunks).
   LabelOptions labels{};
   // The rules the options must satisfy, here and nowhere else. A refusal is
   // InvalidArgument "<field> = <value>: <rule>" (e.g. "alpha = 1.5: isotropy alpha must lie
