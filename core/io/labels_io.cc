@@ -20,7 +20,7 @@
 #include "mesh_io_internal.h"
 #include "nlohmann/json.hpp"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using internal::meshio::AppendGlbContainer;
@@ -384,4 +384,4 @@ absl::Status WriteLabelsGlb(const std::string& path,
   return absl::OkStatus();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -6,7 +6,7 @@
 #include "mesh_io_internal.h"
 #include "nlohmann/json.hpp"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
 void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes) {
   json.append((4 - json.size() % 4) % 4, ' ');
@@ -106,4 +106,4 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
   for (uint32_t i : mesh.indices) out.AppendLe32(i);
 }
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio

@@ -21,7 +21,7 @@
 #include "tandem/io/mesh_io.h"
 #include "tandem/volume.h"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
 // A status whose message starts with the path.
 absl::Status Error(absl::StatusCode code, const std::string& path, absl::string_view what);
@@ -140,6 +140,6 @@ void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes)
 void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
               const GlbDracoPrimitive* draco, Space space, BufferedWriter& out);
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio
 
 #endif  // TANDEM_IO_MESH_IO_INTERNAL_H_

@@ -33,7 +33,7 @@ class CliLabels : public ::testing::Test {
     info.nx = info.ny = info.nz = 6;
     info.dtype = t;
     const std::string path = Path(name);
-    EXPECT_TRUE(WriteVolume(path, info, [t](int64_t z, std::vector<uint8_t>* bytes) {
+    EXPECT_TRUE(io::WriteVolume(path, info, [t](int64_t z, std::vector<uint8_t>* bytes) {
                   bytes->assign(36 * DTypeSize(t), 0);
                   for (int64_t j = 1; j < 4; ++j) {
                     for (int64_t i = 1; i < 5; ++i) {
@@ -123,7 +123,7 @@ TEST_F(CliLabels, ALabelMapToOneClosedFilePerLabel) {
   ASSERT_EQ(r.code, 0) << r.text;
   for (const char* file : {"Liver.ply", "7.ply"}) {
     SCOPED_TRACE(file);
-    auto mesh = ReadMesh(out + file);
+    auto mesh = io::ReadMesh(out + file);
     ASSERT_TRUE(mesh.ok()) << mesh.status();
     const eval::TopologyReport t = eval::AnalyzeTopology(*mesh);
     EXPECT_TRUE(t.IsClosedManifold());
@@ -151,7 +151,7 @@ TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
   const std::string in = Path("stack.nrrd");
   // Boxes of labels 1..4 stacked along z, each 8 slices, with a tunnel through label 2 (a
   // torus) and label 3 wrapped around a voxel of label 9.
-  ASSERT_TRUE(WriteVolume(in, info, [](int64_t z, std::vector<uint8_t>* bytes) {
+  ASSERT_TRUE(io::WriteVolume(in, info, [](int64_t z, std::vector<uint8_t>* bytes) {
                 bytes->assign(100 * sizeof(uint16_t), 0);
                 for (int64_t j = 1; j < 9; ++j) {
                   for (int64_t i = 1; i < 9; ++i) {
@@ -174,7 +174,7 @@ TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
     ASSERT_EQ(r.code, 0) << r.text;
     for (const auto& entry : std::filesystem::directory_iterator(out)) {
       if (entry.path().extension() != ".ply") continue;
-      auto mesh = ReadMesh(entry.path().string());
+      auto mesh = io::ReadMesh(entry.path().string());
       ASSERT_TRUE(mesh.ok()) << mesh.status();
       runs[sealed][entry.path().filename().string()] = eval::AnalyzeTopology(*mesh);
     }
