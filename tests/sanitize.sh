@@ -5,7 +5,9 @@
 # with its stack is in ctest's output. The same build holds the libFuzzer targets
 # (-DTANDEM_FUZZ=ON): tests/fuzz/run.sh reuses it, so CI compiles the instrumented code once.
 #   bash tests/sanitize.sh                        build, then every test under the sanitizers
-#   bash tests/sanitize.sh -R readers             extra arguments go to ctest
+#                                                 but the packaging checks and browser tests
+#   bash tests/sanitize.sh -R readers             extra arguments go to ctest (and replace
+#                                                 the default exclusion)
 #   bash tests/sanitize.sh --build-only [TARGET...]   configure + build (all, or the targets)
 #   TANDEM_BUILD_SERVICE=OFF bash tests/sanitize.sh   core only (no gRPC; no fuzz_request)
 # Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build and ctest parallelism, 2).
@@ -71,6 +73,9 @@ export LSAN_OPTIONS="${LSAN_OPTIONS:-suppressions=$supp:print_suppressions=0}"
 if command -v llvm-symbolizer >/dev/null; then
   export ASAN_SYMBOLIZER_PATH="$(command -v llvm-symbolizer)"
 fi
+# Packaging checks (label deploy, engine_only) test files and installs, and the browser tests
+# test JavaScript on C++ the ViewServer and service tests cover: the plain build runs them.
+if [ $# -eq 0 ]; then set -- -LE deploy -E '_browser|^engine_only$'; fi
 set +e
 ctest --test-dir "$build" --output-on-failure -j"$jobs" --timeout 1800 "$@"
 rc=$?
