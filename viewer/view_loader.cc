@@ -11,7 +11,7 @@ absl::StatusOr<std::unique_ptr<ViewServer>> ViewServer::Start(const ViewOptions&
   static const Loaded loaded = []() -> Loaded {
     const ViewModule* module = nullptr;
     absl::StatusOr<void*> entry =
-        LoadModuleEntry(kViewModuleName, kViewModuleEntryName, [&](void* e) {
+        module::LoadModuleEntry(kViewModuleName, kViewModuleEntryName, [&](void* e) {
           module = reinterpret_cast<ViewModuleEntry*>(e)();
           if (module != nullptr && module->abi == kViewModuleAbi) return absl::OkStatus();
           return absl::FailedPreconditionError(

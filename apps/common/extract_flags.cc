@@ -18,6 +18,7 @@
 #include "absl/strings/str_split.h"
 #include "absl/strings/string_view.h"
 #include "absl/strings/strip.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/status_macros.h"
 #ifdef TANDEM_HAVE_DRACO
 #include "tandem/codec/draco_codec.h"
@@ -317,12 +318,12 @@ std::string ExtractFlags::InputPath() const {
   return zarr_array.empty() ? input : absl::StrCat(input, "#", zarr_array);
 }
 
-OpenOptions ExtractFlags::Open(std::function<void(const std::string&)> note) const {
-  return OpenOptions{.dicom_series = series, .note = std::move(note)};
+io::OpenOptions ExtractFlags::Open(std::function<void(const std::string&)> note) const {
+  return io::OpenOptions{.dicom_series = series, .note = std::move(note)};
 }
 
-FollowOptions ExtractFlags::Follow(std::function<void(const std::string&)> note) const {
-  FollowOptions fo;
+io::FollowOptions ExtractFlags::Follow(std::function<void(const std::string&)> note) const {
+  io::FollowOptions fo;
   fo.expect_slices = expect_slices;
   fo.settle_s = settle;
   fo.done_file = done_file;

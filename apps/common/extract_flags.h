@@ -14,6 +14,7 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
 #include "tandem/io/follow.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/labels.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -40,8 +41,8 @@ struct ExtractFlags {
   // --input with --zarr-array SEL appended as the "#SEL" selector OpenVolume understands.
   std::string InputPath() const;
   // How to open --input (--series) and follow it (--follow's flags); notes go to `note`.
-  OpenOptions Open(std::function<void(const std::string&)> note) const;
-  FollowOptions Follow(std::function<void(const std::string&)> note) const;
+  io::OpenOptions Open(std::function<void(const std::string&)> note) const;
+  io::FollowOptions Follow(std::function<void(const std::string&)> note) const;
   // --spacing, then --frame: `source` delivers that spacing, in that frame. Returns "" or a
   // warning naming the spacing the file carries and --spacing replaces. A refusal (a
   // spacing or frame the volume cannot take) names the flag.

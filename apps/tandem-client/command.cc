@@ -1,6 +1,6 @@
 // How tandem-client's subcommands report mistakes and failures, and the flags and parsing
 // they share.
-#include "apps/tandem-client/command.h"
+#include "command.h"
 
 #include <algorithm>
 #include <chrono>

@@ -3,7 +3,7 @@
 #include <string>
 
 #include "absl/strings/str_format.h"
-#include "apps/tandem-client/command.h"
+#include "command.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/common/wire.h"
 

@@ -6,7 +6,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "apps/tandem-client/command.h"
+#include "command.h"
 #include "tandem/common/wire.h"
 #include "tandem/options.h"
 #include "tandem/v1/tandem.grpc.pb.h"

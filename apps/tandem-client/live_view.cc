@@ -1,4 +1,4 @@
-#include "apps/tandem-client/live_view.h"
+#include "live_view.h"
 
 #include <array>
 #include <atomic>
@@ -105,7 +105,7 @@ void LiveView::SetIsos(const std::vector<std::string>& isos) {
   labeled_ = true;
 }
 
-void LiveView::SetLabels(const LabelNames* names) {
+void LiveView::SetLabels(const io::LabelNames* names) {
   label_session_ = true;
   label_names_ = names;
   labeled_ = true;
@@ -130,7 +130,7 @@ void LiveView::PublishLabels() {
       }
     }
     names.push_back(std::move(name));
-    const std::array<uint8_t, 4> c = LabelColor(id, k, label_names_);
+    const std::array<uint8_t, 4> c = io::LabelColor(id, k, label_names_);
     colors.push_back(absl::StrFormat("#%02x%02x%02x", c[0], c[1], c[2]));
   }
   server_->SetSurfaces(names, colors);

@@ -50,7 +50,7 @@ class LiveView {
   // table's, with `names`; else LabelColor's hue, in the order the labels first showed), the
   // previews cut by label, and the final table has a row per label. `names` (or null) must
   // outlive the view.
-  void SetLabels(const LabelNames* names);
+  void SetLabels(const io::LabelNames* names);
   // Following a scan of unknown depth: the slices on disk so far, the progress's measure.
   void SetOnDisk(const std::atomic<int64_t>* on_disk) { on_disk_ = on_disk; }
   // The source to stream from: `source`, watched for its end (a scan of unknown depth is
@@ -84,7 +84,7 @@ class LiveView {
   bool labeled_ = false;  // the surfaces have their labels (a watcher's come with the metrics)
   std::string session_id_;
   bool label_session_ = false;
-  const LabelNames* label_names_ = nullptr;
+  const io::LabelNames* label_names_ = nullptr;
   std::map<LabelId, int> label_surface_;
   std::vector<LabelId> label_order_;  // by surface
   size_t labels_published_ = 0;

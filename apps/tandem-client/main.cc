@@ -15,7 +15,7 @@
 
 #include "absl/strings/str_format.h"
 #include "apps/common/version.h"
-#include "apps/tandem-client/command.h"
+#include "command.h"
 
 namespace {
 

@@ -1,6 +1,6 @@
 // Saving what stream and watch received: each surface's mesh (decoded and checked, or the
 // sealed chunks welded) and its metrics.
-#include "apps/tandem-client/save.h"
+#include "save.h"
 
 #include <filesystem>
 #include <string>
@@ -11,7 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
-#include "apps/tandem-client/command.h"
+#include "command.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
@@ -52,13 +52,13 @@ int SaveSurface(const tandem::client::StreamResult& result, tandem::client::Surf
     if (!bytes.ok()) return Fail(bytes.status());
     s.draco = *std::move(bytes);
   }
-  tandem::MeshWriteOptions write;
+  tandem::io::MeshWriteOptions write;
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
   // The frame the session ran in, as the server echoes it: the watcher of a session learns
   // it there too. An older server sends none: the grid's own frame.
   write.space = tandem::ParseSpace(s.metrics.frame()).value_or(tandem::Space::kGrid);
   absl::Status saved =
-      ext == ".drc" ? WriteFile(out, s.draco) : tandem::WriteMesh(out, *mesh, write);
+      ext == ".drc" ? WriteFile(out, s.draco) : tandem::io::WriteMesh(out, *mesh, write);
   if (!saved.ok()) return Fail(saved);
 
   tandem::eval::MetricsReport report = tandem::common::ReportFromProto(s.metrics);
@@ -151,15 +151,15 @@ int SaveLabels(tandem::client::StreamResult& result, const SaveOptions& o) {
     measured.push_back(std::move(m));
     surfaces.emplace_back(s.metrics.label(), *std::move(mesh));
   }
-  tandem::MeshWriteOptions write;
+  tandem::io::MeshWriteOptions write;
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
   write.space = tandem::ParseSpace(result.session_metrics.frame()).value_or(tandem::Space::kGrid);
   if (!o.label_extension.empty()) {
-    absl::StatusOr<std::vector<tandem::LabelFile>> files =
-        tandem::WriteLabelMeshes(o.out_pattern, o.label_extension, surfaces, o.label_names, write);
+    absl::StatusOr<std::vector<tandem::io::LabelFile>> files =
+        tandem::io::WriteLabelMeshes(o.out_pattern, o.label_extension, surfaces, o.label_names, write);
     if (!files.ok()) return Fail(files.status());
   } else if (absl::Status st =
-                 tandem::WriteLabelsGlb(o.out_pattern, surfaces, o.label_names, write.space);
+                 tandem::io::WriteLabelsGlb(o.out_pattern, surfaces, o.label_names, write.space);
              !st.ok()) {
     return Fail(st);
   }

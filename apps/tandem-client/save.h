@@ -42,7 +42,7 @@ struct SaveOptions {
   // A label session: --out is a folder (label_extension the per-label files' ".ply", ...) or,
   // with label_extension empty, one .glb; the names and colours of --label-names, or null.
   std::string label_extension;
-  const tandem::LabelNames* label_names = nullptr;
+  const tandem::io::LabelNames* label_names = nullptr;
 };
 
 // Every surface of a stream or a watch: to the names `out_pattern` gives (with {iso} when

@@ -18,15 +18,16 @@
 #include "absl/strings/str_format.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/extract_flags.h"
-#include "apps/tandem-client/command.h"
-#include "apps/tandem-client/live_view.h"
-#include "apps/tandem-client/save.h"
+#include "command.h"
+#include "live_view.h"
+#include "save.h"
 #include "tandem/client/chunk_store.h"
 #include "tandem/client/stream_client.h"
 #include "tandem/common/wire.h"
 #include "tandem/io/follow.h"
 #include "tandem/io/labels_io.h"
 #include "tandem/io/mesh_io.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 
@@ -95,9 +96,9 @@ int StreamCommand(int argc, char** argv) {
 
   const std::string ext = Lower(std::filesystem::path(out).extension().string());
   // --labels' --out (a folder, or one .glb) is held to its rules by f.Check.
-  if (!f.labels && ext != ".drc" && !tandem::IsMeshOutputPath(out)) {
+  if (!f.labels && ext != ".drc" && !tandem::io::IsMeshOutputPath(out)) {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
-                  tandem::kMeshExtensions);
+                  tandem::io::kMeshExtensions);
     return 2;
   }
   // Fail before streaming, not after: the output's folder must exist.
@@ -158,11 +159,11 @@ int StreamCommand(int argc, char** argv) {
   auto open = [&]() -> absl::StatusOr<std::unique_ptr<tandem::SliceSource>> {
     absl::StatusOr<std::unique_ptr<tandem::SliceSource>> src;
     if (!follow) {
-      src = tandem::OpenVolume(input, f.Open(note));
+      src = tandem::io::OpenVolume(input, f.Open(note));
     } else {
-      tandem::FollowOptions fo = f.Follow(note);
+      tandem::io::FollowOptions fo = f.Follow(note);
       fo.progress = [&](int64_t seen, int64_t) { on_disk = seen; };
-      src = tandem::FollowVolume(input, fo);
+      src = tandem::io::FollowVolume(input, fo);
     }
     if (!src.ok()) return src;
     absl::StatusOr<std::string> warn = f.ApplyGeometry(&*src);
@@ -183,13 +184,13 @@ int StreamCommand(int argc, char** argv) {
   absl::StatusOr<std::vector<tandem::cli::IsoValue>> isos =
       f.labels ? std::vector<tandem::cli::IsoValue>{{0, "0"}} : f.Isos(flags, info);
   if (!isos.ok()) return UsageError(isos.status());
-  tandem::LabelNames label_names;
+  tandem::io::LabelNames label_names;
   absl::StatusOr<tandem::LabelOptions> labels = f.Labels();
   if (!labels.ok()) return UsageError(labels.status());
   if (f.labels) {
     if (absl::Status st = f.CheckLabelInput(info); !st.ok()) return UsageError(st);
     if (!f.label_names.empty()) {
-      absl::StatusOr<tandem::LabelNames> read = tandem::ReadLabelNames(f.label_names);
+      absl::StatusOr<tandem::io::LabelNames> read = tandem::io::ReadLabelNames(f.label_names);
       if (!read.ok()) return Fail(read.status());
       label_names = *std::move(read);
     }

@@ -8,9 +8,9 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "apps/common/extract_flags.h"
-#include "apps/tandem-client/command.h"
-#include "apps/tandem-client/live_view.h"
-#include "apps/tandem-client/save.h"
+#include "command.h"
+#include "live_view.h"
+#include "save.h"
 #include "tandem/client/chunk_store.h"
 #include "tandem/client/stream_client.h"
 #include "tandem/codec/draco_codec.h"
@@ -66,10 +66,10 @@ int WatchCommand(int argc, char** argv, bool view_command) {
   tandem::client::LiveView view;
   view.AddFlags(flags, view_command ? "127.0.0.1:8080" : "");
   if (int rc = ParseOrExit(flags, argc, argv, &connection); rc >= 0) return rc;
-  if (!out.empty() && !tandem::IsMeshOutputPath(out) &&
+  if (!out.empty() && !tandem::io::IsMeshOutputPath(out) &&
       Lower(std::filesystem::path(out).extension().string()) != ".drc") {
     absl::FPrintF(stderr, "tandem-client: --out %s: the extension must be .drc, %s\n", out,
-                  tandem::kMeshExtensions);
+                  tandem::io::kMeshExtensions);
     return 2;
   }
   if (absl::Status st = cli::CheckDracoFlags(bits, level); !st.ok()) return UsageError(st);

@@ -1,6 +1,6 @@
 // tandem-server's command line: its flags (each also a TANDEM_* variable), --help, --version
 // and the checks of their values.
-#include "apps/tandem-server/config.h"
+#include "config.h"
 
 #include <cstdint>
 #include <limits>

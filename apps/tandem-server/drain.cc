@@ -1,5 +1,5 @@
 // The drain of tandem-server after SIGTERM or SIGINT (drain.h).
-#include "apps/tandem-server/drain.h"
+#include "drain.h"
 
 #include <grpc/grpc.h>  // grpc_server_cancel_all_calls
 #include <grpcpp/health_check_service_interface.h>

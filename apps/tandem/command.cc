@@ -1,5 +1,5 @@
 // How the subcommands of `tandem` report mistakes and failures, and their shared parsing.
-#include "apps/tandem/command.h"
+#include "command.h"
 
 #include <cstdio>
 #include <fstream>

@@ -35,7 +35,7 @@ struct NeuroglancerRequest {
 // extract_labels.cc): the session (and its coarser sweeps for --neuroglancer), the per-label
 // outputs and figures.
 int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSource& source,
-                  const MeshWriteOptions& write, const NeuroglancerRequest& neuroglancer);
+                  const io::MeshWriteOptions& write, const NeuroglancerRequest& neuroglancer);
 
 // A failure met while running (a file, a device, a session): "tandem: MESSAGE" on stderr,
 // exit status 1 (apps/common/cli_util.h).

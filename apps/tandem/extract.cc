@@ -15,9 +15,9 @@
 #include "apps/common/cli_util.h"
 #include "apps/common/extract_flags.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "apps/tandem/neuroglancer_export.h"
+#include "neuroglancer_export.h"
 #include "tandem/codec/draco_codec.h"
 #endif
 #include "tandem/eval/distance.h"
@@ -25,6 +25,7 @@
 #include "tandem/io/mesh_io.h"
 #include "tandem/eval/metrics.h"
 #include "tandem/eval/report.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -77,9 +78,9 @@ int ExtractCommand(int argc, char** argv) {
   }
   if (absl::Status st = f.Check(flags); !st.ok()) return Usage(st);
   const std::string& out = f.out;
-  if (!f.labels && !IsMeshOutputPath(out)) {
+  if (!f.labels && !io::IsMeshOutputPath(out)) {
     return Usage(absl::InvalidArgumentError(
-        absl::StrCat("--out ", out, ": the extension must be ", kMeshExtensions)));
+        absl::StrCat("--out ", out, ": the extension must be ", io::kMeshExtensions)));
   }
   if (neuroglancer.empty() && (flags.IsSet("neuroglancer-lods") || flags.IsSet("neuroglancer-nm") ||
                                 flags.IsSet("neuroglancer-chunk") ||
@@ -133,14 +134,14 @@ int ExtractCommand(int argc, char** argv) {
   };
   absl::StatusOr<std::unique_ptr<SliceSource>> source;
   if (follow) {
-    FollowOptions fo = f.Follow(note);
+    io::FollowOptions fo = f.Follow(note);
     fo.progress = [&](int64_t s, int64_t r) {
       seen = s;
       read = r;
     };
-    source = FollowVolume(input_path, fo);
+    source = io::FollowVolume(input_path, fo);
   } else {
-    source = OpenVolume(input_path, f.Open(note));
+    source = io::OpenVolume(input_path, f.Open(note));
   }
   if (!source.ok()) return Fail(source.status());
   if (absl::StatusOr<std::string> warn = f.ApplyGeometry(&*source); !warn.ok()) {
@@ -150,7 +151,7 @@ int ExtractCommand(int argc, char** argv) {
   }
   const VolumeInfo info = (*source)->info();
 
-  MeshWriteOptions write;
+  io::MeshWriteOptions write;
   write.space = info.space;
   if (f.glb_draco) {
 #ifdef TANDEM_HAVE_DRACO
@@ -194,7 +195,7 @@ int ExtractCommand(int argc, char** argv) {
     SessionOptions opt;
     std::string out;
     std::vector<SealedChunk> chunks;
-    std::unique_ptr<ChunkedMeshWriter> writer;
+    std::unique_ptr<io::ChunkedMeshWriter> writer;
     eval::ShapeSums shape;
     IndexedMesh mesh;
     eval::MetricsReport report;
@@ -207,8 +208,8 @@ int ExtractCommand(int argc, char** argv) {
     s.opt.iso = isos[i].value;
     s.out = outs[i];
     options.push_back(s.opt);
-    if (opt.seal && ChunkedMeshWriter::Supports(s.out) && !reference && neuroglancer.empty()) {
-      auto w = ChunkedMeshWriter::Open(s.out, write);
+    if (opt.seal && io::ChunkedMeshWriter::Supports(s.out) && !reference && neuroglancer.empty()) {
+      auto w = io::ChunkedMeshWriter::Open(s.out, write);
       if (!w.ok()) return Fail(w.status());
       s.writer = *std::move(w);
     }
@@ -246,7 +247,7 @@ int ExtractCommand(int argc, char** argv) {
   // After the last slice: what the finish is doing, with an estimate of the time left.
   cli::FinishingStatus finishing("tandem extract: ", quiet);
   bool slices_done = false;  // the slices' line was ended
-  auto sessions = RunSessions(
+  auto sessions = io::RunSessions(
       range, options,
       [&](int64_t d, int64_t t) {
         if (follow) {
@@ -289,7 +290,7 @@ int ExtractCommand(int argc, char** argv) {
       std::future<eval::MetricsReport> measured =
           std::async(std::launch::async | std::launch::deferred,
                      [&] { return eval::MakeReport(session, s.mesh); });
-      if (absl::Status st = WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
+      if (absl::Status st = io::WriteMesh(s.out, s.mesh, write); !st.ok()) return Fail(st);
       s.report = measured.get();
     }
     s.report.input = input_path;
@@ -318,7 +319,7 @@ int ExtractCommand(int argc, char** argv) {
   }
 #endif
   if (reference) {
-    auto ref_source = OpenVolume(input_path, f.Open(nullptr));
+    auto ref_source = io::OpenVolume(input_path, f.Open(nullptr));
     if (!ref_source.ok()) return Fail(ref_source.status());
     if (absl::Status st = f.ApplyGeometry(&*ref_source).status(); !st.ok()) return Usage(st);
     std::vector<SessionOptions> ref_options(options.begin(), options.begin() + surfaces.size());
@@ -327,7 +328,7 @@ int ExtractCommand(int argc, char** argv) {
       o.seal = false;
     }
     cli::Progress ref_progress("reference slices");
-    auto refs = RunSessions(**ref_source, ref_options, [&](int64_t d, int64_t t) {
+    auto refs = io::RunSessions(**ref_source, ref_options, [&](int64_t d, int64_t t) {
       if (!quiet) ref_progress.Update(d, t);
     });
     ref_progress.Done();

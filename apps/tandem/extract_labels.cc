@@ -12,9 +12,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #ifdef TANDEM_HAVE_DRACO
-#include "apps/tandem/neuroglancer_export.h"
+#include "neuroglancer_export.h"
 #endif
 #include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
@@ -62,7 +62,7 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
         return absl::OkStatus();
       };
     }
-    auto sessions = RunSessions(source, all, progress, on_chunk);
+    auto sessions = io::RunSessions(source, all, progress, on_chunk);
     if (!sessions.ok()) return sessions.status();
     LabelRun run;
     run.complex = options.seal ? WeldLabeledChunks(chunks) : (*sessions)[0]->SnapshotLabeled();
@@ -82,15 +82,15 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
 }  // namespace
 
 int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSource& source,
-                  const MeshWriteOptions& write, const NeuroglancerRequest& neuroglancer) {
+                  const io::MeshWriteOptions& write, const NeuroglancerRequest& neuroglancer) {
   const VolumeInfo info = source.info();
   const std::string input = f.InputPath();
   if (absl::Status st = f.CheckLabelInput(info); !st.ok()) return Usage(st);
   absl::StatusOr<LabelOptions> labels = f.Labels();
   if (!labels.ok()) return Usage(labels.status());
-  LabelNames names;
+  io::LabelNames names;
   if (!f.label_names.empty()) {
-    absl::StatusOr<LabelNames> read = ReadLabelNames(f.label_names);
+    absl::StatusOr<io::LabelNames> read = io::ReadLabelNames(f.label_names);
     if (!read.ok()) return Fail(read.status());
     names = *std::move(read);
   }
@@ -113,12 +113,12 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
     return Fail(absl::Status(run.status().code(),
                              absl::StrCat(input, ": ", std::string(run.status().message()))));
   }
-  const LabelNames* table = f.label_names.empty() ? nullptr : &names;
+  const io::LabelNames* table = f.label_names.empty() ? nullptr : &names;
   if (f.LabelsToFolder()) {
-    absl::StatusOr<std::vector<LabelFile>> files =
-        WriteLabelMeshes(f.out, absl::StrCat(".", f.format), run->surfaces, table, write);
+    absl::StatusOr<std::vector<io::LabelFile>> files =
+        io::WriteLabelMeshes(f.out, absl::StrCat(".", f.format), run->surfaces, table, write);
     if (!files.ok()) return FailWriting(files.status());
-  } else if (absl::Status st = WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
+  } else if (absl::Status st = io::WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
     return FailWriting(st);
   }
 #ifdef TANDEM_HAVE_DRACO

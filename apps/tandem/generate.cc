@@ -11,7 +11,7 @@
 #include "absl/strings/str_split.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/volume.h"
@@ -86,10 +86,10 @@ int GenerateCommand(int argc, char** argv) {
   }
   auto shape = eval::ParseShape(flags.positional()[0]);
   if (!shape.ok()) return Usage(shape.status());
-  ZarrWriteOptions zarr;
+  io::ZarrWriteOptions zarr;
   zarr.version = static_cast<int>(zarr_version);
   if (!zarr_codec.empty()) {
-    auto codec = ParseZarrCompressor(zarr_codec);
+    auto codec = io::ParseZarrCompressor(zarr_codec);
     if (!codec.ok()) return Usage(codec.status());
     zarr.compressor = *codec;
   }
@@ -119,9 +119,9 @@ int GenerateCommand(int argc, char** argv) {
     return Usage(absl::InvalidArgumentError(
         absl::StrCat("--series must be dicom or tiff, not '", series, "'")));
   }
-  DicomWriteOptions dicom;
+  io::DicomWriteOptions dicom;
   if (!dicom_syntax.empty()) {
-    auto syntax = ParseDicomSyntax(dicom_syntax);
+    auto syntax = io::ParseDicomSyntax(dicom_syntax);
     if (!syntax.ok()) return Usage(syntax.status());
     dicom.syntax = *syntax;
   }
@@ -155,15 +155,15 @@ int GenerateCommand(int argc, char** argv) {
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return Usage(st);
   cli::Progress progress("slices");
   const int64_t nz = info.nz;
-  const SliceFn next = [&](int64_t z, std::vector<uint8_t>* bytes) {
+  const io::SliceFn next = [&](int64_t z, std::vector<uint8_t>* bytes) {
     progress.Update(z + 1, nz);
     if (z < src->next_slice()) src = make();  // a second pass (the DICOM writer's range scan)
     return src->ReadSlice(bytes);
   };
-  absl::Status st = series == "dicom"        ? WriteDicomSeries(out, info, next, dicom)
-                    : series == "tiff"       ? WriteTiffSequence(out, info, next)
-                    : out.ends_with(".zarr") ? WriteZarr(out, info, next, zarr)
-                                             : WriteVolume(out, info, next);
+  absl::Status st = series == "dicom"        ? io::WriteDicomSeries(out, info, next, dicom)
+                    : series == "tiff"       ? io::WriteTiffSequence(out, info, next)
+                    : out.ends_with(".zarr") ? io::WriteZarr(out, info, next, zarr)
+                                             : io::WriteVolume(out, info, next);
   progress.Done();
   if (!st.ok()) return FailWriting(st);
   std::fprintf(stderr, "wrote %s (%lld x %lld x %lld float32, iso-value 0)\n", out.c_str(),

@@ -10,7 +10,8 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/status_macros.h"
 #include "tandem/volume.h"
 
@@ -27,7 +28,7 @@ struct ValueStats {
 };
 
 absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
-                                      const OpenOptions& open) {
+                                      const io::OpenOptions& open) {
   const VolumeInfo& info = src.info();
   std::vector<uint8_t> bytes;
   std::vector<float> values(static_cast<size_t>(info.slice_voxels()));
@@ -54,7 +55,7 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
   }
   if (s.count == 0) return s;
   s.mean = sum / static_cast<double>(s.count);
-  auto again = OpenVolume(path, open);
+  auto again = io::OpenVolume(path, open);
   if (!again.ok()) return again.status();
   const double width = (s.hi - s.lo) / 10.0;
   for (int64_t z = 0; z < info.nz; ++z) {
@@ -92,7 +93,7 @@ int InfoCommand(int argc, char** argv) {
   const std::string input =
       zarr_array.empty() ? input_flag : absl::StrCat(input_flag, "#", zarr_array);
   auto src =
-      OpenVolume(input, OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
+      io::OpenVolume(input, io::OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
                                       std::fprintf(stderr, "tandem info: %s\n", line.c_str());
                                     }});
   if (!src.ok()) return Fail(src.status());
@@ -113,7 +114,7 @@ int InfoCommand(int argc, char** argv) {
   std::printf("isovalues %s\n", isos.empty() ? "(none suggested)" : isos.c_str());
   if (!i.description.empty()) std::printf("about    %s\n", i.description.c_str());
   if (no_values || i.nz == 0) return 0;
-  auto stats = ScanValues(**src, input, OpenOptions{.dicom_series = series});
+  auto stats = ScanValues(**src, input, io::OpenOptions{.dicom_series = series});
   if (!stats.ok()) return Fail(stats.status());
   if (stats->count == 0) {
     std::printf("values   none finite\n");

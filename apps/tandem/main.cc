@@ -11,7 +11,7 @@
 
 #include "absl/status/status.h"
 #include "apps/common/version.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/tandem.h"
 
 namespace {

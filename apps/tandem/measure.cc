@@ -7,7 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/eval/distance.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/eval/report.h"
@@ -50,9 +50,9 @@ int MeasureCommand(int argc, char** argv) {
           absl::InvalidArgumentError(absl::StrCat(path, ": expected a .ply, .obj or .stl mesh")));
     }
   }
-  auto a = ReadMesh(flags.positional()[0]);
+  auto a = io::ReadMesh(flags.positional()[0]);
   if (!a.ok()) return Fail(a.status());
-  auto b = ReadMesh(flags.positional()[1]);
+  auto b = io::ReadMesh(flags.positional()[1]);
   if (!b.ok()) return Fail(b.status());
   if (a->num_triangles() == 0 || b->num_triangles() == 0) {
     return Fail(absl::InvalidArgumentError("both meshes need at least one triangle"));

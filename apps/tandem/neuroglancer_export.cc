@@ -1,5 +1,5 @@
 // The Neuroglancer export's glue: io's format with the codec's Draco fragments.
-#include "apps/tandem/neuroglancer_export.h"
+#include "neuroglancer_export.h"
 
 #include <algorithm>
 #include <utility>

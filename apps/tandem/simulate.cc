@@ -19,7 +19,8 @@
 #include "absl/strings/str_cat.h"
 #include "apps/common/cli_util.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
 #include "tandem/volume.h"
@@ -58,7 +59,7 @@ absl::StatusOr<std::vector<int64_t>> InstanceNumbers(const std::string& how, int
     } else if (how == "equal") {
       v = 1;
     } else if (how == "absent") {
-      v = DicomSliceWriter::kNoInstanceNumber;
+      v = io::DicomSliceWriter::kNoInstanceNumber;
     } else {
       return absl::InvalidArgumentError(
           absl::StrCat("--numbering '", how,
@@ -72,10 +73,10 @@ absl::StatusOr<std::vector<int64_t>> InstanceNumbers(const std::string& how, int
 // The localizer a CT takes before its stack: a front and a side projection (maxima along y
 // and along x, head up), in the volume's frame and voxel type; one pass over the volume.
 absl::Status WriteScout(
-    const std::string& input, const VolumeInfo& info, const DicomWriteOptions& stack_opts,
-    const std::function<absl::Status(const std::string&, const DicomSliceWriter&, int64_t,
+    const std::string& input, const VolumeInfo& info, const io::DicomWriteOptions& stack_opts,
+    const std::function<absl::Status(const std::string&, const io::DicomSliceWriter&, int64_t,
                                      const std::vector<uint8_t>&)>& put) {
-  auto src = OpenVolume(input);
+  auto src = io::OpenVolume(input);
   if (!src.ok()) return src.status();
   const int64_t nx = info.nx, ny = info.ny, nz = info.nz;
   const float none = -std::numeric_limits<float>::infinity();
@@ -97,12 +98,12 @@ absl::Status WriteScout(
       }
     }
   }
-  DicomWriteOptions o = stack_opts;
+  io::DicomWriteOptions o = stack_opts;
   o.series_description = "Scout";
   o.image_type = "ORIGINAL\\PRIMARY\\LOCALIZER";
   o.series_uid = "1.2.826.0.1.3680043.2.1125.7.1";
   for (int image = 0; image < 2; ++image) {
-    const VolumeInfo si = LocalizerGrid(info, image);
+    const VolumeInfo si = io::LocalizerGrid(info, image);
     const std::vector<float>& values = image == 0 ? front : side;
     std::vector<uint8_t> bytes(values.size() * DTypeSize(info.dtype));
     for (size_t i = 0; i < values.size(); ++i) {
@@ -133,7 +134,7 @@ absl::Status WriteScout(
               absl::StrCat("a DICOM scout of ", std::string(DTypeName(info.dtype)), " voxels"));
       }
     }
-    auto w = DicomSliceWriter::Create(si, o);
+    auto w = io::DicomSliceWriter::Create(si, o);
     if (!w.ok()) return w.status();
     if (absl::Status st = put(absl::StrCat("1.2.826.0.1.3680043.2.1125.7.", image + 1, ".dcm"), *w,
                               image + 1, bytes);
@@ -196,7 +197,7 @@ int SimulateCommand(int argc, char** argv) {
   if (rate < 0 || burst < 1) {
     return Usage(absl::InvalidArgumentError("--rate must be >= 0 and --burst >= 1"));
   }
-  auto src = OpenVolume(input);
+  auto src = io::OpenVolume(input);
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo info = (*src)->info();
   auto numbers = InstanceNumbers(numbering, info.nz, burst, static_cast<uint32_t>(seed) + 1);
@@ -208,12 +209,12 @@ int SimulateCommand(int argc, char** argv) {
                                                       "writes a fresh acquisition)")));
   }
   // Slices are read as they are written (one burst in memory for DICOM).
-  DicomWriteOptions dopt;
-  std::unique_ptr<ZarrAppender> zarr;
-  std::optional<DicomSliceWriter> dicom;
+  io::DicomWriteOptions dopt;
+  std::unique_ptr<io::ZarrAppender> zarr;
+  std::optional<io::DicomSliceWriter> dicom;
   if (as == "dicom") {
     if (info.dtype == DType::kFloat32) {  // the quantization needs the range: one pass first
-      auto scan = OpenVolume(input);
+      auto scan = io::OpenVolume(input);
       if (!scan.ok()) return Fail(scan.status());
       std::vector<uint8_t> b;
       float lo = std::numeric_limits<float>::infinity(), hi = -lo;
@@ -228,20 +229,20 @@ int SimulateCommand(int argc, char** argv) {
       dopt.float_min = std::isfinite(lo) ? lo : 0.0f;
       dopt.float_max = std::isfinite(hi) ? hi : 0.0f;
     }
-    auto w = DicomSliceWriter::Create(info, dopt);
+    auto w = io::DicomSliceWriter::Create(info, dopt);
     if (!w.ok()) return Fail(w.status());
     dicom.emplace(*std::move(w));
   } else if (as == "zarr") {
-    ZarrWriteOptions zo;
+    io::ZarrWriteOptions zo;
     zo.chunks = {4, 256, 256};
-    auto w = ZarrAppender::Create(out, info, zo);
+    auto w = io::ZarrAppender::Create(out, info, zo);
     if (!w.ok()) return Fail(w.status());
     zarr = *std::move(w);
   }
   if (as != "zarr") std::filesystem::create_directories(out, ec);
   if (ec) return Fail(absl::InternalError(absl::StrCat(out, ": ", ec.message())));
   // A DICOM file goes in under its name, or through a temporary one (--temp-names).
-  auto put = [&](const std::string& name, const DicomSliceWriter& writer, int64_t z,
+  auto put = [&](const std::string& name, const io::DicomSliceWriter& writer, int64_t z,
                  const std::vector<uint8_t>& bytes, int64_t instance) -> absl::Status {
     const std::filesystem::path dir(out), path = dir / name;
     if (temp_names == "none") return writer.Write(path.string(), z, bytes, instance);
@@ -259,7 +260,7 @@ int SimulateCommand(int argc, char** argv) {
   if (scout) {
     absl::Status st = WriteScout(
         input, info, dopt,
-        [&](const std::string& name, const DicomSliceWriter& w, int64_t instance,
+        [&](const std::string& name, const io::DicomSliceWriter& w, int64_t instance,
             const std::vector<uint8_t>& bytes) { return put(name, w, 0, bytes, instance); });
     if (!st.ok()) return Fail(st);
   }
@@ -297,7 +298,7 @@ int SimulateCommand(int argc, char** argv) {
       char name[32];
       std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
       pace(written);
-      st = WriteTiffSlice((std::filesystem::path(out) / name).string(), info, z, bytes);
+      st = io::WriteTiffSlice((std::filesystem::path(out) / name).string(), info, z, bytes);
       ++written;
     } else if (as == "zarr") {
       pace(written);

@@ -15,7 +15,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "apps/common/flags.h"
-#include "apps/tandem/command.h"
+#include "command.h"
 #include "tandem/viewer/view_server.h"
 
 namespace tandem::app {

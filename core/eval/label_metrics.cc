@@ -3,6 +3,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_replace.h"
 #include "nlohmann/json.hpp"
 #include "tandem/eval/metrics.h"
 #include "tandem/eval/topology.h"
@@ -37,27 +38,29 @@ LabelMetrics MeasureLabel(LabelId label, const IndexedMesh& mesh) {
 
 namespace {
 
+nlohmann::ordered_json LabelJson(const LabelMetrics& m) {
+  constexpr LabelId kExactInJs = LabelId{1} << 53;
+  nlohmann::ordered_json j;
+  if (m.label < kExactInJs) {
+    j["label"] = m.label;
+  } else {
+    j["label"] = absl::StrCat(m.label);
+  }
+  j["name"] = m.name;
+  j["triangles"] = m.triangles;
+  j["vertices"] = m.vertices;
+  j["area"] = m.area;
+  j["volume"] = m.closed ? nlohmann::ordered_json(m.volume) : nlohmann::ordered_json(nullptr);
+  j["euler"] = m.euler;
+  j["components"] = m.components;
+  j["manifold"] = m.manifold;
+  j["closed"] = m.closed;
+  return j;
+}
+
 nlohmann::ordered_json LabelsJson(const std::vector<LabelMetrics>& labels) {
   nlohmann::ordered_json a = nlohmann::ordered_json::array();
-  constexpr LabelId kExactInJs = LabelId{1} << 53;
-  for (const LabelMetrics& m : labels) {
-    nlohmann::ordered_json j;
-    if (m.label < kExactInJs) {
-      j["label"] = m.label;
-    } else {
-      j["label"] = absl::StrCat(m.label);
-    }
-    j["name"] = m.name;
-    j["triangles"] = m.triangles;
-    j["vertices"] = m.vertices;
-    j["area"] = m.area;
-    j["volume"] = m.closed ? nlohmann::ordered_json(m.volume) : nlohmann::ordered_json(nullptr);
-    j["euler"] = m.euler;
-    j["components"] = m.components;
-    j["manifold"] = m.manifold;
-    j["closed"] = m.closed;
-    a.push_back(std::move(j));
-  }
+  for (const LabelMetrics& m : labels) a.push_back(LabelJson(m));
   return a;
 }
 
@@ -69,9 +72,20 @@ std::string LabelMetricsToJson(const std::vector<LabelMetrics>& labels) {
 
 std::string ReportWithLabelsToJson(const MetricsReport& report,
                                    const std::vector<LabelMetrics>& labels) {
-  nlohmann::ordered_json j = nlohmann::ordered_json::parse(ReportToJson(report));
-  j["labels"] = LabelsJson(labels);
-  return j.dump(1, ' ', false, nlohmann::ordered_json::error_handler_t::replace) + "\n";
+  using Json = nlohmann::ordered_json;
+  Json j = Json::parse(ReportToJson(report));
+  j["labels"] = Json::array();
+  std::string s = j.dump(1, ' ', false, Json::error_handler_t::replace);
+  if (labels.empty()) return s + "\n";
+  // The labels one at a time, indented as inside the whole tree: as one tree, a million
+  // labels' figures held gigabytes.
+  s.resize(s.size() - 3);  // "]\n}" off: the text ends in "labels": [
+  for (size_t i = 0; i < labels.size(); ++i) {
+    const std::string item =
+        LabelJson(labels[i]).dump(1, ' ', false, Json::error_handler_t::replace);
+    absl::StrAppend(&s, i == 0 ? "\n  " : ",\n  ", absl::StrReplaceAll(item, {{"\n", "\n  "}}));
+  }
+  return s + "\n ]\n}\n";
 }
 
 std::string LabelMetricsSummary(const std::vector<LabelMetrics>& labels) {

@@ -22,7 +22,7 @@
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace internal {
 
 // ---------------------------------------------------------------------------------------
@@ -272,4 +272,4 @@ absl::StatusOr<std::unique_ptr<ByteWriter>> ByteWriter::Open(const std::string& 
 }
 
 }  // namespace internal
-}  // namespace tandem
+}  // namespace tandem::io

@@ -11,7 +11,7 @@
 #include "tandem/geometry.h"
 #include "tandem/io/mesh_io.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using internal::meshio::AppendObjFace;
@@ -202,4 +202,4 @@ absl::Status ChunkedMeshWriter::Finish() {
   return absl::OkStatus();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -22,7 +22,7 @@
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace internal {
 
 // ---------------------------------------------------------------------------------------
@@ -259,4 +259,4 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenStreamVolume(StreamVolumeSpec s
 }
 
 }  // namespace internal
-}  // namespace tandem
+}  // namespace tandem::io

@@ -27,7 +27,7 @@
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 namespace {
 
 // GDCM reports problems through gdcm::Trace on stderr; our errors carry the file names.
@@ -411,8 +411,8 @@ constexpr Codec kCodec{kDicomCodecAbi, &ReadHeader, &ReadPixels, &WriteSlice, &G
                        &OnFailedAssertion};
 
 }  // namespace
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom
 
-extern "C" __attribute__((visibility("default"))) const tandem::dicom::Codec* tandem_dicom_codec() {
-  return &tandem::dicom::kCodec;
+extern "C" __attribute__((visibility("default"))) const tandem::io::dicom::Codec* tandem_dicom_codec() {
+  return &tandem::io::dicom::kCodec;
 }

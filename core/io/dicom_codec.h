@@ -22,7 +22,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 
 // What the header of one file says (only what ordering and checking need).
 struct SliceHeader {
@@ -91,6 +91,6 @@ inline constexpr const char kModuleName[] = "libtandem_dicom.so";
 // searched when the module is missing or does not load.
 absl::StatusOr<const Codec*> LoadCodec();
 
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom
 
 #endif  // TANDEM_IO_DICOM_CODEC_H_

@@ -6,7 +6,7 @@
 #include "dicom_codec.h"
 #include "tandem/module/module_loader.h"
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 namespace {
 
 struct Loaded {
@@ -16,7 +16,7 @@ struct Loaded {
 
 Loaded Load() {
   const Codec* codec = nullptr;
-  absl::StatusOr<void*> entry = LoadModuleEntry(kModuleName, kCodecEntryName, [&](void* e) {
+  absl::StatusOr<void*> entry = module::LoadModuleEntry(kModuleName, kCodecEntryName, [&](void* e) {
     codec = reinterpret_cast<CodecEntry*>(e)();
     if (codec != nullptr && codec->abi == kDicomCodecAbi) return absl::OkStatus();
     return absl::FailedPreconditionError(absl::StrCat(
@@ -39,4 +39,4 @@ absl::StatusOr<const Codec*> LoadCodec() {
   return loaded.codec;
 }
 
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom

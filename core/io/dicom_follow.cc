@@ -15,7 +15,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using internal::FormatDouble;
@@ -514,4 +514,4 @@ std::unique_ptr<internal::Growing> internal::MakeGrowingDicom(
   return std::make_unique<GrowingDicom>(dir, stable_s, done_file, series, std::move(note));
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -16,7 +16,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 namespace {
 
 constexpr uint64_t kUndefined = 0xffffffffu;
@@ -538,4 +538,4 @@ absl::Status ScanFile(const std::string& path, const ScanLimits& limits, ScanRes
   return w.status;
 }
 
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom

@@ -19,7 +19,7 @@
 
 #include "absl/status/status.h"
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 
 struct ScanLimits {
   int max_depth = 32;                  // sequences inside sequences (real images: under 10)
@@ -42,6 +42,6 @@ struct ScanResult {
 absl::Status ScanFile(const std::string& path, const ScanLimits& limits = {},
                       ScanResult* result = nullptr);
 
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom
 
 #endif  // TANDEM_IO_DICOM_SCAN_H_

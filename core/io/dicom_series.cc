@@ -19,7 +19,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem::internal::dicom_series {
+namespace tandem::io::internal::dicom_series {
 
 Vec Cross(const Vec& a, const Vec& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
@@ -375,4 +375,4 @@ absl::StatusOr<std::string> PickSeries(const std::string& dir,
   return stacks.front()->uid;
 }
 
-}  // namespace tandem::internal::dicom_series
+}  // namespace tandem::io::internal::dicom_series

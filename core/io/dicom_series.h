@@ -15,7 +15,7 @@
 #include "dicom_codec.h"
 #include "tandem/volume.h"
 
-namespace tandem::internal::dicom_series {
+namespace tandem::io::internal::dicom_series {
 
 using Vec = std::array<double, 3>;
 using dicom::SliceHeader;
@@ -96,6 +96,6 @@ absl::StatusOr<std::string> PickSeries(const std::string& dir,
                                        const std::vector<SeriesSummary>& all,
                                        const std::string& want, const Note& note);
 
-}  // namespace tandem::internal::dicom_series
+}  // namespace tandem::io::internal::dicom_series
 
 #endif  // TANDEM_IO_DICOM_SERIES_H_

@@ -16,7 +16,7 @@
 
 #include "dicom_codec.h"
 
-namespace tandem::dicom::wire {
+namespace tandem::io::dicom::wire {
 
 enum Op : uint8_t {
   kHeader = 1,     // arg unused; payload: u8 has_slice, then the SliceHeader
@@ -143,6 +143,6 @@ inline bool DecodeHeader(Reader* r, std::optional<SliceHeader>* out) {
   return r->ok();
 }
 
-}  // namespace tandem::dicom::wire
+}  // namespace tandem::io::dicom::wire
 
 #endif  // TANDEM_IO_DICOM_WIRE_H_

@@ -32,20 +32,20 @@
 #define TANDEM_SANITIZED 1
 #endif
 
-extern "C" const tandem::dicom::Codec* tandem_dicom_codec();
+extern "C" const tandem::io::dicom::Codec* tandem_dicom_codec();
 
 namespace {
 
-using tandem::dicom::wire::Reader;
-using tandem::dicom::wire::Writer;
+using tandem::io::dicom::wire::Reader;
+using tandem::io::dicom::wire::Writer;
 
-const tandem::dicom::Codec* g_codec = nullptr;
+const tandem::io::dicom::Codec* g_codec = nullptr;
 bool g_assertion_failed = false;
 
 bool ReadFull(void* dst, size_t n) {
   char* p = static_cast<char*>(dst);
   while (n > 0) {
-    const ssize_t got = ::recv(tandem::dicom::wire::kSocketFd, p, n, 0);
+    const ssize_t got = ::recv(tandem::io::dicom::wire::kSocketFd, p, n, 0);
     if (got < 0 && errno == EINTR) continue;
     if (got <= 0) return false;
     p += got;
@@ -57,7 +57,7 @@ bool ReadFull(void* dst, size_t n) {
 bool WriteFull(const void* src, size_t n) {
   const char* p = static_cast<const char*>(src);
   while (n > 0) {
-    const ssize_t put = ::send(tandem::dicom::wire::kSocketFd, p, n, MSG_NOSIGNAL);
+    const ssize_t put = ::send(tandem::io::dicom::wire::kSocketFd, p, n, MSG_NOSIGNAL);
     if (put < 0 && errno == EINTR) continue;
     if (put <= 0) return false;
     p += put;
@@ -97,19 +97,19 @@ bool Misbehave(uint64_t what) {
 }
 
 bool Serve(uint8_t op, uint64_t arg, const std::string& path) {
-  if (op == tandem::dicom::wire::kHeader) {
-    absl::StatusOr<std::optional<tandem::dicom::SliceHeader>> h = g_codec->read_header(path);
+  if (op == tandem::io::dicom::wire::kHeader) {
+    absl::StatusOr<std::optional<tandem::io::dicom::SliceHeader>> h = g_codec->read_header(path);
     if (!h.ok()) return Reply(h.status(), nullptr, 0);
     Writer w;
-    tandem::dicom::wire::EncodeHeader(*h, &w);
+    tandem::io::dicom::wire::EncodeHeader(*h, &w);
     return Reply(absl::OkStatus(), w.out().data(), w.out().size());
   }
-  if (op == tandem::dicom::wire::kPixels) {
+  if (op == tandem::io::dicom::wire::kPixels) {
     // Straight into the caller's shared memory, mapped again when the caller grew it.
     static void* mapped = MAP_FAILED;
     static size_t mapped_size = 0;
     struct stat st;
-    if (::fstat(tandem::dicom::wire::kSharedFd, &st) != 0 ||
+    if (::fstat(tandem::io::dicom::wire::kSharedFd, &st) != 0 ||
         static_cast<uint64_t>(st.st_size) < arg) {
       return Reply(absl::InternalError("the shared pixel buffer is too small"), nullptr, 0);
     }
@@ -117,7 +117,7 @@ bool Serve(uint8_t op, uint64_t arg, const std::string& path) {
       if (mapped != MAP_FAILED) ::munmap(mapped, mapped_size);
       mapped_size = static_cast<size_t>(st.st_size);
       mapped = ::mmap(nullptr, mapped_size, PROT_READ | PROT_WRITE, MAP_SHARED,
-                      tandem::dicom::wire::kSharedFd, 0);
+                      tandem::io::dicom::wire::kSharedFd, 0);
       if (mapped == MAP_FAILED) {
         mapped_size = 0;
         return Reply(absl::ResourceExhaustedError("cannot map the shared pixel buffer"), nullptr,
@@ -128,7 +128,7 @@ bool Serve(uint8_t op, uint64_t arg, const std::string& path) {
         g_codec->read_pixels(path, static_cast<size_t>(arg), static_cast<uint8_t*>(mapped)),
         nullptr, 0);
   }
-  if (op == tandem::dicom::wire::kMisbehave) return Misbehave(arg);
+  if (op == tandem::io::dicom::wire::kMisbehave) return Misbehave(arg);
   return Reply(absl::InvalidArgumentError("unknown request"), nullptr, 0);
 }
 
@@ -148,7 +148,7 @@ extern "C" void __assert_fail(const char* assertion, const char* file, unsigned 
 
 int main() {
   // Nothing the parent left open (a listening socket, a file being written) stays open here.
-  ::close_range(tandem::dicom::wire::kSharedFd + 1, ~0u, 0);
+  ::close_range(tandem::io::dicom::wire::kSharedFd + 1, ~0u, 0);
   const rlimit no_core{0, 0};
   ::setrlimit(RLIMIT_CORE, &no_core);
 #ifndef TANDEM_SANITIZED
@@ -165,14 +165,14 @@ int main() {
   g_codec = tandem_dicom_codec();
   for (;;) {
     uint32_t size = 0;
-    if (!ReadFull(&size, 4) || size < tandem::dicom::wire::kRequestFixed || size > (1u << 20)) {
+    if (!ReadFull(&size, 4) || size < tandem::io::dicom::wire::kRequestFixed || size > (1u << 20)) {
       _exit(0);  // the caller is gone (or confused): no leak check, no destructors
     }
     std::string request(size, '\0');
     if (!ReadFull(request.data(), size)) _exit(0);
-    Reader r(request.data(), tandem::dicom::wire::kRequestFixed);
+    Reader r(request.data(), tandem::io::dicom::wire::kRequestFixed);
     const uint8_t op = r.U8();
     const uint64_t arg = r.U64();
-    if (!Serve(op, arg, request.substr(tandem::dicom::wire::kRequestFixed))) _exit(0);
+    if (!Serve(op, arg, request.substr(tandem::io::dicom::wire::kRequestFixed))) _exit(0);
   }
 }

@@ -22,7 +22,7 @@
 
 extern char** environ;
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -54,7 +54,7 @@ std::vector<Worker>& Idle() {
 
 absl::StatusOr<std::string> FindWorker() {
   std::vector<std::string> tried;
-  for (const std::string& place : ModulePlaces(kWorkerName)) {
+  for (const std::string& place : module::ModulePlaces(kWorkerName)) {
     if (::access(place.c_str(), X_OK) == 0) return place;
     tried.push_back(absl::StrCat(place, ": ", std::strerror(errno)));
   }
@@ -316,4 +316,4 @@ absl::Status Misbehave(int what) {
 void SetTimeLimit(double seconds) { g_time_limit.store(seconds); }
 
 }  // namespace testing
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom

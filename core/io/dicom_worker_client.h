@@ -17,7 +17,7 @@
 #include "absl/status/statusor.h"
 #include "dicom_codec.h"
 
-namespace tandem::dicom {
+namespace tandem::io::dicom {
 
 inline constexpr char kWorkerName[] = "tandem-dicom-worker";
 
@@ -33,6 +33,6 @@ absl::Status Misbehave(int what);
 void SetTimeLimit(double seconds);
 }  // namespace testing
 
-}  // namespace tandem::dicom
+}  // namespace tandem::io::dicom
 
 #endif  // TANDEM_IO_DICOM_WORKER_CLIENT_H_

@@ -14,7 +14,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using internal::FormatDouble;
@@ -198,4 +198,4 @@ absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
   return absl::OkStatus();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -15,7 +15,7 @@
 #include "tandem/io/zarr.h"
 #include "zarr_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -355,4 +355,4 @@ absl::StatusOr<std::unique_ptr<SliceSource>> FollowVolume(const std::string& pat
   return std::unique_ptr<SliceSource>(std::move(source));
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

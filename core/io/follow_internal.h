@@ -13,7 +13,7 @@
 #include "absl/status/statusor.h"
 #include "tandem/volume.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 
 class Growing {
  public:
@@ -43,6 +43,6 @@ std::unique_ptr<Growing> MakeGrowingDicom(const std::string& dir, double stable_
                                           const std::string& done_file, const std::string& series,
                                           std::function<void(const std::string&)> note);
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal
 
 #endif  // TANDEM_SRC_FOLLOW_INTERNAL_H_

@@ -9,11 +9,12 @@
 
 #include "absl/strings/str_cat.h"
 #include "dicom_series.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
 using internal::dicom_series::CheckInLine;
@@ -143,4 +144,4 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
   return std::unique_ptr<SliceSource>(new DicomSliceSource(std::move(slices), std::move(info), plan));
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

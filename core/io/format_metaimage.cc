@@ -30,7 +30,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 namespace {
 
 absl::Status MetaError(const std::string& path, absl::string_view what) {
@@ -293,4 +293,4 @@ absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,
   return WriteHeaderThenVoxels(path, header, data_path, info, slice_fn, opts);
 }
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal

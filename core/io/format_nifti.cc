@@ -21,7 +21,7 @@
 #include "absl/strings/str_cat.h"
 #include "volume_io_internal.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 namespace {
 
 namespace nh = nifti;
@@ -354,4 +354,4 @@ absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const S
   return st;
 }
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal

@@ -23,7 +23,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 namespace {
 
 absl::Status NrrdError(const std::string& path, absl::string_view what) {
@@ -387,4 +387,4 @@ absl::Status WriteNrrd(const std::string& path, const VolumeInfo& info, const Sl
   return WriteHeaderThenVoxels(path, header, data_path, info, slice_fn, opts);
 }
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal

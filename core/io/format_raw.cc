@@ -21,7 +21,7 @@
 #include "tandem/status_macros.h"
 #include "volume_io_internal.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 namespace {
 
 using nlohmann::json;
@@ -299,4 +299,4 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
   return WriteText(path, j.dump(1, ' ', false, ojson::error_handler_t::replace));
 }
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal

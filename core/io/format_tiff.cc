@@ -36,7 +36,7 @@
 #include "volume_io_internal.h"
 #include "tandem/io/series.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 namespace {
 
 int CollectMessage(TIFF* /*tif*/, void* user_data, const char* module, const char* fmt,
@@ -548,9 +548,9 @@ absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
   return f.Close();
 }
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal
 
-namespace tandem {
+namespace tandem::io {
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffSequence(
     const std::string& dir, const std::vector<std::string>& files) {
@@ -602,4 +602,4 @@ absl::Status WriteTiffSequence(const std::string& dir, const VolumeInfo& info,
   return absl::OkStatus();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -30,7 +30,7 @@
 #include "zarr_internal.h"
 #include "zarr_metadata.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace internal {
 namespace {
 
@@ -476,4 +476,4 @@ absl::StatusOr<int64_t> CountCompleteZarrPlanes(const std::string& path,
   return (*src)->CompletePlanes(known);
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

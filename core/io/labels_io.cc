@@ -11,6 +11,7 @@
 #include <fstream>
 #include <set>
 
+#include "absl/functional/function_ref.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/match.h"
 #include "absl/strings/numbers.h"
@@ -20,10 +21,11 @@
 #include "mesh_io_internal.h"
 #include "nlohmann/json.hpp"
 
-namespace tandem {
+namespace tandem::io {
 namespace {
 
-using internal::meshio::AppendGlbContainer;
+using internal::meshio::AppendGlbBinHeader;
+using internal::meshio::AppendGlbHeader;
 using internal::meshio::AppendVec3;
 using internal::meshio::BufferedWriter;
 
@@ -265,22 +267,154 @@ absl::StatusOr<std::vector<LabelFile>> WriteLabelMeshes(
   return files;
 }
 
+namespace {
+
+using Json = nlohmann::json;
+
+bool HasMesh(const IndexedMesh& mesh) { return mesh.num_vertices() > 0 && !mesh.indices.empty(); }
+// A surface's part of the binary payload: positions, normals, indices.
+size_t PayloadBytes(const IndexedMesh& mesh) {
+  return HasMesh(mesh) ? 24 * mesh.num_vertices() + 4 * mesh.indices.size() : 0;
+}
+
+// labels.glb's JSON document, emitted a part at a time into `out`, each part dumped as it
+// is inside the whole document (compact, keys sorted): as one tree, a million labels' JSON
+// held gigabytes. Returns the binary payload's bytes.
+size_t EmitLabelsGltf(const std::vector<std::pair<LabelId, IndexedMesh>>& surfaces,
+                      const LabelNames* names, Space space,
+                      absl::FunctionRef<void(absl::string_view)> out) {
+  const auto dump = [&](const Json& j) {
+    out(j.dump(-1, ' ', false, Json::error_handler_t::replace));
+  };
+  // part(order, m, byte) per surface with a mesh: m counts those before it, byte their payload.
+  const auto each_mesh = [&](auto&& part) {
+    size_t m = 0, byte = 0;
+    for (size_t order = 0; order < surfaces.size(); ++order) {
+      const IndexedMesh& mesh = surfaces[order].second;
+      if (!HasMesh(mesh)) continue;
+      part(order, m, byte);
+      ++m;
+      byte += PayloadBytes(mesh);
+    }
+    return byte;
+  };
+  const auto array = [&](absl::string_view key, auto&& items) {
+    out(absl::StrCat("\"", key, "\":["));
+    bool first = true;
+    items([&](const Json& item) {
+      if (!first) out(",");
+      first = false;
+      dump(item);
+    });
+    out("]");
+  };
+  const size_t bytes = each_mesh([](size_t, size_t, size_t) {});
+  out("{");
+  if (bytes > 0) {  // glTF forbids empty arrays and buffers
+    array("accessors", [&](auto item) {
+      each_mesh([&](size_t order, size_t m, size_t) {
+        const IndexedMesh& mesh = surfaces[order].second;
+        const size_t nv = mesh.num_vertices();
+        std::array<double, 3> lo{}, hi{};
+        for (size_t v = 0; v < nv; ++v) {
+          for (int k = 0; k < 3; ++k) {
+            const double x = static_cast<float>(mesh.positions[v][k]);  // as stored
+            lo[k] = v == 0 ? x : std::min(lo[k], x);
+            hi[k] = v == 0 ? x : std::max(hi[k], x);
+          }
+        }
+        item({{"bufferView", 3 * m},
+              {"componentType", 5126},
+              {"count", nv},
+              {"type", "VEC3"},
+              {"min", lo},
+              {"max", hi}});
+        item({{"bufferView", 3 * m + 1}, {"componentType", 5126}, {"count", nv}, {"type", "VEC3"}});
+        item({{"bufferView", 3 * m + 2},
+              {"componentType", 5125},
+              {"count", mesh.indices.size()},
+              {"type", "SCALAR"}});
+      });
+    });
+    out(",");
+  }
+  out("\"asset\":");
+  dump({{"version", "2.0"},
+        {"generator", "tandem"},
+        {"extras", {{"frame", std::string(SpaceName(space))}}}});
+  if (bytes > 0) {
+    out(",");
+    array("bufferViews", [&](auto item) {
+      each_mesh([&](size_t order, size_t, size_t byte) {
+        const IndexedMesh& mesh = surfaces[order].second;
+        const size_t nv = mesh.num_vertices();
+        item({{"buffer", 0}, {"byteOffset", byte}, {"byteLength", 12 * nv}, {"target", 34962}});
+        item({{"buffer", 0},
+              {"byteOffset", byte + 12 * nv},
+              {"byteLength", 12 * nv},
+              {"target", 34962}});
+        item({{"buffer", 0},
+              {"byteOffset", byte + 24 * nv},
+              {"byteLength", 4 * mesh.indices.size()},
+              {"target", 34963}});
+      });
+    });
+    out(",\"buffers\":[");
+    dump({{"byteLength", bytes}});
+    out("],");
+    array("materials", [&](auto item) {
+      each_mesh([&](size_t order, size_t, size_t) {
+        const LabelId id = surfaces[order].first;
+        const std::array<uint8_t, 4> rgba = LabelColor(id, order, names);
+        // glTF's baseColorFactor is linear; the tables' colours are sRGB.
+        auto linear = [](uint8_t c) {
+          const double u = c / 255.0;
+          return u <= 0.04045 ? u / 12.92 : std::pow((u + 0.055) / 1.055, 2.4);
+        };
+        Json material = {{"name", DisplayName(id, names)},
+                         {"pbrMetallicRoughness",
+                          {{"baseColorFactor",
+                            {linear(rgba[0]), linear(rgba[1]), linear(rgba[2]), rgba[3] / 255.0}},
+                           {"metallicFactor", 0.0},
+                           {"roughnessFactor", 0.8}}},
+                         {"doubleSided", true}};
+        if (rgba[3] < 255) material["alphaMode"] = "BLEND";
+        item(material);
+      });
+    });
+    out(",");
+    array("meshes", [&](auto item) {
+      each_mesh([&](size_t order, size_t m, size_t) {
+        item({{"name", DisplayName(surfaces[order].first, names)},
+              {"primitives",
+               {{{"attributes", {{"POSITION", 3 * m}, {"NORMAL", 3 * m + 1}}},
+                 {"indices", 3 * m + 2},
+                 {"material", m},
+                 {"mode", 4}}}}});
+      });
+    });
+  }
+  out(",");
+  array("nodes", [&](auto item) {
+    size_t m = 0;
+    for (const auto& [id, mesh] : surfaces) {
+      Json node = {{"name", DisplayName(id, names)}, {"extras", {{"label", absl::StrCat(id)}}}};
+      if (HasMesh(mesh)) node["mesh"] = m++;
+      item(node);
+    }
+  });
+  out(",\"scene\":0,\"scenes\":[{\"nodes\":[");
+  for (size_t i = 0; i < surfaces.size(); ++i) out(absl::StrCat(i == 0 ? "" : ",", i));
+  out("]}]}");
+  return bytes;
+}
+
+}  // namespace
+
 absl::Status WriteLabelsGlb(const std::string& path,
                             const std::vector<std::pair<LabelId, IndexedMesh>>& surfaces,
                             const LabelNames* names, Space space) {
-  using Json = nlohmann::json;
-  Json nodes = Json::array(), meshes = Json::array(), materials = Json::array(),
-       accessors = Json::array(), views = Json::array();
-  std::vector<std::vector<Vec3>> normals;
-  size_t offset = 0;
-  const auto view = [&](size_t bytes, int target) {
-    views.push_back(
-        {{"buffer", 0}, {"byteOffset", offset}, {"byteLength", bytes}, {"target", target}});
-    offset += bytes;
-    return views.size() - 1;
-  };
-  for (size_t order = 0; order < surfaces.size(); ++order) {
-    const auto& [id, mesh] = surfaces[order];
+  for (const auto& [id, mesh] : surfaces) {
     for (uint32_t i : mesh.indices) {
       if (i >= mesh.num_vertices()) {
         return absl::InvalidArgumentError(absl::StrCat(path, ": label ", id, ": vertex index ", i,
@@ -288,79 +422,14 @@ absl::Status WriteLabelsGlb(const std::string& path,
                                                        " vertices)"));
       }
     }
-    const std::string name = DisplayName(id, names);
-    Json node = {{"name", name}, {"extras", {{"label", absl::StrCat(id)}}}};
-    normals.push_back(VertexNormals(mesh));
-    const size_t nv = mesh.num_vertices(), ni = mesh.indices.size();
-    if (nv > 0 && ni > 0) {
-      std::array<double, 3> lo{}, hi{};
-      for (size_t v = 0; v < nv; ++v) {
-        for (int k = 0; k < 3; ++k) {
-          const double x = static_cast<float>(mesh.positions[v][k]);  // as stored
-          lo[k] = v == 0 ? x : std::min(lo[k], x);
-          hi[k] = v == 0 ? x : std::max(hi[k], x);
-        }
-      }
-      const size_t first = accessors.size();
-      accessors.push_back({{"bufferView", view(12 * nv, 34962)},
-                           {"componentType", 5126},
-                           {"count", nv},
-                           {"type", "VEC3"},
-                           {"min", lo},
-                           {"max", hi}});
-      accessors.push_back({{"bufferView", view(12 * nv, 34962)},
-                           {"componentType", 5126},
-                           {"count", nv},
-                           {"type", "VEC3"}});
-      accessors.push_back({{"bufferView", view(4 * ni, 34963)},
-                           {"componentType", 5125},
-                           {"count", ni},
-                           {"type", "SCALAR"}});
-      const std::array<uint8_t, 4> rgba = LabelColor(id, order, names);
-      // glTF's baseColorFactor is linear; the tables' colours are sRGB.
-      auto linear = [](uint8_t c) {
-        const double u = c / 255.0;
-        return u <= 0.04045 ? u / 12.92 : std::pow((u + 0.055) / 1.055, 2.4);
-      };
-      Json material = {{"name", name},
-                       {"pbrMetallicRoughness",
-                        {{"baseColorFactor",
-                          {linear(rgba[0]), linear(rgba[1]), linear(rgba[2]), rgba[3] / 255.0}},
-                         {"metallicFactor", 0.0},
-                         {"roughnessFactor", 0.8}}},
-                       {"doubleSided", true}};
-      if (rgba[3] < 255) material["alphaMode"] = "BLEND";
-      materials.push_back(material);
-      meshes.push_back({{"name", name},
-                        {"primitives",
-                         {{{"attributes", {{"POSITION", first}, {"NORMAL", first + 1}}},
-                           {"indices", first + 2},
-                           {"material", materials.size() - 1},
-                           {"mode", 4}}}}});
-      node["mesh"] = meshes.size() - 1;
-    }
-    nodes.push_back(node);
   }
-  Json j;
-  j["asset"] = {{"version", "2.0"},
-                {"generator", "tandem"},
-                {"extras", {{"frame", std::string(SpaceName(space))}}}};
-  j["scene"] = 0;
-  Json roots = Json::array();
-  for (size_t i = 0; i < nodes.size(); ++i) roots.push_back(i);
-  j["scenes"] = Json::array({{{"nodes", roots}}});
-  j["nodes"] = nodes;
-  if (!meshes.empty()) {  // glTF forbids empty arrays and buffers
-    j["meshes"] = meshes;
-    j["materials"] = materials;
-    j["accessors"] = accessors;
-    j["bufferViews"] = views;
-    j["buffers"] = Json::array({{{"byteLength", offset}}});
-  }
-  std::string text = j.dump(-1, ' ', false, Json::error_handler_t::replace);
-  if (12 + 8 + text.size() + 3 + 8 + offset > UINT32_MAX) {
+  // The JSON twice, counted and then written, rather than held.
+  size_t json_bytes = 0;
+  const size_t bin_bytes = EmitLabelsGltf(surfaces, names, space,
+                                          [&](absl::string_view s) { json_bytes += s.size(); });
+  if (12 + 8 + json_bytes + 3 + 8 + bin_bytes > UINT32_MAX) {
     return absl::InvalidArgumentError(
-        absl::StrCat(path, ": the surfaces need ", offset, " bytes, past GLB's 4 GiB"));
+        absl::StrCat(path, ": the surfaces need ", bin_bytes, " bytes, past GLB's 4 GiB"));
   }
   std::FILE* file = std::fopen(path.c_str(), "wb");
   if (file == nullptr) {
@@ -368,15 +437,16 @@ absl::Status WriteLabelsGlb(const std::string& path,
         absl::StrCat(path, ": cannot open for writing: ", std::strerror(errno)));
   }
   BufferedWriter out(file);
-  AppendGlbContainer(out, std::move(text), offset);  // every part a multiple of 4 bytes
-  if (offset > 0) {
-    for (size_t s = 0; s < surfaces.size(); ++s) {
-      const IndexedMesh& mesh = surfaces[s].second;
-      if (mesh.num_vertices() == 0 || mesh.indices.empty()) continue;
-      for (const Vec3& p : mesh.positions) AppendVec3(out, p);
-      for (const Vec3& n : normals[s]) AppendVec3(out, Dot(n, n) > 0 ? n : Vec3{0, 0, 1});
-      for (uint32_t i : mesh.indices) out.AppendLe32(i);
-    }
+  const size_t padding = (4 - json_bytes % 4) % 4;  // every part a multiple of 4 bytes
+  AppendGlbHeader(out, json_bytes + padding, bin_bytes);
+  EmitLabelsGltf(surfaces, names, space, [&](absl::string_view s) { out.Append(s); });
+  out.Append("   ", padding);
+  AppendGlbBinHeader(out, bin_bytes);
+  for (const auto& [id, mesh] : surfaces) {
+    if (!HasMesh(mesh)) continue;
+    for (const Vec3& p : mesh.positions) AppendVec3(out, p);
+    for (const Vec3& n : VertexNormals(mesh)) AppendVec3(out, Dot(n, n) > 0 ? n : Vec3{0, 0, 1});
+    for (uint32_t i : mesh.indices) out.AppendLe32(i);
   }
   if (const int err = out.Close(); err != 0) {
     return absl::UnavailableError(absl::StrCat(path, ": write failed: ", std::strerror(err)));
@@ -384,4 +454,4 @@ absl::Status WriteLabelsGlb(const std::string& path,
   return absl::OkStatus();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

@@ -6,19 +6,27 @@
 #include "mesh_io_internal.h"
 #include "nlohmann/json.hpp"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
-void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes) {
-  json.append((4 - json.size() % 4) % 4, ' ');
+void AppendGlbHeader(BufferedWriter& out, size_t json_bytes, size_t bin_bytes) {
   out.AppendLe32(0x46546C67u);  // "glTF"
   out.AppendLe32(2);
-  out.AppendLe32(static_cast<uint32_t>(12 + 8 + json.size() + (bin_bytes > 0 ? 8 + bin_bytes : 0)));
-  out.AppendLe32(static_cast<uint32_t>(json.size()));
+  out.AppendLe32(static_cast<uint32_t>(12 + 8 + json_bytes + (bin_bytes > 0 ? 8 + bin_bytes : 0)));
+  out.AppendLe32(static_cast<uint32_t>(json_bytes));
   out.AppendLe32(0x4E4F534Au);  // "JSON"
-  out.Append(json);
+}
+
+void AppendGlbBinHeader(BufferedWriter& out, size_t bin_bytes) {
   if (bin_bytes == 0) return;
   out.AppendLe32(static_cast<uint32_t>(bin_bytes));
   out.AppendLe32(0x004E4942u);  // "BIN\0"
+}
+
+void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes) {
+  json.append((4 - json.size() % 4) % 4, ' ');
+  AppendGlbHeader(out, json.size(), bin_bytes);
+  out.Append(json);
+  AppendGlbBinHeader(out, bin_bytes);
 }
 
 // GLB (binary glTF 2.0): one mesh, one triangle primitive with POSITION, NORMAL (unit
@@ -106,4 +114,4 @@ void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
   for (uint32_t i : mesh.indices) out.AppendLe32(i);
 }
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio

@@ -19,7 +19,7 @@
 #include "mesh_io_internal.h"
 #include "tandem/geometry.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace internal::meshio {
 
 absl::Status Error(absl::StatusCode code, const std::string& path, absl::string_view what) {
@@ -163,4 +163,4 @@ absl::StatusOr<IndexedMesh> ReadMesh(const std::string& path) {
                "or .stl)");
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

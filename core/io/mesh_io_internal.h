@@ -21,7 +21,7 @@
 #include "tandem/io/mesh_io.h"
 #include "tandem/volume.h"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
 // A status whose message starts with the path.
 absl::Status Error(absl::StatusCode code, const std::string& path, absl::string_view what);
@@ -136,10 +136,14 @@ absl::StatusOr<IndexedMesh> ReadStl(const std::string& path, const std::string& 
 // padded here to 4 bytes with spaces) and, when bin_bytes > 0 (a multiple of 4), the BIN
 // chunk's header; the caller appends the payload.
 void AppendGlbContainer(BufferedWriter& out, std::string json, size_t bin_bytes);
+// The parts of that container: the header with the JSON chunk's (`json_bytes`, padded)
+// header; the BIN chunk's header (nothing when bin_bytes is 0).
+void AppendGlbHeader(BufferedWriter& out, size_t json_bytes, size_t bin_bytes);
+void AppendGlbBinHeader(BufferedWriter& out, size_t bin_bytes);
 // GLB, binary glTF 2.0 (mesh_glb.cc); with `draco`, the primitive is that Draco buffer.
 void WriteGlb(const IndexedMesh& mesh, const std::vector<Vec3>& normals,
               const GlbDracoPrimitive* draco, Space space, BufferedWriter& out);
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio
 
 #endif  // TANDEM_IO_MESH_IO_INTERNAL_H_

@@ -8,7 +8,7 @@
 #include "absl/strings/str_split.h"
 #include "mesh_io_internal.h"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
 void AppendObjVec3(BufferedWriter& out, absl::string_view tag, const Vec3& v) {
   out.Append(tag);
@@ -122,4 +122,4 @@ absl::StatusOr<IndexedMesh> ReadObj(const std::string& path, absl::string_view d
   return mesh;
 }
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio

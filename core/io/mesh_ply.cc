@@ -11,7 +11,7 @@
 #include "absl/strings/str_split.h"
 #include "mesh_io_internal.h"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
 void AppendPlyHeader(BufferedWriter& out, size_t vertices, size_t triangles, bool normals,
                      Space space) {
@@ -403,4 +403,4 @@ absl::StatusOr<IndexedMesh> ReadPly(const std::string& path, absl::string_view d
   return ReadPlyBody(path, *header, in);
 }
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio

@@ -9,7 +9,7 @@
 #include "mesh_io_internal.h"
 #include "tandem/geometry.h"
 
-namespace tandem::internal::meshio {
+namespace tandem::io::internal::meshio {
 
 // Binary STL: an 80-byte header, the triangle count, then per triangle its unit normal, its
 // three corners (float32) and a zero attribute word. STL has no shared vertices.
@@ -67,4 +67,4 @@ absl::StatusOr<IndexedMesh> ReadStl(const std::string& path, const std::string& 
   return mesh;
 }
 
-}  // namespace tandem::internal::meshio
+}  // namespace tandem::io::internal::meshio

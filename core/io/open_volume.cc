@@ -17,32 +17,16 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 
 using internal::Sv;
-
-absl::Status ValueRangeSource::ReadSlice(std::vector<uint8_t>* bytes) {
-  absl::Status st = inner_->ReadSlice(bytes);
-  if (st.ok()) Scan(bytes->data());
-  return st;
-}
-
-absl::Status ValueRangeSource::ViewSlice(const uint8_t** data) {
-  absl::Status st = inner_->ViewSlice(data);
-  if (st.ok() && *data != nullptr) Scan(*data);
-  return st;
-}
-
-void ValueRangeSource::Scan(const uint8_t* data) {
-  const VolumeInfo& info = inner_->info();
-  range_.Merge(RangeOf(info.dtype, data, static_cast<size_t>(info.slice_voxels())));
-}
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path) {
   return OpenVolume(path, OpenOptions{});
@@ -238,4 +222,4 @@ std::string VolumeExtension(const std::string& path) {
 }
 
 }  // namespace internal
-}  // namespace tandem
+}  // namespace tandem::io

@@ -2,7 +2,7 @@
 
 #include <utility>
 
-namespace tandem {
+namespace tandem::io {
 
 SlicePrefetcher::SlicePrefetcher(SliceSource* source, size_t depth)
     : source_(source), depth_(depth < 1 ? 1 : depth), thread_([this] { Run(); }) {}
@@ -57,4 +57,4 @@ absl::Status SlicePrefetcher::Next(std::vector<uint8_t>* bytes) {
   return absl::OkStatus();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

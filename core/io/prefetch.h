@@ -17,7 +17,7 @@
 #include "absl/status/status.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::io {
 
 class SlicePrefetcher {
  public:
@@ -50,6 +50,6 @@ class SlicePrefetcher {
   std::thread thread_;
 };
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_PREFETCH_H_

@@ -12,7 +12,7 @@
 #include "tandem/status_macros.h"
 #include "tandem/task_group.h"
 
-namespace tandem {
+namespace tandem::io {
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     SliceSource& source, const SessionOptions& options,
@@ -149,4 +149,4 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
   return sessions;
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

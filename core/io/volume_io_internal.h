@@ -26,7 +26,7 @@
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 
 inline constexpr bool kHostIsLittleEndian = std::endian::native == std::endian::little;
 
@@ -298,6 +298,6 @@ inline constexpr int16_t kTypeUInt8 = 2, kTypeInt16 = 4, kTypeInt32 = 8, kTypeFl
                          kTypeUInt64 = 1280;
 }  // namespace nifti
 
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal
 
 #endif  // TANDEM_SRC_READERS_INTERNAL_H_

@@ -16,7 +16,7 @@
 #include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace internal {
 
 absl::Status FetchSlice(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
@@ -211,4 +211,4 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
                    ".tif, .tiff, .mha, .mhd, .zarr"));
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

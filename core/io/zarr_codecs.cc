@@ -16,7 +16,7 @@
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
-namespace tandem::internal::zarr {
+namespace tandem::io::internal::zarr {
 namespace {
 
 // zlib's streams take unsigned counts; chunks are far below 4 GiB (the reader caps them).
@@ -256,4 +256,4 @@ absl::Status WriteFileAtomic(const std::string& path, const void* data, size_t n
   return absl::OkStatus();
 }
 
-}  // namespace tandem::internal::zarr
+}  // namespace tandem::io::internal::zarr

@@ -11,7 +11,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 
-namespace tandem::internal::zarr {
+namespace tandem::io::internal::zarr {
 
 // One bytes-to-bytes compression step (v2's `compressor`, or one of v3's `codecs`).
 struct Compression {
@@ -50,12 +50,12 @@ absl::Status ReadRangeAt(int fd, const std::string& path, uint64_t offset, uint6
 // a part (a chunk file that exists is complete).
 absl::Status WriteFileAtomic(const std::string& path, const void* data, size_t n);
 
-}  // namespace tandem::internal::zarr
+}  // namespace tandem::io::internal::zarr
 
-namespace tandem::internal {
+namespace tandem::io::internal {
 // OpenVolume's test: a path ending in ".zarr", or a directory holding .zarray, .zgroup,
 // .zattrs or zarr.json.
 bool LooksLikeZarr(const std::string& path);
-}  // namespace tandem::internal
+}  // namespace tandem::io::internal
 
 #endif  // TANDEM_SRC_ZARR_INTERNAL_H_

@@ -18,7 +18,7 @@
 #include "volume_io_internal.h"
 #include "zarr_metadata.h"
 
-namespace tandem::internal::zarr {
+namespace tandem::io::internal::zarr {
 namespace {
 
 using nlohmann::json;
@@ -531,4 +531,4 @@ absl::StatusOr<Node> LoadNode(const std::string& dir) {
   return node;
 }
 
-}  // namespace tandem::internal::zarr
+}  // namespace tandem::io::internal::zarr

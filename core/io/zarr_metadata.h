@@ -16,7 +16,7 @@
 #include "tandem/volume.h"
 #include "zarr_internal.h"
 
-namespace tandem::internal::zarr {
+namespace tandem::io::internal::zarr {
 
 // The metadata of one array, whichever version described it.
 struct ArrayMeta {
@@ -69,6 +69,6 @@ absl::StatusOr<Resolved> Resolve(const std::string& root, const std::string& sel
 absl::Status MetaError(const std::string& file, absl::string_view what);
 bool FileExists(const std::filesystem::path& p);
 
-}  // namespace tandem::internal::zarr
+}  // namespace tandem::io::internal::zarr
 
 #endif  // TANDEM_IO_ZARR_METADATA_H_

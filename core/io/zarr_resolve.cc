@@ -12,7 +12,7 @@
 #include "nlohmann/json.hpp"
 #include "zarr_metadata.h"
 
-namespace tandem::internal::zarr {
+namespace tandem::io::internal::zarr {
 namespace {
 
 using nlohmann::json;
@@ -232,4 +232,4 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
 }
 
 }  // namespace
-}  // namespace tandem::internal::zarr
+}  // namespace tandem::io::internal::zarr

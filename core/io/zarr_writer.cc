@@ -16,7 +16,7 @@
 #include "volume_io_internal.h"
 #include "zarr_internal.h"
 
-namespace tandem {
+namespace tandem::io {
 namespace internal {
 namespace {
 
@@ -331,4 +331,4 @@ absl::Status WriteZarr(const std::string& path, const VolumeInfo& info, const Sl
   return (*w)->Finish();
 }
 
-}  // namespace tandem
+}  // namespace tandem::io

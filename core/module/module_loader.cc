@@ -8,7 +8,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 
-namespace tandem {
+namespace tandem::module {
 
 std::vector<std::string> ModulePlaces(const std::string& module) {
   std::error_code ec;
@@ -47,4 +47,4 @@ absl::StatusOr<void*> LoadModuleEntry(const std::string& module, const std::stri
   return absl::NotFoundError(absl::StrJoin(problems, "; "));
 }
 
-}  // namespace tandem
+}  // namespace tandem::module

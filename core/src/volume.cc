@@ -325,6 +325,23 @@ ValueRange RangeOf(DType t, const uint8_t* src, size_t n) {
   return {};
 }
 
+absl::Status ValueRangeSource::ReadSlice(std::vector<uint8_t>* bytes) {
+  absl::Status st = inner_->ReadSlice(bytes);
+  if (st.ok()) Scan(bytes->data());
+  return st;
+}
+
+absl::Status ValueRangeSource::ViewSlice(const uint8_t** data) {
+  absl::Status st = inner_->ViewSlice(data);
+  if (st.ok() && *data != nullptr) Scan(*data);
+  return st;
+}
+
+void ValueRangeSource::Scan(const uint8_t* data) {
+  const VolumeInfo& info = inner_->info();
+  range_.Merge(RangeOf(info.dtype, data, static_cast<size_t>(info.slice_voxels())));
+}
+
 void ConvertToFloat(DType t, const uint8_t* src, size_t n, float* dst) {
   if (n == 0) return;  // dst may be null then (an empty vector's data), which memcpy may not get
   switch (t) {

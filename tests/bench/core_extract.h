@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "bench_common.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
@@ -16,12 +17,12 @@ namespace bench {
 
 inline void ExtractWithCore(const std::string& input, double iso, std::vector<float>* xyz,
                             std::vector<uint32_t>* indices) {
-  auto source = tandem::OpenVolume(input);
+  auto source = tandem::io::OpenVolume(input);
   if (!source.ok()) Die(std::string(source.status().message()));
   tandem::SessionOptions opt;
   opt.iso = iso;
   opt.schedule = tandem::Schedule::kNone;
-  auto session = tandem::RunSession(**source, opt);
+  auto session = tandem::io::RunSession(**source, opt);
   if (!session.ok()) Die(input + ": " + std::string(session.status().message()));
   tandem::IndexedMesh mesh = (*session)->Snapshot();
   session->reset();  // free the session's store before the simplifier allocates

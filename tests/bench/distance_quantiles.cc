@@ -63,8 +63,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "usage: distance_quantiles A.ply B.ply [SAMPLES]\n");
     return 2;
   }
-  const auto a = tandem::ReadMesh(argv[1]);
-  const auto b = tandem::ReadMesh(argv[2]);
+  const auto a = tandem::io::ReadMesh(argv[1]);
+  const auto b = tandem::io::ReadMesh(argv[2]);
   if (!a.ok() || !b.ok() || a->num_triangles() == 0 || b->num_triangles() == 0) {
     std::fprintf(stderr, "distance_quantiles: cannot read two non-empty meshes\n");
     return 1;

@@ -124,7 +124,7 @@ int Reference(const std::map<std::string, std::string>& f) {
   for (const LabelBox& box : labels::LabelBoxes(v)) {
     const tandem::IndexedMesh mesh = labels::ReferenceSurface(v, box);
     const auto path = dir / (std::to_string(box.id) + ".ply");
-    if (auto st = tandem::WriteMesh(path.string(), mesh); !st.ok()) Fail(std::string(st.message()));
+    if (auto st = tandem::io::WriteMesh(path.string(), mesh); !st.ok()) Fail(std::string(st.message()));
   }
   return 0;
 }
@@ -159,7 +159,7 @@ struct Method {
 bool LoadSurface(const std::filesystem::path& dir, uint32_t id, tandem::IndexedMesh* mesh) {
   const auto path = dir / (std::to_string(id) + ".ply");
   if (!std::filesystem::exists(path)) return false;
-  auto read = tandem::ReadMesh(path.string());
+  auto read = tandem::io::ReadMesh(path.string());
   if (!read.ok()) Fail(std::string(read.status().message()));
   *mesh = std::move(*read);
   return mesh->num_triangles() > 0;

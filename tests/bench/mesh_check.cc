@@ -18,7 +18,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "usage: mesh_check MESH.{ply,obj}\n");
     return 2;
   }
-  auto mesh = tandem::ReadMesh(argv[1]);
+  auto mesh = tandem::io::ReadMesh(argv[1]);
   if (!mesh.ok()) {
     std::fprintf(stderr, "%s\n", std::string(mesh.status().message()).c_str());
     return 1;

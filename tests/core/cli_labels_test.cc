@@ -1,16 +1,25 @@
 // `tandem extract --labels` run as a user would: the refusals of what cannot work (a float
 // volume, bad label ids, flags without --labels, outputs that cannot hold one mesh per
-// label, a bad names table), each naming the culprit.
+// label, a bad names table), each naming the culprit; a map of many scattered uint64 ids.
 #include <gtest/gtest.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <random>
+#include <set>
 #include <string>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "tandem/eval/topology.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/io/volume_writers.h"
@@ -33,7 +42,7 @@ class CliLabels : public ::testing::Test {
     info.nx = info.ny = info.nz = 6;
     info.dtype = t;
     const std::string path = Path(name);
-    EXPECT_TRUE(WriteVolume(path, info, [t](int64_t z, std::vector<uint8_t>* bytes) {
+    EXPECT_TRUE(io::WriteVolume(path, info, [t](int64_t z, std::vector<uint8_t>* bytes) {
                   bytes->assign(36 * DTypeSize(t), 0);
                   for (int64_t j = 1; j < 4; ++j) {
                     for (int64_t i = 1; i < 5; ++i) {
@@ -44,6 +53,61 @@ class CliLabels : public ::testing::Test {
                   return absl::OkStatus();
                 }).ok());
     return path;
+  }
+  // A one-voxel label at every voxel of an nx x ny x nz uint64 map (.json + .raw): distinct
+  // ids scattered over the whole range, with 2^53 and 2^53 + 1 (one double apart from
+  // nothing) and 2^64 - 1 among them. Returns the ids in voxel order.
+  std::vector<uint64_t> ManyIdVolume(const std::string& path, int64_t nx, int64_t ny,
+                                     int64_t nz) const {
+    std::vector<uint64_t> ids = {uint64_t{1} << 53, (uint64_t{1} << 53) + 1, UINT64_MAX};
+    std::set<uint64_t> seen(ids.begin(), ids.end());
+    std::mt19937_64 rng(64);
+    while (static_cast<int64_t>(ids.size()) < nx * ny * nz) {
+      const uint64_t id = rng();
+      if (id != 0 && seen.insert(id).second) ids.push_back(id);
+    }
+    std::shuffle(ids.begin(), ids.end(), rng);
+    VolumeInfo info;
+    info.nx = nx, info.ny = ny, info.nz = nz;
+    info.dtype = DType::kUInt64;
+    EXPECT_TRUE(io::WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
+                  bytes->resize(nx * ny * 8);
+                  std::memcpy(bytes->data(), ids.data() + z * nx * ny, bytes->size());
+                  return absl::OkStatus();
+                }).ok());
+    return ids;
+  }
+  // Runs the CLI with `args` (no shell) and returns its peak resident set in bytes, or -1
+  // when it did not exit with 0.
+  static int64_t PeakRssOf(const std::vector<std::string>& args) {
+    std::vector<char*> argv;
+    const std::string bin = testing::BinPath("tandem");
+    argv.push_back(const_cast<char*>(bin.c_str()));
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    const pid_t pid = fork();
+    if (pid == 0) {
+      std::freopen("/dev/null", "w", stderr);
+      execv(bin.c_str(), argv.data());
+      _exit(127);
+    }
+    int status = 0;
+    struct rusage ru {};
+    if (pid < 0 || wait4(pid, &status, 0, &ru) != pid) return -1;
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) return -1;
+    return static_cast<int64_t>(ru.ru_maxrss) * 1024;
+  }
+  // Each file in `dir` a closed manifold sphere: one component, Euler characteristic 2.
+  static void ExpectSpheres(const std::string& dir, std::initializer_list<const char*> files) {
+    for (const char* file : files) {
+      SCOPED_TRACE(file);
+      auto mesh = io::ReadMesh(dir + file);
+      ASSERT_TRUE(mesh.ok()) << mesh.status();
+      const eval::TopologyReport t = eval::AnalyzeTopology(*mesh);
+      EXPECT_TRUE(t.IsClosedManifold());
+      EXPECT_EQ(t.euler, 2);
+      EXPECT_EQ(t.components, 1u);
+    }
   }
   std::string dir_;
 };
@@ -121,15 +185,7 @@ TEST_F(CliLabels, ALabelMapToOneClosedFilePerLabel) {
     GTEST_SKIP() << "this build's engine has no label mode: " << r.text;
   }
   ASSERT_EQ(r.code, 0) << r.text;
-  for (const char* file : {"Liver.ply", "7.ply"}) {
-    SCOPED_TRACE(file);
-    auto mesh = ReadMesh(out + file);
-    ASSERT_TRUE(mesh.ok()) << mesh.status();
-    const eval::TopologyReport t = eval::AnalyzeTopology(*mesh);
-    EXPECT_TRUE(t.IsClosedManifold());
-    EXPECT_EQ(t.euler, 2);
-    EXPECT_EQ(t.components, 1u);
-  }
+  ExpectSpheres(out, {"Liver.ply", "7.ply"});
   std::ifstream in_json(Path("m.json"));
   const nlohmann::json m = nlohmann::json::parse(in_json);
   ASSERT_EQ(m["labels"].size(), 2u);
@@ -151,7 +207,7 @@ TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
   const std::string in = Path("stack.nrrd");
   // Boxes of labels 1..4 stacked along z, each 8 slices, with a tunnel through label 2 (a
   // torus) and label 3 wrapped around a voxel of label 9.
-  ASSERT_TRUE(WriteVolume(in, info, [](int64_t z, std::vector<uint8_t>* bytes) {
+  ASSERT_TRUE(io::WriteVolume(in, info, [](int64_t z, std::vector<uint8_t>* bytes) {
                 bytes->assign(100 * sizeof(uint16_t), 0);
                 for (int64_t j = 1; j < 9; ++j) {
                   for (int64_t i = 1; i < 9; ++i) {
@@ -174,7 +230,7 @@ TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
     ASSERT_EQ(r.code, 0) << r.text;
     for (const auto& entry : std::filesystem::directory_iterator(out)) {
       if (entry.path().extension() != ".ply") continue;
-      auto mesh = ReadMesh(entry.path().string());
+      auto mesh = io::ReadMesh(entry.path().string());
       ASSERT_TRUE(mesh.ok()) << mesh.status();
       runs[sealed][entry.path().filename().string()] = eval::AnalyzeTopology(*mesh);
     }
@@ -243,6 +299,69 @@ TEST_F(CliLabels, HelpListsTheLabelFlags) {
        {"--labels", "--background", "--label-ids", "--label-names", "--close", "--format"}) {
     EXPECT_NE(r.text.find(flag), std::string::npos) << flag;
   }
+}
+
+// Thousands of one-voxel labels with ids anywhere in uint64: every id its own closed
+// surface and its own file, named by the exact id (2^53 and 2^53 + 1 are two files), and
+// one node each in labels.glb and in the figures.
+TEST_F(CliLabels, ManyScatteredUint64IdsEachGetTheirOwnSurface) {
+  const std::string in = Path("many.json");
+  const std::vector<uint64_t> ids = ManyIdVolume(in, 16, 16, 8);
+  const std::string out = Path("many") + "/";
+  const auto r = Tandem("--input " + in + " --labels --close --error 0.05 --quiet --out " + out +
+                        " --metrics " + Path("m.json"));
+  if (r.text.find("has no label mode") != std::string::npos) {
+    GTEST_SKIP() << "this build's engine has no label mode: " << r.text;
+  }
+  ASSERT_EQ(r.code, 0) << r.text;
+  std::set<std::string> expected;
+  for (uint64_t id : ids) expected.insert(std::to_string(id) + ".ply");
+  std::set<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(out)) {
+    files.insert(e.path().filename().string());
+  }
+  ASSERT_EQ(files.size(), ids.size() + 1);  // and labels.glb
+  EXPECT_TRUE(files.count("labels.glb"));
+  files.erase("labels.glb");
+  EXPECT_EQ(files, expected);
+  ExpectSpheres(out, {"9007199254740992.ply", "9007199254740993.ply", "18446744073709551615.ply"});
+  std::ifstream in_json(Path("m.json"));
+  const nlohmann::json m = nlohmann::json::parse(in_json);
+  ASSERT_EQ(m["labels"].size(), ids.size());
+  size_t closed = 0;
+  for (const auto& l : m["labels"]) closed += l["closed"].get<bool>() && l["euler"] == 2;
+  EXPECT_EQ(closed, ids.size());
+  // labels.glb: a node per label, its id exact in "extras".
+  const std::string glb = testing::FileBytes(out + "labels.glb");
+  ASSERT_GT(glb.size(), 20u);
+  uint32_t json_bytes = 0;
+  std::memcpy(&json_bytes, glb.data() + 12, 4);
+  const nlohmann::json gltf = nlohmann::json::parse(glb.substr(20, json_bytes));
+  ASSERT_EQ(gltf["nodes"].size(), ids.size());
+  std::set<std::string> labels;
+  for (const auto& node : gltf["nodes"]) labels.insert(node["extras"]["label"].get<std::string>());
+  EXPECT_EQ(labels.size(), ids.size());
+  EXPECT_TRUE(labels.count("18446744073709551615"));
+  EXPECT_EQ(gltf["meshes"].size(), ids.size());
+}
+
+// What a label costs in memory: simplified to a handful of triangles each, 4x the labels
+// grow the peak resident set by what those need in the sweep and the outputs (labels.glb,
+// the figures), not by kilobytes of bookkeeping per label (a million ids: gigabytes).
+TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabel) {
+  if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
+  int64_t rss[2] = {0, 0};
+  const int64_t nz[2] = {4, 16}, n = 32 * 32;
+  for (int k = 0; k < 2; ++k) {
+    const std::string in = Path(absl::StrCat("many", k, ".json"));
+    ManyIdVolume(in, 32, 32, nz[k]);
+    rss[k] = PeakRssOf({"extract", "--input", in, "--labels", "--error", "4", "--quiet", "--out",
+                        Path(absl::StrCat("many", k, ".glb")), "--metrics",
+                        Path(absl::StrCat("many", k, ".json"))});
+    ASSERT_GT(rss[k], 0) << "tandem extract failed on " << in;
+  }
+  const double per_label = static_cast<double>(rss[1] - rss[0]) / ((nz[1] - nz[0]) * n);
+  EXPECT_LT(per_label, 6144.0) << rss[0] << " -> " << rss[1] << " bytes";
 }
 
 }  // namespace

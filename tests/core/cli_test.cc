@@ -133,8 +133,8 @@ TEST_F(Cli, SeveralIsoValuesInOnePassEqualTheirSingleRuns) {
       Output one = RunTandem(in + extra + " --iso " + iso + " --out " + Path("one.ply") +
                              " --quiet");
       ASSERT_EQ(one.code, 0) << one.text;
-      auto a = ReadMesh(Path("both_" + iso + ".ply"));
-      auto b = ReadMesh(Path("one.ply"));
+      auto a = io::ReadMesh(Path("both_" + iso + ".ply"));
+      auto b = io::ReadMesh(Path("one.ply"));
       ASSERT_TRUE(a.ok()) << a.status();
       ASSERT_TRUE(b.ok()) << b.status();
       EXPECT_GT(a->indices.size(), 300u);
@@ -146,7 +146,7 @@ TEST_F(Cli, SeveralIsoValuesInOnePassEqualTheirSingleRuns) {
     }
   }
   // The two surfaces differ, and without --metrics each gets its own summary.
-  EXPECT_NE(ReadMesh(Path("both_0.ply"))->positions, ReadMesh(Path("both_0.05.ply"))->positions);
+  EXPECT_NE(io::ReadMesh(Path("both_0.ply"))->positions, io::ReadMesh(Path("both_0.05.ply"))->positions);
   Output o = RunTandem(in + " --iso 0,0.05 --out " + Path("s_{iso}.obj"));
   ASSERT_EQ(o.code, 0) << o.text;
   EXPECT_NE(o.text.find("-> " + Path("s_0.obj")), std::string::npos) << o.text;
@@ -164,7 +164,7 @@ TEST_F(Cli, GenerateThenExtractFullResolution) {
   Output e = RunTandem("extract --input " + Path("s.json") + " --iso 0 --no-simplify --out " +
                        Path("s.ply") + " --quiet");
   ASSERT_EQ(e.code, 0) << e.text;
-  auto mesh = ReadMesh(Path("s.ply"));
+  auto mesh = io::ReadMesh(Path("s.ply"));
   ASSERT_TRUE(mesh.ok()) << mesh.status();
   eval::TopologyReport r = eval::AnalyzeTopology(*mesh);
   EXPECT_TRUE(r.IsClosedManifold());
@@ -190,7 +190,7 @@ TEST_F(Cli, ExtractWritesMeshAndMetricsWithEveryKey) {
   EXPECT_EQ(m["schedule"], "tandem-lag");  // the default
   EXPECT_LE(m["error_max"].get<double>(), 0.2);
   EXPECT_LT(m["distance"]["L2"]["max"].get<double>(), 0.2);
-  auto mesh = ReadMesh(Path("l.obj"));
+  auto mesh = io::ReadMesh(Path("l.obj"));
   ASSERT_TRUE(mesh.ok()) << mesh.status();
   EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles());
   EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices());
@@ -218,7 +218,7 @@ TEST_F(Cli, SealedExtractWritesTheWholeMeshAndCountsIt) {
                          Path("m.json") + extra + out);
     ASSERT_EQ(e.code, 0) << e.text;
     nlohmann::json m = ReadJson(Path("m.json"));
-    auto mesh = ReadMesh(out);
+    auto mesh = io::ReadMesh(out);
     ASSERT_TRUE(mesh.ok()) << mesh.status();
     EXPECT_EQ(m["triangles_final"].get<size_t>(), mesh->num_triangles()) << out;
     EXPECT_EQ(m["vertices_final"].get<size_t>(), mesh->num_vertices()) << out;
@@ -347,7 +347,7 @@ TEST_F(Cli, ExtractsTheSharedEngineCtToAPly) {
   std::string header(200, '\0');
   in.read(header.data(), 200);
   EXPECT_EQ(header.rfind("ply\nformat binary_little_endian 1.0\n", 0), 0u);
-  auto mesh = ReadMesh(Path("engine.ply"));
+  auto mesh = io::ReadMesh(Path("engine.ply"));
   ASSERT_TRUE(mesh.ok());
   EXPECT_GT(mesh->num_triangles(), 500000u);
   EXPECT_TRUE(eval::AnalyzeTopology(*mesh).IsManifold());
@@ -466,7 +466,7 @@ TEST_F(Cli, FrameFlagPutsNiftiAndDicomMeshesInOneFrame) {
   info.directions = {{{c, s, 0}, {-s, c, 0}, {0, 0, 1}}};
   info.space = Space::kLPS;
   // An off-centre ellipsoid (values 0..1000, iso 500): a flip or a shift shows.
-  const SliceFn slices = [&](int64_t k, std::vector<uint8_t>* bytes) {
+  const io::SliceFn slices = [&](int64_t k, std::vector<uint8_t>* bytes) {
     bytes->resize(info.slice_bytes());
     for (int64_t j = 0; j < info.ny; ++j) {
       for (int64_t i = 0; i < info.nx; ++i) {
@@ -477,15 +477,15 @@ TEST_F(Cli, FrameFlagPutsNiftiAndDicomMeshesInOneFrame) {
     }
     return absl::OkStatus();
   };
-  ASSERT_TRUE(WriteDicomSeries(Path("dcm"), info, slices).ok());
-  ASSERT_TRUE(WriteVolume(Path("v.nii"), info, slices).ok());  // turned into RAS
+  ASSERT_TRUE(io::WriteDicomSeries(Path("dcm"), info, slices).ok());
+  ASSERT_TRUE(io::WriteVolume(Path("v.nii"), info, slices).ok());  // turned into RAS
   const std::string flags = " --iso 500 --error 0.1 --out ";
   auto extract = [&](const std::string& input, const std::string& frame, const std::string& out) {
     const Output o = RunTandem("extract --input " + Path(input) + flags + Path(out) +
                                (frame.empty() ? "" : " --frame " + frame) + " --metrics " +
                                Path(out + ".json"));
     EXPECT_EQ(o.code, 0) << o.text;
-    absl::StatusOr<IndexedMesh> m = ReadMesh(Path(out));
+    absl::StatusOr<IndexedMesh> m = io::ReadMesh(Path(out));
     EXPECT_TRUE(m.ok()) << m.status();
     EXPECT_GT(m->num_triangles(), 100u);
     EXPECT_GT(SignedVolume(*m), 0) << out << ": normals point in";
@@ -543,7 +543,7 @@ TEST_F(Cli, FrameFlagPutsNiftiAndDicomMeshesInOneFrame) {
   o = RunTandem("extract --input " + Path("dcm") + " --iso 500 --no-simplify --out " +
                 Path("full_lps.ply"));
   ASSERT_EQ(o.code, 0) << o.text;
-  const IndexedMesh fv = *ReadMesh(Path("full_vox.ply")), fl = *ReadMesh(Path("full_lps.ply"));
+  const IndexedMesh fv = *io::ReadMesh(Path("full_vox.ply")), fl = *io::ReadMesh(Path("full_lps.ply"));
   ASSERT_EQ(fv.num_vertices(), fl.num_vertices());
   EXPECT_EQ(fv.indices, fl.indices);
   double off_grid = 0;
@@ -648,7 +648,7 @@ TEST_F(Cli, SimulatedDescendingAcquisitionIsFollowedHeadToFeet) {
   EXPECT_EQ(a["vertices_final"], b["vertices_final"]);
   EXPECT_GT(a["triangles_final"].get<int64_t>(), 500);
   // In voxel frame the followed grid runs the other way: slice k is the finished one's 23 - k.
-  const IndexedMesh fm = *ReadMesh(Path("followed.ply")), gm = *ReadMesh(Path("finished.ply"));
+  const IndexedMesh fm = *io::ReadMesh(Path("followed.ply")), gm = *io::ReadMesh(Path("finished.ply"));
   double lo = 1e9, hi = -1e9, glo = 1e9, ghi = -1e9;
   for (const Vec3& p : fm.positions) lo = std::min(lo, p.z), hi = std::max(hi, p.z);
   for (const Vec3& p : gm.positions) glo = std::min(glo, p.z), ghi = std::max(ghi, p.z);
@@ -713,7 +713,7 @@ TEST_F(Cli, LoadsGdcmOnlyForDicomAndReadsItInTheWorker) {
 
 // The corners of a mesh's bounding box.
 std::pair<Vec3, Vec3> Bounds(const std::string& path) {
-  auto mesh = ReadMesh(path);
+  auto mesh = io::ReadMesh(path);
   EXPECT_TRUE(mesh.ok()) << mesh.status();
   Vec3 lo{1e30, 1e30, 1e30}, hi{-1e30, -1e30, -1e30};
   for (const Vec3& p : mesh.ok() ? mesh->positions : std::vector<Vec3>{}) {

@@ -21,6 +21,7 @@
 #include "mesh_store.h"
 #include "tandem/geometry.h"
 #include "tandem/io/mesh_io.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/eval/topology.h"
@@ -271,7 +272,7 @@ TEST(Embedding, SharedIntegerScansAtIntegerIsoValues) {
   for (const auto& scan : scans) {
     TANDEM_SHARED_OR_SKIP(path, scan.file);
     const SourceMaker make = [&path]() -> std::unique_ptr<SliceSource> {
-      auto source = OpenVolume(path);
+      auto source = io::OpenVolume(path);
       EXPECT_TRUE(source.ok()) << source.status();
       return source.ok() ? *std::move(source) : nullptr;
     };
@@ -309,7 +310,7 @@ TEST(Embedding, EveryFileFormatWeldsToTheIndexedMesh) {
       [](double i, double j, double k) { return Phantom(kNx, kNy, kNz, i, j, k); }, {0.7, 0.7, 1.2},
       {-130.5, 42.25, 300});
   const std::string volume = dir + "/phantom.json";
-  ASSERT_TRUE(WriteVolume(volume, phantom.info(), [&](int64_t, std::vector<uint8_t>* bytes) {
+  ASSERT_TRUE(io::WriteVolume(volume, phantom.info(), [&](int64_t, std::vector<uint8_t>* bytes) {
                 return phantom.ReadSlice(bytes);
               }).ok());
   for (const std::string mode : {"--no-simplify", "--no-simplify --seal", "", "--parts 2", "--seal",
@@ -319,14 +320,14 @@ TEST(Embedding, EveryFileFormatWeldsToTheIndexedMesh) {
       ASSERT_TRUE(RunTandem(run + " --out " + dir + "/out." + ext)) << mode;
     }
     const std::string what = "'" + mode + "'";
-    auto ply = ReadMesh(dir + "/out.ply");
+    auto ply = io::ReadMesh(dir + "/out.ply");
     ASSERT_TRUE(ply.ok()) << ply.status();
     ASSERT_GT(ply->num_triangles(), 200u) << what;
     const eval::TopologyReport indexed = eval::AnalyzeTopology(*ply);
     EXPECT_TRUE(indexed.IsManifold()) << what;
     ExpectEmbedded(*ply, indexed, what + " .ply");
     for (const char* ext : {"obj", "stl"}) {
-      auto mesh = ReadMesh(dir + "/out." + ext);
+      auto mesh = io::ReadMesh(dir + "/out." + ext);
       ASSERT_TRUE(mesh.ok()) << mesh.status();
       ExpectEmbedded(*mesh, indexed, what + " ." + ext);
     }

@@ -73,7 +73,7 @@ inline std::vector<TriId> ExtractLayers(SliceSource* src, MeshStore* store, Simp
 inline IndexedMesh FullSurface(SliceSource& src) {
   SessionOptions o;
   o.schedule = Schedule::kNone;
-  auto full = RunSession(src, o);
+  auto full = io::RunSession(src, o);
   EXPECT_TRUE(full.ok()) << full.status();
   return full.ok() ? (*full)->Snapshot() : IndexedMesh{};
 }

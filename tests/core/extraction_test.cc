@@ -20,6 +20,7 @@
 #include "simplifier.h"
 #include "tandem/geometry.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/tandem.h"
 #include "tandem/eval/topology.h"
@@ -989,7 +990,7 @@ TEST(Extraction, SharedRealVolumesAreManifoldsWithBoundaryOnTheBox) {
                             {"ct_engine_256x256x128_uint8.json", 120, 0}};
   for (const RealCase& c : cases) {
     TANDEM_SHARED_OR_SKIP(path, c.file);
-    auto src = OpenVolume(path);
+    auto src = io::OpenVolume(path);
     ASSERT_TRUE(src.ok()) << src.status();
     const VolumeInfo info = (*src)->info();
     Extracted e = ExtractSource(**src, c.iso);
@@ -1019,7 +1020,7 @@ namespace {
 TEST(Prefetch, YieldsTheSourceSlicesInOrderThenOutOfRange) {
   auto direct = eval::MakeSyntheticSource(eval::Shape::kGyroid, 20, 17, 9);
   auto ahead = eval::MakeSyntheticSource(eval::Shape::kGyroid, 20, 17, 9);
-  SlicePrefetcher prefetch(ahead.get(), 3);
+  io::SlicePrefetcher prefetch(ahead.get(), 3);
   std::vector<uint8_t> expect, got;
   for (int k = 0; k < 9; ++k) {
     ASSERT_TRUE(direct->ReadSlice(&expect).ok());
@@ -1054,7 +1055,7 @@ class FailingSource final : public SliceSource {
 
 TEST(Prefetch, ReadErrorsArriveInOrderAndStopTheStream) {
   FailingSource src;
-  SlicePrefetcher prefetch(&src);
+  io::SlicePrefetcher prefetch(&src);
   std::vector<uint8_t> v;
   for (int k = 0; k < 5; ++k) {
     ASSERT_TRUE(prefetch.Next(&v).ok()) << k;
@@ -1067,7 +1068,7 @@ TEST(Prefetch, ReadErrorsArriveInOrderAndStopTheStream) {
   FailingSource src2;
   SessionOptions o;
   o.schedule = Schedule::kNone;
-  auto run = RunSession(src2, o);
+  auto run = io::RunSession(src2, o);
   EXPECT_EQ(run.status().code(), absl::StatusCode::kDataLoss);
 }
 
@@ -1075,7 +1076,7 @@ TEST(Prefetch, ReadErrorsArriveInOrderAndStopTheStream) {
 TEST(Prefetch, StopsWhenDestroyedEarly) {
   auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, 64, 64, 64);
   {
-    SlicePrefetcher prefetch(src.get(), 2);
+    io::SlicePrefetcher prefetch(src.get(), 2);
     std::vector<uint8_t> v;
     ASSERT_TRUE(prefetch.Next(&v).ok());
   }

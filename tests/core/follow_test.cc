@@ -24,6 +24,7 @@
 #include "absl/strings/str_join.h"
 #include "tandem/eval/distance.h"
 #include "tandem/geometry.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"
@@ -58,7 +59,7 @@ SessionOptions Options() {
 }
 
 IndexedMesh MeshOf(SliceSource& src) {
-  auto run = RunSession(src, Options());
+  auto run = io::RunSession(src, Options());
   EXPECT_TRUE(run.ok()) << run.status();
   return run.ok() ? (*run)->Snapshot() : IndexedMesh{};
 }
@@ -70,8 +71,8 @@ void ExpectSameMesh(const IndexedMesh& a, const IndexedMesh& b) {
   for (size_t i = 0; i < a.positions.size(); ++i) ASSERT_EQ(a.positions[i], b.positions[i]) << i;
 }
 
-FollowOptions Fast() {
-  FollowOptions f;
+io::FollowOptions Fast() {
+  io::FollowOptions f;
   f.stable_s = 0.05;
   f.poll_s = 0.01;
   f.settle_s = 5;
@@ -92,18 +93,18 @@ TEST(Follow, TiffSlicesWrittenWhileFollowedGiveTheFinishedVolumesMesh) {
   std::thread instrument([&] {
     fs::create_directories(dir);
     for (int64_t z = 0; z < v.info.nz; ++z) {
-      EXPECT_TRUE(WriteTiffSlice(SliceName(dir, z), v.info, z, v.slices[z]).ok());
+      EXPECT_TRUE(io::WriteTiffSlice(SliceName(dir, z), v.info, z, v.slices[z]).ok());
       written = z + 1;
       std::this_thread::sleep_for(std::chrono::milliseconds(15));
     }
     std::ofstream(dir + "/SCAN_DONE") << "";
   });
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.done_file = "SCAN_DONE";
   f.progress = [&](int64_t, int64_t read) {
     if (read == 1) written_at_first_read = written.load();
   };
-  auto followed = FollowVolume(dir, f);  // the folder does not exist yet: it waits
+  auto followed = io::FollowVolume(dir, f);  // the folder does not exist yet: it waits
   ASSERT_TRUE(followed.ok()) << followed.status();
   EXPECT_EQ((*followed)->info().nz, 0) << "the count is not known while following";
   const IndexedMesh live = MeshOf(**followed);
@@ -111,7 +112,7 @@ TEST(Follow, TiffSlicesWrittenWhileFollowedGiveTheFinishedVolumesMesh) {
   EXPECT_GE(written_at_first_read.load(), 1);
   EXPECT_LT(written_at_first_read.load(), v.info.nz) << "the first slice waited for the last";
   EXPECT_EQ((*followed)->next_slice(), v.info.nz);
-  auto finished = OpenVolume(dir);
+  auto finished = io::OpenVolume(dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live);
 }
@@ -122,11 +123,11 @@ TEST(Follow, GrowingZarrArrayGivesTheFinishedVolumesMesh) {
   std::atomic<int64_t> written{0};
   std::atomic<int64_t> written_at_first_read{-1};
   std::thread instrument([&] {
-    ZarrWriteOptions zo;
+    io::ZarrWriteOptions zo;
     zo.chunks = {4, 16, 16};  // planes become visible four at a time
     zo.version = 3;
-    zo.compressor = ZarrCompressor::kZstd;
-    auto w = ZarrAppender::Create(store, v.info, zo);
+    zo.compressor = io::ZarrCompressor::kZstd;
+    auto w = io::ZarrAppender::Create(store, v.info, zo);
     ASSERT_TRUE(w.ok()) << w.status();
     for (int64_t z = 0; z < v.info.nz; ++z) {
       ASSERT_TRUE((*w)->Append(v.slices[z].data()).ok());
@@ -135,18 +136,18 @@ TEST(Follow, GrowingZarrArrayGivesTheFinishedVolumesMesh) {
     }
     ASSERT_TRUE((*w)->Finish().ok());
   });
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.expect_slices = v.info.nz;
   f.progress = [&](int64_t, int64_t read) {
     if (read == 1) written_at_first_read = written.load();
   };
-  auto followed = FollowVolume(store, f);
+  auto followed = io::FollowVolume(store, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
   EXPECT_EQ((*followed)->info().nz, v.info.nz);
   const IndexedMesh live = MeshOf(**followed);
   instrument.join();
   EXPECT_LT(written_at_first_read.load(), v.info.nz);
-  auto finished = OpenVolume(store);
+  auto finished = io::OpenVolume(store);
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live);
 }
@@ -155,22 +156,22 @@ TEST(Follow, AnAcquisitionThatStopsShortOfExpectSlicesFailsClearly) {
   const Volume v = Link(24);
   const std::string dir = testing::MakeTempDir();
   for (int64_t z = 0; z < 6; ++z) {
-    ASSERT_TRUE(WriteTiffSlice(SliceName(dir, z), v.info, z, v.slices[z]).ok());
+    ASSERT_TRUE(io::WriteTiffSlice(SliceName(dir, z), v.info, z, v.slices[z]).ok());
   }
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.expect_slices = 10;
   f.settle_s = 0.4;
-  auto followed = FollowVolume(dir, f);
+  auto followed = io::FollowVolume(dir, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
-  auto run = RunSession(**followed, Options());
+  auto run = io::RunSession(**followed, Options());
   ASSERT_FALSE(run.ok());
   EXPECT_TRUE(absl::StrContains(run.status().message(), "stopped after 6 of 10")) << run.status();
 
   // Without --expect-slices, settling ends the scan: the 6 slices are the volume.
   f.expect_slices = 0;
-  auto settled = FollowVolume(dir, f);
+  auto settled = io::FollowVolume(dir, f);
   ASSERT_TRUE(settled.ok()) << settled.status();
-  auto run2 = RunSession(**settled, Options());
+  auto run2 = io::RunSession(**settled, Options());
   ASSERT_TRUE(run2.ok()) << run2.status();
   EXPECT_EQ((*settled)->next_slice(), 6);
 }
@@ -179,15 +180,15 @@ TEST(Follow, ASliceFileArrivingOutOfOrderIsAnErrorNamingIt) {
   const Volume v = Link(24);
   const std::string dir = testing::MakeTempDir();
   for (int64_t z : {0, 1, 3}) {
-    ASSERT_TRUE(WriteTiffSlice(SliceName(dir, z), v.info, z, v.slices[z]).ok());
+    ASSERT_TRUE(io::WriteTiffSlice(SliceName(dir, z), v.info, z, v.slices[z]).ok());
   }
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.settle_s = 5;  // the error comes when the file is seen; a short settle could end first
-  auto followed = FollowVolume(dir, f);
+  auto followed = io::FollowVolume(dir, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
   std::vector<uint8_t> bytes;
   for (int i = 0; i < 3; ++i) ASSERT_TRUE((*followed)->ReadSlice(&bytes).ok()) << i;
-  ASSERT_TRUE(WriteTiffSlice(SliceName(dir, 2), v.info, 2, v.slices[2]).ok());
+  ASSERT_TRUE(io::WriteTiffSlice(SliceName(dir, 2), v.info, 2, v.slices[2]).ok());
   absl::Status st = (*followed)->ReadSlice(&bytes);
   ASSERT_FALSE(st.ok());
   EXPECT_TRUE(absl::StrContains(st.message(), "slice_00002.tif")) << st;
@@ -195,8 +196,8 @@ TEST(Follow, ASliceFileArrivingOutOfOrderIsAnErrorNamingIt) {
 }
 
 // Float range of a volume, for the DICOM writer's quantization.
-DicomWriteOptions DicomFor(const Volume& v) {
-  DicomWriteOptions o;
+io::DicomWriteOptions DicomFor(const Volume& v) {
+  io::DicomWriteOptions o;
   float lo = 1e30f, hi = -1e30f;
   for (const auto& s : v.slices) {
     for (size_t i = 0; i < s.size() / 4; ++i) {
@@ -219,7 +220,7 @@ TEST(Follow, DicomBurstWhoseFirstFilesAreEveryOtherSliceWaitsForTheRest) {
   const Volume v = Link();
   const std::string dir = testing::MakeTempDir() + "/ct";
   fs::create_directories(dir);
-  auto writer = DicomSliceWriter::Create(v.info, DicomFor(v));
+  auto writer = io::DicomSliceWriter::Create(v.info, DicomFor(v));
   ASSERT_TRUE(writer.ok()) << writer.status();
   auto write = [&](int64_t z) {
     EXPECT_TRUE(writer->Write(absl::StrCat(dir, "/1.3.6.", (z * 7919) % 10007), z, v.slices[z]).ok());
@@ -231,15 +232,15 @@ TEST(Follow, DicomBurstWhoseFirstFilesAreEveryOtherSliceWaitsForTheRest) {
     for (int64_t z = 5; z < v.info.nz; ++z) write(z);
     std::ofstream(dir + "/DONE") << "";
   });
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.done_file = "DONE";
   f.settle_s = 5;
-  auto followed = FollowVolume(dir, f);
+  auto followed = io::FollowVolume(dir, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
   const IndexedMesh live = MeshOf(**followed);
   scanner.join();
   EXPECT_EQ((*followed)->next_slice(), v.info.nz);
-  auto finished = OpenVolume(dir);
+  auto finished = io::OpenVolume(dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   EXPECT_EQ((*followed)->info().spacing, (*finished)->info().spacing);
   ExpectSameMesh(MeshOf(**finished), live);
@@ -247,9 +248,9 @@ TEST(Follow, DicomBurstWhoseFirstFilesAreEveryOtherSliceWaitsForTheRest) {
 
 TEST(Follow, DicomSliceBelowMeshedOnesOrAGapThatNeverClosesIsAnError) {
   const Volume v = Link(24);
-  auto writer = DicomSliceWriter::Create(v.info, DicomFor(v));
+  auto writer = io::DicomSliceWriter::Create(v.info, DicomFor(v));
   ASSERT_TRUE(writer.ok()) << writer.status();
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.settle_s = 5;  // the error comes when the file is seen; a short settle could end first
 
   // Slices 2..6 arrive and are meshed; then slice 0 turns up below them.
@@ -257,7 +258,7 @@ TEST(Follow, DicomSliceBelowMeshedOnesOrAGapThatNeverClosesIsAnError) {
   for (int64_t z = 2; z < 7; ++z) {
     ASSERT_TRUE(writer->Write(absl::StrCat(below, "/s", z), z, v.slices[z]).ok());
   }
-  auto followed = FollowVolume(below, f);
+  auto followed = io::FollowVolume(below, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
   std::vector<uint8_t> bytes;
   for (int i = 0; i < 5; ++i) ASSERT_TRUE((*followed)->ReadSlice(&bytes).ok()) << i;
@@ -271,9 +272,9 @@ TEST(Follow, DicomSliceBelowMeshedOnesOrAGapThatNeverClosesIsAnError) {
   for (int64_t z : {0, 1, 2, 4, 5}) {
     ASSERT_TRUE(writer->Write(absl::StrCat(gap, "/s", z), z, v.slices[z]).ok());
   }
-  auto held = FollowVolume(gap, f);
+  auto held = io::FollowVolume(gap, f);
   ASSERT_TRUE(held.ok()) << held.status();
-  auto run = RunSession(**held, Options());
+  auto run = io::RunSession(**held, Options());
   ASSERT_FALSE(run.ok());
   EXPECT_TRUE(absl::StrContains(run.status().message(), "gap between s2 and s4")) << run.status();
   EXPECT_TRUE(absl::StrContains(run.status().message(),
@@ -306,7 +307,7 @@ std::vector<int64_t> Numbers(Numbering how, int64_t nz) {
         v = 1;
         break;
       case Numbering::kAbsent:
-        v = DicomSliceWriter::kNoInstanceNumber;
+        v = io::DicomSliceWriter::kNoInstanceNumber;
         break;
     }
   }
@@ -320,7 +321,7 @@ std::vector<int64_t> Numbers(Numbering how, int64_t nz) {
 // `half_ms` later, then it is renamed into place.
 struct Scanner {
   const Volume& v;
-  const DicomSliceWriter& writer;
+  const io::DicomSliceWriter& writer;
   std::string dir;
   std::vector<int64_t> numbers;
   int ms = 40;
@@ -379,7 +380,7 @@ struct Followed {
   std::unique_ptr<SliceSource> source;
 };
 
-Followed FollowScanner(Scanner& scanner, FollowOptions f = Fast(),
+Followed FollowScanner(Scanner& scanner, io::FollowOptions f = Fast(),
                        const SessionOptions& options = Options()) {
   Followed out;
   std::atomic<int64_t> first{-1};
@@ -389,10 +390,10 @@ Followed FollowScanner(Scanner& scanner, FollowOptions f = Fast(),
   f.progress = [&](int64_t, int64_t read) {
     if (read == 1) first = scanner.written.load();
   };
-  auto followed = FollowVolume(scanner.dir, f);
+  auto followed = io::FollowVolume(scanner.dir, f);
   EXPECT_TRUE(followed.ok()) << followed.status();
   if (followed.ok()) {
-    auto run = RunSession(**followed, options);
+    auto run = io::RunSession(**followed, options);
     EXPECT_TRUE(run.ok()) << run.status();
     if (run.ok()) out.mesh = (*run)->Snapshot();
     out.source = *std::move(followed);
@@ -413,7 +414,7 @@ TEST_P(FollowNumbering, GivesTheFinishedMeshAndTheFirstSliceEarly) {
   const Volume v = Link(38);  // 32 slices
   VolumeInfo placed = v.info;
   placed.origin = {-40, 12, 300};
-  auto writer = DicomSliceWriter::Create(placed, DicomFor(v));
+  auto writer = io::DicomSliceWriter::Create(placed, DicomFor(v));
   ASSERT_TRUE(writer.ok()) << writer.status();
   Scanner scanner{v, *writer, testing::MakeTempDir() + "/ct", Numbers(GetParam(), v.info.nz),
                   /*ms=*/50};
@@ -422,7 +423,7 @@ TEST_P(FollowNumbering, GivesTheFinishedMeshAndTheFirstSliceEarly) {
   EXPECT_GE(live.written_at_first_read, 3);
   EXPECT_LE(live.written_at_first_read, v.info.nz / 2) << "the first slice waited for most files";
   EXPECT_EQ(live.source->next_slice(), v.info.nz);
-  auto finished = OpenVolume(scanner.dir);
+  auto finished = io::OpenVolume(scanner.dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   EXPECT_EQ(live.source->info().spacing, (*finished)->info().spacing);
   EXPECT_EQ(live.source->info().origin, (*finished)->info().origin);
@@ -499,23 +500,23 @@ TEST_P(FollowDescending, GrowsHeadToFeetWithTheFinishedFoldersSurface) {
   const Volume v = Link(38);  // 32 slices
   VolumeInfo placed = v.info;
   placed.origin = {-40, 12, 300};
-  auto writer = DicomSliceWriter::Create(placed, DicomFor(v));
+  auto writer = io::DicomSliceWriter::Create(placed, DicomFor(v));
   ASSERT_TRUE(writer.ok()) << writer.status();
   Scanner scanner{v, *writer, testing::MakeTempDir() + "/ct", Numbers(GetParam(), v.info.nz),
                   /*ms=*/50};
   scanner.descending = true;
   std::atomic<int64_t> first{-1};
   std::thread thread([&] { scanner.Run(); });
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.done_file = "DONE";
   f.progress = [&](int64_t, int64_t read) {
     if (read == 1) first = scanner.written.load();
   };
-  auto followed = FollowVolume(scanner.dir, f);
+  auto followed = io::FollowVolume(scanner.dir, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
   SessionOptions full = Options();
   full.schedule = Schedule::kNone;
-  auto live = RunSessions(**followed, {full, Options()});
+  auto live = io::RunSessions(**followed, {full, Options()});
   thread.join();
   ASSERT_TRUE(live.ok()) << live.status();
   EXPECT_GE(first.load(), 3);
@@ -527,10 +528,10 @@ TEST_P(FollowDescending, GrowsHeadToFeetWithTheFinishedFoldersSurface) {
   EXPECT_EQ(grid.directions[2], (std::array<double, 3>{0, 0, -1}));
   EXPECT_EQ(grid.spacing, v.info.spacing);
 
-  auto finished = OpenVolume(scanner.dir);
+  auto finished = io::OpenVolume(scanner.dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   EXPECT_EQ((*finished)->info().directions[2], (std::array<double, 3>{0, 0, 1}));
-  auto read = RunSessions(**finished, {full, Options()});
+  auto read = io::RunSessions(**finished, {full, Options()});
   ASSERT_TRUE(read.ok()) << read.status();
   const IndexedMesh a = (*read)[0]->Snapshot(), b = (*live)[0]->Snapshot();
   ASSERT_GT(a.num_triangles(), 1000u);
@@ -570,7 +571,7 @@ INSTANTIATE_TEST_SUITE_P(Dicom, FollowDescending,
 class FollowDicom : public ::testing::Test {
  protected:
   void SetUp() override {
-    absl::StatusOr<DicomSliceWriter> w = DicomSliceWriter::Create(v.info, DicomFor(v));
+    absl::StatusOr<io::DicomSliceWriter> w = io::DicomSliceWriter::Create(v.info, DicomFor(v));
     ASSERT_TRUE(w.ok()) << w.status();
     writer.emplace(*std::move(w));
   }
@@ -585,7 +586,7 @@ class FollowDicom : public ::testing::Test {
                    std::move(temp)};
   }
   const Volume v = Link(24);
-  std::optional<DicomSliceWriter> writer;
+  std::optional<io::DicomSliceWriter> writer;
 };
 
 // A burst that ends with nothing new in the folder for a second lets its lowest slice go,
@@ -606,7 +607,7 @@ TEST_F(FollowDicom, BurstFollowedByAPauseGoesWithinASecondOrSo) {
     for (int64_t z = 5; z < v.info.nz; ++z) write(z);
     std::ofstream(dir + "/DONE") << "";
   });
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.done_file = "DONE";
   f.progress = [&](int64_t, int64_t read) {
     if (read == 5) {
@@ -614,14 +615,14 @@ TEST_F(FollowDicom, BurstFollowedByAPauseGoesWithinASecondOrSo) {
           std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     }
   };
-  auto followed = FollowVolume(dir, f);
+  auto followed = io::FollowVolume(dir, f);
   ASSERT_TRUE(followed.ok()) << followed.status();
   const IndexedMesh live = MeshOf(**followed);
   scanner.join();
   EXPECT_GT(fifth_read_s.load(), 0) << "the burst waited for the next one";
   EXPECT_LT(fifth_read_s.load(), 2.5);
   EXPECT_EQ((*followed)->next_slice(), v.info.nz);
-  auto finished = OpenVolume(dir);
+  auto finished = io::OpenVolume(dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live);
 }
@@ -643,19 +644,19 @@ TEST_F(FollowDicom, SlowWriterOutOfOrderIsWaitedFor) {
     for (int64_t z = 5; z < v.info.nz; ++z) write(z);
     std::ofstream(dir + "/DONE") << "";
   });
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.done_file = "DONE";
-  auto followed = FollowVolume(dir, f);
+  auto followed = io::FollowVolume(dir, f);
   absl::Status st = followed.status();
   IndexedMesh live;
   if (followed.ok()) {
-    auto run = RunSession(**followed, Options());
+    auto run = io::RunSession(**followed, Options());
     st = run.status();
     if (run.ok()) live = (*run)->Snapshot();
   }
   scanner.join();
   ASSERT_TRUE(st.ok()) << st;
-  auto finished = OpenVolume(dir);
+  auto finished = io::OpenVolume(dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live);
 }
@@ -673,8 +674,8 @@ TEST_F(FollowDicom, ScoutsInTheFolderAreSetAsideAndTheStackFollowed) {
   EXPECT_EQ(live.source->next_slice(), v.info.nz);
   EXPECT_LT(live.written_at_first_read, v.info.nz);
   std::vector<std::string> notes;
-  auto finished = OpenVolume(
-      scanner.dir, OpenOptions{.note = [&](const std::string& line) { notes.push_back(line); }});
+  auto finished = io::OpenVolume(
+      scanner.dir, io::OpenOptions{.note = [&](const std::string& line) { notes.push_back(line); }});
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live.mesh);
   for (const std::vector<std::string>* lines : {&live.notes, &std::as_const(notes)}) {
@@ -690,7 +691,7 @@ TEST_F(FollowDicom, ScoutsInTheFolderAreSetAsideAndTheStackFollowed) {
 TEST(Follow, DicomTwoStacksNeedSeriesToPickOne) {
   const Volume v = Link(24);
   const std::string dir = testing::MakeTempDir();
-  DicomWriteOptions soft = DicomFor(v), bone = DicomFor(v);
+  io::DicomWriteOptions soft = DicomFor(v), bone = DicomFor(v);
   soft.series_uid = "1.2.826.0.1.3680043.2.1125.5.1";
   soft.series_description = "soft tissue";
   bone.series_uid = "1.2.826.0.1.3680043.2.1125.5.2";
@@ -698,7 +699,7 @@ TEST(Follow, DicomTwoStacksNeedSeriesToPickOne) {
   VolumeInfo shifted = v.info;
   shifted.origin = {0, 0, 10};
   for (const auto& [opts, info] : {std::pair{soft, v.info}, std::pair{bone, shifted}}) {
-    auto writer = DicomSliceWriter::Create(info, opts);
+    auto writer = io::DicomSliceWriter::Create(info, opts);
     ASSERT_TRUE(writer.ok()) << writer.status();
     for (int64_t z = 0; z < v.info.nz; ++z) {
       ASSERT_TRUE(writer
@@ -707,9 +708,9 @@ TEST(Follow, DicomTwoStacksNeedSeriesToPickOne) {
                       .ok());
     }
   }
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.settle_s = 0.5;
-  auto both = FollowVolume(dir, f);
+  auto both = io::FollowVolume(dir, f);
   ASSERT_FALSE(both.ok());
   const std::string msg(both.status().message());
   const std::string count = absl::StrCat(" (", v.info.nz, " images");
@@ -720,11 +721,11 @@ TEST(Follow, DicomTwoStacksNeedSeriesToPickOne) {
   std::vector<std::string> notes;
   f.dicom_series = bone.series_uid;
   f.note = [&](const std::string& line) { notes.push_back(line); };
-  auto picked = FollowVolume(dir, f);
+  auto picked = io::FollowVolume(dir, f);
   ASSERT_TRUE(picked.ok()) << picked.status();
   const IndexedMesh live = MeshOf(**picked);
   EXPECT_EQ((*picked)->info().origin, shifted.origin);
-  auto finished = OpenVolume(dir, OpenOptions{.dicom_series = bone.series_uid});
+  auto finished = io::OpenVolume(dir, io::OpenOptions{.dicom_series = bone.series_uid});
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live);
   EXPECT_EQ(notes.size(), 1u) << Joined(notes);
@@ -743,7 +744,7 @@ TEST_F(FollowDicom, FilesRenamedIntoPlaceAreOnlyTakenWhole) {
     ASSERT_NE(live.source, nullptr);
     EXPECT_EQ(live.source->next_slice(), v.info.nz);
     EXPECT_TRUE(live.notes.empty()) << Joined(live.notes);
-    auto finished = OpenVolume(scanner.dir);
+    auto finished = io::OpenVolume(scanner.dir);
     ASSERT_TRUE(finished.ok()) << finished.status();
     ExpectSameMesh(MeshOf(**finished), live.mesh);
   }
@@ -760,7 +761,7 @@ TEST_F(FollowDicom, FilesThatAreNoSlicesAreSkippedWithANote) {
   const Followed live = FollowScanner(scanner);
   ASSERT_NE(live.source, nullptr);
   EXPECT_EQ(live.source->next_slice(), v.info.nz);
-  auto finished = OpenVolume(scanner.dir);
+  auto finished = io::OpenVolume(scanner.dir);
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live.mesh);
   EXPECT_EQ(live.notes.size(), 3u) << Joined(live.notes);
@@ -782,7 +783,7 @@ TEST_F(FollowDicom, BadInputsAreClearErrorsNamingTheCulprit) {
   auto seconds_since = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
   };
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.settle_s = 0.5;
 
   const std::string dup = testing::MakeTempDir();
@@ -790,9 +791,9 @@ TEST_F(FollowDicom, BadInputsAreClearErrorsNamingTheCulprit) {
   write(dup, 3, "again");
   f.settle_s = 5;  // the error comes as soon as both are seen
   auto start = std::chrono::steady_clock::now();
-  absl::StatusOr<std::unique_ptr<SliceSource>> twice = FollowVolume(dup, f);
+  absl::StatusOr<std::unique_ptr<SliceSource>> twice = io::FollowVolume(dup, f);
   absl::Status st = twice.status();
-  if (twice.ok()) st = RunSession(**twice, Options()).status();
+  if (twice.ok()) st = io::RunSession(**twice, Options()).status();
   EXPECT_TRUE(absl::StrContains(st.message(), "are at the same position")) << st;
   EXPECT_TRUE(absl::StrContains(st.message(), "s3") && absl::StrContains(st.message(), "again"))
       << st;
@@ -801,7 +802,7 @@ TEST_F(FollowDicom, BadInputsAreClearErrorsNamingTheCulprit) {
 
   const std::string scout = testing::MakeTempDir();
   const std::string uid = testing::WriteLocalizer(scout, v.info);
-  auto only = FollowVolume(scout, f);
+  auto only = io::FollowVolume(scout, f);
   ASSERT_FALSE(only.ok());
   EXPECT_TRUE(absl::StrContains(only.status().message(), "no slice stack to follow"))
       << only.status();
@@ -819,9 +820,9 @@ TEST_F(FollowDicom, BadInputsAreClearErrorsNamingTheCulprit) {
       fs::resize_file(bad, fs::file_size(bad) / 2);
     }
     start = std::chrono::steady_clock::now();
-    auto followed = FollowVolume(dir, f);
+    auto followed = io::FollowVolume(dir, f);
     ASSERT_TRUE(followed.ok()) << followed.status();
-    auto run = RunSession(**followed, Options());
+    auto run = io::RunSession(**followed, Options());
     ASSERT_FALSE(run.ok());
     EXPECT_TRUE(absl::StrContains(run.status().message(), bad)) << run.status();
     EXPECT_TRUE(absl::StrContains(run.status().message(), "still not whole")) << run.status();
@@ -830,9 +831,9 @@ TEST_F(FollowDicom, BadInputsAreClearErrorsNamingTheCulprit) {
 }
 
 TEST(Follow, NothingArrivingIsAClearError) {
-  FollowOptions f = Fast();
+  io::FollowOptions f = Fast();
   f.settle_s = 0.2;
-  auto none = FollowVolume(testing::MakeTempDir() + "/never", f);
+  auto none = io::FollowVolume(testing::MakeTempDir() + "/never", f);
   ASSERT_FALSE(none.ok());
   EXPECT_TRUE(absl::StrContains(none.status().message(), "no complete slice appeared"))
       << none.status();

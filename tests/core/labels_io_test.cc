@@ -96,14 +96,14 @@ TEST(LabelMeshes, OneClosedFilePerLabelAndTheSharedFaceIdentical) {
   const std::string dir = testing::MakeTempDir() + "/out/";
   for (const char* ext : {".ply", ".obj", ".stl"}) {
     SCOPED_TRACE(ext);
-    auto files = WriteLabelMeshes(dir, ext, TwoCubes(), nullptr);
+    auto files = io::WriteLabelMeshes(dir, ext, TwoCubes(), nullptr);
     ASSERT_TRUE(files.ok()) << files.status();
     ASSERT_EQ(files->size(), 2u);
     EXPECT_EQ((*files)[0].path, dir + "1" + ext);
     EXPECT_EQ((*files)[1].path, dir + "2" + ext);
     std::vector<IndexedMesh> read;
-    for (const LabelFile& f : *files) {
-      auto m = ReadMesh(f.path);
+    for (const io::LabelFile& f : *files) {
+      auto m = io::ReadMesh(f.path);
       ASSERT_TRUE(m.ok()) << m.status();
       EXPECT_EQ(m->num_triangles(), 12u);
       const eval::TopologyReport t = eval::AnalyzeTopology(*m);
@@ -120,10 +120,10 @@ TEST(LabelMeshes, OneClosedFilePerLabelAndTheSharedFaceIdentical) {
 
 TEST(LabelMeshes, TheGlbHasANodeMeshAndMaterialPerLabelNamedAndColoured) {
   const std::string dir = testing::MakeTempDir();
-  LabelNames names;
+  io::LabelNames names;
   names[1] = {"Liver", true, {255, 0, 0, 255}};
   names[2] = {"left kidney", false, {}};
-  auto files = WriteLabelMeshes(dir + "/seg", ".ply", TwoCubes(), &names);
+  auto files = io::WriteLabelMeshes(dir + "/seg", ".ply", TwoCubes(), &names);
   ASSERT_TRUE(files.ok()) << files.status();
   EXPECT_EQ((*files)[0].path, dir + "/seg/Liver.ply");
   EXPECT_EQ((*files)[1].path, dir + "/seg/left_kidney.ply");
@@ -163,9 +163,9 @@ TEST(LabelMeshes, TheKhronosValidatorAcceptsTheGlb) {
     GTEST_SKIP() << "needs node and gltf-validator (bash deploy/install-web.sh)";
   }
   const std::string dir = testing::MakeTempDir();
-  LabelNames names;
+  io::LabelNames names;
   names[2] = {"Spleen", true, {157, 108, 162, 128}};  // a translucent colour: blended
-  ASSERT_TRUE(WriteLabelMeshes(dir, ".ply", TwoCubes(), &names).ok());
+  ASSERT_TRUE(io::WriteLabelMeshes(dir, ".ply", TwoCubes(), &names).ok());
   const auto r = testing::RunCommand("node " + source + "/tests/formats/validate_gltf.mjs " +
                                      dir + "/labels.glb 16 24");
   EXPECT_EQ(r.code, 0) << r.text;
@@ -173,13 +173,13 @@ TEST(LabelMeshes, TheKhronosValidatorAcceptsTheGlb) {
 
 TEST(LabelMeshes, DistinctColoursWithoutATable) {
   std::set<std::array<uint8_t, 4>> seen;
-  for (size_t order = 0; order < 12; ++order) seen.insert(LabelColor(order + 1, order, nullptr));
+  for (size_t order = 0; order < 12; ++order) seen.insert(io::LabelColor(order + 1, order, nullptr));
   EXPECT_EQ(seen.size(), 12u);
 }
 
 TEST(LabelMeshes, FileNamesAreSanitisedAndCollisionsResolved) {
   const std::string dir = testing::MakeTempDir();
-  LabelNames names;
+  io::LabelNames names;
   names[3] = {"a/b", false, {}};
   names[4] = {"a b", false, {}};     // the same stem as 3's
   names[5] = {"labels", false, {}};  // labels.glb's
@@ -187,22 +187,22 @@ TEST(LabelMeshes, FileNamesAreSanitisedAndCollisionsResolved) {
   names[7] = {"A_B", false, {}};     // 3's, in another case
   std::vector<std::pair<LabelId, IndexedMesh>> s;
   for (LabelId id = 3; id <= 8; ++id) s.emplace_back(id, Cube(static_cast<double>(id)));
-  auto files = WriteLabelMeshes(dir, ".glb", s, &names);
+  auto files = io::WriteLabelMeshes(dir, ".glb", s, &names);
   ASSERT_TRUE(files.ok()) << files.status();
   std::vector<std::string> got;
-  for (const LabelFile& f : *files) got.push_back(fs::path(f.path).filename().string());
+  for (const io::LabelFile& f : *files) got.push_back(fs::path(f.path).filename().string());
   EXPECT_EQ(got, (std::vector<std::string>{"a_b.glb", "a_b_4.glb", "labels_5.glb", "6.glb",
                                            "A_B_7.glb", "8.glb"}));
-  for (const LabelFile& f : *files) EXPECT_EQ(fs::path(f.path).parent_path(), fs::path(dir));
+  for (const io::LabelFile& f : *files) EXPECT_EQ(fs::path(f.path).parent_path(), fs::path(dir));
   EXPECT_EQ(GlbJson(dir + "/labels.glb")["nodes"].size(), 6u);
 }
 
 TEST(LabelMeshes, OneGlbAloneAndAnEmptySet) {
   const std::string dir = testing::MakeTempDir();
-  ASSERT_TRUE(WriteLabelsGlb(dir + "/all.glb", TwoCubes(7, (LabelId{1} << 60) + 1), nullptr).ok());
+  ASSERT_TRUE(io::WriteLabelsGlb(dir + "/all.glb", TwoCubes(7, (LabelId{1} << 60) + 1), nullptr).ok());
   const nlohmann::json j = GlbJson(dir + "/all.glb");
   EXPECT_EQ(j["nodes"][1]["name"], "1152921504606846977");  // 2^60 + 1, exactly
-  ASSERT_TRUE(WriteLabelsGlb(dir + "/none.glb", {}, nullptr).ok());
+  ASSERT_TRUE(io::WriteLabelsGlb(dir + "/none.glb", {}, nullptr).ok());
   const nlohmann::json e = GlbJson(dir + "/none.glb");
   EXPECT_TRUE(e["nodes"].empty());
   EXPECT_FALSE(e.contains("buffers"));
@@ -221,7 +221,7 @@ class LabelNamesTest : public ::testing::Test {
 };
 
 TEST_F(LabelNamesTest, CsvWithHeaderQuotesAndWithout) {
-  auto n = ReadLabelNames(Write("a.csv",
+  auto n = io::ReadLabelNames(Write("a.csv",
                                 "id,name\n1,Liver\n2,\"kidney, left\"\n\n"
                                 "18446744073709551615,last\r\n"));
   ASSERT_TRUE(n.ok()) << n.status();
@@ -230,7 +230,7 @@ TEST_F(LabelNamesTest, CsvWithHeaderQuotesAndWithout) {
   EXPECT_EQ(n->at(2).name, "kidney, left");
   EXPECT_EQ(n->at(18446744073709551615u).name, "last");
   EXPECT_FALSE(n->at(1).has_color);
-  auto plain = ReadLabelNames(Write("b.names", "3,bone\n4,skin,10,20,30\n"));
+  auto plain = io::ReadLabelNames(Write("b.names", "3,bone\n4,skin,10,20,30\n"));
   ASSERT_TRUE(plain.ok()) << plain.status();
   EXPECT_EQ(plain->at(3).name, "bone");
   EXPECT_TRUE(plain->at(4).has_color);
@@ -240,7 +240,7 @@ TEST_F(LabelNamesTest, CsvWithHeaderQuotesAndWithout) {
 TEST_F(LabelNamesTest, SlicerCsvColourTable) {
   // 3D Slicer 5's CSV colour tables.
   auto n =
-      ReadLabelNames(Write("GenericAnatomyColors.csv",
+      io::ReadLabelNames(Write("GenericAnatomyColors.csv",
                            "LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,background,0,0,0,0\n"
                            "1,tissue,128,174,128,255\n"));
   ASSERT_TRUE(n.ok()) << n.status();
@@ -251,7 +251,7 @@ TEST_F(LabelNamesTest, SlicerCsvColourTable) {
 TEST_F(LabelNamesTest, SlicerColorTable) {
   for (const char* name : {"t.ctbl", "t.txt", "t"}) {
     SCOPED_TRACE(name);
-    auto n = ReadLabelNames(Write(name,
+    auto n = io::ReadLabelNames(Write(name,
                                   "# Color table file /tmp/t.ctbl\n# 3 values\n"
                                   "0 Background 0 0 0 0\n1 Liver\t221 130 101 255\n"
                                   "  2 Right_kidney 185 102 83 255\n"));
@@ -281,13 +281,13 @@ TEST_F(LabelNamesTest, BadLinesNameTheFileAndLine) {
   };
   for (const auto& c : cases) {
     SCOPED_TRACE(c.file);
-    auto n = ReadLabelNames(Write(c.file, c.text));
+    auto n = io::ReadLabelNames(Write(c.file, c.text));
     ASSERT_FALSE(n.ok());
     EXPECT_EQ(n.status().code(), absl::StatusCode::kInvalidArgument);
     EXPECT_NE(n.status().message().find(dir_ + "/" + c.message), absl::string_view::npos)
         << n.status();
   }
-  auto missing = ReadLabelNames(dir_ + "/none.csv");
+  auto missing = io::ReadLabelNames(dir_ + "/none.csv");
   EXPECT_EQ(missing.status().code(), absl::StatusCode::kNotFound);
 }
 

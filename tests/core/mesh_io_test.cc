@@ -83,7 +83,7 @@ void ExpectError(const absl::StatusOr<IndexedMesh>& result, const std::string& p
 TEST_F(MeshIoTest, BinaryPlyRoundTripIsExact) {
   const IndexedMesh mesh = BumpyGrid(40, 30, /*float_exact=*/true);
   const std::string path = Path("grid.ply");
-  ASSERT_TRUE(WriteMesh(path, mesh).ok());
+  ASSERT_TRUE(io::WriteMesh(path, mesh).ok());
   // Header as documented: binary little-endian, float xyz, uchar/int faces.
   const std::string bytes = ReadFile(path);
   EXPECT_EQ(bytes.rfind("ply\nformat binary_little_endian 1.0\n", 0), 0u);
@@ -93,13 +93,13 @@ TEST_F(MeshIoTest, BinaryPlyRoundTripIsExact) {
   EXPECT_TRUE(Contains(bytes, "element face 2400\nproperty list uchar int vertex_indices\n"));
   const size_t header = bytes.find("end_header\n") + 11;
   EXPECT_EQ(bytes.size(), header + 1271 * 24 + 2400 * 13);
-  MeshWriteOptions bare;
+  io::MeshWriteOptions bare;
   bare.normals = false;
-  ASSERT_TRUE(WriteMesh(Path("bare.ply"), mesh, bare).ok());
+  ASSERT_TRUE(io::WriteMesh(Path("bare.ply"), mesh, bare).ok());
   EXPECT_EQ(ReadFile(Path("bare.ply")).size(), header + 1271 * 12 + 2400 * 13 -
                                                     std::string("property float nx\n").size() * 3);
 
-  const absl::StatusOr<IndexedMesh> back = ReadMesh(path);
+  const absl::StatusOr<IndexedMesh> back = io::ReadMesh(path);
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->positions, mesh.positions);
   EXPECT_EQ(back->indices, mesh.indices);
@@ -108,8 +108,8 @@ TEST_F(MeshIoTest, BinaryPlyRoundTripIsExact) {
 TEST_F(MeshIoTest, BinaryPlyRoundsDoublesToFloat) {
   const IndexedMesh mesh = BumpyGrid(5, 5, /*float_exact=*/false);
   const std::string path = Path("doubles.PLY");  // extension case does not matter
-  ASSERT_TRUE(WriteMesh(path, mesh).ok());
-  const absl::StatusOr<IndexedMesh> back = ReadMesh(path);
+  ASSERT_TRUE(io::WriteMesh(path, mesh).ok());
+  const absl::StatusOr<IndexedMesh> back = io::ReadMesh(path);
   ASSERT_TRUE(back.ok()) << back.status();
   ASSERT_EQ(back->positions.size(), mesh.positions.size());
   for (size_t v = 0; v < mesh.positions.size(); ++v) {
@@ -123,8 +123,8 @@ TEST_F(MeshIoTest, BinaryPlyRoundsDoublesToFloat) {
 TEST_F(MeshIoTest, ObjRoundTripIsExactAtFloatPrecision) {
   const IndexedMesh mesh = BumpyGrid(20, 10, /*float_exact=*/false);
   const std::string path = Path("grid.obj");
-  ASSERT_TRUE(WriteMesh(path, mesh).ok());
-  const absl::StatusOr<IndexedMesh> back = ReadMesh(path);
+  ASSERT_TRUE(io::WriteMesh(path, mesh).ok());
+  const absl::StatusOr<IndexedMesh> back = io::ReadMesh(path);
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->indices, mesh.indices);
   ASSERT_EQ(back->positions.size(), mesh.positions.size());
@@ -147,8 +147,8 @@ TEST_F(MeshIoTest, ObjRoundTripIsExactAtFloatPrecision) {
 TEST_F(MeshIoTest, LargeMeshCrossesTheWriteBuffer) {
   const IndexedMesh mesh = BumpyGrid(300, 300, /*float_exact=*/true);  // 180k triangles
   for (const char* name : {"large.ply", "large.obj"}) {
-    ASSERT_TRUE(WriteMesh(Path(name), mesh).ok());
-    const absl::StatusOr<IndexedMesh> back = ReadMesh(Path(name));
+    ASSERT_TRUE(io::WriteMesh(Path(name), mesh).ok());
+    const absl::StatusOr<IndexedMesh> back = io::ReadMesh(Path(name));
     ASSERT_TRUE(back.ok()) << back.status();
     EXPECT_EQ(back->indices, mesh.indices) << name;
     ASSERT_EQ(back->positions.size(), mesh.positions.size()) << name;
@@ -165,8 +165,8 @@ TEST_F(MeshIoTest, LargeMeshCrossesTheWriteBuffer) {
 
 TEST_F(MeshIoTest, EmptyMeshRoundTrips) {
   for (const char* name : {"empty.ply", "empty.obj"}) {
-    ASSERT_TRUE(WriteMesh(Path(name), IndexedMesh{}).ok());
-    const absl::StatusOr<IndexedMesh> back = ReadMesh(Path(name));
+    ASSERT_TRUE(io::WriteMesh(Path(name), IndexedMesh{}).ok());
+    const absl::StatusOr<IndexedMesh> back = io::ReadMesh(Path(name));
     ASSERT_TRUE(back.ok()) << back.status();
     EXPECT_EQ(back->num_vertices(), 0u);
     EXPECT_EQ(back->num_triangles(), 0u);
@@ -200,7 +200,7 @@ TEST_F(MeshIoTest, AsciiPlyWithExtraPropertiesAndPolygons) {
             "7 4 0 1 2 3\n"
             "8 3 1 4 2\n"
             "3 1 2 3\n");
-  const absl::StatusOr<IndexedMesh> m = ReadMesh(path);
+  const absl::StatusOr<IndexedMesh> m = io::ReadMesh(path);
   ASSERT_TRUE(m.ok()) << m.status();
   ASSERT_EQ(m->num_vertices(), 5u);
   EXPECT_EQ(m->positions[1], (Vec3{1.5, 0, 0}));
@@ -239,7 +239,7 @@ TEST_F(MeshIoTest, BigEndianPlyWithDoublesAndUintIndices) {
   AppendBig(bytes, int16_t{-1});
   const std::string path = Path("big.ply");
   WriteFile(path, bytes);
-  const absl::StatusOr<IndexedMesh> m = ReadMesh(path);
+  const absl::StatusOr<IndexedMesh> m = io::ReadMesh(path);
   ASSERT_TRUE(m.ok()) << m.status();
   ASSERT_EQ(m->num_vertices(), 4u);
   for (int v = 0; v < 4; ++v) EXPECT_EQ(m->positions[v], (Vec3{xyz[v][0], xyz[v][1], xyz[v][2]}));
@@ -262,7 +262,7 @@ TEST_F(MeshIoTest, LittleEndianPlyWithDoublesAndIntCounts) {
   append_le(face, sizeof face);
   const std::string path = Path("le.ply");
   WriteFile(path, bytes);
-  const absl::StatusOr<IndexedMesh> m = ReadMesh(path);
+  const absl::StatusOr<IndexedMesh> m = io::ReadMesh(path);
   ASSERT_TRUE(m.ok()) << m.status();
   EXPECT_EQ(m->positions[2], (Vec3{0, 1, 0.1}));
   EXPECT_EQ(m->indices, (std::vector<uint32_t>{0, 1, 2}));
@@ -289,7 +289,7 @@ TEST_F(MeshIoTest, ObjFaceFormsAndNegativeIndices) {
             "v 2 2 2\n"
             "f -1 1 2\n"
             "f 1 2\n");  // a degenerate 2-corner face is dropped
-  const absl::StatusOr<IndexedMesh> m = ReadMesh(path);
+  const absl::StatusOr<IndexedMesh> m = io::ReadMesh(path);
   ASSERT_TRUE(m.ok()) << m.status();
   ASSERT_EQ(m->num_vertices(), 5u);
   EXPECT_EQ(m->positions[1], (Vec3{1, 0, 0}));
@@ -299,16 +299,16 @@ TEST_F(MeshIoTest, ObjFaceFormsAndNegativeIndices) {
 
 TEST_F(MeshIoTest, MissingFileAndUnknownExtension) {
   const std::string missing = Path("nope.ply");
-  ExpectError(ReadMesh(missing), missing, absl::StatusCode::kNotFound, "cannot open");
+  ExpectError(io::ReadMesh(missing), missing, absl::StatusCode::kNotFound, "cannot open");
   const std::string off = Path("mesh.off");
   WriteFile(off, "OFF\n");
-  ExpectError(ReadMesh(off), off, absl::StatusCode::kInvalidArgument, "'.off'");
-  EXPECT_EQ(WriteMesh(off, IndexedMesh{}).code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_FALSE(IsMeshOutputPath(off));
-  EXPECT_TRUE(IsMeshOutputPath(Path("MESH.GLB")));
+  ExpectError(io::ReadMesh(off), off, absl::StatusCode::kInvalidArgument, "'.off'");
+  EXPECT_EQ(io::WriteMesh(off, IndexedMesh{}).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_FALSE(io::IsMeshOutputPath(off));
+  EXPECT_TRUE(io::IsMeshOutputPath(Path("MESH.GLB")));
   const std::string glb = Path("mesh.glb");
-  ASSERT_TRUE(WriteMesh(glb, BumpyGrid(2, 2, true)).ok());
-  ExpectError(ReadMesh(glb), glb, absl::StatusCode::kInvalidArgument, "reading .glb");
+  ASSERT_TRUE(io::WriteMesh(glb, BumpyGrid(2, 2, true)).ok());
+  ExpectError(io::ReadMesh(glb), glb, absl::StatusCode::kInvalidArgument, "reading .glb");
 }
 
 TEST_F(MeshIoTest, VertexNormalsAreAreaWeighted) {
@@ -317,7 +317,7 @@ TEST_F(MeshIoTest, VertexNormalsAreAreaWeighted) {
   m.positions = {{0, 0, 0}, {2, 0, 0}, {0, 2, 0}, {0, 0, 1}, {0, 0, 0}};
   m.indices = {0, 1, 2,   // area 2 in z = 0, normal +z
                0, 3, 1};  // area 1 in y = 0, normal +y... (0,0,1)x(2,0,0) = (0,2,0)
-  const std::vector<Vec3> n = VertexNormals(m);
+  const std::vector<Vec3> n = io::VertexNormals(m);
   ASSERT_EQ(n.size(), 5u);
   // Vertex 0: 2 (0,0,1) + 1 (0,1,0), normalised.
   EXPECT_NEAR(n[0].x, 0, 1e-15);
@@ -331,7 +331,7 @@ TEST_F(MeshIoTest, VertexNormalsAreAreaWeighted) {
 TEST_F(MeshIoTest, BinaryStlRoundTripWeldsTheCorners) {
   const IndexedMesh mesh = BumpyGrid(30, 20, /*float_exact=*/true);
   const std::string path = Path("grid.stl");
-  ASSERT_TRUE(WriteMesh(path, mesh).ok());
+  ASSERT_TRUE(io::WriteMesh(path, mesh).ok());
   const std::string bytes = ReadFile(path);
   ASSERT_EQ(bytes.size(), 84u + 50u * 1200);
   EXPECT_NE(bytes.rfind("solid", 0), 0u);  // an ASCII reader must not take it for ASCII STL
@@ -341,7 +341,7 @@ TEST_F(MeshIoTest, BinaryStlRoundTripWeldsTheCorners) {
   float normal[3];  // the first facet's: unit, and along the triangle's area vector
   std::memcpy(normal, bytes.data() + 84, 12);
   EXPECT_NEAR(std::hypot(normal[0], normal[1], normal[2]), 1.0, 1e-6);
-  const absl::StatusOr<IndexedMesh> back = ReadMesh(path);
+  const absl::StatusOr<IndexedMesh> back = io::ReadMesh(path);
   ASSERT_TRUE(back.ok()) << back.status();
   // Welded: the grid's vertex count, each triangle with its corners (ids in order of first
   // appearance).
@@ -352,10 +352,10 @@ TEST_F(MeshIoTest, BinaryStlRoundTripWeldsTheCorners) {
   }
 
   WriteFile(Path("cut.stl"), bytes.substr(0, bytes.size() - 7));
-  ExpectError(ReadMesh(Path("cut.stl")), Path("cut.stl"), absl::StatusCode::kDataLoss,
+  ExpectError(io::ReadMesh(Path("cut.stl")), Path("cut.stl"), absl::StatusCode::kDataLoss,
               "binary STL of 1200 triangles needs 60084 bytes");
   WriteFile(Path("ascii.stl"), "solid x\nfacet normal 0 0 1\nendsolid x\n");
-  ExpectError(ReadMesh(Path("ascii.stl")), Path("ascii.stl"), absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(Path("ascii.stl")), Path("ascii.stl"), absl::StatusCode::kInvalidArgument,
               "ASCII STL is not supported");
 }
 
@@ -364,7 +364,7 @@ TEST_F(MeshIoTest, BinaryStlRoundTripWeldsTheCorners) {
 TEST_F(MeshIoTest, GlbHoldsPositionsNormalsAndIndices) {
   const IndexedMesh mesh = BumpyGrid(4, 3, /*float_exact=*/true);
   const std::string path = Path("grid.glb");
-  ASSERT_TRUE(WriteMesh(path, mesh).ok());
+  ASSERT_TRUE(io::WriteMesh(path, mesh).ok());
   const std::string bytes = ReadFile(path);
   auto u32 = [&](size_t at) {
     uint32_t v;
@@ -399,17 +399,17 @@ TEST_F(MeshIoTest, GlbHoldsPositionsNormalsAndIndices) {
 TEST_F(MeshIoTest, TruncatedBinaryPly) {
   const IndexedMesh mesh = BumpyGrid(4, 4, true);
   const std::string path = Path("cut.ply");
-  ASSERT_TRUE(WriteMesh(path, mesh).ok());
+  ASSERT_TRUE(io::WriteMesh(path, mesh).ok());
   const std::string bytes = ReadFile(path);
   // Cut inside the faces, then inside the vertices.
   WriteFile(path, bytes.substr(0, bytes.size() - 5));
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "truncated");
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "'face' 31 of 32");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kDataLoss, "truncated");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kDataLoss, "'face' 31 of 32");
   WriteFile(path, bytes.substr(0, bytes.find("end_header\n") + 11 + 60));  // 24 B a vertex
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "'vertex' 2 of 25");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kDataLoss, "'vertex' 2 of 25");
   // Cut inside the header.
   WriteFile(path, bytes.substr(0, 60));
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kInvalidArgument, "end_header");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kInvalidArgument, "end_header");
 }
 
 TEST_F(MeshIoTest, TruncatedAsciiPlyAndBadNumbers) {
@@ -418,10 +418,10 @@ TEST_F(MeshIoTest, TruncatedAsciiPlyAndBadNumbers) {
       "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
       "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
   WriteFile(path, header + "0 0 0\n1 0 0\n0 1 0\n3 0 1\n");
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kDataLoss, "truncated");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kDataLoss, "truncated");
   WriteFile(path, header + "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n");
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kInvalidArgument, "bad number 'zero'");
-  ExpectError(ReadMesh(path), path, absl::StatusCode::kInvalidArgument, "line 11");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kInvalidArgument, "bad number 'zero'");
+  ExpectError(io::ReadMesh(path), path, absl::StatusCode::kInvalidArgument, "line 11");
 }
 
 TEST_F(MeshIoTest, GarbageFiles) {
@@ -430,31 +430,31 @@ TEST_F(MeshIoTest, GarbageFiles) {
   for (char& c : garbage) c = static_cast<char>(rng() & 0xff);
   const std::string ply = Path("garbage.ply");
   WriteFile(ply, garbage);
-  ExpectError(ReadMesh(ply), ply, absl::StatusCode::kInvalidArgument, "not a PLY file");
+  ExpectError(io::ReadMesh(ply), ply, absl::StatusCode::kInvalidArgument, "not a PLY file");
   const std::string obj = Path("garbage.obj");
   WriteFile(obj, garbage);
-  ExpectError(ReadMesh(obj), obj, absl::StatusCode::kInvalidArgument, "not a text OBJ file");
+  ExpectError(io::ReadMesh(obj), obj, absl::StatusCode::kInvalidArgument, "not a text OBJ file");
 
   const std::string bad_header = Path("bad_header.ply");
   WriteFile(bad_header, "ply\nformat binary_middle_endian 1.0\nend_header\n");
-  ExpectError(ReadMesh(bad_header), bad_header, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(bad_header), bad_header, absl::StatusCode::kInvalidArgument,
               "unknown format");
   WriteFile(bad_header,
             "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
             "end_header\n0\n");
-  ExpectError(ReadMesh(bad_header), bad_header, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(bad_header), bad_header, absl::StatusCode::kInvalidArgument,
               "lacks scalar x, y and z");
   WriteFile(bad_header,
             "ply\nformat ascii 1.0\nelement vertex 1\nproperty quaternion x\n"
             "end_header\n");
-  ExpectError(ReadMesh(bad_header), bad_header, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(bad_header), bad_header, absl::StatusCode::kInvalidArgument,
               "unknown property type 'quaternion'");
 
   const std::string bad_obj = Path("bad.obj");
   WriteFile(bad_obj, "v 0 0 0\nv 1 zero 0\n");
-  ExpectError(ReadMesh(bad_obj), bad_obj, absl::StatusCode::kInvalidArgument, "line 2");
+  ExpectError(io::ReadMesh(bad_obj), bad_obj, absl::StatusCode::kInvalidArgument, "line 2");
   WriteFile(bad_obj, "v 0 0 0\nf 1 x 1\n");
-  ExpectError(ReadMesh(bad_obj), bad_obj, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(bad_obj), bad_obj, absl::StatusCode::kInvalidArgument,
               "bad face corner 'x'");
 }
 
@@ -464,20 +464,20 @@ TEST_F(MeshIoTest, IndexOutOfRange) {
             "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
             "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
             "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 3\n");
-  ExpectError(ReadMesh(ply), ply, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(ply), ply, absl::StatusCode::kInvalidArgument,
               "face 1: vertex index 3 out of range (3 vertices)");
   WriteFile(ply,
             "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
             "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
             "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n");
-  ExpectError(ReadMesh(ply), ply, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(ply), ply, absl::StatusCode::kInvalidArgument,
               "face 0: invalid vertex index -1");
   const std::string obj = Path("range.obj");
   WriteFile(obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n");
-  ExpectError(ReadMesh(obj), obj, absl::StatusCode::kInvalidArgument,
+  ExpectError(io::ReadMesh(obj), obj, absl::StatusCode::kInvalidArgument,
               "line 5: vertex index 4 out of range (3 vertices)");
   WriteFile(obj, "v 0 0 0\nv 1 0 0\nf -1 -2 -3\n");
-  ExpectError(ReadMesh(obj), obj, absl::StatusCode::kInvalidArgument, "line 3");
+  ExpectError(io::ReadMesh(obj), obj, absl::StatusCode::kInvalidArgument, "line 3");
 }
 
 TEST_F(MeshIoTest, WriteRejectsInvalidMeshesAndUnwritablePaths) {
@@ -485,15 +485,15 @@ TEST_F(MeshIoTest, WriteRejectsInvalidMeshesAndUnwritablePaths) {
   bad.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
   bad.indices = {0, 1, 3};
   const std::string path = Path("bad.ply");
-  const absl::Status s = WriteMesh(path, bad);
+  const absl::Status s = io::WriteMesh(path, bad);
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
   EXPECT_TRUE(Contains(std::string(s.message()), "out of range"));
   EXPECT_FALSE(std::filesystem::exists(path));  // validated before creating the file
   bad.indices = {0, 1};
-  EXPECT_EQ(WriteMesh(path, bad).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(io::WriteMesh(path, bad).code(), absl::StatusCode::kInvalidArgument);
 
   const std::string nowhere = Path("no/such/dir/mesh.obj");
-  const absl::Status w = WriteMesh(nowhere, BumpyGrid(2, 2, true));
+  const absl::Status w = io::WriteMesh(nowhere, BumpyGrid(2, 2, true));
   EXPECT_FALSE(w.ok());
   EXPECT_TRUE(Contains(std::string(w.message()), nowhere));
 }

@@ -16,6 +16,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "tandem/io/zarr.h"
@@ -93,7 +94,7 @@ std::vector<uint8_t> Bytes(DType t) {
   return out;
 }
 
-SliceFn Slices(DType t) {
+io::SliceFn Slices(DType t) {
   return [t](int64_t z, std::vector<uint8_t>* bytes) {
     const std::vector<uint8_t> all = Bytes(t);
     const size_t slice = static_cast<size_t>(kNx * kNy) * DTypeSize(t);
@@ -106,7 +107,7 @@ SliceFn Slices(DType t) {
 // Reads `path` whole and checks its type and every byte.
 void ExpectExact(const std::string& path, DType t) {
   SCOPED_TRACE(path);
-  auto src = OpenVolume(path);
+  auto src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   const VolumeInfo& info = (*src)->info();
   EXPECT_EQ(info.dtype, t) << DTypeName(info.dtype);
@@ -139,7 +140,7 @@ std::string AsString(const std::vector<uint8_t>& b) { return std::string(b.begin
 
 TEST(LabelReaders, TheProjectsWritersRoundTripEveryWideType) {
   const std::string dir = testing::MakeTempDir();
-  VolumeWriteOptions big, gz, tiles;
+  io::VolumeWriteOptions big, gz, tiles;
   big.big_endian = true;
   gz.gzip = true;
   tiles.tiff_tile_size = 16;
@@ -147,26 +148,26 @@ TEST(LabelReaders, TheProjectsWritersRoundTripEveryWideType) {
     const std::string n = std::string(DTypeName(t));
     const struct {
       std::string name;
-      VolumeWriteOptions opts;
+      io::VolumeWriteOptions opts;
     } files[] = {{"a.json", {}},  {"b.json", big}, {"c.nrrd", {}},   {"d.nrrd", gz},
                  {"e.nrrd", big}, {"f.nhdr", {}},  {"g.nii", {}},    {"h.nii.gz", big},
                  {"i.tif", {}},   {"j.tif", big},  {"k.tif", tiles}, {"l.tif", gz},
                  {"m.mha", {}},   {"n.mhd", big},  {"o.zarr", {}}};
     for (const auto& f : files) {
       const std::string path = dir + "/" + n + "_" + f.name;
-      ASSERT_TRUE(WriteVolume(path, Grid(t), Slices(t), f.opts).ok()) << path;
+      ASSERT_TRUE(io::WriteVolume(path, Grid(t), Slices(t), f.opts).ok()) << path;
       ExpectExact(path, t);
     }
     for (int version : {2, 3}) {
       for (bool big_endian : {false, true}) {
-        ZarrWriteOptions zo;
+        io::ZarrWriteOptions zo;
         zo.version = version;
         zo.big_endian = big_endian;
         zo.chunks = {3, 4, 4};
-        zo.compressor = big_endian ? ZarrCompressor::kZstd : ZarrCompressor::kBloscLz4;
+        zo.compressor = big_endian ? io::ZarrCompressor::kZstd : io::ZarrCompressor::kBloscLz4;
         const std::string path =
             dir + "/" + n + "_v" + std::to_string(version) + (big_endian ? "_be" : "") + ".zarr";
-        ASSERT_TRUE(WriteZarr(path, Grid(t), Slices(t), zo).ok()) << path;
+        ASSERT_TRUE(io::WriteZarr(path, Grid(t), Slices(t), zo).ok()) << path;
         ExpectExact(path, t);
       }
     }
@@ -175,7 +176,7 @@ TEST(LabelReaders, TheProjectsWritersRoundTripEveryWideType) {
 
 TEST(LabelReaders, TheSidecarsValueRangeIsExact) {
   const std::string dir = testing::MakeTempDir();
-  ASSERT_TRUE(WriteVolume(dir + "/u.json", Grid(DType::kUInt64), Slices(DType::kUInt64)).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/u.json", Grid(DType::kUInt64), Slices(DType::kUInt64)).ok());
   const std::string text = testing::FileBytes(dir + "/u.json");
   // The smallest id, 2^53 + 1, printed whole (a double would print 9007199254740992).
   EXPECT_NE(text.find("9007199254740993"), std::string::npos) << text;
@@ -279,7 +280,7 @@ TEST(LabelReaders, NrrdMetaImageAndSidecarsWrittenByHand) {
   }
   WriteFile(dir + "/bad.nrrd",
             "NRRD0004\ntype: double\ndimension: 3\nsizes: " + sizes + "\nencoding: raw\n\n");
-  auto bad = OpenVolume(dir + "/bad.nrrd");
+  auto bad = io::OpenVolume(dir + "/bad.nrrd");
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.status().message().find("uint64"), absl::string_view::npos) << bad.status();
 }
@@ -326,7 +327,7 @@ for name, v, dt, comp in [('u4', u4, '<u4', B(cname='lz4', shuffle=B.SHUFFLE)),
   const std::string meta = testing::FileBytes(dir + "/u8.zarr/.zarray");
   EXPECT_NE(meta.find(std::to_string(IdOf<uint64_t>(5))), std::string::npos) << meta;
   std::filesystem::remove(dir + "/u8.zarr/0.0.0");
-  auto src = OpenVolume(dir + "/u8.zarr");
+  auto src = io::OpenVolume(dir + "/u8.zarr");
   ASSERT_TRUE(src.ok()) << src.status();
   std::vector<uint8_t> slice;
   ASSERT_TRUE((*src)->ReadSlice(&slice).ok());
@@ -341,7 +342,7 @@ TEST(LabelReaders, WideIntegersMeshAsTheirFloatValues) {
   constexpr int64_t n = 16;
   VolumeInfo grid;
   grid.nx = grid.ny = grid.nz = n;
-  auto ball = [&](DType t, double inside) -> SliceFn {
+  auto ball = [&](DType t, double inside) -> io::SliceFn {
     return [=](int64_t z, std::vector<uint8_t>* bytes) {
       VolumeInfo g = grid;
       g.dtype = t;
@@ -367,12 +368,12 @@ TEST(LabelReaders, WideIntegersMeshAsTheirFloatValues) {
     g.dtype = t;
     const std::string path = dir + "/" + std::string(DTypeName(t)) + ".json";
     // int8 holds 100 at most: its own iso, the same surface (the midpoints at half the step).
-    ASSERT_TRUE(WriteVolume(path, g, ball(t, t == DType::kInt8 ? 100 : 1000)).ok());
-    auto src = OpenVolume(path);
+    ASSERT_TRUE(io::WriteVolume(path, g, ball(t, t == DType::kInt8 ? 100 : 1000)).ok());
+    auto src = io::OpenVolume(path);
     ASSERT_TRUE(src.ok()) << src.status();
     SessionOptions o = opt;
     if (t == DType::kInt8) o.iso = 50;
-    auto session = RunSession(**src, o);
+    auto session = io::RunSession(**src, o);
     ASSERT_TRUE(session.ok()) << session.status();
     meshes.push_back((*session)->Snapshot());
     EXPECT_GT(meshes.back().num_triangles(), 100u);

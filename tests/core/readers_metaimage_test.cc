@@ -13,6 +13,7 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
@@ -64,7 +65,7 @@ void ExpectPattern(SliceSource& src) {
 
 // path opens with info's type and geometry, and every voxel is the pattern's.
 void ExpectVolume(const std::string& path, const VolumeInfo& info) {
-  auto src = OpenVolume(path);
+  auto src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   const VolumeInfo& got = (*src)->info();
   EXPECT_EQ(got.dtype, info.dtype);
@@ -80,7 +81,7 @@ void ExpectVolume(const std::string& path, const VolumeInfo& info) {
 std::string PatternBytes(const VolumeInfo& info, bool big_endian) {
   std::string out;
   std::vector<uint8_t> slice;
-  const SliceFn fn = PatternSlices(info);
+  const io::SliceFn fn = PatternSlices(info);
   const size_t es = DTypeSize(info.dtype);
   for (int64_t z = 0; z < info.nz; ++z) {
     EXPECT_TRUE(fn(z, &slice).ok());
@@ -119,9 +120,9 @@ TEST(MetaImage, RoundTripsEveryTypeBothFormsAndByteOrders) {
         info.directions = {{{c, c, 0}, {-c, c, 0}, {0, 0, -1}}};  // rotated and flipped
         info.suggested_isovalues = {12.5, -3};
         const std::string path = absl::StrCat(dir, "/v", name, big, ext);
-        VolumeWriteOptions o;
+        io::VolumeWriteOptions o;
         o.big_endian = big;
-        ASSERT_TRUE(WriteVolume(path, info, PatternSlices(info), o).ok());
+        ASSERT_TRUE(io::WriteVolume(path, info, PatternSlices(info), o).ok());
         if (std::string(ext) == ".mhd") {
           EXPECT_TRUE(fs::exists(path.substr(0, path.size() - 4) + ".raw"));
         }
@@ -129,10 +130,10 @@ TEST(MetaImage, RoundTripsEveryTypeBothFormsAndByteOrders) {
       }
     }
   }
-  VolumeWriteOptions gzip;
+  io::VolumeWriteOptions gzip;
   gzip.gzip = true;
   absl::Status gz =
-      WriteVolume(dir + "/c.mha", Grid(DType::kUInt8), PatternSlices(Grid(DType::kUInt8)), gzip);
+      io::WriteVolume(dir + "/c.mha", Grid(DType::kUInt8), PatternSlices(Grid(DType::kUInt8)), gzip);
   EXPECT_TRUE(absl::StrContains(gz.message(), "MetaImage is written uncompressed")) << gz;
 }
 
@@ -182,13 +183,13 @@ TEST(MetaImage, ReadsEveryHeaderVariantRealFilesUse) {
       fs::create_directories(fs::path(dir + "/" + c.raw_name).parent_path());
       Spit(dir + "/" + c.raw_name, c.raw);
     }
-    auto src = OpenVolume(dir + "/" + c.name);
+    auto src = io::OpenVolume(dir + "/" + c.name);
     ASSERT_TRUE(src.ok()) << src.status();
     EXPECT_EQ((*src)->info().spacing, info.spacing);
     EXPECT_EQ((*src)->info().origin, info.origin);
     ExpectPattern(**src);
   }
-  auto oriented = OpenVolume(dir + "/skip.mhd");
+  auto oriented = io::OpenVolume(dir + "/skip.mhd");
   ASSERT_TRUE(oriented.ok());
   EXPECT_TRUE(absl::StrContains((*oriented)->info().description, "AnatomicalOrientation RAI"));
 }
@@ -218,18 +219,18 @@ TEST(MetaImage, BadHeadersAndDataAreRefusedByName) {
   for (const auto& [header, words] : cases) {
     const std::string path = dir + "/bad.mha";
     Spit(path, header + data);
-    absl::Status st = OpenVolume(path).status();
+    absl::Status st = io::OpenVolume(path).status();
     EXPECT_TRUE(absl::StrContains(st.message(), path + ": ")) << st;
     EXPECT_TRUE(absl::StrContains(st.message(), words)) << words << ": " << st;
   }
   // Data: cut short, and a corrupt zlib stream (found while reading).
   Spit(dir + "/cut.mha", ok + "ElementDataFile = LOCAL\n" + data.substr(0, 100));
-  absl::Status cut = OpenVolume(dir + "/cut.mha").status();
+  absl::Status cut = io::OpenVolume(dir + "/cut.mha").status();
   EXPECT_TRUE(absl::IsDataLoss(cut)) << cut;
   EXPECT_TRUE(absl::StrContains(cut.message(), "truncated")) << cut;
   Spit(dir + "/zbad.mha", ok + "CompressedData = True\nElementDataFile = LOCAL\n" +
                               Zlib(data).substr(0, 40) + std::string(200, 'q'));
-  auto zbad = OpenVolume(dir + "/zbad.mha");
+  auto zbad = io::OpenVolume(dir + "/zbad.mha");
   ASSERT_TRUE(zbad.ok()) << zbad.status();
   std::vector<uint8_t> slice;
   absl::Status st;
@@ -313,9 +314,9 @@ TEST(MetaImageItk, ItkReadsWhatTandemWrites) {
       VolumeInfo info = Rotated(DType::kInt16);
       info.suggested_isovalues = {100};  // tandem's own field: ITK keeps it as metadata
       const std::string path = absl::StrCat(dir, "/t", big, ext);
-      VolumeWriteOptions o;
+      io::VolumeWriteOptions o;
       o.big_endian = big;
-      ASSERT_TRUE(WriteVolume(path, info, PatternSlices(info), o).ok());
+      ASSERT_TRUE(io::WriteVolume(path, info, PatternSlices(info), o).ok());
       auto reader = itk::ImageFileReader<itk::Image<int16_t, 3>>::New();
       reader->SetImageIO(itk::MetaImageIO::New());
       reader->SetFileName(path);

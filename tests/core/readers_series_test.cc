@@ -23,6 +23,7 @@
 #include "absl/strings/str_join.h"
 #include "dicom_worker_client.h"
 #include "tandem/eval/distance.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/series.h"
 #include "tandem/eval/synthetic.h"
@@ -98,7 +99,7 @@ void ShuffleNames(const std::string& dir, uint32_t seed) {
   }
 }
 
-class DicomSyntaxTest : public ::testing::TestWithParam<DicomSyntax> {};
+class DicomSyntaxTest : public ::testing::TestWithParam<io::DicomSyntax> {};
 
 // 12-bit CT values: 0..4095.
 double Ct12(int64_t i, int64_t j, int64_t k) { return static_cast<double>((i * 37 + j * 411 + k * 1009) % 4096); }
@@ -107,11 +108,11 @@ TEST_P(DicomSyntaxTest, RoundTripsTwelveBitCtAsInt16HounsfieldUnits) {
   // CT: uint16 with 12 bits stored, slope 1, intercept -1024 -> int16 Hounsfield units.
   const std::string dir = testing::MakeTempDir() + "/ct";
   VolumeInfo info = Grid(DType::kUInt16);
-  DicomWriteOptions opts;
+  io::DicomWriteOptions opts;
   opts.syntax = GetParam();
   opts.rescale_intercept = -1024;
   opts.bits_stored = 12;
-  const SliceFn ct = [&](int64_t k, std::vector<uint8_t>* bytes) {
+  const io::SliceFn ct = [&](int64_t k, std::vector<uint8_t>* bytes) {
     bytes->resize(info.slice_bytes());
     for (int64_t j = 0; j < info.ny; ++j) {
       for (int64_t i = 0; i < info.nx; ++i) {
@@ -120,9 +121,9 @@ TEST_P(DicomSyntaxTest, RoundTripsTwelveBitCtAsInt16HounsfieldUnits) {
     }
     return absl::OkStatus();
   };
-  ASSERT_TRUE(WriteDicomSeries(dir, info, ct, opts).ok());
+  ASSERT_TRUE(io::WriteDicomSeries(dir, info, ct, opts).ok());
   ShuffleNames(dir, 7);
-  auto src = OpenVolume(dir);
+  auto src = io::OpenVolume(dir);
   ASSERT_TRUE(src.ok()) << src.status();
   const VolumeInfo& got = (*src)->info();
   EXPECT_EQ(got.nx, info.nx);
@@ -139,19 +140,19 @@ TEST_P(DicomSyntaxTest, RoundTripsTwelveBitCtAsInt16HounsfieldUnits) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllSyntaxes, DicomSyntaxTest,
-                         ::testing::Values(DicomSyntax::kExplicitLittle,
-                                           DicomSyntax::kImplicitLittle,
-                                           DicomSyntax::kJpegLossless, DicomSyntax::kJpegLs,
-                                           DicomSyntax::kJpeg2000, DicomSyntax::kRle));
+                         ::testing::Values(io::DicomSyntax::kExplicitLittle,
+                                           io::DicomSyntax::kImplicitLittle,
+                                           io::DicomSyntax::kJpegLossless, io::DicomSyntax::kJpegLs,
+                                           io::DicomSyntax::kJpeg2000, io::DicomSyntax::kRle));
 
 TEST(DicomSeries, SlopeOrAWideRangeGivesFloat32AndUInt8StaysUInt8) {
   const std::string root = testing::MakeTempDir();
   // 16 stored bits shifted by -1024 do not fit int16: float32, exact.
   VolumeInfo s16 = Grid(DType::kInt16);
-  DicomWriteOptions shift;
+  io::DicomWriteOptions shift;
   shift.rescale_intercept = -1024;
-  ASSERT_TRUE(WriteDicomSeries(root + "/s16", s16, PatternSlices(s16), shift).ok());
-  auto src16 = OpenVolume(root + "/s16");
+  ASSERT_TRUE(io::WriteDicomSeries(root + "/s16", s16, PatternSlices(s16), shift).ok());
+  auto src16 = io::OpenVolume(root + "/s16");
   ASSERT_TRUE(src16.ok()) << src16.status();
   EXPECT_EQ((*src16)->info().dtype, DType::kFloat32);
   ExpectVoxels(**src16, [&](int64_t i, int64_t j, int64_t k) {
@@ -159,11 +160,11 @@ TEST(DicomSeries, SlopeOrAWideRangeGivesFloat32AndUInt8StaysUInt8) {
   });
 
   VolumeInfo info = Grid(DType::kUInt16);
-  DicomWriteOptions opts;
+  io::DicomWriteOptions opts;
   opts.rescale_slope = 0.5;
   opts.rescale_intercept = 3;
-  ASSERT_TRUE(WriteDicomSeries(root + "/mr", info, PatternSlices(info), opts).ok());
-  auto src = OpenVolume(root + "/mr");
+  ASSERT_TRUE(io::WriteDicomSeries(root + "/mr", info, PatternSlices(info), opts).ok());
+  auto src = io::OpenVolume(root + "/mr");
   ASSERT_TRUE(src.ok()) << src.status();
   EXPECT_EQ((*src)->info().dtype, DType::kFloat32);
   ExpectVoxels(**src, [&](int64_t i, int64_t j, int64_t k) {
@@ -171,8 +172,8 @@ TEST(DicomSeries, SlopeOrAWideRangeGivesFloat32AndUInt8StaysUInt8) {
   });
 
   VolumeInfo u8 = Grid(DType::kUInt8);
-  ASSERT_TRUE(WriteDicomSeries(root + "/u8", u8, PatternSlices(u8)).ok());
-  auto src8 = OpenVolume(root + "/u8");
+  ASSERT_TRUE(io::WriteDicomSeries(root + "/u8", u8, PatternSlices(u8)).ok());
+  auto src8 = io::OpenVolume(root + "/u8");
   ASSERT_TRUE(src8.ok()) << src8.status();
   EXPECT_EQ((*src8)->info().dtype, DType::kUInt8);
   ExpectVoxels(**src8, [&](int64_t i, int64_t j, int64_t k) {
@@ -183,8 +184,8 @@ TEST(DicomSeries, SlopeOrAWideRangeGivesFloat32AndUInt8StaysUInt8) {
 TEST(DicomSeries, FloatVolumeIsQuantizedWithinOneStep) {
   const std::string dir = testing::MakeTempDir() + "/f";
   VolumeInfo info = Grid(DType::kFloat32);
-  ASSERT_TRUE(WriteDicomSeries(dir, info, PatternSlices(info)).ok());
-  auto src = OpenVolume(dir);
+  ASSERT_TRUE(io::WriteDicomSeries(dir, info, PatternSlices(info)).ok());
+  auto src = io::OpenVolume(dir);
   ASSERT_TRUE(src.ok()) << src.status();
   ASSERT_EQ((*src)->info().dtype, DType::kFloat32);
   double lo = 1e300, hi = -1e300;
@@ -214,7 +215,7 @@ TEST(DicomSeries, FloatVolumeIsQuantizedWithinOneStep) {
 struct HeldVolume {
   VolumeInfo info;
   std::vector<std::vector<uint8_t>> slices;
-  SliceFn fn() const {
+  io::SliceFn fn() const {
     return [this](int64_t z, std::vector<uint8_t>* b) {
       *b = slices[z];
       return absl::OkStatus();
@@ -236,19 +237,19 @@ TEST(DicomSeries, RotatedAndMirroredFramesPlaceTheMeshInTheWorld) {
   const std::string root = testing::MakeTempDir();
   const HeldVolume held = HeldLink(36, 30, 28, {0.8, 0.8, 1.5});
   const VolumeInfo info = held.info;
-  const SliceFn fn = held.fn();
+  const io::SliceFn fn = held.fn();
   SessionOptions o;
   o.iso = 0;
   o.error = 0.05;
   auto mesh_of = [&](const std::string& dir) -> IndexedMesh {
-    auto src = OpenVolume(dir);
+    auto src = io::OpenVolume(dir);
     EXPECT_TRUE(src.ok()) << src.status();
     if (!src.ok()) return {};
-    auto run = RunSession(**src, o);
+    auto run = io::RunSession(**src, o);
     EXPECT_TRUE(run.ok()) << run.status();
     return run.ok() ? (*run)->Snapshot() : IndexedMesh{};
   };
-  ASSERT_TRUE(WriteDicomSeries(root + "/plain", info, fn).ok());
+  ASSERT_TRUE(io::WriteDicomSeries(root + "/plain", info, fn).ok());
   const IndexedMesh plain = mesh_of(root + "/plain");
   ASSERT_GT(plain.num_triangles(), 100u);
 
@@ -272,7 +273,7 @@ TEST(DicomSeries, RotatedAndMirroredFramesPlaceTheMeshInTheWorld) {
     moved.origin = f.origin;
     moved.directions = f.d;
     const std::string dir = absl::StrCat(root, "/frame", n++);
-    ASSERT_TRUE(WriteDicomSeries(dir, moved, fn).ok());
+    ASSERT_TRUE(io::WriteDicomSeries(dir, moved, fn).ok());
     const IndexedMesh world = mesh_of(dir);
     // The axis-aligned mesh (origin 0) moved into the frame by hand.
     IndexedMesh expected = plain;
@@ -299,16 +300,16 @@ TEST(DicomSeries, RotatedAndMirroredFramesPlaceTheMeshInTheWorld) {
 }
 
 std::string WriteSeries(const std::string& dir, const VolumeInfo& info,
-                        const DicomWriteOptions& opts = {}) {
-  EXPECT_TRUE(WriteDicomSeries(dir, info, PatternSlices(info), opts).ok());
+                        const io::DicomWriteOptions& opts = {}) {
+  EXPECT_TRUE(io::WriteDicomSeries(dir, info, PatternSlices(info), opts).ok());
   return dir;
 }
 
 // What a reader sets aside, one note line each.
 struct Notes {
   std::vector<std::string> lines;
-  OpenOptions Options(const std::string& series = "") {
-    return OpenOptions{.dicom_series = series,
+  io::OpenOptions Options(const std::string& series = "") {
+    return io::OpenOptions{.dicom_series = series,
                        .note = [this](const std::string& line) { lines.push_back(line); }};
   }
   std::string all() const { return absl::StrJoin(lines, "\n"); }
@@ -320,7 +321,7 @@ struct Notes {
 TEST(DicomSeries, ScoutsAreSetAsideAndTwoStacksNeedSeries) {
   const std::string root = testing::MakeTempDir();
   VolumeInfo info = Grid(DType::kInt16);
-  DicomWriteOptions a, b;
+  io::DicomWriteOptions a, b;
   a.series_uid = "1.2.826.0.1.3680043.2.1125.1";
   a.series_description = "axial";
   b.series_uid = "1.2.826.0.1.3680043.2.1125.2";
@@ -331,7 +332,7 @@ TEST(DicomSeries, ScoutsAreSetAsideAndTwoStacksNeedSeries) {
   WriteSeries(root + "/b", other, b);
   fs::copy_file(root + "/b/IM00002.dcm", root + "/s/zz_other.dcm");
   Notes stray;
-  auto src = OpenVolume(root + "/s", stray.Options());
+  auto src = io::OpenVolume(root + "/s", stray.Options());
   ASSERT_TRUE(src.ok()) << src.status();
   EXPECT_EQ((*src)->info().nz, info.nz);
   ASSERT_EQ(stray.lines.size(), 1u) << stray.all();
@@ -342,7 +343,7 @@ TEST(DicomSeries, ScoutsAreSetAsideAndTwoStacksNeedSeries) {
   for (const char* f : {"IM00001.dcm", "IM00003.dcm"}) {
     fs::copy_file(root + "/b/" + f, root + "/s/zz_" + f);
   }
-  auto two = OpenVolume(root + "/s");
+  auto two = io::OpenVolume(root + "/s");
   ASSERT_FALSE(two.ok());
   const std::string msg(two.status().message());
   EXPECT_TRUE(absl::StrContains(msg, "holds 2 DICOM slice stacks")) << msg;
@@ -353,18 +354,18 @@ TEST(DicomSeries, ScoutsAreSetAsideAndTwoStacksNeedSeries) {
   EXPECT_TRUE(absl::StrContains(msg, "pick one with --series UID")) << msg;
 
   Notes picked;
-  auto bone = OpenVolume(root + "/s", picked.Options(b.series_uid));
+  auto bone = io::OpenVolume(root + "/s", picked.Options(b.series_uid));
   ASSERT_TRUE(bone.ok()) << bone.status();
   EXPECT_EQ((*bone)->info().nz, 3);
   EXPECT_EQ(picked.all(),
             "ignoring DICOM series " + a.series_uid +
                 " 'axial' (9 images, e.g. IM00001.dcm): not the series --series picks");
-  auto wrong = OpenVolume(root + "/s", OpenOptions{.dicom_series = "1.2.3"});
+  auto wrong = io::OpenVolume(root + "/s", io::OpenOptions{.dicom_series = "1.2.3"});
   ASSERT_FALSE(wrong.ok());
   EXPECT_TRUE(absl::StrContains(wrong.status().message(), "no DICOM series 1.2.3 (--series)"))
       << wrong.status();
   EXPECT_TRUE(absl::StrContains(wrong.status().message(), b.series_uid)) << wrong.status();
-  auto tiff = OpenVolume(root + "/t.tif", OpenOptions{.dicom_series = a.series_uid});
+  auto tiff = io::OpenVolume(root + "/t.tif", io::OpenOptions{.dicom_series = a.series_uid});
   EXPECT_TRUE(absl::StrContains(tiff.status().message(), "not one")) << tiff.status();
 }
 
@@ -374,12 +375,12 @@ TEST(DicomSeries, LocalizersAndDoseReportsAreSetAside) {
   const std::string root = testing::MakeTempDir();
   VolumeInfo info = Grid(DType::kInt16);
   WriteSeries(root + "/ct", info);
-  auto plain = OpenVolume(root + "/ct");
+  auto plain = io::OpenVolume(root + "/ct");
   ASSERT_TRUE(plain.ok()) << plain.status();
   const std::string scout = testing::WriteLocalizer(root + "/ct", info);
   testing::WriteDoseReport(root + "/ct/dose.dcm", "1.2.826.0.1.3680043.2.1125.3");
   Notes notes;
-  auto src = OpenVolume(root + "/ct", notes.Options());
+  auto src = io::OpenVolume(root + "/ct", notes.Options());
   ASSERT_TRUE(src.ok()) << src.status();
   EXPECT_EQ((*src)->info().nz, info.nz);
   EXPECT_EQ((*src)->info().origin, (*plain)->info().origin);
@@ -393,7 +394,7 @@ TEST(DicomSeries, LocalizersAndDoseReportsAreSetAside) {
 
   const std::string alone = testing::MakeTempDir();
   testing::WriteLocalizer(alone, info);
-  auto only = OpenVolume(alone);
+  auto only = io::OpenVolume(alone);
   ASSERT_FALSE(only.ok());
   EXPECT_EQ(only.status().message(),
             alone + ": no slice stack to read, only " + scout +
@@ -406,14 +407,14 @@ TEST(DicomSeries, DuplicateAndMissingSlicesAreRefusedNamingTheFiles) {
   VolumeInfo info = Grid(DType::kInt16);
   WriteSeries(root + "/dup", info);
   fs::copy_file(root + "/dup/IM00004.dcm", root + "/dup/copy_of_4.dcm");
-  auto dup = OpenVolume(root + "/dup");
+  auto dup = io::OpenVolume(root + "/dup");
   ASSERT_FALSE(dup.ok());
   EXPECT_TRUE(absl::StrContains(dup.status().message(), "same position")) << dup.status();
   EXPECT_TRUE(absl::StrContains(dup.status().message(), "copy_of_4.dcm")) << dup.status();
 
   WriteSeries(root + "/gap", info);
   fs::remove(root + "/gap/IM00005.dcm");
-  auto gap = OpenVolume(root + "/gap");
+  auto gap = io::OpenVolume(root + "/gap");
   ASSERT_FALSE(gap.ok());
   const std::string msg(gap.status().message());
   EXPECT_TRUE(absl::StrContains(msg, "gap between IM00004.dcm and IM00006.dcm")) << msg;
@@ -426,7 +427,7 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
   WriteSeries(root + "/cut", info);
   const std::string victim = root + "/cut/IM00003.dcm";
   fs::resize_file(victim, fs::file_size(victim) - 200);
-  auto cut = OpenVolume(root + "/cut");
+  auto cut = io::OpenVolume(root + "/cut");
   absl::Status st = cut.status();
   if (cut.ok()) {
     std::vector<uint8_t> bytes;
@@ -444,19 +445,19 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
   std::ofstream(root + "/txt/IM00010.dcm.part") << "DICM";
   std::ofstream(root + "/txt/IM00011.dcm.tmp") << "DICM";
   Notes notes;
-  auto txt = OpenVolume(root + "/txt", notes.Options());
+  auto txt = io::OpenVolume(root + "/txt", notes.Options());
   ASSERT_TRUE(txt.ok()) << txt.status();
   EXPECT_EQ((*txt)->info().nz, info.nz);
   EXPECT_EQ(notes.all(), "skipping " + root + "/txt/notes.txt: not a DICOM file");
   // A file that is DICOM but does not parse is an error naming it.
   std::ofstream(root + "/txt/broken.dcm", std::ios::binary)
       << std::string(128, '\0') << "DICM" << std::string(64, '\xff');
-  auto broken = OpenVolume(root + "/txt");
+  auto broken = io::OpenVolume(root + "/txt");
   ASSERT_FALSE(broken.ok());
   EXPECT_TRUE(absl::StrContains(broken.status().message(), "broken.dcm")) << broken.status();
 
   // One series whose slices differ in size.
-  DicomWriteOptions one;
+  io::DicomWriteOptions one;
   one.series_uid = "1.2.826.0.1.3680043.2.1125.4";
   WriteSeries(root + "/size", info, one);
   VolumeInfo small = info;
@@ -464,12 +465,12 @@ TEST(DicomSeries, TruncatedForeignAndMismatchedFilesAreRefusedNamingThem) {
   WriteSeries(root + "/small", small, one);
   fs::remove(root + "/size/IM00009.dcm");
   fs::copy_file(root + "/small/IM00009.dcm", root + "/size/IM00009.dcm");
-  auto size = OpenVolume(root + "/size");
+  auto size = io::OpenVolume(root + "/size");
   ASSERT_FALSE(size.ok());
   EXPECT_TRUE(absl::StrContains(size.status().message(), "IM00009.dcm")) << size.status();
   EXPECT_TRUE(absl::StrContains(size.status().message(), "differ in size")) << size.status();
 
-  auto empty = OpenVolume(testing::MakeTempDir());
+  auto empty = io::OpenVolume(testing::MakeTempDir());
   ASSERT_FALSE(empty.ok());
   EXPECT_TRUE(absl::StrContains(empty.status().message(), "empty folder")) << empty.status();
 }
@@ -485,7 +486,7 @@ std::string U32Le(uint32_t v) { return std::string(reinterpret_cast<const char*>
 
 // Reads a series folder to the end: the status that ended it (OutOfRange: every slice read).
 absl::Status ReadToEnd(const std::string& dir) {
-  auto src = OpenVolume(dir);
+  auto src = io::OpenVolume(dir);
   if (!src.ok()) return src.status();
   std::vector<uint8_t> slice;
   absl::Status st;
@@ -503,8 +504,8 @@ double SecondsSince(std::chrono::steady_clock::time_point t0) {
 // the file and the rule, before GDCM sees it; the program goes on reading other series.
 TEST(DicomSeries, CraftedRleHeadersAreRefusedNamingTheFile) {
   const std::string root = testing::MakeTempDir();
-  DicomWriteOptions rle;
-  rle.syntax = DicomSyntax::kRle;
+  io::DicomWriteOptions rle;
+  rle.syntax = io::DicomSyntax::kRle;
   const VolumeInfo info = Grid(DType::kInt16);
   for (uint32_t segments : {0u, 0xffffffffu, 16u, 1u}) {
     const std::string dir = WriteSeries(absl::StrCat(root, "/s", segments), info, rle);
@@ -682,23 +683,23 @@ TEST(DicomSeries, DeflatedDataSetsAreBoundedToo) {
 TEST(DicomReaderProcess, CrashHangAndRunawayMemoryCostTheReaderNotTheProgram) {
   const std::string dir = WriteSeries(testing::MakeTempDir() + "/s", Grid(DType::kUInt16));
   EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
-  absl::Status st = dicom::testing::Misbehave(1);
+  absl::Status st = io::dicom::testing::Misbehave(1);
   EXPECT_TRUE(absl::StrContains(st.message(), "the DICOM reader process died reading this file"))
       << st;
   EXPECT_TRUE(absl::StrContains(st.message(), "signal 11")) << st;
   EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
 
-  dicom::testing::SetTimeLimit(0.5);
+  io::dicom::testing::SetTimeLimit(0.5);
   const auto t0 = std::chrono::steady_clock::now();
-  st = dicom::testing::Misbehave(2);
-  dicom::testing::SetTimeLimit(0);
+  st = io::dicom::testing::Misbehave(2);
+  io::dicom::testing::SetTimeLimit(0);
   EXPECT_LT(SecondsSince(t0), 5.0);
   EXPECT_TRUE(absl::StrContains(st.message(), "took more than 0.5 s on this file and was stopped"))
       << st;
   EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
 
 #ifndef TANDEM_TEST_ASAN
-  st = dicom::testing::Misbehave(3);  // the address-space limit (not set under ASan)
+  st = io::dicom::testing::Misbehave(3);  // the address-space limit (not set under ASan)
   EXPECT_TRUE(absl::IsResourceExhausted(st)) << st;
   EXPECT_TRUE(absl::IsOutOfRange(ReadToEnd(dir)));
 #endif
@@ -719,7 +720,7 @@ TEST(DicomSeries, FilesThatTripGdcmAssertionsAreErrorsNotAborts) {
     const std::string dir = testing::MakeTempDir();
     std::ofstream(dir + "/a", std::ios::binary) << bytes.substr(4, a);
     std::ofstream(dir + "/b", std::ios::binary) << bytes.substr(4 + a);
-    auto src = OpenVolume(dir);
+    auto src = io::OpenVolume(dir);
     absl::Status st = src.status();
     if (src.ok()) {
       std::vector<uint8_t> slice;
@@ -737,20 +738,20 @@ TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
   const std::string root = testing::MakeTempDir();
   const HeldVolume held = HeldLink(30, 28, 26, {0.5, 0.5, 0.5});
   const VolumeInfo info = held.info;
-  const SliceFn fn = held.fn();
-  ASSERT_TRUE(WriteVolume(root + "/plain.json", info, fn).ok());
+  const io::SliceFn fn = held.fn();
+  ASSERT_TRUE(io::WriteVolume(root + "/plain.json", info, fn).ok());
   VolumeInfo turned = info;
   turned.directions = {{{0, 0, 1}, {1, 0, 0}, {0, 1, 0}}};  // a cyclic permutation: exact
-  ASSERT_TRUE(WriteVolume(root + "/turned.json", turned, fn).ok());
-  auto plain = OpenVolume(root + "/plain.json");
-  auto moved = OpenVolume(root + "/turned.json");
+  ASSERT_TRUE(io::WriteVolume(root + "/turned.json", turned, fn).ok());
+  auto plain = io::OpenVolume(root + "/plain.json");
+  auto moved = io::OpenVolume(root + "/turned.json");
   ASSERT_TRUE(plain.ok() && moved.ok());
   EXPECT_EQ((*moved)->info().directions, turned.directions);
   SessionOptions o;
   o.iso = 0;
   o.error = 0.05;
-  auto a = RunSession(**plain, o);
-  auto b = RunSession(**moved, o);
+  auto a = io::RunSession(**plain, o);
+  auto b = io::RunSession(**moved, o);
   ASSERT_TRUE(a.ok() && b.ok());
   const IndexedMesh ma = (*a)->Snapshot(), mb = (*b)->Snapshot();
   ASSERT_EQ(ma.indices, mb.indices);
@@ -761,11 +762,11 @@ TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
   // NRRD "space directions" carry the same frame (and a mirrored one flips the winding).
   for (const char* ext : {".nrrd", ".nhdr"}) {
     SCOPED_TRACE(ext);
-    ASSERT_TRUE(WriteVolume(root + "/turned" + ext, turned, fn).ok());
-    auto nrrd = OpenVolume(root + "/turned" + ext);
+    ASSERT_TRUE(io::WriteVolume(root + "/turned" + ext, turned, fn).ok());
+    auto nrrd = io::OpenVolume(root + "/turned" + ext);
     ASSERT_TRUE(nrrd.ok()) << nrrd.status();
     EXPECT_EQ((*nrrd)->info().directions, turned.directions);
-    auto c = RunSession(**nrrd, o);
+    auto c = io::RunSession(**nrrd, o);
     ASSERT_TRUE(c.ok());
     const IndexedMesh mc = (*c)->Snapshot();
     EXPECT_EQ(mc.indices, mb.indices);
@@ -774,12 +775,12 @@ TEST(Directions, TheSidecarCarriesThemAndTheMeshMovesExactly) {
   // A sidecar with sheared or malformed directions is refused, naming the key.
   std::ofstream(root + "/bad.json") << R"({"dims": [30, 28, 26], "dtype": "float32",
       "raw_file": "plain.raw", "directions": [[1, 0, 0], [1, 1, 0], [0, 0, 1]]})";
-  auto bad = OpenVolume(root + "/bad.json");
+  auto bad = io::OpenVolume(root + "/bad.json");
   ASSERT_FALSE(bad.ok());
   EXPECT_TRUE(absl::StrContains(bad.status().message(), "orthonormal")) << bad.status();
   std::ofstream(root + "/bad2.json") << R"({"dims": [30, 28, 26], "dtype": "float32",
       "raw_file": "plain.raw", "directions": [1, 0, 0]})";
-  auto bad2 = OpenVolume(root + "/bad2.json");
+  auto bad2 = io::OpenVolume(root + "/bad2.json");
   ASSERT_FALSE(bad2.ok());
   EXPECT_TRUE(absl::StrContains(bad2.status().message(), "directions")) << bad2.status();
 }
@@ -791,18 +792,18 @@ TEST(Directions, NiftiSformAndQformPlaceTheMesh) {
   const std::string root = testing::MakeTempDir();
   const HeldVolume held = HeldLink(30, 28, 26, {0.5, 0.5, 0.5});
   const VolumeInfo info = held.info;
-  const SliceFn fn = held.fn();
+  const io::SliceFn fn = held.fn();
   SessionOptions o;
   o.iso = 0;
   o.error = 0.05;
   auto mesh_of = [&](const std::string& path) {
-    auto src = OpenVolume(path);
+    auto src = io::OpenVolume(path);
     EXPECT_TRUE(src.ok()) << src.status();
-    auto run = RunSession(**src, o);
+    auto run = io::RunSession(**src, o);
     EXPECT_TRUE(run.ok());
     return (*run)->Snapshot();
   };
-  ASSERT_TRUE(WriteVolume(root + "/plain.json", info, fn).ok());
+  ASSERT_TRUE(io::WriteVolume(root + "/plain.json", info, fn).ok());
   const IndexedMesh plain = mesh_of(root + "/plain.json");
   struct Case {
     std::array<double, 3> origin;
@@ -816,8 +817,8 @@ TEST(Directions, NiftiSformAndQformPlaceTheMesh) {
     moved.origin = k.origin;
     moved.directions = k.d;
     const std::string nii = root + "/m.nii";
-    ASSERT_TRUE(WriteVolume(nii, moved, fn).ok());
-    auto src = OpenVolume(nii);
+    ASSERT_TRUE(io::WriteVolume(nii, moved, fn).ok());
+    auto src = io::OpenVolume(nii);
     ASSERT_TRUE(src.ok()) << src.status();
     for (int a = 0; a < 3; ++a) {
       for (int b = 0; b < 3; ++b) EXPECT_NEAR((*src)->info().directions[a][b], k.d[a][b], 1e-6);
@@ -857,7 +858,7 @@ TEST(Directions, NiftiSformAndQformPlaceTheMesh) {
     VolumeInfo moved = info;
     moved.origin = cases[0].origin;
     moved.directions = cases[0].d;
-    EXPECT_TRUE(WriteVolume(root + "/f.nii.gz", moved, fn).ok());
+    EXPECT_TRUE(io::WriteVolume(root + "/f.nii.gz", moved, fn).ok());
     return mesh_of(root + "/f.nii.gz");
   }();
   for (const Vec3& p : flipped.positions) {
@@ -883,14 +884,14 @@ TEST(TiffSequence, RoundTripsEveryTypeInNaturalOrder) {
     SCOPED_TRACE(DTypeName(t));
     const std::string dir = testing::MakeTempDir() + "/seq";
     VolumeInfo info = Grid(t, 37, 21, 12);
-    ASSERT_TRUE(WriteTiffSequence(dir, info, PatternSlices(info)).ok());
+    ASSERT_TRUE(io::WriteTiffSequence(dir, info, PatternSlices(info)).ok());
     // Unpadded numbers, as some reconstruction tools write: s2 must come before s10.
     for (int64_t z = 0; z < info.nz; ++z) {
       char name[32];
       std::snprintf(name, sizeof(name), "slice_%05lld.tif", static_cast<long long>(z));
       fs::rename(fs::path(dir) / name, fs::path(dir) / absl::StrCat("recon_", z, ".tif"));
     }
-    auto src = OpenVolume(dir);
+    auto src = io::OpenVolume(dir);
     ASSERT_TRUE(src.ok()) << src.status();
     const VolumeInfo& got = (*src)->info();
     EXPECT_EQ(got.nz, info.nz);
@@ -924,7 +925,7 @@ TEST(TiffSequence, ResolutionInCentimetresGivesMillimetres) {
     ASSERT_EQ(TIFFWriteEncodedStrip(tif, 0, px.data(), 64), 64);
     TIFFClose(tif);
   }
-  auto src = OpenVolume(dir);
+  auto src = io::OpenVolume(dir);
   ASSERT_TRUE(src.ok()) << src.status();
   const VolumeInfo& got = (*src)->info();
   for (int a = 0; a < 3; ++a) EXPECT_NEAR(got.spacing[a], 0.05, 1e-6) << a;
@@ -934,11 +935,11 @@ TEST(TiffSequence, ResolutionInCentimetresGivesMillimetres) {
 TEST(TiffSequence, MixedSizesAndStacksAreRefusedNamingTheFile) {
   const std::string dir = testing::MakeTempDir();
   VolumeInfo info = Grid(DType::kUInt16, 16, 8, 4);
-  ASSERT_TRUE(WriteTiffSequence(dir, info, PatternSlices(info)).ok());
+  ASSERT_TRUE(io::WriteTiffSequence(dir, info, PatternSlices(info)).ok());
   VolumeInfo other = Grid(DType::kUInt16, 15, 8, 1);
   std::vector<uint8_t> bytes(other.slice_bytes(), 0);
-  ASSERT_TRUE(WriteTiffSlice(dir + "/slice_00004.tif", other, 0, bytes).ok());
-  auto src = OpenVolume(dir);
+  ASSERT_TRUE(io::WriteTiffSlice(dir + "/slice_00004.tif", other, 0, bytes).ok());
+  auto src = io::OpenVolume(dir);
   ASSERT_TRUE(src.ok()) << src.status();  // the header of the first file sets the geometry
   std::vector<uint8_t> out;
   absl::Status st;

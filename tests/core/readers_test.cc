@@ -17,6 +17,7 @@
 
 #include "absl/strings/match.h"
 #include "nlohmann/json.hpp"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
@@ -56,7 +57,7 @@ std::vector<uint8_t> PatternSlice(const VolumeInfo& info, int64_t k) {
   return s;
 }
 
-SliceFn PatternFn(const VolumeInfo& info) {
+io::SliceFn PatternFn(const VolumeInfo& info) {
   return [info](int64_t z, std::vector<uint8_t>* bytes) {
     *bytes = PatternSlice(info, z);
     return absl::OkStatus();
@@ -74,7 +75,7 @@ std::vector<uint8_t> PatternVolume(const VolumeInfo& info) {
 
 // Opens and reads every slice; also checks that the source then reports OutOfRange.
 absl::StatusOr<std::vector<uint8_t>> ReadAll(const std::string& path, VolumeInfo* info = nullptr) {
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(path);
   if (!src.ok()) return src.status();
   if (info != nullptr) *info = (*src)->info();
   std::vector<uint8_t> all, slice;
@@ -360,7 +361,7 @@ TEST(ValidateVolumeInfoTest, RejectsBadGeometry) {
 TEST(OpenVolumeTest, UnknownExtensionListsSupportedFormats) {
   const std::string path = tandem::testing::MakeTempDir() + "/volume.vtk";
   WriteText(path, "x");
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(path);
   ASSERT_FALSE(src.ok());
   EXPECT_EQ(src.status().code(), absl::StatusCode::kInvalidArgument);
   const std::string msg(src.status().message());
@@ -374,7 +375,7 @@ TEST(OpenVolumeTest, MissingFileIsNotFound) {
   const std::string dir = tandem::testing::MakeTempDir();
   for (const char* name : {"a.json", "a.nrrd", "a.nii", "a.nii.gz", "a.tif"}) {
     const std::string path = dir + "/" + name;
-    absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+    absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(path);
     ASSERT_FALSE(src.ok()) << name;
     EXPECT_EQ(src.status().code(), absl::StatusCode::kNotFound) << src.status();
     EXPECT_NE(src.status().message().find(path), absl::string_view::npos) << src.status();
@@ -384,7 +385,7 @@ TEST(OpenVolumeTest, MissingFileIsNotFound) {
 TEST(OpenVolumeTest, AnalyzePairsAreRejectedClearly) {
   const std::string path = tandem::testing::MakeTempDir() + "/brain.hdr";
   WriteText(path, std::string(348, '\0'));
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(path);
   ASSERT_FALSE(src.ok());
   EXPECT_NE(src.status().message().find(".hdr + .img"), absl::string_view::npos) << src.status();
 }
@@ -395,12 +396,12 @@ TEST(OpenVolumeTest, AnalyzePairsAreRejectedClearly) {
 struct Format {
   const char* name;
   const char* file;
-  VolumeWriteOptions opts;
+  io::VolumeWriteOptions opts;
   bool keeps_isovalues;  // formats with a place for suggested_isovalues
 };
 
-VolumeWriteOptions Opts(bool gzip, bool big_endian, int tile = 0) {
-  VolumeWriteOptions o;
+io::VolumeWriteOptions Opts(bool gzip, bool big_endian, int tile = 0) {
+  io::VolumeWriteOptions o;
   o.gzip = gzip;
   o.big_endian = big_endian;
   o.tiff_tile_size = tile;
@@ -431,7 +432,7 @@ TEST_P(RoundTripTest, SameInfoAndVoxels) {
   const Format& f = kFormats[std::get<0>(GetParam())];
   const VolumeInfo info = MakeInfo(std::get<1>(GetParam()));
   const std::string path = tandem::testing::MakeTempDir() + "/" + f.file;
-  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), f.opts).ok());
+  ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info), f.opts).ok());
 
   VolumeInfo got;
   absl::StatusOr<std::vector<uint8_t>> voxels = ReadAll(path, &got);
@@ -453,13 +454,13 @@ TEST_P(RoundTripTest, ViewSliceGivesTheSameVoxelsWhereOffered) {
   const Format& f = kFormats[std::get<0>(GetParam())];
   const VolumeInfo info = MakeInfo(std::get<1>(GetParam()));
   const std::string path = tandem::testing::MakeTempDir() + "/" + f.file;
-  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), f.opts).ok());
+  ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info), f.opts).ok());
   const bool tiff = absl::EndsWith(f.file, ".tif") || absl::EndsWith(f.file, ".tiff");
   const bool swapped = f.opts.big_endian && DTypeSize(info.dtype) > 1;
   const bool gzip = f.opts.gzip || absl::EndsWith(f.file, ".gz");
   const bool offered = !tiff && !gzip && !swapped;
 
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   const std::vector<uint8_t> want = PatternVolume(info);
   const size_t sb = info.slice_bytes();
@@ -494,8 +495,8 @@ TEST(ViewSliceTest, FileTruncatedWhileMappedIsAnError) {
   const std::string dir = tandem::testing::MakeTempDir();
   const VolumeInfo info = MakeInfo(DType::kFloat32, 40, 30, 8);
   const std::string path = dir + "/v.json";
-  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info)).ok());
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(path);
+  ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info)).ok());
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   const uint8_t* view = nullptr;
   ASSERT_TRUE((*src)->ViewSlice(&view).ok());
@@ -526,7 +527,7 @@ INSTANTIATE_TEST_SUITE_P(AllFormats, RoundTripTest,
 TEST(WriteVolumeTest, JsonSidecarHasTheSharedKeysAndAChecksum) {
   const VolumeInfo info = MakeInfo(DType::kInt16);
   const std::string dir = tandem::testing::MakeTempDir();
-  ASSERT_TRUE(WriteVolume(dir + "/head.json", info, PatternFn(info)).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/head.json", info, PatternFn(info)).ok());
   ASSERT_TRUE(fs::exists(dir + "/head.raw"));
   const nlohmann::json j = nlohmann::json::parse(ReadText(dir + "/head.json"));
   for (const char* key : {"dims", "dtype", "spacing", "origin", "byte_order", "layout", "source",
@@ -546,7 +547,7 @@ TEST(WriteVolumeTest, Sha256MatchesAKnownDigest) {
   // 2x2x2 uint8 voxels "abcdefgh": sha256("abcdefgh") is a published test value.
   VolumeInfo info = MakeInfo(DType::kUInt8, 2, 2, 2);
   const std::string dir = tandem::testing::MakeTempDir();
-  ASSERT_TRUE(WriteVolume(dir + "/t.json", info, [](int64_t z, std::vector<uint8_t>* b) {
+  ASSERT_TRUE(io::WriteVolume(dir + "/t.json", info, [](int64_t z, std::vector<uint8_t>* b) {
                 const char* s = z == 0 ? "abcd" : "efgh";
                 b->assign(s, s + 4);
                 return absl::OkStatus();
@@ -564,12 +565,12 @@ TEST(WriteVolumeTest, BigEndianReallyStoresBigEndian) {
     std::memcpy(b->data(), v, 8);
     return absl::OkStatus();
   };
-  ASSERT_TRUE(WriteVolume(dir + "/b.json", info, fn, Opts(false, true)).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/b.json", info, fn, Opts(false, true)).ok());
   const std::vector<uint8_t> raw = ReadBytes(dir + "/b.raw");
   ASSERT_EQ(raw.size(), 16u);
   EXPECT_EQ(raw[0], 0x01);
   EXPECT_EQ(raw[1], 0x02);
-  ASSERT_TRUE(WriteVolume(dir + "/b.nii", info, fn, Opts(false, true)).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/b.nii", info, fn, Opts(false, true)).ok());
   const std::vector<uint8_t> nii = ReadBytes(dir + "/b.nii");
   EXPECT_EQ(nii[3], 0x5c);  // sizeof_hdr 348 = 0x15c, big-endian
   EXPECT_EQ(nii[352], 0x01);
@@ -578,28 +579,28 @@ TEST(WriteVolumeTest, BigEndianReallyStoresBigEndian) {
 TEST(WriteVolumeTest, RejectsBadInputs) {
   const std::string dir = tandem::testing::MakeTempDir();
   VolumeInfo info = MakeInfo(DType::kUInt8);
-  absl::Status st = WriteVolume(dir + "/v.obj", info, PatternFn(info));
+  absl::Status st = io::WriteVolume(dir + "/v.obj", info, PatternFn(info));
   EXPECT_FALSE(st.ok());
   EXPECT_NE(st.message().find(".nrrd"), absl::string_view::npos) << st;
   // A slice of the wrong size.
-  st = WriteVolume(dir + "/v.nrrd", info, [](int64_t, std::vector<uint8_t>* b) {
+  st = io::WriteVolume(dir + "/v.nrrd", info, [](int64_t, std::vector<uint8_t>* b) {
     b->assign(3, 0);
     return absl::OkStatus();
   });
   EXPECT_FALSE(st.ok());
   EXPECT_NE(st.message().find("expected"), absl::string_view::npos) << st;
   // slice_fn errors are passed on.
-  st = WriteVolume(dir + "/v.nii", info, [](int64_t, std::vector<uint8_t>*) {
+  st = io::WriteVolume(dir + "/v.nii", info, [](int64_t, std::vector<uint8_t>*) {
     return absl::UnavailableError("source gone");
   });
   EXPECT_EQ(st.code(), absl::StatusCode::kUnavailable);
   // Unknown nz, bad spacing.
   VolumeInfo bad = info;
   bad.nz = 0;
-  EXPECT_FALSE(WriteVolume(dir + "/v.tif", bad, PatternFn(info)).ok());
+  EXPECT_FALSE(io::WriteVolume(dir + "/v.tif", bad, PatternFn(info)).ok());
   bad = info;
   bad.spacing[0] = -1;
-  EXPECT_FALSE(WriteVolume(dir + "/v.json", bad, PatternFn(info)).ok());
+  EXPECT_FALSE(io::WriteVolume(dir + "/v.json", bad, PatternFn(info)).ok());
 }
 
 // ---------------------------------------------------------------------------------------
@@ -612,7 +613,7 @@ class RawJsonTest : public ::testing::Test {
     json_ = dir_ + "/vol.json";
     raw_ = dir_ + "/vol.raw";
     info_ = MakeInfo(DType::kUInt16);
-    ASSERT_TRUE(WriteVolume(json_, info_, PatternFn(info_)).ok());
+    ASSERT_TRUE(io::WriteVolume(json_, info_, PatternFn(info_)).ok());
   }
   void EditSidecar(const std::function<void(nlohmann::json&)>& edit) {
     nlohmann::json j = nlohmann::json::parse(ReadText(json_));
@@ -695,7 +696,7 @@ TEST_F(RawJsonTest, RawFileDefaultsToStemAndMinimalSidecarWorks) {
 }
 
 TEST_F(RawJsonTest, SlicesAreStreamedOneAtATime) {
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(json_);
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(json_);
   ASSERT_TRUE(src.ok()) << src.status();
   std::vector<uint8_t> slice;
   for (int64_t k = 0; k < info_.nz; ++k) {
@@ -764,7 +765,7 @@ TEST(NrrdTest, TypeAliasesAndByteSkip) {
 TEST(NrrdTest, DetachedHeaderNamesAMissingDataFile) {
   const std::string dir = tandem::testing::MakeTempDir();
   const VolumeInfo info = MakeInfo(DType::kInt16);
-  ASSERT_TRUE(WriteVolume(dir + "/d.nhdr", info, PatternFn(info)).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/d.nhdr", info, PatternFn(info)).ok());
   EXPECT_NE(ReadText(dir + "/d.nhdr").find("data file: d.raw"), std::string::npos);
   fs::remove(dir + "/d.raw");
   ExpectFails(dir + "/d.nhdr", {"d.raw"});
@@ -775,7 +776,7 @@ class NrrdErrorTest : public ::testing::TestWithParam<bool> {  // param: gzip
   void SetUp() override {
     path_ = tandem::testing::MakeTempDir() + "/vol.nrrd";
     info_ = MakeInfo(DType::kUInt16);
-    ASSERT_TRUE(WriteVolume(path_, info_, PatternFn(info_), Opts(GetParam(), false)).ok());
+    ASSERT_TRUE(io::WriteVolume(path_, info_, PatternFn(info_), Opts(GetParam(), false)).ok());
   }
   std::string path_;
   VolumeInfo info_;
@@ -834,7 +835,7 @@ INSTANTIATE_TEST_SUITE_P(RawAndGzip, NrrdErrorTest, ::testing::Bool(),
 TEST(NrrdTest, CorruptGzipData) {
   const std::string path = tandem::testing::MakeTempDir() + "/c.nrrd";
   const VolumeInfo info = MakeInfo(DType::kFloat32);
-  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), Opts(true, false)).ok());
+  ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info), Opts(true, false)).ok());
   std::vector<uint8_t> bytes = ReadBytes(path);
   for (size_t i = bytes.size() - 300; i < bytes.size() - 200; ++i) bytes[i] ^= 0x5a;
   WriteBytes(path, bytes);
@@ -850,7 +851,7 @@ class NiftiTest : public ::testing::Test {
     dir_ = tandem::testing::MakeTempDir();
     path_ = dir_ + "/vol.nii";
     info_ = MakeInfo(DType::kInt16);
-    ASSERT_TRUE(WriteVolume(path_, info_, PatternFn(info_)).ok());
+    ASSERT_TRUE(io::WriteVolume(path_, info_, PatternFn(info_)).ok());
     bytes_ = ReadBytes(path_);
     ASSERT_EQ(bytes_.size(), 352 + 7770u);
   }
@@ -874,7 +875,7 @@ TEST_F(NiftiTest, Truncated) {
 
 TEST_F(NiftiTest, TruncatedGzip) {
   const std::string gz = dir_ + "/vol.nii.gz";
-  ASSERT_TRUE(WriteVolume(gz, info_, PatternFn(info_)).ok());
+  ASSERT_TRUE(io::WriteVolume(gz, info_, PatternFn(info_)).ok());
   Truncate(gz, 40);
   ExpectFails(gz, {"truncated", "expected 7770 bytes of voxel data"});
 }
@@ -973,10 +974,10 @@ TEST_F(NiftiTest, VoxOffsetIsHonoured) {
 TEST_F(NiftiTest, ScalingDeliversFloat32) {
   for (const char* name : {"s.nii", "s.nii.gz"}) {
     const std::string path = dir_ + "/" + name;
-    VolumeWriteOptions o;
+    io::VolumeWriteOptions o;
     o.nifti_scl_slope = 2.0f;
     o.nifti_scl_inter = -1.5f;
-    ASSERT_TRUE(WriteVolume(path, info_, PatternFn(info_), o).ok());
+    ASSERT_TRUE(io::WriteVolume(path, info_, PatternFn(info_), o).ok());
     VolumeInfo got;
     absl::StatusOr<std::vector<uint8_t>> v = ReadAll(path, &got);
     ASSERT_TRUE(v.ok()) << v.status();
@@ -990,10 +991,10 @@ TEST_F(NiftiTest, ScalingDeliversFloat32) {
     }
   }
   // slope 1, inter 0 is the identity: the stored dtype is kept.
-  VolumeWriteOptions identity;
+  io::VolumeWriteOptions identity;
   identity.nifti_scl_slope = 1.0f;
   const std::string path = dir_ + "/i.nii";
-  ASSERT_TRUE(WriteVolume(path, info_, PatternFn(info_), identity).ok());
+  ASSERT_TRUE(io::WriteVolume(path, info_, PatternFn(info_), identity).ok());
   VolumeInfo got;
   ASSERT_TRUE(ReadAll(path, &got).ok());
   EXPECT_EQ(got.dtype, DType::kInt16);
@@ -1001,7 +1002,7 @@ TEST_F(NiftiTest, ScalingDeliversFloat32) {
 
 TEST_F(NiftiTest, GzipDetectedFromContentNotName) {
   const std::string gz = dir_ + "/vol.nii.gz";
-  ASSERT_TRUE(WriteVolume(gz, info_, PatternFn(info_)).ok());
+  ASSERT_TRUE(io::WriteVolume(gz, info_, PatternFn(info_)).ok());
   const std::string renamed = dir_ + "/really_gzip.nii";
   fs::rename(gz, renamed);
   absl::StatusOr<std::vector<uint8_t>> v = ReadAll(renamed);
@@ -1017,7 +1018,7 @@ TEST(TiffTest, ManyStripsAndEdgeTiles) {
   const VolumeInfo info = MakeInfo(DType::kFloat32, 1000, 150, 3);  // ~16 rows per strip
   for (int tile : {0, 48}) {
     const std::string path = dir + "/wide" + std::to_string(tile) + ".tif";
-    ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), Opts(false, false, tile)).ok());
+    ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info), Opts(false, false, tile)).ok());
     absl::StatusOr<std::vector<uint8_t>> v = ReadAll(path);
     ASSERT_TRUE(v.ok()) << v.status();
     EXPECT_TRUE(*v == PatternVolume(info)) << "tile " << tile;
@@ -1048,7 +1049,7 @@ TEST(TiffTest, Truncated) {
   // intact and libtiff ignores those tags; 300 bytes reaches the last page's directory and data.)
   for (uintmax_t cut : {uintmax_t{300}, uintmax_t{5000}}) {
     const std::string path = dir + "/w" + std::to_string(cut) + ".tif";
-    ASSERT_TRUE(WriteVolume(path, info, PatternFn(info)).ok());
+    ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info)).ok());
     Truncate(path, cut);
     ExpectFails(path, {"truncated"});
   }
@@ -1083,7 +1084,7 @@ void PatchTiffTag(const std::string& path, uint16_t tag, uint32_t value) {
 TEST(TiffTest, HugeTilesAreRefused) {
   const std::string path = tandem::testing::MakeTempDir() + "/tiles.tif";
   const VolumeInfo info = MakeInfo(DType::kFloat32, 32, 32, 3);
-  ASSERT_TRUE(WriteVolume(path, info, PatternFn(info), Opts(false, false, 16)).ok());
+  ASSERT_TRUE(io::WriteVolume(path, info, PatternFn(info), Opts(false, false, 16)).ok());
   PatchTiffTag(path, 322, 65520);  // TileWidth
   PatchTiffTag(path, 323, 65520);  // TileLength
   ExpectFails(path, {"tile", "65520"});
@@ -1133,7 +1134,7 @@ class SharedVolumeTest : public ::testing::TestWithParam<const char*> {};
 TEST_P(SharedVolumeTest, MatchesSidecarAndRawBytes) {
   TANDEM_SHARED_OR_SKIP(json_path, std::string(GetParam()) + ".json");
   const nlohmann::json j = nlohmann::json::parse(ReadText(json_path));
-  absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(json_path);
+  absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(json_path);
   ASSERT_TRUE(src.ok()) << src.status();
   const VolumeInfo& info = (*src)->info();
   EXPECT_EQ(info.nx, j["dims"][0].get<int64_t>());
@@ -1170,11 +1171,11 @@ TEST_P(SharedVolumeTest, ConvertsLosslesslyToEveryFormat) {
   ASSERT_TRUE(original.ok()) << original.status();
   const std::string dir = tandem::testing::MakeTempDir();
   for (const char* name : {"c.nrrd", "c.nii.gz", "c.tif"}) {
-    absl::StatusOr<std::unique_ptr<SliceSource>> src = OpenVolume(json_path);
+    absl::StatusOr<std::unique_ptr<SliceSource>> src = io::OpenVolume(json_path);
     ASSERT_TRUE(src.ok());
     SliceSource* s = src->get();
     const std::string out = dir + "/" + name;
-    ASSERT_TRUE(WriteVolume(
+    ASSERT_TRUE(io::WriteVolume(
                     out, s->info(),
                     [s](int64_t, std::vector<uint8_t>* b) { return s->ReadSlice(b); },
                     Opts(true, false))

@@ -17,6 +17,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 #include "testutil/testutil.h"
@@ -79,17 +80,17 @@ void WriteText(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;
 }
 
-const char* CodecName(ZarrCompressor c) {
+const char* CodecName(io::ZarrCompressor c) {
   switch (c) {
-    case ZarrCompressor::kNone:
+    case io::ZarrCompressor::kNone:
       return "none";
-    case ZarrCompressor::kGzip:
+    case io::ZarrCompressor::kGzip:
       return "gzip";
-    case ZarrCompressor::kZstd:
+    case io::ZarrCompressor::kZstd:
       return "zstd";
-    case ZarrCompressor::kBloscLz4:
+    case io::ZarrCompressor::kBloscLz4:
       return "blosclz4";
-    case ZarrCompressor::kBloscZstd:
+    case io::ZarrCompressor::kBloscZstd:
       return "bloscztd";
   }
   return "?";
@@ -98,7 +99,7 @@ const char* CodecName(ZarrCompressor c) {
 // ---------------------------------------------------------------------------------------
 // Round trips.
 
-using RoundTripParam = std::tuple<int, ZarrCompressor, DType, int>;
+using RoundTripParam = std::tuple<int, io::ZarrCompressor, DType, int>;
 
 class ZarrRoundTrip : public ::testing::TestWithParam<RoundTripParam> {};
 
@@ -107,12 +108,12 @@ TEST_P(ZarrRoundTrip, ReadsBackWhatTheWriterWrote) {
   const std::string dir = testing::MakeTempDir();
   const std::string path = dir + "/v.zarr";
   const VolumeInfo info = Grid(dtype);
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.version = version;
   o.compressor = codec;
   o.chunks = {depth, 8, 16};  // 21 x 37 planes: edge chunks in y and x; 16 planes: in z for 7
-  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
-  auto src = OpenVolume(path);
+  ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
+  auto src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   const VolumeInfo& got = (*src)->info();
   EXPECT_EQ(got.nx, 37);
@@ -129,8 +130,8 @@ INSTANTIATE_TEST_SUITE_P(
     AllCodecs, ZarrRoundTrip,
     ::testing::Combine(
         ::testing::Values(2, 3),
-        ::testing::Values(ZarrCompressor::kNone, ZarrCompressor::kGzip, ZarrCompressor::kZstd,
-                          ZarrCompressor::kBloscLz4, ZarrCompressor::kBloscZstd),
+        ::testing::Values(io::ZarrCompressor::kNone, io::ZarrCompressor::kGzip, io::ZarrCompressor::kZstd,
+                          io::ZarrCompressor::kBloscLz4, io::ZarrCompressor::kBloscZstd),
         ::testing::Values(DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32),
         ::testing::Values(1, 7)),
     [](const ::testing::TestParamInfo<RoundTripParam>& p) {
@@ -143,17 +144,17 @@ TEST(Zarr, BigEndianArraysAreSwapped) {
     for (DType t : {DType::kUInt16, DType::kInt16, DType::kFloat32}) {
       const std::string path = testing::MakeTempDir() + "/be.zarr";
       const VolumeInfo info = Grid(t);
-      ZarrWriteOptions o;
+      io::ZarrWriteOptions o;
       o.version = version;
       o.big_endian = true;
       o.chunks = {3, 10, 10};
-      ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+      ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
       if (version == 2) {
         EXPECT_EQ(ReadJson(path + "/0/.zarray")["dtype"].get<std::string>()[0], '>');
       } else {
         EXPECT_EQ(ReadJson(path + "/0/zarr.json")["codecs"][0]["configuration"]["endian"], "big");
       }
-      auto src = OpenVolume(path);
+      auto src = io::OpenVolume(path);
       ASSERT_TRUE(src.ok()) << src.status();
       ExpectPatternValue(**src);
     }
@@ -163,14 +164,14 @@ TEST(Zarr, BigEndianArraysAreSwapped) {
 TEST(Zarr, PlainArrayWithSlashSeparatorHasUnitSpacing) {
   const std::string path = testing::MakeTempDir() + "/plain.zarr";
   const VolumeInfo info = Grid(DType::kUInt16);
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.ome = false;
   o.dimension_separator = '/';
   o.chunks = {4, 0, 0};  // whole planes
-  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+  ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
   EXPECT_TRUE(fs::exists(path + "/.zarray"));
   EXPECT_TRUE(fs::exists(path + "/3/0/0"));  // nested chunk keys
-  auto src = OpenVolume(path);
+  auto src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   EXPECT_EQ((*src)->info().spacing, (std::array<double, 3>{1, 1, 1}));
   EXPECT_EQ((*src)->info().origin, (std::array<double, 3>{0, 0, 0}));
@@ -181,19 +182,19 @@ TEST(Zarr, MissingChunksReadAsFillValue) {
   for (int version : {2, 3}) {
     const std::string path = testing::MakeTempDir() + "/fill.zarr";
     const VolumeInfo info = Grid(DType::kInt16);
-    ZarrWriteOptions o;
+    io::ZarrWriteOptions o;
     o.version = version;
     o.ome = false;
-    o.compressor = ZarrCompressor::kZstd;
+    o.compressor = io::ZarrCompressor::kZstd;
     o.chunks = {7, 8, 16};
-    ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+    ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
     // Chunk (1, 2, 1): planes 7..13, rows 16..20 (edge), columns 16..31.
     const std::string meta = path + (version == 2 ? "/.zarray" : "/zarr.json");
     json j = ReadJson(meta);
     j["fill_value"] = -42;
     WriteText(meta, j.dump());
     ASSERT_TRUE(fs::remove(path + (version == 2 ? "/1.2.1" : "/c/1/2/1")));
-    auto src = OpenVolume(path);
+    auto src = io::OpenVolume(path);
     ASSERT_TRUE(src.ok()) << src.status();
     ExpectPatternValue(
         **src,
@@ -208,11 +209,11 @@ TEST(Zarr, DecodesOneChunkLayerAtATime) {
   // Damage chunk row 1 after opening: the 7 planes of row 0 still come out, then the error.
   const std::string path = testing::MakeTempDir() + "/layers.zarr";
   const VolumeInfo info = Grid(DType::kUInt8);
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.ome = false;
   o.chunks = {7, 8, 16};
-  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
-  auto src = OpenVolume(path);
+  ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
+  auto src = io::OpenVolume(path);
   ASSERT_TRUE(src.ok()) << src.status();
   WriteText(path + "/1.0.0", "not blosc");
   std::vector<uint8_t> slice;
@@ -228,18 +229,18 @@ TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
     SCOPED_TRACE(absl::StrCat("v", version));
     const std::string path = testing::MakeTempDir() + "/grow.zarr";
     VolumeInfo info = Grid(DType::kUInt16, 20, 12, 0);
-    ZarrWriteOptions o;
+    io::ZarrWriteOptions o;
     o.version = version;
     o.chunks = {4, 8, 8};
     const std::string meta = path + (version == 2 ? "/0/.zarray" : "/0/zarr.json");
-    auto app = ZarrAppender::Create(path, info, o);
+    auto app = io::ZarrAppender::Create(path, info, o);
     ASSERT_TRUE(app.ok()) << app.status();
     EXPECT_EQ((*app)->array_path(), path + "/0");
-    auto none = CountCompleteZarrPlanes(path);
+    auto none = io::CountCompleteZarrPlanes(path);
     ASSERT_TRUE(none.ok()) << none.status();
     EXPECT_EQ(*none, 0);
     info.nz = 10;
-    const SliceFn slices = PatternSlices(info);
+    const io::SliceFn slices = PatternSlices(info);
     std::vector<uint8_t> plane;
     for (int64_t k = 0; k < 10; ++k) {
       ASSERT_TRUE(slices(k, &plane).ok());
@@ -247,11 +248,11 @@ TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
       const int64_t shape0 = ReadJson(meta)["shape"][0].get<int64_t>();
       EXPECT_EQ(shape0, (k + 1) / 4 * 4) << "after plane " << k;
       EXPECT_EQ((*app)->planes_visible(), shape0);
-      auto complete = CountCompleteZarrPlanes(path);
+      auto complete = io::CountCompleteZarrPlanes(path);
       ASSERT_TRUE(complete.ok()) << complete.status();
       EXPECT_EQ(*complete, shape0);
       if (shape0 >= 4) {  // the visible part is readable while the array grows
-        auto src = OpenVolume(path);
+        auto src = io::OpenVolume(path);
         ASSERT_TRUE(src.ok()) << src.status();
         EXPECT_EQ((*src)->info().nz, shape0);
       }
@@ -261,11 +262,11 @@ TEST(Zarr, AppenderShowsCompleteChunkLayersAsItGrows) {
     for (const auto& e : fs::recursive_directory_iterator(path)) {
       EXPECT_FALSE(e.path().string().ends_with(".tmp")) << e.path();
     }
-    auto src = OpenVolume(path);
+    auto src = io::OpenVolume(path);
     ASSERT_TRUE(src.ok()) << src.status();
     ExpectPatternValue(**src);
     // A second store over the first is refused.
-    EXPECT_TRUE(absl::IsAlreadyExists(ZarrAppender::Create(path, info, o).status()));
+    EXPECT_TRUE(absl::IsAlreadyExists(io::ZarrAppender::Create(path, info, o).status()));
   }
 }
 
@@ -274,27 +275,27 @@ TEST(Zarr, FollowerCountsCompleteRowsAndResumesAtAPlane) {
   // rows with every chunk on disk count.
   const std::string path = testing::MakeTempDir() + "/prealloc.zarr";
   const VolumeInfo info = Grid(DType::kFloat32, 20, 12, 11);
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.ome = false;
   o.version = 3;
   o.chunks = {3, 8, 8};  // rows of 3 planes, 2 x 3 chunks each
-  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+  ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
   ASSERT_TRUE(fs::remove(path + "/c/2/1/2"));
   ASSERT_TRUE(fs::remove(path + "/c/3/0/0"));
-  auto n = CountCompleteZarrPlanes(path);
+  auto n = io::CountCompleteZarrPlanes(path);
   ASSERT_TRUE(n.ok()) << n.status();
   EXPECT_EQ(*n, 6);
-  n = CountCompleteZarrPlanes(path, {}, 9);  // rows below 9 planes are not looked at
+  n = io::CountCompleteZarrPlanes(path, {}, 9);  // rows below 9 planes are not looked at
   ASSERT_TRUE(n.ok());
   EXPECT_EQ(*n, 9);
-  n = CountCompleteZarrPlanes(testing::MakeTempDir() + "/nothing.zarr");
+  n = io::CountCompleteZarrPlanes(testing::MakeTempDir() + "/nothing.zarr");
   EXPECT_FALSE(n.ok());
   // Resuming at plane 4 (inside the second row) reads 4..10 as they are.
-  ZarrReadOptions from4;
+  io::ZarrReadOptions from4;
   from4.first_plane = 4;
   fs::remove_all(path);
-  ASSERT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
-  auto src = OpenZarrVolume(path, from4);
+  ASSERT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
+  auto src = io::OpenZarrVolume(path, from4);
   ASSERT_TRUE(src.ok()) << src.status();
   EXPECT_EQ((*src)->next_slice(), 4);
   std::vector<uint8_t> slice;
@@ -305,7 +306,7 @@ TEST(Zarr, FollowerCountsCompleteRowsAndResumesAtAPlane) {
   }
   EXPECT_TRUE(absl::IsOutOfRange((*src)->ReadSlice(&slice)));
   from4.first_plane = 12;
-  EXPECT_FALSE(OpenZarrVolume(path, from4).ok());
+  EXPECT_FALSE(io::OpenZarrVolume(path, from4).ok());
 }
 
 // ---------------------------------------------------------------------------------------
@@ -361,10 +362,10 @@ TEST(OmeZarr, FiveAxesPickTimeAndChannelAndScaleGivesSpacing) {
   const std::string root = testing::MakeTempDir() + "/cells.zarr";
   WriteFiveAxisImage(root);
   for (auto [t, c] : {std::pair<int64_t, int64_t>{0, 0}, {1, 2}, {0, 1}}) {
-    ZarrReadOptions opts;
+    io::ZarrReadOptions opts;
     opts.t = t;
     opts.c = c;
-    auto src = OpenZarrVolume(root, opts);
+    auto src = io::OpenZarrVolume(root, opts);
     ASSERT_TRUE(src.ok()) << src.status();
     const VolumeInfo& info = (*src)->info();
     EXPECT_EQ(info.nx, 10);
@@ -386,25 +387,25 @@ TEST(OmeZarr, FiveAxesPickTimeAndChannelAndScaleGivesSpacing) {
     }
   }
   // OpenVolume reads t = 0, c = 0; an index outside the axis is refused.
-  auto dflt = OpenVolume(root);
+  auto dflt = io::OpenVolume(root);
   ASSERT_TRUE(dflt.ok()) << dflt.status();
-  ZarrReadOptions bad;
+  io::ZarrReadOptions bad;
   bad.c = 3;
-  absl::StatusOr<std::unique_ptr<SliceSource>> st = OpenZarrVolume(root, bad);
+  absl::StatusOr<std::unique_ptr<SliceSource>> st = io::OpenZarrVolume(root, bad);
   EXPECT_FALSE(st.ok());
   EXPECT_TRUE(absl::StrContains(st.status().message(), "index 3 on axis c")) << st.status();
 }
 
 TEST(OmeZarr, LevelAndArraySelection) {
   const std::string root = testing::MakeTempDir() + "/pyr.zarr";
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.ome = false;
   o.chunks = {3, 8, 8};
   const VolumeInfo l0 = Grid(DType::kUInt8, 40, 30, 20), l1 = Grid(DType::kUInt8, 20, 15, 10);
-  ASSERT_TRUE(WriteZarr(root + "/0", l0, PatternSlices(l0), o).ok());
-  ASSERT_TRUE(WriteZarr(root + "/1", l1, PatternSlices(l1), o).ok());
+  ASSERT_TRUE(io::WriteZarr(root + "/0", l0, PatternSlices(l0), o).ok());
+  ASSERT_TRUE(io::WriteZarr(root + "/1", l1, PatternSlices(l1), o).ok());
   const VolumeInfo lab = Grid(DType::kUInt16, 12, 11, 5);
-  ASSERT_TRUE(WriteZarr(root + "/labels/nuclei", lab, PatternSlices(lab), o).ok());
+  ASSERT_TRUE(io::WriteZarr(root + "/labels/nuclei", lab, PatternSlices(lab), o).ok());
   WriteText(root + "/.zgroup", R"({"zarr_format": 2})");
   WriteText(root + "/.zattrs", R"({"multiscales": [{"version": "0.4",
     "axes": ["z", "y", "x"],
@@ -412,31 +413,31 @@ TEST(OmeZarr, LevelAndArraySelection) {
       {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [3, 1, 1]}]},
       {"path": "1", "coordinateTransformations": [{"type": "scale", "scale": [6, 2, 2]}]}],
     "coordinateTransformations": [{"type": "scale", "scale": [0.5, 0.5, 0.5]}]}]})");
-  auto level0 = OpenVolume(root);
+  auto level0 = io::OpenVolume(root);
   ASSERT_TRUE(level0.ok()) << level0.status();
   EXPECT_EQ((*level0)->info().nx, 40);
   EXPECT_EQ((*level0)->info().spacing, (std::array<double, 3>{0.5, 0.5, 1.5}));
-  auto level1 = OpenVolume(root + "#1");
+  auto level1 = io::OpenVolume(root + "#1");
   ASSERT_TRUE(level1.ok()) << level1.status();
   EXPECT_EQ((*level1)->info().nx, 20);
   EXPECT_EQ((*level1)->info().spacing, (std::array<double, 3>{1, 1, 3}));
   ExpectPatternValue(**level1);
-  auto labels = OpenVolume(root + "#labels/nuclei");
+  auto labels = io::OpenVolume(root + "#labels/nuclei");
   ASSERT_TRUE(labels.ok()) << labels.status();
   EXPECT_EQ((*labels)->info().dtype, DType::kUInt16);
   EXPECT_EQ((*labels)->info().spacing, (std::array<double, 3>{1, 1, 1}));
   ExpectPatternValue(**labels);
-  absl::Status missing = OpenVolume(root + "#2").status();
+  absl::Status missing = io::OpenVolume(root + "#2").status();
   EXPECT_TRUE(absl::StrContains(missing.message(), "level 2 does not exist")) << missing;
   // A group without multiscales says how to pick an array.
   const std::string bare = testing::MakeTempDir() + "/bare.zarr";
-  ASSERT_TRUE(WriteZarr(bare + "/a", l1, PatternSlices(l1), o).ok());
+  ASSERT_TRUE(io::WriteZarr(bare + "/a", l1, PatternSlices(l1), o).ok());
   WriteText(bare + "/.zgroup", R"({"zarr_format": 2})");
-  absl::Status group = OpenVolume(bare).status();
+  absl::Status group = io::OpenVolume(bare).status();
   EXPECT_TRUE(absl::StrContains(group.message(), "#PATH")) << group;
-  EXPECT_TRUE(OpenVolume(bare + "#a").ok());
-  ASSERT_TRUE(WriteZarr(bare + "/1", l0, PatternSlices(l0), o).ok());  // a number, not a level
-  auto one = OpenVolume(bare + "#1");
+  EXPECT_TRUE(io::OpenVolume(bare + "#a").ok());
+  ASSERT_TRUE(io::WriteZarr(bare + "/1", l0, PatternSlices(l0), o).ok());  // a number, not a level
+  auto one = io::OpenVolume(bare + "#1");
   ASSERT_TRUE(one.ok()) << one.status();
   EXPECT_EQ((*one)->info().nx, 40);
 }
@@ -508,7 +509,7 @@ TEST(Zarr, ShardedV3ArraysReadInnerChunksFromTheirShards) {
     SCOPED_TRACE(at_start ? "index at start" : "index at end");
     const std::string root = testing::MakeTempDir() + "/sharded.zarr";
     WriteShardedArray(root, at_start, {2, 1, 2});  // planes 4-5, rows 4-7, columns 16-19
-    auto src = OpenVolume(root);
+    auto src = io::OpenVolume(root);
     ASSERT_TRUE(src.ok()) << src.status();
     ASSERT_EQ((*src)->info().nz, 11);
     std::vector<uint8_t> slice;
@@ -523,7 +524,7 @@ TEST(Zarr, ShardedV3ArraysReadInnerChunksFromTheirShards) {
         }
       }
     }
-    auto planes = CountCompleteZarrPlanes(root);
+    auto planes = io::CountCompleteZarrPlanes(root);
     ASSERT_TRUE(planes.ok()) << planes.status();
     EXPECT_EQ(*planes, 11);
     // A truncated shard and an index entry past the shard's end name the shard file.
@@ -549,20 +550,20 @@ TEST(Zarr, ShardedV3ArraysReadInnerChunksFromTheirShards) {
 // Bad input: clear errors naming the file, never a crash.
 
 // A small v2 array (one plane per chunk) whose metadata the tests then damage.
-std::string SmallArray(int version, ZarrCompressor codec) {
+std::string SmallArray(int version, io::ZarrCompressor codec) {
   const std::string path = testing::MakeTempDir() + "/bad.zarr";
   const VolumeInfo info = Grid(DType::kUInt16, 10, 8, 4);
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.version = version;
   o.ome = false;
   o.compressor = codec;
   o.chunks = {1, 8, 10};
-  EXPECT_TRUE(WriteZarr(path, info, PatternSlices(info), o).ok());
+  EXPECT_TRUE(io::WriteZarr(path, info, PatternSlices(info), o).ok());
   return path;
 }
 
 absl::Status ReadAll(const std::string& path) {
-  auto src = OpenVolume(path);
+  auto src = io::OpenVolume(path);
   if (!src.ok()) return src.status();
   std::vector<uint8_t> slice;
   for (;;) {
@@ -574,9 +575,9 @@ absl::Status ReadAll(const std::string& path) {
 
 TEST(ZarrBadInput, CorruptAndTruncatedChunksNameTheChunkFile) {
   for (int version : {2, 3}) {
-    for (ZarrCompressor codec :
-         {ZarrCompressor::kNone, ZarrCompressor::kGzip, ZarrCompressor::kZstd,
-          ZarrCompressor::kBloscLz4, ZarrCompressor::kBloscZstd}) {
+    for (io::ZarrCompressor codec :
+         {io::ZarrCompressor::kNone, io::ZarrCompressor::kGzip, io::ZarrCompressor::kZstd,
+          io::ZarrCompressor::kBloscLz4, io::ZarrCompressor::kBloscZstd}) {
       SCOPED_TRACE(absl::StrCat("v", version, " ", CodecName(codec)));
       const std::string path = SmallArray(version, codec);
       const std::string chunk = path + (version == 2 ? "/2.0.0" : "/c/2/0/0");
@@ -587,7 +588,7 @@ TEST(ZarrBadInput, CorruptAndTruncatedChunksNameTheChunkFile) {
       absl::Status st = ReadAll(path);
       EXPECT_TRUE(absl::IsDataLoss(st)) << st;
       EXPECT_TRUE(absl::StrContains(st.message(), chunk)) << st;
-      if (codec == ZarrCompressor::kNone) continue;  // raw bytes of the right size are data
+      if (codec == io::ZarrCompressor::kNone) continue;  // raw bytes of the right size are data
       // Garbage of the right length.
       WriteText(chunk, std::string(size, '\x5a'));
       st = ReadAll(path);
@@ -611,7 +612,7 @@ void ExpectMetadataError(const std::string& path, const std::string& meta,
 }
 
 TEST(ZarrBadInput, MetadataProblemsAreNamed) {
-  const std::string v2 = SmallArray(2, ZarrCompressor::kBloscLz4);
+  const std::string v2 = SmallArray(2, io::ZarrCompressor::kBloscLz4);
   const std::string m2 = v2 + "/.zarray";
   ASSERT_TRUE(ReadAll(v2).ok());
   ExpectMetadataError(
@@ -664,7 +665,7 @@ TEST(ZarrBadInput, MetadataProblemsAreNamed) {
   absl::Status st = ReadAll(v2);
   EXPECT_TRUE(absl::StrContains(st.message(), "invalid JSON")) << st;
 
-  const std::string v3 = SmallArray(3, ZarrCompressor::kZstd);
+  const std::string v3 = SmallArray(3, io::ZarrCompressor::kZstd);
   const std::string m3 = v3 + "/zarr.json";
   ASSERT_TRUE(ReadAll(v3).ok());
   ExpectMetadataError(
@@ -707,13 +708,13 @@ double SecondsSince(std::chrono::steady_clock::time_point t0) {
 // saying which chunking works.
 TEST(ZarrBadInput, TinyChunksAreReadUpTo65536AndRefusedBeyondSayingWhatWorks) {
   const std::string root = testing::MakeTempDir();
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.ome = false;
-  o.compressor = ZarrCompressor::kNone;
+  o.compressor = io::ZarrCompressor::kNone;
   o.chunks = {1, 1, 1};
   const VolumeInfo small = Grid(DType::kUInt8, 24, 24, 24);
-  ASSERT_TRUE(WriteZarr(root + "/small.zarr", small, PatternSlices(small), o).ok());
-  auto src = OpenVolume(root + "/small.zarr");
+  ASSERT_TRUE(io::WriteZarr(root + "/small.zarr", small, PatternSlices(small), o).ok());
+  auto src = io::OpenVolume(root + "/small.zarr");
   ASSERT_TRUE(src.ok()) << src.status();
   ExpectPatternValue(**src);
 
@@ -771,7 +772,7 @@ TEST(ZarrBadInput, TinyChunksClaimingHugeOnesAreRefusedBeforeDecoding) {
 // Shapes and shard shapes beyond any volume, and metadata nested thousands deep (which
 // nlohmann's recursive dump would follow into a stack overflow), are refused by name.
 TEST(ZarrBadInput, OutlandishMetadataIsRefusedBeforeAnyArithmetic) {
-  const std::string v2 = SmallArray(2, ZarrCompressor::kNone);
+  const std::string v2 = SmallArray(2, io::ZarrCompressor::kNone);
   const std::string m2 = v2 + "/.zarray";
   ExpectMetadataError(
       v2, m2,
@@ -799,12 +800,12 @@ TEST(ZarrBadInput, OutlandishMetadataIsRefusedBeforeAnyArithmetic) {
 // paths and symlinks leading out of it are refused, naming the path.
 TEST(OmeZarr, PathsOutsideTheStoreAreRefused) {
   const std::string root = testing::MakeTempDir();
-  ZarrWriteOptions o;
+  io::ZarrWriteOptions o;
   o.ome = false;
   const VolumeInfo info = Grid(DType::kUInt8, 20, 15, 10);
-  ASSERT_TRUE(WriteZarr(root + "/outside", info, PatternSlices(info), o).ok());
+  ASSERT_TRUE(io::WriteZarr(root + "/outside", info, PatternSlices(info), o).ok());
   const std::string store = root + "/img.zarr";
-  ASSERT_TRUE(WriteZarr(store + "/0", info, PatternSlices(info), o).ok());
+  ASSERT_TRUE(io::WriteZarr(store + "/0", info, PatternSlices(info), o).ok());
   fs::create_symlink(root + "/outside", store + "/link");
   WriteText(store + "/.zgroup", R"({"zarr_format": 2})");
   const auto multiscale = [&](const std::string& path) {
@@ -868,7 +869,7 @@ TEST(ZarrPython, ReadsArraysWrittenByZarrPython) {
   for (const char* name :
        {"blosc_lz4", "blosc_zstd", "blosc_blosclz_f4", "gzip_be", "zstd", "zlib_i2"}) {
     SCOPED_TRACE(name);
-    auto src = OpenVolume(dir + "/" + name + ".zarr");
+    auto src = io::OpenVolume(dir + "/" + name + ".zarr");
     ASSERT_TRUE(src.ok()) << src.status();
     const VolumeInfo& info = (*src)->info();
     ASSERT_EQ(info.nx, 37);
@@ -911,16 +912,16 @@ TEST(ZarrPython, ZarrPythonReadsWhatTheWriterWrote) {
     GTEST_SKIP() << "/usr/bin/python3 with zarr and numcodecs not found "
                     "(apt-get install python3-zarr python3-numcodecs)";
   }
-  for (ZarrCompressor codec :
-       {ZarrCompressor::kBloscLz4, ZarrCompressor::kBloscZstd, ZarrCompressor::kZstd,
-        ZarrCompressor::kGzip, ZarrCompressor::kNone}) {
+  for (io::ZarrCompressor codec :
+       {io::ZarrCompressor::kBloscLz4, io::ZarrCompressor::kBloscZstd, io::ZarrCompressor::kZstd,
+        io::ZarrCompressor::kGzip, io::ZarrCompressor::kNone}) {
     SCOPED_TRACE(CodecName(codec));
     const std::string dir = testing::MakeTempDir();
     const VolumeInfo info = Grid(DType::kUInt16);
-    ZarrWriteOptions o;
+    io::ZarrWriteOptions o;
     o.compressor = codec;
     o.chunks = {7, 8, 16};
-    ASSERT_TRUE(WriteZarr(dir + "/ours.zarr", info, PatternSlices(info), o).ok());
+    ASSERT_TRUE(io::WriteZarr(dir + "/ours.zarr", info, PatternSlices(info), o).ok());
     WriteText(dir + "/check.py", kPythonCheck);
     EXPECT_EQ(std::system(("/usr/bin/python3 " + dir + "/check.py " + dir + "/ours.zarr").c_str()),
               0);

@@ -36,7 +36,7 @@ TEST(SagCorrection, BringsACurvedSurfaceCloserWithTheSameMesh) {
     o.error = 0.048;
     o.sag_correction = fraction;
     auto src = eval::MakeSyntheticSource(eval::Shape::kLink, n, n, n);
-    auto session = RunSession(*src, o);
+    auto session = io::RunSession(*src, o);
     EXPECT_TRUE(session.ok()) << session.status();
     EXPECT_LE((*session)->MaxShapeError(), o.error) << fraction;
     return std::pair{(*session)->Snapshot(), (*session)->stats().sag_corrected};
@@ -73,7 +73,7 @@ TEST(SagCorrection, LeavesCreasesAndTheBoxAlone) {
     SessionOptions o;
     o.error = 0.05;
     o.sag_correction = fraction;
-    auto s = RunSession(*src, o);
+    auto s = io::RunSession(*src, o);
     EXPECT_TRUE(s.ok()) << s.status();
     return std::pair{(*s)->Snapshot(), (*s)->stats().sag_corrected};
   };
@@ -96,7 +96,7 @@ TEST(SagCorrection, LeavesCreasesAndTheBoxAlone) {
     g.error = 0.05;
     g.sag_correction = fraction;
     auto src = BoxCutGyroid(40, 40, 40);
-    auto s = RunSession(*src, g);
+    auto s = io::RunSession(*src, g);
     EXPECT_TRUE(s.ok()) << s.status();
     return std::pair{(*s)->Snapshot(), (*s)->stats().sag_corrected};
   };

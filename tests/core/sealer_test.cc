@@ -212,7 +212,7 @@ TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
     auto s = TandemSession::Create(src->info(), o);
     ASSERT_TRUE(s.ok());
     const std::string path = dir + "/chunked" + ext;
-    auto writer = ChunkedMeshWriter::Open(path);
+    auto writer = io::ChunkedMeshWriter::Open(path);
     ASSERT_TRUE(writer.ok()) << writer.status();
     std::vector<SealedChunk> chunks;
     int64_t retired_before_end = 0;
@@ -235,14 +235,14 @@ TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
     const IndexedMesh welded = WeldChunks(chunks);
     // Most vertices went out before the stream ended (the writer holds the front).
     EXPECT_GT(retired_before_end, static_cast<int64_t>(welded.num_vertices()) / 2) << ext;
-    auto read = ReadMesh(path);
+    auto read = io::ReadMesh(path);
     ASSERT_TRUE(read.ok()) << read.status();
     EXPECT_EQ(read->num_vertices(), welded.num_vertices()) << ext;
     EXPECT_EQ(TriangleSet(*read), TriangleSet(welded)) << ext;
     EXPECT_TRUE(eval::AnalyzeTopology(*read).IsClosedManifold()) << ext;
   }
   // A missing chunk: a vertex is never retired.
-  auto writer = ChunkedMeshWriter::Open(dir + "/missing.ply");
+  auto writer = io::ChunkedMeshWriter::Open(dir + "/missing.ply");
   ASSERT_TRUE(writer.ok());
   SealedChunk c;
   c.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
@@ -251,8 +251,8 @@ TEST(Sealing, ChunkedWriterWritesTheWeldedMeshAsTheChunksCome) {
   c.retired = {0, 1};
   ASSERT_TRUE((*writer)->Add(c).ok());
   EXPECT_EQ((*writer)->Finish().code(), absl::StatusCode::kInternal);
-  EXPECT_FALSE(ChunkedMeshWriter::Supports("x.stl"));
-  EXPECT_EQ(ChunkedMeshWriter::Open(dir + "/x.glb").status().code(),
+  EXPECT_FALSE(io::ChunkedMeshWriter::Supports("x.stl"));
+  EXPECT_EQ(io::ChunkedMeshWriter::Open(dir + "/x.glb").status().code(),
             absl::StatusCode::kInvalidArgument);
 }
 
@@ -307,7 +307,7 @@ TEST(Sealing, ChunkedWriterMemoryFollowsTheFrontNotTheDepth) {
     auto s = TandemSession::Create(src.info(), o);
     ASSERT_TRUE(s.ok()) << s.status();
     const std::string path = dir + "/depth" + std::to_string(deep) + ".ply";
-    auto writer = ChunkedMeshWriter::Open(path);
+    auto writer = io::ChunkedMeshWriter::Open(path);
     ASSERT_TRUE(writer.ok()) << writer.status();
     auto take = [&] {
       SealedChunk c;
@@ -325,7 +325,7 @@ TEST(Sealing, ChunkedWriterMemoryFollowsTheFrontNotTheDepth) {
     take();
     ASSERT_TRUE((*writer)->Finish().ok());
     vertices[deep] = (*writer)->vertices();
-    auto read = ReadMesh(path);
+    auto read = io::ReadMesh(path);
     ASSERT_TRUE(read.ok()) << read.status();
     EXPECT_EQ(static_cast<int64_t>(read->num_vertices()), vertices[deep]);
     EXPECT_TRUE(eval::AnalyzeTopology(*read).IsManifold());
@@ -647,11 +647,11 @@ TEST(Sealing, SlabsHoldTheirSeamsUpToABoundedDepth) {
   // A settled seam vertex is retired once, with its second copy: the writer puts out each
   // vertex once, with the normal of all its triangles.
   const std::string path = ::testing::TempDir() + "/settled.ply";
-  auto writer = ChunkedMeshWriter::Open(path);
+  auto writer = io::ChunkedMeshWriter::Open(path);
   ASSERT_TRUE(writer.ok()) << writer.status();
   for (const SealedChunk& c : sealed.chunks) ASSERT_TRUE((*writer)->Add(c).ok());
   ASSERT_TRUE((*writer)->Finish().ok());
-  auto read = ReadMesh(path);
+  auto read = io::ReadMesh(path);
   ASSERT_TRUE(read.ok()) << read.status();
   EXPECT_EQ(read->num_vertices(), sealed.mesh.num_vertices());
   EXPECT_EQ(TriangleSet(*read), TriangleSet(sealed.mesh));

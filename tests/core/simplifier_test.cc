@@ -13,6 +13,7 @@
 #include "mesh_store.h"
 #include "simplifier.h"
 #include "tandem/eval/distance.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/task_group.h"
 #include "thread_pool.h"
 #include "tandem/eval/metrics.h"
@@ -36,7 +37,7 @@ struct Result {
 };
 
 Result RunOptions(SliceSource& src, const SessionOptions& o) {
-  auto s = RunSession(src, o);
+  auto s = io::RunSession(src, o);
   EXPECT_TRUE(s.ok()) << s.status();
   Result r;
   if (!s.ok()) return r;
@@ -66,7 +67,7 @@ Result RunShape(eval::Shape shape, int n, Schedule schedule, double e0, double a
 }
 
 Result RunFile(const std::string& path, double iso, Schedule schedule, double e0, double alpha = 0) {
-  auto src = OpenVolume(path);
+  auto src = io::OpenVolume(path);
   EXPECT_TRUE(src.ok()) << src.status();
   if (!src.ok()) return Result{};
   return RunSource(**src, iso, schedule, e0, alpha, 0);
@@ -146,7 +147,7 @@ TEST(Simplifier, SharedVolumesKeepErrorBoundManifoldAndBoundaryLoops) {
                  Case{"mr_head_48x62x42_uint8.json", 64},
                  Case{"mri_avg152T1_91x109x91_uint8.json", 150}}) {
     TANDEM_SHARED_OR_SKIP(path, c.file);
-    auto info_src = OpenVolume(path);
+    auto info_src = io::OpenVolume(path);
     ASSERT_TRUE(info_src.ok());
     const VolumeInfo info = (*info_src)->info();
     const double e0 = 0.5 * std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
@@ -962,28 +963,28 @@ TEST(Simplifier, MappedAndStreamedFilesGiveTheSameSession) {
   const VolumeInfo info = src->info();
   std::vector<std::vector<uint8_t>> slices(static_cast<size_t>(info.nz));
   for (auto& s : slices) ASSERT_TRUE(src->ReadSlice(&s).ok());
-  const SliceFn fn = [&](int64_t z, std::vector<uint8_t>* bytes) {
+  const io::SliceFn fn = [&](int64_t z, std::vector<uint8_t>* bytes) {
     *bytes = slices[static_cast<size_t>(z)];
     return absl::OkStatus();
   };
-  VolumeWriteOptions gz;
+  io::VolumeWriteOptions gz;
   gz.gzip = true;
-  ASSERT_TRUE(WriteVolume(dir + "/plain.nrrd", info, fn).ok());
-  ASSERT_TRUE(WriteVolume(dir + "/packed.nrrd", info, fn, gz).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/plain.nrrd", info, fn).ok());
+  ASSERT_TRUE(io::WriteVolume(dir + "/packed.nrrd", info, fn, gz).ok());
   for (int parts : {1, 3}) {
     IndexedMesh meshes[2];
     int k = 0;
     for (const char* name : {"/plain.nrrd", "/packed.nrrd"}) {
-      auto file = OpenVolume(dir + name);
+      auto file = io::OpenVolume(dir + name);
       ASSERT_TRUE(file.ok()) << file.status();
       const uint8_t* view = nullptr;
       SessionOptions o;
       o.error = 0.2;
       o.parts = parts;
-      auto session = RunSession(**file, o);
+      auto session = io::RunSession(**file, o);
       ASSERT_TRUE(session.ok()) << session.status();
       meshes[k++] = (*session)->Snapshot();
-      auto again = OpenVolume(dir + name);  // which path RunSession took
+      auto again = io::OpenVolume(dir + name);  // which path RunSession took
       ASSERT_TRUE((*again)->ViewSlice(&view).ok());
       EXPECT_EQ(view != nullptr, k == 1) << name;
     }
@@ -1012,7 +1013,7 @@ TEST(Simplifier, PipelinedRunIsIdenticalToSequential) {
           o.alpha = 0.2;
           o.parts = parts;
           o.pipeline = pipelined == 1;
-          auto session = RunSession(*src, o);
+          auto session = io::RunSession(*src, o);
           ASSERT_TRUE(session.ok()) << session.status();
           meshes[pipelined] = (*session)->Snapshot();
           stats[pipelined] = (*session)->stats();
@@ -1288,7 +1289,7 @@ TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
     o.error = e0;
     o.distance_guard = guard;
     auto src = eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n);
-    auto session = RunSession(*src, o);
+    auto session = io::RunSession(*src, o);
     EXPECT_TRUE(session.ok()) << session.status();
     const IndexedMesh mesh = (*session)->Snapshot();
     const eval::TopologyReport t = eval::AnalyzeTopology(mesh);
@@ -1320,7 +1321,7 @@ TEST(DistanceGuard, KeepsTheSurfaceCloserForAFewMoreTriangles) {
   o.error = 0.012;
   o.target_triangles = static_cast<int64_t>(off.triangles) / 4;
   auto src = eval::MakeSyntheticSource(eval::Shape::kPillowBox, n, n, n);
-  auto session = RunSession(*src, o);
+  auto session = io::RunSession(*src, o);
   ASSERT_TRUE(session.ok()) << session.status();
   EXPECT_LE(int64_t((*session)->Snapshot().num_triangles()), o.target_triangles);
 }

@@ -61,7 +61,8 @@ def parse_namespaces(text):
     out = {}
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) == 2 and cells[0] not in ("library", "") and not set(cells[0]) <= set("-"):
+        if (len(cells) == 2 and cells[0] not in ("library", "") and "/" not in cells[0]
+                and not set(cells[0]) <= set("-")):
             out[cells[0]] = cells[1].strip("`")
     return out
 
@@ -162,6 +163,84 @@ def namespace_errors(rows, namespaces, files):
     return errors
 
 
+def parse_test_rules(text):
+    """The tests' tables: folder -> the library whose internals it tests
+    (| test folder | internals of |), and file -> (library, why) for the listed exceptions
+    (| test file | internals of | why |)."""
+    folders, files = {}, {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if not cells or not cells[0].startswith("tests/"):
+            continue
+        if len(cells) == 2:
+            folders[cells[0].rstrip("/") + "/"] = cells[1]
+        elif len(cells) == 3:
+            files[cells[0]] = cells[1]
+    return folders, files
+
+
+def test_files(root):
+    for d, dirs, files in os.walk(os.path.join(root, "tests")):
+        dirs[:] = [x for x in dirs if x != "node_modules" and not x.startswith("build")]
+        for f in sorted(files):
+            if f.endswith((".cc", ".h")):
+                rel = os.path.relpath(os.path.join(d, f), root).replace(os.sep, "/")
+                with open(os.path.join(root, rel), encoding="utf-8") as fh:
+                    yield rel, fh.read()
+
+
+def test_errors(root, rules_text):
+    """A test includes the libraries' public roots; a test folder also the internals of the
+    one library it tests, a listed file those of the library listed for it."""
+    rows = parse_rules(rules_text)
+    folders, exceptions = parse_test_rules(rules_text)
+    roots = include_roots(root, rows)
+    all_roots = [r.rstrip("/") for rs in roots.values() for r in rs]
+    errors = []
+    for rel, text in test_files(root):
+        folder = max((f for f in folders if rel.startswith(f)), key=len, default=None)
+        own = {folders[folder]} if folder else set()
+        if rel in exceptions:
+            own.add(exceptions[rel])
+        for m in re.finditer(r'^\s*#\s*include\s+"([^"]+)"', text, re.M):
+            inc = m.group(1)
+            if "/include/" in "/" + inc:
+                errors.append(f'{rel}: #include "{inc}" names an include root\'s path: '
+                              f"include it as the root spells it (tandem/...)")
+                continue
+            target = resolve(root, os.path.dirname(rel), inc, all_roots)
+            lib = library_of(target, rows) if target else None
+            if (lib is None or target.endswith(GENERATED) or lib in own
+                    or any(target.startswith(r) for r in roots[lib])):
+                continue
+            own_text = f"{folders[folder]}'s, which {folder} tests" if folder else "none"
+            errors.append(f'{rel}: #include "{inc}" reaches {target}, inside {lib}: a test '
+                          f"includes public roots and one library's internals ({own_text}; "
+                          f"docs/layering.md's test tables)")
+    return errors
+
+
+def export_errors(root, rows, includes_text, build=None):
+    """A target of the table that exports a source folder other than an include/ root (the
+    repository's root above all): its users could reach every library's internals."""
+    errors = []
+    src = os.path.realpath(root)
+    targets = {t for ts, _, _ in rows.values() for t in ts}
+    for t, dirs in parse_links(includes_text).items():
+        for d in dirs:
+            if d.startswith("$<INSTALL_INTERFACE:"):
+                continue
+            d = re.sub(r"^\$<BUILD_INTERFACE:(.*)>$", r"\1", d)
+            real = os.path.realpath(d)
+            under = lambda top: real == top or real.startswith(top + os.sep)
+            inside = under(src) and not (build and under(os.path.realpath(build)))
+            if t in targets and inside and os.path.basename(real) != "include":
+                rel = os.path.relpath(real, src).replace(os.sep, "/")
+                errors.append(f"target {t} exports {rel if rel != '.' else 'the repository root'}"
+                              f": a target exports only include roots (<code>/include/)")
+    return errors
+
+
 def parse_links(text):
     links = {}
     for line in text.splitlines():
@@ -171,7 +250,7 @@ def parse_links(text):
     return links
 
 
-def check(root, rules_text, links_text):
+def check(root, rules_text, links_text, includes_text=None, build=None):
     rows = parse_rules(rules_text)
     errors = []
     allowed = lambda a, b: rows[a][2] is None or b in rows[a][2]
@@ -183,6 +262,9 @@ def check(root, rules_text, links_text):
                           f"which docs/layering.md does not allow")
     errors += past_roots(root, rows, arrows, files)
     errors += namespace_errors(rows, parse_namespaces(rules_text), files)
+    errors += test_errors(root, rules_text)
+    if includes_text is not None:
+        errors += export_errors(root, rows, includes_text, build)
     if links_text is None:
         return errors
     links = parse_links(links_text)
@@ -229,6 +311,30 @@ def self_test(root, rules_text, links_text):
         if not any("tandem_core links tandem_io" in e for e in check(root, rules_text, fake)):
             problems.append("self-test: an engine -> io link was not caught")
     problems += synthetic_self_test()
+    problems += own_namespace_self_test(rules_text)
+    return problems
+
+
+def own_namespace_self_test(rules_text):
+    """A file of io and one of the module loader that open only `namespace tandem` (the
+    engine's) must each be reported under the real table."""
+    import tempfile
+    rows, namespaces = parse_rules(rules_text), parse_namespaces(rules_text)
+    problems = []
+    for lib in ("io", "module"):
+        code = [c for c in rows[lib][1] if c.endswith("/")]
+        ns = namespaces.get(lib, "—")
+        if not code or ns in ("—", "", "tandem"):
+            problems.append(f"self-test: {lib} has no namespace of its own in docs/layering.md")
+            continue
+        rel = code[0] + "stray.cc"
+        with tempfile.TemporaryDirectory() as tree:
+            os.makedirs(os.path.join(tree, code[0]))
+            with open(os.path.join(tree, rel), "w", encoding="utf-8") as fh:
+                fh.write("namespace tandem {\nint Stray();\n}  // namespace tandem\n")
+            errors = namespace_errors(rows, namespaces, library_files(tree, rows))
+        if not any(e.startswith(f"{rel}: opens no namespace {ns}") for e in errors):
+            problems.append(f"self-test: not caught: {rel} opening tandem, not {ns}")
     return problems
 
 
@@ -237,7 +343,10 @@ def synthetic_self_test():
     import tempfile
     rules = ("| library | targets | code | may use |\n|---|---|---|---|\n"
              "| a | ta | a/ | — |\n| b | tb | b/ | a |\n\n"
-             "| library | namespace |\n|---|---|\n| a | `tandem::a` |\n| b | `tandem::b` |\n")
+             "| library | namespace |\n|---|---|\n| a | `tandem::a` |\n| b | `tandem::b` |\n\n"
+             "| test folder | internals of |\n|---|---|\n| tests/a | a |\n| tests/b | b |\n\n"
+             "| test file | internals of | why |\n|---|---|---|\n"
+             "| tests/b/listed_test.cc | a | its reason |\n")
     files = {
         "a/include/tandem/a/pub.h": "namespace tandem::a {}\n",
         "a/own.h": "namespace tandem::a {}\n",
@@ -247,18 +356,28 @@ def synthetic_self_test():
         "b/stray.cc": "namespace tandem::a {}\n",
         "b/none.cc": "namespace {}\n",
         "b/macros.h": "// Only macros.\n#define B_ONE 1\n#define B_TWO \\\n  2\n",
+        "tests/a/own_test.cc": '#include "a/own.h"\n',
+        "tests/b/reach_test.cc": '#include "a/own.h"\n',
+        "tests/b/listed_test.cc": '#include "a/own.h"\n',
+        "tests/b/spelled_test.cc": '#include "a/include/tandem/a/pub.h"\n',
+        "tests/b/pub_test.cc": '#include "tandem/a/pub.h"\n#include "b/past.cc"\n',
+        "tests/c/loose_test.cc": '#include "b/past.cc"\n',
     }
     expect = ['b/past.cc: #include "a/own.h" reaches a/own.h, inside a',
               'b/spelled.cc: #include "a/include/tandem/a/pub.h" names an include root',
               "b/stray.cc: opens no namespace tandem::b",
               "b/stray.cc: opens namespace tandem::a, outside b's",
-              "b/none.cc: opens no namespace tandem::b"]
+              "b/none.cc: opens no namespace tandem::b",
+              'tests/b/reach_test.cc: #include "a/own.h" reaches a/own.h, inside a',
+              'tests/b/spelled_test.cc: #include "a/include/tandem/a/pub.h" names an include',
+              'tests/c/loose_test.cc: #include "b/past.cc" reaches b/past.cc, inside b',
+              "target ta exports the repository root"]
     with tempfile.TemporaryDirectory() as tree:
         for rel, text in files.items():
             os.makedirs(os.path.join(tree, os.path.dirname(rel)), exist_ok=True)
             with open(os.path.join(tree, rel), "w", encoding="utf-8") as fh:
                 fh.write(text)
-        errors = check(tree, rules, None)
+        errors = check(tree, rules, None, f"ta: {tree}\ntb: $<BUILD_INTERFACE:{tree}/b/include>\n")
     missed = [e for e in expect if not any(x.startswith(e) for x in errors)]
     extra = [x for x in errors if not any(x.startswith(e) for e in expect)]
     return ([f"self-test: not caught: {e}" for e in missed] +
@@ -270,6 +389,8 @@ def main():
     ap.add_argument("--root", required=True)
     ap.add_argument("--rules", default=None, help="default: ROOT/docs/layering.md")
     ap.add_argument("--links", default=None, help="BUILD/layering_links.txt")
+    ap.add_argument("--includes", default=None,
+                    help="BUILD/layering_includes.txt: each target's exported include folders")
     ap.add_argument("--self-test", action="store_true")
     args = ap.parse_args()
     rules_path = args.rules or os.path.join(args.root, "docs", "layering.md")
@@ -279,7 +400,12 @@ def main():
     if args.links:
         with open(args.links, encoding="utf-8") as fh:
             links_text = fh.read()
-    errors = check(args.root, rules_text, links_text)
+    includes_text, build = None, None
+    if args.includes:
+        with open(args.includes, encoding="utf-8") as fh:
+            includes_text = fh.read()
+        build = os.path.dirname(os.path.abspath(args.includes))
+    errors = check(args.root, rules_text, links_text, includes_text, build)
     if args.self_test and not errors:
         errors = self_test(args.root, rules_text, links_text)
     for e in errors:

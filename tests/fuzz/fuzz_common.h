@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 
 namespace tandem::fuzz {
@@ -63,7 +64,7 @@ inline void WriteFileOrDie(const std::string& path, const uint8_t* data, size_t 
 // next_slice(); a ViewSlice that offers nothing consumes nothing; OutOfRange comes only after
 // nz slices; no slice past nz.
 inline void ReadAllSlices(const std::string& path) {
-  absl::StatusOr<std::unique_ptr<SliceSource>> opened = OpenVolume(path);
+  absl::StatusOr<std::unique_ptr<SliceSource>> opened = io::OpenVolume(path);
   if (!opened.ok()) {
     if (opened.status().message().empty()) Violation("error status without a message");
     return;

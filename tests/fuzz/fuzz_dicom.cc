@@ -39,7 +39,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   tandem::fuzz::WriteFileOrDie(dir + "/a", data, a);
   tandem::fuzz::WriteFileOrDie(dir + "/b", data + a, size - a);
   for (const char* f : {"/a", "/b"}) {
-    const absl::Status st = tandem::dicom::ScanFile(dir + f);
+    const absl::Status st = tandem::io::dicom::ScanFile(dir + f);
     if (!st.ok() && st.message().find(dir + f) == std::string::npos) {
       tandem::fuzz::Violation("ScanFile error without the file's name: " +
                               std::string(st.message()));

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
@@ -19,7 +20,7 @@
 namespace fs = std::filesystem;
 using tandem::DType;
 using tandem::VolumeInfo;
-using tandem::VolumeWriteOptions;
+using tandem::io::VolumeWriteOptions;
 
 namespace {
 
@@ -88,7 +89,7 @@ void Write(const fs::path& path, const VolumeInfo& info, const VolumeWriteOption
     }
     return absl::OkStatus();
   };
-  absl::Status st = tandem::WriteVolume(path.string(), info, fn, opts);
+  absl::Status st = tandem::io::WriteVolume(path.string(), info, fn, opts);
   if (!st.ok()) {
     std::fprintf(stderr, "%s\n", std::string(st.message()).c_str());
     std::exit(1);
@@ -214,17 +215,17 @@ int main(int argc, char** argv) {
   // length, metadata, chunk.
   int zn = 0;
   for (int version : {2, 3}) {
-    for (auto [codec, t] : {std::pair{tandem::ZarrCompressor::kNone, DType::kUInt8},
-                            {tandem::ZarrCompressor::kBloscLz4, DType::kUInt16},
-                            {tandem::ZarrCompressor::kZstd, DType::kInt16},
-                            {tandem::ZarrCompressor::kGzip, DType::kFloat32},
-                            {tandem::ZarrCompressor::kBloscZstd, DType::kUInt32},
-                            {tandem::ZarrCompressor::kNone, DType::kUInt64},
-                            {tandem::ZarrCompressor::kBloscLz4, DType::kInt8},
-                            {tandem::ZarrCompressor::kZstd, DType::kInt64}}) {
+    for (auto [codec, t] : {std::pair{tandem::io::ZarrCompressor::kNone, DType::kUInt8},
+                            {tandem::io::ZarrCompressor::kBloscLz4, DType::kUInt16},
+                            {tandem::io::ZarrCompressor::kZstd, DType::kInt16},
+                            {tandem::io::ZarrCompressor::kGzip, DType::kFloat32},
+                            {tandem::io::ZarrCompressor::kBloscZstd, DType::kUInt32},
+                            {tandem::io::ZarrCompressor::kNone, DType::kUInt64},
+                            {tandem::io::ZarrCompressor::kBloscLz4, DType::kInt8},
+                            {tandem::io::ZarrCompressor::kZstd, DType::kInt64}}) {
       const fs::path store = tmp / ("z" + std::to_string(zn) + ".zarr");
       const VolumeInfo info = Info(6, 5, 3, t);
-      tandem::ZarrWriteOptions zo;
+      tandem::io::ZarrWriteOptions zo;
       zo.version = version;
       zo.compressor = codec;
       zo.ome = false;
@@ -232,8 +233,8 @@ int main(int argc, char** argv) {
       zo.chunks = {3, 5, 6};
       const fs::path staged = tmp / "staged.json";
       Write(staged, info);  // the same field, then copied into the store
-      auto src = tandem::OpenVolume(staged.string());
-      absl::Status st = tandem::WriteZarr(
+      auto src = tandem::io::OpenVolume(staged.string());
+      absl::Status st = tandem::io::WriteZarr(
           store.string(), info, [&](int64_t, std::vector<uint8_t>* b) { return (*src)->ReadSlice(b); },
           zo);
       if (!st.ok()) {
@@ -324,13 +325,13 @@ int main(int argc, char** argv) {
   // fuzz_dicom: two slices of a series (GDCM-written) packed as [u32 LE size of a][a][b],
   // in three transfer syntaxes and with a CT rescale.
   // Two slices of value 7z + 1 (GDCM-written) in dir; false if GDCM refused.
-  auto write_series = [&](const fs::path& dir, tandem::DicomSyntax syntax, DType t,
+  auto write_series = [&](const fs::path& dir, tandem::io::DicomSyntax syntax, DType t,
                           double intercept) {
-    tandem::DicomWriteOptions opts;
+    tandem::io::DicomWriteOptions opts;
     opts.syntax = syntax;
     opts.rescale_intercept = intercept;
     VolumeInfo info = Info(6, 5, 2, t);
-    absl::Status st = tandem::WriteDicomSeries(
+    absl::Status st = tandem::io::WriteDicomSeries(
         dir.string(), info,
         [&](int64_t z, std::vector<uint8_t>* b) {
           b->assign(info.slice_bytes(), static_cast<uint8_t>(7 * z + 1));
@@ -346,9 +347,9 @@ int main(int argc, char** argv) {
     return seed + x + y;
   };
   int dn = 0;
-  for (auto [syntax, t] : {std::pair{tandem::DicomSyntax::kExplicitLittle, DType::kInt16},
-                           {tandem::DicomSyntax::kImplicitLittle, DType::kUInt8},
-                           {tandem::DicomSyntax::kJpegLossless, DType::kUInt16}}) {
+  for (auto [syntax, t] : {std::pair{tandem::io::DicomSyntax::kExplicitLittle, DType::kInt16},
+                           {tandem::io::DicomSyntax::kImplicitLittle, DType::kUInt8},
+                           {tandem::io::DicomSyntax::kJpegLossless, DType::kUInt16}}) {
     const fs::path dir = tmp / ("dcm" + std::to_string(dn));
     if (!write_series(dir, syntax, t, dn == 0 ? -1024 : 0)) return 1;
     Put(out / "fuzz_dicom" / ("seed_" + std::to_string(dn++) + ".bin"),
@@ -359,7 +360,7 @@ int main(int argc, char** argv) {
   // at a few thousand, 15 took minutes), a length past the end of the file.
   {
     const fs::path dir = tmp / "rle";
-    if (!write_series(dir, tandem::DicomSyntax::kRle, DType::kInt16, 0)) return 1;
+    if (!write_series(dir, tandem::io::DicomSyntax::kRle, DType::kInt16, 0)) return 1;
     const std::string a = Slurp(dir / "IM00001.dcm"), b = Slurp(dir / "IM00002.dcm");
     const size_t pixels = b.find(std::string("\xe0\x7f\x10\x00OB\0\0\xff\xff\xff\xff", 12));
     if (pixels == std::string::npos) return 1;

@@ -132,7 +132,7 @@ TEST(CliParity, ExitStatusIsTwoForTheCommandLineAndOneForTheRest) {
   VolumeInfo info;
   info.nx = info.ny = info.nz = 12;
   info.dtype = DType::kFloat32;
-  ASSERT_TRUE(WriteVolume(dir + "/nan.json", info, [&](int64_t k, std::vector<uint8_t>* bytes) {
+  ASSERT_TRUE(io::WriteVolume(dir + "/nan.json", info, [&](int64_t k, std::vector<uint8_t>* bytes) {
                 std::vector<float> v(static_cast<size_t>(info.slice_voxels()), 1.0f);
                 v[0] = -1.0f;
                 if (k == 5) v[40] = std::numeric_limits<float>::quiet_NaN();
@@ -271,7 +271,7 @@ TEST(CliParity, TheFrameTravelsWithTheStreamedMesh) {
   }
   // The same place: the generated grid is at x 10..33, y -20..3 in LPS, so in RAS x is
   // negative and y positive.
-  absl::StatusOr<IndexedMesh> a = ReadMesh(dir + "/local.ply"), b = ReadMesh(dir + "/streamed.ply");
+  absl::StatusOr<IndexedMesh> a = io::ReadMesh(dir + "/local.ply"), b = io::ReadMesh(dir + "/streamed.ply");
   ASSERT_TRUE(a.ok() && b.ok());
   for (const IndexedMesh* m : {&*a, &*b}) {
     for (const Vec3& p : m->positions) {

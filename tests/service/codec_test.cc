@@ -27,7 +27,7 @@ IndexedMesh SphereMesh(Schedule schedule, int64_t n = 32) {
   SessionOptions options;
   options.schedule = schedule;
   options.error = 0.3;
-  auto session = RunSession(*source, options);
+  auto session = io::RunSession(*source, options);
   EXPECT_TRUE(session.ok()) << session.status();
   return (*session)->Snapshot();
 }
@@ -100,7 +100,7 @@ TEST(DracoCodec, EdgebreakerKeepsCountsAndPositionsWithinStep) {
 // refused.
 TEST(DracoCodec, GlbPrimitiveReportsWhatItDecodesTo) {
   const IndexedMesh mesh = SphereMesh(Schedule::kTandemLag);
-  const std::vector<Vec3> normals = VertexNormals(mesh);
+  const std::vector<Vec3> normals = io::VertexNormals(mesh);
   auto p = codec::EncodeGlbPrimitive(mesh, normals);
   ASSERT_TRUE(p.ok()) << p.status();
   auto decoded = codec::DecodeDraco(p->bytes);
@@ -406,7 +406,7 @@ TEST(DracoCodec, AnIntegerScansFullSurfaceKeepsItsVerticesApartAtEveryDepth) {
   SessionOptions o;
   o.iso = 120;
   o.schedule = Schedule::kNone;
-  auto session = RunSession(phantom, o);
+  auto session = io::RunSession(phantom, o);
   ASSERT_TRUE(session.ok()) << session.status();
   const IndexedMesh mesh = (*session)->Snapshot();
   const eval::TopologyReport indexed = eval::AnalyzeTopology(mesh);

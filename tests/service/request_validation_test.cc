@@ -348,7 +348,7 @@ TEST(ExtractJob, BetweenSlicesTheJobDoesNotWaitForTheSessionsSteps) {
   auto source = eval::MakeSyntheticSource(eval::Shape::kGyroid, 160, 40, 12);
   SessionOptions local;
   local.error = 0.3;
-  auto session = RunSession(*source, local);
+  auto session = io::RunSession(*source, local);
   ASSERT_TRUE(session.ok()) << session.status();
   ASSERT_FALSE(sink.final.empty());
   ASSERT_TRUE(sink.final[0].has_final_mesh());
@@ -362,7 +362,7 @@ IndexedMesh LocalSealedMesh(SliceSource* source, double error) {
   options.error = error;
   options.seal = true;
   std::vector<SealedChunk> chunks;
-  auto local = RunSession(*source, options, nullptr, [&](SealedChunk c) {
+  auto local = io::RunSession(*source, options, nullptr, [&](SealedChunk c) {
     chunks.push_back(std::move(c));
     return absl::OkStatus();
   });
@@ -612,7 +612,7 @@ TEST(ExtractJob, FinalMeshIsTheLocalSessionsSnapshot) {
   SessionOptions local_options;
   local_options.error = 0.4;
   local_options.alpha = 0.1;
-  auto local = RunSession(*source, local_options);
+  auto local = io::RunSession(*source, local_options);
   ASSERT_TRUE(local.ok());
   const IndexedMesh expected = (*local)->Snapshot();
   const SessionStats& stats = (*local)->stats();
@@ -665,7 +665,7 @@ TEST(Wire, MetricsReportRoundTrip) {
   options.distance_guard = 1.5;
   options.sag_correction = 0.25;
   options.target_triangles = 100;
-  auto session = RunSession(*source, options);
+  auto session = io::RunSession(*source, options);
   ASSERT_TRUE(session.ok());
   const IndexedMesh mesh = (*session)->Snapshot();
   eval::MetricsReport report = eval::MakeReport(**session, mesh);

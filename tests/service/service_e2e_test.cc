@@ -199,7 +199,7 @@ TEST_F(ServiceE2eTest, DefaultLevelSavesTheSameMeshAsPly) {
   auto local = RunLocal(input, HeadOptions());
   ASSERT_TRUE(local.ok());
   const IndexedMesh expected = (*local)->Snapshot();
-  auto mesh = ReadMesh(ply);
+  auto mesh = io::ReadMesh(ply);
   ASSERT_TRUE(mesh.ok()) << mesh.status();
   ASSERT_EQ(mesh->num_triangles(), expected.num_triangles());
   ASSERT_EQ(mesh->num_vertices(), expected.num_vertices());
@@ -293,10 +293,10 @@ TEST_F(ServiceE2eTest, MappedAndReadVolumesStreamTheSameMesh) {
     return absl::OkStatus();
   };
   const std::string raw = dir_ + "/link.json", gz = dir_ + "/link.nrrd";
-  ASSERT_TRUE(WriteVolume(raw, info, slice_fn).ok());
-  VolumeWriteOptions gzip;
+  ASSERT_TRUE(io::WriteVolume(raw, info, slice_fn).ok());
+  io::VolumeWriteOptions gzip;
   gzip.gzip = true;
-  ASSERT_TRUE(WriteVolume(gz, info, slice_fn, gzip).ok());
+  ASSERT_TRUE(io::WriteVolume(gz, info, slice_fn, gzip).ok());
   std::string meshes[2];
   for (int i = 0; i < 2; ++i) {
     const std::string out = dir_ + "/link" + std::to_string(i) + ".ply";
@@ -450,7 +450,7 @@ TEST_F(ServiceE2eTest, SpacingFlagGivesATiffStackWithoutResolutionItsExtent) {
     args.insert(args.end(), extra.begin(), extra.end());
     RunResult r = Client(args);
     EXPECT_EQ(r.exit_code, 0) << r.err;
-    auto mesh = ReadMesh(out);
+    auto mesh = io::ReadMesh(out);
     EXPECT_TRUE(mesh.ok()) << mesh.status();
     std::array<double, 3> hi{-1e30, -1e30, -1e30};
     for (const Vec3& p : mesh.ok() ? mesh->positions : std::vector<Vec3>{}) {
@@ -589,11 +589,11 @@ TEST_F(ServiceE2eTest, SealedChunksWeldIntoTheFinalMesh) {
   EXPECT_EQ(static_cast<int64_t>(welded.num_vertices()), sealed_report->vertices_final);
   const eval::TopologyReport t = eval::AnalyzeTopology(welded);
   EXPECT_TRUE(t.IsClosedManifold());
-  auto plain_mesh = ReadMesh(dir_ + "/plain.ply");
+  auto plain_mesh = io::ReadMesh(dir_ + "/plain.ply");
   ASSERT_TRUE(plain_mesh.ok()) << plain_mesh.status();
   EXPECT_EQ(t.euler, eval::AnalyzeTopology(*plain_mesh).euler);
   // --out holds the same welded mesh.
-  auto out_mesh = ReadMesh(dir_ + "/sealed.ply");
+  auto out_mesh = io::ReadMesh(dir_ + "/sealed.ply");
   ASSERT_TRUE(out_mesh.ok()) << out_mesh.status();
   EXPECT_EQ(out_mesh->num_triangles(), welded.num_triangles());
   // Within 5% of the plain stream's count, at the same error bound.
@@ -684,7 +684,7 @@ TEST_F(ServiceE2eTest, IntegerScanOutputsKeepTheirVerticesApartInDraco) {
                           [](double i, double j, double k) { return Phantom(nx, ny, nz, i, j, k); },
                           {0.7, 0.7, 1.2}, {-130.5, 42.25, 300});
   const std::string volume = dir_ + "/phantom.json";
-  ASSERT_TRUE(WriteVolume(volume, phantom.info(), [&](int64_t, std::vector<uint8_t>* bytes) {
+  ASSERT_TRUE(io::WriteVolume(volume, phantom.info(), [&](int64_t, std::vector<uint8_t>* bytes) {
                 return phantom.ReadSlice(bytes);
               }).ok());
   auto stream = [&](const std::string& name, const std::vector<std::string>& extra) {
@@ -796,7 +796,7 @@ TEST_F(ServiceE2eTest, SealedChunksOfAWideGridComeFromEverySlab) {
   EXPECT_EQ(static_cast<int64_t>(welded.num_triangles()), sealed_report->triangles_final);
   const eval::TopologyReport t = eval::AnalyzeTopology(welded);
   EXPECT_TRUE(t.IsClosedManifold());
-  auto plain_mesh = ReadMesh(dir_ + "/plain.ply");
+  auto plain_mesh = io::ReadMesh(dir_ + "/plain.ply");
   ASSERT_TRUE(plain_mesh.ok()) << plain_mesh.status();
   EXPECT_EQ(t.euler, eval::AnalyzeTopology(*plain_mesh).euler);
   EXPECT_NEAR(static_cast<double>(sealed_report->triangles_final),
@@ -817,7 +817,7 @@ size_t StreamsAsLocally(const std::vector<std::string>& args, const std::string&
   if (r.exit_code != 0 || !local.ok()) return 0;
   EXPECT_EQ((*local)->num_parts(), 1);  // merged at Finish
   const IndexedMesh expected = (*local)->Snapshot();
-  auto mesh = ReadMesh(ply);
+  auto mesh = io::ReadMesh(ply);
   EXPECT_TRUE(mesh.ok()) << mesh.status();
   if (!mesh.ok()) return 0;
   EXPECT_EQ(mesh->num_triangles(), expected.num_triangles());
@@ -1110,8 +1110,8 @@ bool WaitForSession(const TestServer& server, const std::string& id, const std::
 // Two mesh files hold the same mesh: the same vertices, bit for bit, and the same
 // triangles (vertex order may differ: sealed chunks go out on a clock).
 void ExpectSameMesh(const std::string& a_path, const std::string& b_path) {
-  auto a = ReadMesh(a_path);
-  auto b = ReadMesh(b_path);
+  auto a = io::ReadMesh(a_path);
+  auto b = io::ReadMesh(b_path);
   ASSERT_TRUE(a.ok() && b.ok()) << a.status() << " " << b.status();
   ASSERT_EQ(a->num_vertices(), b->num_vertices());
   ASSERT_EQ(a->num_triangles(), b->num_triangles());
@@ -1972,8 +1972,8 @@ TEST_F(ServiceE2eTest, ClientWritesStlAndGlb) {
     RunResult r = Client(Concat(base, {"--out", dir_ + "/m." + ext}));
     ASSERT_EQ(r.exit_code, 0) << ext << ": " << r.err;
   }
-  auto ply = ReadMesh(dir_ + "/m.ply");
-  auto stl = ReadMesh(dir_ + "/m.stl");
+  auto ply = io::ReadMesh(dir_ + "/m.ply");
+  auto stl = io::ReadMesh(dir_ + "/m.stl");
   ASSERT_TRUE(ply.ok() && stl.ok()) << ply.status() << stl.status();
   EXPECT_GT(ply->num_triangles(), 100u);
   EXPECT_EQ(stl->num_triangles(), ply->num_triangles());
@@ -2017,7 +2017,7 @@ TEST_F(ServiceE2eTest, RotatedDicomFolderStreamsTheLocalMeshInThePatientFrame) {
   const std::string dir = dir_ + "/series";
   std::vector<std::vector<uint8_t>> slices(info.nz);
   for (auto& b : slices) ASSERT_TRUE(src->ReadSlice(&b).ok());
-  ASSERT_TRUE(WriteDicomSeries(dir, info, [&](int64_t z, std::vector<uint8_t>* b) {
+  ASSERT_TRUE(io::WriteDicomSeries(dir, info, [&](int64_t z, std::vector<uint8_t>* b) {
                 *b = slices[z];
                 return absl::OkStatus();
               }).ok());
@@ -2170,10 +2170,10 @@ TEST_F(ServiceE2eTest, AFollowedScanThatGoesWrongFailsCleanly) {
   std::vector<std::vector<uint8_t>> slices(info.nz);
   for (auto& b : slices) ASSERT_TRUE(src->ReadSlice(&b).ok());
   const std::string dir = dir_ + "/broken";
-  DicomWriteOptions o;
+  io::DicomWriteOptions o;
   o.float_min = -20;
   o.float_max = 20;
-  auto writer = DicomSliceWriter::Create(info, o);
+  auto writer = io::DicomSliceWriter::Create(info, o);
   ASSERT_TRUE(writer.ok()) << writer.status();
   std::filesystem::create_directories(dir);
   for (int64_t z = 0; z < info.nz; ++z) {

@@ -27,6 +27,7 @@
 #include "tandem/common/wire.h"
 #include "tandem/eval/topology.h"
 #include "tandem/io/mesh_io.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/volume_writers.h"
 #include "tandem/mesh.h"
 #include "testutil/testutil.h"
@@ -54,7 +55,7 @@ std::string WriteLabelVolume(const std::string& dir) {
   info.nz = kNz;
   info.dtype = DType::kUInt32;
   const std::string path = dir + "/cells.nrrd";
-  const absl::Status st = WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
+  const absl::Status st = io::WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
     bytes->assign(static_cast<size_t>(kNx * kNy) * 4, 0);
     for (int64_t y = 0; y < kNy; ++y) {
       for (int64_t x = 0; x < kNx; ++x) {
@@ -173,7 +174,7 @@ class ServiceLabelsTest : public ::testing::Test {
   }
   // The label config of a gRPC stream, on the volume's own grid.
   std::vector<v1::ExtractRequest> Requests(const v1::SessionConfig& config) {
-    auto source = OpenVolume(volume_);
+    auto source = io::OpenVolume(volume_);
     EXPECT_TRUE(source.ok()) << source.status();
     return VolumeRequests(**source, config, 1 << 20);
   }
@@ -225,8 +226,8 @@ TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
     for (const std::string& name : names) {
       if (name == "labels.glb") continue;
       SCOPED_TRACE(name);
-      auto a = ReadMesh(local + name);
-      auto b = ReadMesh(remote + name);
+      auto a = io::ReadMesh(local + name);
+      auto b = io::ReadMesh(remote + name);
       ASSERT_TRUE(a.ok() && b.ok()) << a.status() << b.status();
       ASSERT_EQ(a->num_triangles(), b->num_triangles());
       ASSERT_EQ(a->num_vertices(), b->num_vertices());

@@ -23,6 +23,7 @@
 #include "tandem/client/stream_client.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/open_volume.h"
 #include "testutil/testutil.h"
 
 namespace tandem::testing {
@@ -48,7 +49,7 @@ client::StreamOptions LoadOptions(const TestServer& server) {
 
 absl::StatusOr<client::StreamResult> StreamFile(const std::string& path,
                                                 const client::StreamOptions& options) {
-  auto source = OpenVolume(path);
+  auto source = io::OpenVolume(path);
   if (!source.ok()) return source.status();
   return client::StreamVolume(**source, options, {});
 }

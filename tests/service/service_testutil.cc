@@ -27,6 +27,7 @@
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/io/run_session.h"
 #include "tandem/io/volume_writers.h"
 #include "testutil/testutil.h"
@@ -232,7 +233,7 @@ absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const s
                                                  std::unique_ptr<SliceSource> source) {
   const std::string path = absl::StrCat(dir, "/", name, ".json");
   SliceSource* src = source.get();
-  absl::Status st = WriteVolume(path, src->info(), [src](int64_t, std::vector<uint8_t>* bytes) {
+  absl::Status st = io::WriteVolume(path, src->info(), [src](int64_t, std::vector<uint8_t>* bytes) {
     return src->ReadSlice(bytes);
   });
   if (!st.ok()) return st;
@@ -253,7 +254,7 @@ absl::StatusOr<std::string> WritePattern(const std::string& dir, Pattern pattern
   std::mt19937 rng(62);
   *iso = pattern == Pattern::kNoisyField ? 128 : 127.5;
   const std::string path = absl::StrCat(dir, "/pattern", static_cast<int>(pattern), ".json");
-  absl::Status st = WriteVolume(path, info, [&](int64_t k, std::vector<uint8_t>* bytes) {
+  absl::Status st = io::WriteVolume(path, info, [&](int64_t k, std::vector<uint8_t>* bytes) {
     bytes->resize(static_cast<size_t>(n * n));
     for (int64_t j = 0; j < n; ++j) {
       for (int64_t i = 0; i < n; ++i) {
@@ -279,9 +280,9 @@ absl::StatusOr<std::string> WritePattern(const std::string& dir, Pattern pattern
 
 absl::StatusOr<std::unique_ptr<TandemSession>> RunLocal(const std::string& path,
                                                         const SessionOptions& options) {
-  auto source = OpenVolume(path);
+  auto source = io::OpenVolume(path);
   if (!source.ok()) return source.status();
-  return RunSession(**source, options);
+  return io::RunSession(**source, options);
 }
 
 absl::StatusOr<std::vector<uint32_t>> MatchVertices(const IndexedMesh& a, const IndexedMesh& b,

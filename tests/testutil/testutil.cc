@@ -169,14 +169,14 @@ double LoadValue(DType t, const uint8_t* p) {
 }
 
 std::string WriteLocalizer(const std::string& dir, const VolumeInfo& info, bool flagged) {
-  DicomWriteOptions o;
+  io::DicomWriteOptions o;
   o.series_description = "Scout";
   o.series_uid = flagged ? "1.2.826.0.1.3680043.2.1125.77.1" : "1.2.826.0.1.3680043.2.1125.77.2";
   if (flagged) o.image_type = "ORIGINAL\\PRIMARY\\LOCALIZER";
   o.float_max = 1.0f;
   for (int image = 0; image < 2; ++image) {
-    const VolumeInfo grid = LocalizerGrid(info, image);
-    absl::StatusOr<DicomSliceWriter> w = DicomSliceWriter::Create(grid, o);
+    const VolumeInfo grid = io::LocalizerGrid(info, image);
+    absl::StatusOr<io::DicomSliceWriter> w = io::DicomSliceWriter::Create(grid, o);
     EXPECT_TRUE(w.ok()) << w.status();
     if (!w.ok()) break;
     const std::vector<uint8_t> zeros(grid.slice_bytes(), 0);
@@ -221,7 +221,7 @@ void WriteDoseReport(const std::string& path, const std::string& series_uid) {
   std::ofstream(path, std::ios::binary) << file;
 }
 
-SliceFn PatternSlices(const VolumeInfo& info) {
+io::SliceFn PatternSlices(const VolumeInfo& info) {
   return [info](int64_t k, std::vector<uint8_t>* bytes) {
     const size_t es = DTypeSize(info.dtype);
     bytes->resize(info.slice_bytes());

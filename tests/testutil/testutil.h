@@ -73,7 +73,7 @@ double LoadValue(DType t, const uint8_t* p);
 void WriteBareTiffStack(const std::string& path, int nx, int ny, int nz);
 
 // Slices of PatternValue for a writer.
-SliceFn PatternSlices(const VolumeInfo& info);
+io::SliceFn PatternSlices(const VolumeInfo& info);
 
 // Writes a localizer series into dir (which must exist), as a CT takes one before its
 // stack: a front and a side image across info's volume (LocalizerGrid, zeros), description

@@ -195,26 +195,6 @@ int64_t FirstNonFinite(const uint8_t* bytes, size_t n);
 // The refusal of such a value v at voxel (i, j) of a slice; the caller names the slice.
 absl::Status NonFiniteVoxelError(int64_t i, int64_t j, float v);
 
-// Opens a volume by file name: *.json (raw + JSON sidecar), *.nrrd / *.nhdr, *.nii /
-// *.nii.gz, *.tif / *.tiff (multi-page stack), *.mha / *.mhd (ITK MetaImage), a Zarr /
-// OME-Zarr store (*.zarr, or a
-// directory holding Zarr metadata; "X.zarr#SELECTOR" picks a level or an array, see
-// tandem/zarr.h), or a folder of one file per slice: a DICOM series or numbered TIFFs (see
-// tandem/series.h). Errors name the file and the problem.
-absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path);
-
-// What OpenVolume may be told besides the path.
-struct OpenOptions {
-  // A folder holding several DICOM series: read the one with this SeriesInstanceUID (""
-  // = the folder's one slice stack; see tandem/series.h). Refused for any other input.
-  std::string dicom_series = "";
-  // Receives one line for each thing set aside on the way (a localizer series, a file that
-  // is not DICOM), for the user; unset = dropped.
-  std::function<void(const std::string&)> note = nullptr;
-};
-absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
-                                                        const OpenOptions& opts);
-
 }  // namespace tandem
 
 #endif  // TANDEM_VOLUME_H_

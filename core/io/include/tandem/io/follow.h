@@ -61,7 +61,7 @@
 #include "absl/status/statusor.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::io {
 
 struct FollowOptions {
   int64_t expect_slices = 0;  // 0 = unknown
@@ -84,6 +84,6 @@ struct FollowOptions {
 absl::StatusOr<std::unique_ptr<SliceSource>> FollowVolume(const std::string& path,
                                                           const FollowOptions& opts);
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_FOLLOW_H_

@@ -16,7 +16,7 @@
 #include "tandem/labels.h"
 #include "tandem/mesh.h"
 
-namespace tandem {
+namespace tandem::io {
 
 struct LabelName {
   std::string name;
@@ -71,6 +71,6 @@ absl::Status WriteLabelsGlb(const std::string& path,
                             const std::vector<std::pair<LabelId, IndexedMesh>>& surfaces,
                             const LabelNames* names, Space space = Space::kGrid);
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_IO_LABELS_IO_H_

@@ -25,7 +25,7 @@
 #include "tandem/mesh.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::io {
 
 // Writes `mesh` to `path` (overwriting it), streamed through a fixed buffer, so memory does
 // not grow with the mesh.
@@ -131,6 +131,6 @@ std::vector<Vec3> VertexNormals(const IndexedMesh& mesh);
 //         g, o, s, usemtl, comments, ...) are ignored.
 absl::StatusOr<IndexedMesh> ReadMesh(const std::string& path);
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_MESH_IO_H_

@@ -16,7 +16,7 @@
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::io {
 
 // Runs a session over every slice of `source`. With sealing (SessionOptions::seal), the
 // sealed chunks are taken after every slice and handed to on_chunk (required then); a
@@ -40,6 +40,6 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     const std::function<absl::Status(size_t, SealedChunk)>& on_chunk = nullptr,
     Executor* executor = nullptr, const FinishingFn& finishing = nullptr);
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_RUN_SESSION_H_

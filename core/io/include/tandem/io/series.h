@@ -51,10 +51,11 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "tandem/io/open_volume.h"
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 
-namespace tandem {
+namespace tandem::io {
 
 // The regular, non-hidden files of dir in natural order of their names (digit runs compare as
 // numbers: "s2" < "s10"), leaving out names that say the file is still being written under
@@ -145,6 +146,6 @@ absl::Status WriteTiffSlice(const std::string& path, const VolumeInfo& info, int
 absl::Status WriteTiffSequence(const std::string& dir, const VolumeInfo& info,
                                const SliceFn& slice_fn);
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_SERIES_H_

@@ -12,7 +12,7 @@
 #include "absl/status/status.h"
 #include "tandem/volume.h"
 
-namespace tandem {
+namespace tandem::io {
 
 struct VolumeWriteOptions {
   // .nrrd / .nhdr: gzip encoding; .tif / .tiff: deflate compression. (.nii.gz is chosen by
@@ -54,6 +54,6 @@ using SliceFn = std::function<absl::Status(int64_t z, std::vector<uint8_t>* byte
 absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                          const VolumeWriteOptions& opts = {});
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_VOLUME_WRITERS_H_

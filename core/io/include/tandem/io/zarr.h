@@ -36,7 +36,7 @@
 #include "tandem/volume.h"
 #include "tandem/io/volume_writers.h"
 
-namespace tandem {
+namespace tandem::io {
 
 struct ZarrReadOptions {
   // "" = the array at the path, or level 0 of the group's multiscale image; "N" = level N;
@@ -115,6 +115,6 @@ class ZarrAppender {
 absl::Status WriteZarr(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                        const ZarrWriteOptions& opts = {});
 
-}  // namespace tandem
+}  // namespace tandem::io
 
 #endif  // TANDEM_ZARR_H_

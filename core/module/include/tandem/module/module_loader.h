@@ -18,7 +18,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 
-namespace tandem {
+namespace tandem::module {
 
 // Where a module (or a helper program installed with the modules) named `name` is looked
 // for, in order.
@@ -30,6 +30,6 @@ std::vector<std::string> ModulePlaces(const std::string& name);
 absl::StatusOr<void*> LoadModuleEntry(const std::string& module, const std::string& entry,
                                       const std::function<absl::Status(void*)>& accept);
 
-}  // namespace tandem
+}  // namespace tandem::module
 
 #endif  // TANDEM_MODULE_LOADER_H_
