@@ -223,8 +223,14 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
     if (preview) preview(p, sent);
   };
   auto chunk = callbacks->on_chunk;
-  callbacks->on_chunk = [view, chunk](const v1::SealedChunk& c) {
-    view->AddChunk(c.draco(), c.triangles(), c.surface());
+  callbacks->on_chunk = [this, view, chunk](const v1::SealedChunk& c) {
+    // A label's chunks say their label, not their surface (known at End only).
+    if (label_session_ && c.has_label()) {
+      view->AddChunk(c.draco(), c.triangles(), SurfaceOfLabel(c.label()));
+      PublishLabels();
+    } else {
+      view->AddChunk(c.draco(), c.triangles(), c.surface());
+    }
     if (chunk) chunk(c);
   };
 }
@@ -237,8 +243,10 @@ void LiveView::Finish(const absl::StatusOr<StreamResult>& result) {
     for (size_t i = 0; i < result->num_labels(); ++i) {
       const SurfaceResult& surface = result->surface(i);
       const int k = SurfaceOfLabel(surface.metrics.label());
-      server_->SetBand(k, surface.draco, surface.triangles, result->session_metrics.slices(),
-                       false);
+      if (!result->sealed_session) {  // sealed, the chunks are the whole mesh
+        server_->SetBand(k, surface.draco, surface.triangles, result->session_metrics.slices(),
+                         false);
+      }
       if (rows.size() <= static_cast<size_t>(k)) rows.resize(static_cast<size_t>(k) + 1);
       rows[static_cast<size_t>(k)] = common::LabelMetricsFromProto(surface.metrics);
       if (label_names_ != nullptr) {
@@ -255,6 +263,7 @@ void LiveView::Finish(const absl::StatusOr<StreamResult>& result) {
                          result->session_metrics.slices(), false);
       }
     }
+    if (result->sealed_session) server_->ClearBands();
     PublishLabels();
     server_->Finish(eval::LabelMetricsToJson(rows), "");
   } else if (result.ok()) {

@@ -5,7 +5,9 @@
 // surface of its own in the colour the 3D Slicer table gives it (the canvas holds at least
 // two of those colours, told apart by their chromaticity); at the end every label's final
 // mesh is drawn in its colour and the final table has a row per label.
-//   node tests/viewer/viewer_labels_test.mjs BUILD_DIR
+// With `sealed` (--seal) the labels come as sealed chunks, each drawn on its label's surface,
+// and at the end the chunks are each label's whole mesh.
+//   node tests/viewer/viewer_labels_test.mjs BUILD_DIR [sealed]
 // Exit 0: passed; 1: failed; 77: skipped (no Chromium or node_modules, outside CI).
 import fs from 'node:fs';
 import path from 'node:path';
@@ -14,6 +16,8 @@ import { harness } from './browser_harness.mjs';
 const { work, check, start, waitFor, urlIn, startServer, launch, canvasShot, pageShot, chromaOf,
         chromaDistance, run } = harness(process.argv[2]);
 
+const SEALED = process.argv[3] === 'sealed';
+const drawn = (s) => s.bandTriangles + s.sealedTriangles;
 const LONG = 240;  // bound of every wait, in seconds (the waits take a few)
 const N = 48;      // grid vertices per axis
 // The labels, their names and colours (a 3D Slicer colour table: id name r g b a).
@@ -79,7 +83,7 @@ await run(async () => {
   const client = start('tandem-client', [
     'stream', '--server', address, '--input', volume, '--labels', '--label-names', table,
     '--error', '0.5', '--rate', '4', '--out', path.join(work, 'out') + '/',
-    '--view', '127.0.0.1:0', '--view-linger', String(LONG)]);
+    '--view', '127.0.0.1:0', '--view-linger', String(LONG), ...(SEALED ? ['--seal'] : [])]);
   const url = await waitFor('the viewer address', () => urlIn(client), LONG);
   const page = await browser.newPage({ viewport: { width: 960, height: 640 } });
   const pageErrors = [];
@@ -90,13 +94,13 @@ await run(async () => {
   const mid = await waitFor('two labels drawn mid-scan', async () => {
     const v = await viewOf(page);
     return v && !v.finished && v.rendered &&
-           v.surfaces.filter((s) => s.bandTriangles > 0).length >= 2 ? v : null;
+           v.surfaces.filter((s) => drawn(s) > 0).length >= 2 ? v : null;
   }, LONG);
   check(mid.meshed < N, 'labels: the scan is still running', `${mid.meshed} of ${N} slices meshed`);
-  const named = mid.surfaces.filter((s) => s.bandTriangles > 0);
+  const named = mid.surfaces.filter((s) => drawn(s) > 0);
   check(named.every((s) => LABELS.some(([id, name, rgb]) => s.label === `${name} (${id})` && s.bandColor === hex(rgb))),
         'labels: each label drawn mid-scan is a surface named and coloured by the table',
-        JSON.stringify(named.map((s) => [s.label, s.bandColor, s.bandTriangles])));
+        JSON.stringify(named.map((s) => [s.label, s.bandColor, drawn(s)])));
   const live = await colourShares(await canvasShot(page, 'labels-live.png'), colours);
   check(live.filter((share) => share > 0.003).length >= 2,
         'labels: the live canvas shows at least two of the labels\' colours', JSON.stringify(live));
@@ -105,8 +109,13 @@ await run(async () => {
     const v = await viewOf(page);
     return v && v.finished && v.rendered && v.metricRows.length > 0 ? v : null;
   }, LONG);
-  check(end.surfaces.length === 3 && end.surfaces.every((s) => s.bandTriangles > 0),
-        'labels: every label\'s final mesh is drawn', JSON.stringify(end.surfaces.map((s) => [s.label, s.bandTriangles])));
+  check(end.surfaces.length === 3 && end.surfaces.every((s) => drawn(s) > 0),
+        'labels: every label\'s final mesh is drawn', JSON.stringify(end.surfaces.map((s) => [s.label, drawn(s)])));
+  if (SEALED) {
+    check(end.surfaces.every((s) => s.sealedTriangles > 0 && s.bandTriangles === 0),
+          'labels, sealed: each label\'s chunks are its whole mesh, drawn on its own surface',
+          JSON.stringify(end.surfaces.map((s) => [s.label, s.sealedTriangles, s.bandTriangles])));
+  }
   check(end.metricRows.length === 3 && LABELS.every(([id, name]) => end.metricRows.some((r) => r.includes(`${name} (${id})`))),
         'labels: the final table has a row per label', JSON.stringify(end.metricRows));
   const final = await colourShares(await canvasShot(page, 'labels-final.png'), colours);
