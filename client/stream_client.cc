@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <memory>
 #include <optional>
 #include <thread>
@@ -85,7 +86,9 @@ class Collector {
         result.sealed_session = true;
         if (callbacks_.on_chunk) callbacks_.on_chunk(c);
         if (!malformed_.empty()) break;
-        SurfaceResult* out = Surface(c.surface(), "sealed chunk");
+        // A label session's chunk is its label's: the labels' places are known at End.
+        SurfaceResult* out = labels_ && c.has_label() ? &label_chunks_[c.label()]
+                                                      : Surface(c.surface(), "sealed chunk");
         if (out == nullptr) break;
         SealedChunk chunk;
         absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
@@ -146,6 +149,13 @@ class Collector {
       const State& st = state_[i];
       const std::string which = state_.size() > 1 ? absl::StrCat(" of surface ", i) : "";
       if (result.sealed_session) {
+        if (labels_ && st.have_metrics) {
+          auto it = label_chunks_.find(out.metrics.label());
+          if (it != label_chunks_.end()) {
+            out.sealed = std::move(it->second.sealed);
+            label_chunks_.erase(it);
+          }
+        }
         if (st.have_metrics) {
           // The union of the chunks is the final mesh: it must have the final counts.
           const IndexedMesh mesh = WeldChunks(out.sealed);
@@ -167,10 +177,16 @@ class Collector {
         malformed_ = absl::StrCat("the stream ended without final metrics", which);
       }
     }
+    if (malformed_.empty() && !label_chunks_.empty()) {
+      malformed_ = absl::StrCat("sealed chunks of label ", label_chunks_.begin()->first,
+                                " arrived, but no final metrics for it");
+    }
     return malformed_;
   }
 
  private:
+  // A sealed label session: the chunks of each label, until its metrics give its place.
+  std::map<uint64_t, SurfaceResult> label_chunks_;
   struct State {
     uint32_t next_chunk = 0, chunk_count = 0;
     bool have_metrics = false;

@@ -152,7 +152,8 @@ std::optional<ParkedSession> ExtractCall::RunWorker() {
           inbox_.pop_front();
           if (request->has_config() && !request->config().has_resume()) {
             description_ = request->config().description();
-            feed_->SetSealed(request->config().sealed_chunks(), description_);
+            feed_->SetSealed(request->config().sealed_chunks(), description_,
+                             request->config().labels().enabled());
           }
           wants_acks = request->has_config() && request->config().chunk_acks() &&
                        (request->config().has_resume() || request->config().sealed_chunks());

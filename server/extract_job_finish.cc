@@ -150,7 +150,9 @@ absl::Status ExtractJob::FinishSealed() {
     kept_ = {};
     TANDEM_RETURN_IF_ERROR(MeasureDistancesTo(mesh, &report));
   }
-  PostMetrics(report, {});
+  std::vector<v1::ExtractResponse> out;
+  if (config_.options.labels.enabled) AppendSealedLabelMetrics(&out);
+  PostMetrics(report, std::move(out));
   return absl::OkStatus();
 }
 

@@ -1,5 +1,6 @@
 // ExtractJob in a label session (SessionConfig.labels): the interface complex cut into one
 // surface per label, for the previews and at the end, each sent with its label.
+#include <algorithm>
 #include <string>
 #include <utility>
 #include <vector>
@@ -109,6 +110,100 @@ absl::Status ExtractJob::FinishLabels() {
   }
   PostMetrics(report, std::move(out));
   return absl::OkStatus();
+}
+
+absl::Status ExtractJob::PostLabelChunks(const SealedChunk& part, IndexedMesh complex,
+                                         const codec::MovedCorners& moved) {
+  std::vector<Vec3>& positions = complex.positions;
+  // The complex's corners where its encoding put them: each label's chunk then keeps every
+  // corner fixed, so that a vertex two labels share decodes to one grid point in both.
+  for (const auto& [v, at] : moved) positions[v] = at;
+  const LabelId background = config_.options.labels.background;
+  // Each triangle once per side that is not background, sorted by label (as SplitByLabel).
+  struct Side {
+    LabelId label;
+    uint32_t tri;
+    bool reversed;
+  };
+  std::vector<Side> sides;
+  const size_t n = std::min(complex.num_triangles(), part.patch.size());
+  sides.reserve(2 * n);
+  for (size_t t = 0; t < n; ++t) {
+    if (part.patch[t] >= part.pairs.size()) continue;
+    const LabelPair& p = part.pairs[part.patch[t]];
+    const auto id = static_cast<uint32_t>(t);
+    if (p.inside != background) sides.push_back({p.inside, id, false});
+    if (p.outside != background && p.outside != p.inside) sides.push_back({p.outside, id, true});
+  }
+  std::stable_sort(sides.begin(), sides.end(),
+                   [](const Side& a, const Side& b) { return a.label < b.label; });
+  constexpr uint32_t kUnused = ~uint32_t{0};
+  std::vector<uint32_t> local(positions.size(), kUnused);
+  for (size_t begin = 0; begin < sides.size();) {
+    const LabelId label = sides[begin].label;
+    size_t end = begin;
+    while (end < sides.size() && sides[end].label == label) ++end;
+    SealedChunk c;
+    c.index = part.index;
+    c.first_slice = part.first_slice;
+    c.last_slice = part.last_slice;
+    IndexedMesh mesh;
+    mesh.indices.reserve(3 * (end - begin));
+    for (size_t s = begin; s < end; ++s) {
+      const uint32_t* tri = complex.indices.data() + 3 * size_t{sides[s].tri};
+      const uint32_t corners[3] = {tri[0], sides[s].reversed ? tri[2] : tri[1],
+                                   sides[s].reversed ? tri[1] : tri[2]};
+      for (uint32_t v : corners) {
+        if (local[v] == kUnused) {
+          local[v] = static_cast<uint32_t>(mesh.positions.size());
+          mesh.positions.push_back(positions[v]);
+          c.ids.push_back(part.ids[v]);
+        }
+        mesh.indices.push_back(local[v]);
+      }
+    }
+    for (size_t s = begin; s < end; ++s) {  // reset for the next label
+      const uint32_t* tri = complex.indices.data() + 3 * size_t{sides[s].tri};
+      for (int k = 0; k < 3; ++k) local[tri[k]] = kUnused;
+    }
+    begin = end;
+    const auto t0 = Clock::now();
+    const std::vector<uint8_t> fixed(mesh.num_vertices(), 1);
+    absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, chunk_draco_, c.ids, fixed);
+    encode_s_ += SecondsSince(t0);
+    if (!bytes.ok()) {
+      return absl::InternalError(absl::StrCat("encoding sealed chunk ", chunks_sent_, " (label ",
+                                              label, "): ", std::string(bytes.status().message())));
+    }
+    v1::SealedChunk out;
+    out.set_index(chunks_sent_);
+    out.set_first_slice(c.first_slice);
+    out.set_last_slice(c.last_slice);
+    out.set_draco(*std::move(bytes));
+    out.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
+    out.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
+    out.set_label(label);
+    sealed_posted_ += out.triangles();
+    ++chunks_sent_;
+    chunk_bytes_ += static_cast<int64_t>(out.draco().size());
+    sink_->PostChunk(std::move(out));
+    c.positions = std::move(mesh.positions);
+    c.indices = std::move(mesh.indices);
+    label_chunks_[label].push_back(std::move(c));
+  }
+  return absl::OkStatus();
+}
+
+void ExtractJob::AppendSealedLabelMetrics(std::vector<v1::ExtractResponse>* out) {
+  int32_t surface = 0;
+  for (auto& [id, chunks] : label_chunks_) {
+    const IndexedMesh mesh = WeldChunks(chunks);
+    chunks = {};
+    v1::FinalMetrics* metrics = out->emplace_back().mutable_final_metrics();
+    common::LabelMetricsToProto(eval::MeasureLabel(id, mesh), metrics);
+    metrics->set_surface(surface++);
+  }
+  label_chunks_.clear();
 }
 
 }  // namespace tandem::server

@@ -66,6 +66,11 @@ std::vector<SealedChunk> SplitChunk(SealedChunk c, size_t count,
     }
     o.indices.reserve(3 * (end - begin));
     for (size_t k = 3 * begin; k < 3 * end; ++k) o.indices.push_back(local[c.indices[k]]);
+    if (!c.patch.empty()) {  // a label session's: each triangle's pair goes with it
+      o.patch.assign(c.patch.begin() + static_cast<ptrdiff_t>(begin),
+                     c.patch.begin() + static_cast<ptrdiff_t>(end));
+      o.pairs = c.pairs;
+    }
   }
   out.back().retired = std::move(c.retired);
   return out;
@@ -221,6 +226,13 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
       return absl::InternalError(absl::StrCat("encoding sealed chunk ", chunks_sent_ + i, ": ",
                                               std::string(bytes[i].status().message())));
     }
+  }
+  if (config_.options.labels.enabled) {
+    for (size_t i = 0; i < parts.size(); ++i) {
+      TANDEM_RETURN_IF_ERROR(PostLabelChunks(parts[i], std::move(meshes[i]), moved[i]));
+    }
+    last_chunk_ = t0;
+    return absl::OkStatus();
   }
   for (size_t i = 0; i < parts.size(); ++i) {
     SealedChunk& part = parts[i];

@@ -45,8 +45,6 @@ absl::Status ApplyLabels(const v1::SessionConfig& c, SessionOptions* o) {
   } refused[] = {
       {!c.extra_isos().empty(), "config.extra_isos",
        "a label map's surfaces lie between its labels, not at iso-values"},
-      {c.sealed_chunks(), "config.sealed_chunks",
-       "a label session sends each label's surface whole, after End"},
       {c.compute_distances(), "config.compute_distances",
        "the distances measure an iso-surface against its unsimplified self"},
   };

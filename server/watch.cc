@@ -32,9 +32,10 @@ bool SessionFeed::MayRead(std::string_view watch_key, int identity) const {
          common::ConstantTimeEquals(watch_key_, watch_key);
 }
 
-void SessionFeed::SetSealed(bool sealed, const std::string& description) {
+void SessionFeed::SetSealed(bool sealed, const std::string& description, bool labels) {
   absl::MutexLock lock(&mu_);
   sealed_ = sealed;
+  labels_ = labels;
   description_ = description;
 }
 
@@ -191,6 +192,13 @@ grpc::Status SessionFeed::Attach(std::weak_ptr<FeedWatcher> watcher) {
     return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
                         absl::StrCat("session ", id_, " does not send sealed chunks "
                                      "(SessionConfig.sealed_chunks): it cannot be watched"));
+  }
+  if (labels_) {
+    // A watcher would need each label's chunks kept apart and every label's figures at End.
+    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                        absl::StrCat("session ", id_,
+                                     " is a label session (SessionConfig.labels): "
+                                     "it cannot be watched; its own client writes the labels"));
   }
   if (overflowed_) {
     return grpc::Status(

@@ -135,7 +135,9 @@ int SaveLabels(tandem::client::StreamResult& result, const SaveOptions& o) {
   std::vector<tandem::eval::LabelMetrics> measured;
   for (size_t i = 0; i < result.num_labels(); ++i) {
     const tandem::client::SurfaceResult& s = result.surface(i);
-    absl::StatusOr<tandem::IndexedMesh> mesh = DecodeFinal(s);
+    // Sealed: the label's chunks, welded by id (their counts were checked against its metrics).
+    absl::StatusOr<tandem::IndexedMesh> mesh =
+        o.seal ? tandem::WeldChunks(s.sealed) : DecodeFinal(s);
     if (!mesh.ok()) {
       return Fail(absl::Status(mesh.status().code(), absl::StrCat("label ", s.metrics.label(), ": ",
                                                                   mesh.status().message())));

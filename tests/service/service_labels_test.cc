@@ -147,10 +147,22 @@ void ExpectOpenOnlyAtTheBox(const IndexedMesh& m, double tol) {
   }
 }
 
+// A variable the streaming client prints as NAME=VALUE (its session's id and watch key).
+std::string PrintedVariable(const std::string& err, const std::string& name) {
+  const std::string tag = name + "=";
+  const size_t at = err.find(tag);
+  if (at == std::string::npos) return "";
+  const size_t begin = at + tag.size();
+  const size_t end = err.find_first_of(" \n", begin);
+  return end == std::string::npos ? "" : err.substr(begin, end - begin);
+}
+
 class ServiceLabelsTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    auto server = TestServer::Start({"--min-preview-interval-ms", "0", "--max-preview-share", "0"});
+    // Previews at every slice (each sealing what is due first), whatever their bytes.
+    auto server = TestServer::Start({"--min-preview-interval-ms", "0", "--max-preview-share", "0",
+                                     "--max-band-bytes-share", "0"});
     ASSERT_TRUE(server.ok()) << server.status();
     server_ = *std::move(server);
     dir_ = MakeTempDir();
@@ -179,12 +191,17 @@ class ServiceLabelsTest : public ::testing::Test {
 
 // The client's folder holds tandem extract --labels' files, each the same mesh; interfaces
 // shared; manifolds open only at the box, or closed with --close; the same figures.
+// Sealed (--seal, both sides), the labels come as chunks per label, welded by the client into
+// the same files (the figures measured before the grid, so the area within a hair).
 TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
-  for (const bool close : {false, true}) {
+  for (int run = 0; run < 4; ++run) {
+    const bool close = run >= 2, seal = run % 2 == 1;
     SCOPED_TRACE(close ? "--close" : "open at the box");
-    const std::string tag = close ? "closed" : "open";
+    SCOPED_TRACE(seal ? "--seal" : "whole at End");
+    const std::string tag = std::string(close ? "closed" : "open") + (seal ? "_sealed" : "");
     std::vector<std::string> common = {"--input", volume_, "--labels", "--error", "0.5", "--quiet"};
     if (close) common.push_back("--close");
+    if (seal) common.push_back("--seal");
     const std::string local = dir_ + "/local_" + tag + "/", remote = dir_ + "/remote_" + tag + "/";
     RunResult cli = Run("tandem", [&] {
       std::vector<std::string> a = {"extract", "--out", local, "--metrics", dir_ + "/l.json"};
@@ -242,7 +259,12 @@ TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
       EXPECT_EQ(b["triangles"], a["triangles"]);
       EXPECT_EQ(b["euler"], a["euler"]);
       EXPECT_EQ(b["closed"], a["closed"]);
-      EXPECT_DOUBLE_EQ(b["area"].get<double>(), a["area"].get<double>());
+      if (seal) {
+        EXPECT_NEAR(b["area"].get<double>(), a["area"].get<double>(),
+                    1e-3 * a["area"].get<double>());
+      } else {
+        EXPECT_DOUBLE_EQ(b["area"].get<double>(), a["area"].get<double>());
+      }
     }
     EXPECT_EQ(got["triangles_final"], want["triangles_final"]);
     EXPECT_EQ(got["contractions"], want["contractions"]);
@@ -298,6 +320,79 @@ TEST_F(ServiceLabelsTest, PreviewsAndFinalMessagesCarryTheLabels) {
   EXPECT_FALSE(outcome.responses.back().final_metrics().has_label());
 }
 
+// A sealed label session sends each chunk as one SealedChunk per label it holds, while the
+// slices arrive; each label's chunks weld into its surface as the unsealed session sends it,
+// and touching labels share their interface triangles exactly.
+TEST_F(ServiceLabelsTest, SealedChunksCarryTheirLabelBeforeEnd) {
+  auto stub = server_->NewStub();
+  v1::SessionConfig whole_config = LabelConfig();
+  whole_config.mutable_labels()->set_close(true);
+  v1::SessionConfig sealed_config = whole_config;
+  sealed_config.set_sealed_chunks(true);
+  sealed_config.mutable_preview()->set_every_slices(1);  // each preview seals what is due
+  const StreamOutcome whole = RunStream(*stub, Requests(whole_config), server_.get());
+  ASSERT_TRUE(whole.status.ok()) << whole.status.error_message();
+  const StreamOutcome sealed = RunStream(*stub, Requests(sealed_config), server_.get());
+  ASSERT_TRUE(sealed.status.ok()) << sealed.status.error_message();
+
+  std::map<uint64_t, std::vector<SealedChunk>> chunks;
+  size_t before_last_slice = 0;
+  int64_t index = 0;
+  int64_t last_progress_slice = -1;
+  for (const v1::ExtractResponse& r : sealed.responses) {
+    if (r.has_progress()) last_progress_slice = r.progress().slices_consumed() - 1;
+    ASSERT_FALSE(r.has_final_mesh()) << "a sealed session's surfaces are its chunks";
+    if (!r.has_sealed_chunk()) continue;
+    const v1::SealedChunk& c = r.sealed_chunk();
+    ASSERT_TRUE(c.has_label());
+    EXPECT_EQ(c.surface(), 0);
+    EXPECT_EQ(c.index(), index++);
+    if (last_progress_slice >= 0 && last_progress_slice < kNz - 1) ++before_last_slice;
+    SealedChunk chunk;
+    auto mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    EXPECT_EQ(static_cast<int64_t>(mesh->num_triangles()), c.triangles());
+    chunk.positions = std::move(mesh->positions);
+    chunk.indices = std::move(mesh->indices);
+    chunks[c.label()].push_back(std::move(chunk));
+  }
+  EXPECT_GE(before_last_slice, 1u);
+  std::map<uint64_t, IndexedMesh> want;  // label -> the unsealed session's surface
+  for (size_t i = 0; i < whole.responses.size(); ++i) {
+    const v1::ExtractResponse& r = whole.responses[i];
+    if (!r.has_final_mesh() || r.final_mesh().chunk_index() != 0) continue;
+    std::string bytes;
+    for (size_t k = i; k < i + r.final_mesh().chunk_count(); ++k) {
+      bytes += whole.responses[k].final_mesh().draco();
+    }
+    auto mesh = codec::DecodeDraco(bytes);
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    want[r.final_mesh().label()] = *std::move(mesh);
+  }
+  ASSERT_GE(want.size(), 9u);
+  ASSERT_EQ(chunks.size(), want.size());
+  // Sealing keeps the topology, not every contraction (the front's margin): each label is a
+  // closed manifold of the unsealed Euler characteristic, and touching labels share
+  // triangles at bit-identical positions (triangle for triangle against tandem extract
+  // --seal: StreamedLabelsAreTheLocalExtractsFiles).
+  std::map<std::string, IndexedMesh> sealed_meshes, whole_meshes;
+  for (const auto& [label, list] : chunks) {
+    SCOPED_TRACE(absl::StrCat("label ", label));
+    ASSERT_TRUE(want.count(label));
+    const IndexedMesh got = WeldChunks(list);
+    const eval::TopologyReport t = eval::AnalyzeTopology(got);
+    EXPECT_TRUE(t.IsClosedManifold());
+    EXPECT_EQ(t.euler, eval::AnalyzeTopology(want[label]).euler);
+    sealed_meshes[absl::StrCat(label)] = got;
+    whole_meshes[absl::StrCat(label)] = want[label];
+  }
+  EXPECT_GE(SharedTriangles(whole_meshes).size(), 10u);
+  EXPECT_GE(SharedTriangles(sealed_meshes).size(), 10u);
+  // The session's metrics count every label, each with its figures.
+  ASSERT_TRUE(sealed.responses.back().has_final_metrics());
+  EXPECT_EQ(sealed.responses.back().final_metrics().labels(), static_cast<int64_t>(want.size()));
+}
+
 // What a label session cannot do is refused with INVALID_ARGUMENT naming the field; the
 // server then meshes a good label stream as ever.
 TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
@@ -316,7 +411,6 @@ TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
   add(
       "config.labels.enabled", [](v1::SessionConfig&) {}, /*float32=*/true);
   add("config.extra_isos", [](v1::SessionConfig& c) { c.add_extra_isos(3); });
-  add("config.sealed_chunks", [](v1::SessionConfig& c) { c.set_sealed_chunks(true); });
   add("config.parts", [](v1::SessionConfig& c) { c.set_parts(2); });
   add("config.compute_distances", [](v1::SessionConfig& c) { c.set_compute_distances(true); });
   add("config.labels.only", [](v1::SessionConfig& c) {
@@ -343,11 +437,23 @@ TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
     EXPECT_NE(outcome.status.error_message().find(c.field), std::string::npos)
         << outcome.status.error_message();
   }
-  // The client refuses --seal and --iso with --labels before it sends anything.
-  RunResult seal = Run("tandem-client", {"stream", "--server", server_->address(), "--input",
-                                         volume_, "--labels", "--seal", "--out", dir_ + "/s/"});
-  EXPECT_EQ(seal.exit_code, 2) << seal.err;
-  EXPECT_NE(seal.err.find("--seal does not go with --labels"), std::string::npos) << seal.err;
+  // A sealed label session runs, but cannot be watched: the watcher is told why.
+  RunResult sealed = Run("tandem-client", {"stream", "--server", server_->address(), "--input",
+                                           volume_, "--labels", "--seal", "--out", dir_ + "/s/"});
+  ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
+  const std::string id = PrintedVariable(sealed.err, "TANDEM_RESUME").substr(0, 32);
+  ASSERT_EQ(id.size(), 32u) << sealed.err;
+  const std::string key = PrintedVariable(sealed.err, "TANDEM_WATCH_KEY");
+  RunResult watch = [&] {
+    std::vector<std::string> args = {
+        BinPath("tandem-client"), "watch", "--server", server_->address(), "--session", id, "--out",
+        dir_ + "/w.ply"};
+    return RunProcess(args, 120, {"TANDEM_WATCH_KEY=" + key});
+  }();
+  EXPECT_EQ(watch.exit_code, 1) << watch.err;
+  EXPECT_NE(watch.err.find("is a label session (SessionConfig.labels): it cannot be watched"),
+            std::string::npos)
+      << watch.err;
   EXPECT_EQ(server_->Health(), "SERVING");
   const StreamOutcome good = RunStream(*stub, Requests(LabelConfig()), server_.get());
   EXPECT_TRUE(good.status.ok()) << good.status.error_message();

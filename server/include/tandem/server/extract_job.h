@@ -20,6 +20,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -113,6 +114,12 @@ class ExtractJob {
   // HandleEnd's tail in a label session (SessionConfig.labels): each label's surface and
   // figures, then the session's (extract_job_labels.cc).
   absl::Status FinishLabels();
+  // A label session's sealed chunk (`complex` its triangles, before the grid `moved` its
+  // corners): one SealedChunk per label it holds, on the grid the complex was encoded on.
+  absl::Status PostLabelChunks(const SealedChunk& part, IndexedMesh complex,
+                               const codec::MovedCorners& moved);
+  // Each label's figures from its chunks, welded (FinalMetrics with the label and its place).
+  void AppendSealedLabelMetrics(std::vector<v1::ExtractResponse>* out);
   // compute_distances: the L1/L2/Linf distances of `mesh` to the reference (freed after);
   // and the process's peak RSS, in any case.
   absl::Status MeasureDistancesTo(const IndexedMesh& mesh, eval::MetricsReport* report);
@@ -163,6 +170,8 @@ class ExtractJob {
   std::optional<std::chrono::steady_clock::time_point> last_chunk_;
   eval::ShapeSums shape_;          // of everything sealed, for the final metrics
   std::vector<SealedChunk> kept_;  // compute_distances only: the chunks, to weld at the end
+  // A sealed label session: each label's chunks as sent, welded at End for its figures.
+  std::map<LabelId, std::vector<SealedChunk>> label_chunks_;
   // The ids a chunk sent that a later chunk may send again (not retired): on the shared grid
   // those corners may not move (codec::EncodeDraco's `fixed`), and those the encoder moved
   // go out again where they were sent. The front's border and the unsettled seams, not the

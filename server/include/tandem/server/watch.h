@@ -65,7 +65,7 @@ class SessionFeed {
   bool MayRead(std::string_view watch_key, int identity) const;
 
   // Producer side (the Extract stream's threads). SetSealed: from its config.
-  void SetSealed(bool sealed, const std::string& description);
+  void SetSealed(bool sealed, const std::string& description, bool labels = false);
   void Progress(const v1::Progress& p);
   void Preview(const v1::Preview& p);
   void Chunk(const v1::SealedChunk& c);
@@ -115,6 +115,7 @@ class SessionFeed {
   mutable absl::Mutex mu_;
   std::string description_ ABSL_GUARDED_BY(mu_);
   bool sealed_ ABSL_GUARDED_BY(mu_) = false;
+  bool labels_ ABSL_GUARDED_BY(mu_) = false;  // a label session: not watchable
   bool waiting_ ABSL_GUARDED_BY(mu_) = false;
   // chunks_[i] is chunk dropped_ + i.
   std::deque<v1::SealedChunk> chunks_ ABSL_GUARDED_BY(mu_);
