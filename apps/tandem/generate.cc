@@ -40,6 +40,14 @@ absl::StatusOr<std::array<double, 3>> ParseTriple(const std::string& s, const ch
   return v;
 }
 
+// A string flag left empty unless given; the help shows `shown_default`, what empty stands for.
+void AddStringShowingDefault(cli::FlagSet& flags, const std::string& name, std::string* var,
+                             const std::string& value_name, const std::string& help,
+                             const std::string& shown_default) {
+  flags.AddString(name, var, value_name, help);
+  flags.SetDefaultText(name, shown_default);
+}
+
 }  // namespace
 
 int GenerateCommand(int argc, char** argv) {
@@ -59,26 +67,26 @@ int GenerateCommand(int argc, char** argv) {
                   /*required=*/true);
   flags.AddInt("size", &size, "N x N x N grid vertices (or --dims)");
   flags.AddString("dims", &dims_text, "NX,NY,NZ", "grid vertices per axis");
-  flags.AddString("spacing", &spacing_text, "SX,SY,SZ", "physical voxel size per axis");
-  flags.SetDefaultText("spacing", "1,1,1");
-  flags.AddString("origin", &origin_text, "X,Y,Z", "world position of voxel (0,0,0)");
-  flags.SetDefaultText("origin", "0,0,0");
-  flags.AddString("directions", &directions_text, "9 NUMBERS",
-                  "world unit vectors of the x, y and z axes (stored by --series dicom and "
-                  ".json sidecars, refused by the others)");
-  flags.SetDefaultText("directions", "identity");
+  AddStringShowingDefault(flags, "spacing", &spacing_text, "SX,SY,SZ",
+                          "physical voxel size per axis", "1,1,1");
+  AddStringShowingDefault(flags, "origin", &origin_text, "X,Y,Z", "world position of voxel (0,0,0)",
+                          "0,0,0");
+  AddStringShowingDefault(flags, "directions", &directions_text, "9 NUMBERS",
+                          "world unit vectors of the x, y and z axes (stored by --series dicom and "
+                          ".json sidecars, refused by the others)",
+                          "identity");
   flags.AddInt("zarr-version", &zarr_version, ".zarr: 2 or 3", "V");
-  flags.AddString("zarr-codec", &zarr_codec, "C", ".zarr: none, gzip, zstd, blosc-lz4, blosc-zstd");
-  flags.SetDefaultText("zarr-codec", "blosc-lz4");
-  flags.AddString("zarr-chunks", &zarr_chunks, "Z,Y,X", ".zarr: chunk shape (0 = the whole axis)");
-  flags.SetDefaultText("zarr-chunks", "1,256,256");
+  AddStringShowingDefault(flags, "zarr-codec", &zarr_codec, "C",
+                          ".zarr: none, gzip, zstd, blosc-lz4, blosc-zstd", "blosc-lz4");
+  AddStringShowingDefault(flags, "zarr-chunks", &zarr_chunks, "Z,Y,X",
+                          ".zarr: chunk shape (0 = the whole axis)", "1,256,256");
   flags.AddString("series", &series, "dicom|tiff",
                   "write FILE as a folder of one file per slice instead: a DICOM CT series "
                   "(IM00001.dcm, ...; values quantized to int16 with a rescale slope and "
                   "intercept) or numbered single-page TIFFs (slice_00000.tif, ...)");
-  flags.AddString("dicom-syntax", &dicom_syntax, "S",
-                  "--series dicom: explicit, implicit, jpeg-lossless, jpeg-ls, jpeg2000 or rle");
-  flags.SetDefaultText("dicom-syntax", "explicit");
+  AddStringShowingDefault(
+      flags, "dicom-syntax", &dicom_syntax, "S",
+      "--series dicom: explicit, implicit, jpeg-lossless, jpeg-ls, jpeg2000 or rle", "explicit");
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   if (flags.positional().size() != 1) {
     return Usage(

@@ -30,8 +30,7 @@ ReleaseRule RuleFor(Schedule s) {
 // copy (unsettled) or its shared id (settled), any other by its slab and id.
 class WeldedIds {
  public:
-  WeldedIds(const Slab& left, const Slab& right,
-            const std::vector<std::pair<VertexId, VertexId>>& pairs)
+  WeldedIds(const Slab& left, const Slab& right, const std::vector<SeamVertex>& pairs)
       : left_(left), right_(right) {
     left_of_.reserve(pairs.size());
     for (const auto& [a, b] : pairs) left_of_.emplace(b, a);
@@ -137,8 +136,7 @@ void MendSettlingSeamSide(Slab& own, Slab& other,
 
 }  // namespace
 
-void MendSettlingSeam(Slab& left, Slab& right,
-                      const std::vector<std::pair<VertexId, VertexId>>& pairs, double limit) {
+void MendSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVertex>& pairs, double limit) {
   absl::flat_hash_map<VertexId, VertexId> to_right, to_left;
   for (const auto& [a, b] : pairs) {
     if (!left.store.vertex_alive(a) || left.store.height(a) > limit) continue;
@@ -150,8 +148,7 @@ void MendSettlingSeam(Slab& left, Slab& right,
   MendSettlingSeamSide(right, left, to_left, /*own_is_left=*/false);
 }
 
-int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
-                            const std::vector<std::pair<VertexId, VertexId>>& pairs,
+int64_t CoarsenSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVertex>& pairs,
                             double limit) {
   // The settling seam vertices (left copy -> right copy).
   absl::flat_hash_map<VertexId, VertexId> partner;
@@ -420,7 +417,7 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
       return absl::InternalError(absl::StrCat("the slabs disagree on seam ", s, " (",
                                               left.size(), " vs ", right.size(), " vertices)"));
     }
-    for (size_t i = 0; i < left.size(); ++i) (*seams)[s].emplace_back(left[i], right[i]);
+    for (size_t i = 0; i < left.size(); ++i) (*seams)[s].push_back({left[i], right[i]});
     left.clear();
     right.clear();
   }
@@ -442,7 +439,7 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams, 
     double limit = by_slices;
     const auto held = static_cast<int64_t>(pairs.size());
     if (held > hold_vertices) {
-      const VertexId newest_settling = pairs[static_cast<size_t>(held - hold_vertices - 1)].first;
+      const VertexId newest_settling = pairs[static_cast<size_t>(held - hold_vertices - 1)].left;
       limit = std::max(limit, std::min(floor, left.store.height(newest_settling)));
     }
     if (coarsen) {

@@ -76,8 +76,14 @@ struct Slab {
   int64_t seam_vertices = 0;  // made so far
 };
 
-// seams[s]: (vertex in slab s, its copy in slab s+1), per shared grid edge.
-using Seams = std::vector<std::vector<std::pair<VertexId, VertexId>>>;
+// One vertex of the plane two slabs share, made by both from the same grid edge: its copy
+// in each slab's store (ids of two stores, never one vertex pair of a store).
+struct SeamVertex {
+  VertexId left;   // in slab s
+  VertexId right;  // in slab s+1
+};
+// seams[s]: the vertices slabs s and s+1 share, not settled yet, as the slabs made them.
+using Seams = std::vector<std::vector<SeamVertex>>;
 
 // The number of slabs a session with these options uses over `grid` (SessionOptions::parts).
 int SlabCount(const VolumeInfo& grid, const SessionOptions& options);
@@ -117,15 +123,13 @@ inline constexpr int64_t kSeamSettleFloor = 64;
 // Simplifier::Evaluate), and a slab's own vertices on it stay. Returns the number of
 // contractions; the contracted-away pairs are dead in both stores (the caller drops them
 // from `pairs`).
-int64_t CoarsenSettlingSeam(Slab& left, Slab& right,
-                            const std::vector<std::pair<VertexId, VertexId>>& pairs,
+int64_t CoarsenSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVertex>& pairs,
                             double limit);
 
 // Mends the zero-area triangles at the seam vertices of `pairs` at height <= limit (alive),
 // which are about to settle: they move apart within the seam's plane, both copies at once
 // (see MendSettlingSeamSide in slabs.cc). Run after CoarsenSettlingSeam.
-void MendSettlingSeam(Slab& left, Slab& right,
-                      const std::vector<std::pair<VertexId, VertexId>>& pairs, double limit);
+void MendSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVertex>& pairs, double limit);
 
 // Moves the slabs' new seam vertices into `seams` (both sides list the same grid edges in the
 // same order). INTERNAL if two neighbours disagree.

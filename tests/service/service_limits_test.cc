@@ -11,6 +11,7 @@
 #include <regex>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_split.h"
@@ -157,10 +158,27 @@ TEST(LimitsTest, DefaultsAreShownByHelpAndReportedByInfo) {
 
 TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
   auto server = TestServer::Start(
-      {"--max-sessions", "3", "--max-voxels-per-slice", "90000", "--max-slices", "500",
-       "--max-message-bytes", "2097152", "--idle-timeout-seconds", "42.5", "--keepalive-time-ms",
-       "15000", "--keepalive-permit-without-calls", "--min-preview-interval-ms", "40",
-       "--compute-threads", "3", "--watch-retain-mb", "5", "--watch-linger-seconds", "7"},
+      {"--max-sessions",
+       "3",
+       "--max-voxels-per-slice",
+       "90000",
+       "--max-slices",
+       "500",
+       "--max-message-bytes",
+       "2097152",
+       "--idle-timeout-seconds",
+       "42.5",
+       "--keepalive-time-ms",
+       "15000",
+       "--keepalive-permit-without-calls",
+       "--min-preview-interval-ms",
+       "40",
+       "--compute-threads",
+       "3",
+       "--watch-retain-mb",
+       "5",
+       "--watch-linger-seconds",
+       "7"},
       {},
       {"TANDEM_SESSION_MEMORY_MB=64", "TANDEM_MAX_INFLIGHT_BYTES=1000000",
        "TANDEM_KEEPALIVE_TIMEOUT_MS=7000", "TANDEM_KEEPALIVE_MIN_PING_INTERVAL_MS=5000",
@@ -187,18 +205,38 @@ TEST(LimitsTest, FlagsAndVariablesAreReportedByInfo) {
   RunResult client =
       RunProcess({BinPath("tandem-client"), "info", "--server", (*server)->address()});
   ASSERT_EQ(client.exit_code, 0) << client.err;
-  for (const char* want : {"max sessions           3", "session memory         64 MiB",
-                           "max inflight bytes     1000000", "idle timeout           42.5 s",
-                           "keepalive              time 15000 ms, timeout 7000 ms, min client "
-                           "ping interval 5000 ms, pings without calls allowed",
-                           "min preview interval   40 ms",
-                           "compute threads        3 (shared by all sessions)",
-                           "watch                  5 MiB kept per session, 7 s after it ends"}) {
+  for (const char* want :
+       {"max sessions           3", "session memory         64 MiB",
+        "max inflight bytes     1000000", "idle timeout           42.5 s",
+        "keepalive              time 15000 ms, timeout 7000 ms, min client "
+        "ping interval 5000 ms, pings without calls allowed",
+        "min preview interval   40 ms", "compute threads        3 (shared by all sessions)",
+        "watch                  5 MiB kept per session, 7 s after it ends"}) {
     EXPECT_NE(client.out.find(want), std::string::npos) << want << "\n" << client.out;
   }
   RunResult bad = RunProcess({BinPath("tandem-server"), "--session-memory-mb", "0"});
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("--session-memory-mb"), std::string::npos) << bad.err;
+}
+
+// Each numeric flag's bounds hold at both ends, for whole numbers and reals alike: a value
+// outside them is a start-up error that names the flag.
+TEST(LimitsTest, FlagValuesOutsideTheirBoundsAreRefused) {
+  for (const std::vector<std::string>& bad :
+       std::vector<std::vector<std::string>>{{"--max-sessions", "4097"},
+                                             {"--max-sessions", "0"},
+                                             {"--keepalive-time-ms", "2147483648"},
+                                             {"--keepalive-timeout-ms", "0"},
+                                             {"--idle-timeout-seconds", "0"},
+                                             {"--grace-seconds", "-1"},
+                                             {"--max-band-bytes-share", "2e6"}}) {
+    std::vector<std::string> argv = {BinPath("tandem-server"), "--listen", "127.0.0.1:0"};
+    argv.insert(argv.end(), bad.begin(), bad.end());
+    RunResult r = RunProcess(argv);
+    EXPECT_EQ(r.exit_code, 2) << bad[0] << " " << bad[1];
+    EXPECT_NE(r.err.find("out of range"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(bad[0]), std::string::npos) << r.err;
+  }
 }
 
 // A client that asks for a preview after every slice gets them at most every
@@ -216,11 +254,9 @@ TEST(LimitsTest, ServerSpacesPreviewsWhateverTheClientAsks) {
     EXPECT_TRUE(server.ok()) << server.status();
     if (!server.ok()) return int64_t{-1};
     const auto start = Clock::now();
-    RunResult r = RunProcess({BinPath("tandem-client"), "stream", "--server",
-                              (*server)->address(), "--input", *volume, "--iso", "0",
-                              "--error", "0.2",
-                              "--rate", "100", "--preview-every", "1", "--verbose", "--out",
-                              dir + "/out.drc"});
+    RunResult r = RunProcess({BinPath("tandem-client"), "stream", "--server", (*server)->address(),
+                              "--input", *volume, "--iso", "0", "--error", "0.2", "--rate", "100",
+                              "--preview-every", "1", "--verbose", "--out", dir + "/out.drc"});
     *wall_s = SecondsSince(start);
     EXPECT_EQ(r.exit_code, 0) << r.err;
     int64_t n = 0;
@@ -365,9 +401,9 @@ TEST(LimitsTest, MemoryBudgetFailsTheBigStreamOnly) {
   EXPECT_TRUE(NamesASlice(big_outcome.status.error_message()))
       << big_outcome.status.error_message();
   // Not sealed: its memory grew with the mesh, and the message says what would not.
-  EXPECT_NE(big_outcome.status.error_message().find(
-                "stream with sealed chunks (tandem-client --seal"),
-            std::string::npos)
+  EXPECT_NE(
+      big_outcome.status.error_message().find("stream with sealed chunks (tandem-client --seal"),
+      std::string::npos)
       << big_outcome.status.error_message();
   EXPECT_TRUE(s.WaitIdle(10, &counters)) << counters.ShortDebugString();
   EXPECT_EQ(counters.sessions_finished(), 2);
@@ -390,10 +426,10 @@ TEST(LimitsTest, NoiseIsRefusedWhileItIsExtractedAndItsSlotsComeFreeAtOnce) {
   ASSERT_TRUE(volume.ok()) << volume.status();
   std::vector<std::unique_ptr<ChildProcess>> clients;
   for (int i = 0; i < 2; ++i) {
-    auto c = ChildProcess::Spawn({BinPath("tandem-client"), "stream", "--server", s.address(),
-                                  "--input", *volume, "--iso", absl::StrCat(iso), "--retries",
-                                  "0", "--out", absl::StrCat(dir, "/out", i, ".drc")},
-                                 dir);
+    auto c = ChildProcess::Spawn(
+        {BinPath("tandem-client"), "stream", "--server", s.address(), "--input", *volume, "--iso",
+         absl::StrCat(iso), "--retries", "0", "--out", absl::StrCat(dir, "/out", i, ".drc")},
+        dir);
     ASSERT_TRUE(c.ok()) << c.status();
     clients.push_back(*std::move(c));
   }
@@ -433,8 +469,8 @@ TEST(LimitsTest, NoiseIsRefusedWhileItIsExtractedAndItsSlotsComeFreeAtOnce) {
 // kill lands is chance: budget_test's ASessionWaitingBehindOtherWorkWakesWhenCancelled pins
 // the wake down.)
 TEST(LimitsTest, AKilledClientsSlotComesFreeAtOnceUnderDenseLoad) {
-  auto server = TestServer::Start({"--max-sessions", "4", "--compute-threads", "1",
-                                   "--resume-window-seconds", "0"});
+  auto server = TestServer::Start(
+      {"--max-sessions", "4", "--compute-threads", "1", "--resume-window-seconds", "0"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   const std::string dir = MakeTempDir();
@@ -459,8 +495,8 @@ TEST(LimitsTest, AKilledClientsSlotComesFreeAtOnceUnderDenseLoad) {
   const auto killed = Clock::now();
   EXPECT_EQ(clients[0]->Wait(10), 128 + SIGKILL);
   v1::Counters counters;
-  EXPECT_TRUE(WaitFor(s, 30, [](const v1::Counters& c) { return c.active_sessions() == 3; },
-                      &counters))
+  EXPECT_TRUE(WaitFor(
+      s, 30, [](const v1::Counters& c) { return c.active_sessions() == 3; }, &counters))
       << counters.ShortDebugString();
   const double freed_s = SecondsSince(killed);
   std::printf("the killed client's slot came free after %.3f s\n", freed_s);
@@ -478,9 +514,8 @@ TEST(LimitsTest, AKilledClientsSlotComesFreeAtOnceUnderDenseLoad) {
 // while one is unsent, so the progress messages are what piles up: a small limit.)
 TEST(LimitsTest, ServerStopsReadingAStreamWhoseClientDoesNotRead) {
   constexpr int64_t kLimit = 2048;
-  auto server = TestServer::Start(
-      {"--max-inflight-bytes", std::to_string(kLimit), "--min-preview-interval-ms", "0",
-       "--max-preview-share", "0"});
+  auto server = TestServer::Start({"--max-inflight-bytes", std::to_string(kLimit),
+                                   "--min-preview-interval-ms", "0", "--max-preview-share", "0"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   const std::vector<v1::ExtractRequest> requests = PreviewHeavy(40, 120);
@@ -534,8 +569,8 @@ TEST(LimitsTest, ServerStopsReadingAStreamWhoseClientDoesNotRead) {
 // previews (one per 250 ms) left the whole stream's output (71 KB) inside the client's
 // 64 KB window plus the socket's buffers, so it finished without ever stalling.
 TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
-  auto server = TestServer::Start({"--max-inflight-bytes", "16384", "--idle-timeout-seconds",
-                                   "1", "--max-sessions", "1", "--min-preview-interval-ms", "0",
+  auto server = TestServer::Start({"--max-inflight-bytes", "16384", "--idle-timeout-seconds", "1",
+                                   "--max-sessions", "1", "--min-preview-interval-ms", "0",
                                    "--max-preview-share", "0"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
@@ -605,9 +640,9 @@ TEST(LimitsTest, ClientThatNeverReadsIsCancelledAfterTheIdleTimeout) {
 // answers the pings) is found by the server's pings long before the idle timeout.
 TEST(LimitsTest, KeepaliveFreesTheSessionOfAFrozenClient) {
   const std::string dir = MakeTempDir();
-  auto server = TestServer::Start({"--keepalive-time-ms", "300", "--keepalive-timeout-ms", "500",
-                                   "--idle-timeout-seconds", "120",
-                                   "--resume-window-seconds", "1"});
+  auto server =
+      TestServer::Start({"--keepalive-time-ms", "300", "--keepalive-timeout-ms", "500",
+                         "--idle-timeout-seconds", "120", "--resume-window-seconds", "1"});
   ASSERT_TRUE(server.ok()) << server.status();
   TestServer& s = **server;
   auto path = WriteSyntheticVolume(dir, "sphere",
@@ -741,11 +776,11 @@ TEST(LimitsTest, StreamsShareTheServersComputeThreads) {
   constexpr int kStreams = 4;
   std::vector<std::unique_ptr<ChildProcess>> clients;
   for (int i = 0; i < kStreams; ++i) {
-    auto c = ChildProcess::Spawn({BinPath("tandem-client"), "stream", "--server",
-                                  (*server)->address(), "--input", *path, "--iso", "0", "--error",
-                                  "0.05", "--rate", "30", "--out",
-                                  absl::StrCat(dir, "/out", i, ".ply")},
-                                 dir);
+    auto c =
+        ChildProcess::Spawn({BinPath("tandem-client"), "stream", "--server", (*server)->address(),
+                             "--input", *path, "--iso", "0", "--error", "0.05", "--rate", "30",
+                             "--out", absl::StrCat(dir, "/out", i, ".ply")},
+                            dir);
     ASSERT_TRUE(c.ok()) << c.status();
     clients.push_back(*std::move(c));
   }
