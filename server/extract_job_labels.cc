@@ -119,24 +119,8 @@ absl::Status ExtractJob::PostLabelChunks(const SealedChunk& part, IndexedMesh co
   // corner fixed, so that a vertex two labels share decodes to one grid point in both.
   for (const auto& [v, at] : moved) positions[v] = at;
   const LabelId background = config_.options.labels.background;
-  // Each triangle once per side that is not background, sorted by label (as SplitByLabel).
-  struct Side {
-    LabelId label;
-    uint32_t tri;
-    bool reversed;
-  };
-  std::vector<Side> sides;
-  const size_t n = std::min(complex.num_triangles(), part.patch.size());
-  sides.reserve(2 * n);
-  for (size_t t = 0; t < n; ++t) {
-    if (part.patch[t] >= part.pairs.size()) continue;
-    const LabelPair& p = part.pairs[part.patch[t]];
-    const auto id = static_cast<uint32_t>(t);
-    if (p.inside != background) sides.push_back({p.inside, id, false});
-    if (p.outside != background && p.outside != p.inside) sides.push_back({p.outside, id, true});
-  }
-  std::stable_sort(sides.begin(), sides.end(),
-                   [](const Side& a, const Side& b) { return a.label < b.label; });
+  const std::vector<LabelSide> sides =
+      LabelSides(part.patch, part.pairs, complex.num_triangles(), background);
   constexpr uint32_t kUnused = ~uint32_t{0};
   std::vector<uint32_t> local(positions.size(), kUnused);
   for (size_t begin = 0; begin < sides.size();) {

@@ -11,27 +11,28 @@
 
 namespace tandem {
 
-std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
-                                                          LabelId background) {
-  // Each triangle once per side that is not background: (label, triangle, reversed), sorted
-  // by label, so that the split is one pass over the complex however many labels it has.
-  struct Side {
-    LabelId label;
-    uint32_t tri;
-    bool reversed;
-  };
-  const size_t n = std::min(mesh.mesh.num_triangles(), mesh.patch.size());
-  std::vector<Side> sides;
+std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
+                                  std::span<const LabelPair> pairs, size_t num_triangles,
+                                  LabelId background) {
+  const size_t n = std::min(num_triangles, patch.size());
+  std::vector<LabelSide> sides;
   sides.reserve(2 * n);
   for (size_t t = 0; t < n; ++t) {
-    if (mesh.patch[t] >= mesh.pairs.size()) continue;  // no pair: belongs to no label
-    const LabelPair& p = mesh.pairs[mesh.patch[t]];
+    if (patch[t] >= pairs.size()) continue;
+    const LabelPair& p = pairs[patch[t]];
     const auto id = static_cast<uint32_t>(t);
     if (p.inside != background) sides.push_back({p.inside, id, false});
     if (p.outside != background && p.outside != p.inside) sides.push_back({p.outside, id, true});
   }
   std::stable_sort(sides.begin(), sides.end(),
-                   [](const Side& a, const Side& b) { return a.label < b.label; });
+                   [](const LabelSide& a, const LabelSide& b) { return a.label < b.label; });
+  return sides;
+}
+
+std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
+                                                          LabelId background) {
+  const std::vector<LabelSide> sides =
+      LabelSides(mesh.patch, mesh.pairs, mesh.mesh.num_triangles(), background);
   std::vector<std::pair<LabelId, IndexedMesh>> out;
   std::vector<uint32_t> map(mesh.mesh.num_vertices(), kInvalid);
   for (size_t begin = 0; begin < sides.size();) {

@@ -29,6 +29,21 @@ struct LabeledMesh {
   std::vector<LabelPair> pairs;
 };
 
+// One side of an interface triangle: in `label`'s surface as it is (the label inside) or
+// reversed (outside).
+struct LabelSide {
+  LabelId label;
+  uint32_t tri;
+  bool reversed;
+};
+
+// Each of the first `num_triangles` triangles once per side that is not `background`, sorted
+// by label (triangle order within one), so a split by label is one pass however many labels.
+// A triangle whose patch indexes no pair belongs to no label.
+std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
+                                  std::span<const LabelPair> pairs, size_t num_triangles,
+                                  LabelId background);
+
 // One surface per label other than the background, in increasing label: the triangles with
 // that label inside as they are, those with it outside reversed, the vertices compacted
 // (a vertex two labels share has the same position in both).
