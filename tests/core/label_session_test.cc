@@ -19,6 +19,7 @@
 #include "tandem/geometry.h"
 #include "tandem/labels.h"
 #include "tandem/tandem.h"
+#include "testutil/triangle_key.h"
 
 namespace tandem {
 namespace {
@@ -120,21 +121,6 @@ bool OnBox(const Vec3& p, const Volume& vol) {
          p.y == static_cast<double>(vol.ny - 1) || p.z == static_cast<double>(vol.nz - 1);
 }
 
-using Triple = std::array<std::array<double, 3>, 3>;
-// The triangle's corner positions, rotated to start at the least: one key per oriented
-// triangle, whatever the indices.
-Triple Key(const IndexedMesh& m, size_t t, bool reversed) {
-  Triple k;
-  for (int c = 0; c < 3; ++c) {
-    const int corner = reversed ? (3 - c) % 3 : c;
-    const Vec3& p = m.positions[m.indices[3 * t + static_cast<size_t>(corner)]];
-    k[static_cast<size_t>(c)] = {p.x, p.y, p.z};
-  }
-  const auto least = std::min_element(k.begin(), k.end()) - k.begin();
-  std::rotate(k.begin(), k.begin() + least, k.end());
-  return k;
-}
-
 struct LabelTopology {
   int64_t euler = 0;
   size_t components = 0, triangles = 0;
@@ -149,7 +135,7 @@ std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& 
   std::map<LabelId, LabelTopology> out;
   const LabeledMesh& m = run.mesh;
   EXPECT_EQ(m.patch.size(), m.mesh.num_triangles());
-  std::map<LabelId, std::multiset<Triple>> sides;
+  std::map<LabelId, std::multiset<testing::TriangleKey>> sides;
   for (const auto& [label, surface] : SplitByLabel(m, background)) {
     const eval::TopologyReport t = eval::AnalyzeTopology(surface);
     SCOPED_TRACE("label " + std::to_string(label));
@@ -167,7 +153,7 @@ std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& 
         uint32_t a = surface.indices[3 * i + c], b = surface.indices[3 * i + (c + 1) % 3];
         ++edges[{std::min(a, b), std::max(a, b)}];
       }
-      sides[label].insert(Key(surface, i, false));
+      sides[label].insert(testing::KeyOfTriangle(surface, i, false));
     }
     for (const auto& [e, n] : edges) {
       if (n == 1) {
@@ -181,9 +167,9 @@ std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& 
     const LabelPair& p = m.pairs[m.patch[i]];
     EXPECT_NE(p.inside, p.outside);
     EXPECT_NE(p.inside, background);  // the background is never inside
-    EXPECT_EQ(sides[p.inside].count(Key(m.mesh, i, false)), 1u);
+    EXPECT_EQ(sides[p.inside].count(testing::KeyOfTriangle(m.mesh, i, false)), 1u);
     if (p.outside != background) {
-      EXPECT_EQ(sides[p.outside].count(Key(m.mesh, i, true)), 1u);
+      EXPECT_EQ(sides[p.outside].count(testing::KeyOfTriangle(m.mesh, i, true)), 1u);
     }
   }
   return out;

@@ -31,6 +31,7 @@
 #include "tandem/io/volume_writers.h"
 #include "tandem/mesh.h"
 #include "testutil/testutil.h"
+#include "testutil/triangle_key.h"
 
 namespace tandem::testing {
 namespace {
@@ -94,31 +95,18 @@ std::set<std::string> LabelFiles(const std::string& dir) {
   return names;
 }
 
-using Key = std::array<std::array<double, 3>, 3>;
-// Triangle t's corners from the least, reversed when asked: one key per oriented triangle.
-Key TriangleKey(const IndexedMesh& m, size_t t, bool reversed) {
-  Key k;
-  for (int c = 0; c < 3; ++c) {
-    const int corner = reversed ? (3 - c) % 3 : c;
-    const Vec3& p = m.positions[m.indices[3 * t + static_cast<size_t>(corner)]];
-    k[static_cast<size_t>(c)] = {p.x, p.y, p.z};
-  }
-  std::rotate(k.begin(), std::min_element(k.begin(), k.end()), k.end());
-  return k;
-}
-
 // For every two labels' files: how many triangles of the first are in the second reversed,
 // at bit-identical positions (their shared interface).
 std::map<std::pair<std::string, std::string>, size_t> SharedTriangles(
     const std::map<std::string, IndexedMesh>& meshes) {
   std::map<std::pair<std::string, std::string>, size_t> shared;
   for (const auto& [a, ma] : meshes) {
-    std::set<Key> keys;
-    for (size_t t = 0; t < ma.num_triangles(); ++t) keys.insert(TriangleKey(ma, t, false));
+    std::set<TriangleKey> keys;
+    for (size_t t = 0; t < ma.num_triangles(); ++t) keys.insert(KeyOfTriangle(ma, t, false));
     for (const auto& [b, mb] : meshes) {
       if (b <= a) continue;
       size_t n = 0;
-      for (size_t t = 0; t < mb.num_triangles(); ++t) n += keys.count(TriangleKey(mb, t, true));
+      for (size_t t = 0; t < mb.num_triangles(); ++t) n += keys.count(KeyOfTriangle(mb, t, true));
       if (n > 0) shared[{a, b}] = n;
     }
   }
