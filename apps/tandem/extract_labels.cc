@@ -27,13 +27,13 @@ namespace tandem::app {
 namespace {
 
 // What a label session leaves: the session (for the run's report), its interface complex and
-// the complex cut into one surface per label; with --neuroglancer, the sessions of the
-// coarser sweeps (E0 * 2^k, k = 1..) too.
+// the complex cut into one surface per label; with --neuroglancer, the complexes of the
+// coarser sweeps (E0 * 2^k, k = 1..) too, their sessions (and label tables) let go.
 struct LabelRun {
   std::unique_ptr<TandemSession> session;
   LabeledMesh complex;
   std::vector<std::pair<LabelId, IndexedMesh>> surfaces;
-  std::vector<std::unique_ptr<TandemSession>> coarser;
+  std::vector<LabeledMesh> coarser;
 };
 
 // A template on the options' type, so that this builds with an engine that has no label mode
@@ -68,7 +68,10 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
     run.complex = options.seal ? WeldLabeledChunks(chunks) : (*sessions)[0]->SnapshotLabeled();
     run.session = std::move((*sessions)[0]);
     run.surfaces = SplitByLabel(run.complex, labels.background);
-    for (size_t k = 1; k < sessions->size(); ++k) run.coarser.push_back(std::move((*sessions)[k]));
+    for (size_t k = 1; k < sessions->size(); ++k) {
+      run.coarser.push_back((*sessions)[k]->SnapshotLabeled());
+      (*sessions)[k].reset();
+    }
     return run;
   } else {
     (void)source;
@@ -114,6 +117,17 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
                              absl::StrCat(input, ": ", std::string(run.status().message()))));
   }
   const io::LabelNames* table = f.label_names.empty() ? nullptr : &names;
+  // The figures first, so that the session, and the complex unless the export needs it, go
+  // before the outputs are written: a label's memory is then its surfaces'.
+  std::vector<eval::LabelMetrics> measured;
+  for (const auto& [id, mesh] : run->surfaces) {
+    eval::LabelMetrics m = eval::MeasureLabel(id, mesh);
+    if (auto it = names.find(id); it != names.end()) m.name = it->second.name;
+    measured.push_back(std::move(m));
+  }
+  eval::MetricsReport report = eval::MakeReport(*run->session, run->complex.mesh);
+  run->session.reset();
+  if (neuroglancer.dir.empty()) run->complex = {};
   if (f.LabelsToFolder()) {
     absl::StatusOr<std::vector<io::LabelFile>> files =
         io::WriteLabelMeshes(f.out, absl::StrCat(".", f.format), run->surfaces, table, write);
@@ -121,10 +135,11 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   } else if (absl::Status st = io::WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
     return FailWriting(st);
   }
+  run->surfaces = {};
 #ifdef TANDEM_HAVE_DRACO
   if (!neuroglancer.dir.empty()) {
-    std::vector<const TandemSession*> levels{run->session.get()};
-    for (const auto& s : run->coarser) levels.push_back(s.get());
+    std::vector<const LabeledMesh*> levels{&run->complex};
+    for (const LabeledMesh& c : run->coarser) levels.push_back(&c);
     const double nm =
         neuroglancer.nm_per_unit > 0 ? neuroglancer.nm_per_unit : DefaultNmPerUnit(info);
     if (absl::Status st =
@@ -137,13 +152,6 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   }
 #endif
 
-  std::vector<eval::LabelMetrics> measured;
-  for (const auto& [id, mesh] : run->surfaces) {
-    eval::LabelMetrics m = eval::MeasureLabel(id, mesh);
-    if (auto it = names.find(id); it != names.end()) m.name = it->second.name;
-    measured.push_back(std::move(m));
-  }
-  eval::MetricsReport report = eval::MakeReport(*run->session, run->complex.mesh);
   report.input = input;
   report.peak_rss_bytes = eval::PeakRssBytes();
   if (!f.metrics.empty()) {

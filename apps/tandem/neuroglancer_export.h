@@ -10,7 +10,6 @@
 #include "absl/status/status.h"
 #include "tandem/labels.h"
 #include "tandem/mesh.h"
-#include "tandem/tandem.h"
 #include "tandem/volume.h"
 
 namespace tandem::app {
@@ -34,10 +33,12 @@ absl::Status WriteNeuroglancerExport(
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
     int compression_level, const NeuroglancerOctree& octree = {});
 
-// The label mode's export: `levels[k]` is the finished label session swept at E0 * 2^k
-// (finest first); each label other than `background` becomes the segment of its own id.
+// The label mode's export: `levels[k]` is the label session's interface complex swept at
+// E0 * 2^k (finest first); each label other than `background` becomes the segment of its own
+// id. The surfaces are cut from the complexes a shard at a time, so that memory holds the
+// complexes and one shard's surfaces, not every level's surfaces at once.
 absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
-                                     const std::vector<const TandemSession*>& levels,
+                                     const std::vector<const LabeledMesh*>& levels,
                                      LabelId background, double nm_per_unit, int compression_level,
                                      const NeuroglancerOctree& octree = {});
 

@@ -98,6 +98,20 @@ absl::Status CheckSegment(const NeuroglancerSegment& s, size_t lods) {
   return absl::OkStatus();
 }
 
+// The least coordinate per axis of any level of any segment (infinite where there is none).
+Vec3 Lowest(std::span<const NeuroglancerSegment> segments) {
+  const double inf = std::numeric_limits<double>::infinity();
+  Vec3 lowest{inf, inf, inf};
+  for (const NeuroglancerSegment& s : segments) {
+    for (const IndexedMesh& m : s.lods) {
+      for (const Vec3& p : m.positions) {
+        for (int j = 0; j < 3; ++j) lowest[j] = std::min(lowest[j], p[j]);
+      }
+    }
+  }
+  return lowest;
+}
+
 }  // namespace
 
 std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> JoinLevels(
@@ -142,15 +156,14 @@ std::string EncodeManifest(const NeuroglancerManifest& m) {
 
 NeuroglancerGrid ChooseOctreeGrid(const VolumeInfo& grid,
                                   std::span<const NeuroglancerSegment> segments, int chunk_voxels) {
+  return ChooseOctreeGrid(grid, Lowest(segments), chunk_voxels);
+}
+
+NeuroglancerGrid ChooseOctreeGrid(const VolumeInfo& grid, const Vec3& lowest, int chunk_voxels) {
   NeuroglancerGrid g;
   for (int j = 0; j < 3; ++j) {
     const double sp = grid.spacing[j] > 0 ? grid.spacing[j] : 1.0;
-    double lo = grid.origin[j];
-    for (const NeuroglancerSegment& s : segments) {
-      for (const IndexedMesh& m : s.lods) {
-        for (const Vec3& p : m.positions) lo = std::min(lo, p[j]);
-      }
-    }
+    const double lo = std::min(grid.origin[j], lowest[j]);
     // float32 corner at or below: every vertex sits at or above it as Neuroglancer adds.
     float o = static_cast<float>(lo - 0.5 * sp);
     if (o > lo - 0.5 * sp) o = std::nextafter(o, -std::numeric_limits<float>::infinity());
@@ -454,6 +467,27 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
 absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
                                std::span<const NeuroglancerSegment> segments,
                                const NeuroglancerOptions& options) {
+  NeuroglancerSource source;
+  source.lods = segments.empty() ? options.lod_scales.size() : segments[0].lods.size();
+  std::map<LabelId, size_t> at;
+  for (size_t i = 0; i < segments.size(); ++i) {
+    if (absl::Status st = CheckSegment(segments[i], source.lods); !st.ok()) return st;
+    if (!at.emplace(segments[i].id, i).second) {
+      return absl::InvalidArgumentError(absl::StrCat("two segments with id ", segments[i].id));
+    }
+    source.ids.push_back(segments[i].id);
+  }
+  source.lowest = Lowest(segments);
+  source.fetch = [&](std::span<const LabelId> ids, std::vector<NeuroglancerSegment>* out) {
+    for (LabelId id : ids) out->push_back(segments[at.at(id)]);
+    return absl::OkStatus();
+  };
+  return WriteNeuroglancerFrom(dir, grid, source, options);
+}
+
+absl::Status WriteNeuroglancerFrom(const std::string& dir, const VolumeInfo& grid,
+                                   const NeuroglancerSource& source,
+                                   const NeuroglancerOptions& options) {
   if (!options.encode) {
     return absl::InvalidArgumentError("neuroglancer export: no fragment encoder");
   }
@@ -466,13 +500,16 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
     return absl::InvalidArgumentError(
         absl::StrCat("nm_per_unit must be positive, got ", options.nm_per_unit));
   }
-  const size_t lods = segments.empty() ? options.lod_scales.size() : segments[0].lods.size();
-  std::map<LabelId, size_t> ids;
-  for (size_t i = 0; i < segments.size(); ++i) {
-    if (absl::Status st = CheckSegment(segments[i], lods); !st.ok()) return st;
-    if (!ids.emplace(segments[i].id, i).second) {
-      return absl::InvalidArgumentError(absl::StrCat("two segments with id ", segments[i].id));
+  const size_t lods = source.lods;
+  {
+    std::vector<LabelId> sorted = source.ids;
+    std::sort(sorted.begin(), sorted.end());
+    if (auto twice = std::adjacent_find(sorted.begin(), sorted.end()); twice != sorted.end()) {
+      return absl::InvalidArgumentError(absl::StrCat("two segments with id ", *twice));
     }
+  }
+  if (!source.ids.empty() && !source.fetch) {
+    return absl::InvalidArgumentError("neuroglancer export: no segment source");
   }
   std::vector<float> scales;
   const double finest = std::min({grid.spacing[0], grid.spacing[1], grid.spacing[2]});
@@ -488,11 +525,11 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
   const int chunk = lods < 2 ? static_cast<int>(std::min<int64_t>(
                                    4096, std::max({grid.nx, grid.ny, grid.nz, int64_t{1}}) + 1))
                              : options.chunk_voxels;
-  const NeuroglancerGrid octree = ChooseOctreeGrid(grid, segments, chunk);
+  const NeuroglancerGrid octree = ChooseOctreeGrid(grid, source.lowest, chunk);
   // One level draws everywhere alike: no face where two levels meet, nothing to skirt.
   const double skirt = lods < 2 ? 0.0 : (options.skirt >= 0 ? options.skirt : finest);
   const NeuroglancerSharding sharding =
-      options.choose_sharding ? ChooseSharding(segments.size()) : options.sharding;
+      options.choose_sharding ? ChooseSharding(source.ids.size()) : options.sharding;
   if (sharding.shard_bits < 0 || sharding.minishard_bits < 0 || sharding.preshift_bits < 0 ||
       sharding.shard_bits + sharding.minishard_bits > 64 || sharding.shard_bits > 32) {
     return absl::InvalidArgumentError("sharding: bits out of range");
@@ -516,19 +553,30 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
     return st;
   }
 
-  // One shard at a time: only its segments' fragments are held.
-  std::map<uint64_t, std::vector<size_t>> by_shard;
-  for (size_t i = 0; i < segments.size(); ++i) {
-    by_shard[LocateChunk(segments[i].id, sharding).shard].push_back(i);
-  }
+  // One shard at a time: only its segments' surfaces and fragments are held.
+  std::map<uint64_t, std::vector<LabelId>> by_shard;
+  for (LabelId id : source.ids) by_shard[LocateChunk(id, sharding).shard].push_back(id);
   for (const auto& [shard, members] : by_shard) {
+    std::vector<NeuroglancerSegment> segments;
+    segments.reserve(members.size());
+    if (absl::Status st = source.fetch(members, &segments); !st.ok()) return st;
+    if (segments.size() != members.size()) {
+      return absl::InternalError(absl::StrCat("neuroglancer export: ", segments.size(),
+                                              " segments for ", members.size(), " ids"));
+    }
     std::vector<ShardChunk> chunks;
     chunks.reserve(members.size());
-    for (size_t i : members) {
-      const NeuroglancerSegment& s = segments[i];
+    for (size_t i = 0; i < segments.size(); ++i) {
+      NeuroglancerSegment& s = segments[i];
+      if (s.id != members[i]) {
+        return absl::InternalError(
+            absl::StrCat("neuroglancer export: segment ", s.id, " for id ", members[i]));
+      }
+      if (absl::Status st = CheckSegment(s, lods); !st.ok()) return st;
       absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> tree =
           BuildOctree(s, octree, bits, skirt);
       if (!tree.ok()) return tree.status();
+      s.lods = {};  // its fragments hold it from here
       NeuroglancerManifest m;
       m.chunk_shape = octree.chunk_shape;
       m.grid_origin = octree.grid_origin;

@@ -13,7 +13,7 @@ namespace tandem {
 
 std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
                                   std::span<const LabelPair> pairs, size_t num_triangles,
-                                  LabelId background) {
+                                  LabelId background, std::span<const uint8_t> kept) {
   const size_t n = std::min(num_triangles, patch.size());
   std::vector<LabelSide> sides;
   sides.reserve(2 * n);
@@ -21,8 +21,11 @@ std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
     if (patch[t] >= pairs.size()) continue;
     const LabelPair& p = pairs[patch[t]];
     const auto id = static_cast<uint32_t>(t);
-    if (p.inside != background) sides.push_back({p.inside, id, false});
-    if (p.outside != background && p.outside != p.inside) sides.push_back({p.outside, id, true});
+    const uint8_t sides_kept = kept.empty() ? 3 : patch[t] < kept.size() ? kept[patch[t]] : 0;
+    if (p.inside != background && (sides_kept & 1)) sides.push_back({p.inside, id, false});
+    if (p.outside != background && p.outside != p.inside && (sides_kept & 2)) {
+      sides.push_back({p.outside, id, true});
+    }
   }
   std::stable_sort(sides.begin(), sides.end(),
                    [](const LabelSide& a, const LabelSide& b) { return a.label < b.label; });
@@ -30,9 +33,10 @@ std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
 }
 
 std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
-                                                          LabelId background) {
+                                                          LabelId background,
+                                                          std::span<const uint8_t> kept) {
   const std::vector<LabelSide> sides =
-      LabelSides(mesh.patch, mesh.pairs, mesh.mesh.num_triangles(), background);
+      LabelSides(mesh.patch, mesh.pairs, mesh.mesh.num_triangles(), background, kept);
   std::vector<std::pair<LabelId, IndexedMesh>> out;
   std::vector<uint32_t> map(mesh.mesh.num_vertices(), kInvalid);
   for (size_t begin = 0; begin < sides.size();) {

@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -96,6 +97,25 @@ class CliLabels : public ::testing::Test {
     if (pid < 0 || wait4(pid, &status, 0, &ru) != pid) return -1;
     if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) return -1;
     return static_cast<int64_t>(ru.ru_maxrss) * 1024;
+  }
+  // What a label costs in memory: simplified to a handful of triangles each, 4x the labels
+  // grow the peak resident set by what those need in the sweep and the outputs, not by
+  // kilobytes of bookkeeping per label (a million ids: gigabytes). `out(k)` gives run k's
+  // output flags; the result is in bytes per added label (-1: a run failed).
+  double PeakRssPerLabel(const std::function<std::vector<std::string>(int)>& out) const {
+    int64_t rss[2] = {0, 0};
+    const int64_t nz[2] = {4, 16}, n = 32 * 32;
+    for (int k = 0; k < 2; ++k) {
+      const std::string in = Path(absl::StrCat("many", k, ".json"));
+      ManyIdVolume(in, 32, 32, nz[k]);
+      std::vector<std::string> args = {"extract", "--input",   in,
+                                       "--labels", "--error",  "4",
+                                       "--quiet",  "--metrics", Path(absl::StrCat("many", k, "m.json"))};
+      for (std::string& a : out(k)) args.push_back(std::move(a));
+      rss[k] = PeakRssOf(args);
+      if (rss[k] <= 0) return -1;
+    }
+    return static_cast<double>(rss[1] - rss[0]) / static_cast<double>((nz[1] - nz[0]) * n);
   }
   // Each file in `dir` a closed manifold sphere: one component, Euler characteristic 2.
   static void ExpectSpheres(const std::string& dir, std::initializer_list<const char*> files) {
@@ -346,22 +366,36 @@ TEST_F(CliLabels, ManyScatteredUint64IdsEachGetTheirOwnSurface) {
 }
 
 // What a label costs in memory: simplified to a handful of triangles each, 4x the labels
-// grow the peak resident set by what those need in the sweep and the outputs (labels.glb,
-// the figures), not by kilobytes of bookkeeping per label (a million ids: gigabytes).
+// grow the peak resident set by what those need in the sweep and the outputs (PeakRssPerLabel).
 TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabel) {
   if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
-  int64_t rss[2] = {0, 0};
-  const int64_t nz[2] = {4, 16}, n = 32 * 32;
-  for (int k = 0; k < 2; ++k) {
-    const std::string in = Path(absl::StrCat("many", k, ".json"));
-    ManyIdVolume(in, 32, 32, nz[k]);
-    rss[k] = PeakRssOf({"extract", "--input", in, "--labels", "--error", "4", "--quiet", "--out",
-                        Path(absl::StrCat("many", k, ".glb")), "--metrics",
-                        Path(absl::StrCat("many", k, ".json"))});
-    ASSERT_GT(rss[k], 0) << "tandem extract failed on " << in;
-  }
-  const double per_label = static_cast<double>(rss[1] - rss[0]) / ((nz[1] - nz[0]) * n);
-  EXPECT_LT(per_label, 6144.0) << rss[0] << " -> " << rss[1] << " bytes";
+  const double per_label = PeakRssPerLabel([&](int k) { return std::vector<std::string>{"--out", Path(absl::StrCat("many", k, ".glb"))}; });
+  ASSERT_GT(per_label, -1) << "tandem extract failed";
+  EXPECT_LT(per_label, 2048.0);
+}
+
+// One file per label (--out DIR/): the session and the complex are let go before the files
+// are written, so a label costs its surface, as with the GLB alone.
+TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabelInAFolder) {
+  if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
+  const double per_label = PeakRssPerLabel([&](int k) { return std::vector<std::string>{"--out", Path(absl::StrCat("dir", k)) + "/"}; });
+  ASSERT_GT(per_label, -1) << "tandem extract failed";
+  EXPECT_LT(per_label, 2048.0);
+}
+
+// --neuroglancer: the coarser sweeps are kept as complexes, not sessions, and the segments are
+// cut from them a shard at a time, not every level of every label at once.
+TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabelInANeuroglancerExport) {
+  if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
+  const auto probe = Tandem("--input " + Path("none.json") + " --labels --neuroglancer " +
+                            Path("ng") + " --out " + Path("x.glb"));
+  if (probe.text.find("without Draco") != std::string::npos) GTEST_SKIP() << probe.text;
+  const double per_label = PeakRssPerLabel([&](int k) {
+    return std::vector<std::string>{"--out", Path(absl::StrCat("ng", k, ".glb")), "--neuroglancer",
+                                    Path(absl::StrCat("ng", k))};
+  });
+  ASSERT_GT(per_label, -1) << "tandem extract failed";
+  EXPECT_LT(per_label, 4608.0);
 }
 
 }  // namespace

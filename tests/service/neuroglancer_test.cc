@@ -585,8 +585,7 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
   const TwoLabels two = TwoTouchingLabels();
   const VolumeInfo& grid = two.grid;
   const std::vector<uint16_t>& voxels = two.voxels;
-  std::vector<std::unique_ptr<TandemSession>> sessions;
-  std::vector<const TandemSession*> levels;
+  std::vector<LabeledMesh> complexes;
   for (double e0 : {0.3, 0.6}) {
     SessionOptions o;
     o.labels.enabled = true;
@@ -600,9 +599,9 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
                       .ok());
     }
     ASSERT_TRUE((*session)->Finish().ok());
-    levels.push_back(session->get());
-    sessions.push_back(*std::move(session));
+    complexes.push_back((*session)->SnapshotLabeled());
   }
+  const std::vector<const LabeledMesh*> levels{&complexes[0], &complexes[1]};
   const std::string dir = testing::MakeTempDir() + "/ng";
   // Nodes of 4 voxels: the interface is cut by node faces at 3.5 and 7.5.
   ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, levels, 0, 1, 7, {4, -1}).ok());
@@ -651,7 +650,7 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
     // The interface in the sweep's own output: the triangles both labels' surfaces hold.
     std::map<std::array<double, 9>, int> seen;
     double interface = 0;
-    for (const auto& [label, mesh] : SplitByLabel(levels[k]->SnapshotLabeled(), 0)) {
+    for (const auto& [label, mesh] : SplitByLabel(*levels[k], 0)) {
       for (size_t t = 0; t + 2 < mesh.indices.size(); t += 3) {
         std::array<Vec3, 3> v = {mesh.positions[mesh.indices[t]],
                                  mesh.positions[mesh.indices[t + 1]],

@@ -39,16 +39,19 @@ struct LabelSide {
 
 // Each of the first `num_triangles` triangles once per side that is not `background`, sorted
 // by label (triangle order within one), so a split by label is one pass however many labels.
-// A triangle whose patch indexes no pair belongs to no label.
+// A triangle whose patch indexes no pair belongs to no label. `kept`, when not empty, holds
+// per pair which of its sides count (bit 0: inside, bit 1: outside), so that a caller can cut
+// the surfaces of some labels only (a shard's) without a pass per label.
 std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
                                   std::span<const LabelPair> pairs, size_t num_triangles,
-                                  LabelId background);
+                                  LabelId background, std::span<const uint8_t> kept = {});
 
 // One surface per label other than the background, in increasing label: the triangles with
 // that label inside as they are, those with it outside reversed, the vertices compacted
-// (a vertex two labels share has the same position in both).
+// (a vertex two labels share has the same position in both). `kept`: as for LabelSides.
 std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mesh,
-                                                          LabelId background = 0);
+                                                          LabelId background = 0,
+                                                          std::span<const uint8_t> kept = {});
 
 // The interface complex a label session's sealed chunks make together (WeldChunks with each
 // triangle's pair): its pairs in increasing (inside, outside), each once.

@@ -10,6 +10,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <span>
 #include <string>
 #include <string_view>
@@ -79,6 +80,23 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
                                std::span<const NeuroglancerSegment> segments,
                                const NeuroglancerOptions& options);
 
+// The segments handed over a shard at a time, so that an export of many labels holds one
+// shard's surfaces and fragments, not every level of every label: `ids` every segment's id,
+// `lods` their number of levels, `lowest` the least coordinate (per axis) of any level of any
+// segment, and `fetch(ids, out)` the segments of those ids (a subset of `ids`, in that order).
+struct NeuroglancerSource {
+  std::vector<LabelId> ids;
+  size_t lods = 0;
+  Vec3 lowest{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+              std::numeric_limits<double>::infinity()};
+  std::function<absl::Status(std::span<const LabelId> ids, std::vector<NeuroglancerSegment>* out)>
+      fetch;
+};
+// WriteNeuroglancer with the segments from `source`; the same files and checks.
+absl::Status WriteNeuroglancerFrom(const std::string& dir, const VolumeInfo& grid,
+                                   const NeuroglancerSource& source,
+                                   const NeuroglancerOptions& options);
+
 // Per label, its surface at every level, from one SplitByLabel result per level (finest
 // first): labels in increasing id, a label missing at a level gets an empty mesh there (its
 // node is then empty, which Neuroglancer skips).
@@ -133,6 +151,8 @@ struct NeuroglancerGrid {
 // every vertex (so an open border at the volume's faces never lies on a node face).
 NeuroglancerGrid ChooseOctreeGrid(const VolumeInfo& grid,
                                   std::span<const NeuroglancerSegment> segments, int chunk_voxels);
+// The same from the least coordinate of the segments' vertices (per axis).
+NeuroglancerGrid ChooseOctreeGrid(const VolumeInfo& grid, const Vec3& lowest, int chunk_voxels);
 
 // One octree node of one level: its grid position and its fragment (empty: a node kept only
 // as the parent of finer ones).
