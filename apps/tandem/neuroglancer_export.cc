@@ -7,8 +7,8 @@
 #include <span>
 #include <utility>
 
-#include "tandem/codec/neuroglancer_draco.h"
 #include "absl/strings/str_cat.h"
+#include "tandem/codec/neuroglancer_draco.h"
 #include "tandem/io/neuroglancer.h"
 #include "tandem/labels.h"
 
@@ -80,8 +80,7 @@ absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& i
   std::sort(source.ids.begin(), source.ids.end());
   source.ids.erase(std::unique(source.ids.begin(), source.ids.end()), source.ids.end());
 
-  io::NeuroglancerOptions options =
-      ExportOptions(info, nm_per_unit, compression_level, octree);
+  io::NeuroglancerOptions options = ExportOptions(info, nm_per_unit, compression_level, octree);
   options.choose_sharding = false;
   options.sharding = io::ChooseSharding(source.ids.size());
   // Per level and pair, the shards of its two labels: a shard's surfaces are then one pass
@@ -110,8 +109,8 @@ absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& i
       for (auto& [id, mesh] : SplitByLabel(*levels[k], background, kept)) {
         while (at < ids.size() && ids[at] < id) ++at;
         if (at == ids.size() || ids[at] != id) {
-          return absl::InternalError(absl::StrCat("neuroglancer export: label ", id,
-                                                  " is not in its shard's list"));
+          return absl::InternalError(
+              absl::StrCat("neuroglancer export: label ", id, " is not in its shard's list"));
         }
         (*out)[at].lods[k] = std::move(mesh);
       }

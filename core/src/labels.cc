@@ -11,9 +11,9 @@
 
 namespace tandem {
 
-std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
-                                  std::span<const LabelPair> pairs, size_t num_triangles,
-                                  LabelId background, std::span<const uint8_t> kept) {
+std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch, std::span<const LabelPair> pairs,
+                                  size_t num_triangles, LabelId background,
+                                  std::span<const uint8_t> kept) {
   const size_t n = std::min(num_triangles, patch.size());
   std::vector<LabelSide> sides;
   sides.reserve(2 * n);

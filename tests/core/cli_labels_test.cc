@@ -108,9 +108,10 @@ class CliLabels : public ::testing::Test {
     for (int k = 0; k < 2; ++k) {
       const std::string in = Path(absl::StrCat("many", k, ".json"));
       ManyIdVolume(in, 32, 32, nz[k]);
-      std::vector<std::string> args = {"extract", "--input",   in,
-                                       "--labels", "--error",  "4",
-                                       "--quiet",  "--metrics", Path(absl::StrCat("many", k, "m.json"))};
+      std::vector<std::string> args = {
+          "extract",  "--input",   in,
+          "--labels", "--error",   "4",
+          "--quiet",  "--metrics", Path(absl::StrCat("many", k, "m.json"))};
       for (std::string& a : out(k)) args.push_back(std::move(a));
       rss[k] = PeakRssOf(args);
       if (rss[k] <= 0) return -1;
@@ -369,7 +370,9 @@ TEST_F(CliLabels, ManyScatteredUint64IdsEachGetTheirOwnSurface) {
 // grow the peak resident set by what those need in the sweep and the outputs (PeakRssPerLabel).
 TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabel) {
   if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
-  const double per_label = PeakRssPerLabel([&](int k) { return std::vector<std::string>{"--out", Path(absl::StrCat("many", k, ".glb"))}; });
+  const double per_label = PeakRssPerLabel([&](int k) {
+    return std::vector<std::string>{"--out", Path(absl::StrCat("many", k, ".glb"))};
+  });
   ASSERT_GT(per_label, -1) << "tandem extract failed";
   EXPECT_LT(per_label, 2048.0);
 }
@@ -378,7 +381,9 @@ TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabel) {
 // are written, so a label costs its surface, as with the GLB alone.
 TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabelInAFolder) {
   if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
-  const double per_label = PeakRssPerLabel([&](int k) { return std::vector<std::string>{"--out", Path(absl::StrCat("dir", k)) + "/"}; });
+  const double per_label = PeakRssPerLabel([&](int k) {
+    return std::vector<std::string>{"--out", Path(absl::StrCat("dir", k)) + "/"};
+  });
   ASSERT_GT(per_label, -1) << "tandem extract failed";
   EXPECT_LT(per_label, 2048.0);
 }

@@ -42,9 +42,9 @@ struct LabelSide {
 // A triangle whose patch indexes no pair belongs to no label. `kept`, when not empty, holds
 // per pair which of its sides count (bit 0: inside, bit 1: outside), so that a caller can cut
 // the surfaces of some labels only (a shard's) without a pass per label.
-std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch,
-                                  std::span<const LabelPair> pairs, size_t num_triangles,
-                                  LabelId background, std::span<const uint8_t> kept = {});
+std::vector<LabelSide> LabelSides(std::span<const uint32_t> patch, std::span<const LabelPair> pairs,
+                                  size_t num_triangles, LabelId background,
+                                  std::span<const uint8_t> kept = {});
 
 // One surface per label other than the background, in increasing label: the triangles with
 // that label inside as they are, those with it outside reversed, the vertices compacted
