@@ -55,11 +55,10 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
   }
   if (s.count == 0) return s;
   s.mean = sum / static_cast<double>(s.count);
-  auto again = io::OpenVolume(path, open);
-  if (!again.ok()) return again.status();
+  TANDEM_ASSIGN_OR_RETURN(auto again, io::OpenVolume(path, open));
   const double width = (s.hi - s.lo) / 10.0;
   for (int64_t z = 0; z < info.nz; ++z) {
-    TANDEM_RETURN_IF_ERROR((*again)->ReadSlice(&bytes));
+    TANDEM_RETURN_IF_ERROR(again->ReadSlice(&bytes));
     ConvertToFloat(info.dtype, bytes.data(), values.size(), values.data());
     for (float v : values) {
       if (!std::isfinite(v)) continue;
