@@ -155,8 +155,8 @@ int SaveLabels(tandem::client::StreamResult& result, const SaveOptions& o) {
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
   write.space = tandem::ParseSpace(result.session_metrics.frame()).value_or(tandem::Space::kGrid);
   if (!o.label_extension.empty()) {
-    absl::StatusOr<std::vector<tandem::io::LabelFile>> files =
-        tandem::io::WriteLabelMeshes(o.out_pattern, o.label_extension, surfaces, o.label_names, write);
+    absl::StatusOr<std::vector<tandem::io::LabelFile>> files = tandem::io::WriteLabelMeshes(
+        o.out_pattern, o.label_extension, surfaces, o.label_names, write);
     if (!files.ok()) return Fail(files.status());
   } else if (absl::Status st =
                  tandem::io::WriteLabelsGlb(o.out_pattern, surfaces, o.label_names, write.space);

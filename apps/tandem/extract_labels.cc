@@ -118,7 +118,8 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
     absl::StatusOr<std::vector<io::LabelFile>> files =
         io::WriteLabelMeshes(f.out, absl::StrCat(".", f.format), run->surfaces, table, write);
     if (!files.ok()) return FailWriting(files.status());
-  } else if (absl::Status st = io::WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
+  } else if (absl::Status st = io::WriteLabelsGlb(f.out, run->surfaces, table, write.space);
+             !st.ok()) {
     return FailWriting(st);
   }
 #ifdef TANDEM_HAVE_DRACO

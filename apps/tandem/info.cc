@@ -91,10 +91,10 @@ int InfoCommand(int argc, char** argv) {
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   const std::string input =
       zarr_array.empty() ? input_flag : absl::StrCat(input_flag, "#", zarr_array);
-  auto src =
-      io::OpenVolume(input, io::OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
-                                      std::fprintf(stderr, "tandem info: %s\n", line.c_str());
-                                    }});
+  auto src = io::OpenVolume(
+      input, io::OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
+                               std::fprintf(stderr, "tandem info: %s\n", line.c_str());
+                             }});
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo& i = (*src)->info();
   std::printf("grid     %lld x %lld x %lld\n", static_cast<long long>(i.nx),
