@@ -15,6 +15,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+#include "tandem/status_macros.h"
 
 namespace tandem::io {
 namespace {
@@ -270,7 +271,7 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
     return absl::InvalidArgumentError(
         absl::StrCat("vertex_quantization_bits must be 10 or 16, got ", bits));
   }
-  if (absl::Status st = CheckSegment(segment, 0); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckSegment(segment, 0));
   const uint32_t top = (uint32_t{1} << bits) - 1, mid = uint32_t{1} << (bits - 1);
   std::vector<std::vector<NeuroglancerNode>> out(segment.lods.size());
   for (size_t k = 0; k < segment.lods.size(); ++k) {
@@ -471,7 +472,7 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
   source.lods = segments.empty() ? options.lod_scales.size() : segments[0].lods.size();
   std::map<LabelId, size_t> at;
   for (size_t i = 0; i < segments.size(); ++i) {
-    if (absl::Status st = CheckSegment(segments[i], source.lods); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(CheckSegment(segments[i], source.lods));
     if (!at.emplace(segments[i].id, i).second) {
       return absl::InvalidArgumentError(absl::StrCat("two segments with id ", segments[i].id));
     }
@@ -559,7 +560,7 @@ absl::Status WriteNeuroglancerFrom(const std::string& dir, const VolumeInfo& gri
   for (const auto& [shard, members] : by_shard) {
     std::vector<NeuroglancerSegment> segments;
     segments.reserve(members.size());
-    if (absl::Status st = source.fetch(members, &segments); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(source.fetch(members, &segments));
     if (segments.size() != members.size()) {
       return absl::InternalError(absl::StrCat("neuroglancer export: ", segments.size(),
                                               " segments for ", members.size(), " ids"));
@@ -572,10 +573,9 @@ absl::Status WriteNeuroglancerFrom(const std::string& dir, const VolumeInfo& gri
         return absl::InternalError(
             absl::StrCat("neuroglancer export: segment ", s.id, " for id ", members[i]));
       }
-      if (absl::Status st = CheckSegment(s, lods); !st.ok()) return st;
-      absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> tree =
-          BuildOctree(s, octree, bits, skirt);
-      if (!tree.ok()) return tree.status();
+      TANDEM_RETURN_IF_ERROR(CheckSegment(s, lods));
+      TANDEM_ASSIGN_OR_RETURN(std::vector<std::vector<NeuroglancerNode>> tree,
+                              BuildOctree(s, octree, bits, skirt));
       s.lods = {};  // its fragments hold it from here
       NeuroglancerManifest m;
       m.chunk_shape = octree.chunk_shape;
@@ -586,8 +586,8 @@ absl::Status WriteNeuroglancerFrom(const std::string& dir, const VolumeInfo& gri
       m.sizes.resize(lods);
       ShardChunk c;
       c.id = s.id;
-      for (size_t k = 0; k < tree->size(); ++k) {
-        for (const NeuroglancerNode& node : (*tree)[k]) {
+      for (size_t k = 0; k < tree.size(); ++k) {
+        for (const NeuroglancerNode& node : tree[k]) {
           std::string bytes;
           if (!node.fragment.indices.empty()) {  // an empty node: size 0, never requested
             absl::StatusOr<std::string> e = options.encode(node.fragment);
@@ -605,9 +605,8 @@ absl::Status WriteNeuroglancerFrom(const std::string& dir, const VolumeInfo& gri
       c.data = EncodeManifest(m);
       chunks.push_back(std::move(c));
     }
-    absl::StatusOr<std::string> file = BuildShard(std::move(chunks), sharding);
-    if (!file.ok()) return file.status();
-    if (absl::Status st = WriteFile(mesh_dir / ShardFileName(shard, sharding), *file); !st.ok()) {
+    TANDEM_ASSIGN_OR_RETURN(std::string file, BuildShard(std::move(chunks), sharding));
+    if (absl::Status st = WriteFile(mesh_dir / ShardFileName(shard, sharding), file); !st.ok()) {
       return st;
     }
   }
