@@ -65,7 +65,8 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
     auto sessions = io::RunSessions(source, all, progress, on_chunk);
     if (!sessions.ok()) return sessions.status();
     auto complex = [&](size_t k) {
-      LabeledMesh m = options.seal ? WeldLabeledChunks(chunks[k]) : (*sessions)[k]->SnapshotLabeled();
+      LabeledMesh m =
+          options.seal ? WeldLabeledChunks(chunks[k]) : (*sessions)[k]->SnapshotLabeled();
       std::vector<SealedChunk>().swap(chunks[k]);
       return m;
     };
@@ -142,10 +143,9 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
     run->coarser.clear();
     const double nm =
         neuroglancer.nm_per_unit > 0 ? neuroglancer.nm_per_unit : DefaultNmPerUnit(info);
-    if (absl::Status st =
-            WriteNeuroglancerLabels(neuroglancer.dir, info, std::move(levels), nm,
-                                    static_cast<int>(f.compression_level),
-                                    {neuroglancer.chunk_voxels, neuroglancer.skirt_voxels});
+    if (absl::Status st = WriteNeuroglancerLabels(
+            neuroglancer.dir, info, std::move(levels), nm, static_cast<int>(f.compression_level),
+            {neuroglancer.chunk_voxels, neuroglancer.skirt_voxels});
         !st.ok()) {
       return FailWriting(st);
     }
