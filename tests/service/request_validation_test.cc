@@ -5,8 +5,10 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -1072,6 +1074,38 @@ TEST(SessionFeed, AnUnwritableSpillDirectoryKeepsTheChunksInMemory) {
   ASSERT_TRUE(feed.ChunksFrom(2, &replay).ok());
   ASSERT_EQ(replay.size(), 3u);
   EXPECT_EQ(replay[0].SerializeAsString(), ChunkOfBytes(2, 700).SerializeAsString());
+}
+
+// A write the disk refuses (here the file size limit, as a full disk would) keeps that chunk
+// in memory; the chunks before it stay on disk, and all of them come back as posted.
+TEST(SessionFeed, AChunkTheSpillFileCannotTakeStaysInMemory) {
+  auto retention = std::make_shared<ChunkRetention>(int64_t{1} << 20, testing::MakeTempDir());
+  SessionFeed feed("s", NewSecret(), TokenAuthenticator::kNoIdentity, retention);
+  feed.SetSealed(true, "");
+  feed.Chunk(ChunkOfBytes(0, 3000));
+  feed.Chunk(ChunkOfBytes(1, 3000));
+  const int64_t on_disk = retention->spilled_bytes.load();
+  rlimit old{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old), 0);
+  rlimit small = old;
+  small.rlim_cur = 8000;  // the third chunk would end past it
+  void (*old_handler)(int) = std::signal(SIGXFSZ, SIG_IGN);
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  feed.Chunk(ChunkOfBytes(2, 3000));
+  setrlimit(RLIMIT_FSIZE, &old);
+  std::signal(SIGXFSZ, old_handler);
+  feed.Chunk(ChunkOfBytes(3, 3000));
+  const int64_t third = static_cast<int64_t>(ChunkOfBytes(2, 3000).ByteSizeLong());
+  EXPECT_EQ(retention->memory_bytes.load(), third);
+  EXPECT_EQ(retention->spilled_bytes.load(),
+            on_disk + static_cast<int64_t>(ChunkOfBytes(3, 3000).ByteSizeLong()));
+  std::vector<v1::SealedChunk> replay;
+  ASSERT_TRUE(feed.ChunksFrom(0, &replay).ok());
+  ASSERT_EQ(replay.size(), 4u);
+  for (int64_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(replay[static_cast<size_t>(i)].SerializeAsString(),
+              ChunkOfBytes(i, 3000).SerializeAsString());
+  }
 }
 
 }  // namespace
