@@ -81,6 +81,33 @@ std::string WriteLabelVolume(const std::string& dir) {
   return path;
 }
 
+// A deep label map of `nz` slices, 32 x 32: blocks of about 7 voxels a side with wavy
+// walls (curved interfaces, many triangles at a small E0), new ids all the way down.
+std::string WriteDeepLabelVolume(const std::string& dir, int64_t nz) {
+  VolumeInfo info;
+  info.nx = 32;
+  info.ny = 32;
+  info.nz = nz;
+  info.dtype = DType::kUInt32;
+  const std::string path = dir + "/deep.nrrd";
+  const absl::Status st = io::WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
+    bytes->assign(32 * 32 * 4, 0);
+    for (int64_t y = 0; y < 32; ++y) {
+      for (int64_t x = 0; x < 32; ++x) {
+        const auto block = [](double u) { return static_cast<int64_t>(std::floor(u / 7)) + 1; };
+        const int64_t bx = block(x + 2.5 * std::sin(0.45 * z + 0.3 * y));
+        const int64_t by = block(y + 2.5 * std::sin(0.4 * x + 0.35 * z));
+        const int64_t bz = block(z + 2.5 * std::sin(0.3 * x + 0.5 * y));
+        StoreValue(DType::kUInt32, static_cast<double>(1 + bx + 16 * by + 256 * bz),
+                   bytes->data() + (y * 32 + x) * 4);
+      }
+    }
+    return absl::OkStatus();
+  });
+  EXPECT_TRUE(st.ok()) << st;
+  return path;
+}
+
 std::string ReadText(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::stringstream ss;
@@ -523,6 +550,34 @@ TEST_F(ServiceLabelsTest, WatchersOfALabelSessionWriteTheStreamersFiles) {
             std::string::npos)
       << refused.err;
   EXPECT_EQ(server_->Health(), "SERVING");
+}
+
+// A sealed label session keeps each label's chunks to measure its figures at End: they
+// count in the per-session budget, so a deep one over it ends with the budget's error
+// naming them (its front alone stays under it), and the server goes on meshing.
+TEST_F(ServiceLabelsTest, KeptLabelChunksCountInTheSessionBudget) {
+  // At E0 0.1 the 80 slices seal about 250 k triangles, each label's chunks some 15 MiB
+  // beyond the front's 15 MiB at its peak.
+  const std::string deep = WriteDeepLabelVolume(dir_, 80);
+  auto small = TestServer::Start({"--session-memory-mb", "20"});
+  ASSERT_TRUE(small.ok()) << small.status();
+  RunResult over =
+      Run("tandem-client", {"stream", "--server", (*small)->address(), "--input", deep, "--labels",
+                            "--seal", "--error", "0.1", "--out", dir_ + "/over/"});
+  EXPECT_EQ(over.exit_code, 1) << over.err;
+  EXPECT_NE(over.err.find("RESOURCE_EXHAUSTED: session memory budget exceeded"), std::string::npos)
+      << over.err;
+  EXPECT_NE(over.err.find("each label's sealed chunks, kept to measure its figures at End"),
+            std::string::npos)
+      << over.err;
+  EXPECT_NE(over.err.find("per-session budget of 20.0 MiB"), std::string::npos) << over.err;
+  EXPECT_EQ((*small)->Health(), "SERVING");
+  EXPECT_TRUE((*small)->WaitIdle(20));
+  RunResult good =
+      Run("tandem-client", {"stream", "--server", (*small)->address(), "--input", volume_,
+                            "--labels", "--seal", "--out", dir_ + "/good/", "--quiet"});
+  EXPECT_EQ(good.exit_code, 0) << good.err;
+  EXPECT_GE(LabelFiles(dir_ + "/good").size(), 10u);
 }
 
 }  // namespace
