@@ -535,6 +535,28 @@ TEST_F(ServiceLabelsTest, WatchersOfALabelSessionWriteTheStreamersFiles) {
       << ply.err;
   EXPECT_FALSE(std::filesystem::exists(dir_ + "/one.ply"));
 
+  // A session of background only sends no label: its Progress tells the watcher what it is,
+  // and the watcher writes what the streamer wrote (labels.glb alone).
+  VolumeInfo empty;
+  empty.nx = empty.ny = empty.nz = 8;
+  empty.dtype = DType::kUInt16;
+  ASSERT_TRUE(io::WriteVolume(dir_ + "/empty.nrrd", empty, [](int64_t, std::vector<uint8_t>* b) {
+                b->assign(8 * 8 * 2, 0);
+                return absl::OkStatus();
+              }).ok());
+  auto none = ChildProcess::Spawn(
+      {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input",
+       dir_ + "/empty.nrrd", "--labels", "--seal", "--out", dir_ + "/none/"},
+      dir_);
+  ASSERT_TRUE(none.ok()) << none.status();
+  const Started none_started = StartedOf(**none);
+  ASSERT_EQ((*none)->Wait(60), std::optional<int>(0)) << (*none)->Stderr();
+  RunResult none_watch = Watch(none_started, {"--out", dir_ + "/none_watched/"});
+  ASSERT_EQ(none_watch.exit_code, 0) << none_watch.err;
+  EXPECT_NE(none_watch.out.find("(0 labels)"), std::string::npos) << none_watch.out;
+  EXPECT_EQ(LabelFiles(dir_ + "/none_watched"), std::set<std::string>{"labels.glb"});
+  EXPECT_EQ(ReadText(dir_ + "/none_watched/labels.glb"), ReadText(dir_ + "/none/labels.glb"));
+
   // Unsealed, the labels come whole after End: not watchable, like an unsealed iso session.
   RunResult plain = Run("tandem-client", {"stream", "--server", server_->address(), "--input",
                                           volume_, "--labels", "--out", dir_ + "/plain/"});
