@@ -268,16 +268,6 @@ TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
   EXPECT_GT(less, static_cast<int64_t>(sealed.size()) / 2);
 }
 
-TEST_F(CliLabels, SealDoesNotGoWithTheNeuroglancerExport) {
-  const auto r = Tandem("--input " + LabelVolume("n.nrrd", DType::kUInt16) +
-                        " --labels --seal --neuroglancer " + Path("ng") + " --out " +
-                        Path("out/"));
-  if (r.text.find("built without Draco") != std::string::npos) GTEST_SKIP() << r.text;
-  EXPECT_EQ(r.code, 2) << r.text;
-  EXPECT_NE(r.text.find("--seal does not go with --labels --neuroglancer"), std::string::npos)
-      << r.text;
-}
-
 // The client checks a label volume as the CLI does, before it connects (the server is never
 // asked: the address has none).
 TEST_F(CliLabels, TheClientRefusesAFloatLabelVolumeBeforeSending) {
