@@ -253,13 +253,6 @@ grpc::Status SessionFeed::Attach(std::weak_ptr<FeedWatcher> watcher) {
                         absl::StrCat("session ", id_, " does not send sealed chunks "
                                      "(SessionConfig.sealed_chunks): it cannot be watched"));
   }
-  if (labels_) {
-    // A watcher would need each label's chunks kept apart and every label's figures at End.
-    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
-                        absl::StrCat("session ", id_,
-                                     " is a label session (SessionConfig.labels): "
-                                     "it cannot be watched; its own client writes the labels"));
-  }
   if (overflowed_) {
     return grpc::Status(
         grpc::StatusCode::RESOURCE_EXHAUSTED,
@@ -285,6 +278,7 @@ std::optional<Response> SessionFeed::Next(Cursor* cursor, std::optional<grpc::St
     cursor->progress_seen = progress_version_;
     *r.mutable_progress() = *progress_;
     r.mutable_progress()->set_session_id(id_);
+    r.mutable_progress()->set_labels(labels_);
     return r;
   }
   if (preview_ && cursor->preview_seen != preview_version_) {

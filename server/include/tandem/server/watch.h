@@ -154,7 +154,7 @@ class SessionFeed {
   mutable absl::Mutex mu_;
   std::string description_ ABSL_GUARDED_BY(mu_);
   bool sealed_ ABSL_GUARDED_BY(mu_) = false;
-  bool labels_ ABSL_GUARDED_BY(mu_) = false;  // a label session: not watchable
+  bool labels_ ABSL_GUARDED_BY(mu_) = false;  // a label session: its Progress says so to watchers
   bool waiting_ ABSL_GUARDED_BY(mu_) = false;
   // chunks_[i] is chunk dropped_ + i.
   std::deque<Kept> chunks_ ABSL_GUARDED_BY(mu_);
