@@ -127,6 +127,7 @@ absl::Status TandemSession::Impl::QueueSlice(const float* values, DType dtype,
     if (kept == DType::kFloat32 && FirstNonFinite(dst, n) >= 0) {
       return NonFiniteError(slot.storage.data());
     }
+    if (absl::Status st = CheckLabels(dst, kept); !st.ok()) return st;
   }
   buffers.Hold(BufferBytes(), "receiving slice", k);
   std::vector<size_t> idle;
