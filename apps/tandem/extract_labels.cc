@@ -28,13 +28,13 @@ namespace tandem::app {
 namespace {
 
 // What a label session leaves: the session (for the run's report), its interface complex and
-// the complex cut into one surface per label; with --neuroglancer, the sessions of the
-// coarser sweeps (E0 * 2^k, k = 1..) too.
+// the complex cut into one surface per label; with --neuroglancer, the coarser sweeps' (E0 *
+// 2^k, k = 1..) surfaces per label too (their sessions are not kept).
 struct LabelRun {
   std::unique_ptr<TandemSession> session;
   LabeledMesh complex;
   std::vector<std::pair<LabelId, IndexedMesh>> surfaces;
-  std::vector<std::unique_ptr<TandemSession>> coarser;
+  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> coarser;
 };
 
 // A template on the options' type, so that this builds with an engine that has no label mode
@@ -54,21 +54,29 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
         o.target_triangles = std::max<int64_t>(4, o.target_triangles >> k);
       all.push_back(o);
     }
-    // Sealed (--seal): the finest sweep's chunks, welded at the end into the same complex.
-    std::vector<SealedChunk> chunks;
+    // Sealed (--seal): each sweep's chunks, welded at the end into the same complex.
+    std::vector<std::vector<SealedChunk>> chunks(all.size());
     std::function<absl::Status(size_t, SealedChunk)> on_chunk;
     if (options.seal) {
-      on_chunk = [&chunks](size_t, SealedChunk c) {
-        chunks.push_back(std::move(c));
+      on_chunk = [&chunks](size_t k, SealedChunk c) {
+        chunks[k].push_back(std::move(c));
         return absl::OkStatus();
       };
     }
     TANDEM_ASSIGN_OR_RETURN(auto sessions, io::RunSessions(source, all, progress, on_chunk));
+    auto complex = [&](size_t k) {
+      LabeledMesh m = options.seal ? WeldLabeledChunks(chunks[k]) : sessions[k]->SnapshotLabeled();
+      std::vector<SealedChunk>().swap(chunks[k]);
+      return m;
+    };
     LabelRun run;
-    run.complex = options.seal ? WeldLabeledChunks(chunks) : sessions[0]->SnapshotLabeled();
+    run.complex = complex(0);
     run.session = std::move(sessions[0]);
     run.surfaces = SplitByLabel(run.complex, labels.background);
-    for (size_t k = 1; k < sessions.size(); ++k) run.coarser.push_back(std::move(sessions[k]));
+    for (size_t k = 1; k < sessions.size(); ++k) {
+      run.coarser.push_back(SplitByLabel(complex(k), labels.background));
+      sessions[k].reset();  // its surfaces are all the export reads
+    }
     return run;
   } else {
     (void)source;
@@ -96,12 +104,6 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   }
   absl::StatusOr<SessionOptions> options = f.Options(flags, info);
   if (!options.ok()) return Usage(options.status());
-  if (options->seal && !neuroglancer.dir.empty()) {
-    return Usage(absl::InvalidArgumentError(
-        "--seal does not go with --labels --neuroglancer (the export reads each level's whole "
-        "mesh from its session)"));
-  }
-
   cli::Progress progress("slices");
   absl::StatusOr<LabelRun> run = RunLabelSession(
       source, *options, *labels, neuroglancer.dir.empty() ? 0 : neuroglancer.lods - 1,
@@ -122,22 +124,6 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
              !st.ok()) {
     return FailWriting(st);
   }
-#ifdef TANDEM_HAVE_DRACO
-  if (!neuroglancer.dir.empty()) {
-    std::vector<const TandemSession*> levels{run->session.get()};
-    for (const auto& s : run->coarser) levels.push_back(s.get());
-    const double nm =
-        neuroglancer.nm_per_unit > 0 ? neuroglancer.nm_per_unit : DefaultNmPerUnit(info);
-    if (absl::Status st =
-            WriteNeuroglancerLabels(neuroglancer.dir, info, levels, labels->background, nm,
-                                    static_cast<int>(f.compression_level),
-                                    {neuroglancer.chunk_voxels, neuroglancer.skirt_voxels});
-        !st.ok()) {
-      return FailWriting(st);
-    }
-  }
-#endif
-
   std::vector<eval::LabelMetrics> measured;
   for (const auto& [id, mesh] : run->surfaces) {
     eval::LabelMetrics m = eval::MeasureLabel(id, mesh);
@@ -146,6 +132,25 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   }
   eval::MetricsReport report = eval::MakeReport(*run->session, run->complex.mesh);
   report.input = input;
+#ifdef TANDEM_HAVE_DRACO
+  if (!neuroglancer.dir.empty()) {
+    // The export takes the finest surfaces themselves: the complex and the session go first.
+    run->complex = LabeledMesh();
+    run->session.reset();
+    std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> levels;
+    levels.push_back(std::move(run->surfaces));
+    for (auto& level : run->coarser) levels.push_back(std::move(level));
+    run->coarser.clear();
+    const double nm =
+        neuroglancer.nm_per_unit > 0 ? neuroglancer.nm_per_unit : DefaultNmPerUnit(info);
+    if (absl::Status st = WriteNeuroglancerLabels(
+            neuroglancer.dir, info, std::move(levels), nm, static_cast<int>(f.compression_level),
+            {neuroglancer.chunk_voxels, neuroglancer.skirt_voxels});
+        !st.ok()) {
+      return FailWriting(st);
+    }
+  }
+#endif
   report.peak_rss_bytes = eval::PeakRssBytes();
   if (!f.metrics.empty()) {
     if (absl::Status st = WriteText(f.metrics, eval::ReportWithLabelsToJson(report, measured));

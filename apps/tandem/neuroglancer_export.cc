@@ -31,16 +31,11 @@ absl::Status WriteNeuroglancerExport(
   return io::WriteNeuroglancer(dir, info, list, options);
 }
 
-absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
-                                     const std::vector<const TandemSession*>& levels,
-                                     LabelId background, double nm_per_unit, int compression_level,
-                                     const NeuroglancerOctree& octree) {
-  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> split;
-  split.reserve(levels.size());
-  for (const TandemSession* session : levels) {
-    split.push_back(SplitByLabel(session->SnapshotLabeled(), background));
-  }
-  return WriteNeuroglancerExport(dir, info, io::JoinLevels(std::move(split)), nm_per_unit,
+absl::Status WriteNeuroglancerLabels(
+    const std::string& dir, const VolumeInfo& info,
+    std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> levels, double nm_per_unit,
+    int compression_level, const NeuroglancerOctree& octree) {
+  return WriteNeuroglancerExport(dir, info, io::JoinLevels(std::move(levels)), nm_per_unit,
                                  compression_level, octree);
 }
 

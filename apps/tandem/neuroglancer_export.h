@@ -10,7 +10,6 @@
 #include "absl/status/status.h"
 #include "tandem/labels.h"
 #include "tandem/mesh.h"
-#include "tandem/tandem.h"
 #include "tandem/volume.h"
 
 namespace tandem::app {
@@ -34,12 +33,13 @@ absl::Status WriteNeuroglancerExport(
     std::vector<std::pair<LabelId, std::vector<IndexedMesh>>> segments, double nm_per_unit,
     int compression_level, const NeuroglancerOctree& octree = {});
 
-// The label mode's export: `levels[k]` is the finished label session swept at E0 * 2^k
-// (finest first); each label other than `background` becomes the segment of its own id.
-absl::Status WriteNeuroglancerLabels(const std::string& dir, const VolumeInfo& info,
-                                     const std::vector<const TandemSession*>& levels,
-                                     LabelId background, double nm_per_unit, int compression_level,
-                                     const NeuroglancerOctree& octree = {});
+// The label mode's export: `levels[k]` is each label's surface (SplitByLabel, background
+// left out) from the sweep at E0 * 2^k, finest first; the meshes are moved into the export,
+// so that the caller's finest surfaces are not held a second time.
+absl::Status WriteNeuroglancerLabels(
+    const std::string& dir, const VolumeInfo& info,
+    std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> levels, double nm_per_unit,
+    int compression_level, const NeuroglancerOctree& octree = {});
 
 }  // namespace tandem::app
 

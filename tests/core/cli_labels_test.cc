@@ -345,16 +345,6 @@ TEST_F(CliLabels, ASplitRunWritesEveryLabelWithOnePartsTopology) {
   EXPECT_NE(bytes["two"].at("1.ply"), bytes["one"].at("1.ply"));
 }
 
-TEST_F(CliLabels, SealDoesNotGoWithTheNeuroglancerExport) {
-  const auto r = Tandem("--input " + LabelVolume("n.nrrd", DType::kUInt16) +
-                        " --labels --seal --neuroglancer " + Path("ng") + " --out " +
-                        Path("out/"));
-  if (r.text.find("built without Draco") != std::string::npos) GTEST_SKIP() << r.text;
-  EXPECT_EQ(r.code, 2) << r.text;
-  EXPECT_NE(r.text.find("--seal does not go with --labels --neuroglancer"), std::string::npos)
-      << r.text;
-}
-
 // The client checks a label volume as the CLI does, before it connects (the server is never
 // asked: the address has none).
 TEST_F(CliLabels, TheClientRefusesAFloatLabelVolumeBeforeSending) {
