@@ -38,7 +38,7 @@
 namespace tandem::testing {
 namespace {
 
-constexpr int64_t kNx = 30, kNy = 28, kNz = 26;
+constexpr int64_t kNx = 36, kNy = 28, kNz = 26;  // 36 wide: two parts fit (16 columns each)
 
 // About a dozen Voronoi cells with uint32 ids scattered past 2^16, filling the box (their
 // surfaces are open where they meet it) except a ball of background in the middle.
@@ -62,7 +62,7 @@ std::string WriteLabelVolume(const std::string& dir) {
     bytes->assign(static_cast<size_t>(kNx * kNy) * 4, 0);
     for (int64_t y = 0; y < kNy; ++y) {
       for (int64_t x = 0; x < kNx; ++x) {
-        if (std::hypot(x - 14.5, y - 13.5, z - 12.5) < 5) continue;  // background
+        if (std::hypot(x - 17.5, y - 13.5, z - 12.5) < 5) continue;  // background
         size_t best = 0;
         double d = 1e30;
         for (size_t s = 0; s < seeds.size(); ++s) {
@@ -225,6 +225,9 @@ class ServiceLabelsTest : public ::testing::Test {
     c.mutable_labels()->set_enabled(true);
     return c;
   }
+  // The checks of the tests of the same names, with `parts` parts.
+  void ExpectPreviewsAndFinalMessagesCarryTheLabels(int parts);
+  void ExpectSealedChunksCarryTheirLabel(int parts);
   std::unique_ptr<TestServer> server_;
   std::string dir_, volume_;
 };
@@ -232,16 +235,22 @@ class ServiceLabelsTest : public ::testing::Test {
 // The client's folder holds tandem extract --labels' files, each the same mesh; interfaces
 // shared; manifolds open only at the box, or closed with --close; the same figures.
 // Sealed (--seal, both sides), the labels come as chunks per label, welded by the client into
-// the same files (the figures measured before the grid, so the area within a hair).
+// the same files (the figures measured before the grid, so the area within a hair). Split
+// in two parts (--parts 2, which the server honours: the split is part of the result), too.
 TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
-  for (int run = 0; run < 4; ++run) {
-    const bool close = run >= 2, seal = run % 2 == 1;
+  std::map<std::pair<bool, bool>, nlohmann::json> one_part;  // by (close, seal)
+  for (int run = 0; run < 6; ++run) {
+    const bool close = run % 4 >= 2, seal = run % 2 == 1;
+    const bool split = run >= 4;
     SCOPED_TRACE(close ? "--close" : "open at the box");
     SCOPED_TRACE(seal ? "--seal" : "whole at End");
-    const std::string tag = std::string(close ? "closed" : "open") + (seal ? "_sealed" : "");
+    SCOPED_TRACE(split ? "--parts 2" : "one part");
+    const std::string tag =
+        std::string(close ? "closed" : "open") + (seal ? "_sealed" : "") + (split ? "_split" : "");
     std::vector<std::string> common = {"--input", volume_, "--labels", "--error", "0.5", "--quiet"};
     if (close) common.push_back("--close");
     if (seal) common.push_back("--seal");
+    common.insert(common.end(), {"--parts", split ? "2" : "1"});
     const std::string local = dir_ + "/local_" + tag + "/", remote = dir_ + "/remote_" + tag + "/";
     RunResult cli = Run("tandem", [&] {
       std::vector<std::string> a = {"extract", "--out", local, "--metrics", dir_ + "/l.json"};
@@ -290,6 +299,11 @@ TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
     EXPECT_EQ(SharedTriangles(remote_meshes), shared);
     auto want = nlohmann::json::parse(ReadText(dir_ + "/l.json"));
     auto got = nlohmann::json::parse(ReadText(dir_ + "/r.json"));
+    if (!split) {
+      one_part[{close, seal}] = want;
+    } else {  // really split: not one part's run
+      EXPECT_NE(want["evaluations"], one_part.at({close, seal})["evaluations"]);
+    }
     ASSERT_EQ(got["labels"].size(), want["labels"].size());
     EXPECT_EQ(got["labels"].size(), names.size() - 1);
     for (size_t i = 0; i < want["labels"].size(); ++i) {
@@ -313,9 +327,17 @@ TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
 
 // Previews of a label session hold every label's surface, each vertex tagged with its
 // label (Preview.labels), while the scan is still arriving; the final messages carry each
-// label's id, then the session's figures.
+// label's id, then the session's figures. In one part or two (the parts' meshes welded).
 TEST_F(ServiceLabelsTest, PreviewsAndFinalMessagesCarryTheLabels) {
+  for (int parts : {1, 2}) {
+    SCOPED_TRACE(absl::StrCat(parts, " parts"));
+    ExpectPreviewsAndFinalMessagesCarryTheLabels(parts);
+  }
+}
+
+void ServiceLabelsTest::ExpectPreviewsAndFinalMessagesCarryTheLabels(int parts) {
   v1::SessionConfig config = LabelConfig();
+  config.set_parts(parts);
   config.mutable_preview()->set_every_slices(1);
   auto stub = server_->NewStub();
   const StreamOutcome outcome = RunStream(*stub, Requests(config), server_.get());
@@ -364,8 +386,16 @@ TEST_F(ServiceLabelsTest, PreviewsAndFinalMessagesCarryTheLabels) {
 // slices arrive; each label's chunks weld into its surface as the unsealed session sends it,
 // and touching labels share their interface triangles exactly.
 TEST_F(ServiceLabelsTest, SealedChunksCarryTheirLabelBeforeEnd) {
+  for (int parts : {1, 2}) {
+    SCOPED_TRACE(absl::StrCat(parts, " parts"));
+    ExpectSealedChunksCarryTheirLabel(parts);
+  }
+}
+
+void ServiceLabelsTest::ExpectSealedChunksCarryTheirLabel(int parts) {
   auto stub = server_->NewStub();
   v1::SessionConfig whole_config = LabelConfig();
+  whole_config.set_parts(parts);
   whole_config.mutable_labels()->set_close(true);
   v1::SessionConfig sealed_config = whole_config;
   sealed_config.set_sealed_chunks(true);
@@ -451,7 +481,6 @@ TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
   add(
       "config.labels.enabled", [](v1::SessionConfig&) {}, /*float32=*/true);
   add("config.extra_isos", [](v1::SessionConfig& c) { c.add_extra_isos(3); });
-  add("config.parts", [](v1::SessionConfig& c) { c.set_parts(2); });
   add("config.compute_distances", [](v1::SessionConfig& c) { c.set_compute_distances(true); });
   add("config.labels.only", [](v1::SessionConfig& c) {
     c.mutable_labels()->add_only(9);
