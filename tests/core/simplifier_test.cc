@@ -586,8 +586,8 @@ TEST(Simplifier, TimeLagCountStaysNearClassicalOnADistanceLikeField) {
     });
     return RunSource(src, 0.0, schedule, e0, 0.0, 0);
   };
-  // At the default E0 the lag keeps more than the bound of 15 %: the distance guard at
-  // the extraction front, where a coarse patch meets the fine band, refuses what classical takes.
+  // At the default E0 the lag keeps more than the bound of 15 %: the lock-step takes the
+  // contractions in sweep order, not in one cost order (docs/decisions.md 21).
   for (const auto& [e0, bound] : {std::pair{0.2, 1.5}, std::pair{0.713, 1.15}}) {
     const Result classical = run(Schedule::kClassical, e0);
     const Result lag = run(Schedule::kTandemLag, e0);
