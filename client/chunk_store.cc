@@ -96,10 +96,9 @@ absl::StatusOr<std::vector<v1::SealedChunk>> ChunkStore::Load(const std::string&
   const fs::path manifest = fs::path(dir_) / kManifest;
   std::error_code ec;
   if (!fs::exists(manifest, ec)) return out;
-  absl::StatusOr<std::string> text = ReadWhole(manifest);
-  if (!text.ok()) return text.status();
+  TANDEM_ASSIGN_OR_RETURN(std::string text, ReadWhole(manifest));
   // Only whole lines: the last one may have been cut short by the kill.
-  std::vector<absl::string_view> lines = absl::StrSplit(*text, '\n');
+  std::vector<absl::string_view> lines = absl::StrSplit(text, '\n');
   lines.pop_back();  // after the last newline: empty, or a line cut short
   if (lines.empty() || lines[0] != absl::StrCat(kSessionTag, "\t", session_id)) return out;
   std::vector<std::string> kept;
@@ -115,7 +114,7 @@ absl::StatusOr<std::vector<v1::SealedChunk>> ChunkStore::Load(const std::string&
   }
   session_ = session_id;
   saved_ = static_cast<int64_t>(out.size());
-  if (kept.size() + 1 != lines.size() || text->back() != '\n') {
+  if (kept.size() + 1 != lines.size() || text.back() != '\n') {
     TANDEM_RETURN_IF_ERROR(RewriteManifest(kept));
   }
   return out;

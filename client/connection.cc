@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "tandem/common/tokens.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::client {
 
@@ -31,9 +32,8 @@ absl::StatusOr<std::string> ServiceConfigJson(const ConnectionOptions& options) 
 absl::StatusOr<std::shared_ptr<grpc::Channel>> MakeChannel(const ConnectionOptions& options) {
   std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
   grpc::ChannelArguments args;
-  absl::StatusOr<std::string> service_config = ServiceConfigJson(options);
-  if (!service_config.ok()) return service_config.status();
-  args.SetServiceConfigJSON(*service_config);
+  TANDEM_ASSIGN_OR_RETURN(std::string service_config, ServiceConfigJson(options));
+  args.SetServiceConfigJSON(service_config);
   if (options.uses_tls()) {
     grpc::SslCredentialsOptions
         ssl;  // empty roots = the system's (or GRPC_DEFAULT_SSL_ROOTS_FILE_PATH)
@@ -86,12 +86,12 @@ absl::StatusOr<std::string> LoadToken(const std::string& token_file) {
   }
   const char* env = std::getenv("TANDEM_TOKEN");
   if (env == nullptr || *env == '\0') return std::string();
-  absl::StatusOr<std::vector<std::string>> tokens = common::ParseTokens(env, "$TANDEM_TOKEN");
-  if (!tokens.ok()) return tokens.status();
-  if (tokens->size() != 1) {
+  TANDEM_ASSIGN_OR_RETURN(std::vector<std::string> tokens,
+                          common::ParseTokens(env, "$TANDEM_TOKEN"));
+  if (tokens.size() != 1) {
     return absl::InvalidArgumentError("$TANDEM_TOKEN: give exactly one token");
   }
-  return tokens->front();
+  return tokens.front();
 }
 
 std::string ConnectionHint(const ConnectionOptions& options, const absl::Status& status) {

@@ -541,9 +541,8 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
   if (opts.connection.max_receive_bytes == 0) {
     opts.connection.max_receive_bytes = common::kClientMaxReceiveBytes;
   }
-  absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(opts.connection);
-  if (!channel.ok()) return channel.status();
-  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(*channel);
+  TANDEM_ASSIGN_OR_RETURN(std::shared_ptr<grpc::Channel> channel, MakeChannel(opts.connection));
+  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(channel);
   const absl::Time start = absl::Now();
   const auto deadline = std::chrono::system_clock::now() +
                         std::chrono::milliseconds(static_cast<int64_t>(opts.timeout_s * 1000));
@@ -639,9 +638,8 @@ absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
                                           const StreamCallbacks& callbacks) {
   ConnectionOptions options = connection;
   if (options.max_receive_bytes == 0) options.max_receive_bytes = common::kClientMaxReceiveBytes;
-  absl::StatusOr<std::shared_ptr<grpc::Channel>> channel = MakeChannel(options);
-  if (!channel.ok()) return channel.status();
-  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(*channel);
+  TANDEM_ASSIGN_OR_RETURN(std::shared_ptr<grpc::Channel> channel, MakeChannel(options));
+  std::unique_ptr<v1::Tandem::Stub> stub = v1::Tandem::NewStub(channel);
   grpc::ClientContext context;
   AddToken(options, &context);
   if (timeout_s > 0) {

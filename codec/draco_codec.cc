@@ -457,8 +457,7 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
   TANDEM_RETURN_IF_ERROR(ValidateDracoOptions(given));
   DracoOptions options = given;  // with the grid made explicit
   if (moved != nullptr) moved->clear();
-  auto dmesh = ToDracoMesh(mesh, &options, ids, fixed, moved, avoid);
-  if (!dmesh.ok()) return dmesh.status();
+  TANDEM_ASSIGN_OR_RETURN(auto dmesh, ToDracoMesh(mesh, &options, ids, fixed, moved, avoid));
   if (mesh.num_triangles() == 0) {
     // Draco's mesh decoders refuse zero faces: a mesh without triangles travels as a
     // point cloud (sequential, so point order is kept).
@@ -468,23 +467,23 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
     encoder.SetSpeedOptions(10, 10);
     encoder.SetEncodingMethod(draco::POINT_CLOUD_SEQUENTIAL_ENCODING);
     draco::EncoderBuffer buffer;
-    const draco::Status st = encoder.EncodePointCloudToBuffer(**dmesh, &buffer);
+    const draco::Status st = encoder.EncodePointCloudToBuffer(*dmesh, &buffer);
     if (!st.ok()) {
       return absl::InternalError(absl::StrCat("Draco encoding failed: ", st.error_msg_string()));
     }
     return std::string(buffer.data(), buffer.size());
   }
   if (options.compression_level == kSequentialLevel) {
-    return EncodeWith(**dmesh, options, kSequentialLevel);
+    return EncodeWith(*dmesh, options, kSequentialLevel);
   }
   // Edgebreaker rebuilds connectivity from a corner table: it drops isolated vertices and
   // faces with a repeated corner, and splits non-manifold vertices. The drops are found
   // here; a split only adds vertices, so once nothing can be dropped, equal decoded counts
   // prove nothing was split either (a drop and a split could otherwise cancel out).
   if (HasUnusedVertexOrRepeatedCorner(mesh)) {
-    return EncodeWith(**dmesh, options, kSequentialLevel);
+    return EncodeWith(*dmesh, options, kSequentialLevel);
   }
-  auto bytes = EncodeWith(**dmesh, options, options.compression_level);
+  auto bytes = EncodeWith(*dmesh, options, options.compression_level);
   if (!bytes.ok()) return bytes.status();
   auto check = DecodeToDraco(*bytes);
   // With ids, a vertex Edgebreaker splits comes back as copies with one id and one position
@@ -495,13 +494,12 @@ absl::StatusOr<std::string> EncodeDraco(const IndexedMesh& mesh, const DracoOpti
       check->mesh->num_faces() == mesh.num_triangles()) {
     return bytes;
   }
-  return EncodeWith(**dmesh, options, kSequentialLevel);
+  return EncodeWith(*dmesh, options, kSequentialLevel);
 }
 
 absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint32_t>* ids) {
-  auto decoded = DecodeToDraco(bytes);
-  if (!decoded.ok()) return decoded.status();
-  const draco::PointCloud& pc = *decoded->points;
+  TANDEM_ASSIGN_OR_RETURN(auto decoded, DecodeToDraco(bytes));
+  const draco::PointCloud& pc = *decoded.points;
   IndexedMesh out;
   const uint32_t nv = pc.num_points();
   if (ids != nullptr) {
@@ -530,8 +528,8 @@ absl::StatusOr<IndexedMesh> DecodeDraco(std::string_view bytes, std::vector<uint
       out.positions[i] = Vec3{v[0], v[1], v[2]};
     }
   }
-  if (decoded->mesh == nullptr) return out;  // a mesh without triangles
-  const draco::Mesh& dm = *decoded->mesh;
+  if (decoded.mesh == nullptr) return out;  // a mesh without triangles
+  const draco::Mesh& dm = *decoded.mesh;
   out.indices.resize(static_cast<size_t>(dm.num_faces()) * 3);
   for (uint32_t f = 0; f < dm.num_faces(); ++f) {
     const draco::Mesh::Face& face = dm.face(draco::FaceIndex(f));
@@ -562,13 +560,12 @@ absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
     return absl::InvalidArgumentError(
         absl::StrCat(normals.size(), " normals for ", mesh.num_vertices(), " vertices"));
   }
-  auto dmesh = ToDracoMesh(mesh, &options, {}, {}, nullptr, {});
-  if (!dmesh.ok()) return dmesh.status();
+  TANDEM_ASSIGN_OR_RETURN(auto dmesh, ToDracoMesh(mesh, &options, {}, {}, nullptr, {}));
   draco::GeometryAttribute normal;
   normal.Init(draco::GeometryAttribute::NORMAL, nullptr, 3, draco::DT_FLOAT32, false,
               sizeof(float) * 3, 0);
   const uint32_t nv = static_cast<uint32_t>(mesh.num_vertices());
-  draco::PointAttribute* na = (*dmesh)->attribute((*dmesh)->AddAttribute(normal, true, nv));
+  draco::PointAttribute* na = dmesh->attribute(dmesh->AddAttribute(normal, true, nv));
   for (uint32_t i = 0; i < nv; ++i) {
     const Vec3& n = normals[i];
     const bool unit = Dot(n, n) > 0;  // glTF wants unit normals: +z where there is none
@@ -578,19 +575,17 @@ absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
   }
   const int level = HasUnusedVertexOrRepeatedCorner(mesh) ? kSequentialLevel
                                                           : options.compression_level;
-  auto bytes = EncodeWith(**dmesh, options, level);
-  if (!bytes.ok()) return bytes.status();
+  TANDEM_ASSIGN_OR_RETURN(auto bytes, EncodeWith(*dmesh, options, level));
   // What a glTF reader will decode: the accessors must say so exactly.
-  auto decoded = DecodeToDraco(*bytes);
-  if (!decoded.ok()) return decoded.status();
-  if (decoded->mesh == nullptr) return absl::InternalError("Draco gave no mesh back");
+  TANDEM_ASSIGN_OR_RETURN(auto decoded, DecodeToDraco(bytes));
+  if (decoded.mesh == nullptr) return absl::InternalError("Draco gave no mesh back");
   const draco::PointAttribute* pos =
-      decoded->points->GetNamedAttribute(draco::GeometryAttribute::POSITION);
+      decoded.points->GetNamedAttribute(draco::GeometryAttribute::POSITION);
   const draco::PointAttribute* nrm =
-      decoded->points->GetNamedAttribute(draco::GeometryAttribute::NORMAL);
+      decoded.points->GetNamedAttribute(draco::GeometryAttribute::NORMAL);
   if (pos == nullptr || nrm == nullptr) return absl::InternalError("Draco lost an attribute");
-  out.vertices = decoded->points->num_points();
-  out.indices = static_cast<size_t>(decoded->mesh->num_faces()) * 3;
+  out.vertices = decoded.points->num_points();
+  out.indices = static_cast<size_t>(decoded.mesh->num_faces()) * 3;
   out.position_id = static_cast<int>(pos->unique_id());
   out.normal_id = static_cast<int>(nrm->unique_id());
   for (uint32_t i = 0; i < out.vertices; ++i) {
@@ -601,7 +596,7 @@ absl::StatusOr<GlbDracoPrimitive> EncodeGlbPrimitive(const IndexedMesh& mesh,
       out.hi[a] = i == 0 ? v[a] : std::max<double>(out.hi[a], v[a]);
     }
   }
-  out.bytes = *std::move(bytes);
+  out.bytes = std::move(bytes);
   return out;
 }
 

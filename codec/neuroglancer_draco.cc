@@ -9,6 +9,7 @@
 #include "draco/core/decoder_buffer.h"
 #include "draco/mesh/mesh.h"
 #include "draco_encode.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::codec {
 namespace {
@@ -90,9 +91,8 @@ absl::StatusOr<std::string> EncodeNeuroglancerFragment(
 }
 
 absl::StatusOr<IntegerMesh> DecodeNeuroglancerFragment(std::string_view bytes) {
-  absl::StatusOr<std::unique_ptr<draco::Mesh>> mesh = Decode(bytes);
-  if (!mesh.ok()) return mesh.status();
-  const draco::Mesh& m = **mesh;
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<draco::Mesh> mesh, Decode(bytes));
+  const draco::Mesh& m = *mesh;
   const draco::PointAttribute* pos = m.GetNamedAttribute(draco::GeometryAttribute::POSITION);
   if (pos == nullptr || pos->num_components() != 3 || pos->data_type() != draco::DT_INT32) {
     return absl::InvalidArgumentError("the fragment's POSITION is not 3 x int32");

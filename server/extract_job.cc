@@ -91,21 +91,20 @@ absl::Status ExtractJob::HandleEndOfInput() const {
 }
 
 absl::Status ExtractJob::HandleConfig(const v1::SessionConfig& config) {
-  absl::StatusOr<JobConfig> cfg = ValidateConfig(config, limits_);
-  if (!cfg.ok()) return cfg.status();
-  config_ = *std::move(cfg);
+  TANDEM_ASSIGN_OR_RETURN(JobConfig cfg, ValidateConfig(config, limits_));
+  config_ = std::move(cfg);
   if (config_.isos.size() > 1) return StartSurfaces(config);
-  auto session = TandemSession::Create(config_.grid, config_.options, compute_, budget_);
-  if (!session.ok()) return session.status();
-  session_ = *std::move(session);
+  TANDEM_ASSIGN_OR_RETURN(auto session,
+                          TandemSession::Create(config_.grid, config_.options, compute_, budget_));
+  session_ = std::move(session);
   if (config_.options.seal) chunk_draco_ = ChunkGrid(config_.grid, config_.draco, limits_.max_slices);
   if (config_.compute_distances) {
     SessionOptions full = config_.options;
     full.schedule = Schedule::kNone;
     full.seal = false;  // the whole surface stays, to measure against
-    auto reference = TandemSession::Create(config_.grid, full, compute_, budget_);
-    if (!reference.ok()) return reference.status();
-    reference_ = *std::move(reference);
+    TANDEM_ASSIGN_OR_RETURN(auto reference,
+                            TandemSession::Create(config_.grid, full, compute_, budget_));
+    reference_ = std::move(reference);
   }
   // A slice sent in pieces is assembled in a buffer of its own: count it now.
   TANDEM_RETURN_IF_ERROR(CheckMemory(config_.grid.slice_bytes(), "for this grid"));

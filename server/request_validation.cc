@@ -81,9 +81,8 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   g.nx = c.nx();
   g.ny = c.ny();
   g.nz = c.nz();
-  absl::StatusOr<DType> dtype = common::DTypeFromProto(c.dtype(), "config.dtype");
-  if (!dtype.ok()) return dtype.status();
-  g.dtype = *dtype;
+  TANDEM_ASSIGN_OR_RETURN(DType dtype, common::DTypeFromProto(c.dtype(), "config.dtype"));
+  g.dtype = dtype;
   for (auto [field, values, target] :
        {std::tuple{"config.spacing", &c.spacing(), &g.spacing},
         std::tuple{"config.origin", &c.origin(), &g.origin}}) {
@@ -118,9 +117,8 @@ absl::StatusOr<JobConfig> ValidateConfig(const v1::SessionConfig& c, const Serve
   if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return Prefixed("config: ", st);
 
   SessionOptions& o = out.options;
-  absl::StatusOr<Schedule> schedule = common::ScheduleFromProto(c.schedule());
-  if (!schedule.ok()) return schedule.status();
-  o.schedule = *schedule;
+  TANDEM_ASSIGN_OR_RETURN(Schedule schedule, common::ScheduleFromProto(c.schedule()));
+  o.schedule = schedule;
   o.iso = c.iso();
   o.error = c.error();
   o.alpha = c.alpha();

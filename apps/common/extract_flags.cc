@@ -288,22 +288,20 @@ absl::StatusOr<std::string> ExtractFlags::ApplyGeometry(std::unique_ptr<SliceSou
   VolumeInfo info = (*source)->info();
   std::string warning;
   if (!spacing.empty()) {
-    absl::StatusOr<std::array<double, 3>> s = ParseSpacing(spacing);
-    if (!s.ok()) return s.status();
-    if (info.spacing_known && info.spacing != *s) {
-      warning = absl::StrCat("--spacing ", Triple(*s), " replaces the spacing ",
+    TANDEM_ASSIGN_OR_RETURN(auto s, ParseSpacing(spacing));
+    if (info.spacing_known && info.spacing != s) {
+      warning = absl::StrCat("--spacing ", Triple(s), " replaces the spacing ",
                              Triple(info.spacing), " that ", InputPath(), " carries");
     }
-    info.spacing = *s;
+    info.spacing = s;
     info.spacing_known = true;
     if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
       return absl::InvalidArgumentError(absl::StrCat("--spacing ", spacing, ": ", st.message()));
     }
   }
   if (!frame.empty()) {
-    absl::StatusOr<Space> to = FrameFlag(frame);
-    if (!to.ok()) return to.status();
-    absl::StatusOr<VolumeInfo> moved = InFrame(info, *to);
+    TANDEM_ASSIGN_OR_RETURN(Space to, FrameFlag(frame));
+    absl::StatusOr<VolumeInfo> moved = InFrame(info, to);
     if (!moved.ok()) {
       return absl::InvalidArgumentError(
           absl::StrCat("--frame ", frame, ": ", moved.status().message()));
@@ -393,10 +391,9 @@ absl::Status ExtractFlags::Check(const FlagSet& flags) const {
         "--schedule '", schedule, "': expected none, classical, tandem or tandem-lag"));
   }
   if (flags.IsSet("iso")) {
-    auto isos = ParseIsoList(iso);
-    if (!isos.ok()) return isos.status();
-    for (const IsoValue& v : *isos) {
-      if (auto name = NameForIso("out", out, v, isos->size()); !name.ok()) return name.status();
+    TANDEM_ASSIGN_OR_RETURN(auto isos, ParseIsoList(iso));
+    for (const IsoValue& v : isos) {
+      if (auto name = NameForIso("out", out, v, isos.size()); !name.ok()) return name.status();
     }
   }
   return absl::OkStatus();
@@ -428,9 +425,8 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
   // Clamped to int: a count out of range stays out of range for Validate().
   o.parts = static_cast<int>(std::clamp<int64_t>(parts, std::numeric_limits<int>::min(),
                                                  std::numeric_limits<int>::max()));
-  auto sched = ParseSchedule(schedule);
-  if (!sched.ok()) return sched.status();
-  o.schedule = no_simplify ? Schedule::kNone : *sched;
+  TANDEM_ASSIGN_OR_RETURN(auto sched, ParseSchedule(schedule));
+  o.schedule = no_simplify ? Schedule::kNone : sched;
   if (absl::Status st = o.ValidateFor(info); !st.ok()) return NameOptionFlag(st);
   return o;
 }

@@ -15,6 +15,7 @@
 #include "tandem/common/wire.h"
 #include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::client {
 namespace {
@@ -73,9 +74,9 @@ absl::Status LiveView::Start(const std::string& description, int64_t nz) {
   viewer::ViewOptions options;
   options.listen = listen_;
   options.token = token_;
-  absl::StatusOr<std::unique_ptr<viewer::ViewServer>> server = viewer::ViewServer::Start(options);
-  if (!server.ok()) return server.status();
-  server_ = *std::move(server);
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<viewer::ViewServer> server,
+                          viewer::ViewServer::Start(options));
+  server_ = std::move(server);
   description_ = description;
   nz_ = nz;
   {

@@ -17,6 +17,7 @@
 #include "tandem/eval/report.h"
 #include "tandem/io/labels_io.h"
 #include "tandem/io/mesh_io.h"
+#include "tandem/status_macros.h"
 #include "tandem/volume.h"
 
 namespace tandem::client_app {
@@ -24,12 +25,11 @@ namespace {
 
 // The final mesh of one surface, decoded and held to the counts the server announced.
 absl::StatusOr<tandem::IndexedMesh> DecodeFinal(const tandem::client::SurfaceResult& s) {
-  absl::StatusOr<tandem::IndexedMesh> mesh = tandem::codec::DecodeDraco(s.draco);
-  if (!mesh.ok()) return mesh.status();
-  if (static_cast<int64_t>(mesh->num_triangles()) != s.triangles ||
-      static_cast<int64_t>(mesh->num_vertices()) != s.vertices) {
-    return absl::DataLossError(absl::StrCat("the final mesh decodes to ", mesh->num_triangles(),
-                                            " triangles and ", mesh->num_vertices(),
+  TANDEM_ASSIGN_OR_RETURN(tandem::IndexedMesh mesh, tandem::codec::DecodeDraco(s.draco));
+  if (static_cast<int64_t>(mesh.num_triangles()) != s.triangles ||
+      static_cast<int64_t>(mesh.num_vertices()) != s.vertices) {
+    return absl::DataLossError(absl::StrCat("the final mesh decodes to ", mesh.num_triangles(),
+                                            " triangles and ", mesh.num_vertices(),
                                             " vertices; the server announced ", s.triangles,
                                             " and ", s.vertices));
   }
@@ -155,8 +155,8 @@ int SaveLabels(tandem::client::StreamResult& result, const SaveOptions& o) {
   if (o.glb_draco) write.glb_draco = tandem::codec::GlbCompressor(o.draco);
   write.space = tandem::ParseSpace(result.session_metrics.frame()).value_or(tandem::Space::kGrid);
   if (!o.label_extension.empty()) {
-    absl::StatusOr<std::vector<tandem::io::LabelFile>> files =
-        tandem::io::WriteLabelMeshes(o.out_pattern, o.label_extension, surfaces, o.label_names, write);
+    absl::StatusOr<std::vector<tandem::io::LabelFile>> files = tandem::io::WriteLabelMeshes(
+        o.out_pattern, o.label_extension, surfaces, o.label_names, write);
     if (!files.ok()) return Fail(files.status());
   } else if (absl::Status st =
                  tandem::io::WriteLabelsGlb(o.out_pattern, surfaces, o.label_names, write.space);

@@ -28,6 +28,7 @@
 #include "tandem/io/labels_io.h"
 #include "tandem/io/mesh_io.h"
 #include "tandem/io/open_volume.h"
+#include "tandem/status_macros.h"
 #include "tandem/tandem.h"
 #include "tandem/volume.h"
 
@@ -218,9 +219,8 @@ int StreamCommand(int argc, char** argv) {
   options.timeout_s = timeout_s;
   options.rewind = [&]() -> absl::Status {  // a resume needs slices sent before a drop
     reopened = true;
-    absl::StatusOr<std::unique_ptr<tandem::SliceSource>> again = open();
-    if (!again.ok()) return again.status();
-    range.Replace(*std::move(again));
+    TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<tandem::SliceSource> again, open());
+    range.Replace(std::move(again));
     return absl::OkStatus();
   };
   options.resume_session_id = resume_id;

@@ -21,6 +21,7 @@
 #include "tandem/io/labels_io.h"
 #include "tandem/io/run_session.h"
 #include "tandem/labels.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::app {
 
@@ -62,13 +63,12 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
         return absl::OkStatus();
       };
     }
-    auto sessions = io::RunSessions(source, all, progress, on_chunk);
-    if (!sessions.ok()) return sessions.status();
+    TANDEM_ASSIGN_OR_RETURN(auto sessions, io::RunSessions(source, all, progress, on_chunk));
     LabelRun run;
-    run.complex = options.seal ? WeldLabeledChunks(chunks) : (*sessions)[0]->SnapshotLabeled();
-    run.session = std::move((*sessions)[0]);
+    run.complex = options.seal ? WeldLabeledChunks(chunks) : sessions[0]->SnapshotLabeled();
+    run.session = std::move(sessions[0]);
     run.surfaces = SplitByLabel(run.complex, labels.background);
-    for (size_t k = 1; k < sessions->size(); ++k) run.coarser.push_back(std::move((*sessions)[k]));
+    for (size_t k = 1; k < sessions.size(); ++k) run.coarser.push_back(std::move(sessions[k]));
     return run;
   } else {
     (void)source;
@@ -118,7 +118,8 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
     absl::StatusOr<std::vector<io::LabelFile>> files =
         io::WriteLabelMeshes(f.out, absl::StrCat(".", f.format), run->surfaces, table, write);
     if (!files.ok()) return FailWriting(files.status());
-  } else if (absl::Status st = io::WriteLabelsGlb(f.out, run->surfaces, table, write.space); !st.ok()) {
+  } else if (absl::Status st = io::WriteLabelsGlb(f.out, run->surfaces, table, write.space);
+             !st.ok()) {
     return FailWriting(st);
   }
 #ifdef TANDEM_HAVE_DRACO

@@ -55,11 +55,10 @@ absl::StatusOr<ValueStats> ScanValues(SliceSource& src, const std::string& path,
   }
   if (s.count == 0) return s;
   s.mean = sum / static_cast<double>(s.count);
-  auto again = io::OpenVolume(path, open);
-  if (!again.ok()) return again.status();
+  TANDEM_ASSIGN_OR_RETURN(auto again, io::OpenVolume(path, open));
   const double width = (s.hi - s.lo) / 10.0;
   for (int64_t z = 0; z < info.nz; ++z) {
-    TANDEM_RETURN_IF_ERROR((*again)->ReadSlice(&bytes));
+    TANDEM_RETURN_IF_ERROR(again->ReadSlice(&bytes));
     ConvertToFloat(info.dtype, bytes.data(), values.size(), values.data());
     for (float v : values) {
       if (!std::isfinite(v)) continue;
@@ -92,10 +91,10 @@ int InfoCommand(int argc, char** argv) {
   if (int rc = ParseOrExit(flags, argc, argv); rc >= 0) return rc;
   const std::string input =
       zarr_array.empty() ? input_flag : absl::StrCat(input_flag, "#", zarr_array);
-  auto src =
-      io::OpenVolume(input, io::OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
-                                      std::fprintf(stderr, "tandem info: %s\n", line.c_str());
-                                    }});
+  auto src = io::OpenVolume(
+      input, io::OpenOptions{.dicom_series = series, .note = [](const std::string& line) {
+                               std::fprintf(stderr, "tandem info: %s\n", line.c_str());
+                             }});
   if (!src.ok()) return Fail(src.status());
   const VolumeInfo& i = (*src)->info();
   std::printf("grid     %lld x %lld x %lld\n", static_cast<long long>(i.nx),

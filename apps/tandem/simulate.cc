@@ -76,8 +76,7 @@ absl::Status WriteScout(
     const std::string& input, const VolumeInfo& info, const io::DicomWriteOptions& stack_opts,
     const std::function<absl::Status(const std::string&, const io::DicomSliceWriter&, int64_t,
                                      const std::vector<uint8_t>&)>& put) {
-  auto src = io::OpenVolume(input);
-  if (!src.ok()) return src.status();
+  TANDEM_ASSIGN_OR_RETURN(auto src, io::OpenVolume(input));
   const int64_t nx = info.nx, ny = info.ny, nz = info.nz;
   const float none = -std::numeric_limits<float>::infinity();
   std::vector<float> front(static_cast<size_t>(nx * nz), none),
@@ -85,7 +84,7 @@ absl::Status WriteScout(
   std::vector<uint8_t> b;
   std::vector<float> v(static_cast<size_t>(nx * ny));
   for (int64_t z = 0; z < nz; ++z) {
-    TANDEM_RETURN_IF_ERROR((*src)->ReadSlice(&b));
+    TANDEM_RETURN_IF_ERROR(src->ReadSlice(&b));
     ConvertToFloat(info.dtype, b.data(), v.size(), v.data());
     const int64_t row = nz - 1 - z;  // head up
     for (int64_t y = 0; y < ny; ++y) {
@@ -134,9 +133,8 @@ absl::Status WriteScout(
               absl::StrCat("a DICOM scout of ", std::string(DTypeName(info.dtype)), " voxels"));
       }
     }
-    auto w = io::DicomSliceWriter::Create(si, o);
-    if (!w.ok()) return w.status();
-    if (absl::Status st = put(absl::StrCat("1.2.826.0.1.3680043.2.1125.7.", image + 1, ".dcm"), *w,
+    TANDEM_ASSIGN_OR_RETURN(auto w, io::DicomSliceWriter::Create(si, o));
+    if (absl::Status st = put(absl::StrCat("1.2.826.0.1.3680043.2.1125.7.", image + 1, ".dcm"), w,
                               image + 1, bytes);
         !st.ok()) {
       return st;

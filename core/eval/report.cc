@@ -11,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "tandem/eval/metrics.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::eval {
 MetricsReport MakeReport(const TandemSession& session, const IndexedMesh& mesh) {
@@ -81,9 +82,8 @@ absl::Status GetJson(const Json& v, std::optional<Distances>* out) {
   return absl::OkStatus();
 }
 absl::Status GetJson(const Json& v, Schedule* out) {
-  absl::StatusOr<Schedule> s = ParseSchedule(v.get<std::string>());
-  if (!s.ok()) return s.status();
-  *out = *s;
+  TANDEM_ASSIGN_OR_RETURN(Schedule s, ParseSchedule(v.get<std::string>()));
+  *out = s;
   return absl::OkStatus();
 }
 template <class T>

@@ -17,6 +17,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "tandem/io/series.h"
+#include "tandem/status_macros.h"
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
@@ -32,10 +33,9 @@ absl::Status ByteReader::Skip(uint64_t n) {
   char buf[1 << 14];
   while (n > 0) {
     const size_t want = static_cast<size_t>(std::min<uint64_t>(n, sizeof(buf)));
-    absl::StatusOr<size_t> got = Read(buf, want);
-    if (!got.ok()) return got.status();
-    if (*got == 0) return absl::OutOfRangeError(absl::StrCat(path_, ": data ends early"));
-    n -= *got;
+    TANDEM_ASSIGN_OR_RETURN(size_t got, Read(buf, want));
+    if (got == 0) return absl::OutOfRangeError(absl::StrCat(path_, ": data ends early"));
+    n -= got;
   }
   return absl::OkStatus();
 }
@@ -121,14 +121,13 @@ class ZlibReader final : public ByteReader {
     size_t total = 0;
     while (total < n && !ended_) {
       if (zs_.avail_in == 0) {
-        absl::StatusOr<size_t> got = in_->Read(buf_.data(), buf_.size());
-        if (!got.ok()) return got.status();
-        if (*got == 0) {
+        TANDEM_ASSIGN_OR_RETURN(size_t got, in_->Read(buf_.data(), buf_.size()));
+        if (got == 0) {
           end_reason_ = "unexpected end of file";
           break;
         }
         zs_.next_in = buf_.data();
-        zs_.avail_in = static_cast<uInt>(*got);
+        zs_.avail_in = static_cast<uInt>(got);
       }
       const size_t want = std::min<size_t>(n - total, 1u << 30);
       zs_.next_out = out + total;
@@ -158,9 +157,8 @@ class ZlibReader final : public ByteReader {
 
 absl::StatusOr<std::unique_ptr<ByteReader>> ByteReader::OpenZlib(const std::string& path,
                                                                  uint64_t offset) {
-  absl::StatusOr<std::unique_ptr<ByteReader>> plain = Open(path, offset, /*gzip=*/false);
-  if (!plain.ok()) return plain.status();
-  return std::unique_ptr<ByteReader>(new ZlibReader(path, *std::move(plain)));
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteReader> plain, Open(path, offset, /*gzip=*/false));
+  return std::unique_ptr<ByteReader>(new ZlibReader(path, std::move(plain)));
 }
 
 absl::StatusOr<std::unique_ptr<ByteReader>> ByteReader::Open(const std::string& path,

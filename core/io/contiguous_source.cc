@@ -17,6 +17,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "tandem/io/series.h"
+#include "tandem/status_macros.h"
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
@@ -146,17 +147,15 @@ class StreamSliceSource final : public CountedSliceSource {
     const VolumeInfo& stored = spec_.info;
     const size_t stored_bytes = stored.slice_bytes();
     if (map_ != nullptr) {  // mapped by an earlier ViewSlice: stay at the same position
-      absl::StatusOr<const uint8_t*> view = MappedSlice();
-      if (!view.ok()) return view.status();
-      bytes->assign(*view, *view + stored_bytes);
+      TANDEM_ASSIGN_OR_RETURN(const uint8_t* view, MappedSlice());
+      bytes->assign(view, view + stored_bytes);
       return absl::OkStatus();
     }
     std::vector<uint8_t>* target = spec_.scale ? &stored_slice_ : bytes;
     target->resize(stored_bytes);
-    absl::StatusOr<size_t> got = reader_->Read(target->data(), stored_bytes);
-    if (!got.ok()) return got.status();
-    if (*got < stored_bytes) {
-      const uint64_t have = static_cast<uint64_t>(next_slice()) * stored_bytes + *got;
+    TANDEM_ASSIGN_OR_RETURN(size_t got, reader_->Read(target->data(), stored_bytes));
+    if (got < stored_bytes) {
+      const uint64_t have = static_cast<uint64_t>(next_slice()) * stored_bytes + got;
       std::string why = reader_->EndReason();
       if (!why.empty()) why = absl::StrCat(" (", why, ")");
       return absl::DataLossError(
@@ -244,18 +243,18 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenStreamVolume(StreamVolumeSpec s
                                               " needs ", need, " (wrong dims or dtype?)"));
     }
   }
-  absl::StatusOr<std::unique_ptr<ByteReader>> reader =
-      spec.zlib ? ByteReader::OpenZlib(spec.data_path, spec.data_offset)
-                : ByteReader::Open(spec.data_path, spec.data_offset, spec.gzip);
-  if (!reader.ok()) return reader.status();
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteReader> reader,
+                          spec.zlib
+                              ? ByteReader::OpenZlib(spec.data_path, spec.data_offset)
+                              : ByteReader::Open(spec.data_path, spec.data_offset, spec.gzip));
   if (spec.skip_bytes > 0) {
-    if (absl::Status st = (*reader)->Skip(spec.skip_bytes); !st.ok()) {
+    if (absl::Status st = reader->Skip(spec.skip_bytes); !st.ok()) {
       if (!absl::IsOutOfRange(st)) return st;
       return absl::DataLossError(absl::StrCat(spec.path, ": truncated: data ends before byte ",
                                               spec.skip_bytes, " where the voxels start"));
     }
   }
-  return std::unique_ptr<SliceSource>(new StreamSliceSource(std::move(spec), std::move(*reader)));
+  return std::unique_ptr<SliceSource>(new StreamSliceSource(std::move(spec), std::move(reader)));
 }
 
 }  // namespace internal

@@ -413,6 +413,7 @@ constexpr Codec kCodec{kDicomCodecAbi, &ReadHeader, &ReadPixels, &WriteSlice, &G
 }  // namespace
 }  // namespace tandem::io::dicom
 
-extern "C" __attribute__((visibility("default"))) const tandem::io::dicom::Codec* tandem_dicom_codec() {
+extern "C" __attribute__((visibility("default"))) const tandem::io::dicom::Codec*
+tandem_dicom_codec() {
   return &tandem::io::dicom::kCodec;
 }

@@ -180,9 +180,8 @@ class GrowingDicom final : public internal::Growing {
         Tell(note_, skip);
         continue;
       }
-      absl::StatusOr<bool> taken = Add(**h);
-      if (!taken.ok()) return taken.status();
-      if (*taken) s.state = State::kTaken;
+      TANDEM_ASSIGN_OR_RETURN(bool taken, Add(**h));
+      if (taken) s.state = State::kTaken;
     }
     if (arrived) {
       arrivals_.push_back(now);
@@ -242,9 +241,8 @@ class GrowingDicom final : public internal::Growing {
     Stack& s = it->second;
     const bool chosen = &s == followed_ || uid == want_;
     if (inserted) {
-      absl::StatusOr<Frame> frame = FrameOf(h);
-      if (!frame.ok()) return frame.status();
-      s.frame = *frame;
+      TANDEM_ASSIGN_OR_RETURN(Frame frame, FrameOf(h));
+      s.frame = frame;
       s.first = h;
     } else if (!SameOrientation(s.first, h) && !chosen) {
       const int64_t images = s.images + 1;
@@ -430,9 +428,8 @@ class GrowingDicom final : public internal::Growing {
     }
     std::string uid = ready.front().uid;
     if (ready.size() > 1) {
-      absl::StatusOr<std::string> picked = PickSeries(dir_, ready, "", nullptr);
-      if (!picked.ok()) return picked.status();
-      uid = *picked;
+      TANDEM_ASSIGN_OR_RETURN(std::string picked, PickSeries(dir_, ready, "", nullptr));
+      uid = picked;
     }
     followed_uid_ = uid;
     followed_ = &stacks_[uid];

@@ -19,6 +19,7 @@
 #include "absl/strings/str_join.h"
 #include "dicom_wire.h"
 #include "tandem/module/module_loader.h"
+#include "tandem/status_macros.h"
 
 extern char** environ;
 
@@ -222,9 +223,8 @@ absl::Status Call(const std::string& path, uint8_t op, uint64_t arg, size_t max_
       }
     }
     if (fresh) {
-      absl::StatusOr<Worker> spawned = Spawn();
-      if (!spawned.ok()) return spawned.status();
-      w = *spawned;
+      TANDEM_ASSIGN_OR_RETURN(Worker spawned, Spawn());
+      w = spawned;
     }
     if (absl::Status st = Reserve(w, shared); !st.ok()) {
       Release(w);

@@ -50,14 +50,13 @@ absl::StatusOr<DicomSliceWriter> DicomSliceWriter::Create(const VolumeInfo& info
   }
   DicomSliceWriter w;
   // DICOM positions are LPS: a RAS grid is turned into it (nothing moves in the patient).
-  absl::StatusOr<VolumeInfo> lps = info.space == Space::kRAS ? InFrame(info, Space::kLPS) : info;
-  if (!lps.ok()) return lps.status();
-  w.info_ = *std::move(lps);
+  TANDEM_ASSIGN_OR_RETURN(VolumeInfo lps,
+                          info.space == Space::kRAS ? InFrame(info, Space::kLPS) : info);
+  w.info_ = std::move(lps);
   w.opts_ = opts;
-  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
-  if (!codec.ok()) return codec.status();
-  if (w.opts_.series_uid.empty()) w.opts_.series_uid = (*codec)->generate_uid();
-  if (w.opts_.study_uid.empty()) w.opts_.study_uid = (*codec)->generate_uid();
+  TANDEM_ASSIGN_OR_RETURN(const dicom::Codec* codec, dicom::LoadCodec());
+  if (w.opts_.series_uid.empty()) w.opts_.series_uid = codec->generate_uid();
+  if (w.opts_.study_uid.empty()) w.opts_.study_uid = codec->generate_uid();
   if (info.dtype == DType::kFloat32) {
     if (!(std::isfinite(opts.float_min) && std::isfinite(opts.float_max) &&
           opts.float_max >= opts.float_min)) {
@@ -82,8 +81,7 @@ absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
     return absl::InvalidArgumentError(absl::StrCat(path, ": slice ", z, " has ", bytes.size(),
                                                    " bytes, expected ", info_.slice_bytes()));
   }
-  absl::StatusOr<const dicom::Codec*> codec = dicom::LoadCodec();
-  if (!codec.ok()) return codec.status();
+  TANDEM_ASSIGN_OR_RETURN(const dicom::Codec* codec, dicom::LoadCodec());
   dicom::SliceImage image;
   image.path = path;
   image.pixels = bytes.data();
@@ -142,7 +140,7 @@ absl::Status DicomSliceWriter::Write(const std::string& path, int64_t z,
   image.instance = instance;  // kNoInstanceNumber (< 0): none written
   image.image_type = opts_.image_type;
   image.slice_thickness = FormatDouble(info_.spacing[2]);
-  return (*codec)->write_slice(image);
+  return codec->write_slice(image);
 }
 
 VolumeInfo LocalizerGrid(const VolumeInfo& info, int image) {
@@ -184,13 +182,12 @@ absl::Status WriteDicomSeries(const std::string& dir, const VolumeInfo& info,
     o.float_min = std::isfinite(lo) ? lo : 0.0f;
     o.float_max = std::isfinite(hi) ? hi : 0.0f;
   }
-  absl::StatusOr<DicomSliceWriter> writer = DicomSliceWriter::Create(info, o);
-  if (!writer.ok()) return writer.status();
+  TANDEM_ASSIGN_OR_RETURN(DicomSliceWriter writer, DicomSliceWriter::Create(info, o));
   for (int64_t z = 0; z < info.nz; ++z) {
     TANDEM_RETURN_IF_ERROR(internal::FetchSlice(dir, info, slice_fn, z, &bytes));
     char name[32];
     std::snprintf(name, sizeof(name), "IM%05lld.dcm", static_cast<long long>(z + 1));
-    if (absl::Status st = writer->Write((std::filesystem::path(dir) / name).string(), z, bytes);
+    if (absl::Status st = writer.Write((std::filesystem::path(dir) / name).string(), z, bytes);
         !st.ok()) {
       return st;
     }

@@ -81,9 +81,8 @@ class GrowingTiffs final : public Growing {
   }
 
   absl::StatusOr<VolumeInfo> Info() override {
-    absl::StatusOr<VolumeInfo> info = internal::TiffSequenceInfo(taken_.front());
-    if (!info.ok()) return info.status();
-    info->description = absl::StrCat("TIFF sequence followed in ", dir_);
+    TANDEM_ASSIGN_OR_RETURN(VolumeInfo info, internal::TiffSequenceInfo(taken_.front()));
+    info.description = absl::StrCat("TIFF sequence followed in ", dir_);
     return info;
   }
 
@@ -128,9 +127,8 @@ class GrowingZarr final : public Growing {
   }
 
   absl::StatusOr<VolumeInfo> Info() override {
-    absl::StatusOr<std::unique_ptr<SliceSource>> src = Open(0);
-    if (!src.ok()) return src.status();
-    VolumeInfo info = (*src)->info();
+    TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<SliceSource> src, Open(0));
+    VolumeInfo info = src->info();
     info.nz = 0;
     return info;
   }
@@ -138,9 +136,8 @@ class GrowingZarr final : public Growing {
   absl::Status Read(int64_t k, const VolumeInfo& info, std::vector<uint8_t>* bytes) override {
     // The reader is reopened (from plane k) when the array has grown past what it saw.
     if (reader_ == nullptr || reader_->next_slice() != k || k >= reader_->info().nz) {
-      absl::StatusOr<std::unique_ptr<SliceSource>> src = Open(k);
-      if (!src.ok()) return src.status();
-      reader_ = *std::move(src);
+      TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<SliceSource> src, Open(k));
+      reader_ = std::move(src);
     }
     if (reader_->info().nx != info.nx || reader_->info().ny != info.ny ||
         reader_->info().dtype != info.dtype) {
@@ -226,17 +223,15 @@ class FollowSource final : public SliceSource {
 
   // Waits for the first slice; then the geometry is known.
   absl::Status Start() {
-    absl::StatusOr<bool> ready = WaitFor(0);
-    if (!ready.ok()) return ready.status();
-    if (!*ready) {
+    TANDEM_ASSIGN_OR_RETURN(bool ready, WaitFor(0));
+    if (!ready) {
       return absl::DeadlineExceededError(absl::StrCat(
           growing_->Dir(), ": no complete slice appeared within ", opts_.settle_s,
           " s (--settle); is the acquisition writing there (TIFF slices or a Zarr array)?",
           growing_->Problem().empty() ? "" : " Last problem: ", growing_->Problem()));
     }
-    absl::StatusOr<VolumeInfo> info = growing_->Info();
-    if (!info.ok()) return info.status();
-    info_ = *std::move(info);
+    TANDEM_ASSIGN_OR_RETURN(VolumeInfo info, growing_->Info());
+    info_ = std::move(info);
     info_.nz = opts_.expect_slices;
     VolumeInfo check = info_;
     if (check.nz == 0) check.nz = 2;
@@ -282,12 +277,11 @@ class FollowSource final : public SliceSource {
   absl::StatusOr<bool> WaitFor(int64_t k) {
     while (true) {
       bool changed = false;
-      absl::StatusOr<int64_t> n = growing_->Complete(&changed);
-      if (!n.ok()) return n.status();
+      TANDEM_ASSIGN_OR_RETURN(int64_t n, growing_->Complete(&changed));
       const auto now = Clock::now();
       if (changed) last_new_ = now;
-      if (*n != complete_ && opts_.progress) opts_.progress(*n, next_);
-      complete_ = std::max(complete_, *n);
+      if (n != complete_ && opts_.progress) opts_.progress(n, next_);
+      complete_ = std::max(complete_, n);
       if (complete_ > k) return true;
       if (!opts_.done_file.empty()) {
         std::error_code ec;
@@ -308,9 +302,8 @@ class FollowSource final : public SliceSource {
   // The acquisition is over: slices held back may go now; true if slice k exists.
   absl::StatusOr<bool> End(int64_t k, std::string reason) {
     end_reason_ = std::move(reason);
-    absl::StatusOr<int64_t> n = growing_->Final();
-    if (!n.ok()) return n.status();
-    complete_ = std::max(complete_, *n);
+    TANDEM_ASSIGN_OR_RETURN(int64_t n, growing_->Final());
+    complete_ = std::max(complete_, n);
     return complete_ > k;
   }
 

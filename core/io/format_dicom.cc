@@ -68,10 +68,9 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
     std::error_code ec;
     if (std::filesystem::file_size(f, ec) == 0 && !ec) continue;  // a marker, not a slice
     std::string skip;
-    absl::StatusOr<std::optional<SliceHeader>> h = ReadSliceHeader(f, &skip);
-    if (!h.ok()) return h.status();
-    if (h->has_value()) {
-      slices.push_back(std::move(**h));
+    TANDEM_ASSIGN_OR_RETURN(std::optional<SliceHeader> h, ReadSliceHeader(f, &skip));
+    if (h.has_value()) {
+      slices.push_back(std::move(*h));
     } else if (!skip.empty()) {
       Tell(opts.note, skip);
       ++skipped;
@@ -95,9 +94,8 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
   if (!by_series.empty()) {
     std::vector<SeriesSummary> all;
     for (auto& [uid, s] : by_series) all.push_back(std::move(s));
-    absl::StatusOr<std::string> uid = PickSeries(dir, all, opts.dicom_series, opts.note);
-    if (!uid.ok()) return uid.status();
-    std::erase_if(slices, [&](const SliceHeader& h) { return h.series_uid != *uid; });
+    TANDEM_ASSIGN_OR_RETURN(std::string uid, PickSeries(dir, all, opts.dicom_series, opts.note));
+    std::erase_if(slices, [&](const SliceHeader& h) { return h.series_uid != uid; });
   }
   if (slices.size() < 2) {
     return absl::InvalidArgumentError(absl::StrCat(
@@ -107,11 +105,10 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
   }
   // One geometry and one pixel type; ordered along the normal, evenly spaced, in line.
   const SliceHeader first = slices.front();
-  absl::StatusOr<Frame> frame = FrameOf(first);
-  if (!frame.ok()) return frame.status();
+  TANDEM_ASSIGN_OR_RETURN(Frame frame, FrameOf(first));
   for (SliceHeader& h : slices) {
     TANDEM_RETURN_IF_ERROR(CheckMatches(dir, first, h));
-    h.along = Dot(h.position, frame->normal);
+    h.along = Dot(h.position, frame.normal);
   }
   std::sort(slices.begin(), slices.end(),
             [](const SliceHeader& a, const SliceHeader& b) { return a.along < b.along; });
@@ -119,24 +116,24 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenDicomSeries(const std::string& 
   const double in_plane = std::min(first.row_spacing, first.col_spacing);
   for (int64_t k = 0; k + 1 < nz; ++k) {  // duplicates first: they would look like gaps
     const double d = slices[k + 1].along - slices[k].along;
-    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], d, in_plane, frame->normal);
+    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], d, in_plane, frame.normal);
         !st.ok()) {
       return st;
     }
   }
   const double median = MedianStep(slices);
   for (int64_t k = 0; k + 1 < nz; ++k) {
-    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], median, in_plane, frame->normal);
+    if (absl::Status st = CheckStep(dir, slices[k], slices[k + 1], median, in_plane, frame.normal);
         !st.ok()) {
       return st;
     }
   }
   for (const SliceHeader& h : slices) {
-    TANDEM_RETURN_IF_ERROR(CheckInLine(dir, slices.front(), h, frame->normal, in_plane));
+    TANDEM_RETURN_IF_ERROR(CheckInLine(dir, slices.front(), h, frame.normal, in_plane));
   }
   const ValuePlan plan = PlanValues(slices.data(), slices.data() + slices.size());
   const double step = RoundStep((slices.back().along - slices.front().along) / static_cast<double>(nz - 1));
-  VolumeInfo info = MakeInfo(slices.front(), *frame, nz, step, plan);
+  VolumeInfo info = MakeInfo(slices.front(), frame, nz, step, plan);
   absl::StrAppend(&info.description, ", ", nz, " files");
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) {
     return absl::InvalidArgumentError(absl::StrCat("DICOM series in ", dir, ": ", st.message()));

@@ -54,9 +54,8 @@ struct MetaHeader {
 // "Key = Value" lines up to ElementDataFile, which ends the header.
 absl::StatusOr<MetaHeader> ReadHeader(const std::string& path, uint64_t file_size) {
   constexpr uint64_t kMaxHeader = 1 << 20;  // real headers are a few hundred bytes
-  absl::StatusOr<std::string> read = ReadHead(path, file_size, kMaxHeader);
-  if (!read.ok()) return read.status();
-  const std::string& text = *read;
+  TANDEM_ASSIGN_OR_RETURN(std::string read, ReadHead(path, file_size, kMaxHeader));
+  const std::string& text = read;
   MetaHeader h;
   size_t pos = 0;
   while (pos < text.size()) {
@@ -151,17 +150,15 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
   info.nz = n[2];
   const std::string* type = h.Find({"elementtype"});
   if (type == nullptr) return MetaError(path, "missing ElementType");
-  absl::StatusOr<DType> dtype = ElementType(path, *type);
-  if (!dtype.ok()) return dtype.status();
-  info.dtype = *dtype;
+  TANDEM_ASSIGN_OR_RETURN(DType dtype, ElementType(path, *type));
+  info.dtype = dtype;
   if (const std::string* ch = h.Find({"elementnumberofchannels"}); ch != nullptr && *ch != "1") {
     return MetaError(path, absl::StrCat("ElementNumberOfChannels = ", *ch,
                                         ": only one channel (greyscale) is read"));
   }
   if (const std::string* binary = h.Find({"binarydata"}); binary != nullptr) {
-    absl::StatusOr<bool> b = Flag(path, "BinaryData", *binary);
-    if (!b.ok()) return b.status();
-    if (!*b) return MetaError(path, "BinaryData = False (text voxels) is not supported");
+    TANDEM_ASSIGN_OR_RETURN(bool b, Flag(path, "BinaryData", *binary));
+    if (!b) return MetaError(path, "BinaryData = False (text voxels) is not supported");
   }
   if (const std::string* sp = h.Find({"elementspacing", "elementsize"}); sp != nullptr) {
     if (absl::Status st = ParseNumbers(path, "ElementSpacing", *sp, 3, info.spacing.data());
@@ -198,14 +195,12 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
   }
   if (const std::string* msb = h.Find({"elementbyteordermsb", "binarydatabyteordermsb"});
       msb != nullptr) {
-    absl::StatusOr<bool> b = Flag(path, "ElementByteOrderMSB", *msb);
-    if (!b.ok()) return b.status();
-    spec.big_endian = *b;
+    TANDEM_ASSIGN_OR_RETURN(bool b, Flag(path, "ElementByteOrderMSB", *msb));
+    spec.big_endian = b;
   }
   if (const std::string* c = h.Find({"compresseddata"}); c != nullptr) {
-    absl::StatusOr<bool> b = Flag(path, "CompressedData", *c);
-    if (!b.ok()) return b.status();
-    spec.gzip = spec.zlib = *b;
+    TANDEM_ASSIGN_OR_RETURN(bool b, Flag(path, "CompressedData", *c));
+    spec.gzip = spec.zlib = b;
   }
   int64_t header_size = 0;
   if (const std::string* hs = h.Find({"headersize"}); hs != nullptr) {
@@ -230,15 +225,14 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
   }
   if (header_size > 0) spec.data_offset = static_cast<uint64_t>(header_size);
   if (header_size == -1) {
-    absl::StatusOr<uint64_t> size = FileSize(spec.data_path);
-    if (!size.ok()) return size.status();
+    TANDEM_ASSIGN_OR_RETURN(uint64_t size, FileSize(spec.data_path));
     const uint64_t need = VolumeBytes(info);
-    if (*size < need) {
+    if (size < need) {
       return absl::DataLossError(absl::StrCat(path, ": truncated: expected ", need,
                                               " bytes of voxel data (", DescribeGrid(info),
-                                              "), the data file has ", *size));
+                                              "), the data file has ", size));
     }
-    spec.data_offset = *size - need;
+    spec.data_offset = size - need;
   }
   return spec;
 }
@@ -246,13 +240,10 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const Meta
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenMetaImageVolume(const std::string& path) {
-  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
-  if (!size.ok()) return size.status();
-  absl::StatusOr<MetaHeader> header = ReadHeader(path, *size);
-  if (!header.ok()) return header.status();
-  absl::StatusOr<StreamVolumeSpec> spec = ParseHeader(path, *header);
-  if (!spec.ok()) return spec.status();
-  return OpenStreamVolume(*std::move(spec));
+  TANDEM_ASSIGN_OR_RETURN(uint64_t size, NonEmptyFileSize(path));
+  TANDEM_ASSIGN_OR_RETURN(MetaHeader header, ReadHeader(path, size));
+  TANDEM_ASSIGN_OR_RETURN(StreamVolumeSpec spec, ParseHeader(path, header));
+  return OpenStreamVolume(std::move(spec));
 }
 
 absl::Status WriteMetaImage(const std::string& path, const VolumeInfo& info,

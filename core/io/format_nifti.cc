@@ -20,6 +20,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "volume_io_internal.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::io::internal {
 namespace {
@@ -257,26 +258,21 @@ absl::StatusOr<StreamVolumeSpec> ParseHeader(const std::string& path, const uint
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenNiftiVolume(const std::string& path) {
-  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
-  if (!size.ok()) return size.status();
-  absl::StatusOr<bool> gzip = IsGzip(path);
-  if (!gzip.ok()) return gzip.status();
+  TANDEM_RETURN_IF_ERROR(NonEmptyFileSize(path).status());
+  TANDEM_ASSIGN_OR_RETURN(bool gzip, IsGzip(path));
 
   uint8_t hdr[nh::kHeaderSize];
   {
-    absl::StatusOr<std::unique_ptr<ByteReader>> reader = ByteReader::Open(path, 0, *gzip);
-    if (!reader.ok()) return reader.status();
-    absl::StatusOr<size_t> got = (*reader)->Read(hdr, sizeof(hdr));
-    if (!got.ok()) return got.status();
-    if (*got < sizeof(hdr)) {
+    TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteReader> reader, ByteReader::Open(path, 0, gzip));
+    TANDEM_ASSIGN_OR_RETURN(size_t got, reader->Read(hdr, sizeof(hdr)));
+    if (got < sizeof(hdr)) {
       return absl::DataLossError(
           absl::StrCat(path, ": truncated: a NIfTI-1 header needs 348 bytes, ",
-                       *gzip ? "decompressed data has " : "file has ", *got));
+                       gzip ? "decompressed data has " : "file has ", got));
     }
   }
-  absl::StatusOr<StreamVolumeSpec> spec = ParseHeader(path, hdr, *gzip);
-  if (!spec.ok()) return spec.status();
-  return OpenStreamVolume(*std::move(spec));
+  TANDEM_ASSIGN_OR_RETURN(StreamVolumeSpec spec, ParseHeader(path, hdr, gzip));
+  return OpenStreamVolume(std::move(spec));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -346,11 +342,10 @@ absl::Status WriteNifti(const std::string& path, const VolumeInfo& info, const S
   }
   std::memcpy(hdr.data() + nh::kMagic, "n+1\0", 4);
 
-  absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(path, gzip);
-  if (!w.ok()) return w.status();
-  absl::Status st = (*w)->Write(hdr.data(), hdr.size());
-  if (st.ok()) st = StreamSlices(path, info, slice_fn, opts.big_endian, w->get());
-  if (st.ok()) st = (*w)->Close();
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteWriter> w, ByteWriter::Open(path, gzip));
+  absl::Status st = w->Write(hdr.data(), hdr.size());
+  if (st.ok()) st = StreamSlices(path, info, slice_fn, opts.big_endian, w.get());
+  if (st.ok()) st = w->Close();
   return st;
 }
 

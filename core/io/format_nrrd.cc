@@ -61,9 +61,8 @@ Space NrrdSpace(const std::string& space) {
 absl::StatusOr<NrrdHeader> ReadHeader(const std::string& path, uint64_t file_size) {
   // Headers are small text; 1 MiB is far more than any real one and bounds the read.
   constexpr uint64_t kMaxHeader = 1 << 20;
-  absl::StatusOr<std::string> read = ReadHead(path, file_size, kMaxHeader);
-  if (!read.ok()) return read.status();
-  const std::string& text = *read;
+  TANDEM_ASSIGN_OR_RETURN(std::string read, ReadHead(path, file_size, kMaxHeader));
+  const std::string& text = read;
 
   if (!text.starts_with("NRRD000") || text.size() < 8 || text[7] < '1' || text[7] > '5') {
     return NrrdError(path, "not a NRRD file (it must start with \"NRRD000X\")");
@@ -188,9 +187,8 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
 
   const std::string* type = h.Find("type");
   if (type == nullptr) return NrrdError(path, "missing \"type\" field");
-  absl::StatusOr<DType> dtype = ParseNrrdType(path, *type);
-  if (!dtype.ok()) return dtype.status();
-  info.dtype = *dtype;
+  TANDEM_ASSIGN_OR_RETURN(DType dtype, ParseNrrdType(path, *type));
+  info.dtype = dtype;
 
   const std::string* dimension = h.Find("dimension");
   int dim = 0;
@@ -209,14 +207,12 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
   info.nz = n[2];
 
   if (const std::string* dirs = h.Find("space directions"); dirs != nullptr) {
-    absl::StatusOr<std::vector<std::array<double, 3>>> v =
-        ParseVectors(path, "space directions", *dirs);
-    if (!v.ok()) return v.status();
-    if (v->size() != 3) return NrrdError(path, "\"space directions\" needs 3 vectors");
+    TANDEM_ASSIGN_OR_RETURN(auto v, ParseVectors(path, "space directions", *dirs));
+    if (v.size() != 3) return NrrdError(path, "\"space directions\" needs 3 vectors");
     // Each vector is one voxel step in the world: its length is the spacing, its direction
     // the axis (rotations and flips applied; ValidateVolumeInfo refuses shear).
     for (int a = 0; a < 3; ++a) {
-      const auto& d = (*v)[a];
+      const auto& d = v[a];
       const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
       if (!(len > 0) || !std::isfinite(len)) {
         return NrrdError(path, absl::StrCat("\"space directions\" vector ", a, " has length ",
@@ -238,10 +234,9 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
     info.frame = "NRRD space directions";
   }
   if (const std::string* org = h.Find("space origin"); org != nullptr) {
-    absl::StatusOr<std::vector<std::array<double, 3>>> v = ParseVectors(path, "space origin", *org);
-    if (!v.ok()) return v.status();
-    if (v->size() != 1) return NrrdError(path, "\"space origin\" must be one (x,y,z) vector");
-    info.origin = (*v)[0];
+    TANDEM_ASSIGN_OR_RETURN(auto v, ParseVectors(path, "space origin", *org));
+    if (v.size() != 1) return NrrdError(path, "\"space origin\" must be one (x,y,z) vector");
+    info.origin = v[0];
   }
   if (absl::Status st = ValidateVolumeInfo(info); !st.ok()) return NrrdError(path, st.message());
 
@@ -290,15 +285,14 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
   }
   if (byte_skip == -1) {
     // Data is the last bytes of the file.
-    absl::StatusOr<uint64_t> size = FileSize(spec.data_path);
-    if (!size.ok()) return size.status();
+    TANDEM_ASSIGN_OR_RETURN(uint64_t size, FileSize(spec.data_path));
     const uint64_t need = VolumeBytes(info);
-    if (*size < spec.data_offset + need) {
+    if (size < spec.data_offset + need) {
       return absl::DataLossError(absl::StrCat(
           path, ": truncated: expected ", need, " bytes of voxel data (", DescribeGrid(info),
-          "), file has ", *size - std::min(*size, spec.data_offset)));
+          "), file has ", size - std::min(size, spec.data_offset)));
     }
-    spec.data_offset = *size - need;
+    spec.data_offset = size - need;
   } else if (spec.gzip) {
     spec.skip_bytes = static_cast<uint64_t>(byte_skip);  // counts decompressed bytes
   } else {
@@ -321,13 +315,10 @@ absl::StatusOr<StreamVolumeSpec> ParseNrrd(const std::string& path, const NrrdHe
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenNrrdVolume(const std::string& path) {
-  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
-  if (!size.ok()) return size.status();
-  absl::StatusOr<NrrdHeader> header = ReadHeader(path, *size);
-  if (!header.ok()) return header.status();
-  absl::StatusOr<StreamVolumeSpec> spec = ParseNrrd(path, *header);
-  if (!spec.ok()) return spec.status();
-  return OpenStreamVolume(*std::move(spec));
+  TANDEM_ASSIGN_OR_RETURN(uint64_t size, NonEmptyFileSize(path));
+  TANDEM_ASSIGN_OR_RETURN(NrrdHeader header, ReadHeader(path, size));
+  TANDEM_ASSIGN_OR_RETURN(StreamVolumeSpec spec, ParseNrrd(path, header));
+  return OpenStreamVolume(std::move(spec));
 }
 
 // ---------------------------------------------------------------------------------------

@@ -33,14 +33,13 @@ absl::Status SidecarError(const std::string& path, absl::string_view what) {
 // Reads a small text file whole (sidecars are a few hundred bytes; the cap keeps a raw
 // volume mistakenly named .json from being slurped).
 absl::StatusOr<std::string> ReadSmallFile(const std::string& path) {
-  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
-  if (!size.ok()) return size.status();
+  TANDEM_ASSIGN_OR_RETURN(uint64_t size, NonEmptyFileSize(path));
   constexpr uint64_t kMaxSidecar = 1 << 20;
-  if (*size > kMaxSidecar) {
+  if (size > kMaxSidecar) {
     return SidecarError(
-        path, absl::StrCat("not a JSON sidecar (", *size, " bytes; sidecars are under 1 MiB)"));
+        path, absl::StrCat("not a JSON sidecar (", size, " bytes; sidecars are under 1 MiB)"));
   }
-  return ReadHead(path, *size, kMaxSidecar);
+  return ReadHead(path, size, kMaxSidecar);
 }
 
 // Reads a 3-vector of numbers at key into *out; absent keys keep the default.
@@ -169,9 +168,8 @@ absl::StatusOr<StreamVolumeSpec> ParseSidecar(const std::string& path, const jso
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenRawVolume(const std::string& json_path) {
-  absl::StatusOr<std::string> text = ReadSmallFile(json_path);
-  if (!text.ok()) return text.status();
-  const json j = json::parse(*text, nullptr, /*allow_exceptions=*/false);
+  TANDEM_ASSIGN_OR_RETURN(std::string text, ReadSmallFile(json_path));
+  const json j = json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (j.is_discarded()) return SidecarError(json_path, "invalid JSON in sidecar");
   absl::StatusOr<StreamVolumeSpec> spec;
   try {  // the checks above should make get<> safe; never let a json exception escape
@@ -246,13 +244,13 @@ struct IntegerRange {
 absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const SliceFn& slice_fn,
                           const VolumeWriteOptions& opts) {
   const std::filesystem::path raw_path = SiblingPath(path, ".raw");
-  absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(raw_path.string(), false);
-  if (!w.ok()) return w.status();
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteWriter> w,
+                          ByteWriter::Open(raw_path.string(), false));
   ValueRange range;  // of every slice (RangeOf: NaNs skipped), for the sidecar's "value_range"
   IntegerRange exact;  // the same for integers, exactly (a float rounds ids past 2^24)
   Sha256 sha;
   absl::Status st = StreamSlices(
-      path, info, slice_fn, opts.big_endian, w->get(),
+      path, info, slice_fn, opts.big_endian, w.get(),
       [&](const std::vector<uint8_t>& s) {
         if (IsIntegerDType(info.dtype)) {
           exact.Add(info.dtype, s.data(), static_cast<size_t>(info.slice_voxels()));
@@ -261,7 +259,7 @@ absl::Status WriteRawJson(const std::string& path, const VolumeInfo& info, const
         }
       },
       &sha);
-  if (st.ok()) st = (*w)->Close();
+  if (st.ok()) st = w->Close();
   if (!st.ok()) return st;
 
   using ojson = nlohmann::ordered_json;

@@ -300,34 +300,30 @@ struct OpenedTiff {
 };
 
 absl::StatusOr<OpenedTiff> OpenTiffPages(const std::string& path) {
-  absl::StatusOr<uint64_t> size = NonEmptyFileSize(path);
-  if (!size.ok()) return size.status();
+  TANDEM_ASSIGN_OR_RETURN(uint64_t size, NonEmptyFileSize(path));
   // "m": no memory mapping (a file truncated while mapped would crash with SIGBUS).
-  absl::StatusOr<std::unique_ptr<TiffFile>> file = TiffFile::Open(path, "rm");
-  if (!file.ok()) return file.status();
-  TiffFile& f = **file;
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, "rm"));
+  TiffFile& f = *file;
   TIFF* tif = f.get();
 
   VolumeInfo info;
   PageFormat first;
   int64_t pages = 0;
   do {
-    absl::StatusOr<PageFormat> p = ReadPageFormat(f, pages);
-    if (!p.ok()) return p.status();
-    absl::StatusOr<DType> dtype = PageDType(path, pages, *p);
-    if (!dtype.ok()) return dtype.status();
+    TANDEM_ASSIGN_OR_RETURN(PageFormat p, ReadPageFormat(f, pages));
+    TANDEM_ASSIGN_OR_RETURN(DType dtype, PageDType(path, pages, p));
     if (pages == 0) {
-      first = *p;
-      info.dtype = *dtype;
-    } else if (p->width != first.width || p->height != first.height || p->bits != first.bits ||
-               p->sample_format != first.sample_format) {
+      first = p;
+      info.dtype = dtype;
+    } else if (p.width != first.width || p.height != first.height || p.bits != first.bits ||
+               p.sample_format != first.sample_format) {
       return absl::InvalidArgumentError(
-          absl::StrCat(path, ": size mismatch: page ", pages, " is ", p->width, "x", p->height, " ",
-                       p->bits, "-bit but page 0 is ", first.width, "x", first.height, " ",
+          absl::StrCat(path, ": size mismatch: page ", pages, " is ", p.width, "x", p.height, " ",
+                       p.bits, "-bit but page 0 is ", first.width, "x", first.height, " ",
                        first.bits, "-bit (all pages of a stack must match)"));
     }
-    TANDEM_RETURN_IF_ERROR(CheckTileSize(path, pages, *p, *dtype));
-    TANDEM_RETURN_IF_ERROR(CheckStrilesInFile(f, pages, *size));
+    TANDEM_RETURN_IF_ERROR(CheckTileSize(path, pages, p, dtype));
+    TANDEM_RETURN_IF_ERROR(CheckStrilesInFile(f, pages, size));
     ++pages;
   } while (TIFFReadDirectory(tif));
   if (std::string e = f.TakeErrors(""); !e.empty()) {
@@ -365,7 +361,7 @@ absl::StatusOr<OpenedTiff> OpenTiffPages(const std::string& path) {
     info.description = description;
     info.spacing_known = false;
   }
-  return OpenedTiff{*std::move(file), std::move(info), ij.present};
+  return OpenedTiff{std::move(file), std::move(info), ij.present};
 }
 
 // Pixel size in mm from XResolution / YResolution with a centimetre or inch unit (what
@@ -389,32 +385,30 @@ std::array<double, 2> ResolutionMm(TIFF* tif) {
 
 absl::Status ReadTiffSequenceSlice(const std::string& path, const std::string& first,
                                    const VolumeInfo& info, std::vector<uint8_t>* bytes) {
-  absl::StatusOr<OpenedTiff> t = OpenTiffPages(path);
-  if (!t.ok()) return t.status();
-  if (t->info.nz != 1 || t->info.nx != info.nx || t->info.ny != info.ny ||
-      t->info.dtype != info.dtype) {
+  TANDEM_ASSIGN_OR_RETURN(OpenedTiff t, OpenTiffPages(path));
+  if (t.info.nz != 1 || t.info.nx != info.nx || t.info.ny != info.ny ||
+      t.info.dtype != info.dtype) {
     return absl::InvalidArgumentError(absl::StrCat(
-        path, ": ", t->info.nz, " page(s) of ", t->info.nx, "x", t->info.ny, " ",
-        Sv(DTypeName(t->info.dtype)), " where the sequence (from ", first, ") has one page of ",
+        path, ": ", t.info.nz, " page(s) of ", t.info.nx, "x", t.info.ny, " ",
+        Sv(DTypeName(t.info.dtype)), " where the sequence (from ", first, ") has one page of ",
         info.nx, "x", info.ny, " ", Sv(DTypeName(info.dtype)),
         " per file (every slice of a TIFF sequence must match)"));
   }
-  TiffSliceSource page(std::move(t->file), std::move(t->info));
+  TiffSliceSource page(std::move(t.file), std::move(t.info));
   return page.ReadSlice(bytes);
 }
 
 absl::StatusOr<VolumeInfo> TiffSequenceInfo(const std::string& first_file) {
-  absl::StatusOr<OpenedTiff> t = OpenTiffPages(first_file);
-  if (!t.ok()) return t.status();
-  if (t->info.nz != 1) {
+  TANDEM_ASSIGN_OR_RETURN(OpenedTiff t, OpenTiffPages(first_file));
+  if (t.info.nz != 1) {
     return absl::InvalidArgumentError(
-        absl::StrCat(first_file, ": ", t->info.nz,
+        absl::StrCat(first_file, ": ", t.info.nz,
                      " pages; a TIFF sequence folder holds one single-page TIFF per slice"));
   }
-  VolumeInfo info = t->info;
-  if (!t->imagej) {
+  VolumeInfo info = t.info;
+  if (!t.imagej) {
     // Reconstructions are isotropic: z takes the x pixel size.
-    const std::array<double, 2> mm = ResolutionMm(t->file->get());
+    const std::array<double, 2> mm = ResolutionMm(t.file->get());
     if (mm[0] > 0 && mm[1] > 0) {
       info.spacing = {mm[0], mm[1], mm[0]};
       info.spacing_known = true;
@@ -443,14 +437,13 @@ class TiffSequenceSource final : public CountedSliceSource {
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffVolume(const std::string& path) {
-  absl::StatusOr<OpenedTiff> t = OpenTiffPages(path);
-  if (!t.ok()) return t.status();
-  if (absl::Status st = ValidateVolumeInfo(t->info); !st.ok()) {
+  TANDEM_ASSIGN_OR_RETURN(OpenedTiff t, OpenTiffPages(path));
+  if (absl::Status st = ValidateVolumeInfo(t.info); !st.ok()) {
     return absl::InvalidArgumentError(absl::StrCat(
-        path, ": ", st.message(), t->info.nz < 2 ? " (a stack needs at least 2 pages)" : ""));
+        path, ": ", st.message(), t.info.nz < 2 ? " (a stack needs at least 2 pages)" : ""));
   }
   return std::unique_ptr<SliceSource>(
-      new TiffSliceSource(std::move(t->file), std::move(t->info)));
+      new TiffSliceSource(std::move(t.file), std::move(t.info)));
 }
 
 absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
@@ -466,9 +459,8 @@ absl::Status WriteTiffVolume(const std::string& path, const VolumeInfo& info,
   // Classic TIFF addresses 4 GiB; leave room for directories before switching to BigTIFF.
   const bool big_tiff = VolumeBytes(info) > (uint64_t{3} << 30);
   const std::string mode = absl::StrCat("w", opts.big_endian ? "b" : "l", big_tiff ? "8" : "");
-  absl::StatusOr<std::unique_ptr<TiffFile>> file = TiffFile::Open(path, mode.c_str());
-  if (!file.ok()) return file.status();
-  TiffFile& f = **file;
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, mode.c_str()));
+  TiffFile& f = *file;
   TIFF* tif = f.get();
 
   uint16_t bits = static_cast<uint16_t>(8 * DTypeSize(info.dtype));
@@ -558,9 +550,8 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenTiffSequence(
     return absl::InvalidArgumentError(absl::StrCat(
         dir, ": a TIFF sequence needs at least 2 slice files, found ", files.size()));
   }
-  absl::StatusOr<VolumeInfo> first = internal::TiffSequenceInfo(files.front());
-  if (!first.ok()) return first.status();
-  VolumeInfo info = *std::move(first);
+  TANDEM_ASSIGN_OR_RETURN(VolumeInfo first, internal::TiffSequenceInfo(files.front()));
+  VolumeInfo info = std::move(first);
   info.nz = static_cast<int64_t>(files.size());
   info.description = absl::StrCat("TIFF sequence, ", files.size(), " files",
                                   info.description.empty() ? "" : ": ", info.description);

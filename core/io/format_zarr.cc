@@ -427,9 +427,8 @@ absl::StatusOr<std::unique_ptr<ZarrSliceSource>> OpenZarrSource(const std::strin
   std::string root = path;
   while (root.size() > 1 && root.back() == '/') root.pop_back();
   try {  // the checks should make json access safe; never let an exception escape
-    absl::StatusOr<Resolved> r = Resolve(root, opts.array);
-    if (!r.ok()) return r.status();
-    return OpenResolved(path, *std::move(r), opts, growing);
+    TANDEM_ASSIGN_OR_RETURN(Resolved r, Resolve(root, opts.array));
+    return OpenResolved(path, std::move(r), opts, growing);
   } catch (const json::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat(path, ": bad Zarr metadata: ", e.what()));
   }
@@ -460,20 +459,18 @@ std::pair<std::string, std::string> SplitZarrSelector(const std::string& path) {
 
 absl::StatusOr<std::unique_ptr<SliceSource>> OpenZarrVolume(const std::string& path,
                                                             const ZarrReadOptions& opts) {
-  absl::StatusOr<std::unique_ptr<internal::ZarrSliceSource>> src =
-      internal::OpenZarrSource(path, opts, /*growing=*/false);
-  if (!src.ok()) return src.status();
-  return std::unique_ptr<SliceSource>(std::move(*src));
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<internal::ZarrSliceSource> src,
+                          internal::OpenZarrSource(path, opts, /*growing=*/false));
+  return std::unique_ptr<SliceSource>(std::move(src));
 }
 
 absl::StatusOr<int64_t> CountCompleteZarrPlanes(const std::string& path,
                                                 const ZarrReadOptions& opts, int64_t known) {
   ZarrReadOptions o = opts;
   o.first_plane = 0;
-  absl::StatusOr<std::unique_ptr<internal::ZarrSliceSource>> src =
-      internal::OpenZarrSource(path, o, /*growing=*/true);
-  if (!src.ok()) return src.status();
-  return (*src)->CompletePlanes(known);
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<internal::ZarrSliceSource> src,
+                          internal::OpenZarrSource(path, o, /*growing=*/true));
+  return src->CompletePlanes(known);
 }
 
 }  // namespace tandem::io

@@ -20,6 +20,7 @@
 #include "absl/strings/strip.h"
 #include "mesh_io_internal.h"
 #include "nlohmann/json.hpp"
+#include "tandem/status_macros.h"
 
 namespace tandem::io {
 namespace {
@@ -256,7 +257,7 @@ absl::StatusOr<std::vector<LabelFile>> WriteLabelMeshes(
     f.id = id;
     f.path = (folder / (stem + extension)).string();
     f.name = DisplayName(id, names);
-    if (absl::Status st = WriteMesh(f.path, mesh, options); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(WriteMesh(f.path, mesh, options));
     files.push_back(std::move(f));
   }
   if (absl::Status st =

@@ -18,6 +18,7 @@
 #include "absl/strings/str_cat.h"
 #include "mesh_io_internal.h"
 #include "tandem/geometry.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::io {
 namespace internal::meshio {
@@ -101,8 +102,7 @@ std::vector<Vec3> VertexNormals(const IndexedMesh& mesh) {
 
 absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
                        const MeshWriteOptions& options) {
-  const absl::StatusOr<Format> format = FormatOf(path);
-  if (!format.ok()) return format.status();
+  TANDEM_ASSIGN_OR_RETURN(const Format format, FormatOf(path));
   if (mesh.indices.size() % 3 != 0) {
     return Error(absl::StatusCode::kInvalidArgument, path,
                  absl::StrCat("mesh has ", mesh.indices.size(), " indices, not a multiple of 3"));
@@ -117,11 +117,11 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
                                 " out of range (", mesh.positions.size(), " vertices)"));
     }
   }
-  const bool with_normals = *format == Format::kGlb || (options.normals && *format != Format::kStl);
+  const bool with_normals = format == Format::kGlb || (options.normals && format != Format::kStl);
   const std::vector<Vec3> normals = with_normals ? VertexNormals(mesh) : std::vector<Vec3>{};
   // The Draco primitive before the file is created: a failure leaves nothing behind.
   std::optional<GlbDracoPrimitive> draco;
-  if (*format == Format::kGlb && options.glb_draco) {
+  if (format == Format::kGlb && options.glb_draco) {
     auto primitive = options.glb_draco(mesh, normals);
     if (!primitive.ok()) {
       return Error(primitive.status().code(), path, std::string(primitive.status().message()));
@@ -134,7 +134,7 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
                  absl::StrCat("cannot open for writing: ", std::strerror(errno)));
   }
   BufferedWriter out(file);
-  switch (*format) {
+  switch (format) {
     case Format::kPly: WritePly(mesh, normals, options.space, out); break;
     case Format::kObj: WriteObj(mesh, normals, options.space, out); break;
     case Format::kStl: WriteStl(mesh, options.space, out); break;
@@ -148,14 +148,12 @@ absl::Status WriteMesh(const std::string& path, const IndexedMesh& mesh,
 }
 
 absl::StatusOr<IndexedMesh> ReadMesh(const std::string& path) {
-  const absl::StatusOr<Format> format = FormatOf(path);
-  if (!format.ok()) return format.status();
-  const absl::StatusOr<std::string> data = ReadWholeFile(path);
-  if (!data.ok()) return data.status();
-  switch (*format) {
-    case Format::kPly: return ReadPly(path, *data);
-    case Format::kObj: return ReadObj(path, *data);
-    case Format::kStl: return ReadStl(path, *data);
+  TANDEM_ASSIGN_OR_RETURN(const Format format, FormatOf(path));
+  TANDEM_ASSIGN_OR_RETURN(const std::string data, ReadWholeFile(path));
+  switch (format) {
+    case Format::kPly: return ReadPly(path, data);
+    case Format::kObj: return ReadObj(path, data);
+    case Format::kStl: return ReadStl(path, data);
     case Format::kGlb: break;
   }
   return Error(absl::StatusCode::kInvalidArgument, path,

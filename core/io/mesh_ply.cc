@@ -10,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "mesh_io_internal.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::io::internal::meshio {
 
@@ -390,17 +391,16 @@ absl::StatusOr<IndexedMesh> ReadPlyBody(const std::string& path, const PlyHeader
 }  // namespace
 
 absl::StatusOr<IndexedMesh> ReadPly(const std::string& path, absl::string_view data) {
-  absl::StatusOr<PlyHeader> header = ParsePlyHeader(path, data);
-  if (!header.ok()) return header.status();
-  const absl::string_view body = data.substr(header->body_offset);
-  if (header->encoding == PlyEncoding::kAscii) {
+  TANDEM_ASSIGN_OR_RETURN(PlyHeader header, ParsePlyHeader(path, data));
+  const absl::string_view body = data.substr(header.body_offset);
+  if (header.encoding == PlyEncoding::kAscii) {
     const size_t header_lines =
-        static_cast<size_t>(std::count(data.begin(), data.begin() + header->body_offset, '\n'));
+        static_cast<size_t>(std::count(data.begin(), data.begin() + header.body_offset, '\n'));
     PlyAsciiCursor in(body, header_lines + 1);
-    return ReadPlyBody(path, *header, in);
+    return ReadPlyBody(path, header, in);
   }
-  PlyBinaryCursor in(body, header->encoding == PlyEncoding::kBinaryBig);
-  return ReadPlyBody(path, *header, in);
+  PlyBinaryCursor in(body, header.encoding == PlyEncoding::kBinaryBig);
+  return ReadPlyBody(path, header, in);
 }
 
 }  // namespace tandem::io::internal::meshio

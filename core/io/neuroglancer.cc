@@ -15,6 +15,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
+#include "tandem/status_macros.h"
 
 namespace tandem::io {
 namespace {
@@ -257,7 +258,7 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
     return absl::InvalidArgumentError(
         absl::StrCat("vertex_quantization_bits must be 10 or 16, got ", bits));
   }
-  if (absl::Status st = CheckSegment(segment, 0); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckSegment(segment, 0));
   const uint32_t top = (uint32_t{1} << bits) - 1, mid = uint32_t{1} << (bits - 1);
   std::vector<std::vector<NeuroglancerNode>> out(segment.lods.size());
   for (size_t k = 0; k < segment.lods.size(); ++k) {
@@ -469,7 +470,7 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
   const size_t lods = segments.empty() ? options.lod_scales.size() : segments[0].lods.size();
   std::map<LabelId, size_t> ids;
   for (size_t i = 0; i < segments.size(); ++i) {
-    if (absl::Status st = CheckSegment(segments[i], lods); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(CheckSegment(segments[i], lods));
     if (!ids.emplace(segments[i].id, i).second) {
       return absl::InvalidArgumentError(absl::StrCat("two segments with id ", segments[i].id));
     }
@@ -526,9 +527,8 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
     chunks.reserve(members.size());
     for (size_t i : members) {
       const NeuroglancerSegment& s = segments[i];
-      absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> tree =
-          BuildOctree(s, octree, bits, skirt);
-      if (!tree.ok()) return tree.status();
+      TANDEM_ASSIGN_OR_RETURN(std::vector<std::vector<NeuroglancerNode>> tree,
+                              BuildOctree(s, octree, bits, skirt));
       NeuroglancerManifest m;
       m.chunk_shape = octree.chunk_shape;
       m.grid_origin = octree.grid_origin;
@@ -538,8 +538,8 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
       m.sizes.resize(lods);
       ShardChunk c;
       c.id = s.id;
-      for (size_t k = 0; k < tree->size(); ++k) {
-        for (const NeuroglancerNode& node : (*tree)[k]) {
+      for (size_t k = 0; k < tree.size(); ++k) {
+        for (const NeuroglancerNode& node : tree[k]) {
           std::string bytes;
           if (!node.fragment.indices.empty()) {  // an empty node: size 0, never requested
             absl::StatusOr<std::string> e = options.encode(node.fragment);
@@ -557,9 +557,8 @@ absl::Status WriteNeuroglancer(const std::string& dir, const VolumeInfo& grid,
       c.data = EncodeManifest(m);
       chunks.push_back(std::move(c));
     }
-    absl::StatusOr<std::string> file = BuildShard(std::move(chunks), sharding);
-    if (!file.ok()) return file.status();
-    if (absl::Status st = WriteFile(mesh_dir / ShardFileName(shard, sharding), *file); !st.ok()) {
+    TANDEM_ASSIGN_OR_RETURN(std::string file, BuildShard(std::move(chunks), sharding));
+    if (absl::Status st = WriteFile(mesh_dir / ShardFileName(shard, sharding), file); !st.ok()) {
       return st;
     }
   }

@@ -10,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "tandem/io/neuroglancer.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::io {
 namespace {
@@ -151,9 +152,8 @@ absl::StatusOr<std::string> BuildShard(std::vector<ShardChunk> chunks,
   for (const auto& [minishard, i] : order) {
     ShardChunk& c = chunks[i];
     if (sharding.gzip_data) {
-      absl::StatusOr<std::string> z = GzipBytes(c.data);
-      if (!z.ok()) return z.status();
-      c.data = *std::move(z);
+      TANDEM_ASSIGN_OR_RETURN(std::string z, GzipBytes(c.data));
+      c.data = std::move(z);
     }
     body += c.prefix;
     by_minishard[minishard].push_back({c.id, body.size(), c.data.size()});
@@ -172,9 +172,8 @@ absl::StatusOr<std::string> BuildShard(std::vector<ShardChunk> chunks,
     for (const Entry& e : entries) PutU64(&raw, e.start - prev_end), prev_end = e.start + e.size;
     for (const Entry& e : entries) PutU64(&raw, e.size);
     if (sharding.gzip_minishard_index) {
-      absl::StatusOr<std::string> z = GzipBytes(raw);
-      if (!z.ok()) return z.status();
-      raw = *std::move(z);
+      TANDEM_ASSIGN_OR_RETURN(std::string z, GzipBytes(raw));
+      raw = std::move(z);
     }
     ranges[minishard] = {body.size(), body.size() + raw.size()};
     body += raw;

@@ -19,6 +19,7 @@
 #include "absl/strings/str_cat.h"
 #include "tandem/io/open_volume.h"
 #include "tandem/io/series.h"
+#include "tandem/status_macros.h"
 #include "tandem/volume.h"
 #include "tandem/io/zarr.h"
 #include "volume_io_internal.h"
@@ -45,13 +46,12 @@ absl::StatusOr<std::unique_ptr<SliceSource>> OpenVolume(const std::string& path,
   }
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec)) {
-    absl::StatusOr<std::vector<std::string>> files = ListSliceFiles(path);
-    if (!files.ok()) return files.status();
-    if (std::vector<std::string> tiffs = TiffNames(*files); !tiffs.empty()) {
+    TANDEM_ASSIGN_OR_RETURN(std::vector<std::string> files, ListSliceFiles(path));
+    if (std::vector<std::string> tiffs = TiffNames(files); !tiffs.empty()) {
       if (!opts.dicom_series.empty()) return not_dicom();
       return OpenTiffSequence(path, tiffs);
     }
-    return OpenDicomSeries(path, *files, opts);
+    return OpenDicomSeries(path, files, opts);
   }
   if (!opts.dicom_series.empty()) return not_dicom();
   const std::string ext = internal::VolumeExtension(path);

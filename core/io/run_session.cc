@@ -20,9 +20,8 @@ absl::StatusOr<std::unique_ptr<TandemSession>> RunSession(
     const std::function<absl::Status(SealedChunk)>& on_chunk, Executor* executor) {
   std::function<absl::Status(size_t, SealedChunk)> each;
   if (on_chunk) each = [&](size_t, SealedChunk c) { return on_chunk(std::move(c)); };
-  auto sessions = RunSessions(source, {options}, progress, each, executor);
-  if (!sessions.ok()) return sessions.status();
-  return std::move(sessions->front());
+  TANDEM_ASSIGN_OR_RETURN(auto sessions, RunSessions(source, {options}, progress, each, executor));
+  return std::move(sessions.front());
 }
 
 absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
@@ -37,9 +36,8 @@ absl::StatusOr<std::vector<std::unique_ptr<TandemSession>>> RunSessions(
     if (o.seal && on_chunk == nullptr) {
       return absl::InvalidArgumentError("RunSession: sealing needs somewhere to put the chunks");
     }
-    auto session = TandemSession::Create(info, o, executor);
-    if (!session.ok()) return session.status();
-    sessions.push_back(*std::move(session));
+    TANDEM_ASSIGN_OR_RETURN(auto session, TandemSession::Create(info, o, executor));
+    sessions.push_back(std::move(session));
   }
   // Sealed chunks, one a slice, kSlicesInFlight slices behind the last one added: those
   // steps have finished, so the slabs' steps in flight go on (TakeSealedThrough); the same

@@ -139,10 +139,9 @@ absl::Status StreamSlices(const std::string& path, const VolumeInfo& info, const
 }
 
 absl::Status WriteText(const std::string& path, const std::string& text) {
-  absl::StatusOr<std::unique_ptr<ByteWriter>> w = ByteWriter::Open(path, /*gzip=*/false);
-  if (!w.ok()) return w.status();
-  TANDEM_RETURN_IF_ERROR((*w)->Write(text.data(), text.size()));
-  return (*w)->Close();
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteWriter> w, ByteWriter::Open(path, /*gzip=*/false));
+  TANDEM_RETURN_IF_ERROR(w->Write(text.data(), text.size()));
+  return w->Close();
 }
 
 absl::Status WriteHeaderThenVoxels(const std::string& path, const std::string& header,
@@ -150,11 +149,10 @@ absl::Status WriteHeaderThenVoxels(const std::string& path, const std::string& h
                                    const SliceFn& slice_fn, const VolumeWriteOptions& opts) {
   TANDEM_RETURN_IF_ERROR(WriteText(path, header));
   // Attached: the data (a gzip member if compressed) is appended right after the header.
-  absl::StatusOr<std::unique_ptr<ByteWriter>> w =
-      ByteWriter::Open(data_path, opts.gzip, /*append=*/data_path == path);
-  if (!w.ok()) return w.status();
-  absl::Status st = StreamSlices(path, info, slice_fn, opts.big_endian, w->get());
-  if (st.ok()) st = (*w)->Close();
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ByteWriter> w,
+                          ByteWriter::Open(data_path, opts.gzip, /*append=*/data_path == path));
+  absl::Status st = StreamSlices(path, info, slice_fn, opts.big_endian, w.get());
+  if (st.ok()) st = w->Close();
   return st;
 }
 
@@ -190,15 +188,13 @@ absl::Status WriteVolume(const std::string& path, const VolumeInfo& info, const 
     return info.space == other ? InFrame(info, fixed) : info;
   };
   if (ext == ".nii" || ext == ".nii.gz") {
-    absl::StatusOr<VolumeInfo> ras = in(Space::kRAS, Space::kLPS);
-    if (!ras.ok()) return ras.status();
-    return internal::WriteNifti(path, *ras, slice_fn, opts);
+    TANDEM_ASSIGN_OR_RETURN(VolumeInfo ras, in(Space::kRAS, Space::kLPS));
+    return internal::WriteNifti(path, ras, slice_fn, opts);
   }
   if (ext == ".tif" || ext == ".tiff") return internal::WriteTiffVolume(path, info, slice_fn, opts);
   if (ext == ".mha" || ext == ".mhd") {
-    absl::StatusOr<VolumeInfo> lps = in(Space::kLPS, Space::kRAS);
-    if (!lps.ok()) return lps.status();
-    return internal::WriteMetaImage(path, *lps, slice_fn, opts);
+    TANDEM_ASSIGN_OR_RETURN(VolumeInfo lps, in(Space::kLPS, Space::kRAS));
+    return internal::WriteMetaImage(path, lps, slice_fn, opts);
   }
   if (ext == ".zarr") {
     ZarrWriteOptions zo;

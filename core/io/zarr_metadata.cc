@@ -285,12 +285,10 @@ absl::StatusOr<ArrayMeta> ParseV2Array(const std::string& dir, const std::string
   for (const char* key : {"shape", "chunks", "dtype"}) {
     if (!j.contains(key)) return MetaError(file, absl::StrCat("missing '", key, "'"));
   }
-  absl::StatusOr<std::vector<int64_t>> shape = IntList(file, j["shape"], "shape");
-  if (!shape.ok()) return shape.status();
-  absl::StatusOr<std::vector<int64_t>> chunks = IntList(file, j["chunks"], "chunks");
-  if (!chunks.ok()) return chunks.status();
-  m.shape = *std::move(shape);
-  m.chunks = *std::move(chunks);
+  TANDEM_ASSIGN_OR_RETURN(std::vector<int64_t> shape, IntList(file, j["shape"], "shape"));
+  TANDEM_ASSIGN_OR_RETURN(std::vector<int64_t> chunks, IntList(file, j["chunks"], "chunks"));
+  m.shape = std::move(shape);
+  m.chunks = std::move(chunks);
   TANDEM_RETURN_IF_ERROR(ParseV2DType(file, j["dtype"], &m));
   if (j.contains("order") && j["order"] != "C") {
     return MetaError(file, absl::StrCat("order ", j["order"].dump(),
@@ -325,11 +323,11 @@ absl::Status ParseSharding(const std::string& file, const json& cfg, ArrayMeta* 
   if (!cfg.contains("chunk_shape") || !cfg.contains("codecs")) {
     return MetaError(file, "sharding_indexed needs chunk_shape and codecs");
   }
-  absl::StatusOr<std::vector<int64_t>> inner = IntList(file, cfg["chunk_shape"], "chunk_shape");
-  if (!inner.ok()) return inner.status();
+  TANDEM_ASSIGN_OR_RETURN(std::vector<int64_t> inner,
+                          IntList(file, cfg["chunk_shape"], "chunk_shape"));
   m->sharded = true;
   m->shard = std::move(m->chunks);
-  m->chunks = *std::move(inner);
+  m->chunks = std::move(inner);
   TANDEM_RETURN_IF_ERROR(ParseV3Codecs(file, cfg["codecs"], m));
   const json loc = cfg.value("index_location", json("end"));
   if (loc != "end" && loc != "start") {
@@ -422,9 +420,8 @@ absl::StatusOr<ArrayMeta> ParseV3Array(const std::string& dir, const std::string
   for (const char* key : {"shape", "data_type", "chunk_grid", "codecs"}) {
     if (!j.contains(key)) return MetaError(file, absl::StrCat("missing '", key, "'"));
   }
-  absl::StatusOr<std::vector<int64_t>> shape = IntList(file, j["shape"], "shape");
-  if (!shape.ok()) return shape.status();
-  m.shape = *std::move(shape);
+  TANDEM_ASSIGN_OR_RETURN(std::vector<int64_t> shape, IntList(file, j["shape"], "shape"));
+  m.shape = std::move(shape);
   const json& grid = j["chunk_grid"];
   if (!grid.is_object() || grid.value("name", json()) != "regular" ||
       !grid.contains("configuration") || !grid["configuration"].is_object() ||
@@ -432,10 +429,9 @@ absl::StatusOr<ArrayMeta> ParseV3Array(const std::string& dir, const std::string
     return MetaError(file, absl::StrCat("unsupported chunk_grid ", grid.dump(),
                                         " (only \"regular\" with a chunk_shape)"));
   }
-  absl::StatusOr<std::vector<int64_t>> chunks =
-      IntList(file, grid["configuration"]["chunk_shape"], "chunk_shape");
-  if (!chunks.ok()) return chunks.status();
-  m.chunks = *std::move(chunks);
+  TANDEM_ASSIGN_OR_RETURN(std::vector<int64_t> chunks,
+                          IntList(file, grid["configuration"]["chunk_shape"], "chunk_shape"));
+  m.chunks = std::move(chunks);
   const json& dt = j["data_type"];
   const std::string dts = dt.is_string() ? dt.get<std::string>() : dt.dump();
   absl::StatusOr<DType> t = ParseDType(dts);
@@ -485,19 +481,17 @@ absl::StatusOr<Node> LoadNode(const std::string& dir) {
   const fs::path d(dir);
   if (FileExists(d / "zarr.json")) {
     const std::string file = (d / "zarr.json").string();
-    absl::StatusOr<json> j = ReadJsonFile(file);
-    if (!j.ok()) return j.status();
-    if (j->value("zarr_format", json()) != 3) return MetaError(file, "expected \"zarr_format\": 3");
-    const json type = j->value("node_type", json());
-    if (j->contains("attributes") && (*j)["attributes"].is_object()) {
-      node.attrs = (*j)["attributes"];
+    TANDEM_ASSIGN_OR_RETURN(json j, ReadJsonFile(file));
+    if (j.value("zarr_format", json()) != 3) return MetaError(file, "expected \"zarr_format\": 3");
+    const json type = j.value("node_type", json());
+    if (j.contains("attributes") && j["attributes"].is_object()) {
+      node.attrs = j["attributes"];
     }
     node.attrs_file = file;
     if (type == "array") {
-      absl::StatusOr<ArrayMeta> m = ParseV3Array(dir, file, *j);
-      if (!m.ok()) return m.status();
+      TANDEM_ASSIGN_OR_RETURN(ArrayMeta m, ParseV3Array(dir, file, j));
       node.is_array = true;
-      node.array = *std::move(m);
+      node.array = std::move(m);
       node.array.isovalues = SuggestedIsovalues(node.attrs);
     } else if (type != "group") {
       return MetaError(file, "node_type must be \"array\" or \"group\"");
@@ -514,18 +508,15 @@ absl::StatusOr<Node> LoadNode(const std::string& dir) {
   }
   if (FileExists(d / ".zattrs")) {
     node.attrs_file = (d / ".zattrs").string();
-    absl::StatusOr<json> a = ReadJsonFile(node.attrs_file);
-    if (!a.ok()) return a.status();
-    node.attrs = *std::move(a);
+    TANDEM_ASSIGN_OR_RETURN(json a, ReadJsonFile(node.attrs_file));
+    node.attrs = std::move(a);
   }
   if (array) {
     const std::string file = (d / ".zarray").string();
-    absl::StatusOr<json> j = ReadJsonFile(file);
-    if (!j.ok()) return j.status();
-    absl::StatusOr<ArrayMeta> m = ParseV2Array(dir, file, *j);
-    if (!m.ok()) return m.status();
+    TANDEM_ASSIGN_OR_RETURN(json j, ReadJsonFile(file));
+    TANDEM_ASSIGN_OR_RETURN(ArrayMeta m, ParseV2Array(dir, file, j));
     node.is_array = true;
-    node.array = *std::move(m);
+    node.array = std::move(m);
     node.array.isovalues = SuggestedIsovalues(node.attrs);
   }
   return node;

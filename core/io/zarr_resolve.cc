@@ -11,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "nlohmann/json.hpp"
 #include "zarr_metadata.h"
+#include "tandem/status_macros.h"
 
 namespace tandem::io::internal::zarr {
 namespace {
@@ -95,19 +96,18 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
 }  // namespace
 
 absl::StatusOr<Resolved> Resolve(const std::string& root, const std::string& selector) {
-  absl::StatusOr<Node> node = LoadNode(root);
-  if (!node.ok()) return node.status();
-  if (node->is_array) {
+  TANDEM_ASSIGN_OR_RETURN(Node node, LoadNode(root));
+  if (node.is_array) {
     if (!selector.empty()) {
       return absl::InvalidArgumentError(absl::StrCat(
           root, ": is a Zarr array, not a group: the selector '", selector, "' does not apply"));
     }
     Resolved r;
-    r.array = std::move(node->array);
+    r.array = std::move(node.array);
     r.what = absl::StrCat("Zarr v", r.array.version, " array");
     return r;
   }
-  const json* ms = Multiscales(node->attrs);
+  const json* ms = Multiscales(node.attrs);
   // A number is a level of the multiscale image (in a plain group, an array's name).
   if (selector.empty() || (AllDigits(selector) && ms != nullptr)) {
     if (ms == nullptr) {
@@ -117,24 +117,22 @@ absl::StatusOr<Resolved> Resolve(const std::string& root, const std::string& sel
                        "inside it as ",
                        root, "#PATH (tandem info/extract --zarr-array PATH)"));
     }
-    return ResolveMultiscale(root, *node, selector.empty() ? "0" : selector, "");
+    return ResolveMultiscale(root, node, selector.empty() ? "0" : selector, "");
   }
-  absl::StatusOr<std::string> inside = InsideStore(root, selector, "array path");
-  if (!inside.ok()) return inside.status();
-  const std::string sub = *inside;
-  absl::StatusOr<Node> inner = LoadNode(sub);
-  if (!inner.ok()) return inner.status();
-  if (!inner->is_array) return Resolve(sub, "");
+  TANDEM_ASSIGN_OR_RETURN(std::string inside, InsideStore(root, selector, "array path"));
+  const std::string sub = inside;
+  TANDEM_ASSIGN_OR_RETURN(Node inner, LoadNode(sub));
+  if (!inner.is_array) return Resolve(sub, "");
   // An array that is one of this group's levels keeps the level's scale and translation.
   if (ms != nullptr) {
     for (const json& ds : (*ms)[0].value("datasets", json::array())) {
       if (ds.is_object() && ds.value("path", json()) == selector) {
-        return ResolveMultiscale(root, *node, "", selector);
+        return ResolveMultiscale(root, node, "", selector);
       }
     }
   }
   Resolved r;
-  r.array = std::move(inner->array);
+  r.array = std::move(inner.array);
   r.what = absl::StrCat("Zarr v", r.array.version, " array '", selector, "'");
   return r;
 }
@@ -178,16 +176,15 @@ absl::StatusOr<Resolved> ResolveMultiscale(const std::string& root, const Node& 
   } else {
     path = path_sel;  // an array of the group that is not a level: no transforms
   }
-  absl::StatusOr<std::string> inside =
-      InsideStore(root, path, absl::StrCat(file, ": multiscales dataset path"));
-  if (!inside.ok()) return inside.status();
-  absl::StatusOr<Node> arr = LoadNode(*inside);
-  if (!arr.ok()) return arr.status();
-  if (!arr->is_array) {
+  TANDEM_ASSIGN_OR_RETURN(
+      std::string inside,
+      InsideStore(root, path, absl::StrCat(file, ": multiscales dataset path")));
+  TANDEM_ASSIGN_OR_RETURN(Node arr, LoadNode(inside));
+  if (!arr.is_array) {
     return absl::InvalidArgumentError(
         absl::StrCat(root, ": multiscale dataset '", path, "' is not an array"));
   }
-  r.array = std::move(arr->array);
+  r.array = std::move(arr.array);
   const size_t ndim = r.array.shape.size();
   if (m.contains("axes") && m["axes"].is_array()) {
     const json& axes = m["axes"];

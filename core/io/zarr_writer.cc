@@ -321,14 +321,13 @@ absl::Status WriteZarr(const std::string& path, const VolumeInfo& info, const Sl
   }
   ZarrWriteOptions o = opts;
   if (o.chunks[0] == 0) o.chunks[0] = info.nz;
-  absl::StatusOr<std::unique_ptr<ZarrAppender>> w = ZarrAppender::Create(path, info, o);
-  if (!w.ok()) return w.status();
+  TANDEM_ASSIGN_OR_RETURN(std::unique_ptr<ZarrAppender> w, ZarrAppender::Create(path, info, o));
   std::vector<uint8_t> slice;
   for (int64_t z = 0; z < info.nz; ++z) {
     TANDEM_RETURN_IF_ERROR(internal::FetchSlice(path, info, slice_fn, z, &slice));
-    TANDEM_RETURN_IF_ERROR((*w)->Append(slice.data()));
+    TANDEM_RETURN_IF_ERROR(w->Append(slice.data()));
   }
-  return (*w)->Finish();
+  return w->Finish();
 }
 
 }  // namespace tandem::io

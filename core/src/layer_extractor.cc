@@ -16,6 +16,7 @@
 #include "absl/strings/str_cat.h"
 #include "label_extractor.h"
 #include "mc_tables.h"
+#include "tandem/status_macros.h"
 #include "tandem/volume.h"
 
 namespace tandem {
@@ -219,7 +220,7 @@ VertexId LayerExtractor::StageVertex(const double idx[3], int seam_face) {
 
 absl::Status LayerExtractor::AddSlice(const float* values, std::vector<TriId>* new_tris,
                                       std::vector<VertexId>* new_verts) {
-  if (absl::Status st = ComputeLayer(values); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ComputeLayer(values));
   CommitLayer(new_tris, new_verts);
   return absl::OkStatus();
 }

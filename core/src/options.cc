@@ -6,6 +6,7 @@
 #include "absl/strings/cord.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "tandem/status_macros.h"
 
 namespace tandem {
 
@@ -152,7 +153,7 @@ absl::Status SessionOptions::Validate() const {
 }
 
 absl::Status SessionOptions::ValidateFor(const VolumeInfo& grid) const {
-  if (absl::Status st = Validate(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(Validate());
   if (labels.enabled && grid.dtype == DType::kFloat32) {
     return Refuse("labels.enabled", "true",
                   "a label volume needs integer voxels (uint8, uint16, int16, ...); this volume "

@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "grow.h"
+#include "simplifier_access.h"
 
 namespace tandem {
 namespace {
@@ -167,8 +168,8 @@ void Sealer::Seal(double front, Executor* executor) {
     const bool frozen =
         all || (simplifier_ == nullptr
                     ? store_->height(v) + 1.0 <= limit
-                    : store_->height(v) + simplifier_->rad(v) <= limit &&
-                          simplifier_->EdgesReachAtMost(v, limit));
+                    : store_->height(v) + SimplifierSealAccess::rad(*simplifier_, v) <= limit &&
+                          SimplifierSealAccess::EdgesReachAtMost(*simplifier_, v, limit));
     if (frozen && !all && NextToSeam(v)) {  // keeps the seam's fans free for the merge
       active_[keep++] = v;
     } else if (frozen) {
@@ -181,7 +182,7 @@ void Sealer::Seal(double front, Executor* executor) {
   if (freeze_.empty() && shared_.empty()) return;
   for (VertexId v : freeze_) {
     if (simplifier_ != nullptr) {
-      simplifier_->Freeze(v);
+      SimplifierSealAccess::Freeze(*simplifier_, v);
     } else {
       store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
     }
@@ -209,13 +210,15 @@ void Sealer::Seal(double front, Executor* executor) {
         }
         moving = sag_;
       }
-      sag_corrected_ += simplifier_->CorrectSagAt(moving, Normals(), sag_fraction_, executor);
+      sag_corrected_ += SimplifierSealAccess::CorrectSagAt(*simplifier_, moving, Normals(),
+                                                           sag_fraction_, executor);
       for (VertexId v : need_) {
         if (!(store_->box_mask(v) & kFrozen)) ReleaseNormal(v);  // found again next time
       }
     }
     for (VertexId v : freeze_) {
-      max_shape_error_ = std::max(max_shape_error_, simplifier_->MeasuredShapeErrorAt(v));
+      max_shape_error_ =
+          std::max(max_shape_error_, SimplifierSealAccess::MeasuredShapeErrorAt(*simplifier_, v));
     }
   }
   // 3. Seal the triangles whose last corner froze now, in increasing id. Their zero-area ones
@@ -231,8 +234,8 @@ void Sealer::Seal(double front, Executor* executor) {
     for (TriId t : tris_) {
       for (VertexId v : store_->triangle(t)) need_.push_back(v);
     }
-    const DegenerateCounts mended = simplifier_->TidyDegenerateAmong(
-        tris_, [this](VertexId v) { return id(v) == kNoGlobalId; });
+    const DegenerateCounts mended = SimplifierSealAccess::TidyDegenerateAmong(
+        *simplifier_, tris_, [this](VertexId v) { return id(v) == kNoGlobalId; });
     // A zero-area triangle that seals later, at a corner handed out now: mended now, while
     // that corner may still move (frozen, but without an id), the others staying where they
     // are and the topology too. Left for later, both its coincident corners could be handed
@@ -247,8 +250,8 @@ void Sealer::Seal(double front, Executor* executor) {
     }
     std::sort(later_.begin(), later_.end());
     later_.erase(std::unique(later_.begin(), later_.end()), later_.end());
-    simplifier_->TidyDegenerateAmong(
-        later_,
+    SimplifierSealAccess::TidyDegenerateAmong(
+        *simplifier_, later_,
         [this](VertexId v) { return id(v) == kNoGlobalId && (store_->box_mask(v) & kFrozen); },
         /*flips=*/false);
     if (mended.flipped > 0) {
@@ -284,7 +287,7 @@ void Sealer::Seal(double front, Executor* executor) {
   for (VertexId v : drop_) {
     if (store_->vertex_alive(v) && store_->vertex_triangles(v).empty()) {
       store_->RemoveVertex(v);
-      if (simplifier_ != nullptr) simplifier_->DropQuadric(v);
+      if (simplifier_ != nullptr) SimplifierSealAccess::DropQuadric(*simplifier_, v);
       ReleaseNormal(v);
       if (const Kept* k = kept_.Find(v)) {
         if (k->id != kNoGlobalId) pend_retired_.push_back(k->id);
@@ -314,7 +317,7 @@ void Sealer::FreezeShared(VertexId v, GlobalId id, double shape_error) {
   k.stamp = 0;
   if (simplifier_ != nullptr) {
     SetNormal(v, VertexNormal(*store_, v, &fan_));  // its side's fan
-    simplifier_->Freeze(v);
+    SimplifierSealAccess::Freeze(*simplifier_, v);
   } else {
     store_->set_box_mask(v, store_->box_mask(v) | kFrozen);
   }

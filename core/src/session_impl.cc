@@ -11,6 +11,8 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
+#include "simplifier_access.h"
+#include "tandem/status_macros.h"
 
 namespace tandem {
 namespace {
@@ -41,8 +43,8 @@ TandemSession::Finishing TandemSession::Impl::FinishProgress() const {
   f.seconds = Seconds(s.finish_start, now);
   int64_t done = 0, total = 0;
   for (const Simplifier* t : s.tracked) {
-    done += t->progress_done();
-    total += t->progress_total();
+    done += SimplifierProbe::progress_done(*t);
+    total += SimplifierProbe::progress_total(*t);
   }
   if (total > 0)
     f.share = std::clamp(static_cast<double>(done) / static_cast<double>(total), 0.0, 1.0);
@@ -51,8 +53,8 @@ TandemSession::Finishing TandemSession::Impl::FinishProgress() const {
 
 void TandemSession::Impl::BeginFinishStep(const char* step, std::vector<Simplifier*> simplifiers) {
   std::lock_guard<std::mutex> lock(finish_mu);
-  for (Simplifier* t : tracked) t->TrackProgress(false);
-  for (Simplifier* t : simplifiers) t->TrackProgress(true);
+  for (Simplifier* t : tracked) SimplifierProbe::TrackProgress(*t, false);
+  for (Simplifier* t : simplifiers) SimplifierProbe::TrackProgress(*t, true);
   tracked = std::move(simplifiers);
   finish_step = step;
   step_start = Clock::now();
@@ -126,7 +128,7 @@ absl::Status TandemSession::Impl::Sync() {
   if (queued) {
     steps->Wait();
     std::lock_guard<std::mutex> lock(mu);
-    if (absl::Status st = QueuedFailure(); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(QueuedFailure());
   }
   absl::Status st = PairSeams(slabs, &seams);
   FoldTraces();
@@ -236,7 +238,7 @@ absl::Status TandemSession::Impl::NonFiniteError(const float* values) const {
 
 absl::Status TandemSession::Impl::StepSlice(const float* values, DType dtype,
                                             const uint8_t* bytes) {
-  if (absl::Status st = CheckSliceIndex(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckSliceIndex());
   // A slice must be refused before any slab moves: with several, its values are checked
   // first; one slab's extractor checks them as it scans.
   if (values != nullptr && slabs.size() > 1 &&
@@ -257,7 +259,7 @@ absl::Status TandemSession::Impl::StepSlice(const float* values, DType dtype,
       return st;
     }
   }
-  if (absl::Status st = Sync(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(Sync());
   for (auto& s : slabs) CutSealed(*s);
   ++slices_added;
   return absl::OkStatus();
@@ -266,7 +268,7 @@ absl::Status TandemSession::Impl::StepSlice(const float* values, DType dtype,
 absl::Status TandemSession::Impl::Finish() {
   if (finished) return absl::FailedPreconditionError("session already finished");
   const auto start = Clock::now();  // queued steps may still be running: their time counts
-  if (absl::Status st = Sync(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(Sync());
   const int64_t done = slabs[0]->extractor.slices_done();
   if (done < 2) {
     return absl::FailedPreconditionError(
@@ -354,16 +356,16 @@ const SessionStats& TandemSession::Impl::Stats() {
     stats.triangles_extracted += s->triangles_extracted;
     stats.time.extract_s += s->time.extract_s;
     stats.time.simplify_s += s->time.simplify_s;
-    stats.refusals += s->simplifier.refusals();
-    stats.contractions += s->simplifier.contractions();
-    stats.evaluations += s->simplifier.evaluations();
-    stats.q_pushes += s->simplifier.q_pushes();
-    stats.w_pushes += s->simplifier.w_pushes();
-    stats.quadric_mismatches += s->simplifier.quadric_mismatches();
+    stats.refusals += SimplifierProbe::refusals(s->simplifier);
+    stats.contractions += SimplifierProbe::contractions(s->simplifier);
+    stats.evaluations += SimplifierProbe::evaluations(s->simplifier);
+    stats.q_pushes += SimplifierProbe::q_pushes(s->simplifier);
+    stats.w_pushes += SimplifierProbe::w_pushes(s->simplifier);
+    stats.quadric_mismatches += SimplifierProbe::quadric_mismatches(s->simplifier);
     stats.max_reach_over_front =
-        std::max(stats.max_reach_over_front, s->simplifier.max_reach_over_front());
+        std::max(stats.max_reach_over_front, SimplifierProbe::max_reach_over_front(s->simplifier));
     stats.max_layer_over_front =
-        std::max(stats.max_layer_over_front, s->simplifier.max_layer_over_front());
+        std::max(stats.max_layer_over_front, SimplifierProbe::max_layer_over_front(s->simplifier));
     if (s->sealer) {
       stats.sealed_triangles += s->sealer->sealed_triangles();
       stats.sealed_vertices += s->sealer->sealed_vertices();
@@ -395,7 +397,8 @@ TandemSession::Impl::SlabGauge TandemSession::Impl::Measure(const Slab& s) const
   // The queues at their fullest in the last step, not as its end left them: a budget checked
   // between slices would otherwise miss Q's peak (a cap's release, docs/decisions.md 8).
   // Plane caches as planned, like the slices.
-  const size_t queues = std::max(s.simplifier.MemoryBytes(), s.simplifier.StepPeakBytes());
+  const size_t queues =
+      std::max(s.simplifier.MemoryBytes(), SimplifierProbe::StepPeakBytes(s.simplifier));
   g.bytes += s.store.MemoryBytes() + queues + s.extractor.PlaneBytes(grid.dtype) +
              s.extractor.EdgeIdBytes() + s.extractor.StagingBytes();
   return g;

@@ -68,6 +68,9 @@ class Simplifier {
   // Puts every edge of the current mesh into Q, including those costing more than E0
   // (which Q otherwise drops), for a final pass past E0 down to a target triangle count.
   void RequeueAll();
+  // Queues every edge at the given vertices (once each), as DELAY does: the seam of merged
+  // slabs, whose edges waited for the merge (kSeam).
+  void PushEdgesAround(std::span<const VertexId> verts);
   // E0 as it is now (SimplifierOptions::error, or what RaiseError made it).
   double error() const { return opt_.error; }
   // Raises E0 to `e` (>= error()) between SIMPLIFY steps, for a target triangle count
@@ -86,20 +89,58 @@ class Simplifier {
     opt_.error = e;
   }
 
+  // Error(K) = max ε0 over live vertices, as MeasuredShapeError measures it (rounding noise
+  // is not error).
+  double MaxShapeError() const;
+  // Sag correction (sag_correction.h) of every live vertex with the current quadrics.
+  // Returns the number of vertices moved. Run it once, on the final mesh; with an executor,
+  // its normals and steps in ranges side by side (the same result).
+  int64_t CorrectSag(double fraction, Executor* executor = nullptr);
+  // Mends the zero-area triangles of the final mesh (degenerate.h): flips, and moves within
+  // the error bound (ε0 <= max(E0, ε0 now)).
+  DegenerateCounts TidyDegenerate();
+
+  size_t MemoryBytes() const;
+  // What AddTriangles adds for a new vertex id (its planes' matrix and stamp).
+  static size_t VertexBytes();
+  // Called where the simplifier's memory grows and where long work may stop: after each
+  // batch of edges is queued (DELAY, each chunk of a release, a rise) and every
+  // kCheckEvery edges SIMPLIFY pops. The owner reports to its budget there (meter.h); a
+  // SessionStop it throws leaves the simplifier fit only to be destroyed.
+  void set_checkpoint(std::function<void()> f) { checkpoint_ = std::move(f); }
+  // CPU seconds the work handed to an executor (the batch evaluations on `parallel`, the sag
+  // correction's ranges) took on other threads since the last call (the phase times count
+  // them with the calling thread's own).
+  double TakeHelperSeconds() {
+    const double s = helper_seconds_;
+    helper_seconds_ = 0;
+    return s;
+  }
+
+ private:
+  // Reached through simplifier_access.h only: the sealer's (SimplifierSealAccess), the slabs'
+  // merge and seam (SimplifierSeamAccess) and the counters a session reports
+  // (SimplifierProbe).
+  friend struct SimplifierSealAccess;
+  friend struct SimplifierSeamAccess;
+  friend struct SimplifierProbe;
+
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
   // quadric and radius (`shared`: dst is the seam vertex both parts held; the quadrics add).
-  // AdoptCounters adds the other part's contraction and refusal counts. PushEdgesAround
-  // queues every edge at the given vertices (once each), as DELAY does. With
-  // SimplifierOptions::rises, AdoptQueues then takes over the other part's queued and listed
-  // edges (map: its vertex ids to this store's), so that E0 can rise on past the merge
-  // without evaluating every edge of the merged mesh again (its W is empty after
-  // ACTIVATE(∞); no entry is at a seam vertex: those edges were pinned).
+  // AdoptCounters adds the other part's contraction and refusal counts; the schedule queues
+  // queues the seam's edges (PushEdgesAround). With SimplifierOptions::rises, AdoptQueues
+  // then takes over the other part's queued and listed edges (map: its vertex ids to this
+  // store's), so that E0 can rise on past the merge without evaluating every edge of the
+  // merged mesh again (its W is empty after ACTIVATE(∞); no entry is at a seam vertex: those
+  // edges were pinned).
   void AdoptVertex(const Simplifier& from, PartVertex src, VertexId dst, bool shared);
   void AdoptQueues(const Simplifier& from, const PartVertexMap& map);
   void AdoptCounters(const Simplifier& from);
-  void PushEdgesAround(std::span<const VertexId> verts);
 
+  // TidyDegenerate's inflation size (a tenth of E0, at most a twentieth of a slice), for the
+  // seam's mend.
+  double TidySize() const;
   // Seam coarsening (slabs.h, CoarsenSettlingSeam): the plane quadric of v (this side's
   // triangles), the distance guard's bound K·E0, and a contraction ab -> pos decided outside
   // (both slabs contract their copies of one seam edge to one point): a survives, as Simplify
@@ -122,32 +163,21 @@ class Simplifier {
   bool MayContract(VertexId a, VertexId b, Vec3 pos, double guard);
   void ContractAt(VertexId a, VertexId b, Vec3 pos, double eps0, bool onto_a);
 
-  // Error(K) = max ε0 over live vertices, as MeasuredShapeError measures it (rounding noise
-  // is not error).
-  double MaxShapeError() const;
-  // Sag correction (sag_correction.h) of every live vertex with the current quadrics.
-  // Returns the number of vertices moved. Run it once, on the final mesh; with an executor,
-  // its normals and steps in ranges side by side (the same result).
-  int64_t CorrectSag(double fraction, Executor* executor = nullptr);
-  // The same for the vertices `verts` only (sealing moves each vertex once, as it freezes):
-  // normal[v] must hold the unit normal of every vertex of their triangles (VertexNormals).
+  // Sealing (sealer.h). CorrectSag for the vertices `verts` only (sealing moves each vertex
+  // once, as it freezes): normal[v] must hold the unit normal of every vertex of their triangles
+  // (VertexNormals).
   int64_t CorrectSagAt(std::span<const VertexId> verts, VertexNormalTable normal,
                        double fraction, Executor* executor = nullptr);
-  // Mends the zero-area triangles of the final mesh (degenerate.h): flips, and moves within
-  // the error bound (ε0 <= max(E0, ε0 now)).
-  DegenerateCounts TidyDegenerate();
-  // The same among `tris` (a sealed chunk's, as it is sealed): frozen vertices may move too,
+  // TidyDegenerate among `tris` (a sealed chunk's, as it is sealed): frozen vertices may move too,
   // where `movable` (the sealer: not handed out yet) and the error bound allow. Without
   // `flips`, corners move only (tris the simplifier still works on).
   DegenerateCounts TidyDegenerateAmong(std::span<const TriId> tris,
                                        const std::function<bool(VertexId)>& movable,
                                        bool flips = true);
-  // TidyDegenerate's inflation size (a tenth of E0, at most a twentieth of a slice).
-  double TidySize() const;
   // Area-weighted unit vertex normals of `verts` from their current triangles, into normal[v].
   void VertexNormals(std::span<const VertexId> verts, std::span<Vec3> normal);
 
-  // Sealing (sealer.h): a frozen vertex (kFrozen) is never contracted, moved or queued again;
+  // A frozen vertex (kFrozen) is never contracted, moved or queued again;
   // entries already queued at it go stale.
   void Freeze(VertexId v);
   double rad(VertexId v) const { return store_->rad(v); }
@@ -155,8 +185,10 @@ class Simplifier {
   // (ReleaseKey), are <= limit: once the front has passed them, every edge at v has been
   // offered to Q. Stops at the first beyond, and skips the length where the rest is beyond.
   bool EdgesReachAtMost(VertexId v, double limit) const;
-  double ShapeErrorAt(VertexId v) const;  // ε0 of v at its current position
-  double MeasuredShapeErrorAt(VertexId v) const;  // the same for Error(K) (MeasuredShapeError)
+  // ε0 of v at its current position, as Error(K) measures it (MeasuredShapeError).
+  double MeasuredShapeErrorAt(VertexId v) const;
+
+  // The counters a session reports (SimplifierProbe).
   const RefusalCounts& refusals() const { return refusals_; }
   int64_t contractions() const { return contractions_; }
   // Edge evaluations (quadric solves) so far: what RaiseError's re-offers save is seen here.
@@ -173,28 +205,10 @@ class Simplifier {
   double max_reach_over_front() const { return max_reach_over_front_; }
   double max_layer_over_front() const { return max_layer_over_front_; }
   size_t queue_sizes() const { return q_.size() + w_.size(); }
-  size_t MemoryBytes() const;
-  // What AddTriangles adds for a new vertex id (its planes' matrix and stamp).
-  static size_t VertexBytes();
-  // Called where the simplifier's memory grows and where long work may stop: after each
-  // batch of edges is queued (DELAY, each chunk of a release, a rise) and every
-  // kCheckEvery edges SIMPLIFY pops. The owner reports to its budget there (meter.h); a
-  // SessionStop it throws leaves the simplifier fit only to be destroyed.
-  void set_checkpoint(std::function<void()> f) { checkpoint_ = std::move(f); }
-  static constexpr uint32_t kCheckEvery = 4096;  // a power of two
-  // CPU seconds the work handed to an executor (the batch evaluations on `parallel`, the sag
-  // correction's ranges) took on other threads since the last call (the phase times count
-  // them with the calling thread's own).
-  double TakeHelperSeconds() {
-    const double s = helper_seconds_;
-    helper_seconds_ = 0;
-    return s;
-  }
   // MemoryBytes as the last ACTIVATE left it (the largest over its
   // chunks): the fullest moment of a step, Q holding every edge it released, which SIMPLIFY
   // empties and Trim frees before the step ends.
   size_t StepPeakBytes() const { return step_peak_bytes_; }
-  size_t WaitingBytes() const { return w_.MemoryBytes(); }
   // How far the SIMPLIFY running now has come, for a status line read on another thread:
   // with tracking on, each SIMPLIFY counts its Q's nodes by key bucket as it starts (total)
   // and, every kCheckEvery pops, those in the buckets below the one it pops from (done): the
@@ -204,7 +218,9 @@ class Simplifier {
   int64_t progress_done() const { return progress_done_.load(std::memory_order_relaxed); }
   int64_t progress_total() const { return progress_total_.load(std::memory_order_relaxed); }
 
- private:
+  static constexpr uint32_t kCheckEvery = 4096;  // a power of two
+  // ε0 of v at its current position.
+  double ShapeErrorAt(VertexId v) const;
   struct Candidate {  // the evaluation of a contraction ab -> c
     Vec3 pos;
     double cost = 0;   // ε_α(c)

@@ -10,6 +10,7 @@
 #include <mutex>
 
 #include "session_impl.h"
+#include "tandem/status_macros.h"
 
 namespace tandem {
 namespace {
@@ -97,13 +98,13 @@ int64_t TandemSession::Impl::CutTriangles(int64_t through) const {
 
 absl::Status TandemSession::Impl::QueueSlice(const float* values, DType dtype,
                                              const uint8_t* bytes) {
-  if (absl::Status st = CheckSliceIndex(); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(CheckSliceIndex());
   const int64_t k = slices_added;
   const size_t n = static_cast<size_t>(grid.nx * grid.ny);
   MaybeSettleSeams();
   {
     std::lock_guard<std::mutex> lock(mu);
-    if (absl::Status st = QueuedFailure(); !st.ok()) return st;
+    TANDEM_RETURN_IF_ERROR(QueuedFailure());
   }
   RingSlot& slot = ring[static_cast<size_t>(ring_next)];
   steps->WaitUntil(

@@ -14,6 +14,7 @@
 #include "degenerate.h"
 #include "quadric.h"
 #include "schedule.h"
+#include "simplifier_access.h"
 
 namespace tandem {
 namespace {
@@ -75,8 +76,8 @@ class WeldedIds {
 
 // The welded seam vertex's quadric: both sides' planes, as the merge adds them.
 Quadric WeldedQuadric(const Slab& left, VertexId a, const Slab& right, VertexId b) {
-  Quadric h = left.simplifier.quadric(a);
-  h += right.simplifier.quadric(b);
+  Quadric h = SimplifierSeamAccess::quadric(left.simplifier, a);
+  h += SimplifierSeamAccess::quadric(right.simplifier, b);
   return h;
 }
 
@@ -106,7 +107,7 @@ void MendSettlingSeamSide(Slab& own, Slab& other,
     return own_is_left ? WeldedQuadric(own, v, other, w) : WeldedQuadric(other, w, own, v);
   };
   TidyDegenerateAmong(
-      &own.store, tris, own.simplifier.TidySize(),
+      &own.store, tris, SimplifierSeamAccess::TidySize(own.simplifier),
       [&](VertexId v, Vec3 p) {
         const auto it = partner.find(v);
         if (it == partner.end() || p.x != own.store.position(v).x) return false;
@@ -115,8 +116,8 @@ void MendSettlingSeamSide(Slab& own, Slab& other,
         const bool may = ShapeError(h, p) <= std::max(error, now) &&
                          MoveKeepsFacing(other.store, it->second, p, VertexFacing(own.store, v));
         if (may) {  // both copies move next: their quadrics in full first
-          own.simplifier.KeepQuadric(v);
-          other.simplifier.KeepQuadric(it->second);
+          SimplifierSeamAccess::KeepQuadric(own.simplifier, v);
+          SimplifierSeamAccess::KeepQuadric(other.simplifier, it->second);
         }
         return may;
       },
@@ -158,7 +159,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVerte
   if (partner.empty()) return 0;
   Slab* const slab[2] = {&left, &right};
   const double error = left.simplifier.error();
-  const double bound = left.simplifier.distance_bound();
+  const double bound = SimplifierSeamAccess::distance_bound(left.simplifier);
   // kSeamEdge: seam vertices a < b (left ids) to one point of the plane, in both slabs.
   // 0 or 1: b, a vertex of that slab only, onto seam vertex a (left id), which stays put.
   constexpr int kSeamEdge = -1;
@@ -196,7 +197,7 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVerte
       // Onto a seam vertex, which stays put (on the box or not).
       const MeshStore& store = slab[kind]->store;
       if (store.box_mask(b) & (kBoxFaces | kSeam | kFrozen)) return;
-      h += slab[kind]->simplifier.quadric(b);
+      h += SimplifierSeamAccess::quadric(slab[kind]->simplifier, b);
     }
     const double eps0 = ShapeError(h, pos);
     if (eps0 > error) return;
@@ -280,18 +281,18 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVerte
     // SIMPLIFY's checks and contraction, in each slab.
     if (e.kind == kSeamEdge) {
       const VertexId rb = partner.at(e.b);
-      if (!left.simplifier.MayContract(e.a, e.b, e.pos, bound) ||
-          !right.simplifier.MayContract(ra, rb, e.pos, bound)) {
+      if (!SimplifierSeamAccess::MayContract(left.simplifier, e.a, e.b, e.pos, bound) ||
+          !SimplifierSeamAccess::MayContract(right.simplifier, ra, rb, e.pos, bound)) {
         continue;
       }
-      left.simplifier.ContractAt(e.a, e.b, e.pos, e.cost, /*onto_a=*/false);
-      right.simplifier.ContractAt(ra, rb, e.pos, e.cost, /*onto_a=*/false);
+      SimplifierSeamAccess::ContractAt(left.simplifier, e.a, e.b, e.pos, e.cost, /*onto_a=*/false);
+      SimplifierSeamAccess::ContractAt(right.simplifier, ra, rb, e.pos, e.cost, /*onto_a=*/false);
       partner.erase(e.b);
     } else {
       Slab& s = *slab[e.kind];
       const VertexId as = e.kind == 0 ? e.a : ra;
-      if (!s.simplifier.MayContract(as, e.b, e.pos, bound)) continue;
-      s.simplifier.ContractAt(as, e.b, e.pos, e.cost, /*onto_a=*/true);
+      if (!SimplifierSeamAccess::MayContract(s.simplifier, as, e.b, e.pos, bound)) continue;
+      SimplifierSeamAccess::ContractAt(s.simplifier, as, e.b, e.pos, e.cost, /*onto_a=*/true);
     }
     ++stamp[0][e.a];
     ++stamp_of(e.kind, e.b);
@@ -460,7 +461,7 @@ void SettleSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* seams, 
       ++*seam_ids;
       // Both slabs computed the point from the same grid edge; one position, bit for bit.
       if (const Vec3 p = left.store.position(a); !(right.store.position(b) == p)) {
-        right.simplifier.KeepQuadric(b);
+        SimplifierSeamAccess::KeepQuadric(right.simplifier, b);
         right.store.set_position(b, p);
       }
       // Error(K) at the welded vertex: both sides' planes.
@@ -507,7 +508,8 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
       map[copy] = v;
       dst.store.set_box_mask(v, (dst.store.box_mask(v) | src.store.box_mask(right)) &
                                     static_cast<uint8_t>(~kSeam));
-      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, copy, v, /*shared=*/true);
+      if (simplify)
+        SimplifierSeamAccess::AdoptVertex(dst.simplifier, src.simplifier, copy, v, /*shared=*/true);
       seam_vertices.push_back(v);
     }
     for (VertexId v = 0; v < src.store.vertex_capacity(); ++v) {
@@ -515,7 +517,9 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
       if (!src.store.vertex_alive(v) || map[part] != kInvalid) continue;
       map[part] = dst.store.AddVertex(src.store.position(v), src.store.height(v),
                                       src.store.layer(v), src.store.box_mask(v));
-      if (simplify) dst.simplifier.AdoptVertex(src.simplifier, part, map[part], /*shared=*/false);
+      if (simplify)
+        SimplifierSeamAccess::AdoptVertex(dst.simplifier, src.simplifier, part, map[part],
+                                          /*shared=*/false);
     }
     for (TriId t = 0; t < src.store.triangle_capacity(); ++t) {
       if (!src.store.triangle_alive(t)) continue;
@@ -524,8 +528,8 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
                             map[PartVertex{tri[2]}]);
     }
     if (simplify) {
-      dst.simplifier.AdoptCounters(src.simplifier);
-      dst.simplifier.AdoptQueues(src.simplifier, map);
+      SimplifierSeamAccess::AdoptCounters(dst.simplifier, src.simplifier);
+      SimplifierSeamAccess::AdoptQueues(dst.simplifier, src.simplifier, map);
     }
     if (dst.sealer) dst.sealer->Absorb(*src.sealer, map, welded);
     merged->crossed_cubes += src.extractor.crossed_cubes();

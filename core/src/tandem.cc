@@ -11,6 +11,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "session_impl.h"
+#include "tandem/status_macros.h"
 
 namespace tandem {
 
@@ -40,8 +41,8 @@ absl::StatusOr<std::unique_ptr<TandemSession>> TandemSession::Create(
     const VolumeInfo& grid, const SessionOptions& options, Executor* executor,
     std::shared_ptr<MemoryBudget> budget) {
   VolumeInfo g = grid;
-  if (absl::Status st = ValidateVolumeInfo(g); !st.ok()) return st;
-  if (absl::Status st = options.ValidateFor(g); !st.ok()) return st;
+  TANDEM_RETURN_IF_ERROR(ValidateVolumeInfo(g));
+  TANDEM_RETURN_IF_ERROR(options.ValidateFor(g));
   try {
     if (executor == nullptr) executor = &Executor::Shared();
     const int slabs = SlabCount(g, options);

@@ -124,7 +124,8 @@ int Reference(const std::map<std::string, std::string>& f) {
   for (const LabelBox& box : labels::LabelBoxes(v)) {
     const tandem::IndexedMesh mesh = labels::ReferenceSurface(v, box);
     const auto path = dir / (std::to_string(box.id) + ".ply");
-    if (auto st = tandem::io::WriteMesh(path.string(), mesh); !st.ok()) Fail(std::string(st.message()));
+    if (auto st = tandem::io::WriteMesh(path.string(), mesh); !st.ok())
+      Fail(std::string(st.message()));
   }
   return 0;
 }

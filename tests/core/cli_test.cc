@@ -146,7 +146,8 @@ TEST_F(Cli, SeveralIsoValuesInOnePassEqualTheirSingleRuns) {
     }
   }
   // The two surfaces differ, and without --metrics each gets its own summary.
-  EXPECT_NE(io::ReadMesh(Path("both_0.ply"))->positions, io::ReadMesh(Path("both_0.05.ply"))->positions);
+  EXPECT_NE(io::ReadMesh(Path("both_0.ply"))->positions,
+            io::ReadMesh(Path("both_0.05.ply"))->positions);
   Output o = RunTandem(in + " --iso 0,0.05 --out " + Path("s_{iso}.obj"));
   ASSERT_EQ(o.code, 0) << o.text;
   EXPECT_NE(o.text.find("-> " + Path("s_0.obj")), std::string::npos) << o.text;
@@ -543,7 +544,8 @@ TEST_F(Cli, FrameFlagPutsNiftiAndDicomMeshesInOneFrame) {
   o = RunTandem("extract --input " + Path("dcm") + " --iso 500 --no-simplify --out " +
                 Path("full_lps.ply"));
   ASSERT_EQ(o.code, 0) << o.text;
-  const IndexedMesh fv = *io::ReadMesh(Path("full_vox.ply")), fl = *io::ReadMesh(Path("full_lps.ply"));
+  const IndexedMesh fv = *io::ReadMesh(Path("full_vox.ply")),
+                    fl = *io::ReadMesh(Path("full_lps.ply"));
   ASSERT_EQ(fv.num_vertices(), fl.num_vertices());
   EXPECT_EQ(fv.indices, fl.indices);
   double off_grid = 0;
@@ -648,7 +650,8 @@ TEST_F(Cli, SimulatedDescendingAcquisitionIsFollowedHeadToFeet) {
   EXPECT_EQ(a["vertices_final"], b["vertices_final"]);
   EXPECT_GT(a["triangles_final"].get<int64_t>(), 500);
   // In voxel frame the followed grid runs the other way: slice k is the finished one's 23 - k.
-  const IndexedMesh fm = *io::ReadMesh(Path("followed.ply")), gm = *io::ReadMesh(Path("finished.ply"));
+  const IndexedMesh fm = *io::ReadMesh(Path("followed.ply")),
+                    gm = *io::ReadMesh(Path("finished.ply"));
   double lo = 1e9, hi = -1e9, glo = 1e9, ghi = -1e9;
   for (const Vec3& p : fm.positions) lo = std::min(lo, p.z), hi = std::max(hi, p.z);
   for (const Vec3& p : gm.positions) glo = std::min(glo, p.z), ghi = std::max(ghi, p.z);

@@ -674,8 +674,9 @@ TEST_F(FollowDicom, ScoutsInTheFolderAreSetAsideAndTheStackFollowed) {
   EXPECT_EQ(live.source->next_slice(), v.info.nz);
   EXPECT_LT(live.written_at_first_read, v.info.nz);
   std::vector<std::string> notes;
-  auto finished = io::OpenVolume(
-      scanner.dir, io::OpenOptions{.note = [&](const std::string& line) { notes.push_back(line); }});
+  auto finished = io::OpenVolume(scanner.dir, io::OpenOptions{.note = [&](const std::string& line) {
+                                   notes.push_back(line);
+                                 }});
   ASSERT_TRUE(finished.ok()) << finished.status();
   ExpectSameMesh(MeshOf(**finished), live.mesh);
   for (const std::vector<std::string>* lines : {&live.notes, &std::as_const(notes)}) {

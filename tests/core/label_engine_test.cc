@@ -18,6 +18,7 @@
 #include "layer_extractor.h"
 #include "mesh_store.h"
 #include "simplifier.h"
+#include "simplifier_access.h"
 #include "tandem/labels.h"
 #include "tandem/tandem.h"
 
@@ -170,8 +171,8 @@ TEST(LabelEngine, DelayQueuesEachEdgeOfTheComplexOnce) {
   const auto junctions =
       std::count_if(edges.begin(), edges.end(), [](const auto& e) { return e.second >= 3; });
   EXPECT_GT(junctions, 100);
-  EXPECT_EQ(simplifier.w_pushes(), static_cast<int64_t>(edges.size()));
-  EXPECT_EQ(simplifier.q_pushes(), 0);
+  EXPECT_EQ(SimplifierProbe::w_pushes(simplifier), static_cast<int64_t>(edges.size()));
+  EXPECT_EQ(SimplifierProbe::q_pushes(simplifier), 0);
 }
 
 // A sliver (a, b, m), m on ab, and across ab (b, a, c): the flip mends it within one patch,

@@ -173,7 +173,8 @@ TEST(LabelMeshes, TheKhronosValidatorAcceptsTheGlb) {
 
 TEST(LabelMeshes, DistinctColoursWithoutATable) {
   std::set<std::array<uint8_t, 4>> seen;
-  for (size_t order = 0; order < 12; ++order) seen.insert(io::LabelColor(order + 1, order, nullptr));
+  for (size_t order = 0; order < 12; ++order)
+    seen.insert(io::LabelColor(order + 1, order, nullptr));
   EXPECT_EQ(seen.size(), 12u);
 }
 
@@ -199,7 +200,8 @@ TEST(LabelMeshes, FileNamesAreSanitisedAndCollisionsResolved) {
 
 TEST(LabelMeshes, OneGlbAloneAndAnEmptySet) {
   const std::string dir = testing::MakeTempDir();
-  ASSERT_TRUE(io::WriteLabelsGlb(dir + "/all.glb", TwoCubes(7, (LabelId{1} << 60) + 1), nullptr).ok());
+  ASSERT_TRUE(
+      io::WriteLabelsGlb(dir + "/all.glb", TwoCubes(7, (LabelId{1} << 60) + 1), nullptr).ok());
   const nlohmann::json j = GlbJson(dir + "/all.glb");
   EXPECT_EQ(j["nodes"][1]["name"], "1152921504606846977");  // 2^60 + 1, exactly
   ASSERT_TRUE(io::WriteLabelsGlb(dir + "/none.glb", {}, nullptr).ok());

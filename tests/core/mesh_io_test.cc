@@ -355,8 +355,8 @@ TEST_F(MeshIoTest, BinaryStlRoundTripWeldsTheCorners) {
   ExpectError(io::ReadMesh(Path("cut.stl")), Path("cut.stl"), absl::StatusCode::kDataLoss,
               "binary STL of 1200 triangles needs 60084 bytes");
   WriteFile(Path("ascii.stl"), "solid x\nfacet normal 0 0 1\nendsolid x\n");
-  ExpectError(io::ReadMesh(Path("ascii.stl")), Path("ascii.stl"), absl::StatusCode::kInvalidArgument,
-              "ASCII STL is not supported");
+  ExpectError(io::ReadMesh(Path("ascii.stl")), Path("ascii.stl"),
+              absl::StatusCode::kInvalidArgument, "ASCII STL is not supported");
 }
 
 // The GLB container and its accessors as glTF 2.0 lays them out (the Khronos validator

@@ -10,6 +10,7 @@
 #include "mesh_store.h"
 #include "sealer.h"
 #include "simplifier.h"
+#include "simplifier_access.h"
 #include "tandem/types.h"
 
 namespace tandem {
@@ -22,11 +23,11 @@ static_assert(!std::is_convertible_v<VertexId, GlobalId>);
 static_assert(!std::is_convertible_v<GlobalId, VertexId>);
 static_assert(!std::is_convertible_v<PartVertex, GlobalId>);
 // The merge and the sealer take them where ids of two stores meet.
-static_assert(!std::is_invocable_v<decltype(&Simplifier::AdoptVertex), Simplifier&,
+static_assert(!std::is_invocable_v<decltype(&SimplifierSeamAccess::AdoptVertex), Simplifier&,
                                    const Simplifier&, VertexId, VertexId, bool>);
-static_assert(std::is_invocable_v<decltype(&Simplifier::AdoptVertex), Simplifier&,
+static_assert(std::is_invocable_v<decltype(&SimplifierSeamAccess::AdoptVertex), Simplifier&,
                                   const Simplifier&, PartVertex, VertexId, bool>);
-static_assert(!std::is_invocable_v<decltype(&Simplifier::AdoptQueues), Simplifier&,
+static_assert(!std::is_invocable_v<decltype(&SimplifierSeamAccess::AdoptQueues), Simplifier&,
                                    const Simplifier&, std::span<const VertexId>>);
 static_assert(
     !std::is_invocable_v<decltype(&Sealer::FreezeShared), Sealer&, VertexId, uint32_t, double>);

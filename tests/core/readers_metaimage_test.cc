@@ -132,8 +132,8 @@ TEST(MetaImage, RoundTripsEveryTypeBothFormsAndByteOrders) {
   }
   io::VolumeWriteOptions gzip;
   gzip.gzip = true;
-  absl::Status gz =
-      io::WriteVolume(dir + "/c.mha", Grid(DType::kUInt8), PatternSlices(Grid(DType::kUInt8)), gzip);
+  absl::Status gz = io::WriteVolume(dir + "/c.mha", Grid(DType::kUInt8),
+                                    PatternSlices(Grid(DType::kUInt8)), gzip);
   EXPECT_TRUE(absl::StrContains(gz.message(), "MetaImage is written uncompressed")) << gz;
 }
 

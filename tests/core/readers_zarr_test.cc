@@ -128,12 +128,13 @@ TEST_P(ZarrRoundTrip, ReadsBackWhatTheWriterWrote) {
 
 INSTANTIATE_TEST_SUITE_P(
     AllCodecs, ZarrRoundTrip,
-    ::testing::Combine(
-        ::testing::Values(2, 3),
-        ::testing::Values(io::ZarrCompressor::kNone, io::ZarrCompressor::kGzip, io::ZarrCompressor::kZstd,
-                          io::ZarrCompressor::kBloscLz4, io::ZarrCompressor::kBloscZstd),
-        ::testing::Values(DType::kUInt8, DType::kUInt16, DType::kInt16, DType::kFloat32),
-        ::testing::Values(1, 7)),
+    ::testing::Combine(::testing::Values(2, 3),
+                       ::testing::Values(io::ZarrCompressor::kNone, io::ZarrCompressor::kGzip,
+                                         io::ZarrCompressor::kZstd, io::ZarrCompressor::kBloscLz4,
+                                         io::ZarrCompressor::kBloscZstd),
+                       ::testing::Values(DType::kUInt8, DType::kUInt16, DType::kInt16,
+                                         DType::kFloat32),
+                       ::testing::Values(1, 7)),
     [](const ::testing::TestParamInfo<RoundTripParam>& p) {
       return absl::StrCat("v", std::get<0>(p.param), "_", CodecName(std::get<1>(p.param)), "_",
                           std::string(DTypeName(std::get<2>(p.param))), "_z", std::get<3>(p.param));

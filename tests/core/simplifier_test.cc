@@ -15,6 +15,7 @@
 #include "engine_testutil.h"
 #include "mesh_store.h"
 #include "simplifier.h"
+#include "simplifier_access.h"
 #include "tandem/eval/distance.h"
 #include "tandem/io/open_volume.h"
 #include "tandem/task_group.h"
@@ -196,7 +197,7 @@ TEST(Simplifier, DelayQueuesEveryEdgeOfTheLayersOnce) {
       }
       EXPECT_EQ(faces, closed ? 0 : kBoxXMin | kBoxXMax | kBoxYMin | kBoxYMax | kBoxZMin | kBoxZMax);
       ASSERT_GT(edges.size(), 1000u);
-      EXPECT_EQ(simplifier.queue_sizes(), edges.size())
+      EXPECT_EQ(SimplifierProbe::queue_sizes(simplifier), edges.size())
           << (closed ? "sphere" : "box-cut gyroid")
           << (rule == ReleaseRule::kReach ? " reach" : " layer");
     }
@@ -288,10 +289,10 @@ TEST(Simplifier, MovesKeepTheirQuadricsInFull) {
       if (v % 5 == 0) some.push_back(v);
     }
     std::vector<Vec3> normal(store.vertex_capacity());
-    simplifier.VertexNormals(all, normal);
-    EXPECT_GT(simplifier.CorrectSagAt(some, normal, 1.0), 50);
-    for (VertexId v : all) simplifier.quadric(v);
-    EXPECT_EQ(simplifier.quadric_mismatches(), 0);
+    SimplifierSealAccess::VertexNormals(simplifier, all, normal);
+    EXPECT_GT(SimplifierSealAccess::CorrectSagAt(simplifier, some, normal, 1.0), 50);
+    for (VertexId v : all) SimplifierSeamAccess::quadric(simplifier, v);
+    EXPECT_EQ(SimplifierProbe::quadric_mismatches(simplifier), 0);
   }
   {
     // Two corners at one point (a vertex put onto a neighbour's place, kept in full first):
@@ -304,17 +305,20 @@ TEST(Simplifier, MovesKeepTheirQuadricsInFull) {
     while (!store.vertex_alive(v) || store.vertex_triangles(v).size() != 6) ++v;
     const auto& first = store.triangle(store.vertex_triangles(v)[0]);
     const VertexId u = first[0] != v ? first[0] : first[1];
-    simplifier.KeepQuadric(v);
+    SimplifierSeamAccess::KeepQuadric(simplifier, v);
     store.set_position(v, store.position(u));
     const Vec3 u_was = store.position(u);
     const std::vector<TriId> tris(store.vertex_triangles(v).begin(),
                                   store.vertex_triangles(v).end());
-    EXPECT_GT(simplifier.TidyDegenerateAmong(tris, [](VertexId) { return true; }, false).moved, 0);
+    EXPECT_GT(SimplifierSealAccess::TidyDegenerateAmong(
+                  simplifier, tris, [](VertexId) { return true; }, false)
+                  .moved,
+              0);
     EXPECT_NE(Norm(store.position(u) - u_was), 0.0);
     for (VertexId x = 0; x < store.vertex_capacity(); ++x) {
-      if (store.vertex_alive(x)) simplifier.quadric(x);
+      if (store.vertex_alive(x)) SimplifierSeamAccess::quadric(simplifier, x);
     }
-    EXPECT_EQ(simplifier.quadric_mismatches(), 0);
+    EXPECT_EQ(SimplifierProbe::quadric_mismatches(simplifier), 0);
   }
 }
 
@@ -371,9 +375,9 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
     Run r;
     for (int k = 0; k < 6; ++k) {
       lag.Step(src, k);
-      r.peak = std::max(r.peak, simplifier.StepPeakBytes());
+      r.peak = std::max(r.peak, SimplifierProbe::StepPeakBytes(simplifier));
       if (k == 3) {  // the cap's release: Q is empty after it, W holds its entries
-        r.waiting_after_cap = simplifier.queue_sizes();
+        r.waiting_after_cap = SimplifierProbe::queue_sizes(simplifier);
         r.edges_after_cap = 3 * store.num_triangles() / 2;
       }
     }
@@ -381,10 +385,10 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
     const size_t before = simplifier.MemoryBytes();
     simplifier.Activate(std::numeric_limits<double>::infinity());
     simplifier.Simplify();
-    r.last_step_growth = double(simplifier.StepPeakBytes()) / double(before);
+    r.last_step_growth = double(SimplifierProbe::StepPeakBytes(simplifier)) / double(before);
     r.mesh = store.Snapshot();
     r.error = simplifier.MaxShapeError();
-    r.refusals = simplifier.refusals().total();
+    r.refusals = SimplifierProbe::refusals(simplifier).total();
     return r;
   };
   const Run whole = run(std::numeric_limits<size_t>::max(), false);
@@ -446,7 +450,7 @@ TEST(Simplifier, AChunkedReleaseInTilesKeepsItsChunksCompact) {
     lag.simplifier.Activate(std::numeric_limits<double>::infinity());
     lag.simplifier.Simplify();
     Run r;
-    r.deferred = lag.simplifier.deferred_edges();
+    r.deferred = SimplifierProbe::deferred_edges(lag.simplifier);
     r.mesh = lag.store.Snapshot();
     r.error = lag.simplifier.MaxShapeError();
     return r;
@@ -729,11 +733,11 @@ TEST(Simplifier, ARiseOffersOnlyTheDroppedEdgesItBringsInReach) {
         simplifier.Simplify();
         if (k % 4 == 3) {  // E0 rises every few layers, as toward a target count
           e *= 1.3;
-          const int64_t before = simplifier.evaluations();
+          const int64_t before = SimplifierProbe::evaluations(simplifier);
           simplifier.RaiseError(e);
-          r.offer_evaluations += simplifier.evaluations() - before;
+          r.offer_evaluations += SimplifierProbe::evaluations(simplifier) - before;
           simplifier.Simplify();  // with the placements of what it pops (α = 0)
-          r.evaluations += simplifier.evaluations() - before;
+          r.evaluations += SimplifierProbe::evaluations(simplifier) - before;
         }
       });
       simplifier.Activate(std::numeric_limits<double>::infinity());
@@ -797,20 +801,22 @@ TEST(Simplifier, ARiseAtAFloorChecksNoLinkRefusalAgain) {
   int idle = 0;  // rises in a row that contracted nothing
   int64_t link_rechecks = 0;
   for (int rise = 0; rise < 40 && idle < 3; ++rise) {
-    const int64_t contractions = simplifier.contractions(), links = simplifier.refusals().link;
+    const int64_t contractions = SimplifierProbe::contractions(simplifier),
+                  links = SimplifierProbe::refusals(simplifier).link;
     e *= 2;
     simplifier.RaiseError(e);
     simplifier.Simplify();
-    if (simplifier.contractions() > contractions) {
+    if (SimplifierProbe::contractions(simplifier) > contractions) {
       idle = 0;
       continue;
     }
     // Nothing contracted, so no star changed since the rise before: any link check of this
     // rise re-checked a refusal that could only stand.
-    if (++idle > 1) link_rechecks += simplifier.refusals().link - links;
+    if (++idle > 1) link_rechecks += SimplifierProbe::refusals(simplifier).link - links;
   }
   ASSERT_EQ(idle, 3) << "no floor reached";
-  EXPECT_GT(simplifier.refusals().link, 125);  // the test's premise: links refused at the floor
+  EXPECT_GT(SimplifierProbe::refusals(simplifier).link,
+            125);  // the test's premise: links refused at the floor
   EXPECT_EQ(link_rechecks, 0);
   const eval::TopologyReport t = eval::AnalyzeTopology(store.Snapshot());
   EXPECT_EQ(t.components, 125u);
@@ -845,24 +851,29 @@ TEST(Simplifier, AMergedPartKeepsItsQueuesForTheNextRise) {
     if (!part_store.vertex_alive(v)) continue;
     map[PartVertex{v}] = store.AddVertex(part_store.position(v), part_store.height(v),
                                          part_store.layer(v), part_store.box_mask(v));
-    merged.AdoptVertex(part, PartVertex{v}, map[PartVertex{v}], /*shared=*/false);
+    SimplifierSeamAccess::AdoptVertex(merged, part, PartVertex{v}, map[PartVertex{v}],
+                                      /*shared=*/false);
   }
   for (TriId t = 0; t < part_store.triangle_capacity(); ++t) {
     if (!part_store.triangle_alive(t)) continue;
     const auto& tri = part_store.triangle(t);
     store.AddTriangle(map[PartVertex{tri[0]}], map[PartVertex{tri[1]}], map[PartVertex{tri[2]}]);
   }
-  merged.AdoptQueues(part, map);
-  EXPECT_GT(merged.queue_sizes(), 0u);
-  EXPECT_LE(merged.queue_sizes(), part.queue_sizes());  // less the stale entries
+  SimplifierSeamAccess::AdoptQueues(merged, part, map);
+  EXPECT_GT(SimplifierProbe::queue_sizes(merged), 0u);
+  EXPECT_LE(SimplifierProbe::queue_sizes(merged),
+            SimplifierProbe::queue_sizes(part));  // less the stale entries
 
   for (double e : {0.01, 0.03, 0.1}) {
-    const int64_t part_before = part.evaluations(), merged_before = merged.evaluations();
+    const int64_t part_before = SimplifierProbe::evaluations(part),
+                  merged_before = SimplifierProbe::evaluations(merged);
     part.RaiseError(e);
     part.Simplify();
     merged.RaiseError(e);
     merged.Simplify();
-    EXPECT_EQ(merged.evaluations() - merged_before, part.evaluations() - part_before) << e;
+    EXPECT_EQ(SimplifierProbe::evaluations(merged) - merged_before,
+              SimplifierProbe::evaluations(part) - part_before)
+        << e;
     // Equal keys may pop in another order (Q's entries were pushed anew), so the counts are
     // compared, not the meshes: without the queues the merged copy contracted nothing.
     EXPECT_NEAR(double(store.num_triangles()), double(part_store.num_triangles()),

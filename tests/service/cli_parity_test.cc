@@ -271,7 +271,8 @@ TEST(CliParity, TheFrameTravelsWithTheStreamedMesh) {
   }
   // The same place: the generated grid is at x 10..33, y -20..3 in LPS, so in RAS x is
   // negative and y positive.
-  absl::StatusOr<IndexedMesh> a = io::ReadMesh(dir + "/local.ply"), b = io::ReadMesh(dir + "/streamed.ply");
+  absl::StatusOr<IndexedMesh> a = io::ReadMesh(dir + "/local.ply"),
+                              b = io::ReadMesh(dir + "/streamed.ply");
   ASSERT_TRUE(a.ok() && b.ok());
   for (const IndexedMesh* m : {&*a, &*b}) {
     for (const Vec3& p : m->positions) {

@@ -677,12 +677,12 @@ TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
   const VolumeInfo& grid = two.grid;
   const std::vector<uint16_t>& voxels = two.voxels;
   const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
-  ASSERT_TRUE(io::WriteVolume(tmp + "/labels.nrrd", grid, [&](int64_t z, std::vector<uint8_t>* bytes) {
-                const auto* b =
-                    reinterpret_cast<const uint8_t*>(voxels.data() + z * grid.nx * grid.ny);
-                bytes->assign(b, b + grid.slice_bytes());
-                return absl::OkStatus();
-              }).ok());
+  ASSERT_TRUE(
+      io::WriteVolume(tmp + "/labels.nrrd", grid, [&](int64_t z, std::vector<uint8_t>* bytes) {
+        const auto* b = reinterpret_cast<const uint8_t*>(voxels.data() + z * grid.nx * grid.ny);
+        bytes->assign(b, b + grid.slice_bytes());
+        return absl::OkStatus();
+      }).ok());
   std::string out;
   ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/labels.nrrd --labels --error 0.3 --quiet" +
                       " --out " + tmp + "/cells/ --neuroglancer " + tmp + "/ng" +
