@@ -35,15 +35,16 @@ using Stream = grpc::ClientReaderWriter<v1::ExtractRequest, v1::ExtractResponse>
 class Collector {
  public:
   // `sealed`: the mesh is expected as sealed chunks (the messages decide in the end);
-  // `surfaces`: 1 + config.extra_isos, or 0 to learn them from the messages (a watcher).
-  // `labels`: a label session (config.labels), whose surfaces are its labels, as many as the
-  // session's own metrics say.
+  // `surfaces`: 1 + config.extra_isos, or 0 to learn them from the messages (a watcher, which
+  // also learns whether it is a label session). `labels`: a label session (config.labels),
+  // whose surfaces are its labels, as many as the session's own metrics say.
   Collector(const StreamCallbacks& callbacks, StreamResult* result, bool sealed, size_t surfaces,
             bool labels = false)
       : callbacks_(callbacks),
         result_(*result),
         state_(std::max<size_t>(surfaces, 1)),
         learn_surfaces_(surfaces == 0 || labels),
+        learn_labels_(surfaces == 0),
         labels_(labels) {
     result_.sealed_session = sealed;
     result_.labels = labels;
@@ -52,6 +53,10 @@ class Collector {
 
   void Handle(const v1::ExtractResponse& response, int64_t slices_sent) {
     StreamResult& result = result_;
+    if (learn_labels_ && !labels_ && Labeled(response)) {
+      labels_ = true;
+      result.labels = true;
+    }
     switch (response.kind_case()) {
       case v1::ExtractResponse::kProgress:
         if (callbacks_.on_progress) callbacks_.on_progress(response.progress(), slices_sent);
@@ -185,6 +190,23 @@ class Collector {
   }
 
  private:
+  // Whether a message says it is a label session's (a watcher learns it so).
+  static bool Labeled(const v1::ExtractResponse& r) {
+    switch (r.kind_case()) {
+      case v1::ExtractResponse::kProgress:
+        return r.progress().labels();
+      case v1::ExtractResponse::kPreview:
+        return r.preview().labels_size() > 0;
+      case v1::ExtractResponse::kSealedChunk:
+        return r.sealed_chunk().has_label();
+      case v1::ExtractResponse::kFinalMesh:
+        return r.final_mesh().has_label();
+      case v1::ExtractResponse::kFinalMetrics:
+        return r.final_metrics().has_label();
+      default:
+        return false;
+    }
+  }
   // A sealed label session: the chunks of each label, until its metrics give its place.
   std::map<uint64_t, SurfaceResult> label_chunks_;
   struct State {
@@ -231,7 +253,8 @@ class Collector {
   static constexpr int32_t kMaxSurfaces = 8;  // tandem.proto: SessionConfig.extra_isos
   std::vector<State> state_;  // per surface
   const bool learn_surfaces_;
-  const bool labels_;
+  const bool learn_labels_;
+  bool labels_;
   size_t learned_ = 0;  // labels: the surfaces begun so far
   bool have_session_metrics_ = false;
   int64_t& chunks_ = result_.chunks_received;  // all surfaces together
@@ -663,7 +686,7 @@ absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
     return absl::DataLossError(
         absl::StrCat("malformed reply from ", options.server, ": ", malformed));
   }
-  result.slices_sent = result.metrics.slices();
+  result.slices_sent = (result.labels ? result.session_metrics : result.metrics).slices();
   return result;
 }
 

@@ -43,11 +43,14 @@ absl::Status ExtractJob::BudgetError(size_t bytes, int64_t budget,
   constexpr double kMiB = 1 << 20;
   return absl::ResourceExhaustedError(absl::StrFormat(
       "session memory budget exceeded: this stream needs %.1f MiB %s (mesh, simplification "
-      "queues, slice buffers%s), over this server's per-session budget of %.1f MiB "
+      "queues, slice buffers%s%s), over this server's per-session budget of %.1f MiB "
       "(tandem-server --session-memory-mb). Use a larger E0, a target triangle count or a "
       "smaller grid%s%s, or ask the operator to raise --session-memory-mb",
       static_cast<double>(bytes) / kMiB, when,
       reference_ ? ", and the full-resolution reference of compute_distances" : "",
+      label_chunk_bytes_ > 0
+          ? ", and each label's sealed chunks, kept to measure its figures at End"
+          : "",
       static_cast<double>(budget) / kMiB, reference_ ? ", drop compute_distances" : "",
       // Without sealing the simplified mesh stays in the session: its memory grows with the
       // slices (none yet: the grid's own buffers, which sealing does not change).
@@ -60,7 +63,7 @@ absl::Status ExtractJob::BudgetError(size_t bytes, int64_t budget,
 size_t ExtractJob::OwnBytes() const {
   return slice_.capacity() + sent_ids_.capacity() * (sizeof(uint32_t) + 1) +
          sent_moved_.capacity() * (sizeof(uint32_t) + sizeof(Vec3) + 1) +
-         last_sent_.capacity() * sizeof(Vec3);
+         last_sent_.capacity() * sizeof(Vec3) + label_chunk_bytes_;
 }
 
 void ExtractJob::ReportOwnBytes() {

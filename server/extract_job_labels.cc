@@ -173,9 +173,12 @@ absl::Status ExtractJob::PostLabelChunks(const SealedChunk& part, IndexedMesh co
     sink_->PostChunk(std::move(out));
     c.positions = std::move(mesh.positions);
     c.indices = std::move(mesh.indices);
+    label_chunk_bytes_ += sizeof(SealedChunk) + c.positions.capacity() * sizeof(Vec3) +
+                          (c.indices.capacity() + c.ids.capacity()) * sizeof(uint32_t);
     label_chunks_[label].push_back(std::move(c));
   }
-  return absl::OkStatus();
+  ReportOwnBytes();
+  return CheckMemory(0, "after a sealed chunk");
 }
 
 void ExtractJob::AppendSealedLabelMetrics(std::vector<v1::ExtractResponse>* out) {
@@ -188,6 +191,7 @@ void ExtractJob::AppendSealedLabelMetrics(std::vector<v1::ExtractResponse>* out)
     metrics->set_surface(surface++);
   }
   label_chunks_.clear();
+  label_chunk_bytes_ = 0;
 }
 
 }  // namespace tandem::server

@@ -87,6 +87,13 @@ std::string PrometheusText(const ServiceState& s) {
   w.One("tandem_session_memory_limit_bytes", "gauge",
         "Per-session budget (--session-memory-mb) times --max-sessions.",
         s.limits.session_memory_bytes * s.limits.max_sessions);
+  w.One("tandem_watch_memory_bytes", "gauge",
+        "Sealed chunk bytes kept for watchers and resumes in the server's memory (those the "
+        "spill directory could not take).",
+        s.feeds.retention().memory_bytes.load());
+  w.One("tandem_watch_spilled_bytes", "gauge",
+        "Sealed chunk bytes kept for watchers and resumes in spill files (--watch-spill-dir).",
+        s.feeds.retention().spilled_bytes.load());
   w.One("tandem_worker_threads", "gauge", "Session worker threads alive.", s.worker_threads());
   return w.Take();
 }

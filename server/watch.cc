@@ -6,6 +6,7 @@
 #include "absl/strings/str_format.h"
 #include "tandem/common/tokens.h"
 #include "tandem/server/auth.h"
+#include "tandem/server/log.h"
 
 namespace tandem::server {
 
@@ -21,9 +22,64 @@ constexpr size_t kMaxInfoWatchKeys = 64;
 
 SessionFeed::~SessionFeed() {
   absl::MutexLock lock(&mu_);
+  for (const Kept& k : chunks_) ReleaseLocked(k);
+  for (const Kept& k : held_) ReleaseLocked(k);
   held_.clear();
   held_bytes_ = 0;
   AccountHeldLocked();
+}
+
+SessionFeed::Kept SessionFeed::KeepLocked(const v1::SealedChunk& c) {
+  Kept k;
+  k.bytes = static_cast<int64_t>(c.ByteSizeLong());
+  absl::Status failed;
+  if (spill_ == nullptr && !spill_failed_ && !retention_->spill_dir.empty()) {
+    absl::StatusOr<std::unique_ptr<SpillFile>> file = SpillFile::Create(retention_->spill_dir);
+    spill_failed_ = !file.ok();
+    if (file.ok()) spill_ = *std::move(file);
+    failed = file.status();
+  }
+  if (spill_ != nullptr) {
+    absl::StatusOr<int64_t> offset = spill_->Append(c.SerializeAsString());
+    if (offset.ok()) {
+      k.offset = *offset;
+      retention_->spilled_bytes += k.bytes;
+      return k;
+    }
+    failed = offset.status();
+  }
+  if (!failed.ok() && !retention_->spill_failure_logged.exchange(true)) {
+    const std::string error(failed.message());
+    LogEvent("watch_spill_failed", {{"session", LogField::Word{id_}},
+                                    {"error", LogField::Str{error}},
+                                    {"fallback", LogField::Word{"memory"}}});
+  }
+  k.chunk = c;
+  retention_->memory_bytes += k.bytes;
+  return k;
+}
+
+absl::Status SessionFeed::LoadLocked(const Kept& k, v1::SealedChunk* out) const {
+  if (k.offset < 0) {
+    *out = k.chunk;
+    return absl::OkStatus();
+  }
+  std::string bytes;
+  if (absl::Status st = spill_->Read(k.offset, k.bytes, &bytes); !st.ok()) return st;
+  if (!out->ParseFromString(bytes)) {
+    return absl::DataLossError(absl::StrCat("a chunk of session ", id_,
+                                            " read back from the watch spill file does not parse"));
+  }
+  return absl::OkStatus();
+}
+
+void SessionFeed::ReleaseLocked(const Kept& k) {
+  if (k.offset < 0) {
+    retention_->memory_bytes -= k.bytes;
+    return;
+  }
+  spill_->Release(k.offset, k.bytes);
+  retention_->spilled_bytes -= k.bytes;
 }
 
 bool SessionFeed::MayRead(std::string_view watch_key, int identity) const {
@@ -61,10 +117,10 @@ void SessionFeed::Preview(const v1::Preview& p) {
 void SessionFeed::Chunk(const v1::SealedChunk& c) {
   {
     absl::MutexLock lock(&mu_);
-    const int64_t bytes = static_cast<int64_t>(c.ByteSizeLong());
+    chunks_.push_back(KeepLocked(c));
+    const int64_t bytes = chunks_.back().bytes;
     chunk_bytes_ += bytes;
     if (chunk_bytes_ > retain_bytes_) overflowed_ = true;
-    chunks_.push_back(c);
     kept_bytes_ += bytes;
     bool watched = false;
     for (const auto& w : watchers_) watched |= !w.expired();
@@ -72,11 +128,13 @@ void SessionFeed::Chunk(const v1::SealedChunk& c) {
     // stream replays those its client missed; watchers' cursors index chunks_, and there
     // are none).
     while (overflowed_ && !watched && kept_bytes_ > retain_bytes_ && chunks_.size() > 1) {
-      const int64_t front = static_cast<int64_t>(chunks_.front().ByteSizeLong());
+      const int64_t front = chunks_.front().bytes;
       kept_bytes_ -= front;
       if (budget_ != nullptr && dropped_ >= acknowledged_) {  // the client may still need it
         held_.push_back(std::move(chunks_.front()));
         held_bytes_ += front;
+      } else {
+        ReleaseLocked(chunks_.front());
       }
       chunks_.pop_front();
       ++dropped_;
@@ -106,7 +164,8 @@ absl::Status SessionFeed::Acknowledge(int64_t count) {
   }
   acknowledged_ = std::max(acknowledged_, static_cast<size_t>(count));
   while (!held_.empty() && dropped_ - held_.size() < acknowledged_) {
-    held_bytes_ -= static_cast<int64_t>(held_.front().ByteSizeLong());
+    held_bytes_ -= held_.front().bytes;
+    ReleaseLocked(held_.front());
     held_.pop_front();
   }
   AccountHeldLocked();
@@ -147,10 +206,10 @@ absl::Status SessionFeed::ChunksFrom(size_t first, std::vector<v1::SealedChunk>*
         id_, first, kept_from, static_cast<int64_t>(end) - 1));
   }
   out->clear();
-  for (size_t i = first; i < dropped_; ++i) out->push_back(held_[i - kept_from]);
-  out->insert(out->end(),
-              chunks_.begin() + static_cast<std::ptrdiff_t>(std::max(first, dropped_) - dropped_),
-              chunks_.end());
+  for (size_t i = first; i < end; ++i) {
+    const Kept& k = i < dropped_ ? held_[i - kept_from] : chunks_[i - dropped_];
+    if (absl::Status st = LoadLocked(k, &out->emplace_back()); !st.ok()) return st;
+  }
   return absl::OkStatus();
 }
 
@@ -162,6 +221,7 @@ void SessionFeed::Finish(std::vector<v1::FinalMetrics> metrics, const grpc::Stat
     status_ = status;
     preview_.reset();  // everything is in the chunks now
     finished_at_ = absl::Now();
+    for (const Kept& k : held_) ReleaseLocked(k);
     held_.clear();  // no resume can follow
     held_bytes_ = 0;
     AccountHeldLocked();
@@ -193,13 +253,6 @@ grpc::Status SessionFeed::Attach(std::weak_ptr<FeedWatcher> watcher) {
                         absl::StrCat("session ", id_, " does not send sealed chunks "
                                      "(SessionConfig.sealed_chunks): it cannot be watched"));
   }
-  if (labels_) {
-    // A watcher would need each label's chunks kept apart and every label's figures at End.
-    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
-                        absl::StrCat("session ", id_,
-                                     " is a label session (SessionConfig.labels): "
-                                     "it cannot be watched; its own client writes the labels"));
-  }
   if (overflowed_) {
     return grpc::Status(
         grpc::StatusCode::RESOURCE_EXHAUSTED,
@@ -214,13 +267,18 @@ std::optional<Response> SessionFeed::Next(Cursor* cursor, std::optional<grpc::St
   absl::MutexLock lock(&mu_);
   Response r;
   if (cursor->next_chunk < chunks_.size()) {
-    *r.mutable_sealed_chunk() = chunks_[cursor->next_chunk++];
+    if (absl::Status st = LoadLocked(chunks_[cursor->next_chunk++], r.mutable_sealed_chunk());
+        !st.ok()) {
+      *done = grpc::Status(grpc::StatusCode::DATA_LOSS, std::string(st.message()));
+      return std::nullopt;
+    }
     return r;
   }
   if (progress_ && cursor->progress_seen != progress_version_) {
     cursor->progress_seen = progress_version_;
     *r.mutable_progress() = *progress_;
     r.mutable_progress()->set_session_id(id_);
+    r.mutable_progress()->set_labels(labels_);
     return r;
   }
   if (preview_ && cursor->preview_seen != preview_version_) {
@@ -264,7 +322,7 @@ std::shared_ptr<SessionFeed> FeedRegistry::Create(std::string watch_key, int own
   do {
     id = absl::StrFormat("%016x%016x", random(), random());
   } while (feeds_.count(id) > 0);
-  auto feed = std::make_shared<SessionFeed>(id, std::move(watch_key), owner, retain_bytes_);
+  auto feed = std::make_shared<SessionFeed>(id, std::move(watch_key), owner, retention_);
   feeds_[id] = feed;
   return feed;
 }

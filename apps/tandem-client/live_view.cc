@@ -191,6 +191,7 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
   viewer::ViewServer* view = server_.get();
   auto progress = callbacks->on_progress;
   callbacks->on_progress = [this, view, progress](const v1::Progress& p, int64_t sent) {
+    if (p.labels()) SetLabels(label_names_);  // a watcher learns it so
     if (!p.session_id().empty()) {
       session_id_ = p.session_id();
       view->SetSession(session_id_, description_, nz_);
@@ -216,7 +217,7 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
   };
   auto preview = callbacks->on_preview;
   callbacks->on_preview = [this, view, preview](const v1::Preview& p, int64_t sent) {
-    if (label_session_) {
+    if (label_session_ || p.labels_size() > 0) {
       ShowLabelPreview(p);
     } else {
       view->SetBand(p.surface(), p.draco(), p.triangles(), p.slice(), p.band_only());
@@ -226,7 +227,7 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
   auto chunk = callbacks->on_chunk;
   callbacks->on_chunk = [this, view, chunk](const v1::SealedChunk& c) {
     // A label's chunks say their label, not their surface (known at End only).
-    if (label_session_ && c.has_label()) {
+    if (c.has_label()) {
       view->AddChunk(c.draco(), c.triangles(), SurfaceOfLabel(c.label()));
       PublishLabels();
     } else {
@@ -238,7 +239,7 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
 
 void LiveView::Finish(const absl::StatusOr<StreamResult>& result) {
   if (!server_) return;
-  if (result.ok() && label_session_) {
+  if (result.ok() && (label_session_ || result->labels)) {
     // Each label's final mesh on its surface, and a row of figures per label.
     std::vector<eval::LabelMetrics> rows;
     for (size_t i = 0; i < result->num_labels(); ++i) {

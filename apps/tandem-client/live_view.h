@@ -51,6 +51,9 @@ class LiveView {
   // previews cut by label, and the final table has a row per label. `names` (or null) must
   // outlive the view.
   void SetLabels(const io::LabelNames* names);
+  // A watcher: the names of the labels, should the session turn out to be a label session
+  // (its messages say so: then as SetLabels).
+  void SetLabelNames(const io::LabelNames* names) { label_names_ = names; }
   // Following a scan of unknown depth: the slices on disk so far, the progress's measure.
   void SetOnDisk(const std::atomic<int64_t>* on_disk) { on_disk_ = on_disk; }
   // The source to stream from: `source`, watched for its end (a scan of unknown depth is

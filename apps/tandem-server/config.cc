@@ -13,6 +13,7 @@
 #include "absl/strings/str_format.h"
 #include "apps/common/flags.h"
 #include "apps/common/version.h"
+#include "tandem/server/chunk_spill.h"
 #include "tandem/server/log.h"
 
 namespace tandem::server_app {
@@ -117,6 +118,12 @@ int ParseServerFlags(int argc, char** argv, ServerConfig* config) {
               "per session: sealed chunks kept (compressed) for watchers that come late; a "
               "session past it takes no new watcher (chunks a tandem-client stream --chunks DIR "
               "has not saved yet are kept for its resume besides, in the session's budget)");
+  limits.watch_spill_dir = tandem::server::DefaultSpillDir();
+  flags.AddString("watch-spill-dir", &limits.watch_spill_dir, "DIR",
+                  "where a sealed session keeps the chunks for late watchers and resumes "
+                  "($TMPDIR, else /tmp, unless set; empty = in memory): an unlinked temporary "
+                  "file per session, so they take disk, not the server's memory; chunks the "
+                  "directory cannot take (unwritable, full) stay in memory, logged once");
   bounded.Real("watch-linger-seconds", &limits.watch_linger_s, 0, 86400,
                "how long a finished session stays watchable (tandem-client watch)");
   bounded.Real("resume-window-seconds", &limits.resume_window_s, 0, 86400,

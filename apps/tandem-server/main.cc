@@ -31,6 +31,7 @@
 #include "tandem/common/wire.h"
 #include "tandem/net/http_guard.h"
 #include "tandem/net/listen.h"
+#include "tandem/server/chunk_spill.h"
 #include "tandem/server/drain_stand_in.h"
 #include "tandem/server/log.h"
 #include "tandem/server/tandem_service.h"
@@ -192,6 +193,14 @@ int main(int argc, char** argv) {
     tandem::server::LogLine(
         absl::StrFormat("warning: bearer tokens without TLS travel in clear text; use "
                         "--tls-cert/--tls-key or a TLS-terminating proxy on a trusted network"));
+  }
+  if (!limits.watch_spill_dir.empty()) {
+    // Checked once here so that an operator reads it at start-up, not at the first sealed chunk.
+    if (auto spill = tandem::server::SpillFile::Create(limits.watch_spill_dir); !spill.ok()) {
+      tandem::server::LogLine(absl::StrCat("warning: ", spill.status().message(),
+                                           "; sealed chunks kept for watchers and resumes stay "
+                                           "in memory (--watch-spill-dir)"));
+    }
   }
 
   // The metrics endpoint: its own small HTTP server (cpp-httplib behind tandem/net/http_guard.h).

@@ -62,8 +62,9 @@ int ExtractCommand(int argc, char** argv) {
                "--neuroglancer: the finest octree node's edge in voxels; level k's nodes are "
                "2^k times larger (1..4096)");
   flags.AddDouble("neuroglancer-skirt", &neuroglancer_skirt,
-                  "--neuroglancer: depth in voxels of the strips that close the cuts where "
-                  "two levels meet (0: none)",
+                  "--neuroglancer: least depth in voxels of the strips that close the cuts "
+                  "where two levels meet, up to 4 times deeper where the levels' cuts lie "
+                  "further apart (0: none)",
                   false, "N");
   flags.SetDefaultText("neuroglancer-skirt", "1");
   flags.SetEpilog(

@@ -54,22 +54,27 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
         o.target_triangles = std::max<int64_t>(4, o.target_triangles >> k);
       all.push_back(o);
     }
-    // Sealed (--seal): the finest sweep's chunks, welded at the end into the same complex.
-    std::vector<SealedChunk> chunks;
+    // Sealed (--seal): each sweep's chunks, welded at the end into the same complex.
+    std::vector<std::vector<SealedChunk>> chunks(all.size());
     std::function<absl::Status(size_t, SealedChunk)> on_chunk;
     if (options.seal) {
-      on_chunk = [&chunks](size_t, SealedChunk c) {
-        chunks.push_back(std::move(c));
+      on_chunk = [&chunks](size_t k, SealedChunk c) {
+        chunks[k].push_back(std::move(c));
         return absl::OkStatus();
       };
     }
     TANDEM_ASSIGN_OR_RETURN(auto sessions, io::RunSessions(source, all, progress, on_chunk));
+    auto complex = [&](size_t k) {
+      LabeledMesh m = options.seal ? WeldLabeledChunks(chunks[k]) : sessions[k]->SnapshotLabeled();
+      std::vector<SealedChunk>().swap(chunks[k]);
+      return m;
+    };
     LabelRun run;
-    run.complex = options.seal ? WeldLabeledChunks(chunks) : sessions[0]->SnapshotLabeled();
+    run.complex = complex(0);
     run.session = std::move(sessions[0]);
     run.surfaces = SplitByLabel(run.complex, labels.background);
     for (size_t k = 1; k < sessions.size(); ++k) {
-      run.coarser.push_back(sessions[k]->SnapshotLabeled());
+      run.coarser.push_back(complex(k));
       sessions[k].reset();
     }
     return run;
@@ -99,12 +104,6 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   }
   absl::StatusOr<SessionOptions> options = f.Options(flags, info);
   if (!options.ok()) return Usage(options.status());
-  if (options->seal && !neuroglancer.dir.empty()) {
-    return Usage(absl::InvalidArgumentError(
-        "--seal does not go with --labels --neuroglancer (the export reads each level's whole "
-        "mesh from its session)"));
-  }
-
   cli::Progress progress("slices");
   absl::StatusOr<LabelRun> run = RunLabelSession(
       source, *options, *labels, neuroglancer.dir.empty() ? 0 : neuroglancer.lods - 1,

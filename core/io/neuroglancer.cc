@@ -252,6 +252,59 @@ class NodeBuilder {
 
 constexpr size_t kMaxCells = size_t{1} << 21;
 
+// Every level's cut edges on every cut plane, bucketed by the finest cells along the plane,
+// so that a strip can find how far another level's cut of its face lies.
+class CutCurves {
+ public:
+  void Add(int axis, int64_t plane, const Vec3& a, const Vec3& b, int lod, const double* origin,
+           const std::array<float, 3>& cell) {
+    const int u = (axis + 1) % 3, w = (axis + 2) % 3;
+    const int64_t u0 = Cell(std::min(a[u], b[u]), origin[u], cell[u]),
+                  u1 = Cell(std::max(a[u], b[u]), origin[u], cell[u]),
+                  w0 = Cell(std::min(a[w], b[w]), origin[w], cell[w]),
+                  w1 = Cell(std::max(a[w], b[w]), origin[w], cell[w]);
+    for (int64_t cu = u0; cu <= u1; ++cu) {
+      for (int64_t cw = w0; cw <= w1; ++cw) buckets_[{axis, plane, cu, cw}].push_back({a, b, lod});
+    }
+  }
+  // The distance from p along the unit direction `dir` (in the plane) to the nearest cut edge
+  // of a level other than `lod` on that plane, or `limit` if none is nearer.
+  double Reach(int axis, int64_t plane, const Vec3& p, const Vec3& dir, int lod, double limit,
+               const double* origin, const std::array<float, 3>& cell) const {
+    const int u = (axis + 1) % 3, w = (axis + 2) % 3;
+    double best = limit;
+    for (int64_t cu = Cell(p[u] - limit, origin[u], cell[u]);
+         cu <= Cell(p[u] + limit, origin[u], cell[u]); ++cu) {
+      for (int64_t cw = Cell(p[w] - limit, origin[w], cell[w]);
+           cw <= Cell(p[w] + limit, origin[w], cell[w]); ++cw) {
+        auto it = buckets_.find({axis, plane, cu, cw});
+        if (it == buckets_.end()) continue;
+        for (const Edge& e : it->second) {
+          if (e.lod == lod) continue;
+          // p + t dir = a + s (b - a), in the plane's two axes.
+          const double eu = e.b[u] - e.a[u], ew = e.b[w] - e.a[w];
+          const double ru = e.a[u] - p[u], rw = e.a[w] - p[w];
+          const double det = eu * dir[w] - dir[u] * ew;
+          if (det == 0) continue;
+          const double t = (eu * rw - ru * ew) / det, s = (dir[u] * rw - dir[w] * ru) / det;
+          if (t > 0 && s >= 0 && s <= 1) best = std::min(best, t);
+        }
+      }
+    }
+    return best;
+  }
+
+ private:
+  struct Edge {
+    Vec3 a, b;
+    int lod;
+  };
+  static int64_t Cell(double x, double origin, float cell) {
+    return static_cast<int64_t>(std::floor((x - origin) / cell));
+  }
+  std::map<std::tuple<int, int64_t, int64_t, int64_t>, std::vector<Edge>> buckets_;
+};
+
 }  // namespace
 
 Vec3 DequantizePosition(const NeuroglancerGrid& g, int lod, const std::array<uint32_t, 3>& node,
@@ -273,19 +326,22 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
   }
   TANDEM_RETURN_IF_ERROR(CheckSegment(segment, 0));
   const uint32_t top = (uint32_t{1} << bits) - 1, mid = uint32_t{1} << (bits - 1);
-  std::vector<std::vector<NeuroglancerNode>> out(segment.lods.size());
-  for (size_t k = 0; k < segment.lods.size(); ++k) {
+  const size_t levels = segment.lods.size();
+  std::vector<std::vector<NeuroglancerNode>> out(levels);
+  double origin[3];
+  for (int j = 0; j < 3; ++j) origin[j] = g.grid_origin[j];
+  // Level k is cut at its nodes' faces and, above 0, their middle planes: cells of half a
+  // node, which Neuroglancer's 2x2x2 partition never splits.
+  auto shift_of = [](int lod) { return lod > 0 ? lod - 1 : 0; };
+  std::vector<std::map<uint64_t, std::vector<Vec3>>> level_pieces(levels);  // cell -> corners
+  CutCurves curves;
+  for (size_t k = 0; k < levels; ++k) {
     const IndexedMesh& m = segment.lods[k];
     const int lod = static_cast<int>(k);
-    // Level k is cut at its nodes' faces and, above 0, their middle planes: cells of
-    // half a node, which Neuroglancer's 2x2x2 partition never splits.
-    const int shift = lod > 0 ? lod - 1 : 0;
-    double cell[3], origin[3];
-    for (int j = 0; j < 3; ++j) {
-      cell[j] = std::ldexp(double{g.chunk_shape[j]}, shift);
-      origin[j] = g.grid_origin[j];
-    }
-    std::map<uint64_t, std::vector<Vec3>> pieces;  // cell -> its triangles' corners
+    const int shift = shift_of(lod);
+    double cell[3];
+    for (int j = 0; j < 3; ++j) cell[j] = std::ldexp(double{g.chunk_shape[j]}, shift);
+    std::map<uint64_t, std::vector<Vec3>>& pieces = level_pieces[k];
     for (size_t t = 0; t + 2 < m.indices.size(); t += 3) {
       const Vec3 tri[3] = {m.positions[m.indices[t]], m.positions[m.indices[t + 1]],
                            m.positions[m.indices[t + 2]]};
@@ -321,6 +377,19 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
               const Vec3& f = poly.v[first];
               if (std::tie(p.x, p.y, p.z) < std::tie(f.x, f.y, f.z)) first = i;
             }
+            if (skirt > 0 && levels > 1) {
+              for (int i = 0; i < poly.n; ++i) {
+                const Vec3 &a = poly.v[i], &b = poly.v[(i + 1) % poly.n];
+                for (int j = 0; j < 3; ++j) {
+                  for (int side = 0; side < 2; ++side) {
+                    const double plane = origin[j] + cell[j] * double(c[j] + side);
+                    if (a[j] == plane && b[j] == plane) {
+                      curves.Add(j, (c[j] + side) << shift, a, b, lod, origin, g.chunk_shape);
+                    }
+                  }
+                }
+              }
+            }
             std::vector<Vec3>& piece = pieces[CellKey(c)];
             for (int i = 1; i + 1 < poly.n; ++i) {
               piece.push_back(poly.v[first]);
@@ -331,6 +400,14 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         }
       }
     }
+  }
+  // Where two levels' cuts of a face are further apart than the strip, it reaches the other
+  // level's cut (and half a strip beyond), up to 4 strips deep (the third level's error).
+  const double deepest = std::ldexp(skirt, static_cast<int>(std::min<size_t>(levels, 3)) - 1);
+  for (size_t k = 0; k < levels; ++k) {
+    const int lod = static_cast<int>(k);
+    const int shift = shift_of(lod);
+    std::map<uint64_t, std::vector<Vec3>>& pieces = level_pieces[k];
     // Cells into nodes (z-order of the node, then of the octant).
     std::map<uint64_t, std::vector<uint64_t>> nodes;  // Morton(node) -> cells
     for (const auto& [key, piece] : pieces) {
@@ -424,24 +501,81 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
             }
           }
         }
-        std::map<std::pair<uint32_t, int>, uint32_t> lower;  // the strip's far corners
-        for (auto& [key2, d] : dir) {
-          const double len = std::sqrt(Dot(d, d));
-          const Vec3 p = real(f.positions[key2.first]);
-          const Vec3 far = len > 0 ? p + d * (skirt / len) : p;
-          std::array<uint32_t, 3> q = quantize(far);
-          const int j = key2.second / 2;
-          q[j] = f.positions[key2.first][j];  // stays in the face
-          // A strip wholly on `mid` would go to the low octant: a high one tilts it a step.
+        // A strip wholly on `mid` would go to the low octant: a high one tilts it a step.
+        auto off_mid = [&](std::array<uint32_t, 3> q) {
           for (int i = 0; i < 3; ++i) {
             if (lod > 0 && (c[i] & 1) && q[i] == mid) q[i] = mid + 1;
           }
-          lower[key2] = node.Fresh(q);
+          return q;
+        };
+        std::map<std::pair<uint32_t, int>, uint32_t> lower;  // the strip's far corners
+        // Where a cut curve reaches a cell edge (its face meets another cut face there), the
+        // strip must reach down that edge, or the strips of the two faces leave a notch
+        // between them: a far corner that would leave the cell slides down the edge instead of
+        // being clamped short, and one tilted away from the edge gets a wedge back to it.
+        std::map<std::pair<uint32_t, int>, uint32_t> wedge;  // the corner down the edge
+        for (auto& [key2, d] : dir) {
+          const double len = std::sqrt(Dot(d, d));
+          const std::array<uint32_t, 3>& at = f.positions[key2.first];
+          const Vec3 p = real(at);
+          const int j = key2.second / 2;
+          const int64_t plane = (int64_t{c[j]} + key2.second % 2) << shift;
+          auto depth_toward = [&](const Vec3& unit) {
+            if (levels < 2) return skirt;
+            const double reach =
+                curves.Reach(j, plane, p, unit, lod, deepest, origin, g.chunk_shape);
+            return reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt;
+          };
+          const double depth = len > 0 ? depth_toward(d * (1 / len)) : skirt;
+          const Vec3 far = len > 0 ? p + d * (depth / len) : p;
+          std::array<uint32_t, 3> q = quantize(far);
+          q[j] = at[j];  // stays in the face
+          int other = -1, faces = 0;
+          for (int i = 0; i < 3; ++i) {
+            if (i != j && (at[i] == qlo[i] || at[i] == qhi[i])) other = i, ++faces;
+          }
+          const int along = 3 - j - other;
+          if (faces == 1 && d[along] != 0) {
+            Vec3 unit{0, 0, 0};
+            unit[along] = d[along] > 0 ? 1 : -1;
+            const Vec3 down = p + unit * depth_toward(unit);
+            std::array<uint32_t, 3> e = quantize(down);
+            e[j] = at[j];
+            e[other] = at[other];
+            const double edge_corner = origin[other] + size[other] * position[other];
+            const double x = (far[other] - edge_corner) / size[other] * top;
+            if (x < qlo[other] - 0.5 || x > qhi[other] + 0.5) {
+              q = e;  // it would leave the cell: down the edge at full depth
+            } else if (off_mid(e) != off_mid(q)) {
+              wedge[key2] = node.Fresh(off_mid(e));
+            }
+          }
+          lower[key2] = node.Fresh(off_mid(q));
         }
+        // The wedge is turned like the strip beside it (in the face, normal along its axis).
+        auto turn = [&](uint32_t a, uint32_t b, uint32_t c3, int j) {
+          auto v = [&](uint32_t i, int k) { return static_cast<double>(f.positions[i][k]); };
+          const int u = (j + 1) % 3, w = (j + 2) % 3;
+          return (v(b, u) - v(a, u)) * (v(c3, w) - v(a, w)) -
+                 (v(b, w) - v(a, w)) * (v(c3, u) - v(a, u));
+        };
+        std::map<std::pair<uint32_t, int>, double> wedge_turn;
         for (const Hang& h : hangs) {
           const uint32_t la = lower[{h.a, h.face}], lb = lower[{h.b, h.face}];
           node.Triangle(h.b, h.a, la);
           node.Triangle(h.b, la, lb);
+          const double t = turn(h.b, h.a, la, h.face / 2);
+          if (t != 0) wedge_turn.try_emplace({h.a, h.face}, t);
+          if (t != 0) wedge_turn.try_emplace({h.b, h.face}, t);
+        }
+        for (const auto& [key2, e] : wedge) {
+          const uint32_t v = key2.first, la = lower[key2];
+          const double t = wedge_turn.contains(key2) ? wedge_turn[key2] : 0;
+          if (t * turn(v, la, e, key2.second / 2) >= 0) {
+            node.Triangle(v, la, e);
+          } else {
+            node.Triangle(v, e, la);
+          }
         }
       }
       // Slivers that quantization collapsed leave nothing to draw.

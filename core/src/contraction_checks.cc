@@ -332,11 +332,25 @@ bool LabelLinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkScra
   return true;
 }
 
+namespace {
+
+// Whether every edge of the triangle (p with its corner at `from`, as it was) is shorter than
+// the move from `from` to `pos`.
+bool SmallerThanTheMove(const Vec3 (&p)[3], int corner, Vec3 from, Vec3 pos) {
+  Vec3 q[3] = {p[0], p[1], p[2]};
+  q[corner] = from;
+  const Vec3 move = pos - from, e0 = q[1] - q[0], e1 = q[2] - q[1], e2 = q[0] - q[2];
+  return std::max({Dot(e0, e0), Dot(e1, e1), Dot(e2, e2)}) < Dot(move, move);
+}
+
+}  // namespace
+
 bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
                 const OffsetEdges& offsets, std::vector<Survivor>* survivors,
                 RefusalCounts* refusals) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
-  // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|.
+  // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|
+  // (for a triangle smaller than the move, or how far its old corner lies from its new plane).
   // Which triangles are on ab (removed) varies from call to call: branching on it was
   // mispredicted. The survivors are gathered first (written always, kept by a count); a
   // refusal is rare and may branch, so whether the survivor was degenerate already (exact iso
@@ -361,15 +375,25 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     const Vec3 n_old = TwiceAreaVector(p[0], p[1], p[2]);
     const double old2 = Dot(n_old, n_old);
     const double off = Dot(n_old, pos - p[0]);
-    const bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
+    bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
     const int corner = CornerOf(tri, v);
     p[corner] = pos;
     const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
     if (far | move.collapses | move.flips) {
+      const Vec3 from = store.position(v);  // as it was (a refusal is rare: read again)
+      if (far && SmallerThanTheMove(p, corner, from, pos)) {
+        // Its extended plane follows the curvature, not the surface a move this long crosses:
+        // it refuses only if the old corner also lies farther than the bound from the plane
+        // the contraction gives it.
+        const Vec3 n_new = TwiceAreaVector(p[0], p[1], p[2]);
+        const double h = Dot(n_new, from - pos);
+        far = h * h > bound * bound * Dot(n_new, n_new);
+        if (!(far | move.collapses | move.flips)) continue;
+      }
       // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
       // point) has no orientation or plane to keep: the contraction is not refused for it
       // (exempting only an exactly zero area left zero-area triangles on integer scans).
-      p[corner] = store.position(v);  // as it was (a refusal is rare: read again)
+      p[corner] = from;
       if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
       // One with an offset edge stands for such a triangle: it may turn over or leave its
       // plane (else every grid point on the iso-value holds back the contractions around

@@ -76,8 +76,39 @@ bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out, int
   return false;
 }
 
-LabelLayers::LabelLayers(int64_t nx, int64_t ny, int64_t nz, const LabelOptions& labels)
-    : nx_(nx), ny_(ny), nz_(nz), labels_(labels) {}
+namespace {
+absl::Status NoLabelError(int64_t i, int64_t j, int64_t k, int64_t v) {
+  return absl::InvalidArgumentError(absl::StrCat("voxel (", i, ", ", j, ", ", k,
+                                                 ") of the label volume is ", v,
+                                                 ": labels must be whole numbers >= 0"));
+}
+}  // namespace
+
+absl::Status CheckLabelSlice(SliceValues slice, int64_t nx, int64_t ny, int64_t stride, int64_t k) {
+  const DType t = slice.dtype;
+  if (t != DType::kInt8 && t != DType::kInt16 && t != DType::kInt32 && t != DType::kInt64) {
+    return absl::OkStatus();  // every unsigned value is a label (float32: refused before)
+  }
+  for (int64_t j = 0; j < ny; ++j) {
+    for (int64_t i = 0; i < nx; ++i) {
+      LabelId l = 0;
+      int64_t v = 0;
+      if (!LabelOfVoxel(t, slice.bytes, static_cast<size_t>(j * stride + i), &l, &v)) {
+        return NoLabelError(i, j, k, v);
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
+LabelLayers::LabelLayers(const ExtractorConfig& config)
+    : nx_(config.nx),
+      ny_(config.ny),
+      nz_(config.nz),
+      x_offset_(config.x_offset),
+      row_stride_(config.row_stride > 0 ? config.row_stride : config.nx),
+      seam_faces_(config.seam_faces),
+      labels_(config.labels) {}
 
 LabelId LabelLayers::Filter(LabelId l) const {
   const auto& only = labels_.only;
@@ -93,10 +124,9 @@ void LabelLayers::ReadSlice(SliceValues slice, std::vector<LabelId>* plane, int6
     for (int64_t i = 0; i < nx_; ++i) {
       LabelId raw = 0;
       int64_t v = 0;
-      if (!LabelOfVoxel(slice.dtype, slice.bytes, static_cast<size_t>(j * nx_ + i), &raw, &v)) {
-        *status = absl::InvalidArgumentError(absl::StrCat("voxel (", i, ", ", j, ", ", k,
-                                                          ") of the label volume is ", v,
-                                                          ": labels must be whole numbers >= 0"));
+      if (!LabelOfVoxel(slice.dtype, slice.bytes, static_cast<size_t>(j * row_stride_ + i), &raw,
+                        &v)) {
+        *status = NoLabelError(i + x_offset_, j, k, v);
         return;
       }
       if (raw != last_raw) {
@@ -156,12 +186,15 @@ bool LabelLayers::ComputeClosing(LayerExtractor* ex) {
 }
 
 void LabelLayers::EmitLayer(int64_t zb, LayerExtractor* ex) {
-  // Open, the cubes of the grid; closed, those of the grid padded with background.
+  // Open, the cubes of the grid; closed, those of the grid padded with background. A part's
+  // seam is no side of the box: the padding beyond it is its neighbour's columns.
   const int64_t lo = labels_.close ? -1 : 0;
-  const int64_t hi_x = labels_.close ? nx_ - 1 : nx_ - 2, hi_y = labels_.close ? ny_ - 1 : ny_ - 2;
+  const int64_t lo_x = (seam_faces_ & kBoxXMin) ? 0 : lo;
+  const int64_t hi_x = labels_.close && !(seam_faces_ & kBoxXMax) ? nx_ - 1 : nx_ - 2;
+  const int64_t hi_y = labels_.close ? ny_ - 1 : ny_ - 2;
   const size_t dx = 1, dy = static_cast<size_t>(nx_ + 2);
   for (int64_t j = lo; j <= hi_y; ++j) {
-    for (int64_t i = lo; i <= hi_x; ++i) {
+    for (int64_t i = lo_x; i <= hi_x; ++i) {
       const size_t at = Index(i, j);
       const LabelId l[8] = {bottom_[at], bottom_[at + dx], bottom_[at + dy], bottom_[at + dx + dy],
                             top_[at],    top_[at + dx],    top_[at + dy],    top_[at + dx + dy]};
@@ -276,26 +309,44 @@ VertexId LabelLayers::Vertex(const Point& p, LayerExtractor* ex) {
   const auto [it, added] = map.try_emplace(key, kInvalid);
   if (!added) return it->second;
   const int64_t z = oz_ + dz;
-  uint8_t mask = 0;
+  // On a seam face (0: x = 0, 1: x = nx - 1), shared with the neighbouring part.
+  const int seam = x == 0 && (seam_faces_ & kBoxXMin)                   ? 0
+                   : x == kUnit * (nx_ - 1) && (seam_faces_ & kBoxXMax) ? 1
+                                                                        : -1;
+  uint8_t mask = seam >= 0 ? kSeam : 0;
   if (!labels_.close) {  // open: a point on the grid's box keeps to its faces
-    if (x == 0) mask |= kBoxXMin;
-    if (x == kUnit * (nx_ - 1)) mask |= kBoxXMax;
+    if (x == 0 && seam < 0) mask |= kBoxXMin;
+    if (x == kUnit * (nx_ - 1) && seam < 0) mask |= kBoxXMax;
     if (y == 0) mask |= kBoxYMin;
     if (y == kUnit * (ny_ - 1)) mask |= kBoxYMax;
     if (z == 0) mask |= kBoxZMin;
     if (nz_ > 0 && z == kUnit * (nz_ - 1)) mask |= kBoxZMax;
   }
-  const double ix = static_cast<double>(x) / kUnit, iy = static_cast<double>(y) / kUnit,
-               iz = static_cast<double>(z) / kUnit;
-  const VertexId id = LayerExtractor::kPending | static_cast<VertexId>(ex->staged_vertices_.size());
-  ex->staged_vertices_.push_back({ex->Physical(ix, iy, iz), iz, mask, int8_t{-1}});
+  // The whole grid's x, divided once: a part's points are one part's bit for bit.
+  const double ix = static_cast<double>(x + kUnit * x_offset_) / kUnit,
+               iy = static_cast<double>(y) / kUnit, iz = static_cast<double>(z) / kUnit;
+  const auto staged = static_cast<uint32_t>(ex->staged_vertices_.size());
+  const VertexId id = LayerExtractor::kPending | staged;
+  if (seam >= 0) seam_[static_cast<size_t>(seam)].push_back({z, y, staged});
+  ex->staged_vertices_.push_back({ex->Physical(ix, iy, iz), iz, mask, static_cast<int8_t>(seam)});
   if (dz == kUnit && !labels_.close) ex->top_plane_vertices_.push_back(id);  // Finish: kBoxZMax
   it->second = id;
   return id;
 }
 
 void LabelLayers::Commit(MeshStore* store, std::span<const TriId> tris,
-                         std::span<const VertexId> staged_to_store) {
+                         std::span<const VertexId> staged_to_store,
+                         std::array<std::vector<VertexId>, 2>* new_seam) {
+  for (size_t f = 0; f < 2; ++f) {
+    std::vector<SeamPoint>& points = seam_[f];
+    std::sort(points.begin(), points.end(), [](const SeamPoint& a, const SeamPoint& b) {
+      return a.z != b.z ? a.z < b.z : a.y < b.y;
+    });
+    if (new_seam) {
+      for (const SeamPoint& p : points) (*new_seam)[f].push_back(staged_to_store[p.staged]);
+    }
+    points.clear();
+  }
   assert(tris.size() == staged_patch_.size());
   store_patch_.resize(pairs_.size(), kInvalid);
   for (size_t i = 0; i < tris.size(); ++i) {
@@ -327,7 +378,8 @@ size_t LabelLayers::MemoryBytes() const {
   return planes * sizeof(LabelId) + map_bytes(plane_bottom_) + map_bytes(plane_top_) +
          map_bytes(inside_) + staged_patch_.capacity() * sizeof(uint32_t) +
          pairs_.capacity() * sizeof(LabelPair) + store_patch_.capacity() * sizeof(uint32_t) +
-         pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1);
+         pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1) +
+         (seam_[0].capacity() + seam_[1].capacity()) * sizeof(SeamPoint);
 }
 
 }  // namespace tandem

@@ -21,6 +21,11 @@
 // store's index. Vertices are shared through maps keyed by their position in twelfths of a
 // voxel (every midpoint and centroid is a whole number of them): the points of the plane z = k
 // carry over to the next layer, the others live for one layer.
+//
+// A part of a split session (ExtractorConfig::x_offset, seam_faces) meshes its own cubes of
+// the whole grid: the points on a seam plane are its neighbour's too (the same labels there
+// give the same points), kSeam, and listed at the commit by position, which both parts agree
+// on whichever cube made them first.
 #ifndef TANDEM_LABEL_EXTRACTOR_H_
 #define TANDEM_LABEL_EXTRACTOR_H_
 
@@ -31,22 +36,25 @@
 
 #include "absl/container/flat_hash_map.h"
 #include "absl/status/status.h"
+#include "layer_extractor.h"
 #include "mesh_store.h"
 #include "tandem/labels.h"
 #include "tandem/volume.h"
 
 namespace tandem {
 
-class LayerExtractor;
-struct SliceValues;
-
 // The label of voxel i of a slice of `dtype` (an integer type). The one place a raw value
 // becomes a LabelId: false for a value that is no label (a negative one, then in *refused).
 bool LabelOfVoxel(DType dtype, const uint8_t* bytes, size_t i, LabelId* out, int64_t* refused);
+// Slice k of an nx x ny label map (rows `stride` voxels apart) as LabelLayers reads it:
+// InvalidArgument naming its first voxel that is no label, as LabelLayers::Compute does. A
+// split session checks a slice so before any part moves.
+absl::Status CheckLabelSlice(SliceValues slice, int64_t nx, int64_t ny, int64_t stride, int64_t k);
 
 class LabelLayers {
  public:
-  LabelLayers(int64_t nx, int64_t ny, int64_t nz, const LabelOptions& labels);
+  // The extractor's grid part (nx, ny, nz, x_offset, row_stride, seam_faces) and labels.
+  explicit LabelLayers(const ExtractorConfig& config);
 
   // Slice k's labels into the top plane, and layer k (between slices k-1 and k; with close,
   // slice 0 has background below it) staged into *ex. InvalidArgument for a slice that is no
@@ -55,10 +63,12 @@ class LabelLayers {
   // With close, after the last slice: the layer between it and the background above, staged
   // into *ex (false: nothing to do, not closing or done already).
   bool ComputeClosing(LayerExtractor* ex);
-  // The commit: the staged triangles `tris` (in staging order) get their store patches, and
-  // the carried plane points their store ids (staged index -> store id).
+  // The commit: the staged triangles `tris` (in staging order) get their store patches, the
+  // carried plane points their store ids (staged index -> store id), and `new_seam` (when
+  // given) the new seam points of each seam face, by height, then y.
   void Commit(MeshStore* store, std::span<const TriId> tris,
-              std::span<const VertexId> staged_to_store);
+              std::span<const VertexId> staged_to_store,
+              std::array<std::vector<VertexId>, 2>* new_seam);
   size_t MemoryBytes() const;
   // Between layers (nothing staged): forgets the pairs met so far and their store patches
   // (the store's pairs were compacted), met again as they come.
@@ -81,6 +91,8 @@ class LabelLayers {
   }
 
   int64_t nx_, ny_, nz_;
+  int64_t x_offset_, row_stride_;
+  uint8_t seam_faces_;
   LabelOptions labels_;
   // Slices k-1 and k, padded with one background voxel on every side (read only with close).
   std::vector<LabelId> bottom_, top_;
@@ -94,6 +106,13 @@ class LabelLayers {
   std::vector<LabelPair> pairs_;
   absl::flat_hash_map<std::pair<LabelId, LabelId>, uint32_t> pair_index_;
   std::vector<uint32_t> store_patch_;  // pairs_ index -> the store's (kInvalid: not yet)
+  // The staged points on the seam faces (x = 0, x = nx - 1): z and y in twelfths, staged
+  // index.
+  struct SeamPoint {
+    int64_t z, y;
+    uint32_t staged;
+  };
+  std::array<std::vector<SeamPoint>, 2> seam_;
 };
 
 }  // namespace tandem

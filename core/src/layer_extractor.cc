@@ -66,7 +66,7 @@ LayerExtractor::LayerExtractor(const ExtractorConfig& config, MeshStore* store)
   words_ = (config.nx + kWordBits - 1) / kWordBits;
   inside_from_ = InsideFrom(config.iso);
   if (config.labels.enabled) {
-    labels_ = std::make_unique<LabelLayers>(config.nx, config.ny, config.nz, config.labels);
+    labels_ = std::make_unique<LabelLayers>(config);
   }
 }
 
@@ -238,8 +238,9 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     assert(v < kPending);
     staged_to_store_[i] = v;
     if (new_verts) new_verts->push_back(v);
-    // Staging order is the canonical order: y-edges, then z-edges, by ascending y.
-    if (new_seam && (sv.box_mask & kSeam)) (*new_seam)[sv.seam_face].push_back(v);
+    // Staging order is the canonical order: y-edges, then z-edges, by ascending y (a label
+    // layer's are listed by LabelLayers::Commit).
+    if (new_seam && (sv.box_mask & kSeam) && !labels_) (*new_seam)[sv.seam_face].push_back(v);
   }
   auto resolve = [this](VertexId v) { return IsPending(v) ? staged_to_store_[v & ~kPending] : v; };
   if (labels_) {
@@ -248,7 +249,7 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
     for (const auto& tri : staged_triangles_) {
       tris.push_back(store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2])));
     }
-    labels_->Commit(store_, tris, staged_to_store_);
+    labels_->Commit(store_, tris, staged_to_store_, new_seam);
     if (new_tris) new_tris->insert(new_tris->end(), tris.begin(), tris.end());
   } else {
     for (const auto& tri : staged_triangles_) {

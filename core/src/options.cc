@@ -98,11 +98,6 @@ absl::Status SessionOptions::Validate() const {
                     "the background label has no surface; it cannot be one of the labels to "
                     "keep (labels.only)");
     }
-    if (parts > 1) {
-      return Refuse("parts", parts,
-                    "a label volume is meshed in one part: parts must be 0 (automatic) or 1 "
-                    "with labels");
-    }
   }
   if (schedule == Schedule::kNone) return absl::OkStatus();
   if (!(error > 0) || !std::isfinite(error)) {

@@ -11,6 +11,7 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
+#include "label_extractor.h"
 #include "simplifier_access.h"
 #include "tandem/status_macros.h"
 
@@ -230,6 +231,11 @@ absl::Status TandemSession::Impl::CheckSliceIndex() const {
   return absl::OkStatus();
 }
 
+absl::Status TandemSession::Impl::CheckLabels(const uint8_t* bytes, DType dtype) const {
+  if (!options.labels.enabled || slabs.size() < 2 || bytes == nullptr) return absl::OkStatus();
+  return CheckLabelSlice(SliceValues{bytes, dtype}, grid.nx, grid.ny, grid.nx, slices_added);
+}
+
 absl::Status TandemSession::Impl::NonFiniteError(const float* values) const {
   const int64_t i = FirstNonFinite(reinterpret_cast<const uint8_t*>(values),
                                    static_cast<size_t>(grid.nx * grid.ny));
@@ -246,6 +252,7 @@ absl::Status TandemSession::Impl::StepSlice(const float* values, DType dtype,
                      static_cast<size_t>(grid.nx * grid.ny)) >= 0) {
     return NonFiniteError(values);
   }
+  TANDEM_RETURN_IF_ERROR(CheckLabels(bytes, dtype));
   MaybeSettleSeams();
   // Float32 bytes come here as values (aligned by AddSliceBytes); integers as they are.
   const SliceValues slice =
@@ -301,6 +308,8 @@ absl::Status TandemSession::Impl::Finish() {
                   simplifiers());
   ForEachSlab([this](Slab& s) { FinishSlab(s, options.schedule); }, /*balanced=*/true);
   finished = true;
+  // A closed label volume's last layer has seam vertices of its own.
+  TANDEM_RETURN_IF_ERROR(PairSeams(slabs, &seams));
   const bool merge = slabs.size() > 1;
   if (merge && options.target_triangles > 0 && options.schedule != Schedule::kNone &&
       !slabs[0]->sealer) {

@@ -38,6 +38,9 @@ struct TandemSession::Impl {
   absl::Status QueueSlice(const float* values, DType dtype, const uint8_t* bytes);  // the ring
   absl::Status CheckSliceIndex() const;  // the next slice lies within nz
   absl::Status NonFiniteError(const float* values) const;  // names the first bad voxel
+  // A split label session's slice (bytes of dtype; null: floats) holds only labels, checked
+  // before any slab moves (one slab's extractor checks as it scans).
+  absl::Status CheckLabels(const uint8_t* bytes, DType dtype) const;
   absl::Status Finish();
   // Waits for the queued slab steps, then pairs the new seam vertices and folds the traces.
   // It only fills caches, so the const observers use it.

@@ -128,6 +128,7 @@ absl::Status TandemSession::Impl::QueueSlice(const float* values, DType dtype,
     if (kept == DType::kFloat32 && FirstNonFinite(dst, n) >= 0) {
       return NonFiniteError(slot.storage.data());
     }
+    TANDEM_RETURN_IF_ERROR(CheckLabels(dst, kept));
   }
   buffers.Hold(BufferBytes(), "receiving slice", k);
   std::vector<size_t> idle;

@@ -239,12 +239,30 @@ int64_t CoarsenSettlingSeam(Slab& left, Slab& right, const std::vector<SeamVerte
     }
     return true;
   };
+  // A label session's complex is coarsened here only inside one interface: every triangle at
+  // both ends, in both slabs, separates the same two labels, so that the welded link
+  // condition below is each label's own (where labels meet, seam vertices settle as they are).
+  auto one_pair = [&](const Entry& e, VertexId ra) {
+    if (!left.store.labeled()) return true;
+    const LabelPair* pair = nullptr;
+    auto same = [&pair](const MeshStore& store, VertexId v) {
+      for (TriId t : store.vertex_triangles(v)) {
+        if (pair == nullptr) pair = &store.pair_of(t);
+        if (!(store.pair_of(t) == *pair)) return false;
+      }
+      return true;
+    };
+    if (!same(left.store, e.a) || !same(right.store, ra)) return false;
+    if (e.kind == kSeamEdge) return same(left.store, e.b) && same(right.store, partner.at(e.b));
+    return same(slab[e.kind]->store, e.b);
+  };
   int64_t contracted = 0;
   while (!heap.empty()) {
     const Entry e = heap.top();
     heap.pop();
     if (stamp[0][e.a] != e.sa || stamp_of(e.kind, e.b) != e.sb) continue;
     const VertexId ra = partner.at(e.a);
+    if (!one_pair(e, ra)) continue;
     // The link condition on the welded mesh: the welded links of the two ends share exactly
     // the corners opposite the edge, one in each of its two triangles (a seam edge: one
     // in each slab), and those two are not joined (only seam vertices could be, across).
@@ -314,7 +332,6 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
   // 81 wide").
   constexpr int64_t kMinAutoColumns = 40;
   const bool automatic = requested <= 0;
-  if (options.labels.enabled) return 1;  // a label volume is one part (options.cc)
   const int64_t wanted = automatic ? (grid.nx >= 256 ? 4 : 2) : requested;
   const int64_t columns = automatic ? kMinAutoColumns : kMinColumns;
   return static_cast<int>(std::max<int64_t>(1, std::min(wanted, (grid.nx - 1) / columns)));
@@ -490,12 +507,33 @@ void AppendWeldedSnapshot(const std::vector<std::unique_ptr<Slab>>& slabs, const
   }
 }
 
+void AppendWeldedPatches(const std::vector<std::unique_ptr<Slab>>& slabs,
+                         std::vector<uint32_t>* patch, std::vector<LabelPair>* pairs) {
+  absl::flat_hash_map<std::pair<LabelId, LabelId>, uint32_t> index;
+  for (uint32_t p = 0; p < pairs->size(); ++p) {
+    index.try_emplace(std::pair{(*pairs)[p].inside, (*pairs)[p].outside}, p);
+  }
+  std::vector<uint32_t> to;  // a slab's patches -> the output's
+  for (const auto& slab : slabs) {
+    const std::vector<LabelPair>& own = slab->store.pairs();
+    to.resize(own.size());
+    for (size_t p = 0; p < own.size(); ++p) {
+      const auto [it, added] = index.try_emplace(std::pair{own[p].inside, own[p].outside},
+                                                 static_cast<uint32_t>(pairs->size()));
+      if (added) pairs->push_back(own[p]);
+      to[p] = it->second;
+    }
+    for (uint32_t p : slab->store.SnapshotPatches()) patch->push_back(to[p]);
+  }
+}
+
 std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seams* seams,
                                  bool simplify, MergedCounts* merged) {
   Slab& dst = *(*slabs)[0];
   std::vector<VertexId> seam_vertices;  // in dst
   PartVertexMap map, prev;              // a slab's ids -> dst's (prev: the slab before)
   std::vector<PartVertex> welded;       // src's seam copies welded to dst's vertices
+  std::vector<uint32_t> patch_of;       // src's patches -> dst's (kInvalid: not met yet)
   for (size_t p = 1; p < slabs->size(); ++p) {
     Slab& src = *(*slabs)[p];
     map.Reset(src.store.vertex_capacity());
@@ -521,11 +559,18 @@ std::vector<VertexId> MergeSlabs(std::vector<std::unique_ptr<Slab>>* slabs, Seam
         SimplifierSeamAccess::AdoptVertex(dst.simplifier, src.simplifier, part, map[part],
                                           /*shared=*/false);
     }
+    // A label session's patches: src's pair table is its own, each pair found in dst's (added
+    // if new) as its first live triangle comes.
+    patch_of.assign(src.store.labeled() ? src.store.pairs().size() : 0, kInvalid);
     for (TriId t = 0; t < src.store.triangle_capacity(); ++t) {
       if (!src.store.triangle_alive(t)) continue;
       const auto& tri = src.store.triangle(t);
-      dst.store.AddTriangle(map[PartVertex{tri[0]}], map[PartVertex{tri[1]}],
-                            map[PartVertex{tri[2]}]);
+      const TriId added = dst.store.AddTriangle(map[PartVertex{tri[0]}], map[PartVertex{tri[1]}],
+                                                map[PartVertex{tri[2]}]);
+      if (patch_of.empty()) continue;
+      uint32_t& p = patch_of[src.store.patch(t)];
+      if (p == kInvalid) p = dst.store.PatchOf(src.store.pair_of(t));
+      dst.store.set_patch(added, p);
     }
     if (simplify) {
       SimplifierSeamAccess::AdoptCounters(dst.simplifier, src.simplifier);

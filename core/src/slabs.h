@@ -139,6 +139,11 @@ absl::Status PairSeams(const std::vector<std::unique_ptr<Slab>>& slabs, Seams* s
 void AppendWeldedSnapshot(const std::vector<std::unique_ptr<Slab>>& slabs, const Seams& seams,
                           IndexedMesh* out);
 
+// A label session's: the patches of the triangles AppendWeldedSnapshot appends, in its order,
+// appended to *patch as indices into *pairs, which gets the slabs' pairs it lacks.
+void AppendWeldedPatches(const std::vector<std::unique_ptr<Slab>>& slabs,
+                         std::vector<uint32_t>* patch, std::vector<LabelPair>* pairs);
+
 // What the slabs merged away had counted.
 struct MergedCounts {
   int64_t crossed_cubes = 0, triangles_extracted = 0;

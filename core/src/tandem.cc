@@ -118,11 +118,15 @@ LabeledMesh TandemSession::SnapshotLabeled() const {
   LabeledMesh out;
   if (!s.options.labels.enabled) return out;
   (void)s.Sync();  // a failure is reported by AddSlice or Finish
-  // A label session is one part.
-  const MeshStore& store = s.slabs[0]->store;
-  out.mesh = store.Snapshot();
-  out.patch = store.SnapshotPatches();
-  out.pairs = store.pairs();
+  if (s.slabs.size() == 1) {
+    const MeshStore& store = s.slabs[0]->store;
+    out.mesh = store.Snapshot();
+    out.patch = store.SnapshotPatches();
+    out.pairs = store.pairs();
+  } else {
+    AppendWeldedSnapshot(s.slabs, s.seams, &out.mesh);
+    AppendWeldedPatches(s.slabs, &out.patch, &out.pairs);
+  }
   s.ToWorld(&out.mesh.positions, &out.mesh.indices);
   return out;
 }

@@ -8,12 +8,14 @@
 #include <cstdint>
 #include <cstring>
 #include <map>
+#include <memory>
 #include <random>
 #include <set>
 #include <string>
 #include <tuple>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "gtest/gtest.h"
 #include "tandem/eval/topology.h"
 #include "tandem/geometry.h"
@@ -50,6 +52,7 @@ struct Meshed {
   // triangles the session held after a slice.
   int64_t chunks = 0, early_chunks = 0, early_triangles = 0, peak_held = 0;
   size_t peak_bytes = 0;  // MemoryBytes after a slice, at its most
+  int parts = 0;          // the session's slabs
 };
 
 SessionOptions LabelOptionsFor(Schedule schedule, bool close = false) {
@@ -76,6 +79,7 @@ Meshed Mesh(const Volume& vol, const SessionOptions& options,
     r.status = session.status();
     return r;
   }
+  r.parts = (*session)->num_parts();
   const size_t slice = static_cast<size_t>(vol.nx * vol.ny);
   std::vector<SealedChunk> chunks;
   // Sealing: every chunk a label session hands out has a pair for each triangle, its pairs
@@ -175,15 +179,47 @@ std::map<LabelId, LabelTopology> CheckSurfaces(const Meshed& run, const Volume& 
   return out;
 }
 
+// The volume stretched along x (each column repeated) until a session splits it into
+// `parts` slabs (at least 16 cube columns each): every label keeps its topology, and the
+// seams cut through the labels.
+Volume Widen(const Volume& vol, int parts) {
+  const int64_t f = (16 * parts + vol.nx) / vol.nx;  // nx * f >= 16 parts + 1
+  Volume wide(vol.nx * f, vol.ny, vol.nz);
+  for (int64_t z = 0; z < vol.nz; ++z) {
+    for (int64_t y = 0; y < vol.ny; ++y) {
+      for (int64_t x = 0; x < wide.nx; ++x) {
+        wide.at(x, y, z) = vol.v[static_cast<size_t>((z * vol.ny + y) * vol.nx + x / f)];
+      }
+    }
+  }
+  return wide;
+}
+
+void ExpectSameTopology(const std::map<LabelId, LabelTopology>& topology,
+                        const std::map<LabelId, LabelTopology>& reference) {
+  EXPECT_EQ(topology.size(), reference.size());
+  for (const auto& [label, ref] : reference) {
+    SCOPED_TRACE("label " + std::to_string(label));
+    if (!topology.count(label)) {
+      ADD_FAILURE() << "no surface";
+      continue;
+    }
+    EXPECT_EQ(topology.at(label).euler, ref.euler);
+    EXPECT_EQ(topology.at(label).components, ref.components);
+  }
+}
+
 // The labels' topology of the full-resolution surface and of every simplifying schedule
 // agree, the simplified ones within E0 and with far fewer triangles; so do the lock-step
-// schedules' and the full resolution's sealed (the chunks welded). Returns the
+// schedules' and the full resolution's sealed (the chunks welded). All with base.parts slabs
+// (checked); split and sealed, tandem-lag's seams settle behind the front. Returns the
 // full-resolution topology.
-std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, SessionOptions base,
-                                                double reduction = 0.5) {
+std::map<LabelId, LabelTopology> CheckSchedulesIn(const Volume& vol, bool closed,
+                                                  SessionOptions base, double reduction) {
   base.schedule = Schedule::kNone;
   const Meshed full = Mesh(vol, base);
   EXPECT_TRUE(full.status.ok()) << full.status;
+  EXPECT_EQ(full.parts, base.parts);
   const auto reference = CheckSurfaces(full, vol, closed, base.labels.background);
   base.seal = true;
   const Meshed sealed_full = Mesh(vol, base);
@@ -203,19 +239,12 @@ std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, 
     SCOPED_TRACE(std::string(ScheduleName(s)) + (seal ? " sealed" : ""));
     base.schedule = s;
     base.seal = seal;
-    const Meshed run = Mesh(vol, base);
+    SessionOptions o = base;
+    if (seal && s == Schedule::kTandemLag) o.seam_settle_slices = 4;
+    const Meshed run = Mesh(vol, o);
     EXPECT_TRUE(run.status.ok()) << run.status;
-    const auto topology = CheckSurfaces(run, vol, closed, base.labels.background);
-    EXPECT_EQ(topology.size(), reference.size());
-    for (const auto& [label, ref] : reference) {
-      SCOPED_TRACE("label " + std::to_string(label));
-      if (!topology.count(label)) {
-        ADD_FAILURE() << "no surface";
-        continue;
-      }
-      EXPECT_EQ(topology.at(label).euler, ref.euler);
-      EXPECT_EQ(topology.at(label).components, ref.components);
-    }
+    EXPECT_EQ(run.parts, base.parts);
+    ExpectSameTopology(CheckSurfaces(run, vol, closed, base.labels.background), reference);
     EXPECT_LE(run.max_error, base.error * (1 + 1e-9));
     size_t degenerate = 0;  // zero-area triangles (tidied at the end)
     const IndexedMesh& mesh = run.mesh.mesh;
@@ -227,6 +256,28 @@ std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, 
     EXPECT_EQ(degenerate, 0u);
     EXPECT_LT(static_cast<double>(run.mesh.mesh.num_triangles()),
               reduction * static_cast<double>(full.mesh.mesh.num_triangles()));
+  }
+  return reference;
+}
+
+// CheckSchedulesIn with one slab; then on the volume widened for 2 and 3 slabs, with those
+// (every label's topology as one slab's full resolution of the widened volume). Returns the
+// one slab's full-resolution topology of `vol`.
+std::map<LabelId, LabelTopology> CheckSchedules(const Volume& vol, bool closed, SessionOptions base,
+                                                double reduction = 0.5) {
+  base.parts = 1;
+  const auto reference = CheckSchedulesIn(vol, closed, base, reduction);
+  for (int parts : {2, 3}) {
+    SCOPED_TRACE(std::to_string(parts) + " parts");
+    const Volume wide = Widen(vol, parts);
+    base.parts = 1;
+    base.schedule = Schedule::kNone;
+    const Meshed one = Mesh(wide, base);
+    EXPECT_TRUE(one.status.ok()) << one.status;
+    const auto wide_reference = CheckSurfaces(one, wide, closed, base.labels.background);
+    EXPECT_EQ(wide_reference.size(), reference.size());
+    base.parts = parts;
+    ExpectSameTopology(CheckSchedulesIn(wide, closed, base, reduction), wide_reference);
   }
   return reference;
 }
@@ -386,6 +437,91 @@ TEST(LabelSession, SealedMemoryIsFlatInDepth) {
   EXPECT_GT(unsealed_held[1], 4 * unsealed_held[0]);
 }
 
+// Split in two, sealed, the seams settle behind the front (seam_settle_slices), so what the
+// session holds stays within 1.25x from a stack eight times deeper too, and every label keeps
+// its topology across the settled seams.
+TEST(LabelSession, SplitSealedMemoryIsFlatInDepth) {
+  constexpr int64_t kDepth = 64;
+  int64_t held[2] = {0, 0};
+  size_t bytes[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    const Volume vol = DeepVoronoi(deep ? 8 * kDepth : kDepth);
+    SessionOptions o = LabelOptionsFor(Schedule::kTandemLag);
+    o.seal = true;
+    o.parts = 2;
+    o.seam_settle_slices = 32;
+    const Meshed run = Mesh(vol, o);
+    ASSERT_TRUE(run.status.ok()) << run.status;
+    EXPECT_EQ(run.parts, 2);
+    held[deep] = run.peak_held;
+    bytes[deep] = run.peak_bytes;
+    EXPECT_GT(2 * run.early_triangles, static_cast<int64_t>(run.mesh.mesh.num_triangles()));
+    EXPECT_LE(run.max_error, o.error * (1 + 1e-9));
+    if (!deep) {
+      o.seal = false;
+      o.parts = 1;
+      o.schedule = Schedule::kNone;
+      ExpectSameTopology(CheckSurfaces(run, vol, false), CheckSurfaces(Mesh(vol, o), vol, false));
+    }
+  }
+  EXPECT_LE(held[1], held[0] * 5 / 4) << held[0] << " triangles held at " << kDepth << " slices, "
+                                      << held[1] << " at " << 8 * kDepth;
+  EXPECT_LE(bytes[1], bytes[0] * 5 / 4)
+      << bytes[0] << " bytes at " << kDepth << " slices, " << bytes[1] << " at " << 8 * kDepth;
+}
+
+// At full resolution a split changes nothing: after every slice and at the end, the parts'
+// welded SnapshotLabeled holds one part's triangles (at the same positions, each once) with
+// the same label pair each, open or closed at the box.
+TEST(LabelSession, SplitFullResolutionIsOnePartsComplexAfterEverySlice) {
+  const Volume vol = Widen(Voronoi(false, 11), 3);
+  // The triangles as keys with their pairs, sorted.
+  auto keyed = [](const LabeledMesh& m) {
+    std::vector<std::pair<testing::TriangleKey, std::pair<LabelId, LabelId>>> out;
+    EXPECT_EQ(m.patch.size(), m.mesh.num_triangles());
+    for (size_t t = 0; t < m.mesh.num_triangles(); ++t) {
+      const LabelPair& p = m.pairs[m.patch[t]];
+      out.push_back({testing::KeyOfTriangle(m.mesh, t, false), {p.inside, p.outside}});
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  for (bool close : {false, true}) {
+    SCOPED_TRACE(close ? "closed" : "open");
+    VolumeInfo grid;
+    grid.nx = vol.nx;
+    grid.ny = vol.ny;
+    grid.nz = vol.nz;
+    grid.dtype = DType::kUInt16;
+    std::unique_ptr<TandemSession> sessions[2];
+    for (int split = 0; split < 2; ++split) {
+      SessionOptions o = LabelOptionsFor(Schedule::kNone, close);
+      o.parts = split ? 3 : 1;
+      auto s = TandemSession::Create(grid, o);
+      ASSERT_TRUE(s.ok()) << s.status();
+      EXPECT_EQ((*s)->num_parts(), o.parts);
+      sessions[split] = *std::move(s);
+    }
+    const size_t slice = static_cast<size_t>(vol.nx * vol.ny);
+    for (int64_t z = 0; z < vol.nz; ++z) {
+      for (auto& s : sessions) {
+        ASSERT_TRUE(s->AddSliceBytes(DType::kUInt16,
+                                     reinterpret_cast<const uint8_t*>(vol.v.data() + z * slice))
+                        .ok());
+      }
+      const LabeledMesh one = sessions[0]->SnapshotLabeled(),
+                        split = sessions[1]->SnapshotLabeled();
+      EXPECT_EQ(split.mesh.num_vertices(), one.mesh.num_vertices()) << "slice " << z;
+      EXPECT_TRUE(keyed(split) == keyed(one)) << "slice " << z;
+    }
+    for (auto& s : sessions) ASSERT_TRUE(s->Finish().ok());
+    const LabeledMesh one = sessions[0]->SnapshotLabeled(), split = sessions[1]->SnapshotLabeled();
+    EXPECT_GT(one.mesh.num_triangles(), 0u);
+    EXPECT_EQ(split.mesh.num_vertices(), one.mesh.num_vertices());
+    EXPECT_TRUE(keyed(split) == keyed(one));
+  }
+}
+
 TEST(LabelSession, VoronoiCellsInABallAreClosedManifolds) {
   const auto topology = CheckSchedules(Voronoi(true, 7), true, LabelOptionsFor(Schedule::kNone));
   EXPECT_GE(topology.size(), 20u);
@@ -401,34 +537,34 @@ TEST(LabelSession, VoronoiCellsFillingTheBoxAreOpenThereOrClosed) {
 }
 
 TEST(LabelSession, IsotropyATargetCountAndAnisotropicVoxelsKeepEachLabel) {
-  const Volume vol = Voronoi(true, 5);
-  SessionOptions o = LabelOptionsFor(Schedule::kNone);
-  const auto reference = CheckSurfaces(Mesh(vol, o), vol, true);
-  auto same_topology = [&](const std::map<LabelId, LabelTopology>& t) {
-    ASSERT_EQ(t.size(), reference.size());
-    for (const auto& [label, ref] : reference) {
-      EXPECT_EQ(t.at(label).euler, ref.euler) << label;
-      EXPECT_EQ(t.at(label).components, ref.components) << label;
-    }
-  };
-  o.schedule = Schedule::kTandemLag;
-  o.alpha = 0.5;
-  const Meshed isotropic = Mesh(vol, o);
-  ASSERT_TRUE(isotropic.status.ok()) << isotropic.status;
-  same_topology(CheckSurfaces(isotropic, vol, true));
-  EXPECT_LE(isotropic.max_error, o.error * (1 + 1e-9));
-  o.alpha = 0;
-  o.target_triangles = 700;
-  const Meshed target = Mesh(vol, o);
-  ASSERT_TRUE(target.status.ok()) << target.status;
-  same_topology(CheckSurfaces(target, vol, true));
-  EXPECT_LE(target.mesh.mesh.num_triangles(), 770u);
-  o.target_triangles = 0;
-  o.error = 1.2;  // voxels 1 x 1 x 3: E0 in physical units
-  const Meshed thick = Mesh(vol, o, {1, 1, 3});
-  ASSERT_TRUE(thick.status.ok()) << thick.status;
-  same_topology(CheckSurfaces(thick, vol, true));
-  EXPECT_LE(thick.max_error, o.error * (1 + 1e-9));
+  const Volume ball = Voronoi(true, 5);
+  for (int parts : {1, 2}) {  // two: the ball widened
+    SCOPED_TRACE(std::to_string(parts) + " parts");
+    const Volume vol = parts == 1 ? ball : Widen(ball, parts);
+    SessionOptions o = LabelOptionsFor(Schedule::kNone);
+    o.parts = 1;
+    const auto reference = CheckSurfaces(Mesh(vol, o), vol, true);
+    o.parts = parts;
+    o.schedule = Schedule::kTandemLag;
+    o.alpha = 0.5;
+    const Meshed isotropic = Mesh(vol, o);
+    ASSERT_TRUE(isotropic.status.ok()) << isotropic.status;
+    EXPECT_EQ(isotropic.parts, parts);
+    ExpectSameTopology(CheckSurfaces(isotropic, vol, true), reference);
+    EXPECT_LE(isotropic.max_error, o.error * (1 + 1e-9));
+    o.alpha = 0;
+    o.target_triangles = 700;
+    const Meshed target = Mesh(vol, o);
+    ASSERT_TRUE(target.status.ok()) << target.status;
+    ExpectSameTopology(CheckSurfaces(target, vol, true), reference);
+    EXPECT_LE(target.mesh.mesh.num_triangles(), 770u);
+    o.target_triangles = 0;
+    o.error = 1.2;  // voxels 1 x 1 x 3: E0 in physical units
+    const Meshed thick = Mesh(vol, o, {1, 1, 3});
+    ASSERT_TRUE(thick.status.ok()) << thick.status;
+    ExpectSameTopology(CheckSurfaces(thick, vol, true), reference);
+    EXPECT_LE(thick.max_error, o.error * (1 + 1e-9));
+  }
 }
 
 TEST(LabelSession, OneVoxelLabelIsAClosedSphere) {
@@ -474,13 +610,20 @@ TEST(LabelSession, LabelsTouchingTheBoxAreOpenThereUnlessClosed) {
   EXPECT_EQ(closed.at(2).euler, 2);
   // Open, the surfaces end on the box: a disk each (one boundary loop, χ = 1).
   EXPECT_EQ(open.at(2).euler, 1);
-  // A stream of unknown depth finds the top of the box when it ends: the same meshes.
+  // A stream of unknown depth finds the top of the box when it ends: the same meshes, in one
+  // part or two (the volume widened).
+  const Volume wide = Widen(vol, 2);
   for (bool close : {false, true}) {
-    const SessionOptions o = LabelOptionsFor(Schedule::kTandemLag, close);
-    const Meshed known = Mesh(vol, o), streamed = Mesh(vol, o, {1, 1, 1}, false);
-    ASSERT_TRUE(streamed.status.ok()) << streamed.status;
-    EXPECT_EQ(streamed.mesh.mesh.indices, known.mesh.mesh.indices) << close;
-    EXPECT_EQ(streamed.mesh.patch, known.mesh.patch) << close;
+    for (int parts : {1, 2}) {
+      SessionOptions o = LabelOptionsFor(Schedule::kTandemLag, close);
+      o.parts = parts;
+      const Volume& v = parts == 1 ? vol : wide;
+      const Meshed known = Mesh(v, o), streamed = Mesh(v, o, {1, 1, 1}, false);
+      ASSERT_TRUE(streamed.status.ok()) << streamed.status;
+      EXPECT_EQ(streamed.parts, parts);
+      EXPECT_EQ(streamed.mesh.mesh.indices, known.mesh.mesh.indices) << close;
+      EXPECT_EQ(streamed.mesh.patch, known.mesh.patch) << close;
+    }
   }
 }
 
@@ -530,8 +673,8 @@ TEST(LabelSession, OptionsAreValidated) {
   EXPECT_TRUE(o.Validate().ok());
   o.seal = false;
   o.parts = 2;
-  EXPECT_NE(o.Validate().message().find("parts"), std::string::npos);
-  o.parts = 0;  // automatic: one part, even on a wide grid
+  EXPECT_TRUE(o.Validate().ok());
+  o.parts = 0;  // automatic: as an iso-surface's, 4 parts on a grid 256 wide or more
   VolumeInfo grid;
   grid.nx = 300;
   grid.ny = 4;
@@ -542,8 +685,9 @@ TEST(LabelSession, OptionsAreValidated) {
   grid.dtype = DType::kUInt16;
   auto session = TandemSession::Create(grid, o);
   ASSERT_TRUE(session.ok()) << session.status();
-  EXPECT_EQ((*session)->num_parts(), 1);
-  // The label planes are counted before the first slice: two padded planes of 64-bit labels.
+  EXPECT_EQ((*session)->num_parts(), 4);
+  // The label planes are counted before the first slice: two padded planes of 64-bit labels
+  // (the parts' together at least the grid's).
   EXPECT_GE((*session)->MemoryBytes(), 2u * 302 * 6 * sizeof(LabelId));
 }
 
@@ -571,6 +715,50 @@ TEST(LabelSession, FloatAndNegativeValuesAreRefused) {
         (*session)->AddSliceBytes(DType::kInt16, reinterpret_cast<const uint8_t*>(s.data())).ok());
   }
   EXPECT_TRUE((*session)->Finish().ok());
+}
+
+// Split, a slice is refused before any part moves: a negative label in either part's columns
+// names its voxel in the whole grid, and the session goes on to the mesh of a session that
+// never saw it, queued or stepped in turn.
+TEST(LabelSession, ASplitSessionRefusesANegativeLabelBeforeAnyPartMoves) {
+  VolumeInfo grid;
+  grid.nx = 40;
+  grid.ny = 5;
+  grid.nz = 4;
+  grid.dtype = DType::kInt16;
+  std::vector<int16_t> good(static_cast<size_t>(grid.nx * grid.ny));
+  for (size_t i = 0; i < good.size(); ++i) good[i] = static_cast<int16_t>(1 + (i % 40) / 7 % 3);
+  auto bytes = [](const std::vector<int16_t>& v) {
+    return reinterpret_cast<const uint8_t*>(v.data());
+  };
+  for (bool pipeline : {true, false}) {
+    SCOPED_TRACE(pipeline ? "queued" : "stepped");
+    SessionOptions o = LabelOptionsFor(Schedule::kTandemLag);
+    o.parts = 2;
+    o.pipeline = pipeline;
+    auto clean = TandemSession::Create(grid, o);
+    auto session = TandemSession::Create(grid, o);
+    ASSERT_TRUE(clean.ok() && session.ok());
+    EXPECT_EQ((*session)->num_parts(), 2);
+    for (int64_t z = 0; z < grid.nz; ++z) {
+      for (int64_t x : {5, 30}) {  // in the first part's columns, then the second's
+        std::vector<int16_t> bad = good;
+        bad[static_cast<size_t>(2 * grid.nx + x)] = -3;
+        const absl::Status st = (*session)->AddSliceBytes(DType::kInt16, bytes(bad));
+        EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument);
+        EXPECT_NE(st.message().find(absl::StrCat("voxel (", x, ", 2, ", z, ")")), std::string::npos)
+            << st;
+      }
+      ASSERT_TRUE((*session)->AddSliceBytes(DType::kInt16, bytes(good)).ok());
+      ASSERT_TRUE((*clean)->AddSliceBytes(DType::kInt16, bytes(good)).ok());
+    }
+    ASSERT_TRUE((*session)->Finish().ok());
+    ASSERT_TRUE((*clean)->Finish().ok());
+    const LabeledMesh a = (*session)->SnapshotLabeled(), b = (*clean)->SnapshotLabeled();
+    EXPECT_GT(a.mesh.num_triangles(), 0u);
+    EXPECT_EQ(a.mesh.indices, b.mesh.indices);
+    EXPECT_EQ(a.patch, b.patch);
+  }
 }
 
 TEST(LabelSession, SplitByLabelOrientsEachSurfaceOutward) {

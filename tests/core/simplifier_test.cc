@@ -576,6 +576,33 @@ TEST(Simplifier, TimeLagRemovesDirectionalBiasAndMatchesClassicalCount) {
   EXPECT_NEAR(double(lag.mesh.num_triangles()), nc, 0.10 * nc);
 }
 
+// A rounded cube given as an approximate signed distance, F = (|x|⁸ + |y|⁸ + |z|⁸)^(1/8) - R,
+// not as the paper's polynomial: its gradient has magnitude about 1 everywhere, as a distance
+// map's or a smoothed mask's, and its flat faces are where a coarse E0 is asked for. The lag
+// schedule keeps its count near classical's there too.
+TEST(Simplifier, TimeLagCountStaysNearClassicalOnADistanceLikeField) {
+  const int n = 128;
+  const double c = 0.5 * (n - 1), r = 0.4 * (n - 1);
+  auto run = [&](Schedule schedule, double e0) {
+    testing::FieldSource src(n, n, n, [&](double x, double y, double z) {
+      auto p8 = [&](double t) { return std::pow(std::abs(t - c), 8.0); };
+      return std::pow(p8(x) + p8(y) + p8(z), 0.125) - r;
+    });
+    return RunSource(src, 0.0, schedule, e0, 0.0, 0);
+  };
+  // At the default E0 the lag keeps more than the bound of 15 %: the lock-step takes the
+  // contractions in sweep order, not in one cost order (docs/decisions.md 21).
+  for (const auto& [e0, bound] : {std::pair{0.2, 1.5}, std::pair{0.713, 1.15}}) {
+    const Result classical = run(Schedule::kClassical, e0);
+    const Result lag = run(Schedule::kTandemLag, e0);
+    const double ratio = double(lag.mesh.num_triangles()) / double(classical.mesh.num_triangles());
+    EXPECT_LE(ratio, bound) << lag.mesh.num_triangles() << " triangles against classical's "
+                            << classical.mesh.num_triangles() << " at E0 " << e0;
+    EXPECT_LE(lag.error_max, e0 * (1 + 1e-9));
+    EXPECT_TRUE(eval::AnalyzeTopology(lag.mesh).IsClosedManifold());
+  }
+}
+
 TEST(Simplifier, MeanAndRmsDistanceStayBelowE0OnThePillowBox) {
   const double e0 = 0.2;
   const Result full = RunShape(eval::Shape::kPillowBox, 96, Schedule::kNone, 0);
@@ -613,8 +640,8 @@ TEST(Simplifier, TandemLagHoldsAQuarterOfClassicalsPeak) {
 // takes each region down to E0 before the next arrives, so the coarsest contractions go in
 // the sweep's order; simplifying to half of E0 in lock-step and the whole mesh to E0 at the
 // end puts them in one cost order, as the classical algorithm does. Link 96³ at E0 1 (about
-// 1 % of its 27,000 triangles): measured 218 triangles at RMS 0.61 against 0.69 for the
-// lock-step at E0 with as many (0.62 for classical).
+// 1 % of its 27,000 triangles): the pass's RMS at its count is below the lock-step's at as
+// many triangles and close to classical's.
 TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
   const int n = 96;
   const double e0 = 1.0;
@@ -636,18 +663,23 @@ TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
   EXPECT_TRUE(b.IsClosedManifold());
   EXPECT_EQ(b.euler, a.euler);
   EXPECT_EQ(b.components, a.components);
-  // The lock-step at E0 with at least as many triangles: E0 lowered in steps of 5 %.
+  // The lock-step at E0 with at least as many triangles: E0 lowered in steps of 1 %.
   Result lockstep;
   double e = e0;
-  for (int i = 0; i < 20; ++i, e *= 0.95) {
+  for (int i = 0; i < 40; ++i, e *= 0.99) {
     lockstep = run(Schedule::kTandemLag, e, 1.0);
     if (lockstep.mesh.num_triangles() >= pass.mesh.num_triangles()) break;
   }
   ASSERT_GE(lockstep.mesh.num_triangles(), pass.mesh.num_triangles());
   const double pass_rms = rms(pass), lockstep_rms = rms(lockstep);
-  EXPECT_LT(pass_rms, 0.93 * lockstep_rms)
-      << pass.mesh.num_triangles() << " triangles at E0 " << e0 << ": " << pass_rms << "; "
-      << lockstep.mesh.num_triangles() << " at E0 " << e << " in lock-step: " << lockstep_rms;
+  const double pass_n = double(pass.mesh.num_triangles());
+  const double lockstep_n = double(lockstep.mesh.num_triangles());
+  // Compared at the same count: a linear mesh's error on a smooth surface falls as 1/count
+  // (error ~ h², count ~ 1/h²), so RMS x count is the count-free figure. The lock-step's
+  // product moves by a few % from one 1 % step of E0 to the next: 5 % is beyond that noise.
+  EXPECT_LT(pass_rms * pass_n, 0.95 * lockstep_rms * lockstep_n)
+      << pass_n << " triangles at E0 " << e0 << ": " << pass_rms << "; " << lockstep_n << " at E0 "
+      << e << " in lock-step: " << lockstep_rms;
   const Result classical = run(Schedule::kClassical, e0, SessionOptions{}.lockstep_error);
   EXPECT_LE(pass_rms, 1.05 * rms(classical)) << classical.mesh.num_triangles();
   // At the default E0 and below, the lock-step's order is already close to the cost order:

@@ -9,15 +9,18 @@
 //   * an error status has a message and the code INVALID_ARGUMENT or RESOURCE_EXHAUSTED
 //     (INTERNAL only for a failed final encoding, which must not happen either: aborts);
 //   * the end of input is OK exactly when End was handled (done());
-//   * progress counts never go back; the final messages come once, after End: FinalMesh
-//     chunks 0..n-1 with one total size, then FinalMetrics, and the Draco bytes decode to
-//     the announced triangle and vertex counts.
+//   * progress counts never go back; the final messages come once, after End: per surface
+//     FinalMesh chunks 0..n-1 with one total size (none when sealed), then its FinalMetrics,
+//     and the Draco bytes decode to the announced triangle and vertex counts; a label
+//     session's surfaces carry their labels in order, then the session's FinalMetrics
+//     counts them.
 // Option byte: bit 0 = tiny memory budget (256 KiB, to reach the budget checks), bit 1 =
 // max message 4 KiB (bigger chunks are refused as gRPC would, before the job sees them).
 //
 // SessionConfig.compute_distances is cleared (seconds of Metro sampling per input).
 // Seeds: run with TANDEM_FUZZ_WRITE_SEEDS=DIR to write valid streams (every dtype, chunked
-// and whole slices, unknown nz, previews, each schedule, a target) into DIR and exit.
+// and whole slices, unknown nz, previews, each schedule, a target, label maps whole and
+// sealed) into DIR and exit.
 // TANDEM_FUZZ_VERBOSE=1 prints how each input ended.
 #include <google/protobuf/io/coded_stream.h>
 #include <google/protobuf/io/zero_copy_stream_impl_lite.h>
@@ -48,6 +51,19 @@ using tandem::v1::ExtractResponse;
   std::abort();
 }
 
+// A surface's whole Draco bytes against what its last FinalMesh chunk announced.
+void CheckMesh(const std::string& draco, const tandem::v1::FinalMesh& last) {
+  if (draco.size() != last.total_bytes()) Violation("FinalMesh total_bytes is wrong");
+  absl::StatusOr<tandem::IndexedMesh> mesh = tandem::codec::DecodeDraco(draco);
+  if (!mesh.ok()) {
+    Violation("the final mesh does not decode: " + std::string(mesh.status().message()));
+  }
+  if (static_cast<int64_t>(mesh->num_triangles()) != last.triangles() ||
+      static_cast<int64_t>(mesh->num_vertices()) != last.vertices()) {
+    Violation("the final mesh's counts differ from the announced ones");
+  }
+}
+
 class CheckingSink : public tandem::server::JobSink {
  public:
   void PostProgress(tandem::v1::Progress p) override {
@@ -64,30 +80,45 @@ class CheckingSink : public tandem::server::JobSink {
   }
   void PostFinal(std::vector<ExtractResponse> messages) override {
     if (finals_++ > 0) Violation("final messages posted twice");
-    if (messages.size() == 1 && messages[0].has_final_metrics() &&
-        messages[0].final_metrics().sealed_chunks() == chunks_) {
-      return;  // sealed chunks: the mesh went out in them
+    if (messages.empty() || !messages.back().has_final_metrics() ||
+        messages.back().final_metrics().has_label()) {
+      Violation("the final messages do not end with the session's FinalMetrics");
     }
-    if (messages.size() < 2 || !messages.back().has_final_metrics()) {
-      Violation("the final messages do not end with FinalMetrics");
-    }
-    std::string draco;
-    for (size_t i = 0; i + 1 < messages.size(); ++i) {
-      const tandem::v1::FinalMesh& m = messages[i].final_mesh();
-      if (!messages[i].has_final_mesh() || m.chunk_index() != i ||
-          m.chunk_count() != messages.size() - 1) {
-        Violation("FinalMesh chunks out of order");
+    const tandem::v1::FinalMetrics& session = messages.back().final_metrics();
+    // Sealed chunks: the mesh went out in them (an unsealed session has sent none either).
+    const bool sealed = session.sealed_chunks() == chunks_;
+    int64_t labels = 0;
+    for (size_t i = 0; i < messages.size(); ++i) {  // a surface: its FinalMesh chunks, metrics
+      const size_t first = i;
+      std::string draco;
+      for (; i < messages.size() && messages[i].has_final_mesh(); ++i) {
+        const tandem::v1::FinalMesh& m = messages[i].final_mesh();
+        if (m.chunk_index() != i - first ||
+            m.chunk_count() != messages[first].final_mesh().chunk_count()) {
+          Violation("FinalMesh chunks out of order");
+        }
+        draco += m.draco();
       }
-      draco += m.draco();
+      if (i == messages.size() || !messages[i].has_final_metrics()) {
+        Violation("FinalMesh chunks not followed by their FinalMetrics");
+      }
+      const tandem::v1::FinalMetrics& metrics = messages[i].final_metrics();
+      if (i > first) {
+        const tandem::v1::FinalMesh& last = messages[i - 1].final_mesh();
+        if (last.chunk_count() != i - first) Violation("FinalMesh chunks missing");
+        CheckMesh(draco, last);
+        if (last.has_label() != metrics.has_label() || last.label() != metrics.label()) {
+          Violation("a FinalMesh and its FinalMetrics name different labels");
+        }
+      } else if (!sealed) {
+        Violation("a surface without its FinalMesh in an unsealed session");
+      }
+      if (metrics.has_label() && metrics.surface() != labels++) {
+        Violation("label surfaces out of order");
+      }
     }
-    const tandem::v1::FinalMesh& last = messages[messages.size() - 2].final_mesh();
-    if (draco.size() != last.total_bytes()) Violation("FinalMesh total_bytes is wrong");
-    absl::StatusOr<tandem::IndexedMesh> mesh = tandem::codec::DecodeDraco(draco);
-    if (!mesh.ok())
-      Violation("the final mesh does not decode: " + std::string(mesh.status().message()));
-    if (static_cast<int64_t>(mesh->num_triangles()) != last.triangles() ||
-        static_cast<int64_t>(mesh->num_vertices()) != last.vertices()) {
-      Violation("the final mesh's counts differ from the announced ones");
+    if (labels != session.labels()) {
+      Violation("the session's label count differs from the labels' FinalMetrics");
     }
   }
   int finals() const { return finals_; }
@@ -102,6 +133,97 @@ void CheckError(const absl::Status& st) {
   if (st.message().empty()) Violation("error status without a message");
   if (!absl::IsInvalidArgument(st) && !absl::IsResourceExhausted(st)) {
     Violation("unexpected code: " + st.ToString());
+  }
+}
+
+// A slice's bytes as SliceChunk requests of at most `chunk` bytes.
+void AppendSlice(int64_t z, const std::string& slice, size_t chunk,
+                 std::vector<ExtractRequest>* requests) {
+  for (size_t off = 0; off < slice.size(); off += chunk) {
+    tandem::v1::SliceChunk* c = requests->emplace_back().mutable_chunk();
+    c->set_slice(z);
+    c->set_offset(off);
+    c->set_data(slice.substr(off, chunk));
+    if (off == 0) c->set_slice_size(slice.size());
+  }
+}
+
+// DIR/seed_NAME: the option byte 0, then the requests, length-delimited.
+void WriteSeed(const std::string& dir, const std::string& name,
+               const std::vector<ExtractRequest>& requests) {
+  std::ofstream out(dir + "/seed_" + name, std::ios::binary);
+  out.put('\0');
+  for (const ExtractRequest& r : requests) {
+    google::protobuf::util::SerializeDelimitedToOstream(r, &out);
+  }
+  if (!out) Violation("cannot write seed " + name);
+}
+
+// Label maps (SessionConfig.labels), whole and sealed: five Voronoi cells with ids
+// `first` + 7 k in each integer width, a ball of background (0) in the middle.
+void WriteLabelSeeds(const std::string& dir) {
+  struct LabelSeed {
+    const char* name;
+    tandem::v1::DType dtype;
+    int bytes;
+    uint64_t first;
+    size_t chunk;
+    void (*edit)(tandem::v1::SessionConfig*);
+  };
+  const LabelSeed seeds[] = {
+      {"labels_uint8_previews", tandem::v1::DTYPE_UINT8, 1, 1, 1 << 20,
+       [](auto* c) { c->mutable_preview()->set_every_slices(3); }},
+      {"labels_uint16_sealed_close", tandem::v1::DTYPE_UINT16, 2, 1000, 100,
+       [](auto* c) {
+         c->set_sealed_chunks(true);
+         c->mutable_labels()->set_close(true);
+         c->mutable_preview()->set_every_slices(4);
+       }},
+      {"labels_uint32_background_only", tandem::v1::DTYPE_UINT32, 4, 3000000000u, 1 << 20,
+       [](auto* c) {  // the first cell is what surrounds; two of the others are meshed
+         c->mutable_labels()->set_background(3000000000u);
+         c->mutable_labels()->add_only(3000000007u);
+         c->mutable_labels()->add_only(3000000014u);
+       }},
+      {"labels_uint64_sealed", tandem::v1::DTYPE_UINT64, 8, uint64_t{1} << 40, 64,
+       [](auto* c) { c->set_sealed_chunks(true); }},
+  };
+  constexpr int64_t kN = 12;
+  const double cells[5][3] = {{2, 3, 2}, {9, 2, 4}, {3, 9, 8}, {10, 10, 10}, {6, 5, 11}};
+  for (const LabelSeed& s : seeds) {
+    std::vector<ExtractRequest> requests;
+    tandem::v1::SessionConfig* c = requests.emplace_back().mutable_config();
+    c->set_nx(kN);
+    c->set_ny(kN);
+    c->set_nz(kN);
+    c->set_dtype(s.dtype);
+    c->set_error(0.5);
+    c->mutable_labels()->set_enabled(true);
+    s.edit(c);
+    for (int64_t z = 0; z < kN; ++z) {
+      std::string slice;
+      for (int64_t y = 0; y < kN; ++y) {
+        for (int64_t x = 0; x < kN; ++x) {
+          uint64_t id = 0;
+          const double dx = x - 5.5, dy = y - 5.5, dz = static_cast<double>(z) - 5.5;
+          if (dx * dx + dy * dy + dz * dz > 6) {
+            double best = 1e30;
+            for (int k = 0; k < 5; ++k) {
+              const double ex = x - cells[k][0], ey = y - cells[k][1], ez = z - cells[k][2];
+              const double d = ex * ex + ey * ey + ez * ez;
+              if (d < best) {
+                best = d;
+                id = s.first + 7 * static_cast<uint64_t>(k);
+              }
+            }
+          }
+          for (int b = 0; b < s.bytes; ++b) slice.push_back(static_cast<char>(id >> (8 * b)));
+        }
+      }
+      AppendSlice(z, slice, s.chunk, &requests);
+    }
+    requests.emplace_back().mutable_end()->set_slices(kN);
+    WriteSeed(dir, s.name, requests);
   }
 }
 
@@ -187,22 +309,12 @@ void WriteSeeds(const std::string& dir) {
             slice.append(reinterpret_cast<const char*>(&v), 4);
         }
       }
-      for (size_t off = 0; off < slice.size(); off += s.chunk) {
-        tandem::v1::SliceChunk* chunk = requests.emplace_back().mutable_chunk();
-        chunk->set_slice(z);
-        chunk->set_offset(off);
-        chunk->set_data(slice.substr(off, s.chunk));
-        if (off == 0) chunk->set_slice_size(slice.size());
-      }
+      AppendSlice(z, slice, s.chunk, &requests);
     }
     requests.emplace_back().mutable_end()->set_slices(info.nz);
-    std::ofstream out(dir + "/seed_" + s.name, std::ios::binary);
-    out.put('\0');
-    for (const ExtractRequest& r : requests) {
-      google::protobuf::util::SerializeDelimitedToOstream(r, &out);
-    }
-    if (!out) Violation(std::string("cannot write seed ") + s.name);
+    WriteSeed(dir, s.name, requests);
   }
+  WriteLabelSeeds(dir);
 }
 
 }  // namespace

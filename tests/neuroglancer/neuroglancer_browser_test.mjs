@@ -300,10 +300,10 @@ await h.run(async () => {
 
     // A large segment seen close: label 1 fills a 128 x 128 x 40 label map below a wavy sheet
     // (open at the volume's border, so nothing but the black background lies behind it), nodes
-    // of 8 voxels. The camera looks over the sheet: the near part is drawn at level 0, the far
-    // part at level 2, in one frame, so levels meet on node faces all over the picture; a
-    // crack there shows the background as an enclosed black pixel. The same view of an export
-    // without skirts shows such cracks: the check sees what the skirts close.
+    // of 8 voxels. The camera looks over the sheet from three sides: the near part is drawn at
+    // a finer level than the far part in one frame, so levels meet on node faces all over the
+    // picture; a crack there shows the background as an enclosed black pixel. The same views
+    // of an export without skirts show such cracks: the check sees what the skirts close.
     const [nx, ny, nz] = [128, 128, 40];
     const labels = Buffer.alloc(nx * ny * nz);
     for (let z = 0; z < nz; z++) {
@@ -319,45 +319,75 @@ await h.run(async () => {
     fs.writeFileSync(sheet, JSON.stringify({
       dims: [nx, ny, nz], dtype: 'uint8', spacing: [1, 1, 1], origin: [0, 0, 0],
       byte_order: 'little', raw_file: 'sheet.raw', raw_bytes: labels.length }));
-    const mixed = {};
+    const exports = {};
     for (const [name, extra] of [['skirted', []], ['cut', ['--neuroglancer-skirt', '0']]]) {
       const dir = path.join(work, `ng-sheet-${name}`);
       execFileSync(bin('tandem'), ['extract', '--input', sheet, '--labels', '--quiet',
                                    '--out', path.join(work, `sheet-${name}/`),
                                    '--neuroglancer', dir, '--neuroglancer-chunk', '8', ...extra]);
       fs.symlinkSync(dir, path.join(data, `sheet-${name}`));
-      const sheetRanges = fragmentRanges(dir, 1);
-      const view = {
-        layers: [{ type: 'segmentation', name, source: `precomputed://${base}/data/sheet-${name}`,
-                   segments: ['1'], segmentColors: COLORS, meshRenderScale: 70 }],
-        layout: '3d', showAxisLines: false, showScaleBar: false, showDefaultAnnotations: false,
-        projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
-        // Over the sheet (120 degrees about x), 48 voxels from the point looked at.
-        position: [64, 64, 20], projectionScale: 40e-9, projectionOrientation: [0.866, 0, 0, 0.5],
-      };
-      since = log.length;
-      await page.goto('about:blank');
-      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
-      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
-      await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
-      await sleep(500);
-      mixed[name] = { picture: await shoot(`neuroglancer-mixed-${name}.png`),
-                      nodes: nodesRead(log, sheetRanges, since),
-                      total: sheetRanges.map((l) => l.length) };
+      exports[name] = { ranges: fragmentRanges(dir, 1) };
     }
-    const { picture: sheetPicture, nodes, total } = mixed.skirted;
-    check(total[0] > 100 && total[1] > 20 && total[2] > 8,
-          'the large segment is an octree of many nodes per level', `${total} nodes`);
-    check(nodes[0] > 0 && nodes[0] < total[0] / 4 && nodes[2] > 0,
-          'one frame draws level 0 near the camera and level 2 far from it',
-          `fetched ${nodes} of ${total} nodes per level`);
-    check(sheetPicture.share > 0.8 && sheetPicture.red > 0.8 * sheetPicture.share,
-          'the sheet fills the view', `${(100 * sheetPicture.share).toFixed(1)} % lit`);
-    check(mixed.cut.picture.gaps > 100, 'cut without skirts, the levels leave cracks the check sees',
-          `${mixed.cut.picture.gaps} background pixels inside`);
-    // One pixel may slip through where a strip is clamped at a cell's edge (see decision 60).
-    check(sheetPicture.gaps <= 1, 'with skirts, no crack where the levels meet',
-          `${sheetPicture.gaps} background pixels inside`);
+    // Rotations as Neuroglancer's [x, y, z, w]: `deg` about the unit axis `axis`, and a then b.
+    const turn = (axis, deg) => {
+      const h = (deg * Math.PI) / 360;
+      return [...axis.map((a) => a * Math.sin(h)), Math.cos(h)];
+    };
+    const then = (b, a) => [
+      b[3] * a[0] + b[0] * a[3] + b[1] * a[2] - b[2] * a[1],
+      b[3] * a[1] - b[0] * a[2] + b[1] * a[3] + b[2] * a[0],
+      b[3] * a[2] + b[0] * a[1] - b[1] * a[0] + b[2] * a[3],
+      b[3] * a[3] - b[0] * a[0] - b[1] * a[1] - b[2] * a[2]];
+    // Each view: the camera's turn, the detail setting, and the two levels it should mix.
+    const views = [
+      // Over the sheet (120 degrees about x), 48 voxels from the point looked at.
+      { name: 'over', orientation: [0.866, 0, 0, 0.5], scale: 70, levels: [0, 2], lit: 0.8 },
+      // Turned 35 degrees about the sheet's normal and tilted lower: other cell edges face
+      // the camera, and the volume's far corner shows the background above the sheet.
+      { name: 'turned', orientation: then(turn([0, 0, 1], 35), turn([1, 0, 0], 110)),
+        scale: 70, levels: [0, 2], lit: 0.7 },
+      // A coarser detail setting: level 1 near the camera, level 2 far from it.
+      { name: 'coarser', orientation: then(turn([0, 0, 1], -50), turn([1, 0, 0], 125)),
+        scale: 400, levels: [1, 2], lit: 0.8 },
+    ];
+    for (const v of views) {
+      const mixed = {};
+      for (const name of ['skirted', 'cut']) {
+        const view = {
+          layers: [{ type: 'segmentation', name, source: `precomputed://${base}/data/sheet-${name}`,
+                     segments: ['1'], segmentColors: COLORS, meshRenderScale: v.scale }],
+          layout: '3d', showAxisLines: false, showScaleBar: false, showDefaultAnnotations: false,
+          projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
+          position: [64, 64, 20], projectionScale: 40e-9, projectionOrientation: v.orientation,
+        };
+        since = log.length;
+        await page.goto('about:blank');
+        await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
+        await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+        await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
+        await sleep(500);
+        mixed[name] = { picture: await shoot(`neuroglancer-${v.name}-${name}.png`),
+                        nodes: nodesRead(log, exports[name].ranges, since),
+                        total: exports[name].ranges.map((l) => l.length) };
+      }
+      const { picture: sheetPicture, nodes, total } = mixed.skirted;
+      const [near, far] = v.levels;
+      if (v.name === 'over') {
+        check(total[0] > 100 && total[1] > 20 && total[2] > 8,
+              'the large segment is an octree of many nodes per level', `${total} nodes`);
+      }
+      check(nodes[near] > 0 && nodes[near] < total[near] / 4 && nodes[far] > 0 &&
+            nodes.slice(0, near).every((n) => n === 0),
+            `${v.name}: one frame draws level ${near} near the camera and level ${far} far from it`,
+            `fetched ${nodes} of ${total} nodes per level`);
+      check(sheetPicture.share > v.lit && sheetPicture.red > 0.8 * sheetPicture.share,
+            `${v.name}: the sheet fills the view`, `${(100 * sheetPicture.share).toFixed(1)} % lit`);
+      check(mixed.cut.picture.gaps > 20,
+            `${v.name}: cut without skirts, the levels leave cracks the check sees`,
+            `${mixed.cut.picture.gaps} background pixels inside`);
+      check(sheetPicture.gaps === 0, `${v.name}: with skirts, no crack where the levels meet`,
+            `${sheetPicture.gaps} background pixels inside`);
+    }
     // The picture for the docs (docs/img/neuroglancer.png): a gyroid ball and two linked
     // tori beside it, two exports as two segmentation layers, each segment in its colour.
     const layers = [];

@@ -21,6 +21,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "tandem/codec/neuroglancer_draco.h"
+#include "tandem/eval/topology.h"
 #include "tandem/io/volume_writers.h"
 #include "tandem/tandem.h"
 #include "testutil/testutil.h"
@@ -327,6 +328,41 @@ std::vector<std::array<Vec3, 3>> Dequantized(const Stored& s, size_t k) {
   return out;
 }
 
+// Two levels of a flat sheet 1.2 units apart (normal +z: strips hang down), cut by nodes of 4
+// units: the upper level's strips reach down to the lower level's cut and half a strip
+// beyond (within two strips for two levels), so that the crack between the two cuts is
+// covered; the lower level's strips, with no other cut below them, stay one strip deep.
+TEST(NeuroglancerExport, StripsReachAnotherLevelsCut) {
+  auto sheet = [](double z) {
+    IndexedMesh m;
+    m.positions = {{0, 0, z}, {12, 0, z}, {12, 12, z}, {0, 12, z}};
+    m.indices = {0, 1, 2, 0, 2, 3};
+    return m;
+  };
+  NeuroglancerSegment segment{1, {sheet(5), sheet(6.2)}};
+  const NeuroglancerGrid grid{{4, 4, 4}, {-0.5f, -0.5f, -0.5f}};
+  auto tree = BuildOctree(segment, grid, 16, 1.0);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  for (int k = 0; k < 2; ++k) {
+    double lowest = 1e9;
+    size_t triangles = 0;
+    for (const NeuroglancerNode& node : (*tree)[k]) {
+      for (const auto& q : node.fragment.positions) {
+        lowest = std::min(lowest, DequantizePosition(grid, k, node.position, q, 16).z);
+      }
+      const auto& f = node.fragment;
+      for (size_t t = 0; t + 2 < f.indices.size(); t += 3, ++triangles) {
+        // No corner repeated by position (a strip's wedge where it would have no area).
+        EXPECT_FALSE(f.positions[f.indices[t]] == f.positions[f.indices[t + 1]] ||
+                     f.positions[f.indices[t + 1]] == f.positions[f.indices[t + 2]] ||
+                     f.positions[f.indices[t]] == f.positions[f.indices[t + 2]]);
+      }
+    }
+    EXPECT_GT(triangles, 0u);
+    EXPECT_NEAR(lowest, k == 0 ? 4.0 : 4.5, 1e-3) << "level " << k;  // 6.2 - 1.7
+  }
+}
+
 uint64_t ZCode(const std::array<uint32_t, 3>& p) {
   uint64_t code = 0;
   for (int b = 0; b < 21; ++b) {
@@ -604,7 +640,10 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
   const std::vector<const LabeledMesh*> levels{&complexes[0], &complexes[1]};
   const std::string dir = testing::MakeTempDir() + "/ng";
   // Nodes of 4 voxels: the interface is cut by node faces at 3.5 and 7.5.
-  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, levels, 0, 1, 7, {4, -1}).ok());
+  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> split;
+  for (const TandemSession* level : levels)
+    split.push_back(SplitByLabel(level->SnapshotLabeled(), 0));
+  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, std::move(split), 1, 7, {4, -1}).ok());
   for (LabelId id : {5u, 9u}) {
     SCOPED_TRACE(id);
     const Stored stored = ReadSegment(dir, id);
@@ -698,6 +737,76 @@ TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
     EXPECT_FALSE(stored.fragments[1][0].indices.empty());
   }
   EXPECT_TRUE(ReadSegment(tmp + "/ng", 0).fragments.empty());  // the background has none
+}
+
+// --labels --seal --neuroglancer: each level cut from its sweep's welded chunks. Both exports
+// load (every label at both levels, fragments decoding) and the sealed one's level 0 has,
+// label by label, the unsealed one's topology: a box, a torus, a box around a cavity, the
+// cavity's voxel. Nodes of 64 voxels hold the whole 10 x 10 x 40 volume: level 0 is one
+// fragment, the label's surface quantized, and reads back as a mesh.
+TEST(NeuroglancerExport, SealedLabelsExportAsTheUnsealedDo) {
+  VolumeInfo grid;
+  grid.nx = grid.ny = 10;
+  grid.nz = 40;
+  grid.dtype = DType::kUInt16;
+  const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
+  ASSERT_TRUE(
+      io::WriteVolume(tmp + "/stack.nrrd", grid, [](int64_t z, std::vector<uint8_t>* bytes) {
+        std::vector<uint16_t> ids(100, 0);
+        for (int64_t j = 1; j < 9; ++j) {
+          for (int64_t i = 1; i < 9; ++i) {
+            uint16_t id = z < 2 || z >= 34 ? 0 : static_cast<uint16_t>(1 + (z - 2) / 8);
+            if (id == 2 && i >= 4 && i < 6 && j >= 4 && j < 6) id = 0;
+            if (id == 3 && i == 5 && j == 5 && z == 21) id = 9;
+            ids[j * 10 + i] = id;
+          }
+        }
+        const auto* b = reinterpret_cast<const uint8_t*>(ids.data());
+        bytes->assign(b, b + 200);
+        return absl::OkStatus();
+      }).ok());
+  std::map<uint64_t, eval::TopologyReport> level0[2];
+  for (int sealed = 0; sealed < 2; ++sealed) {
+    SCOPED_TRACE(sealed ? "sealed" : "unsealed");
+    const std::string ng = tmp + (sealed ? "/ng-sealed" : "/ng");
+    std::string out;
+    ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/stack.nrrd --labels --error 0.3" +
+                        " --quiet --out " + tmp + (sealed ? "/sealed/" : "/whole/") +
+                        " --neuroglancer " + ng + " --neuroglancer-lods 2" +
+                        " --neuroglancer-chunk 64" + (sealed ? " --seal" : ""),
+                    &out),
+              0)
+        << out;
+    for (uint64_t id : {1, 2, 3, 4, 9}) {
+      SCOPED_TRACE(id);
+      const Stored stored = ReadSegment(ng, id);
+      ASSERT_EQ(stored.fragments.size(), 2u);
+      ASSERT_EQ(stored.fragments[0].size(), 1u);
+      for (size_t k = 0; k < 2; ++k) {
+        size_t triangles = 0;
+        for (const codec::IntegerMesh& m : stored.fragments[k]) triangles += m.indices.size() / 3;
+        EXPECT_GT(triangles, 0u) << "level " << k;
+      }
+      const codec::IntegerMesh& m = stored.fragments[0][0];
+      IndexedMesh mesh;
+      for (const auto& q : m.positions)
+        mesh.positions.push_back({double(q[0]), double(q[1]), double(q[2])});
+      mesh.indices = m.indices;
+      level0[sealed][id] = eval::AnalyzeTopology(mesh);
+    }
+    EXPECT_TRUE(ReadSegment(ng, 0).fragments.empty());
+  }
+  for (const auto& [id, whole] : level0[0]) {
+    SCOPED_TRACE(id);
+    const eval::TopologyReport& t = level0[1].at(id);
+    EXPECT_TRUE(t.IsClosedManifold());
+    EXPECT_EQ(t.euler, whole.euler);
+    EXPECT_EQ(t.components, whole.components);
+  }
+  EXPECT_EQ(level0[1].at(1).euler, 2);
+  EXPECT_EQ(level0[1].at(2).euler, 0);  // the tunnel: a torus
+  EXPECT_EQ(level0[1].at(3).euler, 4);  // a box around a cavity
+  EXPECT_EQ(level0[1].at(9).euler, 2);
 }
 
 TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {

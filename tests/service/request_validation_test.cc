@@ -5,10 +5,13 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <map>
 #include <optional>
@@ -1005,6 +1008,104 @@ TEST(SessionFeed, ChunksTheClientHasNotAcknowledgedOutliveTheWatchRetention) {
   feed.Finish({}, grpc::Status::OK);  // no resume after the end
   EXPECT_EQ(feed.unacknowledged_bytes(), 0);
   EXPECT_EQ(budget->held(), 0);
+}
+
+// With a spill directory a feed keeps its chunks' bytes in an unlinked file, none in memory,
+// and reads them back as they were posted: a watcher from the first chunk and a resume from
+// the middle get byte-identical chunks. Dropped chunks leave the counts, and so does the feed.
+TEST(SessionFeed, KeptChunksGoToTheSpillFileAndComeBackAsPosted) {
+  const std::string dir = testing::MakeTempDir();
+  for (const int64_t retain : {int64_t{1} << 20, int64_t{5000}}) {
+    auto retention = std::make_shared<ChunkRetention>(retain, dir);
+    {
+      SessionFeed feed("s", NewSecret(), TokenAuthenticator::kNoIdentity, retention);
+      feed.SetSealed(true, "");
+      int64_t posted = 0;
+      for (int64_t i = 0; i < 30; ++i) {
+        feed.Chunk(ChunkOfBytes(i, 1000 + i));
+        posted += static_cast<int64_t>(ChunkOfBytes(i, 1000 + i).ByteSizeLong());
+      }
+      EXPECT_EQ(retention->memory_bytes.load(), 0);
+      EXPECT_TRUE(std::filesystem::is_empty(dir)) << "the spill file is unlinked";
+      std::vector<v1::SealedChunk> replay;
+      if (retain < posted) {
+        // Past the retention, with nobody watching, only the newest stay, on disk too.
+        EXPECT_LE(retention->spilled_bytes.load(), retain + 1100);
+        EXPECT_FALSE(feed.ChunksFrom(17, &replay).ok());
+        continue;
+      }
+      EXPECT_EQ(retention->spilled_bytes.load(), posted);
+      ASSERT_TRUE(feed.ChunksFrom(17, &replay).ok());
+      ASSERT_EQ(replay.size(), 13u);
+      for (int64_t i = 17; i < 30; ++i) {
+        EXPECT_EQ(replay[static_cast<size_t>(i - 17)].SerializeAsString(),
+                  ChunkOfBytes(i, 1000 + i).SerializeAsString());
+      }
+      SessionFeed::Cursor cursor;
+      std::optional<grpc::Status> done;
+      for (int64_t i = 0; i < 30; ++i) {
+        std::optional<v1::ExtractResponse> r = feed.Next(&cursor, &done);
+        ASSERT_TRUE(r.has_value() && r->has_sealed_chunk()) << i;
+        EXPECT_EQ(r->sealed_chunk().SerializeAsString(),
+                  ChunkOfBytes(i, 1000 + i).SerializeAsString());
+      }
+    }
+    EXPECT_EQ(retention->spilled_bytes.load(), 0) << "a feed gone gives its bytes back";
+  }
+}
+
+// A spill directory that cannot be written keeps the chunks in memory, as without one.
+TEST(SessionFeed, AnUnwritableSpillDirectoryKeepsTheChunksInMemory) {
+  const std::string file = testing::MakeTempDir() + "/file";
+  std::FILE* f = std::fopen(file.c_str(), "w");
+  ASSERT_NE(f, nullptr);
+  std::fclose(f);
+  auto retention = std::make_shared<ChunkRetention>(int64_t{1} << 20, file + "/sub");
+  SessionFeed feed("s", NewSecret(), TokenAuthenticator::kNoIdentity, retention);
+  feed.SetSealed(true, "");
+  int64_t posted = 0;
+  for (int64_t i = 0; i < 5; ++i) {
+    feed.Chunk(ChunkOfBytes(i, 700));
+    posted += static_cast<int64_t>(ChunkOfBytes(i, 700).ByteSizeLong());
+  }
+  EXPECT_EQ(retention->spilled_bytes.load(), 0);
+  EXPECT_EQ(retention->memory_bytes.load(), posted);
+  std::vector<v1::SealedChunk> replay;
+  ASSERT_TRUE(feed.ChunksFrom(2, &replay).ok());
+  ASSERT_EQ(replay.size(), 3u);
+  EXPECT_EQ(replay[0].SerializeAsString(), ChunkOfBytes(2, 700).SerializeAsString());
+}
+
+// A write the disk refuses (here the file size limit, as a full disk would) keeps that chunk
+// in memory; the chunks before it stay on disk, and all of them come back as posted.
+TEST(SessionFeed, AChunkTheSpillFileCannotTakeStaysInMemory) {
+  auto retention = std::make_shared<ChunkRetention>(int64_t{1} << 20, testing::MakeTempDir());
+  SessionFeed feed("s", NewSecret(), TokenAuthenticator::kNoIdentity, retention);
+  feed.SetSealed(true, "");
+  feed.Chunk(ChunkOfBytes(0, 3000));
+  feed.Chunk(ChunkOfBytes(1, 3000));
+  const int64_t on_disk = retention->spilled_bytes.load();
+  rlimit old{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old), 0);
+  rlimit small = old;
+  small.rlim_cur = 8000;  // the third chunk would end past it
+  void (*old_handler)(int) = std::signal(SIGXFSZ, SIG_IGN);
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  feed.Chunk(ChunkOfBytes(2, 3000));
+  setrlimit(RLIMIT_FSIZE, &old);
+  std::signal(SIGXFSZ, old_handler);
+  feed.Chunk(ChunkOfBytes(3, 3000));
+  const int64_t third = static_cast<int64_t>(ChunkOfBytes(2, 3000).ByteSizeLong());
+  EXPECT_EQ(retention->memory_bytes.load(), third);
+  EXPECT_EQ(retention->spilled_bytes.load(),
+            on_disk + static_cast<int64_t>(ChunkOfBytes(3, 3000).ByteSizeLong()));
+  std::vector<v1::SealedChunk> replay;
+  ASSERT_TRUE(feed.ChunksFrom(0, &replay).ok());
+  ASSERT_EQ(replay.size(), 4u);
+  for (int64_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(replay[static_cast<size_t>(i)].SerializeAsString(),
+              ChunkOfBytes(i, 3000).SerializeAsString());
+  }
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
@@ -18,6 +19,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -36,7 +38,7 @@
 namespace tandem::testing {
 namespace {
 
-constexpr int64_t kNx = 30, kNy = 28, kNz = 26;
+constexpr int64_t kNx = 36, kNy = 28, kNz = 26;  // 36 wide: two parts fit (16 columns each)
 
 // About a dozen Voronoi cells with uint32 ids scattered past 2^16, filling the box (their
 // surfaces are open where they meet it) except a ball of background in the middle.
@@ -60,7 +62,7 @@ std::string WriteLabelVolume(const std::string& dir) {
     bytes->assign(static_cast<size_t>(kNx * kNy) * 4, 0);
     for (int64_t y = 0; y < kNy; ++y) {
       for (int64_t x = 0; x < kNx; ++x) {
-        if (std::hypot(x - 14.5, y - 13.5, z - 12.5) < 5) continue;  // background
+        if (std::hypot(x - 17.5, y - 13.5, z - 12.5) < 5) continue;  // background
         size_t best = 0;
         double d = 1e30;
         for (size_t s = 0; s < seeds.size(); ++s) {
@@ -71,6 +73,33 @@ std::string WriteLabelVolume(const std::string& dir) {
           }
         }
         StoreValue(DType::kUInt32, ids[best], bytes->data() + (y * kNx + x) * 4);
+      }
+    }
+    return absl::OkStatus();
+  });
+  EXPECT_TRUE(st.ok()) << st;
+  return path;
+}
+
+// A deep label map of `nz` slices, 32 x 32: blocks of about 7 voxels a side with wavy
+// walls (curved interfaces, many triangles at a small E0), new ids all the way down.
+std::string WriteDeepLabelVolume(const std::string& dir, int64_t nz) {
+  VolumeInfo info;
+  info.nx = 32;
+  info.ny = 32;
+  info.nz = nz;
+  info.dtype = DType::kUInt32;
+  const std::string path = dir + "/deep.nrrd";
+  const absl::Status st = io::WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
+    bytes->assign(32 * 32 * 4, 0);
+    for (int64_t y = 0; y < 32; ++y) {
+      for (int64_t x = 0; x < 32; ++x) {
+        const auto block = [](double u) { return static_cast<int64_t>(std::floor(u / 7)) + 1; };
+        const int64_t bx = block(x + 2.5 * std::sin(0.45 * z + 0.3 * y));
+        const int64_t by = block(y + 2.5 * std::sin(0.4 * x + 0.35 * z));
+        const int64_t bz = block(z + 2.5 * std::sin(0.3 * x + 0.5 * y));
+        StoreValue(DType::kUInt32, static_cast<double>(1 + bx + 16 * by + 256 * bz),
+                   bytes->data() + (y * 32 + x) * 4);
       }
     }
     return absl::OkStatus();
@@ -145,6 +174,23 @@ std::string PrintedVariable(const std::string& err, const std::string& name) {
   return end == std::string::npos ? "" : err.substr(begin, end - begin);
 }
 
+// The id and watch key a streaming client printed (bounded wait: up to 20 s).
+struct Started {
+  std::string id, watch_key;
+  bool ok() const { return id.size() == 32 && watch_key.size() == 32; }
+};
+Started StartedOf(ChildProcess& streamer) {
+  Started s;
+  for (int i = 0; i < 800 && !s.ok(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    const std::string err = streamer.Stderr();
+    s.id = PrintedVariable(err, "TANDEM_RESUME").substr(0, 32);
+    s.watch_key = PrintedVariable(err, "TANDEM_WATCH_KEY");
+  }
+  if (!s.ok()) ADD_FAILURE() << "no session printed: " << streamer.Stderr();
+  return s;
+}
+
 class ServiceLabelsTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -156,9 +202,15 @@ class ServiceLabelsTest : public ::testing::Test {
     dir_ = MakeTempDir();
     volume_ = WriteLabelVolume(dir_);
   }
-  RunResult Run(const std::string& program, std::vector<std::string> args) {
+  RunResult Run(const std::string& program, std::vector<std::string> args,
+                const std::vector<std::string>& env = {}) {
     args.insert(args.begin(), BinPath(program));
-    return RunProcess(args, 120);
+    return RunProcess(args, 120, env);
+  }
+  // tandem-client watch of session `s` with its key, `args` after the session.
+  RunResult Watch(const Started& s, std::vector<std::string> args) {
+    args.insert(args.begin(), {"watch", "--server", server_->address(), "--session", s.id});
+    return Run("tandem-client", args, {"TANDEM_WATCH_KEY=" + s.watch_key});
   }
   // The label config of a gRPC stream, on the volume's own grid.
   std::vector<v1::ExtractRequest> Requests(const v1::SessionConfig& config) {
@@ -173,6 +225,9 @@ class ServiceLabelsTest : public ::testing::Test {
     c.mutable_labels()->set_enabled(true);
     return c;
   }
+  // The checks of the tests of the same names, with `parts` parts.
+  void ExpectPreviewsAndFinalMessagesCarryTheLabels(int parts);
+  void ExpectSealedChunksCarryTheirLabel(int parts);
   std::unique_ptr<TestServer> server_;
   std::string dir_, volume_;
 };
@@ -180,16 +235,22 @@ class ServiceLabelsTest : public ::testing::Test {
 // The client's folder holds tandem extract --labels' files, each the same mesh; interfaces
 // shared; manifolds open only at the box, or closed with --close; the same figures.
 // Sealed (--seal, both sides), the labels come as chunks per label, welded by the client into
-// the same files (the figures measured before the grid, so the area within a hair).
+// the same files (the figures measured before the grid, so the area within a hair). Split
+// in two parts (--parts 2, which the server honours: the split is part of the result), too.
 TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
-  for (int run = 0; run < 4; ++run) {
-    const bool close = run >= 2, seal = run % 2 == 1;
+  std::map<std::pair<bool, bool>, nlohmann::json> one_part;  // by (close, seal)
+  for (int run = 0; run < 6; ++run) {
+    const bool close = run % 4 >= 2, seal = run % 2 == 1;
+    const bool split = run >= 4;
     SCOPED_TRACE(close ? "--close" : "open at the box");
     SCOPED_TRACE(seal ? "--seal" : "whole at End");
-    const std::string tag = std::string(close ? "closed" : "open") + (seal ? "_sealed" : "");
+    SCOPED_TRACE(split ? "--parts 2" : "one part");
+    const std::string tag =
+        std::string(close ? "closed" : "open") + (seal ? "_sealed" : "") + (split ? "_split" : "");
     std::vector<std::string> common = {"--input", volume_, "--labels", "--error", "0.5", "--quiet"};
     if (close) common.push_back("--close");
     if (seal) common.push_back("--seal");
+    common.insert(common.end(), {"--parts", split ? "2" : "1"});
     const std::string local = dir_ + "/local_" + tag + "/", remote = dir_ + "/remote_" + tag + "/";
     RunResult cli = Run("tandem", [&] {
       std::vector<std::string> a = {"extract", "--out", local, "--metrics", dir_ + "/l.json"};
@@ -238,6 +299,11 @@ TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
     EXPECT_EQ(SharedTriangles(remote_meshes), shared);
     auto want = nlohmann::json::parse(ReadText(dir_ + "/l.json"));
     auto got = nlohmann::json::parse(ReadText(dir_ + "/r.json"));
+    if (!split) {
+      one_part[{close, seal}] = want;
+    } else {  // really split: not one part's run
+      EXPECT_NE(want["evaluations"], one_part.at({close, seal})["evaluations"]);
+    }
     ASSERT_EQ(got["labels"].size(), want["labels"].size());
     EXPECT_EQ(got["labels"].size(), names.size() - 1);
     for (size_t i = 0; i < want["labels"].size(); ++i) {
@@ -261,9 +327,17 @@ TEST_F(ServiceLabelsTest, StreamedLabelsAreTheLocalExtractsFiles) {
 
 // Previews of a label session hold every label's surface, each vertex tagged with its
 // label (Preview.labels), while the scan is still arriving; the final messages carry each
-// label's id, then the session's figures.
+// label's id, then the session's figures. In one part or two (the parts' meshes welded).
 TEST_F(ServiceLabelsTest, PreviewsAndFinalMessagesCarryTheLabels) {
+  for (int parts : {1, 2}) {
+    SCOPED_TRACE(absl::StrCat(parts, " parts"));
+    ExpectPreviewsAndFinalMessagesCarryTheLabels(parts);
+  }
+}
+
+void ServiceLabelsTest::ExpectPreviewsAndFinalMessagesCarryTheLabels(int parts) {
   v1::SessionConfig config = LabelConfig();
+  config.set_parts(parts);
   config.mutable_preview()->set_every_slices(1);
   auto stub = server_->NewStub();
   const StreamOutcome outcome = RunStream(*stub, Requests(config), server_.get());
@@ -312,8 +386,16 @@ TEST_F(ServiceLabelsTest, PreviewsAndFinalMessagesCarryTheLabels) {
 // slices arrive; each label's chunks weld into its surface as the unsealed session sends it,
 // and touching labels share their interface triangles exactly.
 TEST_F(ServiceLabelsTest, SealedChunksCarryTheirLabelBeforeEnd) {
+  for (int parts : {1, 2}) {
+    SCOPED_TRACE(absl::StrCat(parts, " parts"));
+    ExpectSealedChunksCarryTheirLabel(parts);
+  }
+}
+
+void ServiceLabelsTest::ExpectSealedChunksCarryTheirLabel(int parts) {
   auto stub = server_->NewStub();
   v1::SessionConfig whole_config = LabelConfig();
+  whole_config.set_parts(parts);
   whole_config.mutable_labels()->set_close(true);
   v1::SessionConfig sealed_config = whole_config;
   sealed_config.set_sealed_chunks(true);
@@ -399,7 +481,6 @@ TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
   add(
       "config.labels.enabled", [](v1::SessionConfig&) {}, /*float32=*/true);
   add("config.extra_isos", [](v1::SessionConfig& c) { c.add_extra_isos(3); });
-  add("config.parts", [](v1::SessionConfig& c) { c.set_parts(2); });
   add("config.compute_distances", [](v1::SessionConfig& c) { c.set_compute_distances(true); });
   add("config.labels.only", [](v1::SessionConfig& c) {
     c.mutable_labels()->add_only(9);
@@ -425,27 +506,129 @@ TEST_F(ServiceLabelsTest, RefusalsNameTheFieldAndTheServerStaysHealthy) {
     EXPECT_NE(outcome.status.error_message().find(c.field), std::string::npos)
         << outcome.status.error_message();
   }
-  // A sealed label session runs, but cannot be watched: the watcher is told why.
-  RunResult sealed = Run("tandem-client", {"stream", "--server", server_->address(), "--input",
-                                           volume_, "--labels", "--seal", "--out", dir_ + "/s/"});
-  ASSERT_EQ(sealed.exit_code, 0) << sealed.err;
-  const std::string id = PrintedVariable(sealed.err, "TANDEM_RESUME").substr(0, 32);
-  ASSERT_EQ(id.size(), 32u) << sealed.err;
-  const std::string key = PrintedVariable(sealed.err, "TANDEM_WATCH_KEY");
-  RunResult watch = [&] {
-    std::vector<std::string> args = {
-        BinPath("tandem-client"), "watch", "--server", server_->address(), "--session", id, "--out",
-        dir_ + "/w.ply"};
-    return RunProcess(args, 120, {"TANDEM_WATCH_KEY=" + key});
-  }();
-  EXPECT_EQ(watch.exit_code, 1) << watch.err;
-  EXPECT_NE(watch.err.find("is a label session (SessionConfig.labels): it cannot be watched"),
-            std::string::npos)
-      << watch.err;
   EXPECT_EQ(server_->Health(), "SERVING");
   const StreamOutcome good = RunStream(*stub, Requests(LabelConfig()), server_.get());
   EXPECT_TRUE(good.status.ok()) << good.status.error_message();
   EXPECT_TRUE(server_->WaitIdle(20));
+}
+
+// A sealed label session is watched like a sealed iso-surface session: a watcher attached
+// while it runs and one after it ended get every label's chunks and figures and write the
+// streaming client's files byte for byte (--out DIR/, or the one .glb); --out must then be
+// a folder or a .glb. An unsealed label session is refused as an unsealed iso session is.
+TEST_F(ServiceLabelsTest, WatchersOfALabelSessionWriteTheStreamersFiles) {
+  const std::string streamed = dir_ + "/streamed/";
+  auto streamer = ChildProcess::Spawn(
+      {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input", volume_,
+       "--labels", "--seal", "--error", "0.5", "--rate", "10", "--preview-every", "2", "--out",
+       streamed, "--metrics", dir_ + "/streamed.json"},
+      dir_);
+  ASSERT_TRUE(streamer.ok()) << streamer.status();
+  const Started started = StartedOf(**streamer);
+  ASSERT_TRUE(started.ok());
+  RunResult live =
+      Watch(started, {"--out", dir_ + "/live/", "--metrics", dir_ + "/live.json", "--verbose"});
+  ASSERT_EQ(live.exit_code, 0) << live.err;
+  ASSERT_EQ((*streamer)->Wait(60), std::optional<int>(0)) << (*streamer)->Stderr();
+  EXPECT_NE(live.err.find("progress "), std::string::npos) << "it saw the session run";
+  EXPECT_NE(live.err.find("preview "), std::string::npos) << live.err;
+  RunResult late = Watch(started, {"--out", dir_ + "/late/", "--quiet"});
+  ASSERT_EQ(late.exit_code, 0) << late.err;
+  RunResult glb = Watch(started, {"--out", dir_ + "/late.glb", "--quiet"});
+  ASSERT_EQ(glb.exit_code, 0) << glb.err;
+
+  const std::set<std::string> names = LabelFiles(streamed);
+  ASSERT_GE(names.size(), 10u);  // a file per label and labels.glb
+  EXPECT_TRUE(names.count("labels.glb"));
+  for (const char* watcher : {"live", "late"}) {
+    SCOPED_TRACE(watcher);
+    EXPECT_EQ(LabelFiles(dir_ + "/" + watcher), names);
+    for (const std::string& name : names) {
+      EXPECT_EQ(ReadText(dir_ + "/" + watcher + "/" + name), ReadText(streamed + name)) << name;
+    }
+  }
+  EXPECT_EQ(ReadText(dir_ + "/late.glb"), ReadText(streamed + "labels.glb"));
+  auto want = nlohmann::json::parse(ReadText(dir_ + "/streamed.json"));
+  auto got = nlohmann::json::parse(ReadText(dir_ + "/live.json"));
+  EXPECT_EQ(got["labels"], want["labels"]);
+  EXPECT_EQ(got["labels"].size(), names.size() - 1);
+  EXPECT_EQ(got["triangles_final"], want["triangles_final"]);
+  EXPECT_EQ(got["slices"], kNz);
+
+  // A label session's files need a folder or a .glb; a single mesh file is refused by name.
+  RunResult ply = Watch(started, {"--out", dir_ + "/one.ply"});
+  EXPECT_EQ(ply.exit_code, 2) << ply.err;
+  EXPECT_NE(ply.err.find("is a label session: --out must be a folder (end it with /) or one "
+                         ".glb"),
+            std::string::npos)
+      << ply.err;
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/one.ply"));
+
+  // A session of background only sends no label: its Progress tells the watcher what it is,
+  // and the watcher writes what the streamer wrote (labels.glb alone).
+  VolumeInfo empty;
+  empty.nx = empty.ny = empty.nz = 8;
+  empty.dtype = DType::kUInt16;
+  ASSERT_TRUE(io::WriteVolume(dir_ + "/empty.nrrd", empty, [](int64_t, std::vector<uint8_t>* b) {
+                b->assign(8 * 8 * 2, 0);
+                return absl::OkStatus();
+              }).ok());
+  auto none = ChildProcess::Spawn(
+      {BinPath("tandem-client"), "stream", "--server", server_->address(), "--input",
+       dir_ + "/empty.nrrd", "--labels", "--seal", "--out", dir_ + "/none/"},
+      dir_);
+  ASSERT_TRUE(none.ok()) << none.status();
+  const Started none_started = StartedOf(**none);
+  ASSERT_EQ((*none)->Wait(60), std::optional<int>(0)) << (*none)->Stderr();
+  RunResult none_watch = Watch(none_started, {"--out", dir_ + "/none_watched/"});
+  ASSERT_EQ(none_watch.exit_code, 0) << none_watch.err;
+  EXPECT_NE(none_watch.out.find("(0 labels)"), std::string::npos) << none_watch.out;
+  EXPECT_EQ(LabelFiles(dir_ + "/none_watched"), std::set<std::string>{"labels.glb"});
+  EXPECT_EQ(ReadText(dir_ + "/none_watched/labels.glb"), ReadText(dir_ + "/none/labels.glb"));
+
+  // Unsealed, the labels come whole after End: not watchable, like an unsealed iso session.
+  RunResult plain = Run("tandem-client", {"stream", "--server", server_->address(), "--input",
+                                          volume_, "--labels", "--out", dir_ + "/plain/"});
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  Started plain_started;
+  plain_started.id = PrintedVariable(plain.err, "TANDEM_RESUME").substr(0, 32);
+  plain_started.watch_key = PrintedVariable(plain.err, "TANDEM_WATCH_KEY");
+  ASSERT_TRUE(plain_started.ok()) << plain.err;
+  RunResult refused = Watch(plain_started, {"--out", dir_ + "/refused/"});
+  EXPECT_EQ(refused.exit_code, 1) << refused.err;
+  EXPECT_NE(refused.err.find("does not send sealed chunks (SessionConfig.sealed_chunks): it "
+                             "cannot be watched"),
+            std::string::npos)
+      << refused.err;
+  EXPECT_EQ(server_->Health(), "SERVING");
+}
+
+// A sealed label session keeps each label's chunks to measure its figures at End: they
+// count in the per-session budget, so a deep one over it ends with the budget's error
+// naming them (its front alone stays under it), and the server goes on meshing.
+TEST_F(ServiceLabelsTest, KeptLabelChunksCountInTheSessionBudget) {
+  // At E0 0.1 the 80 slices seal about 250 k triangles, each label's chunks some 15 MiB
+  // beyond the front's 15 MiB at its peak.
+  const std::string deep = WriteDeepLabelVolume(dir_, 80);
+  auto small = TestServer::Start({"--session-memory-mb", "20"});
+  ASSERT_TRUE(small.ok()) << small.status();
+  RunResult over =
+      Run("tandem-client", {"stream", "--server", (*small)->address(), "--input", deep, "--labels",
+                            "--seal", "--error", "0.1", "--out", dir_ + "/over/"});
+  EXPECT_EQ(over.exit_code, 1) << over.err;
+  EXPECT_NE(over.err.find("RESOURCE_EXHAUSTED: session memory budget exceeded"), std::string::npos)
+      << over.err;
+  EXPECT_NE(over.err.find("each label's sealed chunks, kept to measure its figures at End"),
+            std::string::npos)
+      << over.err;
+  EXPECT_NE(over.err.find("per-session budget of 20.0 MiB"), std::string::npos) << over.err;
+  EXPECT_EQ((*small)->Health(), "SERVING");
+  EXPECT_TRUE((*small)->WaitIdle(20));
+  RunResult good =
+      Run("tandem-client", {"stream", "--server", (*small)->address(), "--input", volume_,
+                            "--labels", "--seal", "--out", dir_ + "/good/", "--quiet"});
+  EXPECT_EQ(good.exit_code, 0) << good.err;
+  EXPECT_GE(LabelFiles(dir_ + "/good").size(), 10u);
 }
 
 }  // namespace

@@ -130,6 +130,8 @@ TEST(LimitsTest, DefaultsAreShownByHelpAndReportedByInfo) {
                            "--tls-key FILE",
                            "[$TANDEM_TLS_KEY]",
                            "--compute-threads N",
+                           "--watch-spill-dir DIR",
+                           "[$TANDEM_WATCH_SPILL_DIR]",
                            "--auth-tokens-file FILE",
                            "[$TANDEM_AUTH_TOKENS_FILE]"}) {
     EXPECT_NE(help.out.find(want), std::string::npos) << want << "\n" << help.out;

@@ -28,55 +28,6 @@
 namespace tandem::testing {
 namespace {
 
-// "http://HOST:PORT/metrics" from the server's log, once it is there.
-std::string MetricsUrl(TestServer& server) {
-  const std::regex re("metrics on http://([0-9.]+):([0-9]+)/metrics");
-  for (int i = 0; i < 200; ++i) {
-    std::smatch m;
-    const std::string log = server.process().Stderr();
-    if (std::regex_search(log, m, re)) return m[1].str() + ":" + m[2].str();
-    std::this_thread::sleep_for(std::chrono::milliseconds(25));
-  }
-  return "";
-}
-
-// Sample name (with labels) → value; fails the test on a line that is not valid text
-// exposition (HELP/TYPE comments before each family's samples).
-std::map<std::string, double> Scrape(const std::string& host_port) {
-  std::map<std::string, double> out;
-  const size_t colon = host_port.rfind(':');
-  httplib::Client client(host_port.substr(0, colon), std::stoi(host_port.substr(colon + 1)));
-  client.set_connection_timeout(5);
-  auto res = client.Get("/metrics");
-  EXPECT_TRUE(res) << "no answer from " << host_port;
-  if (!res) return out;
-  EXPECT_EQ(res->status, 200);
-  EXPECT_TRUE(absl::StartsWith(res->get_header_value("Content-Type"), "text/plain; version=0.0.4"))
-      << res->get_header_value("Content-Type");
-  const std::regex sample(R"(^([a-z_]+)(\{[a-z_]+="[A-Za-z_]+"\})? (-?[0-9.e+]+)$)");
-  const std::regex type(R"(^# TYPE ([a-z_]+) (counter|gauge)$)");
-  std::set<std::string> typed;
-  for (absl::string_view line : absl::StrSplit(res->body, '\n', absl::SkipEmpty())) {
-    const std::string l(line);
-    std::smatch m;
-    if (absl::StartsWith(l, "# HELP ")) continue;
-    if (std::regex_match(l, m, type)) {
-      typed.insert(m[1].str());
-      continue;
-    }
-    if (!std::regex_match(l, m, sample)) {
-      ADD_FAILURE() << "not a sample line: " << l;
-      continue;
-    }
-    EXPECT_TRUE(typed.count(m[1].str())) << "sample before its TYPE: " << l;
-    if (absl::EndsWith(m[1].str(), "_total")) {
-      EXPECT_EQ(l.find("TYPE"), std::string::npos);
-    }
-    out[m[1].str() + m[2].str()] = std::stod(m[3].str());
-  }
-  return out;
-}
-
 int PortOf(const std::string& host_port) {
   return std::stoi(host_port.substr(host_port.rfind(':') + 1));
 }

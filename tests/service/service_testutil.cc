@@ -2,6 +2,8 @@
 
 #include <arpa/inet.h>
 #include <fcntl.h>
+#include <gtest/gtest.h>
+#include <httplib.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <signal.h>
@@ -19,11 +21,15 @@
 #include <cstring>
 #include <fstream>
 #include <random>
+#include <regex>
+#include <set>
 #include <sstream>
 #include <thread>
 #include <unordered_map>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
@@ -527,6 +533,52 @@ TcpProxy::~TcpProxy() {
   for (std::thread& t : threads) t.join();
   for (int fd : fds_) close(fd);
   if (listen_fd_ >= 0) close(listen_fd_);
+}
+
+std::string MetricsUrl(TestServer& server) {
+  const std::regex re("metrics on http://([0-9.]+):([0-9]+)/metrics");
+  for (int i = 0; i < 200; ++i) {
+    std::smatch m;
+    const std::string log = server.process().Stderr();
+    if (std::regex_search(log, m, re)) return m[1].str() + ":" + m[2].str();
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  return "";
+}
+
+std::map<std::string, double> Scrape(const std::string& host_port) {
+  std::map<std::string, double> out;
+  const size_t colon = host_port.rfind(':');
+  httplib::Client client(host_port.substr(0, colon), std::stoi(host_port.substr(colon + 1)));
+  client.set_connection_timeout(5);
+  auto res = client.Get("/metrics");
+  EXPECT_TRUE(res) << "no answer from " << host_port;
+  if (!res) return out;
+  EXPECT_EQ(res->status, 200);
+  EXPECT_TRUE(absl::StartsWith(res->get_header_value("Content-Type"), "text/plain; version=0.0.4"))
+      << res->get_header_value("Content-Type");
+  const std::regex sample(R"(^([a-z_]+)(\{[a-z_]+="[A-Za-z_]+"\})? (-?[0-9.e+]+)$)");
+  const std::regex type(R"(^# TYPE ([a-z_]+) (counter|gauge)$)");
+  std::set<std::string> typed;
+  for (absl::string_view line : absl::StrSplit(res->body, '\n', absl::SkipEmpty())) {
+    const std::string l(line);
+    std::smatch m;
+    if (absl::StartsWith(l, "# HELP ")) continue;
+    if (std::regex_match(l, m, type)) {
+      typed.insert(m[1].str());
+      continue;
+    }
+    if (!std::regex_match(l, m, sample)) {
+      ADD_FAILURE() << "not a sample line: " << l;
+      continue;
+    }
+    EXPECT_TRUE(typed.count(m[1].str())) << "sample before its TYPE: " << l;
+    if (absl::EndsWith(m[1].str(), "_total")) {
+      EXPECT_EQ(l.find("TYPE"), std::string::npos);
+    }
+    out[m[1].str() + m[2].str()] = std::stod(m[3].str());
+  }
+  return out;
 }
 
 }  // namespace tandem::testing

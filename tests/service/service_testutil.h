@@ -127,6 +127,13 @@ struct TestPki {
 absl::StatusOr<TestPki> MakeTestPki(const std::string& dir);
 std::string ReadFileOrEmpty(const std::string& path);
 
+// "HOST:PORT" of the metrics endpoint a server started with --metrics-listen logged, once it
+// has ("" after 5 s).
+std::string MetricsUrl(TestServer& server);
+// GET /metrics: sample name (with labels) → value; fails the test on a line that is not valid
+// text exposition (HELP/TYPE comments before each family's samples).
+std::map<std::string, double> Scrape(const std::string& host_port);
+
 // Writes the first `nz` slices of a synthetic float32 field as DIR/NAME.json + .raw.
 absl::StatusOr<std::string> WriteSyntheticVolume(const std::string& dir, const std::string& name,
                                                  std::unique_ptr<SliceSource> source);

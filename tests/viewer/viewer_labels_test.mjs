@@ -6,8 +6,10 @@
 // two of those colours, told apart by their chromaticity); at the end every label's final
 // mesh is drawn in its colour and the final table has a row per label.
 // With `sealed` (--seal) the labels come as sealed chunks, each drawn on its label's surface,
-// and at the end the chunks are each label's whole mesh.
-//   node tests/viewer/viewer_labels_test.mjs BUILD_DIR [sealed]
+// and at the end the chunks are each label's whole mesh. With `watched` the same sealed session
+// is shown by another client, `tandem-client watch --label-names TABLE --view`, which also
+// writes the streaming client's files.
+//   node tests/viewer/viewer_labels_test.mjs BUILD_DIR [sealed|watched]
 // Exit 0: passed; 1: failed; 77: skipped (no Chromium or node_modules, outside CI).
 import fs from 'node:fs';
 import path from 'node:path';
@@ -16,7 +18,8 @@ import { harness } from './browser_harness.mjs';
 const { work, check, start, waitFor, urlIn, startServer, launch, canvasShot, pageShot, chromaOf,
         chromaDistance, run } = harness(process.argv[2]);
 
-const SEALED = process.argv[3] === 'sealed';
+const WATCHED = process.argv[3] === 'watched';
+const SEALED = process.argv[3] === 'sealed' || WATCHED;
 const drawn = (s) => s.bandTriangles + s.sealedTriangles;
 const LONG = 240;  // bound of every wait, in seconds (the waits take a few)
 const N = 48;      // grid vertices per axis
@@ -80,11 +83,20 @@ await run(async () => {
   const address = await startServer(['--idle-timeout-seconds', '900']);
   const browser = await launch();
   // Paced (4 slices a second): the page is looked at while the scan is still arriving.
+  const view = ['--view', '127.0.0.1:0', '--view-linger', String(LONG)];
   const client = start('tandem-client', [
     'stream', '--server', address, '--input', volume, '--labels', '--label-names', table,
     '--error', '0.5', '--rate', '4', '--out', path.join(work, 'out') + '/',
-    '--view', '127.0.0.1:0', '--view-linger', String(LONG), ...(SEALED ? ['--seal'] : [])]);
-  const url = await waitFor('the viewer address', () => urlIn(client), LONG);
+    ...(WATCHED ? ['--preview-every', '2'] : view), ...(SEALED ? ['--seal'] : [])]);
+  let viewer = client;
+  if (WATCHED) {  // another client shows the session, by the id and key the streamer printed
+    const printed = (name) => (client.err.match(new RegExp(`${name}=([0-9a-f]{32})`)) || [])[1];
+    const key = await waitFor('the watch key', () => printed('TANDEM_WATCH_KEY'), LONG);  // printed last
+    viewer = start('tandem-client', [
+      'watch', '--server', address, '--session', printed('TANDEM_RESUME'), '--label-names', table,
+      '--out', path.join(work, 'watched') + '/', ...view], { TANDEM_WATCH_KEY: key });
+  }
+  const url = await waitFor('the viewer address', () => urlIn(viewer), LONG);
   const page = await browser.newPage({ viewport: { width: 960, height: 640 } });
   const pageErrors = [];
   page.on('pageerror', (e) => pageErrors.push(e.message));
@@ -122,12 +134,21 @@ await run(async () => {
   check(final.every((share) => share > 0.003), 'labels: the final canvas shows all three colours',
         JSON.stringify(final));
   await pageShot(page, 'page-labels-final.png');
-  const files = fs.readdirSync(path.join(work, 'out')).sort();
-  check(JSON.stringify(files) === JSON.stringify(['Blue.ply', 'Green.ply', 'Red.ply', 'labels.glb']),
-        'labels: the client wrote a file per label, named by the table, and labels.glb', JSON.stringify(files));
-  client.kill('SIGINT');  // the end of --view-linger
-  const code = await client.exited;
-  check(code === 0, 'labels: the client ends well', client.err.slice(-2000));
+  if (WATCHED) {
+    check(await client.exited === 0, 'labels: the streaming client ends well', client.err.slice(-2000));
+  }
+  const want = ['Blue.ply', 'Green.ply', 'Red.ply', 'labels.glb'];
+  for (const dir of WATCHED ? ['out', 'watched'] : ['out']) {
+    await waitFor(`${dir}/labels.glb`, () => fs.existsSync(path.join(work, dir, 'labels.glb')), LONG);
+    const files = fs.readdirSync(path.join(work, dir)).sort();
+    check(JSON.stringify(files) === JSON.stringify(want),
+          `labels: ${dir}/ holds a file per label, named by the table, and labels.glb`, JSON.stringify(files));
+    check(want.every((f) => fs.readFileSync(path.join(work, dir, f)).equals(fs.readFileSync(path.join(work, 'out', f)))),
+          `labels: ${dir}/ holds the streaming client's files`, dir);
+  }
+  viewer.kill('SIGINT');  // the end of --view-linger
+  const code = await viewer.exited;
+  check(code === 0, 'labels: the client ends well', viewer.err.slice(-2000));
   check(pageErrors.length === 0 && end.errors.length === 0, 'labels: no error on the page',
         JSON.stringify([...pageErrors, ...end.errors]));
 });

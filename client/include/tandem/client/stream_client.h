@@ -116,7 +116,7 @@ absl::StatusOr<StreamResult> StreamVolume(SliceSource& source, const StreamOptio
 // Watches another stream's session (tandem.proto: Watch) by its id and watch key (or, with
 // a bearer token, as its creator): its sealed chunks, from the first, then its progress,
 // previews and final metrics, as StreamVolume collects them (slices_sent = the session's
-// slices).
+// slices). A label session's come per label, as its own client gets them (result.labels).
 absl::StatusOr<StreamResult> WatchSession(const ConnectionOptions& connection,
                                           const std::string& session_id,
                                           const std::string& watch_key, double timeout_s,

@@ -172,6 +172,7 @@ class ExtractJob {
   std::vector<SealedChunk> kept_;  // compute_distances only: the chunks, to weld at the end
   // A sealed label session: each label's chunks as sent, welded at End for its figures.
   std::map<LabelId, std::vector<SealedChunk>> label_chunks_;
+  size_t label_chunk_bytes_ = 0;  // what label_chunks_ holds, in OwnBytes: it grows with depth
   // The ids a chunk sent that a later chunk may send again (not retired): on the shared grid
   // those corners may not move (codec::EncodeDraco's `fixed`), and those the encoder moved
   // go out again where they were sent. The front's border and the unsettled seams, not the

@@ -34,6 +34,8 @@ struct ServerLimits {
   // session stays watchable.
   int64_t watch_retain_bytes = int64_t{64} << 20;  // --watch-retain-mb
   double watch_linger_s = 60;                      // --watch-linger-seconds
+  // Where the kept chunks go (empty: memory); not reported by GetInfo, a path on the server.
+  std::string watch_spill_dir;  // --watch-spill-dir
   // A stream whose client vanished before End keeps its session this long for a resume.
   double resume_window_s = 60;  // --resume-window-seconds
   // Previews are never closer than this, whatever the client asks (each one snapshots and

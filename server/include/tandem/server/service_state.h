@@ -44,7 +44,7 @@ struct ServiceState {
                 : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())))),
         tls(tls_on),
         auth(std::move(tokens)),
-        feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes),
+        feeds(absl::Seconds(l.watch_linger_s), l.watch_retain_bytes, l.watch_spill_dir),
         resumable(absl::Seconds(l.resume_window_s)) {}
   const ServerLimits limits;
   // The threads every session computes on: however many streams arrive, they share these.

@@ -21,11 +21,18 @@
 // kept for it until the session ends (held_, beside the newest retain_bytes kept for watchers),
 // counted in the session's memory budget; without acknowledgements only the newest
 // retain_bytes are kept once the chunks outgrew it.
+//
+// Where: the kept chunks are written, encoded, to the session's SpillFile
+// (tandem/server/chunk_spill.h) in the server's spill directory and read back when a
+// watcher or a resume needs them, so that what a session keeps does not grow the process
+// with the depth of its scan; a chunk the file cannot take (no spill directory, a directory
+// that cannot be written, a full disk) is kept in memory instead.
 #ifndef TANDEM_SERVER_WATCH_H_
 #define TANDEM_SERVER_WATCH_H_
 
 #include <grpcpp/grpcpp.h>
 
+#include <atomic>
 #include <cstdint>
 #include <deque>
 #include <map>
@@ -39,6 +46,7 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
 #include "tandem/budget.h"
+#include "tandem/server/chunk_spill.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
 namespace tandem::server {
@@ -49,15 +57,32 @@ class FeedWatcher {
   virtual void Wake() = 0;  // the feed has something new; called without the feed's mutex
 };
 
+// How every feed of a server keeps its chunks, and what they all keep (for the metrics).
+struct ChunkRetention {
+  ChunkRetention(int64_t retain, std::string dir)
+      : retain_bytes(retain), spill_dir(std::move(dir)) {}
+  const int64_t retain_bytes;
+  const std::string spill_dir;                    // empty: chunks are kept in memory
+  std::atomic<int64_t> memory_bytes{0};           // kept chunks' bytes in memory
+  std::atomic<int64_t> spilled_bytes{0};          // and in spill files
+  std::atomic<bool> spill_failure_logged{false};  // one log line per server, not per chunk
+};
+
 class SessionFeed {
  public:
   // `owner`: the creator's bearer token identity (TokenAuthenticator::Check).
-  SessionFeed(std::string id, std::string watch_key, int owner, int64_t retain_bytes)
+  SessionFeed(std::string id, std::string watch_key, int owner,
+              std::shared_ptr<ChunkRetention> retention)
       : id_(std::move(id)),
         watch_key_(std::move(watch_key)),
         owner_(owner),
-        retain_bytes_(retain_bytes),
+        retention_(std::move(retention)),
+        retain_bytes_(retention_->retain_bytes),
         start_(absl::Now()) {}
+  // Keeps its chunks in memory.
+  SessionFeed(std::string id, std::string watch_key, int owner, int64_t retain_bytes)
+      : SessionFeed(std::move(id), std::move(watch_key), owner,
+                    std::make_shared<ChunkRetention>(retain_bytes, "")) {}
   ~SessionFeed();
   const std::string& id() const { return id_; }
   const std::string& watch_key() const { return watch_key_; }
@@ -85,7 +110,8 @@ class SessionFeed {
   // The client holds chunks 0 .. count-1 (a lower count than before changes nothing);
   // INVALID_ARGUMENT when fewer were posted.
   absl::Status Acknowledge(int64_t count);
-  // Bytes of the chunks kept only because the client has not acknowledged them.
+  // Bytes of the chunks kept only because the client has not acknowledged them (in memory
+  // or spilled: the session's budget bounds what it keeps for its client either way).
   int64_t unacknowledged_bytes() const;
 
   // Watcher side. Attach fails (with the status to send) for a session that cannot be
@@ -104,21 +130,36 @@ class SessionFeed {
   bool finished_before(absl::Time t) const;  // finished, and before t
 
  private:
+  // A kept chunk: its encoded bytes in the spill file at `offset`, or `chunk` itself.
+  struct Kept {
+    int64_t bytes = 0;
+    int64_t offset = -1;  // -1: in memory
+    v1::SealedChunk chunk;
+  };
   void WakeAll();
   // Brings the budget's count of held_ up to date.
   void AccountHeldLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // `c` as kept: spilled when the spill file takes it, else a copy in memory.
+  Kept KeepLocked(const v1::SealedChunk& c) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  absl::Status LoadLocked(const Kept& k, v1::SealedChunk* out) const
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Forgets a kept chunk (its disk space back, the server's counts down).
+  void ReleaseLocked(const Kept& k) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   const std::string id_;
   const std::string watch_key_;
   const int owner_;
+  const std::shared_ptr<ChunkRetention> retention_;
   const int64_t retain_bytes_;
   const absl::Time start_;
   mutable absl::Mutex mu_;
   std::string description_ ABSL_GUARDED_BY(mu_);
   bool sealed_ ABSL_GUARDED_BY(mu_) = false;
-  bool labels_ ABSL_GUARDED_BY(mu_) = false;  // a label session: not watchable
+  bool labels_ ABSL_GUARDED_BY(mu_) = false;  // a label session: its Progress says so to watchers
   bool waiting_ ABSL_GUARDED_BY(mu_) = false;
   // chunks_[i] is chunk dropped_ + i.
-  std::deque<v1::SealedChunk> chunks_ ABSL_GUARDED_BY(mu_);
+  std::deque<Kept> chunks_ ABSL_GUARDED_BY(mu_);
+  std::unique_ptr<SpillFile> spill_ ABSL_GUARDED_BY(mu_);  // made at the first chunk
+  bool spill_failed_ ABSL_GUARDED_BY(mu_) = false;         // the file could not be made
   int64_t chunk_bytes_ ABSL_GUARDED_BY(mu_) = 0;  // of every chunk ever added
   int64_t kept_bytes_ ABSL_GUARDED_BY(mu_) = 0;   // of chunks_
   // The chunks outgrew retain_bytes_: no new watcher; once none is attached, only the
@@ -129,7 +170,7 @@ class SessionFeed {
   // Chunks dropped from chunks_ that the client has not acknowledged: held_[i] is chunk
   // dropped_ - held_.size() + i (kept while budget_ is set).
   std::shared_ptr<MemoryBudget> budget_ ABSL_GUARDED_BY(mu_);
-  std::deque<v1::SealedChunk> held_ ABSL_GUARDED_BY(mu_);
+  std::deque<Kept> held_ ABSL_GUARDED_BY(mu_);
   int64_t held_bytes_ ABSL_GUARDED_BY(mu_) = 0;
   int64_t held_accounted_ ABSL_GUARDED_BY(mu_) = 0;  // what budget_ was told
   size_t acknowledged_ ABSL_GUARDED_BY(mu_) = 0;
@@ -146,8 +187,10 @@ class SessionFeed {
 // The feeds of live sessions, and of finished ones for `linger` (then they expire).
 class FeedRegistry {
  public:
-  FeedRegistry(absl::Duration linger, int64_t retain_bytes)
-      : linger_(linger), retain_bytes_(retain_bytes) {}
+  // `spill_dir`: where feeds keep their chunks (empty: in memory).
+  FeedRegistry(absl::Duration linger, int64_t retain_bytes, std::string spill_dir = "")
+      : linger_(linger),
+        retention_(std::make_shared<ChunkRetention>(retain_bytes, std::move(spill_dir))) {}
   // With a fresh random id, for a creator of bearer token identity `owner`.
   std::shared_ptr<SessionFeed> Create(std::string watch_key, int owner);
   std::shared_ptr<SessionFeed> Find(const std::string& id);
@@ -156,6 +199,7 @@ class FeedRegistry {
   std::shared_ptr<SessionFeed> FindReadable(const std::string& id, std::string_view watch_key,
                                             int identity);
   void Remove(const std::string& id);  // a feed never used (its stream resumed another)
+  const ChunkRetention& retention() const { return *retention_; }
   // The sessions a call may read (see FindReadable), given any of `watch_keys`.
   std::vector<v1::SessionSummary> Summaries(const std::vector<std::string_view>& watch_keys,
                                             int identity);
@@ -163,7 +207,7 @@ class FeedRegistry {
  private:
   void ExpireLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   const absl::Duration linger_;
-  const int64_t retain_bytes_;
+  const std::shared_ptr<ChunkRetention> retention_;
   absl::Mutex mu_;
   std::map<std::string, std::shared_ptr<SessionFeed>> feeds_ ABSL_GUARDED_BY(mu_);
 };

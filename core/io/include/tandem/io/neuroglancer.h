@@ -164,9 +164,11 @@ struct NeuroglancerNode {
 // exactly along the faces of its cells (the nodes for k = 0, their octants for k > 0, as the
 // format's 2x2x2 partition asks), each cell's piece quantized inside the cell, octants
 // meeting on the step 2^(bits-1) that Neuroglancer's partition lets either side hold. With
-// skirt > 0 every cut edge hangs a strip of that depth (mesh units) inside the cut face,
-// away from the surface's outer side, so that two levels meeting on a face overlap instead
-// of leaving the crack between their cuts; 0: none.
+// skirt > 0 every cut edge hangs a strip of at least that depth (mesh units) inside the cut
+// face, away from the surface's outer side, so that two levels meeting on a face overlap
+// instead of leaving the crack between their cuts: down to another level's cut of that face
+// (up to 4 skirts) where it lies further, and down a cell edge where the cut reaches one;
+// 0: none.
 absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
     const NeuroglancerSegment& segment, const NeuroglancerGrid& grid, int bits, double skirt);
 // Where quantized position q of level `lod`'s node `node` lands (meshes.md's formula).
