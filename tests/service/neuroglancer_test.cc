@@ -640,10 +640,7 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
   const std::vector<const LabeledMesh*> levels{&complexes[0], &complexes[1]};
   const std::string dir = testing::MakeTempDir() + "/ng";
   // Nodes of 4 voxels: the interface is cut by node faces at 3.5 and 7.5.
-  std::vector<std::vector<std::pair<LabelId, IndexedMesh>>> split;
-  for (const TandemSession* level : levels)
-    split.push_back(SplitByLabel(level->SnapshotLabeled(), 0));
-  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, std::move(split), 1, 7, {4, -1}).ok());
+  ASSERT_TRUE(app::WriteNeuroglancerLabels(dir, grid, levels, 0, 1, 7, {4, -1}).ok());
   for (LabelId id : {5u, 9u}) {
     SCOPED_TRACE(id);
     const Stored stored = ReadSegment(dir, id);
