@@ -81,7 +81,8 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // counting each neighbour among all 2n corners.
   auto sets_differ = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
-    for (int i = 0; i < n; ++i) any |= (CountOf(y, x[i]) == 0) | (CountOf(x, y[i]) == 0);
+    for (int i = 0; i < n; ++i)
+      any |= static_cast<int>(CountOf(y, x[i]) == 0) | static_cast<int>(CountOf(x, y[i]) == 0);
     return any;
   };
   auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
@@ -109,7 +110,8 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   auto on_boundary = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
     bool any = false;
     for (int i = 0; i < n; ++i) {
-      any |= (CountOf(x, y, x[i]) == 1) | (CountOf(x, y, y[i]) == 1);
+      any |=
+          static_cast<int>(CountOf(x, y, x[i]) == 1) | static_cast<int>(CountOf(x, y, y[i]) == 1);
     }
     return any;
   };
@@ -311,7 +313,8 @@ bool LabelLinkCondition(const MeshStore& store, VertexId a, VertexId b, LinkScra
   int on_ab = 0;
   for (TriId t : ta) {
     const auto& tri = store.triangle(t);
-    on_ab += (tri[0] == b) | (tri[1] == b) | (tri[2] == b);
+    on_ab += static_cast<int>(tri[0] == b) | static_cast<int>(tri[1] == b) |
+             static_cast<int>(tri[2] == b);
   }
   if (on_ab == 0 || on_ab > kMaxEdgeTriangles) return false;
   labels_at(a, &scratch->labels_a);
@@ -363,7 +366,9 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     for (TriId t : (v == a) ? ta : tb) {
       const auto& tri = store.triangle(t);
       (*survivors)[n] = {t, v};
-      n += static_cast<size_t>(!((tri[0] == other) | (tri[1] == other) | (tri[2] == other)));
+      n += static_cast<size_t>((static_cast<int>(tri[0] == other) |
+                                static_cast<int>(tri[1] == other) |
+                                static_cast<int>(tri[2] == other)) == 0);
     }
   }
   const bool guarded = bound > 0.0;
