@@ -360,6 +360,66 @@ void LabelLayers::Commit(MeshStore* store, std::span<const TriId> tris,
   }
 }
 
+void LabelLayers::EdgeRules(std::span<const std::array<VertexId, 3>> staged, size_t vertices,
+                            std::span<const TriId> tris, std::vector<uint8_t>* rules) {
+  // An edge with a new end lies in this layer's triangles only (the store's triangles at a
+  // new vertex are the layer's), all of this layer: the one of least id queues it. Each such
+  // edge is listed at its end of larger id (pending ids are above store ids, so that is a new
+  // end), with the triangle edge that queues it as far as the triangles met so far say.
+  auto is_new = [](VertexId v) { return (v & LayerExtractor::kPending) != 0; };  // no kInvalid
+  auto staged_index = [](VertexId v) { return v & ~LayerExtractor::kPending; };
+  listed_at_.assign(vertices + 1, 0);
+  for (const auto& tri : staged) {
+    for (int k = 0; k < 3; ++k) {
+      const VertexId end = std::max(tri[k], tri[kNextCorner[k]]);
+      if (is_new(end)) ++listed_at_[staged_index(end) + 1];
+    }
+  }
+  for (size_t v = 1; v <= vertices; ++v) listed_at_[v] += listed_at_[v - 1];
+  listed_end_.assign(listed_at_.begin(), listed_at_.end() - 1);
+  listed_.resize(listed_at_[vertices]);
+  const size_t first = rules->size();
+  rules->resize(first + staged.size());
+  for (size_t i = 0; i < staged.size(); ++i) {
+    uint8_t rule = 0;  // kEdgeBelow where not set
+    for (int k = 0; k < 3; ++k) {
+      const VertexId a = staged[i][k], b = staged[i][kNextCorner[k]];
+      const VertexId end = std::max(a, b), other = std::min(a, b);
+      if (!is_new(end)) {
+        rule |= kEdgeSearch << (2 * k);
+        continue;
+      }
+      const auto edge = static_cast<uint32_t>(3 * i + k);
+      const uint32_t v = staged_index(end);
+      ListedEdge* e = listed_.data() + listed_at_[v];
+      ListedEdge* const last = listed_.data() + listed_end_[v];
+      while (e != last && e->other != other) ++e;
+      if (e == last) {
+        *e = {other, edge};
+        ++listed_end_[v];
+      } else if (tris[e->edge / 3] > tris[i]) {  // the store handed out ids out of order
+        (*rules)[first + e->edge / 3] &= static_cast<uint8_t>(~(3 << (2 * (e->edge % 3))));
+        e->edge = edge;
+      } else {
+        continue;
+      }
+      rule |= kEdgeOnce << (2 * k);
+    }
+    (*rules)[first + i] = rule;
+  }
+  // As the extractor's staging: a cap's lists are not kept for the whole session.
+  if (EdgeListBytes() > (size_t{4} << 20)) {
+    std::vector<uint32_t>().swap(listed_at_);
+    std::vector<uint32_t>().swap(listed_end_);
+    std::vector<ListedEdge>().swap(listed_);
+  }
+}
+
+size_t LabelLayers::EdgeListBytes() const {
+  return (listed_at_.capacity() + listed_end_.capacity()) * sizeof(uint32_t) +
+         listed_.capacity() * sizeof(ListedEdge);
+}
+
 void LabelLayers::ForgetPairs() {
   assert(staged_patch_.empty());
   pairs_ = {};
@@ -379,7 +439,7 @@ size_t LabelLayers::MemoryBytes() const {
          map_bytes(inside_) + staged_patch_.capacity() * sizeof(uint32_t) +
          pairs_.capacity() * sizeof(LabelPair) + store_patch_.capacity() * sizeof(uint32_t) +
          pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1) +
-         (seam_[0].capacity() + seam_[1].capacity()) * sizeof(SeamPoint);
+         (seam_[0].capacity() + seam_[1].capacity()) * sizeof(SeamPoint) + EdgeListBytes();
 }
 
 }  // namespace tandem

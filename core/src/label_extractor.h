@@ -69,6 +69,12 @@ class LabelLayers {
   void Commit(MeshStore* store, std::span<const TriId> tris,
               std::span<const VertexId> staged_to_store,
               std::array<std::vector<VertexId>, 2>* new_seam);
+  // After Commit, per committed triangle (`staged`, in staging order, whose new corners are
+  // still pending staged indices, of `vertices` staged ones; `tris` their store ids): its
+  // LayerEdges, appended to *rules (mesh_store.h: each edge with a new end queued once,
+  // the rest left to DELAY's search).
+  void EdgeRules(std::span<const std::array<VertexId, 3>> staged, size_t vertices,
+                 std::span<const TriId> tris, std::vector<uint8_t>* rules);
   size_t MemoryBytes() const;
   // Between layers (nothing staged): forgets the pairs met so far and their store patches
   // (the store's pairs were compacted), met again as they come.
@@ -113,6 +119,16 @@ class LabelLayers {
     uint32_t staged;
   };
   std::array<std::vector<SeamPoint>, 2> seam_;
+  // EdgeRules' edges at each new vertex: those of staged vertex v are listed_[listed_at_[v]]
+  // up to listed_[listed_end_[v]], each its other end and the triangle edge (3 * staged
+  // triangle + k) that queues it.
+  struct ListedEdge {
+    VertexId other;
+    uint32_t edge;
+  };
+  size_t EdgeListBytes() const;
+  std::vector<uint32_t> listed_at_, listed_end_;
+  std::vector<ListedEdge> listed_;
 };
 
 }  // namespace tandem

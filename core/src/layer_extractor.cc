@@ -250,6 +250,7 @@ void LayerExtractor::CommitLayer(std::vector<TriId>* new_tris, std::vector<Verte
       tris.push_back(store_->AddTriangle(resolve(tri[0]), resolve(tri[1]), resolve(tri[2])));
     }
     labels_->Commit(store_, tris, staged_to_store_, new_seam);
+    if (new_edges) labels_->EdgeRules(staged_triangles_, staged_vertices_.size(), tris, new_edges);
     if (new_tris) new_tris->insert(new_tris->end(), tris.begin(), tris.end());
   } else {
     for (const auto& tri : staged_triangles_) {

@@ -148,6 +148,10 @@ class LayerExtractor {
   int64_t crossed_cubes() const { return crossed_cubes_; }
   const ExtractorConfig& config() const { return config_; }
 
+  // Staged vertex ids carry this tag until CommitLayer maps them to store ids.
+  static constexpr VertexId kPending = 0x80000000u;
+  static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
+
  private:
   friend class LabelLayers;  // stages its layers here
   void AllocatePlanes();  // the plane caches, on the first ComputeLayer
@@ -160,9 +164,6 @@ class LayerExtractor {
     account_->Hold(HeldBytes(dtype), "extracting slice", k);
   }
   static constexpr size_t kCheckEvery = 2048;  // about 150 KiB once committed
-  // Pending vertex ids carry this tag until CommitLayer maps them to store ids.
-  static constexpr VertexId kPending = 0x80000000u;
-  static bool IsPending(VertexId v) { return v != kInvalid && (v & kPending); }
 
   // Index-space point on the grid edge from index point p (value fp) along `axis` to the
   // next grid point (value fq); fp, fq relative to the iso-value, exactly one >= 0; at

@@ -69,9 +69,12 @@ enum VertexFlag : uint8_t {
 // plane below, in a face the cube underneath shares, so queued with that layer; kEdgeOnce,
 // this triangle's only (on the front, the box, a seam); kEdgeShared, in another triangle of
 // the layer too (inside the cube, or on a face the neighbouring cube shares), queued from
-// the triangle where it runs from the lower vertex id to the higher. A triangle's three
-// (edge k joins corners k and k + 1) take 2 bits each, edge 0 lowest: LayerEdges.
-enum LayerEdge : uint8_t { kEdgeBelow = 0, kEdgeOnce = 1, kEdgeShared = 2 };
+// the triangle where it runs from the lower vertex id to the higher. A label layer's edge
+// with a new end lies in the layer's triangles only: kEdgeOnce from the one of least id,
+// kEdgeBelow from the others; its edges between two older vertices are kEdgeSearch, whose
+// other triangles DELAY looks up in the store. A triangle's three (edge k joins corners k
+// and k + 1) take 2 bits each, edge 0 lowest: LayerEdges.
+enum LayerEdge : uint8_t { kEdgeBelow = 0, kEdgeOnce = 1, kEdgeShared = 2, kEdgeSearch = 3 };
 inline uint8_t LayerEdges(LayerEdge e0, LayerEdge e1, LayerEdge e2) {
   return static_cast<uint8_t>(e0 | (e1 << 2) | (e2 << 4));
 }

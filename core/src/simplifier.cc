@@ -136,25 +136,30 @@ bool Simplifier::HasHalfEdge(VertexId a, VertexId b) const {
   return found;
 }
 
-void Simplifier::PushComplexTriangleEdges(TriId t, bool new_layer) {
+int32_t Simplifier::LayerOf(TriId t) const {
+  const auto& o = store_->triangle(t);
+  return std::max({store_->layer(o[0]), store_->layer(o[1]), store_->layer(o[2])});
+}
+
+bool Simplifier::QueuedElsewhere(TriId t, VertexId a, VertexId b, bool new_layer,
+                                 int32_t layer) const {
   // Where 3 or more labels meet, an edge lies in as many triangles, facing either way, so
   // half-edges cannot say which triangle queues it: the one of least id does, among the new
   // layer's (an edge in a triangle of an older layer was queued with that layer).
-  auto layer_of = [this](TriId u) {
+  for (TriId u : store_->vertex_triangles(a)) {
     const auto& o = store_->triangle(u);
-    return std::max({store_->layer(o[0]), store_->layer(o[1]), store_->layer(o[2])});
-  };
-  const int32_t layer = new_layer ? layer_of(t) : 0;
+    if (u == t || (o[0] != b && o[1] != b && o[2] != b)) continue;
+    if (u < t || (new_layer && LayerOf(u) < layer)) return true;
+  }
+  return false;
+}
+
+void Simplifier::PushComplexTriangleEdges(TriId t, bool new_layer) {
+  const int32_t layer = new_layer ? LayerOf(t) : 0;
   const auto& tri = store_->triangle(t);
   for (int k = 0; k < 3; ++k) {
     const VertexId a = tri[k], b = tri[(k + 1) % 3];
-    bool queued = false;
-    for (TriId u : store_->vertex_triangles(a)) {
-      const auto& o = store_->triangle(u);
-      if (u == t || (o[0] != b && o[1] != b && o[2] != b)) continue;
-      queued |= (new_layer && layer_of(u) < layer) || u < t;
-    }
-    if (!queued) AddToBatch(a, b);
+    if (!QueuedElsewhere(t, a, b, new_layer, layer)) AddToBatch(a, b);
   }
 }
 
@@ -234,7 +239,11 @@ void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> lay
       for (int k = 0; k < 3; ++k) {
         const VertexId a = tri[k], b = tri[(k + 1) % 3];
         const LayerEdge rule = EdgeOf(layer_edges[i], k);
-        if (rule == kEdgeOnce || (rule == kEdgeShared && a < b)) AddToBatch(a, b);
+        if (rule == kEdgeOnce || (rule == kEdgeShared && a < b) ||
+            (rule == kEdgeSearch &&
+             !QueuedElsewhere(tris[i], a, b, /*new_layer=*/true, LayerOf(tris[i])))) {
+          AddToBatch(a, b);
+        }
       }
     }
     FlushBatch();

@@ -52,7 +52,8 @@ class Simplifier {
   // With the tandem release rules, `tris` must be one new layer (the schedules' DELAY(k)):
   // its edges on the plane below were queued with the layer underneath and are not again.
   // `layer_edges` (LayerExtractor::CommitLayer's, one per triangle) says which edges those
-  // are; without it they are found in the store.
+  // are, and in a label layer which triangle queues each (its edges between two older
+  // vertices are still found in the store); without it they are found in the store.
   void Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges = {});
   // ACTIVATE(front): the entries of W whose key is <= front (+inf for ACTIVATE(∞)) are
   // evaluated into Q in W's order. A release of more than release_chunk edges enters Q a
@@ -247,6 +248,10 @@ class Simplifier {
   // delayed, whose edges on the plane below were queued with the layer underneath.
   void PushTriangleEdges(TriId t, bool new_layer);
   void PushComplexTriangleEdges(TriId t, bool new_layer);  // the same in a label session
+  // In a label session: edge ab of t is queued from another of its triangles (see Delay).
+  bool QueuedElsewhere(TriId t, VertexId a, VertexId b, bool new_layer, int32_t layer) const;
+  // The latest layer among t's corners.
+  int32_t LayerOf(TriId t) const;
   bool HasHalfEdge(VertexId a, VertexId b) const;  // some triangle traverses a -> b
   // Batches: PushEdge's work for many edges, the pure part (release key, quadric solve)
   // possibly on two threads, then the pushes in batch order.

@@ -15,6 +15,7 @@
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "engine_testutil.h"
+#include "label_extractor.h"
 #include "layer_extractor.h"
 #include "mesh_store.h"
 #include "simplifier.h"
@@ -42,25 +43,78 @@ std::vector<uint16_t> Labels(int64_t n) {
   return v;
 }
 
-// Extracts Labels(n) into `store` layer by layer (open at the box); each layer's triangles
-// are added to the simplifier and delayed as the tandem schedules do.
-void ExtractLabels(int64_t n, MeshStore* store, Simplifier* simplifier) {
+// A label layer's rule for edge k of its new triangle t, against the store right after the
+// commit: kEdgeSearch where both ends are older; else every triangle holding the edge is
+// new, and t queues it (kEdgeOnce) iff it is the one of least id.
+void ExpectRuleOfTheStore(const MeshStore& s, TriId t, int k, LayerEdge rule) {
+  const VertexId a = s.triangle(t)[k], b = s.triangle(t)[(k + 1) % 3];
+  const int32_t layer =
+      std::max({s.layer(s.triangle(t)[0]), s.layer(s.triangle(t)[1]), s.layer(s.triangle(t)[2])});
+  if (s.layer(a) < layer && s.layer(b) < layer) {
+    EXPECT_EQ(rule, kEdgeSearch) << a << "-" << b;
+    return;
+  }
+  TriId least = t;
+  for (TriId u : s.vertex_triangles(a)) {
+    const auto& o = s.triangle(u);
+    if (std::find(o.begin(), o.end(), b) == o.end()) continue;
+    EXPECT_EQ(std::max({s.layer(o[0]), s.layer(o[1]), s.layer(o[2])}), layer);
+    least = std::min(least, u);
+  }
+  EXPECT_EQ(rule, least == t ? kEdgeOnce : kEdgeBelow) << a << "-" << b << " of " << t;
+}
+
+struct LabelSweep {
+  bool rules = false;     // each layer delayed with the extractor's edge rules, as the schedules do
+  bool close = false;     // the volume closed at the box (the background around it)
+  bool lockstep = false;  // each layer activated and simplified up to its top plane
+};
+
+// Extracts Labels(n) into `store` layer by layer (open at the box unless sweep.close); each
+// layer's triangles are added to the simplifier and delayed as the tandem schedules do,
+// without `rules` the store searched for each edge's other triangles. Returns how many edges
+// got each LayerEdge from the extractor.
+std::array<int64_t, 4> ExtractLabels(int64_t n, MeshStore* store, Simplifier* simplifier,
+                                     LabelSweep sweep = {}) {
   ExtractorConfig config{n, n, n, {1, 1, 1}, {0, 0, 0}, 0};
   config.labels.enabled = true;
+  config.labels.close = sweep.close;
   store->EnableLabels();
   LayerExtractor ex(config, store);
   const std::vector<uint16_t> v = Labels(n);
   std::vector<TriId> tris;
   std::vector<VertexId> verts;
-  for (int64_t k = 0; k < n; ++k) {
-    const auto* slice = reinterpret_cast<const uint8_t*>(v.data() + k * n * n);
-    ASSERT_TRUE(ex.ComputeLayer(SliceValues{slice, DType::kUInt16}).ok());
+  std::vector<uint8_t> edges;
+  std::array<int64_t, 4> kinds{};
+  auto step = [&](double front) {
     tris.clear();
     verts.clear();
-    ex.CommitLayer(&tris, &verts);
+    edges.clear();
+    ex.CommitLayer(&tris, &verts, nullptr, sweep.rules ? &edges : nullptr);
+    if (sweep.rules) {
+      ASSERT_EQ(edges.size(), tris.size()) << "a rule for each triangle of the layer";
+      for (size_t i = 0; i < tris.size(); ++i) {
+        for (int k = 0; k < 3; ++k) {
+          const LayerEdge rule = EdgeOf(edges[i], k);
+          ++kinds[rule];
+          ExpectRuleOfTheStore(*store, tris[i], k, rule);
+        }
+      }
+    }
     simplifier->AddTriangles(tris, verts);
-    simplifier->Delay(tris);
+    simplifier->Delay(tris, edges);
+    if (sweep.lockstep) {
+      simplifier->Activate(front);
+      simplifier->Simplify();
+    }
+  };
+  for (int64_t k = 0; k < n; ++k) {
+    const auto* slice = reinterpret_cast<const uint8_t*>(v.data() + k * n * n);
+    EXPECT_TRUE(ex.ComputeLayer(SliceValues{slice, DType::kUInt16}).ok());
+    step(static_cast<double>(k));
   }
+  if (ex.ComputeClosingLayer()) step(static_cast<double>(n));
+  return kinds;
 }
 
 SimplifierOptions Options(double error = 0.5) {
@@ -164,15 +218,68 @@ TEST(LabelEngine, LinkConditionPerLabelMatchesItsDefinition) {
 }
 
 TEST(LabelEngine, DelayQueuesEachEdgeOfTheComplexOnce) {
-  MeshStore store;
-  Simplifier simplifier(&store, Options());  // front at -inf: every edge waits in W
-  ExtractLabels(16, &store, &simplifier);
-  const EdgeTriangles edges = CountEdgeTriangles(store);
-  const auto junctions =
-      std::count_if(edges.begin(), edges.end(), [](const auto& e) { return e.second >= 3; });
-  EXPECT_GT(junctions, 100);
-  EXPECT_EQ(SimplifierProbe::w_pushes(simplifier), static_cast<int64_t>(edges.size()));
-  EXPECT_EQ(SimplifierProbe::q_pushes(simplifier), 0);
+  for (bool rules : {false, true}) {
+    for (bool close : {false, true}) {
+      MeshStore store;
+      Simplifier simplifier(&store, Options());  // front at -inf: every edge waits in W
+      ExtractLabels(16, &store, &simplifier, {.rules = rules, .close = close});
+      const EdgeTriangles edges = CountEdgeTriangles(store);
+      const auto junctions =
+          std::count_if(edges.begin(), edges.end(), [](const auto& e) { return e.second >= 3; });
+      EXPECT_GT(junctions, 100);
+      EXPECT_EQ(SimplifierProbe::w_pushes(simplifier), static_cast<int64_t>(edges.size()))
+          << (rules ? "the extractor's rules" : "the store searched") << (close ? ", closed" : "");
+      EXPECT_EQ(SimplifierProbe::q_pushes(simplifier), 0);
+    }
+  }
+}
+
+// The extractor's rules pick the edges the store's search picks, in the same order: the same
+// sweep, freed triangle ids reused by the next layers, ends in the same complex.
+TEST(LabelEngine, DelayByTheExtractorsRulesSimplifiesAsTheSearch) {
+  for (bool close : {false, true}) {
+    MeshStore searched, ruled;
+    Simplifier by_search(&searched, Options()), by_rules(&ruled, Options());
+    ExtractLabels(16, &searched, &by_search, {.close = close, .lockstep = true});
+    const std::array<int64_t, 4> kinds =
+        ExtractLabels(16, &ruled, &by_rules, {.rules = true, .close = close, .lockstep = true});
+    EXPECT_GT(kinds[kEdgeOnce], 1000);
+    EXPECT_GT(kinds[kEdgeBelow], 1000);  // in another new triangle, of less id
+    EXPECT_GT(kinds[kEdgeSearch], 100);  // both ends older: left to the store's search
+    EXPECT_EQ(kinds[kEdgeShared], 0);
+    EXPECT_EQ(SimplifierProbe::w_pushes(by_rules), SimplifierProbe::w_pushes(by_search));
+    EXPECT_EQ(SimplifierProbe::contractions(by_rules), SimplifierProbe::contractions(by_search));
+    EXPECT_GT(SimplifierProbe::contractions(by_rules), 500) << "ids freed for the next layers";
+    ASSERT_EQ(ruled.triangle_capacity(), searched.triangle_capacity());
+    for (TriId t = 0; t < ruled.triangle_capacity(); ++t) {
+      ASSERT_EQ(ruled.triangle_alive(t), searched.triangle_alive(t)) << t;
+      if (ruled.triangle_alive(t)) {
+        ASSERT_EQ(ruled.triangle(t), searched.triangle(t)) << t;
+      }
+    }
+  }
+}
+
+// A committed label layer by hand: edge p0-p1 in three triangles (a junction), 5-6 between two
+// older vertices, the rest in one triangle each; the store's ids in staging order or not.
+TEST(LabelEngine, EdgeRulesQueueEachNewEdgeFromItsTriangleOfLeastId) {
+  ExtractorConfig config{4, 4, 4, {1, 1, 1}, {0, 0, 0}, 0};
+  config.labels.enabled = true;
+  LabelLayers layers(config);
+  constexpr VertexId p0 = LayerExtractor::kPending, p1 = p0 | 1, p2 = p0 | 2, p3 = p0 | 3;
+  const std::vector<std::array<VertexId, 3>> staged = {
+      {p0, p1, p2}, {p1, p0, p3}, {p0, p1, 5}, {5, 6, p2}};
+  const uint8_t search_once_once = LayerEdges(kEdgeSearch, kEdgeOnce, kEdgeOnce);
+  const uint8_t once = LayerEdges(kEdgeOnce, kEdgeOnce, kEdgeOnce);
+  const uint8_t below_once_once = LayerEdges(kEdgeBelow, kEdgeOnce, kEdgeOnce);
+  std::vector<uint8_t> rules = {7};  // appended to
+  layers.EdgeRules(staged, 4, std::vector<TriId>{30, 10, 20, 40}, &rules);
+  EXPECT_EQ(rules,
+            (std::vector<uint8_t>{7, below_once_once, once, below_once_once, search_once_once}));
+  rules.clear();
+  layers.EdgeRules(staged, 4, std::vector<TriId>{10, 20, 30, 40}, &rules);
+  EXPECT_EQ(rules,
+            (std::vector<uint8_t>{once, below_once_once, below_once_once, search_once_once}));
 }
 
 // A sliver (a, b, m), m on ab, and across ab (b, a, c): the flip mends it within one patch,
