@@ -779,7 +779,9 @@ def main():
     e0_table = bench.load_e0_table()
     failures, results = [], []
     meta = {"machine": bench.machine_info(), "packages": bench.package_versions(),
-            "mode": "quick" if args.quick else "full", "failures": failures,
+            "mode": ("quick" if args.quick else "full")
+            + (" --lean (" + ", ".join(LEAN) + "; default slabs only)" if args.lean else ""),
+            "failures": failures,
             "tandem": bins["tandem"], "e0_from": e0_from}
     for inp in make_inputs(args, bins):
         entry = e0_table.get(inp.name)
