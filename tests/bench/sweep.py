@@ -580,9 +580,14 @@ def write_report(path, results, meta, plots):
          "are indicative only: other jobs shared the machine). Engine: "
          f"`{meta.get('tandem', 'BIN/tandem')}`"
          + (f"; E0 values from {meta['e0_from']}" if meta.get("e0_from") else "") + ".", "",
-         "Every E0 row: our three schedules with the default slabs (4 on grids at least 256 wide, "
-         "2 on grids at least 81 wide, else 1) and with `--parts 1` (/p1); CGAL Garland–Heckbert (mc+cgal) and "
-         "vtkQuadricDecimation (fe3d+vtkqd) asked for tandem-lag's count (default slabs). RMS and "
+         "Every E0 row: " + ("classical and tandem-lag with the default slabs (--lean), "
+                             if "--lean" in meta["mode"] else
+                             "our three schedules with the default slabs (4 on grids at least 256 "
+                             "wide, 2 on grids at least 81 wide, else 1) and with `--parts 1` "
+                             "(/p1); ")
+         + "CGAL Garland–Heckbert (mc+cgal) "
+         + ("" if "--lean" in meta["mode"] else "and vtkQuadricDecimation (fe3d+vtkqd) ")
+         + "asked for tandem-lag's count (default slabs). RMS and "
          "Hausdorff (undirected, and one-sided from the full surface to the output): `tandem "
          "measure full.ply out.ply` against our full-resolution marching-cubes surface. Fields "
          "and shared scans: E0 values found for a kept fraction (in brackets) or the default "
