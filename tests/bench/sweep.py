@@ -504,7 +504,9 @@ def bounds_section(results):
             if not pts:
                 continue
             worst = max(pts)
-            out = [f"{n} E0 {e:g}: {x:.2f}" for x, n, e in pts if x > limit]
+            # Three decimals where two would round onto the limit.
+            out = [f"{n} E0 {e:g}: {x:.{2 if round(x, 2) > limit else 3}f}"
+                   for x, n, e in pts if x > limit]
             L.append(f"| {what} | {limit:g} | {group} | {len(pts) - len(out)} of {len(pts)} | "
                      f"{fmt(geomean([x for x, _, _ in pts]), '.2f')} | {worst[1]} E0 "
                      f"{worst[2]:g}: {worst[0]:.2f} | {'; '.join(out) or 'none'} |")
