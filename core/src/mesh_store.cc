@@ -81,7 +81,6 @@ void MeshStore::Reserve(size_t vertices, size_t triangles) {
   const size_t new_triangles = beyond(triangles, free_triangles_.size());
   ReserveFor(vtx_, vtx_.size() + new_vertices);
   ReserveFor(tris_, tris_.size() + new_triangles);
-  ReserveFor(bounds_, bounds_.size() + new_triangles);
   // Every new vertex takes a slot of the smallest class; the few that outgrow it take more.
   size_t free_smallest = 0;  // free slots of the smallest class, larger ones split
   for (int k = 0; k < kNumClasses; ++k) free_smallest += free_slots_[k].size() << k;
@@ -123,11 +122,9 @@ TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
   if (!free_triangles_.empty()) {
     t = free_triangles_.TakeLowest();
     tris_[t] = {a, b, c};
-    bounds_[t] = {};
   } else {
     t = static_cast<TriId>(tris_.size());
     PushBack(tris_, std::array<VertexId, 3>{a, b, c});
-    PushBack(bounds_, std::array<float, 3>{});
   }
   LinkTriangle(a, t);
   LinkTriangle(b, t);
@@ -249,13 +246,11 @@ std::vector<uint32_t> MeshStore::SnapshotPatches() const {
 }
 
 size_t MeshStore::VertexBytes() { return sizeof(VertexRecord) + kMinSlot * sizeof(TriId); }
-size_t MeshStore::TriangleBytes() {
-  return sizeof(std::array<VertexId, 3>) + sizeof(std::array<float, 3>);
-}
+size_t MeshStore::TriangleBytes() { return sizeof(std::array<VertexId, 3>); }
 
 size_t MeshStore::MemoryBytes() const {
   size_t b = vtx_.MemoryBytes() + free_vertices_.MemoryBytes() + tris_.MemoryBytes() +
-             bounds_.MemoryBytes() + free_triangles_.MemoryBytes() + pool_.MemoryBytes();
+             free_triangles_.MemoryBytes() + pool_.MemoryBytes();
   for (const auto& f : free_slots_) b += f.MemoryBytes();
   b += patch_.capacity() * sizeof(uint32_t) + pairs_.capacity() * sizeof(LabelPair) +
        pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1);

@@ -110,11 +110,6 @@ class MeshStore {
   void MoveTriangles(VertexId from, VertexId to);
 
   bool vertex_alive(VertexId v) const { return v < vtx_.size() && vtx_[v].alive; }
-  // The simplifier's lower bound for the edge from corner k to corner k + 1 of t (the least
-  // x̄ᵀHx̄ of its two ends' quadrics, which only grow): 0 for a new triangle; kept through
-  // MoveTriangles, since the edge's quadrics only gain planes there.
-  float edge_bound(TriId t, int k) const { return bounds_[t][k]; }
-  void set_edge_bound(TriId t, int k, float f) { bounds_[t][k] = f; }
   bool triangle_alive(TriId t) const { return t < tris_.size() && !free_triangles_.Contains(t); }
   const std::array<VertexId, 3>& triangle(TriId t) const { return tris_[t]; }
   std::span<const TriId> vertex_triangles(VertexId v) const {
@@ -234,7 +229,6 @@ class MeshStore {
 
   // Triangles.
   PodArray<std::array<VertexId, 3>> tris_;
-  PodArray<std::array<float, 3>> bounds_;  // edge_bound, by triangle id
   FreeIds free_triangles_;  // also the dead ones' flags: a bit a triangle, not a byte
   size_t live_triangles_ = 0;
 

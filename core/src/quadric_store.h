@@ -61,12 +61,6 @@ class QuadricStore {
     if (check_) CheckQuadric(v, q);
     return q;
   }
-  // W of v's quadric (the area behind it), read alone.
-  double Weight(VertexId v) const {
-    if (const uint32_t s = store_->aux(v); s != kInvalid) return tails_[s].w;
-    const PlaneSum& m = planes_[v];
-    return m.a00 + m.a11 + m.a22;
-  }
   void Keep(VertexId v);  // v's quadric in full from now on (it moves, or adds another's)
   void SetQuadric(VertexId v, const Quadric& q);  // kept in full
   void Drop(VertexId v);  // v's full quadric, if kept, goes (v left the store or was reset)

@@ -10,7 +10,7 @@
 namespace tandem {
 
 Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
-    : lazy_(options.alpha == 0.0 && !options.rises), store_(store), opt_(options), quadrics_(store, options.check_quadrics),
+    : store_(store), opt_(options), quadrics_(store, options.check_quadrics),
       q_(options.error),
       rises_(store, &version_, options.rises),
       release_(store, &version_, options.release_chunk, options.tile_x, options.tile_y) {}
@@ -20,7 +20,6 @@ void Simplifier::EnsureVertexCapacity() {
   if (quadrics_.size() >= n) return;
   quadrics_.EnsureCapacity(n);
   GrowTo(version_, n);
-  GrowTo(floor_, n);
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
@@ -29,7 +28,6 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
     // Ids may be recycled from contracted vertices: start clean (the store reset rad).
     quadrics_.Reset(v);
     ++version_[v];
-    floor_[v] = 0;
   }
   for (size_t i = 0; i < tris.size(); ++i) {
     // Corners on the plane below were made a layer ago, out of cache: start them early.
@@ -99,9 +97,7 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     c->eps0 = ShapeError(h, c->pos);
   } else {
     c->pos = MinimizeQuadric(h, ref, fixed);
-    const double f = h.Evaluate(c->pos);
-    c->sum = std::max(0.0, f);
-    c->eps0 = h.w <= 0.0 ? 0.0 : std::sqrt(std::max(0.0, f / h.w));  // ShapeError's
+    c->eps0 = ShapeError(h, c->pos);
     c->cost = c->eps0;
   }
   c->box_mask = ma | mb;
@@ -204,8 +200,8 @@ void Simplifier::PushTriangleEdges(TriId t, bool new_layer) {
   }
 }
 
-double Simplifier::PushEdge(VertexId a, VertexId b, double bound) {
-  if (Pinned(a, b)) return -1;
+void Simplifier::PushEdge(VertexId a, VertexId b) {
+  if (Pinned(a, b)) return;
   if (a > b) std::swap(a, b);
   Candidate c;
   if (opt_.release != ReleaseRule::kImmediate) {
@@ -215,41 +211,15 @@ double Simplifier::PushEdge(VertexId a, VertexId b, double bound) {
     if (key > front_) {
       ++w_pushes_;
       w_.Push(WEntry{key, a, b, version_[a], version_[b]});
-      return -1;
+      return;
     }
-  }
-  if (bound > lazy_floor_) {
-    // Beyond E0 it can never pop (Q would drop its cost too); otherwise placed when popped.
-    if (bound <= opt_.keep * opt_.error && !release_.Defer(a, b)) {
-      ++q_pushes_;
-      q_.Push(bound, QEntry{a, b, version_[a], version_[b], kUnplaced, kBound});
-    }
-    return -1;
   }
   ++evaluations_;
   if (!Evaluate(a, b, &c)) {
     ++refusals_.box;
-    return -1;
+    return;
   }
   PushReady(a, b, c);
-  return c.sum;
-}
-
-float Simplifier::BoundOf(double sum) {
-  if (!(sum > 0.0)) return 0.0f;
-  float f = static_cast<float>(std::min(sum, double{std::numeric_limits<float>::max()}));
-  if (static_cast<double>(f) > sum) f = std::nextafter(f, 0.0f);
-  return f;
-}
-
-void Simplifier::StoreBound(VertexId a, VertexId b, double sum) {
-  const float f = BoundOf(sum);
-  for (TriId t : store_->vertex_triangles(a)) {
-    const auto& tri = store_->triangle(t);
-    const int ca = CornerOf(tri, a);
-    const bool ahead = tri[kNextCorner[ca]] == b;
-    if (ahead || tri[kPrevCorner[ca]] == b) store_->set_edge_bound(t, ahead ? ca : kPrevCorner[ca], f);
-  }
 }
 
 void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges) {
@@ -364,18 +334,9 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // on the boundary one neighbour is only ever the corner before c.
   // A fan that fits (nearly all) keeps its next corners in a fixed array too, searched four
   // at a time (CountOf).
+  scratch_.clear();
   const auto fan = store_->vertex_triangles(a);
   const bool fits = fan.size() <= kFanMax;
-  if (fits && lazy_floor_ < std::numeric_limits<double>::infinity()) {
-    // The least of H_a + H_b + H_x is at least that of H_a + H_b (this contraction's) plus
-    // H_x's, and that of an old edge's pair plus the third end's.
-    const float third = std::min(floor_[a], floor_[b]);
-    floor_[a] = BoundOf(c.sum);
-    PushEdgesLazily(a, fan, third);
-    return;
-  }
-  floor_[a] = lazy_ ? BoundOf(c.sum) : 0.0f;
-  scratch_.clear();
   VertexId next[kFanMax];
   std::fill(next, next + kFanMax, kInvalid);
   for (size_t i = 0; i < fan.size(); ++i) {
@@ -408,98 +369,11 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   nbrs.swap(scratch_);
 }
 
-void Simplifier::PushEdgesLazily(VertexId a, std::span<const TriId> fan, float third) {
-  // Contract's pushes, in the same increasing neighbour order, each edge with its bound: the
-  // larger of its two half-edges' in a's fan (for the apex of a contracted triangle, the
-  // bounds of its edges to a and to b). Fan triangle i holds a -> next (corner[i]) and
-  // prev -> a; an edge is listed once, at the triangle where it is a -> next (lane i), with
-  // its twin's triangle as partner[i], or on the boundary at the prev -> a lane kFanMax + i.
-  const size_t n = fan.size();
-  VertexId next[kFanMax];
-  uint8_t corner[kFanMax], partner[kFanMax];
-  float bound[kFanMax], prev_bound[kFanMax];
-  uint64_t keys[2 * kFanMax];  // neighbour << 32 | lane: sorted, the pushes' order
-  size_t m = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const auto& tri = store_->triangle(fan[i]);
-    const int ca = CornerOf(tri, a);
-    corner[i] = static_cast<uint8_t>(ca);
-    next[i] = tri[kNextCorner[ca]];
-    bound[i] = store_->edge_bound(fan[i], ca);
-    prev_bound[i] = store_->edge_bound(fan[i], kPrevCorner[ca]);
-    partner[i] = kFanMax;
-    keys[m++] = uint64_t{next[i]} << 32 | i;
-  }
-  for (size_t i = 0; i < n; ++i) {
-    const auto& tri = store_->triangle(fan[i]);
-    const VertexId prev = tri[kPrevCorner[corner[i]]];
-    size_t j = kFanMax;
-    for (size_t k = 0; k < n; ++k) j = next[k] == prev ? k : j;  // branch-free
-    if (j == kFanMax) {
-      keys[m++] = uint64_t{prev} << 32 | (kFanMax + i);
-    } else {
-      bound[j] = std::max(bound[j], prev_bound[i]);
-      partner[j] = static_cast<uint8_t>(i);
-    }
-  }
-  std::sort(keys, keys + m);
-  for (size_t k = 0; k < m; ++k) {
-    const VertexId x = static_cast<VertexId>(keys[k] >> 32);
-    PrefetchVertex(x);
-    PrefetchQuadric(x);
-  }
-  auto lane_bound = [&](uint32_t lane) {
-    return lane < kFanMax ? bound[lane] : prev_bound[lane - kFanMax];
-  };
-  auto store_lane = [&](uint32_t lane, float g) {
-    if (lane >= kFanMax) {
-      const uint32_t i = lane - kFanMax;
-      store_->set_edge_bound(fan[i], kPrevCorner[corner[i]], g);
-      return;
-    }
-    store_->set_edge_bound(fan[lane], corner[lane], g);
-    if (const uint32_t i = partner[lane]; i < kFanMax) {
-      store_->set_edge_bound(fan[i], kPrevCorner[corner[i]], g);
-    }
-  };
-  const double wa = quadrics_.Weight(a);
-  for (size_t k = 0; k < m;) {
-    const VertexId x = static_cast<VertexId>(keys[k] >> 32);
-    size_t end = k + 1;  // a complex's vertex may be next in two triangles
-    float f = lane_bound(static_cast<uint32_t>(keys[k]));
-    for (; end < m && static_cast<VertexId>(keys[end] >> 32) == x; ++end) {
-      f = std::max(f, lane_bound(static_cast<uint32_t>(keys[end])));
-    }
-    const double w = wa + quadrics_.Weight(x);
-    const double least = std::max(double{f} + third, double{floor_[a]} + floor_[x]);
-    const double sum = PushEdge(a, x, w > 0.0 ? std::sqrt(least / w) : 0.0);
-    if (sum >= 0.0) {
-      const float g = BoundOf(sum);
-      for (size_t l = k; l < end; ++l) store_lane(static_cast<uint32_t>(keys[l]), g);
-    }
-    k = end;
-  }
-}
-
 // A popped edge's candidate: placed now if a rise queued it unplaced, and at α > 0 evaluated
 // again (the memoryless isotropy term depends on the current neighbourhood), pushed back if
 // its cost grew since it was queued. False: not contracted now.
-[[gnu::always_inline]] inline bool Simplifier::Reevaluate(const QNode& e, Candidate* c, double limit) {
+[[gnu::always_inline]] inline bool Simplifier::Reevaluate(const QNode& e, Candidate* c) {
   const double key = c->cost;
-  if (c->eps0 == kBound) {  // queued by a bound (lazy costs)
-    ++evaluations_;
-    if (!Evaluate(e.a, e.b, c)) {
-      ++refusals_.box;
-      return false;
-    }
-    StoreBound(e.a, e.b, c->sum);
-    // Still the least if no other key is below its cost: contracted now, not pushed back.
-    if (c->cost > key && c->cost > limit) {
-      PushQ(e.a, e.b, *c);
-      return false;
-    }
-    return true;
-  }
   if (std::isnan(c->eps0)) {  // queued unplaced by a rise (α = 0: the key is its cost)
     ++evaluations_;
     if (!Evaluate(e.a, e.b, c)) {
@@ -547,9 +421,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     PrefetchEnds(e);
     const QPlacement& placement = q_.Placement(e);
     Candidate c{.pos = placement.pos, .cost = key, .eps0 = placement.eps0};
-    // Below every other key and E0: a bound's edge costing up to this is contracted now.
-    const double limit = next != nullptr ? std::min(next->key, past_error ? next->key : opt_.error) : key;
-    if (!Reevaluate(e, &c, limit)) continue;
+    if (!Reevaluate(e, &c)) continue;
     if (!past_error && c.eps0 > opt_.error) {
       ++refusals_.error;  // conservative rule: ε_α <= E0 but ε0 > E0
       rises_.List(e.a, e.b, c.eps0);
@@ -571,13 +443,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     }
     c.box_mask = store_->box_mask(e.a) | store_->box_mask(e.b);
     ReleaseKey(e.a, e.b, &c);  // height, rad, layer of the new vertex
-    if (lazy_ && !keep_expensive_) {
-      lazy_floor_ = c.cost;
-      // Placed when queued: the sum from ε0 (ε0² W).
-      if (c.sum == 0.0) c.sum = c.eps0 * c.eps0 * (quadrics_.Weight(e.a) + quadrics_.Weight(e.b));
-    }
     Contract(e.a, e.b, c);
-    lazy_floor_ = std::numeric_limits<double>::infinity();
     PrefetchAhead(next, Ahead::kFans);
   }
   if (track_) TrackAt(EdgeQueue::kBuckets);

@@ -226,7 +226,6 @@ class Simplifier {
     Vec3 pos;
     double cost = 0;   // ε_α(c)
     double eps0 = 0;   // ε0(c)
-    double sum = 0;    // x̄ᵀHx̄ at pos, H the plane quadric of the contraction (ε0² W)
     double height = 0, rad = 0;  // of the new vertex (ReleaseKey fills them)
     int32_t layer = 0;
     uint8_t box_mask = 0;
@@ -238,23 +237,7 @@ class Simplifier {
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   // Whether TidyDegenerate may move v to p (the error bound).
   bool TidyMayMove(VertexId v, Vec3 p) const;
-  // Evaluates, then to Q or W by key vs front; with a lower bound of the cost above the key
-  // SIMPLIFY pops now (lazy_floor_), queued by the bound unevaluated. Returns the sum of
-  // the evaluation (Candidate::sum), or -1 if none was made.
-  double PushEdge(VertexId a, VertexId b, double bound = 0);
-  // Lazy costs (α = 0, no rises): an edge whose end a contraction changed enters Q keyed by
-  // a lower bound of its cost, from the least x̄ᵀHx̄ of its last evaluation kept per
-  // half-edge (MeshStore::edge_bound; quadrics only gain planes, so that least only grows)
-  // over the ends' W now, and is evaluated when it pops: contracted if its cost is still the
-  // key, pushed back at its cost otherwise. Most entries go stale before they pop.
-  static float BoundOf(double sum);  // rounded down to a float
-  void StoreBound(VertexId a, VertexId b, double sum);  // on both half-edges of ab
-  const bool lazy_;
-  // SIMPLIFY's key being contracted (+inf outside, or without lazy costs): a bound at or below
-  // it would pop at once, so that edge is evaluated at once.
-  double lazy_floor_ = std::numeric_limits<double>::infinity();
-  // The placement of an entry queued by a bound (ε0 < 0: none).
-  static constexpr double kBound = -1;
+  void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
   // PushQ, unless an end is not ready in a chunked release (Activate): then the
   // edge waits for that end's chunk.
@@ -290,13 +273,8 @@ class Simplifier {
   bool Pinned(VertexId a, VertexId b) const {
     return ((store_->box_mask(a) | store_->box_mask(b)) & (kSeam | kFrozen)) != 0;
   }
-  // SIMPLIFY's, for a popped edge; an edge queued by a bound is contracted if its cost is at
-  // most `limit` (the next key, at most E0), pushed back otherwise.
-  bool Reevaluate(const QNode& e, Candidate* c, double limit);
+  bool Reevaluate(const QNode& e, Candidate* c);  // SIMPLIFY's, for a popped edge
   void Contract(VertexId a, VertexId b, const Candidate& c);
-  // Contract's pushes of the edges at survivor a with their bounds (lazy costs), a's fan
-  // fitting kFanMax; the bounds of those it evaluates stored.
-  void PushEdgesLazily(VertexId a, std::span<const TriId> fan, float third);
   // Q again for E0 = max_key, its live entries only (in no particular order: ties may pop
   // differently).
   void Rebucket(double max_key);
@@ -360,9 +338,6 @@ class Simplifier {
   // A vertex's stamp (see Stale), apart: a queued entry's check reads only these, 16 to a
   // cache line, and most popped entries are stale.
   PodArray<uint32_t> version_;
-  // A lower bound of the least x̄ᵀHx̄ of each vertex's own quadric (lazy costs): a survivor's
-  // is its contraction's, which its quadric was then; 0 for a vertex never contracted.
-  PodArray<float> floor_;
 
   EdgeQueue q_;
   size_t step_peak_bytes_ = 0;  // StepPeakBytes

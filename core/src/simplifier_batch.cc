@@ -46,7 +46,6 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
       }
     }
     r.to = Evaluate(e.a, e.b, &r.c) ? 1 : 2;
-    if (lazy_ && r.to == 1) StoreBound(e.a, e.b, r.c.sum);  // for this edge's next change
   }
 }
 

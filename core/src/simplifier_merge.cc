@@ -14,7 +14,6 @@ void Simplifier::AdoptVertex(const Simplifier& from, PartVertex src, VertexId ds
   quadrics_.Adopt(from.quadrics_, src, dst, shared);
   if (!shared) store_->set_rad(dst, from.store_->rad(InPart(src)));
   ++version_[dst];
-  floor_[dst] = 0;
 }
 
 bool Simplifier::MayContract(VertexId a, VertexId b, Vec3 pos, double guard) {
