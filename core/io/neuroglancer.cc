@@ -269,15 +269,17 @@ class CutCurves {
         buckets_[{axis, plane, cu, cw}].push_back({a, b, inward, lod, side});
     }
   }
-  // The distance from p along the unit direction `dir` (in the plane) to the nearest cut edge
-  // of a level other than `lod` from the plane's other side (`side`: p's cell's) that the ray
-  // crosses into that level's inner side (`own`: of level `lod` from p's side, out of its
-  // inner side, further than `least`), or `limit` if none is nearer.
+  // How far from p along the unit direction `dir` (in the plane) a strip must reach. Not
+  // `own`: to the farthest cut edge of another level, from the plane's other side (`side` is
+  // p's cell's), that the ray crosses into that level's solid: stretches of the ray outside it
+  // lie before (a surface lying in the plane, or touching it, makes nearer edges that do not
+  // end them). `own`: to the first edge of level `lod` from p's side, further than `least`,
+  // that the ray crosses out of its own solid. `limit` if there is none.
   double Reach(int axis, int64_t plane, int side, const Vec3& p, const Vec3& dir, int lod,
                double limit, const double* origin, const std::array<float, 3>& cell,
                bool own = false, double least = 0) const {
     const int u = (axis + 1) % 3, w = (axis + 2) % 3;
-    double best = limit;
+    double best = limit, farthest = -1;
     for (int64_t cu = Cell(p[u] - limit, origin[u], cell[u]);
          cu <= Cell(p[u] + limit, origin[u], cell[u]); ++cu) {
       for (int64_t cw = Cell(p[w] - limit, origin[w], cell[w]);
@@ -287,18 +289,23 @@ class CutCurves {
         for (const Edge& e : it->second) {
           if ((e.lod == lod) != own || (e.side == side) != own) continue;
           const double enters = Dot(dir, e.inward);
-          if (own ? enters >= 0 : enters <= 0) continue;
+          if (enters == 0 || (own && enters > 0)) continue;
           // p + t dir = a + s (b - a), in the plane's two axes.
           const double eu = e.b[u] - e.a[u], ew = e.b[w] - e.a[w];
           const double ru = e.a[u] - p[u], rw = e.a[w] - p[w];
           const double det = eu * dir[w] - dir[u] * ew;
           if (det == 0) continue;
           const double t = (eu * rw - ru * ew) / det, s = (dir[u] * rw - dir[w] * ru) / det;
-          if (t > least && s >= 0 && s <= 1) best = std::min(best, t);
+          if (!(t > least && t < limit && s >= 0 && s <= 1)) continue;
+          if (own) {
+            best = std::min(best, t);
+          } else if (enters > 0) {
+            farthest = std::max(farthest, t);
+          }
         }
       }
     }
-    return best;
+    return own || farthest < 0 ? best : farthest;
   }
 
  private:
