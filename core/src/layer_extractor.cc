@@ -564,12 +564,7 @@ constexpr auto kCrossedEdges = [] {
 
 }  // namespace
 
-// Cloned for CPUs with POPCNT (chosen once at load): a crossed edge's id is found by counting
-// the crossings below it, which the baseline x86-64 target can only do by a library call.
-#if defined(__x86_64__) && defined(__ELF__)
-__attribute__((target_clones("popcnt", "default")))
-#endif
-void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
+TANDEM_POPCNT_CLONES void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
   const int64_t nx = config_.nx;
   const Plane& vb = v_bottom_;
   const Plane& vt = v_top_;
