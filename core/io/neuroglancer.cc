@@ -586,9 +586,9 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         const Vec3 p = real(at);
         const int j = key2.second / 2;
         const int64_t plane = (int64_t{c[j]} + key2.second % 2) << shift;
+        const int side = key2.second % 2;  // outside the lambda: clang 14 cannot capture a binding
         auto depth_toward = [&](const Vec3& unit) {
           if (levels < 2) return skirt;
-          const int side = key2.second % 2;
           const double reach =
               curves.Reach(j, plane, side, p, unit, lod, deepest, origin, g.chunk_shape);
           const double depth =
