@@ -244,6 +244,23 @@ class NodeBuilder {
     f_.indices.insert(f_.indices.end(), {a, b, c});
   }
   NeuroglancerFragment& fragment() { return f_; }
+  // The fragment without the corners no triangle kept (a sliver or a strip that quantization
+  // collapsed), in their order: Edgebreaker drops such corners and Draco's sequential coding
+  // writes more of them than corners as a mesh no Draco decoder (Neuroglancer's) accepts.
+  NeuroglancerFragment Take() {
+    constexpr uint32_t kUnused = ~uint32_t{0};
+    std::vector<uint32_t> at(f_.positions.size(), kUnused);
+    for (uint32_t i : f_.indices) at[i] = 0;
+    uint32_t kept = 0;
+    for (size_t i = 0; i < at.size(); ++i) {
+      if (at[i] == kUnused) continue;
+      f_.positions[kept] = f_.positions[i];
+      at[i] = kept++;
+    }
+    f_.positions.resize(kept);
+    for (uint32_t& i : f_.indices) i = at[i];
+    return std::move(f_);
+  }
 
  private:
   NeuroglancerFragment f_;
@@ -579,8 +596,7 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         }
       }
       // Slivers that quantization collapsed leave nothing to draw.
-      if (!node.fragment().indices.empty())
-        out[k].push_back({position, std::move(node.fragment())});
+      if (!node.fragment().indices.empty()) out[k].push_back({position, node.Take()});
     }
   }
   // Every non-empty node needs its parent at the next level, else Neuroglancer never

@@ -736,6 +736,56 @@ TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
   EXPECT_TRUE(ReadSegment(tmp + "/ng", 0).fragments.empty());  // the background has none
 }
 
+// A label sheet under a wavy surface, cut into nodes of 8 voxels: quantization collapses a few
+// slivers and strips to nothing, and the corners they leave must go with them. Otherwise a
+// level-0 fragment of one triangle and three unused corners was coded sequentially and no
+// Draco decoder read it back: Neuroglancer marked the node failed and never became ready.
+TEST(NeuroglancerExport, EveryFragmentDecodesWithEveryCornerInATriangle) {
+  VolumeInfo grid;
+  grid.nx = grid.ny = 128;
+  grid.nz = 40;
+  grid.dtype = DType::kUInt8;
+  std::vector<uint8_t> voxels(grid.nx * grid.ny * grid.nz);
+  for (int64_t z = 0; z < grid.nz; ++z) {
+    for (int64_t y = 0; y < grid.ny; ++y) {
+      for (int64_t x = 0; x < grid.nx; ++x) {
+        const double h = 20 + 5 * std::sin(x / 7.0) * std::cos(y / 9.0) +
+                         3 * std::sin(static_cast<double>(x + y) / 13);
+        voxels[(z * grid.ny + y) * grid.nx + x] = static_cast<double>(z) < h ? 1 : 0;
+      }
+    }
+  }
+  const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
+  ASSERT_TRUE(
+      io::WriteVolume(tmp + "/sheet.nrrd", grid, [&](int64_t z, std::vector<uint8_t>* bytes) {
+        const uint8_t* b = voxels.data() + z * grid.nx * grid.ny;
+        bytes->assign(b, b + grid.slice_bytes());
+        return absl::OkStatus();
+      }).ok());
+  std::string out;
+  ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/sheet.nrrd --labels --quiet --out " + tmp +
+                      "/sheet/ --neuroglancer " + tmp + "/ng --neuroglancer-chunk 8",
+                  &out),
+            0)
+      << out;
+  const Stored stored = ReadSegment(tmp + "/ng", 1);  // expects every fragment to decode
+  ASSERT_EQ(stored.fragments.size(), 3u);
+  EXPECT_GT(stored.fragments[0].size(), 300u);
+  size_t fragments = 0;
+  for (size_t k = 0; k < stored.fragments.size(); ++k) {
+    for (size_t f = 0; f < stored.fragments[k].size(); ++f) {
+      const codec::IntegerMesh& m = stored.fragments[k][f];
+      if (m.indices.empty()) continue;  // an empty parent
+      ++fragments;
+      std::vector<bool> used(m.positions.size(), false);
+      for (uint32_t v : m.indices) used[v] = true;
+      EXPECT_EQ(std::count(used.begin(), used.end(), false), 0)
+          << "level " << k << " node " << f << ": corners in no triangle";
+    }
+  }
+  EXPECT_GT(fragments, 450u);
+}
+
 // --labels --seal --neuroglancer: each level cut from its sweep's welded chunks. Both exports
 // load (every label at both levels, fragments decoding) and the sealed one's level 0 has,
 // label by label, the unsealed one's topology: a box, a torus, a box around a cavity, the
@@ -833,6 +883,14 @@ TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {
   EXPECT_EQ(WriteNeuroglancer(tmp, grid, {}, o).message(),
             "neuroglancer export: no fragment encoder");
   EXPECT_FALSE(codec::EncodeNeuroglancerFragment({}, {}).ok());
+  // One triangle and three corners of nothing: Draco's own decoder refuses its sequential
+  // coding of such a mesh, which the Edgebreaker fallback would write.
+  const std::vector<std::array<uint32_t, 3>> six = {{61439, 8192, 0},  {61439, 4096, 0},
+                                                    {53247, 12288, 0}, {60074, 12288, 0},
+                                                    {65535, 4096, 0},  {65535, 24576, 0}};
+  const std::vector<uint32_t> one = {1, 4, 0};
+  EXPECT_EQ(codec::EncodeNeuroglancerFragment(six, one).status().message(),
+            "vertex 2 is in no triangle");
   EXPECT_FALSE(codec::DecodeNeuroglancerFragment("not draco").ok());
 }
 
