@@ -436,6 +436,33 @@ await h.run(async () => {
             picture.gaps === 0, `${v.name}: the sheet shows, without a crack`,
             `${(100 * picture.share).toFixed(1)} % lit, ${picture.gaps} background pixels inside`);
     }
+    // Cameras from a sweep of turns and tilts that each showed background through a crack
+    // before: a level's cut lying just above a cell face (its strip must go on in the cell
+    // below) or a level's surface lying in a cell face (another level's strip must reach past
+    // it). Drawn with skirts only; each view mixes levels as the three above do.
+    for (const [about, tilt] of [[-170, 130], [90, 125], [-170, 140]]) {
+      const view = {
+        layers: [{ type: 'segmentation', name: 'skirted', segments: ['1'], segmentColors: COLORS,
+                   source: `precomputed://${base}/data/sheet-skirted`, meshRenderScale: 70 }],
+        layout: '3d', showAxisLines: false, showScaleBar: false, showDefaultAnnotations: false,
+        projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
+        position: [64, 64, 20], projectionScale: 40e-9,
+        projectionOrientation: then(turn([0, 0, 1], about), turn([1, 0, 0], tilt)),
+      };
+      since = log.length;
+      await page.goto('about:blank');
+      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
+      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+      await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
+      await sleep(500);
+      const picture = await shoot(`neuroglancer-sweep${about}-${tilt}.png`);
+      const nodes = nodesRead(log, exports.skirted.ranges, since);
+      check(nodes.filter((n) => n > 0).length >= 2 && picture.share > 0.7,
+            `turned ${about}, tilted ${tilt}: the sheet fills the view at two levels or more`,
+            `fetched ${nodes} nodes per level, ${(100 * picture.share).toFixed(1)} % lit`);
+      check(picture.gaps === 0, `turned ${about}, tilted ${tilt}: no crack where the levels meet`,
+            `${picture.gaps} background pixels inside`);
+    }
     // The picture for the docs (docs/img/neuroglancer.png): a gyroid ball and two linked
     // tori beside it, two exports as two segmentation layers, each segment in its colour.
     const layers = [];
