@@ -20,6 +20,7 @@
 #include "absl/time/time.h"
 #include "tandem/codec/draco_codec.h"
 #include "tandem/common/wire.h"
+#include "tandem/labels.h"
 #include "tandem/status_macros.h"
 #include "tandem/v1/tandem.grpc.pb.h"
 
@@ -91,29 +92,24 @@ class Collector {
         result.sealed_session = true;
         if (callbacks_.on_chunk) callbacks_.on_chunk(c);
         if (!malformed_.empty()) break;
-        // A label session's chunk is its label's: the labels' places are known at End.
-        SurfaceResult* out = labels_ && c.has_label() ? &label_chunks_[c.label()]
-                                                      : Surface(c.surface(), "sealed chunk");
-        if (out == nullptr) break;
-        SealedChunk chunk;
-        absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
-        if (c.index() != chunks_) {
-          malformed_ = absl::StrCat("sealed chunk ", c.index(), " arrived, expected chunk ",
-                                    chunks_);
-        } else if (!mesh.ok()) {
-          malformed_ = absl::StrCat("sealed chunk ", c.index(), ": ", mesh.status().ToString());
-        } else if (static_cast<int64_t>(mesh->num_triangles()) != c.triangles() ||
-                   static_cast<int64_t>(mesh->num_vertices()) < c.vertices()) {  // splits
-          malformed_ = absl::StrCat("sealed chunk ", c.index(), " decodes to ",
-                                    mesh->num_triangles(), " triangles, announced ", c.triangles());
-        } else {
-          ++chunks_;
-          chunk.index = c.index();
-          chunk.first_slice = c.first_slice();
-          chunk.last_slice = c.last_slice();
-          chunk.positions = std::move(mesh->positions);
-          chunk.indices = std::move(mesh->indices);
-          out->sealed.push_back(std::move(chunk));
+        // A label session's chunk holds label pairs (each label takes its part), or is one
+        // label's: the labels' places are known at End.
+        const bool by_pairs = labels_ && c.has_label_pairs();
+        SurfaceResult* out = nullptr;
+        if (!by_pairs) {
+          out = labels_ && c.has_label() ? &label_chunks_[c.label()]
+                                         : Surface(c.surface(), "sealed chunk");
+          if (out == nullptr) break;
+        }
+        LabelId background = 0;
+        std::optional<SealedChunk> chunk = DecodeChunk(c, by_pairs ? &background : nullptr);
+        if (!chunk.has_value()) break;
+        if (!by_pairs) {
+          out->sealed.push_back(*std::move(chunk));
+          break;
+        }
+        for (auto& [label, part] : SplitLabeledChunk(*chunk, background)) {
+          label_chunks_[label].sealed.push_back(std::move(part));
         }
         break;
       }
@@ -198,7 +194,7 @@ class Collector {
       case v1::ExtractResponse::kPreview:
         return r.preview().labels_size() > 0;
       case v1::ExtractResponse::kSealedChunk:
-        return r.sealed_chunk().has_label();
+        return r.sealed_chunk().has_label() || r.sealed_chunk().has_label_pairs();
       case v1::ExtractResponse::kFinalMesh:
         return r.final_mesh().has_label();
       case v1::ExtractResponse::kFinalMetrics:
@@ -206,6 +202,34 @@ class Collector {
       default:
         return false;
     }
+  }
+  // A sealed chunk decoded, with its label pairs when `background` is given (which gets
+  // theirs), or nullopt with the stream malformed.
+  std::optional<SealedChunk> DecodeChunk(const v1::SealedChunk& c, LabelId* background) {
+    SealedChunk chunk;
+    absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
+    absl::Status pairs = mesh.status();
+    if (mesh.ok() && background != nullptr) {
+      pairs =
+          common::LabelPairsFromProto(c.label_pairs(), mesh->num_triangles(), &chunk, background);
+    }
+    if (c.index() != chunks_) {
+      malformed_ = absl::StrCat("sealed chunk ", c.index(), " arrived, expected chunk ", chunks_);
+    } else if (!pairs.ok()) {
+      malformed_ = absl::StrCat("sealed chunk ", c.index(), ": ", pairs.ToString());
+    } else if (static_cast<int64_t>(mesh->num_triangles()) != c.triangles() ||
+               static_cast<int64_t>(mesh->num_vertices()) < c.vertices()) {  // splits
+      malformed_ = absl::StrCat("sealed chunk ", c.index(), " decodes to ", mesh->num_triangles(),
+                                " triangles, announced ", c.triangles());
+    }
+    if (!malformed_.empty()) return std::nullopt;
+    ++chunks_;
+    chunk.index = c.index();
+    chunk.first_slice = c.first_slice();
+    chunk.last_slice = c.last_slice();
+    chunk.positions = std::move(mesh->positions);
+    chunk.indices = std::move(mesh->indices);
+    return chunk;
   }
   // A sealed label session: the chunks of each label, until its metrics give its place.
   std::map<uint64_t, SurfaceResult> label_chunks_;

@@ -4,6 +4,7 @@
 #include <google/protobuf/message.h>
 #include <google/protobuf/reflection.h>
 
+#include <algorithm>
 #include <optional>
 #include <set>
 #include <utility>
@@ -332,6 +333,52 @@ grpc::Status ToGrpcStatus(const absl::Status& status) {
 absl::Status FromGrpcStatus(const grpc::Status& status) {
   if (status.ok()) return absl::OkStatus();
   return absl::Status(static_cast<absl::StatusCode>(status.error_code()), status.error_message());
+}
+
+void LabelPairsToProto(std::span<const uint32_t> patch, std::span<const LabelPair> pairs,
+                       LabelId background, v1::LabelPairs* out) {
+  out->Clear();
+  for (const LabelPair& p : pairs) {
+    out->add_inside(p.inside);
+    out->add_outside(p.outside);
+  }
+  out->set_background(background);
+  const auto none = static_cast<uint32_t>(pairs.size());
+  for (size_t t = 0; t < patch.size();) {
+    const uint32_t k = std::min(patch[t], none);
+    size_t end = t + 1;
+    while (end < patch.size() && std::min(patch[end], none) == k) ++end;
+    out->add_runs(k);
+    out->add_runs(static_cast<uint32_t>(end - t));
+    t = end;
+  }
+}
+
+absl::Status LabelPairsFromProto(const v1::LabelPairs& in, size_t triangles, SealedChunk* chunk,
+                                 LabelId* background) {
+  if (in.inside_size() != in.outside_size()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "label_pairs: ", in.inside_size(), " inside labels, ", in.outside_size(), " outside"));
+  }
+  if (in.runs_size() % 2 != 0) {
+    return absl::InvalidArgumentError("label_pairs.runs: an odd count (index, length pairs)");
+  }
+  uint64_t covered = 0;
+  for (int i = 1; i < in.runs_size(); i += 2) covered += in.runs(i);
+  if (covered != triangles) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("label_pairs.runs cover ", covered, " triangles of ", triangles));
+  }
+  chunk->pairs.resize(static_cast<size_t>(in.inside_size()));
+  for (int k = 0; k < in.inside_size(); ++k) chunk->pairs[k] = {in.inside(k), in.outside(k)};
+  const auto none = static_cast<uint32_t>(chunk->pairs.size());
+  chunk->patch.clear();
+  chunk->patch.reserve(triangles);
+  for (int i = 0; i + 1 < in.runs_size(); i += 2) {
+    chunk->patch.insert(chunk->patch.end(), in.runs(i + 1), std::min(in.runs(i), none));
+  }
+  *background = in.background();
+  return absl::OkStatus();
 }
 
 }  // namespace tandem::common

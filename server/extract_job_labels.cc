@@ -1,10 +1,12 @@
 // ExtractJob in a label session (SessionConfig.labels): the interface complex cut into one
 // surface per label, for the previews and at the end, each sent with its label.
 #include <algorithm>
+#include <array>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "absl/container/flat_hash_map.h"
 #include "absl/strings/str_cat.h"
 #include "extract_job_internal.h"
 #include "tandem/codec/draco_codec.h"
@@ -112,67 +114,67 @@ absl::Status ExtractJob::FinishLabels() {
   return absl::OkStatus();
 }
 
-absl::Status ExtractJob::PostLabelChunks(const SealedChunk& part, IndexedMesh complex,
-                                         const codec::MovedCorners& moved) {
-  std::vector<Vec3>& positions = complex.positions;
-  // The complex's corners where its encoding put them: each label's chunk then keeps every
-  // corner fixed, so that a vertex two labels share decodes to one grid point in both.
-  for (const auto& [v, at] : moved) positions[v] = at;
+absl::Status ExtractJob::PostLabelChunks(SealedChunk part, IndexedMesh complex,
+                                         const codec::MovedCorners& moved, std::string bytes) {
+  // The pairs go in the order the buffer decodes its triangles, which only decoding tells:
+  // each decoded triangle is found by its corners' ids (rotated to start at the least, so
+  // orientation tells a triangle from its reverse; equal ones are alike whichever is taken).
+  auto t0 = Clock::now();
+  std::vector<uint32_t> decoded_ids;
+  absl::StatusOr<IndexedMesh> decoded = codec::DecodeDraco(bytes, &decoded_ids);
+  if (!decoded.ok() || decoded->num_triangles() != complex.num_triangles()) {
+    return absl::InternalError(absl::StrCat(
+        "decoding sealed chunk ", chunks_sent_, " to order its label pairs: ",
+        decoded.ok() ? "the triangle count changed" : std::string(decoded.status().message())));
+  }
+  using Corners = std::array<uint32_t, 3>;
+  auto key = [](uint32_t a, uint32_t b, uint32_t c) {
+    return a <= b && a <= c ? Corners{a, b, c} : b <= c ? Corners{b, c, a} : Corners{c, a, b};
+  };
+  const size_t nt = complex.num_triangles();
+  absl::flat_hash_map<Corners, uint32_t> first;  // the first triangle of each key
+  std::vector<uint32_t> next(nt, kInvalid);      // the next with the same key
+  first.reserve(nt);
+  for (size_t t = nt; t-- > 0;) {
+    const uint32_t* v = &complex.indices[3 * t];
+    auto [it, fresh] = first.try_emplace(key(part.ids[v[0]], part.ids[v[1]], part.ids[v[2]]),
+                                         static_cast<uint32_t>(t));
+    if (!fresh) {
+      next[t] = it->second;
+      it->second = static_cast<uint32_t>(t);
+    }
+  }
+  std::vector<uint32_t> patch(nt);
+  for (size_t t = 0; t < nt; ++t) {
+    const uint32_t* v = &decoded->indices[3 * t];
+    auto it = first.find(key(decoded_ids[v[0]], decoded_ids[v[1]], decoded_ids[v[2]]));
+    if (it == first.end() || it->second == kInvalid) {
+      return absl::InternalError(absl::StrCat(
+          "sealed chunk ", chunks_sent_, " decodes to triangle ", t, ", which it does not hold"));
+    }
+    patch[t] = part.patch[it->second];
+    it->second = next[it->second];
+  }
+  v1::SealedChunk out;
+  out.set_index(chunks_sent_);
+  out.set_first_slice(part.first_slice);
+  out.set_last_slice(part.last_slice);
+  out.set_draco(std::move(bytes));
+  out.set_triangles(static_cast<int64_t>(nt));
+  out.set_vertices(static_cast<int64_t>(complex.num_vertices()));
   const LabelId background = config_.options.labels.background;
-  const std::vector<LabelSide> sides =
-      LabelSides(part.patch, part.pairs, complex.num_triangles(), background);
-  constexpr uint32_t kUnused = ~uint32_t{0};
-  std::vector<uint32_t> local(positions.size(), kUnused);
-  for (size_t begin = 0; begin < sides.size();) {
-    const LabelId label = sides[begin].label;
-    size_t end = begin;
-    while (end < sides.size() && sides[end].label == label) ++end;
-    SealedChunk c;
-    c.index = part.index;
-    c.first_slice = part.first_slice;
-    c.last_slice = part.last_slice;
-    IndexedMesh mesh;
-    mesh.indices.reserve(3 * (end - begin));
-    for (size_t s = begin; s < end; ++s) {
-      const uint32_t* tri = complex.indices.data() + 3 * size_t{sides[s].tri};
-      const uint32_t corners[3] = {tri[0], sides[s].reversed ? tri[2] : tri[1],
-                                   sides[s].reversed ? tri[1] : tri[2]};
-      for (uint32_t v : corners) {
-        if (local[v] == kUnused) {
-          local[v] = static_cast<uint32_t>(mesh.positions.size());
-          mesh.positions.push_back(positions[v]);
-          c.ids.push_back(part.ids[v]);
-        }
-        mesh.indices.push_back(local[v]);
-      }
-    }
-    for (size_t s = begin; s < end; ++s) {  // reset for the next label
-      const uint32_t* tri = complex.indices.data() + 3 * size_t{sides[s].tri};
-      for (int k = 0; k < 3; ++k) local[tri[k]] = kUnused;
-    }
-    begin = end;
-    const auto t0 = Clock::now();
-    const std::vector<uint8_t> fixed(mesh.num_vertices(), 1);
-    absl::StatusOr<std::string> bytes = codec::EncodeDraco(mesh, chunk_draco_, c.ids, fixed);
-    encode_s_ += SecondsSince(t0);
-    if (!bytes.ok()) {
-      return absl::InternalError(absl::StrCat("encoding sealed chunk ", chunks_sent_, " (label ",
-                                              label, "): ", std::string(bytes.status().message())));
-    }
-    v1::SealedChunk out;
-    out.set_index(chunks_sent_);
-    out.set_first_slice(c.first_slice);
-    out.set_last_slice(c.last_slice);
-    out.set_draco(*std::move(bytes));
-    out.set_triangles(static_cast<int64_t>(mesh.num_triangles()));
-    out.set_vertices(static_cast<int64_t>(mesh.num_vertices()));
-    out.set_label(label);
-    sealed_posted_ += out.triangles();
-    ++chunks_sent_;
-    chunk_bytes_ += static_cast<int64_t>(out.draco().size());
-    sink_->PostChunk(std::move(out));
-    c.positions = std::move(mesh.positions);
-    c.indices = std::move(mesh.indices);
+  common::LabelPairsToProto(patch, part.pairs, background, out.mutable_label_pairs());
+  encode_s_ += SecondsSince(t0);
+  sealed_posted_ += out.triangles();
+  ++chunks_sent_;
+  chunk_bytes_ += static_cast<int64_t>(out.draco().size());
+  sink_->PostChunk(std::move(out));
+
+  // Each label's part, for its figures at End, with the corners where the encoding put them.
+  for (const auto& [v, at] : moved) complex.positions[v] = at;
+  part.positions = std::move(complex.positions);
+  part.indices = std::move(complex.indices);
+  for (auto& [label, c] : SplitLabeledChunk(part, background)) {
     label_chunk_bytes_ += sizeof(SealedChunk) + c.positions.capacity() * sizeof(Vec3) +
                           (c.indices.capacity() + c.ids.capacity()) * sizeof(uint32_t);
     label_chunks_[label].push_back(std::move(c));

@@ -229,7 +229,8 @@ absl::Status ExtractJob::MaybeChunk(bool now, bool last) {
   }
   if (config_.options.labels.enabled) {
     for (size_t i = 0; i < parts.size(); ++i) {
-      TANDEM_RETURN_IF_ERROR(PostLabelChunks(parts[i], std::move(meshes[i]), moved[i]));
+      TANDEM_RETURN_IF_ERROR(PostLabelChunks(std::move(parts[i]), std::move(meshes[i]), moved[i],
+                                             *std::move(bytes[i])));
     }
     last_chunk_ = t0;
     return absl::OkStatus();

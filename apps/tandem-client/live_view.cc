@@ -15,6 +15,7 @@
 #include "tandem/common/wire.h"
 #include "tandem/eval/label_metrics.h"
 #include "tandem/eval/report.h"
+#include "tandem/labels.h"
 #include "tandem/status_macros.h"
 
 namespace tandem::client {
@@ -166,6 +167,31 @@ void LiveView::ShowLabelPreview(const v1::Preview& p) {
   PublishLabels();
 }
 
+void LiveView::ShowLabelChunk(const v1::SealedChunk& c) {
+  SealedChunk chunk;
+  LabelId background = 0;
+  absl::StatusOr<IndexedMesh> mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
+  if (!mesh.ok() ||
+      !common::LabelPairsFromProto(c.label_pairs(), mesh->num_triangles(), &chunk, &background)
+           .ok()) {
+    return;  // the stream reports it
+  }
+  chunk.positions = std::move(mesh->positions);
+  chunk.indices = std::move(mesh->indices);
+  codec::DracoOptions fast;
+  fast.compression_level = 0;  // the page decodes it at once; size matters little on loopback
+  for (const auto& [label, part] : SplitLabeledChunk(chunk, background)) {
+    IndexedMesh one;
+    one.positions = part.positions;
+    one.indices = part.indices;
+    absl::StatusOr<std::string> bytes = codec::EncodeDraco(one, fast, part.ids);
+    if (!bytes.ok()) continue;
+    server_->AddChunk(*std::move(bytes), static_cast<int64_t>(part.num_triangles()),
+                      SurfaceOfLabel(label));
+  }
+  PublishLabels();
+}
+
 SliceSource* LiveView::Track(SliceSource* source) {
   if (!server_) return source;
   tracker_ = std::make_unique<EndTracker>(source, this);
@@ -227,7 +253,9 @@ void LiveView::Wire(StreamCallbacks* callbacks) {
   auto chunk = callbacks->on_chunk;
   callbacks->on_chunk = [this, view, chunk](const v1::SealedChunk& c) {
     // A label's chunks say their label, not their surface (known at End only).
-    if (c.has_label()) {
+    if (c.has_label_pairs()) {
+      ShowLabelChunk(c);
+    } else if (c.has_label()) {
       view->AddChunk(c.draco(), c.triangles(), SurfaceOfLabel(c.label()));
       PublishLabels();
     } else {

@@ -76,6 +76,8 @@ class LiveView {
   int SurfaceOfLabel(LabelId id);
   void PublishLabels();
   void ShowLabelPreview(const v1::Preview& preview);
+  // A chunk of label pairs: each label's part on that label's surface.
+  void ShowLabelChunk(const v1::SealedChunk& chunk);
 
   std::string listen_, token_;
   double linger_s_ = -1;

@@ -70,6 +70,44 @@ std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mes
   return out;
 }
 
+std::vector<std::pair<LabelId, SealedChunk>> SplitLabeledChunk(const SealedChunk& chunk,
+                                                               LabelId background) {
+  const std::vector<LabelSide> sides =
+      LabelSides(chunk.patch, chunk.pairs, chunk.num_triangles(), background);
+  std::vector<std::pair<LabelId, SealedChunk>> out;
+  std::vector<uint32_t> local(chunk.positions.size(), kInvalid);
+  for (size_t begin = 0; begin < sides.size();) {
+    const LabelId label = sides[begin].label;
+    size_t end = begin;
+    while (end < sides.size() && sides[end].label == label) ++end;
+    SealedChunk c;
+    c.index = chunk.index;
+    c.first_slice = chunk.first_slice;
+    c.last_slice = chunk.last_slice;
+    c.indices.reserve(3 * (end - begin));
+    for (size_t s = begin; s < end; ++s) {
+      const uint32_t* tri = chunk.indices.data() + 3 * size_t{sides[s].tri};
+      const uint32_t corners[3] = {tri[0], sides[s].reversed ? tri[2] : tri[1],
+                                   sides[s].reversed ? tri[1] : tri[2]};
+      for (uint32_t v : corners) {
+        if (local[v] == kInvalid) {
+          local[v] = static_cast<uint32_t>(c.positions.size());
+          c.positions.push_back(chunk.positions[v]);
+          c.ids.push_back(chunk.ids[v]);
+        }
+        c.indices.push_back(local[v]);
+      }
+    }
+    for (size_t s = begin; s < end; ++s) {  // reset for the next label
+      const uint32_t* tri = chunk.indices.data() + 3 * size_t{sides[s].tri};
+      for (int k = 0; k < 3; ++k) local[tri[k]] = kInvalid;
+    }
+    out.emplace_back(label, std::move(c));
+    begin = end;
+  }
+  return out;
+}
+
 LabeledMesh WeldLabeledChunks(std::span<const SealedChunk> chunks) {
   LabeledMesh out;
   out.mesh = WeldChunks(chunks);

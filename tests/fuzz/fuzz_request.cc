@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "tandem/codec/draco_codec.h"
+#include "tandem/common/wire.h"
 #include "tandem/eval/synthetic.h"
 #include "tandem/server/extract_job.h"
 #include "tandem/server/request_validation.h"
@@ -77,6 +78,14 @@ class CheckingSink : public tandem::server::JobSink {
     if (finals_ > 0) Violation("a sealed chunk after the final messages");
     if (c.index() != chunks_++) Violation("sealed chunks out of order");
     if (c.draco().empty() || c.triangles() <= 0) Violation("empty sealed chunk");
+    tandem::SealedChunk pairs;
+    tandem::LabelId background = 0;
+    if (c.has_label_pairs() &&
+        !tandem::common::LabelPairsFromProto(c.label_pairs(), static_cast<size_t>(c.triangles()),
+                                             &pairs, &background)
+             .ok()) {
+      Violation("a label chunk's pairs do not cover its triangles");
+    }
   }
   void PostFinal(std::vector<ExtractResponse> messages) override {
     if (finals_++ > 0) Violation("final messages posted twice");

@@ -31,6 +31,7 @@
 #include "tandem/eval/synthetic.h"
 #include "tandem/geometry.h"
 #include "tandem/io/run_session.h"
+#include "tandem/labels.h"
 #include "tandem/mesh.h"
 #include "tandem/server/auth.h"
 #include "tandem/server/extract_job.h"
@@ -774,6 +775,46 @@ std::map<std::string, std::string> Fields(const eval::MetricsReport& r) {
   eval::VisitReportFields(
       r, [&](const char* key, const char*, const auto& v, eval::Written) { out[key] = Text(v); });
   return out;
+}
+
+// A label chunk's pairs go as runs over its triangles and come back as they were (a run past
+// the pairs: no label's); runs that do not cover the triangles are refused naming the field;
+// each label's part holds its triangles, reversed where it is outside, with the vertices' ids.
+TEST(WireLabelPairs, RoundTripAndEachLabelsPart) {
+  const std::vector<LabelPair> pairs = {{5, 9}, {9, 0}};
+  const std::vector<uint32_t> patch = {0, 0, 1, 1, 1, 0, 7};
+  v1::LabelPairs wire;
+  common::LabelPairsToProto(patch, pairs, 0, &wire);
+  EXPECT_THAT(wire.runs(), ::testing::ElementsAre(0, 2, 1, 3, 0, 1, 2, 1));
+  SealedChunk back;
+  LabelId background = 3;
+  ASSERT_TRUE(common::LabelPairsFromProto(wire, patch.size(), &back, &background).ok());
+  EXPECT_EQ(background, 0u);
+  EXPECT_EQ(back.pairs, pairs);
+  EXPECT_THAT(back.patch, ::testing::ElementsAre(0, 0, 1, 1, 1, 0, 2));
+  EXPECT_EQ(common::LabelPairsFromProto(wire, patch.size() + 1, &back, &background).message(),
+            "label_pairs.runs cover 7 triangles of 8");
+  wire.add_inside(4);
+  EXPECT_EQ(common::LabelPairsFromProto(wire, patch.size(), &back, &background).message(),
+            "label_pairs: 3 inside labels, 2 outside");
+
+  // Two triangles: (5 | 9) and (9 | background).
+  SealedChunk chunk;
+  chunk.index = 4;
+  chunk.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}};
+  chunk.ids = {40, 41, 42, 43};
+  chunk.indices = {0, 1, 2, 1, 3, 2};
+  chunk.pairs = pairs;
+  chunk.patch = {0, 1};
+  const auto parts = SplitLabeledChunk(chunk, 0);
+  ASSERT_EQ(parts.size(), 2u);
+  EXPECT_EQ(parts[0].first, 5u);
+  EXPECT_THAT(parts[0].second.ids, ::testing::ElementsAre(40, 41, 42));
+  EXPECT_THAT(parts[0].second.indices, ::testing::ElementsAre(0, 1, 2));
+  EXPECT_EQ(parts[1].first, 9u);
+  EXPECT_EQ(parts[1].second.index, 4);
+  EXPECT_THAT(parts[1].second.ids, ::testing::ElementsAre(40, 42, 41, 43));  // reversed first
+  EXPECT_THAT(parts[1].second.indices, ::testing::ElementsAre(0, 1, 2, 2, 3, 1));
 }
 
 TEST(WireReport, TableNamesFinalMetricsFields) {

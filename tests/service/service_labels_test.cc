@@ -5,12 +5,14 @@
 // the box; previews carry every label; what a label session cannot do is refused naming
 // the field, and the server stays healthy.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -31,6 +33,7 @@
 #include "tandem/io/mesh_io.h"
 #include "tandem/io/open_volume.h"
 #include "tandem/io/volume_writers.h"
+#include "tandem/labels.h"
 #include "tandem/mesh.h"
 #include "testutil/testutil.h"
 #include "testutil/triangle_key.h"
@@ -40,29 +43,30 @@ namespace {
 
 constexpr int64_t kNx = 36, kNy = 28, kNz = 26;  // 36 wide: two parts fit (16 columns each)
 
-// About a dozen Voronoi cells with uint32 ids scattered past 2^16, filling the box (their
-// surfaces are open where they meet it) except a ball of background in the middle.
-std::string WriteLabelVolume(const std::string& dir) {
+// `cells` Voronoi cells of an nx x ny x nz grid, uint32 ids scattered past 2^16, filling the
+// box (their surfaces are open where they meet it) except, with `ball`, a ball of background
+// in the middle.
+std::string WriteVoronoiVolume(const std::string& path, int64_t nx, int64_t ny, int64_t nz,
+                               size_t cells, bool ball) {
   std::mt19937 rng(17);
   std::uniform_real_distribution<double> pos(0, 1);
   std::uniform_int_distribution<uint32_t> id(1, 4000000000u);
   std::vector<std::array<double, 3>> seeds;
   std::vector<uint32_t> ids;
-  while (seeds.size() < 12) {
-    seeds.push_back({pos(rng) * kNx, pos(rng) * kNy, pos(rng) * kNz});
+  while (seeds.size() < cells) {
+    seeds.push_back({pos(rng) * nx, pos(rng) * ny, pos(rng) * nz});
     ids.push_back(id(rng));
   }
   VolumeInfo info;
-  info.nx = kNx;
-  info.ny = kNy;
-  info.nz = kNz;
+  info.nx = nx;
+  info.ny = ny;
+  info.nz = nz;
   info.dtype = DType::kUInt32;
-  const std::string path = dir + "/cells.nrrd";
   const absl::Status st = io::WriteVolume(path, info, [&](int64_t z, std::vector<uint8_t>* bytes) {
-    bytes->assign(static_cast<size_t>(kNx * kNy) * 4, 0);
-    for (int64_t y = 0; y < kNy; ++y) {
-      for (int64_t x = 0; x < kNx; ++x) {
-        if (std::hypot(x - 17.5, y - 13.5, z - 12.5) < 5) continue;  // background
+    bytes->assign(static_cast<size_t>(nx * ny) * 4, 0);
+    for (int64_t y = 0; y < ny; ++y) {
+      for (int64_t x = 0; x < nx; ++x) {
+        if (ball && std::hypot(x - 17.5, y - 13.5, z - 12.5) < 5) continue;  // background
         size_t best = 0;
         double d = 1e30;
         for (size_t s = 0; s < seeds.size(); ++s) {
@@ -72,13 +76,18 @@ std::string WriteLabelVolume(const std::string& dir) {
             best = s;
           }
         }
-        StoreValue(DType::kUInt32, ids[best], bytes->data() + (y * kNx + x) * 4);
+        StoreValue(DType::kUInt32, ids[best], bytes->data() + (y * nx + x) * 4);
       }
     }
     return absl::OkStatus();
   });
   EXPECT_TRUE(st.ok()) << st;
   return path;
+}
+
+// About a dozen cells about a ball of background.
+std::string WriteLabelVolume(const std::string& dir) {
+  return WriteVoronoiVolume(dir + "/cells.nrrd", kNx, kNy, kNz, 12, true);
 }
 
 // A deep label map of `nz` slices, 32 x 32: blocks of about 7 voxels a side with wavy
@@ -414,7 +423,8 @@ void ServiceLabelsTest::ExpectSealedChunksCarryTheirLabel(int parts) {
     ASSERT_FALSE(r.has_final_mesh()) << "a sealed session's surfaces are its chunks";
     if (!r.has_sealed_chunk()) continue;
     const v1::SealedChunk& c = r.sealed_chunk();
-    ASSERT_TRUE(c.has_label());
+    ASSERT_TRUE(c.has_label_pairs());
+    EXPECT_FALSE(c.has_label());
     EXPECT_EQ(c.surface(), 0);
     EXPECT_EQ(c.index(), index++);
     if (last_progress_slice >= 0 && last_progress_slice < kNz - 1) ++before_last_slice;
@@ -422,9 +432,18 @@ void ServiceLabelsTest::ExpectSealedChunksCarryTheirLabel(int parts) {
     auto mesh = codec::DecodeDraco(c.draco(), &chunk.ids);
     ASSERT_TRUE(mesh.ok()) << mesh.status();
     EXPECT_EQ(static_cast<int64_t>(mesh->num_triangles()), c.triangles());
+    LabelId background = 1;
+    const absl::Status pairs =
+        common::LabelPairsFromProto(c.label_pairs(), mesh->num_triangles(), &chunk, &background);
+    ASSERT_TRUE(pairs.ok()) << pairs;
+    EXPECT_EQ(background, 0u);
+    // Each triangle once: every one separates two labels, or a label and the background.
+    for (const LabelPair& p : chunk.pairs) EXPECT_NE(p.inside, p.outside);
     chunk.positions = std::move(mesh->positions);
     chunk.indices = std::move(mesh->indices);
-    chunks[c.label()].push_back(std::move(chunk));
+    for (auto& [label, part] : SplitLabeledChunk(chunk, background)) {
+      chunks[label].push_back(std::move(part));
+    }
   }
   EXPECT_GE(before_last_slice, 1u);
   std::map<uint64_t, IndexedMesh> want;  // label -> the unsealed session's surface
@@ -629,6 +648,61 @@ TEST_F(ServiceLabelsTest, KeptLabelChunksCountInTheSessionBudget) {
                             "--labels", "--seal", "--out", dir_ + "/good/", "--quiet"});
   EXPECT_EQ(good.exit_code, 0) << good.err;
   EXPECT_GE(LabelFiles(dir_ + "/good").size(), 10u);
+}
+
+// The CPU seconds process `pid` has used (/proc/PID/stat: utime + stime).
+double CpuSeconds(pid_t pid) {
+  std::istringstream in(ReadText(absl::StrCat("/proc/", pid, "/stat")));
+  std::string field;
+  double ticks = 0;
+  for (int k = 1; k <= 15 && in >> field; ++k) {
+    if (k >= 14) ticks += std::stod(field);  // the command (field 2) has no space here
+  }
+  return ticks / static_cast<double>(sysconf(_SC_CLK_TCK));
+}
+
+// A sealed label session sends each interface triangle once (the labels on its two sides
+// beside it) and each piece encoded once: on a Voronoi volume of a hundred and fifty cells
+// its bytes on the wire stay near those of the unsealed session, which sends each label's
+// surface whole (interfaces in both labels). The margin is for a loaded machine, which cuts
+// more chunks by time (one a second), each seam resending vertices. Both give the same labels.
+TEST_F(ServiceLabelsTest, SealedLabelSessionsSendAboutTheUnsealedBytes) {
+  const std::string cells = WriteVoronoiVolume(dir_ + "/many.nrrd", 64, 64, 48, 150, false);
+  auto stub = server_->NewStub();
+  struct Sent {
+    int64_t bytes = 0, labels = 0;
+    double cpu_s = 0, encode_s = 0;
+  };
+  auto run = [&](bool sealed) {
+    v1::SessionConfig config = LabelConfig();
+    config.set_sealed_chunks(sealed);
+    auto source = io::OpenVolume(cells);
+    EXPECT_TRUE(source.ok()) << source.status();
+    const std::vector<v1::ExtractRequest> requests = VolumeRequests(**source, config, 1 << 20);
+    const double cpu = CpuSeconds(server_->process().pid());
+    const StreamOutcome got = RunStream(*stub, requests, server_.get());
+    EXPECT_TRUE(got.status.ok()) << got.status.error_message();
+    Sent sent;
+    sent.cpu_s = CpuSeconds(server_->process().pid()) - cpu;
+    for (const v1::ExtractResponse& r : got.responses) {
+      sent.bytes += static_cast<int64_t>(r.ByteSizeLong());
+      if (r.has_final_metrics() && !r.final_metrics().has_label()) {
+        sent.labels = r.final_metrics().labels();
+        sent.encode_s = r.final_metrics().time_encode_s();
+      }
+    }
+    return sent;
+  };
+  const Sent whole = run(false), sealed = run(true);
+  const double ratio = static_cast<double>(sealed.bytes) / static_cast<double>(whole.bytes);
+  std::printf("%lld labels: unsealed %lld bytes, %.2f s server CPU (%.3f s encoding); sealed "
+              "%lld bytes (%.3fx), %.2f s (%.3f s)\n",
+              static_cast<long long>(whole.labels), static_cast<long long>(whole.bytes),
+              whole.cpu_s, whole.encode_s, static_cast<long long>(sealed.bytes), ratio,
+              sealed.cpu_s, sealed.encode_s);
+  EXPECT_GE(whole.labels, 100);
+  EXPECT_EQ(sealed.labels, whole.labels);
+  EXPECT_LE(ratio, 1.3);
 }
 
 }  // namespace

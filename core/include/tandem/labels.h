@@ -53,6 +53,14 @@ std::vector<std::pair<LabelId, IndexedMesh>> SplitByLabel(const LabeledMesh& mes
                                                           LabelId background = 0,
                                                           std::span<const uint8_t> kept = {});
 
+// A label session's sealed chunk (with `patch` and `pairs`) cut into one chunk per label
+// other than `background` that it touches, in increasing label: that label's triangles as
+// SplitByLabel takes them (in chunk order), their vertices with their ids in order of first
+// use; index and slices as the chunk's. Welding one label's cuts by id gives the
+// label's surface (WeldChunks).
+std::vector<std::pair<LabelId, SealedChunk>> SplitLabeledChunk(const SealedChunk& chunk,
+                                                               LabelId background);
+
 // The interface complex a label session's sealed chunks make together (WeldChunks with each
 // triangle's pair): its pairs in increasing (inside, outside), each once.
 LabeledMesh WeldLabeledChunks(std::span<const SealedChunk> chunks);

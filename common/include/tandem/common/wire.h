@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -48,6 +49,17 @@ eval::MetricsReport ReportFromProto(const v1::FinalMetrics& metrics);
 // triangles_final, vertices_final); the name stays off the wire (the client's --label-names).
 void LabelMetricsToProto(const eval::LabelMetrics& m, v1::FinalMetrics* out);
 eval::LabelMetrics LabelMetricsFromProto(const v1::FinalMetrics& metrics);
+
+// A label session's sealed chunk: the pairs its triangles separate (`patch` indexes `pairs`,
+// one per triangle in the order its Draco buffer decodes them; past the pairs: no label's),
+// as runs of one pair.
+void LabelPairsToProto(std::span<const uint32_t> patch, std::span<const LabelPair> pairs,
+                       LabelId background, v1::LabelPairs* out);
+// The other way, for a chunk of `triangles` decoded triangles: chunk->patch and pairs, and
+// the background. InvalidArgument naming the field when the runs do not cover the triangles
+// exactly or the pairs' lists differ in length.
+absl::Status LabelPairsFromProto(const v1::LabelPairs& in, size_t triangles, SealedChunk* chunk,
+                                 LabelId* background);
 
 // OK when FinalMetrics has the field `wire` ("refusals.link": link of the sub-message refusals)
 // of a type that holds `member`: double, int64, string (std::string and Schedule, by name),

@@ -115,9 +115,10 @@ class ExtractJob {
   // figures, then the session's (extract_job_labels.cc).
   absl::Status FinishLabels();
   // A label session's sealed chunk (`complex` its triangles, before the grid `moved` its
-  // corners): one SealedChunk per label it holds, on the grid the complex was encoded on.
-  absl::Status PostLabelChunks(const SealedChunk& part, IndexedMesh complex,
-                               const codec::MovedCorners& moved);
+  // corners, `bytes` their encoding): one SealedChunk with the pairs its triangles separate;
+  // each label's part is kept for its figures at End.
+  absl::Status PostLabelChunks(SealedChunk part, IndexedMesh complex,
+                               const codec::MovedCorners& moved, std::string bytes);
   // Each label's figures from its chunks, welded (FinalMetrics with the label and its place).
   void AppendSealedLabelMetrics(std::vector<v1::ExtractResponse>* out);
   // compute_distances: the L1/L2/Linf distances of `mesh` to the reference (freed after);
