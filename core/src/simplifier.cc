@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <utility>
 
 #include "grow.h"
@@ -15,32 +13,13 @@ Simplifier::Simplifier(MeshStore* store, const SimplifierOptions& options)
     : store_(store), opt_(options), quadrics_(store, options.check_quadrics),
       q_(options.error),
       rises_(store, &version_, options.rises),
-      release_(store, &version_, options.release_chunk, options.tile_x, options.tile_y) {
-  auto env = [](const char* n, double d) {
-    const char* v = std::getenv(n);
-    return v ? std::atof(v) : d;
-  };
-  if (opt_.release == ReleaseRule::kReach && opt_.cost_lag > 0) {
-    hold_mode_ = static_cast<int>(env("HOLD_MODE", 0));
-    hold_lag_ = env("HOLD_LAG", 1.5);
-    hold_f_ = env("HOLD_F", 0.5);
-    hold_sl_ = env("HOLD_SL", 0);
-    hold_rmin_ = env("HOLD_RMIN", 0);
-    hold_cmin_ = env("HOLD_CMIN", 0);
-    hold_cmax_ = env("HOLD_CMAX", 2);
-    hold_qf_ = env("HOLD_QF", 0);
-  }
-}
+      release_(store, &version_, options.release_chunk, options.tile_x, options.tile_y) {}
 
 void Simplifier::EnsureVertexCapacity() {
   const size_t n = store_->vertex_capacity();
   if (quadrics_.size() >= n) return;
   quadrics_.EnsureCapacity(n);
   GrowTo(version_, n);
-  if (hold_mode_ == 5) {
-    GrowTo(floor_, n);
-    GrowTo(floor_version_, n, ~uint32_t{0});
-  }
 }
 
 void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const VertexId> new_verts) {
@@ -240,73 +219,7 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     ++refusals_.box;
     return;
   }
-  if (hold_mode_ == 5) {
-    NoteCost(a, c.cost);
-    NoteCost(b, c.cost);
-  }
-  if (!Hold(a, b, c)) PushReady(a, b, c);
-}
-
-namespace {
-struct HoldDbg {
-  size_t rad[2][10] = {}, cost[2][10] = {}, flo[2][10] = {};
-  size_t held = 0, peak = 0;
-  ~HoldDbg() {
-    if (!std::getenv("HOLD_DBG")) return;
-    std::fprintf(stderr, "held %zu peak %zu\n", held, peak);
-    for (int k = 0; k < 2; ++k) {
-      std::fprintf(stderr, k ? "HELD" : "ALL ");
-      std::fprintf(stderr, " rad log2:");
-      for (size_t v : rad[k]) std::fprintf(stderr, " %zu", v);
-      std::fprintf(stderr, " | cost/E0 dec:");
-      for (size_t v : cost[k]) std::fprintf(stderr, " %zu", v);
-      std::fprintf(stderr, " | floor/cost dec:");
-      for (size_t v : flo[k]) std::fprintf(stderr, " %zu", v);
-      std::fprintf(stderr, "\n");
-    }
-  }
-} hold_dbg;
-void Note(int k, double rad, double cost_e0, double floor_cost) {
-  ++hold_dbg.rad[k][std::clamp(static_cast<int>(std::log2(std::max(rad, 1.0))), 0, 9)];
-  ++hold_dbg.cost[k][std::clamp(static_cast<int>(cost_e0 * 10), 0, 9)];
-  ++hold_dbg.flo[k][std::clamp(static_cast<int>(floor_cost * 10), 0, 9)];
-}
-}  // namespace
-
-bool Simplifier::Hold(VertexId a, VertexId b, const Candidate& c) {
-  if (hold_mode_ == 0 || !(c.cost <= opt_.error)) return false;
-  static const bool dbg = std::getenv("HOLD_DBG") != nullptr;
-  const double fl = hold_mode_ == 5 ? std::min(Floor(a), Floor(b)) : 0;
-  if (dbg) Note(0, c.rad, c.cost / opt_.error, c.cost > 0 ? fl / c.cost : 1);
-  if (c.rad < hold_rmin_) return false;
-  if (c.cost < hold_cmin_ * opt_.error || c.cost > hold_cmax_ * opt_.error) return false;
-  if (hold_qf_ > 0) {
-    Quadric ha, hb;
-    quadrics_.AddTo(a, &ha);
-    quadrics_.AddTo(b, &hb);
-    const double ends = std::max(ShapeError(ha, store_->position(a)), ShapeError(hb, store_->position(b)));
-    if (!(c.cost > hold_qf_ * ends)) return false;
-  }
-  double share = 0;
-  if (hold_mode_ == 5) {
-    const double floor = std::min(Floor(a), Floor(b));
-    share = std::clamp((c.cost - floor) / opt_.error, 0.0, 1.0);
-  } else if (hold_mode_ == 6) {
-    share = std::clamp((c.cost / opt_.error - hold_f_) / (1 - hold_f_), 0.0, 1.0);
-  } else if (hold_mode_ == 7) {
-    share = c.cost > hold_f_ * opt_.error ? 1.0 : 0.0;
-  }
-  if (share <= 0) return false;
-  const double key = std::max(c.height + c.rad * (1 + hold_lag_ * share) + hold_sl_ * share,
-                              static_cast<double>(c.layer + 1));
-  if (key <= front_) return false;
-  held_.Hold(key, {a, b, version_[a], version_[b]});
-  if (dbg) {
-    Note(1, c.rad, c.cost / opt_.error, c.cost > 0 ? fl / c.cost : 1);
-    ++hold_dbg.held;
-    hold_dbg.peak = std::max(hold_dbg.peak, held_.size());
-  }
-  return true;
+  PushReady(a, b, c);
 }
 
 void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges) {
@@ -368,16 +281,6 @@ void Simplifier::Activate(double front) {
   // the SIMPLIFY that follows.
   front_ = front;
   const size_t chunks = release_.Take(&w_, front_);
-  if (!held_.empty()) {
-    held_.Release(
-        front_,
-        [this](const HeldEdges::Entry& h) {
-          Candidate c;
-          ++evaluations_;
-          if (Evaluate(h.a, h.b, &c)) PushReady(h.a, h.b, c);
-        },
-        [this](const HeldEdges::Entry& e) { return Stale(e); });
-  }
   const size_t chunk = release_.chunk(), n = release_.size();
   if (chunks > 1 && track_) {
     progress_done_.store(0, std::memory_order_relaxed);
@@ -567,7 +470,7 @@ size_t Simplifier::MemoryBytes() const {
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
-         release_.MemoryBytes() + rises_.MemoryBytes() + held_.MemoryBytes();
+         release_.MemoryBytes() + rises_.MemoryBytes();
 }
 
 }  // namespace tandem

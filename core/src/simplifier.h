@@ -28,7 +28,6 @@
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "edge_queues.h"
-#include "held_edges.h"
 #include "mesh_store.h"
 #include "part_ids.h"
 #include "quadric_store.h"
@@ -240,9 +239,6 @@ class Simplifier {
   bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
-  // Holds an evaluated edge back (true) while its cost puts it past the front (c's height,
-  // rad and layer filled: ReleaseKey).
-  bool Hold(VertexId a, VertexId b, const Candidate& c);
   // PushQ, unless an end is not ready in a chunked release (Activate): then the
   // edge waits for that end's chunk.
   void PushReady(VertexId a, VertexId b, const Candidate& c) {
@@ -353,23 +349,6 @@ class Simplifier {
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
   static constexpr Vec3 kUnplaced{kNaN, kNaN, kNaN};
   WaitingQueue w_;
-  HeldEdges held_;
-  int hold_mode_ = 0;
-  double hold_lag_ = 0, hold_f_ = 0, hold_sl_ = 0, hold_rmin_ = 0, hold_cmin_ = 0, hold_cmax_ = 2, hold_qf_ = 0;
-  // The cheapest cost evaluated at each vertex since its version changed.
-  PodArray<float> floor_;
-  PodArray<uint32_t> floor_version_;
-  void NoteCost(VertexId v, double cost) {
-    if (floor_version_[v] != version_[v]) {
-      floor_version_[v] = version_[v];
-      floor_[v] = static_cast<float>(cost);
-    } else if (cost < floor_[v]) {
-      floor_[v] = static_cast<float>(cost);
-    }
-  }
-  double Floor(VertexId v) const {
-    return floor_version_[v] == version_[v] ? floor_[v] : std::numeric_limits<double>::infinity();
-  }
   ChunkedRelease release_;  // ACTIVATE of a large release, a chunk at a time
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;

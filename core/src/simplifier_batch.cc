@@ -38,9 +38,9 @@ void Simplifier::EvaluateBatchRange(size_t begin, size_t end) {
     r.key = -std::numeric_limits<double>::infinity();
     // An edge ACTIVATE released has not changed since its key was found <= the front, and
     // Q keeps no release data: the key need not be recomputed.
-    if (opt_.release != ReleaseRule::kImmediate && (!e.released || hold_mode_ != 0)) {
+    if (opt_.release != ReleaseRule::kImmediate && !e.released) {
       r.key = ReleaseKey(e.a, e.b, &r.c);
-      if (!e.released && r.key > front_) {
+      if (r.key > front_) {
         r.to = 0;
         continue;
       }
@@ -61,13 +61,6 @@ void Simplifier::FlushBatch() {
                                  [this](size_t, size_t begin, size_t end) {
                                    EvaluateBatchRange(begin, end);
                                  });
-  if (hold_mode_ == 5) {
-    for (size_t i = 0; i < n; ++i) {
-      if (batch_results_[i].to != 1) continue;
-      NoteCost(batch_[i].a, batch_results_[i].c.cost);
-      NoteCost(batch_[i].b, batch_results_[i].c.cost);
-    }
-  }
   for (size_t i = 0; i < n; ++i) {
     const BatchEdge e = batch_[i];
     const BatchResult& r = batch_results_[i];
@@ -78,7 +71,7 @@ void Simplifier::FlushBatch() {
         w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
       }
     } else if (r.to == 1) {
-      if (!Hold(e.a, e.b, r.c)) PushReady(e.a, e.b, r.c);
+      PushReady(e.a, e.b, r.c);
     } else {
       ++refusals_.box;
     }

@@ -27,7 +27,6 @@ struct SimplifierOptions {
   // in the same order: identical results); null: all on the calling thread.
   Executor* parallel = nullptr;
   double distance_guard = 0;  // K: see SessionOptions::distance_guard (0 = off)
-  double cost_lag = 0;  // hold: > 0 allows it
   // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
   // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
   double keep = 1;

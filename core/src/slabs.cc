@@ -394,10 +394,6 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
                                .slice_spacing = spacing[2],
                                .parallel = batches,
                                .distance_guard = options.distance_guard,
-                               .cost_lag = options.schedule == Schedule::kTandemLag &&
-                                                   options.target_triangles == 0 && !options.seal
-                                               ? 1.0
-                                               : 0.0,
                                .keep = options.target_triangles > 0 ? kTargetKeep : 1.0,
                                .rises = options.target_triangles > 0,
                                .tile_x = spacing[0] * static_cast<double>(tile),
