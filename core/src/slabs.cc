@@ -393,9 +393,11 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     int64_t tile = 1;
     while (tile * 256 < std::max(grid.nx, grid.ny)) tile *= 2;
     // Not toward a target count, whose E0 rises with what the lock-step leaves, nor sealed,
-    // where a held edge would hold its vertices back from sealing.
+    // where a held edge would hold its vertices back from sealing, nor when the paper's
+    // lock-step is asked for (lockstep_error 1).
     const bool late = options.schedule == Schedule::kTandemLag &&
-                      options.target_triangles == 0 && !options.seal;
+                      options.target_triangles == 0 && !options.seal &&
+                      options.lockstep_error < 1;
     const SimplifierOptions so{.error = StartError(grid, options, scale),
                                .alpha = options.alpha,
                                .release = RuleFor(options.schedule),
