@@ -25,7 +25,8 @@ class HeldEdges {
   void Hold(double key, const Entry& h) {
     if (slots_.empty()) slots_.resize(kFronts);
     const int64_t last = base_ + kFronts - 1;
-    const int64_t at = key < static_cast<double>(last) ? static_cast<int64_t>(std::ceil(key)) : last;
+    const int64_t at =
+        key < static_cast<double>(last) ? static_cast<int64_t>(std::ceil(key)) : last;
     std::vector<Entry>& slot = slots_[static_cast<size_t>(std::max(at, base_)) & (kFronts - 1)];
     const size_t capacity = slot.capacity();
     slot.push_back(h);
@@ -70,7 +71,7 @@ class HeldEdges {
   std::vector<std::vector<Entry>> slots_;  // empty until the first hold
   int64_t base_ = 0;                       // the first front a slot stands for
   size_t size_ = 0, swept_ = 0;
-  size_t capacity_ = 0;                    // the slots' capacities, in entries
+  size_t capacity_ = 0;  // the slots' capacities, in entries
 };
 
 }  // namespace tandem
