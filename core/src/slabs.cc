@@ -343,7 +343,7 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
 constexpr double kTargetKeep = 1.5;
 
 // The late lag (SimplifierOptions::late_lag): a contraction above 0.4 E0 over a patch at least
-// 5 slices wide waits for the front 1.5 radii longer (docs/decisions.md 66: why these).
+// 5 slices wide waits for the front 1.5 radii longer (docs/decisions.md 67: why these).
 constexpr double kLateLag = 1.5, kLateShare = 0.4, kLateRadius = 5;
 
 Slab::Slab(const ExtractorConfig& ec, const SimplifierOptions& so, Meter* m)

@@ -543,7 +543,7 @@ TEST(Simplifier, TimeLagCountStaysNearClassicalOnADistanceLikeField) {
     return RunSource(src, 0.0, schedule, e0, 0.0, 0);
   };
   // Within 15 % at the default E0 too: a wide patch's dearer contractions wait for the region
-  // around them (the late lag, docs/decisions.md 66), as one cost order would have them.
+  // around them (the late lag, docs/decisions.md 67), as one cost order would have them.
   for (const auto& [e0, bound] : {std::pair{0.2, 1.15}, std::pair{0.713, 1.15}}) {
     const Result classical = run(Schedule::kClassical, e0);
     const Result lag = run(Schedule::kTandemLag, e0);
@@ -636,7 +636,7 @@ TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
   EXPECT_LE(pass_rms, 1.05 * rms(classical)) << classical.mesh.num_triangles();
   // At the default E0 and below no pass (the lock-step never runs below the default E0): the
   // paper's steps, in the order of the late lag, which lockstep_error 1 turns off
-  // (docs/decisions.md 66).
+  // (docs/decisions.md 67).
   const double fine = SessionOptions::kDefaultErrorVoxels;  // the grid's spacing is 1
   const Result fine_pass = run(Schedule::kTandemLag, fine, SessionOptions{}.lockstep_error);
   const Result fine_off = run(Schedule::kTandemLag, fine, 1.0);
