@@ -219,7 +219,25 @@ void Simplifier::PushEdge(VertexId a, VertexId b) {
     ++refusals_.box;
     return;
   }
-  PushReady(a, b, c);
+  if (!Hold(a, b, c)) PushReady(a, b, c);
+}
+
+bool Simplifier::HoldWide(VertexId a, VertexId b) {
+  // rad(c) >= late_radius, i.e. |a - b| / sz >= 2 late_radius - rad(a) - rad(b), squared:
+  // no root for the many narrow patches.
+  const double need = 2 * opt_.late_radius - store_->rad(a) - store_->rad(b);
+  if (need > 0) {
+    const Vec3 d = store_->position(a) - store_->position(b);
+    const double reach = need * opt_.slice_spacing;
+    if (Dot(d, d) < reach * reach) return false;
+  }
+  Candidate at;  // a released edge's candidate has no release data
+  ReleaseKey(a, b, &at);
+  const double key = std::max(at.height + (1 + opt_.late_lag) * at.rad,
+                              static_cast<double>(at.layer + 1));
+  if (key <= front_) return false;
+  held_.Hold(key, {a, b, version_[a], version_[b]});
+  return true;
 }
 
 void Simplifier::Delay(std::span<const TriId> tris, std::span<const uint8_t> layer_edges) {
@@ -281,6 +299,17 @@ void Simplifier::Activate(double front) {
   // the SIMPLIFY that follows.
   front_ = front;
   const size_t chunks = release_.Take(&w_, front_);
+  if (!held_.empty()) {
+    // Evaluated again: a neighbour's contraction may have moved an end since.
+    held_.Release(
+        front_,
+        [this](const HeldEdges::Entry& h) {
+          Candidate c;
+          ++evaluations_;
+          if (Evaluate(h.a, h.b, &c)) PushReady(h.a, h.b, c);
+        },
+        [this](const HeldEdges::Entry& h) { return Stale(h); });
+  }
   const size_t chunk = release_.chunk(), n = release_.size();
   if (chunks > 1 && track_) {
     progress_done_.store(0, std::memory_order_relaxed);
@@ -470,7 +499,7 @@ size_t Simplifier::MemoryBytes() const {
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
-         release_.MemoryBytes() + rises_.MemoryBytes();
+         release_.MemoryBytes() + rises_.MemoryBytes() + held_.MemoryBytes();
 }
 
 }  // namespace tandem

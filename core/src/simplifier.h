@@ -28,6 +28,7 @@
 #include "contraction_checks.h"
 #include "degenerate.h"
 #include "edge_queues.h"
+#include "held_edges.h"
 #include "mesh_store.h"
 #include "part_ids.h"
 #include "quadric_store.h"
@@ -239,6 +240,14 @@ class Simplifier {
   bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
   void PushQ(VertexId a, VertexId b, const Candidate& c);
+  // The late lag (SimplifierOptions::late_lag): holds an evaluated edge back (true) while
+  // the front is short of its late key. Cheapest test first: most edges cost at most
+  // late_share x E0, and most of the rest lie on narrow patches.
+  bool Hold(VertexId a, VertexId b, const Candidate& c) {
+    return opt_.late_lag > 0 && c.cost > opt_.late_share * opt_.error &&
+           c.cost <= opt_.keep * opt_.error && HoldWide(a, b);
+  }
+  bool HoldWide(VertexId a, VertexId b);
   // PushQ, unless an end is not ready in a chunked release (Activate): then the
   // edge waits for that end's chunk.
   void PushReady(VertexId a, VertexId b, const Candidate& c) {
@@ -349,6 +358,7 @@ class Simplifier {
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
   static constexpr Vec3 kUnplaced{kNaN, kNaN, kNaN};
   WaitingQueue w_;
+  HeldEdges held_;  // the late lag's, re-evaluated as the front reaches them
   ChunkedRelease release_;  // ACTIVATE of a large release, a chunk at a time
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;

@@ -71,7 +71,7 @@ void Simplifier::FlushBatch() {
         w_.Push(WEntry{r.key, e.a, e.b, version_[e.a], version_[e.b]});
       }
     } else if (r.to == 1) {
-      PushReady(e.a, e.b, r.c);
+      if (!Hold(e.a, e.b, r.c)) PushReady(e.a, e.b, r.c);
     } else {
       ++refusals_.box;
     }

@@ -27,6 +27,13 @@ struct SimplifierOptions {
   // in the same order: identical results); null: all on the calling thread.
   Executor* parallel = nullptr;
   double distance_guard = 0;  // K: see SessionOptions::distance_guard (0 = off)
+  // kReach, the late lag: a contraction costing more than late_share x E0 over a patch at
+  // least late_radius slices wide enters Q only once the front is past
+  // height + (1 + late_lag) rad, not height + rad, so that a young region is simplified to
+  // late_share x E0 and reaches E0 as it leaves the band (docs/decisions.md); 0: the paper's.
+  double late_lag = 0;
+  double late_share = 1;
+  double late_radius = 0;
   // Q keeps edges costing up to keep x E0 (1: only what SIMPLIFY(E0) can pop). A target
   // triangle count raises E0 (RaiseError), and what Q kept then needs no new evaluation.
   double keep = 1;

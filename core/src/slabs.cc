@@ -342,6 +342,10 @@ int SlabCount(const VolumeInfo& grid, const SessionOptions& options) {
 // (docs/decisions.md 23).
 constexpr double kTargetKeep = 1.5;
 
+// The late lag (SimplifierOptions::late_lag): a contraction above 0.4 E0 over a patch at least
+// 5 slices wide waits for the front 1.5 radii longer (docs/decisions.md 67: why these).
+constexpr double kLateLag = 1.5, kLateShare = 0.4, kLateRadius = 5;
+
 Slab::Slab(const ExtractorConfig& ec, const SimplifierOptions& so, Meter* m)
     : meter(m), extractor(ec, &store), simplifier(&store, so) {
   // Slabs live behind unique_ptrs: `this` stays where it is.
@@ -388,12 +392,21 @@ std::vector<std::unique_ptr<Slab>> MakeSlabs(const VolumeInfo& grid, const Sessi
     // each, a power of two voxels across.
     int64_t tile = 1;
     while (tile * 256 < std::max(grid.nx, grid.ny)) tile *= 2;
+    // Not toward a target count, whose E0 rises with what the lock-step leaves, nor sealed,
+    // where a held edge would hold its vertices back from sealing, nor when the paper's
+    // lock-step is asked for (lockstep_error 1).
+    const bool late = options.schedule == Schedule::kTandemLag &&
+                      options.target_triangles == 0 && !options.seal &&
+                      options.lockstep_error < 1;
     const SimplifierOptions so{.error = StartError(grid, options, scale),
                                .alpha = options.alpha,
                                .release = RuleFor(options.schedule),
                                .slice_spacing = spacing[2],
                                .parallel = batches,
                                .distance_guard = options.distance_guard,
+                               .late_lag = late ? kLateLag : 0.0,
+                               .late_share = kLateShare,
+                               .late_radius = kLateRadius,
                                .keep = options.target_triangles > 0 ? kTargetKeep : 1.0,
                                .rises = options.target_triangles > 0,
                                .tile_x = spacing[0] * static_cast<double>(tile),

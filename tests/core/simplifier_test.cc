@@ -542,9 +542,9 @@ TEST(Simplifier, TimeLagCountStaysNearClassicalOnADistanceLikeField) {
     });
     return RunSource(src, 0.0, schedule, e0, 0.0, 0);
   };
-  // At the default E0 the lag keeps more than the bound of 15 %: the lock-step takes the
-  // contractions in sweep order, not in one cost order (docs/decisions.md 21).
-  for (const auto& [e0, bound] : {std::pair{0.2, 1.5}, std::pair{0.713, 1.15}}) {
+  // Within 15 % at the default E0 too: a wide patch's dearer contractions wait for the region
+  // around them (the late lag, docs/decisions.md 67), as one cost order would have them.
+  for (const auto& [e0, bound] : {std::pair{0.2, 1.15}, std::pair{0.713, 1.15}}) {
     const Result classical = run(Schedule::kClassical, e0);
     const Result lag = run(Schedule::kTandemLag, e0);
     const double ratio = double(lag.mesh.num_triangles()) / double(classical.mesh.num_triangles());
@@ -634,14 +634,14 @@ TEST(Simplifier, TheFinishingPassTakesTheCoarsestContractionsInCostOrder) {
       << e << " in lock-step: " << lockstep_rms;
   const Result classical = run(Schedule::kClassical, e0, SessionOptions{}.lockstep_error);
   EXPECT_LE(pass_rms, 1.05 * rms(classical)) << classical.mesh.num_triangles();
-  // At the default E0 and below, the lock-step's order is already close to the cost order:
-  // no pass (the lock-step never runs below the default E0), the paper's mesh.
+  // At the default E0 and below no pass (the lock-step never runs below the default E0): the
+  // paper's steps, in the order of the late lag, which lockstep_error 1 turns off
+  // (docs/decisions.md 67).
   const double fine = SessionOptions::kDefaultErrorVoxels;  // the grid's spacing is 1
   const Result fine_pass = run(Schedule::kTandemLag, fine, SessionOptions{}.lockstep_error);
   const Result fine_off = run(Schedule::kTandemLag, fine, 1.0);
-  EXPECT_EQ(fine_pass.mesh.positions, fine_off.mesh.positions);
-  EXPECT_EQ(fine_pass.mesh.indices, fine_off.mesh.indices);
-  EXPECT_EQ(fine_pass.stats.trace, fine_off.stats.trace);
+  EXPECT_EQ(fine_pass.stats.trace.size(), fine_off.stats.trace.size());
+  EXPECT_EQ(fine_pass.stats.error_reached, fine);
   // Just above it, the pass runs from the default E0 up.
   const Result above = run(Schedule::kTandemLag, 1.5 * fine, SessionOptions{}.lockstep_error);
   EXPECT_EQ(above.stats.trace.size(), fine_off.stats.trace.size() + 1);
