@@ -3,6 +3,7 @@
 
 #include <limits>
 #include <memory>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "draco/compression/decode.h"
@@ -80,6 +81,15 @@ absl::StatusOr<std::string> EncodeNeuroglancerFragment(
       face[c] = draco::PointIndex(v);
     }
     mesh.SetFace(draco::FaceIndex(static_cast<uint32_t>(t)), face);
+  }
+  // Edgebreaker drops a vertex no triangle uses, and the sequential coding of a mesh with more
+  // vertices than corners is refused by Draco's decoder (Neuroglancer's too).
+  std::vector<bool> used(nv, false);
+  for (uint32_t v : indices) used[v] = true;
+  for (size_t i = 0; i < nv; ++i) {
+    if (!used[i]) {
+      return absl::InvalidArgumentError(absl::StrCat("vertex ", i, " is in no triangle"));
+    }
   }
   absl::StatusOr<std::string> bytes = Encode(mesh, compression_level);
   if (!bytes.ok() || compression_level == 0) return bytes;

@@ -5,7 +5,7 @@
 # with its stack is in ctest's output. The same build holds the libFuzzer targets
 # (-DTANDEM_FUZZ=ON): tests/fuzz/run.sh reuses it, so CI compiles the instrumented code once.
 #   bash tests/sanitize.sh                        build, then every test under the sanitizers
-#                                                 but the packaging checks and browser tests
+#                                                 but the packaging, browser and deep-memory tests
 #   bash tests/sanitize.sh -R readers             extra arguments go to ctest (and replace
 #                                                 the default exclusion)
 #   bash tests/sanitize.sh --build-only [TARGET...]   configure + build (all, or the targets)
@@ -75,7 +75,12 @@ if command -v llvm-symbolizer >/dev/null; then
 fi
 # Packaging checks (label deploy, engine_only) test files and installs, and the browser tests
 # test JavaScript on C++ the ViewServer and service tests cover: the plain build runs them.
-if [ $# -eq 0 ]; then set -- -LE deploy -E '_browser|^engine_only$'; fi
+# The depth tests run the shallow case's code again on a stack eight times deeper to bound
+# memory: the shallow runs of the same paths are what the sanitizers need, the plain build
+# checks the bounds.
+if [ $# -eq 0 ]; then
+  set -- -LE deploy -E '_browser|^engine_only$|MemoryIsFlatInDepth|MemoryFollowsTheFront'
+fi
 set +e
 ctest --test-dir "$build" --output-on-failure -j"$jobs" --timeout 1800 "$@"
 rc=$?

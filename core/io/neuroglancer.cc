@@ -244,6 +244,23 @@ class NodeBuilder {
     f_.indices.insert(f_.indices.end(), {a, b, c});
   }
   NeuroglancerFragment& fragment() { return f_; }
+  // The fragment without the corners no triangle kept (a sliver or a strip that quantization
+  // collapsed), in their order: Edgebreaker drops such corners and Draco's sequential coding
+  // writes more of them than corners as a mesh no Draco decoder (Neuroglancer's) accepts.
+  NeuroglancerFragment Take() {
+    constexpr uint32_t kUnused = ~uint32_t{0};
+    std::vector<uint32_t> at(f_.positions.size(), kUnused);
+    for (uint32_t i : f_.indices) at[i] = 0;
+    uint32_t kept = 0;
+    for (size_t i = 0; i < at.size(); ++i) {
+      if (at[i] == kUnused) continue;
+      f_.positions[kept] = f_.positions[i];
+      at[i] = kept++;
+    }
+    f_.positions.resize(kept);
+    for (uint32_t& i : f_.indices) i = at[i];
+    return std::move(f_);
+  }
 
  private:
   NeuroglancerFragment f_;
@@ -253,26 +270,33 @@ class NodeBuilder {
 constexpr size_t kMaxCells = size_t{1} << 21;
 
 // Every level's cut edges on every cut plane, bucketed by the finest cells along the plane,
-// so that a strip can find how far another level's cut of its face lies.
+// so that a strip can find how far another level's cut of its face lies. Each edge knows its
+// inner side in the plane (where that level's solid, or its surface lying in the plane, is).
 class CutCurves {
  public:
-  void Add(int axis, int64_t plane, const Vec3& a, const Vec3& b, int lod, const double* origin,
-           const std::array<float, 3>& cell) {
+  void Add(int axis, int64_t plane, int side, const Vec3& a, const Vec3& b, const Vec3& inward,
+           int lod, const double* origin, const std::array<float, 3>& cell) {
     const int u = (axis + 1) % 3, w = (axis + 2) % 3;
     const int64_t u0 = Cell(std::min(a[u], b[u]), origin[u], cell[u]),
                   u1 = Cell(std::max(a[u], b[u]), origin[u], cell[u]),
                   w0 = Cell(std::min(a[w], b[w]), origin[w], cell[w]),
                   w1 = Cell(std::max(a[w], b[w]), origin[w], cell[w]);
     for (int64_t cu = u0; cu <= u1; ++cu) {
-      for (int64_t cw = w0; cw <= w1; ++cw) buckets_[{axis, plane, cu, cw}].push_back({a, b, lod});
+      for (int64_t cw = w0; cw <= w1; ++cw)
+        buckets_[{axis, plane, cu, cw}].push_back({a, b, inward, lod, side});
     }
   }
-  // The distance from p along the unit direction `dir` (in the plane) to the nearest cut edge
-  // of a level other than `lod` on that plane, or `limit` if none is nearer.
-  double Reach(int axis, int64_t plane, const Vec3& p, const Vec3& dir, int lod, double limit,
-               const double* origin, const std::array<float, 3>& cell) const {
+  // How far from p along the unit direction `dir` (in the plane) a strip must reach. Not
+  // `own`: to the farthest cut edge of another level, from the plane's other side (`side` is
+  // p's cell's), that the ray crosses into that level's solid: stretches of the ray outside it
+  // lie before (a surface lying in the plane, or touching it, makes nearer edges that do not
+  // end them). `own`: to the first edge of level `lod` from p's side, further than `least`,
+  // that the ray crosses out of its own solid. `limit` if there is none.
+  double Reach(int axis, int64_t plane, int side, const Vec3& p, const Vec3& dir, int lod,
+               double limit, const double* origin, const std::array<float, 3>& cell,
+               bool own = false, double least = 0) const {
     const int u = (axis + 1) % 3, w = (axis + 2) % 3;
-    double best = limit;
+    double best = limit, farthest = -1;
     for (int64_t cu = Cell(p[u] - limit, origin[u], cell[u]);
          cu <= Cell(p[u] + limit, origin[u], cell[u]); ++cu) {
       for (int64_t cw = Cell(p[w] - limit, origin[w], cell[w]);
@@ -280,24 +304,32 @@ class CutCurves {
         auto it = buckets_.find({axis, plane, cu, cw});
         if (it == buckets_.end()) continue;
         for (const Edge& e : it->second) {
-          if (e.lod == lod) continue;
+          if ((e.lod == lod) != own || (e.side == side) != own) continue;
+          const double enters = Dot(dir, e.inward);
+          if (enters == 0 || (own && enters > 0)) continue;
           // p + t dir = a + s (b - a), in the plane's two axes.
           const double eu = e.b[u] - e.a[u], ew = e.b[w] - e.a[w];
           const double ru = e.a[u] - p[u], rw = e.a[w] - p[w];
           const double det = eu * dir[w] - dir[u] * ew;
           if (det == 0) continue;
           const double t = (eu * rw - ru * ew) / det, s = (dir[u] * rw - dir[w] * ru) / det;
-          if (t > 0 && s >= 0 && s <= 1) best = std::min(best, t);
+          if (!(t > least && t < limit && s >= 0 && s <= 1)) continue;
+          if (own) {
+            best = std::min(best, t);
+          } else if (enters > 0) {
+            farthest = std::max(farthest, t);
+          }
         }
       }
     }
-    return best;
+    return own || farthest < 0 ? best : farthest;
   }
 
  private:
   struct Edge {
-    Vec3 a, b;
+    Vec3 a, b, inward;
     int lod;
+    int side;  // 0: from the cell above the plane, 1: below it
   };
   static int64_t Cell(double x, double origin, float cell) {
     return static_cast<int64_t>(std::floor((x - origin) / cell));
@@ -378,14 +410,25 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
               if (std::tie(p.x, p.y, p.z) < std::tie(f.x, f.y, f.z)) first = i;
             }
             if (skirt > 0 && levels > 1) {
+              const Vec3 normal = Cross(tri[1] - tri[0], tri[2] - tri[0]);
+              Vec3 middle{0, 0, 0};
+              for (int i = 0; i < poly.n; ++i) middle = middle + poly.v[i] * (1.0 / poly.n);
               for (int i = 0; i < poly.n; ++i) {
                 const Vec3 &a = poly.v[i], &b = poly.v[(i + 1) % poly.n];
                 for (int j = 0; j < 3; ++j) {
                   for (int side = 0; side < 2; ++side) {
                     const double plane = origin[j] + cell[j] * double(c[j] + side);
-                    if (a[j] == plane && b[j] == plane) {
-                      curves.Add(j, (c[j] + side) << shift, a, b, lod, origin, g.chunk_shape);
-                    }
+                    if (a[j] != plane || b[j] != plane) continue;
+                    // Inward: against the normal; for a piece lying in the plane, onto it.
+                    Vec3 axis{0, 0, 0};
+                    axis[j] = 1;
+                    Vec3 w = Cross(b - a, axis);
+                    const double s = Dot(w, normal), m = Dot(w, middle - a);
+                    const double len = std::sqrt(Dot(w, w));
+                    if (len == 0 || (s == 0 && m == 0)) continue;
+                    w = w * ((s != 0 ? (s > 0 ? -1.0 : 1.0) : (m > 0 ? 1.0 : -1.0)) / len);
+                    curves.Add(j, (c[j] + side) << shift, side, a, b, w, lod, origin,
+                               g.chunk_shape);
                   }
                 }
               }
@@ -408,179 +451,290 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
     const int lod = static_cast<int>(k);
     const int shift = shift_of(lod);
     std::map<uint64_t, std::vector<Vec3>>& pieces = level_pieces[k];
-    // Cells into nodes (z-order of the node, then of the octant).
-    std::map<uint64_t, std::vector<uint64_t>> nodes;  // Morton(node) -> cells
-    for (const auto& [key, piece] : pieces) {
-      std::array<uint32_t, 3> n = KeyCell(key);
-      if (lod > 0) n = {n[0] >> 1, n[1] >> 1, n[2] >> 1};
-      nodes[Morton(n)].push_back(key);
-    }
-    for (const auto& [code, cells] : nodes) {
-      NodeBuilder node;
-      std::array<uint32_t, 3> position = KeyCell(cells[0]);
-      if (lod > 0) position = {position[0] >> 1, position[1] >> 1, position[2] >> 1};
-      for (uint64_t key : cells) {
-        const std::array<uint32_t, 3> c = KeyCell(key);
-        // The cell's quantized range per axis.
-        uint32_t qlo[3], qhi[3];
+    double cell_size[3];
+    for (int j = 0; j < 3; ++j) cell_size[j] = std::ldexp(double{g.chunk_shape[j]}, shift);
+    // A strip that leaves its cell goes on in the neighbouring cells of its level (the format
+    // keeps each cell's triangles inside it): cell -> those parts, as triangles.
+    std::map<uint64_t, std::vector<Polygon>> spill;
+    // A strip wholly on `mid` would go to the low octant: a high one tilts it a step.
+    auto off_mid_of = [&](const std::array<uint32_t, 3>& c, std::array<uint32_t, 3> q) {
+      for (int i = 0; i < 3; ++i) {
+        if (lod > 0 && (c[i] & 1) && q[i] == mid) q[i] = mid + 1;
+      }
+      return q;
+    };
+    // Builds cell `key`'s piece and strips into `node`; with `spill_out`, only gathers the
+    // strips' parts beyond the cell.
+    auto build_cell = [&](NodeBuilder& node, uint64_t key,
+                          std::map<uint64_t, std::vector<Polygon>>* spill_out) {
+      const std::array<uint32_t, 3> c = KeyCell(key);
+      std::array<uint32_t, 3> position = c;
+      if (lod > 0) position = {c[0] >> 1, c[1] >> 1, c[2] >> 1};
+      // The cell's quantized range per axis.
+      uint32_t qlo[3], qhi[3];
+      for (int j = 0; j < 3; ++j) {
+        const bool high = lod > 0 && (c[j] & 1);
+        // Octants meet at `mid`, which Neuroglancer's partition lets either side use.
+        qlo[j] = lod == 0 ? 0 : (high ? mid : 0);
+        qhi[j] = lod == 0 ? top : (high ? top : mid);
+      }
+      const double size[3] = {std::ldexp(double{g.chunk_shape[0]}, lod),
+                              std::ldexp(double{g.chunk_shape[1]}, lod),
+                              std::ldexp(double{g.chunk_shape[2]}, lod)};
+      auto quantize = [&](const Vec3& p) {
+        std::array<uint32_t, 3> q;
         for (int j = 0; j < 3; ++j) {
-          const bool high = lod > 0 && (c[j] & 1);
-          // Octants meet at `mid`, which Neuroglancer's partition lets either side use.
-          qlo[j] = lod == 0 ? 0 : (high ? mid : 0);
-          qhi[j] = lod == 0 ? top : (high ? top : mid);
+          const double corner = origin[j] + size[j] * position[j];
+          const double x = std::nearbyint((p[j] - corner) / size[j] * top);
+          q[j] = static_cast<uint32_t>(
+              std::clamp(x, static_cast<double>(qlo[j]), static_cast<double>(qhi[j])));
         }
-        const double size[3] = {std::ldexp(double{g.chunk_shape[0]}, lod),
-                                std::ldexp(double{g.chunk_shape[1]}, lod),
-                                std::ldexp(double{g.chunk_shape[2]}, lod)};
-        auto quantize = [&](const Vec3& p) {
-          std::array<uint32_t, 3> q;
+        return q;
+      };
+      auto real = [&](const std::array<uint32_t, 3>& q) {
+        Vec3 p;
+        for (int j = 0; j < 3; ++j) {
+          p[j] = origin[j] + size[j] * (position[j] + static_cast<double>(q[j]) / top);
+        }
+        return p;
+      };
+      static const std::vector<Vec3> kNone;
+      const auto found = pieces.find(key);
+      const std::vector<Vec3>& piece = found != pieces.end() ? found->second : kNone;
+      const size_t first_index = node.fragment().indices.size();
+      for (size_t i = 0; i < piece.size(); i += 3) {
+        node.Triangle(node.Vertex(quantize(piece[i])), node.Vertex(quantize(piece[i + 1])),
+                      node.Vertex(quantize(piece[i + 2])));
+      }
+      // Strips from the neighbouring cells' cut edges that reach into this one.
+      auto add_spill = [&]() {
+        auto it = spill.find(key);
+        if (spill_out != nullptr || it == spill.end()) return;
+        for (const Polygon& part : it->second) {
+          std::array<std::array<uint32_t, 3>, 12> q;
+          int n = 0;
+          for (int v = 0; v < part.n; ++v) {
+            q[n] = off_mid_of(c, quantize(part.v[v]));
+            if (n == 0 || q[n] != q[n - 1]) ++n;
+          }
+          while (n > 1 && q[n - 1] == q[0]) --n;
+          if (n < 3) continue;
+          std::array<uint32_t, 12> id;
+          for (int v = 0; v < n; ++v) id[v] = node.Fresh(q[v]);
+          for (int v = 1; v + 1 < n; ++v) {
+            if (q[0] != q[v + 1] && q[v] != q[v + 1]) node.Triangle(id[0], id[v], id[v + 1]);
+          }
+        }
+      };
+      if (!(skirt > 0)) return;
+      // The cut edges: used by one triangle of this cell, both ends on one face.
+      NeuroglancerFragment& f = node.fragment();
+      const size_t last_index = f.indices.size();
+      std::map<std::pair<uint32_t, uint32_t>, int> uses;
+      for (size_t i = first_index; i < last_index; i += 3) {
+        for (int e = 0; e < 3; ++e) {
+          const uint32_t a = f.indices[i + e], b = f.indices[i + (e + 1) % 3];
+          ++uses[{std::min(a, b), std::max(a, b)}];
+        }
+      }
+      struct Hang {
+        uint32_t a, b;
+        int face;  // 2 * axis + (high side)
+      };
+      std::vector<Hang> hangs;
+      std::map<std::pair<uint32_t, int>, Vec3> dir;  // (vertex, face) -> summed direction
+      for (size_t i = first_index; i < last_index; i += 3) {
+        for (int e = 0; e < 3; ++e) {
+          const uint32_t a = f.indices[i + e], b = f.indices[i + (e + 1) % 3],
+                         c3 = f.indices[i + (e + 2) % 3];
+          if (uses[{std::min(a, b), std::max(a, b)}] != 1) continue;
           for (int j = 0; j < 3; ++j) {
-            const double corner = origin[j] + size[j] * position[j];
-            const double x = std::nearbyint((p[j] - corner) / size[j] * top);
-            q[j] = static_cast<uint32_t>(
-                std::clamp(x, static_cast<double>(qlo[j]), static_cast<double>(qhi[j])));
-          }
-          return q;
-        };
-        auto real = [&](const std::array<uint32_t, 3>& q) {
-          Vec3 p;
-          for (int j = 0; j < 3; ++j) {
-            p[j] = origin[j] + size[j] * (position[j] + static_cast<double>(q[j]) / top);
-          }
-          return p;
-        };
-        const std::vector<Vec3>& piece = pieces[key];
-        const size_t first_index = node.fragment().indices.size();
-        for (size_t i = 0; i < piece.size(); i += 3) {
-          node.Triangle(node.Vertex(quantize(piece[i])), node.Vertex(quantize(piece[i + 1])),
-                        node.Vertex(quantize(piece[i + 2])));
-        }
-        if (!(skirt > 0)) continue;
-        // The cut edges: used by one triangle of this cell, both ends on one face.
-        NeuroglancerFragment& f = node.fragment();
-        const size_t last_index = f.indices.size();
-        std::map<std::pair<uint32_t, uint32_t>, int> uses;
-        for (size_t i = first_index; i < last_index; i += 3) {
-          for (int e = 0; e < 3; ++e) {
-            const uint32_t a = f.indices[i + e], b = f.indices[i + (e + 1) % 3];
-            ++uses[{std::min(a, b), std::max(a, b)}];
-          }
-        }
-        struct Hang {
-          uint32_t a, b;
-          int face;  // 2 * axis + (high side)
-        };
-        std::vector<Hang> hangs;
-        std::map<std::pair<uint32_t, int>, Vec3> dir;  // (vertex, face) -> summed direction
-        for (size_t i = first_index; i < last_index; i += 3) {
-          for (int e = 0; e < 3; ++e) {
-            const uint32_t a = f.indices[i + e], b = f.indices[i + (e + 1) % 3],
-                           c3 = f.indices[i + (e + 2) % 3];
-            if (uses[{std::min(a, b), std::max(a, b)}] != 1) continue;
-            for (int j = 0; j < 3; ++j) {
-              for (int side = 0; side < 2; ++side) {
-                const uint32_t plane = side ? qhi[j] : qlo[j];
-                if (f.positions[a][j] != plane || f.positions[b][j] != plane) continue;
-                const Vec3 pa = real(f.positions[a]), pb = real(f.positions[b]),
-                           pc = real(f.positions[c3]);
-                const Vec3 u = pb - pa, v = pc - pa;
-                const Vec3 n = Cross(u, v);
-                Vec3 axis{0, 0, 0};
-                axis[j] = 1;
-                Vec3 w = Cross(u, axis);  // in the face, across the edge
-                const double s = Dot(w, n);
-                const double len = std::sqrt(Dot(w, w));
-                if (s == 0 || len == 0) continue;  // the triangle lies in the face
-                w = w * ((s > 0 ? -1.0 : 1.0) / len);
-                hangs.push_back({a, b, 2 * j + side});
-                for (uint32_t x : {a, b}) {
-                  Vec3& d = dir[{x, 2 * j + side}];
-                  d = d + w;
-                }
+            for (int side = 0; side < 2; ++side) {
+              const uint32_t plane = side ? qhi[j] : qlo[j];
+              if (f.positions[a][j] != plane || f.positions[b][j] != plane) continue;
+              const Vec3 pa = real(f.positions[a]), pb = real(f.positions[b]),
+                         pc = real(f.positions[c3]);
+              const Vec3 u = pb - pa, v = pc - pa;
+              const Vec3 n = Cross(u, v);
+              Vec3 axis{0, 0, 0};
+              axis[j] = 1;
+              Vec3 w = Cross(u, axis);  // in the face, across the edge
+              const double s = Dot(w, n);
+              const double len = std::sqrt(Dot(w, w));
+              if (s == 0 || len == 0) continue;  // the triangle lies in the face
+              w = w * ((s > 0 ? -1.0 : 1.0) / len);
+              hangs.push_back({a, b, 2 * j + side});
+              for (uint32_t x : {a, b}) {
+                Vec3& d = dir[{x, 2 * j + side}];
+                d = d + w;
               }
             }
           }
         }
-        // A strip wholly on `mid` would go to the low octant: a high one tilts it a step.
-        auto off_mid = [&](std::array<uint32_t, 3> q) {
-          for (int i = 0; i < 3; ++i) {
-            if (lod > 0 && (c[i] & 1) && q[i] == mid) q[i] = mid + 1;
-          }
-          return q;
+      }
+      auto off_mid = [&](const std::array<uint32_t, 3>& q) { return off_mid_of(c, q); };
+      std::map<std::pair<uint32_t, int>, uint32_t> lower;  // the strip's far corners
+      std::map<std::pair<uint32_t, int>, Vec3> far_of;     // where they lie unclamped
+      // Where a cut curve reaches a cell edge (its face meets another cut face there), the
+      // strip must reach down that edge, or the strips of the two faces leave a notch
+      // between them: a far corner that would leave the cell slides down the edge instead of
+      // being clamped short, and one tilted away from the edge gets a wedge back to it.
+      std::map<std::pair<uint32_t, int>, uint32_t> wedge;  // the corner down the edge
+      for (auto& [key2, d] : dir) {
+        const double len = std::sqrt(Dot(d, d));
+        const std::array<uint32_t, 3>& at = f.positions[key2.first];
+        const Vec3 p = real(at);
+        const int j = key2.second / 2;
+        const int64_t plane = (int64_t{c[j]} + key2.second % 2) << shift;
+        auto depth_toward = [&](const Vec3& unit) {
+          if (levels < 2) return skirt;
+          const int side = key2.second % 2;
+          const double reach =
+              curves.Reach(j, plane, side, p, unit, lod, deepest, origin, g.chunk_shape);
+          const double depth =
+              reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt;
+          // No deeper than the surface's other side in the face: a thin wall keeps it inside.
+          return curves.Reach(j, plane, side, p, unit, lod, depth, origin, g.chunk_shape, true,
+                              0.01 * skirt);
         };
-        std::map<std::pair<uint32_t, int>, uint32_t> lower;  // the strip's far corners
-        // Where a cut curve reaches a cell edge (its face meets another cut face there), the
-        // strip must reach down that edge, or the strips of the two faces leave a notch
-        // between them: a far corner that would leave the cell slides down the edge instead of
-        // being clamped short, and one tilted away from the edge gets a wedge back to it.
-        std::map<std::pair<uint32_t, int>, uint32_t> wedge;  // the corner down the edge
-        for (auto& [key2, d] : dir) {
-          const double len = std::sqrt(Dot(d, d));
-          const std::array<uint32_t, 3>& at = f.positions[key2.first];
-          const Vec3 p = real(at);
-          const int j = key2.second / 2;
-          const int64_t plane = (int64_t{c[j]} + key2.second % 2) << shift;
-          auto depth_toward = [&](const Vec3& unit) {
-            if (levels < 2) return skirt;
-            const double reach =
-                curves.Reach(j, plane, p, unit, lod, deepest, origin, g.chunk_shape);
-            return reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt;
-          };
-          const double depth = len > 0 ? depth_toward(d * (1 / len)) : skirt;
-          const Vec3 far = len > 0 ? p + d * (depth / len) : p;
-          std::array<uint32_t, 3> q = quantize(far);
-          q[j] = at[j];  // stays in the face
-          int other = -1, faces = 0;
-          for (int i = 0; i < 3; ++i) {
-            if (i != j && (at[i] == qlo[i] || at[i] == qhi[i])) other = i, ++faces;
+        const double depth = len > 0 ? depth_toward(d * (1 / len)) : skirt;
+        const Vec3 far = len > 0 ? p + d * (depth / len) : p;
+        std::array<uint32_t, 3> q = quantize(far);
+        q[j] = at[j];  // stays in the face
+        int other = -1, faces = 0;
+        for (int i = 0; i < 3; ++i) {
+          if (i != j && (at[i] == qlo[i] || at[i] == qhi[i])) other = i, ++faces;
+        }
+        const int along = 3 - j - other;
+        if (faces == 1 && d[along] != 0) {
+          Vec3 unit{0, 0, 0};
+          unit[along] = d[along] > 0 ? 1 : -1;
+          const Vec3 down = p + unit * depth_toward(unit);
+          std::array<uint32_t, 3> e = quantize(down);
+          e[j] = at[j];
+          e[other] = at[other];
+          const double edge_corner = origin[other] + size[other] * position[other];
+          const double x = (far[other] - edge_corner) / size[other] * top;
+          if (x < qlo[other] - 0.5 || x > qhi[other] + 0.5) {
+            q = e;  // it would leave the cell: down the edge at full depth
+          } else if (off_mid(e) != off_mid(q)) {
+            wedge[key2] = node.Fresh(off_mid(e));
           }
-          const int along = 3 - j - other;
-          if (faces == 1 && d[along] != 0) {
-            Vec3 unit{0, 0, 0};
-            unit[along] = d[along] > 0 ? 1 : -1;
-            const Vec3 down = p + unit * depth_toward(unit);
-            std::array<uint32_t, 3> e = quantize(down);
-            e[j] = at[j];
-            e[other] = at[other];
-            const double edge_corner = origin[other] + size[other] * position[other];
-            const double x = (far[other] - edge_corner) / size[other] * top;
-            if (x < qlo[other] - 0.5 || x > qhi[other] + 0.5) {
-              q = e;  // it would leave the cell: down the edge at full depth
-            } else if (off_mid(e) != off_mid(q)) {
-              wedge[key2] = node.Fresh(off_mid(e));
+        }
+        lower[key2] = node.Fresh(off_mid(q));
+        far_of[key2] = far;
+      }
+      // The wedge is turned like the strip beside it (in the face, normal along its axis).
+      auto turn = [&](uint32_t a, uint32_t b, uint32_t c3, int j) {
+        auto v = [&](uint32_t i, int k) { return static_cast<double>(f.positions[i][k]); };
+        const int u = (j + 1) % 3, w = (j + 2) % 3;
+        return (v(b, u) - v(a, u)) * (v(c3, w) - v(a, w)) -
+               (v(b, w) - v(a, w)) * (v(c3, u) - v(a, u));
+      };
+      std::map<std::pair<uint32_t, int>, double> wedge_turn;
+      for (const Hang& h : hangs) {
+        const uint32_t la = lower[{h.a, h.face}], lb = lower[{h.b, h.face}];
+        node.Triangle(h.b, h.a, la);
+        node.Triangle(h.b, la, lb);
+        const double t = turn(h.b, h.a, la, h.face / 2);
+        if (t != 0) wedge_turn.try_emplace({h.a, h.face}, t);
+        if (t != 0) wedge_turn.try_emplace({h.b, h.face}, t);
+      }
+      for (const auto& [key2, e] : wedge) {
+        const uint32_t v = key2.first, la = lower[key2];
+        const double t = wedge_turn.contains(key2) ? wedge_turn[key2] : 0;
+        if (t * turn(v, la, e, key2.second / 2) >= 0) {
+          node.Triangle(v, la, e);
+        } else {
+          node.Triangle(v, e, la);
+        }
+      }
+      add_spill();
+      if (spill_out == nullptr) return;
+      // Each strip unclamped (one quad if convex, else two triangles), cut by the
+      // neighbouring cells in its face.
+      for (const Hang& h : hangs) {
+        const int j = h.face / 2, u = (j + 1) % 3, w = (j + 2) % 3;
+        const Vec3 quad[4] = {real(f.positions[h.b]), real(f.positions[h.a]), far_of[{h.a, h.face}],
+                              far_of[{h.b, h.face}]};
+        int turns[2] = {0, 0};
+        for (int i = 0; i < 4; ++i) {
+          const Vec3 &a = quad[i], &b = quad[(i + 1) % 4], &e = quad[(i + 2) % 4];
+          const double t = (b[u] - a[u]) * (e[w] - b[w]) - (b[w] - a[w]) * (e[u] - b[u]);
+          if (t != 0) ++turns[t > 0];
+        }
+        Polygon shapes[2];
+        if (turns[0] == 0 || turns[1] == 0) {
+          shapes[0].n = 4;
+          std::copy(quad, quad + 4, shapes[0].v.begin());
+        } else {
+          shapes[0].n = shapes[1].n = 3;
+          shapes[0].v[0] = shapes[1].v[0] = quad[0];
+          shapes[0].v[1] = quad[1];
+          shapes[0].v[2] = shapes[1].v[1] = quad[2];
+          shapes[1].v[2] = quad[3];
+        }
+        for (const Polygon& shape : shapes) {
+          if (shape.n < 3) continue;
+          std::array<int64_t, 3> lo, hi;
+          for (int i = 0; i < 3; ++i) {
+            lo[i] = hi[i] = c[i];
+            if (i == j) continue;
+            double a = shape.v[0][i], b = a;
+            for (int v = 1; v < shape.n; ++v) {
+              a = std::min(a, shape.v[v][i]);
+              b = std::max(b, shape.v[v][i]);
             }
+            lo[i] = std::max<int64_t>(
+                0, static_cast<int64_t>(std::floor((a - origin[i]) / cell_size[i])));
+            hi[i] = std::min<int64_t>(
+                kMaxCells - 1, static_cast<int64_t>(std::floor((b - origin[i]) / cell_size[i])));
           }
-          lower[key2] = node.Fresh(off_mid(q));
-        }
-        // The wedge is turned like the strip beside it (in the face, normal along its axis).
-        auto turn = [&](uint32_t a, uint32_t b, uint32_t c3, int j) {
-          auto v = [&](uint32_t i, int k) { return static_cast<double>(f.positions[i][k]); };
-          const int u = (j + 1) % 3, w = (j + 2) % 3;
-          return (v(b, u) - v(a, u)) * (v(c3, w) - v(a, w)) -
-                 (v(b, w) - v(a, w)) * (v(c3, u) - v(a, u));
-        };
-        std::map<std::pair<uint32_t, int>, double> wedge_turn;
-        for (const Hang& h : hangs) {
-          const uint32_t la = lower[{h.a, h.face}], lb = lower[{h.b, h.face}];
-          node.Triangle(h.b, h.a, la);
-          node.Triangle(h.b, la, lb);
-          const double t = turn(h.b, h.a, la, h.face / 2);
-          if (t != 0) wedge_turn.try_emplace({h.a, h.face}, t);
-          if (t != 0) wedge_turn.try_emplace({h.b, h.face}, t);
-        }
-        for (const auto& [key2, e] : wedge) {
-          const uint32_t v = key2.first, la = lower[key2];
-          const double t = wedge_turn.contains(key2) ? wedge_turn[key2] : 0;
-          if (t * turn(v, la, e, key2.second / 2) >= 0) {
-            node.Triangle(v, la, e);
-          } else {
-            node.Triangle(v, e, la);
+          std::array<int64_t, 3> n;
+          for (n[2] = lo[2]; n[2] <= hi[2]; ++n[2]) {
+            for (n[1] = lo[1]; n[1] <= hi[1]; ++n[1]) {
+              for (n[0] = lo[0]; n[0] <= hi[0]; ++n[0]) {
+                if (n[0] == c[0] && n[1] == c[1] && n[2] == c[2]) continue;
+                Polygon poly = shape;
+                for (int i = 0; i < 3 && poly.n >= 3; ++i) {
+                  if (i == j) continue;
+                  ClipPlane(&poly, i, origin[i] + cell_size[i] * double(n[i]), true);
+                  if (poly.n >= 3) {
+                    ClipPlane(&poly, i, origin[i] + cell_size[i] * double(n[i] + 1), false);
+                  }
+                }
+                if (poly.n >= 3) (*spill_out)[CellKey(n)].push_back(poly);
+              }
+            }
           }
         }
       }
+    };
+    if (skirt > 0 && levels > 1) {
+      for (const auto& [key, piece] : pieces) {
+        NodeBuilder scratch;
+        build_cell(scratch, key, &spill);
+      }
+    }
+    // Cells into nodes (z-order of the node, then of the octant).
+    std::map<uint64_t, std::vector<uint64_t>> nodes;  // Morton(node) -> cells
+    auto node_of = [&](uint64_t key) {
+      std::array<uint32_t, 3> n = KeyCell(key);
+      if (lod > 0) n = {n[0] >> 1, n[1] >> 1, n[2] >> 1};
+      return Morton(n);
+    };
+    for (const auto& [key, piece] : pieces) nodes[node_of(key)].push_back(key);
+    for (const auto& [key, parts] : spill) {
+      if (!pieces.contains(key) && !parts.empty()) nodes[node_of(key)].push_back(key);
+    }
+    for (auto& [code, cells] : nodes) {
+      std::sort(cells.begin(), cells.end());
+      NodeBuilder node;
+      std::array<uint32_t, 3> position = KeyCell(cells[0]);
+      if (lod > 0) position = {position[0] >> 1, position[1] >> 1, position[2] >> 1};
+      for (uint64_t key : cells) build_cell(node, key, nullptr);
       // Slivers that quantization collapsed leave nothing to draw.
-      if (!node.fragment().indices.empty())
-        out[k].push_back({position, std::move(node.fragment())});
+      if (!node.fragment().indices.empty()) out[k].push_back({position, node.Take()});
     }
   }
   // Every non-empty node needs its parent at the next level, else Neuroglancer never

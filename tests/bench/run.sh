@@ -7,10 +7,12 @@
 # to date in the main build ($TANDEM_BENCH_SERVER_BUILD, default <repo>/build) when that is
 # configured, else the server rows are skipped.
 #   bash tests/bench/run.sh --dense [--quick] [--repeats N] [--only NAME] [--keep]
-# With --sweep (first argument) it runs the reduction sweep instead (sweep.py, issue 24:
-# tests/bench/SWEEP.md): every schedule and the CGAL / VTK peers from ~10 % down to ~0.1 %
-# of the triangles.
-#   bash tests/bench/run.sh --sweep [--quick] [--only NAME] [--points N] [--keep]
+# With --sweep (first argument) it runs the reduction sweep instead (sweep.py, issues 24 and
+# 66: tests/bench/SWEEP.md): every schedule and the CGAL / VTK peers from ~10 % down to ~0.1 %
+# of the triangles, on generated shapes, fields not made with the paper's formulas
+# (field_volume) and the shared scans; the field generator's own test runs first.
+#   bash tests/bench/run.sh --sweep [--quick] [--inputs LIST] [--tandem BIN] [--e0-from JSON]
+#                                   [--lean] [--points N] [--keep]
 # With --target (first argument) it runs --target-triangles N against the E0 run that gives N
 # (target.py, issue 24: tests/bench/TARGET.md).
 #   bash tests/bench/run.sh --target [--quick] [--only NAME] [--repeats N] [--keep]
@@ -29,6 +31,7 @@ build="${TANDEM_BENCH_BUILD:-$root/build-bench-peers}"
 script="$here/bench.py"
 dense=false
 labels=false
+sweep=false
 if [[ "${1:-}" == "--dense" ]]; then
   shift
   dense=true
@@ -36,6 +39,7 @@ if [[ "${1:-}" == "--dense" ]]; then
 elif [[ "${1:-}" == "--sweep" ]]; then
   shift
   script="$here/sweep.py"
+  sweep=true
 elif [[ "${1:-}" == "--target" ]]; then
   shift
   script="$here/target.py"
@@ -59,6 +63,9 @@ grep -E '^-- bench:' "$build/bench-build.log" || true
 if $labels && [[ -x "$build/bin/labels_lib_test" ]]; then
   # The measures the report rests on check themselves first.
   ctest --test-dir "$build" -R labels_lib_test --output-on-failure
+fi
+if $sweep && [[ -x "$build/bin/fields_lib_test" ]]; then
+  ctest --test-dir "$build" -R fields_lib_test --output-on-failure
 fi
 if $dense; then
   server_build="${TANDEM_BENCH_SERVER_BUILD:-$root/build}"

@@ -5,7 +5,8 @@
 // of the shard), the 3D panel shows them in each segment's colour, a fine detail setting
 // reads level 0 and a coarse one only the coarsest level (the byte ranges it reads), and
 // neither picture has a crack (no background pixel enclosed by the closed surface's
-// picture). Saves the picture at
+// picture); views of a large label sheet that read every level-0 node or look from turned,
+// low cameras become ready (viewer.isReady()) and show it. Saves the picture at
 // build/viewer-test/neuroglancer.png (docs/img/neuroglancer.png is a copy of it): two exports
 // side by side, as two segmentation layers.
 // usage: node tests/neuroglancer/neuroglancer_browser_test.mjs BUILD_DIR
@@ -387,6 +388,80 @@ await h.run(async () => {
             `${mixed.cut.picture.gaps} background pixels inside`);
       check(sheetPicture.gaps === 0, `${v.name}: with skirts, no crack where the levels meet`,
             `${sheetPicture.gaps} background pixels inside`);
+    }
+    // Views that must become ready: Neuroglancer reports ready only once every node its walk
+    // wants is on the GPU, and a node whose fragment fails to decode is never retried. A
+    // fragment holding corners no triangle used was such a node (near the sheet's far corner),
+    // wanted by a fine setting that reads every level-0 node and by the turned, low camera.
+    const readyViews = [
+      { name: 'every-node', orientation: [0.866, 0, 0, 0.5], scale: 1, projection: 1.6e-7,
+        every: true, lit: 0.2 },
+      { name: 'turned-low', orientation: then(turn([0, 0, 1], -80), turn([1, 0, 0], 105)),
+        scale: 70 },
+      { name: 'turned-back', orientation: then(turn([0, 0, 1], -120), turn([1, 0, 0], 115)),
+        scale: 70 },
+      { name: 'turned-round', orientation: then(turn([0, 0, 1], 260), turn([1, 0, 0], 120)),
+        scale: 70 },
+    ];
+    for (const v of readyViews) {
+      const view = {
+        layers: [{ type: 'segmentation', name: 'skirted',
+                   source: `precomputed://${base}/data/sheet-skirted`, segments: ['1'],
+                   segmentColors: COLORS, meshRenderScale: v.scale }],
+        layout: '3d', showAxisLines: false, showScaleBar: false, showDefaultAnnotations: false,
+        projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
+        position: [64, 64, 20], projectionScale: v.projection || 40e-9,
+        projectionOrientation: v.orientation,
+      };
+      since = log.length;
+      await page.goto('about:blank');
+      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
+      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+      const began = Date.now();
+      const ready = await waitFor('the sheet to load',
+                                  () => page.evaluate(() => window.viewer.isReady()), 60)
+        .catch(() => false);
+      const nodes = nodesRead(log, exports.skirted.ranges, since);
+      check(ready, `${v.name}: Neuroglancer reports the view ready`,
+            `${ready ? ((Date.now() - began) / 1000).toFixed(1) + ' s' : 'not within 60 s'}, ` +
+            `fetched ${nodes} nodes per level`);
+      if (v.every) {
+        const total = exports.skirted.ranges[0].length;
+        check(nodes[0] === total, `${v.name}: a fine setting reads every level-0 node`,
+              `${nodes[0]} of ${total}`);
+      }
+      await sleep(500);
+      const picture = await shoot(`neuroglancer-${v.name}.png`);
+      check(picture.share > (v.lit || 0.5) && picture.red > 0.8 * picture.share &&
+            picture.gaps === 0, `${v.name}: the sheet shows, without a crack`,
+            `${(100 * picture.share).toFixed(1)} % lit, ${picture.gaps} background pixels inside`);
+    }
+    // Cameras from a sweep of turns and tilts that each showed background through a crack
+    // before: a level's cut lying just above a cell face (its strip must go on in the cell
+    // below) or a level's surface lying in a cell face (another level's strip must reach past
+    // it). Drawn with skirts only; each view mixes levels as the three above do.
+    for (const [about, tilt] of [[-170, 130], [90, 125], [-170, 140]]) {
+      const view = {
+        layers: [{ type: 'segmentation', name: 'skirted', segments: ['1'], segmentColors: COLORS,
+                   source: `precomputed://${base}/data/sheet-skirted`, meshRenderScale: 70 }],
+        layout: '3d', showAxisLines: false, showScaleBar: false, showDefaultAnnotations: false,
+        projectionBackgroundColor: '#000000', selectedLayer: { visible: false },
+        position: [64, 64, 20], projectionScale: 40e-9,
+        projectionOrientation: then(turn([0, 0, 1], about), turn([1, 0, 0], tilt)),
+      };
+      since = log.length;
+      await page.goto('about:blank');
+      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
+      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+      await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
+      await sleep(500);
+      const picture = await shoot(`neuroglancer-sweep${about}-${tilt}.png`);
+      const nodes = nodesRead(log, exports.skirted.ranges, since);
+      check(nodes.filter((n) => n > 0).length >= 2 && picture.share > 0.7,
+            `turned ${about}, tilted ${tilt}: the sheet fills the view at two levels or more`,
+            `fetched ${nodes} nodes per level, ${(100 * picture.share).toFixed(1)} % lit`);
+      check(picture.gaps === 0, `turned ${about}, tilted ${tilt}: no crack where the levels meet`,
+            `${picture.gaps} background pixels inside`);
     }
     // The picture for the docs (docs/img/neuroglancer.png): a gyroid ball and two linked
     // tori beside it, two exports as two segmentation layers, each segment in its colour.

@@ -328,18 +328,20 @@ std::vector<std::array<Vec3, 3>> Dequantized(const Stored& s, size_t k) {
   return out;
 }
 
+// A flat 12 x 12 sheet at height z, normal +z.
+IndexedMesh Sheet(double z) {
+  IndexedMesh m;
+  m.positions = {{0, 0, z}, {12, 0, z}, {12, 12, z}, {0, 12, z}};
+  m.indices = {0, 1, 2, 0, 2, 3};
+  return m;
+}
+
 // Two levels of a flat sheet 1.2 units apart (normal +z: strips hang down), cut by nodes of 4
 // units: the upper level's strips reach down to the lower level's cut and half a strip
 // beyond (within two strips for two levels), so that the crack between the two cuts is
 // covered; the lower level's strips, with no other cut below them, stay one strip deep.
 TEST(NeuroglancerExport, StripsReachAnotherLevelsCut) {
-  auto sheet = [](double z) {
-    IndexedMesh m;
-    m.positions = {{0, 0, z}, {12, 0, z}, {12, 12, z}, {0, 12, z}};
-    m.indices = {0, 1, 2, 0, 2, 3};
-    return m;
-  };
-  NeuroglancerSegment segment{1, {sheet(5), sheet(6.2)}};
+  NeuroglancerSegment segment{1, {Sheet(5), Sheet(6.2)}};
   const NeuroglancerGrid grid{{4, 4, 4}, {-0.5f, -0.5f, -0.5f}};
   auto tree = BuildOctree(segment, grid, 16, 1.0);
   ASSERT_TRUE(tree.ok()) << tree.status();
@@ -360,6 +362,91 @@ TEST(NeuroglancerExport, StripsReachAnotherLevelsCut) {
     }
     EXPECT_GT(triangles, 0u);
     EXPECT_NEAR(lowest, k == 0 ? 4.0 : 4.5, 1e-3) << "level " << k;  // 6.2 - 1.7
+  }
+}
+
+// A level's triangles (dequantized) with a corner kept per triangle, straight from the octree.
+std::vector<std::array<Vec3, 3>> OctreeTriangles(
+    const std::vector<std::vector<NeuroglancerNode>>& tree, const NeuroglancerGrid& grid, int k) {
+  std::vector<std::array<Vec3, 3>> out;
+  for (const NeuroglancerNode& node : tree[k]) {
+    const auto& f = node.fragment;
+    for (size_t t = 0; t + 2 < f.indices.size(); t += 3) {
+      std::array<Vec3, 3> tri;
+      for (int c = 0; c < 3; ++c) {
+        tri[c] = DequantizePosition(grid, k, node.position, f.positions[f.indices[t + c]], 16);
+      }
+      out.push_back(tri);
+    }
+  }
+  return out;
+}
+
+// Whether point p of the plane x = p.x lies on a triangle of `tris` lying in that plane.
+bool CoveredInPlaneX(const std::vector<std::array<Vec3, 3>>& tris, Vec3 p) {
+  for (const auto& t : tris) {
+    if (std::abs(t[0].x - p.x) > 1e-3 || std::abs(t[1].x - p.x) > 1e-3 ||
+        std::abs(t[2].x - p.x) > 1e-3) {
+      continue;
+    }
+    auto side = [&](Vec3 a, Vec3 b) {
+      return (b.y - a.y) * (p.z - a.z) - (b.z - a.z) * (p.y - a.y);
+    };
+    const double s0 = side(t[0], t[1]), s1 = side(t[1], t[2]), s2 = side(t[2], t[0]);
+    if ((s0 >= 0 && s1 >= 0 && s2 >= 0) || (s0 <= 0 && s1 <= 0 && s2 <= 0)) return true;
+  }
+  return false;
+}
+
+// A sheet just above a cell's lower face (z = 7.52 over the face z = 7.5, nodes of 4) and a
+// coarser level lower (7.2): the finer level's strips, which must reach down past 7.2, leave
+// their cell after 0.02 and go on in the cell below, so that the band between the two cuts
+// is covered on every cut face (else Neuroglancer shows the background through it).
+TEST(NeuroglancerExport, StripsGoOnInTheCellTheyReach) {
+  NeuroglancerSegment segment{1, {Sheet(7.52), Sheet(7.2)}};
+  const NeuroglancerGrid grid{{4, 4, 4}, {-0.5f, -0.5f, -0.5f}};
+  auto tree = BuildOctree(segment, grid, 16, 1.0);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  const std::vector<std::array<Vec3, 3>> fine = OctreeTriangles(*tree, grid, 0);
+  for (double x : {3.5, 7.5}) {
+    for (double y : {1.5, 5.5, 9.5}) {
+      for (double z : {7.25, 7.4, 7.51}) {
+        EXPECT_TRUE(CoveredInPlaneX(fine, {x, y, z})) << x << " " << y << " " << z;
+      }
+    }
+  }
+}
+
+// A closed slab thinner than a strip (z in [5, 5.6]) and a coarser, thicker one: no strip
+// leaves the solid it hangs into, though the other level's cut would take it deeper.
+TEST(NeuroglancerExport, StripsStayInsideAWallThinnerThanThem) {
+  auto box = [](double z0, double z1) {
+    IndexedMesh m;
+    const double x0 = 0.3, x1 = 11.7;
+    for (int i = 0; i < 8; ++i) {
+      m.positions.push_back({i & 1 ? x1 : x0, i & 2 ? x1 : x0, i & 4 ? z1 : z0});
+    }
+    // Outward: -z, +z, -y, +y, -x, +x.
+    m.indices = {0, 2, 3, 0, 3, 1, 4, 5, 7, 4, 7, 6, 0, 1, 5, 0, 5, 4,
+                 2, 6, 7, 2, 7, 3, 0, 4, 6, 0, 6, 2, 1, 3, 7, 1, 7, 5};
+    return m;
+  };
+  const double lo[2] = {5.0, 4.9}, hi[2] = {5.6, 5.7};
+  NeuroglancerSegment segment{1, {box(lo[0], hi[0]), box(lo[1], hi[1])}};
+  const NeuroglancerGrid grid{{4, 4, 4}, {-0.5f, -0.5f, -0.5f}};
+  auto tree = BuildOctree(segment, grid, 16, 1.0);
+  ASSERT_TRUE(tree.ok()) << tree.status();
+  for (int k = 0; k < 2; ++k) {
+    double low = 1e9, high = -1e9;
+    size_t in_faces = 0;
+    for (const auto& t : OctreeTriangles(*tree, grid, k)) {
+      for (const Vec3& p : t) low = std::min(low, p.z), high = std::max(high, p.z);
+      in_faces += std::abs(t[0].x - 3.5) < 1e-3 && std::abs(t[1].x - 3.5) < 1e-3 &&
+                  std::abs(t[2].x - 3.5) < 1e-3;
+    }
+    EXPECT_GT(in_faces, 0u) << "level " << k << " has strips on the face x = 3.5";
+    EXPECT_GT(low, lo[k] - 1e-3) << "level " << k;
+    EXPECT_LT(high, hi[k] + 1e-3) << "level " << k;
   }
 }
 
@@ -736,6 +823,56 @@ TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
   EXPECT_TRUE(ReadSegment(tmp + "/ng", 0).fragments.empty());  // the background has none
 }
 
+// A label sheet under a wavy surface, cut into nodes of 8 voxels: quantization collapses a few
+// slivers and strips to nothing, and the corners they leave must go with them. Otherwise a
+// level-0 fragment of one triangle and three unused corners was coded sequentially and no
+// Draco decoder read it back: Neuroglancer marked the node failed and never became ready.
+TEST(NeuroglancerExport, EveryFragmentDecodesWithEveryCornerInATriangle) {
+  VolumeInfo grid;
+  grid.nx = grid.ny = 128;
+  grid.nz = 40;
+  grid.dtype = DType::kUInt8;
+  std::vector<uint8_t> voxels(grid.nx * grid.ny * grid.nz);
+  for (int64_t z = 0; z < grid.nz; ++z) {
+    for (int64_t y = 0; y < grid.ny; ++y) {
+      for (int64_t x = 0; x < grid.nx; ++x) {
+        const double h = 20 + 5 * std::sin(x / 7.0) * std::cos(y / 9.0) +
+                         3 * std::sin(static_cast<double>(x + y) / 13);
+        voxels[(z * grid.ny + y) * grid.nx + x] = static_cast<double>(z) < h ? 1 : 0;
+      }
+    }
+  }
+  const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
+  ASSERT_TRUE(
+      io::WriteVolume(tmp + "/sheet.nrrd", grid, [&](int64_t z, std::vector<uint8_t>* bytes) {
+        const uint8_t* b = voxels.data() + z * grid.nx * grid.ny;
+        bytes->assign(b, b + grid.slice_bytes());
+        return absl::OkStatus();
+      }).ok());
+  std::string out;
+  ASSERT_EQ(Shell(tandem + " extract --input " + tmp + "/sheet.nrrd --labels --quiet --out " + tmp +
+                      "/sheet/ --neuroglancer " + tmp + "/ng --neuroglancer-chunk 8",
+                  &out),
+            0)
+      << out;
+  const Stored stored = ReadSegment(tmp + "/ng", 1);  // expects every fragment to decode
+  ASSERT_EQ(stored.fragments.size(), 3u);
+  EXPECT_GT(stored.fragments[0].size(), 300u);
+  size_t fragments = 0;
+  for (size_t k = 0; k < stored.fragments.size(); ++k) {
+    for (size_t f = 0; f < stored.fragments[k].size(); ++f) {
+      const codec::IntegerMesh& m = stored.fragments[k][f];
+      if (m.indices.empty()) continue;  // an empty parent
+      ++fragments;
+      std::vector<bool> used(m.positions.size(), false);
+      for (uint32_t v : m.indices) used[v] = true;
+      EXPECT_EQ(std::count(used.begin(), used.end(), false), 0)
+          << "level " << k << " node " << f << ": corners in no triangle";
+    }
+  }
+  EXPECT_GT(fragments, 450u);
+}
+
 // --labels --seal --neuroglancer: each level cut from its sweep's welded chunks. Both exports
 // load (every label at both levels, fragments decoding) and the sealed one's level 0 has,
 // label by label, the unsealed one's topology: a box, a torus, a box around a cavity, the
@@ -833,6 +970,14 @@ TEST(NeuroglancerExport, RefusesWhatNeuroglancerCannotTake) {
   EXPECT_EQ(WriteNeuroglancer(tmp, grid, {}, o).message(),
             "neuroglancer export: no fragment encoder");
   EXPECT_FALSE(codec::EncodeNeuroglancerFragment({}, {}).ok());
+  // One triangle and three corners of nothing: Draco's own decoder refuses its sequential
+  // coding of such a mesh, which the Edgebreaker fallback would write.
+  const std::vector<std::array<uint32_t, 3>> six = {{61439, 8192, 0},  {61439, 4096, 0},
+                                                    {53247, 12288, 0}, {60074, 12288, 0},
+                                                    {65535, 4096, 0},  {65535, 24576, 0}};
+  const std::vector<uint32_t> one = {1, 4, 0};
+  EXPECT_EQ(codec::EncodeNeuroglancerFragment(six, one).status().message(),
+            "vertex 2 is in no triangle");
   EXPECT_FALSE(codec::DecodeNeuroglancerFragment("not draco").ok());
 }
 

@@ -18,8 +18,9 @@ namespace tandem::codec {
 // Positions as int32 values (each below 2^31), triangles by index. Edgebreaker at
 // `compression_level` (1..10; 0 = sequential); when Edgebreaker would change the vertex or
 // triangle count (degenerate or non-manifold pieces), sequential coding instead, so every
-// triangle arrives. InvalidArgument for an index out of range, a value of 2^31 or more, or no
-// triangle (Neuroglancer's decoder takes meshes only); Internal if Draco fails.
+// triangle arrives. InvalidArgument for an index out of range, a value of 2^31 or more, no
+// triangle (Neuroglancer's decoder takes meshes only) or a vertex in no triangle (Draco would
+// drop it, or code bytes no Draco decoder reads); Internal if Draco fails.
 absl::StatusOr<std::string> EncodeNeuroglancerFragment(
     std::span<const std::array<uint32_t, 3>> positions, std::span<const uint32_t> indices,
     int compression_level = 7);

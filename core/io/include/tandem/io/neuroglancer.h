@@ -167,8 +167,9 @@ struct NeuroglancerNode {
 // skirt > 0 every cut edge hangs a strip of at least that depth (mesh units) inside the cut
 // face, away from the surface's outer side, so that two levels meeting on a face overlap
 // instead of leaving the crack between their cuts: down to another level's cut of that face
-// (up to 4 skirts) where it lies further, and down a cell edge where the cut reaches one;
-// 0: none.
+// (up to 4 skirts) where it lies further, down a cell edge where the cut reaches one, on into
+// the neighbouring cells of its level where it leaves its own, and never past the surface's
+// other side in the face (a thin wall keeps it inside); 0: none.
 absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
     const NeuroglancerSegment& segment, const NeuroglancerGrid& grid, int bits, double skirt);
 // Where quantized position q of level `lod`'s node `node` lands (meshes.md's formula).
