@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 #include <utility>
 
 #if defined(__SSE2__)
@@ -329,16 +330,56 @@ bool LayerExtractor::ScanRow(const float* src, int64_t n, float* dst, uint64_t* 
 template <typename T>
 void LayerExtractor::ScanIntegerRow(const uint8_t* src, int64_t n, uint16_t* dst,
                                     uint64_t* signs) const {
+  // An integer converts to float exactly, so float(v) >= t iff v >= ceil(t): one integer
+  // compare a value (clamped: `from` past the type's range means none, at its least all).
+  constexpr int32_t kLo = std::numeric_limits<T>::min(), kHi = std::numeric_limits<T>::max();
   const float t = inside_from_;
-  for (int64_t i = 0; i < n; i += kWordBits) {
+  const int32_t from = std::isnan(t)
+                           ? kHi + 1
+                           : static_cast<int32_t>(std::clamp(std::ceil(static_cast<double>(t)),
+                                                             double{kLo}, double{kHi} + 1));
+  int64_t i = 0;
+#if defined(__SSE2__)
+  // 16 values an iteration, compared as signed 16 bits (unsigned ones with the top bit
+  // flipped); the all and none thresholds, which 16 bits cannot hold, are forced afterwards.
+  const bool all = from <= kLo, none = from > kHi;
+  const uint64_t keep = all || none ? 0 : ~uint64_t{0}, force = all ? ~uint64_t{0} : 0;
+  const int32_t flip = std::is_signed_v<T> ? 0 : 0x8000;
+  const __m128i flip_v = _mm_set1_epi16(static_cast<int16_t>(flip));
+  const __m128i below = _mm_set1_epi16(
+      static_cast<int16_t>(static_cast<uint16_t>(((all || none) ? kLo : from - 1) ^ flip)));
+  const __m128i zero = _mm_setzero_si128();
+  for (; i + kWordBits <= n; i += kWordBits) {
+    uint64_t word = 0;
+    for (int b = 0; b < kWordBits; b += 16) {
+      __m128i lo, hi;  // values b..b+7 and b+8..b+15 as 16 bits
+      if constexpr (sizeof(T) == 1) {
+        const __m128i x = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + i + b));
+        lo = _mm_unpacklo_epi8(x, zero);
+        hi = _mm_unpackhi_epi8(x, zero);
+      } else {
+        lo = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + (i + b) * 2));
+        hi = _mm_loadu_si128(reinterpret_cast<const __m128i*>(src + (i + b + 8) * 2));
+      }
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i + b), lo);
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i + b + 8), hi);
+      const __m128i in_lo = _mm_cmpgt_epi16(_mm_xor_si128(lo, flip_v), below);
+      const __m128i in_hi = _mm_cmpgt_epi16(_mm_xor_si128(hi, flip_v), below);
+      word |= static_cast<uint64_t>(
+                  static_cast<uint32_t>(_mm_movemask_epi8(_mm_packs_epi16(in_lo, in_hi))))
+              << b;
+    }
+    signs[i / kWordBits] = (word & keep) | force;
+  }
+#endif
+  for (; i < n; i += kWordBits) {
     uint64_t word = 0;
     const int64_t m = std::min<int64_t>(kWordBits, n - i);
     for (int64_t b = 0; b < m; ++b) {
       T v;
       std::memcpy(&v, src + static_cast<size_t>(i + b) * sizeof(T), sizeof(T));
-      const float x = static_cast<float>(v);
       dst[i + b] = static_cast<uint16_t>(v);  // a byte widened, 16 bits as they are
-      word |= static_cast<uint64_t>(x >= t) << b;
+      word |= static_cast<uint64_t>(static_cast<int32_t>(v) >= from) << b;
     }
     signs[i / kWordBits] = word;
   }
@@ -508,9 +549,22 @@ constexpr auto kCommonFace = [] {
   return face;
 }();
 
+// Bit e: cube edge e joins an in corner to an out one under this corner configuration.
+constexpr auto kCrossedEdges = [] {
+  std::array<uint16_t, 256> mask{};
+  for (int config = 0; config < 256; ++config) {
+    for (int e = 0; e < 12; ++e) {
+      if (((config >> mc::kEdgeCorners[e][0]) ^ (config >> mc::kEdgeCorners[e][1])) & 1) {
+        mask[config] = static_cast<uint16_t>(mask[config] | (1u << e));
+      }
+    }
+  }
+  return mask;
+}();
+
 }  // namespace
 
-void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
+TANDEM_POPCNT_CLONES void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
   const int64_t nx = config_.nx;
   const Plane& vb = v_bottom_;
   const Plane& vt = v_top_;
@@ -536,19 +590,49 @@ void LayerExtractor::EmitCube(int64_t i, int64_t j, double kz) {
   // slices, z-edges at the 4 corners (i+1 may lie in the next word).
   const uint64_t *sb = s_bottom_.data(), *st = s_top_.data();
   const int64_t w0 = i / kWordBits, w1 = (i + 1) / kWordBits;
+  // Only the crossed edges, the ones the case's loops pass through, are looked up.
   VertexId ev[12];
-  ev[0] = EdgeId(xe_bottom_, i, j, XCrossings(sb, j, w0));
-  ev[1] = EdgeId(xe_bottom_, i, j + 1, XCrossings(sb, j + 1, w0));
-  ev[2] = EdgeId(xe_top_, i, j, XCrossings(st, j, w0));
-  ev[3] = EdgeId(xe_top_, i, j + 1, XCrossings(st, j + 1, w0));
-  ev[4] = EdgeId(ye_bottom_, i, j, YCrossings(sb, j, w0));
-  ev[5] = EdgeId(ye_bottom_, i + 1, j, YCrossings(sb, j, w1));
-  ev[6] = EdgeId(ye_top_, i, j, YCrossings(st, j, w0));
-  ev[7] = EdgeId(ye_top_, i + 1, j, YCrossings(st, j, w1));
-  ev[8] = EdgeId(ze_, i, j, ZCrossings(j, w0));
-  ev[9] = EdgeId(ze_, i + 1, j, ZCrossings(j, w1));
-  ev[10] = EdgeId(ze_, i, j + 1, ZCrossings(j + 1, w0));
-  ev[11] = EdgeId(ze_, i + 1, j + 1, ZCrossings(j + 1, w1));
+  for (uint32_t m = kCrossedEdges[config]; m != 0; m &= m - 1) {
+    const int e = std::countr_zero(m);
+    switch (e) {
+      case 0:
+        ev[0] = EdgeId(xe_bottom_, i, j, XCrossings(sb, j, w0));
+        break;
+      case 1:
+        ev[1] = EdgeId(xe_bottom_, i, j + 1, XCrossings(sb, j + 1, w0));
+        break;
+      case 2:
+        ev[2] = EdgeId(xe_top_, i, j, XCrossings(st, j, w0));
+        break;
+      case 3:
+        ev[3] = EdgeId(xe_top_, i, j + 1, XCrossings(st, j + 1, w0));
+        break;
+      case 4:
+        ev[4] = EdgeId(ye_bottom_, i, j, YCrossings(sb, j, w0));
+        break;
+      case 5:
+        ev[5] = EdgeId(ye_bottom_, i + 1, j, YCrossings(sb, j, w1));
+        break;
+      case 6:
+        ev[6] = EdgeId(ye_top_, i, j, YCrossings(st, j, w0));
+        break;
+      case 7:
+        ev[7] = EdgeId(ye_top_, i + 1, j, YCrossings(st, j, w1));
+        break;
+      case 8:
+        ev[8] = EdgeId(ze_, i, j, ZCrossings(j, w0));
+        break;
+      case 9:
+        ev[9] = EdgeId(ze_, i + 1, j, ZCrossings(j, w1));
+        break;
+      case 10:
+        ev[10] = EdgeId(ze_, i, j + 1, ZCrossings(j + 1, w0));
+        break;
+      default:
+        ev[11] = EdgeId(ze_, i + 1, j + 1, ZCrossings(j + 1, w1));
+        break;
+    }
+  }
   // Each triangle's LayerEdges. A loop's own edges lie on the cube's faces: below (the plane
   // of slice k - 1, shared with the cube underneath but in the first layer), above (the
   // front), or on a side, shared with the neighbouring cube unless the slab ends there. Fan

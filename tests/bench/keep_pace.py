@@ -57,7 +57,9 @@ def stream(client, address, volume, workdir, rate=0.0, extra=()):
             t = time.perf_counter() - t0
             tail.append(line)
             del tail[:-20]
-            if line.startswith("progress "):
+            # Only the slice counts: a finishing line ("progress finishing=\"...\" ...") quotes
+            # a phrase with spaces.
+            if line.startswith("progress slices="):
                 fields = dict(kv.split("=", 1) for kv in line.split()[1:])
                 progress.append((t, int(fields["slices"]), int(fields["sent"])))
             elif line.startswith("received "):

@@ -516,6 +516,80 @@ TEST(Extraction, IntegerSlicesAreKeptAsTheyArrive) {
   }
 }
 
+// Integer rows are compared with the iso-value as integers, 16 values at a time, with a scalar
+// tail: over each type's whole range, with iso-values at its ends, past them and on exact
+// values (a voxel equal to the iso-value is inside), both give what the float path gives.
+TEST(Extraction, IntegerRowsClassifyAsTheirFloatValuesAtEveryThreshold) {
+  constexpr int64_t nx = 3 * 64 + 37, ny = 5, nz = 4;  // whole words and a tail
+  constexpr size_t n = size_t{nx} * ny;
+  struct Case {
+    DType dtype;
+    int64_t lo, hi;
+    std::vector<double> isos;
+  };
+  const Case cases[] = {
+      {DType::kUInt8, 0, 255, {-3, 0, 0.25, 1, 127, 128, 254.5, 255, 256}},
+      {DType::kUInt16,
+       0,
+       65535,
+       {-1, 0, 0.5, 1, 255.5, 32767, 32767.5, 32768, 65534.5, 65535, 65535.5, 7e4}},
+      {DType::kInt16,
+       -32768,
+       32767,
+       {-4e4, -32768, -32767.5, -32767, -1, -0.5, 0, 32766.5, 32767, 4e4}},
+  };
+  std::mt19937 rng(7);
+  for (const Case& c : cases) {
+    std::uniform_int_distribution<int64_t> any(c.lo, c.hi), near(-2, 2);
+    const size_t size = DTypeSize(c.dtype);
+    for (double iso : c.isos) {
+      const std::string what = std::string(DTypeName(c.dtype)) + " at " + std::to_string(iso);
+      // Half the voxels within 2 of the iso-value (exact hits included), a quarter at the
+      // range's ends, a quarter anywhere.
+      std::vector<std::vector<uint8_t>> bytes(nz, std::vector<uint8_t>(n * size));
+      std::vector<std::vector<float>> floats(nz, std::vector<float>(n));
+      const int64_t centre = std::clamp<int64_t>(std::llround(iso), c.lo, c.hi);
+      for (int64_t k = 0; k < nz; ++k) {
+        for (size_t v = 0; v < n; ++v) {
+          int64_t value = any(rng);
+          if (v % 4 < 2) value = std::clamp<int64_t>(centre + near(rng), c.lo, c.hi);
+          if (v % 4 == 2) value = rng() % 2 ? c.lo : c.hi;
+          floats[k][v] = static_cast<float>(value);
+          if (size == 1) bytes[k][v] = static_cast<uint8_t>(value);
+          if (size == 2) {
+            const auto u = static_cast<uint16_t>(value);
+            std::memcpy(&bytes[k][2 * v], &u, 2);
+          }
+        }
+      }
+      auto extract = [&](bool as_integers, int64_t* crossed) {
+        ExtractorConfig cfg{nx, ny, nz, {1, 1, 1}, {0, 0, 0}, iso};
+        MeshStore store;
+        LayerExtractor ex(cfg, &store);
+        for (int64_t k = 0; k < nz; ++k) {
+          const SliceValues slice = as_integers ? SliceValues{bytes[k].data(), c.dtype}
+                                                : SliceValues::Floats(floats[k].data());
+          EXPECT_TRUE(ex.ComputeLayer(slice).ok()) << what;
+          ex.CommitLayer(nullptr, nullptr);
+        }
+        *crossed = ex.crossed_cubes();
+        return store.Snapshot();
+      };
+      int64_t crossed_int = 0, crossed_float = 0;
+      const IndexedMesh a = extract(true, &crossed_int), b = extract(false, &crossed_float);
+      EXPECT_EQ(crossed_int, crossed_float) << what;
+      EXPECT_EQ(a.positions, b.positions) << what;
+      EXPECT_EQ(a.indices, b.indices) << what;
+      const bool inside_all = iso <= double(c.lo), outside_all = iso > double(c.hi);
+      if (inside_all || outside_all) {
+        EXPECT_EQ(crossed_int, 0) << what;
+      } else {
+        EXPECT_GT(crossed_int, 100) << what;
+      }
+    }
+  }
+}
+
 // The extractor keeps the vertex ids of crossed grid edges only (4 bytes a crossing and 4 a
 // 64-voxel word), not a cache entry for every grid edge (20 bytes a voxel for the five: 20
 // MiB a 512 x 2048 part of a 2048² stream, whatever its surface). On a very dense surface, a
