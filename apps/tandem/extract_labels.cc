@@ -27,11 +27,11 @@ namespace tandem::app {
 
 namespace {
 
-// What a label session leaves: the session (for the run's report), its interface complex and
-// the complex cut into one surface per label; with --neuroglancer, the complexes of the
-// coarser sweeps (E0 * 2^k, k = 1..) too, their sessions (and label tables) let go.
+// What a label session leaves: the run's report, its interface complex and the complex cut
+// into one surface per label; with --neuroglancer, the complexes of the coarser sweeps
+// (E0 * 2^k, k = 1..) too. Every session (and its label tables) is let go before the split.
 struct LabelRun {
-  std::unique_ptr<TandemSession> session;
+  eval::MetricsReport report;
   LabeledMesh complex;
   std::vector<std::pair<LabelId, IndexedMesh>> surfaces;
   std::vector<LabeledMesh> coarser;
@@ -71,12 +71,14 @@ absl::StatusOr<LabelRun> RunLabelSession(SliceSource& source, Options options,
     };
     LabelRun run;
     run.complex = complex(0);
-    run.session = std::move(sessions[0]);
-    run.surfaces = SplitByLabel(run.complex, labels.background);
+    run.report = eval::MakeReport(*sessions[0], run.complex.mesh);
+    sessions[0].reset();
     for (size_t k = 1; k < sessions.size(); ++k) {
       run.coarser.push_back(complex(k));
       sessions[k].reset();
     }
+    // A session holds per label its pairs' tables and store: gone before the surfaces come.
+    run.surfaces = SplitByLabel(run.complex, labels.background);
     return run;
   } else {
     (void)source;
@@ -116,16 +118,15 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
                              absl::StrCat(input, ": ", std::string(run.status().message()))));
   }
   const io::LabelNames* table = f.label_names.empty() ? nullptr : &names;
-  // The figures first, so that the session, and the complex unless the export needs it, go
-  // before the outputs are written: a label's memory is then its surfaces'.
+  // The figures first, so that the complex, unless the export needs it, goes before the
+  // outputs are written: a label's memory is then its surfaces'.
   std::vector<eval::LabelMetrics> measured;
   for (const auto& [id, mesh] : run->surfaces) {
     eval::LabelMetrics m = eval::MeasureLabel(id, mesh);
     if (auto it = names.find(id); it != names.end()) m.name = it->second.name;
     measured.push_back(std::move(m));
   }
-  eval::MetricsReport report = eval::MakeReport(*run->session, run->complex.mesh);
-  run->session.reset();
+  eval::MetricsReport& report = run->report;
   if (neuroglancer.dir.empty()) run->complex = {};
   if (f.LabelsToFolder()) {
     absl::StatusOr<std::vector<io::LabelFile>> files =

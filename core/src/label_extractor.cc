@@ -355,6 +355,11 @@ void LabelLayers::Commit(MeshStore* store, std::span<const TriId> tris,
     store->set_patch(tris[i], p);
   }
   staged_patch_.clear();
+  // The store holds every pair met; the next layer's lookups need only its own, so that this
+  // table is a layer's pairs, not the whole sweep's (a million ids: three million pairs).
+  pairs_.clear();
+  pair_index_.clear();
+  store_patch_.clear();
   for (auto& [key, v] : plane_top_) {
     if (v & LayerExtractor::kPending) v = staged_to_store[v & ~LayerExtractor::kPending];
   }

@@ -65,7 +65,8 @@ class LabelLayers {
   bool ComputeClosing(LayerExtractor* ex);
   // The commit: the staged triangles `tris` (in staging order) get their store patches, the
   // carried plane points their store ids (staged index -> store id), and `new_seam` (when
-  // given) the new seam points of each seam face, by height, then y.
+  // given) the new seam points of each seam face, by height, then y. The layer's pairs are
+  // then forgotten (the store keeps them), met again as they come.
   void Commit(MeshStore* store, std::span<const TriId> tris,
               std::span<const VertexId> staged_to_store,
               std::array<std::vector<VertexId>, 2>* new_seam);

@@ -443,18 +443,18 @@ TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabel) {
     return std::vector<std::string>{"--out", Path(absl::StrCat("many", k, ".glb"))};
   });
   ASSERT_GT(per_label, -1) << "tandem extract failed";
-  EXPECT_LT(per_label, 2048.0);
+  EXPECT_LT(per_label, 1152.0);
 }
 
-// One file per label (--out DIR/): the session and the complex are let go before the files
-// are written, so a label costs its surface, as with the GLB alone.
+// One file per label (--out DIR/): the session goes before the complex is split and the
+// complex before the files are written, so a label costs its surface, as with the GLB alone.
 TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabelInAFolder) {
   if (testing::kSanitized) GTEST_SKIP() << "resident sizes say nothing under a sanitizer";
   const double per_label = PeakRssPerLabel([&](int k) {
     return std::vector<std::string>{"--out", Path(absl::StrCat("dir", k)) + "/"};
   });
   ASSERT_GT(per_label, -1) << "tandem extract failed";
-  EXPECT_LT(per_label, 2048.0);
+  EXPECT_LT(per_label, 1152.0);
 }
 
 // --neuroglancer: the coarser sweeps are kept as complexes, not sessions, and the segments are
@@ -469,7 +469,7 @@ TEST_F(CliLabels, MemoryGrowsByTheSurfacesPerLabelInANeuroglancerExport) {
                                     Path(absl::StrCat("ng", k))};
   });
   ASSERT_GT(per_label, -1) << "tandem extract failed";
-  EXPECT_LT(per_label, 4608.0);
+  EXPECT_LT(per_label, 2560.0);
 }
 
 }  // namespace

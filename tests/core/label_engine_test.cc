@@ -192,6 +192,37 @@ bool LabelLinkByDefinition(const MeshStore& s, VertexId a, VertexId b) {
   return true;
 }
 
+// Every voxel of an n x n x depth stack its own label: three new pairs a voxel, each met in
+// one layer or two. Unsealed, the store keeps every pair; the extractor's own tables (its
+// PlaneBytes, pairs included) hold a layer's, so they are the same from a stack eight times
+// deeper, while the store's grow with it.
+TEST(LabelEngine, ExtractorPairTablesHoldALayersPairs) {
+  constexpr int64_t n = 24;
+  size_t plane_bytes[2] = {0, 0}, store_pairs[2] = {0, 0};
+  for (int deep = 0; deep < 2; ++deep) {
+    const int64_t depth = deep ? 64 : 8;
+    ExtractorConfig config{n, n, depth, {1, 1, 1}, {0, 0, 0}, 0};
+    config.labels.enabled = true;
+    MeshStore store;
+    store.EnableLabels();
+    LayerExtractor ex(config, &store);
+    std::vector<uint16_t> slice(static_cast<size_t>(n * n));
+    uint16_t next = 1;
+    for (int64_t k = 0; k < depth; ++k) {
+      for (uint16_t& l : slice) l = next++;  // 24 * 24 * 64 ids fit in uint16
+      ASSERT_TRUE(ex.ComputeLayer(SliceValues{reinterpret_cast<const uint8_t*>(slice.data()),
+                                              DType::kUInt16})
+                      .ok());
+      ex.CommitLayer();
+      plane_bytes[deep] = std::max(plane_bytes[deep], ex.PlaneBytes(DType::kUInt16));
+    }
+    store_pairs[deep] = store.pairs().size();
+  }
+  EXPECT_GT(store_pairs[1], 6 * store_pairs[0]);
+  EXPECT_LE(plane_bytes[1], plane_bytes[0] * 5 / 4)
+      << plane_bytes[0] << " bytes at 8 slices, " << plane_bytes[1] << " at 64";
+}
+
 TEST(LabelEngine, LinkConditionPerLabelMatchesItsDefinition) {
   MeshStore store;
   Simplifier simplifier(&store, Options(0.05));
