@@ -801,7 +801,10 @@ def report_paths(args, ap, report_name, json_name, write):
         ap.error("--bin is required")
     report = args.report or (os.path.join(args.scratch, report_name) if args.quick
                              else os.path.join(HERE, report_name))
-    return report, args.json or os.path.join(os.path.dirname(report), json_name)
+    results = args.json or os.path.join(os.path.dirname(report), json_name)
+    for path in (report, results):  # a --report in a new folder is made, not a late crash
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    return report, results
 
 
 def find_programs(bin_dir, progs, tool):
