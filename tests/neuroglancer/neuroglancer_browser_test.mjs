@@ -230,6 +230,15 @@ await h.run(async () => {
                     () => page.evaluate(() => window.viewer.isReady()), 90);
       await sleep(500);
     };
+    // A fresh page on a view state; with ready, once Neuroglancer has drawn it.
+    const showView = async (view, ready = true) => {
+      await page.goto('about:blank');
+      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
+      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+      if (!ready) return;
+      await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
+      await sleep(500);
+    };
     const shoot = async (name) => {
       const file = path.join(shots, name);
       await page.mouse.move(1, 1);  // off the panel: its hover widgets stay hidden
@@ -362,11 +371,7 @@ await h.run(async () => {
           position: [64, 64, 20], projectionScale: 40e-9, projectionOrientation: v.orientation,
         };
         since = log.length;
-        await page.goto('about:blank');
-        await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
-        await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
-        await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
-        await sleep(500);
+        await showView(view);
         mixed[name] = { picture: await shoot(`neuroglancer-${v.name}-${name}.png`),
                         nodes: nodesRead(log, exports[name].ranges, since),
                         total: exports[name].ranges.map((l) => l.length) };
@@ -415,9 +420,7 @@ await h.run(async () => {
         projectionOrientation: v.orientation,
       };
       since = log.length;
-      await page.goto('about:blank');
-      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
-      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
+      await showView(view, false);
       const began = Date.now();
       const ready = await waitFor('the sheet to load',
                                   () => page.evaluate(() => window.viewer.isReady()), 60)
@@ -451,11 +454,7 @@ await h.run(async () => {
         projectionOrientation: then(turn([0, 0, 1], about), turn([1, 0, 0], tilt)),
       };
       since = log.length;
-      await page.goto('about:blank');
-      await page.goto(`${base}/#!${encodeURIComponent(JSON.stringify(view))}`);
-      await waitFor('the viewer', () => page.evaluate(() => !!window.viewer), 60);
-      await waitFor('the sheet to load', () => page.evaluate(() => window.viewer.isReady()), 90);
-      await sleep(500);
+      await showView(view);
       const picture = await shoot(`neuroglancer-sweep${about}-${tilt}.png`);
       const nodes = nodesRead(log, exports.skirted.ranges, since);
       check(nodes.filter((n) => n > 0).length >= 2 && picture.share > 0.7,
