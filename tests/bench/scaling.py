@@ -141,6 +141,9 @@ def crop(args):
         m = dict(meta)
         m["dims"] = [c1 - c0 + 1, ny, nz]
         m["raw_file"] = f"slab{p}.raw"
+        m.pop("sha256", None)
+        if "raw_bytes" in m:
+            m["raw_bytes"] = (c1 - c0 + 1) * ny * nz * size
         m["description"] = f"columns {c0}..{c1} of {args.volume}"
         with open(os.path.join(args.out, f"slab{p}.json"), "w") as o2:
             json.dump(m, o2)
@@ -198,7 +201,7 @@ def model(args):
             # slab runs counted them, else by their CPU (noisy under load).
             ss, key = {}, "session_cpu_s"
             mine = [s for s in slabs if s["input"] == name and s["parts"] == r["parts"]]
-            if mine and all(s.get("contractions") for s in mine):
+            if mine and all(s.get("contractions") is not None for s in mine):
                 key = "contractions"
             for s in mine:
                 ss.setdefault(s["slab"], []).append(s[key])
@@ -214,19 +217,17 @@ def model(args):
             print(f"| {r['parts']} | {r['repeats']} | {int(r['triangles']):,} | "
                   f"{count('contractions')} | {count('evaluations')} | {r['cpu_s']:.2f} | " +
                   " | ".join(f"{r[c]:.2f}" for c in CLASSES) + f" | {shown} |")
-        base = rs[0]
-        t11 = predict(base, 1, 1.0)
-        print(f"\nModel: wall seconds on C cores with parts = C; speed-up at the same parts (one "
-              f"core against C, the same run's work) and against one part on one core "
-              f"({t11:.2f} s, the first row's CPU):\n")
-        print("| cores = parts | one core | C cores (model) | speed-up, same parts | "
-              "against one part | serial share | reading / longest slab |")
+        print("\nModel: wall seconds on C cores with parts = C, against the same run on one "
+              "core (its CPU: the same work, so the speed-up is the split's structure; CPU "
+              "between part counts moves with the load, the contractions do not):\n")
+        print("| cores = parts | one core | C cores (model) | speed-up | efficiency | "
+              "serial share | reading / longest slab |")
         print("|---:|---:|---:|---:|---:|---:|---:|")
         for r in rs:
             c = r["parts"]
             t1, tc = predict(r, 1, imb[c]), predict(r, c, imb[c])
             slab_max = r["slabs"] / c * imb[c]
-            print(f"| {c} | {t1:.2f} | {tc:.2f} | {t1 / tc:.2f}× | {t11 / tc:.2f}× | "
+            print(f"| {c} | {t1:.2f} | {tc:.2f} | {t1 / tc:.2f}× | {t1 / tc / c:.2f} | "
                   f"{(serial_part(r, c) + r['sag'] / c) / tc:.0%} | "
                   f"{r['read'] / slab_max:.2f} |")
         for pr in (p for p in pairs if p["input"] == name):

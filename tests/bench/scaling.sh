@@ -4,6 +4,7 @@
 #
 #   bash tests/bench/scaling.sh [--tandem BIN] [--parts "1 2 4 8 16"] [--inputs LIST]
 #                               [--repeats N] [--pairs N] [--balance] [--quick] [--work DIR]
+#                               [--data DIR]
 #
 # For each input and each part count P, one run `taskset -c 0 tandem extract --parts P` under
 # `perf record --call-graph dwarf` (cpu-clock samples: on-CPU time only, whatever else the
@@ -15,14 +16,15 @@
 # slab's share by its contractions (the edge slabs hold the volume's x walls); without it the
 # slabs count as equal. --repeats N: N runs of each (the model takes medians: CPU time on a
 # loaded machine moves by about 10 %).
-# The model (scaling.py): wall(C cores, P = C) = serial + max(longest slab, (slabs + reading)
-# / C) + sag / C. Not modelled: memory bandwidth and caches shared by 16 cores, the hand-off
-# between threads, the reader on a core of its own.
+# The model (scaling.py): wall(C cores, P = C) = serial + max(longest slab, reading, (slabs +
+# reading) / C) + sag / C, the slices read by one thread beside the slabs. Not modelled:
+# memory bandwidth and caches shared by 16 cores, the hand-off between threads.
 # --pairs N: N interleaved pairs of `taskset -c 0` and `taskset -c 0,1` runs at the default
 # parts (wall time, /usr/bin/time), the median ratio against the model's 1-vs-2-core ratio.
 # Inputs (--inputs, comma-separated): closed32 (the dense family's closed period-32 gyroid
-# 512² × 64), open256 (the open period-256 gyroid 2048² × 16), ct (the engine CT, iso 100,
-# when ../shared/data has it); iso 30000, E0 0.2 for the gyroids. --quick: 256² × 32 and
+# 512² × 64), open256 (the open period-256 gyroid 2048² × 16), iso 30000 and E0 0.2 for both;
+# ct (the engine CT, iso 100, E0 0.2, when --data DIR, default ../shared/data beside the
+# checkout, has it; 255 cube columns give at most 15 slabs of 16). --quick: 256² × 32 and
 # 1024² × 16, parts 1 2 4 8, one pair. Needs perf (linux-perf), taskset and a C++ compiler.
 # Prints the tables (markdown) and keeps the raw figures in DIR/work.jsonl, DIR/pairs.jsonl.
 set -euo pipefail
@@ -37,6 +39,7 @@ repeats=1
 balance=0
 quick=0
 work=${TMPDIR:-/tmp}/tandem-scaling
+data=$root/../shared/data
 while [ $# -gt 0 ]; do
   case $1 in
     --tandem) tandem=$2; shift 2 ;;
@@ -47,6 +50,7 @@ while [ $# -gt 0 ]; do
     --balance) balance=1; shift ;;
     --quick) quick=1; shift ;;
     --work) work=$2; shift 2 ;;
+    --data) data=$2; shift 2 ;;
     -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d'; exit 0 ;;
     *) echo "scaling.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
@@ -80,7 +84,7 @@ for name in ${inputs//,/ }; do
         --slices 16 --open-ends --out "${volume[$name]}"
       iso[$name]=30000; error[$name]=0.2 ;;
     ct)
-      volume[$name]=$root/../shared/data/ct_engine_256x256x128_uint8.json
+      volume[$name]=$data/ct_engine_256x256x128_uint8.json
       [ -f "${volume[$name]}" ] || { echo "scaling.sh: no engine CT, skipped" >&2; continue; }
       iso[$name]=100; error[$name]=0.2 ;;
     *) echo "scaling.sh: unknown input $name" >&2; exit 2 ;;
