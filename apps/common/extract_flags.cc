@@ -123,7 +123,7 @@ void ExtractFlags::Add(FlagSet* flags, const std::string& out_help) {
   flags->SetDefaultText("error", "0.2 x the smallest spacing");
   flags->AddDouble("alpha", &alpha,
                    "isotropy in [0, 1]: trades accuracy for better-shaped triangles (never "
-                   "beyond E0)",
+                   "beyond E0); below E0 = A x spacing / 5 it keeps most triangles",
                    false, "A");
   flags->AddString("schedule", &schedule, "S",
                    "tandem-lag: simplify behind the sweep with the paper's time-lag; tandem: "
@@ -429,6 +429,17 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
   o.schedule = no_simplify ? Schedule::kNone : sched;
   if (absl::Status st = o.ValidateFor(info); !st.ok()) return NameOptionFlag(st);
   return o;
+}
+
+std::string OptionsWarning(const SessionOptions& o, const VolumeInfo& info) {
+  if (o.alpha <= 0.0 || o.schedule == Schedule::kNone) return "";
+  const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+  const double limit = o.alpha * min_spacing / 5.0;
+  if (!(o.error < limit)) return "";
+  return absl::StrCat("--alpha ", o.alpha, " at --error ", o.error,
+                      " keeps most triangles: below E0 = alpha x spacing / 5 (here ", limit,
+                      ") the isotropy term alone costs more than E0 for a triangle a voxel "
+                      "wide; lower --alpha or raise --error");
 }
 
 }  // namespace tandem::cli

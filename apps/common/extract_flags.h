@@ -66,6 +66,11 @@ struct ExtractFlags {
   absl::StatusOr<SessionOptions> Options(const FlagSet& flags, const VolumeInfo& info) const;
 };
 
+// Empty, or why valid options will keep most of the surface: with --alpha A the isotropy term
+// of a triangle a spacing wide alone costs more than E0 once E0 < A × spacing / 5, so little
+// is contracted (the paper's normalisation makes that term grow as E0 × a length).
+std::string OptionsWarning(const SessionOptions& o, const VolumeInfo& info);
+
 #ifdef TANDEM_HAVE_DRACO
 // --quantization-bits and --compression-level held to the codec's ranges
 // (ValidateDracoOptions), the refusal naming the flag ("--quantization-bits must be in ...").

@@ -200,6 +200,9 @@ int StreamCommand(int argc, char** argv) {
   // --chunks too), as `tandem extract` checks them, before anything is sent.
   absl::StatusOr<tandem::SessionOptions> session = f.Options(flags, info);
   if (!session.ok()) return UsageError(session.status());
+  if (const std::string w = tandem::cli::OptionsWarning(*session, info); !w.empty()) {
+    std::fprintf(stderr, "tandem-client: warning: %s\n", w.c_str());
+  }
   if (preview_every < 0) {
     // --partials alone: about 20 previews over a known depth (each is the whole partial
     // mesh, encoded again), one every 16 slices when the depth is unknown.

@@ -175,6 +175,9 @@ int ExtractCommand(int argc, char** argv) {
   auto parsed_opt = f.Options(flags, info);
   if (!parsed_opt.ok()) return Usage(parsed_opt.status());
   SessionOptions opt = *parsed_opt;
+  if (const std::string w = cli::OptionsWarning(opt, info); !w.empty()) {
+    std::fprintf(stderr, "tandem extract: warning: %s\n", w.c_str());
+  }
   // --iso A,B,...: one surface per value, from one read of the slices.
   auto parsed_isos = f.Isos(flags, info);
   if (!parsed_isos.ok()) return Usage(parsed_isos.status());

@@ -106,6 +106,9 @@ int ExtractLabels(const cli::ExtractFlags& f, const cli::FlagSet& flags, SliceSo
   }
   absl::StatusOr<SessionOptions> options = f.Options(flags, info);
   if (!options.ok()) return Usage(options.status());
+  if (const std::string w = cli::OptionsWarning(*options, info); !w.empty()) {
+    std::fprintf(stderr, "tandem extract: warning: %s\n", w.c_str());
+  }
   cli::Progress progress("slices");
   absl::StatusOr<LabelRun> run = RunLabelSession(
       source, *options, *labels, neuroglancer.dir.empty() ? 0 : neuroglancer.lods - 1,

@@ -857,5 +857,39 @@ TEST_F(Cli, AnIsoOutsideTheDataIsAWarningAndExitThreeWithStrict) {
   EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
 }
 
+// The isotropy term grows as E0 x a length (the paper's normalisation), so a fine E0 with
+// --alpha keeps nearly every triangle: that is said, not left for the user to find.
+TEST_F(Cli, AnAlphaThatKeepsMostTrianglesAtThisErrorIsAWarning) {
+  ASSERT_EQ(RunTandem("generate sphere --size 40 --out " + Path("s.json")).code, 0);
+  const auto run = [&](const std::string& flags, const std::string& name) {
+    Output o = RunTandem("extract --input " + Path("s.json") + " --quiet " + flags + " --out " +
+                         Path(name + ".ply") + " --metrics " + Path(name + ".json"));
+    EXPECT_EQ(o.code, 0) << o.text;
+    const nlohmann::json m = ReadJson(Path(name + ".json"));
+    return std::make_pair(o.text, m["triangles_final"].get<double>() /
+                                      m["triangles_extracted"].get<double>());
+  };
+  // alpha 1 x spacing 1 / 5 = 0.2: E0 0.05 is below it.
+  const auto [warned, kept_warned] = run("--alpha 1 --error 0.05", "a");
+  EXPECT_NE(warned.find("warning: --alpha 1 at --error 0.05 keeps most triangles"),
+            std::string::npos)
+      << warned;
+  EXPECT_GT(kept_warned, 0.5) << "the warning says what happens";
+  const auto [plain, kept_plain] = run("--alpha 0 --error 0.05", "b");
+  EXPECT_EQ(plain.find("warning"), std::string::npos) << plain;
+  EXPECT_LT(kept_plain, 0.2);
+  const auto [above, kept_above] = run("--alpha 0.2 --error 0.2", "c");
+  EXPECT_EQ(above.find("warning"), std::string::npos) << above;
+  EXPECT_LT(kept_above, 0.2);
+  // Spacing 0.5 halves the limit: E0 0.05 at alpha 0.4 is not below 0.4 x 0.5 / 5 = 0.04.
+  ASSERT_EQ(RunTandem("generate sphere --size 40 --spacing 0.5,0.5,0.5 --out " + Path("h.json"))
+                .code,
+            0);
+  Output o = RunTandem("extract --input " + Path("h.json") +
+                       " --quiet --alpha 0.4 --error 0.05 --out " + Path("h.ply"));
+  EXPECT_EQ(o.code, 0) << o.text;
+  EXPECT_EQ(o.text.find("warning"), std::string::npos) << o.text;
+}
+
 }  // namespace
 }  // namespace tandem
