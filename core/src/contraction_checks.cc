@@ -349,7 +349,8 @@ bool SmallerThanTheMove(const Vec3 (&p)[3], int corner, Vec3 from, Vec3 pos) {
 }  // namespace
 
 bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
-                const OffsetEdges& offsets, Survivors* scratch, RefusalCounts* refusals) {
+                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                RefusalCounts* refusals) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
   // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|
   // (for a triangle smaller than the move, or how far its old corner lies from its new plane).
@@ -358,16 +359,13 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
   // refusal is rare and may branch, so whether the survivor was degenerate already (exact iso
   // hits: no constraint) is asked there.
   const auto ta = store.vertex_triangles(a), tb = store.vertex_triangles(b);
-  scratch->a = scratch->b = kInvalid;
-  std::vector<Survivor>* survivors = &scratch->list;
   if (survivors->size() < ta.size() + tb.size()) survivors->resize(ta.size() + tb.size());
   size_t n = 0;
   for (VertexId v : {a, b}) {
     const VertexId other = (v == a) ? b : a;
     for (TriId t : (v == a) ? ta : tb) {
       const auto& tri = store.triangle(t);
-      (*survivors)[n].t = t;
-      (*survivors)[n].v = v;
+      (*survivors)[n] = {t, v};
       n += static_cast<size_t>((static_cast<int>(tri[0] == other) |
                                 static_cast<int>(tri[1] == other) |
                                 static_cast<int>(tri[2] == other)) == 0);
@@ -375,22 +373,17 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
   }
   const bool guarded = bound > 0.0;
   for (size_t i = 0; i < n; ++i) {
-    Survivor& s = (*survivors)[i];
-    const TriId t = s.t;
-    const VertexId v = s.v;
+    const auto [t, v] = (*survivors)[i];
     const auto& tri = store.triangle(t);
     Vec3 p[3];
     for (int k = 0; k < 3; ++k) p[k] = store.position(tri[k]);
-    const Vec3 n_old = store.twice_area(t);
+    const Vec3 n_old = TwiceAreaVector(p[0], p[1], p[2]);
     const double old2 = Dot(n_old, n_old);
     const double off = Dot(n_old, pos - p[0]);
     bool far = guarded && off * off > bound * bound * old2;  // guarded: fixed per run
     const int corner = CornerOf(tri, v);
     p[corner] = pos;
-    // MoveCorners, with the area vector kept for the contraction.
-    s.area = TwiceAreaVector(p[0], p[1], p[2]);
-    const CornerMove move = {AreaAtMost(kCollapsedSquared, s.area, SumSquaredEdges(p[0], p[1], p[2])),
-                             !(Dot(n_old, s.area) > 0.0)};
+    const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
     if (far | move.collapses | move.flips) {
       const Vec3 from = store.position(v);  // as it was (a refusal is rare: read again)
       if (far && SmallerThanTheMove(p, corner, from, pos)) {
@@ -428,10 +421,6 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
       return false;
     }
   }
-  scratch->n = n;
-  scratch->a = a;
-  scratch->b = b;
-  scratch->pos = pos;
   return true;
 }
 

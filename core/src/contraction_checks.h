@@ -127,33 +127,14 @@ struct OffsetEdges {
 // at most `bound` from each one's present plane. Triangles already collapsed constrain nothing,
 // and those with an offset edge (`offsets`) may turn over or leave their plane, but not
 // collapse. On refusal, counts its reason in *refusals
-// (distance before degenerate before flip) and returns false. `survivors` is scratch, and on
-// acceptance holds the survivors' area vectors at pos for the contraction (Survivors::Renew).
-struct Survivor {  // a triangle that survives the contraction, its corner that moves, its
-  TriId t;         // area vector with that corner at pos
+// (distance before degenerate before flip) and returns false. `survivors` is scratch.
+struct Survivor {  // a triangle that survives the contraction, and its corner that moves
+  TriId t;
   VertexId v;
-  Vec3 area;
-};
-struct Survivors {
-  std::vector<Survivor> list;
-  size_t n = 0;  // the last accepted contraction's: its survivors, and ab -> pos
-  VertexId a = kInvalid, b = kInvalid;
-  Vec3 pos;
-  // Moves a (b's triangles moved to it already) to pos: the survivors' area vectors when
-  // they are this contraction's (the last one GeometryOk accepted), else computed anew.
-  void Renew(MeshStore* store, VertexId a_now, VertexId b_now, Vec3 pos_now) {
-    if (a_now == a && b_now == b && pos_now == pos) {
-      store->set_position_only(a_now, pos_now);
-      for (size_t i = 0; i < n; ++i) store->set_twice_area(list[i].t, list[i].area);
-    } else {
-      store->set_position(a_now, pos_now);
-    }
-    a = b = kInvalid;
-  }
-  size_t MemoryBytes() const { return list.capacity() * sizeof(Survivor); }
 };
 bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
-                const OffsetEdges& offsets, Survivors* survivors, RefusalCounts* refusals);
+                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                RefusalCounts* refusals);
 
 }  // namespace tandem
 

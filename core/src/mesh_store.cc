@@ -4,7 +4,6 @@
 #include <cassert>
 
 #include "grow.h"
-#include "tandem/geometry.h"
 
 namespace tandem {
 
@@ -82,7 +81,6 @@ void MeshStore::Reserve(size_t vertices, size_t triangles) {
   const size_t new_triangles = beyond(triangles, free_triangles_.size());
   ReserveFor(vtx_, vtx_.size() + new_vertices);
   ReserveFor(tris_, tris_.size() + new_triangles);
-  ReserveFor(areas_, tris_.size() + new_triangles);
   // Every new vertex takes a slot of the smallest class; the few that outgrow it take more.
   size_t free_smallest = 0;  // free slots of the smallest class, larger ones split
   for (int k = 0; k < kNumClasses; ++k) free_smallest += free_slots_[k].size() << k;
@@ -121,15 +119,12 @@ void MeshStore::UnlinkTriangle(VertexId v, TriId t) {
 TriId MeshStore::AddTriangle(VertexId a, VertexId b, VertexId c) {
   assert(vertex_alive(a) && vertex_alive(b) && vertex_alive(c));
   TriId t;
-  const Vec3 n = TwiceAreaVector(vtx_[a].pos, vtx_[b].pos, vtx_[c].pos);
   if (!free_triangles_.empty()) {
     t = free_triangles_.TakeLowest();
     tris_[t] = {a, b, c};
-    areas_[t] = n;
   } else {
     t = static_cast<TriId>(tris_.size());
     PushBack(tris_, std::array<VertexId, 3>{a, b, c});
-    PushBack(areas_, n);
   }
   LinkTriangle(a, t);
   LinkTriangle(b, t);
@@ -166,25 +161,6 @@ void MeshStore::MoveTriangles(VertexId from, VertexId to) {
     LinkTriangle(to, t);
   }
   vtx_[from].adj.count = 0;
-}
-
-void MeshStore::set_position(VertexId v, Vec3 p) {
-  vtx_[v].pos = p;
-  for (TriId t : vertex_triangles(v)) {
-    const auto& tri = tris_[t];
-    areas_[t] = TwiceAreaVector(vtx_[tri[0]].pos, vtx_[tri[1]].pos, vtx_[tri[2]].pos);
-  }
-}
-
-bool MeshStore::AreasAreCurrent() const {
-  for (TriId t = 0; t < tris_.size(); ++t) {
-    if (free_triangles_.Contains(t)) continue;
-    const auto& tri = tris_[t];
-    if (!(areas_[t] == TwiceAreaVector(vtx_[tri[0]].pos, vtx_[tri[1]].pos, vtx_[tri[2]].pos))) {
-      return false;
-    }
-  }
-  return true;
 }
 
 IndexedMesh MeshStore::Snapshot(std::vector<uint32_t>* vertex_map) const {
@@ -270,11 +246,11 @@ std::vector<uint32_t> MeshStore::SnapshotPatches() const {
 }
 
 size_t MeshStore::VertexBytes() { return sizeof(VertexRecord) + kMinSlot * sizeof(TriId); }
-size_t MeshStore::TriangleBytes() { return sizeof(std::array<VertexId, 3>) + sizeof(Vec3); }
+size_t MeshStore::TriangleBytes() { return sizeof(std::array<VertexId, 3>); }
 
 size_t MeshStore::MemoryBytes() const {
   size_t b = vtx_.MemoryBytes() + free_vertices_.MemoryBytes() + tris_.MemoryBytes() +
-             areas_.MemoryBytes() + free_triangles_.MemoryBytes() + pool_.MemoryBytes();
+             free_triangles_.MemoryBytes() + pool_.MemoryBytes();
   for (const auto& f : free_slots_) b += f.MemoryBytes();
   b += patch_.capacity() * sizeof(uint32_t) + pairs_.capacity() * sizeof(LabelPair) +
        pair_index_.capacity() * (sizeof(std::pair<LabelId, LabelId>) + sizeof(uint32_t) + 1);

@@ -106,8 +106,7 @@ class MeshStore {
   // Removes a vertex; it must have no incident triangles left.
   void RemoveVertex(VertexId v);
   // Every triangle of `from` replaces its corner `from` by `to` and joins to's list (in
-  // from's list order); from's list is left empty. The contraction's last step: their area
-  // vectors are renewed by the move of `to` that follows (set_position or set_twice_area).
+  // from's list order); from's list is left empty. The contraction's last step.
   void MoveTriangles(VertexId from, VertexId to);
 
   bool vertex_alive(VertexId v) const { return v < vtx_.size() && vtx_[v].alive; }
@@ -118,18 +117,7 @@ class MeshStore {
   }
 
   Vec3 position(VertexId v) const { return vtx_[v].pos; }
-  // Moves v and renews the area vectors of its triangles (twice_area).
-  void set_position(VertexId v, Vec3 p);
-  // TwiceAreaVector (tandem/geometry.h) of t's corners where they are, kept as they move: the
-  // contraction checks read every survivor's present plane, computed once a move, not a check.
-  Vec3 twice_area(TriId t) const { return areas_[t]; }
-  // A contraction's move of v to p whose checks computed the area vectors of v's triangles
-  // at p already (by TwiceAreaVector's expression, so bit for bit): the caller sets each one
-  // with set_twice_area after this.
-  void set_position_only(VertexId v, Vec3 p) { vtx_[v].pos = p; }
-  void set_twice_area(TriId t, Vec3 n) { areas_[t] = n; }
-  // Whether every live triangle's twice_area is that of its corners now (tests).
-  bool AreasAreCurrent() const;
+  void set_position(VertexId v, Vec3 p) { vtx_[v].pos = p; }
   double height(VertexId v) const { return vtx_[v].height; }
   void set_height(VertexId v, double h) { vtx_[v].height = h; }
   int32_t layer(VertexId v) const { return vtx_[v].layer; }
@@ -239,9 +227,8 @@ class MeshStore {
   FreeIds free_vertices_;  // handed out lowest first (free_ids.h)
   size_t live_vertices_ = 0;
 
-  // Triangles, and their area vectors by the same id.
+  // Triangles.
   PodArray<std::array<VertexId, 3>> tris_;
-  PodArray<Vec3> areas_;
   FreeIds free_triangles_;  // also the dead ones' flags: a bit a triangle, not a byte
   size_t live_triangles_ = 0;
 

@@ -347,7 +347,7 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   store_->RemoveVertex(b);
   ++version_[b];
   quadrics_.Merge(a, b);  // before a moves
-  survivors_.Renew(store_, a, b, c.pos);  // the checks' area vectors at c.pos
+  store_->set_position(a, c.pos);
   store_->set_height(a, c.height);
   store_->set_layer(a, c.layer);
   store_->set_box_mask(a, c.box_mask);
@@ -497,7 +497,7 @@ size_t Simplifier::MemoryBytes() const {
   return quadrics_.MemoryBytes() +
          version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
-         survivors_.MemoryBytes() + sag_scratch_.MemoryBytes() +
+         survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
          release_.MemoryBytes() + rises_.MemoryBytes() + held_.MemoryBytes();
 }

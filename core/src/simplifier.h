@@ -362,7 +362,7 @@ class Simplifier {
   ChunkedRelease release_;  // ACTIVATE of a large release, a chunk at a time
   std::vector<VertexId> scratch_;
   LinkScratch link_scratch_;
-  Survivors survivors_;  // GeometryOk's scratch, and the area vectors Contract keeps
+  std::vector<Survivor> survivors_;  // GeometryOk's scratch
   SagScratch sag_scratch_;
   std::vector<Quadric> sag_quadrics_;  // CorrectSagAt: the quadrics of its verts
   std::vector<VertexId> sag_moved_;

@@ -300,7 +300,7 @@ TEST(MeshStore, StarStampsChangeWithTheTrianglesAroundAVertex) {
 // by capacity that doubled would read 131,072 records and a pool of a million ids, 1.8x its
 // use. Its arrays double (grow.h: PodArrays), and MemoryBytes counts a mapped array's pages
 // written (pod_array.h). A smallest slot holds 6 triangle ids, and a triangle takes its 12
-// bytes, its area vector's 24 and a bit.
+// bytes and a bit.
 TEST(MeshStore, CountsItsUseAndReservesWhatALayerBrings) {
   constexpr size_t kVertexBytes = 64 + 6 * sizeof(TriId);  // a record and a smallest slot
   constexpr size_t n = 70000;
@@ -310,7 +310,7 @@ TEST(MeshStore, CountsItsUseAndReservesWhatALayerBrings) {
   // A commit reserves its layer at once: nothing beyond it.
   MeshStore reserved;
   reserved.Reserve(n, 2 * n);
-  const size_t exact = n * kVertexBytes + 2 * n * (sizeof(std::array<VertexId, 3>) + sizeof(Vec3));
+  const size_t exact = n * kVertexBytes + 2 * n * sizeof(std::array<VertexId, 3>);
   EXPECT_LE(reserved.MemoryBytes(), exact + 4096);
   for (size_t i = 0; i < n; ++i) reserved.AddVertex({double(i), 0, 0}, 0, 0, 0);
   for (size_t i = 0; i + 3 < n; ++i) {  // 2n - 6 triangles, 6 at each vertex but the ends
