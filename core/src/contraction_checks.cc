@@ -34,6 +34,41 @@ bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexI
   return fan_count::Lanes(any) != 0;  // lanes of all ones or zero: a sum of ones is not 0
 }
 
+// Fan arrays as chunks of four lanes.
+template <size_t N>
+struct Lanes4 {
+  static_assert(N % 4 == 0);
+  fan_count::V4 c[N / 4];
+  explicit Lanes4(const VertexId (&v)[N]) {
+    for (size_t i = 0; i < N / 4; ++i) std::memcpy(&c[i], v + 4 * i, sizeof(c[i]));
+  }
+};
+
+// For each lane of x, all ones where its value is among y's lanes: every lane of y compared
+// with every lane of x, y's chunks rotated a lane at a time (no loop exit, no branch).
+template <size_t N, size_t M>
+void FoundIn(const fan_count::V4 (&x)[N], const fan_count::V4 (&y)[M], fan_count::V4 (&found)[N]) {
+  using fan_count::V4;
+  for (size_t i = 0; i < N; ++i) found[i] = V4{0, 0, 0, 0};
+  for (size_t j = 0; j < M; ++j) {
+    V4 r = y[j];
+    for (int k = 0; k < 4; ++k) {
+      for (size_t i = 0; i < N; ++i) found[i] |= reinterpret_cast<V4>(x[i] == r);
+      r = __builtin_shufflevector(r, r, 1, 2, 3, 0);
+    }
+  }
+}
+inline bool AllOnes(fan_count::V4 v) {
+  v &= __builtin_shufflevector(v, v, 2, 3, 0, 1);
+  v &= __builtin_shufflevector(v, v, 1, 0, 3, 2);
+  return v[0] == ~0u;
+}
+inline bool AnyOnes(fan_count::V4 v) {
+  v |= __builtin_shufflevector(v, v, 2, 3, 0, 1);
+  v |= __builtin_shufflevector(v, v, 1, 0, 3, 2);
+  return v[0] != 0;
+}
+
 // LinkConditionFans with fan arrays of kFan entries (both fans fit).
 template <size_t kFan>
 bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
@@ -77,29 +112,46 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // Whether the x and y corners of a fan are different sets of vertices. They are whenever
   // the vertex is on the boundary (an edge (v, w) in one triangle puts w in one set only),
   // and on a consistently oriented manifold only then (an interior edge is one triangle's x
-  // and the other's y). Otherwise every neighbour is an x corner. Half the comparisons of
-  // counting each neighbour among all 2n corners.
-  auto sets_differ = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
-    bool any = false;
-    for (int i = 0; i < n; ++i)
-      any |= static_cast<int>(CountOf(y, x[i]) == 0) | static_cast<int>(CountOf(x, y[i]) == 0);
-    return any;
-  };
+  // and the other's y). Otherwise every neighbour is an x corner. Every lane of one set
+  // against every lane of the other at once (unused lanes are kInvalid in both, at the same
+  // places, so they find each other).
+  using fan_count::V4;
+  constexpr size_t kC = kFan / 4;
+  const Lanes4<kFan> XA(xa), YA(ya), XB(xb), YB(yb);
+  V4 x_in_y[kC], y_in_x[kC];
+  FoundIn(XB.c, YB.c, x_in_y);
+  FoundIn(YB.c, XB.c, y_in_x);
+  V4 same = x_in_y[0] & y_in_x[0];
+  for (size_t i = 1; i < kC; ++i) same &= x_in_y[i] & y_in_x[i];
+  const bool b_open = !AllOnes(same);
   auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
   // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
-  // y corners too where the two differ.
-  const bool b_open = sets_differ(xb, yb, n_b);
-  bool stray = false;
-  for (int i = 0; i < n_b; ++i) {
-    const VertexId x = xb[i];
-    stray |= (x != a) & (x != apex[0]) & (x != apex[1]) & (in_fan_a(x) != 0);
+  // y corners too where the two differ. Counted from a's side: a lane of a's fan (never a
+  // itself, kInvalid where unused) found among them and not an apex.
+  V4 a_fan[2 * kC];
+  for (size_t i = 0; i < kC; ++i) {
+    a_fan[i] = XA.c[i];
+    a_fan[kC + i] = YA.c[i];
   }
+  V4 common[2 * kC];
   if (b_open) {
-    for (int i = 0; i < n_b; ++i) {
-      const VertexId y = yb[i];
-      stray |= (y != a) & (y != apex[0]) & (y != apex[1]) & (in_fan_a(y) != 0);
+    V4 b_fan[2 * kC];
+    for (size_t i = 0; i < kC; ++i) {
+      b_fan[i] = XB.c[i];
+      b_fan[kC + i] = YB.c[i];
     }
+    FoundIn(a_fan, b_fan, common);
+  } else {
+    FoundIn(a_fan, XB.c, common);
   }
+  const V4 inv = {kInvalid, kInvalid, kInvalid, kInvalid};
+  const V4 c0 = {apex[0], apex[0], apex[0], apex[0]}, c1 = {apex[1], apex[1], apex[1], apex[1]};
+  V4 stray_lanes = {0, 0, 0, 0};
+  for (size_t i = 0; i < 2 * kC; ++i) {
+    stray_lanes |= common[i] & reinterpret_cast<V4>((a_fan[i] != inv) & (a_fan[i] != c0) &
+                                                    (a_fan[i] != c1));
+  }
+  const bool stray = AnyOnes(stray_lanes);
   if (stray) return false;
   if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
     const VertexId c = apex[0];
