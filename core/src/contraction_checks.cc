@@ -34,6 +34,41 @@ bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexI
   return fan_count::Lanes(any) != 0;  // lanes of all ones or zero: a sum of ones is not 0
 }
 
+// Fan arrays as chunks of four lanes.
+template <size_t N>
+struct Lanes4 {
+  static_assert(N % 4 == 0);
+  fan_count::V4 c[N / 4];
+  explicit Lanes4(const VertexId (&v)[N]) {
+    for (size_t i = 0; i < N / 4; ++i) std::memcpy(&c[i], v + 4 * i, sizeof(c[i]));
+  }
+};
+
+// For each lane of x, all ones where its value is among y's lanes: every lane of y compared
+// with every lane of x, y's chunks rotated a lane at a time (no loop exit, no branch).
+template <size_t N, size_t M>
+void FoundIn(const fan_count::V4 (&x)[N], const fan_count::V4 (&y)[M], fan_count::V4 (&found)[N]) {
+  using fan_count::V4;
+  for (size_t i = 0; i < N; ++i) found[i] = V4{0, 0, 0, 0};
+  for (size_t j = 0; j < M; ++j) {
+    V4 r = y[j];
+    for (int k = 0; k < 4; ++k) {
+      for (size_t i = 0; i < N; ++i) found[i] |= reinterpret_cast<V4>(x[i] == r);
+      r = __builtin_shufflevector(r, r, 1, 2, 3, 0);
+    }
+  }
+}
+inline bool AllOnes(fan_count::V4 v) {
+  v &= __builtin_shufflevector(v, v, 2, 3, 0, 1);
+  v &= __builtin_shufflevector(v, v, 1, 0, 3, 2);
+  return v[0] == ~0u;
+}
+inline bool AnyOnes(fan_count::V4 v) {
+  v |= __builtin_shufflevector(v, v, 2, 3, 0, 1);
+  v |= __builtin_shufflevector(v, v, 1, 0, 3, 2);
+  return v[0] != 0;
+}
+
 // LinkConditionFans with fan arrays of kFan entries (both fans fit).
 template <size_t kFan>
 bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
@@ -77,29 +112,46 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // Whether the x and y corners of a fan are different sets of vertices. They are whenever
   // the vertex is on the boundary (an edge (v, w) in one triangle puts w in one set only),
   // and on a consistently oriented manifold only then (an interior edge is one triangle's x
-  // and the other's y). Otherwise every neighbour is an x corner. Half the comparisons of
-  // counting each neighbour among all 2n corners.
-  auto sets_differ = [](const VertexId(&x)[kFan], const VertexId(&y)[kFan], int n) {
-    bool any = false;
-    for (int i = 0; i < n; ++i)
-      any |= static_cast<int>(CountOf(y, x[i]) == 0) | static_cast<int>(CountOf(x, y[i]) == 0);
-    return any;
-  };
+  // and the other's y). Otherwise every neighbour is an x corner. Every lane of one set
+  // against every lane of the other at once (unused lanes are kInvalid in both, at the same
+  // places, so they find each other).
+  using fan_count::V4;
+  constexpr size_t kC = kFan / 4;
+  const Lanes4<kFan> XA(xa), YA(ya), XB(xb), YB(yb);
+  V4 x_in_y[kC], y_in_x[kC];
+  FoundIn(XB.c, YB.c, x_in_y);
+  FoundIn(YB.c, XB.c, y_in_x);
+  V4 same = x_in_y[0] & y_in_x[0];
+  for (size_t i = 1; i < kC; ++i) same &= x_in_y[i] & y_in_x[i];
+  const bool b_open = !AllOnes(same);
   auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
   // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
-  // y corners too where the two differ.
-  const bool b_open = sets_differ(xb, yb, n_b);
-  bool stray = false;
-  for (int i = 0; i < n_b; ++i) {
-    const VertexId x = xb[i];
-    stray |= (x != a) & (x != apex[0]) & (x != apex[1]) & (in_fan_a(x) != 0);
+  // y corners too where the two differ. Counted from a's side: a lane of a's fan (never a
+  // itself, kInvalid where unused) found among them and not an apex.
+  V4 a_fan[2 * kC];
+  for (size_t i = 0; i < kC; ++i) {
+    a_fan[i] = XA.c[i];
+    a_fan[kC + i] = YA.c[i];
   }
+  V4 common[2 * kC];
   if (b_open) {
-    for (int i = 0; i < n_b; ++i) {
-      const VertexId y = yb[i];
-      stray |= (y != a) & (y != apex[0]) & (y != apex[1]) & (in_fan_a(y) != 0);
+    V4 b_fan[2 * kC];
+    for (size_t i = 0; i < kC; ++i) {
+      b_fan[i] = XB.c[i];
+      b_fan[kC + i] = YB.c[i];
     }
+    FoundIn(a_fan, b_fan, common);
+  } else {
+    FoundIn(a_fan, XB.c, common);
   }
+  const V4 inv = {kInvalid, kInvalid, kInvalid, kInvalid};
+  const V4 c0 = {apex[0], apex[0], apex[0], apex[0]}, c1 = {apex[1], apex[1], apex[1], apex[1]};
+  V4 stray_lanes = {0, 0, 0, 0};
+  for (size_t i = 0; i < 2 * kC; ++i) {
+    stray_lanes |= common[i] & reinterpret_cast<V4>((a_fan[i] != inv) & (a_fan[i] != c0) &
+                                                    (a_fan[i] != c1));
+  }
+  const bool stray = AnyOnes(stray_lanes);
   if (stray) return false;
   if (napex == 1) {  // (3) boundary edge: not both ac and bc boundary edges
     const VertexId c = apex[0];
@@ -346,6 +398,59 @@ bool SmallerThanTheMove(const Vec3 (&p)[3], int corner, Vec3 from, Vec3 pos) {
   return std::max({Dot(e0, e0), Dot(e1, e1), Dot(e2, e2)}) < Dot(move, move);
 }
 
+// The arithmetic of GeometryOk's test for two survivors at once, a lane each: the same
+// operations in the same order as the scalar expressions (TwiceAreaVector, Dot, MoveCorners,
+// the guard), so each lane's values are the scalar ones bit for bit.
+using V2 = double __attribute__((vector_size(16)));
+using M2 = int64_t __attribute__((vector_size(16)));
+struct P2 {
+  V2 x, y, z;
+};
+inline P2 operator-(P2 a, P2 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+inline V2 Dot2(P2 a, P2 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline P2 Cross2(P2 a, P2 b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+inline P2 Pair(Vec3 u, Vec3 v) { return {V2{u.x, v.x}, V2{u.y, v.y}, V2{u.z, v.z}}; }
+inline P2 Select(M2 m, P2 a, P2 b) {  // a where m is all ones, else b
+  auto pick = [m](V2 x, V2 y) {
+    return reinterpret_cast<V2>((reinterpret_cast<M2>(x) & m) | (reinterpret_cast<M2>(y) & ~m));
+  };
+  return {pick(a.x, b.x), pick(a.y, b.y), pick(a.z, b.z)};
+}
+
+// Whether either of two survivors (t0 with its moving corner c0, t1 with c1) may stop the
+// contraction: the guard's distance, a collapse or a flip, in either lane. No survivor in
+// lanes where neither does.
+inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>& t0, int c0,
+                          const std::array<VertexId, 3>& t1, int c1, Vec3 pos, bool guarded,
+                          double bound) {
+  P2 p[3];
+  for (int k = 0; k < 3; ++k) p[k] = Pair(store.position(t0[k]), store.position(t1[k]));
+  const P2 n_old = Cross2(p[1] - p[0], p[2] - p[0]);
+  const V2 old2 = Dot2(n_old, n_old);
+  const P2 at = Pair(pos, pos);
+  const V2 off = Dot2(n_old, at - p[0]);
+  const V2 bb = {bound * bound, bound * bound};
+  const M2 far = guarded ? (off * off > bb * old2) : M2{0, 0};
+  // The moving corners' masks by 32-bit compares (SSE2 has no 64-bit one): a lane's two
+  // halves hold its corner.
+  using V4i = int32_t __attribute__((vector_size(16)));
+  const V4i corners = {c0, c0, c1, c1};
+  P2 q[3];
+  for (int k = 0; k < 3; ++k) {
+    q[k] = Select(reinterpret_cast<M2>(corners == V4i{k, k, k, k}), at, p[k]);
+  }
+  const P2 after = Cross2(q[1] - q[0], q[2] - q[0]);
+  const V2 sse = Dot2(q[1] - q[0], q[1] - q[0]) + Dot2(q[2] - q[1], q[2] - q[1]) +
+                 Dot2(q[0] - q[2], q[0] - q[2]);
+  const V2 ratio = {kCollapsedSquared, kCollapsedSquared}, zero = {0.0, 0.0};
+  const M2 collapses = ~(Dot2(after, after) > ratio * sse * sse);
+  const M2 flips = ~(Dot2(n_old, after) > zero);
+  const M2 any = far | collapses | flips;
+  return (any[0] | any[1]) != 0;
+}
+
 }  // namespace
 
 bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
@@ -372,8 +477,10 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     }
   }
   const bool guarded = bound > 0.0;
-  for (size_t i = 0; i < n; ++i) {
-    const auto [t, v] = (*survivors)[i];
+  // The scalar test of one survivor, where the paired one found either of two suspect: false
+  // if it refuses the contraction.
+  auto survives = [&](const Survivor& s) {
+    const auto [t, v] = s;
     const auto& tri = store.triangle(t);
     Vec3 p[3];
     for (int k = 0; k < 3; ++k) p[k] = store.position(tri[k]);
@@ -384,41 +491,52 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     const int corner = CornerOf(tri, v);
     p[corner] = pos;
     const CornerMove move = MoveCorners(n_old, p[0], p[1], p[2]);
-    if (far | move.collapses | move.flips) {
-      const Vec3 from = store.position(v);  // as it was (a refusal is rare: read again)
-      if (far && SmallerThanTheMove(p, corner, from, pos)) {
-        // Its extended plane follows the curvature, not the surface a move this long crosses:
-        // it refuses only if the old corner also lies farther than the bound from the plane
-        // the contraction gives it.
-        const Vec3 n_new = TwiceAreaVector(p[0], p[1], p[2]);
-        const double h = Dot(n_new, from - pos);
-        far = h * h > bound * bound * Dot(n_new, n_new);
-        if (!(far | move.collapses | move.flips)) continue;
+    if (!(far | move.collapses | move.flips)) return true;
+    const Vec3 from = store.position(v);  // as it was
+    if (far && SmallerThanTheMove(p, corner, from, pos)) {
+      // Its extended plane follows the curvature, not the surface a move this long crosses:
+      // it refuses only if the old corner also lies farther than the bound from the plane
+      // the contraction gives it.
+      const Vec3 n_new = TwiceAreaVector(p[0], p[1], p[2]);
+      const double h = Dot(n_new, from - pos);
+      far = h * h > bound * bound * Dot(n_new, n_new);
+      if (!(far | move.collapses | move.flips)) return true;
+    }
+    // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
+    // point) has no orientation or plane to keep: the contraction is not refused for it
+    // (exempting only an exactly zero area left zero-area triangles on integer scans).
+    p[corner] = from;
+    if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) return true;
+    // One with an offset edge stands for such a triangle: it may turn over or leave its
+    // plane (else every grid point on the iso-value holds back the contractions around
+    // it), but not collapse.
+    if (!move.collapses) {
+      const double height =
+          std::max({store.height(tri[0]), store.height(tri[1]), store.height(tri[2])});
+      if (offsets.Holds(p[1] - p[0], height) || offsets.Holds(p[2] - p[1], height) ||
+          offsets.Holds(p[0] - p[2], height)) {
+        return true;
       }
-      // A survivor that was collapsed already (an exact iso hit made it: corners on one grid
-      // point) has no orientation or plane to keep: the contraction is not refused for it
-      // (exempting only an exactly zero area left zero-area triangles on integer scans).
-      p[corner] = from;
-      if (AreaAtMost(kCollapsedSquared, n_old, SumSquaredEdges(p[0], p[1], p[2]))) continue;
-      // One with an offset edge stands for such a triangle: it may turn over or leave its
-      // plane (else every grid point on the iso-value holds back the contractions around
-      // it), but not collapse.
-      if (!move.collapses) {
-        const double height =
-            std::max({store.height(tri[0]), store.height(tri[1]), store.height(tri[2])});
-        if (offsets.Holds(p[1] - p[0], height) || offsets.Holds(p[2] - p[1], height) ||
-            offsets.Holds(p[0] - p[2], height)) {
-          continue;
-        }
-      }
-      if (far) {
-        ++refusals->distance;
-      } else if (move.collapses) {
-        ++refusals->degenerate;
-      } else {
-        ++refusals->flip;
-      }
-      return false;
+    }
+    if (far) {
+      ++refusals->distance;
+    } else if (move.collapses) {
+      ++refusals->degenerate;
+    } else {
+      ++refusals->flip;
+    }
+    return false;
+  };
+  // Two at a time (the last one twice when they are odd); the scalar test, in order, for a
+  // pair where either may refuse.
+  for (size_t i = 0; i < n; i += 2) {
+    const Survivor s0 = (*survivors)[i], s1 = (*survivors)[std::min(i + 1, n - 1)];
+    const auto& t0 = store.triangle(s0.t);
+    const auto& t1 = store.triangle(s1.t);
+    if (EitherSuspect(store, t0, CornerOf(t0, s0.v), t1, CornerOf(t1, s1.v), pos, guarded,
+                      bound)) [[unlikely]] {
+      if (!survives(s0)) return false;
+      if (i + 1 < n && !survives(s1)) return false;
     }
   }
   return true;
