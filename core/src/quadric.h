@@ -197,8 +197,6 @@ inline bool SolveLdlt(const Sym3& m, const double g[3], double x[3]) {
 
 // The margin of MinimizeQuadric's fast-path test for the rounding of det and c1.
 inline constexpr double kInvariantRounding = 64.0 * std::numeric_limits<double>::epsilon();
-// Where MinimizeFullRank solves by the adjugate: det >= kCramer c2³ (λ2 λ3 >= 1e-6 λ1²).
-inline constexpr double kCramer = 1e-6;
 
 // MinimizeQuadric's full-rank case with nothing fixed, the one nearly every edge off a flat
 // face takes: false (nothing written) where the full solve has to decide.
@@ -208,27 +206,14 @@ inline bool MinimizeFullRank(const PackedQuadric& q, Vec3 ref, Vec3* x) {
   const double a00 = q.a0[0], a01 = q.a0[1], a02 = q.a1[0], a11 = q.a1[1], a12 = q.a2[0],
                a22 = q.a2[1];
   const double g[3] = {gxy[0], gxy[1], -(q.ProductZ(r, ref.z) + q.b2c[0])};
-  // The adjugate (det A⁻¹): its diagonal sums to c1, its first row gives det.
-  const double k00 = a11 * a22 - a12 * a12, k01 = a02 * a12 - a01 * a22,
-               k02 = a01 * a12 - a02 * a11, k11 = a00 * a22 - a02 * a02,
-               k12 = a01 * a02 - a00 * a12, k22 = a00 * a11 - a01 * a01;
   const double c2 = a00 + a11 + a22;
-  const double c1 = k00 + k11 + k22;
-  const double c0 = a00 * k00 + a01 * k01 + a02 * k02;
+  const double c1 = a00 * a11 - a01 * a01 + a00 * a22 - a02 * a02 + a11 * a22 - a12 * a12;
+  const double c0 = a00 * (a11 * a22 - a12 * a12) + a01 * (a02 * a12 - a01 * a22) +
+                    a02 * (a01 * a12 - a02 * a11);
   if (!(c2 > 0.0)) return false;
   if (!(c0 >= kIllConditioned * c1 * c2 + kInvariantRounding * c2 * c2 * c2)) return false;
   double delta[3];
-  if (c0 >= kCramer * c2 * c2 * c2) {
-    // Well conditioned: Cramer's rule loses about ε c2³ / det ≤ 2e-10 of δ (SolveLdlt's note).
-    const V2d dxy = (V2d{k00, k01} * V2d{g[0], g[0]} + V2d{k01, k11} * V2d{g[1], g[1]} +
-                     V2d{k02, k12} * V2d{g[2], g[2]}) /
-                    V2d{c0, c0};
-    delta[0] = dxy[0];
-    delta[1] = dxy[1];
-    delta[2] = (k02 * g[0] + k12 * g[1] + k22 * g[2]) / c0;
-  } else if (!SolveLdlt(Sym3{a00, a01, a02, a11, a12, a22}, g, delta)) {
-    return false;
-  }
+  if (!SolveLdlt(Sym3{a00, a01, a02, a11, a12, a22}, g, delta)) return false;
   *x = {ref.x + delta[0], ref.y + delta[1], ref.z + delta[2]};
   return true;
 }
