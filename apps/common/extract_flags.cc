@@ -410,10 +410,17 @@ absl::StatusOr<std::vector<IsoValue>> ExtractFlags::Isos(const FlagSet& flags,
   return std::vector<IsoValue>{{v, absl::StrCat(v)}};
 }
 
+namespace {
+// The default E0 and the isotropy warning both scale with the finest axis.
+double MinSpacing(const VolumeInfo& info) {
+  return std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+}
+}  // namespace
+
 absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
                                                      const VolumeInfo& info) const {
   SessionOptions o;
-  const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+  const double min_spacing = MinSpacing(info);
   o.error = flags.IsSet("error") ? error : SessionOptions::kDefaultErrorVoxels * min_spacing;
   o.alpha = alpha;
   o.distance_guard = distance_guard;
@@ -433,7 +440,7 @@ absl::StatusOr<SessionOptions> ExtractFlags::Options(const FlagSet& flags,
 
 std::string OptionsWarning(const SessionOptions& o, const VolumeInfo& info) {
   if (o.alpha <= 0.0 || o.schedule == Schedule::kNone) return "";
-  const double min_spacing = std::min({info.spacing[0], info.spacing[1], info.spacing[2]});
+  const double min_spacing = MinSpacing(info);
   const double limit = o.alpha * min_spacing / 5.0;
   if (!(o.error < limit)) return "";
   return absl::StrCat("--alpha ", o.alpha, " at --error ", o.error,
