@@ -78,8 +78,21 @@ fi
 # The depth tests run the shallow case's code again on a stack eight times deeper to bound
 # memory: the shallow runs of the same paths are what the sanitizers need, the plain build
 # checks the bounds.
+# Six more run in the plain build only: each takes 20-140 s here, and a smaller test of the same
+# file runs the same code under the sanitizers:
+#   VoronoiCellsFillingTheBoxAreOpenThereOrClosed   (VoronoiCellsInABallAreClosedManifolds and
+#                                                    SplitFullResolutionIsOnePartsComplex...: open)
+#   AStatusLineWithAnEstimateWhileTheSessionFinishes  (a 224³ classical run for its timing; the
+#                                                    status lines print in every CliParity run)
+#   AnisotropicCubesKeepTheirAreasAsWritten          (EveryCubeOfValuesAtTheIsoKeepsItsPointsApart...)
+#   KeepsTheSurfaceCloserForAFewMoreTriangles        (the guard runs in every Simplifier test)
+#   SlabsHoldTheirSeamsUpToABoundedDepth             (a depth test: SettledSeamsAreCoarsenedFirst)
+#   SealedLabelSessionsSendAboutTheUnsealedBytes     (SealedChunksCarryTheirLabelBeforeEnd)
 if [ $# -eq 0 ]; then
-  set -- -LE deploy -E '_browser|^engine_only$|MemoryIsFlatInDepth|MemoryFollowsTheFront'
+  heavy='VoronoiCellsFillingTheBoxAreOpenThereOrClosed|AStatusLineWithAnEstimateWhileTheSessionFinishes'
+  heavy+='|AnisotropicCubesKeepTheirAreasAsWritten|KeepsTheSurfaceCloserForAFewMoreTriangles'
+  heavy+='|SlabsHoldTheirSeamsUpToABoundedDepth|SealedLabelSessionsSendAboutTheUnsealedBytes'
+  set -- -LE deploy -E "_browser|^engine_only\$|MemoryIsFlatInDepth|MemoryFollowsTheFront|$heavy"
 fi
 set +e
 ctest --test-dir "$build" --output-on-failure -j"$jobs" --timeout 1800 "$@"

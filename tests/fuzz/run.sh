@@ -12,8 +12,8 @@
 #   bash tests/fuzz/run.sh fuzz_tiff       one target
 #   bash tests/fuzz/run.sh --seeds         regenerate tests/fuzz/corpus/ (fuzz_make_seeds for
 #                                          the readers, TANDEM_FUZZ_WRITE_SEEDS for requests)
-# Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build parallelism, 2),
-# TANDEM_BUILD_SERVICE=OFF (readers only).
+# Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build parallelism and how many
+# targets fuzz at once, 2), TANDEM_BUILD_SERVICE=OFF (readers only).
 #
 # Targets: fuzz_raw_json (raw + JSON sidecar; input = 2-byte raw size + sidecar text),
 # fuzz_nrrd, fuzz_nifti (.nii and .nii.gz), fuzz_tiff, fuzz_metaimage (.mha), fuzz_zarr (a
@@ -33,7 +33,7 @@ while [ $# -gt 0 ]; do
     --time) seconds="$2"; shift 2 ;;
     --time=*) seconds="${1#--time=}"; shift ;;
     --seeds) seeds=1; shift ;;
-    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
     fuzz_*) targets+=("$1"); shift ;;
     *) echo "fuzz/run.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
@@ -65,38 +65,37 @@ if command -v llvm-symbolizer >/dev/null; then
   export ASAN_SYMBOLIZER_PATH="$(command -v llvm-symbolizer)"
 fi
 
-failed=()
-for t in "${targets[@]}"; do
-  bin="$build/bin/$t"
-  work="$build/fuzz-work/$t"        # grows with the inputs the fuzzer finds (not checked in)
-  artifacts="$build/fuzz-artifacts/$t/"
-  kept="tests/fuzz/crashes/$t"
+# One target: its verdict lines go to $build/fuzz-work/$t.result, "FAIL" first when it failed.
+fuzz_one() {
+  local t="$1"
+  local bin="$build/bin/$t"
+  local work="$build/fuzz-work/$t"        # grows with the inputs the fuzzer finds (not checked in)
+  local artifacts="$build/fuzz-artifacts/$t/"
+  local kept="tests/fuzz/crashes/$t"
+  local log="$build/fuzz-work/$t.log"
   rm -rf "$artifacts"
   mkdir -p "$work" "$artifacts"
-  log="$build/fuzz-work/$t.log"
 
   # 1. Known crashing inputs first: each is run once.
   if compgen -G "$kept/*" >/dev/null; then
     if ! "$bin" -runs=1 "$kept"/* </dev/null >"$log.replay" 2>&1; then
       echo "FAIL $t: an input in $kept/ still crashes:"
       grep -E "^fuzz_[a-z_]+: |ERROR|SUMMARY|violation|Running:" "$log.replay" | head -n 8
-      failed+=("$t")
-      continue
+      return
     fi
     echo "ok   $t: the inputs in $kept/ no longer crash"
   fi
 
   # 2. Fuzz for a bounded time, from the checked-in seeds plus what earlier runs found.
   # stdin is /dev/null: a header naming /dev/stdin as its data file must not block.
-  max_len=8192
+  local max_len=8192
   if [ "$t" = fuzz_request ]; then max_len=20000; fi  # whole request streams: seeds to 17 KB
-  set +e
+  local rc=0
   timeout $((seconds + 120)) "$bin" -max_total_time="$seconds" \
     -timeout=20 -rss_limit_mb=2048 \
     -max_len="$max_len" -print_final_stats=1 -artifact_prefix="$artifacts" \
-    "$work" "tests/fuzz/corpus/$t" </dev/null >"$log" 2>&1
-  rc=$?
-  set -e
+    "$work" "tests/fuzz/corpus/$t" </dev/null >"$log" 2>&1 || rc=$?
+  local runs
   runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log")
   if [ $rc -ne 0 ]; then
     echo "FAIL $t (exit $rc after ${runs:-?} runs); log: $log"
@@ -105,10 +104,26 @@ for t in "${targets[@]}"; do
     for a in "$artifacts"*; do
       [ -f "$a" ] && cp "$a" "$kept/" && echo "     kept $kept/$(basename "$a")"
     done
-    failed+=("$t")
   else
     echo "ok   $t: ${runs:-?} runs in ${seconds} s, no crash"
   fi
+}
+
+# libFuzzer runs one process on one core: SAN_JOBS targets fuzz side by side, each for its
+# full time, and their verdicts print in the targets' order.
+jobs="${SAN_JOBS:-2}"
+mkdir -p "$build/fuzz-work"
+running=0
+for t in "${targets[@]}"; do
+  if [ "$running" -ge "$jobs" ]; then wait -n || true; running=$((running - 1)); fi
+  fuzz_one "$t" > "$build/fuzz-work/$t.result" 2>&1 &
+  running=$((running + 1))
+done
+wait
+failed=()
+for t in "${targets[@]}"; do
+  cat "$build/fuzz-work/$t.result"
+  if grep -q '^FAIL' "$build/fuzz-work/$t.result"; then failed+=("$t"); fi
 done
 
 echo "fuzz/run.sh: $(( $(date +%s) - start )) s in all"
