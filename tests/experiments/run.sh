@@ -18,7 +18,9 @@ if [[ -z $tandem ]]; then
   build="${TANDEM_BENCH_BUILD:-$root/build-bench-peers}"
   mkdir -p "$build"
   echo "building tandem in $build"
-  if ! { cmake -S "$root/tests/bench" -B "$build" -DCMAKE_BUILD_TYPE=Release &&
+  werror=OFF
+  if [ "${CI:-}" = "true" ]; then werror=ON; fi  # as tests/run.sh: the main build's flags, one cache
+  if ! { cmake -S "$root/tests/bench" -B "$build" -DCMAKE_BUILD_TYPE=Release -DTANDEM_WERROR="$werror" &&
          cmake --build "$build" -j"$(nproc)" --target tandem bench_run; } \
        >"$build/experiments-build.log" 2>&1; then
     tail -n 40 "$build/experiments-build.log"
