@@ -65,7 +65,7 @@ double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
   return 0;
 }
 
-bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
+TANDEM_AVX2_CLONES bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
   const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
   const uint8_t common = ma & mb;
   if (common != ma && common != mb) return false;  // on different box faces: refuse

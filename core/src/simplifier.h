@@ -233,7 +233,7 @@ class Simplifier {
   };
 
   void EnsureVertexCapacity();
-  bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
+  TANDEM_AVX2_CLONES bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
   // Evaluate's edges on the box or with α > 0 (out of line: the common case stays short).
   [[gnu::noinline]] bool EvaluateBoxedOrIsotropic(VertexId a, VertexId b, const PackedQuadric& h,
                                                   Candidate* c);
