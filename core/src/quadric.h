@@ -14,15 +14,6 @@
 
 #include "tandem/types.h"
 
-// Cloned for CPUs with AVX2, picked once at load: the packed evaluation's pairs then take
-// three-operand instructions, without the register copies SSE2's two-operand form needs (no
-// FMA: the same roundings). Clang wants the attribute on the declaration and the definition.
-#if defined(__x86_64__) && defined(__ELF__)
-#define TANDEM_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define TANDEM_AVX2_CLONES
-#endif
-
 namespace tandem {
 
 struct Quadric {

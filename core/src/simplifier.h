@@ -126,6 +126,7 @@ class Simplifier {
   friend struct SimplifierSealAccess;
   friend struct SimplifierSeamAccess;
   friend struct SimplifierProbe;
+  friend struct SimplifierEvaluation;  // Evaluate's body in CPU-dispatched clones (simplifier.cc)
 
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
@@ -233,7 +234,7 @@ class Simplifier {
   };
 
   void EnsureVertexCapacity();
-  TANDEM_AVX2_CLONES bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
+  bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
   // Evaluate's edges on the box or with α > 0 (out of line: the common case stays short).
   [[gnu::noinline]] bool EvaluateBoxedOrIsotropic(VertexId a, VertexId b, const PackedQuadric& h,
                                                   Candidate* c);
