@@ -48,10 +48,8 @@ Quadric IsotropyQuadric(Vec3 p, Vec3 q, Vec3 r) {
 
 namespace {
 
-// The symmetric 3x3 matrix of a quadric with the rows and columns of fixed axes zeroed.
-struct Sym3 {
-  double a00, a01, a02, a11, a12, a22;
-};
+using quadric_internal::SolveLdlt;
+using quadric_internal::Sym3;
 
 Sym3 FreeMatrix(const Quadric& q, uint8_t fixed_axes) {
   Sym3 m{q.a00, q.a01, q.a02, q.a11, q.a12, q.a22};
@@ -59,27 +57,6 @@ Sym3 FreeMatrix(const Quadric& q, uint8_t fixed_axes) {
   if (fixed_axes & 2) m.a01 = m.a11 = m.a12 = 0.0;
   if (fixed_axes & 4) m.a02 = m.a12 = m.a22 = 0.0;
   return m;
-}
-
-// x = M⁻¹ g by LDLᵀ (Cholesky without square roots): backward stable for a positive
-// definite M, so x is good to about κ ε. The adjugate (Cramer's rule) is not: det cancels
-// to an absolute error of ε λ1³, a relative one of ε κ² (2e-6 at κ = 1e5). False on a
-// pivot that is not positive (callers only use it for matrices they know to be well inside
-// positive definite).
-bool SolveLdlt(const Sym3& m, const double g[3], double x[3]) {
-  const double d0 = m.a00;
-  if (!(d0 > 0.0)) return false;
-  const double l10 = m.a01 / d0, l20 = m.a02 / d0;
-  const double d1 = m.a11 - l10 * m.a01;
-  if (!(d1 > 0.0)) return false;
-  const double l21 = (m.a12 - l20 * m.a01) / d1;
-  const double d2 = m.a22 - l20 * m.a02 - l21 * l21 * d1;
-  if (!(d2 > 0.0)) return false;
-  const double y0 = g[0], y1 = g[1] - l10 * y0, y2 = g[2] - l20 * y0 - l21 * y1;
-  x[2] = y2 / d2;
-  x[1] = y1 / d1 - l21 * x[2];
-  x[0] = y0 / d0 - l10 * x[1] - l20 * x[2];
-  return true;
 }
 
 // Unit eigenvector of m for the simple eigenvalue lambda: the longest cross product of two
@@ -179,7 +156,7 @@ Vec3 MinimizeQuadricReference(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   return {ref.x + delta(0), ref.y + delta(1), ref.z + delta(2)};
 }
 
-Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
+Vec3 MinimizeQuadricSolve(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   // Same result as MinimizeQuadricReference (up to rounding) without its costly trigonometric
   // eigen-solver (docs/decisions.md 20): smooth surfaces give near-rank-1 quadrics.
   const Sym3 m = FreeMatrix(q, fixed_axes);
@@ -207,7 +184,7 @@ Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes) {
   // margin of 64 ε c2³: a (near-)planar quadric, whose det is rounding noise, never passes.
   // This catches every curved patch (λ2 λ3 of 1e-10..1e-6 λ1²); the truncating path below is
   // left to planes and creases (docs/decisions.md 20).
-  constexpr double kRounding = 64.0 * std::numeric_limits<double>::epsilon();
+  constexpr double kRounding = quadric_internal::kInvariantRounding;
   if (c0 >= kIllConditioned * c1 * c2 + kRounding * c2 * c2 * c2) {
     if (!SolveLdlt(m, g, delta)) return MinimizeQuadricReference(q, ref, fixed_axes);
   } else {

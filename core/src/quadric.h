@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
 #include "tandem/types.h"
 
@@ -118,13 +119,120 @@ double StepWithinError(const Quadric& q, Vec3 x, Vec3 d, double t, double limit)
 // carry a smooth patch's curvature (docs/decisions.md: why 1e-8).
 inline constexpr double kIllConditioned = 1e-8;
 
+// A quadric as an edge's evaluation holds it: the same fields in pairs of doubles (one SSE2
+// register each on x86-64), so the sum of two ends, the placement and ε0 take half the
+// arithmetic instructions of Quadric's fields one by one. Every value is computed in the same
+// order as from a Quadric, so results are bit for bit Quadric's (the sign of a zero aside).
+using V2d = double __attribute__((vector_size(16)));
+
+struct PackedQuadric {
+  V2d a0, a1, a2;  // (a00, a01), (a02, a11), (a12, a22)
+  V2d b01;         // (b0, b1)
+  V2d b2c;         // (b2, c)
+  double w;
+
+  // A's columns (or rows): (a00, a01, a02), (a01, a11, a12), (a02, a12, a22) as a pair of
+  // their first two entries and the third.
+  V2d col1() const { return __builtin_shufflevector(a0, a1, 1, 3); }  // (a01, a11)
+  V2d col2() const { return __builtin_shufflevector(a1, a2, 0, 2); }  // (a02, a12)
+  // A x (x's first two entries in a pair): the pair (ax, ay), and az.
+  V2d ProductXY(V2d x, double z) const {
+    return a0 * V2d{x[0], x[0]} + col1() * V2d{x[1], x[1]} + col2() * V2d{z, z};
+  }
+  double ProductZ(V2d x, double z) const { return a1[0] * x[0] + a2[0] * x[1] + a2[1] * z; }
+  double Evaluate(Vec3 p) const {  // Quadric::Evaluate
+    const V2d x{p.x, p.y};
+    const V2d axy = ProductXY(x, p.z);
+    const V2d sq = x * axy;
+    const V2d lin = x * b01;
+    return sq[0] + sq[1] + p.z * ProductZ(x, p.z) + 2.0 * (lin[0] + lin[1] + b2c[0] * p.z) +
+           b2c[1];
+  }
+  Quadric Unpack() const {
+    Quadric q;
+    q.a00 = a0[0], q.a01 = a0[1], q.a02 = a1[0], q.a11 = a1[1], q.a12 = a2[0], q.a22 = a2[1];
+    q.b0 = b01[0], q.b1 = b01[1], q.b2 = b2c[0], q.c = b2c[1], q.w = w;
+    return q;
+  }
+};
+
+inline PackedQuadric Pack(const Quadric& q) {
+  return {V2d{q.a00, q.a01}, V2d{q.a02, q.a11}, V2d{q.a12, q.a22}, V2d{q.b0, q.b1},
+          V2d{q.b2, q.c},    q.w};
+}
+
+// ShapeError of a packed quadric.
+inline double ShapeError(const PackedQuadric& h, Vec3 x) {
+  if (h.w <= 0.0) return 0.0;
+  return std::sqrt(std::max(0.0, h.Evaluate(x) / h.w));
+}
+
+namespace quadric_internal {
+
+// The symmetric 3x3 matrix of a quadric with the rows and columns of fixed axes zeroed.
+struct Sym3 {
+  double a00, a01, a02, a11, a12, a22;
+};
+
+// x = M⁻¹ g by LDLᵀ (Cholesky without square roots): backward stable for a positive
+// definite M, so x is good to about κ ε. The adjugate (Cramer's rule) is not: det cancels
+// to an absolute error of ε λ1³, a relative one of ε κ² (2e-6 at κ = 1e5). False on a
+// pivot that is not positive (callers only use it for matrices they know to be well inside
+// positive definite).
+inline bool SolveLdlt(const Sym3& m, const double g[3], double x[3]) {
+  const double d0 = m.a00;
+  if (!(d0 > 0.0)) return false;
+  const double l10 = m.a01 / d0, l20 = m.a02 / d0;
+  const double d1 = m.a11 - l10 * m.a01;
+  if (!(d1 > 0.0)) return false;
+  const double l21 = (m.a12 - l20 * m.a01) / d1;
+  const double d2 = m.a22 - l20 * m.a02 - l21 * l21 * d1;
+  if (!(d2 > 0.0)) return false;
+  const double y0 = g[0], y1 = g[1] - l10 * y0, y2 = g[2] - l20 * y0 - l21 * y1;
+  x[2] = y2 / d2;
+  x[1] = y1 / d1 - l21 * x[2];
+  x[0] = y0 / d0 - l10 * x[1] - l20 * x[2];
+  return true;
+}
+
+// The margin of MinimizeQuadric's fast-path test for the rounding of det and c1.
+inline constexpr double kInvariantRounding = 64.0 * std::numeric_limits<double>::epsilon();
+
+// MinimizeQuadric's full-rank case with nothing fixed, the one nearly every edge off a flat
+// face takes: false (nothing written) where the full solve has to decide.
+inline bool MinimizeFullRank(const PackedQuadric& q, Vec3 ref, Vec3* x) {
+  const V2d r{ref.x, ref.y};
+  const V2d gxy = -(q.ProductXY(r, ref.z) + q.b01);
+  const double a00 = q.a0[0], a01 = q.a0[1], a02 = q.a1[0], a11 = q.a1[1], a12 = q.a2[0],
+               a22 = q.a2[1];
+  const double g[3] = {gxy[0], gxy[1], -(q.ProductZ(r, ref.z) + q.b2c[0])};
+  const double c2 = a00 + a11 + a22;
+  const double c1 = a00 * a11 - a01 * a01 + a00 * a22 - a02 * a02 + a11 * a22 - a12 * a12;
+  const double c0 = a00 * (a11 * a22 - a12 * a12) + a01 * (a02 * a12 - a01 * a22) +
+                    a02 * (a01 * a12 - a02 * a11);
+  if (!(c2 > 0.0)) return false;
+  if (!(c0 >= kIllConditioned * c1 * c2 + kInvariantRounding * c2 * c2 * c2)) return false;
+  double delta[3];
+  if (!SolveLdlt(Sym3{a00, a01, a02, a11, a12, a22}, g, delta)) return false;
+  *x = {ref.x + delta[0], ref.y + delta[1], ref.z + delta[2]};
+  return true;
+}
+
+}  // namespace quadric_internal
+
 // Minimises f over x = ref + δ with δ zero on the axes whose bit (1 = x, 2 = y, 4 = z) is in
 // `fixed_axes`. Singular or ill-conditioned directions (eigenvalues below kIllConditioned of
 // the largest) are not moved along, so the result is the closest point to `ref` among the
 // minimisers of the well-determined part: for a single plane, ref projected onto it; for a
 // crease, ref's projection onto the crease line; for a flat-zero quadric, ref itself. This
 // is the stable fallback for singular systems (cf. Lindstrom & Turk 1998).
-Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes = 0);
+Vec3 MinimizeQuadricSolve(const Quadric& q, Vec3 ref, uint8_t fixed_axes);
+// The same: the full-rank case inline (on every edge evaluation), the rest out of line.
+inline Vec3 MinimizeQuadric(const Quadric& q, Vec3 ref, uint8_t fixed_axes = 0) {
+  Vec3 x;
+  if (fixed_axes == 0 && quadric_internal::MinimizeFullRank(Pack(q), ref, &x)) return x;
+  return MinimizeQuadricSolve(q, ref, fixed_axes);
+}
 // The same with Eigen's closed-form eigen-decomposition: the definition MinimizeQuadric's
 // cheaper rank cases (Newton on the characteristic polynomial, cross-product eigenvectors)
 // are tested against, and their fallback where those are ill-conditioned.

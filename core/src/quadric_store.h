@@ -55,6 +55,19 @@ class QuadricStore {
     }
     AddQuadricTo(v, h);
   }
+  // H_a + H_b, as AddTo(a) then AddTo(b) into a zero quadric sum them (an evaluation's).
+  [[gnu::always_inline]] PackedQuadric Sum(VertexId a, VertexId b) const {
+    if (check_) return CheckedSum(a, b);
+    PackedQuadric h;
+    const PackedTail ta = PackedTailOf(a, &h);
+    PackedQuadric hb;
+    const PackedTail tb = PackedTailOf(b, &hb);
+    h.a0 += hb.a0, h.a1 += hb.a1, h.a2 += hb.a2;
+    h.b01 = ta.b01 + tb.b01;
+    h.b2c = ta.b2c + tb.b2c;
+    h.w = ta.w + tb.w;
+    return h;
+  }
   Quadric Get(VertexId v) const {
     Quadric q;
     AddQuadricTo(v, &q);
@@ -66,10 +79,7 @@ class QuadricStore {
   void Drop(VertexId v);  // v's full quadric, if kept, goes (v left the store or was reset)
   // Contraction ab -> a: H_a = H_a + H_b, kept in full (read before a moves); b's goes.
   void Merge(VertexId a, VertexId b) {
-    Quadric q;
-    AddTo(a, &q);
-    AddTo(b, &q);
-    SetQuadric(a, q);
+    SetQuadric(a, Sum(a, b).Unpack());  // the sum the contraction's evaluation read
     Drop(b);
     if (check_) eager_[a] += eager_[b];
   }
@@ -121,6 +131,32 @@ class QuadricStore {
     h->b0 -= ax, h->b1 -= ay, h->b2 -= az;
     h->c += p.x * ax + p.y * ay + p.z * az;
     h->w += m.a00 + m.a11 + m.a22;
+  }
+  struct PackedTail {
+    V2d b01, b2c;  // (b0, b1), (b2, c)
+    double w;
+  };
+  // v's matrix into h's, and the rest of its quadric as AddQuadricTo adds it.
+  [[gnu::always_inline]] PackedTail PackedTailOf(VertexId v, PackedQuadric* h) const {
+    const PlaneSum& m = planes_[v];
+    __builtin_memcpy(&h->a0, &m.a00, sizeof(V2d));
+    __builtin_memcpy(&h->a1, &m.a02, sizeof(V2d));
+    __builtin_memcpy(&h->a2, &m.a12, sizeof(V2d));
+    if (const uint32_t s = store_->aux(v); s != kInvalid) {
+      const QuadricTail& t = tails_[s];
+      return {V2d{t.b0, t.b1}, V2d{t.b2, t.c}, t.w};
+    }
+    const Vec3 p = store_->position(v);
+    const V2d xy{p.x, p.y};
+    const V2d axy = h->ProductXY(xy, p.z);
+    const double az = h->ProductZ(xy, p.z);
+    return {-axy, V2d{-az, p.x * axy[0] + p.y * axy[1] + p.z * az}, m.a00 + m.a11 + m.a22};
+  }
+  [[gnu::noinline]] PackedQuadric CheckedSum(VertexId a, VertexId b) const {
+    Quadric q;
+    AddTo(a, &q);
+    AddTo(b, &q);
+    return Pack(q);
   }
   void CheckQuadric(VertexId v, const Quadric& q) const;
   uint32_t TailSlot(VertexId v);  // v's slot in tails_, taken if it has none

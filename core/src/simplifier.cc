@@ -65,14 +65,49 @@ double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
   return 0;
 }
 
-bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
-  const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
+// Evaluate's body, cloned for CPUs with AVX2 and picked once at load: the packed evaluation's
+// pairs then take three-operand instructions, without the register copies SSE2's two-operand
+// form needs (no FMA: the same roundings). Declared and called in this file only: clang 14
+// compiles a call from another file to a target_clones function as a call to its resolver,
+// which returns a clone's address and evaluates nothing.
+#if defined(__x86_64__) && defined(__ELF__)
+#define TANDEM_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define TANDEM_AVX2_CLONES
+#endif
+
+struct SimplifierEvaluation {
+  // Clang wants the attribute on the declaration and the definition.
+  TANDEM_AVX2_CLONES static bool Run(Simplifier& s, VertexId a, VertexId b,
+                                     Simplifier::Candidate* c);
+};
+
+TANDEM_AVX2_CLONES bool SimplifierEvaluation::Run(Simplifier& s, VertexId a, VertexId b,
+                                                  Simplifier::Candidate* c) {
+  const MeshStore& store = *s.store_;
+  const uint8_t ma = store.box_mask(a), mb = store.box_mask(b);
   const uint8_t common = ma & mb;
   if (common != ma && common != mb) return false;  // on different box faces: refuse
-  Quadric h;
-  quadrics_.AddTo(a, &h);
-  quadrics_.AddTo(b, &h);
+  const PackedQuadric h = s.quadrics_.Sum(a, b);
+  if ((ma | mb) != 0 || s.opt_.alpha > 0.0) return s.EvaluateBoxedOrIsotropic(a, b, h, c);
   // Most edges are off the box: nothing fixed, the reference point the midpoint.
+  const Vec3 ref = (store.position(a) + store.position(b)) * 0.5;
+  if (!quadric_internal::MinimizeFullRank(h, ref, &c->pos)) {
+    c->pos = MinimizeQuadricSolve(h.Unpack(), ref, 0);
+  }
+  c->eps0 = ShapeError(h, c->pos);
+  c->cost = c->eps0;
+  c->box_mask = 0;
+  return true;
+}
+
+bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
+  return SimplifierEvaluation::Run(*this, a, b, c);
+}
+
+bool Simplifier::EvaluateBoxedOrIsotropic(VertexId a, VertexId b, const PackedQuadric& h,
+                                          Candidate* c) {
+  const uint8_t ma = store_->box_mask(a), mb = store_->box_mask(b);
   const uint8_t fixed = (ma | mb) == 0 ? 0 : FixedAxes(ma | mb);
   const Vec3 ref = (ma | mb) == 0 ? (store_->position(a) + store_->position(b)) * 0.5
                                   : BoxedMidpoint(store_->position(a), ma, store_->position(b), mb);
@@ -91,12 +126,13 @@ bool Simplifier::Evaluate(VertexId a, VertexId b, Candidate* c) {
     };
     for (TriId t : store_->vertex_triangles(a)) add(t, false);
     for (TriId t : store_->vertex_triangles(b)) add(t, true);
-    const Quadric combined = IsotropicCostQuadric(h, std::move(g), area, opt_.alpha, opt_.error);
+    const Quadric combined =
+        IsotropicCostQuadric(h.Unpack(), std::move(g), area, opt_.alpha, opt_.error);
     c->pos = MinimizeQuadric(combined, ref, fixed);
     c->cost = IsotropicCost(combined, c->pos);
     c->eps0 = ShapeError(h, c->pos);
   } else {
-    c->pos = MinimizeQuadric(h, ref, fixed);
+    c->pos = MinimizeQuadric(h.Unpack(), ref, fixed);
     c->eps0 = ShapeError(h, c->pos);
     c->cost = c->eps0;
   }

@@ -126,6 +126,7 @@ class Simplifier {
   friend struct SimplifierSealAccess;
   friend struct SimplifierSeamAccess;
   friend struct SimplifierProbe;
+  friend struct SimplifierEvaluation;  // Evaluate's body in CPU-dispatched clones (simplifier.cc)
 
   // Split sessions (tandem.h) merge their parts into one: after the session has copied a
   // vertex `src` of another part's store into this one's as `dst`, AdoptVertex takes over its
@@ -234,6 +235,9 @@ class Simplifier {
 
   void EnsureVertexCapacity();
   bool Evaluate(VertexId a, VertexId b, Candidate* c);  // false: box refusal
+  // Evaluate's edges on the box or with α > 0 (out of line: the common case stays short).
+  [[gnu::noinline]] bool EvaluateBoxedOrIsotropic(VertexId a, VertexId b, const PackedQuadric& h,
+                                                  Candidate* c);
   // Release key from the cheap bookkeeping only (no quadric solve); fills height/rad/layer.
   double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
   // Whether TidyDegenerate may move v to p (the error bound).

@@ -81,6 +81,16 @@ struct SimplifierProbe {
   static void TrackProgress(Simplifier& s, bool on) { s.TrackProgress(on); }
   static int64_t progress_done(const Simplifier& s) { return s.progress_done(); }
   static int64_t progress_total(const Simplifier& s) { return s.progress_total(); }
+  static Quadric quadric(const Simplifier& s, VertexId v) { return s.quadric(v); }
+  // Simplifier::Evaluate called from another file, as the batch evaluation calls it: edge ab's
+  // placement, cost and ε0; false where it refuses the edge (ends on different box faces).
+  static bool Evaluate(Simplifier& s, VertexId a, VertexId b, Vec3* pos, double* cost,
+                       double* eps0) {
+    Simplifier::Candidate c;
+    if (!s.Evaluate(a, b, &c)) return false;
+    *pos = c.pos, *cost = c.cost, *eps0 = c.eps0;
+    return true;
+  }
 };
 
 }  // namespace tandem

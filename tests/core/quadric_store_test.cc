@@ -70,6 +70,36 @@ TEST(QuadricStore, MatrixAloneGivesTheWholeQuadricAtTheVertex) {
   }
 }
 
+TEST(QuadricStore, SumIsAddToTwiceBitForBitKeptInFullOrNot) {
+  // An evaluation sums the two ends with Sum and the contraction stores Merge's sum: both
+  // must be exactly what AddTo(a) then AddTo(b) gives, or ε0 ≤ E0 at the evaluation could
+  // read above E0 in Error(K). Vertices 1 and 3 keep their quadric in full (3 moved).
+  Fixture f;
+  QuadricStore q(&f.store, /*check=*/false);
+  f.AddAll(&q);
+  q.Keep(f.v[1]);
+  q.Keep(f.v[3]);
+  f.store.set_position(f.v[3], {0.25, 0.35, 0.9});
+  for (VertexId a : f.v) {
+    for (VertexId b : f.v) {
+      if (a == b) continue;
+      Quadric want;
+      q.AddTo(a, &want);
+      q.AddTo(b, &want);
+      const Quadric got = q.Sum(a, b).Unpack();
+      const double w[11] = {want.a00, want.a01, want.a02, want.a11, want.a12, want.a22,
+                            want.b0,  want.b1,  want.b2,  want.c,   want.w};
+      const double g[11] = {got.a00, got.a01, got.a02, got.a11, got.a12, got.a22,
+                            got.b0,  got.b1,  got.b2,  got.c,   got.w};
+      for (int i = 0; i < 11; ++i) EXPECT_EQ(g[i], w[i]) << a << " " << b << " " << i;  // ±0 equal
+      for (Vec3 x : {Vec3{0.1, 0.2, 0.3}, Vec3{-3, 5, 7}}) {
+        EXPECT_EQ(q.Sum(a, b).Evaluate(x), want.Evaluate(x));
+        EXPECT_EQ(ShapeError(q.Sum(a, b), x), ShapeError(want, x));
+      }
+    }
+  }
+}
+
 TEST(QuadricStore, KeptInFullSurvivesAMoveAndLaterPlanes) {
   Fixture f;
   QuadricStore q(&f.store, /*check=*/true);

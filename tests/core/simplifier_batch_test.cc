@@ -4,6 +4,7 @@
 
 #include "engine_testutil.h"
 #include "mesh_store.h"
+#include "quadric.h"
 #include "simplifier.h"
 #include "simplifier_access.h"
 #include "tandem/eval/synthetic.h"
@@ -58,6 +59,38 @@ TEST(Simplifier, BatchHalvesOnOtherThreadsReportTheirCpuTime) {
   src = BoxCutGyroid(96, 96, 16);
   ExtractLayers(src.get(), &store0, &alone, /*delay_each_layer=*/true);
   EXPECT_EQ(alone.TakeHelperSeconds(), 0.0);
+}
+
+// An edge's evaluation, called from another file as the batch evaluation calls it, is the
+// scalar evaluation bit for bit: H_a + H_b, the full solve's placement at the midpoint, ε0
+// there. (A compiler that reached a CPU-dispatched Evaluate through its resolver from another
+// file got no evaluation at all: every edge read as refused or at cost 0.)
+TEST(Simplifier, AnEvaluationFromAnotherFileIsTheScalarOne) {
+  auto src = eval::MakeSyntheticSource(eval::Shape::kSphere, 29, 26, 23);
+  MeshStore store;
+  SimplifierOptions so;
+  so.error = 0.1;
+  Simplifier simplifier(&store, so);
+  ExtractLayers(src.get(), &store, &simplifier, /*delay_each_layer=*/false);
+  const EdgeTriangles edges = CountEdgeTriangles(store);
+  ASSERT_GT(edges.size(), 1000u);
+  int solved = 0;
+  for (const auto& [e, count] : edges) {
+    const auto [a, b] = e;
+    ASSERT_EQ(store.box_mask(a) | store.box_mask(b), 0);  // a closed sphere: nothing fixed
+    Quadric h = SimplifierProbe::quadric(simplifier, a);
+    h += SimplifierProbe::quadric(simplifier, b);
+    const Vec3 ref = (store.position(a) + store.position(b)) * 0.5;
+    const Vec3 want = MinimizeQuadricSolve(h, ref, 0);
+    Vec3 pos{-1, -1, -1};
+    double cost = -1, eps0 = -1;
+    ASSERT_TRUE(SimplifierProbe::Evaluate(simplifier, a, b, &pos, &cost, &eps0)) << a << " " << b;
+    EXPECT_EQ(pos, want) << a << " " << b;
+    EXPECT_EQ(eps0, ShapeError(h, want)) << a << " " << b;
+    EXPECT_EQ(cost, eps0) << a << " " << b;  // α = 0
+    solved += eps0 > 0;
+  }
+  EXPECT_GT(solved, 1000);  // curved: the edges cost something
 }
 
 }  // namespace
