@@ -31,7 +31,9 @@
 
 // Cloned for CPUs with POPCNT, picked once at load: a crossed edge's id is found by counting
 // the crossings below it, which the baseline x86-64 target compiles to a library call. Clang
-// wants the attribute on the declaration and the definition alike.
+// wants the attribute on the declaration and the definition alike, and clang 14 compiles a
+// call from another file as a call to the resolver (decision 68): call it from
+// layer_extractor.cc only.
 #if defined(__x86_64__) && defined(__ELF__)
 #define TANDEM_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
 #else
