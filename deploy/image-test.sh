@@ -98,12 +98,18 @@ say "building $image from deploy/Dockerfile"
 # that apt inside the build reaches the mirror without a CNI setup.
 # A host that trusts an extra CA for npm (NODE_EXTRA_CA_CERTS: a network that intercepts
 # TLS) lends it to the build's npm ci, read-only.
-ca=()
+lent=()
 if [ -n "${NODE_EXTRA_CA_CERTS:-}" ] && [ -f "$NODE_EXTRA_CA_CERTS" ]; then
-  ca=(--volume "$(dirname "$NODE_EXTRA_CA_CERTS"):/tandem-host-ca:ro"
-      --build-arg "NODE_EXTRA_CA_CERTS=/tandem-host-ca/$(basename "$NODE_EXTRA_CA_CERTS")")
+  lent=(--volume "$(dirname "$NODE_EXTRA_CA_CERTS"):/tandem-host-ca:ro"
+        --build-arg "NODE_EXTRA_CA_CERTS=/tandem-host-ca/$(basename "$NODE_EXTRA_CA_CERTS")")
 fi
-podman "${runtime[@]}" build --format docker --network host "${limits[@]}" ${ca[@]+"${ca[@]}"} \
+# A compiler cache in CCACHE_DIR (CI's, which its host build filled) is lent to the build: the
+# Dockerfile then compiles only what the host did not; CI's -Werror goes along, as its flags.
+if [ -n "${CCACHE_DIR:-}" ] && [ -d "$CCACHE_DIR" ]; then
+  lent+=(--volume "$CCACHE_DIR:/ccache")
+  if [ "${CI:-}" = "true" ]; then lent+=(--build-arg "TANDEM_CMAKE_ARGS=-DTANDEM_WERROR=ON"); fi
+fi
+podman "${runtime[@]}" build --format docker --network host "${limits[@]}" ${lent[@]+"${lent[@]}"} \
   --build-arg "DEBIAN_IMAGE=$base" -f deploy/Dockerfile -t "$image" . \
   > "$work/build.log" 2>&1 || { tail -40 "$work/build.log" >&2; fail "podman build"; }
 say "built: $(podman image inspect --format '{{.Size}}' "$image" | awk '{printf "%.0f MiB", $1/1048576}')"
