@@ -5,6 +5,9 @@
 // read NOT_SERVING there, and "liveness" SERVING (the process is busy finishing streams,
 // not stuck). The stand-in is a second, tiny gRPC server on the same address: the health
 // service says exactly that, every other call gets UNAVAILABLE (a client retries elsewhere).
+// It can bind the port only once gRPC has closed it: a check in that moment is refused, which
+// a probe's failure threshold absorbs (SO_REUSEPORT would close the gap and let any process
+// of the same user share the port).
 #ifndef TANDEM_SERVER_DRAIN_STAND_IN_H_
 #define TANDEM_SERVER_DRAIN_STAND_IN_H_
 
