@@ -459,8 +459,9 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const auto stale = [this](const QNode& n) { return Stale(n); };
   if (track_) TrackStart();
   uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
-  // Passes for SIMPLIFY(E0) only: a target or a pass past E0 keeps the exact order.
-  in_pass_ = opt_.passes && !to_target && !past_error;
+  // Passes for the lock-step's SIMPLIFY(E0) only: a target, a pass past E0 and classical (the
+  // cost order the lock-step is measured against) keep the exact order.
+  in_pass_ = opt_.passes && !to_target && !past_error && opt_.release != ReleaseRule::kImmediate;
   if (in_pass_ && is_marked_.size() < store_->vertex_capacity()) {
     is_marked_.resize(store_->vertex_capacity());
   }

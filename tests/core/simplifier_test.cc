@@ -348,14 +348,16 @@ TEST(Simplifier, ALargeReleaseEntersQInChunks) {
   // The cap: 2 x 93² triangles, 1.5 edges each, 48 bytes or more of Q per edge.
   constexpr size_t cap_edges = 3 * 93 * 93;
   EXPECT_LE(chunked.peak + 40 * cap_edges, whole.peak);
-  // 26 chunks on a cap of 26,000 edges: 448 triangles unchunked, 412 chunked.
+  // 26 chunks on a cap of 26,000 edges: 448 triangles unchunked, 392 chunked (412 in one
+  // cost order, without SIMPLIFY's passes: each chunk's SIMPLIFY ends its own).
   EXPECT_NEAR(double(chunked.mesh.num_triangles()), double(whole.mesh.num_triangles()),
-              0.1 * double(whole.mesh.num_triangles()));
+              0.15 * double(whole.mesh.num_triangles()));
   // The chunks' contractions re-push edges past the front into W, most of them stale soon
   // after: W is swept as it grows, and holds little more than the mesh's edges (9,061 entries
-  // for 9,015 edges; 24,840 unswept, as the unchunked step leaves it: 24,756).
+  // for 9,015 edges in one cost order; unswept, as the unchunked step leaves it, 24,756 then
+  // and 16,682 in SIMPLIFY's passes, which re-push fewer edges).
   EXPECT_LE(chunked.waiting_after_cap, chunked.edges_after_cap * 3 / 2);
-  EXPECT_GT(whole.waiting_after_cap, whole.edges_after_cap * 2);
+  EXPECT_GT(whole.waiting_after_cap, whole.edges_after_cap * 7 / 4);
   // The last step releases all that W holds, stale entries too. The release is held once and
   // without its stale entries, and each chunk, once taken, goes back: the step's peak stays
   // within 15 % of what W held it in (1.09x; 1.31x when the release kept W's capacity and
