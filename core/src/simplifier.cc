@@ -393,10 +393,28 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   // Recorded from the geometry, not from the release key, so a broken key shows up here.
   max_reach_over_front_ = std::max(max_reach_over_front_, c.height + c.rad - front_);
   max_layer_over_front_ = std::max(max_layer_over_front_, static_cast<double>(c.layer) - front_);
-  // Re-evaluate the edges around c, in increasing neighbour id. Each neighbour once before
+  if (in_pass_) {  // its edges are queued at the pass's end (FlushMarked)
+    is_marked_[a] = 1;
+    marked_.push_back(a);
+    return;
+  }
+  // Re-evaluate the edges around c, in increasing neighbour id.
+  ListNeighbours(a);
+  std::vector<VertexId> nbrs;
+  nbrs.swap(scratch_);
+  for (VertexId x : nbrs) {  // their records are in cache: the checks read them
+    PrefetchVertex(x);
+    PrefetchQuadric(x);
+  }
+  for (VertexId x : nbrs) PushEdge(a, x);
+  nbrs.swap(scratch_);
+}
+
+void Simplifier::ListNeighbours(VertexId a) {
+  // Each neighbour once before
   // sorting (sorting all corners, every neighbour twice, costs mispredicted branches): the
-  // corner after c in each triangle covers a closed fan;
-  // on the boundary one neighbour is only ever the corner before c.
+  // corner after a in each triangle covers a closed fan;
+  // on the boundary one neighbour is only ever the corner before a.
   // A fan that fits (nearly all) keeps its next corners in a fixed array too, searched four
   // at a time (CountOf).
   scratch_.clear();
@@ -424,14 +442,26 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   }
   std::sort(scratch_.begin(), scratch_.end());
   scratch_.erase(std::unique(scratch_.begin(), scratch_.end()), scratch_.end());
-  std::vector<VertexId> nbrs;
-  nbrs.swap(scratch_);
-  for (VertexId x : nbrs) {  // their records are in cache: the checks read them
-    PrefetchVertex(x);
-    PrefetchQuadric(x);
+}
+
+void Simplifier::FlushMarked() {
+  // A marked vertex is alive: its queued edges are stale, so no contraction took it since.
+  for (size_t i = 0; i < marked_.size(); ++i) {
+    if (i + 2 < marked_.size()) store_->PrefetchFan(marked_[i + 2]);
+    const VertexId v = marked_[i];
+    assert(store_->vertex_alive(v));
+    ListNeighbours(v);
+    for (VertexId x : scratch_) {
+      PrefetchVertex(x);
+      PrefetchQuadric(x);
+    }
+    // An edge between two marked vertices once (PushEdge reads no scratch_).
+    for (VertexId x : scratch_) {
+      if (is_marked_[x] == 0 || v < x) PushEdge(v, x);
+    }
   }
-  for (VertexId x : nbrs) PushEdge(a, x);
-  nbrs.swap(scratch_);
+  for (VertexId v : marked_) is_marked_[v] = 0;
+  marked_.clear();
 }
 
 // A popped edge's candidate: placed now if a rise queued it unplaced, and at α > 0 evaluated
@@ -465,18 +495,27 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
   const auto stale = [this](const QNode& n) { return Stale(n); };
   if (track_) TrackStart();
   uint32_t pops = 0;  // (a local: a register, where a member would be stored every pop)
+  // Passes for the lock-step's SIMPLIFY(E0) only: a target, a pass past E0 and classical (the
+  // cost order the lock-step is measured against) keep the exact order.
+  in_pass_ = opt_.passes && !to_target && !past_error && opt_.release != ReleaseRule::kImmediate;
+  if (in_pass_ && is_marked_.size() < store_->vertex_capacity()) {
+    is_marked_.resize(store_->vertex_capacity());
+  }
   // A refused edge is pushed again when a contraction at one of its ends changes it; with
   // rises it is listed as well (RiseLists), to be offered again at a rise of E0.
-  while (!q_.empty()) {
+  while (!q_.empty() || !marked_.empty()) {
     if ((++pops & (kCheckEvery - 1)) == 0) {
       Checkpoint();  // contractions queue new edges
       if (track_) TrackAt(q_.current_bucket());
     }
     if (to_target && static_cast<int64_t>(store_->num_triangles()) <= target_triangles) break;
     const QNode* top = q_.TopLive(stale);  // pop: MinCost(Q) <= E0
-    if (top == nullptr) break;
+    if (top == nullptr || (!past_error && top->key > opt_.error)) {
+      if (marked_.empty()) break;
+      FlushMarked();  // the last pass's survivors may have edges within E0
+      continue;
+    }
     const double key = top->key;
-    if (!past_error && key > opt_.error) break;
     const QNode e = q_.Pop();
     const QNode* next = q_.Next();
     const QNode ahead = next != nullptr ? *next : QNode{};
@@ -511,6 +550,7 @@ void Simplifier::Simplify(int64_t target_triangles, bool past_error) {
     Contract(e.a, e.b, c);
     PrefetchAhead(next, Ahead::kFans);
   }
+  in_pass_ = false;
   if (track_) TrackAt(EdgeQueue::kBuckets);
   if (q_.empty()) q_.Trim();
   // Kept edges (keep > 1) stay queued past SIMPLIFY, and most go stale as their neighbours
@@ -533,6 +573,7 @@ size_t Simplifier::MemoryBytes() const {
   return quadrics_.MemoryBytes() +
          version_.MemoryBytes() + link_scratch_.MemoryBytes() + q_.MemoryBytes() +
          w_.MemoryBytes() + scratch_.capacity() * sizeof(VertexId) +
+         marked_.capacity() * sizeof(VertexId) + is_marked_.capacity() +
          survivors_.capacity() * sizeof(Survivor) + sag_scratch_.MemoryBytes() +
          batch_.capacity() * sizeof(BatchEdge) + batch_results_.capacity() * sizeof(BatchResult) +
          release_.MemoryBytes() + rises_.MemoryBytes() + held_.MemoryBytes();

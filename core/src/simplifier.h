@@ -288,6 +288,11 @@ class Simplifier {
   }
   bool Reevaluate(const QNode& e, Candidate* c);  // SIMPLIFY's, for a popped edge
   void Contract(VertexId a, VertexId b, const Candidate& c);
+  // a's neighbours into scratch_, each once, in increasing id.
+  void ListNeighbours(VertexId a);
+  // A pass's end (SimplifierOptions::passes): the marked survivors' edges to PushEdge, each
+  // once; the marks cleared.
+  void FlushMarked();
   // Q again for E0 = max_key, its live entries only (in no particular order: ties may pop
   // differently).
   void Rebucket(double max_key);
@@ -381,6 +386,11 @@ class Simplifier {
   };
   std::vector<BatchEdge> batch_;
   std::vector<BatchResult> batch_results_;
+  // A SIMPLIFY in passes: Contract marks its survivor (its edges in Q are stale, so it takes
+  // no part in another contraction until FlushMarked queues them).
+  bool in_pass_ = false;
+  std::vector<VertexId> marked_;
+  std::vector<uint8_t> is_marked_;  // by vertex id
   double helper_seconds_ = 0;  // TakeHelperSeconds; written by a helper before Wait returns
   RefusalCounts refusals_;
   int64_t contractions_ = 0;

@@ -52,6 +52,11 @@ struct SimplifierOptions {
   // Tests: keep every vertex's quadric in full as well, as the layers and contractions sum
   // it, and count those read that differ (Simplifier::quadric_mismatches).
   bool check_quadrics = false;
+  // SIMPLIFY(E0) in passes: a contraction marks its survivor, whose edges are queued once Q
+  // has nothing left within E0, an edge between two marked survivors once (queued at once,
+  // most were overtaken by a neighbour's contraction before they popped). A target count or
+  // a pass past E0 keeps the exact order.
+  bool passes = true;
   OffsetEdges offset_edges;  // the extractor's (GeometryOk)
 };
 
