@@ -313,7 +313,10 @@ class CutCurves {
           const double det = eu * dir[w] - dir[u] * ew;
           if (det == 0) continue;
           const double t = (eu * rw - ru * ew) / det, s = (dir[u] * rw - dir[w] * ru) / det;
-          if (!(t > least && t < limit && s >= 0 && s <= 1)) continue;
+          // Own edges are met up to `least` past their ends: a strip from a corner of the
+          // curve (quantized off it) must not slip past the other side's end there.
+          const double slack = own ? least / std::sqrt(eu * eu + ew * ew) : 0;
+          if (!(t > least && t < limit && s >= -slack && s <= 1 + slack)) continue;
           if (own) {
             best = std::min(best, t);
           } else if (enters > 0) {
@@ -527,19 +530,32 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         }
       };
       if (!(skirt > 0)) return;
-      // The cut edges: used by one triangle of this cell, both ends on one face.
+      // The cut edges: used by one triangle of this cell, both ends on one face. A triangle
+      // lying in that face does not count: it ends there, so the surface that leaves the cell
+      // along the edge from the other triangle still needs its strip.
       NeuroglancerFragment& f = node.fragment();
       const size_t last_index = f.indices.size();
       std::map<std::pair<uint32_t, uint32_t>, int> uses;
+      std::map<std::tuple<uint32_t, uint32_t, int>, int> flat_uses;  // (edge, face) -> uses
       for (size_t i = first_index; i < last_index; i += 3) {
+        int flat = -1;
+        for (int j = 0; j < 3; ++j) {
+          const uint32_t x = f.positions[f.indices[i]][j];
+          if ((x == qlo[j] || x == qhi[j]) && f.positions[f.indices[i + 1]][j] == x &&
+              f.positions[f.indices[i + 2]][j] == x) {
+            flat = 2 * j + (x == qhi[j] ? 1 : 0);
+          }
+        }
         for (int e = 0; e < 3; ++e) {
           const uint32_t a = f.indices[i + e], b = f.indices[i + (e + 1) % 3];
           ++uses[{std::min(a, b), std::max(a, b)}];
+          if (flat >= 0) ++flat_uses[{std::min(a, b), std::max(a, b), flat}];
         }
       }
       struct Hang {
         uint32_t a, b;
-        int face;  // 2 * axis + (high side)
+        int face;     // 2 * axis + (high side)
+        Vec3 inward;  // unit, in the face, across the edge
       };
       std::vector<Hang> hangs;
       std::map<std::pair<uint32_t, int>, Vec3> dir;  // (vertex, face) -> summed direction
@@ -547,11 +563,13 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         for (int e = 0; e < 3; ++e) {
           const uint32_t a = f.indices[i + e], b = f.indices[i + (e + 1) % 3],
                          c3 = f.indices[i + (e + 2) % 3];
-          if (uses[{std::min(a, b), std::max(a, b)}] != 1) continue;
+          const int used = uses[{std::min(a, b), std::max(a, b)}];
           for (int j = 0; j < 3; ++j) {
             for (int side = 0; side < 2; ++side) {
               const uint32_t plane = side ? qhi[j] : qlo[j];
               if (f.positions[a][j] != plane || f.positions[b][j] != plane) continue;
+              const auto flat = flat_uses.find({std::min(a, b), std::max(a, b), 2 * j + side});
+              if (used - (flat != flat_uses.end() ? flat->second : 0) != 1) continue;
               const Vec3 pa = real(f.positions[a]), pb = real(f.positions[b]),
                          pc = real(f.positions[c3]);
               const Vec3 u = pb - pa, v = pc - pa;
@@ -563,7 +581,7 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
               const double len = std::sqrt(Dot(w, w));
               if (s == 0 || len == 0) continue;  // the triangle lies in the face
               w = w * ((s > 0 ? -1.0 : 1.0) / len);
-              hangs.push_back({a, b, 2 * j + side});
+              hangs.push_back({a, b, 2 * j + side, w});
               for (uint32_t x : {a, b}) {
                 Vec3& d = dir[{x, 2 * j + side}];
                 d = d + w;
@@ -573,6 +591,19 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         }
       }
       auto off_mid = [&](const std::array<uint32_t, 3>& q) { return off_mid_of(c, q); };
+      // How deep a strip from p on face `face` (2 * axis + high side) goes along `unit`.
+      auto depth_at = [&](const Vec3& p, int face, const Vec3& unit) {
+        if (levels < 2) return skirt;
+        const int j = face / 2, side = face % 2;
+        const int64_t plane = (int64_t{c[j]} + side) << shift;
+        const double reach =
+            curves.Reach(j, plane, side, p, unit, lod, deepest, origin, g.chunk_shape);
+        const double depth =
+            reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt;
+        // No deeper than the surface's other side in the face: a thin wall keeps it inside.
+        return curves.Reach(j, plane, side, p, unit, lod, depth, origin, g.chunk_shape, true,
+                            0.01 * skirt);
+      };
       std::map<std::pair<uint32_t, int>, uint32_t> lower;  // the strip's far corners
       std::map<std::pair<uint32_t, int>, Vec3> far_of;     // where they lie unclamped
       // Where a cut curve reaches a cell edge (its face meets another cut face there), the
@@ -585,18 +616,8 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         const std::array<uint32_t, 3>& at = f.positions[key2.first];
         const Vec3 p = real(at);
         const int j = key2.second / 2;
-        const int64_t plane = (int64_t{c[j]} + key2.second % 2) << shift;
-        const int side = key2.second % 2;  // outside the lambda: clang 14 cannot capture a binding
-        auto depth_toward = [&](const Vec3& unit) {
-          if (levels < 2) return skirt;
-          const double reach =
-              curves.Reach(j, plane, side, p, unit, lod, deepest, origin, g.chunk_shape);
-          const double depth =
-              reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt;
-          // No deeper than the surface's other side in the face: a thin wall keeps it inside.
-          return curves.Reach(j, plane, side, p, unit, lod, depth, origin, g.chunk_shape, true,
-                              0.01 * skirt);
-        };
+        const int face = key2.second;  // outside the lambda: clang 14 cannot capture a binding
+        auto depth_toward = [&](const Vec3& unit) { return depth_at(p, face, unit); };
         const double depth = len > 0 ? depth_toward(d * (1 / len)) : skirt;
         const Vec3 far = len > 0 ? p + d * (depth / len) : p;
         std::array<uint32_t, 3> q = quantize(far);
@@ -631,14 +652,36 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
         return (v(b, u) - v(a, u)) * (v(c3, w) - v(a, w)) -
                (v(b, w) - v(a, w)) * (v(c3, u) - v(a, u));
       };
-      std::map<std::pair<uint32_t, int>, double> wedge_turn;
+      // Where the cut curve turns sharply, a corner's averaged direction runs nearly along an
+      // edge and the strip under that edge thins out: the edge then hangs a strip of its own
+      // as well, straight across it, each end as deep as a strip from there goes. (Every
+      // point of the face within a strip's depth of an edge, on its inner side, is covered.)
+      std::vector<std::array<Vec3, 2>> own_far;  // per hang; at its own ends: none needed
       for (const Hang& h : hangs) {
+        const Vec3 pa = real(f.positions[h.a]), pb = real(f.positions[h.b]);
+        const double da = depth_at(pa, h.face, h.inward), db = depth_at(pb, h.face, h.inward);
+        const bool thin = Dot(far_of[{h.a, h.face}] - pa, h.inward) < 0.99 * da ||
+                          Dot(far_of[{h.b, h.face}] - pb, h.inward) < 0.99 * db;
+        own_far.push_back(thin ? std::array<Vec3, 2>{pa + h.inward * da, pb + h.inward * db}
+                               : std::array<Vec3, 2>{pa, pb});
+      }
+      std::map<std::pair<uint32_t, int>, double> wedge_turn;
+      for (size_t i = 0; i < hangs.size(); ++i) {
+        const Hang& h = hangs[i];
         const uint32_t la = lower[{h.a, h.face}], lb = lower[{h.b, h.face}];
         node.Triangle(h.b, h.a, la);
         node.Triangle(h.b, la, lb);
         const double t = turn(h.b, h.a, la, h.face / 2);
         if (t != 0) wedge_turn.try_emplace({h.a, h.face}, t);
         if (t != 0) wedge_turn.try_emplace({h.b, h.face}, t);
+        const int j = h.face / 2;
+        std::array<uint32_t, 3> qa = quantize(own_far[i][0]), qb = quantize(own_far[i][1]);
+        qa[j] = f.positions[h.a][j];
+        qb[j] = f.positions[h.b][j];
+        if (qa == f.positions[h.a] && qb == f.positions[h.b]) continue;
+        const uint32_t oa = node.Fresh(off_mid(qa)), ob = node.Fresh(off_mid(qb));
+        node.Triangle(h.b, h.a, oa);
+        node.Triangle(h.b, oa, ob);
       }
       for (const auto& [key2, e] : wedge) {
         const uint32_t v = key2.first, la = lower[key2];
@@ -653,10 +696,14 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
       if (spill_out == nullptr) return;
       // Each strip unclamped (one quad if convex, else two triangles), cut by the
       // neighbouring cells in its face.
-      for (const Hang& h : hangs) {
+      for (size_t strip = 0; strip < 2 * hangs.size(); ++strip) {
+        const Hang& h = hangs[strip / 2];
         const int j = h.face / 2, u = (j + 1) % 3, w = (j + 2) % 3;
-        const Vec3 quad[4] = {real(f.positions[h.b]), real(f.positions[h.a]), far_of[{h.a, h.face}],
-                              far_of[{h.b, h.face}]};
+        const bool own = strip % 2 == 1;
+        const Vec3 quad[4] = {real(f.positions[h.b]), real(f.positions[h.a]),
+                              own ? own_far[strip / 2][0] : far_of[{h.a, h.face}],
+                              own ? own_far[strip / 2][1] : far_of[{h.b, h.face}]};
+        if (own && quad[2] == quad[1] && quad[3] == quad[0]) continue;
         int turns[2] = {0, 0};
         for (int i = 0; i < 4; ++i) {
           const Vec3 &a = quad[i], &b = quad[(i + 1) % 4], &e = quad[(i + 2) % 4];
