@@ -95,9 +95,11 @@ function serve(web, data, log) {
 }
 
 // The PNG's pixels that are not the black background, how many lean to each segment's
-// colour (its largest channel is the colour's), and the holes: pixels that are not the
-// background's (black) yet cannot be reached from the picture's border without crossing it.
-// A closed surface seen from outside has none; a crack between pieces shows as one.
+// colour (its largest channel is the colour's), and the holes: background (black) pixels
+// that cannot be reached from the picture's border without crossing the surface's picture
+// where it is more than a pixel thick. A closed surface seen from outside has none; a crack
+// between pieces shows as one. A pocket of the silhouette's outline that a one-pixel sliver
+// (an edge seen edge-on) happens to close is not a crack: the flood passes such slivers.
 function measure(file, PNG) {
   const png = PNG.sync.read(fs.readFileSync(file));
   const w = png.width, n = png.width * png.height;
@@ -112,11 +114,18 @@ function measure(file, PNG) {
     // The panel's labels are white or grey; shaded surface pixels keep their hue.
     surface[p] = Math.max(r, g, b) - Math.min(r, g, b) >= 40 ? 1 : 0;
   }
+  // The surface less its one-pixel rim (a pixel stays if its four neighbours are surface).
+  const thick = new Uint8Array(n);
+  for (let p = 0; p < n; p++) {
+    const x = p % w;
+    thick[p] = surface[p] && x > 0 && x < w - 1 && p >= w && p < n - w && surface[p - 1] &&
+      surface[p + 1] && surface[p - w] && surface[p + w] ? 1 : 0;
+  }
   const reached = new Uint8Array(n);
   const stack = [];
   for (let p = 0; p < n; p++) {
     const x = p % w, y = (p - x) / w;
-    if ((x === 0 || y === 0 || x === w - 1 || y === png.height - 1) && !surface[p]) {
+    if ((x === 0 || y === 0 || x === w - 1 || y === png.height - 1) && !thick[p]) {
       reached[p] = 1;
       stack.push(p);
     }
@@ -124,7 +133,7 @@ function measure(file, PNG) {
   while (stack.length) {
     const p = stack.pop(), x = p % w;
     for (const q of [x > 0 ? p - 1 : -1, x < w - 1 ? p + 1 : -1, p - w, p + w]) {
-      if (q >= 0 && q < n && !reached[q] && !surface[q]) {
+      if (q >= 0 && q < n && !reached[q] && !thick[q]) {
         reached[q] = 1;
         stack.push(q);
       }
