@@ -322,7 +322,7 @@ await h.run(async () => {
     // of 8 voxels. The camera looks over the sheet from three sides: the near part is drawn at
     // a finer level than the far part in one frame, so levels meet on node faces all over the
     // picture; a crack there shows the background as an enclosed black pixel. The same views
-    // of an export without skirts show such cracks: the check sees what the skirts close.
+    // of an export without skirts show such cracks (not each view: see below).
     const [nx, ny, nz] = [128, 128, 40];
     const labels = Buffer.alloc(nx * ny * nz);
     for (let z = 0; z < nz; z++) {
@@ -369,6 +369,12 @@ await h.run(async () => {
       { name: 'coarser', orientation: then(turn([0, 0, 1], -50), turn([1, 0, 0], 125)),
         scale: 400, levels: [1, 2], lit: 0.8 },
     ];
+    // Whether a view shows the cut export's cracks follows where, from its camera, the two
+    // levels' cuts lie more than a pixel apart (levels 1 and 2 may nearly agree): the views
+    // together must show some, so the check sees what the skirts close. That every face
+    // between any two levels is closed, and open without skirts, neuroglancer_skirts_test checks.
+    const cutGaps = [];
+    let anyCut = false;
     for (const v of views) {
       const mixed = {};
       for (const name of ['skirted', 'cut']) {
@@ -397,13 +403,13 @@ await h.run(async () => {
             `fetched ${nodes} of ${total} nodes per level`);
       check(sheetPicture.share > v.lit && sheetPicture.red > 0.8 * sheetPicture.share,
             `${v.name}: the sheet fills the view`, `${(100 * sheetPicture.share).toFixed(1)} % lit`);
-      // Any crack proves the view mixes levels whose cuts differ; how many follows the meshes.
-      check(mixed.cut.picture.gaps > 0,
-            `${v.name}: cut without skirts, the levels leave cracks the check sees`,
-            `${mixed.cut.picture.gaps} background pixels inside`);
+      cutGaps.push(`${v.name} ${mixed.cut.picture.gaps}`);
+      anyCut = anyCut || mixed.cut.picture.gaps > 0;
       check(sheetPicture.gaps === 0, `${v.name}: with skirts, no crack where the levels meet`,
             `${sheetPicture.gaps} background pixels inside`);
     }
+    check(anyCut, 'cut without skirts, the levels leave cracks the check sees',
+          `background pixels inside per view: ${cutGaps.join(', ')}`);
     // Views that must become ready: Neuroglancer reports ready only once every node its walk
     // wants is on the GPU, and a node whose fragment fails to decode is never retried. A
     // fragment holding corners no triangle used was such a node (near the sheet's far corner),
