@@ -592,14 +592,16 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
       }
       auto off_mid = [&](const std::array<uint32_t, 3>& q) { return off_mid_of(c, q); };
       // How deep a strip from p on face `face` (2 * axis + high side) goes along `unit`.
-      auto depth_at = [&](const Vec3& p, int face, const Vec3& unit) {
+      // `stretch`: a corner's strip goes that much further along its averaged direction, so
+      // that it lies as deep below each of its edges (a miter).
+      auto depth_at = [&](const Vec3& p, int face, const Vec3& unit, double stretch) {
         if (levels < 2) return skirt;
         const int j = face / 2, side = face % 2;
         const int64_t plane = (int64_t{c[j]} + side) << shift;
         const double reach =
             curves.Reach(j, plane, side, p, unit, lod, deepest, origin, g.chunk_shape);
         const double depth =
-            reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt;
+            stretch * (reach < deepest ? std::clamp(reach + 0.5 * skirt, skirt, deepest) : skirt);
         // No deeper than the surface's other side in the face: a thin wall keeps it inside.
         return curves.Reach(j, plane, side, p, unit, lod, depth, origin, g.chunk_shape, true,
                             0.01 * skirt);
@@ -611,14 +613,27 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
       // between them: a far corner that would leave the cell slides down the edge instead of
       // being clamped short, and one tilted away from the edge gets a wedge back to it.
       std::map<std::pair<uint32_t, int>, uint32_t> wedge;  // the corner down the edge
+      // Per corner, the least cosine between its averaged direction and its edges' own.
+      std::map<std::pair<uint32_t, int>, double> least_cos;
+      for (const Hang& h : hangs) {
+        for (uint32_t x : {h.a, h.b}) {
+          const Vec3& d = dir[{x, h.face}];
+          const double len = std::sqrt(Dot(d, d));
+          auto [it, fresh] = least_cos.try_emplace({x, h.face}, 1.0);
+          if (len > 0) it->second = std::min(it->second, Dot(d, h.inward) / len);
+        }
+      }
       for (auto& [key2, d] : dir) {
         const double len = std::sqrt(Dot(d, d));
         const std::array<uint32_t, 3>& at = f.positions[key2.first];
         const Vec3 p = real(at);
         const int j = key2.second / 2;
         const int face = key2.second;  // outside the lambda: clang 14 cannot capture a binding
-        auto depth_toward = [&](const Vec3& unit) { return depth_at(p, face, unit); };
-        const double depth = len > 0 ? depth_toward(d * (1 / len)) : skirt;
+        // Up to twice as far (edges turning by up to 120 degrees); sharper turns hang strips
+        // of their own below.
+        const double stretch = 1 / std::max(least_cos[key2], 0.5);
+        auto depth_toward = [&](const Vec3& unit) { return depth_at(p, face, unit, 1.0); };
+        const double depth = len > 0 ? depth_at(p, face, d * (1 / len), stretch) : skirt;
         const Vec3 far = len > 0 ? p + d * (depth / len) : p;
         std::array<uint32_t, 3> q = quantize(far);
         q[j] = at[j];  // stays in the face
@@ -659,7 +674,8 @@ absl::StatusOr<std::vector<std::vector<NeuroglancerNode>>> BuildOctree(
       std::vector<std::array<Vec3, 2>> own_far;  // per hang; at its own ends: none needed
       for (const Hang& h : hangs) {
         const Vec3 pa = real(f.positions[h.a]), pb = real(f.positions[h.b]);
-        const double da = depth_at(pa, h.face, h.inward), db = depth_at(pb, h.face, h.inward);
+        const double da = depth_at(pa, h.face, h.inward, 1.0),
+                     db = depth_at(pb, h.face, h.inward, 1.0);
         const bool thin = Dot(far_of[{h.a, h.face}] - pa, h.inward) < 0.99 * da ||
                           Dot(far_of[{h.b, h.face}] - pb, h.inward) < 0.99 * db;
         own_far.push_back(thin ? std::array<Vec3, 2>{pa + h.inward * da, pb + h.inward * db}
