@@ -104,10 +104,14 @@ if [ -n "${NODE_EXTRA_CA_CERTS:-}" ] && [ -f "$NODE_EXTRA_CA_CERTS" ]; then
         --build-arg "NODE_EXTRA_CA_CERTS=/tandem-host-ca/$(basename "$NODE_EXTRA_CA_CERTS")")
 fi
 # A compiler cache in CCACHE_DIR (CI's, which its host build filled) is lent to the build: the
-# Dockerfile then compiles only what the host did not; CI's -Werror goes along, as its flags.
+# Dockerfile then compiles only what the host did not. CI's -Werror and the host's generator
+# (CMAKE_GENERATOR=Ninja in CI) go along, since the objects' command lines must match.
 if [ -n "${CCACHE_DIR:-}" ] && [ -d "$CCACHE_DIR" ]; then
   lent+=(--volume "$CCACHE_DIR:/ccache")
-  if [ "${CI:-}" = "true" ]; then lent+=(--build-arg "TANDEM_CMAKE_ARGS=-DTANDEM_WERROR=ON"); fi
+  cmake_args=""
+  if [ "${CI:-}" = "true" ]; then cmake_args="-DTANDEM_WERROR=ON"; fi
+  if [ "${CMAKE_GENERATOR:-}" = "Ninja" ]; then cmake_args="$cmake_args -G Ninja"; fi
+  if [ -n "$cmake_args" ]; then lent+=(--build-arg "TANDEM_CMAKE_ARGS=${cmake_args# }"); fi
 fi
 podman "${runtime[@]}" build --format docker --network host "${limits[@]}" ${lent[@]+"${lent[@]}"} \
   --build-arg "DEBIAN_IMAGE=$base" -f deploy/Dockerfile -t "$image" . \

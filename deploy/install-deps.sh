@@ -2,6 +2,8 @@
 # Installs every Debian 12 package tandem needs to build, test and run (core, service,
 # tests). Non-interactive: safe for CI and container builds. Run as root (or via sudo).
 #   deploy/install-deps.sh            build + test dependencies
+#   deploy/install-deps.sh --product  only what building the programs needs (the container's
+#                                     build stage: no tests, no browser)
 #   deploy/install-deps.sh --runtime  only the shared libraries the binaries need
 #   deploy/install-deps.sh --fuzz     build + test dependencies, plus clang and the
 #                                     libFuzzer/sanitizer runtimes (tests/sanitize.sh,
@@ -9,20 +11,26 @@
 #   deploy/install-deps.sh --image    only what deploy/image-test.sh needs (podman, ...)
 set -euo pipefail
 
-BUILD_PKGS=(
+PRODUCT_PKGS=(
   build-essential cmake pkg-config git ca-certificates
   libabsl-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev libdraco-dev
-  libgtest-dev libgmock-dev nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev
-  python3 python3-yaml openssl assimp-utils
-  libblosc-dev libzstd-dev python3-zarr python3-numcodecs
+  nlohmann-json3-dev libeigen3-dev libtiff-dev zlib1g-dev python3
+  libblosc-dev libzstd-dev
   libgdcm-dev libniftiio-dev libznz-dev libnifti2-dev libcpp-httplib-dev libcli11-dev
-  libssl-dev python3-grpcio python3-protobuf python3-numpy draco
-  help2man chromium libinsighttoolkit5-dev
+  libssl-dev help2man
 )
+TEST_PKGS=(
+  libgtest-dev libgmock-dev python3-yaml openssl assimp-utils
+  python3-zarr python3-numcodecs python3-grpcio python3-protobuf python3-numpy draco
+  chromium libinsighttoolkit5-dev lld
+)
+BUILD_PKGS=("${PRODUCT_PKGS[@]}" "${TEST_PKGS[@]}")
 # (libznz-dev and libnifti2-dev: niftiio's I/O layer and its nifti1.h, which
 # libniftiio-dev does not pull in; found missing when deploy/image-test.sh first built
 # the image on a bare Debian 12.)
 # (chromium: the headless browser the viewer's test loads the page in, tests/viewer.)
+# (lld: the linker CMake picks when it is there, CMakeLists.txt; it links the test programs
+# several times faster than GNU ld.)
 # (libinsighttoolkit5-dev: ITK, whose own MetaImageIO writes and reads the .mha / .mhd files
 # tests/core/readers_metaimage_test.cc cross-checks the MetaImage reader and writer against;
 # test-only, those tests skip without it.)
@@ -57,11 +65,12 @@ export DEBIAN_FRONTEND=noninteractive
 pkgs=("${BUILD_PKGS[@]}")
 case "${1:-}" in
   "") ;;
+  --product) pkgs=("${PRODUCT_PKGS[@]}") ;;
   --runtime) pkgs=("${RUNTIME_PKGS[@]}") ;;
   --fuzz) pkgs+=("${FUZZ_PKGS[@]}") ;;
   --image) pkgs=("${IMAGE_PKGS[@]}") ;;
   *)
-    echo "install-deps: unknown option '$1' (use --runtime, --fuzz or --image, or nothing)" >&2
+    echo "install-deps: unknown option '$1' (use --product, --runtime, --fuzz or --image, or nothing)" >&2
     exit 2
     ;;
 esac

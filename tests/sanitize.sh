@@ -11,7 +11,7 @@
 #   bash tests/sanitize.sh --build-only [TARGET...]   configure + build (all, or the targets)
 #   TANDEM_BUILD_SERVICE=OFF bash tests/sanitize.sh   core only (no gRPC; no fuzz_request)
 # Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build and ctest parallelism, 2).
-# -O1 with line tables only: the build takes ~2.5 min on 2 cores (gcc at -O2 -g took 15).
+# -O1 with line tables only: the quickest build whose tests still run in reasonable time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
