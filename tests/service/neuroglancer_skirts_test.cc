@@ -12,6 +12,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "gtest/gtest.h"
+#include "service/neuroglancer_sheet.h"
 #include "tandem/io/neuroglancer.h"
 #include "tandem/labels.h"
 #include "tandem/tandem.h"
@@ -217,33 +218,14 @@ Cracks OpenCracks(const NeuroglancerSegment& segment, const Tree& tree,
 // The browser test's label sheet: label 1 below a wavy surface in 128 x 128 x 40 voxels,
 // meshed at E0 0.2, 0.4 and 0.8 voxels as `tandem extract --labels --neuroglancer` does.
 TEST(NeuroglancerSkirts, TheLabelSheetsLevelsMeetWithoutACrack) {
-  VolumeInfo grid;
-  grid.nx = grid.ny = 128;
-  grid.nz = 40;
-  grid.dtype = DType::kUInt8;
-  std::vector<uint8_t> voxels(grid.nx * grid.ny * grid.nz);
-  for (int64_t z = 0; z < grid.nz; ++z) {
-    for (int64_t y = 0; y < grid.ny; ++y) {
-      for (int64_t x = 0; x < grid.nx; ++x) {
-        const double h = 20 + 5 * std::sin(x / 7.0) * std::cos(y / 9.0) +
-                         3 * std::sin(static_cast<double>(x + y) / 13);
-        voxels[(z * grid.ny + y) * grid.nx + x] = static_cast<double>(z) < h ? 1 : 0;
-      }
-    }
-  }
+  const testing::LabelSheet sheet = testing::WavyLabelSheet();
+  const VolumeInfo& grid = sheet.grid;
+  const std::vector<uint8_t>& voxels = sheet.voxels;
   NeuroglancerSegment segment{1, {}};
   for (double e0 : {0.2, 0.4, 0.8}) {
-    SessionOptions o;
-    o.labels.enabled = true;
-    o.error = e0;
-    auto session = TandemSession::Create(grid, o);
-    ASSERT_TRUE(session.ok()) << session.status();
-    for (int64_t z = 0; z < grid.nz; ++z) {
-      ASSERT_TRUE(
-          (*session)->AddSliceBytes(DType::kUInt8, voxels.data() + z * grid.nx * grid.ny).ok());
-    }
-    ASSERT_TRUE((*session)->Finish().ok());
-    for (auto& [id, mesh] : SplitByLabel((*session)->SnapshotLabeled(), 0)) {
+    absl::StatusOr<LabeledMesh> complex = testing::MeshLabels(grid, voxels.data(), e0);
+    ASSERT_TRUE(complex.ok()) << complex.status();
+    for (auto& [id, mesh] : SplitByLabel(*complex, 0)) {
       if (id == 1) segment.lods.push_back(std::move(mesh));
     }
   }

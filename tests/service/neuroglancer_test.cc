@@ -20,6 +20,7 @@
 #include "apps/tandem/neuroglancer_export.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
+#include "service/neuroglancer_sheet.h"
 #include "tandem/codec/neuroglancer_draco.h"
 #include "tandem/eval/topology.h"
 #include "tandem/io/volume_writers.h"
@@ -710,19 +711,10 @@ TEST(NeuroglancerExport, LabelSessionsBecomeOneSegmentPerLabel) {
   const std::vector<uint16_t>& voxels = two.voxels;
   std::vector<LabeledMesh> complexes;
   for (double e0 : {0.3, 0.6}) {
-    SessionOptions o;
-    o.labels.enabled = true;
-    o.error = e0;
-    auto session = TandemSession::Create(grid, o);
-    ASSERT_TRUE(session.ok()) << session.status();
-    for (int64_t z = 0; z < grid.nz; ++z) {
-      ASSERT_TRUE((*session)
-                      ->AddSliceBytes(DType::kUInt16, reinterpret_cast<const uint8_t*>(
-                                                          voxels.data() + z * grid.nx * grid.ny))
-                      .ok());
-    }
-    ASSERT_TRUE((*session)->Finish().ok());
-    complexes.push_back((*session)->SnapshotLabeled());
+    absl::StatusOr<LabeledMesh> complex =
+        testing::MeshLabels(grid, reinterpret_cast<const uint8_t*>(voxels.data()), e0);
+    ASSERT_TRUE(complex.ok()) << complex.status();
+    complexes.push_back(*std::move(complex));
   }
   const std::vector<const LabeledMesh*> levels{&complexes[0], &complexes[1]};
   const std::string dir = testing::MakeTempDir() + "/ng";
@@ -828,20 +820,9 @@ TEST(NeuroglancerExport, ExtractLabelsWritesOneSegmentPerLabelWithItsLevels) {
 // level-0 fragment of one triangle and three unused corners was coded sequentially and no
 // Draco decoder read it back: Neuroglancer marked the node failed and never became ready.
 TEST(NeuroglancerExport, EveryFragmentDecodesWithEveryCornerInATriangle) {
-  VolumeInfo grid;
-  grid.nx = grid.ny = 128;
-  grid.nz = 40;
-  grid.dtype = DType::kUInt8;
-  std::vector<uint8_t> voxels(grid.nx * grid.ny * grid.nz);
-  for (int64_t z = 0; z < grid.nz; ++z) {
-    for (int64_t y = 0; y < grid.ny; ++y) {
-      for (int64_t x = 0; x < grid.nx; ++x) {
-        const double h = 20 + 5 * std::sin(x / 7.0) * std::cos(y / 9.0) +
-                         3 * std::sin(static_cast<double>(x + y) / 13);
-        voxels[(z * grid.ny + y) * grid.nx + x] = static_cast<double>(z) < h ? 1 : 0;
-      }
-    }
-  }
+  const testing::LabelSheet sheet = testing::WavyLabelSheet();
+  const VolumeInfo& grid = sheet.grid;
+  const std::vector<uint8_t>& voxels = sheet.voxels;
   const std::string tmp = testing::MakeTempDir(), tandem = testing::BinPath("tandem");
   ASSERT_TRUE(
       io::WriteVolume(tmp + "/sheet.nrrd", grid, [&](int64_t z, std::vector<uint8_t>* bytes) {
