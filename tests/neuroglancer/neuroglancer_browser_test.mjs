@@ -145,7 +145,7 @@ function measure(file, PNG) {
     const dark = png.data[4 * p] + png.data[4 * p + 1] + png.data[4 * p + 2] <= 24;
     gaps += dark && !reached[p] ? 1 : 0;
   }
-  return { share: lit / n, red: red / n, blue: blue / n, gaps };
+  return { share: lit / n, red: red / n, blue: blue / n, gaps, size: `${w}x${png.height}` };
 }
 
 // Where each level's fragments of segment `id` lie in its shard (per level, one byte range
@@ -200,12 +200,12 @@ await h.run(async () => {
   execFileSync(process.execPath, [path.join(here, 'bundle.mjs'), web], { stdio: 'inherit' });
   check(fs.existsSync(path.join(web, 'main.bundle.js')), 'Neuroglancer bundled from node_modules');
 
-  // Two nested spheres (iso 0 and 0.35 of the sphere field: segments 1 and 2), each at three
-  // levels of detail from sweeps at E0, 2 E0 and 4 E0.
+  // Two nested spheres (iso 0 and 6 of the sphere field, a distance in voxels: radii 15.6 and
+  // 9.6, segments 1 and 2), each at three levels of detail from sweeps at E0, 2 E0 and 4 E0.
   const volume = path.join(work, 'sphere.nrrd');
   execFileSync(bin('tandem'), ['generate', 'sphere', '--size', '40', '--out', volume]);
   const data = path.join(work, 'ng');
-  execFileSync(bin('tandem'), ['extract', '--input', volume, '--iso', '0,0.35', '--error', '0.6',
+  execFileSync(bin('tandem'), ['extract', '--input', volume, '--iso', '0,6', '--error', '0.6',
                                '--out', path.join(work, 'sphere_{iso}.ply'), '--quiet',
                                '--neuroglancer', data, '--neuroglancer-lods', '3']);
   const shards = fs.readdirSync(path.join(data, 'mesh')).filter((n) => n.endsWith('.shard'));
@@ -310,12 +310,17 @@ await h.run(async () => {
     }
     check(differ > 100, 'the level of detail switched (the pictures differ)', `${differ} pixels`);
 
-    // Segment 2 (inside 1) alone, in its own colour: the second id's manifest found too.
+    // Segment 2 (inside 1) alone, in its own colour: the second id's manifest found too, and
+    // its own fragments: seen from the same default camera, its picture covers about
+    // (9.6 / 15.6)^2 = 0.38 of segment 1's (the spheres' radii differ by 16 times E0).
     await open(['2'], 0.5);
     const inner = await shoot('neuroglancer-segment2.png');
     check(inner.share > 0.02 && inner.blue > 0.6 * inner.share, "segment 2 in its colour",
           `${(100 * inner.blue).toFixed(1)} % blue`);
-    check(inner.share < fine.share, 'segment 2 is the smaller sphere');
+    const area = inner.blue / fine.red;
+    check(inner.size === fine.size && area > 0.3 && area < 0.47, 'segment 2 is the smaller sphere',
+          `${(100 * inner.blue).toFixed(1)} % blue against ${(100 * fine.red).toFixed(1)} % red ` +
+          `(${area.toFixed(2)}), panels ${inner.size} and ${fine.size}`);
 
     // A large segment seen close: label 1 fills a 128 x 128 x 40 label map below a wavy sheet
     // (open at the volume's border, so nothing but the black background lies behind it), nodes
