@@ -10,7 +10,9 @@
 #                                                 the default exclusion)
 #   bash tests/sanitize.sh --build-only [TARGET...]   configure + build (all, or the targets)
 #   TANDEM_BUILD_SERVICE=OFF bash tests/sanitize.sh   core only (no gRPC; no fuzz_request)
-# Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build and ctest parallelism, 2).
+# Environment: SAN_BUILD_DIR (default build-san), SAN_JOBS (build parallelism, 2),
+# SAN_TEST_JOBS (tests at a time, 3: about a fifth of these tests' time is spent waiting on
+# servers, clients and timeouts, so three keep two cores busy).
 # -O1 with line tables only: the quickest build whose tests still run in reasonable time. The
 # test programs' own files at -O0 (SAN_TEST_CXX_FLAGS; those that compute much in their own
 # code say OPTIMISED in CMake and keep -O1): under ASan that halves their compile.
@@ -30,6 +32,7 @@ bash deploy/install-deps.sh --fuzz  # clang, libFuzzer and the sanitizer runtime
 
 build="${SAN_BUILD_DIR:-build-san}"
 jobs="${SAN_JOBS:-2}"
+test_jobs="${SAN_TEST_JOBS:-3}"
 service="${TANDEM_BUILD_SERVICE:-}"
 if [ -z "$service" ]; then
   if [ -f server/CMakeLists.txt ] && [ -f client/CMakeLists.txt ]; then service=ON; else service=OFF; fi
@@ -81,24 +84,41 @@ fi
 # The depth tests run the shallow case's code again on a stack eight times deeper to bound
 # memory: the shallow runs of the same paths are what the sanitizers need, the plain build
 # checks the bounds.
-# Six more run in the plain build only: each takes 20-140 s here, and a smaller test of the same
+# More run in the plain build only: each takes 10-40 s here, and a smaller test of the same
 # file runs the same code under the sanitizers:
-#   VoronoiCellsFillingTheBoxAreOpenThereOrClosed   (VoronoiCellsInABallAreClosedManifolds and
-#                                                    SplitFullResolutionIsOnePartsComplex...: open)
+#   VoronoiCellsFillingTheBoxAreOpenThereOrClosed   (SplitFullResolutionIsOnePartsComplex...:
+#   VoronoiCellsInABallAreClosedManifolds            Voronoi cells open and closed at the box;
+#                                                    IsotropyATargetCount...: a smaller ball)
 #   AStatusLineWithAnEstimateWhileTheSessionFinishes  (a 224³ classical run for its timing; the
 #                                                    status lines print in every CliParity run)
 #   AnisotropicCubesKeepTheirAreasAsWritten          (EveryCubeOfValuesAtTheIsoKeepsItsPointsApart...)
 #   KeepsTheSurfaceCloserForAFewMoreTriangles        (the guard runs in every Simplifier test)
 #   SlabsHoldTheirSeamsUpToABoundedDepth             (a depth test: SettledSeamsAreCoarsenedFirst)
+#   SeamCoarseningKeepsTheTopologyOfQuantisedTangles (SettledSeamsAreCoarsenedFirst; the quantised
+#                                                    tangles in QuadricsKeptAsMatricesAreTheFullSums)
 #   SealedLabelSessionsSendAboutTheUnsealedBytes     (SealedChunksCarryTheirLabelBeforeEnd)
+#   ManyScatteredUint64IdsEachGetTheirOwnSurface     (thousands of labels for their names; the label
+#                                                    mode runs in every other CliLabels test)
+#   FiftyKilledClientsLeaveNothingBehind             (CancelledStreamLeavesNothingBehind and
+#                                                    AKilledClientsSlotComesFreeAtOnce...: one each)
+# and the Simplifier's statistics over whole runs (a peak, an anisotropy, a bias, distances, a
+# count), whose schedules, isotropy term and finishing pass every other Simplifier test runs:
+#   TandemLagHoldsAQuarterOfClassicalsPeak, AnisotropyFallsAsAlphaRises,
+#   MeanAndRmsDistanceStayBelowE0OnThePillowBox, TheFinishingPassTakesTheCoarsestContractions...,
+#   TimeLagRemovesDirectionalBiasAndMatchesClassicalCount, TimeLagCountStaysNearClassicalOn...
 if [ $# -eq 0 ]; then
-  heavy='VoronoiCellsFillingTheBoxAreOpenThereOrClosed|AStatusLineWithAnEstimateWhileTheSessionFinishes'
-  heavy+='|AnisotropicCubesKeepTheirAreasAsWritten|KeepsTheSurfaceCloserForAFewMoreTriangles'
-  heavy+='|SlabsHoldTheirSeamsUpToABoundedDepth|SealedLabelSessionsSendAboutTheUnsealedBytes'
+  heavy='VoronoiCellsFillingTheBoxAreOpenThereOrClosed|VoronoiCellsInABallAreClosedManifolds'
+  heavy+='|AStatusLineWithAnEstimateWhileTheSessionFinishes|AnisotropicCubesKeepTheirAreasAsWritten'
+  heavy+='|KeepsTheSurfaceCloserForAFewMoreTriangles|SlabsHoldTheirSeamsUpToABoundedDepth'
+  heavy+='|SeamCoarseningKeepsTheTopologyOfQuantisedTangles|SealedLabelSessionsSendAboutTheUnsealedBytes'
+  heavy+='|ManyScatteredUint64IdsEachGetTheirOwnSurface|FiftyKilledClientsLeaveNothingBehind'
+  heavy+='|TandemLagHoldsAQuarterOfClassicalsPeak|AnisotropyFallsAsAlphaRises'
+  heavy+='|MeanAndRmsDistanceStayBelowE0OnThePillowBox|TheFinishingPassTakesTheCoarsestContractions'
+  heavy+='|TimeLagRemovesDirectionalBiasAndMatchesClassicalCount|TimeLagCountStaysNearClassicalOn'
   set -- -LE deploy -E "_browser|^engine_only\$|MemoryIsFlatInDepth|MemoryFollowsTheFront|$heavy"
 fi
 set +e
-ctest --test-dir "$build" --output-on-failure -j"$jobs" --timeout 1800 "$@"
+ctest --test-dir "$build" --output-on-failure -j"$test_jobs" --timeout 1800 "$@"
 rc=$?
 set -e
 echo "sanitize.sh: ctest took $(( $(date +%s) - built )) s (total $(( $(date +%s) - start )) s), exit $rc"

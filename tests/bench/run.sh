@@ -20,6 +20,8 @@
 # 64: tests/bench/LABELS.md): label volumes meshed by tandem's label mode and by VTK's
 # discrete flying edges + per-label decimation, with the gaps between touching labels.
 #   bash tests/bench/run.sh --labels [--quick] [--repeats N] [--keep]
+# With --build-only (first argument) it only builds (CI builds the programs beside its
+# sanitizer tests, then runs each benchmark).
 # Full mode writes tests/bench/REPORT.md and tests/bench/results.json; --quick writes them to
 # the scratch directory ($TANDEM_BENCH_SCRATCH, default ${TMPDIR:-/tmp}/tandem-bench), which
 # also holds the generated volumes (never committed). Peers: bash tests/bench/install-peers.sh
@@ -32,7 +34,11 @@ script="$here/bench.py"
 dense=false
 labels=false
 sweep=false
-if [[ "${1:-}" == "--dense" ]]; then
+build_only=false
+if [[ "${1:-}" == "--build-only" ]]; then
+  shift
+  build_only=true
+elif [[ "${1:-}" == "--dense" ]]; then
   shift
   dense=true
   script="$here/dense.py"
@@ -62,6 +68,7 @@ if ! { cmake -S "$here" -B "$build" -DCMAKE_BUILD_TYPE=Release -DTANDEM_WERROR="
   exit 1
 fi
 grep -E '^-- bench:' "$build/bench-build.log" || true
+if $build_only; then exit 0; fi
 if $labels && [[ -x "$build/bin/labels_lib_test" ]]; then
   # The measures the report rests on check themselves first.
   ctest --test-dir "$build" -R labels_lib_test --output-on-failure
