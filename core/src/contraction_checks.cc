@@ -5,6 +5,15 @@
 
 #include "tandem/geometry.h"
 
+// The checks' bodies are cloned for CPUs with AVX2 and one is picked once at load. Each is
+// defined and called in this file only: clang 14 compiles a call from another file to a
+// target_clones function as a call to its resolver (see simplifier.cc).
+#if defined(__x86_64__) && defined(__ELF__)
+#define TANDEM_CHECK_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define TANDEM_CHECK_CLONES
+#endif
+
 namespace tandem {
 namespace {
 
@@ -69,9 +78,10 @@ inline bool AnyOnes(fan_count::V4 v) {
   return v[0] != 0;
 }
 
-// LinkConditionFans with fan arrays of kFan entries (both fans fit).
+// LinkConditionFans with fan arrays of kFan entries (both fans fit). Inlined into each of
+// LinkFans::Run's clones, so that its lanes take the clone's instructions.
 template <size_t kFan>
-bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
+[[gnu::always_inline]] inline bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
   // its corner before v (y), in the triangle's order; the caller checked they fit. Written
   // without early exits where the outcome varies from call to call: the link condition was
@@ -176,12 +186,22 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
 
 }  // namespace
 
-bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+// LinkConditionFans's body, cloned for CPUs with AVX2 as GeometryOk's (below): the lanes'
+// compares and shuffles take three-operand instructions. Called from this file only.
+struct LinkFans {
+  TANDEM_CHECK_CLONES static bool Run(const MeshStore& store, VertexId a, VertexId b);
+};
+
+TANDEM_CHECK_CLONES bool LinkFans::Run(const MeshStore& store, VertexId a, VertexId b) {
   // Most fans on a dense surface hold 8 triangles or fewer: arrays of 8 halve every count.
   if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
     return LinkConditionFansOf<8>(store, a, b);
   }
   return LinkConditionFansOf<kFanMax>(store, a, b);
+}
+
+bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+  return LinkFans::Run(store, a, b);
 }
 
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
@@ -453,17 +473,11 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
 
 }  // namespace
 
-// GeometryOk's body, cloned for CPUs with AVX2 and picked once at load: the pairs' arithmetic
-// then takes three-operand instructions, without SSE2's register copies (no FMA: the same
-// roundings). Defined and called in this file only: clang 14 compiles a call from another
-// file to a target_clones function as a call to its resolver (see simplifier.cc).
-#if defined(__x86_64__) && defined(__ELF__)
-#define TANDEM_GEOMETRY_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define TANDEM_GEOMETRY_CLONES
-#endif
+// GeometryOk's body, cloned for CPUs with AVX2 (TANDEM_CHECK_CLONES): the pairs' arithmetic
+// takes three-operand instructions, without SSE2's register copies (no FMA: the same
+// roundings).
 struct GeometryCheck {
-  TANDEM_GEOMETRY_CLONES static bool Run(const MeshStore& store, VertexId a, VertexId b, Vec3 pos,
+  TANDEM_CHECK_CLONES static bool Run(const MeshStore& store, VertexId a, VertexId b, Vec3 pos,
                                          double bound, const OffsetEdges& offsets,
                                          std::vector<Survivor>* survivors, RefusalCounts* refusals);
 };
@@ -474,7 +488,7 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
   return GeometryCheck::Run(store, a, b, pos, bound, offsets, survivors, refusals);
 }
 
-TANDEM_GEOMETRY_CLONES bool GeometryCheck::Run(const MeshStore& store, VertexId a, VertexId b,
+TANDEM_CHECK_CLONES bool GeometryCheck::Run(const MeshStore& store, VertexId a, VertexId b,
                                                Vec3 pos, double bound, const OffsetEdges& offsets,
                                                std::vector<Survivor>* survivors,
                                                RefusalCounts* refusals) {
