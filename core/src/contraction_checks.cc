@@ -471,27 +471,86 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
   return (any[0] | any[1]) != 0;
 }
 
-}  // namespace
-
-// GeometryOk's body, cloned for CPUs with AVX2 (TANDEM_CHECK_CLONES): the pairs' arithmetic
-// takes three-operand instructions, without SSE2's register copies (no FMA: the same
-// roundings).
-struct GeometryCheck {
-  TANDEM_CHECK_CLONES static bool Run(const MeshStore& store, VertexId a, VertexId b, Vec3 pos,
-                                         double bound, const OffsetEdges& offsets,
-                                         std::vector<Survivor>* survivors, RefusalCounts* refusals);
+// The arithmetic of GeometryOk's test for four survivors at once, a lane each: the same
+// operations in the same order as the scalar expressions (TwiceAreaVector, Dot, MoveCorners,
+// the guard), so each lane's values are the scalar ones bit for bit. AVX2's clone takes a
+// lane set in one register; the default one in two SSE2 halves.
+#if defined(__GNUC__) && !defined(__clang__)
+// 32-byte vectors, all inlined: no ABI to keep (GCC warns at the file's end, so to its end).
+#pragma GCC diagnostic ignored "-Wpsabi"
+#endif
+using V4d = double __attribute__((vector_size(32)));
+using M4 = int64_t __attribute__((vector_size(32)));
+struct P4 {
+  V4d x, y, z;
 };
-
-bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
-                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
-                RefusalCounts* refusals) {
-  return GeometryCheck::Run(store, a, b, pos, bound, offsets, survivors, refusals);
+inline P4 operator-(P4 a, P4 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+inline V4d Dot4(P4 a, P4 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline P4 Cross4(P4 a, P4 b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
+  const double xs[4] = {u.x, v.x, w.x, t.x}, ys[4] = {u.y, v.y, w.y, t.y},
+               zs[4] = {u.z, v.z, w.z, t.z};
+  P4 q;
+  std::memcpy(&q.x, xs, sizeof(q.x));
+  std::memcpy(&q.y, ys, sizeof(q.y));
+  std::memcpy(&q.z, zs, sizeof(q.z));
+  return q;
+}
+inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b
+  auto pick = [m](V4d x, V4d y) {
+    return reinterpret_cast<V4d>((reinterpret_cast<M4>(x) & m) | (reinterpret_cast<M4>(y) & ~m));
+  };
+  return {pick(a.x, b.x), pick(a.y, b.y), pick(a.z, b.z)};
 }
 
-TANDEM_CHECK_CLONES bool GeometryCheck::Run(const MeshStore& store, VertexId a, VertexId b,
-                                               Vec3 pos, double bound, const OffsetEdges& offsets,
-                                               std::vector<Survivor>* survivors,
-                                               RefusalCounts* refusals) {
+// Whether any of four survivors (triangles t[i] with their moving corners c[i]) may stop the
+// contraction: the guard's distance, a collapse or a flip, in any lane. No survivor in lanes
+// where none does.
+[[gnu::always_inline]] inline bool AnySuspect(const MeshStore& store,
+                                              const std::array<VertexId, 3>* const (&t)[4],
+                                              const int (&c)[4], Vec3 pos, bool guarded,
+                                              double bound) {
+  auto corner = [&](int k) {
+    return Quad(store.position((*t[0])[k]), store.position((*t[1])[k]),
+                store.position((*t[2])[k]), store.position((*t[3])[k]));
+  };
+  const P4 p[3] = {corner(0), corner(1), corner(2)};
+  const P4 n_old = Cross4(p[1] - p[0], p[2] - p[0]);
+  const V4d old2 = Dot4(n_old, n_old);
+  const P4 at = Quad(pos, pos, pos, pos);
+  const V4d off = Dot4(n_old, at - p[0]);
+  const double b2 = bound * bound;
+  const V4d bb = {b2, b2, b2, b2};
+  const M4 far = guarded ? (off * off > bb * old2) : M4{0, 0, 0, 0};
+  // The moving corners' masks by 32-bit compares (SSE2 has no 64-bit one): a lane's two
+  // halves hold its corner.
+  using V8i = int32_t __attribute__((vector_size(32)));
+  const V8i corners = {c[0], c[0], c[1], c[1], c[2], c[2], c[3], c[3]};
+  auto moved = [&](int k) {
+    return Select(reinterpret_cast<M4>(corners == V8i{k, k, k, k, k, k, k, k}), at, p[k]);
+  };
+  const P4 q[3] = {moved(0), moved(1), moved(2)};
+  const P4 after = Cross4(q[1] - q[0], q[2] - q[0]);
+  const V4d sse = Dot4(q[1] - q[0], q[1] - q[0]) + Dot4(q[2] - q[1], q[2] - q[1]) +
+                  Dot4(q[0] - q[2], q[0] - q[2]);
+  const V4d ratio = {kCollapsedSquared, kCollapsedSquared, kCollapsedSquared, kCollapsedSquared};
+  const V4d zero = {0.0, 0.0, 0.0, 0.0};
+  const M4 collapses = ~(Dot4(after, after) > ratio * sse * sse);
+  const M4 flips = ~(Dot4(n_old, after) > zero);
+  const M4 any = far | collapses | flips;
+  return ((any[0] | any[1]) | (any[2] | any[3])) != 0;
+}
+
+// GeometryOk's body, its survivors tested kLanes at a time: 4 where the CPU has AVX2 (a
+// set of lanes in one register), 2 otherwise (SSE2 pairs: four lanes in two halves cost more
+// than two pairs). Instantiated in this file only, each with its target.
+template <int kLanes>
+[[gnu::always_inline]] inline bool GeometryOkIn(const MeshStore& store, VertexId a, VertexId b,
+                                                Vec3 pos, double bound, const OffsetEdges& offsets,
+                                                std::vector<Survivor>* survivors,
+                                                RefusalCounts* refusals) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
   // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|
   // (for a triangle smaller than the move, or how far its old corner lies from its new plane).
@@ -513,7 +572,7 @@ TANDEM_CHECK_CLONES bool GeometryCheck::Run(const MeshStore& store, VertexId a, 
     }
   }
   const bool guarded = bound > 0.0;
-  // The scalar test of one survivor, where the paired one found either of two suspect: false
+  // The scalar test of one survivor, where the lanes found any of theirs suspect: false
   // if it refuses the contraction.
   auto survives = [&](const Survivor& s) {
     const auto [t, v] = s;
@@ -563,19 +622,56 @@ TANDEM_CHECK_CLONES bool GeometryCheck::Run(const MeshStore& store, VertexId a, 
     }
     return false;
   };
-  // Two at a time (the last one twice when they are odd); the scalar test, in order, for a
-  // pair where either may refuse.
-  for (size_t i = 0; i < n; i += 2) {
-    const Survivor s0 = (*survivors)[i], s1 = (*survivors)[std::min(i + 1, n - 1)];
-    const auto& t0 = store.triangle(s0.t);
-    const auto& t1 = store.triangle(s1.t);
-    if (EitherSuspect(store, t0, CornerOf(t0, s0.v), t1, CornerOf(t1, s1.v), pos, guarded,
-                      bound)) [[unlikely]] {
-      if (!survives(s0)) return false;
-      if (i + 1 < n && !survives(s1)) return false;
+  // kLanes at a time (the last one repeated to fill the lanes); the scalar test, in order,
+  // for those where any may refuse.
+  for (size_t i = 0; i < n; i += kLanes) {
+    const std::array<VertexId, 3>* t[4];
+    int c[4];
+    for (size_t k = 0; k < kLanes; ++k) {
+      const Survivor& s = (*survivors)[std::min(i + k, n - 1)];
+      t[k] = &store.triangle(s.t);
+      c[k] = CornerOf(*t[k], s.v);
+    }
+    bool suspect;
+    if constexpr (kLanes == 4) {
+      suspect = AnySuspect(store, t, c, pos, guarded, bound);
+    } else {
+      suspect = EitherSuspect(store, *t[0], c[0], *t[1], c[1], pos, guarded, bound);
+    }
+    if (suspect) [[unlikely]] {
+      for (size_t k = i; k < std::min(i + kLanes, n); ++k) {
+        if (!survives((*survivors)[k])) return false;
+      }
     }
   }
   return true;
+}
+
+}  // namespace
+
+// Two versions of one function, the one for the CPU picked once at load (as target_clones
+// does, each with its own body): 4 lanes with AVX2, SSE2's pairs otherwise. Called from this
+// file only (clang 14 calls another file's multiversioned function through its resolver).
+#if defined(__x86_64__) && defined(__ELF__)
+__attribute__((target("avx2"))) bool GeometryOkLanes(const MeshStore& store, VertexId a,
+                                                     VertexId b, Vec3 pos, double bound,
+                                                     const OffsetEdges& offsets,
+                                                     std::vector<Survivor>* survivors,
+                                                     RefusalCounts* refusals) {
+  return GeometryOkIn<4>(store, a, b, pos, bound, offsets, survivors, refusals);
+}
+__attribute__((target("default")))
+#endif
+bool GeometryOkLanes(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
+                     const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                     RefusalCounts* refusals) {
+  return GeometryOkIn<2>(store, a, b, pos, bound, offsets, survivors, refusals);
+}
+
+bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
+                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                RefusalCounts* refusals) {
+  return GeometryOkLanes(store, a, b, pos, bound, offsets, survivors, refusals);
 }
 
 }  // namespace tandem
