@@ -44,27 +44,6 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
   }
 }
 
-double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
-  // The paper's time-lag bookkeeping: height(c) = (height(a) + height(b)) / 2 and
-  // rad(c) = (|a - b| + rad(a) + rad(b)) / 2, lengths in slice units.
-  c->height = 0.5 * (store_->height(a) + store_->height(b));
-  c->rad = 0.5 * (Norm(store_->position(a) - store_->position(b)) / opt_.slice_spacing +
-                  store_->rad(a) + store_->rad(b));
-  c->layer = std::max(store_->layer(a), store_->layer(b));
-  switch (opt_.release) {
-    case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
-    case ReleaseRule::kLayer: return static_cast<double>(c->layer + 1);
-    case ReleaseRule::kReach:
-      // The paper argues reach > k for any edge touching the front (slice k), so the top of
-      // layer k stays untouched until layer k+1 is in. That holds for original vertices, but
-      // a contracted vertex keeps an averaged height that can lie well below its position:
-      // an edge from it to a front vertex can then reach <= k. Requiring layer + 1 <= front
-      // as well keeps the paper's guarantee (and every quadric in Q complete).
-      return std::max(c->height + c->rad, static_cast<double>(c->layer + 1));
-  }
-  return 0;
-}
-
 // Evaluate's body, cloned for CPUs with AVX2 and picked once at load: the packed evaluation's
 // pairs then take three-operand instructions, without the register copies SSE2's two-operand
 // form needs (no FMA: the same roundings). Declared and called in this file only: clang 14
