@@ -47,9 +47,7 @@ void WaitingQueue::Push(const WEntry& e) {
     ++size_;
     return;
   }
-  // ceil(key) without libm's call (the baseline target has no roundsd); |key| < 2^52 here.
-  const int64_t whole = static_cast<int64_t>(e.key);
-  const int64_t release = whole + static_cast<int64_t>(static_cast<double>(whole) < e.key);
+  const int64_t release = static_cast<int64_t>(std::ceil(e.key));
   if (buckets_.empty()) base_ = release;
   if (release < base_) {  // cannot happen for keys > front; keep it correct anyway
     if (base_ - release + static_cast<int64_t>(buckets_.size()) > kBuckets) {
