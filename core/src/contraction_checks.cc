@@ -5,13 +5,10 @@
 
 #include "tandem/geometry.h"
 
-// The checks' bodies are cloned for CPUs with AVX2 and one is picked once at load. Each is
-// defined and called in this file only: clang 14 compiles a call from another file to a
-// target_clones function as a call to its resolver (see simplifier.cc).
-#if defined(__x86_64__) && defined(__ELF__)
-#define TANDEM_CHECK_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define TANDEM_CHECK_CLONES
+#if defined(__GNUC__) && !defined(__clang__)
+// 32-byte vectors in the AVX2 versions below, all inlined there: no ABI to keep (GCC warns
+// at the file's end, so to its end).
+#pragma GCC diagnostic ignored "-Wpsabi"
 #endif
 
 namespace tandem {
@@ -43,29 +40,41 @@ bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexI
   return fan_count::Lanes(any) != 0;  // lanes of all ones or zero: a sum of ones is not 0
 }
 
-// Fan arrays as chunks of four lanes.
-template <size_t N>
+// 32-bit lanes, four (SSE2) or eight (AVX2) to a vector, and each rotated by one lane.
+using V8 = uint32_t __attribute__((vector_size(32)));
+inline fan_count::V4 RotateLane(fan_count::V4 r) { return __builtin_shufflevector(r, r, 1, 2, 3, 0); }
+inline V8 RotateLane(V8 r) { return __builtin_shufflevector(r, r, 1, 2, 3, 4, 5, 6, 7, 0); }
+template <typename V>
+inline constexpr size_t kLanesOf = sizeof(V) / sizeof(uint32_t);
+
+// Fan arrays as chunks of V's lanes.
+template <size_t N, typename V = fan_count::V4>
 struct Lanes4 {
-  static_assert(N % 4 == 0);
-  fan_count::V4 c[N / 4];
+  static constexpr size_t kW = kLanesOf<V>;
+  static_assert(N % kW == 0);
+  V c[N / kW];
   explicit Lanes4(const VertexId (&v)[N]) {
-    for (size_t i = 0; i < N / 4; ++i) std::memcpy(&c[i], v + 4 * i, sizeof(c[i]));
+    for (size_t i = 0; i < N / kW; ++i) std::memcpy(&c[i], v + kW * i, sizeof(c[i]));
   }
 };
 
 // For each lane of x, all ones where its value is among y's lanes: every lane of y compared
 // with every lane of x, y's chunks rotated a lane at a time (no loop exit, no branch).
-template <size_t N, size_t M>
-void FoundIn(const fan_count::V4 (&x)[N], const fan_count::V4 (&y)[M], fan_count::V4 (&found)[N]) {
-  using fan_count::V4;
-  for (size_t i = 0; i < N; ++i) found[i] = V4{0, 0, 0, 0};
+template <size_t N, size_t M, typename V>
+void FoundIn(const V (&x)[N], const V (&y)[M], V (&found)[N]) {
+  for (size_t i = 0; i < N; ++i) found[i] = V{};
   for (size_t j = 0; j < M; ++j) {
-    V4 r = y[j];
-    for (int k = 0; k < 4; ++k) {
-      for (size_t i = 0; i < N; ++i) found[i] |= reinterpret_cast<V4>(x[i] == r);
-      r = __builtin_shufflevector(r, r, 1, 2, 3, 0);
+    V r = y[j];
+    for (size_t k = 0; k < kLanesOf<V>; ++k) {
+      for (size_t i = 0; i < N; ++i) found[i] |= reinterpret_cast<V>(x[i] == r);
+      r = RotateLane(r);
     }
   }
+}
+inline fan_count::V4 Halves(V8 v, bool all) {  // the two halves' lanes, and-ed or or-ed
+  const fan_count::V4 lo = __builtin_shufflevector(v, v, 0, 1, 2, 3);
+  const fan_count::V4 hi = __builtin_shufflevector(v, v, 4, 5, 6, 7);
+  return all ? (lo & hi) : (lo | hi);
 }
 inline bool AllOnes(fan_count::V4 v) {
   v &= __builtin_shufflevector(v, v, 2, 3, 0, 1);
@@ -77,10 +86,12 @@ inline bool AnyOnes(fan_count::V4 v) {
   v |= __builtin_shufflevector(v, v, 1, 0, 3, 2);
   return v[0] != 0;
 }
+inline bool AllOnes(V8 v) { return AllOnes(Halves(v, true)); }
+inline bool AnyOnes(V8 v) { return AnyOnes(Halves(v, false)); }
 
 // LinkConditionFans with fan arrays of kFan entries (both fans fit). Inlined into each of
 // LinkFans::Run's clones, so that its lanes take the clone's instructions.
-template <size_t kFan>
+template <size_t kFan, typename V>
 [[gnu::always_inline]] inline bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
   // its corner before v (y), in the triangle's order; the caller checked they fit. Written
@@ -125,27 +136,26 @@ template <size_t kFan>
   // and the other's y). Otherwise every neighbour is an x corner. Every lane of one set
   // against every lane of the other at once (unused lanes are kInvalid in both, at the same
   // places, so they find each other).
-  using fan_count::V4;
-  constexpr size_t kC = kFan / 4;
-  const Lanes4<kFan> XA(xa), YA(ya), XB(xb), YB(yb);
-  V4 x_in_y[kC], y_in_x[kC];
+  constexpr size_t kC = kFan / kLanesOf<V>;
+  const Lanes4<kFan, V> XA(xa), YA(ya), XB(xb), YB(yb);
+  V x_in_y[kC], y_in_x[kC];
   FoundIn(XB.c, YB.c, x_in_y);
   FoundIn(YB.c, XB.c, y_in_x);
-  V4 same = x_in_y[0] & y_in_x[0];
+  V same = x_in_y[0] & y_in_x[0];
   for (size_t i = 1; i < kC; ++i) same &= x_in_y[i] & y_in_x[i];
   const bool b_open = !AllOnes(same);
   auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
   // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
   // y corners too where the two differ. Counted from a's side: a lane of a's fan (never a
   // itself, kInvalid where unused) found among them and not an apex.
-  V4 a_fan[2 * kC];
+  V a_fan[2 * kC];
   for (size_t i = 0; i < kC; ++i) {
     a_fan[i] = XA.c[i];
     a_fan[kC + i] = YA.c[i];
   }
-  V4 common[2 * kC];
+  V common[2 * kC];
   if (b_open) {
-    V4 b_fan[2 * kC];
+    V b_fan[2 * kC];
     for (size_t i = 0; i < kC; ++i) {
       b_fan[i] = XB.c[i];
       b_fan[kC + i] = YB.c[i];
@@ -154,12 +164,11 @@ template <size_t kFan>
   } else {
     FoundIn(a_fan, XB.c, common);
   }
-  const V4 inv = {kInvalid, kInvalid, kInvalid, kInvalid};
-  const V4 c0 = {apex[0], apex[0], apex[0], apex[0]}, c1 = {apex[1], apex[1], apex[1], apex[1]};
-  V4 stray_lanes = {0, 0, 0, 0};
+  const V inv = V{} + kInvalid, c0 = V{} + apex[0], c1 = V{} + apex[1];
+  V stray_lanes = V{};
   for (size_t i = 0; i < 2 * kC; ++i) {
-    stray_lanes |= common[i] & reinterpret_cast<V4>((a_fan[i] != inv) & (a_fan[i] != c0) &
-                                                    (a_fan[i] != c1));
+    stray_lanes |= common[i] & reinterpret_cast<V>((a_fan[i] != inv) & (a_fan[i] != c0) &
+                                                   (a_fan[i] != c1));
   }
   const bool stray = AnyOnes(stray_lanes);
   if (stray) return false;
@@ -186,22 +195,29 @@ template <size_t kFan>
 
 }  // namespace
 
-// LinkConditionFans's body, cloned for CPUs with AVX2 as GeometryOk's (below): the lanes'
-// compares and shuffles take three-operand instructions. Called from this file only.
-struct LinkFans {
-  TANDEM_CHECK_CLONES static bool Run(const MeshStore& store, VertexId a, VertexId b);
-};
-
-TANDEM_CHECK_CLONES bool LinkFans::Run(const MeshStore& store, VertexId a, VertexId b) {
+// LinkConditionFans's body in two versions, the one for the CPU picked once at load: eight
+// lanes to a vector with AVX2 (a fan of 8 in one), four otherwise. Called from this file only
+// (clang 14 calls another file's multiversioned function through its resolver).
+#if defined(__x86_64__) && defined(__ELF__)
+__attribute__((target("avx2"))) bool LinkFansLanes(const MeshStore& store, VertexId a,
+                                                   VertexId b) {
+  if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
+    return LinkConditionFansOf<8, V8>(store, a, b);
+  }
+  return LinkConditionFansOf<kFanMax, V8>(store, a, b);
+}
+__attribute__((target("default")))
+#endif
+bool LinkFansLanes(const MeshStore& store, VertexId a, VertexId b) {
   // Most fans on a dense surface hold 8 triangles or fewer: arrays of 8 halve every count.
   if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
-    return LinkConditionFansOf<8>(store, a, b);
+    return LinkConditionFansOf<8, fan_count::V4>(store, a, b);
   }
-  return LinkConditionFansOf<kFanMax>(store, a, b);
+  return LinkConditionFansOf<kFanMax, fan_count::V4>(store, a, b);
 }
 
 bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
-  return LinkFans::Run(store, a, b);
+  return LinkFansLanes(store, a, b);
 }
 
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
@@ -473,12 +489,7 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
 
 // The arithmetic of GeometryOk's test for four survivors at once, a lane each: the same
 // operations in the same order as the scalar expressions (TwiceAreaVector, Dot, MoveCorners,
-// the guard), so each lane's values are the scalar ones bit for bit. AVX2's clone takes a
-// lane set in one register; the default one in two SSE2 halves.
-#if defined(__GNUC__) && !defined(__clang__)
-// 32-byte vectors, all inlined: no ABI to keep (GCC warns at the file's end, so to its end).
-#pragma GCC diagnostic ignored "-Wpsabi"
-#endif
+// the guard), so each lane's values are the scalar ones bit for bit (AVX2's version only).
 using V4d = double __attribute__((vector_size(32)));
 using M4 = int64_t __attribute__((vector_size(32)));
 struct P4 {
