@@ -509,11 +509,8 @@ inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
   std::memcpy(&q.z, zs, sizeof(q.z));
   return q;
 }
-inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b
-  auto pick = [m](V4d x, V4d y) {
-    return reinterpret_cast<V4d>((reinterpret_cast<M4>(x) & m) | (reinterpret_cast<M4>(y) & ~m));
-  };
-  return {pick(a.x, b.x), pick(a.y, b.y), pick(a.z, b.z)};
+inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b (a blend with AVX)
+  return {m != 0 ? a.x : b.x, m != 0 ? a.y : b.y, m != 0 ? a.z : b.z};
 }
 
 // Whether any of four survivors (triangles t[i] with their moving corners c[i]) may stop the
