@@ -437,16 +437,26 @@ bool SmallerThanTheMove(const Vec3 (&p)[3], int corner, Vec3 from, Vec3 pos) {
 // The arithmetic of GeometryOk's test for two survivors at once, a lane each: the same
 // operations in the same order as the scalar expressions (TwiceAreaVector, Dot, MoveCorners,
 // the guard), so each lane's values are the scalar ones bit for bit.
-using V2 = double __attribute__((vector_size(16)));
-using M2 = int64_t __attribute__((vector_size(16)));
-struct P2 {
-  V2 x, y, z;
+// Points in lanes of V (doubles), and Vec3's operations on them lane by lane.
+template <typename V>
+struct PointLanes {
+  V x, y, z;
 };
-inline P2 operator-(P2 a, P2 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-inline V2 Dot2(P2 a, P2 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-inline P2 Cross2(P2 a, P2 b) {
+template <typename V>
+inline PointLanes<V> operator-(PointLanes<V> a, PointLanes<V> b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+template <typename V>
+inline V DotLanes(PointLanes<V> a, PointLanes<V> b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+template <typename V>
+inline PointLanes<V> CrossLanes(PointLanes<V> a, PointLanes<V> b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
+using V2 = double __attribute__((vector_size(16)));
+using M2 = int64_t __attribute__((vector_size(16)));
+using P2 = PointLanes<V2>;
 inline P2 Pair(Vec3 u, Vec3 v) { return {V2{u.x, v.x}, V2{u.y, v.y}, V2{u.z, v.z}}; }
 inline P2 Select(M2 m, P2 a, P2 b) {  // a where m is all ones, else b
   auto pick = [m](V2 x, V2 y) {
@@ -463,10 +473,10 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
                           double bound) {
   P2 p[3];
   for (int k = 0; k < 3; ++k) p[k] = Pair(store.position(t0[k]), store.position(t1[k]));
-  const P2 n_old = Cross2(p[1] - p[0], p[2] - p[0]);
-  const V2 old2 = Dot2(n_old, n_old);
+  const P2 n_old = CrossLanes(p[1] - p[0], p[2] - p[0]);
+  const V2 old2 = DotLanes(n_old, n_old);
   const P2 at = Pair(pos, pos);
-  const V2 off = Dot2(n_old, at - p[0]);
+  const V2 off = DotLanes(n_old, at - p[0]);
   const V2 bb = {bound * bound, bound * bound};
   const M2 far = guarded ? (off * off > bb * old2) : M2{0, 0};
   // The moving corners' masks by 32-bit compares (SSE2 has no 64-bit one): a lane's two
@@ -477,12 +487,12 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
   for (int k = 0; k < 3; ++k) {
     q[k] = Select(reinterpret_cast<M2>(corners == V4i{k, k, k, k}), at, p[k]);
   }
-  const P2 after = Cross2(q[1] - q[0], q[2] - q[0]);
-  const V2 sse = Dot2(q[1] - q[0], q[1] - q[0]) + Dot2(q[2] - q[1], q[2] - q[1]) +
-                 Dot2(q[0] - q[2], q[0] - q[2]);
+  const P2 after = CrossLanes(q[1] - q[0], q[2] - q[0]);
+  const V2 sse = DotLanes(q[1] - q[0], q[1] - q[0]) + DotLanes(q[2] - q[1], q[2] - q[1]) +
+                 DotLanes(q[0] - q[2], q[0] - q[2]);
   const V2 ratio = {kCollapsedSquared, kCollapsedSquared}, zero = {0.0, 0.0};
-  const M2 collapses = ~(Dot2(after, after) > ratio * sse * sse);
-  const M2 flips = ~(Dot2(n_old, after) > zero);
+  const M2 collapses = ~(DotLanes(after, after) > ratio * sse * sse);
+  const M2 flips = ~(DotLanes(n_old, after) > zero);
   const M2 any = far | collapses | flips;
   return (any[0] | any[1]) != 0;
 }
@@ -492,14 +502,7 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
 // the guard), so each lane's values are the scalar ones bit for bit (AVX2's version only).
 using V4d = double __attribute__((vector_size(32)));
 using M4 = int64_t __attribute__((vector_size(32)));
-struct P4 {
-  V4d x, y, z;
-};
-inline P4 operator-(P4 a, P4 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-inline V4d Dot4(P4 a, P4 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-inline P4 Cross4(P4 a, P4 b) {
-  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
+using P4 = PointLanes<V4d>;
 inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
   const double xs[4] = {u.x, v.x, w.x, t.x}, ys[4] = {u.y, v.y, w.y, t.y},
                zs[4] = {u.z, v.z, w.z, t.z};
@@ -525,10 +528,10 @@ inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b (a blend 
                 store.position((*t[2])[k]), store.position((*t[3])[k]));
   };
   const P4 p[3] = {corner(0), corner(1), corner(2)};
-  const P4 n_old = Cross4(p[1] - p[0], p[2] - p[0]);
-  const V4d old2 = Dot4(n_old, n_old);
+  const P4 n_old = CrossLanes(p[1] - p[0], p[2] - p[0]);
+  const V4d old2 = DotLanes(n_old, n_old);
   const P4 at = Quad(pos, pos, pos, pos);
-  const V4d off = Dot4(n_old, at - p[0]);
+  const V4d off = DotLanes(n_old, at - p[0]);
   const double b2 = bound * bound;
   const V4d bb = {b2, b2, b2, b2};
   const M4 far = guarded ? (off * off > bb * old2) : M4{0, 0, 0, 0};
@@ -540,13 +543,13 @@ inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b (a blend 
     return Select(reinterpret_cast<M4>(corners == V8i{k, k, k, k, k, k, k, k}), at, p[k]);
   };
   const P4 q[3] = {moved(0), moved(1), moved(2)};
-  const P4 after = Cross4(q[1] - q[0], q[2] - q[0]);
-  const V4d sse = Dot4(q[1] - q[0], q[1] - q[0]) + Dot4(q[2] - q[1], q[2] - q[1]) +
-                  Dot4(q[0] - q[2], q[0] - q[2]);
+  const P4 after = CrossLanes(q[1] - q[0], q[2] - q[0]);
+  const V4d sse = DotLanes(q[1] - q[0], q[1] - q[0]) + DotLanes(q[2] - q[1], q[2] - q[1]) +
+                  DotLanes(q[0] - q[2], q[0] - q[2]);
   const V4d ratio = {kCollapsedSquared, kCollapsedSquared, kCollapsedSquared, kCollapsedSquared};
   const V4d zero = {0.0, 0.0, 0.0, 0.0};
-  const M4 collapses = ~(Dot4(after, after) > ratio * sse * sse);
-  const M4 flips = ~(Dot4(n_old, after) > zero);
+  const M4 collapses = ~(DotLanes(after, after) > ratio * sse * sse);
+  const M4 flips = ~(DotLanes(n_old, after) > zero);
   const M4 any = far | collapses | flips;
   return ((any[0] | any[1]) | (any[2] | any[3])) != 0;
 }
