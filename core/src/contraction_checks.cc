@@ -5,9 +5,12 @@
 
 #include "tandem/geometry.h"
 
-#if defined(__GNUC__) && !defined(__clang__)
-// 32-byte vectors in the AVX2 versions below, all inlined there: no ABI to keep (GCC warns
-// at the file's end, so to its end).
+// 32-byte vectors in the AVX2 versions below: every function that takes or returns one is
+// always_inline (lambdas too), so none is called across the versions' instruction sets at any
+// optimisation level and there is no ABI to keep. GCC warns at the file's end, so to its end.
+#if defined(__clang__)
+#pragma clang diagnostic ignored "-Wpsabi"
+#elif defined(__GNUC__)
 #pragma GCC diagnostic ignored "-Wpsabi"
 #endif
 
@@ -42,8 +45,12 @@ bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexI
 
 // 32-bit lanes, four (SSE2) or eight (AVX2) to a vector, and each rotated by one lane.
 using V8 = uint32_t __attribute__((vector_size(32)));
-inline fan_count::V4 RotateLane(fan_count::V4 r) { return __builtin_shufflevector(r, r, 1, 2, 3, 0); }
-inline V8 RotateLane(V8 r) { return __builtin_shufflevector(r, r, 1, 2, 3, 4, 5, 6, 7, 0); }
+[[gnu::always_inline]] inline fan_count::V4 RotateLane(fan_count::V4 r) {
+  return __builtin_shufflevector(r, r, 1, 2, 3, 0);
+}
+[[gnu::always_inline]] inline V8 RotateLane(V8 r) {
+  return __builtin_shufflevector(r, r, 1, 2, 3, 4, 5, 6, 7, 0);
+}
 template <typename V>
 inline constexpr size_t kLanesOf = sizeof(V) / sizeof(uint32_t);
 
@@ -53,7 +60,7 @@ struct Lanes4 {
   static constexpr size_t kW = kLanesOf<V>;
   static_assert(N % kW == 0);
   V c[N / kW];
-  explicit Lanes4(const VertexId (&v)[N]) {
+  [[gnu::always_inline]] explicit Lanes4(const VertexId (&v)[N]) {
     for (size_t i = 0; i < N / kW; ++i) std::memcpy(&c[i], v + kW * i, sizeof(c[i]));
   }
 };
@@ -61,7 +68,7 @@ struct Lanes4 {
 // For each lane of x, all ones where its value is among y's lanes: every lane of y compared
 // with every lane of x, y's chunks rotated a lane at a time (no loop exit, no branch).
 template <size_t N, size_t M, typename V>
-void FoundIn(const V (&x)[N], const V (&y)[M], V (&found)[N]) {
+[[gnu::always_inline]] inline void FoundIn(const V (&x)[N], const V (&y)[M], V (&found)[N]) {
   for (size_t i = 0; i < N; ++i) found[i] = V{};
   for (size_t j = 0; j < M; ++j) {
     V r = y[j];
@@ -71,28 +78,30 @@ void FoundIn(const V (&x)[N], const V (&y)[M], V (&found)[N]) {
     }
   }
 }
-inline fan_count::V4 Halves(V8 v, bool all) {  // the two halves' lanes, and-ed or or-ed
+// The two halves' lanes, and-ed or or-ed.
+[[gnu::always_inline]] inline fan_count::V4 Halves(V8 v, bool all) {
   const fan_count::V4 lo = __builtin_shufflevector(v, v, 0, 1, 2, 3);
   const fan_count::V4 hi = __builtin_shufflevector(v, v, 4, 5, 6, 7);
   return all ? (lo & hi) : (lo | hi);
 }
-inline bool AllOnes(fan_count::V4 v) {
+[[gnu::always_inline]] inline bool AllOnes(fan_count::V4 v) {
   v &= __builtin_shufflevector(v, v, 2, 3, 0, 1);
   v &= __builtin_shufflevector(v, v, 1, 0, 3, 2);
   return v[0] == ~0u;
 }
-inline bool AnyOnes(fan_count::V4 v) {
+[[gnu::always_inline]] inline bool AnyOnes(fan_count::V4 v) {
   v |= __builtin_shufflevector(v, v, 2, 3, 0, 1);
   v |= __builtin_shufflevector(v, v, 1, 0, 3, 2);
   return v[0] != 0;
 }
-inline bool AllOnes(V8 v) { return AllOnes(Halves(v, true)); }
-inline bool AnyOnes(V8 v) { return AnyOnes(Halves(v, false)); }
+[[gnu::always_inline]] inline bool AllOnes(V8 v) { return AllOnes(Halves(v, true)); }
+[[gnu::always_inline]] inline bool AnyOnes(V8 v) { return AnyOnes(Halves(v, false)); }
 
 // LinkConditionFans with fan arrays of kFan entries (both fans fit). Inlined into each of
 // LinkFans::Run's clones, so that its lanes take the clone's instructions.
 template <size_t kFan, typename V>
-[[gnu::always_inline]] inline bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
+[[gnu::always_inline]] inline bool LinkConditionFansOf(const MeshStore& store, VertexId a,
+                                                       VertexId b) {
   // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
   // its corner before v (y), in the triangle's order; the caller checked they fit. Written
   // without early exits where the outcome varies from call to call: the link condition was
@@ -167,8 +176,8 @@ template <size_t kFan, typename V>
   const V inv = V{} + kInvalid, c0 = V{} + apex[0], c1 = V{} + apex[1];
   V stray_lanes = V{};
   for (size_t i = 0; i < 2 * kC; ++i) {
-    stray_lanes |= common[i] & reinterpret_cast<V>((a_fan[i] != inv) & (a_fan[i] != c0) &
-                                                   (a_fan[i] != c1));
+    stray_lanes |=
+        common[i] & reinterpret_cast<V>((a_fan[i] != inv) & (a_fan[i] != c0) & (a_fan[i] != c1));
   }
   const bool stray = AnyOnes(stray_lanes);
   if (stray) return false;
@@ -199,8 +208,7 @@ template <size_t kFan, typename V>
 // lanes to a vector with AVX2 (a fan of 8 in one), four otherwise. Called from this file only
 // (clang 14 calls another file's multiversioned function through its resolver).
 #if defined(__x86_64__) && defined(__ELF__)
-__attribute__((target("avx2"))) bool LinkFansLanes(const MeshStore& store, VertexId a,
-                                                   VertexId b) {
+__attribute__((target("avx2"))) bool LinkFansLanes(const MeshStore& store, VertexId a, VertexId b) {
   if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
     return LinkConditionFansOf<8, V8>(store, a, b);
   }
@@ -443,22 +451,24 @@ struct PointLanes {
   V x, y, z;
 };
 template <typename V>
-inline PointLanes<V> operator-(PointLanes<V> a, PointLanes<V> b) {
+[[gnu::always_inline]] inline PointLanes<V> operator-(PointLanes<V> a, PointLanes<V> b) {
   return {a.x - b.x, a.y - b.y, a.z - b.z};
 }
 template <typename V>
-inline V DotLanes(PointLanes<V> a, PointLanes<V> b) {
+[[gnu::always_inline]] inline V DotLanes(PointLanes<V> a, PointLanes<V> b) {
   return a.x * b.x + a.y * b.y + a.z * b.z;
 }
 template <typename V>
-inline PointLanes<V> CrossLanes(PointLanes<V> a, PointLanes<V> b) {
+[[gnu::always_inline]] inline PointLanes<V> CrossLanes(PointLanes<V> a, PointLanes<V> b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
 using V2 = double __attribute__((vector_size(16)));
 using M2 = int64_t __attribute__((vector_size(16)));
 using P2 = PointLanes<V2>;
-inline P2 Pair(Vec3 u, Vec3 v) { return {V2{u.x, v.x}, V2{u.y, v.y}, V2{u.z, v.z}}; }
-inline P2 Select(M2 m, P2 a, P2 b) {  // a where m is all ones, else b
+[[gnu::always_inline]] inline P2 Pair(Vec3 u, Vec3 v) {
+  return {V2{u.x, v.x}, V2{u.y, v.y}, V2{u.z, v.z}};
+}
+[[gnu::always_inline]] inline P2 Select(M2 m, P2 a, P2 b) {  // a where m is all ones, else b
   auto pick = [m](V2 x, V2 y) {
     return reinterpret_cast<V2>((reinterpret_cast<M2>(x) & m) | (reinterpret_cast<M2>(y) & ~m));
   };
@@ -503,7 +513,7 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
 using V4d = double __attribute__((vector_size(32)));
 using M4 = int64_t __attribute__((vector_size(32)));
 using P4 = PointLanes<V4d>;
-inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
+[[gnu::always_inline]] inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
   const double xs[4] = {u.x, v.x, w.x, t.x}, ys[4] = {u.y, v.y, w.y, t.y},
                zs[4] = {u.z, v.z, w.z, t.z};
   P4 q;
@@ -512,7 +522,8 @@ inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
   std::memcpy(&q.z, zs, sizeof(q.z));
   return q;
 }
-inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b (a blend with AVX)
+[[gnu::always_inline]] inline P4 Select(M4 m, P4 a,
+                                        P4 b) {  // a where m is all ones, else b (a blend with AVX)
   return {m != 0 ? a.x : b.x, m != 0 ? a.y : b.y, m != 0 ? a.z : b.z};
 }
 
@@ -523,9 +534,9 @@ inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b (a blend 
                                               const std::array<VertexId, 3>* const (&t)[4],
                                               const int (&c)[4], Vec3 pos, bool guarded,
                                               double bound) {
-  auto corner = [&](int k) {
-    return Quad(store.position((*t[0])[k]), store.position((*t[1])[k]),
-                store.position((*t[2])[k]), store.position((*t[3])[k]));
+  auto corner = [&](int k) __attribute__((always_inline)) {
+    return Quad(store.position((*t[0])[k]), store.position((*t[1])[k]), store.position((*t[2])[k]),
+                store.position((*t[3])[k]));
   };
   const P4 p[3] = {corner(0), corner(1), corner(2)};
   const P4 n_old = CrossLanes(p[1] - p[0], p[2] - p[0]);
@@ -539,7 +550,7 @@ inline P4 Select(M4 m, P4 a, P4 b) {  // a where m is all ones, else b (a blend 
   // halves hold its corner.
   using V8i = int32_t __attribute__((vector_size(32)));
   const V8i corners = {c[0], c[0], c[1], c[1], c[2], c[2], c[3], c[3]};
-  auto moved = [&](int k) {
+  auto moved = [&](int k) __attribute__((always_inline)) {
     return Select(reinterpret_cast<M4>(corners == V8i{k, k, k, k, k, k, k, k}), at, p[k]);
   };
   const P4 q[3] = {moved(0), moved(1), moved(2)};
@@ -664,8 +675,8 @@ template <int kLanes>
 // does, each with its own body): 4 lanes with AVX2, SSE2's pairs otherwise. Called from this
 // file only (clang 14 calls another file's multiversioned function through its resolver).
 #if defined(__x86_64__) && defined(__ELF__)
-__attribute__((target("avx2"))) bool GeometryOkLanes(const MeshStore& store, VertexId a,
-                                                     VertexId b, Vec3 pos, double bound,
+__attribute__((target("avx2"))) bool GeometryOkLanes(const MeshStore& store, VertexId a, VertexId b,
+                                                     Vec3 pos, double bound,
                                                      const OffsetEdges& offsets,
                                                      std::vector<Survivor>* survivors,
                                                      RefusalCounts* refusals) {
