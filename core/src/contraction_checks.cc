@@ -5,6 +5,15 @@
 
 #include "tandem/geometry.h"
 
+// 32-byte vectors in the AVX2 versions below: every function that takes or returns one is
+// always_inline (lambdas too), so none is called across the versions' instruction sets at any
+// optimisation level and there is no ABI to keep. GCC warns at the file's end, so to its end.
+#if defined(__clang__)
+#pragma clang diagnostic ignored "-Wpsabi"
+#elif defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wpsabi"
+#endif
+
 namespace tandem {
 namespace {
 
@@ -34,44 +43,65 @@ bool HasEdge(const VertexId (&x)[N], const VertexId (&y)[N], VertexId c, VertexI
   return fan_count::Lanes(any) != 0;  // lanes of all ones or zero: a sum of ones is not 0
 }
 
-// Fan arrays as chunks of four lanes.
-template <size_t N>
+// 32-bit lanes, four (SSE2) or eight (AVX2) to a vector, and each rotated by one lane.
+using V8 = uint32_t __attribute__((vector_size(32)));
+[[gnu::always_inline]] inline fan_count::V4 RotateLane(fan_count::V4 r) {
+  return __builtin_shufflevector(r, r, 1, 2, 3, 0);
+}
+[[gnu::always_inline]] inline V8 RotateLane(V8 r) {
+  return __builtin_shufflevector(r, r, 1, 2, 3, 4, 5, 6, 7, 0);
+}
+template <typename V>
+inline constexpr size_t kLanesOf = sizeof(V) / sizeof(uint32_t);
+
+// Fan arrays as chunks of V's lanes.
+template <size_t N, typename V = fan_count::V4>
 struct Lanes4 {
-  static_assert(N % 4 == 0);
-  fan_count::V4 c[N / 4];
-  explicit Lanes4(const VertexId (&v)[N]) {
-    for (size_t i = 0; i < N / 4; ++i) std::memcpy(&c[i], v + 4 * i, sizeof(c[i]));
+  static constexpr size_t kW = kLanesOf<V>;
+  static_assert(N % kW == 0);
+  V c[N / kW];
+  [[gnu::always_inline]] explicit Lanes4(const VertexId (&v)[N]) {
+    for (size_t i = 0; i < N / kW; ++i) std::memcpy(&c[i], v + kW * i, sizeof(c[i]));
   }
 };
 
 // For each lane of x, all ones where its value is among y's lanes: every lane of y compared
 // with every lane of x, y's chunks rotated a lane at a time (no loop exit, no branch).
-template <size_t N, size_t M>
-void FoundIn(const fan_count::V4 (&x)[N], const fan_count::V4 (&y)[M], fan_count::V4 (&found)[N]) {
-  using fan_count::V4;
-  for (size_t i = 0; i < N; ++i) found[i] = V4{0, 0, 0, 0};
+template <size_t N, size_t M, typename V>
+[[gnu::always_inline]] inline void FoundIn(const V (&x)[N], const V (&y)[M], V (&found)[N]) {
+  for (size_t i = 0; i < N; ++i) found[i] = V{};
   for (size_t j = 0; j < M; ++j) {
-    V4 r = y[j];
-    for (int k = 0; k < 4; ++k) {
-      for (size_t i = 0; i < N; ++i) found[i] |= reinterpret_cast<V4>(x[i] == r);
-      r = __builtin_shufflevector(r, r, 1, 2, 3, 0);
+    V r = y[j];
+    for (size_t k = 0; k < kLanesOf<V>; ++k) {
+      for (size_t i = 0; i < N; ++i) found[i] |= reinterpret_cast<V>(x[i] == r);
+      r = RotateLane(r);
     }
   }
 }
-inline bool AllOnes(fan_count::V4 v) {
+// The two halves' lanes, and-ed or or-ed.
+[[gnu::always_inline]] inline fan_count::V4 Halves(V8 v, bool all) {
+  const fan_count::V4 lo = __builtin_shufflevector(v, v, 0, 1, 2, 3);
+  const fan_count::V4 hi = __builtin_shufflevector(v, v, 4, 5, 6, 7);
+  return all ? (lo & hi) : (lo | hi);
+}
+[[gnu::always_inline]] inline bool AllOnes(fan_count::V4 v) {
   v &= __builtin_shufflevector(v, v, 2, 3, 0, 1);
   v &= __builtin_shufflevector(v, v, 1, 0, 3, 2);
   return v[0] == ~0u;
 }
-inline bool AnyOnes(fan_count::V4 v) {
+[[gnu::always_inline]] inline bool AnyOnes(fan_count::V4 v) {
   v |= __builtin_shufflevector(v, v, 2, 3, 0, 1);
   v |= __builtin_shufflevector(v, v, 1, 0, 3, 2);
   return v[0] != 0;
 }
+[[gnu::always_inline]] inline bool AllOnes(V8 v) { return AllOnes(Halves(v, true)); }
+[[gnu::always_inline]] inline bool AnyOnes(V8 v) { return AnyOnes(Halves(v, false)); }
 
-// LinkConditionFans with fan arrays of kFan entries (both fans fit).
-template <size_t kFan>
-bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
+// LinkConditionFans with fan arrays of kFan entries (both fans fit). Inlined into each of
+// LinkFans::Run's clones, so that its lanes take the clone's instructions.
+template <size_t kFan, typename V>
+[[gnu::always_inline]] inline bool LinkConditionFansOf(const MeshStore& store, VertexId a,
+                                                       VertexId b) {
   // The fans of a and b as flat arrays: for each triangle at v, its corner after v (x) and
   // its corner before v (y), in the triangle's order; the caller checked they fit. Written
   // without early exits where the outcome varies from call to call: the link condition was
@@ -115,27 +145,26 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   // and the other's y). Otherwise every neighbour is an x corner. Every lane of one set
   // against every lane of the other at once (unused lanes are kInvalid in both, at the same
   // places, so they find each other).
-  using fan_count::V4;
-  constexpr size_t kC = kFan / 4;
-  const Lanes4<kFan> XA(xa), YA(ya), XB(xb), YB(yb);
-  V4 x_in_y[kC], y_in_x[kC];
+  constexpr size_t kC = kFan / kLanesOf<V>;
+  const Lanes4<kFan, V> XA(xa), YA(ya), XB(xb), YB(yb);
+  V x_in_y[kC], y_in_x[kC];
   FoundIn(XB.c, YB.c, x_in_y);
   FoundIn(YB.c, XB.c, y_in_x);
-  V4 same = x_in_y[0] & y_in_x[0];
+  V same = x_in_y[0] & y_in_x[0];
   for (size_t i = 1; i < kC; ++i) same &= x_in_y[i] & y_in_x[i];
   const bool b_open = !AllOnes(same);
   auto in_fan_a = [&](VertexId v) { return CountOf(xa, ya, v); };
   // (1) a common neighbour that is not an apex. b's neighbours are its x corners, and its
   // y corners too where the two differ. Counted from a's side: a lane of a's fan (never a
   // itself, kInvalid where unused) found among them and not an apex.
-  V4 a_fan[2 * kC];
+  V a_fan[2 * kC];
   for (size_t i = 0; i < kC; ++i) {
     a_fan[i] = XA.c[i];
     a_fan[kC + i] = YA.c[i];
   }
-  V4 common[2 * kC];
+  V common[2 * kC];
   if (b_open) {
-    V4 b_fan[2 * kC];
+    V b_fan[2 * kC];
     for (size_t i = 0; i < kC; ++i) {
       b_fan[i] = XB.c[i];
       b_fan[kC + i] = YB.c[i];
@@ -144,12 +173,11 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
   } else {
     FoundIn(a_fan, XB.c, common);
   }
-  const V4 inv = {kInvalid, kInvalid, kInvalid, kInvalid};
-  const V4 c0 = {apex[0], apex[0], apex[0], apex[0]}, c1 = {apex[1], apex[1], apex[1], apex[1]};
-  V4 stray_lanes = {0, 0, 0, 0};
+  const V inv = V{} + kInvalid, c0 = V{} + apex[0], c1 = V{} + apex[1];
+  V stray_lanes = V{};
   for (size_t i = 0; i < 2 * kC; ++i) {
-    stray_lanes |= common[i] & reinterpret_cast<V4>((a_fan[i] != inv) & (a_fan[i] != c0) &
-                                                    (a_fan[i] != c1));
+    stray_lanes |=
+        common[i] & reinterpret_cast<V>((a_fan[i] != inv) & (a_fan[i] != c0) & (a_fan[i] != c1));
   }
   const bool stray = AnyOnes(stray_lanes);
   if (stray) return false;
@@ -176,12 +204,28 @@ bool LinkConditionFansOf(const MeshStore& store, VertexId a, VertexId b) {
 
 }  // namespace
 
-bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+// LinkConditionFans's body in two versions, the one for the CPU picked once at load: eight
+// lanes to a vector with AVX2 (a fan of 8 in one), four otherwise. Called from this file only
+// (clang 14 calls another file's multiversioned function through its resolver).
+#if defined(__x86_64__) && defined(__ELF__)
+__attribute__((target("avx2"))) bool LinkFansLanes(const MeshStore& store, VertexId a, VertexId b) {
+  if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
+    return LinkConditionFansOf<8, V8>(store, a, b);
+  }
+  return LinkConditionFansOf<kFanMax, V8>(store, a, b);
+}
+__attribute__((target("default")))
+#endif
+bool LinkFansLanes(const MeshStore& store, VertexId a, VertexId b) {
   // Most fans on a dense surface hold 8 triangles or fewer: arrays of 8 halve every count.
   if (store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8) {
-    return LinkConditionFansOf<8>(store, a, b);
+    return LinkConditionFansOf<8, fan_count::V4>(store, a, b);
   }
-  return LinkConditionFansOf<kFanMax>(store, a, b);
+  return LinkConditionFansOf<kFanMax, fan_count::V4>(store, a, b);
+}
+
+bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
+  return LinkFansLanes(store, a, b);
 }
 
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
@@ -401,18 +445,30 @@ bool SmallerThanTheMove(const Vec3 (&p)[3], int corner, Vec3 from, Vec3 pos) {
 // The arithmetic of GeometryOk's test for two survivors at once, a lane each: the same
 // operations in the same order as the scalar expressions (TwiceAreaVector, Dot, MoveCorners,
 // the guard), so each lane's values are the scalar ones bit for bit.
-using V2 = double __attribute__((vector_size(16)));
-using M2 = int64_t __attribute__((vector_size(16)));
-struct P2 {
-  V2 x, y, z;
+// Points in lanes of V (doubles), and Vec3's operations on them lane by lane.
+template <typename V>
+struct PointLanes {
+  V x, y, z;
 };
-inline P2 operator-(P2 a, P2 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-inline V2 Dot2(P2 a, P2 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-inline P2 Cross2(P2 a, P2 b) {
+template <typename V>
+[[gnu::always_inline]] inline PointLanes<V> operator-(PointLanes<V> a, PointLanes<V> b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+template <typename V>
+[[gnu::always_inline]] inline V DotLanes(PointLanes<V> a, PointLanes<V> b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+template <typename V>
+[[gnu::always_inline]] inline PointLanes<V> CrossLanes(PointLanes<V> a, PointLanes<V> b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-inline P2 Pair(Vec3 u, Vec3 v) { return {V2{u.x, v.x}, V2{u.y, v.y}, V2{u.z, v.z}}; }
-inline P2 Select(M2 m, P2 a, P2 b) {  // a where m is all ones, else b
+using V2 = double __attribute__((vector_size(16)));
+using M2 = int64_t __attribute__((vector_size(16)));
+using P2 = PointLanes<V2>;
+[[gnu::always_inline]] inline P2 Pair(Vec3 u, Vec3 v) {
+  return {V2{u.x, v.x}, V2{u.y, v.y}, V2{u.z, v.z}};
+}
+[[gnu::always_inline]] inline P2 Select(M2 m, P2 a, P2 b) {  // a where m is all ones, else b
   auto pick = [m](V2 x, V2 y) {
     return reinterpret_cast<V2>((reinterpret_cast<M2>(x) & m) | (reinterpret_cast<M2>(y) & ~m));
   };
@@ -427,10 +483,10 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
                           double bound) {
   P2 p[3];
   for (int k = 0; k < 3; ++k) p[k] = Pair(store.position(t0[k]), store.position(t1[k]));
-  const P2 n_old = Cross2(p[1] - p[0], p[2] - p[0]);
-  const V2 old2 = Dot2(n_old, n_old);
+  const P2 n_old = CrossLanes(p[1] - p[0], p[2] - p[0]);
+  const V2 old2 = DotLanes(n_old, n_old);
   const P2 at = Pair(pos, pos);
-  const V2 off = Dot2(n_old, at - p[0]);
+  const V2 off = DotLanes(n_old, at - p[0]);
   const V2 bb = {bound * bound, bound * bound};
   const M2 far = guarded ? (off * off > bb * old2) : M2{0, 0};
   // The moving corners' masks by 32-bit compares (SSE2 has no 64-bit one): a lane's two
@@ -441,21 +497,82 @@ inline bool EitherSuspect(const MeshStore& store, const std::array<VertexId, 3>&
   for (int k = 0; k < 3; ++k) {
     q[k] = Select(reinterpret_cast<M2>(corners == V4i{k, k, k, k}), at, p[k]);
   }
-  const P2 after = Cross2(q[1] - q[0], q[2] - q[0]);
-  const V2 sse = Dot2(q[1] - q[0], q[1] - q[0]) + Dot2(q[2] - q[1], q[2] - q[1]) +
-                 Dot2(q[0] - q[2], q[0] - q[2]);
+  const P2 after = CrossLanes(q[1] - q[0], q[2] - q[0]);
+  const V2 sse = DotLanes(q[1] - q[0], q[1] - q[0]) + DotLanes(q[2] - q[1], q[2] - q[1]) +
+                 DotLanes(q[0] - q[2], q[0] - q[2]);
   const V2 ratio = {kCollapsedSquared, kCollapsedSquared}, zero = {0.0, 0.0};
-  const M2 collapses = ~(Dot2(after, after) > ratio * sse * sse);
-  const M2 flips = ~(Dot2(n_old, after) > zero);
+  const M2 collapses = ~(DotLanes(after, after) > ratio * sse * sse);
+  const M2 flips = ~(DotLanes(n_old, after) > zero);
   const M2 any = far | collapses | flips;
   return (any[0] | any[1]) != 0;
 }
 
-}  // namespace
+// The arithmetic of GeometryOk's test for four survivors at once, a lane each: the same
+// operations in the same order as the scalar expressions (TwiceAreaVector, Dot, MoveCorners,
+// the guard), so each lane's values are the scalar ones bit for bit (AVX2's version only).
+using V4d = double __attribute__((vector_size(32)));
+using M4 = int64_t __attribute__((vector_size(32)));
+using P4 = PointLanes<V4d>;
+[[gnu::always_inline]] inline P4 Quad(Vec3 u, Vec3 v, Vec3 w, Vec3 t) {
+  const double xs[4] = {u.x, v.x, w.x, t.x}, ys[4] = {u.y, v.y, w.y, t.y},
+               zs[4] = {u.z, v.z, w.z, t.z};
+  P4 q;
+  std::memcpy(&q.x, xs, sizeof(q.x));
+  std::memcpy(&q.y, ys, sizeof(q.y));
+  std::memcpy(&q.z, zs, sizeof(q.z));
+  return q;
+}
+[[gnu::always_inline]] inline P4 Select(M4 m, P4 a,
+                                        P4 b) {  // a where m is all ones, else b (a blend with AVX)
+  return {m != 0 ? a.x : b.x, m != 0 ? a.y : b.y, m != 0 ? a.z : b.z};
+}
 
-bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
-                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
-                RefusalCounts* refusals) {
+// Whether any of four survivors (triangles t[i] with their moving corners c[i]) may stop the
+// contraction: the guard's distance, a collapse or a flip, in any lane. No survivor in lanes
+// where none does.
+[[gnu::always_inline]] inline bool AnySuspect(const MeshStore& store,
+                                              const std::array<VertexId, 3>* const (&t)[4],
+                                              const int (&c)[4], Vec3 pos, bool guarded,
+                                              double bound) {
+  auto corner = [&](int k) __attribute__((always_inline)) {
+    return Quad(store.position((*t[0])[k]), store.position((*t[1])[k]), store.position((*t[2])[k]),
+                store.position((*t[3])[k]));
+  };
+  const P4 p[3] = {corner(0), corner(1), corner(2)};
+  const P4 n_old = CrossLanes(p[1] - p[0], p[2] - p[0]);
+  const V4d old2 = DotLanes(n_old, n_old);
+  const P4 at = Quad(pos, pos, pos, pos);
+  const V4d off = DotLanes(n_old, at - p[0]);
+  const double b2 = bound * bound;
+  const V4d bb = {b2, b2, b2, b2};
+  const M4 far = guarded ? (off * off > bb * old2) : M4{0, 0, 0, 0};
+  // The moving corners' masks by 32-bit compares (SSE2 has no 64-bit one): a lane's two
+  // halves hold its corner.
+  using V8i = int32_t __attribute__((vector_size(32)));
+  const V8i corners = {c[0], c[0], c[1], c[1], c[2], c[2], c[3], c[3]};
+  auto moved = [&](int k) __attribute__((always_inline)) {
+    return Select(reinterpret_cast<M4>(corners == V8i{k, k, k, k, k, k, k, k}), at, p[k]);
+  };
+  const P4 q[3] = {moved(0), moved(1), moved(2)};
+  const P4 after = CrossLanes(q[1] - q[0], q[2] - q[0]);
+  const V4d sse = DotLanes(q[1] - q[0], q[1] - q[0]) + DotLanes(q[2] - q[1], q[2] - q[1]) +
+                  DotLanes(q[0] - q[2], q[0] - q[2]);
+  const V4d ratio = {kCollapsedSquared, kCollapsedSquared, kCollapsedSquared, kCollapsedSquared};
+  const V4d zero = {0.0, 0.0, 0.0, 0.0};
+  const M4 collapses = ~(DotLanes(after, after) > ratio * sse * sse);
+  const M4 flips = ~(DotLanes(n_old, after) > zero);
+  const M4 any = far | collapses | flips;
+  return ((any[0] | any[1]) | (any[2] | any[3])) != 0;
+}
+
+// GeometryOk's body, its survivors tested kLanes at a time: 4 where the CPU has AVX2 (a
+// set of lanes in one register), 2 otherwise (SSE2 pairs: four lanes in two halves cost more
+// than two pairs). Instantiated in this file only, each with its target.
+template <int kLanes>
+[[gnu::always_inline]] inline bool GeometryOkIn(const MeshStore& store, VertexId a, VertexId b,
+                                                Vec3 pos, double bound, const OffsetEdges& offsets,
+                                                std::vector<Survivor>* survivors,
+                                                RefusalCounts* refusals) {
   // Triangles that survive the contraction move one corner (a or b) to pos. The distance
   // guard bounds how far pos lies from each one's present plane: |n·(pos - p0)| <= K E0 |n|
   // (for a triangle smaller than the move, or how far its old corner lies from its new plane).
@@ -477,7 +594,7 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     }
   }
   const bool guarded = bound > 0.0;
-  // The scalar test of one survivor, where the paired one found either of two suspect: false
+  // The scalar test of one survivor, where the lanes found any of theirs suspect: false
   // if it refuses the contraction.
   auto survives = [&](const Survivor& s) {
     const auto [t, v] = s;
@@ -527,19 +644,56 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
     }
     return false;
   };
-  // Two at a time (the last one twice when they are odd); the scalar test, in order, for a
-  // pair where either may refuse.
-  for (size_t i = 0; i < n; i += 2) {
-    const Survivor s0 = (*survivors)[i], s1 = (*survivors)[std::min(i + 1, n - 1)];
-    const auto& t0 = store.triangle(s0.t);
-    const auto& t1 = store.triangle(s1.t);
-    if (EitherSuspect(store, t0, CornerOf(t0, s0.v), t1, CornerOf(t1, s1.v), pos, guarded,
-                      bound)) [[unlikely]] {
-      if (!survives(s0)) return false;
-      if (i + 1 < n && !survives(s1)) return false;
+  // kLanes at a time (the last one repeated to fill the lanes); the scalar test, in order,
+  // for those where any may refuse.
+  for (size_t i = 0; i < n; i += kLanes) {
+    const std::array<VertexId, 3>* t[4];
+    int c[4];
+    for (size_t k = 0; k < kLanes; ++k) {
+      const Survivor& s = (*survivors)[std::min(i + k, n - 1)];
+      t[k] = &store.triangle(s.t);
+      c[k] = CornerOf(*t[k], s.v);
+    }
+    bool suspect;
+    if constexpr (kLanes == 4) {
+      suspect = AnySuspect(store, t, c, pos, guarded, bound);
+    } else {
+      suspect = EitherSuspect(store, *t[0], c[0], *t[1], c[1], pos, guarded, bound);
+    }
+    if (suspect) [[unlikely]] {
+      for (size_t k = i; k < std::min(i + kLanes, n); ++k) {
+        if (!survives((*survivors)[k])) return false;
+      }
     }
   }
   return true;
+}
+
+}  // namespace
+
+// Two versions of one function, the one for the CPU picked once at load (as target_clones
+// does, each with its own body): 4 lanes with AVX2, SSE2's pairs otherwise. Called from this
+// file only (clang 14 calls another file's multiversioned function through its resolver).
+#if defined(__x86_64__) && defined(__ELF__)
+__attribute__((target("avx2"))) bool GeometryOkLanes(const MeshStore& store, VertexId a, VertexId b,
+                                                     Vec3 pos, double bound,
+                                                     const OffsetEdges& offsets,
+                                                     std::vector<Survivor>* survivors,
+                                                     RefusalCounts* refusals) {
+  return GeometryOkIn<4>(store, a, b, pos, bound, offsets, survivors, refusals);
+}
+__attribute__((target("default")))
+#endif
+bool GeometryOkLanes(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
+                     const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                     RefusalCounts* refusals) {
+  return GeometryOkIn<2>(store, a, b, pos, bound, offsets, survivors, refusals);
+}
+
+bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double bound,
+                const OffsetEdges& offsets, std::vector<Survivor>* survivors,
+                RefusalCounts* refusals) {
+  return GeometryOkLanes(store, a, b, pos, bound, offsets, survivors, refusals);
 }
 
 }  // namespace tandem

@@ -44,27 +44,6 @@ void Simplifier::AddTriangles(std::span<const TriId> tris, std::span<const Verte
   }
 }
 
-double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
-  // The paper's time-lag bookkeeping: height(c) = (height(a) + height(b)) / 2 and
-  // rad(c) = (|a - b| + rad(a) + rad(b)) / 2, lengths in slice units.
-  c->height = 0.5 * (store_->height(a) + store_->height(b));
-  c->rad = 0.5 * (Norm(store_->position(a) - store_->position(b)) / opt_.slice_spacing +
-                  store_->rad(a) + store_->rad(b));
-  c->layer = std::max(store_->layer(a), store_->layer(b));
-  switch (opt_.release) {
-    case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
-    case ReleaseRule::kLayer: return static_cast<double>(c->layer + 1);
-    case ReleaseRule::kReach:
-      // The paper argues reach > k for any edge touching the front (slice k), so the top of
-      // layer k stays untouched until layer k+1 is in. That holds for original vertices, but
-      // a contracted vertex keeps an averaged height that can lie well below its position:
-      // an edge from it to a front vertex can then reach <= k. Requiring layer + 1 <= front
-      // as well keeps the paper's guarantee (and every quadric in Q complete).
-      return std::max(c->height + c->rad, static_cast<double>(c->layer + 1));
-  }
-  return 0;
-}
-
 // Evaluate's body, cloned for CPUs with AVX2 and picked once at load: the packed evaluation's
 // pairs then take three-operand instructions, without the register copies SSE2's two-operand
 // form needs (no FMA: the same roundings). Declared and called in this file only: clang 14
@@ -410,34 +389,71 @@ void Simplifier::Contract(VertexId a, VertexId b, const Candidate& c) {
   nbrs.swap(scratch_);
 }
 
+namespace {
+
+// A fan of at most N triangles (N a multiple of 4) around a: its neighbours, each once, in
+// increasing id, into out (2 N entries); returns how many. Each triangle read once, the next
+// corners kept in a fixed array searched four at a time (CountOf), the list sorted on the stack.
+template <size_t N>
+size_t SortedNeighbours(const MeshStore& store, VertexId a, std::span<const TriId> fan,
+                        VertexId* out) {
+  VertexId next[N], prev[N];
+  std::fill(next, next + N, kInvalid);
+  const size_t n = fan.size();
+  for (size_t i = 0; i < n; ++i) {
+    const auto& tri = store.triangle(fan[i]);
+    const int c = CornerOf(tri, a);
+    next[i] = tri[kNextCorner[c]];
+    prev[i] = tri[kPrevCorner[c]];
+  }
+  std::copy(next, next + n, out);
+  size_t m = n;
+  for (size_t i = 0; i < n; ++i) {  // no early exit: where it would leave is unpredictable
+    out[m] = prev[i];
+    m += static_cast<size_t>(CountOf(next, prev[i]) == 0);
+  }
+  for (size_t i = 1; i < m; ++i) {  // insertion sort: a fan's dozen at most
+    const VertexId x = out[i];
+    size_t j = i;
+    for (; j > 0 && out[j - 1] > x; --j) out[j] = out[j - 1];
+    out[j] = x;
+  }
+  size_t k = 0;  // each once (a vertex the next corner of two triangles: not a manifold)
+  for (size_t i = 0; i < m; ++i) {
+    out[k] = out[i];
+    k += static_cast<size_t>(k == 0 || out[k - 1] != out[i]);
+  }
+  return k;
+}
+
+}  // namespace
+
 void Simplifier::ListNeighbours(VertexId a) {
   // Each neighbour once before
   // sorting (sorting all corners, every neighbour twice, costs mispredicted branches): the
   // corner after a in each triangle covers a closed fan;
   // on the boundary one neighbour is only ever the corner before a.
   // A fan that fits (nearly all) keeps its next corners in a fixed array too, searched four
-  // at a time (CountOf).
-  scratch_.clear();
+  // at a time (CountOf), of 8 entries where they fit (most fans on a dense surface).
   const auto fan = store_->vertex_triangles(a);
-  const bool fits = fan.size() <= kFanMax;
-  VertexId next[kFanMax];
-  std::fill(next, next + kFanMax, kInvalid);
-  for (size_t i = 0; i < fan.size(); ++i) {
-    const auto& tri = store_->triangle(fan[i]);
-    const VertexId x = tri[kNextCorner[CornerOf(tri, a)]];
-    if (fits) next[i] = x;
-    scratch_.push_back(x);
+  if (fan.size() <= kFanMax) {
+    VertexId out[2 * kFanMax];
+    const size_t k = fan.size() <= 8 ? SortedNeighbours<8>(*store_, a, fan, out)
+                                     : SortedNeighbours<kFanMax>(*store_, a, fan, out);
+    scratch_.assign(out, out + k);
+    return;
+  }
+  scratch_.clear();
+  for (TriId t : fan) {
+    const auto& tri = store_->triangle(t);
+    scratch_.push_back(tri[kNextCorner[CornerOf(tri, a)]]);
   }
   const size_t nexts = scratch_.size();
   for (TriId t : fan) {
     const auto& tri = store_->triangle(t);
     const VertexId prev = tri[kPrevCorner[CornerOf(tri, a)]];
     bool found = false;  // no early exit: where it would leave is unpredictable
-    if (fits) {
-      found = CountOf(next, prev) != 0;
-    } else {
-      for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
-    }
+    for (size_t i = 0; i < nexts; ++i) found |= scratch_[i] == prev;
     if (!found) scratch_.push_back(prev);
   }
   std::sort(scratch_.begin(), scratch_.end());

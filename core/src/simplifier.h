@@ -16,6 +16,7 @@
 #ifndef TANDEM_SIMPLIFIER_H_
 #define TANDEM_SIMPLIFIER_H_
 
+#include <algorithm>
 #include <atomic>
 #include <cassert>
 #include <cstdint>
@@ -239,7 +240,7 @@ class Simplifier {
   [[gnu::noinline]] bool EvaluateBoxedOrIsotropic(VertexId a, VertexId b, const PackedQuadric& h,
                                                   Candidate* c);
   // Release key from the cheap bookkeeping only (no quadric solve); fills height/rad/layer.
-  double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;
+  inline double ReleaseKey(VertexId a, VertexId b, Candidate* c) const;  // (below the class)
   // Whether TidyDegenerate may move v to p (the error bound).
   bool TidyMayMove(VertexId v, Vec3 p) const;
   void PushEdge(VertexId a, VertexId b);  // evaluates, then to Q or W by key vs front
@@ -411,6 +412,28 @@ class Simplifier {
   void TrackStart();
   void TrackAt(size_t bucket);
 };
+
+// Inline: every edge that enters W or Q takes one, from three files.
+inline double Simplifier::ReleaseKey(VertexId a, VertexId b, Candidate* c) const {
+  // The paper's time-lag bookkeeping: height(c) = (height(a) + height(b)) / 2 and
+  // rad(c) = (|a - b| + rad(a) + rad(b)) / 2, lengths in slice units.
+  c->height = 0.5 * (store_->height(a) + store_->height(b));
+  c->rad = 0.5 * (Norm(store_->position(a) - store_->position(b)) / opt_.slice_spacing +
+                  store_->rad(a) + store_->rad(b));
+  c->layer = std::max(store_->layer(a), store_->layer(b));
+  switch (opt_.release) {
+    case ReleaseRule::kImmediate: return -std::numeric_limits<double>::infinity();
+    case ReleaseRule::kLayer: return static_cast<double>(c->layer + 1);
+    case ReleaseRule::kReach:
+      // The paper argues reach > k for any edge touching the front (slice k), so the top of
+      // layer k stays untouched until layer k+1 is in. That holds for original vertices, but
+      // a contracted vertex keeps an averaged height that can lie well below its position:
+      // an edge from it to a front vertex can then reach <= k. Requiring layer + 1 <= front
+      // as well keeps the paper's guarantee (and every quadric in Q complete).
+      return std::max(c->height + c->rad, static_cast<double>(c->layer + 1));
+  }
+  return 0;
+}
 
 }  // namespace tandem
 
