@@ -101,6 +101,11 @@ fi
 #                                                    mode runs in every other CliLabels test)
 #   FiftyKilledClientsLeaveNothingBehind             (CancelledStreamLeavesNothingBehind and
 #                                                    AKilledClientsSlotComesFreeAtOnce...: one each)
+#   EveryModeKeepsSheetsApartWhereValuesEqualTheIso  (EveryCubeOfValuesAtTheIso...: values at the
+#                                                    iso; QuadricsKeptAsMatrices...: sealed parts)
+#   ErrorBoundAndTopologyOnSyntheticFields           (PipelinedRunIsIdenticalToSequential: two shapes
+#                                                    in every schedule with the isotropy term,
+#                                                    whole and in parts)
 # and the Simplifier's statistics over whole runs (a peak, an anisotropy, a bias, distances, a
 # count), whose schedules, isotropy term and finishing pass every other Simplifier test runs:
 #   TandemLagHoldsAQuarterOfClassicalsPeak, AnisotropyFallsAsAlphaRises,
@@ -112,6 +117,7 @@ if [ $# -eq 0 ]; then
   heavy+='|KeepsTheSurfaceCloserForAFewMoreTriangles|SlabsHoldTheirSeamsUpToABoundedDepth'
   heavy+='|SeamCoarseningKeepsTheTopologyOfQuantisedTangles|SealedLabelSessionsSendAboutTheUnsealedBytes'
   heavy+='|ManyScatteredUint64IdsEachGetTheirOwnSurface|FiftyKilledClientsLeaveNothingBehind'
+  heavy+='|EveryModeKeepsSheetsApartWhereValuesEqualTheIso|ErrorBoundAndTopologyOnSyntheticFields'
   heavy+='|TandemLagHoldsAQuarterOfClassicalsPeak|AnisotropyFallsAsAlphaRises'
   heavy+='|MeanAndRmsDistanceStayBelowE0OnThePillowBox|TheFinishingPassTakesTheCoarsestContractions'
   heavy+='|TimeLagRemovesDirectionalBiasAndMatchesClassicalCount|TimeLagCountStaysNearClassicalOn'
