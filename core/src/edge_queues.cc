@@ -65,7 +65,7 @@ void WaitingQueue::Push(const WEntry& e) {
     return;
   }
   if (b >= buckets_.size()) buckets_.resize(b + 1);
-  PushBackInline(buckets_[b], WEdge{e.a, e.b, e.va, e.vb});
+  PushBack(buckets_[b], WEdge{e.a, e.b, e.va, e.vb});
   ++size_;
 }
 

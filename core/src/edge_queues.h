@@ -18,7 +18,6 @@
 #include <cassert>
 #include <cmath>
 #include <cstdint>
-#include <utility>
 #include <vector>
 
 #include "grow.h"
@@ -26,21 +25,6 @@
 #include "tandem/types.h"
 
 namespace tandem {
-
-// PushBack (grow.h) with its common case inline: room left, so nothing grows; the growth out
-// of line, so that a push keeps few registers to save.
-template <class V, class U>
-[[gnu::noinline]] void PushBackGrowing(V& v, U&& x) {
-  PushBack(v, std::forward<U>(x));
-}
-template <class V, class U>
-inline void PushBackInline(V& v, U&& x) {
-  if (v.size() < v.capacity()) [[likely]] {
-    v.push_back(std::forward<U>(x));
-    return;
-  }
-  PushBackGrowing(v, std::forward<U>(x));
-}
 
 // 4-ary min-heap on a vector of nodes (children of i: 4i + 1 .. 4i + 4); before(x, y): x pops
 // first.
@@ -330,7 +314,7 @@ inline void EdgeQueue::Push(double key, const QEntry& e) {
     cur_ = kBuckets - 1;
   }
   const size_t b = Bucket(key);
-  PushBackInline(buckets_[b], QNode{key, slot, seq_++, e.a, e.b, e.va, e.vb});
+  PushBack(buckets_[b], QNode{key, slot, seq_++, e.a, e.b, e.va, e.vb});
   ++size_;
   if (b < cur_) {
     cur_ = b;  // was empty: a heap of one

@@ -50,11 +50,21 @@ void ReserveFor(V& v, size_t n) {
   v.reserve(std::max(n, cap + std::max(cap / 8, std::min(std::max<size_t>(cap, 8), kSmall))));
 }
 
-// push_back and resize, growing as ReserveFor does.
+// push_back and resize, growing as ReserveFor does. PushBack's common case (room left) is
+// inline and its growth out of line, so that a push keeps few registers to save (Q's and W's
+// pushes, several a contraction).
 template <class V, class U>
-void PushBack(V& v, U&& x) {
+[[gnu::noinline]] void PushBackGrowing(V& v, U&& x) {
   ReserveFor(v, v.size() + 1);
   v.push_back(std::forward<U>(x));
+}
+template <class V, class U>
+inline void PushBack(V& v, U&& x) {
+  if (v.size() < v.capacity()) [[likely]] {
+    v.push_back(std::forward<U>(x));
+    return;
+  }
+  PushBackGrowing(v, std::forward<U>(x));
 }
 template <class V>
 void GrowTo(V& v, size_t n, const typename V::value_type& value = typename V::value_type()) {
