@@ -228,6 +228,16 @@ bool LinkConditionFans(const MeshStore& store, VertexId a, VertexId b) {
   return LinkFansLanes(store, a, b);
 }
 
+bool LinkConditionFansWithLanes(int lanes, const MeshStore& store, VertexId a, VertexId b) {
+  const bool small = store.vertex_triangles(a).size() <= 8 && store.vertex_triangles(b).size() <= 8;
+  if (lanes == 8) {
+    return small ? LinkConditionFansOf<8, V8>(store, a, b)
+                 : LinkConditionFansOf<kFanMax, V8>(store, a, b);
+  }
+  return small ? LinkConditionFansOf<8, fan_count::V4>(store, a, b)
+               : LinkConditionFansOf<kFanMax, fan_count::V4>(store, a, b);
+}
+
 bool LinkConditionMarks(const MeshStore& store, VertexId a, VertexId b, LinkScratch* scratch) {
   // Lk(a) ∩ Lk(b) = Lk(ab), on the complex completed by a dummy vertex ω joined to every
   // boundary edge (Dey, Edelsbrunner, Guha, Nekhayev 1999). With manifold input it reduces
@@ -567,7 +577,8 @@ using P4 = PointLanes<V4d>;
 
 // GeometryOk's body, its survivors tested kLanes at a time: 4 where the CPU has AVX2 (a
 // set of lanes in one register), 2 otherwise (SSE2 pairs: four lanes in two halves cost more
-// than two pairs). Instantiated in this file only, each with its target.
+// than two pairs). Instantiated in this file only, each with its target; kLanes 1 sends
+// every survivor through the exact test (the tests' reference).
 template <int kLanes>
 [[gnu::always_inline]] inline bool GeometryOkIn(const MeshStore& store, VertexId a, VertexId b,
                                                 Vec3 pos, double bound, const OffsetEdges& offsets,
@@ -654,10 +665,10 @@ template <int kLanes>
       t[k] = &store.triangle(s.t);
       c[k] = CornerOf(*t[k], s.v);
     }
-    bool suspect;
+    bool suspect = true;  // kLanes 1: every survivor
     if constexpr (kLanes == 4) {
       suspect = AnySuspect(store, t, c, pos, guarded, bound);
-    } else {
+    } else if constexpr (kLanes == 2) {
       suspect = EitherSuspect(store, *t[0], c[0], *t[1], c[1], pos, guarded, bound);
     }
     if (suspect) [[unlikely]] {
@@ -694,6 +705,19 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
                 const OffsetEdges& offsets, std::vector<Survivor>* survivors,
                 RefusalCounts* refusals) {
   return GeometryOkLanes(store, a, b, pos, bound, offsets, survivors, refusals);
+}
+
+bool GeometryOkWithLanes(int lanes, const MeshStore& store, VertexId a, VertexId b, Vec3 pos,
+                         double bound, const OffsetEdges& offsets,
+                         std::vector<Survivor>* survivors, RefusalCounts* refusals) {
+  switch (lanes) {
+    case 1:
+      return GeometryOkIn<1>(store, a, b, pos, bound, offsets, survivors, refusals);
+    case 4:
+      return GeometryOkIn<4>(store, a, b, pos, bound, offsets, survivors, refusals);
+    default:
+      return GeometryOkIn<2>(store, a, b, pos, bound, offsets, survivors, refusals);
+  }
 }
 
 }  // namespace tandem

@@ -136,6 +136,15 @@ bool GeometryOk(const MeshStore& store, VertexId a, VertexId b, Vec3 pos, double
                 const OffsetEdges& offsets, std::vector<Survivor>* survivors,
                 RefusalCounts* refusals);
 
+// The bodies LinkConditionFans and GeometryOk pick by the CPU at load, each width callable on
+// any CPU so that tests check the ones this CPU does not pick: fans 4 (SSE2) or 8 (AVX2)
+// lanes; survivors 2 (SSE2) or 4 (AVX2) lanes, or 1: every survivor through the exact test,
+// which the lanes only filter.
+bool LinkConditionFansWithLanes(int lanes, const MeshStore& store, VertexId a, VertexId b);
+bool GeometryOkWithLanes(int lanes, const MeshStore& store, VertexId a, VertexId b, Vec3 pos,
+                         double bound, const OffsetEdges& offsets,
+                         std::vector<Survivor>* survivors, RefusalCounts* refusals);
+
 }  // namespace tandem
 
 #endif  // TANDEM_CONTRACTION_CHECKS_H_

@@ -5,6 +5,7 @@
 #include <limits>
 #include <map>
 #include <numbers>
+#include <random>
 #include <set>
 #include <string>
 #include <vector>
@@ -147,6 +148,9 @@ TEST(LinkCondition, MatchesItsDefinition) {
                 store.vertex_triangles(b).size() <= kFanMax) {
               ++fans;
               ASSERT_EQ(LinkConditionFans(store, a, b), expected) << what << " " << a << "-" << b;
+              // Both widths, whichever this CPU picks.
+              ASSERT_EQ(LinkConditionFansWithLanes(4, store, a, b), expected) << what << " " << a;
+              ASSERT_EQ(LinkConditionFansWithLanes(8, store, a, b), expected) << what << " " << a;
             } else {
               ++large;
             }
@@ -248,6 +252,87 @@ struct Fan {
     return GeometryOk(store, v[0], v[1], pos, bound, OffsetEdges{}, &survivors, refusals);
   }
 };
+
+// The lanes only filter which survivors the exact test sees: with 2 lanes (SSE2), 4 (AVX2) or
+// every survivor through the exact test, each contraction of meshes as the simplifier has
+// them (whole and simplified, on the box or not), to positions near and far, guarded or not,
+// is refused or not alike, and a refusal counted for the same reason.
+TEST(GeometryOk, EveryLaneWidthAnswersAsTheExactTest) {
+  std::mt19937 rng(65);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  int64_t calls = 0, refused = 0;
+  RefusalCounts all;
+  for (const std::string name : {"sphere", "gyroid", "box-cut gyroid"}) {
+    for (double e0 : {0.0, 0.4}) {
+      auto src = name == "box-cut gyroid"
+                     ? BoxCutGyroid(18, 16, 14)
+                     : eval::MakeSyntheticSource(*eval::ParseShape(name), 18, 16, 14);
+      MeshStore store;
+      SimplifierOptions so;
+      so.error = e0 > 0 ? e0 : 1e-9;
+      so.release = ReleaseRule::kImmediate;
+      Simplifier simplifier(&store, so);
+      const std::vector<TriId> whole = ExtractLayers(src.get(), &store, &simplifier, false);
+      if (e0 > 0) {
+        simplifier.Delay(whole);
+        simplifier.Activate(std::numeric_limits<double>::infinity());
+        simplifier.Simplify();
+      }
+      std::vector<Survivor> survivors;
+      for (TriId t = 0; t < store.triangle_capacity(); ++t) {
+        if (!store.triangle_alive(t)) continue;
+        const auto& tri = store.triangle(t);
+        for (int i = 0; i < 3; ++i) {
+          const VertexId a = tri[i], b = tri[(i + 1) % 3];
+          const Vec3 pa = store.position(a), pb = store.position(b);
+          const double length = std::sqrt(Dot(pb - pa, pb - pa));
+          std::vector<Vec3> positions;
+          for (double reach : {0.0, 0.3, 1.0, 3.0}) {
+            const Vec3 jitter{unit(rng), unit(rng), unit(rng)};
+            positions.push_back((pa + pb) * 0.5 + jitter * (reach * length));
+          }
+          // Onto a neighbour of a off ab: the triangle they share collapses.
+          for (TriId s : store.vertex_triangles(a)) {
+            const auto& other = store.triangle(s);
+            if (std::find(other.begin(), other.end(), b) != other.end()) continue;
+            positions.push_back(store.position(other[0] == a ? other[1] : other[0]));
+            break;
+          }
+          for (const Vec3 pos : positions) {
+            for (double bound : {0.0, 0.05 * length, 0.5 * length}) {
+              RefusalCounts r[3];
+              bool ok[3];
+              const int widths[3] = {1, 2, 4};
+              for (int w = 0; w < 3; ++w) {
+                ok[w] = GeometryOkWithLanes(widths[w], store, a, b, pos, bound, OffsetEdges{},
+                                            &survivors, &r[w]);
+              }
+              const std::string what = name + " E0 " + std::to_string(e0) + " " +
+                                       std::to_string(a) + "-" + std::to_string(b);
+              for (int w = 1; w < 3; ++w) {
+                ASSERT_EQ(ok[w], ok[0]) << what << " lanes " << widths[w];
+                ASSERT_EQ(r[w].distance, r[0].distance) << what;
+                ASSERT_EQ(r[w].degenerate, r[0].degenerate) << what;
+                ASSERT_EQ(r[w].flip, r[0].flip) << what;
+              }
+              ++calls;
+              refused += !ok[0];
+              all.distance += r[0].distance;
+              all.degenerate += r[0].degenerate;
+              all.flip += r[0].flip;
+            }
+          }
+        }
+      }
+    }
+  }
+  // Every outcome and every reason occurred, so the widths were compared on each.
+  EXPECT_GT(refused, 0);
+  EXPECT_LT(refused, calls);
+  EXPECT_GT(all.distance, 0);
+  EXPECT_GT(all.degenerate, 0);
+  EXPECT_GT(all.flip, 0);
+}
 
 TEST(GeometryOk, AcceptsAMoveInsideTheFan) {
   Fan fan;
