@@ -15,7 +15,9 @@
 # servers, clients and timeouts, so three keep two cores busy).
 # -O1 with line tables only: the quickest build whose tests still run in reasonable time. The
 # test programs' own files at -O0 (SAN_TEST_CXX_FLAGS; those that compute much in their own
-# code say OPTIMISED in CMake and keep -O1): under ASan that halves their compile.
+# code say OPTIMISED in CMake and keep -O1), and so are the components that pass data on
+# rather than compute (SAN_GLUE_CXX_FLAGS: RPC, HTTP, the viewer, the programs; the top
+# CMakeLists.txt lists them): under ASan that halves their compile.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -44,6 +46,7 @@ CXX=clang++ cmake -S . -B "$build" -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_BUILD_TY
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only" -DCMAKE_CXX_FLAGS="$flags" \
   -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" \
   -DTANDEM_TEST_CXX_FLAGS="${SAN_TEST_CXX_FLAGS:--O0}" \
+  -DTANDEM_GLUE_CXX_FLAGS="${SAN_GLUE_CXX_FLAGS:--O0}" \
   -DTANDEM_BUILD_SERVICE="$service" -DTANDEM_BUILD_TESTS=ON -DTANDEM_FUZZ=ON >/dev/null
 if [ ${#targets[@]} -gt 0 ]; then
   cmake --build "$build" -j"$jobs" --target "${targets[@]}"
